@@ -1,0 +1,26 @@
+"""awr_denoise: Adaptive Wavelet Rendering for Monte Carlo sample buffers.
+
+Implements R. S. Overbeck, C. Donner, R. Ramamoorthi, "Adaptive Wavelet Rendering",
+ACM Transactions on Graphics 28(5), 140 (SIGGRAPH Asia 2009): wavelet-coefficient priorities
+that decide where a renderer's next samples go, and a reconstruction that soft-thresholds
+wavelet coefficients by their propagated standard error (Eq. 10-11).
+"""
+
+from __future__ import annotations
+
+from .buffers import SampleBuffer, luminance_weights
+from .errors import AWRError, InputFileError, StaleRequestError
+from .requests import Renderer, SampleRequest
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "AWRError",
+    "InputFileError",
+    "Renderer",
+    "SampleBuffer",
+    "SampleRequest",
+    "StaleRequestError",
+    "luminance_weights",
+    "__version__",
+]

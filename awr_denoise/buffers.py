@@ -1,0 +1,486 @@
+"""Per-pixel Monte Carlo sample statistics: the :class:`SampleBuffer`.
+
+A renderer reports, for every pixel ``p``, the number of samples ``n_p``, their mean and their
+unbiased per-sample variance ``s2_p`` (Overbeck et al. 2009, section 3 of our algorithm note).
+Everything the method needs follows from these three: the variance of the pixel mean is
+``v_p = s2_p / n_p`` and, because pixel means are independent (box pixel filter), the variance
+of any linear wavelet coefficient is ``<v, K^2>``.
+
+Statistics are kept in float64 and merged exactly with Chan's parallel update of Welford's
+algorithm, so a buffer built from several batches equals the buffer of all samples at once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+
+from ._typing import BoolArray, CountArray, FloatArray, Shape2D
+
+__all__ = [
+    "SampleBuffer",
+    "VARIANCE_KINDS",
+    "NONFINITE_POLICIES",
+    "default_channel_names",
+    "luminance_weights",
+]
+
+VARIANCE_KINDS = ("sample", "mean", "second_moment")
+"""How a renderer may report spread: per-sample variance, variance of the mean, raw E[x^2]."""
+
+NONFINITE_POLICIES = ("raise", "drop", "zero")
+"""What to do with NaN/Inf samples: refuse them, leave them out, or count them as 0."""
+
+_REC709 = np.array([0.2126, 0.7152, 0.0722])
+
+# Window (pixels) over which an unknown per-sample variance is pooled from neighbours.
+_POOL_WINDOW = 5
+
+
+def default_channel_names(n_channels: int) -> tuple[str, ...]:
+    """Conventional channel names for ``n_channels`` channels (``R,G,B`` for three)."""
+    if n_channels == 1:
+        return ("Y",)
+    if n_channels == 3:
+        return ("R", "G", "B")
+    if n_channels == 4:
+        return ("R", "G", "B", "A")
+    return tuple(f"ch{i}" for i in range(n_channels))
+
+
+def luminance_weights(channels: Sequence[str]) -> FloatArray:
+    """Weights that turn the channels into luminance.
+
+    Rec. 709 weights when the channels are ``R, G, B`` (an ``A`` channel gets weight 0), the
+    single channel itself when there is one, and the plain average otherwise.
+    """
+    names = [c.rsplit(".", 1)[-1].upper() for c in channels]
+    weights = np.zeros(len(names))
+    if {"R", "G", "B"} <= set(names):
+        for name, w in zip("RGB", _REC709):
+            weights[names.index(name)] = w
+        return weights
+    return np.full(len(names), 1.0 / len(names))
+
+
+def _as_float64(name: str, array: object, ndim: int) -> FloatArray:
+    a = np.asarray(array)
+    if a.dtype.kind == "c":
+        raise TypeError(f"{name}: complex values are not supported")
+    if a.dtype.kind not in "fiub":
+        raise TypeError(f"{name}: expected a numeric array, got dtype {a.dtype}")
+    if a.ndim != ndim:
+        raise ValueError(f"{name}: expected {ndim} dimensions, got shape {a.shape}")
+    return a.astype(np.float64, copy=True)
+
+
+def _check_finite(name: str, a: FloatArray) -> None:
+    bad = ~np.isfinite(a)
+    if bad.any():
+        pixels = int(bad.reshape(bad.shape[0], bad.shape[1], -1).any(axis=2).sum())
+        raise ValueError(f"{name}: {pixels} pixel(s) hold NaN or Inf")
+
+
+def _check_count(count: object) -> CountArray:
+    c = np.asarray(count)
+    if c.ndim != 2:
+        raise ValueError(f"count: expected shape (H, W), got {c.shape}")
+    if c.dtype.kind == "f":
+        bad = ~np.isfinite(c)
+        if bad.any():
+            raise ValueError(f"count: {int(bad.sum())} pixel(s) hold NaN or Inf")
+        if (c != np.round(c)).any():
+            raise ValueError(f"count: {int((c != np.round(c)).sum())} pixel(s) are not whole numbers")
+    elif c.dtype.kind not in "iub":
+        raise TypeError(f"count: expected an integer array, got dtype {c.dtype}")
+    c = c.astype(np.int64)
+    if (c < 0).any():
+        raise ValueError(f"count: {int((c < 0).sum())} pixel(s) are negative")
+    return c
+
+
+def _resolve_channels(channels: Sequence[str] | int | None, n_channels: int) -> tuple[str, ...]:
+    if channels is None:
+        return default_channel_names(n_channels)
+    if isinstance(channels, int):
+        if channels != n_channels:
+            raise ValueError(f"channels: {channels} given but the data has {n_channels}")
+        return default_channel_names(n_channels)
+    names = tuple(str(c) for c in channels)
+    if len(names) != n_channels:
+        raise ValueError(f"channels: {len(names)} names given for {n_channels} channel(s)")
+    if len(set(names)) != len(names):
+        raise ValueError(f"channels: duplicate names in {names}")
+    return names
+
+
+@dataclass(frozen=True, eq=False)
+class SampleBuffer:
+    """Per-pixel sample count, mean and unbiased per-sample variance of an image.
+
+    Parameters
+    ----------
+    count
+        (H, W) int64, samples taken at each pixel.
+    mean
+        (H, W, C) float64, sample mean of each channel (0 where ``count == 0``).
+    variance
+        (H, W, C) float64, unbiased *per-sample* variance ``M2 / (n - 1)``; this is pbrt's
+        ``Variance.*``, **not** the variance of the pixel mean (see :meth:`variance_of_mean`).
+        Meaningless where :attr:`variance_known` is False (stored as 0 there).
+    channels
+        Names of the C channels.
+    variance_known
+        (H, W) bool, True where the per-sample variance is a usable estimate: at least two
+        samples, and the renderer reported it (pbrt writes 0 for "unknown"). Unknown variance
+        is never taken as zero variance: :meth:`estimated_variance` pools it from neighbours.
+    nonfinite
+        Number of NaN/Inf samples that were dropped or zeroed on the way in (see
+        :meth:`from_samples`); carried through :meth:`merge`.
+
+    Notes
+    -----
+    Build buffers with the constructors (:meth:`from_samples`, :meth:`from_sums`,
+    :meth:`from_moments`, :meth:`empty`); they validate input and raise a ``ValueError``
+    that names the parameter and the number of bad pixels. Arrays are read-only.
+    """
+
+    count: CountArray
+    mean: FloatArray
+    variance: FloatArray
+    channels: tuple[str, ...]
+    variance_known: BoolArray = field(repr=False)
+    nonfinite: int = 0
+
+    def __post_init__(self) -> None:
+        count = _check_count(self.count)
+        mean = _as_float64("mean", self.mean, 3)
+        variance = _as_float64("variance", self.variance, 3)
+        if mean.shape[:2] != count.shape:
+            raise ValueError(f"mean: shape {mean.shape} does not match count {count.shape}")
+        if variance.shape != mean.shape:
+            raise ValueError(f"variance: shape {variance.shape} does not match mean {mean.shape}")
+        if count.size == 0 or mean.shape[2] == 0:
+            raise ValueError(f"count: empty image of shape {mean.shape}")
+        _check_finite("mean", mean)
+        _check_finite("variance", variance)
+        negative = (variance < 0).any(axis=2)
+        if negative.any():
+            raise ValueError(f"variance: {int(negative.sum())} pixel(s) are negative")
+        known = np.asarray(self.variance_known)
+        if known.shape != count.shape:
+            raise ValueError(f"variance_known: shape {known.shape} does not match count {count.shape}")
+        known = known.astype(bool) & (count >= 2)
+        mean[count == 0] = 0.0
+        variance[~known] = 0.0
+        channels = _resolve_channels(self.channels, mean.shape[2])
+        for a in (count, mean, variance, known):
+            a.flags.writeable = False
+        object.__setattr__(self, "count", count)
+        object.__setattr__(self, "mean", mean)
+        object.__setattr__(self, "variance", variance)
+        object.__setattr__(self, "variance_known", known)
+        object.__setattr__(self, "channels", channels)
+        object.__setattr__(self, "nonfinite", int(self.nonfinite))
+
+    # ------------------------------------------------------------------ constructors
+    @classmethod
+    def empty(cls, shape: Shape2D, *, channels: Sequence[str] | int = 3) -> SampleBuffer:
+        """A buffer of the given (H, W) shape with no samples."""
+        n_channels = channels if isinstance(channels, int) else len(channels)
+        h, w = (int(s) for s in shape)
+        zeros = np.zeros((h, w, n_channels))
+        return cls(np.zeros((h, w), np.int64), zeros, zeros, _resolve_channels(channels, n_channels),
+                   np.zeros((h, w), bool))
+
+    @classmethod
+    def from_moments(
+        cls,
+        count: CountArray,
+        mean: FloatArray,
+        variance: FloatArray,
+        *,
+        variance_kind: str = "sample",
+        channels: Sequence[str] | int | None = None,
+        variance_known: BoolArray | None = None,
+    ) -> SampleBuffer:
+        """Build a buffer from per-pixel count, mean and a measure of spread.
+
+        Parameters
+        ----------
+        count, mean
+            (H, W) sample counts and (H, W, C) or (H, W) means.
+        variance
+            Same shape as ``mean``; what it holds is given by ``variance_kind``.
+        variance_kind
+            ``"sample"``: unbiased per-sample variance (pbrt-v4 ``Variance.*``);
+            ``"mean"``: variance of the pixel mean (multiplied by ``count`` on entry);
+            ``"second_moment"``: raw ``E[x^2]`` (Mitsuba 3 ``moment``), turned into
+            ``(E[x^2] - mean^2) * n / (n - 1)``. The conversion happens once, here.
+        variance_known
+            Optional (H, W) mask of pixels whose variance is usable; False marks a renderer's
+            "unknown" (pbrt's zero variance on pixels that only saw the environment).
+        """
+        if variance_kind not in VARIANCE_KINDS:
+            raise ValueError(f"variance_kind: {variance_kind!r} is not one of {', '.join(VARIANCE_KINDS)}")
+        count_arr = _check_count(count)
+        mean_arr = np.asarray(mean)
+        var_arr = np.asarray(variance)
+        if mean_arr.ndim == 2:
+            mean_arr = mean_arr[..., None]
+        if var_arr.ndim == 2:
+            var_arr = var_arr[..., None]
+        mean_arr = _as_float64("mean", mean_arr, 3)
+        var_arr = _as_float64("variance", var_arr, 3)
+        if var_arr.shape != mean_arr.shape:
+            raise ValueError(f"variance: shape {var_arr.shape} does not match mean {mean_arr.shape}")
+        if mean_arr.shape[:2] != count_arr.shape:
+            raise ValueError(f"mean: shape {mean_arr.shape} does not match count {count_arr.shape}")
+        _check_finite("mean", mean_arr)
+        _check_finite("variance", var_arr)
+        n = count_arr[..., None].astype(np.float64)
+        if variance_kind == "mean":
+            var_arr = var_arr * n
+        elif variance_kind == "second_moment":
+            with np.errstate(invalid="ignore", divide="ignore"):
+                spread = np.maximum(var_arr - mean_arr**2, 0.0)
+                var_arr = np.where(n > 1, spread * n / np.maximum(n - 1, 1), 0.0)
+        known = np.ones(count_arr.shape, bool) if variance_known is None else np.asarray(variance_known, bool)
+        return cls(count_arr, mean_arr, var_arr, _resolve_channels(channels, mean_arr.shape[2]), known)
+
+    @classmethod
+    def from_sums(
+        cls,
+        count: CountArray,
+        sum: FloatArray,  # noqa: A002 - the name the literature and the issue use
+        sum_sq: FloatArray,
+        *,
+        channels: Sequence[str] | int | None = None,
+    ) -> SampleBuffer:
+        """Build a buffer from per-pixel count, sum of samples and sum of squared samples.
+
+        Notes
+        -----
+        ``M2 = sum_sq - sum^2 / n`` cancels catastrophically when the mean is large against the
+        spread; it is clamped at 0. Prefer :meth:`from_samples` or :meth:`from_moments` when the
+        renderer can give them.
+        """
+        count_arr = _check_count(count)
+        s1 = np.asarray(sum, dtype=np.float64)
+        s2 = np.asarray(sum_sq, dtype=np.float64)
+        if s1.ndim == 2:
+            s1, s2 = s1[..., None], s2[..., None]
+        s1 = _as_float64("sum", s1, 3)
+        s2 = _as_float64("sum_sq", s2, 3)
+        if s2.shape != s1.shape or s1.shape[:2] != count_arr.shape:
+            raise ValueError(f"sum/sum_sq: shapes {s1.shape}, {s2.shape} do not match count {count_arr.shape}")
+        _check_finite("sum", s1)
+        _check_finite("sum_sq", s2)
+        n = count_arr[..., None].astype(np.float64)
+        safe_n = np.maximum(n, 1.0)
+        mean = np.where(n > 0, s1 / safe_n, 0.0)
+        m2 = np.maximum(s2 - s1 * mean, 0.0)
+        variance = np.where(n > 1, m2 / np.maximum(n - 1, 1.0), 0.0)
+        return cls(count_arr, mean, variance, _resolve_channels(channels, s1.shape[2]),
+                   np.ones(count_arr.shape, bool))
+
+    @classmethod
+    def from_samples(
+        cls,
+        pixels: np.ndarray,
+        values: FloatArray,
+        shape: Shape2D,
+        *,
+        channels: Sequence[str] | int | None = None,
+        nonfinite: str = "raise",
+    ) -> SampleBuffer:
+        """Accumulate raw samples into per-pixel statistics (exact two-pass, float64).
+
+        Parameters
+        ----------
+        pixels
+            (N, 2) integer ``(row, column)`` coordinates, or (N,) flat row-major indices.
+        values
+            (N, C) or (N,) sample values.
+        shape
+            (H, W) of the image.
+        nonfinite
+            ``"raise"`` (default): a sample with NaN/Inf in any channel is an error;
+            ``"drop"``: such samples are left out; ``"zero"``: they count as 0 in every channel.
+            Dropped or zeroed samples are counted in :attr:`nonfinite`.
+        """
+        if nonfinite not in NONFINITE_POLICIES:
+            raise ValueError(f"nonfinite: {nonfinite!r} is not one of {', '.join(NONFINITE_POLICIES)}")
+        h, w = (int(s) for s in shape)
+        if h <= 0 or w <= 0:
+            raise ValueError(f"shape: empty image {shape}")
+        flat = _flat_pixel_index(pixels, (h, w))
+        vals = np.asarray(values)
+        if vals.ndim == 1:
+            vals = vals[:, None]
+        if vals.ndim != 2 or vals.shape[0] != flat.shape[0]:
+            raise ValueError(f"values: expected ({flat.shape[0]}, C), got shape {np.shape(values)}")
+        if vals.dtype.kind not in "fiub":
+            raise TypeError(f"values: expected a numeric array, got dtype {vals.dtype}")
+        vals = vals.astype(np.float64)
+        bad = ~np.isfinite(vals).all(axis=1)
+        n_bad = int(bad.sum())
+        if n_bad:
+            if nonfinite == "raise":
+                raise ValueError(f"values: {n_bad} sample(s) hold NaN or Inf (pass nonfinite='drop' or 'zero')")
+            if nonfinite == "drop":
+                flat, vals = flat[~bad], vals[~bad]
+            else:
+                vals[bad] = 0.0
+        n_pix = h * w
+        count = np.bincount(flat, minlength=n_pix)
+        safe = np.maximum(count, 1)
+        n_ch = vals.shape[1]
+        mean = np.empty((n_pix, n_ch))
+        m2 = np.empty((n_pix, n_ch))
+        for c in range(n_ch):  # a loop over channels; every pixel and sample is vectorised
+            mean[:, c] = np.bincount(flat, weights=vals[:, c], minlength=n_pix) / safe
+            dev = vals[:, c] - mean[flat, c]
+            m2[:, c] = np.bincount(flat, weights=dev * dev, minlength=n_pix)
+        variance = m2 / np.maximum(count - 1, 1)[:, None]
+        return cls(count.reshape(h, w), mean.reshape(h, w, n_ch), variance.reshape(h, w, n_ch),
+                   _resolve_channels(channels, n_ch), np.ones((h, w), bool), n_bad if nonfinite != "raise" else 0)
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def shape(self) -> Shape2D:
+        """(H, W) of the image."""
+        return (int(self.count.shape[0]), int(self.count.shape[1]))
+
+    @property
+    def n_channels(self) -> int:
+        """Number of channels C."""
+        return int(self.mean.shape[2])
+
+    @property
+    def total_samples(self) -> int:
+        """Total number of samples over all pixels."""
+        return int(self.count.sum())
+
+    @property
+    def m2(self) -> FloatArray:
+        """(H, W, C) sum of squared deviations from the mean, ``variance * (n - 1)``."""
+        return self.variance * np.maximum(self.count - 1, 0)[..., None]
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held by the statistics arrays."""
+        return int(self.count.nbytes + self.mean.nbytes + self.variance.nbytes + self.variance_known.nbytes)
+
+    # ------------------------------------------------------------------ statistics
+    def estimated_variance(self) -> FloatArray:
+        """(H, W, C) per-sample variance with unknown entries filled from neighbours.
+
+        Where :attr:`variance_known` is False (fewer than two samples, or a renderer's
+        "unknown"), the variance is pooled from the known pixels in a 5x5 window,
+        ``sum(M2) / sum(n - 1)``, and from the whole image where the window has none.
+        A single sample never counts as zero variance. With no variance known anywhere the
+        result is 0 (nothing is known to be noisy).
+        """
+        known = self.variance_known
+        if known.all():
+            return np.array(self.variance)
+        dof = np.where(known, self.count - 1, 0).astype(np.float64)
+        m2 = self.variance * dof[..., None]
+        if dof.sum() == 0:
+            return np.zeros_like(self.variance)
+        local_dof = ndimage.uniform_filter(dof, _POOL_WINDOW, mode="nearest")
+        pooled_global = m2.sum(axis=(0, 1)) / dof.sum()
+        out = np.array(self.variance)
+        missing = ~known
+        for c in range(self.n_channels):
+            local_m2 = ndimage.uniform_filter(m2[..., c], _POOL_WINDOW, mode="nearest")
+            with np.errstate(invalid="ignore", divide="ignore"):
+                local = np.where(local_dof > 1e-12, local_m2 / local_dof, pooled_global[c])
+            out[..., c][missing] = np.maximum(local[missing], 0.0)
+        return out
+
+    def variance_of_mean(self) -> FloatArray:
+        """(H, W, C) variance of each pixel mean, ``s2 / n`` (paper section 3: ``v_p``).
+
+        Unknown per-sample variances are pooled from neighbours (:meth:`estimated_variance`);
+        pixels without samples get ``inf``.
+        """
+        n = self.count[..., None].astype(np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            v = self.estimated_variance() / n
+        v[self.count == 0] = np.inf
+        return v
+
+    def luminance(self) -> FloatArray:
+        """(H, W) mean luminance (weights of :func:`luminance_weights`)."""
+        return self.mean @ luminance_weights(self.channels)
+
+    def luminance_variance(self) -> FloatArray:
+        """(H, W) per-sample variance of luminance, from the per-channel variances.
+
+        Channel covariances are not stored; the colour channels of a path-traced sample are
+        strongly correlated (one path, one throughput), so this uses the fully correlated
+        value ``(sum_c w_c s_c)^2``, an upper bound that is exact for grey samples.
+        """
+        sd = np.sqrt(self.estimated_variance())
+        return (sd @ luminance_weights(self.channels)) ** 2
+
+    # ------------------------------------------------------------------ combining
+    def merge(self, other: SampleBuffer) -> SampleBuffer:
+        """Exact statistics of the union of both buffers' samples (Chan et al.'s parallel update).
+
+        ``n = na + nb``, ``mean = ma + d nb / n``, ``M2 = M2a + M2b + d^2 na nb / n`` with
+        ``d = mb - ma``, in float64: merging batches gives the statistics of all samples.
+        """
+        if not isinstance(other, SampleBuffer):
+            raise TypeError(f"other: expected a SampleBuffer, got {type(other).__name__}")
+        if other.shape != self.shape or other.n_channels != self.n_channels:
+            raise ValueError(
+                f"other: shape {other.shape + (other.n_channels,)} does not match "
+                f"{self.shape + (self.n_channels,)}")
+        if other.channels != self.channels:
+            raise ValueError(f"other: channels {other.channels} do not match {self.channels}")
+        na = self.count[..., None].astype(np.float64)
+        nb = other.count[..., None].astype(np.float64)
+        n = na + nb
+        safe = np.maximum(n, 1.0)
+        delta = other.mean - self.mean
+        mean = self.mean + delta * (nb / safe)
+        m2 = self.m2 + other.m2 + delta * delta * (na * nb / safe)
+        variance = m2 / np.maximum(n - 1.0, 1.0)
+        known = (self.variance_known | (self.count < 2)) & (other.variance_known | (other.count < 2))
+        return SampleBuffer(self.count + other.count, mean, variance, self.channels, known,
+                            self.nonfinite + other.nonfinite)
+
+    def crop(self, rows: slice, cols: slice) -> SampleBuffer:
+        """The statistics of a rectangular region (a tile), as a new buffer."""
+        return SampleBuffer(self.count[rows, cols], self.mean[rows, cols], self.variance[rows, cols],
+                            self.channels, self.variance_known[rows, cols], 0)
+
+    def __repr__(self) -> str:
+        return (f"SampleBuffer(shape={self.shape}, channels={self.channels}, "
+                f"total_samples={self.total_samples}, spp={self.total_samples / self.count.size:.3g})")
+
+
+def _flat_pixel_index(pixels: np.ndarray, shape: Shape2D) -> np.ndarray:
+    h, w = shape
+    p = np.asarray(pixels)
+    if p.dtype.kind not in "iu":
+        raise TypeError(f"pixels: expected integer coordinates, got dtype {p.dtype}")
+    if p.ndim == 2 and p.shape[1] == 2:
+        rows, cols = p[:, 0].astype(np.int64), p[:, 1].astype(np.int64)
+        bad = (rows < 0) | (rows >= h) | (cols < 0) | (cols >= w)
+        if bad.any():
+            raise ValueError(f"pixels: {int(bad.sum())} coordinate(s) fall outside the {h}x{w} image")
+        return rows * w + cols
+    if p.ndim == 1:
+        flat = p.astype(np.int64)
+        bad = (flat < 0) | (flat >= h * w)
+        if bad.any():
+            raise ValueError(f"pixels: {int(bad.sum())} index(es) fall outside the {h}x{w} image")
+        return flat
+    raise ValueError(f"pixels: expected (N, 2) coordinates or (N,) flat indices, got shape {p.shape}")

@@ -1,0 +1,25 @@
+"""Exceptions raised by awr_denoise.
+
+Bad arguments raise the built-in ``ValueError``/``TypeError`` with a message that names the
+parameter. Violations of the ask/tell protocol raise :class:`StaleRequestError`, which is
+also a ``ValueError`` so generic callers can catch either.
+"""
+
+from __future__ import annotations
+
+__all__ = ["AWRError", "StaleRequestError", "InputFileError"]
+
+
+class AWRError(Exception):
+    """Base class of the errors specific to awr_denoise."""
+
+
+class StaleRequestError(AWRError, ValueError):
+    """A :class:`~awr_denoise.SampleRequest` was told twice, out of order, or to another sampler."""
+
+
+class InputFileError(AWRError, ValueError):
+    """An input file is missing, unreadable or does not hold what it should.
+
+    The message always names the file (and the channel, where one is at fault).
+    """

@@ -1,0 +1,115 @@
+"""The renderer boundary: a :class:`SampleRequest` goes out, a :class:`SampleBuffer` comes back.
+
+A request is data, not a callback: per-pixel counts of new samples and, per pixel, the index
+of the first new sample. A renderer that draws its random numbers as a function of
+(seed, pixel, sample index, dimension) then produces the same samples however the work was
+split into rounds, tiles or machines.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from ._typing import CountArray, Shape2D
+from .buffers import SampleBuffer
+
+__all__ = ["SampleRequest", "Renderer"]
+
+
+@dataclass(frozen=True, eq=False)
+class SampleRequest:
+    """Samples a renderer is asked to add in one round.
+
+    Parameters
+    ----------
+    counts
+        (H, W) int64, number of new samples at each pixel.
+    first_index
+        (H, W) int64, index of the first new sample of each pixel: the pixel's new samples
+        are ``first_index, ..., first_index + counts - 1`` in its own sample sequence.
+    round
+        Round number within the sampler that issued it (0 is the uniform initial round).
+    sampler_id
+        Identifies the issuing sampler, so a request cannot be told to another one.
+    """
+
+    counts: CountArray
+    first_index: CountArray
+    round: int = 0
+    sampler_id: int = 0
+
+    def __post_init__(self) -> None:
+        counts = np.array(self.counts, copy=True)
+        first = np.array(self.first_index, copy=True)
+        for name, a in (("counts", counts), ("first_index", first)):
+            if a.ndim != 2:
+                raise ValueError(f"{name}: expected shape (H, W), got {a.shape}")
+            if a.dtype.kind not in "iu":
+                if a.dtype.kind == "f" and np.isfinite(a).all() and (a == np.round(a)).all():
+                    pass
+                else:
+                    raise TypeError(f"{name}: expected whole numbers, got dtype {a.dtype}")
+        counts = counts.astype(np.int64)
+        first = first.astype(np.int64)
+        if counts.shape != first.shape:
+            raise ValueError(f"first_index: shape {first.shape} does not match counts {counts.shape}")
+        if (counts < 0).any():
+            raise ValueError(f"counts: {int((counts < 0).sum())} pixel(s) are negative")
+        if (first < 0).any():
+            raise ValueError(f"first_index: {int((first < 0).sum())} pixel(s) are negative")
+        counts.flags.writeable = False
+        first.flags.writeable = False
+        object.__setattr__(self, "counts", counts)
+        object.__setattr__(self, "first_index", first)
+
+    @classmethod
+    def uniform(cls, shape: Shape2D, spp: int, *, first_index: int = 0, round: int = 0) -> SampleRequest:
+        """``spp`` samples at every pixel, starting at sample ``first_index``."""
+        counts = np.full(shape, int(spp), np.int64)
+        return cls(counts, np.full(shape, int(first_index), np.int64), round)
+
+    @property
+    def shape(self) -> Shape2D:
+        """(H, W) of the image."""
+        return (int(self.counts.shape[0]), int(self.counts.shape[1]))
+
+    @property
+    def total(self) -> int:
+        """Total number of samples requested."""
+        return int(self.counts.sum())
+
+    def pixel_list(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One row per requested sample: ``(rows, cols, sample_index)`` as int64 arrays.
+
+        Samples of a pixel are consecutive and in increasing sample index; pixels are in
+        row-major order.
+        """
+        flat_counts = self.counts.ravel()
+        pixel = np.repeat(np.arange(flat_counts.size, dtype=np.int64), flat_counts)
+        starts = np.cumsum(flat_counts) - flat_counts
+        offset = np.arange(pixel.size, dtype=np.int64) - np.repeat(starts, flat_counts)
+        sample_index = self.first_index.ravel()[pixel] + offset
+        rows, cols = np.divmod(pixel, self.counts.shape[1])
+        return rows, cols, sample_index
+
+    def crop(self, rows: slice, cols: slice) -> SampleRequest:
+        """The part of the request inside a tile (same round and sampler)."""
+        return SampleRequest(self.counts[rows, cols], self.first_index[rows, cols], self.round, self.sampler_id)
+
+    def __repr__(self) -> str:
+        return f"SampleRequest(round={self.round}, shape={self.shape}, total={self.total})"
+
+
+@runtime_checkable
+class Renderer(Protocol):
+    """Anything that renders the samples of a request and returns their statistics.
+
+    The returned buffer has the request's shape and, at every pixel, ``count`` equal to the
+    request's ``counts`` (a renderer that had to drop non-finite samples may return fewer;
+    the sampler warns). Implementations need not subclass this protocol.
+    """
+
+    def __call__(self, request: SampleRequest) -> SampleBuffer: ...
