@@ -1,0 +1,420 @@
+"""Low-level EXR access by channel name, and the plain image reader/writer.
+
+Everything goes through OpenEXR's Python bindings (``OpenEXR.File``) with
+``separate_channels=True`` so channels are looked up by name, never by position (EXR sorts
+channels by name and OpenImageIO reorders them again). Integer channels keep their integer
+type here, unlike OpenImageIO's float reads that normalise them to ``[0, 1]``.
+
+Every failure on the way in is an :class:`~awr_denoise.errors.InputFileError` whose message
+has the form ``<file>: <channel>: <what>`` (the channel is left out when no channel is at
+fault), ready to be printed as one line.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import tempfile
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._typing import FloatArray
+from ..buffers import default_channel_names
+from ..errors import InputFileError
+from .atomic import atomic_write, check_writable
+
+__all__ = [
+    "ExrPart",
+    "HALF_MAX",
+    "read_exr",
+    "write_exr",
+    "file_error",
+    "checked_plane",
+    "read_image",
+    "write_image",
+    "read_header",
+    "header_value",
+]
+
+HALF_MAX = 65504.0
+"""Largest finite half float; larger values become Inf when stored as HALF."""
+
+_EXR_MAGIC = b"\x76\x2f\x31\x01"
+
+# Header attributes every EXR carries; callers never set these through ``header=``.
+_RESERVED = frozenset({"channels", "compression", "dataWindow", "displayWindow", "lineOrder",
+                       "pixelAspectRatio", "screenWindowCenter", "screenWindowWidth", "type",
+                       "tiles", "name", "version", "chunkCount"})
+
+
+def file_error(path: str | os.PathLike[str], what: str, channel: str | None = None) -> InputFileError:
+    """An :class:`InputFileError` reading ``<file>: <channel>: <what>``."""
+    where = f"{os.fspath(path)}: {channel}: " if channel else f"{os.fspath(path)}: "
+    return InputFileError(where + what)
+
+
+def _openexr() -> Any:
+    try:
+        import OpenEXR
+    except ImportError as exc:  # pragma: no cover - exercised only without the extra
+        raise ImportError("EXR support needs the 'exr' extra: pip install 'awr-denoise[exr]'") from exc
+    return OpenEXR
+
+
+@dataclass
+class ExrPart:
+    """One part (subimage) of an EXR file, with its channels already in memory.
+
+    Attributes
+    ----------
+    index
+        Position of the part in the file.
+    name
+        The part's ``name`` attribute, or ``None`` for a single-part file without one.
+    header
+        The part's header attributes (OpenEXR.py types).
+    channels
+        Channel name to array: (H, W) float16/float32/uint32 for flat parts, (H, W) object
+        arrays of per-pixel 1-D sample arrays (``None`` for empty pixels) for deep parts.
+    deep
+        True for deep scanline or deep tiled parts.
+    """
+
+    index: int
+    name: str | None
+    header: dict[str, Any]
+    channels: dict[str, np.ndarray] = field(repr=False)
+    deep: bool = False
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W) from the data window."""
+        lo, hi = self.header["dataWindow"]
+        return (int(hi[1] - lo[1] + 1), int(hi[0] - lo[0] + 1))
+
+
+def _check_magic(path: Path) -> None:
+    if not path.exists():
+        raise file_error(path, "no such file")
+    if path.is_dir():
+        raise file_error(path, "is a directory, not an EXR file")
+    try:
+        with open(path, "rb") as fh:
+            magic = fh.read(4)
+    except OSError as exc:
+        raise file_error(path, f"cannot read: {exc.strerror or exc}") from None
+    if magic != _EXR_MAGIC:
+        raise file_error(path, "not an OpenEXR file (bad magic number)")
+
+
+class _Captured:
+    text: str = ""
+
+
+@contextlib.contextmanager
+def _captured_c_output() -> Iterator[_Captured]:
+    """Collect what the C++ library prints on stdout/stderr instead of letting it through.
+
+    OpenEXR reports corrupt chunks by printing (and then returning no parts); a command-line
+    user must see one clean error line, so the text is captured and folded into the error.
+    """
+    captured = _Captured()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    with tempfile.TemporaryFile() as sink:
+        try:
+            os.dup2(sink.fileno(), 1)
+            os.dup2(sink.fileno(), 2)
+            yield captured
+        finally:
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            os.close(saved[0])
+            os.close(saved[1])
+            sink.seek(0)
+            captured.text = sink.read().decode("utf-8", "replace")
+
+
+def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list[ExrPart]:
+    """Read every part of an EXR file, channels by name.
+
+    Parameters
+    ----------
+    path
+        The file.
+    header_only
+        Read only the headers (cheap probing); ``channels`` are then empty.
+
+    Raises
+    ------
+    InputFileError
+        The file is missing, not an EXR, truncated or corrupt.
+    """
+    p = Path(path)
+    _check_magic(p)
+    OpenEXR = _openexr()
+    deep_types = {OpenEXR.deepscanline, OpenEXR.deeptile}
+    parts: list[ExrPart] = []
+    try:
+        with _captured_c_output() as captured, OpenEXR.File(os.fspath(p), separate_channels=True, header_only=header_only) as f:
+            for i, part in enumerate(f.parts):
+                header = dict(f.header(i))
+                channels = {} if header_only else {name: ch.pixels for name, ch in f.channels(i).items()}
+                name = header.get("name")
+                parts.append(ExrPart(i, str(name) if name is not None else None, header, channels,
+                                     header.get("type") in deep_types))
+    except InputFileError:
+        raise
+    except Exception as exc:  # the bindings raise RuntimeError/ValueError/... for corrupt data
+        detail = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise file_error(p, f"truncated or corrupt EXR ({detail})") from None
+    if not parts or (captured.text and not header_only):
+        # The bindings report unreadable pixel data on the C streams and return no parts.
+        detail = captured.text.strip().splitlines()[-1] if captured.text.strip() else "no readable parts"
+        detail = detail.replace(os.fspath(p) + ": ", "")
+        raise file_error(p, f"truncated or corrupt EXR ({detail})")
+    if not header_only:
+        for part in parts:
+            for name, arr in part.channels.items():
+                if arr is None or (not part.deep and arr.shape != part.shape):
+                    raise file_error(p, "truncated or corrupt EXR (channel data missing)", name)
+    return parts
+
+
+def read_header(path: str | os.PathLike[str], part: int = 0) -> dict[str, Any]:
+    """Header attributes of one part of an EXR file (no pixel data is read)."""
+    parts = read_exr(path, header_only=True)
+    if not 0 <= part < len(parts):
+        raise file_error(path, f"has {len(parts)} part(s), part {part} requested")
+    return parts[part].header
+
+
+def header_value(header: Mapping[str, Any], key: str) -> Any:
+    """A header attribute as a plain Python value (bytes decoded, numpy scalars unwrapped)."""
+    value = header[key]
+    if isinstance(value, bytes):
+        return value.decode("utf-8", "replace")
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def checked_plane(path: str | os.PathLike[str], name: str, array: np.ndarray, *,
+                  nonnegative: bool = False) -> FloatArray:
+    """A flat channel as float64, refusing NaN, Inf (half overflow named) and, optionally, negatives."""
+    a = np.asarray(array)
+    if a.dtype.kind not in "fiu":
+        raise file_error(path, f"unsupported channel type {a.dtype}", name)
+    out = a.astype(np.float64)
+    if out.size and np.isfinite(out).all() and not nonnegative:
+        return out
+    nan = np.isnan(out)
+    if nan.any():
+        raise file_error(path, f"{int(nan.sum())} pixel(s) hold NaN", name)
+    inf = np.isinf(out)
+    if inf.any():
+        if a.dtype == np.float16:
+            raise file_error(path, f"{int(inf.sum())} pixel(s) hold Inf: half-float overflow "
+                                   f"(values above {HALF_MAX:g} do not fit; write FLOAT channels)", name)
+        raise file_error(path, f"{int(inf.sum())} pixel(s) hold Inf", name)
+    if nonnegative:
+        neg = out < 0
+        if neg.any():
+            raise file_error(path, f"{int(neg.sum())} pixel(s) are negative", name)
+    return out
+
+
+def _attribute(key: str, value: Any) -> Any:
+    if key in _RESERVED:
+        raise ValueError(f"header: {key!r} is set by the writer and cannot be given")
+    if isinstance(value, (bool, np.bool_)):
+        return int(value)
+    if isinstance(value, (int, np.integer)):
+        v = int(value)
+        # EXR int attributes are 32-bit; larger values (seeds) are kept exact as text.
+        return v if -(2**31) <= v < 2**31 else str(v)
+    if isinstance(value, (float, np.floating)):
+        return float(value)
+    if isinstance(value, (str, np.ndarray)):
+        return value
+    if value is None:
+        return "none"
+    return str(value)
+
+
+def write_exr(path: str | os.PathLike[str], channels: Mapping[str, np.ndarray],
+              header: Mapping[str, Any] | None = None, *, overwrite: bool = False,
+              deep: bool = False) -> Path:
+    """Write named channels to a single-part EXR, atomically.
+
+    Parameters
+    ----------
+    channels
+        Name to (H, W) array: float32 becomes FLOAT, float16 HALF, uint32 UINT; for
+        ``deep=True``, (H, W) object arrays of per-pixel 1-D sample arrays.
+    header
+        Extra attributes (str, int, float, or numpy matrices); ints outside 32 bits are
+        stored as text so nothing is truncated.
+    overwrite
+        Replace an existing file.
+    deep
+        Write a deep scanline file (ZIPS compression: deep data allows only NONE/RLE/ZIPS).
+    """
+    OpenEXR = _openexr()
+    check_writable(path, overwrite=overwrite)
+    attrs: dict[str, Any] = {
+        "compression": OpenEXR.ZIPS_COMPRESSION if deep else OpenEXR.ZIP_COMPRESSION,
+        "type": OpenEXR.deepscanline if deep else OpenEXR.scanlineimage,
+    }
+    for key, value in (header or {}).items():
+        attrs[str(key)] = _attribute(str(key), value)
+    data = dict(channels)
+
+    def _write(tmp: str) -> None:
+        # OpenEXR.File adds dataWindow/displayWindow to the dict it is given: pass a copy.
+        with OpenEXR.File(dict(attrs), data) as f:
+            f.write(tmp)
+
+    return atomic_write(path, _write, overwrite=overwrite)
+
+
+def _find_rgb(path: Path, names: Sequence[str]) -> list[str]:
+    if {"R", "G", "B"} <= set(names):
+        return ["R", "G", "B"]
+    layers = sorted({n.rsplit(".", 1)[0] for n in names if "." in n
+                     if all(f"{n.rsplit('.', 1)[0]}.{c}" in names for c in "RGB")})
+    if len(layers) == 1:
+        return [f"{layers[0]}.{c}" for c in "RGB"]
+    if len(layers) > 1:
+        raise file_error(path, f"ambiguous colour channels: layers {', '.join(layers)} all have R,G,B "
+                               "(choose one with channels=)")
+    if "Y" in names:
+        return ["Y"]
+    if len(names) == 1:
+        return list(names)
+    raise file_error(path, f"no R,G,B channels (found {', '.join(sorted(names))}); choose with channels=")
+
+
+def read_image(path: str | os.PathLike[str], *, channels: Sequence[str] | None = None) -> FloatArray:
+    """Read an image from an EXR file as an (H, W, C) float32 array.
+
+    Parameters
+    ----------
+    path
+        A flat (not deep) EXR file.
+    channels
+        Channel names to read, in this order. By default ``R, G, B``; else the ``R, G, B``
+        of the only layer that has them (``ViewLayer.Combined.R``...); else ``Y``; else the
+        single channel of a one-channel file.
+
+    Returns
+    -------
+    ndarray
+        (H, W, C) float32 (half channels are promoted).
+
+    Raises
+    ------
+    InputFileError
+        Missing file or channel, ambiguous layers, a deep file, NaN or Inf values.
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile, os
+    >>> from awr_denoise.io import write_image, read_image
+    >>> d = tempfile.mkdtemp(); f = os.path.join(d, "img.exr")
+    >>> _ = write_image(f, np.ones((2, 3, 3)))
+    >>> read_image(f).shape
+    (2, 3, 3)
+    """
+    p = Path(path)
+    parts = [part for part in read_exr(p) if not part.deep]
+    if not parts:
+        raise file_error(p, "is a deep EXR (read it with read_deep_samples)")
+    available: dict[str, tuple[ExrPart, np.ndarray]] = {}
+    for part in parts:  # first part wins when two parts share a channel name
+        for name, arr in part.channels.items():
+            available.setdefault(name, (part, arr))
+    wanted = list(channels) if channels is not None else _find_rgb(p, list(available))
+    planes = []
+    shape = None
+    for name in wanted:
+        if name not in available:
+            raise file_error(p, f"no such channel (found {', '.join(sorted(available))})", name)
+        part, arr = available[name]
+        if shape is not None and arr.shape != shape:
+            raise file_error(p, f"size {arr.shape} differs from {shape} of the other channels", name)
+        shape = arr.shape
+        planes.append(checked_plane(p, name, arr).astype(np.float32))
+    return np.stack(planes, axis=-1)
+
+
+def _image_channels(image: np.ndarray, channels: Sequence[str]) -> tuple[np.ndarray, tuple[str, ...]]:
+    a = np.asarray(image)
+    if a.dtype.kind not in "fiub":
+        raise TypeError(f"image: expected a numeric array, got dtype {a.dtype}")
+    if a.ndim == 2:
+        a = a[..., None]
+    if a.ndim != 3 or a.shape[0] == 0 or a.shape[1] == 0:
+        raise ValueError(f"image: expected shape (H, W) or (H, W, C), got {np.shape(image)}")
+    names = tuple(str(c) for c in channels)
+    if len(names) != a.shape[2]:
+        if tuple(names) == ("R", "G", "B"):
+            names = default_channel_names(a.shape[2])
+        else:
+            raise ValueError(f"channels: {len(names)} names given for {a.shape[2]} channel(s)")
+    if len(set(names)) != len(names):
+        raise ValueError(f"channels: duplicate names in {names}")
+    return a, names
+
+
+def write_image(path: str | os.PathLike[str], image: np.ndarray, *,
+                channels: Sequence[str] = ("R", "G", "B"), header: Mapping[str, Any] | None = None,
+                half: bool = False, overwrite: bool = False) -> Path:
+    """Write an (H, W, C) or (H, W) image to an EXR file, atomically.
+
+    Parameters
+    ----------
+    path
+        Target file; written beside it first, then renamed into place.
+    image
+        Finite pixel values (NaN/Inf are refused: a denoised image with them is a bug).
+    channels
+        One name per channel; the default ``R, G, B`` adapts to 1 (``Y``) or 4 (``RGBA``)
+        channels.
+    header
+        Extra attributes, e.g. provenance (``awr:c_s``, ``awr:wavelet``...).
+    half
+        Store HALF channels; values beyond +-65504 are refused instead of becoming Inf.
+    overwrite
+        Replace an existing file.
+
+    Returns
+    -------
+    Path
+        The written file.
+    """
+    from .. import __version__
+
+    a, names = _image_channels(image, channels)
+    data = a.astype(np.float64)
+    bad = ~np.isfinite(data)
+    if bad.any():
+        c = int(np.nonzero(bad.any(axis=(0, 1)))[0][0])
+        raise ValueError(f"image: channel {names[c]}: {int(bad[..., c].sum())} pixel(s) hold NaN or Inf")
+    if half:
+        over = np.abs(data) > HALF_MAX
+        if over.any():
+            c = int(np.nonzero(over.any(axis=(0, 1)))[0][0])
+            raise ValueError(f"image: channel {names[c]}: {int(over[..., c].sum())} pixel(s) exceed the "
+                             f"half-float range {HALF_MAX:g} (write with half=False)")
+    dtype = np.float16 if half else np.float32
+    planes = {name: np.ascontiguousarray(data[..., i].astype(dtype)) for i, name in enumerate(names)}
+    attrs: dict[str, Any] = {"awr:version": __version__}
+    attrs.update(header or {})
+    return write_exr(path, planes, attrs, overwrite=overwrite)

@@ -1,0 +1,120 @@
+"""Plain EXR images: round trips, channel lookup by name, atomic and non-clobbering writes."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.exr
+OpenEXR = pytest.importorskip("OpenEXR")
+
+from awr_denoise.errors import InputFileError  # noqa: E402
+from awr_denoise.io import read_header, read_image, write_image  # noqa: E402
+
+
+def test_round_trip_float32_exact(tmp_path):
+    img = np.random.default_rng(0).random((5, 7, 3)).astype(np.float32)
+    write_image(tmp_path / "a.exr", img, header={"awr:c_s": 1.5, "awr:wavelet": "bior4.4"})
+    back = read_image(tmp_path / "a.exr")
+    assert back.dtype == np.float32 and back.shape == (5, 7, 3)
+    np.testing.assert_array_equal(back, img)
+    h = read_header(tmp_path / "a.exr")
+    assert h["awr:wavelet"] == "bior4.4" and h["awr:c_s"] == 1.5 and "awr:version" in h
+
+
+def test_half_round_trip_and_overflow_refused(tmp_path):
+    img = np.full((2, 2, 3), 0.5)
+    write_image(tmp_path / "h.exr", img, half=True)
+    with OpenEXR.File(str(tmp_path / "h.exr"), separate_channels=True) as f:
+        assert f.channels()["R"].pixels.dtype == np.float16
+    np.testing.assert_array_equal(read_image(tmp_path / "h.exr"), img)
+    with pytest.raises(ValueError, match="half-float"):
+        write_image(tmp_path / "o.exr", np.full((2, 2, 3), 1e5), half=True)
+    assert not (tmp_path / "o.exr").exists()
+
+
+def test_channel_order_by_name_not_position(tmp_path):
+    h, w = 3, 4
+    planes = {"B": np.full((h, w), 3, np.float32), "A": np.ones((h, w), np.float32),
+              "G": np.full((h, w), 2, np.float32), "R": np.full((h, w), 1, np.float32)}
+    with OpenEXR.File({}, planes) as f:
+        f.write(str(tmp_path / "x.exr"))
+    np.testing.assert_array_equal(read_image(tmp_path / "x.exr")[0, 0], [1, 2, 3])
+    np.testing.assert_array_equal(read_image(tmp_path / "x.exr", channels=["A", "B"])[0, 0], [1, 3])
+
+
+def test_layer_prefixed_rgb_and_ambiguity(tmp_path):
+    one = np.ones((2, 2), np.float32)
+    with OpenEXR.File({}, {f"View Layer.Combined.{c}": one * i for i, c in enumerate("RGB")}) as f:
+        f.write(str(tmp_path / "c.exr"))
+    np.testing.assert_array_equal(read_image(tmp_path / "c.exr")[0, 0], [0, 1, 2])
+    chans = {f"{layer}.{c}": one for layer in ("a", "b") for c in "RGB"}
+    with OpenEXR.File({}, chans) as f:
+        f.write(str(tmp_path / "amb.exr"))
+    with pytest.raises(InputFileError, match="ambiguous"):
+        read_image(tmp_path / "amb.exr")
+
+
+@pytest.mark.parametrize("value,what", [(np.nan, "NaN"), (np.inf, "Inf")])
+def test_nonfinite_refused_on_write(tmp_path, value, what):
+    img = np.zeros((2, 2, 3))
+    img[1, 1, 2] = value
+    with pytest.raises(ValueError, match="channel B"):
+        write_image(tmp_path / "n.exr", img)
+    assert os.listdir(tmp_path) == []
+
+
+def test_nonfinite_and_half_overflow_refused_on_read(tmp_path):
+    r = np.zeros((2, 2), np.float16)
+    r[0, 0] = np.float16(np.inf)
+    with OpenEXR.File({}, {"R": r, "G": np.zeros_like(r), "B": np.zeros_like(r)}) as f:
+        f.write(str(tmp_path / "ovf.exr"))
+    with pytest.raises(InputFileError, match=r"ovf\.exr: R: .*half-float overflow"):
+        read_image(tmp_path / "ovf.exr")
+
+
+def test_overwrite_refused_then_allowed_and_atomic(tmp_path):
+    target = tmp_path / "a.exr"
+    write_image(target, np.zeros((2, 2, 3)))
+    before = target.read_bytes()
+    with pytest.raises(FileExistsError, match="a.exr"):
+        write_image(target, np.ones((2, 2, 3)))
+    assert target.read_bytes() == before
+    write_image(target, np.ones((2, 2, 3)), overwrite=True)
+    assert read_image(target)[0, 0, 0] == 1
+    assert sorted(os.listdir(tmp_path)) == ["a.exr"]  # no temporary file left behind
+
+
+def test_failed_write_leaves_nothing(tmp_path, monkeypatch):
+    from awr_denoise.io import atomic
+
+    def boom(tmp):
+        with open(tmp, "wb") as fh:
+            fh.write(b"partial")
+        raise RuntimeError("disk full")
+
+    with pytest.raises(RuntimeError):
+        atomic.atomic_write(tmp_path / "x.exr", boom)
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("content,what", [(b"", "not an OpenEXR"), (b"hello world", "not an OpenEXR")])
+def test_not_an_exr(tmp_path, content, what):
+    (tmp_path / "f.exr").write_bytes(content)
+    with pytest.raises(InputFileError, match=what):
+        read_image(tmp_path / "f.exr")
+
+
+def test_truncated_exr(tmp_path):
+    write_image(tmp_path / "a.exr", np.random.default_rng(1).random((64, 64, 3)))
+    data = (tmp_path / "a.exr").read_bytes()
+    (tmp_path / "t.exr").write_bytes(data[: len(data) // 2])
+    with pytest.raises(InputFileError, match=r"t\.exr: .*(truncated|corrupt)"):
+        read_image(tmp_path / "t.exr")
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(InputFileError, match="no such file"):
+        read_image(tmp_path / "nope.exr")
