@@ -10,12 +10,24 @@ from __future__ import annotations
 
 from .buffers import SampleBuffer, luminance_weights
 from .errors import AWRError, InputFileError, StaleRequestError
+from .domains import Domain
+from .reconstruct import Reconstruction, reconstruct, reconstruct_detailed
 from .requests import Renderer, SampleRequest
+from .sampling import AdaptiveSampler, Sampler, UniformSampler, VarianceSampler, allocate
 
 __version__ = "0.1.0"
 
 __all__ = [
     "AWRError",
+    "AdaptiveSampler",
+    "Domain",
+    "Reconstruction",
+    "Sampler",
+    "UniformSampler",
+    "VarianceSampler",
+    "allocate",
+    "reconstruct",
+    "reconstruct_detailed",
     "InputFileError",
     "Renderer",
     "SampleBuffer",

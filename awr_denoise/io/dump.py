@@ -1,0 +1,223 @@
+"""The project's own sample-dump layout: per-pixel count, mean and variance in one EXR.
+
+Channels (all FLOAT, looked up by name)::
+
+    R, G, B                 mean of each channel (the buffer's channel names)
+    variance.R/G/B          spread; what it holds is the header's awr:variance_kind
+    sampleCount             samples per pixel, a whole number stored as FLOAT
+    varianceKnown           optional, 1 where the variance is usable, 0 where unknown
+    issuedCount             optional, samples requested so far when it differs from
+                            sampleCount (dropped non-finite samples); next first_index
+
+Header attributes: ``awr:semantics = "sample-statistics"``, ``awr:variance_kind``
+(``sample`` | ``mean`` | ``second_moment``), ``awr:channels`` (the channel order, since EXR
+sorts channels by name), ``awr:version``, ``awr:nonfinite`` and free provenance such as
+``awr:round`` and ``awr:seed``.
+
+Counts are FLOAT, not UINT, because OpenImageIO normalises integer channels read as float
+(a count of 26 comes back as 6e-9); Cycles and RenderMan store counts as float for the same
+reason. float32 holds whole numbers exactly up to 2**24, so larger counts are refused.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._typing import CountArray
+from ..buffers import VARIANCE_KINDS, SampleBuffer
+from .exr import ExrPart, checked_plane, file_error, header_value, write_exr
+
+__all__ = [
+    "COUNT_CHANNEL",
+    "KNOWN_CHANNEL",
+    "ISSUED_CHANNEL",
+    "VARIANCE_PREFIX",
+    "SEMANTICS_STATISTICS",
+    "MAX_EXACT_COUNT",
+    "SampleDump",
+    "write_sample_buffer",
+    "buffer_from_awr_part",
+    "exact_counts",
+]
+
+COUNT_CHANNEL = "sampleCount"
+KNOWN_CHANNEL = "varianceKnown"
+ISSUED_CHANNEL = "issuedCount"
+VARIANCE_PREFIX = "variance."
+SEMANTICS_STATISTICS = "sample-statistics"
+MAX_EXACT_COUNT = 2**24
+"""Largest count a float32 channel is guaranteed to hold exactly (with all smaller ones)."""
+
+
+@dataclass(frozen=True, eq=False)
+class SampleDump:
+    """A sample buffer read from a dump, with the dump's bookkeeping.
+
+    Attributes
+    ----------
+    buffer
+        The statistics.
+    issued
+        (H, W) int64 samples requested so far (``first_index`` of the next request), equal
+        to ``buffer.count`` unless the dump says otherwise.
+    attributes
+        The ``awr:*`` header attributes (``awr:round``, ``awr:seed``, ...), plain values.
+    """
+
+    buffer: SampleBuffer
+    issued: CountArray
+    attributes: dict[str, Any] = field(default_factory=dict)
+
+
+def exact_counts(name: str, counts: np.ndarray) -> np.ndarray:
+    """Counts as float32 after checking they are whole, non-negative and exactly representable."""
+    c = np.asarray(counts)
+    if c.dtype.kind == "f" and (~np.isfinite(c) | (c != np.round(c))).any():
+        raise ValueError(f"{name}: counts must be whole numbers")
+    c = c.astype(np.int64)
+    if (c < 0).any():
+        raise ValueError(f"{name}: {int((c < 0).sum())} pixel(s) are negative")
+    too_big = c > MAX_EXACT_COUNT
+    if too_big.any():
+        raise ValueError(f"{name}: {int(too_big.sum())} pixel(s) exceed {MAX_EXACT_COUNT} "
+                         "(2**24), the largest count a float32 channel stores exactly")
+    return c.astype(np.float32)
+
+
+def write_sample_buffer(path: str | os.PathLike[str], buffer: SampleBuffer, *,
+                        header: Mapping[str, Any] | None = None, issued: CountArray | None = None,
+                        overwrite: bool = False) -> Path:
+    """Write a :class:`~awr_denoise.SampleBuffer` in the project's dump layout, atomically.
+
+    Parameters
+    ----------
+    path
+        Target EXR file.
+    buffer
+        Statistics to store; mean and variance are stored as float32 (counts exactly).
+    header
+        Extra attributes (provenance: ``awr:round``, ``awr:seed``, ...).
+    issued
+        Optional (H, W) samples requested so far; stored only where it differs from the count.
+    overwrite
+        Replace an existing file.
+
+    Returns
+    -------
+    Path
+        The written file.
+
+    Raises
+    ------
+    ValueError
+        A count above 2**24 (not exact in float32) or a channel name that collides with the
+        layout's own channels.
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile, os
+    >>> from awr_denoise import SampleBuffer
+    >>> from awr_denoise.io import write_sample_buffer, read_sample_buffer
+    >>> buf = SampleBuffer.from_samples(np.array([0, 0, 1]), np.array([1.0, 3.0, 2.0]), (1, 2))
+    >>> f = os.path.join(tempfile.mkdtemp(), "dump.exr")
+    >>> _ = write_sample_buffer(f, buf)
+    >>> read_sample_buffer(f).count.tolist()
+    [[2, 1]]
+    """
+    from .. import __version__
+
+    if not isinstance(buffer, SampleBuffer):
+        raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
+    reserved = {COUNT_CHANNEL, KNOWN_CHANNEL, ISSUED_CHANNEL}
+    for name in buffer.channels:
+        if name in reserved or name.startswith(VARIANCE_PREFIX) or "," in name:
+            raise ValueError(f"buffer: channel name {name!r} collides with the dump layout")
+    planes: dict[str, np.ndarray] = {COUNT_CHANNEL: exact_counts("count", buffer.count)}
+    for i, name in enumerate(buffer.channels):
+        planes[name] = np.ascontiguousarray(buffer.mean[..., i], dtype=np.float32)
+        planes[VARIANCE_PREFIX + name] = np.ascontiguousarray(buffer.variance[..., i], dtype=np.float32)
+    # Pixels with fewer than two samples are unknown by definition; only a renderer's
+    # explicit "unknown" needs the mask.
+    if (~buffer.variance_known & (buffer.count >= 2)).any():
+        planes[KNOWN_CHANNEL] = buffer.variance_known.astype(np.float32)
+    if issued is not None:
+        iss = np.asarray(issued)
+        if iss.shape != buffer.shape:
+            raise ValueError(f"issued: shape {iss.shape} does not match the buffer {buffer.shape}")
+        if (iss.astype(np.int64) < buffer.count).any():
+            raise ValueError("issued: fewer samples issued than counted at some pixels")
+        if (iss != buffer.count).any():
+            planes[ISSUED_CHANNEL] = exact_counts("issued", iss)
+    attrs: dict[str, Any] = {
+        "awr:semantics": SEMANTICS_STATISTICS,
+        "awr:variance_kind": "sample",
+        "awr:channels": ",".join(buffer.channels),
+        "awr:version": __version__,
+        "awr:nonfinite": int(buffer.nonfinite),
+    }
+    attrs.update(header or {})
+    return write_exr(path, planes, attrs, overwrite=overwrite)
+
+
+def whole_counts(path: str | os.PathLike[str], name: str, values: np.ndarray) -> np.ndarray:
+    """A count channel as int64, refusing NaN/Inf, negatives and fractions."""
+    c = checked_plane(path, name, values, nonnegative=True)
+    frac = np.abs(c - np.rint(c)) > 1e-3
+    if frac.any():
+        raise file_error(path, f"{int(frac.sum())} pixel(s) are not whole sample counts", name)
+    return np.rint(c).astype(np.int64)
+
+
+def buffer_from_awr_part(path: str | os.PathLike[str], part: ExrPart, *,
+                         variance_kind: str | None = None) -> SampleDump:
+    """Decode one EXR part in the project's layout (see the module docstring)."""
+    ch = part.channels
+    header = part.header
+    attributes = {k: header_value(header, k) for k in header if str(k).startswith("awr:")}
+    if COUNT_CHANNEL not in ch:
+        raise file_error(path, "missing (the dump layout stores the sample count here)", COUNT_CHANNEL)
+    if "awr:channels" in attributes:
+        names = [n for n in str(attributes["awr:channels"]).split(",") if n]
+    else:
+        names = sorted(n[len(VARIANCE_PREFIX):] for n in ch if n.startswith(VARIANCE_PREFIX))
+        order = {"R": 0, "G": 1, "B": 2, "A": 3}
+        names.sort(key=lambda n: (order.get(n, 4), n))
+    if not names:
+        raise file_error(path, "no variance.<channel> channels found", VARIANCE_PREFIX + "*")
+    kind = variance_kind or str(attributes.get("awr:variance_kind", "sample"))
+    if kind not in VARIANCE_KINDS:
+        raise file_error(path, f"awr:variance_kind {kind!r} is not one of {', '.join(VARIANCE_KINDS)}",
+                         "awr:variance_kind")
+    count = whole_counts(path, COUNT_CHANNEL, ch[COUNT_CHANNEL])
+    means, variances = [], []
+    for name in names:
+        for channel in (name, VARIANCE_PREFIX + name):
+            if channel not in ch:
+                raise file_error(path, "missing", channel)
+        means.append(checked_plane(path, name, ch[name]))
+        variances.append(checked_plane(path, VARIANCE_PREFIX + name, ch[VARIANCE_PREFIX + name],
+                                       nonnegative=True))
+    known = None
+    if KNOWN_CHANNEL in ch:
+        known = checked_plane(path, KNOWN_CHANNEL, ch[KNOWN_CHANNEL]) > 0.5
+    try:
+        buffer = SampleBuffer.from_moments(count, np.stack(means, -1), np.stack(variances, -1),
+                                           variance_kind=kind, channels=names, variance_known=known)
+    except ValueError as exc:
+        raise file_error(path, str(exc)) from None
+    nonfinite = int(attributes.get("awr:nonfinite", 0) or 0)
+    if nonfinite:
+        buffer = SampleBuffer(buffer.count, buffer.mean, buffer.variance, buffer.channels,
+                              buffer.variance_known, nonfinite)
+    issued = count
+    if ISSUED_CHANNEL in ch:
+        issued = whole_counts(path, ISSUED_CHANNEL, ch[ISSUED_CHANNEL])
+        if (issued < count).any():
+            raise file_error(path, "fewer samples issued than counted at some pixels", ISSUED_CHANNEL)
+    return SampleDump(buffer, issued, attributes)

@@ -1,0 +1,138 @@
+"""Wavelet-coefficient priorities: where the next samples do the most good (paper section 4).
+
+The paper puts every scale coefficient in a priority queue keyed by "scale-coefficient variance
+minus squared wavelet magnitudes" and sends samples into the support of the winner. Our form
+(algorithm note, section 4) for levels ``k = 0..L`` (level 0 = the pixels):
+
+    P_k = 4^k * ( Var(S~_k) - sum_a max(0, W~^a_k^2 - (t Delta^a_k)^2) )
+
+``Var(S~_k)`` and ``Delta`` are exact (:func:`~awr_denoise.wavelets.coefficient_variance`);
+subtracting ``(t Delta)^2`` with ``t = 2`` removes the upward noise bias of ``W~^2``
+(``E[W~^2] = W^2 + Delta^2``) so that pure noise does not look like an edge. In smooth regions
+the variance grows fine to coarse while the wavelet term stays near zero, so a coarse level wins;
+at edges the wavelet term grows with the level and a fine level wins (the talk's two cases).
+
+The winning level ``l_p`` of each pixel then sets how much a sample there is worth. If the
+reconstruction averages a smooth region over ``4^l`` pixels, one more sample at pixel ``p``
+lowers the summed error by ``s2_p / (4^l n_p (n_p + 1))``; the allocation that spends a budget
+best gives pixel ``p`` about ``n_p ~ s_p 2^-l_p`` samples (``s`` the per-sample standard
+deviation): samples concentrate on edges and spread thinly over smooth noisy regions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+from ._typing import FloatArray
+from .buffers import SampleBuffer
+from .domains import Domain, resolve_domain
+from .wavelets import WaveletOperators, coefficient_variance, forward, wavelet_operators
+
+__all__ = ["coefficient_priorities", "pixel_levels", "sampling_density", "error_plane"]
+
+_SIGNIFICANCE = 2.0  # t: a detail coefficient counts as signal beyond t standard errors
+
+
+def error_plane(buffer: SampleBuffer, domain: str | Domain = "log") -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The single plane priorities are computed on: luminance in the error domain.
+
+    Returns
+    -------
+    mean_y, var_mean_y, var_sample_y
+        (H, W) luminance mean, variance of that mean and per-sample variance, carried into the
+        domain by the delta method (so ``"log"`` measures relative error, as relMSE does).
+        Pixels without samples borrow their nearest neighbour's mean and the pooled variance.
+    """
+    dom = resolve_domain(domain)
+    lum = buffer.luminance()
+    empty = buffer.count == 0
+    if empty.all():
+        raise ValueError("buffer: no pixel has any sample")
+    if empty.any():
+        _, (r, c) = ndimage.distance_transform_edt(empty, return_indices=True)
+        lum = lum[r, c]
+    s2 = buffer.luminance_variance()
+    bound = dom.bound(lum)
+    s2_y = bound.variance(lum, s2)
+    n = np.maximum(buffer.count, 1).astype(np.float64)
+    return bound.forward(lum), s2_y / n, s2_y
+
+
+def coefficient_priorities(
+    buffer: SampleBuffer,
+    *,
+    wavelet: str = "bior4.4",
+    levels: int | None = None,
+    domain: str | Domain = "log",
+    boundary: str = "symmetric",
+    operators: WaveletOperators | None = None,
+) -> list[FloatArray]:
+    """Priority ``P_k`` of every scale coefficient at levels ``k = 0..L``.
+
+    Returns
+    -------
+    list of ndarray
+        ``[P_0 (H, W), P_1, ..., P_L]``, each on its level's coefficient grid.
+    """
+    mean_y, var_y, _ = error_plane(buffer, domain)
+    ops = operators or wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
+    coeffs = forward(mean_y, wavelet=ops.wavelet, levels=ops.levels, boundary=ops.boundary)
+    variances = coefficient_variance(var_y, operators=ops)
+    var_t = np.ascontiguousarray(var_y.T)
+    priorities = [var_y]
+    for k in range(1, ops.levels + 1):
+        j = ops.levels - k + 1  # position of level k's detail bands in pywt's layout
+        scale_variance = ops.rows.approx_sq[k - 1] @ (ops.cols.approx_sq[k - 1] @ var_t).T
+        detail_energy = sum(np.maximum(0.0, coeffs[j][b] ** 2 - (_SIGNIFICANCE**2) * variances[j][b])
+                            for b in range(3))
+        priorities.append(4.0**k * (scale_variance - detail_energy))
+    return priorities
+
+
+def _pixel_to_coefficient(op) -> np.ndarray:
+    """For each pixel of an axis, the coefficient of the level whose filter weighs it most."""
+    dense_abs = abs(op).tocsc()
+    idx = np.asarray(dense_abs.argmax(axis=0)).ravel()
+    return idx
+
+
+def pixel_levels(priorities: list[FloatArray], operators: WaveletOperators) -> np.ndarray:
+    """(H, W) level ``l_p`` whose covering coefficient has the highest priority at each pixel."""
+    h, w = operators.shape
+    best = priorities[0].copy()
+    level = np.zeros((h, w), np.int64)
+    for k in range(1, len(priorities)):
+        rows = _pixel_to_coefficient(operators.rows.approx[k - 1])
+        cols = _pixel_to_coefficient(operators.cols.approx[k - 1])
+        at_pixels = priorities[k][np.ix_(rows, cols)]
+        better = at_pixels > best
+        best = np.where(better, at_pixels, best)
+        level[better] = k
+    return level
+
+
+def sampling_density(
+    buffer: SampleBuffer,
+    *,
+    wavelet: str = "bior4.4",
+    levels: int | None = None,
+    domain: str | Domain = "log",
+    boundary: str = "symmetric",
+    level_weight: float = 1.0,
+) -> FloatArray:
+    """(H, W) target sample density ``a_p = s_p * 2^(-level_weight * l_p)`` (unnormalised).
+
+    ``s_p`` is the per-sample standard deviation in the error domain, pooled over 3x3 pixels
+    (a variance from four samples is too noisy to rank on), ``l_p`` the winning level of
+    :func:`pixel_levels`. ``level_weight = 0`` ignores the wavelet structure (per-pixel
+    variance-driven sampling).
+    """
+    ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
+    _, _, s2_y = error_plane(buffer, domain)
+    s2_pooled = ndimage.uniform_filter(s2_y, 3, mode="nearest")
+    if level_weight == 0:
+        return np.sqrt(s2_pooled)
+    prio = coefficient_priorities(buffer, domain=domain, operators=ops)
+    level = pixel_levels(prio, ops)
+    return np.sqrt(s2_pooled) * 2.0 ** (-level_weight * level)

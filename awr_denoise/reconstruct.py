@@ -1,0 +1,281 @@
+"""Reconstruction by variance-weighted wavelet soft thresholding (paper section 5, Eq. 10-11).
+
+Each wavelet coefficient ``W~`` of the pixel-mean image is shrunk towards zero by ``c_s``
+times its own standard error ``Delta = sqrt(<v, Psi^2>)`` (Eq. 10):
+
+    W = sign(W~) * max(0, |W~| - c_s * Delta)            (Eq. 11)
+
+and the image is synthesised back. Each coefficient takes the value nearest zero inside its
+confidence interval, so the result is "the smoothest image consistent with the samples".
+The coarsest scale band is kept as it is; every detail level and band is thresholded.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from concurrent.futures import Executor
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from ._typing import FloatArray
+from .buffers import SampleBuffer, luminance_weights
+from .domains import Domain, resolve_domain
+from .wavelets import coefficient_variance, forward, inverse, wavelet_operators
+
+__all__ = ["reconstruct", "reconstruct_detailed", "Reconstruction", "MODES", "DEFAULT_DOMAIN"]
+
+MODES = ("channels", "luminance")
+"""``"channels"``: each channel thresholded with its own Delta; ``"luminance"``: thresholds
+decided on luminance, the same shrink factor applied to every channel (hue-preserving)."""
+
+DEFAULT_DOMAIN = "log"
+"""Default thresholding domain; chosen by measurement (docs/reconstruction.md)."""
+
+
+@dataclass(frozen=True, eq=False)
+class Reconstruction:
+    """Result of :func:`reconstruct_detailed`.
+
+    Attributes
+    ----------
+    image
+        (H, W, C) reconstructed image.
+    thresholds
+        Per channel, ``c_s * Delta`` in :func:`~awr_denoise.wavelets.forward`'s layout
+        (detail bands only: ``[None, (tH, tV, tD)_L, ..., (tH, tV, tD)_1]``), in the
+        thresholding domain.
+    fraction_zeroed
+        Fraction of detail coefficients set to zero, over all channels.
+    variance
+        (H, W, C) estimated variance of the output (see Notes of :func:`reconstruct_detailed`).
+    levels
+        Decomposition depth used.
+    domain
+        The domain the coefficients were thresholded in.
+    """
+
+    image: FloatArray
+    thresholds: list
+    fraction_zeroed: float
+    variance: FloatArray
+    levels: int
+    domain: Domain
+
+
+def _filled_mean(buffer: SampleBuffer) -> FloatArray:
+    """Pixel means with sample-less pixels given their nearest sampled neighbour's mean."""
+    empty = buffer.count == 0
+    if not empty.any():
+        return np.array(buffer.mean)
+    if empty.all():
+        raise ValueError("buffer: no pixel has any sample")
+    _, (rows, cols) = ndimage.distance_transform_edt(empty, return_indices=True)
+    return buffer.mean[rows, cols]
+
+
+def _input_variance(buffer: SampleBuffer) -> FloatArray:
+    """Variance of each pixel mean; a sample-less pixel counts as a single (pooled) sample."""
+    n = np.maximum(buffer.count, 1)[..., None].astype(np.float64)
+    return buffer.estimated_variance() / n
+
+
+def _check_c_s(c_s: float) -> float:
+    if isinstance(c_s, bool) or not isinstance(c_s, (int, float, np.floating, np.integer)):
+        raise TypeError(f"c_s: expected a number, got {c_s!r}")
+    if not (np.isfinite(c_s) and c_s >= 0):
+        raise ValueError(f"c_s: must be a finite number >= 0, got {c_s!r}")
+    return float(c_s)
+
+
+def _soft(coeff: FloatArray, threshold: FloatArray) -> FloatArray:
+    """Eq. 11: ``sign(W~) max(0, |W~| - t)``."""
+    return np.sign(coeff) * np.maximum(np.abs(coeff) - threshold, 0.0)
+
+
+def _threshold_plane(y: FloatArray, var_y: FloatArray, c_s: float, ops, shrink_from=None):
+    """Threshold one plane; returns (coeffs, thresholds, zeroed count, total count, kept masks).
+
+    With ``shrink_from`` (a list of per-band shrink factors) the plane's coefficients are
+    scaled by those factors instead of being thresholded by their own Delta.
+    """
+    coeffs = forward(y, wavelet=ops.wavelet, levels=ops.levels, boundary=ops.boundary)
+    variances = coefficient_variance(var_y, operators=ops)
+    out = [coeffs[0]]
+    thresholds: list = [None]
+    factors: list = [None]
+    zeroed = total = 0
+    for level in range(1, len(coeffs)):
+        bands, band_t, band_f = [], [], []
+        for b in range(3):
+            w = coeffs[level][b]
+            if shrink_from is None:
+                t = c_s * np.sqrt(variances[level][b])
+                shrunk = _soft(w, t)
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    f = np.where(w != 0, shrunk / np.where(w != 0, w, 1.0), 0.0)
+            else:
+                f = shrink_from[level][b]
+                t = None
+                shrunk = w * f
+            bands.append(shrunk)
+            band_t.append(t)
+            band_f.append(f)
+            zeroed += int(np.count_nonzero(f == 0))
+            total += f.size
+        out.append(tuple(bands))
+        thresholds.append(tuple(band_t))
+        factors.append(tuple(band_f))
+    return out, thresholds, factors, variances, zeroed, total
+
+
+def _output_variance(var_y: FloatArray, factors: list, ops, probes: int, seed: int) -> FloatArray:
+    """Variance of the thresholded plane, linearised around the kept coefficients.
+
+    With the shrink factors held fixed, the reconstruction is a linear map ``T`` of the input
+    plus a constant, so ``Var(out) = diag(T V T^T)``. Rademacher probes ``e = +-sqrt(v)`` give
+    ``E[T(e)^2] = diag(T V T^T)`` (Hutchinson's estimator): unbiased, and exact when ``T`` is
+    the identity (``c_s = 0``).
+    """
+    rng = np.random.default_rng(seed)
+    acc = np.zeros(ops.shape)
+    sd = np.sqrt(var_y)
+    for _ in range(probes):
+        e = sd * rng.choice((-1.0, 1.0), size=ops.shape)
+        coeffs = forward(e, wavelet=ops.wavelet, levels=ops.levels, boundary=ops.boundary)
+        shrunk = [coeffs[0]] + [tuple(coeffs[lv][b] * factors[lv][b] for b in range(3))
+                                for lv in range(1, len(coeffs))]
+        out = inverse(shrunk, ops.shape, wavelet=ops.wavelet, boundary=ops.boundary)
+        acc += out * out
+    return acc / probes
+
+
+def reconstruct_detailed(
+    buffer: SampleBuffer,
+    *,
+    c_s: float = 1.0,
+    wavelet: str = "bior4.4",
+    levels: int | None = None,
+    domain: str | Domain = DEFAULT_DOMAIN,
+    mode: str = "channels",
+    boundary: str = "symmetric",
+    executor: Executor | None = None,
+    variance_probes: int = 16,
+    seed: int = 0,
+) -> Reconstruction:
+    """Reconstruct an image from sample statistics and report what the thresholding did.
+
+    Parameters
+    ----------
+    buffer
+        Per-pixel sample statistics.
+    c_s
+        Smoothing constant of Eq. 11: thresholds are ``c_s`` standard errors. ``0`` returns
+        the Monte Carlo mean; about 0.5-2 is useful.
+    wavelet
+        PyWavelets wavelet; ``"bior4.4"`` (CDF 9/7) by default, ``"haar"`` also common.
+    levels
+        Decomposition depth; default :func:`~awr_denoise.wavelets.default_levels`.
+    domain
+        ``"log"`` (default), ``"gamma"`` or ``"linear"`` (the paper, literally), or a
+        :class:`~awr_denoise.domains.Domain`. See docs/reconstruction.md for the measurements
+        behind the default.
+    mode
+        ``"channels"`` (default) or ``"luminance"`` (hue-preserving), see :data:`MODES`.
+    boundary
+        PyWavelets signal extension mode.
+    executor
+        Optional ``concurrent.futures.Executor`` over which the channels are processed
+        (numpy, scipy and PyWavelets release the GIL, so threads help).
+    variance_probes
+        Random probes used to estimate :attr:`Reconstruction.variance`; each costs one
+        transform pair per channel. ``0`` skips the estimate (the variance is then NaN).
+    seed
+        Seed of the probes.
+
+    Notes
+    -----
+    Pixels without samples take their nearest sampled neighbour's mean and the variance of a
+    single sample, so they are smoothed over rather than read as black. Unknown per-sample
+    variances are pooled from neighbours (:meth:`SampleBuffer.estimated_variance`).
+
+    The output variance is that of the reconstruction linearised around its result: the shrink
+    factor of every coefficient is held fixed (soft thresholding has slope 1 where it keeps a
+    coefficient, 0 where it zeroes one), its variance is estimated without bias by random
+    probes, and the domain is undone by the delta method. It ignores the bias of thresholding.
+    """
+    if not isinstance(buffer, SampleBuffer):
+        raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
+    if mode not in MODES:
+        raise ValueError(f"mode: {mode!r} is not one of {', '.join(MODES)}")
+    c_s = _check_c_s(c_s)
+    dom = resolve_domain(domain)
+    mean = _filled_mean(buffer)
+    var = _input_variance(buffer)
+    ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
+    bound = dom.bound(mean)
+    y = bound.forward(mean)
+    var_y = bound.variance(mean, var)
+    n_ch = buffer.n_channels
+    run = (lambda f, items: list(executor.map(f, items))) if executor is not None else (lambda f, items: [f(i) for i in items])
+
+    shrink_from = None
+    if mode == "luminance":
+        weights = luminance_weights(buffer.channels)
+        lum = mean @ weights
+        lum_var = buffer.luminance_variance() / np.maximum(buffer.count, 1)
+        _, _, shrink_from, _, _, _ = _threshold_plane(bound.forward(lum), bound.variance(lum, lum_var), c_s, ops)
+
+    def one_channel(c: int):
+        return _threshold_plane(y[:, :, c], var_y[:, :, c], c_s, ops, shrink_from)
+
+    results = run(one_channel, range(n_ch))
+    image_y = np.stack([inverse(r[0], buffer.shape, wavelet=wavelet, boundary=boundary) for r in results], axis=-1)
+    image = bound.inverse(image_y)
+    zeroed = sum(r[4] for r in results)
+    total = sum(r[5] for r in results)
+    if variance_probes < 0:
+        raise ValueError(f"variance_probes: must be >= 0, got {variance_probes}")
+    if variance_probes:
+        var_out_y = np.stack(run(lambda c: _output_variance(var_y[:, :, c], results[c][2], ops, variance_probes,
+                                                             seed + c), range(n_ch)), axis=-1)
+        d = bound.derivative(image)
+        out_var = var_out_y / (d * d)
+    else:
+        out_var = np.full(image.shape, np.nan)
+    return Reconstruction(image=image, thresholds=[r[1] for r in results],
+                          fraction_zeroed=zeroed / total if total else 0.0,
+                          variance=out_var, levels=ops.levels, domain=dom)
+
+
+def reconstruct(
+    buffer: SampleBuffer,
+    *,
+    c_s: float = 1.0,
+    wavelet: str = "bior4.4",
+    levels: int | None = None,
+    domain: str | Domain = DEFAULT_DOMAIN,
+    mode: str = "channels",
+    boundary: str = "symmetric",
+    executor: Executor | None = None,
+) -> FloatArray:
+    """Denoise the pixel means by variance-weighted wavelet soft thresholding (Eq. 10-11).
+
+    Parameters are those of :func:`reconstruct_detailed`; this returns the (H, W, C) image only.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise import SampleBuffer, reconstruct
+    >>> rng = np.random.default_rng(0)
+    >>> count = np.full((32, 32), 8)
+    >>> buf = SampleBuffer.from_moments(count, 0.5 + 0.1 * rng.standard_normal((32, 32, 3)),
+    ...                                 np.full((32, 32, 3), 0.08))
+    >>> out = reconstruct(buf)
+    >>> bool(np.abs(out - 0.5).mean() < np.abs(buf.mean - 0.5).mean())
+    True
+    """
+    return reconstruct_detailed(buffer, c_s=c_s, wavelet=wavelet, levels=levels, domain=domain,
+                                mode=mode, boundary=boundary, executor=executor,
+                                variance_probes=0).image

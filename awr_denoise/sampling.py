@@ -1,0 +1,459 @@
+"""Ask/tell samplers: which pixels get the next samples (paper section 4).
+
+A sampler owns the merged statistics of an image and hands out :class:`SampleRequest` objects;
+a renderer (any callable honouring :class:`~awr_denoise.Renderer`) renders them and the
+resulting :class:`SampleBuffer` is told back::
+
+    sampler = AdaptiveSampler((480, 640))
+    while sampler.total_samples < 32 * 480 * 640:
+        request = sampler.ask()
+        sampler.tell(request, renderer(request))
+    image = reconstruct(sampler.buffer)
+
+:meth:`Sampler.run` is exactly that loop. Round 0 spends ``initial_spp`` on every pixel (the
+paper starts at 4 spp); later rounds follow the sampler's strategy. Every request's ``counts``
+sum to the budget asked for, exactly.
+
+Three strategies share the interface so that benchmarks compare like with like:
+:class:`AdaptiveSampler` (AWR wavelet priorities), :class:`UniformSampler` and
+:class:`VarianceSampler` (per-pixel relative error, as Cycles' adaptive sampling).
+"""
+
+from __future__ import annotations
+
+import itertools
+import warnings
+from collections.abc import Callable
+
+import numpy as np
+
+from ._typing import CountArray, FloatArray, Shape2D
+from .buffers import SampleBuffer
+from .domains import Domain
+from .errors import StaleRequestError
+from .priorities import error_plane, sampling_density
+from .requests import Renderer, SampleRequest
+
+__all__ = ["Sampler", "AdaptiveSampler", "UniformSampler", "VarianceSampler", "allocate"]
+
+_sampler_ids = itertools.count(1)
+
+
+def allocate(density: FloatArray, current: CountArray, budget: int, *,
+             capacity: CountArray | None = None, rng: np.random.Generator | None = None) -> CountArray:
+    """Integer new-sample counts that sum to ``budget`` exactly and follow ``density``.
+
+    Water-filling: find ``alpha`` with ``sum(clip(alpha * density - current, 0, capacity)) =
+    budget``, so each pixel's total count approaches ``alpha * density`` (pixels already above
+    it get nothing), then round to integers by largest remainder (ties broken by ``rng``).
+
+    Parameters
+    ----------
+    density
+        (H, W) non-negative target density (any scale).
+    current
+        (H, W) samples each pixel already has.
+    budget
+        Number of new samples, >= 0.
+    capacity
+        (H, W) most new samples each pixel may take (``spp_max - current``); unlimited if None.
+    rng
+        Random generator for tie-breaking.
+
+    Raises
+    ------
+    ValueError
+        If the budget exceeds the total capacity.
+    """
+    budget = int(budget)
+    if budget < 0:
+        raise ValueError(f"budget: must be >= 0, got {budget}")
+    shape = current.shape
+    out = np.zeros(shape, np.int64)
+    if budget == 0:
+        return out
+    cap = np.full(shape, np.inf) if capacity is None else np.maximum(capacity, 0).astype(np.float64)
+    total_cap = cap.sum()
+    if budget > total_cap:
+        raise ValueError(f"budget: {budget} samples exceed the {int(total_cap)} that spp_max still allows")
+    a = np.nan_to_num(np.asarray(density, dtype=np.float64), nan=0.0, posinf=0.0)
+    a = np.maximum(a, 0.0)
+    open_ = cap > 0
+    if not (a[open_] > 0).any():
+        a = np.ones(shape)  # nothing to rank on (a deterministic image): spread uniformly
+    else:
+        # A floor so no open pixel is unreachable: otherwise a budget larger than what the
+        # positive-density pixels can absorb would have nowhere to go.
+        a = np.maximum(a, 1e-9 * a[open_].max())
+    n = current.astype(np.float64)
+
+    def spent(alpha: float) -> float:
+        return float(np.minimum(np.maximum(alpha * a - n, 0.0), cap).sum())
+
+    lo, hi = 0.0, (budget + n.sum()) / a.sum()
+    while spent(hi) < budget:
+        hi *= 2.0
+    for _ in range(48):
+        mid = 0.5 * (lo + hi)
+        if spent(mid) < budget:
+            lo = mid
+        else:
+            hi = mid
+    m = np.minimum(np.maximum(hi * a - n, 0.0), cap)
+    base = np.floor(m)
+    frac = m - base
+    rng = rng or np.random.default_rng(0)
+    jitter = rng.random(shape) * 1e-6  # tie-break equal remainders without bias toward low indices
+    left = budget - int(base.sum())
+    flat_base = base.ravel()
+    if left > 0:
+        key = np.where(flat_base < cap.ravel(), frac.ravel() + jitter.ravel(), -np.inf)
+        pick = np.argpartition(-key, left - 1)[:left]
+        flat_base[pick] += 1
+    elif left < 0:
+        key = np.where(flat_base > 0, frac.ravel() + jitter.ravel(), np.inf)
+        pick = np.argpartition(key, -left - 1)[:-left]
+        flat_base[pick] -= 1
+    out[...] = flat_base.reshape(shape).astype(np.int64)
+    return out
+
+
+class Sampler:
+    """Base of the ask/tell samplers: request bookkeeping, validation and the run loop.
+
+    Parameters
+    ----------
+    shape
+        (H, W) of the image.
+    channels
+        Number of channels (or their names) renderers return.
+    initial_spp
+        Samples per pixel of round 0 (the paper starts at 4).
+    seed
+        Seeds tie-breaking; the same seed and the same told buffers give the same requests.
+    spp_min
+        Every pixel is brought up to this many samples before any strategy applies; default
+        ``initial_spp``.
+    spp_max
+        Most samples any pixel may have; ``None`` for no cap.
+    round_spp
+        Default budget of a round after the first, in samples per pixel; ``None`` grows rounds
+        with the image's samples (a quarter of the samples taken so far, at least 0.25 spp), so
+        a render to ``S`` spp takes about ``log(S / initial_spp) / log(1.25)`` rounds.
+    """
+
+    strategy = "base"
+
+    def __init__(self, shape: Shape2D, *, channels: int | tuple[str, ...] = 3, initial_spp: int = 4,
+                 seed: int = 0, spp_min: int | None = None, spp_max: int | None = None,
+                 round_spp: float | None = None) -> None:
+        h, w = (int(s) for s in shape)
+        if h <= 0 or w <= 0:
+            raise ValueError(f"shape: empty image {tuple(shape)}")
+        if int(initial_spp) < 0:
+            raise ValueError(f"initial_spp: must be >= 0, got {initial_spp}")
+        if spp_max is not None and int(spp_max) < 1:
+            raise ValueError(f"spp_max: must be >= 1, got {spp_max}")
+        if spp_min is not None and spp_max is not None and int(spp_min) > int(spp_max):
+            raise ValueError(f"spp_min: {spp_min} exceeds spp_max {spp_max}")
+        if round_spp is not None and not round_spp > 0:
+            raise ValueError(f"round_spp: must be > 0, got {round_spp}")
+        self._shape = (h, w)
+        self.initial_spp = int(initial_spp)
+        self.spp_min = self.initial_spp if spp_min is None else int(spp_min)
+        self.spp_max = None if spp_max is None else int(spp_max)
+        if self.spp_max is not None:
+            self.initial_spp = min(self.initial_spp, self.spp_max)
+            self.spp_min = min(self.spp_min, self.spp_max)
+        self.round_spp = round_spp
+        self.seed = int(seed)
+        self._buffer = SampleBuffer.empty((h, w), channels=channels)
+        self._issued = np.zeros((h, w), np.int64)
+        self._round = 0
+        self._pending: SampleRequest | None = None
+        self._id = next(_sampler_ids)
+
+    # ------------------------------------------------------------------ state
+    @classmethod
+    def from_buffer(cls, buffer: SampleBuffer, *, round: int = 1, issued: CountArray | None = None,
+                    **options) -> Sampler:
+        """Resume from existing statistics (for example a sample dump on disk).
+
+        ``issued`` is the number of sample indices already handed out per pixel (default the
+        buffer's counts); new requests start at those indices. ``round`` numbers the next
+        request (it also seeds tie-breaking, so pass the dump's round to stay reproducible).
+        """
+        options.setdefault("channels", buffer.channels)
+        sampler = cls(buffer.shape, **options)
+        sampler._buffer = buffer
+        sampler._issued = np.array(buffer.count if issued is None else issued, dtype=np.int64)
+        if sampler._issued.shape != buffer.shape or (sampler._issued < buffer.count).any():
+            raise ValueError("issued: must have the buffer's shape and be >= its counts")
+        sampler._round = int(round)
+        return sampler
+
+    @property
+    def shape(self) -> Shape2D:
+        return self._shape
+
+    @property
+    def buffer(self) -> SampleBuffer:
+        """Merged statistics of every sample told so far."""
+        return self._buffer
+
+    @property
+    def issued(self) -> CountArray:
+        """(H, W) sample indices handed out so far (told or pending)."""
+        return self._issued.copy()
+
+    @property
+    def pending(self) -> SampleRequest | None:
+        """The request asked for and not told yet, if any."""
+        return self._pending
+
+    @property
+    def round(self) -> int:
+        """Number of the next round to be asked."""
+        return self._round
+
+    @property
+    def total_samples(self) -> int:
+        """Samples told so far."""
+        return self._buffer.total_samples
+
+    # ------------------------------------------------------------------ ask / tell
+    def default_budget(self) -> int:
+        """Budget of the next round when :meth:`ask` is given none."""
+        pixels = self._shape[0] * self._shape[1]
+        if self._round == 0:
+            return self.initial_spp * pixels
+        if self.round_spp is not None:
+            return max(1, int(round(self.round_spp * pixels)))
+        return max(int(0.25 * pixels), int(0.25 * self._issued.sum()), 1)
+
+    def ask(self, budget: int | None = None) -> SampleRequest:
+        """The next request; asking again before :meth:`tell` returns the same request.
+
+        Parameters
+        ----------
+        budget
+            Total new samples; default :meth:`default_budget`. Round 0 spreads its budget
+            uniformly.
+        """
+        if budget is not None:
+            if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)):
+                raise TypeError(f"budget: expected an integer, got {budget!r}")
+            if budget < 0:
+                raise ValueError(f"budget: must be >= 0, got {budget}")
+        if self._pending is not None:
+            if budget is not None and int(budget) != self._pending.total:
+                raise StaleRequestError(
+                    f"budget: round {self._pending.round} is pending with {self._pending.total} samples; "
+                    f"tell it before asking for {budget}")
+            return self._pending
+        target = self.default_budget() if budget is None else int(budget)
+        capacity = None if self.spp_max is None else self.spp_max - self._issued
+        rng = np.random.default_rng([self.seed, self._round])
+        counts = np.zeros(self._shape, np.int64)
+        deficit = np.maximum(self.spp_min - self._issued, 0)
+        if capacity is not None:
+            deficit = np.minimum(deficit, capacity)
+        if self._round > 0 and deficit.any():
+            # Bring every pixel up to spp_min first (uniformly if the budget is short).
+            share = min(target, int(deficit.sum()))
+            counts += allocate(deficit.astype(np.float64), np.zeros_like(deficit), share, capacity=deficit, rng=rng)
+        rest = target - int(counts.sum())
+        if rest:
+            current = self._issued + counts
+            cap = None if capacity is None else capacity - counts
+            if self._round == 0:
+                counts += allocate(np.ones(self._shape), current, rest, capacity=cap, rng=rng)
+            else:
+                counts += self._allocate(rest, current, cap, rng)
+        self._pending = SampleRequest(counts, self._issued.copy(), self._round, self._id)
+        return self._pending
+
+    def tell(self, request: SampleRequest | int, samples: SampleBuffer) -> SampleBuffer:
+        """Merge the samples rendered for ``request``; returns the merged statistics.
+
+        Raises
+        ------
+        StaleRequestError
+            If ``request`` is not the pending request of this sampler (told already, from
+            another sampler, or never asked).
+        ValueError
+            If ``samples`` does not match the image or has more samples at a pixel than asked.
+        """
+        pending = self._pending
+        number = request.round if isinstance(request, SampleRequest) else request
+        if pending is None:
+            raise StaleRequestError(f"request: round {number} is not pending (nothing was asked, or it was told)")
+        if isinstance(request, SampleRequest):
+            if request is not pending and (request.sampler_id != pending.sampler_id or request.round != pending.round):
+                raise StaleRequestError(f"request: round {request.round} is not the pending round {pending.round} "
+                                        "of this sampler")
+        elif isinstance(request, (int, np.integer)) and not isinstance(request, bool):
+            if int(request) != pending.round:
+                raise StaleRequestError(f"request: round {request} is not the pending round {pending.round}")
+        else:
+            raise TypeError(f"request: expected a SampleRequest or a round number, got {type(request).__name__}")
+        if not isinstance(samples, SampleBuffer):
+            raise TypeError(f"samples: expected a SampleBuffer, got {type(samples).__name__}")
+        if samples.shape != self._shape:
+            raise ValueError(f"samples: shape {samples.shape} does not match the sampler's {self._shape}")
+        if samples.n_channels != self._buffer.n_channels:
+            raise ValueError(f"samples: {samples.n_channels} channel(s), the sampler expects {self._buffer.n_channels}")
+        over = samples.count > pending.counts
+        if over.any():
+            raise ValueError(f"samples: {int(over.sum())} pixel(s) hold more samples than requested")
+        short = int((pending.counts - samples.count).sum())
+        if short:
+            warnings.warn(f"samples: {short} requested sample(s) missing (dropped by the renderer?)", stacklevel=2)
+        if samples.channels != self._buffer.channels:
+            samples = SampleBuffer(samples.count, samples.mean, samples.variance, self._buffer.channels,
+                                   samples.variance_known, samples.nonfinite)
+        self._buffer = self._buffer.merge(samples)
+        self._issued = self._issued + pending.counts
+        self._round += 1
+        self._pending = None
+        return self._buffer
+
+    def run(self, renderer: Renderer, total_spp: float = 32.0, *, progress: bool = False,
+            callback: Callable[[SampleRequest, SampleBuffer], bool | None] | None = None) -> SampleBuffer:
+        """Ask, render, tell until the image holds ``total_spp`` samples per pixel on average.
+
+        Built only from :meth:`ask` and :meth:`tell`. The last round is trimmed so the total is
+        exact. ``callback(request, buffer)`` runs after every round; returning ``False`` stops.
+        """
+        pixels = self._shape[0] * self._shape[1]
+        goal = int(round(float(total_spp) * pixels))
+        if goal < self._issued.sum():
+            raise ValueError(f"total_spp: {total_spp} is below the {self._issued.sum() / pixels:.3g} spp already taken")
+        bar = None
+        if progress:
+            from tqdm.auto import tqdm
+            bar = tqdm(total=goal, initial=int(self._issued.sum()), unit="sample", desc=self.strategy)
+        try:
+            while self._issued.sum() < goal:
+                remaining = goal - int(self._issued.sum())
+                budget = min(self.default_budget(), remaining) if self._pending is None else None
+                request = self.ask(budget)
+                buffer = self.tell(request, renderer(request))
+                if bar is not None:
+                    bar.update(request.total)
+                if callback is not None and callback(request, buffer) is False:
+                    break
+        finally:
+            if bar is not None:
+                bar.close()
+        return self._buffer
+
+    # ------------------------------------------------------------------ strategy
+    def _allocate(self, budget: int, current: CountArray, capacity: CountArray | None,
+                  rng: np.random.Generator) -> CountArray:
+        raise NotImplementedError
+
+
+class UniformSampler(Sampler):
+    """Every pixel gets the same number of samples (to within one); the plain Monte Carlo baseline."""
+
+    strategy = "uniform"
+
+    def _allocate(self, budget, current, capacity, rng):
+        return allocate(np.ones(self._shape), current, budget, capacity=capacity, rng=rng)
+
+
+class VarianceSampler(Sampler):
+    """Per-pixel variance-driven sampling, a baseline in the spirit of Cycles' adaptive sampling.
+
+    Samples go where the per-pixel *relative* error is large: the allocation equalises the
+    marginal error reduction ``s2_p / (n_p (n_p + 1))`` of each pixel in the error domain
+    (``"log"``: relative error), i.e. ``n_p ~ s_p``. No wavelet structure is used.
+    """
+
+    strategy = "variance"
+
+    def __init__(self, shape: Shape2D, *, domain: str | Domain = "log", uniform_fraction: float = 0.1,
+                 **options) -> None:
+        super().__init__(shape, **options)
+        self.domain = domain
+        self.uniform_fraction = _check_fraction(uniform_fraction)
+
+    def _density(self) -> FloatArray:
+        _, _, s2_y = error_plane(self._buffer, self.domain)
+        from scipy import ndimage
+        return np.sqrt(ndimage.uniform_filter(s2_y, 3, mode="nearest"))
+
+    def _allocate(self, budget, current, capacity, rng):
+        return _mixed(self._density(), budget, current, capacity, rng, self.uniform_fraction)
+
+
+class AdaptiveSampler(Sampler):
+    """Adaptive Wavelet Rendering's sampler (paper section 4).
+
+    Each round, every pixel finds the level ``l_p`` whose covering scale coefficient has the
+    highest priority ``P_k = 4^k (Var(S~_k) - sum_a max(0, W~^2 - (2 Delta)^2))``, and the
+    round's budget is spread so that totals approach ``n_p ~ s_p 2^(-w l_p)``: samples concentrate
+    on edges (fine levels win) and spread thinly over smooth noisy regions (coarse levels win),
+    see :mod:`awr_denoise.priorities`. A ``uniform_fraction`` of each round is spent uniformly
+    as insurance against variance estimates that are wrong (all four samples of a pixel may
+    miss a small light).
+
+    Parameters
+    ----------
+    shape, channels, initial_spp, seed, spp_min, spp_max, round_spp
+        See :class:`Sampler`.
+    wavelet, levels
+        Wavelet and depth of the priority analysis (as in :func:`~awr_denoise.reconstruct`).
+    domain
+        Error domain of the priorities; use the reconstruction's (``"log"`` by default).
+    level_weight
+        Weight ``w`` of the level term, ``n_p ~ s_p 2^(-w l_p)``. The error model of
+        :mod:`awr_denoise.priorities` gives ``w = 1`` if reconstruction averaged a smooth
+        region completely; soft thresholding at ``c_s = 1`` keeps part of the noise, and
+        measurement (docs/sampling.md) puts the best value near 0.25, the default. 0 turns the
+        sampler into per-pixel variance sampling.
+    uniform_fraction
+        Share of every round spread uniformly.
+    """
+
+    strategy = "awr"
+
+    def __init__(self, shape: Shape2D, *, channels: int | tuple[str, ...] = 3, initial_spp: int = 4,
+                 wavelet: str = "bior4.4", levels: int | None = None, seed: int = 0,
+                 spp_min: int | None = None, spp_max: int | None = None, round_spp: float | None = None,
+                 domain: str | Domain = "log", level_weight: float = 0.25, uniform_fraction: float = 0.1) -> None:
+        super().__init__(shape, channels=channels, initial_spp=initial_spp, seed=seed, spp_min=spp_min,
+                         spp_max=spp_max, round_spp=round_spp)
+        from .wavelets import wavelet_operators
+
+        wavelet_operators(self._shape, wavelet=wavelet, levels=levels)  # validates wavelet and levels now
+        self.wavelet = wavelet
+        self.levels = levels
+        self.domain = domain
+        if not (np.isfinite(level_weight) and level_weight >= 0):
+            raise ValueError(f"level_weight: must be a finite number >= 0, got {level_weight}")
+        self.level_weight = float(level_weight)
+        self.uniform_fraction = _check_fraction(uniform_fraction)
+
+    def density(self) -> FloatArray:
+        """(H, W) target density of the next round (see :func:`~awr_denoise.priorities.sampling_density`)."""
+        return sampling_density(self._buffer, wavelet=self.wavelet, levels=self.levels, domain=self.domain,
+                                level_weight=self.level_weight)
+
+    def _allocate(self, budget, current, capacity, rng):
+        return _mixed(self.density(), budget, current, capacity, rng, self.uniform_fraction)
+
+
+def _check_fraction(value: float) -> float:
+    if not (np.isfinite(value) and 0.0 <= value <= 1.0):
+        raise ValueError(f"uniform_fraction: must be within [0, 1], got {value}")
+    return float(value)
+
+
+def _mixed(density, budget, current, capacity, rng, uniform_fraction):
+    """``uniform_fraction`` of the budget spread uniformly, the rest by ``density``."""
+    uniform_part = int(round(uniform_fraction * budget))
+    counts = allocate(np.ones(current.shape), current, uniform_part, capacity=capacity, rng=rng)
+    cap = None if capacity is None else capacity - counts
+    return counts + allocate(density, current + counts, budget - uniform_part, capacity=cap, rng=rng)

@@ -1,0 +1,206 @@
+"""Synthetic renderers whose clean image is known: for tests, examples and benchmarks.
+
+Each scene is an analytic image ``f(x, y)`` over the image plane (pixel units, x across the
+columns) and a per-sample noise model. A sample at pixel ``(r, c)`` with index ``i`` looks at
+``f`` at a sub-pixel position, so pixels across an edge get bimodal samples as they would from a
+renderer, and its noise is drawn from numbers addressed by (seed, pixel, sample index,
+dimension): the same samples come back however a request is split.
+
+The reference of a scene is the box-filtered ``f`` (each pixel the average of ``f`` over its
+area), estimated on a fine sub-pixel grid.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._typing import FloatArray, Shape2D
+from .buffers import SampleBuffer
+from .requests import SampleRequest
+
+__all__ = ["SyntheticScene", "SyntheticRenderer", "SCENES", "make_scene", "hash_uniform"]
+
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+
+
+def _mix(x: np.ndarray) -> np.ndarray:
+    """SplitMix64 finaliser: a bijective avalanche on uint64."""
+    x = x ^ (x >> np.uint64(30))
+    x = x * _M1
+    x = x ^ (x >> np.uint64(27))
+    x = x * _M2
+    return x ^ (x >> np.uint64(31))
+
+
+def hash_uniform(seed: int, pixel: np.ndarray, index: np.ndarray, dimension: int) -> FloatArray:
+    """Uniform numbers in [0, 1) as a pure function of (seed, pixel, sample index, dimension)."""
+    with np.errstate(over="ignore"):
+        key = _mix(np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(dimension + 1))
+        h = _mix(pixel.astype(np.uint64) ^ key)
+        h = _mix(h + index.astype(np.uint64) * np.uint64(0xD1B54A32D192ED03))
+    return (h >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
+
+
+@dataclass(frozen=True)
+class SyntheticScene:
+    """An analytic image and a noise model.
+
+    Parameters
+    ----------
+    name
+        Short identifier.
+    shape
+        (H, W) in pixels.
+    image
+        ``image(x, y) -> (N, 3)`` clean radiance at image-plane points (pixel units).
+    noise
+        ``noise(clean, x, y, u) -> (N, 3)`` one sample's value given the clean value there and
+        two independent uniforms ``u`` of shape (N, 2); must have expectation ``clean``.
+    """
+
+    name: str
+    shape: Shape2D
+    image: Callable[[FloatArray, FloatArray], FloatArray]
+    noise: Callable[[FloatArray, FloatArray, FloatArray, FloatArray], FloatArray]
+
+    def reference(self, supersampling: int = 8) -> FloatArray:
+        """(H, W, 3) box-filtered clean image on a ``supersampling``-squared sub-pixel grid."""
+        h, w = self.shape
+        s = supersampling
+        offsets = (np.arange(s) + 0.5) / s
+        acc = np.zeros((h, w, 3))
+        rows, cols = np.mgrid[0:h, 0:w]
+        for oy in offsets:
+            for ox in offsets:  # s^2 whole-image evaluations; never a loop per pixel
+                acc += self.image((cols + ox).ravel(), (rows + oy).ravel()).reshape(h, w, 3)
+        return acc / (s * s)
+
+
+class SyntheticRenderer:
+    """A :class:`~awr_denoise.Renderer` for a :class:`SyntheticScene`.
+
+    Examples
+    --------
+    >>> from awr_denoise import SampleRequest
+    >>> from awr_denoise.synthetic import make_scene, SyntheticRenderer
+    >>> scene = make_scene("edges", (16, 16))
+    >>> buf = SyntheticRenderer(scene)(SampleRequest.uniform(scene.shape, 4))
+    >>> buf.total_samples
+    1024
+    """
+
+    def __init__(self, scene: SyntheticScene, *, seed: int = 0) -> None:
+        self.scene = scene
+        self.seed = int(seed)
+        self.samples_rendered = 0
+
+    @property
+    def shape(self) -> Shape2D:
+        return self.scene.shape
+
+    def samples(self, request: SampleRequest) -> tuple[np.ndarray, FloatArray]:
+        """Flat pixel indices and (N, 3) values of every sample the request asks for."""
+        if request.shape != self.scene.shape:
+            raise ValueError(f"request: shape {request.shape} does not match the scene's {self.scene.shape}")
+        rows, cols, index = request.pixel_list()
+        pixel = rows * self.scene.shape[1] + cols
+        x = cols + hash_uniform(self.seed, pixel, index, 0)
+        y = rows + hash_uniform(self.seed, pixel, index, 1)
+        u = np.stack([hash_uniform(self.seed, pixel, index, 2), hash_uniform(self.seed, pixel, index, 3)], axis=1)
+        clean = self.scene.image(x, y)
+        return pixel, self.scene.noise(clean, x, y, u)
+
+    def __call__(self, request: SampleRequest) -> SampleBuffer:
+        pixel, values = self.samples(request)
+        self.samples_rendered += pixel.size
+        return SampleBuffer.from_samples(pixel, values, self.scene.shape)
+
+
+# ---------------------------------------------------------------------------- noise models
+def _gaussian(sigma: Callable[[FloatArray, FloatArray, FloatArray], FloatArray]):
+    def noise(clean, x, y, u):
+        # Box-Muller from the two addressed uniforms; one normal shared by all channels, as a
+        # path's throughput is shared by its colour channels.
+        z = np.sqrt(-2.0 * np.log1p(-u[:, 0])) * np.cos(2 * np.pi * u[:, 1])
+        return clean + (sigma(clean, x, y) * z)[:, None] * np.ones((1, 3))
+    return noise
+
+
+def _heavy_tailed(spike: float, probability: float):
+    """Multiplicative noise with mean 1: rare samples ``spike`` times the mean (fireflies)."""
+    low = (1.0 - spike * probability) / (1.0 - probability)
+
+    def noise(clean, x, y, u):
+        factor = np.where(u[:, 0] < probability, spike, low * (0.5 + u[:, 1]))
+        return clean * factor[:, None]
+    return noise
+
+
+# ---------------------------------------------------------------------------- scenes
+def _gradient(shape: Shape2D) -> SyntheticScene:
+    h, w = shape
+
+    def image(x, y):
+        return np.stack([0.2 + 0.6 * x / w, 0.3 + 0.4 * y / h, 0.5 + 0.2 * np.sin(2 * np.pi * x / w)], axis=1)
+
+    # Noise grows from left to right: smooth, position-dependent variance.
+    return SyntheticScene("gradient", shape, image, _gaussian(lambda c, x, y: 0.05 + 0.5 * x / w))
+
+
+def _edges(shape: Shape2D) -> SyntheticScene:
+    h, w = shape
+
+    def image(x, y):
+        disc = ((x - 0.35 * w) ** 2 + (y - 0.5 * h) ** 2) < (0.22 * min(h, w)) ** 2
+        bar = (x > 0.65 * w) & (x < 0.8 * w)
+        base = 0.15 + 0.1 * y / h
+        v = np.where(disc, 0.8, np.where(bar, 0.5, base))
+        return np.stack([v, 0.9 * v, 0.7 * v + 0.05], axis=1)
+
+    return SyntheticScene("edges", shape, image, _gaussian(lambda c, x, y: 0.15 + 0.0 * x))
+
+
+def _hdr_source(shape: Shape2D) -> SyntheticScene:
+    h, w = shape
+
+    def image(x, y):
+        r2 = (x - 0.5 * w) ** 2 + (y - 0.4 * h) ** 2
+        source = r2 < (0.06 * min(h, w)) ** 2
+        dark = 0.02 + 0.03 * np.exp(-r2 / (0.3 * min(h, w)) ** 2)
+        v = np.where(source, 30.0, dark)
+        return np.stack([v, v, 0.8 * v], axis=1)
+
+    # Noise proportional to brightness (relative noise), as in a path tracer's light edges.
+    return SyntheticScene("hdr_source", shape, image, _gaussian(lambda c, x, y: 0.6 * c[:, 1]))
+
+
+def _fireflies(shape: Shape2D) -> SyntheticScene:
+    h, w = shape
+
+    def image(x, y):
+        v = 0.3 + 0.2 * np.sin(3 * x / w) * np.cos(2 * y / h)
+        step = np.where(x > 0.6 * w, 0.25, 0.0)
+        return np.stack([v + step, v, v - 0.5 * step], axis=1)
+
+    return SyntheticScene("fireflies", shape, image, _heavy_tailed(spike=100.0, probability=0.004))
+
+
+SCENES: dict[str, Callable[[Shape2D], SyntheticScene]] = {
+    "gradient": _gradient,
+    "edges": _edges,
+    "hdr_source": _hdr_source,
+    "fireflies": _fireflies,
+}
+"""Synthetic scenes: smooth noisy gradient, sharp edges, a 1000x bright source on a dark
+background, and heavy-tailed (firefly) samples 100x the mean."""
+
+
+def make_scene(name: str, shape: Shape2D = (64, 64)) -> SyntheticScene:
+    """Build a synthetic scene by name (one of :data:`SCENES`)."""
+    if name not in SCENES:
+        raise ValueError(f"name: {name!r} is not one of {', '.join(sorted(SCENES))}")
+    return SCENES[name](tuple(int(s) for s in shape))

@@ -1,0 +1,258 @@
+"""Wavelet transforms of pixel-mean images and exact propagation of their variance.
+
+The transform is PyWavelets' separable 2-D DWT (``pywt.wavedec2``), coefficient layout
+``[cA_L, (cH_L, cV_L, cD_L), ..., (cH_1, cV_1, cD_1)]``. In the paper's notation (section 2 of
+our algorithm note) ``cA`` are the scale coefficients ``S = <B, Phi>`` and the three detail
+bands the wavelet coefficients ``W^a = <B, Psi^a>``.
+
+Pixel means are independent, so a coefficient ``C = sum_p K(p) B_p`` has variance
+``<v, K^2>`` (Eq. 10 squared). Squared filters do not cascade across levels, so the level-k
+*equivalent* 1-D analysis operator of each axis is built exactly (impulses pushed through
+PyWavelets' own DWT with the same boundary mode, kept as a sparse matrix), squared entrywise and
+applied separably: ``Var(C_k) = K_rows^2 v (K_cols^2)^T``. This is exact for any linear wavelet,
+orthogonal or not, any boundary mode and any image size.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+import pywt
+from scipy import sparse
+
+from ._typing import FloatArray, Shape2D
+
+__all__ = [
+    "default_levels",
+    "max_levels",
+    "WaveletOperators",
+    "wavelet_operators",
+    "forward",
+    "inverse",
+    "coefficient_variance",
+    "DETAIL_BANDS",
+]
+
+DETAIL_BANDS = ("cH", "cV", "cD")
+"""PyWavelets' detail bands: ``cH`` high-pass down the rows, ``cV`` across the columns, ``cD`` both."""
+
+_MAX_DEFAULT_LEVELS = 5
+_OPERATOR_CHUNK = 256  # impulses pushed through the DWT at once when building an operator
+
+
+def max_levels(shape: Shape2D) -> int:
+    """Deepest decomposition worth running on an image of this shape (at least 1).
+
+    Each level halves the shorter side; beyond ``log2(min(H, W))`` nothing is left to halve.
+    """
+    shortest = max(1, min(int(shape[0]), int(shape[1])))
+    return max(1, int(math.floor(math.log2(shortest))))
+
+
+def default_levels(shape: Shape2D) -> int:
+    """Number of levels used when none is given: ``min(5, floor(log2(min(H, W))) - 3)``, >= 1.
+
+    Five levels follow the talk's figures (section 2); the ``- 3`` keeps the coarsest scale
+    band at least about 8 pixels on a side so it still holds an image, not a few boundary
+    coefficients.
+    """
+    shortest = max(1, min(int(shape[0]), int(shape[1])))
+    return max(1, min(_MAX_DEFAULT_LEVELS, int(math.floor(math.log2(shortest))) - 3))
+
+
+def _check_levels(levels: int | None, shape: Shape2D) -> int:
+    if levels is None:
+        return default_levels(shape)
+    if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)):
+        raise TypeError(f"levels: expected an integer, got {levels!r}")
+    top = max_levels(shape)
+    if not 1 <= int(levels) <= top:
+        raise ValueError(f"levels: {levels} is outside 1..{top} for an image of shape {tuple(shape)}")
+    return int(levels)
+
+
+def _check_wavelet(wavelet: str) -> pywt.Wavelet:
+    try:
+        return pywt.Wavelet(wavelet)
+    except ValueError:
+        raise ValueError(f"wavelet: {wavelet!r} is not a discrete wavelet PyWavelets knows "
+                         f"(for example 'bior4.4', 'haar', 'db2')") from None
+
+
+def _check_boundary(boundary: str) -> str:
+    if boundary not in pywt.Modes.modes:
+        raise ValueError(f"boundary: {boundary!r} is not one of {', '.join(sorted(pywt.Modes.modes))}")
+    return boundary
+
+
+def _sparse_operator(apply, n_in: int) -> sparse.csr_matrix:
+    """Matrix of the linear map ``apply`` (acting along axis 0 of (n_in, m) arrays), sparse."""
+    blocks = []
+    for start in range(0, n_in, _OPERATOR_CHUNK):
+        stop = min(n_in, start + _OPERATOR_CHUNK)
+        impulses = np.zeros((n_in, stop - start))
+        impulses[np.arange(start, stop), np.arange(stop - start)] = 1.0
+        blocks.append(sparse.csc_matrix(apply(impulses)))
+    return sparse.hstack(blocks, format="csr")
+
+
+@dataclass(frozen=True)
+class _AxisOperators:
+    """Level-k equivalent analysis operators of one axis (k = 1..L): approx and detail."""
+
+    approx: tuple[sparse.csr_matrix, ...]
+    detail: tuple[sparse.csr_matrix, ...]
+    approx_sq: tuple[sparse.csr_matrix, ...]
+    detail_sq: tuple[sparse.csr_matrix, ...]
+
+
+@lru_cache(maxsize=32)
+def _axis_operators(n: int, wavelet: str, boundary: str, levels: int) -> _AxisOperators:
+    w = pywt.Wavelet(wavelet)
+    approx, detail = [], []
+    previous = sparse.identity(n, format="csr")
+    length = n
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        for _ in range(levels):
+            lo = _sparse_operator(lambda x: pywt.dwt(x, w, mode=boundary, axis=0)[0], length)
+            hi = _sparse_operator(lambda x: pywt.dwt(x, w, mode=boundary, axis=0)[1], length)
+            detail.append((hi @ previous).tocsr())
+            previous = (lo @ previous).tocsr()
+            approx.append(previous)
+            length = previous.shape[0]
+    square = lambda m: m.multiply(m).tocsr()  # noqa: E731
+    return _AxisOperators(tuple(approx), tuple(detail),
+                          tuple(square(m) for m in approx), tuple(square(m) for m in detail))
+
+
+@dataclass(frozen=True)
+class WaveletOperators:
+    """The exact equivalent operators for an (H, W) image: rows (axis 0) and columns (axis 1).
+
+    ``rows.approx[k-1]`` maps a column of H pixels to the level-k scale coefficients; squared
+    entrywise (``approx_sq``) it maps pixel variances to coefficient variances.
+    """
+
+    shape: Shape2D
+    wavelet: str
+    boundary: str
+    levels: int
+    rows: _AxisOperators
+    cols: _AxisOperators
+
+
+def wavelet_operators(shape: Shape2D, *, wavelet: str = "bior4.4", levels: int | None = None,
+                      boundary: str = "symmetric") -> WaveletOperators:
+    """Build (and cache) the per-axis level-k equivalent analysis operators.
+
+    Parameters
+    ----------
+    shape
+        (H, W) of the image.
+    wavelet, levels, boundary
+        As in :func:`forward`.
+    """
+    _check_wavelet(wavelet)
+    _check_boundary(boundary)
+    h, w = int(shape[0]), int(shape[1])
+    lv = _check_levels(levels, (h, w))
+    return WaveletOperators((h, w), wavelet, boundary, lv,
+                            _axis_operators(h, wavelet, boundary, lv),
+                            _axis_operators(w, wavelet, boundary, lv))
+
+
+def forward(image: FloatArray, *, wavelet: str = "bior4.4", levels: int | None = None,
+            boundary: str = "symmetric") -> list:
+    """2-D DWT of an (H, W) or (H, W, C) image over its first two axes.
+
+    Parameters
+    ----------
+    image
+        Pixel means (the paper's ``B~``).
+    wavelet
+        A PyWavelets discrete wavelet; default ``"bior4.4"`` is CDF 9/7, JPEG 2000's
+        irreversible wavelet.
+    levels
+        Decomposition depth; default :func:`default_levels`.
+    boundary
+        PyWavelets signal extension mode; default ``"symmetric"``.
+
+    Returns
+    -------
+    list
+        ``[cA_L, (cH_L, cV_L, cD_L), ..., (cH_1, cV_1, cD_1)]``.
+    """
+    _check_wavelet(wavelet)
+    _check_boundary(boundary)
+    lv = _check_levels(levels, image.shape[:2])
+    with warnings.catch_warnings():
+        # Levels past pywt's "useful" depth only mean every coefficient touches the boundary;
+        # the transform stays invertible and the variance propagation stays exact.
+        warnings.simplefilter("ignore", UserWarning)
+        return pywt.wavedec2(image, wavelet, mode=boundary, level=lv, axes=(0, 1))
+
+
+def inverse(coeffs: list, shape: Shape2D, *, wavelet: str = "bior4.4", boundary: str = "symmetric") -> FloatArray:
+    """Inverse of :func:`forward`, cropped to the original (H, W)."""
+    out = pywt.waverec2(coeffs, wavelet, mode=boundary, axes=(0, 1))
+    return out[: shape[0], : shape[1]]
+
+
+def _plane_variance(v: FloatArray, ops: WaveletOperators) -> list:
+    """Coefficient variances of one (H, W) plane; see :func:`coefficient_variance`."""
+    v_t = np.ascontiguousarray(v.T)  # columns first: every column pass is then one sparse product
+    details = []
+    approx = None
+    for k in range(ops.levels):
+        low_t = ops.cols.approx_sq[k] @ v_t      # (m_k, H): squared low-pass along the columns
+        high_t = ops.cols.detail_sq[k] @ v_t
+        low, high = low_t.T, high_t.T
+        details.append((ops.rows.detail_sq[k] @ low,    # cH: high-pass down the rows
+                        ops.rows.approx_sq[k] @ high,   # cV: high-pass across the columns
+                        ops.rows.detail_sq[k] @ high))  # cD
+        if k == ops.levels - 1:
+            approx = ops.rows.approx_sq[k] @ low
+    return [approx] + details[::-1]
+
+
+def coefficient_variance(variance_of_mean: FloatArray, *, wavelet: str = "bior4.4",
+                         levels: int | None = None, boundary: str = "symmetric",
+                         operators: WaveletOperators | None = None) -> list:
+    """Exact variance of every wavelet coefficient of the pixel-mean image.
+
+    ``Var(C) = <v, K^2>`` with ``K`` the coefficient's equivalent 2-D analysis filter
+    (Eq. 10 of the paper without the square root), computed separably with the squared level-k
+    equivalent operators of each axis.
+
+    Parameters
+    ----------
+    variance_of_mean
+        (H, W) or (H, W, C) variance of each pixel mean, ``v_p = s2_p / n_p``.
+    wavelet, levels, boundary
+        As in :func:`forward`.
+    operators
+        Prebuilt :func:`wavelet_operators` for this shape (they are cached anyway).
+
+    Returns
+    -------
+    list
+        Same layout as :func:`forward`: ``[Var(cA_L), (Var(cH_L), Var(cV_L), Var(cD_L)), ...]``.
+    """
+    v = np.asarray(variance_of_mean, dtype=np.float64)
+    ops = operators or wavelet_operators(v.shape[:2], wavelet=wavelet, levels=levels, boundary=boundary)
+    if ops.shape != v.shape[:2]:
+        raise ValueError(f"operators: built for shape {ops.shape}, variance has {v.shape[:2]}")
+    if v.ndim == 2:
+        return _plane_variance(v, ops)
+    planes = [_plane_variance(v[:, :, c], ops) for c in range(v.shape[2])]
+    stack = lambda arrays: np.stack(arrays, axis=-1)  # noqa: E731
+    out = [stack([p[0] for p in planes])]
+    for level in range(1, len(planes[0])):
+        out.append(tuple(stack([p[level][b] for p in planes]) for b in range(3)))
+    return out
+
