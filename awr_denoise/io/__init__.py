@@ -7,10 +7,27 @@ replace an existing file unless ``overwrite=True``. See ``docs/io.md`` for the l
 
 from __future__ import annotations
 
+from .deep import read_deep_samples, write_deep_samples
+from .dump import SampleDump, write_sample_buffer
 from .exr import read_header, read_image, write_image
+from .png import write_preview
+from .presets import PRESETS, detect_preset, read_sample_buffer, read_sample_dump
+from .request_map import read_request, request_attributes, write_request
 
 __all__ = [
+    "PRESETS",
+    "SampleDump",
+    "detect_preset",
+    "read_deep_samples",
     "read_header",
     "read_image",
+    "read_request",
+    "read_sample_buffer",
+    "read_sample_dump",
+    "request_attributes",
+    "write_deep_samples",
     "write_image",
+    "write_preview",
+    "write_request",
+    "write_sample_buffer",
 ]

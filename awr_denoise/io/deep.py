@@ -1,0 +1,156 @@
+"""Per-sample dumps in deep EXR: every Monte Carlo sample of every pixel.
+
+Deep EXR was made for depth samples (``Z``, ``A``, composited with "over"); a Monte Carlo
+dump reuses the container with other meaning, so it never has ``Z``/``A``/``ZBack``
+channels (compositing tools would flatten it) and carries ``awr:semantics =
+"mc-samples"``. Channels are the sample values (``R``, ``G``, ``B`` by default) and,
+optionally, ``sampleIndex`` (FLOAT, the sample's index in its pixel's sequence). Deep parts
+allow only NONE/RLE/ZIPS compression; ZIPS is used.
+
+OpenEXR's Python bindings hold deep channels as (H, W) object arrays of per-pixel arrays;
+samples are grouped and split with array operations, never per-sample Python code.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._typing import FloatArray, Shape2D
+from ..buffers import SampleBuffer
+from .exr import ExrPart, checked_plane, file_error, header_value, read_exr, write_exr
+
+__all__ = ["SEMANTICS_SAMPLES", "SAMPLE_INDEX_CHANNEL", "read_deep_samples", "write_deep_samples",
+           "samples_from_deep_part"]
+
+SEMANTICS_SAMPLES = "mc-samples"
+SAMPLE_INDEX_CHANNEL = "sampleIndex"
+_DEPTH_CHANNELS = frozenset({"Z", "ZBack", "A"})
+
+
+def _object_grid(pieces: Sequence[np.ndarray], shape: Shape2D) -> np.ndarray:
+    # fromiter never tries to stack equal-length pieces into a 2-D array.
+    return np.fromiter(pieces, dtype=object, count=len(pieces)).reshape(shape)
+
+
+def write_deep_samples(
+    path: str | os.PathLike[str],
+    pixels: np.ndarray,
+    values: FloatArray,
+    shape: Shape2D,
+    *,
+    channels: Sequence[str] = ("R", "G", "B"),
+    sample_index: np.ndarray | None = None,
+    header: Mapping[str, Any] | None = None,
+    overwrite: bool = False,
+) -> Path:
+    """Write raw samples to a deep EXR, atomically.
+
+    Parameters
+    ----------
+    pixels
+        (N, 2) ``(row, column)`` or (N,) flat row-major pixel of each sample.
+    values
+        (N, C) or (N,) finite sample values (stored as float32).
+    shape
+        (H, W) of the image.
+    channels
+        C channel names; ``Z``, ``ZBack`` and ``A`` are refused (depth-compositing meaning).
+    sample_index
+        Optional (N,) index of each sample in its pixel's sequence (exact below 2**24).
+    header
+        Extra attributes (``awr:seed``...).
+    overwrite
+        Replace an existing file.
+    """
+    from .. import __version__
+    from .dump import exact_counts
+
+    h, w = (int(s) for s in shape)
+    # Reuse SampleBuffer's validation of coordinates and values.
+    check = SampleBuffer.from_samples(pixels, values, (h, w), channels=channels)
+    names = check.channels
+    bad = _DEPTH_CHANNELS.intersection(names) | ({SAMPLE_INDEX_CHANNEL} & set(names))
+    if bad:
+        raise ValueError(f"channels: {', '.join(sorted(bad))} would be read as depth data or clash; rename them")
+    p = np.asarray(pixels)
+    flat = (p[:, 0].astype(np.int64) * w + p[:, 1].astype(np.int64)) if p.ndim == 2 else p.astype(np.int64)
+    vals = np.asarray(values, dtype=np.float64).reshape(flat.size, -1)
+    order = np.argsort(flat, kind="stable")
+    sizes = np.bincount(flat, minlength=h * w)
+    bounds = np.cumsum(sizes)[:-1]
+    planes: dict[str, np.ndarray] = {}
+    for c, name in enumerate(names):  # a loop over channels; pixels and samples are vectorised
+        planes[name] = _object_grid(np.split(vals[order, c].astype(np.float32), bounds), (h, w))
+    if sample_index is not None:
+        idx = np.asarray(sample_index)
+        if idx.shape != (flat.size,):
+            raise ValueError(f"sample_index: expected shape ({flat.size},), got {idx.shape}")
+        planes[SAMPLE_INDEX_CHANNEL] = _object_grid(np.split(exact_counts("sample_index", idx)[order], bounds),
+                                                    (h, w))
+    attrs: dict[str, Any] = {"awr:semantics": SEMANTICS_SAMPLES, "awr:channels": ",".join(names),
+                             "awr:version": __version__}
+    attrs.update(header or {})
+    return write_exr(path, planes, attrs, overwrite=overwrite, deep=True)
+
+
+def _sizes(grid: np.ndarray) -> np.ndarray:
+    flat = grid.ravel()
+    return np.fromiter(map(lambda a: 0 if a is None else a.size, flat), dtype=np.int64, count=flat.size)
+
+
+def samples_from_deep_part(path: str | os.PathLike[str], part: ExrPart) -> SampleBuffer:
+    """Statistics of the samples in a deep part marked ``awr:semantics = "mc-samples"``."""
+    semantics = str(header_value(part.header, "awr:semantics")) if "awr:semantics" in part.header else None
+    if semantics != SEMANTICS_SAMPLES:
+        raise file_error(path, "deep EXR without awr:semantics = \"mc-samples\" (depth samples are not "
+                               "Monte Carlo samples)", "awr:semantics")
+    if "awr:channels" in part.header:
+        names = [n for n in str(header_value(part.header, "awr:channels")).split(",") if n]
+    else:
+        names = sorted(n for n in part.channels if n not in _DEPTH_CHANNELS | {SAMPLE_INDEX_CHANNEL})
+    for name in names:
+        if name not in part.channels:
+            raise file_error(path, "missing", name)
+    h, w = part.shape
+    sizes = _sizes(part.channels[names[0]])
+    nonempty = sizes > 0
+    columns = []
+    for name in names:
+        flat = part.channels[name].ravel()
+        if not np.array_equal(_sizes(part.channels[name]), sizes):
+            raise file_error(path, "sample counts differ from the other channels", name)
+        data = np.concatenate(flat[nonempty]) if nonempty.any() else np.zeros(0, np.float32)
+        columns.append(checked_plane(path, name, data))
+    values = np.stack(columns, axis=-1)
+    pixel = np.repeat(np.arange(h * w, dtype=np.int64), sizes)
+    return SampleBuffer.from_samples(pixel, values, (h, w), channels=names)
+
+
+def read_deep_samples(path: str | os.PathLike[str]) -> SampleBuffer:
+    """Read a deep per-sample dump into per-pixel statistics.
+
+    Raises
+    ------
+    InputFileError
+        Not a deep EXR, not marked ``awr:semantics = "mc-samples"``, missing channels,
+        NaN/Inf samples.
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile, os
+    >>> from awr_denoise.io import write_deep_samples, read_deep_samples
+    >>> f = os.path.join(tempfile.mkdtemp(), "s.exr")
+    >>> _ = write_deep_samples(f, np.array([0, 0, 3]), np.ones((3, 3)), (2, 2))
+    >>> read_deep_samples(f).count.tolist()
+    [[2, 0], [0, 1]]
+    """
+    parts = read_exr(path)
+    deep = [part for part in parts if part.deep]
+    if not deep:
+        raise file_error(path, "is not a deep EXR")
+    return samples_from_deep_part(Path(path), deep[0])

@@ -1,0 +1,113 @@
+"""Request maps: a :class:`~awr_denoise.SampleRequest` as an EXR an external renderer can read.
+
+Channels (FLOAT, whole numbers, exact up to 2**24)::
+
+    counts        new samples to render at each pixel
+    first_index   index of the first new sample of each pixel in its own sequence
+
+Header: ``awr:semantics = "sample-request"``, ``awr:round``, ``awr:sampler_id``,
+``awr:total`` (sum of ``counts``, a checksum), ``awr:version``, and whatever the caller adds
+(``awr:seed``). The renderer renders samples ``first_index .. first_index + counts - 1`` of
+each pixel and writes a dump in the layout of :mod:`awr_denoise.io.dump`.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from ..requests import SampleRequest
+from .dump import exact_counts, whole_counts
+from .exr import file_error, header_value, read_exr, write_exr
+
+__all__ = ["COUNTS_CHANNEL", "FIRST_INDEX_CHANNEL", "SEMANTICS_REQUEST", "read_request", "write_request",
+           "request_attributes"]
+
+COUNTS_CHANNEL = "counts"
+FIRST_INDEX_CHANNEL = "first_index"
+SEMANTICS_REQUEST = "sample-request"
+
+
+def write_request(path: str | os.PathLike[str], request: SampleRequest, *,
+                  header: Mapping[str, Any] | None = None, overwrite: bool = False) -> Path:
+    """Write a request map, atomically.
+
+    Parameters
+    ----------
+    path
+        Target EXR file.
+    request
+        The request; ``counts`` and ``first_index`` must stay below 2**24 (float32 exact).
+    header
+        Extra attributes, e.g. ``{"awr:seed": 7}`` for the renderer's random sequence.
+    overwrite
+        Replace an existing file.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> from awr_denoise import SampleRequest
+    >>> from awr_denoise.io import write_request, read_request
+    >>> f = os.path.join(tempfile.mkdtemp(), "req.exr")
+    >>> _ = write_request(f, SampleRequest.uniform((2, 3), 4, first_index=8, round=1))
+    >>> r = read_request(f); (r.total, int(r.first_index[0, 0]), r.round)
+    (24, 8, 1)
+    """
+    from .. import __version__
+
+    if not isinstance(request, SampleRequest):
+        raise TypeError(f"request: expected a SampleRequest, got {type(request).__name__}")
+    # The last sample index must be exact too, so the renderer can trust first_index + counts.
+    exact_counts("first_index + counts", request.first_index + request.counts)
+    planes = {COUNTS_CHANNEL: exact_counts("counts", request.counts),
+              FIRST_INDEX_CHANNEL: exact_counts("first_index", request.first_index)}
+    attrs: dict[str, Any] = {
+        "awr:semantics": SEMANTICS_REQUEST,
+        "awr:round": int(request.round),
+        "awr:sampler_id": int(request.sampler_id),
+        "awr:total": int(request.total),
+        "awr:version": __version__,
+    }
+    attrs.update(header or {})
+    return write_exr(path, planes, attrs, overwrite=overwrite)
+
+
+def read_request(path: str | os.PathLike[str]) -> SampleRequest:
+    """Read a request map written by :func:`write_request` (or by any tool in that layout).
+
+    Raises
+    ------
+    InputFileError
+        Missing channels, fractional/negative/non-finite values, or counts whose sum
+        disagrees with ``awr:total``.
+    """
+    p = Path(path)
+    parts = [part for part in read_exr(p) if not part.deep and COUNTS_CHANNEL in part.channels]
+    if not parts:
+        raise file_error(p, "missing (not a request map)", COUNTS_CHANNEL)
+    part = parts[0]
+    if FIRST_INDEX_CHANNEL not in part.channels:
+        raise file_error(p, "missing (not a request map)", FIRST_INDEX_CHANNEL)
+    counts = whole_counts(p, COUNTS_CHANNEL, part.channels[COUNTS_CHANNEL])
+    first = whole_counts(p, FIRST_INDEX_CHANNEL, part.channels[FIRST_INDEX_CHANNEL])
+    attrs = {k: header_value(part.header, k) for k in part.header if str(k).startswith("awr:")}
+
+    def _int(key: str, default: int) -> int:
+        try:
+            return int(str(attrs.get(key, default)))
+        except ValueError:
+            raise file_error(p, f"header attribute is not an integer: {attrs[key]!r}", key) from None
+
+    total = attrs.get("awr:total")
+    if total is not None and _int("awr:total", 0) != int(counts.sum()):
+        raise file_error(p, f"counts sum to {int(counts.sum())} but awr:total says {total}", COUNTS_CHANNEL)
+    return SampleRequest(counts, first, _int("awr:round", 0), _int("awr:sampler_id", 0))
+
+
+def request_attributes(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The ``awr:*`` header attributes of a request map (seed, round, ...)."""
+    parts = read_exr(path, header_only=True)
+    return {k: header_value(parts[0].header, k) for k in parts[0].header if str(k).startswith("awr:")}
+
