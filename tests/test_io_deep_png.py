@@ -1,0 +1,99 @@
+"""Deep per-sample dumps and PNG previews."""
+
+from __future__ import annotations
+
+import zlib
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.exr
+OpenEXR = pytest.importorskip("OpenEXR")
+
+from awr_denoise import SampleBuffer  # noqa: E402
+from awr_denoise.errors import InputFileError  # noqa: E402
+from awr_denoise.io import read_deep_samples, read_sample_buffer, write_deep_samples, write_preview  # noqa: E402
+from awr_denoise.io.png import encode_png, tonemap_srgb  # noqa: E402
+
+
+def test_deep_round_trip_matches_from_samples(tmp_path, rng):
+    shape = (5, 6)
+    n = 200
+    pixels = rng.integers(0, shape[0] * shape[1], size=n)
+    pixels[pixels == 7] = 8  # leave a pixel without samples
+    values = rng.random((n, 3)).astype(np.float32)
+    write_deep_samples(tmp_path / "s.exr", pixels, values, shape, sample_index=np.arange(n),
+                       header={"awr:seed": 3})
+    back = read_deep_samples(tmp_path / "s.exr")
+    expected = SampleBuffer.from_samples(pixels, values, shape)
+    np.testing.assert_array_equal(back.count, expected.count)
+    assert back.count.flat[7] == 0
+    np.testing.assert_allclose(back.mean, expected.mean, rtol=1e-12)
+    np.testing.assert_allclose(back.variance, expected.variance, rtol=1e-9)
+    # auto-detection goes to the deep reader as well
+    np.testing.assert_array_equal(read_sample_buffer(tmp_path / "s.exr").count, expected.count)
+    with OpenEXR.File(str(tmp_path / "s.exr"), separate_channels=True) as f:
+        assert f.header()["awr:semantics"] == "mc-samples"
+        assert not {"Z", "A"} & set(f.channels())
+
+
+def test_deep_equal_counts_and_coordinates(tmp_path):
+    pixels = np.array([[0, 0], [0, 1], [1, 0], [1, 1]] * 2)
+    values = np.arange(8.0)
+    write_deep_samples(tmp_path / "s.exr", pixels, values, (2, 2), channels=("Y",))
+    back = read_deep_samples(tmp_path / "s.exr")
+    np.testing.assert_array_equal(back.count, 2)
+    np.testing.assert_array_equal(back.mean[..., 0], [[2, 3], [4, 5]])
+
+
+def test_deep_refuses_depth_channels_and_depth_files(tmp_path):
+    with pytest.raises(ValueError, match="depth"):
+        write_deep_samples(tmp_path / "z.exr", np.array([0]), np.ones((1, 2)), (1, 1), channels=("R", "Z"))
+    obj = np.fromiter([np.array([1.0], np.float32)], object, 1).reshape(1, 1)
+    with OpenEXR.File({"type": OpenEXR.deepscanline, "compression": OpenEXR.ZIPS_COMPRESSION},
+                      {"Z": obj, "A": obj}) as f:
+        f.write(str(tmp_path / "depth.exr"))
+    with pytest.raises(InputFileError, match=r"depth\.exr: awr:semantics: .*mc-samples"):
+        read_deep_samples(tmp_path / "depth.exr")
+
+
+def test_deep_nan_sample_named(tmp_path):
+    obj = np.fromiter([np.array([1.0, np.nan], np.float32)], object, 1).reshape(1, 1)
+    with OpenEXR.File({"type": OpenEXR.deepscanline, "compression": OpenEXR.ZIPS_COMPRESSION,
+                       "awr:semantics": "mc-samples"}, {"R": obj}) as f:
+        f.write(str(tmp_path / "n.exr"))
+    with pytest.raises(InputFileError, match=r"n\.exr: R: .*NaN"):
+        read_deep_samples(tmp_path / "n.exr")
+
+
+def test_tonemap_values():
+    px = tonemap_srgb(np.array([[[0.0, 0.0031308, 1.0], [2.0, -1.0, 0.25]]]), exposure=0.0)
+    assert px[0, 0].tolist() == [0, 10, 255]
+    assert px[0, 1, :2].tolist() == [255, 0]
+    assert tonemap_srgb(np.full((1, 1, 3), 0.125), exposure=3.0)[0, 0, 0] == 255
+
+
+def _decode_png(data: bytes) -> np.ndarray:
+    # Minimal decoder for our own unfiltered 8-bit RGB output.
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    w, h = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    idat = data.index(b"IDAT")
+    length = int.from_bytes(data[idat - 4:idat], "big")
+    raw = np.frombuffer(zlib.decompress(data[idat + 4:idat + 4 + length]), np.uint8).reshape(h, 1 + 3 * w)
+    assert (raw[:, 0] == 0).all()
+    return raw[:, 1:].reshape(h, w, 3)
+
+
+def test_builtin_png_encoder(tmp_path):
+    px = (np.arange(2 * 3 * 3) * 10).astype(np.uint8).reshape(2, 3, 3)
+    np.testing.assert_array_equal(_decode_png(encode_png(px)), px)
+
+
+def test_write_preview_readable(tmp_path):
+    oiio = pytest.importorskip("OpenImageIO")
+    img = np.linspace(0, 1, 4 * 5 * 3).reshape(4, 5, 3)
+    write_preview(tmp_path / "p.png", img, exposure=0.0)
+    back = oiio.ImageBuf(str(tmp_path / "p.png")).get_pixels(oiio.UINT8)
+    np.testing.assert_array_equal(back, tonemap_srgb(img))
+    with pytest.raises(FileExistsError):
+        write_preview(tmp_path / "p.png", img)

@@ -1,0 +1,174 @@
+"""The project's sample-dump layout and request maps: exact round trips and bad input."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.exr
+OpenEXR = pytest.importorskip("OpenEXR")
+
+from awr_denoise import SampleBuffer, SampleRequest  # noqa: E402
+from awr_denoise.errors import InputFileError  # noqa: E402
+from awr_denoise.io import (  # noqa: E402
+    read_request,
+    read_sample_buffer,
+    read_sample_dump,
+    write_request,
+    write_sample_buffer,
+)
+
+
+def _buffer(rng, shape=(6, 5), channels=("R", "G", "B")) -> SampleBuffer:
+    count = rng.integers(0, 40, size=shape)
+    count[0, 0] = 2**24  # the largest count float32 stores exactly (with all below it)
+    count[0, 1] = 2**24 - 1
+    mean = rng.random(shape + (len(channels),)).astype(np.float32)
+    var = rng.random(shape + (len(channels),)).astype(np.float32)
+    return SampleBuffer.from_moments(count, mean, var, channels=channels)
+
+
+def _write(path, planes, header=None):
+    with OpenEXR.File(dict(header or {}), planes) as f:
+        f.write(str(path))
+
+
+def test_round_trip_counts_exact_and_statistics(tmp_path, rng):
+    buf = _buffer(rng)
+    write_sample_buffer(tmp_path / "d.exr", buf, header={"awr:round": 3, "awr:seed": 2**40 + 1})
+    dump = read_sample_dump(tmp_path / "d.exr")
+    back = dump.buffer
+    np.testing.assert_array_equal(back.count, buf.count)
+    np.testing.assert_array_equal(back.mean, buf.mean)
+    np.testing.assert_array_equal(back.variance, buf.variance)
+    np.testing.assert_array_equal(back.variance_known, buf.variance_known)
+    assert back.channels == buf.channels
+    assert dump.attributes["awr:round"] == 3 and int(dump.attributes["awr:seed"]) == 2**40 + 1
+    with OpenEXR.File(str(tmp_path / "d.exr"), separate_channels=True) as f:
+        ch = f.channels()
+        assert ch["sampleCount"].pixels.dtype == np.float32  # FLOAT, not UINT (OIIO normalises UINT)
+        assert f.header()["awr:variance_kind"] == "sample"
+
+
+def test_channel_order_kept_for_non_rgb_names(tmp_path, rng):
+    buf = _buffer(rng, channels=("Z2", "B1", "A0"))
+    write_sample_buffer(tmp_path / "d.exr", buf)
+    assert read_sample_buffer(tmp_path / "d.exr").channels == ("Z2", "B1", "A0")
+
+
+def test_counts_above_float32_exact_range_refused(tmp_path):
+    count = np.full((2, 2), 2**24 + 1)
+    buf = SampleBuffer.from_moments(count, np.zeros((2, 2, 3)), np.zeros((2, 2, 3)))
+    with pytest.raises(ValueError, match=r"2\*\*24"):
+        write_sample_buffer(tmp_path / "d.exr", buf)
+    assert os.listdir(tmp_path) == []
+
+
+def test_unknown_variance_mask_round_trips(tmp_path, rng):
+    count = np.full((3, 3), 8)
+    known = np.ones((3, 3), bool)
+    known[1, 1] = False
+    buf = SampleBuffer.from_moments(count, rng.random((3, 3, 3)), rng.random((3, 3, 3)), variance_known=known)
+    write_sample_buffer(tmp_path / "d.exr", buf)
+    np.testing.assert_array_equal(read_sample_buffer(tmp_path / "d.exr").variance_known, known)
+
+
+def test_issued_counts_round_trip(tmp_path, rng):
+    buf = _buffer(rng, shape=(2, 3))
+    issued = buf.count + np.array([[0, 1, 0], [2, 0, 0]])
+    write_sample_buffer(tmp_path / "d.exr", buf, issued=issued)
+    np.testing.assert_array_equal(read_sample_dump(tmp_path / "d.exr").issued, issued)
+    write_sample_buffer(tmp_path / "e.exr", buf)
+    np.testing.assert_array_equal(read_sample_dump(tmp_path / "e.exr").issued, buf.count)
+
+
+@pytest.mark.parametrize("kind,factor", [("sample", 1.0), ("mean", 4.0)])
+def test_variance_kind_header_is_honoured(tmp_path, kind, factor):
+    one = np.ones((2, 2), np.float32)
+    planes = {c: one * 0.5 for c in "RGB"} | {f"variance.{c}": one * 0.25 for c in "RGB"}
+    planes["sampleCount"] = one * 4
+    _write(tmp_path / "d.exr", planes, {"awr:variance_kind": kind})
+    np.testing.assert_allclose(read_sample_buffer(tmp_path / "d.exr").variance, 0.25 * factor)
+
+
+def test_second_moment_kind(tmp_path):
+    one = np.ones((2, 2), np.float32)
+    planes = {c: one * 0.5 for c in "RGB"} | {f"variance.{c}": one * 0.5 for c in "RGB"}
+    planes["sampleCount"] = one * 5
+    _write(tmp_path / "d.exr", planes, {"awr:variance_kind": "second_moment"})
+    np.testing.assert_allclose(read_sample_buffer(tmp_path / "d.exr").variance, (0.5 - 0.25) * 5 / 4)
+
+
+def _planes(**over):
+    one = np.ones((3, 4), np.float32)
+    planes = {c: one * 0.5 for c in "RGB"} | {f"variance.{c}": one * 0.1 for c in "RGB"}
+    planes["sampleCount"] = one * 4
+    planes.update(over)
+    return planes
+
+
+@pytest.mark.parametrize("channel,value,what", [
+    ("G", np.nan, "NaN"),
+    ("variance.B", np.inf, "Inf"),
+    ("variance.R", -1.0, "negative"),
+    ("sampleCount", -2.0, "negative"),
+    ("sampleCount", 2.5, "not whole"),
+])
+def test_bad_values_name_file_and_channel(tmp_path, channel, value, what):
+    planes = _planes()
+    bad = planes[channel].copy()
+    bad[1, 2] = value
+    planes[channel] = bad
+    _write(tmp_path / "bad.exr", planes)
+    with pytest.raises(InputFileError, match=rf"bad\.exr: {channel}: .*{what}"):
+        read_sample_buffer(tmp_path / "bad.exr")
+
+
+def test_half_overflow_named(tmp_path):
+    planes = _planes()
+    var = planes["variance.G"].astype(np.float16)
+    var[0, 0] = np.float16(np.inf)  # what a renderer's half channel holds after 70000 overflowed
+    planes["variance.G"] = var
+    _write(tmp_path / "h.exr", planes)
+    with pytest.raises(InputFileError, match=r"h\.exr: variance\.G: .*half-float overflow"):
+        read_sample_buffer(tmp_path / "h.exr")
+
+
+def test_missing_variance_channel(tmp_path):
+    planes = _planes()
+    del planes["variance.B"]
+    _write(tmp_path / "m.exr", planes, {"awr:channels": "R,G,B"})
+    with pytest.raises(InputFileError, match=r"m\.exr: variance\.B: missing"):
+        read_sample_buffer(tmp_path / "m.exr")
+
+
+def test_undetectable_layout(tmp_path):
+    _write(tmp_path / "u.exr", {"foo": np.ones((2, 2), np.float32)})
+    with pytest.raises(InputFileError, match=r"u\.exr: cannot detect the layout"):
+        read_sample_buffer(tmp_path / "u.exr")
+
+
+def test_request_round_trip_exact(tmp_path, rng):
+    counts = rng.integers(0, 9, size=(5, 7))
+    first = rng.integers(0, 2**24 - 9, size=(5, 7))
+    req = SampleRequest(counts, first, round=4, sampler_id=12)
+    write_request(tmp_path / "r.exr", req, header={"awr:seed": 9})
+    back = read_request(tmp_path / "r.exr")
+    np.testing.assert_array_equal(back.counts, counts)
+    np.testing.assert_array_equal(back.first_index, first)
+    assert (back.round, back.sampler_id, back.total) == (4, 12, req.total)
+
+
+def test_request_beyond_float32_refused(tmp_path):
+    req = SampleRequest.uniform((2, 2), 4, first_index=2**24)
+    with pytest.raises(ValueError, match="first_index"):
+        write_request(tmp_path / "r.exr", req)
+
+
+def test_request_total_checksum(tmp_path):
+    one = np.ones((2, 2), np.float32)
+    _write(tmp_path / "r.exr", {"counts": one, "first_index": one * 0}, {"awr:total": 5})
+    with pytest.raises(InputFileError, match=r"r\.exr: counts: .*awr:total"):
+        read_request(tmp_path / "r.exr")

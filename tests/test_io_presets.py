@@ -1,0 +1,130 @@
+"""Renderer presets and auto-detection, on small synthetic files written here with OpenEXR."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.exr
+OpenEXR = pytest.importorskip("OpenEXR")
+
+from awr_denoise.errors import InputFileError  # noqa: E402
+from awr_denoise.io import detect_preset, read_sample_buffer  # noqa: E402
+
+H, W = 4, 5
+
+
+def _write(path, planes, header=None):
+    with OpenEXR.File(dict(header or {}), planes) as f:
+        f.write(str(path))
+    return path
+
+
+def _ramp(offset=0.0, dtype=np.float32):
+    return (np.arange(H * W).reshape(H, W) / (H * W) + offset).astype(dtype)
+
+
+def test_pbrt_gbuffer(tmp_path):
+    var = {f"Variance.{c}": _ramp(0.1 * i, np.float16) for i, c in enumerate("RGB")}
+    for v in var.values():
+        v[0, 0] = 0  # environment-only pixel: pbrt's "unknown"
+    planes = {c: _ramp(i, np.float16) for i, c in enumerate("RGB")} | var
+    planes |= {"Albedo.R": _ramp(), "N.X": _ramp(), "RelativeVariance.R": _ramp(), "u": _ramp()}
+    f = _write(tmp_path / "pbrt.exr", planes, {"samplesPerPixel": 16})
+    assert detect_preset(list(planes), {}) == "pbrt"
+    buf = read_sample_buffer(f)
+    assert buf.channels == ("R", "G", "B")
+    assert (buf.count == 16).all()
+    np.testing.assert_allclose(buf.mean[..., 2], _ramp(2, np.float16), rtol=0)
+    np.testing.assert_allclose(buf.variance[1:, :, 1], var["Variance.G"][1:].astype(np.float64))
+    assert not buf.variance_known[0, 0] and buf.variance_known[1:].all()
+    # --spp overrides the header; without either the count is missing.
+    assert (read_sample_buffer(f, spp=4).count == 4).all()
+    g = _write(tmp_path / "nospp.exr", planes)
+    with pytest.raises(InputFileError, match=r"nospp\.exr: .*samplesPerPixel"):
+        read_sample_buffer(g)
+
+
+@pytest.mark.parametrize("layer", ["ViewLayer", "View Layer 2"])
+def test_cycles_multilayer_normalised_counts(tmp_path, layer):
+    samples = 64
+    count = np.arange(H * W).reshape(H, W) % samples + 1
+    planes = {f"{layer}.Combined.{c}": _ramp(i) for i, c in enumerate("RGBA")}
+    planes[f"{layer}.Debug Sample Count.X"] = (count * np.float32(1.0 / samples)).astype(np.float32)
+    planes[f"{layer}.Denoising Albedo.R"] = _ramp()
+    planes |= {f"{layer}.Variance AOV.{c}": _ramp(0.5) for c in "RGB"}
+    f = _write(tmp_path / "cycles.exr", planes, {f"cycles.{layer}.samples": str(samples)})
+    assert detect_preset(list(planes), {}) == "cycles"
+    with pytest.raises(InputFileError, match=r"cycles\.exr: .*Combined: Blender Cycles writes no variance pass"):
+        read_sample_buffer(f)
+    buf = read_sample_buffer(f, variance=f"{layer}.Variance AOV")
+    np.testing.assert_array_equal(buf.count, count)
+    assert buf.channels == ("R", "G", "B")  # alpha is not a colour channel
+    np.testing.assert_array_equal(buf.mean[..., 1], _ramp(1))
+
+
+def test_cycles_several_layers_need_a_choice(tmp_path):
+    planes = {f"{layer}.Combined.{c}": _ramp() for layer in ("A", "B") for c in "RGB"}
+    planes |= {f"A.Var.{c}": _ramp() for c in "RGB"}
+    f = _write(tmp_path / "two.exr", planes, {"cycles.A.samples": "4", "cycles.B.samples": "4"})
+    with pytest.raises(InputFileError, match="several view layers"):
+        read_sample_buffer(f, variance="A.Var")
+    assert (read_sample_buffer(f, variance="A.Var", layer="A").count == 4).all()
+
+
+def test_renderman(tmp_path):
+    n = np.full((H, W), 32, np.float32)
+    planes = {f"Ci.{c}": _ramp(i) for i, c in enumerate("rgb")} | {"a": _ramp()}
+    planes |= {f"mse.{c}": _ramp(0.01) for c in "rgb"} | {"sampleCount": n, "albedo.r": _ramp()}
+    f = _write(tmp_path / "rman.exr", planes)
+    assert detect_preset(list(planes), {}) == "renderman"
+    buf = read_sample_buffer(f)
+    assert (buf.count == 32).all()
+    # mse is the variance of the pixel mean by default: per-sample variance = mse * n.
+    np.testing.assert_allclose(buf.variance[..., 0], _ramp(0.01).astype(np.float64) * 32)
+    np.testing.assert_allclose(read_sample_buffer(f, variance_kind="sample").variance[..., 0],
+                               _ramp(0.01).astype(np.float64))
+
+
+def test_mitsuba_moment(tmp_path):
+    mean = _ramp(0.5)
+    m2 = (mean.astype(np.float64) ** 2 + 0.3).astype(np.float32)
+    planes = {f"nested.{c}": mean for c in "XYZ"} | {f"m2_nested.{c}": m2 for c in "XYZ"}
+    f = _write(tmp_path / "mi.exr", planes)
+    assert detect_preset(list(planes), {}) == "mitsuba"
+    with pytest.raises(InputFileError, match=r"mi\.exr: .*no per-pixel sample count"):
+        read_sample_buffer(f)
+    buf = read_sample_buffer(f, spp=8)
+    assert buf.channels == ("R", "G", "B") and (buf.count == 8).all()
+    expected = (m2.astype(np.float64) - mean.astype(np.float64) ** 2) * 8 / 7
+    np.testing.assert_allclose(buf.variance[..., 2], expected, rtol=1e-5)
+
+
+def test_generic_multi_file(tmp_path):
+    beauty = _write(tmp_path / "beauty.exr", {c: _ramp(i) for i, c in enumerate("RGB")})
+    _write(tmp_path / "var.exr", {f"err.{c}": _ramp(0.2) for c in "RGB"})
+    _write(tmp_path / "n.exr", {"n": np.full((H, W), 7, np.float32)})
+    buf = read_sample_buffer(beauty, color="RGB", variance=f"{tmp_path / 'var.exr'}:err",
+                             count=f"{tmp_path / 'n.exr'}:n", variance_kind="mean")
+    assert (buf.count == 7).all()
+    np.testing.assert_allclose(buf.variance[..., 0], _ramp(0.2).astype(np.float64) * 7)
+    # --spp when there is no count plane
+    assert (read_sample_buffer(beauty, color="RGB", variance=f"{tmp_path / 'var.exr'}:err", spp=3).count == 3).all()
+
+
+def test_generic_size_mismatch_names_second_file(tmp_path):
+    beauty = _write(tmp_path / "beauty.exr", {c: _ramp(i) for i, c in enumerate("RGB")})
+    _write(tmp_path / "small.exr", {f"v.{c}": np.ones((2, 2), np.float32) for c in "RGB"})
+    with pytest.raises(InputFileError, match=r"small\.exr: v: size 2x2 does not match 5x4"):
+        read_sample_buffer(beauty, color="RGB", variance=f"{tmp_path / 'small.exr'}:v", spp=4)
+
+
+def test_generic_missing_plane(tmp_path):
+    beauty = _write(tmp_path / "beauty.exr", {c: _ramp(i) for i, c in enumerate("RGB")})
+    with pytest.raises(InputFileError, match=r"beauty\.exr: nope: no variance channel"):
+        read_sample_buffer(beauty, color="RGB", variance="nope", spp=4)
+
+
+def test_unknown_preset_rejected(tmp_path):
+    with pytest.raises(ValueError, match="preset"):
+        read_sample_buffer(tmp_path / "x.exr", preset="vray")
