@@ -21,6 +21,8 @@ deviation): samples concentrate on edges and spread thinly over smooth noisy reg
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from scipy import ndimage
 
@@ -67,15 +69,29 @@ def coefficient_priorities(
     domain: str | Domain = "log",
     boundary: str = "symmetric",
     operators: WaveletOperators | None = None,
+    plane: tuple[FloatArray, FloatArray, FloatArray] | None = None,
 ) -> list[FloatArray]:
     """Priority ``P_k`` of every scale coefficient at levels ``k = 0..L``.
+
+    Parameters
+    ----------
+    buffer
+        Sample statistics so far.
+    wavelet, levels, boundary
+        As in :func:`~awr_denoise.wavelets.forward`.
+    domain
+        Error domain (see :func:`error_plane`).
+    operators
+        Prebuilt operators for the buffer's shape.
+    plane
+        A precomputed :func:`error_plane` of ``buffer``.
 
     Returns
     -------
     list of ndarray
         ``[P_0 (H, W), P_1, ..., P_L]``, each on its level's coefficient grid.
     """
-    mean_y, var_y, _ = error_plane(buffer, domain)
+    mean_y, var_y, _ = plane if plane is not None else error_plane(buffer, domain)
     ops = operators or wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     coeffs = forward(mean_y, wavelet=ops.wavelet, levels=ops.levels, boundary=ops.boundary)
     variances = coefficient_variance(var_y, operators=ops)
@@ -90,11 +106,11 @@ def coefficient_priorities(
     return priorities
 
 
-def _pixel_to_coefficient(op) -> np.ndarray:
-    """For each pixel of an axis, the coefficient of the level whose filter weighs it most."""
-    dense_abs = abs(op).tocsc()
-    idx = np.asarray(dense_abs.argmax(axis=0)).ravel()
-    return idx
+@lru_cache(maxsize=64)
+def _pixel_to_coefficient(n: int, wavelet: str, boundary: str, levels: int, level: int) -> np.ndarray:
+    """For each of the n pixels of an axis, the level-k scale coefficient weighing it most."""
+    op = wavelet_operators((n, n), wavelet=wavelet, levels=levels, boundary=boundary).rows.approx[level - 1]
+    return np.asarray(abs(op).tocsc().argmax(axis=0)).ravel()
 
 
 def pixel_levels(priorities: list[FloatArray], operators: WaveletOperators) -> np.ndarray:
@@ -103,8 +119,9 @@ def pixel_levels(priorities: list[FloatArray], operators: WaveletOperators) -> n
     best = priorities[0].copy()
     level = np.zeros((h, w), np.int64)
     for k in range(1, len(priorities)):
-        rows = _pixel_to_coefficient(operators.rows.approx[k - 1])
-        cols = _pixel_to_coefficient(operators.cols.approx[k - 1])
+        key = (operators.wavelet, operators.boundary, operators.levels, k)
+        rows = _pixel_to_coefficient(h, *key)
+        cols = _pixel_to_coefficient(w, *key)
         at_pixels = priorities[k][np.ix_(rows, cols)]
         better = at_pixels > best
         best = np.where(better, at_pixels, best)
@@ -129,10 +146,10 @@ def sampling_density(
     variance-driven sampling).
     """
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
-    _, _, s2_y = error_plane(buffer, domain)
-    s2_pooled = ndimage.uniform_filter(s2_y, 3, mode="nearest")
+    plane = error_plane(buffer, domain)
+    s2_pooled = ndimage.uniform_filter(plane[2], 3, mode="nearest")
     if level_weight == 0:
         return np.sqrt(s2_pooled)
-    prio = coefficient_priorities(buffer, domain=domain, operators=ops)
+    prio = coefficient_priorities(buffer, domain=domain, operators=ops, plane=plane)
     level = pixel_levels(prio, ops)
     return np.sqrt(s2_pooled) * 2.0 ** (-level_weight * level)

@@ -1,0 +1,172 @@
+"""Core benchmark: speed and memory of reconstruct() and ask(), and quality on synthetic scenes.
+
+Run from the repository root::
+
+    .venv/bin/python benchmarks/bench_core.py            # all sizes, ~1-2 minutes
+    .venv/bin/python benchmarks/bench_core.py --quick    # 256x256 only
+
+Prints markdown tables and writes ``benchmarks/results/core.json``. Timings are medians of
+repeated runs on one core (no executor); memory is the tracemalloc peak of a separate run,
+reported as a multiple of the input buffer (count + mean + variance).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import sys
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+
+from awr_denoise import AdaptiveSampler, SampleBuffer, UniformSampler, VarianceSampler, reconstruct
+from awr_denoise.domains import Domain
+from awr_denoise.metrics import mse, relmse
+from awr_denoise.synthetic import SyntheticRenderer, make_scene
+
+SIZES = {"256x256": (256, 256), "1080p": (1080, 1920), "4K": (2160, 3840)}
+RESULTS = Path(__file__).resolve().parent / "results" / "core.json"
+
+
+def _noisy_buffer(shape, spp=4, seed=0) -> SampleBuffer:
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    count = np.full((h, w), spp)
+    mean = rng.uniform(0.0, 1.0, (h, w, 3))
+    var = rng.uniform(0.0, 0.1, (h, w, 3))
+    return SampleBuffer.from_moments(count, mean, var)
+
+
+def _median_time(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return statistics.median(times)
+
+
+def _peak(fn) -> int:
+    tracemalloc.start()
+    tracemalloc.reset_peak()
+    fn()
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    return peak
+
+
+def speed(sizes: list[str]) -> list[dict]:
+    rows = []
+    for name in sizes:
+        shape = SIZES[name]
+        buf = _noisy_buffer(shape)
+        repeats = 5 if name == "256x256" else 3
+        reconstruct(buf)  # build and cache the wavelet operators once, as a renderer's loop would
+        sampler = AdaptiveSampler.from_buffer(buf, round=1)
+        sampler.ask()
+        t_rec = _median_time(lambda: reconstruct(buf), repeats)
+        t_ask = _median_time(lambda: AdaptiveSampler.from_buffer(buf, round=1).ask(), repeats)
+        m_rec = _peak(lambda: reconstruct(buf))
+        m_ask = _peak(lambda: AdaptiveSampler.from_buffer(buf, round=1).ask())
+        row = {"size": name, "pixels": shape[0] * shape[1], "input_MB": buf.nbytes / 2**20,
+               "reconstruct_s": t_rec, "ask_s": t_ask,
+               "reconstruct_peak_x_input": m_rec / buf.nbytes, "ask_peak_x_input": m_ask / buf.nbytes}
+        rows.append(row)
+        print(f"| {name} | {row['input_MB']:.0f} MB | {t_rec:.3f} s | {t_ask:.3f} s | "
+              f"{row['reconstruct_peak_x_input']:.1f}x | {row['ask_peak_x_input']:.1f}x |", flush=True)
+    return rows
+
+
+def quality(shape=(128, 128), spps=(8, 32), seed=3) -> list[dict]:
+    rows = []
+    for scene_name in ("gradient", "edges", "hdr_source", "fireflies"):
+        scene = make_scene(scene_name, shape)
+        ref = scene.reference(8)
+        for spp in spps:
+            row = {"scene": scene_name, "spp": spp}
+            uniform = UniformSampler(shape).run(SyntheticRenderer(scene, seed=seed), spp)
+            row["uniform_mean"] = (relmse(uniform.mean, ref), mse(uniform.mean, ref))
+            row["uniform_awr"] = (relmse(reconstruct(uniform), ref), mse(reconstruct(uniform), ref))
+            variance = VarianceSampler(shape).run(SyntheticRenderer(scene, seed=seed), spp)
+            row["variance_awr"] = (relmse(reconstruct(variance), ref), mse(reconstruct(variance), ref))
+            adaptive = AdaptiveSampler(shape).run(SyntheticRenderer(scene, seed=seed), spp)
+            row["adaptive_awr"] = (relmse(reconstruct(adaptive), ref), mse(reconstruct(adaptive), ref))
+            rows.append(row)
+            cells = " | ".join(f"{row[k][0]:.4f} / {row[k][1]:.2e}"
+                               for k in ("uniform_mean", "uniform_awr", "variance_awr", "adaptive_awr"))
+            print(f"| {scene_name} | {spp} | {cells} |", flush=True)
+    return rows
+
+
+def domains(shape=(128, 128), spps=(4, 16), seed=1) -> list[dict]:
+    variants = {"linear": Domain("linear"), "log k=0.02": Domain("log", 0.02), "log k=0.1": Domain("log", 0.1),
+                "log k=0.5": Domain("log", 0.5), "gamma 2.2": Domain("gamma"),
+                "log k=0.1 robust": Domain("log", 0.1, robust=True)}
+    rows = []
+    for scene_name in ("gradient", "edges", "hdr_source", "fireflies"):
+        scene = make_scene(scene_name, shape)
+        ref = scene.reference(8)
+        for spp in spps:
+            buf = UniformSampler(shape).run(SyntheticRenderer(scene, seed=seed), spp)
+            row = {"scene": scene_name, "spp": spp, "mean": relmse(buf.mean, ref)}
+            for label, dom in variants.items():
+                row[label] = relmse(reconstruct(buf, domain=dom), ref)
+            rows.append(row)
+            print(f"| {scene_name} | {spp} | {row['mean']:.4f} | "
+                  + " | ".join(f"{row[k]:.4f}" for k in variants) + " |", flush=True)
+    return rows
+
+
+def level_weights(shape=(128, 128), spp=16, seed=3) -> list[dict]:
+    rows = []
+    weights = (0.0, 0.25, 0.5, 1.0)
+    for scene_name in ("gradient", "edges", "hdr_source", "fireflies"):
+        scene = make_scene(scene_name, shape)
+        ref = scene.reference(8)
+        uniform = UniformSampler(shape).run(SyntheticRenderer(scene, seed=seed), spp)
+        row = {"scene": scene_name, "spp": spp, "uniform_awr": relmse(reconstruct(uniform), ref)}
+        for lw in weights:
+            buf = AdaptiveSampler(shape, level_weight=lw).run(SyntheticRenderer(scene, seed=seed), spp)
+            row[f"w={lw}"] = relmse(reconstruct(buf), ref)
+        rows.append(row)
+        print(f"| {scene_name} | {row['uniform_awr']:.4f} | " + " | ".join(f"{row[f'w={lw}']:.4f}" for lw in weights)
+              + " |", flush=True)
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="256x256 speed only, fewer quality runs")
+    parser.add_argument("--output", type=Path, default=RESULTS)
+    args = parser.parse_args(argv)
+    sizes = ["256x256"] if args.quick else list(SIZES)
+    print("## Speed (one core) and peak memory\n")
+    print("| size | input buffer | reconstruct | ask() | reconstruct peak | ask() peak |")
+    print("|---|---|---|---|---|---|")
+    results = {"machine": {"python": sys.version.split()[0], "platform": platform.platform(),
+                           "processor": platform.processor() or platform.machine()},
+               "speed": speed(sizes)}
+    print("\n## Quality, synthetic 128x128 (relMSE / MSE, equal samples)\n")
+    print("| scene | spp | uniform mean | uniform + AWR | variance-driven + AWR | AWR adaptive + AWR |")
+    print("|---|---|---|---|---|---|")
+    results["quality"] = quality(spps=(8,) if args.quick else (8, 32))
+    print("\n## Reconstruction domain (relMSE, uniform sampling, c_s = 1)\n")
+    print("| scene | spp | mean | linear | log k=0.02 | log k=0.1 | log k=0.5 | gamma 2.2 | log k=0.1 robust |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    results["domains"] = domains(spps=(4,) if args.quick else (4, 16))
+    print("\n## Sampler level weight (relMSE after reconstruction, 16 spp)\n")
+    print("| scene | uniform + AWR | w=0 | w=0.25 | w=0.5 | w=1 |")
+    print("|---|---|---|---|---|---|")
+    results["level_weights"] = level_weights()
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(json.dumps(results, indent=2))
+    print(f"\nwrote {args.output}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
