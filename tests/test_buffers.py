@@ -1,0 +1,364 @@
+"""SampleBuffer: per-pixel statistics, exact merging, validation and non-finite policies."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose, assert_array_equal
+
+from awr_denoise.buffers import SampleBuffer, default_channel_names, luminance_weights
+
+# Two-pass float64 statistics against numpy's own: only rounding differs.
+STATS_RTOL = {np.float64: 1e-12, np.float32: 1e-12}
+# Chan's parallel update against the two-pass statistics of all samples at once.
+MERGE_RTOL = 1e-11
+MERGE_ATOL = 1e-13
+# sum_sq - sum^2 / n cancels; on values of order one with few samples it stays close.
+SUMS_RTOL = 1e-9
+
+SHAPE = (6, 5)
+
+
+def _random_samples(rng, shape=SHAPE, n=400, channels=3, dtype=np.float64):
+    """Flat pixel indices (every pixel hit at least twice) and (n, C) values."""
+    h, w = shape
+    pixels = np.concatenate([np.repeat(np.arange(h * w), 2), rng.integers(0, h * w, n - 2 * h * w)])
+    rng.shuffle(pixels)
+    values = (rng.normal(1.0, 0.5, (n, channels)) * (1 + pixels[:, None] % 4)).astype(dtype)
+    return pixels, values
+
+
+def _numpy_stats(pixels, values, shape):
+    h, w = shape
+    count = np.zeros(h * w, np.int64)
+    mean = np.zeros((h * w, values.shape[1]))
+    var = np.zeros((h * w, values.shape[1]))
+    for p in range(h * w):
+        v = values[pixels == p].astype(np.float64)
+        count[p] = len(v)
+        if len(v):
+            mean[p] = v.mean(axis=0)
+        if len(v) > 1:
+            var[p] = v.var(axis=0, ddof=1)
+    return count.reshape(h, w), mean.reshape(h, w, -1), var.reshape(h, w, -1)
+
+
+# ---------------------------------------------------------------------------- values
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_from_samples_matches_numpy_mean_and_unbiased_variance(rng, dtype):
+    pixels, values = _random_samples(rng, dtype=dtype)
+    buf = SampleBuffer.from_samples(pixels, values, SHAPE)
+    count, mean, var = _numpy_stats(pixels, values, SHAPE)
+    assert buf.mean.dtype == np.float64 and buf.variance.dtype == np.float64
+    assert_array_equal(buf.count, count)
+    assert_allclose(buf.mean, mean, rtol=STATS_RTOL[dtype])
+    assert_allclose(buf.variance, var, rtol=STATS_RTOL[dtype])
+    assert buf.variance_known.all()
+    assert buf.total_samples == len(pixels)
+    assert_allclose(buf.variance_of_mean(), var / count[..., None], rtol=STATS_RTOL[dtype])
+
+
+def test_tiny_hand_checked_pixel():
+    # Samples 1, 2, 6 at pixel (0, 1): mean 3, variance ((-2)^2 + (-1)^2 + 3^2) / 2 = 7.
+    buf = SampleBuffer.from_samples(np.array([1, 1, 1]), np.array([1.0, 2.0, 6.0]), (1, 2))
+    assert_array_equal(buf.count, [[0, 3]])
+    assert buf.mean[0, 1, 0] == 3.0
+    assert buf.variance[0, 1, 0] == 7.0
+    assert buf.m2[0, 1, 0] == 14.0
+    assert buf.channels == ("Y",)
+
+
+def test_pixel_coordinates_and_flat_indices_agree(rng):
+    pixels, values = _random_samples(rng)
+    rows, cols = np.divmod(pixels, SHAPE[1])
+    a = SampleBuffer.from_samples(pixels, values, SHAPE)
+    b = SampleBuffer.from_samples(np.stack([rows, cols], axis=1), values, SHAPE)
+    assert_array_equal(a.count, b.count)
+    assert_array_equal(a.mean, b.mean)
+    assert_array_equal(a.variance, b.variance)
+
+
+def test_pixels_outside_the_image_are_refused():
+    with pytest.raises(ValueError, match=r"pixels: 2 coordinate\(s\) fall outside"):
+        SampleBuffer.from_samples(np.array([[0, 0], [3, 0], [0, -1]]), np.ones(3), (3, 3))
+    with pytest.raises(ValueError, match=r"pixels: 1 index\(es\) fall outside"):
+        SampleBuffer.from_samples(np.array([0, 9]), np.ones(2), (3, 3))
+
+
+# ---------------------------------------------------------------------------- merging
+def test_merge_equals_all_samples_at_once_in_any_order(rng):
+    pixels, values = _random_samples(rng, n=600)
+    whole = SampleBuffer.from_samples(pixels, values, SHAPE)
+    cuts = [0, 37, 38, 250, 600]  # a batch of one sample, and uneven batches
+    parts = [SampleBuffer.from_samples(pixels[a:b], values[a:b], SHAPE) for a, b in zip(cuts, cuts[1:])]
+    for order in itertools.permutations(range(len(parts))):
+        merged = parts[order[0]]
+        for i in order[1:]:
+            merged = merged.merge(parts[i])
+        assert_array_equal(merged.count, whole.count)
+        assert_allclose(merged.mean, whole.mean, rtol=MERGE_RTOL, atol=MERGE_ATOL)
+        assert_allclose(merged.variance, whole.variance, rtol=MERGE_RTOL, atol=MERGE_ATOL)
+        assert_array_equal(merged.variance_known, whole.variance_known)
+    # Tree order too: (a + b) + (c + d).
+    tree = parts[0].merge(parts[1]).merge(parts[2].merge(parts[3]))
+    assert_allclose(tree.variance, whole.variance, rtol=MERGE_RTOL, atol=MERGE_ATOL)
+
+
+def test_merge_of_single_samples_gives_known_variance():
+    a = SampleBuffer.from_samples(np.array([0]), np.array([1.0]), (1, 1))
+    b = SampleBuffer.from_samples(np.array([0]), np.array([4.0]), (1, 1))
+    assert not a.variance_known.any() and not b.variance_known.any()
+    ab = a.merge(b)
+    assert ab.count[0, 0] == 2 and ab.variance_known[0, 0]
+    assert ab.mean[0, 0, 0] == 2.5
+    assert ab.variance[0, 0, 0] == pytest.approx(4.5, rel=1e-15)  # var([1, 4], ddof=1)
+
+
+def test_merge_with_empty_is_identity(rng):
+    pixels, values = _random_samples(rng)
+    buf = SampleBuffer.from_samples(pixels, values, SHAPE)
+    for merged in (buf.merge(SampleBuffer.empty(SHAPE)), SampleBuffer.empty(SHAPE).merge(buf)):
+        assert_array_equal(merged.count, buf.count)
+        assert_array_equal(merged.mean, buf.mean)
+        assert_allclose(merged.variance, buf.variance, rtol=MERGE_RTOL)
+
+
+def test_merge_refuses_other_shapes_and_channels():
+    a = SampleBuffer.empty((2, 3))
+    with pytest.raises(ValueError, match="other: shape"):
+        a.merge(SampleBuffer.empty((3, 2)))
+    with pytest.raises(ValueError, match="other: channels"):
+        a.merge(SampleBuffer.empty((2, 3), channels=("X", "Y", "Z")))
+    with pytest.raises(TypeError, match="other"):
+        a.merge(np.zeros((2, 3)))
+
+
+# ---------------------------------------------------------------------------- other constructors
+def test_from_sums_and_all_variance_kinds_agree(rng):
+    pixels, values = _random_samples(rng)
+    ref = SampleBuffer.from_samples(pixels, values, SHAPE)
+    n = ref.count
+    h, w = SHAPE
+    s1 = np.stack([np.bincount(pixels, values[:, c], h * w) for c in range(3)], -1).reshape(h, w, 3)
+    s2 = np.stack([np.bincount(pixels, values[:, c] ** 2, h * w) for c in range(3)], -1).reshape(h, w, 3)
+    built = {
+        "sums": SampleBuffer.from_sums(n, s1, s2),
+        "sample": SampleBuffer.from_moments(n, ref.mean, ref.variance, variance_kind="sample"),
+        "mean": SampleBuffer.from_moments(n, ref.mean, ref.variance / n[..., None], variance_kind="mean"),
+        "second_moment": SampleBuffer.from_moments(n, ref.mean, s2 / n[..., None], variance_kind="second_moment"),
+    }
+    for name, buf in built.items():
+        assert_array_equal(buf.count, ref.count, err_msg=name)
+        assert_allclose(buf.mean, ref.mean, rtol=SUMS_RTOL, err_msg=name)
+        assert_allclose(buf.variance, ref.variance, rtol=SUMS_RTOL, err_msg=name)
+
+
+def test_from_moments_accepts_single_channel_planes():
+    buf = SampleBuffer.from_moments(np.full((2, 2), 3), np.ones((2, 2)), np.full((2, 2), 0.5))
+    assert buf.mean.shape == (2, 2, 1) and buf.channels == ("Y",)
+
+
+def test_unknown_variance_kind_is_refused():
+    with pytest.raises(ValueError, match="variance_kind"):
+        SampleBuffer.from_moments(np.ones((2, 2), int), np.ones((2, 2)), np.ones((2, 2)), variance_kind="std")
+
+
+# ---------------------------------------------------------------------------- unknown variance
+def test_single_sample_pixels_pool_variance_from_neighbours(rng):
+    h, w = 9, 9
+    count = np.full((h, w), 8)
+    count[4, 4] = 1
+    count[0, 0] = 1
+    variance = np.full((h, w, 3), 0.25)
+    buf = SampleBuffer.from_moments(count, rng.random((h, w, 3)), variance)
+    assert not buf.variance_known[4, 4] and not buf.variance_known[0, 0]
+    assert buf.variance[4, 4].tolist() == [0.0, 0.0, 0.0]  # stored as 0, meaningless
+    est = buf.estimated_variance()
+    # Every neighbour has variance 0.25, so the pooled value is exactly that, never zero.
+    assert_allclose(est[4, 4], 0.25, rtol=1e-12)
+    assert_allclose(est[0, 0], 0.25, rtol=1e-12)
+    assert_allclose(buf.variance_of_mean()[4, 4], 0.25, rtol=1e-12)
+
+
+def test_renderer_unknown_variance_is_not_zero(rng):
+    # pbrt writes variance 0 where it has no estimate; variance_known=False marks it.
+    count = np.full((5, 5), 4)
+    var = np.full((5, 5), 2.0)
+    known = np.ones((5, 5), bool)
+    known[2, 2] = False
+    var[2, 2] = 0.0
+    buf = SampleBuffer.from_moments(count, np.ones((5, 5)), var, variance_known=known)
+    assert buf.estimated_variance()[2, 2, 0] == pytest.approx(2.0, rel=1e-12)
+
+
+def test_single_sample_pixels_far_from_known_ones_use_the_global_pool():
+    count = np.ones((12, 12), int)
+    count[0, 0] = 3  # the only known variance, far from the opposite corner
+    var = np.zeros((12, 12))
+    var[0, 0] = 0.5
+    buf = SampleBuffer.from_moments(count, np.zeros((12, 12)), var)
+    est = buf.estimated_variance()
+    assert est[11, 11, 0] == pytest.approx(0.5, rel=1e-12)
+    assert (est > 0).all()
+
+
+def test_no_known_variance_anywhere_gives_zero_estimate():
+    buf = SampleBuffer.from_moments(np.ones((3, 3), int), np.ones((3, 3)), np.zeros((3, 3)))
+    assert_array_equal(buf.estimated_variance(), 0.0)
+
+
+def test_zero_count_pixels_have_infinite_variance_of_mean(rng):
+    pixels, values = _random_samples(rng)
+    keep = pixels != 7
+    buf = SampleBuffer.from_samples(pixels[keep], values[keep], SHAPE)
+    vm = buf.variance_of_mean()
+    r, c = divmod(7, SHAPE[1])
+    assert buf.count[r, c] == 0 and buf.mean[r, c].tolist() == [0.0, 0.0, 0.0]
+    assert np.isposinf(vm[r, c]).all()
+    assert np.isfinite(np.delete(vm.reshape(-1, 3), 7, axis=0)).all()
+
+
+def test_empty_buffer():
+    buf = SampleBuffer.empty((3, 4), channels=("R", "G", "B"))
+    assert buf.total_samples == 0 and buf.shape == (3, 4) and buf.n_channels == 3
+    assert np.isposinf(buf.variance_of_mean()).all()
+
+
+# ---------------------------------------------------------------------------- luminance
+def test_luminance_weights_and_grey_luminance_variance():
+    assert_allclose(luminance_weights(("R", "G", "B")), [0.2126, 0.7152, 0.0722])
+    assert_allclose(luminance_weights(("B", "G", "R", "A")), [0.0722, 0.7152, 0.2126, 0.0])
+    assert_allclose(luminance_weights(("X", "Y")), [0.5, 0.5])
+    assert default_channel_names(3) == ("R", "G", "B")
+    # Grey samples: luminance equals the channel value and so does its variance (exact case).
+    buf = SampleBuffer.from_moments(np.full((2, 2), 4), np.full((2, 2, 3), 0.5), np.full((2, 2, 3), 0.09))
+    assert_allclose(buf.luminance(), 0.5, rtol=1e-12)
+    assert_allclose(buf.luminance_variance(), 0.09, rtol=1e-12)
+
+
+# ---------------------------------------------------------------------------- bad input
+def _good(h=4, w=5, c=3):
+    return np.full((h, w), 4), np.ones((h, w, c)), np.full((h, w, c), 0.1)
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_nonfinite_means_and_variances_are_refused_with_pixel_count(bad):
+    count, mean, var = _good()
+    mean[0, 0, 1] = bad
+    mean[2, 3, :] = bad  # one pixel, three channels: still one pixel
+    mean[3, 4, 0] = bad
+    with pytest.raises(ValueError, match=r"^mean: 3 pixel\(s\) hold NaN or Inf"):
+        SampleBuffer.from_moments(count, mean, var)
+    count, mean, var = _good()
+    var[1, 1, 2] = bad
+    with pytest.raises(ValueError, match=r"^variance: 1 pixel\(s\) hold NaN or Inf"):
+        SampleBuffer.from_moments(count, mean, var)
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_nonfinite_counts_are_refused_with_pixel_count(bad):
+    count, mean, var = _good()
+    count = count.astype(float)
+    count[0, :2] = bad
+    with pytest.raises(ValueError, match=r"^count: 2 pixel\(s\) hold NaN or Inf"):
+        SampleBuffer.from_moments(count, mean, var)
+
+
+def test_fractional_counts_are_refused():
+    count, mean, var = _good()
+    count = count.astype(float)
+    count[1, 1] = 2.5
+    with pytest.raises(ValueError, match=r"^count: 1 pixel\(s\) are not whole numbers"):
+        SampleBuffer.from_moments(count, mean, var)
+
+
+def test_negative_counts_and_variances_are_refused_with_pixel_count():
+    count, mean, var = _good()
+    count[0, 0] = -1
+    count[3, 3] = -4
+    with pytest.raises(ValueError, match=r"^count: 2 pixel\(s\) are negative"):
+        SampleBuffer.from_moments(count, mean, var)
+    count, mean, var = _good()
+    var[1, 2, 0] = -1e-3
+    var[2, 2, :] = -1.0
+    var[3, 0, 1] = -5.0
+    with pytest.raises(ValueError, match=r"^variance: 3 pixel\(s\) are negative"):
+        SampleBuffer.from_moments(count, mean, var)
+
+
+def test_mismatched_shapes_are_refused_naming_the_parameter():
+    count, mean, var = _good()
+    with pytest.raises(ValueError, match=r"^variance: shape \(4, 5, 2\) does not match mean \(4, 5, 3\)"):
+        SampleBuffer.from_moments(count, mean, var[..., :2])
+    with pytest.raises(ValueError, match=r"^mean: shape \(4, 4, 3\) does not match count \(4, 5\)"):
+        SampleBuffer.from_moments(count, mean[:, :4], var[:, :4])
+    with pytest.raises(ValueError, match=r"^count: expected shape \(H, W\)"):
+        SampleBuffer.from_moments(count.ravel(), mean, var)
+    with pytest.raises(ValueError, match=r"^sum/sum_sq: shapes"):
+        SampleBuffer.from_sums(count, mean, var[:3])
+    with pytest.raises(ValueError, match=r"^values: expected \(3, C\)"):
+        SampleBuffer.from_samples(np.arange(3), np.ones(4), (2, 2))
+    with pytest.raises(ValueError, match=r"^channels: 2 names given for 3 channel"):
+        SampleBuffer.from_moments(count, mean, var, channels=("R", "G"))
+
+
+def test_empty_images_are_refused():
+    with pytest.raises(ValueError, match=r"^count: empty image"):
+        SampleBuffer.from_moments(np.zeros((0, 5), int), np.zeros((0, 5, 3)), np.zeros((0, 5, 3)))
+    with pytest.raises(ValueError, match=r"^count: empty image"):
+        SampleBuffer.from_moments(np.ones((2, 2), int), np.zeros((2, 2, 0)), np.zeros((2, 2, 0)))
+    with pytest.raises(ValueError, match=r"^shape: empty image"):
+        SampleBuffer.from_samples(np.zeros(0, int), np.zeros(0), (0, 4))
+    with pytest.raises(ValueError, match=r"empty image"):
+        SampleBuffer.empty((3, 0))
+
+
+def test_nonfinite_sums_are_refused_with_pixel_count():
+    count, s1, s2 = _good()
+    s2[0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match=r"^sum_sq: 1 pixel\(s\) hold NaN or Inf"):
+        SampleBuffer.from_sums(count, s1, s2)
+
+
+def test_arrays_are_read_only(rng):
+    pixels, values = _random_samples(rng)
+    buf = SampleBuffer.from_samples(pixels, values, SHAPE)
+    with pytest.raises(ValueError, match="read-only"):
+        buf.mean[0, 0, 0] = 1.0
+
+
+# ---------------------------------------------------------------------------- non-finite samples
+def _samples_with_nonfinite():
+    pixels = np.array([0, 0, 0, 1, 1, 1, 1])
+    values = np.array([[1.0, 1.0], [np.nan, 2.0], [3.0, 3.0], [2.0, 2.0], [np.inf, 0.0], [4.0, -np.inf], [6.0, 6.0]])
+    return pixels, values
+
+
+def test_nonfinite_raise_reports_count():
+    pixels, values = _samples_with_nonfinite()
+    with pytest.raises(ValueError, match=r"^values: 3 sample\(s\) hold NaN or Inf"):
+        SampleBuffer.from_samples(pixels, values, (1, 2))
+    with pytest.raises(ValueError, match="nonfinite"):
+        SampleBuffer.from_samples(pixels, values, (1, 2), nonfinite="clip")
+
+
+def test_nonfinite_drop_leaves_samples_out_and_counts_them():
+    pixels, values = _samples_with_nonfinite()
+    buf = SampleBuffer.from_samples(pixels, values, (1, 2), nonfinite="drop")
+    assert buf.nonfinite == 3
+    assert_array_equal(buf.count, [[2, 2]])
+    assert_allclose(buf.mean[0, :, 0], [2.0, 4.0])
+    assert_allclose(buf.variance[0, :, 0], [2.0, 8.0])
+
+
+def test_nonfinite_zero_counts_them_as_zero_in_every_channel():
+    pixels, values = _samples_with_nonfinite()
+    buf = SampleBuffer.from_samples(pixels, values, (1, 2), nonfinite="zero")
+    assert buf.nonfinite == 3
+    assert_array_equal(buf.count, [[3, 4]])
+    assert_allclose(buf.mean[0, :, 0], [4.0 / 3.0, 2.0])
+    assert_allclose(buf.mean[0, :, 1], [4.0 / 3.0, 2.0])
+    # The count survives merging.
+    assert buf.merge(buf).nonfinite == 6
