@@ -37,6 +37,7 @@ from .requests import Renderer, SampleRequest
 __all__ = ["Sampler", "AdaptiveSampler", "UniformSampler", "VarianceSampler", "allocate"]
 
 _sampler_ids = itertools.count(1)
+_MAX_BUDGET = 2**62  # allocate() refuses larger budgets: counts are int64
 
 
 def allocate(density: FloatArray, current: CountArray, budget: int, *,
@@ -68,6 +69,8 @@ def allocate(density: FloatArray, current: CountArray, budget: int, *,
     budget = int(budget)
     if budget < 0:
         raise ValueError(f"budget: must be >= 0, got {budget}")
+    if budget > _MAX_BUDGET:
+        raise ValueError(f"budget: {budget} exceeds {_MAX_BUDGET} (2**62), the most samples int64 counts hold safely")
     shape = current.shape
     out = np.zeros(shape, np.int64)
     if budget == 0:
@@ -126,21 +129,41 @@ def allocate(density: FloatArray, current: CountArray, budget: int, *,
                 f_lo *= 0.5
             side = 1
     m = np.minimum(np.maximum(hi * a - n, 0.0), cap)
-    base = np.floor(m)
-    frac = m - base
+    floor_m = np.floor(m)
+    frac = (m - floor_m).ravel()
     rng = rng or np.random.default_rng(0)
-    jitter = rng.random(shape) * 1e-6  # tie-break equal remainders without bias toward low indices
-    left = budget - int(base.sum())
-    flat_base = base.ravel()
-    if left > 0:
-        key = np.where(flat_base < cap.ravel(), frac.ravel() + jitter.ravel(), -np.inf)
+    jitter = rng.random(shape).ravel() * 1e-6  # tie-break equal remainders without bias toward low indices
+    # Integer arithmetic from here on: the search stops within 0.1% of the budget and float64
+    # cannot hold every count above 2**53, so the residual may exceed the number of pixels.
+    flat_base = floor_m.ravel().astype(np.int64)
+    flat_cap = np.where(np.isfinite(cap), np.minimum(cap, float(_MAX_BUDGET)), float(_MAX_BUDGET)).ravel().astype(np.int64)
+    left = budget - int(flat_base.sum())
+    while left > 0:
+        room = flat_cap - flat_base
+        open_pixels = int(np.count_nonzero(room > 0))
+        if open_pixels == 0:
+            raise ValueError(f"budget: {budget} samples exceed what spp_max still allows")
+        if left >= open_pixels:  # spread whole samples over every open pixel first
+            step = np.minimum(room, left // open_pixels)
+            flat_base += step
+            left -= int(step.sum())
+            continue
+        key = np.where(room > 0, frac + jitter, -np.inf)
         pick = np.argpartition(-key, left - 1)[:left]
         flat_base[pick] += 1
-    elif left < 0:
-        key = np.where(flat_base > 0, frac.ravel() + jitter.ravel(), np.inf)
+        left = 0
+    while left < 0:
+        used = int(np.count_nonzero(flat_base > 0))
+        if -left >= used:
+            step = np.minimum(flat_base, (-left) // used)
+            flat_base -= step
+            left += int(step.sum())
+            continue
+        key = np.where(flat_base > 0, frac + jitter, np.inf)
         pick = np.argpartition(key, -left - 1)[:-left]
         flat_base[pick] -= 1
-    out[...] = flat_base.reshape(shape).astype(np.int64)
+        left = 0
+    out[...] = flat_base.reshape(shape)
     return out
 
 
