@@ -1,0 +1,202 @@
+"""Wavelet transforms and the exact propagation of pixel variance to coefficients, <v, K^2>."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+import pywt
+from numpy.testing import assert_allclose
+from scipy import stats
+
+from awr_denoise.wavelets import (
+    coefficient_variance,
+    default_levels,
+    forward,
+    inverse,
+    max_levels,
+    wavelet_operators,
+)
+
+SHAPES = [(37, 53), (16, 16), (5, 7), (1, 17)]
+WAVELETS = ["bior4.4", "haar"]
+
+# Perfect reconstruction: float64 rounding through a few levels of filtering.
+ROUND_TRIP_ATOL = 1e-10
+# <v, K^2> against squared impulse responses: both are sums of a few products of taps.
+IMPULSE_ATOL = 1e-13
+IMPULSE_RTOL = 1e-10
+# Monte Carlo check: N draws per coefficient, Bonferroni-corrected family-wise error rate.
+MC_DRAWS = 3000
+MC_FAMILY_ALPHA = 1e-3
+
+
+def _flatten(coeffs) -> np.ndarray:
+    """All coefficients of a forward()/coefficient_variance() list, flattened over the image axes."""
+    parts = [coeffs[0]]
+    for bands in coeffs[1:]:
+        parts.extend(bands)
+    return np.concatenate([p.reshape(-1, *p.shape[2:]) for p in parts], axis=0)
+
+
+def _level_cases():
+    for shape in SHAPES:
+        for wavelet in WAVELETS:
+            for levels in sorted({1, max_levels(shape)}):
+                yield pytest.param(shape, wavelet, levels, id=f"{shape[0]}x{shape[1]}-{wavelet}-L{levels}")
+
+
+# ---------------------------------------------------------------------------- levels
+@pytest.mark.parametrize(("shape", "expected"), [((1024, 2048), 5), ((64, 64), 3), ((37, 53), 2),
+                                                 ((16, 16), 1), ((5, 7), 1), ((1, 17), 1)])
+def test_default_levels(shape, expected):
+    assert default_levels(shape) == expected
+
+
+@pytest.mark.parametrize(("shape", "expected"), [((37, 53), 5), ((16, 16), 4), ((5, 7), 2), ((1, 17), 1)])
+def test_max_levels(shape, expected):
+    assert max_levels(shape) == expected
+
+
+def test_bad_levels_wavelet_and_boundary_are_refused():
+    with pytest.raises(ValueError, match=r"levels: 5 is outside 1\.\.4"):
+        forward(np.zeros((16, 16)), levels=5)
+    with pytest.raises(ValueError, match="levels: 0"):
+        wavelet_operators((16, 16), levels=0)
+    with pytest.raises(TypeError, match="levels"):
+        forward(np.zeros((16, 16)), levels=2.0)
+    with pytest.raises(ValueError, match="wavelet: 'cdf97'"):
+        forward(np.zeros((16, 16)), wavelet="cdf97")
+    with pytest.raises(ValueError, match="boundary: 'mirror'"):
+        forward(np.zeros((16, 16)), boundary="mirror")
+
+
+# ---------------------------------------------------------------------------- transform
+@pytest.mark.parametrize(("shape", "wavelet", "levels"), list(_level_cases()))
+def test_inverse_undoes_forward(rng, shape, wavelet, levels):
+    image = rng.random(shape + (2,))
+    back = inverse(forward(image, wavelet=wavelet, levels=levels), shape, wavelet=wavelet)
+    assert back.shape == image.shape
+    assert_allclose(back, image, atol=ROUND_TRIP_ATOL)
+
+
+def test_layout_is_pywavelets(rng):
+    image = rng.random((64, 64))
+    ours = forward(image, levels=2)
+    theirs = pywt.wavedec2(image, "bior4.4", mode="symmetric", level=2)
+    assert len(ours) == 3
+    assert_allclose(ours[0], theirs[0], rtol=0, atol=0)
+    for a, b in zip(ours[1:], theirs[1:]):
+        for x, y in zip(a, b):
+            assert_allclose(x, y, rtol=0, atol=0)
+
+
+# ---------------------------------------------------------------------------- variance: deterministic
+@pytest.mark.parametrize(("shape", "wavelet", "levels"), list(_level_cases()))
+def test_variance_of_one_hot_equals_squared_impulse_response(rng, shape, wavelet, levels):
+    """v = e_p gives Var(C) = K(p)^2, the square of the forward transform of a unit impulse at p."""
+    h, w = shape
+    n = h * w
+    picks = np.unique(np.concatenate([[0, w - 1, n - w, n - 1, n // 2], rng.choice(n, min(n, 24), replace=False)]))
+    impulses = np.zeros((h, w, picks.size))
+    impulses.reshape(n, -1)[picks, np.arange(picks.size)] = 1.0
+    expected = _flatten(forward(impulses, wavelet=wavelet, levels=levels)) ** 2
+    got = _flatten(coefficient_variance(impulses, wavelet=wavelet, levels=levels))
+    assert got.shape == expected.shape
+    assert_allclose(got, expected, rtol=IMPULSE_RTOL, atol=IMPULSE_ATOL)
+    assert (expected.sum(axis=0) > 0).all()  # every impulse reaches some coefficient
+
+
+@pytest.mark.parametrize(("shape", "wavelet", "levels"), list(_level_cases()))
+def test_variance_is_linear_in_pixel_variance(rng, shape, wavelet, levels):
+    v1, v2 = rng.random(shape), rng.random(shape)
+    a = _flatten(coefficient_variance(2.0 * v1 + 3.0 * v2, wavelet=wavelet, levels=levels))
+    b = 2.0 * _flatten(coefficient_variance(v1, wavelet=wavelet, levels=levels)) \
+        + 3.0 * _flatten(coefficient_variance(v2, wavelet=wavelet, levels=levels))
+    assert_allclose(a, b, rtol=1e-12, atol=1e-15)
+
+
+def test_channels_are_propagated_independently(rng):
+    v = rng.random((20, 24, 3))
+    both = coefficient_variance(v, levels=2)
+    for c in range(3):
+        single = coefficient_variance(v[:, :, c], levels=2)
+        assert_allclose(_flatten(both)[:, c], _flatten(single), rtol=1e-14)
+
+
+def test_haar_on_powers_of_two_equals_cascaded_squared_filters(rng):
+    """Haar's supports do not overlap, so squaring its one-level filters and cascading is exact."""
+    v = rng.random((16, 16))
+    h = pywt.Wavelet("haar")
+    squared = pywt.Wavelet("haar_squared", filter_bank=[np.square(h.dec_lo), np.square(h.dec_hi), h.rec_lo, h.rec_hi])
+    cascade = pywt.wavedec2(v, squared, mode="symmetric", level=4)
+    assert_allclose(_flatten(coefficient_variance(v, wavelet="haar", levels=4)), _flatten(cascade), rtol=1e-12)
+
+
+def test_operators_for_another_shape_are_refused():
+    ops = wavelet_operators((16, 16), levels=2)
+    with pytest.raises(ValueError, match="operators: built for shape"):
+        coefficient_variance(np.ones((16, 17)), operators=ops)
+
+
+# ---------------------------------------------------------------------------- variance: Monte Carlo
+def _monte_carlo_z_bounds(n_coefficients: int) -> tuple[float, float]:
+    """Acceptance interval of the ratio (empirical second moment / predicted variance).
+
+    A coefficient of zero-mean Gaussian noise is Gaussian, so with the mean known (zero)
+    ``N * m2 / sigma^2`` is chi-square with N degrees of freedom. Bonferroni over all
+    coefficients keeps the family-wise false-alarm rate at MC_FAMILY_ALPHA.
+    """
+    alpha = MC_FAMILY_ALPHA / n_coefficients
+    return (stats.chi2.ppf(alpha / 2, MC_DRAWS) / MC_DRAWS, stats.chi2.isf(alpha / 2, MC_DRAWS) / MC_DRAWS)
+
+
+def _empirical_variance(v, wavelet, levels, rng):
+    noise = np.sqrt(v)[..., None] * rng.standard_normal(v.shape + (MC_DRAWS,))
+    coeffs = _flatten(forward(noise, wavelet=wavelet, levels=levels))
+    return np.mean(coeffs * coeffs, axis=-1)
+
+
+def _naive_cascade(v, wavelet, levels):
+    """The wrong propagation: one-level squared filters applied level after level."""
+    wv = pywt.Wavelet(wavelet)
+    squared = pywt.Wavelet(wavelet + "_sq", filter_bank=[np.square(wv.dec_lo), np.square(wv.dec_hi),
+                                                         wv.rec_lo, wv.rec_hi])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return _flatten(pywt.wavedec2(v, squared, mode="symmetric", level=levels))
+
+
+@pytest.mark.parametrize(("shape", "wavelet", "levels"), list(_level_cases()))
+def test_variance_matches_monte_carlo(rng, shape, wavelet, levels):
+    """<v, K^2> for every scale and wavelet coefficient of every level against N noisy images."""
+    v = rng.uniform(0.2, 3.0, shape)  # position-dependent per-pixel variance of the mean
+    predicted = _flatten(coefficient_variance(v, wavelet=wavelet, levels=levels))
+    empirical = _empirical_variance(v, wavelet, levels, rng)
+    assert predicted.shape == empirical.shape
+    # Haar on an odd length: the symmetric extension repeats the last pixel, so the last detail
+    # coefficient is x - x, identically zero: K = 0, and its variance must be exactly zero.
+    zero = predicted == 0
+    assert not zero.all()
+    assert_allclose(empirical[zero], 0.0, atol=1e-25)
+    predicted, empirical = predicted[~zero], empirical[~zero]
+    lo, hi = _monte_carlo_z_bounds(predicted.size)
+    ratio = empirical / predicted
+    bad = (ratio < lo) | (ratio > hi)
+    assert not bad.any(), (f"{int(bad.sum())} of {ratio.size} coefficients outside [{lo:.3f}, {hi:.3f}]: "
+                           f"ratios {ratio[bad][:5]}")
+
+
+@pytest.mark.parametrize(("shape", "levels"), [((37, 53), 3), ((16, 16), 2)])
+def test_monte_carlo_check_rejects_cascaded_squared_filters(rng, shape, levels):
+    """The same check has the power to reject the plausible but wrong cascade for bior4.4."""
+    v = rng.uniform(0.2, 3.0, shape)
+    naive = _naive_cascade(v, "bior4.4", levels)
+    exact = _flatten(coefficient_variance(v, wavelet="bior4.4", levels=levels))
+    empirical = _empirical_variance(v, "bior4.4", levels, rng)
+    lo, hi = _monte_carlo_z_bounds(naive.size)
+    ratio = empirical / naive
+    assert ((ratio < lo) | (ratio > hi)).sum() > naive.size // 10
+    ratio = empirical / exact
+    assert ((ratio >= lo) & (ratio <= hi)).all()
