@@ -78,7 +78,10 @@ class Domain:
             return _BoundDomain(self, 1.0)
         scale = self.scale
         if scale is None:
-            scale = float(np.mean(np.abs(mean)))
+            magnitude = np.abs(mean)
+            top = float(magnitude.max()) if magnitude.size else 0.0
+            # Normalised first: the plain mean of values near the float64 limit overflows.
+            scale = float(np.mean(magnitude / top)) * top if np.isfinite(top) and top > 0 else 0.0
             if not np.isfinite(scale) or scale <= 0:
                 # An all-zero image: any positive k gives the same (zero) result.
                 scale = 1.0

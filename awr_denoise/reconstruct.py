@@ -233,6 +233,11 @@ def reconstruct_detailed(
     results = run(one_channel, range(n_ch))
     image_y = np.stack([inverse(r[0], buffer.shape, wavelet=wavelet, boundary=boundary) for r in results], axis=-1)
     image = bound.inverse(image_y)
+    if not np.isfinite(image).all():
+        # Only reachable with means near the float64 limit (~1.8e308) in the linear domain,
+        # where the transform's gain of up to 2 per level overflows.
+        raise ValueError(f"buffer: the wavelet transform overflows float64 (largest |mean| "
+                         f"{float(np.abs(mean).max()):.3g}); rescale the input or use the log domain")
     zeroed = sum(r[4] for r in results)
     total = sum(r[5] for r in results)
     if variance_probes < 0:

@@ -106,3 +106,32 @@ class TestAllocateBudgets:
         sampler.tell(1, SampleBuffer.empty((5, 7)))
         with pytest.raises(ValueError, match="spp_max"):
             sampler.ask(1)
+
+
+# ---------------------------------------------------------------------------- float64 limits
+class TestFloatLimits:
+    """Regression: the log/gamma domains took ``np.mean(np.abs(mean))`` as their scale, which
+    overflows (a RuntimeWarning, an error under ``-W error``) for means near 1e307; and the
+    linear domain returned Inf silently for means near 1.8e308. Now the scale is computed
+    normalised and a transform that overflows is a ValueError, never a non-finite image."""
+
+    @pytest.mark.parametrize("magnitude", [1e300, 1e307, 1.7e308])
+    @pytest.mark.parametrize("domain", ["log", "gamma"])
+    def test_stabilised_domains_finite_up_to_float_max(self, magnitude, domain):
+        rng = np.random.default_rng(SEED)
+        buf = SampleBuffer.from_moments(np.full((16, 16), 4), magnitude * rng.random((16, 16, 1)),
+                                        np.full((16, 16, 1), 1e300))
+        out = reconstruct(buf, domain=domain)
+        assert np.isfinite(out).all()
+        request = AdaptiveSampler.from_buffer(buf).ask(100)
+        assert request.total == 100
+
+    @pytest.mark.parametrize("magnitude", [1e308, 1.7e308])
+    def test_linear_overflow_is_a_clear_error(self, magnitude):
+        buf = SampleBuffer.from_moments(np.full((8, 8), 4), np.full((8, 8, 1), magnitude), np.ones((8, 8, 1)))
+        with pytest.raises(ValueError, match="overflows float64"):
+            reconstruct(buf, domain="linear")
+
+    def test_linear_finite_at_1e307(self):
+        buf = SampleBuffer.from_moments(np.full((8, 8), 4), np.full((8, 8, 1), 1e307), np.ones((8, 8, 1)))
+        assert np.isfinite(reconstruct(buf, domain="linear")).all()
