@@ -1,0 +1,29 @@
+"""The bundled reference path tracer (``pip install "awr-denoise[tracer]"``).
+
+A batched (wavefront) path tracer in numpy on top of embreex that implements the
+:class:`~awr_denoise.requests.Renderer` protocol: given a
+:class:`~awr_denoise.requests.SampleRequest` it traces exactly the requested samples and returns
+their per-pixel statistics as a :class:`~awr_denoise.buffers.SampleBuffer`. It exists to feed
+the adaptive sampler and the benchmarks with scenes of known integrand dimension (4D to 8D,
+Overbeck et al. 2009, section 1 of the algorithm note). The core library never imports it.
+
+Public API: :func:`list_scenes`, :func:`load_scene`, :class:`PathTracer`, :func:`render`,
+:func:`load_reference`, :func:`render_reference`.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+
+if importlib.util.find_spec("embreex") is None:
+    raise ImportError(
+        "awr_denoise.tracer needs the embreex ray tracing kernels; install them with "
+        'pip install "awr-denoise[tracer]"')
+
+from .integrator import PathTracer, render  # noqa: E402
+from .reference import load_reference, reference_path, render_reference  # noqa: E402
+from .scene import Scene, load_scene  # noqa: E402
+from .scenes import list_scenes  # noqa: E402
+
+__all__ = ["PathTracer", "Scene", "list_scenes", "load_scene", "render", "load_reference", "render_reference",
+           "reference_path"]

@@ -103,8 +103,10 @@ class Material:
 
     def lobe_probability(self, kd: np.ndarray) -> np.ndarray:
         """Probability of sampling the diffuse lobe, proportional to the lobe weights."""
+        if self.kind != "glossy":
+            return np.ones(len(kd))
         wd = kd.mean(axis=1)
-        ws = float(np.mean(self.specular)) if self.kind == "glossy" else 0.0
+        ws = float(np.mean(self.specular))
         total = wd + ws
         return np.where(total > 0, wd / np.where(total > 0, total, 1.0), 0.5)
 

@@ -1,0 +1,454 @@
+"""The wavefront path tracer: a :class:`~awr_denoise.requests.Renderer` on top of embreex.
+
+:class:`PathTracer` takes a :class:`~awr_denoise.requests.SampleRequest`, traces exactly the
+requested samples (``first_index .. first_index + counts - 1`` of each pixel) and returns their
+per-pixel statistics as a :class:`~awr_denoise.buffers.SampleBuffer` (channels R, G, B): the
+renderer side of the paper's loop (Overbeck et al. 2009, section 1 of the algorithm note).
+
+Structure (pbrt-v4 vocabulary, wavefront over arrays): the camera turns ``(p_film, p_lens,
+time)`` into rays; every bounce is one batched ``intersect`` over all live paths, then shading
+by material with masks, next-event estimation to area lights, the environment and delta lights
+with one batched ``occluded`` query, and BSDF sampling for the next bounce. Multiple importance
+sampling (power heuristic, Veach 1997) combines light and BSDF sampling wherever both happen;
+at the last vertex light sampling takes full weight.
+
+Every random number is addressed by (seed, pixel, sample index, dimension) (see
+:mod:`~awr_denoise.tracer.sampler`), so results do not depend on how samples are grouped into
+requests, batches or threads. Batches run on a thread pool: embreex releases the GIL while it
+traces and numpy releases it in large array operations.
+"""
+
+from __future__ import annotations
+
+import logging
+import time as _time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..buffers import SampleBuffer
+from ..requests import SampleRequest
+from .accel import Accelerator
+from .lights import DirectionalLight, PointLight
+from .meshes import coordinate_frame, dot, normalize
+from .sampler import SAMPLER_NAMES, make_sampler
+from .scene import Scene, dimension_names, load_scene
+
+__all__ = ["PathTracer", "render", "DEFAULT_BATCH_SIZE"]
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_BATCH_SIZE = 1 << 16
+"""Samples traced together in one wavefront (per thread)."""
+
+
+def _power_heuristic(pdf_a: np.ndarray, pdf_b: np.ndarray) -> np.ndarray:
+    a2, b2 = pdf_a * pdf_a, pdf_b * pdf_b
+    total = a2 + b2
+    return np.where(total > 0, a2 / np.where(total > 0, total, 1.0), 0.0)
+
+
+def _dimension_groups(names: tuple[str, ...]) -> dict[str, tuple[int, ...]]:
+    # Pairs of dimensions that form one 2D sample (for the Sobol' sampler's padding).
+    groups: dict[str, tuple[int, ...]] = {}
+    for i, name in enumerate(names):
+        stem = name.rsplit("_", 1)[0]
+        partners = tuple(j for j, other in enumerate(names) if other.rsplit("_", 1)[0] == stem)
+        groups[name] = partners if len(partners) == 2 else (i,)
+    return groups
+
+
+class PathTracer:
+    """Batched path tracer implementing the ``Renderer`` protocol.
+
+    Parameters
+    ----------
+    scene
+        A :class:`Scene`, a bundled scene name, a JSON path or a spec dict.
+    seed
+        Render seed (independent renders for different seeds).
+    sampler
+        ``"independent"`` (hashed uniform numbers) or ``"sobol"`` (Owen-scrambled padded 2D
+        Sobol'); see :mod:`~awr_denoise.tracer.sampler`.
+    max_depth
+        Number of diffuse/glossy bounces after the first hit (0 = direct lighting only);
+        ``None`` uses the scene's ``integrator.max_depth``.
+    threads
+        Worker threads that trace batches concurrently.
+    progress
+        Show a tqdm progress bar over batches.
+    batch_size
+        Samples per wavefront batch.
+
+    Attributes
+    ----------
+    shape
+        (H, W) of the image.
+    dimensions
+        Names of the random dimensions drawn per sample (only the scene's effects).
+    stats
+        Running totals: ``samples``, ``rays`` (all queries), ``camera_rays``, ``bounce_rays``,
+        ``shadow_rays``, ``nonfinite`` (samples whose radiance was NaN/Inf and was replaced by
+        0) and ``seconds``.
+    """
+
+    def __init__(self, scene: Scene | str | Path | dict[str, Any], *, seed: int = 0,
+                 sampler: str = "independent", max_depth: int | None = None, threads: int = 2,
+                 progress: bool = False, batch_size: int = DEFAULT_BATCH_SIZE) -> None:
+        self.scene = load_scene(scene)
+        if sampler not in SAMPLER_NAMES:
+            raise ValueError(f"sampler: {sampler!r} is not one of {', '.join(SAMPLER_NAMES)}")
+        if max_depth is not None and int(max_depth) < 0:
+            raise ValueError(f"max_depth: {max_depth} must be >= 0 or None")
+        if int(threads) < 1:
+            raise ValueError(f"threads: {threads} must be >= 1")
+        if int(batch_size) < 1:
+            raise ValueError(f"batch_size: {batch_size} must be >= 1")
+        self.seed = int(seed)
+        self.sampler_name = sampler
+        self.sampler = make_sampler(sampler, self.seed)
+        self.max_depth = self.scene.max_depth if max_depth is None else int(max_depth)
+        self.threads = int(threads)
+        self.progress = bool(progress)
+        self.batch_size = int(batch_size)
+        self.dimensions = dimension_names(self.scene, self.max_depth)
+        self._dimension_index = {name: i for i, name in enumerate(self.dimensions)}
+        self._groups = _dimension_groups(self.dimensions)
+        self.dimensions_drawn: set[str] = set()
+        self.accelerator = Accelerator(self.scene)
+        self.area_lights = self.scene.area_lights
+        self.environment = self.scene.environment
+        has_area, has_env = self.area_lights is not None, self.environment is not None
+        # Light-type selection: half the light samples to each when a scene has both.
+        self.p_select_environment = 0.5 if (has_area and has_env) else (1.0 if has_env else 0.0)
+        self.stats: dict[str, float] = {"samples": 0, "rays": 0, "camera_rays": 0, "bounce_rays": 0,
+                                        "shadow_rays": 0, "nonfinite": 0, "seconds": 0.0}
+        self._pool = ThreadPoolExecutor(max_workers=self.threads) if self.threads > 1 else None
+
+    # ------------------------------------------------------------------ public
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W) of the image."""
+        return self.scene.shape
+
+    def __call__(self, request: SampleRequest) -> SampleBuffer:
+        """Trace the requested samples and return their per-pixel statistics (R, G, B)."""
+        if not isinstance(request, SampleRequest):
+            raise TypeError(f"request: expected a SampleRequest, got {type(request).__name__}")
+        if request.shape != self.shape:
+            raise ValueError(f"request: shape {request.shape} does not match the scene's {self.shape}")
+        rows, cols, sample_index = request.pixel_list()
+        radiance, nonfinite = self._trace(rows, cols, sample_index)
+        # Non-finite samples were already zeroed and counted in _trace; the buffer carries the count.
+        buffer = SampleBuffer.from_samples(rows * self.shape[1] + cols, radiance, self.shape, channels=("R", "G", "B"))
+        return SampleBuffer(buffer.count, buffer.mean, buffer.variance, buffer.channels, buffer.variance_known,
+                            nonfinite)
+
+    def trace_samples(self, rows: np.ndarray, cols: np.ndarray, sample_index: np.ndarray) -> np.ndarray:
+        """(N, 3) float64 radiance of the given samples (one row per (row, col, sample index)).
+
+        NaN/Inf radiance is replaced by 0, counted in ``stats["nonfinite"]`` and logged.
+        """
+        return self._trace(rows, cols, sample_index)[0]
+
+    def _trace(self, rows: np.ndarray, cols: np.ndarray, sample_index: np.ndarray) -> tuple[np.ndarray, int]:
+        start = _time.perf_counter()
+        rows, cols, sample_index = (np.asarray(a, np.int64).ravel() for a in (rows, cols, sample_index))
+        n = len(rows)
+        h, w = self.shape
+        if np.any((rows < 0) | (rows >= h) | (cols < 0) | (cols >= w)):
+            raise ValueError(f"rows, cols: pixel coordinates outside the {h}x{w} image")
+        radiance = np.zeros((n, 3))
+        bounds = [(s, min(s + self.batch_size, n)) for s in range(0, n, self.batch_size)]
+
+        def run(bound: tuple[int, int]) -> tuple[int, int, dict[str, int]]:
+            lo, hi = bound
+            values, counts = self._trace_batch(rows[lo:hi], cols[lo:hi], sample_index[lo:hi])
+            radiance[lo:hi] = values
+            return lo, hi, counts
+
+        if self._pool is not None and len(bounds) > 1:
+            results = self._pool.map(run, bounds)
+        else:
+            results = map(run, bounds)
+        if self.progress:
+            from tqdm import tqdm
+
+            results = tqdm(results, total=len(bounds), desc=f"{self.scene.name}", unit="batch")
+        for _, _, counts in results:
+            for key, value in counts.items():
+                self.stats[key] += value
+        bad = ~np.isfinite(radiance).all(axis=1)
+        nonfinite = int(bad.sum())
+        if nonfinite:
+            radiance[bad] = 0.0
+            logger.warning("%s: %d sample(s) with NaN/Inf radiance were replaced by 0", self.scene.name, nonfinite)
+        self.stats["nonfinite"] += nonfinite
+        self.stats["samples"] += n
+        self.stats["seconds"] += _time.perf_counter() - start
+        return radiance, nonfinite
+
+    def close(self) -> None:
+        """Shut the worker threads down."""
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+
+    def __del__(self) -> None:
+        pool = getattr(self, "_pool", None)
+        if pool is not None:
+            pool.shutdown(wait=False)
+
+    def __repr__(self) -> str:
+        return (f"PathTracer({self.scene.name!r}, sampler={self.sampler_name!r}, seed={self.seed}, "
+                f"max_depth={self.max_depth}, dimensions={len(self.dimensions)})")
+
+    # ------------------------------------------------------------------ internals
+    def _draw(self, name: str, key: np.ndarray, sample_index: np.ndarray) -> np.ndarray:
+        self.dimensions_drawn.add(name)
+        index = self._dimension_index[name]
+        return self.sampler.get(key, index, sample_index=sample_index, group=self._groups[name])
+
+    def _trace_batch(self, rows: np.ndarray, cols: np.ndarray,
+                     sample_index: np.ndarray) -> tuple[np.ndarray, dict[str, int]]:
+        with np.errstate(all="ignore"):  # non-finite values are caught and counted per sample
+            return self._li(rows, cols, sample_index)
+
+    def _li(self, rows: np.ndarray, cols: np.ndarray, sample_index: np.ndarray) -> tuple[np.ndarray, dict[str, int]]:
+        scene, camera, accel = self.scene, self.scene.camera, self.accelerator
+        n = len(rows)
+        counts = {"rays": 0, "camera_rays": 0, "bounce_rays": 0, "shadow_rays": 0}
+        pixel = rows * scene.width + cols
+        key = self.sampler.start(pixel, sample_index)
+        p_film = np.stack([cols + self._draw("pixel_x", key, sample_index),
+                           rows + self._draw("pixel_y", key, sample_index)], axis=-1)
+        p_lens = None
+        if camera.has_lens:
+            p_lens = np.stack([self._draw("lens_u", key, sample_index),
+                               self._draw("lens_v", key, sample_index)], axis=-1)
+        if scene.has_motion:
+            time = camera.time(self._draw("time", key, sample_index))
+        else:
+            time = np.full(n, camera.shutter_open)
+        if scene.has_sampled_lights:
+            light_u = self._draw("light_u", key, sample_index)
+            light_v = self._draw("light_v", key, sample_index)
+        o, d = camera.generate_rays(p_film, p_lens)
+
+        radiance = np.zeros((n, 3))
+        path = np.arange(n)                   # which sample each live ray belongs to
+        beta = np.ones((n, 3))                # path throughput
+        specular = np.ones(n, bool)           # previous vertex was the camera or a mirror
+        prev_pdf = np.zeros(n)                # BSDF pdf of the previous bounce (for MIS)
+        depth = np.zeros(n, np.int64)         # diffuse/glossy vertices so far
+        specular_depth = np.zeros(n, np.int64)
+        ray_kind = "camera_rays"
+        eps = accel.epsilon
+
+        while len(path):
+            t_ray = time[path]
+            hits = accel.intersect(o, d, t_ray)
+            counts["rays"] += len(path) * (1 + len(accel.moving_scenes))
+            counts[ray_kind] += len(path)
+            ray_kind = "bounce_rays"
+
+            # --- rays that escape: environment emission, MIS-weighted after a BSDF bounce
+            miss = ~hits.valid
+            if self.environment is not None and miss.any():
+                wm = d[miss]
+                le = self.environment.evaluate(wm)
+                pdf_light = self.p_select_environment * self.environment.pdf(wm)
+                weight = np.where(specular[miss], 1.0, _power_heuristic(prev_pdf[miss], pdf_light))
+                radiance[path[miss]] += beta[miss] * le * weight[:, None]
+
+            # --- surface hits
+            hit = hits.valid
+            if not hit.any():
+                break
+            p, n_geo, n_sh, p_object = accel.surface(hits, t_ray)
+            obj = hits.object_index[hit]
+            wo = -d[hit]
+            hp, hbeta, hspec, hprev, hdepth, hsdepth = (path[hit], beta[hit], specular[hit], prev_pdf[hit],
+                                                       depth[hit], specular_depth[hit])
+            h_time = t_ray[hit]
+            distance = np.sqrt(dot(p - o[hit], p - o[hit]))
+            # Emission (one-sided, on the side of the geometric normal).
+            emission = accel.object_emission[obj]
+            cos_light = dot(n_geo, wo)
+            emissive = np.any(emission > 0, axis=1) & (cos_light > 0)
+            if emissive.any():
+                w_emit = np.ones(len(obj))
+                if self.area_lights is not None:
+                    pdf_light = ((1.0 - self.p_select_environment) * self.area_lights.pdf_area
+                                 * distance ** 2 / np.where(cos_light > 0, cos_light, 1.0))
+                    w_emit = np.where(hspec, 1.0, _power_heuristic(hprev, pdf_light))
+                contribution = hbeta * emission * w_emit[:, None]
+                radiance[hp[emissive]] += contribution[emissive]
+            # Two-sided surfaces: shade on the side the ray came from.
+            flip = dot(n_geo, wo) < 0
+            n_geo[flip] *= -1.0
+            n_sh[flip] *= -1.0
+            # A shading normal facing away from the viewer would make the surface black.
+            bad_shading = dot(n_sh, wo) <= 0
+            n_sh[bad_shading] = n_geo[bad_shading]
+            material_index = accel.object_material[obj]
+
+            shadow_o, shadow_d, shadow_dist, shadow_time, shadow_target, shadow_value = [], [], [], [], [], []
+            next_o, next_d, next_path, next_beta, next_spec, next_pdf, next_depth, next_sdepth = ([] for _ in range(8))
+
+            for m in np.unique(material_index):
+                material = scene.materials[m]
+                sel = (material_index == m) & ~np.any(emission > 0, axis=1)
+                if not sel.any():
+                    continue
+                s_p, s_ng, s_ns, s_wo = p[sel], n_geo[sel], n_sh[sel], wo[sel]
+                s_path, s_beta, s_depth, s_sdepth = hp[sel], hbeta[sel], hdepth[sel], hsdepth[sel]
+                s_time = h_time[sel]
+                origin = s_p + eps * s_ng
+                if material.is_specular:
+                    wi = 2.0 * dot(s_wo, s_ns)[:, None] * s_ns - s_wo
+                    keep = (dot(wi, s_ng) > 0) & (s_sdepth < scene.max_specular_depth)
+                    next_o.append(origin[keep])
+                    next_d.append(normalize(wi[keep]))
+                    next_path.append(s_path[keep])
+                    next_beta.append(s_beta[keep] * material.specular)
+                    next_spec.append(np.ones(int(keep.sum()), bool))
+                    next_pdf.append(np.zeros(int(keep.sum())))
+                    next_depth.append(s_depth[keep])
+                    next_sdepth.append(s_sdepth[keep] + 1)
+                    continue
+                tangent, bitangent = coordinate_frame(s_ns)
+
+                def to_local(v: np.ndarray) -> np.ndarray:
+                    return np.stack([dot(v, tangent), dot(v, bitangent), dot(v, s_ns)], axis=-1)
+
+                wo_local = to_local(s_wo)
+                kd = material.diffuse_albedo(p_object[sel])
+                continues = s_depth < self.max_depth
+
+                # Next-event estimation: delta lights (no random numbers).
+                for light in scene.delta_lights:
+                    if isinstance(light, PointLight):
+                        to_light = light.position - s_p
+                        dist = np.sqrt(dot(to_light, to_light))
+                        wi = to_light / dist[:, None]
+                        li = light.intensity / (dist * dist)[:, None]
+                    else:
+                        assert isinstance(light, DirectionalLight)
+                        wi = np.broadcast_to(-light.direction, s_p.shape)
+                        dist = np.full(len(s_p), np.inf)
+                        li = np.broadcast_to(light.irradiance, s_p.shape)
+                    f = material.evaluate(wo_local, to_local(wi), kd)
+                    cos_i = np.abs(dot(wi, s_ns))
+                    value = s_beta * f * li * cos_i[:, None]
+                    ok = (dot(wi, s_ng) > 0) & np.any(value > 0, axis=1)
+                    shadow_o.append(origin[ok])
+                    shadow_d.append(wi[ok])
+                    shadow_dist.append(dist[ok] - 2 * eps)
+                    shadow_time.append(s_time[ok])
+                    shadow_target.append(s_path[ok])
+                    shadow_value.append(value[ok])
+
+                # Next-event estimation: one area-light or environment sample (light_u, light_v).
+                if scene.has_sampled_lights:
+                    lu, lv = light_u[s_path], light_v[s_path]
+                    wi = np.zeros_like(s_p)
+                    le = np.zeros_like(s_p)
+                    pdf_light = np.zeros(len(s_p))
+                    dist = np.full(len(s_p), np.inf)
+                    use_env = lu < self.p_select_environment
+                    if self.environment is not None and use_env.any():
+                        u_env = lu[use_env] / self.p_select_environment
+                        w_env, le_env, pdf_env = self.environment.sample(u_env, lv[use_env])
+                        wi[use_env], le[use_env] = w_env, le_env
+                        pdf_light[use_env] = self.p_select_environment * pdf_env
+                    use_area = ~use_env
+                    if self.area_lights is not None and use_area.any():
+                        p_area = 1.0 - self.p_select_environment
+                        u_area = (lu[use_area] - self.p_select_environment) / p_area
+                        p_light, n_light, le_area = self.area_lights.sample(u_area, lv[use_area])
+                        to_light = p_light - s_p[use_area]
+                        dist_area = np.sqrt(dot(to_light, to_light))
+                        w_area = to_light / np.where(dist_area > 0, dist_area, 1.0)[:, None]
+                        cos_l = -dot(n_light, w_area)
+                        pdf_area = p_area * self.area_lights.pdf_area * dist_area ** 2 / np.where(cos_l > 0, cos_l, 1.0)
+                        wi[use_area] = w_area
+                        le[use_area] = np.where((cos_l > 0)[:, None], le_area, 0.0)
+                        pdf_light[use_area] = np.where(cos_l > 0, pdf_area, 0.0)
+                        dist[use_area] = dist_area * (1.0 - 1e-5) - 2 * eps
+                    wi_local = to_local(wi)
+                    f = material.evaluate(wo_local, wi_local, kd)
+                    pdf_bsdf = material.pdf(wo_local, wi_local, kd)
+                    weight = np.where(continues, _power_heuristic(pdf_light, pdf_bsdf), 1.0)
+                    cos_i = np.abs(wi_local[:, 2])
+                    ratio = np.where(pdf_light > 0, weight * cos_i / np.where(pdf_light > 0, pdf_light, 1.0), 0.0)
+                    value = s_beta * f * le * ratio[:, None]
+                    ok = (dot(wi, s_ng) > 0) & np.any(value != 0, axis=1)
+                    shadow_o.append(origin[ok])
+                    shadow_d.append(wi[ok])
+                    shadow_dist.append(dist[ok])
+                    shadow_time.append(s_time[ok])
+                    shadow_target.append(s_path[ok])
+                    shadow_value.append(value[ok])
+
+                # BSDF sampling for the next bounce (bounce{k}_u, bounce{k}_v).
+                for k in np.unique(s_depth[continues]):
+                    at_k = continues & (s_depth == k)
+                    key_k, index_k = key[s_path[at_k]], sample_index[s_path[at_k]]
+                    u = self._draw(f"bounce{k}_u", key_k, index_k)
+                    v = self._draw(f"bounce{k}_v", key_k, index_k)
+                    wi_local, f, pdf = material.sample(wo_local[at_k], u, v, kd[at_k])
+                    wi = (wi_local[:, :1] * tangent[at_k] + wi_local[:, 1:2] * bitangent[at_k]
+                          + wi_local[:, 2:] * s_ns[at_k])
+                    throughput = f * (np.abs(wi_local[:, 2]) / np.where(pdf > 0, pdf, 1.0))[:, None]
+                    keep = (pdf > 0) & (dot(wi, s_ng[at_k]) > 0) & np.any(throughput > 0, axis=1)
+                    next_o.append(origin[at_k][keep])
+                    next_d.append(normalize(wi[keep]))
+                    next_path.append(s_path[at_k][keep])
+                    next_beta.append((s_beta[at_k] * throughput)[keep])
+                    next_spec.append(np.zeros(int(keep.sum()), bool))
+                    next_pdf.append(pdf[keep])
+                    next_depth.append(s_depth[at_k][keep] + 1)
+                    next_sdepth.append(s_sdepth[at_k][keep])
+
+            # One batched shadow query for every light sample of this bounce.
+            if shadow_o:
+                so = np.concatenate(shadow_o)
+                if len(so):
+                    blocked = accel.occluded(so, np.concatenate(shadow_d), np.concatenate(shadow_dist),
+                                             np.concatenate(shadow_time))
+                    counts["rays"] += len(so) * (1 + len(accel.moving_scenes))
+                    counts["shadow_rays"] += len(so)
+                    visible = ~blocked
+                    target = np.concatenate(shadow_target)[visible]
+                    value = np.concatenate(shadow_value)[visible]
+                    for c in range(3):  # duplicate targets (several lights) must all add up
+                        radiance[:, c] += np.bincount(target, weights=value[:, c], minlength=n)
+
+            if not next_path:
+                break
+            path = np.concatenate(next_path)
+            o = np.concatenate(next_o)
+            d = np.concatenate(next_d)
+            beta = np.concatenate(next_beta)
+            specular = np.concatenate(next_spec)
+            prev_pdf = np.concatenate(next_pdf)
+            depth = np.concatenate(next_depth)
+            specular_depth = np.concatenate(next_sdepth)
+        return radiance, counts
+
+
+def render(scene: Scene | str | Path | dict[str, Any], *, spp: int, seed: int = 0, sampler: str = "independent",
+           max_depth: int | None = None, threads: int = 2, progress: bool = False,
+           first_index: int = 0) -> SampleBuffer:
+    """Render ``spp`` samples at every pixel (a uniform request) and return their statistics."""
+    if int(spp) < 1:
+        raise ValueError(f"spp: {spp} must be >= 1")
+    tracer = PathTracer(scene, seed=seed, sampler=sampler, max_depth=max_depth, threads=threads, progress=progress)
+    try:
+        return tracer(SampleRequest.uniform(tracer.shape, int(spp), first_index=first_index))
+    finally:
+        tracer.close()
+

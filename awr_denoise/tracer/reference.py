@@ -1,0 +1,158 @@
+"""High-spp reference renders, cached as half-float EXRs under ``data/references``.
+
+``python -m awr_denoise.tracer.reference SCENE [--spp N] [--seed S] [--force]`` renders a
+scene's reference with the Sobol' sampler and writes ``data/references/<scene>.exr``; the
+header records the scene, resolution, spp, sampler and seed. :func:`load_reference` returns a
+cached reference or renders it when missing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..buffers import SampleBuffer
+from ..requests import SampleRequest
+from .integrator import PathTracer
+from .scene import load_scene
+from .scenes import BUNDLED_SCENES
+
+__all__ = ["DEFAULT_REFERENCE_SPP", "REFERENCE_SEED", "reference_dir", "reference_path", "render_reference",
+           "load_reference", "read_reference_header", "main"]
+
+DEFAULT_REFERENCE_SPP = 1024
+"""Samples per pixel of a reference when none is asked for."""
+
+REFERENCE_SEED = 7919
+"""Seed of references: different from the default render seed 0, so a render at seed 0 and
+its reference are independent estimates."""
+
+_PASS_SPP = 32  # samples per pixel traced per pass (bounds memory; passes are merged exactly)
+_HALF_MAX = 65504.0
+
+
+def reference_dir() -> Path:
+    """Where references are cached.
+
+    ``$AWR_DENOISE_REFERENCE_DIR`` if set; else the repository's ``data/references`` when
+    running from a checkout; else ``~/.cache/awr-denoise/references``.
+    """
+    override = os.environ.get("AWR_DENOISE_REFERENCE_DIR")
+    if override:
+        return Path(override)
+    repo_data = Path(__file__).resolve().parents[2] / "data"
+    if repo_data.is_dir():
+        return repo_data / "references"
+    return Path.home() / ".cache" / "awr-denoise" / "references"
+
+
+def _check_scene_name(scene_name: str) -> None:
+    if scene_name not in BUNDLED_SCENES:
+        raise ValueError(f"scene_name: {scene_name!r} is not one of {', '.join(BUNDLED_SCENES)}")
+
+
+def reference_path(scene_name: str) -> Path:
+    """Path of the cached reference EXR of a bundled scene."""
+    _check_scene_name(scene_name)
+    return reference_dir() / f"{scene_name}.exr"
+
+
+def render_reference(scene_name: str, *, spp: int = DEFAULT_REFERENCE_SPP, seed: int = REFERENCE_SEED,
+                     sampler: str = "sobol", path: str | Path | None = None, progress: bool = False,
+                     threads: int = 2) -> np.ndarray:
+    """Render a bundled scene at ``spp`` and write it as a half-float EXR; returns (H, W, 3) float64.
+
+    The image is rendered in passes of 32 spp whose statistics are merged exactly; the EXR
+    header records scene, spp, sampler and seed (``awr_scene``, ``awr_spp``, ...).
+    """
+    import OpenEXR  # the [exr] extra
+
+    _check_scene_name(scene_name)
+    if int(spp) < 1:
+        raise ValueError(f"spp: {spp} must be >= 1")
+    scene = load_scene(scene_name)
+    tracer = PathTracer(scene, seed=seed, sampler=sampler, threads=threads)
+    buffer = SampleBuffer.empty(tracer.shape)
+    passes = range(0, int(spp), _PASS_SPP)
+    if progress:
+        from tqdm import tqdm
+
+        passes = tqdm(passes, desc=f"reference {scene_name}", unit="pass")
+    try:
+        for first in passes:
+            count = min(_PASS_SPP, int(spp) - first)
+            buffer = buffer.merge(tracer(SampleRequest.uniform(tracer.shape, count, first_index=first)))
+    finally:
+        tracer.close()
+    image = buffer.mean
+    target = Path(path) if path is not None else reference_path(scene_name)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    half = np.clip(image, 0.0, _HALF_MAX).astype(np.float16)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+              "awr_scene": scene_name, "awr_spp": str(int(spp)), "awr_sampler": sampler, "awr_seed": str(int(seed)),
+              "awr_nonfinite": str(int(buffer.nonfinite)),
+              "awr_seconds": f"{tracer.stats['seconds']:.1f}"}
+    channels = {c: np.ascontiguousarray(half[..., i]) for i, c in enumerate("RGB")}
+    with OpenEXR.File(header, channels) as f:
+        f.write(str(target))
+    return half.astype(np.float64)
+
+
+def read_reference_header(path: str | Path) -> dict[str, str]:
+    """The ``awr_*`` header attributes of a reference EXR."""
+    import OpenEXR
+
+    with OpenEXR.File(str(path)) as f:
+        return {k: str(v) for k, v in f.header().items() if k.startswith("awr_")}
+
+
+def load_reference(scene_name: str, *, spp: int | None = None) -> np.ndarray:
+    """The high-spp reference image of a bundled scene, (H, W, 3) float64.
+
+    Reads ``reference_path(scene_name)``; renders and caches it first when it is missing, or
+    when ``spp`` is given and differs from the cached file's spp.
+    """
+    import OpenEXR
+
+    path = reference_path(scene_name)
+    if path.is_file():
+        if spp is None or read_reference_header(path).get("awr_spp") == str(int(spp)):
+            with OpenEXR.File(str(path), separate_channels=True) as f:
+                ch = f.channels()
+                return np.stack([np.asarray(ch[c].pixels, np.float64) for c in "RGB"], axis=-1)
+    return render_reference(scene_name, spp=DEFAULT_REFERENCE_SPP if spp is None else int(spp))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line: ``python -m awr_denoise.tracer.reference SCENE [SCENE ...] [--spp N]``."""
+    parser = argparse.ArgumentParser(prog="python -m awr_denoise.tracer.reference",
+                                     description="Render and cache high-spp reference images of bundled scenes.")
+    parser.add_argument("scenes", nargs="+", metavar="SCENE", help=f"one of {', '.join(BUNDLED_SCENES)}, or 'all'")
+    parser.add_argument("--spp", type=int, default=DEFAULT_REFERENCE_SPP, help="samples per pixel")
+    parser.add_argument("--seed", type=int, default=REFERENCE_SEED)
+    parser.add_argument("--sampler", default="sobol", choices=("independent", "sobol"))
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--force", action="store_true", help="re-render even if a cached file has this spp")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    args = parser.parse_args(argv)
+    names = list(BUNDLED_SCENES) if args.scenes == ["all"] else args.scenes
+    for name in names:
+        if name not in BUNDLED_SCENES:
+            parser.error(f"SCENE: {name!r} is not one of {', '.join(BUNDLED_SCENES)}, all")
+    for name in names:
+        path = reference_path(name)
+        if path.is_file() and not args.force and read_reference_header(path).get("awr_spp") == str(args.spp):
+            print(f"{name}: cached at {path} ({args.spp} spp)")
+            continue
+        image = render_reference(name, spp=args.spp, seed=args.seed, sampler=args.sampler, threads=args.threads,
+                                 progress=not args.quiet)
+        print(f"{name}: wrote {path} ({image.shape[1]}x{image.shape[0]}, {args.spp} spp, "
+              f"mean {image.mean(axis=(0, 1)).round(4).tolist()})")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

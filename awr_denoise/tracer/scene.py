@@ -1,0 +1,341 @@
+"""Scenes: parse a scene spec (a dict, a JSON file or a bundled name) into geometry and lights.
+
+A scene spec is a plain dict (see :mod:`awr_denoise.tracer.scenes` for the bundled ones)::
+
+    {"name": ..., "description": ..., "dimension": 6, "width": 128, "height": 128,
+     "camera": {"from": [...], "to": [...], "fov": 40, "aperture_radius": 0.05,
+                "focus_distance": 5, "shutter": [0, 1]},
+     "integrator": {"max_depth": 1},
+     "materials": {"red": {"type": "diffuse", "albedo": [0.7, 0.1, 0.1]}, ...},
+     "objects": [{"shape": "sphere", "center": [...], "radius": 1, "material": "red",
+                  "emission": [...], "motion": {"velocity": [...], "axis": [...],
+                                                "angular_velocity_degrees": 90}}, ...],
+     "lights": [{"type": "point", "position": [...], "intensity": [...]}, ...],
+     "environment": {"type": "sky"} | {"type": "constant", "radiance": 1} | None}
+
+Shapes: ``sphere`` (center, radius), ``box`` (min, max), ``quad`` (corner, edge_u, edge_v),
+``lathe`` (profile: a name from :data:`CHESS_PROFILES` or (radius, height) pairs; base, scale)
+and ``mesh`` (vertices, faces). The scene states its integrand ``dimension`` (section 1 of the
+algorithm note); :func:`load_scene` checks it against the random dimensions the path tracer
+will actually draw for the scene (:meth:`Scene.dimension_names`).
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .camera import ThinLensCamera, parse_camera
+from .environment import ConstantEnvironment, LatLongEnvironment, parse_environment
+from .lights import AreaLights, DirectionalLight, PointLight, parse_delta_light
+from .materials import Material, parse_material
+from .meshes import CHESS_PROFILES, box_mesh, lathe_mesh, quad_mesh, rotation_matrices, sphere_mesh
+
+__all__ = ["Scene", "SceneObject", "Motion", "SHAPE_KINDS", "load_scene", "parse_scene", "dimension_names"]
+
+SHAPE_KINDS = ("sphere", "box", "quad", "lathe", "mesh")
+"""Valid values of ``objects[i].shape``."""
+
+_DEFAULT_SPECULAR_DEPTH = 8
+
+
+@dataclass(frozen=True)
+class Motion:
+    """Rigid motion over time ``t``: ``x(t) = pivot + velocity t + R(axis, omega t) (x - pivot)``."""
+
+    pivot: np.ndarray
+    velocity: np.ndarray
+    axis: np.ndarray
+    angular_velocity: float  # radians per unit time
+
+    @property
+    def is_static(self) -> bool:
+        """True when the motion does nothing."""
+        return not np.any(self.velocity) and self.angular_velocity == 0.0
+
+    def world_from_object(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-time rotations (N, 3, 3) and translations (N, 3) with ``x_world = R x + T``."""
+        rotation = rotation_matrices(self.axis, self.angular_velocity * np.asarray(t, float))
+        translation = self.pivot + self.velocity * np.asarray(t, float)[:, None] - np.einsum(
+            "nij,j->ni", rotation, self.pivot)
+        return rotation, translation
+
+
+@dataclass
+class SceneObject:
+    """One triangle mesh with its material, emission and motion (object space = rest pose)."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray
+    material: int
+    emission: np.ndarray | None = None
+    motion: Motion | None = None
+    name: str = ""
+
+
+@dataclass
+class Scene:
+    """A parsed scene, ready for :class:`~awr_denoise.tracer.PathTracer`.
+
+    Attributes
+    ----------
+    name, description
+        Identification.
+    width, height
+        Image size in pixels.
+    dimension
+        Stated integrand dimension (number of random numbers per camera sample).
+    """
+
+    name: str
+    description: str
+    width: int
+    height: int
+    dimension: int
+    camera: ThinLensCamera
+    materials: list[Material]
+    material_names: list[str]
+    objects: list[SceneObject]
+    delta_lights: list[PointLight | DirectionalLight]
+    environment: ConstantEnvironment | LatLongEnvironment | None
+    max_depth: int
+    max_specular_depth: int = _DEFAULT_SPECULAR_DEPTH
+    spec: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W) of the image."""
+        return (self.height, self.width)
+
+    @property
+    def has_motion(self) -> bool:
+        """True when something moves while the shutter is open (a time dimension is drawn)."""
+        return self.camera.shutter_length > 0 and any(
+            o.motion is not None and not o.motion.is_static for o in self.objects)
+
+    @property
+    def area_lights(self) -> AreaLights | None:
+        """The emissive triangles, or None."""
+        tris, radiance = [], []
+        for obj in self.objects:
+            if obj.emission is not None and np.any(obj.emission > 0):
+                tris.append(obj.vertices[obj.faces])
+                radiance.append(np.tile(obj.emission, (len(obj.faces), 1)))
+        if not tris:
+            return None
+        return AreaLights(np.concatenate(tris), np.concatenate(radiance))
+
+    @property
+    def has_sampled_lights(self) -> bool:
+        """True when light sampling draws random numbers (area lights or an environment)."""
+        return self.environment is not None or any(
+            o.emission is not None and np.any(o.emission > 0) for o in self.objects)
+
+    def dimension_names(self, max_depth: int | None = None) -> tuple[str, ...]:
+        """Names of the random dimensions a camera sample draws, in dimension-index order."""
+        return dimension_names(self, self.max_depth if max_depth is None else max_depth)
+
+    def __repr__(self) -> str:
+        return (f"Scene({self.name!r}, {self.width}x{self.height}, dimension={self.dimension}, "
+                f"objects={len(self.objects)})")
+
+
+def dimension_names(scene: Scene, max_depth: int) -> tuple[str, ...]:
+    """The random dimensions drawn for ``scene`` at path depth ``max_depth``.
+
+    Only effects the scene has get a dimension: ``pixel_x, pixel_y`` (box-filtered pixel
+    area), ``lens_u, lens_v`` (thin lens), ``time`` (something moves during the shutter),
+    ``light_u, light_v`` (area light or environment: one light sample per vertex, the same
+    two numbers at every vertex of the path so the integrand dimension does not grow with
+    next-event estimation), and ``bounce{k}_u, bounce{k}_v`` per diffuse/glossy bounce
+    ``k < max_depth``. Mirror reflections and delta lights draw nothing.
+    """
+    names = ["pixel_x", "pixel_y"]
+    if scene.camera.has_lens:
+        names += ["lens_u", "lens_v"]
+    if scene.has_motion:
+        names.append("time")
+    if scene.has_sampled_lights:
+        names += ["light_u", "light_v"]
+    for k in range(max_depth):
+        names += [f"bounce{k}_u", f"bounce{k}_v"]
+    return tuple(names)
+
+
+def _vec(spec: dict[str, Any], key: str, where: str, default: Any = None) -> np.ndarray:
+    if key not in spec and default is None:
+        raise ValueError(f"{where}.{key}: missing")
+    value = np.asarray(spec.get(key, default), float)
+    if value.shape != (3,) or not np.all(np.isfinite(value)):
+        raise ValueError(f"{where}.{key}: expected 3 finite numbers, got {spec.get(key)!r}")
+    return value
+
+
+def _build_shape(spec: dict[str, Any], where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Mesh of an object spec plus its pivot (the natural centre for rotations)."""
+    shape = spec.get("shape")
+    if shape == "sphere":
+        center = _vec(spec, "center", where)
+        radius = float(spec.get("radius", 1.0))
+        if radius <= 0:
+            raise ValueError(f"{where}.radius: {radius} must be > 0")
+        v, f, n = sphere_mesh(center, radius, segments=int(spec.get("segments", 48)),
+                              rings=int(spec.get("rings", 24)))
+        return v, f, n, center
+    if shape == "box":
+        lo, hi = _vec(spec, "min", where), _vec(spec, "max", where)
+        if np.any(hi <= lo):
+            raise ValueError(f"{where}.max: must exceed min in every axis")
+        v, f, n = box_mesh(lo, hi)
+        return v, f, n, 0.5 * (lo + hi)
+    if shape == "quad":
+        corner = _vec(spec, "corner", where)
+        eu, ev = _vec(spec, "edge_u", where), _vec(spec, "edge_v", where)
+        v, f, n = quad_mesh(corner, eu, ev)
+        return v, f, n, corner + 0.5 * (eu + ev)
+    if shape == "lathe":
+        profile = spec.get("profile", "pawn")
+        if isinstance(profile, str):
+            if profile not in CHESS_PROFILES:
+                raise ValueError(f"{where}.profile: {profile!r} is not one of {', '.join(CHESS_PROFILES)}")
+            profile = CHESS_PROFILES[profile]
+        base = _vec(spec, "base", where)
+        v, f, n = lathe_mesh(np.asarray(profile, float), base, float(spec.get("scale", 1.0)),
+                             segments=int(spec.get("segments", 48)))
+        return v, f, n, base
+    if shape == "mesh":
+        v = np.asarray(spec["vertices"], float)
+        f = np.asarray(spec["faces"], np.int64)
+        if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
+            raise ValueError(f"{where}: mesh vertices and faces must be (N, 3)")
+        if f.min() < 0 or f.max() >= len(v):
+            raise ValueError(f"{where}.faces: index out of range")
+        e = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        n = np.zeros_like(v)
+        for k in range(3):  # area-weighted vertex normals
+            np.add.at(n, f[:, k], e)
+        n /= np.maximum(np.linalg.norm(n, axis=1), 1e-30)[:, None]
+        return v, f, n, v.mean(axis=0)
+    raise ValueError(f"{where}.shape: {shape!r} is not one of {', '.join(SHAPE_KINDS)}")
+
+
+_TOP_LEVEL = {"name", "description", "dimension", "width", "height", "camera", "integrator", "materials",
+              "objects", "lights", "environment"}
+_OBJECT_FIELDS = {"shape", "material", "emission", "motion", "name", "center", "radius", "segments", "rings",
+                  "min", "max", "corner", "edge_u", "edge_v", "profile", "base", "scale", "vertices", "faces"}
+
+
+def parse_scene(spec: dict[str, Any], *, width: int | None = None, height: int | None = None,
+                base_dir: Path | None = None) -> Scene:
+    """Build a :class:`Scene` from a spec dict (see the module docstring for the format)."""
+    spec = copy.deepcopy(spec)
+    unknown = set(spec) - _TOP_LEVEL
+    if unknown:
+        raise ValueError(f"scene: unknown field(s) {sorted(unknown)}; valid: {sorted(_TOP_LEVEL)}")
+    name = str(spec.get("name", "custom"))
+    w = int(width if width is not None else spec.get("width", 128))
+    h = int(height if height is not None else spec.get("height", 128))
+    if w <= 0 or h <= 0:
+        raise ValueError(f"width, height: must be positive, got {w} x {h}")
+    camera = parse_camera(spec.get("camera", {}), w, h)
+
+    material_specs = spec.get("materials", {})
+    material_names = list(material_specs)
+    materials = [parse_material(n, material_specs[n]) for n in material_names]
+    # Emitters reflect nothing; they share one black material.
+    material_names.append("__emitter__")
+    materials.append(parse_material("__emitter__", {"type": "diffuse", "albedo": 0.0}))
+
+    objects = []
+    for i, obj in enumerate(spec.get("objects", [])):
+        where = f"objects[{i}]"
+        unknown = set(obj) - _OBJECT_FIELDS
+        if unknown:
+            raise ValueError(f"{where}: unknown field(s) {sorted(unknown)}; valid: {sorted(_OBJECT_FIELDS)}")
+        vertices, faces, normals, pivot = _build_shape(obj, where)
+        emission = None
+        if "emission" in obj:
+            emission = np.broadcast_to(np.asarray(obj["emission"], float), (3,)).copy()
+            if not np.all(np.isfinite(emission)) or np.any(emission < 0):
+                raise ValueError(f"{where}.emission: must be finite and >= 0")
+        material_name = obj.get("material", "__emitter__" if emission is not None else None)
+        if material_name not in material_names:
+            raise ValueError(f"{where}.material: {material_name!r} is not one of {', '.join(material_names[:-1])}")
+        motion = None
+        if "motion" in obj:
+            m = obj["motion"]
+            axis = np.asarray(m.get("axis", (0.0, 1.0, 0.0)), float)
+            if np.linalg.norm(axis) == 0:
+                raise ValueError(f"{where}.motion.axis: must be non-zero")
+            motion = Motion(pivot, _vec(m, "velocity", f"{where}.motion", (0.0, 0.0, 0.0)),
+                            axis / np.linalg.norm(axis), np.radians(float(m.get("angular_velocity_degrees", 0.0))))
+            if emission is not None and not motion.is_static:
+                raise ValueError(f"{where}.motion: emissive objects must be static")
+            if motion.is_static:
+                motion = None
+        objects.append(SceneObject(vertices, faces, normals, material_names.index(material_name), emission,
+                                   motion, str(obj.get("name", f"object{i}"))))
+    if not objects:
+        raise ValueError("objects: a scene needs at least one object")
+
+    delta_lights = [parse_delta_light(i, lt) for i, lt in enumerate(spec.get("lights", []))]
+    environment = parse_environment(spec.get("environment"), base_dir)
+    integrator = spec.get("integrator", {})
+    max_depth = int(integrator.get("max_depth", 0))
+    if max_depth < 0:
+        raise ValueError(f"integrator.max_depth: {max_depth} must be >= 0")
+    max_specular_depth = int(integrator.get("max_specular_depth", _DEFAULT_SPECULAR_DEPTH))
+
+    # Objects that move while the shutter is closed are frozen at the opening time.
+    if camera.shutter_length == 0:
+        for obj in objects:
+            if obj.motion is not None:
+                rotation, translation = obj.motion.world_from_object(np.array([camera.shutter_open]))
+                obj.vertices = obj.vertices @ rotation[0].T + translation[0]
+                obj.normals = obj.normals @ rotation[0].T
+                obj.motion = None
+
+    scene = Scene(name, str(spec.get("description", "")), w, h, 0, camera, materials, material_names, objects,
+                  delta_lights, environment, max_depth, max_specular_depth, spec)
+    natural = len(scene.dimension_names())
+    stated = int(spec.get("dimension", natural))
+    if stated != natural:
+        raise ValueError(f"dimension: the scene states {stated} but its effects need {natural} "
+                         f"({', '.join(scene.dimension_names())})")
+    scene.dimension = stated
+    return scene
+
+
+def load_scene(scene: str | Path | dict[str, Any] | Scene, *, width: int | None = None,
+               height: int | None = None) -> Scene:
+    """Load a bundled scene by name, a JSON scene file, or a spec dict.
+
+    Parameters
+    ----------
+    scene
+        A name from :func:`~awr_denoise.tracer.list_scenes`, a path to a ``.json`` spec, a
+        spec dict, or an already loaded :class:`Scene` (returned as is unless resized).
+    width, height
+        Override the scene's resolution.
+    """
+    from .scenes import BUNDLED_SCENES
+
+    if isinstance(scene, Scene):
+        if width is None and height is None:
+            return scene
+        return parse_scene(scene.spec, width=width, height=height)
+    if isinstance(scene, dict):
+        return parse_scene(scene, width=width, height=height)
+    text = str(scene)
+    if text in BUNDLED_SCENES:
+        return parse_scene(BUNDLED_SCENES[text], width=width, height=height)
+    path = Path(text)
+    if path.suffix == ".json" and path.is_file():
+        return parse_scene(json.loads(path.read_text()), width=width, height=height, base_dir=path.parent)
+    raise ValueError(f"scene: {text!r} is neither a JSON file nor one of {', '.join(BUNDLED_SCENES)}")
