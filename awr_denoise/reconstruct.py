@@ -15,6 +15,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from concurrent.futures import Executor
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from scipy import ndimage
@@ -94,8 +95,16 @@ def _soft(coeff: FloatArray, threshold: FloatArray) -> FloatArray:
     return np.sign(coeff) * np.maximum(np.abs(coeff) - threshold, 0.0)
 
 
-def _threshold_plane(y: FloatArray, var_y: FloatArray, c_s: float, ops, shrink_from=None):
-    """Threshold one plane; returns (coeffs, thresholds, zeroed count, total count, kept masks).
+class _PlaneResult(NamedTuple):
+    coeffs: list  # thresholded coefficients
+    thresholds: list  # c_s * Delta per detail band (None in luminance-driven channels)
+    factors: list  # shrink factor of every detail coefficient (0 where zeroed)
+    zeroed: int
+    total: int
+
+
+def _threshold_plane(y: FloatArray, var_y: FloatArray, c_s: float, ops, shrink_from=None) -> _PlaneResult:
+    """Eq. 10-11 on one plane.
 
     With ``shrink_from`` (a list of per-band shrink factors) the plane's coefficients are
     scaled by those factors instead of being thresholded by their own Delta.
@@ -127,7 +136,7 @@ def _threshold_plane(y: FloatArray, var_y: FloatArray, c_s: float, ops, shrink_f
         out.append(tuple(bands))
         thresholds.append(tuple(band_t))
         factors.append(tuple(band_f))
-    return out, thresholds, factors, variances, zeroed, total
+    return _PlaneResult(out, thresholds, factors, zeroed, total)
 
 
 def _output_variance(var_y: FloatArray, factors: list, ops, probes: int, seed: int) -> FloatArray:
@@ -210,6 +219,8 @@ def reconstruct_detailed(
     if mode not in MODES:
         raise ValueError(f"mode: {mode!r} is not one of {', '.join(MODES)}")
     c_s = _check_c_s(c_s)
+    if isinstance(variance_probes, bool) or not isinstance(variance_probes, (int, np.integer)) or variance_probes < 0:
+        raise ValueError(f"variance_probes: must be an integer >= 0, got {variance_probes!r}")
     dom = resolve_domain(domain)
     mean = _filled_mean(buffer)
     var = _input_variance(buffer)
@@ -225,31 +236,29 @@ def reconstruct_detailed(
         weights = luminance_weights(buffer.channels)
         lum = mean @ weights
         lum_var = buffer.luminance_variance() / np.maximum(buffer.count, 1)
-        _, _, shrink_from, _, _, _ = _threshold_plane(bound.forward(lum), bound.variance(lum, lum_var), c_s, ops)
+        shrink_from = _threshold_plane(bound.forward(lum), bound.variance(lum, lum_var), c_s, ops).factors
 
     def one_channel(c: int):
         return _threshold_plane(y[:, :, c], var_y[:, :, c], c_s, ops, shrink_from)
 
     results = run(one_channel, range(n_ch))
-    image_y = np.stack([inverse(r[0], buffer.shape, wavelet=wavelet, boundary=boundary) for r in results], axis=-1)
+    image_y = np.stack([inverse(r.coeffs, buffer.shape, wavelet=wavelet, boundary=boundary) for r in results], axis=-1)
     image = bound.inverse(image_y)
     if not np.isfinite(image).all():
         # Only reachable with means near the float64 limit (~1.8e308) in the linear domain,
         # where the transform's gain of up to 2 per level overflows.
         raise ValueError(f"buffer: the wavelet transform overflows float64 (largest |mean| "
                          f"{float(np.abs(mean).max()):.3g}); rescale the input or use the log domain")
-    zeroed = sum(r[4] for r in results)
-    total = sum(r[5] for r in results)
-    if variance_probes < 0:
-        raise ValueError(f"variance_probes: must be >= 0, got {variance_probes}")
+    zeroed = sum(r.zeroed for r in results)
+    total = sum(r.total for r in results)
     if variance_probes:
-        var_out_y = np.stack(run(lambda c: _output_variance(var_y[:, :, c], results[c][2], ops, variance_probes,
+        var_out_y = np.stack(run(lambda c: _output_variance(var_y[:, :, c], results[c].factors, ops, variance_probes,
                                                              seed + c), range(n_ch)), axis=-1)
         d = bound.derivative(image)
         out_var = var_out_y / (d * d)
     else:
         out_var = np.full(image.shape, np.nan)
-    return Reconstruction(image=image, thresholds=[r[1] for r in results],
+    return Reconstruction(image=image, thresholds=[r.thresholds for r in results],
                           fraction_zeroed=zeroed / total if total else 0.0,
                           variance=out_var, levels=ops.levels, domain=dom)
 
