@@ -1,0 +1,179 @@
+"""Helpers shared by the ``awr`` subcommands: errors, frame patterns, paths, plane options.
+
+Kept free of numerical work: every subcommand is argument parsing around library calls.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import sys
+from collections.abc import Iterable, Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "EXIT_OK",
+    "EXIT_FAILURE",
+    "EXIT_USAGE",
+    "UsageError",
+    "RuntimeFailure",
+    "add_output_options",
+    "add_plane_options",
+    "plane_kwargs",
+    "parse_frames",
+    "expand_frames",
+    "frame_jobs",
+    "refuse_same_file",
+    "progress",
+    "print_json",
+    "status",
+]
+
+EXIT_OK = 0
+EXIT_FAILURE = 1
+EXIT_USAGE = 2
+
+
+class UsageError(ValueError):
+    """A mistake in how the command was called (exit status 2)."""
+
+
+class RuntimeFailure(RuntimeError):
+    """The command ran but did not achieve its goal, e.g. an error above ``--maxerror`` (exit 1)."""
+
+
+def add_output_options(parser: argparse.ArgumentParser, *, output_help: str) -> None:
+    """``-o/--output`` and ``--overwrite``."""
+    parser.add_argument("-o", "--output", required=True, metavar="FILE", help=output_help)
+    parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
+
+
+def add_plane_options(parser: argparse.ArgumentParser) -> None:
+    """Options that say where the statistics are inside the input EXR files."""
+    from awr_denoise.io import PRESETS
+
+    g = parser.add_argument_group("input layout (see docs/io.md)")
+    g.add_argument("--preset", default="auto", choices=PRESETS,
+                   help="renderer layout of the input; 'auto' detects it from the channel names")
+    g.add_argument("--color", metavar="PLANE", help="mean plane, e.g. 'RGB', 'Ci' or 'beauty.exr:RGB'")
+    g.add_argument("--variance", metavar="PLANE", help="spread plane, e.g. 'Variance' or 'var.exr:mse'")
+    g.add_argument("--count", metavar="PLANE", help="per-pixel sample count plane")
+    g.add_argument("--variance-kind", choices=("sample", "mean", "second_moment"),
+                   help="what --variance holds: per-sample variance, variance of the mean, or E[x^2]")
+    g.add_argument("--spp", type=int, metavar="N", help="samples per pixel when the file has no count")
+    g.add_argument("--layer", metavar="NAME", help="Cycles view layer when the file has several")
+
+
+def plane_kwargs(args: argparse.Namespace) -> dict[str, Any]:
+    """Keyword arguments of :func:`awr_denoise.io.read_sample_buffer` from the plane options."""
+    return {"preset": args.preset, "color": args.color, "variance": args.variance, "count": args.count,
+            "variance_kind": args.variance_kind, "spp": args.spp, "layer": args.layer}
+
+
+_RANGE = re.compile(r"^(-?\d+)(?:-(-?\d+)(?:[x:](\d+))?)?$")
+
+
+def parse_frames(spec: str) -> list[int]:
+    """Frame numbers from ``1-100``, ``1-100x5`` (every 5th), ``3`` or ``1,4,10-12``."""
+    frames: list[int] = []
+    for item in spec.split(","):
+        m = _RANGE.match(item.strip())
+        if not m:
+            raise UsageError(f"--frames: cannot read {item!r} (use e.g. 1-100, 1-100x5 or 1,4,7)")
+        first = int(m.group(1))
+        last = int(m.group(2)) if m.group(2) is not None else first
+        step = int(m.group(3) or 1)
+        if last < first or step < 1:
+            raise UsageError(f"--frames: empty range {item!r}")
+        frames.extend(range(first, last + 1, step))
+    return frames
+
+
+_HASHES = re.compile(r"#+")
+
+
+def expand_frames(pattern: str, frame: int) -> str:
+    """``shot.####.exr`` with frame 7 is ``shot.0007.exr`` (the run of ``#`` gives the padding)."""
+    runs = _HASHES.findall(pattern)
+    if not runs:
+        raise UsageError(f"{pattern}: no #### frame placeholder in the file name")
+    return _HASHES.sub(lambda m: f"{frame:0{len(m.group(0))}d}", pattern)
+
+
+def frame_jobs(inputs: Sequence[str], output: str, frames: str | None) -> list[tuple[list[str], str]]:
+    """(inputs, output) per frame; without ``--frames`` a single job with the names as given."""
+    if frames is None:
+        for name in [*inputs, output]:
+            if _HASHES.search(os.path.basename(name)):
+                raise UsageError(f"{name}: the name has a #### frame placeholder but no --frames was given")
+        return [(list(inputs), output)]
+    numbers = parse_frames(frames)
+    if not _HASHES.search(output):
+        raise UsageError(f"{output}: with --frames the output needs a #### placeholder")
+    jobs = []
+    for f in numbers:
+        jobs.append(([expand_frames(i, f) if _HASHES.search(i) else i for i in inputs], expand_frames(output, f)))
+    return jobs
+
+
+def refuse_same_file(output: str | os.PathLike[str], inputs: Iterable[str | os.PathLike[str] | None]) -> None:
+    """Refuse an output that is one of the inputs (same resolved path, or the same file by inode)."""
+    out = Path(output)
+    for name in inputs:
+        if name is None:
+            continue
+        src = Path(str(name).rsplit(":", 1)[0]) if ":" in str(name) and not Path(str(name)).exists() else Path(name)
+        same = out.resolve() == src.resolve()
+        if not same and out.exists() and src.exists():
+            try:
+                same = os.path.samefile(out, src)
+            except OSError:
+                same = False
+        if same:
+            raise UsageError(f"{output}: the output is the input file {name}; write to a new file")
+
+
+def progress(iterable: Iterable[Any], *, quiet: bool, total: int | None = None, desc: str = "") -> Iterator[Any]:
+    """tqdm progress bar on stderr unless ``quiet`` (or only one item)."""
+    if quiet or (total is not None and total <= 1):
+        yield from iterable
+        return
+    from tqdm.auto import tqdm
+
+    yield from tqdm(iterable, total=total, desc=desc, file=sys.stderr, leave=False)
+
+
+def print_json(data: Any) -> None:
+    """Machine-readable output on stdout (strict JSON: infinite values become strings)."""
+    print(json.dumps(_finite(data), indent=2, sort_keys=True, default=_jsonable, allow_nan=False))
+
+
+def _finite(value: Any) -> Any:
+    import math
+
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    return value
+
+
+def _jsonable(value: Any) -> Any:
+    import numpy as np
+
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return str(value)
+
+
+def status(message: str, *, quiet: bool) -> None:
+    """A progress note on stderr (stdout is kept for results)."""
+    if not quiet:
+        print(message, file=sys.stderr)

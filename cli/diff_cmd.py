@@ -1,0 +1,62 @@
+"""``awr diff``: error metrics of an image against a reference, and a difference image."""
+
+from __future__ import annotations
+
+import argparse
+
+from .common import EXIT_OK, RuntimeFailure, UsageError, print_json, refuse_same_file
+
+__all__ = ["register", "run", "METRICS"]
+
+METRICS = ("relmse", "mse", "psnr", "ssim")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("diff", help="compare an image with a reference (MSE, relMSE, PSNR, SSIM)",
+                       description="Error metrics of IMAGE against REF. With --maxerror, exit 1 when the chosen "
+                                   "metric is worse than the bound (a golden-image check).")
+    p.add_argument("input", metavar="IMAGE.exr", help="image or sample dump (its R,G,B are the mean)")
+    p.add_argument("-r", "--ref", required=True, metavar="REF.exr", help="reference image")
+    p.add_argument("-o", "--output", metavar="DIFF.exr", help="write the signed difference IMAGE - REF")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    p.add_argument("--metric", choices=METRICS, default="relmse", help="metric checked by --maxerror")
+    p.add_argument("--maxerror", type=float, metavar="E",
+                   help="fail when the metric exceeds E (for psnr and ssim: falls below E)")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from awr_denoise import metrics
+    from awr_denoise.io import read_image, write_image
+
+    if args.output:
+        refuse_same_file(args.output, [args.input, args.ref])
+    image = read_image(args.input)
+    ref = read_image(args.ref)
+    if image.shape[:2] != ref.shape[:2]:
+        raise UsageError(f"{args.ref}: size {ref.shape[1]}x{ref.shape[0]} does not match "
+                         f"{image.shape[1]}x{image.shape[0]} of {args.input}")
+    if image.shape[2] != ref.shape[2]:
+        raise UsageError(f"{args.ref}: {ref.shape[2]} channel(s), {args.input} has {image.shape[2]}")
+    x = image.astype(np.float64)
+    r = ref.astype(np.float64)
+    result = {"file": args.input, "reference": args.ref, "mse": metrics.mse(x, r), "relmse": metrics.relmse(x, r),
+              "psnr": metrics.psnr(x, r), "ssim": metrics.ssim(x, r)}
+    if args.output:
+        write_image(args.output, x - r, header={"awr:input": args.input, "awr:reference": args.ref},
+                    overwrite=args.overwrite)
+    if args.json:
+        print_json(result)
+    else:
+        print(f"{args.input}: relMSE {result['relmse']:.6g}  MSE {result['mse']:.6g}  "
+              f"PSNR {result['psnr']:.4g} dB  SSIM {result['ssim']:.4f}")
+    if args.maxerror is not None:
+        value = result[args.metric]
+        worse = value < args.maxerror if args.metric in ("psnr", "ssim") else value > args.maxerror
+        if worse:
+            raise RuntimeFailure(f"{args.input}: {args.metric} {value:.6g} against {args.ref} is worse than "
+                                 f"--maxerror {args.maxerror:g}")
+    return EXIT_OK

@@ -1,0 +1,94 @@
+"""``awr plan``: ask the sampler where the next samples go, as a request map for a renderer."""
+
+from __future__ import annotations
+
+import argparse
+import re
+
+from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, refuse_same_file, status
+
+__all__ = ["register", "run", "STRATEGIES"]
+
+STRATEGIES = ("awr", "uniform", "variance")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("plan", help="write the next request map (ask)",
+                       description="Decide how many new samples each pixel gets and write them as a request "
+                                   "map (counts, first_index) for an external renderer. Without a dump, plan "
+                                   "the uniform first round of an image of --size.")
+    p.add_argument("input", nargs="?", metavar="DUMP.exr", help="running sample dump (omit for the first round)")
+    p.add_argument("-o", "--output", required=True, metavar="REQUEST.exr")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    budget = p.add_mutually_exclusive_group()
+    budget.add_argument("--budget", type=int, metavar="N", help="total new samples of this round")
+    budget.add_argument("--round-spp", type=float, metavar="S",
+                        help="new samples of this round per pixel on average")
+    p.add_argument("--size", metavar="WxH", help="image size of the first round (without a dump)")
+    p.add_argument("--initial-spp", type=int, default=4, help="samples per pixel of the first round (default 4)")
+    p.add_argument("--strategy", choices=STRATEGIES, default="awr",
+                   help="awr wavelet priorities (default), uniform, or per-pixel variance")
+    p.add_argument("--seed", type=int, help="seed of the renderer's sequences and tie-breaking "
+                                            "(default: the dump's awr:seed, else 0)")
+    p.add_argument("--round", type=int, help="round number (default: the dump's awr:round, else 1)")
+    p.add_argument("--wavelet", default="bior4.4", help="wavelet of the priority analysis")
+    p.add_argument("--levels", type=int, help="decomposition depth of the priority analysis")
+    p.add_argument("--spp-max", type=int, help="most samples any pixel may have")
+    p.add_argument("-q", "--quiet", action="store_true")
+    add_plane_options(p)
+    p.set_defaults(run=run)
+
+
+def _size(text: str) -> tuple[int, int]:
+    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
+    if not m or int(m.group(1)) <= 0 or int(m.group(2)) <= 0:
+        raise UsageError(f"--size: expected WIDTHxHEIGHT such as 640x480, got {text!r}")
+    return int(m.group(2)), int(m.group(1))
+
+
+def _sampler_class(name: str):
+    from awr_denoise import AdaptiveSampler, UniformSampler, VarianceSampler
+
+    return {"awr": AdaptiveSampler, "uniform": UniformSampler, "variance": VarianceSampler}[name]
+
+
+def run(args: argparse.Namespace) -> int:
+    from awr_denoise.io import read_sample_dump, write_request
+
+    cls = _sampler_class(args.strategy)
+    options: dict = {"spp_max": args.spp_max}
+    if args.strategy == "awr":
+        options.update(wavelet=args.wavelet, levels=args.levels)
+    if args.input is None:
+        if args.size is None:
+            raise UsageError("plan: give a running DUMP.exr, or --size WxH for the first round")
+        shape = _size(args.size)
+        seed = 0 if args.seed is None else args.seed
+        sampler = cls(shape, initial_spp=args.initial_spp, seed=seed, **options)
+        round_number = 0
+        if args.round is not None and args.round != 0:
+            raise UsageError("--round: the first round (without a dump) is round 0")
+    else:
+        refuse_same_file(args.output, [args.input])
+        if args.size is not None:
+            raise UsageError("--size: only for the first round; the dump fixes the size")
+        dump = read_sample_dump(args.input, **plane_kwargs(args))
+        seed = args.seed if args.seed is not None else int(str(dump.attributes.get("awr:seed", 0)))
+        round_number = args.round if args.round is not None else int(str(dump.attributes.get("awr:round", 1)))
+        if round_number < 1:
+            raise UsageError(f"--round: rounds after the first are numbered from 1, got {round_number}")
+        sampler = cls.from_buffer(dump.buffer, seed=seed, round=round_number, issued=dump.issued,
+                                  initial_spp=args.initial_spp, **options)
+    budget = args.budget
+    if args.round_spp is not None:
+        h, w = sampler.shape
+        budget = max(1, int(round(args.round_spp * h * w)))
+    if budget is not None and budget < 0:
+        raise UsageError(f"--budget: must be >= 0, got {budget}")
+    request = sampler.ask(budget)
+    write_request(args.output, request, header={"awr:seed": seed, "awr:strategy": args.strategy},
+                  overwrite=args.overwrite)
+    h, w = request.shape
+    status(f"{args.output}: round {request.round}, {request.total} samples "
+           f"({request.total / (h * w):.3g} per pixel), seed {seed}", quiet=args.quiet)
+    return EXIT_OK

@@ -1,0 +1,378 @@
+"""The ``awr`` command line: exit statuses, one-line errors, safe outputs, frames, the file-only loop."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.exr
+OpenEXR = pytest.importorskip("OpenEXR")
+
+from awr_denoise import SampleBuffer, SampleRequest  # noqa: E402
+from awr_denoise.cli.common import expand_frames, parse_frames  # noqa: E402
+from awr_denoise.cli.main import main  # noqa: E402
+from awr_denoise.io import (  # noqa: E402
+    read_header,
+    read_image,
+    read_request,
+    read_sample_dump,
+    write_image,
+    write_sample_buffer,
+)
+
+DATA = Path(__file__).parent / "data"
+H, W = 24, 32
+
+
+def _external():
+    spec = importlib.util.spec_from_file_location("external_renderer", DATA / "external_renderer.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _dump(path, rng, shape=(H, W), spp=8) -> SampleBuffer:
+    count = np.full(shape, spp)
+    mean = 0.5 + 0.1 * rng.standard_normal(shape + (3,))
+    buf = SampleBuffer.from_moments(count, np.abs(mean), np.full(shape + (3,), 0.04))
+    write_sample_buffer(path, buf)
+    return buf
+
+
+def _write(path, planes, header=None):
+    with OpenEXR.File(dict(header or {}), planes) as f:
+        f.write(str(path))
+    return path
+
+
+def _one_error_line(capsys, *needles):
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1, err
+    assert lines[0].startswith("awr: error: ")
+    assert "Traceback" not in err
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])
+    return lines[0]
+
+
+# ---------------------------------------------------------------- bad input, one line each
+
+def _planes(shape=(H, W)):
+    one = np.ones(shape, np.float32)
+    return {c: one * 0.5 for c in "RGB"} | {f"variance.{c}": one * 0.1 for c in "RGB"} | {"sampleCount": one * 4}
+
+
+def _with(channel, value, dtype=None):
+    planes = _planes()
+    a = planes[channel].astype(dtype or np.float32)
+    a[3, 4] = value
+    planes[channel] = a
+    return planes
+
+
+BAD_INPUTS = {
+    "nan": (lambda p: _write(p, _with("G", np.nan)), ["G", "NaN"]),
+    "inf": (lambda p: _write(p, _with("variance.R", np.inf)), ["variance.R", "Inf"]),
+    "negative_variance": (lambda p: _write(p, _with("variance.B", -0.5)), ["variance.B", "negative"]),
+    "negative_count": (lambda p: _write(p, _with("sampleCount", -1)), ["sampleCount", "negative"]),
+    "half_overflow": (lambda p: _write(p, _with("R", np.float16(np.inf), np.float16)), ["R", "half-float overflow"]),
+    "missing_channel": (lambda p: _write(p, {k: v for k, v in _planes().items() if k != "variance.G"},
+                                         {"awr:channels": "R,G,B"}), ["variance.G", "missing"]),
+    "ambiguous_layers": (lambda p: _write(p, {f"{layer}.Combined.{c}": np.ones((H, W), np.float32)
+                                              for layer in ("A", "B") for c in "RGB"}), ["several view layers"]),
+    "not_exr": (lambda p: p.write_bytes(b"P6\n2 2\n255\n" + bytes(12)), ["not an OpenEXR"]),
+    "empty": (lambda p: p.write_bytes(b""), ["not an OpenEXR"]),
+}
+
+
+def _truncated(p):
+    write_sample_buffer(p, SampleBuffer.from_moments(np.full((64, 64), 4), np.random.default_rng(0).random((64, 64, 3)),
+                                                     np.full((64, 64, 3), 0.1)))
+    data = p.read_bytes()
+    p.write_bytes(data[: len(data) // 2])
+
+
+BAD_INPUTS["truncated"] = (_truncated, ["truncated or corrupt"])
+
+
+@pytest.mark.parametrize("case", sorted(BAD_INPUTS))
+def test_bad_input_exits_2_with_one_line(tmp_path, capsys, case):
+    make, needles = BAD_INPUTS[case]
+    src = tmp_path / "in.exr"
+    make(src)
+    before = src.read_bytes()
+    rc = main(["denoise", str(src), "-o", str(tmp_path / "out.exr"), "-q"])
+    assert rc == 2
+    _one_error_line(capsys, "in.exr", *needles)
+    assert sorted(os.listdir(tmp_path)) == ["in.exr"]  # no partial output, no temporary file
+    assert src.read_bytes() == before
+
+
+def test_size_mismatch_between_files(tmp_path, capsys):
+    beauty = _write(tmp_path / "beauty.exr", {c: np.ones((H, W), np.float32) for c in "RGB"})
+    _write(tmp_path / "var.exr", {f"v.{c}": np.ones((4, 4), np.float32) for c in "RGB"})
+    rc = main(["denoise", str(beauty), "--color", "RGB", "--variance", f"{tmp_path / 'var.exr'}:v", "--spp", "4",
+               "-o", str(tmp_path / "out.exr")])
+    assert rc == 2
+    _one_error_line(capsys, "var.exr", "v:", "does not match")
+    assert not (tmp_path / "out.exr").exists()
+
+
+def test_cycles_without_variance_is_explained(tmp_path, capsys):
+    planes = {f"ViewLayer.Combined.{c}": np.ones((H, W), np.float32) for c in "RGBA"}
+    src = _write(tmp_path / "c.exr", planes, {"cycles.ViewLayer.samples": "16"})
+    assert main(["info", str(src), "--preset", "cycles"]) == 2
+    _one_error_line(capsys, "c.exr", "ViewLayer.Combined", "no variance pass")
+
+
+def test_missing_input_and_usage_errors(tmp_path, capsys):
+    assert main(["denoise", str(tmp_path / "nope.exr"), "-o", str(tmp_path / "o.exr")]) == 2
+    _one_error_line(capsys, "nope.exr", "no such file")
+    assert main(["denoise", "-o", str(tmp_path / "o.exr")]) == 2
+    _one_error_line(capsys, "no input")
+    assert main(["frobnicate"]) == 2
+    _one_error_line(capsys, "invalid choice")
+    assert main(["denoise", "x.exr", "-o", "y.exr", "--c-s", "abc"]) == 2
+    _one_error_line(capsys, "--c-s")
+
+
+def test_bad_option_value_is_usage_error(tmp_path, capsys, rng):
+    src = tmp_path / "d.exr"
+    _dump(src, rng)
+    assert main(["denoise", str(src), "-o", str(tmp_path / "o.exr"), "--wavelet", "nonsense", "-q"]) == 2
+    _one_error_line(capsys, "wavelet")
+    assert not (tmp_path / "o.exr").exists()
+
+
+# ---------------------------------------------------------------- outputs are safe
+
+def test_denoise_writes_image_with_provenance(tmp_path, rng, capsys):
+    src = tmp_path / "d.exr"
+    _dump(src, rng)
+    out = tmp_path / "o.exr"
+    assert main(["denoise", str(src), "-o", str(out), "--c-s", "1.5", "--wavelet", "haar", "--preview",
+                 str(tmp_path / "o.png"), "-q"]) == 0
+    img = read_image(out)
+    assert img.shape == (H, W, 3) and np.isfinite(img).all()
+    h = read_header(out)
+    assert h["awr:c_s"] == 1.5 and h["awr:wavelet"] == "haar" and h["awr:input"] == "d.exr"
+    assert {"awr:version", "awr:levels", "awr:domain", "awr:mode"} <= set(h)
+    assert (tmp_path / "o.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_output_refuses_to_overwrite_unless_asked(tmp_path, rng, capsys):
+    src = tmp_path / "d.exr"
+    _dump(src, rng)
+    out = tmp_path / "o.exr"
+    out.write_bytes(b"precious")
+    assert main(["denoise", str(src), "-o", str(out), "-q"]) == 2
+    _one_error_line(capsys, "o.exr", "already exists")
+    assert out.read_bytes() == b"precious"
+    assert main(["denoise", str(src), "-o", str(out), "-q", "--overwrite"]) == 0
+    assert read_image(out).shape == (H, W, 3)
+
+
+@pytest.mark.parametrize("alias", ["same", "dotted", "hardlink"])
+def test_output_equal_to_input_refused(tmp_path, rng, capsys, alias):
+    src = tmp_path / "d.exr"
+    _dump(src, rng)
+    before = src.read_bytes()
+    out = {"same": src, "dotted": tmp_path / "." / "d.exr", "hardlink": tmp_path / "link.exr"}[alias]
+    if alias == "hardlink":
+        os.link(src, out)
+    for argv in (["denoise", str(src), "-o", str(out), "--overwrite"],
+                 ["merge", str(src), str(src), "-o", str(out), "--overwrite"],
+                 ["plan", str(src), "-o", str(out), "--overwrite"]):
+        assert main(argv + ["-q"]) == 2
+        _one_error_line(capsys, "is the input")
+        assert src.read_bytes() == before
+
+
+# ---------------------------------------------------------------- frames
+
+def test_parse_and_expand_frames():
+    assert parse_frames("1-3") == [1, 2, 3]
+    assert parse_frames("1-10x4,20") == [1, 5, 9, 20]
+    assert expand_frames("shot.####.exr", 7) == "shot.0007.exr"
+    assert expand_frames("a_##.exr", 123) == "a_123.exr"
+
+
+def test_frame_pattern_denoise(tmp_path, rng, capsys):
+    for f in (1, 2, 3):
+        _dump(tmp_path / f"shot.{f:04d}.exr", rng)
+    rc = main(["denoise", str(tmp_path / "shot.####.exr"), "--frames", "1-3", "-o", str(tmp_path / "den.####.exr"),
+               "-q"])
+    assert rc == 0
+    for f in (1, 2, 3):
+        assert read_header(tmp_path / f"den.{f:04d}.exr")["awr:input"] == f"shot.{f:04d}.exr"
+    assert main(["denoise", str(tmp_path / "shot.####.exr"), "--frames", "1-3", "-o", str(tmp_path / "x.exr")]) == 2
+    _one_error_line(capsys, "####")
+    assert main(["denoise", str(tmp_path / "shot.####.exr"), "-o", str(tmp_path / "y.####.exr")]) == 2
+    _one_error_line(capsys, "--frames")
+    assert main(["denoise", str(tmp_path / "shot.####.exr"), "--frames", "3-1", "-o", str(tmp_path / "y.####.exr")]) == 2
+    _one_error_line(capsys, "--frames")
+
+
+# ---------------------------------------------------------------- info, diff, merge
+
+def test_info_json(tmp_path, rng, capsys):
+    src = tmp_path / "d.exr"
+    _dump(src, rng, spp=6)
+    capsys.readouterr()
+    assert main(["info", str(src), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["kind"] == "samples" and info["preset"] == "awr"
+    assert (info["width"], info["height"]) == (W, H)
+    assert info["total_samples"] == 6 * H * W and info["spp"]["mean"] == 6
+
+
+def test_diff_metrics_maxerror_and_difference_image(tmp_path, capsys):
+    ref = np.full((H, W, 3), 0.5)
+    write_image(tmp_path / "ref.exr", ref)
+    write_image(tmp_path / "img.exr", ref + 0.1)
+    capsys.readouterr()
+    assert main(["diff", str(tmp_path / "img.exr"), "-r", str(tmp_path / "ref.exr"), "--json",
+                 "-o", str(tmp_path / "d.exr")]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["mse"] == pytest.approx(0.01, rel=1e-5)
+    assert res["relmse"] == pytest.approx(0.01 / 0.26, rel=1e-5)
+    np.testing.assert_allclose(read_image(tmp_path / "d.exr"), 0.1, rtol=1e-6)
+    assert main(["diff", str(tmp_path / "img.exr"), "-r", str(tmp_path / "ref.exr"), "--maxerror", "0.01"]) == 1
+    _one_error_line(capsys, "img.exr", "relmse")
+    assert main(["diff", str(tmp_path / "img.exr"), "-r", str(tmp_path / "ref.exr"), "--maxerror", "0.1"]) == 0
+
+
+def test_merge_is_exact_chan_update(tmp_path, rng, capsys):
+    shape = (H, W)
+    pix_a = rng.integers(0, H * W, 4000)
+    pix_b = rng.integers(0, H * W, 3000)
+    val_a = rng.random((4000, 3))
+    val_b = rng.random((3000, 3)) * 2
+    a = SampleBuffer.from_samples(pix_a, val_a, shape)
+    b = SampleBuffer.from_samples(pix_b, val_b, shape)
+    write_sample_buffer(tmp_path / "a.exr", a)
+    write_sample_buffer(tmp_path / "b.exr", b)
+    assert main(["merge", str(tmp_path / "a.exr"), str(tmp_path / "b.exr"), "-o", str(tmp_path / "m.exr"), "-q"]) == 0
+    merged = read_sample_dump(tmp_path / "m.exr").buffer
+    # Reference: statistics of the float32 values the dumps hold, computed from all samples at once.
+    a32 = SampleBuffer.from_moments(a.count, a.mean.astype(np.float32), a.variance.astype(np.float32))
+    b32 = SampleBuffer.from_moments(b.count, b.mean.astype(np.float32), b.variance.astype(np.float32))
+    expected = a32.merge(b32)
+    np.testing.assert_array_equal(merged.count, a.count + b.count)
+    np.testing.assert_allclose(merged.mean, expected.mean.astype(np.float32), rtol=0)
+    np.testing.assert_allclose(merged.variance, expected.variance.astype(np.float32), rtol=0)
+    direct = SampleBuffer.from_samples(np.concatenate([pix_a, pix_b]), np.concatenate([val_a, val_b]), shape)
+    np.testing.assert_allclose(merged.mean, direct.mean, rtol=1e-6)
+    np.testing.assert_allclose(merged.variance, direct.variance, rtol=2e-5, atol=1e-7)
+
+
+def test_merge_size_mismatch(tmp_path, rng, capsys):
+    _dump(tmp_path / "a.exr", rng)
+    _dump(tmp_path / "b.exr", rng, shape=(H, W + 1))
+    assert main(["merge", str(tmp_path / "a.exr"), str(tmp_path / "b.exr"), "-o", str(tmp_path / "m.exr")]) == 2
+    _one_error_line(capsys, "b.exr", "does not match")
+    assert not (tmp_path / "m.exr").exists()
+
+
+# ---------------------------------------------------------------- the file-only loop
+
+def test_file_only_loop(tmp_path, capsys):
+    """plan -> external renderer -> merge -> ... -> denoise, through files only."""
+    ext = _external()
+    seed = 11
+    assert ext.main(["--reference", str(W), str(H), str(tmp_path / "ref.exr")]) == 0
+    assert main(["plan", "--size", f"{W}x{H}", "--initial-spp", "4", "--seed", str(seed),
+                 "-o", str(tmp_path / "req0.exr"), "-q"]) == 0
+    requests = []
+    dump = None
+    for k in range(4):
+        req_path = tmp_path / f"req{k}.exr"
+        if k > 0:
+            assert main(["plan", str(dump), "--round-spp", "2", "-o", str(req_path), "-q"]) == 0
+        requests.append(read_request(req_path))
+        assert ext.main([str(req_path), str(tmp_path / f"batch{k}.exr")]) == 0
+        new_dump = tmp_path / f"dump{k + 1}.exr"
+        inputs = [str(tmp_path / f"batch{k}.exr")] if dump is None else [str(dump), str(tmp_path / f"batch{k}.exr")]
+        assert main(["merge", *inputs, "--request", str(req_path), "-o", str(new_dump), "-q"]) == 0
+        dump = new_dump
+    final = read_sample_dump(dump)
+    assert [r.round for r in requests] == [0, 1, 2, 3]
+    assert int(str(final.attributes["awr:seed"])) == seed and final.attributes["awr:round"] == 4
+    # Every round starts each pixel where the previous rounds stopped: no sample index is reused.
+    issued = np.zeros((H, W), np.int64)
+    for r in requests:
+        np.testing.assert_array_equal(r.first_index, issued)
+        issued += r.counts
+    np.testing.assert_array_equal(final.buffer.count, issued)
+    np.testing.assert_array_equal(final.issued, issued)
+    assert final.buffer.total_samples == sum(r.total for r in requests)
+    assert requests[1].counts.max() > requests[1].counts.min()  # adaptive rounds are not uniform
+    # The merged statistics equal those of all samples at once (float32 storage aside).
+    pixels, values = zip(*(ext.render_samples(r.counts, r.first_index, seed) for r in requests))
+    direct = SampleBuffer.from_samples(np.concatenate(pixels), np.concatenate(values), (H, W))
+    np.testing.assert_allclose(final.buffer.mean, direct.mean, rtol=1e-5)
+    np.testing.assert_allclose(final.buffer.variance, direct.variance, rtol=1e-3, atol=1e-6)
+    # Denoise and check against the analytic reference, oidnDenoise style.
+    assert main(["denoise", str(dump), "-o", str(tmp_path / "final.exr"), "-r", str(tmp_path / "ref.exr"),
+                 "--maxerror", "0.05", "-q"]) == 0
+    capsys.readouterr()
+    assert main(["diff", str(dump), "-r", str(tmp_path / "ref.exr"), "--json"]) == 0
+    noisy = json.loads(capsys.readouterr().out)["relmse"]
+    assert main(["diff", str(tmp_path / "final.exr"), "-r", str(tmp_path / "ref.exr"), "--json"]) == 0
+    denoised = json.loads(capsys.readouterr().out)["relmse"]
+    assert denoised < noisy
+
+
+def test_merge_records_dropped_samples_as_issued(tmp_path, capsys):
+    ext = _external()
+    req = SampleRequest.uniform((H, W), 4)
+    from awr_denoise.io import write_request
+
+    write_request(tmp_path / "r.exr", req)
+    counts = req.counts.copy()
+    counts[0, 0] = 3  # the renderer dropped one NaN sample here
+    pixel, values = ext.render_samples(counts, req.first_index, 0)
+    ext.write_batch(str(tmp_path / "b.exr"), counts, pixel, values)
+    assert main(["merge", str(tmp_path / "b.exr"), "--request", str(tmp_path / "r.exr"), "-o",
+                 str(tmp_path / "d.exr"), "-q"]) == 0
+    d = read_sample_dump(tmp_path / "d.exr")
+    assert d.buffer.count[0, 0] == 3 and d.issued[0, 0] == 4
+    # A batch with more samples than requested is refused.
+    counts[0, 0] = 5
+    pixel, values = ext.render_samples(counts, req.first_index, 0)
+    ext.write_batch(str(tmp_path / "b2.exr"), counts, pixel, values)
+    assert main(["merge", str(tmp_path / "b2.exr"), "--request", str(tmp_path / "r.exr"), "-o",
+                 str(tmp_path / "d2.exr"), "-q"]) == 2
+    _one_error_line(capsys, "b2.exr", "sampleCount", "more samples")
+
+
+# ---------------------------------------------------------------- end to end through processes
+
+def _awr(*args, cwd):
+    return subprocess.run([sys.executable, "-m", "awr_denoise.cli.main", *args], cwd=cwd, capture_output=True,
+                          text=True, timeout=120)
+
+
+def test_subprocess_loop_and_error(tmp_path):
+    script = str(DATA / "external_renderer.py")
+    r = _awr("plan", "--size", "16x12", "-o", "req.exr", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run([sys.executable, script, "req.exr", "batch.exr"], cwd=tmp_path, capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert _awr("merge", "batch.exr", "--request", "req.exr", "-o", "dump.exr", "-q", cwd=tmp_path).returncode == 0
+    r = _awr("denoise", "dump.exr", "-o", "out.exr", "-q", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    (tmp_path / "bad.exr").write_bytes(b"not an exr")
+    r = _awr("denoise", "bad.exr", "-o", "x.exr", cwd=tmp_path)
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines() == ["awr: error: bad.exr: not an OpenEXR file (bad magic number)"]
+    assert not (tmp_path / "x.exr").exists()
