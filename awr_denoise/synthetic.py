@@ -107,12 +107,29 @@ class SyntheticRenderer:
         if request.shape != self.scene.shape:
             raise ValueError(f"request: shape {request.shape} does not match the scene's {self.scene.shape}")
         rows, cols, index = request.pixel_list()
+        return rows * self.scene.shape[1] + cols, self._values(rows, cols, index)
+
+    def trace_samples(self, rows: np.ndarray, cols: np.ndarray, sample_index: np.ndarray) -> FloatArray:
+        """(N, 3) values of the given samples, one per ``(row, column, sample index)``.
+
+        The same numbers :meth:`samples` gives for those samples, however they are grouped:
+        a tile of the image can be rendered on its own (:mod:`awr_denoise.parallel`).
+        """
+        rows, cols, sample_index = (np.asarray(a, np.int64).ravel() for a in (rows, cols, sample_index))
+        h, w = self.scene.shape
+        if np.any((rows < 0) | (rows >= h) | (cols < 0) | (cols >= w)):
+            raise ValueError(f"rows, cols: pixel coordinates outside the {h}x{w} image")
+        values = self._values(rows, cols, sample_index)
+        self.samples_rendered += rows.size
+        return values
+
+    def _values(self, rows: np.ndarray, cols: np.ndarray, index: np.ndarray) -> FloatArray:
         pixel = rows * self.scene.shape[1] + cols
         x = cols + hash_uniform(self.seed, pixel, index, 0)
         y = rows + hash_uniform(self.seed, pixel, index, 1)
         u = np.stack([hash_uniform(self.seed, pixel, index, 2), hash_uniform(self.seed, pixel, index, 3)], axis=1)
         clean = self.scene.image(x, y)
-        return pixel, self.scene.noise(clean, x, y, u)
+        return self.scene.noise(clean, x, y, u)
 
     def __call__(self, request: SampleRequest) -> SampleBuffer:
         pixel, values = self.samples(request)
