@@ -376,3 +376,66 @@ def test_subprocess_loop_and_error(tmp_path):
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == ["awr: error: bad.exr: not an OpenEXR file (bad magic number)"]
     assert not (tmp_path / "x.exr").exists()
+
+
+# ---------------------------------------------------------------- render and demo (tracer stand-in)
+
+@pytest.fixture
+def fake_tracer(monkeypatch):
+    """The tracer's interface backed by the synthetic renderer, so the CLI is tested without embreex."""
+    from awr_denoise import tracer
+    from awr_denoise.synthetic import SyntheticRenderer, make_scene
+
+    class Scene:
+        def __init__(self, width, height):
+            self.shape = (height or H, width or W)
+
+    class PathTracer:
+        def __init__(self, scene, seed=0, sampler="independent", progress=False):
+            self._renderer = SyntheticRenderer(make_scene("edges", scene.shape), seed=seed)
+
+        def __call__(self, request):
+            return self._renderer(request)
+
+    monkeypatch.setattr(tracer, "list_scenes", lambda: ["toy"], raising=False)
+    monkeypatch.setattr(tracer, "load_scene", lambda name, width=None, height=None: Scene(width, height),
+                        raising=False)
+    monkeypatch.setattr(tracer, "PathTracer", PathTracer, raising=False)
+    monkeypatch.setattr(tracer, "load_reference", lambda name: make_scene("edges", (H, W)).reference(), raising=False)
+    monkeypatch.setattr(tracer, "DEFAULT_SCENE", "toy", raising=False)
+    return tracer
+
+
+@pytest.mark.parametrize("mode", ["--adaptive", "--uniform"])
+def test_render_writes_dump_image_preview(tmp_path, fake_tracer, mode):
+    out = tmp_path / "toy.exr"
+    assert main(["render", "--scene", "toy", "--spp", "8", mode, "--seed", "3", "-o", str(out), "-q"]) == 0
+    dump = read_sample_dump(out)
+    assert dump.buffer.total_samples == 8 * H * W
+    assert dump.attributes["awr:strategy"] == ("awr" if mode == "--adaptive" else "uniform")
+    assert dump.attributes["awr:seed"] == 3
+    assert read_image(tmp_path / "toy.denoised.exr").shape == (H, W, 3)
+    assert (tmp_path / "toy.denoised.png").read_bytes()[:4] == b"\x89PNG"
+    if mode == "--uniform":
+        assert (dump.buffer.count == 8).all()
+
+
+def test_render_refuses_existing_outputs_before_rendering(tmp_path, fake_tracer, capsys):
+    (tmp_path / "toy.denoised.png").write_bytes(b"keep")
+    assert main(["render", "--spp", "4", "-o", str(tmp_path / "toy.exr"), "-q"]) == 2
+    _one_error_line(capsys, "toy.denoised.png", "already exists")
+    assert sorted(os.listdir(tmp_path)) == ["toy.denoised.png"]
+    assert main(["render", "--scene", "nope", "--spp", "4", "-o", str(tmp_path / "t.exr"), "-q"]) == 2
+    _one_error_line(capsys, "nope")
+
+
+def test_demo_prints_three_methods(tmp_path, fake_tracer, capsys):
+    assert main(["demo", "--out", str(tmp_path / "out"), "--spp", "8", "-q", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert set(res["results"]) == {"uniform_mean", "uniform_awr", "adaptive_awr"}
+    for r in res["results"].values():
+        assert r["relmse"] > 0 and Path(r["file"]).exists()
+    assert res["results"]["uniform_awr"]["relmse"] < res["results"]["uniform_mean"]["relmse"]
+    # Running it again replaces its own files.
+    assert main(["demo", "--out", str(tmp_path / "out"), "--spp", "8", "-q"]) == 0
+    assert "adaptive_awr" in capsys.readouterr().out
