@@ -20,10 +20,23 @@ if importlib.util.find_spec("embreex") is None:
         "awr_denoise.tracer needs the embreex ray tracing kernels; install them with "
         'pip install "awr-denoise[tracer]"')
 
+from typing import Any  # noqa: E402
+
 from .integrator import PathTracer, render  # noqa: E402
-from .reference import load_reference, reference_path, render_reference  # noqa: E402
 from .scene import Scene, load_scene  # noqa: E402
-from .scenes import list_scenes  # noqa: E402
+
+# Resolved on first use (PEP 562) so ``python -m awr_denoise.tracer.reference`` and
+# ``python -m awr_denoise.tracer.scenes`` do not import their own module twice.
+_LAZY = {"list_scenes": ".scenes", "load_reference": ".reference", "render_reference": ".reference",
+         "reference_path": ".reference"}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name], __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 __all__ = ["PathTracer", "Scene", "list_scenes", "load_scene", "render", "load_reference", "render_reference",
            "reference_path"]

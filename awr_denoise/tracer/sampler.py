@@ -48,6 +48,11 @@ _MIX_2 = np.uint64(0x94D049BB133111EB)
 _U32_MASK = np.uint64(0xFFFFFFFF)
 
 
+def _dimension_salt(dimension: int) -> np.uint64:
+    # Python integers do the wrapping product, so no numpy scalar overflow warning is raised.
+    return np.uint64(((int(dimension) + 1) * 0x9E3779B97F4A7C15) & 0xFFFFFFFFFFFFFFFF)
+
+
 def mix_u64(x: np.ndarray) -> np.ndarray:
     """SplitMix64 finaliser: a bijective avalanche mix of uint64 arrays (wraps on overflow)."""
     x = np.asarray(x, dtype=np.uint64)
@@ -147,7 +152,7 @@ class IndependentSampler:
     def get(self, key: np.ndarray, dimension: int, *, pixel: np.ndarray | None = None,
             sample_index: np.ndarray | None = None, group: Sequence[int] = ()) -> np.ndarray:
         """Float64 numbers in [0, 1) of ``dimension`` for the samples whose base key is ``key``."""
-        return u64_to_unit_float(mix_u64(key ^ (np.uint64(dimension + 1) * _GOLDEN)))
+        return u64_to_unit_float(mix_u64(key ^ _dimension_salt(dimension)))
 
 
 class SobolSampler:
@@ -174,7 +179,7 @@ class SobolSampler:
         if sample_index is None:
             raise ValueError("sample_index: the Sobol' sampler needs the sample indices")
         group = tuple(group) if group else (dimension,)
-        pair_key = mix_u64(key ^ (np.uint64(group[0] + 1) * _GOLDEN))
+        pair_key = mix_u64(key ^ _dimension_salt(group[0]))
         shuffle_seed = (pair_key & _U32_MASK).astype(np.uint32)
         index = nested_uniform_scramble(np.asarray(sample_index).astype(np.uint32), shuffle_seed)
         x, y = sobol_2d(index)

@@ -1,0 +1,386 @@
+"""Correctness tests of the bundled path tracer (needs the embreex extra)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("embreex")
+
+from scipy import stats  # noqa: E402
+
+from awr_denoise.buffers import SampleBuffer  # noqa: E402
+from awr_denoise.requests import SampleRequest  # noqa: E402
+from awr_denoise.tracer import PathTracer, list_scenes, load_scene, render  # noqa: E402
+from awr_denoise.tracer.environment import (  # noqa: E402
+    LatLongEnvironment, direction_to_uv, make_sky_envmap, uv_to_direction)
+from awr_denoise.tracer.materials import parse_material  # noqa: E402
+from awr_denoise.tracer.sampler import IndependentSampler, SobolSampler  # noqa: E402
+from awr_denoise.tracer.scenes import BUNDLED_SCENES  # noqa: E402
+
+pytestmark = pytest.mark.tracer
+
+REPO = Path(__file__).resolve().parents[2]
+
+EXPECTED_DIMENSIONS = {
+    "default": ("pixel_x", "pixel_y", "light_u", "light_v"),
+    "chess_dof": ("pixel_x", "pixel_y", "lens_u", "lens_v"),
+    "rolling_balls": ("pixel_x", "pixel_y", "lens_u", "lens_v", "time"),
+    "sky_objects": ("pixel_x", "pixel_y", "lens_u", "lens_v", "light_u", "light_v"),
+    "soft_shadows": ("pixel_x", "pixel_y", "lens_u", "lens_v", "light_u", "light_v"),
+    "cornell_gi": ("pixel_x", "pixel_y", "lens_u", "lens_v", "light_u", "light_v", "bounce0_u", "bounce0_v"),
+}
+STATED = {"chess_dof": 4, "rolling_balls": 5, "sky_objects": 6, "soft_shadows": 6, "cornell_gi": 8}
+
+
+def _furnace_scene(max_depth: int = 0, material: dict | None = None) -> dict:
+    return {
+        "name": "furnace", "width": 24, "height": 24,
+        "camera": {"from": [0, 0, 3], "to": [0, 0, 0], "fov": 45},
+        "integrator": {"max_depth": max_depth},
+        "materials": {"white": material or {"type": "diffuse", "albedo": 1.0}},
+        "objects": [{"shape": "sphere", "center": [0, 0, 0], "radius": 1.0, "material": "white",
+                     "segments": 24, "rings": 12}],
+        "environment": {"type": "constant", "radiance": 1.0},
+    }
+
+
+def _standard_error(buffer: SampleBuffer, mask: np.ndarray) -> float:
+    """Standard error of the average of the pixel means inside ``mask``."""
+    v = buffer.variance[mask] / buffer.count[mask][:, None]
+    return float(np.sqrt(v.sum(axis=0)).max() / mask.sum())
+
+
+# ------------------------------------------------------------------ packaging and API
+def test_import_without_embreex_raises_install_hint() -> None:
+    code = ("import sys; sys.modules['embreex'] = None\n"
+            "try:\n    import awr_denoise.tracer\nexcept ImportError as e:\n    print('HINT', e)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, check=True)
+    assert 'pip install "awr-denoise[tracer]"' in out.stdout
+
+
+def test_core_library_does_not_import_tracer() -> None:
+    code = "import sys, awr_denoise, awr_denoise.buffers, awr_denoise.requests; print('awr_denoise.tracer' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_list_and_load_scenes() -> None:
+    names = list_scenes()
+    assert set(names) == set(EXPECTED_DIMENSIONS)
+    for name in names:
+        scene = load_scene(name, width=20, height=10)
+        assert (scene.name, scene.width, scene.height) == (name, 20, 10)
+        assert scene.description
+        if name in STATED:
+            assert scene.dimension == STATED[name]
+
+
+def test_bad_input_names_the_parameter() -> None:
+    with pytest.raises(ValueError, match="scene: 'nope' .*cornell_gi"):
+        load_scene("nope")
+    with pytest.raises(ValueError, match="sampler: 'halton' is not one of independent, sobol"):
+        PathTracer("default", sampler="halton")
+    spec = dict(BUNDLED_SCENES["default"], dimension=7)
+    with pytest.raises(ValueError, match="dimension: the scene states 7 but its effects need 4"):
+        load_scene(spec)
+    bad = json.loads(json.dumps(BUNDLED_SCENES["default"]))
+    bad["materials"]["red"]["type"] = "velvet"
+    with pytest.raises(ValueError, match="materials.red.type: 'velvet' is not one of diffuse, glossy, mirror"):
+        load_scene(bad)
+
+
+def test_json_scene_files_match_the_bundled_dicts() -> None:
+    for name, spec in BUNDLED_SCENES.items():
+        path = REPO / "data" / "scenes" / f"{name}.json"
+        assert json.loads(path.read_text()) == json.loads(json.dumps(spec)), f"{path} is stale"
+        assert load_scene(path).dimension == load_scene(name).dimension
+
+
+# ------------------------------------------------------------------ dimensions
+@pytest.mark.parametrize("name", list(EXPECTED_DIMENSIONS))
+def test_dimensions_per_scene(name: str) -> None:
+    scene = load_scene(name, width=16, height=16)
+    tracer = PathTracer(scene, threads=1)
+    assert tracer.dimensions == EXPECTED_DIMENSIONS[name]
+    assert len(tracer.dimensions) == scene.dimension
+    tracer(SampleRequest.uniform(tracer.shape, 4))
+    # Every listed dimension was drawn, and nothing else was.
+    assert tracer.dimensions_drawn == set(EXPECTED_DIMENSIONS[name])
+    assert (scene.environment is not None) == (name == "sky_objects")
+
+
+def test_static_scene_ignores_the_shutter() -> None:
+    spec = json.loads(json.dumps(BUNDLED_SCENES["default"]))
+    with_shutter = json.loads(json.dumps(spec))
+    with_shutter["camera"]["shutter"] = [0.0, 1.0]
+    a = PathTracer(load_scene(spec, width=24, height=24), threads=1)
+    b = PathTracer(load_scene(with_shutter, width=24, height=24), threads=1)
+    assert "time" not in b.dimensions and a.dimensions == b.dimensions
+    request = SampleRequest.uniform(a.shape, 4)
+    ra, rb = a(request), b(request)
+    assert np.array_equal(ra.mean, rb.mean) and np.array_equal(ra.variance, rb.variance)
+
+
+def test_moving_objects_blur_and_freeze_without_shutter() -> None:
+    spec = json.loads(json.dumps(BUNDLED_SCENES["rolling_balls"]))
+    spec["camera"]["aperture_radius"] = 0.0
+    spec["dimension"] = 3
+    moving = PathTracer(load_scene(spec, width=48, height=48), threads=1)
+    frozen_spec = json.loads(json.dumps(spec))
+    frozen_spec["camera"]["shutter"] = [0.0, 0.0]
+    frozen_spec["dimension"] = 2
+    frozen = PathTracer(load_scene(frozen_spec, width=48, height=48), threads=1)
+    assert "time" in moving.dimensions and "time" not in frozen.dimensions
+    request = SampleRequest.uniform(moving.shape, 64)
+    blurred, sharp = moving(request).luminance(), frozen(request).luminance()
+    # Motion smears edges: total variation along the direction of motion drops (4 x 4 block
+    # means first, so pixel noise does not count as detail).
+    blocks = lambda img: img.reshape(12, 4, 12, 4).mean(axis=(1, 3))  # noqa: E731
+    tv = lambda img: np.abs(np.diff(blocks(img), axis=1)).sum()  # noqa: E731
+    assert tv(blurred) < 0.9 * tv(sharp)
+
+
+# ------------------------------------------------------------------ determinism
+@pytest.mark.parametrize("sampler", ["independent", "sobol"])
+def test_split_requests_trace_identical_samples(sampler: str) -> None:
+    scene = load_scene("cornell_gi", width=12, height=10)
+    tracer = PathTracer(scene, sampler=sampler, threads=2, batch_size=97)
+    whole = tracer(SampleRequest.uniform(tracer.shape, 8))
+    first = tracer(SampleRequest.uniform(tracer.shape, 4))
+    second = tracer(SampleRequest.uniform(tracer.shape, 4, first_index=4))
+    merged = first.merge(second)
+    assert np.array_equal(merged.count, whole.count)
+    np.testing.assert_allclose(merged.mean, whole.mean, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(merged.variance, whole.variance, rtol=1e-9, atol=1e-15)
+    # The samples themselves are bit-identical, whatever the batch size, threads or grouping.
+    rows, cols, index = SampleRequest.uniform(tracer.shape, 8).pixel_list()
+    values = tracer.trace_samples(rows, cols, index)
+    other = PathTracer(scene, sampler=sampler, threads=1, batch_size=100_000)
+    order = np.random.default_rng(1).permutation(len(rows))
+    shuffled = other.trace_samples(rows[order], cols[order], index[order])
+    assert np.array_equal(values[order], shuffled)
+    # The same split rendered by another tracer instance merges to bit-identical statistics.
+    again = other(SampleRequest.uniform(tracer.shape, 4)).merge(
+        other(SampleRequest.uniform(tracer.shape, 4, first_index=4)))
+    assert np.array_equal(again.mean, merged.mean) and np.array_equal(again.variance, merged.variance)
+    # Different seeds give different samples.
+    assert not np.array_equal(PathTracer(scene, seed=1, sampler=sampler).trace_samples(rows, cols, index), values)
+
+
+def test_sobol_pairs_are_stratified_and_pixels_independent() -> None:
+    sampler = SobolSampler(seed=3)
+    index = np.arange(16)
+    for pixel in (0, 1, 12345):
+        key = sampler.start(np.full(16, pixel), index)
+        x = sampler.get(key, 0, sample_index=index, group=(0, 1))
+        y = sampler.get(key, 1, sample_index=index, group=(0, 1))
+        for bits_x in range(5):  # every elementary interval of a (0, 4, 2)-net holds one point
+            cells = np.floor(x * 2**bits_x).astype(int) * 2 ** (4 - bits_x) + np.floor(y * 2 ** (4 - bits_x)).astype(int)
+            assert len(np.unique(cells)) == 16
+    a = sampler.get(sampler.start(np.zeros(16, int), index), 0, sample_index=index, group=(0, 1))
+    b = sampler.get(sampler.start(np.ones(16, int), index), 0, sample_index=index, group=(0, 1))
+    assert not np.array_equal(np.sort(a), np.sort(b))
+    u = IndependentSampler(5).get(IndependentSampler(5).start(np.arange(100_000), np.zeros(100_000, int)), 2)
+    assert stats.kstest(u, "uniform").pvalue > 1e-3
+
+
+# ------------------------------------------------------------------ radiometry
+@pytest.mark.parametrize("max_depth", [0, 3])
+def test_white_furnace(max_depth: int) -> None:
+    tracer = PathTracer(load_scene(_furnace_scene(max_depth)), seed=2)
+    buffer = tracer(SampleRequest.uniform(tracer.shape, 32))
+    sphere = buffer.variance.max(axis=2) > 0  # background pixels see the environment exactly
+    assert sphere.sum() > 100
+    assert np.all(buffer.mean[~sphere] == 1.0)
+    average = buffer.mean[sphere].mean(axis=0)
+    se = _standard_error(buffer, sphere)
+    assert np.all(np.abs(average - 1.0) < 4 * se + 1e-12), (average, se)
+    # A darker albedo must show up as darker (the test can fail).
+    grey = PathTracer(load_scene(_furnace_scene(max_depth, {"type": "diffuse", "albedo": 0.5})), seed=2)
+    grey_buffer = grey(SampleRequest.uniform(grey.shape, 32))
+    assert grey_buffer.mean[sphere].mean() < 0.75
+
+
+def _rect_irradiance_term(x: np.ndarray, z: np.ndarray, h: float) -> np.ndarray:
+    # Irradiance / radiance from a rectangle [0, x] x [0, z] parallel to the receiver at height
+    # h above the corner (odd in x and in z, so signed corners add up for any position).
+    rx, rz = np.sqrt(h * h + x * x), np.sqrt(h * h + z * z)
+    return 0.5 * (x / rx * np.arctan(z / rx) + z / rz * np.arctan(x / rz))
+
+
+def test_direct_lighting_matches_closed_form() -> None:
+    h, half, le, albedo = 1.0, 0.1, 40.0, 0.5
+    spec = {
+        "name": "plane_light", "width": 12, "height": 12,
+        "camera": {"from": [0, 0.5, 0], "to": [0, 0, 0], "up": [0, 0, -1], "fov": 60},
+        "materials": {"plane": {"type": "diffuse", "albedo": albedo}},
+        "objects": [
+            {"shape": "quad", "corner": [-3, 0, 3], "edge_u": [6, 0, 0], "edge_v": [0, 0, -6], "material": "plane"},
+            {"shape": "quad", "corner": [-half + 0.15, h, -half], "edge_u": [2 * half, 0, 0],
+             "edge_v": [0, 0, 2 * half], "emission": le},
+        ],
+    }
+    scene = load_scene(spec)
+    tracer = PathTracer(scene, seed=4)
+    buffer = tracer(SampleRequest.uniform(tracer.shape, 256))
+    # Closed form averaged over each pixel (8 x 8 sub-pixel grid through the pinhole).
+    sub = (np.arange(8) + 0.5) / 8
+    rows, cols = np.meshgrid(np.arange(12), np.arange(12), indexing="ij")
+    py = np.broadcast_to(rows[..., None, None] + sub[:, None], (12, 12, 8, 8)).ravel()
+    px = np.broadcast_to(cols[..., None, None] + sub[None, :], (12, 12, 8, 8)).ravel()
+    o, d = scene.camera.generate_rays(np.stack([px, py], -1), None)
+    t = -o[:, 1] / d[:, 1]
+    p = o + t[:, None] * d
+    x0, x1 = -half + 0.15 - p[:, 0], half + 0.15 - p[:, 0]
+    z0, z1 = -half - p[:, 2], half - p[:, 2]
+    e = le * (_rect_irradiance_term(x1, z1, h) - _rect_irradiance_term(x0, z1, h)
+              - _rect_irradiance_term(x1, z0, h) + _rect_irradiance_term(x0, z0, h))
+    expected = (albedo / np.pi * e).reshape(12, 12, 64).mean(axis=2)
+    got = buffer.mean[..., 1]
+    se = np.sqrt(buffer.variance[..., 1] / buffer.count)
+    assert expected.max() > 0.2
+    np.testing.assert_array_less(np.abs(got - expected), 5 * se + 2e-3 * expected)
+
+
+def test_environment_sampling_follows_its_pdf() -> None:
+    env = LatLongEnvironment(make_sky_envmap(32, 16, sun_radius_degrees=12.0))
+    rng = np.random.default_rng(11)
+    n = 400_000
+    wi, radiance, pdf = env.sample(rng.random(n), rng.random(n))
+    np.testing.assert_allclose(pdf, env.pdf(wi), rtol=1e-9)
+    np.testing.assert_array_equal(radiance, env.evaluate(wi))
+    u, v = direction_to_uv(wi)
+    cell = np.minimum((v * 16).astype(int), 15) * 32 + np.minimum((u * 32).astype(int), 31)
+    observed = np.bincount(cell, minlength=512).astype(float)
+    expected = (env.row_probability[:, None] * env.column_probability).ravel() * n
+    keep = expected >= 5
+    observed = np.append(observed[keep], observed[~keep].sum())
+    expected = np.append(expected[keep], expected[~keep].sum())
+    assert stats.chisquare(observed, expected * observed.sum() / expected.sum()).pvalue > 1e-3
+    # The solid-angle pdf integrates to 1 over the sphere (midpoint rule on a grid finer
+    # than the map: the pdf is constant per map pixel up to the sin(theta) factor).
+    gu, gv = np.meshgrid((np.arange(1024) + 0.5) / 1024, (np.arange(512) + 0.5) / 512)
+    w_grid = uv_to_direction(gu.ravel(), gv.ravel())
+    d_omega = (2 * np.pi / 1024) * (np.pi / 512) * np.sin(np.pi * gv.ravel())
+    assert abs((env.pdf(w_grid) * d_omega).sum() - 1.0) < 1e-3
+
+
+@pytest.mark.parametrize("roughness", [0.05, 0.2, 0.5, 1.0])
+def test_glossy_albedo_never_exceeds_one(roughness: float) -> None:
+    rng = np.random.default_rng(5)
+    n = 200_000
+    for spec in ({"type": "glossy", "albedo": 0.0, "specular": 1.0, "roughness": roughness},
+                 {"type": "glossy", "albedo": 0.5, "specular": 0.5, "roughness": roughness}):
+        material = parse_material("m", spec)
+        kd = np.broadcast_to(material.albedo, (n, 3))
+        for cos_o in (1.0, 0.5, 0.1):
+            wo = np.tile([np.sqrt(1 - cos_o**2), 0.0, cos_o], (n, 1))
+            # Uniform hemisphere sampling: an estimator independent of the BSDF's own sampler.
+            z = rng.random(n)
+            phi = 2 * np.pi * rng.random(n)
+            r = np.sqrt(1 - z * z)
+            wi = np.stack([r * np.cos(phi), r * np.sin(phi), z], -1)
+            est_u = material.evaluate(wo, wi, kd)[:, 0] * z * 2 * np.pi
+            a_u, se_u = est_u.mean(), est_u.std() / np.sqrt(n)
+            assert a_u <= 1.0 + 4 * se_u, (roughness, cos_o, a_u)
+            # Importance sampling must agree with it (sample, f and pdf are consistent).
+            wi_s, f, pdf = material.sample(wo, rng.random(n), rng.random(n), kd)
+            est_s = np.where(pdf > 0, f[:, 0] * np.abs(wi_s[:, 2]) / np.where(pdf > 0, pdf, 1), 0.0)
+            a_s, se_s = est_s.mean(), est_s.std() / np.sqrt(n)
+            assert a_s <= 1.0 + 4 * se_s
+            assert abs(a_s - a_u) < 5 * np.hypot(se_u, se_s) + 1e-3, (roughness, cos_o, a_s, a_u)
+            np.testing.assert_allclose(pdf, material.pdf(wo, wi_s, kd), rtol=1e-9, atol=1e-12)
+
+
+def test_focal_plane_stays_sharp_while_off_focus_blurs() -> None:
+    def scene(aperture: float) -> dict:
+        return {
+            "name": "dof", "width": 64, "height": 32,
+            "camera": {"from": [0, 0, 6], "to": [0, 0, 0], "fov": 30, "aperture_radius": aperture,
+                       "focus_distance": 6.0},
+            "materials": {"check": {"type": "diffuse", "texture": {"type": "checker", "scale": 0.15,
+                                                                   "color_a": 0.9, "color_b": 0.05}}},
+            "objects": [
+                {"shape": "quad", "corner": [-1.4, -0.6, 0], "edge_u": [1.2, 0, 0], "edge_v": [0, 1.2, 0],
+                 "material": "check"},                                          # in focus (distance 6)
+                {"shape": "quad", "corner": [0.2 * 0.55, -0.6 * 0.55, 2.7], "edge_u": [1.2 * 0.55, 0, 0],
+                 "edge_v": [0, 1.2 * 0.55, 0], "material": "check"},           # off focus (distance 3.3)
+            ],
+            "lights": [{"type": "directional", "direction": [0, 0, -1], "irradiance": 3.0}],
+        }
+    request = SampleRequest.uniform((32, 64), 64)
+    lens = PathTracer(scene(0.3))(request).luminance()
+    pinhole = PathTracer(scene(0.0))(request).luminance()
+    left, right = np.s_[4:28, 6:28], np.s_[4:28, 36:58]
+    in_focus = np.abs(lens[left] - pinhole[left]).mean()
+    off_focus = np.abs(lens[right] - pinhole[right]).mean()
+    assert off_focus > 5 * in_focus, (in_focus, off_focus)
+    assert np.abs(np.diff(lens[right], axis=1)).mean() < 0.5 * np.abs(np.diff(pinhole[right], axis=1)).mean()
+
+
+def test_nonfinite_radiance_is_replaced_counted_and_reported(monkeypatch: pytest.MonkeyPatch,
+                                                             caplog: pytest.LogCaptureFixture) -> None:
+    tracer = PathTracer(load_scene(_furnace_scene(0)), threads=1)
+    original = tracer.environment.evaluate
+
+    def poisoned(w: np.ndarray) -> np.ndarray:
+        value = original(w)
+        value[w[:, 0] > 0.5] = np.nan
+        return value
+
+    monkeypatch.setattr(tracer.environment, "evaluate", poisoned)
+    with caplog.at_level(logging.WARNING, logger="awr_denoise.tracer.integrator"):
+        buffer = tracer(SampleRequest.uniform(tracer.shape, 4))
+    assert buffer.nonfinite > 0
+    assert tracer.stats["nonfinite"] == buffer.nonfinite
+    assert np.isfinite(buffer.mean).all() and buffer.total_samples == 24 * 24 * 4
+    assert "NaN/Inf" in caplog.text
+
+
+def test_render_returns_uniform_buffer() -> None:
+    buffer = render(load_scene("default", width=16, height=8), spp=3, sampler="sobol")
+    assert buffer.shape == (8, 16) and np.all(buffer.count == 3) and buffer.channels == ("R", "G", "B")
+    with pytest.raises(ValueError, match="spp"):
+        render("default", spp=0)
+
+
+def test_sky_map_file_matches_its_generator() -> None:
+    pytest.importorskip("OpenEXR")
+    from awr_denoise.tracer.environment import read_envmap_exr
+
+    stored = read_envmap_exr(REPO / "data" / "envmaps" / "sky.exr")
+    assert np.array_equal(stored, make_sky_envmap())
+
+
+def test_reference_is_rendered_cached_and_reloaded(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    pytest.importorskip("OpenEXR")
+    from awr_denoise.tracer import load_reference
+    from awr_denoise.tracer.reference import read_reference_header, reference_path
+
+    monkeypatch.setenv("AWR_DENOISE_REFERENCE_DIR", str(tmp_path))
+    image = load_reference("default", spp=2)
+    assert image.shape == (128, 128, 3) and image.dtype == np.float64
+    assert read_reference_header(reference_path("default"))["awr_spp"] == "2"
+    assert np.array_equal(load_reference("default", spp=2), image)
+    with pytest.raises(ValueError, match="scene_name: 'x' is not one of"):
+        load_reference("x")
+
+
+def test_committed_references_are_small_and_state_their_spp() -> None:
+    pytest.importorskip("OpenEXR")
+    from awr_denoise.tracer.reference import read_reference_header
+
+    files = sorted((REPO / "data" / "references").glob("*.exr"))
+    if not files:
+        pytest.skip("no committed references")
+    assert sum(f.stat().st_size for f in files) < 8 * 2**20
+    for f in files:
+        assert f.stat().st_size < 5 * 2**20
+        assert int(read_reference_header(f)["awr_spp"]) >= 256
