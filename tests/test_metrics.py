@@ -1,0 +1,73 @@
+"""Image metrics: hand-checked values, edge cases and input validation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from awr_denoise.metrics import RELMSE_EPSILON, mse, psnr, relmse, ssim, tonemap
+
+EXACT = 1e-12
+
+
+def test_mse_hand_checked():
+    assert mse(np.array([0.0, 1.0, 2.0]), np.zeros(3)) == pytest.approx(5.0 / 3.0, rel=EXACT)
+    assert mse(np.ones((2, 2, 3)), np.ones((2, 2, 3))) == 0.0
+
+
+def test_relmse_hand_checked_with_epsilon_001():
+    assert RELMSE_EPSILON == 0.01
+    # (1.1 - 1)^2 / (1 + 0.01) and (0.1 - 0)^2 / (0 + 0.01), averaged.
+    x, r = np.array([1.1, 0.1]), np.array([1.0, 0.0])
+    assert relmse(x, r) == pytest.approx((0.01 / 1.01 + 1.0) / 2.0, rel=EXACT)
+    assert relmse(np.array([3.0]), np.array([1.0]), eps=0.0) == pytest.approx(4.0, rel=EXACT)
+    # Relative: scaling image and reference together leaves it unchanged when eps is negligible.
+    assert relmse(1e3 * x[:1], 1e3 * r[:1]) == pytest.approx(0.01, rel=1e-6)
+
+
+def test_psnr_hand_checked():
+    ref = np.array([0.0, 2.0, 1.0, 1.0])
+    x = ref + np.array([0.2, -0.2, 0.2, -0.2])  # MSE 0.04, peak 2: 10 log10(4 / 0.04) = 20 dB
+    assert psnr(x, ref) == pytest.approx(20.0, rel=EXACT)
+    assert psnr(x, ref, peak=0.2) == pytest.approx(0.0, abs=1e-12)
+    assert psnr(ref, ref) == float("inf")
+    assert psnr(np.ones(3), np.zeros(3)) == float("-inf")
+
+
+def test_tonemap_hand_checked():
+    v = tonemap(np.array([-1.0, 0.0, 0.002, 0.5, 1.0, 5.0]))
+    assert_allclose(v, [0.0, 0.0, 12.92 * 0.002, 1.055 * 0.5 ** (1 / 2.4) - 0.055, 1.0, 1.0], rtol=EXACT)
+    assert tonemap(np.array([0.25]), exposure=1.0)[0] == pytest.approx(tonemap(np.array([0.5]))[0], rel=EXACT)
+
+
+def test_ssim_is_one_for_identical_images_and_below_otherwise(rng):
+    ref = rng.random((32, 32, 3))
+    assert ssim(ref, ref) == pytest.approx(1.0, abs=EXACT)
+    noisy = ref + 0.05 * rng.standard_normal(ref.shape)
+    worse = ref + 0.2 * rng.standard_normal(ref.shape)
+    s1, s2 = ssim(noisy, ref), ssim(worse, ref)
+    assert s2 < s1 < 1.0
+    assert ssim(ref[..., 0], ref[..., 0]) == pytest.approx(1.0, abs=EXACT)  # single-channel images
+
+
+def test_ssim_of_a_shifted_constant_is_hand_checked():
+    # Constant images a and b: the structure term is 1 and SSIM is (2ab + c1) / (a^2 + b^2 + c1)
+    # on the tonemapped values.
+    a, b = tonemap(np.array([0.2]))[0], tonemap(np.array([0.4]))[0]
+    expected = (2 * a * b + 1e-4) / (a * a + b * b + 1e-4)
+    assert ssim(np.full((16, 16), 0.2), np.full((16, 16), 0.4)) == pytest.approx(expected, rel=1e-10)
+
+
+@pytest.mark.parametrize("metric", [mse, relmse, psnr, ssim])
+def test_bad_inputs_are_refused(metric):
+    with pytest.raises(ValueError, match=r"reference: shape \(3, 3\) does not match image \(3, 4\)"):
+        metric(np.zeros((3, 4)), np.zeros((3, 3)))
+    bad = np.zeros((4, 4))
+    bad[0, :3] = np.nan
+    with pytest.raises(ValueError, match=r"image: 3 value\(s\) are NaN or Inf"):
+        metric(bad, np.zeros((4, 4)))
+    with pytest.raises(ValueError, match=r"reference: 1 value\(s\) are NaN or Inf"):
+        metric(np.zeros((4, 4)), np.where(np.eye(4, dtype=bool) & (np.arange(4) == 2), np.inf, 0.0))
+    with pytest.raises(ValueError, match="image: empty"):
+        metric(np.zeros((0, 3)), np.zeros((0, 3)))

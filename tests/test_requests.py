@@ -1,0 +1,79 @@
+"""SampleRequest: validation, the per-sample pixel list, cropping; the Renderer protocol."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numpy.testing import assert_array_equal
+
+from awr_denoise import Renderer, SampleBuffer, SampleRequest
+from awr_denoise.synthetic import SyntheticRenderer, make_scene
+
+
+def test_uniform_request():
+    req = SampleRequest.uniform((3, 4), 5, first_index=7, round=2)
+    assert req.shape == (3, 4) and req.total == 60 and req.round == 2
+    assert_array_equal(req.first_index, 7)
+    assert req.counts.dtype == np.int64
+
+
+def test_pixel_list_hand_checked():
+    counts = np.array([[2, 0], [1, 3]])
+    first = np.array([[5, 9], [0, 1]])
+    rows, cols, index = SampleRequest(counts, first).pixel_list()
+    assert_array_equal(rows, [0, 0, 1, 1, 1, 1])
+    assert_array_equal(cols, [0, 0, 0, 1, 1, 1])
+    assert_array_equal(index, [5, 6, 0, 1, 2, 3])
+
+
+def test_pixel_list_counts_match(rng):
+    counts = rng.integers(0, 5, (7, 9))
+    first = rng.integers(0, 100, (7, 9))
+    rows, cols, index = SampleRequest(counts, first).pixel_list()
+    assert rows.size == counts.sum()
+    assert_array_equal(np.bincount(rows * 9 + cols, minlength=63), counts.ravel())
+    # Every pixel's indices run first_index, first_index + 1, ...
+    for r, c in [(0, 0), (3, 4), (6, 8)]:
+        sel = (rows == r) & (cols == c)
+        assert_array_equal(index[sel], first[r, c] + np.arange(counts[r, c]))
+
+
+def test_crop_keeps_round_and_sampler():
+    req = SampleRequest(np.arange(12).reshape(3, 4), np.ones((3, 4), int), round=3, sampler_id=11)
+    tile = req.crop(slice(1, 3), slice(0, 2))
+    assert tile.shape == (2, 2) and tile.round == 3 and tile.sampler_id == 11
+    assert_array_equal(tile.counts, [[4, 5], [8, 9]])
+
+
+def test_arrays_are_copied_and_read_only():
+    counts = np.ones((2, 2), int)
+    req = SampleRequest(counts, np.zeros((2, 2), int))
+    counts[0, 0] = 5
+    assert req.counts[0, 0] == 1
+    with pytest.raises(ValueError, match="read-only"):
+        req.counts[0, 0] = 2
+
+
+def test_whole_float_counts_are_accepted():
+    req = SampleRequest(np.full((2, 2), 3.0), np.zeros((2, 2)))
+    assert req.counts.dtype == np.int64 and req.total == 12
+
+
+@pytest.mark.parametrize(("counts", "first", "error", "message"), [
+    (np.ones(4, int), np.zeros(4, int), ValueError, r"counts: expected shape \(H, W\)"),
+    (np.ones((2, 2), int), np.zeros((2, 3), int), ValueError, r"first_index: shape \(2, 3\) does not match"),
+    (np.array([[1, -1], [-2, 0]]), np.zeros((2, 2), int), ValueError, r"counts: 2 pixel\(s\) are negative"),
+    (np.ones((2, 2), int), np.array([[0, -1], [0, 0]]), ValueError, r"first_index: 1 pixel\(s\) are negative"),
+    (np.full((2, 2), 0.5), np.zeros((2, 2), int), TypeError, "counts: expected whole numbers"),
+    (np.full((2, 2), np.nan), np.zeros((2, 2), int), TypeError, "counts: expected whole numbers"),
+])
+def test_bad_requests_are_refused(counts, first, error, message):
+    with pytest.raises(error, match=message):
+        SampleRequest(counts, first)
+
+
+def test_renderer_protocol():
+    scene = make_scene("edges", (8, 8))
+    assert isinstance(SyntheticRenderer(scene), Renderer)
+    assert isinstance(lambda request: SampleBuffer.empty(request.shape), Renderer)
+    assert not isinstance(42, Renderer)
