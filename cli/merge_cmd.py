@@ -67,9 +67,10 @@ def run(args: argparse.Namespace) -> int:
             attrs["awr:seed"] = req_attrs["awr:seed"]
     elif len(dumps) == 1:
         raise UsageError("merge: give the running dump and at least one batch (or --request for a first batch)")
-    attrs["awr:round"] = max(rounds) + 1 if rounds else len(dumps)
+    if rounds:  # without any round information (plain batches) plan starts at round 1
+        attrs["awr:round"] = max(rounds) + 1
     write_sample_buffer(args.output, merged, header=attrs, issued=issued, overwrite=args.overwrite)
     h, w = merged.shape
     status(f"{args.output}: {merged.total_samples} samples ({merged.total_samples / (h * w):.4g} spp), "
-           f"next round {attrs['awr:round']}", quiet=args.quiet)
+           f"next round {attrs.get('awr:round', 1)}", quiet=args.quiet)
     return EXIT_OK

@@ -439,3 +439,70 @@ def test_demo_prints_three_methods(tmp_path, fake_tracer, capsys):
     # Running it again replaces its own files.
     assert main(["demo", "--out", str(tmp_path / "out"), "--spp", "8", "-q"]) == 0
     assert "adaptive_awr" in capsys.readouterr().out
+
+
+# ---------------------------------------------------------------- presets through the command line
+
+def _preset_file(tmp_path, preset):
+    one = np.ones((H, W), np.float32)
+    if preset == "pbrt":
+        planes = {c: one * 0.5 for c in "RGB"} | {f"Variance.{c}": one * 0.1 for c in "RGB"} | {"N.X": one}
+        return _write(tmp_path / "p.exr", planes, {"samplesPerPixel": 16}), [], 16
+    if preset == "cycles":
+        planes = {f"View Layer.Combined.{c}": one * 0.5 for c in "RGBA"}
+        planes["View Layer.Debug Sample Count.X"] = one * np.float32(1 / 4)
+        planes |= {f"View Layer.Var.{c}": one * 0.1 for c in "RGB"}
+        return (_write(tmp_path / "c.exr", planes, {"cycles.View Layer.samples": "32"}),
+                ["--variance", "View Layer.Var"], 8)
+    if preset == "renderman":
+        planes = {f"Ci.{c}": one * 0.5 for c in "rgb"} | {f"mse.{c}": one * 0.01 for c in "rgb"}
+        return _write(tmp_path / "r.exr", planes | {"sampleCount": one * 12}), [], 12
+    planes = {f"img.{c}": one * 0.5 for c in "XYZ"} | {f"m2_img.{c}": one * 0.5 for c in "XYZ"}
+    return _write(tmp_path / "m.exr", planes), ["--spp", "6"], 6
+
+
+@pytest.mark.parametrize("preset", ["pbrt", "cycles", "renderman", "mitsuba"])
+def test_presets_detected_and_denoised(tmp_path, capsys, preset):
+    src, extra, spp = _preset_file(tmp_path, preset)
+    capsys.readouterr()
+    assert main(["info", str(src), "--json", *extra]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["preset"] == preset and info["spp"]["mean"] == spp
+    assert main(["denoise", str(src), "-o", str(tmp_path / "o.exr"), "-q", *extra]) == 0
+    np.testing.assert_allclose(read_image(tmp_path / "o.exr"), 0.5, rtol=1e-4)
+
+
+def test_info_on_plain_image_and_request(tmp_path, capsys):
+    write_image(tmp_path / "img.exr", np.zeros((2, 3, 3)))
+    capsys.readouterr()
+    assert main(["info", str(tmp_path / "img.exr"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["kind"] == "image"
+    assert main(["plan", "--size", "3x2", "-o", str(tmp_path / "r.exr"), "-q"]) == 0
+    assert main(["info", str(tmp_path / "r.exr"), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["kind"] == "request" and info["total"] == 4 * 6
+
+
+def test_plan_usage_errors(tmp_path, capsys, rng):
+    assert main(["plan", "-o", str(tmp_path / "r.exr")]) == 2
+    _one_error_line(capsys, "--size")
+    assert main(["plan", "--size", "10by4", "-o", str(tmp_path / "r.exr")]) == 2
+    _one_error_line(capsys, "--size")
+    _dump(tmp_path / "d.exr", rng)
+    assert main(["plan", str(tmp_path / "d.exr"), "--budget", "-3", "-o", str(tmp_path / "r.exr")]) == 2
+    _one_error_line(capsys, "--budget")
+    assert not (tmp_path / "r.exr").exists()
+
+
+def test_feature_guides_refused_with_reason(tmp_path, capsys, rng):
+    _dump(tmp_path / "d.exr", rng)
+    assert main(["denoise", str(tmp_path / "d.exr"), "--alb", "a.exr", "-o", str(tmp_path / "o.exr")]) == 2
+    _one_error_line(capsys, "--alb", "guides")
+
+
+def test_maxerror_failure_keeps_output_and_exits_1(tmp_path, capsys, rng):
+    _dump(tmp_path / "d.exr", rng)
+    write_image(tmp_path / "ref.exr", np.full((H, W, 3), 5.0))
+    assert main(["denoise", str(tmp_path / "d.exr"), "-o", str(tmp_path / "o.exr"), "-r", str(tmp_path / "ref.exr"),
+                 "--maxerror", "0.01", "-q"]) == 1
+    _one_error_line(capsys, "o.exr", "exceeds --maxerror")

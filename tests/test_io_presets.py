@@ -128,3 +128,10 @@ def test_generic_missing_plane(tmp_path):
 def test_unknown_preset_rejected(tmp_path):
     with pytest.raises(ValueError, match="preset"):
         read_sample_buffer(tmp_path / "x.exr", preset="vray")
+
+
+def test_uint_count_plane_read_exactly(tmp_path):
+    # OpenImageIO would normalise a UINT channel read as float; the readers keep it exact.
+    beauty = _write(tmp_path / "b.exr", {c: _ramp(i) for i, c in enumerate("RGB")}
+                    | {f"v.{c}": _ramp() for c in "RGB"} | {"n": np.full((H, W), 3_000_000, np.uint32)})
+    assert (read_sample_buffer(beauty, color="RGB", variance="v", count="n").count == 3_000_000).all()
