@@ -102,8 +102,11 @@ class ThinLensCamera:
             o_camera = np.stack([lens[:, 0], lens[:, 1], np.zeros(len(lens))], axis=-1)
             d_camera = p_focus - o_camera
         m = self.world_from_camera
-        origins = o_camera @ m.T + np.asarray(self.look_from, float)
-        directions = normalize(d_camera @ m.T)
+        # Broadcast products instead of ``@``: a (N, 3) x (3, 3) matmul goes through BLAS,
+        # whose worker threads compete with the tracer's own threads.
+        origins = (o_camera[:, :1] * m[:, 0] + o_camera[:, 1:2] * m[:, 1] + o_camera[:, 2:] * m[:, 2]
+                   + np.asarray(self.look_from, float))
+        directions = normalize(d_camera[:, :1] * m[:, 0] + d_camera[:, 1:2] * m[:, 1] + d_camera[:, 2:] * m[:, 2])
         return origins, directions
 
     def time(self, u: np.ndarray) -> np.ndarray:

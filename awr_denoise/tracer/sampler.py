@@ -107,26 +107,35 @@ def nested_uniform_scramble(x: np.ndarray, seed: np.ndarray) -> np.ndarray:
     return _reverse_bits_u32(x)
 
 
-def _sobol_dim1_matrix() -> np.ndarray:
-    # Direction numbers of the second Sobol' dimension (primitive polynomial x + 1).
+def _sobol_dim1_tables() -> np.ndarray:
+    # Direction numbers of the second Sobol' dimension (primitive polynomial x + 1), folded
+    # into four 256-entry XOR tables, one per byte of the index: four gathers replace a loop
+    # over 32 bits.
     v = np.zeros(32, np.uint32)
     v[0] = 1 << 31
     for i in range(1, 32):
         v[i] = v[i - 1] ^ (v[i - 1] >> 1)
-    return v
+    tables = np.zeros((4, 256), np.uint32)
+    for byte in range(4):
+        for value in range(256):
+            acc = 0
+            for bit in range(8):
+                if value >> bit & 1:
+                    acc ^= int(v[8 * byte + bit])
+            tables[byte, value] = acc
+    return tables
 
 
-_SOBOL_DIM1 = _sobol_dim1_matrix()
+_SOBOL_DIM1_TABLES = _sobol_dim1_tables()
 
 
 def sobol_2d(index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The first two Sobol' dimensions of 32-bit ``index`` as uint32 fixed-point values."""
     index = np.asarray(index).astype(np.uint32)
     x = _reverse_bits_u32(index)  # dimension 0 is the van der Corput sequence
-    y = np.zeros_like(index)
-    for bit in range(32):  # a loop over bits; every sample is vectorised
-        set_bit = ((index >> np.uint32(bit)) & np.uint32(1)).astype(bool)
-        y[set_bit] ^= _SOBOL_DIM1[bit]
+    y = _SOBOL_DIM1_TABLES[0][index & np.uint32(0xFF)]
+    for byte in range(1, 4):
+        y = y ^ _SOBOL_DIM1_TABLES[byte][(index >> np.uint32(8 * byte)) & np.uint32(0xFF)]
     return x, y
 
 

@@ -133,8 +133,8 @@ BUNDLED_SCENES: dict[str, dict[str, Any]] = {
                        "a sun (importance-sampled lat-long map). AA + DoF + environment light.",
         "dimension": 6,
         "width": 128, "height": 128,
-        "camera": {"from": [0.0, 1.1, 4.5], "to": [0.0, 0.6, 0.0], "fov": 36, "aperture_radius": 0.05,
-                   "focus_distance": 4.5},
+        "camera": {"from": [0.0, 1.3, 5.6], "to": [0.0, 0.55, 0.0], "fov": 38, "aperture_radius": 0.06,
+                   "focus_distance": 5.55},
         "integrator": {"max_depth": 0},
         "materials": {
             "ground": {"type": "diffuse", "texture": {"type": "checker", "axes": "xz", "scale": 1.0,
