@@ -1,0 +1,149 @@
+"""Coefficient priorities, winning levels and sampling density (paper section 4)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose, assert_array_equal
+from scipy import ndimage
+
+from awr_denoise import SampleBuffer, SampleRequest
+from awr_denoise.domains import Domain
+from awr_denoise.priorities import coefficient_priorities, error_plane, pixel_levels, sampling_density
+from awr_denoise.synthetic import SyntheticRenderer, make_scene
+from awr_denoise.wavelets import coefficient_variance, wavelet_operators
+
+SHAPE = (64, 64)
+SEEDS = range(3)
+# PyWavelets' bior4.4 high-pass taps sum to ~1e-12, not 0: a flat image of level ~20 (in the log
+# domain) leaves detail coefficients of ~1e-10, squares of ~1e-20.
+FLAT_ATOL = 1e-16
+
+
+def _grey_buffer(mean, var, count):
+    return SampleBuffer.from_moments(count, np.repeat(mean[..., None], 3, axis=2), np.repeat(var[..., None], 3, axis=2))
+
+
+def _scene_buffer(name, spp=8, seed=0):
+    scene = make_scene(name, SHAPE)
+    return scene, SyntheticRenderer(scene, seed=seed)(SampleRequest.uniform(SHAPE, spp))
+
+
+def _near_edges(reference, radius=1):
+    lum = reference[..., 1]
+    edge = ndimage.maximum_filter(lum, 3) - ndimage.minimum_filter(lum, 3) > 0.05
+    return ndimage.binary_dilation(edge, iterations=radius)
+
+
+# ---------------------------------------------------------------------------- error plane
+def test_error_plane_in_linear_domain_is_luminance(rng):
+    count = rng.integers(2, 9, (8, 10))
+    mean = rng.random((8, 10))
+    var = rng.random((8, 10))
+    buf = _grey_buffer(mean, var, count)
+    y, var_mean, var_sample = error_plane(buf, "linear")
+    assert_allclose(y, mean, rtol=1e-14)
+    assert_allclose(var_sample, var, rtol=1e-14)  # grey: the correlated luminance variance is exact
+    assert_allclose(var_mean, var / count, rtol=1e-14)
+
+
+def test_error_plane_in_log_domain_uses_the_delta_method(rng):
+    count = np.full((8, 10), 4)
+    mean = rng.uniform(0.1, 2.0, (8, 10))
+    var = rng.random((8, 10))
+    buf = _grey_buffer(mean, var, count)
+    bound = Domain("log").bound(mean)
+    y, var_mean, var_sample = error_plane(buf, "log")
+    assert_allclose(y, bound.forward(mean), rtol=1e-13)
+    assert_allclose(var_sample, var / (mean + bound.k) ** 2, rtol=1e-13)
+    assert_allclose(var_mean, var_sample / 4, rtol=1e-14)
+
+
+def test_error_plane_fills_empty_pixels_and_refuses_an_empty_buffer(rng):
+    count = np.full((8, 8), 4)
+    count[3, 3] = 0
+    buf = _grey_buffer(np.full((8, 8), 0.5), np.full((8, 8), 0.2), count)
+    y, var_mean, var_sample = error_plane(buf, "linear")
+    assert y[3, 3] == pytest.approx(0.5)
+    assert var_sample[3, 3] == pytest.approx(0.2)  # pooled, as a single sample
+    assert np.isfinite(var_mean).all()
+    with pytest.raises(ValueError, match="buffer: no pixel has any sample"):
+        error_plane(SampleBuffer.empty((8, 8)))
+
+
+# ---------------------------------------------------------------------------- priorities
+def test_priorities_layout(rng):
+    _, buf = _scene_buffer("edges")
+    ops = wavelet_operators(SHAPE)
+    prio = coefficient_priorities(buf, operators=ops)
+    assert len(prio) == ops.levels + 1
+    assert prio[0].shape == SHAPE
+    for k in range(1, ops.levels + 1):
+        assert prio[k].shape == (ops.rows.approx[k - 1].shape[0], ops.cols.approx[k - 1].shape[0])
+
+
+@pytest.mark.parametrize("domain", ["linear", "log"])
+def test_priorities_are_zero_where_variance_is_zero(domain):
+    flat = _grey_buffer(np.full(SHAPE, 0.5), np.zeros(SHAPE), np.full(SHAPE, 4))
+    for p in coefficient_priorities(flat, domain=domain):
+        assert_allclose(p, 0.0, atol=FLAT_ATOL)
+    # An edge with no noise: no variance to remove, so no coefficient asks for samples.
+    step = np.where(np.arange(SHAPE[1]) < 30, 0.2, 0.9) * np.ones(SHAPE)
+    for p in coefficient_priorities(_grey_buffer(step, np.zeros(SHAPE), np.full(SHAPE, 4)), domain=domain):
+        assert (p <= FLAT_ATOL).all()
+
+
+def test_priorities_of_pure_noise_are_weighted_scale_variances(rng):
+    """A flat noisy image: P_0 is the variance of each pixel mean and P_k = 4^k Var(S_k)."""
+    count = rng.integers(2, 12, SHAPE)
+    var = rng.uniform(0.01, 0.5, SHAPE)
+    buf = _grey_buffer(np.full(SHAPE, 0.5), var, count)
+    levels = 3
+    prio = coefficient_priorities(buf, domain="linear", levels=levels)
+    assert_allclose(prio[0], var / count, rtol=1e-13)
+    for k in range(1, levels + 1):
+        scale_variance = coefficient_variance(var / count, levels=k)[0]
+        assert_allclose(prio[k], 4.0**k * scale_variance, rtol=1e-12)
+
+
+def test_smooth_noise_is_won_by_coarse_levels():
+    """Talk: in smooth regions the variance grows fine to coarse while wavelets stay the same."""
+    ops = wavelet_operators(SHAPE)
+    for seed in SEEDS:
+        _, buf = _scene_buffer("gradient", seed=seed)
+        level = pixel_levels(coefficient_priorities(buf, operators=ops), ops)
+        assert np.mean(level == ops.levels) > 0.9
+
+
+def test_edges_are_won_by_finer_levels():
+    """Talk: at edges the wavelets grow fine to coarse while the variance stays."""
+    ops = wavelet_operators(SHAPE)
+    for seed in SEEDS:
+        scene, buf = _scene_buffer("edges", seed=seed)
+        near = _near_edges(scene.reference())
+        level = pixel_levels(coefficient_priorities(buf, operators=ops), ops)
+        assert level[near].mean() < level[~near].mean() - 0.5
+        assert np.mean(level[near] <= 1) > 2 * np.mean(level[~near] <= 1)
+
+
+# ---------------------------------------------------------------------------- density
+def test_density_without_levels_is_pooled_standard_deviation(rng):
+    count = np.full((12, 12), 4)
+    var = rng.uniform(0.0, 1.0, (12, 12))
+    buf = _grey_buffer(np.full((12, 12), 1.0), var, count)
+    density = sampling_density(buf, domain="linear", level_weight=0.0)
+    assert_allclose(density, np.sqrt(ndimage.uniform_filter(var, 3, mode="nearest")), rtol=1e-12)
+
+
+def test_density_is_higher_near_edges():
+    for seed in SEEDS:
+        scene, buf = _scene_buffer("edges", seed=seed)
+        near = _near_edges(scene.reference())
+        density = sampling_density(buf, level_weight=1.0)
+        assert (density >= 0).all()
+        assert density[near].mean() > 1.3 * density[~near].mean()
+
+
+def test_density_is_zero_for_a_deterministic_image():
+    buf = _grey_buffer(np.linspace(0, 1, 64).reshape(8, 8), np.zeros((8, 8)), np.full((8, 8), 4))
+    assert_array_equal(sampling_density(buf), 0.0)
