@@ -76,6 +76,14 @@ class Domain:
         """Fix the absolute offset for one image (``k = offset * scale``)."""
         if self.name == "linear":
             return _BoundDomain(self, 1.0)
+        return _BoundDomain(self, self.offset * self.resolved_scale(mean))
+
+    def resolved_scale(self, mean: FloatArray) -> float:
+        """The absolute reference level used for ``mean``: :attr:`scale`, or the image's own.
+
+        Tiles of one image agree with the whole image when they are given
+        ``dataclasses.replace(domain, scale=domain.resolved_scale(whole_image_mean))``.
+        """
         scale = self.scale
         if scale is None:
             magnitude = np.abs(mean)
@@ -85,7 +93,7 @@ class Domain:
             if not np.isfinite(scale) or scale <= 0:
                 # An all-zero image: any positive k gives the same (zero) result.
                 scale = 1.0
-        return _BoundDomain(self, self.offset * scale)
+        return float(scale)
 
 
 @dataclass(frozen=True)
