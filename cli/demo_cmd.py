@@ -45,6 +45,10 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     scene = tracer.load_scene(name)
+    cached = getattr(tracer, "reference_path", None)
+    if callable(cached) and not Path(cached(name)).is_file():
+        status(f"rendering the reference of {name} once (cached as {cached(name)}); this takes a while",
+               quiet=args.quiet)
     reference = np.asarray(tracer.load_reference(name), dtype=np.float64)
     start = time.perf_counter()
     status(f"rendering {name} uniformly at {args.spp:g} spp", quiet=args.quiet)

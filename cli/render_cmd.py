@@ -34,7 +34,10 @@ def default_scene(tracer: Any) -> str:
     scenes = list(tracer.list_scenes())
     if not scenes:
         raise RuntimeFailure("the bundled tracer has no scenes")
-    return "cornell_box" if "cornell_box" in scenes else str(scenes[0])
+    for preferred in ("default", "cornell_box"):
+        if preferred in scenes:
+            return preferred
+    return str(scenes[0])
 
 
 def derived_path(path: str | Path, suffix: str) -> Path:
@@ -49,20 +52,27 @@ def render_buffer(tracer: Any, scene: Any, *, spp: float, adaptive: bool, seed: 
     """(buffer, issued, next round) of a uniform or adaptive render at ``spp`` on average."""
     from awr_denoise import AdaptiveSampler, SampleRequest
 
-    renderer = tracer.PathTracer(scene, seed=seed, sampler=sampler, progress=not quiet)
-    probe = getattr(scene, "shape", None)
-    if probe is None:
-        probe = (int(scene.height), int(scene.width))
-    shape = (int(probe[0]), int(probe[1]))
-    if not adaptive:
-        if spp != int(spp):
-            raise UsageError(f"--spp: a uniform render needs whole samples per pixel, got {spp}")
-        request = SampleRequest.uniform(shape, int(spp))
-        buffer = renderer(request)
-        return buffer, request.first_index + request.counts, 1
-    awr = AdaptiveSampler(shape, initial_spp=min(initial_spp, max(1, int(spp))), seed=seed)
-    buffer = awr.run(renderer, total_spp=spp, progress=not quiet)
-    return buffer, awr.issued, awr.round
+    # A uniform render is one request: the tracer's own bar shows it. Adaptive rounds get
+    # the sampler's bar instead of one tracer bar per round.
+    renderer = tracer.PathTracer(scene, seed=seed, sampler=sampler, progress=not quiet and not adaptive)
+    try:
+        probe = getattr(renderer, "shape", None) or getattr(scene, "shape", None)
+        if probe is None:
+            raise RuntimeFailure("the tracer does not report the image size")
+        shape = (int(probe[0]), int(probe[1]))
+        if not adaptive:
+            if spp != int(spp):
+                raise UsageError(f"--spp: a uniform render needs whole samples per pixel, got {spp}")
+            request = SampleRequest.uniform(shape, int(spp))
+            buffer = renderer(request)
+            return buffer, request.first_index + request.counts, 1
+        awr = AdaptiveSampler(shape, initial_spp=min(initial_spp, max(1, int(spp))), seed=seed)
+        buffer = awr.run(renderer, total_spp=spp, progress=not quiet)
+        return buffer, awr.issued, awr.round
+    finally:
+        close = getattr(renderer, "close", None)
+        if callable(close):
+            close()
 
 
 def register(sub: argparse._SubParsersAction) -> None:

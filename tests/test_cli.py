@@ -383,8 +383,14 @@ def test_subprocess_loop_and_error(tmp_path):
 @pytest.fixture
 def fake_tracer(monkeypatch):
     """The tracer's interface backed by the synthetic renderer, so the CLI is tested without embreex."""
-    from awr_denoise import tracer
+    import types
+
+    import awr_denoise
     from awr_denoise.synthetic import SyntheticRenderer, make_scene
+
+    tracer = types.ModuleType("awr_denoise.tracer")
+    monkeypatch.setitem(sys.modules, "awr_denoise.tracer", tracer)
+    monkeypatch.setattr(awr_denoise, "tracer", tracer, raising=False)
 
     class Scene:
         def __init__(self, width, height):
@@ -506,3 +512,13 @@ def test_maxerror_failure_keeps_output_and_exits_1(tmp_path, capsys, rng):
     assert main(["denoise", str(tmp_path / "d.exr"), "-o", str(tmp_path / "o.exr"), "-r", str(tmp_path / "ref.exr"),
                  "--maxerror", "0.01", "-q"]) == 1
     _one_error_line(capsys, "o.exr", "exceeds --maxerror")
+
+
+@pytest.mark.tracer
+def test_render_with_the_bundled_tracer(tmp_path):
+    pytest.importorskip("embreex")
+    out = tmp_path / "d.exr"
+    assert main(["render", "--uniform", "--spp", "2", "--width", "32", "--height", "24", "-o", str(out), "-q"]) == 0
+    dump = read_sample_dump(out)
+    assert dump.buffer.shape == (24, 32) and (dump.buffer.count == 2).all()
+    assert dump.attributes["awr:scene"] == "default"
