@@ -1,0 +1,380 @@
+"""Budget allocation and the ask/tell samplers: contract, determinism, placement and quality."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numpy.testing import assert_array_equal
+from scipy import ndimage
+
+from awr_denoise import (
+    AdaptiveSampler,
+    SampleBuffer,
+    SampleRequest,
+    StaleRequestError,
+    UniformSampler,
+    VarianceSampler,
+    allocate,
+    reconstruct,
+)
+from awr_denoise.metrics import relmse
+from awr_denoise.synthetic import SyntheticRenderer, make_scene
+
+SAMPLERS = [AdaptiveSampler, UniformSampler, VarianceSampler]
+SHAPE = (20, 28)
+PIXELS = SHAPE[0] * SHAPE[1]
+BUDGETS = [0, 1, 7, 559, PIXELS, PIXELS + 1, 12345, 10**9]
+QUALITY_SHAPE = (64, 64)
+QUALITY_SEEDS = range(3)
+
+
+@pytest.fixture(params=SAMPLERS, ids=lambda c: c.__name__)
+def sampler_cls(request):
+    return request.param
+
+
+def _edges_renderer(shape=SHAPE, seed=0):
+    return SyntheticRenderer(make_scene("edges", shape), seed=seed)
+
+
+def _constant_renderer(request):
+    """A deterministic image: every sample is the same, so the variance is zero everywhere."""
+    rows, cols, _ = request.pixel_list()
+    return SampleBuffer.from_samples(np.stack([rows, cols], axis=1), np.full((rows.size, 3), 0.5), request.shape)
+
+
+def _after_round_zero(cls, **options):
+    sampler = cls(SHAPE, **options)
+    renderer = _edges_renderer()
+    request = sampler.ask()
+    sampler.tell(request, renderer(request))
+    return sampler, renderer
+
+
+# ---------------------------------------------------------------------------- allocate
+def test_allocate_hand_checked():
+    current = np.zeros((1, 2), np.int64)
+    assert_array_equal(allocate(np.array([[1.0, 3.0]]), current, 8), [[2, 6]])
+    # Water-filling: a pixel already above its share gets nothing.
+    assert_array_equal(allocate(np.ones((1, 2)), np.array([[10, 0]]), 4), [[0, 4]])
+    # Capacity: the capped pixel's excess goes elsewhere.
+    assert_array_equal(allocate(np.array([[1.0, 3.0]]), current, 8, capacity=np.array([[8, 4]])), [[4, 4]])
+
+
+@pytest.mark.parametrize("budget", BUDGETS)
+def test_allocate_spends_the_budget_exactly(rng, budget):
+    density = rng.gamma(0.5, 1.0, SHAPE)
+    density[3:5] = 0.0
+    current = rng.integers(0, 20, SHAPE)
+    counts = allocate(density, current, budget, rng=rng)
+    assert counts.dtype == np.int64 and counts.shape == SHAPE
+    assert counts.sum() == budget and (counts >= 0).all()
+
+
+@pytest.mark.parametrize("budget", [1, 13, 999, 2000])
+def test_allocate_respects_capacity(rng, budget):
+    capacity = rng.integers(0, 8, SHAPE)
+    counts = allocate(rng.random(SHAPE), np.zeros(SHAPE, np.int64), budget, capacity=capacity, rng=rng)
+    assert counts.sum() == budget and (counts <= capacity).all()
+
+
+def test_allocate_refuses_more_than_capacity_and_negative_budgets():
+    with pytest.raises(ValueError, match="budget: 11 samples exceed the 10"):
+        allocate(np.ones((2, 5)), np.zeros((2, 5), np.int64), 11, capacity=np.ones((2, 5), np.int64))
+    with pytest.raises(ValueError, match="budget: must be >= 0"):
+        allocate(np.ones((2, 2)), np.zeros((2, 2), np.int64), -1)
+
+
+@pytest.mark.parametrize("density", [np.zeros(SHAPE), np.full(SHAPE, np.nan)])
+def test_allocate_without_anything_to_rank_on_is_uniform(density):
+    counts = allocate(density, np.zeros(SHAPE, np.int64), 3 * PIXELS + 5)
+    assert counts.sum() == 3 * PIXELS + 5
+    assert counts.min() == 3 and counts.max() == 4
+
+
+# ---------------------------------------------------------------------------- ask / tell contract
+def test_ask_twice_returns_the_pending_request(sampler_cls):
+    sampler = sampler_cls(SHAPE)
+    first = sampler.ask()
+    assert sampler.ask() is first and sampler.pending is first
+    assert sampler.ask(first.total) is first
+    with pytest.raises(StaleRequestError, match="pending"):
+        sampler.ask(first.total + 1)
+
+
+def test_round_zero_is_uniform_initial_spp(sampler_cls):
+    sampler = sampler_cls(SHAPE, initial_spp=3)
+    request = sampler.ask()
+    assert request.round == 0
+    assert_array_equal(request.counts, 3)
+    assert_array_equal(request.first_index, 0)
+
+
+def test_stale_and_repeated_tells_raise(sampler_cls):
+    sampler = sampler_cls(SHAPE)
+    renderer = _edges_renderer()
+    with pytest.raises(StaleRequestError, match="not pending"):
+        sampler.tell(SampleRequest.uniform(SHAPE, 1), SampleBuffer.empty(SHAPE))
+    r0 = sampler.ask()
+    samples = renderer(r0)
+    sampler.tell(r0, samples)
+    with pytest.raises(StaleRequestError):
+        sampler.tell(r0, samples)  # told already
+    r1 = sampler.ask()
+    with pytest.raises(StaleRequestError, match="not the pending round"):
+        sampler.tell(r0, samples)  # an old request while a newer one is pending
+    with pytest.raises(StaleRequestError, match="not the pending round"):
+        sampler.tell(0, samples)
+    other = sampler_cls(SHAPE)
+    with pytest.raises(StaleRequestError):
+        other.tell(r1, renderer(r1))  # asked from another sampler
+    assert other.ask().sampler_id != r1.sampler_id
+    with pytest.raises(StaleRequestError):
+        sampler.tell(SampleRequest(r1.counts, r1.first_index, r1.round, r1.sampler_id + 1000), renderer(r1))
+    sampler.tell(r1.round, renderer(r1))  # by round number
+    assert sampler.round == 2 and sampler.pending is None
+
+
+def test_tell_with_wrong_samples_raises_value_error(sampler_cls):
+    sampler = sampler_cls(SHAPE)
+    request = sampler.ask()
+    with pytest.raises(ValueError, match=r"samples: shape \(20, 27\) does not match"):
+        sampler.tell(request, SampleBuffer.empty((20, 27)))
+    with pytest.raises(ValueError, match=r"samples: 1 channel\(s\)"):
+        sampler.tell(request, SampleBuffer.empty(SHAPE, channels=1))
+    too_many = SampleRequest(request.counts + np.eye(*SHAPE, dtype=np.int64), request.first_index)
+    with pytest.raises(ValueError, match=r"samples: 20 pixel\(s\) hold more samples than requested"):
+        sampler.tell(request, _edges_renderer()(too_many))
+    with pytest.raises(TypeError, match="samples"):
+        sampler.tell(request, np.zeros(SHAPE + (3,)))
+    assert sampler.pending is request  # nothing was merged
+    assert sampler.total_samples == 0
+
+
+def test_fewer_samples_than_asked_warns(sampler_cls):
+    sampler = sampler_cls(SHAPE)
+    request = sampler.ask()
+    fewer = SampleRequest(np.maximum(request.counts - 1, 0), request.first_index)
+    with pytest.warns(UserWarning, match=f"samples: {PIXELS} requested sample"):
+        buffer = sampler.tell(request, _edges_renderer()(fewer))
+    assert buffer.total_samples == request.total - PIXELS
+    assert_array_equal(sampler.issued, request.counts)  # the missing indices are not reused
+
+
+@pytest.mark.parametrize("budget", BUDGETS)
+def test_counts_sum_to_the_budget(sampler_cls, budget):
+    sampler, _ = _after_round_zero(sampler_cls)
+    request = sampler.ask(budget)
+    assert request.total == budget and (request.counts >= 0).all()
+
+
+@pytest.mark.parametrize("budget", [0, 1, 7, 559, 2 * PIXELS])
+def test_counts_respect_spp_max(sampler_cls, budget):
+    spp_max = 7
+    sampler, _ = _after_round_zero(sampler_cls, spp_max=spp_max)
+    request = sampler.ask(budget)
+    assert request.total == budget
+    assert (sampler.issued + request.counts <= spp_max).all()
+
+
+def test_budget_beyond_spp_max_raises(sampler_cls):
+    sampler, _ = _after_round_zero(sampler_cls, spp_max=6)
+    with pytest.raises(ValueError, match=f"budget: {2 * PIXELS + 1} samples exceed the {2 * PIXELS}"):
+        sampler.ask(2 * PIXELS + 1)
+    assert sampler.pending is None
+    assert sampler.ask(2 * PIXELS).total == 2 * PIXELS  # exactly the capacity is fine
+
+
+def test_bad_budget_raises(sampler_cls):
+    sampler = sampler_cls(SHAPE)
+    with pytest.raises(ValueError, match="budget: must be >= 0"):
+        sampler.ask(-1)
+    with pytest.raises(TypeError, match="budget"):
+        sampler.ask(2.5)
+
+
+def test_first_index_equals_samples_issued_so_far(sampler_cls):
+    sampler = sampler_cls(SHAPE, seed=2)
+    renderer = _edges_renderer()
+    issued = np.zeros(SHAPE, np.int64)
+    for budget in [None, 101, 999, 1, None]:
+        request = sampler.ask(budget)
+        assert_array_equal(request.first_index, issued)
+        issued += request.counts
+        sampler.tell(request, renderer(request))
+        assert_array_equal(sampler.issued, issued)
+        assert_array_equal(sampler.buffer.count, issued)
+
+
+@pytest.mark.parametrize("total_spp", [4, 5.3, 16])
+def test_run_reaches_the_total_exactly(sampler_cls, total_spp):
+    sampler = sampler_cls(SHAPE)
+    renderer = _edges_renderer()
+    buffer = sampler.run(renderer, total_spp)
+    goal = int(round(total_spp * PIXELS))
+    assert buffer.total_samples == goal == renderer.samples_rendered
+    assert sampler.pending is None
+    with pytest.raises(ValueError, match="total_spp"):
+        sampler.run(renderer, 2)
+
+
+def test_run_callback_can_stop(sampler_cls):
+    sampler = sampler_cls(SHAPE)
+    seen = []
+    sampler.run(_edges_renderer(), 32, callback=lambda req, buf: seen.append(req.round) or len(seen) < 2)
+    assert seen == [0, 1]
+
+
+def test_spp_max_caps_a_whole_run(sampler_cls):
+    buffer = sampler_cls(SHAPE, spp_max=12).run(_edges_renderer(), 10)
+    assert buffer.count.max() <= 12 and buffer.total_samples == 10 * PIXELS
+
+
+def test_from_buffer_resumes_where_the_run_stopped(sampler_cls):
+    renderer = _edges_renderer()
+    a = sampler_cls(SHAPE, seed=4)
+    a.run(renderer, 9)
+    b = sampler_cls.from_buffer(a.buffer, round=a.round, seed=4)
+    ra, rb = a.ask(), b.ask()
+    assert_array_equal(rb.first_index, a.buffer.count)
+    assert_array_equal(ra.counts, rb.counts)
+    assert rb.round == ra.round
+    b.tell(rb, renderer(rb))
+    assert b.total_samples == a.total_samples + ra.total
+    with pytest.raises(ValueError, match="issued"):
+        sampler_cls.from_buffer(a.buffer, issued=np.zeros(SHAPE, np.int64))
+
+
+def test_deterministic_image_does_not_stall(sampler_cls):
+    """Zero variance everywhere: nothing to rank on, so the samplers fall back to uniform."""
+    sampler = sampler_cls(SHAPE)
+    buffer = sampler.run(_constant_renderer, 20)
+    assert buffer.total_samples == 20 * PIXELS
+    assert buffer.count.min() == buffer.count.max() == 20
+
+
+def test_spp_min_is_met_before_the_strategy(sampler_cls):
+    sampler = sampler_cls(SHAPE, initial_spp=1, spp_min=3)
+    renderer = _edges_renderer()
+    request = sampler.ask()
+    sampler.tell(request, renderer(request))
+    request = sampler.ask(2 * PIXELS)
+    assert_array_equal(request.counts, 2)
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"initial_spp": -1}, "initial_spp"),
+    ({"spp_max": 0}, "spp_max"),
+    ({"spp_min": 5, "spp_max": 4}, "spp_min"),
+    ({"round_spp": 0.0}, "round_spp"),
+])
+def test_bad_sampler_options_are_refused(sampler_cls, kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        sampler_cls(SHAPE, **kwargs)
+    with pytest.raises(ValueError, match="shape: empty image"):
+        sampler_cls((0, 4))
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"level_weight": -1.0}, "level_weight"),
+    ({"uniform_fraction": 1.5}, "uniform_fraction"),
+    ({"wavelet": "nope"}, "wavelet"),
+])
+def test_bad_adaptive_options_are_refused(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        AdaptiveSampler(SHAPE, **kwargs)
+
+
+# ---------------------------------------------------------------------------- determinism
+def _run_counts(cls, seed, renderer_seed=0, spp=12):
+    sampler = cls(SHAPE, seed=seed)
+    rounds = []
+    sampler.run(_edges_renderer(seed=renderer_seed), spp, callback=lambda req, buf: rounds.append(req.counts))
+    return rounds
+
+
+def test_same_seed_gives_the_same_requests(sampler_cls):
+    a, b = _run_counts(sampler_cls, seed=5), _run_counts(sampler_cls, seed=5)
+    assert len(a) == len(b) > 3
+    for ca, cb in zip(a, b):
+        assert_array_equal(ca, cb)
+
+
+@pytest.mark.parametrize("cls", [AdaptiveSampler, VarianceSampler])
+def test_different_seeds_may_give_different_requests(cls):
+    a, b = _run_counts(cls, seed=5, renderer_seed=5), _run_counts(cls, seed=6, renderer_seed=6)
+    assert any(not np.array_equal(ca, cb) for ca, cb in zip(a, b))
+
+
+def test_uniform_sampler_is_uniform_to_within_one():
+    """After every round the totals differ by at most one (a single round's request may not)."""
+    total = np.zeros(SHAPE, np.int64)
+    for request_counts in _run_counts(UniformSampler, seed=1):
+        total += request_counts
+        assert total.max() - total.min() <= 1
+
+
+# ---------------------------------------------------------------------------- placement
+def test_samples_concentrate_on_edges():
+    """"edges" scene, equal noise everywhere: pixels within a pixel of an edge get more samples."""
+    scene = make_scene("edges", QUALITY_SHAPE)
+    lum = scene.reference()[..., 1]
+    edge = ndimage.maximum_filter(lum, 3) - ndimage.minimum_filter(lum, 3) > 0.05
+    near = ndimage.binary_dilation(edge)
+    for seed in QUALITY_SEEDS:
+        counts = AdaptiveSampler(QUALITY_SHAPE, seed=seed).run(SyntheticRenderer(scene, seed=seed), 16).count
+        assert counts[near].mean() > 1.03 * counts[~near].mean()
+
+
+def test_samples_spread_over_smooth_noisy_regions():
+    """"gradient" scene (noise growing left to right): the spp map is smooth and spread out,
+    no pixel far above the mean, and it follows the noise (more on the right than the left)."""
+    scene = make_scene("gradient", QUALITY_SHAPE)
+    for seed in QUALITY_SEEDS:
+        counts = AdaptiveSampler(QUALITY_SHAPE, seed=seed).run(SyntheticRenderer(scene, seed=seed), 16).count
+        counts = counts.astype(np.float64)
+        assert counts.max() < 4.0 * counts.mean()
+        assert np.mean(counts > 4) > 0.9  # nearly every pixel got samples beyond round 0
+        smoothed = ndimage.uniform_filter(counts, 7, mode="nearest")
+        assert smoothed.std() / smoothed.mean() < 0.6
+        # Smooth: neighbouring pixels differ little compared with the spread across the image.
+        roughness = np.abs(np.diff(counts, axis=0)).mean()
+        assert roughness < 0.25 * counts.mean()
+        assert counts[:, -16:].mean() > 2.0 * counts[:, :16].mean()
+
+
+# ---------------------------------------------------------------------------- quality
+def _equal_sample_relmse(name, spp, seed):
+    """relMSE of reconstruct() (defaults) after an adaptive and a uniform run of equal total samples."""
+    scene = make_scene(name, QUALITY_SHAPE)
+    reference = scene.reference()
+    out = {}
+    for cls in (AdaptiveSampler, UniformSampler):
+        buffer = cls(QUALITY_SHAPE, seed=seed).run(SyntheticRenderer(scene, seed=seed), spp)
+        assert buffer.total_samples == spp * QUALITY_SHAPE[0] * QUALITY_SHAPE[1]
+        out[cls.strategy] = relmse(reconstruct(buffer), reference)
+    return out["awr"], out["uniform"]
+
+
+@pytest.mark.parametrize("spp", [16, 32])
+@pytest.mark.parametrize("name", ["gradient", "edges", "hdr_source", "fireflies"])
+def test_adaptive_beats_uniform_at_equal_samples(name, spp):
+    """Compared: relMSE of the *reconstructed* images (both through reconstruct() with its
+    defaults) after AdaptiveSampler and UniformSampler runs with the same total samples and seed."""
+    ratios = []
+    for seed in QUALITY_SEEDS:
+        adaptive, uniform = _equal_sample_relmse(name, spp, seed)
+        assert adaptive < uniform, (seed, adaptive, uniform)
+        ratios.append(uniform / adaptive)
+    assert np.mean(ratios) > 1.05
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("spp", [8, 64])
+@pytest.mark.parametrize("name", ["gradient", "edges", "hdr_source", "fireflies"])
+def test_adaptive_beats_uniform_at_equal_samples_more_seeds(name, spp):
+    ratios = []
+    for seed in range(10):
+        adaptive, uniform = _equal_sample_relmse(name, spp, seed)
+        ratios.append(uniform / adaptive)
+    assert min(ratios) > 1.0, ratios
