@@ -40,6 +40,8 @@ __all__ = ["PathTracer", "render", "DEFAULT_BATCH_SIZE"]
 
 logger = logging.getLogger(__name__)
 
+_MIN_THREAD_BATCH = 2048
+
 DEFAULT_BATCH_SIZE = 1 << 16
 """Samples traced together in one wavefront (per thread)."""
 
@@ -161,7 +163,9 @@ class PathTracer:
         if np.any((rows < 0) | (rows >= h) | (cols < 0) | (cols >= w)):
             raise ValueError(f"rows, cols: pixel coordinates outside the {h}x{w} image")
         radiance = np.zeros((n, 3))
-        bounds = [(s, min(s + self.batch_size, n)) for s in range(0, n, self.batch_size)]
+        # At least one batch per thread (down to a floor where thread overhead would dominate).
+        batch = max(min(self.batch_size, -(-n // self.threads)), min(self.batch_size, _MIN_THREAD_BATCH))
+        bounds = [(s, min(s + batch, n)) for s in range(0, n, batch)]
 
         def run(bound: tuple[int, int]) -> tuple[int, int, dict[str, int]]:
             lo, hi = bound

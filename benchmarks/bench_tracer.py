@@ -1,0 +1,126 @@
+"""Throughput of the bundled path tracer against raw embreex on the same rays.
+
+For every bundled scene: render ``--spp`` samples per pixel with :class:`PathTracer` (both
+cores), then replay exactly the rays that render traced (recorded batch by batch, same batch
+sizes, same queries: INTERSECT with ``output=1`` or OCCLUDED) directly through embreex on the
+same number of threads. The ratio of the two ray rates is the cost of everything that is not
+ray traversal: sampling, camera, shading, light sampling and bookkeeping in numpy.
+
+Usage::
+
+    python benchmarks/bench_tracer.py [--spp 8] [--repeats 3] [--threads 2] [--scenes a b ...]
+
+Prints a table and writes ``benchmarks/results/tracer.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from importlib.metadata import version
+from pathlib import Path
+
+import numpy as np
+
+from awr_denoise.requests import SampleRequest
+from awr_denoise.tracer import PathTracer, list_scenes, load_scene
+
+__all__ = ["bench_scene", "main"]
+
+RESULTS = Path(__file__).resolve().parent / "results" / "tracer.json"
+
+
+def _replay(tracer: PathTracer, record: list, threads: int) -> float:
+    """Seconds to trace the recorded ray batches directly with embreex."""
+    accel = tracer.accelerator
+    scenes = {-1: accel.static_scene, **dict(enumerate(accel.moving_scenes))}
+
+    def run(item: tuple) -> None:
+        query, scene_index, o, d, dist = item
+        if query == "OCCLUDED":
+            scenes[scene_index].run(o, d, dists=dist.copy(), query="OCCLUDED")
+        else:
+            scenes[scene_index].run(o, d, output=1)
+
+    start = time.perf_counter()
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        list(pool.map(run, record))
+    return time.perf_counter() - start
+
+
+def bench_scene(name: str, *, spp: int, repeats: int, threads: int, size: int | None) -> dict:
+    """Best-of-``repeats`` tracer and raw embreex throughput for one scene."""
+    scene = load_scene(name, width=size, height=size)
+    tracer = PathTracer(scene, threads=threads, sampler="sobol")
+    request = SampleRequest.uniform(tracer.shape, spp)
+    tracer(SampleRequest.uniform(tracer.shape, 1))  # warm up (BVH is built at construction)
+    best_tracer, rays, samples = np.inf, 0, 0
+    for _ in range(repeats):
+        before = dict(tracer.stats)
+        start = time.perf_counter()
+        tracer(request)
+        elapsed = time.perf_counter() - start
+        best_tracer = min(best_tracer, elapsed)
+        rays = int(tracer.stats["rays"] - before["rays"])
+        samples = int(tracer.stats["samples"] - before["samples"])
+        split = {k: int(tracer.stats[k] - before[k]) for k in ("camera_rays", "bounce_rays", "shadow_rays")}
+    tracer.accelerator.record = []
+    tracer(request)
+    record, tracer.accelerator.record = tracer.accelerator.record, None
+    recorded_rays = sum(len(item[2]) for item in record)
+    best_raw = min(_replay(tracer, record, threads) for _ in range(repeats))
+    tracer.close()
+    return {
+        "scene": name, "width": scene.width, "height": scene.height, "dimension": scene.dimension,
+        "triangles": int(len(tracer.accelerator.triangle_vertices)), "spp": spp, "samples": samples,
+        "rays": rays, "rays_per_sample": rays / samples, **split,
+        "tracer_seconds": best_tracer, "tracer_samples_per_s": samples / best_tracer,
+        "tracer_rays_per_s": rays / best_tracer,
+        "raw_embree_seconds": best_raw, "raw_embree_rays_per_s": recorded_rays / best_raw,
+        "ratio_tracer_to_raw": (rays / best_tracer) / (recorded_rays / best_raw),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--spp", type=int, default=8)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--size", type=int, default=None, help="square resolution (default: each scene's own)")
+    parser.add_argument("--scenes", nargs="*", default=None)
+    parser.add_argument("--output", type=Path, default=RESULTS)
+    args = parser.parse_args(argv)
+    names = args.scenes or list_scenes()
+    rows = []
+    header = (f"{'scene':<14}{'dim':>4}{'tris':>8}{'rays/spl':>9}{'Msamples/s':>11}{'Mrays/s':>9}"
+              f"{'raw Mrays/s':>12}{'ratio':>7}")
+    print(header)
+    print("-" * len(header))
+    for name in names:
+        r = bench_scene(name, spp=args.spp, repeats=args.repeats, threads=args.threads, size=args.size)
+        rows.append(r)
+        print(f"{name:<14}{r['dimension']:>4}{r['triangles']:>8}{r['rays_per_sample']:>9.2f}"
+              f"{r['tracer_samples_per_s'] / 1e6:>11.3f}{r['tracer_rays_per_s'] / 1e6:>9.2f}"
+              f"{r['raw_embree_rays_per_s'] / 1e6:>12.2f}{r['ratio_tracer_to_raw']:>7.1%}")
+    result = {
+        "command": " ".join(["python benchmarks/bench_tracer.py", *(sys.argv[1:] if argv is None else argv)]),
+        "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__,
+                    "embreex": version("embreex"), "platform": platform.platform()},
+        "settings": {"spp": args.spp, "repeats": args.repeats, "threads": args.threads, "sampler": "sobol",
+                     "timing": "best of repeats, wall clock"},
+        "scenes": rows,
+    }
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(json.dumps(result, indent=1) + "\n")
+    print(f"wrote {args.output}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
