@@ -9,7 +9,7 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from awr_denoise import SampleBuffer, SampleRequest, reconstruct, reconstruct_detailed
-from awr_denoise.domains import DOMAIN_NAMES
+from awr_denoise.domains import DOMAIN_NAMES, Domain
 from awr_denoise.metrics import relmse
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
 
@@ -100,7 +100,6 @@ def test_channels_are_independent_in_channel_mode(rng):
     buf = _noisy_buffer(rng)
     single = SampleBuffer.from_moments(buf.count, buf.mean[..., 1], buf.variance[..., 1])
     # The domain's offset depends on the image's mean level, so fix it to compare.
-    from awr_denoise.domains import Domain
     d = Domain("log", scale=0.5)
     assert_allclose(reconstruct(buf, domain=d)[..., 1], reconstruct(single, domain=d)[..., 0], rtol=1e-12)
 
