@@ -522,3 +522,17 @@ def test_render_with_the_bundled_tracer(tmp_path):
     dump = read_sample_dump(out)
     assert dump.buffer.shape == (24, 32) and (dump.buffer.count == 2).all()
     assert dump.attributes["awr:scene"] == "default"
+
+
+def test_deep_sample_dump_through_the_cli(tmp_path, capsys, rng):
+    from awr_denoise.io import write_deep_samples
+
+    n = 5 * H * W
+    pixels = rng.integers(0, H * W, n)
+    write_deep_samples(tmp_path / "s.exr", pixels, 0.5 + 0.1 * rng.standard_normal((n, 3)), (H, W))
+    capsys.readouterr()
+    assert main(["info", str(tmp_path / "s.exr"), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["deep"] and info["preset"] == "deep" and info["total_samples"] == n
+    assert main(["denoise", str(tmp_path / "s.exr"), "-o", str(tmp_path / "o.exr"), "-q"]) == 0
+    assert read_image(tmp_path / "o.exr").shape == (H, W, 3)

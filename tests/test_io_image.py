@@ -118,3 +118,16 @@ def test_truncated_exr(tmp_path):
 def test_missing_file(tmp_path):
     with pytest.raises(InputFileError, match="no such file"):
         read_image(tmp_path / "nope.exr")
+
+
+def test_written_files_get_ordinary_permissions(tmp_path):
+    # The temporary file is private (mkstemp); the result must not be.
+    old = os.umask(0o022)
+    try:
+        write_image(tmp_path / "a.exr", np.zeros((2, 2, 3)))
+    finally:
+        os.umask(old)
+    assert (tmp_path / "a.exr").stat().st_mode & 0o777 == 0o644
+    os.chmod(tmp_path / "a.exr", 0o600)
+    write_image(tmp_path / "a.exr", np.ones((2, 2, 3)), overwrite=True)
+    assert (tmp_path / "a.exr").stat().st_mode & 0o777 == 0o600  # a replaced file keeps its mode

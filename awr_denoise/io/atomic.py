@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import stat
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -31,6 +32,28 @@ def check_writable(path: str | os.PathLike[str], *, overwrite: bool) -> Path:
     if not parent.is_dir():
         raise FileNotFoundError(f"{target}: directory {parent} does not exist")
     return target
+
+
+def _new_file_mode(target: Path) -> int:
+    """Permissions a plainly created file would get (an existing target keeps its own).
+
+    ``mkstemp`` creates files readable by the owner only; without this a render farm's
+    other users could not read what was written.
+    """
+    try:
+        return stat.S_IMODE(target.stat().st_mode)
+    except OSError:
+        pass
+    try:
+        with open("/proc/self/status") as fh:  # reads the umask without changing it
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return 0o666 & ~int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return 0o666 & ~mask
 
 
 def atomic_write(path: str | os.PathLike[str], write: Callable[[str], None], *, overwrite: bool = False) -> Path:
@@ -58,6 +81,7 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[str], None], *, 
     os.close(fd)
     try:
         write(tmp)
+        os.chmod(tmp, _new_file_mode(target))
         if overwrite:
             os.replace(tmp, target)
         else:
