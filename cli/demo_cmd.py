@@ -13,6 +13,7 @@ __all__ = ["register", "run"]
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``demo`` sub-parser to ``sub``."""
     p = sub.add_parser("demo", help="render the default scene, denoise, and compare with the reference",
                        description="Render a bundled scene uniformly and adaptively at the same average samples "
                                    "per pixel, reconstruct both, write EXR and PNG images under --out, and print "
@@ -30,6 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``awr demo``; returns the exit status (errors are raised and reported by ``main``)."""
     import numpy as np
 
     from awr_denoise import reconstruct

@@ -40,6 +40,7 @@ def reconstruction_kwargs(args: argparse.Namespace) -> dict:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``denoise`` sub-parser to ``sub``."""
     p = sub.add_parser("denoise", help="reconstruct a denoised image from a sample dump",
                        description="Reconstruct a denoised image from per-pixel sample statistics "
                                    "(wavelet soft thresholding by propagated standard error).")
@@ -100,6 +101,7 @@ def _denoise_one(args: argparse.Namespace, source: str, output: str, preview: st
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``awr denoise``; returns the exit status (errors are raised and reported by ``main``)."""
     if args.alb or args.nrm:
         raise UsageError("--alb/--nrm: wavelet reconstruction uses no feature guides; drop these options")
     if args.input and args.hdr:

@@ -12,6 +12,7 @@ METRICS = ("relmse", "mse", "psnr", "ssim")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``diff`` sub-parser to ``sub``."""
     p = sub.add_parser("diff", help="compare an image with a reference (MSE, relMSE, PSNR, SSIM)",
                        description="Error metrics of IMAGE against REF. With --maxerror, exit 1 when the chosen "
                                    "metric is worse than the bound (a golden-image check).")
@@ -27,6 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``awr diff``; returns the exit status (errors are raised and reported by ``main``)."""
     import numpy as np
 
     from awr_denoise import metrics

@@ -11,6 +11,7 @@ __all__ = ["register", "run", "describe"]
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``info`` sub-parser to ``sub``."""
     p = sub.add_parser("info", help="describe a sample dump, request map or EXR image",
                        description="Resolution, channels, layout, samples per pixel and bookkeeping of a file.")
     p.add_argument("input", metavar="FILE.exr")
@@ -64,6 +65,7 @@ def describe(path: str, args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``awr info``; returns the exit status (errors are raised and reported by ``main``)."""
     info = describe(args.input, args)
     if args.json:
         print_json(info)

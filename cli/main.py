@@ -69,7 +69,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except RuntimeFailure as exc:
         print(f"awr: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_FAILURE
-    except (InputFileError, UsageError, FileExistsError) as exc:
+    except (InputFileError, UsageError, FileExistsError, FileNotFoundError) as exc:
         print(f"awr: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_USAGE
     except (ValueError, TypeError) as exc:

@@ -10,6 +10,7 @@ __all__ = ["register", "run"]
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``merge`` sub-parser to ``sub``."""
     p = sub.add_parser("merge", help="merge batch dumps into the running dump (tell)",
                        description="Merge sample dumps with Chan's exact parallel update of count, mean and "
                                    "variance, and write the result in the awr dump layout. The first input is "
@@ -26,6 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``awr merge``; returns the exit status (errors are raised and reported by ``main``)."""
     import numpy as np
 
     from awr_denoise.errors import InputFileError

@@ -13,6 +13,7 @@ STRATEGIES = ("awr", "uniform", "variance")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``plan`` sub-parser to ``sub``."""
     p = sub.add_parser("plan", help="write the next request map (ask)",
                        description="Decide how many new samples each pixel gets and write them as a request "
                                    "map (counts, first_index) for an external renderer. Without a dump, plan "
@@ -53,6 +54,7 @@ def _sampler_class(name: str):
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``awr plan``; returns the exit status (errors are raised and reported by ``main``)."""
     from awr_denoise.io import read_sample_dump, write_request
 
     cls = _sampler_class(args.strategy)

@@ -76,6 +76,7 @@ def render_buffer(tracer: Any, scene: Any, *, spp: float, adaptive: bool, seed: 
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``render`` sub-parser to ``sub``."""
     p = sub.add_parser("render", help="render a bundled scene (uniform or adaptive) and denoise it",
                        description="Render a bundled scene with the built-in path tracer; write the sample dump, "
                                    "the denoised image and a PNG preview.")
@@ -103,6 +104,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``awr render``; returns the exit status (errors are raised and reported by ``main``)."""
     from awr_denoise import __version__, reconstruct
     from awr_denoise.io import write_image, write_preview, write_sample_buffer
     from awr_denoise.io.atomic import check_writable

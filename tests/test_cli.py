@@ -536,3 +536,13 @@ def test_deep_sample_dump_through_the_cli(tmp_path, capsys, rng):
     assert info["deep"] and info["preset"] == "deep" and info["total_samples"] == n
     assert main(["denoise", str(tmp_path / "s.exr"), "-o", str(tmp_path / "o.exr"), "-q"]) == 0
     assert read_image(tmp_path / "o.exr").shape == (H, W, 3)
+
+
+def test_help_version_and_missing_output_directory(tmp_path, capsys, rng):
+    assert main(["--version"]) == 0
+    assert "awr " in capsys.readouterr().out
+    assert main(["denoise", "--help"]) == 0
+    assert "--c-s" in capsys.readouterr().out
+    _dump(tmp_path / "d.exr", rng)
+    assert main(["denoise", str(tmp_path / "d.exr"), "-o", str(tmp_path / "no" / "o.exr"), "-q"]) == 2
+    _one_error_line(capsys, "does not exist")
