@@ -314,8 +314,7 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
         ``color``, ``variance``, ...).
     **reconstruct_options
         Keyword arguments of :func:`~awr_denoise.reconstruct` (``c_s``, ``wavelet``,
-        ``levels``, ``domain``, ``mode``, ``boundary``); ``executor`` is not accepted here,
-        each frame runs on one worker.
+        ``levels``, ``domain``, ``mode``, ``boundary``). Each frame runs on one worker.
 
     Returns
     -------
@@ -338,8 +337,6 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
     targets = [str(p) for p in outputs]
     if len(sources) != len(targets):
         raise ValueError(f"outputs: {len(targets)} given for {len(sources)} input(s)")
-    if "executor" in reconstruct_options:
-        raise TypeError("reconstruct_options: 'executor' runs the frames; pass it as denoise_frames(executor=...)")
     resolved = [Path(t).resolve() for t in targets]
     if len(set(resolved)) != len(resolved):
         raise ValueError("outputs: the same file is listed more than once")
