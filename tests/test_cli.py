@@ -100,7 +100,20 @@ def _truncated(p):
     p.write_bytes(data[: len(data) // 2])
 
 
+def _corrupt(p):
+    _truncated(p)
+    write_sample_buffer(p, SampleBuffer.from_moments(np.full((64, 64), 4), np.random.default_rng(0).random((64, 64, 3)),
+                                                     np.full((64, 64, 3), 0.1)), overwrite=True)
+    data = bytearray(p.read_bytes())
+    middle = len(data) // 2
+    data[middle:middle + 200] = bytes(b ^ 0x5A for b in data[middle:middle + 200])
+    p.write_bytes(bytes(data))
+
+
 BAD_INPUTS["truncated"] = (_truncated, ["truncated or corrupt"])
+BAD_INPUTS["corrupt"] = (_corrupt, ["truncated or corrupt"])
+BAD_INPUTS["garbage_after_magic"] = (lambda p: p.write_bytes(b"\x76\x2f\x31\x01" + bytes(range(256)) * 4),
+                                     ["truncated or corrupt"])
 
 
 @pytest.mark.parametrize("case", sorted(BAD_INPUTS))
