@@ -237,11 +237,12 @@ def test_bad_arguments_are_refused(rng, kwargs, error, message):
 
 
 # ---------------------------------------------------------------------------- quality
-def _quality(name, spp, seed, domain="log"):
+def _quality(name, spp, seed, **options):
+    """relMSE of the noisy mean and of reconstruct(**options) (defaults if none) at uniform spp."""
     scene = make_scene(name, QUALITY_SHAPE)
     reference = scene.reference()
     buf = SyntheticRenderer(scene, seed=seed)(SampleRequest.uniform(scene.shape, spp))
-    return relmse(buf.mean, reference), relmse(reconstruct(buf, domain=domain), reference)
+    return relmse(buf.mean, reference), relmse(reconstruct(buf, **options), reference)
 
 
 @pytest.mark.parametrize("spp", QUALITY_SPP)
