@@ -277,3 +277,13 @@ def test_linear_domain_is_available_and_fails_on_an_hdr_source(spp):
     # On a scene without a high dynamic range the linear domain works as the paper says.
     noisy, linear = _quality("gradient", spp, 0, domain="linear")
     assert noisy / linear > LARGE_FACTOR
+
+
+@pytest.mark.parametrize("spp", [4, 32])
+def test_robust_firefly_option_removes_heavy_tailed_outliers(spp):
+    """Samples 100x the mean: taking the domain's slope below isolated spikes smooths them away,
+    well beyond what the default (which lets a firefly's own mean shrink its variance) does."""
+    for seed in QUALITY_SEEDS:
+        noisy, default = _quality("fireflies", spp, seed)
+        _, robust = _quality("fireflies", spp, seed, domain=Domain("log", robust=True))
+        assert default / robust > LARGE_FACTOR
