@@ -52,9 +52,12 @@ def describe(path: str, args: argparse.Namespace) -> dict[str, Any]:
             return info
     dump = read_sample_dump(path, **plane_kwargs(args))
     buf = dump.buffer
+    preset = args.preset
+    if preset == "auto":
+        preset = "deep" if info["deep"] else detect_preset(info["channels"], header)
     info.update(
         kind="samples",
-        preset=args.preset if args.preset != "auto" else ("deep" if info["deep"] else detect_preset(info["channels"], header)),
+        preset=preset,
         buffer_channels=list(buf.channels), total_samples=buf.total_samples, spp=_stats(buf.count),
         pixels_without_samples=int((buf.count == 0).sum()),
         variance_unknown=int((~buf.variance_known & (buf.count >= 2)).sum()),
@@ -76,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
     if info["kind"] == "samples":
         s = info["spp"]
         print(f"  layout: {info['preset']}; buffer channels {', '.join(info['buffer_channels'])}")
-        print(f"  samples: {info['total_samples']} total, spp min {s['min']:g} / mean {s['mean']:.4g} / max {s['max']:g}; "
+        print(f"  samples: {info['total_samples']} total, "
+              f"spp min {s['min']:g} / mean {s['mean']:.4g} / max {s['max']:g}; "
               f"{info['pixels_without_samples']} pixel(s) without samples; "
               f"{info['variance_unknown']} with unknown variance; {info['nonfinite_dropped']} non-finite dropped")
     elif info["kind"] == "request":

@@ -230,7 +230,8 @@ def test_frame_pattern_denoise(tmp_path, rng, capsys):
     _one_error_line(capsys, "####")
     assert main(["denoise", str(tmp_path / "shot.####.exr"), "-o", str(tmp_path / "y.####.exr")]) == 2
     _one_error_line(capsys, "--frames")
-    assert main(["denoise", str(tmp_path / "shot.####.exr"), "--frames", "3-1", "-o", str(tmp_path / "y.####.exr")]) == 2
+    assert main(["denoise", str(tmp_path / "shot.####.exr"), "--frames", "3-1",
+                 "-o", str(tmp_path / "y.####.exr")]) == 2
     _one_error_line(capsys, "--frames")
 
 

@@ -162,7 +162,8 @@ def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list
     deep_types = {OpenEXR.deepscanline, OpenEXR.deeptile}
     parts: list[ExrPart] = []
     try:
-        with _captured_c_output() as captured, OpenEXR.File(os.fspath(p), separate_channels=True, header_only=header_only) as f:
+        with _captured_c_output() as captured, \
+                OpenEXR.File(os.fspath(p), separate_channels=True, header_only=header_only) as f:
             for i, part in enumerate(f.parts):
                 header = dict(f.header(i))
                 channels = {} if header_only else {name: ch.pixels for name, ch in f.channels(i).items()}
