@@ -61,7 +61,7 @@ def test_layer_prefixed_rgb_and_ambiguity(tmp_path):
 def test_nonfinite_refused_on_write(tmp_path, value, what):
     img = np.zeros((2, 2, 3))
     img[1, 1, 2] = value
-    with pytest.raises(ValueError, match="channel B"):
+    with pytest.raises(ValueError, match=r"n\.exr: B: .*NaN or Inf"):
         write_image(tmp_path / "n.exr", img)
     assert os.listdir(tmp_path) == []
 

@@ -122,6 +122,8 @@ def _captured_c_output() -> Iterator[_Captured]:
 
     OpenEXR reports corrupt chunks by printing (and then returning no parts); a command-line
     user must see one clean error line, so the text is captured and folded into the error.
+    The redirection is process-wide for the duration of one read: output of other threads
+    in that window lands in the capture too.
     """
     captured = _Captured()
     sys.stdout.flush()
@@ -407,13 +409,14 @@ def write_image(path: str | os.PathLike[str], image: np.ndarray, *,
     bad = ~np.isfinite(data)
     if bad.any():
         c = int(np.nonzero(bad.any(axis=(0, 1)))[0][0])
-        raise ValueError(f"image: channel {names[c]}: {int(bad[..., c].sum())} pixel(s) hold NaN or Inf")
+        raise ValueError(f"{os.fspath(path)}: {names[c]}: image has {int(bad[..., c].sum())} pixel(s) "
+                         "holding NaN or Inf")
     if half:
         over = np.abs(data) > HALF_MAX
         if over.any():
             c = int(np.nonzero(over.any(axis=(0, 1)))[0][0])
-            raise ValueError(f"image: channel {names[c]}: {int(over[..., c].sum())} pixel(s) exceed the "
-                             f"half-float range {HALF_MAX:g} (write with half=False)")
+            raise ValueError(f"{os.fspath(path)}: {names[c]}: image has {int(over[..., c].sum())} pixel(s) beyond "
+                             f"the half-float range {HALF_MAX:g} (write FLOAT channels: half=False)")
     dtype = np.float16 if half else np.float32
     planes = {name: np.ascontiguousarray(data[..., i].astype(dtype)) for i, name in enumerate(names)}
     attrs: dict[str, Any] = {"awr:version": __version__}
