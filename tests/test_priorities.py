@@ -72,7 +72,7 @@ def test_error_plane_fills_empty_pixels_and_refuses_an_empty_buffer(rng):
 
 
 # ---------------------------------------------------------------------------- priorities
-def test_priorities_layout(rng):
+def test_priorities_layout():
     _, buf = _scene_buffer("edges")
     ops = wavelet_operators(SHAPE)
     prio = coefficient_priorities(buf, operators=ops)

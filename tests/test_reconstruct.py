@@ -284,6 +284,6 @@ def test_robust_firefly_option_removes_heavy_tailed_outliers(spp):
     """Samples 100x the mean: taking the domain's slope below isolated spikes smooths them away,
     well beyond what the default (which lets a firefly's own mean shrink its variance) does."""
     for seed in QUALITY_SEEDS:
-        noisy, default = _quality("fireflies", spp, seed)
+        _, default = _quality("fireflies", spp, seed)
         _, robust = _quality("fireflies", spp, seed, domain=Domain("log", robust=True))
         assert default / robust > LARGE_FACTOR
