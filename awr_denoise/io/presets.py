@@ -208,6 +208,161 @@ def _kind(value: str | None, default: str) -> str:
     return kind
 
 
+@dataclass
+class _Context:
+    """One read: the main file, the options, and the files opened so far (planes may name others)."""
+
+    path: Path
+    file: _File
+    color: str | None
+    variance: str | None
+    count: str | None
+    variance_kind: str | None
+    spp: int | None
+    layer: str | None
+    opened: dict[Path, _File]
+
+    def plane(self, spec: str, *, colour: bool = False, what: str) -> _Plane:
+        file_path, name = parse_plane(spec, self.path)
+        return _open(file_path, self.opened).plane(name, colour=colour, what=what)
+
+    def count_plane(self) -> tuple[_Plane, np.ndarray] | None:
+        """The ``count=`` plane and its whole counts, if one was given."""
+        if self.count is None:
+            return None
+        counts = self.plane(self.count, what="count")
+        if len(counts.channels) != 1:
+            raise file_error(counts.path, f"a count plane has one channel, found {len(counts.channels)}",
+                             counts.label)
+        return counts, whole_counts(counts.path, counts.channels[0], counts.arrays[0])
+
+
+@dataclass
+class _Layout:
+    """Where a preset found the statistics."""
+
+    colour: _Plane
+    spread: _Plane
+    kind: str
+    count: np.ndarray
+    count_plane: _Plane | None = None
+    known: np.ndarray | None = None
+
+
+def _pbrt(ctx: _Context) -> _Layout:
+    colour = ctx.plane(ctx.color or "RGB", colour=True, what="colour")
+    spread = ctx.plane(ctx.variance or "Variance", what="variance")
+    # pbrt writes 0 where it has no estimate (environment-only pixels): unknown, not converged.
+    known = ~(_values(spread, nonnegative=True) == 0).all(axis=-1)
+    given = ctx.count_plane()
+    if given is not None:
+        return _Layout(colour, spread, _kind(ctx.variance_kind, "sample"), given[1], given[0], known)
+    n = _header_int(ctx.path, ctx.file.header, "samplesPerPixel")
+    if ctx.spp is not None or n is None:
+        cnt = _spp_counts(ctx.path, ctx.spp, colour.shape, "no samplesPerPixel header attribute")
+    else:
+        cnt = np.full(colour.shape, n, np.int64)
+    return _Layout(colour, spread, _kind(ctx.variance_kind, "sample"), cnt, None, known)
+
+
+def _cycles_layer(ctx: _Context) -> str:
+    layers = sorted({m.group(1) for c in ctx.file.channels if (m := re.fullmatch(r"([^.]+)\.Combined\.[RGB]", c))})
+    if ctx.layer is not None:
+        if ctx.layer not in layers:
+            raise file_error(ctx.path, f"no such layer (layers with a Combined pass: {', '.join(layers) or 'none'})",
+                             f"{ctx.layer}.Combined")
+        return ctx.layer
+    if len(layers) == 1:
+        return layers[0]
+    if not layers:
+        raise file_error(ctx.path, "no <layer>.Combined.R/G/B channels", "Combined")
+    raise file_error(ctx.path, f"ambiguous: several view layers ({', '.join(layers)}); choose one with "
+                               "layer= / --layer", "Combined")
+
+
+def _cycles(ctx: _Context) -> _Layout:
+    layer = _cycles_layer(ctx)
+    colour = ctx.plane(ctx.color or f"{layer}.Combined", colour=True, what="colour")
+    if ctx.variance is None:
+        raise file_error(ctx.path, "Blender Cycles writes no variance pass; render one as an AOV and pass it "
+                                   "with variance= / --variance PLANE (and --variance-kind)", f"{layer}.Combined")
+    spread = ctx.plane(ctx.variance, what="variance")
+    kind = _kind(ctx.variance_kind, "sample")
+    given = ctx.count_plane()
+    if given is not None:
+        return _Layout(colour, spread, kind, given[1], given[0])
+    samples = _header_int(ctx.path, ctx.file.header, f"cycles.{layer}.samples")
+    debug_name = f"{layer}.Debug Sample Count"
+    if debug_name not in ctx.file.channels and f"{debug_name}.X" not in ctx.file.channels:
+        n = samples if ctx.spp is None else int(ctx.spp)
+        cnt = _spp_counts(ctx.path, n, colour.shape, f"no Debug Sample Count pass, no cycles.{layer}.samples")
+        return _Layout(colour, spread, kind, cnt)
+    counts = ctx.plane(debug_name, what="count")
+    if samples is None and ctx.spp is None:
+        raise file_error(ctx.path, f"the sample count pass is normalised but the header has no "
+                                   f"cycles.{layer}.samples; pass spp= / --spp N", counts.channels[0])
+    # Cycles stores count / samples; cycles-merge multiplies back by the header value.
+    scale = samples if ctx.spp is None else int(ctx.spp)
+    raw = checked_plane(ctx.path, counts.channels[0], counts.arrays[0], nonnegative=True) * scale
+    if (np.abs(raw - np.rint(raw)) > 1e-2).any():
+        raise file_error(ctx.path, f"normalised counts times {scale} are not whole numbers", counts.channels[0])
+    return _Layout(colour, spread, kind, np.rint(raw).astype(np.int64), counts)
+
+
+def _renderman(ctx: _Context) -> _Layout:
+    color = ctx.color
+    if color is None:
+        color = "Ci" if any(c == "Ci" or c.startswith("Ci.") for c in ctx.file.channels) else "RGB"
+    colour = ctx.plane(color, colour=True, what="colour")
+    spread = ctx.plane(ctx.variance or "mse", what="variance")
+    kind = _kind(ctx.variance_kind, "mean")
+    if ctx.count is None and COUNT_CHANNEL in ctx.file.channels:
+        ctx.count = COUNT_CHANNEL
+    given = ctx.count_plane()
+    if given is not None:
+        return _Layout(colour, spread, kind, given[1], given[0])
+    return _Layout(colour, spread, kind, _spp_counts(ctx.path, ctx.spp, colour.shape, f"no {COUNT_CHANNEL} channel"))
+
+
+def _mitsuba(ctx: _Context) -> _Layout:
+    variance = ctx.variance
+    if variance is None:
+        m2 = sorted({c.rsplit(".", 1)[0] if "." in c else c for c in ctx.file.channels if c.startswith("m2_")})
+        if not m2:
+            raise file_error(ctx.path, "no m2_<name> second-moment channels (Mitsuba 3 moment integrator)", "m2_*")
+        if len(m2) > 1 and ctx.color is None:
+            raise file_error(ctx.path, f"ambiguous: several second moments ({', '.join(m2)}); choose with "
+                                       "color=/variance=", "m2_*")
+        variance = m2[0]
+    colour = ctx.plane(ctx.color or variance[len("m2_"):], colour=True, what="colour")
+    spread = ctx.plane(variance, what="second moment")
+    if len(spread.channels) > len(colour.channels):  # an alpha moment has no colour counterpart
+        k = len(colour.channels)
+        spread = _Plane(spread.path, spread.channels[:k], spread.arrays[:k])
+    kind = _kind(ctx.variance_kind, "second_moment")
+    given = ctx.count_plane()
+    if given is not None:
+        return _Layout(colour, spread, kind, given[1], given[0])
+    cnt = _spp_counts(ctx.path, ctx.spp, colour.shape, "Mitsuba 3 writes no per-pixel sample count")
+    return _Layout(colour, spread, kind, cnt)
+
+
+def _generic(ctx: _Context) -> _Layout:
+    colour = ctx.plane(ctx.color or "RGB", colour=True, what="colour")
+    if ctx.variance is None:
+        raise file_error(ctx.path, "no variance plane given (variance= / --variance PLANE)", colour.label)
+    spread = ctx.plane(ctx.variance, what="variance")
+    kind = _kind(ctx.variance_kind, "sample")
+    given = ctx.count_plane()
+    if given is not None:
+        return _Layout(colour, spread, kind, given[1], given[0])
+    return _Layout(colour, spread, kind, _spp_counts(ctx.path, ctx.spp, colour.shape, "no count= plane"))
+
+
+_READERS = {"pbrt": _pbrt, "cycles": _cycles, "renderman": _renderman, "mitsuba": _mitsuba,
+            "generic": _generic, "awr": _generic}
+
+
 def read_sample_dump(
     path: str | os.PathLike[str] | None,
     *,
@@ -219,12 +374,19 @@ def read_sample_dump(
     spp: int | None = None,
     layer: str | None = None,
 ) -> SampleDump:
-    """Read sample statistics with their bookkeeping (see :func:`read_sample_buffer`)."""
+    """Read sample statistics with their bookkeeping (see :func:`read_sample_buffer`).
+
+    Returns
+    -------
+    SampleDump
+        ``.buffer``; ``.issued`` (samples handed out per pixel: the awr layout's
+        ``issuedCount``, else the count); ``.attributes`` (the ``awr:*`` header of an awr
+        dump, empty for other layouts).
+    """
     if preset not in PRESETS:
         raise ValueError(f"preset: {preset!r} is not one of {', '.join(sorted(PRESETS))}")
     if variance_kind is not None:
         _kind(variance_kind, "sample")
-    opened: dict[Path, _File] = {}
     if path is None:
         if color is None:
             raise ValueError("path: give an input file or a color plane as file.exr:plane")
@@ -241,129 +403,22 @@ def read_sample_dump(
     f = _File(p, parts)
     if not f.channels:
         raise file_error(p, "has no flat channels")
-    opened[p.resolve()] = f
     if preset == "auto":
         preset = "generic" if color is not None else detect_preset(list(f.channels), f.header)
     if preset == "generic" and color is None and variance is None and count is None:
         raise file_error(p, "cannot detect the layout (channels: " + ", ".join(sorted(f.channels))
                          + "); choose a preset or give color=/variance=/count= (--color/--variance/--count)")
-
     if preset == "awr" and color is None and variance is None:
         flat = [part for part in parts if not part.deep and COUNT_CHANNEL in part.channels]
         if not flat:
             raise file_error(p, "missing (not in the awr dump layout)", COUNT_CHANNEL)
         return buffer_from_awr_part(p, flat[0], variance_kind=variance_kind)
-
-    def plane(spec: str, *, colour: bool = False, what: str) -> _Plane:
-        file_path, name = parse_plane(spec, p)
-        return _open(file_path, opened).plane(name, colour=colour, what=what)
-
-    known = None
-    if preset == "pbrt":
-        colour = plane(color or "RGB", colour=True, what="colour")
-        spread = plane(variance or "Variance", what="variance")
-        kind = _kind(variance_kind, "sample")
-        n = _header_int(p, f.header, "samplesPerPixel")
-        counts = (plane(count, what="count") if count else None)
-        if counts is not None:
-            cnt = whole_counts(counts.path, counts.channels[0], counts.arrays[0])
-        elif spp is not None or n is None:
-            cnt = _spp_counts(p, spp, colour.shape, "no samplesPerPixel header attribute")
-        else:
-            cnt = np.full(colour.shape, n, np.int64)
-        # pbrt writes 0 where it has no estimate (environment-only pixels): unknown, not converged.
-        known = ~(_values(spread, nonnegative=True) == 0).all(axis=-1)
-        planes = [colour, spread] + ([counts] if counts is not None else [])
-    elif preset == "cycles":
-        layers = sorted({m.group(1) for c in f.channels if (m := re.fullmatch(r"([^.]+)\.Combined\.[RGB]", c))})
-        if layer is not None:
-            if layer not in layers:
-                raise file_error(p, f"no such layer (layers with a Combined pass: {', '.join(layers) or 'none'})",
-                                 f"{layer}.Combined")
-        elif len(layers) == 1:
-            layer = layers[0]
-        elif not layers:
-            raise file_error(p, "no <layer>.Combined.R/G/B channels", "Combined")
-        else:
-            raise file_error(p, f"ambiguous: several view layers ({', '.join(layers)}); choose one with "
-                                "layer= / --layer", "Combined")
-        colour = plane(color or f"{layer}.Combined", colour=True, what="colour")
-        if variance is None:
-            raise file_error(p, "Blender Cycles writes no variance pass; render one as an AOV and pass it "
-                                "with variance= / --variance PLANE (and --variance-kind)", f"{layer}.Combined")
-        spread = plane(variance, what="variance")
-        kind = _kind(variance_kind, "sample")
-        samples = _header_int(p, f.header, f"cycles.{layer}.samples")
-        debug_name = f"{layer}.Debug Sample Count"
-        if count is not None:
-            counts = plane(count, what="count")
-            cnt = whole_counts(counts.path, counts.channels[0], counts.arrays[0])
-            planes = [colour, spread, counts]
-        elif debug_name in f.channels or f"{debug_name}.X" in f.channels:
-            counts = plane(debug_name, what="count")
-            if samples is None and spp is None:
-                raise file_error(p, f"the sample count pass is normalised but the header has no "
-                                    f"cycles.{layer}.samples; pass spp= / --spp N", counts.channels[0])
-            scale = samples if spp is None else int(spp)
-            raw = checked_plane(p, counts.channels[0], counts.arrays[0], nonnegative=True) * scale
-            if (np.abs(raw - np.rint(raw)) > 1e-2).any():
-                raise file_error(p, f"normalised counts times {scale} are not whole numbers", counts.channels[0])
-            cnt = np.rint(raw).astype(np.int64)
-            planes = [colour, spread, counts]
-        else:
-            n = samples if spp is None else int(spp)
-            cnt = _spp_counts(p, n, colour.shape, f"no Debug Sample Count pass, no cycles.{layer}.samples")
-            planes = [colour, spread]
-    elif preset == "renderman":
-        if color is None:
-            color = "Ci" if any(c == "Ci" or c.startswith("Ci.") for c in f.channels) else "RGB"
-        colour = plane(color, colour=True, what="colour")
-        spread = plane(variance or "mse", what="variance")
-        kind = _kind(variance_kind, "mean")
-        counts = plane(count or COUNT_CHANNEL, what="count") if (count or COUNT_CHANNEL in f.channels) else None
-        if counts is not None:
-            cnt = whole_counts(counts.path, counts.channels[0], counts.arrays[0])
-        else:
-            cnt = _spp_counts(p, spp, colour.shape, f"no {COUNT_CHANNEL} channel")
-        planes = [colour, spread] + ([counts] if counts is not None else [])
-    elif preset == "mitsuba":
-        if variance is None:
-            m2 = sorted({c.rsplit(".", 1)[0] if "." in c else c for c in f.channels if c.startswith("m2_")})
-            if not m2:
-                raise file_error(p, "no m2_<name> second-moment channels (Mitsuba 3 moment integrator)", "m2_*")
-            if len(m2) > 1 and color is None:
-                raise file_error(p, f"ambiguous: several second moments ({', '.join(m2)}); choose with "
-                                    "color=/variance=", "m2_*")
-            variance = m2[0]
-        colour = plane(color or variance[len("m2_"):], colour=True, what="colour")
-        spread = plane(variance, what="second moment")
-        if len(spread.channels) > len(colour.channels):
-            spread = _Plane(spread.path, spread.channels[:len(colour.channels)], spread.arrays[:len(colour.channels)])
-        kind = _kind(variance_kind, "second_moment")
-        counts = plane(count, what="count") if count else None
-        if counts is not None:
-            cnt = whole_counts(counts.path, counts.channels[0], counts.arrays[0])
-        else:
-            cnt = _spp_counts(p, spp, colour.shape, "Mitsuba 3 writes no per-pixel sample count")
-        planes = [colour, spread] + ([counts] if counts is not None else [])
-    else:  # generic, or awr with explicit planes
-        colour = plane(color or "RGB", colour=True, what="colour")
-        if variance is None:
-            raise file_error(p, "no variance plane given (variance= / --variance PLANE)", colour.label)
-        spread = plane(variance, what="variance")
-        kind = _kind(variance_kind, "sample")
-        if count is not None:
-            counts = plane(count, what="count")
-            if len(counts.channels) != 1:
-                raise file_error(counts.path, f"a count plane has one channel, found {len(counts.channels)}",
-                                 counts.label)
-            cnt = whole_counts(counts.path, counts.channels[0], counts.arrays[0])
-            planes = [colour, spread, counts]
-        else:
-            cnt = _spp_counts(p, spp, colour.shape, "no count= plane")
-            planes = [colour, spread]
+    ctx = _Context(p, f, color, variance, count, variance_kind, spp, layer, {p.resolve(): f})
+    layout = _READERS[preset](ctx)
+    planes = [layout.colour, layout.spread] + ([layout.count_plane] if layout.count_plane is not None else [])
     _check_shapes(planes)
-    return SampleDump(_assemble(p, cnt, colour, spread, kind, known), cnt, {})
+    buffer = _assemble(p, layout.count, layout.colour, layout.spread, layout.kind, layout.known)
+    return SampleDump(buffer, layout.count, {})
 
 
 def read_sample_buffer(
