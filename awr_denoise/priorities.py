@@ -147,7 +147,8 @@ def sampling_density(
     """
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     plane = error_plane(buffer, domain)
-    s2_pooled = ndimage.uniform_filter(plane[2], 3, mode="nearest")
+    # The running-sum filter can leave -1e-17-sized residues next to large values: clip them.
+    s2_pooled = np.maximum(ndimage.uniform_filter(plane[2], 3, mode="nearest"), 0.0)
     if level_weight == 0:
         return np.sqrt(s2_pooled)
     prio = coefficient_priorities(buffer, domain=domain, operators=ops, plane=plane)

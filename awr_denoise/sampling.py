@@ -76,7 +76,10 @@ def allocate(density: FloatArray, current: CountArray, budget: int, *,
     if budget == 0:
         return out
     cap = np.full(shape, np.inf) if capacity is None else np.maximum(capacity, 0).astype(np.float64)
-    total_cap = cap.sum()
+    # Integer capacities, summed exactly (a float64 sum rounds above 2**53).
+    cap_int = (np.full(shape, _MAX_BUDGET, np.int64) if capacity is None
+               else np.minimum(np.maximum(np.asarray(capacity), 0), _MAX_BUDGET).astype(np.int64))
+    total_cap = cap.sum() if capacity is None else int(cap_int.sum())
     if budget > total_cap:
         raise ValueError(f"budget: {budget} samples exceed the {int(total_cap)} that spp_max still allows")
     a = np.nan_to_num(np.asarray(density, dtype=np.float64), nan=0.0, posinf=0.0)
@@ -108,6 +111,8 @@ def allocate(density: FloatArray, current: CountArray, budget: int, *,
         lo, f_lo = hi, f_hi
         hi *= 2.0
         f_hi = spent(hi) - budget
+        if f_hi <= f_lo:  # saturated at capacity: a float64 sum above 2**53 can fall short by rounding
+            break
     side = 0
     # Rounding to integers below settles any residual, so stop within 0.1% of the budget.
     tolerance = max(0.5, 1e-3 * budget)
@@ -135,8 +140,8 @@ def allocate(density: FloatArray, current: CountArray, budget: int, *,
     jitter = rng.random(shape).ravel() * 1e-6  # tie-break equal remainders without bias toward low indices
     # Integer arithmetic from here on: the search stops within 0.1% of the budget and float64
     # cannot hold every count above 2**53, so the residual may exceed the number of pixels.
-    flat_base = floor_m.ravel().astype(np.int64)
-    flat_cap = np.where(np.isfinite(cap), np.minimum(cap, float(_MAX_BUDGET)), float(_MAX_BUDGET)).ravel().astype(np.int64)
+    flat_base = np.minimum(np.minimum(floor_m, float(_MAX_BUDGET)).ravel().astype(np.int64), cap_int.ravel())
+    flat_cap = cap_int.ravel()
     left = budget - int(flat_base.sum())
     while left > 0:
         room = flat_cap - flat_base
@@ -435,7 +440,8 @@ class VarianceSampler(Sampler):
     def _density(self) -> FloatArray:
         _, _, s2_y = error_plane(self._buffer, self.domain)
         from scipy import ndimage
-        return np.sqrt(ndimage.uniform_filter(s2_y, 3, mode="nearest"))
+        # The running-sum filter can leave -1e-17-sized residues next to large values.
+        return np.sqrt(np.maximum(ndimage.uniform_filter(s2_y, 3, mode="nearest"), 0.0))
 
     def _allocate(self, budget, current, capacity, rng):
         return _mixed(self._density(), budget, current, capacity, rng, self.uniform_fraction)

@@ -12,7 +12,7 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from awr_denoise import AdaptiveSampler, Domain, SampleBuffer, UniformSampler, allocate, reconstruct
+from awr_denoise import AdaptiveSampler, Domain, SampleBuffer, UniformSampler, VarianceSampler, allocate, reconstruct
 from awr_denoise.reconstruct import reconstruct_detailed
 from awr_denoise.wavelets import max_levels
 
@@ -135,3 +135,37 @@ class TestFloatLimits:
     def test_linear_finite_at_1e307(self):
         buf = SampleBuffer.from_moments(np.full((8, 8), 4), np.full((8, 8, 1), 1e307), np.ones((8, 8, 1)))
         assert np.isfinite(reconstruct(buf, domain="linear")).all()
+
+
+class TestSamplerHostileStatistics:
+    """Regressions found by test_robust_properties.py."""
+
+    def test_density_with_huge_variance_next_to_tiny_is_finite(self):
+        # uniform_filter's running sum leaves ~-1e-17 residues beside a 1e20 variance; their
+        # square root was NaN (a RuntimeWarning, and a pixel silently given density 0).
+        from awr_denoise.priorities import sampling_density
+
+        rng = np.random.default_rng(0)
+        h, w = (int(s) for s in rng.integers(3, 12, 2))
+        var = np.zeros((h, w, 1))
+        var[rng.integers(h), rng.integers(w)] = 10 ** rng.uniform(0, 30)
+        var[rng.random((h, w, 1)) < 0.3] = rng.random() * 10 ** rng.uniform(-30, 0)
+        buf = SampleBuffer.from_moments(np.full((h, w), 4), rng.random((h, w, 1)), var)
+        for domain in ("linear", "log"):
+            density = sampling_density(buf, domain=domain)
+            assert np.isfinite(density).all() and (density >= 0).all()
+        for cls in (AdaptiveSampler, VarianceSampler):
+            sampler = cls.from_buffer(buf, domain="linear")
+            assert sampler.ask(500).total == 500
+
+    def test_budget_equal_to_a_capacity_above_2_53_does_not_hang(self):
+        # The float64 sum of the capacities rounds below the exact integer budget, so the
+        # bracket doubling never reached it (a hang without -W error, an overflow with it).
+        rng = np.random.default_rng(766)
+        capacity = rng.integers(0, 2**50 + 1, (7, 7))
+        budget = int(capacity.sum())
+        assert float(capacity.astype(np.float64).sum()) != budget  # the float sum is short
+        out = allocate(np.ones((7, 7)), np.zeros((7, 7), np.int64), budget, capacity=capacity)
+        assert int(out.sum()) == budget and (out <= capacity).all()
+        with pytest.raises(ValueError, match="spp_max"):
+            allocate(np.ones((7, 7)), np.zeros((7, 7), np.int64), budget + 1, capacity=capacity)
