@@ -131,3 +131,24 @@ def test_written_files_get_ordinary_permissions(tmp_path):
     os.chmod(tmp_path / "a.exr", 0o600)
     write_image(tmp_path / "a.exr", np.ones((2, 2, 3)), overwrite=True)
     assert (tmp_path / "a.exr").stat().st_mode & 0o777 == 0o600  # a replaced file keeps its mode
+
+
+def test_threaded_reads_keep_stdout(tmp_path, capfd):
+    # Reads redirect the C streams to catch OpenEXR's messages; threads must not lose stdout.
+    from concurrent.futures import ThreadPoolExecutor
+
+    write_image(tmp_path / "a.exr", np.random.default_rng(2).random((64, 64, 3)))
+    data = (tmp_path / "a.exr").read_bytes()
+    (tmp_path / "t.exr").write_bytes(data[: len(data) // 2])
+
+    def read(i):
+        try:
+            return read_image(tmp_path / ("t.exr" if i % 2 else "a.exr")).shape
+        except InputFileError:
+            return None
+
+    with ThreadPoolExecutor(4) as pool:
+        results = list(pool.map(read, range(40)))
+    assert results.count(None) == 20
+    os.write(1, b"still here\n")
+    assert "still here" in capfd.readouterr().out

@@ -16,6 +16,7 @@ import contextlib
 import os
 import sys
 import tempfile
+import threading
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -116,20 +117,25 @@ class _Captured:
     text: str = ""
 
 
+_CAPTURE_LOCK = threading.Lock()
+
+
 @contextlib.contextmanager
 def _captured_c_output() -> Iterator[_Captured]:
     """Collect what the C++ library prints on stdout/stderr instead of letting it through.
 
     OpenEXR reports corrupt chunks by printing (and then returning no parts); a command-line
     user must see one clean error line, so the text is captured and folded into the error.
-    The redirection is process-wide for the duration of one read: output of other threads
-    in that window lands in the capture too.
+    The redirection is process-wide, so reads are serialised by a lock: two threads
+    redirecting at once would restore each other's sink and lose stdout for good (frames
+    are read in threads by :func:`awr_denoise.parallel.denoise_frames`). Output of other
+    threads during a read lands in the capture too.
     """
     captured = _Captured()
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = [os.dup(1), os.dup(2)]
-    with tempfile.TemporaryFile() as sink:
+    with _CAPTURE_LOCK, tempfile.TemporaryFile() as sink:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        saved = [os.dup(1), os.dup(2)]
         try:
             os.dup2(sink.fileno(), 1)
             os.dup2(sink.fileno(), 2)
