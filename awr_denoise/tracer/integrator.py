@@ -297,16 +297,26 @@ class PathTracer:
             # A shading normal facing away from the viewer would make the surface black.
             bad_shading = dot(n_sh, wo) <= 0
             n_sh[bad_shading] = n_geo[bad_shading]
-            material_index = accel.object_material[obj]
+            # Emitters reflect nothing: their paths end here (material -1 sorts first, skipped).
+            material_index = np.where(np.any(emission > 0, axis=1), -1, accel.object_material[obj])
+            # Sort hits by material once, so each material below works on contiguous slices
+            # instead of masking every array once per material.
+            order = np.argsort(material_index, kind="stable")
+            material_index = material_index[order]
+            p, n_geo, n_sh, p_object, wo = p[order], n_geo[order], n_sh[order], p_object[order], wo[order]
+            hp, hbeta, hdepth, hsdepth, h_time = hp[order], hbeta[order], hdepth[order], hsdepth[order], h_time[order]
+            materials_present = np.unique(material_index)
+            starts = np.searchsorted(material_index, materials_present, side="left")
+            ends = np.searchsorted(material_index, materials_present, side="right")
 
             shadow_o, shadow_d, shadow_dist, shadow_time, shadow_target, shadow_value = [], [], [], [], [], []
             next_o, next_d, next_path, next_beta, next_spec, next_pdf, next_depth, next_sdepth = ([] for _ in range(8))
 
-            for m in np.unique(material_index):
-                material = scene.materials[m]
-                sel = (material_index == m) & ~np.any(emission > 0, axis=1)
-                if not sel.any():
+            for m, lo, hi in zip(materials_present, starts, ends):
+                if m < 0:
                     continue
+                material = scene.materials[m]
+                sel = slice(lo, hi)
                 s_p, s_ng, s_ns, s_wo = p[sel], n_geo[sel], n_sh[sel], wo[sel]
                 s_path, s_beta, s_depth, s_sdepth = hp[sel], hbeta[sel], hdepth[sel], hsdepth[sel]
                 s_time = h_time[sel]
