@@ -25,7 +25,7 @@ from .buffers import SampleBuffer, luminance_weights
 from .domains import Domain, resolve_domain
 from .wavelets import coefficient_variance, forward, inverse, wavelet_operators
 
-__all__ = ["reconstruct", "reconstruct_detailed", "Reconstruction", "MODES", "DEFAULT_DOMAIN"]
+__all__ = ["reconstruct", "reconstruct_detailed", "Reconstruction", "MODES", "DEFAULT_DOMAIN", "DEFAULT_PIXEL_CLAMP"]
 
 MODES = ("channels", "luminance")
 """``"channels"``: each channel thresholded with its own Delta; ``"luminance"``: thresholds
@@ -33,6 +33,9 @@ decided on luminance, the same shrink factor applied to every channel (hue-prese
 
 DEFAULT_DOMAIN = "log"
 """Default thresholding domain; chosen by measurement (docs/reconstruction.md)."""
+
+DEFAULT_PIXEL_CLAMP = 2.5
+"""Default pixel confidence clamp in standard errors; chosen by measurement (docs/reconstruction.md)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -170,6 +173,7 @@ def reconstruct_detailed(
     mode: str = "channels",
     boundary: str = "symmetric",
     executor: Executor | None = None,
+    pixel_clamp: float | None = DEFAULT_PIXEL_CLAMP,
     variance_probes: int = 16,
     seed: int = 0,
 ) -> Reconstruction:
@@ -197,6 +201,13 @@ def reconstruct_detailed(
     executor
         Optional ``concurrent.futures.Executor`` over which the channels are processed
         (numpy, scipy and PyWavelets release the GIL, so threads help).
+    pixel_clamp
+        Keep every output pixel within ``pixel_clamp`` standard errors of its own mean, in the
+        thresholding domain: Eq. 11 picks each *coefficient* inside its confidence interval,
+        and this asks the same of each *pixel*. It stops the blur of a bright edge from
+        leaking into dark pixels whose means are precise (their error is judged relatively),
+        which otherwise made a small HDR source worse than the plain mean. ``None`` gives the
+        paper's reconstruction unchanged. Default 2.5, see docs/reconstruction.md.
     variance_probes
         Random probes used to estimate :attr:`Reconstruction.variance`; each costs one
         transform pair per channel. ``0`` skips the estimate (the variance is then NaN).
@@ -212,13 +223,18 @@ def reconstruct_detailed(
     The output variance is that of the reconstruction linearised around its result: the shrink
     factor of every coefficient is held fixed (soft thresholding has slope 1 where it keeps a
     coefficient, 0 where it zeroes one), its variance is estimated without bias by random
-    probes, and the domain is undone by the delta method. It ignores the bias of thresholding.
+    probes, and the domain is undone by the delta method. It ignores the bias of thresholding
+    and the pixel clamp.
     """
     if not isinstance(buffer, SampleBuffer):
         raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
     if mode not in MODES:
         raise ValueError(f"mode: {mode!r} is not one of {', '.join(MODES)}")
     c_s = _check_c_s(c_s)
+    if pixel_clamp is not None and not (isinstance(pixel_clamp, (int, float, np.floating, np.integer))
+                                        and not isinstance(pixel_clamp, bool) and pixel_clamp >= 0
+                                        and np.isfinite(pixel_clamp)):
+        raise ValueError(f"pixel_clamp: must be None or a finite number >= 0, got {pixel_clamp!r}")
     if isinstance(variance_probes, bool) or not isinstance(variance_probes, (int, np.integer)) or variance_probes < 0:
         raise ValueError(f"variance_probes: must be an integer >= 0, got {variance_probes!r}")
     dom = resolve_domain(domain)
@@ -243,7 +259,19 @@ def reconstruct_detailed(
 
     results = run(one_channel, range(n_ch))
     image_y = np.stack([inverse(r.coeffs, buffer.shape, wavelet=wavelet, boundary=boundary) for r in results], axis=-1)
+    if pixel_clamp is not None and mode == "channels":
+        reach = pixel_clamp * np.sqrt(var_y)
+        image_y = np.clip(image_y, y - reach, y + reach)
     image = bound.inverse(image_y)
+    if pixel_clamp is not None and mode == "luminance":
+        # Clamp luminance to its own interval and scale every channel alike: hue is kept.
+        lum_y, lum_var_y = bound.forward(lum), bound.variance(lum, lum_var)
+        lum_out = image @ weights
+        reach = pixel_clamp * np.sqrt(lum_var_y)
+        lum_new = bound.inverse(np.clip(bound.forward(lum_out), lum_y - reach, lum_y + reach))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(lum_out != 0, lum_new / np.where(lum_out != 0, lum_out, 1.0), 1.0)
+        image = image * ratio[..., None]
     if not np.isfinite(image).all():
         # Only reachable with means near the float64 limit (~1.8e308) in the linear domain,
         # where the transform's gain of up to 2 per level overflows.
@@ -273,6 +301,7 @@ def reconstruct(
     mode: str = "channels",
     boundary: str = "symmetric",
     executor: Executor | None = None,
+    pixel_clamp: float | None = DEFAULT_PIXEL_CLAMP,
 ) -> FloatArray:
     """Denoise the pixel means by variance-weighted wavelet soft thresholding (Eq. 10-11).
 
@@ -292,4 +321,4 @@ def reconstruct(
     """
     return reconstruct_detailed(buffer, c_s=c_s, wavelet=wavelet, levels=levels, domain=domain,
                                 mode=mode, boundary=boundary, executor=executor,
-                                variance_probes=0).image
+                                pixel_clamp=pixel_clamp, variance_probes=0).image
