@@ -174,6 +174,8 @@ def _jsonable(value: Any) -> Any:
 
 
 def status(message: str, *, quiet: bool) -> None:
-    """A progress note on stderr (stdout is kept for results)."""
+    """A progress note on stderr (stdout is kept for results), printed above any progress bar."""
     if not quiet:
-        print(message, file=sys.stderr)
+        from tqdm.auto import tqdm
+
+        tqdm.write(message, file=sys.stderr)
