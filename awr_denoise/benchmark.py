@@ -837,7 +837,7 @@ def _write_figures(results: dict[str, Any], images: dict[str, Any], img_dir: Pat
 
     # Side-by-side crops at the headline spp.
     crop_methods = ["reference"] + [m for m in METHODS if all(m in images[s]["crops"] for s in scenes)]
-    fig = Figure(figsize=(1.6 * len(crop_methods), 1.75 * len(scenes)))
+    fig = Figure(figsize=(1.9 * len(crop_methods), 2.05 * len(scenes)))
     for i, name in enumerate(scenes):
         ref = images[name]["reference"]
         size = max(16, min(ref.shape[:2]) // 3)
@@ -874,6 +874,10 @@ def _write_figures(results: dict[str, Any], images: dict[str, Any], img_dir: Pat
             if key == "cs_relmse":
                 ax.axhline(mean_row["relmse"], color="black", lw=0.8, ls="--", label="plain mean")
             ax.set_title(f"{name} ({mean_row['spp']} spp)", fontsize=10)
+            cs_ticks = sorted({r["c_s"] for r in rows if r["domain"] != "mean"})
+            ax.minorticks_off()
+            ax.set_xticks(cs_ticks)
+            ax.set_xticklabels([f"{c:g}" for c in cs_ticks], fontsize=7)
             ax.set_xlabel("c_s")
             ax.set_ylabel("relMSE" if key == "cs_relmse" else "bias^2 (solid), variance (dotted)")
             ax.grid(True, which="both", alpha=0.3)
