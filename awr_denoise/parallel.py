@@ -65,6 +65,7 @@ __all__ = [
     "add_executor_arguments",
     "denoise_frames",
     "executor_from_args",
+    "executor_requested",
     "get_executor",
     "halo_width",
     "reconstruct_tiled",
@@ -170,22 +171,26 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
             client = stack.enter_context(distributed.Client(scheduler_file=str(scheduler)))
         else:
             client = stack.enter_context(distributed.Client(str(scheduler)))
-        executor = client.get_executor()
+        executor = client.get_executor(pure=False)
         try:
             yield executor
         finally:
             executor.shutdown(wait=True)
 
 
-def add_executor_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
+def add_executor_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, *,
+                           tile_option: bool = False) -> None:
     """Add ``--workers N``, ``--scheduler ADDRESS`` and ``--executor KIND`` to a parser.
 
-    Read them back with :func:`executor_from_args`.
+    Read them back with :func:`executor_from_args`; :func:`executor_requested` tells whether
+    any was given.
 
     Parameters
     ----------
     parser
         An ``argparse`` parser (or argument group) of a subcommand.
+    tile_option
+        Also add ``--tile PIXELS`` (default 128), the tile side of :class:`TiledRenderer`.
     """
     group = parser.add_argument_group("parallel execution (see docs/distributed.md)") \
         if isinstance(parser, argparse.ArgumentParser) else parser
@@ -197,6 +202,17 @@ def add_executor_arguments(parser: argparse.ArgumentParser | argparse._ArgumentG
     group.add_argument("--executor", choices=EXECUTOR_KINDS,
                        help="in-process threads (default), local processes, or Dask (a local cluster "
                             "unless --scheduler is given)")
+    if tile_option:
+        group.add_argument("--tile", type=int, default=128, metavar="PIXELS",
+                           help="tile side when the work is split over workers (default 128)")
+
+
+def executor_requested(args: argparse.Namespace) -> bool:
+    """Whether any of ``--workers``, ``--scheduler`` or ``--executor`` was given.
+
+    Command-line tools can keep their plain serial path when none was.
+    """
+    return any(getattr(args, name, None) is not None for name in ("workers", "scheduler", "executor"))
 
 
 def executor_from_args(args: argparse.Namespace) -> contextlib.AbstractContextManager[Executor]:
@@ -240,6 +256,18 @@ def _dask_client(executor: Executor) -> Any | None:
     if type(executor).__module__.startswith("distributed"):
         return getattr(executor, "_client", None)
     return None
+
+
+def _submit(executor: Executor, fn: Callable[..., Any], *args: Any) -> cf.Future:
+    """``executor.submit(fn, *args)``, never answered from Dask's cache of earlier results.
+
+    Dask treats tasks as pure by default: a task with the same function and arguments as one
+    whose result it still holds is not run again. These tasks write files and render with
+    side effects, so on Dask they are submitted with ``pure=False``.
+    """
+    if _dask_client(executor) is not None:
+        return executor.submit(fn, *args, pure=False)
+    return executor.submit(fn, *args)
 
 
 # ============================================================================ frames
@@ -349,7 +377,7 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
         return []
     read_options = dict(read_options or {})
     with _executor_or_threads(executor, len(sources)) as pool:
-        futures = [pool.submit(_denoise_frame, s, t, overwrite, half, read_options, dict(reconstruct_options))
+        futures = [_submit(pool, _denoise_frame, s, t, overwrite, half, read_options, dict(reconstruct_options))
                    for s, t in zip(sources, targets)]
         cf.wait(futures)
     failures = {s: f.exception() for s, f in zip(sources, futures) if f.exception() is not None}
@@ -511,7 +539,7 @@ def reconstruct_tiled(buffer: SampleBuffer, *, tile: int | tuple[int, int] = 512
         payloads = [payload for _, payload in tasks]
         if client is not None:
             payloads = [client.scatter(list(p[:3]), hash=False) + [p[3]] for p in payloads]
-        futures = [pool.submit(_reconstruct_window, p[0], p[1], p[2], buffer.channels, p[3], options)
+        futures = [_submit(pool, _reconstruct_window, p[0], p[1], p[2], buffer.channels, p[3], options)
                    for p in payloads]
         for ((rows, cols), _), future in zip(tasks, futures):
             image[rows, cols] = future.result()
@@ -699,7 +727,7 @@ class TiledRenderer:
         if self.executor is None:
             results = [_render_tile(*a) for a in args]
         else:
-            futures = [self.executor.submit(_render_tile, *a) for a in args]
+            futures = [_submit(self.executor, _render_tile, *a) for a in args]
             results = [f.result() for f in futures]
         first = results[0]
         count = np.zeros(shape, np.int64)

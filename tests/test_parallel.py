@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import concurrent.futures as cf
 import dataclasses
+import os
 import sys
 
 import numpy as np
@@ -123,6 +124,11 @@ def test_executor_arguments_round_trip():
     with pytest.raises(ValueError, match="--workers"):
         executor_from_args(parser.parse_args(["--workers", "0"]))
     assert executor_from_args(argparse.Namespace()) is not None  # a parser without the options
+    assert not parallel.executor_requested(parser.parse_args([]))
+    assert parallel.executor_requested(parser.parse_args(["--executor", "threads"]))
+    with_tile = argparse.ArgumentParser()
+    add_executor_arguments(with_tile, tile_option=True)
+    assert with_tile.parse_args([]).tile == 128 and with_tile.parse_args(["--tile", "64"]).tile == 64
 
 
 def test_dask_executor_from_a_scheduler_address_leaves_the_cluster_running(cluster):
@@ -437,3 +443,16 @@ def test_cluster_render_tiled_with_the_path_tracer_equals_the_serial_render(dask
     expected = AdaptiveSampler(shape, seed=1).run(spec(), 8)
     tiled = render_tiled(spec, AdaptiveSampler(shape, seed=1), total_spp=8, tile=24, executor=dask_executor)
     assert_same_buffer(tiled, expected)
+
+
+def test_tasks_are_never_answered_from_dask_cache(cluster, tmp_path):
+    """Dask reuses the result of an identical pure task; ours have side effects and must all run."""
+    with distributed.Client(cluster.scheduler_address) as client:
+        executor = client.get_executor()  # a user's executor, pure by default
+        target = tmp_path / "made"
+        futures = [parallel._submit(executor, os.mkdir, str(target)) for _ in range(2)]
+        cf.wait(futures)
+        outcomes = sorted(type(f.exception()).__name__ for f in futures)
+        # Both ran, so one found the directory made; pure tasks would have shared one result.
+        assert outcomes == ["FileExistsError", "NoneType"]
+        executor.shutdown()
