@@ -62,11 +62,20 @@ def noisy_buffer(scene: str = "hdr_source", shape: tuple[int, int] = (96, 136), 
 
 
 @pytest.fixture(scope="module")
-def cluster():
-    """A local Dask cluster: 2 worker processes, 1 thread each, loopback only, no dashboard."""
+def cluster(tmp_path_factory):
+    """A local Dask cluster: 2 worker processes, 1 thread each, loopback only, no dashboard.
+
+    Its scheduler also writes a scheduler file, as ``dask scheduler --scheduler-file`` and
+    dask-jobqueue do. ``dashboard_address=None`` turns the dashboard off, but the scheduler
+    still serves its HTTP routes, by default on port 8787 with a warning when that port is
+    taken; a free loopback port avoids both.
+    """
+    scheduler_file = tmp_path_factory.mktemp("dask") / "scheduler.json"
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                                   dashboard_address=None,
-                                  scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}) as local:
+                                  scheduler_kwargs={"dashboard_address": "127.0.0.1:0",
+                                                    "scheduler_file": str(scheduler_file)}) as local:
+        local.scheduler_file_path = scheduler_file
         yield local
 
 
@@ -138,8 +147,13 @@ def test_dask_executor_from_a_scheduler_address_leaves_the_cluster_running(clust
     with executor_from_args(args) as executor:
         assert isinstance(executor, cf.Executor)
         assert sorted(executor.map(abs, [-2, 1])) == [1, 2]
-    assert cluster.scheduler_info["workers"]  # still up for the next client
-    assert len(cluster.scheduler_info["workers"]) == 2
+    assert len(cluster.scheduler_info["workers"]) == 2  # still up for the next client
+
+
+def test_dask_executor_from_a_scheduler_file(cluster):
+    assert cluster.scheduler_file_path.is_file()
+    with get_executor(scheduler=cluster.scheduler_file_path) as executor:
+        assert executor.submit(abs, -7).result() == 7
 
 
 # ---------------------------------------------------------------------------- tiles and halos
