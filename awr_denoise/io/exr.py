@@ -173,7 +173,7 @@ def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list
         with _captured_c_output() as captured, \
                 OpenEXR.File(os.fspath(p), separate_channels=True, header_only=header_only) as f:
             for i, part in enumerate(f.parts):
-                header = dict(f.header(i))
+                header = _checked_header(p, dict(f.header(i)))
                 channels = {} if header_only else {name: ch.pixels for name, ch in f.channels(i).items()}
                 name = header.get("name")
                 parts.append(ExrPart(i, str(name) if name is not None else None, header, channels,
@@ -194,6 +194,19 @@ def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list
                 if arr is None or (not part.deep and arr.shape != part.shape):
                     raise file_error(p, "truncated or corrupt EXR (channel data missing)", name)
     return parts
+
+
+def _checked_header(path: Path, header: dict[str, Any]) -> dict[str, Any]:
+    """Refuse attributes the bindings cannot turn into text (a corrupt string attribute comes
+    back as an opaque value whose ``str()`` raises UnicodeDecodeError later, far from the file)."""
+    for key, value in header.items():
+        if isinstance(value, (str, bytes, int, float, bool, tuple, list, np.ndarray, np.generic)) or value is None:
+            continue
+        try:
+            str(value)
+        except (UnicodeDecodeError, ValueError):
+            raise file_error(path, f"header attribute {key!r} is not valid text (corrupt file)") from None
+    return header
 
 
 def read_header(path: str | os.PathLike[str], part: int = 0) -> dict[str, Any]:
