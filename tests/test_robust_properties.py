@@ -37,6 +37,7 @@ DOMAINS = st.sampled_from([Domain("linear"), Domain("log"), Domain("gamma"), Dom
                            Domain("gamma", robust=True)])
 WAVELETS = st.sampled_from(["bior4.4", "haar"])
 C_S = st.sampled_from([0.0, 1e-12, 0.5, 1.0, 2.0, 1e6])
+CLAMPS = st.sampled_from([None, 2.5, 0.0])  # reconstruct's pixel_clamp: off, the default, the tightest
 # dtype -> decimal exponents of magnitudes it can carry with its squared spread
 DTYPE_EXPONENTS = {np.float16: (-2, 2), np.float32: (-15, 15), np.float64: (-30, 30)}
 
@@ -111,11 +112,11 @@ def _levels(draw_levels, shape):
 # ---------------------------------------------------------------------------- reconstruct
 @PROPERTY
 @given(data=buffers(), domain=DOMAINS, wavelet=WAVELETS, c_s=C_S, level=st.integers(1, 5),
-       mode=st.sampled_from(["channels", "luminance"]))
-def test_finite_input_gives_finite_output_within_ringing_bound(data, domain, wavelet, c_s, level, mode):
+       mode=st.sampled_from(["channels", "luminance"]), clamp=CLAMPS)
+def test_finite_input_gives_finite_output_within_ringing_bound(data, domain, wavelet, c_s, level, mode, clamp):
     buf, _ = data
     lv = _levels(level, buf.shape)
-    out = reconstruct(buf, c_s=c_s, domain=domain, wavelet=wavelet, levels=lv, mode=mode)
+    out = reconstruct(buf, c_s=c_s, domain=domain, wavelet=wavelet, levels=lv, mode=mode, pixel_clamp=clamp)
     assert out.shape == buf.mean.shape
     assert out.dtype == np.float64
     assert np.isfinite(out).all()
@@ -132,11 +133,11 @@ def test_finite_input_gives_finite_output_within_ringing_bound(data, domain, wav
 
 
 @PROPERTY
-@given(data=buffers(), domain=DOMAINS, wavelet=WAVELETS, level=st.integers(1, 5))
-def test_c_s_zero_returns_the_mean(data, domain, wavelet, level):
+@given(data=buffers(), domain=DOMAINS, wavelet=WAVELETS, level=st.integers(1, 5), clamp=CLAMPS)
+def test_c_s_zero_returns_the_mean(data, domain, wavelet, level, clamp):
     buf, _ = data
     lv = _levels(level, buf.shape)
-    out = reconstruct(buf, c_s=0.0, domain=domain, wavelet=wavelet, levels=lv)
+    out = reconstruct(buf, c_s=0.0, domain=domain, wavelet=wavelet, levels=lv, pixel_clamp=clamp)
     mean = _filled(buf)
     top = np.abs(mean).max()
     if domain.name == "log":
@@ -200,7 +201,7 @@ def test_detail_energy_of_the_output_haar(data, c_pair, side, domain):
     bound = domain.bound(_filled(buf))
 
     def detail_energy(c_s):
-        out = reconstruct(buf, c_s=c_s, domain=domain, wavelet="haar", levels=lv)
+        out = reconstruct(buf, c_s=c_s, domain=domain, wavelet="haar", levels=lv, pixel_clamp=None)
         coeffs = forward(bound.forward(out), wavelet="haar", levels=lv)
         return sum(float(np.sum(b**2)) for lvl in coeffs[1:] for b in lvl)
 
