@@ -169,3 +169,206 @@ class TestSamplerHostileStatistics:
         assert int(out.sum()) == budget and (out <= capacity).all()
         with pytest.raises(ValueError, match="spp_max"):
             allocate(np.ones((7, 7)), np.zeros((7, 7), np.int64), budget + 1, capacity=capacity)
+
+
+# ---------------------------------------------------------------------------- ringing bound
+def _projection_matrix(shape, wavelet, levels):
+    """The linear map of reconstruct at c_s -> inf (every detail zeroed): column j = response to pixel j."""
+    from awr_denoise.wavelets import forward, inverse
+
+    h, w = shape
+    m = np.zeros((h * w, h * w))
+    for j in range(h * w):
+        e = np.zeros(h * w)
+        e[j] = 1.0
+        c = forward(e.reshape(h, w), wavelet=wavelet, levels=levels)
+        c = [c[0]] + [tuple(np.zeros_like(b) for b in lvl) for lvl in c[1:]]
+        m[:, j] = inverse(c, shape, wavelet=wavelet).ravel()
+    return m
+
+
+class TestRingingBound:
+    """The documented bound ``r = 1`` (docs/robustness.md): the worst case of the
+    detail-free reconstruction is exactly computable, and it is attained by reconstruct."""
+
+    R = 1.0
+
+    @pytest.mark.parametrize("domain", DOMAINS)
+    def test_worst_two_level_pattern_attains_but_respects_the_bound(self, domain):
+        shape, levels = (16, 16), 2
+        m = _projection_matrix(shape, "bior4.4", levels)
+        over = np.clip(m, 0, None).sum(axis=1) - 1.0  # overshoot of each output pixel for inputs in [0, 1]
+        p = int(np.argmax(over))
+        assert 0.8 < over[p] < self.R  # exact supremum for this shape: 0.856
+        # Two levels in x are two levels in every domain, so the same pattern rings alike.
+        pattern = (m[p] > 0).astype(float).reshape(shape)
+        buf = SampleBuffer.from_moments(np.full(shape, 4), pattern[..., None], np.full(shape + (1,), 100.0))
+        out = reconstruct(buf, domain=domain, c_s=1e6, levels=levels, pixel_clamp=None)[..., 0]
+        bound = Domain(domain).bound(buf.mean)
+        y, y_out = bound.forward(pattern), bound.forward(out)
+        r = (y_out.max() - y.max()) / (y.max() - y.min())
+        assert r == pytest.approx(over[p], rel=1e-6)
+        # The default pixel clamp (2.5 standard errors of each pixel) caps it in a noisy image.
+        clamped = reconstruct(buf, domain=domain, c_s=1e6, levels=levels)[..., 0]
+        assert np.isfinite(clamped).all()
+
+    def test_haar_detail_free_reconstruction_never_rings(self):
+        m = _projection_matrix((12, 10), "haar", 2)
+        assert (m >= -1e-12).all()  # block averages: a convex combination, no overshoot
+
+
+# ---------------------------------------------------------------------------- variance accuracy
+def _exact_variance(values) -> float:
+    """Unbiased variance of float values in exact rational arithmetic."""
+    xs = [Fraction(float(v)) for v in values]
+    m = sum(xs) / len(xs)
+    return float(sum((x - m) ** 2 for x in xs) / (len(xs) - 1))
+
+
+class TestCancellation:
+    """Mean 1e8 with unit variance: the naive ``E[x^2] - E[x]^2`` loses every digit
+    (1e16 against 1); two-pass accumulation and Chan's merge must not."""
+
+    def test_float64_samples_mean_1e8(self):
+        rng = np.random.default_rng(SEED)
+        values = 1e8 + rng.standard_normal(4000)
+        pixels = np.zeros(4000, np.int64)
+        whole = SampleBuffer.from_samples(pixels, values, (1, 1))
+        exact = _exact_variance(values)
+        assert whole.variance[0, 0, 0] == pytest.approx(exact, rel=1e-9)
+        merged = SampleBuffer.from_samples(pixels[:7], values[:7], (1, 1))
+        for start in range(7, 4000, 331):
+            stop = min(4000, start + 331)
+            merged = merged.merge(SampleBuffer.from_samples(pixels[start:stop], values[start:stop], (1, 1)))
+        assert merged.count[0, 0] == 4000
+        assert merged.variance[0, 0, 0] == pytest.approx(exact, rel=1e-8)
+        assert merged.mean[0, 0, 0] == pytest.approx(float(sum(Fraction(float(v)) for v in values) / 4000), rel=1e-15)
+
+    def test_float32_samples_mean_1e8(self):
+        """float32 cannot hold 1e8 + N(0, 1): its spacing there is 8, so samples are 1e8 or
+        1e8 +- 8. The reference is the exact variance of the float32 values as given."""
+        rng = np.random.default_rng(SEED)
+        values = (1e8 + 4 * rng.standard_normal(3000)).astype(np.float32)
+        assert len(np.unique(values)) > 1
+        pixels = np.zeros(3000, np.int64)
+        exact = _exact_variance(values)
+        buf = SampleBuffer.from_samples(pixels, values, (1, 1))
+        assert buf.variance[0, 0, 0] == pytest.approx(exact, rel=1e-9)
+        parts = [SampleBuffer.from_samples(pixels[i::3], values[i::3], (1, 1)) for i in range(3)]
+        merged = parts[2].merge(parts[0]).merge(parts[1])
+        assert merged.variance[0, 0, 0] == pytest.approx(exact, rel=1e-9)
+
+    def test_float32_mean_1e4_unit_variance(self):
+        rng = np.random.default_rng(SEED)
+        values = (1e4 + rng.standard_normal(5000)).astype(np.float32)  # spacing 0.001: variance resolved
+        buf = SampleBuffer.from_samples(np.zeros(5000, np.int64), values, (1, 1))
+        assert buf.variance[0, 0, 0] == pytest.approx(_exact_variance(values), rel=1e-9)
+        assert buf.variance[0, 0, 0] == pytest.approx(1.0, rel=0.1)
+
+    def test_from_sums_documents_its_cancellation(self):
+        """from_sums clamps at zero instead of going negative; its error at mean 1e8 is of the
+        order eps * n * mean^2 (documented in its docstring: prefer from_samples/from_moments)."""
+        rng = np.random.default_rng(SEED)
+        values = 1e8 + rng.standard_normal(1000)
+        buf = SampleBuffer.from_sums(np.array([[1000]]), np.array([[values.sum()]]), np.array([[(values**2).sum()]]))
+        assert buf.variance[0, 0, 0] >= 0.0
+        assert np.isfinite(buf.variance).all()
+
+
+# ---------------------------------------------------------------------------- degenerate images
+class TestDegenerateImages:
+    @pytest.mark.parametrize("shape", [(1, 1), (1, 2), (2, 1), (1, 97), (97, 1), (3, 5), (13, 7)])
+    @pytest.mark.parametrize("domain", DOMAINS)
+    def test_every_level_of_tiny_and_prime_shapes(self, shape, domain):
+        buf = noisy_buffer(shape)
+        for levels in range(1, max_levels(shape) + 1):
+            for wavelet in ("bior4.4", "haar"):
+                out = reconstruct(buf, domain=domain, levels=levels, wavelet=wavelet)
+                assert out.shape == shape + (3,) and np.isfinite(out).all()
+        with pytest.raises(ValueError, match="levels"):
+            reconstruct(buf, levels=max_levels(shape) + 1)
+        with pytest.raises(ValueError, match="levels"):
+            reconstruct(buf, levels=0)
+
+    @pytest.mark.parametrize("domain", DOMAINS)
+    @pytest.mark.parametrize("c_s", [0.0, 1.0, 1e6])
+    def test_all_zero_image(self, domain, c_s):
+        buf = SampleBuffer.from_moments(np.full((9, 7), 4), np.zeros((9, 7, 3)), np.zeros((9, 7, 3)))
+        out = reconstruct(buf, domain=domain, c_s=c_s)
+        assert np.array_equal(out, np.zeros_like(out))
+
+    @pytest.mark.parametrize("domain", DOMAINS)
+    @pytest.mark.parametrize("value", [1e-30, -3.5, 0.7, 1e30])
+    def test_constant_image_with_noise_estimate_stays_constant(self, domain, value):
+        buf = SampleBuffer.from_moments(np.full((12, 9), 4), np.full((12, 9, 3), value),
+                                        np.full((12, 9, 3), (0.5 * value) ** 2))
+        out = reconstruct(buf, domain=domain, c_s=1.0, pixel_clamp=None)
+        np.testing.assert_allclose(out, value, rtol=1e-9)
+
+    @pytest.mark.parametrize("domain", DOMAINS)
+    @pytest.mark.parametrize("c_s", [1e-12, 1.0, 1e6])
+    def test_zero_variance_returns_the_mean_at_any_c_s(self, domain, c_s):
+        """A deterministic image: every Delta is 0, nothing is thresholded."""
+        rng = np.random.default_rng(SEED)
+        mean = rng.random((10, 11, 3)) * 10.0 ** rng.integers(-5, 5, (10, 11, 1))
+        buf = SampleBuffer.from_moments(np.full((10, 11), 8), mean, np.zeros_like(mean))
+        out = reconstruct(buf, domain=domain, c_s=c_s, pixel_clamp=None)
+        np.testing.assert_allclose(out, mean, rtol=1e-9, atol=1e-12 * np.abs(mean).max())
+
+    def test_single_sample_everywhere_is_left_as_is(self):
+        """One sample per pixel: no variance is known anywhere, so nothing is known to be noise
+        and the output is the mean (documented: 1 spp is not denoised)."""
+        buf = SampleBuffer.from_moments(np.ones((8, 8), np.int64), np.random.default_rng(SEED).random((8, 8, 3)),
+                                        np.zeros((8, 8, 3)))
+        assert not buf.variance_known.any()
+        np.testing.assert_allclose(reconstruct(buf), buf.mean, rtol=1e-12)
+
+    def test_single_sample_pixels_borrow_variance(self):
+        buf = noisy_buffer((16, 16), spp=4)
+        count = np.array(buf.count)
+        count[::3, ::2] = 1
+        mixed = SampleBuffer.from_moments(count, buf.mean, buf.variance)
+        v = mixed.estimated_variance()
+        assert (v[count == 1] > 0).all()  # never taken as zero variance
+        assert np.isfinite(reconstruct(mixed)).all()
+
+    @pytest.mark.parametrize("domain", DOMAINS)
+    def test_zero_count_pixels_are_filled_from_neighbours(self, domain):
+        buf = noisy_buffer((16, 16), spp=4)
+        count = np.array(buf.count)
+        count[5:9, 5:9] = 0
+        holes = SampleBuffer.from_moments(count, buf.mean, buf.variance)
+        out = reconstruct(holes, domain=domain)
+        assert np.isfinite(out).all()
+        assert np.abs(out[5:9, 5:9] - 0.5).max() < 0.5  # near the image level, not black
+
+    def test_no_samples_at_all_is_a_clear_error(self):
+        with pytest.raises(ValueError, match="no pixel has any sample"):
+            reconstruct(SampleBuffer.empty((4, 4)))
+        sampler = AdaptiveSampler((4, 4))
+        assert sampler.ask().total == 4 * 16  # round 0 never needs statistics
+
+    @pytest.mark.parametrize("dtype", [np.float16, np.float32, np.float64])
+    def test_input_dtypes_agree(self, dtype):
+        ref = noisy_buffer((9, 13), dtype=np.float64)
+        buf = SampleBuffer.from_moments(ref.count, ref.mean.astype(dtype), ref.variance.astype(dtype))
+        assert buf.mean.dtype == np.float64
+        out, out_ref = reconstruct(buf), reconstruct(ref)
+        tol = {np.float16: 5e-3, np.float32: 1e-6, np.float64: 1e-12}[dtype]
+        np.testing.assert_allclose(out, out_ref, rtol=tol, atol=tol)
+
+    @pytest.mark.parametrize("bad", [-1.0, float("nan"), float("inf"), True, "1"])
+    def test_bad_c_s_is_refused(self, bad):
+        with pytest.raises((ValueError, TypeError), match="c_s"):
+            reconstruct(noisy_buffer((4, 4)), c_s=bad)
+
+    @pytest.mark.parametrize("c_s", [0.0, 1e-12])
+    def test_tiny_c_s_is_the_mean(self, c_s):
+        buf = noisy_buffer((16, 12))
+        np.testing.assert_allclose(reconstruct(buf, c_s=c_s), buf.mean, rtol=1e-9)
+
+    def test_huge_c_s_keeps_only_the_coarse_band(self):
+        buf = noisy_buffer((32, 32))
+        rec = reconstruct_detailed(buf, c_s=1e6, domain="linear", variance_probes=0, pixel_clamp=None)
+        assert rec.fraction_zeroed == 1.0
+        assert abs(rec.image.mean() - buf.mean.mean()) < 0.01
