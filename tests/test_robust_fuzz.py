@@ -27,12 +27,10 @@ REGRESSIONS = Path(__file__).resolve().parent / "data" / "fuzz_regressions"
 CI_CASES = 160
 CI_SEED = 20091216
 
-# Reader failures already reported against awr_denoise/io (see the strict xfail tests below);
-# the short run counts them but does not fail on them, so that it keeps guarding the rest.
-KNOWN_IO_BUGS = {
-    "UnicodeDecodeError": "a corrupt string attribute escapes the readers as UnicodeDecodeError, "
-                          "not InputFileError",
-}
+# Reader failures already reported against awr_denoise/io and not fixed yet (failure text ->
+# reason): the short run counts them but does not fail on them, so that it keeps guarding the
+# rest, while a strict xfail test pins each one. Empty: every bug found so far is fixed.
+KNOWN_IO_BUGS: dict[str, str] = {}
 
 
 def _load_engine():
@@ -163,10 +161,10 @@ def test_awr_subprocess_on_hostile_file(engine, seeds, tmp_path, mutation):
     assert hashlib.sha256(src.read_bytes()).hexdigest() == digest
 
 
-# ---------------------------------------------------------------------------- known io bugs
-@pytest.mark.xfail(strict=True, reason="io bug: a corrupt string attribute raises UnicodeDecodeError from "
-                                       "the readers instead of InputFileError (reported)")
+# ---------------------------------------------------------------------------- io bugs found here
 def test_corrupt_string_attribute_is_an_input_file_error():
+    """Regression: a flipped bit made a string attribute invalid UTF-8 and the readers raised
+    UnicodeDecodeError instead of InputFileError (fixed in awr_denoise/io)."""
     from awr_denoise.errors import InputFileError
     from awr_denoise.io import read_deep_samples, read_sample_buffer
 
@@ -174,3 +172,12 @@ def test_corrupt_string_attribute_is_an_input_file_error():
     for reader in (read_deep_samples, read_sample_buffer):
         with pytest.raises(InputFileError):
             reader(path)
+
+
+def test_corrupt_request_map_is_an_input_file_error():
+    """Regression: the same in a request map read by read_request (fixed in awr_denoise/io)."""
+    from awr_denoise.errors import InputFileError
+    from awr_denoise.io import read_request
+
+    with pytest.raises(InputFileError):
+        read_request(REGRESSIONS / "request_inserted_bytes_utf8.exr")
