@@ -181,3 +181,84 @@ def test_corrupt_request_map_is_an_input_file_error():
 
     with pytest.raises(InputFileError):
         read_request(REGRESSIONS / "request_inserted_bytes_utf8.exr")
+
+
+# ---------------------------------------------------------------------------- non-finite samples in the CLI
+def _awr(argv):
+    engine = _load_engine()
+    return engine.run_cli([str(a) for a in argv])
+
+
+@pytest.fixture
+def dump_with_nonfinite(tmp_path):
+    from awr_denoise import SampleBuffer
+    from awr_denoise.io import write_sample_buffer
+
+    rng = np.random.default_rng(0)
+    pixels = np.repeat(np.arange(64), 4)
+    values = rng.random((256, 3))
+    values[[3, 50, 77]] = np.nan
+    buf = SampleBuffer.from_samples(pixels, values, (8, 8), nonfinite="zero")
+    assert buf.nonfinite == 3
+    return write_sample_buffer(tmp_path / "dump.exr", buf)
+
+
+def test_awr_info_reports_the_nonfinite_count(dump_with_nonfinite):
+    rc, out, _ = _awr(["info", dump_with_nonfinite])
+    assert rc == 0
+    assert "3 non-finite" in out
+
+
+def test_awr_merge_carries_the_nonfinite_count(dump_with_nonfinite, tmp_path):
+    from awr_denoise.io import read_sample_buffer
+
+    merged = tmp_path / "merged.exr"
+    rc, _, err = _awr(["merge", dump_with_nonfinite, dump_with_nonfinite, "-o", merged, "-q"])
+    assert rc == 0, err
+    assert read_sample_buffer(merged).nonfinite == 6
+
+
+@pytest.mark.xfail(strict=True, reason="cli gap (reported): awr denoise neither prints the input's non-finite "
+                                       "sample count nor records it (awr:nonfinite) in the output header")
+def test_awr_denoise_reports_the_nonfinite_count(dump_with_nonfinite, tmp_path):
+    from awr_denoise.io import read_header
+
+    out = tmp_path / "out.exr"
+    rc, stdout, stderr = _awr(["denoise", dump_with_nonfinite, "-o", out])
+    assert rc == 0
+    assert "non-finite" in stdout + stderr
+    assert int(read_header(out).get("awr:nonfinite", 0)) == 3
+
+
+@pytest.fixture
+def deep_with_nan(tmp_path):
+    import OpenEXR
+
+    grid = np.empty((2, 3), dtype=object)
+    for r in range(2):
+        for c in range(3):
+            grid[r, c] = np.array([0.5, np.nan, 0.25][: 1 + (r + c) % 3], dtype=np.float32)
+    attrs = {"compression": OpenEXR.ZIPS_COMPRESSION, "type": OpenEXR.deepscanline, "awr:semantics": "mc-samples"}
+    path = tmp_path / "deep_nan.exr"
+    with OpenEXR.File(attrs, {"R": grid, "G": grid, "B": grid}) as f:
+        f.write(str(path))
+    return path
+
+
+def test_deep_dump_with_nan_samples_is_refused_by_default(deep_with_nan, tmp_path):
+    """Today's behaviour (policy "raise"): exit 2, one line naming the channel."""
+    rc, _, err = _awr(["denoise", deep_with_nan, "-o", tmp_path / "o.exr"])
+    assert rc == 2 and err.startswith("awr: error: ") and "NaN" in err
+    assert not (tmp_path / "o.exr").exists()
+
+
+@pytest.mark.xfail(strict=True, reason="io/cli gap (reported): per-sample deep dumps are the only files with "
+                                       "individual samples, yet neither read_deep_samples nor awr offers the "
+                                       "drop/zero policies of SampleBuffer.from_samples")
+def test_deep_dump_nan_policy_is_available(deep_with_nan, tmp_path):
+    from awr_denoise.io import read_deep_samples
+
+    buf = read_deep_samples(deep_with_nan, nonfinite="drop")
+    assert buf.nonfinite == 4 and buf.total_samples == 6
+    rc, _, err = _awr(["denoise", deep_with_nan, "-o", tmp_path / "o.exr", "--nonfinite", "zero"])
+    assert rc == 0, err
