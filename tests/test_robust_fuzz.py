@@ -259,6 +259,6 @@ def test_deep_dump_nan_policy_is_available(deep_with_nan, tmp_path):
     from awr_denoise.io import read_deep_samples
 
     buf = read_deep_samples(deep_with_nan, nonfinite="drop")
-    assert buf.nonfinite == 4 and buf.total_samples == 6
+    assert buf.nonfinite == 4 and buf.total_samples == 8
     rc, _, err = _awr(["denoise", deep_with_nan, "-o", tmp_path / "o.exr", "--nonfinite", "zero"])
     assert rc == 0, err
