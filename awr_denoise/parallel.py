@@ -258,6 +258,14 @@ def _dask_client(executor: Executor) -> Any | None:
     return None
 
 
+def _executor_width(executor: Executor) -> int:
+    """How many tasks the executor runs at once, as far as it tells (else the local CPUs)."""
+    client = _dask_client(executor)
+    if client is not None:
+        return max(1, sum(client.nthreads().values()))
+    return max(1, int(getattr(executor, "_max_workers", 0) or _default_workers()))
+
+
 def _submit(executor: Executor, fn: Callable[..., Any], *args: Any) -> cf.Future:
     """``executor.submit(fn, *args)``, never answered from Dask's cache of earlier results.
 
@@ -500,8 +508,10 @@ def reconstruct_tiled(buffer: SampleBuffer, *, tile: int | tuple[int, int] = 512
     -----
     With the default halo, tile and whole-frame results differ only by floating-point
     rounding; the tests hold them to ``1e-12`` of the image's largest value
-    (docs/distributed.md). Tiles are shipped to Dask workers with ``Client.scatter`` so they
-    do not travel through the scheduler.
+    (docs/distributed.md). Windows are cut only as earlier tasks finish (at most twice as
+    many in flight as the executor has workers), so the caller holds the frame, three
+    frame-sized working arrays and a few windows. Tiles are shipped to Dask workers with
+    ``Client.scatter`` so they do not travel through the scheduler.
     """
     if not isinstance(buffer, SampleBuffer):
         raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
@@ -524,25 +534,40 @@ def reconstruct_tiled(buffer: SampleBuffer, *, tile: int | tuple[int, int] = 512
     count = np.where(few, 2, buffer.count)
     estimated = buffer.estimated_variance()
     per_sample = np.where(few[..., None], 2.0 * estimated, estimated)
-    tasks = []
-    for rows, cols in tile_grid(shape, tile):
-        wr = _window(rows, halo, 2**levels, shape[0])
-        wc = _window(cols, halo, 2**levels, shape[1])
-        if min(wr.stop - wr.start, wc.stop - wc.start) < 2**levels:
-            wr, wc = slice(0, shape[0]), slice(0, shape[1])  # too small to decompose: use the frame
-        core = (slice(rows.start - wr.start, rows.stop - wr.start), slice(cols.start - wc.start, cols.stop - wc.start))
-        crops = tuple(np.ascontiguousarray(a[wr, wc]) for a in (count, mean, per_sample))
-        tasks.append(((rows, cols), crops + (core,)))
+    grid = tile_grid(shape, tile)
     image = np.empty(shape + (buffer.n_channels,))
-    with _executor_or_threads(executor, len(tasks)) as pool:
+    with _executor_or_threads(executor, len(grid)) as pool:
         client = _dask_client(pool)
-        payloads = [payload for _, payload in tasks]
-        if client is not None:
-            payloads = [client.scatter(list(p[:3]), hash=False) + [p[3]] for p in payloads]
-        futures = [_submit(pool, _reconstruct_window, p[0], p[1], p[2], buffer.channels, p[3], options)
-                   for p in payloads]
-        for ((rows, cols), _), future in zip(tasks, futures):
-            image[rows, cols] = future.result()
+        in_flight: dict[cf.Future, tuple[slice, slice]] = {}
+        remaining = iter(grid)
+
+        def submit_next() -> bool:
+            """Cut the next tile's window and submit it; False when every tile is out."""
+            tile_slices = next(remaining, None)
+            if tile_slices is None:
+                return False
+            rows, cols = tile_slices
+            wr = _window(rows, halo, 2**levels, shape[0])
+            wc = _window(cols, halo, 2**levels, shape[1])
+            if min(wr.stop - wr.start, wc.stop - wc.start) < 2**levels:
+                wr, wc = slice(0, shape[0]), slice(0, shape[1])  # too small to decompose: use the frame
+            core = (slice(rows.start - wr.start, rows.stop - wr.start),
+                    slice(cols.start - wc.start, cols.stop - wc.start))
+            crops: list[Any] = [np.ascontiguousarray(a[wr, wc]) for a in (count, mean, per_sample)]
+            if client is not None:
+                crops = client.scatter(crops, hash=False)
+            in_flight[_submit(pool, _reconstruct_window, *crops, buffer.channels, core, options)] = (rows, cols)
+            return True
+
+        # Windows are cut as tasks finish, so the driver holds at most a few of them at once.
+        limit = 2 * _executor_width(pool)
+        while len(in_flight) < limit and submit_next():
+            pass
+        while in_flight:
+            done, _ = cf.wait(in_flight, return_when=cf.FIRST_COMPLETED)
+            for future in done:
+                image[in_flight.pop(future)] = future.result()
+                submit_next()
     return image
 
 

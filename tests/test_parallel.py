@@ -233,16 +233,22 @@ def test_reconstruct_tiled_is_wrong_without_a_global_domain_scale(monkeypatch):
 
 
 class RecordingExecutor(cf.ThreadPoolExecutor):
-    """A thread pool that records the largest array each task was given."""
+    """A thread pool that records the largest array each task was given and the tasks in flight."""
 
     def __init__(self) -> None:
         super().__init__(max_workers=2)
         self.largest: list[tuple[int, ...]] = []
+        self.in_flight = self.most_in_flight = 0
 
     def submit(self, fn, /, *args, **kwargs):
         shapes = [a.shape for a in args if isinstance(a, np.ndarray)]
         self.largest.append(max(shapes, key=lambda s: s[0] * s[1]))
+        self.in_flight += 1  # submit and result collection both run in the caller's thread
+        self.most_in_flight = max(self.most_in_flight, self.in_flight)
         return super().submit(fn, *args, **kwargs)
+
+    def collected(self) -> None:
+        self.in_flight -= 1
 
 
 def test_reconstruct_tiled_sends_each_task_only_its_tile_and_halo():
@@ -250,8 +256,19 @@ def test_reconstruct_tiled_sends_each_task_only_its_tile_and_halo():
     tile, levels = 32, 2
     halo = halo_width("bior4.4", levels)
     with RecordingExecutor() as executor:
-        image = reconstruct_tiled(buffer, tile=tile, levels=levels, executor=executor)
+        real_wait = cf.wait
+
+        def counting_wait(futures, **kwargs):
+            done, pending = real_wait(futures, **kwargs)
+            for _ in done:
+                executor.collected()
+            return done, pending
+
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(parallel.cf, "wait", counting_wait)
+            image = reconstruct_tiled(buffer, tile=tile, levels=levels, executor=executor)
     assert len(executor.largest) == len(tile_grid(buffer.shape, tile)) == 20
+    assert executor.most_in_flight <= 2 * 2  # windows are cut as tasks finish, not all at once
     bound = tile + 2 * halo + 2**levels - 1  # the aligned start may add up to 2^L - 1 pixels
     assert all(s[0] <= bound and s[1] <= bound for s in executor.largest)
     assert max(s[0] * s[1] for s in executor.largest) < buffer.count.size
