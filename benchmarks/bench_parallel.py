@@ -5,11 +5,12 @@ Run from the repository root::
     .venv/bin/python benchmarks/bench_parallel.py            # about 3-4 minutes on 2 cores
     .venv/bin/python benchmarks/bench_parallel.py --quick    # smaller workloads, 2 repeats
 
-Each workload runs serially in this process (no executor), then on a thread pool and on a local
-Dask cluster (worker processes, one thread each) with 1 and with 2 workers. Every timing is the
-median of ``--repeats`` runs after one warm-up run on the same executor (worker imports, the
-renderer built in each worker and the wavelet operator caches are not timed); cluster start-up
-is reported on its own. Prints a markdown table and writes ``benchmarks/results/parallel.json``.
+Each workload runs serially in this process (no executor), on a thread pool and on a local Dask
+cluster (worker processes, one thread each) with 1 and with 2 workers. Every timing is the median
+of ``--repeats`` runs after one warm-up run on the same executor (worker imports, the renderer
+built in each worker and the wavelet operator caches are not timed); the configurations take
+turns within each repeat, so a change in the machine's load affects them alike. Executor
+start-up is reported on its own, with the load average. Prints a markdown table and writes ``benchmarks/results/parallel.json``.
 
 Workloads:
 
@@ -24,6 +25,7 @@ Workloads:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
@@ -31,7 +33,6 @@ import statistics
 import sys
 import tempfile
 import time
-from collections.abc import Callable
 from concurrent.futures import Executor
 from pathlib import Path
 
@@ -51,15 +52,6 @@ from awr_denoise.synthetic import SyntheticRenderer, make_scene
 
 RESULTS = Path(__file__).resolve().parent / "results" / "parallel.json"
 CONFIGS = (("threads", 1), ("threads", 2), ("dask", 1), ("dask", 2))
-
-
-def _median(run: Callable[[], object], repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        run()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
 
 
 def _renderer_spec(shape: tuple[int, int]) -> tuple[RendererSpec, str]:
@@ -135,21 +127,29 @@ def main(argv: list[str] | None = None) -> int:
     timings: dict[str, dict[str, float]] = {name: {} for name in names}
     startup: dict[str, float] = {}
     load_start = list(os.getloadavg())  # other processes on the machine skew every timing
-    with tempfile.TemporaryDirectory() as tmp:
+    samples: dict[str, dict[str, list[float]]] = {name: {} for name in names}
+    with tempfile.TemporaryDirectory() as tmp, contextlib.ExitStack() as stack:
         work = Workloads(Path(tmp), args.quick)
-        for name in names:
-            work.run(name, None)  # warm-up
-            timings[name]["serial"] = _median(lambda: work.run(name, None), repeats)
-            print(f"  {name}: serial {timings[name]['serial']:.2f} s", file=sys.stderr)
+        executors: dict[str, Executor | None] = {"serial": None}
         for kind, workers in CONFIGS:
             label = f"{kind}-{workers}"
             start = time.perf_counter()
-            with get_executor(kind, workers=workers) as executor:
-                startup[label] = time.perf_counter() - start
+            executors[label] = stack.enter_context(get_executor(kind, workers=workers))
+            startup[label] = time.perf_counter() - start
+        for label, executor in executors.items():
+            for name in names:
+                work.run(name, executor)  # warm-up: imports and renderer construction in the workers
+        # Configurations take turns within every repeat, so a change in the machine's load
+        # while the benchmark runs affects them alike.
+        for repeat in range(repeats):
+            for label, executor in executors.items():
                 for name in names:
-                    work.run(name, executor)  # warm-up: imports and renderer construction in the workers
-                    timings[name][label] = _median(lambda: work.run(name, executor), repeats)
-                    print(f"  {name}: {label} {timings[name][label]:.2f} s", file=sys.stderr)
+                    start = time.perf_counter()
+                    work.run(name, executor)
+                    samples[name].setdefault(label, []).append(time.perf_counter() - start)
+            print(f"  repeat {repeat + 1}/{repeats} done", file=sys.stderr)
+    for name in names:
+        timings[name] = {label: statistics.median(times) for label, times in samples[name].items()}
 
     rows = []
     header = ("workload", "serial", "threads 1", "threads 2", "speed-up", "dask 1", "dask 2", "speed-up")
@@ -180,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
         "command": "benchmarks/bench_parallel.py" + (" --quick" if args.quick else "")
                    + (f" --repeats {args.repeats}" if args.repeats else ""),
         "repeats": repeats,
-        "statistic": "median seconds after one warm-up run per executor",
+        "statistic": "median seconds after one warm-up run per executor; configurations interleaved",
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
                     "numpy": np.__version__, "dask": dask.__version__, "distributed": distributed.__version__},
         "load_average_1_5_15_min": {"start": load_start, "end": list(os.getloadavg())},
