@@ -189,9 +189,15 @@ def _structural(kind: str, rng: np.random.Generator, path: Path) -> str:
         at = table[line] + 4 * pixel
         old = int.from_bytes(data[at:at + 4], "little", signed=True)
         value = [old + 1, old - 1, old + 1000, -1, 2**31 - 1, 0][int(rng.integers(6))]
+        counts = np.frombuffer(bytes(data[table[line]:table[line] + 4 * w]), dtype="<i4").astype(np.int64)
         data[at:at + 4] = int(value).to_bytes(4, "little", signed=True)
         path.write_bytes(bytes(data))
-        return f"deep count table line {line} pixel {pixel}: {old} -> {value}"
+        changed = counts.copy()
+        changed[pixel] = value
+        # Still a valid file (samples only moved between pixels of the line) when the
+        # cumulative counts stay non-decreasing and the line's total is unchanged.
+        valid = bool((np.diff(np.r_[0, changed]) >= 0).all() and changed[-1] == counts[-1])
+        return f"deep count table line {line} pixel {pixel}: {old} -> {value}{'' if valid else ' (invalid)'}"
     raise ValueError(kind)
 
 
@@ -224,6 +230,11 @@ class Case:
     mutation: str
     detail: str
     data: bytes = field(repr=False)
+
+    @property
+    def must_reject(self) -> bool:
+        """Known to be invalid: a reader of its pixel data must not return a result."""
+        return self.detail.endswith("(invalid)")
 
 
 def make_case(seed: int, index: int, seeds: dict[str, Path], scratch: Path) -> Case:
@@ -374,10 +385,13 @@ def run_cli(argv: list[str]) -> tuple[int, str, str]:
     return rc, out.getvalue(), err.getvalue()
 
 
-def check_cli(argv: list[str], output: Path | None) -> str | None:
-    """None if ``awr argv`` honours the contract, else what went wrong."""
+def check_cli(argv: list[str], output: Path | None, *, must_fail: bool = False) -> str | None:
+    """None if ``awr argv`` honours the contract, else what went wrong. ``must_fail``: the
+    input is known to be invalid, so exit 0 is a failure too."""
     before = set(output.parent.iterdir()) if output is not None else set()
     rc, out, err = run_cli(argv)
+    if rc == 0 and must_fail:
+        return "exit 0 on an input known to be invalid (an invalid deep sample count table)"
     lines = [ln for ln in err.splitlines() if ln.strip()]
     if rc == 0:
         if output is not None:
@@ -420,12 +434,14 @@ def run_case(case: Case, workdir: Path, *, timeout: float = DEFAULT_TIMEOUT, cli
                 outcomes[name] = outcome
                 if outcome == "FAIL":
                     failures.append(f"{name}: {message}"[:400])
+                elif outcome == "ok" and case.must_reject and name != "read_header":
+                    failures.append(f"{name}: accepted an invalid deep sample count table")
             if cli:
                 problem = check_cli(["info", str(path)], None)
                 if problem:
                     failures.append(f"awr info: {problem}")
                 out = case_dir / "out" / "denoised.exr"
-                problem = check_cli(["denoise", str(path), "-o", str(out), "-q"], out)
+                problem = check_cli(["denoise", str(path), "-o", str(out), "-q"], out, must_fail=case.must_reject)
                 if problem:
                     failures.append(f"awr denoise: {problem}")
     except CaseTimeout as exc:

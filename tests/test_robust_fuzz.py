@@ -30,7 +30,10 @@ CI_SEED = 20091216
 # Reader failures already reported against awr_denoise/io and not fixed yet (failure text ->
 # reason): the short run counts them but does not fail on them, so that it keeps guarding the
 # rest, while a strict xfail test pins each one. Empty: every bug found so far is fixed.
-KNOWN_IO_BUGS: dict[str, str] = {}
+KNOWN_IO_BUGS: dict[str, str] = {
+    "accepted an invalid deep sample count table": "a deep scanline whose count table totals fewer samples "
+                                                   "than its data holds is read silently (reported)",
+}
 
 
 def _load_engine():
@@ -118,7 +121,8 @@ def _params():
 
 @pytest.mark.parametrize("path", _params())
 def test_saved_case_is_rejected_cleanly(engine, path, tmp_path):
-    case = engine.Case(0, "saved", "saved", path.name, path.read_bytes())
+    must_reject = _manifest().get(path.name, {}).get("must_reject", False)
+    case = engine.Case(0, "saved", "saved", path.name + (" (invalid)" if must_reject else ""), path.read_bytes())
     record = engine.run_case(case, tmp_path)
     assert not record["failures"], record["failures"]
 
@@ -181,6 +185,25 @@ def test_corrupt_request_map_is_an_input_file_error():
 
     with pytest.raises(InputFileError):
         read_request(REGRESSIONS / "request_inserted_bytes_utf8.exr")
+
+
+@pytest.mark.xfail(strict=True, reason="io bug (reported): a deep scanline whose cumulative sample counts total "
+                                       "fewer samples than its data holds is read silently, dropping samples")
+def test_deep_count_table_short_of_the_data_is_refused(tmp_path):
+    from awr_denoise.errors import InputFileError
+    from awr_denoise.io import read_deep_samples
+
+    with pytest.raises(InputFileError):
+        read_deep_samples(REGRESSIONS / "deep_count_table_short.exr")
+
+
+def test_fuzz_engine_flags_a_short_deep_count_table(engine, tmp_path):
+    """The soak knows which count-table mutations leave an invalid file (so a reader that
+    accepts one is a failure) and which only move samples between pixels (a valid file)."""
+    case = engine.Case(0, "saved", "saved", "x (invalid)", (REGRESSIONS / "deep_count_table_short.exr").read_bytes())
+    assert case.must_reject
+    record = engine.run_case(case, tmp_path)
+    assert any("accepted an invalid deep sample count table" in f for f in record["failures"])
 
 
 # ---------------------------------------------------------------------------- non-finite samples in the CLI
