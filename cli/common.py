@@ -65,12 +65,16 @@ def add_plane_options(parser: argparse.ArgumentParser) -> None:
                    help="what --variance holds: per-sample variance, variance of the mean, or E[x^2]")
     g.add_argument("--spp", type=int, metavar="N", help="samples per pixel when the file has no count")
     g.add_argument("--layer", metavar="NAME", help="Cycles view layer when the file has several")
+    g.add_argument("--nonfinite", default="raise", choices=("raise", "drop", "zero"),
+                   help="NaN/Inf samples of a deep per-sample dump: refuse them (default), leave them "
+                        "out, or count them as 0; dropped or zeroed samples are reported")
 
 
 def plane_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     """Keyword arguments of :func:`awr_denoise.io.read_sample_buffer` from the plane options."""
     return {"preset": args.preset, "color": args.color, "variance": args.variance, "count": args.count,
-            "variance_kind": args.variance_kind, "spp": args.spp, "layer": args.layer}
+            "variance_kind": args.variance_kind, "spp": args.spp, "layer": args.layer,
+            "nonfinite": args.nonfinite}
 
 
 _RANGE = re.compile(r"^(-?\d+)(?:-(-?\d+)(?:[x:](\d+))?)?$")

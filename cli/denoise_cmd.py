@@ -76,7 +76,7 @@ def _denoise_one(args: argparse.Namespace, source: str, output: str, preview: st
         "awr:version": __version__, "awr:c_s": float(args.c_s), "awr:wavelet": args.wavelet,
         "awr:levels": int(result.levels), "awr:domain": args.domain, "awr:mode": args.mode,
         "awr:input": os.path.basename(source), "awr:spp": float(buffer.total_samples / buffer.count.size),
-        "awr:fraction_zeroed": float(result.fraction_zeroed),
+        "awr:fraction_zeroed": float(result.fraction_zeroed), "awr:nonfinite": int(buffer.nonfinite),
     }
     write_image(output, result.image, channels=buffer.channels, header=header, half=args.half,
                 overwrite=args.overwrite)
@@ -84,6 +84,9 @@ def _denoise_one(args: argparse.Namespace, source: str, output: str, preview: st
         write_preview(preview, result.image, exposure=args.exposure, overwrite=args.overwrite)
     note = f"{output}: {buffer.shape[1]}x{buffer.shape[0]}, {header['awr:spp']:.3g} spp, " \
            f"{100 * result.fraction_zeroed:.1f}% coefficients zeroed"
+    if buffer.nonfinite:
+        note += f", {buffer.nonfinite} non-finite sample(s) {'dropped' if args.nonfinite == 'drop' else 'zeroed'} " \
+                "on input"
     if args.ref:
         from awr_denoise.metrics import relmse
 

@@ -241,8 +241,6 @@ def test_awr_merge_carries_the_nonfinite_count(dump_with_nonfinite, tmp_path):
     assert read_sample_buffer(merged).nonfinite == 6
 
 
-@pytest.mark.xfail(strict=True, reason="cli gap (reported): awr denoise neither prints the input's non-finite "
-                                       "sample count nor records it (awr:nonfinite) in the output header")
 def test_awr_denoise_reports_the_nonfinite_count(dump_with_nonfinite, tmp_path):
     from awr_denoise.io import read_header
 
@@ -275,9 +273,6 @@ def test_deep_dump_with_nan_samples_is_refused_by_default(deep_with_nan, tmp_pat
     assert not (tmp_path / "o.exr").exists()
 
 
-@pytest.mark.xfail(strict=True, reason="io/cli gap (reported): per-sample deep dumps are the only files with "
-                                       "individual samples, yet neither read_deep_samples nor awr offers the "
-                                       "drop/zero policies of SampleBuffer.from_samples")
 def test_deep_dump_nan_policy_is_available(deep_with_nan, tmp_path):
     from awr_denoise.io import read_deep_samples
 

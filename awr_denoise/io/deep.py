@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from .._typing import FloatArray, Shape2D
-from ..buffers import SampleBuffer
+from ..buffers import NONFINITE_POLICIES, SampleBuffer
 from .exr import ExrPart, checked_plane, file_error, header_value, read_exr, write_exr
 
 __all__ = ["SEMANTICS_SAMPLES", "SAMPLE_INDEX_CHANNEL", "read_deep_samples", "write_deep_samples",
@@ -103,8 +103,15 @@ def _sizes(grid: np.ndarray) -> np.ndarray:
     return np.fromiter(map(lambda a: 0 if a is None else a.size, flat), dtype=np.int64, count=flat.size)
 
 
-def samples_from_deep_part(path: str | os.PathLike[str], part: ExrPart) -> SampleBuffer:
-    """Statistics of the samples in a deep part marked ``awr:semantics = "mc-samples"``."""
+def samples_from_deep_part(path: str | os.PathLike[str], part: ExrPart, *, nonfinite: str = "raise") -> SampleBuffer:
+    """Statistics of the samples in a deep part marked ``awr:semantics = "mc-samples"``.
+
+    ``nonfinite`` is the policy of :meth:`SampleBuffer.from_samples` for NaN/Inf samples:
+    ``"raise"`` (an :class:`~awr_denoise.errors.InputFileError` naming the channel), ``"drop"``
+    or ``"zero"`` (counted in the buffer's ``nonfinite``).
+    """
+    if nonfinite not in NONFINITE_POLICIES:
+        raise ValueError(f"nonfinite: {nonfinite!r} is not one of {', '.join(NONFINITE_POLICIES)}")
     semantics = str(header_value(part.header, "awr:semantics")) if "awr:semantics" in part.header else None
     if semantics != SEMANTICS_SAMPLES:
         raise file_error(path, "deep EXR without awr:semantics = \"mc-samples\" (depth samples are not "
@@ -125,14 +132,22 @@ def samples_from_deep_part(path: str | os.PathLike[str], part: ExrPart) -> Sampl
         if not np.array_equal(_sizes(part.channels[name]), sizes):
             raise file_error(path, "sample counts differ from the other channels", name)
         data = np.concatenate(flat[nonempty]) if nonempty.any() else np.zeros(0, np.float32)
-        columns.append(checked_plane(path, name, data))
+        if nonfinite == "raise":
+            columns.append(checked_plane(path, name, data))
+        elif data.dtype.kind != "f":
+            raise file_error(path, f"unsupported channel type {data.dtype}", name)
+        else:
+            columns.append(data.astype(np.float64))
     values = np.stack(columns, axis=-1)
     pixel = np.repeat(np.arange(h * w, dtype=np.int64), sizes)
-    return SampleBuffer.from_samples(pixel, values, (h, w), channels=names)
+    return SampleBuffer.from_samples(pixel, values, (h, w), channels=names, nonfinite=nonfinite)
 
 
-def read_deep_samples(path: str | os.PathLike[str]) -> SampleBuffer:
+def read_deep_samples(path: str | os.PathLike[str], *, nonfinite: str = "raise") -> SampleBuffer:
     """Read a deep per-sample dump into per-pixel statistics.
+
+    ``nonfinite``: ``"raise"`` (default), ``"drop"`` or ``"zero"`` for NaN/Inf samples; dropped
+    or zeroed samples are counted in the buffer's ``nonfinite``.
 
     Raises
     ------
@@ -153,4 +168,4 @@ def read_deep_samples(path: str | os.PathLike[str]) -> SampleBuffer:
     deep = [part for part in parts if part.deep]
     if not deep:
         raise file_error(path, "is not a deep EXR")
-    return samples_from_deep_part(Path(path), deep[0])
+    return samples_from_deep_part(Path(path), deep[0], nonfinite=nonfinite)

@@ -373,6 +373,7 @@ def read_sample_dump(
     variance_kind: str | None = None,
     spp: int | None = None,
     layer: str | None = None,
+    nonfinite: str = "raise",
 ) -> SampleDump:
     """Read sample statistics with their bookkeeping (see :func:`read_sample_buffer`).
 
@@ -396,7 +397,7 @@ def read_sample_dump(
     if preset in ("auto", "deep") and parts[0].deep:
         from .deep import samples_from_deep_part
 
-        buf = samples_from_deep_part(p, parts[0])
+        buf = samples_from_deep_part(p, parts[0], nonfinite=nonfinite)
         return SampleDump(buf, buf.count, {})
     if preset == "deep":
         raise file_error(p, "is not a deep EXR")
@@ -431,6 +432,7 @@ def read_sample_buffer(
     variance_kind: str | None = None,
     spp: int | None = None,
     layer: str | None = None,
+    nonfinite: str = "raise",
 ) -> SampleBuffer:
     """Read per-pixel sample statistics from an EXR file, channels by name.
 
@@ -452,6 +454,10 @@ def read_sample_buffer(
         Cycles' header value).
     layer
         Cycles view layer when the file has several.
+    nonfinite
+        Policy for NaN/Inf *samples* of a deep per-sample dump: ``"raise"`` (default),
+        ``"drop"`` or ``"zero"``, counted in the buffer's ``nonfinite``. Flat files hold
+        statistics, where NaN/Inf is always an error.
 
     Returns
     -------
@@ -465,4 +471,4 @@ def read_sample_buffer(
         between files; NaN/Inf (half-float overflow named); negative variance or counts.
     """
     return read_sample_dump(path, preset=preset, color=color, variance=variance, count=count,
-                            variance_kind=variance_kind, spp=spp, layer=layer).buffer
+                            variance_kind=variance_kind, spp=spp, layer=layer, nonfinite=nonfinite).buffer
