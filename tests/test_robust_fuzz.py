@@ -242,6 +242,7 @@ def test_awr_merge_carries_the_nonfinite_count(dump_with_nonfinite, tmp_path):
 
 
 def test_awr_denoise_reports_the_nonfinite_count(dump_with_nonfinite, tmp_path):
+    """Regression for a reported gap (closed in b81a905): denoise printed and recorded nothing."""
     from awr_denoise.io import read_header
 
     out = tmp_path / "out.exr"
@@ -274,6 +275,8 @@ def test_deep_dump_with_nan_samples_is_refused_by_default(deep_with_nan, tmp_pat
 
 
 def test_deep_dump_nan_policy_is_available(deep_with_nan, tmp_path):
+    """Regression for a reported gap (closed in b81a905): deep dumps, the only files with
+    individual samples, had no drop/zero policy."""
     from awr_denoise.io import read_deep_samples
 
     buf = read_deep_samples(deep_with_nan, nonfinite="drop")
