@@ -69,11 +69,20 @@ def bench_scene(name: str, *, spp: int, repeats: int, threads: int, size: int | 
         rays = int(tracer.stats["rays"] - before["rays"])
         samples = int(tracer.stats["samples"] - before["samples"])
         split = {k: int(tracer.stats[k] - before[k]) for k in ("camera_rays", "bounce_rays", "shadow_rays")}
+    # The same render on one thread: how much the thread pool gains.
+    single = PathTracer(scene, threads=1, sampler="sobol")
+    single(SampleRequest.uniform(single.shape, 1))
+    best_single = np.inf
+    for _ in range(repeats):
+        start = time.perf_counter()
+        single(request)
+        best_single = min(best_single, time.perf_counter() - start)
     tracer.accelerator.record = []
     tracer(request)
     record, tracer.accelerator.record = tracer.accelerator.record, None
     recorded_rays = sum(len(item[2]) for item in record)
     best_raw = min(_replay(tracer, record, threads) for _ in range(repeats))
+    best_raw_single = min(_replay(tracer, record, 1) for _ in range(repeats))
     tracer.close()
     return {
         "scene": name, "width": scene.width, "height": scene.height, "dimension": scene.dimension,
@@ -83,6 +92,8 @@ def bench_scene(name: str, *, spp: int, repeats: int, threads: int, size: int | 
         "tracer_rays_per_s": rays / best_tracer,
         "raw_embree_seconds": best_raw, "raw_embree_rays_per_s": recorded_rays / best_raw,
         "ratio_tracer_to_raw": (rays / best_tracer) / (recorded_rays / best_raw),
+        "tracer_single_thread_seconds": best_single, "tracer_thread_speedup": best_single / best_tracer,
+        "raw_embree_single_thread_seconds": best_raw_single, "raw_thread_speedup": best_raw_single / best_raw,
     }
 
 
@@ -94,22 +105,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--size", type=int, default=None, help="square resolution (default: each scene's own)")
     parser.add_argument("--scenes", nargs="*", default=None)
     parser.add_argument("--output", type=Path, default=RESULTS)
+    # A loaded machine distorts every number here; the load is recorded with the results.
     args = parser.parse_args(argv)
     names = args.scenes or list_scenes()
+    load_at_start = os.getloadavg()
     rows = []
-    header = (f"{'scene':<14}{'dim':>4}{'tris':>8}{'rays/spl':>9}{'Msamples/s':>11}{'Mrays/s':>9}"
-              f"{'raw Mrays/s':>12}{'ratio':>7}")
+    header = (f"{'scene':<14}{'dim':>4}{'tris':>6}{'rays/spl':>9}{'Msamples/s':>11}{'Mrays/s':>9}"
+              f"{'raw Mrays/s':>12}{'ratio':>7}{'tracer 2T/1T':>13}{'raw 2T/1T':>10}")
     print(header)
     print("-" * len(header))
     for name in names:
         r = bench_scene(name, spp=args.spp, repeats=args.repeats, threads=args.threads, size=args.size)
         rows.append(r)
-        print(f"{name:<14}{r['dimension']:>4}{r['triangles']:>8}{r['rays_per_sample']:>9.2f}"
+        print(f"{name:<14}{r['dimension']:>4}{r['triangles']:>6}{r['rays_per_sample']:>9.2f}"
               f"{r['tracer_samples_per_s'] / 1e6:>11.3f}{r['tracer_rays_per_s'] / 1e6:>9.2f}"
-              f"{r['raw_embree_rays_per_s'] / 1e6:>12.2f}{r['ratio_tracer_to_raw']:>7.1%}")
+              f"{r['raw_embree_rays_per_s'] / 1e6:>12.2f}{r['ratio_tracer_to_raw']:>7.1%}"
+              f"{r['tracer_thread_speedup']:>13.2f}{r['raw_thread_speedup']:>10.2f}")
     result = {
         "command": " ".join(["python benchmarks/bench_tracer.py", *(sys.argv[1:] if argv is None else argv)]),
         "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "load_average_1_5_15min": {"start": load_at_start, "end": os.getloadavg()},
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__,
                     "embreex": version("embreex"), "platform": platform.platform()},
         "settings": {"spp": args.spp, "repeats": args.repeats, "threads": args.threads, "sampler": "sobol",
