@@ -48,8 +48,9 @@ class Domain:
     robust
         Firefly policy. The delta method needs ``f'`` at the true mean; by default it is taken
         at the pixel mean, which a firefly inflates, so the firefly's variance in the domain
-        looks small and it survives. With ``robust=True`` ``f'`` is taken at
-        ``min(mean, 3x3 median of the means)``: isolated spikes get their full variance and are
+        looks small and it survives. With ``robust=True`` ``f'`` is taken at whichever of the
+        mean and the 3x3 median of the means has the smaller magnitude (``min(mean, median)``
+        for non-negative images; negative spikes alike): isolated spikes get their full variance and are
         smoothed away. Measured on synthetic fireflies this lowers relMSE about 10x further, but
         it also smooths genuinely tiny bright features (a 1-pixel light) and made a small HDR
         source worse than the plain mean at 4 spp, so it is off by default
@@ -138,7 +139,10 @@ class _BoundDomain:
         at = mean
         if self.domain.robust and mean.ndim >= 2 and min(mean.shape[:2]) >= 3:
             size = (3, 3) + (1,) * (mean.ndim - 2)
-            at = np.minimum(mean, ndimage.median_filter(mean, size=size, mode="nearest"))
+            median = ndimage.median_filter(mean, size=size, mode="nearest")
+            # The smaller *magnitude* (every domain is odd): min(mean, median) for non-negative
+            # images, and a negative spike is treated like a positive one.
+            at = np.where(np.abs(median) < np.abs(mean), median, mean)
         d = self.derivative(at)
         return variance * d * d
 

@@ -149,6 +149,28 @@ def test_robust_policy_removes_the_firefly(firefly_runs, n, clamp):
     assert abs(_kept(run)) < 0.01
 
 
+@pytest.mark.parametrize("domain", [LOG_ROBUST, GAMMA_ROBUST], ids=_ids)
+def test_robust_policy_removes_a_negative_firefly_too(samples, domain):
+    """Regression: ``f'`` was taken at ``min(mean, median)``, which for a negative spike is the
+    spike itself, so a negative firefly survived at full strength (-2.3e4 x clean in the log
+    domain where the positive one ends at 1.15x)."""
+    pixels, values = samples
+    pos = with_fireflies(samples, 1)
+    neg = SampleBuffer.from_samples(pixels, -np.asarray(with_fireflies_values(samples, 1)), (H, W))
+    out_pos = reconstruct(pos, domain=domain)[..., 0]
+    out_neg = reconstruct(neg, domain=domain)[..., 0]
+    np.testing.assert_allclose(out_neg, -out_pos, rtol=1e-12, atol=1e-12)
+    if domain.name == "log":
+        assert abs(out_neg[CENTRE]) < 2 * CLEAN
+
+
+def with_fireflies_values(samples, n_fireflies, gain=1e6):
+    pixels, values = samples
+    v = values.copy()
+    v[np.nonzero(pixels == CENTRE[0] * W + CENTRE[1])[0][:n_fireflies]] = CLEAN * gain
+    return v
+
+
 def test_gamma_domain_sits_between(firefly_runs):
     clean_out, out, _, _ = firefly_runs["gamma", "paper", 1]
     delta = np.abs(out - clean_out)
