@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -26,7 +27,7 @@ RAY_EPSILON_SCALE = 2e-5
 _NO_HIT = 1e37
 
 
-def _embree():
+def _embree() -> tuple[Any, Any, Any]:
     # Imported lazily: importing the tracer checks that embreex is installed, but only
     # building an accelerator loads it.
     from embreex import rtcore as rtc

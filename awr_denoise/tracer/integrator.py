@@ -102,6 +102,8 @@ class PathTracer:
         self.scene = load_scene(scene)
         if sampler not in SAMPLER_NAMES:
             raise ValueError(f"sampler: {sampler!r} is not one of {', '.join(SAMPLER_NAMES)}")
+        if int(seed) < 0:
+            raise ValueError(f"seed: {seed} must be >= 0")
         if max_depth is not None and int(max_depth) < 0:
             raise ValueError(f"max_depth: {max_depth} must be >= 0 or None")
         if int(threads) < 1:
