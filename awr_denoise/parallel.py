@@ -1,9 +1,10 @@
 """Parallel and distributed execution: frame sequences, tiled reconstruction, tiled rendering.
 
 Everything here takes any :class:`concurrent.futures.Executor` through ``executor=``. Without
-one, work runs on in-process threads (:class:`~concurrent.futures.ThreadPoolExecutor`): numpy,
-PyWavelets and embreex release the GIL in their heavy parts, and neither a cluster nor Dask is
-needed. :func:`get_executor` makes the other kinds on demand:
+one, work runs on in-process threads (:class:`~concurrent.futures.ThreadPoolExecutor`), which
+need neither a cluster nor Dask; numpy, PyWavelets and embreex release the GIL only in their
+larger operations, so processes scale better (docs/distributed.md has measurements).
+:func:`get_executor` makes the other kinds on demand:
 
 * ``"threads"``: a thread pool (the default);
 * ``"processes"``: a process pool on this machine;

@@ -491,3 +491,19 @@ def test_tasks_are_never_answered_from_dask_cache(cluster, tmp_path):
         # Both ran, so one found the directory made; pure tasks would have shared one result.
         assert outcomes == ["FileExistsError", "NoneType"]
         executor.shutdown()
+
+
+def test_process_pool_gives_the_serial_results(tmp_path, dumps):
+    shape = (40, 56)
+    spec = RendererSpec.synthetic("hdr_source", shape, seed=9)
+    buffer = noisy_buffer(shape=(80, 100))
+    serial = [tmp_path / f"serial.{i}.exr" for i in range(len(dumps))]
+    serial_frames(dumps, serial)
+    pooled = [tmp_path / f"pool.{i}.exr" for i in range(len(dumps))]
+    with get_executor("processes", workers=2) as executor:
+        denoise_frames(dumps, pooled, executor=executor)
+        tiled = render_tiled(spec, AdaptiveSampler(shape, seed=2), total_spp=6, tile=24, executor=executor)
+        image = reconstruct_tiled(buffer, tile=40, levels=3, executor=executor)
+    assert_same_files(pooled, serial)
+    assert_same_buffer(tiled, serial_render(spec, shape, 6))
+    assert_tiled_close(image, reconstruct(buffer, levels=3))
