@@ -283,7 +283,7 @@ def reconstruct_detailed(
         var_out_y = np.stack(run(lambda c: _output_variance(var_y[:, :, c], results[c].factors, ops, variance_probes,
                                                              seed + c), range(n_ch)), axis=-1)
         d = bound.derivative(image)
-        out_var = var_out_y / (d * d)
+        out_var = var_out_y / d / d  # not d * d: that over/underflows for means beyond ~1e+-154
     else:
         out_var = np.full(image.shape, np.nan)
     return Reconstruction(image=image, thresholds=[r.thresholds for r in results],

@@ -372,3 +372,19 @@ class TestDegenerateImages:
         rec = reconstruct_detailed(buf, c_s=1e6, domain="linear", variance_probes=0, pixel_clamp=None)
         assert rec.fraction_zeroed == 1.0
         assert abs(rec.image.mean() - buf.mean.mean()) < 0.01
+
+
+class TestOutputVariance:
+    """Regression: ``reconstruct_detailed`` undid the domain on the output variance with
+    ``var / (d * d)``; ``d * d`` overflows for means below ~1e-154 and underflows to 0 above
+    ~1e154 (RuntimeWarning, then Inf or NaN variances). Now ``var / d / d``."""
+
+    @pytest.mark.parametrize("magnitude", [1e-300, 1e-160, 1e-30, 1.0, 1e30, 1e160, 1e300])
+    @pytest.mark.parametrize("domain", DOMAINS)
+    def test_output_variance_is_finite(self, magnitude, domain):
+        rng = np.random.default_rng(SEED)
+        var = (0.1 * magnitude) ** 2 if magnitude < 1e150 else 1e300
+        buf = SampleBuffer.from_moments(np.full((8, 8), 4), magnitude * rng.random((8, 8, 1)), np.full((8, 8, 1), var))
+        rec = reconstruct_detailed(buf, domain=domain, variance_probes=4)
+        assert np.isfinite(rec.image).all()
+        assert np.isfinite(rec.variance).all() and (rec.variance >= 0).all()
