@@ -53,10 +53,11 @@ def _replay(tracer: PathTracer, record: list, threads: int) -> float:
     return time.perf_counter() - start
 
 
-def bench_scene(name: str, *, spp: int, repeats: int, threads: int, size: int | None) -> dict:
+def bench_scene(name: str, *, spp: int, repeats: int, threads: int, size: int | None,
+                workers: str = "threads") -> dict:
     """Best-of-``repeats`` tracer and raw embreex throughput for one scene."""
     scene = load_scene(name, width=size, height=size)
-    tracer = PathTracer(scene, threads=threads, sampler="sobol")
+    tracer = PathTracer(scene, threads=threads, sampler="sobol", workers=workers)
     request = SampleRequest.uniform(tracer.shape, spp)
     tracer(SampleRequest.uniform(tracer.shape, 1))  # warm up (BVH is built at construction)
     best_tracer, rays, samples = np.inf, 0, 0
@@ -77,12 +78,14 @@ def bench_scene(name: str, *, spp: int, repeats: int, threads: int, size: int | 
         start = time.perf_counter()
         single(request)
         best_single = min(best_single, time.perf_counter() - start)
-    tracer.accelerator.record = []
-    tracer(request)
-    record, tracer.accelerator.record = tracer.accelerator.record, None
+    # Record the rays in-process (the same rays whatever the workers: samples are addressed).
+    single.batch_size = max(1, min(tracer.batch_size, -(-request.total // threads)))  # the pool's batches
+    single.accelerator.record = []
+    single(request)
+    record, single.accelerator.record = single.accelerator.record, None
     recorded_rays = sum(len(item[2]) for item in record)
-    best_raw = min(_replay(tracer, record, threads) for _ in range(repeats))
-    best_raw_single = min(_replay(tracer, record, 1) for _ in range(repeats))
+    best_raw = min(_replay(single, record, threads) for _ in range(repeats))
+    best_raw_single = min(_replay(single, record, 1) for _ in range(repeats))
     tracer.close()
     return {
         "scene": name, "width": scene.width, "height": scene.height, "dimension": scene.dimension,
@@ -102,6 +105,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--spp", type=int, default=8)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--workers", nargs="+", default=["threads", "processes"], choices=("threads", "processes"),
+                        help="how the tracer runs its batches concurrently (each kind is measured)")
     parser.add_argument("--size", type=int, default=None, help="square resolution (default: each scene's own)")
     parser.add_argument("--scenes", nargs="*", default=None)
     parser.add_argument("--output", type=Path, default=RESULTS)
@@ -110,24 +115,29 @@ def main(argv: list[str] | None = None) -> int:
     names = args.scenes or list_scenes()
     load_at_start = os.getloadavg()
     rows = []
-    header = (f"{'scene':<14}{'dim':>4}{'tris':>6}{'rays/spl':>9}{'Msamples/s':>11}{'Mrays/s':>9}"
+    header = (f"{'scene':<14}{'workers':>10}{'dim':>4}{'tris':>6}{'rays/spl':>9}{'Msamples/s':>11}"
+              f"{'Mrays/s':>9}"
               f"{'raw Mrays/s':>12}{'ratio':>7}{'tracer 2T/1T':>13}{'raw 2T/1T':>10}")
     print(header)
     print("-" * len(header))
     for name in names:
-        r = bench_scene(name, spp=args.spp, repeats=args.repeats, threads=args.threads, size=args.size)
-        rows.append(r)
-        print(f"{name:<14}{r['dimension']:>4}{r['triangles']:>6}{r['rays_per_sample']:>9.2f}"
-              f"{r['tracer_samples_per_s'] / 1e6:>11.3f}{r['tracer_rays_per_s'] / 1e6:>9.2f}"
-              f"{r['raw_embree_rays_per_s'] / 1e6:>12.2f}{r['ratio_tracer_to_raw']:>7.1%}"
-              f"{r['tracer_thread_speedup']:>13.2f}{r['raw_thread_speedup']:>10.2f}")
+        for workers in args.workers:
+            r = bench_scene(name, spp=args.spp, repeats=args.repeats, threads=args.threads, size=args.size,
+                            workers=workers)
+            r["workers"] = workers
+            rows.append(r)
+            print(f"{name:<14}{workers:>10}{r['dimension']:>4}{r['triangles']:>6}{r['rays_per_sample']:>9.2f}"
+                  f"{r['tracer_samples_per_s'] / 1e6:>11.3f}{r['tracer_rays_per_s'] / 1e6:>9.2f}"
+                  f"{r['raw_embree_rays_per_s'] / 1e6:>12.2f}{r['ratio_tracer_to_raw']:>7.1%}"
+                  f"{r['tracer_thread_speedup']:>13.2f}{r['raw_thread_speedup']:>10.2f}")
     result = {
         "command": " ".join(["python benchmarks/bench_tracer.py", *(sys.argv[1:] if argv is None else argv)]),
         "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "load_average_1_5_15min": {"start": load_at_start, "end": os.getloadavg()},
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__,
                     "embreex": version("embreex"), "platform": platform.platform()},
-        "settings": {"spp": args.spp, "repeats": args.repeats, "threads": args.threads, "sampler": "sobol",
+        "settings": {"spp": args.spp, "repeats": args.repeats, "threads": args.threads, "workers": args.workers,
+                     "sampler": "sobol",
                      "timing": "best of repeats, wall clock"},
         "scenes": rows,
     }

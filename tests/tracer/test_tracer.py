@@ -452,3 +452,19 @@ def test_latlong_environment_loads_the_sky_file() -> None:
     procedural = load_scene("sky_objects").environment
     assert np.array_equal(from_file.image, procedural.image)
     np.testing.assert_array_equal(from_file.row_cdf, procedural.row_cdf)
+
+
+def test_process_workers_trace_the_same_samples_as_threads() -> None:
+    scene = load_scene("rolling_balls", width=16, height=16)
+    request = SampleRequest.uniform(scene.shape, 4)
+    threaded = PathTracer(scene, threads=2, batch_size=256)
+    spawned = PathTracer(scene, threads=2, batch_size=256, workers="processes")
+    try:
+        a, b = threaded(request), spawned(request)
+    finally:
+        spawned.close()
+    assert np.array_equal(a.mean, b.mean) and np.array_equal(a.variance, b.variance)
+    assert spawned.dimensions_drawn == set(spawned.dimensions)
+    assert spawned.stats["rays"] == threaded.stats["rays"] > 0
+    with pytest.raises(ValueError, match="workers: 'gpu' is not one of threads, processes"):
+        PathTracer(scene, workers="gpu")
