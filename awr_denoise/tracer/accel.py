@@ -103,6 +103,11 @@ class Accelerator:
         self.record: list[tuple[str, int, np.ndarray, np.ndarray, np.ndarray | None]] | None = None
         self._commit()
 
+    @property
+    def scene_count(self) -> int:
+        """Embree scenes every ray is traced against (static geometry plus each moving object)."""
+        return int(self.static_scene is not None) + len(self.moving_scenes)
+
     def _commit(self) -> None:
         # The BVH is built lazily on the first run(); build it here, once, from one thread.
         probe_o = np.zeros((1, 3), np.float32)

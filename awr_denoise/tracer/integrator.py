@@ -304,7 +304,7 @@ class PathTracer:
         while len(path):
             t_ray = time[path]
             hits = accel.intersect(o, d, t_ray)
-            counts["rays"] += len(path) * (1 + len(accel.moving_scenes))
+            counts["rays"] += len(path) * accel.scene_count
             counts[ray_kind] += len(path)
             ray_kind = "bounce_rays"
 
@@ -483,7 +483,7 @@ class PathTracer:
                 if len(so):
                     blocked = accel.occluded(so, np.concatenate(shadow_d), np.concatenate(shadow_dist),
                                              np.concatenate(shadow_time))
-                    counts["rays"] += len(so) * (1 + len(accel.moving_scenes))
+                    counts["rays"] += len(so) * accel.scene_count
                     counts["shadow_rays"] += len(so)
                     visible = ~blocked
                     target = np.concatenate(shadow_target)[visible]
