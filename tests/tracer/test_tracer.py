@@ -66,7 +66,8 @@ def test_import_without_embreex_raises_install_hint() -> None:
 
 
 def test_core_library_does_not_import_tracer() -> None:
-    code = "import sys, awr_denoise, awr_denoise.buffers, awr_denoise.requests; print('awr_denoise.tracer' in sys.modules)"
+    code = ("import sys, awr_denoise, awr_denoise.buffers, awr_denoise.requests\n"
+            "print('awr_denoise.tracer' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, check=True)
     assert out.stdout.strip() == "False"
 
@@ -182,7 +183,8 @@ def test_sobol_pairs_are_stratified_and_pixels_independent() -> None:
         x = sampler.get(key, 0, sample_index=index, group=(0, 1))
         y = sampler.get(key, 1, sample_index=index, group=(0, 1))
         for bits_x in range(5):  # every elementary interval of a (0, 4, 2)-net holds one point
-            cells = np.floor(x * 2**bits_x).astype(int) * 2 ** (4 - bits_x) + np.floor(y * 2 ** (4 - bits_x)).astype(int)
+            bits_y = 4 - bits_x
+            cells = np.floor(x * 2**bits_x).astype(int) * 2**bits_y + np.floor(y * 2**bits_y).astype(int)
             assert len(np.unique(cells)) == 16
     a = sampler.get(sampler.start(np.zeros(16, int), index), 0, sample_index=index, group=(0, 1))
     b = sampler.get(sampler.start(np.ones(16, int), index), 0, sample_index=index, group=(0, 1))
