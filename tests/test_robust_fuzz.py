@@ -187,8 +187,6 @@ def test_corrupt_request_map_is_an_input_file_error():
         read_request(REGRESSIONS / "request_inserted_bytes_utf8.exr")
 
 
-@pytest.mark.xfail(strict=True, reason="io bug (reported): a deep scanline whose cumulative sample counts total "
-                                       "fewer samples than its data holds is read silently, dropping samples")
 def test_deep_count_table_short_of_the_data_is_refused(tmp_path):
     from awr_denoise.errors import InputFileError
     from awr_denoise.io import read_deep_samples
@@ -199,11 +197,11 @@ def test_deep_count_table_short_of_the_data_is_refused(tmp_path):
 
 def test_fuzz_engine_flags_a_short_deep_count_table(engine, tmp_path):
     """The soak knows which count-table mutations leave an invalid file (so a reader that
-    accepts one is a failure) and which only move samples between pixels (a valid file)."""
+    accepts one is a failure); the readers now refuse this one, so the case runs clean."""
     case = engine.Case(0, "saved", "saved", "x (invalid)", (REGRESSIONS / "deep_count_table_short.exr").read_bytes())
     assert case.must_reject
     record = engine.run_case(case, tmp_path)
-    assert any("accepted an invalid deep sample count table" in f for f in record["failures"])
+    assert record["failures"] == []
 
 
 # ---------------------------------------------------------------------------- non-finite samples in the CLI

@@ -92,10 +92,62 @@ def write_deep_samples(
             raise ValueError(f"sample_index: expected shape ({flat.size},), got {idx.shape}")
         planes[SAMPLE_INDEX_CHANNEL] = _object_grid(np.split(exact_counts("sample_index", idx)[order], bounds),
                                                     (h, w))
+    # The total lets the reader catch a count table that disagrees with the data: OpenEXR
+    # tolerates surplus sample data, and its Python binding does not expose chunk sizes.
     attrs: dict[str, Any] = {"awr:semantics": SEMANTICS_SAMPLES, "awr:channels": ",".join(names),
-                             "awr:version": __version__}
+                             "awr:version": __version__, "awr:samples": str(int(flat.size))}
     attrs.update(header or {})
     return write_exr(path, planes, attrs, overwrite=overwrite, deep=True)
+
+
+_PIXEL_TYPE_BYTES = {0: 4, 1: 2, 2: 4}  # UINT, HALF, FLOAT
+
+
+def _unpacked_sample_bytes(path: str | os.PathLike[str]) -> tuple[int, int] | None:
+    """(sum of the chunks' unpacked sample-data sizes, bytes per sample) of a single-part deep
+    scanline file, read from the raw chunk headers, or None where the layout is not that.
+
+    Each deep scanline chunk starts with ``int32 y, uint64 packed table size, uint64 packed data
+    size, uint64 unpacked data size`` (OpenEXR file layout), uncompressed, so the data the file
+    really holds can be checked against the count table without decompressing anything.
+    """
+    data = Path(path).read_bytes()
+    if len(data) < 8 or data[:4] != b"\x76\x2f\x31\x01":
+        return None
+    flags = int.from_bytes(data[4:8], "little")
+    if flags & 0x1000 or not flags & 0x800:  # multi-part, or not deep
+        return None
+    at, channels, height, scanline = 8, None, None, False
+    try:
+        while data[at] != 0:
+            name_end = data.index(b"\x00", at)
+            type_end = data.index(b"\x00", name_end + 1)
+            size = int.from_bytes(data[type_end + 1:type_end + 5], "little", signed=True)
+            name, value = data[at:name_end], data[type_end + 5:type_end + 5 + size]
+            if name == b"channels":
+                channels, i = [], 0
+                while value[i] != 0:
+                    i = value.index(b"\x00", i) + 1
+                    channels.append(int.from_bytes(value[i:i + 4], "little"))
+                    i += 16
+            elif name == b"dataWindow":
+                y0 = int.from_bytes(value[4:8], "little", signed=True)
+                y1 = int.from_bytes(value[12:16], "little", signed=True)
+                height = y1 - y0 + 1
+            elif name == b"type":
+                scanline = value.rstrip(b"\x00") == b"deepscanline"
+            at = type_end + 5 + size
+        at += 1
+        if not scanline or channels is None or height is None or height <= 0:
+            return None
+        per_sample = sum(_PIXEL_TYPE_BYTES[t] for t in channels)
+        offsets = np.frombuffer(data, dtype="<u8", count=height, offset=at)
+        total = 0
+        for offset in offsets.tolist():  # one chunk header per scanline, not per pixel
+            total += int.from_bytes(data[offset + 20:offset + 28], "little")
+        return total, per_sample
+    except (IndexError, ValueError, KeyError):
+        return None  # unreadable layout: the bindings' own checks have already run
 
 
 def _sizes(grid: np.ndarray) -> np.ndarray:
@@ -125,6 +177,15 @@ def samples_from_deep_part(path: str | os.PathLike[str], part: ExrPart, *, nonfi
             raise file_error(path, "missing", name)
     h, w = part.shape
     sizes = _sizes(part.channels[names[0]])
+    chunk_bytes = _unpacked_sample_bytes(path)
+    if chunk_bytes is not None and chunk_bytes[0] != int(sizes.sum()) * chunk_bytes[1]:
+        raise file_error(path, f"the sample count tables hold {int(sizes.sum())} samples but the chunks "
+                               f"hold {chunk_bytes[0] // max(chunk_bytes[1], 1)} (corrupt count table)")
+    if "awr:samples" in part.header:
+        declared = str(header_value(part.header, "awr:samples"))
+        if not declared.isdigit() or int(declared) != int(sizes.sum()):
+            raise file_error(path, f"the sample count table holds {int(sizes.sum())} samples but the file "
+                                   f"declares {declared} (corrupt count table)", "awr:samples")
     nonempty = sizes > 0
     columns = []
     for name in names:
