@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"  samples: {info['total_samples']} total, "
               f"spp min {s['min']:g} / mean {s['mean']:.4g} / max {s['max']:g}; "
               f"{info['pixels_without_samples']} pixel(s) without samples; "
-              f"{info['variance_unknown']} with unknown variance; {info['nonfinite_dropped']} non-finite dropped")
+              f"{info['variance_unknown']} with unknown variance; {info['nonfinite_dropped']} non-finite sample(s) dropped or zeroed")
     elif info["kind"] == "request":
         s = info["spp"]
         print(f"  request: round {info['round']}, {info['total']} samples, per pixel min {s['min']:g} / "

@@ -194,7 +194,7 @@ def samples_from_deep_part(path: str | os.PathLike[str], part: ExrPart, *, nonfi
             raise file_error(path, "sample counts differ from the other channels", name)
         data = np.concatenate(flat[nonempty]) if nonempty.any() else np.zeros(0, np.float32)
         if nonfinite == "raise":
-            columns.append(checked_plane(path, name, data))
+            columns.append(checked_plane(path, name, data, unit="sample"))
         elif data.dtype.kind != "f":
             raise file_error(path, f"unsupported channel type {data.dtype}", name)
         else:

@@ -228,8 +228,11 @@ def header_value(header: Mapping[str, Any], key: str) -> Any:
 
 
 def checked_plane(path: str | os.PathLike[str], name: str, array: np.ndarray, *,
-                  nonnegative: bool = False) -> FloatArray:
-    """A flat channel as float64, refusing NaN, Inf (half overflow named) and, optionally, negatives."""
+                  nonnegative: bool = False, unit: str = "pixel") -> FloatArray:
+    """A channel as float64, refusing NaN, Inf (half overflow named) and, optionally, negatives.
+
+    ``unit`` names what the entries are in messages (``"pixel"``, or ``"sample"`` for deep data).
+    """
     a = np.asarray(array)
     if a.dtype.kind not in "fiu":
         raise file_error(path, f"unsupported channel type {a.dtype}", name)
@@ -238,17 +241,17 @@ def checked_plane(path: str | os.PathLike[str], name: str, array: np.ndarray, *,
         return out
     nan = np.isnan(out)
     if nan.any():
-        raise file_error(path, f"{int(nan.sum())} pixel(s) hold NaN", name)
+        raise file_error(path, f"{int(nan.sum())} {unit}(s) hold NaN", name)
     inf = np.isinf(out)
     if inf.any():
         if a.dtype == np.float16:
-            raise file_error(path, f"{int(inf.sum())} pixel(s) hold Inf: half-float overflow "
+            raise file_error(path, f"{int(inf.sum())} {unit}(s) hold Inf: half-float overflow "
                                    f"(values above {HALF_MAX:g} do not fit; write FLOAT channels)", name)
-        raise file_error(path, f"{int(inf.sum())} pixel(s) hold Inf", name)
+        raise file_error(path, f"{int(inf.sum())} {unit}(s) hold Inf", name)
     if nonnegative:
         neg = out < 0
         if neg.any():
-            raise file_error(path, f"{int(neg.sum())} pixel(s) are negative", name)
+            raise file_error(path, f"{int(neg.sum())} {unit}(s) are negative", name)
     return out
 
 
