@@ -115,7 +115,10 @@ class PathTracer:
     shape
         (H, W) of the image.
     dimensions
-        Names of the random dimensions drawn per sample (only the scene's effects).
+        Names of the random dimensions drawn per sample (only the scene's effects); their count
+        is :attr:`dimension`.
+    dimensions_drawn
+        Names of the dimensions actually drawn so far (a check on :attr:`dimensions`).
     stats
         Running totals: ``samples``, ``rays`` (all queries), ``camera_rays``, ``bounce_rays``,
         ``shadow_rays``, ``nonfinite`` (samples whose radiance was NaN/Inf and was replaced by
@@ -167,6 +170,11 @@ class PathTracer:
     def shape(self) -> tuple[int, int]:
         """(H, W) of the image."""
         return self.scene.shape
+
+    @property
+    def dimension(self) -> int:
+        """Number of random dimensions per sample, ``len(dimensions)`` (the integrand dimension)."""
+        return len(self.dimensions)
 
     def __call__(self, request: SampleRequest) -> SampleBuffer:
         """Trace the requested samples and return their per-pixel statistics (R, G, B)."""

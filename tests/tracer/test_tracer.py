@@ -110,7 +110,7 @@ def test_dimensions_per_scene(name: str) -> None:
     scene = load_scene(name, width=16, height=16)
     tracer = PathTracer(scene, threads=1)
     assert tracer.dimensions == EXPECTED_DIMENSIONS[name]
-    assert len(tracer.dimensions) == scene.dimension
+    assert len(tracer.dimensions) == tracer.dimension == scene.dimension
     tracer(SampleRequest.uniform(tracer.shape, 4))
     # Every listed dimension was drawn, and nothing else was.
     assert tracer.dimensions_drawn == set(EXPECTED_DIMENSIONS[name])
