@@ -77,6 +77,9 @@ class Accelerator:
         self.triangle_vertices = np.concatenate(vertices)
         self.triangle_normals = np.concatenate(normals)
         self.triangle_object = np.concatenate(owners)
+        tv = self.triangle_vertices
+        # Unit geometric normals, once per triangle rather than once per hit.
+        self.triangle_geometric_normal = normalize(cross(tv[:, 1] - tv[:, 0], tv[:, 2] - tv[:, 0]))
         self.triangle_offset = np.asarray(self.triangle_offset, np.int64)
         self.object_material = np.array([o.material for o in scene.objects], np.int64)
         self.object_emission = np.array([o.emission if o.emission is not None else np.zeros(3)
@@ -187,7 +190,7 @@ class Accelerator:
         tv = self.triangle_vertices[tri]
         tn = self.triangle_normals[tri]
         p_object = w[:, None] * tv[:, 0] + u[:, None] * tv[:, 1] + v[:, None] * tv[:, 2]
-        n_geometric = normalize(cross(tv[:, 1] - tv[:, 0], tv[:, 2] - tv[:, 0]))
+        n_geometric = self.triangle_geometric_normal[tri]
         n_shading = normalize(w[:, None] * tn[:, 0] + u[:, None] * tn[:, 1] + v[:, None] * tn[:, 2])
         p = p_object.copy()
         if self.moving_objects:

@@ -335,7 +335,8 @@ class PathTracer:
             hp, hbeta, hspec, hprev, hdepth, hsdepth = (path[hit], beta[hit], specular[hit], prev_pdf[hit],
                                                        depth[hit], specular_depth[hit])
             h_time = t_ray[hit]
-            distance = np.sqrt(dot(p - o[hit], p - o[hit]))
+            to_hit = p - o[hit]
+            distance = np.sqrt(dot(to_hit, to_hit))
             # Emission (one-sided, on the side of the geometric normal).
             emission = accel.object_emission[obj]
             cos_light = dot(n_geo, wo)
