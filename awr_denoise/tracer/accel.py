@@ -193,6 +193,13 @@ class Accelerator:
         n_geometric = self.triangle_geometric_normal[tri]
         n_shading = normalize(w[:, None] * tn[:, 0] + u[:, None] * tn[:, 1] + v[:, None] * tn[:, 2])
         p = p_object.copy()
+        frozen = [i for i, o in enumerate(self.scene.objects) if o.frozen_pose is not None]
+        if frozen:
+            obj = hits.object_index[hits.valid]
+            for k in frozen:
+                sel = obj == k
+                rotation, translation = self.scene.objects[k].frozen_pose
+                p_object[sel] = np.einsum("ni,ij->nj", p_object[sel] - translation, rotation)  # R^T (p - T)
         if self.moving_objects:
             obj = hits.object_index[hits.valid]
             t = time[hits.valid]

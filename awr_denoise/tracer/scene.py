@@ -77,6 +77,9 @@ class SceneObject:
     emission: np.ndarray | None = None
     motion: Motion | None = None
     name: str = ""
+    # (R, T) of a moving object frozen at the shutter time (vertices baked to R x + T):
+    # textures are still looked up in the rest pose, so a frozen ball shows its rolled pattern.
+    frozen_pose: tuple[np.ndarray, np.ndarray] | None = None
 
 
 @dataclass
@@ -299,6 +302,7 @@ def parse_scene(spec: dict[str, Any], *, width: int | None = None, height: int |
                 rotation, translation = obj.motion.world_from_object(np.array([camera.shutter_open]))
                 obj.vertices = obj.vertices @ rotation[0].T + translation[0]
                 obj.normals = obj.normals @ rotation[0].T
+                obj.frozen_pose = (rotation[0], translation[0])
                 obj.motion = None
 
     scene = Scene(name, str(spec.get("description", "")), w, h, 0, camera, materials, material_names, objects,
