@@ -30,7 +30,7 @@ import numpy as np
 from awr_denoise.requests import SampleRequest
 from awr_denoise.tracer import PathTracer, list_scenes, load_scene
 
-__all__ = ["bench_scene", "main"]
+__all__ = ["bench_scene", "markdown_table", "main"]
 
 RESULTS = Path(__file__).resolve().parent / "results" / "tracer.json"
 
@@ -100,6 +100,20 @@ def bench_scene(name: str, *, spp: int, repeats: int, threads: int, size: int | 
     }
 
 
+def markdown_table(result: dict) -> str:
+    """The results as the Markdown table of ``docs/tracer.md``."""
+    lines = ["| scene | workers | dim | triangles | rays/sample | tracer Msamples/s | tracer Mrays/s "
+             "| raw embreex Mrays/s | tracer/raw | tracer 2 workers / 1 thread | raw 2T/1T |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in result["scenes"]:
+        lines.append(
+            f"| `{r['scene']}` | {r['workers']} | {r['dimension']} | {r['triangles']} | {r['rays_per_sample']:.2f} "
+            f"| {r['tracer_samples_per_s'] / 1e6:.3f} | {r['tracer_rays_per_s'] / 1e6:.2f} "
+            f"| {r['raw_embree_rays_per_s'] / 1e6:.2f} | {r['ratio_tracer_to_raw']:.1%} "
+            f"| {r['tracer_thread_speedup']:.2f} | {r['raw_thread_speedup']:.2f} |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--spp", type=int, default=8)
@@ -110,8 +124,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--size", type=int, default=None, help="square resolution (default: each scene's own)")
     parser.add_argument("--scenes", nargs="*", default=None)
     parser.add_argument("--output", type=Path, default=RESULTS)
+    parser.add_argument("--markdown-from", type=Path, default=None, metavar="JSON",
+                        help="print the Markdown table of an earlier results file and exit")
     # A loaded machine distorts every number here; the load is recorded with the results.
     args = parser.parse_args(argv)
+    if args.markdown_from is not None:
+        print(markdown_table(json.loads(args.markdown_from.read_text())))
+        return 0
     names = args.scenes or list_scenes()
     load_at_start = os.getloadavg()
     rows = []
