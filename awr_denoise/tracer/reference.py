@@ -62,11 +62,12 @@ def reference_path(scene_name: str) -> Path:
 
 def render_reference(scene_name: str, *, spp: int = DEFAULT_REFERENCE_SPP, seed: int = REFERENCE_SEED,
                      sampler: str = "sobol", path: str | Path | None = None, progress: bool = False,
-                     threads: int = 2) -> np.ndarray:
+                     threads: int = 2, workers: str = "threads") -> np.ndarray:
     """Render a bundled scene at ``spp`` and write it as a half-float EXR; returns (H, W, 3) float64.
 
     The image is rendered in passes of 32 spp whose statistics are merged exactly; the EXR
-    header records scene, spp, sampler and seed (``awr_scene``, ``awr_spp``, ...).
+    header records scene, spp, sampler and seed (``awr_scene``, ``awr_spp``, ...). ``threads``
+    and ``workers`` are passed to :class:`PathTracer` (the image does not depend on them).
     """
     import OpenEXR  # the [exr] extra
 
@@ -74,7 +75,7 @@ def render_reference(scene_name: str, *, spp: int = DEFAULT_REFERENCE_SPP, seed:
     if int(spp) < 1:
         raise ValueError(f"spp: {spp} must be >= 1")
     scene = load_scene(scene_name)
-    tracer = PathTracer(scene, seed=seed, sampler=sampler, threads=threads)
+    tracer = PathTracer(scene, seed=seed, sampler=sampler, threads=threads, workers=workers)
     buffer = SampleBuffer.empty(tracer.shape)
     passes = range(0, int(spp), _PASS_SPP)
     if progress:
@@ -134,7 +135,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--spp", type=int, default=DEFAULT_REFERENCE_SPP, help="samples per pixel")
     parser.add_argument("--seed", type=int, default=REFERENCE_SEED)
     parser.add_argument("--sampler", default="sobol", choices=("independent", "sobol"))
-    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--threads", type=int, default=2, help="number of workers")
+    parser.add_argument("--workers", default="processes", choices=("threads", "processes"),
+                        help="worker kind (processes scale past the GIL; the image is the same)")
     parser.add_argument("--force", action="store_true", help="re-render even if a cached file has this spp")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
@@ -148,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{name}: cached at {path} ({args.spp} spp)")
             continue
         image = render_reference(name, spp=args.spp, seed=args.seed, sampler=args.sampler, threads=args.threads,
-                                 progress=not args.quiet)
+                                 workers=args.workers, progress=not args.quiet)
         print(f"{name}: wrote {path} ({image.shape[1]}x{image.shape[0]}, {args.spp} spp, "
               f"mean {image.mean(axis=(0, 1)).round(4).tolist()})")
     return 0
