@@ -516,9 +516,10 @@ def reconstruct_tiled(buffer: SampleBuffer, *, tile: int | tuple[int, int] = 512
         Tile side in pixels, or (height, width). Each task holds about
         ``(tile + 2 * halo)^2 * (8 + 16 * C)`` bytes of input.
     halo
-        Context on each side of a tile; default :func:`halo_width` ``(wavelet, levels)``,
-        the smallest that is exact. A smaller halo trades accuracy near tile borders for
-        less work.
+        Context on each side of a tile; default :func:`halo_width` ``(wavelet, levels)``
+        (one more with a robust domain, whose 3x3 median reads one pixel further), the
+        smallest that is exact. A smaller halo trades accuracy near tile borders for less
+        work.
     executor
         Runs the tiles; default a thread pool for this call.
     c_s, wavelet, levels, domain, mode, boundary
@@ -546,7 +547,10 @@ def reconstruct_tiled(buffer: SampleBuffer, *, tile: int | tuple[int, int] = 512
     if isinstance(levels, bool) or not 1 <= int(levels) <= max_levels(shape):
         raise ValueError(f"levels: {levels} is outside 1..{max_levels(shape)} for an image of shape {shape}")
     levels = int(levels)
-    halo = halo_width(wavelet, levels) if halo is None else int(halo)
+    if halo is None:
+        # The robust domain's 3x3 median reads one pixel further than the transform does.
+        halo = halo_width(wavelet, levels) + (1 if resolve_domain(domain).robust else 0)
+    halo = int(halo)
     if halo < 0:
         raise ValueError(f"halo: must be >= 0, got {halo}")
     mean = _filled_mean(buffer)
