@@ -103,8 +103,9 @@ class PathTracer:
         ``"threads"`` (default): a thread pool in this process; embreex and large numpy
         operations release the GIL, the Python glue between numpy calls does not.
         ``"processes"``: a pool of spawned processes, each with its own copy of the scene and
-        BVH (started on first use, about a second each); it scales past the GIL. Sample values
-        are bit-identical either way.
+        BVH (started on first use, about a second each); it scales past the GIL. Scripts need
+        the ``if __name__ == "__main__":`` guard (spawned workers re-import the main module).
+        Sample values are bit-identical either way.
     progress
         Show a tqdm progress bar over batches.
     batch_size
