@@ -250,9 +250,15 @@ class _Timing:
     render: float = 0.0
     sampler: float = 0.0
     rounds: int = 0
+    render_cpu: float = 0.0
+    sampler_cpu: float = 0.0
 
     def copy(self) -> _Timing:
-        return _Timing(self.render, self.sampler, self.rounds)
+        return replace(self)
+
+    def fields(self) -> dict[str, float]:
+        return {"render_s": self.render, "sampler_s": self.sampler, "rounds": self.rounds,
+                "render_cpu_s": self.render_cpu, "sampler_cpu_s": self.sampler_cpu}
 
 
 def _progressive(sampler: Sampler, renderer: Callable, targets: Sequence[int],
@@ -264,15 +270,17 @@ def _progressive(sampler: Sampler, renderer: Callable, targets: Sequence[int],
         goal = int(round(target * h * w))
         while sampler.total_samples < goal:
             budget = min(sampler.default_budget(), goal - sampler.total_samples)
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             request = sampler.ask(budget)
-            t1 = time.perf_counter()
+            t1, c1 = time.perf_counter(), time.process_time()
             samples = renderer(request)
-            t2 = time.perf_counter()
+            t2, c2 = time.perf_counter(), time.process_time()
             sampler.tell(request, samples)
-            t3 = time.perf_counter()
+            t3, c3 = time.perf_counter(), time.process_time()
             timing.render += t2 - t1
             timing.sampler += (t1 - t0) + (t3 - t2)
+            timing.render_cpu += c2 - c1
+            timing.sampler_cpu += (c1 - c0) + (c3 - c2)
             timing.rounds += 1
         on_snapshot(target, sampler.buffer, timing.copy())
 
@@ -328,10 +336,17 @@ def _render_uniform(scene, spp: int, seed: int, threads: int) -> SampleBuffer:
         pt.close()
 
 
-def _timed(fn: Callable[[], np.ndarray]) -> tuple[np.ndarray, float]:
-    t = time.perf_counter()
+def _timed(fn: Callable[[], np.ndarray]) -> tuple[np.ndarray, tuple[float, float]]:
+    """``fn()``, and its (wall, CPU) seconds."""
+    t, c = time.perf_counter(), time.process_time()
     out = fn()
-    return out, time.perf_counter() - t
+    return out, (time.perf_counter() - t, time.process_time() - c)
+
+
+def _time_fields(timing: _Timing, seconds: tuple[float, float]) -> dict[str, float]:
+    return {**timing.fields(), "reconstruct_s": seconds[0], "reconstruct_cpu_s": seconds[1],
+            "total_s": timing.render + timing.sampler + seconds[0],
+            "total_cpu_s": timing.render_cpu + timing.sampler_cpu + seconds[1]}
 
 
 # ---------------------------------------------------------------------------------------- one scene
@@ -358,20 +373,17 @@ def _scene_benchmark(name: str, config: BenchmarkConfig, use_oidn: bool, tick: C
 
     def uniform_snapshot(spp: int, buffer: SampleBuffer, timing: _Timing) -> None:
         mean = np.array(buffer.mean)
-        uniform_curve.append({"spp": spp, **_metrics(mean, reference), "render_s": timing.render,
-                              "sampler_s": timing.sampler})
+        uniform_curve.append({"spp": spp, **_metrics(mean, reference), **_time_fields(timing, (0.0, 0.0))})
         if spp not in spps:
             return
         uniform_buffers[spp] = buffer
-        base = {"spp": spp, "render_s": timing.render, "sampler_s": timing.sampler, "rounds": timing.rounds}
-        outs = {"uniform": (mean, 0.0)}
+        outs = {"uniform": (mean, (0.0, 0.0))}
         outs["uniform+awr"] = _timed(lambda: reconstruct(buffer))
         outs["uniform+skimage"] = _timed(lambda: skimage_denoise(mean))
         if use_oidn:
             outs["uniform+oidn"] = _timed(lambda: oidn_denoise(mean))
         for method, (image, seconds) in outs.items():
-            methods[method].append({**base, **_metrics(image, reference), "reconstruct_s": seconds,
-                                    "total_s": timing.render + timing.sampler + seconds})
+            methods[method].append({"spp": spp, **_metrics(image, reference), **_time_fields(timing, seconds)})
             if spp == show_spp:
                 images["crops"][method] = image
 
@@ -386,9 +398,7 @@ def _scene_benchmark(name: str, config: BenchmarkConfig, use_oidn: bool, tick: C
 
         def snapshot(spp: int, buffer: SampleBuffer, timing: _Timing, method: str = method) -> None:
             image, seconds = _timed(lambda: reconstruct(buffer))
-            methods[method].append({"spp": spp, "render_s": timing.render, "sampler_s": timing.sampler,
-                                    "rounds": timing.rounds, **_metrics(image, reference), "reconstruct_s": seconds,
-                                    "total_s": timing.render + timing.sampler + seconds,
+            methods[method].append({"spp": spp, **_metrics(image, reference), **_time_fields(timing, seconds),
                                     "plain_mean_relmse": relmse(buffer.mean, reference),
                                     "max_pixel_spp": int(buffer.count.max()),
                                     "min_pixel_spp": int(buffer.count.min())})
@@ -477,9 +487,9 @@ def _defaults_sweep(scene, reference: np.ndarray, config: BenchmarkConfig,
                for s in seeds]
     rows = []
 
-    def add(group: str, value: str, errors: list[float], default: bool) -> None:
+    def add(group: str, value: str, errors: list[float], default: bool, overhead: float | None = None) -> None:
         rows.append({"group": group, "value": value, "spp": spp, "relmse": float(np.mean(errors)),
-                     "relmse_each": errors, "default": default})
+                     "relmse_each": errors, "default": default, "sampler_cpu_share": overhead})
 
     add("plain mean", "uniform", [relmse(b.mean, reference) for b in uniform], False)
     lv_default = default_levels(shape)
@@ -491,21 +501,26 @@ def _defaults_sweep(scene, reference: np.ndarray, config: BenchmarkConfig,
         add("mode", mode, [relmse(reconstruct(b, mode=mode), reference) for b in uniform], mode == "channels")
     variants = [("uniform_fraction", v, {"uniform_fraction": v}, v == 0.1) for v in (0.0, 0.1, 0.3)]
     variants += [("level_weight", v, {"level_weight": v}, v == 0.25) for v in (0.0, 0.25, 1.0)]
-    variants += [("round_spp", v, {"round_spp": v}, v is None) for v in (0.25, None, 2.0)]
-    cache: dict[tuple, list[float]] = {}
+    variants += [("round_spp", v, {"round_spp": v}, v is None) for v in (0.25, None, 2.0, 8.0)]
+    cache: dict[tuple, tuple[list[float], float]] = {}
     for group, value, options, default in variants:
         key = tuple(sorted((k, v) for k, v in options.items() if not default))
         if key not in cache:
-            errs = []
+            errs, render_cpu, sampler_cpu = [], 0.0, 0.0
             for s in seeds:
                 pt = _make_tracer(scene, s, config.threads)
+                got: dict[str, Any] = {}
                 try:
-                    buffer = AdaptiveSampler(shape, seed=s, **options).run(pt, spp)
+                    _progressive(AdaptiveSampler(shape, seed=s, **options), pt, [spp],
+                                 lambda _spp, buf, timing: got.update(buffer=buf, timing=timing))
                 finally:
                     pt.close()
-                errs.append(relmse(reconstruct(buffer), reference))
-            cache[key] = errs
-        add(group, "default (grows 25%)" if value is None else str(value), cache[key], default)
+                errs.append(relmse(reconstruct(got["buffer"]), reference))
+                render_cpu += got["timing"].render_cpu
+                sampler_cpu += got["timing"].sampler_cpu
+            cache[key] = (errs, sampler_cpu / render_cpu if render_cpu > 0 else float("nan"))
+        errs, share = cache[key]
+        add(group, "default (grows 25%)" if value is None else str(value), errs, default, share)
     return rows
 
 
@@ -691,14 +706,29 @@ def _summary(results: dict[str, Any], config: BenchmarkConfig) -> dict[str, Any]
                 entry["awr_better_than_skimage"] = awr["relmse"] < sk["relmse"]
             render = awr["render_s"]
             entry["overhead_share"] = (awr["sampler_s"] + awr["reconstruct_s"]) / render if render > 0 else None
+            render_cpu = awr["render_cpu_s"]
+            entry["overhead_share_cpu"] = ((awr["sampler_cpu_s"] + awr["reconstruct_cpu_s"]) / render_cpu
+                                           if render_cpu > 0 else None)
             entry["overhead_split_s"] = {"render": render, "sampler": awr["sampler_s"],
                                          "reconstruct": awr["reconstruct_s"], "rounds": awr["rounds"]}
             big = next((r for r in results.get("overhead", {}).get("sizes", []) if r["size"] == "1080p"), None)
             if big is not None and render > 0:
                 # The same loop at 1080p: tracer time scales with pixels, ask() and reconstruct as measured.
                 pixels = sc["shape"][0] * sc["shape"][1]
-                render_big = render * big["pixels"] / pixels
+                render_big = render_cpu * big["pixels"] / pixels
                 entry["overhead_share_1080p_estimate"] = (awr["rounds"] * big["ask_s"] + big["reconstruct_s"]) / render_big
+        # Equal time: uniform MC's relMSE at the same CPU time, interpolated in log-log.
+        t_u = np.array([r["total_cpu_s"] for r in sc["uniform_curve"]])
+        e_u = np.array([r["relmse"] for r in sc["uniform_curve"]])
+        order = np.argsort(t_u)
+        t_u, e_u = t_u[order], e_u[order]
+        entry["equal_time"] = {}
+        for meth, r in row.items():
+            if r is None or meth == "uniform" or not (t_u[0] <= r["total_cpu_s"] <= t_u[-1]) or r["total_cpu_s"] <= 0:
+                continue
+            at = float(np.exp(np.interp(np.log(r["total_cpu_s"]), np.log(t_u), np.log(e_u))))
+            entry["equal_time"][meth] = {"cpu_s": r["total_cpu_s"], "relmse": r["relmse"], "uniform_relmse": at,
+                                         "ratio": r["relmse"] / at}
         out["scenes"][name] = entry
         for meth in ("uniform+awr", "awr+awr", "variance+awr"):
             for r in m.get(meth, []):
@@ -798,15 +828,15 @@ def _write_figures(results: dict[str, Any], images: dict[str, Any], img_dir: Pat
         ax = fig.add_subplot(rows_n, cols_n, i + 1)
         sc = results["scenes"][name]
         curve = sc["uniform_curve"]
-        ax.loglog([r["render_s"] + r["sampler_s"] for r in curve], [r["relmse"] for r in curve], color="black",
+        ax.loglog([r["total_cpu_s"] for r in curve], [r["relmse"] for r in curve], color="black",
                   lw=1, label="uniform MC")
         for meth, rows in sc["methods"].items():
             if meth == "uniform":
                 continue
-            ax.loglog([r["total_s"] for r in rows], [r["relmse"] for r in rows], "o-", ms=3, color=_COLORS[meth],
-                      label=METHOD_LABELS[meth])
+            ax.loglog([r["total_cpu_s"] for r in rows], [r["relmse"] for r in rows], "o-", ms=3,
+                      color=_COLORS[meth], label=METHOD_LABELS[meth])
         ax.set_title(name, fontsize=10)
-        ax.set_xlabel("wall time incl. sampling and reconstruction (s)")
+        ax.set_xlabel("CPU time: render + sampling + reconstruction (s)")
         ax.set_ylabel("relMSE")
         ax.grid(True, which="both", alpha=0.3)
         if i == 0:
@@ -1047,20 +1077,23 @@ def _write_markdown(results: dict[str, Any], figures: dict[str, str], path: Path
 
     add("## Goals\n")
     add("| scene | AWR relMSE / uniform at equal spp | AWR at 32 spp <= uniform at 512 spp | AWR better than "
-        "skimage | sampling + reconstruction overhead / render time |")
+        "skimage | overhead / render time: CPU / wall / 1080p est. |")
     add("|---|---|---|---|---|")
     for name in scenes:
         s = summary["scenes"][name]
         share_big = s.get("overhead_share_1080p_estimate")
+        share_cpu = s.get("overhead_share_cpu")
         add(f"| {name} | {_fmt(s.get('awr_vs_uniform_same_spp'), 3)} | {_fmt(s.get('awr_at_or_below_uniform_512'))} | "
             f"{_fmt(s.get('awr_better_than_skimage'))} | "
-            f"{'-' if s.get('overhead_share') is None else format(s['overhead_share'], '.1%')}"
-            f"{'' if share_big is None else f' ({share_big:.1%} at 1080p, estimated)'} |")
+            f"{'-' if share_cpu is None else format(share_cpu, '.1%')} / "
+            f"{'-' if s.get('overhead_share') is None else format(s['overhead_share'], '.1%')} / "
+            f"{'-' if share_big is None else format(share_big, '.1%')} |")
     add("")
     add("Overhead share: (time in `ask`/`tell` over all rounds + one `reconstruct`) / tracer time, for AWR "
-        f"sampling to {head} spp; the tracer runs on {cfg['threads']} threads, the library on one. The 1080p "
-        "estimate scales the tracer time with the pixel count and takes `ask()` and `reconstruct` times "
-        "measured at 1080p (section Overhead), with the same number of rounds.\n")
+        f"sampling to {head} spp, as CPU time / wall time / estimated at 1080p. The tracer runs on "
+        f"{cfg['threads']} threads, the library on one; CPU time is the robust figure on a shared machine. The "
+        "1080p estimate scales the tracer's CPU time with the pixel count and takes the `ask()` and "
+        "`reconstruct` times measured at 1080p (section Overhead), with the same number of rounds.\n")
     if summary["flags"]:
         add("### Flags: a default worse than the plain mean\n")
         add("**These are bugs by the project's own rule.**\n")
@@ -1074,17 +1107,28 @@ def _write_markdown(results: dict[str, Any], figures: dict[str, str], path: Path
     for name in scenes:
         m = results["scenes"][name]["methods"]
         add(f"### {name}\n")
-        add("| method | spp | relMSE | MSE | PSNR (dB) | SSIM | equal-error spp | time (s) |")
-        add("|---|---|---|---|---|---|---|---|")
+        add("| method | spp | relMSE | MSE | PSNR (dB) | SSIM | equal-error spp | CPU time (s) | wall time (s) |")
+        add("|---|---|---|---|---|---|---|---|---|")
         for meth in methods:
             for r in m[meth]:
                 add(f"| {meth} | {r['spp']} | {_fmt(r['relmse'])} | {_fmt(r['mse'])} | {r['psnr']:.2f} | "
-                    f"{r['ssim']:.4f} | {_eq(r)} | {r['total_s']:.2f} |")
+                    f"{r['ssim']:.4f} | {_eq(r)} | {r['total_cpu_s']:.2f} | {r['total_s']:.2f} |")
         add("")
 
     add("## Equal time\n")
-    add("Wall time of the whole loop: tracer, `ask`/`tell` of every round and one reconstruction (or peer "
-        "denoiser). Timings are from a shared machine and move by 10-20% from run to run.\n")
+    add("Time of the whole loop: tracer, `ask`/`tell` of every round and one reconstruction (or peer "
+        "denoiser), as process CPU time (the tracer's two threads both count): wall time on this shared "
+        "machine depends on what else runs, CPU time much less. Wall times are in the JSON and the tables "
+        f"above. Below: relMSE at {head} spp and, in parentheses, the ratio to uniform Monte Carlo's relMSE at "
+        "the same CPU time (interpolated in log-log on the uniform curve; below 1 wins at equal time).\n")
+    add("| scene | " + " | ".join(x for x in methods if x != "uniform") + " |")
+    add("|---" * len(methods) + "|")
+    for name in scenes:
+        et = summary["scenes"][name].get("equal_time", {})
+        cells = [f"{_fmt(et[x]['relmse'])} ({et[x]['ratio']:.2f})" if x in et else "-"
+                 for x in methods if x != "uniform"]
+        add(f"| {name} | " + " | ".join(cells) + " |")
+    add("")
     if "error_vs_time" in figures:
         add(f"![relMSE against time](img/{figures['error_vs_time']})\n")
 
@@ -1134,7 +1178,8 @@ def _write_markdown(results: dict[str, Any], figures: dict[str, str], path: Path
         spp = first[0]["spp"]
         add(f"relMSE at {spp} spp, mean over {cfg['defaults_seeds']} seeds, one setting changed at a time "
             "(reconstruction settings on uniform buffers; sampler settings with `AdaptiveSampler` and the "
-            "default reconstruction). **Bold**: the library default.\n")
+            "default reconstruction; in parentheses the sampler's CPU time as a share of the tracer's). "
+            "**Bold**: the library default.\n")
         keys = [(r["group"], r["value"], r["default"]) for r in first]
         add("| setting | " + " | ".join(scenes) + " |")
         add("|---" * (1 + len(scenes)) + "|")
@@ -1145,7 +1190,10 @@ def _write_markdown(results: dict[str, Any], figures: dict[str, str], path: Path
             for s in scenes:
                 r = next((x for x in results["scenes"][s].get("defaults_sweep", [])
                           if x["group"] == group and x["value"] == value), None)
-                cells.append(_fmt(r["relmse"]) if r else "-")
+                cell = _fmt(r["relmse"]) if r else "-"
+                if r and r.get("sampler_cpu_share") is not None:
+                    cell += f" ({r['sampler_cpu_share']:.0%})"
+                cells.append(cell)
             add(f"| {label} | " + " | ".join(cells) + " |")
         add("")
 
