@@ -10,7 +10,8 @@ cluster (worker processes, one thread each) with 1 and with 2 workers. Every tim
 of ``--repeats`` runs after one warm-up run on the same executor (worker imports, the renderer
 built in each worker and the wavelet operator caches are not timed); the configurations take
 turns within each repeat, so a change in the machine's load affects them alike. Executor
-start-up is reported on its own, with the load average. Prints a markdown table and writes ``benchmarks/results/parallel.json``.
+start-up is reported on its own, with the load average. Prints a markdown table and writes
+``benchmarks/results/parallel.json``.
 
 Workloads:
 
@@ -87,7 +88,8 @@ class Workloads:
         self.recon_buffer: SampleBuffer = SyntheticRenderer(scene, seed=2)(SampleRequest.uniform(recon_shape, 4))
         self.recon_tile = 512
         self.descriptions = {
-            "frames": f"denoise_frames: {self.n_frames} frames of {frame_shape[1]}x{frame_shape[0]}, one task per frame",
+            "frames": f"denoise_frames: {self.n_frames} frames of {frame_shape[1]}x{frame_shape[0]}, "
+                      "one task per frame",
             "render": f"render_tiled: adaptive {self.render_spp} spp, {self.render_shape[1]}x{self.render_shape[0]} "
                       f"({self.renderer_name}), {self.render_tile}-pixel tiles",
             "tiled reconstruction": f"reconstruct_tiled: {recon_shape[1]}x{recon_shape[0]}, {self.recon_tile}-pixel "
