@@ -37,6 +37,7 @@ import argparse
 import concurrent.futures as cf
 import contextlib
 import dataclasses
+import functools
 import os
 import pickle
 import threading
@@ -444,12 +445,16 @@ def tile_grid(shape: Shape2D, tile: int | tuple[int, int]) -> list[tuple[slice, 
 def halo_width(wavelet: str = "bior4.4", levels: int = 5) -> int:
     """Pixels of context a tile needs on each side for an exact wavelet reconstruction.
 
-    A level-``k`` coefficient's equivalent analysis filter spans
+    A level-``k`` coefficient's equivalent analysis filter spans at most
     ``(F - 1)(2^k - 1) + 1`` pixels, ``F`` the longer of the wavelet's decomposition and
-    reconstruction filters, and its synthesis filter spans as many around the same place.
-    An output pixel therefore depends on input pixels at most ``(F - 1)(2^L - 1)`` away,
-    which is the halo. Soft thresholding acts on each coefficient alone and adds no reach.
-    docs/distributed.md has the derivation and the measured reach.
+    reconstruction filters, and its synthesis filter as many around the same place, so an
+    output pixel depends on input pixels at most ``(F - 1)(2^L - 1)`` away along each axis.
+    Soft thresholding acts on each coefficient alone and adds no reach. The halo returned is
+    the exact reach, computed once from the filters: for every coefficient of every band and
+    level (away from the signal's ends), the farthest pair of an input pixel in its analysis
+    support and an output pixel in its synthesis support. It equals the bound for orthogonal
+    wavelets and is smaller where filters have zero taps (bior4.4: ``7 (2^L - 1)``, not
+    ``9 (2^L - 1)``). docs/distributed.md has the derivation and the measured reach.
 
     Parameters
     ----------
@@ -461,13 +466,43 @@ def halo_width(wavelet: str = "bior4.4", levels: int = 5) -> int:
     Examples
     --------
     >>> from awr_denoise.parallel import halo_width
-    >>> halo_width("bior4.4", 5), halo_width("haar", 3)
-    (279, 7)
+    >>> halo_width("bior4.4", 5), halo_width("haar", 3), halo_width("db2", 2)
+    (217, 7, 9)
     """
-    w = pywt.Wavelet(wavelet)
     if isinstance(levels, bool) or int(levels) < 1:
         raise ValueError(f"levels: must be >= 1, got {levels!r}")
-    return (max(w.dec_len, w.rec_len) - 1) * (2 ** int(levels) - 1)
+    return _transform_reach(pywt.Wavelet(wavelet).name, int(levels))
+
+
+def _support_ends(nonzero: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """First and last True of every row, and whether the row has any."""
+    first = np.argmax(nonzero, axis=1)
+    last = nonzero.shape[1] - 1 - np.argmax(nonzero[:, ::-1], axis=1)
+    return first, last, nonzero.any(axis=1)
+
+
+@functools.lru_cache(maxsize=64)
+def _transform_reach(wavelet: str, levels: int) -> int:
+    """Exact reach of the ``levels``-deep transform of ``wavelet`` along one axis (see :func:`halo_width`)."""
+    w = pywt.Wavelet(wavelet)
+    bound = (max(w.dec_len, w.rec_len) - 1) * (2**levels - 1)
+    n = 4 * bound + 2 ** (levels + 3)  # long enough for coefficients that never see an end
+    reach = 0
+    for k in range(1, levels + 1):
+        # Row j of each band: the analysis filter of coefficient j (impulses through the DWT).
+        analysis = pywt.wavedec(np.eye(n), w, mode="symmetric", level=k, axis=0)
+        for band in (0, 1):  # the level-k approximation and detail, as one axis of a 2-D band
+            rows = analysis[band]
+            coeffs = [np.zeros((c.shape[0], rows.shape[0])) for c in analysis]
+            coeffs[band] = np.eye(rows.shape[0])
+            # Column j: the synthesis of a unit coefficient j.
+            synthesis = pywt.waverec(coeffs, w, mode="symmetric", axis=0)[:n].T
+            a_first, a_last, a_any = _support_ends(rows != 0)
+            s_first, s_last, s_any = _support_ends(synthesis != 0)
+            interior = a_any & s_any & (a_first >= bound) & (a_last <= n - 1 - bound)
+            if interior.any():
+                reach = max(reach, int(np.max(np.maximum(s_last - a_first, a_last - s_first)[interior])))
+    return reach
 
 
 def _window(core: slice, halo: int, align: int, length: int) -> slice:

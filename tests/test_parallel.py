@@ -16,6 +16,7 @@ import sys
 
 import numpy as np
 import pytest
+import pywt
 
 from awr_denoise import AdaptiveSampler, Domain, SampleBuffer, SampleRequest, UniformSampler, reconstruct
 from awr_denoise import parallel
@@ -169,8 +170,12 @@ def test_tile_grid_covers_the_image_once():
 
 def test_halo_width_is_the_wavelet_support():
     assert halo_width("haar", 1) == 1
-    assert halo_width("db2", 3) == 3 * 7
-    assert halo_width("bior4.4", 5) == 9 * 31
+    assert halo_width("db2", 3) == 3 * 7  # orthogonal: the bound (F - 1)(2^L - 1)
+    assert halo_width("bior4.4", 5) == 7 * 31  # zero taps: below the bound 9 * 31
+    for wavelet in ("haar", "db2", "sym4", "coif1", "bior2.2", "bior4.4"):
+        for levels in (1, 2, 4):
+            f = max(pywt.Wavelet(wavelet).dec_len, pywt.Wavelet(wavelet).rec_len)
+            assert 0 < halo_width(wavelet, levels) <= (f - 1) * (2**levels - 1)
     with pytest.raises(ValueError, match="levels"):
         halo_width("haar", 0)
 
@@ -192,10 +197,7 @@ def test_halo_covers_the_measured_reach_of_reconstruction(wavelet, levels):
         changed = np.nonzero(np.abs(reconstruct(SampleBuffer.from_moments(count, moved, var), **options)
                                     - base).max(axis=(0, 2)) > 0)[0]
         reach = max(reach, q - changed.min(), changed.max() - q)
-    halo = halo_width(wavelet, levels)
-    assert reach <= halo
-    if wavelet != "bior4.4":  # orthogonal filters reach exactly (F - 1)(2^L - 1)
-        assert reach == halo
+    assert reach == halo_width(wavelet, levels)
 
 
 @pytest.mark.parametrize("mode", ["channels", "luminance"])
@@ -222,6 +224,17 @@ def test_reconstruct_tiled_is_wrong_without_the_halo():
     whole = reconstruct(buffer, levels=3)
     error = np.abs(reconstruct_tiled(buffer, tile=40, levels=3, halo=0) - whole).max()
     assert error > 1e-3 * np.abs(whole).max()
+
+
+@pytest.mark.parametrize("levels", [2, 3])
+def test_halo_width_is_the_smallest_exact_halo(levels):
+    buffer = noisy_buffer()
+    whole = reconstruct(buffer, levels=levels)
+    halo = halo_width("bior4.4", levels)
+    assert_tiled_close(reconstruct_tiled(buffer, tile=40, levels=levels, halo=halo), whole)
+    # One pixel less and a tile's edge pixel misses an input it depends on.
+    assert np.abs(reconstruct_tiled(buffer, tile=40, levels=levels, halo=halo - 1) - whole).max() > \
+        TILED_RTOL * np.abs(whole).max()
 
 
 def test_reconstruct_tiled_is_wrong_without_a_global_domain_scale(monkeypatch):
