@@ -452,6 +452,11 @@ class SampleBuffer:
         mean = self.mean + delta * (nb / safe)
         m2 = self.m2 + other.m2 + delta * delta * (na * nb / safe)
         variance = m2 / np.maximum(n - 1.0, 1.0)
+        # Where one side has no samples the other side's statistics are the answer: take them
+        # as they are, so merging into an empty buffer (round 0, disjoint tiles) is bit-exact
+        # rather than off by the rounding of variance * (n - 1) / (n - 1).
+        mean = np.where(na == 0, other.mean, np.where(nb == 0, self.mean, mean))
+        variance = np.where(na == 0, other.variance, np.where(nb == 0, self.variance, variance))
         known = (self.variance_known | (self.count < 2)) & (other.variance_known | (other.count < 2))
         return SampleBuffer(self.count + other.count, mean, variance, self.channels, known,
                             self.nonfinite + other.nonfinite)

@@ -362,3 +362,15 @@ def test_nonfinite_zero_counts_them_as_zero_in_every_channel():
     assert_allclose(buf.mean[0, :, 1], [4.0 / 3.0, 2.0])
     # The count survives merging.
     assert buf.merge(buf).nonfinite == 6
+
+
+def test_merge_with_an_empty_side_is_bit_exact(rng):
+    """Round 0 and disjoint tiles merge into empty pixels: the result must be the other side's
+    statistics bit for bit, not variance * (n - 1) / (n - 1) rounded."""
+    shape = (6, 7)
+    pixels = rng.integers(0, 6 * 7, 4000)
+    buf = SampleBuffer.from_samples(pixels, rng.random((4000, 3)) * 1e3, shape)
+    for merged in (SampleBuffer.empty(shape).merge(buf), buf.merge(SampleBuffer.empty(shape))):
+        assert_array_equal(merged.mean, buf.mean)
+        assert_array_equal(merged.variance, buf.variance)
+        assert_array_equal(merged.count, buf.count)
