@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import concurrent.futures as cf
 import os
 
 from .common import (
@@ -61,6 +62,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     add_reconstruction_options(p)
     add_plane_options(p)
+    from awr_denoise.parallel import add_executor_arguments
+
+    add_executor_arguments(p)
     p.set_defaults(run=run)
 
 
@@ -120,7 +124,16 @@ def run(args: argparse.Namespace) -> int:
         refuse_same_file(output, [inputs[0], args.ref, args.color, args.variance, args.count])
         if len(inputs) > 1:
             refuse_same_file(inputs[1], [inputs[0], output])
-    for inputs, output in progress(jobs, quiet=args.quiet, total=len(jobs), desc="frames"):
-        note = _denoise_one(args, inputs[0], output, inputs[1] if len(inputs) > 1 else None)
-        status(note, quiet=args.quiet)
+    from awr_denoise.parallel import executor_from_args, executor_requested
+
+    if not executor_requested(args):
+        for inputs, output in progress(jobs, quiet=args.quiet, total=len(jobs), desc="frames"):
+            note = _denoise_one(args, inputs[0], output, inputs[1] if len(inputs) > 1 else None)
+            status(note, quiet=args.quiet)
+        return EXIT_OK
+    with executor_from_args(args) as executor:  # one task per frame: paths travel, not pixels
+        futures = [executor.submit(_denoise_one, args, inputs[0], output, inputs[1] if len(inputs) > 1 else None)
+                   for inputs, output in jobs]
+        for future in progress(cf.as_completed(futures), quiet=args.quiet, total=len(futures), desc="frames"):
+            status(future.result(), quiet=args.quiet)
     return EXIT_OK

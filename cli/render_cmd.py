@@ -48,13 +48,17 @@ def derived_path(path: str | Path, suffix: str) -> Path:
 
 
 def render_buffer(tracer: Any, scene: Any, *, spp: float, adaptive: bool, seed: int, sampler: str,
-                  initial_spp: int, quiet: bool) -> tuple[Any, Any, int]:
-    """(buffer, issued, next round) of a uniform or adaptive render at ``spp`` on average."""
+                  initial_spp: int, quiet: bool, renderer: Any = None) -> tuple[Any, Any, int]:
+    """(buffer, issued, next round) of a uniform or adaptive render at ``spp`` on average.
+
+    ``renderer`` replaces the in-process tracer (a tiled renderer over workers, say).
+    """
     from awr_denoise import AdaptiveSampler, SampleRequest
 
     # A uniform render is one request: the tracer's own bar shows it. Adaptive rounds get
     # the sampler's bar instead of one tracer bar per round.
-    renderer = tracer.PathTracer(scene, seed=seed, sampler=sampler, progress=not quiet and not adaptive)
+    if renderer is None:
+        renderer = tracer.PathTracer(scene, seed=seed, sampler=sampler, progress=not quiet and not adaptive)
     try:
         probe = getattr(renderer, "shape", None) or getattr(scene, "shape", None)
         if probe is None:
@@ -100,6 +104,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     add_reconstruction_options(p)
+    from awr_denoise.parallel import add_executor_arguments
+
+    add_executor_arguments(p, tile_option=True)
     p.set_defaults(run=run)
 
 
@@ -130,8 +137,20 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--scene: {name!r} is not one of {', '.join(sorted(tracer.list_scenes()))}")
     scene = tracer.load_scene(name, width=args.width, height=args.height)
     start = time.perf_counter()
-    buffer, issued, next_round = render_buffer(tracer, scene, spp=args.spp, adaptive=args.adaptive, seed=args.seed,
-                                               sampler=args.sampler, initial_spp=args.initial_spp, quiet=args.quiet)
+    from awr_denoise.parallel import RendererSpec, TiledRenderer, executor_from_args, executor_requested
+
+    options = dict(spp=args.spp, adaptive=args.adaptive, seed=args.seed, sampler=args.sampler,
+                   initial_spp=args.initial_spp, quiet=args.quiet)
+    if executor_requested(args):
+        # Each worker builds its own tracer from a picklable spec; tiles of every round are
+        # rendered there and merged exactly (addressable random numbers make it match serial).
+        spec = RendererSpec.tracer(name, width=args.width, height=args.height, seed=args.seed,
+                                   sampler=args.sampler, threads=1)
+        with executor_from_args(args) as executor:
+            tiled = TiledRenderer(spec, tile=args.tile, executor=executor)
+            buffer, issued, next_round = render_buffer(tracer, scene, renderer=tiled, **options)
+    else:
+        buffer, issued, next_round = render_buffer(tracer, scene, **options)
     seconds = time.perf_counter() - start
     strategy = "awr" if args.adaptive else "uniform"
     header = {"awr:scene": name, "awr:seed": args.seed, "awr:sampler": args.sampler, "awr:strategy": strategy,
