@@ -38,6 +38,7 @@ __all__ = ["Sampler", "AdaptiveSampler", "UniformSampler", "VarianceSampler", "a
 
 _sampler_ids = itertools.count(1)
 _MAX_BUDGET = 2**62  # allocate() refuses larger budgets: counts are int64
+DEFAULT_ROUND_GROWTH = 0.25
 
 
 def allocate(density: FloatArray, current: CountArray, budget: int, *,
@@ -192,15 +193,19 @@ class Sampler:
         Most samples any pixel may have; ``None`` for no cap.
     round_spp
         Default budget of a round after the first, in samples per pixel; ``None`` grows rounds
-        with the image's samples (a quarter of the samples taken so far, at least 0.25 spp), so
-        a render to ``S`` spp takes about ``log(S / initial_spp) / log(1.25)`` rounds.
+        with the image's samples (see ``round_growth``).
+    round_growth
+        Without ``round_spp``, a round's default budget is this share of the samples taken so
+        far (at least 0.25 spp), so a render to ``S`` spp takes about
+        ``log(S / initial_spp) / log(1 + round_growth)`` rounds. Larger rounds cost fewer
+        priority analyses; docs/benchmarks.md ("The other defaults") measures the trade.
     """
 
     strategy = "base"
 
     def __init__(self, shape: Shape2D, *, channels: int | tuple[str, ...] = 3, initial_spp: int = 4,
                  seed: int = 0, spp_min: int | None = None, spp_max: int | None = None,
-                 round_spp: float | None = None) -> None:
+                 round_spp: float | None = None, round_growth: float = DEFAULT_ROUND_GROWTH) -> None:
         h, w = (int(s) for s in shape)
         if h <= 0 or w <= 0:
             raise ValueError(f"shape: empty image {tuple(shape)}")
@@ -212,6 +217,8 @@ class Sampler:
             raise ValueError(f"spp_min: {spp_min} exceeds spp_max {spp_max}")
         if round_spp is not None and not round_spp > 0:
             raise ValueError(f"round_spp: must be > 0, got {round_spp}")
+        if not (np.isfinite(round_growth) and round_growth > 0):
+            raise ValueError(f"round_growth: must be a finite number > 0, got {round_growth}")
         self._shape = (h, w)
         self.initial_spp = int(initial_spp)
         self.spp_min = self.initial_spp if spp_min is None else int(spp_min)
@@ -220,6 +227,7 @@ class Sampler:
             self.initial_spp = min(self.initial_spp, self.spp_max)
             self.spp_min = min(self.spp_min, self.spp_max)
         self.round_spp = round_spp
+        self.round_growth = float(round_growth)
         self.seed = int(seed)
         self._buffer = SampleBuffer.empty((h, w), channels=channels)
         self._issued = np.zeros((h, w), np.int64)
@@ -283,7 +291,7 @@ class Sampler:
             return self.initial_spp * pixels
         if self.round_spp is not None:
             return max(1, int(round(self.round_spp * pixels)))
-        return max(int(0.25 * pixels), int(0.25 * self._issued.sum()), 1)
+        return max(int(0.25 * pixels), int(self.round_growth * self._issued.sum()), 1)
 
     def ask(self, budget: int | None = None) -> SampleRequest:
         """The next request; asking again before :meth:`tell` returns the same request.
@@ -460,7 +468,7 @@ class AdaptiveSampler(Sampler):
 
     Parameters
     ----------
-    shape, channels, initial_spp, seed, spp_min, spp_max, round_spp
+    shape, channels, initial_spp, seed, spp_min, spp_max, round_spp, round_growth
         See :class:`Sampler`.
     wavelet, levels
         Wavelet and depth of the priority analysis (as in :func:`~awr_denoise.reconstruct`).
@@ -481,9 +489,10 @@ class AdaptiveSampler(Sampler):
     def __init__(self, shape: Shape2D, *, channels: int | tuple[str, ...] = 3, initial_spp: int = 4,
                  wavelet: str = "bior4.4", levels: int | None = None, seed: int = 0,
                  spp_min: int | None = None, spp_max: int | None = None, round_spp: float | None = None,
-                 domain: str | Domain = "log", level_weight: float = 0.25, uniform_fraction: float = 0.1) -> None:
+                 round_growth: float = DEFAULT_ROUND_GROWTH, domain: str | Domain = "log", level_weight: float = 0.25,
+                 uniform_fraction: float = 0.1) -> None:
         super().__init__(shape, channels=channels, initial_spp=initial_spp, seed=seed, spp_min=spp_min,
-                         spp_max=spp_max, round_spp=round_spp)
+                         spp_max=spp_max, round_spp=round_spp, round_growth=round_growth)
         from .wavelets import wavelet_operators
 
         wavelet_operators(self._shape, wavelet=wavelet, levels=levels)  # validates wavelet and levels now

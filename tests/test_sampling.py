@@ -218,6 +218,18 @@ def test_run_reaches_the_total_exactly(sampler_cls, total_spp):
         sampler.run(renderer, 2)
 
 
+@pytest.mark.parametrize(("round_growth", "rounds"), [(0.25, 11), (1.0, 4)])
+def test_round_budgets_grow_with_the_samples_taken(sampler_cls, round_growth, rounds):
+    sampler = sampler_cls(SHAPE, round_growth=round_growth)
+    budgets = []
+    sampler.run(_edges_renderer(), 32, callback=lambda req, buf: budgets.append(req.total))
+    assert budgets[0] == 4 * PIXELS
+    taken = np.cumsum(budgets)
+    # Every round but the trimmed last asks for round_growth of the samples so far.
+    assert budgets[1:-1] == [int(round_growth * t) for t in taken[:-2]]
+    assert len(budgets) == rounds and taken[-1] == 32 * PIXELS
+
+
 def test_run_callback_can_stop(sampler_cls):
     sampler = sampler_cls(SHAPE)
     seen = []
@@ -267,6 +279,8 @@ def test_spp_min_is_met_before_the_strategy(sampler_cls):
     ({"spp_max": 0}, "spp_max"),
     ({"spp_min": 5, "spp_max": 4}, "spp_min"),
     ({"round_spp": 0.0}, "round_spp"),
+    ({"round_growth": 0.0}, "round_growth"),
+    ({"round_growth": float("inf")}, "round_growth"),
 ])
 def test_bad_sampler_options_are_refused(sampler_cls, kwargs, message):
     with pytest.raises(ValueError, match=message):
