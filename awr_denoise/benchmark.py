@@ -52,10 +52,10 @@ from .buffers import SampleBuffer
 from .domains import Domain
 from .metrics import RELMSE_EPSILON, mse, psnr, relmse, ssim, tonemap
 from .reconstruct import reconstruct
-from .sampling import AdaptiveSampler, Sampler, UniformSampler, VarianceSampler
+from .sampling import DEFAULT_ROUND_GROWTH, AdaptiveSampler, Sampler, UniformSampler, VarianceSampler
 
 __all__ = ["BenchmarkConfig", "METHODS", "DOMAINS", "run_benchmark", "add_arguments", "main", "equal_error_spp",
-           "fit_noise_floor", "skimage_denoise", "oidn_denoise", "oidn_available"]
+           "fit_noise_floor", "skimage_denoise", "oidn_denoise", "oidn_available", "run_from_args"]
 
 METHODS = ("uniform", "uniform+awr", "awr+awr", "variance+awr", "uniform+skimage", "uniform+oidn")
 """Methods compared at equal samples. ``sampler+reconstruction``; ``uniform`` is the plain mean."""
@@ -501,7 +501,8 @@ def _defaults_sweep(scene, reference: np.ndarray, config: BenchmarkConfig,
         add("mode", mode, [relmse(reconstruct(b, mode=mode), reference) for b in uniform], mode == "channels")
     variants = [("uniform_fraction", v, {"uniform_fraction": v}, v == 0.1) for v in (0.0, 0.1, 0.3)]
     variants += [("level_weight", v, {"level_weight": v}, v == 0.25) for v in (0.0, 0.25, 1.0)]
-    variants += [("round_spp", v, {"round_spp": v}, v is None) for v in (0.25, None, 2.0, 8.0)]
+    variants += [("round_spp", v, {"round_spp": v}, False) for v in (0.25, 2.0, 8.0)]
+    variants += [("round_growth", v, {"round_growth": v}, v == DEFAULT_ROUND_GROWTH) for v in (0.25, 0.5, 1.0)]
     cache: dict[tuple, tuple[list[float], float]] = {}
     for group, value, options, default in variants:
         key = tuple(sorted((k, v) for k, v in options.items() if not default))
@@ -520,7 +521,7 @@ def _defaults_sweep(scene, reference: np.ndarray, config: BenchmarkConfig,
                 sampler_cpu += got["timing"].sampler_cpu
             cache[key] = (errs, sampler_cpu / render_cpu if render_cpu > 0 else float("nan"))
         errs, share = cache[key]
-        add(group, "default (grows 25%)" if value is None else str(value), errs, default, share)
+        add(group, str(value), errs, default, share)
     return rows
 
 
@@ -1031,8 +1032,10 @@ def _write_markdown(results: dict[str, Any], figures: dict[str, str], path: Path
 
     add("## Reproduce\n")
     add("```\npython -m awr_denoise.tracer.reference all --spp 4096   # references (once; about 20 min)\n"
-        "python -m awr_denoise.benchmark --quick                  # a few minutes\n"
-        "python -m awr_denoise.benchmark                          # the full run\n```\n")
+        "awr bench --quick                                        # a few minutes\n"
+        "awr bench                                                # the full run\n```\n")
+    add("`awr bench` is `python -m awr_denoise.benchmark`; it needs the `tracer` and `bench` extras, and "
+        "`oidn` for the Open Image Denoise peer.")
     add("`--scenes a b` restricts the scenes, `--output-dir DIR` writes the page and figures elsewhere, "
         "`--reference-spp N` re-renders (and caches) any reference below N spp with the tracer's "
         "`load_reference`.\n")
@@ -1235,6 +1238,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument("--spp", type=int, nargs="+", default=None, help="average spp to measure at")
     parser.add_argument("--size", type=int, nargs=2, metavar=("WIDTH", "HEIGHT"), default=None,
                         help="override the scenes' resolution (references are then rendered on the fly)")
+    parser.add_argument("--overhead-sizes", nargs="*", choices=tuple(OVERHEAD_SIZES), default=None, metavar="SIZE",
+                        help=f"image sizes of the overhead measurement ({', '.join(OVERHEAD_SIZES)}; none to skip)")
     parser.add_argument("--no-oidn", action="store_true", help="skip Open Image Denoise even if installed")
     parser.add_argument("--no-plots", action="store_true", help="write no PNG figures")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -1251,20 +1256,20 @@ def _config_from_args(args: argparse.Namespace) -> BenchmarkConfig:
         overrides["spps"] = tuple(sorted(set(args.spp)))
     if args.size:
         overrides["width"], overrides["height"] = args.size
+    if args.overhead_sizes is not None:
+        overrides["overhead_sizes"] = tuple(args.overhead_sizes)
     if args.no_oidn:
         overrides["oidn"] = False
     return BenchmarkConfig.quick(**overrides) if args.quick else replace(BenchmarkConfig(), **overrides)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Command line: ``python -m awr_denoise.benchmark [--quick] [--scenes ...] [--output-dir docs]``."""
-    parser = add_arguments(argparse.ArgumentParser(prog="python -m awr_denoise.benchmark",
-                                                   description=__doc__.splitlines()[0]))
-    args = parser.parse_args(argv)
-    try:
-        config = _config_from_args(args)
-    except ValueError as exc:
-        parser.error(str(exc))
+def run_from_args(args: argparse.Namespace) -> int:
+    """Run the benchmark with options parsed by :func:`add_arguments`; print the summary, return 0.
+
+    Raises ``ValueError`` for inconsistent options (a usage error); a failure of the run itself
+    (a missing extra, an unknown scene) prints one line and returns 1.
+    """
+    config = _config_from_args(args)
     try:
         results = run_benchmark(config, output_dir=args.output_dir, results_path=args.results,
                                 plots=not args.no_plots, progress=not args.quiet,
@@ -1283,6 +1288,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.output_dir is not None:
         print(f"wrote {args.output_dir / 'benchmarks.md'}")
     return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command line: ``python -m awr_denoise.benchmark [--quick] [--scenes ...] [--output-dir docs]``."""
+    parser = add_arguments(argparse.ArgumentParser(prog="python -m awr_denoise.benchmark",
+                                                   description=__doc__.splitlines()[0]))
+    args = parser.parse_args(argv)
+    try:
+        return run_from_args(args)
+    except ValueError as exc:
+        parser.error(str(exc))
+        return 2  # parser.error exits; kept for type checkers
 
 
 if __name__ == "__main__":

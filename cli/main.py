@@ -1,7 +1,7 @@
 """The ``awr`` command: sample dumps in, denoised images and sample requests out.
 
 Subcommands: ``info``, ``denoise``, ``plan`` (ask), ``merge`` (tell), ``diff``, ``render``,
-``demo``. Exit status: 0 success, 1 runtime failure, 2 bad usage or bad input. A user
+``demo``, ``bench``. Exit status: 0 success, 1 runtime failure, 2 bad usage or bad input. A user
 mistake prints one line, ``awr: error: <file>: <channel>: <what>``, never a traceback.
 """
 
@@ -16,7 +16,7 @@ from .common import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, RuntimeFailure, UsageErro
 
 __all__ = ["main", "build_parser"]
 
-_COMMANDS = ("info", "denoise", "plan", "merge", "diff", "render", "demo")
+_COMMANDS = ("info", "denoise", "plan", "merge", "diff", "render", "demo", "bench")
 
 
 class _Parser(argparse.ArgumentParser):

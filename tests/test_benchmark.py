@@ -85,3 +85,33 @@ def test_main_rejects_an_unknown_scene(tmp_path, capsys):
     assert code == 1
     assert "no_such_scene" in capsys.readouterr().err
     assert not (tmp_path / "benchmarks.md").exists()
+
+
+def test_oidn_peer_denoises_a_noisy_hdr_image():
+    from awr_denoise.benchmark import oidn_available, oidn_denoise
+
+    if not oidn_available():
+        pytest.skip("pyoidn is not installed (extra 'oidn')")
+    rng = np.random.default_rng(3)
+    y, x = np.mgrid[0:64, 0:64] / 64.0
+    clean = np.stack([1.0 + x, 0.5 + 0.5 * y, 2.0 * np.ones_like(x)], axis=-1)
+    noisy = clean * rng.gamma(4.0, 0.25, clean.shape)  # 4-sample-like multiplicative noise
+    out = oidn_denoise(noisy)
+    assert out.shape == clean.shape and out.dtype == np.float64 and np.isfinite(out).all()
+    assert np.mean((out - clean) ** 2) < 0.25 * np.mean((noisy - clean) ** 2)
+
+
+def test_awr_bench_subcommand_runs_the_benchmark(tmp_path, capsys):
+    pytest.importorskip("embreex")
+    pytest.importorskip("skimage")
+    from awr_denoise.cli.main import main as awr_main
+
+    code = awr_main(["bench", "--quick", "--scenes", "default", "--size", "16", "16", "--spp", "4",
+                     "--overhead-sizes", "--no-oidn", "--no-plots", "--quiet", "--output-dir", str(tmp_path / "docs"),
+                     "--results", str(tmp_path / "q.json")])
+    assert code == 0
+    assert "default" in capsys.readouterr().out
+    assert json.loads((tmp_path / "q.json").read_text())["scenes"]["default"]["methods"]["uniform"]
+    assert "Headline" in (tmp_path / "docs" / "benchmarks.md").read_text()
+    assert awr_main(["bench", "--quick", "--scenes", "nowhere", "--quiet", "--no-plots",
+                     "--output-dir", str(tmp_path / "other")]) == 1
