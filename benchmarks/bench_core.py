@@ -163,6 +163,29 @@ def level_weights(shape=(128, 128), spp=16, seed=3) -> list[dict]:
     return rows
 
 
+def round_growths(shape=(128, 128), spps=(8, 32), seeds=(3, 4, 5)) -> list[dict]:
+    """AdaptiveSampler's round size: relMSE after reconstruction, mean over seeds."""
+    rows = []
+    growths = (0.25, 0.5, 1.0)
+    for scene_name in ("gradient", "edges", "hdr_source", "fireflies"):
+        scene = make_scene(scene_name, shape)
+        ref = scene.reference(8)
+        for spp in spps:
+            row = {"scene": scene_name, "spp": spp}
+            for growth in growths:
+                errors, rounds = [], []
+                for seed in seeds:
+                    sampler = AdaptiveSampler(shape, seed=seed, round_growth=growth)
+                    buf = sampler.run(SyntheticRenderer(scene, seed=seed), spp)
+                    errors.append(relmse(reconstruct(buf), ref))
+                    rounds.append(sampler.round)
+                row[f"g={growth}"] = {"relmse": float(np.mean(errors)), "rounds": rounds[0]}
+            rows.append(row)
+            print(f"| {scene_name} | {spp} | " + " | ".join(
+                f"{row[f'g={g}']['relmse']:.4f} ({row[f'g={g}']['rounds']})" for g in growths) + " |", flush=True)
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="256x256 speed only, fewer quality runs")
@@ -191,6 +214,10 @@ def main(argv: list[str] | None = None) -> int:
     print("| scene | uniform + AWR | w=0 | w=0.25 | w=0.5 | w=1 |")
     print("|---|---|---|---|---|---|")
     results["level_weights"] = level_weights()
+    print("\n## Sampler round growth (relMSE after reconstruction, mean of 3 seeds; rounds in brackets)\n")
+    print("| scene | spp | growth 0.25 | growth 0.5 | growth 1.0 |")
+    print("|---|---|---|---|---|")
+    results["round_growths"] = round_growths(spps=(8,) if args.quick else (8, 32))
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps(results, indent=2))
     print(f"\nwrote {args.output}")
