@@ -112,6 +112,8 @@ def test_awr_bench_subcommand_runs_the_benchmark(tmp_path, capsys):
     assert code == 0
     assert "default" in capsys.readouterr().out
     assert json.loads((tmp_path / "q.json").read_text())["scenes"]["default"]["methods"]["uniform"]
-    assert "Headline" in (tmp_path / "docs" / "benchmarks.md").read_text()
+    page = (tmp_path / "docs" / "benchmarks.md").read_text()
+    assert "Headline" in page
+    assert "Raw numbers: `q.json`" in page and str(tmp_path) not in page  # never a machine path
     assert awr_main(["bench", "--quick", "--scenes", "nowhere", "--quiet", "--no-plots",
                      "--output-dir", str(tmp_path / "other")]) == 1
