@@ -2,8 +2,9 @@
 
 Run from the repository root::
 
-    .venv/bin/python benchmarks/bench_core.py            # all sizes, ~1-2 minutes
-    .venv/bin/python benchmarks/bench_core.py --quick    # 256x256 only
+    .venv/bin/python benchmarks/bench_core.py                  # everything, a few minutes
+    .venv/bin/python benchmarks/bench_core.py --quick          # 256x256 speed, fewer quality runs
+    .venv/bin/python benchmarks/bench_core.py --only levels    # one section, updated in the JSON
 
 Prints markdown tables and writes ``benchmarks/results/core.json``. Timings are medians of
 repeated runs on one core (no executor); memory is the tracemalloc peak of a separate run,
@@ -186,38 +187,78 @@ def round_growths(shape=(128, 128), spps=(8, 32), seeds=(3, 4, 5)) -> list[dict]
     return rows
 
 
+def levels(shapes=((128, 128), (256, 256)), spps=(8, 32), seeds=(3, 4)) -> list[dict]:
+    """Decomposition depth: relMSE of uniform + AWR and AWR + AWR, mean over seeds, per size."""
+    from awr_denoise.wavelets import default_levels
+
+    rows = []
+    for shape in shapes:
+        depths = (2, 3, 4, 5)
+        for scene_name in ("gradient", "edges", "hdr_source", "fireflies"):
+            scene = make_scene(scene_name, shape)
+            ref = scene.reference(8)
+            for spp in spps:
+                row = {"size": f"{shape[1]}x{shape[0]}", "scene": scene_name, "spp": spp,
+                       "default": default_levels(shape)}
+                for lv in depths:
+                    uniform, adaptive = [], []
+                    for seed in seeds:
+                        buf = UniformSampler(shape, seed=seed).run(SyntheticRenderer(scene, seed=seed), spp)
+                        uniform.append(relmse(reconstruct(buf, levels=lv), ref))
+                        buf = AdaptiveSampler(shape, seed=seed, levels=lv).run(SyntheticRenderer(scene, seed=seed), spp)
+                        adaptive.append(relmse(reconstruct(buf, levels=lv), ref))
+                    row[f"L={lv}"] = {"uniform_awr": float(np.mean(uniform)), "awr_awr": float(np.mean(adaptive))}
+                rows.append(row)
+                print(f"| {row['size']} | {scene_name} | {spp} | " + " | ".join(
+                    f"{row[f'L={lv}']['uniform_awr']:.4f} / {row[f'L={lv}']['awr_awr']:.4f}" for lv in depths) + " |",
+                    flush=True)
+    return rows
+
+
+SECTIONS = {
+    "speed": ("Speed (one core) and peak memory",
+              "| size | input buffer | reconstruct | reconstruct, 2 threads | ask() | reconstruct peak | ask() peak |",
+              lambda quick: speed(["256x256"] if quick else list(SIZES))),
+    "quality": ("Quality, synthetic 128x128 (relMSE / MSE, equal samples)",
+                "| scene | spp | uniform mean | uniform + AWR | variance-driven + AWR | AWR adaptive + AWR |",
+                lambda quick: quality(spps=(8,) if quick else (8, 32))),
+    "domains": ("Reconstruction domain (relMSE, uniform sampling, c_s = 1)",
+                "| scene | spp | mean | linear | log k=0.02 | log k=0.1 | log k=0.5 | gamma 2.2 | log k=0.1 robust |",
+                lambda quick: domains(spps=(4,) if quick else (4, 16))),
+    "pixel_clamps": ("Pixel clamp (64x64, mean relMSE over 5 seeds, worst ratio to the noisy mean in brackets)",
+                     "| scene | spp | mean | none (Eq. 11 only) | z=2 | z=2.5 | z=3 |",
+                     lambda quick: pixel_clamps(spps=(8,) if quick else (4, 8, 32))),
+    "level_weights": ("Sampler level weight (relMSE after reconstruction, 16 spp)",
+                      "| scene | uniform + AWR | w=0 | w=0.25 | w=0.5 | w=1 |",
+                      lambda quick: level_weights()),
+    "round_growths": ("Sampler round growth (relMSE after reconstruction, mean of 3 seeds; rounds in brackets)",
+                      "| scene | spp | growth 0.25 | growth 0.5 | growth 1.0 |",
+                      lambda quick: round_growths(spps=(8,) if quick else (8, 32))),
+    "levels": ("Levels (relMSE, uniform + AWR / AWR + AWR, mean of 2 seeds)",
+               "| size | scene | spp | L=2 | L=3 | L=4 | L=5 |",
+               lambda quick: levels(shapes=((128, 128),) if quick else ((128, 128), (256, 256)),
+                                    spps=(8,) if quick else (8, 32))),
+}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="256x256 speed only, fewer quality runs")
+    parser.add_argument("--only", nargs="+", choices=tuple(SECTIONS), metavar="SECTION",
+                        help=f"run only these sections ({', '.join(SECTIONS)}) and update them in the JSON")
     parser.add_argument("--output", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
-    sizes = ["256x256"] if args.quick else list(SIZES)
-    print("## Speed (one core) and peak memory\n")
-    print("| size | input buffer | reconstruct | reconstruct, 2 threads | ask() | reconstruct peak | ask() peak |")
-    print("|---|---|---|---|---|---|---|")
-    results = {"machine": {"python": sys.version.split()[0], "platform": platform.platform(),
-                           "processor": platform.processor() or platform.machine()},
-               "speed": speed(sizes)}
-    print("\n## Quality, synthetic 128x128 (relMSE / MSE, equal samples)\n")
-    print("| scene | spp | uniform mean | uniform + AWR | variance-driven + AWR | AWR adaptive + AWR |")
-    print("|---|---|---|---|---|---|")
-    results["quality"] = quality(spps=(8,) if args.quick else (8, 32))
-    print("\n## Reconstruction domain (relMSE, uniform sampling, c_s = 1)\n")
-    print("| scene | spp | mean | linear | log k=0.02 | log k=0.1 | log k=0.5 | gamma 2.2 | log k=0.1 robust |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    results["domains"] = domains(spps=(4,) if args.quick else (4, 16))
-    print("\n## Pixel clamp (64x64, mean relMSE over 5 seeds, worst ratio to the noisy mean in brackets)\n")
-    print("| scene | spp | mean | none (Eq. 11 only) | z=2 | z=2.5 | z=3 |")
-    print("|---|---|---|---|---|---|---|")
-    results["pixel_clamps"] = pixel_clamps(spps=(8,) if args.quick else (4, 8, 32))
-    print("\n## Sampler level weight (relMSE after reconstruction, 16 spp)\n")
-    print("| scene | uniform + AWR | w=0 | w=0.25 | w=0.5 | w=1 |")
-    print("|---|---|---|---|---|---|")
-    results["level_weights"] = level_weights()
-    print("\n## Sampler round growth (relMSE after reconstruction, mean of 3 seeds; rounds in brackets)\n")
-    print("| scene | spp | growth 0.25 | growth 0.5 | growth 1.0 |")
-    print("|---|---|---|---|---|")
-    results["round_growths"] = round_growths(spps=(8,) if args.quick else (8, 32))
+    results = {}
+    if args.only and args.output.is_file():
+        results = json.loads(args.output.read_text())
+    results["machine"] = {"python": sys.version.split()[0], "platform": platform.platform(),
+                          "processor": platform.processor() or platform.machine()}
+    for name in args.only or SECTIONS:
+        title, header, run = SECTIONS[name]
+        print(f"\n## {title}\n")
+        print(header)
+        print("|---" * (header.count("|") - 1) + "|")
+        results[name] = run(args.quick)
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps(results, indent=2))
     print(f"\nwrote {args.output}")
