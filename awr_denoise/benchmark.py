@@ -1044,7 +1044,7 @@ def _write_markdown(results: dict[str, Any], figures: dict[str, str], path: Path
         "awr bench --quick                                        # a few minutes\n"
         "awr bench                                                # the full run\n```\n")
     add("`awr bench` is `python -m awr_denoise.benchmark`; it needs the `tracer` and `bench` extras, and "
-        "`oidn` for the Open Image Denoise peer.")
+        "`oidn` for the Open Image Denoise peer.\n")
     add("`--scenes a b` restricts the scenes, `--output-dir DIR` writes the page and figures elsewhere, "
         "`--reference-spp N` re-renders (and caches) any reference below N spp with the tracer's "
         "`load_reference`.\n")
