@@ -25,6 +25,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     budget.add_argument("--budget", type=int, metavar="N", help="total new samples of this round")
     budget.add_argument("--round-spp", type=float, metavar="S",
                         help="new samples of this round per pixel on average")
+    budget.add_argument("--round-growth", type=float, metavar="G",
+                        help="new samples of this round as a share of the samples taken so far (default 0.25)")
     p.add_argument("--size", metavar="WxH", help="image size of the first round (without a dump)")
     p.add_argument("--initial-spp", type=int, default=4, help="samples per pixel of the first round (default 4)")
     p.add_argument("--strategy", choices=STRATEGIES, default="awr",
@@ -59,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
 
     cls = _sampler_class(args.strategy)
     options: dict = {"spp_max": args.spp_max}
+    if args.round_growth is not None:
+        options["round_growth"] = args.round_growth
     if args.strategy == "awr":
         options.update(wavelet=args.wavelet, levels=args.levels)
     if args.input is None:

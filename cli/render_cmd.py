@@ -48,10 +48,12 @@ def derived_path(path: str | Path, suffix: str) -> Path:
 
 
 def render_buffer(tracer: Any, scene: Any, *, spp: float, adaptive: bool, seed: int, sampler: str,
-                  initial_spp: int, quiet: bool, renderer: Any = None) -> tuple[Any, Any, int]:
+                  initial_spp: int, quiet: bool, renderer: Any = None,
+                  round_growth: float | None = None) -> tuple[Any, Any, int]:
     """(buffer, issued, next round) of a uniform or adaptive render at ``spp`` on average.
 
-    ``renderer`` replaces the in-process tracer (a tiled renderer over workers, say).
+    ``renderer`` replaces the in-process tracer (a tiled renderer over workers, say);
+    ``round_growth`` is the adaptive sampler's (its default when None).
     """
     from awr_denoise import AdaptiveSampler, SampleRequest
 
@@ -70,7 +72,8 @@ def render_buffer(tracer: Any, scene: Any, *, spp: float, adaptive: bool, seed: 
             request = SampleRequest.uniform(shape, int(spp))
             buffer = renderer(request)
             return buffer, request.first_index + request.counts, 1
-        awr = AdaptiveSampler(shape, initial_spp=min(initial_spp, max(1, int(spp))), seed=seed)
+        growth = {} if round_growth is None else {"round_growth": round_growth}
+        awr = AdaptiveSampler(shape, initial_spp=min(initial_spp, max(1, int(spp))), seed=seed, **growth)
         buffer = awr.run(renderer, total_spp=spp, progress=not quiet)
         return buffer, awr.issued, awr.round
     finally:
@@ -94,6 +97,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                       help="adaptive wavelet sampling (default)")
     mode.add_argument("--uniform", dest="adaptive", action="store_false", help="the same count at every pixel")
     p.add_argument("--initial-spp", type=int, default=4, help="samples per pixel of the first adaptive round")
+    p.add_argument("--round-growth", type=float, metavar="G",
+                   help="adaptive rounds ask for this share of the samples taken so far (default 0.25; "
+                        "larger: fewer, cheaper rounds, see docs/sampling.md)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--sampler", choices=("independent", "sobol"), default="independent",
                    help="the tracer's sample sequence")
@@ -140,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
     from awr_denoise.parallel import RendererSpec, TiledRenderer, executor_from_args, executor_requested
 
     options = dict(spp=args.spp, adaptive=args.adaptive, seed=args.seed, sampler=args.sampler,
-                   initial_spp=args.initial_spp, quiet=args.quiet)
+                   initial_spp=args.initial_spp, quiet=args.quiet, round_growth=args.round_growth)
     if executor_requested(args):
         # Each worker builds its own tracer from a picklable spec; tiles of every round are
         # rendered there and merged exactly (addressable random numbers make it match serial).

@@ -514,6 +514,28 @@ def test_plan_usage_errors(tmp_path, capsys, rng):
     assert not (tmp_path / "r.exr").exists()
 
 
+@pytest.mark.parametrize("growth", [0.25, 1.0])
+def test_plan_round_growth_sets_the_round_budget(tmp_path, capsys, rng, growth):
+    buf = _dump(tmp_path / "d.exr", rng)
+    assert main(["plan", str(tmp_path / "d.exr"), "--round-growth", str(growth), "-o", str(tmp_path / "r.exr"),
+                 "-q"]) == 0
+    assert read_request(tmp_path / "r.exr").total == int(growth * buf.total_samples)
+    assert main(["plan", str(tmp_path / "d.exr"), "--round-growth", "0", "-o", str(tmp_path / "s.exr")]) == 2
+    _one_error_line(capsys, "round_growth")
+    assert not (tmp_path / "s.exr").exists()
+
+
+def test_render_round_growth_takes_fewer_rounds(tmp_path, fake_tracer):
+    rounds = {}
+    for growth in ("0.25", "1.0"):
+        out = tmp_path / f"g{growth}.exr"
+        assert main(["render", "--spp", "16", "--round-growth", growth, "-o", str(out), "-q"]) == 0
+        dump = read_sample_dump(out)
+        assert dump.buffer.total_samples == 16 * H * W
+        rounds[growth] = int(dump.attributes["awr:round"])
+    assert rounds == {"0.25": 8, "1.0": 3}  # 4 spp, then rounds of 25% (or 100%) of the samples so far
+
+
 def test_feature_guides_refused_with_reason(tmp_path, capsys, rng):
     _dump(tmp_path / "d.exr", rng)
     assert main(["denoise", str(tmp_path / "d.exr"), "--alb", "a.exr", "-o", str(tmp_path / "o.exr")]) == 2
