@@ -206,14 +206,39 @@ def _fireflies(shape: Shape2D) -> SyntheticScene:
     return SyntheticScene("fireflies", shape, image, _heavy_tailed(spike=100.0, probability=0.004))
 
 
+def _rare_light(shape: Shape2D) -> SyntheticScene:
+    h, w = shape
+    cx, cy, radius = 0.3 * w, 0.35 * h, 0.02 * min(h, w)
+    spike, probability = 40.0, 0.02
+
+    def inside(x, y):
+        return (x - cx) ** 2 + (y - cy) ** 2 < radius**2
+
+    def image(x, y):
+        v = np.where(inside(x, y), 1.0, 0.2 + 0.1 * x / w)
+        return np.stack([v, v, 0.9 * v], axis=1)
+
+    def noise(clean, x, y, u):
+        # Inside the disc 80% of the radiance arrives through rare samples (a light seen through
+        # a gap, a caustic): four samples of a pixel all miss it 92% of the time.
+        p = np.where(inside(x, y), probability, 0.0)
+        low = (1.0 - spike * p) / (1.0 - p)
+        factor = np.where(u[:, 0] < p, spike, low * (0.5 + u[:, 1]))
+        return clean * factor[:, None]
+
+    return SyntheticScene("rare_light", shape, image, noise)
+
+
 SCENES: dict[str, Callable[[Shape2D], SyntheticScene]] = {
     "gradient": _gradient,
     "edges": _edges,
     "hdr_source": _hdr_source,
     "fireflies": _fireflies,
+    "rare_light": _rare_light,
 }
 """Synthetic scenes: smooth noisy gradient, sharp edges, a 1000x bright source on a dark
-background, and heavy-tailed (firefly) samples 100x the mean."""
+background, heavy-tailed (firefly) samples 100x the mean, and a disc whose radiance mostly
+arrives through rare samples (2%, 40x the mean) that a pixel's first samples usually miss."""
 
 
 def make_scene(name: str, shape: Shape2D = (64, 64)) -> SyntheticScene:
