@@ -499,7 +499,7 @@ def _defaults_sweep(scene, reference: np.ndarray, config: BenchmarkConfig,
         add("wavelet", wav, [relmse(reconstruct(b, wavelet=wav), reference) for b in uniform], wav == "bior4.4")
     for mode in ("channels", "luminance"):
         add("mode", mode, [relmse(reconstruct(b, mode=mode), reference) for b in uniform], mode == "channels")
-    variants = [("uniform_fraction", v, {"uniform_fraction": v}, v == 0.1) for v in (0.0, 0.1, 0.3)]
+    variants = [("uniform_fraction", v, {"uniform_fraction": v}, v == 0.0) for v in (0.0, 0.1, 0.3)]
     variants += [("level_weight", v, {"level_weight": v}, v == 0.25) for v in (0.0, 0.25, 1.0)]
     variants += [("round_spp", v, {"round_spp": v}, False) for v in (0.25, 2.0, 8.0)]
     variants += [("round_growth", v, {"round_growth": v}, v == DEFAULT_ROUND_GROWTH) for v in (0.25, 0.5, 1.0)]

@@ -435,11 +435,13 @@ class VarianceSampler(Sampler):
     Samples go where the per-pixel *relative* error is large: the allocation equalises the
     marginal error reduction ``s2_p / (n_p (n_p + 1))`` of each pixel in the error domain
     (``"log"``: relative error), i.e. ``n_p ~ s_p``. No wavelet structure is used.
+    ``uniform_fraction`` as for :class:`AdaptiveSampler` (0 by default, so the two compare like
+    with like).
     """
 
     strategy = "variance"
 
-    def __init__(self, shape: Shape2D, *, domain: str | Domain = "log", uniform_fraction: float = 0.1,
+    def __init__(self, shape: Shape2D, *, domain: str | Domain = "log", uniform_fraction: float = 0.0,
                  **options) -> None:
         super().__init__(shape, **options)
         self.domain = domain
@@ -462,9 +464,10 @@ class AdaptiveSampler(Sampler):
     highest priority ``P_k = 4^k (Var(S~_k) - sum_a max(0, W~^2 - (2 Delta)^2))``, and the
     round's budget is spread so that totals approach ``n_p ~ s_p 2^(-w l_p)``: samples concentrate
     on edges (fine levels win) and spread thinly over smooth noisy regions (coarse levels win),
-    see :mod:`awr_denoise.priorities`. A ``uniform_fraction`` of each round is spent uniformly
-    as insurance against variance estimates that are wrong (all four samples of a pixel may
-    miss a small light).
+    see :mod:`awr_denoise.priorities`. An optional ``uniform_fraction`` of each round is spent
+    uniformly, insurance against variance estimates that are wrong (all first samples of a
+    region may miss a small light); measured, it cost relMSE and bought nothing (docs/sampling.md),
+    so it is off by default.
 
     Parameters
     ----------
@@ -481,7 +484,7 @@ class AdaptiveSampler(Sampler):
         measurement (docs/sampling.md) puts the best value near 0.25, the default. 0 turns the
         sampler into per-pixel variance sampling.
     uniform_fraction
-        Share of every round spread uniformly.
+        Share of every round spread uniformly; 0 by default.
     """
 
     strategy = "awr"
@@ -490,7 +493,7 @@ class AdaptiveSampler(Sampler):
                  wavelet: str = "bior4.4", levels: int | None = None, seed: int = 0,
                  spp_min: int | None = None, spp_max: int | None = None, round_spp: float | None = None,
                  round_growth: float = DEFAULT_ROUND_GROWTH, domain: str | Domain = "log", level_weight: float = 0.25,
-                 uniform_fraction: float = 0.1) -> None:
+                 uniform_fraction: float = 0.0) -> None:
         super().__init__(shape, channels=channels, initial_spp=initial_spp, seed=seed, spp_min=spp_min,
                          spp_max=spp_max, round_spp=round_spp, round_growth=round_growth)
         from .wavelets import wavelet_operators

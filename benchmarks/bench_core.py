@@ -215,6 +215,38 @@ def levels(shapes=((128, 128), (256, 256)), spps=(8, 32), seeds=(3, 4)) -> list[
     return rows
 
 
+def uniform_fractions(shape=(128, 128), spps=(8, 32), seeds=(3, 4, 5, 6)) -> list[dict]:
+    """AdaptiveSampler's uniform share: relMSE after reconstruction, mean over seeds.
+
+    ``rare_light (disc)`` is the error of the rare_light scene inside its small bright disc (grown
+    by 3 pixels), where a share of uniform samples would matter if anywhere.
+    """
+    from scipy import ndimage
+
+    rows = []
+    fractions = (0.0, 0.1, 0.3)
+    for scene_name in ("gradient", "edges", "hdr_source", "fireflies", "rare_light"):
+        scene = make_scene(scene_name, shape)
+        ref = scene.reference(8)
+        regions = {scene_name: np.ones(shape, bool)}
+        if scene_name == "rare_light":
+            regions["rare_light (disc)"] = ndimage.binary_dilation(ref[..., 0] > 0.5, iterations=3)
+        for spp in spps:
+            errors = {(name, f): [] for name in regions for f in fractions}
+            for fraction in fractions:
+                for seed in seeds:
+                    sampler = AdaptiveSampler(shape, seed=seed, uniform_fraction=fraction)
+                    out = reconstruct(sampler.run(SyntheticRenderer(scene, seed=seed), spp))
+                    for name, mask in regions.items():
+                        errors[name, fraction].append(relmse(out[mask], ref[mask]))
+            for name in regions:
+                row = {"scene": name, "spp": spp, **{f"f={f}": float(np.mean(errors[name, f])) for f in fractions}}
+                rows.append(row)
+                print(f"| {name} | {spp} | " + " | ".join(f"{row[f'f={f}']:.4f}" for f in fractions) + " |",
+                      flush=True)
+    return rows
+
+
 SECTIONS = {
     "speed": ("Speed (one core) and peak memory",
               "| size | input buffer | reconstruct | reconstruct, 2 threads | ask() | reconstruct peak | ask() peak |",
@@ -234,6 +266,9 @@ SECTIONS = {
     "round_growths": ("Sampler round growth (relMSE after reconstruction, mean of 3 seeds; rounds in brackets)",
                       "| scene | spp | growth 0.25 | growth 0.5 | growth 1.0 |",
                       lambda quick: round_growths(spps=(8,) if quick else (8, 32))),
+    "uniform_fractions": ("Sampler uniform share (relMSE after reconstruction, mean of 4 seeds)",
+                          "| scene | spp | uniform_fraction 0 | 0.1 | 0.3 |",
+                          lambda quick: uniform_fractions(spps=(8,) if quick else (8, 32))),
     "levels": ("Levels (relMSE, uniform + AWR / AWR + AWR, mean of 2 seeds)",
                "| size | scene | spp | L=2 | L=3 | L=4 | L=5 |",
                lambda quick: levels(shapes=((128, 128),) if quick else ((128, 128), (256, 256)),
