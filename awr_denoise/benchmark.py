@@ -1308,7 +1308,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         return run_from_args(args)
     except ValueError as exc:
         parser.error(str(exc))
-        return 2  # parser.error exits; kept for type checkers
 
 
 if __name__ == "__main__":

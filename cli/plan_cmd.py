@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import re
 
+from awr_denoise.sampling import DEFAULT_ROUND_GROWTH
+
 from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, refuse_same_file, status
 
 __all__ = ["register", "run", "STRATEGIES"]
@@ -26,7 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     budget.add_argument("--round-spp", type=float, metavar="S",
                         help="new samples of this round per pixel on average")
     budget.add_argument("--round-growth", type=float, metavar="G",
-                        help="new samples of this round as a share of the samples taken so far (default 0.25)")
+                        help="new samples of this round as a share of the samples taken so far (default "
+                             f"{DEFAULT_ROUND_GROWTH})")
     p.add_argument("--size", metavar="WxH", help="image size of the first round (without a dump)")
     p.add_argument("--initial-spp", type=int, default=4, help="samples per pixel of the first round (default 4)")
     p.add_argument("--strategy", choices=STRATEGIES, default="awr",

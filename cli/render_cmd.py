@@ -7,6 +7,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from awr_denoise.sampling import DEFAULT_ROUND_GROWTH
+
 from .common import EXIT_OK, RuntimeFailure, UsageError, status
 from .denoise_cmd import add_reconstruction_options, reconstruction_kwargs
 
@@ -49,11 +51,11 @@ def derived_path(path: str | Path, suffix: str) -> Path:
 
 def render_buffer(tracer: Any, scene: Any, *, spp: float, adaptive: bool, seed: int, sampler: str,
                   initial_spp: int, quiet: bool, renderer: Any = None,
-                  round_growth: float | None = None) -> tuple[Any, Any, int]:
+                  round_growth: float = DEFAULT_ROUND_GROWTH) -> tuple[Any, Any, int]:
     """(buffer, issued, next round) of a uniform or adaptive render at ``spp`` on average.
 
     ``renderer`` replaces the in-process tracer (a tiled renderer over workers, say);
-    ``round_growth`` is the adaptive sampler's (its default when None).
+    ``round_growth`` is the adaptive sampler's.
     """
     from awr_denoise import AdaptiveSampler, SampleRequest
 
@@ -72,8 +74,8 @@ def render_buffer(tracer: Any, scene: Any, *, spp: float, adaptive: bool, seed: 
             request = SampleRequest.uniform(shape, int(spp))
             buffer = renderer(request)
             return buffer, request.first_index + request.counts, 1
-        growth = {} if round_growth is None else {"round_growth": round_growth}
-        awr = AdaptiveSampler(shape, initial_spp=min(initial_spp, max(1, int(spp))), seed=seed, **growth)
+        awr = AdaptiveSampler(shape, initial_spp=min(initial_spp, max(1, int(spp))), seed=seed,
+                              round_growth=round_growth)
         buffer = awr.run(renderer, total_spp=spp, progress=not quiet)
         return buffer, awr.issued, awr.round
     finally:
@@ -97,8 +99,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                       help="adaptive wavelet sampling (default)")
     mode.add_argument("--uniform", dest="adaptive", action="store_false", help="the same count at every pixel")
     p.add_argument("--initial-spp", type=int, default=4, help="samples per pixel of the first adaptive round")
-    p.add_argument("--round-growth", type=float, metavar="G",
-                   help="adaptive rounds ask for this share of the samples taken so far (default 0.25; "
+    p.add_argument("--round-growth", type=float, metavar="G", default=DEFAULT_ROUND_GROWTH,
+                   help="adaptive rounds ask for this share of the samples taken so far (default %(default)s; "
                         "larger: fewer, cheaper rounds, see docs/sampling.md)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--sampler", choices=("independent", "sobol"), default="independent",
