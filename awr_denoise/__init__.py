@@ -8,6 +8,7 @@ wavelet coefficients by their propagated standard error (Eq. 10-11).
 
 from __future__ import annotations
 
+from ._version import __version__
 from .buffers import SampleBuffer, luminance_weights
 from .errors import AWRError, InputFileError, StaleRequestError
 from .domains import Domain
@@ -15,7 +16,6 @@ from .reconstruct import Reconstruction, reconstruct, reconstruct_detailed
 from .requests import Renderer, SampleRequest
 from .sampling import AdaptiveSampler, Sampler, UniformSampler, VarianceSampler, allocate
 
-__version__ = "0.1.0"
 
 __all__ = [
     "AWRError",
