@@ -1,4 +1,4 @@
-"""Image error metrics for HDR renders (algorithm note, section 7).
+"""Image error metrics for HDR renders (docs/benchmarks.md, "How quality is measured").
 
 relMSE is the mean over pixels and channels of ``(x - r)^2 / (r^2 + eps)`` with ``eps = 0.01``
 (the usual damping, reported with every figure); SSIM is computed on a tonemapped image.
@@ -11,7 +11,7 @@ from scipy import ndimage
 
 from ._typing import FloatArray
 
-__all__ = ["mse", "relmse", "psnr", "ssim", "tonemap", "RELMSE_EPSILON"]
+__all__ = ["mse", "relmse", "psnr", "ssim", "tonemap", "RELMSE_EPSILON", "METRICS", "HIGHER_IS_BETTER"]
 
 RELMSE_EPSILON = 0.01
 
@@ -79,3 +79,10 @@ def ssim(x: FloatArray, reference: FloatArray, *, exposure: float = 0.0, sigma: 
         s = ((2 * mu_p * mu_q + c1) * (2 * cov + c2)) / ((mu_p**2 + mu_q**2 + c1) * (var_p + var_q + c2))
         scores.append(float(np.mean(s)))
     return float(np.mean(scores))
+
+
+METRICS = {"relmse": relmse, "mse": mse, "psnr": psnr, "ssim": ssim}
+"""The metrics by name, as the command line and the benchmark report them."""
+
+HIGHER_IS_BETTER = frozenset({"psnr", "ssim"})
+"""Metrics for which a larger value is the better image."""

@@ -28,8 +28,9 @@ from scipy import ndimage
 
 from ._typing import FloatArray
 from .buffers import SampleBuffer
-from .domains import Domain, resolve_domain
-from .wavelets import WaveletOperators, coefficient_variance, forward, wavelet_operators
+from .domains import Domain
+from .prepare import prepare
+from .wavelets import DEFAULT_WAVELET, WaveletOperators, coefficient_variance, forward, wavelet_operators
 
 __all__ = ["coefficient_priorities", "pixel_levels", "sampling_density", "error_plane"]
 
@@ -46,25 +47,14 @@ def error_plane(buffer: SampleBuffer, domain: str | Domain = "log") -> tuple[Flo
         domain by the delta method (so ``"log"`` measures relative error, as relMSE does).
         Pixels without samples borrow their nearest neighbour's mean and the pooled variance.
     """
-    dom = resolve_domain(domain)
-    lum = buffer.luminance()
-    empty = buffer.count == 0
-    if empty.all():
-        raise ValueError("buffer: no pixel has any sample")
-    if empty.any():
-        _, (r, c) = ndimage.distance_transform_edt(empty, return_indices=True)
-        lum = lum[r, c]
-    s2 = buffer.luminance_variance()
-    bound = dom.bound(lum)
-    s2_y = bound.variance(lum, s2)
-    n = np.maximum(buffer.count, 1).astype(np.float64)
-    return bound.forward(lum), s2_y / n, s2_y
+    p = prepare(buffer, domain, luminance=True)
+    return p.y, p.sample_variance_y / p.count, p.sample_variance_y
 
 
 def coefficient_priorities(
     buffer: SampleBuffer,
     *,
-    wavelet: str = "bior4.4",
+    wavelet: str = DEFAULT_WAVELET,
     levels: int | None = None,
     domain: str | Domain = "log",
     boundary: str = "symmetric",
@@ -132,7 +122,7 @@ def pixel_levels(priorities: list[FloatArray], operators: WaveletOperators) -> n
 def sampling_density(
     buffer: SampleBuffer,
     *,
-    wavelet: str = "bior4.4",
+    wavelet: str = DEFAULT_WAVELET,
     levels: int | None = None,
     domain: str | Domain = "log",
     boundary: str = "symmetric",

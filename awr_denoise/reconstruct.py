@@ -12,24 +12,30 @@ The coarsest scale band is kept as it is; every detail level and band is thresho
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from concurrent.futures import Executor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from scipy import ndimage
 
 from ._typing import FloatArray
 from .buffers import SampleBuffer, luminance_weights
-from .domains import Domain, resolve_domain
-from .wavelets import coefficient_variance, forward, inverse, wavelet_operators
+from .domains import Domain
+from .prepare import prepare
+from .wavelets import DEFAULT_WAVELET, coefficient_variance, forward, inverse, wavelet_operators
 
-__all__ = ["reconstruct", "reconstruct_detailed", "Reconstruction", "MODES", "DEFAULT_DOMAIN", "DEFAULT_PIXEL_CLAMP"]
+__all__ = ["reconstruct", "reconstruct_detailed", "Reconstruction", "MODES", "DEFAULT_C_S", "DEFAULT_DOMAIN",
+           "DEFAULT_MODE", "DEFAULT_PIXEL_CLAMP"]
 
 MODES = ("channels", "luminance")
 """``"channels"``: each channel thresholded with its own Delta; ``"luminance"``: thresholds
 decided on luminance, the same shrink factor applied to every channel (hue-preserving)."""
+
+DEFAULT_MODE = MODES[0]
+"""Default mode: every channel thresholded with its own Delta."""
+
+DEFAULT_C_S = 1.0
+"""Default smoothing constant ``c_s`` of Eq. 11: one standard error."""
 
 DEFAULT_DOMAIN = "log"
 """Default thresholding domain; chosen by measurement (docs/reconstruction.md)."""
@@ -58,6 +64,9 @@ class Reconstruction:
         Decomposition depth used.
     domain
         The domain the coefficients were thresholded in.
+    parameters
+        The settings that made it, resolved (``c_s``, ``wavelet``, ``levels``, ``domain``
+        name, ``mode``, ``boundary``, ``pixel_clamp``): what a file's provenance records.
     """
 
     image: FloatArray
@@ -66,23 +75,7 @@ class Reconstruction:
     variance: FloatArray
     levels: int
     domain: Domain
-
-
-def _filled_mean(buffer: SampleBuffer) -> FloatArray:
-    """Pixel means with sample-less pixels given their nearest sampled neighbour's mean."""
-    empty = buffer.count == 0
-    if not empty.any():
-        return np.array(buffer.mean)
-    if empty.all():
-        raise ValueError("buffer: no pixel has any sample")
-    _, (rows, cols) = ndimage.distance_transform_edt(empty, return_indices=True)
-    return buffer.mean[rows, cols]
-
-
-def _input_variance(buffer: SampleBuffer) -> FloatArray:
-    """Variance of each pixel mean; a sample-less pixel counts as a single (pooled) sample."""
-    n = np.maximum(buffer.count, 1)[..., None].astype(np.float64)
-    return buffer.estimated_variance() / n
+    parameters: dict = field(default_factory=dict)
 
 
 def _check_c_s(c_s: float) -> float:
@@ -166,11 +159,11 @@ def _output_variance(var_y: FloatArray, factors: list, ops, probes: int, seed: i
 def reconstruct_detailed(
     buffer: SampleBuffer,
     *,
-    c_s: float = 1.0,
-    wavelet: str = "bior4.4",
+    c_s: float = DEFAULT_C_S,
+    wavelet: str = DEFAULT_WAVELET,
     levels: int | None = None,
     domain: str | Domain = DEFAULT_DOMAIN,
-    mode: str = "channels",
+    mode: str = DEFAULT_MODE,
     boundary: str = "symmetric",
     executor: Executor | None = None,
     pixel_clamp: float | None = DEFAULT_PIXEL_CLAMP,
@@ -237,22 +230,17 @@ def reconstruct_detailed(
         raise ValueError(f"pixel_clamp: must be None or a finite number >= 0, got {pixel_clamp!r}")
     if isinstance(variance_probes, bool) or not isinstance(variance_probes, (int, np.integer)) or variance_probes < 0:
         raise ValueError(f"variance_probes: must be an integer >= 0, got {variance_probes!r}")
-    dom = resolve_domain(domain)
-    mean = _filled_mean(buffer)
-    var = _input_variance(buffer)
+    prepared = prepare(buffer, domain)
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
-    bound = dom.bound(mean)
-    y = bound.forward(mean)
-    var_y = bound.variance(mean, var)
+    mean, bound, y, var_y = prepared.mean, prepared.bound, prepared.y, prepared.variance_y
     n_ch = buffer.n_channels
     run = (lambda f, items: list(executor.map(f, items))) if executor is not None else (lambda f, items: [f(i) for i in items])
 
     shrink_from = None
     if mode == "luminance":
         weights = luminance_weights(buffer.channels)
-        lum = mean @ weights
-        lum_var = buffer.luminance_variance() / np.maximum(buffer.count, 1)
-        shrink_from = _threshold_plane(bound.forward(lum), bound.variance(lum, lum_var), c_s, ops).factors
+        lum = prepare(buffer, prepared.domain, luminance=True)
+        shrink_from = _threshold_plane(lum.y, lum.variance_y, c_s, ops).factors
 
     def one_channel(c: int):
         return _threshold_plane(y[:, :, c], var_y[:, :, c], c_s, ops, shrink_from)
@@ -265,10 +253,9 @@ def reconstruct_detailed(
     image = bound.inverse(image_y)
     if pixel_clamp is not None and mode == "luminance":
         # Clamp luminance to its own interval and scale every channel alike: hue is kept.
-        lum_y, lum_var_y = bound.forward(lum), bound.variance(lum, lum_var)
         lum_out = image @ weights
-        reach = pixel_clamp * np.sqrt(lum_var_y)
-        lum_new = bound.inverse(np.clip(bound.forward(lum_out), lum_y - reach, lum_y + reach))
+        reach = pixel_clamp * np.sqrt(lum.variance_y)
+        lum_new = bound.inverse(np.clip(bound.forward(lum_out), lum.y - reach, lum.y + reach))
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(lum_out != 0, lum_new / np.where(lum_out != 0, lum_out, 1.0), 1.0)
         image = image * ratio[..., None]
@@ -288,17 +275,20 @@ def reconstruct_detailed(
         out_var = np.full(image.shape, np.nan)
     return Reconstruction(image=image, thresholds=[r.thresholds for r in results],
                           fraction_zeroed=zeroed / total if total else 0.0,
-                          variance=out_var, levels=ops.levels, domain=dom)
+                          variance=out_var, levels=ops.levels, domain=bound.domain,
+                          parameters={"c_s": c_s, "wavelet": ops.wavelet, "levels": ops.levels,
+                                      "domain": bound.domain.name, "mode": mode, "boundary": boundary,
+                                      "pixel_clamp": pixel_clamp})
 
 
 def reconstruct(
     buffer: SampleBuffer,
     *,
-    c_s: float = 1.0,
-    wavelet: str = "bior4.4",
+    c_s: float = DEFAULT_C_S,
+    wavelet: str = DEFAULT_WAVELET,
     levels: int | None = None,
     domain: str | Domain = DEFAULT_DOMAIN,
-    mode: str = "channels",
+    mode: str = DEFAULT_MODE,
     boundary: str = "symmetric",
     executor: Executor | None = None,
     pixel_clamp: float | None = DEFAULT_PIXEL_CLAMP,

@@ -35,7 +35,15 @@ __all__ = [
     "inverse",
     "coefficient_variance",
     "DETAIL_BANDS",
+    "DEFAULT_WAVELET",
+    "WAVELET_NAMES",
 ]
+
+DEFAULT_WAVELET = "bior4.4"
+"""CDF 9/7 (JPEG 2000's irreversible wavelet), the default basis everywhere (docs/reconstruction.md)."""
+
+WAVELET_NAMES = tuple(pywt.wavelist(kind="discrete"))
+"""Every wavelet the transforms accept: PyWavelets' discrete wavelets."""
 
 DETAIL_BANDS = ("cH", "cV", "cD")
 """PyWavelets' detail bands: ``cH`` high-pass down the rows, ``cV`` across the columns, ``cD`` both."""
@@ -146,7 +154,7 @@ class WaveletOperators:
     cols: _AxisOperators
 
 
-def wavelet_operators(shape: Shape2D, *, wavelet: str = "bior4.4", levels: int | None = None,
+def wavelet_operators(shape: Shape2D, *, wavelet: str = DEFAULT_WAVELET, levels: int | None = None,
                       boundary: str = "symmetric") -> WaveletOperators:
     """Build (and cache) the per-axis level-k equivalent analysis operators.
 
@@ -166,7 +174,7 @@ def wavelet_operators(shape: Shape2D, *, wavelet: str = "bior4.4", levels: int |
                             _axis_operators(w, wavelet, boundary, lv))
 
 
-def forward(image: FloatArray, *, wavelet: str = "bior4.4", levels: int | None = None,
+def forward(image: FloatArray, *, wavelet: str = DEFAULT_WAVELET, levels: int | None = None,
             boundary: str = "symmetric") -> list:
     """2-D DWT of an (H, W) or (H, W, C) image over its first two axes.
 
@@ -197,7 +205,7 @@ def forward(image: FloatArray, *, wavelet: str = "bior4.4", levels: int | None =
         return pywt.wavedec2(image, wavelet, mode=boundary, level=lv, axes=(0, 1))
 
 
-def inverse(coeffs: list, shape: Shape2D, *, wavelet: str = "bior4.4", boundary: str = "symmetric") -> FloatArray:
+def inverse(coeffs: list, shape: Shape2D, *, wavelet: str = DEFAULT_WAVELET, boundary: str = "symmetric") -> FloatArray:
     """Inverse of :func:`forward`, cropped to the original (H, W)."""
     out = pywt.waverec2(coeffs, wavelet, mode=boundary, axes=(0, 1))
     return out[: shape[0], : shape[1]]
@@ -220,7 +228,7 @@ def _plane_variance(v: FloatArray, ops: WaveletOperators) -> list:
     return [approx] + details[::-1]
 
 
-def coefficient_variance(variance_of_mean: FloatArray, *, wavelet: str = "bior4.4",
+def coefficient_variance(variance_of_mean: FloatArray, *, wavelet: str = DEFAULT_WAVELET,
                          levels: int | None = None, boundary: str = "symmetric",
                          operators: WaveletOperators | None = None) -> list:
     """Exact variance of every wavelet coefficient of the pixel-mean image.

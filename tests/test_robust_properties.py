@@ -20,6 +20,7 @@ from hypothesis import strategies as st
 from awr_denoise import AdaptiveSampler, Domain, SampleBuffer, UniformSampler, VarianceSampler, allocate
 from awr_denoise.reconstruct import reconstruct, reconstruct_detailed
 from awr_denoise.wavelets import forward, inverse, max_levels
+from awr_denoise.prepare import filled_mean
 
 # CI: derandomised, a fixed number of examples. A local exploration draws fresh examples:
 #   AWR_ROBUST_EXPLORE=2000 python -m pytest tests/test_robust_properties.py
@@ -100,9 +101,7 @@ def buffers(draw, *, min_side=1, allow_empty_pixels=True, values=None):
 
 
 def _filled(buf: SampleBuffer) -> np.ndarray:
-    from awr_denoise.reconstruct import _filled_mean
-
-    return _filled_mean(buf)
+    return filled_mean(buf)
 
 
 def _levels(draw_levels, shape):

@@ -1,0 +1,160 @@
+"""From sample statistics to the plane that thresholding and priorities work on.
+
+Reconstruction (paper section 5) and the sampler's priorities (section 4) both need, per pixel,
+a mean and the variance of that mean in the thresholding domain. Getting there takes the same
+three steps wherever it happens, so it happens here only:
+
+1. pixels without samples take their nearest sampled neighbour's mean (:func:`filled_mean`), so
+   they are smoothed over rather than read as black;
+2. unknown per-sample variances (fewer than two samples, or a renderer's "unknown") are pooled
+   from neighbours (:meth:`SampleBuffer.estimated_variance <awr_denoise.SampleBuffer.estimated_variance>`),
+   and a sample-less pixel counts as one sample of that pooled variance;
+3. the domain is bound to the image (its offset fixed from the image's level) and the variance
+   is carried into it by the delta method (:mod:`awr_denoise.domains`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+from scipy import ndimage
+
+from ._typing import FloatArray
+from .buffers import SampleBuffer, luminance_weights
+from .domains import Domain, _BoundDomain, resolve_domain
+
+__all__ = ["Prepared", "filled_mean", "prepare"]
+
+
+def filled_mean(buffer: SampleBuffer) -> FloatArray:
+    """(H, W, C) pixel means, sample-less pixels given their nearest sampled neighbour's mean.
+
+    Raises
+    ------
+    ValueError
+        If no pixel has a sample.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise import SampleBuffer
+    >>> from awr_denoise.prepare import filled_mean
+    >>> buffer = SampleBuffer.from_moments([[1, 0]], [[2.0, 0.0]], [[0.0, 0.0]])
+    >>> filled_mean(buffer)[..., 0]
+    array([[2., 2.]])
+    """
+    empty = buffer.count == 0
+    if not empty.any():
+        return np.array(buffer.mean)
+    if empty.all():
+        raise ValueError("buffer: no pixel has any sample")
+    _, (rows, cols) = ndimage.distance_transform_edt(empty, return_indices=True)
+    return buffer.mean[rows, cols]
+
+
+@dataclass(frozen=True, eq=False)
+class Prepared:
+    """A buffer made ready for thresholding: means, variances and the bound domain.
+
+    Attributes
+    ----------
+    mean
+        (H, W, C) filled means (or (H, W) filled luminance), in linear radiance.
+    sample_variance
+        Same shape, per-sample variance with unknown entries pooled from neighbours.
+    count
+        (H, W) or (H, W, 1) float64 sample count, at least 1 (a sample-less pixel counts as one
+        sample of the pooled variance), shaped to divide :attr:`sample_variance`.
+    bound
+        The domain with its offset fixed for this image.
+    """
+
+    mean: FloatArray
+    sample_variance: FloatArray
+    count: FloatArray
+    bound: _BoundDomain
+
+    @property
+    def domain(self) -> Domain:
+        """The thresholding domain, with its scale fixed to this image's.
+
+        A plane prepared with this domain (a tile, or the luminance of the same image) is bound
+        exactly as this one, offset for offset.
+        """
+        dom = self.bound.domain
+        if dom.name == "linear" or dom.scale is not None:
+            return dom
+        return dataclasses.replace(dom, scale=dom.resolved_scale(self.mean))
+
+    @cached_property
+    def variance(self) -> FloatArray:
+        """Variance of each pixel mean in linear radiance, ``s2 / n`` (paper section 3: ``v_p``)."""
+        return self.sample_variance / self.count
+
+    @cached_property
+    def y(self) -> FloatArray:
+        """The means in the thresholding domain."""
+        return self.bound.forward(self.mean)
+
+    @cached_property
+    def variance_y(self) -> FloatArray:
+        """Variance of each mean in the domain, ``(s2 / n) f'(mean)^2`` (delta method)."""
+        return self.bound.variance(self.mean, self.variance)
+
+    @cached_property
+    def sample_variance_y(self) -> FloatArray:
+        """Per-sample variance in the domain, ``s2 f'(mean)^2``."""
+        return self.bound.variance(self.mean, self.sample_variance)
+
+
+def prepare(buffer: SampleBuffer, domain: str | Domain = "log", *, luminance: bool = False) -> Prepared:
+    """Fill, pool and bind: the one preparation of statistics for thresholding and priorities.
+
+    Parameters
+    ----------
+    buffer
+        Per-pixel sample statistics.
+    domain
+        Thresholding domain (name or :class:`~awr_denoise.Domain`); its offset is fixed from
+        the prepared plane's own level unless the domain carries a ``scale``.
+    luminance
+        Prepare one (H, W) luminance plane (weights of :func:`~awr_denoise.luminance_weights`,
+        fully correlated channel variances, see
+        :meth:`~awr_denoise.SampleBuffer.luminance_variance`) instead of every channel.
+
+    Returns
+    -------
+    Prepared
+        Means, pooled per-sample variances, counts and the bound domain; the domain-side
+        quantities (:attr:`Prepared.y`, :attr:`Prepared.variance_y`) are computed on first use.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise import SampleBuffer
+    >>> from awr_denoise.prepare import prepare
+    >>> count = np.array([[4, 4], [4, 0]])
+    >>> mean = np.full((2, 2, 3), 2.0)
+    >>> buffer = SampleBuffer.from_moments(count, mean, np.full((2, 2, 3), 0.4))
+    >>> p = prepare(buffer, "linear")
+    >>> p.variance[..., 0]          # s2 / n; the empty pixel counts as one pooled sample
+    array([[0.1, 0.1],
+           [0.1, 0.4]])
+    >>> p.mean[1, 1]                # filled from its nearest neighbour
+    array([2., 2., 2.])
+    """
+    if not isinstance(buffer, SampleBuffer):
+        raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
+    dom = resolve_domain(domain)
+    n = np.maximum(buffer.count, 1).astype(np.float64)
+    if luminance:
+        mean = filled_mean(buffer) @ luminance_weights(buffer.channels)
+        sample_variance = buffer.luminance_variance()
+    else:
+        mean = filled_mean(buffer)
+        sample_variance = buffer.estimated_variance()
+        n = n[..., None]
+    return Prepared(mean, sample_variance, n, dom.bound(mean))
