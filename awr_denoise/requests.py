@@ -4,6 +4,11 @@ A request is data, not a callback: per-pixel counts of new samples and, per pixe
 of the first new sample. A renderer that draws its random numbers as a function of
 (seed, pixel, sample index, dimension) then produces the same samples however the work was
 split into rounds, tiles or machines.
+
+The renderer side is declared here as two protocols, checked with ``isinstance``:
+:class:`Renderer` (a callable from request to statistics: all the samplers need) and
+:class:`SampleTracer` (per-sample access, which tiled and distributed rendering use to ask a
+worker for exactly a tile's samples). Renderers need not subclass either.
 """
 
 from __future__ import annotations
@@ -13,10 +18,10 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from ._typing import CountArray, Shape2D
+from ._typing import CountArray, FloatArray, Shape2D
 from .buffers import SampleBuffer
 
-__all__ = ["SampleRequest", "Renderer"]
+__all__ = ["SampleRequest", "Renderer", "SampleTracer"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -113,3 +118,38 @@ class Renderer(Protocol):
     """
 
     def __call__(self, request: SampleRequest) -> SampleBuffer: ...
+
+
+@runtime_checkable
+class SampleTracer(Protocol):
+    """A renderer that can also trace any list of individual samples.
+
+    Tiled and distributed rendering (:mod:`awr_denoise.parallel`) ask such a renderer for
+    exactly a tile's samples instead of a full-frame request; the ``awr render`` command reports
+    its statistics and closes it. The bundled path tracer, the synthetic renderer and the
+    Mitsuba 3 adapter implement it.
+
+    Attributes
+    ----------
+    channels
+        Names of the C channels :meth:`trace_samples` returns.
+    shape
+        (H, W) of the image.
+    stats
+        Running counters; at least ``"samples"``, ``"nonfinite"`` (samples whose value was not
+        finite and was dropped or zeroed) and ``"seconds"``.
+    """
+
+    channels: tuple[str, ...]
+    stats: dict[str, float]
+
+    @property
+    def shape(self) -> Shape2D: ...
+
+    def trace_samples(self, rows: np.ndarray, cols: np.ndarray, sample_index: np.ndarray) -> FloatArray:
+        """(N, C) values of the samples ``(rows[i], cols[i], sample_index[i])``."""
+        ...
+
+    def close(self) -> None:
+        """Release worker pools or native resources; the renderer is not used afterwards."""
+        ...

@@ -26,6 +26,8 @@ import warnings
 from collections.abc import Callable
 
 import numpy as np
+from scipy import ndimage
+from tqdm.auto import tqdm
 
 from ._typing import CountArray, FloatArray, Shape2D
 from .buffers import SampleBuffer
@@ -33,12 +35,18 @@ from .domains import Domain
 from .errors import StaleRequestError
 from .priorities import error_plane, sampling_density
 from .requests import Renderer, SampleRequest
+from .wavelets import DEFAULT_WAVELET, wavelet_operators
 
-__all__ = ["Sampler", "AdaptiveSampler", "UniformSampler", "VarianceSampler", "allocate"]
+__all__ = ["Sampler", "AdaptiveSampler", "UniformSampler", "VarianceSampler", "SAMPLERS", "allocate",
+           "DEFAULT_INITIAL_SPP", "DEFAULT_ROUND_GROWTH"]
 
 _sampler_ids = itertools.count(1)
 _MAX_BUDGET = 2**62  # allocate() refuses larger budgets: counts are int64
 DEFAULT_ROUND_GROWTH = 0.25
+"""Default share of the samples taken so far that the next round asks for (docs/sampling.md)."""
+
+DEFAULT_INITIAL_SPP = 4
+"""Samples per pixel of round 0: the paper starts at 4 (section 4)."""
 
 
 def allocate(density: FloatArray, current: CountArray, budget: int, *,
@@ -203,7 +211,7 @@ class Sampler:
 
     strategy = "base"
 
-    def __init__(self, shape: Shape2D, *, channels: int | tuple[str, ...] = 3, initial_spp: int = 4,
+    def __init__(self, shape: Shape2D, *, channels: int | tuple[str, ...] = 3, initial_spp: int = DEFAULT_INITIAL_SPP,
                  seed: int = 0, spp_min: int | None = None, spp_max: int | None = None,
                  round_spp: float | None = None, round_growth: float = DEFAULT_ROUND_GROWTH) -> None:
         h, w = (int(s) for s in shape)
@@ -284,6 +292,48 @@ class Sampler:
         return self._buffer.total_samples
 
     # ------------------------------------------------------------------ ask / tell
+    def resume(self, request: SampleRequest) -> SampleRequest:
+        """Take a request issued elsewhere as this sampler's pending one, so it can be told.
+
+        A loop that runs through files (``awr plan`` writes a request map, a renderer answers
+        it, ``awr merge`` folds the answer in) rebuilds the sampler from the dump with
+        :meth:`from_buffer` in every process; the request read back from its file then becomes
+        pending here and :meth:`tell` merges the batch exactly as in one process.
+
+        Raises
+        ------
+        StaleRequestError
+            A request is pending already, or ``request`` does not start where this sampler's
+            samples stop (its ``first_index`` is not :attr:`issued`): its sample indices would
+            repeat or skip.
+        ValueError
+            ``request`` is for another image size.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from awr_denoise import SampleBuffer, SampleRequest, UniformSampler
+        >>> request = SampleRequest.uniform((2, 2), 3, round=0)
+        >>> sampler = UniformSampler((2, 2))
+        >>> sampler.resume(request).round
+        0
+        >>> batch = SampleBuffer.from_moments(request.counts, np.ones((2, 2)), np.zeros((2, 2)))
+        >>> sampler.tell(request, batch).total_samples, sampler.round
+        (12, 1)
+        """
+        if not isinstance(request, SampleRequest):
+            raise TypeError(f"request: expected a SampleRequest, got {type(request).__name__}")
+        if self._pending is not None:
+            raise StaleRequestError(f"request: round {self._pending.round} is pending; tell it first")
+        if request.shape != self._shape:
+            raise ValueError(f"request: shape {request.shape} does not match the sampler's {self._shape}")
+        if not np.array_equal(request.first_index, self._issued):
+            raise StaleRequestError(f"request: round {request.round} does not start where the samples so far stop "
+                                    "(its first_index differs from the sample indices issued)")
+        self._pending = request
+        self._round = int(request.round)
+        return request
+
     def default_budget(self) -> int:
         """Budget of the next round when :meth:`ask` is given none."""
         pixels = self._shape[0] * self._shape[1]
@@ -397,7 +447,6 @@ class Sampler:
             raise ValueError(f"total_spp: {total_spp} is below the {self._issued.sum() / pixels:.3g} spp already taken")
         bar = None
         if progress:
-            from tqdm.auto import tqdm
             bar = tqdm(total=goal, initial=int(self._issued.sum()), unit="sample", desc=self.strategy)
         try:
             while self._issued.sum() < goal:
@@ -449,7 +498,6 @@ class VarianceSampler(Sampler):
 
     def _density(self) -> FloatArray:
         _, _, s2_y = error_plane(self._buffer, self.domain)
-        from scipy import ndimage
         # The running-sum filter can leave -1e-17-sized residues next to large values.
         return np.sqrt(np.maximum(ndimage.uniform_filter(s2_y, 3, mode="nearest"), 0.0))
 
@@ -489,15 +537,13 @@ class AdaptiveSampler(Sampler):
 
     strategy = "awr"
 
-    def __init__(self, shape: Shape2D, *, channels: int | tuple[str, ...] = 3, initial_spp: int = 4,
-                 wavelet: str = "bior4.4", levels: int | None = None, seed: int = 0,
+    def __init__(self, shape: Shape2D, *, channels: int | tuple[str, ...] = 3, initial_spp: int = DEFAULT_INITIAL_SPP,
+                 wavelet: str = DEFAULT_WAVELET, levels: int | None = None, seed: int = 0,
                  spp_min: int | None = None, spp_max: int | None = None, round_spp: float | None = None,
                  round_growth: float = DEFAULT_ROUND_GROWTH, domain: str | Domain = "log", level_weight: float = 0.25,
                  uniform_fraction: float = 0.0) -> None:
         super().__init__(shape, channels=channels, initial_spp=initial_spp, seed=seed, spp_min=spp_min,
                          spp_max=spp_max, round_spp=round_spp, round_growth=round_growth)
-        from .wavelets import wavelet_operators
-
         wavelet_operators(self._shape, wavelet=wavelet, levels=levels)  # validates wavelet and levels now
         self.wavelet = wavelet
         self.levels = levels
@@ -514,6 +560,10 @@ class AdaptiveSampler(Sampler):
 
     def _allocate(self, budget, current, capacity, rng):
         return _mixed(self.density(), budget, current, capacity, rng, self.uniform_fraction)
+
+
+SAMPLERS: dict[str, type[Sampler]] = {cls.strategy: cls for cls in (AdaptiveSampler, UniformSampler, VarianceSampler)}
+"""The samplers by strategy name: ``"awr"``, ``"uniform"``, ``"variance"``."""
 
 
 def _check_fraction(value: float) -> float:

@@ -21,7 +21,7 @@ from ._typing import FloatArray, Shape2D
 from .buffers import SampleBuffer
 from .requests import SampleRequest
 
-__all__ = ["SyntheticScene", "SyntheticRenderer", "SCENES", "make_scene", "hash_uniform"]
+__all__ = ["SyntheticScene", "SyntheticRenderer", "SCENES", "create_renderer", "make_scene", "hash_uniform"]
 
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
@@ -81,7 +81,15 @@ class SyntheticScene:
 
 
 class SyntheticRenderer:
-    """A :class:`~awr_denoise.Renderer` for a :class:`SyntheticScene`.
+    """A :class:`~awr_denoise.Renderer` (and :class:`~awr_denoise.SampleTracer`) for a :class:`SyntheticScene`.
+
+    Attributes
+    ----------
+    channels
+        ``("R", "G", "B")``.
+    stats
+        ``samples`` traced, ``nonfinite`` (always 0: the noise models are finite) and
+        ``seconds`` (0: not timed).
 
     Examples
     --------
@@ -93,14 +101,25 @@ class SyntheticRenderer:
     1024
     """
 
+    channels: tuple[str, ...] = ("R", "G", "B")
+
     def __init__(self, scene: SyntheticScene, *, seed: int = 0) -> None:
         self.scene = scene
         self.seed = int(seed)
-        self.samples_rendered = 0
+        self.stats: dict[str, float] = {"samples": 0, "nonfinite": 0, "seconds": 0.0}
 
     @property
     def shape(self) -> Shape2D:
+        """(H, W) of the image."""
         return self.scene.shape
+
+    @property
+    def samples_rendered(self) -> int:
+        """Samples rendered so far."""
+        return int(self.stats["samples"])
+
+    def close(self) -> None:
+        """Nothing to release."""
 
     def samples(self, request: SampleRequest) -> tuple[np.ndarray, FloatArray]:
         """Flat pixel indices and (N, 3) values of every sample the request asks for."""
@@ -120,7 +139,7 @@ class SyntheticRenderer:
         if np.any((rows < 0) | (rows >= h) | (cols < 0) | (cols >= w)):
             raise ValueError(f"rows, cols: pixel coordinates outside the {h}x{w} image")
         values = self._values(rows, cols, sample_index)
-        self.samples_rendered += rows.size
+        self.stats["samples"] += rows.size
         return values
 
     def _values(self, rows: np.ndarray, cols: np.ndarray, index: np.ndarray) -> FloatArray:
@@ -133,7 +152,7 @@ class SyntheticRenderer:
 
     def __call__(self, request: SampleRequest) -> SampleBuffer:
         pixel, values = self.samples(request)
-        self.samples_rendered += pixel.size
+        self.stats["samples"] += pixel.size
         return SampleBuffer.from_samples(pixel, values, self.scene.shape)
 
 
@@ -246,3 +265,26 @@ def make_scene(name: str, shape: Shape2D = (64, 64)) -> SyntheticScene:
     if name not in SCENES:
         raise ValueError(f"name: {name!r} is not one of {', '.join(sorted(SCENES))}")
     return SCENES[name](tuple(int(s) for s in shape))
+
+
+def create_renderer(scene: str, *, shape: Shape2D | None = None, seed: int = 0) -> SyntheticRenderer:
+    """Renderer factory of the registry (:mod:`awr_denoise.renderers`): a synthetic scene by name.
+
+    Parameters
+    ----------
+    scene
+        One of :data:`SCENES`.
+    shape
+        (H, W); required (synthetic scenes have no size of their own).
+    seed
+        Seed of the sample noise.
+
+    Examples
+    --------
+    >>> from awr_denoise.synthetic import create_renderer
+    >>> create_renderer("gradient", shape=(4, 8), seed=2).shape
+    (4, 8)
+    """
+    if shape is None:
+        raise ValueError("shape: a synthetic scene needs its (H, W)")
+    return SyntheticRenderer(make_scene(scene, shape), seed=seed)

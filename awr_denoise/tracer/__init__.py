@@ -8,6 +8,7 @@ the adaptive sampler and the benchmarks with scenes of known integrand dimension
 Overbeck et al. 2009, section 1 of the algorithm note). The core library never imports it.
 
 Public API: :func:`list_scenes`, :func:`load_scene`, :class:`PathTracer`, :func:`render`,
+:func:`create_renderer` (the ``"tracer"`` entry of :mod:`awr_denoise.renderers`),
 :func:`load_reference`, :func:`render_reference`.
 """
 
@@ -22,7 +23,7 @@ if importlib.util.find_spec("embreex") is None:
 
 from typing import Any  # noqa: E402
 
-from .integrator import PathTracer, render  # noqa: E402
+from .integrator import PathTracer, create_renderer, render  # noqa: E402
 from .scene import Scene, load_scene  # noqa: E402
 
 # Resolved on first use (PEP 562) so ``python -m awr_denoise.tracer.reference`` and
@@ -38,5 +39,5 @@ def __getattr__(name: str) -> Any:
         return getattr(importlib.import_module(_LAZY[name], __name__), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
-__all__ = ["PathTracer", "Scene", "list_scenes", "load_scene", "render", "load_reference", "render_reference",
+__all__ = ["PathTracer", "Scene", "create_renderer", "list_scenes", "load_scene", "render", "load_reference", "render_reference",
            "reference_path"]

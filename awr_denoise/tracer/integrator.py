@@ -83,7 +83,7 @@ def _dimension_groups(names: tuple[str, ...]) -> dict[str, tuple[int, ...]]:
 
 
 class PathTracer:
-    """Batched path tracer implementing the ``Renderer`` protocol.
+    """Batched path tracer implementing the ``Renderer`` and ``SampleTracer`` protocols.
 
     Parameters
     ----------
@@ -124,7 +124,11 @@ class PathTracer:
         Running totals: ``samples``, ``rays`` (all queries), ``camera_rays``, ``bounce_rays``,
         ``shadow_rays``, ``nonfinite`` (samples whose radiance was NaN/Inf and was replaced by
         0) and ``seconds``.
+    channels
+        ``("R", "G", "B")``: linear radiance.
     """
+
+    channels: tuple[str, ...] = ("R", "G", "B")
 
     def __init__(self, scene: Scene | str | Path | dict[str, Any], *, seed: int = 0,
                  sampler: str = "independent", max_depth: int | None = None, threads: int = 2,
@@ -186,7 +190,7 @@ class PathTracer:
         rows, cols, sample_index = request.pixel_list()
         radiance, nonfinite = self._trace(rows, cols, sample_index)
         # Non-finite samples were already zeroed and counted in _trace; the buffer carries the count.
-        buffer = SampleBuffer.from_samples(rows * self.shape[1] + cols, radiance, self.shape, channels=("R", "G", "B"))
+        buffer = SampleBuffer.from_samples(rows * self.shape[1] + cols, radiance, self.shape, channels=self.channels)
         return SampleBuffer(buffer.count, buffer.mean, buffer.variance, buffer.channels, buffer.variance_known,
                             nonfinite)
 
@@ -526,3 +530,23 @@ def render(scene: Scene | str | Path | dict[str, Any], *, spp: int, seed: int = 
     finally:
         tracer.close()
 
+
+
+def create_renderer(scene: Scene | str | Path | dict[str, Any], *, shape: tuple[int, int] | None = None,
+                    seed: int = 0, **options: Any) -> PathTracer:
+    """Renderer factory of the registry (:mod:`awr_denoise.renderers`): a :class:`PathTracer`.
+
+    Parameters
+    ----------
+    scene
+        A bundled scene name, a JSON scene file, a spec dict or a :class:`Scene`.
+    shape
+        (H, W) to render at; ``None`` (or 0 on either side) keeps the scene's own.
+    seed
+        Render seed.
+    **options
+        Keyword arguments of :class:`PathTracer` (``sampler``, ``max_depth``, ``threads``,
+        ``batch_size``, ``workers``, ``progress``).
+    """
+    height, width = shape if shape is not None else (None, None)
+    return PathTracer(load_scene(scene, width=width or None, height=height or None), seed=seed, **options)
