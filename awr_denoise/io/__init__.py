@@ -12,13 +12,17 @@ from .dump import SampleDump, write_sample_buffer
 from .exr import read_header, read_image, write_image
 from .png import write_preview
 from .presets import PRESETS, detect_preset, read_sample_buffer, read_sample_dump
+from .provenance import image_provenance, provenance, read_provenance
 from .request_map import read_request, request_attributes, write_request
 
 __all__ = [
     "PRESETS",
     "SampleDump",
     "detect_preset",
+    "image_provenance",
+    "provenance",
     "read_deep_samples",
+    "read_provenance",
     "read_header",
     "read_image",
     "read_request",

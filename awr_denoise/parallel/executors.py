@@ -1,0 +1,187 @@
+"""Executors for the parallel layer: in-process threads, local processes, or a Dask cluster.
+
+Everything in :mod:`awr_denoise.parallel` takes any :class:`concurrent.futures.Executor`
+through ``executor=``. Without one, work runs on in-process threads, which need neither a
+cluster nor Dask: numpy, PyWavelets and embreex release the GIL in their array operations, and
+on two cores two threads were about as much faster than one as two Dask worker processes
+(docs/distributed.md). :func:`get_executor` makes the other kinds on demand.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import contextlib
+import multiprocessing
+import os
+from collections.abc import Callable, Iterator
+from concurrent.futures import Executor
+from pathlib import Path
+from typing import Any
+
+__all__ = ["EXECUTOR_KINDS", "DASK_INSTALL_HINT", "get_executor", "executor_or_threads", "executor_width",
+           "submit", "default_workers", "dask_client"]
+
+EXECUTOR_KINDS = ("threads", "processes", "dask")
+"""Kinds of executor :func:`get_executor` can make."""
+
+DASK_INSTALL_HINT = 'pip install "awr-denoise[dask]"'
+"""How to install the optional Dask dependency."""
+
+
+def default_workers() -> int:
+    """The number of CPUs of this machine (at least 1)."""
+    return max(1, os.cpu_count() or 1)
+
+
+def _import_distributed() -> Any:
+    """Dask distributed, the optional ``dask`` extra, imported only when a Dask executor is asked for."""
+    try:
+        import distributed
+    except ImportError as exc:
+        raise ImportError(f'executor "dask" needs Dask distributed: {DASK_INSTALL_HINT}') from exc
+    return distributed
+
+
+@contextlib.contextmanager
+def _glibc_malloc_tuning() -> Iterator[None]:
+    """Start Dask worker processes with glibc's own malloc tuning instead of Dask's.
+
+    Dask starts workers with ``MALLOC_TRIM_THRESHOLD_=65536`` (and writes it into this
+    process's environment when it starts a local cluster). Setting it switches off glibc's
+    adaptive mmap threshold, so every numpy temporary above 128 KiB is mapped afresh and
+    page-faulted in: four reconstructions of a 512 x 512 frame took 0.59 s in such a worker
+    against 0.35 s in the main process on the development machine (0.25 s of system time,
+    about 190 000 minor page faults). Unsetting it for the workers this module starts removes the gap.
+    """
+    import dask  # the optional ``dask`` extra; only reached once distributed imported
+
+    saved = os.environ.pop("MALLOC_TRIM_THRESHOLD_", None)
+    try:
+        with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
+            yield
+    finally:
+        if saved is not None:
+            os.environ["MALLOC_TRIM_THRESHOLD_"] = saved
+
+
+@contextlib.contextmanager
+def get_executor(kind: str | None = None, *, workers: int | None = None,
+                 scheduler: str | os.PathLike[str] | None = None) -> Iterator[Executor]:
+    """An executor for the ``executor=`` parameters of this module, shut down on exit.
+
+    Parameters
+    ----------
+    kind
+        ``"threads"``, ``"processes"`` or ``"dask"`` (:data:`EXECUTOR_KINDS`). Default:
+        ``"dask"`` when ``scheduler`` is given, else ``"threads"``.
+    workers
+        Threads, processes or Dask worker processes (one thread each) to start; default the
+        number of CPUs. Ignored when connecting to a running scheduler, whose workers are
+        whatever was started there.
+    scheduler
+        Address of a running Dask scheduler (``"tcp://host:8786"``) or path of the JSON
+        scheduler file written by ``dask scheduler --scheduler-file``, dask-jobqueue or
+        dask-mpi. Only the client is closed on exit; the cluster keeps running.
+
+    Yields
+    ------
+    concurrent.futures.Executor
+        A thread or process pool, or ``distributed.Client.get_executor()`` (a real
+        ``concurrent.futures.Executor`` whose futures are ``concurrent.futures.Future``).
+
+    Raises
+    ------
+    ImportError
+        ``kind="dask"`` without Dask installed; the message says what to install.
+
+    Notes
+    -----
+    Dask is imported only when asked for. The local cluster listens on the loopback interface
+    only and starts no dashboard; its workers keep glibc's default malloc tuning rather than
+    Dask's ``MALLOC_TRIM_THRESHOLD_``, which made numpy-heavy tasks 1.7x slower
+    (docs/distributed.md). Process pools use the ``spawn`` start method, so they are
+    safe to start from a program that already runs threads.
+
+    Examples
+    --------
+    >>> from awr_denoise.parallel import get_executor
+    >>> with get_executor("threads", workers=2) as executor:
+    ...     list(executor.map(abs, [-1, 2]))
+    [1, 2]
+    """
+    if kind is None:
+        kind = "dask" if scheduler is not None else "threads"
+    if kind not in EXECUTOR_KINDS:
+        raise ValueError(f"kind: {kind!r} is not one of {', '.join(EXECUTOR_KINDS)}")
+    if workers is not None and (isinstance(workers, bool) or int(workers) < 1):
+        raise ValueError(f"workers: must be a whole number >= 1, got {workers!r}")
+    if scheduler is not None and kind != "dask":
+        raise ValueError(f"scheduler: a scheduler address needs kind='dask', got kind={kind!r}")
+    n_workers = default_workers() if workers is None else int(workers)
+    if kind == "threads":
+        with cf.ThreadPoolExecutor(max_workers=n_workers, thread_name_prefix="awr") as pool:
+            yield pool
+        return
+    if kind == "processes":
+        with cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            yield pool
+        return
+    distributed = _import_distributed()
+    with contextlib.ExitStack() as stack:
+        if scheduler is None:
+            stack.enter_context(_glibc_malloc_tuning())
+            cluster = stack.enter_context(distributed.LocalCluster(
+                n_workers=n_workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                dashboard_address=None,
+                # No dashboard; the scheduler's remaining HTTP routes take a free loopback port
+                # instead of 8787, so several clusters can coexist without a port warning.
+                scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}))
+            client = stack.enter_context(distributed.Client(cluster))
+        elif Path(scheduler).suffix == ".json" and Path(scheduler).is_file():
+            client = stack.enter_context(distributed.Client(scheduler_file=str(scheduler)))
+        else:
+            client = stack.enter_context(distributed.Client(str(scheduler)))
+        executor = client.get_executor(pure=False)
+        try:
+            yield executor
+        finally:
+            executor.shutdown(wait=True)
+
+
+@contextlib.contextmanager
+def executor_or_threads(executor: Executor | None, tasks: int) -> Iterator[Executor]:
+    """``executor`` itself (type-checked), or a thread pool of at most one thread per task, per CPU."""
+    if executor is not None:
+        if not isinstance(executor, Executor):
+            raise TypeError(f"executor: expected a concurrent.futures.Executor, got {type(executor).__name__}")
+        yield executor
+        return
+    with cf.ThreadPoolExecutor(max_workers=max(1, min(tasks, default_workers())), thread_name_prefix="awr") as pool:
+        yield pool
+
+
+def dask_client(executor: Executor) -> Any | None:
+    """The ``distributed.Client`` behind a Dask ``ClientExecutor``, else None (no Dask import)."""
+    if type(executor).__module__.startswith("distributed"):
+        return getattr(executor, "_client", None)
+    return None
+
+
+def executor_width(executor: Executor) -> int:
+    """How many tasks the executor runs at once, as far as it tells (else the local CPUs)."""
+    client = dask_client(executor)
+    if client is not None:
+        return max(1, sum(client.nthreads().values()))
+    return max(1, int(getattr(executor, "_max_workers", 0) or default_workers()))
+
+
+def submit(executor: Executor, fn: Callable[..., Any], *args: Any) -> cf.Future:
+    """``executor.submit(fn, *args)``, never answered from Dask's cache of earlier results.
+
+    Dask treats tasks as pure by default: a task with the same function and arguments as one
+    whose result it still holds is not run again. These tasks write files and render with
+    side effects, so on Dask they are submitted with ``pure=False``.
+    """
+    if dask_client(executor) is not None:
+        return executor.submit(fn, *args, pure=False)
+    return executor.submit(fn, *args)

@@ -1,0 +1,220 @@
+"""Frame sequences: one task per frame, each reading its dump and writing its image itself.
+
+Tasks get file *paths*, not pixels, so nothing but names crosses a network, and the work inside
+a task is the serial computation: every image is bitwise identical to a serial run whatever the
+executor. ``awr denoise`` runs its frames through :func:`denoise_frames`, with or without
+``--workers``.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import os
+from collections.abc import Callable, Sequence
+from concurrent.futures import Executor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import AWRError, InputFileError
+from ..io import read_image, read_sample_buffer, write_image, write_preview
+from ..io.atomic import check_writable
+from ..io.provenance import image_provenance
+from ..metrics import relmse
+from ..reconstruct import reconstruct_detailed
+from .executors import executor_or_threads, submit
+
+__all__ = ["FrameResult", "FramesFailedError", "denoise_frame", "denoise_frames"]
+
+
+class FramesFailedError(AWRError):
+    """Some frames of :func:`denoise_frames` failed; the others were written.
+
+    Attributes
+    ----------
+    failures
+        Input path to the exception its frame raised, in input order.
+    """
+
+    def __init__(self, failures: dict[str, BaseException], total: int) -> None:
+        self.failures = dict(failures)
+        lines = [f"{len(failures)} of {total} frame(s) failed:"]
+        lines += [f"  {path}: {type(exc).__name__}: {exc}" for path, exc in failures.items()]
+        super().__init__("\n".join(lines))
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """What :func:`denoise_frame` did with one frame.
+
+    Attributes
+    ----------
+    source, output, preview
+        The dump read, the image written and the PNG preview written (or None).
+    shape
+        (H, W) of the image.
+    spp
+        Average samples per pixel of the dump.
+    fraction_zeroed
+        Share of detail coefficients thresholding set to zero.
+    nonfinite
+        NaN/Inf samples the reader dropped or zeroed.
+    relmse
+        Relative MSE against the reference, when one was given.
+    """
+
+    source: str
+    output: Path
+    preview: Path | None
+    shape: tuple[int, int]
+    spp: float
+    fraction_zeroed: float
+    nonfinite: int
+    relmse: float | None = None
+
+
+def _reference_error(reference: str | os.PathLike[str], image: np.ndarray, source: str) -> float:
+    """relMSE of ``image`` against the reference image file (shared channels only)."""
+    ref = read_image(reference)
+    if ref.shape[:2] != image.shape[:2]:
+        raise InputFileError(f"{os.fspath(reference)}: size {ref.shape[1]}x{ref.shape[0]} does not match "
+                             f"{image.shape[1]}x{image.shape[0]} of {source}")
+    k = min(ref.shape[2], image.shape[2])
+    return relmse(image[..., :k], ref[..., :k])
+
+
+def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str], *,
+                  preview: str | os.PathLike[str] | None = None, exposure: float = 0.0,
+                  reference: str | os.PathLike[str] | None = None, overwrite: bool = False, half: bool = False,
+                  read_options: dict[str, Any] | None = None, **reconstruct_options: Any) -> FrameResult:
+    """Read one dump, reconstruct it, write the image (and a preview) atomically.
+
+    Parameters
+    ----------
+    source
+        Sample dump (any layout :func:`~awr_denoise.io.read_sample_buffer` reads).
+    output
+        EXR image to write, with the ``awr:*`` provenance of
+        :func:`~awr_denoise.io.provenance.image_provenance`.
+    preview
+        Optional sRGB PNG preview, at ``exposure`` stops.
+    reference
+        Optional reference image; the result's relMSE against it is returned.
+    overwrite, half
+        As in :func:`~awr_denoise.io.write_image`.
+    read_options
+        Keyword arguments of :func:`~awr_denoise.io.read_sample_buffer`.
+    **reconstruct_options
+        Keyword arguments of :func:`~awr_denoise.reconstruct`.
+
+    Returns
+    -------
+    FrameResult
+    """
+    source = os.fspath(source)
+    buffer = read_sample_buffer(source, **(read_options or {}))
+    result = reconstruct_detailed(buffer, variance_probes=0, **reconstruct_options)
+    written = write_image(output, result.image, channels=buffer.channels, half=half, overwrite=overwrite,
+                          header=image_provenance(result, buffer, source=source))
+    shown = write_preview(preview, result.image, exposure=exposure, overwrite=overwrite) if preview else None
+    error = _reference_error(reference, np.asarray(result.image), source) if reference else None
+    return FrameResult(source, Path(written), None if shown is None else Path(shown), buffer.shape,
+                       buffer.total_samples / buffer.count.size, float(result.fraction_zeroed),
+                       int(buffer.nonfinite), error)
+
+
+def _check_outputs(sources: list[str], targets: list[str], previews: list[str] | None, overwrite: bool) -> None:
+    """Refuse output lists that collide with each other or the inputs, and existing outputs."""
+    written = targets + (previews or [])
+    resolved = [Path(t).resolve() for t in written]
+    if len(set(resolved)) != len(resolved):
+        raise ValueError("outputs: the same file is listed more than once")
+    collisions = set(resolved) & {Path(s).resolve() for s in sources}
+    if collisions:
+        raise ValueError(f"outputs: {sorted(map(str, collisions))[0]} is also an input")
+    for target in written:
+        check_writable(target, overwrite=overwrite)
+
+
+def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[str | os.PathLike[str]], *,
+                   previews: Sequence[str | os.PathLike[str]] | None = None, exposure: float = 0.0,
+                   reference: str | os.PathLike[str] | None = None, executor: Executor | None = None,
+                   overwrite: bool = False, half: bool = False, read_options: dict[str, Any] | None = None,
+                   on_frame: Callable[[FrameResult], None] | None = None, **reconstruct_options: Any) -> list[Path]:
+    """Denoise a sequence of sample dumps, one task per frame (:func:`denoise_frame`).
+
+    Every image is bitwise identical to a serial run whatever the executor; writes are atomic,
+    so a failed frame leaves no partial file.
+
+    Parameters
+    ----------
+    inputs
+        Sample dumps, one per frame. With a Dask cluster the paths must be readable on every
+        worker (a shared file system).
+    outputs
+        Image to write for each input, same length and order.
+    previews
+        Optional PNG preview for each input (same length), at ``exposure`` stops.
+    reference
+        Optional reference image every frame is compared with (:attr:`FrameResult.relmse`).
+    executor
+        Runs the frames; default this thread for one frame, else a thread pool of up to one
+        thread per CPU for this call.
+    overwrite
+        Replace existing outputs. Without it an existing output is refused before any frame
+        is processed.
+    half
+        Write HALF channels (see :func:`~awr_denoise.io.write_image`).
+    read_options
+        Keyword arguments of :func:`~awr_denoise.io.read_sample_buffer` (``preset``,
+        ``color``, ``variance``, ...).
+    on_frame
+        Called in this thread with each frame's :class:`FrameResult` as the frame completes.
+    **reconstruct_options
+        Keyword arguments of :func:`~awr_denoise.reconstruct` (``c_s``, ``wavelet``,
+        ``levels``, ``domain``, ``mode``, ``boundary``). Each frame runs on one worker.
+
+    Returns
+    -------
+    list of Path
+        The written images, in input order.
+
+    Raises
+    ------
+    FramesFailedError
+        When frames failed; every other frame was still written. ``failures`` maps each
+        failed input to its exception.
+    FileExistsError
+        An output exists and ``overwrite`` is False (checked before any work starts).
+    ValueError
+        Mismatched lengths, an output listed twice, or an output that is also an input.
+    """
+    sources = [os.fspath(p) for p in inputs]
+    targets = [os.fspath(p) for p in outputs]
+    shown = None if previews is None else [os.fspath(p) for p in previews]
+    if len(sources) != len(targets) or (shown is not None and len(shown) != len(sources)):
+        raise ValueError(f"outputs: {len(targets)} given for {len(sources)} input(s)"
+                         + ("" if shown is None else f" (and {len(shown)} previews)"))
+    _check_outputs(sources, targets, shown, overwrite)
+    if not sources:
+        return []
+    options = {"exposure": exposure, "reference": reference, "overwrite": overwrite, "half": half,
+               "read_options": dict(read_options or {}), **reconstruct_options}
+    with executor_or_threads(executor, len(sources)) as pool:
+        futures = {submit(pool, _frame_task, s, t, None if shown is None else shown[i], options): s
+                   for i, (s, t) in enumerate(zip(sources, targets))}
+        for future in cf.as_completed(futures):
+            if future.exception() is None and on_frame is not None:
+                on_frame(future.result())
+    failures = {s: f.exception() for f, s in futures.items() if f.exception() is not None}
+    if failures:
+        ordered = {s: failures[s] for s in sources if s in failures}
+        raise FramesFailedError(ordered, len(sources)) from next(iter(ordered.values()))
+    return [f.result().output for f in futures]
+
+
+def _frame_task(source: str, output: str, preview: str | None, options: dict[str, Any]) -> FrameResult:
+    """:func:`denoise_frame` with its options in one picklable dict (runs in a worker)."""
+    return denoise_frame(source, output, preview=preview, **options)

@@ -1,0 +1,257 @@
+"""Tiled rendering: every round of an adaptive render split into pixel tiles over workers.
+
+The sampler decides each round on the driver; the renderer is built *in the worker* from a
+picklable factory (:class:`RendererSpec`, which goes through the renderer registry of
+:mod:`awr_denoise.renderers`), tile statistics are assembled exactly, and with addressable
+random numbers the result equals the serial render bit for bit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pickle
+import threading
+from collections import OrderedDict
+from collections.abc import Callable
+from concurrent.futures import Executor
+from typing import Any
+
+import numpy as np
+
+from .._typing import Shape2D
+from ..buffers import SampleBuffer
+from ..renderers import create_renderer, renderer_names
+from ..requests import Renderer, SampleRequest, SampleTracer
+from ..sampling import Sampler
+from .executors import default_workers, executor_or_threads, submit
+from .tiles import tile_grid
+
+__all__ = ["RendererSpec", "TiledRenderer", "render_tiled"]
+
+_RENDERER_CACHE_SIZE = 4  # renderers kept alive per worker thread (a path tracer holds a BVH)
+
+@dataclasses.dataclass(frozen=True)
+class RendererSpec:
+    """A picklable recipe for a renderer, built where it is used (in the worker).
+
+    A path tracer holds native objects (an Embree scene) that cannot travel between
+    processes; its spec (renderer name, scene, size, seed) can. Calling the spec builds the
+    renderer through the registry (:func:`awr_denoise.renderers.create_renderer`).
+
+    Parameters
+    ----------
+    kind
+        A registered renderer name (:func:`awr_denoise.renderers.renderer_names`): ``"tracer"``,
+        ``"synthetic"``, ``"mitsuba"`` or one another package declares.
+    scene
+        What the renderer loads: a bundled scene name, a scene file.
+    shape
+        (H, W); ``None`` keeps the scene's own size (required for synthetic scenes).
+    seed
+        Render seed.
+    options
+        Further keyword arguments of the renderer as ``(name, value)`` pairs, e.g.
+        ``(("sampler", "sobol"), ("threads", 1))`` for the tracer.
+
+    Examples
+    --------
+    >>> from awr_denoise.parallel import RendererSpec
+    >>> spec = RendererSpec.synthetic("edges", (16, 16), seed=1)
+    >>> spec().shape
+    (16, 16)
+    """
+
+    kind: str
+    scene: str
+    shape: tuple[int, int] | None = None
+    seed: int = 0
+    options: tuple[tuple[str, Any], ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.kind not in renderer_names():
+            raise ValueError(f"kind: {self.kind!r} is not one of {', '.join(renderer_names())}")
+        if self.kind == "synthetic" and self.shape is None:
+            raise ValueError("shape: a synthetic scene needs its (H, W)")
+        if self.shape is not None:
+            object.__setattr__(self, "shape", (int(self.shape[0]), int(self.shape[1])))
+
+    @classmethod
+    def tracer(cls, scene: str, *, width: int | None = None, height: int | None = None, seed: int = 0,
+               **options: Any) -> RendererSpec:
+        """Spec of a :class:`~awr_denoise.tracer.PathTracer` on a bundled scene.
+
+        ``options`` are keyword arguments of ``PathTracer`` (``sampler``, ``max_depth``,
+        ``threads``, ``batch_size``). Give ``threads=1`` when every worker renders tiles
+        already, so the workers do not oversubscribe the cores.
+        """
+        shape = None if width is None and height is None else (height or 0, width or 0)
+        return cls("tracer", scene, shape, int(seed), tuple(sorted(options.items())))
+
+    @classmethod
+    def synthetic(cls, scene: str, shape: Shape2D, *, seed: int = 0) -> RendererSpec:
+        """Spec of a :class:`~awr_denoise.synthetic.SyntheticRenderer` on a synthetic scene."""
+        return cls("synthetic", scene, (int(shape[0]), int(shape[1])), int(seed))
+
+    def __call__(self) -> Renderer:
+        """Build the renderer."""
+        return create_renderer(self.kind, self.scene, shape=self.shape, seed=self.seed, **dict(self.options))
+
+
+_worker_state = threading.local()
+
+
+def _cached_renderer(factory: Callable[[], Renderer]) -> Renderer:
+    """The renderer ``factory`` builds, built once per worker thread (a few kept, newest first)."""
+    try:
+        key: Any = pickle.dumps(factory)
+    except Exception:  # an unpicklable factory only ever runs in this process
+        key = ("object", id(factory))
+    cache = getattr(_worker_state, "renderers", None)
+    if cache is None:
+        cache = _worker_state.renderers = OrderedDict()
+    if key in cache:
+        cache.move_to_end(key)
+        return cache[key]
+    renderer = factory()
+    cache[key] = renderer
+    while len(cache) > _RENDERER_CACHE_SIZE:
+        cache.popitem(last=False)
+    return renderer
+
+
+def _render_tile(factory: Callable[[], Renderer], counts: np.ndarray, first_index: np.ndarray,
+                 origin: tuple[int, int], image_shape: Shape2D) -> SampleBuffer:
+    """Render one tile of a request and return the tile's statistics (runs in a worker).
+
+    A :class:`~awr_denoise.SampleTracer` is asked for exactly the tile's samples; any other
+    renderer gets a full-size request with no samples outside the tile.
+    """
+    renderer = _cached_renderer(factory)
+    tile_request = SampleRequest(counts, first_index)
+    r0, c0 = origin
+    th, tw = counts.shape
+    if isinstance(renderer, SampleTracer):
+        rows, cols, sample_index = tile_request.pixel_list()
+        before = renderer.stats["nonfinite"]
+        values = np.asarray(renderer.trace_samples(rows + r0, cols + c0, sample_index))
+        dropped = int(renderer.stats["nonfinite"] - before)
+        tile = SampleBuffer.from_samples(rows * tw + cols, values, (th, tw), channels=renderer.channels)
+        if dropped:
+            tile = SampleBuffer(tile.count, tile.mean, tile.variance, tile.channels, tile.variance_known, dropped)
+        return tile
+    full_counts = np.zeros(image_shape, np.int64)
+    full_first = np.zeros(image_shape, np.int64)
+    window = (slice(r0, r0 + th), slice(c0, c0 + tw))
+    full_counts[window] = counts
+    full_first[window] = first_index
+    full = renderer(SampleRequest(full_counts, full_first))
+    return SampleBuffer(full.count[window], full.mean[window], full.variance[window], full.channels,
+                        full.variance_known[window], full.nonfinite)
+
+
+class TiledRenderer:
+    """A :class:`~awr_denoise.Renderer` that renders each request as pixel tiles on an executor.
+
+    Every tile of a request becomes one task; the worker builds the renderer from
+    ``renderer_factory`` (once per worker thread) and renders the tile's samples. Tiles do not
+    overlap, so the request's statistics are the tiles' statistics put side by side, with no
+    arithmetic: with a renderer whose random numbers are addressed by
+    (seed, pixel, sample index, dimension) the result is bitwise the one-piece render.
+
+    Parameters
+    ----------
+    renderer_factory
+        Zero-argument callable returning the renderer, e.g. a :class:`RendererSpec`; it must
+        be picklable for process and Dask executors.
+    tile
+        Tile side in pixels, or (height, width).
+    executor
+        Runs the tiles; ``None`` renders them one after the other in this thread.
+
+    Notes
+    -----
+    A :class:`~awr_denoise.SampleTracer` (the bundled path tracer, the synthetic renderer, the
+    Mitsuba 3 adapter) is asked for exactly a tile's samples, so a task's memory follows the
+    tile. Any other renderer receives a full-size request with zero
+    samples outside the tile and its result is cropped: correct, but each task then holds
+    full-frame arrays.
+    """
+
+    def __init__(self, renderer_factory: Callable[[], Renderer], *, tile: int | tuple[int, int] = 128,
+                 executor: Executor | None = None) -> None:
+        if not callable(renderer_factory):
+            raise TypeError(f"renderer_factory: expected a callable that builds a renderer, got {renderer_factory!r}")
+        tile_grid((1, 1), tile)  # validates the tile size now
+        if executor is not None and not isinstance(executor, Executor):
+            raise TypeError(f"executor: expected a concurrent.futures.Executor, got {type(executor).__name__}")
+        self.renderer_factory = renderer_factory
+        self.tile = tile
+        self.executor = executor
+
+    def __call__(self, request: SampleRequest) -> SampleBuffer:
+        """Render ``request`` tile by tile and return its statistics."""
+        if not isinstance(request, SampleRequest):
+            raise TypeError(f"request: expected a SampleRequest, got {type(request).__name__}")
+        shape = request.shape
+        tiles = [t for t in tile_grid(shape, self.tile) if request.counts[t].any()] or tile_grid(shape, self.tile)[:1]
+        args = [(self.renderer_factory, request.counts[t], request.first_index[t], (t[0].start, t[1].start), shape)
+                for t in tiles]
+        if self.executor is None:
+            results = [_render_tile(*a) for a in args]
+        else:
+            futures = [submit(self.executor, _render_tile, *a) for a in args]
+            results = [f.result() for f in futures]
+        first = results[0]
+        count = np.zeros(shape, np.int64)
+        mean = np.zeros(shape + (first.n_channels,))
+        variance = np.zeros_like(mean)
+        known = np.zeros(shape, bool)
+        for t, part in zip(tiles, results):
+            count[t], mean[t], variance[t], known[t] = part.count, part.mean, part.variance, part.variance_known
+        return SampleBuffer(count, mean, variance, first.channels, known, sum(p.nonfinite for p in results))
+
+
+def render_tiled(renderer_factory: Callable[[], Renderer], sampler: Sampler, *, total_spp: float,
+                 tile: int | tuple[int, int] = 128, executor: Executor | None = None, progress: bool = False,
+                 callback: Callable[[SampleRequest, SampleBuffer], bool | None] | None = None) -> SampleBuffer:
+    """Adaptive (or uniform) rendering with every round split into tiles over an executor.
+
+    Exactly :meth:`Sampler.run <awr_denoise.Sampler.run>` with a :class:`TiledRenderer`: the
+    sampler decides each round on the driver, the tiles of its request are rendered by the
+    workers, and the merged statistics are told back. With addressable random numbers the
+    result is bitwise identical to ``sampler.run(renderer_factory(), total_spp)``.
+
+    Parameters
+    ----------
+    renderer_factory
+        Zero-argument picklable callable building the renderer in the worker, e.g.
+        ``RendererSpec.tracer("cornell_box", seed=3, threads=1)``; never the renderer itself
+        (a path tracer's Embree scene cannot be pickled).
+    sampler
+        The ask/tell sampler (e.g. :class:`~awr_denoise.AdaptiveSampler`); it stays here.
+    total_spp
+        Average samples per pixel to reach.
+    tile
+        Tile side in pixels, or (height, width).
+    executor
+        Runs the tiles; default a thread pool (one thread per CPU) for this call.
+    progress, callback
+        As in :meth:`Sampler.run <awr_denoise.Sampler.run>`.
+
+    Returns
+    -------
+    SampleBuffer
+        The sampler's merged statistics.
+
+    Examples
+    --------
+    >>> from awr_denoise import AdaptiveSampler
+    >>> from awr_denoise.parallel import RendererSpec, render_tiled
+    >>> spec = RendererSpec.synthetic("edges", (32, 32), seed=1)
+    >>> buffer = render_tiled(spec, AdaptiveSampler((32, 32)), total_spp=8, tile=16)
+    >>> buffer.total_samples
+    8192
+    """
+    with executor_or_threads(executor, default_workers()) as pool:
+        renderer = TiledRenderer(renderer_factory, tile=tile, executor=pool)
+        return sampler.run(renderer, total_spp, progress=progress, callback=callback)

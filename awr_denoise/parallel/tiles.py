@@ -1,0 +1,235 @@
+"""Tiled reconstruction: one task per tile of a large frame, equal to the whole-frame result.
+
+Each task gets only its tile plus a halo wide enough for the wavelet support at every level
+(:func:`halo_width`), and everything that depends on the whole frame (the depth, the domain's
+scale, the fill of sample-less pixels, the pooled variance of unknown pixels) is fixed before
+the tiles leave, so the result matches :func:`~awr_denoise.reconstruct` to rounding
+(docs/distributed.md derives the halo and the tolerance).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import functools
+from concurrent.futures import Executor
+from typing import Any
+
+import numpy as np
+import pywt
+
+from .._typing import FloatArray, Shape2D
+from ..buffers import SampleBuffer
+from ..domains import Domain, resolve_domain
+from ..prepare import prepare
+from ..reconstruct import DEFAULT_DOMAIN, reconstruct
+from ..wavelets import default_levels, max_levels
+from .executors import dask_client, executor_or_threads, executor_width, submit
+
+__all__ = ["tile_grid", "halo_width", "reconstruct_tiled"]
+
+
+def tile_grid(shape: Shape2D, tile: int | tuple[int, int]) -> list[tuple[slice, slice]]:
+    """Row-major ``(rows, cols)`` slices that cover an (H, W) image with tiles of ``tile`` pixels.
+
+    Parameters
+    ----------
+    shape
+        (H, W) of the image.
+    tile
+        Tile side, or (height, width); the last row and column of tiles may be smaller.
+    """
+    th, tw = (tile, tile) if isinstance(tile, (int, np.integer)) else tile
+    th, tw = int(th), int(tw)
+    if th < 1 or tw < 1:
+        raise ValueError(f"tile: must be >= 1 pixel, got {tile!r}")
+    h, w = int(shape[0]), int(shape[1])
+    return [(slice(r, min(r + th, h)), slice(c, min(c + tw, w)))
+            for r in range(0, h, th) for c in range(0, w, tw)]
+
+
+def halo_width(wavelet: str = "bior4.4", levels: int = 5) -> int:
+    """Pixels of context a tile needs on each side for an exact wavelet reconstruction.
+
+    A level-``k`` coefficient's equivalent analysis filter spans at most
+    ``(F - 1)(2^k - 1) + 1`` pixels, ``F`` the longer of the wavelet's decomposition and
+    reconstruction filters, and its synthesis filter as many around the same place, so an
+    output pixel depends on input pixels at most ``(F - 1)(2^L - 1)`` away along each axis.
+    Soft thresholding acts on each coefficient alone and adds no reach. The halo returned is
+    the exact reach, computed once from the filters: for every coefficient of every band and
+    level (away from the signal's ends), the farthest pair of an input pixel in its analysis
+    support and an output pixel in its synthesis support. It equals the bound for orthogonal
+    wavelets and is smaller where filters have zero taps (bior4.4: ``7 (2^L - 1)``, not
+    ``9 (2^L - 1)``). docs/distributed.md has the derivation and the measured reach.
+
+    Parameters
+    ----------
+    wavelet
+        PyWavelets discrete wavelet.
+    levels
+        Decomposition depth.
+
+    Examples
+    --------
+    >>> from awr_denoise.parallel import halo_width
+    >>> halo_width("bior4.4", 5), halo_width("haar", 3), halo_width("db2", 2)
+    (217, 7, 9)
+    """
+    if isinstance(levels, bool) or int(levels) < 1:
+        raise ValueError(f"levels: must be >= 1, got {levels!r}")
+    return _transform_reach(pywt.Wavelet(wavelet).name, int(levels))
+
+
+def _support_ends(nonzero: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """First and last True of every row, and whether the row has any."""
+    first = np.argmax(nonzero, axis=1)
+    last = nonzero.shape[1] - 1 - np.argmax(nonzero[:, ::-1], axis=1)
+    return first, last, nonzero.any(axis=1)
+
+
+@functools.lru_cache(maxsize=64)
+def _transform_reach(wavelet: str, levels: int) -> int:
+    """Exact reach of the ``levels``-deep transform of ``wavelet`` along one axis (see :func:`halo_width`)."""
+    w = pywt.Wavelet(wavelet)
+    bound = (max(w.dec_len, w.rec_len) - 1) * (2**levels - 1)
+    n = 4 * bound + 2 ** (levels + 3)  # long enough for coefficients that never see an end
+    reach = 0
+    for k in range(1, levels + 1):
+        # Row j of each band: the analysis filter of coefficient j (impulses through the DWT).
+        analysis = pywt.wavedec(np.eye(n), w, mode="symmetric", level=k, axis=0)
+        for band in (0, 1):  # the level-k approximation and detail, as one axis of a 2-D band
+            rows = analysis[band]
+            coeffs = [np.zeros((c.shape[0], rows.shape[0])) for c in analysis]
+            coeffs[band] = np.eye(rows.shape[0])
+            # Column j: the synthesis of a unit coefficient j.
+            synthesis = pywt.waverec(coeffs, w, mode="symmetric", axis=0)[:n].T
+            a_first, a_last, a_any = _support_ends(rows != 0)
+            s_first, s_last, s_any = _support_ends(synthesis != 0)
+            interior = a_any & s_any & (a_first >= bound) & (a_last <= n - 1 - bound)
+            if interior.any():
+                reach = max(reach, int(np.max(np.maximum(s_last - a_first, a_last - s_first)[interior])))
+    return reach
+
+
+def _window(core: slice, halo: int, align: int, length: int) -> slice:
+    """``core`` grown by ``halo`` on both sides, its start moved down to a multiple of ``align``.
+
+    The decimated transform is shift-variant: a window that starts on a multiple of ``2^L``
+    puts its coefficients on the same grid as the whole image's.
+    """
+    start = max(0, core.start - halo)
+    start -= start % align
+    return slice(start, min(length, core.stop + halo))
+
+
+def _reconstruct_window(count: np.ndarray, mean: FloatArray, variance: FloatArray, channels: tuple[str, ...],
+                        core: tuple[slice, slice], options: dict[str, Any]) -> FloatArray:
+    """Reconstruct one tile+halo window and return the tile's pixels (runs in a worker)."""
+    window = SampleBuffer(count, mean, variance, channels, np.ones(count.shape, bool))
+    return reconstruct(window, **options)[core]
+
+
+def reconstruct_tiled(buffer: SampleBuffer, *, tile: int | tuple[int, int] = 512, halo: int | None = None,
+                      executor: Executor | None = None, c_s: float = 1.0, wavelet: str = "bior4.4",
+                      levels: int | None = None, domain: str | Domain = DEFAULT_DOMAIN, mode: str = "channels",
+                      boundary: str = "symmetric") -> FloatArray:
+    """Reconstruct a frame tile by tile; equals :func:`~awr_denoise.reconstruct` to rounding.
+
+    Each task receives one tile with a halo of :func:`halo_width` pixels on every side (its
+    start aligned to ``2^levels`` so the wavelet grid matches the whole frame's), reconstructs
+    it, and returns the tile's pixels. Everything that depends on the whole frame is fixed
+    before the tiles leave: the number of levels, the domain's ``scale`` (the frame's mean
+    absolute pixel value, which :class:`~awr_denoise.Domain` would otherwise take per tile),
+    the fill of sample-less pixels and the pooled variance of pixels whose variance is unknown.
+
+    Parameters
+    ----------
+    buffer
+        Per-pixel sample statistics of the whole frame.
+    tile
+        Tile side in pixels, or (height, width). Each task holds about
+        ``(tile + 2 * halo)^2 * (8 + 16 * C)`` bytes of input.
+    halo
+        Context on each side of a tile; default :func:`halo_width` ``(wavelet, levels)``
+        (one more with a robust domain, whose 3x3 median reads one pixel further), the
+        smallest that is exact. A smaller halo trades accuracy near tile borders for less
+        work.
+    executor
+        Runs the tiles; default a thread pool for this call.
+    c_s, wavelet, levels, domain, mode, boundary
+        As in :func:`~awr_denoise.reconstruct`; ``levels`` defaults to the whole frame's
+        :func:`~awr_denoise.wavelets.default_levels`.
+
+    Returns
+    -------
+    numpy.ndarray
+        (H, W, C) reconstructed image.
+
+    Notes
+    -----
+    With the default halo, tile and whole-frame results differ only by floating-point
+    rounding; the tests hold them to ``1e-12`` of the image's largest value
+    (docs/distributed.md). Windows are cut only as earlier tasks finish (at most twice as
+    many in flight as the executor has workers), so the caller holds the frame, three
+    frame-sized working arrays and a few windows. Tiles are shipped to Dask workers with
+    ``Client.scatter`` so they do not travel through the scheduler.
+    """
+    if not isinstance(buffer, SampleBuffer):
+        raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
+    shape = buffer.shape
+    levels = default_levels(shape) if levels is None else levels
+    if isinstance(levels, bool) or not 1 <= int(levels) <= max_levels(shape):
+        raise ValueError(f"levels: {levels} is outside 1..{max_levels(shape)} for an image of shape {shape}")
+    levels = int(levels)
+    if halo is None:
+        # The robust domain's 3x3 median reads one pixel further than the transform does.
+        halo = halo_width(wavelet, levels) + (1 if resolve_domain(domain).robust else 0)
+    halo = int(halo)
+    if halo < 0:
+        raise ValueError(f"halo: must be >= 0, got {halo}")
+    prepared = prepare(buffer, domain)  # fills, pools and fixes the domain's scale for the whole frame
+    mean = prepared.mean
+    options = {"c_s": c_s, "wavelet": wavelet, "levels": levels, "domain": prepared.domain,
+               "mode": mode, "boundary": boundary}
+    # Windows carry the frame's per-sample variance with unknown entries already pooled over the
+    # whole frame, so every window pixel is "known". A pixel with fewer than two samples (whose
+    # variance a window would pool again) travels as 2 samples of variance 2 s2: its variance
+    # of the mean, s2 / max(n, 1), comes out the same (x2 and /2 are exact in floating point).
+    few = buffer.count < 2
+    count = np.where(few, 2, buffer.count)
+    estimated = prepared.sample_variance
+    per_sample = np.where(few[..., None], 2.0 * estimated, estimated)
+    grid = tile_grid(shape, tile)
+    image = np.empty(shape + (buffer.n_channels,))
+    with executor_or_threads(executor, len(grid)) as pool:
+        client = dask_client(pool)
+        in_flight: dict[cf.Future, tuple[slice, slice]] = {}
+        remaining = iter(grid)
+
+        def submit_next() -> bool:
+            """Cut the next tile's window and submit it; False when every tile is out."""
+            tile_slices = next(remaining, None)
+            if tile_slices is None:
+                return False
+            rows, cols = tile_slices
+            wr = _window(rows, halo, 2**levels, shape[0])
+            wc = _window(cols, halo, 2**levels, shape[1])
+            if min(wr.stop - wr.start, wc.stop - wc.start) < 2**levels:
+                wr, wc = slice(0, shape[0]), slice(0, shape[1])  # too small to decompose: use the frame
+            core = (slice(rows.start - wr.start, rows.stop - wr.start),
+                    slice(cols.start - wc.start, cols.stop - wc.start))
+            crops: list[Any] = [np.ascontiguousarray(a[wr, wc]) for a in (count, mean, per_sample)]
+            if client is not None:
+                crops = client.scatter(crops, hash=False)
+            in_flight[submit(pool, _reconstruct_window, *crops, buffer.channels, core, options)] = (rows, cols)
+            return True
+
+        # Windows are cut as tasks finish, so the driver holds at most a few of them at once.
+        limit = 2 * executor_width(pool)
+        while len(in_flight) < limit and submit_next():
+            pass
+        while in_flight:
+            done, _ = cf.wait(in_flight, return_when=cf.FIRST_COMPLETED)
+            for future in done:
+                image[in_flight.pop(future)] = future.result()
+                submit_next()
+    return image

@@ -1,0 +1,34 @@
+"""The --workers/--scheduler/--executor options (awr_denoise.cli.parallel_options)."""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as cf
+
+import pytest
+
+from awr_denoise.cli.parallel_options import add_executor_arguments, executor_from_args, executor_requested
+
+
+def test_executor_arguments_round_trip():
+    parser = argparse.ArgumentParser()
+    add_executor_arguments(parser)
+    args = parser.parse_args(["--workers", "2"])
+    with executor_from_args(args) as executor:
+        assert isinstance(executor, cf.ThreadPoolExecutor)
+        assert executor._max_workers == 2
+    args = parser.parse_args(["--executor", "processes", "--workers", "1"])
+    with executor_from_args(args) as executor:
+        assert isinstance(executor, cf.ProcessPoolExecutor)
+    with pytest.raises(ValueError, match="--scheduler"):
+        executor_from_args(parser.parse_args(["--executor", "threads", "--scheduler", "tcp://127.0.0.1:1"]))
+    with pytest.raises(ValueError, match="--workers"):
+        executor_from_args(parser.parse_args(["--workers", "0"]))
+    assert executor_from_args(argparse.Namespace()) is not None  # a parser without the options
+    assert not executor_requested(parser.parse_args([]))
+    assert executor_requested(parser.parse_args(["--executor", "threads"]))
+    with_tile = argparse.ArgumentParser()
+    add_executor_arguments(with_tile, tile_option=True)
+    assert with_tile.parse_args([]).tile == 128 and with_tile.parse_args(["--tile", "64"]).tile == 64
+
+

@@ -1,0 +1,60 @@
+"""Shared helpers of the parallel tests: reference (serial) computations and comparisons."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest
+from awr_denoise.io import read_image, write_sample_buffer
+from awr_denoise.parallel import RendererSpec, denoise_frame
+from awr_denoise.synthetic import SyntheticRenderer, make_scene
+
+# Tiled reconstruction is exact up to floating-point rounding (docs/distributed.md); this is
+# the bound the tests hold it to, relative to the image's largest magnitude.
+TILED_RTOL = 1e-12
+
+
+def assert_same_buffer(a: SampleBuffer, b: SampleBuffer) -> None:
+    """Bitwise equality of every statistic."""
+    for name in ("count", "mean", "variance", "variance_known"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name, strict=True)
+    assert a.channels == b.channels
+    assert a.nonfinite == b.nonfinite
+
+
+def assert_tiled_close(tiled: np.ndarray, whole: np.ndarray) -> None:
+    assert tiled.shape == whole.shape
+    error = np.abs(tiled - whole).max()
+    assert error <= TILED_RTOL * np.abs(whole).max(), f"tiled differs from whole frame by {error:.3g}"
+
+
+def noisy_buffer(scene: str = "hdr_source", shape: tuple[int, int] = (96, 136), spp: int = 4,
+                 seed: int = 3) -> SampleBuffer:
+    renderer = SyntheticRenderer(make_scene(scene, shape), seed=seed)
+    return renderer(SampleRequest.uniform(shape, spp))
+
+
+def serial_render(spec: RendererSpec, shape: tuple[int, int], total_spp: float, sampler_seed: int = 2) -> SampleBuffer:
+    return AdaptiveSampler(shape, seed=sampler_seed).run(spec(), total_spp)
+
+
+def write_dumps(directory, n_frames: int = 3, shape=(48, 64)) -> list:
+    paths = []
+    for frame in range(n_frames):
+        path = directory / f"dump.{frame:04d}.exr"
+        write_sample_buffer(path, noisy_buffer("edges", shape, spp=4, seed=frame))
+        paths.append(path)
+    return paths
+
+
+def serial_frames(inputs, outputs, **options) -> None:
+    """The reference: the same per-frame work, one frame after the other in this thread."""
+    for source, target in zip(inputs, outputs):
+        denoise_frame(source, target, **options)
+
+
+def assert_same_files(a, b) -> None:
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(read_image(x), read_image(y), strict=True)
+        assert x.read_bytes() == y.read_bytes()
+

@@ -1,0 +1,109 @@
+"""The parallel layer on a local Dask cluster of two worker processes (loopback only).
+
+The cluster is started once for the package (about 1-2 s) and the tests also run in the
+default selection.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import os
+
+import pytest
+
+from awr_denoise import AdaptiveSampler, reconstruct
+from awr_denoise.parallel import (
+    RendererSpec,
+    denoise_frames,
+    get_executor,
+    reconstruct_tiled,
+    render_tiled,
+)
+from awr_denoise.parallel.executors import submit
+from parallel_helpers import (
+    assert_same_buffer,
+    assert_same_files,
+    assert_tiled_close,
+    noisy_buffer,
+    serial_frames,
+    serial_render,
+)
+
+distributed = pytest.importorskip("distributed")
+
+
+# ---------------------------------------------------------------------------- on the Dask cluster
+def test_cluster_render_tiled_equals_the_serial_render_bitwise(dask_executor):
+    shape = (64, 80)
+    spec = RendererSpec.synthetic("fireflies", shape, seed=11)
+    expected = serial_render(spec, shape, 10)
+    tiled = render_tiled(spec, AdaptiveSampler(shape, seed=2), total_spp=10, tile=32, executor=dask_executor)
+    assert_same_buffer(tiled, expected)
+
+
+def test_cluster_reconstruct_tiled_matches_whole_frame(dask_executor):
+    buffer = noisy_buffer(shape=(120, 150))
+    for mode in ("channels", "luminance"):
+        whole = reconstruct(buffer, levels=3, mode=mode)
+        assert_tiled_close(reconstruct_tiled(buffer, tile=48, levels=3, mode=mode, executor=dask_executor), whole)
+
+
+def test_cluster_denoise_frames_equals_the_serial_run_bitwise(tmp_path, dumps, dask_executor):
+    serial = [tmp_path / f"serial.{i}.exr" for i in range(len(dumps))]
+    serial_frames(dumps, serial, c_s=1.0)
+    clustered = [tmp_path / f"cluster.{i}.exr" for i in range(len(dumps))]
+    denoise_frames(dumps, clustered, executor=dask_executor, c_s=1.0)
+    assert_same_files(clustered, serial)
+
+
+def test_local_cluster_on_demand_runs_a_tiled_render():
+    shape = (32, 48)
+    spec = RendererSpec.synthetic("edges", shape, seed=4)
+    environ_before = os.environ.get("MALLOC_TRIM_THRESHOLD_")
+    with get_executor("dask", workers=2) as executor:
+        tiled = render_tiled(spec, AdaptiveSampler(shape, seed=2), total_spp=6, tile=16, executor=executor)
+        # Workers keep glibc's malloc tuning (Dask's trim threshold made numpy tasks 1.7x slower).
+        assert executor.submit(os.environ.get, "MALLOC_TRIM_THRESHOLD_").result() is None
+    assert os.environ.get("MALLOC_TRIM_THRESHOLD_") == environ_before
+    assert_same_buffer(tiled, serial_render(spec, shape, 6))
+
+
+@pytest.mark.slow
+@pytest.mark.tracer
+def test_cluster_render_tiled_with_the_path_tracer_equals_the_serial_render(dask_executor):
+    tracer = pytest.importorskip("awr_denoise.tracer")
+    name = "cornell_box" if "cornell_box" in tracer.list_scenes() else sorted(tracer.list_scenes())[0]
+    spec = RendererSpec.tracer(name, width=48, height=40, seed=3, threads=1)
+    shape = spec().shape
+    expected = AdaptiveSampler(shape, seed=1).run(spec(), 8)
+    tiled = render_tiled(spec, AdaptiveSampler(shape, seed=1), total_spp=8, tile=24, executor=dask_executor)
+    assert_same_buffer(tiled, expected)
+
+
+def test_tasks_are_never_answered_from_dask_cache(cluster, tmp_path):
+    """Dask reuses the result of an identical pure task; ours have side effects and must all run."""
+    with distributed.Client(cluster.scheduler_address) as client:
+        executor = client.get_executor()  # a user's executor, pure by default
+        target = tmp_path / "made"
+        futures = [submit(executor, os.mkdir, str(target)) for _ in range(2)]
+        cf.wait(futures)
+        outcomes = sorted(type(f.exception()).__name__ for f in futures)
+        # Both ran, so one found the directory made; pure tasks would have shared one result.
+        assert outcomes == ["FileExistsError", "NoneType"]
+        executor.shutdown()
+
+
+def test_process_pool_gives_the_serial_results(tmp_path, dumps):
+    shape = (40, 56)
+    spec = RendererSpec.synthetic("hdr_source", shape, seed=9)
+    buffer = noisy_buffer(shape=(80, 100))
+    serial = [tmp_path / f"serial.{i}.exr" for i in range(len(dumps))]
+    serial_frames(dumps, serial)
+    pooled = [tmp_path / f"pool.{i}.exr" for i in range(len(dumps))]
+    with get_executor("processes", workers=2) as executor:
+        denoise_frames(dumps, pooled, executor=executor)
+        tiled = render_tiled(spec, AdaptiveSampler(shape, seed=2), total_spp=6, tile=24, executor=executor)
+        image = reconstruct_tiled(buffer, tile=40, levels=3, executor=executor)
+    assert_same_files(pooled, serial)
+    assert_same_buffer(tiled, serial_render(spec, shape, 6))
+    assert_tiled_close(image, reconstruct(buffer, levels=3))

@@ -1,0 +1,60 @@
+"""Executors of the parallel layer (awr_denoise.parallel.executors): threads, processes, Dask."""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as cf
+import sys
+
+import pytest
+
+from awr_denoise.cli.parallel_options import add_executor_arguments, executor_from_args
+from awr_denoise.parallel import get_executor
+
+
+def test_get_executor_threads_and_processes_run_tasks():
+    with get_executor("threads", workers=2) as threads:
+        assert isinstance(threads, cf.ThreadPoolExecutor)
+        assert list(threads.map(abs, [-3, 4])) == [3, 4]
+    with get_executor("processes", workers=1) as processes:
+        assert isinstance(processes, cf.ProcessPoolExecutor)
+        assert processes.submit(abs, -5).result() == 5
+
+
+def test_get_executor_defaults_to_threads_and_checks_its_arguments():
+    with get_executor() as executor:
+        assert isinstance(executor, cf.ThreadPoolExecutor)
+    with pytest.raises(ValueError, match="kind"):
+        with get_executor("ray"):
+            pass
+    with pytest.raises(ValueError, match="workers"):
+        with get_executor("threads", workers=0):
+            pass
+    with pytest.raises(ValueError, match="scheduler"):
+        with get_executor("threads", scheduler="tcp://127.0.0.1:8786"):
+            pass
+
+
+def test_dask_is_optional_with_an_install_hint(monkeypatch):
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed -> ImportError
+    with pytest.raises(ImportError, match=r'pip install "awr-denoise\[dask\]"'):
+        with get_executor("dask"):
+            pass
+    with get_executor("threads") as executor:  # nothing else needs Dask
+        assert executor.submit(abs, -1).result() == 1
+
+
+def test_dask_executor_from_a_scheduler_address_leaves_the_cluster_running(cluster):
+    parser = argparse.ArgumentParser()
+    add_executor_arguments(parser)
+    args = parser.parse_args(["--scheduler", cluster.scheduler_address])
+    with executor_from_args(args) as executor:
+        assert isinstance(executor, cf.Executor)
+        assert sorted(executor.map(abs, [-2, 1])) == [1, 2]
+    assert len(cluster.scheduler_info["workers"]) == 2  # still up for the next client
+
+
+def test_dask_executor_from_a_scheduler_file(cluster):
+    assert cluster.scheduler_file_path.is_file()
+    with get_executor(scheduler=cluster.scheduler_file_path) as executor:
+        assert executor.submit(abs, -7).result() == 7

@@ -1,0 +1,63 @@
+"""Frame sequences (awr_denoise.parallel.frames) against serial runs, bit for bit."""
+
+from __future__ import annotations
+
+
+import numpy as np
+import pytest
+
+from awr_denoise import reconstruct
+from awr_denoise.parallel import (
+    FramesFailedError,
+    denoise_frames,
+)
+from parallel_helpers import (
+    assert_same_files,
+    serial_frames,
+)
+
+
+def test_denoise_frames_equals_the_serial_run_bitwise(tmp_path, dumps):
+    options = {"c_s": 1.5, "wavelet": "bior4.4", "domain": "log"}
+    serial = [tmp_path / f"serial.{i:04d}.exr" for i in range(len(dumps))]
+    serial_frames(dumps, serial, **options)
+    threaded = [tmp_path / f"threads.{i:04d}.exr" for i in range(len(dumps))]
+    written = denoise_frames(dumps, threaded, **options)
+    assert written == threaded
+    assert_same_files(threaded, serial)
+    from awr_denoise.io import read_image, read_sample_buffer
+
+    np.testing.assert_array_equal(read_image(serial[1]),
+                                  reconstruct(read_sample_buffer(dumps[1]), **options).astype(np.float32))
+
+
+def test_denoise_frames_refuses_existing_outputs_before_any_work(tmp_path, dumps):
+    outputs = [tmp_path / f"out.{i}.exr" for i in range(len(dumps))]
+    outputs[2].write_bytes(b"keep me")
+    with pytest.raises(FileExistsError, match="out.2.exr"):
+        denoise_frames(dumps, outputs)
+    assert not outputs[0].exists() and outputs[2].read_bytes() == b"keep me"
+    denoise_frames(dumps, outputs, overwrite=True)
+    assert outputs[2].read_bytes()[:4] == b"\x76\x2f\x31\x01"  # EXR magic number
+
+
+def test_denoise_frames_reports_failed_frames_and_writes_the_others(tmp_path, dumps):
+    broken = tmp_path / "broken.exr"
+    broken.write_bytes(b"not an exr")
+    inputs = [dumps[0], broken, dumps[2]]
+    outputs = [tmp_path / f"out.{i}.exr" for i in range(3)]
+    with pytest.raises(FramesFailedError, match="1 of 3") as info:
+        denoise_frames(inputs, outputs)
+    assert list(info.value.failures) == [str(broken)]
+    assert outputs[0].exists() and outputs[2].exists() and not outputs[1].exists()
+    assert not list(tmp_path.glob(".*.tmp*"))  # atomic writes leave no partial file
+
+
+def test_denoise_frames_checks_its_arguments(tmp_path, dumps):
+    with pytest.raises(ValueError, match="outputs"):
+        denoise_frames(dumps, [tmp_path / "a.exr"])
+    with pytest.raises(ValueError, match="more than once"):
+        denoise_frames(dumps[:2], [tmp_path / "a.exr", tmp_path / "a.exr"])
+    with pytest.raises(ValueError, match="also an input"):
+        denoise_frames(dumps[:1], dumps[:1], overwrite=True)
+    assert denoise_frames([], []) == []

@@ -1,0 +1,168 @@
+"""Tiled reconstruction (awr_denoise.parallel.tiles) against the whole-frame reconstruction.
+
+Tiles are held to the tolerance derived in docs/distributed.md.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+
+import numpy as np
+import pytest
+import pywt
+
+from awr_denoise import Domain, SampleBuffer, reconstruct
+from awr_denoise.parallel import tiles
+from awr_denoise.prepare import Prepared
+from awr_denoise.parallel import (
+    halo_width,
+    reconstruct_tiled,
+    tile_grid,
+)
+from parallel_helpers import (
+    TILED_RTOL,
+    assert_tiled_close,
+    noisy_buffer,
+)
+
+
+# ---------------------------------------------------------------------------- tiles and halos
+def test_tile_grid_covers_the_image_once():
+    cover = np.zeros((70, 45), int)
+    for rows, cols in tile_grid((70, 45), 32):
+        cover[rows, cols] += 1
+    assert (cover == 1).all()
+    assert len(tile_grid((70, 45), (70, 45))) == 1
+    with pytest.raises(ValueError, match="tile"):
+        tile_grid((8, 8), 0)
+
+
+def test_halo_width_is_the_wavelet_support():
+    assert halo_width("haar", 1) == 1
+    assert halo_width("db2", 3) == 3 * 7  # orthogonal: the bound (F - 1)(2^L - 1)
+    assert halo_width("bior4.4", 5) == 7 * 31  # zero taps: below the bound 9 * 31
+    for wavelet in ("haar", "db2", "sym4", "coif1", "bior2.2", "bior4.4"):
+        for levels in (1, 2, 4):
+            f = max(pywt.Wavelet(wavelet).dec_len, pywt.Wavelet(wavelet).rec_len)
+            assert 0 < halo_width(wavelet, levels) <= (f - 1) * (2**levels - 1)
+    with pytest.raises(ValueError, match="levels"):
+        halo_width("haar", 0)
+
+
+@pytest.mark.parametrize("wavelet", ["haar", "db2", "bior4.4"])
+@pytest.mark.parametrize("levels", [1, 2, 3])
+def test_halo_covers_the_measured_reach_of_reconstruction(wavelet, levels):
+    """Perturb one pixel column at every phase of the 2^L grid: nothing beyond the halo moves."""
+    rng = np.random.default_rng(levels)
+    h, w, q0 = 16, 160, 64
+    mean = 0.5 + 0.2 * rng.standard_normal((h, w, 1))
+    count, var = np.full((h, w), 4), np.full((h, w, 1), 0.05)
+    options = {"c_s": 1.0, "wavelet": wavelet, "levels": levels, "domain": "linear"}
+    base = reconstruct(SampleBuffer.from_moments(count, mean, var), **options)
+    reach = 0
+    for q in range(q0, q0 + 2**levels):
+        moved = mean.copy()
+        moved[:, q] += 1.0
+        changed = np.nonzero(np.abs(reconstruct(SampleBuffer.from_moments(count, moved, var), **options)
+                                    - base).max(axis=(0, 2)) > 0)[0]
+        reach = max(reach, q - changed.min(), changed.max() - q)
+    assert reach == halo_width(wavelet, levels)
+
+
+@pytest.mark.parametrize("mode", ["channels", "luminance"])
+@pytest.mark.parametrize("domain", ["log", "linear", "gamma", Domain("log", robust=True)])
+@pytest.mark.parametrize("wavelet,levels", [("bior4.4", 3), ("bior4.4", None), ("haar", 4), ("db2", 2)])
+def test_reconstruct_tiled_matches_whole_frame(mode, domain, wavelet, levels):
+    buffer = noisy_buffer()
+    options = {"c_s": 1.0, "wavelet": wavelet, "levels": levels, "domain": domain, "mode": mode}
+    assert_tiled_close(reconstruct_tiled(buffer, tile=40, **options), reconstruct(buffer, **options))
+
+
+def test_reconstruct_tiled_handles_empty_pixels_and_unknown_variance():
+    rng = np.random.default_rng(7)
+    shape = (100, 120)
+    buffer = SampleBuffer.from_moments(rng.integers(0, 6, shape), rng.random(shape + (3,)), rng.random(shape + (3,)),
+                                       variance_known=rng.random(shape) > 0.3)
+    assert (buffer.count == 0).any() and not buffer.variance_known.all()
+    for mode in ("channels", "luminance"):
+        assert_tiled_close(reconstruct_tiled(buffer, tile=(30, 50), mode=mode), reconstruct(buffer, mode=mode))
+
+
+def test_reconstruct_tiled_is_wrong_without_the_halo():
+    buffer = noisy_buffer()
+    whole = reconstruct(buffer, levels=3)
+    error = np.abs(reconstruct_tiled(buffer, tile=40, levels=3, halo=0) - whole).max()
+    assert error > 1e-3 * np.abs(whole).max()
+
+
+@pytest.mark.parametrize("levels", [2, 3])
+def test_halo_width_is_the_smallest_exact_halo(levels):
+    buffer = noisy_buffer()
+    whole = reconstruct(buffer, levels=levels)
+    halo = halo_width("bior4.4", levels)
+    assert_tiled_close(reconstruct_tiled(buffer, tile=40, levels=levels, halo=halo), whole)
+    # One pixel less and a tile's edge pixel misses an input it depends on.
+    assert np.abs(reconstruct_tiled(buffer, tile=40, levels=levels, halo=halo - 1) - whole).max() > \
+        TILED_RTOL * np.abs(whole).max()
+
+
+def test_reconstruct_tiled_is_wrong_without_a_global_domain_scale(monkeypatch):
+    buffer = noisy_buffer()
+    whole = reconstruct(buffer, levels=3)
+    # Tiles that bind the domain's scale to themselves instead of to the whole frame:
+    monkeypatch.setattr(Prepared, "domain", property(lambda self: self.bound.domain))
+    relative = np.abs(reconstruct_tiled(buffer, tile=40, levels=3) - whole) / np.abs(whole)
+    assert relative.max() > 1e-2  # dark tiles around the bright source take a far smaller scale
+
+
+class RecordingExecutor(cf.ThreadPoolExecutor):
+    """A thread pool that records the largest array each task was given and the tasks in flight."""
+
+    def __init__(self) -> None:
+        super().__init__(max_workers=2)
+        self.largest: list[tuple[int, ...]] = []
+        self.in_flight = self.most_in_flight = 0
+
+    def submit(self, fn, /, *args, **kwargs):
+        shapes = [a.shape for a in args if isinstance(a, np.ndarray)]
+        self.largest.append(max(shapes, key=lambda s: s[0] * s[1]))
+        self.in_flight += 1  # submit and result collection both run in the caller's thread
+        self.most_in_flight = max(self.most_in_flight, self.in_flight)
+        return super().submit(fn, *args, **kwargs)
+
+    def collected(self) -> None:
+        self.in_flight -= 1
+
+
+def test_reconstruct_tiled_sends_each_task_only_its_tile_and_halo():
+    buffer = noisy_buffer(shape=(128, 160))
+    tile, levels = 32, 2
+    halo = halo_width("bior4.4", levels)
+    with RecordingExecutor() as executor:
+        real_wait = cf.wait
+
+        def counting_wait(futures, **kwargs):
+            done, pending = real_wait(futures, **kwargs)
+            for _ in done:
+                executor.collected()
+            return done, pending
+
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(tiles.cf, "wait", counting_wait)
+            image = reconstruct_tiled(buffer, tile=tile, levels=levels, executor=executor)
+    assert len(executor.largest) == len(tile_grid(buffer.shape, tile)) == 20
+    assert executor.most_in_flight <= 2 * 2  # windows are cut as tasks finish, not all at once
+    bound = tile + 2 * halo + 2**levels - 1  # the aligned start may add up to 2^L - 1 pixels
+    assert all(s[0] <= bound and s[1] <= bound for s in executor.largest)
+    assert max(s[0] * s[1] for s in executor.largest) < buffer.count.size
+    assert_tiled_close(image, reconstruct(buffer, levels=levels))
+
+
+def test_reconstruct_tiled_checks_its_arguments():
+    buffer = noisy_buffer(shape=(32, 32))
+    with pytest.raises(TypeError, match="buffer"):
+        reconstruct_tiled(buffer.mean)
+    with pytest.raises(ValueError, match="levels"):
+        reconstruct_tiled(buffer, levels=9)
+    with pytest.raises(ValueError, match="halo"):
+        reconstruct_tiled(buffer, halo=-1)
