@@ -7,12 +7,19 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import re
 import sys
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from awr_denoise.buffers import NONFINITE_POLICIES, VARIANCE_KINDS
+from awr_denoise.io import PRESETS
 
 __all__ = [
     "EXIT_OK",
@@ -53,19 +60,17 @@ def add_output_options(parser: argparse.ArgumentParser, *, output_help: str) -> 
 
 def add_plane_options(parser: argparse.ArgumentParser) -> None:
     """Options that say where the statistics are inside the input EXR files."""
-    from awr_denoise.io import PRESETS
-
     g = parser.add_argument_group("input layout (see docs/io.md)")
     g.add_argument("--preset", default="auto", choices=PRESETS,
                    help="renderer layout of the input; 'auto' detects it from the channel names")
     g.add_argument("--color", metavar="PLANE", help="mean plane, e.g. 'RGB', 'Ci' or 'beauty.exr:RGB'")
     g.add_argument("--variance", metavar="PLANE", help="spread plane, e.g. 'Variance' or 'var.exr:mse'")
     g.add_argument("--count", metavar="PLANE", help="per-pixel sample count plane")
-    g.add_argument("--variance-kind", choices=("sample", "mean", "second_moment"),
+    g.add_argument("--variance-kind", choices=VARIANCE_KINDS,
                    help="what --variance holds: per-sample variance, variance of the mean, or E[x^2]")
     g.add_argument("--spp", type=int, metavar="N", help="samples per pixel when the file has no count")
     g.add_argument("--layer", metavar="NAME", help="Cycles view layer when the file has several")
-    g.add_argument("--nonfinite", default="raise", choices=("raise", "drop", "zero"),
+    g.add_argument("--nonfinite", default=NONFINITE_POLICIES[0], choices=NONFINITE_POLICIES,
                    help="NaN/Inf samples of a deep per-sample dump: refuse them (default), leave them "
                         "out, or count them as 0; dropped or zeroed samples are reported")
 
@@ -145,8 +150,6 @@ def progress(iterable: Iterable[Any], *, quiet: bool, total: int | None = None, 
     if quiet or (total is not None and total <= 1):
         yield from iterable
         return
-    from tqdm.auto import tqdm
-
     yield from tqdm(iterable, total=total, desc=desc, file=sys.stderr, leave=False)
 
 
@@ -156,8 +159,6 @@ def print_json(data: Any) -> None:
 
 
 def _finite(value: Any) -> Any:
-    import math
-
     if isinstance(value, float) and not math.isfinite(value):
         return str(value)
     if isinstance(value, dict):
@@ -168,8 +169,6 @@ def _finite(value: Any) -> Any:
 
 
 def _jsonable(value: Any) -> Any:
-    import numpy as np
-
     if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, np.ndarray):
@@ -180,6 +179,4 @@ def _jsonable(value: Any) -> Any:
 def status(message: str, *, quiet: bool) -> None:
     """A progress note on stderr (stdout is kept for results), printed above any progress bar."""
     if not quiet:
-        from tqdm.auto import tqdm
-
         tqdm.write(message, file=sys.stderr)

@@ -6,8 +6,17 @@ import argparse
 import time
 from pathlib import Path
 
+import numpy as np
+
+from awr_denoise import reconstruct
+from awr_denoise.io import provenance, write_image, write_preview
+from awr_denoise.metrics import mse, relmse
+from awr_denoise.reconstruct import DEFAULT_C_S
+from awr_denoise.renderers import create_renderer
+from awr_denoise.sampling import DEFAULT_INITIAL_SPP
+
 from .common import EXIT_OK, UsageError, print_json, status
-from .render_cmd import default_scene, render_buffer, tracer_module
+from .render_cmd import TRACER, default_scene, render_buffer, tracer_module
 
 __all__ = ["register", "run"]
 
@@ -21,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scene", help="bundled scene (default: the tracer's default scene)")
     p.add_argument("--spp", type=float, default=8, help="average samples per pixel of both renders (default 8)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--c-s", type=float, default=1.0, help="reconstruction threshold (Eq. 11)")
+    p.add_argument("--c-s", type=float, default=DEFAULT_C_S, help="reconstruction threshold (Eq. 11)")
     p.add_argument("--out", default="out", metavar="DIR",
                    help="output directory (default out/); the demo replaces its own files there")
     p.add_argument("--exposure", type=float, default=0.0, help="preview exposure in stops")
@@ -32,12 +41,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``awr demo``; returns the exit status (errors are raised and reported by ``main``)."""
-    import numpy as np
-
-    from awr_denoise import reconstruct
-    from awr_denoise.io import write_image, write_preview
-    from awr_denoise.metrics import mse, relmse
-
     if not args.spp >= 1:
         raise UsageError(f"--spp: must be >= 1, got {args.spp}")
     tracer = tracer_module()
@@ -54,11 +57,13 @@ def run(args: argparse.Namespace) -> int:
     reference = np.asarray(tracer.load_reference(name), dtype=np.float64)
     start = time.perf_counter()
     status(f"rendering {name} uniformly at {args.spp:g} spp", quiet=args.quiet)
-    uniform, _, _ = render_buffer(tracer, scene, spp=round(args.spp), adaptive=False, seed=args.seed,
-                                  sampler="independent", initial_spp=4, quiet=args.quiet)
+    renderer = create_renderer(TRACER, scene, seed=args.seed, progress=not args.quiet)
+    uniform, _, _ = render_buffer(renderer, scene.shape, spp=round(args.spp), adaptive=False, seed=args.seed,
+                                  initial_spp=DEFAULT_INITIAL_SPP, quiet=args.quiet)
     status(f"rendering {name} adaptively at {args.spp:g} spp", quiet=args.quiet)
-    adaptive, _, _ = render_buffer(tracer, scene, spp=round(args.spp), adaptive=True, seed=args.seed + 1,
-                                   sampler="independent", initial_spp=4, quiet=args.quiet)
+    renderer = create_renderer(TRACER, scene, seed=args.seed + 1)
+    adaptive, _, _ = render_buffer(renderer, scene.shape, spp=round(args.spp), adaptive=True, seed=args.seed + 1,
+                                   initial_spp=DEFAULT_INITIAL_SPP, quiet=args.quiet)
     images = {
         "uniform_mean": uniform.mean,
         "uniform_awr": reconstruct(uniform, c_s=args.c_s),
@@ -69,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     results = {}
     for label, image in images.items():
         exr = out / f"{name}_{label}.exr"
-        write_image(exr, image, header={"awr:scene": name, "awr:spp": float(args.spp), "awr:c_s": args.c_s},
+        write_image(exr, image, header=provenance(scene=name, spp=float(args.spp), c_s=args.c_s, method=label),
                     overwrite=True)
         write_preview(out / f"{name}_{label}.png", image, exposure=args.exposure, overwrite=True)
         results[label] = {"relmse": relmse(image, reference), "mse": mse(image, reference), "file": str(exr)}

@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import concurrent.futures as cf
-import os
+import contextlib
+
+from awr_denoise.domains import DOMAIN_NAMES
+from awr_denoise.parallel import FrameResult, FramesFailedError, denoise_frames
+from awr_denoise.reconstruct import DEFAULT_C_S, DEFAULT_DOMAIN, DEFAULT_MODE, MODES
+from awr_denoise.wavelets import DEFAULT_WAVELET
 
 from .common import (
     EXIT_OK,
@@ -17,21 +21,23 @@ from .common import (
     refuse_same_file,
     status,
 )
+from .parallel_options import add_executor_arguments, executor_from_args, executor_requested
 
 __all__ = ["register", "run", "add_reconstruction_options", "reconstruction_kwargs"]
 
 
 def add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
-    """``--c-s``, ``--wavelet``, ``--levels``, ``--domain``, ``--mode``."""
+    """``--c-s``, ``--wavelet``, ``--levels``, ``--domain``, ``--mode``, with the library's defaults."""
     g = parser.add_argument_group("reconstruction")
-    g.add_argument("--c-s", type=float, default=1.0, metavar="C",
-                   help="threshold in standard errors (Eq. 11); 0 returns the plain mean (default 1)")
-    g.add_argument("--wavelet", default="bior4.4", help="PyWavelets wavelet (default bior4.4, CDF 9/7)")
+    g.add_argument("--c-s", type=float, default=DEFAULT_C_S, metavar="C",
+                   help="threshold in standard errors (Eq. 11); 0 returns the plain mean (default %(default)g)")
+    g.add_argument("--wavelet", default=DEFAULT_WAVELET,
+                   help="PyWavelets discrete wavelet (default %(default)s, CDF 9/7)")
     g.add_argument("--levels", type=int, metavar="L", help="decomposition depth (default: automatic)")
-    g.add_argument("--domain", default="log", choices=("log", "gamma", "linear"),
-                   help="domain in which coefficients are thresholded (default log)")
-    g.add_argument("--mode", default="channels", choices=("channels", "luminance"),
-                   help="threshold every channel, or decide on luminance and keep hue (default channels)")
+    g.add_argument("--domain", default=DEFAULT_DOMAIN, choices=DOMAIN_NAMES,
+                   help="domain in which coefficients are thresholded (default %(default)s)")
+    g.add_argument("--mode", default=DEFAULT_MODE, choices=MODES,
+                   help="threshold every channel, or decide on luminance and keep hue (default %(default)s)")
 
 
 def reconstruction_kwargs(args: argparse.Namespace) -> dict:
@@ -62,48 +68,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     add_reconstruction_options(p)
     add_plane_options(p)
-    from awr_denoise.parallel import add_executor_arguments
-
     add_executor_arguments(p)
     p.set_defaults(run=run)
 
 
-def _denoise_one(args: argparse.Namespace, source: str, output: str, preview: str | None) -> str:
-    import numpy as np
-
-    from awr_denoise import __version__, reconstruct_detailed
-    from awr_denoise.io import read_image, read_sample_buffer, write_image, write_preview
-
-    buffer = read_sample_buffer(source, **plane_kwargs(args))
-    result = reconstruct_detailed(buffer, variance_probes=0, **reconstruction_kwargs(args))
-    header = {
-        "awr:version": __version__, "awr:c_s": float(args.c_s), "awr:wavelet": args.wavelet,
-        "awr:levels": int(result.levels), "awr:domain": args.domain, "awr:mode": args.mode,
-        "awr:input": os.path.basename(source), "awr:spp": float(buffer.total_samples / buffer.count.size),
-        "awr:fraction_zeroed": float(result.fraction_zeroed), "awr:nonfinite": int(buffer.nonfinite),
-    }
-    write_image(output, result.image, channels=buffer.channels, header=header, half=args.half,
-                overwrite=args.overwrite)
-    if preview:
-        write_preview(preview, result.image, exposure=args.exposure, overwrite=args.overwrite)
-    note = f"{output}: {buffer.shape[1]}x{buffer.shape[0]}, {header['awr:spp']:.3g} spp, " \
-           f"{100 * result.fraction_zeroed:.1f}% coefficients zeroed"
-    if buffer.nonfinite:
-        note += f", {buffer.nonfinite} non-finite sample(s) {'dropped' if args.nonfinite == 'drop' else 'zeroed'} " \
+def _note(frame: FrameResult, nonfinite_policy: str) -> str:
+    """The one-line summary of a denoised frame."""
+    h, w = frame.shape
+    note = f"{frame.output}: {w}x{h}, {frame.spp:.3g} spp, {100 * frame.fraction_zeroed:.1f}% coefficients zeroed"
+    if frame.nonfinite:
+        note += f", {frame.nonfinite} non-finite sample(s) {'dropped' if nonfinite_policy == 'drop' else 'zeroed'} " \
                 "on input"
-    if args.ref:
-        from awr_denoise.metrics import relmse
-
-        ref = read_image(args.ref)
-        image = np.asarray(result.image)
-        if ref.shape[:2] != image.shape[:2]:
-            raise UsageError(f"{args.ref}: size {ref.shape[1]}x{ref.shape[0]} does not match "
-                             f"{image.shape[1]}x{image.shape[0]} of {source}")
-        k = min(ref.shape[2], image.shape[2])
-        err = relmse(image[..., :k], ref[..., :k])
-        note += f", relMSE {err:.4g}"
-        if args.maxerror is not None and err > args.maxerror:
-            raise RuntimeFailure(f"{output}: relMSE {err:.4g} against {args.ref} exceeds --maxerror {args.maxerror:g}")
+    if frame.relmse is not None:
+        note += f", relMSE {frame.relmse:.4g}"
     return note
 
 
@@ -124,16 +101,32 @@ def run(args: argparse.Namespace) -> int:
         refuse_same_file(output, [inputs[0], args.ref, args.color, args.variance, args.count])
         if len(inputs) > 1:
             refuse_same_file(inputs[1], [inputs[0], output])
-    from awr_denoise.parallel import executor_from_args, executor_requested
+    frames: list[FrameResult] = []
+    bar = progress(iter(range(len(jobs))), quiet=args.quiet, total=len(jobs), desc="frames")
 
-    if not executor_requested(args):
-        for inputs, output in progress(jobs, quiet=args.quiet, total=len(jobs), desc="frames"):
-            note = _denoise_one(args, inputs[0], output, inputs[1] if len(inputs) > 1 else None)
-            status(note, quiet=args.quiet)
-        return EXIT_OK
-    with executor_from_args(args) as executor:  # one task per frame: paths travel, not pixels
-        futures = [executor.submit(_denoise_one, args, inputs[0], output, inputs[1] if len(inputs) > 1 else None)
-                   for inputs, output in jobs]
-        for future in progress(cf.as_completed(futures), quiet=args.quiet, total=len(futures), desc="frames"):
-            status(future.result(), quiet=args.quiet)
+    def done(frame: FrameResult) -> None:
+        frames.append(frame)
+        next(bar, None)
+        status(_note(frame, args.nonfinite), quiet=args.quiet)
+
+    # Without --workers a single frame runs in this thread and several on a thread pool; with
+    # them, on the executor asked for (one task per frame: paths travel, not pixels).
+    executor = executor_from_args(args) if executor_requested(args) else contextlib.nullcontext(None)
+    with executor as pool:
+        try:
+            denoise_frames([i[0] for i, _ in jobs], [o for _, o in jobs],
+                           previews=[i[1] for i, _ in jobs] if args.preview else None, exposure=args.exposure,
+                           reference=args.ref, executor=pool, overwrite=args.overwrite, half=args.half,
+                           read_options=plane_kwargs(args), on_frame=done, **reconstruction_kwargs(args))
+        except FramesFailedError as exc:
+            # The first failed frame's own error, so it keeps its exit status and one-line message.
+            raise next(iter(exc.failures.values())) from None
+        finally:
+            bar.close()
+    if args.maxerror is not None:
+        over = [f for f in frames if f.relmse is not None and f.relmse > args.maxerror]
+        if over:
+            f = over[0]
+            raise RuntimeFailure(f"{f.output}: relMSE {f.relmse:.4g} against {args.ref} exceeds "
+                                 f"--maxerror {args.maxerror:g}")
     return EXIT_OK

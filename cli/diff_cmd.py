@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import argparse
 
+import numpy as np
+
+from awr_denoise.io import provenance, read_image, write_image
+from awr_denoise.metrics import HIGHER_IS_BETTER, METRICS
+
 from .common import EXIT_OK, RuntimeFailure, UsageError, print_json, refuse_same_file
 
-__all__ = ["register", "run", "METRICS"]
-
-METRICS = ("relmse", "mse", "psnr", "ssim")
+__all__ = ["register", "run"]
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -20,7 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-r", "--ref", required=True, metavar="REF.exr", help="reference image")
     p.add_argument("-o", "--output", metavar="DIFF.exr", help="write the signed difference IMAGE - REF")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
-    p.add_argument("--metric", choices=METRICS, default="relmse", help="metric checked by --maxerror")
+    p.add_argument("--metric", choices=tuple(METRICS), default="relmse", help="metric checked by --maxerror")
     p.add_argument("--maxerror", type=float, metavar="E",
                    help="fail when the metric exceeds E (for psnr and ssim: falls below E)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
@@ -29,11 +32,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``awr diff``; returns the exit status (errors are raised and reported by ``main``)."""
-    import numpy as np
-
-    from awr_denoise import metrics
-    from awr_denoise.io import read_image, write_image
-
     if args.output:
         refuse_same_file(args.output, [args.input, args.ref])
     image = read_image(args.input)
@@ -45,10 +43,9 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"{args.ref}: {ref.shape[2]} channel(s), {args.input} has {image.shape[2]}")
     x = image.astype(np.float64)
     r = ref.astype(np.float64)
-    result = {"file": args.input, "reference": args.ref, "mse": metrics.mse(x, r), "relmse": metrics.relmse(x, r),
-              "psnr": metrics.psnr(x, r), "ssim": metrics.ssim(x, r)}
+    result = {"file": args.input, "reference": args.ref} | {name: f(x, r) for name, f in METRICS.items()}
     if args.output:
-        write_image(args.output, x - r, header={"awr:input": args.input, "awr:reference": args.ref},
+        write_image(args.output, x - r, header=provenance(input=args.input, reference=args.ref),
                     overwrite=args.overwrite)
     if args.json:
         print_json(result)
@@ -57,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
               f"PSNR {result['psnr']:.4g} dB  SSIM {result['ssim']:.4f}")
     if args.maxerror is not None:
         value = result[args.metric]
-        worse = value < args.maxerror if args.metric in ("psnr", "ssim") else value > args.maxerror
+        worse = value < args.maxerror if args.metric in HIGHER_IS_BETTER else value > args.maxerror
         if worse:
             raise RuntimeFailure(f"{args.input}: {args.metric} {value:.6g} against {args.ref} is worse than "
                                  f"--maxerror {args.maxerror:g}")

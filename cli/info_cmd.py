@@ -5,6 +5,11 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+import numpy as np
+
+from awr_denoise.io import detect_preset, read_request, read_sample_dump
+from awr_denoise.io.exr import header_value, read_exr
+
 from .common import EXIT_OK, add_plane_options, plane_kwargs, print_json
 
 __all__ = ["register", "run", "describe"]
@@ -26,11 +31,6 @@ def _stats(a: Any) -> dict[str, float]:
 
 def describe(path: str, args: argparse.Namespace) -> dict[str, Any]:
     """A JSON-ready description of ``path``."""
-    import numpy as np
-
-    from awr_denoise.io import detect_preset, read_request, read_sample_dump
-    from awr_denoise.io.exr import header_value, read_exr
-
     parts = read_exr(path, header_only=True)
     header = parts[0].header
     attrs = {k: header_value(header, k) for k in header if str(k).startswith(("awr:", "cycles.", "samplesPerPixel"))}

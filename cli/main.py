@@ -8,9 +8,13 @@ mistake prints one line, ``awr: error: <file>: <channel>: <what>``, never a trac
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import sys
 from collections.abc import Sequence
+
+from awr_denoise import __version__
+from awr_denoise.errors import InputFileError
 
 from .common import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, RuntimeFailure, UsageError
 
@@ -28,15 +32,11 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     """The full argument parser (one sub-parser per subcommand)."""
-    from awr_denoise import __version__
-
     parser = _Parser(prog="awr", description="Adaptive Wavelet Rendering: denoise Monte Carlo sample dumps "
                                              "and plan where a renderer's next samples go.")
     parser.add_argument("--version", action="version", version=f"awr {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
-    import importlib
-
     for name in _COMMANDS:
         module = importlib.import_module(f"{__package__}.{name}_cmd")
         module.register(sub)
@@ -55,8 +55,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv
         Arguments without the program name; ``sys.argv[1:]`` by default.
     """
-    from awr_denoise.errors import InputFileError
-
     try:
         parser = build_parser()
         args = parser.parse_args(list(sys.argv[1:] if argv is None else argv))

@@ -3,10 +3,19 @@
 from __future__ import annotations
 
 import argparse
+import warnings
+
+import numpy as np
+
+from awr_denoise import Sampler, SampleBuffer
+from awr_denoise.errors import InputFileError, StaleRequestError
+from awr_denoise.io import provenance, read_request, read_sample_dump, request_attributes, write_sample_buffer
 
 from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, refuse_same_file, status
 
 __all__ = ["register", "run"]
+
+_KEPT = ("seed", "round", "strategy", "scene")  # provenance carried from the running dump
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -26,52 +35,73 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
+def _check_match(path: str, buffer: SampleBuffer, first: SampleBuffer, first_path: str) -> None:
+    """Refuse a batch whose size or channels differ from the first input's, naming both files."""
+    if buffer.shape != first.shape:
+        h, w = buffer.shape
+        raise InputFileError(f"{path}: size {w}x{h} does not match {first.shape[1]}x{first.shape[0]} of {first_path}")
+    if buffer.channels != first.channels:
+        raise InputFileError(f"{path}: channels {','.join(buffer.channels)} do not match "
+                             f"{','.join(first.channels)} of {first_path}")
+
+
+def _tell(merged: SampleBuffer, issued: np.ndarray, request_path: str, batch: SampleBuffer,
+          batch_path: str) -> tuple[SampleBuffer, np.ndarray, int, str | None]:
+    """Tell the last batch as the answer to its request (the library's :meth:`Sampler.tell`).
+
+    Returns the merged statistics, the sample indices issued, the request's round and a note on
+    requested samples the batch lacks.
+    """
+    request = read_request(request_path)
+    if request.shape != batch.shape:
+        h, w = request.shape
+        raise InputFileError(f"{request_path}: size {w}x{h} does not match {batch.shape[1]}x{batch.shape[0]} "
+                             f"of {batch_path}")
+    sampler = Sampler.from_buffer(merged, issued=issued, round=request.round)
+    try:
+        sampler.resume(request)
+    except StaleRequestError as exc:
+        raise InputFileError(f"{request_path}: {exc}") from None
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            sampler.tell(request, batch)
+        except ValueError as exc:
+            raise InputFileError(f"{batch_path}: sampleCount: {exc}") from None
+    note = "; ".join(str(w.message) for w in caught) or None
+    return sampler.buffer, sampler.issued, request.round, note
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``awr merge``; returns the exit status (errors are raised and reported by ``main``)."""
-    import numpy as np
-
-    from awr_denoise.errors import InputFileError
-    from awr_denoise.io import read_request, read_sample_dump, request_attributes, write_sample_buffer
-
     refuse_same_file(args.output, [*args.inputs, args.request])
+    if len(args.inputs) == 1 and not args.request:
+        raise UsageError("merge: give the running dump and at least one batch (or --request for a first batch)")
     dumps = [read_sample_dump(path, **plane_kwargs(args)) for path in args.inputs]
-    merged = dumps[0].buffer
-    issued = np.array(dumps[0].issued)
+    first = dumps[0].buffer
     for path, dump in zip(args.inputs[1:], dumps[1:]):
-        if dump.buffer.shape != merged.shape:
-            h, w = dump.buffer.shape
-            raise InputFileError(f"{path}: size {w}x{h} does not match {merged.shape[1]}x{merged.shape[0]} "
-                                 f"of {args.inputs[0]}")
-        if dump.buffer.channels != merged.channels:
-            raise InputFileError(f"{path}: channels {','.join(dump.buffer.channels)} do not match "
-                                 f"{','.join(merged.channels)} of {args.inputs[0]}")
+        _check_match(path, dump.buffer, first, args.inputs[0])
+    # Plain batches merge with Chan's update; a batch answering --request is told to a sampler.
+    told = dumps[-1] if args.request else None
+    merged = SampleBuffer.empty(first.shape, channels=first.channels) if told is dumps[0] else first
+    issued = np.zeros(first.shape, np.int64) if told is dumps[0] else np.array(dumps[0].issued)
+    for dump in dumps[1:len(dumps) - (told is not None)]:
         merged = merged.merge(dump.buffer)
         issued = issued + dump.issued
-    attrs = {k: v for k, v in dumps[0].attributes.items()
-             if k in ("awr:seed", "awr:round", "awr:strategy", "awr:scene")}
+    attrs = {k: v for k, v in dumps[0].attributes.items() if k.removeprefix("awr:") in _KEPT}
     rounds = [int(str(d.attributes["awr:round"])) for d in dumps if "awr:round" in d.attributes]
-    if args.request:
-        request = read_request(args.request)
-        last, last_path = dumps[-1].buffer, args.inputs[-1]
-        if request.shape != last.shape:
-            h, w = request.shape
-            raise InputFileError(f"{args.request}: size {w}x{h} does not match {last.shape[1]}x{last.shape[0]} "
-                                 f"of {last_path}")
-        over = last.count > request.counts
-        if over.any():
-            raise InputFileError(f"{last_path}: sampleCount: {int(over.sum())} pixel(s) hold more samples than "
-                                 f"{args.request} asked for")
-        # Samples asked for but not delivered (dropped NaN/Inf) still used up their indices.
-        issued = np.maximum(issued, request.first_index + request.counts)
-        rounds.append(request.round)
-        req_attrs = request_attributes(args.request)
-        if "awr:seed" in req_attrs and "awr:seed" not in attrs:
-            attrs["awr:seed"] = req_attrs["awr:seed"]
-    elif len(dumps) == 1:
-        raise UsageError("merge: give the running dump and at least one batch (or --request for a first batch)")
+    if told is not None:
+        merged, issued, request_round, note = _tell(merged, issued, args.request, told.buffer, args.inputs[-1])
+        rounds.append(request_round)
+        if note:
+            status(f"{args.inputs[-1]}: {note}", quiet=args.quiet)
+        seed = request_attributes(args.request).get("awr:seed")
+        if seed is not None and "awr:seed" not in attrs:
+            attrs["awr:seed"] = seed
     if rounds:  # without any round information (plain batches) plan starts at round 1
         attrs["awr:round"] = max(rounds) + 1
-    write_sample_buffer(args.output, merged, header=attrs, issued=issued, overwrite=args.overwrite)
+    header = provenance(**{k.removeprefix("awr:"): v for k, v in attrs.items()})
+    write_sample_buffer(args.output, merged, header=header, issued=issued, overwrite=args.overwrite)
     h, w = merged.shape
     status(f"{args.output}: {merged.total_samples} samples ({merged.total_samples / (h * w):.4g} spp), "
            f"next round {attrs.get('awr:round', 1)}", quiet=args.quiet)

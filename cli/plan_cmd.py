@@ -5,13 +5,16 @@ from __future__ import annotations
 import argparse
 import re
 
-from awr_denoise.sampling import DEFAULT_ROUND_GROWTH
+from awr_denoise.io import provenance, read_sample_dump, write_request
+from awr_denoise.sampling import DEFAULT_INITIAL_SPP, DEFAULT_ROUND_GROWTH, SAMPLERS, AdaptiveSampler
+from awr_denoise.wavelets import DEFAULT_WAVELET
 
 from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, refuse_same_file, status
 
 __all__ = ["register", "run", "STRATEGIES"]
 
-STRATEGIES = ("awr", "uniform", "variance")
+STRATEGIES = tuple(SAMPLERS)
+"""The sampling strategies ``--strategy`` offers, by the library's names."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -31,13 +34,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="new samples of this round as a share of the samples taken so far (default "
                              f"{DEFAULT_ROUND_GROWTH})")
     p.add_argument("--size", metavar="WxH", help="image size of the first round (without a dump)")
-    p.add_argument("--initial-spp", type=int, default=4, help="samples per pixel of the first round (default 4)")
-    p.add_argument("--strategy", choices=STRATEGIES, default="awr",
+    p.add_argument("--initial-spp", type=int, default=DEFAULT_INITIAL_SPP,
+                   help="samples per pixel of the first round (default %(default)s)")
+    p.add_argument("--strategy", choices=STRATEGIES, default=AdaptiveSampler.strategy,
                    help="awr wavelet priorities (default), uniform, or per-pixel variance")
     p.add_argument("--seed", type=int, help="seed of the renderer's sequences and tie-breaking "
                                             "(default: the dump's awr:seed, else 0)")
     p.add_argument("--round", type=int, help="round number (default: the dump's awr:round, else 1)")
-    p.add_argument("--wavelet", default="bior4.4", help="wavelet of the priority analysis")
+    p.add_argument("--wavelet", default=DEFAULT_WAVELET, help="wavelet of the priority analysis (default %(default)s)")
     p.add_argument("--levels", type=int, help="decomposition depth of the priority analysis")
     p.add_argument("--spp-max", type=int, help="most samples any pixel may have")
     p.add_argument("-q", "--quiet", action="store_true")
@@ -52,21 +56,13 @@ def _size(text: str) -> tuple[int, int]:
     return int(m.group(2)), int(m.group(1))
 
 
-def _sampler_class(name: str):
-    from awr_denoise import AdaptiveSampler, UniformSampler, VarianceSampler
-
-    return {"awr": AdaptiveSampler, "uniform": UniformSampler, "variance": VarianceSampler}[name]
-
-
 def run(args: argparse.Namespace) -> int:
     """Run ``awr plan``; returns the exit status (errors are raised and reported by ``main``)."""
-    from awr_denoise.io import read_sample_dump, write_request
-
-    cls = _sampler_class(args.strategy)
+    cls = SAMPLERS[args.strategy]
     options: dict = {"spp_max": args.spp_max}
     if args.round_growth is not None:
         options["round_growth"] = args.round_growth
-    if args.strategy == "awr":
+    if cls is AdaptiveSampler:
         options.update(wavelet=args.wavelet, levels=args.levels)
     if args.input is None:
         if args.size is None:
@@ -95,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
     if budget is not None and budget < 0:
         raise UsageError(f"--budget: must be >= 0, got {budget}")
     request = sampler.ask(budget)
-    write_request(args.output, request, header={"awr:seed": seed, "awr:strategy": args.strategy},
+    write_request(args.output, request, header=provenance(seed=seed, strategy=args.strategy),
                   overwrite=args.overwrite)
     h, w = request.shape
     status(f"{args.output}: round {request.round}, {request.total} samples "

@@ -1,34 +1,49 @@
-"""``awr render``: render a bundled scene with the built-in path tracer, uniformly or adaptively."""
+"""``awr render``: render a scene, uniformly or adaptively, and denoise it.
+
+The renderer comes from the registry (:mod:`awr_denoise.renderers`): the bundled path tracer by
+default (``--renderer tracer``, bundled scenes by name), or any registered renderer such as the
+Mitsuba 3 adapter (``--renderer mitsuba SCENE.xml``).
+"""
 
 from __future__ import annotations
 
 import argparse
 import time
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
-from awr_denoise.sampling import DEFAULT_ROUND_GROWTH
+from awr_denoise import AdaptiveSampler, SampleRequest, reconstruct_detailed
+from awr_denoise.buffers import SampleBuffer
+from awr_denoise.io import image_provenance, provenance, write_image, write_preview, write_sample_buffer
+from awr_denoise.io.atomic import check_writable
+from awr_denoise.parallel import RendererSpec, TiledRenderer
+from awr_denoise.renderers import create_renderer, renderer_names
+from awr_denoise.requests import Renderer, SampleTracer
+from awr_denoise.sampling import DEFAULT_INITIAL_SPP, DEFAULT_ROUND_GROWTH
 
 from .common import EXIT_OK, RuntimeFailure, UsageError, status
 from .denoise_cmd import add_reconstruction_options, reconstruction_kwargs
+from .parallel_options import add_executor_arguments, executor_from_args, executor_requested
 
 __all__ = ["register", "run", "tracer_module", "default_scene", "render_buffer", "derived_path"]
 
+TRACER = "tracer"
+"""Name of the bundled path tracer in the renderer registry (the default renderer)."""
 
-def tracer_module() -> Any:
+
+def tracer_module() -> ModuleType:
     """The bundled tracer, or a clear runtime failure when it (or embreex) is missing."""
     try:
+        # The optional ``tracer`` extra (embreex): imported only by the commands that render.
         from awr_denoise import tracer
     except ImportError as exc:
         raise RuntimeFailure(f"the bundled tracer is not available: {exc} "
                              "(pip install 'awr-denoise[tracer]')") from None
-    missing = [n for n in ("list_scenes", "load_scene", "PathTracer") if not hasattr(tracer, n)]
-    if missing:
-        raise RuntimeFailure(f"the bundled tracer is not available (missing {', '.join(missing)})")
     return tracer
 
 
-def default_scene(tracer: Any) -> str:
+def default_scene(tracer: ModuleType) -> str:
     """The tracer's default scene name."""
     name = getattr(tracer, "DEFAULT_SCENE", None)
     if name:
@@ -49,25 +64,14 @@ def derived_path(path: str | Path, suffix: str) -> Path:
     return p.with_name(stem + suffix)
 
 
-def render_buffer(tracer: Any, scene: Any, *, spp: float, adaptive: bool, seed: int, sampler: str,
-                  initial_spp: int, quiet: bool, renderer: Any = None,
-                  round_growth: float = DEFAULT_ROUND_GROWTH) -> tuple[Any, Any, int]:
+def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float, adaptive: bool, seed: int,
+                  initial_spp: int, quiet: bool,
+                  round_growth: float = DEFAULT_ROUND_GROWTH) -> tuple[SampleBuffer, Any, int]:
     """(buffer, issued, next round) of a uniform or adaptive render at ``spp`` on average.
 
-    ``renderer`` replaces the in-process tracer (a tiled renderer over workers, say);
-    ``round_growth`` is the adaptive sampler's.
+    The renderer is closed afterwards when it is a :class:`~awr_denoise.SampleTracer`.
     """
-    from awr_denoise import AdaptiveSampler, SampleRequest
-
-    # A uniform render is one request: the tracer's own bar shows it. Adaptive rounds get
-    # the sampler's bar instead of one tracer bar per round.
-    if renderer is None:
-        renderer = tracer.PathTracer(scene, seed=seed, sampler=sampler, progress=not quiet and not adaptive)
     try:
-        probe = getattr(renderer, "shape", None) or getattr(scene, "shape", None)
-        if probe is None:
-            raise RuntimeFailure("the tracer does not report the image size")
-        shape = (int(probe[0]), int(probe[1]))
         if not adaptive:
             if spp != int(spp):
                 raise UsageError(f"--spp: a uniform render needs whole samples per pixel, got {spp}")
@@ -79,17 +83,20 @@ def render_buffer(tracer: Any, scene: Any, *, spp: float, adaptive: bool, seed: 
         buffer = awr.run(renderer, total_spp=spp, progress=not quiet)
         return buffer, awr.issued, awr.round
     finally:
-        close = getattr(renderer, "close", None)
-        if callable(close):
-            close()
+        if isinstance(renderer, SampleTracer):
+            renderer.close()
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``render`` sub-parser to ``sub``."""
-    p = sub.add_parser("render", help="render a bundled scene (uniform or adaptive) and denoise it",
-                       description="Render a bundled scene with the built-in path tracer; write the sample dump, "
-                                   "the denoised image and a PNG preview.")
+    p = sub.add_parser("render", help="render a scene (uniform or adaptive) and denoise it",
+                       description="Render a scene with a registered renderer (the built-in path tracer by "
+                                   "default); write the sample dump, the denoised image and a PNG preview.")
+    p.add_argument("scene_file", nargs="?", metavar="SCENE",
+                   help="scene to render: a bundled scene name or a scene file the renderer reads")
     p.add_argument("--scene", help="bundled scene name (default: the tracer's default scene)")
+    p.add_argument("--renderer", default=TRACER, metavar="NAME",
+                   help=f"registered renderer (default %(default)s; known: {', '.join(renderer_names())})")
     p.add_argument("--list-scenes", action="store_true", help="print the bundled scenes and exit")
     p.add_argument("--width", type=int, help="image width (default: the scene's)")
     p.add_argument("--height", type=int, help="image height (default: the scene's)")
@@ -98,13 +105,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     mode.add_argument("--adaptive", dest="adaptive", action="store_true", default=True,
                       help="adaptive wavelet sampling (default)")
     mode.add_argument("--uniform", dest="adaptive", action="store_false", help="the same count at every pixel")
-    p.add_argument("--initial-spp", type=int, default=4, help="samples per pixel of the first adaptive round")
+    p.add_argument("--initial-spp", type=int, default=DEFAULT_INITIAL_SPP,
+                   help="samples per pixel of the first adaptive round (default %(default)s)")
     p.add_argument("--round-growth", type=float, metavar="G", default=DEFAULT_ROUND_GROWTH,
                    help="adaptive rounds ask for this share of the samples taken so far (default %(default)s; "
                         "larger: fewer, cheaper rounds, see docs/sampling.md)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--sampler", choices=("independent", "sobol"), default="independent",
-                   help="the tracer's sample sequence")
+    p.add_argument("--sampler", default="independent",
+                   help="the bundled tracer's sample sequence: independent (default) or sobol")
     p.add_argument("-o", "--output", metavar="DUMP.exr", help="sample dump to write (required unless --list-scenes)")
     p.add_argument("--image", metavar="OUT.exr", help="denoised image (default DUMP.denoised.exr)")
     p.add_argument("--preview", metavar="OUT.png", help="PNG preview (default DUMP.denoised.png)")
@@ -112,21 +120,35 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     add_reconstruction_options(p)
-    from awr_denoise.parallel import add_executor_arguments
-
     add_executor_arguments(p, tile_option=True)
     p.set_defaults(run=run)
 
 
+def _scene(args: argparse.Namespace) -> tuple[str, Any, str, tuple[int, int] | None, dict[str, Any]]:
+    """(scene as given, scene to build the renderer on, name for headers, shape, renderer options)."""
+    if args.scene_file and args.scene:
+        raise UsageError("give the scene either as SCENE or with --scene, not both")
+    given = args.scene_file or args.scene
+    shape = None if args.width is None and args.height is None else (args.height or 0, args.width or 0)
+    if args.renderer != TRACER:
+        if not given:
+            raise UsageError(f"--renderer {args.renderer}: give the SCENE to render")
+        return given, given, Path(given).name, shape, {}
+    tracer = tracer_module()
+    name = given or default_scene(tracer)
+    if name not in tracer.list_scenes() and Path(name).suffix != ".json":
+        raise UsageError(f"--scene: {name!r} is not one of {', '.join(sorted(tracer.list_scenes()))}")
+    # The tracer's scene is loaded here, at its final size, so the renderer needs no shape.
+    return name, tracer.load_scene(name, width=args.width, height=args.height), Path(name).stem, None, \
+        {"sampler": args.sampler}
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``awr render``; returns the exit status (errors are raised and reported by ``main``)."""
-    from awr_denoise import __version__, reconstruct
-    from awr_denoise.io import write_image, write_preview, write_sample_buffer
-    from awr_denoise.io.atomic import check_writable
-
-    tracer = tracer_module()
+    if args.renderer not in renderer_names():
+        raise UsageError(f"--renderer: {args.renderer!r} is not one of {', '.join(renderer_names())}")
     if args.list_scenes:
-        for name in tracer.list_scenes():
+        for name in tracer_module().list_scenes():
             print(name)
         return EXIT_OK
     if not args.output:
@@ -140,36 +162,42 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"{args.output}: the dump, image and preview need three different names")
     for o in outputs:  # refuse before spending time rendering
         check_writable(o, overwrite=args.overwrite)
-    name = args.scene or default_scene(tracer)
-    if name not in tracer.list_scenes():
-        raise UsageError(f"--scene: {name!r} is not one of {', '.join(sorted(tracer.list_scenes()))}")
-    scene = tracer.load_scene(name, width=args.width, height=args.height)
+    given, scene, name, shape, options = _scene(args)
     start = time.perf_counter()
-    from awr_denoise.parallel import RendererSpec, TiledRenderer, executor_from_args, executor_requested
-
-    options = dict(spp=args.spp, adaptive=args.adaptive, seed=args.seed, sampler=args.sampler,
-                   initial_spp=args.initial_spp, quiet=args.quiet, round_growth=args.round_growth)
+    render = dict(spp=args.spp, adaptive=args.adaptive, seed=args.seed, initial_spp=args.initial_spp,
+                  quiet=args.quiet, round_growth=args.round_growth)
     if executor_requested(args):
-        # Each worker builds its own tracer from a picklable spec; tiles of every round are
+        # Each worker builds its own renderer from a picklable spec; tiles of every round are
         # rendered there and merged exactly (addressable random numbers make it match serial).
-        spec = RendererSpec.tracer(name, width=args.width, height=args.height, seed=args.seed,
-                                   sampler=args.sampler, threads=1)
+        if args.renderer == TRACER:
+            spec = RendererSpec.tracer(given, width=args.width, height=args.height, seed=args.seed, threads=1,
+                                       **options)
+            frame = scene.shape
+        else:
+            spec = RendererSpec(args.renderer, given, shape, args.seed)
+            probe = spec()
+            frame = probe.shape
+            if isinstance(probe, SampleTracer):
+                probe.close()
         with executor_from_args(args) as executor:
             tiled = TiledRenderer(spec, tile=args.tile, executor=executor)
-            buffer, issued, next_round = render_buffer(tracer, scene, renderer=tiled, **options)
+            buffer, issued, next_round = render_buffer(tiled, frame, **render)
     else:
-        buffer, issued, next_round = render_buffer(tracer, scene, **options)
+        # A uniform render is one request: the renderer's own bar shows it. Adaptive rounds get
+        # the sampler's bar instead of one renderer bar per round.
+        if args.renderer == TRACER:
+            options["progress"] = not args.quiet and not args.adaptive
+        renderer = create_renderer(args.renderer, scene, shape=shape, seed=args.seed, **options)
+        buffer, issued, next_round = render_buffer(renderer, renderer.shape, **render)
     seconds = time.perf_counter() - start
     strategy = "awr" if args.adaptive else "uniform"
-    header = {"awr:scene": name, "awr:seed": args.seed, "awr:sampler": args.sampler, "awr:strategy": strategy,
-              "awr:round": next_round, "awr:render_seconds": float(seconds)}
+    header = provenance(scene=name, seed=args.seed, sampler=args.sampler, strategy=strategy, round=next_round,
+                        render_seconds=float(seconds), renderer=args.renderer)
     write_sample_buffer(args.output, buffer, header=header, issued=issued, overwrite=args.overwrite)
-    image = reconstruct(buffer, **reconstruction_kwargs(args))
-    provenance = {"awr:version": __version__, "awr:c_s": float(args.c_s), "awr:wavelet": args.wavelet,
-                  "awr:levels": -1 if args.levels is None else args.levels, "awr:domain": args.domain,
-                  "awr:mode": args.mode, "awr:input": Path(args.output).name, "awr:scene": name}
-    write_image(image_path, image, channels=buffer.channels, header=provenance, overwrite=args.overwrite)
-    write_preview(preview_path, image, exposure=args.exposure, overwrite=args.overwrite)
+    result = reconstruct_detailed(buffer, variance_probes=0, **reconstruction_kwargs(args))
+    write_image(image_path, result.image, channels=buffer.channels, overwrite=args.overwrite,
+                header=image_provenance(result, buffer, source=args.output, scene=name))
+    write_preview(preview_path, result.image, exposure=args.exposure, overwrite=args.overwrite)
     h, w = buffer.shape
     status(f"{args.output}: {name} {w}x{h}, {buffer.total_samples / (h * w):.3g} spp ({strategy}) in {seconds:.1f} s; "
            f"denoised {image_path}, preview {preview_path}", quiet=args.quiet)

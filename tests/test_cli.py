@@ -414,6 +414,10 @@ def fake_tracer(monkeypatch):
         def __init__(self, scene, seed=0, sampler="independent", progress=False):
             self._renderer = SyntheticRenderer(make_scene("edges", scene.shape), seed=seed)
 
+        @property
+        def shape(self):
+            return self._renderer.shape
+
         def __call__(self, request):
             return self._renderer(request)
 
@@ -421,6 +425,9 @@ def fake_tracer(monkeypatch):
     monkeypatch.setattr(tracer, "load_scene", lambda name, width=None, height=None: Scene(width, height),
                         raising=False)
     monkeypatch.setattr(tracer, "PathTracer", PathTracer, raising=False)
+    monkeypatch.setattr(tracer, "create_renderer",
+                        lambda scene, shape=None, seed=0, **options: PathTracer(scene, seed=seed, **options),
+                        raising=False)
     monkeypatch.setattr(tracer, "load_reference", lambda name: make_scene("edges", (H, W)).reference(), raising=False)
     monkeypatch.setattr(tracer, "DEFAULT_SCENE", "toy", raising=False)
     return tracer

@@ -1,0 +1,76 @@
+"""``--workers``, ``--scheduler`` and ``--executor``: the parallel options of ``awr`` subcommands.
+
+They select an executor of :mod:`awr_denoise.parallel` (docs/distributed.md); subcommands keep
+their plain serial path when none is given.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+from concurrent.futures import Executor
+
+from awr_denoise.parallel import DASK_INSTALL_HINT, EXECUTOR_KINDS, get_executor
+
+__all__ = ["add_executor_arguments", "executor_from_args", "executor_requested"]
+
+
+def add_executor_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, *,
+                           tile_option: bool = False) -> None:
+    """Add ``--workers N``, ``--scheduler ADDRESS`` and ``--executor KIND`` to a parser.
+
+    Read them back with :func:`executor_from_args`; :func:`executor_requested` tells whether
+    any was given.
+
+    Parameters
+    ----------
+    parser
+        An ``argparse`` parser (or argument group) of a subcommand.
+    tile_option
+        Also add ``--tile PIXELS`` (default 128), the tile side of :class:`TiledRenderer`.
+    """
+    group = parser.add_argument_group("parallel execution (see docs/distributed.md)") \
+        if isinstance(parser, argparse.ArgumentParser) else parser
+    group.add_argument("--workers", type=int, metavar="N",
+                       help="parallel workers: threads, processes or local Dask workers (default: the CPUs)")
+    group.add_argument("--scheduler", metavar="ADDRESS",
+                       help="run on a Dask cluster: scheduler address (tcp://host:8786) or scheduler JSON "
+                            f"file; implies --executor dask ({DASK_INSTALL_HINT})")
+    group.add_argument("--executor", choices=EXECUTOR_KINDS,
+                       help="in-process threads (default), local processes, or Dask (a local cluster "
+                            "unless --scheduler is given)")
+    if tile_option:
+        group.add_argument("--tile", type=int, default=128, metavar="PIXELS",
+                           help="tile side when the work is split over workers (default 128)")
+
+
+def executor_requested(args: argparse.Namespace) -> bool:
+    """Whether any of ``--workers``, ``--scheduler`` or ``--executor`` was given.
+
+    Command-line tools can keep their plain serial path when none was.
+    """
+    return any(getattr(args, name, None) is not None for name in ("workers", "scheduler", "executor"))
+
+
+def executor_from_args(args: argparse.Namespace) -> contextlib.AbstractContextManager[Executor]:
+    """The :func:`get_executor` context manager the options of :func:`add_executor_arguments` ask for.
+
+    Parameters
+    ----------
+    args
+        Parsed arguments holding ``workers``, ``scheduler`` and ``executor`` (missing ones
+        count as not given).
+
+    Raises
+    ------
+    ValueError
+        ``--scheduler`` with ``--executor threads`` or ``processes``, or ``--workers`` below 1.
+    """
+    workers = getattr(args, "workers", None)
+    scheduler = getattr(args, "scheduler", None)
+    kind = getattr(args, "executor", None)
+    if scheduler is not None and kind not in (None, "dask"):
+        raise ValueError(f"--scheduler: needs --executor dask, not --executor {kind}")
+    if workers is not None and workers < 1:
+        raise ValueError(f"--workers: must be >= 1, got {workers}")
+    return get_executor(kind, workers=workers, scheduler=scheduler)
