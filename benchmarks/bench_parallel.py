@@ -42,7 +42,7 @@ import numpy as np
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, reconstruct
 from awr_denoise.parallel import (
     RendererSpec,
-    _denoise_frame,
+    denoise_frame,
     denoise_frames,
     get_executor,
     halo_width,
@@ -100,7 +100,7 @@ class Workloads:
         if name == "frames":
             if executor is None:
                 for source, target in zip(self.inputs, self.outputs):
-                    _denoise_frame(str(source), str(target), True, False, {}, {})
+                    denoise_frame(source, target, overwrite=True)
             else:
                 denoise_frames(self.inputs, self.outputs, executor=executor, overwrite=True)
         elif name == "render":
