@@ -14,7 +14,8 @@ from .errors import AWRError, InputFileError, StaleRequestError
 from .domains import Domain
 from .reconstruct import Reconstruction, reconstruct, reconstruct_detailed
 from .requests import Renderer, SampleRequest
-from .sampling import AdaptiveSampler, Sampler, UniformSampler, VarianceSampler, allocate
+from .allocation import allocate
+from .sampling import AdaptiveSampler, Sampler, UniformSampler, VarianceSampler
 
 
 __all__ = [

@@ -22,6 +22,8 @@ import numpy as np
 
 from .._typing import FloatArray, Shape2D
 from ..buffers import NONFINITE_POLICIES, SampleBuffer
+from .._version import __version__
+from .dump import exact_counts
 from .exr import ExrPart, checked_plane, file_error, header_value, read_exr, write_exr
 
 __all__ = ["SEMANTICS_SAMPLES", "SAMPLE_INDEX_CHANNEL", "read_deep_samples", "write_deep_samples",
@@ -67,9 +69,6 @@ def write_deep_samples(
     overwrite
         Replace an existing file.
     """
-    from .. import __version__
-    from .dump import exact_counts
-
     h, w = (int(s) for s in shape)
     # Reuse SampleBuffer's validation of coordinates and values.
     check = SampleBuffer.from_samples(pixels, values, (h, w), channels=channels)

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from .._typing import CountArray
+from .._version import __version__
 from ..buffers import VARIANCE_KINDS, SampleBuffer
 from .exr import ExrPart, checked_plane, file_error, header_value, write_exr
 
@@ -130,8 +131,6 @@ def write_sample_buffer(path: str | os.PathLike[str], buffer: SampleBuffer, *,
     >>> read_sample_buffer(f).count.tolist()
     [[2, 1]]
     """
-    from .. import __version__
-
     if not isinstance(buffer, SampleBuffer):
         raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
     reserved = {COUNT_CHANNEL, KNOWN_CHANNEL, ISSUED_CHANNEL}

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from .._typing import FloatArray
+from .._version import __version__
 from ..buffers import default_channel_names
 from ..errors import InputFileError
 from .atomic import atomic_write, check_writable
@@ -60,6 +61,7 @@ def file_error(path: str | os.PathLike[str], what: str, channel: str | None = No
 
 
 def _openexr() -> Any:
+    """OpenEXR, the optional ``exr`` extra, imported on first use with an install hint."""
     try:
         import OpenEXR
     except ImportError as exc:  # pragma: no cover - exercised only without the extra
@@ -424,8 +426,6 @@ def write_image(path: str | os.PathLike[str], image: np.ndarray, *,
     Path
         The written file.
     """
-    from .. import __version__
-
     a, names = _image_channels(image, channels)
     data = a.astype(np.float64)
     bad = ~np.isfinite(data)

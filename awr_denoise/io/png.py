@@ -61,7 +61,7 @@ def encode_png(pixels: np.ndarray) -> bytes:
 
 def _write_png(tmp: str, pixels: np.ndarray) -> None:
     try:
-        import OpenImageIO as oiio
+        import OpenImageIO as oiio  # the optional ``exr`` extra; the built-in encoder below does without
     except ImportError:
         oiio = None
     if oiio is not None:

@@ -32,6 +32,7 @@ import numpy as np
 
 from .._typing import FloatArray
 from ..buffers import VARIANCE_KINDS, SampleBuffer
+from .deep import samples_from_deep_part
 from .dump import COUNT_CHANNEL, VARIANCE_PREFIX, SampleDump, buffer_from_awr_part, whole_counts
 from .exr import ExrPart, checked_plane, file_error, header_value, read_exr
 
@@ -395,8 +396,6 @@ def read_sample_dump(
     p = Path(path)
     parts = read_exr(p)
     if preset in ("auto", "deep") and parts[0].deep:
-        from .deep import samples_from_deep_part
-
         buf = samples_from_deep_part(p, parts[0], nonfinite=nonfinite)
         return SampleDump(buf, buf.count, {})
     if preset == "deep":

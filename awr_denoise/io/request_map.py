@@ -18,6 +18,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from .._version import __version__
 from ..requests import SampleRequest
 from .dump import exact_counts, whole_counts
 from .exr import file_error, header_value, read_exr, write_exr
@@ -55,8 +56,6 @@ def write_request(path: str | os.PathLike[str], request: SampleRequest, *,
     >>> r = read_request(f); (r.total, int(r.first_index[0, 0]), r.round)
     (24, 8, 1)
     """
-    from .. import __version__
-
     if not isinstance(request, SampleRequest):
         raise TypeError(f"request: expected a SampleRequest, got {type(request).__name__}")
     # The last sample index must be exact too, so the renderer can trust first_index + counts.

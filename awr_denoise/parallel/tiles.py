@@ -166,6 +166,9 @@ def reconstruct_tiled(buffer: SampleBuffer, *, tile: int | tuple[int, int] = 512
 
     Notes
     -----
+    The body is one loop on purpose: windows are cut and submitted as earlier tasks finish,
+    which keeps the cutting, the in-flight bookkeeping and the collection in one place.
+
     With the default halo, tile and whole-frame results differ only by floating-point
     rounding; the tests hold them to ``1e-12`` of the image's largest value
     (docs/distributed.md). Windows are cut only as earlier tasks finish (at most twice as

@@ -228,7 +228,7 @@ def write_sky_envmap(path: str | Path | None = None, **parameters: Any) -> Path:
 
 def read_envmap_exr(path: str | Path) -> np.ndarray:
     """(H, W, 3) float64 radiance from an EXR with R, G, B channels."""
-    import OpenEXR
+    import OpenEXR  # the [exr] extra; only an environment map read from a file needs it
 
     with OpenEXR.File(str(path), separate_channels=True) as f:
         channels = f.channels()

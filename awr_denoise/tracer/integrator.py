@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
 from ..buffers import SampleBuffer
 from ..requests import SampleRequest
@@ -241,8 +242,6 @@ class PathTracer:
         else:
             results = map(run, bounds)
         if self.progress:
-            from tqdm import tqdm
-
             results = tqdm(results, total=len(bounds), desc=f"{self.scene.name}", unit="batch")
         for _, _, counts in results:
             for key, value in counts.items():
@@ -284,6 +283,13 @@ class PathTracer:
             return self._li(rows, cols, sample_index)
 
     def _li(self, rows: np.ndarray, cols: np.ndarray, sample_index: np.ndarray) -> tuple[np.ndarray, dict[str, int]]:
+        """Radiance of a wavefront of camera samples, and the rays traced for it.
+
+        One function on purpose: the wavefront's state (throughput, specular depth, the
+        previous bounce's pdf for MIS, the active mask and its index map) changes together at
+        every bounce, and the arrays shrink as paths end; split into helpers it would travel
+        through a dozen parameters and return values per bounce.
+        """
         scene, camera, accel = self.scene, self.scene.camera, self.accelerator
         n = len(rows)
         counts = {"rays": 0, "camera_rays": 0, "bounce_rays": 0, "shadow_rays": 0}

@@ -35,6 +35,7 @@ from .environment import ConstantEnvironment, LatLongEnvironment, parse_environm
 from .lights import AreaLights, DirectionalLight, PointLight, parse_delta_light
 from .materials import Material, parse_material
 from .meshes import CHESS_PROFILES, box_mesh, lathe_mesh, quad_mesh, rotation_matrices, sphere_mesh
+from .scenes import BUNDLED_SCENES
 
 __all__ = ["Scene", "SceneObject", "Motion", "SHAPE_KINDS", "load_scene", "parse_scene", "dimension_names"]
 
@@ -328,8 +329,6 @@ def load_scene(scene: str | Path | dict[str, Any] | Scene, *, width: int | None 
     width, height
         Override the scene's resolution.
     """
-    from .scenes import BUNDLED_SCENES
-
     if isinstance(scene, Scene):
         if width is None and height is None:
             return scene
