@@ -9,7 +9,7 @@ wavelet coefficients by their propagated standard error (Eq. 10-11).
 from __future__ import annotations
 
 from .buffers import SampleBuffer, luminance_weights
-from .errors import AWRError, InputFileError, StaleRequestError
+from .errors import AWRError, InputFileError, InputFileWarning, StaleRequestError
 from .domains import Domain
 from .reconstruct import Reconstruction, reconstruct, reconstruct_detailed
 from .requests import Renderer, SampleRequest
@@ -29,6 +29,7 @@ __all__ = [
     "reconstruct",
     "reconstruct_detailed",
     "InputFileError",
+    "InputFileWarning",
     "Renderer",
     "SampleBuffer",
     "SampleRequest",

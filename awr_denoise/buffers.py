@@ -39,6 +39,11 @@ _REC709 = np.array([0.2126, 0.7152, 0.0722])
 # Window (pixels) over which an unknown per-sample variance is pooled from neighbours.
 _POOL_WINDOW = 5
 
+# A pooled variance is borrowed as it is only while the pool's mean level is at most this many
+# times the pixel's own mean; beyond, its standard deviation is scaled down with the ratio (a
+# renderer's "unknown" next to a light must not import the light's variance).
+_JUMP_RATIO = 4.0
+
 
 def default_channel_names(n_channels: int) -> tuple[str, ...]:
     """Conventional channel names for ``n_channels`` channels (``R,G,B`` for three)."""
@@ -349,6 +354,67 @@ class SampleBuffer:
         return cls(count.reshape(h, w), mean.reshape(h, w, n_ch), variance.reshape(h, w, n_ch),
                    _resolve_channels(channels, n_ch), np.ones((h, w), bool), n_bad if nonfinite != "raise" else 0)
 
+    @classmethod
+    def from_independent_means(
+        cls,
+        counts: CountArray,
+        means: FloatArray,
+        *,
+        channels: Sequence[str] | int | None = None,
+    ) -> SampleBuffer:
+        """Merge N independent renders of the same image, each known only by its means and counts.
+
+        For renderers that write no variance (Blender Cycles): render the frame N times with
+        different seeds and merge. The merged pixel has ``n = sum_k n_k`` samples and mean
+        ``sum_k n_k m_k / n``; the per-sample variance is estimated from the spread of the N
+        means, ``s2 = sum_k n_k (m_k - mean)^2 / (N - 1)``, unbiased when each render's mean
+        has variance ``s2 / n_k`` (independent renders; ``s2`` is then the *effective*
+        per-sample variance, which already includes any stratification gain of the renderer's
+        sampler). ``s2 / n`` is the variance of the merged mean, the quantity thresholds use.
+
+        Parameters
+        ----------
+        counts
+            (N, H, W) whole sample counts of each render (``spp`` broadcast, or a count pass).
+        means
+            (N, H, W, C) or (N, H, W) pixel means of each render.
+        channels
+            Channel names.
+
+        Returns
+        -------
+        SampleBuffer
+            Variance known where at least two renders have samples.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from awr_denoise import SampleBuffer
+        >>> means = np.array([1.0, 2.0, 3.0]).reshape(3, 1, 1)        # three renders of one pixel
+        >>> buf = SampleBuffer.from_independent_means(np.full((3, 1, 1), 4), means)
+        >>> int(buf.count[0, 0]), float(buf.mean[0, 0, 0]), float(buf.variance[0, 0, 0])
+        (12, 2.0, 4.0)
+        """
+        c = np.asarray(counts)
+        m = np.asarray(means)
+        if m.ndim == 3:
+            m = m[..., None]
+        if c.ndim != 3 or m.ndim != 4 or m.shape[:3] != c.shape:
+            raise ValueError(f"counts/means: expected (N, H, W) and (N, H, W, C), got {c.shape}, {np.shape(means)}")
+        if c.shape[0] < 2:
+            raise ValueError(f"means: {c.shape[0]} render(s) given; the spread of means needs at least 2")
+        per_render = np.stack([_check_count(ck) for ck in c]).astype(np.float64)
+        m = np.stack([_as_float64("means", mk, 3) for mk in m])
+        _check_finite("means", m.reshape(-1, *m.shape[2:]))
+        n = per_render.sum(axis=0)
+        w = per_render[..., None]
+        safe = np.maximum(n, 1.0)[..., None]
+        mean = (w * m).sum(axis=0) / safe
+        m2 = (w * (m - mean) ** 2).sum(axis=0)
+        renders = (per_render > 0).sum(axis=0)
+        variance = m2 / np.maximum(renders - 1, 1)[..., None]
+        return cls(n.astype(np.int64), mean, variance, _resolve_channels(channels, m.shape[3]), renders >= 2)
+
     # ------------------------------------------------------------------ properties
     @property
     def shape(self) -> Shape2D:
@@ -384,6 +450,24 @@ class SampleBuffer:
         ``sum(M2) / sum(n - 1)``, and from the whole image where the window has none.
         A single sample never counts as zero variance. With no variance known anywhere the
         result is 0 (nothing is known to be noisy).
+
+        A pixel with two or more samples whose variance the renderer left unknown (pbrt-v4's
+        environment-only pixels) has a mean of its own: the borrowed variance must not cross a
+        large jump in the mean. Where the pool's mean level (``sum((n - 1) |mean|) / sum(n - 1)``)
+        exceeds ``4 x`` the pixel's ``|mean|``, the borrowed standard deviation is scaled by
+        ``4 |mean| / level``: relative noise at most four times the pool's. Pixels with fewer
+        than two samples have no reliable level of their own and borrow as before.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from awr_denoise import SampleBuffer
+        >>> mean = np.full((1, 3, 1), 0.5); mean[0, 0] = 2e5        # a light beside a dim sky
+        >>> var = np.zeros((1, 3, 1)); var[0, 0] = 1e9; var[0, 2] = 0.01
+        >>> known = np.array([[True, False, True]])                 # the middle pixel: unknown
+        >>> buf = SampleBuffer.from_moments(np.full((1, 3), 16), mean, var, variance_known=known)
+        >>> float(buf.estimated_variance()[0, 1, 0]) < 1.0           # not the light's 5e8
+        True
         """
         known = self.variance_known
         if known.all():
@@ -392,15 +476,25 @@ class SampleBuffer:
         m2 = self.variance * dof[..., None]
         if dof.sum() == 0:
             return np.zeros_like(self.variance)
+        level = np.abs(self.mean) * dof[..., None]
         local_dof = ndimage.uniform_filter(dof, _POOL_WINDOW, mode="nearest")
         pooled_global = m2.sum(axis=(0, 1)) / dof.sum()
+        level_global = level.sum(axis=(0, 1)) / dof.sum()
         out = np.array(self.variance)
         missing = ~known
+        # Renderer-unknown pixels with samples enough for a mean of their own (see above).
+        own_level = missing & (self.count >= 2)
         for c in range(self.n_channels):
             local_m2 = ndimage.uniform_filter(m2[..., c], _POOL_WINDOW, mode="nearest")
+            local_level = ndimage.uniform_filter(level[..., c], _POOL_WINDOW, mode="nearest")
             with np.errstate(invalid="ignore", divide="ignore"):
-                local = np.where(local_dof > 1e-12, local_m2 / local_dof, pooled_global[c])
-            out[..., c][missing] = np.maximum(local[missing], 0.0)
+                has_pool = local_dof > 1e-12
+                local = np.where(has_pool, local_m2 / local_dof, pooled_global[c])
+                pool_level = np.where(has_pool, local_level / local_dof, level_global[c])
+                limit = _JUMP_RATIO * np.abs(self.mean[..., c])
+                shrink = np.where(pool_level > limit, (limit / np.where(pool_level > 0, pool_level, 1.0)) ** 2, 1.0)
+            borrowed = np.maximum(local, 0.0) * np.where(own_level, shrink, 1.0)
+            out[..., c][missing] = borrowed[missing]
         return out
 
     def variance_of_mean(self) -> FloatArray:

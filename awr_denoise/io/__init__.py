@@ -11,16 +11,19 @@ from .deep import read_deep_samples, write_deep_samples
 from .dump import SampleDump, write_sample_buffer
 from .exr import read_header, read_image, write_image
 from .png import write_preview
-from .presets import PRESETS, detect_preset, read_sample_buffer, read_sample_dump
+from .describe import describe_file
+from .presets import PRESETS, detect_preset, read_independent_renders, read_sample_buffer, read_sample_dump
 from .request_map import read_request, request_attributes, write_request
 
 __all__ = [
     "PRESETS",
     "SampleDump",
+    "describe_file",
     "detect_preset",
     "read_deep_samples",
     "read_header",
     "read_image",
+    "read_independent_renders",
     "read_request",
     "read_sample_buffer",
     "read_sample_dump",
