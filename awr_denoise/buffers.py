@@ -452,11 +452,11 @@ class SampleBuffer:
         result is 0 (nothing is known to be noisy).
 
         A pixel with two or more samples whose variance the renderer left unknown (pbrt-v4's
-        environment-only pixels) has a mean of its own: the borrowed variance must not cross a
-        large jump in the mean. Where the pool's mean level (``sum((n - 1) |mean|) / sum(n - 1)``)
-        exceeds ``4 x`` the pixel's ``|mean|``, the borrowed standard deviation is scaled by
-        ``4 |mean| / level``: relative noise at most four times the pool's. Pixels with fewer
-        than two samples have no reliable level of their own and borrow as before.
+        environment-only pixels) has a mean of its own, and the borrowed variance must not cross
+        a large jump in the mean: such a pixel pools only the neighbours whose ``|mean|`` is at
+        most 4x its own (per channel); with none, it takes the image's pooled relative variance
+        ``sum(M2) / sum((n - 1) mean^2)`` times its own ``mean^2``. Pixels with fewer than two
+        samples have no reliable level of their own and pool from all known neighbours.
 
         Examples
         --------
@@ -476,26 +476,45 @@ class SampleBuffer:
         m2 = self.variance * dof[..., None]
         if dof.sum() == 0:
             return np.zeros_like(self.variance)
-        level = np.abs(self.mean) * dof[..., None]
         local_dof = ndimage.uniform_filter(dof, _POOL_WINDOW, mode="nearest")
         pooled_global = m2.sum(axis=(0, 1)) / dof.sum()
-        level_global = level.sum(axis=(0, 1)) / dof.sum()
         out = np.array(self.variance)
         missing = ~known
-        # Renderer-unknown pixels with samples enough for a mean of their own (see above).
-        own_level = missing & (self.count >= 2)
         for c in range(self.n_channels):
             local_m2 = ndimage.uniform_filter(m2[..., c], _POOL_WINDOW, mode="nearest")
-            local_level = ndimage.uniform_filter(level[..., c], _POOL_WINDOW, mode="nearest")
             with np.errstate(invalid="ignore", divide="ignore"):
-                has_pool = local_dof > 1e-12
-                local = np.where(has_pool, local_m2 / local_dof, pooled_global[c])
-                pool_level = np.where(has_pool, local_level / local_dof, level_global[c])
-                limit = _JUMP_RATIO * np.abs(self.mean[..., c])
-                shrink = np.where(pool_level > limit, (limit / np.where(pool_level > 0, pool_level, 1.0)) ** 2, 1.0)
-            borrowed = np.maximum(local, 0.0) * np.where(own_level, shrink, 1.0)
-            out[..., c][missing] = borrowed[missing]
+                local = np.where(local_dof > 1e-12, local_m2 / local_dof, pooled_global[c])
+            out[..., c][missing] = np.maximum(local[missing], 0.0)
+        # Renderer-unknown pixels with samples enough for a mean of their own: pool only the
+        # neighbours whose mean is at most _JUMP_RATIO times theirs (no light's variance in a sky).
+        own = missing & (self.count >= 2)
+        if own.any():
+            out[own] = self._pool_below_jump(m2, dof, own)[own]
         return out
+
+    def _pool_below_jump(self, m2: FloatArray, dof: FloatArray, where: BoolArray) -> FloatArray:
+        """Pooled variance from the 5x5 neighbours whose |mean| <= _JUMP_RATIO x the pixel's;
+        without such neighbours, the image's pooled relative variance times the pixel's mean^2."""
+        h, w = self.shape
+        r = _POOL_WINDOW // 2
+        level = np.abs(self.mean)
+        limit = _JUMP_RATIO * level
+        pad = ((r, r), (r, r), (0, 0))
+        m2p = np.pad(m2, pad)
+        dofp = np.pad(np.broadcast_to(dof[..., None], m2.shape), pad)
+        levelp = np.pad(level, pad, constant_values=np.inf)
+        sum_m2 = np.zeros_like(m2)
+        sum_dof = np.zeros_like(m2)
+        for dy in range(_POOL_WINDOW):  # a loop over the 25 window offsets; pixels are vectorised
+            for dx in range(_POOL_WINDOW):
+                ok = levelp[dy:dy + h, dx:dx + w] <= limit
+                sum_m2 += np.where(ok, m2p[dy:dy + h, dx:dx + w], 0.0)
+                sum_dof += np.where(ok, dofp[dy:dy + h, dx:dx + w], 0.0)
+        weight = dof[..., None] * self.mean**2
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rel = m2.sum(axis=(0, 1)) / np.maximum(weight.sum(axis=(0, 1)), 1e-300)
+            pooled = np.where(sum_dof > 1e-12, sum_m2 / sum_dof, rel * self.mean**2)
+        return np.maximum(np.nan_to_num(pooled, nan=0.0, posinf=0.0), 0.0)
 
     def variance_of_mean(self) -> FloatArray:
         """(H, W, C) variance of each pixel mean, ``s2 / n`` (paper section 3: ``v_p``).

@@ -21,6 +21,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     p.add_argument("--request", metavar="REQUEST.exr",
                    help="the request the last batch answers: checks its counts and records issued samples")
+    p.add_argument("--independent", action="store_true",
+                   help="the inputs are whole renders of the same frame with different seeds and no variance "
+                        "(Blender Cycles): merge them with the variance estimated from the spread of their means")
     p.add_argument("-q", "--quiet", action="store_true")
     add_plane_options(p)
     p.set_defaults(run=run)
@@ -34,6 +37,17 @@ def run(args: argparse.Namespace) -> int:
     from awr_denoise.io import read_request, read_sample_dump, request_attributes, write_sample_buffer
 
     refuse_same_file(args.output, [*args.inputs, args.request])
+    if args.independent:
+        from awr_denoise.io import read_independent_renders
+
+        kwargs = plane_kwargs(args)
+        dump = read_independent_renders(args.inputs, **{k: kwargs[k] for k in ("preset", "color", "count", "spp",
+                                                                                 "layer", "view")})
+        write_sample_buffer(args.output, dump.buffer, overwrite=args.overwrite)
+        h, w = dump.buffer.shape
+        status(f"{args.output}: {len(args.inputs)} independent renders, {dump.buffer.total_samples} samples "
+               f"({dump.buffer.total_samples / (h * w):.4g} spp)", quiet=args.quiet)
+        return EXIT_OK
     dumps = [read_sample_dump(path, **plane_kwargs(args)) for path in args.inputs]
     merged = dumps[0].buffer
     issued = np.array(dumps[0].issued)

@@ -19,7 +19,6 @@ from awr_denoise import SampleBuffer, SampleRequest  # noqa: E402
 from awr_denoise.cli.common import expand_frames, parse_frames  # noqa: E402
 from awr_denoise.cli.main import main  # noqa: E402
 from awr_denoise.io import (  # noqa: E402
-from awr_denoise.io.colour import MITSUBA_XYZ_TO_SRGB  # noqa: E402
     read_header,
     read_image,
     read_request,
@@ -27,6 +26,7 @@ from awr_denoise.io.colour import MITSUBA_XYZ_TO_SRGB  # noqa: E402
     write_image,
     write_sample_buffer,
 )
+from awr_denoise.io.colour import MITSUBA_XYZ_TO_SRGB  # noqa: E402
 
 DATA = Path(__file__).parent / "data"
 H, W = 24, 32

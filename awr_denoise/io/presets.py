@@ -494,6 +494,8 @@ _READERS = {"pbrt": _pbrt, "cycles": _cycles, "renderman": _renderman, "mitsuba"
 def _assemble(path: Path, layout: _Layout) -> SampleBuffer:
     colour, spread, kind = layout.colour, layout.spread, layout.kind
     assert spread is not None and layout.count is not None
+    if len(spread.channels) == len(colour.channels) + 1 and spread.channels[-1].rsplit(".", 1)[-1] in _ALPHA:
+        spread = _Plane(spread.path, spread.channels[:-1], spread.arrays[:-1])  # an RGBA plane: no alpha
     if len(spread.channels) != len(colour.channels):
         raise file_error(spread.path, f"{len(spread.channels)} channel(s) but the colour plane "
                                       f"{colour.label} has {len(colour.channels)}", spread.label)
