@@ -9,8 +9,9 @@ wavelet coefficients by their propagated standard error (Eq. 10-11).
 from __future__ import annotations
 
 from ._version import __version__
-from .buffers import SampleBuffer, luminance_weights
-from .errors import AWRError, InputFileError, StaleRequestError
+from .buffers import SampleBuffer
+from .channels import luminance_weights
+from .errors import AWRError, InputFileError, InputFileWarning, StaleRequestError
 from .domains import Domain
 from .reconstruct import Reconstruction, reconstruct, reconstruct_detailed
 from .requests import Renderer, SampleRequest
@@ -30,6 +31,7 @@ __all__ = [
     "reconstruct",
     "reconstruct_detailed",
     "InputFileError",
+    "InputFileWarning",
     "Renderer",
     "SampleBuffer",
     "SampleRequest",

@@ -16,55 +16,19 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage
 
 from ._typing import BoolArray, CountArray, FloatArray, Shape2D
+from .channels import default_channel_names, luminance_weights, resolve_channels
+from .pooling import pooled_variance
 
-__all__ = [
-    "SampleBuffer",
-    "VARIANCE_KINDS",
-    "NONFINITE_POLICIES",
-    "default_channel_names",
-    "luminance_weights",
-]
+# default_channel_names and luminance_weights live in channels.py and are importable from here too.
+__all__ = ["SampleBuffer", "VARIANCE_KINDS", "NONFINITE_POLICIES"]
 
 VARIANCE_KINDS = ("sample", "mean", "second_moment")
 """How a renderer may report spread: per-sample variance, variance of the mean, raw E[x^2]."""
 
 NONFINITE_POLICIES = ("raise", "drop", "zero")
 """What to do with NaN/Inf samples: refuse them, leave them out, or count them as 0."""
-
-_REC709 = np.array([0.2126, 0.7152, 0.0722])
-
-# Window (pixels) over which an unknown per-sample variance is pooled from neighbours.
-_POOL_WINDOW = 5
-
-
-def default_channel_names(n_channels: int) -> tuple[str, ...]:
-    """Conventional channel names for ``n_channels`` channels (``R,G,B`` for three)."""
-    if n_channels == 1:
-        return ("Y",)
-    if n_channels == 3:
-        return ("R", "G", "B")
-    if n_channels == 4:
-        return ("R", "G", "B", "A")
-    return tuple(f"ch{i}" for i in range(n_channels))
-
-
-def luminance_weights(channels: Sequence[str]) -> FloatArray:
-    """Weights that turn the channels into luminance.
-
-    Rec. 709 weights when the channels are ``R, G, B`` (an ``A`` channel gets weight 0), the
-    single channel itself when there is one, and the plain average otherwise.
-    """
-    names = [c.rsplit(".", 1)[-1].upper() for c in channels]
-    weights = np.zeros(len(names))
-    if {"R", "G", "B"} <= set(names):
-        for name, w in zip("RGB", _REC709):
-            weights[names.index(name)] = w
-        return weights
-    return np.full(len(names), 1.0 / len(names))
-
 
 def _as_float64(name: str, array: object, ndim: int) -> FloatArray:
     a = np.asarray(array)
@@ -100,21 +64,6 @@ def _check_count(count: object) -> CountArray:
     if (c < 0).any():
         raise ValueError(f"count: {int((c < 0).sum())} pixel(s) are negative")
     return c
-
-
-def _resolve_channels(channels: Sequence[str] | int | None, n_channels: int) -> tuple[str, ...]:
-    if channels is None:
-        return default_channel_names(n_channels)
-    if isinstance(channels, int):
-        if channels != n_channels:
-            raise ValueError(f"channels: {channels} given but the data has {n_channels}")
-        return default_channel_names(n_channels)
-    names = tuple(str(c) for c in channels)
-    if len(names) != n_channels:
-        raise ValueError(f"channels: {len(names)} names given for {n_channels} channel(s)")
-    if len(set(names)) != len(names):
-        raise ValueError(f"channels: duplicate names in {names}")
-    return names
 
 
 @dataclass(frozen=True, eq=False)
@@ -176,7 +125,7 @@ class SampleBuffer:
         known = known.astype(bool) & (count >= 2)
         mean[count == 0] = 0.0
         variance[~known] = 0.0
-        channels = _resolve_channels(self.channels, mean.shape[2])
+        channels = resolve_channels(self.channels, mean.shape[2])
         for a in (count, mean, variance, known):
             a.flags.writeable = False
         object.__setattr__(self, "count", count)
@@ -193,7 +142,7 @@ class SampleBuffer:
         n_channels = channels if isinstance(channels, int) else len(channels)
         h, w = (int(s) for s in shape)
         zeros = np.zeros((h, w, n_channels))
-        return cls(np.zeros((h, w), np.int64), zeros, zeros, _resolve_channels(channels, n_channels),
+        return cls(np.zeros((h, w), np.int64), zeros, zeros, resolve_channels(channels, n_channels),
                    np.zeros((h, w), bool))
 
     @classmethod
@@ -249,7 +198,7 @@ class SampleBuffer:
                 spread = np.maximum(var_arr - mean_arr**2, 0.0)
                 var_arr = np.where(n > 1, spread * n / np.maximum(n - 1, 1), 0.0)
         known = np.ones(count_arr.shape, bool) if variance_known is None else np.asarray(variance_known, bool)
-        return cls(count_arr, mean_arr, var_arr, _resolve_channels(channels, mean_arr.shape[2]), known)
+        return cls(count_arr, mean_arr, var_arr, resolve_channels(channels, mean_arr.shape[2]), known)
 
     @classmethod
     def from_sums(
@@ -284,7 +233,7 @@ class SampleBuffer:
         mean = np.where(n > 0, s1 / safe_n, 0.0)
         m2 = np.maximum(s2 - s1 * mean, 0.0)
         variance = np.where(n > 1, m2 / np.maximum(n - 1, 1.0), 0.0)
-        return cls(count_arr, mean, variance, _resolve_channels(channels, s1.shape[2]),
+        return cls(count_arr, mean, variance, resolve_channels(channels, s1.shape[2]),
                    np.ones(count_arr.shape, bool))
 
     @classmethod
@@ -347,7 +296,68 @@ class SampleBuffer:
             m2[:, c] = np.bincount(flat, weights=dev * dev, minlength=n_pix)
         variance = m2 / np.maximum(count - 1, 1)[:, None]
         return cls(count.reshape(h, w), mean.reshape(h, w, n_ch), variance.reshape(h, w, n_ch),
-                   _resolve_channels(channels, n_ch), np.ones((h, w), bool), n_bad if nonfinite != "raise" else 0)
+                   resolve_channels(channels, n_ch), np.ones((h, w), bool), n_bad if nonfinite != "raise" else 0)
+
+    @classmethod
+    def from_independent_means(
+        cls,
+        counts: CountArray,
+        means: FloatArray,
+        *,
+        channels: Sequence[str] | int | None = None,
+    ) -> SampleBuffer:
+        """Merge N independent renders of the same image, each known only by its means and counts.
+
+        For renderers that write no variance (Blender Cycles): render the frame N times with
+        different seeds and merge. The merged pixel has ``n = sum_k n_k`` samples and mean
+        ``sum_k n_k m_k / n``; the per-sample variance is estimated from the spread of the N
+        means, ``s2 = sum_k n_k (m_k - mean)^2 / (N - 1)``, unbiased when each render's mean
+        has variance ``s2 / n_k`` (independent renders; ``s2`` is then the *effective*
+        per-sample variance, which already includes any stratification gain of the renderer's
+        sampler). ``s2 / n`` is the variance of the merged mean, the quantity thresholds use.
+
+        Parameters
+        ----------
+        counts
+            (N, H, W) whole sample counts of each render (``spp`` broadcast, or a count pass).
+        means
+            (N, H, W, C) or (N, H, W) pixel means of each render.
+        channels
+            Channel names.
+
+        Returns
+        -------
+        SampleBuffer
+            Variance known where at least two renders have samples.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from awr_denoise import SampleBuffer
+        >>> means = np.array([1.0, 2.0, 3.0]).reshape(3, 1, 1)        # three renders of one pixel
+        >>> buf = SampleBuffer.from_independent_means(np.full((3, 1, 1), 4), means)
+        >>> int(buf.count[0, 0]), float(buf.mean[0, 0, 0]), float(buf.variance[0, 0, 0])
+        (12, 2.0, 4.0)
+        """
+        c = np.asarray(counts)
+        m = np.asarray(means)
+        if m.ndim == 3:
+            m = m[..., None]
+        if c.ndim != 3 or m.ndim != 4 or m.shape[:3] != c.shape:
+            raise ValueError(f"counts/means: expected (N, H, W) and (N, H, W, C), got {c.shape}, {np.shape(means)}")
+        if c.shape[0] < 2:
+            raise ValueError(f"means: {c.shape[0]} render(s) given; the spread of means needs at least 2")
+        per_render = np.stack([_check_count(ck) for ck in c]).astype(np.float64)
+        m = np.stack([_as_float64("means", mk, 3) for mk in m])
+        _check_finite("means", m.reshape(-1, *m.shape[2:]))
+        n = per_render.sum(axis=0)
+        w = per_render[..., None]
+        safe = np.maximum(n, 1.0)[..., None]
+        mean = (w * m).sum(axis=0) / safe
+        m2 = (w * (m - mean) ** 2).sum(axis=0)
+        renders = (per_render > 0).sum(axis=0)
+        variance = m2 / np.maximum(renders - 1, 1)[..., None]
+        return cls(n.astype(np.int64), mean, variance, resolve_channels(channels, m.shape[3]), renders >= 2)
 
     # ------------------------------------------------------------------ properties
     @property
@@ -384,24 +394,26 @@ class SampleBuffer:
         ``sum(M2) / sum(n - 1)``, and from the whole image where the window has none.
         A single sample never counts as zero variance. With no variance known anywhere the
         result is 0 (nothing is known to be noisy).
+
+        A pixel with two or more samples whose variance the renderer left unknown (pbrt-v4's
+        environment-only pixels) has a mean of its own, and the borrowed variance must not cross
+        a large jump in the mean: such a pixel pools only the neighbours whose ``|mean|`` is at
+        most 4x its own (per channel); with none, it takes the image's pooled relative variance
+        ``sum(M2) / sum((n - 1) mean^2)`` times its own ``mean^2``. Pixels with fewer than two
+        samples have no reliable level of their own and pool from all known neighbours.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from awr_denoise import SampleBuffer
+        >>> mean = np.full((1, 3, 1), 0.5); mean[0, 0] = 2e5        # a light beside a dim sky
+        >>> var = np.zeros((1, 3, 1)); var[0, 0] = 1e9; var[0, 2] = 0.01
+        >>> known = np.array([[True, False, True]])                 # the middle pixel: unknown
+        >>> buf = SampleBuffer.from_moments(np.full((1, 3), 16), mean, var, variance_known=known)
+        >>> float(buf.estimated_variance()[0, 1, 0]) < 1.0           # not the light's 5e8
+        True
         """
-        known = self.variance_known
-        if known.all():
-            return np.array(self.variance)
-        dof = np.where(known, self.count - 1, 0).astype(np.float64)
-        m2 = self.variance * dof[..., None]
-        if dof.sum() == 0:
-            return np.zeros_like(self.variance)
-        local_dof = ndimage.uniform_filter(dof, _POOL_WINDOW, mode="nearest")
-        pooled_global = m2.sum(axis=(0, 1)) / dof.sum()
-        out = np.array(self.variance)
-        missing = ~known
-        for c in range(self.n_channels):
-            local_m2 = ndimage.uniform_filter(m2[..., c], _POOL_WINDOW, mode="nearest")
-            with np.errstate(invalid="ignore", divide="ignore"):
-                local = np.where(local_dof > 1e-12, local_m2 / local_dof, pooled_global[c])
-            out[..., c][missing] = np.maximum(local[missing], 0.0)
-        return out
+        return pooled_variance(self.count, self.mean, self.variance, self.variance_known)
 
     def variance_of_mean(self) -> FloatArray:
         """(H, W, C) variance of each pixel mean, ``s2 / n`` (paper section 3: ``v_p``).

@@ -7,7 +7,7 @@ also a ``ValueError`` so generic callers can catch either.
 
 from __future__ import annotations
 
-__all__ = ["AWRError", "StaleRequestError", "InputFileError"]
+__all__ = ["AWRError", "StaleRequestError", "InputFileError", "InputFileWarning"]
 
 
 class AWRError(Exception):
@@ -22,4 +22,13 @@ class InputFileError(AWRError, ValueError):
     """An input file is missing, unreadable or does not hold what it should.
 
     The message always names the file (and the channel, where one is at fault).
+    """
+
+
+class InputFileWarning(UserWarning):
+    """An input file was read, but what it holds may not give the result the user expects
+    (an assumed sample count, a film filter that correlates pixels, an already denoised pass).
+
+    The message names the file and fits on one line; the command line prints it as
+    ``awr: warning: <message>``.
     """

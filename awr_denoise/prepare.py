@@ -23,7 +23,8 @@ import numpy as np
 from scipy import ndimage
 
 from ._typing import FloatArray
-from .buffers import SampleBuffer, luminance_weights
+from .buffers import SampleBuffer
+from .channels import luminance_weights
 from .domains import Domain, _BoundDomain, resolve_domain
 
 __all__ = ["Prepared", "filled_mean", "prepare"]

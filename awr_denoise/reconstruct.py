@@ -19,7 +19,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ._typing import FloatArray
-from .buffers import SampleBuffer, luminance_weights
+from .buffers import SampleBuffer
+from .channels import luminance_weights
 from .domains import Domain
 from .prepare import prepare
 from .wavelets import DEFAULT_WAVELET, coefficient_variance, forward, inverse, wavelet_operators

@@ -6,11 +6,13 @@ Kept free of numerical work: every subcommand is argument parsing around library
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
 import re
 import sys
+import warnings
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -19,6 +21,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from awr_denoise.buffers import NONFINITE_POLICIES, VARIANCE_KINDS
+from awr_denoise.errors import InputFileWarning
 from awr_denoise.io import PRESETS
 
 __all__ = [
@@ -37,6 +40,7 @@ __all__ = [
     "progress",
     "print_json",
     "status",
+    "one_line_warnings",
 ]
 
 EXIT_OK = 0
@@ -70,6 +74,8 @@ def add_plane_options(parser: argparse.ArgumentParser) -> None:
                    help="what --variance holds: per-sample variance, variance of the mean, or E[x^2]")
     g.add_argument("--spp", type=int, metavar="N", help="samples per pixel when the file has no count")
     g.add_argument("--layer", metavar="NAME", help="Cycles view layer when the file has several")
+    g.add_argument("--view", metavar="NAME", help="view of a stereo/multiview file, e.g. 'left' (required when "
+                                                  "the file has several)")
     g.add_argument("--nonfinite", default=NONFINITE_POLICIES[0], choices=NONFINITE_POLICIES,
                    help="NaN/Inf samples of a deep per-sample dump: refuse them (default), leave them "
                         "out, or count them as 0; dropped or zeroed samples are reported")
@@ -79,7 +85,7 @@ def plane_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     """Keyword arguments of :func:`awr_denoise.io.read_sample_buffer` from the plane options."""
     return {"preset": args.preset, "color": args.color, "variance": args.variance, "count": args.count,
             "variance_kind": args.variance_kind, "spp": args.spp, "layer": args.layer,
-            "nonfinite": args.nonfinite}
+            "view": args.view, "nonfinite": args.nonfinite}
 
 
 _RANGE = re.compile(r"^(-?\d+)(?:-(-?\d+)(?:[x:](\d+))?)?$")
@@ -180,3 +186,17 @@ def status(message: str, *, quiet: bool) -> None:
     """A progress note on stderr (stdout is kept for results), printed above any progress bar."""
     if not quiet:
         tqdm.write(message, file=sys.stderr)
+
+
+@contextlib.contextmanager
+def one_line_warnings() -> Iterator[None]:
+    """Within the block, the library's input warnings print as ``awr: warning: <message>``, one
+    line each on stderr (never as exceptions or two-line Python warnings), whatever the caller's
+    warning filters."""
+    def show(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001 - warnings' signature
+        print(f"awr: warning: {' '.join(str(message).split())}", file=sys.stderr)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", InputFileWarning)
+        warnings.showwarning = show
+        yield

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from awr_denoise import __version__
 from awr_denoise.errors import InputFileError
 
-from .common import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, RuntimeFailure, UsageError
+from .common import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, RuntimeFailure, UsageError, one_line_warnings
 
 __all__ = ["main", "build_parser"]
 
@@ -58,7 +58,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         parser = build_parser()
         args = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
-        return int(args.run(args) or EXIT_OK)
+        with one_line_warnings():
+            return int(args.run(args) or EXIT_OK)
     except SystemExit as exc:  # --help and --version
         return int(exc.code or 0) if isinstance(exc.code, int) else EXIT_OK
     except KeyboardInterrupt:

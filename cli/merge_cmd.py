@@ -9,7 +9,14 @@ import numpy as np
 
 from awr_denoise import Sampler, SampleBuffer
 from awr_denoise.errors import InputFileError, StaleRequestError
-from awr_denoise.io import provenance, read_request, read_sample_dump, request_attributes, write_sample_buffer
+from awr_denoise.io import (
+    provenance,
+    read_independent_renders,
+    read_request,
+    read_sample_dump,
+    request_attributes,
+    write_sample_buffer,
+)
 
 from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, refuse_same_file, status
 
@@ -30,6 +37,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     p.add_argument("--request", metavar="REQUEST.exr",
                    help="the request the last batch answers: checks its counts and records issued samples")
+    p.add_argument("--independent", action="store_true",
+                   help="the inputs are whole renders of the same frame with different seeds and no variance "
+                        "(Blender Cycles): merge them with the variance estimated from the spread of their means")
     p.add_argument("-q", "--quiet", action="store_true")
     add_plane_options(p)
     p.set_defaults(run=run)
@@ -75,6 +85,15 @@ def _tell(merged: SampleBuffer, issued: np.ndarray, request_path: str, batch: Sa
 def run(args: argparse.Namespace) -> int:
     """Run ``awr merge``; returns the exit status (errors are raised and reported by ``main``)."""
     refuse_same_file(args.output, [*args.inputs, args.request])
+    if args.independent:
+        kwargs = plane_kwargs(args)
+        dump = read_independent_renders(args.inputs, **{k: kwargs[k] for k in ("preset", "color", "count", "spp",
+                                                                                 "layer", "view")})
+        write_sample_buffer(args.output, dump.buffer, overwrite=args.overwrite)
+        h, w = dump.buffer.shape
+        status(f"{args.output}: {len(args.inputs)} independent renders, {dump.buffer.total_samples} samples "
+               f"({dump.buffer.total_samples / (h * w):.4g} spp)", quiet=args.quiet)
+        return EXIT_OK
     if len(args.inputs) == 1 and not args.request:
         raise UsageError("merge: give the running dump and at least one batch (or --request for a first batch)")
     dumps = [read_sample_dump(path, **plane_kwargs(args)) for path in args.inputs]

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from awr_denoise.buffers import SampleBuffer, default_channel_names, luminance_weights
+from awr_denoise.buffers import SampleBuffer
+from awr_denoise.channels import default_channel_names, luminance_weights
 
 # Two-pass float64 statistics against numpy's own: only rounding differs.
 STATS_RTOL = {np.float64: 1e-12, np.float32: 1e-12}

@@ -26,6 +26,7 @@ from awr_denoise.io import (  # noqa: E402
     write_image,
     write_sample_buffer,
 )
+from awr_denoise.io.colour import MITSUBA_XYZ_TO_SRGB  # noqa: E402
 
 DATA = Path(__file__).parent / "data"
 H, W = 24, 32
@@ -142,8 +143,12 @@ def test_size_mismatch_between_files(tmp_path, capsys):
 def test_cycles_without_variance_is_explained(tmp_path, capsys):
     planes = {f"ViewLayer.Combined.{c}": np.ones((H, W), np.float32) for c in "RGBA"}
     src = _write(tmp_path / "c.exr", planes, {"cycles.ViewLayer.samples": "16"})
-    assert main(["info", str(src), "--preset", "cycles"]) == 2
+    assert main(["denoise", str(src), "-o", str(tmp_path / "o.exr"), "--preset", "cycles"]) == 2
     _one_error_line(capsys, "c.exr", "ViewLayer.Combined", "no variance pass")
+    # info describes the file and says what is missing
+    assert main(["info", str(src), "--preset", "cycles", "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["preset"] == "cycles" and any("awr merge --independent" in m for m in info["missing"])
 
 
 def test_missing_input_and_usage_errors(tmp_path, capsys):
@@ -496,7 +501,9 @@ def test_presets_detected_and_denoised(tmp_path, capsys, preset):
     info = json.loads(capsys.readouterr().out)
     assert info["preset"] == preset and info["spp"]["mean"] == spp
     assert main(["denoise", str(src), "-o", str(tmp_path / "o.exr"), "-q", *extra]) == 0
-    np.testing.assert_allclose(read_image(tmp_path / "o.exr"), 0.5, rtol=1e-4)
+    # Mitsuba's moments are CIE XYZ: a flat XYZ of 0.5 is the sRGB colour 0.5 x M's row sums.
+    expected = 0.5 * MITSUBA_XYZ_TO_SRGB.sum(axis=1) if preset == "mitsuba" else 0.5
+    np.testing.assert_allclose(read_image(tmp_path / "o.exr"), np.broadcast_to(expected, (H, W, 3)), rtol=1e-4)
 
 
 def test_info_on_plain_image_and_request(tmp_path, capsys):

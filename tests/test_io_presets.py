@@ -9,7 +9,9 @@ pytestmark = pytest.mark.exr
 OpenEXR = pytest.importorskip("OpenEXR")
 
 from awr_denoise.errors import InputFileError  # noqa: E402
+from awr_denoise.errors import InputFileWarning  # noqa: E402
 from awr_denoise.io import detect_preset, read_sample_buffer  # noqa: E402
+from awr_denoise.io.colour import MITSUBA_XYZ_TO_SRGB, PBRT_XYZ_TO_SRGB  # noqa: E402
 
 H, W = 4, 5
 
@@ -36,7 +38,9 @@ def test_pbrt_gbuffer(tmp_path):
     assert buf.channels == ("R", "G", "B")
     assert (buf.count == 16).all()
     np.testing.assert_allclose(buf.mean[..., 2], _ramp(2, np.float16), rtol=0)
-    np.testing.assert_allclose(buf.variance[1:, :, 1], var["Variance.G"][1:].astype(np.float64))
+    # Variance is pbrt's sensor XYZ: converted to sRGB with channels taken as fully correlated.
+    sd = np.sqrt(np.stack([var[f"Variance.{c}"].astype(np.float64) for c in "RGB"], -1))
+    np.testing.assert_allclose(buf.variance[1:], ((sd @ PBRT_XYZ_TO_SRGB.T) ** 2)[1:])
     assert not buf.variance_known[0, 0] and buf.variance_known[1:].all()
     # --spp overrides the header; without either the count is missing.
     assert (read_sample_buffer(f, spp=4).count == 4).all()
@@ -57,7 +61,8 @@ def test_cycles_multilayer_normalised_counts(tmp_path, layer):
     assert detect_preset(list(planes), {}) == "cycles"
     with pytest.raises(InputFileError, match=r"cycles\.exr: .*Combined: Blender Cycles writes no variance pass"):
         read_sample_buffer(f)
-    buf = read_sample_buffer(f, variance=f"{layer}.Variance AOV")
+    with pytest.warns(InputFileWarning, match="Combined is already denoised"):
+        buf = read_sample_buffer(f, variance=f"{layer}.Variance AOV")
     np.testing.assert_array_equal(buf.count, count)
     assert buf.channels == ("R", "G", "B")  # alpha is not a colour channel
     np.testing.assert_array_equal(buf.mean[..., 1], _ramp(1))
@@ -69,7 +74,8 @@ def test_cycles_several_layers_need_a_choice(tmp_path):
     f = _write(tmp_path / "two.exr", planes, {"cycles.A.samples": "4", "cycles.B.samples": "4"})
     with pytest.raises(InputFileError, match="several view layers"):
         read_sample_buffer(f, variance="A.Var")
-    assert (read_sample_buffer(f, variance="A.Var", layer="A").count == 4).all()
+    with pytest.warns(InputFileWarning, match="no sample count pass"):
+        assert (read_sample_buffer(f, variance="A.Var", layer="A").count == 4).all()
 
 
 def test_renderman(tmp_path):
@@ -96,8 +102,10 @@ def test_mitsuba_moment(tmp_path):
         read_sample_buffer(f)
     buf = read_sample_buffer(f, spp=8)
     assert buf.channels == ("R", "G", "B") and (buf.count == 8).all()
-    expected = (m2.astype(np.float64) - mean.astype(np.float64) ** 2) * 8 / 7
-    np.testing.assert_allclose(buf.variance[..., 2], expected, rtol=1e-5)
+    # The moments are CIE XYZ: the mean and the standard deviation go through Mitsuba's matrix.
+    xyz_sd = np.sqrt((m2.astype(np.float64) - mean.astype(np.float64) ** 2) * 8 / 7)
+    np.testing.assert_allclose(buf.mean[..., 0], mean * MITSUBA_XYZ_TO_SRGB[0].sum(), rtol=1e-5)
+    np.testing.assert_allclose(buf.variance[..., 2], (xyz_sd * MITSUBA_XYZ_TO_SRGB[2].sum()) ** 2, rtol=1e-5)
 
 
 def test_generic_multi_file(tmp_path):

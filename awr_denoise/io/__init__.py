@@ -11,13 +11,15 @@ from .deep import read_deep_samples, write_deep_samples
 from .dump import SampleDump, write_sample_buffer
 from .exr import read_header, read_image, write_image
 from .png import write_preview
-from .presets import PRESETS, detect_preset, read_sample_buffer, read_sample_dump
+from .describe import describe_file
+from .presets import PRESETS, detect_preset, read_independent_renders, read_sample_buffer, read_sample_dump
 from .provenance import image_provenance, provenance, read_provenance
 from .request_map import read_request, request_attributes, write_request
 
 __all__ = [
     "PRESETS",
     "SampleDump",
+    "describe_file",
     "detect_preset",
     "image_provenance",
     "provenance",
@@ -25,6 +27,7 @@ __all__ = [
     "read_provenance",
     "read_header",
     "read_image",
+    "read_independent_renders",
     "read_request",
     "read_sample_buffer",
     "read_sample_dump",

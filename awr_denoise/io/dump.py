@@ -69,11 +69,16 @@ class SampleDump:
         to ``buffer.count`` unless the dump says otherwise.
     attributes
         The ``awr:*`` header attributes (``awr:round``, ``awr:seed``, ...), plain values.
+    notes
+        What the reader decided about a renderer's file, one sentence each (which pass gave
+        the colour, how counts were derived, conversions made); warnings among them are also
+        issued as :class:`~awr_denoise.errors.InputFileWarning`.
     """
 
     buffer: SampleBuffer
     issued: CountArray
     attributes: dict[str, Any] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
 
 
 def exact_counts(name: str, counts: np.ndarray) -> np.ndarray:

@@ -26,7 +26,7 @@ import numpy as np
 
 from .._typing import FloatArray
 from .._version import __version__
-from ..buffers import default_channel_names
+from ..channels import default_channel_names
 from ..errors import InputFileError
 from .atomic import atomic_write, check_writable
 

@@ -6,37 +6,46 @@ Each preset says where a renderer puts the pixel mean, its spread and the sample
 preset     mean                         spread (variance kind)           count
 =========  ===========================  ===============================  ==========================================
 awr        ``R,G,B``                    ``variance.*`` (header says)     ``sampleCount`` (FLOAT)
-pbrt       ``R,G,B``                    ``Variance.*`` (sample)          header ``samplesPerPixel``
-cycles     ``<layer>.Combined.*``       none: give ``variance=``         ``<layer>.Debug Sample Count.X`` x header
-                                                                         ``cycles.<layer>.samples``
+pbrt       ``R,G,B``                    ``Variance.*`` (sample, XYZ)     header ``samplesPerPixel``
+cycles     ``<layer>.Noisy Image.*``,   none: give ``variance=`` or      ``<layer>.Debug Sample Count.X`` x the
+           else ``<layer>.Combined.*``  merge independent renders        samples rendered (derived from the data)
 renderman  ``Ci.*``                     ``mse.*`` (mean)                 ``sampleCount``
-mitsuba    ``<name>.*``                 ``m2_<name>.*`` (second_moment)  none: give ``spp=``
+mitsuba    ``<name>.X/Y/Z`` (XYZ)       ``m2_<name>.*`` (second_moment)  none: give ``spp=``
 generic    ``color=``                   ``variance=``                    ``count=`` or ``spp=``
 =========  ===========================  ===============================  ==========================================
 
 pbrt writes a variance of 0 where it has no estimate (pixels that saw only the environment);
-such pixels are marked unknown, never "converged". Channel names are split on the *last*
-dot (component) and, for Cycles, the *first* dot (view layer): pass names such as
-``Debug Sample Count`` contain spaces, so nothing is split on whitespace or on every dot.
+such pixels are marked unknown, never "converged". pbrt's ``Variance`` and Mitsuba's moments are
+CIE XYZ and are converted to linear sRGB (:mod:`awr_denoise.io.colour`). Channel names are split
+on the *last* dot (component); Cycles names are split from the right into layer, pass and
+component (:mod:`awr_denoise.io.cycles`), since layer names may hold dots and pass names spaces.
+Files with several views (stereo) need ``view=``. What the reader decided is returned in
+``SampleDump.notes``; doubtful input is also reported as an
+:class:`~awr_denoise.errors.InputFileWarning`.
 """
 
 from __future__ import annotations
 
 import os
-import re
+import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .._typing import FloatArray
 from ..buffers import VARIANCE_KINDS, SampleBuffer
+from ..errors import InputFileWarning
+from .colour import MITSUBA_XYZ_TO_SRGB, PBRT_XYZ_TO_SRGB, xyz_statistics_to_rgb
+from .cycles import COLOUR_PASSES, cycles_layers, sample_count_scale
 from .deep import samples_from_deep_part
 from .dump import COUNT_CHANNEL, VARIANCE_PREFIX, SampleDump, buffer_from_awr_part, whole_counts
 from .exr import ExrPart, checked_plane, file_error, header_value, read_exr
+from .mitsuba import filter_correlation
 
-__all__ = ["PRESETS", "detect_preset", "read_sample_buffer", "read_sample_dump", "parse_plane"]
+__all__ = ["PRESETS", "detect_preset", "read_sample_buffer", "read_sample_dump", "read_independent_renders",
+           "parse_plane", "file_views"]
 
 PRESETS = ("auto", "awr", "pbrt", "cycles", "renderman", "mitsuba", "generic", "deep")
 """Accepted values of ``preset``."""
@@ -66,19 +75,43 @@ class _Plane:
         return prefix.rstrip(".") or ",".join(self.channels)
 
 
-class _File:
-    """An EXR file's flat channels (all parts merged, first part wins) and headers."""
+def file_views(parts: Sequence[ExrPart]) -> list[str]:
+    """The views of a multi-view file (parts' ``view`` attributes), in file order; [] for none."""
+    views: list[str] = []
+    for part in parts:
+        if "view" in part.header:
+            v = str(header_value(part.header, "view"))
+            if v not in views:
+                views.append(v)
+    return views
 
-    def __init__(self, path: Path, parts: list[ExrPart]):
+
+class _File:
+    """An EXR file's flat channels (all parts of one view merged, first part wins) and headers."""
+
+    def __init__(self, path: Path, parts: list[ExrPart], view: str | None = None):
         self.path = path
         self.parts = parts
         self.channels: dict[str, np.ndarray] = {}
         self.header: dict = {}
+        views = file_views(parts)
+        if view is not None and view not in views:
+            raise file_error(path, f"no view {view!r} (views: {', '.join(views) or 'none, a single-view file'})")
+        if view is None and len(views) > 1:
+            # Stereo/multiview parts repeat the same channel names: never pick one silently.
+            raise file_error(path, f"has several views ({', '.join(views)}); choose one with view= / --view")
+        if view is None and views:
+            view = views[0]
+        self.view = view
         for part in parts:
-            if part.deep:
+            part_view = str(header_value(part.header, "view")) if "view" in part.header else None
+            if part.deep or part_view not in (None, view):
                 continue
             for name, arr in part.channels.items():
                 self.channels.setdefault(name, arr)
+        # Every part's attributes count, whatever its view: Cycles puts cycles.<layer>.samples
+        # on the first part only.
+        for part in parts:
             for key, value in part.header.items():
                 self.header.setdefault(key, value)
 
@@ -103,11 +136,11 @@ class _File:
 
 
 
-def _open(path: str | os.PathLike[str], opened: dict[Path, _File]) -> _File:
+def _open(path: str | os.PathLike[str], opened: dict[Path, _File], view: str | None = None) -> _File:
     p = Path(path)
     key = p.resolve() if p.exists() else p
     if key not in opened:
-        opened[key] = _File(p, read_exr(p))
+        opened[key] = _File(p, read_exr(p), view)
     return opened[key]
 
 
@@ -134,7 +167,7 @@ def detect_preset(channels: Sequence[str], header: dict) -> str:
         return "awr"
     if any(n.startswith("Variance.") for n in names):
         return "pbrt"
-    if any(re.fullmatch(r"[^.]+\.Combined\.[RGB]", n) for n in names):
+    if cycles_layers(names):
         return "cycles"
     if any(n == "mse" or n.startswith("mse.") for n in names) or any(n.startswith("Ci.") or n == "Ci"
                                                                          for n in names):
@@ -188,20 +221,6 @@ def _header_int(path: Path, header: dict, key: str) -> int | None:
     return value
 
 
-def _assemble(path: Path, count: np.ndarray, colour: _Plane, spread: _Plane, kind: str,
-              known: np.ndarray | None = None) -> SampleBuffer:
-    if len(spread.channels) != len(colour.channels):
-        raise file_error(spread.path, f"{len(spread.channels)} channel(s) but the colour plane "
-                                      f"{colour.label} has {len(colour.channels)}", spread.label)
-    mean = _values(colour)
-    variance = _values(spread, nonnegative=kind != "second_moment")
-    try:
-        return SampleBuffer.from_moments(count, mean, variance, variance_kind=kind,
-                                         channels=_channel_names(colour), variance_known=known)
-    except ValueError as exc:
-        raise file_error(path, str(exc)) from None
-
-
 def _kind(value: str | None, default: str) -> str:
     kind = value or default
     if kind not in VARIANCE_KINDS:
@@ -222,10 +241,15 @@ class _Context:
     spp: int | None
     layer: str | None
     opened: dict[Path, _File]
+    view: str | None = None
+    need_variance: bool = True
+    need_count: bool = True
+    notes: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
 
     def plane(self, spec: str, *, colour: bool = False, what: str) -> _Plane:
         file_path, name = parse_plane(spec, self.path)
-        return _open(file_path, self.opened).plane(name, colour=colour, what=what)
+        return _open(file_path, self.opened, self.view).plane(name, colour=colour, what=what)
 
     def count_plane(self) -> tuple[_Plane, np.ndarray] | None:
         """The ``count=`` plane and its whole counts, if one was given."""
@@ -237,17 +261,26 @@ class _Context:
                              counts.label)
         return counts, whole_counts(counts.path, counts.channels[0], counts.arrays[0])
 
+    def spp_counts(self, shape: tuple[int, int], where: str) -> np.ndarray | None:
+        """``spp`` everywhere; None when neither it nor a count is needed (a description)."""
+        if self.spp is None and not self.need_count:
+            self.notes.append(f"no sample count in the file ({where})")
+            return None
+        return _spp_counts(self.path, self.spp, shape, where)
+
 
 @dataclass
 class _Layout:
-    """Where a preset found the statistics."""
+    """Where a preset found the statistics, and what the reader must convert."""
 
     colour: _Plane
-    spread: _Plane
+    spread: _Plane | None
     kind: str
-    count: np.ndarray
+    count: np.ndarray | None
     count_plane: _Plane | None = None
     known: np.ndarray | None = None
+    # (matrix, "mean_and_variance" | "variance"): the file's statistics are CIE XYZ.
+    convert: tuple[np.ndarray, str] | None = None
 
 
 def _pbrt(ctx: _Context) -> _Layout:
@@ -255,59 +288,106 @@ def _pbrt(ctx: _Context) -> _Layout:
     spread = ctx.plane(ctx.variance or "Variance", what="variance")
     # pbrt writes 0 where it has no estimate (environment-only pixels): unknown, not converged.
     known = ~(_values(spread, nonnegative=True) == 0).all(axis=-1)
-    given = ctx.count_plane()
-    if given is not None:
-        return _Layout(colour, spread, _kind(ctx.variance_kind, "sample"), given[1], given[0], known)
-    n = _header_int(ctx.path, ctx.file.header, "samplesPerPixel")
-    if ctx.spp is not None or n is None:
-        cnt = _spp_counts(ctx.path, ctx.spp, colour.shape, "no samplesPerPixel header attribute")
-    else:
-        cnt = np.full(colour.shape, n, np.int64)
-    return _Layout(colour, spread, _kind(ctx.variance_kind, "sample"), cnt, None, known)
-
-
-def _cycles_layer(ctx: _Context) -> str:
-    layers = sorted({m.group(1) for c in ctx.file.channels if (m := re.fullmatch(r"([^.]+)\.Combined\.[RGB]", c))})
-    if ctx.layer is not None:
-        if ctx.layer not in layers:
-            raise file_error(ctx.path, f"no such layer (layers with a Combined pass: {', '.join(layers) or 'none'})",
-                             f"{ctx.layer}.Combined")
-        return ctx.layer
-    if len(layers) == 1:
-        return layers[0]
-    if not layers:
-        raise file_error(ctx.path, "no <layer>.Combined.R/G/B channels", "Combined")
-    raise file_error(ctx.path, f"ambiguous: several view layers ({', '.join(layers)}); choose one with "
-                               "layer= / --layer", "Combined")
-
-
-def _cycles(ctx: _Context) -> _Layout:
-    layer = _cycles_layer(ctx)
-    colour = ctx.plane(ctx.color or f"{layer}.Combined", colour=True, what="colour")
-    if ctx.variance is None:
-        raise file_error(ctx.path, "Blender Cycles writes no variance pass; render one as an AOV and pass it "
-                                   "with variance= / --variance PLANE (and --variance-kind)", f"{layer}.Combined")
-    spread = ctx.plane(ctx.variance, what="variance")
+    convert = None
+    if ctx.variance is None and len(spread.channels) == 3:
+        # GBufferFilm accumulates Variance on sensor RGB (CIE XYZ for the default sensor) and
+        # converts only the means to the output colour space.
+        convert = (PBRT_XYZ_TO_SRGB, "variance")
+        ctx.notes.append("Variance holds pbrt's sensor XYZ: converted to linear sRGB (channels taken as fully "
+                         "correlated)")
+    if not known.all():
+        ctx.notes.append(f"{int((~known).sum())} pixel(s) have Variance 0 (no estimate, e.g. only the "
+                         "environment seen): variance unknown, borrowed from neighbours of similar mean")
     kind = _kind(ctx.variance_kind, "sample")
     given = ctx.count_plane()
     if given is not None:
-        return _Layout(colour, spread, kind, given[1], given[0])
-    samples = _header_int(ctx.path, ctx.file.header, f"cycles.{layer}.samples")
+        return _Layout(colour, spread, kind, given[1], given[0], known, convert)
+    n = _header_int(ctx.path, ctx.file.header, "samplesPerPixel")
+    if ctx.spp is not None or n is None:
+        cnt = ctx.spp_counts(colour.shape, "no samplesPerPixel header attribute")
+    else:
+        cnt = np.full(colour.shape, n, np.int64)
+    return _Layout(colour, spread, kind, cnt, None, known, convert)
+
+
+def _cycles_layer(ctx: _Context) -> tuple[str, set[str]]:
+    layers = cycles_layers(ctx.file.channels)
+    if ctx.layer is not None:
+        if ctx.layer not in layers:
+            raise file_error(ctx.path, f"no such layer (layers with a Combined pass: {', '.join(sorted(layers)) or 'none'})",
+                             f"{ctx.layer}.Combined")
+        return ctx.layer, layers[ctx.layer]
+    if len(layers) == 1:
+        return next(iter(layers.items()))
+    if not layers:
+        raise file_error(ctx.path, "no <layer>.Combined.R/G/B channels", "Combined")
+    raise file_error(ctx.path, f"ambiguous: several view layers ({', '.join(sorted(layers))}); choose one with "
+                               "layer= / --layer", "Combined")
+
+
+def _cycles_colour(ctx: _Context, layer: str, passes: set[str]) -> _Plane:
+    if ctx.color is not None:
+        return ctx.plane(ctx.color, colour=True, what="colour")
+    if COLOUR_PASSES[0] in passes:
+        ctx.notes.append("colour: Noisy Image (Combined is the denoiser's output)")
+        return ctx.plane(f"{layer}.{COLOUR_PASSES[0]}", colour=True, what="colour")
+    if passes & {"Denoising Albedo", "Denoising Normal", "Denoising Depth"}:
+        ctx.warnings.append(f"{ctx.path}: {layer}.Combined: Blender's denoiser was on (denoising passes are "
+                            "present) but there is no Noisy Image pass, so Combined is already denoised; "
+                            "render with the denoiser off or enable the Noisy Image pass")
+    return ctx.plane(f"{layer}.Combined", colour=True, what="colour")
+
+
+def _cycles_counts(ctx: _Context, layer: str, shape: tuple[int, int]) -> tuple[np.ndarray | None, _Plane | None]:
+    given = ctx.count_plane()
+    if given is not None:
+        return given[1], given[0]
+    requested = _header_int(ctx.path, ctx.file.header, f"cycles.{layer}.samples")
     debug_name = f"{layer}.Debug Sample Count"
     if debug_name not in ctx.file.channels and f"{debug_name}.X" not in ctx.file.channels:
-        n = samples if ctx.spp is None else int(ctx.spp)
-        cnt = _spp_counts(ctx.path, n, colour.shape, f"no Debug Sample Count pass, no cycles.{layer}.samples")
-        return _Layout(colour, spread, kind, cnt)
+        if ctx.spp is None and requested is not None:
+            ctx.warnings.append(f"{ctx.path}: {debug_name}: no sample count pass: every pixel is taken to have "
+                                f"the {requested} samples requested, wrong if adaptive sampling (Blender's default) "
+                                "or a time limit stopped pixels early; enable the Debug Sample Count pass")
+        n = requested if ctx.spp is None else int(ctx.spp)
+        if n is None:
+            return ctx.spp_counts(shape, f"no Debug Sample Count pass, no cycles.{layer}.samples"), None
+        return np.full(shape, n, np.int64), None
     counts = ctx.plane(debug_name, what="count")
-    if samples is None and ctx.spp is None:
-        raise file_error(ctx.path, f"the sample count pass is normalised but the header has no "
-                                   f"cycles.{layer}.samples; pass spp= / --spp N", counts.channels[0])
-    # Cycles stores count / samples; cycles-merge multiplies back by the header value.
-    scale = samples if ctx.spp is None else int(ctx.spp)
-    raw = checked_plane(ctx.path, counts.channels[0], counts.arrays[0], nonnegative=True) * scale
-    if (np.abs(raw - np.rint(raw)) > 1e-2).any():
+    values = checked_plane(ctx.path, counts.channels[0], counts.arrays[0], nonnegative=True)
+    if ctx.spp is not None:
+        scale = int(ctx.spp)
+        ctx.notes.append(f"sample count pass times spp={scale}")
+    else:
+        try:
+            scale, how = sample_count_scale(values, requested)
+        except ValueError as exc:
+            raise file_error(ctx.path, f"{exc}; pass spp= / --spp N (the samples the render took)",
+                             counts.channels[0]) from None
+        if "same count" in how:
+            # A uniform pass cannot tell how many samples a time limit or early convergence left.
+            ctx.warnings.append(f"{ctx.path}: {counts.channels[0]}: {how}")
+        else:
+            ctx.notes.append(f"sample count pass: {how}")
+    raw = values * scale
+    if (np.abs(raw - np.rint(raw)) > 1e-2 * np.maximum(1.0, raw)).any():
         raise file_error(ctx.path, f"normalised counts times {scale} are not whole numbers", counts.channels[0])
-    return _Layout(colour, spread, kind, np.rint(raw).astype(np.int64), counts)
+    return np.rint(raw).astype(np.int64), counts
+
+
+def _cycles(ctx: _Context) -> _Layout:
+    layer, passes = _cycles_layer(ctx)
+    colour = _cycles_colour(ctx, layer, passes)
+    spread = None
+    kind = _kind(ctx.variance_kind, "sample")
+    if ctx.variance is not None:
+        spread = ctx.plane(ctx.variance, what="variance")
+    elif ctx.need_variance:
+        raise file_error(ctx.path, "Blender Cycles writes no variance pass: render the frame several times with "
+                                   "different seeds and merge them (awr merge --independent), or pass a variance "
+                                   "plane with variance= / --variance", f"{layer}.Combined")
+    count, count_plane = _cycles_counts(ctx, layer, colour.shape)
+    return _Layout(colour, spread, kind, count, count_plane)
 
 
 def _renderman(ctx: _Context) -> _Layout:
@@ -322,46 +402,142 @@ def _renderman(ctx: _Context) -> _Layout:
     given = ctx.count_plane()
     if given is not None:
         return _Layout(colour, spread, kind, given[1], given[0])
-    return _Layout(colour, spread, kind, _spp_counts(ctx.path, ctx.spp, colour.shape, f"no {COUNT_CHANNEL} channel"))
+    return _Layout(colour, spread, kind, ctx.spp_counts(colour.shape, f"no {COUNT_CHANNEL} channel"))
+
+
+def _plane_prefixes(channels: Sequence[str], start: str) -> list[str]:
+    return sorted({c.rsplit(".", 1)[0] if "." in c else c for c in channels if c.startswith(start)})
+
+
+def _components(ctx: _Context, prefix: str) -> set[str]:
+    return {c.rsplit(".", 1)[1] for c in ctx.file.channels if "." in c and c.rsplit(".", 1)[0] == prefix}
 
 
 def _mitsuba(ctx: _Context) -> _Layout:
     variance = ctx.variance
     if variance is None:
-        m2 = sorted({c.rsplit(".", 1)[0] if "." in c else c for c in ctx.file.channels if c.startswith("m2_")})
+        m2 = _plane_prefixes(list(ctx.file.channels), "m2_")
         if not m2:
             raise file_error(ctx.path, "no m2_<name> second-moment channels (Mitsuba 3 moment integrator)", "m2_*")
-        if len(m2) > 1 and ctx.color is None:
-            raise file_error(ctx.path, f"ambiguous: several second moments ({', '.join(m2)}); choose with "
-                                       "color=/variance=", "m2_*")
-        variance = m2[0]
+        if ctx.color is not None:
+            variance = "m2_" + ctx.color
+        else:
+            # The moment integrator's own results are <name>.X/Y/Z; RGB moments are AOVs.
+            xyz = [p for p in m2 if {"X", "Y", "Z"} <= _components(ctx, p)]
+            if len(xyz) > 1:
+                raise file_error(ctx.path, f"ambiguous: several second moments ({', '.join(xyz)}); choose with "
+                                           "color=/variance=", "m2_*")
+            variance = (xyz or m2)[0]
     colour = ctx.plane(ctx.color or variance[len("m2_"):], colour=True, what="colour")
     spread = ctx.plane(variance, what="second moment")
     if len(spread.channels) > len(colour.channels):  # an alpha moment has no colour counterpart
         k = len(colour.channels)
         spread = _Plane(spread.path, spread.channels[:k], spread.arrays[:k])
+    convert = None
+    suffixes = tuple(c.rsplit(".", 1)[-1] for c in colour.channels)
+    if suffixes == ("X", "Y", "Z"):
+        exact = None if ctx.color is not None else _mitsuba_rgb_twin(ctx, colour)
+        if exact is not None:
+            colour, spread = exact
+            ctx.notes.append(f"colour: {colour.label}, an RGB AOV holding the same samples as the XYZ moments: "
+                             "its own second moments give exact RGB variances")
+        else:
+            convert = (MITSUBA_XYZ_TO_SRGB, "mean_and_variance")
+            ctx.notes.append(f"{colour.label} moments are CIE XYZ: converted to linear sRGB (channels taken as "
+                             "fully correlated)")
     kind = _kind(ctx.variance_kind, "second_moment")
     given = ctx.count_plane()
     if given is not None:
-        return _Layout(colour, spread, kind, given[1], given[0])
-    cnt = _spp_counts(ctx.path, ctx.spp, colour.shape, "Mitsuba 3 writes no per-pixel sample count")
-    return _Layout(colour, spread, kind, cnt)
+        return _Layout(colour, spread, kind, given[1], given[0], convert=convert)
+    cnt = ctx.spp_counts(colour.shape, "Mitsuba 3 writes no per-pixel sample count; give the sampler's "
+                                       "sample_count")
+    return _Layout(colour, spread, kind, cnt, convert=convert)
+
+
+def _mitsuba_rgb_twin(ctx: _Context, xyz: _Plane) -> tuple[_Plane, _Plane] | None:
+    """An RGB moment pair whose mean is the XYZ mean in sRGB: the same samples (an ``aov``
+    integrator's nested image inside ``moment``), whose moments need no colour conversion."""
+    target = _values(xyz) @ MITSUBA_XYZ_TO_SRGB.T
+    scale = max(float(np.abs(target).max()), 1e-6)
+    for prefix in _plane_prefixes(list(ctx.file.channels), "m2_"):
+        name = prefix[len("m2_"):]
+        if not {"R", "G", "B"} <= _components(ctx, name) or not {"R", "G", "B"} <= _components(ctx, prefix):
+            continue
+        colour = ctx.plane(name, colour=True, what="colour")
+        if colour.shape != xyz.shape or len(colour.channels) != 3:
+            continue
+        if np.abs(_values(colour) - target).max() <= 1e-4 * scale:
+            spread = ctx.plane(prefix, what="second moment")
+            return colour, _Plane(spread.path, spread.channels[:3], spread.arrays[:3])
+    return None
 
 
 def _generic(ctx: _Context) -> _Layout:
     colour = ctx.plane(ctx.color or "RGB", colour=True, what="colour")
-    if ctx.variance is None:
+    spread = None
+    if ctx.variance is not None:
+        spread = ctx.plane(ctx.variance, what="variance")
+    elif ctx.need_variance:
         raise file_error(ctx.path, "no variance plane given (variance= / --variance PLANE)", colour.label)
-    spread = ctx.plane(ctx.variance, what="variance")
     kind = _kind(ctx.variance_kind, "sample")
     given = ctx.count_plane()
     if given is not None:
         return _Layout(colour, spread, kind, given[1], given[0])
-    return _Layout(colour, spread, kind, _spp_counts(ctx.path, ctx.spp, colour.shape, "no count= plane"))
+    return _Layout(colour, spread, kind, ctx.spp_counts(colour.shape, "no count= plane"))
 
 
 _READERS = {"pbrt": _pbrt, "cycles": _cycles, "renderman": _renderman, "mitsuba": _mitsuba,
             "generic": _generic, "awr": _generic}
+
+
+def _assemble(path: Path, layout: _Layout) -> SampleBuffer:
+    colour, spread, kind = layout.colour, layout.spread, layout.kind
+    assert spread is not None and layout.count is not None
+    if len(spread.channels) == len(colour.channels) + 1 and spread.channels[-1].rsplit(".", 1)[-1] in _ALPHA:
+        spread = _Plane(spread.path, spread.channels[:-1], spread.arrays[:-1])  # an RGBA plane: no alpha
+    if len(spread.channels) != len(colour.channels):
+        raise file_error(spread.path, f"{len(spread.channels)} channel(s) but the colour plane "
+                                      f"{colour.label} has {len(colour.channels)}", spread.label)
+    mean = _values(colour)
+    variance = _values(spread, nonnegative=kind != "second_moment")
+    try:
+        buffer = SampleBuffer.from_moments(layout.count, mean, variance, variance_kind=kind,
+                                           channels=_channel_names(colour), variance_known=layout.known)
+    except ValueError as exc:
+        raise file_error(path, str(exc)) from None
+    if layout.convert is None:
+        return buffer
+    matrix, what = layout.convert
+    new_mean, new_var = xyz_statistics_to_rgb(buffer.mean if what == "mean_and_variance" else None,
+                                              buffer.variance, matrix)
+    return SampleBuffer(buffer.count, buffer.mean if new_mean is None else new_mean, new_var,
+                        ("R", "G", "B"), buffer.variance_known)
+
+
+def _layout(path: Path, f: _File, preset: str, *, color: str | None, variance: str | None, count: str | None,
+            variance_kind: str | None, spp: int | None, layer: str | None, view: str | None,
+            need_variance: bool, need_count: bool) -> tuple[_Layout, _Context]:
+    ctx = _Context(path, f, color, variance, count, variance_kind, spp, layer, {path.resolve(): f}, view,
+                   need_variance, need_count)
+    layout = _READERS[preset](ctx)
+    planes = [layout.colour] + [q for q in (layout.spread, layout.count_plane) if q is not None]
+    _check_shapes(planes)
+    return layout, ctx
+
+
+def _resolve_preset(p: Path, f: _File, preset: str, color: str | None, variance: str | None,
+                    count: str | None) -> str:
+    if preset == "auto":
+        preset = "generic" if color is not None else detect_preset(list(f.channels), f.header)
+    if preset == "generic" and color is None and variance is None and count is None:
+        raise file_error(p, "cannot detect the layout (channels: " + ", ".join(sorted(f.channels))
+                         + "); choose a preset or give color=/variance=/count= (--color/--variance/--count)")
+    return preset
+
+
+def _warn(messages: Sequence[str]) -> None:
+    for message in messages:
+        warnings.warn(message, InputFileWarning, stacklevel=3)
 
 
 def read_sample_dump(
@@ -374,6 +550,7 @@ def read_sample_dump(
     variance_kind: str | None = None,
     spp: int | None = None,
     layer: str | None = None,
+    view: str | None = None,
     nonfinite: str = "raise",
 ) -> SampleDump:
     """Read sample statistics with their bookkeeping (see :func:`read_sample_buffer`).
@@ -383,7 +560,7 @@ def read_sample_dump(
     SampleDump
         ``.buffer``; ``.issued`` (samples handed out per pixel: the awr layout's
         ``issuedCount``, else the count); ``.attributes`` (the ``awr:*`` header of an awr
-        dump, empty for other layouts).
+        dump, empty for other layouts); ``.notes`` (what was decided about the file).
     """
     if preset not in PRESETS:
         raise ValueError(f"preset: {preset!r} is not one of {', '.join(sorted(PRESETS))}")
@@ -400,25 +577,97 @@ def read_sample_dump(
         return SampleDump(buf, buf.count, {})
     if preset == "deep":
         raise file_error(p, "is not a deep EXR")
-    f = _File(p, parts)
+    f = _File(p, parts, view)
     if not f.channels:
         raise file_error(p, "has no flat channels")
-    if preset == "auto":
-        preset = "generic" if color is not None else detect_preset(list(f.channels), f.header)
-    if preset == "generic" and color is None and variance is None and count is None:
-        raise file_error(p, "cannot detect the layout (channels: " + ", ".join(sorted(f.channels))
-                         + "); choose a preset or give color=/variance=/count= (--color/--variance/--count)")
+    preset = _resolve_preset(p, f, preset, color, variance, count)
     if preset == "awr" and color is None and variance is None:
         flat = [part for part in parts if not part.deep and COUNT_CHANNEL in part.channels]
         if not flat:
             raise file_error(p, "missing (not in the awr dump layout)", COUNT_CHANNEL)
         return buffer_from_awr_part(p, flat[0], variance_kind=variance_kind)
-    ctx = _Context(p, f, color, variance, count, variance_kind, spp, layer, {p.resolve(): f})
-    layout = _READERS[preset](ctx)
-    planes = [layout.colour, layout.spread] + ([layout.count_plane] if layout.count_plane is not None else [])
-    _check_shapes(planes)
-    buffer = _assemble(p, layout.count, layout.colour, layout.spread, layout.kind, layout.known)
-    return SampleDump(buffer, layout.count, {})
+    layout, ctx = _layout(p, f, preset, color=color, variance=variance, count=count, variance_kind=variance_kind,
+                          spp=spp, layer=layer, view=view, need_variance=True, need_count=True)
+    buffer = _assemble(p, layout)
+    if preset == "mitsuba":
+        ratio = filter_correlation(buffer)
+        if ratio is not None and ratio.correlated:
+            ctx.warnings.append(f"{p}: {layout.colour.label}: {ratio.message}")
+    _warn(ctx.warnings)
+    return SampleDump(buffer, buffer.count, {}, tuple(ctx.notes + ctx.warnings))
+
+
+def read_independent_renders(
+    paths: Sequence[str | os.PathLike[str]],
+    *,
+    preset: str = "auto",
+    color: str | None = None,
+    count: str | None = None,
+    spp: int | None = None,
+    layer: str | None = None,
+    view: str | None = None,
+) -> SampleDump:
+    """Merge renders of the same frame made with different seeds into per-pixel statistics.
+
+    For renderers that write means but no variance (Blender Cycles): each file gives a mean
+    and a count per pixel (its count pass, header or ``spp``); the merged buffer has the
+    summed counts, the count-weighted mean, and the per-sample variance estimated from the
+    spread of the means (:meth:`~awr_denoise.SampleBuffer.from_independent_means`).
+
+    Parameters
+    ----------
+    paths
+        Two or more EXR files of the same size and channels, rendered with different seeds.
+    preset, color, count, spp, layer, view
+        As for :func:`read_sample_buffer`; applied to every file.
+
+    Returns
+    -------
+    SampleDump
+        The merged statistics; ``notes`` as for one file, plus the number of renders merged.
+
+    Raises
+    ------
+    InputFileError
+        Fewer than two files, a file that repeats another (same content: not independent),
+        or sizes and channels that differ between files.
+    """
+    if len(paths) < 2:
+        raise ValueError(f"paths: {len(paths)} file(s) given; the spread of means needs at least 2 renders")
+    if preset not in PRESETS or preset == "deep":
+        raise ValueError(f"preset: {preset!r} is not one of {', '.join(p for p in sorted(PRESETS) if p != 'deep')}")
+    means, counts, notes, warned = [], [], [], []
+    channels: tuple[str, ...] | None = None
+    for path in paths:
+        p = Path(path)
+        f = _File(p, read_exr(p), view)
+        name = _resolve_preset(p, f, preset, color, None, count)
+        layout, ctx = _layout(p, f, name, color=color, variance=None, count=count, variance_kind=None, spp=spp,
+                              layer=layer, view=view, need_variance=False, need_count=True)
+        assert layout.count is not None
+        mean = _values(layout.colour)
+        if layout.convert is not None and layout.convert[1] == "mean_and_variance":
+            mean = mean @ layout.convert[0].T
+        names = ("R", "G", "B") if layout.convert is not None else _channel_names(layout.colour)
+        if channels is None:
+            channels = names
+        elif names != channels or mean.shape != means[0].shape:
+            raise file_error(p, f"{mean.shape[1]}x{mean.shape[0]} with channels {','.join(names)} does not match "
+                                f"{means[0].shape[1]}x{means[0].shape[0]} {','.join(channels)} of {paths[0]}")
+        for k, earlier in enumerate(means):
+            if np.array_equal(earlier, mean):
+                raise file_error(p, f"has the same pixels as {paths[k]}: renders must use different seeds")
+        means.append(mean)
+        counts.append(layout.count)
+        notes.extend(n for n in ctx.notes if n not in notes)
+        warned.extend(w for w in ctx.warnings if w not in warned)
+    _warn(warned)
+    try:
+        buffer = SampleBuffer.from_independent_means(np.stack(counts), np.stack(means), channels=channels)
+    except ValueError as exc:
+        raise file_error(Path(paths[0]), str(exc)) from None
+    notes.append(f"{len(paths)} independent renders merged: variance from the spread of their means")
+    return SampleDump(buffer, buffer.count, {}, tuple(notes + warned))
 
 
 def read_sample_buffer(
@@ -431,6 +680,7 @@ def read_sample_buffer(
     variance_kind: str | None = None,
     spp: int | None = None,
     layer: str | None = None,
+    view: str | None = None,
     nonfinite: str = "raise",
 ) -> SampleBuffer:
     """Read per-pixel sample statistics from an EXR file, channels by name.
@@ -449,10 +699,13 @@ def read_sample_buffer(
     variance_kind
         ``"sample"``, ``"mean"`` or ``"second_moment"``; overrides the preset's default.
     spp
-        Samples per pixel where the file has no count (Mitsuba; also overrides pbrt's and
-        Cycles' header value).
+        Samples per pixel where the file has no count (Mitsuba); overrides pbrt's header
+        value, and for Cycles gives the samples the render took (the divisor of the
+        normalised count pass).
     layer
         Cycles view layer when the file has several.
+    view
+        View of a multi-view (stereo) file, e.g. ``"left"``; required when there are several.
     nonfinite
         Policy for NaN/Inf *samples* of a deep per-sample dump: ``"raise"`` (default),
         ``"drop"`` or ``"zero"``, counted in the buffer's ``nonfinite``. Flat files hold
@@ -461,13 +714,38 @@ def read_sample_buffer(
     Returns
     -------
     SampleBuffer
-        The statistics, variance converted to per-sample variance on entry.
+        The statistics, variance converted to per-sample variance on entry, colours in linear
+        sRGB (Mitsuba's and pbrt's XYZ statistics converted).
 
     Raises
     ------
     InputFileError
-        Missing, corrupt or non-EXR file; missing or ambiguous channels; size mismatch
-        between files; NaN/Inf (half-float overflow named); negative variance or counts.
+        Missing, corrupt or non-EXR file; missing or ambiguous channels, layers or views;
+        size mismatch between files; NaN/Inf (half-float overflow named); negative variance
+        or counts.
+
+    Warns
+    -----
+    InputFileWarning
+        An assumed sample count (Cycles without a count pass), an already denoised Cycles
+        pass, a Mitsuba film filter that correlates neighbouring pixels.
     """
     return read_sample_dump(path, preset=preset, color=color, variance=variance, count=count,
-                            variance_kind=variance_kind, spp=spp, layer=layer, nonfinite=nonfinite).buffer
+                            variance_kind=variance_kind, spp=spp, layer=layer, view=view,
+                            nonfinite=nonfinite).buffer
+
+
+def describe_layout(path: Path, parts: list[ExrPart], *, preset: str = "auto", color: str | None = None,
+                    variance: str | None = None, count: str | None = None, variance_kind: str | None = None,
+                    spp: int | None = None, layer: str | None = None, view: str | None = None,
+                    ) -> tuple[str, _Layout, list[str], list[str]]:
+    """Where a preset finds the statistics, without requiring a variance or a count.
+
+    Returns (preset, layout, notes, warnings); used by ``awr info`` to describe files that
+    cannot be denoised as they are.
+    """
+    f = _File(path, parts, view)
+    name = _resolve_preset(path, f, preset, color, variance, count)
+    layout, ctx = _layout(path, f, name, color=color, variance=variance, count=count, variance_kind=variance_kind,
+                          spp=spp, layer=layer, view=view, need_variance=False, need_count=False)
+    return name, layout, ctx.notes, ctx.warnings

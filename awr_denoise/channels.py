@@ -1,0 +1,62 @@
+"""Channel names and the luminance of a set of channels."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from ._typing import FloatArray
+
+__all__ = ["default_channel_names", "luminance_weights", "resolve_channels"]
+
+_REC709 = np.array([0.2126, 0.7152, 0.0722])
+
+
+def default_channel_names(n_channels: int) -> tuple[str, ...]:
+    """Conventional channel names for ``n_channels`` channels (``R,G,B`` for three)."""
+    if n_channels == 1:
+        return ("Y",)
+    if n_channels == 3:
+        return ("R", "G", "B")
+    if n_channels == 4:
+        return ("R", "G", "B", "A")
+    return tuple(f"ch{i}" for i in range(n_channels))
+
+
+def luminance_weights(channels: Sequence[str]) -> FloatArray:
+    """Weights that turn the channels into luminance.
+
+    Rec. 709 weights when the channels are ``R, G, B`` (an ``A`` channel gets weight 0), the
+    single channel itself when there is one, and the plain average otherwise.
+    """
+    names = [c.rsplit(".", 1)[-1].upper() for c in channels]
+    weights = np.zeros(len(names))
+    if {"R", "G", "B"} <= set(names):
+        for name, w in zip("RGB", _REC709):
+            weights[names.index(name)] = w
+        return weights
+    return np.full(len(names), 1.0 / len(names))
+
+
+def resolve_channels(channels: Sequence[str] | int | None, n_channels: int) -> tuple[str, ...]:
+    """Channel names for ``n_channels`` channels: given names checked, or :func:`default_channel_names`.
+
+    Examples
+    --------
+    >>> from awr_denoise.channels import resolve_channels
+    >>> resolve_channels(None, 3), resolve_channels(["Y"], 1)
+    (('R', 'G', 'B'), ('Y',))
+    """
+    if channels is None:
+        return default_channel_names(n_channels)
+    if isinstance(channels, int):
+        if channels != n_channels:
+            raise ValueError(f"channels: {channels} given but the data has {n_channels}")
+        return default_channel_names(n_channels)
+    names = tuple(str(c) for c in channels)
+    if len(names) != n_channels:
+        raise ValueError(f"channels: {len(names)} names given for {n_channels} channel(s)")
+    if len(set(names)) != len(names):
+        raise ValueError(f"channels: duplicate names in {names}")
+    return names

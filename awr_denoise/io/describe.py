@@ -1,0 +1,150 @@
+"""What an EXR file holds, for ``awr info``: layout, layers, views, passes, counts, and what is
+missing before it can be denoised. Works on any file the readers accept, including renderer
+files that cannot be denoised as they are (Mitsuba without ``spp``, Cycles without variance).
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputFileError
+from .cycles import cycles_layers
+from .exr import header_value, read_exr
+from .presets import describe_layout, detect_preset, file_views, read_sample_dump
+from .request_map import read_request
+
+__all__ = ["describe_file"]
+
+_HEADER_PREFIXES = ("awr:", "cycles.", "samplesPerPixel", "generatedBy", "Software", "renderTimeSeconds")
+
+
+def _stats(a: Any) -> dict[str, float]:
+    a = np.asarray(a)
+    return {"min": float(a.min()), "mean": float(a.mean()), "max": float(a.max())}
+
+
+def describe_file(path: str | os.PathLike[str], *, preset: str = "auto", color: str | None = None,
+                  variance: str | None = None, count: str | None = None, variance_kind: str | None = None,
+                  spp: int | None = None, layer: str | None = None, view: str | None = None,
+                  nonfinite: str = "raise") -> dict[str, Any]:
+    """A JSON-ready description of an EXR file.
+
+    Returns
+    -------
+    dict
+        ``file``, ``width``, ``height``, ``parts``, ``deep``, ``views``, ``channels``,
+        ``attributes`` (renderer and ``awr:*`` header values) and ``kind`` (``"samples"``,
+        ``"request"`` or ``"image"``). For sample statistics also ``preset``, ``colour``,
+        ``variance`` and ``count`` (where each was found, or None), ``layers`` (Cycles: pass
+        names per view layer), ``notes`` and ``warnings`` (the readers' decisions),
+        ``missing`` (what must be supplied before ``awr denoise`` can run; empty when
+        nothing) and, when readable, ``total_samples``, ``spp``, ``mean``, ...
+
+    Raises
+    ------
+    InputFileError
+        The file is not a readable EXR, or an option names a layer, view or plane it lacks.
+
+    Examples
+    --------
+    >>> import numpy as np, os, tempfile
+    >>> from awr_denoise.io import write_image
+    >>> from awr_denoise.io.describe import describe_file
+    >>> f = os.path.join(tempfile.mkdtemp(), "img.exr"); _ = write_image(f, np.ones((2, 3, 3)))
+    >>> d = describe_file(f); (d["kind"], d["width"], d["height"])
+    ('image', 3, 2)
+    """
+    p = Path(path)
+    parts = read_exr(p)
+    header = parts[0].header
+    attrs: dict[str, Any] = {}
+    for part in parts:
+        for key in part.header:
+            if str(key).startswith(_HEADER_PREFIXES) and key not in attrs:
+                attrs[str(key)] = header_value(part.header, key)
+    lo, hi = header["dataWindow"]
+    views = file_views(parts)
+    channels = sorted({c.name for part in parts for c in part.header.get("channels", [])})
+    info: dict[str, Any] = {"file": os.fspath(path), "width": int(hi[0] - lo[0] + 1),
+                            "height": int(hi[1] - lo[1] + 1), "parts": len(parts),
+                            "deep": any(part.deep for part in parts), "views": views, "channels": channels,
+                            "attributes": attrs}
+    if str(attrs.get("awr:semantics", "")) == "sample-request":
+        req = read_request(p)
+        info.update(kind="request", round=req.round, total=req.total, spp=_stats(req.counts),
+                    first_index=_stats(req.first_index))
+        return info
+    options = dict(preset=preset, color=color, variance=variance, count=count, variance_kind=variance_kind,
+                   spp=spp, layer=layer)
+    missing: list[str] = []
+    chosen_view = view
+    if view is None and len(views) > 1:
+        chosen_view = views[0]
+        missing.append(f"a view: the file has {len(views)} ({', '.join(views)}); choose one with --view "
+                       f"(described here: {chosen_view})")
+    if not info["deep"]:
+        if preset == "auto" and color is None and variance is None and count is None:
+            flat = [c for part in parts if not part.deep and part.header.get("view") in (None, chosen_view)
+                    for c in part.channels]
+            if detect_preset(flat, header) == "generic":
+                info.update(kind="image")
+                return info
+        if (preset == "awr" or (preset == "auto" and color is None and variance is None and count is None
+                                and detect_preset(channels, header) == "awr")):
+            return _read_fully(info, p, options, chosen_view, nonfinite, preset="awr", missing=missing)
+        name, layout, notes, warned = describe_layout(p, parts, **options, view=chosen_view)
+        layers = cycles_layers(channels)
+        info.update(kind="samples", preset=name, colour=layout.colour.label,
+                    variance=None if layout.spread is None else layout.spread.label,
+                    count=None if layout.count is None else _stats(layout.count),
+                    notes=list(notes), warnings=list(warned))
+        if name == "cycles":
+            info["layers"] = {k: sorted(v) for k, v in sorted(layers.items())}
+        if layout.spread is None:
+            missing.append("a variance: " + ("Cycles writes none; merge renders made with different seeds "
+                                             "(awr merge --independent A.exr B.exr ...) or give --variance PLANE"
+                                             if name == "cycles" else "give --variance PLANE"))
+        if layout.count is None:
+            missing.append("a sample count: " + ("Mitsuba 3 writes none; give --spp N (the sampler's sample_count)"
+                                                 if name == "mitsuba" else "give --spp N or --count PLANE"))
+    else:
+        return _read_fully(info, p, options, chosen_view, nonfinite, preset="deep", missing=missing)
+    info["missing"] = missing
+    if any(not item.startswith("a view") for item in missing):
+        return info
+    return _read_fully(info, p, options, chosen_view, nonfinite, preset=info["preset"], missing=missing)
+
+
+def _read_fully(info: dict[str, Any], p: Path, options: dict[str, Any], view: str | None, nonfinite: str, *,
+                preset: str, missing: list[str]) -> dict[str, Any]:
+    """Read the statistics themselves and add what they say to ``info``."""
+    info.setdefault("kind", "samples")
+    info.setdefault("preset", preset)
+    info.setdefault("notes", [])
+    info.setdefault("warnings", [])
+    info["missing"] = missing
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            dump = read_sample_dump(p, **options, view=view, nonfinite=nonfinite)
+        except InputFileError as exc:
+            info["missing"].append(str(exc))
+            return info
+    for w in caught:
+        if str(w.message) not in info["warnings"]:
+            info["warnings"].append(str(w.message))
+    for note in dump.notes:
+        if note not in info["notes"] and note not in info["warnings"]:
+            info["notes"].append(note)
+    buf = dump.buffer
+    info.update(buffer_channels=list(buf.channels), total_samples=buf.total_samples, spp=_stats(buf.count),
+                pixels_without_samples=int((buf.count == 0).sum()),
+                variance_unknown=int((~buf.variance_known & (buf.count >= 2)).sum()),
+                nonfinite_dropped=int(buf.nonfinite), mean=_stats(buf.mean),
+                issued_total=int(np.asarray(dump.issued).sum()))
+    return info

@@ -1,0 +1,178 @@
+"""Mitsuba 3 and Blender Cycles readers on files the renderers wrote (tests/data/mitsuba, cycles;
+regenerate with tests/data/generate/*.py). Fresh renders run when the renderer is installed."""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.exr
+OpenEXR = pytest.importorskip("OpenEXR")
+
+from awr_denoise.cli.main import main  # noqa: E402
+from awr_denoise.errors import InputFileError, InputFileWarning  # noqa: E402
+from awr_denoise.io import read_image, read_independent_renders, read_sample_dump  # noqa: E402
+
+DATA = Path(__file__).parent.parent / "data"
+GEN = DATA / "generate"
+MI, CY = DATA / "mitsuba", DATA / "cycles"
+
+
+def _channels(path):
+    with OpenEXR.File(str(path), separate_channels=True) as f:
+        out = {}
+        for i in range(len(f.parts)):
+            for k, v in f.channels(i).items():
+                out.setdefault(k, v.pixels.astype(np.float64))
+    return out
+
+
+# ---------------------------------------------------------------- Mitsuba 3
+
+@pytest.mark.parametrize("name", ["mitsuba_box.exr", "mitsuba_cli_box.exr"])
+def test_mitsuba_xyz_mean_is_the_films_srgb(name):
+    ch = _channels(MI / name)
+    buf = read_sample_dump(MI / name, spp=8).buffer
+    film = np.stack([ch[c] for c in "RGB"], -1)  # the film's own linear sRGB of the same samples
+    np.testing.assert_allclose(buf.mean, film, rtol=5e-3, atol=1e-4 * film.max())
+
+
+def test_mitsuba_colour_against_reference():
+    ref = read_image(MI / "mitsuba_ref.exr").astype(np.float64)
+    ch = _channels(MI / "mitsuba_box.exr")
+    as_rgb = np.stack([ch[f"nested.{c}"] for c in "XYZ"], -1)  # the old reading: XYZ as R,G,B
+    buf = read_sample_dump(MI / "mitsuba_box.exr", spp=8).buffer
+    err_new = np.mean((buf.mean - ref) ** 2)
+    err_old = np.mean((as_rgb - ref) ** 2)
+    assert err_new < 0.6 * err_old  # measured 0.47x
+
+
+def test_mitsuba_aov_rgb_moments_used_and_close_to_conversion():
+    dump = read_sample_dump(MI / "mitsuba_aov.exr", spp=8)
+    assert any("exact RGB variances" in n for n in dump.notes)
+    conv = read_sample_dump(MI / "mitsuba_aov.exr", spp=8, preset="mitsuba", color="main").buffer
+    ok = dump.buffer.variance > 0
+    ratio = np.median(conv.variance[ok] / dump.buffer.variance[ok])
+    assert 0.85 < ratio < 1.15  # measured 0.95-0.99 per channel (docs/io.md)
+
+
+def test_mitsuba_gaussian_filter_warns_box_does_not():
+    with pytest.warns(InputFileWarning, match="film filter is probably not 'box'"):
+        read_sample_dump(MI / "mitsuba_gaussian.exr", spp=8)
+    read_sample_dump(MI / "mitsuba_box.exr", spp=8)  # filterwarnings=error: any warning fails
+
+
+def test_mitsuba_info_without_spp_and_denoise_asks_for_it(tmp_path, capsys):
+    assert main(["info", str(MI / "mitsuba_box.exr")]) == 0
+    assert "--spp N" in capsys.readouterr().out
+    assert main(["denoise", str(MI / "mitsuba_box.exr"), "-o", str(tmp_path / "o.exr")]) == 2
+    assert "spp" in capsys.readouterr().err
+    assert not (tmp_path / "o.exr").exists()
+
+
+@pytest.mark.skipif(importlib.util.find_spec("mitsuba") is None, reason="needs the 'mitsuba' extra")
+def test_mitsuba_fresh_renders_variance_matches_seed_spread(tmp_path):
+    subprocess.run([sys.executable, str(GEN / "mitsuba_files.py"), str(tmp_path), "--seeds", "1:12", "mitsuba_box"],
+                   check=True, capture_output=True)
+    files = sorted(tmp_path.glob("mitsuba_box_seed_*.exr"))
+    bufs = [read_sample_dump(f, spp=8).buffer for f in files]
+    measured = np.var([b.mean for b in bufs], axis=0, ddof=1)
+    predicted = np.mean([b.variance for b in bufs], axis=0) / 8
+    ratio = measured.sum(axis=(0, 1)) / predicted.sum(axis=(0, 1))
+    assert np.all((ratio > 0.8) & (ratio < 1.25)), ratio
+
+
+# ---------------------------------------------------------------- Blender Cycles
+
+def test_cycles_prefers_noisy_image():
+    with pytest.warns(InputFileWarning, match="same count"):
+        dump = read_sample_dump(CY / "cycles_default.exr", variance="ViewLayer.Denoising Albedo")
+    ch = _channels(CY / "cycles_default.exr")
+    np.testing.assert_array_equal(dump.buffer.mean[..., 0], ch["ViewLayer.Noisy Image.R"])
+    assert not np.array_equal(ch["ViewLayer.Noisy Image.R"], ch["ViewLayer.Combined.R"])
+
+
+def test_cycles_count_scale_is_the_samples_rendered():
+    """Asked for 512, converged early: bit-identical to a render asking for exactly 304."""
+    a, b = _channels(CY / "cycles_converged.exr"), _channels(CY / "cycles_converged_304.exr")
+    assert all(np.array_equal(a[k], b[k]) for k in a)
+    dump = read_sample_independent = read_sample_dump(CY / "cycles_converged.exr", variance="ViewLayer.Combined")
+    assert dump.buffer.count.max() == 304  # header says 512
+    np.testing.assert_array_equal(dump.buffer.count, np.rint(a["ViewLayer.Debug Sample Count.X"] * 304))
+    del read_sample_independent
+
+
+def test_cycles_time_limit_counts_consistent():
+    buf = read_sample_dump(CY / "cycles_time_limit.exr", variance="ViewLayer.Combined").buffer
+    assert buf.count.max() <= 4096 and (buf.count % 16 == 0).all() and buf.count.min() >= 64
+
+
+def test_cycles_layer_with_dot_stereo_and_missing_count():
+    with pytest.warns(InputFileWarning, match="same count"):
+        assert read_sample_dump(CY / "cycles_layer_dot.exr", variance="beauty.main.Combined").buffer.shape == (32, 32)
+    with pytest.raises(InputFileError, match="several views .left, right."):
+        read_sample_dump(CY / "cycles_stereo.exr", variance="ViewLayer.Combined")
+    with pytest.warns(InputFileWarning, match="no sample count pass"):
+        left = read_sample_dump(CY / "cycles_stereo.exr", variance="ViewLayer.Combined", view="left").buffer
+    with pytest.warns(InputFileWarning):
+        right = read_sample_dump(CY / "cycles_stereo.exr", variance="ViewLayer.Combined", view="right").buffer
+    assert not np.array_equal(left.mean, right.mean)
+    with pytest.warns(InputFileWarning, match="no sample count pass"):
+        read_sample_dump(CY / "cycles_adaptive_nocount.exr", variance="ViewLayer.Combined")
+
+
+def test_cycles_independent_renders_merged_and_denoised(tmp_path):
+    files = sorted(CY.glob("cycles_seed_*.exr"))
+    with pytest.warns(InputFileWarning):
+        dump = read_independent_renders(files)
+    buf = dump.buffer
+    assert (buf.count == 8 * 16).all() and buf.variance_known.all()
+    means = np.array([read_image(f)[..., :3] for f in files], dtype=np.float64)
+    np.testing.assert_allclose(buf.mean, means.mean(0), rtol=1e-6)
+    np.testing.assert_allclose(buf.variance, means.var(0, ddof=1) * 16, rtol=1e-6)
+    out = tmp_path / "merged.exr"
+    assert main(["merge", "--independent", *map(str, files), "-o", str(out), "-q"]) == 0
+    assert main(["denoise", str(out), "-o", str(tmp_path / "d.exr"), "-q"]) == 0
+
+
+@pytest.mark.xfail(strict=True, reason="measured: denoising 8 merged 16-spp Cycles renders gives 6x the MSE of "
+                                       "their plain mean against the 2048-spp reference; not yet understood")
+def test_cycles_independent_renders_denoised_beat_mean(tmp_path):
+    files = sorted(CY.glob("cycles_seed_*.exr"))
+    with pytest.warns(InputFileWarning):
+        assert main(["merge", "--independent", *map(str, files), "-o", str(tmp_path / "m.exr"), "-q"]) == 0
+    assert main(["denoise", str(tmp_path / "m.exr"), "-o", str(tmp_path / "d.exr"), "-q"]) == 0
+    buf = read_sample_dump(tmp_path / "m.exr").buffer
+    ref = read_image(CY / "cycles_ref.exr")[..., :3].astype(np.float64)
+    den = read_image(tmp_path / "d.exr").astype(np.float64)
+    assert np.mean((den - ref) ** 2) < np.mean((buf.mean - ref) ** 2)
+
+
+@pytest.mark.skipif(importlib.util.find_spec("bpy") is None, reason="needs the 'blender' extra (bpy)")
+def test_cycles_fresh_renders(tmp_path):
+    """Render with Blender: early convergence checked against a render of exactly the derived
+    count, and the independent-render variance against the spread of group means."""
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); import cycles_files as cf; from pathlib import Path; "
+            "out = Path(sys.argv[2]); n = sys.argv[3]; s = int(sys.argv[4]); "
+            "cf.render('cycles_converged', out, samples=s).rename(out / n)")
+    run = lambda name, samples: subprocess.run([sys.executable, "-c", code, str(GEN), str(tmp_path), name, str(samples)],  # noqa: E731
+                                               check=True, capture_output=True)
+    run("a.exr", 512)
+    s = int(read_sample_dump(tmp_path / "a.exr", variance="ViewLayer.Combined").buffer.count.max())
+    run("b.exr", s)
+    a, b = _channels(tmp_path / "a.exr"), _channels(tmp_path / "b.exr")
+    assert all(np.array_equal(a[k], b[k]) for k in a)
+    subprocess.run([sys.executable, str(GEN / "cycles_files.py"), str(tmp_path), *[f"cycles_seed_{k}" for k in range(1, 9)]],
+                   check=True, capture_output=True)
+    files = sorted(tmp_path.glob("cycles_seed_*.exr"))
+    with pytest.warns(InputFileWarning):
+        halves = [read_independent_renders(files[:4]).buffer, read_independent_renders(files[4:]).buffer]
+    measured = (halves[0].mean - halves[1].mean) ** 2 / 2
+    predicted = (halves[0].variance_of_mean() + halves[1].variance_of_mean()) / 2
+    ratio = measured.sum() / predicted.sum()
+    assert 0.6 < ratio < 1.6, ratio
