@@ -15,67 +15,38 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
-import statistics
-import sys
-import time
-import tracemalloc
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 
-from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, VarianceSampler, reconstruct
+from awr_denoise import AdaptiveSampler, SampleRequest, UniformSampler, VarianceSampler, reconstruct
+from awr_denoise.bench import OVERHEAD_SIZES, machine_info, median_time, noisy_buffer, peak_memory, write_json
 from awr_denoise.domains import Domain
 from awr_denoise.metrics import mse, relmse
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
+from awr_denoise.wavelets import default_levels
 
-SIZES = {"256x256": (256, 256), "1080p": (1080, 1920), "4K": (2160, 3840)}
 RESULTS = Path(__file__).resolve().parent / "results" / "core.json"
-
-
-def _noisy_buffer(shape, spp=4, seed=0) -> SampleBuffer:
-    rng = np.random.default_rng(seed)
-    h, w = shape
-    count = np.full((h, w), spp)
-    mean = rng.uniform(0.0, 1.0, (h, w, 3))
-    var = rng.uniform(0.0, 0.1, (h, w, 3))
-    return SampleBuffer.from_moments(count, mean, var)
-
-
-def _median_time(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times)
-
-
-def _peak(fn) -> int:
-    tracemalloc.start()
-    tracemalloc.reset_peak()
-    fn()
-    _, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
-    return peak
 
 
 def speed(sizes: list[str]) -> list[dict]:
     rows = []
     for name in sizes:
-        shape = SIZES[name]
-        buf = _noisy_buffer(shape)
+        shape = OVERHEAD_SIZES[name]
+        # Unblurred random means without added noise: the buffer of the timings in docs/performance.md.
+        buf = noisy_buffer(shape, smooth=0.0, noise=0.0)
         repeats = 5 if name == "256x256" else 3
         reconstruct(buf)  # build and cache the wavelet operators once, as a renderer's loop would
         sampler = AdaptiveSampler.from_buffer(buf, round=1)
         sampler.ask()
-        t_rec = _median_time(lambda: reconstruct(buf), repeats)
+        t_rec = median_time(lambda: reconstruct(buf), repeats)
         with ThreadPoolExecutor(2) as pool:
-            t_rec2 = _median_time(lambda: reconstruct(buf, executor=pool), repeats)
-        t_ask = _median_time(lambda: AdaptiveSampler.from_buffer(buf, round=1).ask(), repeats)
-        m_rec = _peak(lambda: reconstruct(buf))
-        m_ask = _peak(lambda: AdaptiveSampler.from_buffer(buf, round=1).ask())
+            t_rec2 = median_time(lambda: reconstruct(buf, executor=pool), repeats)
+        t_ask = median_time(lambda: AdaptiveSampler.from_buffer(buf, round=1).ask(), repeats)
+        _, m_rec = peak_memory(lambda: reconstruct(buf))
+        _, m_ask = peak_memory(lambda: AdaptiveSampler.from_buffer(buf, round=1).ask())
         row = {"size": name, "pixels": shape[0] * shape[1], "input_MB": buf.nbytes / 2**20,
                "reconstruct_s": t_rec, "reconstruct_2threads_s": t_rec2, "ask_s": t_ask,
                "reconstruct_peak_x_input": m_rec / buf.nbytes, "ask_peak_x_input": m_ask / buf.nbytes}
@@ -189,8 +160,6 @@ def round_growths(shape=(128, 128), spps=(8, 32), seeds=(3, 4, 5)) -> list[dict]
 
 def levels(shapes=((128, 128), (256, 256)), spps=(8, 32), seeds=(3, 4)) -> list[dict]:
     """Decomposition depth: relMSE of uniform + AWR and AWR + AWR, mean over seeds, per size."""
-    from awr_denoise.wavelets import default_levels
-
     rows = []
     for shape in shapes:
         depths = (2, 3, 4, 5)
@@ -221,8 +190,6 @@ def uniform_fractions(shape=(128, 128), spps=(8, 32), seeds=(3, 4, 5, 6)) -> lis
     ``rare_light (disc)`` is the error of the rare_light scene inside its small bright disc (grown
     by 3 pixels), where a share of uniform samples would matter if anywhere.
     """
-    from scipy import ndimage
-
     rows = []
     fractions = (0.0, 0.1, 0.3)
     for scene_name in ("gradient", "edges", "hdr_source", "fireflies", "rare_light"):
@@ -250,7 +217,7 @@ def uniform_fractions(shape=(128, 128), spps=(8, 32), seeds=(3, 4, 5, 6)) -> lis
 SECTIONS = {
     "speed": ("Speed (one core) and peak memory",
               "| size | input buffer | reconstruct | reconstruct, 2 threads | ask() | reconstruct peak | ask() peak |",
-              lambda quick: speed(["256x256"] if quick else list(SIZES))),
+              lambda quick: speed(["256x256"] if quick else list(OVERHEAD_SIZES))),
     "quality": ("Quality, synthetic 128x128 (relMSE / MSE, equal samples)",
                 "| scene | spp | uniform mean | uniform + AWR | variance-driven + AWR | AWR adaptive + AWR |",
                 lambda quick: quality(spps=(8,) if quick else (8, 32))),
@@ -286,16 +253,14 @@ def main(argv: list[str] | None = None) -> int:
     results = {}
     if args.only and args.output.is_file():
         results = json.loads(args.output.read_text())
-    results["machine"] = {"python": sys.version.split()[0], "platform": platform.platform(),
-                          "processor": platform.processor() or platform.machine()}
+    results["machine"] = machine_info()
     for name in args.only or SECTIONS:
         title, header, run = SECTIONS[name]
         print(f"\n## {title}\n")
         print(header)
         print("|---" * (header.count("|") - 1) + "|")
         results[name] = run(args.quick)
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(json.dumps(results, indent=2))
+    write_json(args.output, results, indent=2)
     print(f"\nwrote {args.output}")
     return 0
 

@@ -24,24 +24,30 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import os
-import platform
 import resource
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
+from awr_denoise import AdaptiveSampler, SampleBuffer, reconstruct
+from awr_denoise.bench import command_line, machine_info, peak_memory, write_json
+
 SIZES = {"4k": (3840, 2160), "8k": (7680, 4320)}
 RESULTS = Path(__file__).resolve().parent / "results" / "memory.json"
 
 
-def _build_buffer(width: int, height: int):
-    import numpy as np
+def _build_buffer(width: int, height: int) -> SampleBuffer:
+    """A buffer built with as little transient memory as possible (float32 planes, freed at once).
 
-    from awr_denoise import SampleBuffer
-
+    Not :func:`awr_denoise.bench.noisy_buffer`: at 8K its float64 planes and blur would raise
+    the process' peak RSS, which this benchmark reports.
+    """
     rng = np.random.default_rng(1)
     count = np.full((height, width), 8, np.int64)
     # A smooth gradient plus noise: the content does not change the memory, only the shape.
@@ -55,36 +61,29 @@ def _build_buffer(width: int, height: int):
 
 def _child(op: str, width: int, height: int) -> dict:
     """Runs inside the subprocess: one measurement, printed as JSON."""
-    import gc
-    import tracemalloc
-
-    import numpy as np
-
-    from awr_denoise import AdaptiveSampler, reconstruct
-
     buf = _build_buffer(width, height)
+
+    def run() -> float:
+        t0 = time.perf_counter()
+        if op == "reconstruct":
+            out = reconstruct(buf)
+            assert np.isfinite(out).all()
+            del out
+        elif op == "ask":
+            sampler = AdaptiveSampler.from_buffer(buf, round=1)
+            request = sampler.ask(budget=width * height)  # one round of 1 spp
+            assert request.total == width * height
+            del request, sampler
+        else:  # pragma: no cover
+            raise ValueError(op)
+        return time.perf_counter() - t0
+
     gc.collect()
-    tracemalloc.start()
-    base, _ = tracemalloc.get_traced_memory()
-    t0 = time.perf_counter()
-    if op == "reconstruct":
-        out = reconstruct(buf)
-        assert np.isfinite(out).all()
-        del out
-    elif op == "ask":
-        sampler = AdaptiveSampler.from_buffer(buf, round=1)
-        request = sampler.ask(budget=width * height)  # one round of 1 spp
-        assert request.total == width * height
-        del request, sampler
-    else:  # pragma: no cover
-        raise ValueError(op)
-    seconds = time.perf_counter() - t0
-    _, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
+    seconds, peak = peak_memory(run)
     maxrss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # KiB on Linux
     return {"op": op, "width": width, "height": height, "channels": 3,
             "buffer_bytes": buf.nbytes, "image_f32_bytes": width * height * 3 * 4,
-            "tracemalloc_peak_bytes": peak - base, "maxrss_bytes": maxrss, "seconds": seconds}
+            "tracemalloc_peak_bytes": peak, "maxrss_bytes": maxrss, "seconds": seconds}
 
 
 def _parse_size(text: str) -> tuple[str, int, int]:
@@ -121,10 +120,8 @@ def main(argv: list[str] | None = None) -> int:
             row["size"] = label
             rows.append(row)
             _print_row(row, header=len(rows) == 1)
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    meta = {"command": "python benchmarks/bench_memory.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-            "python": platform.python_version(), "machine": platform.machine(), "cpus": os.cpu_count()}
-    args.output.write_text(json.dumps({"meta": meta, "results": rows}, indent=2) + "\n")
+    meta = {"command": command_line("benchmarks/bench_memory.py", argv), **machine_info()}
+    write_json(args.output, {"meta": meta, "results": rows}, indent=2)
     print(f"wrote {args.output}")
     return 0
 

@@ -27,9 +27,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import os
-import platform
 import statistics
 import sys
 import tempfile
@@ -37,9 +35,9 @@ import time
 from concurrent.futures import Executor
 from pathlib import Path
 
-import numpy as np
-
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, reconstruct
+from awr_denoise.bench import command_line, load_average, machine_info, write_json
+from awr_denoise.io import write_sample_buffer
 from awr_denoise.parallel import (
     RendererSpec,
     denoise_frame,
@@ -57,7 +55,7 @@ CONFIGS = (("threads", 1), ("threads", 2), ("dask", 1), ("dask", 2))
 
 def _renderer_spec(shape: tuple[int, int]) -> tuple[RendererSpec, str]:
     try:
-        from awr_denoise import tracer  # noqa: F401
+        from awr_denoise import tracer  # noqa: F401 - optional extra "tracer" (embreex): is it installed?
     except ImportError:
         return RendererSpec.synthetic("fireflies", shape, seed=1), "synthetic fireflies"
     return (RendererSpec.tracer("cornell_gi", width=shape[1], height=shape[0], seed=1, threads=1),
@@ -68,8 +66,6 @@ class Workloads:
     """The three workloads, each runnable serially or on an executor."""
 
     def __init__(self, directory: Path, quick: bool) -> None:
-        from awr_denoise.io import write_sample_buffer
-
         self.n_frames = 4 if quick else 8
         frame_shape = (256, 256) if quick else (512, 512)
         self.inputs = []
@@ -128,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     names = ("frames", "render", "tiled reconstruction")
     timings: dict[str, dict[str, float]] = {name: {} for name in names}
     startup: dict[str, float] = {}
-    load_start = list(os.getloadavg())  # other processes on the machine skew every timing
+    load_start = load_average()  # other processes on the machine skew every timing
     samples: dict[str, dict[str, list[float]]] = {name: {} for name in names}
     with tempfile.TemporaryDirectory() as tmp, contextlib.ExitStack() as stack:
         work = Workloads(Path(tmp), args.quick)
@@ -170,27 +166,22 @@ def main(argv: list[str] | None = None) -> int:
               f"{thread_speedup:.2f}x | {t['dask-1']:.2f} s | {t['dask-2']:.2f} s | {dask_speedup:.2f}x |")
     print()
     print("executor start-up: " + ", ".join(f"{k} {v:.2f} s" for k, v in startup.items()))
-    print(f"load average (1 min) at start {load_start[0]:.2f}, at end {os.getloadavg()[0]:.2f} "
-          f"on {os.cpu_count()} CPUs")
+    load_end = load_average()
+    if load_start and load_end:
+        print(f"load average (1 min) at start {load_start[0]:.2f}, at end {load_end[0]:.2f} on {os.cpu_count()} CPUs")
     for name in names:
         print(f"- {name}: {work.descriptions[name]}")
 
-    import dask
-    import distributed
-
     payload = {
-        "command": "benchmarks/bench_parallel.py" + (" --quick" if args.quick else "")
-                   + (f" --repeats {args.repeats}" if args.repeats else ""),
+        "command": command_line("benchmarks/bench_parallel.py", argv),
         "repeats": repeats,
         "statistic": "median seconds after one warm-up run per executor; configurations interleaved",
-        "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
-                    "numpy": np.__version__, "dask": dask.__version__, "distributed": distributed.__version__},
-        "load_average_1_5_15_min": {"start": load_start, "end": list(os.getloadavg())},
+        "machine": machine_info("dask", "distributed"),
+        "load_average_1_5_15_min": {"start": load_start, "end": load_end},
         "executor_startup_seconds": startup,
         "workloads": results,
     }
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(json.dumps(payload, indent=2) + "\n")
+    write_json(args.output, payload, indent=2)
     print(f"\nwrote {args.output}")
     return 0
 

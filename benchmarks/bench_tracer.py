@@ -17,16 +17,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
-import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
-from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
 
+from awr_denoise.bench import command_line, load_average, machine_info, write_json
 from awr_denoise.requests import SampleRequest
 from awr_denoise.tracer import PathTracer, list_scenes, load_scene
 
@@ -132,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
         print(markdown_table(json.loads(args.markdown_from.read_text())))
         return 0
     names = args.scenes or list_scenes()
-    load_at_start = os.getloadavg()
+    load_at_start = load_average()
     rows = []
     header = (f"{'scene':<14}{'workers':>10}{'dim':>4}{'tris':>6}{'rays/spl':>9}{'Msamples/s':>11}"
               f"{'Mrays/s':>9}"
@@ -150,18 +147,16 @@ def main(argv: list[str] | None = None) -> int:
                   f"{r['raw_embree_rays_per_s'] / 1e6:>12.2f}{r['ratio_tracer_to_raw']:>7.1%}"
                   f"{r['tracer_thread_speedup']:>13.2f}{r['raw_thread_speedup']:>10.2f}")
     result = {
-        "command": " ".join(["python benchmarks/bench_tracer.py", *(sys.argv[1:] if argv is None else argv)]),
+        "command": command_line("benchmarks/bench_tracer.py", argv),
         "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-        "load_average_1_5_15min": {"start": load_at_start, "end": os.getloadavg()},
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__,
-                    "embreex": version("embreex"), "platform": platform.platform()},
+        "load_average_1_5_15min": {"start": load_at_start, "end": load_average()},
+        "machine": machine_info("embreex"),
         "settings": {"spp": args.spp, "repeats": args.repeats, "threads": args.threads, "workers": args.workers,
                      "sampler": "sobol",
                      "timing": "best of repeats, wall clock"},
         "scenes": rows,
     }
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(json.dumps(result, indent=1) + "\n")
+    write_json(args.output, result, indent=1)
     print(f"wrote {args.output}")
     return 0
 

@@ -53,6 +53,12 @@ from pathlib import Path
 
 import numpy as np
 
+import awr_denoise.io as awr_io  # readers looked up at call time: a test substitutes a broken one
+from awr_denoise import SampleBuffer, SampleRequest
+from awr_denoise.bench import command_line, write_json
+from awr_denoise.cli.main import main as awr_main
+from awr_denoise.errors import InputFileError
+
 DEFAULT_TIMEOUT = 20.0
 MEMORY_LIMIT = 4 * 1024**3  # address space of soak children: a huge allocation fails, not the machine
 
@@ -64,7 +70,7 @@ MUTATIONS = ("valid", "truncate", "magic", "flip_bits", "overwrite_word", "inser
 # ---------------------------------------------------------------------------- seeds
 def _openexr_write(path: Path, channels: dict, header: dict | None = None, *, deep: bool = False,
                    compression: str = "none") -> None:
-    import OpenEXR
+    import OpenEXR  # optional extra "exr", imported lazily
 
     comp = {"none": OpenEXR.NO_COMPRESSION, "zip": OpenEXR.ZIP_COMPRESSION, "zips": OpenEXR.ZIPS_COMPRESSION,
             "rle": OpenEXR.RLE_COMPRESSION, "piz": OpenEXR.PIZ_COMPRESSION}[compression]
@@ -75,8 +81,6 @@ def _openexr_write(path: Path, channels: dict, header: dict | None = None, *, de
 
 
 def _seed_buffer(shape=(5, 4), seed=0):
-    from awr_denoise import SampleBuffer
-
     rng = np.random.default_rng(seed)
     h, w = shape
     count = rng.integers(0, 9, shape)
@@ -89,14 +93,11 @@ def _seed_buffer(shape=(5, 4), seed=0):
 
 def write_seeds(directory: Path) -> dict[str, Path]:
     """The valid seed files every case is derived from (a few hundred bytes to a few KiB)."""
-    from awr_denoise import SampleRequest
-    from awr_denoise.io import write_deep_samples, write_image, write_request, write_sample_buffer
-
     directory.mkdir(parents=True, exist_ok=True)
     seeds: dict[str, Path] = {}
     buf = _seed_buffer()
     h, w = buf.shape
-    seeds["awr_zip"] = write_sample_buffer(directory / "awr_zip.exr", buf, header={"awr:round": 2})
+    seeds["awr_zip"] = awr_io.write_sample_buffer(directory / "awr_zip.exr", buf, header={"awr:round": 2})
     f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
     awr_planes = {"sampleCount": np.ascontiguousarray(buf.count.astype(np.uint32))}
     for i, c in enumerate("RGB"):
@@ -113,12 +114,12 @@ def write_seeds(directory: Path) -> dict[str, Path]:
     half = {c: np.ascontiguousarray(buf.mean[..., i].astype(np.float16)) for i, c in enumerate("RGB")}
     _openexr_write(directory / "image_half.exr", half)
     seeds["image_half"] = directory / "image_half.exr"
-    seeds["image_zip"] = write_image(directory / "image_zip.exr", buf.mean)
+    seeds["image_zip"] = awr_io.write_image(directory / "image_zip.exr", buf.mean)
     rng = np.random.default_rng(1)
     pixels = rng.integers(0, h * w, 40)
-    seeds["deep"] = write_deep_samples(directory / "deep.exr", pixels, rng.random((40, 3)), (h, w))
+    seeds["deep"] = awr_io.write_deep_samples(directory / "deep.exr", pixels, rng.random((40, 3)), (h, w))
     req = SampleRequest(rng.integers(0, 5, (h, w)), rng.integers(0, 9, (h, w)), round=3)
-    seeds["request"] = write_request(directory / "request.exr", req)
+    seeds["request"] = awr_io.write_request(directory / "request.exr", req)
     return seeds
 
 
@@ -341,17 +342,13 @@ def _check_buffer(buf) -> str | None:
 
 def run_readers(path: Path) -> list[tuple[str, str, str]]:
     """(reader, outcome, message) for each reader; outcome 'ok', 'rejected' or 'FAIL'."""
-    from awr_denoise.errors import InputFileError
-    from awr_denoise.io import (read_deep_samples, read_header, read_image, read_request, read_sample_buffer,
-                                read_sample_dump)
-
     readers = {
-        "read_sample_buffer": lambda: read_sample_buffer(path),
-        "read_sample_dump": lambda: read_sample_dump(path).buffer,
-        "read_image": lambda: read_image(path),
-        "read_deep_samples": lambda: read_deep_samples(path),
-        "read_request": lambda: read_request(path),
-        "read_header": lambda: read_header(path),
+        "read_sample_buffer": lambda: awr_io.read_sample_buffer(path),
+        "read_sample_dump": lambda: awr_io.read_sample_dump(path).buffer,
+        "read_image": lambda: awr_io.read_image(path),
+        "read_deep_samples": lambda: awr_io.read_deep_samples(path),
+        "read_request": lambda: awr_io.read_request(path),
+        "read_header": lambda: awr_io.read_header(path),
     }
     results = []
     for name, call in readers.items():
@@ -377,11 +374,9 @@ def run_readers(path: Path) -> list[tuple[str, str, str]]:
 
 def run_cli(argv: list[str]) -> tuple[int, str, str]:
     """``awr`` in-process: (exit status, stdout, stderr) as Python sees them."""
-    from awr_denoise.cli.main import main
-
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = main(argv)
+        rc = awr_main(argv)
     return rc, out.getvalue(), err.getvalue()
 
 
@@ -395,11 +390,9 @@ def check_cli(argv: list[str], output: Path | None, *, must_fail: bool = False) 
     lines = [ln for ln in err.splitlines() if ln.strip()]
     if rc == 0:
         if output is not None:
-            from awr_denoise.io import read_image
-
             if not output.exists():
                 return "exit 0 but no output file"
-            if not np.isfinite(read_image(output)).all():
+            if not np.isfinite(awr_io.read_image(output)).all():
                 return "exit 0 with a non-finite output image"
             output.unlink()
         return None
@@ -529,13 +522,12 @@ def soak(cases: int, seed: int, *, timeout: float, chunk: int, failures_dir: Pat
             print(f"  {index}/{cases} cases, {len(failed)} failing, {time.time() - started:.0f} s", flush=True)
     _print_table(tally, outcome_tally)
     summary = {"seed": seed, "cases": cases, "failing": len(failed), "seconds": round(time.time() - started, 1),
-               "command": f"python benchmarks/fuzz_soak.py --cases {cases} --seed {seed}",
+               "command": command_line("benchmarks/fuzz_soak.py", ["--cases", str(cases), "--seed", str(seed)]),
                "by_mutation": {f"{m}:{k}": v for (m, k), v in sorted(tally.items())},
                "reader_outcomes": {f"{m}:{k}": v for (m, k), v in sorted(outcome_tally.items())},
                "failures": failed[:200]}
     if report is not None:
-        report.parent.mkdir(parents=True, exist_ok=True)
-        report.write_text(json.dumps(summary, indent=1) + "\n")
+        write_json(report, summary, indent=1)
         print(f"wrote {report}")
     return 1 if failed else 0
 
@@ -546,7 +538,7 @@ def _save_failure(seed: int, record: dict, failures_dir: Path, workdir: Path) ->
     case = make_case(seed, record["index"], seeds, workdir)
     name = f"s{seed}_c{record['index']}_{record['mutation']}"
     (failures_dir / f"{name}.exr").write_bytes(case.data)
-    (failures_dir / f"{name}.json").write_text(json.dumps(record, indent=1) + "\n")
+    write_json(failures_dir / f"{name}.json", record, indent=1)
 
 
 def _print_table(tally: Counter, outcome_tally: Counter) -> None:

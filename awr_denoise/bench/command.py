@@ -1,0 +1,145 @@
+"""The benchmark's command line, shared by ``awr bench`` and ``python -m awr_denoise.bench``."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from .config import OVERHEAD_SIZES, BenchmarkConfig
+from .runner import run_benchmark
+
+__all__ = ["DESCRIPTION", "add_arguments", "config_from_args", "run_from_args", "main"]
+
+DESCRIPTION = "The speed/accuracy benchmark on the bundled path-traced scenes (``awr bench``)."
+"""One-line description of ``python -m awr_denoise.bench``."""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Add the benchmark's options to ``parser`` (shared by ``awr bench`` and ``python -m``).
+
+    Parameters
+    ----------
+    parser
+        The parser (or sub-parser) to extend.
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        ``parser``.
+
+    Examples
+    --------
+    >>> args = add_arguments(argparse.ArgumentParser()).parse_args(["--quick", "--spp", "8", "4"])
+    >>> args.quick, args.spp, str(args.output_dir)
+    (True, [8, 4], 'docs')
+    """
+    parser.add_argument("--quick", action="store_true", help="fewer sample counts, seeds and sizes (a few minutes)")
+    parser.add_argument("--scenes", nargs="+", metavar="SCENE", default=None, help="bundled scenes (default: all)")
+    parser.add_argument("--output-dir", type=Path, default=Path("docs"),
+                        help="where benchmarks.md and img/ go (default: docs)")
+    parser.add_argument("--results", type=Path, default=None,
+                        help="JSON output (default: benchmarks/results/quality.json beside the output dir)")
+    parser.add_argument("--reference-spp", type=int, default=None,
+                        help="re-render (and cache) references below this spp with the tracer")
+    parser.add_argument("--spp", type=int, nargs="+", default=None, help="average spp to measure at")
+    parser.add_argument("--size", type=int, nargs=2, metavar=("WIDTH", "HEIGHT"), default=None,
+                        help="override the scenes' resolution (references are then rendered on the fly)")
+    parser.add_argument("--overhead-sizes", nargs="*", choices=tuple(OVERHEAD_SIZES), default=None, metavar="SIZE",
+                        help=f"image sizes of the overhead measurement ({', '.join(OVERHEAD_SIZES)}; none to skip)")
+    parser.add_argument("--no-oidn", action="store_true", help="skip Open Image Denoise even if installed")
+    parser.add_argument("--no-plots", action="store_true", help="write no PNG figures")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    return parser
+
+
+def config_from_args(args: argparse.Namespace) -> BenchmarkConfig:
+    """The :class:`BenchmarkConfig` that options parsed by :func:`add_arguments` ask for.
+
+    ``--quick`` starts from :meth:`BenchmarkConfig.quick`, otherwise from the full run; the
+    other options override fields of it.
+
+    Examples
+    --------
+    >>> args = add_arguments(argparse.ArgumentParser()).parse_args(["--quick", "--spp", "8", "4", "8"])
+    >>> config_from_args(args).spps
+    (4, 8)
+    """
+    overrides: dict[str, Any] = {}
+    if args.scenes:
+        overrides["scenes"] = tuple(args.scenes)
+    if args.reference_spp is not None:
+        overrides["reference_spp"] = args.reference_spp
+    if args.spp:
+        overrides["spps"] = tuple(sorted(set(args.spp)))
+    if args.size:
+        overrides["width"], overrides["height"] = args.size
+    if args.overhead_sizes is not None:
+        overrides["overhead_sizes"] = tuple(args.overhead_sizes)
+    if args.no_oidn:
+        overrides["oidn"] = False
+    return BenchmarkConfig.quick(**overrides) if args.quick else replace(BenchmarkConfig(), **overrides)
+
+
+def run_from_args(args: argparse.Namespace) -> int:
+    """Run the benchmark with options parsed by :func:`add_arguments`; print the summary.
+
+    Parameters
+    ----------
+    args
+        The parsed options.
+
+    Returns
+    -------
+    int
+        0, or 1 when the run itself fails (a missing extra, an unknown scene): one line on
+        stderr names the problem.
+
+    Raises
+    ------
+    ValueError
+        Inconsistent options (a usage error, for the caller's parser to report).
+    """
+    config = config_from_args(args)
+    try:
+        results = run_benchmark(config, output_dir=args.output_dir, results_path=args.results,
+                                plots=not args.no_plots, progress=not args.quiet,
+                                mode_name="quick" if args.quick else "full")
+    except (ImportError, ValueError) as exc:
+        print(f"awr bench: {exc}", file=sys.stderr)
+        return 1
+    s = results["summary"]
+    print(f"{'scene':<14} " + " ".join(f"{m:>16}" for m in s["scenes"][next(iter(s["scenes"]))]["relmse"]))
+    for name, entry in s["scenes"].items():
+        print(f"{name:<14} " + " ".join(f"{v:>16.5f}" for v in entry["relmse"].values()))
+    print(f"relMSE at {s['headline_spp']} spp; OIDN: {results['meta']['oidn']}; "
+          f"run time {results['meta']['run_seconds'] / 60:.1f} min")
+    for flag in s["flags"]:
+        print(f"FLAG: {flag}")
+    if args.output_dir is not None:
+        print(f"wrote {args.output_dir / 'benchmarks.md'}")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command line: ``python -m awr_denoise.bench [--quick] [--scenes ...] [--output-dir docs]``.
+
+    Parameters
+    ----------
+    argv
+        The arguments; ``None`` reads :data:`sys.argv`.
+
+    Returns
+    -------
+    int
+        The exit status (2 for a usage error, through :meth:`argparse.ArgumentParser.error`).
+    """
+    parser = add_arguments(argparse.ArgumentParser(prog="python -m awr_denoise.bench", description=DESCRIPTION))
+    args = parser.parse_args(argv)
+    try:
+        return run_from_args(args)
+    except ValueError as exc:
+        parser.error(str(exc))

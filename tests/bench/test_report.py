@@ -1,0 +1,43 @@
+"""The benchmark's page (awr_denoise.bench.report)."""
+
+from __future__ import annotations
+
+import pytest
+
+from awr_denoise.bench.report import NOTES_BEGIN, NOTES_END, format_number, write_markdown
+
+pytestmark = pytest.mark.tracer
+
+
+def test_format_number():
+    assert format_number(0.012345) == "0.01235"
+    assert format_number(3.0e-5) == "3.000e-05"
+    assert format_number(12345.0) == "1.234e+04"
+    assert format_number(0.0) == "0"
+    assert format_number(float("inf")) == "inf" and format_number(float("nan")) == "n/a"
+    assert format_number(None) == "-" and format_number(False) == "no" and format_number("x") == "x"
+
+
+def test_page_has_every_section_and_its_figures(tiny_run):
+    _, out = tiny_run
+    page = (out / "docs" / "benchmarks.md").read_text()
+    for heading in ("# Benchmarks", "## Reproduce", "## References and their noise floor", "## Headline",
+                    "## Goals", "## All metrics", "## Equal time", "## Where the samples went",
+                    "## Smoothing constant and domain"):
+        assert heading in page, heading
+    assert "python -m awr_denoise.bench" in page
+    assert "## Overhead" not in page and "## The other defaults" not in page  # neither was measured
+    for link in page.split("](img/")[1:]:
+        assert (out / "docs" / "img" / link.split(")")[0]).is_file()
+
+
+def test_notes_survive_a_rewrite(tiny_run, tmp_path):
+    results, _ = tiny_run
+    path = tmp_path / "benchmarks.md"
+    write_markdown(results, {}, path, None)
+    first = path.read_text()
+    assert f"{NOTES_BEGIN}\n{NOTES_END}" in first and "Raw numbers: not written" in first
+    path.write_text(first.replace(f"{NOTES_BEGIN}\n{NOTES_END}", f"{NOTES_BEGIN}\nA reading by hand.\n{NOTES_END}"))
+    write_markdown(results, {}, path, None)
+    assert f"{NOTES_BEGIN}\nA reading by hand.\n{NOTES_END}" in path.read_text()
+    assert "![" not in path.read_text()  # no figure drawn, none linked

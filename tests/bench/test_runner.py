@@ -1,0 +1,59 @@
+"""The benchmark run end to end on tiny renders (awr_denoise.bench.runner).
+
+Exercises the whole pipeline (tracer, samplers, reconstruction, peers, noise floor, equal-error
+spp, JSON, figures and the markdown page) at 32x32 and a few spp, writing into a temporary
+directory. Quality check: AWR's relMSE is below uniform Monte Carlo's at equal samples on the
+smooth-dominated scenes. No timing assertions.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from awr_denoise.bench import BenchmarkConfig
+
+from .conftest import SMOOTH_SCENES
+
+pytestmark = pytest.mark.tracer
+
+
+def test_benchmark_pipeline_on_tiny_scenes(tiny_run):
+    results, out = tiny_run
+    saved = json.loads((out / "results" / "quality.json").read_text())
+    assert set(saved["scenes"]) == set(SMOOTH_SCENES)
+    page = (out / "docs" / "benchmarks.md").read_text()
+    assert "Headline" in page and "soft_shadows" in page
+    for name in SMOOTH_SCENES:
+        scene = results["scenes"][name]
+        assert scene["reference"]["spp"] == 256
+        assert [r["spp"] for r in scene["uniform_curve"]] == [4, 8, 16, 32]
+        methods = scene["methods"]
+        assert set(methods) == {"uniform", "uniform+awr", "awr+awr", "variance+awr", "uniform+skimage"}
+        for spp in (4, 8):
+            mc = next(r for r in methods["uniform"] if r["spp"] == spp)
+            for method in ("uniform+awr", "awr+awr"):
+                row = next(r for r in methods[method] if r["spp"] == spp)
+                assert row["relmse"] < mc["relmse"], (name, method, spp)
+                assert np.isfinite(row["psnr"]) and 0 < row["ssim"] <= 1
+            # The uniform curve and its own equal-error spp agree where it was rendered.
+            assert mc["equal_error_spp"] == pytest.approx(spp, rel=0.15)
+        domains = {r["domain"] for r in scene["c_s_sweep"]}
+        assert domains == {"mean", "linear", "log", "gamma", "log robust"}
+
+
+def test_json_holds_no_non_finite_numbers(tiny_run):
+    _, out = tiny_run
+    text = (out / "results" / "quality.json").read_text()
+    json.loads(text, parse_constant=lambda name: pytest.fail(f"{name} in the JSON"))
+
+
+def test_unknown_scene_is_a_value_error_naming_it(tmp_path):
+    pytest.importorskip("embreex")
+    from awr_denoise.bench import run_benchmark
+
+    with pytest.raises(ValueError, match="no_such_scene"):
+        run_benchmark(BenchmarkConfig(scenes=("no_such_scene",)), output_dir=tmp_path, progress=False)
+    assert not any(tmp_path.iterdir())
