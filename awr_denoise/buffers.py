@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ._typing import BoolArray, CountArray, FloatArray, Shape2D
-from .channels import default_channel_names, luminance_weights, resolve_channels
+from .channels import default_channel_names, luminance_weights, resolve_channels  # noqa: F401 - re-exported
 from .pooling import pooled_variance
 
 # default_channel_names and luminance_weights live in channels.py and are importable from here too.

@@ -17,7 +17,7 @@ CLI = ROOT / "cli"  # installed as awr_denoise.cli
 
 # Subpackages of awr_denoise a part may never import, by part.
 FORBIDDEN = {
-    "core": {"tracer", "io", "bench", "benchmark", "parallel", "adapters", "cli"},
+    "core": {"tracer", "io", "bench", "parallel", "adapters", "cli"},
     "io": {"tracer", "bench", "parallel", "adapters", "cli"},
     "tracer": {"bench", "parallel", "adapters", "cli"},
     "adapters": {"tracer", "bench", "parallel", "cli"},

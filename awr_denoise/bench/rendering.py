@@ -66,14 +66,14 @@ def reference_image(name: str, scene: Any, config: BenchmarkConfig) -> tuple[Flo
         path = tracer.reference_path(name)
         if config.reference_spp is not None:
             image = tracer.load_reference(name, spp=config.reference_spp) if not (
-                path.is_file() and int(read_reference_header(path).get("awr_spp", 0)) >= config.reference_spp) \
+                path.is_file() and int(read_reference_header(path).get("spp", 0)) >= config.reference_spp) \
                 else tracer.load_reference(name)
         else:
             image = tracer.load_reference(name)
         header = read_reference_header(path)
-        return image, {"source": f"data/references/{name}.exr", "spp": int(header.get("awr_spp", 0)),
-                       "sampler": header.get("awr_sampler", "?"), "seed": int(header.get("awr_seed", -1)),
-                       "render_seconds": float(header.get("awr_seconds", "nan"))}
+        return image, {"source": f"data/references/{name}.exr", "spp": int(header.get("spp", 0)),
+                       "sampler": header.get("sampler", "?"), "seed": int(header.get("seed", -1)),
+                       "render_seconds": float(header.get("render_seconds", header.get("seconds", "nan")))}
     pt = tracer.PathTracer(scene, seed=REFERENCE_SEED, sampler="sobol", threads=config.threads)
     try:
         buffer = pt(SampleRequest.uniform(pt.shape, config.inline_reference_spp))

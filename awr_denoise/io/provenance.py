@@ -16,6 +16,7 @@ from typing import Any
 from .._version import __version__
 from ..buffers import SampleBuffer
 from ..reconstruct import Reconstruction
+from .exr import header_value
 
 __all__ = ["PREFIX", "provenance", "image_provenance", "read_provenance"]
 
@@ -99,8 +100,8 @@ def read_provenance(header: Mapping[str, Any]) -> dict[str, Any]:
     {'spp': 4, 'seed': '7'}
     """
     out: dict[str, Any] = {}
-    for key, value in header.items():
+    for key in header:
         for prefix in (PREFIX, _LEGACY_PREFIX):
             if str(key).startswith(prefix) and key[len(prefix):] not in out:
-                out[key[len(prefix):]] = value
+                out[key[len(prefix):]] = header_value(header, key)
     return out

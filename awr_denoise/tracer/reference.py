@@ -1,9 +1,10 @@
 """High-spp reference renders, cached as half-float EXRs under ``data/references``.
 
 ``python -m awr_denoise.tracer.reference SCENE [--spp N] [--seed S] [--force]`` renders a
-scene's reference with the Sobol' sampler and writes ``data/references/<scene>.exr``; the
-header records the scene, resolution, spp, sampler and seed. :func:`load_reference` returns a
-cached reference or renders it when missing.
+scene's reference with the Sobol' sampler and writes ``data/references/<scene>.exr``; its
+``awr:*`` header (:mod:`awr_denoise.io.provenance`) records the scene, spp, sampler and seed.
+:func:`load_reference` returns a cached reference or renders it when missing. Reading and
+writing go through :mod:`awr_denoise.io` (extra ``exr``).
 """
 
 from __future__ import annotations
@@ -13,8 +14,10 @@ import os
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from ..buffers import SampleBuffer
+from ..io import provenance, read_header, read_image, read_provenance, write_image
 from ..requests import SampleRequest
 from .integrator import PathTracer
 from .scene import load_scene
@@ -66,11 +69,9 @@ def render_reference(scene_name: str, *, spp: int = DEFAULT_REFERENCE_SPP, seed:
     """Render a bundled scene at ``spp`` and write it as a half-float EXR; returns (H, W, 3) float64.
 
     The image is rendered in passes of 32 spp whose statistics are merged exactly; the EXR
-    header records scene, spp, sampler and seed (``awr_scene``, ``awr_spp``, ...). ``threads``
+    header records scene, spp, sampler and seed (``awr:scene``, ``awr:spp``, ...). ``threads``
     and ``workers`` are passed to :class:`PathTracer` (the image does not depend on them).
     """
-    import OpenEXR  # the [exr] extra
-
     _check_scene_name(scene_name)
     if int(spp) < 1:
         raise ValueError(f"spp: {spp} must be >= 1")
@@ -79,8 +80,6 @@ def render_reference(scene_name: str, *, spp: int = DEFAULT_REFERENCE_SPP, seed:
     buffer = SampleBuffer.empty(tracer.shape)
     passes = range(0, int(spp), _PASS_SPP)
     if progress:
-        from tqdm import tqdm
-
         passes = tqdm(passes, desc=f"reference {scene_name}", unit="pass")
     try:
         for first in passes:
@@ -92,22 +91,18 @@ def render_reference(scene_name: str, *, spp: int = DEFAULT_REFERENCE_SPP, seed:
     target = Path(path) if path is not None else reference_path(scene_name)
     target.parent.mkdir(parents=True, exist_ok=True)
     half = np.clip(image, 0.0, _HALF_MAX).astype(np.float16)
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
-              "awr_scene": scene_name, "awr_spp": str(int(spp)), "awr_sampler": sampler, "awr_seed": str(int(seed)),
-              "awr_nonfinite": str(int(buffer.nonfinite)),
-              "awr_seconds": f"{tracer.stats['seconds']:.1f}"}
-    channels = {c: np.ascontiguousarray(half[..., i]) for i, c in enumerate("RGB")}
-    with OpenEXR.File(header, channels) as f:
-        f.write(str(target))
+    header = provenance(scene=scene_name, spp=int(spp), sampler=sampler, seed=int(seed),
+                        nonfinite=int(buffer.nonfinite), render_seconds=round(float(tracer.stats["seconds"]), 1))
+    write_image(target, half, header=header, half=True, overwrite=True)
     return half.astype(np.float64)
 
 
 def read_reference_header(path: str | Path) -> dict[str, str]:
-    """The ``awr_*`` header attributes of a reference EXR."""
-    import OpenEXR
+    """How a reference EXR was made: its ``awr:`` attributes without the prefix, as strings.
 
-    with OpenEXR.File(str(path)) as f:
-        return {k: str(v) for k, v in f.header().items() if k.startswith("awr_")}
+    References written before the provenance builder used ``awr_*`` keys; they read the same.
+    """
+    return {k: str(v) for k, v in read_provenance(read_header(path)).items()}
 
 
 def load_reference(scene_name: str, *, spp: int | None = None) -> np.ndarray:
@@ -116,14 +111,10 @@ def load_reference(scene_name: str, *, spp: int | None = None) -> np.ndarray:
     Reads ``reference_path(scene_name)``; renders and caches it first when it is missing, or
     when ``spp`` is given and differs from the cached file's spp.
     """
-    import OpenEXR
-
     path = reference_path(scene_name)
     if path.is_file():
-        if spp is None or read_reference_header(path).get("awr_spp") == str(int(spp)):
-            with OpenEXR.File(str(path), separate_channels=True) as f:
-                ch = f.channels()
-                return np.stack([np.asarray(ch[c].pixels, np.float64) for c in "RGB"], axis=-1)
+        if spp is None or read_reference_header(path).get("spp") == str(int(spp)):
+            return read_image(path, channels=("R", "G", "B")).astype(np.float64)
     return render_reference(scene_name, spp=DEFAULT_REFERENCE_SPP if spp is None else int(spp))
 
 
@@ -147,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"SCENE: {name!r} is not one of {', '.join(BUNDLED_SCENES)}, all")
     for name in names:
         path = reference_path(name)
-        if path.is_file() and not args.force and read_reference_header(path).get("awr_spp") == str(args.spp):
+        if path.is_file() and not args.force and read_reference_header(path).get("spp") == str(args.spp):
             print(f"{name}: cached at {path} ({args.spp} spp)")
             continue
         image = render_reference(name, spp=args.spp, seed=args.seed, sampler=args.sampler, threads=args.threads,

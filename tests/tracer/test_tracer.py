@@ -430,7 +430,7 @@ def test_reference_is_rendered_cached_and_reloaded(tmp_path: Path, monkeypatch: 
     monkeypatch.setenv("AWR_DENOISE_REFERENCE_DIR", str(tmp_path))
     image = load_reference("default", spp=2)
     assert image.shape == (128, 128, 3) and image.dtype == np.float64
-    assert read_reference_header(reference_path("default"))["awr_spp"] == "2"
+    assert read_reference_header(reference_path("default"))["spp"] == "2"
     assert np.array_equal(load_reference("default", spp=2), image)
     with pytest.raises(ValueError, match="scene_name: 'x' is not one of"):
         load_reference("x")
@@ -447,7 +447,7 @@ def test_committed_references_are_small_and_state_their_spp() -> None:
     assert sum(f.stat().st_size for f in files) < 8 * 2**20
     for f in files:
         assert f.stat().st_size < 5 * 2**20
-        assert int(read_reference_header(f)["awr_spp"]) >= 256
+        assert int(read_reference_header(f)["spp"]) >= 256
 
 
 @pytest.mark.exr
