@@ -182,7 +182,7 @@ class Sampler:
         >>> import numpy as np
         >>> from awr_denoise import SampleBuffer, SampleRequest, UniformSampler
         >>> request = SampleRequest.uniform((2, 2), 3, round=0)
-        >>> sampler = UniformSampler((2, 2))
+        >>> sampler = UniformSampler((2, 2), channels=1)
         >>> sampler.resume(request).round
         0
         >>> batch = SampleBuffer.from_moments(request.counts, np.ones((2, 2)), np.zeros((2, 2)))
