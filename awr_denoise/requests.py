@@ -39,6 +39,24 @@ class SampleRequest:
         Round number within the sampler that issued it (0 is the uniform initial round).
     sampler_id
         Identifies the issuing sampler, so a request cannot be told to another one.
+
+    Examples
+    --------
+    Two samples at every pixel, continuing each pixel's sequence at sample 4:
+
+    >>> import numpy as np
+    >>> from awr_denoise import SampleRequest
+    >>> SampleRequest.uniform((2, 3), 2, first_index=4, round=1)
+    SampleRequest(round=1, shape=(2, 3), total=12)
+
+    A request as a sampler makes it, and the samples it stands for:
+
+    >>> request = SampleRequest(counts=np.array([[2, 0], [0, 1]]), first_index=np.array([[4, 0], [0, 7]]))
+    >>> rows, cols, sample_index = request.pixel_list()
+    >>> rows.tolist(), cols.tolist(), sample_index.tolist()
+    ([0, 0, 1], [0, 0, 1], [4, 5, 7])
+    >>> request.crop(slice(1, 2), slice(0, 2)).counts     # the bottom row as a tile
+    array([[0, 1]])
     """
 
     counts: CountArray
@@ -72,7 +90,15 @@ class SampleRequest:
 
     @classmethod
     def uniform(cls, shape: Shape2D, spp: int, *, first_index: int = 0, round: int = 0) -> SampleRequest:
-        """``spp`` samples at every pixel, starting at sample ``first_index``."""
+        """``spp`` samples at every pixel, starting at sample ``first_index``.
+
+        Examples
+        --------
+        >>> from awr_denoise import SampleRequest
+        >>> request = SampleRequest.uniform((2, 2), 3, first_index=8)
+        >>> request.total, request.counts.tolist(), request.first_index.tolist()
+        (12, [[3, 3], [3, 3]], [[8, 8], [8, 8]])
+        """
         counts = np.full(shape, int(spp), np.int64)
         return cls(counts, np.full(shape, int(first_index), np.int64), round)
 
@@ -91,6 +117,13 @@ class SampleRequest:
 
         Samples of a pixel are consecutive and in increasing sample index; pixels are in
         row-major order.
+
+        Examples
+        --------
+        >>> from awr_denoise import SampleRequest
+        >>> rows, cols, sample_index = SampleRequest.uniform((1, 2), 2, first_index=4).pixel_list()
+        >>> list(zip(rows.tolist(), cols.tolist(), sample_index.tolist()))
+        [(0, 0, 4), (0, 0, 5), (0, 1, 4), (0, 1, 5)]
         """
         flat_counts = self.counts.ravel()
         pixel = np.repeat(np.arange(flat_counts.size, dtype=np.int64), flat_counts)
@@ -101,7 +134,17 @@ class SampleRequest:
         return rows, cols, sample_index
 
     def crop(self, rows: slice, cols: slice) -> SampleRequest:
-        """The part of the request inside a tile (same round and sampler)."""
+        """The part of the request inside a tile (same round and sampler).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from awr_denoise import SampleRequest
+        >>> request = SampleRequest(np.arange(6).reshape(2, 3), np.zeros((2, 3), int), round=2)
+        >>> tile = request.crop(slice(0, 2), slice(1, 3))
+        >>> tile, tile.counts.tolist()
+        (SampleRequest(round=2, shape=(2, 2), total=12), [[1, 2], [4, 5]])
+        """
         return SampleRequest(self.counts[rows, cols], self.first_index[rows, cols], self.round, self.sampler_id)
 
     def __repr__(self) -> str:
@@ -115,6 +158,16 @@ class Renderer(Protocol):
     The returned buffer has the request's shape and, at every pixel, ``count`` equal to the
     request's ``counts`` (a renderer that had to drop non-finite samples may return fewer;
     the sampler warns). Implementations need not subclass this protocol.
+
+    Examples
+    --------
+    >>> from awr_denoise import Renderer, SampleRequest
+    >>> from awr_denoise.synthetic import SyntheticRenderer, make_scene
+    >>> renderer = SyntheticRenderer(make_scene("edges", (8, 8)))
+    >>> isinstance(renderer, Renderer), isinstance("edges.exr", Renderer)
+    (True, False)
+    >>> renderer(SampleRequest.uniform((8, 8), 2)).total_samples
+    128
     """
 
     def __call__(self, request: SampleRequest) -> SampleBuffer: ...
@@ -138,6 +191,19 @@ class SampleTracer(Protocol):
     stats
         Running counters; at least ``"samples"``, ``"nonfinite"`` (samples whose value was not
         finite and was dropped or zeroed) and ``"seconds"``.
+
+    Examples
+    --------
+    A plain function is a :class:`Renderer` but not a ``SampleTracer``:
+
+    >>> import numpy as np
+    >>> from awr_denoise.requests import Renderer, SampleTracer
+    >>> from awr_denoise.synthetic import SyntheticRenderer, make_scene
+    >>> tracer = SyntheticRenderer(make_scene("edges", (8, 8)))
+    >>> isinstance(tracer, SampleTracer), isinstance(lambda request: None, SampleTracer)
+    (True, False)
+    >>> tracer.trace_samples(np.array([0, 7]), np.array([0, 7]), np.array([0, 0])).shape
+    (2, 3)
     """
 
     channels: tuple[str, ...]
