@@ -75,6 +75,30 @@ class Sampler:
         far (at least 0.25 spp), so a render to ``S`` spp takes about
         ``log(S / initial_spp) / log(1 + round_growth)`` rounds. Larger rounds cost fewer
         priority analyses; docs/benchmarks.md ("The other defaults") measures the trade.
+
+    Examples
+    --------
+    The ask/tell loop by hand, with a renderer of a synthetic scene (any sampler; the uniform
+    one here):
+
+    >>> from awr_denoise import UniformSampler
+    >>> from awr_denoise.synthetic import SyntheticRenderer, make_scene
+    >>> renderer = SyntheticRenderer(make_scene("edges", (16, 16)))
+    >>> sampler = UniformSampler((16, 16))
+    >>> request = sampler.ask()                  # round 0: initial_spp = 4 at every pixel
+    >>> request, int(request.counts.min()), int(request.counts.max())
+    (SampleRequest(round=0, shape=(16, 16), total=1024), 4, 4)
+    >>> sampler.tell(request, renderer(request))
+    SampleBuffer(shape=(16, 16), channels=('R', 'G', 'B'), total_samples=1024, spp=4)
+    >>> request = sampler.ask()                  # round 1: a quarter of the samples so far
+    >>> request.total, int(request.first_index.min())
+    (256, 4)
+    >>> _ = sampler.tell(request, renderer(request))
+
+    :meth:`run` is the same loop, up to an average number of samples per pixel:
+
+    >>> sampler.run(renderer, total_spp=8), sampler.round
+    (SampleBuffer(shape=(16, 16), channels=('R', 'G', 'B'), total_samples=2048, spp=8), 5)
     """
 
     strategy = "base"
@@ -120,6 +144,22 @@ class Sampler:
         ``issued`` is the number of sample indices already handed out per pixel (default the
         buffer's counts); new requests start at those indices. ``round`` numbers the next
         request (it also seeds tie-breaking, so pass the dump's round to stay reproducible).
+
+        Examples
+        --------
+        Statistics of 4 spp rendered earlier (read back from a dump, say) and a sampler that
+        carries on from them:
+
+        >>> from awr_denoise import AdaptiveSampler, SampleRequest
+        >>> from awr_denoise.synthetic import SyntheticRenderer, make_scene
+        >>> renderer = SyntheticRenderer(make_scene("edges", (16, 16)))
+        >>> earlier = renderer(SampleRequest.uniform((16, 16), 4))
+        >>> sampler = AdaptiveSampler.from_buffer(earlier, round=1)
+        >>> sampler.total_samples, sampler.round
+        (1024, 1)
+        >>> request = sampler.ask()                  # new samples continue each pixel's sequence
+        >>> request.total, int(request.first_index.min())
+        (256, 4)
         """
         options.setdefault("channels", buffer.channels)
         sampler = cls(buffer.shape, **options)
@@ -203,7 +243,21 @@ class Sampler:
         return request
 
     def default_budget(self) -> int:
-        """Budget of the next round when :meth:`ask` is given none."""
+        """Budget of the next round when :meth:`ask` is given none.
+
+        Examples
+        --------
+        >>> from awr_denoise import SampleRequest, UniformSampler
+        >>> from awr_denoise.synthetic import SyntheticRenderer, make_scene
+        >>> renderer = SyntheticRenderer(make_scene("gradient", (10, 10)))
+        >>> growing, fixed = UniformSampler((10, 10)), UniformSampler((10, 10), round_spp=2)
+        >>> growing.default_budget(), fixed.default_budget()     # round 0: initial_spp * pixels
+        (400, 400)
+        >>> for sampler in (growing, fixed):
+        ...     _ = sampler.tell(sampler.ask(), renderer(sampler.pending))
+        >>> growing.default_budget(), fixed.default_budget()     # a quarter of 400; 2 spp
+        (100, 200)
+        """
         pixels = self._shape[0] * self._shape[1]
         if self._round == 0:
             return self.initial_spp * pixels
@@ -219,6 +273,20 @@ class Sampler:
         budget
             Total new samples; default :meth:`default_budget`. Round 0 spreads its budget
             uniformly.
+
+        Examples
+        --------
+        >>> from awr_denoise import AdaptiveSampler
+        >>> sampler = AdaptiveSampler((8, 8), spp_max=16)
+        >>> request = sampler.ask(100)               # round 0 spreads any budget uniformly
+        >>> request.total, sorted(set(request.counts.ravel().tolist()))
+        (100, [1, 2])
+        >>> sampler.ask() is request                 # pending until told
+        True
+        >>> sampler.ask(2000)
+        Traceback (most recent call last):
+            ...
+        awr_denoise.errors.StaleRequestError: budget: round 0 is pending with 100 samples; tell it before asking for 2000
         """
         if budget is not None:
             if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)):
@@ -267,6 +335,21 @@ class Sampler:
             another sampler, or never asked).
         ValueError
             If ``samples`` does not match the image or has more samples at a pixel than asked.
+
+        Examples
+        --------
+        >>> from awr_denoise import UniformSampler
+        >>> from awr_denoise.synthetic import SyntheticRenderer, make_scene
+        >>> renderer = SyntheticRenderer(make_scene("edges", (8, 8)))
+        >>> sampler = UniformSampler((8, 8))
+        >>> request = sampler.ask()
+        >>> batch = renderer(request)
+        >>> sampler.tell(request, batch).total_samples, sampler.round
+        (256, 1)
+        >>> sampler.tell(request, batch)             # a request is told once
+        Traceback (most recent call last):
+            ...
+        awr_denoise.errors.StaleRequestError: request: round 0 is not pending (nothing was asked, or it was told)
         """
         pending = self._pending
         number = request.round if isinstance(request, SampleRequest) else request
@@ -308,6 +391,25 @@ class Sampler:
 
         Built only from :meth:`ask` and :meth:`tell`. The last round is trimmed so the total is
         exact. ``callback(request, buffer)`` runs after every round; returning ``False`` stops.
+
+        Examples
+        --------
+        >>> from awr_denoise import AdaptiveSampler
+        >>> from awr_denoise.synthetic import SyntheticRenderer, make_scene
+        >>> renderer = SyntheticRenderer(make_scene("edges", (16, 16)))
+        >>> sampler = AdaptiveSampler((16, 16))
+        >>> sampler.run(renderer, total_spp=10).total_samples == 10 * 16 * 16
+        True
+
+        A callback sees every round and may stop the loop early:
+
+        >>> rounds = []
+        >>> def log(request, buffer):
+        ...     rounds.append(request.total)
+        ...     return len(rounds) < 2
+        >>> buffer = AdaptiveSampler((16, 16)).run(renderer, total_spp=32, callback=log)
+        >>> rounds, buffer.total_samples
+        ([1024, 256], 1280)
         """
         pixels = self._shape[0] * self._shape[1]
         goal = int(round(float(total_spp) * pixels))
@@ -338,7 +440,16 @@ class Sampler:
 
 
 class UniformSampler(Sampler):
-    """Every pixel gets the same number of samples (to within one); the plain Monte Carlo baseline."""
+    """Every pixel gets the same number of samples (to within one); the plain Monte Carlo baseline.
+
+    Examples
+    --------
+    >>> from awr_denoise import UniformSampler
+    >>> from awr_denoise.synthetic import SyntheticRenderer, make_scene
+    >>> buffer = UniformSampler((8, 8)).run(SyntheticRenderer(make_scene("edges", (8, 8))), total_spp=6.5)
+    >>> buffer.total_samples, sorted(set(buffer.count.ravel().tolist()))
+    (416, [6, 7])
+    """
 
     strategy = "uniform"
 
@@ -354,6 +465,19 @@ class VarianceSampler(Sampler):
     (``"log"``: relative error), i.e. ``n_p ~ s_p``. No wavelet structure is used.
     ``uniform_fraction`` as for :class:`AdaptiveSampler` (0 by default, so the two compare like
     with like).
+
+    Examples
+    --------
+    The noise of the ``gradient`` scene grows from left to right, relative to its brightness
+    too, so the right half gets most of the samples after round 0:
+
+    >>> from awr_denoise import VarianceSampler
+    >>> from awr_denoise.synthetic import SyntheticRenderer, make_scene
+    >>> renderer = SyntheticRenderer(make_scene("gradient", (32, 32)))
+    >>> buffer = VarianceSampler((32, 32)).run(renderer, total_spp=16)
+    >>> left, right = int(buffer.count[:, :16].sum()), int(buffer.count[:, 16:].sum())
+    >>> left + right == 16 * 32 * 32, right > 2 * left
+    (True, True)
     """
 
     strategy = "variance"
@@ -401,6 +525,25 @@ class AdaptiveSampler(Sampler):
         sampler into per-pixel variance sampling.
     uniform_fraction
         Share of every round spread uniformly; 0 by default.
+
+    Examples
+    --------
+    A small light 1000 times brighter than its surroundings: its pixels and their edge take
+    several times the samples of the rest of the image, where uniform sampling gives every
+    pixel 16.
+
+    >>> from awr_denoise import AdaptiveSampler, UniformSampler
+    >>> from awr_denoise.synthetic import SyntheticRenderer, make_scene
+    >>> scene = make_scene("hdr_source", (32, 32))
+    >>> light = scene.reference()[..., 1] > 1.0
+    >>> buffer = AdaptiveSampler(scene.shape).run(SyntheticRenderer(scene), total_spp=16)
+    >>> buffer.total_samples == 16 * 32 * 32
+    True
+    >>> bool(buffer.count[light].mean() > 4 * buffer.count[~light].mean())
+    True
+    >>> uniform = UniformSampler(scene.shape).run(SyntheticRenderer(scene), total_spp=16)
+    >>> int(uniform.count.min()), int(uniform.count.max())
+    (16, 16)
     """
 
     strategy = "awr"
@@ -422,7 +565,20 @@ class AdaptiveSampler(Sampler):
         self.uniform_fraction = _check_fraction(uniform_fraction)
 
     def density(self) -> FloatArray:
-        """(H, W) target density of the next round (see :func:`~awr_denoise.priorities.sampling_density`)."""
+        """(H, W) target density of the next round (see :func:`~awr_denoise.priorities.sampling_density`).
+
+        Examples
+        --------
+        >>> from awr_denoise import AdaptiveSampler
+        >>> from awr_denoise.synthetic import SyntheticRenderer, make_scene
+        >>> scene = make_scene("hdr_source", (32, 32))
+        >>> sampler = AdaptiveSampler(scene.shape)
+        >>> _ = sampler.run(SyntheticRenderer(scene), total_spp=4)
+        >>> density = sampler.density()
+        >>> light = scene.reference()[..., 1] > 1.0
+        >>> density.shape, bool(density[light].mean() > 2 * density[~light].mean())
+        ((32, 32), True)
+        """
         return sampling_density(self._buffer, wavelet=self.wavelet, levels=self.levels, domain=self.domain,
                                 level_weight=self.level_weight)
 
