@@ -2,7 +2,7 @@
 
 The paper thresholds pixel means in linear radiance (Eq. 11). On path-traced buffers with a
 high dynamic range that smears a firefly's or a light's energy into dark neighbours
-(algorithm note, section 5.1). A variance-stabilising transform ``y = f(x)`` applied to the
+(docs/reconstruction.md, "Domains"). A variance-stabilising transform ``y = f(x)`` applied to the
 means first, with the variance carried through by the delta method
 (``Var(y) ~ Var(x) f'(mean)^2``), and inverted after reconstruction, keeps Eq. 10-11 intact
 while measuring error in relative terms.
@@ -55,6 +55,28 @@ class Domain:
         it also smooths genuinely tiny bright features (a 1-pixel light) and made a small HDR
         source worse than the plain mean at 4 spp, so it is off by default
         (docs/reconstruction.md).
+
+    Examples
+    --------
+    The log domain bound to an image whose mean absolute value is 2, so ``k = 0.1 * 2``:
+
+    >>> import numpy as np
+    >>> from awr_denoise import Domain
+    >>> bound = Domain("log").bound(np.array([1.0, 3.0]))
+    >>> bound.k
+    0.2
+    >>> x = np.array([0.0, 0.2, 2.0])
+    >>> y = bound.forward(x)                     # log(1 + x / k)
+    >>> np.round(y, 4), bool(np.allclose(bound.inverse(y), x))
+    (array([0.    , 0.6931, 2.3979]), True)
+
+    Variances are carried by the delta method, ``Var(x) / (|x| + k)^2``: the same absolute
+    noise counts for much less next to a bright pixel (relative error):
+
+    >>> np.round(bound.variance(np.array([0.2, 2.0]), np.array([0.01, 0.01])), 5)
+    array([0.0625 , 0.00207])
+    >>> Domain("linear").bound(x).forward(x)     # the paper's domain: the identity
+    array([0. , 0.2, 2. ])
     """
 
     name: str = "log"
@@ -74,7 +96,16 @@ class Domain:
             raise ValueError(f"domain scale: must be a positive finite number, got {self.scale!r}")
 
     def bound(self, mean: FloatArray) -> _BoundDomain:
-        """Fix the absolute offset for one image (``k = offset * scale``)."""
+        """Fix the absolute offset for one image (``k = offset * scale``).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from awr_denoise import Domain
+        >>> mean = np.array([[1.0, 3.0]])
+        >>> Domain("log").bound(mean).k, Domain("log", offset=0.5, scale=10.0).bound(mean).k
+        (0.2, 5.0)
+        """
         if self.name == "linear":
             return _BoundDomain(self, 1.0)
         return _BoundDomain(self, self.offset * self.resolved_scale(mean))
@@ -84,6 +115,18 @@ class Domain:
 
         Tiles of one image agree with the whole image when they are given
         ``dataclasses.replace(domain, scale=domain.resolved_scale(whole_image_mean))``.
+
+        Examples
+        --------
+        >>> import dataclasses
+        >>> import numpy as np
+        >>> from awr_denoise import Domain
+        >>> image = np.array([[1.0, -3.0], [0.0, 4.0]])
+        >>> Domain("log").resolved_scale(image)      # mean absolute value
+        2.0
+        >>> tile_domain = dataclasses.replace(Domain("log"), scale=Domain("log").resolved_scale(image))
+        >>> tile_domain.resolved_scale(image[:1, :1])  # a tile keeps the whole image's level
+        2.0
         """
         scale = self.scale
         if scale is None:
@@ -148,7 +191,17 @@ class _BoundDomain:
 
 
 def resolve_domain(domain: str | Domain) -> Domain:
-    """Turn a domain name or :class:`Domain` into a :class:`Domain` (names use the defaults)."""
+    """Turn a domain name or :class:`Domain` into a :class:`Domain` (names use the defaults).
+
+    Examples
+    --------
+    >>> from awr_denoise import Domain
+    >>> from awr_denoise.domains import resolve_domain
+    >>> resolve_domain("gamma")
+    Domain(name='gamma', offset=0.1, gamma=2.2, scale=None, robust=False)
+    >>> resolve_domain(Domain("log", robust=True)).robust
+    True
+    """
     if isinstance(domain, Domain):
         return domain
     if isinstance(domain, str):

@@ -71,6 +71,23 @@ class Prepared:
         sample of the pooled variance), shaped to divide :attr:`sample_variance`.
     bound
         The domain with its offset fixed for this image.
+
+    Examples
+    --------
+    Means of 2 with per-sample variance 0.4 from 4 samples, in the log domain with
+    ``k = 0.1 * 2``:
+
+    >>> import numpy as np
+    >>> from awr_denoise import SampleBuffer
+    >>> from awr_denoise.prepare import prepare
+    >>> buffer = SampleBuffer.from_moments(np.full((2, 2), 4), np.full((2, 2), 2.0), np.full((2, 2), 0.4))
+    >>> p = prepare(buffer, "log")
+    >>> float(p.variance[0, 0, 0]), round(float(p.y[0, 0, 0]), 4)         # s2 / n; log(1 + 2 / 0.2)
+    (0.1, 2.3979)
+    >>> round(float(p.variance_y[0, 0, 0]), 6)                             # 0.1 / (2 + 0.2)^2
+    0.020661
+    >>> p.domain.scale                   # the image's level, for tiles or a luminance plane
+    2.0
     """
 
     mean: FloatArray
