@@ -43,6 +43,27 @@ def allocate(density: FloatArray, current: CountArray, budget: int, *,
     ------
     ValueError
         If the budget exceeds the total capacity.
+
+    Examples
+    --------
+    Totals approach ``alpha * density``: the pixel with three times the density gets three
+    times the samples, and a pixel that already has its share gets none:
+
+    >>> import numpy as np
+    >>> from awr_denoise import allocate
+    >>> allocate(np.array([[1.0, 3.0]]), np.array([[0, 0]]), 8)
+    array([[2, 6]])
+    >>> allocate(np.array([[1.0, 1.0]]), np.array([[4, 0]]), 4)
+    array([[0, 4]])
+
+    Caps hold, and the budget is still spent exactly:
+
+    >>> allocate(np.array([[1.0, 3.0]]), np.array([[0, 0]]), 8, capacity=np.array([[8, 4]]))
+    array([[4, 4]])
+    >>> allocate(np.ones((1, 2)), np.zeros((1, 2), int), 5, capacity=np.array([[1, 1]]))
+    Traceback (most recent call last):
+        ...
+    ValueError: budget: 5 samples exceed the 2 that spp_max still allows
     """
     budget = int(budget)
     if budget < 0:

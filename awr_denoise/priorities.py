@@ -2,7 +2,7 @@
 
 The paper puts every scale coefficient in a priority queue keyed by "scale-coefficient variance
 minus squared wavelet magnitudes" and sends samples into the support of the winner. Our form
-(algorithm note, section 4) for levels ``k = 0..L`` (level 0 = the pixels):
+(docs/sampling.md, "How AdaptiveSampler decides") for levels ``k = 0..L`` (level 0 = the pixels):
 
     P_k = 4^k * ( Var(S~_k) - sum_a max(0, W~^a_k^2 - (t Delta^a_k)^2) )
 
@@ -46,6 +46,20 @@ def error_plane(buffer: SampleBuffer, domain: str | Domain = "log") -> tuple[Flo
         (H, W) luminance mean, variance of that mean and per-sample variance, carried into the
         domain by the delta method (so ``"log"`` measures relative error, as relMSE does).
         Pixels without samples borrow their nearest neighbour's mean and the pooled variance.
+
+    Examples
+    --------
+    White pixels of mean 1 from 4 samples of variance 0.5; the log domain's ``k`` is 0.1:
+
+    >>> import numpy as np
+    >>> from awr_denoise import SampleBuffer
+    >>> from awr_denoise.priorities import error_plane
+    >>> buffer = SampleBuffer.from_moments(np.full((8, 8), 4), np.ones((8, 8, 3)), np.full((8, 8, 3), 0.5))
+    >>> mean_y, var_mean_y, var_sample_y = error_plane(buffer)
+    >>> mean_y.shape, round(float(mean_y[0, 0]), 4)                   # log(1 + 1 / 0.1)
+    ((8, 8), 2.3979)
+    >>> round(float(var_sample_y[0, 0]), 4), round(float(var_mean_y[0, 0]), 4)   # 0.5 / 1.1^2, and / 4
+    (0.4132, 0.1033)
     """
     p = prepare(buffer, domain, luminance=True)
     return p.y, p.sample_variance_y / p.count, p.sample_variance_y
@@ -80,6 +94,21 @@ def coefficient_priorities(
     -------
     list of ndarray
         ``[P_0 (H, W), P_1, ..., P_L]``, each on its level's coefficient grid.
+
+    Examples
+    --------
+    On a flat, noisy image the scale variance grows from fine to coarse while the wavelet
+    term stays near zero, so priorities grow with the level:
+
+    >>> import numpy as np
+    >>> from awr_denoise import SampleBuffer
+    >>> from awr_denoise.priorities import coefficient_priorities
+    >>> flat = SampleBuffer.from_moments(np.full((32, 32), 4), np.ones((32, 32, 3)), np.full((32, 32, 3), 0.5))
+    >>> priorities = coefficient_priorities(flat)
+    >>> [p.shape for p in priorities]
+    [(32, 32), (20, 20), (14, 14)]
+    >>> [round(float(np.median(p)), 2) for p in priorities]
+    [0.1, 0.45, 2.26]
     """
     mean_y, var_y, _ = plane if plane is not None else error_plane(buffer, domain)
     ops = operators or wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
@@ -104,7 +133,24 @@ def _pixel_to_coefficient(n: int, wavelet: str, boundary: str, levels: int, leve
 
 
 def pixel_levels(priorities: list[FloatArray], operators: WaveletOperators) -> np.ndarray:
-    """(H, W) level ``l_p`` whose covering coefficient has the highest priority at each pixel."""
+    """(H, W) level ``l_p`` whose covering coefficient has the highest priority at each pixel.
+
+    Examples
+    --------
+    A vertical edge between a dark and a bright half, with little noise: the pixels at the
+    edge take the finest level, the smooth regions coarser ones (the paper's two cases,
+    section 4):
+
+    >>> import numpy as np
+    >>> from awr_denoise import SampleBuffer
+    >>> from awr_denoise.priorities import coefficient_priorities, pixel_levels
+    >>> from awr_denoise.wavelets import wavelet_operators
+    >>> mean = np.where(np.arange(32) < 16, 0.1, 1.0)[None, :, None] * np.ones((32, 32, 3))
+    >>> edge = SampleBuffer.from_moments(np.full((32, 32), 4), mean, np.full((32, 32, 3), 0.001))
+    >>> ops = wavelet_operators(edge.shape)
+    >>> pixel_levels(coefficient_priorities(edge, operators=ops), ops)[16, 10:22]
+    array([1, 1, 1, 1, 0, 0, 0, 0, 1, 1, 1, 1])
+    """
     h, w = operators.shape
     best = priorities[0].copy()
     level = np.zeros((h, w), np.int64)
@@ -134,6 +180,21 @@ def sampling_density(
     (a variance from four samples is too noisy to rank on), ``l_p`` the winning level of
     :func:`pixel_levels`. ``level_weight = 0`` ignores the wavelet structure (per-pixel
     variance-driven sampling).
+
+    Examples
+    --------
+    The same edge as in :func:`pixel_levels`: the density peaks at the edge, and the dark
+    half, noisier in relative terms, gets more than the bright one:
+
+    >>> import numpy as np
+    >>> from awr_denoise import SampleBuffer
+    >>> from awr_denoise.priorities import sampling_density
+    >>> mean = np.where(np.arange(32) < 16, 0.1, 1.0)[None, :, None] * np.ones((32, 32, 3))
+    >>> edge = SampleBuffer.from_moments(np.full((32, 32), 4), mean, np.full((32, 32, 3), 0.001))
+    >>> density = sampling_density(edge)
+    >>> row = density[16] / density[16].max()
+    >>> int(np.argmax(row)), bool(row[:8].mean() > row[24:].mean())
+    (14, True)
     """
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     plane = error_plane(buffer, domain)

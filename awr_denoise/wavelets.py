@@ -1,9 +1,9 @@
 """Wavelet transforms of pixel-mean images and exact propagation of their variance.
 
 The transform is PyWavelets' separable 2-D DWT (``pywt.wavedec2``), coefficient layout
-``[cA_L, (cH_L, cV_L, cD_L), ..., (cH_1, cV_1, cD_1)]``. In the paper's notation (section 2 of
-our algorithm note) ``cA`` are the scale coefficients ``S = <B, Phi>`` and the three detail
-bands the wavelet coefficients ``W^a = <B, Psi^a>``.
+``[cA_L, (cH_L, cV_L, cD_L), ..., (cH_1, cV_1, cD_1)]``. In the paper's notation (paper
+section 2; docs/reconstruction.md, "What it computes") ``cA`` are the scale coefficients
+``S = <B, Phi>`` and the three detail bands the wavelet coefficients ``W^a = <B, Psi^a>``.
 
 Pixel means are independent, so a coefficient ``C = sum_p K(p) B_p`` has variance
 ``<v, K^2>`` (Eq. 10 squared). Squared filters do not cascade across levels, so the level-k
@@ -56,6 +56,12 @@ def max_levels(shape: Shape2D) -> int:
     """Deepest decomposition worth running on an image of this shape (at least 1).
 
     Each level halves the shorter side; beyond ``log2(min(H, W))`` nothing is left to halve.
+
+    Examples
+    --------
+    >>> from awr_denoise.wavelets import max_levels
+    >>> max_levels((480, 640)), max_levels((1, 5))
+    (8, 1)
     """
     shortest = max(1, min(int(shape[0]), int(shape[1])))
     return max(1, int(math.floor(math.log2(shortest))))
@@ -67,6 +73,12 @@ def default_levels(shape: Shape2D) -> int:
     Five levels follow the talk's figures (section 2); the ``- 3`` keeps the coarsest scale
     band at least about 8 pixels on a side so it still holds an image, not a few boundary
     coefficients.
+
+    Examples
+    --------
+    >>> from awr_denoise.wavelets import default_levels
+    >>> default_levels((480, 640)), default_levels((64, 64)), default_levels((16, 16))
+    (5, 3, 1)
     """
     shortest = max(1, min(int(shape[0]), int(shape[1])))
     return max(1, min(_MAX_DEFAULT_LEVELS, int(math.floor(math.log2(shortest))) - 3))
@@ -144,6 +156,20 @@ class WaveletOperators:
 
     ``rows.approx[k-1]`` maps a column of H pixels to the level-k scale coefficients; squared
     entrywise (``approx_sq``) it maps pixel variances to coefficient variances.
+
+    Examples
+    --------
+    For Haar, a level-2 scale coefficient weighs four pixels of an axis by 1/2 each:
+
+    >>> import numpy as np
+    >>> from awr_denoise.wavelets import wavelet_operators
+    >>> ops = wavelet_operators((16, 16), wavelet="haar", levels=2)
+    >>> ops.rows.approx[0].shape, ops.rows.approx[1].shape, ops.rows.detail[1].shape
+    ((8, 16), (4, 16), (4, 16))
+    >>> ops.rows.approx[1].toarray()[0, :6]
+    array([0.5, 0.5, 0.5, 0.5, 0. , 0. ])
+    >>> np.round(ops.rows.approx_sq[1] @ np.ones(16), 6)    # unit variances stay 1 (orthonormal)
+    array([1., 1., 1., 1.])
     """
 
     shape: Shape2D
@@ -164,6 +190,15 @@ def wavelet_operators(shape: Shape2D, *, wavelet: str = DEFAULT_WAVELET, levels:
         (H, W) of the image.
     wavelet, levels, boundary
         As in :func:`forward`.
+
+    Examples
+    --------
+    >>> from awr_denoise.wavelets import wavelet_operators
+    >>> ops = wavelet_operators((32, 48))
+    >>> ops.wavelet, ops.levels, ops.rows.approx[-1].shape, ops.cols.approx[-1].shape
+    ('bior4.4', 2, (14, 32), (18, 48))
+    >>> wavelet_operators((32, 48)).rows is ops.rows        # built once per axis and settings
+    True
     """
     _check_wavelet(wavelet)
     _check_boundary(boundary)
@@ -194,6 +229,19 @@ def forward(image: FloatArray, *, wavelet: str = DEFAULT_WAVELET, levels: int | 
     -------
     list
         ``[cA_L, (cH_L, cV_L, cD_L), ..., (cH_1, cV_1, cD_1)]``.
+
+    Examples
+    --------
+    A constant image has all its energy in the scale band (orthonormal Haar: a factor 2 per
+    level) and no detail:
+
+    >>> import numpy as np
+    >>> from awr_denoise.wavelets import forward
+    >>> coeffs = forward(np.ones((16, 16)), wavelet="haar", levels=2)
+    >>> coeffs[0].shape, [band.shape for band in coeffs[1]], [band.shape for band in coeffs[2]]
+    ((4, 4), [(4, 4), (4, 4), (4, 4)], [(8, 8), (8, 8), (8, 8)])
+    >>> round(float(coeffs[0][0, 0]), 6), max(float(np.abs(band).max()) for band in coeffs[1] + coeffs[2])
+    (4.0, 0.0)
     """
     _check_wavelet(wavelet)
     _check_boundary(boundary)
@@ -206,7 +254,17 @@ def forward(image: FloatArray, *, wavelet: str = DEFAULT_WAVELET, levels: int | 
 
 
 def inverse(coeffs: list, shape: Shape2D, *, wavelet: str = DEFAULT_WAVELET, boundary: str = "symmetric") -> FloatArray:
-    """Inverse of :func:`forward`, cropped to the original (H, W)."""
+    """Inverse of :func:`forward`, cropped to the original (H, W).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise.wavelets import forward, inverse
+    >>> image = np.random.default_rng(0).random((13, 17, 3))     # any size, any channels
+    >>> restored = inverse(forward(image), image.shape[:2])
+    >>> restored.shape, bool(np.allclose(restored, image))
+    ((13, 17, 3), True)
+    """
     out = pywt.waverec2(coeffs, wavelet, mode=boundary, axes=(0, 1))
     return out[: shape[0], : shape[1]]
 
@@ -250,6 +308,28 @@ def coefficient_variance(variance_of_mean: FloatArray, *, wavelet: str = DEFAULT
     -------
     list
         Same layout as :func:`forward`: ``[Var(cA_L), (Var(cH_L), Var(cV_L), Var(cD_L)), ...]``.
+
+    Examples
+    --------
+    One noisy pixel (variance 1) among exact ones: each level-1 Haar coefficient weighs it
+    by ``+-1/2``, so its coefficients have variance ``1/4`` and the others none:
+
+    >>> import numpy as np
+    >>> from awr_denoise.wavelets import coefficient_variance
+    >>> v = np.zeros((8, 8))
+    >>> v[0, 0] = 1.0
+    >>> var = coefficient_variance(v, wavelet="haar", levels=1)
+    >>> var[0][:2, :2], var[1][2][:2, :2]
+    (array([[0.25, 0.  ],
+           [0.  , 0.  ]]), array([[0.25, 0.  ],
+           [0.  , 0.  ]]))
+
+    CDF 9/7 is not orthonormal: unit pixel variances give coefficient variances other than 1,
+    which is why they are propagated exactly rather than assumed:
+
+    >>> var = coefficient_variance(np.ones((32, 32)), levels=2)
+    >>> [round(float(band[8, 8]), 4) for band in var[1]]
+    [1.1117, 1.1117, 1.2513]
     """
     v = np.asarray(variance_of_mean, dtype=np.float64)
     ops = operators or wavelet_operators(v.shape[:2], wavelet=wavelet, levels=levels, boundary=boundary)
