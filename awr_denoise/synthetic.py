@@ -37,7 +37,22 @@ def _mix(x: np.ndarray) -> np.ndarray:
 
 
 def hash_uniform(seed: int, pixel: np.ndarray, index: np.ndarray, dimension: int) -> FloatArray:
-    """Uniform numbers in [0, 1) as a pure function of (seed, pixel, sample index, dimension)."""
+    """Uniform numbers in [0, 1) as a pure function of (seed, pixel, sample index, dimension).
+
+    Examples
+    --------
+    The number of a sample does not depend on which other samples are drawn with it:
+
+    >>> import numpy as np
+    >>> from awr_denoise.synthetic import hash_uniform
+    >>> together = hash_uniform(0, np.array([0, 0, 1]), np.array([0, 1, 0]), 0)
+    >>> alone = hash_uniform(0, np.array([0]), np.array([1]), 0)
+    >>> np.round(together, 4), bool(alone[0] == together[1])
+    (array([0.4445, 0.3823, 0.5971]), True)
+    >>> u = hash_uniform(7, np.zeros(10000, np.int64), np.arange(10000), 2)
+    >>> bool(0 <= u.min() and u.max() < 1), round(float(u.mean()), 1)
+    (True, 0.5)
+    """
     with np.errstate(over="ignore"):
         key = _mix(np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(dimension + 1))
         h = _mix(pixel.astype(np.uint64) ^ key)
@@ -60,6 +75,19 @@ class SyntheticScene:
     noise
         ``noise(clean, x, y, u) -> (N, 3)`` one sample's value given the clean value there and
         two independent uniforms ``u`` of shape (N, 2); must have expectation ``clean``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise.synthetic import make_scene
+    >>> scene = make_scene("gradient", (4, 8))
+    >>> scene.name, scene.shape
+    ('gradient', (4, 8))
+    >>> np.round(scene.image(np.array([0.0, 4.0]), np.array([0.0, 2.0])), 4)   # clean radiance at two points
+    array([[0.2, 0.3, 0.5],
+           [0.5, 0.5, 0.5]])
+    >>> np.round(scene.reference()[0, :, 0], 4)                                # red rises across the columns
+    array([0.2375, 0.3125, 0.3875, 0.4625, 0.5375, 0.6125, 0.6875, 0.7625])
     """
 
     name: str
@@ -68,7 +96,18 @@ class SyntheticScene:
     noise: Callable[[FloatArray, FloatArray, FloatArray, FloatArray], FloatArray]
 
     def reference(self, supersampling: int = 8) -> FloatArray:
-        """(H, W, 3) box-filtered clean image on a ``supersampling``-squared sub-pixel grid."""
+        """(H, W, 3) box-filtered clean image on a ``supersampling``-squared sub-pixel grid.
+
+        Examples
+        --------
+        Inside the ``edges`` scene's bright disc, and at a dark corner:
+
+        >>> import numpy as np
+        >>> from awr_denoise.synthetic import make_scene
+        >>> reference = make_scene("edges", (8, 8)).reference()
+        >>> reference.shape, np.round(reference[4, 2], 4), np.round(reference[0, 0], 4)
+        ((8, 8, 3), array([0.8 , 0.72, 0.61]), array([0.1562, 0.1406, 0.1594]))
+        """
         h, w = self.shape
         s = supersampling
         offsets = (np.arange(s) + 0.5) / s
@@ -122,7 +161,16 @@ class SyntheticRenderer:
         """Nothing to release."""
 
     def samples(self, request: SampleRequest) -> tuple[np.ndarray, FloatArray]:
-        """Flat pixel indices and (N, 3) values of every sample the request asks for."""
+        """Flat pixel indices and (N, 3) values of every sample the request asks for.
+
+        Examples
+        --------
+        >>> from awr_denoise import SampleRequest
+        >>> from awr_denoise.synthetic import SyntheticRenderer, make_scene
+        >>> pixel, values = SyntheticRenderer(make_scene("edges", (4, 4))).samples(SampleRequest.uniform((4, 4), 2))
+        >>> pixel[:4].tolist(), values.shape
+        ([0, 0, 1, 1], (32, 3))
+        """
         if request.shape != self.scene.shape:
             raise ValueError(f"request: shape {request.shape} does not match the scene's {self.scene.shape}")
         rows, cols, index = request.pixel_list()
@@ -133,6 +181,20 @@ class SyntheticRenderer:
 
         The same numbers :meth:`samples` gives for those samples, however they are grouped:
         a tile of the image can be rendered on its own (:mod:`awr_denoise.parallel`).
+
+        Examples
+        --------
+        Sample 5 of pixel (2, 3) is the same number whether it is traced alone or as part of
+        a request for samples 4 to 7 of every pixel:
+
+        >>> import numpy as np
+        >>> from awr_denoise import SampleRequest
+        >>> from awr_denoise.synthetic import SyntheticRenderer, make_scene
+        >>> renderer = SyntheticRenderer(make_scene("edges", (4, 4)), seed=3)
+        >>> pixel, values = renderer.samples(SampleRequest.uniform((4, 4), 4, first_index=4))
+        >>> alone = renderer.trace_samples(np.array([2]), np.array([3]), np.array([5]))
+        >>> bool(np.array_equal(alone[0], values[(pixel == 2 * 4 + 3).nonzero()[0][1]]))
+        True
         """
         rows, cols, sample_index = (np.asarray(a, np.int64).ravel() for a in (rows, cols, sample_index))
         h, w = self.scene.shape
@@ -261,7 +323,16 @@ arrives through rare samples (2%, 40x the mean) that a pixel's first samples usu
 
 
 def make_scene(name: str, shape: Shape2D = (64, 64)) -> SyntheticScene:
-    """Build a synthetic scene by name (one of :data:`SCENES`)."""
+    """Build a synthetic scene by name (one of :data:`SCENES`).
+
+    Examples
+    --------
+    >>> from awr_denoise.synthetic import SCENES, make_scene
+    >>> sorted(SCENES)
+    ['edges', 'fireflies', 'gradient', 'hdr_source', 'rare_light']
+    >>> make_scene("hdr_source", (48, 64)).shape
+    (48, 64)
+    """
     if name not in SCENES:
         raise ValueError(f"name: {name!r} is not one of {', '.join(sorted(SCENES))}")
     return SCENES[name](tuple(int(s) for s in shape))
