@@ -1,9 +1,9 @@
 """Domains in which wavelet coefficients are thresholded.
 
-The paper thresholds pixel means in linear radiance (Eq. 11). On path-traced buffers with a
-high dynamic range that smears a firefly's or a light's energy into dark neighbours
-(docs/reconstruction.md, "Domains"). A variance-stabilising transform ``y = f(x)`` applied to the
-means first, with the variance carried through by the delta method
+The paper thresholds pixel means in linear radiance (Eq. 11). On buffers with a high dynamic
+range (a small bright light, a firefly) that smears the bright pixels' energy into dark
+neighbours (docs/reconstruction.md, "Domains"). A variance-stabilising transform ``y = f(x)``
+applied to the means first, with the variance carried through by the delta method
 (``Var(y) ~ Var(x) f'(mean)^2``), and inverted after reconstruction, keeps Eq. 10-11 intact
 while measuring error in relative terms.
 

@@ -212,7 +212,7 @@ def test_detail_energy_of_the_output_haar(data, c_pair, side, domain):
 @given(data=buffers(allow_empty_pixels=False), domain=DOMAINS, exponent=st.integers(-30, 30),
        c_s=st.sampled_from([0.5, 1.0, 1e6]))
 def test_scale_equivariance(data, domain, exponent, c_s):
-    """Scaling the means by a and the variances by a^2 scales the output by a (algorithm note 5)."""
+    """Scaling the means by a and the variances by a^2 scales the output by a (docs/reconstruction.md, "Domains")."""
     buf, _ = data
     a = 10.0**exponent
     scaled = SampleBuffer(buf.count, buf.mean * a, buf.variance * a * a, buf.channels, buf.variance_known)

@@ -5,7 +5,8 @@ A batched (wavefront) path tracer in numpy on top of embreex that implements the
 :class:`~awr_denoise.requests.SampleRequest` it traces exactly the requested samples and returns
 their per-pixel statistics as a :class:`~awr_denoise.buffers.SampleBuffer`. It exists to feed
 the adaptive sampler and the benchmarks with scenes of known integrand dimension (4D to 8D,
-Overbeck et al. 2009, section 1 of the algorithm note). The core library never imports it.
+Overbeck et al. 2009, section 1; docs/concepts.md, "The pixel integral"). The core library
+never imports it.
 
 Public API: :func:`list_scenes`, :func:`load_scene`, :class:`PathTracer`, :func:`render`,
 :func:`create_renderer` (the ``"tracer"`` entry of :mod:`awr_denoise.renderers`),

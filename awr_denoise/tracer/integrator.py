@@ -3,7 +3,7 @@
 :class:`PathTracer` takes a :class:`~awr_denoise.requests.SampleRequest`, traces exactly the
 requested samples (``first_index .. first_index + counts - 1`` of each pixel) and returns their
 per-pixel statistics as a :class:`~awr_denoise.buffers.SampleBuffer` (channels R, G, B): the
-renderer side of the paper's loop (Overbeck et al. 2009, section 1 of the algorithm note).
+renderer side of the paper's loop (Overbeck et al. 2009, section 1; docs/concepts.md, "Round").
 
 Structure (pbrt-v4 vocabulary, wavefront over arrays): the camera turns ``(p_film, p_lens,
 time)`` into rays; every bounce is one batched ``intersect`` over all live paths, then shading

@@ -18,7 +18,7 @@ Two samplers are offered:
   each number stays a pure function of its sample index.
 
 Both draw per-pixel seeds from the hash, so pixel estimates are independent across pixels, as
-the variance propagation of the paper (section 3 of the algorithm note) assumes.
+the variance propagation of the paper (section 3; docs/concepts.md, "Sample buffer") assumes.
 """
 
 from __future__ import annotations

@@ -15,9 +15,9 @@ A scene spec is a plain dict (see :mod:`awr_denoise.tracer.scenes` for the bundl
 
 Shapes: ``sphere`` (center, radius), ``box`` (min, max), ``quad`` (corner, edge_u, edge_v),
 ``lathe`` (profile: a name from :data:`CHESS_PROFILES` or (radius, height) pairs; base, scale)
-and ``mesh`` (vertices, faces). The scene states its integrand ``dimension`` (section 1 of the
-algorithm note); :func:`load_scene` checks it against the random dimensions the path tracer
-will actually draw for the scene (:meth:`Scene.dimension_names`).
+and ``mesh`` (vertices, faces). The scene states its integrand ``dimension`` (paper section 1;
+docs/concepts.md, "The pixel integral"); :func:`load_scene` checks it against the random
+dimensions the path tracer will actually draw for the scene (:meth:`Scene.dimension_names`).
 """
 
 from __future__ import annotations

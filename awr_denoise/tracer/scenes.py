@@ -5,8 +5,9 @@
 without Python, and :func:`~awr_denoise.tracer.load_scene` accepts such a file path too. The
 installed package needs no data files: it uses the dicts.
 
-Each scene states the dimension of its pixel integrand (section 1 of the algorithm note:
-AA + DoF 4D, + motion blur 5D, + area or environment light 6D, + one diffuse bounce 8D).
+Each scene states the dimension of its pixel integrand (paper section 1; docs/concepts.md,
+"The pixel integral": AA + DoF 4D, + motion blur 5D, + area or environment light 6D, + one
+diffuse bounce 8D).
 """
 
 from __future__ import annotations
