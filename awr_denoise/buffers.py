@@ -2,10 +2,9 @@
 
 A renderer reports, for every pixel ``p``, the number of samples ``n_p``, their mean and their
 unbiased per-sample variance ``s2_p`` (Overbeck et al. 2009, section 3; docs/concepts.md,
-"Sample buffer").
-Everything the method needs follows from these three: the variance of the pixel mean is
-``v_p = s2_p / n_p`` and, because pixel means are independent (box pixel filter), the variance
-of any linear wavelet coefficient is ``<v, K^2>``.
+"Sample buffer"). Everything the method needs follows from these three: the variance of the
+pixel mean is ``v_p = s2_p / n_p`` and, because pixel means are independent (box pixel filter),
+the variance of any linear wavelet coefficient is ``<v, K^2>``.
 
 Statistics are kept in float64 and merged exactly with Chan's parallel update of Welford's
 algorithm, so a buffer built from several batches equals the buffer of all samples at once.
@@ -95,45 +94,19 @@ class SampleBuffer:
     -----
     Build buffers with the constructors (:meth:`from_samples`, :meth:`from_sums`,
     :meth:`from_moments`, :meth:`empty`); they validate input and raise a ``ValueError``
-    that names the parameter and the number of bad pixels. Arrays are read-only.
+    that names the parameter and the number of bad pixels. Arrays are read-only. The examples
+    of the methods use ``np`` and ``SampleBuffer`` imported as here.
 
     Examples
     --------
-    Five samples of a one-channel, 1x2 image, given as ``(row, column)`` and value:
-
     >>> import numpy as np
     >>> from awr_denoise import SampleBuffer
-    >>> pixels = np.array([[0, 0], [0, 0], [0, 1], [0, 1], [0, 1]])
-    >>> values = np.array([1.0, 3.0, 2.0, 4.0, 6.0])
-    >>> buf = SampleBuffer.from_samples(pixels, values, (1, 2))
-    >>> buf
-    SampleBuffer(shape=(1, 2), channels=('Y',), total_samples=5, spp=2.5)
-    >>> buf.count, buf.mean[..., 0], buf.variance[..., 0]
-    (array([[2, 3]]), array([[2., 4.]]), array([[2., 4.]]))
-
-    The variance of each pixel mean, ``v_p = s2_p / n_p`` (paper section 3):
-
-    >>> np.round(buf.variance_of_mean()[..., 0], 4)
-    array([[1.    , 1.3333]])
-
-    Merging two batches gives the statistics of all their samples at once:
-
-    >>> first = SampleBuffer.from_samples(pixels[:3], values[:3], (1, 2))
-    >>> second = SampleBuffer.from_samples(pixels[3:], values[3:], (1, 2))
-    >>> merged = first.merge(second)
-    >>> merged.count, merged.mean[..., 0], merged.variance[..., 0]
-    (array([[2, 3]]), array([[2., 4.]]), array([[2., 4.]]))
-
-    A tile of the image is a buffer of its own:
-
-    >>> buf.crop(slice(0, 1), slice(1, 2))
+    >>> first = SampleBuffer.from_samples(np.array([0, 0, 1]), np.array([1.0, 3.0, 2.0]), (1, 2))
+    >>> both = first.merge(SampleBuffer.from_samples(np.array([1, 1]), np.array([4.0, 6.0]), (1, 2)))
+    >>> both.count, both.mean[..., 0], np.round(both.variance_of_mean()[..., 0], 4)   # v_p = s2_p / n_p
+    (array([[2, 3]]), array([[2., 4.]]), array([[1.    , 1.3333]]))
+    >>> both.crop(slice(0, 1), slice(1, 2))
     SampleBuffer(shape=(1, 1), channels=('Y',), total_samples=3, spp=3)
-
-    Renderers that report moments rather than samples go through :meth:`from_moments`; here
-    the samples 2 and 6 as Mitsuba 3 reports them, mean and raw ``E[x^2]``:
-
-    >>> SampleBuffer.from_moments([[2]], [[4.0]], [[20.0]], variance_kind="second_moment").variance[..., 0]
-    array([[8.]])
     """
 
     count: CountArray
@@ -177,16 +150,7 @@ class SampleBuffer:
     # ------------------------------------------------------------------ constructors
     @classmethod
     def empty(cls, shape: Shape2D, *, channels: Sequence[str] | int = 3) -> SampleBuffer:
-        """A buffer of the given (H, W) shape with no samples.
-
-        Examples
-        --------
-        >>> from awr_denoise import SampleBuffer
-        >>> SampleBuffer.empty((2, 3))
-        SampleBuffer(shape=(2, 3), channels=('R', 'G', 'B'), total_samples=0, spp=0)
-        >>> SampleBuffer.empty((2, 3), channels=("Y",)).n_channels
-        1
-        """
+        """A buffer of the given (H, W) shape with no samples."""
         n_channels = channels if isinstance(channels, int) else len(channels)
         h, w = (int(s) for s in shape)
         zeros = np.zeros((h, w, n_channels))
@@ -223,26 +187,9 @@ class SampleBuffer:
 
         Examples
         --------
-        Two pixels with four samples each; the same spread given three ways:
-
-        >>> import numpy as np
-        >>> from awr_denoise import SampleBuffer
-        >>> count, mean = np.array([[4, 4]]), np.array([[0.5, 2.0]])
-        >>> SampleBuffer.from_moments(count, mean, np.array([[0.04, 0.4]])).variance[..., 0]
-        array([[0.04, 0.4 ]])
-        >>> SampleBuffer.from_moments(count, mean, np.array([[0.01, 0.1]]), variance_kind="mean").variance[..., 0]
-        array([[0.04, 0.4 ]])
-        >>> second = mean**2 + np.array([[0.03, 0.3]])   # E[x^2] = mean^2 + biased variance
-        >>> np.round(SampleBuffer.from_moments(count, mean, second, variance_kind="second_moment").variance[..., 0], 4)
-        array([[0.04, 0.4 ]])
-
-        A pixel whose variance the renderer did not know is pooled from its neighbours later,
-        never taken as zero:
-
-        >>> buf = SampleBuffer.from_moments(count, mean, np.array([[0.04, 0.0]]),
-        ...                                 variance_known=np.array([[True, False]]))
-        >>> buf.variance_known, buf.estimated_variance()[..., 0]
-        (array([[ True, False]]), array([[0.04, 0.04]]))
+        >>> kinds = {"sample": 8.0, "mean": 4.0, "second_moment": 20.0}   # samples 2 and 6, three ways
+        >>> [SampleBuffer.from_moments([[2]], [[4]], [[v]], variance_kind=k).variance.item() for k, v in kinds.items()]
+        [8.0, 8.0, 8.0]
         """
         if variance_kind not in VARIANCE_KINDS:
             raise ValueError(f"variance_kind: {variance_kind!r} is not one of {', '.join(VARIANCE_KINDS)}")
@@ -290,14 +237,9 @@ class SampleBuffer:
 
         Examples
         --------
-        Samples ``1, 3`` in the first pixel and ``5`` alone in the second:
-
-        >>> from awr_denoise import SampleBuffer
-        >>> buf = SampleBuffer.from_sums([[2, 1]], [[4.0, 5.0]], [[10.0, 25.0]])
-        >>> buf.mean[..., 0], buf.variance[..., 0]
-        (array([[2., 5.]]), array([[2., 0.]]))
-        >>> buf.variance_known              # one sample: variance unknown, not zero
-        array([[ True, False]])
+        >>> buf = SampleBuffer.from_sums([[2, 1]], [[4.0, 5.0]], [[10.0, 25.0]])   # samples 1, 3 | 5
+        >>> buf.mean[..., 0], buf.variance[..., 0], buf.variance_known            # one sample: unknown
+        (array([[2., 5.]]), array([[2., 0.]]), array([[ True, False]]))
         """
         count_arr = _check_count(count)
         s1 = np.asarray(sum, dtype=np.float64)
@@ -345,20 +287,9 @@ class SampleBuffer:
 
         Examples
         --------
-        Four RGB samples of a 1x2 image, pixels as flat row-major indices; one sample is NaN:
-
-        >>> import numpy as np
-        >>> from awr_denoise import SampleBuffer
-        >>> values = np.array([[1.0, 0.5, 0.0], [3.0, 1.5, 0.0], [np.nan, 0.0, 0.0], [2.0, 2.0, 2.0]])
-        >>> buf = SampleBuffer.from_samples(np.array([0, 0, 1, 1]), values, (1, 2), nonfinite="drop")
-        >>> buf.count, buf.nonfinite, buf.channels
-        (array([[2, 1]]), 1, ('R', 'G', 'B'))
-        >>> buf.mean[0, 0], buf.variance[0, 0]
-        (array([2., 1., 0.]), array([2. , 0.5, 0. ]))
-        >>> SampleBuffer.from_samples(np.array([0, 0, 1, 1]), values, (1, 2))
-        Traceback (most recent call last):
-            ...
-        ValueError: values: 1 sample(s) hold NaN or Inf (pass nonfinite='drop' or 'zero')
+        >>> buf = SampleBuffer.from_samples(np.array([0, 0, 1, 1]), [1.0, 3.0, np.nan, 2.0], (1, 2), nonfinite="drop")
+        >>> buf.count, buf.mean[..., 0], buf.nonfinite
+        (array([[2, 1]]), array([[2., 2.]]), 1)
         """
         if nonfinite not in NONFINITE_POLICIES:
             raise ValueError(f"nonfinite: {nonfinite!r} is not one of {', '.join(NONFINITE_POLICIES)}")
@@ -503,19 +434,6 @@ class SampleBuffer:
 
         Examples
         --------
-        The middle pixel has one sample; its variance is pooled from its neighbours, whose
-        ``M2`` and degrees of freedom are summed (``(3 * 0.2 + 3 * 0.4) / 6``):
-
-        >>> import numpy as np
-        >>> from awr_denoise import SampleBuffer
-        >>> buf = SampleBuffer.from_moments(np.array([[4, 1, 4]]), np.ones((1, 3)), np.array([[0.2, 0.0, 0.4]]))
-        >>> buf.variance_known
-        array([[ True, False,  True]])
-        >>> np.round(buf.estimated_variance()[..., 0], 4)
-        array([[0.2, 0.3, 0.4]])
-
-        A pixel with many samples and unknown variance beside a bright light:
-
         >>> mean = np.full((1, 3, 1), 0.5); mean[0, 0] = 2e5        # a light beside a dim sky
         >>> var = np.zeros((1, 3, 1)); var[0, 0] = 1e9; var[0, 2] = 0.01
         >>> known = np.array([[True, False, True]])                 # the middle pixel: unknown
@@ -533,10 +451,7 @@ class SampleBuffer:
 
         Examples
         --------
-        >>> import numpy as np
-        >>> from awr_denoise import SampleBuffer
-        >>> buf = SampleBuffer.from_moments(np.array([[4, 0]]), np.array([[1.0, 0.0]]), np.array([[0.4, 0.0]]))
-        >>> buf.variance_of_mean()[..., 0]      # 0.4 / 4; nothing is known of the empty pixel
+        >>> SampleBuffer.from_moments([[4, 0]], [[1.0, 0.0]], [[0.4, 0.0]]).variance_of_mean()[..., 0]
         array([[0.1, inf]])
         """
         n = self.count[..., None].astype(np.float64)
@@ -546,16 +461,7 @@ class SampleBuffer:
         return v
 
     def luminance(self) -> FloatArray:
-        """(H, W) mean luminance (weights of :func:`luminance_weights`).
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from awr_denoise import SampleBuffer
-        >>> white_and_red = np.array([[[1.0, 1.0, 1.0], [1.0, 0.0, 0.0]]])
-        >>> SampleBuffer.from_moments(np.full((1, 2), 4), white_and_red, np.zeros((1, 2, 3))).luminance()
-        array([[1.    , 0.2126]])
-        """
+        """(H, W) mean luminance (weights of :func:`luminance_weights`)."""
         return self.mean @ luminance_weights(self.channels)
 
     def luminance_variance(self) -> FloatArray:
@@ -564,17 +470,6 @@ class SampleBuffer:
         Channel covariances are not stored; the colour channels of a path-traced sample are
         strongly correlated (one path, one throughput), so this uses the fully correlated
         value ``(sum_c w_c s_c)^2``, an upper bound that is exact for grey samples.
-
-        Examples
-        --------
-        Equal per-channel variances give the same luminance variance (the weights sum to 1),
-        where independent channels would give less:
-
-        >>> import numpy as np
-        >>> from awr_denoise import SampleBuffer
-        >>> buf = SampleBuffer.from_moments(np.full((1, 1), 4), np.ones((1, 1, 3)), np.full((1, 1, 3), 0.04))
-        >>> np.round(buf.luminance_variance(), 6)
-        array([[0.04]])
         """
         sd = np.sqrt(self.estimated_variance())
         return (sd @ luminance_weights(self.channels)) ** 2
@@ -588,18 +483,10 @@ class SampleBuffer:
 
         Examples
         --------
-        Two rounds of samples of one pixel, merged, equal the buffer of all four samples:
-
-        >>> import numpy as np
-        >>> from awr_denoise import SampleBuffer
         >>> a = SampleBuffer.from_samples(np.array([0, 0]), np.array([1.0, 2.0]), (1, 1))
-        >>> b = SampleBuffer.from_samples(np.array([0, 0]), np.array([4.0, 5.0]), (1, 1))
-        >>> both = SampleBuffer.from_samples(np.zeros(4, int), np.array([1.0, 2.0, 4.0, 5.0]), (1, 1))
-        >>> merged = a.merge(b)
+        >>> merged = a.merge(SampleBuffer.from_samples(np.array([0, 0]), np.array([4.0, 5.0]), (1, 1)))
         >>> int(merged.count[0, 0]), float(merged.mean[0, 0, 0]), round(float(merged.variance[0, 0, 0]), 4)
         (4, 3.0, 3.3333)
-        >>> bool(np.allclose(merged.variance, both.variance, rtol=1e-14))
-        True
         """
         if not isinstance(other, SampleBuffer):
             raise TypeError(f"other: expected a SampleBuffer, got {type(other).__name__}")
@@ -631,13 +518,9 @@ class SampleBuffer:
 
         Examples
         --------
-        >>> import numpy as np
-        >>> from awr_denoise import SampleBuffer
-        >>> count = np.arange(12).reshape(3, 4)
-        >>> tile = SampleBuffer.from_moments(count, np.zeros((3, 4)), np.zeros((3, 4))).crop(slice(1, 3), slice(0, 2))
-        >>> tile.shape, tile.count
-        ((2, 2), array([[4, 5],
-               [8, 9]]))
+        >>> buf = SampleBuffer.from_moments(np.arange(12).reshape(3, 4), np.zeros((3, 4)), np.zeros((3, 4)))
+        >>> buf.crop(slice(1, 3), slice(0, 2)).count.tolist()
+        [[4, 5], [8, 9]]
         """
         return SampleBuffer(self.count[rows, cols], self.mean[rows, cols], self.variance[rows, cols],
                             self.channels, self.variance_known[rows, cols], 0)

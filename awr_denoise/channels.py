@@ -14,7 +14,16 @@ _REC709 = np.array([0.2126, 0.7152, 0.0722])
 
 
 def default_channel_names(n_channels: int) -> tuple[str, ...]:
-    """Conventional channel names for ``n_channels`` channels (``R,G,B`` for three)."""
+    """Conventional channel names for ``n_channels`` channels (``R,G,B`` for three).
+
+    Examples
+    --------
+    >>> from awr_denoise.channels import default_channel_names
+    >>> default_channel_names(1), default_channel_names(3)
+    (('Y',), ('R', 'G', 'B'))
+    >>> default_channel_names(2)
+    ('ch0', 'ch1')
+    """
     if n_channels == 1:
         return ("Y",)
     if n_channels == 3:
@@ -29,6 +38,14 @@ def luminance_weights(channels: Sequence[str]) -> FloatArray:
 
     Rec. 709 weights when the channels are ``R, G, B`` (an ``A`` channel gets weight 0), the
     single channel itself when there is one, and the plain average otherwise.
+
+    Examples
+    --------
+    >>> from awr_denoise import luminance_weights
+    >>> luminance_weights(["beauty.R", "beauty.G", "beauty.B", "beauty.A"])
+    array([0.2126, 0.7152, 0.0722, 0.    ])
+    >>> luminance_weights(["Y"]), luminance_weights(["albedo", "depth"])
+    (array([1.]), array([0.5, 0.5]))
     """
     names = [c.rsplit(".", 1)[-1].upper() for c in channels]
     weights = np.zeros(len(names))

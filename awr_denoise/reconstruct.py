@@ -85,8 +85,8 @@ class Reconstruction:
     0.69
     >>> bool((result.variance < buffer.variance_of_mean()).all())
     True
-    >>> result.parameters
-    {'c_s': 1.0, 'wavelet': 'bior4.4', 'levels': 2, 'domain': 'log', 'mode': 'channels', 'boundary': 'symmetric', 'pixel_clamp': 2.5}
+    >>> {key: result.parameters[key] for key in ("c_s", "wavelet", "pixel_clamp")}
+    {'c_s': 1.0, 'wavelet': 'bior4.4', 'pixel_clamp': 2.5}
     """
 
     image: FloatArray
