@@ -28,6 +28,7 @@ _NEEDS: dict[str, tuple[str, ...]] = {
     "awr_denoise/adapters/mitsuba_scenes.py": ("mitsuba",),
     "awr_denoise/bench": ("matplotlib", "skimage"),
     "awr_denoise/io/deep.py": ("OpenEXR",),
+    "awr_denoise/io/describe.py": ("OpenEXR",),
     "awr_denoise/io/dump.py": ("OpenEXR",),
     "awr_denoise/io/exr.py": ("OpenEXR",),
     "awr_denoise/io/request_map.py": ("OpenEXR",),
