@@ -6,13 +6,11 @@ Kept free of numerical work: every subcommand is argument parsing around library
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import math
 import os
 import re
 import sys
-import warnings
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -21,8 +19,9 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from awr_denoise.buffers import NONFINITE_POLICIES, VARIANCE_KINDS
-from awr_denoise.errors import InputFileWarning
 from awr_denoise.io import PRESETS
+
+from .errors import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, RuntimeFailure, UsageError, one_line_warnings
 
 __all__ = [
     "EXIT_OK",
@@ -42,19 +41,6 @@ __all__ = [
     "status",
     "one_line_warnings",
 ]
-
-EXIT_OK = 0
-EXIT_FAILURE = 1
-EXIT_USAGE = 2
-
-
-class UsageError(ValueError):
-    """A mistake in how the command was called (exit status 2)."""
-
-
-class RuntimeFailure(RuntimeError):
-    """The command ran but did not achieve its goal, e.g. an error above ``--maxerror`` (exit 1)."""
-
 
 def add_output_options(parser: argparse.ArgumentParser, *, output_help: str) -> None:
     """``-o/--output`` and ``--overwrite``."""
@@ -186,17 +172,3 @@ def status(message: str, *, quiet: bool) -> None:
     """A progress note on stderr (stdout is kept for results), printed above any progress bar."""
     if not quiet:
         tqdm.write(message, file=sys.stderr)
-
-
-@contextlib.contextmanager
-def one_line_warnings() -> Iterator[None]:
-    """Within the block, the library's input warnings print as ``awr: warning: <message>``, one
-    line each on stderr (never as exceptions or two-line Python warnings), whatever the caller's
-    warning filters."""
-    def show(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001 - warnings' signature
-        print(f"awr: warning: {' '.join(str(message).split())}", file=sys.stderr)
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("always", InputFileWarning)
-        warnings.showwarning = show
-        yield

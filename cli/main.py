@@ -1,22 +1,40 @@
 """The ``awr`` command: sample dumps in, denoised images and sample requests out.
 
 Subcommands: ``info``, ``denoise``, ``plan`` (ask), ``merge`` (tell), ``diff``, ``render``,
-``demo``, ``bench``. Exit status: 0 success, 1 runtime failure, 2 bad usage or bad input. A user
-mistake prints one line, ``awr: error: <file>: <channel>: <what>``, never a traceback.
+``demo``, ``bench``. Exit status: 0 success, 1 runtime failure, 2 bad usage or bad input,
+130 interrupted (Ctrl-C), 143 terminated (SIGTERM), 141 when the reader of stdout went away.
+A user mistake prints one line, ``awr: error: <file>: <channel>: <what>``, never a traceback.
+
+This module imports nothing heavy: :func:`main` installs the interrupt handling first and only
+then imports the subcommands (and with them numpy, scipy and OpenEXR).
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import os
+import select
+import signal
 import sys
 from collections.abc import Sequence
 
 from awr_denoise import __version__
 from awr_denoise.errors import InputFileError
 
-from .common import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, RuntimeFailure, UsageError, one_line_warnings
+from . import interrupts
+from .errors import (
+    EXIT_BROKEN_PIPE,
+    EXIT_FAILURE,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_TERMINATED,
+    EXIT_USAGE,
+    RuntimeFailure,
+    UsageError,
+    one_line_warnings,
+)
 
 __all__ = ["main", "build_parser"]
 
@@ -47,6 +65,74 @@ def _one_line(message: object) -> str:
     return " ".join(str(message).split()) or "unknown error"
 
 
+def _error(message: object, status: int) -> int:
+    if interrupts.received() is not None:  # the error is the interrupt's doing: main says so
+        return status
+    print(f"awr: error: {_one_line(message)}", file=sys.stderr)
+    return status
+
+
+def _stdout_is_broken() -> bool:
+    """Whether stdout is a pipe whose reader has gone (POLLERR on its write end)."""
+    try:
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLERR)
+        return bool(poller.poll(0))
+    except (AttributeError, OSError, ValueError):
+        return False
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so the interpreter's final flush cannot fail again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (AttributeError, OSError, ValueError):
+        pass
+
+
+def _run(argv: Sequence[str] | None) -> int:
+    try:
+        parser = build_parser()
+        args = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
+        with one_line_warnings():
+            status = int(args.run(args) or EXIT_OK)
+        sys.stdout.flush()  # a closed pipe shows here, not at exit
+        return status
+    except SystemExit as exc:  # --help and --version
+        return int(exc.code or 0) if isinstance(exc.code, int) else EXIT_OK
+    except RuntimeFailure as exc:
+        return _error(exc, EXIT_FAILURE)
+    except (InputFileError, UsageError, FileExistsError, FileNotFoundError) as exc:
+        return _error(exc, EXIT_USAGE)
+    except (ValueError, TypeError) as exc:
+        # Library argument validation (unknown wavelet, bad levels...): the user's input.
+        return _error(exc, EXIT_USAGE)
+    except BrokenPipeError as exc:
+        if exc.filename is None and _stdout_is_broken():
+            _silence_stdout()
+            return EXIT_BROKEN_PIPE
+        return _error(f"{exc.filename}: {exc.strerror}" if exc.filename else exc.strerror or exc, EXIT_FAILURE)
+    except OSError as exc:
+        # A real runtime failure (a full disk, a lost network file system): exit 1. Writers
+        # leave no partial file behind.
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        what = exc.strerror or (os.strerror(exc.errno) if exc.errno else None) or exc
+        if exc.errno == errno.ENOSPC and not where:
+            what = "no space left on device"
+        return _error(f"{where}{what}", EXIT_FAILURE)
+    except MemoryError as exc:
+        return _error(f"out of memory{': ' + str(exc) if str(exc) else ''}", EXIT_FAILURE)
+    except ImportError as exc:
+        return _error(exc, EXIT_FAILURE)
+    except Exception as exc:  # a bug, not a user mistake: say so, traceback on request
+        if os.environ.get("AWR_TRACEBACK"):
+            raise
+        return _error(f"internal error: {type(exc).__name__}: {_one_line(exc)} "
+                      "(set AWR_TRACEBACK=1 to see the traceback)", EXIT_FAILURE)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``awr`` command line and return its exit status.
 
@@ -55,41 +141,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv
         Arguments without the program name; ``sys.argv[1:]`` by default.
     """
+    previous = None
+    status = None
     try:
-        parser = build_parser()
-        args = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
-        with one_line_warnings():
-            return int(args.run(args) or EXIT_OK)
-    except SystemExit as exc:  # --help and --version
-        return int(exc.code or 0) if isinstance(exc.code, int) else EXIT_OK
-    except KeyboardInterrupt:
+        previous = interrupts.raising()
+        status = _run(argv)
+    except (KeyboardInterrupt, interrupts.Terminated):
+        pass
+    finally:
+        interrupts.restore(previous)
+    # A signal counts even when the exception it raised was lost on the way (inside a C
+    # extension); the outputs were not committed then (see awr_denoise.io.atomic.OutputSet).
+    signum = interrupts.received()
+    if signum == signal.SIGTERM:
+        print("awr: terminated", file=sys.stderr)
+        return EXIT_TERMINATED
+    if signum is not None or status is None:
         print("awr: interrupted", file=sys.stderr)
-        return 130
-    except RuntimeFailure as exc:
-        print(f"awr: error: {_one_line(exc)}", file=sys.stderr)
-        return EXIT_FAILURE
-    except (InputFileError, UsageError, FileExistsError, FileNotFoundError) as exc:
-        print(f"awr: error: {_one_line(exc)}", file=sys.stderr)
-        return EXIT_USAGE
-    except (ValueError, TypeError) as exc:
-        # Library argument validation (unknown wavelet, bad levels...): the user's input.
-        print(f"awr: error: {_one_line(exc)}", file=sys.stderr)
-        return EXIT_USAGE
-    except OSError as exc:
-        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
-        print(f"awr: error: {where}{_one_line(exc.strerror or exc)}", file=sys.stderr)
-        return EXIT_FAILURE
-    except ImportError as exc:
-        print(f"awr: error: {_one_line(exc)}", file=sys.stderr)
-        return EXIT_FAILURE
-    except Exception as exc:  # a bug, not a user mistake: say so, traceback on request
-        if os.environ.get("AWR_TRACEBACK"):
-            raise
-        print(f"awr: error: internal error: {type(exc).__name__}: {_one_line(exc)} "
-              "(set AWR_TRACEBACK=1 to see the traceback)", file=sys.stderr)
-        return EXIT_FAILURE
+        return EXIT_INTERRUPTED
+    return status
 
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())
-

@@ -1,0 +1,49 @@
+"""Exit statuses and the exceptions ``awr`` subcommands raise for them.
+
+Kept free of heavy imports: :mod:`awr_denoise.cli.main` imports this module before numpy and
+scipy load, so an interrupt during those imports is already handled.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+import warnings
+from collections.abc import Iterator
+
+from awr_denoise.errors import InputFileWarning
+
+__all__ = ["EXIT_OK", "EXIT_FAILURE", "EXIT_USAGE", "EXIT_INTERRUPTED", "EXIT_TERMINATED", "EXIT_BROKEN_PIPE",
+           "UsageError", "RuntimeFailure", "one_line_warnings"]
+
+EXIT_OK = 0
+EXIT_FAILURE = 1
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+"""Ctrl-C (SIGINT): 128 + 2, the status a shell gives a command stopped by it."""
+EXIT_TERMINATED = 143
+"""SIGTERM: 128 + 15."""
+EXIT_BROKEN_PIPE = 141
+"""The reader of stdout went away (``awr info --json x | head``): 128 + SIGPIPE, as for ``cat``."""
+
+
+class UsageError(ValueError):
+    """A mistake in how the command was called (exit status 2)."""
+
+
+class RuntimeFailure(RuntimeError):
+    """The command ran but did not achieve its goal, e.g. an error above ``--maxerror`` (exit 1)."""
+
+
+@contextlib.contextmanager
+def one_line_warnings() -> Iterator[None]:
+    """Within the block, the library's input warnings print as ``awr: warning: <message>``, one
+    line each on stderr (never as exceptions or two-line Python warnings), whatever the caller's
+    warning filters."""
+    def show(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001 - warnings' signature
+        print(f"awr: warning: {' '.join(str(message).split())}", file=sys.stderr)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", InputFileWarning)
+        warnings.showwarning = show
+        yield

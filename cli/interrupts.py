@@ -1,0 +1,66 @@
+"""Ctrl-C and SIGTERM as exceptions, raised once: the command unwinds, removes its temporaries
+and exits with one line.
+
+:func:`raising` is the first thing :func:`awr_denoise.cli.main.main` does, before the
+subcommands (and numpy, scipy, OpenEXR) are imported. The first signal raises; later ones are
+ignored while the command cleans up, so a second Ctrl-C cannot cut the cleanup short or print a
+traceback. A signal that was ignored when the command started (a background job, ``nohup``)
+stays ignored.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Callable
+from types import FrameType
+from typing import Any
+
+__all__ = ["Terminated", "raising", "restore", "received"]
+
+_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+# The signal that arrived, kept even when the exception it raised was swallowed on the way up
+# (an interrupt inside a C extension's import comes back as an ImportError, or not at all).
+_received: list[int] = []
+
+
+class Terminated(BaseException):
+    """SIGTERM arrived (a BaseException like KeyboardInterrupt: only ``main`` catches it)."""
+
+
+def _raise(signum: int, frame: FrameType | None) -> None:
+    _received.append(signum)
+    for s in _SIGNALS:
+        signal.signal(s, signal.SIG_IGN)
+    if signum == signal.SIGINT:
+        raise KeyboardInterrupt
+    raise Terminated(signal.Signals(signum).name)
+
+
+def raising() -> dict[int, Any] | None:
+    """Make SIGINT raise KeyboardInterrupt and SIGTERM :class:`Terminated` (first signal only).
+
+    Returns the previous handlers for :func:`restore`, or None when called outside the main
+    thread (only the main thread can set handlers; the caller's own handling then stays).
+    """
+    _received.clear()
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    previous: dict[int, Callable[..., Any] | int | None] = {}
+    for s in _SIGNALS:
+        previous[s] = signal.getsignal(s)
+        if previous[s] is not signal.SIG_IGN:
+            signal.signal(s, _raise)
+    return previous
+
+
+def restore(previous: dict[int, Any] | None) -> None:
+    """Put back the handlers :func:`raising` replaced."""
+    for s, handler in (previous or {}).items():
+        signal.signal(s, signal.SIG_DFL if handler is None else handler)
+
+
+def received() -> int | None:
+    """The signal that arrived since :func:`raising`, if any (the first one)."""
+    return _received[0] if _received else None
