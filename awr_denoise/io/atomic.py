@@ -1,43 +1,170 @@
-"""Atomic, non-clobbering file writes.
+"""Atomic, all-or-nothing, non-clobbering file writes.
 
-Every writer in :mod:`awr_denoise.io` renders into a temporary file beside the target and
-moves it into place with :func:`os.replace`, so a crash or a bad input never leaves a
-half-written EXR, and an existing file is only replaced when the caller asked for it.
+Every writer in :mod:`awr_denoise.io` writes into a temporary file and moves it into place in
+one step, so a crash, an interrupt or a bad input never leaves a half-written file, and an
+existing file is only replaced when the caller asked for it. :class:`OutputSet` extends this
+to several files: a command that writes an image and its preview writes both or neither.
+
+Where temporaries live
+----------------------
+Temporaries go into a *staging directory* beside the target, ``.awr-<10 hex digits>.tmp``,
+under short names (``1.exr``), so a target name of up to the file system's limit (255 bytes)
+still works. The staging directory holds a ``lock`` file that the writing process keeps
+locked (``flock``) for as long as it runs; the kernel releases the lock when the process
+dies, even by SIGKILL. The first write of a process into a directory removes the staging
+directories there whose lock is free (their writer is dead) and those without a lock file
+older than :data:`STALE_AFTER` seconds; staging directories of live writers (another process
+writing into the same folder of a render farm) stay locked and are left alone. On file
+systems without working locks nothing is removed.
+
+Outputs must be regular files, or not exist: a FIFO, a device, a socket or a directory is
+refused even with ``overwrite=True`` (writing "over" ``/dev/null`` as root would replace it).
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import secrets
+import shutil
+import signal
 import stat
-import tempfile
-from collections.abc import Callable
+import threading
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from types import TracebackType
 
-__all__ = ["atomic_write", "check_writable"]
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - not on Windows: stale temporaries are then kept
+    fcntl = None  # type: ignore[assignment]
+
+__all__ = ["atomic_write", "check_writable", "check_readable", "file_kind", "same_file", "OutputSet",
+           "remove_stale_temporaries", "STAGING_PREFIX", "STAGING_SUFFIX", "STALE_AFTER"]
+
+STAGING_PREFIX = ".awr-"
+STAGING_SUFFIX = ".tmp"
+"""Staging directories are named ``.awr-<10 hex digits>.tmp``."""
+
+STALE_AFTER = 600.0
+"""Seconds after which a staging directory without a lock file counts as abandoned (a writer
+creates its lock file within microseconds of the directory)."""
+
+_LOCK = "lock"
+_MAX_SUFFIX = 16  # longer "suffixes" are not file types; the temporary goes without one
+
+
+def file_kind(mode: int) -> str:
+    """What a ``st_mode`` is, in words ("regular file", "FIFO", "directory", ...)."""
+    for test, name in ((stat.S_ISREG, "regular file"), (stat.S_ISDIR, "directory"), (stat.S_ISFIFO, "FIFO"),
+                       (stat.S_ISCHR, "character device"), (stat.S_ISBLK, "block device"),
+                       (stat.S_ISSOCK, "socket"), (stat.S_ISLNK, "symbolic link")):
+        if test(mode):
+            return name
+    return "special file"
+
+
+def _name_max(directory: Path) -> int:
+    try:
+        return int(os.pathconf(directory, "PC_NAME_MAX"))
+    except (AttributeError, OSError, ValueError):
+        return 255
+
+
+def check_readable(path: str | os.PathLike[str], *, what: str = "input") -> Path:
+    """Refuse an input that is missing or not a regular file, without opening it.
+
+    Opening a FIFO for reading blocks until a writer appears; this check never opens.
+
+    Raises
+    ------
+    FileNotFoundError
+        The file does not exist.
+    ValueError
+        It is a directory, FIFO, device or socket, or cannot be examined.
+    """
+    p = Path(path)
+    try:
+        st = os.stat(p)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{p}: no such file") from None
+    except NotADirectoryError:
+        raise FileNotFoundError(f"{p}: no such file (a parent is not a directory)") from None
+    except OSError as exc:
+        raise ValueError(f"{p}: cannot read this {what}: {exc.strerror or exc}") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise ValueError(f"{p}: is a {file_kind(st.st_mode)}, not a regular file")
+    if not os.access(p, os.R_OK):
+        raise ValueError(f"{p}: permission denied (cannot read this {what})")
+    return p
+
+
+def same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
+    """Whether two paths name one file: the same resolved path, or the same inode (hard links)."""
+    pa, pb = Path(a), Path(b)
+    try:
+        if pa.resolve() == pb.resolve():
+            return True
+    except (OSError, RuntimeError):
+        pass
+    try:
+        return os.path.samefile(pa, pb)
+    except (OSError, ValueError):
+        return False
 
 
 def check_writable(path: str | os.PathLike[str], *, overwrite: bool) -> Path:
-    """Refuse early when ``path`` exists and ``overwrite`` is False.
+    """Refuse early an output that cannot or must not be written.
 
     Raises
     ------
     FileExistsError
         The target exists and ``overwrite`` is False; the message names the file.
+    FileNotFoundError
+        Its directory does not exist.
+    ValueError
+        The target exists and is not a regular file (refused even with ``overwrite``), its
+        directory is not writable, or its name is longer than the file system allows.
     """
+    if not os.fspath(path):
+        raise ValueError("path: an empty file name")
     target = Path(path)
-    if not overwrite and target.exists():
-        raise FileExistsError(f"{target}: already exists (pass overwrite=True / --overwrite to replace it)")
     parent = target.parent if str(target.parent) else Path(".")
+    try:
+        st = os.stat(target)
+    except FileNotFoundError:
+        st = None
+        if os.path.lexists(target):
+            raise ValueError(f"{target}: is a symbolic link to a missing file; remove it or write elsewhere") from None
+    except NotADirectoryError:
+        raise FileNotFoundError(f"{target}: {parent} is not a directory") from None
+    except OSError as exc:
+        if exc.errno == errno.ENAMETOOLONG:
+            raise ValueError(f"{target}: file name too long for the file system") from None
+        raise ValueError(f"{target}: cannot use as output: {exc.strerror or exc}") from None
+    if st is not None:
+        if not stat.S_ISREG(st.st_mode):
+            raise ValueError(f"{target}: is a {file_kind(st.st_mode)}, not a regular file; "
+                             "refusing to write over it")
+        if not overwrite:
+            raise FileExistsError(f"{target}: already exists (pass overwrite=True / --overwrite to replace it)")
     if not parent.is_dir():
         raise FileNotFoundError(f"{target}: directory {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ValueError(f"{target}: directory {parent} is not writable")
+    limit = _name_max(parent)
+    if len(os.fsencode(target.name)) > limit:
+        raise ValueError(f"{target}: the file name is {len(os.fsencode(target.name))} bytes, "
+                         f"the file system allows {limit}")
     return target
 
 
 def _new_file_mode(target: Path) -> int:
     """Permissions a plainly created file would get (an existing target keeps its own).
 
-    ``mkstemp`` creates files readable by the owner only; without this a render farm's
+    ``mkstemp``-style files are readable by the owner only; without this a render farm's
     other users could not read what was written.
     """
     try:
@@ -56,47 +183,325 @@ def _new_file_mode(target: Path) -> int:
     return 0o666 & ~mask
 
 
+def _try_lock(fd: int) -> bool | None:
+    """Take the exclusive lock without waiting: True taken, False held elsewhere, None unsupported."""
+    if fcntl is None:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    except OSError:
+        return None
+    return True
+
+
+_SCANNED: set[Path] = set()
+_SCANNED_LOCK = threading.Lock()
+
+
+def remove_stale_temporaries(directory: str | os.PathLike[str]) -> list[Path]:
+    """Remove the staging directories in ``directory`` that no live process holds.
+
+    Called by every write (once per directory and process); returns what it removed.
+    """
+    removed: list[Path] = []
+    try:
+        entries = list(os.scandir(directory))
+    except OSError:
+        return removed
+    for entry in entries:
+        if not (entry.name.startswith(STAGING_PREFIX) and entry.name.endswith(STAGING_SUFFIX)):
+            continue
+        try:
+            if not entry.is_dir(follow_symlinks=False):
+                continue
+            fd = os.open(os.path.join(entry.path, _LOCK), os.O_RDWR | getattr(os, "O_CLOEXEC", 0))
+        except FileNotFoundError:
+            with contextlib.suppress(OSError):
+                if time.time() - entry.stat(follow_symlinks=False).st_mtime > STALE_AFTER:
+                    shutil.rmtree(entry.path, ignore_errors=True)
+                    removed.append(Path(entry.path))
+            continue
+        except OSError:
+            continue
+        try:
+            if _try_lock(fd):
+                shutil.rmtree(entry.path, ignore_errors=True)
+                removed.append(Path(entry.path))
+        finally:
+            os.close(fd)
+    return removed
+
+
+class _Staging:
+    """A private staging directory beside the targets, locked for as long as this process lives."""
+
+    def __init__(self, directory: Path) -> None:
+        key = directory.resolve()
+        with _SCANNED_LOCK:
+            fresh = key not in _SCANNED
+            _SCANNED.add(key)
+        if fresh:
+            remove_stale_temporaries(directory)
+        for _ in range(8):
+            path = directory / f"{STAGING_PREFIX}{secrets.token_hex(5)}{STAGING_SUFFIX}"
+            try:
+                os.mkdir(path, 0o700)
+                break
+            except FileExistsError:
+                continue
+        else:  # pragma: no cover - 8 collisions of 40 random bits
+            raise FileExistsError(f"{directory}: cannot create a staging directory")
+        self.path = path
+        self._count = 0
+        self._fd: int | None = None
+        try:
+            # Locked under another name first, so a scanner never sees an unlocked "lock".
+            fd = os.open(path / (_LOCK + ".new"), os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o600)
+            self._fd = fd
+            _try_lock(fd)
+            os.rename(path / (_LOCK + ".new"), path / _LOCK)
+        except BaseException:
+            self.remove()
+            raise
+
+    def new_name(self, target: Path) -> Path:
+        self._count += 1
+        suffix = target.suffix if len(os.fsencode(target.suffix)) <= _MAX_SUFFIX else ""
+        return self.path / f"{self._count}{suffix}"
+
+    def remove(self) -> None:
+        shutil.rmtree(self.path, ignore_errors=True)
+        if self._fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(self._fd)
+            self._fd = None
+
+
+@contextlib.contextmanager
+def _signals_deferred() -> Iterator[None]:
+    """Hold SIGINT/SIGTERM while files are moved into place, then act on them.
+
+    Only the main thread can change handlers; elsewhere signals are not delivered to the
+    calling thread anyway (Python runs handlers in the main thread).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending: list[int] = []
+    saved = {}
+    for s in (signal.SIGINT, signal.SIGTERM):
+        handler = signal.getsignal(s)
+        if handler is signal.SIG_IGN or handler is None:
+            continue
+        saved[s] = handler
+        signal.signal(s, lambda signum, frame: pending.append(signum))
+    try:
+        yield
+    finally:
+        for s, handler in saved.items():
+            signal.signal(s, handler)
+        for s in pending[:1]:
+            if callable(saved[s]):
+                saved[s](s, None)
+            else:  # SIG_DFL: what would have happened, now that the files are in place
+                os.kill(os.getpid(), s)
+
+
+def _install(tmp: Path, target: Path, *, overwrite: bool) -> None:
+    """Move a finished temporary to its target (never replacing one unless ``overwrite``)."""
+    os.chmod(tmp, _new_file_mode(target))
+    if overwrite:
+        check_writable(target, overwrite=True)  # it may have become a FIFO meanwhile
+        os.replace(tmp, target)
+        return
+    # A hard link fails if the target appeared meanwhile, where a rename would clobber it.
+    try:
+        os.link(tmp, target)
+    except FileExistsError:
+        raise FileExistsError(f"{target}: already exists (pass overwrite=True / --overwrite to replace it)") from None
+    except OSError:
+        if os.path.lexists(target):
+            raise FileExistsError(
+                f"{target}: already exists (pass overwrite=True / --overwrite to replace it)") from None
+        os.replace(tmp, target)  # file systems without hard links
+
+
+def _check_written(tmp: Path, target: Path) -> None:
+    try:
+        st = os.stat(tmp)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{target}: the writer produced no file") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise ValueError(f"{target}: the writer produced a {file_kind(st.st_mode)}")
+
+
 def atomic_write(path: str | os.PathLike[str], write: Callable[[str], None], *, overwrite: bool = False) -> Path:
     """Call ``write(tmp_path)`` and move the result to ``path`` in one step.
 
     Parameters
     ----------
     path
-        Final file name. The temporary file lives in the same directory (so the final
-        rename never crosses file systems) and keeps the suffix, because some writers pick
+        Final file name. The temporary lives in a staging directory beside it (so the final
+        rename never crosses file systems) and keeps its suffix, because some writers pick
         the format from it.
     write
         Writes the complete file to the path it is given.
     overwrite
-        Replace an existing ``path``; when False an existing file is never touched.
+        Replace an existing ``path`` (a regular file only); when False an existing file is
+        never touched.
 
     Returns
     -------
     Path
         The written path.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from pathlib import Path
+    >>> from awr_denoise.io.atomic import atomic_write
+    >>> target = os.path.join(tempfile.mkdtemp(), "note.txt")
+    >>> _ = atomic_write(target, lambda tmp: Path(tmp).write_text("done"))
+    >>> Path(target).read_text(), os.listdir(os.path.dirname(target))
+    ('done', ['note.txt'])
     """
     target = check_writable(path, overwrite=overwrite)
-    parent = target.parent if str(target.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp" + target.suffix, dir=parent)
-    os.close(fd)
+    staging = _Staging(target.parent if str(target.parent) else Path("."))
     try:
-        write(tmp)
-        os.chmod(tmp, _new_file_mode(target))
-        if overwrite:
-            os.replace(tmp, target)
-        else:
-            # A hard link fails if the target appeared meanwhile, where a rename would clobber it.
-            try:
-                os.link(tmp, target)
-            except FileExistsError:
-                raise FileExistsError(
-                    f"{target}: already exists (pass overwrite=True / --overwrite to replace it)") from None
-            except OSError:
-                if target.exists():
-                    raise FileExistsError(
-                        f"{target}: already exists (pass overwrite=True / --overwrite to replace it)") from None
-                os.replace(tmp, target)
+        tmp = staging.new_name(target)
+        write(os.fspath(tmp))
+        _check_written(tmp, target)
+        with _signals_deferred():
+            _install(tmp, target, overwrite=overwrite)
     finally:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
+        staging.remove()
     return target
+
+
+class OutputSet:
+    """Several output files written all or none.
+
+    :meth:`add` checks a target and returns the temporary path to write it to; :meth:`commit`
+    moves every temporary into place together. Leaving the ``with`` block without a commit
+    (an exception, Ctrl-C) removes every temporary and leaves the targets as they were. A
+    failure while moving (a file that appeared meanwhile, a full directory) puts back the
+    targets already moved, including the files they replaced.
+
+    Parameters
+    ----------
+    overwrite
+        Replace existing targets (regular files only).
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from pathlib import Path
+    >>> from awr_denoise.io.atomic import OutputSet
+    >>> d = tempfile.mkdtemp()
+    >>> with OutputSet() as outputs:
+    ...     Path(outputs.add(os.path.join(d, "a.txt"))).write_text("a")
+    ...     Path(outputs.add(os.path.join(d, "b.txt"))).write_text("b")
+    ...     written = outputs.commit()
+    1
+    1
+    >>> sorted(os.listdir(d))
+    ['a.txt', 'b.txt']
+    """
+
+    def __init__(self, *, overwrite: bool = False) -> None:
+        self.overwrite = bool(overwrite)
+        self._staged: dict[Path, Path] = {}
+        self._resolved: dict[Path, Path] = {}
+        self._inodes: dict[tuple[int, int], Path] = {}
+        self._staging: dict[Path, _Staging] = {}
+        self._done = False
+
+    def add(self, path: str | os.PathLike[str]) -> Path:
+        """Check ``path`` as an output and return the temporary path to write it to."""
+        if self._done:
+            raise RuntimeError("OutputSet: already committed or aborted")
+        target = check_writable(path, overwrite=self.overwrite)
+        resolved = target.resolve()
+        if resolved in self._resolved:
+            raise ValueError(f"{target}: the same output is listed twice (also {self._resolved[resolved]})")
+        with contextlib.suppress(OSError):
+            st = os.stat(target)
+            other = self._inodes.setdefault((st.st_dev, st.st_ino), target)
+            if other != target:
+                raise ValueError(f"{target}: the same file as the output {other}")
+        directory = resolved.parent
+        if directory not in self._staging:
+            self._staging[directory] = _Staging(target.parent if str(target.parent) else Path("."))
+        tmp = self._staging[directory].new_name(target)
+        self._staged[target] = tmp
+        self._resolved[resolved] = target
+        return tmp
+
+    def temporary(self, path: str | os.PathLike[str]) -> Path:
+        """The temporary path of an added target."""
+        return self._staged[Path(path)]
+
+    @property
+    def targets(self) -> list[Path]:
+        """The targets, in the order they were added."""
+        return list(self._staged)
+
+    def commit(self) -> list[Path]:
+        """Move every written temporary into place; returns the targets.
+
+        Raises
+        ------
+        FileNotFoundError
+            A target was added but never written (nothing is moved then).
+        FileExistsError
+            A target appeared meanwhile and ``overwrite`` is False (nothing is left moved).
+        """
+        if self._done:
+            raise RuntimeError("OutputSet: already committed or aborted")
+        try:
+            for target, tmp in self._staged.items():
+                _check_written(tmp, target)
+            with _signals_deferred():
+                self._move_all()
+        finally:
+            self.abort()
+        return self.targets
+
+    def _move_all(self) -> None:
+        moved: list[tuple[Path, Path | None]] = []
+        try:
+            for target in self._staged:
+                check_writable(target, overwrite=self.overwrite)
+            for target, tmp in self._staged.items():
+                backup = None
+                if self.overwrite and os.path.lexists(target):
+                    backup = tmp.with_name(tmp.name + ".old")
+                    try:
+                        os.link(target, backup)
+                    except OSError:
+                        backup = None  # no hard links here: the replaced file cannot be put back
+                _install(tmp, target, overwrite=self.overwrite)
+                moved.append((target, backup))
+        except BaseException:
+            for target, backup in reversed(moved):
+                with contextlib.suppress(OSError):
+                    if backup is not None:
+                        os.replace(backup, target)
+                    else:
+                        os.unlink(target)
+            raise
+
+    def abort(self) -> None:
+        """Remove every temporary; the targets stay as they were."""
+        self._done = True
+        for staging in self._staging.values():
+            staging.remove()
+
+    def __enter__(self) -> OutputSet:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, value: BaseException | None,
+                 traceback: TracebackType | None) -> None:
+        self.abort()

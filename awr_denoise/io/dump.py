@@ -96,6 +96,17 @@ def exact_counts(name: str, counts: np.ndarray) -> np.ndarray:
     return c.astype(np.float32)
 
 
+def _float32(path: str | os.PathLike[str], name: str, values: np.ndarray) -> np.ndarray:
+    """A plane as float32, refusing values that would be stored as Inf (beyond 3.4e38)."""
+    with np.errstate(over="ignore"):
+        stored = np.ascontiguousarray(values, dtype=np.float32)
+    over = ~np.isfinite(stored)
+    if over.any():
+        raise ValueError(f"{os.fspath(path)}: {name}: {int(over.sum())} pixel(s) beyond the float32 range "
+                         f"{float(np.finfo(np.float32).max):g}, which would be stored as Inf")
+    return stored
+
+
 def write_sample_buffer(path: str | os.PathLike[str], buffer: SampleBuffer, *,
                         header: Mapping[str, Any] | None = None, issued: CountArray | None = None,
                         overwrite: bool = False) -> Path:
@@ -122,8 +133,8 @@ def write_sample_buffer(path: str | os.PathLike[str], buffer: SampleBuffer, *,
     Raises
     ------
     ValueError
-        A count above 2**24 (not exact in float32) or a channel name that collides with the
-        layout's own channels.
+        A count above 2**24 (not exact in float32), a mean or variance beyond the float32
+        range, or a channel name that collides with the layout's own channels.
 
     Examples
     --------
@@ -144,8 +155,8 @@ def write_sample_buffer(path: str | os.PathLike[str], buffer: SampleBuffer, *,
             raise ValueError(f"buffer: channel name {name!r} collides with the dump layout")
     planes: dict[str, np.ndarray] = {COUNT_CHANNEL: exact_counts("count", buffer.count)}
     for i, name in enumerate(buffer.channels):
-        planes[name] = np.ascontiguousarray(buffer.mean[..., i], dtype=np.float32)
-        planes[VARIANCE_PREFIX + name] = np.ascontiguousarray(buffer.variance[..., i], dtype=np.float32)
+        planes[name] = _float32(path, name, buffer.mean[..., i])
+        planes[VARIANCE_PREFIX + name] = _float32(path, VARIANCE_PREFIX + name, buffer.variance[..., i])
     # Pixels with fewer than two samples are unknown by definition; only a renderer's
     # explicit "unknown" needs the mask.
     if (~buffer.variance_known & (buffer.count >= 2)).any():

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import stat
 import sys
 import tempfile
 import threading
@@ -28,7 +29,7 @@ from .._typing import FloatArray
 from .._version import __version__
 from ..channels import default_channel_names
 from ..errors import InputFileError
-from .atomic import atomic_write, check_writable
+from .atomic import atomic_write, check_writable, file_kind
 
 __all__ = [
     "ExrPart",
@@ -41,6 +42,11 @@ __all__ = [
     "write_image",
     "read_header",
     "header_value",
+    "WINDOWS",
+    "header_windows",
+    "read_windows",
+    "format_window",
+    "check_same_windows",
 ]
 
 HALF_MAX = 65504.0
@@ -48,8 +54,9 @@ HALF_MAX = 65504.0
 
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
 
-# Header attributes every EXR carries; callers never set these through ``header=``.
-_RESERVED = frozenset({"channels", "compression", "dataWindow", "displayWindow", "lineOrder",
+# Header attributes every EXR carries; callers never set these through ``header=`` (the data
+# and display windows they may: see ``read_windows``).
+_RESERVED = frozenset({"channels", "compression", "lineOrder",
                        "pixelAspectRatio", "screenWindowCenter", "screenWindowWidth", "type",
                        "tiles", "name", "version", "chunkCount"})
 
@@ -102,10 +109,17 @@ class ExrPart:
 
 
 def _check_magic(path: Path) -> None:
-    if not path.exists():
-        raise file_error(path, "no such file")
-    if path.is_dir():
+    try:
+        st = os.stat(path)
+    except (FileNotFoundError, NotADirectoryError):
+        raise file_error(path, "no such file") from None
+    except OSError as exc:
+        raise file_error(path, f"cannot read: {exc.strerror or exc}") from None
+    if stat.S_ISDIR(st.st_mode):
         raise file_error(path, "is a directory, not an EXR file")
+    if not stat.S_ISREG(st.st_mode):
+        # Never opened: opening a FIFO would wait for a writer forever.
+        raise file_error(path, f"is a {file_kind(st.st_mode)}, not a regular file")
     try:
         with open(path, "rb") as fh:
             magic = fh.read(4)
@@ -229,6 +243,77 @@ def header_value(header: Mapping[str, Any], key: str) -> Any:
     return value
 
 
+WINDOWS = ("dataWindow", "displayWindow")
+"""The EXR header attributes that place the pixels: kept from input to output by every command."""
+
+Window = tuple[tuple[int, int], tuple[int, int]]
+
+
+def header_windows(header: Mapping[str, Any]) -> dict[str, Window]:
+    """The data and display windows of a header as ``((xmin, ymin), (xmax, ymax))`` tuples."""
+    out: dict[str, Window] = {}
+    for key in WINDOWS:
+        if key in header:
+            lo, hi = header[key]
+            out[key] = ((int(lo[0]), int(lo[1])), (int(hi[0]), int(hi[1])))
+    return out
+
+
+def read_windows(path: str | os.PathLike[str], part: int = 0) -> dict[str, Window]:
+    """The data and display windows of one part of an EXR file (no pixel data is read).
+
+    Pass them back through ``header=`` of the writers to keep a crop where it was.
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile, os
+    >>> from awr_denoise.io import write_image
+    >>> from awr_denoise.io.exr import read_windows
+    >>> f = os.path.join(tempfile.mkdtemp(), "crop.exr")
+    >>> _ = write_image(f, np.ones((2, 3)), header={"dataWindow": ((100, 200), (102, 201)),
+    ...                                             "displayWindow": ((0, 0), (1919, 1079))})
+    >>> read_windows(f)
+    {'dataWindow': ((100, 200), (102, 201)), 'displayWindow': ((0, 0), (1919, 1079))}
+    """
+    return header_windows(read_header(path, part))
+
+
+def format_window(window: Window) -> str:
+    """``(xmin,ymin)-(xmax,ymax)``."""
+    (x0, y0), (x1, y1) = window
+    return f"({x0},{y0})-({x1},{y1})"
+
+
+def check_same_windows(path: str | os.PathLike[str], windows: Mapping[str, Window],
+                       other_path: str | os.PathLike[str], other_windows: Mapping[str, Window]) -> None:
+    """Refuse two files whose data or display windows differ (their pixels do not line up).
+
+    Raises
+    ------
+    InputFileError
+        Naming both files and both windows.
+    """
+    for key, label in (("dataWindow", "data window"), ("displayWindow", "display window")):
+        a, b = windows.get(key), other_windows.get(key)
+        if a is not None and b is not None and a != b:
+            raise file_error(path, f"{label} {format_window(a)} does not match {format_window(b)} of "
+                                   f"{os.fspath(other_path)}")
+
+
+def _window(path: str | os.PathLike[str], key: str, value: Any, shape: tuple[int, int] | None) -> Any:
+    """A window attribute for the bindings, checked against the pixel arrays' (H, W)."""
+    try:
+        (x0, y0), (x1, y1) = ((int(v) for v in corner) for corner in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"header: {key} must be ((xmin, ymin), (xmax, ymax)), got {value!r}") from None
+    if not all(-(2**30) <= v < 2**30 for v in (x0, y0, x1, y1)) or x1 < x0 or y1 < y0:
+        raise ValueError(f"header: {key} {value!r} is not a valid window")
+    if key == "dataWindow" and shape is not None and (y1 - y0 + 1, x1 - x0 + 1) != tuple(shape):
+        raise ValueError(f"{os.fspath(path)}: dataWindow {format_window(((x0, y0), (x1, y1)))} is "
+                         f"{x1 - x0 + 1}x{y1 - y0 + 1}, the image {shape[1]}x{shape[0]}")
+    return (np.array([x0, y0], np.int32), np.array([x1, y1], np.int32))
+
+
 def checked_plane(path: str | os.PathLike[str], name: str, array: np.ndarray, *,
                   nonnegative: bool = False, unit: str = "pixel") -> FloatArray:
     """A channel as float64, refusing NaN, Inf (half overflow named) and, optionally, negatives.
@@ -299,9 +384,11 @@ def write_exr(path: str | os.PathLike[str], channels: Mapping[str, np.ndarray],
         "compression": OpenEXR.ZIPS_COMPRESSION if deep else OpenEXR.ZIP_COMPRESSION,
         "type": OpenEXR.deepscanline if deep else OpenEXR.scanlineimage,
     }
-    for key, value in (header or {}).items():
-        attrs[str(key)] = _attribute(str(key), value)
     data = dict(channels)
+    shape = next((tuple(np.shape(a))[:2] for a in data.values()), None)
+    for key, value in (header or {}).items():
+        key = str(key)
+        attrs[key] = _window(path, key, value, shape) if key in WINDOWS else _attribute(key, value)
 
     def _write(tmp: str) -> None:
         # OpenEXR.File adds dataWindow/displayWindow to the dict it is given: pass a copy.
@@ -410,12 +497,15 @@ def write_image(path: str | os.PathLike[str], image: np.ndarray, *,
     path
         Target file; written beside it first, then renamed into place.
     image
-        Finite pixel values (NaN/Inf are refused: a denoised image with them is a bug).
+        Finite pixel values (NaN/Inf are refused: a denoised image with them is a bug), within
+        the range of the stored type (float32: 3.4e38, half: 65504); values that would be
+        stored as Inf are refused rather than clamped.
     channels
         One name per channel; the default ``R, G, B`` adapts to 1 (``Y``) or 4 (``RGBA``)
         channels.
     header
-        Extra attributes, e.g. provenance (``awr:c_s``, ``awr:wavelet``...).
+        Extra attributes, e.g. provenance (``awr:c_s``, ``awr:wavelet``...), and the
+        ``dataWindow``/``displayWindow`` of the input (:func:`read_windows`).
     half
         Store HALF channels; values beyond +-65504 are refused instead of becoming Inf.
     overwrite
@@ -433,14 +523,19 @@ def write_image(path: str | os.PathLike[str], image: np.ndarray, *,
         c = int(np.nonzero(bad.any(axis=(0, 1)))[0][0])
         raise ValueError(f"{os.fspath(path)}: {names[c]}: image has {int(bad[..., c].sum())} pixel(s) "
                          "holding NaN or Inf")
-    if half:
-        over = np.abs(data) > HALF_MAX
-        if over.any():
-            c = int(np.nonzero(over.any(axis=(0, 1)))[0][0])
-            raise ValueError(f"{os.fspath(path)}: {names[c]}: image has {int(over[..., c].sum())} pixel(s) beyond "
-                             f"the half-float range {HALF_MAX:g} (write FLOAT channels: half=False)")
     dtype = np.float16 if half else np.float32
-    planes = {name: np.ascontiguousarray(data[..., i].astype(dtype)) for i, name in enumerate(names)}
+    # Finiteness is checked again after the conversion: values beyond the stored type's range
+    # would become Inf in the file.
+    with np.errstate(over="ignore"):
+        stored = data.astype(dtype)
+    over = ~np.isfinite(stored)
+    if over.any():
+        c = int(np.nonzero(over.any(axis=(0, 1)))[0][0])
+        limit, hint = (HALF_MAX, " (write FLOAT channels: half=False)") if half else (float(np.finfo(np.float32).max), "")
+        raise ValueError(f"{os.fspath(path)}: {names[c]}: image has {int(over[..., c].sum())} pixel(s) beyond "
+                         f"the {'half-float' if half else 'float32'} range {limit:g}, which would be stored "
+                         f"as Inf{hint}")
+    planes = {name: np.ascontiguousarray(stored[..., i]) for i, name in enumerate(names)}
     attrs: dict[str, Any] = {"awr:version": __version__}
     attrs.update(header or {})
     return write_exr(path, planes, attrs, overwrite=overwrite)
