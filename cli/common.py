@@ -12,7 +12,6 @@ import os
 import re
 import sys
 from collections.abc import Iterable, Iterator, Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -22,6 +21,7 @@ from awr_denoise.buffers import NONFINITE_POLICIES, VARIANCE_KINDS
 from awr_denoise.io import PRESETS
 
 from .errors import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, RuntimeFailure, UsageError, one_line_warnings
+from .values import MAX_FRAMES
 
 __all__ = [
     "EXIT_OK",
@@ -35,7 +35,6 @@ __all__ = [
     "parse_frames",
     "expand_frames",
     "frame_jobs",
-    "refuse_same_file",
     "progress",
     "print_json",
     "status",
@@ -74,7 +73,7 @@ def plane_kwargs(args: argparse.Namespace) -> dict[str, Any]:
             "view": args.view, "nonfinite": args.nonfinite}
 
 
-_RANGE = re.compile(r"^(-?\d+)(?:-(-?\d+)(?:[x:](\d+))?)?$")
+_RANGE = re.compile(r"^(-?\d{1,18})(?:-(-?\d{1,18})(?:[x:](\d{1,18}))?)?$")
 
 
 def parse_frames(spec: str) -> list[int]:
@@ -89,7 +88,10 @@ def parse_frames(spec: str) -> list[int]:
         step = int(m.group(3) or 1)
         if last < first or step < 1:
             raise UsageError(f"--frames: empty range {item!r}")
-        frames.extend(range(first, last + 1, step))
+        span = range(first, last + 1, step)
+        if len(frames) + len(span) > MAX_FRAMES:  # counted before any list is built
+            raise UsageError(f"--frames: {spec!r} names more than {MAX_FRAMES} frames")
+        frames.extend(span)
     return frames
 
 
@@ -118,23 +120,6 @@ def frame_jobs(inputs: Sequence[str], output: str, frames: str | None) -> list[t
     for f in numbers:
         jobs.append(([expand_frames(i, f) if _HASHES.search(i) else i for i in inputs], expand_frames(output, f)))
     return jobs
-
-
-def refuse_same_file(output: str | os.PathLike[str], inputs: Iterable[str | os.PathLike[str] | None]) -> None:
-    """Refuse an output that is one of the inputs (same resolved path, or the same file by inode)."""
-    out = Path(output)
-    for name in inputs:
-        if name is None:
-            continue
-        src = Path(str(name).rsplit(":", 1)[0]) if ":" in str(name) and not Path(str(name)).exists() else Path(name)
-        same = out.resolve() == src.resolve()
-        if not same and out.exists() and src.exists():
-            try:
-                same = os.path.samefile(out, src)
-            except OSError:
-                same = False
-        if same:
-            raise UsageError(f"{output}: the output is the input file {name}; write to a new file")
 
 
 def progress(iterable: Iterable[Any], *, quiet: bool, total: int | None = None, desc: str = "") -> Iterator[Any]:

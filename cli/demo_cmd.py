@@ -15,7 +15,11 @@ from awr_denoise.reconstruct import DEFAULT_C_S
 from awr_denoise.renderers import create_renderer
 from awr_denoise.sampling import DEFAULT_INITIAL_SPP
 
+from awr_denoise.io.atomic import OutputSet
+
+from . import interrupts
 from .common import EXIT_OK, UsageError, print_json, status
+from .values import MAX_EXPOSURE, MAX_SEED, MAX_SPP, real, whole
 from .render_cmd import TRACER, default_scene, render_buffer, tracer_module
 
 __all__ = ["register", "run"]
@@ -28,12 +32,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "per pixel, reconstruct both, write EXR and PNG images under --out, and print "
                                    "the error of each against the scene's reference.")
     p.add_argument("--scene", help="bundled scene (default: the tracer's default scene)")
-    p.add_argument("--spp", type=float, default=8, help="average samples per pixel of both renders (default 8)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--c-s", type=float, default=DEFAULT_C_S, help="reconstruction threshold (Eq. 11)")
+    p.add_argument("--spp", type=real(minimum=1, maximum=MAX_SPP), default=8, help="average samples per pixel of both renders (default 8)")
+    p.add_argument("--seed", type=whole(minimum=0, maximum=MAX_SEED - 1), default=0)
+    p.add_argument("--c-s", type=real(minimum=0), default=DEFAULT_C_S, help="reconstruction threshold (Eq. 11)")
     p.add_argument("--out", default="out", metavar="DIR",
                    help="output directory (default out/); the demo replaces its own files there")
-    p.add_argument("--exposure", type=float, default=0.0, help="preview exposure in stops")
+    p.add_argument("--exposure", type=real(minimum=-MAX_EXPOSURE, maximum=MAX_EXPOSURE), default=0.0,
+                   help="preview exposure in stops")
     p.add_argument("--json", action="store_true", help="machine-readable results")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(run=run)
@@ -41,13 +46,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``awr demo``; returns the exit status (errors are raised and reported by ``main``)."""
-    if not args.spp >= 1:
-        raise UsageError(f"--spp: must be >= 1, got {args.spp}")
     tracer = tracer_module()
     name = args.scene or default_scene(tracer)
     if name not in tracer.list_scenes():
         raise UsageError(f"--scene: {name!r} is not one of {', '.join(sorted(tracer.list_scenes()))}")
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out: {out} exists and is not a directory")
     out.mkdir(parents=True, exist_ok=True)
     scene = tracer.load_scene(name)
     cached = getattr(tracer, "reference_path", None)
@@ -72,13 +77,16 @@ def run(args: argparse.Namespace) -> int:
     if reference.shape != uniform.mean.shape:
         raise UsageError(f"{name}: the reference is {reference.shape}, the render {uniform.mean.shape}")
     results = {}
-    for label, image in images.items():
-        exr = out / f"{name}_{label}.exr"
-        write_image(exr, image, header=provenance(scene=name, spp=float(args.spp), c_s=args.c_s, method=label),
-                    overwrite=True)
-        write_preview(out / f"{name}_{label}.png", image, exposure=args.exposure, overwrite=True)
-        results[label] = {"relmse": relmse(image, reference), "mse": mse(image, reference), "file": str(exr)}
-    write_preview(out / f"{name}_reference.png", reference, exposure=args.exposure, overwrite=True)
+    with OutputSet(overwrite=True) as outputs:  # every image of the demo, or none
+        for label, image in images.items():
+            exr = out / f"{name}_{label}.exr"
+            write_image(outputs.add(exr), image,
+                        header=provenance(scene=name, spp=float(args.spp), c_s=args.c_s, method=label))
+            write_preview(outputs.add(out / f"{name}_{label}.png"), image, exposure=args.exposure)
+            results[label] = {"relmse": relmse(image, reference), "mse": mse(image, reference), "file": str(exr)}
+        write_preview(outputs.add(out / f"{name}_reference.png"), reference, exposure=args.exposure)
+        interrupts.check()
+        outputs.commit()
     seconds = time.perf_counter() - start
     if args.json:
         print_json({"scene": name, "spp": args.spp, "seconds": seconds, "results": results})

@@ -4,36 +4,51 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+from pathlib import Path
 
 from awr_denoise.domains import DOMAIN_NAMES
+from awr_denoise.errors import InputFileError
+from awr_denoise.io import read_image
+from awr_denoise.io.atomic import OutputSet
+from awr_denoise.io.exr import check_same_windows, read_windows
 from awr_denoise.parallel import FrameResult, FramesFailedError, denoise_frames
 from awr_denoise.reconstruct import DEFAULT_C_S, DEFAULT_DOMAIN, DEFAULT_MODE, MODES
-from awr_denoise.wavelets import DEFAULT_WAVELET
+from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 
+from . import interrupts
 from .common import (
     EXIT_OK,
     RuntimeFailure,
     UsageError,
     add_plane_options,
     frame_jobs,
+    parse_frames,
     plane_kwargs,
     progress,
-    refuse_same_file,
     status,
 )
 from .parallel_options import add_executor_arguments, executor_from_args, executor_requested
+from .paths import PathPlan
+from .values import MAX_EXPOSURE, MAX_LEVELS, real, wavelet_name, whole
 
-__all__ = ["register", "run", "add_reconstruction_options", "reconstruction_kwargs"]
+__all__ = ["register", "run", "add_reconstruction_options", "reconstruction_kwargs", "check_reconstruction_options",
+           "exr_shape"]
+
+
+def exr_shape(path: str) -> tuple[int, int]:
+    """(H, W) of an EXR file from its data window (the header only is read)."""
+    (x0, y0), (x1, y1) = read_windows(path)["dataWindow"]
+    return y1 - y0 + 1, x1 - x0 + 1
 
 
 def add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
     """``--c-s``, ``--wavelet``, ``--levels``, ``--domain``, ``--mode``, with the library's defaults."""
     g = parser.add_argument_group("reconstruction")
-    g.add_argument("--c-s", type=float, default=DEFAULT_C_S, metavar="C",
+    g.add_argument("--c-s", type=real(minimum=0), default=DEFAULT_C_S, metavar="C",
                    help="threshold in standard errors (Eq. 11); 0 returns the plain mean (default %(default)g)")
-    g.add_argument("--wavelet", default=DEFAULT_WAVELET,
+    g.add_argument("--wavelet", type=wavelet_name, default=DEFAULT_WAVELET,
                    help="PyWavelets discrete wavelet (default %(default)s, CDF 9/7)")
-    g.add_argument("--levels", type=int, metavar="L", help="decomposition depth (default: automatic)")
+    g.add_argument("--levels", type=whole(minimum=1, maximum=MAX_LEVELS), metavar="L", help="decomposition depth (default: automatic)")
     g.add_argument("--domain", default=DEFAULT_DOMAIN, choices=DOMAIN_NAMES,
                    help="domain in which coefficients are thresholded (default %(default)s)")
     g.add_argument("--mode", default=DEFAULT_MODE, choices=MODES,
@@ -59,9 +74,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", metavar="RANGE", help="frame numbers for #### patterns, e.g. 1-100 or 1-100x5")
     p.add_argument("--half", action="store_true", help="write HALF channels (refused above 65504)")
     p.add_argument("--preview", metavar="OUT.png", help="also write an sRGB PNG preview (may hold ####)")
-    p.add_argument("--exposure", type=float, default=0.0, help="preview exposure in stops (default 0)")
+    p.add_argument("--exposure", type=real(minimum=-MAX_EXPOSURE, maximum=MAX_EXPOSURE), default=0.0,
+                   help="preview exposure in stops (default 0)")
     p.add_argument("-r", "--ref", metavar="REF.exr", help="reference image to compare the result with")
-    p.add_argument("--maxerror", type=float, metavar="E",
+    p.add_argument("--maxerror", type=real(minimum=0), metavar="E",
                    help="with --ref: fail (exit 1) when the relative MSE exceeds E")
     p.add_argument("--alb", metavar="FILE", help=argparse.SUPPRESS)
     p.add_argument("--nrm", metavar="FILE", help=argparse.SUPPRESS)
@@ -72,10 +88,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def _note(frame: FrameResult, nonfinite_policy: str) -> str:
+def _note(frame: FrameResult, output: str, nonfinite_policy: str) -> str:
     """The one-line summary of a denoised frame."""
     h, w = frame.shape
-    note = f"{frame.output}: {w}x{h}, {frame.spp:.3g} spp, {100 * frame.fraction_zeroed:.1f}% coefficients zeroed"
+    note = f"{output}: {w}x{h}, {frame.spp:.3g} spp, {100 * frame.fraction_zeroed:.1f}% coefficients zeroed"
     if frame.nonfinite:
         note += f", {frame.nonfinite} non-finite sample(s) {'dropped' if nonfinite_policy == 'drop' else 'zeroed'} " \
                 "on input"
@@ -84,8 +100,37 @@ def _note(frame: FrameResult, nonfinite_policy: str) -> str:
     return note
 
 
+def check_reconstruction_options(args: argparse.Namespace, shape: tuple[int, int], where: str) -> None:
+    """Refuse ``--levels`` beyond what an image of ``shape`` allows, before any work."""
+    if args.levels is not None and args.levels > max_levels(shape):
+        h, w = shape
+        raise UsageError(f"--levels: {args.levels} is outside 1..{max_levels(shape)} for the {w}x{h} image of {where}")
+
+
+def _frame_label(option: str, jobs: list, frame: int | None) -> str:
+    return option if len(jobs) == 1 or frame is None else f"{option} (frame {frame})"
+
+
+def _check_reference(ref: str, sources: list[str]) -> None:
+    """Read the reference once (finite, readable) and match its size and windows to every input."""
+    image = read_image(ref)
+    ref_windows = read_windows(ref)
+    for source in sources:
+        windows = read_windows(source)
+        (x0, y0), (x1, y1) = windows["dataWindow"]
+        if image.shape[:2] != (y1 - y0 + 1, x1 - x0 + 1):
+            raise InputFileError(f"{ref}: size {image.shape[1]}x{image.shape[0]} does not match "
+                                 f"{x1 - x0 + 1}x{y1 - y0 + 1} of {source}")
+        check_same_windows(ref, ref_windows, source, windows)
+
+
 def run(args: argparse.Namespace) -> int:
-    """Run ``awr denoise``; returns the exit status (errors are raised and reported by ``main``)."""
+    """Run ``awr denoise``; returns the exit status (errors are raised and reported by ``main``).
+
+    Every path and option is checked before any frame is read; the images and previews of all
+    frames are written to temporaries and moved into place together once every frame
+    succeeded (a failure or Ctrl-C leaves none of them).
+    """
     if args.alb or args.nrm:
         raise UsageError("--alb/--nrm: wavelet reconstruction uses no feature guides; drop these options")
     if args.input and args.hdr:
@@ -96,37 +141,65 @@ def run(args: argparse.Namespace) -> int:
     if args.maxerror is not None and not args.ref:
         raise UsageError("--maxerror needs --ref REF.exr")
     jobs = frame_jobs([source] + ([args.preview] if args.preview else []), args.output, args.frames)
-    # Check every frame's names before writing anything.
-    for inputs, output in jobs:
-        refuse_same_file(output, [inputs[0], args.ref, args.color, args.variance, args.count])
+    numbers = parse_frames(args.frames) if args.frames is not None else [None]
+    plan = PathPlan(overwrite=args.overwrite)
+    plan.read(args.ref, "-r/--ref")
+    for spec, option in ((args.color, "--color"), (args.variance, "--variance"), (args.count, "--count")):
+        plan.read_plane(spec, option)
+    for (inputs, output), frame in zip(jobs, numbers):
+        plan.read(inputs[0], _frame_label("DUMP.exr" if args.input else "--hdr", jobs, frame))
+        plan.write(output, _frame_label("-o/--output", jobs, frame))
         if len(inputs) > 1:
-            refuse_same_file(inputs[1], [inputs[0], output])
+            plan.write(inputs[1], _frame_label("--preview", jobs, frame))
+    plan.check()
+    sources = [inputs[0] for inputs, _ in jobs]
+    for src in sources:
+        check_reconstruction_options(args, exr_shape(src), src)
+    if args.ref:
+        _check_reference(args.ref, sources)
+
     frames: list[FrameResult] = []
-    bar = progress(iter(range(len(jobs))), quiet=args.quiet, total=len(jobs), desc="frames")
+    final: dict[Path, str] = {}
+    with OutputSet(overwrite=args.overwrite) as outputs:
+        staged = []
+        for inputs, output in jobs:
+            image = outputs.add(output)
+            final[image] = output
+            preview = None
+            if len(inputs) > 1:
+                preview = outputs.add(inputs[1])
+                final[preview] = inputs[1]
+            staged.append((image, preview))
+        bar = progress(iter(range(len(jobs))), quiet=args.quiet, total=len(jobs), desc="frames")
 
-    def done(frame: FrameResult) -> None:
-        frames.append(frame)
-        next(bar, None)
-        status(_note(frame, args.nonfinite), quiet=args.quiet)
+        def done(frame: FrameResult) -> None:
+            frames.append(frame)
+            next(bar, None)
 
-    # Without --workers a single frame runs in this thread and several on a thread pool; with
-    # them, on the executor asked for (one task per frame: paths travel, not pixels).
-    executor = executor_from_args(args) if executor_requested(args) else contextlib.nullcontext(None)
-    with executor as pool:
-        try:
-            denoise_frames([i[0] for i, _ in jobs], [o for _, o in jobs],
-                           previews=[i[1] for i, _ in jobs] if args.preview else None, exposure=args.exposure,
-                           reference=args.ref, executor=pool, overwrite=args.overwrite, half=args.half,
-                           read_options=plane_kwargs(args), on_frame=done, **reconstruction_kwargs(args))
-        except FramesFailedError as exc:
-            # The first failed frame's own error, so it keeps its exit status and one-line message.
-            raise next(iter(exc.failures.values())) from None
-        finally:
-            bar.close()
+        # Without --workers a single frame runs in this thread and several on a thread pool; with
+        # them, on the executor asked for (one task per frame: paths travel, not pixels).
+        executor = executor_from_args(args) if executor_requested(args) else contextlib.nullcontext(None)
+        with executor as pool:
+            try:
+                denoise_frames(sources, [i for i, _ in staged],
+                               previews=[p for _, p in staged] if args.preview else None, exposure=args.exposure,
+                               reference=args.ref, executor=pool, half=args.half,
+                               read_options=plane_kwargs(args), on_frame=done, **reconstruction_kwargs(args))
+            except FramesFailedError as exc:
+                # The first failed frame's own error, so it keeps its exit status and one-line message.
+                raise next(iter(exc.failures.values())) from None
+            finally:
+                bar.close()
+        interrupts.check()
+        outputs.commit()
+    order = {src: i for i, src in enumerate(sources)}
+    for frame in sorted(frames, key=lambda f: order.get(f.source, 0)):
+        shown = final[frame.output]
+        status(_note(frame, shown, args.nonfinite), quiet=args.quiet)
     if args.maxerror is not None:
         over = [f for f in frames if f.relmse is not None and f.relmse > args.maxerror]
         if over:
             f = over[0]
-            raise RuntimeFailure(f"{f.output}: relMSE {f.relmse:.4g} against {args.ref} exceeds "
+            raise RuntimeFailure(f"{final[f.output]}: relMSE {f.relmse:.4g} against {args.ref} exceeds "
                                  f"--maxerror {args.maxerror:g}")
     return EXIT_OK

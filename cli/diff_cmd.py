@@ -9,7 +9,11 @@ import numpy as np
 from awr_denoise.io import provenance, read_image, write_image
 from awr_denoise.metrics import HIGHER_IS_BETTER, METRICS
 
-from .common import EXIT_OK, RuntimeFailure, UsageError, print_json, refuse_same_file
+from awr_denoise.io.exr import check_same_windows, read_windows
+
+from .common import EXIT_OK, RuntimeFailure, UsageError, print_json
+from .paths import PathPlan
+from .values import real
 
 __all__ = ["register", "run"]
 
@@ -24,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", metavar="DIFF.exr", help="write the signed difference IMAGE - REF")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     p.add_argument("--metric", choices=tuple(METRICS), default="relmse", help="metric checked by --maxerror")
-    p.add_argument("--maxerror", type=float, metavar="E",
+    p.add_argument("--maxerror", type=real(), metavar="E",
                    help="fail when the metric exceeds E (for psnr and ssim: falls below E)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(run=run)
@@ -32,20 +36,25 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``awr diff``; returns the exit status (errors are raised and reported by ``main``)."""
-    if args.output:
-        refuse_same_file(args.output, [args.input, args.ref])
+    plan = PathPlan(overwrite=args.overwrite)
+    plan.read(args.input, "IMAGE.exr")
+    plan.read(args.ref, "-r/--ref")
+    plan.write(args.output, "-o/--output")
+    plan.check()
     image = read_image(args.input)
     ref = read_image(args.ref)
+    windows = read_windows(args.input)
     if image.shape[:2] != ref.shape[:2]:
         raise UsageError(f"{args.ref}: size {ref.shape[1]}x{ref.shape[0]} does not match "
                          f"{image.shape[1]}x{image.shape[0]} of {args.input}")
     if image.shape[2] != ref.shape[2]:
         raise UsageError(f"{args.ref}: {ref.shape[2]} channel(s), {args.input} has {image.shape[2]}")
+    check_same_windows(args.ref, read_windows(args.ref), args.input, windows)
     x = image.astype(np.float64)
     r = ref.astype(np.float64)
     result = {"file": args.input, "reference": args.ref} | {name: f(x, r) for name, f in METRICS.items()}
     if args.output:
-        write_image(args.output, x - r, header=provenance(input=args.input, reference=args.ref),
+        write_image(args.output, x - r, header={**provenance(input=args.input, reference=args.ref), **windows},
                     overwrite=args.overwrite)
     if args.json:
         print_json(result)

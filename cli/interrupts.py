@@ -16,7 +16,7 @@ from collections.abc import Callable
 from types import FrameType
 from typing import Any
 
-__all__ = ["Terminated", "raising", "restore", "received"]
+__all__ = ["Terminated", "raising", "restore", "received", "check"]
 
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -64,3 +64,12 @@ def restore(previous: dict[int, Any] | None) -> None:
 def received() -> int | None:
     """The signal that arrived since :func:`raising`, if any (the first one)."""
     return _received[0] if _received else None
+
+
+def check() -> None:
+    """Raise now if a signal arrived whose exception was lost on the way (call before committing)."""
+    signum = received()
+    if signum == signal.SIGTERM:
+        raise Terminated("SIGTERM")
+    if signum is not None:
+        raise KeyboardInterrupt

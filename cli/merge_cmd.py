@@ -17,8 +17,12 @@ from awr_denoise.io import (
     request_attributes,
     write_sample_buffer,
 )
+from awr_denoise.io.atomic import same_file
+from awr_denoise.io.exr import check_same_windows, read_windows
 
-from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, refuse_same_file, status
+from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, status
+from .paths import PathPlan
+from .values import MAX_SEED, header_whole
 
 __all__ = ["register", "run"]
 
@@ -40,6 +44,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--independent", action="store_true",
                    help="the inputs are whole renders of the same frame with different seeds and no variance "
                         "(Blender Cycles): merge them with the variance estimated from the spread of their means")
+    p.add_argument("--allow-duplicates", action="store_true",
+                   help="merge inputs that are the same file or hold the same samples (they are then counted "
+                        "twice; refused by default)")
     p.add_argument("-q", "--quiet", action="store_true")
     add_plane_options(p)
     p.set_defaults(run=run)
@@ -82,14 +89,49 @@ def _tell(merged: SampleBuffer, issued: np.ndarray, request_path: str, batch: Sa
     return sampler.buffer, sampler.issued, request.round, note
 
 
+def _same_samples(a: SampleBuffer, b: SampleBuffer) -> bool:
+    return bool(a.total_samples) and all(np.array_equal(x, y) for x, y in
+                                         ((a.count, b.count), (a.mean, b.mean), (a.variance, b.variance)))
+
+
+def _refuse_duplicates(paths: list[str], dumps: list | None = None) -> None:
+    """Refuse two inputs that are one file, or hold the same samples (a copy: merged, they count twice).
+
+    Without ``dumps`` only the files are compared.
+    """
+    for j in range(1, len(paths)):
+        for i in range(j):
+            if same_file(paths[i], paths[j]):
+                why = "are the same file"
+            elif dumps is not None and _same_samples(dumps[i].buffer, dumps[j].buffer):
+                why = "hold the same samples (a copy?)"
+            else:
+                continue
+            raise UsageError(f"merge: {paths[j]} and {paths[i]} {why}; merging would count their samples twice "
+                             "(pass --allow-duplicates to merge them anyway)")
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``awr merge``; returns the exit status (errors are raised and reported by ``main``)."""
-    refuse_same_file(args.output, [*args.inputs, args.request])
+    plan = PathPlan(overwrite=args.overwrite)
+    for path in args.inputs:
+        plan.read(path, "DUMP.exr")
+    plan.read(args.request, "--request")
+    for spec, option in ((args.color, "--color"), (args.variance, "--variance"), (args.count, "--count")):
+        plan.read_plane(spec, option)
+    plan.write(args.output, "-o/--output")
+    plan.check()
+    # Pixels line up only when every file places them alike (crops keep their windows).
+    windows = read_windows(args.inputs[0])
+    for path in [*args.inputs[1:], *([args.request] if args.request else [])]:
+        check_same_windows(path, read_windows(path), args.inputs[0], windows)
     if args.independent:
+        if not args.allow_duplicates:
+            _refuse_duplicates(args.inputs)
         kwargs = plane_kwargs(args)
         dump = read_independent_renders(args.inputs, **{k: kwargs[k] for k in ("preset", "color", "count", "spp",
                                                                                  "layer", "view")})
-        write_sample_buffer(args.output, dump.buffer, overwrite=args.overwrite)
+        write_sample_buffer(args.output, dump.buffer, header=windows, overwrite=args.overwrite)
         h, w = dump.buffer.shape
         status(f"{args.output}: {len(args.inputs)} independent renders, {dump.buffer.total_samples} samples "
                f"({dump.buffer.total_samples / (h * w):.4g} spp)", quiet=args.quiet)
@@ -100,6 +142,8 @@ def run(args: argparse.Namespace) -> int:
     first = dumps[0].buffer
     for path, dump in zip(args.inputs[1:], dumps[1:]):
         _check_match(path, dump.buffer, first, args.inputs[0])
+    if not args.allow_duplicates:
+        _refuse_duplicates(args.inputs, dumps)
     # Plain batches merge with Chan's update; a batch answering --request is told to a sampler.
     told = dumps[-1] if args.request else None
     merged = SampleBuffer.empty(first.shape, channels=first.channels) if told is dumps[0] else first
@@ -108,7 +152,8 @@ def run(args: argparse.Namespace) -> int:
         merged = merged.merge(dump.buffer)
         issued = issued + dump.issued
     attrs = {k: v for k, v in dumps[0].attributes.items() if k.removeprefix("awr:") in _KEPT}
-    rounds = [int(str(d.attributes["awr:round"])) for d in dumps if "awr:round" in d.attributes]
+    rounds = [header_whole(p, d.attributes, "awr:round", 0, 2**31 - 2) for p, d in zip(args.inputs, dumps)
+              if "awr:round" in d.attributes]
     if told is not None:
         merged, issued, request_round, note = _tell(merged, issued, args.request, told.buffer, args.inputs[-1])
         rounds.append(request_round)
@@ -119,7 +164,9 @@ def run(args: argparse.Namespace) -> int:
             attrs["awr:seed"] = seed
     if rounds:  # without any round information (plain batches) plan starts at round 1
         attrs["awr:round"] = max(rounds) + 1
-    header = provenance(**{k.removeprefix("awr:"): v for k, v in attrs.items()})
+    if "awr:seed" in attrs:
+        header_whole(args.inputs[0], attrs, "awr:seed", 0, MAX_SEED)
+    header = {**provenance(**{k.removeprefix("awr:"): v for k, v in attrs.items()}), **windows}
     write_sample_buffer(args.output, merged, header=header, issued=issued, overwrite=args.overwrite)
     h, w = merged.shape
     status(f"{args.output}: {merged.total_samples} samples ({merged.total_samples / (h * w):.4g} spp), "

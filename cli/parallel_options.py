@@ -12,7 +12,12 @@ from concurrent.futures import Executor
 
 from awr_denoise.parallel import DASK_INSTALL_HINT, EXECUTOR_KINDS, get_executor
 
-__all__ = ["add_executor_arguments", "executor_from_args", "executor_requested"]
+from .values import MAX_SIDE, whole
+
+__all__ = ["add_executor_arguments", "executor_from_args", "executor_requested", "MAX_WORKERS"]
+
+MAX_WORKERS = 4096
+"""Most workers one command starts."""
 
 
 def add_executor_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, *,
@@ -31,7 +36,7 @@ def add_executor_arguments(parser: argparse.ArgumentParser | argparse._ArgumentG
     """
     group = parser.add_argument_group("parallel execution (see docs/distributed.md)") \
         if isinstance(parser, argparse.ArgumentParser) else parser
-    group.add_argument("--workers", type=int, metavar="N",
+    group.add_argument("--workers", type=whole(minimum=1, maximum=MAX_WORKERS), metavar="N",
                        help="parallel workers: threads, processes or local Dask workers (default: the CPUs)")
     group.add_argument("--scheduler", metavar="ADDRESS",
                        help="run on a Dask cluster: scheduler address (tcp://host:8786) or scheduler JSON "
@@ -40,7 +45,7 @@ def add_executor_arguments(parser: argparse.ArgumentParser | argparse._ArgumentG
                        help="in-process threads (default), local processes, or Dask (a local cluster "
                             "unless --scheduler is given)")
     if tile_option:
-        group.add_argument("--tile", type=int, default=128, metavar="PIXELS",
+        group.add_argument("--tile", type=whole(minimum=1, maximum=MAX_SIDE), default=128, metavar="PIXELS",
                            help="tile side when the work is split over workers (default 128)")
 
 

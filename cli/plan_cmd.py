@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import argparse
-import re
 
+from awr_denoise.allocation import MAX_BUDGET
 from awr_denoise.io import provenance, read_sample_dump, write_request
+from awr_denoise.io.exr import read_windows
 from awr_denoise.sampling import DEFAULT_INITIAL_SPP, DEFAULT_ROUND_GROWTH, SAMPLERS, AdaptiveSampler
-from awr_denoise.wavelets import DEFAULT_WAVELET
+from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 
-from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, refuse_same_file, status
+from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, status
+from .paths import PathPlan
+from .values import MAX_LEVELS, MAX_SEED, MAX_SPP, header_whole, image_size, real, wavelet_name, whole
 
 __all__ = ["register", "run", "STRATEGIES"]
 
@@ -27,59 +30,68 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", required=True, metavar="REQUEST.exr")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     budget = p.add_mutually_exclusive_group()
-    budget.add_argument("--budget", type=int, metavar="N", help="total new samples of this round")
-    budget.add_argument("--round-spp", type=float, metavar="S",
+    budget.add_argument("--budget", type=whole(minimum=0, maximum=MAX_BUDGET), metavar="N",
+                        help="total new samples of this round")
+    budget.add_argument("--round-spp", type=real(above=0, maximum=MAX_SPP), metavar="S",
                         help="new samples of this round per pixel on average")
-    budget.add_argument("--round-growth", type=float, metavar="G",
+    budget.add_argument("--round-growth", type=real(above=0, maximum=1e6), metavar="G",
                         help="new samples of this round as a share of the samples taken so far (default "
                              f"{DEFAULT_ROUND_GROWTH})")
-    p.add_argument("--size", metavar="WxH", help="image size of the first round (without a dump)")
-    p.add_argument("--initial-spp", type=int, default=DEFAULT_INITIAL_SPP,
+    p.add_argument("--size", type=image_size, metavar="WxH", help="image size of the first round (without a dump)")
+    p.add_argument("--initial-spp", type=whole(minimum=1, maximum=MAX_SPP), default=DEFAULT_INITIAL_SPP,
                    help="samples per pixel of the first round (default %(default)s)")
     p.add_argument("--strategy", choices=STRATEGIES, default=AdaptiveSampler.strategy,
                    help="awr wavelet priorities (default), uniform, or per-pixel variance")
-    p.add_argument("--seed", type=int, help="seed of the renderer's sequences and tie-breaking "
+    p.add_argument("--seed", type=whole(minimum=0, maximum=MAX_SEED), help="seed of the renderer's sequences and tie-breaking "
                                             "(default: the dump's awr:seed, else 0)")
-    p.add_argument("--round", type=int, help="round number (default: the dump's awr:round, else 1)")
-    p.add_argument("--wavelet", default=DEFAULT_WAVELET, help="wavelet of the priority analysis (default %(default)s)")
-    p.add_argument("--levels", type=int, help="decomposition depth of the priority analysis")
-    p.add_argument("--spp-max", type=int, help="most samples any pixel may have")
+    p.add_argument("--round", type=whole(minimum=0, maximum=2**31 - 1), help="round number (default: the dump's awr:round, else 1)")
+    p.add_argument("--wavelet", type=wavelet_name, default=DEFAULT_WAVELET, help="wavelet of the priority analysis (default %(default)s)")
+    p.add_argument("--levels", type=whole(minimum=1, maximum=MAX_LEVELS), help="decomposition depth of the priority analysis")
+    p.add_argument("--spp-max", type=whole(minimum=1, maximum=MAX_SPP), help="most samples any pixel may have")
     p.add_argument("-q", "--quiet", action="store_true")
     add_plane_options(p)
     p.set_defaults(run=run)
 
 
-def _size(text: str) -> tuple[int, int]:
-    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
-    if not m or int(m.group(1)) <= 0 or int(m.group(2)) <= 0:
-        raise UsageError(f"--size: expected WIDTHxHEIGHT such as 640x480, got {text!r}")
-    return int(m.group(2)), int(m.group(1))
-
-
 def run(args: argparse.Namespace) -> int:
     """Run ``awr plan``; returns the exit status (errors are raised and reported by ``main``)."""
+    plan = PathPlan(overwrite=args.overwrite)
+    plan.read(args.input, "DUMP.exr")
+    for spec, option in ((args.color, "--color"), (args.variance, "--variance"), (args.count, "--count")):
+        plan.read_plane(spec, option)
+    plan.write(args.output, "-o/--output")
+    plan.check()
     cls = SAMPLERS[args.strategy]
     options: dict = {"spp_max": args.spp_max}
     if args.round_growth is not None:
         options["round_growth"] = args.round_growth
     if cls is AdaptiveSampler:
         options.update(wavelet=args.wavelet, levels=args.levels)
+    windows: dict = {}
     if args.input is None:
         if args.size is None:
             raise UsageError("plan: give a running DUMP.exr, or --size WxH for the first round")
-        shape = _size(args.size)
+        shape = args.size
+        if args.levels is not None and args.levels > max_levels(shape):
+            raise UsageError(f"--levels: {args.levels} is outside 1..{max_levels(shape)} for --size {args.size[1]}x"
+                             f"{args.size[0]}")
         seed = 0 if args.seed is None else args.seed
         sampler = cls(shape, initial_spp=args.initial_spp, seed=seed, **options)
         round_number = 0
         if args.round is not None and args.round != 0:
             raise UsageError("--round: the first round (without a dump) is round 0")
     else:
-        refuse_same_file(args.output, [args.input])
         if args.size is not None:
             raise UsageError("--size: only for the first round; the dump fixes the size")
         dump = read_sample_dump(args.input, **plane_kwargs(args))
-        seed = args.seed if args.seed is not None else int(str(dump.attributes.get("awr:seed", 0)))
-        round_number = args.round if args.round is not None else int(str(dump.attributes.get("awr:round", 1)))
+        windows = read_windows(args.input)  # the request covers the dump's pixels, where they are
+        if args.levels is not None and args.levels > max_levels(dump.buffer.shape):
+            raise UsageError(f"--levels: {args.levels} is outside 1..{max_levels(dump.buffer.shape)} for the "
+                             f"image of {args.input}")
+        seed = args.seed if args.seed is not None else header_whole(args.input, dump.attributes, "awr:seed", 0,
+                                                                      MAX_SEED)
+        round_number = args.round if args.round is not None else header_whole(args.input, dump.attributes,
+                                                                                 "awr:round", 1, 2**31 - 1)
         if round_number < 1:
             raise UsageError(f"--round: rounds after the first are numbered from 1, got {round_number}")
         sampler = cls.from_buffer(dump.buffer, seed=seed, round=round_number, issued=dump.issued,
@@ -88,12 +100,11 @@ def run(args: argparse.Namespace) -> int:
     if args.round_spp is not None:
         h, w = sampler.shape
         budget = max(1, int(round(args.round_spp * h * w)))
-    if budget is not None and budget < 0:
-        raise UsageError(f"--budget: must be >= 0, got {budget}")
     request = sampler.ask(budget)
-    write_request(args.output, request, header=provenance(seed=seed, strategy=args.strategy),
+    write_request(args.output, request, header={**provenance(seed=seed, strategy=args.strategy), **windows},
                   overwrite=args.overwrite)
     h, w = request.shape
     status(f"{args.output}: round {request.round}, {request.total} samples "
            f"({request.total / (h * w):.3g} per pixel), seed {seed}", quiet=args.quiet)
     return EXIT_OK
+

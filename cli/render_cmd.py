@@ -16,15 +16,18 @@ from typing import Any
 from awr_denoise import AdaptiveSampler, SampleRequest, reconstruct_detailed
 from awr_denoise.buffers import SampleBuffer
 from awr_denoise.io import image_provenance, provenance, write_image, write_preview, write_sample_buffer
-from awr_denoise.io.atomic import check_writable
+from awr_denoise.io.atomic import OutputSet
 from awr_denoise.parallel import RendererSpec, TiledRenderer
 from awr_denoise.renderers import create_renderer, renderer_names
 from awr_denoise.requests import Renderer, SampleTracer
 from awr_denoise.sampling import DEFAULT_INITIAL_SPP, DEFAULT_ROUND_GROWTH
 
+from . import interrupts
 from .common import EXIT_OK, RuntimeFailure, UsageError, status
-from .denoise_cmd import add_reconstruction_options, reconstruction_kwargs
+from .denoise_cmd import add_reconstruction_options, check_reconstruction_options, reconstruction_kwargs
 from .parallel_options import add_executor_arguments, executor_from_args, executor_requested
+from .paths import PathPlan
+from .values import MAX_EXPOSURE, MAX_SEED, MAX_SIDE, MAX_SPP, check_pixels, real, whole
 
 __all__ = ["register", "run", "tracer_module", "default_scene", "render_buffer", "derived_path"]
 
@@ -98,25 +101,27 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--renderer", default=TRACER, metavar="NAME",
                    help=f"registered renderer (default %(default)s; known: {', '.join(renderer_names())})")
     p.add_argument("--list-scenes", action="store_true", help="print the bundled scenes and exit")
-    p.add_argument("--width", type=int, help="image width (default: the scene's)")
-    p.add_argument("--height", type=int, help="image height (default: the scene's)")
-    p.add_argument("--spp", type=float, default=16, help="average samples per pixel (default 16)")
+    p.add_argument("--width", type=whole(minimum=1, maximum=MAX_SIDE), help="image width (default: the scene's)")
+    p.add_argument("--height", type=whole(minimum=1, maximum=MAX_SIDE), help="image height (default: the scene's)")
+    p.add_argument("--spp", type=real(above=0, maximum=MAX_SPP), default=16,
+                   help="average samples per pixel (default 16)")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--adaptive", dest="adaptive", action="store_true", default=True,
                       help="adaptive wavelet sampling (default)")
     mode.add_argument("--uniform", dest="adaptive", action="store_false", help="the same count at every pixel")
-    p.add_argument("--initial-spp", type=int, default=DEFAULT_INITIAL_SPP,
+    p.add_argument("--initial-spp", type=whole(minimum=1, maximum=MAX_SPP), default=DEFAULT_INITIAL_SPP,
                    help="samples per pixel of the first adaptive round (default %(default)s)")
-    p.add_argument("--round-growth", type=float, metavar="G", default=DEFAULT_ROUND_GROWTH,
+    p.add_argument("--round-growth", type=real(above=0, maximum=1e6), metavar="G", default=DEFAULT_ROUND_GROWTH,
                    help="adaptive rounds ask for this share of the samples taken so far (default %(default)s; "
                         "larger: fewer, cheaper rounds, see docs/sampling.md)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=whole(minimum=0, maximum=MAX_SEED), default=0)
     p.add_argument("--sampler", default="independent",
                    help="the bundled tracer's sample sequence: independent (default) or sobol")
     p.add_argument("-o", "--output", metavar="DUMP.exr", help="sample dump to write (required unless --list-scenes)")
     p.add_argument("--image", metavar="OUT.exr", help="denoised image (default DUMP.denoised.exr)")
     p.add_argument("--preview", metavar="OUT.png", help="PNG preview (default DUMP.denoised.png)")
-    p.add_argument("--exposure", type=float, default=0.0, help="preview exposure in stops")
+    p.add_argument("--exposure", type=real(minimum=-MAX_EXPOSURE, maximum=MAX_EXPOSURE), default=0.0,
+                   help="preview exposure in stops")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     add_reconstruction_options(p)
@@ -153,16 +158,23 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_OK
     if not args.output:
         raise UsageError("render: -o/--output DUMP.exr is required")
-    if not args.spp > 0:
-        raise UsageError(f"--spp: must be > 0, got {args.spp}")
     image_path = Path(args.image) if args.image else derived_path(args.output, ".denoised.exr")
     preview_path = Path(args.preview) if args.preview else derived_path(args.output, ".denoised.png")
-    outputs = [Path(args.output), image_path, preview_path]
-    if len({o.resolve() for o in outputs}) != 3:
-        raise UsageError(f"{args.output}: the dump, image and preview need three different names")
-    for o in outputs:  # refuse before spending time rendering
-        check_writable(o, overwrite=args.overwrite)
+    plan = PathPlan(overwrite=args.overwrite)
+    given = args.scene_file or args.scene
+    if given and (args.renderer != TRACER or Path(given).suffix == ".json") and Path(given).suffix:
+        plan.read(given, "SCENE")
+    plan.write(args.output, "-o/--output")
+    plan.write(image_path, "--image" if args.image else "--image (DUMP.denoised.exr)")
+    plan.write(preview_path, "--preview" if args.preview else "--preview (DUMP.denoised.png)")
+    plan.check()  # refuse before spending time rendering
+    if args.width is not None and args.height is not None:
+        check_pixels("--width/--height", args.height, args.width)
     given, scene, name, shape, options = _scene(args)
+    frame_shape = shape or getattr(scene, "shape", None)
+    if frame_shape is not None:
+        check_pixels("--width/--height", *frame_shape)
+        check_reconstruction_options(args, tuple(frame_shape), name)
     start = time.perf_counter()
     render = dict(spp=args.spp, adaptive=args.adaptive, seed=args.seed, initial_spp=args.initial_spp,
                   quiet=args.quiet, round_growth=args.round_growth)
@@ -193,11 +205,16 @@ def run(args: argparse.Namespace) -> int:
     strategy = "awr" if args.adaptive else "uniform"
     header = provenance(scene=name, seed=args.seed, sampler=args.sampler, strategy=strategy, round=next_round,
                         render_seconds=float(seconds), renderer=args.renderer)
-    write_sample_buffer(args.output, buffer, header=header, issued=issued, overwrite=args.overwrite)
+    check_reconstruction_options(args, buffer.shape, name)
     result = reconstruct_detailed(buffer, variance_probes=0, **reconstruction_kwargs(args))
-    write_image(image_path, result.image, channels=buffer.channels, overwrite=args.overwrite,
-                header=image_provenance(result, buffer, source=args.output, scene=name))
-    write_preview(preview_path, result.image, exposure=args.exposure, overwrite=args.overwrite)
+    # The dump, the image and the preview: all three or none.
+    with OutputSet(overwrite=args.overwrite) as outputs:
+        write_sample_buffer(outputs.add(args.output), buffer, header=header, issued=issued)
+        write_image(outputs.add(image_path), result.image, channels=buffer.channels,
+                    header=image_provenance(result, buffer, source=args.output, scene=name))
+        write_preview(outputs.add(preview_path), result.image, exposure=args.exposure)
+        interrupts.check()
+        outputs.commit()
     h, w = buffer.shape
     status(f"{args.output}: {name} {w}x{h}, {buffer.total_samples / (h * w):.3g} spp ({strategy}) in {seconds:.1f} s; "
            f"denoised {image_path}, preview {preview_path}", quiet=args.quiet)

@@ -535,7 +535,7 @@ def test_plan_round_growth_sets_the_round_budget(tmp_path, capsys, rng, growth):
                  "-q"]) == 0
     assert read_request(tmp_path / "r.exr").total == int(growth * buf.total_samples)
     assert main(["plan", str(tmp_path / "d.exr"), "--round-growth", "0", "-o", str(tmp_path / "s.exr")]) == 2
-    _one_error_line(capsys, "round_growth")
+    _one_error_line(capsys, "--round-growth")
     assert not (tmp_path / "s.exr").exists()
 
 

@@ -21,6 +21,8 @@ import numpy as np
 from ..errors import AWRError, InputFileError
 from ..io import read_image, read_sample_buffer, write_image, write_preview
 from ..io.atomic import check_writable
+from ..io.exr import check_same_windows, read_windows
+from ..io.presets import parse_plane
 from ..io.provenance import image_provenance
 from ..metrics import relmse
 from ..reconstruct import reconstruct_detailed
@@ -75,12 +77,14 @@ class FrameResult:
     relmse: float | None = None
 
 
-def _reference_error(reference: str | os.PathLike[str], image: np.ndarray, source: str) -> float:
+def _reference_error(reference: str | os.PathLike[str], image: np.ndarray, source: str,
+                     windows: dict[str, Any]) -> float:
     """relMSE of ``image`` against the reference image file (shared channels only)."""
     ref = read_image(reference)
     if ref.shape[:2] != image.shape[:2]:
         raise InputFileError(f"{os.fspath(reference)}: size {ref.shape[1]}x{ref.shape[0]} does not match "
                              f"{image.shape[1]}x{image.shape[0]} of {source}")
+    check_same_windows(reference, read_windows(reference), source, windows)
     k = min(ref.shape[2], image.shape[2])
     return relmse(image[..., :k], ref[..., :k])
 
@@ -115,14 +119,30 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
     """
     source = os.fspath(source)
     buffer = read_sample_buffer(source, **(read_options or {}))
+    windows = read_windows(source)  # the image keeps the dump's data and display windows
     result = reconstruct_detailed(buffer, variance_probes=0, **reconstruct_options)
+    error = _reference_error(reference, np.asarray(result.image), source, windows) if reference else None
     written = write_image(output, result.image, channels=buffer.channels, half=half, overwrite=overwrite,
-                          header=image_provenance(result, buffer, source=source))
+                          header={**image_provenance(result, buffer, source=source), **windows})
     shown = write_preview(preview, result.image, exposure=exposure, overwrite=overwrite) if preview else None
-    error = _reference_error(reference, np.asarray(result.image), source) if reference else None
     return FrameResult(source, Path(written), None if shown is None else Path(shown), buffer.shape,
                        buffer.total_samples / buffer.count.size, float(result.fraction_zeroed),
                        int(buffer.nonfinite), error)
+
+
+def _stat(path: str) -> os.stat_result | None:
+    try:
+        return os.stat(path)
+    except OSError:
+        return None
+
+
+def _names_file(spec: str) -> bool:
+    try:
+        parse_plane(spec, None)
+    except ValueError:
+        return False
+    return True
 
 
 def _check_outputs(sources: list[str], targets: list[str], previews: list[str] | None, overwrite: bool) -> None:
@@ -131,9 +151,12 @@ def _check_outputs(sources: list[str], targets: list[str], previews: list[str] |
     resolved = [Path(t).resolve() for t in written]
     if len(set(resolved)) != len(resolved):
         raise ValueError("outputs: the same file is listed more than once")
-    collisions = set(resolved) & {Path(s).resolve() for s in sources}
-    if collisions:
-        raise ValueError(f"outputs: {sorted(map(str, collisions))[0]} is also an input")
+    inputs = {Path(s).resolve() for s in sources}
+    inodes = {(st.st_dev, st.st_ino) for st in map(_stat, sources) if st is not None}
+    for target, where in zip(written, resolved):
+        st = _stat(target)
+        if where in inputs or (st is not None and (st.st_dev, st.st_ino) in inodes):
+            raise ValueError(f"outputs: {target} is also an input")
     for target in written:
         check_writable(target, overwrite=overwrite)
 
@@ -197,7 +220,10 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
     if len(sources) != len(targets) or (shown is not None and len(shown) != len(sources)):
         raise ValueError(f"outputs: {len(targets)} given for {len(sources)} input(s)"
                          + ("" if shown is None else f" (and {len(shown)} previews)"))
-    _check_outputs(sources, targets, shown, overwrite)
+    read = sources + ([os.fspath(reference)] if reference is not None else [])
+    read += [str(parse_plane(spec, None)[0]) for spec in (read_options or {}).values()
+             if isinstance(spec, str) and ":" in spec and _names_file(spec)]
+    _check_outputs(read, targets, shown, overwrite)
     if not sources:
         return []
     options = {"exposure": exposure, "reference": reference, "overwrite": overwrite, "half": half,
@@ -205,9 +231,16 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
     with executor_or_threads(executor, len(sources)) as pool:
         futures = {submit(pool, _frame_task, s, t, None if shown is None else shown[i], options): s
                    for i, (s, t) in enumerate(zip(sources, targets))}
-        for future in cf.as_completed(futures):
-            if future.exception() is None and on_frame is not None:
-                on_frame(future.result())
+        try:
+            for future in cf.as_completed(futures):
+                if future.exception() is None and on_frame is not None:
+                    on_frame(future.result())
+        except BaseException:
+            # Ctrl-C or a failing callback: frames not started yet never start (the ones
+            # running finish, since threads cannot be stopped, before the pool closes).
+            for future in futures:
+                future.cancel()
+            raise
     failures = {s: f.exception() for f, s in futures.items() if f.exception() is not None}
     if failures:
         ordered = {s: failures[s] for s in sources if s in failures}

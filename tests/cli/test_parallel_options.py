@@ -23,7 +23,9 @@ def test_executor_arguments_round_trip():
     with pytest.raises(ValueError, match="--scheduler"):
         executor_from_args(parser.parse_args(["--executor", "threads", "--scheduler", "tcp://127.0.0.1:1"]))
     with pytest.raises(ValueError, match="--workers"):
-        executor_from_args(parser.parse_args(["--workers", "0"]))
+        executor_from_args(argparse.Namespace(workers=0))
+    with pytest.raises(SystemExit):  # refused where it is parsed
+        parser.parse_args(["--workers", "0"])
     assert executor_from_args(argparse.Namespace()) is not None  # a parser without the options
     assert not executor_requested(parser.parse_args([]))
     assert executor_requested(parser.parse_args(["--executor", "threads"]))

@@ -1,0 +1,110 @@
+"""Every path a command reads and writes, checked together before any work starts.
+
+A command lists its inputs (the dump, ``-r/--ref``, plane files of ``--color/--variance/--count``,
+``--request``, every frame of a pattern) and its outputs (``-o``, ``--preview``, ``--image``,
+derived names) in a :class:`PathPlan`; :meth:`PathPlan.check` then refuses, with one line
+naming the option and the file:
+
+* an input that is missing or not a regular file (never opened: a FIFO would hang);
+* an output that is an input (same resolved path, or the same file through a hard link);
+* two outputs that are one file (two options, or two frames of a sequence);
+* an output that exists without ``--overwrite``, or is not a regular file even with it
+  (a FIFO, a device, a directory), or whose folder is missing or not writable.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from awr_denoise.io.atomic import check_readable, check_writable
+from awr_denoise.io.presets import parse_plane
+
+from .errors import UsageError
+
+__all__ = ["PathPlan"]
+
+
+@dataclass
+class _Entry:
+    path: Path
+    option: str
+
+
+@dataclass
+class PathPlan:
+    """The reads and writes of one command.
+
+    Parameters
+    ----------
+    overwrite
+        ``--overwrite`` was given: existing regular files may be replaced.
+    """
+
+    overwrite: bool = False
+    reads: list[_Entry] = field(default_factory=list)
+    writes: list[_Entry] = field(default_factory=list)
+
+    def read(self, path: str | os.PathLike[str] | None, option: str) -> None:
+        """An input file (None is skipped)."""
+        if path is not None:
+            self.reads.append(_Entry(Path(path), option))
+
+    def read_plane(self, spec: str | None, option: str) -> None:
+        """The file of a ``file.exr:plane`` option, if it names one (a bare plane names none)."""
+        if spec is None:
+            return
+        try:
+            file, _ = parse_plane(spec, None)
+        except ValueError:
+            return  # a plane of the main input
+        self.read(file, option)
+
+    def write(self, path: str | os.PathLike[str] | None, option: str) -> None:
+        """An output file (None is skipped)."""
+        if path is not None:
+            self.writes.append(_Entry(Path(path), option))
+
+    def check(self) -> None:
+        """Refuse the plan (:class:`UsageError` or ``FileExistsError``) before anything is read."""
+        for entry in self.reads:
+            try:
+                check_readable(entry.path)
+            except (OSError, ValueError) as exc:
+                raise UsageError(f"{entry.option}: {exc}") from None
+        inputs: dict[tuple[int, int], _Entry] = {}
+        resolved_inputs: dict[Path, _Entry] = {}
+        for entry in self.reads:
+            st = os.stat(entry.path)
+            inputs.setdefault((st.st_dev, st.st_ino), entry)
+            resolved_inputs.setdefault(entry.path.resolve(), entry)
+        seen: dict[Path, _Entry] = {}
+        seen_inodes: dict[tuple[int, int], _Entry] = {}
+        for entry in self.writes:
+            resolved = entry.path.resolve()
+            source = resolved_inputs.get(resolved)
+            try:
+                st = os.stat(entry.path)
+            except OSError:
+                st = None
+            if source is None and st is not None:
+                source = inputs.get((st.st_dev, st.st_ino))
+            if source is not None:
+                raise UsageError(f"{entry.path}: {entry.option} is the input {source.path} "
+                                 f"({source.option}); write to a new file")
+            other = seen.get(resolved)
+            if other is None and st is not None:
+                other = seen_inodes.get((st.st_dev, st.st_ino))
+            if other is not None:
+                both = entry.option if entry.option == other.option else f"{other.option} and {entry.option}"
+                raise UsageError(f"{entry.path}: written twice ({both}); give each output its own name")
+            seen[resolved] = entry
+            if st is not None:
+                seen_inodes[(st.st_dev, st.st_ino)] = entry
+            try:
+                check_writable(entry.path, overwrite=self.overwrite)
+            except FileExistsError:
+                raise
+            except (OSError, ValueError) as exc:
+                raise UsageError(f"{entry.option}: {exc}") from None

@@ -1,0 +1,135 @@
+"""Option value types for ``argparse``: numbers checked where they are parsed.
+
+A bad value (``--exposure nan``, ``--spp inf``, ``--seed 1e30``, ``--levels 100``) becomes a
+usage error naming the option before anything is read, rendered or written. The bounds are
+those of the files and arrays the values end up in, named once here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import re
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from awr_denoise.errors import InputFileError
+from awr_denoise.wavelets import WAVELET_NAMES
+
+from .errors import UsageError
+
+__all__ = ["MAX_SPP", "MAX_SEED", "MAX_PIXELS", "MAX_SIDE", "MAX_LEVELS", "MAX_EXPOSURE", "MAX_FRAMES",
+           "real", "whole", "image_size", "check_pixels", "wavelet_name", "header_whole"]
+
+MAX_SPP = 2**24
+"""Samples per pixel: counts are stored as float32, exact up to 2**24."""
+MAX_SEED = 2**63 - 1
+"""Seeds are non-negative and fit a signed 64-bit integer."""
+MAX_SIDE = 2**20
+"""Largest image side in pixels."""
+MAX_PIXELS = 2**28
+"""Largest image in pixels (16384 x 16384); a reconstruction needs about 5.5 x 57 bytes per pixel
+(docs/robustness.md, section 7), 80 GiB at this size."""
+MAX_LEVELS = 32
+"""Wavelet levels beyond this exceed any image side (the exact bound depends on the size)."""
+MAX_EXPOSURE = 1000.0
+"""Preview exposure in stops (2**1000 already saturates every positive float64)."""
+MAX_FRAMES = 1_000_000
+"""Frames one ``--frames`` range may name."""
+
+
+def real(*, minimum: float | None = None, maximum: float | None = None, above: float | None = None,
+         name: str = "number") -> Callable[[str], float]:
+    """An argparse type: a finite float within bounds (``above`` is an open lower bound)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a {name}, got {text!r}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"must be a finite {name}, got {text!r}")
+        if above is not None and not value > above:
+            raise argparse.ArgumentTypeError(f"must be > {above:.15g}, got {text}")
+        if minimum is not None and value < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum:.15g}, got {text}")
+        if maximum is not None and value > maximum:
+            raise argparse.ArgumentTypeError(f"must be <= {maximum:.15g}, got {text}")
+        return value
+
+    parse.__name__ = name
+    return parse
+
+
+_INTEGER = re.compile(r"^\s*[+-]?\d+\s*$")
+
+
+def whole(*, minimum: int | None = None, maximum: int | None = None,
+          name: str = "whole number") -> Callable[[str], int]:
+    """An argparse type: an integer within bounds (``1.5``, ``1e3`` and ``inf`` are refused)."""
+
+    def parse(text: str) -> int:
+        if not _INTEGER.match(text) or len(text.strip()) > 40:
+            raise argparse.ArgumentTypeError(f"expected a {name}, got {text!r}")
+        value = int(text)
+        if minimum is not None and value < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+        if maximum is not None and value > maximum:
+            raise argparse.ArgumentTypeError(f"must be <= {maximum}, got {value}")
+        return value
+
+    parse.__name__ = name
+    return parse
+
+
+def _too_many_pixels(height: int, width: int) -> str | None:
+    if height > MAX_SIDE or width > MAX_SIDE or height * width > MAX_PIXELS:
+        side = math.isqrt(MAX_PIXELS)
+        return (f"{width}x{height} is {width * height} pixels; at most {MAX_PIXELS} ({side}x{side}) "
+                f"with sides up to {MAX_SIDE} are supported")
+    return None
+
+
+def check_pixels(option: str, height: int, width: int) -> None:
+    """Refuse an image size beyond :data:`MAX_SIDE` or :data:`MAX_PIXELS`, naming ``option``."""
+    problem = _too_many_pixels(height, width)
+    if problem:
+        raise UsageError(f"{option}: {problem}")
+
+
+def image_size(text: str) -> tuple[int, int]:
+    """An argparse type: ``WIDTHxHEIGHT`` as (H, W), each side >= 1, within the size limits."""
+    m = re.fullmatch(r"\s*(\d{1,9})\s*[xX]\s*(\d{1,9})\s*", text)
+    if not m or int(m.group(1)) <= 0 or int(m.group(2)) <= 0:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 640x480, got {text!r}")
+    width, height = int(m.group(1)), int(m.group(2))
+    problem = _too_many_pixels(height, width)
+    if problem:
+        raise argparse.ArgumentTypeError(problem)
+    return height, width
+
+
+def wavelet_name(text: str) -> str:
+    """An argparse type: a discrete wavelet PyWavelets knows."""
+    if text not in WAVELET_NAMES:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a discrete wavelet PyWavelets knows "
+                                         "(for example bior4.4, haar, db2)")
+    return text
+
+
+def header_whole(path: str, attributes: Mapping[str, Any], key: str, default: int, maximum: int) -> int:
+    """A whole-number header attribute of an input (``awr:seed``, ``awr:round``) within 0..maximum.
+
+    Raises
+    ------
+    InputFileError
+        Naming the file and the attribute.
+    """
+    raw = attributes.get(key, default)
+    try:
+        value = int(str(raw).strip())
+    except ValueError:
+        raise InputFileError(f"{path}: {key}: header attribute is not a whole number: {raw!r}") from None
+    if not 0 <= value <= maximum:
+        raise InputFileError(f"{path}: {key}: header attribute {value} is outside 0..{maximum}")
+    return value
