@@ -234,7 +234,7 @@ def test_awr_merge_carries_the_nonfinite_count(dump_with_nonfinite, tmp_path):
     from awr_denoise.io import read_sample_buffer
 
     merged = tmp_path / "merged.exr"
-    rc, _, err = _awr(["merge", dump_with_nonfinite, dump_with_nonfinite, "-o", merged, "-q"])
+    rc, _, err = _awr(["merge", dump_with_nonfinite, dump_with_nonfinite, "-o", merged, "-q", "--allow-duplicates"])
     assert rc == 0, err
     assert read_sample_buffer(merged).nonfinite == 6
 

@@ -41,7 +41,7 @@ try:
 except ImportError:  # pragma: no cover - not on Windows: stale temporaries are then kept
     fcntl = None  # type: ignore[assignment]
 
-__all__ = ["atomic_write", "check_writable", "check_readable", "file_kind", "same_file", "OutputSet",
+__all__ = ["atomic_write", "check_writable", "check_readable", "file_kind", "same_file", "OutputSet", "public_name",
            "remove_stale_temporaries", "STAGING_PREFIX", "STAGING_SUFFIX", "STALE_AFTER"]
 
 STAGING_PREFIX = ".awr-"
@@ -54,6 +54,17 @@ creates its lock file within microseconds of the directory)."""
 
 _LOCK = "lock"
 _MAX_SUFFIX = 16  # longer "suffixes" are not file types; the temporary goes without one
+
+
+# Temporary path -> the target it stands for, while an OutputSet holds it: writers name the
+# target in their messages, never the staging directory.
+_PUBLIC: dict[str, str] = {}
+
+
+def public_name(path: str | os.PathLike[str]) -> str:
+    """The name to show for ``path``: the target an :class:`OutputSet` temporary stands for."""
+    name = os.fspath(path)
+    return _PUBLIC.get(name, name)
 
 
 def file_kind(mode: int) -> str:
@@ -371,7 +382,11 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[str], None], *, 
     staging = _Staging(target.parent if str(target.parent) else Path("."))
     try:
         tmp = staging.new_name(target)
-        write(os.fspath(tmp))
+        try:
+            write(os.fspath(tmp))
+        except OSError as exc:
+            # A full disk or a lost file system: name the file being written, not its temporary.
+            raise OSError(exc.errno, exc.strerror or str(exc), public_name(target)) from None
         _check_written(tmp, target)
         with _signals_deferred():
             _install(tmp, target, overwrite=overwrite)
@@ -436,6 +451,7 @@ class OutputSet:
             self._staging[directory] = _Staging(target.parent if str(target.parent) else Path("."))
         tmp = self._staging[directory].new_name(target)
         self._staged[target] = tmp
+        _PUBLIC[os.fspath(tmp)] = os.fspath(target)
         self._resolved[resolved] = target
         return tmp
 
@@ -496,6 +512,8 @@ class OutputSet:
     def abort(self) -> None:
         """Remove every temporary; the targets stay as they were."""
         self._done = True
+        for tmp in self._staged.values():
+            _PUBLIC.pop(os.fspath(tmp), None)
         for staging in self._staging.values():
             staging.remove()
 

@@ -32,6 +32,7 @@ import numpy as np
 from .._typing import CountArray
 from .._version import __version__
 from ..buffers import VARIANCE_KINDS, SampleBuffer
+from .atomic import public_name
 from .exr import ExrPart, checked_plane, file_error, header_value, write_exr
 
 __all__ = [
@@ -102,7 +103,7 @@ def _float32(path: str | os.PathLike[str], name: str, values: np.ndarray) -> np.
         stored = np.ascontiguousarray(values, dtype=np.float32)
     over = ~np.isfinite(stored)
     if over.any():
-        raise ValueError(f"{os.fspath(path)}: {name}: {int(over.sum())} pixel(s) beyond the float32 range "
+        raise ValueError(f"{public_name(path)}: {name}: {int(over.sum())} pixel(s) beyond the float32 range "
                          f"{float(np.finfo(np.float32).max):g}, which would be stored as Inf")
     return stored
 

@@ -13,6 +13,7 @@ fault), ready to be printed as one line.
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import stat
 import sys
@@ -29,7 +30,7 @@ from .._typing import FloatArray
 from .._version import __version__
 from ..channels import default_channel_names
 from ..errors import InputFileError
-from .atomic import atomic_write, check_writable, file_kind
+from .atomic import atomic_write, check_writable, file_kind, public_name
 
 __all__ = [
     "ExrPart",
@@ -309,7 +310,7 @@ def _window(path: str | os.PathLike[str], key: str, value: Any, shape: tuple[int
     if not all(-(2**30) <= v < 2**30 for v in (x0, y0, x1, y1)) or x1 < x0 or y1 < y0:
         raise ValueError(f"header: {key} {value!r} is not a valid window")
     if key == "dataWindow" and shape is not None and (y1 - y0 + 1, x1 - x0 + 1) != tuple(shape):
-        raise ValueError(f"{os.fspath(path)}: dataWindow {format_window(((x0, y0), (x1, y1)))} is "
+        raise ValueError(f"{public_name(path)}: dataWindow {format_window(((x0, y0), (x1, y1)))} is "
                          f"{x1 - x0 + 1}x{y1 - y0 + 1}, the image {shape[1]}x{shape[0]}")
     return (np.array([x0, y0], np.int32), np.array([x1, y1], np.int32))
 
@@ -393,7 +394,11 @@ def write_exr(path: str | os.PathLike[str], channels: Mapping[str, np.ndarray],
     def _write(tmp: str) -> None:
         # OpenEXR.File adds dataWindow/displayWindow to the dict it is given: pass a copy.
         with OpenEXR.File(dict(attrs), data) as f:
-            f.write(tmp)
+            try:
+                f.write(tmp)
+            except RuntimeError as exc:  # the bindings report I/O errors (a full disk) this way
+                code = errno.ENOSPC if "No space left" in str(exc) else errno.EIO
+                raise OSError(code, os.strerror(code), public_name(path)) from None
 
     return atomic_write(path, _write, overwrite=overwrite)
 
@@ -521,7 +526,7 @@ def write_image(path: str | os.PathLike[str], image: np.ndarray, *,
     bad = ~np.isfinite(data)
     if bad.any():
         c = int(np.nonzero(bad.any(axis=(0, 1)))[0][0])
-        raise ValueError(f"{os.fspath(path)}: {names[c]}: image has {int(bad[..., c].sum())} pixel(s) "
+        raise ValueError(f"{public_name(path)}: {names[c]}: image has {int(bad[..., c].sum())} pixel(s) "
                          "holding NaN or Inf")
     dtype = np.float16 if half else np.float32
     # Finiteness is checked again after the conversion: values beyond the stored type's range
@@ -532,7 +537,7 @@ def write_image(path: str | os.PathLike[str], image: np.ndarray, *,
     if over.any():
         c = int(np.nonzero(over.any(axis=(0, 1)))[0][0])
         limit, hint = (HALF_MAX, " (write FLOAT channels: half=False)") if half else (float(np.finfo(np.float32).max), "")
-        raise ValueError(f"{os.fspath(path)}: {names[c]}: image has {int(over[..., c].sum())} pixel(s) beyond "
+        raise ValueError(f"{public_name(path)}: {names[c]}: image has {int(over[..., c].sum())} pixel(s) beyond "
                          f"the {'half-float' if half else 'float32'} range {limit:g}, which would be stored "
                          f"as Inf{hint}")
     planes = {name: np.ascontiguousarray(stored[..., i]) for i, name in enumerate(names)}

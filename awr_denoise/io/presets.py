@@ -40,7 +40,7 @@ from ..errors import InputFileWarning
 from .colour import MITSUBA_XYZ_TO_SRGB, PBRT_XYZ_TO_SRGB, xyz_statistics_to_rgb
 from .cycles import COLOUR_PASSES, cycles_layers, sample_count_scale
 from .deep import samples_from_deep_part
-from .dump import COUNT_CHANNEL, VARIANCE_PREFIX, SampleDump, buffer_from_awr_part, whole_counts
+from .dump import COUNT_CHANNEL, MAX_EXACT_COUNT, VARIANCE_PREFIX, SampleDump, buffer_from_awr_part, whole_counts
 from .exr import ExrPart, checked_plane, file_error, header_value, read_exr
 from .mitsuba import filter_correlation
 
@@ -203,8 +203,8 @@ def _channel_names(plane: _Plane) -> tuple[str, ...]:
 def _spp_counts(path: Path, spp: int | None, shape: tuple[int, int], where: str) -> np.ndarray:
     if spp is None:
         raise file_error(path, f"no sample count in the file ({where}); pass spp= / --spp N")
-    if int(spp) < 0:
-        raise ValueError(f"spp: must be non-negative, got {spp}")
+    if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or not 0 <= spp <= MAX_EXACT_COUNT:
+        raise ValueError(f"spp: must be a whole number in 0..{MAX_EXACT_COUNT}, got {spp!r}")
     return np.full(shape, int(spp), np.int64)
 
 
@@ -213,9 +213,12 @@ def _header_int(path: Path, header: dict, key: str) -> int | None:
         return None
     raw = header_value(header, key)
     try:
-        value = int(float(str(raw).strip()))
+        number = float(str(raw).strip())
     except ValueError:
         raise file_error(path, f"header attribute is not a number: {raw!r}", key) from None
+    if not np.isfinite(number) or number > MAX_EXACT_COUNT:
+        raise file_error(path, f"header attribute {raw!r} is not a sample count (at most {MAX_EXACT_COUNT})", key)
+    value = int(number)
     if value < 0:
         raise file_error(path, f"header attribute is negative: {value}", key)
     return value
@@ -566,6 +569,8 @@ def read_sample_dump(
         raise ValueError(f"preset: {preset!r} is not one of {', '.join(sorted(PRESETS))}")
     if variance_kind is not None:
         _kind(variance_kind, "sample")
+    if spp is not None:
+        _spp_counts(Path("."), spp, (1, 1), "")  # validates spp before any file is read
     if path is None:
         if color is None:
             raise ValueError("path: give an input file or a color plane as file.exr:plane")
