@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import _checks
 from ._typing import CountArray, FloatArray
 
 __all__ = ["allocate", "MAX_BUDGET"]
@@ -65,9 +66,7 @@ def allocate(density: FloatArray, current: CountArray, budget: int, *,
         ...
     ValueError: budget: 5 samples exceed the 2 that spp_max still allows
     """
-    budget = int(budget)
-    if budget < 0:
-        raise ValueError(f"budget: must be >= 0, got {budget}")
+    budget = _checks.whole("budget", budget, minimum=0)
     if budget > MAX_BUDGET:
         raise ValueError(f"budget: {budget} exceeds {MAX_BUDGET} (2**62), the most samples int64 counts hold safely")
     shape = current.shape

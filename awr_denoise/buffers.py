@@ -17,8 +17,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import _checks
 from ._typing import BoolArray, CountArray, FloatArray, Shape2D
-from .channels import default_channel_names, luminance_weights, resolve_channels  # noqa: F401 - re-exported
+from .channels import MAX_CHANNELS, default_channel_names, luminance_weights, resolve_channels  # noqa: F401 - re-exported
 from .pooling import pooled_variance
 
 # default_channel_names and luminance_weights live in channels.py and are importable from here too.
@@ -58,6 +59,8 @@ def _check_count(count: object) -> CountArray:
             raise ValueError(f"count: {int(bad.sum())} pixel(s) hold NaN or Inf")
         if (c != np.round(c)).any():
             raise ValueError(f"count: {int((c != np.round(c)).sum())} pixel(s) are not whole numbers")
+        if (np.abs(c) > 2**62).any():
+            raise ValueError(f"count: {int((np.abs(c) > 2**62).sum())} pixel(s) exceed 2**62 samples")
     elif c.dtype.kind not in "iub":
         raise TypeError(f"count: expected an integer array, got dtype {c.dtype}")
     c = c.astype(np.int64)
@@ -151,8 +154,12 @@ class SampleBuffer:
     @classmethod
     def empty(cls, shape: Shape2D, *, channels: Sequence[str] | int = 3) -> SampleBuffer:
         """A buffer of the given (H, W) shape with no samples."""
-        n_channels = channels if isinstance(channels, int) else len(channels)
-        h, w = (int(s) for s in shape)
+        if isinstance(channels, (bool, np.bool_, float, np.floating, str, bytes)) or not (
+                isinstance(channels, (int, np.integer)) or hasattr(channels, "__len__")):
+            raise TypeError(f"channels: expected a number of channels or their names, got {channels!r}")
+        n_channels = _checks.whole("channels", channels, minimum=1, maximum=MAX_CHANNELS) \
+            if isinstance(channels, (int, np.integer)) else len(channels)
+        h, w = _checks.shape2d("shape", shape)
         zeros = np.zeros((h, w, n_channels))
         return cls(np.zeros((h, w), np.int64), zeros, zeros, resolve_channels(channels, n_channels),
                    np.zeros((h, w), bool))

@@ -6,11 +6,15 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from . import _checks
 from ._typing import FloatArray
 
-__all__ = ["default_channel_names", "luminance_weights", "resolve_channels"]
+__all__ = ["default_channel_names", "luminance_weights", "resolve_channels", "MAX_CHANNELS"]
 
 _REC709 = np.array([0.2126, 0.7152, 0.0722])
+
+MAX_CHANNELS = 4096
+"""Far beyond any renderer's AOVs; keeps a mistyped count from allocating terabytes."""
 
 
 def default_channel_names(n_channels: int) -> tuple[str, ...]:
@@ -24,6 +28,7 @@ def default_channel_names(n_channels: int) -> tuple[str, ...]:
     >>> default_channel_names(2)
     ('ch0', 'ch1')
     """
+    n_channels = _checks.whole("n_channels", n_channels, minimum=0, maximum=MAX_CHANNELS)
     if n_channels == 1:
         return ("Y",)
     if n_channels == 3:
@@ -47,7 +52,11 @@ def luminance_weights(channels: Sequence[str]) -> FloatArray:
     >>> luminance_weights(["Y"]), luminance_weights(["albedo", "depth"])
     (array([1.]), array([0.5, 0.5]))
     """
-    names = [c.rsplit(".", 1)[-1].upper() for c in channels]
+    if isinstance(channels, (str, bytes)) or not hasattr(channels, "__iter__"):
+        raise TypeError(f"channels: expected a sequence of channel names, got {channels!r}")
+    names = [_checks.name("channels", c).rsplit(".", 1)[-1].upper() for c in channels]
+    if not names:
+        raise ValueError("channels: no channel names given")
     weights = np.zeros(len(names))
     if {"R", "G", "B"} <= set(names):
         for name, w in zip("RGB", _REC709):
@@ -67,7 +76,10 @@ def resolve_channels(channels: Sequence[str] | int | None, n_channels: int) -> t
     """
     if channels is None:
         return default_channel_names(n_channels)
-    if isinstance(channels, int):
+    if isinstance(channels, (bool, np.bool_, float, np.floating, str, bytes)) or not (
+            isinstance(channels, (int, np.integer)) or hasattr(channels, "__iter__")):
+        raise TypeError(f"channels: expected a number of channels or their names, got {channels!r}")
+    if isinstance(channels, (int, np.integer)):
         if channels != n_channels:
             raise ValueError(f"channels: {channels} given but the data has {n_channels}")
         return default_channel_names(n_channels)

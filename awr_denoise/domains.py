@@ -20,11 +20,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from . import _checks
 from ._typing import FloatArray
 
 __all__ = ["Domain", "DOMAIN_NAMES", "resolve_domain"]
 
 DOMAIN_NAMES = ("linear", "log", "gamma")
+
+_SMALLEST = float(np.nextafter(0.0, 1.0))  # the smallest positive float64 (5e-324)
 
 
 @dataclass(frozen=True)
@@ -86,14 +89,12 @@ class Domain:
     robust: bool = False
 
     def __post_init__(self) -> None:
-        if self.name not in DOMAIN_NAMES:
+        if not isinstance(self.name, str) or self.name not in DOMAIN_NAMES:
             raise ValueError(f"domain: {self.name!r} is not one of {', '.join(DOMAIN_NAMES)}")
-        if not (np.isfinite(self.offset) and self.offset > 0):
-            raise ValueError(f"domain offset: must be a positive finite number, got {self.offset!r}")
-        if not (np.isfinite(self.gamma) and self.gamma >= 1):
-            raise ValueError(f"domain gamma: must be a finite number >= 1, got {self.gamma!r}")
-        if self.scale is not None and not (np.isfinite(self.scale) and self.scale > 0):
-            raise ValueError(f"domain scale: must be a positive finite number, got {self.scale!r}")
+        _checks.real("domain offset", self.offset, above=0)
+        _checks.real("domain gamma", self.gamma, minimum=1)
+        _checks.real("domain scale", self.scale, above=0, none=True)
+        _checks.flag("domain robust", self.robust)
 
     def bound(self, mean: FloatArray) -> _BoundDomain:
         """Fix the absolute offset for one image (``k = offset * scale``).
@@ -108,7 +109,8 @@ class Domain:
         """
         if self.name == "linear":
             return _BoundDomain(self, 1.0)
-        return _BoundDomain(self, self.offset * self.resolved_scale(mean))
+        # Means near the smallest floats (1e-310) are valid: k may underflow, never to 0.
+        return _BoundDomain(self, max(self.offset * self.resolved_scale(mean), _SMALLEST))
 
     def resolved_scale(self, mean: FloatArray) -> float:
         """The absolute reference level used for ``mean``: :attr:`scale`, or the image's own.
@@ -161,9 +163,11 @@ class _BoundDomain:
             return np.ones_like(x, dtype=np.float64)
         a = np.abs(x)
         if name == "log":
-            return 1.0 / (a + k)
+            with np.errstate(over="ignore"):  # Inf below ~1e-308: callers divide by it
+                return 1.0 / (a + k)
         p = 1.0 / self.domain.gamma
-        return p * (a + k) ** (p - 1.0)
+        with np.errstate(over="ignore"):
+            return p * (a + k) ** (p - 1.0)
 
     def inverse(self, y: FloatArray) -> FloatArray:
         name, k = self.domain.name, self.k
@@ -187,7 +191,14 @@ class _BoundDomain:
             # images, and a negative spike is treated like a positive one.
             at = np.where(np.abs(median) < np.abs(mean), median, mean)
         d = self.derivative(at)
-        return variance * d * d
+        with np.errstate(over="ignore", invalid="ignore"):
+            out = variance * d * d
+            if self.domain.name == "log" and not np.isfinite(out).all():
+                # f' overflows for means near the smallest floats (1e-310); its inverse does
+                # not: Var / (|x| + k)^2 there (elsewhere the product, bit for bit as before).
+                s = np.abs(at) + self.k
+                out = np.where(np.isfinite(out), out, variance / s / s)
+        return np.where(variance == 0, 0.0, out)
 
 
 def resolve_domain(domain: str | Domain) -> Domain:

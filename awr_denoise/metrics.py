@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
+from . import _checks
 from ._typing import FloatArray
 
 __all__ = ["mse", "relmse", "psnr", "ssim", "tonemap", "RELMSE_EPSILON", "METRICS", "HIGHER_IS_BETTER"]
@@ -17,6 +18,9 @@ RELMSE_EPSILON = 0.01
 
 
 def _pair(x: FloatArray, reference: FloatArray) -> tuple[FloatArray, FloatArray]:
+    for name, arr in (("image", x), ("reference", reference)):
+        if np.asarray(arr).dtype.kind not in "fiub":
+            raise TypeError(f"{name}: expected a numeric array, got dtype {np.asarray(arr).dtype}")
     a = np.asarray(x, dtype=np.float64)
     b = np.asarray(reference, dtype=np.float64)
     if a.shape != b.shape:
@@ -40,7 +44,8 @@ def mse(x: FloatArray, reference: FloatArray) -> float:
     2.0
     """
     a, b = _pair(x, reference)
-    return float(np.mean((a - b) ** 2))
+    with np.errstate(over="ignore"):  # Inf: an error beyond float64 (values near 1e300)
+        return float(np.mean((a - b) ** 2))
 
 
 def relmse(x: FloatArray, reference: FloatArray, eps: float = RELMSE_EPSILON) -> float:
@@ -57,7 +62,11 @@ def relmse(x: FloatArray, reference: FloatArray, eps: float = RELMSE_EPSILON) ->
     (1.0, 0.009901)
     """
     a, b = _pair(x, reference)
-    return float(np.mean((a - b) ** 2 / (b * b + eps)))
+    eps = _checks.real("eps", eps, minimum=0)
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+        num, den = (a - b) ** 2, b * b + eps
+        # eps = 0 is exact where the reference is not 0; where it is, an exact pixel costs 0.
+        return float(np.mean(np.where(num == 0, 0.0, num / den)))
 
 
 def tonemap(x: FloatArray, *, exposure: float = 0.0) -> FloatArray:
@@ -72,7 +81,9 @@ def tonemap(x: FloatArray, *, exposure: float = 0.0) -> FloatArray:
     >>> np.round(tonemap(np.array([0.18]), exposure=1.0), 4)        # one stop brighter
     array([0.6343])
     """
-    v = np.clip(np.asarray(x, dtype=np.float64) * 2.0**exposure, 0.0, 1.0)
+    exposure = _checks.real("exposure", exposure)
+    with np.errstate(over="ignore"):  # 2**1023 already saturates every positive float
+        v = np.clip(np.asarray(x, dtype=np.float64) * 2.0 ** min(exposure, 1023.0), 0.0, 1.0)
     return np.where(v <= 0.0031308, 12.92 * v, 1.055 * np.power(v, 1 / 2.4) - 0.055)
 
 
@@ -89,11 +100,14 @@ def psnr(x: FloatArray, reference: FloatArray, *, peak: float | None = None) -> 
     inf
     """
     a, b = _pair(x, reference)
-    top = float(np.max(np.abs(b))) if peak is None else float(peak)
-    err = float(np.mean((a - b) ** 2))
+    peak = _checks.real("peak", peak, above=0, none=True)
+    top = float(np.max(np.abs(b))) if peak is None else peak
+    with np.errstate(over="ignore"):
+        err = float(np.mean((a - b) ** 2))
     if err == 0:
         return float("inf")
-    return 10.0 * np.log10(top * top / err) if top > 0 else float("-inf")
+    # In logarithms: top * top and the error overflow for values near 1e300.
+    return 20.0 * np.log10(top) - 10.0 * np.log10(err) if top > 0 else float("-inf")
 
 
 def ssim(x: FloatArray, reference: FloatArray, *, exposure: float = 0.0, sigma: float = 1.5) -> float:
@@ -114,6 +128,7 @@ def ssim(x: FloatArray, reference: FloatArray, *, exposure: float = 0.0, sigma: 
     True
     """
     a, b = _pair(x, reference)
+    sigma = _checks.real("sigma", sigma, above=0, maximum=1e4)
     a, b = tonemap(a, exposure=exposure), tonemap(b, exposure=exposure)
     if a.ndim == 2:
         a, b = a[..., None], b[..., None]

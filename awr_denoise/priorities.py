@@ -26,6 +26,7 @@ from functools import lru_cache
 import numpy as np
 from scipy import ndimage
 
+from . import _checks
 from ._typing import FloatArray
 from .buffers import SampleBuffer
 from .domains import Domain
@@ -110,7 +111,7 @@ def coefficient_priorities(
     >>> [round(float(np.median(p)), 2) for p in priorities]
     [0.1, 0.45, 2.26]
     """
-    mean_y, var_y, _ = plane if plane is not None else error_plane(buffer, domain)
+    (mean_y, var_y, _), c = _normalised(plane if plane is not None else error_plane(buffer, domain))
     ops = operators or wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     coeffs = forward(mean_y, wavelet=ops.wavelet, levels=ops.levels, boundary=ops.boundary)
     variances = coefficient_variance(var_y, operators=ops)
@@ -122,7 +123,22 @@ def coefficient_priorities(
         detail_energy = sum(np.maximum(0.0, coeffs[j][b] ** 2 - (_SIGNIFICANCE**2) * variances[j][b])
                             for b in range(3))
         priorities.append(4.0**k * (scale_variance - detail_energy))
+    if c != 1.0:
+        with np.errstate(over="ignore"):  # Inf: a priority beyond float64 (means near 1e300)
+            priorities = [p * c * c for p in priorities]
     return priorities
+
+
+def _normalised(plane: tuple[FloatArray, FloatArray, FloatArray]) -> tuple[tuple[FloatArray, FloatArray, FloatArray],
+                                                                          float]:
+    """The plane divided by a power of two (exact) when squaring its values would overflow."""
+    mean_y, var_y, s2 = plane
+    top = max(float(np.abs(mean_y).max(initial=0.0)), float(np.sqrt(var_y.max(initial=0.0))),
+              float(np.sqrt(s2.max(initial=0.0))))
+    if not top > 2.0**500:
+        return plane, 1.0
+    c = float(np.ldexp(1.0, int(np.frexp(top)[1])))
+    return (mean_y / c, var_y / c / c, s2 / c / c), c
 
 
 @lru_cache(maxsize=64)
@@ -196,12 +212,15 @@ def sampling_density(
     >>> int(np.argmax(row)), bool(row[:8].mean() > row[24:].mean())
     (14, True)
     """
+    level_weight = _checks.real("level_weight", level_weight, minimum=0)
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     plane = error_plane(buffer, domain)
     # The running-sum filter can leave -1e-17-sized residues next to large values: clip them.
     s2_pooled = np.maximum(ndimage.uniform_filter(plane[2], 3, mode="nearest"), 0.0)
     if level_weight == 0:
         return np.sqrt(s2_pooled)
-    prio = coefficient_priorities(buffer, domain=domain, operators=ops, plane=plane)
+    # Levels do not change when the plane is scaled: normalised, the priorities cannot overflow.
+    prio = coefficient_priorities(buffer, domain=domain, operators=ops, plane=_normalised(plane)[0])
     level = pixel_levels(prio, ops)
-    return np.sqrt(s2_pooled) * 2.0 ** (-level_weight * level)
+    with np.errstate(under="ignore"):  # a large level_weight leaves coarse levels nothing
+        return np.sqrt(s2_pooled) * 2.0 ** (-level_weight * level)

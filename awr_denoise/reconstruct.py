@@ -18,6 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from . import _checks
 from ._typing import FloatArray
 from .buffers import SampleBuffer
 from .channels import luminance_weights
@@ -40,6 +41,8 @@ DEFAULT_C_S = 1.0
 
 DEFAULT_DOMAIN = "log"
 """Default thresholding domain; chosen by measurement (docs/reconstruction.md)."""
+
+_MAX_PROBES = 100_000  # each probe is a transform pair per channel; more is never meant
 
 DEFAULT_PIXEL_CLAMP = 2.5
 """Default pixel confidence clamp in standard errors; chosen by measurement (docs/reconstruction.md)."""
@@ -99,11 +102,7 @@ class Reconstruction:
 
 
 def _check_c_s(c_s: float) -> float:
-    if isinstance(c_s, bool) or not isinstance(c_s, (int, float, np.floating, np.integer)):
-        raise TypeError(f"c_s: expected a number, got {c_s!r}")
-    if not (np.isfinite(c_s) and c_s >= 0):
-        raise ValueError(f"c_s: must be a finite number >= 0, got {c_s!r}")
-    return float(c_s)
+    return _checks.real("c_s", c_s, minimum=0)  # type: ignore[return-value]
 
 
 def _soft(coeff: FloatArray, threshold: FloatArray) -> FloatArray:
@@ -172,7 +171,8 @@ def _output_variance(var_y: FloatArray, factors: list, ops, probes: int, seed: i
         shrunk = [coeffs[0]] + [tuple(coeffs[lv][b] * factors[lv][b] for b in range(3))
                                 for lv in range(1, len(coeffs))]
         out = inverse(shrunk, ops.shape, wavelet=ops.wavelet, boundary=ops.boundary)
-        acc += out * out
+        with np.errstate(over="ignore"):  # Inf: an output variance beyond float64 (means near 1e300)
+            acc += out * out
     return acc / probes
 
 
@@ -268,12 +268,11 @@ def reconstruct_detailed(
     if mode not in MODES:
         raise ValueError(f"mode: {mode!r} is not one of {', '.join(MODES)}")
     c_s = _check_c_s(c_s)
-    if pixel_clamp is not None and not (isinstance(pixel_clamp, (int, float, np.floating, np.integer))
-                                        and not isinstance(pixel_clamp, bool) and pixel_clamp >= 0
-                                        and np.isfinite(pixel_clamp)):
-        raise ValueError(f"pixel_clamp: must be None or a finite number >= 0, got {pixel_clamp!r}")
-    if isinstance(variance_probes, bool) or not isinstance(variance_probes, (int, np.integer)) or variance_probes < 0:
+    pixel_clamp = _checks.real("pixel_clamp", pixel_clamp, minimum=0, none=True)
+    if isinstance(variance_probes, (float, np.floating)):
         raise ValueError(f"variance_probes: must be an integer >= 0, got {variance_probes!r}")
+    variance_probes = _checks.whole("variance_probes", variance_probes, minimum=0, maximum=_MAX_PROBES)
+    seed = _checks.seed("seed", seed)
     prepared = prepare(buffer, domain)
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     mean, bound, y, var_y = prepared.mean, prepared.bound, prepared.y, prepared.variance_y

@@ -18,6 +18,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from . import _checks
 from ._typing import CountArray, FloatArray, Shape2D
 from .buffers import SampleBuffer
 
@@ -71,7 +72,8 @@ class SampleRequest:
             if a.ndim != 2:
                 raise ValueError(f"{name}: expected shape (H, W), got {a.shape}")
             if a.dtype.kind not in "iu":
-                if a.dtype.kind == "f" and np.isfinite(a).all() and (a == np.round(a)).all():
+                if (a.dtype.kind == "f" and np.isfinite(a).all() and (a == np.round(a)).all()
+                        and not (np.abs(a) > 2**62).any()):
                     pass
                 else:
                     raise TypeError(f"{name}: expected whole numbers, got dtype {a.dtype}")
@@ -87,6 +89,8 @@ class SampleRequest:
         first.flags.writeable = False
         object.__setattr__(self, "counts", counts)
         object.__setattr__(self, "first_index", first)
+        object.__setattr__(self, "round", _checks.whole("round", self.round, minimum=0, maximum=2**31 - 1))
+        object.__setattr__(self, "sampler_id", _checks.whole("sampler_id", self.sampler_id, minimum=0))
 
     @classmethod
     def uniform(cls, shape: Shape2D, spp: int, *, first_index: int = 0, round: int = 0) -> SampleRequest:
@@ -99,8 +103,11 @@ class SampleRequest:
         >>> request.total, request.counts.tolist(), request.first_index.tolist()
         (12, [[3, 3], [3, 3]], [[8, 8], [8, 8]])
         """
-        counts = np.full(shape, int(spp), np.int64)
-        return cls(counts, np.full(shape, int(first_index), np.int64), round)
+        shape = _checks.shape2d("shape", shape, minimum=0)
+        spp = _checks.whole("spp", spp, minimum=0, maximum=2**62)
+        first_index = _checks.whole("first_index", first_index, minimum=0, maximum=2**62)
+        counts = np.full(shape, spp, np.int64)
+        return cls(counts, np.full(shape, first_index, np.int64), round)
 
     @property
     def shape(self) -> Shape2D:

@@ -29,8 +29,9 @@ import numpy as np
 from scipy import ndimage
 from tqdm.auto import tqdm
 
+from . import _checks
 from ._typing import CountArray, FloatArray, Shape2D
-from .allocation import allocate
+from .allocation import MAX_BUDGET, allocate
 from .buffers import SampleBuffer
 from .domains import Domain
 from .errors import StaleRequestError
@@ -102,19 +103,18 @@ class Sampler:
     def __init__(self, shape: Shape2D, *, channels: int | tuple[str, ...] = 3, initial_spp: int = DEFAULT_INITIAL_SPP,
                  seed: int = 0, spp_min: int | None = None, spp_max: int | None = None,
                  round_spp: float | None = None, round_growth: float = DEFAULT_ROUND_GROWTH) -> None:
-        h, w = (int(s) for s in shape)
-        if h <= 0 or w <= 0:
-            raise ValueError(f"shape: empty image {tuple(shape)}")
-        if int(initial_spp) < 0:
-            raise ValueError(f"initial_spp: must be >= 0, got {initial_spp}")
-        if spp_max is not None and int(spp_max) < 1:
-            raise ValueError(f"spp_max: must be >= 1, got {spp_max}")
+        h, w = _checks.shape2d("shape", shape)
+        initial_spp = _checks.whole("initial_spp", initial_spp, minimum=0, maximum=MAX_BUDGET)
+        spp_min = _checks.whole("spp_min", spp_min, minimum=0, maximum=MAX_BUDGET, none=True)
+        spp_max = _checks.whole("spp_max", spp_max, minimum=1, maximum=MAX_BUDGET, none=True)
         if spp_min is not None and spp_max is not None and int(spp_min) > int(spp_max):
             raise ValueError(f"spp_min: {spp_min} exceeds spp_max {spp_max}")
-        if round_spp is not None and not round_spp > 0:
-            raise ValueError(f"round_spp: must be > 0, got {round_spp}")
-        if not (np.isfinite(round_growth) and round_growth > 0):
-            raise ValueError(f"round_growth: must be a finite number > 0, got {round_growth}")
+        round_spp = _checks.real("round_spp", round_spp, above=0, maximum=MAX_BUDGET, none=True)
+        round_growth = _checks.real("round_growth", round_growth, above=0, maximum=1e6)
+        seed = _checks.seed("seed", seed)
+        if (h * w) * max(initial_spp, round_spp or 0) > MAX_BUDGET:
+            raise ValueError(f"shape: {h}x{w} pixels at {max(initial_spp, round_spp or 0):g} spp exceed "
+                             f"the {MAX_BUDGET} samples a round may hold")
         self._shape = (h, w)
         self.initial_spp = int(initial_spp)
         self.spp_min = self.initial_spp if spp_min is None else int(spp_min)
@@ -156,7 +156,7 @@ class Sampler:
         sampler._issued = np.array(buffer.count if issued is None else issued, dtype=np.int64)
         if sampler._issued.shape != buffer.shape or (sampler._issued < buffer.count).any():
             raise ValueError("issued: must have the buffer's shape and be >= its counts")
-        sampler._round = int(round)
+        sampler._round = _checks.whole("round", round, minimum=0, maximum=2**31 - 1)
         return sampler
 
     @property
@@ -260,8 +260,7 @@ class Sampler:
         if budget is not None:
             if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)):
                 raise TypeError(f"budget: expected an integer, got {budget!r}")
-            if budget < 0:
-                raise ValueError(f"budget: must be >= 0, got {budget}")
+            _checks.whole("budget", budget, minimum=0, maximum=MAX_BUDGET)
         if self._pending is not None:
             if budget is not None and int(budget) != self._pending.total:
                 raise StaleRequestError(
@@ -373,7 +372,8 @@ class Sampler:
         (1280, [1024, 256])
         """
         pixels = self._shape[0] * self._shape[1]
-        goal = int(round(float(total_spp) * pixels))
+        total_spp = _checks.real("total_spp", total_spp, minimum=0, maximum=MAX_BUDGET / pixels)
+        goal = int(round(total_spp * pixels))
         if goal < self._issued.sum():
             raise ValueError(f"total_spp: {total_spp} is below the {self._issued.sum() / pixels:.3g} spp already taken")
         bar = None
@@ -511,9 +511,7 @@ class AdaptiveSampler(Sampler):
         self.wavelet = wavelet
         self.levels = levels
         self.domain = domain
-        if not (np.isfinite(level_weight) and level_weight >= 0):
-            raise ValueError(f"level_weight: must be a finite number >= 0, got {level_weight}")
-        self.level_weight = float(level_weight)
+        self.level_weight = _checks.real("level_weight", level_weight, minimum=0)
         self.uniform_fraction = _check_fraction(uniform_fraction)
 
     def density(self) -> FloatArray:
@@ -530,9 +528,7 @@ SAMPLERS: dict[str, type[Sampler]] = {cls.strategy: cls for cls in (AdaptiveSamp
 
 
 def _check_fraction(value: float) -> float:
-    if not (np.isfinite(value) and 0.0 <= value <= 1.0):
-        raise ValueError(f"uniform_fraction: must be within [0, 1], got {value}")
-    return float(value)
+    return _checks.real("uniform_fraction", value, minimum=0.0, maximum=1.0)  # type: ignore[return-value]
 
 
 def _mixed(density, budget, current, capacity, rng, uniform_fraction):

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import _checks
 from ._typing import FloatArray, Shape2D
 from .buffers import SampleBuffer
 from .requests import SampleRequest
@@ -53,6 +54,7 @@ def hash_uniform(seed: int, pixel: np.ndarray, index: np.ndarray, dimension: int
     >>> bool(0 <= u.min() and u.max() < 1), round(float(u.mean()), 1)
     (True, 0.5)
     """
+    seed = _checks.seed("seed", seed)
     with np.errstate(over="ignore"):
         key = _mix(np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(dimension + 1))
         h = _mix(pixel.astype(np.uint64) ^ key)
@@ -109,7 +111,7 @@ class SyntheticScene:
         ((8, 8, 3), array([0.8 , 0.72, 0.61]), array([0.1562, 0.1406, 0.1594]))
         """
         h, w = self.shape
-        s = supersampling
+        s = _checks.whole("supersampling", supersampling, minimum=1, maximum=64)
         offsets = (np.arange(s) + 0.5) / s
         acc = np.zeros((h, w, 3))
         rows, cols = np.mgrid[0:h, 0:w]
@@ -144,7 +146,7 @@ class SyntheticRenderer:
 
     def __init__(self, scene: SyntheticScene, *, seed: int = 0) -> None:
         self.scene = scene
-        self.seed = int(seed)
+        self.seed = _checks.seed("seed", seed)
         self.stats: dict[str, float] = {"samples": 0, "nonfinite": 0, "seconds": 0.0}
 
     @property
@@ -335,7 +337,7 @@ def make_scene(name: str, shape: Shape2D = (64, 64)) -> SyntheticScene:
     """
     if name not in SCENES:
         raise ValueError(f"name: {name!r} is not one of {', '.join(sorted(SCENES))}")
-    return SCENES[name](tuple(int(s) for s in shape))
+    return SCENES[name](_checks.shape2d("shape", shape))
 
 
 def create_renderer(scene: str, *, shape: Shape2D | None = None, seed: int = 0) -> SyntheticRenderer:

@@ -24,6 +24,7 @@ import numpy as np
 import pywt
 from scipy import sparse
 
+from . import _checks
 from ._typing import FloatArray, Shape2D
 
 __all__ = [
@@ -63,7 +64,7 @@ def max_levels(shape: Shape2D) -> int:
     >>> max_levels((480, 640)), max_levels((1, 5))
     (8, 1)
     """
-    shortest = max(1, min(int(shape[0]), int(shape[1])))
+    shortest = max(1, min(_checks.shape2d("shape", shape, minimum=0)))
     return max(1, int(math.floor(math.log2(shortest))))
 
 
@@ -80,7 +81,7 @@ def default_levels(shape: Shape2D) -> int:
     >>> default_levels((480, 640)), default_levels((64, 64)), default_levels((16, 16))
     (5, 3, 1)
     """
-    shortest = max(1, min(int(shape[0]), int(shape[1])))
+    shortest = max(1, min(_checks.shape2d("shape", shape, minimum=0)))
     return max(1, min(_MAX_DEFAULT_LEVELS, int(math.floor(math.log2(shortest))) - 3))
 
 
@@ -96,6 +97,7 @@ def _check_levels(levels: int | None, shape: Shape2D) -> int:
 
 
 def _check_wavelet(wavelet: str) -> pywt.Wavelet:
+    _checks.name("wavelet", wavelet)
     try:
         return pywt.Wavelet(wavelet)
     except ValueError:
@@ -104,7 +106,7 @@ def _check_wavelet(wavelet: str) -> pywt.Wavelet:
 
 
 def _check_boundary(boundary: str) -> str:
-    if boundary not in pywt.Modes.modes:
+    if not isinstance(boundary, str) or boundary not in pywt.Modes.modes:
         raise ValueError(f"boundary: {boundary!r} is not one of {', '.join(sorted(pywt.Modes.modes))}")
     return boundary
 
@@ -245,6 +247,14 @@ def forward(image: FloatArray, *, wavelet: str = DEFAULT_WAVELET, levels: int | 
     """
     _check_wavelet(wavelet)
     _check_boundary(boundary)
+    image = np.asarray(image)
+    if image.dtype.kind not in "fiu":
+        raise TypeError(f"image: expected a numeric array, got dtype {image.dtype}")
+    if image.ndim not in (2, 3):
+        raise ValueError(f"image: expected shape (H, W) or (H, W, C), got {image.shape}")
+    bad = int(np.count_nonzero(~np.isfinite(image)))
+    if bad:
+        raise ValueError(f"image: {bad} value(s) are NaN or Inf")
     lv = _check_levels(levels, image.shape[:2])
     with warnings.catch_warnings():
         # Levels past pywt's "useful" depth only mean every coefficient touches the boundary;

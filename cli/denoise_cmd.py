@@ -140,6 +140,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("no input: give DUMP.exr (or --hdr DUMP.exr)")
     if args.maxerror is not None and not args.ref:
         raise UsageError("--maxerror needs --ref REF.exr")
+    if args.frames is not None and args.preview and "#" not in Path(args.preview).name:
+        raise UsageError(f"--preview: {args.preview}: with --frames the preview needs a #### placeholder")
     jobs = frame_jobs([source] + ([args.preview] if args.preview else []), args.output, args.frames)
     numbers = parse_frames(args.frames) if args.frames is not None else [None]
     plan = PathPlan(overwrite=args.overwrite)

@@ -104,7 +104,7 @@ class PathPlan:
                 seen_inodes[(st.st_dev, st.st_ino)] = entry
             try:
                 check_writable(entry.path, overwrite=self.overwrite)
-            except FileExistsError:
-                raise
+            except FileExistsError as exc:
+                raise FileExistsError(f"{entry.option}: {exc}") from None
             except (OSError, ValueError) as exc:
                 raise UsageError(f"{entry.option}: {exc}") from None

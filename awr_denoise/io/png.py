@@ -6,6 +6,8 @@ writer otherwise, so previews never need an optional dependency.
 
 from __future__ import annotations
 
+import math
+import numbers
 import os
 import struct
 import zlib
@@ -34,9 +36,13 @@ def tonemap_srgb(image: FloatArray, *, exposure: float = 0.0) -> np.ndarray:
         a = a[..., None]
     if a.ndim != 3 or a.shape[2] not in (1, 3, 4):
         raise ValueError(f"image: expected (H, W), (H, W, 1), (H, W, 3) or (H, W, 4), got {np.shape(image)}")
-    if not np.isfinite(exposure):
+    if isinstance(exposure, (bool, np.bool_)) or not isinstance(exposure, numbers.Real):
+        raise TypeError(f"exposure: expected a number, got {exposure!r}")
+    if not math.isfinite(float(exposure)):
         raise ValueError(f"exposure: must be finite, got {exposure}")
-    x = np.nan_to_num(a * 2.0 ** float(exposure), nan=0.0, posinf=1.0, neginf=0.0)
+    # 2**1023 already saturates every positive float; beyond it the scale itself would overflow.
+    with np.errstate(over="ignore"):
+        x = np.nan_to_num(a * 2.0 ** min(float(exposure), 1023.0), nan=0.0, posinf=1.0, neginf=0.0)
     x = np.clip(x, 0.0, 1.0)
     encoded = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
     if a.shape[2] == 4:  # alpha is linear coverage, not a colour

@@ -1,0 +1,108 @@
+"""Argument checks shared by the public functions: one line each, messages that name the parameter.
+
+A bad value raises ``TypeError`` (not a number, a bool where a number is expected, a number
+where a name is expected) or ``ValueError`` (NaN, Inf, out of range, not a whole number), and
+the message starts with the parameter's name, as everywhere in the library.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from typing import Any
+
+import numpy as np
+
+__all__ = ["MAX_SEED", "MAX_SIDE", "real", "whole", "flag", "seed", "shape2d", "name"]
+
+MAX_SEED = 2**63 - 1
+"""Seeds are whole numbers in 0..2**63-1 (they are hashed as 64-bit integers)."""
+
+MAX_SIDE = 2**31 - 1
+"""Largest image side (EXR windows are 32-bit)."""
+
+
+def _number(param: str, value: Any) -> numbers.Real:
+    if isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{param}: expected a number, got the bool {value!r}")
+    if not isinstance(value, numbers.Real):
+        raise TypeError(f"{param}: expected a number, got {type(value).__name__} {value!r}")
+    return value
+
+
+def _fmt(bound: float) -> str:
+    return str(bound) if isinstance(bound, int) else f"{bound:.15g}"
+
+
+def _bounds(param: str, value: float, minimum: float | None, maximum: float | None, above: float | None) -> None:
+    if above is not None and not value > above:
+        raise ValueError(f"{param}: must be > {_fmt(above)}, got {value!r}")
+    if minimum is not None and value < minimum:
+        raise ValueError(f"{param}: must be >= {_fmt(minimum)}, got {value!r}")
+    if maximum is not None and value > maximum:
+        raise ValueError(f"{param}: must be <= {_fmt(maximum)}, got {value!r}")
+
+
+def real(param: str, value: Any, *, minimum: float | None = None, maximum: float | None = None,
+         above: float | None = None, none: bool = False) -> float | None:
+    """``value`` as a finite float within the bounds (``above`` is an open lower bound)."""
+    if value is None and none:
+        return None
+    number = _number(param, value)
+    try:
+        result = float(number)
+    except OverflowError:
+        raise ValueError(f"{param}: {value!r} is beyond the float range") from None
+    if not math.isfinite(result):
+        raise ValueError(f"{param}: must be a finite number, got {value!r}")
+    _bounds(param, result, minimum, maximum, above)
+    return result
+
+
+def whole(param: str, value: Any, *, minimum: int | None = None, maximum: int | None = None,
+          none: bool = False) -> int | None:
+    """``value`` as an int within the bounds; floats are accepted only when whole (4.0)."""
+    if value is None and none:
+        return None
+    number = _number(param, value)
+    if isinstance(number, numbers.Integral):
+        result = int(number)
+    else:
+        as_float = float(number)
+        if not math.isfinite(as_float) or as_float != math.floor(as_float):
+            raise ValueError(f"{param}: must be a whole number, got {value!r}")
+        result = int(as_float)
+    _bounds(param, result, minimum, maximum, None)
+    return result
+
+
+def flag(param: str, value: Any) -> bool:
+    """``value`` as a bool; anything but True/False (a string, a number) is refused."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{param}: expected True or False, got {type(value).__name__} {value!r}")
+    return bool(value)
+
+
+def seed(param: str, value: Any) -> int:
+    """A seed: a whole number in 0..:data:`MAX_SEED`."""
+    return whole(param, value, minimum=0, maximum=MAX_SEED)  # type: ignore[return-value]
+
+
+def shape2d(param: str, value: Any, *, minimum: int = 1) -> tuple[int, int]:
+    """An (H, W) image shape of whole numbers in ``minimum``..:data:`MAX_SIDE`."""
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 2:
+        raise TypeError(f"{param}: expected (height, width), got {value!r}")
+    h, w = (whole(param, s, maximum=MAX_SIDE) for s in value)
+    if min(h, w) < minimum:  # type: ignore[type-var]
+        raise ValueError(f"{param}: empty image {(h, w)}" if min(h, w) >= 0 else
+                         f"{param}: sides must be >= {minimum}, got {(h, w)}")
+    return h, w  # type: ignore[return-value]
+
+
+def name(param: str, value: Any, choices: tuple[str, ...] | None = None) -> str:
+    """A name (a str), one of ``choices`` when given."""
+    if not isinstance(value, str):
+        raise TypeError(f"{param}: expected a name, got {type(value).__name__} {value!r}")
+    if choices is not None and value not in choices:
+        raise ValueError(f"{param}: {value!r} is not one of {', '.join(choices)}")
+    return value
