@@ -21,6 +21,9 @@ MAX_SEED = 2**63 - 1
 MAX_SIDE = 2**31 - 1
 """Largest image side (EXR windows are 32-bit)."""
 
+MAX_LEVELS = 31
+"""Deepest wavelet decomposition of any image (each level halves a side of at most 2**31)."""
+
 
 def _number(param: str, value: Any) -> numbers.Real:
     if isinstance(value, (bool, np.bool_)):

@@ -529,6 +529,8 @@ class SampleBuffer:
         >>> buf.crop(slice(1, 3), slice(0, 2)).count.tolist()
         [[4, 5], [8, 9]]
         """
+        if not (isinstance(rows, slice) and isinstance(cols, slice)):
+            raise TypeError(f"rows, cols: expected slices, got {rows!r}, {cols!r}")
         return SampleBuffer(self.count[rows, cols], self.mean[rows, cols], self.variance[rows, cols],
                             self.channels, self.variance_known[rows, cols], 0)
 

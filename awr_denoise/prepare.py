@@ -22,6 +22,7 @@ from functools import cached_property
 import numpy as np
 from scipy import ndimage
 
+from . import _checks
 from ._typing import FloatArray
 from .buffers import SampleBuffer
 from .channels import luminance_weights
@@ -167,6 +168,7 @@ def prepare(buffer: SampleBuffer, domain: str | Domain = "log", *, luminance: bo
     if not isinstance(buffer, SampleBuffer):
         raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
     dom = resolve_domain(domain)
+    _checks.flag("luminance", luminance)
     n = np.maximum(buffer.count, 1).astype(np.float64)
     if luminance:
         mean = filled_mean(buffer) @ luminance_weights(buffer.channels)

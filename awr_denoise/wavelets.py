@@ -204,7 +204,7 @@ def wavelet_operators(shape: Shape2D, *, wavelet: str = DEFAULT_WAVELET, levels:
     """
     _check_wavelet(wavelet)
     _check_boundary(boundary)
-    h, w = int(shape[0]), int(shape[1])
+    h, w = _checks.shape2d("shape", shape)
     lv = _check_levels(levels, (h, w))
     return WaveletOperators((h, w), wavelet, boundary, lv,
                             _axis_operators(h, wavelet, boundary, lv),
@@ -275,6 +275,7 @@ def inverse(coeffs: list, shape: Shape2D, *, wavelet: str = DEFAULT_WAVELET, bou
     >>> restored.shape, bool(np.allclose(restored, image))
     ((13, 17, 3), True)
     """
+    shape = _checks.shape2d("shape", shape)
     out = pywt.waverec2(coeffs, wavelet, mode=boundary, axes=(0, 1))
     return out[: shape[0], : shape[1]]
 
@@ -341,7 +342,13 @@ def coefficient_variance(variance_of_mean: FloatArray, *, wavelet: str = DEFAULT
     >>> [round(float(band[8, 8]), 4) for band in var[1]]
     [1.1117, 1.1117, 1.2513]
     """
-    v = np.asarray(variance_of_mean, dtype=np.float64)
+    v = np.asarray(variance_of_mean)
+    if v.dtype.kind not in "fiu":
+        raise TypeError(f"variance_of_mean: expected a numeric array, got dtype {v.dtype}")
+    v = v.astype(np.float64)
+    if not (np.isfinite(v) & (v >= 0)).all():
+        raise ValueError(f"variance_of_mean: {int((~(np.isfinite(v) & (v >= 0))).sum())} value(s) are NaN, Inf "
+                         "or negative")
     ops = operators or wavelet_operators(v.shape[:2], wavelet=wavelet, levels=levels, boundary=boundary)
     if ops.shape != v.shape[:2]:
         raise ValueError(f"operators: built for shape {ops.shape}, variance has {v.shape[:2]}")

@@ -13,10 +13,13 @@ import concurrent.futures as cf
 import contextlib
 import multiprocessing
 import os
+import signal
 from collections.abc import Callable, Iterator
 from concurrent.futures import Executor
 from pathlib import Path
 from typing import Any
+
+from .. import _checks
 
 __all__ = ["EXECUTOR_KINDS", "DASK_INSTALL_HINT", "get_executor", "executor_or_threads", "executor_width",
            "submit", "default_workers", "dask_client"]
@@ -26,6 +29,12 @@ EXECUTOR_KINDS = ("threads", "processes", "dask")
 
 DASK_INSTALL_HINT = 'pip install "awr-denoise[dask]"'
 """How to install the optional Dask dependency."""
+
+
+def _leave_interrupts_to_the_parent() -> None:
+    """Worker processes ignore Ctrl-C: the terminal sends it to the whole process group, and the
+    parent, which owns the pool, cancels the work and cleans up (no traceback per worker)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def default_workers() -> int:
@@ -113,8 +122,7 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
         kind = "dask" if scheduler is not None else "threads"
     if kind not in EXECUTOR_KINDS:
         raise ValueError(f"kind: {kind!r} is not one of {', '.join(EXECUTOR_KINDS)}")
-    if workers is not None and (isinstance(workers, bool) or int(workers) < 1):
-        raise ValueError(f"workers: must be a whole number >= 1, got {workers!r}")
+    workers = _checks.whole("workers", workers, minimum=1, maximum=1 << 16, none=True)
     if scheduler is not None and kind != "dask":
         raise ValueError(f"scheduler: a scheduler address needs kind='dask', got kind={kind!r}")
     n_workers = default_workers() if workers is None else int(workers)
@@ -123,7 +131,8 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
             yield pool
         return
     if kind == "processes":
-        with cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        with cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=multiprocessing.get_context("spawn"),
+                                    initializer=_leave_interrupts_to_the_parent) as pool:
             yield pool
         return
     distributed = _import_distributed()

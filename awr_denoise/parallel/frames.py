@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import _checks
 from ..errors import AWRError, InputFileError
 from ..io import read_image, read_sample_buffer, write_image, write_preview
 from ..io.atomic import check_writable
@@ -118,6 +119,7 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
     FrameResult
     """
     source = os.fspath(source)
+    _checks.real("exposure", exposure)
     buffer = read_sample_buffer(source, **(read_options or {}))
     windows = read_windows(source)  # the image keeps the dump's data and display windows
     result = reconstruct_detailed(buffer, variance_probes=0, **reconstruct_options)
@@ -214,6 +216,7 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
     ValueError
         Mismatched lengths, an output listed twice, or an output that is also an input.
     """
+    _checks.real("exposure", exposure)
     sources = [os.fspath(p) for p in inputs]
     targets = [os.fspath(p) for p in outputs]
     shown = None if previews is None else [os.fspath(p) for p in previews]

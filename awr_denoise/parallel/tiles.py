@@ -17,12 +17,13 @@ from typing import Any
 import numpy as np
 import pywt
 
+from .. import _checks
 from .._typing import FloatArray, Shape2D
 from ..buffers import SampleBuffer
 from ..domains import Domain, resolve_domain
 from ..prepare import prepare
 from ..reconstruct import DEFAULT_DOMAIN, reconstruct
-from ..wavelets import default_levels, max_levels
+from ..wavelets import WAVELET_NAMES, default_levels, max_levels
 from .executors import dask_client, executor_or_threads, executor_width, submit
 
 __all__ = ["tile_grid", "halo_width", "reconstruct_tiled"]
@@ -38,11 +39,12 @@ def tile_grid(shape: Shape2D, tile: int | tuple[int, int]) -> list[tuple[slice, 
     tile
         Tile side, or (height, width); the last row and column of tiles may be smaller.
     """
-    th, tw = (tile, tile) if isinstance(tile, (int, np.integer)) else tile
-    th, tw = int(th), int(tw)
-    if th < 1 or tw < 1:
-        raise ValueError(f"tile: must be >= 1 pixel, got {tile!r}")
-    h, w = int(shape[0]), int(shape[1])
+    if isinstance(tile, (int, np.integer)) and not isinstance(tile, (bool, np.bool_)):
+        tile = (tile, tile)
+    if isinstance(tile, (str, bytes)) or not hasattr(tile, "__len__") or len(tile) != 2:
+        raise TypeError(f"tile: expected a side in pixels or (height, width), got {tile!r}")
+    th, tw = (_checks.whole("tile", t, minimum=1) for t in tile)
+    h, w = _checks.shape2d("shape", shape, minimum=0)
     return [(slice(r, min(r + th, h)), slice(c, min(c + tw, w)))
             for r in range(0, h, th) for c in range(0, w, tw)]
 
@@ -74,9 +76,10 @@ def halo_width(wavelet: str = "bior4.4", levels: int = 5) -> int:
     >>> halo_width("bior4.4", 5), halo_width("haar", 3), halo_width("db2", 2)
     (217, 7, 9)
     """
-    if isinstance(levels, bool) or int(levels) < 1:
-        raise ValueError(f"levels: must be >= 1, got {levels!r}")
-    return _transform_reach(pywt.Wavelet(wavelet).name, int(levels))
+    levels = _checks.whole("levels", levels, minimum=1, maximum=_checks.MAX_LEVELS)
+    if _checks.name("wavelet", wavelet) not in WAVELET_NAMES:
+        raise ValueError(f"wavelet: {wavelet!r} is not a discrete wavelet PyWavelets knows")
+    return _transform_reach(pywt.Wavelet(wavelet).name, levels)
 
 
 def _support_ends(nonzero: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -186,7 +189,7 @@ def reconstruct_tiled(buffer: SampleBuffer, *, tile: int | tuple[int, int] = 512
     if halo is None:
         # The robust domain's 3x3 median reads one pixel further than the transform does.
         halo = halo_width(wavelet, levels) + (1 if resolve_domain(domain).robust else 0)
-    halo = int(halo)
+    halo = _checks.whole("halo", halo, minimum=0)
     if halo < 0:
         raise ValueError(f"halo: must be >= 0, got {halo}")
     prepared = prepare(buffer, domain)  # fills, pools and fixes the domain's scale for the whole frame
