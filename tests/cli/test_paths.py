@@ -1,0 +1,254 @@
+"""Paths and special files (cli/paths.py): no command writes over one of its inputs by any route,
+reads or writes a non-regular file, or writes one file twice.
+
+Every case runs the real command line in-process and checks the outcome the same way: exit 2,
+one ``awr: error:`` line naming the option, and the folder exactly as it was (no output, no
+temporary, inputs untouched, a FIFO still a FIFO).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import stat
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("OpenEXR")
+
+from awr_denoise.cli.main import main  # noqa: E402
+from awr_denoise.io import read_sample_dump, write_sample_buffer  # noqa: E402
+from cli_helpers import dump_buffer, one_error_line  # noqa: E402
+
+pytestmark = pytest.mark.exr
+
+
+@contextlib.contextmanager
+def _deadline(seconds: int = 20):
+    """Fail instead of hanging: opening a FIFO blocks until a writer comes."""
+    def expired(signum, frame):
+        raise TimeoutError("the command blocked (it opened a FIFO?)")
+    previous = signal.signal(signal.SIGALRM, expired)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def _refused(work, capsys, args, *needles):
+    before = work.state()
+    with _deadline():
+        status = main([str(a) for a in args])
+    err = capsys.readouterr().err
+    assert status == 2, err
+    line = one_error_line(err, *needles)
+    assert work.state() == before
+    return line
+
+
+# ------------------------------------------------------------------ an output that is an input
+
+GENERIC = ["--preset", "generic", "--color", "RGB", "--count", "sampleCount"]
+
+# (command line with {OUT} where an output goes, the input it is made to point at)
+OUTPUT_IS_INPUT = [
+    (["denoise", "d.exr", "-o", "{OUT}"], "d.exr"),
+    (["denoise", "d.exr", "-o", "o.exr", "--preview", "{OUT}"], "d.exr"),
+    (["denoise", "d.exr", "-o", "o.exr", "-r", "ref.exr", "--preview", "{OUT}"], "ref.exr"),
+    (["denoise", "d.exr", "-o", "{OUT}", "-r", "ref.exr"], "ref.exr"),
+    (["denoise", "d.exr", *GENERIC, "--variance", "b.exr:variance", "-o", "{OUT}"], "b.exr"),
+    (["denoise", "d.exr", "--preset", "generic", "--color", "b.exr:RGB", "--variance", "variance",
+      "--count", "sampleCount", "-o", "{OUT}"], "b.exr"),
+    (["denoise", "d.exr", "--preset", "generic", "--color", "RGB", "--variance", "variance",
+      "--count", "b.exr:sampleCount", "-o", "{OUT}"], "b.exr"),
+    (["denoise", "shot.####.exr", "--frames", "1-3", "-o", "{OUT}"], "shot.####.exr"),
+    (["plan", "d.exr", "-o", "{OUT}"], "d.exr"),
+    (["plan", "d.exr", *GENERIC, "--variance", "ref.exr:RGB", "--spp", "4", "-o", "{OUT}"], "ref.exr"),
+    (["merge", "d.exr", "b.exr", "-o", "{OUT}"], "d.exr"),
+    (["merge", "d.exr", "b.exr", "-o", "{OUT}"], "b.exr"),
+    (["merge", "d.exr", "b.exr", "--request", "req.exr", "-o", "{OUT}"], "req.exr"),
+    (["merge", "d.exr", "b.exr", *GENERIC, "--variance", "ref.exr:RGB", "-o", "{OUT}"], "ref.exr"),
+    (["diff", "ref.exr", "-r", "d.exr", "-o", "{OUT}"], "ref.exr"),
+    (["diff", "ref.exr", "-r", "d.exr", "-o", "{OUT}"], "d.exr"),
+]
+
+ROUTES = ["same", "spelled", "symlink", "hardlink"]
+
+
+def _route(work, victim: str, route: str) -> str:
+    if route == "same":
+        return victim
+    if route == "spelled":
+        (work / "sub").mkdir(exist_ok=True)
+        return f"sub/../{victim}"
+    if route == "symlink":
+        os.symlink(victim, work / "alias.exr")
+    else:
+        os.link(work / victim, work / "alias.exr")
+    return "alias.exr"
+
+
+# A link stands for one file, not a frame pattern: patterns go by the first two routes only.
+OUTPUT_IS_INPUT_CASES = [(t, v, r) for t, v in OUTPUT_IS_INPUT for r in ROUTES if "#" not in v or r in ROUTES[:2]]
+
+
+@pytest.mark.parametrize(("template", "victim", "route"), OUTPUT_IS_INPUT_CASES,
+                         ids=[f"{t[0]}-{v}-{r}-{i}" for i, (t, v, r) in enumerate(OUTPUT_IS_INPUT_CASES)])
+def test_an_output_that_is_an_input_is_refused(work, capsys, monkeypatch, template, victim, route):
+    monkeypatch.chdir(work.root)
+    out = _route(work, victim, route)
+    args = [out if a == "{OUT}" else a for a in template] + ["--overwrite"]
+    _refused(work, capsys, args, "is the input")
+
+
+# ------------------------------------------------------------------ outputs that are one file
+
+OUTPUTS_COLLIDE = [
+    (["denoise", "d.exr", "-o", "x.exr", "--preview", "x.exr"], "written twice"),
+    (["denoise", "d.exr", "-o", "x.exr", "--preview", "./x.exr"], "written twice"),
+    (["denoise", "shot.####.exr", "--frames", "1,1", "-o", "o.####.exr"], "written twice"),
+    (["denoise", "shot.####.exr", "--frames", "1-3", "-o", "o.####.exr", "--preview", "p.png"], "####"),
+    (["denoise", "shot.####.exr", "--frames", "1-3", "-o", "o.####.exr", "--preview", "o.####.exr"], "written twice"),
+    (["render", "--renderer", "synthetic", "edges", "--width", "8", "--height", "8", "-o", "r.exr",
+      "--image", "r.exr"], "written twice"),
+    (["render", "--renderer", "synthetic", "edges", "--width", "8", "--height", "8", "-o", "r.exr",
+      "--preview", "r.denoised.exr"], "written twice"),
+]
+
+
+@pytest.mark.parametrize(("args", "needle"), OUTPUTS_COLLIDE)
+def test_two_outputs_that_are_one_file_are_refused(work, capsys, monkeypatch, args, needle):
+    monkeypatch.chdir(work.root)
+    _refused(work, capsys, args + ["-q"], needle)
+
+
+def test_hard_linked_outputs_are_one_file(work, capsys, monkeypatch):
+    monkeypatch.chdir(work.root)
+    (work / "x.exr").write_bytes(b"old")
+    os.link(work / "x.exr", work / "y.png")
+    _refused(work, capsys, ["denoise", "d.exr", "-o", "x.exr", "--preview", "y.png", "--overwrite"],
+             "written twice")
+
+
+# ------------------------------------------------------------------ special files
+
+def _special(work, kind: str) -> str:
+    path = work / ("special.png" if kind != "directory" else "special.dir")
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "directory":
+        path.mkdir()
+    else:  # a private character device like /dev/null (root only): never the real one
+        try:
+            os.mknod(path, stat.S_IFCHR | 0o666, os.makedev(1, 3))
+        except PermissionError:
+            pytest.skip("creating a device node needs root")
+    return path.name
+
+
+KINDS = ["fifo", "directory", "device"]
+
+OUTPUT_OPTIONS = [
+    ["denoise", "d.exr", "-o", "{OUT}"],
+    ["denoise", "d.exr", "-o", "o.exr", "--preview", "{OUT}"],
+    ["plan", "d.exr", "-o", "{OUT}"],
+    ["merge", "d.exr", "b.exr", "-o", "{OUT}"],
+    ["diff", "ref.exr", "-r", "d.exr", "-o", "{OUT}"],
+    ["render", "--renderer", "synthetic", "edges", "--width", "8", "--height", "8", "--spp", "2", "-o", "{OUT}"],
+    ["render", "--renderer", "synthetic", "edges", "--width", "8", "--height", "8", "--spp", "2", "-o", "r.exr",
+     "--image", "{OUT}"],
+    ["render", "--renderer", "synthetic", "edges", "--width", "8", "--height", "8", "--spp", "2", "-o", "r.exr",
+     "--preview", "{OUT}"],
+]
+
+
+@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("template", OUTPUT_OPTIONS, ids=lambda t: f"{t[0]}-{t[t.index('{OUT}') - 1]}")
+def test_a_special_file_is_never_an_output_even_with_overwrite(work, capsys, monkeypatch, template, kind):
+    monkeypatch.chdir(work.root)
+    name = _special(work, kind)
+    mode = os.lstat(work / name).st_mode
+    args = [name if a == "{OUT}" else a for a in template] + ["--overwrite"]
+    _refused(work, capsys, args, "not a regular file")
+    assert os.lstat(work / name).st_mode == mode
+
+
+INPUT_OPTIONS = [
+    ["info", "{IN}"],
+    ["info", "{IN}", "--json"],
+    ["denoise", "{IN}", "-o", "o.exr"],
+    ["denoise", "--hdr", "{IN}", "-o", "o.exr"],
+    ["denoise", "d.exr", "-o", "o.exr", "-r", "{IN}"],
+    ["denoise", "d.exr", *GENERIC, "--variance", "{IN}:variance", "-o", "o.exr"],
+    ["plan", "{IN}", "-o", "p.exr"],
+    ["merge", "d.exr", "{IN}", "-o", "m.exr"],
+    ["merge", "d.exr", "b.exr", "--request", "{IN}", "-o", "m.exr"],
+    ["diff", "{IN}", "-r", "ref.exr"],
+    ["diff", "ref.exr", "-r", "{IN}"],
+]
+
+
+@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("template", INPUT_OPTIONS, ids=lambda t: "-".join(a for a in t if a != "-o")[:40])
+def test_a_special_file_is_refused_as_input_without_blocking(work, capsys, monkeypatch, template, kind):
+    monkeypatch.chdir(work.root)
+    os.rename(work / _special(work, kind), work / "special.exr")
+    name = "special.exr"
+    args = [a.replace("{IN}", name) for a in template]
+    line = _refused(work, capsys, args)
+    assert "not a regular file" in line or "is a directory" in line, line
+
+
+def test_a_missing_input_names_its_option(work, capsys, monkeypatch):
+    monkeypatch.chdir(work.root)
+    _refused(work, capsys, ["denoise", "d.exr", "-o", "o.exr", "-r", "missing.exr"], "-r/--ref", "missing.exr")
+    _refused(work, capsys, ["denoise", "shot.####.exr", "--frames", "1-4", "-o", "o.####.exr"],
+             "frame 4", "shot.0004.exr")
+    _refused(work, capsys, ["merge", "d.exr", "b.exr", "--request", "nope.exr", "-o", "m.exr"], "--request")
+
+
+def test_an_unwritable_folder_is_refused_before_any_work(work, capsys, monkeypatch):
+    monkeypatch.chdir(work.root)
+    _refused(work, capsys, ["denoise", "d.exr", "-o", "o.exr", "--preview", "nodir/p.png"], "--preview", "nodir")
+    _refused(work, capsys, ["denoise", "d.exr", "-o", "d.exr/o.exr"], "-o/--output")
+
+
+# ------------------------------------------------------------------ merging a dump with itself
+
+def _copy_route(work, route: str) -> str:
+    if route == "same":
+        return "d.exr"
+    if route == "spelled":
+        return "./d.exr"
+    if route == "symlink":
+        os.symlink("d.exr", work / "copy.exr")
+    elif route == "hardlink":
+        os.link(work / "d.exr", work / "copy.exr")
+    elif route == "bytes":
+        (work / "copy.exr").write_bytes((work / "d.exr").read_bytes())
+    else:  # the same samples written again, with other header attributes (other bytes)
+        write_sample_buffer(work / "copy.exr", dump_buffer(0), header={"awr:note": "re-saved"})
+    return "copy.exr"
+
+
+DUPLICATE_ROUTES = ["same", "spelled", "symlink", "hardlink", "bytes", "resaved"]
+
+
+@pytest.mark.parametrize("route", DUPLICATE_ROUTES)
+def test_merging_a_dump_with_itself_is_refused(work, capsys, monkeypatch, route):
+    monkeypatch.chdir(work.root)
+    other = _copy_route(work, route)
+    _refused(work, capsys, ["merge", "d.exr", other, "-o", "m.exr"], "twice", "--allow-duplicates")
+    _refused(work, capsys, ["merge", "d.exr", "b.exr", other, "-o", "m.exr"], "twice")
+
+
+def test_allow_duplicates_merges_them(work, capsys, monkeypatch):
+    monkeypatch.chdir(work.root)
+    assert main(["merge", "d.exr", "d.exr", "-o", "m.exr", "--allow-duplicates", "-q"]) == 0
+    merged = read_sample_dump(work / "m.exr").buffer
+    np.testing.assert_array_equal(merged.count, 2 * read_sample_dump(work / "d.exr").buffer.count)
