@@ -1,0 +1,128 @@
+"""Option values (cli/values.py): every numeric option refuses NaN, Inf, out-of-range and
+malformed values where it is parsed, with one line naming the option and nothing written;
+the extremes that make sense are accepted."""
+
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip("OpenEXR")
+
+from awr_denoise.cli.main import main  # noqa: E402
+from awr_denoise.cli.values import MAX_SEED  # noqa: E402
+from awr_denoise.io import read_request, write_sample_buffer  # noqa: E402
+from cli_helpers import dump_buffer, one_error_line  # noqa: E402
+
+pytestmark = pytest.mark.exr
+
+RENDER = ["render", "--renderer", "synthetic", "edges", "--width", "16", "--height", "12", "--spp", "2",
+          "-o", "r.exr", "-q"]
+DENOISE = ["denoise", "d.exr", "-o", "o.exr", "-q"]
+PLAN = ["plan", "d.exr", "-o", "p.exr", "-q"]
+FIRST_PLAN = ["plan", "-o", "p.exr", "-q"]
+
+# (base command, option, bad values)
+BAD = [
+    (DENOISE, "--exposure", ["nan", "inf", "-inf", "1100", "x"]),
+    (DENOISE + ["-r", "ref.exr"], "--maxerror", ["nan", "inf", "-1", "x"]),
+    (DENOISE, "--c-s", ["nan", "inf", "-1", "1e400", "x"]),
+    (DENOISE, "--levels", ["0", "-1", "100", "1.5", "nan", "5"]),
+    (DENOISE, "--wavelet", ["nope", "", "haar2"]),
+    (DENOISE, "--frames", ["1-2000000000", "3-1", "x", "1-3x0"]),
+    (DENOISE, "--workers", ["0", "-2", "1.5", "inf"]),
+    (["denoise", "d.exr", "-o", "o.exr", "--preset", "generic", "--color", "RGB", "--variance", "variance"], "--spp",
+     ["-1", "inf", "1e30", "16777217", "2.5"]),
+    (PLAN, "--round-spp", ["inf", "nan", "0", "-1", "1e30"]),
+    (PLAN, "--round-growth", ["0", "-1", "inf", "nan"]),
+    (PLAN, "--budget", ["-1", "1.5", "inf", str(2**62 + 1)]),
+    (PLAN, "--seed", ["-1", "1180591620717411303424", "1.5", "nan"]),
+    (PLAN, "--round", ["-1", "1.5", str(2**31)]),
+    (PLAN, "--levels", ["0", "100", "5"]),
+    (PLAN, "--initial-spp", ["0", "-1", "inf", "16777217"]),
+    (PLAN, "--spp-max", ["0", "inf"]),
+    (PLAN, "--wavelet", ["nope"]),
+    (FIRST_PLAN, "--size", ["65536x65536", "0x10", "10x0", "10", "-5x5", "1e3x10"]),
+    (RENDER, "--spp", ["inf", "nan", "0", "-1", "1e30"]),
+    (RENDER, "--seed", ["-1", "1180591620717411303424", "nan"]),
+    (RENDER, "--width", ["0", "-1", "1.5", "2000000"]),
+    (RENDER, "--exposure", ["nan", "inf", "1100"]),
+    (RENDER, "--levels", ["100", "0", "5"]),
+    (RENDER, "--c-s", ["-1", "nan"]),
+    (RENDER, "--wavelet", ["nope"]),
+    (RENDER, "--round-growth", ["0", "inf"]),
+    (RENDER, "--initial-spp", ["0", "inf"]),
+    (RENDER, "--tile", ["0", "-1"]),
+    (["diff", "ref.exr", "-r", "d.exr"], "--maxerror", ["nan", "inf", "x"]),
+    (["demo", "--out", "demo"], "--spp", ["0", "nan", "inf"]),
+    (["demo", "--out", "demo"], "--c-s", ["-1", "nan"]),
+    (["demo", "--out", "demo"], "--exposure", ["nan"]),
+]
+
+BAD_CASES = [(base, option, value) for base, option, values in BAD for value in values]
+
+
+@pytest.mark.parametrize(("base", "option", "value"), BAD_CASES,
+                         ids=[f"{b[0]}{o}={v}" for b, o, v in BAD_CASES])
+def test_a_bad_option_value_is_one_line_naming_it_and_writes_nothing(work, capsys, monkeypatch, base, option, value):
+    monkeypatch.chdir(work.root)
+    before = work.state()
+    status = main([*base, option, value] if option != "--size" else [*base, f"--size={value}"])
+    err = capsys.readouterr().err
+    assert status == 2, err
+    line = one_error_line(err)
+    name = {"--width": "--width"}.get(option, option)
+    assert name in line or "frames" in line, line
+    assert "internal error" not in line
+    assert work.state() == before
+
+
+def test_a_huge_samples_per_pixel_header_is_refused_naming_it(work, capsys, monkeypatch):
+    """pbrt's ``samplesPerPixel`` of inf or 1e30 was an internal OverflowError."""
+    monkeypatch.chdir(work.root)
+    import OpenEXR
+    import numpy as np
+
+    for raw in ("inf", "1e30", "nan"):
+        planes = {c: np.full((4, 4), 0.5, np.float32) for c in "RGB"}
+        planes |= {f"Variance.{c}": np.full((4, 4), 0.1, np.float32) for c in "RGB"}
+        with OpenEXR.File({"samplesPerPixel": raw}, planes) as f:
+            f.write(str(work / "pbrt.exr"))
+        before = work.state()
+        assert main(["denoise", "pbrt.exr", "--preset", "pbrt", "-o", "o.exr", "-q"]) == 2
+        one_error_line(capsys.readouterr().err, "pbrt.exr", "samplesPerPixel")
+        assert work.state() == before
+
+
+def test_bad_dump_attributes_are_refused_naming_them(work, capsys, monkeypatch):
+    monkeypatch.chdir(work.root)
+    for key, value in (("awr:seed", "-3"), ("awr:seed", str(2**70)), ("awr:round", "x")):
+        write_sample_buffer(work / "h.exr", dump_buffer(5), header={key: value}, overwrite=True)
+        before = work.state()
+        assert main(["plan", "h.exr", "-o", "p.exr", "-q"]) == 2
+        one_error_line(capsys.readouterr().err, "h.exr", key)
+        assert work.state() == before
+
+
+GOOD = [
+    (DENOISE + ["--preview", "o.png"], "--exposure", "1000"),
+    (DENOISE + ["--preview", "o.png"], "--exposure", "-1000"),
+    (DENOISE, "--c-s", "0"),
+    (DENOISE, "--c-s", "1e300"),
+    (DENOISE, "--levels", "4"),
+    (DENOISE, "--wavelet", "haar"),
+    (PLAN, "--seed", str(MAX_SEED)),
+    (PLAN, "--budget", "0"),
+    (PLAN, "--round-spp", "0.001"),
+    (FIRST_PLAN, "--size", "1x1"),
+    (RENDER, "--seed", str(MAX_SEED)),
+    (RENDER, "--spp", "0.5"),
+]
+
+
+@pytest.mark.parametrize(("base", "option", "value"), GOOD, ids=[f"{b[0]}{o}={v}" for b, o, v in GOOD])
+def test_extreme_but_valid_values_are_accepted(work, capsys, monkeypatch, base, option, value):
+    monkeypatch.chdir(work.root)
+    args = [*base, option, value] if option != "--size" else [*base, f"--size={value}"]
+    assert main(args) == 0, capsys.readouterr().err
+    if base is PLAN and option == "--seed":
+        assert read_request(work / "p.exr").total > 0
