@@ -1,0 +1,169 @@
+"""Interrupts with real signals on a real ``awr`` process (cli/interrupts.py, io/atomic.py).
+
+* Ctrl-C or SIGTERM while the heavy imports load: exit 130 / 143, one line, no traceback.
+* Ctrl-C or SIGTERM once outputs are being written: no output at all, no temporary.
+* SIGKILL leaves a staging directory; the next run into that folder removes it, while the
+  staging directory of a live writer stays.
+* ``awr info --json x | head``: the reader goes away, ``awr`` exits 141 without a word.
+
+The process is started the way a terminal starts it (SIGINT not ignored) through the installed
+console script, and signals are sent at moments read from the process itself (the libraries
+mapped into it, the files it has written), not after guessed delays.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("OpenEXR")
+
+from awr_denoise import SampleBuffer  # noqa: E402
+from awr_denoise.io import write_sample_buffer  # noqa: E402
+from awr_denoise.io.atomic import STAGING_PREFIX  # noqa: E402
+from cli_helpers import awr_command, one_error_line, run_awr  # noqa: E402
+
+pytestmark = [pytest.mark.exr,
+              pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/PID/maps")]
+
+
+def _start(args, cwd: Path, **kwargs) -> subprocess.Popen:
+    # As from a terminal: SIGINT at its default (a background job of a shell ignores it).
+    return subprocess.Popen([*awr_command(), *map(str, args)], cwd=cwd, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL), **kwargs)
+
+
+def _wait_for(proc: subprocess.Popen, ready, timeout: float = 60.0) -> None:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if proc.poll() is not None:
+            pytest.fail(f"awr ended (status {proc.returncode}) before the moment to signal it: "
+                        f"{proc.stderr.read() if proc.stderr else ''}")
+        if ready():
+            return
+        time.sleep(0.001)
+    proc.kill()
+    pytest.fail("the moment to signal never came")
+
+
+def _mapped(proc: subprocess.Popen, marker: str) -> bool:
+    try:
+        return marker in Path(f"/proc/{proc.pid}/maps").read_text()
+    except OSError:
+        return False
+
+
+def _finish(proc: subprocess.Popen) -> tuple[int, str, str]:
+    out, err = proc.communicate(timeout=120)
+    return proc.returncode, out, err
+
+
+IMPORT_MARKERS = [("_multiarray_umath", signal.SIGINT), ("scipy", signal.SIGTERM),
+                  pytest.param("pywt", signal.SIGINT, marks=pytest.mark.slow),
+                  pytest.param("_multiarray_umath", signal.SIGTERM, marks=pytest.mark.slow)]
+
+
+@pytest.mark.parametrize(("marker", "signum"), IMPORT_MARKERS)
+def test_a_signal_while_imports_load_is_one_line(work, marker, signum):
+    proc = _start(["info", "d.exr"], work.root)
+    _wait_for(proc, lambda: _mapped(proc, marker))
+    proc.send_signal(signum)
+    status, out, err = _finish(proc)
+    expected = (130, "awr: interrupted") if signum == signal.SIGINT else (143, "awr: terminated")
+    assert (status, err.strip()) == expected, err
+    assert out == ""
+
+
+@pytest.fixture
+def frames(work):
+    """Eight 384x384 frames: long enough to signal between the first written output and the last."""
+    rng = np.random.default_rng(7)
+    for i in range(1, 9):
+        mean = np.abs(0.5 + 0.1 * rng.standard_normal((384, 384, 3)))
+        write_sample_buffer(work / f"seq.{i:04d}.exr",
+                            SampleBuffer.from_moments(np.full((384, 384), 8), mean, np.full((384, 384, 3), 0.04)))
+    return ["denoise", "seq.####.exr", "--frames", "1-8", "-o", "out.####.exr", "--preview", "p.####.png", "-q"]
+
+
+def _staged(root: Path) -> bool:
+    """An output of the run is complete in its staging directory (not yet moved into place)."""
+    return any(p.is_file() for d in root.glob(STAGING_PREFIX + "*") for p in d.glob("[0-9]*.*"))
+
+
+def _outputs(root: Path) -> list[str]:
+    return sorted(p.name for p in root.iterdir() if p.name.startswith(("out.", "p.", STAGING_PREFIX)))
+
+
+@pytest.mark.parametrize(("signum", "status", "line"), [(signal.SIGINT, 130, "awr: interrupted"),
+                                                        (signal.SIGTERM, 143, "awr: terminated")])
+def test_a_signal_after_the_first_output_leaves_no_partial_set(work, frames, signum, status, line):
+    proc = _start(frames, work.root)
+    _wait_for(proc, lambda: _staged(work.root))
+    proc.send_signal(signum)
+    got, _, err = _finish(proc)
+    assert (got, err.strip()) == (status, line), err
+    assert _outputs(work.root) == []
+
+
+@pytest.mark.slow
+def test_a_second_ctrl_c_during_cleanup_changes_nothing(work, frames):
+    proc = _start(frames, work.root)
+    _wait_for(proc, lambda: _staged(work.root))
+    proc.send_signal(signal.SIGINT)
+    time.sleep(0.01)
+    proc.send_signal(signal.SIGINT)
+    got, _, err = _finish(proc)
+    assert (got, err.strip()) == (130, "awr: interrupted"), err
+    assert _outputs(work.root) == []
+
+
+def test_temporaries_of_a_killed_run_are_removed_by_the_next_run(work, frames):
+    proc = _start(frames, work.root)
+    _wait_for(proc, lambda: _staged(work.root))
+    proc.kill()
+    _finish(proc)
+    left = [p.name for p in work.root.glob(STAGING_PREFIX + "*")]
+    assert left, "SIGKILL cannot clean up: its staging directory stays until the next run"
+    assert not [p for p in work.root.iterdir() if p.name.startswith(("out.", "p."))]
+    # A live writer's staging directory in the same folder must survive the next run.
+    holder = subprocess.Popen([sys.executable, "-c",
+                               "import sys, time; from pathlib import Path; "
+                               "from awr_denoise.io.atomic import _Staging; "
+                               "s = _Staging(Path('.')); print(s.path.name, flush=True); time.sleep(120)"],
+                              cwd=work.root, stdout=subprocess.PIPE, text=True)
+    try:
+        live = holder.stdout.readline().strip()
+        assert live.startswith(STAGING_PREFIX)
+        done = run_awr(["denoise", "d.exr", "-o", "fresh.exr", "-q"], work.root)
+        assert done.returncode == 0, done.stderr
+        assert [p.name for p in work.root.glob(STAGING_PREFIX + "*")] == [live]
+    finally:
+        holder.kill()
+        holder.communicate()
+    done = run_awr(["denoise", "d.exr", "-o", "fresh2.exr", "-q"], work.root)
+    assert done.returncode == 0, done.stderr
+    assert list(work.root.glob(STAGING_PREFIX + "*")) == []
+
+
+def test_a_closed_stdout_is_a_quiet_exit(work):
+    """``awr info --json d.exr | head -c 0``: the reader is gone before awr writes."""
+    proc = _start(["info", "--json", "d.exr"], work.root)
+    proc.stdout.close()
+    err = proc.stderr.read()
+    proc.stderr.close()
+    assert proc.wait(timeout=120) == 141, err
+    assert err == ""
+
+
+def test_a_refusal_still_prints_one_line_through_the_console_script(work):
+    done = run_awr(["denoise", "d.exr", "-o", "d.exr"], work.root)
+    assert done.returncode == 2
+    one_error_line(done.stderr, "is the input")
