@@ -35,7 +35,7 @@ def _as_float64(name: str, array: object, ndim: int) -> FloatArray:
     a = np.asarray(array)
     if a.dtype.kind == "c":
         raise TypeError(f"{name}: complex values are not supported")
-    if a.dtype.kind not in "fiub":
+    if a.dtype.kind not in "fiu":  # bools are not values (a mask passed by mistake)
         raise TypeError(f"{name}: expected a numeric array, got dtype {a.dtype}")
     if a.ndim != ndim:
         raise ValueError(f"{name}: expected {ndim} dimensions, got shape {a.shape}")
@@ -61,7 +61,7 @@ def _check_count(count: object) -> CountArray:
             raise ValueError(f"count: {int((c != np.round(c)).sum())} pixel(s) are not whole numbers")
         if (np.abs(c) > 2**62).any():
             raise ValueError(f"count: {int((np.abs(c) > 2**62).sum())} pixel(s) exceed 2**62 samples")
-    elif c.dtype.kind not in "iub":
+    elif c.dtype.kind not in "iu":
         raise TypeError(f"count: expected an integer array, got dtype {c.dtype}")
     c = c.astype(np.int64)
     if (c < 0).any():
@@ -309,7 +309,7 @@ class SampleBuffer:
             vals = vals[:, None]
         if vals.ndim != 2 or vals.shape[0] != flat.shape[0]:
             raise ValueError(f"values: expected ({flat.shape[0]}, C), got shape {np.shape(values)}")
-        if vals.dtype.kind not in "fiub":
+        if vals.dtype.kind not in "fiu":
             raise TypeError(f"values: expected a numeric array, got dtype {vals.dtype}")
         vals = vals.astype(np.float64)
         bad = ~np.isfinite(vals).all(axis=1)

@@ -100,7 +100,7 @@ def _check_wavelet(wavelet: str) -> pywt.Wavelet:
     _checks.name("wavelet", wavelet)
     try:
         return pywt.Wavelet(wavelet)
-    except ValueError:
+    except (ValueError, TypeError):
         raise ValueError(f"wavelet: {wavelet!r} is not a discrete wavelet PyWavelets knows "
                          f"(for example 'bior4.4', 'haar', 'db2')") from None
 

@@ -1,0 +1,261 @@
+"""The library's edge (awr_denoise/_checks.py and every public function that uses it).
+
+Public functions raise ``ValueError`` or ``TypeError`` whose message names the parameter for
+bad values (NaN, Inf, out of range, not whole, bools or strings where numbers are expected),
+never another exception, a hang, or a numpy warning (pytest runs with ``-W error``); valid
+extremes (means near 1e-310 or 1e300) are accepted.
+
+One table lists every numeric or named parameter with the kind of value it takes; hypothesis
+draws bad values of that kind for each, and a fixed list of classic bad values runs on all.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+import pywt
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from awr_denoise import (
+    AdaptiveSampler,
+    Domain,
+    SampleBuffer,
+    SampleRequest,
+    UniformSampler,
+    VarianceSampler,
+    allocate,
+    luminance_weights,
+    reconstruct,
+    reconstruct_detailed,
+)
+from awr_denoise import metrics, priorities, synthetic, wavelets
+from awr_denoise.buffers import default_channel_names
+from awr_denoise.domains import DOMAIN_NAMES
+from awr_denoise.parallel import get_executor, halo_width, reconstruct_tiled, tile_grid
+from awr_denoise.prepare import prepare
+from awr_denoise.reconstruct import MODES
+from awr_denoise.wavelets import WAVELET_NAMES
+
+H, W = 16, 16
+_rng = np.random.default_rng(0)
+BUF = SampleBuffer.from_moments(np.full((H, W), 4), 0.5 + 0.1 * _rng.random((H, W, 3)), np.full((H, W, 3), 0.01))
+IMG = _rng.random((H, W, 3))
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter of one public call: ``call(value)`` runs it with that value."""
+
+    name: str
+    kind: str
+    call: Callable[[object], object]
+    none: bool = False  # None is a good value (a default)
+    choices: tuple[str, ...] = ()  # the good values of a name
+
+    def __repr__(self) -> str:
+        return self.name
+
+
+# Kinds: what a parameter accepts. Everything outside is bad.
+#   real>=0 / real>0 / real: finite floats (non-negative, positive, any)
+#   int>=0 / int>=1: whole numbers (floats only when whole) within 64 bits
+#   size>=0 / size>=1: whole numbers of pixels, any size (a tile or halo beyond the image is the image)
+#   seed: whole numbers 0..2**63-1
+#   name: a str from a fixed list
+#   flag: True or False
+PARAMS = [
+    Param("c_s", "real>=0", lambda v: reconstruct(BUF, c_s=v)),
+    Param("pixel_clamp", "real>=0", lambda v: reconstruct(BUF, pixel_clamp=v), none=True),
+    Param("levels", "int>=1", lambda v: reconstruct(BUF, levels=v), none=True),
+    Param("variance_probes", "int>=0", lambda v: reconstruct_detailed(BUF, variance_probes=v)),
+    Param("seed", "seed", lambda v: reconstruct_detailed(BUF, variance_probes=1, seed=v)),
+    Param("wavelet", "name", lambda v: reconstruct(BUF, wavelet=v), choices=WAVELET_NAMES),
+    Param("mode", "name", lambda v: reconstruct(BUF, mode=v), choices=MODES),
+    Param("boundary", "name", lambda v: reconstruct(BUF, boundary=v), choices=tuple(pywt.Modes.modes)),
+    Param("domain", "name", lambda v: reconstruct(BUF, domain=v), choices=DOMAIN_NAMES),
+    Param("offset", "real>0", lambda v: Domain("log", offset=v)),
+    Param("gamma", "real>=1", lambda v: Domain("gamma", gamma=v)),
+    Param("scale", "real>0", lambda v: Domain("log", scale=v), none=True),
+    Param("robust", "flag", lambda v: Domain("log", robust=v)),
+    Param("initial_spp", "int>=0", lambda v: AdaptiveSampler((H, W), initial_spp=v)),
+    Param("seed", "seed", lambda v: AdaptiveSampler((H, W), seed=v)),
+    Param("spp_min", "int>=0", lambda v: UniformSampler((H, W), spp_min=v), none=True),
+    Param("spp_max", "int>=1", lambda v: UniformSampler((H, W), spp_max=v), none=True),
+    Param("round_spp", "real>0", lambda v: UniformSampler((H, W), round_spp=v), none=True),
+    Param("round_growth", "real>0", lambda v: UniformSampler((H, W), round_growth=v)),
+    Param("level_weight", "real>=0", lambda v: AdaptiveSampler((H, W), level_weight=v)),
+    Param("uniform_fraction", "fraction", lambda v: VarianceSampler((H, W), uniform_fraction=v)),
+    Param("shape", "int>=1", lambda v: UniformSampler((v, W))),
+    Param("budget", "int>=0", lambda v: UniformSampler.from_buffer(BUF).ask(v), none=True),
+    Param("round", "int>=0", lambda v: UniformSampler.from_buffer(BUF, round=v)),
+    Param("total_spp", "real>=0", lambda v: UniformSampler((4, 4)).run(
+        synthetic.create_renderer("gradient", shape=(4, 4)), total_spp=v)),
+    Param("budget", "int>=0", lambda v: allocate(np.ones((H, W)), np.zeros((H, W), np.int64), v)),
+    Param("spp", "int>=0", lambda v: SampleRequest.uniform((H, W), v)),
+    Param("first_index", "int>=0", lambda v: SampleRequest.uniform((H, W), 1, first_index=v)),
+    Param("round", "int>=0", lambda v: SampleRequest.uniform((H, W), 1, round=v)),
+    Param("shape", "int>=1", lambda v: SampleBuffer.empty((v, W))),
+    Param("channels", "int>=1", lambda v: SampleBuffer.empty((H, W), channels=v)),
+    Param("n_channels", "int>=0", lambda v: default_channel_names(v)),
+    Param("count", "int>=0", lambda v: SampleBuffer.from_moments(np.full((H, W), v), IMG, IMG)),
+    Param("mean", "real", lambda v: SampleBuffer.from_moments(np.full((H, W), 4), np.full((H, W, 3), v), IMG)),
+    Param("variance", "real>=0", lambda v: SampleBuffer.from_moments(np.full((H, W), 4), IMG, np.full((H, W, 3), v))),
+    Param("values", "real", lambda v: SampleBuffer.from_samples(np.array([0, 1]), np.full(2, v), (1, 2))),
+    Param("eps", "real>=0", lambda v: metrics.relmse(IMG, IMG + 0.1, eps=v)),
+    Param("peak", "real>0", lambda v: metrics.psnr(IMG, IMG + 0.1, peak=v), none=True),
+    Param("exposure", "real", lambda v: metrics.ssim(IMG, IMG + 0.1, exposure=v)),
+    Param("sigma", "real>0", lambda v: metrics.ssim(IMG, IMG + 0.1, sigma=v)),
+    Param("exposure", "real", lambda v: metrics.tonemap(IMG, exposure=v)),
+    Param("image", "real", lambda v: metrics.mse(np.full((4, 4), v), np.ones((4, 4)))),
+    Param("shape", "int>=0", lambda v: wavelets.max_levels((v, 8))),
+    Param("shape", "int>=1", lambda v: wavelets.wavelet_operators((v, 8))),
+    Param("image", "real", lambda v: wavelets.forward(np.full((8, 8), v))),
+    Param("variance_of_mean", "real>=0", lambda v: wavelets.coefficient_variance(np.full((8, 8), v))),
+    Param("level_weight", "real>=0", lambda v: priorities.sampling_density(BUF, level_weight=v)),
+    Param("luminance", "flag", lambda v: prepare(BUF, luminance=v)),
+    Param("shape", "int>=1", lambda v: synthetic.make_scene("gradient", (v, 8))),
+    Param("supersampling", "int>=1", lambda v: synthetic.make_scene("gradient", (4, 4)).reference(v)),
+    Param("seed", "seed", lambda v: synthetic.hash_uniform(v, np.arange(3), np.arange(3), 0)),
+    Param("seed", "seed", lambda v: synthetic.create_renderer("gradient", shape=(4, 4), seed=v)),
+    Param("workers", "int>=1", lambda v: get_executor("threads", workers=v).__enter__(), none=True),
+    Param("tile", "size>=1", lambda v: tile_grid((16, 16), v)),
+    Param("levels", "int>=1", lambda v: halo_width(levels=v)),
+    Param("halo", "size>=0", lambda v: reconstruct_tiled(BUF, tile=8, halo=v), none=True),
+    Param("channels", "names", lambda v: luminance_weights(v)),
+]
+
+# Classic bad values of each kind (the red-team's list, and their neighbours).
+CLASSIC = [float("nan"), float("inf"), -float("inf"), np.float64("nan"), -1, -1e-300, 1e300, 2**70, -(2**70), 1.5,
+           True, False, "1", "", None, 1 + 2j]
+
+
+def _acceptable(kind: str, v: object) -> bool:
+    """Whether ``v`` is a good value of ``kind`` (the complement of what must be refused)."""
+    if kind == "flag":
+        return isinstance(v, (bool, np.bool_))
+    if kind == "names":
+        return False  # only lists of names are good; none is drawn
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
+        return False
+    x = float(v) if not isinstance(v, int) or abs(v) < 2**1000 else math.inf
+    if not math.isfinite(x):
+        return False
+    if kind.startswith(("int", "size")) or kind == "seed":
+        if x != math.floor(x):
+            return False
+        top = 2**63 - 1 if kind == "seed" else math.inf if kind.startswith("size") else 2**62
+        low = 1 if kind.endswith(">=1") else 0
+        return low <= x <= top
+    low = {"real>=0": 0.0, "real>0": 0.0, "real>=1": 1.0, "fraction": 0.0}.get(kind, -math.inf)
+    if kind == "real>0":
+        return x > 0
+    if kind == "fraction":
+        return 0.0 <= x <= 1.0
+    return x >= low
+
+
+class _Hang(Exception):
+    pass
+
+
+def _refuses(param: Param, value: object) -> None:
+    """``param.call(value)`` must raise ValueError or TypeError naming the parameter, in time."""
+    def expired(signum, frame):
+        raise _Hang(f"{param.name}={value!r}: no answer in 20 s")
+    previous = signal.signal(signal.SIGALRM, expired)
+    signal.alarm(20)
+    try:
+        with pytest.raises((ValueError, TypeError)) as caught:
+            param.call(value)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+    message = str(caught.value)
+    named = param.name in message or (param.name == "name" and "domain" in message) or (
+        param.name in ("offset", "gamma", "scale", "robust") and "domain" in message)
+    assert named, f"{param.name}={value!r}: {type(caught.value).__name__}: {message}"
+
+
+def _good(param: Param, value: object) -> bool:
+    if param.kind == "name":
+        return isinstance(value, str) and value in param.choices
+    return (value is None and param.none) or _acceptable(param.kind, value)
+
+
+CLASSIC_CASES = [(p, v) for p in PARAMS for v in CLASSIC if not _good(p, v)]
+
+
+@pytest.mark.parametrize(("param", "value"), CLASSIC_CASES,
+                         ids=[f"{i}-{p.name}-{v!r}"[:60] for i, (p, v) in enumerate(CLASSIC_CASES)])
+def test_classic_bad_values_are_refused_naming_the_parameter(param, value):
+    _refuses(param, value)
+
+
+BAD_NUMBERS = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.integers(min_value=-(2**80), max_value=2**80),
+    st.booleans(),
+    st.text(max_size=4),
+    st.none(),
+)
+
+
+@settings(max_examples=300, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
+@given(param=st.sampled_from([p for p in PARAMS if p.kind not in ("name", "names", "flag")]), value=BAD_NUMBERS)
+def test_any_bad_number_is_refused_naming_the_parameter(param, value):
+    if _good(param, value):
+        return  # a good value: covered by the modules' own tests
+    _refuses(param, value)
+
+
+@settings(max_examples=100, deadline=None, derandomize=True)
+@given(param=st.sampled_from([p for p in PARAMS if p.kind in ("name", "flag")]),
+       value=st.one_of(st.text(max_size=6), st.integers(), st.floats(), st.none(), st.booleans()))
+def test_any_bad_name_or_flag_is_refused_naming_the_parameter(param, value):
+    if _good(param, value):
+        return
+    _refuses(param, value)
+
+
+# ------------------------------------------------------------------ valid extremes
+
+SCALES = [5e-324, 1e-318, 1e-310, 1e-300, 1e-30, 1.0, 1e30, 1e300, 1e307]
+DOMAINS = ["log", "linear", "gamma", Domain("log", robust=True)]
+
+
+def _extreme_buffer(scale: float, spread: float) -> SampleBuffer:
+    rng = np.random.default_rng(3)
+    mean = scale * (1 + 0.1 * rng.random((16, 16, 3)))
+    with np.errstate(under="ignore", over="ignore"):
+        variance = np.minimum(np.float64(scale * spread) ** 2, 1e308) * np.ones((16, 16, 3))
+    return SampleBuffer.from_moments(np.full((16, 16), 4), mean, variance)
+
+
+@pytest.mark.parametrize("spread", [0.1, 1e5, 0.0])
+@pytest.mark.parametrize("scale", SCALES)
+def test_extreme_magnitudes_are_accepted_without_warnings(scale, spread):
+    """Means near the smallest and largest floats: reconstruction and sampling just work."""
+    buf = _extreme_buffer(scale, spread)
+    for domain in DOMAINS:
+        out = reconstruct(buf, domain=domain)
+        assert np.isfinite(out).all()
+        detailed = reconstruct_detailed(buf, domain=domain, variance_probes=2)
+        assert not np.isnan(detailed.variance).any()
+        for cls in (AdaptiveSampler, VarianceSampler):
+            assert cls.from_buffer(buf, domain=domain).ask(100).total == 100
+    assert 0 <= metrics.relmse(buf.mean, buf.mean * 1.1) < 1
+    assert metrics.mse(buf.mean, buf.mean * 1.1) >= 0
+    assert not math.isnan(metrics.psnr(buf.mean, buf.mean * 1.1))
+
+
+def test_a_huge_error_is_inf_not_a_warning():
+    assert metrics.mse(np.full(4, 1e300), np.full(4, -1e300)) == math.inf
+    assert metrics.psnr(np.full(4, 1e300), np.zeros(4), peak=1.0) == -math.inf
+    assert metrics.relmse(np.full(4, 1e300), np.full(4, 2e300)) == pytest.approx(0.25)
+    assert metrics.tonemap(np.ones(2), exposure=1e6) == pytest.approx([1.0, 1.0])
