@@ -252,3 +252,19 @@ def test_allow_duplicates_merges_them(work, capsys, monkeypatch):
     assert main(["merge", "d.exr", "d.exr", "-o", "m.exr", "--allow-duplicates", "-q"]) == 0
     merged = read_sample_dump(work / "m.exr").buffer
     np.testing.assert_array_equal(merged.count, 2 * read_sample_dump(work / "d.exr").buffer.count)
+
+
+# ------------------------------------------------------------------ long names
+
+@pytest.mark.parametrize("length", [238, 247, 255])
+def test_output_names_up_to_255_bytes_work(work, capsys, monkeypatch, length):
+    monkeypatch.chdir(work.root)
+    image, preview = "i" * (length - 4) + ".exr", "p" * (length - 4) + ".png"
+    assert main(["denoise", "d.exr", "-o", image, "--preview", preview, "-q"]) == 0, capsys.readouterr().err
+    assert (work / image).is_file() and (work / preview).is_file()
+    assert work.temporaries() == []
+
+
+def test_an_output_name_beyond_255_bytes_is_refused_naming_the_option(work, capsys, monkeypatch):
+    monkeypatch.chdir(work.root)
+    _refused(work, capsys, ["denoise", "d.exr", "-o", "o.exr", "--preview", "p" * 252 + ".png"], "--preview")

@@ -1,0 +1,81 @@
+"""EXR data and display windows: kept from input to output by every command, and two files
+whose windows differ are never merged or compared pixel by pixel (the pixels do not line up)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("OpenEXR")
+
+from awr_denoise.cli.main import main  # noqa: E402
+from awr_denoise.io import read_image, write_image, write_sample_buffer  # noqa: E402
+from awr_denoise.io.exr import read_windows  # noqa: E402
+from awr_denoise.parallel import denoise_frame  # noqa: E402
+from cli_helpers import H, W, dump_buffer, one_error_line  # noqa: E402
+
+pytestmark = pytest.mark.exr
+
+# A 32x24 crop at (100, 200) of a 1920x1080 frame.
+CROP = {"dataWindow": ((100, 200), (100 + W - 1, 200 + H - 1)), "displayWindow": ((0, 0), (1919, 1079))}
+# The same data window inside another display window (an overscan render).
+OVERSCAN = {"dataWindow": ((100, 200), (100 + W - 1, 200 + H - 1)), "displayWindow": ((0, 0), (2047, 1151))}
+
+
+@pytest.fixture
+def crops(work):
+    write_sample_buffer(work / "crop.exr", dump_buffer(20), header=CROP)
+    write_sample_buffer(work / "crop2.exr", dump_buffer(21), header=CROP)
+    write_sample_buffer(work / "over.exr", dump_buffer(22), header=OVERSCAN)
+    write_image(work / "cropref.exr", dump_buffer(23).mean, header=CROP)
+    return work
+
+
+def test_windows_round_trip_through_the_writers(tmp_path):
+    write_image(tmp_path / "a.exr", np.ones((H, W, 3)), header=CROP)
+    assert read_windows(tmp_path / "a.exr") == CROP
+    with pytest.raises(ValueError, match="dataWindow"):
+        write_image(tmp_path / "b.exr", np.ones((H + 1, W, 3)), header=CROP)
+    assert not (tmp_path / "b.exr").exists()
+
+
+@pytest.mark.parametrize("args", [
+    ["denoise", "crop.exr", "-o", "out.exr"],
+    ["denoise", "crop.exr", "-o", "out.exr", "-r", "cropref.exr"],
+    ["plan", "crop.exr", "-o", "out.exr"],
+    ["merge", "crop.exr", "crop2.exr", "-o", "out.exr"],
+    ["diff", "cropref.exr", "-r", "crop.exr", "-o", "out.exr"],
+], ids=lambda a: a[0] + ("-ref" if "-r" in a and a[0] == "denoise" else ""))
+def test_every_command_keeps_the_windows(crops, capsys, monkeypatch, args):
+    monkeypatch.chdir(crops.root)
+    assert main([*args, *(["-q"] if args[0] != "diff" else [])]) == 0, capsys.readouterr().err
+    assert read_windows(crops / "out.exr") == CROP
+
+
+def test_denoise_frame_keeps_the_windows(crops):
+    denoise_frame(crops / "crop.exr", crops / "lib.exr")
+    assert read_windows(crops / "lib.exr") == CROP
+
+
+@pytest.mark.parametrize(("args", "first", "second"), [
+    (["merge", "d.exr", "crop.exr", "-o", "m.exr"], "crop.exr", "d.exr"),
+    (["merge", "crop.exr", "over.exr", "-o", "m.exr"], "over.exr", "crop.exr"),
+    (["merge", "crop.exr", "crop2.exr", "--request", "req.exr", "-o", "m.exr"], "req.exr", "crop.exr"),
+    (["diff", "cropref.exr", "-r", "ref.exr"], "ref.exr", "cropref.exr"),
+    (["diff", "cropref.exr", "-r", "over.exr", "-o", "dd.exr"], "over.exr", "cropref.exr"),
+    (["denoise", "crop.exr", "-o", "o.exr", "-r", "ref.exr"], "ref.exr", "crop.exr"),
+])
+def test_files_whose_windows_differ_are_refused_naming_both(crops, capsys, monkeypatch, args, first, second):
+    monkeypatch.chdir(crops.root)
+    before = crops.state()
+    assert main(args) == 2
+    line = one_error_line(capsys.readouterr().err, first, second)
+    assert "window" in line
+    assert crops.state() == before
+
+
+def test_the_pixels_of_a_crop_stay_its_pixels(crops, capsys, monkeypatch):
+    """The image written for a crop holds the crop's own pixels (not shifted to the origin)."""
+    monkeypatch.chdir(crops.root)
+    assert main(["denoise", "crop.exr", "-o", "out.exr", "--c-s", "0", "-q"]) == 0
+    np.testing.assert_allclose(read_image(crops / "out.exr"), dump_buffer(20).mean, rtol=1e-6)

@@ -1,0 +1,171 @@
+"""Atomic and all-or-nothing writes (awr_denoise/io/atomic.py): staging directories, stale
+temporaries, long names, special files, rollback."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from awr_denoise.io.atomic import (
+    STAGING_PREFIX,
+    STALE_AFTER,
+    OutputSet,
+    _Staging,
+    atomic_write,
+    check_readable,
+    check_writable,
+    remove_stale_temporaries,
+)
+
+
+def _listing(root: Path) -> list[str]:
+    return sorted(p.name for p in root.iterdir())
+
+
+def test_a_failing_writer_leaves_nothing(tmp_path):
+    def broken(tmp):
+        Path(tmp).write_bytes(b"half")
+        raise RuntimeError("boom")
+
+    with pytest.raises(RuntimeError):
+        atomic_write(tmp_path / "x.bin", broken)
+    assert _listing(tmp_path) == []
+
+
+def test_an_interrupted_writer_leaves_nothing(tmp_path):
+    def interrupted(tmp):
+        Path(tmp).write_bytes(b"half")
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        atomic_write(tmp_path / "x.bin", interrupted)
+    assert _listing(tmp_path) == []
+
+
+def test_an_existing_file_is_kept_without_overwrite(tmp_path):
+    (tmp_path / "x.bin").write_bytes(b"old")
+    with pytest.raises(FileExistsError, match="already exists"):
+        atomic_write(tmp_path / "x.bin", lambda tmp: Path(tmp).write_bytes(b"new"))
+    assert (tmp_path / "x.bin").read_bytes() == b"old"
+    atomic_write(tmp_path / "x.bin", lambda tmp: Path(tmp).write_bytes(b"new"), overwrite=True)
+    assert (tmp_path / "x.bin").read_bytes() == b"new"
+    assert _listing(tmp_path) == ["x.bin"]
+
+
+@pytest.mark.parametrize("length", [238, 250, 255])
+def test_names_up_to_the_file_system_limit_work(tmp_path, length):
+    name = "n" * (length - 4) + ".exr"
+    atomic_write(tmp_path / name, lambda tmp: Path(tmp).write_bytes(b"x"))
+    with OutputSet() as outputs:
+        Path(outputs.add(tmp_path / ("m" * (length - 4) + ".png"))).write_bytes(b"y")
+        outputs.commit()
+    assert sorted(len(n) for n in _listing(tmp_path)) == [length, length]
+
+
+def test_a_name_beyond_the_limit_is_refused_up_front(tmp_path):
+    with pytest.raises(ValueError, match="too long|256 bytes"):
+        check_writable(tmp_path / ("n" * 252 + ".exr"), overwrite=False)
+
+
+def _fifo(path):
+    os.mkfifo(path)
+    return path
+
+
+@pytest.mark.parametrize("kind", ["fifo", "directory", "dangling symlink"])
+def test_special_targets_are_refused_even_with_overwrite(tmp_path, kind):
+    target = tmp_path / "t.exr"
+    if kind == "fifo":
+        _fifo(target)
+    elif kind == "directory":
+        target.mkdir()
+    else:
+        os.symlink(tmp_path / "missing", target)
+    mode = os.lstat(target).st_mode
+    with pytest.raises(ValueError, match="not a regular file|symbolic link"):
+        atomic_write(target, lambda tmp: Path(tmp).write_bytes(b"x"), overwrite=True)
+    assert os.lstat(target).st_mode == mode
+
+
+def test_a_fifo_input_is_refused_without_opening_it(tmp_path):
+    with pytest.raises(ValueError, match="FIFO"):
+        check_readable(_fifo(tmp_path / "in.exr"))
+    with pytest.raises(FileNotFoundError):
+        check_readable(tmp_path / "missing.exr")
+
+
+def test_an_output_set_writes_all_or_none(tmp_path):
+    with pytest.raises(RuntimeError):
+        with OutputSet() as outputs:
+            Path(outputs.add(tmp_path / "a.txt")).write_text("a")
+            Path(outputs.add(tmp_path / "b.txt")).write_text("b")
+            raise RuntimeError("the third output failed")
+    assert _listing(tmp_path) == []
+
+
+def test_an_output_set_refuses_a_target_it_was_never_given(tmp_path):
+    with OutputSet() as outputs:
+        Path(outputs.add(tmp_path / "a.txt")).write_text("a")
+        outputs.add(tmp_path / "b.txt")  # never written
+        with pytest.raises(FileNotFoundError, match="b.txt"):
+            outputs.commit()
+    assert _listing(tmp_path) == []
+
+
+def test_a_failure_while_moving_puts_the_old_files_back(tmp_path):
+    for name in ("a.txt", "b.txt"):
+        (tmp_path / name).write_text("old " + name)
+    with OutputSet(overwrite=True) as outputs:
+        Path(outputs.add(tmp_path / "a.txt")).write_text("new a")
+        Path(outputs.add(tmp_path / "b.txt")).write_text("new b")
+        (tmp_path / "b.txt").unlink()
+        (tmp_path / "b.txt").mkdir()  # b becomes a directory between the checks and the move
+        with pytest.raises(ValueError, match="not a regular file"):
+            outputs.commit()
+    assert (tmp_path / "a.txt").read_text() == "old a.txt"
+    assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith(STAGING_PREFIX)) == ["a.txt", "b.txt"]
+    assert not list(tmp_path.glob(STAGING_PREFIX + "*"))
+
+
+def test_a_target_that_appears_meanwhile_is_not_clobbered(tmp_path):
+    with OutputSet() as outputs:
+        Path(outputs.add(tmp_path / "a.txt")).write_text("new a")
+        Path(outputs.add(tmp_path / "b.txt")).write_text("new b")
+        (tmp_path / "b.txt").write_text("someone else's")
+        with pytest.raises(FileExistsError):
+            outputs.commit()
+    assert _listing(tmp_path) == ["b.txt"]
+    assert (tmp_path / "b.txt").read_text() == "someone else's"
+
+
+def test_writers_name_the_target_not_the_temporary(tmp_path):
+    from awr_denoise.io import write_image
+
+    with OutputSet() as outputs:
+        with pytest.raises(ValueError, match=r"^.*out\.exr: R: .*float32 range"):
+            write_image(outputs.add(tmp_path / "out.exr"), np.full((2, 2, 3), 1e39))
+
+
+def test_stale_staging_directories_are_removed_and_live_ones_kept(tmp_path):
+    live = _Staging(tmp_path)  # locked by this process
+    dead = tmp_path / f"{STAGING_PREFIX}0123456789.tmp"  # a killed writer's: lock file, no lock
+    dead.mkdir()
+    (dead / "lock").write_bytes(b"")
+    (dead / "1.exr").write_bytes(b"partial")
+    young = tmp_path / f"{STAGING_PREFIX}aaaaaaaaaa.tmp"  # being created right now: no lock file yet
+    young.mkdir()
+    old = tmp_path / f"{STAGING_PREFIX}bbbbbbbbbb.tmp"  # abandoned before its lock file existed
+    old.mkdir()
+    past = time.time() - STALE_AFTER - 10
+    os.utime(old, (past, past))
+    other = tmp_path / ".awr-notes.txt"  # not a staging directory
+    other.write_text("keep")
+    removed = remove_stale_temporaries(tmp_path)
+    assert sorted(p.name for p in removed) == sorted([dead.name, old.name])
+    assert live.path.exists() and young.exists() and other.exists()
+    live.remove()
+    assert not live.path.exists()
