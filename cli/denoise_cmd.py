@@ -28,7 +28,7 @@ from .common import (
     status,
 )
 from .parallel_options import add_executor_arguments, executor_from_args, executor_requested
-from .paths import PathPlan
+from .paths import PathPlan, check_plane_windows
 from .values import MAX_EXPOSURE, MAX_LEVELS, real, wavelet_name, whole
 
 __all__ = ["register", "run", "add_reconstruction_options", "reconstruction_kwargs", "check_reconstruction_options",
@@ -157,6 +157,7 @@ def run(args: argparse.Namespace) -> int:
     sources = [inputs[0] for inputs, _ in jobs]
     for src in sources:
         check_reconstruction_options(args, exr_shape(src), src)
+    check_plane_windows(sources[0], [(args.color, "--color"), (args.variance, "--variance"), (args.count, "--count")])
     if args.ref:
         _check_reference(args.ref, sources)
 

@@ -21,7 +21,7 @@ from awr_denoise.io.atomic import same_file
 from awr_denoise.io.exr import check_same_windows, read_windows
 
 from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, status
-from .paths import PathPlan
+from .paths import PathPlan, check_plane_windows
 from .values import MAX_SEED, header_whole
 
 __all__ = ["register", "run"]
@@ -122,6 +122,8 @@ def run(args: argparse.Namespace) -> int:
     plan.write(args.output, "-o/--output")
     plan.check()
     # Pixels line up only when every file places them alike (crops keep their windows).
+    check_plane_windows(args.inputs[0], [(args.color, "--color"), (args.variance, "--variance"),
+                                         (args.count, "--count")])
     windows = read_windows(args.inputs[0])
     for path in [*args.inputs[1:], *([args.request] if args.request else [])]:
         check_same_windows(path, read_windows(path), args.inputs[0], windows)

@@ -19,11 +19,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from awr_denoise.io.atomic import check_readable, check_writable
+from awr_denoise.io.exr import check_same_windows, read_windows
 from awr_denoise.io.presets import parse_plane
 
 from .errors import UsageError
 
-__all__ = ["PathPlan"]
+__all__ = ["PathPlan", "check_plane_windows"]
 
 
 @dataclass
@@ -108,3 +109,23 @@ class PathPlan:
                 raise FileExistsError(f"{entry.option}: {exc}") from None
             except (OSError, ValueError) as exc:
                 raise UsageError(f"{entry.option}: {exc}") from None
+
+
+def check_plane_windows(main: str | os.PathLike[str] | None, specs: list[tuple[str | None, str]]) -> None:
+    """Refuse plane files (``--variance F:plane``...) whose windows differ from the main input's.
+
+    Planes of the same size but another data window would be paired with the wrong pixels.
+    """
+    if main is None:
+        return
+    windows = None
+    for spec, _option in specs:
+        if spec is None:
+            continue
+        try:
+            file, _ = parse_plane(spec, None)
+        except ValueError:
+            continue  # a plane of the main input itself
+        if windows is None:
+            windows = read_windows(main)
+        check_same_windows(file, read_windows(file), main, windows)

@@ -79,3 +79,14 @@ def test_the_pixels_of_a_crop_stay_its_pixels(crops, capsys, monkeypatch):
     monkeypatch.chdir(crops.root)
     assert main(["denoise", "crop.exr", "-o", "out.exr", "--c-s", "0", "-q"]) == 0
     np.testing.assert_allclose(read_image(crops / "out.exr"), dump_buffer(20).mean, rtol=1e-6)
+
+
+def test_a_plane_file_in_another_window_is_refused(crops, capsys, monkeypatch):
+    """``--variance F:plane`` of the same size but another data window would pair wrong pixels."""
+    monkeypatch.chdir(crops.root)
+    generic = ["--preset", "generic", "--color", "RGB", "--count", "sampleCount"]
+    for args in (["denoise", "d.exr", "-o", "o.exr"], ["plan", "d.exr", "-o", "o.exr"]):
+        before = crops.state()
+        assert main([*args, *generic, "--variance", "crop.exr:variance"]) == 2
+        one_error_line(capsys.readouterr().err, "crop.exr", "d.exr", "window")
+        assert crops.state() == before
