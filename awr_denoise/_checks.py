@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["MAX_SEED", "MAX_SIDE", "real", "whole", "flag", "seed", "shape2d", "name"]
+__all__ = ["MAX_SEED", "MAX_SIDE", "MAX_LEVELS", "real", "whole", "flag", "seed", "shape2d", "name", "slices"]
 
 MAX_SEED = 2**63 - 1
 """Seeds are whole numbers in 0..2**63-1 (they are hashed as 64-bit integers)."""
@@ -109,3 +109,10 @@ def name(param: str, value: Any, choices: tuple[str, ...] | None = None) -> str:
     if choices is not None and value not in choices:
         raise ValueError(f"{param}: {value!r} is not one of {', '.join(choices)}")
     return value
+
+
+def slices(**values: Any) -> None:
+    """Refuse anything but ``slice`` objects (a tile's rows and columns)."""
+    for param, value in values.items():
+        if not isinstance(value, slice):
+            raise TypeError(f"{param}: expected a slice, got {type(value).__name__} {value!r}")

@@ -9,7 +9,7 @@ import numpy as np
 from . import _checks
 from ._typing import FloatArray
 
-__all__ = ["default_channel_names", "luminance_weights", "resolve_channels", "MAX_CHANNELS"]
+__all__ = ["default_channel_names", "luminance_weights", "resolve_channels", "channel_count", "MAX_CHANNELS"]
 
 _REC709 = np.array([0.2126, 0.7152, 0.0722])
 
@@ -89,3 +89,20 @@ def resolve_channels(channels: Sequence[str] | int | None, n_channels: int) -> t
     if len(set(names)) != len(names):
         raise ValueError(f"channels: duplicate names in {names}")
     return names
+
+
+def channel_count(channels: Sequence[str] | int) -> int:
+    """The number of channels given as a count or as names (checked: a whole number or a sequence).
+
+    Examples
+    --------
+    >>> from awr_denoise.channels import channel_count
+    >>> channel_count(3), channel_count(["R", "G", "B", "A"])
+    (3, 4)
+    """
+    if isinstance(channels, (bool, np.bool_, float, np.floating, str, bytes)) or not (
+            isinstance(channels, (int, np.integer)) or hasattr(channels, "__len__")):
+        raise TypeError(f"channels: expected a number of channels or their names, got {channels!r}")
+    if isinstance(channels, (int, np.integer)):
+        return _checks.whole("channels", channels, minimum=1, maximum=MAX_CHANNELS)  # type: ignore[return-value]
+    return len(channels)

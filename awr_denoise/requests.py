@@ -152,8 +152,7 @@ class SampleRequest:
         >>> tile, tile.counts.tolist()
         (SampleRequest(round=2, shape=(2, 2), total=12), [[1, 2], [4, 5]])
         """
-        if not (isinstance(rows, slice) and isinstance(cols, slice)):
-            raise TypeError(f"rows, cols: expected slices, got {rows!r}, {cols!r}")
+        _checks.slices(rows=rows, cols=cols)
         return SampleRequest(self.counts[rows, cols], self.first_index[rows, cols], self.round, self.sampler_id)
 
     def __repr__(self) -> str:
