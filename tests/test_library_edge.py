@@ -36,6 +36,7 @@ from awr_denoise import (
 )
 from awr_denoise import metrics, priorities, synthetic, wavelets
 from awr_denoise.buffers import default_channel_names
+from awr_denoise.io.png import tonemap_srgb
 from awr_denoise.domains import DOMAIN_NAMES
 from awr_denoise.parallel import get_executor, halo_width, reconstruct_tiled, tile_grid
 from awr_denoise.prepare import prepare
@@ -112,6 +113,7 @@ PARAMS = [
     Param("exposure", "real", lambda v: metrics.ssim(IMG, IMG + 0.1, exposure=v)),
     Param("sigma", "real>0", lambda v: metrics.ssim(IMG, IMG + 0.1, sigma=v)),
     Param("exposure", "real", lambda v: metrics.tonemap(IMG, exposure=v)),
+    Param("exposure", "real", lambda v: tonemap_srgb(IMG, exposure=v)),
     Param("image", "real", lambda v: metrics.mse(np.full((4, 4), v), np.ones((4, 4)))),
     Param("shape", "int>=0", lambda v: wavelets.max_levels((v, 8))),
     Param("shape", "int>=1", lambda v: wavelets.wavelet_operators((v, 8))),
