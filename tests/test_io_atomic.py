@@ -164,8 +164,11 @@ def test_stale_staging_directories_are_removed_and_live_ones_kept(tmp_path):
     os.utime(old, (past, past))
     other = tmp_path / ".awr-notes.txt"  # not a staging directory
     other.write_text("keep")
+    foreign = tmp_path / f"{STAGING_PREFIX}cccccccccc.tmp"  # another host's: its lock means nothing here
+    foreign.mkdir()
+    (foreign / "lock").write_text("another-host.example")
     removed = remove_stale_temporaries(tmp_path)
     assert sorted(p.name for p in removed) == sorted([dead.name, old.name])
-    assert live.path.exists() and young.exists() and other.exists()
+    assert live.path.exists() and young.exists() and other.exists() and foreign.exists()
     live.remove()
     assert not live.path.exists()

@@ -14,8 +14,10 @@ locked (``flock``) for as long as it runs; the kernel releases the lock when the
 dies, even by SIGKILL. The first write of a process into a directory removes the staging
 directories there whose lock is free (their writer is dead) and those without a lock file
 older than :data:`STALE_AFTER` seconds; staging directories of live writers (another process
-writing into the same folder of a render farm) stay locked and are left alone. On file
-systems without working locks nothing is removed.
+writing into the same folder of a render farm) stay locked and are left alone. The lock file
+names its host, and only staging directories of this host are judged by their lock (a
+network mount may not share locks between hosts): another host's leftovers wait for a run
+on that host. On file systems without working locks nothing is removed.
 
 Outputs must be regular files, or not exist: a FIFO, a device, a socket or a directory is
 refused even with ``overwrite=True`` (writing "over" ``/dev/null`` as root would replace it).
@@ -29,6 +31,7 @@ import os
 import secrets
 import shutil
 import signal
+import socket
 import stat
 import threading
 import time
@@ -53,6 +56,7 @@ STALE_AFTER = 600.0
 creates its lock file within microseconds of the directory)."""
 
 _LOCK = "lock"
+_HOST = socket.gethostname()[:200]  # written into the lock file: whose lock it is
 _MAX_SUFFIX = 16  # longer "suffixes" are not file types; the temporary goes without one
 
 
@@ -237,7 +241,10 @@ def remove_stale_temporaries(directory: str | os.PathLike[str]) -> list[Path]:
         except OSError:
             continue
         try:
-            if _try_lock(fd):
+            # Another host's lock says nothing here: on a network mount without lock sharing it
+            # would look free while its writer runs. Those are left to a run on that host.
+            owner = os.read(fd, 256).decode("utf-8", "replace")
+            if (not owner or owner == _HOST) and _try_lock(fd):
                 shutil.rmtree(entry.path, ignore_errors=True)
                 removed.append(Path(entry.path))
         finally:
@@ -272,6 +279,7 @@ class _Staging:
             fd = os.open(path / (_LOCK + ".new"), os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o600)
             self._fd = fd
             _try_lock(fd)
+            os.write(fd, _HOST.encode())
             os.rename(path / (_LOCK + ".new"), path / _LOCK)
         except BaseException:
             self.remove()
