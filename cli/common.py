@@ -41,6 +41,7 @@ __all__ = [
     "one_line_warnings",
 ]
 
+
 def add_output_options(parser: argparse.ArgumentParser, *, output_help: str) -> None:
     """``-o/--output`` and ``--overwrite``."""
     parser.add_argument("-o", "--output", required=True, metavar="FILE", help=output_help)
