@@ -132,7 +132,7 @@ PARAMS = [
     Param("channels", "names", lambda v: luminance_weights(v)),
 ]
 
-# Classic bad values of each kind (the red-team's list, and their neighbours).
+# Classic bad values of each kind: NaN, infinities, signs, huge and fractional numbers, bools, strings, None.
 CLASSIC = [float("nan"), float("inf"), -float("inf"), np.float64("nan"), -1, -1e-300, 1e300, 2**70, -(2**70), 1.5,
            True, False, "1", "", None, 1 + 2j]
 
