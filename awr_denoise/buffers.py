@@ -18,9 +18,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import _checks
+from ._arrays import as_float64, check_count, check_finite, flat_pixel_index
 from ._typing import BoolArray, CountArray, FloatArray, Shape2D
 from .channels import channel_count, default_channel_names, luminance_weights, resolve_channels  # noqa: F401 - re-exported
 from .pooling import pooled_variance
+
 __all__ = ["SampleBuffer", "VARIANCE_KINDS", "NONFINITE_POLICIES"]
 
 VARIANCE_KINDS = ("sample", "mean", "second_moment")
@@ -28,42 +30,6 @@ VARIANCE_KINDS = ("sample", "mean", "second_moment")
 
 NONFINITE_POLICIES = ("raise", "drop", "zero")
 """What to do with NaN/Inf samples: refuse them, leave them out, or count them as 0."""
-
-def _as_float64(name: str, array: object, ndim: int) -> FloatArray:
-    a = np.asarray(array)
-    if a.dtype.kind == "c":
-        raise TypeError(f"{name}: complex values are not supported")
-    if a.dtype.kind not in "fiu":  # bools are not values (a mask passed by mistake)
-        raise TypeError(f"{name}: expected a numeric array, got dtype {a.dtype}")
-    if a.ndim != ndim:
-        raise ValueError(f"{name}: expected {ndim} dimensions, got shape {a.shape}")
-    return a.astype(np.float64, copy=True)
-
-
-def _check_finite(name: str, a: FloatArray) -> None:
-    bad = ~np.isfinite(a)
-    if bad.any():
-        pixels = int(bad.reshape(bad.shape[0], bad.shape[1], -1).any(axis=2).sum())
-        raise ValueError(f"{name}: {pixels} pixel(s) hold NaN or Inf")
-
-
-def _check_count(count: object) -> CountArray:
-    c = np.asarray(count)
-    if c.ndim != 2:
-        raise ValueError(f"count: expected shape (H, W), got {c.shape}")
-    if c.dtype.kind == "f":
-        bad = ~(np.abs(c) <= 2**62)  # NaN, Inf, or beyond what int64 counts hold safely
-        if bad.any():
-            raise ValueError(f"count: {int(bad.sum())} pixel(s) hold NaN or Inf (or exceed 2**62)")
-        if (c != np.round(c)).any():
-            raise ValueError(f"count: {int((c != np.round(c)).sum())} pixel(s) are not whole numbers")
-    elif c.dtype.kind not in "iu":
-        raise TypeError(f"count: expected an integer array, got dtype {c.dtype}")
-    c = c.astype(np.int64)
-    if (c < 0).any():
-        raise ValueError(f"count: {int((c < 0).sum())} pixel(s) are negative")
-    return c
-
 
 @dataclass(frozen=True, eq=False)
 class SampleBuffer:
@@ -116,17 +82,17 @@ class SampleBuffer:
     nonfinite: int = 0
 
     def __post_init__(self) -> None:
-        count = _check_count(self.count)
-        mean = _as_float64("mean", self.mean, 3)
-        variance = _as_float64("variance", self.variance, 3)
+        count = check_count(self.count)
+        mean = as_float64("mean", self.mean, 3)
+        variance = as_float64("variance", self.variance, 3)
         if mean.shape[:2] != count.shape:
             raise ValueError(f"mean: shape {mean.shape} does not match count {count.shape}")
         if variance.shape != mean.shape:
             raise ValueError(f"variance: shape {variance.shape} does not match mean {mean.shape}")
         if count.size == 0 or mean.shape[2] == 0:
             raise ValueError(f"count: empty image of shape {mean.shape}")
-        _check_finite("mean", mean)
-        _check_finite("variance", variance)
+        check_finite("mean", mean)
+        check_finite("variance", variance)
         negative = (variance < 0).any(axis=2)
         if negative.any():
             raise ValueError(f"variance: {int(negative.sum())} pixel(s) are negative")
@@ -192,21 +158,21 @@ class SampleBuffer:
         """
         if variance_kind not in VARIANCE_KINDS:
             raise ValueError(f"variance_kind: {variance_kind!r} is not one of {', '.join(VARIANCE_KINDS)}")
-        count_arr = _check_count(count)
+        count_arr = check_count(count)
         mean_arr = np.asarray(mean)
         var_arr = np.asarray(variance)
         if mean_arr.ndim == 2:
             mean_arr = mean_arr[..., None]
         if var_arr.ndim == 2:
             var_arr = var_arr[..., None]
-        mean_arr = _as_float64("mean", mean_arr, 3)
-        var_arr = _as_float64("variance", var_arr, 3)
+        mean_arr = as_float64("mean", mean_arr, 3)
+        var_arr = as_float64("variance", var_arr, 3)
         if var_arr.shape != mean_arr.shape:
             raise ValueError(f"variance: shape {var_arr.shape} does not match mean {mean_arr.shape}")
         if mean_arr.shape[:2] != count_arr.shape:
             raise ValueError(f"mean: shape {mean_arr.shape} does not match count {count_arr.shape}")
-        _check_finite("mean", mean_arr)
-        _check_finite("variance", var_arr)
+        check_finite("mean", mean_arr)
+        check_finite("variance", var_arr)
         n = count_arr[..., None].astype(np.float64)
         if variance_kind == "mean":
             var_arr = var_arr * n
@@ -240,17 +206,17 @@ class SampleBuffer:
         >>> buf.mean[..., 0], buf.variance[..., 0], buf.variance_known            # one sample: unknown
         (array([[2., 5.]]), array([[2., 0.]]), array([[ True, False]]))
         """
-        count_arr = _check_count(count)
+        count_arr = check_count(count)
         s1 = np.asarray(sum, dtype=np.float64)
         s2 = np.asarray(sum_sq, dtype=np.float64)
         if s1.ndim == 2:
             s1, s2 = s1[..., None], s2[..., None]
-        s1 = _as_float64("sum", s1, 3)
-        s2 = _as_float64("sum_sq", s2, 3)
+        s1 = as_float64("sum", s1, 3)
+        s2 = as_float64("sum_sq", s2, 3)
         if s2.shape != s1.shape or s1.shape[:2] != count_arr.shape:
             raise ValueError(f"sum/sum_sq: shapes {s1.shape}, {s2.shape} do not match count {count_arr.shape}")
-        _check_finite("sum", s1)
-        _check_finite("sum_sq", s2)
+        check_finite("sum", s1)
+        check_finite("sum_sq", s2)
         n = count_arr[..., None].astype(np.float64)
         safe_n = np.maximum(n, 1.0)
         mean = np.where(n > 0, s1 / safe_n, 0.0)
@@ -295,7 +261,7 @@ class SampleBuffer:
         h, w = (int(s) for s in shape)
         if h <= 0 or w <= 0:
             raise ValueError(f"shape: empty image {shape}")
-        flat = _flat_pixel_index(pixels, (h, w))
+        flat = flat_pixel_index(pixels, (h, w))
         vals = np.asarray(values)
         if vals.ndim == 1:
             vals = vals[:, None]
@@ -376,9 +342,9 @@ class SampleBuffer:
             raise ValueError(f"counts/means: expected (N, H, W) and (N, H, W, C), got {c.shape}, {np.shape(means)}")
         if c.shape[0] < 2:
             raise ValueError(f"means: {c.shape[0]} render(s) given; the spread of means needs at least 2")
-        per_render = np.stack([_check_count(ck) for ck in c]).astype(np.float64)
-        m = np.stack([_as_float64("means", mk, 3) for mk in m])
-        _check_finite("means", m.reshape(-1, *m.shape[2:]))
+        per_render = np.stack([check_count(ck) for ck in c]).astype(np.float64)
+        m = np.stack([as_float64("means", mk, 3) for mk in m])
+        check_finite("means", m.reshape(-1, *m.shape[2:]))
         n = per_render.sum(axis=0)
         w = per_render[..., None]
         safe = np.maximum(n, 1.0)[..., None]
@@ -528,23 +494,3 @@ class SampleBuffer:
     def __repr__(self) -> str:
         return (f"SampleBuffer(shape={self.shape}, channels={self.channels}, "
                 f"total_samples={self.total_samples}, spp={self.total_samples / self.count.size:.3g})")
-
-
-def _flat_pixel_index(pixels: np.ndarray, shape: Shape2D) -> np.ndarray:
-    h, w = shape
-    p = np.asarray(pixels)
-    if p.dtype.kind not in "iu":
-        raise TypeError(f"pixels: expected integer coordinates, got dtype {p.dtype}")
-    if p.ndim == 2 and p.shape[1] == 2:
-        rows, cols = p[:, 0].astype(np.int64), p[:, 1].astype(np.int64)
-        bad = (rows < 0) | (rows >= h) | (cols < 0) | (cols >= w)
-        if bad.any():
-            raise ValueError(f"pixels: {int(bad.sum())} coordinate(s) fall outside the {h}x{w} image")
-        return rows * w + cols
-    if p.ndim == 1:
-        flat = p.astype(np.int64)
-        bad = (flat < 0) | (flat >= h * w)
-        if bad.any():
-            raise ValueError(f"pixels: {int(bad.sum())} index(es) fall outside the {h}x{w} image")
-        return flat
-    raise ValueError(f"pixels: expected (N, 2) coordinates or (N,) flat indices, got shape {p.shape}")

@@ -1,0 +1,73 @@
+"""Checks of the per-pixel arrays a :class:`~awr_denoise.buffers.SampleBuffer` is built from.
+
+Each check raises a ``ValueError`` (or ``TypeError``) naming the parameter and the number of bad
+pixels, as the buffer's constructors document; the buffer and its features share them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._typing import CountArray, FloatArray, Shape2D
+
+__all__ = ["as_float64", "check_finite", "check_count", "flat_pixel_index"]
+
+
+def as_float64(name: str, array: object, ndim: int) -> FloatArray:
+    """A float64 copy of a numeric array of ``ndim`` dimensions (complex and bool refused)."""
+    a = np.asarray(array)
+    if a.dtype.kind == "c":
+        raise TypeError(f"{name}: complex values are not supported")
+    if a.dtype.kind not in "fiu":  # bools are not values (a mask passed by mistake)
+        raise TypeError(f"{name}: expected a numeric array, got dtype {a.dtype}")
+    if a.ndim != ndim:
+        raise ValueError(f"{name}: expected {ndim} dimensions, got shape {a.shape}")
+    return a.astype(np.float64, copy=True)
+
+
+def check_finite(name: str, a: FloatArray) -> None:
+    """Refuse NaN/Inf, counting the pixels (first two axes) that hold any."""
+    bad = ~np.isfinite(a)
+    if bad.any():
+        pixels = int(bad.reshape(bad.shape[0], bad.shape[1], -1).any(axis=2).sum())
+        raise ValueError(f"{name}: {pixels} pixel(s) hold NaN or Inf")
+
+
+def check_count(count: object) -> CountArray:
+    """(H, W) whole, non-negative sample counts as int64."""
+    c = np.asarray(count)
+    if c.ndim != 2:
+        raise ValueError(f"count: expected shape (H, W), got {c.shape}")
+    if c.dtype.kind == "f":
+        bad = ~(np.abs(c) <= 2**62)  # NaN, Inf, or beyond what int64 counts hold safely
+        if bad.any():
+            raise ValueError(f"count: {int(bad.sum())} pixel(s) hold NaN or Inf (or exceed 2**62)")
+        if (c != np.round(c)).any():
+            raise ValueError(f"count: {int((c != np.round(c)).sum())} pixel(s) are not whole numbers")
+    elif c.dtype.kind not in "iu":
+        raise TypeError(f"count: expected an integer array, got dtype {c.dtype}")
+    c = c.astype(np.int64)
+    if (c < 0).any():
+        raise ValueError(f"count: {int((c < 0).sum())} pixel(s) are negative")
+    return c
+
+
+def flat_pixel_index(pixels: np.ndarray, shape: Shape2D) -> np.ndarray:
+    """Row-major flat indices of ``(row, col)`` pairs or flat indices, checked against ``shape``."""
+    h, w = shape
+    p = np.asarray(pixels)
+    if p.dtype.kind not in "iu":
+        raise TypeError(f"pixels: expected integer coordinates, got dtype {p.dtype}")
+    if p.ndim == 2 and p.shape[1] == 2:
+        rows, cols = p[:, 0].astype(np.int64), p[:, 1].astype(np.int64)
+        bad = (rows < 0) | (rows >= h) | (cols < 0) | (cols >= w)
+        if bad.any():
+            raise ValueError(f"pixels: {int(bad.sum())} coordinate(s) fall outside the {h}x{w} image")
+        return rows * w + cols
+    if p.ndim == 1:
+        flat = p.astype(np.int64)
+        bad = (flat < 0) | (flat >= h * w)
+        if bad.any():
+            raise ValueError(f"pixels: {int(bad.sum())} index(es) fall outside the {h}x{w} image")
+        return flat
+    raise ValueError(f"pixels: expected (N, 2) coordinates or (N,) flat indices, got shape {p.shape}")
