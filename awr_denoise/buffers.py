@@ -12,7 +12,7 @@ algorithm, so a buffer built from several batches equals the buffer of all sampl
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,6 +21,7 @@ from . import _checks
 from ._arrays import as_float64, check_count, check_finite, flat_pixel_index
 from ._typing import BoolArray, CountArray, FloatArray, Shape2D
 from .channels import channel_count, default_channel_names, luminance_weights, resolve_channels  # noqa: F401 - re-exported
+from .features import FEATURE_CHANNELS, checked_features, map_features, merge_features
 from .pooling import pooled_variance
 
 __all__ = ["SampleBuffer", "VARIANCE_KINDS", "NONFINITE_POLICIES"]
@@ -54,6 +55,10 @@ class SampleBuffer:
     nonfinite
         Number of NaN/Inf samples that were dropped or zeroed on the way in (see
         :meth:`from_samples`); carried through :meth:`merge`.
+    features
+        Optional per-pixel features, ``{"albedo" | "normal" | "depth": SampleBuffer}`` with the
+        channels of :data:`~awr_denoise.features.FEATURE_CHANNELS`, each with its own count,
+        mean and variance; merged and cropped with the radiance (:mod:`awr_denoise.features`).
 
     Notes
     -----
@@ -80,6 +85,7 @@ class SampleBuffer:
     channels: tuple[str, ...]
     variance_known: BoolArray = field(repr=False)
     nonfinite: int = 0
+    features: Mapping[str, SampleBuffer] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
         count = check_count(self.count)
@@ -111,6 +117,7 @@ class SampleBuffer:
         object.__setattr__(self, "variance_known", known)
         object.__setattr__(self, "channels", channels)
         object.__setattr__(self, "nonfinite", int(self.nonfinite))
+        object.__setattr__(self, "features", checked_features(self, self.features))
 
     # ------------------------------------------------------------------ constructors
     @classmethod
@@ -132,6 +139,7 @@ class SampleBuffer:
         variance_kind: str = "sample",
         channels: Sequence[str] | int | None = None,
         variance_known: BoolArray | None = None,
+        features: Mapping[str, SampleBuffer] | None = None,
     ) -> SampleBuffer:
         """Build a buffer from per-pixel count, mean and a measure of spread.
 
@@ -149,6 +157,8 @@ class SampleBuffer:
         variance_known
             Optional (H, W) mask of pixels whose variance is usable; False marks a renderer's
             "unknown" (pbrt's zero variance on pixels that only saw the environment).
+        features
+            Optional feature buffers (albedo, normal, depth), kept as given.
 
         Examples
         --------
@@ -181,7 +191,8 @@ class SampleBuffer:
                 spread = np.maximum(var_arr - mean_arr**2, 0.0)
                 var_arr = np.where(n > 1, spread * n / np.maximum(n - 1, 1), 0.0)
         known = np.ones(count_arr.shape, bool) if variance_known is None else np.asarray(variance_known, bool)
-        return cls(count_arr, mean_arr, var_arr, resolve_channels(channels, mean_arr.shape[2]), known)
+        return cls(count_arr, mean_arr, var_arr, resolve_channels(channels, mean_arr.shape[2]), known,
+                   features=features or {})
 
     @classmethod
     def from_sums(
@@ -234,6 +245,7 @@ class SampleBuffer:
         *,
         channels: Sequence[str] | int | None = None,
         nonfinite: str = "raise",
+        features: Mapping[str, FloatArray] | None = None,
     ) -> SampleBuffer:
         """Accumulate raw samples into per-pixel statistics (exact two-pass, float64).
 
@@ -249,6 +261,10 @@ class SampleBuffer:
             ``"raise"`` (default): a sample with NaN/Inf in any channel is an error;
             ``"drop"``: such samples are left out; ``"zero"``: they count as 0 in every channel.
             Dropped or zeroed samples are counted in :attr:`nonfinite`.
+        features
+            Optional per-sample feature values, ``{"albedo": (N, 3), "normal": (N, 3),
+            "depth": (N,) or (N, 1)}``, one row per sample as ``values``; each becomes a feature
+            buffer. A sample that is not finite in its value or any feature is one bad sample.
 
         Examples
         --------
@@ -270,15 +286,23 @@ class SampleBuffer:
         if vals.dtype.kind not in "fiu":
             raise TypeError(f"values: expected a numeric array, got dtype {vals.dtype}")
         vals = vals.astype(np.float64)
+        per_sample = {name: _feature_rows(name, rows, flat.shape[0]) for name, rows in (features or {}).items()}
         bad = ~np.isfinite(vals).all(axis=1)
+        for rows in per_sample.values():
+            bad |= ~np.isfinite(rows).all(axis=1)
         n_bad = int(bad.sum())
         if n_bad:
             if nonfinite == "raise":
                 raise ValueError(f"values: {n_bad} sample(s) hold NaN or Inf (pass nonfinite='drop' or 'zero')")
             if nonfinite == "drop":
                 flat, vals = flat[~bad], vals[~bad]
+                per_sample = {name: rows[~bad] for name, rows in per_sample.items()}
             else:
                 vals[bad] = 0.0
+                for rows in per_sample.values():
+                    rows[bad] = 0.0
+        feature_buffers = {name: cls.from_samples(flat, rows, (h, w), channels=FEATURE_CHANNELS.get(name))
+                           for name, rows in per_sample.items()}
         n_pix = h * w
         count = np.bincount(flat, minlength=n_pix)
         safe = np.maximum(count, 1)
@@ -291,7 +315,8 @@ class SampleBuffer:
             m2[:, c] = np.bincount(flat, weights=dev * dev, minlength=n_pix)
         variance = m2 / np.maximum(count - 1, 1)[:, None]
         return cls(count.reshape(h, w), mean.reshape(h, w, n_ch), variance.reshape(h, w, n_ch),
-                   resolve_channels(channels, n_ch), np.ones((h, w), bool), n_bad if nonfinite != "raise" else 0)
+                   resolve_channels(channels, n_ch), np.ones((h, w), bool), n_bad if nonfinite != "raise" else 0,
+                   feature_buffers)
 
     @classmethod
     def from_independent_means(
@@ -378,7 +403,8 @@ class SampleBuffer:
     @property
     def nbytes(self) -> int:
         """Memory held by the statistics arrays."""
-        return int(self.count.nbytes + self.mean.nbytes + self.variance.nbytes + self.variance_known.nbytes)
+        own = self.count.nbytes + self.mean.nbytes + self.variance.nbytes + self.variance_known.nbytes
+        return int(own + sum(f.nbytes for f in self.features.values()))
 
     # ------------------------------------------------------------------ statistics
     def estimated_variance(self) -> FloatArray:
@@ -476,7 +502,7 @@ class SampleBuffer:
         variance = np.where(na == 0, other.variance, np.where(nb == 0, self.variance, variance))
         known = (self.variance_known | (self.count < 2)) & (other.variance_known | (other.count < 2))
         return SampleBuffer(self.count + other.count, mean, variance, self.channels, known,
-                            self.nonfinite + other.nonfinite)
+                            self.nonfinite + other.nonfinite, merge_features(self, other))
 
     def crop(self, rows: slice, cols: slice) -> SampleBuffer:
         """The statistics of a rectangular region (a tile), as a new buffer.
@@ -489,8 +515,24 @@ class SampleBuffer:
         """
         _checks.slices(rows=rows, cols=cols)
         return SampleBuffer(self.count[rows, cols], self.mean[rows, cols], self.variance[rows, cols],
-                            self.channels, self.variance_known[rows, cols], 0)
+                            self.channels, self.variance_known[rows, cols], 0,
+                            map_features(self.features, lambda f: f.crop(rows, cols)))
 
     def __repr__(self) -> str:
         return (f"SampleBuffer(shape={self.shape}, channels={self.channels}, "
-                f"total_samples={self.total_samples}, spp={self.total_samples / self.count.size:.3g})")
+                f"total_samples={self.total_samples}, spp={self.total_samples / self.count.size:.3g}"
+                + (f", features={tuple(self.features)})" if self.features else ")"))
+
+
+def _feature_rows(name: str, rows: object, n: int) -> FloatArray:
+    """Per-sample values of feature ``name`` as an (N, channels) float64 copy."""
+    a = np.asarray(rows)
+    a = a[:, None] if a.ndim == 1 else a
+    width = len(FEATURE_CHANNELS.get(name, ()))
+    if not width:
+        raise ValueError(f"features: {name!r} is not one of {', '.join(FEATURE_CHANNELS)}")
+    if a.ndim != 2 or a.shape != (n, width):
+        raise ValueError(f"features[{name!r}]: expected ({n}, {width}) per-sample values, got shape {np.shape(rows)}")
+    if a.dtype.kind not in "fiu":
+        raise TypeError(f"features[{name!r}]: expected a numeric array, got dtype {a.dtype}")
+    return a.astype(np.float64)

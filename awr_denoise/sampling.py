@@ -21,6 +21,7 @@ Three strategies share the interface so that benchmarks compare like with like:
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import warnings
 from collections.abc import Callable
@@ -296,6 +297,9 @@ class Sampler:
     def tell(self, request: SampleRequest | int, samples: SampleBuffer) -> SampleBuffer:
         """Merge the samples rendered for ``request``; returns the merged statistics.
 
+        Features the renderer returned with them (albedo, normal, depth) are merged the same
+        way (:func:`~awr_denoise.features.merge_features`).
+
         Raises
         ------
         StaleRequestError
@@ -343,8 +347,7 @@ class Sampler:
         if short:
             warnings.warn(f"samples: {short} requested sample(s) missing (dropped by the renderer?)", stacklevel=2)
         if samples.channels != self._buffer.channels:
-            samples = SampleBuffer(samples.count, samples.mean, samples.variance, self._buffer.channels,
-                                   samples.variance_known, samples.nonfinite)
+            samples = dataclasses.replace(samples, channels=self._buffer.channels)
         self._buffer = self._buffer.merge(samples)
         self._issued = self._issued + pending.counts
         self._round += 1
