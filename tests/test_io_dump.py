@@ -172,3 +172,85 @@ def test_request_total_checksum(tmp_path):
     _write(tmp_path / "r.exr", {"counts": one, "first_index": one * 0}, {"awr:total": 5})
     with pytest.raises(InputFileError, match=r"r\.exr: counts: .*awr:total"):
         read_request(tmp_path / "r.exr")
+
+
+# ---------------------------------------------------------------------------- features
+def _with_features(rng, shape=(4, 5), n=160) -> SampleBuffer:
+    h, w = shape
+    pixels = np.concatenate([np.repeat(np.arange(h * w), 2), rng.integers(0, h * w, n - 2 * h * w)])
+    normal = rng.normal(size=(n, 3))
+    features = {"albedo": rng.random((n, 3)), "normal": normal / np.linalg.norm(normal, axis=1, keepdims=True),
+                "depth": rng.uniform(1, 5, n)}
+    return SampleBuffer.from_samples(pixels, rng.random((n, 3)), shape, features=features)
+
+
+def _assert_float32_equal(a: SampleBuffer, b: SampleBuffer) -> None:
+    assert a.channels == b.channels
+    np.testing.assert_array_equal(a.count, b.count)
+    np.testing.assert_array_equal(a.variance_known, b.variance_known)
+    np.testing.assert_array_equal(a.mean, b.mean.astype(np.float32))
+    np.testing.assert_array_equal(a.variance, b.variance.astype(np.float32))
+
+
+def test_features_round_trip_with_their_variances(tmp_path, rng):
+    buf = _with_features(rng)
+    write_sample_buffer(tmp_path / "f.exr", buf)
+    with OpenEXR.File(str(tmp_path / "f.exr"), separate_channels=True) as f:
+        names = set(f.parts[0].channels)
+        assert f.parts[0].header["awr:features"] == "albedo,normal,depth"
+        assert f.parts[0].header["awr:channels"] == "R,G,B"   # older readers see the radiance only
+    assert {"albedo.R", "variance.albedo.B", "normal.X", "variance.normal.Z", "depth.Z", "variance.depth.Z"} <= names
+    assert not {"albedo.sampleCount", "depth.varianceKnown"} & names   # same counts as the radiance: not stored
+    back = read_sample_buffer(tmp_path / "f.exr")
+    _assert_float32_equal(back, buf)
+    assert tuple(back.features) == ("albedo", "normal", "depth")
+    for name, feature in buf.features.items():
+        _assert_float32_equal(back.features[name], feature)
+
+
+def test_feature_counts_and_unknown_variances_round_trip(tmp_path, rng):
+    buf = _with_features(rng)
+    count = np.full(buf.shape, 3)
+    depth = SampleBuffer.from_moments(count, np.full(buf.shape, 2.0), np.zeros(buf.shape), channels=["Z"],
+                                      variance_known=np.zeros(buf.shape, bool))
+    buf = SampleBuffer.from_moments(buf.count, buf.mean, buf.variance, features={"depth": depth})
+    write_sample_buffer(tmp_path / "c.exr", buf)
+    back = read_sample_buffer(tmp_path / "c.exr").features["depth"]
+    np.testing.assert_array_equal(back.count, count)
+    assert not back.variance_known.any() and (back.mean == 2.0).all()
+
+
+def test_feature_planes_without_the_header_are_found(tmp_path):
+    planes = _planes(**{"depth.Z": np.full((3, 4), 7, np.float32), "variance.depth.Z": np.zeros((3, 4), np.float32)})
+    _write(tmp_path / "n.exr", planes)
+    back = read_sample_buffer(tmp_path / "n.exr")
+    assert back.channels == ("R", "G", "B") and tuple(back.features) == ("depth",)
+    assert (back.features["depth"].mean == 7).all()
+
+
+@pytest.mark.parametrize("header, drop, message", [
+    ({"awr:features": "depth,shade"}, None, r"awr:features: 'shade' is not one of albedo, normal, depth"),
+    ({"awr:features": "depth"}, "variance.depth.Z", r"variance\.depth\.Z: missing \(the dump's depth feature\)"),
+])
+def test_bad_feature_planes_are_named(tmp_path, header, drop, message):
+    planes = _planes(**{"depth.Z": np.ones((3, 4), np.float32), "variance.depth.Z": np.zeros((3, 4), np.float32)})
+    planes.pop(drop, None)
+    _write(tmp_path / "b.exr", planes, header)
+    with pytest.raises(InputFileError, match=r"b\.exr: " + message):
+        read_sample_buffer(tmp_path / "b.exr")
+
+
+def test_a_negative_feature_variance_is_named(tmp_path):
+    planes = _planes(**{"depth.Z": np.ones((3, 4), np.float32), "variance.depth.Z": -np.ones((3, 4), np.float32)})
+    _write(tmp_path / "v.exr", planes, {"awr:features": "depth"})
+    with pytest.raises(InputFileError, match=r"v\.exr: variance\.depth\.Z: .*negative"):
+        read_sample_buffer(tmp_path / "v.exr")
+
+
+def test_radiance_names_that_collide_with_feature_planes_are_refused(tmp_path, rng):
+    buf = _with_features(rng)
+    clash = SampleBuffer.from_moments(buf.count, buf.mean, buf.variance, channels=["depth.Z", "G", "B"],
+                                      features=dict(buf.features))
+    with pytest.raises(ValueError, match="channel name 'depth.Z' collides with the dump layout"):
+        write_sample_buffer(tmp_path / "x.exr", clash)
+    assert not (tmp_path / "x.exr").exists()

@@ -8,11 +8,15 @@ Channels (all FLOAT, looked up by name)::
     varianceKnown           optional, 1 where the variance is usable, 0 where unknown
     issuedCount             optional, samples requested so far when it differs from
                             sampleCount (dropped non-finite samples); next first_index
+    albedo.R/G/B, normal.X/Y/Z, depth.Z
+                            optional features (header awr:features), each with its
+                            variance.<feature>.<c> planes and, where they differ from the
+                            radiance's, <feature>.sampleCount and <feature>.varianceKnown
 
 Header attributes: ``awr:semantics = "sample-statistics"``, ``awr:variance_kind``
 (``sample`` | ``mean`` | ``second_moment``), ``awr:channels`` (the channel order, since EXR
 sorts channels by name), ``awr:version``, ``awr:nonfinite`` and free provenance such as
-``awr:round`` and ``awr:seed``.
+``awr:round`` and ``awr:seed``; ``awr:features`` lists the features stored (comma separated).
 
 Counts are FLOAT, not UINT, because OpenImageIO normalises integer channels read as float
 (a count of 26 comes back as 6e-9); Cycles and RenderMan store counts as float for the same
@@ -21,6 +25,7 @@ reason. float32 holds whole numbers exactly up to 2**24, so larger counts are re
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -32,6 +37,7 @@ import numpy as np
 from .._typing import CountArray
 from .._version import __version__
 from ..buffers import VARIANCE_KINDS, SampleBuffer
+from ..features import FEATURE_CHANNELS, FEATURE_NAMES
 from .atomic import public_name
 from .exr import ExrPart, checked_plane, file_error, header_value, write_exr
 
@@ -41,6 +47,7 @@ __all__ = [
     "ISSUED_CHANNEL",
     "VARIANCE_PREFIX",
     "SEMANTICS_STATISTICS",
+    "FEATURES_ATTRIBUTE",
     "MAX_EXACT_COUNT",
     "SampleDump",
     "write_sample_buffer",
@@ -53,6 +60,7 @@ KNOWN_CHANNEL = "varianceKnown"
 ISSUED_CHANNEL = "issuedCount"
 VARIANCE_PREFIX = "variance."
 SEMANTICS_STATISTICS = "sample-statistics"
+FEATURES_ATTRIBUTE = "awr:features"
 MAX_EXACT_COUNT = 2**24
 """Largest count a float32 channel is guaranteed to hold exactly (with all smaller ones)."""
 
@@ -151,17 +159,15 @@ def write_sample_buffer(path: str | os.PathLike[str], buffer: SampleBuffer, *,
     if not isinstance(buffer, SampleBuffer):
         raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
     reserved = {COUNT_CHANNEL, KNOWN_CHANNEL, ISSUED_CHANNEL}
+    feature_prefixes = tuple(f"{name}." for name in buffer.features)
     for name in buffer.channels:
-        if name in reserved or name.startswith(VARIANCE_PREFIX) or "," in name:
+        if (name in reserved or name.startswith(VARIANCE_PREFIX) or "," in name
+                or (feature_prefixes and name.startswith(feature_prefixes))):
             raise ValueError(f"buffer: channel name {name!r} collides with the dump layout")
-    planes: dict[str, np.ndarray] = {COUNT_CHANNEL: exact_counts("count", buffer.count)}
-    for i, name in enumerate(buffer.channels):
-        planes[name] = _float32(path, name, buffer.mean[..., i])
-        planes[VARIANCE_PREFIX + name] = _float32(path, VARIANCE_PREFIX + name, buffer.variance[..., i])
-    # Pixels with fewer than two samples are unknown by definition; only a renderer's
-    # explicit "unknown" needs the mask.
-    if (~buffer.variance_known & (buffer.count >= 2)).any():
-        planes[KNOWN_CHANNEL] = buffer.variance_known.astype(np.float32)
+    planes: dict[str, np.ndarray] = {}
+    _statistics_planes(path, planes, buffer, "")
+    for name, feature in buffer.features.items():
+        _statistics_planes(path, planes, feature, f"{name}.", like=buffer.count)
     if issued is not None:
         iss = np.asarray(issued)
         if iss.shape != buffer.shape:
@@ -177,8 +183,29 @@ def write_sample_buffer(path: str | os.PathLike[str], buffer: SampleBuffer, *,
         "awr:version": __version__,
         "awr:nonfinite": int(buffer.nonfinite),
     }
+    if buffer.features:
+        attrs[FEATURES_ATTRIBUTE] = ",".join(buffer.features)
     attrs.update(header or {})
     return write_exr(path, planes, attrs, overwrite=overwrite)
+
+
+def _statistics_planes(path: str | os.PathLike[str], planes: dict[str, np.ndarray], buffer: SampleBuffer,
+                       prefix: str, like: np.ndarray | None = None) -> None:
+    """Planes of one buffer (the radiance, ``prefix=""``, or a feature, ``prefix="depth."``).
+
+    A feature's count is stored only where it differs from the radiance's (``like``), and a
+    known-variance mask wherever a pixel with two samples or more is marked unknown.
+    """
+    if like is None or (buffer.count != like).any():
+        planes[prefix + COUNT_CHANNEL] = exact_counts(f"{prefix}count", buffer.count)
+    for i, name in enumerate(buffer.channels):
+        planes[prefix + name] = _float32(path, prefix + name, buffer.mean[..., i])
+        planes[VARIANCE_PREFIX + prefix + name] = _float32(path, VARIANCE_PREFIX + prefix + name,
+                                                           buffer.variance[..., i])
+    # Pixels with fewer than two samples are unknown by definition; only a renderer's
+    # explicit "unknown" needs the mask.
+    if (~buffer.variance_known & (buffer.count >= 2)).any():
+        planes[prefix + KNOWN_CHANNEL] = buffer.variance_known.astype(np.float32)
 
 
 def whole_counts(path: str | os.PathLike[str], name: str, values: np.ndarray) -> np.ndarray:
@@ -201,7 +228,8 @@ def buffer_from_awr_part(path: str | os.PathLike[str], part: ExrPart, *,
     if "awr:channels" in attributes:
         names = [n for n in str(attributes["awr:channels"]).split(",") if n]
     else:
-        names = sorted(n[len(VARIANCE_PREFIX):] for n in ch if n.startswith(VARIANCE_PREFIX))
+        names = sorted(n[len(VARIANCE_PREFIX):] for n in ch if n.startswith(VARIANCE_PREFIX)
+                       and not n[len(VARIANCE_PREFIX):].startswith(tuple(f"{f}." for f in FEATURE_NAMES)))
         order = {"R": 0, "G": 1, "B": 2, "A": 3}
         names.sort(key=lambda n: (order.get(n, 4), n))
     if not names:
@@ -228,12 +256,47 @@ def buffer_from_awr_part(path: str | os.PathLike[str], part: ExrPart, *,
     except ValueError as exc:
         raise file_error(path, str(exc)) from None
     nonfinite = int(attributes.get("awr:nonfinite", 0) or 0)
-    if nonfinite:
-        buffer = SampleBuffer(buffer.count, buffer.mean, buffer.variance, buffer.channels,
-                              buffer.variance_known, nonfinite)
+    features = _read_features(path, part, attributes, count, kind)
+    if nonfinite or features:
+        buffer = dataclasses.replace(buffer, nonfinite=nonfinite, features=features)
     issued = count
     if ISSUED_CHANNEL in ch:
         issued = whole_counts(path, ISSUED_CHANNEL, ch[ISSUED_CHANNEL])
         if (issued < count).any():
             raise file_error(path, "fewer samples issued than counted at some pixels", ISSUED_CHANNEL)
     return SampleDump(buffer, issued, attributes)
+
+
+def _read_features(path: str | os.PathLike[str], part: ExrPart, attributes: Mapping[str, Any],
+                   count: np.ndarray, kind: str) -> dict[str, SampleBuffer]:
+    """The features of a dump: those ``awr:features`` names, or every complete set of planes."""
+    ch = part.channels
+    if FEATURES_ATTRIBUTE in attributes:
+        names = [n for n in str(attributes[FEATURES_ATTRIBUTE]).split(",") if n]
+        for name in names:
+            if name not in FEATURE_CHANNELS:
+                raise file_error(path, f"{name!r} is not one of {', '.join(FEATURE_NAMES)}", FEATURES_ATTRIBUTE)
+    else:
+        names = [n for n in FEATURE_NAMES if all(f"{n}.{c}" in ch for c in FEATURE_CHANNELS[n])]
+    features = {}
+    for name in names:
+        prefix = f"{name}."
+        planes = [prefix + c for c in FEATURE_CHANNELS[name]]
+        for channel in planes + [VARIANCE_PREFIX + p for p in planes]:
+            if channel not in ch:
+                raise file_error(path, f"missing (the dump's {name} feature)", channel)
+        own = count
+        if prefix + COUNT_CHANNEL in ch:
+            own = whole_counts(path, prefix + COUNT_CHANNEL, ch[prefix + COUNT_CHANNEL])
+        known = None
+        if prefix + KNOWN_CHANNEL in ch:
+            known = checked_plane(path, prefix + KNOWN_CHANNEL, ch[prefix + KNOWN_CHANNEL]) > 0.5
+        mean = np.stack([checked_plane(path, p, ch[p]) for p in planes], -1)
+        variance = np.stack([checked_plane(path, VARIANCE_PREFIX + p, ch[VARIANCE_PREFIX + p], nonnegative=True)
+                             for p in planes], -1)
+        try:
+            features[name] = SampleBuffer.from_moments(own, mean, variance, variance_kind=kind,
+                                                       channels=FEATURE_CHANNELS[name], variance_known=known)
+        except ValueError as exc:
+            raise file_error(path, str(exc), prefix + "*") from None
+    return features
