@@ -22,7 +22,7 @@ from . import _checks
 from ._typing import CountArray, FloatArray, Shape2D
 from .buffers import SampleBuffer
 
-__all__ = ["SampleRequest", "Renderer", "SampleTracer"]
+__all__ = ["SampleRequest", "Renderer", "SampleTracer", "FeatureTracer"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -165,7 +165,9 @@ class Renderer(Protocol):
 
     The returned buffer has the request's shape and, at every pixel, ``count`` equal to the
     request's ``counts`` (a renderer that had to drop non-finite samples may return fewer;
-    the sampler warns). Implementations need not subclass this protocol.
+    the sampler warns). A renderer asked for features when it was made (the bundled tracer's
+    ``features=``) returns them in the buffer's ``features``, one value per sample; requests
+    are the same either way. Implementations need not subclass this protocol.
 
     Examples
     --------
@@ -226,4 +228,32 @@ class SampleTracer(Protocol):
 
     def close(self) -> None:
         """Release worker pools or native resources; the renderer is not used afterwards."""
+        ...
+
+
+@runtime_checkable
+class FeatureTracer(SampleTracer, Protocol):
+    """A :class:`SampleTracer` that can also return each sample's features (albedo, normal, depth).
+
+    Tiled rendering asks it for a tile's samples with their features, so the tile's buffer
+    carries them (:mod:`awr_denoise.features`).
+
+    Attributes
+    ----------
+    features
+        Names of the features :meth:`trace_features` returns (empty: none).
+
+    Examples
+    --------
+    >>> from awr_denoise.requests import FeatureTracer
+    >>> from awr_denoise.synthetic import SyntheticRenderer, make_scene
+    >>> isinstance(SyntheticRenderer(make_scene("edges", (8, 8))), FeatureTracer)
+    False
+    """
+
+    features: tuple[str, ...]
+
+    def trace_features(self, rows: np.ndarray, cols: np.ndarray,
+                       sample_index: np.ndarray) -> tuple[FloatArray, dict[str, FloatArray]]:
+        """(N, C) values of the samples as :meth:`trace_samples`, and ``{name: (N, channels)}`` features."""
         ...

@@ -21,7 +21,7 @@ import numpy as np
 from .._typing import Shape2D
 from ..buffers import SampleBuffer
 from ..renderers import create_renderer, renderer_names
-from ..requests import Renderer, SampleRequest, SampleTracer
+from ..requests import FeatureTracer, Renderer, SampleRequest, SampleTracer
 from ..sampling import Sampler
 from .executors import default_workers, executor_or_threads, submit
 from .tiles import tile_grid
@@ -133,20 +133,35 @@ def _render_tile(factory: Callable[[], Renderer], counts: np.ndarray, first_inde
     if isinstance(renderer, SampleTracer):
         rows, cols, sample_index = tile_request.pixel_list()
         before = renderer.stats["nonfinite"]
-        values = np.asarray(renderer.trace_samples(rows + r0, cols + c0, sample_index))
+        features = None
+        if isinstance(renderer, FeatureTracer) and renderer.features:
+            values, features = renderer.trace_features(rows + r0, cols + c0, sample_index)
+        else:
+            values = renderer.trace_samples(rows + r0, cols + c0, sample_index)
         dropped = int(renderer.stats["nonfinite"] - before)
-        tile = SampleBuffer.from_samples(rows * tw + cols, values, (th, tw), channels=renderer.channels)
-        if dropped:
-            tile = SampleBuffer(tile.count, tile.mean, tile.variance, tile.channels, tile.variance_known, dropped)
-        return tile
+        tile = SampleBuffer.from_samples(rows * tw + cols, np.asarray(values), (th, tw), channels=renderer.channels,
+                                         features=features)
+        return dataclasses.replace(tile, nonfinite=dropped) if dropped else tile
     full_counts = np.zeros(image_shape, np.int64)
     full_first = np.zeros(image_shape, np.int64)
     window = (slice(r0, r0 + th), slice(c0, c0 + tw))
     full_counts[window] = counts
     full_first[window] = first_index
     full = renderer(SampleRequest(full_counts, full_first))
-    return SampleBuffer(full.count[window], full.mean[window], full.variance[window], full.channels,
-                        full.variance_known[window], full.nonfinite)
+    return dataclasses.replace(full.crop(*window), nonfinite=full.nonfinite)
+
+
+def _stitch(shape: Shape2D, tiles: list[tuple[slice, slice]], parts: list[SampleBuffer]) -> SampleBuffer:
+    """The buffers of disjoint tiles put side by side (features too), with no arithmetic."""
+    first = parts[0]
+    count = np.zeros(shape, np.int64)
+    mean = np.zeros(shape + (first.n_channels,))
+    variance = np.zeros_like(mean)
+    known = np.zeros(shape, bool)
+    for t, part in zip(tiles, parts):
+        count[t], mean[t], variance[t], known[t] = part.count, part.mean, part.variance, part.variance_known
+    features = {name: _stitch(shape, tiles, [p.features[name] for p in parts]) for name in first.features}
+    return SampleBuffer(count, mean, variance, first.channels, known, sum(p.nonfinite for p in parts), features)
 
 
 class TiledRenderer:
@@ -201,14 +216,7 @@ class TiledRenderer:
         else:
             futures = [submit(self.executor, _render_tile, *a) for a in args]
             results = [f.result() for f in futures]
-        first = results[0]
-        count = np.zeros(shape, np.int64)
-        mean = np.zeros(shape + (first.n_channels,))
-        variance = np.zeros_like(mean)
-        known = np.zeros(shape, bool)
-        for t, part in zip(tiles, results):
-            count[t], mean[t], variance[t], known[t] = part.count, part.mean, part.variance, part.variance_known
-        return SampleBuffer(count, mean, variance, first.channels, known, sum(p.nonfinite for p in results))
+        return _stitch(shape, tiles, results)
 
 
 def render_tiled(renderer_factory: Callable[[], Renderer], sampler: Sampler, *, total_spp: float,

@@ -20,6 +20,7 @@ traces and numpy releases it in large array operations.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time as _time
 import multiprocessing
@@ -31,8 +32,10 @@ import numpy as np
 from tqdm import tqdm
 
 from ..buffers import SampleBuffer
+from ..features import FEATURE_CHANNELS, feature_names
 from ..requests import SampleRequest
 from .accel import Accelerator
+from .features import FeatureRecorder
 from .lights import DirectionalLight, PointLight
 from .meshes import coordinate_frame, dot, normalize
 from .sampler import SAMPLER_NAMES, make_sampler
@@ -51,17 +54,18 @@ WORKER_KINDS = ("threads", "processes")
 _worker_tracer: PathTracer | None = None
 
 
-def _start_worker(scene: Scene, seed: int, sampler: str, max_depth: int, batch_size: int) -> None:
+def _start_worker(scene: Scene, seed: int, sampler: str, max_depth: int, batch_size: int,
+                  features: tuple[str, ...]) -> None:
     global _worker_tracer
     _worker_tracer = PathTracer(scene, seed=seed, sampler=sampler, max_depth=max_depth, threads=1,
-                                batch_size=batch_size)
+                                batch_size=batch_size, features=features)
 
 
-def _worker_trace(rows: np.ndarray, cols: np.ndarray,
-                  sample_index: np.ndarray) -> tuple[np.ndarray, dict[str, int], set[str]]:
+def _worker_trace(rows: np.ndarray, cols: np.ndarray, sample_index: np.ndarray
+                  ) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, int], set[str]]:
     assert _worker_tracer is not None
-    values, counts = _worker_tracer._trace_batch(rows, cols, sample_index)
-    return values, counts, set(_worker_tracer.dimensions_drawn)
+    values, features, counts = _worker_tracer._trace_batch(rows, cols, sample_index)
+    return values, features, counts, set(_worker_tracer.dimensions_drawn)
 
 DEFAULT_BATCH_SIZE = 1 << 16
 """Samples traced together in one wavefront (per thread)."""
@@ -111,6 +115,11 @@ class PathTracer:
         Show a tqdm progress bar over batches.
     batch_size
         Samples per wavefront batch.
+    features
+        Features to render with the radiance, any of ``("albedo", "normal", "depth")`` (or
+        ``"all"``); the returned buffers carry them (:attr:`SampleBuffer.features`). Which hit
+        each describes: :mod:`awr_denoise.tracer.features`. They draw no random numbers, so the
+        radiance samples are the same with and without them.
 
     Attributes
     ----------
@@ -133,8 +142,10 @@ class PathTracer:
 
     def __init__(self, scene: Scene | str | Path | dict[str, Any], *, seed: int = 0,
                  sampler: str = "independent", max_depth: int | None = None, threads: int = 2,
-                 progress: bool = False, batch_size: int = DEFAULT_BATCH_SIZE, workers: str = "threads") -> None:
+                 progress: bool = False, batch_size: int = DEFAULT_BATCH_SIZE, workers: str = "threads",
+                 features: tuple[str, ...] | str | None = None) -> None:
         self.scene = load_scene(scene)
+        self.features = feature_names(features)
         if sampler not in SAMPLER_NAMES:
             raise ValueError(f"sampler: {sampler!r} is not one of {', '.join(SAMPLER_NAMES)}")
         if int(seed) < 0:
@@ -189,11 +200,11 @@ class PathTracer:
         if request.shape != self.shape:
             raise ValueError(f"request: shape {request.shape} does not match the scene's {self.shape}")
         rows, cols, sample_index = request.pixel_list()
-        radiance, nonfinite = self._trace(rows, cols, sample_index)
+        radiance, features, nonfinite = self._trace(rows, cols, sample_index)
         # Non-finite samples were already zeroed and counted in _trace; the buffer carries the count.
-        buffer = SampleBuffer.from_samples(rows * self.shape[1] + cols, radiance, self.shape, channels=self.channels)
-        return SampleBuffer(buffer.count, buffer.mean, buffer.variance, buffer.channels, buffer.variance_known,
-                            nonfinite)
+        buffer = SampleBuffer.from_samples(rows * self.shape[1] + cols, radiance, self.shape, channels=self.channels,
+                                           features=features)
+        return dataclasses.replace(buffer, nonfinite=nonfinite)
 
     def trace_samples(self, rows: np.ndarray, cols: np.ndarray, sample_index: np.ndarray) -> np.ndarray:
         """(N, 3) float64 radiance of the given samples (one row per (row, col, sample index)).
@@ -202,7 +213,14 @@ class PathTracer:
         """
         return self._trace(rows, cols, sample_index)[0]
 
-    def _trace(self, rows: np.ndarray, cols: np.ndarray, sample_index: np.ndarray) -> tuple[np.ndarray, int]:
+    def trace_features(self, rows: np.ndarray, cols: np.ndarray,
+                       sample_index: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Radiance as :meth:`trace_samples` and ``{name: (N, channels)}`` values of :attr:`features`."""
+        radiance, features, _ = self._trace(rows, cols, sample_index)
+        return radiance, features
+
+    def _trace(self, rows: np.ndarray, cols: np.ndarray,
+               sample_index: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray], int]:
         start = _time.perf_counter()
         rows, cols, sample_index = (np.asarray(a, np.int64).ravel() for a in (rows, cols, sample_index))
         n = len(rows)
@@ -210,14 +228,17 @@ class PathTracer:
         if np.any((rows < 0) | (rows >= h) | (cols < 0) | (cols >= w)):
             raise ValueError(f"rows, cols: pixel coordinates outside the {h}x{w} image")
         radiance = np.zeros((n, 3))
+        features = {name: np.zeros((n, len(FEATURE_CHANNELS[name]))) for name in self.features}
         # At least one batch per thread (down to a floor where thread overhead would dominate).
         batch = max(min(self.batch_size, -(-n // self.threads)), min(self.batch_size, _MIN_THREAD_BATCH))
         bounds = [(s, min(s + batch, n)) for s in range(0, n, batch)]
 
         def run(bound: tuple[int, int]) -> tuple[int, int, dict[str, int]]:
             lo, hi = bound
-            values, counts = self._trace_batch(rows[lo:hi], cols[lo:hi], sample_index[lo:hi])
+            values, batch_features, counts = self._trace_batch(rows[lo:hi], cols[lo:hi], sample_index[lo:hi])
             radiance[lo:hi] = values
+            for name, rows_of in batch_features.items():
+                features[name][lo:hi] = rows_of
             return lo, hi, counts
 
         if self.workers == "processes" and self.threads > 1 and len(bounds) > 1:
@@ -225,14 +246,17 @@ class PathTracer:
                 self._pool = ProcessPoolExecutor(
                     max_workers=self.threads, mp_context=multiprocessing.get_context("spawn"),
                     initializer=_start_worker,
-                    initargs=(self.scene, self.seed, self.sampler_name, self.max_depth, self.batch_size))
+                    initargs=(self.scene, self.seed, self.sampler_name, self.max_depth, self.batch_size,
+                              self.features))
             futures = [self._pool.submit(_worker_trace, rows[lo:hi], cols[lo:hi], sample_index[lo:hi])
                        for lo, hi in bounds]
 
             def collect(item: tuple[tuple[int, int], Future]) -> tuple[int, int, dict[str, int]]:
                 (lo, hi), future = item
-                values, counts, drawn = future.result()
+                values, batch_features, counts, drawn = future.result()
                 radiance[lo:hi] = values
+                for name, rows_of in batch_features.items():
+                    features[name][lo:hi] = rows_of
                 self.dimensions_drawn.update(drawn)
                 return lo, hi, counts
 
@@ -254,7 +278,7 @@ class PathTracer:
         self.stats["nonfinite"] += nonfinite
         self.stats["samples"] += n
         self.stats["seconds"] += _time.perf_counter() - start
-        return radiance, nonfinite
+        return radiance, features, nonfinite
 
     def close(self) -> None:
         """Shut the workers down."""
@@ -269,7 +293,8 @@ class PathTracer:
 
     def __repr__(self) -> str:
         return (f"PathTracer({self.scene.name!r}, sampler={self.sampler_name!r}, seed={self.seed}, "
-                f"max_depth={self.max_depth}, dimensions={len(self.dimensions)})")
+                f"max_depth={self.max_depth}, dimensions={len(self.dimensions)}"
+                + (f", features={self.features})" if self.features else ")"))
 
     # ------------------------------------------------------------------ internals
     def _draw(self, name: str, key: np.ndarray, sample_index: np.ndarray) -> np.ndarray:
@@ -278,12 +303,33 @@ class PathTracer:
         return self.sampler.get(key, index, sample_index=sample_index, group=self._groups[name])
 
     def _trace_batch(self, rows: np.ndarray, cols: np.ndarray,
-                     sample_index: np.ndarray) -> tuple[np.ndarray, dict[str, int]]:
+                     sample_index: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, int]]:
         with np.errstate(all="ignore"):  # non-finite values are caught and counted per sample
             return self._li(rows, cols, sample_index)
 
-    def _li(self, rows: np.ndarray, cols: np.ndarray, sample_index: np.ndarray) -> tuple[np.ndarray, dict[str, int]]:
-        """Radiance of a wavefront of camera samples, and the rays traced for it.
+    def _record_hits(self, record: FeatureRecorder, paths: np.ndarray, points: np.ndarray, normals: np.ndarray,
+                     p_object: np.ndarray, obj: np.ndarray, emission: np.ndarray, *, first: bool) -> None:
+        """Features of a bounce's surface hits: depth of camera hits, albedo and normal of open paths."""
+        if first:
+            record.camera_hits(paths, points)
+        open_ = record.open[paths]
+        if not open_.any():
+            return
+        material_index = np.where(np.any(emission > 0, axis=1), -1, self.accelerator.object_material[obj])
+        reflectance = np.zeros((len(paths), 3))   # emitters reflect nothing here
+        delta = np.zeros(len(paths), bool)
+        for m in np.unique(material_index[open_]):
+            if m < 0:
+                continue
+            at = open_ & (material_index == m)
+            material = self.scene.materials[m]
+            reflectance[at] = material.reflectance(p_object[at])
+            delta[at] = material.is_specular
+        record.surfaces(paths, normals, reflectance, delta)
+
+    def _li(self, rows: np.ndarray, cols: np.ndarray,
+            sample_index: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, int]]:
+        """Radiance of a wavefront of camera samples, their features and the rays traced for it.
 
         One function on purpose: the wavefront's state (throughput, specular depth, the
         previous bounce's pdf for MIS, the active mask and its index map) changes together at
@@ -319,16 +365,22 @@ class PathTracer:
         specular_depth = np.zeros(n, np.int64)
         ray_kind = "camera_rays"
         eps = accel.epsilon
+        record = None
+        if self.features:
+            record = FeatureRecorder(n, self.features, camera.look_from, camera.world_from_camera[:, 2])
 
         while len(path):
             t_ray = time[path]
             hits = accel.intersect(o, d, t_ray)
             counts["rays"] += len(path) * accel.scene_count
             counts[ray_kind] += len(path)
+            first_bounce = ray_kind == "camera_rays"
             ray_kind = "bounce_rays"
 
             # --- rays that escape: environment emission, MIS-weighted after a BSDF bounce
             miss = ~hits.valid
+            if record is not None:
+                record.misses(path[miss])
             if self.environment is not None and miss.any():
                 wm = d[miss]
                 le = self.environment.evaluate(wm)
@@ -367,6 +419,8 @@ class PathTracer:
             # A shading normal facing away from the viewer would make the surface black.
             bad_shading = dot(n_sh, wo) <= 0
             n_sh[bad_shading] = n_geo[bad_shading]
+            if record is not None:
+                self._record_hits(record, hp, p, n_sh, p_object, obj, emission, first=first_bounce)
             # Emitters reflect nothing: their paths end here (material -1 sorts first, skipped).
             material_index = np.where(np.any(emission > 0, axis=1), -1, accel.object_material[obj])
             # Sort hits by material once, so each material below works on contiguous slices
@@ -521,7 +575,7 @@ class PathTracer:
             prev_pdf = np.concatenate(next_pdf)
             depth = np.concatenate(next_depth)
             specular_depth = np.concatenate(next_sdepth)
-        return radiance, counts
+        return radiance, {} if record is None else record.values(), counts
 
 
 def render(scene: Scene | str | Path | dict[str, Any], *, spp: int, seed: int = 0, sampler: str = "independent",

@@ -101,6 +101,17 @@ class Material:
             return self.texture.evaluate(p_object)
         return np.broadcast_to(self.albedo, (len(p_object), 3))
 
+    def reflectance(self, p_object: np.ndarray) -> np.ndarray:
+        """(N, 3) albedo as a denoiser's feature: ``kd`` (+ ``ks`` for glossy), a mirror's reflectance.
+
+        The sum of the lobes' weights, each lobe reflecting at most its weight (OIDN's advice
+        for layered surfaces); at most 1 by the energy check of :func:`parse_material`.
+        """
+        if self.kind == "mirror":
+            return np.broadcast_to(self.specular, (len(p_object), 3))
+        kd = self.diffuse_albedo(p_object)
+        return kd + self.specular if self.kind == "glossy" else kd
+
     def lobe_probability(self, kd: np.ndarray) -> np.ndarray:
         """Probability of sampling the diffuse lobe, proportional to the lobe weights."""
         if self.kind != "glossy":
