@@ -26,6 +26,7 @@ Files with several views (stereo) need ``view=``. What the reader decided is ret
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import warnings
 from collections.abc import Sequence
@@ -37,11 +38,13 @@ import numpy as np
 from .._typing import FloatArray
 from ..buffers import VARIANCE_KINDS, SampleBuffer
 from ..errors import InputFileWarning
+from ..features import FEATURE_CHANNELS, FEATURE_NAMES, feature_names
 from .colour import MITSUBA_XYZ_TO_SRGB, PBRT_XYZ_TO_SRGB, xyz_statistics_to_rgb
 from .cycles import COLOUR_PASSES, cycles_layers, sample_count_scale
 from .deep import samples_from_deep_part
 from .dump import COUNT_CHANNEL, MAX_EXACT_COUNT, VARIANCE_PREFIX, SampleDump, buffer_from_awr_part, whole_counts
 from .exr import ExrPart, checked_plane, file_error, header_value, read_exr
+from .features import MITSUBA_AOV_NAMES, auto_feature_planes, feature_from_planes
 from .mitsuba import filter_correlation
 
 __all__ = ["PRESETS", "detect_preset", "read_sample_buffer", "read_sample_dump", "read_independent_renders",
@@ -55,6 +58,7 @@ _SUFFIX_ORDER = ("R", "G", "B", "A", "r", "g", "b", "a", "X", "Y", "Z", "W", "x"
 _COLOUR_NAME = {"R": "R", "G": "G", "B": "B", "r": "R", "g": "G", "b": "B",
                 "X": "R", "Y": "G", "Z": "B", "x": "R", "y": "G", "z": "B"}
 _ALPHA = {"A", "a", "W", "w"}
+_FEATURE_AOVS = {aov for names in MITSUBA_AOV_NAMES.values() for aov in names}
 
 
 @dataclass(frozen=True)
@@ -426,7 +430,9 @@ def _mitsuba(ctx: _Context) -> _Layout:
             variance = "m2_" + ctx.color
         else:
             # The moment integrator's own results are <name>.X/Y/Z; RGB moments are AOVs.
-            xyz = [p for p in m2 if {"X", "Y", "Z"} <= _components(ctx, p)]
+            # A normal AOV has X, Y, Z components too: feature AOVs are not the radiance.
+            xyz = [p for p in m2 if {"X", "Y", "Z"} <= _components(ctx, p)
+                   and p.rsplit(".", 1)[-1] not in _FEATURE_AOVS]
             if len(xyz) > 1:
                 raise file_error(ctx.path, f"ambiguous: several second moments ({', '.join(xyz)}); choose with "
                                            "color=/variance=", "m2_*")
@@ -538,6 +544,64 @@ def _resolve_preset(p: Path, f: _File, preset: str, color: str | None, variance:
     return preset
 
 
+def _feature_plane(ctx: _Context, spec: str, name: str) -> _Plane:
+    """A feature plane given by the user: ``file.exr:plane``, a plane of the input, or a whole file.
+
+    A whole file (``--alb albedo.exr``, as oidnDenoise takes it) gives its ``R,G,B`` (or
+    ``X,Y,Z``) for albedo and normal, its ``Z`` (or only channel) for depth.
+    """
+    if not isinstance(spec, str) or not spec:
+        raise ValueError(f"{name}: expected a plane or a file, got {spec!r}")
+    whole = ":" not in spec and (spec.lower().endswith(".exr") or Path(spec).is_file())
+    if not whole:
+        return ctx.plane(spec, what=name)
+    f = _open(spec, ctx.opened, ctx.view)
+    width = len(FEATURE_CHANNELS[name])
+    for names in ((("R", "G", "B"), ("X", "Y", "Z")) if width == 3 else (("Z",), ("Y",))):
+        if set(names) <= set(f.channels):
+            return _Plane(f.path, names, tuple(f.channels[c] for c in names))
+    flat = [c for c in f.channels if c not in _ALPHA]
+    if width == 1 and len(flat) == 1:
+        return _Plane(f.path, (flat[0],), (f.channels[flat[0]],))
+    raise file_error(f.path, f"no {name} channels ({'R,G,B or X,Y,Z' if width == 3 else 'Z or a single channel'}; "
+                             f"channels: {', '.join(sorted(f.channels))}); name the plane as file.exr:plane")
+
+
+def _features(ctx: _Context, preset: str, layout: _Layout, count: np.ndarray, planes: dict[str, str | None],
+              wanted: str | Sequence[str] | None) -> dict[str, SampleBuffer]:
+    """The feature buffers of one read: planes given by the user, then those the preset knows."""
+    required = () if wanted in (None, "auto") else feature_names(wanted)  # type: ignore[arg-type]
+    found: dict[str, tuple[str, str | None]] = {}
+    if wanted is not None:
+        layer = _cycles_layer(ctx)[0] if preset == "cycles" else None
+        found = auto_feature_planes(preset, ctx.file.channels, layer=layer, colour=layout.colour.label)
+    features = {}
+    for name in FEATURE_NAMES:
+        spec, moment = planes.get(name), None
+        if spec is not None:
+            plane = _feature_plane(ctx, spec, name)
+        elif name in found:
+            plane = ctx.plane(found[name][0], what=name)
+            if found[name][1] is not None:
+                moment = ctx.plane(found[name][1], what=f"{name} second moment")
+        elif name in required:
+            raise file_error(ctx.path, f"no {name} plane known to the {preset} preset; name one "
+                                       f"({name}= / --{'alb' if name == 'albedo' else 'nrm' if name == 'normal' else name})",
+                             name)
+        else:
+            continue
+        width = len(FEATURE_CHANNELS[name])
+        keep = [c.rsplit(".", 1)[-1] not in _ALPHA for c in plane.channels]
+        if sum(keep) == width:  # an RGBA albedo: alpha left out
+            plane = _Plane(plane.path, *(tuple(x for x, k in zip(xs, keep) if k) for xs in (plane.channels, plane.arrays)))
+        _check_shapes([layout.colour, plane] + ([moment] if moment else []))
+        second = None if moment is None else _values(_Plane(moment.path, moment.channels[:width], moment.arrays[:width]))
+        features[name] = feature_from_planes(plane.path, name, plane.label, _values(plane), count, second)
+        ctx.notes.append(f"{name}: {plane.label}" + (f" (variance from {moment.label})" if moment else
+                                                     " (no variance in the file)"))
+    return features
+
+
 def _warn(messages: Sequence[str]) -> None:
     for message in messages:
         warnings.warn(message, InputFileWarning, stacklevel=3)
@@ -555,6 +619,10 @@ def read_sample_dump(
     layer: str | None = None,
     view: str | None = None,
     nonfinite: str = "raise",
+    albedo: str | None = None,
+    normal: str | None = None,
+    depth: str | None = None,
+    features: str | Sequence[str] | None = "auto",
 ) -> SampleDump:
     """Read sample statistics with their bookkeeping (see :func:`read_sample_buffer`).
 
@@ -586,14 +654,29 @@ def read_sample_dump(
     if not f.channels:
         raise file_error(p, "has no flat channels")
     preset = _resolve_preset(p, f, preset, color, variance, count)
+    planes = {"albedo": albedo, "normal": normal, "depth": depth}
     if preset == "awr" and color is None and variance is None:
         flat = [part for part in parts if not part.deep and COUNT_CHANNEL in part.channels]
         if not flat:
             raise file_error(p, "missing (not in the awr dump layout)", COUNT_CHANNEL)
-        return buffer_from_awr_part(p, flat[0], variance_kind=variance_kind)
+        dump = buffer_from_awr_part(p, flat[0], variance_kind=variance_kind)
+        if not any(planes.values()) and features == "auto":
+            return dump
+        layout, ctx = _layout(p, f, "generic", color="RGB", variance=None, count=None, variance_kind=None,
+                              spp=None, layer=None, view=view, need_variance=False, need_count=False)
+        given = _features(ctx, "awr", layout, dump.buffer.count, planes, None)
+        kept = dict(dump.buffer.features) if features is not None else {}
+        missing = [n for n in (() if features in (None, "auto") else feature_names(features)) if n not in kept]
+        if missing and not set(missing) <= set(given):
+            raise file_error(p, f"the dump holds no {missing[0]} feature", missing[0])
+        buffer = dataclasses.replace(dump.buffer, features=kept | given)
+        return dataclasses.replace(dump, buffer=buffer, notes=dump.notes + tuple(ctx.notes))
     layout, ctx = _layout(p, f, preset, color=color, variance=variance, count=count, variance_kind=variance_kind,
                           spp=spp, layer=layer, view=view, need_variance=True, need_count=True)
     buffer = _assemble(p, layout)
+    found = _features(ctx, preset, layout, buffer.count, planes, features)
+    if found:
+        buffer = dataclasses.replace(buffer, features=found)
     if preset == "mitsuba":
         ratio = filter_correlation(buffer)
         if ratio is not None and ratio.correlated:
@@ -687,6 +770,10 @@ def read_sample_buffer(
     layer: str | None = None,
     view: str | None = None,
     nonfinite: str = "raise",
+    albedo: str | None = None,
+    normal: str | None = None,
+    depth: str | None = None,
+    features: str | Sequence[str] | None = "auto",
 ) -> SampleBuffer:
     """Read per-pixel sample statistics from an EXR file, channels by name.
 
@@ -715,6 +802,14 @@ def read_sample_buffer(
         Policy for NaN/Inf *samples* of a deep per-sample dump: ``"raise"`` (default),
         ``"drop"`` or ``"zero"``, counted in the buffer's ``nonfinite``. Flat files hold
         statistics, where NaN/Inf is always an error.
+    albedo, normal, depth
+        Feature planes (:mod:`awr_denoise.features`): a plane of the input, ``file.exr:plane``,
+        or a whole image file (its ``R,G,B``/``X,Y,Z``, or ``Z``), as ``oidnDenoise --alb/--nrm``
+        take them; they override what the preset finds.
+    features
+        ``"auto"`` (default): also read the features the preset knows the planes of, when the
+        file has them (:mod:`awr_denoise.io.features`); a list of names: those must be found;
+        ``None``: only the planes given.
 
     Returns
     -------
@@ -737,7 +832,8 @@ def read_sample_buffer(
     """
     return read_sample_dump(path, preset=preset, color=color, variance=variance, count=count,
                             variance_kind=variance_kind, spp=spp, layer=layer, view=view,
-                            nonfinite=nonfinite).buffer
+                            nonfinite=nonfinite, albedo=albedo, normal=normal, depth=depth,
+                            features=features).buffer
 
 
 def describe_layout(path: Path, parts: list[ExrPart], *, preset: str = "auto", color: str | None = None,

@@ -43,7 +43,8 @@ def _integrator(kind: str) -> dict:
     if kind == "moment":
         return {"type": "moment", "nested": path}
     # The aov integrator's nested image is RGB: its moments need no colour conversion.
-    return {"type": "moment", "main": {"type": "aov", "aovs": "albedo:albedo,depth:depth", "img": path}}
+    return {"type": "moment", "main": {"type": "aov", "aovs": "albedo:albedo,depth:depth,normal:sh_normal",
+                                            "img": path}}
 
 
 def render(name: str, outdir: Path, *, seed: int = 0, kind: str | None = None, rfilter: str | None = None,

@@ -1,0 +1,115 @@
+"""Where renderers write albedo, normal and depth, and how they become feature buffers.
+
+=========  ================================  ==============================  =================================
+preset     albedo                            normal                          depth
+=========  ================================  ==============================  =================================
+pbrt       ``Albedo.R/G/B``                  ``Ns.X/Y/Z`` (camera space)     ``P.Z`` (camera-space z)
+cycles     ``<layer>.Denoising Albedo``      ``<layer>.Denoising Normal``    ``<layer>.Denoising Depth``
+                                             (camera space)                  (distance along the ray)
+mitsuba    ``<name>.albedo`` (``aov``)       ``<name>.normal``,              ``<name>.depth`` (``aov``
+                                             ``.sh_normal`` or ``.nn``       ``depth``: distance along the ray)
+                                             (world space)
+awr        ``albedo.*`` (the dump layout, :mod:`awr_denoise.io.dump`)
+=========  ================================  ==============================  =================================
+
+The renderers average these over the pixel's samples and write no spread, so their feature
+buffers have the radiance's counts and an unknown variance; Mitsuba's ``moment`` integrator
+writes ``m2_<name>.<aov>`` second moments beside them, which give the exact per-sample variance.
+Normals stay in the renderer's space (OIDN accepts world or camera space; an edge is an edge in
+either). docs/io.md, "Features", has what each renderer's passes hold.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Collection
+
+import numpy as np
+
+from ..buffers import SampleBuffer
+from ..features import FEATURE_CHANNELS
+from .exr import file_error
+
+__all__ = ["AUTO_FEATURE_PLANES", "MITSUBA_AOV_NAMES", "auto_feature_planes", "feature_from_planes"]
+
+AUTO_FEATURE_PLANES: dict[str, dict[str, str]] = {
+    "pbrt": {"albedo": "Albedo", "normal": "Ns", "depth": "P.Z"},
+    "cycles": {"albedo": "{layer}.Denoising Albedo", "normal": "{layer}.Denoising Normal",
+               "depth": "{layer}.Denoising Depth"},
+}
+"""Plane names each preset knows for each feature (``{layer}``: the Cycles view layer)."""
+
+MITSUBA_AOV_NAMES: dict[str, tuple[str, ...]] = {
+    "albedo": ("albedo",),
+    "normal": ("normal", "sh_normal", "nn"),
+    "depth": ("depth",),
+}
+"""AOV names taken as features in a Mitsuba file (the ``aov`` integrator's ``name:type`` names)."""
+
+
+_COMPONENTS = {"albedo": ({"R", "G", "B"},), "normal": ({"X", "Y", "Z"},), "depth": ({"Z"}, {"T"}, {"Y"})}
+
+
+def _present(prefix: str, channels: Collection[str], name: str) -> bool:
+    """The plane ``prefix`` is a channel, or has every component the feature needs."""
+    if prefix in channels:
+        return True
+    components = {c.rsplit(".", 1)[1] for c in channels if "." in c and c.rsplit(".", 1)[0] == prefix}
+    return any(need <= components for need in _COMPONENTS[name])
+
+
+def auto_feature_planes(preset: str, channels: Collection[str], *, layer: str | None = None,
+                        colour: str | None = None) -> dict[str, tuple[str, str | None]]:
+    """``{feature: (mean plane, second-moment plane or None)}`` found in a file of ``preset``.
+
+    A plane counts only with all the feature's components (``Albedo.R`` alone is not an albedo).
+
+    ``colour`` is the plane the radiance came from (a Mitsuba ``<name>`` or ``<name>.img``):
+    its AOVs are looked for beside it.
+
+    Examples
+    --------
+    >>> from awr_denoise.io.features import auto_feature_planes
+    >>> auto_feature_planes("pbrt", ["R", "G", "B", "Albedo.R", "Albedo.G", "Albedo.B", "P.X", "P.Y", "P.Z"])
+    {'albedo': ('Albedo', None), 'depth': ('P.Z', None)}
+    >>> auto_feature_planes("mitsuba", ["main.X", "main.depth.T", "m2_main.depth.T"], colour="main")
+    {'depth': ('main.depth', 'm2_main.depth')}
+    """
+    found: dict[str, tuple[str, str | None]] = {}
+    if preset in AUTO_FEATURE_PLANES:
+        for name, plane in AUTO_FEATURE_PLANES[preset].items():
+            plane = plane.format(layer=layer)
+            if _present(plane, channels, name):
+                found[name] = (plane, None)
+    elif preset == "mitsuba" and colour:
+        base = colour[: -len(".img")] if colour.endswith(".img") else colour
+        for name, aovs in MITSUBA_AOV_NAMES.items():
+            for aov in aovs:
+                plane = f"{base}.{aov}"
+                if _present(plane, channels, name):
+                    moment = f"m2_{plane}"
+                    found[name] = (plane, moment if _present(moment, channels, name) else None)
+                    break
+    return found
+
+
+def feature_from_planes(path: str | os.PathLike[str], name: str, label: str, mean: np.ndarray,
+                        count: np.ndarray, second_moment: np.ndarray | None = None) -> SampleBuffer:
+    """A feature buffer from a renderer's (H, W, c) mean, with the radiance's ``count``.
+
+    Without ``second_moment`` the variance is unknown (the renderer wrote none); with it
+    (Mitsuba's ``moment``), ``E[x^2]`` gives the per-sample variance. Alpha channels are left out
+    by the caller; a wrong number of channels is named.
+    """
+    channels = FEATURE_CHANNELS[name]
+    if mean.shape[-1] != len(channels):
+        raise file_error(path, f"{mean.shape[-1]} channel(s), but {name} has {len(channels)} "
+                               f"({', '.join(channels)})", label)
+    try:
+        if second_moment is None:
+            return SampleBuffer.from_moments(count, mean, np.zeros_like(mean), channels=channels,
+                                             variance_known=np.zeros(count.shape, bool))
+        return SampleBuffer.from_moments(count, mean, second_moment, variance_kind="second_moment",
+                                         channels=channels)
+    except ValueError as exc:
+        raise file_error(path, str(exc), label) from None
