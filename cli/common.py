@@ -66,13 +66,24 @@ def add_plane_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--nonfinite", default=NONFINITE_POLICIES[0], choices=NONFINITE_POLICIES,
                    help="NaN/Inf samples of a deep per-sample dump: refuse them (default), leave them "
                         "out, or count them as 0; dropped or zeroed samples are reported")
+    f = parser.add_argument_group("features (albedo, normal, depth; see docs/io.md)",
+                                  "Read automatically where the preset knows the planes (pbrt, Cycles, Mitsuba "
+                                  "aov, awr dumps); these options name them. They are carried into the buffer "
+                                  "and its dumps; the reconstruction does not use them yet.")
+    f.add_argument("--alb", metavar="FILE[:PLANE]",
+                   help="albedo: an image file (its R,G,B, as oidnDenoise --alb), FILE:PLANE, or a PLANE of the input")
+    f.add_argument("--nrm", metavar="FILE[:PLANE]",
+                   help="shading normal: an image file (R,G,B or X,Y,Z), FILE:PLANE, or a PLANE of the input")
+    f.add_argument("--depth", metavar="FILE[:PLANE]",
+                   help="depth: an image file (its Z or only channel), FILE:PLANE, or a PLANE of the input")
 
 
 def plane_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     """Keyword arguments of :func:`awr_denoise.io.read_sample_buffer` from the plane options."""
     return {"preset": args.preset, "color": args.color, "variance": args.variance, "count": args.count,
             "variance_kind": args.variance_kind, "spp": args.spp, "layer": args.layer,
-            "view": args.view, "nonfinite": args.nonfinite}
+            "view": args.view, "nonfinite": args.nonfinite, "albedo": args.alb, "normal": args.nrm,
+            "depth": args.depth}
 
 
 _RANGE = re.compile(r"^(-?\d{1,18})(?:-(-?\d{1,18})(?:[x:](\d{1,18}))?)?$")

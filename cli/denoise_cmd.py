@@ -28,7 +28,7 @@ from .common import (
     status,
 )
 from .parallel_options import add_executor_arguments, executor_from_args, executor_requested
-from .paths import PathPlan, check_plane_windows
+from .paths import PathPlan, check_plane_windows, plane_options
 from .values import MAX_EXPOSURE, MAX_LEVELS, real, wavelet_name, whole
 
 __all__ = ["register", "run", "add_reconstruction_options", "reconstruction_kwargs", "check_reconstruction_options",
@@ -65,7 +65,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``denoise`` sub-parser to ``sub``."""
     p = sub.add_parser("denoise", help="reconstruct a denoised image from a sample dump",
                        description="Reconstruct a denoised image from per-pixel sample statistics "
-                                   "(wavelet soft thresholding by propagated standard error).")
+                                   "(wavelet soft thresholding by propagated standard error). Albedo, normal "
+                                   "and depth (--alb, --nrm, --depth, or found in the input) are read and "
+                                   "checked, but the reconstruction does not use them yet.")
     p.add_argument("input", nargs="?", metavar="DUMP.exr",
                    help="sample dump (any preset); may hold a #### frame placeholder")
     p.add_argument("--hdr", metavar="DUMP.exr", help="same as the positional input (oidnDenoise's name)")
@@ -79,8 +81,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-r", "--ref", metavar="REF.exr", help="reference image to compare the result with")
     p.add_argument("--maxerror", type=real(minimum=0), metavar="E",
                    help="with --ref: fail (exit 1) when the relative MSE exceeds E")
-    p.add_argument("--alb", metavar="FILE", help=argparse.SUPPRESS)
-    p.add_argument("--nrm", metavar="FILE", help=argparse.SUPPRESS)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     add_reconstruction_options(p)
     add_plane_options(p)
@@ -97,6 +97,8 @@ def _note(frame: FrameResult, output: str, nonfinite_policy: str) -> str:
                 "on input"
     if frame.relmse is not None:
         note += f", relMSE {frame.relmse:.4g}"
+    if frame.features:
+        note += f"; features {', '.join(frame.features)} read but not used by the reconstruction yet"
     return note
 
 
@@ -131,8 +133,6 @@ def run(args: argparse.Namespace) -> int:
     frames are written to temporaries and moved into place together once every frame
     succeeded (a failure or Ctrl-C leaves none of them).
     """
-    if args.alb or args.nrm:
-        raise UsageError("--alb/--nrm: wavelet reconstruction uses no feature guides; drop these options")
     if args.input and args.hdr:
         raise UsageError("give the input either as DUMP.exr or with --hdr, not both")
     source = args.input or args.hdr
@@ -146,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
     numbers = parse_frames(args.frames) if args.frames is not None else [None]
     plan = PathPlan(overwrite=args.overwrite)
     plan.read(args.ref, "-r/--ref")
-    for spec, option in ((args.color, "--color"), (args.variance, "--variance"), (args.count, "--count")):
+    for spec, option in plane_options(args):
         plan.read_plane(spec, option)
     for (inputs, output), frame in zip(jobs, numbers):
         plan.read(inputs[0], _frame_label("DUMP.exr" if args.input else "--hdr", jobs, frame))
@@ -157,7 +157,7 @@ def run(args: argparse.Namespace) -> int:
     sources = [inputs[0] for inputs, _ in jobs]
     for src in sources:
         check_reconstruction_options(args, exr_shape(src), src)
-    check_plane_windows(sources[0], [(args.color, "--color"), (args.variance, "--variance"), (args.count, "--count")])
+    check_plane_windows(sources[0], plane_options(args))
     if args.ref:
         _check_reference(args.ref, sources)
 

@@ -8,6 +8,7 @@ from typing import Any
 from awr_denoise.io.describe import describe_file
 
 from .common import EXIT_OK, add_plane_options, plane_kwargs, print_json
+from .paths import PathPlan, check_plane_windows, plane_options
 
 __all__ = ["register", "run", "describe"]
 
@@ -50,6 +51,16 @@ def _print(info: dict[str, Any]) -> None:
         elif info.get("count"):
             s = info["count"]
             print(f"  samples per pixel: min {s['min']:g} / mean {s['mean']:.4g} / max {s['max']:g}")
+        for name, feature in info.get("features", {}).items():
+            where = f" from {feature['plane']}" if "plane" in feature else ""
+            values = ""
+            if "mean" in feature:
+                m = feature["mean"]
+                values = (f": mean min {m['min']:.4g} / max {m['max']:.4g}, variance known at "
+                          f"{feature['variance_known']} pixel(s)")
+            print(f"  feature {name}{where}{values}")
+        if info.get("features"):
+            print("  (features are read and carried, but the reconstruction does not use them yet)")
         for note in info.get("notes", []):
             print(f"  note: {note}")
         for warning in info.get("warnings", []):
@@ -68,6 +79,12 @@ def _print(info: dict[str, Any]) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``awr info``; returns the exit status (errors are raised and reported by ``main``)."""
+    plan = PathPlan()
+    plan.read(args.input, "FILE.exr")
+    for spec, option in plane_options(args):
+        plan.read_plane(spec, option)
+    plan.check()
+    check_plane_windows(args.input, plane_options(args))
     info = describe(args.input, args)
     if args.json:
         print_json(info)

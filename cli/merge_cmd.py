@@ -21,7 +21,7 @@ from awr_denoise.io.atomic import same_file
 from awr_denoise.io.exr import check_same_windows, read_windows
 
 from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, status
-from .paths import PathPlan, check_plane_windows
+from .paths import PathPlan, check_plane_windows, plane_options
 from .values import MAX_SEED, header_whole
 
 __all__ = ["register", "run"]
@@ -117,17 +117,20 @@ def run(args: argparse.Namespace) -> int:
     for path in args.inputs:
         plan.read(path, "DUMP.exr")
     plan.read(args.request, "--request")
-    for spec, option in ((args.color, "--color"), (args.variance, "--variance"), (args.count, "--count")):
+    for spec, option in plane_options(args):
         plan.read_plane(spec, option)
     plan.write(args.output, "-o/--output")
     plan.check()
     # Pixels line up only when every file places them alike (crops keep their windows).
-    check_plane_windows(args.inputs[0], [(args.color, "--color"), (args.variance, "--variance"),
-                                         (args.count, "--count")])
+    check_plane_windows(args.inputs[0], plane_options(args))
     windows = read_windows(args.inputs[0])
     for path in [*args.inputs[1:], *([args.request] if args.request else [])]:
         check_same_windows(path, read_windows(path), args.inputs[0], windows)
     if args.independent:
+        given = [option for spec, option in plane_options(args)[3:] if spec is not None]
+        if given:
+            raise UsageError(f"{given[0]}: features are not read with --independent (each render's would need "
+                             "merging as a render of its own)")
         if not args.allow_duplicates:
             _refuse_duplicates(args.inputs)
         kwargs = plane_kwargs(args)

@@ -17,14 +17,34 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from awr_denoise.io.atomic import check_readable, check_writable
 from awr_denoise.io.exr import check_same_windows, read_windows
-from awr_denoise.io.presets import parse_plane
+from awr_denoise.io.presets import feature_plane_file, parse_plane
 
 from .errors import UsageError
 
-__all__ = ["PathPlan", "check_plane_windows"]
+__all__ = ["PathPlan", "check_plane_windows", "plane_options", "FEATURE_OPTIONS"]
+
+FEATURE_OPTIONS = ("--alb", "--nrm", "--depth")
+"""Options naming a feature plane, which may also be a whole image file (``--alb albedo.exr``)."""
+
+
+def plane_options(args: Any) -> list[tuple[str | None, str]]:
+    """``(spec, option)`` of every plane option of a command (layout planes, then features)."""
+    return [(args.color, "--color"), (args.variance, "--variance"), (args.count, "--count"),
+            (args.alb, "--alb"), (args.nrm, "--nrm"), (args.depth, "--depth")]
+
+
+def _plane_file(spec: str, option: str) -> Path | None:
+    """The file a plane option reads, or None for a plane of the main input."""
+    if option in FEATURE_OPTIONS:
+        return feature_plane_file(spec)
+    try:
+        return parse_plane(spec, None)[0]
+    except ValueError:
+        return None
 
 
 @dataclass
@@ -53,14 +73,10 @@ class PathPlan:
             self.reads.append(_Entry(Path(path), option))
 
     def read_plane(self, spec: str | None, option: str) -> None:
-        """The file of a ``file.exr:plane`` option, if it names one (a bare plane names none)."""
+        """The file of a ``file.exr:plane`` option (or a feature option's whole file), if it names one."""
         if spec is None:
             return
-        try:
-            file, _ = parse_plane(spec, None)
-        except ValueError:
-            return  # a plane of the main input
-        self.read(file, option)
+        self.read(_plane_file(spec, option), option)  # None: a plane of the main input
 
     def write(self, path: str | os.PathLike[str] | None, option: str) -> None:
         """An output file (None is skipped)."""
@@ -122,9 +138,8 @@ def check_plane_windows(main: str | os.PathLike[str] | None, specs: list[tuple[s
     for spec, _option in specs:
         if spec is None:
             continue
-        try:
-            file, _ = parse_plane(spec, None)
-        except ValueError:
+        file = _plane_file(spec, _option)
+        if file is None:
             continue  # a plane of the main input itself
         if windows is None:
             windows = read_windows(main)

@@ -11,7 +11,7 @@ from awr_denoise.sampling import DEFAULT_INITIAL_SPP, DEFAULT_ROUND_GROWTH, SAMP
 from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 
 from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, status
-from .paths import PathPlan, check_plane_windows
+from .paths import PathPlan, check_plane_windows, plane_options
 from .values import MAX_LEVELS, MAX_SEED, MAX_SPP, header_whole, image_size, real, wavelet_name, whole
 
 __all__ = ["register", "run", "STRATEGIES"]
@@ -57,11 +57,11 @@ def run(args: argparse.Namespace) -> int:
     """Run ``awr plan``; returns the exit status (errors are raised and reported by ``main``)."""
     plan = PathPlan(overwrite=args.overwrite)
     plan.read(args.input, "DUMP.exr")
-    for spec, option in ((args.color, "--color"), (args.variance, "--variance"), (args.count, "--count")):
+    for spec, option in plane_options(args):
         plan.read_plane(spec, option)
     plan.write(args.output, "-o/--output")
     plan.check()
-    check_plane_windows(args.input, [(args.color, "--color"), (args.variance, "--variance"), (args.count, "--count")])
+    check_plane_windows(args.input, plane_options(args))
     cls = SAMPLERS[args.strategy]
     options: dict = {"spp_max": args.spp_max}
     if args.round_growth is not None:

@@ -550,12 +550,6 @@ def test_render_round_growth_takes_fewer_rounds(tmp_path, fake_tracer):
     assert rounds == {"0.25": 8, "1.0": 3}  # 4 spp, then rounds of 25% (or 100%) of the samples so far
 
 
-def test_feature_guides_refused_with_reason(tmp_path, capsys, rng):
-    _dump(tmp_path / "d.exr", rng)
-    assert main(["denoise", str(tmp_path / "d.exr"), "--alb", "a.exr", "-o", str(tmp_path / "o.exr")]) == 2
-    _one_error_line(capsys, "--alb", "guides")
-
-
 def test_maxerror_failure_keeps_output_and_exits_1(tmp_path, capsys, rng):
     _dump(tmp_path / "d.exr", rng)
     write_image(tmp_path / "ref.exr", np.full((H, W, 3), 5.0))

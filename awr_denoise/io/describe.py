@@ -31,7 +31,8 @@ def _stats(a: Any) -> dict[str, float]:
 def describe_file(path: str | os.PathLike[str], *, preset: str = "auto", color: str | None = None,
                   variance: str | None = None, count: str | None = None, variance_kind: str | None = None,
                   spp: int | None = None, layer: str | None = None, view: str | None = None,
-                  nonfinite: str = "raise") -> dict[str, Any]:
+                  nonfinite: str = "raise", albedo: str | None = None, normal: str | None = None,
+                  depth: str | None = None) -> dict[str, Any]:
     """A JSON-ready description of an EXR file.
 
     Returns
@@ -43,7 +44,9 @@ def describe_file(path: str | os.PathLike[str], *, preset: str = "auto", color: 
         ``variance`` and ``count`` (where each was found, or None), ``layers`` (Cycles: pass
         names per view layer), ``notes`` and ``warnings`` (the readers' decisions),
         ``missing`` (what must be supplied before ``awr denoise`` can run; empty when
-        nothing) and, when readable, ``total_samples``, ``spp``, ``mean``, ...
+        nothing), ``features`` (albedo, normal, depth found: their plane and, when the file is
+        readable, the range of their means and the pixels whose variance the file gives) and,
+        when readable, ``total_samples``, ``spp``, ``mean``, ...
 
     Raises
     ------
@@ -80,7 +83,7 @@ def describe_file(path: str | os.PathLike[str], *, preset: str = "auto", color: 
                     first_index=_stats(req.first_index))
         return info
     options = dict(preset=preset, color=color, variance=variance, count=count, variance_kind=variance_kind,
-                   spp=spp, layer=layer)
+                   spp=spp, layer=layer, albedo=albedo, normal=normal, depth=depth)
     missing: list[str] = []
     chosen_view = view
     if view is None and len(views) > 1:
@@ -97,12 +100,13 @@ def describe_file(path: str | os.PathLike[str], *, preset: str = "auto", color: 
         if (preset == "awr" or (preset == "auto" and color is None and variance is None and count is None
                                 and detect_preset(channels, header) == "awr")):
             return _read_fully(info, p, options, chosen_view, nonfinite, preset="awr", missing=missing)
-        name, layout, notes, warned = describe_layout(p, parts, **options, view=chosen_view)
+        name, layout, notes, warned, planes = describe_layout(p, parts, **options, view=chosen_view)
         layers = cycles_layers(channels)
         info.update(kind="samples", preset=name, colour=layout.colour.label,
                     variance=None if layout.spread is None else layout.spread.label,
                     count=None if layout.count is None else _stats(layout.count),
-                    notes=list(notes), warnings=list(warned))
+                    notes=list(notes), warnings=list(warned),
+                    features={n: {"plane": plane} for n, plane in planes.items()})
         if name == "cycles":
             info["layers"] = {k: sorted(v) for k, v in sorted(layers.items())}
         if layout.spread is None:
@@ -147,4 +151,10 @@ def _read_fully(info: dict[str, Any], p: Path, options: dict[str, Any], view: st
                 variance_unknown=int((~buf.variance_known & (buf.count >= 2)).sum()),
                 nonfinite_dropped=int(buf.nonfinite), mean=_stats(buf.mean),
                 issued_total=int(np.asarray(dump.issued).sum()))
+    described = info.setdefault("features", {})
+    for name, feature in buf.features.items():
+        described.setdefault(name, {}).update(
+            channels=list(feature.channels), mean=_stats(feature.mean),
+            variance_known=int((feature.variance_known & (feature.count >= 2)).sum()))
+
     return info

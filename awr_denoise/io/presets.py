@@ -48,7 +48,7 @@ from .features import MITSUBA_AOV_NAMES, auto_feature_planes, feature_from_plane
 from .mitsuba import filter_correlation
 
 __all__ = ["PRESETS", "detect_preset", "read_sample_buffer", "read_sample_dump", "read_independent_renders",
-           "parse_plane", "file_views"]
+           "parse_plane", "feature_plane_file", "file_views"]
 
 PRESETS = ("auto", "awr", "pbrt", "cycles", "renderman", "mitsuba", "generic", "deep")
 """Accepted values of ``preset``."""
@@ -163,6 +163,28 @@ def parse_plane(spec: str, default_file: str | os.PathLike[str] | None) -> tuple
     return Path(default_file), spec
 
 
+def _whole_file(spec: str) -> bool:
+    return ":" not in spec and (spec.lower().endswith(".exr") or Path(spec).is_file())
+
+
+def feature_plane_file(spec: str) -> Path | None:
+    """The file a feature plane (``albedo=``, ``--alb``) reads: a whole file, ``file.exr:plane``'s file,
+    or None for a plane of the main input.
+
+    Examples
+    --------
+    >>> from awr_denoise.io.presets import feature_plane_file
+    >>> feature_plane_file("albedo.exr"), feature_plane_file("beauty.exr:Albedo"), feature_plane_file("Albedo")
+    (PosixPath('albedo.exr'), PosixPath('beauty.exr'), None)
+    """
+    if _whole_file(spec) or (":" not in spec and os.path.lexists(spec)):  # a directory or FIFO: named, refused
+        return Path(spec)
+    try:
+        return parse_plane(spec, None)[0]
+    except ValueError:
+        return None
+
+
 def detect_preset(channels: Sequence[str], header: dict) -> str:
     """Name of the preset whose channel layout matches, or ``"generic"`` when none does."""
     names = set(channels)
@@ -252,6 +274,7 @@ class _Context:
     need_variance: bool = True
     need_count: bool = True
     notes: list[str] = field(default_factory=list)
+    feature_planes: dict[str, str] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
 
     def plane(self, spec: str, *, colour: bool = False, what: str) -> _Plane:
@@ -552,8 +575,7 @@ def _feature_plane(ctx: _Context, spec: str, name: str) -> _Plane:
     """
     if not isinstance(spec, str) or not spec:
         raise ValueError(f"{name}: expected a plane or a file, got {spec!r}")
-    whole = ":" not in spec and (spec.lower().endswith(".exr") or Path(spec).is_file())
-    if not whole:
+    if not _whole_file(spec):
         return ctx.plane(spec, what=name)
     f = _open(spec, ctx.opened, ctx.view)
     width = len(FEATURE_CHANNELS[name])
@@ -597,6 +619,7 @@ def _features(ctx: _Context, preset: str, layout: _Layout, count: np.ndarray, pl
         _check_shapes([layout.colour, plane] + ([moment] if moment else []))
         second = None if moment is None else _values(_Plane(moment.path, moment.channels[:width], moment.arrays[:width]))
         features[name] = feature_from_planes(plane.path, name, plane.label, _values(plane), count, second)
+        ctx.feature_planes[name] = plane.label if plane.path == ctx.path else f"{plane.path}:{plane.label}"
         ctx.notes.append(f"{name}: {plane.label}" + (f" (variance from {moment.label})" if moment else
                                                      " (no variance in the file)"))
     return features
@@ -839,14 +862,18 @@ def read_sample_buffer(
 def describe_layout(path: Path, parts: list[ExrPart], *, preset: str = "auto", color: str | None = None,
                     variance: str | None = None, count: str | None = None, variance_kind: str | None = None,
                     spp: int | None = None, layer: str | None = None, view: str | None = None,
-                    ) -> tuple[str, _Layout, list[str], list[str]]:
+                    albedo: str | None = None, normal: str | None = None, depth: str | None = None,
+                    features: str | Sequence[str] | None = "auto",
+                    ) -> tuple[str, _Layout, list[str], list[str], dict[str, str]]:
     """Where a preset finds the statistics, without requiring a variance or a count.
 
-    Returns (preset, layout, notes, warnings); used by ``awr info`` to describe files that
-    cannot be denoised as they are.
+    Returns (preset, layout, notes, warnings, feature planes); used by ``awr info`` to describe
+    files that cannot be denoised as they are. The feature planes are read and checked.
     """
     f = _File(path, parts, view)
     name = _resolve_preset(path, f, preset, color, variance, count)
     layout, ctx = _layout(path, f, name, color=color, variance=variance, count=count, variance_kind=variance_kind,
                           spp=spp, layer=layer, view=view, need_variance=False, need_count=False)
-    return name, layout, ctx.notes, ctx.warnings
+    count_or_none = np.zeros(layout.colour.shape, np.int64) if layout.count is None else layout.count
+    _features(ctx, name, layout, count_or_none, {"albedo": albedo, "normal": normal, "depth": depth}, features)
+    return name, layout, ctx.notes, ctx.warnings, ctx.feature_planes

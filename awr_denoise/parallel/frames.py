@@ -66,6 +66,8 @@ class FrameResult:
         NaN/Inf samples the reader dropped or zeroed.
     relmse
         Relative MSE against the reference, when one was given.
+    features
+        Features the dump held (albedo, normal, depth); the reconstruction does not use them yet.
     """
 
     source: str
@@ -76,6 +78,7 @@ class FrameResult:
     fraction_zeroed: float
     nonfinite: int
     relmse: float | None = None
+    features: tuple[str, ...] = ()
 
 
 def _reference_error(reference: str | os.PathLike[str], image: np.ndarray, source: str,
@@ -129,7 +132,7 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
     shown = write_preview(preview, result.image, exposure=exposure, overwrite=overwrite) if preview else None
     return FrameResult(source, Path(written), None if shown is None else Path(shown), buffer.shape,
                        buffer.total_samples / buffer.count.size, float(result.fraction_zeroed),
-                       int(buffer.nonfinite), error)
+                       int(buffer.nonfinite), error, tuple(buffer.features))
 
 
 def _stat(path: str) -> os.stat_result | None:

@@ -1,0 +1,117 @@
+"""--alb, --nrm, --depth (cli/common.py, cli/paths.py): features read from files or planes, checked
+like every other input, carried into dumps, shown by ``awr info``, and said to be unused by the
+reconstruction until it uses them."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("OpenEXR")
+
+from awr_denoise import SampleBuffer, SampleRequest  # noqa: E402
+from awr_denoise.cli.main import main  # noqa: E402
+from awr_denoise.io import read_image, read_sample_dump, write_image, write_request, write_sample_buffer  # noqa: E402
+from cli_helpers import H, W, dump_buffer, one_error_line  # noqa: E402
+
+pytestmark = pytest.mark.exr
+
+PBRT = Path(__file__).resolve().parents[1] / "data" / "pbrt" / "pbrt_gbuffer_default.exr"
+
+
+def _images(tmp_path: Path) -> None:
+    write_sample_buffer(tmp_path / "d.exr", dump_buffer(0))
+    write_image(tmp_path / "alb.exr", np.full((H, W, 3), 0.5))
+    write_image(tmp_path / "nrm.exr", np.broadcast_to([0.0, 0.0, 1.0], (H, W, 3)).copy(), channels=("X", "Y", "Z"))
+
+
+def test_denoise_reads_the_features_and_says_they_are_unused(tmp_path, capsys):
+    _images(tmp_path)
+    plain = tmp_path / "plain.exr"
+    assert main(["denoise", str(tmp_path / "d.exr"), "-o", str(plain)]) == 0
+    assert "features" not in capsys.readouterr().err
+    out = tmp_path / "o.exr"
+    assert main(["denoise", str(tmp_path / "d.exr"), "--alb", str(tmp_path / "alb.exr"),
+                 "--nrm", str(tmp_path / "nrm.exr"), "-o", str(out)]) == 0
+    assert "features albedo, normal read but not used by the reconstruction yet" in capsys.readouterr().err
+    np.testing.assert_array_equal(read_image(out), read_image(plain))   # not used: the same image
+    assert "the reconstruction does not use them yet" in _help(capsys, "denoise")
+
+
+def _help(capsys, command: str) -> str:
+    try:
+        code = main([command, "--help"])
+    except SystemExit as exc:
+        code = exc.code
+    assert code == 0
+    return " ".join(capsys.readouterr().out.split())
+
+
+def test_info_shows_the_features_found(tmp_path, capsys):
+    assert main(["info", str(PBRT)]) == 0
+    out = capsys.readouterr().out
+    assert "feature albedo from Albedo: mean min 0 / max 0.8853" in out
+    assert "feature normal from Ns" in out and "feature depth from P.Z" in out
+    assert "the reconstruction does not use them yet" in out
+    _images(tmp_path)
+    assert main(["info", str(tmp_path / "d.exr"), "--depth", f"{tmp_path / 'alb.exr'}:G", "--json"]) == 0
+    assert '"depth"' in capsys.readouterr().out
+
+
+def test_merge_carries_the_features_of_the_batches(tmp_path, capsys):
+    rng = np.random.default_rng(1)
+    request = SampleRequest.uniform((H, W), 4)
+    write_request(tmp_path / "req.exr", request)
+    rows, cols, _ = request.pixel_list()
+    depth = rng.uniform(1, 2, len(rows))
+    batch = SampleBuffer.from_samples(np.stack([rows, cols], 1), rng.random((len(rows), 3)), (H, W),
+                                      features={"depth": depth})
+    write_sample_buffer(tmp_path / "b.exr", batch)
+    assert main(["merge", "--request", str(tmp_path / "req.exr"), str(tmp_path / "b.exr"),
+                 "-o", str(tmp_path / "m.exr"), "-q"]) == 0
+    merged = read_sample_dump(tmp_path / "m.exr").buffer
+    np.testing.assert_allclose(merged.features["depth"].mean, batch.features["depth"].mean, rtol=1e-6)
+
+
+@pytest.mark.parametrize("args, needles", [
+    (["--alb", "{t}/none.exr"], ["--alb", "none.exr", "no such file"]),
+    (["--nrm", "{t}/alb.exr:Nope"], ["alb.exr", "Nope", "no normal channel"]),
+    (["--depth", "{t}/alb.exr"], ["alb.exr", "no depth channels (Z or a single channel"]),
+    (["--alb", "{t}/small.exr"], ["small.exr", "size 4x4 does not match"]),
+    (["--alb", "{t}/nan.exr"], ["nan.exr", "NaN"]),
+    (["--alb", "{t}/o.exr", "-o", "{t}/o.exr", "--overwrite"], ["o.exr", "-o/--output is the input", "--alb"]),
+    (["--alb", "{t}/dir"], ["--alb", "dir"]),
+])
+def test_bad_feature_options_are_one_line_and_write_nothing(tmp_path, capsys, args, needles):
+    _images(tmp_path)
+    write_image(tmp_path / "small.exr", np.zeros((4, 4, 3)))
+    nan = np.full((H, W, 3), 0.5, np.float32)
+    nan[3, 4, 1] = np.nan
+    write_image(tmp_path / "o.exr", np.zeros((H, W, 3)))
+    _write_raw(tmp_path / "nan.exr", nan)
+    (tmp_path / "dir").mkdir()
+    before = sorted(os.listdir(tmp_path))
+    code = main(["denoise", str(tmp_path / "d.exr"), "-o", str(tmp_path / "out.exr"),
+                 *[a.format(t=tmp_path) for a in args]])
+    assert code == 2
+    one_error_line(capsys.readouterr().err, *needles)
+    assert sorted(os.listdir(tmp_path)) == before
+
+
+def _write_raw(path: Path, rgb: np.ndarray) -> None:
+    import OpenEXR
+
+    with OpenEXR.File({}, {c: np.ascontiguousarray(rgb[..., i]) for i, c in enumerate("RGB")}) as f:
+        f.write(str(path))
+
+
+def test_merge_independent_refuses_feature_options(tmp_path, capsys):
+    _images(tmp_path)
+    write_sample_buffer(tmp_path / "e.exr", dump_buffer(1))
+    code = main(["merge", "--independent", str(tmp_path / "d.exr"), str(tmp_path / "e.exr"), "--alb",
+                 str(tmp_path / "alb.exr"), "-o", str(tmp_path / "m.exr"), "--preset", "generic", "--color", "RGB"])
+    assert code == 2
+    one_error_line(capsys.readouterr().err, "--alb", "--independent")
