@@ -27,7 +27,7 @@ from .common import EXIT_OK, RuntimeFailure, UsageError, status
 from .denoise_cmd import add_reconstruction_options, check_reconstruction_options, reconstruction_kwargs
 from .parallel_options import add_executor_arguments, executor_from_args, executor_requested
 from .paths import PathPlan
-from .values import MAX_EXPOSURE, MAX_SEED, MAX_SIDE, MAX_SPP, check_pixels, real, whole
+from .values import MAX_EXPOSURE, MAX_SEED, MAX_SIDE, MAX_SPP, check_pixels, feature_list, real, whole
 
 __all__ = ["register", "run", "tracer_module", "default_scene", "render_buffer", "derived_path"]
 
@@ -117,6 +117,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=whole(minimum=0, maximum=MAX_SEED), default=0)
     p.add_argument("--sampler", default="independent",
                    help="the bundled tracer's sample sequence: independent (default) or sobol")
+    p.add_argument("--features", type=feature_list, metavar="NAMES",
+                   help="also render albedo, normal, depth (comma separated, or 'all') into the dump; the bundled "
+                        "tracer only; the reconstruction does not use them yet")
     p.add_argument("-o", "--output", metavar="DUMP.exr", help="sample dump to write (required unless --list-scenes)")
     p.add_argument("--image", metavar="OUT.exr", help="denoised image (default DUMP.denoised.exr)")
     p.add_argument("--preview", metavar="OUT.png", help="PNG preview (default DUMP.denoised.png)")
@@ -138,14 +141,18 @@ def _scene(args: argparse.Namespace) -> tuple[str, Any, str, tuple[int, int] | N
     if args.renderer != TRACER:
         if not given:
             raise UsageError(f"--renderer {args.renderer}: give the SCENE to render")
+        if args.features:
+            raise UsageError(f"--features: only the bundled tracer renders features, not --renderer {args.renderer}")
         return given, given, Path(given).name, shape, {}
     tracer = tracer_module()
     name = given or default_scene(tracer)
     if name not in tracer.list_scenes() and Path(name).suffix != ".json":
         raise UsageError(f"--scene: {name!r} is not one of {', '.join(sorted(tracer.list_scenes()))}")
     # The tracer's scene is loaded here, at its final size, so the renderer needs no shape.
-    return name, tracer.load_scene(name, width=args.width, height=args.height), Path(name).stem, None, \
-        {"sampler": args.sampler}
+    options: dict[str, Any] = {"sampler": args.sampler}
+    if args.features:
+        options["features"] = args.features
+    return name, tracer.load_scene(name, width=args.width, height=args.height), Path(name).stem, None, options
 
 
 def run(args: argparse.Namespace) -> int:
@@ -216,6 +223,8 @@ def run(args: argparse.Namespace) -> int:
         interrupts.check()
         outputs.commit()
     h, w = buffer.shape
+    carried = f"; features {', '.join(buffer.features)} in the dump (not used by the reconstruction yet)" \
+        if buffer.features else ""
     status(f"{args.output}: {name} {w}x{h}, {buffer.total_samples / (h * w):.3g} spp ({strategy}) in {seconds:.1f} s; "
-           f"denoised {image_path}, preview {preview_path}", quiet=args.quiet)
+           f"denoised {image_path}, preview {preview_path}{carried}", quiet=args.quiet)
     return EXIT_OK

@@ -14,12 +14,13 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from awr_denoise.errors import InputFileError
+from awr_denoise.features import feature_names
 from awr_denoise.wavelets import WAVELET_NAMES
 
 from .errors import UsageError
 
 __all__ = ["MAX_SPP", "MAX_SEED", "MAX_PIXELS", "MAX_SIDE", "MAX_LEVELS", "MAX_EXPOSURE", "MAX_FRAMES",
-           "real", "whole", "image_size", "check_pixels", "wavelet_name", "header_whole"]
+           "real", "whole", "image_size", "check_pixels", "wavelet_name", "feature_list", "header_whole"]
 
 MAX_SPP = 2**24
 """Samples per pixel: counts are stored as float32, exact up to 2**24."""
@@ -115,6 +116,17 @@ def wavelet_name(text: str) -> str:
         raise argparse.ArgumentTypeError(f"{text!r} is not a discrete wavelet PyWavelets knows "
                                          "(for example bior4.4, haar, db2)")
     return text
+
+
+def feature_list(text: str) -> tuple[str, ...]:
+    """An argparse type: feature names, comma separated, or ``all`` (``albedo,normal,depth``)."""
+    try:
+        names = feature_names(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("features: ")) from None
+    if not names:
+        raise argparse.ArgumentTypeError(f"no feature named in {text!r} (albedo, normal, depth or all)")
+    return names
 
 
 def header_whole(path: str, attributes: Mapping[str, Any], key: str, default: int, maximum: int) -> int:

@@ -115,3 +115,16 @@ def test_merge_independent_refuses_feature_options(tmp_path, capsys):
                  str(tmp_path / "alb.exr"), "-o", str(tmp_path / "m.exr"), "--preset", "generic", "--color", "RGB"])
     assert code == 2
     one_error_line(capsys.readouterr().err, "--alb", "--independent")
+
+
+def test_render_writes_the_tracers_features_into_the_dump(tmp_path, capsys):
+    pytest.importorskip("embreex")
+    out = tmp_path / "r.exr"
+    assert main(["render", "--scene", "sky_objects", "--width", "24", "--height", "16", "--spp", "4", "--uniform",
+                 "--features", "depth,albedo", "-o", str(out), "-q"]) == 0
+    buffer = read_sample_dump(out).buffer
+    assert tuple(buffer.features) == ("albedo", "depth")
+    np.testing.assert_array_equal(buffer.features["depth"].count, buffer.count)
+    assert main(["render", "--scene", "sky_objects", "--features", "shade", "-o", str(tmp_path / "x.exr")]) == 2
+    one_error_line(capsys.readouterr().err, "--features", "'shade' is not one of albedo, normal, depth")
+    assert not (tmp_path / "x.exr").exists()
