@@ -288,12 +288,15 @@ class SampleBuffer:
         vals = vals.astype(np.float64)
         per_sample = {name: _feature_rows(name, rows, flat.shape[0]) for name, rows in (features or {}).items()}
         bad = ~np.isfinite(vals).all(axis=1)
-        for rows in per_sample.values():
-            bad |= ~np.isfinite(rows).all(axis=1)
+        culprit = "values" if bad.any() else ""
+        for name, rows in per_sample.items():
+            bad_here = ~np.isfinite(rows).all(axis=1)
+            culprit = culprit or (f"features[{name!r}]" if bad_here.any() else "")
+            bad |= bad_here
         n_bad = int(bad.sum())
         if n_bad:
             if nonfinite == "raise":
-                raise ValueError(f"values: {n_bad} sample(s) hold NaN or Inf (pass nonfinite='drop' or 'zero')")
+                raise ValueError(f"{culprit}: {n_bad} sample(s) hold NaN or Inf (pass nonfinite='drop' or 'zero')")
             if nonfinite == "drop":
                 flat, vals = flat[~bad], vals[~bad]
                 per_sample = {name: rows[~bad] for name, rows in per_sample.items()}

@@ -126,7 +126,7 @@ def test_a_non_finite_feature_makes_the_whole_sample_bad(policy):
         assert buf.mean[0, 0, 0] == 2.0 and buf.features["depth"].mean[0, 0, 0] == 2.0
     else:
         assert buf.count[0, 0] == 3 and buf.features["depth"].mean[0, 0, 0] == pytest.approx(4 / 3)
-    with pytest.raises(ValueError, match="1 sample"):
+    with pytest.raises(ValueError, match=r"features\[.depth.\]: 1 sample"):
         SampleBuffer.from_samples(pixels, [1.0, 2.0, 3.0], (1, 1), features=features)
 
 

@@ -108,6 +108,8 @@ PARAMS = [
     Param("mean", "real", lambda v: SampleBuffer.from_moments(np.full((H, W), 4), np.full((H, W, 3), v), IMG)),
     Param("variance", "real>=0", lambda v: SampleBuffer.from_moments(np.full((H, W), 4), IMG, np.full((H, W, 3), v))),
     Param("values", "real", lambda v: SampleBuffer.from_samples(np.array([0, 1]), np.full(2, v), (1, 2))),
+    Param("features", "real", lambda v: SampleBuffer.from_samples(np.array([0, 1]), np.ones(2), (1, 2),
+                                                                  features={"depth": np.full(2, v)})),
     Param("eps", "real>=0", lambda v: metrics.relmse(IMG, IMG + 0.1, eps=v)),
     Param("peak", "real>0", lambda v: metrics.psnr(IMG, IMG + 0.1, peak=v), none=True),
     Param("exposure", "real", lambda v: metrics.ssim(IMG, IMG + 0.1, exposure=v)),
