@@ -26,15 +26,15 @@ feature held no sample of it (:func:`merge_features`), which keeps every merge e
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # the buffer imports this module; annotations only
     from .buffers import SampleBuffer
 
-__all__ = ["FEATURE_CHANNELS", "FEATURE_NAMES", "feature_channels", "feature_names", "checked_features",
-           "merge_features", "map_features"]
+__all__ = ["FEATURE_CHANNELS", "FEATURE_NAMES", "FeatureMap", "feature_channels", "feature_names",
+           "checked_features", "merge_features", "map_features"]
 
 FEATURE_CHANNELS: Mapping[str, tuple[str, ...]] = MappingProxyType({
     "albedo": ("R", "G", "B"),
@@ -46,7 +46,36 @@ FEATURE_CHANNELS: Mapping[str, tuple[str, ...]] = MappingProxyType({
 FEATURE_NAMES: tuple[str, ...] = tuple(FEATURE_CHANNELS)
 """``("albedo", "normal", "depth")``: the order features are listed, stored and shown in."""
 
-_EMPTY: Mapping[str, Any] = MappingProxyType({})
+
+
+class FeatureMap(Mapping):
+    """A read-only ``{name: SampleBuffer}`` mapping that pickles (buffers travel to worker processes).
+
+    Examples
+    --------
+    >>> from awr_denoise.features import FeatureMap
+    >>> features = FeatureMap({})
+    >>> features == {}, len(features)
+    (True, 0)
+    """
+
+    def __init__(self, items: Mapping[str, SampleBuffer]) -> None:
+        self._items = dict(items)
+
+    def __getitem__(self, name: str) -> SampleBuffer:
+        return self._items[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._items)
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __repr__(self) -> str:
+        return f"FeatureMap({self._items!r})"
+
+
+_EMPTY = FeatureMap({})
 
 
 def feature_channels(name: str) -> tuple[str, ...]:
@@ -124,7 +153,7 @@ def checked_features(owner: SampleBuffer, features: Mapping[str, SampleBuffer] |
         if value.features:
             raise ValueError(f"{where}: a feature cannot hold features of its own")
         checked[name] = value
-    return MappingProxyType(checked)
+    return FeatureMap(checked)
 
 
 def map_features(features: Mapping[str, SampleBuffer],

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import pickle
 
 import numpy as np
 import pytest
@@ -104,6 +105,9 @@ def test_crop_and_replace_carry_features(rng):
     assert again.nonfinite == 7 and again.features["albedo"] is buf.features["albedo"]
     assert "features=('albedo', 'normal', 'depth')" in repr(buf)
     assert buf.nbytes > SampleBuffer.from_samples(pixels, values, SHAPE).nbytes
+    back = pickle.loads(pickle.dumps(buf))   # buffers travel to worker processes
+    assert tuple(back.features) == FEATURE_NAMES
+    assert_array_equal(back.features["normal"].mean, buf.features["normal"].mean)
 
 
 def test_from_moments_takes_feature_buffers():
