@@ -730,7 +730,8 @@ def read_independent_renders(
     paths
         Two or more EXR files of the same size and channels, rendered with different seeds.
     preset, color, count, spp, layer, view
-        As for :func:`read_sample_buffer`; applied to every file.
+        As for :func:`read_sample_buffer`; applied to every file. Features are not read here
+        (the merged buffer has none).
 
     Returns
     -------
