@@ -1,0 +1,305 @@
+"""The Mitsuba 3 adapter: exact requests, agreement with Mitsuba's film, addressed randomness."""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pytest
+
+from awr_denoise import AdaptiveSampler, Renderer, SampleBuffer, SampleRequest
+from awr_denoise.adapters import mitsuba_scenes
+from awr_denoise.adapters._mitsuba_runtime import import_mitsuba
+from awr_denoise.adapters.mitsuba import (FEATURES, MitsubaRenderer, _accumulate, _sample_chunks,
+                                          create_renderer)
+
+SHAPE = (32, 32)
+
+
+def _start_mitsuba():
+    try:
+        return import_mitsuba()
+    except (ImportError, RuntimeError) as exc:
+        if os.environ.get("AWR_REQUIRE_MITSUBA"):
+            pytest.fail(f"AWR_REQUIRE_MITSUBA is set but Mitsuba cannot start: {exc}")
+        pytest.skip(f"Mitsuba 3 cannot start here: {exc}")
+
+
+@pytest.fixture(scope="module")
+def mi():
+    return _start_mitsuba()[0]
+
+
+@pytest.fixture(scope="module")
+def cornell(mi) -> MitsubaRenderer:
+    return create_renderer("cornell_box", shape=SHAPE, seed=11)
+
+
+def _random_request(shape, rng, *, high=5, round=0) -> SampleRequest:
+    counts = rng.integers(0, high, shape)
+    first = rng.integers(0, 50, shape)
+    return SampleRequest(counts, first, round)
+
+
+# ---------------------------------------------------------------------------- no Mitsuba needed
+@pytest.mark.parametrize("batch", [1, 7, 64, 10_000])
+def test_sample_chunks_match_pixel_list(batch, rng):
+    request = _random_request((9, 13), rng, high=6)
+    chunks = list(_sample_chunks(request, batch))
+    assert all(len(c[0]) <= batch for c in chunks)
+    joined = [np.concatenate([c[i] for c in chunks]) for i in range(3)]
+    for got, expected in zip(joined, request.pixel_list()):
+        np.testing.assert_array_equal(got, expected)
+
+
+def test_accumulate_equals_from_samples(rng):
+    flat = rng.integers(0, 20, 500)
+    values = rng.standard_normal((3, 500)) * 3 + 1
+    got = _accumulate(flat, values, (4, 5), ("R", "G", "B"))
+    expected = SampleBuffer.from_samples(flat, values.T, (4, 5))
+    np.testing.assert_array_equal(got.count, expected.count)
+    np.testing.assert_array_equal(got.mean, expected.mean)
+    np.testing.assert_array_equal(got.variance, expected.variance)
+
+
+def test_scene_names_are_listed():
+    assert mitsuba_scenes.SCENE_NAMES == ("cornell_box", "envmap_sun", "glossy_glass", "dof_checker")
+    with pytest.raises(ValueError, match="bundled Mitsuba scene"):
+        mitsuba_scenes.scene_dict("no_such_scene")
+
+
+# ---------------------------------------------------------------------------- the protocol
+def test_satisfies_the_renderer_protocols(cornell):
+    assert isinstance(cornell, Renderer)
+    assert cornell.channels == ("R", "G", "B")
+    assert cornell.shape == SHAPE
+    assert {"samples", "nonfinite", "seconds"} <= set(cornell.stats)
+    for method in ("trace_samples", "close", "render_features"):
+        assert callable(getattr(cornell, method))
+    import awr_denoise.requests as requests
+
+    tracer_protocol = getattr(requests, "SampleTracer", None)
+    if tracer_protocol is not None:
+        assert isinstance(cornell, tracer_protocol)
+
+
+def test_exact_counts_per_pixel(cornell, rng):
+    request = _random_request(SHAPE, rng)
+    before = cornell.stats["samples"]
+    buffer = cornell(request)
+    np.testing.assert_array_equal(buffer.count, request.counts)
+    assert buffer.channels == ("R", "G", "B")
+    assert buffer.nonfinite == 0
+    assert cornell.stats["samples"] - before == request.total
+    assert np.isfinite(buffer.mean).all() and (buffer.mean >= 0).all()
+    values = cornell.trace_samples(*request.pixel_list())
+    assert values.shape == (request.total, 3) and values.dtype == np.float64
+
+
+def test_empty_request(cornell):
+    buffer = cornell(SampleRequest.uniform(SHAPE, 0))
+    assert buffer.total_samples == 0 and buffer.shape == SHAPE
+
+
+def test_agrees_with_mitsubas_own_film_render(mi, cornell):
+    """z-scores of 2x2 block means against Mitsuba's film render with a box filter (independent seeds)."""
+    spp, renders = 256, 16
+    buffer = cornell(SampleRequest.uniform(SHAPE, spp))
+    films = np.stack([np.array(mi.render(cornell.scene, spp=spp // renders, seed=1000 + k), dtype=np.float64)
+                      for k in range(renders)])
+
+    def blocks(a):
+        return a.reshape(SHAPE[0] // 2, 2, SHAPE[1] // 2, 2, -1).mean(axis=(1, 3))
+
+    ours, ours_var = blocks(buffer.mean), blocks(buffer.variance_of_mean()) / 4
+    film_blocks = np.stack([blocks(f) for f in films])
+    theirs, theirs_var = film_blocks.mean(0), film_blocks.var(0, ddof=1) / renders
+    spread = ours_var + theirs_var
+    lit = spread > 0
+    z = (ours - theirs)[lit] / np.sqrt(spread[lit])
+    assert lit.sum() > 500
+    assert abs(z.mean()) < 0.15, z.mean()
+    assert 0.85 < z.std() < 1.25, z.std()
+    # The image means agree to within their standard errors (both around 2e-3 relative here).
+    total_se = math.sqrt(ours_var.sum() + theirs_var.sum()) / ours.size
+    assert abs(ours.mean() - theirs.mean()) < 4 * total_se
+
+
+# ---------------------------------------------------------------------------- reproducibility
+def test_same_seed_and_request_give_identical_buffers(cornell, rng):
+    request = _random_request(SHAPE, rng)
+    a = cornell(request)
+    b = create_renderer("cornell_box", shape=SHAPE, seed=11)(request)
+    np.testing.assert_array_equal(a.mean, b.mean)
+    np.testing.assert_array_equal(a.variance, b.variance)
+
+
+def test_samples_are_addressed_by_pixel_and_index(cornell, rng):
+    rows, cols, index = rng.integers(0, 32, 400), rng.integers(0, 32, 400), rng.integers(0, 10_000, 400)
+    values = cornell.trace_samples(rows, cols, index)
+    order = rng.permutation(400)
+    np.testing.assert_array_equal(cornell.trace_samples(rows[order], cols[order], index[order]), values[order])
+    np.testing.assert_array_equal(cornell.trace_samples(rows[:5], cols[:5], index[:5]), values[:5])
+
+
+def test_rounds_split_like_one_request(cornell):
+    whole = cornell(SampleRequest.uniform(SHAPE, 8))
+    first = cornell(SampleRequest.uniform(SHAPE, 3, round=0))
+    rest = cornell(SampleRequest.uniform(SHAPE, 5, first_index=3, round=1))
+    merged = first.merge(rest)
+    np.testing.assert_allclose(merged.mean, whole.mean, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(merged.variance, whole.variance, rtol=1e-9, atol=1e-15)
+    # Later rounds draw new samples: not a copy of the first round's.
+    assert not np.array_equal(rest.mean, cornell(SampleRequest.uniform(SHAPE, 5, round=1)).mean)
+
+
+def test_different_seeds_give_different_samples(cornell):
+    other = create_renderer("cornell_box", shape=SHAPE, seed=12)
+    request = SampleRequest.uniform(SHAPE, 2)
+    lit = cornell(request).mean.sum(axis=2) > 0
+    assert (cornell(request).mean != other(request).mean)[lit].all()
+
+
+def test_large_requests_are_split_exactly(mi):
+    small = create_renderer("cornell_box", shape=SHAPE, seed=11, batch_size=1000)
+    request = SampleRequest.uniform(SHAPE, 2)
+    whole = create_renderer("cornell_box", shape=SHAPE, seed=11)(request)
+    split = small(request)
+    assert small.stats["launches"] == math.ceil(request.total / 1000)
+    np.testing.assert_array_equal(split.count, whole.count)
+    np.testing.assert_allclose(split.mean, whole.mean, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(split.variance, whole.variance, rtol=1e-9, atol=1e-15)
+
+
+# ---------------------------------------------------------------------------- the loop
+def test_runs_in_the_adaptive_sampler(cornell):
+    sampler = AdaptiveSampler(SHAPE, seed=3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        buffer = sampler.run(cornell, total_spp=8)
+    assert buffer.total_samples == 8 * SHAPE[0] * SHAPE[1]
+    assert sampler.round > 2
+    assert buffer.count.max() > buffer.count.min()  # samples went where the wavelets asked
+
+
+# ---------------------------------------------------------------------------- features
+def test_features_on_the_same_rays(cornell, rng):
+    request = _random_request(SHAPE, rng, high=4)
+    features = cornell.render_features(request)
+    assert set(features) == set(FEATURES)
+    for name, buffer in features.items():
+        assert buffer.channels == FEATURES[name][1]
+        np.testing.assert_array_equal(buffer.count, request.counts)
+    values = cornell.trace_features(*request.pixel_list())
+    hit = values["depth"][:, 0] > 0
+    assert hit.mean() > 0.5
+    np.testing.assert_allclose(np.linalg.norm(values["normal"][hit], axis=1), 1.0, atol=1e-4)
+    assert (values["albedo"] >= 0).all() and (values["albedo"] <= 1).all()
+    # The camera sits 3.9 in front of the back wall at z = -1; nothing is farther than ~6.
+    assert values["depth"].max() < 6.5
+    only = cornell.render_features(request, ["depth"])
+    assert list(only) == ["depth"]
+    np.testing.assert_array_equal(only["depth"].mean, features["depth"].mean)
+    with pytest.raises(ValueError, match="features are"):
+        cornell.render_features(request, ["roughness"])
+
+
+# ---------------------------------------------------------------------------- scenes and sources
+@pytest.mark.parametrize("name", mitsuba_scenes.SCENE_NAMES)
+def test_bundled_scenes_render(mi, name):
+    renderer = create_renderer(name, shape=(12, 16), seed=1)
+    assert renderer.shape == (12, 16)
+    buffer = renderer(SampleRequest.uniform((12, 16), 2))
+    assert buffer.total_samples == 12 * 16 * 2 and buffer.mean.mean() > 0.01
+    assert renderer.stats["nonfinite"] == 0
+
+
+def test_xml_written_by_mitsuba_renders_the_same_samples(mi, tmp_path):
+    path = mitsuba_scenes.write_scene_xml("dof_checker", tmp_path / "dof.xml", (20, 30))
+    from_file = create_renderer(path, seed=4)
+    resized = create_renderer(path, shape=(10, 12), seed=4)
+    from_name = create_renderer("dof_checker", shape=(20, 30), seed=4)
+    request = SampleRequest.uniform((20, 30), 2)
+    assert from_file.shape == (20, 30) and resized.shape == (10, 12)
+    # The same samples; the file's transforms are decimal text, so geometry moves by float32 rounding.
+    np.testing.assert_allclose(from_file(request).mean, from_name(request).mean, rtol=1e-4, atol=1e-6)
+
+
+def test_loaded_scene_and_dict(mi):
+    d = mitsuba_scenes.scene_dict("cornell_box", (8, 8))
+    scene = mi.load_dict(d)
+    request = SampleRequest.uniform((8, 8), 2)
+    np.testing.assert_array_equal(create_renderer(scene, seed=2)(request).mean,
+                                  create_renderer(d, seed=2)(request).mean)
+    with pytest.raises(ValueError, match="cannot be resized"):
+        create_renderer(scene, shape=(16, 16))
+
+
+def test_gaussian_film_filter_warns_once(mi):
+    d = mi.cornell_box()  # Mitsuba's own Cornell box films through a gaussian filter
+    with pytest.warns(UserWarning, match="GaussianFilter filter is not used") as record:
+        renderer = create_renderer(d, shape=(8, 8))
+        renderer(SampleRequest.uniform((8, 8), 1))
+    assert len(record) == 1
+    assert "\n" not in str(record[0].message)
+
+
+def test_nonfinite_samples_are_zeroed_and_counted(mi):
+    T = mi.ScalarTransform4f
+    d = {"type": "scene", "integrator": {"type": "path", "max_depth": 1},
+         "sensor": {"type": "perspective", "fov": 60, "to_world": T().look_at(origin=[0, 0, 3], target=[0, 0, 0], up=[0, 1, 0]),
+                    "film": {"type": "hdrfilm", "width": 8, "height": 8, "rfilter": {"type": "box"}}},
+         "ball": {"type": "sphere", "radius": 0.6, "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 1.0}}},
+         "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [math.inf, 1.0, 1.0]}}}
+    renderer = create_renderer(d)
+    buffer = renderer(SampleRequest.uniform((8, 8), 4))
+    values = renderer.trace_samples(*SampleRequest.uniform((8, 8), 4).pixel_list())
+    sky = (values == 0).all(axis=1)
+    assert 0 < buffer.nonfinite < buffer.total_samples
+    assert buffer.nonfinite == sky.sum()
+    assert renderer.stats["nonfinite"] == 2 * buffer.nonfinite
+    np.testing.assert_array_equal(buffer.count, 4)  # zeroed, not dropped: the tracer's policy
+
+
+def test_entry_point_names_the_factory():
+    from importlib.metadata import entry_points
+
+    found = {e.name: e.value for e in entry_points(group="awr_denoise.renderers")}
+    assert found.get("mitsuba") == "awr_denoise.adapters.mitsuba:create_renderer"
+
+
+# ---------------------------------------------------------------------------- bad input
+def test_bad_input(cornell, mi):
+    with pytest.raises(ValueError, match="does not match"):
+        cornell(SampleRequest.uniform((8, 8), 1))
+    with pytest.raises(TypeError, match="SampleRequest"):
+        cornell(np.ones(SHAPE))
+    with pytest.raises(ValueError, match="outside"):
+        cornell.trace_samples([40], [0], [0])
+    with pytest.raises(FileNotFoundError, match="no_such.xml"):
+        create_renderer("no_such.xml")
+    with pytest.raises(ValueError, match="JIT RGB variant"):
+        create_renderer("cornell_box", variant="scalar_rgb")
+    with pytest.raises(ValueError, match="seed"):
+        create_renderer("cornell_box", seed=-1)
+    with pytest.raises(ValueError, match="not a sampling integrator"):
+        d = mitsuba_scenes.scene_dict("cornell_box", (8, 8))
+        create_renderer({**d, "integrator": {"type": "ptracer"}})
+
+
+def test_missing_libllvm_says_what_to_install():
+    script = ("from awr_denoise.adapters.mitsuba import create_renderer\n"
+              "try:\n    create_renderer('cornell_box', shape=(4, 4))\n"
+              "except RuntimeError as exc:\n    print(exc)\n")
+    env = {**os.environ, "DRJIT_LIBLLVM_PATH": os.path.join(os.sep, "nonexistent", "libLLVM.so")}
+    try:
+        import mitsuba  # noqa: F401
+    except ImportError:
+        pytest.skip("Mitsuba 3 is not installed")
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "apt-get install libllvm19" in out.stdout and "DRJIT_LIBLLVM_PATH" in out.stdout
