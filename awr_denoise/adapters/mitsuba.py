@@ -112,6 +112,20 @@ def _addressed_sampler_class(mi: Any, dr: Any, variant: str) -> type:
     return AddressedSampler
 
 
+def _aligned_u32(values: np.ndarray) -> np.ndarray:
+    """``values`` as uint32 in a 64-byte aligned buffer.
+
+    Dr.Jit reads numpy memory in place and compiles the buffer's alignment into the kernel, so
+    arrays at arbitrary addresses would make every call compile one of several kernel variants
+    (about a second each); aligned inputs make every call reuse one kernel.
+    """
+    raw = np.empty(values.size + 16, np.uint32)
+    start = (-raw.ctypes.data % 64) // raw.itemsize
+    out = raw[start:start + values.size]
+    out[...] = values
+    return out
+
+
 def _sample_chunks(request: SampleRequest, batch_size: int) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """``(rows, cols, sample_index)`` of the request's samples, at most ``batch_size`` at a time.
 
@@ -384,7 +398,7 @@ class MitsubaRenderer:
         """Seeded samplers and camera rays of the samples, as Dr.Jit wavefronts (not yet evaluated)."""
         mi, dr = self._mi, self._dr
         h, w = self._shape
-        r, c, s = (mi.UInt32(a.astype(np.uint32)) for a in (rows, cols, sample_index))
+        r, c, s = (mi.UInt32(_aligned_u32(a)) for a in (rows, cols, sample_index))
         pixel = r * dr.opaque(mi.UInt32, w) + c
         k0, k1, k2, k3 = (dr.opaque(mi.UInt32, k) for k in _seed_words(self.seed))
         sampler = self._sampler_class()

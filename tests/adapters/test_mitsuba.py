@@ -13,25 +13,10 @@ import pytest
 
 from awr_denoise import AdaptiveSampler, Renderer, SampleBuffer, SampleRequest
 from awr_denoise.adapters import mitsuba_scenes
-from awr_denoise.adapters._mitsuba_runtime import import_mitsuba
 from awr_denoise.adapters.mitsuba import (FEATURES, MitsubaRenderer, _accumulate, _sample_chunks,
                                           create_renderer)
 
 SHAPE = (32, 32)
-
-
-def _start_mitsuba():
-    try:
-        return import_mitsuba()
-    except (ImportError, RuntimeError) as exc:
-        if os.environ.get("AWR_REQUIRE_MITSUBA"):
-            pytest.fail(f"AWR_REQUIRE_MITSUBA is set but Mitsuba cannot start: {exc}")
-        pytest.skip(f"Mitsuba 3 cannot start here: {exc}")
-
-
-@pytest.fixture(scope="module")
-def mi():
-    return _start_mitsuba()[0]
 
 
 @pytest.fixture(scope="module")
@@ -173,6 +158,24 @@ def test_large_requests_are_split_exactly(mi):
     np.testing.assert_array_equal(split.count, whole.count)
     np.testing.assert_allclose(split.mean, whole.mean, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(split.variance, whole.variance, rtol=1e-9, atol=1e-15)
+
+
+def test_every_call_reuses_one_kernel(cornell, rng):
+    """Requests of any size and content run the same compiled kernel (no compile per call)."""
+    import drjit as dr
+
+    hashes = []
+    for n in (1000, 1001, 2048, 333):
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
+        try:
+            dr.kernel_history()  # clears the history
+            cornell.trace_samples(rng.integers(0, 32, n), rng.integers(0, 32, n), rng.integers(0, 99, n))
+            history = dr.kernel_history()
+        finally:
+            dr.set_flag(dr.JitFlag.KernelHistory, False)
+        largest = max(history, key=lambda k: k.get("operation_count", 0))
+        hashes.append(largest["hash"])
+    assert len(set(hashes)) == 1
 
 
 # ---------------------------------------------------------------------------- the loop
