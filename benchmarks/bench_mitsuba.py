@@ -19,7 +19,7 @@ Usage (from the repository root)::
 
     nice -n 10 .venv/bin/python benchmarks/bench_mitsuba.py            # full run, about an hour on 2 cores
     .venv/bin/python benchmarks/bench_mitsuba.py --quick               # smoke run, tiny images, writes nothing
-    .venv/bin/python benchmarks/bench_mitsuba.py --scenes cornell_box --no-hd --spp 8 32
+    .venv/bin/python benchmarks/bench_mitsuba.py --scenes cornell_box --no-hd --spp 8 32 --update
 
 Prints markdown tables and writes ``benchmarks/results/mitsuba.json`` (``--output`` elsewhere).
 """
@@ -311,6 +311,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--cache", type=Path, default=CACHE)
     parser.add_argument("--regenerate-references", action="store_true")
+    parser.add_argument("--update", action="store_true",
+                        help="keep the other scenes of an existing results file; replace only those run now")
     parser.add_argument("--output", type=Path, default=None, help=f"results JSON (default {RESULTS.name} in "
                         "benchmarks/results; --quick writes nothing unless given)")
     args = parser.parse_args(argv)
@@ -353,6 +355,16 @@ def main(argv: list[str] | None = None) -> int:
             throughput_spp=args.throughput_spp if shape[0] * shape[1] <= 512 * 512 else 4,
             cache=args.cache, regenerate=args.regenerate_references, seed=args.seed))
     results["load_average_1_5_15min"]["end"] = _load_average()
+    if args.update and output is not None and output.exists():
+        previous = json.loads(output.read_text())
+        ran = {(s["scene"], tuple(s["shape"])) for s in results["scenes"]}
+        kept = [s for s in previous.get("scenes", []) if (s["scene"], tuple(s["shape"])) not in ran]
+        for s in results["scenes"]:
+            s["run"] = {k: results[k] for k in ("command", "date_utc", "load_average_1_5_15min")}
+        results["scenes"] = kept + results["scenes"]
+        results["command"] = "; ".join(dict.fromkeys([previous.get("command", ""), results["command"]]))
+    for s in results["scenes"]:
+        s.setdefault("run", {k: results[k] for k in ("command", "date_utc", "load_average_1_5_15min")})
     print(markdown(results))
     if output is not None:
         output.parent.mkdir(parents=True, exist_ok=True)
