@@ -8,7 +8,8 @@ For each scene (the bundled Mitsuba scenes at 256x256, and the Cornell box at 19
   sampling (:class:`AdaptiveSampler`, library defaults) + :func:`reconstruct` through the adapter
   to the same N, and against the plain mean of the AWR buffer; relMSE, absolute MSE and the image
   mean against a high-spp Mitsuba reference (its own noise is reported as a floor);
-- **equal time**: AWR's error interpolated (log-log) at the wall time the uniform render took;
+- **equal time**: AWR's error interpolated (log-log) at the wall time the uniform render took
+  (and at its process CPU time, steadier on a shared machine);
 - **shares** of the AWR run's time spent in ``ask``, rendering, ``tell`` and ``reconstruct``.
 
 References are rendered with ``mi.render`` in passes (seeds no other run uses) and cached under
@@ -113,27 +114,31 @@ def throughput(renderer: MitsubaRenderer, spp: int, repeats: int) -> dict[str, A
     for k in range(3):  # compile (or load) both kernels before timing
         renderer(request)
         np.array(mi.render(renderer.scene, spp=spp, seed=k))
-    ours, theirs = [], []
+    ours, theirs, ours_cpu, theirs_cpu = [], [], [], []
     for k in range(repeats):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         renderer(request)
         ours.append(time.perf_counter() - t)
-        t = time.perf_counter()
+        ours_cpu.append(time.process_time() - c)
+        t, c = time.perf_counter(), time.process_time()
         np.array(mi.render(renderer.scene, spp=spp, seed=100 + k))
         theirs.append(time.perf_counter() - t)
+        theirs_cpu.append(time.process_time() - c)
     samples = request.total
     t_ours, t_theirs = statistics.median(ours), statistics.median(theirs)
     return {"spp": spp, "samples": samples, "repeats": repeats,
             "adapter_seconds": t_ours, "mitsuba_seconds": t_theirs,
             "adapter_msamples_per_s": samples / t_ours / 1e6, "mitsuba_msamples_per_s": samples / t_theirs / 1e6,
-            "ratio": t_theirs / t_ours, "adapter_all_seconds": ours, "mitsuba_all_seconds": theirs}
+            "ratio": t_theirs / t_ours, "cpu_ratio": statistics.median(theirs_cpu) / statistics.median(ours_cpu),
+            "adapter_all_seconds": ours, "mitsuba_all_seconds": theirs,
+            "adapter_all_cpu_seconds": ours_cpu, "mitsuba_all_cpu_seconds": theirs_cpu}
 
 
-def uniform_run(renderer: MitsubaRenderer, spp: int, seed: int) -> tuple[np.ndarray, float]:
-    """Mitsuba's own render at ``spp`` through its film (box filter): image and wall time."""
-    t = time.perf_counter()
+def uniform_run(renderer: MitsubaRenderer, spp: int, seed: int) -> tuple[np.ndarray, float, float]:
+    """Mitsuba's own render at ``spp`` through its film (box filter): image, wall and CPU seconds."""
+    t, c = time.perf_counter(), time.process_time()
     image = np.array(renderer._mi.render(renderer.scene, spp=spp, seed=seed), dtype=np.float64)
-    return image, time.perf_counter() - t
+    return image, time.perf_counter() - t, time.process_time() - c
 
 
 def awr_run(renderer: MitsubaRenderer, spp: int, seed: int) -> dict[str, Any]:
@@ -146,6 +151,7 @@ def awr_run(renderer: MitsubaRenderer, spp: int, seed: int) -> dict[str, Any]:
     goal = int(round(spp * renderer.shape[0] * renderer.shape[1]))
     seconds = {"ask": 0.0, "render": 0.0, "tell": 0.0, "reconstruct": 0.0}
     rounds = 0
+    cpu = time.process_time()
     while sampler.total_samples < goal:
         t0 = time.perf_counter()
         request = sampler.ask(min(sampler.default_budget(), goal - sampler.total_samples))
@@ -162,7 +168,7 @@ def awr_run(renderer: MitsubaRenderer, spp: int, seed: int) -> dict[str, Any]:
     image = reconstruct(sampler.buffer)
     seconds["reconstruct"] = time.perf_counter() - t
     return {"image": image, "plain_mean": np.array(sampler.buffer.mean), "seconds": sum(seconds.values()),
-            "parts": seconds, "rounds": rounds, "spp_max": int(sampler.buffer.count.max())}
+            "cpu_seconds": time.process_time() - cpu, "parts": seconds, "rounds": rounds, "spp_max": int(sampler.buffer.count.max())}
 
 
 def _interpolate_loglog(x: float, xs: list[float], ys: list[float]) -> float | None:
@@ -174,19 +180,20 @@ def _interpolate_loglog(x: float, xs: list[float], ys: list[float]) -> float | N
     return float(np.exp(np.interp(np.log(x), lx, ly)))
 
 
-def equal_time(uniform: list[dict[str, Any]], awr: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """AWR's error at the wall time of each uniform render, and the ratio to the uniform error."""
+def equal_time(uniform: list[dict[str, Any]], awr: list[dict[str, Any]], key: str = "seconds") -> list[dict[str, Any]]:
+    """AWR's error at the time (``key``: wall ``seconds`` or ``cpu_seconds``) of each uniform render,
+    and the ratio to the uniform error."""
     rows = []
-    times = [a["seconds"] for a in awr]
+    times = [a[key] for a in awr]
     for u in uniform:
-        row: dict[str, Any] = {"uniform_spp": u["spp"], "seconds": u["seconds"]}
+        row: dict[str, Any] = {"uniform_spp": u["spp"], key: u[key]}
         for metric in ("relmse", "mse"):
-            at = _interpolate_loglog(u["seconds"], times, [a["awr"][metric] for a in awr])
+            at = _interpolate_loglog(u[key], times, [a["awr"][metric] for a in awr])
             row[f"awr_{metric}"] = at
             row[f"{metric}_ratio"] = None if at is None else at / u["uniform"][metric]
-        row["awr_spp_at_time"] = _interpolate_loglog(u["seconds"], times, [a["spp"] for a in awr])
+        row["awr_spp_at_time"] = _interpolate_loglog(u[key], times, [a["spp"] for a in awr])
         if row["awr_spp_at_time"] is None:
-            row["note"] = ("AWR's cheapest run takes longer than this uniform render" if u["seconds"] < min(times)
+            row["note"] = ("AWR's cheapest run takes longer than this uniform render" if u[key] < min(times)
                            else "longer than AWR's longest run")
         rows.append(row)
     return rows
@@ -214,20 +221,23 @@ def bench_scene(name: str, shape: tuple[int, int], *, spps: list[int], reference
         for r in range(repeats):
             run_seed = seed + 1000 * (i + 1) + r
             if spp in spps:
-                image, seconds = uniform_run(renderer, spp, run_seed)
-                runs_u.append({"seconds": seconds, **_metrics(image, ref)})
+                image, seconds, cpu = uniform_run(renderer, spp, run_seed)
+                runs_u.append({"seconds": seconds, "cpu_seconds": cpu, **_metrics(image, ref)})
             run = awr_run(renderer, spp, run_seed)
-            runs_a.append({"seconds": run["seconds"], "parts": run["parts"], "rounds": run["rounds"],
+            runs_a.append({"seconds": run["seconds"], "cpu_seconds": run["cpu_seconds"], "parts": run["parts"],
+                           "rounds": run["rounds"],
                            "spp_max": run["spp_max"], "awr": _metrics(run["image"], ref),
                            "plain_mean": _metrics(run["plain_mean"], ref)})
         if runs_u:
             uniform_points.append({"spp": spp, "seconds": statistics.median(x["seconds"] for x in runs_u),
+                                   "cpu_seconds": statistics.median(x["cpu_seconds"] for x in runs_u),
                                    "uniform": {k: float(np.mean([x[k] for x in runs_u]))
                                                for k in ("relmse", "mse", "image_mean", "mean_bias")}})
         parts = {k: statistics.median(x["parts"][k] for x in runs_a) for k in runs_a[0]["parts"]}
         total = statistics.median(x["seconds"] for x in runs_a)
         awr_points.append({
-            "spp": spp, "seconds": total, "rounds": runs_a[0]["rounds"], "spp_max": runs_a[0]["spp_max"],
+            "spp": spp, "seconds": total, "cpu_seconds": statistics.median(x["cpu_seconds"] for x in runs_a),
+            "rounds": runs_a[0]["rounds"], "spp_max": runs_a[0]["spp_max"],
             "parts_seconds": parts, "shares": {k: v / sum(parts.values()) for k, v in parts.items()},
             "awr": {k: float(np.mean([x["awr"][k] for x in runs_a])) for k in ("relmse", "mse", "image_mean", "mean_bias")},
             "plain_mean": {k: float(np.mean([x["plain_mean"][k] for x in runs_a]))
@@ -243,6 +253,7 @@ def bench_scene(name: str, shape: tuple[int, int], *, spps: list[int], reference
     result["uniform_runs"] = uniform_points
     result["awr_runs"] = awr_points
     result["equal_time"] = equal_time(uniform_points, awr_points)
+    result["equal_cpu_time"] = equal_time(uniform_points, awr_points, "cpu_seconds")
     return result
 
 
@@ -253,27 +264,31 @@ def _fmt(x: float | None, spec: str = ".3g") -> str:
 
 def markdown(results: dict[str, Any]) -> str:
     """The tables docs/integrate_mitsuba.md shows, from a results dict."""
-    lines = ["| scene | size | spp | adapter Msamples/s | mi.render Msamples/s | ratio |", "|---|---|---|---|---|---|"]
+    lines = ["| scene | size | spp | adapter Msamples/s | mi.render Msamples/s | ratio (wall) | ratio (CPU) |",
+             "|---|---|---|---|---|---|---|"]
     for s in results["scenes"]:
         t = s["throughput"]
         lines.append(f"| {s['scene']} | {s['shape'][1]}x{s['shape'][0]} | {t['spp']} | "
-                     f"{t['adapter_msamples_per_s']:.2f} | {t['mitsuba_msamples_per_s']:.2f} | {t['ratio']:.2f} |")
+                     f"{t['adapter_msamples_per_s']:.2f} | {t['mitsuba_msamples_per_s']:.2f} | {t['ratio']:.2f} | "
+                     f"{t['cpu_ratio']:.2f} |")
     lines += ["", "| scene | size | spp | relMSE uniform | relMSE AWR | ratio | MSE uniform | MSE AWR | ratio "
-              "| MSE AWR plain mean | mean bias uniform / AWR |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+              "| MSE AWR plain mean | mean bias uniform / AWR / AWR plain mean |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for s in results["scenes"]:
         for e in s["equal_samples"]:
             lines.append(
                 f"| {s['scene']} | {s['shape'][1]}x{s['shape'][0]} | {e['spp']} | {e['uniform']['relmse']:.4g} | "
                 f"{e['awr']['relmse']:.4g} | {e['relmse_ratio']:.2f} | {e['uniform']['mse']:.4g} | "
                 f"{e['awr']['mse']:.4g} | {e['mse_ratio']:.2f} | {e['awr_plain_mean']['mse']:.4g} | "
-                f"{100 * e['uniform']['mean_bias']:+.2f}% / {100 * e['awr']['mean_bias']:+.2f}% |")
-    lines += ["", "| scene | size | uniform spp | seconds | AWR spp in that time | relMSE ratio | MSE ratio |",
-              "|---|---|---|---|---|---|---|"]
+                f"{100 * e['uniform']['mean_bias']:+.2f}% / {100 * e['awr']['mean_bias']:+.2f}% / "
+                f"{100 * e['awr_plain_mean']['mean_bias']:+.2f}% |")
+    lines += ["", "| scene | size | uniform spp | wall s | AWR spp in that time | relMSE ratio | MSE ratio "
+              "| CPU s | AWR spp in that CPU time | relMSE ratio | MSE ratio |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for s in results["scenes"]:
-        for e in s["equal_time"]:
+        for e, c in zip(s["equal_time"], s["equal_cpu_time"]):
             lines.append(f"| {s['scene']} | {s['shape'][1]}x{s['shape'][0]} | {e['uniform_spp']} | "
                          f"{e['seconds']:.2f} | {_fmt(e['awr_spp_at_time'], '.1f')} | {_fmt(e['relmse_ratio'], '.2f')} | "
-                         f"{_fmt(e['mse_ratio'], '.2f')} |")
+                         f"{_fmt(e['mse_ratio'], '.2f')} | {c['cpu_seconds']:.2f} | {_fmt(c['awr_spp_at_time'], '.1f')} | "
+                         f"{_fmt(c['relmse_ratio'], '.2f')} | {_fmt(c['mse_ratio'], '.2f')} |")
     lines += ["", "| scene | size | spp | AWR seconds | ask | render | tell | reconstruct | rounds |",
               "|---|---|---|---|---|---|---|---|---|"]
     for s in results["scenes"]:
@@ -335,7 +350,8 @@ def main(argv: list[str] | None = None) -> int:
             "against a high-spp mi.render reference: relMSE = mean((x-r)^2/(r^2+eps)), MSE, image mean and "
             "mean_bias = mean(x)/mean(r)-1, averaged over repeats; awr_plain_mean is the AWR buffer's mean "
             "without reconstruction. equal_time: AWR's error interpolated (log-log) at the uniform render's "
-            "wall time (median of repeats); ratio < 1 means AWR wins. awr_runs.shares: share of the AWR run's "
+            "wall time (median of repeats); ratio < 1 means AWR wins; equal_cpu_time: the same at the process CPU "
+            "time (all threads; steadier than wall time on a shared machine). awr_runs.shares: share of the AWR run's "
             "time in ask, render (the adapter), tell and reconstruct. reference.mse_floor/relmse_floor: the "
             "reference's own noise, included in every error figure."),
         "command": _cli_line(argv),
