@@ -21,6 +21,7 @@ built. The fast path is the ``llvm_ad_rgb`` variant, which needs a shared libLLV
 
 from __future__ import annotations
 
+import inspect
 import logging
 import os
 import time
@@ -186,6 +187,9 @@ class MitsubaRenderer:
     ----------
     channels
         ``("R", "G", "B")``: linear sRGB radiance, as Mitsuba's RGB variants compute it.
+    seed
+        The render seed; it may be changed between calls (it is a kernel input, so a new seed
+        compiles nothing).
     shape
         (H, W) of the image (the film's crop window).
     scene
@@ -258,6 +262,9 @@ class MitsubaRenderer:
             if self.integrator.class_name() in _REFUSED_INTEGRATORS:
                 raise ValueError(f"{self.name}: integrator {self.integrator.class_name()} writes AOVs or moments, "
                                  "not radiance; give the scene its inner integrator (e.g. 'path')")
+            # Integrators written in Python on Mitsuba's AD base class take (mode, scene, sampler, ray, ...).
+            self._python_ad = isinstance(self.integrator, mi.CppADIntegrator) and \
+                "mode" in inspect.signature(type(self.integrator).sample).parameters
             self._needs_aperture = bool(self.sensor.needs_aperture_sample())
             self._shutter_open = float(self.sensor.shutter_open())
             self._shutter_time = float(self.sensor.shutter_open_time())
@@ -364,8 +371,10 @@ class MitsubaRenderer:
         self._feature_integrators.clear()
 
     def __repr__(self) -> str:
-        return (f"MitsubaRenderer({self.name!r}, shape={self._shape}, seed={self.seed}, "
-                f"variant={self.variant!r}, integrator={self.integrator.class_name()})")
+        integrator = getattr(self, "integrator", None)
+        return (f"MitsubaRenderer({getattr(self, 'name', '?')!r}, shape={getattr(self, '_shape', None)}, "
+                f"seed={self.seed}, variant={self.variant!r}, "
+                f"integrator={integrator.class_name() if integrator is not None else None})")
 
     # ------------------------------------------------------------------ internals
     def _check_request(self, request: SampleRequest) -> None:
@@ -424,7 +433,14 @@ class MitsubaRenderer:
         mi, dr = self._mi, self._dr
         with variant_scope(mi, self.variant):
             sampler, ray, weight = self._camera_rays(rows, cols, sample_index)
-            spectrum, _, _ = self.integrator.sample(self.scene, sampler, ray, self.sensor.get_medium(), True)
+            if self._python_ad:
+                # Mitsuba's differentiable integrators (prb, ...): their primal pass, as their render() runs it.
+                with dr.suspend_grad():
+                    spectrum, _, _, _ = self.integrator.sample(
+                        mode=dr.ADMode.Primal, scene=self.scene, sampler=sampler, ray=mi.Ray3f(ray),
+                        depth=mi.UInt32(0), δL=None, δaovs=None, state_in=None, active=mi.Bool(True))
+            else:
+                spectrum, _, _ = self.integrator.sample(self.scene, sampler, ray, self.sensor.get_medium(), True)
             spectrum = spectrum * weight
             dr.eval(spectrum)
             radiance = np.array(spectrum, dtype=np.float64)
