@@ -21,6 +21,7 @@ Usage (from the repository root)::
     nice -n 10 .venv/bin/python benchmarks/bench_mitsuba.py            # full run, about an hour on 2 cores
     .venv/bin/python benchmarks/bench_mitsuba.py --quick               # smoke run, tiny images, writes nothing
     .venv/bin/python benchmarks/bench_mitsuba.py --scenes cornell_box --no-hd --spp 8 32 --update
+    .venv/bin/python benchmarks/bench_mitsuba.py --report           # tables of the results file, nothing rendered
 
 Prints markdown tables and writes ``benchmarks/results/mitsuba.json`` (``--output`` elsewhere).
 """
@@ -191,6 +192,9 @@ def equal_time(uniform: list[dict[str, Any]], awr: list[dict[str, Any]], key: st
             at = _interpolate_loglog(u[key], times, [a["awr"][metric] for a in awr])
             row[f"awr_{metric}"] = at
             row[f"{metric}_ratio"] = None if at is None else at / u["uniform"][metric]
+            # The AWR buffer's plain mean (no reconstruction; its time still counts the reconstruction).
+            plain = _interpolate_loglog(u[key], times, [a["plain_mean"][metric] for a in awr])
+            row[f"plain_mean_{metric}_ratio"] = None if plain is None else plain / u["uniform"][metric]
         row["awr_spp_at_time"] = _interpolate_loglog(u[key], times, [a["spp"] for a in awr])
         if row["awr_spp_at_time"] is None:
             row["note"] = ("AWR's cheapest run takes longer than this uniform render" if u[key] < min(times)
@@ -252,9 +256,14 @@ def bench_scene(name: str, shape: tuple[int, int], *, spps: list[int], reference
         for u in uniform_points]
     result["uniform_runs"] = uniform_points
     result["awr_runs"] = awr_points
-    result["equal_time"] = equal_time(uniform_points, awr_points)
-    result["equal_cpu_time"] = equal_time(uniform_points, awr_points, "cpu_seconds")
+    _derive(result)
     return result
+
+
+def _derive(result: dict[str, Any]) -> None:
+    """The equal-time comparisons, from a scene's stored uniform and AWR points."""
+    result["equal_time"] = equal_time(result["uniform_runs"], result["awr_runs"])
+    result["equal_cpu_time"] = equal_time(result["uniform_runs"], result["awr_runs"], "cpu_seconds")
 
 
 # ---------------------------------------------------------------------------- report
@@ -282,13 +291,16 @@ def markdown(results: dict[str, Any]) -> str:
                 f"{100 * e['uniform']['mean_bias']:+.2f}% / {100 * e['awr']['mean_bias']:+.2f}% / "
                 f"{100 * e['awr_plain_mean']['mean_bias']:+.2f}% |")
     lines += ["", "| scene | size | uniform spp | wall s | AWR spp in that time | relMSE ratio | MSE ratio "
-              "| CPU s | AWR spp in that CPU time | relMSE ratio | MSE ratio |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+              "| plain mean relMSE / MSE ratio | CPU s | AWR spp in that CPU time | relMSE ratio | MSE ratio |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for s in results["scenes"]:
         for e, c in zip(s["equal_time"], s["equal_cpu_time"]):
             lines.append(f"| {s['scene']} | {s['shape'][1]}x{s['shape'][0]} | {e['uniform_spp']} | "
                          f"{e['seconds']:.2f} | {_fmt(e['awr_spp_at_time'], '.1f')} | {_fmt(e['relmse_ratio'], '.2f')} | "
-                         f"{_fmt(e['mse_ratio'], '.2f')} | {c['cpu_seconds']:.2f} | {_fmt(c['awr_spp_at_time'], '.1f')} | "
-                         f"{_fmt(c['relmse_ratio'], '.2f')} | {_fmt(c['mse_ratio'], '.2f')} |")
+                         f"{_fmt(e['mse_ratio'], '.2f')} | {_fmt(e['plain_mean_relmse_ratio'], '.2f')} / "
+                         f"{_fmt(e['plain_mean_mse_ratio'], '.2f')} | {c['cpu_seconds']:.2f} | "
+                         f"{_fmt(c['awr_spp_at_time'], '.1f')} | {_fmt(c['relmse_ratio'], '.2f')} | "
+                         f"{_fmt(c['mse_ratio'], '.2f')} |")
     lines += ["", "| scene | size | spp | AWR seconds | ask | render | tell | reconstruct | rounds |",
               "|---|---|---|---|---|---|---|---|---|"]
     for s in results["scenes"]:
@@ -330,7 +342,19 @@ def main(argv: list[str] | None = None) -> int:
                         help="keep the other scenes of an existing results file; replace only those run now")
     parser.add_argument("--output", type=Path, default=None, help=f"results JSON (default {RESULTS.name} in "
                         "benchmarks/results; --quick writes nothing unless given)")
+    parser.add_argument("--report", action="store_true",
+                        help="render nothing: recompute the derived comparisons of the results file and print its tables")
     args = parser.parse_args(argv)
+    if args.report:
+        path = args.output or RESULTS
+        results = json.loads(path.read_text())
+        for scene in results["scenes"]:
+            _derive(scene)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(results, indent=1, default=float) + "\n")
+        os.replace(tmp, path)
+        print(markdown(results))
+        return 0
     if args.quick:
         args.size, args.spp, args.reference_spp, args.repeats = [24, 32], [4, 8], 256, 1
         args.throughput_spp, args.no_hd = 4, True
@@ -350,7 +374,8 @@ def main(argv: list[str] | None = None) -> int:
             "against a high-spp mi.render reference: relMSE = mean((x-r)^2/(r^2+eps)), MSE, image mean and "
             "mean_bias = mean(x)/mean(r)-1, averaged over repeats; awr_plain_mean is the AWR buffer's mean "
             "without reconstruction. equal_time: AWR's error interpolated (log-log) at the uniform render's "
-            "wall time (median of repeats); ratio < 1 means AWR wins; equal_cpu_time: the same at the process CPU "
+            "wall time (median of repeats); ratio < 1 means AWR wins; plain_mean_*_ratio: the same for the AWR "
+            "buffer's plain mean (its time still includes the reconstruction); equal_cpu_time: the same at the process CPU "
             "time (all threads; steadier than wall time on a shared machine). awr_runs.shares: share of the AWR run's "
             "time in ask, render (the adapter), tell and reconstruct. reference.mse_floor/relmse_floor: the "
             "reference's own noise, included in every error figure."),

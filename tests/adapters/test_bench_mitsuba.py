@@ -41,3 +41,8 @@ def test_quick_run_writes_a_self_describing_json(bench, tmp_path, capsys):
     # The reference is cached: a second run reads it instead of rendering it again.
     assert bench.main(args) == 0
     assert json.loads(out.read_text())["scenes"][0]["reference"]["cached"] is True
+    # --report renders nothing and recomputes the derived tables from the stored points.
+    capsys.readouterr()
+    assert bench.main(["--report", "--output", str(out)]) == 0
+    assert "| plain mean relMSE / MSE ratio |" in capsys.readouterr().out
+    assert json.loads(out.read_text())["scenes"][0]["equal_time"][0]["uniform_spp"] == 4
