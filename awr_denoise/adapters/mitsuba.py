@@ -28,7 +28,7 @@ import time
 import warnings
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -43,7 +43,8 @@ __all__ = ["MitsubaRenderer", "create_renderer", "FEATURES", "DEFAULT_BATCH_SIZE
 logger = logging.getLogger(__name__)
 
 DEFAULT_BATCH_SIZE = 1 << 22
-"""Most samples traced in one launch; larger requests are split (memory: about 40 bytes a sample)."""
+"""Most samples traced in one launch; larger requests are split. A launch peaks at about 100 bytes
+a sample (400 MB at this size; docs/integrate_mitsuba.md has the command that measures it)."""
 
 FEATURES: dict[str, tuple[str, tuple[str, ...]]] = {
     "albedo": ("albedo", ("R", "G", "B")),
@@ -127,36 +128,99 @@ def _aligned_u32(values: np.ndarray) -> np.ndarray:
     return out
 
 
-def _sample_chunks(request: SampleRequest, batch_size: int) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """``(rows, cols, sample_index)`` of the request's samples, at most ``batch_size`` at a time.
+class _Chunk(NamedTuple):
+    """Samples ``lo, ..., lo + size - 1`` of a request's sample list (row-major pixels, increasing
+    sample index), described per pixel of the image so that the lanes can be listed on the device.
 
-    Same order as :meth:`SampleRequest.pixel_list` (row-major pixels, increasing sample index),
-    without building the whole list when it is larger than a batch.
+    Lane ``i`` of the chunk belongs to the first pixel ``p`` with ``ends[p] > i`` and has sample
+    index ``base[p] + i`` (``base`` is stored modulo 2**32; pixels without samples in the chunk are
+    never looked up). ``per_pixel`` is the number of the chunk's samples at every pixel.
     """
-    total = request.total
-    if total <= batch_size:
-        if total:
-            yield request.pixel_list()
-        return
+
+    size: int
+    ends: np.ndarray
+    base: np.ndarray
+    per_pixel: np.ndarray
+
+
+def _sample_chunks(request: SampleRequest, batch_size: int) -> Iterator[_Chunk]:
+    """The request's samples, at most ``batch_size`` at a time, as per-pixel arrays (O(pixels) each).
+
+    The order is that of :meth:`SampleRequest.pixel_list`; no per-sample array is built here.
+    """
     counts = request.counts.ravel()
-    first = request.first_index.ravel()
     ends = np.cumsum(counts)
     starts = ends - counts
-    width = request.shape[1]
+    first = request.first_index.ravel()
+    total = int(ends[-1]) if ends.size else 0
     for lo in range(0, total, batch_size):
-        hi = min(lo + batch_size, total)
-        p0 = int(np.searchsorted(ends, lo, side="right"))
-        p1 = int(np.searchsorted(ends, hi - 1, side="right"))
-        pixels = np.arange(p0, p1 + 1, dtype=np.int64)
-        # Samples of each pixel inside [lo, hi): clip the first and last pixel's ranges.
-        take_lo = np.maximum(starts[p0:p1 + 1], lo)
-        take_hi = np.minimum(ends[p0:p1 + 1], hi)
-        n = take_hi - take_lo
-        pixel = np.repeat(pixels, n)
-        offset = np.arange(hi - lo, dtype=np.int64) - np.repeat(np.cumsum(n) - n, n)
-        sample_index = first[pixel] + (take_lo - starts[p0:p1 + 1])[pixel - p0] + offset
-        rows, cols = np.divmod(pixel, width)
-        yield rows, cols, sample_index
+        size = min(batch_size, total - lo)
+        local_ends = np.clip(ends - lo, 0, size)
+        base = np.mod(first + lo - starts, 1 << 32)
+        yield _Chunk(size, local_ends, base, np.diff(local_ends, prepend=0))
+
+
+_BLOCK = 1 << 15  # samples per block of the accumulation: its temporaries stay in the CPU's cache
+
+
+class _PixelStatistics:
+    """Exact float64 count, mean and M2 per pixel, from samples listed pixel by pixel.
+
+    Each chunk's statistics are two-pass (the mean, then the squared deviations from it, summed
+    per pixel with ``np.add.reduceat`` over the runs of consecutive samples), a block of about
+    ``_BLOCK`` samples and one channel at a time, and chunks are combined with Chan's update where
+    they share a pixel (only at chunk boundaries). Equal, to float64 rounding, to
+    :meth:`SampleBuffer.from_samples` of all samples at once.
+    """
+
+    def __init__(self, n_pixels: int, n_channels: int) -> None:
+        self.count = np.zeros(n_pixels, np.int64)
+        self.mean = np.zeros((n_channels, n_pixels))
+        self.m2 = np.zeros((n_channels, n_pixels))
+
+    def add(self, per_pixel: np.ndarray, values: np.ndarray) -> None:
+        """Add ``values`` (C, N): ``per_pixel[p]`` consecutive samples of each pixel ``p`` in turn."""
+        index = np.flatnonzero(per_pixel)
+        if index.size == 0:
+            return
+        n = per_pixel[index]
+        ends = np.cumsum(n)
+        starts = ends - n
+        mean = np.empty((values.shape[0], index.size))
+        m2 = np.empty_like(mean)
+        # Blocks end at pixel boundaries, after about _BLOCK samples each.
+        cuts = np.searchsorted(ends, np.arange(_BLOCK, int(ends[-1]), _BLOCK), side="left") + 1
+        bounds = np.unique(np.concatenate([[0], cuts[cuts < index.size], [index.size]]))
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            lo, hi = int(starts[a]), int(ends[b - 1])
+            runs, run_starts = n[a:b], starts[a:b] - lo
+            for c, row in enumerate(values[:, lo:hi]):
+                mu = np.add.reduceat(row, run_starts, dtype=np.float64) / runs
+                dev = np.repeat(mu, runs)
+                np.subtract(row, dev, out=dev)
+                np.square(dev, out=dev)
+                mean[c, a:b] = mu
+                m2[c, a:b] = np.add.reduceat(dev, run_starts)
+        seen = self.count[index] > 0
+        if seen.any():
+            # Chan et al.'s parallel update where an earlier chunk already had samples of the pixel.
+            both, nb = index[seen], n[seen].astype(np.float64)
+            na = self.count[both].astype(np.float64)
+            total = na + nb
+            delta = mean[:, seen] - self.mean[:, both]
+            self.mean[:, both] += delta * (nb / total)
+            self.m2[:, both] += m2[:, seen] + delta * delta * (na * nb / total)
+            self.count[both] += n[seen]
+            index, n, mean, m2 = index[~seen], n[~seen], mean[:, ~seen], m2[:, ~seen]
+        self.count[index] = n
+        self.mean[:, index] = mean
+        self.m2[:, index] = m2
+
+    def buffer(self, shape: Shape2D, channels: Sequence[str], nonfinite: int = 0) -> SampleBuffer:
+        h, w = shape
+        variance = self.m2 / np.maximum(self.count - 1, 1)
+        return SampleBuffer(self.count.reshape(h, w), self.mean.T.reshape(h, w, -1), variance.T.reshape(h, w, -1),
+                            tuple(channels), np.ones((h, w), bool), nonfinite)
 
 
 class MitsubaRenderer:
@@ -224,8 +288,8 @@ class MitsubaRenderer:
                  params: dict[str, Any] | None = None) -> None:
         if isinstance(seed, bool) or int(seed) < 0 or int(seed) != seed:
             raise ValueError(f"seed: {seed!r} must be a whole number >= 0")
-        if int(batch_size) < 1:
-            raise ValueError(f"batch_size: {batch_size} must be >= 1")
+        if not 1 <= int(batch_size) < _U32:
+            raise ValueError(f"batch_size: {batch_size} must be >= 1 and below 2**32")
         if shape is not None:
             shape = tuple(int(s) for s in shape)  # type: ignore[assignment]
             if len(shape) != 2 or min(shape) <= 0:
@@ -298,18 +362,13 @@ class MitsubaRenderer:
     def __call__(self, request: SampleRequest) -> SampleBuffer:
         """Render the requested samples and return their per-pixel statistics (R, G, B)."""
         self._check_request(request)
-        buffer: SampleBuffer | None = None
+        stats = _PixelStatistics(request.counts.size, len(self.channels))
         nonfinite = 0
-        for rows, cols, sample_index in _sample_chunks(request, self.batch_size):
-            radiance, bad = self._trace(rows, cols, sample_index)
-            nonfinite += bad
-            part = _accumulate(rows * self._shape[1] + cols, radiance, self._shape, self.channels)
-            buffer = part if buffer is None else buffer.merge(part)
-        if buffer is None:
-            return SampleBuffer.empty(self._shape, channels=self.channels)
-        # Non-finite samples were zeroed and counted in _trace; the buffer carries the count.
-        return SampleBuffer(buffer.count, buffer.mean, buffer.variance, buffer.channels,
-                            buffer.variance_known, nonfinite)
+        for chunk in _sample_chunks(request, self.batch_size):
+            radiance, bad = self._trace(chunk)
+            nonfinite += bad  # zeroed and counted in _trace; the buffer carries the count
+            stats.add(chunk.per_pixel, radiance)
+        return stats.buffer(self._shape, self.channels, nonfinite)
 
     def trace_samples(self, rows: np.ndarray, cols: np.ndarray, sample_index: np.ndarray) -> FloatArray:
         """(N, 3) float64 radiance of the given samples, one row per ``(row, col, sample index)``.
@@ -321,7 +380,7 @@ class MitsubaRenderer:
         out = np.empty((rows.size, 3))
         for lo in range(0, rows.size, self.batch_size):
             hi = min(lo + self.batch_size, rows.size)
-            out[lo:hi] = self._trace(rows[lo:hi], cols[lo:hi], sample_index[lo:hi])[0].T
+            out[lo:hi] = self._trace((rows[lo:hi], cols[lo:hi], sample_index[lo:hi]))[0].T  # to float64
         return out
 
     def render_features(self, request: SampleRequest,
@@ -343,24 +402,20 @@ class MitsubaRenderer:
         """
         self._check_request(request)
         names = self._check_features(names)
-        buffers: dict[str, SampleBuffer] = {}
-        for rows, cols, sample_index in _sample_chunks(request, self.batch_size):
-            values = self._trace_features(rows, cols, sample_index, names)
-            flat = rows * self._shape[1] + cols
+        stats = {name: _PixelStatistics(request.counts.size, len(FEATURES[name][1])) for name in names}
+        for chunk in _sample_chunks(request, self.batch_size):
+            values = self._trace_features(chunk, names)
             for name in names:
-                part = _accumulate(flat, values[name], self._shape, FEATURES[name][1])
-                buffers[name] = buffers[name].merge(part) if name in buffers else part
-        if not buffers:
-            return {name: SampleBuffer.empty(self._shape, channels=FEATURES[name][1]) for name in names}
-        return buffers
+                stats[name].add(chunk.per_pixel, values[name])
+        return {name: stats[name].buffer(self._shape, FEATURES[name][1]) for name in names}
 
     def trace_features(self, rows: np.ndarray, cols: np.ndarray, sample_index: np.ndarray,
                        names: Sequence[str] = tuple(FEATURES)) -> dict[str, FloatArray]:
         """Feature name -> (N, C) float64 values of the given samples (see :meth:`render_features`)."""
         rows, cols, sample_index = self._check_samples(rows, cols, sample_index)
         names = self._check_features(names)
-        parts = [self._trace_features(rows[lo:lo + self.batch_size], cols[lo:lo + self.batch_size],
-                                      sample_index[lo:lo + self.batch_size], names)
+        parts = [self._trace_features((rows[lo:lo + self.batch_size], cols[lo:lo + self.batch_size],
+                                       sample_index[lo:lo + self.batch_size]), names)
                  for lo in range(0, rows.size, self.batch_size)]
         if not parts:
             return {name: np.zeros((0, len(FEATURES[name][1]))) for name in names}
@@ -403,11 +458,28 @@ class MitsubaRenderer:
             raise ValueError(f"names: {unknown or 'none'} given; features are {', '.join(FEATURES)}")
         return tuple(dict.fromkeys(names))
 
-    def _camera_rays(self, rows: np.ndarray, cols: np.ndarray, sample_index: np.ndarray) -> tuple[Any, Any, Any]:
-        """Seeded samplers and camera rays of the samples, as Dr.Jit wavefronts (not yet evaluated)."""
+    def _lanes(self, samples: _Chunk | tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[Any, Any, Any]:
+        """``(row, col, sample index)`` of every lane as Dr.Jit UInt32 arrays (not yet evaluated).
+
+        A request's chunk is listed on the device: a binary search over the per-pixel ``ends``
+        finds each lane's pixel, so only two per-pixel arrays are uploaded. An explicit list of
+        samples is uploaded as it is.
+        """
+        mi, dr = self._mi, self._dr
+        width = dr.opaque(mi.UInt32, self._shape[1])
+        if isinstance(samples, _Chunk):
+            ends, base = (mi.UInt32(_aligned_u32(a)) for a in (samples.ends, samples.base))
+            lane = dr.arange(mi.UInt32, samples.size)
+            # The search range is the whole image whatever the chunk, so the kernel never changes.
+            pixel = dr.binary_search(0, samples.ends.size - 1, lambda p: dr.gather(mi.UInt32, ends, p) <= lane)
+            row = pixel // width
+            return row, pixel - row * width, dr.gather(mi.UInt32, base, pixel) + lane
+        return tuple(mi.UInt32(_aligned_u32(a)) for a in samples)  # type: ignore[return-value]
+
+    def _camera_rays(self, r: Any, c: Any, s: Any) -> tuple[Any, Any, Any]:
+        """Seeded samplers and camera rays of the lanes, as Dr.Jit wavefronts (not yet evaluated)."""
         mi, dr = self._mi, self._dr
         h, w = self._shape
-        r, c, s = (mi.UInt32(_aligned_u32(a)) for a in (rows, cols, sample_index))
         pixel = r * dr.opaque(mi.UInt32, w) + c
         k0, k1, k2, k3 = (dr.opaque(mi.UInt32, k) for k in _seed_words(self.seed))
         sampler = self._sampler_class()
@@ -425,14 +497,15 @@ class MitsubaRenderer:
         ray, weight = self.sensor.sample_ray_differential(shutter, mi.Float(0.0), position, aperture)
         return sampler, ray, weight
 
-    def _trace(self, rows: np.ndarray, cols: np.ndarray, sample_index: np.ndarray) -> tuple[FloatArray, int]:
-        """(3, N) float64 radiance (channel-major, as Dr.Jit stores it) and the non-finite count."""
+    def _trace(self, samples: _Chunk | tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[FloatArray, int]:
+        """(3, N) float32 radiance (channel-major, as Dr.Jit stores it) and the non-finite count."""
         start = time.perf_counter()
-        if rows.size == 0:
-            return np.zeros((3, 0)), 0
+        n = samples.size if isinstance(samples, _Chunk) else samples[0].size
+        if n == 0:
+            return np.zeros((3, 0), np.float32), 0
         mi, dr = self._mi, self._dr
         with variant_scope(mi, self.variant):
-            sampler, ray, weight = self._camera_rays(rows, cols, sample_index)
+            sampler, ray, weight = self._camera_rays(*self._lanes(samples))
             if self._python_ad:
                 # Mitsuba's differentiable integrators (prb, ...): their primal pass, as their render() runs it.
                 with dr.suspend_grad():
@@ -443,19 +516,19 @@ class MitsubaRenderer:
                 spectrum, _, _ = self.integrator.sample(self.scene, sampler, ray, self.sensor.get_medium(), True)
             spectrum = spectrum * weight
             dr.eval(spectrum)
-            radiance = np.array(spectrum, dtype=np.float64)
+            radiance = np.array(spectrum)  # float32; statistics accumulate in float64
         bad = ~np.isfinite(radiance).all(axis=0)
         nonfinite = int(bad.sum())
         if nonfinite:
             radiance[:, bad] = 0.0
             logger.warning("%s: %d sample(s) with NaN/Inf radiance were replaced by 0", self.name, nonfinite)
         self.stats["nonfinite"] += nonfinite
-        self.stats["samples"] += rows.size
+        self.stats["samples"] += n
         self.stats["launches"] += 1
         self.stats["seconds"] += time.perf_counter() - start
         return radiance, nonfinite
 
-    def _trace_features(self, rows: np.ndarray, cols: np.ndarray, sample_index: np.ndarray,
+    def _trace_features(self, samples: _Chunk | tuple[np.ndarray, np.ndarray, np.ndarray],
                         names: tuple[str, ...]) -> dict[str, FloatArray]:
         """Feature name -> (C, N) float64 values (channel-major)."""
         mi, dr = self._mi, self._dr
@@ -464,7 +537,7 @@ class MitsubaRenderer:
             if integrator is None:
                 aovs = ",".join(f"{name}:{FEATURES[name][0]}" for name in names)
                 integrator = self._feature_integrators[names] = mi.load_dict({"type": "aov", "aovs": aovs})
-            sampler, ray, _ = self._camera_rays(rows, cols, sample_index)
+            sampler, ray, _ = self._camera_rays(*self._lanes(samples))
             _, _, values = integrator.sample(self.scene, sampler, ray, self.sensor.get_medium(), True)
             dr.eval(values)
             columns = [np.asarray(v, dtype=np.float64) for v in values]
@@ -479,28 +552,6 @@ class MitsubaRenderer:
                 logger.warning("%s: %d non-finite %s value(s) were replaced by 0", self.name, int(bad.sum()), name)
             out[name] = values
         return out
-
-
-def _accumulate(flat: np.ndarray, values: FloatArray, shape: Shape2D, channels: Sequence[str]) -> SampleBuffer:
-    """Exact per-pixel statistics of channel-major samples ``values`` (C, N) at flat pixels ``flat``.
-
-    The two-pass float64 algorithm of :meth:`SampleBuffer.from_samples` (mean, then the sum of
-    squared deviations from it, both with ``np.bincount``) on contiguous channel rows, which
-    saves the transpose of an (N, C) copy. Values must be finite.
-    """
-    n_pix = shape[0] * shape[1]
-    count = np.bincount(flat, minlength=n_pix)
-    safe = np.maximum(count, 1)
-    mean = np.empty((n_pix, values.shape[0]))
-    m2 = np.empty((n_pix, values.shape[0]))
-    for c, row in enumerate(values):  # a loop over channels; pixels and samples are vectorised
-        mean[:, c] = np.bincount(flat, weights=row, minlength=n_pix) / safe
-        dev = row - mean[flat, c]
-        m2[:, c] = np.bincount(flat, weights=dev * dev, minlength=n_pix)
-    variance = m2 / np.maximum(count - 1, 1)[:, None]
-    h, w = shape
-    return SampleBuffer(count.reshape(h, w), mean.reshape(h, w, -1), variance.reshape(h, w, -1), tuple(channels),
-                        np.ones((h, w), bool))
 
 
 def _resized(scene: dict[str, Any], shape: Shape2D | None) -> dict[str, Any]:

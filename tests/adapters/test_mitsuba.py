@@ -13,7 +13,7 @@ import pytest
 
 from awr_denoise import AdaptiveSampler, Renderer, SampleBuffer, SampleRequest
 from awr_denoise.adapters import mitsuba_scenes
-from awr_denoise.adapters.mitsuba import (FEATURES, MitsubaRenderer, _accumulate, _sample_chunks,
+from awr_denoise.adapters.mitsuba import (FEATURES, MitsubaRenderer, _PixelStatistics, _sample_chunks,
                                           create_renderer)
 
 SHAPE = (32, 32)
@@ -31,24 +31,42 @@ def _random_request(shape, rng, *, high=5, round=0) -> SampleRequest:
 
 
 # ---------------------------------------------------------------------------- no Mitsuba needed
+def _chunk_lanes(chunk):
+    """What the device computes for a chunk's lanes, in numpy: flat pixel and sample index."""
+    lane = np.arange(chunk.size)
+    pixel = np.searchsorted(chunk.ends, lane, side="right")
+    return pixel, (chunk.base[pixel] + lane) % (1 << 32)
+
+
 @pytest.mark.parametrize("batch", [1, 7, 64, 10_000])
-def test_sample_chunks_match_pixel_list(batch, rng):
+def test_sample_chunks_list_the_request(batch, rng):
     request = _random_request((9, 13), rng, high=6)
     chunks = list(_sample_chunks(request, batch))
-    assert all(len(c[0]) <= batch for c in chunks)
-    joined = [np.concatenate([c[i] for c in chunks]) for i in range(3)]
-    for got, expected in zip(joined, request.pixel_list()):
-        np.testing.assert_array_equal(got, expected)
+    assert all(0 < c.size <= batch for c in chunks) and sum(c.size for c in chunks) == request.total
+    pixel, index = (np.concatenate(a) for a in zip(*map(_chunk_lanes, chunks)))
+    rows, cols, expected_index = request.pixel_list()
+    np.testing.assert_array_equal(pixel, rows * 13 + cols)
+    np.testing.assert_array_equal(index, expected_index)
+    for c in chunks:  # per_pixel counts the chunk's own samples at every pixel
+        np.testing.assert_array_equal(np.bincount(_chunk_lanes(c)[0], minlength=9 * 13), c.per_pixel)
 
 
-def test_accumulate_equals_from_samples(rng):
-    flat = rng.integers(0, 20, 500)
-    values = rng.standard_normal((3, 500)) * 3 + 1
-    got = _accumulate(flat, values, (4, 5), ("R", "G", "B"))
-    expected = SampleBuffer.from_samples(flat, values.T, (4, 5))
+@pytest.mark.parametrize("batch", [5, 37, 10_000])
+def test_pixel_statistics_equal_from_samples(batch, rng):
+    """Chunked two-pass statistics (Chan-merged at chunk boundaries) equal those of all samples at once."""
+    request = _random_request((6, 7), rng, high=9)
+    rows, cols, _ = request.pixel_list()
+    values = (rng.standard_normal((3, request.total)) * 3 + 10).astype(np.float32)
+    stats = _PixelStatistics(42, 3)
+    at = 0
+    for c in _sample_chunks(request, batch):
+        stats.add(c.per_pixel, values[:, at:at + c.size])
+        at += c.size
+    got = stats.buffer((6, 7), ("R", "G", "B"))
+    expected = SampleBuffer.from_samples(rows * 7 + cols, values.T.astype(np.float64), (6, 7))
     np.testing.assert_array_equal(got.count, expected.count)
-    np.testing.assert_array_equal(got.mean, expected.mean)
-    np.testing.assert_array_equal(got.variance, expected.variance)
+    np.testing.assert_allclose(got.mean, expected.mean, rtol=1e-13)
+    np.testing.assert_allclose(got.variance, expected.variance, rtol=1e-10)
 
 
 def test_scene_names_are_listed():
@@ -81,8 +99,13 @@ def test_exact_counts_per_pixel(cornell, rng):
     assert buffer.nonfinite == 0
     assert cornell.stats["samples"] - before == request.total
     assert np.isfinite(buffer.mean).all() and (buffer.mean >= 0).all()
-    values = cornell.trace_samples(*request.pixel_list())
+    rows, cols, index = request.pixel_list()
+    values = cornell.trace_samples(rows, cols, index)
     assert values.shape == (request.total, 3) and values.dtype == np.float64
+    # The request path lists its samples on the device; they are the samples trace_samples gives.
+    expected = SampleBuffer.from_samples(rows * SHAPE[1] + cols, values, SHAPE)
+    np.testing.assert_allclose(buffer.mean, expected.mean, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(buffer.variance, expected.variance, rtol=1e-9, atol=1e-15)
 
 
 def test_empty_request(cornell):
@@ -177,18 +200,21 @@ def test_every_call_reuses_one_kernel(cornell, rng):
     """Requests of any size and content run the same compiled kernel (no compile per call)."""
     import drjit as dr
 
-    hashes = []
-    for n in (1000, 1001, 2048, 333):
+    def largest_kernel(call):
         dr.set_flag(dr.JitFlag.KernelHistory, True)
         try:
             dr.kernel_history()  # clears the history
-            cornell.trace_samples(rng.integers(0, 32, n), rng.integers(0, 32, n), rng.integers(0, 99, n))
+            call()
             history = dr.kernel_history()
         finally:
             dr.set_flag(dr.JitFlag.KernelHistory, False)
-        largest = max(history, key=lambda k: k.get("operation_count", 0))
-        hashes.append(largest["hash"])
-    assert len(set(hashes)) == 1
+        return max(history, key=lambda k: k.get("operation_count", 0))["hash"]
+
+    listed = {largest_kernel(lambda: cornell.trace_samples(rng.integers(0, 32, n), rng.integers(0, 32, n),
+                                                           rng.integers(0, 99, n)))
+              for n in (1000, 1001, 2048, 333)}
+    requested = {largest_kernel(lambda: cornell(_random_request(SHAPE, rng, high=high))) for high in (2, 5, 9)}
+    assert len(listed) == 1 and len(requested) == 1
 
 
 # ---------------------------------------------------------------------------- the loop
