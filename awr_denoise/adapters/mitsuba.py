@@ -334,6 +334,8 @@ class MitsubaRenderer:
             self._shutter_time = float(self.sensor.shutter_open_time())
         self._sampler_class = _addressed_sampler_class(mi, dr, self.variant)
         self._feature_integrators: dict[tuple[str, ...], Any] = {}
+        self._constants: dict[str, Any] = {}
+        self._seed_cache: tuple[int | None, Any] = (None, ())
         self.stats: dict[str, float] = {"samples": 0, "nonfinite": 0, "launches": 0, "seconds": 0.0}
 
     # ------------------------------------------------------------------ loading
@@ -466,7 +468,7 @@ class MitsubaRenderer:
         samples is uploaded as it is.
         """
         mi, dr = self._mi, self._dr
-        width = dr.opaque(mi.UInt32, self._shape[1])
+        width = self._constant("width")
         if isinstance(samples, _Chunk):
             ends, base = (mi.UInt32(_aligned_u32(a)) for a in (samples.ends, samples.base))
             lane = dr.arange(mi.UInt32, samples.size)
@@ -476,24 +478,42 @@ class MitsubaRenderer:
             return row, pixel - row * width, dr.gather(mi.UInt32, base, pixel) + lane
         return tuple(mi.UInt32(_aligned_u32(a)) for a in samples)  # type: ignore[return-value]
 
+    def _constant(self, name: str) -> Any:
+        """A scalar of the scene as an opaque Dr.Jit value, made once: a kernel input, not a
+        constant compiled into it, and no upload per call."""
+        if name not in self._constants:
+            mi, dr = self._mi, self._dr
+            h, w = self._shape
+            value = {"width": (mi.UInt32, w), "inv_width": (mi.Float, 1.0 / w), "inv_height": (mi.Float, 1.0 / h),
+                     "shutter_open": (mi.Float, self._shutter_open),
+                     "shutter_time": (mi.Float, self._shutter_time)}[name]
+            self._constants[name] = dr.opaque(*value)
+        return self._constants[name]
+
+    def _seed_keys(self) -> tuple[Any, Any, Any, Any]:
+        """The seed's four stream-key words as opaque Dr.Jit values (remade when the seed changes)."""
+        if self._seed_cache[0] != self.seed:
+            mi, dr = self._mi, self._dr
+            self._seed_cache = (self.seed, tuple(dr.opaque(mi.UInt32, k) for k in _seed_words(self.seed)))
+        return self._seed_cache[1]
+
     def _camera_rays(self, r: Any, c: Any, s: Any) -> tuple[Any, Any, Any]:
         """Seeded samplers and camera rays of the lanes, as Dr.Jit wavefronts (not yet evaluated)."""
-        mi, dr = self._mi, self._dr
-        h, w = self._shape
-        pixel = r * dr.opaque(mi.UInt32, w) + c
-        k0, k1, k2, k3 = (dr.opaque(mi.UInt32, k) for k in _seed_words(self.seed))
+        mi = self._mi
+        pixel = r * self._constant("width") + c
+        k0, k1, k2, k3 = self._seed_keys()
         sampler = self._sampler_class()
         # One stream per sample: TEA is a bijection of its 64-bit input, so distinct
         # (pixel, sample index) pairs get distinct stream selectors for a given seed.
         sampler.rng.seed(mi.sample_tea_64(s ^ k2, pixel ^ k3), mi.sample_tea_64(pixel ^ k0, s ^ k1))
         # The same draws, in the same order, as SamplingIntegrator::render_sample.
         offset = sampler.next_2d()
-        position = mi.Point2f((mi.Float(c) + offset.x) * dr.opaque(mi.Float, 1.0 / w),
-                              (mi.Float(r) + offset.y) * dr.opaque(mi.Float, 1.0 / h))
+        position = mi.Point2f((mi.Float(c) + offset.x) * self._constant("inv_width"),
+                              (mi.Float(r) + offset.y) * self._constant("inv_height"))
         aperture = sampler.next_2d() if self._needs_aperture else mi.Point2f(0.5, 0.5)
-        shutter = dr.opaque(mi.Float, self._shutter_open)
+        shutter = self._constant("shutter_open")
         if self._shutter_time > 0:
-            shutter = shutter + sampler.next_1d() * dr.opaque(mi.Float, self._shutter_time)
+            shutter = shutter + sampler.next_1d() * self._constant("shutter_time")
         ray, weight = self.sensor.sample_ray_differential(shutter, mi.Float(0.0), position, aperture)
         return sampler, ray, weight
 
