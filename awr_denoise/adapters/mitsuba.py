@@ -5,9 +5,10 @@ adapter lists the requested samples ``(row, column, sample index)``, generates o
 sample as Mitsuba's ``SamplingIntegrator`` does (a uniform position inside the pixel, the box
 filter of radius 0.5; an aperture sample when the sensor needs one; a shutter time only when the
 shutter is open for a non-zero interval), calls the scene integrator's ``sample()`` on the whole
-wavefront and accumulates the radiance per pixel in float64 (``np.bincount`` through
-:meth:`~awr_denoise.buffers.SampleBuffer.from_samples`). The film is never used, so its
-reconstruction filter plays no part (a non-box filter is reported once).
+wavefront and accumulates the radiance per pixel in float64 (the exact two-pass statistics of
+:meth:`~awr_denoise.buffers.SampleBuffer.from_samples`, see :mod:`~awr_denoise.adapters._samples`).
+The film is never used, so its reconstruction filter plays no part (a non-box filter is reported
+once).
 
 Randomness is addressed: every random number of a sample, the camera's and the integrator's, comes
 from a PCG32 stream of its own, seeded from (seed, pixel, sample index). A sample therefore has the
@@ -26,9 +27,9 @@ import logging
 import os
 import time
 import warnings
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
@@ -36,6 +37,7 @@ from .._typing import FloatArray, Shape2D
 from ..buffers import SampleBuffer
 from ..requests import SampleRequest
 from ._mitsuba_runtime import DEFAULT_VARIANT, import_mitsuba, variant_of_scene, variant_scope
+from ._samples import Chunk, PixelStatistics, aligned_u32, sample_chunks
 from .mitsuba_scenes import SCENE_NAMES, scene_dict
 
 __all__ = ["MitsubaRenderer", "create_renderer", "FEATURES", "DEFAULT_BATCH_SIZE", "DEFAULT_VARIANT"]
@@ -112,115 +114,6 @@ def _addressed_sampler_class(mi: Any, dr: Any, variant: str) -> type:
 
     _SAMPLER_CLASSES[variant] = AddressedSampler
     return AddressedSampler
-
-
-def _aligned_u32(values: np.ndarray) -> np.ndarray:
-    """``values`` as uint32 in a 64-byte aligned buffer.
-
-    Dr.Jit reads numpy memory in place and compiles the buffer's alignment into the kernel, so
-    arrays at arbitrary addresses would make every call compile one of several kernel variants
-    (about a second each); aligned inputs make every call reuse one kernel.
-    """
-    raw = np.empty(values.size + 16, np.uint32)
-    start = (-raw.ctypes.data % 64) // raw.itemsize
-    out = raw[start:start + values.size]
-    out[...] = values
-    return out
-
-
-class _Chunk(NamedTuple):
-    """Samples ``lo, ..., lo + size - 1`` of a request's sample list (row-major pixels, increasing
-    sample index), described per pixel of the image so that the lanes can be listed on the device.
-
-    Lane ``i`` of the chunk belongs to the first pixel ``p`` with ``ends[p] > i`` and has sample
-    index ``base[p] + i`` (``base`` is stored modulo 2**32; pixels without samples in the chunk are
-    never looked up). ``per_pixel`` is the number of the chunk's samples at every pixel.
-    """
-
-    size: int
-    ends: np.ndarray
-    base: np.ndarray
-    per_pixel: np.ndarray
-
-
-def _sample_chunks(request: SampleRequest, batch_size: int) -> Iterator[_Chunk]:
-    """The request's samples, at most ``batch_size`` at a time, as per-pixel arrays (O(pixels) each).
-
-    The order is that of :meth:`SampleRequest.pixel_list`; no per-sample array is built here.
-    """
-    counts = request.counts.ravel()
-    ends = np.cumsum(counts)
-    starts = ends - counts
-    first = request.first_index.ravel()
-    total = int(ends[-1]) if ends.size else 0
-    for lo in range(0, total, batch_size):
-        size = min(batch_size, total - lo)
-        local_ends = np.clip(ends - lo, 0, size)
-        base = np.mod(first + lo - starts, 1 << 32)
-        yield _Chunk(size, local_ends, base, np.diff(local_ends, prepend=0))
-
-
-_BLOCK = 1 << 15  # samples per block of the accumulation: its temporaries stay in the CPU's cache
-
-
-class _PixelStatistics:
-    """Exact float64 count, mean and M2 per pixel, from samples listed pixel by pixel.
-
-    Each chunk's statistics are two-pass (the mean, then the squared deviations from it, summed
-    per pixel with ``np.add.reduceat`` over the runs of consecutive samples), a block of about
-    ``_BLOCK`` samples and one channel at a time, and chunks are combined with Chan's update where
-    they share a pixel (only at chunk boundaries). Equal, to float64 rounding, to
-    :meth:`SampleBuffer.from_samples` of all samples at once.
-    """
-
-    def __init__(self, n_pixels: int, n_channels: int) -> None:
-        self.count = np.zeros(n_pixels, np.int64)
-        self.mean = np.zeros((n_channels, n_pixels))
-        self.m2 = np.zeros((n_channels, n_pixels))
-
-    def add(self, per_pixel: np.ndarray, values: np.ndarray) -> None:
-        """Add ``values`` (C, N): ``per_pixel[p]`` consecutive samples of each pixel ``p`` in turn."""
-        index = np.flatnonzero(per_pixel)
-        if index.size == 0:
-            return
-        n = per_pixel[index]
-        ends = np.cumsum(n)
-        starts = ends - n
-        mean = np.empty((values.shape[0], index.size))
-        m2 = np.empty_like(mean)
-        # Blocks end at pixel boundaries, after about _BLOCK samples each.
-        cuts = np.searchsorted(ends, np.arange(_BLOCK, int(ends[-1]), _BLOCK), side="left") + 1
-        bounds = np.unique(np.concatenate([[0], cuts[cuts < index.size], [index.size]]))
-        for a, b in zip(bounds[:-1], bounds[1:]):
-            lo, hi = int(starts[a]), int(ends[b - 1])
-            runs, run_starts = n[a:b], starts[a:b] - lo
-            for c, row in enumerate(values[:, lo:hi]):
-                mu = np.add.reduceat(row, run_starts, dtype=np.float64) / runs
-                dev = np.repeat(mu, runs)
-                np.subtract(row, dev, out=dev)
-                np.square(dev, out=dev)
-                mean[c, a:b] = mu
-                m2[c, a:b] = np.add.reduceat(dev, run_starts)
-        seen = self.count[index] > 0
-        if seen.any():
-            # Chan et al.'s parallel update where an earlier chunk already had samples of the pixel.
-            both, nb = index[seen], n[seen].astype(np.float64)
-            na = self.count[both].astype(np.float64)
-            total = na + nb
-            delta = mean[:, seen] - self.mean[:, both]
-            self.mean[:, both] += delta * (nb / total)
-            self.m2[:, both] += m2[:, seen] + delta * delta * (na * nb / total)
-            self.count[both] += n[seen]
-            index, n, mean, m2 = index[~seen], n[~seen], mean[:, ~seen], m2[:, ~seen]
-        self.count[index] = n
-        self.mean[:, index] = mean
-        self.m2[:, index] = m2
-
-    def buffer(self, shape: Shape2D, channels: Sequence[str], nonfinite: int = 0) -> SampleBuffer:
-        h, w = shape
-        variance = self.m2 / np.maximum(self.count - 1, 1)
-        return SampleBuffer(self.count.reshape(h, w), self.mean.T.reshape(h, w, -1), variance.T.reshape(h, w, -1),
-                            tuple(channels), np.ones((h, w), bool), nonfinite)
 
 
 class MitsubaRenderer:
@@ -364,9 +257,9 @@ class MitsubaRenderer:
     def __call__(self, request: SampleRequest) -> SampleBuffer:
         """Render the requested samples and return their per-pixel statistics (R, G, B)."""
         self._check_request(request)
-        stats = _PixelStatistics(request.counts.size, len(self.channels))
+        stats = PixelStatistics(request.counts.size, len(self.channels))
         nonfinite = 0
-        for chunk in _sample_chunks(request, self.batch_size):
+        for chunk in sample_chunks(request, self.batch_size):
             radiance, bad = self._trace(chunk)
             nonfinite += bad  # zeroed and counted in _trace; the buffer carries the count
             stats.add(chunk.per_pixel, radiance)
@@ -404,8 +297,8 @@ class MitsubaRenderer:
         """
         self._check_request(request)
         names = self._check_features(names)
-        stats = {name: _PixelStatistics(request.counts.size, len(FEATURES[name][1])) for name in names}
-        for chunk in _sample_chunks(request, self.batch_size):
+        stats = {name: PixelStatistics(request.counts.size, len(FEATURES[name][1])) for name in names}
+        for chunk in sample_chunks(request, self.batch_size):
             values = self._trace_features(chunk, names)
             for name in names:
                 stats[name].add(chunk.per_pixel, values[name])
@@ -460,7 +353,7 @@ class MitsubaRenderer:
             raise ValueError(f"names: {unknown or 'none'} given; features are {', '.join(FEATURES)}")
         return tuple(dict.fromkeys(names))
 
-    def _lanes(self, samples: _Chunk | tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[Any, Any, Any]:
+    def _lanes(self, samples: Chunk | tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[Any, Any, Any]:
         """``(row, col, sample index)`` of every lane as Dr.Jit UInt32 arrays (not yet evaluated).
 
         A request's chunk is listed on the device: a binary search over the per-pixel ``ends``
@@ -469,14 +362,14 @@ class MitsubaRenderer:
         """
         mi, dr = self._mi, self._dr
         width = self._constant("width")
-        if isinstance(samples, _Chunk):
-            ends, base = (mi.UInt32(_aligned_u32(a)) for a in (samples.ends, samples.base))
+        if isinstance(samples, Chunk):
+            ends, base = (mi.UInt32(aligned_u32(a)) for a in (samples.ends, samples.base))
             lane = dr.arange(mi.UInt32, samples.size)
             # The search range is the whole image whatever the chunk, so the kernel never changes.
             pixel = dr.binary_search(0, samples.ends.size - 1, lambda p: dr.gather(mi.UInt32, ends, p) <= lane)
             row = pixel // width
             return row, pixel - row * width, dr.gather(mi.UInt32, base, pixel) + lane
-        return tuple(mi.UInt32(_aligned_u32(a)) for a in samples)  # type: ignore[return-value]
+        return tuple(mi.UInt32(aligned_u32(a)) for a in samples)  # type: ignore[return-value]
 
     def _constant(self, name: str) -> Any:
         """A scalar of the scene as an opaque Dr.Jit value, made once: a kernel input, not a
@@ -517,10 +410,10 @@ class MitsubaRenderer:
         ray, weight = self.sensor.sample_ray_differential(shutter, mi.Float(0.0), position, aperture)
         return sampler, ray, weight
 
-    def _trace(self, samples: _Chunk | tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[FloatArray, int]:
+    def _trace(self, samples: Chunk | tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[FloatArray, int]:
         """(3, N) float32 radiance (channel-major, as Dr.Jit stores it) and the non-finite count."""
         start = time.perf_counter()
-        n = samples.size if isinstance(samples, _Chunk) else samples[0].size
+        n = samples.size if isinstance(samples, Chunk) else samples[0].size
         if n == 0:
             return np.zeros((3, 0), np.float32), 0
         mi, dr = self._mi, self._dr
@@ -548,7 +441,7 @@ class MitsubaRenderer:
         self.stats["seconds"] += time.perf_counter() - start
         return radiance, nonfinite
 
-    def _trace_features(self, samples: _Chunk | tuple[np.ndarray, np.ndarray, np.ndarray],
+    def _trace_features(self, samples: Chunk | tuple[np.ndarray, np.ndarray, np.ndarray],
                         names: tuple[str, ...]) -> dict[str, FloatArray]:
         """Feature name -> (C, N) float64 values (channel-major)."""
         mi, dr = self._mi, self._dr
