@@ -19,6 +19,7 @@ size and spp; ``--regenerate-references`` renders them again.
 Usage (from the repository root)::
 
     nice -n 10 .venv/bin/python benchmarks/bench_mitsuba.py            # full run, about an hour on 2 cores
+                                                                       # (40 minutes with cached references)
     .venv/bin/python benchmarks/bench_mitsuba.py --quick               # smoke run, tiny images, writes nothing
     .venv/bin/python benchmarks/bench_mitsuba.py --scenes cornell_box --no-hd --spp 8 32 --update
     .venv/bin/python benchmarks/bench_mitsuba.py --report           # tables of the results file, nothing rendered
@@ -127,9 +128,17 @@ def throughput(renderer: MitsubaRenderer, spp: int, repeats: int) -> dict[str, A
         theirs_cpu.append(time.process_time() - c)
     samples = request.total
     t_ours, t_theirs = statistics.median(ours), statistics.median(theirs)
+    # The fixed cost of a call: 64 samples of one pixel, median of 20 calls.
+    tiny = (np.zeros(64, np.int64), np.zeros(64, np.int64), np.arange(64))
+    calls = []
+    for _ in range(20):
+        t = time.perf_counter()
+        renderer.trace_samples(*tiny)
+        calls.append(time.perf_counter() - t)
     return {"spp": spp, "samples": samples, "repeats": repeats,
             "adapter_seconds": t_ours, "mitsuba_seconds": t_theirs,
             "adapter_msamples_per_s": samples / t_ours / 1e6, "mitsuba_msamples_per_s": samples / t_theirs / 1e6,
+            "call_ms_64_samples": 1000 * statistics.median(calls[2:]),
             "ratio": t_theirs / t_ours, "cpu_ratio": statistics.median(theirs_cpu) / statistics.median(ours_cpu),
             "adapter_all_seconds": ours, "mitsuba_all_seconds": theirs,
             "adapter_all_cpu_seconds": ours_cpu, "mitsuba_all_cpu_seconds": theirs_cpu}
@@ -208,7 +217,7 @@ def bench_scene(name: str, shape: tuple[int, int], *, spps: list[int], reference
     renderer = MitsubaRenderer(name, shape=shape, seed=seed)
     print(f"[{name} {shape[1]}x{shape[0]}] throughput at {throughput_spp} spp", flush=True)
     result: dict[str, Any] = {"scene": name, "shape": list(shape),
-                              "throughput": throughput(renderer, throughput_spp, max(3, repeats))}
+                              "throughput": throughput(renderer, throughput_spp, max(7, repeats))}
     print(f"[{name}] reference at {reference_spp} spp", flush=True)
     ref = reference(renderer, name, reference_spp, cache=cache, regenerate=regenerate)
     eps = RELMSE_EPSILON
@@ -273,13 +282,13 @@ def _fmt(x: float | None, spec: str = ".3g") -> str:
 
 def markdown(results: dict[str, Any]) -> str:
     """The tables docs/integrate_mitsuba.md shows, from a results dict."""
-    lines = ["| scene | size | spp | adapter Msamples/s | mi.render Msamples/s | ratio (wall) | ratio (CPU) |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| scene | size | spp | adapter Msamples/s | mi.render Msamples/s | ratio (wall) | ratio (CPU) "
+             "| ms per call of 64 samples |", "|---|---|---|---|---|---|---|---|"]
     for s in results["scenes"]:
         t = s["throughput"]
         lines.append(f"| {s['scene']} | {s['shape'][1]}x{s['shape'][0]} | {t['spp']} | "
                      f"{t['adapter_msamples_per_s']:.2f} | {t['mitsuba_msamples_per_s']:.2f} | {t['ratio']:.2f} | "
-                     f"{t['cpu_ratio']:.2f} |")
+                     f"{t['cpu_ratio']:.2f} | {_fmt(t.get('call_ms_64_samples'), '.1f')} |")
     lines += ["", "| scene | size | spp | relMSE uniform | relMSE AWR | ratio | MSE uniform | MSE AWR | ratio "
               "| MSE AWR plain mean | mean bias uniform / AWR / AWR plain mean |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for s in results["scenes"]:
@@ -329,7 +338,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--size", type=int, nargs=2, metavar=("H", "W"), default=[256, 256])
     parser.add_argument("--spp", type=int, nargs="+", default=[8, 16, 32, 64, 128])
     parser.add_argument("--reference-spp", type=int, default=2048)
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--throughput-spp", type=int, default=16)
     parser.add_argument("--no-hd", action="store_true", help="skip the Cornell box at 1920x1080")
     parser.add_argument("--hd-spp", type=int, nargs="+", default=[8, 16, 32])
@@ -369,7 +378,8 @@ def main(argv: list[str] | None = None) -> int:
         "description": (
             "Mitsuba 3 through the awr-denoise adapter. throughput: uniform request through MitsubaRenderer vs "
             "mi.render, same scene and spp, medians of interleaved repeats after warm-up; ratio = adapter "
-            "throughput / mi.render throughput. equal_samples: Mitsuba uniform (its film, box filter) vs "
+            "throughput / mi.render throughput (cpu_ratio: the same from process CPU time); call_ms_64_samples: "
+            "the adapter's fixed cost, one call of 64 samples. equal_samples: Mitsuba uniform (its film, box filter) vs "
             "AdaptiveSampler + reconstruct through the adapter (library defaults) at the same spp; metrics "
             "against a high-spp mi.render reference: relMSE = mean((x-r)^2/(r^2+eps)), MSE, image mean and "
             "mean_bias = mean(x)/mean(r)-1, averaged over repeats; awr_plain_mean is the AWR buffer's mean "

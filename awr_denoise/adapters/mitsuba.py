@@ -45,8 +45,8 @@ __all__ = ["MitsubaRenderer", "create_renderer", "FEATURES", "DEFAULT_BATCH_SIZE
 logger = logging.getLogger(__name__)
 
 DEFAULT_BATCH_SIZE = 1 << 22
-"""Most samples traced in one launch; larger requests are split. A launch peaks at about 100 bytes
-a sample (400 MB at this size; docs/integrate_mitsuba.md has the command that measures it)."""
+"""Most samples traced in one launch; larger requests are split. A launch peaks at about 35 bytes
+a sample (150 MB at this size; docs/integrate_mitsuba.md has the command that measures it)."""
 
 FEATURES: dict[str, tuple[str, tuple[str, ...]]] = {
     "albedo": ("albedo", ("R", "G", "B")),
