@@ -491,22 +491,30 @@ def _load_file(mi: Any, variant: str, path: Path, shape: Shape2D | None, params:
     """Load a Mitsuba XML file, resizing every film to ``shape`` through Mitsuba's parser."""
     if shape is None:
         return mi.load_file(str(path), **params)
-    config = mi.parser.ParserConfig(variant)
-    state = mi.parser.parse_file(config, str(path), **params)
-    mi.parser.transform_all(config, state)
-    h, w = shape
-    found = False
-    for node in state.nodes:
-        if node.type == mi.ObjectType.Film:
-            props = node.props
-            if any(str(k).startswith("crop_") for k in props.keys()):
-                raise ValueError(f"shape: the film in {path} has a crop window; it cannot be resized")
-            props["width"], props["height"] = int(w), int(h)
-            node.props = props
-            found = True
-    if not found:
-        raise ValueError(f"shape: {path} declares no film to resize")
-    return mi.parser.instantiate(config, state)
+    # Files the scene names are found beside it, as mi.load_file arranges.
+    previous = mi.file_resolver()
+    resolver = mi.FileResolver(previous)
+    resolver.prepend(str(path.resolve().parent))
+    mi.set_file_resolver(resolver)
+    try:
+        config = mi.parser.ParserConfig(variant)
+        state = mi.parser.parse_file(config, str(path), **params)
+        mi.parser.transform_all(config, state)
+        h, w = shape
+        found = False
+        for node in state.nodes:
+            if node.type == mi.ObjectType.Film:
+                props = node.props
+                if any(str(k).startswith("crop_") for k in props.keys()):
+                    raise ValueError(f"shape: the film in {path} has a crop window; it cannot be resized")
+                props["width"], props["height"] = int(w), int(h)
+                node.props = props
+                found = True
+        if not found:
+            raise ValueError(f"shape: {path} declares no film to resize")
+        return mi.parser.instantiate(config, state)
+    finally:
+        mi.set_file_resolver(previous)
 
 
 def create_renderer(scene: Any, *, shape: Shape2D | None = None, seed: int = 0, **options: Any) -> MitsubaRenderer:

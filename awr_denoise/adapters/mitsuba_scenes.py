@@ -200,15 +200,34 @@ def write_scene_xml(name: str, path: str | os.PathLike[str], shape: Shape2D | No
                     variant: str = DEFAULT_VARIANT) -> Path:
     """Write a bundled scene as a Mitsuba XML file with Mitsuba's own writer.
 
-    Data the dict holds in memory (the sky's bitmap) is written beside the XML file by Mitsuba.
-    Returns the path written; an existing file is replaced.
+    Data the dict holds in memory (the sky's bitmap) is written beside the XML file as EXR and
+    referenced by a relative ``filename``. Returns the path written; existing files are replaced.
     """
     d = scene_dict(name, shape, variant=variant)
     mi, _ = import_mitsuba(variant)
     target = Path(path)
     with variant_scope(mi, variant):
+        d = _bitmaps_to_files(mi, d, target)
         config = mi.parser.ParserConfig(variant)
         state = mi.parser.parse_dict(config, d)
-        mi.parser.transform_relocate(config, state, str(target.parent.resolve()))
         mi.parser.write_file(state, str(target))
     return target
+
+
+def _bitmaps_to_files(mi: Any, d: dict[str, Any], target: Path, prefix: str = "") -> dict[str, Any]:
+    """A copy of ``d`` whose in-memory bitmaps are EXR files beside ``target``, named after their key.
+
+    Mitsuba's XML writer cannot write a bitmap object; a plugin that takes one (``envmap``,
+    ``bitmap``) takes a ``filename`` instead, resolved relative to the XML file.
+    """
+    out: dict[str, Any] = {}
+    for key, value in d.items():
+        if isinstance(value, dict):
+            out[key] = _bitmaps_to_files(mi, value, target, f"{prefix}{key}_")
+        elif key == "bitmap" and isinstance(value, mi.Bitmap):
+            filename = f"{target.stem}_{prefix.rstrip('_') or 'bitmap'}.exr"
+            value.write(str(target.parent / filename))
+            out["filename"] = filename
+        else:
+            out[key] = value
+    return out

@@ -222,10 +222,12 @@ def test_bundled_scenes_render(mi, name):
 
 
 def test_xml_written_by_mitsuba_renders_the_same_samples(mi, tmp_path):
-    path = mitsuba_scenes.write_scene_xml("dof_checker", tmp_path / "dof.xml", (20, 30))
+    # The sky's bitmap goes to an EXR file beside the XML, found from there (not from the cwd).
+    path = mitsuba_scenes.write_scene_xml("envmap_sun", tmp_path / "env.xml", (20, 30))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["env.xml", "env_sky.exr"]
     from_file = create_renderer(path, seed=4)
     resized = create_renderer(path, shape=(10, 12), seed=4)
-    from_name = create_renderer("dof_checker", shape=(20, 30), seed=4)
+    from_name = create_renderer("envmap_sun", shape=(20, 30), seed=4)
     request = SampleRequest.uniform((20, 30), 2)
     assert from_file.shape == (20, 30) and resized.shape == (10, 12)
     # The same samples; the file's transforms are decimal text, so geometry moves by float32 rounding.
