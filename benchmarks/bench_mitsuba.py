@@ -13,8 +13,8 @@ For each scene (the bundled Mitsuba scenes at 256x256, and the Cornell box at 19
 - **shares** of the AWR run's time spent in ``ask``, rendering, ``tell`` and ``reconstruct``.
 
 References are rendered with ``mi.render`` in passes (seeds no other run uses) and cached under
-``benchmarks/cache/mitsuba/`` (gitignored), keyed by the scene module's source, Mitsuba's version,
-size and spp; ``--regenerate-references`` renders them again.
+``benchmarks/cache/mitsuba/`` (gitignored), keyed by the scene's content (its dict, bitmaps by their
+pixels), Mitsuba's version, size and spp; ``--regenerate-references`` renders them again.
 
 Usage (from the repository root)::
 
@@ -69,15 +69,28 @@ def _load_average() -> list[float] | None:
 
 
 # ---------------------------------------------------------------------------- reference
-def _reference_key(name: str, shape: tuple[int, int], spp: int) -> str:
-    source = inspect.getsource(mitsuba_scenes).encode()
-    digest = hashlib.sha256(source + version("mitsuba").encode()).hexdigest()[:12]
-    return f"{name}_{shape[0]}x{shape[1]}_{spp}spp_{digest}"
+def _canonical(mi: Any, value: Any) -> str:
+    """A text that changes exactly when the scene dict's content does (bitmaps by their pixels)."""
+    if isinstance(value, dict):
+        return "{" + ",".join(f"{k}:{_canonical(mi, value[k])}" for k in sorted(value)) + "}"
+    if isinstance(value, (list, tuple)):
+        return "[" + ",".join(_canonical(mi, v) for v in value) + "]"
+    if isinstance(value, mi.Bitmap):
+        return "bitmap:" + hashlib.sha256(np.ascontiguousarray(np.array(value)).tobytes()).hexdigest()
+    return repr(value)
+
+
+def _reference_key(renderer: MitsubaRenderer, name: str, spp: int) -> str:
+    mi = renderer._mi
+    h, w = renderer.shape
+    content = _canonical(mi, mitsuba_scenes.scene_dict(name, (h, w))) + version("mitsuba")
+    digest = hashlib.sha256(content.encode()).hexdigest()[:12]
+    return f"{name}_{h}x{w}_{spp}spp_{digest}"
 
 
 def reference(renderer: MitsubaRenderer, name: str, spp: int, *, cache: Path, regenerate: bool) -> dict[str, Any]:
     """High-spp Mitsuba film render: mean image and the variance of that mean (from its passes)."""
-    path = cache / f"{_reference_key(name, renderer.shape, spp)}.npz"
+    path = cache / f"{_reference_key(renderer, name, spp)}.npz"
     if path.exists() and not regenerate:
         data = np.load(path)
         return {"mean": data["mean"], "variance_of_mean": data["variance_of_mean"],
