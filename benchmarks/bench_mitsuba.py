@@ -129,12 +129,14 @@ def throughput(renderer: MitsubaRenderer, spp: int, repeats: int) -> dict[str, A
     for k in range(3):  # compile (or load) both kernels before timing
         renderer(request)
         np.array(mi.render(renderer.scene, spp=spp, seed=k))
-    ours, theirs, ours_cpu, theirs_cpu = [], [], [], []
+    ours, theirs, ours_cpu, theirs_cpu, launch = [], [], [], [], []
     for k in range(repeats):
+        before = renderer.stats["seconds"]
         t, c = time.perf_counter(), time.process_time()
         renderer(request)
         ours.append(time.perf_counter() - t)
         ours_cpu.append(time.process_time() - c)
+        launch.append(renderer.stats["seconds"] - before)
         t, c = time.perf_counter(), time.process_time()
         np.array(mi.render(renderer.scene, spp=spp, seed=100 + k))
         theirs.append(time.perf_counter() - t)
@@ -152,6 +154,8 @@ def throughput(renderer: MitsubaRenderer, spp: int, repeats: int) -> dict[str, A
             "adapter_seconds": t_ours, "mitsuba_seconds": t_theirs,
             "adapter_msamples_per_s": samples / t_ours / 1e6, "mitsuba_msamples_per_s": samples / t_theirs / 1e6,
             "call_ms_64_samples": 1000 * statistics.median(calls[2:]),
+            "adapter_launch_seconds": statistics.median(launch),
+            "host_share": 1.0 - statistics.median(x / y for x, y in zip(launch, ours)),
             "ratio": t_theirs / t_ours, "cpu_ratio": statistics.median(theirs_cpu) / statistics.median(ours_cpu),
             "adapter_all_seconds": ours, "mitsuba_all_seconds": theirs,
             "adapter_all_cpu_seconds": ours_cpu, "mitsuba_all_cpu_seconds": theirs_cpu}
@@ -296,12 +300,13 @@ def _fmt(x: float | None, spec: str = ".3g") -> str:
 def markdown(results: dict[str, Any]) -> str:
     """The tables docs/integrate_mitsuba.md shows, from a results dict."""
     lines = ["| scene | size | spp | adapter Msamples/s | mi.render Msamples/s | ratio (wall) | ratio (CPU) "
-             "| ms per call of 64 samples |", "|---|---|---|---|---|---|---|---|"]
+             "| ms per call of 64 samples | host share of a call |", "|---|---|---|---|---|---|---|---|---|"]
     for s in results["scenes"]:
         t = s["throughput"]
         lines.append(f"| {s['scene']} | {s['shape'][1]}x{s['shape'][0]} | {t['spp']} | "
                      f"{t['adapter_msamples_per_s']:.2f} | {t['mitsuba_msamples_per_s']:.2f} | {t['ratio']:.2f} | "
-                     f"{t['cpu_ratio']:.2f} | {_fmt(t.get('call_ms_64_samples'), '.1f')} |")
+                     f"{t['cpu_ratio']:.2f} | {_fmt(t.get('call_ms_64_samples'), '.1f')} | "
+                     f"{_fmt(100 * t['host_share'] if 'host_share' in t else None, '.0f')}% |")
     lines += ["", "| scene | size | spp | relMSE uniform | relMSE AWR | ratio | MSE uniform | MSE AWR | ratio "
               "| MSE AWR plain mean | mean bias uniform / AWR / AWR plain mean |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for s in results["scenes"]:
@@ -392,7 +397,8 @@ def main(argv: list[str] | None = None) -> int:
             "Mitsuba 3 through the awr-denoise adapter. throughput: uniform request through MitsubaRenderer vs "
             "mi.render, same scene and spp, medians of interleaved repeats after warm-up; ratio = adapter "
             "throughput / mi.render throughput (cpu_ratio: the same from process CPU time); call_ms_64_samples: "
-            "the adapter's fixed cost, one call of 64 samples. equal_samples: Mitsuba uniform (its film, box filter) vs "
+            "the adapter's fixed cost, one call of 64 samples; host_share: the share of an adapter call "
+            "spent outside its Dr.Jit launches and read-back (listing, float64 accumulation, the buffer). equal_samples: Mitsuba uniform (its film, box filter) vs "
             "AdaptiveSampler + reconstruct through the adapter (library defaults) at the same spp; metrics "
             "against a high-spp mi.render reference: relMSE = mean((x-r)^2/(r^2+eps)), MSE, image mean and "
             "mean_bias = mean(x)/mean(r)-1, averaged over repeats; awr_plain_mean is the AWR buffer's mean "

@@ -123,7 +123,10 @@ class PixelStatistics:
                 np.square(dev, out=dev)
                 mean[c, a:b] = mu
                 m2[c, a:b] = np.add.reduceat(dev, run_starts)
-        seen = self.count[index] > 0
+        # Contiguous pixels (every pixel has samples: the usual case) go through a slice, not a gather.
+        where: slice | np.ndarray = (slice(int(index[0]), int(index[-1]) + 1)
+                                     if index[-1] - index[0] + 1 == index.size else index)
+        seen = self.count[where] > 0
         if seen.any():
             # Chan et al.'s parallel update where an earlier chunk already had samples of the pixel.
             both, nb = index[seen], n[seen].astype(np.float64)
@@ -133,10 +136,10 @@ class PixelStatistics:
             self.mean[:, both] += delta * (nb / total)
             self.m2[:, both] += m2[:, seen] + delta * delta * (na * nb / total)
             self.count[both] += n[seen]
-            index, n, mean, m2 = index[~seen], n[~seen], mean[:, ~seen], m2[:, ~seen]
-        self.count[index] = n
-        self.mean[:, index] = mean
-        self.m2[:, index] = m2
+            where, n, mean, m2 = index[~seen], n[~seen], mean[:, ~seen], m2[:, ~seen]
+        self.count[where] = n
+        self.mean[:, where] = mean
+        self.m2[:, where] = m2
 
     def buffer(self, shape: Shape2D, channels: Sequence[str], nonfinite: int = 0) -> SampleBuffer:
         h, w = shape
