@@ -61,8 +61,8 @@ def _cornell_box(mi: Any, shape: Shape2D) -> dict[str, Any]:
 def _sky(mi: Any, width: int = 512) -> Any:
     """A lat-long sky (Mitsuba's ``envmap`` layout, +Y up) with a small, bright sun in it.
 
-    The sun covers about 30 texels and gives about three quarters of the light on the ground,
-    so the scene is lit mostly through a small, bright part of an environment map.
+    The sun covers 31 texels and gives 60% of the irradiance on a horizontal surface, so the
+    scene is lit mostly through a small, bright part of an environment map.
     """
     height = width // 2
     theta = (np.arange(height) + 0.5) / height * math.pi          # 0 at the zenith

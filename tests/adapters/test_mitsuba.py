@@ -221,6 +221,19 @@ def test_bundled_scenes_render(mi, name):
     assert renderer.stats["nonfinite"] == 0
 
 
+def test_envmap_sun_is_lit_mostly_by_its_small_sun(mi):
+    """docs/integrate_mitsuba.md: the sun is 31 texels and 60% of the horizontal irradiance."""
+    sky = np.array(mitsuba_scenes.scene_dict("envmap_sun", (8, 8))["sky"]["bitmap"], dtype=np.float64)
+    h, w, _ = sky.shape
+    theta = (np.arange(h) + 0.5) / h * np.pi
+    weight = (np.cos(theta) * np.sin(theta) * (np.pi / h) * (2 * np.pi / w))[:, None]  # cos * solid angle
+    luminance = sky @ np.array([0.2126, 0.7152, 0.0722])
+    upper = np.cos(theta) > 0
+    sun = luminance > 100
+    share = (luminance * weight * sun)[upper].sum() / (luminance * weight)[upper].sum()
+    assert sun.sum() == 31 and 0.58 < share < 0.62
+
+
 def test_xml_written_by_mitsuba_renders_the_same_samples(mi, tmp_path):
     # The sky's bitmap goes to an EXR file beside the XML, found from there (not from the cwd).
     path = mitsuba_scenes.write_scene_xml("envmap_sun", tmp_path / "env.xml", (20, 30))
