@@ -8,6 +8,7 @@ Mitsuba 3 adapter (``--renderer mitsuba SCENE.xml``).
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 from types import ModuleType
@@ -18,7 +19,7 @@ from awr_denoise.buffers import SampleBuffer
 from awr_denoise.io import image_provenance, provenance, write_image, write_preview, write_sample_buffer
 from awr_denoise.io.atomic import OutputSet
 from awr_denoise.parallel import RendererSpec, TiledRenderer
-from awr_denoise.renderers import create_renderer, renderer_names
+from awr_denoise.renderers import create_renderer, renderer_factory, renderer_names
 from awr_denoise.requests import Renderer, SampleTracer
 from awr_denoise.sampling import DEFAULT_INITIAL_SPP, DEFAULT_ROUND_GROWTH
 
@@ -32,6 +33,8 @@ from .values import MAX_EXPOSURE, MAX_SEED, MAX_SIDE, MAX_SPP, check_pixels, fea
 __all__ = ["register", "run", "tracer_module", "default_scene", "render_buffer", "derived_path"]
 
 TRACER = "tracer"
+FEATURE_RENDERERS = ("tracer", "mitsuba")
+"""Renderers that render albedo, normal and depth on request (``--features``)."""
 """Name of the bundled path tracer in the renderer registry (the default renderer)."""
 
 
@@ -141,9 +144,10 @@ def _scene(args: argparse.Namespace) -> tuple[str, Any, str, tuple[int, int] | N
     if args.renderer != TRACER:
         if not given:
             raise UsageError(f"--renderer {args.renderer}: give the SCENE to render")
-        if args.features:
-            raise UsageError(f"--features: only the bundled tracer renders features, not --renderer {args.renderer}")
-        return given, given, Path(given).name, shape, {}
+        if args.features and args.renderer not in FEATURE_RENDERERS:
+            raise UsageError(f"--features: renderers {', '.join(FEATURE_RENDERERS)} render features, "
+                             f"not --renderer {args.renderer}")
+        return given, given, Path(given).name, shape, {"features": args.features} if args.features else {}
     tracer = tracer_module()
     name = given or default_scene(tracer)
     if name not in tracer.list_scenes() and Path(name).suffix != ".json":
@@ -155,12 +159,25 @@ def _scene(args: argparse.Namespace) -> tuple[str, Any, str, tuple[int, int] | N
     return name, tracer.load_scene(name, width=args.width, height=args.height), Path(name).stem, None, options
 
 
+def _bundled_scenes(renderer: str) -> list[str]:
+    """Scene names the renderer's module bundles: its ``list_scenes()`` or ``SCENE_NAMES``."""
+    if renderer == TRACER:
+        return list(tracer_module().list_scenes())
+    try:
+        factory = renderer_factory(renderer)
+    except ImportError as exc:
+        raise RuntimeFailure(f"--renderer {renderer}: {exc}") from None
+    module = sys.modules[factory.__module__]
+    listed = getattr(module, "list_scenes", None)
+    return list(listed() if callable(listed) else getattr(module, "SCENE_NAMES", None) or getattr(module, "SCENES", ()))
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``awr render``; returns the exit status (errors are raised and reported by ``main``)."""
     if args.renderer not in renderer_names():
         raise UsageError(f"--renderer: {args.renderer!r} is not one of {', '.join(renderer_names())}")
     if args.list_scenes:
-        for name in tracer_module().list_scenes():
+        for name in _bundled_scenes(args.renderer):
             print(name)
         return EXIT_OK
     if not args.output:
@@ -193,7 +210,7 @@ def run(args: argparse.Namespace) -> int:
                                        **options)
             frame = scene.shape
         else:
-            spec = RendererSpec(args.renderer, given, shape, args.seed)
+            spec = RendererSpec(args.renderer, given, shape, args.seed, tuple(sorted(options.items())))
             probe = spec()
             frame = probe.shape
             if isinstance(probe, SampleTracer):

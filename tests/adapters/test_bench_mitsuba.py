@@ -1,0 +1,48 @@
+"""Smoke run of ``benchmarks/bench_mitsuba.py --quick`` (tiny images): the JSON it writes is complete."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_mitsuba.py"
+
+
+@pytest.fixture(scope="module")
+def bench(mi):
+    spec = importlib.util.spec_from_file_location("bench_mitsuba", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_quick_run_writes_a_self_describing_json(bench, tmp_path, capsys):
+    out = tmp_path / "mitsuba.json"
+    args = ["--quick", "--cache", str(tmp_path / "cache"), "--output", str(out)]
+    assert bench.main(args) == 0
+    results = json.loads(out.read_text())
+    assert {"description", "command", "machine", "settings", "scenes"} <= set(results)
+    assert results["settings"]["library_defaults"]["AdaptiveSampler"]["initial_spp"] == 4
+    (scene,) = results["scenes"]
+    assert scene["scene"] == "cornell_box" and scene["reference"]["cached"] is False
+    assert scene["throughput"]["ratio"] > 0
+    assert [e["spp"] for e in scene["equal_samples"]] == [4, 8]
+    for row in scene["equal_samples"]:
+        for side in ("uniform", "awr", "awr_plain_mean"):
+            assert math.isfinite(row[side]["relmse"]) and row[side]["mse"] > 0
+    for run in scene["awr_runs"]:
+        assert math.isclose(sum(run["shares"].values()), 1.0)
+    assert len(scene["equal_time"]) == 2
+    assert "| cornell_box |" in capsys.readouterr().out
+    # The reference is cached: a second run reads it instead of rendering it again.
+    assert bench.main(args) == 0
+    assert json.loads(out.read_text())["scenes"][0]["reference"]["cached"] is True
+    # --report renders nothing and recomputes the derived tables from the stored points.
+    capsys.readouterr()
+    assert bench.main(["--report", "--output", str(out)]) == 0
+    assert "| plain mean relMSE / MSE ratio |" in capsys.readouterr().out
+    assert json.loads(out.read_text())["scenes"][0]["equal_time"][0]["uniform_spp"] == 4
