@@ -40,6 +40,8 @@ __all__ = ["StationaryTransform", "stationary_transform", "DTYPES"]
 DTYPES = ("float64", "float32")
 """Precisions of the FFTs: ``"float64"`` (the reference) and ``"float32"``."""
 
+_CACHE_BYTES = 64 * 2**20  # 2-D transfer functions kept per transform (all of them up to about 512x512)
+
 
 class _Axis(NamedTuple):
     """Transfer functions along one axis, per level ``j = 1..L`` (index ``j - 1``)."""
@@ -47,6 +49,7 @@ class _Axis(NamedTuple):
     analysis: dict  # kind ("lo", "hi") -> list of per-level analysis transfer functions
     squared: dict  # the transfer functions of the squared analysis kernels
     synthesis: dict
+    diagonal: dict  # of s(u) k(-u): a band's share of the transform pair's diagonal
 
 
 def _transfer(taps: np.ndarray, n: int, step: int, half: bool) -> np.ndarray:
@@ -69,6 +72,8 @@ def _axis(n: int, levels: int, wavelet: str, half: bool) -> _Axis:
     analysis: dict = {"lo": [], "hi": []}
     squared: dict = {"lo": [], "hi": []}
     synthesis: dict = {"lo": [], "hi": []}
+    diagonal: dict = {"lo": [], "hi": []}
+    spectrum, kernel_of = (np.fft.rfft, lambda t: np.fft.irfft(t, n)) if half else (np.fft.fft, lambda t: np.fft.ifft(t).real)
     a_lo = np.ones(size, complex)  # the cascade of low-pass filters so far
     s_lo = np.ones(size, complex)
     for j in range(1, levels + 1):
@@ -80,12 +85,13 @@ def _axis(n: int, levels: int, wavelet: str, half: bool) -> _Axis:
             raise ValueError(f"wavelet: {wavelet!r} is not a perfect-reconstruction filter bank")
         bands = {"hi": (a_lo * hi, s_lo * 0.5 * r_hi / delay), "lo": (a_lo * lo, s_lo * 0.5 * r_lo / delay)}
         for kind, (a, s) in bands.items():
-            kernel = np.fft.irfft(a, n) if half else np.fft.ifft(a).real
+            kernel = kernel_of(a)
             analysis[kind].append(a)
-            squared[kind].append(np.fft.rfft(kernel * kernel) if half else np.fft.fft(kernel * kernel))
+            squared[kind].append(spectrum(kernel * kernel))
             synthesis[kind].append(s)
+            diagonal[kind].append(spectrum(kernel_of(s) * np.roll(kernel[::-1], 1)))
         a_lo, s_lo = bands["lo"]
-    return _Axis(analysis, squared, synthesis)
+    return _Axis(analysis, squared, synthesis, diagonal)
 
 
 class StationaryTransform:
@@ -152,6 +158,8 @@ class StationaryTransform:
         self._complex = np.complex64 if self.dtype == np.float32 else np.complex128
         self._rows = _axis(h, self.levels, self.wavelet, False)
         self._cols = _axis(w, self.levels, self.wavelet, True)
+        self._cache: dict = {}
+        self._cache_left = _CACHE_BYTES
         # (row kind, column kind, level index) of every band, in the layout's order.
         self.bands: list[tuple[str, str, int]] = [("lo", "lo", self.levels - 1)]
         for j in range(self.levels - 1, -1, -1):
@@ -163,9 +171,17 @@ class StationaryTransform:
 
     # -- building blocks on (..., H, W) planes: what the Wiener stage composes -------------------
     def _outer(self, which: str, band: int) -> np.ndarray:
+        key = (which, band)
+        cached = self._cache.get(key)
+        if cached is not None:
+            return cached
         r, c, j = self.bands[band]
         rows, cols = getattr(self._rows, which), getattr(self._cols, which)
-        return (rows[r][j][:, None] * cols[c][j][None, :]).astype(self._complex)
+        out = (rows[r][j][:, None] * cols[c][j][None, :]).astype(self._complex)
+        if self._cache_left >= out.nbytes:  # small images keep every product; large ones rebuild
+            self._cache[key] = out
+            self._cache_left -= out.nbytes
+        return out
 
     def analysis(self, band: int) -> np.ndarray:
         """(H, W // 2 + 1) transfer function of band ``band`` (an index into :attr:`bands`)."""
@@ -179,13 +195,22 @@ class StationaryTransform:
         """Transfer function that takes the band back to the image (summed over bands: identity)."""
         return self._outer("synthesis", band)
 
+    def diagonal(self, band: int) -> np.ndarray:
+        """Transfer function of ``h_b(u) = s_b(u) K_b(-u)``, synthesis times reversed analysis kernel.
+
+        Scaling band ``b``'s coefficients by a map ``f_b`` and synthesising is a linear map of
+        the image whose diagonal (each pixel's weight on its own value) is ``f_b`` filtered
+        with ``h_b``; summed over the bands with every ``f_b = 1`` it is 1 everywhere.
+        """
+        return self._outer("diagonal", band)
+
     def spectrum(self, planes: FloatArray) -> np.ndarray:
         """``rfft2`` of (..., H, W) planes in the transform's precision."""
         return sfft.rfft2(np.asarray(planes, dtype=self.dtype), workers=self.workers)
 
-    def planes(self, spectrum: np.ndarray) -> FloatArray:
-        """Inverse of :meth:`spectrum` (planes in the transform's precision)."""
-        return sfft.irfft2(spectrum, s=self.shape, workers=self.workers)
+    def planes(self, spectrum: np.ndarray, *, overwrite: bool = False) -> FloatArray:
+        """Inverse of :meth:`spectrum` (planes in the transform's precision); ``overwrite`` may reuse ``spectrum``."""
+        return sfft.irfft2(spectrum, s=self.shape, workers=self.workers, overwrite_x=overwrite)
 
     # -- the public transform on (H, W) or (H, W, C) images ------------------------------------
     def _channels_first(self, image: FloatArray, param: str) -> np.ndarray:

@@ -21,13 +21,15 @@ relMSE measures); ``alpha = 0`` is the linear domain (the error MSE measures).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from . import _checks
 from ._typing import FloatArray
 from .stationary import StationaryTransform
 
-__all__ = ["wiener_filter", "relative_wiener", "stage_weights"]
+__all__ = ["WienerResult", "wiener_filter", "relative_wiener", "stage_weights"]
 
 
 def _first(a: FloatArray) -> np.ndarray:
@@ -42,8 +44,33 @@ def _last(a: np.ndarray, ndim: int) -> FloatArray:
     return a[..., 0, :, :] if ndim == 2 else np.moveaxis(a, -3, -1)
 
 
+def _times(spectrum: np.ndarray, transfer: np.ndarray) -> np.ndarray:
+    """``spectrum * transfer`` in place (no temporary)."""
+    spectrum *= transfer
+    return spectrum
+
+
+class WienerResult(NamedTuple):
+    """What a Wiener stage returns.
+
+    Attributes
+    ----------
+    image
+        The filtered planes, in the caller's layout, float64.
+    extra
+        The filtered ``extra`` planes (probes), or ``None``.
+    leverage
+        With ``leverage=True``: each pixel's weight on its own value in the stage's linear map
+        (factors held fixed), the diagonal ``d out_p / d x_p``; otherwise ``None``.
+    """
+
+    image: FloatArray
+    extra: FloatArray | None = None
+    leverage: FloatArray | None = None
+
+
 def wiener_filter(transform: StationaryTransform, x: FloatArray, variance: FloatArray, pilot: FloatArray, *,
-                  extra: FloatArray | None = None) -> FloatArray | tuple[FloatArray, FloatArray]:
+                  extra: FloatArray | None = None, leverage: bool = False) -> WienerResult:
     """Scale every detail coefficient of ``x`` by ``P^2 / (P^2 + Delta^2)``; keep the scale band.
 
     Parameters
@@ -60,12 +87,14 @@ def wiener_filter(transform: StationaryTransform, x: FloatArray, variance: Float
         applied to every channel of ``x``.
     extra
         Optional (N, H, W, C) planes filtered with the *same* factors (probes of the stage's
-        linear map); their result is returned too.
+        linear map).
+    leverage
+        Also return the diagonal of the stage's linear map (one more FFT per band).
 
     Returns
     -------
-    numpy.ndarray or (numpy.ndarray, numpy.ndarray)
-        The filtered ``x`` (float64), and the filtered ``extra`` when given.
+    WienerResult
+        The filtered ``x``, and the filtered ``extra`` and the leverage when asked for.
 
     Examples
     --------
@@ -77,15 +106,20 @@ def wiener_filter(transform: StationaryTransform, x: FloatArray, variance: Float
     >>> from awr_denoise.wiener import wiener_filter
     >>> clean = np.tile(np.linspace(0.0, 4.0, 32), (32, 1))
     >>> noisy = clean + 0.3 * np.random.default_rng(0).standard_normal((32, 32))
-    >>> out = wiener_filter(StationaryTransform((32, 32), levels=3), noisy, np.full((32, 32), 0.09), clean)
+    >>> t = StationaryTransform((32, 32), levels=3)
+    >>> out = wiener_filter(t, noisy, np.full((32, 32), 0.09), clean, leverage=True)
     >>> rms = lambda a: float(np.sqrt(np.mean((a - clean) ** 2)))
-    >>> round(rms(noisy), 2), rms(out) < rms(noisy) / 3
+    >>> round(rms(noisy), 2), rms(out.image) < rms(noisy) / 3
     (0.29, True)
+
+    Each pixel keeps a small share of its own value; the rest comes from its neighbours:
+
+    >>> 0 < float(out.leverage.min()) < float(out.leverage.max()) < 0.5
+    True
 
     Zero variance keeps every coefficient (factor 1): the image comes back unchanged.
 
-    >>> bool(np.allclose(wiener_filter(StationaryTransform((32, 32), levels=3), noisy, np.zeros((32, 32)),
-    ...                                np.zeros((32, 32))), noisy))
+    >>> bool(np.allclose(wiener_filter(t, noisy, np.zeros((32, 32)), np.zeros((32, 32))).image, noisy))
     True
     """
     ndim = np.ndim(x)
@@ -99,28 +133,30 @@ def wiener_filter(transform: StationaryTransform, x: FloatArray, variance: Float
     keep = t.analysis(0) * t.synthesis(0)
     total = spec_x * keep
     total_e = None if spec_e is None else spec_e * keep
+    # The scale band's factor is 1: its share of the diagonal is h_0's sum, a constant.
+    total_d = None if not leverage else np.zeros_like(spec_v) + t.spectrum(np.ones(t.shape)) * t.diagonal(0)
     tiny = np.finfo(t.dtype).tiny  # factor 1 where the variance is 0; ~0 where the pilot is 0
     for b in range(1, len(t.bands)):
-        a = t.analysis(b)
-        factor = t.planes(spec_p * a)
+        a, s = t.analysis(b), t.synthesis(b)
+        factor = t.planes(spec_p * a, overwrite=True)
         np.multiply(factor, factor, out=factor)
         factor += tiny
-        noise = t.planes(spec_v * t.squared(b))
+        noise = t.planes(spec_v * t.squared(b), overwrite=True)
         np.maximum(noise, 0.0, out=noise)  # FFT rounding around exact zeros
         noise += factor
         np.divide(factor, noise, out=factor)
-        s = t.synthesis(b)
-        coeff = t.planes(spec_x * a)
+        if total_d is not None:
+            total_d += _times(t.spectrum(factor), t.diagonal(b))
+        coeff = t.planes(spec_x * a, overwrite=True)
         coeff *= factor
-        total += t.spectrum(coeff) * s
+        total += _times(t.spectrum(coeff), s)
         if spec_e is not None:
-            coeff = t.planes(spec_e * a)
+            coeff = t.planes(spec_e * a, overwrite=True)
             coeff *= factor
-            total_e += t.spectrum(coeff) * s
-    out = _last(t.planes(total), ndim)
-    if spec_e is None:
-        return out
-    return out, np.moveaxis(t.planes(total_e).astype(np.float64, copy=False), -3, -1)
+            total_e += _times(t.spectrum(coeff), s)
+    return WienerResult(_last(t.planes(total), ndim),
+                        None if total_e is None else np.moveaxis(t.planes(total_e).astype(np.float64), -3, -1),
+                        None if total_d is None else _last(t.planes(total_d), ndim if vs.shape[0] > 1 else 2))
 
 
 def stage_weights(pilot: FloatArray, k: float, exponent: float) -> FloatArray:
@@ -144,14 +180,15 @@ def stage_weights(pilot: FloatArray, k: float, exponent: float) -> FloatArray:
 
 
 def relative_wiener(transform: StationaryTransform, x: FloatArray, variance: FloatArray, pilot: FloatArray, *,
-                    k: float, exponent: float, extra: FloatArray | None = None
-                    ) -> FloatArray | tuple[FloatArray, FloatArray]:
+                    k: float, exponent: float, extra: FloatArray | None = None, leverage: bool = False
+                    ) -> WienerResult:
     """One Wiener stage in the domain ``x / w``, ``w = (|pilot| + k)^exponent`` (module docstring).
 
     Parameters
     ----------
-    transform, extra
-        As in :func:`wiener_filter`; ``extra`` is divided and multiplied by the same weights.
+    transform, extra, leverage
+        As in :func:`wiener_filter`; ``extra`` is divided and multiplied by the same weights,
+        and the leverage is the same in both domains (``w`` cancels on the diagonal).
     x
         (H, W, C) pixel means.
     variance
@@ -166,8 +203,8 @@ def relative_wiener(transform: StationaryTransform, x: FloatArray, variance: Flo
 
     Returns
     -------
-    numpy.ndarray or (numpy.ndarray, numpy.ndarray)
-        The stage's estimate (H, W, C), and the filtered ``extra`` when given.
+    WienerResult
+        The stage's estimate (H, W, C), and the filtered ``extra`` and the leverage when asked.
 
     Examples
     --------
@@ -185,20 +222,15 @@ def relative_wiener(transform: StationaryTransform, x: FloatArray, variance: Flo
     >>> t = StationaryTransform((32, 32), levels=3)
     >>> ground = clean == 1.0
     >>> rel = lambda a: float(np.mean(((a - clean) / clean)[ground] ** 2))
-    >>> [round(rel(relative_wiener(t, noisy, variance, clean, k=0.1, exponent=e)), 4) for e in (0.0, 1.0)]
+    >>> [round(rel(relative_wiener(t, noisy, variance, clean, k=0.1, exponent=e).image), 4) for e in (0.0, 1.0)]
     [3.5084, 0.0002]
     >>> round(rel(noisy), 4)
     0.0105
     """
     w = stage_weights(pilot, k, exponent)
-    if np.ndim(w) == 2:
-        w = w[..., None]
-    scaled_extra = None if extra is None else np.asarray(extra, np.float64) / w
-    result = wiener_filter(transform, np.asarray(x, np.float64) / w, np.asarray(variance, np.float64) / (w * w)
-                           if np.ndim(variance) == 3 else np.asarray(variance, np.float64) / (w[..., 0] ** 2),
-                           np.asarray(pilot, np.float64) / (w if np.ndim(pilot) == 3 else w[..., 0]),
-                           extra=scaled_extra)
-    if extra is None:
-        return result * w
-    out, filtered = result
-    return out * w, filtered * w
+    w3 = w if np.ndim(w) == 3 else w[..., None]  # the weights of every channel
+    x = np.asarray(x, np.float64)
+    result = wiener_filter(transform, x / w3, np.asarray(variance, np.float64) / (w * w),
+                           np.asarray(pilot, np.float64) / w,
+                           extra=None if extra is None else np.asarray(extra, np.float64) / w3, leverage=leverage)
+    return WienerResult(result.image * w3, None if result.extra is None else result.extra * w3, result.leverage)

@@ -26,14 +26,14 @@ def _scene(rng, channels=3):
 
 def test_zero_variance_keeps_the_image(rng, transform):
     clean, noisy, _ = _scene(rng)
-    assert_allclose(wiener_filter(transform, noisy, np.zeros_like(noisy), clean), noisy, rtol=1e-12, atol=1e-13)
+    assert_allclose(wiener_filter(transform, noisy, np.zeros_like(noisy), clean).image, noisy, rtol=1e-12, atol=1e-13)
 
 
 def test_a_zero_pilot_keeps_only_the_scale_band(rng, transform):
     _, noisy, variance = _scene(rng)
     coeffs = transform.forward(noisy)
     coarse = transform.inverse([coeffs[0]] + [(0.0, 0.0, 0.0)] * transform.levels)
-    assert_allclose(wiener_filter(transform, noisy, variance, np.zeros_like(noisy)), coarse, atol=1e-12)
+    assert_allclose(wiener_filter(transform, noisy, variance, np.zeros_like(noisy)).image, coarse, atol=1e-12)
 
 
 def test_factors_are_those_of_the_formula(rng):
@@ -43,28 +43,52 @@ def test_factors_are_those_of_the_formula(rng):
     pilot = noisy + 0.1 * rng.standard_normal(noisy.shape)
     x, p, v = t.forward(noisy), t.forward(pilot), t.variance(variance)
     shrunk = [x[0], tuple(xb * pb**2 / (pb**2 + vb) for xb, pb, vb in zip(x[1], p[1], v[1]))]
-    assert_allclose(wiener_filter(t, noisy, variance, pilot), t.inverse(shrunk), rtol=1e-12)
+    assert_allclose(wiener_filter(t, noisy, variance, pilot).image, t.inverse(shrunk), rtol=1e-12)
 
 
 def test_the_stage_is_linear_in_the_means_for_a_fixed_pilot(rng, transform):
     clean, noisy, variance = _scene(rng)
     a, b = noisy, rng.standard_normal(noisy.shape)
-    stage = lambda x: relative_wiener(transform, x, variance, clean, k=0.1, exponent=1.0)  # noqa: E731
+    stage = lambda x: relative_wiener(transform, x, variance, clean, k=0.1, exponent=1.0).image  # noqa: E731
     assert_allclose(stage(2.0 * a - 3.0 * b), 2.0 * stage(a) - 3.0 * stage(b), atol=1e-12)
 
 
 def test_extra_planes_are_filtered_with_the_same_factors(rng, transform):
     clean, noisy, variance = _scene(rng)
     extra = rng.standard_normal((2,) + noisy.shape)
-    out, filtered = relative_wiener(transform, noisy, variance, clean, k=0.1, exponent=0.5, extra=extra)
-    assert_allclose(out, relative_wiener(transform, noisy, variance, clean, k=0.1, exponent=0.5), rtol=1e-12)
-    for e, f in zip(extra, filtered):
-        assert_allclose(f, relative_wiener(transform, e, variance, clean, k=0.1, exponent=0.5), atol=1e-12)
+    result = relative_wiener(transform, noisy, variance, clean, k=0.1, exponent=0.5, extra=extra)
+    alone = relative_wiener(transform, noisy, variance, clean, k=0.1, exponent=0.5)
+    assert_allclose(result.image, alone.image, rtol=1e-12)
+    assert alone.extra is None and alone.leverage is None
+    for e, f in zip(extra, result.extra):
+        assert_allclose(f, relative_wiener(transform, e, variance, clean, k=0.1, exponent=0.5).image, atol=1e-12)
+
+
+@pytest.mark.parametrize("shared", [False, True])
+def test_leverage_is_the_diagonal_of_the_stage(rng, shared):
+    """Each pixel's weight on its own value, against the map applied to every unit impulse."""
+    shape = (10, 12)
+    t = StationaryTransform(shape, levels=2)
+    clean, noisy, variance = (a[:10, :12] for a in _scene(rng, channels=2))
+    v, p = (variance[..., 0], clean[..., 0]) if shared else (variance, clean)
+    got = relative_wiener(t, noisy, v, p, k=0.1, exponent=0.5, leverage=True).leverage
+    impulses = np.zeros((shape[0] * shape[1],) + shape + (2,))
+    impulses.reshape(shape[0] * shape[1], -1, 2)[np.arange(shape[0] * shape[1]), np.arange(shape[0] * shape[1])] = 1.0
+    mapped = relative_wiener(t, noisy, v, p, k=0.1, exponent=0.5, extra=impulses).extra
+    diagonal = mapped.reshape(shape[0] * shape[1], -1, 2)[np.arange(shape[0] * shape[1]), np.arange(shape[0] * shape[1])]
+    assert_allclose(got, diagonal.reshape(shape + (2,))[..., 0] if shared else diagonal.reshape(shape + (2,)),
+                    atol=1e-12)
+
+
+def test_zero_variance_leaves_every_pixel_its_own_value(rng, transform):
+    clean, noisy, _ = _scene(rng)
+    lev = wiener_filter(transform, noisy, np.zeros_like(noisy), clean, leverage=True).leverage
+    assert_allclose(lev, 1.0, atol=1e-12)
 
 
 def test_the_linear_stage_keeps_the_image_sum(rng, transform):
     clean, noisy, variance = _scene(rng)
-    out = relative_wiener(transform, noisy, variance, clean, k=0.1, exponent=0.0)
+    out = relative_wiener(transform, noisy, variance, clean, k=0.1, exponent=0.0).image
     assert_allclose(out.sum(axis=(0, 1)), noisy.sum(axis=(0, 1)), rtol=1e-12)
 
 
@@ -72,22 +96,22 @@ def test_one_plane_of_pilot_and_variance_shares_the_factors(rng, transform):
     """Channels proportional to each other stay proportional (one set of factors for all)."""
     clean, noisy, variance = _scene(rng, channels=1)
     x = noisy * np.array([1.0, 0.5, 2.0])
-    out = relative_wiener(transform, x, variance[..., 0], clean[..., 0], k=0.1, exponent=1.0)
+    out = relative_wiener(transform, x, variance[..., 0], clean[..., 0], k=0.1, exponent=1.0).image
     assert_allclose(out[..., 1], 0.5 * out[..., 0], rtol=1e-10)
     assert_allclose(out[..., 2], 2.0 * out[..., 0], rtol=1e-10)
 
 
 def test_the_relative_stage_removes_noise(rng, transform):
     clean, noisy, variance = _scene(rng)
-    out = relative_wiener(transform, noisy, variance, clean, k=0.1, exponent=1.0)
+    out = relative_wiener(transform, noisy, variance, clean, k=0.1, exponent=1.0).image
     assert np.mean((out - clean) ** 2) < np.mean((noisy - clean) ** 2) / 4
 
 
 def test_float32_matches_the_float64_reference(rng):
     clean, noisy, variance = _scene(rng)
-    ref = relative_wiener(StationaryTransform(SHAPE, levels=3), noisy, variance, clean, k=0.1, exponent=0.5)
+    ref = relative_wiener(StationaryTransform(SHAPE, levels=3), noisy, variance, clean, k=0.1, exponent=0.5).image
     single = relative_wiener(StationaryTransform(SHAPE, levels=3, dtype="float32"), noisy, variance, clean, k=0.1,
-                             exponent=0.5)
+                             exponent=0.5).image
     assert_allclose(single, ref, atol=FLOAT32_RTOL * np.abs(ref).max())
 
 
