@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -277,7 +278,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sizes", nargs="+", choices=tuple(SIZES), default=list(SIZES))
     parser.add_argument("--repeats", type=int, default=0, help="speed: rounds per size (default 9, 3 at 1080p)")
     args = parser.parse_args(argv)
-    command = "benchmarks/bench_reconstruct.py " + " ".join(argv if argv is not None else __import__("sys").argv[1:])
+    given = list(argv if argv is not None else sys.argv[1:])
+    # The cache folder is this machine's business: the recorded command names it by its option only.
+    shown = ["DIR" if i > 0 and given[i - 1] == "--cache" else a for i, a in enumerate(given)]
+    command = "benchmarks/bench_reconstruct.py " + " ".join(shown)
     if args.section == "quality":
         names = args.scenes or list(TRACER_SCENES) + list(MITSUBA_SCENES)
         scenes: list[tuple[str, str, tuple[int, int] | None]] = [("tracer", s, None) for s in names if s in TRACER_SCENES]
