@@ -1,17 +1,23 @@
-"""Reconstruction by variance-weighted wavelet soft thresholding (paper section 5, Eq. 10-11).
+"""Reconstruction: the paper's thresholding (section 5, Eq. 10-11), then empirical Wiener stages.
 
-Each wavelet coefficient ``W~`` of the pixel-mean image is shrunk towards zero by ``c_s``
-times its own standard error ``Delta = sqrt(<v, Psi^2>)`` (Eq. 10):
+1. **Stage 1** (:mod:`awr_denoise.thresholding`): every wavelet coefficient of the pixel means is
+   soft-thresholded at ``c_s`` times its exact standard error (Eq. 10-11) on the decimated
+   transform, in the thresholding domain, and every pixel is clamped to ``pixel_clamp``
+   standard errors of its own mean. ``stages=1`` returns this, the paper's reconstruction.
+2. **Stages 2, 3, ...** (:mod:`awr_denoise.wiener`): the previous estimate is the pilot of an
+   empirical Wiener filter on the undecimated transform (:mod:`awr_denoise.stationary`), in a
+   domain relative to the pilot (``x / (|pilot| + k)^alpha``, one ``alpha`` per stage from
+   ``wiener_exponents``). Every variance stays exact because each stage is linear in the means.
+3. **Finishing** (:mod:`awr_denoise.finishing`): the pooled pixel clamp, no negative radiance,
+   and the image mean of every channel equal to the input's.
 
-    W = sign(W~) * max(0, |W~| - c_s * Delta)            (Eq. 11)
-
-and the image is synthesised back. Each coefficient takes the value nearest zero inside its
-confidence interval, so the result is "the smoothest image consistent with the samples".
-The coarsest scale band is kept as it is; every detail level and band is thresholded.
+docs/reconstruction.md has the measurements behind every default.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable, Sequence
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -23,11 +29,18 @@ from ._typing import FloatArray
 from .buffers import SampleBuffer
 from .channels import luminance_weights
 from .domains import Domain
-from .prepare import prepare
-from .wavelets import DEFAULT_WAVELET, coefficient_variance, forward, inverse, wavelet_operators
+from .finishing import clip_negative, match_mean, pooled_clamp
+from .prepare import Prepared, prepare
+from .stationary import DTYPES, StationaryTransform, stationary_transform
+from .sure import sure_blend
+from .thresholding import threshold_stage
+from .wavelets import DEFAULT_WAVELET, wavelet_operators
+from .wiener import relative_wiener
 
-__all__ = ["reconstruct", "reconstruct_detailed", "Reconstruction", "MODES", "DEFAULT_C_S", "DEFAULT_DOMAIN",
-           "DEFAULT_MODE", "DEFAULT_PIXEL_CLAMP"]
+__all__ = ["reconstruct", "reconstruct_detailed", "Reconstruction", "Settings", "resolve_settings", "later_stages",
+           "MODES", "DEFAULT_C_S", "DEFAULT_PILOT_C_S",
+           "DEFAULT_DOMAIN", "DEFAULT_MODE", "DEFAULT_PIXEL_CLAMP", "DEFAULT_STAGES", "DEFAULT_WIENER_EXPONENTS",
+           "DEFAULT_PRECISION", "PRECISIONS"]
 
 MODES = ("channels", "luminance")
 """``"channels"``: each channel thresholded with its own Delta; ``"luminance"``: thresholds
@@ -37,15 +50,35 @@ DEFAULT_MODE = MODES[0]
 """Default mode: every channel thresholded with its own Delta."""
 
 DEFAULT_C_S = 1.0
-"""Default smoothing constant ``c_s`` of Eq. 11: one standard error."""
+"""``c_s`` of Eq. 11 when stage 1 is the whole reconstruction (``stages=1``): one standard error."""
+
+DEFAULT_PILOT_C_S = 1.5
+"""``c_s`` of stage 1 when it is the pilot of Wiener stages; chosen by measurement (docs/reconstruction.md)."""
 
 DEFAULT_DOMAIN = "log"
-"""Default thresholding domain; chosen by measurement (docs/reconstruction.md)."""
-
-_MAX_PROBES = 100_000  # each probe is a transform pair per channel; more is never meant
+"""Default thresholding domain of stage 1; chosen by measurement (docs/reconstruction.md)."""
 
 DEFAULT_PIXEL_CLAMP = 2.5
 """Default pixel confidence clamp in standard errors; chosen by measurement (docs/reconstruction.md)."""
+
+DEFAULT_STAGES = 3
+"""Stage 1 (Eq. 10-11) and the Wiener stages after it; chosen by measurement (docs/reconstruction.md)."""
+
+DEFAULT_WIENER_EXPONENTS = (0.75, 0.4)
+"""``alpha`` of each Wiener stage's domain ``x / (|pilot| + k)^alpha``: mostly relative, then closer to linear.
+
+Measured (docs/reconstruction.md): a more relative first stage keeps the noise of bright
+regions out of dark ones; a closer-to-linear last stage keeps isolated bright pixels from
+being pulled towards their surroundings (absolute error)."""
+
+PRECISIONS = DTYPES
+"""Precisions of the Wiener stages' FFTs: ``"float64"`` (the reference) and ``"float32"``."""
+
+DEFAULT_PRECISION = "float32"
+"""Default precision of the Wiener stages' FFTs (statistics stay float64; docs/reconstruction.md)."""
+
+_MAX_PROBES = 100_000  # each probe is a transform pair per channel; more is never meant
+_PROBE_BATCH = 8  # probes filtered together through the last Wiener stage
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,20 +90,21 @@ class Reconstruction:
     image
         (H, W, C) reconstructed image.
     thresholds
-        Per channel, ``c_s * Delta`` in :func:`~awr_denoise.wavelets.forward`'s layout
-        (detail bands only: ``[None, (tH, tV, tD)_L, ..., (tH, tV, tD)_1]``), in the
+        Per channel, stage 1's ``c_s * Delta`` in :func:`~awr_denoise.wavelets.forward`'s
+        layout (detail bands only: ``[None, (tH, tV, tD)_L, ..., (tH, tV, tD)_1]``), in the
         thresholding domain.
     fraction_zeroed
-        Fraction of detail coefficients set to zero, over all channels.
+        Fraction of detail coefficients stage 1 set to zero, over all channels.
     variance
         (H, W, C) estimated variance of the output (see Notes of :func:`reconstruct_detailed`).
     levels
-        Decomposition depth used.
+        Decomposition depth of stage 1.
     domain
-        The domain the coefficients were thresholded in.
+        The domain stage 1 thresholded in.
     parameters
         The settings that made it, resolved (``c_s``, ``wavelet``, ``levels``, ``domain``
-        name, ``mode``, ``boundary``, ``pixel_clamp``): what a file's provenance records.
+        name, ``mode``, ``boundary``, ``pixel_clamp``, ``stages``, ...): what a file's
+        provenance records.
 
     Examples
     --------
@@ -81,15 +115,15 @@ class Reconstruction:
     >>> rng = np.random.default_rng(1)
     >>> mean = 0.5 + 0.1 * rng.standard_normal((32, 32, 3))
     >>> buffer = SampleBuffer.from_moments(np.full((32, 32), 8), mean, np.full((32, 32, 3), 0.08))
-    >>> result = reconstruct_detailed(buffer, variance_probes=4)
+    >>> result = reconstruct_detailed(buffer, stages=1, variance_probes=4)
     >>> result.image.shape, result.levels, result.domain.name
     ((32, 32, 3), 2, 'log')
     >>> round(result.fraction_zeroed, 2)              # pure noise: most details are zeroed
     0.69
     >>> bool((result.variance < buffer.variance_of_mean()).all())
     True
-    >>> {key: result.parameters[key] for key in ("c_s", "wavelet", "pixel_clamp")}
-    {'c_s': 1.0, 'wavelet': 'bior4.4', 'pixel_clamp': 2.5}
+    >>> {key: result.parameters[key] for key in ("c_s", "wavelet", "pixel_clamp", "stages")}
+    {'c_s': 1.0, 'wavelet': 'bior4.4', 'pixel_clamp': 2.5, 'stages': 1}
     """
 
     image: FloatArray
@@ -101,85 +135,222 @@ class Reconstruction:
     parameters: dict = field(default_factory=dict)
 
 
-def _check_c_s(c_s: float) -> float:
-    return _checks.real("c_s", c_s, minimum=0)  # type: ignore[return-value]
+def _exponents(value: Sequence[float]) -> tuple[float, ...]:
+    if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
+        raise TypeError(f"wiener_exponents: expected a sequence of numbers in [0, 1], got {value!r}")
+    return tuple(_checks.real("wiener_exponents", a, minimum=0, maximum=1) for a in value)  # type: ignore[misc]
 
 
-def _soft(coeff: FloatArray, threshold: FloatArray) -> FloatArray:
-    """Eq. 11: ``sign(W~) max(0, |W~| - t)``."""
-    return np.sign(coeff) * np.maximum(np.abs(coeff) - threshold, 0.0)
+def _power_of_two(scale: float) -> float:
+    """A power of two near ``scale``: dividing by it is exact, and it brings the image to ~1."""
+    return math.ldexp(1.0, max(-1000, min(1000, math.frexp(scale)[1])))
 
 
-class _PlaneResult(NamedTuple):
-    coeffs: list  # thresholded coefficients
-    thresholds: list  # c_s * Delta per detail band (None in luminance-driven channels)
-    factors: list  # shrink factor of every detail coefficient (0 where zeroed)
-    zeroed: int
-    total: int
+def _wiener_levels(levels: int) -> int:
+    """Depth of the stationary stages: one level less than stage 1's from 4 levels on.
 
-
-def _threshold_plane(y: FloatArray, var_y: FloatArray, c_s: float, ops, shrink_from=None) -> _PlaneResult:
-    """Eq. 10-11 on one plane.
-
-    With ``shrink_from`` (a list of per-band shrink factors) the plane's coefficients are
-    scaled by those factors instead of being thresholded by their own Delta.
+    At 4-5 levels one less is as good and about 20% faster (docs/reconstruction.md); below
+    that, every level counts (a 32x32 image lost a third of the gain at 1 level instead of 2).
     """
-    coeffs = forward(y, wavelet=ops.wavelet, levels=ops.levels, boundary=ops.boundary)
-    variances = coefficient_variance(var_y, operators=ops)
-    out = [coeffs[0]]
-    thresholds: list = [None]
-    factors: list = [None]
-    zeroed = total = 0
-    for level in range(1, len(coeffs)):
-        bands, band_t, band_f = [], [], []
-        for b in range(3):
-            w = coeffs[level][b]
-            if shrink_from is None:
-                t = c_s * np.sqrt(variances[level][b])
-                shrunk = _soft(w, t)
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    f = np.where(w != 0, shrunk / np.where(w != 0, w, 1.0), 0.0)
-            else:
-                f = shrink_from[level][b]
-                t = None
-                shrunk = w * f
-            bands.append(shrunk)
-            band_t.append(t)
-            band_f.append(f)
-            zeroed += int(np.count_nonzero(f == 0))
-            total += f.size
-        out.append(tuple(bands))
-        thresholds.append(tuple(band_t))
-        factors.append(tuple(band_f))
-    return _PlaneResult(out, thresholds, factors, zeroed, total)
+    return levels - 1 if levels >= 4 else levels
 
 
-def _output_variance(var_y: FloatArray, factors: list, ops, probes: int, seed: int) -> FloatArray:
-    """Variance of the thresholded plane, linearised around the kept coefficients.
+class _Chain(NamedTuple):
+    """The Wiener stages of one group of channels, at unit scale."""
 
-    With the shrink factors held fixed, the reconstruction is a linear map ``T`` of the input
-    plus a constant, so ``Var(out) = diag(T V T^T)``. Rademacher probes ``e = +-sqrt(v)`` give
-    ``E[T(e)^2] = diag(T V T^T)`` (Hutchinson's estimator): unbiased, and exact when ``T`` is
-    the identity (``c_s = 0``).
+    image: FloatArray
+    leverage: FloatArray | None  # the last stage's diagonal, for the guard
+    variance: FloatArray | None  # the last stage's probe variance, if asked for
+
+
+def _chain(transform: StationaryTransform, x: FloatArray, v: FloatArray, pilot: FloatArray,
+           exponents: tuple[float, ...], *, k: float, weights: FloatArray | None, shared: FloatArray | None,
+           leverage: bool, probes: int, seed: int) -> _Chain:
+    """Every Wiener stage on (H, W, C) planes; with luminance ``weights``, factors from luminance.
+
+    Channel ``c`` of the probes draws its signs from ``seed + c``, so channels run one by one
+    (first channel ``c``, ``seed + c``) or together get the same probes.
     """
-    rng = np.random.default_rng(seed)
-    acc = np.zeros(ops.shape)
-    sd = np.sqrt(var_y)
-    for _ in range(probes):
-        e = sd * rng.choice((-1.0, 1.0), size=ops.shape)
-        coeffs = forward(e, wavelet=ops.wavelet, levels=ops.levels, boundary=ops.boundary)
-        shrunk = [coeffs[0]] + [tuple(coeffs[lv][b] * factors[lv][b] for b in range(3))
-                                for lv in range(1, len(coeffs))]
-        out = inverse(shrunk, ops.shape, wavelet=ops.wavelet, boundary=ops.boundary)
-        with np.errstate(over="ignore"):  # Inf: an output variance beyond float64 (means near 1e300)
-            acc += out * out
-    return acc / probes
+    out = pilot
+    for exponent in exponents[:-1]:
+        out = relative_wiener(transform, x, v if shared is None else shared, out if weights is None else out @ weights,
+                              k=k, exponent=exponent).image
+    p = out if weights is None else out @ weights
+    variance = v if shared is None else shared
+    result = relative_wiener(transform, x, variance, p, k=k, exponent=exponents[-1], leverage=leverage)
+    var_out = None
+    if probes:
+        rngs = [np.random.default_rng(seed + c) for c in range(x.shape[2])]
+        sd = np.sqrt(v)
+        var_out = np.zeros_like(x)
+        for start in range(0, probes, _PROBE_BATCH):
+            size = (min(_PROBE_BATCH, probes - start),) + x.shape[:2]
+            e = sd * np.stack([rng.choice((-1.0, 1.0), size=size) for rng in rngs], axis=-1)
+            filtered = relative_wiener(transform, x, variance, p, k=k, exponent=exponents[-1], extra=e).extra
+            var_out += (filtered * filtered).sum(axis=0)
+        var_out /= probes
+    lev = result.leverage
+    return _Chain(result.image, None if lev is None else (lev if lev.ndim == 3 else lev[..., None]), var_out)
+
+
+def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float, ...], *, levels: int,
+                   wavelet: str, precision: str, luminance: tuple[Prepared, FloatArray] | None, guard: bool,
+                   probes: int, seed: int, run: Callable, parallel: bool) -> tuple[FloatArray, FloatArray | None]:
+    """Stages 2.. and the SURE guard on the image brought to unit scale; the probe variance if asked.
+
+    In channel mode with ``parallel`` every channel runs on its own (over ``run``, an
+    executor's map); otherwise, and in luminance mode, the channels run together (the
+    probes' random signs then differ from the parallel run's, the image does not).
+    """
+    scale = prepared.domain.resolved_scale(prepared.mean)
+    s = _power_of_two(scale)
+    k = prepared.domain.offset * (scale / s)  # not offset * scale: that underflows near 5e-324
+    x = prepared.mean / s
+    v = prepared.variance / s / s  # not s * s: that underflows for means near 1e-310
+    transform = stationary_transform(prepared.mean.shape[:2], wavelet, levels, precision)
+    options = {"k": k, "leverage": guard, "probes": probes}
+    if luminance is None and parallel:
+        parts = run(lambda c: _chain(transform, x[..., c:c + 1], v[..., c:c + 1], pilot[..., c:c + 1] / s, exponents,
+                                     weights=None, shared=None, seed=seed + c, **options), range(x.shape[2]))
+        join = (lambda field: None if getattr(parts[0], field) is None else
+                np.concatenate([getattr(part, field) for part in parts], axis=-1))
+        chain = _Chain(join("image"), join("leverage"), join("variance"))
+    elif luminance is None:  # one call for every channel: each band's transfer functions are built once
+        chain = _chain(transform, x, v, pilot / s, exponents, weights=None, shared=None, seed=seed, **options)
+    else:
+        chain = _chain(transform, x, v, pilot / s, exponents, weights=luminance[1],
+                       shared=luminance[0].variance / s / s, seed=seed, **options)
+    out, var_out = chain.image, chain.variance
+    if guard:
+        assert chain.leverage is not None
+        if luminance is None:
+            out, lam = sure_blend(out, x, v, chain.leverage, k=k)
+        else:  # one share for every channel, decided on luminance: hue is kept
+            weights = luminance[1]
+            _, lam = sure_blend(out @ weights, x @ weights, luminance[0].variance / s / s, chain.leverage[..., 0], k=k)
+            lam = lam[..., None]
+            out = x + lam * (out - x)
+        if var_out is not None:
+            # (1 - l) x + l o, with Cov(x, o) = L v on the diagonal of a linear map.
+            var_out = (1 - lam) ** 2 * v + lam * lam * var_out + 2 * lam * (1 - lam) * chain.leverage * v
+    return out * s, None if var_out is None else var_out * s * s
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The stage settings of one reconstruction, checked and resolved (defaults filled in)."""
+
+    c_s: float
+    stages: int
+    exponents: tuple[float, ...]
+    pixel_clamp: float | None
+    guard: bool
+    preserve_mean: bool
+    nonnegative: bool
+    precision: str
+    probes: int
+    seed: int
+
+    def recorded(self) -> dict:
+        """What a file's provenance records of them."""
+        wiener = self.stages > 1
+        return {"c_s": self.c_s, "pixel_clamp": self.pixel_clamp, "stages": self.stages,
+                "wiener_exponents": ",".join(f"{a:g}" for a in self.exponents) if wiener else None,
+                "guard": self.guard, "preserve_mean": self.preserve_mean, "nonnegative": self.nonnegative,
+                "precision": self.precision if wiener else None}
+
+
+def resolve_settings(*, c_s: float | None = None, stages: int = DEFAULT_STAGES,
+                     wiener_exponents: Sequence[float] = DEFAULT_WIENER_EXPONENTS,
+                     pixel_clamp: float | None = DEFAULT_PIXEL_CLAMP, guard: bool | None = None,
+                     preserve_mean: bool | None = None, nonnegative: bool | None = None,
+                     precision: str = DEFAULT_PRECISION, variance_probes: int = 0, seed: int = 0) -> Settings:
+    """Check the stage parameters of :func:`reconstruct_detailed` and fill in their defaults.
+
+    Examples
+    --------
+    >>> from awr_denoise.reconstruct import resolve_settings
+    >>> resolve_settings(stages=1).c_s, resolve_settings().c_s, resolve_settings().exponents
+    (1.0, 1.5, (0.75, 0.4))
+    """
+    exponents = _exponents(wiener_exponents)
+    stages = _checks.whole("stages", stages, minimum=1, maximum=1 + len(exponents))  # type: ignore[assignment]
+    c_s = _checks.real("c_s", (DEFAULT_C_S if stages == 1 else DEFAULT_PILOT_C_S) if c_s is None else c_s,
+                       minimum=0)
+    guard = stages > 1 if guard is None else _checks.flag("guard", guard)
+    if guard and stages == 1:
+        raise ValueError("guard: the SURE guard follows the Wiener stages; it needs stages > 1")
+    if isinstance(variance_probes, (float, np.floating)):
+        raise ValueError(f"variance_probes: must be an integer >= 0, got {variance_probes!r}")
+    return Settings(
+        c_s=c_s,  # type: ignore[arg-type]
+        stages=stages,
+        exponents=exponents[:stages - 1],
+        pixel_clamp=_checks.real("pixel_clamp", pixel_clamp, minimum=0, none=True),
+        guard=guard,
+        preserve_mean=stages > 1 if preserve_mean is None else _checks.flag("preserve_mean", preserve_mean),
+        nonnegative=stages > 1 if nonnegative is None else _checks.flag("nonnegative", nonnegative),
+        precision=_checks.name("precision", precision, PRECISIONS),
+        probes=_checks.whole("variance_probes", variance_probes, minimum=0, maximum=_MAX_PROBES),  # type: ignore[arg-type]
+        seed=_checks.seed("seed", seed),
+    )
+
+
+def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | None, settings: Settings, *,
+                 levels: int, wavelet: str, luminance: tuple[Prepared, FloatArray] | None = None,
+                 run: Callable | None = None) -> tuple[FloatArray, FloatArray | None]:
+    """Everything after stage 1: the Wiener stages, the guard, the pixel clamp, non-negativity, the mean.
+
+    Parameters
+    ----------
+    prepared
+        The whole image's planes (:func:`~awr_denoise.prepare.prepare`).
+    image, variance
+        Stage 1's result and its variance (or ``None``).
+    settings
+        From :func:`resolve_settings`.
+    levels, wavelet
+        Stage 1's depth and wavelet.
+    luminance
+        Luminance mode: the luminance plane (prepared with ``prepared.domain``) and weights.
+    run
+        ``run(f, items)`` maps ``f`` over the channels (an executor's ``map``); default: the
+        channels go through the Wiener stages together.
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray or None)
+        The image and its variance (see :func:`reconstruct_detailed`, Notes).
+    """
+    parallel = run is not None
+    run = run or (lambda f, items: [f(i) for i in items])
+    if settings.stages > 1:
+        image, variance = _wiener_stages(prepared, image, settings.exponents, levels=_wiener_levels(levels),
+                                         wavelet=wavelet, precision=settings.precision, luminance=luminance,
+                                         guard=settings.guard, probes=settings.probes, seed=settings.seed, run=run,
+                                         parallel=parallel)
+        if settings.pixel_clamp is not None:
+            lum = None if luminance is None else luminance[0]
+            image, moved = pooled_clamp(image, prepared.mean if lum is None else lum.mean,
+                                        prepared.variance if lum is None else lum.variance, settings.pixel_clamp,
+                                        weights=None if luminance is None else luminance[1])
+            if variance is not None:
+                variance = np.where(moved, prepared.variance, variance)
+    if settings.nonnegative:
+        image, clipped = clip_negative(image, prepared.mean)
+        if variance is not None:
+            variance = np.where(clipped, 0.0, variance)
+    if settings.preserve_mean:
+        image, factors = match_mean(image, prepared.mean, prepared.variance)
+        if variance is not None:
+            variance = variance * factors * factors
+    return image, variance
 
 
 def reconstruct_detailed(
     buffer: SampleBuffer,
     *,
-    c_s: float = DEFAULT_C_S,
+    c_s: float | None = None,
     wavelet: str = DEFAULT_WAVELET,
     levels: int | None = None,
     domain: str | Domain = DEFAULT_DOMAIN,
@@ -187,40 +358,71 @@ def reconstruct_detailed(
     boundary: str = "symmetric",
     executor: Executor | None = None,
     pixel_clamp: float | None = DEFAULT_PIXEL_CLAMP,
+    stages: int = DEFAULT_STAGES,
+    wiener_exponents: Sequence[float] = DEFAULT_WIENER_EXPONENTS,
+    guard: bool | None = None,
+    preserve_mean: bool | None = None,
+    nonnegative: bool | None = None,
+    precision: str = DEFAULT_PRECISION,
     variance_probes: int = 16,
     seed: int = 0,
 ) -> Reconstruction:
-    """Reconstruct an image from sample statistics and report what the thresholding did.
+    """Reconstruct an image from sample statistics and report what the stages did.
 
     Parameters
     ----------
     buffer
         Per-pixel sample statistics.
     c_s
-        Smoothing constant of Eq. 11: thresholds are ``c_s`` standard errors. ``0`` returns
-        the Monte Carlo mean; about 0.5-2 is useful.
+        Smoothing constant of Eq. 11 in stage 1: thresholds are ``c_s`` standard errors.
+        ``0`` returns the Monte Carlo mean; about 0.5-2 is useful. Default
+        :data:`DEFAULT_C_S` (1.0) with ``stages=1``, :data:`DEFAULT_PILOT_C_S` (1.5) when
+        stage 1 is the pilot of Wiener stages.
     wavelet
-        PyWavelets wavelet; ``"bior4.4"`` (CDF 9/7) by default, ``"haar"`` also common.
+        PyWavelets wavelet of every stage; ``"bior4.4"`` (CDF 9/7) by default.
     levels
         Decomposition depth; default :func:`~awr_denoise.wavelets.default_levels`.
     domain
-        ``"log"`` (default), ``"gamma"`` or ``"linear"`` (the paper, literally), or a
-        :class:`~awr_denoise.domains.Domain`. See docs/reconstruction.md for the measurements
-        behind the default.
+        Stage 1's thresholding domain: ``"log"`` (default), ``"gamma"`` or ``"linear"``
+        (the paper, literally), or a :class:`~awr_denoise.domains.Domain`; its offset ``k``
+        is also the offset of the Wiener stages' weights.
     mode
-        ``"channels"`` (default) or ``"luminance"`` (hue-preserving), see :data:`MODES`.
+        ``"channels"`` (default) or ``"luminance"`` (every stage decides on luminance and
+        applies one factor to every channel: hue-preserving), see :data:`MODES`.
     boundary
-        PyWavelets signal extension mode.
+        PyWavelets signal extension mode of stage 1.
     executor
-        Optional ``concurrent.futures.Executor`` over which the channels are processed
-        (numpy, scipy and PyWavelets release the GIL, so threads help).
+        Optional ``concurrent.futures.Executor`` over which the channels are processed, in
+        every stage (numpy, scipy and PyWavelets release the GIL, so threads help).
     pixel_clamp
-        Keep every output pixel within ``pixel_clamp`` standard errors of its own mean, in the
-        thresholding domain: Eq. 11 picks each *coefficient* inside its confidence interval,
-        and this asks the same of each *pixel*. It stops the blur of a bright edge from
-        leaking into dark pixels whose means are precise (their error is judged relatively),
-        which otherwise made a small HDR source worse than the plain mean. ``None`` gives the
-        paper's reconstruction unchanged. Default 2.5, see docs/reconstruction.md.
+        Keep every output pixel within ``pixel_clamp`` standard errors of its own mean: Eq. 11
+        picks each *coefficient* inside its confidence interval, and this asks the same of each
+        *pixel*. In stage 1 it works in the thresholding domain; after the Wiener stages in
+        radiance, with each pixel's standard error pooled with its neighbours' (its 3x3 median
+        if larger). It stops the blur of a bright edge from leaking into dark pixels whose
+        means are precise. ``None`` turns both off. Default 2.5, see docs/reconstruction.md.
+    stages
+        ``1``: the paper's reconstruction (stage 1 alone). ``n > 1``: stage 1 as the pilot of
+        ``n - 1`` empirical Wiener stages on the undecimated transform. Default
+        :data:`DEFAULT_STAGES`.
+    wiener_exponents
+        ``alpha`` of each Wiener stage (``x / (|pilot| + k)^alpha``; 1: relative to the pilot,
+        0: linear); at least ``stages - 1`` of them, in [0, 1].
+    guard
+        After the Wiener stages, keep in every 9x9 neighbourhood only the share of their change
+        from the plain mean that Stein's unbiased risk estimate says lowers both the squared and
+        the relative squared error (:mod:`awr_denoise.sure`). Default: on with Wiener stages;
+        it needs them (``stages > 1``).
+    preserve_mean
+        Scale every channel so its image mean equals the input's, exactly (to rounding). A
+        channel whose input or output mean is not positive is left alone. Default: on with
+        Wiener stages, off with ``stages=1`` (the paper's reconstruction as it is).
+    nonnegative
+        Zero negative output pixels in every channel whose means are all >= 0 (before the
+        mean is matched, so the output stays >= 0). Default as ``preserve_mean``.
+    precision
+        ``"float32"`` (default) or ``"float64"``: the FFTs of the Wiener stages. Means and
+        variances stay float64; float64 is the reference (docs/reconstruction.md).
     variance_probes
         Random probes used to estimate :attr:`Reconstruction.variance`; each costs one
         transform pair per channel. ``0`` skips the estimate (the variance is then NaN).
@@ -233,11 +435,15 @@ def reconstruct_detailed(
     single sample, so they are smoothed over rather than read as black. Unknown per-sample
     variances are pooled from neighbours (:meth:`SampleBuffer.estimated_variance`).
 
-    The output variance is that of the reconstruction linearised around its result: the shrink
-    factor of every coefficient is held fixed (soft thresholding has slope 1 where it keeps a
-    coefficient, 0 where it zeroes one), its variance is estimated without bias by random
-    probes, and the domain is undone by the delta method. It ignores the bias of thresholding
-    and the pixel clamp.
+    The output variance is that of the last stage linearised around its result, estimated
+    without bias by Rademacher probes ``+-sqrt(v)``. With ``stages=1``, the shrink factor of
+    every coefficient is held fixed (soft thresholding has slope 1 where it keeps a
+    coefficient, 0 where it zeroes one) and the domain is undone by the delta method. With
+    Wiener stages, the last stage's pilot, weights and factors (and the guard's share) are held
+    fixed, so the map is linear in the means; clamped pixels take their mean's variance, zeroed
+    ones none, and the mean's factor scales it. It leaves out the noise that reaches the output through the
+    pilot (every earlier stage) and all bias, so it underestimates (docs/reconstruction.md
+    gives the measured ratio).
 
     Examples
     --------
@@ -259,7 +465,7 @@ def reconstruct_detailed(
 
     ``c_s = 0`` thresholds nothing and returns the Monte Carlo mean (Eq. 11):
 
-    >>> exact = reconstruct_detailed(buffer, c_s=0, variance_probes=0)
+    >>> exact = reconstruct_detailed(buffer, c_s=0, stages=1, variance_probes=0)
     >>> exact.fraction_zeroed, bool(np.allclose(exact.image, buffer.mean, rtol=1e-10))
     (0.0, True)
     """
@@ -267,67 +473,35 @@ def reconstruct_detailed(
         raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
     if mode not in MODES:
         raise ValueError(f"mode: {mode!r} is not one of {', '.join(MODES)}")
-    c_s = _check_c_s(c_s)
-    pixel_clamp = _checks.real("pixel_clamp", pixel_clamp, minimum=0, none=True)
-    if isinstance(variance_probes, (float, np.floating)):
-        raise ValueError(f"variance_probes: must be an integer >= 0, got {variance_probes!r}")
-    variance_probes = _checks.whole("variance_probes", variance_probes, minimum=0, maximum=_MAX_PROBES)
-    seed = _checks.seed("seed", seed)
+    settings = resolve_settings(c_s=c_s, stages=stages, wiener_exponents=wiener_exponents, pixel_clamp=pixel_clamp,
+                                guard=guard, preserve_mean=preserve_mean, nonnegative=nonnegative, precision=precision,
+                                variance_probes=variance_probes, seed=seed)
     prepared = prepare(buffer, domain)
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
-    mean, bound, y, var_y = prepared.mean, prepared.bound, prepared.y, prepared.variance_y
-    n_ch = buffer.n_channels
-    run = (lambda f, items: list(executor.map(f, items))) if executor is not None else (lambda f, items: [f(i) for i in items])
-
-    shrink_from = None
+    run: Callable | None = (lambda f, items: list(executor.map(f, items))) if executor is not None else None
+    luminance = None
     if mode == "luminance":
-        weights = luminance_weights(buffer.channels)
-        lum = prepare(buffer, prepared.domain, luminance=True)
-        shrink_from = _threshold_plane(lum.y, lum.variance_y, c_s, ops).factors
-
-    def one_channel(c: int):
-        return _threshold_plane(y[:, :, c], var_y[:, :, c], c_s, ops, shrink_from)
-
-    results = run(one_channel, range(n_ch))
-    image_y = np.stack([inverse(r.coeffs, buffer.shape, wavelet=wavelet, boundary=boundary) for r in results], axis=-1)
-    if pixel_clamp is not None and mode == "channels":
-        reach = pixel_clamp * np.sqrt(var_y)
-        image_y = np.clip(image_y, y - reach, y + reach)
-    image = bound.inverse(image_y)
-    if pixel_clamp is not None and mode == "luminance":
-        # Clamp luminance to its own interval and scale every channel alike: hue is kept.
-        lum_out = image @ weights
-        reach = pixel_clamp * np.sqrt(lum.variance_y)
-        lum_new = bound.inverse(np.clip(bound.forward(lum_out), lum.y - reach, lum.y + reach))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = np.where(lum_out != 0, lum_new / np.where(lum_out != 0, lum_out, 1.0), 1.0)
-        image = image * ratio[..., None]
-    if not np.isfinite(image).all():
-        # Only reachable with means near the float64 limit (~1.8e308) in the linear domain,
-        # where the transform's gain of up to 2 per level overflows.
-        raise ValueError(f"buffer: the wavelet transform overflows float64 (largest |mean| "
-                         f"{float(np.abs(mean).max()):.3g}); rescale the input or use the log domain")
-    zeroed = sum(r.zeroed for r in results)
-    total = sum(r.total for r in results)
-    if variance_probes:
-        var_out_y = np.stack(run(lambda c: _output_variance(var_y[:, :, c], results[c].factors, ops, variance_probes,
-                                                             seed + c), range(n_ch)), axis=-1)
-        d = bound.derivative(image)
-        out_var = var_out_y / d / d  # not d * d: that over/underflows for means beyond ~1e+-154
-    else:
-        out_var = np.full(image.shape, np.nan)
-    return Reconstruction(image=image, thresholds=[r.thresholds for r in results],
-                          fraction_zeroed=zeroed / total if total else 0.0,
-                          variance=out_var, levels=ops.levels, domain=bound.domain,
-                          parameters={"c_s": c_s, "wavelet": ops.wavelet, "levels": ops.levels,
-                                      "domain": bound.domain.name, "mode": mode, "boundary": boundary,
-                                      "pixel_clamp": pixel_clamp})
+        luminance = (prepare(buffer, prepared.domain, luminance=True), luminance_weights(buffer.channels))
+    stage = threshold_stage(prepared, ops, settings.c_s, mode=mode, pixel_clamp=settings.pixel_clamp,
+                            luminance=None if luminance is None else luminance[0],
+                            weights=None if luminance is None else luminance[1], run=run)
+    variance = stage.output_variance(settings.probes, settings.seed) if settings.probes and settings.stages == 1 \
+        else None
+    image, variance = later_stages(prepared, stage.image, variance, settings, levels=ops.levels, wavelet=ops.wavelet,
+                                   luminance=luminance, run=run)
+    return Reconstruction(image=image, thresholds=stage.thresholds,
+                          fraction_zeroed=stage.zeroed / stage.total if stage.total else 0.0,
+                          variance=np.full(image.shape, np.nan) if variance is None else variance,
+                          levels=ops.levels, domain=prepared.bound.domain,
+                          parameters={"wavelet": ops.wavelet, "levels": ops.levels,
+                                      "domain": prepared.bound.domain.name, "mode": mode, "boundary": boundary,
+                                      **settings.recorded()})
 
 
 def reconstruct(
     buffer: SampleBuffer,
     *,
-    c_s: float = DEFAULT_C_S,
+    c_s: float | None = None,
     wavelet: str = DEFAULT_WAVELET,
     levels: int | None = None,
     domain: str | Domain = DEFAULT_DOMAIN,
@@ -335,8 +509,14 @@ def reconstruct(
     boundary: str = "symmetric",
     executor: Executor | None = None,
     pixel_clamp: float | None = DEFAULT_PIXEL_CLAMP,
+    stages: int = DEFAULT_STAGES,
+    wiener_exponents: Sequence[float] = DEFAULT_WIENER_EXPONENTS,
+    guard: bool | None = None,
+    preserve_mean: bool | None = None,
+    nonnegative: bool | None = None,
+    precision: str = DEFAULT_PRECISION,
 ) -> FloatArray:
-    """Denoise the pixel means by variance-weighted wavelet soft thresholding (Eq. 10-11).
+    """Denoise the pixel means: Eq. 10-11 (paper section 5), then empirical Wiener stages.
 
     Parameters are those of :func:`reconstruct_detailed`; this returns the (H, W, C) image only.
 
@@ -352,6 +532,7 @@ def reconstruct(
     >>> bool(np.abs(out - 0.5).mean() < np.abs(buf.mean - 0.5).mean())
     True
     """
-    return reconstruct_detailed(buffer, c_s=c_s, wavelet=wavelet, levels=levels, domain=domain,
-                                mode=mode, boundary=boundary, executor=executor,
-                                pixel_clamp=pixel_clamp, variance_probes=0).image
+    return reconstruct_detailed(buffer, c_s=c_s, wavelet=wavelet, levels=levels, domain=domain, mode=mode,
+                                boundary=boundary, executor=executor, pixel_clamp=pixel_clamp, stages=stages,
+                                wiener_exponents=wiener_exponents, guard=guard, preserve_mean=preserve_mean,
+                                nonnegative=nonnegative, precision=precision, variance_probes=0).image

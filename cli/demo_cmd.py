@@ -11,7 +11,7 @@ import numpy as np
 from awr_denoise import reconstruct
 from awr_denoise.io import provenance, write_image, write_preview
 from awr_denoise.metrics import mse, relmse
-from awr_denoise.reconstruct import DEFAULT_C_S
+from awr_denoise.reconstruct import DEFAULT_PILOT_C_S
 from awr_denoise.renderers import create_renderer
 from awr_denoise.sampling import DEFAULT_INITIAL_SPP
 
@@ -34,7 +34,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scene", help="bundled scene (default: the tracer's default scene)")
     p.add_argument("--spp", type=real(minimum=1, maximum=MAX_SPP), default=8, help="average samples per pixel of both renders (default 8)")
     p.add_argument("--seed", type=whole(minimum=0, maximum=MAX_SEED - 1), default=0)
-    p.add_argument("--c-s", type=real(minimum=0), default=DEFAULT_C_S, help="reconstruction threshold (Eq. 11)")
+    p.add_argument("--c-s", type=real(minimum=0), default=DEFAULT_PILOT_C_S,
+                   help="threshold of the reconstruction's first stage (Eq. 11; default %(default)g)")
     p.add_argument("--out", default="out", metavar="DIR",
                    help="output directory (default out/); the demo replaces its own files there")
     p.add_argument("--exposure", type=real(minimum=-MAX_EXPOSURE, maximum=MAX_EXPOSURE), default=0.0,

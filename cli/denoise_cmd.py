@@ -12,7 +12,15 @@ from awr_denoise.io import read_image
 from awr_denoise.io.atomic import OutputSet
 from awr_denoise.io.exr import check_same_windows, read_windows
 from awr_denoise.parallel import FrameResult, FramesFailedError, denoise_frames
-from awr_denoise.reconstruct import DEFAULT_C_S, DEFAULT_DOMAIN, DEFAULT_MODE, MODES
+from awr_denoise.reconstruct import (
+    DEFAULT_C_S,
+    DEFAULT_DOMAIN,
+    DEFAULT_MODE,
+    DEFAULT_PILOT_C_S,
+    DEFAULT_STAGES,
+    DEFAULT_WIENER_EXPONENTS,
+    MODES,
+)
 from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 
 from . import interrupts
@@ -42,10 +50,15 @@ def exr_shape(path: str) -> tuple[int, int]:
 
 
 def add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
-    """``--c-s``, ``--wavelet``, ``--levels``, ``--domain``, ``--mode``, with the library's defaults."""
+    """``--stages``, ``--c-s``, ``--wavelet``, ``--levels``, ``--domain``, ``--mode``, with the library's defaults."""
     g = parser.add_argument_group("reconstruction")
-    g.add_argument("--c-s", type=real(minimum=0), default=DEFAULT_C_S, metavar="C",
-                   help="threshold in standard errors (Eq. 11); 0 returns the plain mean (default %(default)g)")
+    g.add_argument("--stages", type=whole(minimum=1, maximum=1 + len(DEFAULT_WIENER_EXPONENTS)),
+                   default=DEFAULT_STAGES, metavar="N",
+                   help="1: the paper's thresholding alone (Eq. 10-11); N > 1: it and N - 1 Wiener stages, then the "
+                        "SURE guard, the image mean kept and no negative pixels (default %(default)d)")
+    g.add_argument("--c-s", type=real(minimum=0), default=None, metavar="C",
+                   help=f"threshold in standard errors (Eq. 11) of the first stage (default {DEFAULT_PILOT_C_S:g}, "
+                        f"{DEFAULT_C_S:g} with --stages 1); 0 with --stages 1 returns the plain mean")
     g.add_argument("--wavelet", type=wavelet_name, default=DEFAULT_WAVELET,
                    help="PyWavelets discrete wavelet (default %(default)s, CDF 9/7)")
     g.add_argument("--levels", type=whole(minimum=1, maximum=MAX_LEVELS), metavar="L", help="decomposition depth (default: automatic)")
@@ -57,8 +70,8 @@ def add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
 
 def reconstruction_kwargs(args: argparse.Namespace) -> dict:
     """Keyword arguments of :func:`awr_denoise.reconstruct_detailed` from the options."""
-    return {"c_s": args.c_s, "wavelet": args.wavelet, "levels": args.levels, "domain": args.domain,
-            "mode": args.mode}
+    return {"stages": args.stages, "c_s": args.c_s, "wavelet": args.wavelet, "levels": args.levels,
+            "domain": args.domain, "mode": args.mode}
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -40,8 +40,10 @@ from awr_denoise.io.png import tonemap_srgb
 from awr_denoise.domains import DOMAIN_NAMES
 from awr_denoise.parallel import get_executor, halo_width, reconstruct_tiled, tile_grid
 from awr_denoise.prepare import prepare
-from awr_denoise.reconstruct import MODES
+from awr_denoise.reconstruct import MODES, PRECISIONS
+from awr_denoise.stationary import DTYPES, StationaryTransform
 from awr_denoise.wavelets import WAVELET_NAMES
+from awr_denoise.wiener import stage_weights
 
 H, W = 16, 16
 _rng = np.random.default_rng(0)
@@ -71,7 +73,17 @@ class Param:
 #   name: a str from a fixed list
 #   flag: True or False
 PARAMS = [
-    Param("c_s", "real>=0", lambda v: reconstruct(BUF, c_s=v)),
+    Param("c_s", "real>=0", lambda v: reconstruct(BUF, c_s=v), none=True),
+    Param("stages", "int>=1", lambda v: reconstruct(BUF, stages=v)),
+    Param("wiener_exponents", "fraction", lambda v: reconstruct(BUF, stages=2, wiener_exponents=(v,))),
+    Param("preserve_mean", "flag", lambda v: reconstruct(BUF, preserve_mean=v), none=True),
+    Param("nonnegative", "flag", lambda v: reconstruct(BUF, nonnegative=v), none=True),
+    Param("precision", "name", lambda v: reconstruct(BUF, stages=2, precision=v), choices=PRECISIONS),
+    Param("dtype", "name", lambda v: StationaryTransform((8, 8), dtype=v), choices=DTYPES),
+    Param("workers", "int>=1", lambda v: StationaryTransform((8, 8), workers=v)),
+    Param("levels", "int>=1", lambda v: StationaryTransform((8, 8), levels=v), none=True),
+    Param("k", "real>0", lambda v: stage_weights(np.ones(3), v, 1.0)),
+    Param("exponent", "fraction", lambda v: stage_weights(np.ones(3), 1.0, v)),
     Param("pixel_clamp", "real>=0", lambda v: reconstruct(BUF, pixel_clamp=v), none=True),
     Param("levels", "int>=1", lambda v: reconstruct(BUF, levels=v), none=True),
     Param("variance_probes", "int>=0", lambda v: reconstruct_detailed(BUF, variance_probes=v)),

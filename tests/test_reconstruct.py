@@ -1,4 +1,5 @@
-"""Reconstruction (Eq. 10-11): invariants, special values, diagnostics and quality on known scenes."""
+"""Reconstruction (Eq. 10-11, then the Wiener stages): invariants, special values, diagnostics, guarantees
+and quality on known scenes."""
 
 from __future__ import annotations
 
@@ -10,13 +11,22 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from awr_denoise import SampleBuffer, SampleRequest, reconstruct, reconstruct_detailed
 from awr_denoise.domains import DOMAIN_NAMES, Domain
-from awr_denoise.metrics import relmse
+from awr_denoise.metrics import mse, relmse
+from awr_denoise.prepare import prepare
+from awr_denoise.stationary import StationaryTransform
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
+from awr_denoise.thresholding import threshold_stage
+from awr_denoise.wavelets import default_levels, wavelet_operators
+from awr_denoise.wiener import relative_wiener
 
 # Forward + inverse transform (and the domain's log/exp round trip) in float64.
 IDENTITY_ATOL = 1e-10
 IDENTITY_RTOL = 1e-9
 SCALE_RTOL = 1e-9
+# The Wiener stages' float32 FFTs against their float64 reference: 2^-24 ~ 6e-8 relative rounding
+# per operation, some fifty operations deep (two stages of a dozen bands); measured up to 3e-7 of
+# the image's largest value on the path-traced scenes (docs/reconstruction.md).
+FLOAT32_RTOL = 2e-6
 # Quality: relMSE of the noisy mean over relMSE of the reconstruction, default configuration.
 LARGE_FACTOR = 3.0
 QUALITY_SHAPE = (64, 64)
@@ -42,12 +52,12 @@ def test_hand_checked_haar_2x2():
     so Eq. 11 at c_s = 1 shrinks it to 0.4: the rows become 0.7 +- 0.2.
     """
     buf = SampleBuffer.from_moments(np.full((2, 2), 4), np.array([[1.0, 1.0], [0.4, 0.4]]), np.full((2, 2), 0.16))
-    rec = reconstruct_detailed(buf, c_s=1.0, wavelet="haar", levels=1, domain="linear", variance_probes=0)
+    rec = reconstruct_detailed(buf, c_s=1.0, wavelet="haar", levels=1, domain="linear", stages=1, variance_probes=0)
     assert_allclose(rec.image[..., 0], [[0.9, 0.9], [0.5, 0.5]], rtol=1e-14)
     assert_allclose(rec.thresholds[0][1], [[[0.2]], [[0.2]], [[0.2]]], rtol=1e-14)
     assert rec.fraction_zeroed == pytest.approx(2 / 3)  # the two zero bands stay zero
     assert np.isnan(rec.variance).all()  # no probes, no estimate
-    out = reconstruct(buf, c_s=4.0, wavelet="haar", levels=1, domain="linear")
+    out = reconstruct(buf, c_s=4.0, wavelet="haar", levels=1, domain="linear", stages=1)
     assert_allclose(out[..., 0], 0.7, rtol=1e-14)  # 0.6 - 4 * 0.2 < 0: the edge is smoothed away
 
 
@@ -56,28 +66,41 @@ def test_hand_checked_haar_2x2():
 @pytest.mark.parametrize("wavelet", WAVELETS)
 def test_zero_smoothing_returns_the_mean(rng, domain, wavelet):
     buf = _noisy_buffer(rng)
-    assert_allclose(reconstruct(buf, c_s=0.0, domain=domain, wavelet=wavelet), buf.mean,
+    assert_allclose(reconstruct(buf, c_s=0.0, domain=domain, wavelet=wavelet, stages=1), buf.mean,
                     rtol=IDENTITY_RTOL, atol=IDENTITY_ATOL)
 
 
 @pytest.mark.parametrize("domain", DOMAIN_NAMES)
 @pytest.mark.parametrize("mode", ["channels", "luminance"])
-def test_zero_variance_returns_the_mean(rng, domain, mode):
+@pytest.mark.parametrize("stages", [1, 2, 3])
+def test_zero_variance_returns_the_mean(rng, domain, mode, stages):
+    """Every threshold is 0 and every Wiener factor 1. Channel mode is exact in any precision
+    (the pixel clamp has zero width); in luminance mode only luminance is clamped, so the
+    channels keep the FFTs' rounding: float64 is held to the identity's tolerance."""
     count = np.full((20, 28), 5)
     mean = np.exp(rng.normal(0.0, 1.0, (20, 28, 3)))
     buf = SampleBuffer.from_moments(count, mean, np.zeros_like(mean))
-    out = reconstruct(buf, c_s=2.0, domain=domain, mode=mode)
+    out = reconstruct(buf, c_s=2.0, domain=domain, mode=mode, stages=stages, precision="float64")
     assert_allclose(out, buf.mean, rtol=IDENTITY_RTOL, atol=IDENTITY_ATOL)
+    if mode == "channels":
+        assert_allclose(reconstruct(buf, domain=domain, stages=stages), buf.mean, rtol=IDENTITY_RTOL,
+                        atol=IDENTITY_ATOL)
 
 
 @pytest.mark.parametrize("domain", DOMAIN_NAMES)
 @pytest.mark.parametrize("a", [1e-4, 0.3, 7.5, 1e5])
-def test_scaling_mean_by_a_and_variance_by_a_squared_scales_output_by_a(rng, domain, a):
+@pytest.mark.parametrize("stages", [1, 3])
+def test_scaling_mean_by_a_and_variance_by_a_squared_scales_output_by_a(rng, domain, a, stages):
+    """Exact in float64; the float32 FFTs of the Wiener stages round differently at another
+    scale, so they are held to FLOAT32_RTOL of the image's largest value."""
     buf = _noisy_buffer(rng)
     scaled = SampleBuffer.from_moments(buf.count, a * buf.mean, a * a * buf.variance)
-    base = reconstruct(buf, domain=domain)
+    base = reconstruct(buf, domain=domain, stages=stages, precision="float64")
     assert not np.allclose(base, buf.mean)  # something was thresholded
-    assert_allclose(reconstruct(scaled, domain=domain), a * base, rtol=SCALE_RTOL, atol=1e-14 * a)
+    assert_allclose(reconstruct(scaled, domain=domain, stages=stages, precision="float64"), a * base,
+                    rtol=SCALE_RTOL, atol=1e-14 * a)
+    single = reconstruct(scaled, domain=domain, stages=stages, precision="float32")
+    assert_allclose(single, a * base, rtol=0, atol=FLOAT32_RTOL * a * np.abs(base).max())
 
 
 @pytest.mark.parametrize("domain", DOMAIN_NAMES)
@@ -164,9 +187,9 @@ def test_thresholds_are_c_s_times_delta(rng):
 def test_output_variance_at_zero_smoothing_equals_input_variance_of_mean(rng):
     """c_s = 0 in the linear domain is the identity, so every Rademacher probe gives e^2 = v exactly."""
     buf = _noisy_buffer(rng)
-    rec = reconstruct_detailed(buf, c_s=0.0, domain="linear", variance_probes=4)
+    rec = reconstruct_detailed(buf, c_s=0.0, domain="linear", stages=1, variance_probes=4)
     assert_allclose(rec.variance, buf.variance_of_mean(), rtol=1e-9, atol=1e-15)
-    smoothed = reconstruct_detailed(buf, c_s=1.0, domain="linear", variance_probes=16)
+    smoothed = reconstruct_detailed(buf, c_s=1.0, domain="linear", stages=1, variance_probes=16)
     assert smoothed.variance.mean() < 0.5 * rec.variance.mean()
     assert (smoothed.variance.mean(axis=(0, 1)) < rec.variance.mean(axis=(0, 1))).all()
 
@@ -256,12 +279,13 @@ def test_reconstruction_lowers_relmse_by_a_large_factor(name, spp):
 
 @pytest.mark.parametrize("spp", [4, 8])
 def test_reconstruction_of_an_hdr_source_lowers_relmse_at_low_spp(spp):
-    """A source 1000x brighter than its surroundings: the log domain keeps its energy in place.
+    """Stage 1 alone, a source 1000x brighter than its surroundings: the log domain keeps its
+    energy in place.
 
     Only the seed-averaged relMSE is asserted here; per seed, the default reconstruction is not
     always better than the mean on this scene (the smoothing blurs the source's rim).
     """
-    pairs = [_quality("hdr_source", spp, seed) for seed in QUALITY_SEEDS]
+    pairs = [_quality("hdr_source", spp, seed, stages=1) for seed in QUALITY_SEEDS]
     noisy = np.mean([p[0] for p in pairs])
     denoised = np.mean([p[1] for p in pairs])
     assert noisy / denoised > 2.0
@@ -273,33 +297,35 @@ def test_linear_domain_is_available_and_fails_on_an_hdr_source(spp):
     the source's energy into its dark surroundings, which relMSE punishes: worse than the plain
     mean, by a wide margin."""
     for seed in QUALITY_SEEDS[:2]:
-        noisy, linear = _quality("hdr_source", spp, seed, domain="linear", pixel_clamp=None)
+        noisy, linear = _quality("hdr_source", spp, seed, domain="linear", pixel_clamp=None, stages=1)
         assert linear > 10.0 * noisy
     # On a scene without a high dynamic range the linear domain works as the paper says.
-    noisy, linear = _quality("gradient", spp, 0, domain="linear", pixel_clamp=None)
+    noisy, linear = _quality("gradient", spp, 0, domain="linear", pixel_clamp=None, stages=1)
     assert noisy / linear > LARGE_FACTOR
 
 
 @pytest.mark.parametrize("spp", [4, 8, 32])
 def test_pixel_clamp_keeps_every_seed_of_the_hdr_source_better_than_the_mean(spp):
-    """The default pixel clamp stops the blur of the source's rim from leaking into precise dark
-    pixels: no seed ends worse than the plain mean. Without it some seeds did (up to 1.6x)."""
+    """Stage 1 alone: the pixel clamp stops the blur of the source's rim from leaking into
+    precise dark pixels: no seed ends worse than the plain mean. Without it some seeds did (up
+    to 1.6x)."""
     for seed in QUALITY_SEEDS:
-        noisy, clamped = _quality("hdr_source", spp, seed)
+        noisy, clamped = _quality("hdr_source", spp, seed, stages=1)
         assert clamped < noisy
     # In the linear domain it cuts the smearing by a large factor, though not below the mean.
-    _, linear_clamped = _quality("hdr_source", spp, 0, domain="linear")
-    _, linear_free = _quality("hdr_source", spp, 0, domain="linear", pixel_clamp=None)
+    _, linear_clamped = _quality("hdr_source", spp, 0, domain="linear", stages=1)
+    _, linear_free = _quality("hdr_source", spp, 0, domain="linear", pixel_clamp=None, stages=1)
     assert linear_free > LARGE_FACTOR * linear_clamped
 
 
-def test_pixel_clamp_none_and_zero():
-    """pixel_clamp=0 returns the mean exactly; None leaves Eq. 11's result unclamped."""
+@pytest.mark.parametrize("stages", [1, 3])
+def test_pixel_clamp_none_and_zero(stages):
+    """pixel_clamp=0 returns the mean exactly; None leaves every stage's result unclamped."""
     scene = make_scene("edges", (32, 32))
     buf = SyntheticRenderer(scene, seed=1)(SampleRequest.uniform(scene.shape, 4))
-    assert_allclose(reconstruct(buf, pixel_clamp=0.0), buf.mean, rtol=1e-12, atol=1e-15)
-    free = reconstruct(buf, pixel_clamp=None)
-    clamped = reconstruct(buf)
+    assert_allclose(reconstruct(buf, pixel_clamp=0.0, stages=stages), buf.mean, rtol=1e-12, atol=1e-15)
+    free = reconstruct(buf, pixel_clamp=None, stages=stages)
+    clamped = reconstruct(buf, stages=stages)
     assert not np.allclose(free, clamped)
     with pytest.raises(ValueError, match="pixel_clamp"):
         reconstruct(buf, pixel_clamp=-1.0)
@@ -311,6 +337,167 @@ def test_robust_firefly_option_removes_heavy_tailed_outliers(spp):
     well beyond what the default (which lets a firefly's own mean shrink its variance) does.
     Compared on Eq. 11 alone (no pixel clamp), the policy's own effect."""
     for seed in QUALITY_SEEDS:
-        _, default = _quality("fireflies", spp, seed, pixel_clamp=None)
-        _, robust = _quality("fireflies", spp, seed, domain=Domain("log", robust=True), pixel_clamp=None)
+        _, default = _quality("fireflies", spp, seed, pixel_clamp=None, stages=1)
+        _, robust = _quality("fireflies", spp, seed, domain=Domain("log", robust=True), pixel_clamp=None, stages=1)
         assert default / robust > LARGE_FACTOR
+
+
+# ---------------------------------------------------------------------------- the Wiener stages
+def test_stages_1_is_the_papers_single_stage(rng):
+    """Eq. 10-11 with the pixel clamp and nothing after it: stage 1's own result, bit for bit."""
+    buf = _noisy_buffer(rng)
+    prepared = prepare(buf, "log")
+    stage = threshold_stage(prepared, wavelet_operators(buf.shape), 1.0)
+    result = reconstruct_detailed(buf, stages=1, variance_probes=0)
+    assert_array_equal(result.image, stage.image)
+    assert {k: result.parameters[k] for k in ("c_s", "stages", "guard", "preserve_mean", "nonnegative")} == \
+        {"c_s": 1.0, "stages": 1, "guard": False, "preserve_mean": False, "nonnegative": False}
+    assert result.parameters["wiener_exponents"] is None and result.parameters["precision"] is None
+
+
+def test_the_default_runs_stage_1_as_the_pilot_of_two_wiener_stages(rng):
+    buf = _noisy_buffer(rng)
+    result = reconstruct_detailed(buf, variance_probes=0)
+    assert {k: result.parameters[k] for k in ("c_s", "stages", "wiener_exponents", "guard", "preserve_mean",
+                                              "nonnegative", "precision")} == \
+        {"c_s": 1.5, "stages": 3, "wiener_exponents": "0.75,0.4", "guard": True, "preserve_mean": True,
+         "nonnegative": True, "precision": "float32"}
+    assert not np.allclose(result.image, reconstruct(buf, stages=1, c_s=1.5))
+
+
+def test_with_c_s_0_the_pilot_is_the_mean(rng):
+    """One Wiener stage, nothing after it: the stage run by hand on the mean as its own pilot."""
+    buf = _noisy_buffer(rng)
+    out = reconstruct(buf, c_s=0.0, stages=2, wiener_exponents=(0.5,), guard=False, pixel_clamp=None,
+                      preserve_mean=False, nonnegative=False, precision="float64")
+    prepared = prepare(buf, "log")
+    k = 0.1 * prepared.domain.resolved_scale(prepared.mean)
+    t = StationaryTransform(buf.shape, levels=default_levels(buf.shape))
+    by_hand = relative_wiener(t, prepared.mean, prepared.variance, prepared.mean, k=k, exponent=0.5).image
+    assert_allclose(out, by_hand, rtol=1e-12)
+
+
+def _scene_buffer(name, spp, seed, shape=(64, 64)):
+    scene = make_scene(name, shape)
+    return scene, SyntheticRenderer(scene, seed=seed)(SampleRequest.uniform(scene.shape, spp))
+
+
+@pytest.mark.parametrize("name", ["edges", "hdr_source", "fireflies"])
+@pytest.mark.parametrize("mode", ["channels", "luminance"])
+def test_the_image_mean_of_every_channel_is_the_inputs(name, mode):
+    """Exact by construction (one positive factor per channel), on heavy tails too; a factor
+    beyond 5% only where the change exceeds two standard errors of the input's image mean
+    (fireflies: 35%, five standard errors). Below that (hdr_source's blue channel at 4 spp needs
+    8%, 1.3 standard errors) the exposure moves by 5% and the rest stays."""
+    _, buf = _scene_buffer(name, 4, 3)
+    out = reconstruct(buf, mode=mode)
+    loose = reconstruct(buf, mode=mode, preserve_mean=False)
+    want = buf.mean.mean(axis=(0, 1))
+    error = np.sqrt(buf.variance_of_mean().sum(axis=(0, 1))) / buf.count.size
+    needed = want / loose.mean(axis=(0, 1))
+    exact = (np.abs(needed - 1) <= 0.05) | (np.abs(want - loose.mean(axis=(0, 1))) > 2 * error)
+    assert_allclose(out.mean(axis=(0, 1))[exact], want[exact], rtol=1e-12)
+    assert_allclose(out.mean(axis=(0, 1))[~exact] / loose.mean(axis=(0, 1))[~exact],
+                    np.clip(needed[~exact], 1 / 1.05, 1.05), rtol=1e-12)
+    assert exact.any() and not np.allclose(loose.mean(axis=(0, 1)), want, rtol=1e-6)
+    if name == "hdr_source" and mode == "channels":
+        assert not exact.all()
+
+
+def test_the_mean_counts_filled_pixels_and_skips_channels_without_a_positive_mean(rng):
+    buf = _noisy_buffer(rng)
+    count = buf.count.copy()
+    count[3:5, 3:9] = 0
+    mean = buf.mean.copy()
+    mean[..., 2] -= 2.0  # a channel of negative values (a signed AOV)
+    holed = SampleBuffer.from_moments(count, mean, buf.variance)
+    out = reconstruct(holed)
+    filled = prepare(holed, "log").mean
+    assert_allclose(out[..., :2].mean(axis=(0, 1)), filled[..., :2].mean(axis=(0, 1)), rtol=1e-12)
+    assert (out[..., 2] < 0).any()  # neither clipped at zero nor rescaled
+
+
+@pytest.mark.parametrize("mode", ["channels", "luminance"])
+def test_the_output_is_never_negative_where_the_samples_are_not(rng, mode):
+    """A bright square on a dark ground, exponentially distributed samples: the stationary stages
+    ring below zero next to the square; the output does not."""
+    clean = np.full((48, 48, 3), 0.02)
+    clean[20:24, 20:24] = 50.0
+    samples = rng.exponential(np.broadcast_to(clean, (2,) + clean.shape))
+    buf = SampleBuffer.from_moments(np.full((48, 48), 2), samples.mean(0), samples.var(0, ddof=1))
+    assert (reconstruct(buf, mode=mode) >= 0).all()
+    assert (reconstruct(buf, mode=mode, nonnegative=False) < 0).any()
+
+
+@pytest.mark.parametrize("name", ["gradient", "edges", "hdr_source"])
+def test_error_falls_like_the_means(name):
+    """Consistency against a known clean image: relMSE and MSE stay at or below the plain mean's
+    at every spp from 4 to 256 (mean of four seeds), and fall with it."""
+    errors = []
+    for spp in (4, 16, 64, 256):
+        rel, sq = np.zeros(2), np.zeros(2)
+        for seed in range(4):
+            scene, buf = _scene_buffer(name, spp, seed)
+            ref = scene.reference()
+            out = reconstruct(buf)
+            rel += (relmse(buf.mean, ref), relmse(out, ref))
+            sq += (mse(buf.mean, ref), mse(out, ref))
+        assert rel[1] <= rel[0] and sq[1] <= sq[0], (spp, rel, sq)
+        errors.append(rel[1])
+    assert all(b < a for a, b in zip(errors, errors[1:]))
+    assert errors[-1] < errors[0] / 8  # 64x the samples
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("spp", [8, 16, 32, 64, 128])
+def test_the_hdr_source_is_never_worse_than_the_mean_on_average(spp):
+    """The rim of a small light 600-1500x brighter than its ground (relMSE) and the light itself
+    (MSE): twelve seeds' mean error at or below the plain mean's in both metrics. Stage 1 alone
+    fails this in MSE at every spp (1.2-1.8x) and in relMSE at 128 spp."""
+    rel, sq = np.zeros(2), np.zeros(2)
+    for seed in range(12):
+        scene, buf = _scene_buffer("hdr_source", spp, seed)
+        ref = scene.reference()
+        out = reconstruct(buf)
+        rel += (relmse(buf.mean, ref), relmse(out, ref))
+        sq += (mse(buf.mean, ref), mse(out, ref))
+    assert rel[1] < rel[0] and sq[1] < sq[0], (rel, sq)
+
+
+def test_float32_matches_the_float64_reference(rng):
+    """Also next to a light 1000x brighter than its ground: the stages run relative to the
+    signal, so the single-precision error stays relative to each pixel's level."""
+    _, buf = _scene_buffer("hdr_source", 8, 1)
+    single, double = reconstruct(buf), reconstruct(buf, precision="float64")
+    assert_allclose(single, double, rtol=0, atol=FLOAT32_RTOL * np.abs(double).max())
+    dark = double < 1.0
+    assert np.abs(single - double)[dark].max() < 1e-4 * np.abs(double[dark]).max()
+
+
+def test_the_reported_variance_covers_the_last_stage_only():
+    """Against the spread of 60 independent renders: about half the empirical variance (the
+    pilot's noise and the factors' own noise are left out), never above it."""
+    scene = make_scene("gradient", (32, 32))
+    outputs, reported = [], []
+    for seed in range(60):
+        buf = SyntheticRenderer(scene, seed=seed)(SampleRequest.uniform(scene.shape, 8))
+        result = reconstruct_detailed(buf, variance_probes=16 if seed < 10 else 0, seed=seed)
+        outputs.append(result.image)
+        if seed < 10:
+            reported.append(result.variance)
+    ratio = np.mean(reported) / np.var(outputs, axis=0, ddof=1).mean()
+    assert 0.3 < ratio < 0.9, ratio
+
+
+@pytest.mark.parametrize(("kwargs", "error", "message"), [
+    ({"stages": 1, "guard": True}, ValueError, "guard: .* needs stages > 1"),
+    ({"stages": 4}, ValueError, "stages: must be <= 3"),
+    ({"stages": 3, "wiener_exponents": (1.0,)}, ValueError, "stages: must be <= 2"),
+    ({"wiener_exponents": 0.5}, TypeError, "wiener_exponents"),
+    ({"wiener_exponents": (0.5, 1.5)}, ValueError, "wiener_exponents"),
+    ({"precision": "float16"}, ValueError, "precision"),
+    ({"preserve_mean": 1}, TypeError, "preserve_mean"),
+])
+def test_bad_stage_arguments_are_refused(rng, kwargs, error, message):
+    with pytest.raises(error, match=message):
+        reconstruct(_noisy_buffer(rng), **kwargs)

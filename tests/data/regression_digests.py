@@ -65,7 +65,7 @@ def _cli(tmp: Path) -> dict[str, str]:
     runs = {
         "cli_denoise": ["denoise", str(tmp / "a.exr"), "-o", str(tmp / "out.exr"), "-q"],
         "cli_denoise_linear": ["denoise", str(tmp / "a.exr"), "-o", str(tmp / "lin.exr"), "--domain", "linear",
-                               "--c-s", "1.5", "-q"],
+                               "--c-s", "1.5", "--stages", "1", "-q"],
         "cli_plan": ["plan", str(tmp / "a.exr"), "-o", str(tmp / "req.exr"), "--round-spp", "2", "-q"],
         "cli_merge": ["merge", str(tmp / "a.exr"), str(tmp / "b.exr"), "-o", str(tmp / "m.exr"), "-q"],
     }
@@ -82,16 +82,25 @@ def _cli(tmp: Path) -> dict[str, str]:
 
 
 CASES: dict[str, Callable[[], str]] = {
-    "reconstruct_edges": lambda: digest(reconstruct(_uniform("edges"))),
-    "reconstruct_hdr_source": lambda: digest(reconstruct(_uniform("hdr_source"))),
-    "reconstruct_fireflies": lambda: digest(reconstruct(_uniform("fireflies"))),
-    "reconstruct_linear": lambda: digest(reconstruct(_uniform("hdr_source"), domain="linear")),
+    # Stage 1 alone (stages=1): the reconstruction of every earlier version, digests unchanged.
+    "reconstruct_edges": lambda: digest(reconstruct(_uniform("edges"), stages=1)),
+    "reconstruct_hdr_source": lambda: digest(reconstruct(_uniform("hdr_source"), stages=1)),
+    "reconstruct_fireflies": lambda: digest(reconstruct(_uniform("fireflies"), stages=1)),
+    "reconstruct_linear": lambda: digest(reconstruct(_uniform("hdr_source"), domain="linear", stages=1)),
     "reconstruct_gamma_haar": lambda: digest(reconstruct(_uniform("edges"), domain="gamma", wavelet="haar",
-                                                         levels=2)),
-    "reconstruct_luminance": lambda: digest(reconstruct(_uniform("fireflies"), mode="luminance", c_s=2.0)),
-    "reconstruct_no_clamp": lambda: digest(reconstruct(_uniform("gradient", 3), pixel_clamp=None)),
-    "reconstruct_sparse": lambda: digest(reconstruct(_uniform("edges", 1))),
+                                                         levels=2, stages=1)),
+    "reconstruct_luminance": lambda: digest(reconstruct(_uniform("fireflies"), mode="luminance", c_s=2.0, stages=1)),
+    "reconstruct_no_clamp": lambda: digest(reconstruct(_uniform("gradient", 3), pixel_clamp=None, stages=1)),
+    "reconstruct_sparse": lambda: digest(reconstruct(_uniform("edges", 1), stages=1)),
     "reconstruct_detailed": lambda: digest(*(lambda r: (r.image, r.variance))(
+        reconstruct_detailed(_uniform("edges"), variance_probes=4, stages=1))),
+    # The default: stage 1 as the pilot of the Wiener stages, the guard and the finishing steps.
+    "stages_edges": lambda: digest(reconstruct(_uniform("edges"))),
+    "stages_hdr_source": lambda: digest(reconstruct(_uniform("hdr_source"))),
+    "stages_fireflies": lambda: digest(reconstruct(_uniform("fireflies"))),
+    "stages_luminance": lambda: digest(reconstruct(_uniform("fireflies"), mode="luminance")),
+    "stages_float64": lambda: digest(reconstruct(_uniform("hdr_source"), precision="float64")),
+    "stages_detailed": lambda: digest(*(lambda r: (r.image, r.variance))(
         reconstruct_detailed(_uniform("edges"), variance_probes=4))),
     "sampling_density": lambda: digest(sampling_density(_uniform("edges", 4))),
     "adaptive_edges": lambda: _adaptive(AdaptiveSampler, "edges"),

@@ -1,0 +1,315 @@
+"""The reconstruction's measurements behind docs/reconstruction.md: quality, samplers, consistency, speed.
+
+Run from the repository root (each section updates its part of the JSON)::
+
+    .venv/bin/python benchmarks/bench_reconstruct.py quality      # bundled tracer (+ Mitsuba 3), 8-128 spp
+    .venv/bin/python benchmarks/bench_reconstruct.py samplers     # AWR vs uniform vs variance sampling
+    .venv/bin/python benchmarks/bench_reconstruct.py synthetic    # known clean images, 4-1024 spp
+    .venv/bin/python benchmarks/bench_reconstruct.py speed        # 128x128, 256x256, 1080p
+
+``quality`` renders every scene with uniform sampling in four disjoint sample groups (renderer
+seeds 0-3, nested 8..128 spp; cached under ``--cache``) and compares, against the scene's
+reference, the plain mean, stage 1 alone (``stages=1``: the previous default) and the default
+reconstruction: relMSE, MSE and the image mean. The bundled tracer's scenes are 128x128 with
+their 4096-spp references; Mitsuba 3 scenes run through the ``mitsuba`` renderer when it is
+installed (skipped with a notice otherwise), 256x256 against a 1024-spp render cached once.
+``speed`` times every variant in interleaved rounds on the same buffer and reports medians and
+ratios to stage 1 alone measured in the same rounds: on a shared machine only such ratios mean
+much. Results: ``benchmarks/results/reconstruct.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, VarianceSampler, reconstruct
+from awr_denoise.bench import machine_info, write_json
+from awr_denoise.metrics import mse, relmse
+from awr_denoise.prepare import prepare
+from awr_denoise.renderers import create_renderer
+from awr_denoise.synthetic import SyntheticRenderer, make_scene
+
+ROOT = Path(__file__).resolve().parent
+RESULTS = ROOT / "results" / "reconstruct.json"
+TRACER_SCENES = ("default", "chess_dof", "rolling_balls", "sky_objects", "soft_shadows", "cornell_gi")
+MITSUBA_SCENES = ("cornell_box", "envmap_sun", "glossy_glass", "dof_checker")
+MITSUBA_SHAPE = (256, 256)
+MITSUBA_REFERENCE_SPP = 1024
+SPPS = (8, 16, 32, 64, 128)
+METHODS: dict[str, dict[str, Any] | None] = {"plain": None, "stage 1": {"stages": 1}, "default": {}}
+SIZES = {"128x128": (128, 128), "256x256": (256, 256), "1080p": (1080, 1920)}
+SPEED_VARIANTS = {
+    "stage 1 alone": {"stages": 1},
+    "default": {},
+    "default, float64 FFTs": {"precision": "float64"},
+    "default without the guard": {"guard": False},
+    "three Wiener stages": {"stages": 4, "wiener_exponents": (0.75, 0.5, 0.4)},
+}
+
+
+# ---------------------------------------------------------------------------- buffers
+def _save(path: Path, buffer: SampleBuffer) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(path, count=buffer.count, mean=buffer.mean, variance=buffer.variance)
+
+
+def _load(path: Path) -> SampleBuffer:
+    d = np.load(path)
+    return SampleBuffer.from_moments(d["count"], d["mean"], d["variance"])
+
+
+def uniform_buffers(renderer: str, scene: str, shape: tuple[int, int] | None, spps: tuple[int, ...], group: int,
+                    cache: Path) -> dict[int, SampleBuffer]:
+    """Group ``group``'s buffers at every spp: one renderer (seed ``group``), samples added in order."""
+    paths = {s: cache / f"{renderer}_{scene}_g{group}_s{s}.npz" for s in spps}
+    if all(p.exists() for p in paths.values()):
+        return {s: _load(p) for s, p in paths.items()}
+    r = create_renderer(renderer, scene, shape=shape, seed=group)
+    shape = r.shape if shape is None else shape
+    out, buffer, done = {}, None, 0
+    for s in sorted(spps):
+        part = r(SampleRequest.uniform(shape, s - done, first_index=done))
+        buffer = part if buffer is None else buffer.merge(part)
+        done = s
+        _save(paths[s], buffer)
+        out[s] = buffer
+    getattr(r, "close", lambda: None)()
+    return out
+
+
+def reference(renderer: str, scene: str, shape: tuple[int, int] | None, cache: Path) -> np.ndarray:
+    if renderer == "tracer":
+        from awr_denoise import tracer  # the bundled tracer's own cached 4096-spp references
+        return np.asarray(tracer.load_reference(scene), dtype=np.float64)
+    path = cache / f"{renderer}_{scene}_reference.npy"
+    if not path.exists():
+        r = create_renderer(renderer, scene, shape=shape, seed=10**6)
+        image = r(SampleRequest.uniform(shape, MITSUBA_REFERENCE_SPP)).mean
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.save(path, image)
+    return np.load(path)
+
+
+def _mitsuba_available() -> bool:
+    try:
+        from awr_denoise.renderers import renderer_factory
+        renderer_factory("mitsuba")
+        import mitsuba  # noqa: F401  (the extra 'mitsuba')
+        return True
+    except ImportError as error:
+        print(f"skipping the Mitsuba 3 scenes: {error}")
+        return False
+
+
+# ---------------------------------------------------------------------------- quality
+def _measure(image: np.ndarray, x: np.ndarray, ref: np.ndarray, seconds: float) -> dict[str, Any]:
+    ratio = image.mean(axis=(0, 1)) / x.mean(axis=(0, 1)) - 1.0
+    return {"relmse": relmse(image, ref), "mse": mse(image, ref), "mean_error": float(np.abs(ratio).max()),
+            "negative": int((image < 0).sum()), "seconds": seconds}
+
+
+def quality(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], groups: int, cache: Path,
+            methods: dict[str, dict[str, Any] | None]) -> list[dict[str, Any]]:
+    rows = []
+    for renderer, scene, shape in scenes:
+        ref = reference(renderer, scene, shape, cache)
+        for g in range(groups):
+            for spp, buffer in uniform_buffers(renderer, scene, shape, spps, g, cache).items():
+                x = prepare(buffer, "log").mean
+                for name, options in methods.items():
+                    start = time.perf_counter()
+                    image = x if options is None else reconstruct(buffer, **options)
+                    rows.append({"renderer": renderer, "scene": scene, "spp": spp, "group": g, "method": name,
+                                 **_measure(image, x, ref, time.perf_counter() - start)})
+        print(f"{renderer} {scene}: done", flush=True)
+    return rows
+
+
+def _mean(rows: list[dict], key: str, **where: Any) -> float:
+    values = [r[key] for r in rows if all(r[k] == v for k, v in where.items())]
+    return float(np.mean(values)) if values else float("nan")
+
+
+def quality_tables(rows: list[dict], method: str = "default", base: str = "stage 1") -> None:
+    """Markdown: per scene and spp, the means over groups; then the issue's goals per scene."""
+    print(f"\n| scene | spp | relMSE plain | relMSE {base} | relMSE {method} | gain vs {base} | MSE / plain "
+          f"({base}) | MSE / plain ({method}) | worst mean error % ({base}, {method}) |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    scenes = list(dict.fromkeys((r["renderer"], r["scene"]) for r in rows))
+    summary = []
+    for renderer, scene in scenes:
+        w = {"renderer": renderer, "scene": scene}
+        spps = sorted({r["spp"] for r in rows if r["scene"] == scene})
+        gains, mse_ratio, rel_ratio = [], [], []
+        for spp in spps:
+            rp, rb, rm = (_mean(rows, "relmse", spp=spp, method=m, **w) for m in ("plain", base, method))
+            mp, mb, mm = (_mean(rows, "mse", spp=spp, method=m, **w) for m in ("plain", base, method))
+            eb, em = (max(r["mean_error"] for r in rows if r["scene"] == scene and r["spp"] == spp and r["method"] == m)
+                      for m in (base, method))
+            print(f"| {scene} | {spp} | {rp:.5f} | {rb:.5f} | {rm:.5f} | {rb / rm:.2f} | {mb / mp:.2f} | {mm / mp:.2f} "
+                  f"| {100 * eb:.2f}, {100 * em:.2g} |")
+            if spp <= 32:
+                gains.append(rb / rm)
+            mse_ratio.append(mm / mp)
+            rel_ratio.append(rm / rp)
+        summary.append((scene, gains, max(mse_ratio), max(rel_ratio)))
+    print(f"\n| scene | relMSE gain vs {base}, 8 / 16 / 32 spp | max MSE / plain | max relMSE / plain |")
+    print("|---|---|---|---|")
+    for scene, gains, m, r in summary:
+        print(f"| {scene} | {' / '.join(f'{g:.2f}' for g in gains)} | {m:.2f} | {r:.2f} |")
+    every = [g for _, gains, _, _ in summary for g in gains]
+    print(f"\ngeometric mean of the gain at 8-32 spp: {np.exp(np.mean(np.log(every))):.2f}, least {min(every):.2f}")
+
+
+# ---------------------------------------------------------------------------- samplers
+def samplers(scenes: tuple[str, ...], spps: tuple[int, ...], seed: int) -> list[dict[str, Any]]:
+    """Equal samples: uniform, per-pixel variance and AWR sampling (log- and linear-domain priorities)."""
+    kinds = {"uniform": lambda s: UniformSampler(s, seed=seed), "variance": lambda s: VarianceSampler(s, seed=seed),
+             "awr": lambda s: AdaptiveSampler(s, seed=seed),
+             "awr, linear priorities": lambda s: AdaptiveSampler(s, seed=seed, domain="linear")}
+    rows = []
+    for scene in scenes:
+        from awr_denoise import tracer
+        ref = np.asarray(tracer.load_reference(scene), dtype=np.float64)
+        for kind, make in kinds.items():
+            renderer = create_renderer("tracer", scene, seed=seed)
+            sampler = make(ref.shape[:2])
+            for spp in sorted(spps):
+                buffer = sampler.run(renderer, spp)
+                for name, options in (("stage 1", {"stages": 1}), ("default", {})):
+                    image = reconstruct(buffer, **options)
+                    rows.append({"scene": scene, "sampler": kind, "spp": spp, "method": name,
+                                 "relmse": relmse(image, ref), "mse": mse(image, ref)})
+            getattr(renderer, "close", lambda: None)()
+        print(f"{scene}: done", flush=True)
+    return rows
+
+
+def sampler_table(rows: list[dict]) -> None:
+    print("\n| scene | spp | uniform | variance | awr | awr, linear priorities | uniform / awr | variance / awr |")
+    print("|---|---|---|---|---|---|---|---|")
+    for scene in dict.fromkeys(r["scene"] for r in rows):
+        for spp in sorted({r["spp"] for r in rows}):
+            v = {r["sampler"]: r["relmse"] for r in rows if r["scene"] == scene and r["spp"] == spp
+                 and r["method"] == "default"}
+            print(f"| {scene} | {spp} | " + " | ".join(f"{v[k]:.5f}" for k in ("uniform", "variance", "awr",
+                                                                             "awr, linear priorities"))
+                  + f" | {v['uniform'] / v['awr']:.2f} | {v['variance'] / v['awr']:.2f} |")
+
+
+# ---------------------------------------------------------------------------- synthetic
+def synthetic(names: tuple[str, ...], spps: tuple[int, ...], seeds: int, shape: tuple[int, int]) -> list[dict]:
+    """Known clean images: the plain mean, stage 1 and the default, seeds averaged, nested spp."""
+    rows = []
+    for name in names:
+        scene = make_scene(name, shape)
+        ref = scene.reference()
+        for seed in range(seeds):
+            renderer, buffer, done = SyntheticRenderer(scene, seed=seed), None, 0
+            for spp in spps:
+                part = renderer(SampleRequest.uniform(shape, spp - done, first_index=done))
+                buffer = part if buffer is None else buffer.merge(part)
+                done = spp
+                for method, options in METHODS.items():
+                    image = buffer.mean if options is None else reconstruct(buffer, **options)
+                    rows.append({"scene": name, "shape": list(shape), "spp": spp, "seed": seed, "method": method,
+                                 "relmse": relmse(image, ref), "mse": mse(image, ref)})
+    return rows
+
+
+def synthetic_table(rows: list[dict]) -> None:
+    print("\n| scene | size | spp | relMSE plain | stage 1 / plain (relMSE, MSE) | default / plain (relMSE, MSE) |")
+    print("|---|---|---|---|---|---|")
+    for name, shape in dict.fromkeys((r["scene"], tuple(r["shape"])) for r in rows):
+        for spp in sorted({r["spp"] for r in rows if r["scene"] == name}):
+            w = {"scene": name, "spp": spp}
+            rel = {m: _mean([r for r in rows if tuple(r["shape"]) == shape], "relmse", method=m, **w) for m in METHODS}
+            sq = {m: _mean([r for r in rows if tuple(r["shape"]) == shape], "mse", method=m, **w) for m in METHODS}
+            print(f"| {name} | {shape[1]}x{shape[0]} | {spp} | {rel['plain']:.5f} | "
+                  f"{rel['stage 1'] / rel['plain']:.2f}, {sq['stage 1'] / sq['plain']:.2f} | "
+                  f"{rel['default'] / rel['plain']:.2f}, {sq['default'] / sq['plain']:.2f} |")
+
+
+# ---------------------------------------------------------------------------- speed
+def speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
+    rows = []
+    print("| image | " + " | ".join(SPEED_VARIANTS) + " |")
+    print("|---|" + "---|" * len(SPEED_VARIANTS))
+    for size in sizes:
+        shape = SIZES[size]
+        n = repeats or (3 if size == "1080p" else 9)
+        buffer = SyntheticRenderer(make_scene("edges", shape), seed=1)(SampleRequest.uniform(shape, 8))
+        seconds: dict[str, list[float]] = {name: [] for name in SPEED_VARIANTS}
+        for round_ in range(n + 1):
+            for name, options in SPEED_VARIANTS.items():
+                start = time.perf_counter()
+                reconstruct(buffer, **options)
+                if round_:  # the first round builds and caches the transforms' operators
+                    seconds[name].append(time.perf_counter() - start)
+        medians = {k: float(np.median(v)) for k, v in seconds.items()}
+        base = medians["stage 1 alone"]
+        rows.append({"size": size, "repeats": n, "seconds": medians, "ratio": {k: v / base for k, v in medians.items()}})
+        print(f"| {size} | " + " | ".join(f"{v:.3f} s ({v / base:.2f}x)" for v in medians.values()) + " |", flush=True)
+    return rows
+
+
+# ---------------------------------------------------------------------------- main
+def _update(section: str, value: Any, command: str) -> None:
+    data = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
+    data[section] = {"command": command, "machine": machine_info(), "rows": value}
+    write_json(RESULTS, data)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("section", choices=("quality", "samplers", "synthetic", "speed", "tables"))
+    parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
+    parser.add_argument("--spps", nargs="+", type=int, default=list(SPPS))
+    parser.add_argument("--groups", type=int, default=4)
+    parser.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "awr-denoise" / "reconstruct",
+                        help="where rendered buffers and Mitsuba references are kept (default %(default)s)")
+    parser.add_argument("--sizes", nargs="+", choices=tuple(SIZES), default=list(SIZES))
+    parser.add_argument("--repeats", type=int, default=0, help="speed: rounds per size (default 9, 3 at 1080p)")
+    args = parser.parse_args(argv)
+    given = list(argv if argv is not None else sys.argv[1:])
+    # The cache folder is this machine's business: the recorded command names it by its option only.
+    shown = ["DIR" if i > 0 and given[i - 1] == "--cache" else a for i, a in enumerate(given)]
+    command = "benchmarks/bench_reconstruct.py " + " ".join(shown)
+    if args.section == "quality":
+        names = args.scenes or list(TRACER_SCENES) + list(MITSUBA_SCENES)
+        scenes: list[tuple[str, str, tuple[int, int] | None]] = [("tracer", s, None) for s in names if s in TRACER_SCENES]
+        if any(s in MITSUBA_SCENES for s in names) and _mitsuba_available():
+            scenes += [("mitsuba", s, MITSUBA_SHAPE) for s in names if s in MITSUBA_SCENES]
+        rows = quality(scenes, tuple(args.spps), args.groups, args.cache, METHODS)
+        _update("quality", rows, command)
+        quality_tables(rows)
+    elif args.section == "samplers":
+        rows = samplers(tuple(args.scenes or TRACER_SCENES), tuple(s for s in args.spps if s <= 32) or (8, 16, 32), 0)
+        _update("samplers", rows, command)
+        sampler_table(rows)
+    elif args.section == "synthetic":
+        rows = synthetic(("gradient", "edges", "hdr_source", "fireflies", "rare_light"), (4, 16, 64, 256, 1024), 2,
+                         (96, 96))
+        rows += synthetic(("hdr_source",), (8, 16, 32, 64, 128), 12, (64, 64))
+        _update("synthetic", rows, command)
+        synthetic_table(rows)
+    elif args.section == "speed":
+        _update("speed", speed(args.sizes, args.repeats), command)
+    else:  # print the tables of the stored results
+        data = json.loads(RESULTS.read_text())
+        for section, show in (("quality", quality_tables), ("samplers", sampler_table), ("synthetic", synthetic_table)):
+            if section in data:
+                print(f"\n## {section} ({data[section]['command']})")
+                show(data[section]["rows"])
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

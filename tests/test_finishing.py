@@ -1,0 +1,87 @@
+"""The output's guarantees: the pooled pixel clamp, non-negativity, the exact image mean."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose, assert_array_equal
+
+from scipy import ndimage
+
+from awr_denoise.finishing import clip_negative, match_mean, median3x3, pooled_clamp, pooled_standard_error
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 5), (2, 3, 1), (3, 3), (17, 11, 3), (64, 48, 2)])
+def test_median3x3_is_scipys_median_filter(rng, shape):
+    """Against the reference, with ties (small integers) and without (random floats)."""
+    for a in (rng.random(shape), rng.integers(0, 3, shape).astype(float)):
+        size = (3, 3) + (1,) * (a.ndim - 2)
+        assert_array_equal(median3x3(a), ndimage.median_filter(a, size=size, mode="nearest"))
+
+
+def test_pooled_standard_error_is_the_larger_of_own_and_neighbourhood_median():
+    v = np.full((5, 5, 1), 4.0)
+    v[2, 2] = 0.0  # a pixel whose few samples agreed by chance
+    v[0, 0] = 100.0  # a lone noisy pixel does not widen its neighbours' intervals
+    s = pooled_standard_error(v)
+    assert s[2, 2, 0] == 2.0 and s[0, 0, 0] == 10.0 and s[0, 1, 0] == 2.0
+
+
+def test_pooled_clamp_keeps_pixels_within_z_pooled_standard_errors(rng):
+    mean = rng.random((6, 7, 3))
+    variance = rng.uniform(0.0, 0.01, mean.shape)
+    image = mean + rng.normal(0.0, 0.5, mean.shape)
+    out, moved = pooled_clamp(image, mean, variance, 2.0)
+    reach = 2.0 * pooled_standard_error(variance)
+    assert (np.abs(out - mean) <= reach + 1e-15).all()
+    assert_array_equal(out[~moved], image[~moved])
+    assert moved.any() and not moved.all()
+
+
+def test_pooled_clamp_in_luminance_keeps_hue():
+    weights = np.array([0.2, 0.7, 0.1])
+    mean_rgb = np.full((4, 4, 3), [1.0, 2.0, 3.0])
+    lum = mean_rgb @ weights
+    image = 3.0 * mean_rgb
+    out, moved = pooled_clamp(image, lum, np.full((4, 4), 0.01), 2.5, weights=weights)
+    assert_allclose(out @ weights, lum + 0.25)
+    assert_allclose(out / out[..., :1], mean_rgb / mean_rgb[..., :1])  # channel ratios kept
+    assert moved.all()
+
+
+def test_clip_negative_only_in_channels_without_negative_means():
+    image = -np.ones((2, 2, 2))
+    mean = np.zeros((2, 2, 2))
+    mean[0, 0, 1] = -1.0
+    out, clipped = clip_negative(image, mean)
+    assert_array_equal(out[..., 0], 0.0)
+    assert_array_equal(out[..., 1], -1.0)
+    assert clipped[..., 0].all() and not clipped[..., 1].any()
+
+
+@pytest.mark.parametrize("scale", [1e-300, 1e-3, 1.0, 1e300])
+def test_match_mean_makes_every_channel_mean_exact(rng, scale):
+    mean = scale * rng.random((8, 9, 3))
+    image = mean * rng.uniform(0.9, 1.1, mean.shape)
+    out, factors = match_mean(image, mean)
+    assert_allclose(out.mean(axis=(0, 1)), mean.mean(axis=(0, 1)), rtol=1e-13)
+    assert (factors > 0).all()
+
+
+def test_match_mean_leaves_channels_without_a_positive_mean():
+    mean = np.zeros((2, 2, 2))
+    mean[..., 1] = -1.0
+    image = np.ones((2, 2, 2))
+    out, factors = match_mean(image, mean)
+    assert_array_equal(out, image)
+    assert_array_equal(factors, [1.0, 1.0])
+
+
+def test_match_mean_changes_the_exposure_by_more_than_the_limit_only_when_significant(rng):
+    mean = rng.random((8, 9, 2))
+    image = mean * np.array([0.5, 3.0])
+    assert_allclose(match_mean(image, mean)[1], [1.05, 1 / 1.05])  # no variances: never significant
+    assert_allclose(match_mean(image, mean, np.full(mean.shape, 1e-6))[1], [2.0, 1 / 3])
+    noisy = np.full(mean.shape, 100.0)  # the input's mean has a standard error of ~1.1
+    assert_allclose(match_mean(image, mean, noisy)[1], [1.05, 1 / 1.05])
+    assert_allclose(match_mean(mean * 0.8, mean, noisy, limit=0.5)[1], 1.25)

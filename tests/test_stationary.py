@@ -1,0 +1,148 @@
+"""The undecimated transform: perfect reconstruction, PyWavelets' swt2, exact variances, precision."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import pywt
+from numpy.testing import assert_allclose
+from scipy import stats
+
+from awr_denoise.stationary import StationaryTransform, stationary_transform
+
+MC_DRAWS = 3000
+MC_FAMILY_ALPHA = 1e-3
+# float32 FFTs: about 1e-7 relative rounding per operation, a few dozen operations deep.
+FLOAT32_RTOL = 2e-6
+
+CASES = [((24, 20), "bior4.4", 2), ((23, 29), "bior4.4", 3), ((16, 16), "haar", 4), ((31, 17), "db2", 2),
+         ((1, 16), "haar", 1)]
+
+
+def _flat(coeffs) -> list[np.ndarray]:
+    return [coeffs[0]] + [band for level in coeffs[1:] for band in level]
+
+
+@pytest.mark.parametrize(("shape", "wavelet", "levels"), CASES)
+@pytest.mark.parametrize("channels", [None, 3])
+def test_inverse_undoes_forward(rng, shape, wavelet, levels, channels):
+    image = rng.standard_normal(shape if channels is None else shape + (channels,))
+    t = StationaryTransform(shape, wavelet=wavelet, levels=levels)
+    coeffs = t.forward(image)
+    assert len(coeffs) == levels + 1 and all(b.shape == image.shape for b in _flat(coeffs))
+    assert_allclose(t.inverse(coeffs), image, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize(("shape", "wavelet", "levels"), CASES)
+def test_detail_bands_carry_none_of_the_image_sum(rng, shape, wavelet, levels):
+    image = rng.random(shape)
+    t = StationaryTransform(shape, wavelet=wavelet, levels=levels)
+    coeffs = t.forward(image)
+    coarse_only = t.inverse([coeffs[0]] + [(0.0, 0.0, 0.0)] * levels)
+    assert coarse_only.sum() == pytest.approx(image.sum(), rel=1e-12)
+    for band in _flat(coeffs)[1:]:
+        assert abs(band.sum()) < 1e-10 * np.abs(image).sum()
+
+
+@pytest.mark.parametrize("wavelet", ["bior4.4", "haar", "db2", "sym4"])
+def test_bands_are_pywavelets_swt2_up_to_a_circular_shift(rng, wavelet):
+    shape, levels = (32, 48), 3
+    image = rng.random(shape)
+    ours = _flat(StationaryTransform(shape, wavelet=wavelet, levels=levels).forward(image))
+    theirs = _flat(pywt.swt2(image, wavelet, level=levels, trim_approx=True, norm=False))
+    for a, b in zip(ours, theirs):
+        # The shift that best aligns the two: the peak of their circular cross-correlation.
+        corr = np.fft.ifft2(np.fft.fft2(b) * np.conj(np.fft.fft2(a))).real
+        shift = np.unravel_index(np.argmax(corr), shape)
+        assert_allclose(np.roll(a, shift, axis=(0, 1)), b, atol=1e-12)
+
+
+def _z_bounds(n_coefficients: int) -> tuple[float, float]:
+    """Acceptance interval of (empirical second moment / predicted variance), as in test_wavelets.py."""
+    alpha = MC_FAMILY_ALPHA / n_coefficients
+    return stats.chi2.ppf(alpha / 2, MC_DRAWS) / MC_DRAWS, stats.chi2.isf(alpha / 2, MC_DRAWS) / MC_DRAWS
+
+
+@pytest.mark.parametrize(("shape", "wavelet", "levels"), CASES[:4])
+def test_variance_matches_monte_carlo(rng, shape, wavelet, levels):
+    """<v, K_b^2> for every coefficient of every band against MC_DRAWS noisy images."""
+    v = rng.uniform(0.2, 3.0, shape)
+    t = StationaryTransform(shape, wavelet=wavelet, levels=levels)
+    predicted = np.stack(_flat(t.variance(v)))
+    noise = np.sqrt(v)[..., None] * rng.standard_normal(shape + (MC_DRAWS,))
+    empirical = np.mean(np.stack(_flat(t.forward(noise))) ** 2, axis=-1)
+    lo, hi = _z_bounds(predicted.size)
+    ratio = empirical / predicted
+    assert ((ratio >= lo) & (ratio <= hi)).all(), (ratio.min(), ratio.max(), lo, hi)
+
+
+def test_monte_carlo_check_rejects_the_variance_of_a_shifted_kernel(rng):
+    """The same check has the power to tell the exact variance from a plausible wrong one."""
+    shape, levels = (24, 20), 2
+    v = rng.uniform(0.2, 3.0, shape)
+    t = StationaryTransform(shape, levels=levels)
+    wrong = np.stack([np.roll(b, 1, axis=0) for b in _flat(t.variance(v))])
+    noise = np.sqrt(v)[..., None] * rng.standard_normal(shape + (MC_DRAWS,))
+    empirical = np.mean(np.stack(_flat(t.forward(noise))) ** 2, axis=-1)
+    lo, hi = _z_bounds(wrong.size)
+    ratio = empirical / wrong
+    assert ((ratio < lo) | (ratio > hi)).sum() > wrong.size // 20
+
+
+def test_variance_of_one_noisy_pixel_is_the_squared_kernel(rng):
+    shape = (20, 24)
+    t = StationaryTransform(shape, levels=2)
+    v = np.zeros(shape)
+    v[3, 17] = 2.5
+    impulse = np.where(v > 0, 1.0, 0.0)
+    for var, kernel in zip(_flat(t.variance(v)), _flat(t.forward(impulse))):
+        assert_allclose(var, 2.5 * kernel**2, rtol=1e-10, atol=1e-13)
+
+
+@pytest.mark.parametrize(("shape", "wavelet", "levels"), CASES)
+def test_float32_matches_the_float64_reference(rng, shape, wavelet, levels):
+    """Same transform in single precision: within FLOAT32_RTOL of the largest value."""
+    image = rng.standard_normal(shape + (2,))
+    ref = StationaryTransform(shape, wavelet=wavelet, levels=levels)
+    single = StationaryTransform(shape, wavelet=wavelet, levels=levels, dtype="float32")
+    for a, b in zip(_flat(single.forward(image)), _flat(ref.forward(image))):
+        assert a.dtype == np.float64
+        assert_allclose(a, b, atol=FLOAT32_RTOL * np.abs(image).max())
+    v = image**2
+    for a, b in zip(_flat(single.variance(v)), _flat(ref.variance(v))):
+        assert_allclose(a, b, atol=FLOAT32_RTOL * v.max())
+    assert_allclose(single.inverse(ref.forward(image)), image, atol=FLOAT32_RTOL * np.abs(image).max())
+
+
+def test_cached_transforms_are_shared():
+    assert stationary_transform((16, 16), levels=2) is stationary_transform((16, 16), levels=2)
+    assert stationary_transform((16, 16), levels=2, dtype="float32") is not stationary_transform((16, 16), levels=2)
+
+
+@pytest.mark.parametrize(("kwargs", "error", "message"), [
+    ({"shape": (0, 4)}, ValueError, "shape"),
+    ({"shape": (16, 16), "levels": 5}, ValueError, "levels"),
+    ({"shape": (16, 16), "levels": 0}, ValueError, "levels"),
+    ({"shape": (16, 16), "wavelet": "nope"}, ValueError, "wavelet"),
+    ({"shape": (16, 16), "wavelet": "morl"}, ValueError, "wavelet"),
+    ({"shape": (16, 16), "dtype": "float16"}, ValueError, "dtype"),
+    ({"shape": (16, 16), "workers": 0}, ValueError, "workers"),
+])
+def test_bad_arguments_are_refused(kwargs, error, message):
+    with pytest.raises(error, match=message):
+        StationaryTransform(**kwargs)
+
+
+def test_bad_planes_are_refused():
+    t = StationaryTransform((8, 8), levels=1)
+    with pytest.raises(ValueError, match="image"):
+        t.forward(np.zeros((8, 9)))
+    bad = np.zeros((8, 8))
+    bad[0, 0] = np.nan
+    with pytest.raises(ValueError, match="image: 1 value"):
+        t.forward(bad)
+    bad[0, 0] = -1.0
+    with pytest.raises(ValueError, match="variance_of_mean: 1 value"):
+        t.variance(bad)
+    with pytest.raises(ValueError, match="coeffs"):
+        t.inverse([np.zeros((8, 8))])

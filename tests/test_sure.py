@@ -1,0 +1,81 @@
+"""The SURE guard: Stein's unbiased risk estimate decides how much of a change from the mean to keep."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+from scipy import ndimage
+
+from awr_denoise.sure import sure_blend
+
+SHAPE = (32, 32, 1)
+
+
+def _flat(rng, sd=0.1):
+    truth = np.ones(SHAPE)
+    return truth, truth + sd * rng.standard_normal(SHAPE), np.full(SHAPE, sd * sd)
+
+
+def test_sure_is_unbiased_for_the_blend_it_chooses_between(rng):
+    """The risk the guard minimises, v + 2 l v (L - 1) + l^2 (o - x)^2, averaged over noise
+    draws, is the blend's true squared error (a 3x3 box smoother, leverage 1/9)."""
+    truth = np.linspace(0.0, 1.0, 32)[None, :, None] * np.ones(SHAPE)
+    lam, sd = 0.6, 0.2
+    sure, true = [], []
+    for _ in range(400):
+        x = truth + sd * rng.standard_normal(SHAPE)
+        o = ndimage.uniform_filter(x, size=(3, 3, 1), mode="wrap")
+        blend = x + lam * (o - x)
+        sure.append(np.mean(sd**2 + 2 * lam * sd**2 * (1 / 9 - 1) + lam**2 * (o - x) ** 2))
+        true.append(np.mean((blend - truth) ** 2))
+    assert np.mean(sure) == pytest.approx(np.mean(true), rel=0.02)
+
+
+def test_a_good_estimate_is_kept_and_a_biased_one_undone(rng):
+    truth, mean, variance = _flat(rng)
+    lev = np.full(SHAPE, 0.05)
+    kept, lam = sure_blend(truth, mean, variance, lev, k=0.1)
+    assert lam.mean() > 0.85
+    assert np.mean((kept - truth) ** 2) < 0.25 * np.mean((mean - truth) ** 2)
+    biased, lam = sure_blend(truth + 0.5, mean, variance, lev, k=0.1)
+    assert lam.max() < 0.1
+    assert np.mean((biased - truth) ** 2) < 2 * np.mean((mean - truth) ** 2)
+
+
+def test_the_relative_criterion_protects_dark_pixels_next_to_a_light(rng):
+    """A leak of a bright neighbour's light onto a dark ground: small in absolute terms (MSE
+    keeps it), large relative to the ground (relMSE does not): the smaller share wins."""
+    truth = np.full(SHAPE, 0.01)
+    truth[:, 16:] = 100.0
+    variance = (0.05 * truth) ** 2
+    mean = truth + np.sqrt(variance) * rng.standard_normal(SHAPE)
+    leak = truth.copy()
+    leak[:, 12:16] += 0.5  # within the light's noise (5), 50x the ground's level
+    out, lam = sure_blend(leak, mean, variance, np.full(SHAPE, 0.05), k=0.01)
+    assert lam[:, 12:16].max() < 0.05
+    assert np.abs(out[:, 12:16] - truth[:, 12:16]).max() < 0.01
+
+
+def test_zero_variance_and_no_change_keep_the_mean(rng):
+    truth, mean, _ = _flat(rng)
+    out, lam = sure_blend(truth, mean, np.zeros(SHAPE), np.full(SHAPE, 0.5), k=0.1)
+    assert_allclose(out, mean)  # nothing to remove: the change can only be bias
+    out, lam = sure_blend(mean, mean, np.full(SHAPE, 0.01), np.full(SHAPE, 0.5), k=0.1)
+    assert_allclose(out, mean) and (lam == 1.0).all()
+
+
+def test_a_shared_leverage_plane_serves_every_channel(rng):
+    truth, mean, variance = _flat(rng)
+    three = lambda a: np.repeat(a, 3, axis=2)  # noqa: E731
+    a, _ = sure_blend(three(truth), three(mean), three(variance), np.full(SHAPE[:2], 0.05), k=0.1)
+    b, _ = sure_blend(truth, mean, variance, np.full(SHAPE, 0.05), k=0.1)
+    assert_allclose(a, three(b))
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [({"k": 0.0}, "k"), ({"k": 0.1, "window": 4}, "window: must be odd"),
+                                                 ({"k": 0.1, "window": 0}, "window")])
+def test_bad_arguments_are_refused(rng, kwargs, message):
+    truth, mean, variance = _flat(rng)
+    with pytest.raises(ValueError, match=message):
+        sure_blend(truth, mean, variance, np.zeros(SHAPE), **kwargs)

@@ -1,0 +1,134 @@
+"""Empirical Wiener stages: factors, linearity in the means, shared factors, precision."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from awr_denoise.stationary import StationaryTransform
+from awr_denoise.wiener import relative_wiener, stage_weights, wiener_filter
+
+SHAPE = (24, 28)
+FLOAT32_RTOL = 2e-6  # as in test_stationary.py: single-precision FFTs a few dozen operations deep
+
+
+@pytest.fixture
+def transform():
+    return StationaryTransform(SHAPE, levels=3)
+
+
+def _scene(rng, channels=3):
+    clean = 1.0 + np.sin(np.arange(SHAPE[1]) / 3.0)[None, :, None] * np.ones(SHAPE + (channels,))
+    variance = rng.uniform(0.01, 0.05, clean.shape)
+    return clean, clean + np.sqrt(variance) * rng.standard_normal(clean.shape), variance
+
+
+def test_zero_variance_keeps_the_image(rng, transform):
+    clean, noisy, _ = _scene(rng)
+    assert_allclose(wiener_filter(transform, noisy, np.zeros_like(noisy), clean).image, noisy, rtol=1e-12, atol=1e-13)
+
+
+def test_a_zero_pilot_keeps_only_the_scale_band(rng, transform):
+    _, noisy, variance = _scene(rng)
+    coeffs = transform.forward(noisy)
+    coarse = transform.inverse([coeffs[0]] + [(0.0, 0.0, 0.0)] * transform.levels)
+    assert_allclose(wiener_filter(transform, noisy, variance, np.zeros_like(noisy)).image, coarse, atol=1e-12)
+
+
+def test_factors_are_those_of_the_formula(rng):
+    """One level, Haar: every detail coefficient times P^2 / (P^2 + Delta^2), by hand."""
+    t = StationaryTransform(SHAPE, wavelet="haar", levels=1)
+    _, noisy, variance = _scene(rng, channels=1)
+    pilot = noisy + 0.1 * rng.standard_normal(noisy.shape)
+    x, p, v = t.forward(noisy), t.forward(pilot), t.variance(variance)
+    shrunk = [x[0], tuple(xb * pb**2 / (pb**2 + vb) for xb, pb, vb in zip(x[1], p[1], v[1]))]
+    assert_allclose(wiener_filter(t, noisy, variance, pilot).image, t.inverse(shrunk), rtol=1e-12)
+
+
+def test_the_stage_is_linear_in_the_means_for_a_fixed_pilot(rng, transform):
+    clean, noisy, variance = _scene(rng)
+    a, b = noisy, rng.standard_normal(noisy.shape)
+    stage = lambda x: relative_wiener(transform, x, variance, clean, k=0.1, exponent=1.0).image  # noqa: E731
+    assert_allclose(stage(2.0 * a - 3.0 * b), 2.0 * stage(a) - 3.0 * stage(b), atol=1e-12)
+
+
+def test_extra_planes_are_filtered_with_the_same_factors(rng, transform):
+    clean, noisy, variance = _scene(rng)
+    extra = rng.standard_normal((2,) + noisy.shape)
+    result = relative_wiener(transform, noisy, variance, clean, k=0.1, exponent=0.5, extra=extra)
+    alone = relative_wiener(transform, noisy, variance, clean, k=0.1, exponent=0.5)
+    assert_allclose(result.image, alone.image, rtol=1e-12)
+    assert alone.extra is None and alone.leverage is None
+    for e, f in zip(extra, result.extra):
+        assert_allclose(f, relative_wiener(transform, e, variance, clean, k=0.1, exponent=0.5).image, atol=1e-12)
+
+
+@pytest.mark.parametrize("shared", [False, True])
+def test_leverage_is_the_diagonal_of_the_stage(rng, shared):
+    """Each pixel's weight on its own value, against the map applied to every unit impulse."""
+    shape = (10, 12)
+    t = StationaryTransform(shape, levels=2)
+    clean, noisy, variance = (a[:10, :12] for a in _scene(rng, channels=2))
+    v, p = (variance[..., 0], clean[..., 0]) if shared else (variance, clean)
+    got = relative_wiener(t, noisy, v, p, k=0.1, exponent=0.5, leverage=True).leverage
+    impulses = np.zeros((shape[0] * shape[1],) + shape + (2,))
+    impulses.reshape(shape[0] * shape[1], -1, 2)[np.arange(shape[0] * shape[1]), np.arange(shape[0] * shape[1])] = 1.0
+    mapped = relative_wiener(t, noisy, v, p, k=0.1, exponent=0.5, extra=impulses).extra
+    diagonal = mapped.reshape(shape[0] * shape[1], -1, 2)[np.arange(shape[0] * shape[1]), np.arange(shape[0] * shape[1])]
+    assert_allclose(got, diagonal.reshape(shape + (2,))[..., 0] if shared else diagonal.reshape(shape + (2,)),
+                    atol=1e-12)
+
+
+def test_zero_variance_leaves_every_pixel_its_own_value(rng, transform):
+    clean, noisy, _ = _scene(rng)
+    lev = wiener_filter(transform, noisy, np.zeros_like(noisy), clean, leverage=True).leverage
+    assert_allclose(lev, 1.0, atol=1e-12)
+
+
+def test_the_linear_stage_keeps_the_image_sum(rng, transform):
+    clean, noisy, variance = _scene(rng)
+    out = relative_wiener(transform, noisy, variance, clean, k=0.1, exponent=0.0).image
+    assert_allclose(out.sum(axis=(0, 1)), noisy.sum(axis=(0, 1)), rtol=1e-12)
+
+
+def test_one_plane_of_pilot_and_variance_shares_the_factors(rng, transform):
+    """Channels proportional to each other stay proportional (one set of factors for all)."""
+    clean, noisy, variance = _scene(rng, channels=1)
+    x = noisy * np.array([1.0, 0.5, 2.0])
+    out = relative_wiener(transform, x, variance[..., 0], clean[..., 0], k=0.1, exponent=1.0).image
+    assert_allclose(out[..., 1], 0.5 * out[..., 0], rtol=1e-10)
+    assert_allclose(out[..., 2], 2.0 * out[..., 0], rtol=1e-10)
+
+
+def test_the_relative_stage_removes_noise(rng, transform):
+    clean, noisy, variance = _scene(rng)
+    out = relative_wiener(transform, noisy, variance, clean, k=0.1, exponent=1.0).image
+    assert np.mean((out - clean) ** 2) < np.mean((noisy - clean) ** 2) / 4
+
+
+def test_float32_matches_the_float64_reference(rng):
+    clean, noisy, variance = _scene(rng)
+    ref = relative_wiener(StationaryTransform(SHAPE, levels=3), noisy, variance, clean, k=0.1, exponent=0.5).image
+    single = relative_wiener(StationaryTransform(SHAPE, levels=3, dtype="float32"), noisy, variance, clean, k=0.1,
+                             exponent=0.5).image
+    assert_allclose(single, ref, atol=FLOAT32_RTOL * np.abs(ref).max())
+
+
+def test_stage_weights():
+    p = np.array([-2.0, 0.0, 3.0])
+    assert_allclose(stage_weights(p, 1.0, 1.0), [3.0, 1.0, 4.0])
+    assert_allclose(stage_weights(p, 1.0, 0.0), 1.0)
+    assert_allclose(stage_weights(p, 1.0, 0.25), [3.0**0.25, 1.0, 4.0**0.25])
+    with pytest.raises(ValueError, match="k"):
+        stage_weights(p, 0.0, 1.0)
+    with pytest.raises(ValueError, match="exponent"):
+        stage_weights(p, 1.0, 1.5)
+
+
+def test_shapes_that_do_not_fit_are_refused(rng, transform):
+    clean, noisy, variance = _scene(rng)
+    with pytest.raises(ValueError, match="variance, pilot"):
+        wiener_filter(transform, noisy, variance[..., :2], clean[..., :2])
+    with pytest.raises(ValueError, match="variance, pilot"):
+        wiener_filter(transform, noisy, variance, clean[..., 0])
