@@ -211,6 +211,15 @@ def feature_pilot(buffer: SampleBuffer, image: FloatArray, *, iterations: int = 
 def checked_inputs(buffer: SampleBuffer, guide: object, features: object, stages: int) -> FloatArray | None:
     """Check :func:`~awr_denoise.reconstruct` 's ``guide`` and ``features`` before any work is done.
 
+    Parameters
+    ----------
+    buffer
+        The samples.
+    guide
+        ``None``, an (H, W, C) image, or a function of the buffer that returns one (called here).
+    features, stages
+        As given to :func:`~awr_denoise.reconstruct`.
+
     Returns
     -------
     numpy.ndarray or None
@@ -239,6 +248,8 @@ def checked_inputs(buffer: SampleBuffer, guide: object, features: object, stages
             raise ValueError(f"{name}: it gives the pilot of the Wiener stages; it needs stages > 1")
     if features and not buffer.features:
         raise ValueError("features: the buffer carries no feature buffers (albedo, normal or depth)")
+    if callable(guide):  # a guide that is made from the buffer, such as awr_denoise.guides.oidn
+        guide = guide(buffer)
     return None if guide is None else checked_guide(guide, buffer)
 
 

@@ -432,8 +432,8 @@ def reconstruct_detailed(
     seed
         Seed of the probes.
     guide
-        An (H, W, C) image (as :func:`awr_denoise.guides.oidn`'s) as the first Wiener stage's pilot: it only
-        picks the shrinkage of the means; the guard undoes it where they disagree (awr_denoise.guided).
+        An (H, W, C) image or a function of the buffer making one (:func:`awr_denoise.guides.oidn`): the
+        pilot of the first Wiener stage where the samples allow it (:mod:`awr_denoise.guided`).
     features
         The pilot from the buffer's features instead (:func:`~awr_denoise.guided.feature_pilot`).
 
