@@ -4,6 +4,8 @@ Run from the repository root (each section updates its part of the JSON)::
 
     .venv/bin/python benchmarks/bench_guides.py quality     # bundled tracer + Mitsuba 3 scenes, 8-32 spp
     .venv/bin/python benchmarks/bench_guides.py samplers    # uniform vs AWR sampling, with and without OIDN
+    .venv/bin/python benchmarks/bench_guides.py synthetic   # known clean images: good and wrong guides, gate on/off
+    .venv/bin/python benchmarks/bench_guides.py ablations   # the gate and the a-trous passes on the tracer's scenes
     .venv/bin/python benchmarks/bench_guides.py crops       # docs/img/guides_*.png
     .venv/bin/python benchmarks/bench_guides.py tables      # print the stored results
 
@@ -29,12 +31,13 @@ from typing import Any
 
 import numpy as np
 
-from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, guides, reconstruct
+from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, guided, guides, reconstruct
 from awr_denoise.bench import machine_info, write_json
 from awr_denoise.io.png import write_preview
 from awr_denoise.metrics import mse, relmse
 from awr_denoise.prepare import filled_mean
 from awr_denoise.renderers import create_renderer
+from awr_denoise.synthetic import SyntheticRenderer, make_scene
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_reconstruct import MITSUBA_SCENES, MITSUBA_SHAPE, TRACER_SCENES, _mitsuba_available, reference  # noqa: E402
@@ -187,6 +190,114 @@ def sampler_table(rows: list[dict]) -> None:
                   + f" | {a['relmse'] / b['relmse']:.2f}, {a['mse'] / b['mse']:.2f} |")
 
 
+# ---------------------------------------------------------------------------- synthetic
+class _Passes:
+    """The feature pilot with ``iterations`` a-trous passes, for one measurement."""
+
+    def __init__(self, iterations: int = guided.ATROUS_ITERATIONS) -> None:
+        self.iterations = iterations
+
+    def __enter__(self) -> None:
+        self.saved = pilot = guided.feature_pilot
+        guided.feature_pilot = lambda buffer, image: pilot(buffer, image, iterations=self.iterations)
+
+    def __exit__(self, *exc: object) -> None:
+        guided.feature_pilot = self.saved
+
+
+def _ungated_share(candidate: np.ndarray, buffer: SampleBuffer) -> np.ndarray:
+    """:func:`awr_denoise.guided.trust` replaced: every pilot fully trusted (no gate)."""
+    return np.ones(candidate.shape[:2] + (1,))
+
+
+def synthetic(names: tuple[str, ...], spps: tuple[int, ...], seeds: int) -> list[dict[str, Any]]:
+    """Known clean images (64x64): the plain mean, the default, and guides that are right (the clean
+    image) or wrong (edges moved 12 pixels, a flat image, noise), with the gate and without."""
+    rows = []
+    for name in names:
+        scene = make_scene(name, (64, 64))
+        ref = scene.reference()
+        wrong = {"clean": ref, "shifted": np.roll(ref, 12, axis=1),
+                 "flat": np.broadcast_to(ref.mean(axis=(0, 1)), ref.shape)}
+        for seed in range(seeds):
+            wrong["noise"] = np.random.default_rng(seed).random(ref.shape) * ref.max()
+            for spp in spps:
+                buffer = SyntheticRenderer(scene, seed=seed)(SampleRequest.uniform(scene.shape, spp))
+                images = {"plain": buffer.mean, "default": reconstruct(buffer)}
+                for kind, guide in wrong.items():
+                    images[kind] = reconstruct(buffer, guide=guide)
+                    saved = guided.trust
+                    guided.trust = _ungated_share  # what the guide does without the gate
+                    try:
+                        images[f"{kind}, no gate"] = reconstruct(buffer, guide=guide)
+                    finally:
+                        guided.trust = saved
+                for method, image in images.items():
+                    rows.append({"scene": name, "spp": spp, "seed": seed, "method": method,
+                                 "relmse": relmse(image, ref), "mse": mse(image, ref)})
+        print(f"{name}: done", flush=True)
+    return rows
+
+
+def synthetic_table(rows: list[dict]) -> None:
+    methods = [m for m in dict.fromkeys(r["method"] for r in rows) if m != "plain"]
+    print("\n| scene | spp | " + " | ".join(f"{m} / plain" for m in methods) + " |")
+    print("|---|---|" + "---|" * len(methods))
+    for scene in dict.fromkeys(r["scene"] for r in rows):
+        for spp in sorted({r["spp"] for r in rows if r["scene"] == scene}):
+            w = {"scene": scene, "spp": spp}
+            rel = {m: _mean(rows, "relmse", method=m, **w) for m in ["plain", *methods]}
+            sq = {m: _mean(rows, "mse", method=m, **w) for m in ["plain", *methods]}
+            print(f"| {scene} | {spp} | " + " | ".join(f"{rel[m] / rel['plain']:.2f}, {sq[m] / sq['plain']:.2f}"
+                                                        for m in methods) + " |")
+
+
+# ---------------------------------------------------------------------------- ablations
+def ablations(scenes: tuple[str, ...], spps: tuple[int, ...], cache: Path) -> list[dict[str, Any]]:
+    """Bundled tracer, group 0: the OIDN guide with and without the gate; the feature pilot with 3 and
+    5 a-trous passes (and its time)."""
+    from awr_denoise import tracer
+    variants = {"OIDN guide": ({"guide": guides.oidn}, {}), "OIDN guide, no gate": ({"guide": guides.oidn}, None),
+                "features, 3 passes": ({"features": True}, {"iterations": 3}),
+                "features, 5 passes": ({"features": True}, {"iterations": 5})}
+    rows = []
+    for scene in scenes:
+        ref = np.asarray(tracer.load_reference(scene), dtype=np.float64)
+        for spp, buffer in feature_buffers("tracer", scene, None, SPPS, 0, cache).items():
+            if spp not in spps:
+                continue
+            base = reconstruct(buffer)
+            for name, (options, setting) in variants.items():
+                saved = guided.trust
+                if setting is None:
+                    guided.trust = _ungated_share
+                try:
+                    with _Passes(**(setting or {})):
+                        start = time.perf_counter()
+                        image = reconstruct(buffer, **options)
+                        seconds = time.perf_counter() - start
+                finally:
+                    guided.trust = saved
+                rows.append({"scene": scene, "spp": spp, "variant": name, "seconds": seconds,
+                             "relmse_ratio": relmse(image, ref) / relmse(base, ref),
+                             "mse_ratio": mse(image, ref) / mse(base, ref)})
+        print(f"{scene}: done", flush=True)
+    return rows
+
+
+def ablation_table(rows: list[dict]) -> None:
+    variants = list(dict.fromkeys(r["variant"] for r in rows))
+    print("\n| scene | spp | " + " | ".join(f"{v} / default (relMSE, MSE)" for v in variants) + " |")
+    print("|---|---|" + "---|" * len(variants))
+    for scene in dict.fromkeys(r["scene"] for r in rows):
+        for spp in sorted({r["spp"] for r in rows}):
+            v = {r["variant"]: r for r in rows if r["scene"] == scene and r["spp"] == spp}
+            print(f"| {scene} | {spp} | " + " | ".join(f"{v[k]['relmse_ratio']:.3f}, {v[k]['mse_ratio']:.3f}"
+                                                        for k in variants) + " |")
+    for k in variants:
+        print(f"{k}: median {np.median([r['seconds'] for r in rows if r['variant'] == k]):.2f} s")
+
+
 # ---------------------------------------------------------------------------- crops
 CROPS = {("tracer", "cornell_gi"): (40, 40), ("tracer", "chess_dof"): (40, 40),
          ("mitsuba", "glossy_glass"): (96, 96), ("mitsuba", "dof_checker"): (96, 96)}
@@ -223,7 +334,7 @@ def _update(section: str, value: Any, command: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("section", choices=("quality", "samplers", "crops", "tables"))
+    parser.add_argument("section", choices=("quality", "samplers", "synthetic", "ablations", "crops", "tables"))
     parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
     parser.add_argument("--spps", nargs="+", type=int, default=list(SPPS))
     parser.add_argument("--groups", type=int, default=2)
@@ -250,11 +361,20 @@ def main(argv: list[str] | None = None) -> int:
         rows = samplers(tuple(args.scenes or TRACER_SCENES), tuple(s for s in args.spps if s >= 16) or (16, 32), 0)
         _update("samplers", rows, command)
         sampler_table(rows)
+    elif args.section == "synthetic":
+        rows = synthetic(("gradient", "edges", "hdr_source"), (4, 16, 64, 256), 4)
+        _update("synthetic", rows, command)
+        synthetic_table(rows)
+    elif args.section == "ablations":
+        rows = ablations(tuple(args.scenes or TRACER_SCENES), tuple(s for s in args.spps if s in (8, 32)), args.cache)
+        _update("ablations", rows, command)
+        ablation_table(rows)
     elif args.section == "crops":
         _update("crops", crops(args.crop_spp, args.cache), command)
     else:  # print the tables of the stored results
         data = json.loads(RESULTS.read_text())
-        for section, show in (("quality", quality_tables), ("samplers", sampler_table)):
+        for section, show in (("quality", quality_tables), ("samplers", sampler_table),
+                              ("synthetic", synthetic_table), ("ablations", ablation_table)):
             if section in data:
                 print(f"\n## {section} ({data[section]['command']})")
                 show(data[section]["rows"])

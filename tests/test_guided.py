@@ -166,3 +166,15 @@ def test_a_noisy_feature_counts_for_less(rng):
     _, noisy = _textured_buffer(4, 0, albedo_noise=1.0)
     edge = lambda image: float(np.abs(image - clean).mean())  # noqa: E731
     assert edge(feature_pilot(exact, exact.mean)) < 0.8 * edge(feature_pilot(noisy, noisy.mean))
+
+
+def test_a_guide_in_luminance_mode_and_over_an_executor():
+    """Luminance mode takes the guide's luminance for its shared factors; an executor changes nothing."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    scene, buf = _scene_buffer("edges", 8, 0)
+    ref = scene.reference()
+    assert relmse(reconstruct(buf, guide=ref, mode="luminance"), ref) < 0.8 * relmse(reconstruct(buf, mode="luminance"),
+                                                                                       ref)
+    with ThreadPoolExecutor(2) as executor:
+        np.testing.assert_array_equal(reconstruct(buf, guide=ref, executor=executor), reconstruct(buf, guide=ref))
