@@ -210,6 +210,17 @@ def _ungated_share(candidate: np.ndarray, buffer: SampleBuffer) -> np.ndarray:
     return np.ones(candidate.shape[:2] + (1,))
 
 
+def _per_pixel_share(candidate: np.ndarray, buffer: SampleBuffer) -> np.ndarray:
+    """An earlier form of the gate: the mean of the per-pixel ratios ``(candidate - mean)^2 / v``
+    over the neighbourhood, instead of :func:`awr_denoise.guided.trust`'s ratio of the sums."""
+    from scipy import ndimage
+    x = filled_mean(buffer)
+    v = buffer.estimated_variance() / np.maximum(buffer.count, 1)[..., None]
+    z = np.where(v > 0, (candidate - x) ** 2 / np.where(v > 0, v, 1.0), np.where(candidate == x, 0.0, np.inf))
+    r = ndimage.uniform_filter(np.minimum(z, 1e300).mean(axis=-1), size=guided.GATE_WINDOW, mode="nearest")
+    return np.clip((guided.GATE_HIGH - r) / (guided.GATE_HIGH - guided.GATE_LOW), 0.0, 1.0)[..., None]
+
+
 def synthetic(names: tuple[str, ...], spps: tuple[int, ...], seeds: int) -> list[dict[str, Any]]:
     """Known clean images (64x64): the plain mean, the default, and guides that are right (the clean
     image) or wrong (edges moved 12 pixels, a flat image, noise), with the gate and without."""
@@ -254,10 +265,11 @@ def synthetic_table(rows: list[dict]) -> None:
 
 # ---------------------------------------------------------------------------- ablations
 def ablations(scenes: tuple[str, ...], spps: tuple[int, ...], cache: Path) -> list[dict[str, Any]]:
-    """Bundled tracer, group 0: the OIDN guide with and without the gate; the feature pilot with 3 and
-    5 a-trous passes (and its time)."""
+    """Bundled tracer, group 0: the OIDN guide with the gate, without it and with its per-pixel form;
+    the feature pilot with 3 and 5 a-trous passes (and its time)."""
     from awr_denoise import tracer
     variants = {"OIDN guide": ({"guide": guides.oidn}, {}), "OIDN guide, no gate": ({"guide": guides.oidn}, None),
+                "OIDN guide, per-pixel gate": ({"guide": guides.oidn}, "per-pixel"),
                 "features, 3 passes": ({"features": True}, {"iterations": 3}),
                 "features, 5 passes": ({"features": True}, {"iterations": 5})}
     rows = []
@@ -269,10 +281,10 @@ def ablations(scenes: tuple[str, ...], spps: tuple[int, ...], cache: Path) -> li
             base = reconstruct(buffer)
             for name, (options, setting) in variants.items():
                 saved = guided.trust
-                if setting is None:
-                    guided.trust = _ungated_share
+                if setting is None or setting == "per-pixel":
+                    guided.trust = _ungated_share if setting is None else _per_pixel_share
                 try:
-                    with _Passes(**(setting or {})):
+                    with _Passes(**(setting if isinstance(setting, dict) else {})):
                         start = time.perf_counter()
                         image = reconstruct(buffer, **options)
                         seconds = time.perf_counter() - start
