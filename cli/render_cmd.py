@@ -182,6 +182,8 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_OK
     if not args.output:
         raise UsageError("render: -o/--output DUMP.exr is required")
+    if args.guide == "features" and not args.features:
+        raise UsageError("--guide features: nothing to guide with; render the features too (--features all)")
     image_path = Path(args.image) if args.image else derived_path(args.output, ".denoised.exr")
     preview_path = Path(args.preview) if args.preview else derived_path(args.output, ".denoised.png")
     plan = PathPlan(overwrite=args.overwrite)

@@ -177,3 +177,18 @@ def test_render_writes_the_tracers_features_into_the_dump(tmp_path, capsys):
     assert main(["render", "--scene", "sky_objects", "--features", "shade", "-o", str(tmp_path / "x.exr")]) == 2
     one_error_line(capsys.readouterr().err, "--features", "'shade' is not one of albedo, normal, depth")
     assert not (tmp_path / "x.exr").exists()
+
+
+def test_render_guide_features_uses_the_rendered_features(tmp_path, capsys):
+    pytest.importorskip("embreex")
+    common = ["render", "--scene", "sky_objects", "--width", "24", "--height", "16", "--spp", "4", "--uniform"]
+    assert main(common + ["--features", "all", "-o", str(tmp_path / "plain.exr")]) == 0
+    assert "not used: see --guide" in capsys.readouterr().err
+    assert main(common + ["--features", "all", "--guide", "features", "-o", str(tmp_path / "guided.exr")]) == 0
+    assert "not used" not in capsys.readouterr().err
+    plain, guided = (read_image(tmp_path / f"{name}.denoised.exr") for name in ("plain", "guided"))
+    assert not np.array_equal(plain, guided)
+    out = tmp_path / "none.exr"
+    assert main(common + ["--guide", "features", "-o", str(out)]) == 2  # refused before rendering
+    one_error_line(capsys.readouterr().err, "--guide features: nothing to guide with; render the features too")
+    assert not out.exists()
