@@ -300,7 +300,9 @@ def trust(candidate: FloatArray, buffer: SampleBuffer, *, window: int = GATE_WIN
     """
     x = filled_mean(buffer)
     v = buffer.estimated_variance() / np.maximum(buffer.count, 1)[..., None]
-    spread = ndimage.uniform_filter(np.minimum((candidate - x) ** 2, 1e300).sum(axis=-1), size=window, mode="nearest")
+    with np.errstate(over="ignore"):  # a guide far beyond the means: its distance is inf, capped, share 0
+        distance = np.minimum((candidate - x) ** 2, 1e300).sum(axis=-1)
+    spread = ndimage.uniform_filter(np.minimum(distance, 1e300), size=window, mode="nearest")
     noise = ndimage.uniform_filter(v.sum(axis=-1), size=window, mode="nearest")
     r = np.where(noise > 0, spread / np.where(noise > 0, noise, 1.0), np.where(spread > 0, np.inf, 0.0))
     return np.clip((GATE_HIGH - r) / (GATE_HIGH - GATE_LOW), 0.0, 1.0)[..., None]

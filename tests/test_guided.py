@@ -76,6 +76,13 @@ def test_zero_variance_returns_the_mean_whatever_the_guide(rng):
     assert_allclose(reconstruct(buf, guide=np.zeros((24, 24, 3))), mean, rtol=1e-6)
 
 
+@pytest.mark.parametrize("value", [1e200, -1e200, 1e30])
+def test_a_guide_far_beyond_the_means_is_ignored(value):
+    """Finite but absurd: the gate gives it no share (no overflow warning, no NaN)."""
+    _, buf = _scene_buffer("edges", 8, 0)
+    np.testing.assert_array_equal(reconstruct(buf, guide=np.full(buf.mean.shape, value)), reconstruct(buf))
+
+
 def test_the_image_mean_is_kept_with_a_guide(rng):
     scene, buf = _scene_buffer("edges", 8, 0)
     out = reconstruct(buf, guide=np.roll(scene.reference(), 5, axis=0))
