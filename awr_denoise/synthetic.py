@@ -97,8 +97,13 @@ class SyntheticScene:
     image: Callable[[FloatArray, FloatArray], FloatArray]
     noise: Callable[[FloatArray, FloatArray, FloatArray, FloatArray], FloatArray]
 
-    def reference(self, supersampling: int = 8) -> FloatArray:
+    def reference(self, supersampling: int = 32) -> FloatArray:
         """(H, W, 3) box-filtered clean image on a ``supersampling``-squared sub-pixel grid.
+
+        The default grid of 32x32 points per pixel is fine enough that a pixel grazed by the
+        ``hdr_source`` light (30, against 0.05 around it) gets its share: on an 8x8 grid a pixel
+        covered by 1% of the light read 0.05 instead of about 0.35, and the plain mean's
+        relMSE against that reference stopped falling above 256 spp.
 
         Examples
         --------
@@ -108,7 +113,7 @@ class SyntheticScene:
         >>> from awr_denoise.synthetic import make_scene
         >>> reference = make_scene("edges", (8, 8)).reference()
         >>> reference.shape, np.round(reference[4, 2], 4), np.round(reference[0, 0], 4)
-        ((8, 8, 3), array([0.8 , 0.72, 0.61]), array([0.1562, 0.1406, 0.1594]))
+        ((8, 8, 3), array([0.8 , 0.72, 0.61]), array([0.1563, 0.1406, 0.1594]))
         """
         h, w = self.shape
         s = _checks.whole("supersampling", supersampling, minimum=1, maximum=64)

@@ -228,7 +228,7 @@ def synthetic_table(rows: list[dict]) -> None:
     print("\n| scene | size | spp | relMSE plain | stage 1 / plain (relMSE, MSE) | default / plain (relMSE, MSE) |")
     print("|---|---|---|---|---|---|")
     for name, shape in dict.fromkeys((r["scene"], tuple(r["shape"])) for r in rows):
-        for spp in sorted({r["spp"] for r in rows if r["scene"] == name}):
+        for spp in sorted({r["spp"] for r in rows if r["scene"] == name and tuple(r["shape"]) == shape}):
             w = {"scene": name, "spp": spp}
             rel = {m: _mean([r for r in rows if tuple(r["shape"]) == shape], "relmse", method=m, **w) for m in METHODS}
             sq = {m: _mean([r for r in rows if tuple(r["shape"]) == shape], "mse", method=m, **w) for m in METHODS}

@@ -34,6 +34,12 @@ def _print(info: dict[str, Any]) -> None:
     print(f"{info['file']}: {info['width']}x{info['height']}, {info['parts']} part(s)"
           f"{', deep' if info['deep'] else ''}{views}, {info['kind']}")
     print(f"  channels: {', '.join(info['channels'])}")
+    windows = info.get("windows", {})
+    data, display = windows.get("dataWindow"), windows.get("displayWindow")
+    if data and display and data != display:
+        # A crop (or an overscan) is worth a line; a plain full frame is not.
+        print(f"  data window ({data[0][0]}, {data[0][1]})-({data[1][0]}, {data[1][1]}) inside display window "
+              f"({display[0][0]}, {display[0][1]})-({display[1][0]}, {display[1][1]})")
     if info["kind"] == "samples":
         if "colour" in info:
             print(f"  layout: {info['preset']}; colour {info['colour']}, variance {info['variance'] or 'none'}")

@@ -51,6 +51,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument("--overhead-sizes", nargs="*", choices=tuple(OVERHEAD_SIZES), default=None, metavar="SIZE",
                         help=f"image sizes of the overhead measurement ({', '.join(OVERHEAD_SIZES)}; none to skip)")
     parser.add_argument("--no-oidn", action="store_true", help="skip Open Image Denoise even if installed")
+    parser.add_argument("--no-mitsuba", action="store_true", help="skip the Mitsuba 3 scenes even if Mitsuba is installed")
+    parser.add_argument("--mitsuba-scenes", nargs="+", metavar="SCENE", default=None,
+                        help="Mitsuba 3 scenes (default: all of awr_denoise.adapters.mitsuba_scenes)")
     parser.add_argument("--no-plots", action="store_true", help="write no PNG figures")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
@@ -81,6 +84,10 @@ def config_from_args(args: argparse.Namespace) -> BenchmarkConfig:
         overrides["overhead_sizes"] = tuple(args.overhead_sizes)
     if args.no_oidn:
         overrides["oidn"] = False
+    if args.no_mitsuba:
+        overrides["mitsuba"] = False
+    if args.mitsuba_scenes:
+        overrides["mitsuba_scenes"] = tuple(args.mitsuba_scenes)
     return BenchmarkConfig.quick(**overrides) if args.quick else replace(BenchmarkConfig(), **overrides)
 
 

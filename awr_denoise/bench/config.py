@@ -68,6 +68,13 @@ class BenchmarkConfig:
         Try Intel Open Image Denoise (skipped when its Python bindings are missing).
     threads
         Tracer threads.
+    mitsuba
+        Also measure the Mitsuba 3 scenes through the adapter (skipped, with the reason on the
+        page, when the ``mitsuba`` extra cannot start).
+    mitsuba_scenes, mitsuba_size, mitsuba_reference_spp, mitsuba_reference_dir
+        Which Mitsuba scenes (``None``: all of :mod:`awr_denoise.adapters.mitsuba_scenes`), their
+        side in pixels, the spp of their references, and where the references are cached
+        (``None``: ``data/cache/mitsuba/`` of the source tree).
     seed
         Seed of the main renders (every method uses the same one: common random numbers).
 
@@ -97,6 +104,11 @@ class BenchmarkConfig:
     overhead_levels_size: str = "1080p"
     oidn: bool = True
     threads: int = 2
+    mitsuba: bool = True
+    mitsuba_scenes: tuple[str, ...] | None = None
+    mitsuba_size: int = 128
+    mitsuba_reference_spp: int = 2048
+    mitsuba_reference_dir: str | None = None
     seed: int = 0
 
     @classmethod
@@ -119,7 +131,7 @@ class BenchmarkConfig:
         >>> config.spps, config.uniform_max_spp, config.defaults_sweep, config.scenes
         ((4, 8, 32), 256, False, ('default',))
         """
-        base = cls(spps=(4, 8, 32), uniform_max_spp=256, sweep_spp=8, sweep_seeds=3,
+        base = cls(spps=(4, 8, 32), uniform_max_spp=256, mitsuba_size=64, mitsuba_reference_spp=512, sweep_spp=8, sweep_seeds=3,
                    c_s_values=(0.25, 0.5, 1.0, 2.0, 4.0), defaults_sweep=False, overhead_sizes=("256x256", "1080p"),
                    overhead_levels=(1, 3, 5), overhead_levels_size="256x256")
         return replace(base, **overrides)

@@ -106,6 +106,7 @@ def write_markdown(results: dict[str, Any], figures: dict[str, str], path: Path,
     lines += _smoothing(results, figures, scenes)
     lines += _other_defaults(results, scenes)
     lines += _overhead(results, figures)
+    lines += _mitsuba(results)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines).rstrip() + "\n")
 
@@ -378,4 +379,39 @@ def _overhead(results: dict[str, Any], figures: dict[str, str]) -> list[str]:
         lines.append("")
     if "overhead" in figures:
         lines.append(f"![overhead](img/{figures['overhead']})\n")
+    return lines
+
+
+
+def _mitsuba(results: dict[str, Any]) -> list[str]:
+    mi = results.get("mitsuba")
+    if mi is None:
+        return []
+    lines = ["## Mitsuba 3 scenes\n",
+             "The same library defaults on scenes of a renderer the project did not write, through the Mitsuba "
+             "adapter ([integrate_mitsuba.md](integrate_mitsuba.md)). `uniform`/`awr`: the plain mean of "
+             "uniform/AWR sampling; `+awr`: the default reconstruction of that buffer. MSE is given as a ratio "
+             "to the plain mean of the same samples, the image mean as its error against the reference's.\n"]
+    if not mi.get("scenes"):
+        return lines + [f"Not measured: {mi.get('status', 'unknown')}.\n"]
+    worse = []
+    for name, scene in mi["scenes"].items():
+        h, w = scene["shape"]
+        ref = scene["reference"]
+        lines += [f"**{name}** ({w}x{h}, reference: {ref['spp']} spp of the adapter)\n",
+                  "| spp | relMSE uniform | uniform+awr | awr | awr+awr | MSE / plain (uniform+awr, awr+awr) "
+                  "| image mean error (uniform+awr, awr+awr) |",
+                  "|---|---|---|---|---|---|---|"]
+        by = {m: {r["spp"]: r for r in rows} for m, rows in scene["methods"].items()}
+        for spp in sorted(by["uniform"]):
+            u, ua, a, aa = (by[m][spp] for m in ("uniform", "uniform+awr", "awr", "awr+awr"))
+            lines.append(f"| {spp} | {_fmt(u['relmse'])} | {_fmt(ua['relmse'])} | {_fmt(a['relmse'])} | "
+                         f"{_fmt(aa['relmse'])} | {ua['mse'] / u['mse']:.2f}, {aa['mse'] / a['mse']:.2f} | "
+                         f"{100 * ua['mean_error']:+.2f}%, {100 * aa['mean_error']:+.2f}% |")
+            for plain, denoised in ((u, ua), (a, aa)):
+                if denoised["relmse"] > plain["relmse"] or denoised["mse"] > plain["mse"]:
+                    worse.append(f"{name} at {spp} spp")
+        lines.append("")
+    lines.append("Reconstructions worse than the plain mean of their own samples (relMSE or MSE): "
+                 + (", ".join(dict.fromkeys(worse)) if worse else "none") + ".\n")
     return lines

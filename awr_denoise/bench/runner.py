@@ -22,6 +22,7 @@ from .analysis import correct_for_noise_floor, headline_spp, image_metrics, summ
 from .config import METHODS, BenchmarkConfig
 from .figures import require_matplotlib, write_figures
 from .measure import Timing, run_progressive, timed
+from .mitsuba import mitsuba_benchmark, mitsuba_scene_names
 from .overhead import measure_overhead
 from .peers import oidn_available, oidn_denoise, require_skimage, skimage_denoise
 from .records import machine_info, write_json
@@ -78,7 +79,8 @@ def run_benchmark(config: BenchmarkConfig | None = None, *, output_dir: str | Pa
     if results_path is None and out_dir is not None:
         results_path = out_dir.resolve().parent / "benchmarks" / "results" / "quality.json"
 
-    stages = len(scenes) * (5 + int(config.defaults_sweep)) + len(config.overhead_sizes) + 1
+    stages = len(scenes) * (5 + int(config.defaults_sweep)) + len(config.overhead_sizes) + 1 + \
+        (len(mitsuba_scene_names(config)) if config.mitsuba else 0)
     bar = tqdm(total=stages, desc="awr bench", unit="stage", file=sys.stderr) if progress else None
 
     def tick(label: str) -> None:
@@ -98,6 +100,8 @@ def run_benchmark(config: BenchmarkConfig | None = None, *, output_dir: str | Pa
         for name in scenes:
             results["scenes"][name], all_images[name] = scene_benchmark(name, config, use_oidn, tick)
         results["overhead"] = measure_overhead(config, tick) if config.overhead_sizes else {"sizes": [], "levels": []}
+        results["mitsuba"] = mitsuba_benchmark(config, tick) if config.mitsuba else {"status": "not asked for",
+                                                                                      "scenes": {}}
     finally:
         if bar is not None:
             bar.close()

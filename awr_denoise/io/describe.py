@@ -38,7 +38,8 @@ def describe_file(path: str | os.PathLike[str], *, preset: str = "auto", color: 
     Returns
     -------
     dict
-        ``file``, ``width``, ``height``, ``parts``, ``deep``, ``views``, ``channels``,
+        ``file``, ``width``, ``height``, ``windows`` (``dataWindow`` and ``displayWindow`` as
+        ``[[xmin, ymin], [xmax, ymax]]``), ``parts``, ``deep``, ``views``, ``channels``,
         ``attributes`` (renderer and ``awr:*`` header values) and ``kind`` (``"samples"``,
         ``"request"`` or ``"image"``). For sample statistics also ``preset``, ``colour``,
         ``variance`` and ``count`` (where each was found, or None), ``layers`` (Cycles: pass
@@ -73,8 +74,11 @@ def describe_file(path: str | os.PathLike[str], *, preset: str = "auto", color: 
     lo, hi = header["dataWindow"]
     views = file_views(parts)
     channels = sorted({c.name for part in parts for c in part.header.get("channels", [])})
+    window = {"dataWindow": [[int(v) for v in lo], [int(v) for v in hi]]}
+    if "displayWindow" in header:
+        window["displayWindow"] = [[int(v) for v in corner] for corner in header["displayWindow"]]
     info: dict[str, Any] = {"file": os.fspath(path), "width": int(hi[0] - lo[0] + 1),
-                            "height": int(hi[1] - lo[1] + 1), "parts": len(parts),
+                            "height": int(hi[1] - lo[1] + 1), "windows": window, "parts": len(parts),
                             "deep": any(part.deep for part in parts), "views": views, "channels": channels,
                             "attributes": attrs}
     if str(attrs.get("awr:semantics", "")) == "sample-request":

@@ -25,7 +25,7 @@ def tiny_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict[str, Any], 
     out = tmp_path_factory.mktemp("bench")
     config = BenchmarkConfig.quick(scenes=SMOOTH_SCENES, width=32, height=32, spps=(4, 8), uniform_max_spp=32,
                                    inline_reference_spp=256, sweep_spp=8, sweep_seeds=2, c_s_values=(0.5, 1.0, 4.0),
-                                   overhead_sizes=(), oidn=False)
+                                   overhead_sizes=(), oidn=False, mitsuba=False)
     results = run_benchmark(config, output_dir=out / "docs", results_path=out / "results" / "quality.json",
                             progress=False, mode_name="test")
     return results, out

@@ -47,7 +47,8 @@ def test_awr_bench_subcommand_runs_the_benchmark(tmp_path, capsys):
     from awr_denoise.cli.main import main as awr_main
 
     code = awr_main(["bench", "--quick", "--scenes", "default", "--size", "16", "16", "--spp", "4",
-                     "--overhead-sizes", "--no-oidn", "--no-plots", "--quiet", "--output-dir", str(tmp_path / "docs"),
+                     "--overhead-sizes", "--no-oidn", "--no-mitsuba", "--no-plots", "--quiet",
+                     "--output-dir", str(tmp_path / "docs"),
                      "--results", str(tmp_path / "q.json")])
     assert code == 0
     assert "default" in capsys.readouterr().out

@@ -90,3 +90,18 @@ def test_a_plane_file_in_another_window_is_refused(crops, capsys, monkeypatch):
         assert main([*args, *generic, "--variance", "crop.exr:variance"]) == 2
         one_error_line(capsys.readouterr().err, "crop.exr", "d.exr", "window")
         assert crops.state() == before
+
+
+def test_info_shows_a_crop_and_its_json_holds_the_windows(crops, capsys, monkeypatch):
+    import json
+
+    monkeypatch.chdir(crops.root)
+    assert main(["info", "crop.exr"]) == 0
+    out = capsys.readouterr().out
+    assert "data window (100, 200)-(131, 223) inside display window (0, 0)-(1919, 1079)" in out
+    assert main(["info", "crop.exr", "--json"]) == 0
+    windows = json.loads(capsys.readouterr().out)["windows"]
+    assert windows == {"dataWindow": [[100, 200], [131, 223]], "displayWindow": [[0, 0], [1919, 1079]]}
+    write_image(crops / "full.exr", np.ones((H, W, 3)))
+    assert main(["info", "full.exr"]) == 0
+    assert "window" not in capsys.readouterr().out  # a plain full frame gets no line

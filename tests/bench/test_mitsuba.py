@@ -1,0 +1,47 @@
+"""The Mitsuba 3 section of ``awr bench``: measured through the adapter, or skipped with the reason."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from awr_denoise.bench import BenchmarkConfig
+from awr_denoise.bench import mitsuba as bench_mitsuba
+from awr_denoise.bench.report import _mitsuba
+
+
+def test_scene_names_are_checked():
+    assert bench_mitsuba.mitsuba_scene_names(BenchmarkConfig(mitsuba_scenes=("dof_checker",))) == ["dof_checker"]
+    with pytest.raises(ValueError, match="mitsuba_scenes: 'nope'"):
+        bench_mitsuba.mitsuba_scene_names(BenchmarkConfig(mitsuba_scenes=("nope",)))
+
+
+def test_a_missing_mitsuba_skips_the_section_with_its_reason(monkeypatch):
+    monkeypatch.setattr(bench_mitsuba, "mitsuba_status", lambda: "skipped: no Mitsuba here")
+    result = bench_mitsuba.mitsuba_benchmark(BenchmarkConfig(), lambda label: None)
+    assert result == {"status": "skipped: no Mitsuba here", "scenes": {}}
+    page = "\n".join(_mitsuba({"mitsuba": result}))
+    assert "Not measured: skipped: no Mitsuba here" in page
+
+
+def test_the_section_measures_both_samplers_and_caches_the_reference(mi, tmp_path):
+    config = BenchmarkConfig.quick(spps=(4, 8), mitsuba_size=16, mitsuba_reference_spp=64,
+                                   mitsuba_scenes=("cornell_box",), mitsuba_reference_dir=str(tmp_path))
+    ticks = []
+    result = bench_mitsuba.mitsuba_benchmark(config, ticks.append)
+    assert result["status"] == "measured" and ticks == ["mitsuba cornell_box"]
+    scene = result["scenes"]["cornell_box"]
+    assert scene["shape"] == [16, 16] and scene["reference"]["source"].startswith("rendered")
+    for method in bench_mitsuba.MITSUBA_METHODS:
+        assert [row["spp"] for row in scene["methods"][method]] == [4, 8]
+        for row in scene["methods"][method]:
+            assert row["relmse"] > 0 and row["mse"] > 0 and abs(row["mean_error"]) < 0.5
+    # Uniform and adaptive sampling agree on the first round (4 spp everywhere) and part after it.
+    assert scene["methods"]["uniform"][0] == scene["methods"]["awr"][0]
+    assert scene["methods"]["uniform"][1] != scene["methods"]["awr"][1]
+    again = bench_mitsuba.mitsuba_benchmark(config, lambda label: None)
+    assert again["scenes"]["cornell_box"]["reference"]["source"].startswith("cached")
+    assert again["scenes"]["cornell_box"]["methods"] == scene["methods"]  # seeded: the same numbers
+    page = "\n".join(_mitsuba(json.loads(json.dumps({"mitsuba": result}))))
+    assert "**cornell_box** (16x16" in page and "| 8 |" in page
