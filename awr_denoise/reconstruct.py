@@ -30,6 +30,7 @@ from .buffers import SampleBuffer
 from .channels import luminance_weights
 from .domains import Domain
 from .finishing import clip_negative, match_mean, pooled_clamp
+from .guided import checked_inputs, pilot
 from .prepare import Prepared, prepare
 from .stationary import DTYPES, StationaryTransform, stationary_transform
 from .sure import sure_blend
@@ -366,6 +367,8 @@ def reconstruct_detailed(
     precision: str = DEFAULT_PRECISION,
     variance_probes: int = 16,
     seed: int = 0,
+    guide: FloatArray | None = None,
+    features: bool = False,
 ) -> Reconstruction:
     """Reconstruct an image from sample statistics and report what the stages did.
 
@@ -428,6 +431,11 @@ def reconstruct_detailed(
         transform pair per channel. ``0`` skips the estimate (the variance is then NaN).
     seed
         Seed of the probes.
+    guide
+        An (H, W, C) image or a function of the buffer making one (:func:`awr_denoise.guides.oidn`): the
+        pilot of the first Wiener stage where the samples allow it (:mod:`awr_denoise.guided`).
+    features
+        The pilot from the buffer's features instead (:func:`~awr_denoise.guided.feature_pilot`).
 
     Notes
     -----
@@ -476,6 +484,7 @@ def reconstruct_detailed(
     settings = resolve_settings(c_s=c_s, stages=stages, wiener_exponents=wiener_exponents, pixel_clamp=pixel_clamp,
                                 guard=guard, preserve_mean=preserve_mean, nonnegative=nonnegative, precision=precision,
                                 variance_probes=variance_probes, seed=seed)
+    guide = checked_inputs(buffer, guide, features, settings.stages)
     prepared = prepare(buffer, domain)
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     run: Callable | None = (lambda f, items: list(executor.map(f, items))) if executor is not None else None
@@ -487,15 +496,15 @@ def reconstruct_detailed(
                             weights=None if luminance is None else luminance[1], run=run)
     variance = stage.output_variance(settings.probes, settings.seed) if settings.probes and settings.stages == 1 \
         else None
-    image, variance = later_stages(prepared, stage.image, variance, settings, levels=ops.levels, wavelet=ops.wavelet,
-                                   luminance=luminance, run=run)
+    image, variance = later_stages(prepared, pilot(buffer, stage.image, guide, features), variance, settings,
+                                   levels=ops.levels, wavelet=ops.wavelet, luminance=luminance, run=run)
     return Reconstruction(image=image, thresholds=stage.thresholds,
                           fraction_zeroed=stage.zeroed / stage.total if stage.total else 0.0,
                           variance=np.full(image.shape, np.nan) if variance is None else variance,
                           levels=ops.levels, domain=prepared.bound.domain,
                           parameters={"wavelet": ops.wavelet, "levels": ops.levels,
                                       "domain": prepared.bound.domain.name, "mode": mode, "boundary": boundary,
-                                      **settings.recorded()})
+                                      "guide": guide is not None, "features": features, **settings.recorded()})
 
 
 def reconstruct(
@@ -515,6 +524,8 @@ def reconstruct(
     preserve_mean: bool | None = None,
     nonnegative: bool | None = None,
     precision: str = DEFAULT_PRECISION,
+    guide: FloatArray | None = None,
+    features: bool = False,
 ) -> FloatArray:
     """Denoise the pixel means: Eq. 10-11 (paper section 5), then empirical Wiener stages.
 
@@ -535,4 +546,5 @@ def reconstruct(
     return reconstruct_detailed(buffer, c_s=c_s, wavelet=wavelet, levels=levels, domain=domain, mode=mode,
                                 boundary=boundary, executor=executor, pixel_clamp=pixel_clamp, stages=stages,
                                 wiener_exponents=wiener_exponents, guard=guard, preserve_mean=preserve_mean,
-                                nonnegative=nonnegative, precision=precision, variance_probes=0).image
+                                nonnegative=nonnegative, precision=precision, variance_probes=0, guide=guide,
+                                features=features).image

@@ -69,7 +69,7 @@ def add_plane_options(parser: argparse.ArgumentParser) -> None:
     f = parser.add_argument_group("features (albedo, normal, depth; see docs/io.md)",
                                   "Read automatically where the preset knows the planes (pbrt, Cycles, Mitsuba "
                                   "aov, awr dumps); these options name them. They are carried into the buffer "
-                                  "and its dumps; the reconstruction does not use them yet.")
+                                  "and its dumps; the reconstruction uses them with --guide features or --guide oidn.")
     f.add_argument("--alb", metavar="FILE[:PLANE]",
                    help="albedo: an image file (its R,G,B, as oidnDenoise --alb), FILE:PLANE, or a PLANE of the input")
     f.add_argument("--nrm", metavar="FILE[:PLANE]",

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from awr_denoise.domains import DOMAIN_NAMES
 from awr_denoise.errors import InputFileError
+from awr_denoise.guides import GUIDES, OIDN_HINT, oidn_available
 from awr_denoise.io import read_image
 from awr_denoise.io.atomic import OutputSet
 from awr_denoise.io.exr import check_same_windows, read_windows
@@ -40,7 +41,10 @@ from .paths import PathPlan, check_plane_windows, plane_options
 from .values import MAX_EXPOSURE, MAX_LEVELS, real, wavelet_name, whole
 
 __all__ = ["register", "run", "add_reconstruction_options", "reconstruction_kwargs", "check_reconstruction_options",
-           "exr_shape"]
+           "exr_shape", "GUIDE_CHOICES"]
+
+GUIDE_CHOICES = (*GUIDES, "features")
+"""``--guide`` values: a guide of :data:`awr_denoise.guides.GUIDES`, or the feature pilot."""
 
 
 def exr_shape(path: str) -> tuple[int, int]:
@@ -66,12 +70,17 @@ def add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
                    help="domain in which coefficients are thresholded (default %(default)s)")
     g.add_argument("--mode", default=DEFAULT_MODE, choices=MODES,
                    help="threshold every channel, or decide on luminance and keep hue (default %(default)s)")
+    g.add_argument("--guide", choices=GUIDE_CHOICES,
+                   help="pilot of the first Wiener stage, used only where the samples allow it: 'oidn', Open Image "
+                        "Denoise on the means with the albedo and normal when present (extra oidn); 'features', "
+                        "an a-trous filter guided by albedo, normal and depth (default: neither)")
 
 
 def reconstruction_kwargs(args: argparse.Namespace) -> dict:
     """Keyword arguments of :func:`awr_denoise.reconstruct_detailed` from the options."""
+    guide = getattr(args, "guide", None)
     return {"stages": args.stages, "c_s": args.c_s, "wavelet": args.wavelet, "levels": args.levels,
-            "domain": args.domain, "mode": args.mode}
+            "domain": args.domain, "mode": args.mode, "guide": GUIDES.get(guide), "features": guide == "features"}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -80,7 +89,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Reconstruct a denoised image from per-pixel sample statistics "
                                    "(wavelet soft thresholding by propagated standard error). Albedo, normal "
                                    "and depth (--alb, --nrm, --depth, or found in the input) are read and "
-                                   "checked, but the reconstruction does not use them yet.")
+                                   "checked; --guide oidn or --guide features uses them.")
     p.add_argument("input", nargs="?", metavar="DUMP.exr",
                    help="sample dump (any preset); may hold a #### frame placeholder")
     p.add_argument("--hdr", metavar="DUMP.exr", help="same as the positional input (oidnDenoise's name)")
@@ -101,7 +110,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def _note(frame: FrameResult, output: str, nonfinite_policy: str) -> str:
+def _note(frame: FrameResult, output: str, nonfinite_policy: str, guided: bool = False) -> str:
     """The one-line summary of a denoised frame."""
     h, w = frame.shape
     note = f"{output}: {w}x{h}, {frame.spp:.3g} spp, {100 * frame.fraction_zeroed:.1f}% coefficients zeroed"
@@ -110,13 +119,18 @@ def _note(frame: FrameResult, output: str, nonfinite_policy: str) -> str:
                 "on input"
     if frame.relmse is not None:
         note += f", relMSE {frame.relmse:.4g}"
-    if frame.features:
-        note += f"; features {', '.join(frame.features)} read but not used by the reconstruction yet"
+    if frame.features and not guided:
+        note += f"; features {', '.join(frame.features)} read but not used (see --guide)"
     return note
 
 
 def check_reconstruction_options(args: argparse.Namespace, shape: tuple[int, int], where: str) -> None:
-    """Refuse ``--levels`` beyond what an image of ``shape`` allows, before any work."""
+    """Refuse ``--levels`` beyond what an image of ``shape`` allows, and a ``--guide`` that cannot run, before any work."""
+    guide = getattr(args, "guide", None)
+    if guide is not None and args.stages < 2:
+        raise UsageError(f"--guide {guide}: it gives the pilot of the Wiener stages; it needs --stages 2 or more")
+    if guide == "oidn" and not oidn_available():
+        raise UsageError(f"--guide oidn: {OIDN_HINT}")
     if args.levels is not None and args.levels > max_levels(shape):
         h, w = shape
         raise UsageError(f"--levels: {args.levels} is outside 1..{max_levels(shape)} for the {w}x{h} image of {where}")
@@ -211,7 +225,7 @@ def run(args: argparse.Namespace) -> int:
     order = {src: i for i, src in enumerate(sources)}
     for frame in sorted(frames, key=lambda f: order.get(f.source, 0)):
         shown = final[frame.output]
-        status(_note(frame, shown, args.nonfinite), quiet=args.quiet)
+        status(_note(frame, shown, args.nonfinite, args.guide is not None), quiet=args.quiet)
     if args.maxerror is not None:
         over = [f for f in frames if f.relmse is not None and f.relmse > args.maxerror]
         if over:

@@ -66,7 +66,7 @@ def _print(info: dict[str, Any]) -> None:
                           f"{feature['variance_known']} pixel(s)")
             print(f"  feature {name}{where}{values}")
         if info.get("features"):
-            print("  (features are read and carried, but the reconstruction does not use them yet)")
+            print("  (features are read and carried; awr denoise --guide features or --guide oidn uses them)")
         for note in info.get("notes", []):
             print(f"  note: {note}")
         for warning in info.get("warnings", []):

@@ -122,7 +122,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the bundled tracer's sample sequence: independent (default) or sobol")
     p.add_argument("--features", type=feature_list, metavar="NAMES",
                    help="also render albedo, normal, depth (comma separated, or 'all') into the dump; the bundled "
-                        "tracer only; the reconstruction does not use them yet")
+                        "tracer only; --guide features or --guide oidn uses them")
     p.add_argument("-o", "--output", metavar="DUMP.exr", help="sample dump to write (required unless --list-scenes)")
     p.add_argument("--image", metavar="OUT.exr", help="denoised image (default DUMP.denoised.exr)")
     p.add_argument("--preview", metavar="OUT.png", help="PNG preview (default DUMP.denoised.png)")
@@ -182,6 +182,8 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_OK
     if not args.output:
         raise UsageError("render: -o/--output DUMP.exr is required")
+    if args.guide == "features" and not args.features:
+        raise UsageError("--guide features: nothing to guide with; render the features too (--features all)")
     image_path = Path(args.image) if args.image else derived_path(args.output, ".denoised.exr")
     preview_path = Path(args.preview) if args.preview else derived_path(args.output, ".denoised.png")
     plan = PathPlan(overwrite=args.overwrite)
@@ -240,8 +242,8 @@ def run(args: argparse.Namespace) -> int:
         interrupts.check()
         outputs.commit()
     h, w = buffer.shape
-    carried = f"; features {', '.join(buffer.features)} in the dump (not used by the reconstruction yet)" \
-        if buffer.features else ""
+    carried = f"; features {', '.join(buffer.features)} in the dump (not used: see --guide)" \
+        if buffer.features and args.guide is None else ""
     status(f"{args.output}: {name} {w}x{h}, {buffer.total_samples / (h * w):.3g} spp ({strategy}) in {seconds:.1f} s; "
            f"denoised {image_path}, preview {preview_path}{carried}", quiet=args.quiet)
     return EXIT_OK

@@ -67,7 +67,7 @@ class FrameResult:
     relmse
         Relative MSE against the reference, when one was given.
     features
-        Features the dump held (albedo, normal, depth); the reconstruction does not use them yet.
+        Features the dump held (albedo, normal, depth), used with ``guide``/``features`` only.
     """
 
     source: str

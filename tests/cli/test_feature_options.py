@@ -1,6 +1,6 @@
 """--alb, --nrm, --depth (cli/common.py, cli/paths.py): features read from files or planes, checked
-like every other input, carried into dumps, shown by ``awr info``, and said to be unused by the
-reconstruction until it uses them."""
+like every other input, carried into dumps, shown by ``awr info``, said to be unused by the
+reconstruction without ``--guide``, and used with it."""
 
 from __future__ import annotations
 
@@ -36,9 +36,58 @@ def test_denoise_reads_the_features_and_says_they_are_unused(tmp_path, capsys):
     out = tmp_path / "o.exr"
     assert main(["denoise", str(tmp_path / "d.exr"), "--alb", str(tmp_path / "alb.exr"),
                  "--nrm", str(tmp_path / "nrm.exr"), "-o", str(out)]) == 0
-    assert "features albedo, normal read but not used by the reconstruction yet" in capsys.readouterr().err
+    assert "features albedo, normal read but not used (see --guide)" in capsys.readouterr().err
     np.testing.assert_array_equal(read_image(out), read_image(plain))   # not used: the same image
-    assert "the reconstruction does not use them yet" in _help(capsys, "denoise")
+    assert "--guide oidn or --guide features uses them" in _help(capsys, "denoise")
+
+
+def test_denoise_guide_features_uses_them(tmp_path, capsys):
+    _images(tmp_path)
+    plain, guided = tmp_path / "plain.exr", tmp_path / "guided.exr"
+    assert main(["denoise", str(tmp_path / "d.exr"), "-o", str(plain), "-q"]) == 0
+    assert main(["denoise", str(tmp_path / "d.exr"), "--alb", str(tmp_path / "alb.exr"), "--guide", "features",
+                 "-o", str(guided)]) == 0
+    assert "not used" not in capsys.readouterr().err
+    assert not np.array_equal(read_image(guided), read_image(plain))
+
+
+def test_denoise_guide_features_without_features_is_refused(tmp_path, capsys):
+    _images(tmp_path)
+    out = tmp_path / "o.exr"
+    assert main(["denoise", str(tmp_path / "d.exr"), "--guide", "features", "-o", str(out)]) == 2
+    assert "features: the buffer carries no feature buffers" in one_error_line(capsys.readouterr().err)
+    assert not out.exists()
+
+
+def test_denoise_guide_needs_wiener_stages(tmp_path, capsys):
+    _images(tmp_path)
+    out = tmp_path / "o.exr"
+    assert main(["denoise", str(tmp_path / "d.exr"), "--guide", "oidn", "--stages", "1", "-o", str(out)]) == 2
+    assert "--guide oidn: it gives the pilot of the Wiener stages; it needs --stages 2 or more" in one_error_line(capsys.readouterr().err)
+    assert not out.exists()
+
+
+def test_denoise_guide_oidn(tmp_path, capsys):
+    pytest.importorskip("pyoidn", reason="the OIDN guide needs the extra oidn")
+    _images(tmp_path)
+    plain, guided = tmp_path / "plain.exr", tmp_path / "guided.exr"
+    assert main(["denoise", str(tmp_path / "d.exr"), "-o", str(plain), "-q"]) == 0
+    assert main(["denoise", str(tmp_path / "d.exr"), "--alb", str(tmp_path / "alb.exr"),
+                 "--nrm", str(tmp_path / "nrm.exr"), "--guide", "oidn", "-o", str(guided), "-q"]) == 0
+    image = read_image(guided)
+    assert np.isfinite(image).all() and not np.array_equal(image, read_image(plain))
+    np.testing.assert_allclose(image.mean(axis=(0, 1)), read_image(plain).mean(axis=(0, 1)), rtol=1e-3)
+
+
+def test_denoise_guide_oidn_without_pyoidn_is_refused(tmp_path, capsys, monkeypatch):
+    import awr_denoise.cli.denoise_cmd as denoise_cmd
+    monkeypatch.setattr(denoise_cmd, "oidn_available", lambda: False)
+    _images(tmp_path)
+    out = tmp_path / "o.exr"
+    assert main(["denoise", str(tmp_path / "d.exr"), "--guide", "oidn", "-o", str(out)]) == 2
+    line = one_error_line(capsys.readouterr().err)
+    assert "--guide oidn: the OIDN guide needs pyoidn" in line and 'pip install "awr-denoise[oidn]"' in line
+    assert not out.exists()
 
 
 def _help(capsys, command: str) -> str:
@@ -55,7 +104,7 @@ def test_info_shows_the_features_found(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "feature albedo from Albedo: mean min 0 / max 0.8853" in out
     assert "feature normal from Ns" in out and "feature depth from P.Z" in out
-    assert "the reconstruction does not use them yet" in out
+    assert "awr denoise --guide features or --guide oidn uses them" in out
     _images(tmp_path)
     assert main(["info", str(tmp_path / "d.exr"), "--depth", f"{tmp_path / 'alb.exr'}:G", "--json"]) == 0
     assert '"depth"' in capsys.readouterr().out
@@ -128,3 +177,18 @@ def test_render_writes_the_tracers_features_into_the_dump(tmp_path, capsys):
     assert main(["render", "--scene", "sky_objects", "--features", "shade", "-o", str(tmp_path / "x.exr")]) == 2
     one_error_line(capsys.readouterr().err, "--features", "'shade' is not one of albedo, normal, depth")
     assert not (tmp_path / "x.exr").exists()
+
+
+def test_render_guide_features_uses_the_rendered_features(tmp_path, capsys):
+    pytest.importorskip("embreex")
+    common = ["render", "--scene", "sky_objects", "--width", "24", "--height", "16", "--spp", "4", "--uniform"]
+    assert main(common + ["--features", "all", "-o", str(tmp_path / "plain.exr")]) == 0
+    assert "not used: see --guide" in capsys.readouterr().err
+    assert main(common + ["--features", "all", "--guide", "features", "-o", str(tmp_path / "guided.exr")]) == 0
+    assert "not used" not in capsys.readouterr().err
+    plain, guided = (read_image(tmp_path / f"{name}.denoised.exr") for name in ("plain", "guided"))
+    assert not np.array_equal(plain, guided)
+    out = tmp_path / "none.exr"
+    assert main(common + ["--guide", "features", "-o", str(out)]) == 2  # refused before rendering
+    one_error_line(capsys.readouterr().err, "--guide features: nothing to guide with; render the features too")
+    assert not out.exists()

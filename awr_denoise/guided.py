@@ -1,0 +1,314 @@
+"""Pilots for the Wiener stages from outside the samples: a guide image, or the feature buffers.
+
+The Wiener stages (:mod:`awr_denoise.wiener`) scale every detail coefficient of the pixel means
+by ``P^2 / (P^2 + Delta^2)``, where ``P`` is the coefficient of a *pilot* estimate and ``Delta``
+its exact standard error. The pilot only chooses how much each coefficient of the *means* is
+shrunk: the output is always a linear filter of the means, so
+
+* as the samples grow (``Delta -> 0``) every factor tends to 1 wherever the pilot has signal,
+  and the SURE guard (:mod:`awr_denoise.sure`) returns every neighbourhood where the pilot's
+  shrinkage adds more bias than it removes noise to the plain mean: the result converges to the
+  mean whatever the pilot says;
+* a good pilot (one closer to the clean image than stage 1's thresholding) gives factors closer
+  to the oracle's, so less noise and less blur.
+
+A pilot is also checked against the samples before it is used (:func:`gated`): where it lies
+further from the pixel means than their noise allows (over a 5x5 neighbourhood, squared
+differences summing to more than ``GATE_LOW`` times the variances), stage 1's pilot takes over,
+fully from ``GATE_HIGH``. A biased pilot (a denoiser's hallucinated detail, a blur across an edge) is thus
+used only where the samples cannot tell it from the truth, and as the samples grow, only where it
+is right. Measured (docs/guides.md, "Wrong guides"): without this check a deliberately wrong guide
+cost up to 1.13x the plain mean's relMSE next to a small bright light; with it, never more than the
+plain mean's, and within 1% of the default's error from 64 spp on.
+
+Two pilots are built here, both for the first Wiener stage:
+
+``guide``
+    Any (H, W, C) image of the scene, for example a neural denoiser's output on the same samples
+    (:func:`awr_denoise.guides.oidn`). It is checked (:func:`checked_guide`) and used as it is.
+``features``
+    Stage 1's image filtered by an edge-avoiding a-trous wavelet filter (Dammertz, Sewtz,
+    Hanika and Lensch 2010, "Edge-avoiding a-trous wavelet transform for fast global
+    illumination filtering") whose edge-stopping weights come from the buffer's albedo, normal
+    and depth (:func:`feature_pilot`). Each feature difference is measured against the
+    feature's own noise: where a feature is itself noisy (depth of field, glossy albedo,
+    anti-aliased edges) it stops fewer edges, where it is clean it keeps them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+from . import _checks
+from ._typing import FloatArray
+from .buffers import SampleBuffer
+from .prepare import filled_mean
+
+__all__ = ["checked_guide", "checked_inputs", "feature_pilot", "trust", "gated", "pilot", "ATROUS_ITERATIONS",
+           "FEATURE_SIGMAS", "GATE_WINDOW", "GATE_LOW", "GATE_HIGH"]
+
+ATROUS_ITERATIONS = 3
+"""A-trous passes of :func:`feature_pilot` (steps 1, 2, 4: a 29-pixel footprint). Five passes measured
+the same on the bundled tracer's scenes (within 0.1%) at 5/3 the time (docs/guides.md)."""
+
+FEATURE_SIGMAS = {"albedo": 0.1, "normal": 0.3, "depth": 0.05}
+"""Differences of each feature that halve (``exp(-1)``) a tap's weight when the feature is noiseless.
+
+Albedo and normal in absolute units, depth relative to the nearer pixel's depth."""
+
+GATE_WINDOW = 5
+"""Side of the neighbourhood over which :func:`trust` compares a pilot with the samples."""
+
+GATE_LOW, GATE_HIGH = 3.0, 9.0
+"""Mean squared standard errors between pilot and samples where :func:`trust` starts and stops trusting."""
+
+_COLOUR_SIGMA = 2.0  # colour differences are counted in the means' standard errors
+_KERNEL = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0  # the B3 spline of the a-trous transform
+
+
+def checked_guide(guide: object, buffer: SampleBuffer) -> FloatArray:
+    """The guide as a float64 (H, W, C) array, checked against the buffer.
+
+    Raises
+    ------
+    ValueError
+        If its shape is not the buffer's (H, W, C) (an (H, W) plane is taken for one channel),
+        or it holds NaN or infinite values.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise import SampleBuffer
+    >>> from awr_denoise.guided import checked_guide
+    >>> buffer = SampleBuffer.from_moments(np.ones((2, 3)), np.ones((2, 3, 3)), np.zeros((2, 3, 3)))
+    >>> checked_guide(np.zeros((2, 3, 3)), buffer).shape
+    (2, 3, 3)
+    >>> checked_guide(np.zeros((3, 2, 3)), buffer)
+    Traceback (most recent call last):
+    ...
+    ValueError: guide: shape (3, 2, 3) does not match the buffer's (2, 3, 3)
+    """
+    try:
+        array = np.asarray(guide, dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"guide: expected an (H, W, C) array of numbers ({error})") from None
+    expected = (*buffer.shape, buffer.n_channels)
+    if array.ndim == 2 and buffer.n_channels == 1:
+        array = array[..., None]
+    if array.shape != expected:
+        raise ValueError(f"guide: shape {array.shape} does not match the buffer's {expected}")
+    bad = ~np.isfinite(array)
+    if bad.any():
+        row, col, channel = (int(i) for i in np.argwhere(bad)[0])
+        raise ValueError(f"guide: {int(bad.sum())} values are NaN or infinite (first at row {row}, column {col}, "
+                         f"channel {channel})")
+    return array
+
+
+def _shifted(a: np.ndarray, dy: int, dx: int) -> np.ndarray:
+    """``a`` moved so that pixel ``(i, j)`` holds ``a[i + dy, j + dx]``, edges repeated."""
+    h, w = a.shape[:2]
+    rows = np.clip(np.arange(h) + dy, 0, h - 1)
+    cols = np.clip(np.arange(w) + dx, 0, w - 1)
+    return a[rows][:, cols]
+
+
+def _feature_planes(buffer: SampleBuffer) -> list[tuple[np.ndarray, np.ndarray, float, bool]]:
+    """(mean, variance of the mean, sigma, relative) of every feature the buffer carries."""
+    planes = []
+    for name, sigma in FEATURE_SIGMAS.items():
+        if name not in buffer.features:
+            continue
+        feature = buffer.features[name]
+        n = np.maximum(feature.count, 1).astype(np.float64)[..., None]
+        variance = np.where(feature.count[..., None] > 1, np.nan_to_num(feature.variance), 0.0) / n
+        planes.append((np.asarray(feature.mean, np.float64), variance, sigma, name == "depth"))
+    return planes
+
+
+def feature_pilot(buffer: SampleBuffer, image: FloatArray, *, iterations: int = ATROUS_ITERATIONS) -> FloatArray:
+    """``image`` smoothed by an edge-avoiding a-trous filter guided by the buffer's features.
+
+    Every pass ``i`` averages each pixel with the 5x5 B3-spline taps ``2^i`` pixels apart,
+    each tap weighted by ``exp(-sum_f D_f)`` over the colour and every feature ``f``:
+
+    * colour: ``|c_p - c_q|^2 / (s^2 (v_p + v_q))`` with ``v`` the variance of the pixel means
+      and ``s = 2``, so only differences of several standard errors stop a tap;
+    * features: ``|f_p - f_q|^2 / (sigma_f^2 + u_p + u_q)``, ``u`` the variance of the feature's
+      mean (its sample variance over its count), ``sigma_f`` from :data:`FEATURE_SIGMAS`
+      (depth relative to the nearer pixel's).
+
+    Parameters
+    ----------
+    buffer
+        The samples: the variances of the means and the features (albedo, normal, depth; those
+        it carries). Without features only the colour stops the filter.
+    image
+        (H, W, C) image to smooth (stage 1's result).
+    iterations
+        Number of passes.
+
+    Returns
+    -------
+    numpy.ndarray
+        The smoothed (H, W, C) image.
+
+    Examples
+    --------
+    Two halves of different albedo under noise: the filter smooths each half and keeps the
+    edge the albedo shows, even where the noisy colour alone would not tell it:
+
+    >>> import numpy as np
+    >>> from awr_denoise import SampleBuffer
+    >>> from awr_denoise.guided import feature_pilot
+    >>> rng = np.random.default_rng(0)
+    >>> clean = np.ones((32, 32, 1)); clean[:, 16:] = 1.2
+    >>> albedo = np.repeat(clean / 2, 3, axis=2)
+    >>> samples = clean + 0.5 * rng.standard_normal((32, 32, 1))    # 4 samples of variance 1 per pixel
+    >>> count = np.full((32, 32), 4)
+    >>> buffer = SampleBuffer.from_moments(count, samples, np.ones((32, 32, 1)),
+    ...     features={"albedo": SampleBuffer.from_moments(count, albedo, np.zeros((32, 32, 3)))})
+    >>> out = feature_pilot(buffer, samples)
+    >>> rms = lambda a: float(np.sqrt(np.mean((a - clean) ** 2)))
+    >>> rms(out) < rms(samples) / 4, round(float(out[:, 20:].mean() - out[:, :12].mean()), 1)
+    (True, 0.2)
+
+    Without the albedo, the colour alone blurs the edge more:
+
+    >>> colour_only = feature_pilot(SampleBuffer.from_moments(count, samples, np.ones((32, 32, 1))), samples)
+    >>> edge = lambda a: round(float(np.abs(a - clean)[:, 15:17].mean()), 2)   # the two edge columns
+    >>> edge(out), edge(colour_only)
+    (0.08, 0.09)
+    """
+    out = np.array(image, dtype=np.float64)
+    variance = buffer.estimated_variance() / np.maximum(buffer.count, 1)[..., None]  # as prepare's
+    floor = np.finfo(np.float64).tiny + 1e-12 * float(np.mean(np.abs(out)) ** 2)
+    features = _feature_planes(buffer)
+    for i in range(iterations):
+        step = 2**i
+        total = np.zeros_like(out)
+        weights = np.zeros(out.shape[:2])
+        spread = np.zeros_like(out)  # sum of w^2 v_q: the variance of the pass's output
+        for a, ky in enumerate(_KERNEL):
+            for b, kx in enumerate(_KERNEL):
+                dy, dx = (a - 2) * step, (b - 2) * step
+                c_q = _shifted(out, dy, dx)
+                d = ((out - c_q) ** 2 / (_COLOUR_SIGMA**2 * (variance + _shifted(variance, dy, dx)) + floor)).sum(-1)
+                for mean, var, sigma, relative in features:
+                    f_q = _shifted(mean, dy, dx)
+                    scale = sigma * np.minimum(mean, f_q)[..., 0] if relative else sigma
+                    d += ((mean - f_q) ** 2).sum(-1) / (scale**2 + (var + _shifted(var, dy, dx)).sum(-1) + 1e-12)
+                w = ky * kx * np.exp(-d)
+                total += w[..., None] * c_q
+                weights += w
+                spread += (w * w)[..., None] * _shifted(variance, dy, dx)
+        out = total / weights[..., None]
+        # Later passes compare smoothed colours: their differences count against the smoothed
+        # noise (as in SVGF), so an edge a few smoothed standard errors high stops the filter.
+        variance = spread / (weights * weights)[..., None]
+    return out
+
+
+def checked_inputs(buffer: SampleBuffer, guide: object, features: object, stages: int) -> FloatArray | None:
+    """Check :func:`~awr_denoise.reconstruct` 's ``guide`` and ``features`` before any work is done.
+
+    Parameters
+    ----------
+    buffer
+        The samples.
+    guide
+        ``None``, an (H, W, C) image, or a function of the buffer that returns one (called here).
+    features, stages
+        As given to :func:`~awr_denoise.reconstruct`.
+
+    Returns
+    -------
+    numpy.ndarray or None
+        The guide, checked (:func:`checked_guide`), or ``None``.
+
+    Raises
+    ------
+    ValueError
+        A guide or ``features=True`` without Wiener stages (``stages=1``), ``features=True`` on
+        a buffer without features, or a guide :func:`checked_guide` refuses.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise import SampleBuffer
+    >>> from awr_denoise.guided import checked_inputs
+    >>> buffer = SampleBuffer.from_moments(np.ones((4, 4)), np.ones((4, 4, 3)), np.zeros((4, 4, 3)))
+    >>> checked_inputs(buffer, None, True, 3)
+    Traceback (most recent call last):
+    ...
+    ValueError: features: the buffer carries no feature buffers (albedo, normal or depth)
+    """
+    _checks.flag("features", features)
+    for name, used in (("guide", guide is not None), ("features", bool(features))):
+        if used and stages < 2:
+            raise ValueError(f"{name}: it gives the pilot of the Wiener stages; it needs stages > 1")
+    if features and not buffer.features:
+        raise ValueError("features: the buffer carries no feature buffers (albedo, normal or depth)")
+    if callable(guide):  # a guide that is made from the buffer, such as awr_denoise.guides.oidn
+        guide = guide(buffer)
+    return None if guide is None else checked_guide(guide, buffer)
+
+
+def pilot(buffer: SampleBuffer, stage1: FloatArray, guide: FloatArray | None, features: bool) -> FloatArray:
+    """The first Wiener stage's pilot: the (checked) guide or the feature pilot, :func:`gated`; else stage 1.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise import SampleBuffer
+    >>> from awr_denoise.guided import pilot
+    >>> buffer = SampleBuffer.from_moments(np.ones((4, 4)), np.ones((4, 4, 3)), np.zeros((4, 4, 3)))
+    >>> stage1 = np.ones((4, 4, 3))
+    >>> pilot(buffer, stage1, None, False) is stage1
+    True
+    """
+    if guide is None and not features:
+        return stage1
+    candidate = guide if guide is not None else feature_pilot(buffer, stage1)
+    return gated(candidate, stage1, buffer)
+
+
+def trust(candidate: FloatArray, buffer: SampleBuffer, *, window: int = GATE_WINDOW) -> FloatArray:
+    """(H, W, 1) share of ``candidate`` the samples allow: 1 where it is within their noise, 0 where not.
+
+    ``r`` is, over a ``window`` x ``window`` neighbourhood and the channels, the sum of
+    ``(candidate - mean)^2`` over the sum of ``v``, the variances of the pixel means: about 1
+    (plus its squared bias in standard errors) for an unbiased candidate. A ratio of sums, not a
+    mean of ratios: a pixel whose variance the samples happen to underestimate (a few samples of a
+    heavy tail) does not veto its neighbourhood. The share is 1 up to ``r = GATE_LOW`` and falls
+    linearly to 0 at ``r = GATE_HIGH``.
+
+    Examples
+    --------
+    Means of 16 samples of variance 1 around a clean 0.5: the clean image is trusted, an image
+    two standard errors off is trusted in part, one three standard errors off not at all.
+
+    >>> import numpy as np
+    >>> from awr_denoise import SampleBuffer
+    >>> from awr_denoise.guided import trust
+    >>> rng = np.random.default_rng(0)
+    >>> mean = 0.5 + 0.25 * rng.standard_normal((32, 32, 3))
+    >>> buffer = SampleBuffer.from_moments(np.full((32, 32), 16), mean, np.ones((32, 32, 3)))
+    >>> [round(float(trust(np.full((32, 32, 3), 0.5 + off), buffer).mean()), 1) for off in (0.0, 0.5, 0.75)]
+    [1.0, 0.6, 0.0]
+    """
+    x = filled_mean(buffer)
+    v = buffer.estimated_variance() / np.maximum(buffer.count, 1)[..., None]
+    with np.errstate(over="ignore"):  # a guide far beyond the means: its distance is inf, capped, share 0
+        distance = np.minimum((candidate - x) ** 2, 1e300).sum(axis=-1)
+    spread = ndimage.uniform_filter(np.minimum(distance, 1e300), size=window, mode="nearest")
+    noise = ndimage.uniform_filter(v.sum(axis=-1), size=window, mode="nearest")
+    r = np.where(noise > 0, spread / np.where(noise > 0, noise, 1.0), np.where(spread > 0, np.inf, 0.0))
+    return np.clip((GATE_HIGH - r) / (GATE_HIGH - GATE_LOW), 0.0, 1.0)[..., None]
+
+
+def gated(candidate: FloatArray, stage1: FloatArray, buffer: SampleBuffer) -> FloatArray:
+    """``candidate`` where the samples allow it (:func:`trust`), stage 1's image elsewhere."""
+    share = trust(candidate, buffer)
+    return share * candidate + (1.0 - share) * stage1

@@ -1,0 +1,124 @@
+"""Guide images for :func:`~awr_denoise.reconstruct`: a neural denoiser's view of the same samples.
+
+A guide is an (H, W, C) estimate of the clean image that the reconstruction uses only to choose
+how much to shrink each wavelet coefficient of the pixel means (:mod:`awr_denoise.guided`), so
+the result stays, coefficient by coefficient, within what the samples allow. The guides here
+need optional extras, imported when first used:
+
+``oidn``
+    Intel Open Image Denoise (extra ``oidn``, the ``pyoidn`` bindings): its ``RT`` filter on the
+    pixel means, with the buffer's albedo and normal features when it carries them.
+
+Pass the function itself as the guide and the reconstruction calls it on the buffer it denoises
+(``reconstruct(buffer, guide=guides.oidn)``), or call it and pass its image.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._typing import FloatArray
+from .buffers import SampleBuffer
+from .prepare import filled_mean
+
+__all__ = ["oidn", "oidn_available", "OIDN_HINT", "GUIDES"]
+
+OIDN_HINT = 'the OIDN guide needs pyoidn (Intel Open Image Denoise); install it with pip install "awr-denoise[oidn]"'
+"""What to install when :func:`oidn` cannot import ``pyoidn``."""
+
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def oidn_available() -> bool:
+    """Whether ``pyoidn`` and its native library load.
+
+    Examples
+    --------
+    >>> from awr_denoise.guides import oidn_available
+    >>> isinstance(oidn_available(), bool)
+    True
+    """
+    try:
+        import pyoidn  # noqa: F401 - optional extra "oidn", imported lazily
+    except Exception:  # noqa: BLE001 - a missing native library is as good as a missing package
+        return False
+    return True
+
+
+def _auxiliary(name: str, given: object, buffer: SampleBuffer, low: float, high: float) -> np.ndarray | None:
+    """An albedo or normal image for OIDN: the one given, else the buffer's feature, checked."""
+    if given is None:
+        if name not in buffer.features:
+            return None
+        given = buffer.features[name].mean
+    try:
+        image = np.asarray(given, dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{name}: expected an (H, W, 3) array of numbers ({error})") from None
+    if image.shape != (*buffer.shape, 3):
+        raise ValueError(f"{name}: shape {image.shape} does not match the buffer's {(*buffer.shape, 3)}")
+    if not np.isfinite(image).all():
+        raise ValueError(f"{name}: {int((~np.isfinite(image)).sum())} values are NaN or infinite")
+    return np.ascontiguousarray(np.clip(image, low, high), dtype=np.float32)
+
+
+def oidn(buffer: SampleBuffer, albedo: FloatArray | None = None, normal: FloatArray | None = None, *,
+         quality: str = "high") -> FloatArray:
+    """Intel Open Image Denoise's ``RT`` filter on the pixel means (HDR), as a guide.
+
+    Parameters
+    ----------
+    buffer
+        The samples; an RGB buffer (three channels). Pixels without samples take their nearest
+        neighbour's mean, negative means count as 0 (OIDN takes non-negative HDR colour).
+    albedo, normal
+        (H, W, 3) auxiliary images; by default the buffer's ``albedo`` and ``normal`` features
+        when it carries them (:mod:`awr_denoise.features`). Clipped to OIDN's ranges ([0, 1]
+        and [-1, 1]). OIDN takes a normal only with an albedo. Both are treated as noisy (OIDN
+        prefilters them), as features averaged over a few samples are.
+    quality
+        OIDN's filter quality: ``"high"`` (default), ``"balanced"`` or ``"fast"``.
+
+    Returns
+    -------
+    numpy.ndarray
+        The (H, W, 3) denoised image, float64.
+
+    Raises
+    ------
+    ImportError
+        ``pyoidn`` is not installed (extra ``oidn``); the message says what to install.
+    ValueError
+        Not three channels, a normal without an albedo, or bad auxiliary images.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise import SampleBuffer, reconstruct
+    >>> from awr_denoise import guides
+    >>> rng = np.random.default_rng(0)
+    >>> mean = 0.5 + 0.1 * rng.standard_normal((32, 32, 3))
+    >>> buffer = SampleBuffer.from_moments(np.full((32, 32), 8), mean, np.full((32, 32, 3), 0.08))
+    >>> if guides.oidn_available():  # the extra "oidn"
+    ...     guide = guides.oidn(buffer)
+    ...     out = reconstruct(buffer, guide=guide)
+    ...     assert guide.shape == out.shape == (32, 32, 3)
+    """
+    if buffer.n_channels != 3:
+        raise ValueError(f"buffer: OIDN denoises RGB images; this buffer has {buffer.n_channels} channel(s)")
+    if quality not in ("high", "balanced", "fast"):
+        raise ValueError(f"quality: {quality!r} is not one of high, balanced, fast")
+    if normal is not None and albedo is None and "albedo" not in buffer.features:
+        raise ValueError("normal: OIDN takes a normal image only with an albedo image")
+    alb = _auxiliary("albedo", albedo, buffer, 0.0, 1.0)
+    nrm = _auxiliary("normal", normal, buffer, -1.0, 1.0) if alb is not None else None
+    try:
+        import pyoidn  # optional extra "oidn", imported lazily
+    except ImportError as error:
+        raise ImportError(OIDN_HINT) from error
+    colour = np.ascontiguousarray(np.clip(filled_mean(buffer), 0.0, _FLOAT32_MAX), dtype=np.float32)
+    return np.asarray(pyoidn.denoise(colour, alb, nrm, hdr=True, quality=quality), dtype=np.float64)
+
+
+GUIDES = {"oidn": oidn}
+"""The guides by name (``awr denoise --guide NAME``)."""

@@ -1,0 +1,397 @@
+"""Guides and features in the reconstruction: the measurements behind docs/guides.md.
+
+Run from the repository root (each section updates its part of the JSON)::
+
+    .venv/bin/python benchmarks/bench_guides.py quality     # bundled tracer + Mitsuba 3 scenes, 8-32 spp
+    .venv/bin/python benchmarks/bench_guides.py samplers    # uniform vs AWR sampling, with and without OIDN
+    .venv/bin/python benchmarks/bench_guides.py synthetic   # known clean images: good and wrong guides, gate on/off
+    .venv/bin/python benchmarks/bench_guides.py ablations   # the gate and the a-trous passes on the tracer's scenes
+    .venv/bin/python benchmarks/bench_guides.py crops       # docs/img/guides_*.png
+    .venv/bin/python benchmarks/bench_guides.py tables      # print the stored results
+
+``quality`` renders every scene with uniform sampling and every feature (albedo, normal, depth)
+in disjoint sample groups (renderer seeds 0, 1, ...; nested 8, 16, 32 spp; cached under
+``--cache``) and compares, against the scene's reference: the plain mean, the default
+reconstruction, the default with the feature pilot (``features=True``), the default with the
+OIDN guide (``guide=guides.oidn``: Open Image Denoise with the albedo and normal) and OIDN alone:
+relMSE, MSE and the image mean. The bundled tracer's scenes are 128x128 with their 4096-spp
+references; the Mitsuba 3 scenes run through the ``mitsuba`` renderer (skipped with a notice when
+it is not installed), 256x256 against the 1024-spp references ``bench_reconstruct.py`` caches
+(the same ``--cache`` shares them). Results: ``benchmarks/results/guides.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, guided, guides, reconstruct
+from awr_denoise.bench import machine_info, write_json
+from awr_denoise.io.png import write_preview
+from awr_denoise.metrics import mse, relmse
+from awr_denoise.prepare import filled_mean
+from awr_denoise.renderers import create_renderer
+from awr_denoise.synthetic import SyntheticRenderer, make_scene
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_reconstruct import MITSUBA_SCENES, MITSUBA_SHAPE, TRACER_SCENES, _mitsuba_available, reference  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent
+RESULTS = ROOT / "results" / "guides.json"
+IMAGES = ROOT.parent / "docs" / "img"
+SPPS = (8, 16, 32)
+METHODS = ("plain", "default", "default + features", "default + OIDN guide", "OIDN")
+
+
+def _image(method: str, buffer: SampleBuffer) -> np.ndarray:
+    if method == "plain":
+        return filled_mean(buffer)
+    if method == "OIDN":
+        return guides.oidn(buffer)
+    options = {"default": {}, "default + features": {"features": True},
+               "default + OIDN guide": {"guide": guides.oidn}}[method]
+    return reconstruct(buffer, **options)
+
+
+# ---------------------------------------------------------------------------- buffers
+def _save(path: Path, buffer: SampleBuffer) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays = {"count": buffer.count, "mean": buffer.mean, "variance": buffer.variance}
+    for name, f in buffer.features.items():
+        arrays.update({f"{name}_count": f.count, f"{name}_mean": f.mean, f"{name}_variance": f.variance})
+    np.savez(path, **arrays)
+
+
+def _load(path: Path) -> SampleBuffer:
+    d = np.load(path)
+    features = {}
+    for name, channels in (("albedo", ("R", "G", "B")), ("normal", ("X", "Y", "Z")), ("depth", ("Z",))):
+        if f"{name}_mean" in d:
+            features[name] = SampleBuffer.from_moments(d[f"{name}_count"], d[f"{name}_mean"], d[f"{name}_variance"],
+                                                       channels=channels)
+    return SampleBuffer.from_moments(d["count"], d["mean"], d["variance"], features=features)
+
+
+def feature_buffers(renderer: str, scene: str, shape: tuple[int, int] | None, spps: tuple[int, ...], group: int,
+                    cache: Path) -> dict[int, SampleBuffer]:
+    """Group ``group``'s buffers with every feature at every spp (seed ``group``, samples added in order)."""
+    paths = {s: cache / f"guides_{renderer}_{scene}_g{group}_s{s}.npz" for s in spps}
+    if all(p.exists() for p in paths.values()):
+        return {s: _load(p) for s, p in paths.items()}
+    r = create_renderer(renderer, scene, shape=shape, seed=group, features="all")
+    shape = r.shape if shape is None else shape
+    out, buffer, done = {}, None, 0
+    for s in sorted(spps):
+        part = r(SampleRequest.uniform(shape, s - done, first_index=done))
+        buffer = part if buffer is None else buffer.merge(part)
+        done = s
+        _save(paths[s], buffer)
+        out[s] = buffer
+    getattr(r, "close", lambda: None)()
+    return out
+
+
+# ---------------------------------------------------------------------------- quality
+def _measure(image: np.ndarray, x: np.ndarray, ref: np.ndarray, seconds: float) -> dict[str, Any]:
+    ratio = image.mean(axis=(0, 1)) / x.mean(axis=(0, 1)) - 1.0
+    return {"relmse": relmse(image, ref), "mse": mse(image, ref), "mean_error": float(np.abs(ratio).max()),
+            "seconds": seconds}
+
+
+def quality(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], groups: int,
+            cache: Path) -> list[dict[str, Any]]:
+    rows = []
+    for renderer, scene, shape in scenes:
+        ref = reference(renderer, scene, shape, cache)
+        for g in range(groups):
+            for spp, buffer in feature_buffers(renderer, scene, shape, spps, g, cache).items():
+                x = filled_mean(buffer)
+                for method in METHODS:
+                    start = time.perf_counter()
+                    image = _image(method, buffer)
+                    rows.append({"renderer": renderer, "scene": scene, "spp": spp, "group": g, "method": method,
+                                 **_measure(image, x, ref, time.perf_counter() - start)})
+        print(f"{renderer} {scene}: done", flush=True)
+    return rows
+
+
+def _mean(rows: list[dict], key: str, **where: Any) -> float:
+    values = [r[key] for r in rows if all(r[k] == v for k, v in where.items())]
+    return float(np.mean(values)) if values else float("nan")
+
+
+def quality_tables(rows: list[dict]) -> None:
+    """Markdown: relMSE of every method; relMSE and MSE against the default, the plain mean and OIDN."""
+    methods = [m for m in METHODS if any(r["method"] == m for r in rows)]
+    print("\n| renderer | scene | spp | " + " | ".join(f"relMSE {m}" for m in methods) + " |")
+    print("|---|---|---|" + "---|" * len(methods))
+    scenes = list(dict.fromkeys((r["renderer"], r["scene"]) for r in rows))
+    for renderer, scene in scenes:
+        for spp in sorted({r["spp"] for r in rows if r["scene"] == scene}):
+            w = {"renderer": renderer, "scene": scene, "spp": spp}
+            print(f"| {renderer} | {scene} | {spp} | "
+                  + " | ".join(f"{_mean(rows, 'relmse', method=m, **w):.5f}" for m in methods) + " |")
+    print("\n| scene | spp | features / default (relMSE, MSE) | guide / default (relMSE, MSE) | guide / OIDN relMSE "
+          "| MSE / plain (default, features, guide, OIDN) | worst mean error % (features, guide, OIDN) |")
+    print("|---|---|---|---|---|---|---|")
+    for renderer, scene in scenes:
+        for spp in sorted({r["spp"] for r in rows if r["scene"] == scene}):
+            w = {"renderer": renderer, "scene": scene, "spp": spp}
+            rel = {m: _mean(rows, "relmse", method=m, **w) for m in methods}
+            sq = {m: _mean(rows, "mse", method=m, **w) for m in methods}
+            worst = {m: max(r["mean_error"] for r in rows if r["method"] == m and all(r[k] == v for k, v in w.items()))
+                     for m in methods}
+            f, g, o = "default + features", "default + OIDN guide", "OIDN"
+            print(f"| {scene} | {spp} | {rel[f] / rel['default']:.2f}, {sq[f] / sq['default']:.2f} | "
+                  f"{rel[g] / rel['default']:.2f}, {sq[g] / sq['default']:.2f} | {rel[g] / rel[o]:.2f} | "
+                  + ", ".join(f"{sq[m] / sq['plain']:.2f}" for m in ("default", f, g, o))
+                  + " | " + ", ".join(f"{100 * worst[m]:.2f}" for m in (f, g, o)) + " |")
+
+
+# ---------------------------------------------------------------------------- samplers
+def samplers(scenes: tuple[str, ...], spps: tuple[int, ...], seed: int) -> list[dict[str, Any]]:
+    """Equal samples, bundled tracer: uniform and AWR sampling, each reconstructed by default, with the
+    OIDN guide, and by OIDN alone (does AWR's sampler help a neural prior?)."""
+    from awr_denoise import tracer  # the bundled tracer's own cached references
+    rows = []
+    for scene in scenes:
+        ref = np.asarray(tracer.load_reference(scene), dtype=np.float64)
+        for kind, make in (("uniform", UniformSampler), ("awr", AdaptiveSampler)):
+            renderer = create_renderer("tracer", scene, seed=seed, features="all")
+            sampler = make(ref.shape[:2], seed=seed)
+            for spp in sorted(spps):
+                buffer = sampler.run(renderer, spp)
+                for method in ("default", "default + OIDN guide", "OIDN"):
+                    image = _image(method, buffer)
+                    rows.append({"scene": scene, "sampler": kind, "spp": spp, "method": method,
+                                 "relmse": relmse(image, ref), "mse": mse(image, ref)})
+            getattr(renderer, "close", lambda: None)()
+        print(f"{scene}: done", flush=True)
+    return rows
+
+
+def sampler_table(rows: list[dict]) -> None:
+    methods = ("default", "default + OIDN guide", "OIDN")
+    print("\n| scene | spp | " + " | ".join(f"uniform / awr relMSE, {m}" for m in methods)
+          + " | uniform + OIDN / awr + guide (relMSE, MSE) |")
+    print("|---|---|" + "---|" * (len(methods) + 1))
+    for scene in dict.fromkeys(r["scene"] for r in rows):
+        for spp in sorted({r["spp"] for r in rows}):
+            v = {(r["sampler"], r["method"]): r for r in rows if r["scene"] == scene and r["spp"] == spp}
+            cells = [f"{v['uniform', m]['relmse'] / v['awr', m]['relmse']:.2f}" for m in methods]
+            a, b = v["uniform", "OIDN"], v["awr", "default + OIDN guide"]
+            print(f"| {scene} | {spp} | " + " | ".join(cells)
+                  + f" | {a['relmse'] / b['relmse']:.2f}, {a['mse'] / b['mse']:.2f} |")
+
+
+# ---------------------------------------------------------------------------- synthetic
+class _Passes:
+    """The feature pilot with ``iterations`` a-trous passes, for one measurement."""
+
+    def __init__(self, iterations: int = guided.ATROUS_ITERATIONS) -> None:
+        self.iterations = iterations
+
+    def __enter__(self) -> None:
+        self.saved = pilot = guided.feature_pilot
+        guided.feature_pilot = lambda buffer, image: pilot(buffer, image, iterations=self.iterations)
+
+    def __exit__(self, *exc: object) -> None:
+        guided.feature_pilot = self.saved
+
+
+def _ungated_share(candidate: np.ndarray, buffer: SampleBuffer) -> np.ndarray:
+    """:func:`awr_denoise.guided.trust` replaced: every pilot fully trusted (no gate)."""
+    return np.ones(candidate.shape[:2] + (1,))
+
+
+def _per_pixel_share(candidate: np.ndarray, buffer: SampleBuffer) -> np.ndarray:
+    """An earlier form of the gate: the mean of the per-pixel ratios ``(candidate - mean)^2 / v``
+    over the neighbourhood, instead of :func:`awr_denoise.guided.trust`'s ratio of the sums."""
+    from scipy import ndimage
+    x = filled_mean(buffer)
+    v = buffer.estimated_variance() / np.maximum(buffer.count, 1)[..., None]
+    z = np.where(v > 0, (candidate - x) ** 2 / np.where(v > 0, v, 1.0), np.where(candidate == x, 0.0, np.inf))
+    r = ndimage.uniform_filter(np.minimum(z, 1e300).mean(axis=-1), size=guided.GATE_WINDOW, mode="nearest")
+    return np.clip((guided.GATE_HIGH - r) / (guided.GATE_HIGH - guided.GATE_LOW), 0.0, 1.0)[..., None]
+
+
+def synthetic(names: tuple[str, ...], spps: tuple[int, ...], seeds: int) -> list[dict[str, Any]]:
+    """Known clean images (64x64): the plain mean, the default, and guides that are right (the clean
+    image) or wrong (edges moved 12 pixels, a flat image, noise), with the gate and without."""
+    rows = []
+    for name in names:
+        scene = make_scene(name, (64, 64))
+        ref = scene.reference()
+        wrong = {"clean": ref, "shifted": np.roll(ref, 12, axis=1),
+                 "flat": np.broadcast_to(ref.mean(axis=(0, 1)), ref.shape)}
+        for seed in range(seeds):
+            wrong["noise"] = np.random.default_rng(seed).random(ref.shape) * ref.max()
+            for spp in spps:
+                buffer = SyntheticRenderer(scene, seed=seed)(SampleRequest.uniform(scene.shape, spp))
+                images = {"plain": buffer.mean, "default": reconstruct(buffer)}
+                for kind, guide in wrong.items():
+                    images[kind] = reconstruct(buffer, guide=guide)
+                    saved = guided.trust
+                    guided.trust = _ungated_share  # what the guide does without the gate
+                    try:
+                        images[f"{kind}, no gate"] = reconstruct(buffer, guide=guide)
+                    finally:
+                        guided.trust = saved
+                for method, image in images.items():
+                    rows.append({"scene": name, "spp": spp, "seed": seed, "method": method,
+                                 "relmse": relmse(image, ref), "mse": mse(image, ref)})
+        print(f"{name}: done", flush=True)
+    return rows
+
+
+def synthetic_table(rows: list[dict]) -> None:
+    methods = [m for m in dict.fromkeys(r["method"] for r in rows) if m != "plain"]
+    print("\n| scene | spp | " + " | ".join(f"{m} / plain" for m in methods) + " |")
+    print("|---|---|" + "---|" * len(methods))
+    for scene in dict.fromkeys(r["scene"] for r in rows):
+        for spp in sorted({r["spp"] for r in rows if r["scene"] == scene}):
+            w = {"scene": scene, "spp": spp}
+            rel = {m: _mean(rows, "relmse", method=m, **w) for m in ["plain", *methods]}
+            sq = {m: _mean(rows, "mse", method=m, **w) for m in ["plain", *methods]}
+            print(f"| {scene} | {spp} | " + " | ".join(f"{rel[m] / rel['plain']:.2f}, {sq[m] / sq['plain']:.2f}"
+                                                        for m in methods) + " |")
+
+
+# ---------------------------------------------------------------------------- ablations
+def ablations(scenes: tuple[str, ...], spps: tuple[int, ...], cache: Path) -> list[dict[str, Any]]:
+    """Bundled tracer, group 0: the OIDN guide with the gate, without it and with its per-pixel form;
+    the feature pilot with 3 and 5 a-trous passes (and its time)."""
+    from awr_denoise import tracer
+    variants = {"OIDN guide": ({"guide": guides.oidn}, {}), "OIDN guide, no gate": ({"guide": guides.oidn}, None),
+                "OIDN guide, per-pixel gate": ({"guide": guides.oidn}, "per-pixel"),
+                "features, 3 passes": ({"features": True}, {"iterations": 3}),
+                "features, 5 passes": ({"features": True}, {"iterations": 5})}
+    rows = []
+    for scene in scenes:
+        ref = np.asarray(tracer.load_reference(scene), dtype=np.float64)
+        for spp, buffer in feature_buffers("tracer", scene, None, SPPS, 0, cache).items():
+            if spp not in spps:
+                continue
+            base = reconstruct(buffer)
+            for name, (options, setting) in variants.items():
+                saved = guided.trust
+                if setting is None or setting == "per-pixel":
+                    guided.trust = _ungated_share if setting is None else _per_pixel_share
+                try:
+                    with _Passes(**(setting if isinstance(setting, dict) else {})):
+                        start = time.perf_counter()
+                        image = reconstruct(buffer, **options)
+                        seconds = time.perf_counter() - start
+                finally:
+                    guided.trust = saved
+                rows.append({"scene": scene, "spp": spp, "variant": name, "seconds": seconds,
+                             "relmse_ratio": relmse(image, ref) / relmse(base, ref),
+                             "mse_ratio": mse(image, ref) / mse(base, ref)})
+        print(f"{scene}: done", flush=True)
+    return rows
+
+
+def ablation_table(rows: list[dict]) -> None:
+    variants = list(dict.fromkeys(r["variant"] for r in rows))
+    print("\n| scene | spp | " + " | ".join(f"{v} / default (relMSE, MSE)" for v in variants) + " |")
+    print("|---|---|" + "---|" * len(variants))
+    for scene in dict.fromkeys(r["scene"] for r in rows):
+        for spp in sorted({r["spp"] for r in rows}):
+            v = {r["variant"]: r for r in rows if r["scene"] == scene and r["spp"] == spp}
+            print(f"| {scene} | {spp} | " + " | ".join(f"{v[k]['relmse_ratio']:.3f}, {v[k]['mse_ratio']:.3f}"
+                                                        for k in variants) + " |")
+    for k in variants:
+        print(f"{k}: median {np.median([r['seconds'] for r in rows if r['variant'] == k]):.2f} s")
+
+
+# ---------------------------------------------------------------------------- crops
+CROPS = {("tracer", "cornell_gi"): (40, 40), ("tracer", "chess_dof"): (40, 40),
+         ("mitsuba", "glossy_glass"): (96, 96), ("mitsuba", "dof_checker"): (96, 96)}
+CROP = 48
+ZOOM = 3
+
+
+def crops(spp: int, cache: Path) -> list[str]:
+    """One PNG per scene of :data:`CROPS`: reference, mean, default, + features, + OIDN guide, OIDN."""
+    written = []
+    for (renderer, scene), (top, left) in CROPS.items():
+        if renderer == "mitsuba" and not _mitsuba_available():
+            continue
+        shape = MITSUBA_SHAPE if renderer == "mitsuba" else None
+        ref = reference(renderer, scene, shape, cache)
+        buffer = feature_buffers(renderer, scene, shape, SPPS, 0, cache)[spp]
+        tiles = [ref] + [_image(m, buffer) for m in METHODS]
+        window = (slice(top, top + CROP), slice(left, left + CROP))
+        row = np.concatenate([np.pad(t[window], ((0, 0), (0, 2), (0, 0)), constant_values=1.0) for t in tiles], 1)
+        row = np.repeat(np.repeat(row, ZOOM, axis=0), ZOOM, axis=1)
+        path = IMAGES / f"guides_{renderer}_{scene}_{spp}spp.png"
+        write_preview(path, row, overwrite=True)
+        written.append(str(path.relative_to(ROOT.parent)))
+        print(f"wrote {path.relative_to(ROOT.parent)}", flush=True)
+    return written
+
+
+# ---------------------------------------------------------------------------- main
+def _update(section: str, value: Any, command: str) -> None:
+    data = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
+    data[section] = {"command": command, "machine": machine_info("pyoidn"), "rows": value}
+    write_json(RESULTS, data)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("section", choices=("quality", "samplers", "synthetic", "ablations", "crops", "tables"))
+    parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
+    parser.add_argument("--spps", nargs="+", type=int, default=list(SPPS))
+    parser.add_argument("--groups", type=int, default=2)
+    parser.add_argument("--crop-spp", type=int, default=8, choices=SPPS, help="crops: spp shown (default 8)")
+    parser.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "awr-denoise" / "reconstruct",
+                        help="where rendered buffers and Mitsuba references are kept (default %(default)s)")
+    args = parser.parse_args(argv)
+    if args.section != "tables" and not guides.oidn_available():
+        print(f"bench_guides: {guides.OIDN_HINT}", file=sys.stderr)
+        return 2
+    given = list(argv if argv is not None else sys.argv[1:])
+    # The cache folder is this machine's business: the recorded command names it by its option only.
+    shown = ["DIR" if i > 0 and given[i - 1] == "--cache" else a for i, a in enumerate(given)]
+    command = "benchmarks/bench_guides.py " + " ".join(shown)
+    if args.section == "quality":
+        names = args.scenes or list(TRACER_SCENES) + list(MITSUBA_SCENES)
+        scenes: list[tuple[str, str, tuple[int, int] | None]] = [("tracer", s, None) for s in names if s in TRACER_SCENES]
+        if any(s in MITSUBA_SCENES for s in names) and _mitsuba_available():
+            scenes += [("mitsuba", s, MITSUBA_SHAPE) for s in names if s in MITSUBA_SCENES]
+        rows = quality(scenes, tuple(sorted(args.spps)), args.groups, args.cache)
+        _update("quality", rows, command)
+        quality_tables(rows)
+    elif args.section == "samplers":
+        rows = samplers(tuple(args.scenes or TRACER_SCENES), tuple(s for s in args.spps if s >= 16) or (16, 32), 0)
+        _update("samplers", rows, command)
+        sampler_table(rows)
+    elif args.section == "synthetic":
+        rows = synthetic(("gradient", "edges", "hdr_source"), (4, 16, 64, 256), 4)
+        _update("synthetic", rows, command)
+        synthetic_table(rows)
+    elif args.section == "ablations":
+        rows = ablations(tuple(args.scenes or TRACER_SCENES), tuple(s for s in args.spps if s in (8, 32)), args.cache)
+        _update("ablations", rows, command)
+        ablation_table(rows)
+    elif args.section == "crops":
+        _update("crops", crops(args.crop_spp, args.cache), command)
+    else:  # print the tables of the stored results
+        data = json.loads(RESULTS.read_text())
+        for section, show in (("quality", quality_tables), ("samplers", sampler_table),
+                              ("synthetic", synthetic_table), ("ablations", ablation_table)):
+            if section in data:
+                print(f"\n## {section} ({data[section]['command']})")
+                show(data[section]["rows"])
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
