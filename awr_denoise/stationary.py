@@ -42,8 +42,8 @@ DTYPES = ("float64", "float32")
 """Precisions of the FFTs: ``"float64"`` (the reference) and ``"float32"``."""
 
 BACKENDS = ("ducc0", "scipy")
-"""FFT libraries: ``"ducc0"`` (default: about twice as fast as scipy's inverse real FFT on 2-D
-planes, docs/performance.md) and ``"scipy"`` (``scipy.fft``, the reference the tests compare with)."""
+"""FFT libraries: ``"ducc0"`` (the default, docs/performance.md) and ``"scipy"`` (``scipy.fft``, the
+reference the tests compare with)."""
 
 _CACHE_BYTES = 64 * 2**20  # 2-D transfer functions kept per transform (all of them up to about 512x512)
 
