@@ -73,33 +73,36 @@ def allocate(density: FloatArray, current: CountArray, budget: int, *,
     out = np.zeros(shape, np.int64)
     if budget == 0:
         return out
-    cap = np.full(shape, np.inf) if capacity is None else np.maximum(capacity, 0).astype(np.float64)
+    # Without caps, the caps are one value broadcast (no whole-image arrays of infinities).
+    cap = (np.broadcast_to(np.inf, shape) if capacity is None
+           else np.maximum(capacity, 0).astype(np.float64))
     # Integer capacities, summed exactly (a float64 sum rounds above 2**53).
-    cap_int = (np.full(shape, MAX_BUDGET, np.int64) if capacity is None
+    cap_int = (np.broadcast_to(np.int64(MAX_BUDGET), shape) if capacity is None
                else np.minimum(np.maximum(np.asarray(capacity), 0), MAX_BUDGET).astype(np.int64))
-    total_cap = cap.sum() if capacity is None else int(cap_int.sum())
-    if budget > total_cap:
-        raise ValueError(f"budget: {budget} samples exceed the {int(total_cap)} that spp_max still allows")
+    if capacity is not None and budget > int(cap_int.sum()):
+        raise ValueError(f"budget: {budget} samples exceed the {int(cap_int.sum())} that spp_max still allows")
     a = np.nan_to_num(np.asarray(density, dtype=np.float64), nan=0.0, posinf=0.0)
     a = np.maximum(a, 0.0)
-    open_ = cap > 0
-    if not (a[open_] > 0).any():
+    reachable = a if capacity is None else a[cap > 0]  # the open pixels' densities
+    if not (reachable > 0).any():
         a = np.ones(shape)  # nothing to rank on (a deterministic image): spread uniformly
     else:
         # A floor so no open pixel is unreachable: otherwise a budget larger than what the
         # positive-density pixels can absorb would have nowhere to go.
-        a = np.maximum(a, 1e-9 * a[open_].max())
+        a = np.maximum(a, 1e-9 * reachable.max())
     n = current.astype(np.float64)
-    alpha = _water_level(a, n, cap, budget)
-    m = np.minimum(np.maximum(alpha * a - n, 0.0), cap)
+    alpha = _water_level(a, n, None if capacity is None else cap, budget)
+    m = np.maximum(alpha * a - n, 0.0)
+    if capacity is not None:
+        np.minimum(m, cap, out=m)
     out[...] = _round_to_budget(m, cap_int, budget, rng or np.random.default_rng(0))
     return out
 
 
-def _water_level(a: FloatArray, n: FloatArray, cap: FloatArray, budget: int) -> float:
-    """``alpha`` with ``sum(clip(alpha * a - n, 0, cap))`` within 0.1% of ``budget`` (from above)."""
+def _water_level(a: FloatArray, n: FloatArray, cap: FloatArray | None, budget: int) -> float:
+    """``alpha`` with ``sum(clip(alpha * a - n, 0, cap))`` within 0.1% of ``budget`` (from above); no cap: ``None``."""
     shape = a.shape
-    capped = bool(np.isfinite(cap).any())
+    capped = cap is not None and bool(np.isfinite(cap).any())
     work = np.empty(shape)
 
     def spent(alpha: float) -> float:
@@ -151,8 +154,8 @@ def _round_to_budget(m: FloatArray, cap_int: CountArray, budget: int, rng: np.ra
     jitter = rng.random(shape).ravel() * 1e-6  # tie-break equal remainders without bias toward low indices
     # Integer arithmetic from here on: the search stops within 0.1% of the budget and float64
     # cannot hold every count above 2**53, so the residual may exceed the number of pixels.
-    flat_base = np.minimum(np.minimum(floor_m, float(MAX_BUDGET)).ravel().astype(np.int64), cap_int.ravel())
-    flat_cap = cap_int.ravel()
+    flat_cap = cap_int.reshape(-1)  # a view, also of a broadcast value
+    flat_base = np.minimum(np.minimum(floor_m, float(MAX_BUDGET)).ravel().astype(np.int64), flat_cap)
     left = budget - int(flat_base.sum())
     while left > 0:
         room = flat_cap - flat_base

@@ -40,33 +40,42 @@ On the scenes of docs/reconstruction.md the stages lose up to 10% of a channel's
 of a million times the image's level loses 0.7 of one."""
 
 
-# Paeth's 19 exchanges that leave the median of 9 values in the middle slot.
-_MEDIAN9 = ((1, 2), (4, 5), (7, 8), (0, 1), (3, 4), (6, 7), (1, 2), (4, 5), (7, 8), (0, 3), (5, 8), (4, 7),
-            (3, 6), (1, 4), (2, 5), (4, 7), (4, 2), (6, 4), (4, 2))
+def _median3(a: FloatArray, b: FloatArray, c: FloatArray) -> FloatArray:
+    """Elementwise median of three arrays: ``max(min(a, b), min(max(a, b), c))``."""
+    return np.maximum(np.minimum(a, b), np.minimum(np.maximum(a, b), c))
 
 
 def median3x3(a: FloatArray) -> FloatArray:
     """Median of every pixel's 3x3 neighbourhood (edges repeated), per channel.
 
     ``scipy.ndimage.median_filter(a, size=(3, 3, ...), mode="nearest")``, which the tests compare
-    it with, by a sorting network on shifted copies: about 3x faster on images.
+    it with, by sorted columns: each vertical triple is sorted once (shared by the three windows
+    that hold it), and the median of nine values is exactly the median of the largest column
+    minimum, the median of the column medians and the smallest column maximum (Paeth, Graphics
+    Gems, "Median finding on a 3x3 grid"). About 15 elementwise passes instead of the 19
+    exchanges of a sorting network on nine copies; the result is the same, bit for bit.
 
     Examples
     --------
     >>> import numpy as np
     >>> from awr_denoise.finishing import median3x3
-    >>> median3x3(np.array([[0.0, 0.0, 0.0], [0.0, 9.0, 0.0], [0.0, 0.0, 0.0]]))[1, 1]   # a lone spike
+    >>> float(median3x3(np.array([[0.0, 0.0, 0.0], [0.0, 9.0, 0.0], [0.0, 0.0, 0.0]]))[1, 1])   # a lone spike
     0.0
     """
     pad = ((1, 1), (1, 1)) + ((0, 0),) * (a.ndim - 2)
     p = np.pad(a, pad, mode="edge")
     h, w = a.shape[:2]
-    v = [p[i:i + h, j:j + w].copy() for i in range(3) for j in range(3)]
-    for i, j in _MEDIAN9:
-        low = np.minimum(v[i], v[j])
-        np.maximum(v[i], v[j], out=v[j])
-        v[i] = low
-    return v[4]
+    top, middle, bottom = p[:h], p[1:h + 1], p[2:h + 2]
+    low, high = np.minimum(top, middle), np.maximum(top, middle)
+    column_min = np.minimum(low, bottom)
+    np.maximum(low, bottom, out=low)                      # low is now the larger of (low, bottom)
+    column_mid = np.minimum(high, low)
+    column_max = np.maximum(high, low, out=high)
+    left, centre, right = slice(0, w), slice(1, w + 1), slice(2, w + 2)
+    largest_min = np.maximum(np.maximum(column_min[:, left], column_min[:, centre]), column_min[:, right])
+    smallest_max = np.minimum(np.minimum(column_max[:, left], column_max[:, centre]), column_max[:, right])
+    mid_of_mids = _median3(column_mid[:, left], column_mid[:, centre], column_mid[:, right])
+    return _median3(largest_min, mid_of_mids, smallest_max)
 
 
 def pooled_standard_error(variance: FloatArray) -> FloatArray:
@@ -106,16 +115,36 @@ def pooled_clamp(image: FloatArray, mean: FloatArray, variance: FloatArray, z: f
     >>> float(out[0, 0, 0]), float(out[1, 1, 0]), int(moved.sum())
     (1.25, 1.1, 1)
     """
-    reach = z * pooled_standard_error(variance)
+    s = np.sqrt(variance)
+    reach = z * s
+    value = image if weights is None else image @ weights
+    low, high = mean - reach, mean + reach
+    # Pooling only widens the interval (max(s, median) >= s): a value inside its own interval
+    # stays, so the 3x3 medians are needed only where it lies outside, a few per cent of pixels.
+    outside = np.nonzero((value < low) | (value > high))
+    if outside[0].size:
+        reach_out = z * np.maximum(s[outside], _median3x3_at(s, outside))
+        low[outside] = mean[outside] - reach_out
+        high[outside] = mean[outside] + reach_out
     if weights is None:
-        out = np.clip(image, mean - reach, mean + reach)
+        out = image.copy()
+        out[outside] = np.clip(image[outside], low[outside], high[outside])
         return out, out != image
-    lum = image @ weights
-    target = np.clip(lum, mean - reach, mean + reach)
+    target = value.copy()
+    target[outside] = np.clip(value[outside], low[outside], high[outside])
     with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.where(lum != 0, target / np.where(lum != 0, lum, 1.0), 1.0)
+        ratio = np.where(value != 0, target / np.where(value != 0, value, 1.0), 1.0)
     moved = np.broadcast_to((ratio != 1.0)[..., None], image.shape)
     return image * ratio[..., None], moved
+
+
+def _median3x3_at(a: FloatArray, where: tuple) -> FloatArray:
+    """:func:`median3x3` of ``a`` at the indices ``where`` only (``np.nonzero``'s form)."""
+    h, w = a.shape[:2]
+    rows, cols, rest = where[0], where[1], where[2:]
+    values = np.stack([a[(np.clip(rows + i, 0, h - 1), np.clip(cols + j, 0, w - 1)) + rest]
+                       for i in (-1, 0, 1) for j in (-1, 0, 1)])
+    return np.partition(values, 4, axis=0)[4]
 
 
 def clip_negative(image: FloatArray, mean: FloatArray) -> tuple[FloatArray, FloatArray]:

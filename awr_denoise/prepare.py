@@ -48,9 +48,14 @@ def filled_mean(buffer: SampleBuffer) -> FloatArray:
     >>> filled_mean(buffer)[..., 0]
     array([[2., 2.]])
     """
+    return _filled(buffer, copy=True)
+
+
+def _filled(buffer: SampleBuffer, *, copy: bool) -> FloatArray:
+    """:func:`filled_mean`; without ``copy`` the buffer's own means when every pixel has samples."""
     empty = buffer.count == 0
     if not empty.any():
-        return np.array(buffer.mean)
+        return np.array(buffer.mean) if copy else buffer.mean
     if empty.all():
         raise ValueError("buffer: no pixel has any sample")
     _, (rows, cols) = ndimage.distance_transform_edt(empty, return_indices=True)
@@ -171,7 +176,7 @@ def prepare(buffer: SampleBuffer, domain: str | Domain = "log", *, luminance: bo
     _checks.flag("luminance", luminance)
     n = np.maximum(buffer.count, 1).astype(np.float64)
     if luminance:
-        mean = filled_mean(buffer) @ luminance_weights(buffer.channels)
+        mean = _filled(buffer, copy=False) @ luminance_weights(buffer.channels)  # a new array: no copy needed
         sample_variance = buffer.luminance_variance()
     else:
         mean = filled_mean(buffer)

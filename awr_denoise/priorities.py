@@ -223,4 +223,6 @@ def sampling_density(
     prio = coefficient_priorities(buffer, domain=domain, operators=ops, plane=_normalised(plane)[0])
     level = pixel_levels(prio, ops)
     with np.errstate(under="ignore"):  # a large level_weight leaves coarse levels nothing
-        return np.sqrt(s2_pooled) * 2.0 ** (-level_weight * level)
+        # One power per level, looked up per pixel: the same values as the power of every pixel.
+        factor = 2.0 ** (-level_weight * np.arange(ops.levels + 1))
+        return np.sqrt(s2_pooled) * factor[level]

@@ -27,6 +27,7 @@ from __future__ import annotations
 from functools import lru_cache
 from typing import NamedTuple
 
+import ducc0
 import numpy as np
 import pywt
 from scipy import fft as sfft
@@ -35,10 +36,14 @@ from . import _checks
 from ._typing import FloatArray, Shape2D
 from .wavelets import DEFAULT_WAVELET, WAVELET_NAMES, default_levels, max_levels
 
-__all__ = ["StationaryTransform", "stationary_transform", "DTYPES"]
+__all__ = ["StationaryTransform", "stationary_transform", "DTYPES", "BACKENDS"]
 
 DTYPES = ("float64", "float32")
 """Precisions of the FFTs: ``"float64"`` (the reference) and ``"float32"``."""
+
+BACKENDS = ("ducc0", "scipy")
+"""FFT libraries: ``"ducc0"`` (the default, docs/performance.md) and ``"scipy"`` (``scipy.fft``, the
+reference the tests compare with)."""
 
 _CACHE_BYTES = 64 * 2**20  # 2-D transfer functions kept per transform (all of them up to about 512x512)
 
@@ -109,7 +114,9 @@ class StationaryTransform:
         ``"float64"`` or ``"float32"``: the precision of the FFTs (inputs are converted, and
         the public methods return float64).
     workers
-        Threads of each FFT (``scipy.fft``'s ``workers``).
+        Threads of each FFT.
+    backend
+        FFT library, one of :data:`BACKENDS`; the results agree to rounding.
 
     Examples
     --------
@@ -144,7 +151,7 @@ class StationaryTransform:
     """
 
     def __init__(self, shape: Shape2D, *, wavelet: str = DEFAULT_WAVELET, levels: int | None = None,
-                 dtype: str = "float64", workers: int = 1) -> None:
+                 dtype: str = "float64", workers: int = 1, backend: str = "ducc0") -> None:
         h, w = _checks.shape2d("shape", shape)
         if _checks.name("wavelet", wavelet) not in WAVELET_NAMES:
             raise ValueError(f"wavelet: {wavelet!r} is not a discrete wavelet PyWavelets knows")
@@ -155,6 +162,7 @@ class StationaryTransform:
         self.levels: int = int(lv)  # type: ignore[arg-type]
         self.dtype = np.dtype(_checks.name("dtype", dtype, DTYPES))
         self.workers = _checks.whole("workers", workers, minimum=1, maximum=1024)
+        self.backend = _checks.name("backend", backend, BACKENDS)
         self._complex = np.complex64 if self.dtype == np.float32 else np.complex128
         self._rows = _axis(h, self.levels, self.wavelet, False)
         self._cols = _axis(w, self.levels, self.wavelet, True)
@@ -167,7 +175,7 @@ class StationaryTransform:
 
     def __repr__(self) -> str:
         return (f"StationaryTransform({self.shape}, wavelet={self.wavelet!r}, levels={self.levels}, "
-                f"dtype={self.dtype.name!r})")
+                f"dtype={self.dtype.name!r}, backend={self.backend!r})")
 
     # -- building blocks on (..., H, W) planes: what the Wiener stage composes -------------------
     def _outer(self, which: str, band: int) -> np.ndarray:
@@ -177,7 +185,8 @@ class StationaryTransform:
             return cached
         r, c, j = self.bands[band]
         rows, cols = getattr(self._rows, which), getattr(self._cols, which)
-        out = (rows[r][j][:, None] * cols[c][j][None, :]).astype(self._complex)
+        # Each axis' factor rounded to the FFTs' precision first: one product in that precision.
+        out = np.multiply.outer(rows[r][j].astype(self._complex), cols[c][j].astype(self._complex))
         if self._cache_left >= out.nbytes:  # small images keep every product; large ones rebuild
             self._cache[key] = out
             self._cache_left -= out.nbytes
@@ -206,11 +215,27 @@ class StationaryTransform:
 
     def spectrum(self, planes: FloatArray) -> np.ndarray:
         """``rfft2`` of (..., H, W) planes in the transform's precision."""
-        return sfft.rfft2(np.asarray(planes, dtype=self.dtype), workers=self.workers)
+        a = np.asarray(planes, dtype=self.dtype)
+        if self.backend == "scipy":
+            return sfft.rfft2(a, workers=self.workers)
+        out = np.empty(a.shape[:-1] + (a.shape[-1] // 2 + 1,), self._complex)
+        # One plane per call: ducc0 vectorises across the transforms of a call, so a batch's
+        # rounding would depend on its size; plane by plane, a channel's result is the same
+        # whether it runs alone, with others or on another thread.
+        for index in np.ndindex(a.shape[:-2]):
+            ducc0.fft.r2c(a[index], axes=(0, 1), out=out[index], nthreads=self.workers)
+        return out
 
     def planes(self, spectrum: np.ndarray, *, overwrite: bool = False) -> FloatArray:
         """Inverse of :meth:`spectrum` (planes in the transform's precision); ``overwrite`` may reuse ``spectrum``."""
-        return sfft.irfft2(spectrum, s=self.shape, workers=self.workers, overwrite_x=overwrite)
+        if self.backend == "scipy":
+            return sfft.irfft2(spectrum, s=self.shape, workers=self.workers, overwrite_x=overwrite)
+        out = np.empty(spectrum.shape[:-2] + self.shape, self.dtype)
+        for index in np.ndindex(spectrum.shape[:-2]):  # plane by plane, as in spectrum()
+            # forward=False, inorm=2: the inverse of the forward transform (divided by H * W).
+            ducc0.fft.c2r(spectrum[index], axes=(0, 1), lastsize=self.shape[1], forward=False, inorm=2,
+                          out=out[index], nthreads=self.workers, allow_overwriting_input=overwrite)
+        return out
 
     # -- the public transform on (H, W) or (H, W, C) images ------------------------------------
     def _channels_first(self, image: FloatArray, param: str) -> np.ndarray:
@@ -261,7 +286,7 @@ class StationaryTransform:
 
 @lru_cache(maxsize=16)
 def stationary_transform(shape: Shape2D, wavelet: str = DEFAULT_WAVELET, levels: int | None = None,
-                         dtype: str = "float64", workers: int = 1) -> StationaryTransform:
+                         dtype: str = "float64", workers: int = 1, backend: str = "ducc0") -> StationaryTransform:
     """A cached :class:`StationaryTransform` (its filter banks are built once per setting).
 
     Examples
@@ -270,4 +295,4 @@ def stationary_transform(shape: Shape2D, wavelet: str = DEFAULT_WAVELET, levels:
     >>> stationary_transform((64, 64), levels=3) is stationary_transform((64, 64), levels=3)
     True
     """
-    return StationaryTransform(shape, wavelet=wavelet, levels=levels, dtype=dtype, workers=workers)
+    return StationaryTransform(shape, wavelet=wavelet, levels=levels, dtype=dtype, workers=workers, backend=backend)

@@ -96,12 +96,15 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
     def pooled(a: FloatArray) -> FloatArray:
         return ndimage.uniform_filter(a, size=size, mode="nearest")
 
-    def share(weight: FloatArray | float) -> FloatArray:
-        num, den = pooled(gain * weight), pooled(change * change * weight)
+    squared = change * change
+
+    def share(num: FloatArray, den: FloatArray) -> FloatArray:
+        num, den = pooled(num), pooled(den)
         with np.errstate(divide="ignore", invalid="ignore"):
             lam = np.where(den > 0, num / den, 1.0)
         return np.clip(np.nan_to_num(lam, nan=1.0, posinf=1.0), 0.0, 1.0)
 
     relative = 1.0 / (np.abs(o) + k) ** 2
-    lam = np.minimum(share(1.0), share(relative))
+    # The squared-error criterion's weights are 1: its sums need no product.
+    lam = np.minimum(share(gain, squared), share(gain * relative, squared * relative))
     return x + lam * change, lam

@@ -32,16 +32,20 @@ from .stationary import StationaryTransform
 __all__ = ["WienerResult", "wiener_filter", "relative_wiener", "stage_weights"]
 
 
-def _first(a: FloatArray) -> np.ndarray:
-    """(H, W) or (H, W, C) to (1, H, W) or (C, H, W) planes (a view where possible)."""
-    a = np.asarray(a, dtype=np.float64)
-    return a[None] if a.ndim == 2 else np.moveaxis(a, -1, 0)
+def _planes(a: FloatArray, dtype: np.dtype, *, copy: bool = False) -> np.ndarray:
+    """(H, W) or (..., H, W, C) to contiguous (1, H, W) or (..., C, H, W) planes of ``dtype``.
+
+    ``copy``: always a new array (the caller divides it in place), never a view of ``a``.
+    """
+    a = np.asarray(a)
+    a = a[None] if a.ndim == 2 else np.moveaxis(a, -1, -3)
+    return np.array(a, dtype=dtype, order="C") if copy else np.ascontiguousarray(a, dtype=dtype)
 
 
 def _last(a: np.ndarray, ndim: int) -> FloatArray:
     """Back to the caller's (H, W) or (..., H, W, C) layout, float64."""
-    a = a.astype(np.float64, copy=False)
-    return a[..., 0, :, :] if ndim == 2 else np.moveaxis(a, -3, -1)
+    a = a[..., 0, :, :] if ndim == 2 else np.moveaxis(a, -3, -1)
+    return np.ascontiguousarray(a, dtype=np.float64)
 
 
 def _times(spectrum: np.ndarray, transfer: np.ndarray) -> np.ndarray:
@@ -123,44 +127,59 @@ def wiener_filter(transform: StationaryTransform, x: FloatArray, variance: Float
     True
     """
     ndim = np.ndim(x)
-    xs, vs, ps = _first(x), _first(variance), _first(pilot)
-    if vs.shape != ps.shape or vs.shape[1:] != xs.shape[1:] or vs.shape[0] not in (1, xs.shape[0]):
+    if np.shape(variance) != np.shape(pilot) or np.shape(variance)[:2] != np.shape(x)[:2] or (
+            np.ndim(variance) == 3 and np.shape(variance)[2] != np.shape(x)[2]) or np.ndim(variance) > np.ndim(x):
         raise ValueError(f"variance, pilot: shapes {np.shape(variance)} and {np.shape(pilot)} do not fit x's "
                          f"{np.shape(x)} (same shape, or one (H, W) plane each)")
-    t = transform
+    dtype = transform.dtype
+    out, out_e, diagonal = _filter(transform, _planes(x, dtype), _planes(variance, dtype), _planes(pilot, dtype),
+                                   None if extra is None else _planes(extra, dtype), leverage)
+    return WienerResult(_last(out, ndim), None if out_e is None else _last(out_e, 3),
+                        None if diagonal is None else _last(diagonal, ndim if np.ndim(variance) == 3 else 2))
+
+
+def _filter(t: StationaryTransform, xs: np.ndarray, vs: np.ndarray, ps: np.ndarray, es: np.ndarray | None,
+            leverage: bool) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """:func:`wiener_filter` on (C, H, W) planes in the transform's precision (``vs``, ``ps``: C or 1 planes).
+
+    Every band costs three inverse FFTs (pilot, noise and image coefficients) and one forward
+    FFT (the scaled coefficients), one more forward FFT with ``leverage``; the elementwise work
+    runs in place in buffers reused from band to band.
+    """
     spec_x, spec_p, spec_v = t.spectrum(xs), t.spectrum(ps), t.spectrum(vs)
-    spec_e = None if extra is None else t.spectrum(np.moveaxis(np.asarray(extra, np.float64), -1, -3))
+    spec_e = None if es is None else t.spectrum(es)
     keep = t.analysis(0) * t.synthesis(0)
     total = spec_x * keep
     total_e = None if spec_e is None else spec_e * keep
     # The scale band's factor is 1: its share of the diagonal is h_0's sum, a constant.
     total_d = None if not leverage else np.zeros_like(spec_v) + t.spectrum(np.ones(t.shape)) * t.diagonal(0)
     tiny = np.finfo(t.dtype).tiny  # factor 1 where the variance is 0; ~0 where the pilot is 0
+    work_p, work_v = np.empty_like(spec_p), np.empty_like(spec_v)
+    work_x = np.empty_like(spec_x)
     for b in range(1, len(t.bands)):
         a, s = t.analysis(b), t.synthesis(b)
-        factor = t.planes(spec_p * a, overwrite=True)
+        factor = t.planes(np.multiply(spec_p, a, out=work_p), overwrite=True)
         np.multiply(factor, factor, out=factor)
         factor += tiny
-        noise = t.planes(spec_v * t.squared(b), overwrite=True)
+        noise = t.planes(np.multiply(spec_v, t.squared(b), out=work_v), overwrite=True)
         np.maximum(noise, 0.0, out=noise)  # FFT rounding around exact zeros
         noise += factor
         np.divide(factor, noise, out=factor)
         if total_d is not None:
             total_d += _times(t.spectrum(factor), t.diagonal(b))
-        coeff = t.planes(spec_x * a, overwrite=True)
+        coeff = t.planes(np.multiply(spec_x, a, out=work_x), overwrite=True)
         coeff *= factor
         total += _times(t.spectrum(coeff), s)
         if spec_e is not None:
             coeff = t.planes(spec_e * a, overwrite=True)
             coeff *= factor
             total_e += _times(t.spectrum(coeff), s)
-    return WienerResult(_last(t.planes(total), ndim),
-                        None if total_e is None else np.moveaxis(t.planes(total_e).astype(np.float64), -3, -1),
-                        None if total_d is None else _last(t.planes(total_d), ndim if vs.shape[0] > 1 else 2))
+    return (t.planes(total, overwrite=True), None if total_e is None else t.planes(total_e, overwrite=True),
+            None if total_d is None else t.planes(total_d, overwrite=True))
 
 
-def stage_weights(pilot: FloatArray, k: float, exponent: float) -> FloatArray:
-    """The per-pixel weights ``(|pilot| + k)^exponent`` of a relative stage.
+def stage_weights(pilot: FloatArray, k: float, exponent: float, *, dtype: str | np.dtype = "float64") -> FloatArray:
+    """The per-pixel weights ``(|pilot| + k)^exponent`` of a relative stage, computed in ``dtype``.
 
     Examples
     --------
@@ -171,7 +190,9 @@ def stage_weights(pilot: FloatArray, k: float, exponent: float) -> FloatArray:
     """
     k = _checks.real("k", k, above=0)
     exponent = _checks.real("exponent", exponent, minimum=0, maximum=1)
-    base = np.abs(np.asarray(pilot, dtype=np.float64)) + k
+    base = np.abs(np.asarray(pilot, dtype=dtype))
+    # At least the dtype's smallest normal number: a k that rounds to 0 would divide by 0.
+    base += max(np.asarray(k, dtype=base.dtype), np.finfo(base.dtype).tiny)
     if exponent == 1.0:
         return base
     if exponent == 0.5:
@@ -227,10 +248,25 @@ def relative_wiener(transform: StationaryTransform, x: FloatArray, variance: Flo
     >>> round(rel(noisy), 4)
     0.0105
     """
-    w = stage_weights(pilot, k, exponent)
-    w3 = w if np.ndim(w) == 3 else w[..., None]  # the weights of every channel
-    x = np.asarray(x, np.float64)
-    result = wiener_filter(transform, x / w3, np.asarray(variance, np.float64) / (w * w),
-                           np.asarray(pilot, np.float64) / w,
-                           extra=None if extra is None else np.asarray(extra, np.float64) / w3, leverage=leverage)
-    return WienerResult(result.image * w3, None if result.extra is None else result.extra * w3, result.leverage)
+    t = transform
+    ndim = np.ndim(x)
+    # Planes first, in the transform's precision: the weights, the divisions and the products
+    # back are as exact as the FFTs that sit between them.
+    pilot_planes = _planes(pilot, t.dtype, copy=True)
+    w = stage_weights(pilot_planes, k, exponent, dtype=t.dtype)
+    xs = _planes(x, t.dtype, copy=True)
+    xs /= w
+    vs = _planes(variance, t.dtype, copy=True)
+    vs /= w
+    vs /= w  # not w * w: that over/underflows first
+    pilot_planes /= w
+    es = None
+    if extra is not None:
+        es = _planes(extra, t.dtype, copy=True)
+        es /= w
+    out, out_e, diagonal = _filter(t, xs, vs, pilot_planes, es, leverage)
+    out *= w
+    if out_e is not None:
+        out_e *= w
+    return WienerResult(_last(out, ndim), None if out_e is None else _last(out_e, 3),
+                        None if diagonal is None else _last(diagonal, ndim if np.ndim(variance) == 3 else 2))

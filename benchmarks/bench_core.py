@@ -6,54 +6,195 @@ Run from the repository root::
     .venv/bin/python benchmarks/bench_core.py --quick          # 256x256 speed, fewer quality runs
     .venv/bin/python benchmarks/bench_core.py --only levels    # one section, updated in the JSON
 
-Prints markdown tables and writes ``benchmarks/results/core.json``. Timings are medians of
-repeated runs on one core (no executor); memory is the tracemalloc peak of a separate run,
-reported as a multiple of the input buffer (count + mean + variance).
+Prints markdown tables and writes ``benchmarks/results/core.json``. Speed: at 1080p and 4K RGB,
+the floor (PyWavelets' 5-level bior4.4 ``wavedec2`` + ``waverec2`` of the float32 frame),
+``reconstruct(stages=1)``, the default ``reconstruct`` and one ``AdaptiveSampler.ask()`` round,
+on one core (OMP/MKL/OPENBLAS_NUM_THREADS=1, no executor) and with a 2-thread executor; medians of
+repeats in which the cases are interleaved, and ratios to the floor of the same run. Memory: in a
+fresh process per case, the tracemalloc peak above the built buffer and the peak RSS, as
+multiples of the input buffer (count + mean + variance).
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-from concurrent.futures import ThreadPoolExecutor
-from pathlib import Path
+import os
 
-import numpy as np
-from scipy import ndimage
+# One core unless the caller says otherwise: set before numpy and scipy load their thread pools.
+for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
-from awr_denoise import AdaptiveSampler, SampleRequest, UniformSampler, VarianceSampler, reconstruct
-from awr_denoise.bench import OVERHEAD_SIZES, machine_info, median_time, noisy_buffer, peak_memory, write_json
-from awr_denoise.domains import Domain
-from awr_denoise.metrics import mse, relmse
-from awr_denoise.synthetic import SyntheticRenderer, make_scene
-from awr_denoise.wavelets import default_levels
+import argparse  # noqa: E402
+import json  # noqa: E402
+import resource  # noqa: E402
+import statistics  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+import warnings  # noqa: E402
+from concurrent.futures import ThreadPoolExecutor  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pywt  # noqa: E402
+from scipy import ndimage  # noqa: E402
+
+from awr_denoise import AdaptiveSampler, SampleRequest, UniformSampler, VarianceSampler, reconstruct  # noqa: E402
+from awr_denoise.bench import (OVERHEAD_SIZES, command_line, load_average, machine_info, noisy_buffer,  # noqa: E402
+                               peak_memory, write_json)
+from awr_denoise.domains import Domain  # noqa: E402
+from awr_denoise.metrics import mse, relmse  # noqa: E402
+from awr_denoise.synthetic import SyntheticRenderer, make_scene  # noqa: E402
+from awr_denoise.wavelets import default_levels  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results" / "core.json"
+FLOOR_LEVELS = 5
+SPEED_SIZES = ["1080p", "4K"]  # --sizes changes it
 
 
-def speed(sizes: list[str]) -> list[dict]:
+def _floor(image: np.ndarray, levels: int = FLOOR_LEVELS) -> None:
+    """The floor: PyWavelets' 5-level bior4.4 forward plus inverse of a float32 RGB frame."""
+    with warnings.catch_warnings():  # 5 levels are "too many" for pywt below 1080p: the time is what counts
+        warnings.simplefilter("ignore", UserWarning)
+        pywt.waverec2(pywt.wavedec2(image, "bior4.4", level=levels, axes=(0, 1)), "bior4.4", axes=(0, 1))
+
+
+class _Ask:
+    """One ``ask()`` round of a sampler that has the buffer (built untimed, as a render loop has it)."""
+
+    def __init__(self, buf) -> None:
+        self.buf = buf
+        self.setup()
+
+    def setup(self) -> None:
+        self.sampler = AdaptiveSampler.from_buffer(self.buf, round=1)
+
+    def __call__(self) -> None:
+        self.sampler.ask()
+
+
+def _cases(buf, pool: ThreadPoolExecutor | None) -> dict:
+    """What is timed, by name; with ``pool``, the channels on two threads."""
+    image = buf.mean.astype(np.float32)
+    if pool is None:
+        return {"floor": lambda: _floor(image),
+                "reconstruct_stages1": lambda: reconstruct(buf, stages=1),
+                "reconstruct_default": lambda: reconstruct(buf),
+                "ask": _Ask(buf)}
+    return {"reconstruct_stages1": lambda: reconstruct(buf, stages=1, executor=pool),
+            "reconstruct_default": lambda: reconstruct(buf, executor=pool)}
+
+
+def _interleaved(cases: dict, repeats: int) -> dict:
+    """Median wall seconds of every case, the cases interleaved in each repeat (same load for all)."""
+    times: dict = {name: [] for name in cases}
+    for _ in range(repeats):
+        for name, fn in cases.items():
+            if hasattr(fn, "setup"):
+                fn.setup()
+            t = time.perf_counter()
+            fn()
+            times[name].append(time.perf_counter() - t)
+    return {name: statistics.median(values) for name, values in times.items()}
+
+
+def _memory_child(size: str, case: str) -> None:
+    """In a fresh process: tracemalloc peak above the built buffer, and the process' peak RSS."""
+    buf = noisy_buffer(OVERHEAD_SIZES[size], smooth=0.0, noise=0.0)
+    fn = _cases(buf, None)[case]  # the ask() case builds its sampler here, before the peak is measured
+    base_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    _, peak = peak_memory(fn)
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    print(json.dumps({"tracemalloc_peak": peak, "maxrss": rss, "maxrss_before": base_rss, "input": buf.nbytes}))
+
+
+def _memory(size: str, case: str) -> dict:
+    out = subprocess.run([sys.executable, __file__, "--memory-child", size, case], capture_output=True, text=True,
+                         check=True, env=os.environ.copy())
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def speed(sizes: list[str], repeats: int = 5) -> list[dict]:
+    """Floor, stage 1 alone, the default reconstruction and one ask() round; 1 and 2 threads; memory."""
     rows = []
     for name in sizes:
         shape = OVERHEAD_SIZES[name]
-        # Unblurred random means without added noise: the buffer of the timings in docs/performance.md.
+        # Unblurred random means without added noise (the content barely changes the time).
         buf = noisy_buffer(shape, smooth=0.0, noise=0.0)
-        repeats = 5 if name == "256x256" else 3
-        reconstruct(buf)  # build and cache the wavelet operators once, as a renderer's loop would
-        sampler = AdaptiveSampler.from_buffer(buf, round=1)
-        sampler.ask()
-        t_rec = median_time(lambda: reconstruct(buf), repeats)
+        reps = repeats if shape[0] * shape[1] <= 2_100_000 else max(1, repeats // 2)
+        one = _cases(buf, None)
+        for fn in one.values():  # warm-up: cached operators and transfer functions, as a render loop has
+            fn()
         with ThreadPoolExecutor(2) as pool:
-            t_rec2 = median_time(lambda: reconstruct(buf, executor=pool), repeats)
-        t_ask = median_time(lambda: AdaptiveSampler.from_buffer(buf, round=1).ask(), repeats)
-        _, m_rec = peak_memory(lambda: reconstruct(buf))
-        _, m_ask = peak_memory(lambda: AdaptiveSampler.from_buffer(buf, round=1).ask())
-        row = {"size": name, "pixels": shape[0] * shape[1], "input_MB": buf.nbytes / 2**20,
-               "reconstruct_s": t_rec, "reconstruct_2threads_s": t_rec2, "ask_s": t_ask,
-               "reconstruct_peak_x_input": m_rec / buf.nbytes, "ask_peak_x_input": m_ask / buf.nbytes}
+            two = _cases(buf, pool)
+            for fn in two.values():
+                fn()
+            # One- and two-thread cases interleaved together: every ratio shares the load.
+            both = _interleaved({**one, **{f"2threads:{k}": fn for k, fn in two.items()}}, reps)
+        t1 = {k: v for k, v in both.items() if not k.startswith("2threads:")}
+        t2 = {k.split(":", 1)[1]: v for k, v in both.items() if k.startswith("2threads:")}
+        row = {"size": name, "pixels": shape[0] * shape[1], "input_MB": buf.nbytes / 2**20, "repeats": reps,
+               "seconds_1core": t1, "seconds_2threads": t2,
+               "x_floor_1core": {k: v / t1["floor"] for k, v in t1.items()},
+               "x_floor_2threads": {k: v / t1["floor"] for k, v in t2.items()}}
+        mem = {case: _memory(name, case) for case in ("reconstruct_stages1", "reconstruct_default", "ask")}
+        # maxrss_before: the process' peak once the synthetic buffer is built (its float64
+        # temporaries often set the peak); the call's own peak is the tracemalloc figure.
+        row["memory"] = {case: {"tracemalloc_peak_x_input": m["tracemalloc_peak"] / m["input"],
+                                "maxrss_MB": m["maxrss"] / 2**20, "maxrss_before_MB": m["maxrss_before"] / 2**20,
+                                "maxrss_x_input": m["maxrss"] / m["input"]}
+                         for case, m in mem.items()}
         rows.append(row)
-        print(f"| {name} | {row['input_MB']:.0f} MB | {t_rec:.3f} s | {t_rec2:.3f} s | {t_ask:.3f} s | "
-              f"{row['reconstruct_peak_x_input']:.1f}x | {row['ask_peak_x_input']:.1f}x |", flush=True)
+        x1, x2 = row["x_floor_1core"], row["x_floor_2threads"]
+        print(f"| {name} | {row['input_MB']:.0f} MB | {t1['floor']:.3f} s | "
+              f"{t1['reconstruct_stages1']:.3f} s ({x1['reconstruct_stages1']:.1f}x) | "
+              f"{t1['reconstruct_default']:.3f} s ({x1['reconstruct_default']:.1f}x) | "
+              f"{t1['ask']:.3f} s ({x1['ask']:.1f}x) | "
+              f"{t2['reconstruct_stages1']:.3f} s ({x2['reconstruct_stages1']:.1f}x) | "
+              f"{t2['reconstruct_default']:.3f} s ({x2['reconstruct_default']:.1f}x) | "
+              + " | ".join(f"{row['memory'][c]['tracemalloc_peak_x_input']:.1f}x"
+                           for c in ("reconstruct_stages1", "reconstruct_default", "ask")) + " |", flush=True)
     return rows
+
+
+def fft_budget(size: str = "1080p", repeats: int = 5) -> dict:
+    """How many plane FFTs the default reconstruction runs, and what they cost beside the floor.
+
+    The FFT calls of one default ``reconstruct`` are counted by wrapping ``ducc0.fft``; one
+    forward plus inverse real FFT of a float32 plane of the size is timed interleaved with the
+    floor, so ``fft_pairs * pair_s / floor_s`` is what the Wiener stages' FFTs alone cost in
+    multiples of the floor, whatever else is made faster.
+    """
+    import ducc0
+
+    shape = OVERHEAD_SIZES[size]
+    buf = noisy_buffer(shape, smooth=0.0, noise=0.0)
+    counts = {"r2c": 0, "c2r": 0}
+    originals = {name: getattr(ducc0.fft, name) for name in counts}
+
+    def counting(name):
+        def call(a, *args, **kwargs):
+            counts[name] += int(np.prod(np.shape(a)[:-2], dtype=np.int64))
+            return originals[name](a, *args, **kwargs)
+        return call
+
+    for name in counts:
+        setattr(ducc0.fft, name, counting(name))
+    try:
+        reconstruct(buf)
+    finally:
+        for name, fn in originals.items():
+            setattr(ducc0.fft, name, fn)
+    plane = np.random.default_rng(0).random(shape).astype(np.float32)
+    image = buf.mean.astype(np.float32)
+    t = _interleaved({"floor": lambda: _floor(image),
+                      "fft_pair": lambda: ducc0.fft.c2r(ducc0.fft.r2c(plane), lastsize=shape[1], forward=False,
+                                                        inorm=2)}, repeats)
+    pairs = (counts["r2c"] + counts["c2r"]) / 2
+    row = {"size": size, "plane_ffts": counts, "floor_s": t["floor"], "fft_pair_s": t["fft_pair"],
+           "ffts_x_floor": pairs * t["fft_pair"] / t["floor"]}
+    print(f"| {size} | {counts['r2c']} + {counts['c2r']} | {t['fft_pair']:.4f} s | {t['floor']:.3f} s | "
+          f"{row['ffts_x_floor']:.1f}x |", flush=True)
+    return row
 
 
 def quality(shape=(128, 128), spps=(8, 32), seed=3) -> list[dict]:
@@ -215,9 +356,14 @@ def uniform_fractions(shape=(128, 128), spps=(8, 32), seeds=(3, 4, 5, 6)) -> lis
 
 
 SECTIONS = {
-    "speed": ("Speed (one core) and peak memory",
-              "| size | input buffer | reconstruct | reconstruct, 2 threads | ask() | reconstruct peak | ask() peak |",
-              lambda quick: speed(["256x256"] if quick else list(OVERHEAD_SIZES))),
+    "speed": ("Speed against the PyWavelets floor (medians of interleaved repeats; x floor of the same run) "
+              "and peak memory (tracemalloc, x input buffer)",
+              "| size | input buffer | floor | stages=1 | default | ask() | stages=1, 2 threads | default, 2 threads "
+              "| stages=1 peak | default peak | ask() peak |",
+              lambda quick: speed(["256x256"] if quick else SPEED_SIZES)),
+    "fft_budget": ("The default reconstruction's FFTs against the floor (one core)",
+                   "| size | plane FFTs (forward + inverse) | one forward + inverse pair | floor | FFTs alone |",
+                   lambda quick: [fft_budget("256x256" if quick else "1080p")]),
     "quality": ("Quality, synthetic 128x128 (relMSE / MSE, equal samples)",
                 "| scene | spp | uniform mean | uniform + AWR | variance-driven + AWR | AWR adaptive + AWR |",
                 lambda quick: quality(spps=(8,) if quick else (8, 32))),
@@ -249,17 +395,30 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--only", nargs="+", choices=tuple(SECTIONS), metavar="SECTION",
                         help=f"run only these sections ({', '.join(SECTIONS)}) and update them in the JSON")
     parser.add_argument("--output", type=Path, default=RESULTS)
+    parser.add_argument("--sizes", nargs="+", choices=tuple(OVERHEAD_SIZES), default=SPEED_SIZES,
+                        help="sizes of the speed section (default: 1080p 4K)")
+    parser.add_argument("--memory-child", nargs=2, metavar=("SIZE", "CASE"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.memory_child:
+        _memory_child(*args.memory_child)
+        return 0
+    SPEED_SIZES[:] = args.sizes
     results = {}
     if args.only and args.output.is_file():
         results = json.loads(args.output.read_text())
-    results["machine"] = machine_info()
+    results["machine"] = machine_info("numpy", "scipy", "PyWavelets", "ducc0")
+    results["command"] = command_line("benchmarks/bench_core.py", argv)
+    results["threads"] = {var: os.environ.get(var) for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS",
+                                                                 "OPENBLAS_NUM_THREADS")}
+    results["load_average_start"] = load_average()
     for name in args.only or SECTIONS:
         title, header, run = SECTIONS[name]
         print(f"\n## {title}\n")
         print(header)
         print("|---" * (header.count("|") - 1) + "|")
         results[name] = run(args.quick)
+        results.setdefault("commands", {})[name] = results["command"]  # the run that made this section
+    results["load_average_end"] = load_average()
     write_json(args.output, results, indent=2)
     print(f"\nwrote {args.output}")
     return 0

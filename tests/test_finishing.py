@@ -85,3 +85,27 @@ def test_match_mean_changes_the_exposure_by_more_than_the_limit_only_when_signif
     noisy = np.full(mean.shape, 100.0)  # the input's mean has a standard error of ~1.1
     assert_allclose(match_mean(image, mean, noisy)[1], [1.05, 1 / 1.05])
     assert_allclose(match_mean(mean * 0.8, mean, noisy, limit=0.5)[1], 1.25)
+
+
+@pytest.mark.parametrize("shape", [(1, 1, 1), (1, 6, 2), (9, 1, 3), (23, 31, 3)])
+def test_pooled_clamp_is_the_plain_clip_to_pooled_errors_bit_for_bit(rng, shape):
+    """The clamp pools (3x3 medians) only where a value leaves its own interval; the result is the
+    clip to ``z * pooled_standard_error`` everywhere, in channel and in luminance mode."""
+    for _ in range(5):
+        variance = rng.random(shape) ** 3 * (rng.random(shape) < 0.9)  # zeros: pixels whose samples agreed
+        mean = rng.random(shape)
+        image = mean + rng.normal(0.0, 1.0, shape) * np.sqrt(variance) * rng.uniform(0.0, 5.0, shape)
+        reach = 2.5 * pooled_standard_error(variance)
+        out, moved = pooled_clamp(image, mean, variance, 2.5)
+        expected = np.clip(image, mean - reach, mean + reach)
+        assert_array_equal(out, expected)
+        assert_array_equal(moved, expected != image)
+        weights = rng.dirichlet(np.ones(shape[2]))
+        lum, lum_variance = mean @ weights, variance @ weights
+        reach = 2.5 * pooled_standard_error(lum_variance)
+        target = np.clip(image @ weights, lum - reach, lum + reach)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(image @ weights != 0, target / (image @ weights), 1.0)
+        out, moved = pooled_clamp(image, lum, lum_variance, 2.5, weights=weights)
+        assert_array_equal(out, image * ratio[..., None])
+        assert_array_equal(moved, np.broadcast_to((ratio != 1.0)[..., None], shape))

@@ -146,3 +146,30 @@ def test_bad_planes_are_refused():
         t.variance(bad)
     with pytest.raises(ValueError, match="coeffs"):
         t.inverse([np.zeros((8, 8))])
+
+
+@pytest.mark.parametrize(("shape", "wavelet", "levels"), CASES)
+def test_ducc0_matches_the_scipy_reference(rng, shape, wavelet, levels):
+    """The default FFT library against scipy.fft: rounding only in float64, FLOAT32_RTOL in float32."""
+    image = rng.standard_normal(shape + (3,))
+    v = rng.uniform(0.0, 2.0, shape + (3,))
+    ref = StationaryTransform(shape, wavelet=wavelet, levels=levels, backend="scipy")
+    for dtype, rtol in (("float64", 1e-12), ("float32", FLOAT32_RTOL)):
+        t = StationaryTransform(shape, wavelet=wavelet, levels=levels, dtype=dtype)
+        assert t.backend == "ducc0"
+        for a, b in zip(_flat(t.forward(image)), _flat(ref.forward(image))):
+            assert_allclose(a, b, rtol=0, atol=rtol * np.abs(image).max())
+        for a, b in zip(_flat(t.variance(v)), _flat(ref.variance(v))):
+            assert_allclose(a, b, rtol=0, atol=rtol * v.max())
+        assert_allclose(t.inverse(t.forward(image)), image, rtol=0, atol=rtol * np.abs(image).max())
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_a_plane_transforms_alike_alone_or_in_a_batch(rng, dtype):
+    """Bit for bit: so a channel reconstructs the same alone, with the others or on another thread."""
+    t = StationaryTransform((30, 22), levels=2, dtype=dtype)
+    planes = rng.standard_normal((3, 30, 22))
+    batch = t.spectrum(planes)
+    for c in range(3):
+        np.testing.assert_array_equal(t.spectrum(planes[c]), batch[c])
+        np.testing.assert_array_equal(t.planes(batch[c]), t.planes(batch)[c])
