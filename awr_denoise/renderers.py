@@ -17,6 +17,9 @@ the renderer's own keyword arguments. Factories are looked up by name, in this o
        [project.entry-points."awr_denoise.renderers"]
        myrenderer = "my_package.awr:create_renderer"
 
+A renderer's module may also define ``list_scenes() -> list[str]``, the scenes it bundles
+(:func:`renderer_scenes`, ``awr render --renderer NAME --list-scenes``).
+
 Built-ins and entry points are named as ``"module:function"`` strings and imported only when
 asked for, so this module imports no renderer: a missing optional extra shows up as an
 ``ImportError`` with its install hint when that renderer is created, not before.
@@ -32,7 +35,7 @@ from typing import Any
 from .requests import Renderer
 
 __all__ = ["ENTRY_POINT_GROUP", "RendererFactory", "create_renderer", "register_renderer", "renderer_factory",
-           "renderer_names"]
+           "renderer_names", "renderer_scenes"]
 
 ENTRY_POINT_GROUP = "awr_denoise.renderers"
 """Entry-point group in which other packages declare renderer factories."""
@@ -134,6 +137,28 @@ def renderer_factory(name: str) -> RendererFactory:
     if not callable(factory):
         raise TypeError(f"renderer {name!r}: {declared[name]} is not callable")
     return factory
+
+
+def renderer_scenes(name: str) -> list[str]:
+    """The scenes renderer ``name`` bundles: its module's ``list_scenes()``, or none.
+
+    Raises
+    ------
+    ValueError, ImportError
+        As :func:`renderer_factory`.
+
+    Examples
+    --------
+    >>> from awr_denoise.renderers import renderer_scenes
+    >>> "edges" in renderer_scenes("synthetic")
+    True
+    """
+    factory = renderer_factory(name)
+    # The module the factory is declared in (``module:function``), not the one defining it: a
+    # package may re-export a factory written in a submodule.
+    module = factory.__module__ if name in _registered else _declared()[name].partition(":")[0]
+    listed = getattr(importlib.import_module(module), "list_scenes", None)
+    return [str(scene) for scene in listed()] if callable(listed) else []
 
 
 def create_renderer(name: str, scene: Any, *, shape: tuple[int, int] | None = None, seed: int = 0,

@@ -22,7 +22,8 @@ from ._typing import FloatArray, Shape2D
 from .buffers import SampleBuffer
 from .requests import SampleRequest
 
-__all__ = ["SyntheticScene", "SyntheticRenderer", "SCENES", "create_renderer", "make_scene", "hash_uniform"]
+__all__ = ["SyntheticScene", "SyntheticRenderer", "SCENES", "create_renderer", "list_scenes", "make_scene",
+           "hash_uniform"]
 
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
@@ -343,6 +344,18 @@ def make_scene(name: str, shape: Shape2D = (64, 64)) -> SyntheticScene:
     if name not in SCENES:
         raise ValueError(f"name: {name!r} is not one of {', '.join(sorted(SCENES))}")
     return SCENES[name](_checks.shape2d("shape", shape))
+
+
+def list_scenes() -> list[str]:
+    """Names of the synthetic scenes, as :func:`awr_denoise.renderers.renderer_scenes` lists them.
+
+    Examples
+    --------
+    >>> from awr_denoise.synthetic import list_scenes
+    >>> list_scenes()[:2]
+    ['gradient', 'edges']
+    """
+    return list(SCENES)
 
 
 def create_renderer(scene: str, *, shape: Shape2D | None = None, seed: int = 0) -> SyntheticRenderer:

@@ -40,7 +40,8 @@ from awr_denoise.renderers import create_renderer
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_reconstruct import MITSUBA_SCENES, MITSUBA_SHAPE, TRACER_SCENES, _mitsuba_available, reference  # noqa: E402
+from bench_reconstruct import (MITSUBA_SCENES, MITSUBA_SHAPE, TRACER_SCENES, _mitsuba_available,  # noqa: E402
+                              reference, uniform_buffers)
 
 ROOT = Path(__file__).resolve().parent
 RESULTS = ROOT / "results" / "guides.json"
@@ -60,41 +61,10 @@ def _image(method: str, buffer: SampleBuffer) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- buffers
-def _save(path: Path, buffer: SampleBuffer) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    arrays = {"count": buffer.count, "mean": buffer.mean, "variance": buffer.variance}
-    for name, f in buffer.features.items():
-        arrays.update({f"{name}_count": f.count, f"{name}_mean": f.mean, f"{name}_variance": f.variance})
-    np.savez(path, **arrays)
-
-
-def _load(path: Path) -> SampleBuffer:
-    d = np.load(path)
-    features = {}
-    for name, channels in (("albedo", ("R", "G", "B")), ("normal", ("X", "Y", "Z")), ("depth", ("Z",))):
-        if f"{name}_mean" in d:
-            features[name] = SampleBuffer.from_moments(d[f"{name}_count"], d[f"{name}_mean"], d[f"{name}_variance"],
-                                                       channels=channels)
-    return SampleBuffer.from_moments(d["count"], d["mean"], d["variance"], features=features)
-
-
 def feature_buffers(renderer: str, scene: str, shape: tuple[int, int] | None, spps: tuple[int, ...], group: int,
                     cache: Path) -> dict[int, SampleBuffer]:
     """Group ``group``'s buffers with every feature at every spp (seed ``group``, samples added in order)."""
-    paths = {s: cache / f"guides_{renderer}_{scene}_g{group}_s{s}.npz" for s in spps}
-    if all(p.exists() for p in paths.values()):
-        return {s: _load(p) for s, p in paths.items()}
-    r = create_renderer(renderer, scene, shape=shape, seed=group, features="all")
-    shape = r.shape if shape is None else shape
-    out, buffer, done = {}, None, 0
-    for s in sorted(spps):
-        part = r(SampleRequest.uniform(shape, s - done, first_index=done))
-        buffer = part if buffer is None else buffer.merge(part)
-        done = s
-        _save(paths[s], buffer)
-        out[s] = buffer
-    getattr(r, "close", lambda: None)()
-    return out
+    return uniform_buffers(renderer, scene, shape, spps, group, cache, prefix="guides_", features="all")
 
 
 # ---------------------------------------------------------------------------- quality

@@ -31,6 +31,7 @@ import numpy as np
 
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, VarianceSampler, reconstruct
 from awr_denoise.bench import machine_info, write_json
+from awr_denoise.features import FEATURE_CHANNELS
 from awr_denoise.metrics import mse, relmse
 from awr_denoise.prepare import prepare
 from awr_denoise.renderers import create_renderer
@@ -57,21 +58,31 @@ SPEED_VARIANTS = {
 # ---------------------------------------------------------------------------- buffers
 def _save(path: Path, buffer: SampleBuffer) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(path, count=buffer.count, mean=buffer.mean, variance=buffer.variance)
+    arrays = {"count": buffer.count, "mean": buffer.mean, "variance": buffer.variance}
+    for name, f in buffer.features.items():
+        arrays.update({f"{name}_count": f.count, f"{name}_mean": f.mean, f"{name}_variance": f.variance})
+    np.savez(path, **arrays)
 
 
 def _load(path: Path) -> SampleBuffer:
     d = np.load(path)
-    return SampleBuffer.from_moments(d["count"], d["mean"], d["variance"])
+    features = {name: SampleBuffer.from_moments(d[f"{name}_count"], d[f"{name}_mean"], d[f"{name}_variance"],
+                                                channels=channels)
+                for name, channels in FEATURE_CHANNELS.items() if f"{name}_mean" in d}
+    return SampleBuffer.from_moments(d["count"], d["mean"], d["variance"], features=features)
 
 
 def uniform_buffers(renderer: str, scene: str, shape: tuple[int, int] | None, spps: tuple[int, ...], group: int,
-                    cache: Path) -> dict[int, SampleBuffer]:
-    """Group ``group``'s buffers at every spp: one renderer (seed ``group``), samples added in order."""
-    paths = {s: cache / f"{renderer}_{scene}_g{group}_s{s}.npz" for s in spps}
+                    cache: Path, *, prefix: str = "", **options: Any) -> dict[int, SampleBuffer]:
+    """Group ``group``'s buffers at every spp: one renderer (seed ``group``), samples added in order.
+
+    ``options`` go to the renderer (``features="all"`` for buffers with features); ``prefix``
+    keeps their cache files apart from the plain ones.
+    """
+    paths = {s: cache / f"{prefix}{renderer}_{scene}_g{group}_s{s}.npz" for s in spps}
     if all(p.exists() for p in paths.values()):
         return {s: _load(p) for s, p in paths.items()}
-    r = create_renderer(renderer, scene, shape=shape, seed=group)
+    r = create_renderer(renderer, scene, shape=shape, seed=group, **options)
     shape = r.shape if shape is None else shape
     out, buffer, done = {}, None, 0
     for s in sorted(spps):

@@ -8,7 +8,6 @@ Mitsuba 3 adapter (``--renderer mitsuba SCENE.xml``).
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 from types import ModuleType
@@ -19,7 +18,7 @@ from awr_denoise.buffers import SampleBuffer
 from awr_denoise.io import image_provenance, provenance, write_image, write_preview, write_sample_buffer
 from awr_denoise.io.atomic import OutputSet
 from awr_denoise.parallel import RendererSpec, TiledRenderer
-from awr_denoise.renderers import create_renderer, renderer_factory, renderer_names
+from awr_denoise.renderers import create_renderer, renderer_names, renderer_scenes
 from awr_denoise.requests import Renderer, SampleTracer
 from awr_denoise.sampling import DEFAULT_INITIAL_SPP, DEFAULT_ROUND_GROWTH
 
@@ -160,16 +159,11 @@ def _scene(args: argparse.Namespace) -> tuple[str, Any, str, tuple[int, int] | N
 
 
 def _bundled_scenes(renderer: str) -> list[str]:
-    """Scene names the renderer's module bundles: its ``list_scenes()`` or ``SCENE_NAMES``."""
-    if renderer == TRACER:
-        return list(tracer_module().list_scenes())
+    """The renderer's bundled scenes, or a :class:`RuntimeFailure` naming the missing extra."""
     try:
-        factory = renderer_factory(renderer)
+        return renderer_scenes(renderer)
     except ImportError as exc:
         raise RuntimeFailure(f"--renderer {renderer}: {exc}") from None
-    module = sys.modules[factory.__module__]
-    listed = getattr(module, "list_scenes", None)
-    return list(listed() if callable(listed) else getattr(module, "SCENE_NAMES", None) or getattr(module, "SCENES", ()))
 
 
 def run(args: argparse.Namespace) -> int:
