@@ -45,10 +45,10 @@ RESTORE_OFFSET = 0.01
 RESTORE_SHARE = 0.05
 """Most a pixel takes back from its own gap in :func:`restore_mean`, as a share of ``|o| + k``.
 
-Measured (docs/reconstruction.md): without this cap the noise of the removed fireflies comes
-back on the synthetic ``fireflies`` scene (relMSE 0.54x the plain mean's at 4 spp instead of
-0.04x); from 0.05 to 0.2 the Mitsuba glossy scene's MSE moves by about 1% and ``fireflies``'
-relMSE grows by 40% at 64 spp, so the smallest."""
+Measured (docs/reconstruction.md, ``benchmarks/bench_reconstruct.py finishing``): without this
+cap the noise of the removed fireflies comes back on the synthetic ``fireflies`` scene (relMSE
+0.48x the plain mean's at 4 spp instead of 0.02x); from 0.05 to 0.2 the Mitsuba glossy scene's
+MSE moves by about 1% and ``fireflies``' relMSE grows by 40% at 64 spp, so the smaller."""
 
 MEAN_SIGNIFICANCE = 2.0
 """Standard errors of the input's image mean beyond which a correction of any size is made.
@@ -189,6 +189,9 @@ def match_mean(image: FloatArray, mean: FloatArray, variance: FloatArray | None 
                limit: float = MEAN_LIMIT, significance: float = MEAN_SIGNIFICANCE) -> tuple[FloatArray, FloatArray]:
     """Scale every channel so that its image mean is ``mean``'s; returns the image and the factors.
 
+    The default used it until :func:`restore_mean` replaced it (module docstring); kept as the
+    comparison ``benchmarks/bench_reconstruct.py finishing`` measures.
+
     A channel whose input or output mean is not positive is left as it is (factor 1). A
     factor beyond ``[1 / (1 + limit), 1 + limit]`` is applied in full only when the change it
     makes is larger than ``significance`` standard errors of the input's image mean
@@ -217,15 +220,10 @@ def match_mean(image: FloatArray, mean: FloatArray, variance: FloatArray | None 
     unit = math.ldexp(1.0, -max(-1000, min(1000, math.frexp(top)[1]))) if np.isfinite(top) and top > 0 else 1.0
     want, got = (mean * unit).mean(axis=(0, 1)), (image * unit).mean(axis=(0, 1))
     ok = (want > 0) & (got > 0) & np.isfinite(want) & np.isfinite(got)
-    factors = np.where(ok, want / np.where(ok, got, 1.0), 1.0)
-    bounded = np.clip(factors, 1.0 / (1.0 + limit), 1.0 + limit)
-    if variance is None:
-        significant = np.zeros(factors.shape, bool)
-    else:
-        pixels = mean.shape[0] * mean.shape[1]
-        error = np.sqrt(np.sum(np.asarray(variance) * unit * unit, axis=(0, 1))) / pixels
-        significant = np.abs(want - got) > significance * error
-    factors = np.where(significant, factors, bounded)
+    error = None if variance is None else np.sqrt(np.sum(np.asarray(variance) * unit * unit, axis=(0, 1))) / (
+        mean.shape[0] * mean.shape[1])
+    change = _mean_change(want, got, error, limit, significance)
+    factors = np.where(ok, (got + change) / np.where(ok, got, 1.0), 1.0)
     return image * factors, factors
 
 

@@ -154,7 +154,7 @@ def test_restore_mean_moves_only_the_pixels_that_lost_energy_and_never_past_thei
     image[mean > 1.0] = 1.0 + 0.5 * (mean[mean > 1.0] - 1.0)  # the stages halved every upward deviation...
     image[8, 8] = 1000.0                                       # ...except the light's
     variance = np.full(mean.shape, 1e-6)
-    out, t = restore_mean(image, mean, variance)
+    out, _ = restore_mean(image, mean, variance)
     assert out.mean() == pytest.approx(mean.mean(), rel=1e-12)
     assert out[8, 8, 0] == 1000.0
     untouched = image >= mean
