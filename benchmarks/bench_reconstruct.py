@@ -33,7 +33,7 @@ import numpy as np
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, VarianceSampler, reconstruct
 from awr_denoise.bench import machine_info, write_json
 from awr_denoise.features import FEATURE_CHANNELS
-from awr_denoise.finishing import match_mean, restore_mean
+from awr_denoise.finishing import RESTORE_SHARE, match_mean, restore_mean
 from awr_denoise.metrics import mse, relmse
 from awr_denoise.prepare import prepare
 from awr_denoise.renderers import create_renderer
@@ -285,8 +285,8 @@ def _corrections(buffer: SampleBuffer) -> dict[str, np.ndarray]:
     x, v = prepared.mean, prepared.variance
     image = reconstruct(buffer, preserve_mean=False)
     return {"plain": np.asarray(x), "none": image, "one factor": match_mean(image, x, v)[0],
-            "restore (default)": restore_mean(image, x, v)[0],
-            "restore, share 0.2": restore_mean(image, x, v, share=0.2)[0],
+            **{f"restore, share {share:g}" + (" (default)" if share == RESTORE_SHARE else ""):
+               restore_mean(image, x, v, share=share)[0] for share in (0.05, 0.2)},
             "restore, no cap": restore_mean(image, x, v, share=np.inf)[0]}
 
 
