@@ -81,18 +81,21 @@ def allocate(density: FloatArray, current: CountArray, budget: int, *,
                else np.minimum(np.maximum(np.asarray(capacity), 0), MAX_BUDGET).astype(np.int64))
     if capacity is not None and budget > int(cap_int.sum()):
         raise ValueError(f"budget: {budget} samples exceed the {int(cap_int.sum())} that spp_max still allows")
-    a = np.nan_to_num(np.asarray(density, dtype=np.float64), nan=0.0, posinf=0.0)
-    a = np.maximum(a, 0.0)
+    a = np.nan_to_num(np.asarray(density, dtype=np.float64), nan=0.0, posinf=0.0)  # a copy: changed in place
+    np.maximum(a, 0.0, out=a)
     reachable = a if capacity is None else a[cap > 0]  # the open pixels' densities
-    if not (reachable > 0).any():
+    top = float(reachable.max(initial=0.0))  # no NaN is left: any density > 0 exactly when the largest is
+    if not top > 0:
         a = np.ones(shape)  # nothing to rank on (a deterministic image): spread uniformly
     else:
         # A floor so no open pixel is unreachable: otherwise a budget larger than what the
         # positive-density pixels can absorb would have nowhere to go.
-        a = np.maximum(a, 1e-9 * reachable.max())
+        np.maximum(a, 1e-9 * top, out=a)
     n = current.astype(np.float64)
     alpha = _water_level(a, n, None if capacity is None else cap, budget)
-    m = np.maximum(alpha * a - n, 0.0)
+    m = np.multiply(a, alpha)  # the values of max(alpha * a - n, 0), in place
+    m -= n
+    np.maximum(m, 0.0, out=m)
     if capacity is not None:
         np.minimum(m, cap, out=m)
     out[...] = _round_to_budget(m, cap_int, budget, rng or np.random.default_rng(0))

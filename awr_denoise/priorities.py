@@ -31,7 +31,7 @@ from ._typing import FloatArray
 from .buffers import SampleBuffer
 from .domains import Domain
 from .prepare import prepare
-from .wavelets import DEFAULT_WAVELET, WaveletOperators, coefficient_variance, forward, wavelet_operators
+from .wavelets import DEFAULT_WAVELET, WaveletOperators, _plane_variance, coefficient_variance, forward, wavelet_operators
 
 __all__ = ["coefficient_priorities", "pixel_levels", "sampling_density", "error_plane"]
 
@@ -114,15 +114,27 @@ def coefficient_priorities(
     (mean_y, var_y, _), c = _normalised(plane if plane is not None else error_plane(buffer, domain))
     ops = operators or wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     coeffs = forward(mean_y, wavelet=ops.wavelet, levels=ops.levels, boundary=ops.boundary)
-    variances = coefficient_variance(var_y, operators=ops)
-    var_t = np.ascontiguousarray(var_y.T)
+    var_y = np.asarray(var_y, dtype=np.float64)
+    if var_y.shape != ops.shape or not (np.isfinite(var_y.max(initial=0.0)) and var_y.min(initial=0.0) >= 0):
+        coefficient_variance(var_y, operators=ops)  # raises the error that names the bad values
+    # One pass of the squared operators gives the detail variances and every level's scale variance.
+    scale_variances: list = []
+    variances = _plane_variance(var_y, ops, scales=scale_variances)
     priorities = [var_y]
     for k in range(1, ops.levels + 1):
         j = ops.levels - k + 1  # position of level k's detail bands in pywt's layout
-        scale_variance = ops.rows.approx_sq[k - 1] @ (ops.cols.approx_sq[k - 1] @ var_t).T
-        detail_energy = sum(np.maximum(0.0, coeffs[j][b] ** 2 - (_SIGNIFICANCE**2) * variances[j][b])
-                            for b in range(3))
-        priorities.append(4.0**k * (scale_variance - detail_energy))
+        # sum_a max(0, W~^2 - (t Delta)^2), accumulated in place (the same operations, in order).
+        detail_energy = np.zeros(scale_variances[k - 1].shape)
+        for b in range(3):
+            w, noise = coeffs[j][b], variances[j][b]
+            energy = np.multiply(w, w)
+            noise *= _SIGNIFICANCE**2
+            energy -= noise
+            np.maximum(energy, 0.0, out=energy)
+            detail_energy += energy
+        priority = np.subtract(scale_variances[k - 1], detail_energy, out=detail_energy)
+        priority *= 4.0**k
+        priorities.append(priority)
     if c != 1.0:
         with np.errstate(over="ignore"):  # Inf: a priority beyond float64 (means near 1e300)
             priorities = [p * c * c for p in priorities]
@@ -167,17 +179,24 @@ def pixel_levels(priorities: list[FloatArray], operators: WaveletOperators) -> n
     >>> pixel_levels(coefficient_priorities(edge, operators=ops), ops)[16, 10:22]
     array([1, 1, 1, 1, 0, 0, 0, 0, 1, 1, 1, 1])
     """
+    return _levels(priorities, operators).astype(np.int64)
+
+
+def _levels(priorities: list[FloatArray], operators: WaveletOperators) -> np.ndarray:
+    """:func:`pixel_levels` as uint8, with in-place updates (the same comparisons, in order)."""
     h, w = operators.shape
     best = priorities[0].copy()
-    level = np.zeros((h, w), np.int64)
+    level = np.zeros((h, w), np.uint8)
+    at_pixels = np.empty((h, w))
+    better = np.empty((h, w), bool)
     for k in range(1, len(priorities)):
         key = (operators.wavelet, operators.boundary, operators.levels, k)
         rows = _pixel_to_coefficient(h, *key)
         cols = _pixel_to_coefficient(w, *key)
-        at_pixels = priorities[k][np.ix_(rows, cols)]
-        better = at_pixels > best
-        best = np.where(better, at_pixels, best)
-        level[better] = k
+        np.take(np.take(priorities[k], rows, axis=0), cols, axis=1, out=at_pixels)
+        np.greater(at_pixels, best, out=better)
+        np.copyto(best, at_pixels, where=better)
+        np.copyto(level, k, where=better)
     return level
 
 
@@ -221,7 +240,7 @@ def sampling_density(
         return np.sqrt(s2_pooled)
     # Levels do not change when the plane is scaled: normalised, the priorities cannot overflow.
     prio = coefficient_priorities(buffer, domain=domain, operators=ops, plane=_normalised(plane)[0])
-    level = pixel_levels(prio, ops)
+    level = _levels(prio, ops)
     with np.errstate(under="ignore"):  # a large level_weight leaves coarse levels nothing
         # One power per level, looked up per pixel: the same values as the power of every pixel.
         factor = 2.0 ** (-level_weight * np.arange(ops.levels + 1))

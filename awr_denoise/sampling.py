@@ -537,6 +537,8 @@ def _check_fraction(value: float) -> float:
 def _mixed(density, budget, current, capacity, rng, uniform_fraction):
     """``uniform_fraction`` of the budget spread uniformly, the rest by ``density``."""
     uniform_part = int(round(uniform_fraction * budget))
+    if uniform_part == 0:  # the default: no uniform share (allocate would return zeros and draw nothing)
+        return allocate(density, current, budget, capacity=capacity, rng=rng)
     counts = allocate(np.ones(current.shape), current, uniform_part, capacity=capacity, rng=rng)
     cap = None if capacity is None else capacity - counts
     return counts + allocate(density, current + counts, budget - uniform_part, capacity=cap, rng=rng)
