@@ -8,7 +8,8 @@ Run from the repository root::
 
 Prints markdown tables and writes ``benchmarks/results/core.json``. Speed: at 1080p and 4K RGB,
 the floor (PyWavelets' 5-level bior4.4 ``wavedec2`` + ``waverec2`` of the float32 frame),
-``reconstruct(stages=1)``, the default ``reconstruct`` and one ``AdaptiveSampler.ask()`` round,
+``reconstruct(stages=1)`` (and its float64 reference), the default ``reconstruct`` and one
+``AdaptiveSampler.ask()`` round,
 on one core (OMP/MKL/OPENBLAS_NUM_THREADS=1, no executor) and with a 2-thread executor; medians of
 repeats in which the cases are interleaved, and ratios to the floor of the same run. Memory: in a
 fresh process per case, the tracemalloc peak above the built buffer and the peak RSS, as
@@ -78,6 +79,8 @@ def _cases(buf, pool: ThreadPoolExecutor | None) -> dict:
     if pool is None:
         return {"floor": lambda: _floor(image),
                 "reconstruct_stages1": lambda: reconstruct(buf, stages=1),
+                # The float64 reference of stage 1 (float32 is the default in the log domain).
+                "reconstruct_stages1_float64": lambda: reconstruct(buf, stages=1, precision="float64"),
                 "reconstruct_default": lambda: reconstruct(buf),
                 "ask": _Ask(buf)}
     return {"reconstruct_stages1": lambda: reconstruct(buf, stages=1, executor=pool),
@@ -136,7 +139,8 @@ def speed(sizes: list[str], repeats: int = 5) -> list[dict]:
                "seconds_1core": t1, "seconds_2threads": t2,
                "x_floor_1core": {k: v / t1["floor"] for k, v in t1.items()},
                "x_floor_2threads": {k: v / t1["floor"] for k, v in t2.items()}}
-        mem = {case: _memory(name, case) for case in ("reconstruct_stages1", "reconstruct_default", "ask")}
+        mem = {case: _memory(name, case) for case in ("reconstruct_stages1", "reconstruct_stages1_float64",
+                                                      "reconstruct_default", "ask")}
         # maxrss_before: the process' peak once the synthetic buffer is built (its float64
         # temporaries often set the peak); the call's own peak is the tracemalloc figure.
         row["memory"] = {case: {"tracemalloc_peak_x_input": m["tracemalloc_peak"] / m["input"],
@@ -147,12 +151,14 @@ def speed(sizes: list[str], repeats: int = 5) -> list[dict]:
         x1, x2 = row["x_floor_1core"], row["x_floor_2threads"]
         print(f"| {name} | {row['input_MB']:.0f} MB | {t1['floor']:.3f} s | "
               f"{t1['reconstruct_stages1']:.3f} s ({x1['reconstruct_stages1']:.1f}x) | "
+              f"{t1['reconstruct_stages1_float64']:.3f} s ({x1['reconstruct_stages1_float64']:.1f}x) | "
               f"{t1['reconstruct_default']:.3f} s ({x1['reconstruct_default']:.1f}x) | "
               f"{t1['ask']:.3f} s ({x1['ask']:.1f}x) | "
               f"{t2['reconstruct_stages1']:.3f} s ({x2['reconstruct_stages1']:.1f}x) | "
               f"{t2['reconstruct_default']:.3f} s ({x2['reconstruct_default']:.1f}x) | "
               + " | ".join(f"{row['memory'][c]['tracemalloc_peak_x_input']:.1f}x"
-                           for c in ("reconstruct_stages1", "reconstruct_default", "ask")) + " |", flush=True)
+                           for c in ("reconstruct_stages1", "reconstruct_stages1_float64", "reconstruct_default",
+                                     "ask")) + " |", flush=True)
     return rows
 
 
@@ -358,8 +364,8 @@ def uniform_fractions(shape=(128, 128), spps=(8, 32), seeds=(3, 4, 5, 6)) -> lis
 SECTIONS = {
     "speed": ("Speed against the PyWavelets floor (medians of interleaved repeats; x floor of the same run) "
               "and peak memory (tracemalloc, x input buffer)",
-              "| size | input buffer | floor | stages=1 | default | ask() | stages=1, 2 threads | default, 2 threads "
-              "| stages=1 peak | default peak | ask() peak |",
+              "| size | input buffer | floor | stages=1 | stages=1 float64 | default | ask() | stages=1, 2 threads "
+              "| default, 2 threads | stages=1 peak | stages=1 float64 peak | default peak | ask() peak |",
               lambda quick: speed(["256x256"] if quick else SPEED_SIZES)),
     "fft_budget": ("The default reconstruction's FFTs against the floor (one core)",
                    "| size | plane FFTs (forward + inverse) | one forward + inverse pair | floor | FFTs alone |",
