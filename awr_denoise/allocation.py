@@ -150,15 +150,19 @@ def _water_level(a: FloatArray, n: FloatArray, cap: FloatArray | None, budget: i
 
 
 def _round_to_budget(m: FloatArray, cap_int: CountArray, budget: int, rng: np.random.Generator) -> CountArray:
-    """Whole counts near ``m``, within ``cap_int``, summing to ``budget`` exactly (largest remainder)."""
+    """Whole counts near ``m``, within ``cap_int``, summing to ``budget`` exactly (largest remainder).
+
+    ``m`` is overwritten (its fractional parts are computed in place).
+    """
     shape = m.shape
     floor_m = np.floor(m)
-    frac = (m - floor_m).ravel()
-    jitter = rng.random(shape).ravel() * 1e-6  # tie-break equal remainders without bias toward low indices
+    frac = np.subtract(m, floor_m, out=m).ravel()  # m is not needed after this
+    jitter = rng.random(shape).ravel()
+    jitter *= 1e-6  # tie-break equal remainders without bias toward low indices
     # Integer arithmetic from here on: the search stops within 0.1% of the budget and float64
     # cannot hold every count above 2**53, so the residual may exceed the number of pixels.
     flat_cap = cap_int.reshape(-1)  # a view, also of a broadcast value
-    flat_base = np.minimum(np.minimum(floor_m, float(MAX_BUDGET)).ravel().astype(np.int64), flat_cap)
+    flat_base = np.minimum(np.minimum(floor_m, float(MAX_BUDGET), out=floor_m).ravel().astype(np.int64), flat_cap)
     left = budget - int(flat_base.sum())
     while left > 0:
         room = flat_cap - flat_base
@@ -170,8 +174,11 @@ def _round_to_budget(m: FloatArray, cap_int: CountArray, budget: int, rng: np.ra
             flat_base += step
             left -= int(step.sum())
             continue
-        key = np.where(room > 0, frac + jitter, -np.inf)
-        pick = np.argpartition(-key, left - 1)[:left]
+        key = np.add(frac, jitter, out=jitter)  # -(frac + jitter) where there is room, +Inf where not
+        np.negative(key, out=key)
+        if open_pixels < key.size:
+            key[room <= 0] = np.inf
+        pick = np.argpartition(key, left - 1)[:left]
         flat_base[pick] += 1
         left = 0
     while left < 0:

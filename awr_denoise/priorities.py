@@ -235,13 +235,16 @@ def sampling_density(
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     plane = error_plane(buffer, domain)
     # The running-sum filter can leave -1e-17-sized residues next to large values: clip them.
-    s2_pooled = np.maximum(ndimage.uniform_filter(plane[2], 3, mode="nearest"), 0.0)
+    s2_pooled = ndimage.uniform_filter(plane[2], 3, mode="nearest")
+    np.maximum(s2_pooled, 0.0, out=s2_pooled)
+    s_pooled = np.sqrt(s2_pooled, out=s2_pooled)
     if level_weight == 0:
-        return np.sqrt(s2_pooled)
+        return s_pooled
     # Levels do not change when the plane is scaled: normalised, the priorities cannot overflow.
     prio = coefficient_priorities(buffer, domain=domain, operators=ops, plane=_normalised(plane)[0])
     level = _levels(prio, ops)
     with np.errstate(under="ignore"):  # a large level_weight leaves coarse levels nothing
         # One power per level, looked up per pixel: the same values as the power of every pixel.
         factor = 2.0 ** (-level_weight * np.arange(ops.levels + 1))
-        return np.sqrt(s2_pooled) * factor[level]
+        s_pooled *= factor[level]
+        return s_pooled
