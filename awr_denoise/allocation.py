@@ -81,7 +81,9 @@ def allocate(density: FloatArray, current: CountArray, budget: int, *,
                else np.minimum(np.maximum(np.asarray(capacity), 0), MAX_BUDGET).astype(np.int64))
     if capacity is not None and budget > int(cap_int.sum()):
         raise ValueError(f"budget: {budget} samples exceed the {int(cap_int.sum())} that spp_max still allows")
-    a = np.nan_to_num(np.asarray(density, dtype=np.float64), nan=0.0, posinf=0.0)  # a copy: changed in place
+    a = np.array(density, dtype=np.float64)  # a copy: changed in place
+    if not np.isfinite(a.max(initial=0.0)):  # NaN or +Inf somewhere (-Inf becomes 0 below either way)
+        np.nan_to_num(a, copy=False, nan=0.0, posinf=0.0)
     np.maximum(a, 0.0, out=a)
     reachable = a if capacity is None else a[cap > 0]  # the open pixels' densities
     top = float(reachable.max(initial=0.0))  # no NaN is left: any density > 0 exactly when the largest is
