@@ -6,7 +6,8 @@ Run from the repository root::
     .venv/bin/python benchmarks/bench_core.py --quick          # 256x256 speed, fewer quality runs
     .venv/bin/python benchmarks/bench_core.py --only levels    # one section, updated in the JSON
 
-Prints markdown tables and writes ``benchmarks/results/core.json``. Speed: at 1080p and 4K RGB,
+Prints markdown tables and writes ``benchmarks/results/core.json``. ``precision``: stage 1 in
+float32 (the default) against float64 on the tracer's and Mitsuba 3's buffers. Speed: at 1080p and 4K RGB,
 the floor (PyWavelets' 5-level bior4.4 ``wavedec2`` + ``waverec2`` of the float32 frame),
 ``reconstruct(stages=1)`` (and its float64 reference), the default ``reconstruct`` and one
 ``AdaptiveSampler.ask()`` round,
@@ -203,6 +204,40 @@ def fft_budget(size: str = "1080p", repeats: int = 5) -> dict:
     return row
 
 
+def precision(spps=(8, 32, 128), group: int = 0) -> list[dict]:
+    """Stage 1 in float32 (the default) against its float64 reference on buffers the renderers wrote.
+
+    The bundled tracer's scenes and, when the ``mitsuba`` extra is installed, Mitsuba 3's, as
+    ``benchmarks/bench_reconstruct.py quality`` renders and caches them (group ``group``, its
+    cache directory): relMSE and MSE against the references, the image mean, and the largest
+    difference of a pixel relative to ``|x| + k`` (the log domain's own scale).
+    """
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import bench_reconstruct as br  # the renders and references of the quality measurements
+
+    cache = Path.home() / ".cache" / "awr-denoise" / "reconstruct"
+    scenes = [("tracer", s, None) for s in br.TRACER_SCENES]
+    if br._mitsuba_available():
+        scenes += [("mitsuba", s, br.MITSUBA_SHAPE) for s in br.MITSUBA_SCENES]
+    rows = []
+    for renderer, scene, shape in scenes:
+        ref = br.reference(renderer, scene, shape, cache)
+        for spp, buf in br.uniform_buffers(renderer, scene, shape, spps, group, cache).items():
+            single = reconstruct(buf, stages=1)
+            double = reconstruct(buf, stages=1, precision="float64")
+            k = 0.1 * Domain("log").resolved_scale(buf.mean)
+            row = {"renderer": renderer, "scene": scene, "spp": spp,
+                   "relmse_float32": relmse(single, ref), "relmse_float64": relmse(double, ref),
+                   "mse_float32": mse(single, ref), "mse_float64": mse(double, ref),
+                   "mean_change": float(np.abs(single.mean(axis=(0, 1)) / double.mean(axis=(0, 1)) - 1).max()),
+                   "largest_pixel_change": float((np.abs(single - double) / (np.abs(double) + k)).max())}
+            rows.append(row)
+            print(f"| {renderer} | {scene} | {spp} | {row['relmse_float32'] / row['relmse_float64'] - 1:+.1e} | "
+                  f"{row['mse_float32'] / row['mse_float64'] - 1:+.1e} | {row['mean_change']:.1e} | "
+                  f"{row['largest_pixel_change']:.1e} |", flush=True)
+    return rows
+
+
 def quality(shape=(128, 128), spps=(8, 32), seed=3) -> list[dict]:
     rows = []
     for scene_name in ("gradient", "edges", "hdr_source", "fireflies"):
@@ -362,6 +397,9 @@ def uniform_fractions(shape=(128, 128), spps=(8, 32), seeds=(3, 4, 5, 6)) -> lis
 
 
 SECTIONS = {
+    "precision": ("Stage 1 in float32 against float64 (stages=1, rendered buffers): relative changes",
+                  "| renderer | scene | spp | relMSE | MSE | image mean | largest pixel change (x (abs(x) + k)) |",
+                  lambda quick: precision(spps=(8,) if quick else (8, 32, 128))),
     "speed": ("Speed against the PyWavelets floor (medians of interleaved repeats; x floor of the same run) "
               "and peak memory (tracemalloc, x input buffer)",
               "| size | input buffer | floor | stages=1 | stages=1 float64 | default | ask() | stages=1, 2 threads "
