@@ -307,7 +307,8 @@ def threshold_stage(prepared: Prepared, ops: WaveletOperators, c_s: float, *, mo
     precision
         ``"float64"`` (the reference) or ``"float32"``: the transforms, the variance
         propagation, the thresholding and the clamp in float32, in channel mode in the log
-        domain (elsewhere, and when a buffer's values do not fit float32, float64 is used).
+        domain with ``c_s > 0`` (elsewhere, and when a buffer's values do not fit float32,
+        float64 is used: ``c_s = 0`` returns the means to float64's rounding).
         The output stays float64; it differs from the reference by a few float32 epsilons
         relative to each pixel's level (tests/test_thresholding.py; docs/performance.md).
 
@@ -329,7 +330,9 @@ def threshold_stage(prepared: Prepared, ops: WaveletOperators, c_s: float, *, mo
     if precision not in PRECISIONS:
         raise ValueError(f"precision: {precision!r} is not one of {', '.join(PRECISIONS)}")
     bound = prepared.bound
-    if precision == "float32" and mode == "channels" and bound.domain.name == "log" and not bound.domain.robust:
+    # c_s = 0 is Eq. 11's identity: float64 returns the means to float64's rounding, as it promises.
+    if precision == "float32" and c_s > 0 and mode == "channels" and bound.domain.name == "log" \
+            and not bound.domain.robust:
         fast = _stage32(prepared, ops, c_s, pixel_clamp, run)
         if fast is not None:
             image, thresholds, zeroed, total, factors = fast
