@@ -81,18 +81,23 @@ def allocate(density: FloatArray, current: CountArray, budget: int, *,
                else np.minimum(np.maximum(np.asarray(capacity), 0), MAX_BUDGET).astype(np.int64))
     if capacity is not None and budget > int(cap_int.sum()):
         raise ValueError(f"budget: {budget} samples exceed the {int(cap_int.sum())} that spp_max still allows")
-    a = np.nan_to_num(np.asarray(density, dtype=np.float64), nan=0.0, posinf=0.0)
-    a = np.maximum(a, 0.0)
+    a = np.array(density, dtype=np.float64)  # a copy: changed in place
+    if not np.isfinite(a.max(initial=0.0)):  # NaN or +Inf somewhere (-Inf becomes 0 below either way)
+        np.nan_to_num(a, copy=False, nan=0.0, posinf=0.0)
+    np.maximum(a, 0.0, out=a)
     reachable = a if capacity is None else a[cap > 0]  # the open pixels' densities
-    if not (reachable > 0).any():
+    top = float(reachable.max(initial=0.0))  # no NaN is left: any density > 0 exactly when the largest is
+    if not top > 0:
         a = np.ones(shape)  # nothing to rank on (a deterministic image): spread uniformly
     else:
         # A floor so no open pixel is unreachable: otherwise a budget larger than what the
         # positive-density pixels can absorb would have nowhere to go.
-        a = np.maximum(a, 1e-9 * reachable.max())
+        np.maximum(a, 1e-9 * top, out=a)
     n = current.astype(np.float64)
     alpha = _water_level(a, n, None if capacity is None else cap, budget)
-    m = np.maximum(alpha * a - n, 0.0)
+    m = np.multiply(a, alpha)  # the values of max(alpha * a - n, 0), in place
+    m -= n
+    np.maximum(m, 0.0, out=m)
     if capacity is not None:
         np.minimum(m, cap, out=m)
     out[...] = _round_to_budget(m, cap_int, budget, rng or np.random.default_rng(0))
@@ -147,15 +152,19 @@ def _water_level(a: FloatArray, n: FloatArray, cap: FloatArray | None, budget: i
 
 
 def _round_to_budget(m: FloatArray, cap_int: CountArray, budget: int, rng: np.random.Generator) -> CountArray:
-    """Whole counts near ``m``, within ``cap_int``, summing to ``budget`` exactly (largest remainder)."""
+    """Whole counts near ``m``, within ``cap_int``, summing to ``budget`` exactly (largest remainder).
+
+    ``m`` is overwritten (its fractional parts are computed in place).
+    """
     shape = m.shape
     floor_m = np.floor(m)
-    frac = (m - floor_m).ravel()
-    jitter = rng.random(shape).ravel() * 1e-6  # tie-break equal remainders without bias toward low indices
+    frac = np.subtract(m, floor_m, out=m).ravel()  # m is not needed after this
+    jitter = rng.random(shape).ravel()
+    jitter *= 1e-6  # tie-break equal remainders without bias toward low indices
     # Integer arithmetic from here on: the search stops within 0.1% of the budget and float64
     # cannot hold every count above 2**53, so the residual may exceed the number of pixels.
     flat_cap = cap_int.reshape(-1)  # a view, also of a broadcast value
-    flat_base = np.minimum(np.minimum(floor_m, float(MAX_BUDGET)).ravel().astype(np.int64), flat_cap)
+    flat_base = np.minimum(np.minimum(floor_m, float(MAX_BUDGET), out=floor_m).ravel().astype(np.int64), flat_cap)
     left = budget - int(flat_base.sum())
     while left > 0:
         room = flat_cap - flat_base
@@ -167,8 +176,11 @@ def _round_to_budget(m: FloatArray, cap_int: CountArray, budget: int, rng: np.ra
             flat_base += step
             left -= int(step.sum())
             continue
-        key = np.where(room > 0, frac + jitter, -np.inf)
-        pick = np.argpartition(-key, left - 1)[:left]
+        key = np.add(frac, jitter, out=jitter)  # -(frac + jitter) where there is room, +Inf where not
+        np.negative(key, out=key)
+        if open_pixels < key.size:
+            key[room <= 0] = np.inf
+        pick = np.argpartition(key, left - 1)[:left]
         flat_base[pick] += 1
         left = 0
     while left < 0:

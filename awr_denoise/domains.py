@@ -134,8 +134,15 @@ class Domain:
         if scale is None:
             magnitude = np.abs(mean)
             top = float(magnitude.max()) if magnitude.size else 0.0
-            # Normalised first: the plain mean of values near the float64 limit overflows.
-            scale = float(np.mean(magnitude / top)) * top if np.isfinite(top) and top > 0 else 0.0
+            if np.isfinite(top) and top > 0:
+                # Normalised first: the plain mean of values near the float64 limit overflows.
+                if magnitude.dtype == np.float64:
+                    magnitude /= top  # in place: the same values as magnitude / top, one array fewer
+                else:
+                    magnitude = magnitude / top
+                scale = float(np.mean(magnitude)) * top
+            else:
+                scale = 0.0
             if not np.isfinite(scale) or scale <= 0:
                 # An all-zero image: any positive k gives the same (zero) result.
                 scale = 1.0
@@ -153,7 +160,14 @@ class _BoundDomain:
             return np.array(x, dtype=np.float64)
         a = np.abs(x)
         if name == "log":
-            return np.sign(x) * np.log1p(a / k)
+            if not isinstance(a, np.ndarray) or a.dtype != np.float64:
+                return np.sign(x) * np.log1p(a / k)
+            # In place (the same operations and values as the line above, fewer whole-image arrays).
+            a /= k
+            np.log1p(a, out=a)
+            sign = np.sign(x)
+            sign *= a
+            return sign
         p = 1.0 / self.domain.gamma
         return np.sign(x) * ((a + k) ** p - k**p)
 
@@ -164,7 +178,10 @@ class _BoundDomain:
         a = np.abs(x)
         if name == "log":
             with np.errstate(over="ignore"):  # Inf below ~1e-308: callers divide by it
-                return 1.0 / (a + k)
+                if not isinstance(a, np.ndarray) or a.dtype != np.float64:
+                    return 1.0 / (a + k)
+                a += k  # in place: the values of 1.0 / (a + k)
+                return np.divide(1.0, a, out=a)
         p = 1.0 / self.domain.gamma
         with np.errstate(over="ignore"):
             return p * (a + k) ** (p - 1.0)
@@ -192,13 +209,16 @@ class _BoundDomain:
             at = np.where(np.abs(median) < np.abs(mean), median, mean)
         d = self.derivative(at)
         with np.errstate(over="ignore", invalid="ignore"):
-            out = variance * d * d
-            if self.domain.name == "log" and not np.isfinite(out).all():
+            out = variance * d
+            out *= d  # (variance * d) * d, in place
+            # max() is NaN or Inf exactly when some value is (out >= 0 otherwise): no mask needed.
+            if self.domain.name == "log" and out.size and not np.isfinite(out.max()):
                 # f' overflows for means near the smallest floats (1e-310); its inverse does
                 # not: Var / (|x| + k)^2 there (elsewhere the product, bit for bit as before).
                 s = np.abs(at) + self.k
                 out = np.where(np.isfinite(out), out, variance / s / s)
-        return np.where(variance == 0, 0.0, out)
+        np.copyto(out, 0.0, where=variance == 0)
+        return out
 
 
 def resolve_domain(domain: str | Domain) -> Domain:

@@ -179,7 +179,8 @@ def prepare(buffer: SampleBuffer, domain: str | Domain = "log", *, luminance: bo
         mean = _filled(buffer, copy=False) @ luminance_weights(buffer.channels)  # a new array: no copy needed
         sample_variance = buffer.luminance_variance()
     else:
-        mean = filled_mean(buffer)
-        sample_variance = buffer.estimated_variance()
+        # The buffer's own arrays (read-only) where nothing is filled or pooled: no copies.
+        mean = _filled(buffer, copy=False)
+        sample_variance = buffer.variance if buffer.variance_known.all() else buffer.estimated_variance()
         n = n[..., None]
     return Prepared(mean, sample_variance, n, dom.bound(mean))

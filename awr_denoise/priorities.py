@@ -31,11 +31,13 @@ from ._typing import FloatArray
 from .buffers import SampleBuffer
 from .domains import Domain
 from .prepare import prepare
-from .wavelets import DEFAULT_WAVELET, WaveletOperators, coefficient_variance, forward, wavelet_operators
+from .wavelets import (DEFAULT_WAVELET, WaveletOperators, _plane_variance, coefficient_variance, forward,
+                       wavelet_operators)
 
 __all__ = ["coefficient_priorities", "pixel_levels", "sampling_density", "error_plane"]
 
 _SIGNIFICANCE = 2.0  # t: a detail coefficient counts as signal beyond t standard errors
+_FLOAT32_SAFE = (2.0**-100, 2.0**100)  # variances propagated in float32 when all lie in this range (or are 0)
 
 
 def error_plane(buffer: SampleBuffer, domain: str | Domain = "log") -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -114,15 +116,32 @@ def coefficient_priorities(
     (mean_y, var_y, _), c = _normalised(plane if plane is not None else error_plane(buffer, domain))
     ops = operators or wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     coeffs = forward(mean_y, wavelet=ops.wavelet, levels=ops.levels, boundary=ops.boundary)
-    variances = coefficient_variance(var_y, operators=ops)
-    var_t = np.ascontiguousarray(var_y.T)
+    var_y = np.asarray(var_y, dtype=np.float64)
+    if var_y.shape != ops.shape or not (np.isfinite(var_y.max(initial=0.0)) and var_y.min(initial=0.0) >= 0):
+        coefficient_variance(var_y, operators=ops)  # raises the error that names the bad values
+    # One pass of the squared operators gives the detail variances and every level's scale variance,
+    # in float32 where every positive variance is a normal float32 number with room to spare (the
+    # products then keep float32's 7 digits): a level changes only where two levels' priorities
+    # agree to 1e-7, which none of the 2M pixels of a 1080p buffer did (docs/performance.md).
+    scale_variances: list = []
+    smallest = float(np.min(var_y, where=var_y > 0, initial=np.inf))
+    single = var_y.max(initial=0.0) < _FLOAT32_SAFE[1] and (smallest == np.inf or smallest > _FLOAT32_SAFE[0])
+    variances = _plane_variance(var_y.astype(np.float32) if single else var_y, ops, scales=scale_variances)
     priorities = [var_y]
     for k in range(1, ops.levels + 1):
         j = ops.levels - k + 1  # position of level k's detail bands in pywt's layout
-        scale_variance = ops.rows.approx_sq[k - 1] @ (ops.cols.approx_sq[k - 1] @ var_t).T
-        detail_energy = sum(np.maximum(0.0, coeffs[j][b] ** 2 - (_SIGNIFICANCE**2) * variances[j][b])
-                            for b in range(3))
-        priorities.append(4.0**k * (scale_variance - detail_energy))
+        # sum_a max(0, W~^2 - (t Delta)^2), accumulated in place (the same operations, in order).
+        detail_energy = np.zeros(scale_variances[k - 1].shape)
+        for b in range(3):
+            w, noise = coeffs[j][b], variances[j][b]
+            energy = np.multiply(w, w)
+            noise *= _SIGNIFICANCE**2
+            energy -= noise
+            np.maximum(energy, 0.0, out=energy)
+            detail_energy += energy
+        priority = np.subtract(scale_variances[k - 1], detail_energy, out=detail_energy)
+        priority *= 4.0**k
+        priorities.append(priority)
     if c != 1.0:
         with np.errstate(over="ignore"):  # Inf: a priority beyond float64 (means near 1e300)
             priorities = [p * c * c for p in priorities]
@@ -148,6 +167,30 @@ def _pixel_to_coefficient(n: int, wavelet: str, boundary: str, levels: int, leve
     return np.asarray(abs(op).tocsc().argmax(axis=0)).ravel()
 
 
+@lru_cache(maxsize=64)
+def _expansion(n: int, wavelet: str, boundary: str, levels: int,
+               level: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_pixel_to_coefficient` as a run-length expansion plus the few pixels it gets wrong.
+
+    Away from the boundary the map is non-decreasing, so ``np.repeat`` with each coefficient's
+    pixel count gathers it (several times faster than a fancy-index gather); near the boundary
+    a few pixels map out of order and are gathered one by one: ``(counts, pixels, coefficients)``.
+    """
+    index = _pixel_to_coefficient(n, wavelet, boundary, levels, level)
+    counts = np.bincount(index)
+    wrong = np.flatnonzero(np.repeat(np.arange(counts.size), counts) != index)
+    return counts, wrong, index[wrong]
+
+
+def _gather(p: FloatArray, rows: tuple, cols: tuple) -> FloatArray:
+    """``p[np.ix_(rows_index, cols_index)]`` from :func:`_expansion`'s runs; the same values."""
+    expanded = np.repeat(p[:rows[0].size], rows[0], axis=0)
+    expanded[rows[1]] = p[rows[2]]
+    out = np.repeat(expanded[:, :cols[0].size], cols[0], axis=1)
+    out[:, cols[1]] = expanded[:, cols[2]]
+    return out
+
+
 def pixel_levels(priorities: list[FloatArray], operators: WaveletOperators) -> np.ndarray:
     """(H, W) level ``l_p`` whose covering coefficient has the highest priority at each pixel.
 
@@ -167,17 +210,21 @@ def pixel_levels(priorities: list[FloatArray], operators: WaveletOperators) -> n
     >>> pixel_levels(coefficient_priorities(edge, operators=ops), ops)[16, 10:22]
     array([1, 1, 1, 1, 0, 0, 0, 0, 1, 1, 1, 1])
     """
+    return _levels(priorities, operators).astype(np.int64)
+
+
+def _levels(priorities: list[FloatArray], operators: WaveletOperators) -> np.ndarray:
+    """:func:`pixel_levels` as uint8, with in-place updates (the same comparisons, in order)."""
     h, w = operators.shape
     best = priorities[0].copy()
-    level = np.zeros((h, w), np.int64)
+    level = np.zeros((h, w), np.uint8)
+    better = np.empty((h, w), bool)
     for k in range(1, len(priorities)):
         key = (operators.wavelet, operators.boundary, operators.levels, k)
-        rows = _pixel_to_coefficient(h, *key)
-        cols = _pixel_to_coefficient(w, *key)
-        at_pixels = priorities[k][np.ix_(rows, cols)]
-        better = at_pixels > best
-        best = np.where(better, at_pixels, best)
-        level[better] = k
+        at_pixels = _gather(priorities[k], _expansion(h, *key), _expansion(w, *key))
+        np.greater(at_pixels, best, out=better)
+        np.copyto(best, at_pixels, where=better)
+        np.copyto(level, k, where=better)
     return level
 
 
@@ -216,13 +263,16 @@ def sampling_density(
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     plane = error_plane(buffer, domain)
     # The running-sum filter can leave -1e-17-sized residues next to large values: clip them.
-    s2_pooled = np.maximum(ndimage.uniform_filter(plane[2], 3, mode="nearest"), 0.0)
+    s2_pooled = ndimage.uniform_filter(plane[2], 3, mode="nearest")
+    np.maximum(s2_pooled, 0.0, out=s2_pooled)
+    s_pooled = np.sqrt(s2_pooled, out=s2_pooled)
     if level_weight == 0:
-        return np.sqrt(s2_pooled)
+        return s_pooled
     # Levels do not change when the plane is scaled: normalised, the priorities cannot overflow.
     prio = coefficient_priorities(buffer, domain=domain, operators=ops, plane=_normalised(plane)[0])
-    level = pixel_levels(prio, ops)
+    level = _levels(prio, ops)
     with np.errstate(under="ignore"):  # a large level_weight leaves coarse levels nothing
         # One power per level, looked up per pixel: the same values as the power of every pixel.
         factor = 2.0 ** (-level_weight * np.arange(ops.levels + 1))
-        return np.sqrt(s2_pooled) * factor[level]
+        s_pooled *= factor[level]
+        return s_pooled

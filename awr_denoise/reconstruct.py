@@ -258,7 +258,7 @@ class Settings:
         return {"c_s": self.c_s, "pixel_clamp": self.pixel_clamp, "stages": self.stages,
                 "wiener_exponents": ",".join(f"{a:g}" for a in self.exponents) if wiener else None,
                 "guard": self.guard, "preserve_mean": self.preserve_mean, "nonnegative": self.nonnegative,
-                "precision": self.precision if wiener else None}
+                "precision": self.precision}
 
 
 def resolve_settings(*, c_s: float | None = None, stages: int = DEFAULT_STAGES,
@@ -424,8 +424,8 @@ def reconstruct_detailed(
         Zero negative output pixels in every channel whose means are all >= 0 (before the
         mean is matched, so the output stays >= 0). Default as ``preserve_mean``.
     precision
-        ``"float32"`` (default) or ``"float64"``: the FFTs of the Wiener stages. Means and
-        variances stay float64; float64 is the reference (docs/reconstruction.md).
+        ``"float32"`` (default) or ``"float64"``: the FFTs of the Wiener stages and stage 1 in
+        the log domain (:func:`~awr_denoise.thresholding.threshold_stage`); float64 is the reference.
     variance_probes
         Random probes used to estimate :attr:`Reconstruction.variance`; each costs one
         transform pair per channel. ``0`` skips the estimate (the variance is then NaN).
@@ -491,16 +491,16 @@ def reconstruct_detailed(
     luminance = None
     if mode == "luminance":
         luminance = (prepare(buffer, prepared.domain, luminance=True), luminance_weights(buffer.channels))
-    stage = threshold_stage(prepared, ops, settings.c_s, mode=mode, pixel_clamp=settings.pixel_clamp,
-                            luminance=None if luminance is None else luminance[0],
-                            weights=None if luminance is None else luminance[1], run=run)
+    stage = threshold_stage(prepared, ops, settings.c_s, mode=mode, pixel_clamp=settings.pixel_clamp, run=run,
+                            luminance=None if luminance is None else luminance[0], precision=settings.precision,
+                            weights=None if luminance is None else luminance[1])
     variance = stage.output_variance(settings.probes, settings.seed) if settings.probes and settings.stages == 1 \
         else None
     image, variance = later_stages(prepared, pilot(buffer, stage.image, guide, features), variance, settings,
                                    levels=ops.levels, wavelet=ops.wavelet, luminance=luminance, run=run)
     return Reconstruction(image=image, thresholds=stage.thresholds,
                           fraction_zeroed=stage.zeroed / stage.total if stage.total else 0.0,
-                          variance=np.full(image.shape, np.nan) if variance is None else variance,
+                          variance=np.broadcast_to(np.nan, image.shape) if variance is None else variance,
                           levels=ops.levels, domain=prepared.bound.domain,
                           parameters={"wavelet": ops.wavelet, "levels": ops.levels,
                                       "domain": prepared.bound.domain.name, "mode": mode, "boundary": boundary,

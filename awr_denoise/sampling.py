@@ -276,16 +276,21 @@ class Sampler:
                              "that spp_max still allows")
         rng = np.random.default_rng([self.seed, self._round])
         counts = np.zeros(self._shape, np.int64)
-        deficit = np.maximum(self.spp_min - self._issued, 0)
-        if capacity is not None:
-            deficit = np.minimum(deficit, capacity)
-        if self._round > 0 and deficit.any():
-            # Bring every pixel up to spp_min first (uniformly if the budget is short).
-            share = min(target, int(deficit.sum()))
-            counts += allocate(deficit.astype(np.float64), np.zeros_like(deficit), share, capacity=deficit, rng=rng)
-        rest = target - int(counts.sum())
+        topped_up = False
+        # Every pixel has spp_min already when the least-sampled one has (no whole-image deficit then).
+        if self._round > 0 and self._issued.min(initial=self.spp_min) < self.spp_min:
+            deficit = np.maximum(self.spp_min - self._issued, 0)
+            if capacity is not None:
+                deficit = np.minimum(deficit, capacity)
+            if deficit.any():
+                # Bring every pixel up to spp_min first (uniformly if the budget is short).
+                share = min(target, int(deficit.sum()))
+                counts += allocate(deficit.astype(np.float64), np.zeros_like(deficit), share, capacity=deficit,
+                                   rng=rng)
+                topped_up = True
+        rest = target - int(counts.sum()) if topped_up else target
         if rest:
-            current = self._issued + counts
+            current = self._issued + counts if topped_up else self._issued
             cap = None if capacity is None else capacity - counts
             if self._round == 0:
                 counts += allocate(np.ones(self._shape), current, rest, capacity=cap, rng=rng)
@@ -537,6 +542,8 @@ def _check_fraction(value: float) -> float:
 def _mixed(density, budget, current, capacity, rng, uniform_fraction):
     """``uniform_fraction`` of the budget spread uniformly, the rest by ``density``."""
     uniform_part = int(round(uniform_fraction * budget))
+    if uniform_part == 0:  # the default: no uniform share (allocate would return zeros and draw nothing)
+        return allocate(density, current, budget, capacity=capacity, rng=rng)
     counts = allocate(np.ones(current.shape), current, uniform_part, capacity=capacity, rng=rng)
     cap = None if capacity is None else capacity - counts
     return counts + allocate(density, current + counts, budget - uniform_part, capacity=cap, rng=rng)

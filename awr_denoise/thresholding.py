@@ -25,9 +25,16 @@ import numpy as np
 
 from ._typing import FloatArray
 from .prepare import Prepared
-from .wavelets import WaveletOperators, coefficient_variance, forward, inverse
+from .wavelets import WaveletOperators, _forward, _plane_variance, coefficient_variance, forward, inverse
 
-__all__ = ["soft_threshold", "ThresholdStage", "threshold_stage"]
+__all__ = ["soft_threshold", "ThresholdStage", "threshold_stage", "PRECISIONS"]
+
+PRECISIONS = ("float32", "float64")
+"""Precisions of stage 1: ``"float64"`` (the reference) and ``"float32"`` (log domain, channel mode)."""
+
+# float32 keeps about 7 digits: the log domain's values (at most ~89 there) lose nothing the
+# noise has not, as long as the offset k itself is an ordinary float32 number.
+_K_RANGE = (2.0**-100, 2.0**100)
 
 
 def soft_threshold(coeff: FloatArray, threshold: FloatArray) -> FloatArray:
@@ -110,6 +117,143 @@ def _output_variance(var_y: FloatArray, factors: list, ops: WaveletOperators, pr
     return acc / probes
 
 
+def _single(x: float) -> np.float32:
+    """A non-negative setting as float32, the largest float32 where it is beyond (no overflow warning)."""
+    return np.float32(min(x, float(np.finfo(np.float32).max)))
+
+
+def _log_plane32(mean: FloatArray, sample_variance: FloatArray, count: FloatArray,
+                 k: float) -> tuple[FloatArray, FloatArray] | None:
+    """One channel in the log domain in float32: ``y = sign(x) log(1 + |x| / k)`` and its
+    delta-method variance ``(s2 / n) / (|x| + k)^2``, computed as ``(s2 / k^2 / n) / (1 + |x| / k)^2``;
+    ``None`` when ``|x| / k`` or ``s2 / k^2`` do not fit in float32 (the caller then takes the
+    float64 path). ``log`` rather than ``log1p``: five times faster in float32, and the absolute
+    error it adds near 0 (a float32 epsilon of ``1 + |x| / k``) is that of float32 ``y`` anyway."""
+    u = np.empty(mean.shape, np.float32)
+    var_y = np.empty(mean.shape, np.float32)
+    with np.errstate(over="ignore"):  # checked below: an overflow sends the stage to float64
+        np.divide(mean, k, out=u, casting="unsafe")
+        np.divide(sample_variance, k * k, out=var_y, casting="unsafe")
+    a = np.abs(u)
+    if not (np.isfinite(a.max()) and np.isfinite(var_y.max())):
+        return None
+    var_y /= count
+    a += 1.0
+    y = np.log(a)
+    np.copysign(y, u, out=y)
+    a *= a
+    var_y /= a
+    return y, var_y
+
+
+def _threshold_plane32(y: FloatArray, var_y: FloatArray, c_s: float, ops: WaveletOperators,
+                       pixel_clamp: float | None) -> tuple[FloatArray, list, int, int, FloatArray | None]:
+    """Eq. 10-11 on one float32 plane, in place where it can; then the pixel clamp in the domain.
+
+    Returns the thresholded plane, the thresholds ``c_s * Delta``, the zeroed and total
+    detail coefficients, and where the clamp has zero width (``None`` without a clamp). The
+    shrink factors are not kept (see :func:`_factors32`).
+    """
+    coeffs = _forward(y, ops.wavelet, ops.levels, ops.boundary)  # y is finite: made and checked here
+    variances = _plane_variance(var_y, ops)
+    thresholds: list = [None]
+    zeroed = total = 0
+    for level in range(1, len(coeffs)):
+        band_t = []
+        for b in range(3):
+            w, t = coeffs[level][b], variances[level][b]
+            np.sqrt(t, out=t)
+            with np.errstate(over="ignore"):  # a huge c_s: infinite thresholds zero every coefficient
+                t *= _single(c_s)
+            shrunk = np.abs(w)  # Eq. 11 in place: sign(w) max(|w| - t, 0)
+            shrunk -= t
+            np.maximum(shrunk, 0.0, out=shrunk)
+            zeroed += w.size - int(np.count_nonzero(shrunk))
+            total += w.size
+            np.copysign(shrunk, w, out=w)
+            band_t.append(t)
+        thresholds.append(tuple(band_t))
+    out = inverse(coeffs, ops.shape, wavelet=ops.wavelet, boundary=ops.boundary)
+    pinned = None
+    if pixel_clamp is not None:
+        reach = np.sqrt(var_y, out=var_y)  # var_y is not needed after this
+        with np.errstate(over="ignore"):  # a huge pixel_clamp: an infinite reach clamps nothing
+            reach *= _single(pixel_clamp)
+        bound = y + reach
+        np.minimum(out, bound, out=out)
+        np.subtract(y, reach, out=bound)
+        np.maximum(out, bound, out=out)
+        pinned = reach == 0  # a clamp of zero width: these pixels keep their mean, bit for bit
+    return out, thresholds, zeroed, total, pinned
+
+
+def _factors32(y: FloatArray, thresholds: list, ops: WaveletOperators) -> list:
+    """The shrink factors the float32 path applied: ``max(|w| - t, 0) / |w|`` (0 where ``w = 0``)."""
+    coeffs = forward(y, wavelet=ops.wavelet, levels=ops.levels, boundary=ops.boundary)
+    factors: list = [None]
+    for level in range(1, len(coeffs)):
+        band_f = []
+        for b in range(3):
+            a = np.abs(coeffs[level][b]).astype(np.float64)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                band_f.append(np.where(a > 0, np.maximum(a - thresholds[level][b], 0.0) / np.where(a > 0, a, 1.0),
+                                       0.0))
+        factors.append(tuple(band_f))
+    return factors
+
+
+def _inverse_log_into(out: FloatArray, y: FloatArray, k: float) -> None:
+    """``out = sign(y) k (exp(|y|) - 1)`` written into ``out`` (an (H, W) float64 view).
+
+    float32 ``exp`` (vectorised, unlike ``expm1``) while ``|y|`` stays below its overflow;
+    beyond, float64 ``expm1`` capped at the largest float, as the float64 path does."""
+    a = np.abs(y)
+    if float(a.max()) < 88.0:  # exp(88) < 3.4e38: no float32 overflow
+        np.exp(a, out=a)
+        a -= 1.0
+        np.copysign(a, y, out=a)
+        np.multiply(a, k, out=out, dtype=np.float64)
+        return
+    else:
+        with np.errstate(over="ignore"):  # expm1 overflows past ~709: the largest finite float there
+            e = np.expm1(a, dtype=np.float64)
+        e *= k
+        np.minimum(e, np.finfo(np.float64).max, out=out)
+    np.copysign(out, y, out=out)
+
+
+def _stage32(prepared: Prepared, ops: WaveletOperators, c_s: float, pixel_clamp: float | None,
+             run: Callable) -> tuple[FloatArray, list, int, int, Callable[[int], FloatArray]] | None:
+    """Stage 1 in float32 (log domain, channel mode); ``None`` if the buffer needs float64."""
+    k = prepared.bound.k
+    if not _K_RANGE[0] <= k <= _K_RANGE[1]:
+        return None
+    mean, s2 = prepared.mean, prepared.sample_variance
+    count = prepared.count[:, :, 0].astype(np.float32)  # exact up to 2^24 samples, then within 6e-8
+    image = np.empty(mean.shape, np.float64)
+
+    def one_channel(c: int) -> tuple[list, int, int] | None:
+        plane = _log_plane32(mean[:, :, c], s2[:, :, c], count, k)
+        if plane is None:
+            return None
+        out, thresholds, zeroed, total, pinned = _threshold_plane32(*plane, c_s, ops, pixel_clamp)
+        _inverse_log_into(image[:, :, c], out, k)
+        if pinned is not None and pinned.any():
+            np.copyto(image[:, :, c], mean[:, :, c], where=pinned)
+        return thresholds, zeroed, total
+
+    results = run(one_channel, range(mean.shape[2]))
+    if any(r is None for r in results):
+        return None
+
+    def factors(c: int) -> list:
+        plane = _log_plane32(mean[:, :, c], s2[:, :, c], count, k)
+        assert plane is not None
+        return _factors32(plane[0], results[c][0], ops)
+
+    return image, [r[0] for r in results], sum(r[1] for r in results), sum(r[2] for r in results), factors
+
+
 @dataclass(frozen=True, eq=False)
 class ThresholdStage:
     """What stage 1 made: the image and what the thresholding did.
@@ -137,7 +281,8 @@ class ThresholdStage:
 
 def threshold_stage(prepared: Prepared, ops: WaveletOperators, c_s: float, *, mode: str = "channels",
                     pixel_clamp: float | None = 2.5, luminance: Prepared | None = None,
-                    weights: FloatArray | None = None, run: Callable | None = None) -> ThresholdStage:
+                    weights: FloatArray | None = None, run: Callable | None = None,
+                    precision: str = "float64") -> ThresholdStage:
     """Eq. 10-11 on every channel of a prepared buffer, then the pixel clamp.
 
     Parameters
@@ -159,6 +304,13 @@ def threshold_stage(prepared: Prepared, ops: WaveletOperators, c_s: float, *, mo
         channels' luminance weights (:func:`~awr_denoise.luminance_weights`).
     run
         ``run(f, items)`` maps ``f`` over the channels (an executor's ``map``); default a loop.
+    precision
+        ``"float64"`` (the reference) or ``"float32"``: the transforms, the variance
+        propagation, the thresholding and the clamp in float32, in channel mode in the log
+        domain with ``c_s > 0`` (elsewhere, and when a buffer's values do not fit float32,
+        float64 is used: ``c_s = 0`` returns the means to float64's rounding).
+        The output stays float64; it differs from the reference by a few float32 epsilons
+        relative to each pixel's level (tests/test_thresholding.py; docs/performance.md).
 
     Examples
     --------
@@ -175,7 +327,25 @@ def threshold_stage(prepared: Prepared, ops: WaveletOperators, c_s: float, *, mo
     ((32, 32, 3), 0.69)
     """
     run = run or (lambda f, items: [f(i) for i in items])
-    bound, y, var_y = prepared.bound, prepared.y, prepared.variance_y
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision: {precision!r} is not one of {', '.join(PRECISIONS)}")
+    bound = prepared.bound
+    # c_s = 0 is Eq. 11's identity: float64 returns the means to float64's rounding, as it promises.
+    if precision == "float32" and c_s > 0 and mode == "channels" and bound.domain.name == "log" \
+            and not bound.domain.robust:
+        fast = _stage32(prepared, ops, c_s, pixel_clamp, run)
+        if fast is not None:
+            image, thresholds, zeroed, total, factors = fast
+
+            def output_variance32(probes: int, seed: int) -> FloatArray:
+                var_y = prepared.variance_y
+                var_out_y = np.stack(run(lambda c: _output_variance(var_y[:, :, c], factors(c), ops, probes, seed + c),
+                                         range(image.shape[2])), axis=-1)
+                d = bound.derivative(image)
+                return var_out_y / d / d
+
+            return ThresholdStage(image, thresholds, zeroed, total, output_variance32)
+    y, var_y = prepared.y, prepared.variance_y
     shrink_from = None
     if mode == "luminance":
         if luminance is None or weights is None:

@@ -130,6 +130,14 @@ class _AxisOperators:
     detail: tuple[sparse.csr_matrix, ...]
     approx_sq: tuple[sparse.csr_matrix, ...]
     detail_sq: tuple[sparse.csr_matrix, ...]
+    approx_sq32: tuple[sparse.csr_matrix, ...]  # the squared operators in float32, for float32 planes
+    detail_sq32: tuple[sparse.csr_matrix, ...]
+
+    def squared(self, dtype: np.dtype) -> tuple[tuple[sparse.csr_matrix, ...], tuple[sparse.csr_matrix, ...]]:
+        """``(approx_sq, detail_sq)`` in ``dtype`` (float32 or float64)."""
+        if np.dtype(dtype) == np.float32:
+            return self.approx_sq32, self.detail_sq32
+        return self.approx_sq, self.detail_sq
 
 
 @lru_cache(maxsize=32)
@@ -147,9 +155,10 @@ def _axis_operators(n: int, wavelet: str, boundary: str, levels: int) -> _AxisOp
             previous = (lo @ previous).tocsr()
             approx.append(previous)
             length = previous.shape[0]
-    square = lambda m: m.multiply(m).tocsr()  # noqa: E731
-    return _AxisOperators(tuple(approx), tuple(detail),
-                          tuple(square(m) for m in approx), tuple(square(m) for m in detail))
+    approx_sq = tuple(m.multiply(m).tocsr() for m in approx)
+    detail_sq = tuple(m.multiply(m).tocsr() for m in detail)
+    single = lambda ms: tuple(m.astype(np.float32) for m in ms)  # noqa: E731
+    return _AxisOperators(tuple(approx), tuple(detail), approx_sq, detail_sq, single(approx_sq), single(detail_sq))
 
 
 @dataclass(frozen=True)
@@ -255,12 +264,16 @@ def forward(image: FloatArray, *, wavelet: str = DEFAULT_WAVELET, levels: int | 
     bad = int(np.count_nonzero(~np.isfinite(image)))
     if bad:
         raise ValueError(f"image: {bad} value(s) are NaN or Inf")
-    lv = _check_levels(levels, image.shape[:2])
+    return _forward(image, wavelet, _check_levels(levels, image.shape[:2]), boundary)
+
+
+def _forward(image: FloatArray, wavelet: str, levels: int, boundary: str) -> list:
+    """:func:`forward` without the checks, for callers that made them."""
     with warnings.catch_warnings():
         # Levels past pywt's "useful" depth only mean every coefficient touches the boundary;
         # the transform stays invertible and the variance propagation stays exact.
         warnings.simplefilter("ignore", UserWarning)
-        return pywt.wavedec2(image, wavelet, mode=boundary, level=lv, axes=(0, 1))
+        return pywt.wavedec2(image, wavelet, mode=boundary, level=levels, axes=(0, 1))
 
 
 def inverse(coeffs: list, shape: Shape2D, *, wavelet: str = DEFAULT_WAVELET, boundary: str = "symmetric") -> FloatArray:
@@ -280,26 +293,36 @@ def inverse(coeffs: list, shape: Shape2D, *, wavelet: str = DEFAULT_WAVELET, bou
     return out[: shape[0], : shape[1]]
 
 
-def _plane_variance(v: FloatArray, ops: WaveletOperators) -> list:
-    """Coefficient variances of one (H, W) plane; see :func:`coefficient_variance`."""
+def _plane_variance(v: FloatArray, ops: WaveletOperators, *, scales: list | None = None) -> list:
+    """Coefficient variances of one (H, W) plane; see :func:`coefficient_variance`.
+
+    Computed in ``v``'s precision (float32 or float64). With ``scales`` (a list), the variance
+    of the scale coefficients of every level ``k = 1..L`` is appended to it: the same products,
+    so the priorities of :mod:`awr_denoise.priorities` need no second pass.
+    """
+    rows_approx, rows_detail = ops.rows.squared(v.dtype)
+    cols_approx, cols_detail = ops.cols.squared(v.dtype)
     v_t = np.ascontiguousarray(v.T)  # columns first: every column pass is then one sparse product
     details = []
     approx = None
     for k in range(ops.levels):
-        low_t = ops.cols.approx_sq[k] @ v_t      # (m_k, H): squared low-pass along the columns
-        high_t = ops.cols.detail_sq[k] @ v_t
-        low, high = low_t.T, high_t.T
-        details.append((ops.rows.detail_sq[k] @ low,    # cH: high-pass down the rows
-                        ops.rows.approx_sq[k] @ high,   # cV: high-pass across the columns
-                        ops.rows.detail_sq[k] @ high))  # cD
-        if k == ops.levels - 1:
-            approx = ops.rows.approx_sq[k] @ low
+        low_t = cols_approx[k] @ v_t      # (m_k, H): squared low-pass along the columns
+        high_t = cols_detail[k] @ v_t
+        # The row passes need C-ordered operands: transposed once here, not in every product.
+        low, high = np.ascontiguousarray(low_t.T), np.ascontiguousarray(high_t.T)
+        details.append((rows_detail[k] @ low,    # cH: high-pass down the rows
+                        rows_approx[k] @ high,   # cV: high-pass across the columns
+                        rows_detail[k] @ high))  # cD
+        if scales is not None or k == ops.levels - 1:
+            approx = rows_approx[k] @ low
+            if scales is not None:
+                scales.append(approx)
     return [approx] + details[::-1]
 
 
 def coefficient_variance(variance_of_mean: FloatArray, *, wavelet: str = DEFAULT_WAVELET,
                          levels: int | None = None, boundary: str = "symmetric",
-                         operators: WaveletOperators | None = None) -> list:
+                         operators: WaveletOperators | None = None, precision: str = "float64") -> list:
     """Exact variance of every wavelet coefficient of the pixel-mean image.
 
     ``Var(C) = <v, K^2>`` with ``K`` the coefficient's equivalent 2-D analysis filter
@@ -314,6 +337,9 @@ def coefficient_variance(variance_of_mean: FloatArray, *, wavelet: str = DEFAULT
         As in :func:`forward`.
     operators
         Prebuilt :func:`wavelet_operators` for this shape (they are cached anyway).
+    precision
+        ``"float64"`` (the reference) or ``"float32"``: the precision of the products (float32
+        halves the memory traffic; its relative error is a few float32 epsilons).
 
     Returns
     -------
@@ -341,11 +367,16 @@ def coefficient_variance(variance_of_mean: FloatArray, *, wavelet: str = DEFAULT
     >>> var = coefficient_variance(np.ones((32, 32)), levels=2)
     >>> [round(float(band[8, 8]), 4) for band in var[1]]
     [1.1117, 1.1117, 1.2513]
+    >>> single = coefficient_variance(np.ones((32, 32)), levels=2, precision="float32")
+    >>> single[1][2].dtype, bool(np.allclose(single[1][2], var[1][2], rtol=1e-6))
+    (dtype('float32'), True)
     """
     v = np.asarray(variance_of_mean)
     if v.dtype.kind not in "fiu":
         raise TypeError(f"variance_of_mean: expected a numeric array, got dtype {v.dtype}")
-    v = v.astype(np.float64)
+    if precision not in ("float32", "float64"):
+        raise ValueError(f"precision: {precision!r} is not one of float32, float64")
+    v = v.astype(np.dtype(precision))
     if not (np.isfinite(v) & (v >= 0)).all():
         raise ValueError(f"variance_of_mean: {int((~(np.isfinite(v) & (v >= 0))).sum())} value(s) are NaN, Inf "
                          "or negative")

@@ -6,9 +6,11 @@ Run from the repository root::
     .venv/bin/python benchmarks/bench_core.py --quick          # 256x256 speed, fewer quality runs
     .venv/bin/python benchmarks/bench_core.py --only levels    # one section, updated in the JSON
 
-Prints markdown tables and writes ``benchmarks/results/core.json``. Speed: at 1080p and 4K RGB,
+Prints markdown tables and writes ``benchmarks/results/core.json``. ``precision``: stage 1 in
+float32 (the default) against float64 on the tracer's and Mitsuba 3's buffers. Speed: at 1080p and 4K RGB,
 the floor (PyWavelets' 5-level bior4.4 ``wavedec2`` + ``waverec2`` of the float32 frame),
-``reconstruct(stages=1)``, the default ``reconstruct`` and one ``AdaptiveSampler.ask()`` round,
+``reconstruct(stages=1)`` (and its float64 reference), the default ``reconstruct`` and one
+``AdaptiveSampler.ask()`` round,
 on one core (OMP/MKL/OPENBLAS_NUM_THREADS=1, no executor) and with a 2-thread executor; medians of
 repeats in which the cases are interleaved, and ratios to the floor of the same run. Memory: in a
 fresh process per case, the tracemalloc peak above the built buffer and the peak RSS, as
@@ -78,6 +80,8 @@ def _cases(buf, pool: ThreadPoolExecutor | None) -> dict:
     if pool is None:
         return {"floor": lambda: _floor(image),
                 "reconstruct_stages1": lambda: reconstruct(buf, stages=1),
+                # The float64 reference of stage 1 (float32 is the default in the log domain).
+                "reconstruct_stages1_float64": lambda: reconstruct(buf, stages=1, precision="float64"),
                 "reconstruct_default": lambda: reconstruct(buf),
                 "ask": _Ask(buf)}
     return {"reconstruct_stages1": lambda: reconstruct(buf, stages=1, executor=pool),
@@ -136,7 +140,8 @@ def speed(sizes: list[str], repeats: int = 5) -> list[dict]:
                "seconds_1core": t1, "seconds_2threads": t2,
                "x_floor_1core": {k: v / t1["floor"] for k, v in t1.items()},
                "x_floor_2threads": {k: v / t1["floor"] for k, v in t2.items()}}
-        mem = {case: _memory(name, case) for case in ("reconstruct_stages1", "reconstruct_default", "ask")}
+        mem = {case: _memory(name, case) for case in ("reconstruct_stages1", "reconstruct_stages1_float64",
+                                                      "reconstruct_default", "ask")}
         # maxrss_before: the process' peak once the synthetic buffer is built (its float64
         # temporaries often set the peak); the call's own peak is the tracemalloc figure.
         row["memory"] = {case: {"tracemalloc_peak_x_input": m["tracemalloc_peak"] / m["input"],
@@ -147,12 +152,14 @@ def speed(sizes: list[str], repeats: int = 5) -> list[dict]:
         x1, x2 = row["x_floor_1core"], row["x_floor_2threads"]
         print(f"| {name} | {row['input_MB']:.0f} MB | {t1['floor']:.3f} s | "
               f"{t1['reconstruct_stages1']:.3f} s ({x1['reconstruct_stages1']:.1f}x) | "
+              f"{t1['reconstruct_stages1_float64']:.3f} s ({x1['reconstruct_stages1_float64']:.1f}x) | "
               f"{t1['reconstruct_default']:.3f} s ({x1['reconstruct_default']:.1f}x) | "
               f"{t1['ask']:.3f} s ({x1['ask']:.1f}x) | "
               f"{t2['reconstruct_stages1']:.3f} s ({x2['reconstruct_stages1']:.1f}x) | "
               f"{t2['reconstruct_default']:.3f} s ({x2['reconstruct_default']:.1f}x) | "
               + " | ".join(f"{row['memory'][c]['tracemalloc_peak_x_input']:.1f}x"
-                           for c in ("reconstruct_stages1", "reconstruct_default", "ask")) + " |", flush=True)
+                           for c in ("reconstruct_stages1", "reconstruct_stages1_float64", "reconstruct_default",
+                                     "ask")) + " |", flush=True)
     return rows
 
 
@@ -195,6 +202,40 @@ def fft_budget(size: str = "1080p", repeats: int = 5) -> dict:
     print(f"| {size} | {counts['r2c']} + {counts['c2r']} | {t['fft_pair']:.4f} s | {t['floor']:.3f} s | "
           f"{row['ffts_x_floor']:.1f}x |", flush=True)
     return row
+
+
+def precision(spps=(8, 32, 128), group: int = 0) -> list[dict]:
+    """Stage 1 in float32 (the default) against its float64 reference on buffers the renderers wrote.
+
+    The bundled tracer's scenes and, when the ``mitsuba`` extra is installed, Mitsuba 3's, as
+    ``benchmarks/bench_reconstruct.py quality`` renders and caches them (group ``group``, its
+    cache directory): relMSE and MSE against the references, the image mean, and the largest
+    difference of a pixel relative to ``|x| + k`` (the log domain's own scale).
+    """
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import bench_reconstruct as br  # the renders and references of the quality measurements
+
+    cache = Path.home() / ".cache" / "awr-denoise" / "reconstruct"
+    scenes = [("tracer", s, None) for s in br.TRACER_SCENES]
+    if br._mitsuba_available():
+        scenes += [("mitsuba", s, br.MITSUBA_SHAPE) for s in br.MITSUBA_SCENES]
+    rows = []
+    for renderer, scene, shape in scenes:
+        ref = br.reference(renderer, scene, shape, cache)
+        for spp, buf in br.uniform_buffers(renderer, scene, shape, spps, group, cache).items():
+            single = reconstruct(buf, stages=1)
+            double = reconstruct(buf, stages=1, precision="float64")
+            k = 0.1 * Domain("log").resolved_scale(buf.mean)
+            row = {"renderer": renderer, "scene": scene, "spp": spp,
+                   "relmse_float32": relmse(single, ref), "relmse_float64": relmse(double, ref),
+                   "mse_float32": mse(single, ref), "mse_float64": mse(double, ref),
+                   "mean_change": float(np.abs(single.mean(axis=(0, 1)) / double.mean(axis=(0, 1)) - 1).max()),
+                   "largest_pixel_change": float((np.abs(single - double) / (np.abs(double) + k)).max())}
+            rows.append(row)
+            print(f"| {renderer} | {scene} | {spp} | {row['relmse_float32'] / row['relmse_float64'] - 1:+.1e} | "
+                  f"{row['mse_float32'] / row['mse_float64'] - 1:+.1e} | {row['mean_change']:.1e} | "
+                  f"{row['largest_pixel_change']:.1e} |", flush=True)
+    return rows
 
 
 def quality(shape=(128, 128), spps=(8, 32), seed=3) -> list[dict]:
@@ -356,10 +397,13 @@ def uniform_fractions(shape=(128, 128), spps=(8, 32), seeds=(3, 4, 5, 6)) -> lis
 
 
 SECTIONS = {
+    "precision": ("Stage 1 in float32 against float64 (stages=1, rendered buffers): relative changes",
+                  "| renderer | scene | spp | relMSE | MSE | image mean | largest pixel change (x (abs(x) + k)) |",
+                  lambda quick: precision(spps=(8,) if quick else (8, 32, 128))),
     "speed": ("Speed against the PyWavelets floor (medians of interleaved repeats; x floor of the same run) "
               "and peak memory (tracemalloc, x input buffer)",
-              "| size | input buffer | floor | stages=1 | default | ask() | stages=1, 2 threads | default, 2 threads "
-              "| stages=1 peak | default peak | ask() peak |",
+              "| size | input buffer | floor | stages=1 | stages=1 float64 | default | ask() | stages=1, 2 threads "
+              "| default, 2 threads | stages=1 peak | stages=1 float64 peak | default peak | ask() peak |",
               lambda quick: speed(["256x256"] if quick else SPEED_SIZES)),
     "fft_budget": ("The default reconstruction's FFTs against the floor (one core)",
                    "| size | plane FFTs (forward + inverse) | one forward + inverse pair | floor | FFTs alone |",

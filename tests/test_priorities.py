@@ -93,17 +93,22 @@ def test_priorities_are_zero_where_variance_is_zero(domain):
         assert (p <= FLAT_ATOL).all()
 
 
-def test_priorities_of_pure_noise_are_weighted_scale_variances(rng):
-    """A flat noisy image: P_0 is the variance of each pixel mean and P_k = 4^k Var(S_k)."""
+def test_priorities_of_pure_noise_are_weighted_scale_variances(rng, monkeypatch):
+    """A flat noisy image: P_0 is the variance of each pixel mean and P_k = 4^k Var(S_k); to
+    float32's precision by default (variances propagated in float32), exactly in float64."""
+    from awr_denoise import priorities
+
     count = rng.integers(2, 12, SHAPE)
     var = rng.uniform(0.01, 0.5, SHAPE)
     buf = _grey_buffer(np.full(SHAPE, 0.5), var, count)
     levels = 3
-    prio = coefficient_priorities(buf, domain="linear", levels=levels)
-    assert_allclose(prio[0], var / count, rtol=1e-13)
-    for k in range(1, levels + 1):
-        scale_variance = coefficient_variance(var / count, levels=k)[0]
-        assert_allclose(prio[k], 4.0**k * scale_variance, rtol=1e-12)
+    for rtol in (2e-6, 1e-12):
+        prio = coefficient_priorities(buf, domain="linear", levels=levels)
+        assert_allclose(prio[0], var / count, rtol=1e-13)
+        for k in range(1, levels + 1):
+            scale_variance = coefficient_variance(var / count, levels=k)[0]
+            assert_allclose(prio[k], 4.0**k * scale_variance, rtol=rtol)
+        monkeypatch.setattr(priorities, "_FLOAT32_SAFE", (np.inf, -np.inf))  # the float64 reference next
 
 
 def test_smooth_noise_is_won_by_coarse_levels():
@@ -147,3 +152,42 @@ def test_density_is_higher_near_edges():
 def test_density_is_zero_for_a_deterministic_image():
     buf = _grey_buffer(np.linspace(0, 1, 64).reshape(8, 8), np.zeros((8, 8)), np.full((8, 8), 4))
     assert_array_equal(sampling_density(buf), 0.0)
+
+
+@pytest.mark.parametrize("scene", ["edges", "hdr_source", "fireflies", "gradient"])
+def test_float32_variance_propagation_picks_the_float64_levels(scene, monkeypatch):
+    """The priorities' variances are propagated in float32 (inside its safe range): every pixel's
+    level is the one the float64 reference picks, and the priorities agree to float32 precision."""
+    from awr_denoise import SampleRequest, priorities
+    from awr_denoise.synthetic import SyntheticRenderer, make_scene
+    from awr_denoise.wavelets import wavelet_operators
+
+    shape = (48, 64)
+    buf = SyntheticRenderer(make_scene(scene, shape), seed=2)(SampleRequest.uniform(shape, 4))
+    ops = wavelet_operators(shape)
+    single = priorities.coefficient_priorities(buf, operators=ops)
+    monkeypatch.setattr(priorities, "_FLOAT32_SAFE", (np.inf, -np.inf))  # nothing is in range: float64
+    double = priorities.coefficient_priorities(buf, operators=ops)
+    for a, b in zip(single, double):
+        assert a.dtype == np.float64
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * float(np.abs(b).max()))
+    assert np.array_equal(priorities.pixel_levels(single, ops), priorities.pixel_levels(double, ops))
+    assert not all(np.array_equal(a, b) for a, b in zip(single, double))  # float32 did run
+
+
+def test_variances_outside_float32_range_are_propagated_in_float64():
+    """A variance too small for float32's normal numbers next to ordinary ones: the float64 path."""
+    from awr_denoise import priorities
+    from awr_denoise.wavelets import wavelet_operators
+
+    rng = np.random.default_rng(5)
+    mean = rng.random((32, 32))
+    var = rng.random((32, 32)) * 1e-3
+    var[:4] = 1e-35  # below 2^-100: float32 would lose these pixels' digits
+    ops = wavelet_operators((32, 32))
+    plane = (mean, var, var * 4)
+    got = priorities.coefficient_priorities(None, operators=ops, plane=plane)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(priorities, "_FLOAT32_SAFE", (np.inf, -np.inf))
+        ref = priorities.coefficient_priorities(None, operators=ops, plane=plane)
+    assert all(np.array_equal(a, b) for a, b in zip(got, ref))

@@ -65,9 +65,11 @@ def test_hand_checked_haar_2x2():
 @pytest.mark.parametrize("domain", DOMAIN_NAMES)
 @pytest.mark.parametrize("wavelet", WAVELETS)
 def test_zero_smoothing_returns_the_mean(rng, domain, wavelet):
+    """In either precision: c_s = 0 runs stage 1 in float64 (Eq. 11's identity, to float64's rounding)."""
     buf = _noisy_buffer(rng)
-    assert_allclose(reconstruct(buf, c_s=0.0, domain=domain, wavelet=wavelet, stages=1), buf.mean,
-                    rtol=IDENTITY_RTOL, atol=IDENTITY_ATOL)
+    for precision in ("float64", "float32"):
+        assert_allclose(reconstruct(buf, c_s=0.0, domain=domain, wavelet=wavelet, stages=1, precision=precision),
+                        buf.mean, rtol=IDENTITY_RTOL, atol=IDENTITY_ATOL)
 
 
 @pytest.mark.parametrize("domain", DOMAIN_NAMES)
@@ -347,12 +349,12 @@ def test_stages_1_is_the_papers_single_stage(rng):
     """Eq. 10-11 with the pixel clamp and nothing after it: stage 1's own result, bit for bit."""
     buf = _noisy_buffer(rng)
     prepared = prepare(buf, "log")
-    stage = threshold_stage(prepared, wavelet_operators(buf.shape), 1.0)
+    stage = threshold_stage(prepared, wavelet_operators(buf.shape), 1.0, precision="float32")
     result = reconstruct_detailed(buf, stages=1, variance_probes=0)
     assert_array_equal(result.image, stage.image)
     assert {k: result.parameters[k] for k in ("c_s", "stages", "guard", "preserve_mean", "nonnegative")} == \
         {"c_s": 1.0, "stages": 1, "guard": False, "preserve_mean": False, "nonnegative": False}
-    assert result.parameters["wiener_exponents"] is None and result.parameters["precision"] is None
+    assert result.parameters["wiener_exponents"] is None and result.parameters["precision"] == "float32"
 
 
 def test_the_default_runs_stage_1_as_the_pilot_of_two_wiener_stages(rng):

@@ -220,7 +220,8 @@ nonnegative, precision
     prepared = prepare(buffer, domain)  # fills, pools and fixes the domain's scale for the whole frame
     mean = prepared.mean
     options = {"c_s": settings.c_s, "wavelet": wavelet, "levels": levels, "domain": prepared.domain,
-               "mode": mode, "boundary": boundary, "pixel_clamp": settings.pixel_clamp, "stages": 1}
+               "mode": mode, "boundary": boundary, "pixel_clamp": settings.pixel_clamp, "stages": 1,
+               "precision": settings.precision}
     # Windows carry the frame's per-sample variance with unknown entries already pooled over the
     # whole frame, so every window pixel is "known". A pixel with fewer than two samples (whose
     # variance a window would pool again) travels as 2 samples of variance 2 s2: its variance

@@ -82,7 +82,8 @@ def _cli(tmp: Path) -> dict[str, str]:
 
 
 CASES: dict[str, Callable[[], str]] = {
-    # Stage 1 alone (stages=1): the reconstruction of every earlier version, digests unchanged.
+    # Stage 1 alone (stages=1): in the log domain in float32 (the default precision), elsewhere in
+    # float64, the reconstruction of every earlier version bit for bit.
     "reconstruct_edges": lambda: digest(reconstruct(_uniform("edges"), stages=1)),
     "reconstruct_hdr_source": lambda: digest(reconstruct(_uniform("hdr_source"), stages=1)),
     "reconstruct_fireflies": lambda: digest(reconstruct(_uniform("fireflies"), stages=1)),
