@@ -124,9 +124,10 @@ def main() -> None:
     parser.add_argument("--write", action="store_true", help=f"store the digests in {DIGESTS.name}")
     args = parser.parse_args()
     digests = compute()
+    # Compared with what was stored before writing: after --write, the file says nothing.
+    stored = json.loads(DIGESTS.read_text(encoding="utf-8")) if DIGESTS.exists() else {}
     if args.write:
         DIGESTS.write_text(json.dumps(digests, indent=1, sort_keys=True) + "\n", encoding="utf-8")
-    stored = json.loads(DIGESTS.read_text(encoding="utf-8")) if DIGESTS.exists() else {}
     for name, value in digests.items():
         print(f"{name:28s} {'same' if stored.get(name) == value else 'DIFFERENT'}")
 
