@@ -73,10 +73,10 @@ regions out of dark ones; a closer-to-linear last stage keeps isolated bright pi
 being pulled towards their surroundings (absolute error)."""
 
 PRECISIONS = DTYPES
-"""Precisions of the Wiener stages' FFTs: ``"float64"`` (the reference) and ``"float32"``."""
+"""Precisions of stage 1 (log domain) and the Wiener stages' FFTs: ``"float64"`` (the reference), ``"float32"``."""
 
 DEFAULT_PRECISION = "float32"
-"""Default precision of the Wiener stages' FFTs (statistics stay float64; docs/reconstruction.md)."""
+"""Default precision of stage 1 and the Wiener stages' FFTs (statistics stay float64; docs/reconstruction.md)."""
 
 _MAX_PROBES = 100_000  # each probe is a transform pair per channel; more is never meant
 _PROBE_BATCH = 8  # probes filtered together through the last Wiener stage
