@@ -18,21 +18,25 @@ differences summing to more than ``GATE_LOW`` times the variances), stage 1's pi
 fully from ``GATE_HIGH``. A biased pilot (a denoiser's hallucinated detail, a blur across an edge) is thus
 used only where the samples cannot tell it from the truth, and as the samples grow, only where it
 is right. Measured (docs/guides.md, "Wrong guides"): without this check a deliberately wrong guide
-cost up to 1.13x the plain mean's relMSE next to a small bright light; with it, never more than the
-plain mean's, and within 1% of the default's error from 64 spp on.
+cost up to 1.35x the plain mean's relMSE next to a small bright light; with it, never more than the
+plain mean's (at most 0.96x), and within 7% of the default's error from 64 spp on. The SURE guard is
+needed as well: without it the same wrong guides cost 1.05-1.07x the plain mean's relMSE there.
 
-Two pilots are built here, both for the first Wiener stage:
+Two pilots are built here (:func:`pilots`):
 
 ``guide``
     Any (H, W, C) image of the scene, for example a neural denoiser's output on the same samples
-    (:func:`awr_denoise.guides.oidn`). It is checked (:func:`checked_guide`) and used as it is.
+    (:func:`awr_denoise.guides.oidn`). It is checked (:func:`checked_guide`) and is the pilot of
+    *every* Wiener stage where the gate trusts it; where the gate is closed the stages chain as
+    they do without a guide (stage 1, then each stage's result).
 ``features``
     Stage 1's image filtered by an edge-avoiding a-trous wavelet filter (Dammertz, Sewtz,
     Hanika and Lensch 2010, "Edge-avoiding a-trous wavelet transform for fast global
     illumination filtering") whose edge-stopping weights come from the buffer's albedo, normal
     and depth (:func:`feature_pilot`). Each feature difference is measured against the
     feature's own noise: where a feature is itself noisy (depth of field, glossy albedo,
-    anti-aliased edges) it stops fewer edges, where it is clean it keeps them.
+    anti-aliased edges) it stops fewer edges, where it is clean it keeps them. Gated like a guide,
+    it is the first Wiener stage's pilot only.
 """
 
 from __future__ import annotations
