@@ -337,6 +337,7 @@ def _features_every_stage(buffer: SampleBuffer, stage1: np.ndarray, guide: np.nd
 
 AVENUES: dict[str, tuple[dict[str, Any], Any]] = {
     "OIDN guide": ({"guide": guides.oidn}, None),
+    "OIDN guide, first stage only": ({"guide": guides.oidn}, _first_stage_only),
     "OIDN guide, alpha 1": ({"guide": guides.oidn, "wiener_exponents": (0.75, 1.0)}, None),
     "OIDN guide, no guard": ({"guide": guides.oidn, "guard": False}, None),
     "OIDN guide + features where the gate closes": ({"guide": guides.oidn, "features": True}, _features_then_guide),
