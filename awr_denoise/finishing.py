@@ -7,12 +7,19 @@ Three per-image guarantees run after the last stage (:func:`~awr_denoise.reconst
    samples agreed by chance is not pinned to its noisy mean while a precise pixel next to a
    light still is;
 2. :func:`clip_negative`: no negative radiance in channels whose means are all non-negative;
-3. :func:`match_mean`: every channel multiplied by one positive factor so that its image mean
-   is the input's exactly. The clamp and the relative stages cut bright outliers unevenly
-   (they lose up to 10% of a channel's energy on heavy-tailed scenes, docs/reconstruction.md); a
-   denoiser that changes exposure is not usable. A large factor is applied only when the
-   change is significant against the input mean's own noise (:data:`MEAN_SIGNIFICANCE`), so
-   that a lone firefly removed by the stages does not brighten the whole image instead.
+3. :func:`restore_mean`: the energy the stages took (or added) is given back where it was
+   taken, so that every channel's image mean is the input's exactly. The clamp and the relative
+   stages cut bright outliers unevenly (they lose up to 10% of a channel's energy on
+   heavy-tailed scenes, docs/reconstruction.md); a denoiser that changes exposure is not
+   usable. A change larger than :data:`MEAN_LIMIT` is made only when it is significant against
+   the input mean's own noise (:data:`MEAN_SIGNIFICANCE`), so that a lone firefly removed by the
+   stages does not come back.
+
+:func:`match_mean` (one factor per channel) was the previous correction: scaling every pixel
+scales the noise of the pixels the stages left at their means too, which costs
+``(f^2 - 1) Var`` each; next to a small light those few pixels carry most of an image's squared
+error, and the factor alone made the output's MSE exceed the plain mean's
+(docs/reconstruction.md).
 """
 
 from __future__ import annotations
@@ -23,17 +30,28 @@ import numpy as np
 
 from ._typing import FloatArray
 
-__all__ = ["median3x3", "pooled_standard_error", "pooled_clamp", "clip_negative", "match_mean", "POOL", "MEAN_LIMIT",
-           "MEAN_SIGNIFICANCE"]
+__all__ = ["median3x3", "pooled_standard_error", "pooled_clamp", "clip_negative", "match_mean", "restore_mean", "POOL",
+           "MEAN_LIMIT", "MEAN_SIGNIFICANCE", "RESTORE_OFFSET", "RESTORE_SHARE"]
 
 POOL = 3
 """Side of the neighbourhood over which the clamp pools standard errors."""
 
 MEAN_LIMIT = 0.05
-"""Largest change of a channel's exposure :func:`match_mean` makes unless the change is significant (5%)."""
+"""Largest change of a channel's image mean made unless the change is significant (5%)."""
+
+RESTORE_OFFSET = 0.01
+"""``k`` of :func:`restore_mean`'s weights ``|o| + k``, as a fraction of the channel's image mean."""
+
+RESTORE_SHARE = 0.05
+"""Most a pixel takes back from its own gap in :func:`restore_mean`, as a share of ``|o| + k``.
+
+Measured (docs/reconstruction.md, ``benchmarks/bench_reconstruct.py finishing``): without this
+cap the noise of the removed fireflies comes back on the synthetic ``fireflies`` scene (relMSE
+0.48x the plain mean's at 4 spp instead of 0.02x); from 0.05 to 0.2 the Mitsuba glossy scene's
+MSE moves by about 1% and ``fireflies``' relMSE grows by 40% at 64 spp, so the smaller."""
 
 MEAN_SIGNIFICANCE = 2.0
-"""Standard errors of the input's image mean beyond which :func:`match_mean` applies any factor.
+"""Standard errors of the input's image mean beyond which a correction of any size is made.
 
 On the scenes of docs/reconstruction.md the stages lose up to 10% of a channel's energy
 (env_sun at 4 spp), always more than 2.5 standard errors of the input's mean; a lone firefly
@@ -171,6 +189,9 @@ def match_mean(image: FloatArray, mean: FloatArray, variance: FloatArray | None 
                limit: float = MEAN_LIMIT, significance: float = MEAN_SIGNIFICANCE) -> tuple[FloatArray, FloatArray]:
     """Scale every channel so that its image mean is ``mean``'s; returns the image and the factors.
 
+    The default used it until :func:`restore_mean` replaced it (module docstring); kept as the
+    comparison ``benchmarks/bench_reconstruct.py finishing`` measures.
+
     A channel whose input or output mean is not positive is left as it is (factor 1). A
     factor beyond ``[1 / (1 + limit), 1 + limit]`` is applied in full only when the change it
     makes is larger than ``significance`` standard errors of the input's image mean
@@ -199,13 +220,127 @@ def match_mean(image: FloatArray, mean: FloatArray, variance: FloatArray | None 
     unit = math.ldexp(1.0, -max(-1000, min(1000, math.frexp(top)[1]))) if np.isfinite(top) and top > 0 else 1.0
     want, got = (mean * unit).mean(axis=(0, 1)), (image * unit).mean(axis=(0, 1))
     ok = (want > 0) & (got > 0) & np.isfinite(want) & np.isfinite(got)
-    factors = np.where(ok, want / np.where(ok, got, 1.0), 1.0)
-    bounded = np.clip(factors, 1.0 / (1.0 + limit), 1.0 + limit)
-    if variance is None:
-        significant = np.zeros(factors.shape, bool)
-    else:
-        pixels = mean.shape[0] * mean.shape[1]
-        error = np.sqrt(np.sum(np.asarray(variance) * unit * unit, axis=(0, 1))) / pixels
-        significant = np.abs(want - got) > significance * error
-    factors = np.where(significant, factors, bounded)
+    error = None if variance is None else np.sqrt(np.sum(np.asarray(variance) * unit * unit, axis=(0, 1))) / (
+        mean.shape[0] * mean.shape[1])
+    change = _mean_change(want, got, error, limit, significance)
+    factors = np.where(ok, (got + change) / np.where(ok, got, 1.0), 1.0)
     return image * factors, factors
+
+
+def _mean_change(want: FloatArray, got: FloatArray, error: FloatArray | None, limit: float,
+                 significance: float) -> FloatArray:
+    """The change of every channel's image mean to make: ``want - got``, bounded unless significant."""
+    change = want - got
+    bounded = np.clip(change, got * (1.0 / (1.0 + limit) - 1.0), got * limit)
+    significant = np.zeros(change.shape, bool) if error is None else np.abs(change) > significance * error
+    return np.where(significant, change, bounded)
+
+
+def _fill(weight: FloatArray, cap: FloatArray, total: float) -> FloatArray:
+    """``min(mu * weight, cap)`` with ``mu`` such that the sum is ``total`` (``0 <= total <= sum(cap)``).
+
+    Water-filling, exact: pixel ``i`` is full once ``mu >= cap_i / weight_i``; sorted by that
+    level, the sum is piecewise linear in ``mu`` and the piece holding ``total`` gives ``mu``.
+    """
+    delta = np.zeros_like(cap)
+    room = np.nonzero((cap > 0) & (weight > 0))
+    if total <= 0 or room[0].size == 0:
+        return delta
+    c, a = cap[room], weight[room]
+    level = c / a
+    order = np.argsort(level, kind="stable")
+    level, c, a = level[order], c[order], a[order]
+    full = np.concatenate(([0.0], np.cumsum(c)))              # sum of the caps below each level
+    open_ = np.concatenate((np.cumsum(a[::-1])[::-1], [0.0]))  # sum of the weights from each level on
+    reached = full[1:] + level * open_[1:]                    # the sum at mu = level[j]
+    j = int(np.searchsorted(reached, total))
+    if j >= level.size:                                       # every pixel full (total == sum(cap))
+        delta[room] = cap[room]
+        return delta
+    mu = (total - full[j]) / open_[j]
+    delta[room] = np.minimum(mu * weight[room], cap[room])
+    return delta
+
+
+def restore_mean(image: FloatArray, mean: FloatArray, variance: FloatArray | None = None, *,
+                 limit: float = MEAN_LIMIT, significance: float = MEAN_SIGNIFICANCE,
+                 offset: float = RESTORE_OFFSET, share: float = RESTORE_SHARE) -> tuple[FloatArray, FloatArray]:
+    """Give every channel back the energy the stages took, where they took it; the image mean is exact.
+
+    For a channel whose output ``o`` lost energy against its means ``x`` (``mean(x) > mean(o)``),
+    pixel ``i`` gets back ``delta_i = min(mu a_i, x_i - o_i, share a_i)`` where ``x_i > o_i``
+    (none elsewhere), ``a_i = |o_i| + k``, ``k`` = ``offset`` times the channel's mean, ``mu``
+    chosen so that the channel's image mean becomes ``mean(x)``; a channel that gained energy is
+    treated the other way round. Only when these caps leave some of the change over (the stages
+    removed much more than noise, as on a scene of real fireflies) is the rest spread over every
+    pixel in proportion to ``|o|``, as one factor would. So, by construction:
+
+    - a pixel moves towards its own mean and never past it, by at most ``share`` of its level,
+      unless that rest is spread;
+    - a pixel the stages did not darken (brighten) is not touched: the noise of the pixels the
+      stages kept at their means (a small light's edge, a caustic) is not scaled;
+    - the energy goes, in proportion to their brightness, to the pixels that lost it.
+
+    The image mean is then exact whenever the change is at most ``limit`` of it or significant
+    (more than ``significance`` standard errors of the input's image mean,
+    ``sqrt(sum(variance)) / N``); otherwise the change stops at ``limit``: the input's mean is no
+    better an estimate than the output's then (a firefly a million times the image's level),
+    and a removed firefly should not come back. A channel whose input or output mean is not
+    positive is left as it is.
+
+    Parameters
+    ----------
+    image
+        (H, W, C) output of the stages.
+    mean, variance
+        (H, W, C) pixel means and the variances of the means (``None``: no change counts as significant).
+    limit, significance, offset, share
+        See above.
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray)
+        The image and, per pixel, the share ``t`` (``0 <= t <= 1``) of the way from the stage
+        output to the pixel's mean that the capped part moved it (``(1 - t) o + t x``), for the
+        propagation of variances; the spread rest, one factor near 1, is left out of it.
+
+    Examples
+    --------
+    The stages kept a bright pixel at its mean and cut another: the energy returns to the cut one.
+
+    >>> import numpy as np
+    >>> from awr_denoise.finishing import restore_mean
+    >>> mean = np.array([[[1.0], [1.0], [100.0], [10.0]]])
+    >>> image = np.array([[[1.0], [1.0], [100.0], [9.8]]])
+    >>> out, share = restore_mean(image, mean, np.full(mean.shape, 1e-6))
+    >>> out[..., 0], share[..., 0]
+    (array([[  1.,   1., 100.,  10.]]), array([[0., 0., 0., 1.]]))
+    """
+    o = np.asarray(image, np.float64)
+    x = np.asarray(mean, np.float64)
+    # Both divided by one power of two first: the plain sum of means near 1e308 overflows.
+    top = max(float(np.abs(x).max(initial=0.0)), float(np.abs(o).max(initial=0.0)))
+    unit = math.ldexp(1.0, -max(-1000, min(1000, math.frexp(top)[1]))) if np.isfinite(top) and top > 0 else 1.0
+    pixels = x.shape[0] * x.shape[1]
+    want, got = (x * unit).mean(axis=(0, 1)), (o * unit).mean(axis=(0, 1))
+    error = None if variance is None else np.sqrt(np.sum(np.asarray(variance) * unit * unit, axis=(0, 1))) / pixels
+    change = _mean_change(want, got, error, limit, significance)
+    out = o.copy()
+    blend = np.zeros(o.shape)
+    for c in range(o.shape[2]):
+        if not (want[c] > 0 and got[c] > 0 and np.isfinite(want[c]) and np.isfinite(got[c])) or change[c] == 0:
+            continue
+        sign = 1.0 if change[c] > 0 else -1.0
+        level = np.abs(o[..., c]) * unit
+        weight = level + offset * want[c]
+        gap = np.maximum(sign * (x[..., c] - o[..., c]) * unit, 0.0)  # room towards the pixel's own mean
+        cap = np.minimum(gap, share * weight)
+        total, room = abs(change[c]) * pixels, float(cap.sum())
+        delta = _fill(weight, cap, total) if total < room else cap
+        rest = total - room if total > room * (1 + 1e-9) else 0.0  # not the rounding of sum(x - o)
+        if rest > 0 and level.sum() > 0:
+            delta += rest * level / level.sum()
+        out[..., c] = o[..., c] + sign * delta / unit
+        with np.errstate(divide="ignore", invalid="ignore"):
+            blend[..., c] = np.where(gap > 0, delta / np.where(gap > 0, gap, 1.0), 0.0)
+    return out, np.minimum(blend, 1.0)

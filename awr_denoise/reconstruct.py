@@ -29,7 +29,7 @@ from ._typing import FloatArray
 from .buffers import SampleBuffer
 from .channels import luminance_weights
 from .domains import Domain
-from .finishing import clip_negative, match_mean, pooled_clamp
+from .finishing import clip_negative, pooled_clamp, restore_mean
 from .guided import checked_inputs, pilots
 from .prepare import Prepared, prepare
 from .stationary import DTYPES, StationaryTransform, stationary_transform
@@ -343,9 +343,9 @@ def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | N
         if variance is not None:
             variance = np.where(clipped, 0.0, variance)
     if settings.preserve_mean:
-        image, factors = match_mean(image, prepared.mean, prepared.variance)
-        if variance is not None:
-            variance = variance * factors * factors
+        image, t = restore_mean(image, prepared.mean, prepared.variance)
+        if variance is not None:  # a blend (1 - t) o + t x: at most the blend of the standard errors
+            variance = ((1 - t) * np.sqrt(variance) + t * np.sqrt(prepared.variance)) ** 2
     return image, variance
 
 
@@ -418,9 +418,9 @@ def reconstruct_detailed(
         the relative squared error (:mod:`awr_denoise.sure`). Default: on with Wiener stages;
         it needs them (``stages > 1``).
     preserve_mean
-        Scale every channel so its image mean equals the input's, exactly (to rounding). A
-        channel whose input or output mean is not positive is left alone. Default: on with
-        Wiener stages, off with ``stages=1`` (the paper's reconstruction as it is).
+        Give every channel back the energy the stages took, where they took it, so its image
+        mean equals the input's, exactly (to rounding; :func:`~awr_denoise.finishing.restore_mean`).
+        Default: on with Wiener stages, off with ``stages=1`` (the paper's reconstruction as it is).
     nonnegative
         Zero negative output pixels in every channel whose means are all >= 0 (before the
         mean is matched, so the output stays >= 0). Default as ``preserve_mean``.
@@ -448,7 +448,7 @@ def reconstruct_detailed(
     coefficient, 0 where it zeroes one) and the domain is undone by the delta method. With
     Wiener stages, the last stage's pilot, weights and factors (and the guard's share) are held
     fixed, so the map is linear in the means; clamped pixels take their mean's variance, zeroed
-    ones none, and the mean's factor scales it. It leaves out the noise that reaches the output through the
+    ones none, and the mean's restoration blends it with the mean's. It leaves out the noise that reaches the output through the
     pilot (every earlier stage) and all bias, so it underestimates (docs/reconstruction.md
     gives the measured ratio).
 

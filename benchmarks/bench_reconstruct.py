@@ -6,6 +6,7 @@ Run from the repository root (each section updates its part of the JSON)::
     .venv/bin/python benchmarks/bench_reconstruct.py samplers     # AWR vs uniform vs variance sampling
     .venv/bin/python benchmarks/bench_reconstruct.py synthetic    # known clean images, 4-1024 spp
     .venv/bin/python benchmarks/bench_reconstruct.py speed        # 128x128, 256x256, 1080p
+    .venv/bin/python benchmarks/bench_reconstruct.py finishing    # the image mean's correction, compared
 
 ``quality`` renders every scene with uniform sampling in four disjoint sample groups (renderer
 seeds 0-3, nested 8..128 spp; cached under ``--cache``) and compares, against the scene's
@@ -32,6 +33,7 @@ import numpy as np
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, VarianceSampler, reconstruct
 from awr_denoise.bench import machine_info, write_json
 from awr_denoise.features import FEATURE_CHANNELS
+from awr_denoise.finishing import match_mean, restore_mean
 from awr_denoise.metrics import mse, relmse
 from awr_denoise.prepare import prepare
 from awr_denoise.renderers import create_renderer
@@ -52,7 +54,10 @@ SPEED_VARIANTS = {
     "default, float64 FFTs": {"precision": "float64"},
     "default without the guard": {"guard": False},
     "three Wiener stages": {"stages": 4, "wiener_exponents": (0.75, 0.5, 0.4)},
+    "one Wiener stage": {"stages": 2, "wiener_exponents": (0.4,)},
 }
+CHEAPER: dict[str, dict[str, Any] | None] = {"one Wiener stage": SPEED_VARIANTS["one Wiener stage"]}
+"""``quality --cheaper``: variants that trade quality for speed, measured beside the default."""
 
 
 # ---------------------------------------------------------------------------- buffers
@@ -177,6 +182,26 @@ def quality_tables(rows: list[dict], method: str = "default", base: str = "stage
         print(f"| {scene} | {' / '.join(f'{g:.2f}' for g in gains)} | {m:.2f} | {r:.2f} |")
     every = [g for _, gains, _, _ in summary for g in gains]
     print(f"\ngeometric mean of the gain at 8-32 spp: {np.exp(np.mean(np.log(every))):.2f}, least {min(every):.2f}")
+    for cheaper in (m for m in CHEAPER if any(r["method"] == m for r in rows)):
+        cheaper_table(rows, cheaper, method)
+
+
+def cheaper_table(rows: list[dict], cheaper: str, method: str = "default") -> None:
+    """relMSE of a cheaper variant over the default's, and its MSE over the plain mean's, at 8-32 spp."""
+    print(f"\n| scene | relMSE {cheaper} / {method}, 8 / 16 / 32 spp | max MSE / plain ({cheaper}) |")
+    print("|---|---|---|")
+    ratios = []
+    for renderer, scene in dict.fromkeys((r["renderer"], r["scene"]) for r in rows):
+        w = {"renderer": renderer, "scene": scene}
+        spps = [s for s in sorted({r["spp"] for r in rows if r["scene"] == scene}) if s <= 32]
+        mine = [_mean(rows, "relmse", spp=s, method=cheaper, **w) / _mean(rows, "relmse", spp=s, method=method, **w)
+                for s in spps]
+        worst = max(_mean(rows, "mse", spp=s, method=cheaper, **w) / _mean(rows, "mse", spp=s, method="plain", **w)
+                    for s in sorted({r["spp"] for r in rows if r["scene"] == scene}))
+        ratios += mine
+        print(f"| {scene} | {' / '.join(f'{r:.2f}' for r in mine)} | {worst:.2f} |")
+    print(f"\ngeometric mean of {cheaper} / {method} at 8-32 spp: {np.exp(np.mean(np.log(ratios))):.2f}, "
+          f"most {max(ratios):.2f}")
 
 
 # ---------------------------------------------------------------------------- samplers
@@ -248,6 +273,73 @@ def synthetic_table(rows: list[dict]) -> None:
                   f"{rel['default'] / rel['plain']:.2f}, {sq['default'] / sq['plain']:.2f} |")
 
 
+# ---------------------------------------------------------------------------- finishing
+FINISHING_SHAPE = (128, 128)  # awr bench's size for the Mitsuba scenes, where one factor failed
+FINISHING_SPPS = (4, 8, 16, 32, 64, 128)
+FINISHING_SYNTHETIC_SPPS = (4, 16, 64, 256)
+
+
+def _corrections(buffer: SampleBuffer) -> dict[str, np.ndarray]:
+    """The default's output before its mean correction, then each correction of it."""
+    prepared = prepare(buffer, "log")
+    x, v = prepared.mean, prepared.variance
+    image = reconstruct(buffer, preserve_mean=False)
+    return {"plain": np.asarray(x), "none": image, "one factor": match_mean(image, x, v)[0],
+            "restore (default)": restore_mean(image, x, v)[0],
+            "restore, share 0.2": restore_mean(image, x, v, share=0.2)[0],
+            "restore, no cap": restore_mean(image, x, v, share=np.inf)[0]}
+
+
+def finishing(groups: int, cache: Path, mitsuba: bool) -> list[dict[str, Any]]:
+    """Mean corrections on the Mitsuba scenes at 128x128 (``groups`` renders) and the synthetic fireflies."""
+    rows = []
+    cases: list[tuple[str, str, Any]] = []
+    if mitsuba:
+        cases += [("mitsuba", s, None) for s in MITSUBA_SCENES]
+    cases.append(("synthetic", "fireflies", None))
+    for renderer, scene, _ in cases:
+        if renderer == "mitsuba":
+            ref = reference(renderer, scene, FINISHING_SHAPE, cache / "s128")
+            per_group = [uniform_buffers(renderer, scene, FINISHING_SHAPE, FINISHING_SPPS, g, cache, prefix="s128_")
+                         for g in range(groups)]
+        else:
+            synthetic_scene = make_scene(scene, (96, 96))
+            ref = synthetic_scene.reference()
+            per_group = []
+            for g in range(groups):
+                r, buffer, done, nested = SyntheticRenderer(synthetic_scene, seed=g), None, 0, {}
+                for spp in FINISHING_SYNTHETIC_SPPS:
+                    part = r(SampleRequest.uniform((96, 96), spp - done, first_index=done))
+                    buffer = part if buffer is None else buffer.merge(part)
+                    nested[spp], done = buffer, spp
+                per_group.append(nested)
+        for g, buffers in enumerate(per_group):
+            for spp, buffer in buffers.items():
+                for name, image in _corrections(buffer).items():
+                    rows.append({"renderer": renderer, "scene": scene, "spp": spp, "group": g, "method": name,
+                                 "relmse": relmse(image, ref), "mse": mse(image, ref)})
+        print(f"{renderer} {scene}: done", flush=True)
+    return rows
+
+
+def finishing_table(rows: list[dict]) -> None:
+    methods = [m for m in dict.fromkeys(r["method"] for r in rows) if m != "plain"]
+    print("\nMSE / plain mean's, mean over renders (worst render); relMSE / plain mean's, mean over renders\n")
+    print("| scene | spp | " + " | ".join(methods) + " |")
+    print("|---|---|" + "---|" * len(methods))
+    for renderer, scene in dict.fromkeys((r["renderer"], r["scene"]) for r in rows):
+        for spp in sorted({r["spp"] for r in rows if r["scene"] == scene}):
+            cells = []
+            for m in methods:
+                ratios = []
+                for g in sorted({r["group"] for r in rows if r["scene"] == scene}):
+                    get = {r["method"]: r for r in rows if r["scene"] == scene and r["spp"] == spp and r["group"] == g}
+                    ratios.append((get[m]["mse"] / get["plain"]["mse"], get[m]["relmse"] / get["plain"]["relmse"]))
+                a = np.array(ratios)
+                cells.append(f"{a[:, 0].mean():.3f} ({a[:, 0].max():.3f}); {a[:, 1].mean():.3f}")
+            print(f"| {scene} | {spp} | " + " | ".join(cells) + " |")
+
+
 # ---------------------------------------------------------------------------- speed
 def speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
     rows = []
@@ -280,14 +372,15 @@ def _update(section: str, value: Any, command: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("section", choices=("quality", "samplers", "synthetic", "speed", "tables"))
+    parser.add_argument("section", choices=("quality", "samplers", "synthetic", "speed", "finishing", "tables"))
     parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
     parser.add_argument("--spps", nargs="+", type=int, default=list(SPPS))
-    parser.add_argument("--groups", type=int, default=4)
+    parser.add_argument("--groups", type=int, default=0, help="renders per scene (default 4; finishing: 12)")
     parser.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "awr-denoise" / "reconstruct",
                         help="where rendered buffers and Mitsuba references are kept (default %(default)s)")
     parser.add_argument("--sizes", nargs="+", choices=tuple(SIZES), default=list(SIZES))
     parser.add_argument("--repeats", type=int, default=0, help="speed: rounds per size (default 9, 3 at 1080p)")
+    parser.add_argument("--cheaper", action="store_true", help="quality: also the cheaper variants (CHEAPER)")
     args = parser.parse_args(argv)
     given = list(argv if argv is not None else sys.argv[1:])
     # The cache folder is this machine's business: the recorded command names it by its option only.
@@ -298,7 +391,8 @@ def main(argv: list[str] | None = None) -> int:
         scenes: list[tuple[str, str, tuple[int, int] | None]] = [("tracer", s, None) for s in names if s in TRACER_SCENES]
         if any(s in MITSUBA_SCENES for s in names) and _mitsuba_available():
             scenes += [("mitsuba", s, MITSUBA_SHAPE) for s in names if s in MITSUBA_SCENES]
-        rows = quality(scenes, tuple(args.spps), args.groups, args.cache, METHODS)
+        rows = quality(scenes, tuple(args.spps), args.groups or 4, args.cache,
+                       {**METHODS, **(CHEAPER if args.cheaper else {})})
         _update("quality", rows, command)
         quality_tables(rows)
     elif args.section == "samplers":
@@ -313,9 +407,14 @@ def main(argv: list[str] | None = None) -> int:
         synthetic_table(rows)
     elif args.section == "speed":
         _update("speed", speed(args.sizes, args.repeats), command)
+    elif args.section == "finishing":
+        rows = finishing(args.groups or 12, args.cache, _mitsuba_available())
+        _update("finishing", rows, command)
+        finishing_table(rows)
     else:  # print the tables of the stored results
         data = json.loads(RESULTS.read_text())
-        for section, show in (("quality", quality_tables), ("samplers", sampler_table), ("synthetic", synthetic_table)):
+        for section, show in (("quality", quality_tables), ("samplers", sampler_table), ("synthetic", synthetic_table),
+                              ("finishing", finishing_table)):
             if section in data:
                 print(f"\n## {section} ({data[section]['command']})")
                 show(data[section]["rows"])

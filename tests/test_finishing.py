@@ -8,7 +8,8 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from scipy import ndimage
 
-from awr_denoise.finishing import clip_negative, match_mean, median3x3, pooled_clamp, pooled_standard_error
+from awr_denoise.finishing import (RESTORE_SHARE, _fill, clip_negative, match_mean, median3x3, pooled_clamp,
+                                   pooled_standard_error, restore_mean)
 
 
 @pytest.mark.parametrize("shape", [(1, 1), (1, 5), (2, 3, 1), (3, 3), (17, 11, 3), (64, 48, 2)])
@@ -109,3 +110,83 @@ def test_pooled_clamp_is_the_plain_clip_to_pooled_errors_bit_for_bit(rng, shape)
         out, moved = pooled_clamp(image, lum, lum_variance, 2.5, weights=weights)
         assert_array_equal(out, image * ratio[..., None])
         assert_array_equal(moved, np.broadcast_to((ratio != 1.0)[..., None], shape))
+
+
+def _fill_by_bisection(weight, cap, total):
+    """Reference for _fill: bisection on mu of sum(min(mu * weight, cap)) = total."""
+    lo, hi = 0.0, 1.0
+    while np.minimum(hi * weight, cap).sum() < total:
+        hi *= 2.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if np.minimum(mid * weight, cap).sum() < total else (lo, mid)
+    return np.minimum(hi * weight, cap)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_fill_is_exact_water_filling(seed):
+    rng = np.random.default_rng(seed)
+    weight = rng.random((13, 7)) + 0.01
+    cap = rng.random((13, 7)) ** 3 * (rng.random((13, 7)) < 0.7)
+    for total in (0.0, 0.01 * cap.sum(), 0.5 * cap.sum(), 0.999 * cap.sum(), cap.sum()):
+        delta = _fill(weight, cap, total)
+        assert delta.sum() == pytest.approx(total, rel=1e-12, abs=1e-15)
+        assert (delta >= 0).all() and (delta <= cap).all()
+        if 0 < total < cap.sum():
+            assert_allclose(delta, _fill_by_bisection(weight, cap, total), rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("scale", [1e-300, 1e-3, 1.0, 1e300])
+def test_restore_mean_makes_every_channel_mean_exact(rng, scale):
+    mean = scale * rng.random((8, 9, 3))
+    image = mean * rng.uniform(0.8, 1.15, mean.shape)
+    out, t = restore_mean(image, mean, np.zeros(mean.shape))  # exact means: every change significant
+    assert_allclose(out.mean(axis=(0, 1)), mean.mean(axis=(0, 1)), rtol=1e-12)
+    assert ((t >= 0) & (t <= 1)).all()
+
+
+def test_restore_mean_moves_only_the_pixels_that_lost_energy_and_never_past_their_mean(rng):
+    """A bright, noisy pixel the stages left at its mean is not scaled (match_mean scaled it: its
+    noise grew with the factor); the others move towards their own means, never past them."""
+    mean = 1.0 + 0.02 * rng.standard_normal((16, 16, 1))  # every gap within RESTORE_SHARE of its level
+    mean[8, 8] = 1000.0
+    image = mean.copy()
+    image[mean > 1.0] = 1.0 + 0.5 * (mean[mean > 1.0] - 1.0)  # the stages halved every upward deviation...
+    image[8, 8] = 1000.0                                       # ...except the light's
+    variance = np.full(mean.shape, 1e-6)
+    out, _ = restore_mean(image, mean, variance)
+    assert out.mean() == pytest.approx(mean.mean(), rel=1e-12)
+    assert out[8, 8, 0] == 1000.0
+    untouched = image >= mean
+    assert_array_equal(out[untouched], image[untouched])
+    low, high = np.minimum(image, mean), np.maximum(image, mean)
+    assert ((out >= low) & (out <= high)).all()
+    assert match_mean(image, mean, variance)[0][8, 8, 0] > 1000.0
+
+
+def test_restore_mean_caps_each_pixel_and_spreads_the_rest_by_brightness():
+    """Real energy removed (a pixel cut to a tenth): it takes back at most RESTORE_SHARE of its
+    level; the rest goes to every pixel in proportion to its level."""
+    mean = np.ones((4, 4, 1))
+    mean[0, 0] = 50.0
+    image = np.ones((4, 4, 1))
+    image[0, 0] = 5.0
+    out, _ = restore_mean(image, mean, np.full(mean.shape, 1e-9))
+    assert out.mean() == pytest.approx(mean.mean(), rel=1e-12)
+    ratio = out[..., 0] / image[..., 0]
+    others = np.ones((4, 4), bool)
+    others[0, 0] = False
+    assert_allclose(ratio[others], ratio[others][0])           # one factor for the untouched pixels
+    assert ratio[0, 0] > ratio[others][0]                       # and the cut pixel's capped share on top
+    assert out[0, 0, 0] - image[0, 0, 0] > RESTORE_SHARE * 5.0
+
+
+def test_restore_mean_bounds_an_insignificant_change_and_leaves_non_positive_channels(rng):
+    mean = rng.random((8, 9, 2))
+    image = mean * np.array([0.5, 1.0])
+    image[..., 1] = -image[..., 1]                              # a channel whose output mean is negative
+    out, _ = restore_mean(image, mean, np.full(mean.shape, 100.0))
+    assert out[..., 0].mean() == pytest.approx(1.05 * image[..., 0].mean(), rel=1e-12)
+    assert_array_equal(out[..., 1], image[..., 1])
+    out, _ = restore_mean(image, mean, np.full(mean.shape, 1e-6))
+    assert out[..., 0].mean() == pytest.approx(mean[..., 0].mean(), rel=1e-12)
