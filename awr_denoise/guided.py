@@ -18,9 +18,9 @@ differences summing to more than ``GATE_LOW`` times the variances), stage 1's pi
 fully from ``GATE_HIGH``. A biased pilot (a denoiser's hallucinated detail, a blur across an edge) is thus
 used only where the samples cannot tell it from the truth, and as the samples grow, only where it
 is right. Measured (docs/guides.md, "Wrong guides"): without this check a deliberately wrong guide
-cost up to 1.35x the plain mean's relMSE next to a small bright light; with it, never more than the
-plain mean's (at most 0.96x), and within 7% of the default's error from 64 spp on. The SURE guard is
-needed as well: without it the same wrong guides cost 1.05-1.07x the plain mean's relMSE there.
+cost up to 1.26x the plain mean's relMSE next to a small bright light; with it, never more than the
+plain mean's (at most 0.97x), and within 7% of the default's error from 64 spp on. The SURE guard is
+needed as well: without it the same wrong guides cost 1.04-1.07x the plain mean's relMSE there.
 
 Two pilots are built here (:func:`pilots`):
 
@@ -268,7 +268,7 @@ def pilots(buffer: SampleBuffer, stage1: FloatArray, guide: FloatArray | None,
     is ``keep * first + (1 - keep) * previous``, with ``keep`` the gate's share, so where the
     samples contradict the guide the stages chain as they do without it. The feature pilot
     (:func:`feature_pilot`) is gated the same way but is the first stage's pilot only (measured:
-    kept in the later stage as well, it lost 7-10% relMSE on the depth-of-field scenes;
+    kept in the later stage as well, it lost 8-9% relMSE on the depth-of-field scenes;
     docs/guides.md). Without either, stage 1's image and ``keep = 0``.
 
     Examples
