@@ -18,7 +18,9 @@ the renderer's own keyword arguments. Factories are looked up by name, in this o
        myrenderer = "my_package.awr:create_renderer"
 
 A renderer's module may also define ``list_scenes() -> list[str]``, the scenes it bundles
-(:func:`renderer_scenes`, ``awr render --renderer NAME --list-scenes``).
+(:func:`renderer_scenes`, ``awr render --renderer NAME --list-scenes``), and
+``list_features() -> list[str]``, the feature buffers its factory renders with
+``features=...`` (:func:`renderer_features`, ``awr render --features``).
 
 Built-ins and entry points are named as ``"module:function"`` strings and imported only when
 asked for, so this module imports no renderer: a missing optional extra shows up as an
@@ -35,7 +37,7 @@ from typing import Any
 from .requests import Renderer
 
 __all__ = ["ENTRY_POINT_GROUP", "RendererFactory", "create_renderer", "register_renderer", "renderer_factory",
-           "renderer_names", "renderer_scenes"]
+           "renderer_names", "renderer_features", "renderer_scenes"]
 
 ENTRY_POINT_GROUP = "awr_denoise.renderers"
 """Entry-point group in which other packages declare renderer factories."""
@@ -153,12 +155,34 @@ def renderer_scenes(name: str) -> list[str]:
     >>> "edges" in renderer_scenes("synthetic")
     True
     """
+    return _listed(name, "list_scenes")
+
+
+def renderer_features(name: str) -> list[str]:
+    """The feature buffers renderer ``name`` renders on request: its module's ``list_features()``, or none.
+
+    Raises
+    ------
+    ValueError, ImportError
+        As :func:`renderer_factory`.
+
+    Examples
+    --------
+    >>> from awr_denoise.renderers import renderer_features
+    >>> renderer_features("synthetic")
+    []
+    """
+    return _listed(name, "list_features")
+
+
+def _listed(name: str, function: str) -> list[str]:
+    """What the module declaring renderer ``name``'s factory lists with ``function()``, or nothing."""
     factory = renderer_factory(name)
     # The module the factory is declared in (``module:function``), not the one defining it: a
     # package may re-export a factory written in a submodule.
     module = factory.__module__ if name in _registered else _declared()[name].partition(":")[0]
-    listed = getattr(importlib.import_module(module), "list_scenes", None)
-    return [str(scene) for scene in listed()] if callable(listed) else []
+    listed = getattr(importlib.import_module(module), function, None)
+    return [str(item) for item in listed()] if callable(listed) else []
 
 
 def create_renderer(name: str, scene: Any, *, shape: tuple[int, int] | None = None, seed: int = 0,

@@ -18,7 +18,7 @@ from awr_denoise.buffers import SampleBuffer
 from awr_denoise.io import image_provenance, provenance, write_image, write_preview, write_sample_buffer
 from awr_denoise.io.atomic import OutputSet
 from awr_denoise.parallel import RendererSpec, TiledRenderer
-from awr_denoise.renderers import create_renderer, renderer_names, renderer_scenes
+from awr_denoise.renderers import create_renderer, renderer_features, renderer_names, renderer_scenes
 from awr_denoise.requests import Renderer, SampleTracer
 from awr_denoise.sampling import DEFAULT_INITIAL_SPP, DEFAULT_ROUND_GROWTH
 
@@ -32,8 +32,6 @@ from .values import MAX_EXPOSURE, MAX_SEED, MAX_SIDE, MAX_SPP, check_pixels, fea
 __all__ = ["register", "run", "tracer_module", "default_scene", "render_buffer", "derived_path"]
 
 TRACER = "tracer"
-FEATURE_RENDERERS = ("tracer", "mitsuba")
-"""Renderers that render albedo, normal and depth on request (``--features``)."""
 """Name of the bundled path tracer in the renderer registry (the default renderer)."""
 
 
@@ -143,9 +141,12 @@ def _scene(args: argparse.Namespace) -> tuple[str, Any, str, tuple[int, int] | N
     if args.renderer != TRACER:
         if not given:
             raise UsageError(f"--renderer {args.renderer}: give the SCENE to render")
-        if args.features and args.renderer not in FEATURE_RENDERERS:
-            raise UsageError(f"--features: renderers {', '.join(FEATURE_RENDERERS)} render features, "
-                             f"not --renderer {args.renderer}")
+        if args.features:
+            offered = _listed_features(args.renderer)
+            missing = [name for name in args.features if name not in offered]
+            if missing:
+                raise UsageError(f"--features: --renderer {args.renderer} does not render {', '.join(missing)} "
+                                 f"(it renders: {', '.join(offered) or 'no features'})")
         return given, given, Path(given).name, shape, {"features": args.features} if args.features else {}
     tracer = tracer_module()
     name = given or default_scene(tracer)
@@ -156,6 +157,14 @@ def _scene(args: argparse.Namespace) -> tuple[str, Any, str, tuple[int, int] | N
     if args.features:
         options["features"] = args.features
     return name, tracer.load_scene(name, width=args.width, height=args.height), Path(name).stem, None, options
+
+
+def _listed_features(renderer: str) -> list[str]:
+    """The features the renderer renders, or a :class:`RuntimeFailure` naming the missing extra."""
+    try:
+        return renderer_features(renderer)
+    except ImportError as exc:
+        raise RuntimeFailure(f"--renderer {renderer}: {exc}") from None
 
 
 def _bundled_scenes(renderer: str) -> list[str]:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 
 from awr_denoise import renderers
-from awr_denoise.renderers import create_renderer, register_renderer, renderer_names, renderer_scenes
+from awr_denoise.renderers import (create_renderer, register_renderer, renderer_features, renderer_names,
+                                   renderer_scenes)
 from awr_denoise.synthetic import SCENES, SyntheticRenderer, make_scene
 
 
@@ -51,3 +52,19 @@ def test_a_renderer_without_list_scenes_bundles_none(registered):
 def test_unknown_names_are_refused():
     with pytest.raises(ValueError, match="renderer: 'nope'"):
         renderer_scenes("nope")
+
+
+def test_features_come_from_the_module_that_declares_the_factory(registered):
+    assert renderer_features("synthetic") == []
+    assert renderer_features(registered) == []  # this module lists none
+    pytest.importorskip("embreex")
+    from awr_denoise.features import FEATURE_NAMES
+
+    assert renderer_features("tracer") == list(FEATURE_NAMES)
+
+
+def test_mitsuba_lists_the_features_its_aov_integrator_renders():
+    pytest.importorskip("mitsuba")
+    from awr_denoise.adapters.mitsuba import FEATURES
+
+    assert renderer_features("mitsuba") == list(FEATURES) == ["albedo", "normal", "depth"]

@@ -42,7 +42,7 @@ from ._mitsuba_runtime import DEFAULT_VARIANT, import_mitsuba, variant_of_scene,
 from ._samples import Chunk, PixelStatistics, aligned_u32, sample_chunks
 from .mitsuba_scenes import SCENE_NAMES, scene_dict
 
-__all__ = ["MitsubaRenderer", "create_renderer", "list_scenes", "FEATURES", "DEFAULT_BATCH_SIZE", "DEFAULT_VARIANT"]
+__all__ = ["MitsubaRenderer", "create_renderer", "list_features", "list_scenes", "FEATURES", "DEFAULT_BATCH_SIZE", "DEFAULT_VARIANT"]
 
 logger = logging.getLogger(__name__)
 
@@ -555,6 +555,11 @@ def _load_file(mi: Any, variant: str, path: Path, shape: Shape2D | None, params:
 def list_scenes() -> list[str]:
     """Names of the bundled Mitsuba scenes (:mod:`awr_denoise.adapters.mitsuba_scenes`)."""
     return list(SCENE_NAMES)
+
+
+def list_features() -> list[str]:
+    """The features ``create_renderer(..., features=...)`` renders (:data:`FEATURES`)."""
+    return list(FEATURES)
 
 
 def create_renderer(scene: Any, *, shape: Shape2D | None = None, seed: int = 0, **options: Any) -> MitsubaRenderer:

@@ -8,7 +8,7 @@ the adaptive sampler and the benchmarks with scenes of known integrand dimension
 Overbeck et al. 2009, section 1; docs/concepts.md, "The pixel integral"). The core library
 never imports it.
 
-Public API: :func:`list_scenes`, :func:`load_scene`, :class:`PathTracer`, :func:`render`,
+Public API: :func:`list_scenes`, :func:`list_features`, :func:`load_scene`, :class:`PathTracer`, :func:`render`,
 :func:`create_renderer` (the ``"tracer"`` entry of :mod:`awr_denoise.renderers`),
 :func:`load_reference`, :func:`render_reference`.
 """
@@ -26,6 +26,7 @@ from typing import Any  # noqa: E402
 
 from .integrator import PathTracer, create_renderer, render  # noqa: E402
 from .scene import Scene, load_scene  # noqa: E402
+from ..features import FEATURE_NAMES  # noqa: E402
 
 # Resolved on first use (PEP 562) so ``python -m awr_denoise.tracer.reference`` and
 # ``python -m awr_denoise.tracer.scenes`` do not import their own module twice.
@@ -40,5 +41,17 @@ def __getattr__(name: str) -> Any:
         return getattr(importlib.import_module(_LAZY[name], __name__), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
-__all__ = ["PathTracer", "Scene", "create_renderer", "list_scenes", "load_scene", "render", "load_reference", "render_reference",
+__all__ = ["PathTracer", "Scene", "create_renderer", "list_features", "list_scenes", "load_scene", "render", "load_reference", "render_reference",
            "reference_path"]
+
+
+def list_features() -> list[str]:
+    """The features :func:`create_renderer` renders with ``features=...``: every one of the project's.
+
+    Examples
+    --------
+    >>> from awr_denoise.tracer import list_features
+    >>> list_features()
+    ['albedo', 'normal', 'depth']
+    """
+    return list(FEATURE_NAMES)

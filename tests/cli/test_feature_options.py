@@ -192,3 +192,13 @@ def test_render_guide_features_uses_the_rendered_features(tmp_path, capsys):
     assert main(common + ["--guide", "features", "-o", str(out)]) == 2  # refused before rendering
     one_error_line(capsys.readouterr().err, "--guide features: nothing to guide with; render the features too")
     assert not out.exists()
+
+
+def test_render_features_from_a_renderer_that_renders_none_is_refused(tmp_path, capsys, monkeypatch):
+    """The registry says which renderers render features (their module's list_features())."""
+    monkeypatch.chdir(tmp_path)
+    code = main(["render", "--renderer", "synthetic", "edges", "--width", "8", "--height", "8", "--spp", "2",
+                 "-o", "r.exr", "--features", "albedo", "-q"])
+    assert code == 2
+    one_error_line(capsys.readouterr().err, "--features", "synthetic", "does not render albedo", "no features")
+    assert os.listdir(tmp_path) == []
