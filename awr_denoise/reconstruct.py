@@ -30,7 +30,7 @@ from .buffers import SampleBuffer
 from .channels import luminance_weights
 from .domains import Domain
 from .finishing import clip_negative, pooled_clamp, restore_mean
-from .guided import checked_inputs, pilot
+from .guided import checked_inputs, pilots
 from .prepare import Prepared, prepare
 from .stationary import DTYPES, StationaryTransform, stationary_transform
 from .sure import sure_blend
@@ -166,7 +166,7 @@ class _Chain(NamedTuple):
 
 def _chain(transform: StationaryTransform, x: FloatArray, v: FloatArray, pilot: FloatArray,
            exponents: tuple[float, ...], *, k: float, weights: FloatArray | None, shared: FloatArray | None,
-           leverage: bool, probes: int, seed: int) -> _Chain:
+           leverage: bool, probes: int, seed: int, keep: FloatArray | float) -> _Chain:
     """Every Wiener stage on (H, W, C) planes; with luminance ``weights``, factors from luminance.
 
     Channel ``c`` of the probes draws its signs from ``seed + c``, so channels run one by one
@@ -175,7 +175,7 @@ def _chain(transform: StationaryTransform, x: FloatArray, v: FloatArray, pilot: 
     out = pilot
     for exponent in exponents[:-1]:
         out = relative_wiener(transform, x, v if shared is None else shared, out if weights is None else out @ weights,
-                              k=k, exponent=exponent).image
+                              k=k, exponent=exponent).image * (1 - keep) + keep * pilot
     p = out if weights is None else out @ weights
     variance = v if shared is None else shared
     result = relative_wiener(transform, x, variance, p, k=k, exponent=exponents[-1], leverage=leverage)
@@ -194,9 +194,9 @@ def _chain(transform: StationaryTransform, x: FloatArray, v: FloatArray, pilot: 
     return _Chain(result.image, None if lev is None else (lev if lev.ndim == 3 else lev[..., None]), var_out)
 
 
-def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float, ...], *, levels: int,
-                   wavelet: str, precision: str, luminance: tuple[Prepared, FloatArray] | None, guard: bool,
-                   probes: int, seed: int, run: Callable, parallel: bool) -> tuple[FloatArray, FloatArray | None]:
+def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float, ...], *, levels: int, wavelet: str,
+                   precision: str, luminance: tuple[Prepared, FloatArray] | None, guard: bool, probes: int, seed: int,
+                   run: Callable, parallel: bool, keep: FloatArray | float) -> tuple[FloatArray, FloatArray | None]:
     """Stages 2.. and the SURE guard on the image brought to unit scale; the probe variance if asked.
 
     In channel mode with ``parallel`` every channel runs on its own (over ``run``, an
@@ -209,7 +209,7 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
     x = prepared.mean / s
     v = prepared.variance / s / s  # not s * s: that underflows for means near 1e-310
     transform = stationary_transform(prepared.mean.shape[:2], wavelet, levels, precision)
-    options = {"k": k, "leverage": guard, "probes": probes}
+    options = {"k": k, "leverage": guard, "probes": probes, "keep": keep}
     if luminance is None and parallel:
         parts = run(lambda c: _chain(transform, x[..., c:c + 1], v[..., c:c + 1], pilot[..., c:c + 1] / s, exponents,
                                      weights=None, shared=None, seed=seed + c, **options), range(x.shape[2]))
@@ -297,17 +297,18 @@ def resolve_settings(*, c_s: float | None = None, stages: int = DEFAULT_STAGES,
     )
 
 
-def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | None, settings: Settings, *,
-                 levels: int, wavelet: str, luminance: tuple[Prepared, FloatArray] | None = None,
-                 run: Callable | None = None) -> tuple[FloatArray, FloatArray | None]:
+def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | None, settings: Settings, *, levels: int,
+                 wavelet: str, luminance: tuple[Prepared, FloatArray] | None = None, run: Callable | None = None,
+                 keep: FloatArray | float = 0.0) -> tuple[FloatArray, FloatArray | None]:
     """Everything after stage 1: the Wiener stages, the guard, the pixel clamp, non-negativity, the mean.
 
     Parameters
     ----------
     prepared
         The whole image's planes (:func:`~awr_denoise.prepare.prepare`).
-    image, variance
-        Stage 1's result and its variance (or ``None``).
+    image, variance, keep
+        Stage 1's result (the first Wiener stage's pilot) and its variance (or ``None``); ``keep``: the
+        (H, W, 1) share of that pilot every later stage keeps in its own (:func:`~awr_denoise.guided.pilots`).
     settings
         From :func:`resolve_settings`.
     levels, wavelet
@@ -329,7 +330,7 @@ def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | N
         image, variance = _wiener_stages(prepared, image, settings.exponents, levels=_wiener_levels(levels),
                                          wavelet=wavelet, precision=settings.precision, luminance=luminance,
                                          guard=settings.guard, probes=settings.probes, seed=settings.seed, run=run,
-                                         parallel=parallel)
+                                         parallel=parallel, keep=keep)
         if settings.pixel_clamp is not None:
             lum = None if luminance is None else luminance[0]
             image, moved = pooled_clamp(image, prepared.mean if lum is None else lum.mean,
@@ -431,11 +432,9 @@ def reconstruct_detailed(
         transform pair per channel. ``0`` skips the estimate (the variance is then NaN).
     seed
         Seed of the probes.
-    guide
-        An (H, W, C) image or a function of the buffer making one (:func:`awr_denoise.guides.oidn`): the
-        pilot of the first Wiener stage where the samples allow it (:mod:`awr_denoise.guided`).
-    features
-        The pilot from the buffer's features instead (:func:`~awr_denoise.guided.feature_pilot`).
+    guide, features
+        An (H, W, C) image or a function of the buffer making one (:func:`awr_denoise.guides.oidn`), or ``True``:
+        the pilot of the Wiener stages where the samples allow it, the guide's or the features' (:mod:`.guided`).
 
     Notes
     -----
@@ -496,8 +495,9 @@ def reconstruct_detailed(
                             weights=None if luminance is None else luminance[1])
     variance = stage.output_variance(settings.probes, settings.seed) if settings.probes and settings.stages == 1 \
         else None
-    image, variance = later_stages(prepared, pilot(buffer, stage.image, guide, features), variance, settings,
-                                   levels=ops.levels, wavelet=ops.wavelet, luminance=luminance, run=run)
+    first, keep = pilots(buffer, stage.image, guide, features)
+    image, variance = later_stages(prepared, first, variance, settings, levels=ops.levels, wavelet=ops.wavelet,
+                                   luminance=luminance, run=run, keep=keep)
     return Reconstruction(image=image, thresholds=stage.thresholds,
                           fraction_zeroed=stage.zeroed / stage.total if stage.total else 0.0,
                           variance=np.broadcast_to(np.nan, image.shape) if variance is None else variance,

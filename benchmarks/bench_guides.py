@@ -6,6 +6,7 @@ Run from the repository root (each section updates its part of the JSON)::
     .venv/bin/python benchmarks/bench_guides.py samplers    # uniform vs AWR sampling, with and without OIDN
     .venv/bin/python benchmarks/bench_guides.py synthetic   # known clean images: good and wrong guides, gate on/off
     .venv/bin/python benchmarks/bench_guides.py ablations   # the gate and the a-trous passes on the tracer's scenes
+    .venv/bin/python benchmarks/bench_guides.py avenues     # what else was tried, every scene at 32 spp
     .venv/bin/python benchmarks/bench_guides.py crops       # docs/img/guides_*.png
     .venv/bin/python benchmarks/bench_guides.py tables      # print the stored results
 
@@ -47,7 +48,10 @@ ROOT = Path(__file__).resolve().parent
 RESULTS = ROOT / "results" / "guides.json"
 IMAGES = ROOT.parent / "docs" / "img"
 SPPS = (8, 16, 32)
-METHODS = ("plain", "default", "default + features", "default + OIDN guide", "OIDN")
+METHODS = ("plain", "default", "default + features", "default + OIDN guide", "default + OIDN guide, alpha 0.75", "OIDN")
+CROP_METHODS = ("plain", "default", "default + features", "default + OIDN guide", "OIDN")
+GUIDE_ALPHA = {"guide": guides.oidn, "wiener_exponents": (0.75, 0.75)}
+"""The OIDN guide with a more relative last Wiener stage (``alpha`` 0.75 instead of 0.4)."""
 
 
 def _image(method: str, buffer: SampleBuffer) -> np.ndarray:
@@ -56,7 +60,7 @@ def _image(method: str, buffer: SampleBuffer) -> np.ndarray:
     if method == "OIDN":
         return guides.oidn(buffer)
     options = {"default": {}, "default + features": {"features": True},
-               "default + OIDN guide": {"guide": guides.oidn}}[method]
+               "default + OIDN guide": {"guide": guides.oidn}, "default + OIDN guide, alpha 0.75": GUIDE_ALPHA}[method]
     return reconstruct(buffer, **options)
 
 
@@ -91,6 +95,10 @@ def quality(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[i
     return rows
 
 
+_SHORT = {"default + features": "features", "default + OIDN guide": "guide",
+          "default + OIDN guide, alpha 0.75": "guide alpha 0.75", "OIDN": "OIDN"}
+
+
 def _mean(rows: list[dict], key: str, **where: Any) -> float:
     values = [r[key] for r in rows if all(r[k] == v for k, v in where.items())]
     return float(np.mean(values)) if values else float("nan")
@@ -107,9 +115,13 @@ def quality_tables(rows: list[dict]) -> None:
             w = {"renderer": renderer, "scene": scene, "spp": spp}
             print(f"| {renderer} | {scene} | {spp} | "
                   + " | ".join(f"{_mean(rows, 'relmse', method=m, **w):.5f}" for m in methods) + " |")
+    a = "default + OIDN guide, alpha 0.75"
+    shown = [m for m in ("default + features", "default + OIDN guide", a, "OIDN") if m in methods]
     print("\n| scene | spp | features / default (relMSE, MSE) | guide / default (relMSE, MSE) | guide / OIDN relMSE "
-          "| MSE / plain (default, features, guide, OIDN) | worst mean error % (features, guide, OIDN) |")
-    print("|---|---|---|---|---|---|---|")
+          + ("| guide, alpha 0.75 / default (relMSE, MSE) | guide, alpha 0.75 / OIDN relMSE " if a in methods else "")
+          + f"| MSE / plain (default, {', '.join(_SHORT[m] for m in shown)}) "
+          + f"| worst mean error % ({', '.join(_SHORT[m] for m in shown)}) |")
+    print("|---|---|---|---|---|---|---|" + ("---|---|" if a in methods else ""))
     for renderer, scene in scenes:
         for spp in sorted({r["spp"] for r in rows if r["scene"] == scene}):
             w = {"renderer": renderer, "scene": scene, "spp": spp}
@@ -118,10 +130,12 @@ def quality_tables(rows: list[dict]) -> None:
             worst = {m: max(r["mean_error"] for r in rows if r["method"] == m and all(r[k] == v for k, v in w.items()))
                      for m in methods}
             f, g, o = "default + features", "default + OIDN guide", "OIDN"
+            alpha = (f"{rel[a] / rel['default']:.2f}, {sq[a] / sq['default']:.2f} | {rel[a] / rel[o]:.2f} | "
+                     if a in methods else "")
             print(f"| {scene} | {spp} | {rel[f] / rel['default']:.2f}, {sq[f] / sq['default']:.2f} | "
-                  f"{rel[g] / rel['default']:.2f}, {sq[g] / sq['default']:.2f} | {rel[g] / rel[o]:.2f} | "
-                  + ", ".join(f"{sq[m] / sq['plain']:.2f}" for m in ("default", f, g, o))
-                  + " | " + ", ".join(f"{100 * worst[m]:.2f}" for m in (f, g, o)) + " |")
+                  f"{rel[g] / rel['default']:.2f}, {sq[g] / sq['default']:.2f} | {rel[g] / rel[o]:.2f} | " + alpha
+                  + ", ".join(f"{sq[m] / sq['plain']:.2f}" for m in ("default", *shown))
+                  + " | " + ", ".join(f"{100 * worst[m]:.2f}" for m in shown) + " |")
 
 
 # ---------------------------------------------------------------------------- samplers
@@ -191,9 +205,19 @@ def _per_pixel_share(candidate: np.ndarray, buffer: SampleBuffer) -> np.ndarray:
     return np.clip((guided.GATE_HIGH - r) / (guided.GATE_HIGH - guided.GATE_LOW), 0.0, 1.0)[..., None]
 
 
+_RECONSTRUCT = sys.modules["awr_denoise.reconstruct"]  # the module: the package exports a function of that name
+
+
+def _first_stage_only(buffer: SampleBuffer, stage1: np.ndarray, guide: np.ndarray | None,
+                      features: bool) -> tuple[np.ndarray, float]:
+    """:func:`awr_denoise.guided.pilots` as it was: the gated guide is the first Wiener stage's pilot only."""
+    return guided.pilots(buffer, stage1, guide, features)[0], 0.0
+
+
 def synthetic(names: tuple[str, ...], spps: tuple[int, ...], seeds: int) -> list[dict[str, Any]]:
     """Known clean images (64x64): the plain mean, the default, and guides that are right (the clean
-    image) or wrong (edges moved 12 pixels, a flat image, noise), with the gate and without."""
+    image) or wrong (edges moved 12 pixels, a flat image, noise), with the gate and the guard, without
+    the gate, and without the guard."""
     rows = []
     for name in names:
         scene = make_scene(name, (64, 64))
@@ -207,6 +231,7 @@ def synthetic(names: tuple[str, ...], spps: tuple[int, ...], seeds: int) -> list
                 images = {"plain": buffer.mean, "default": reconstruct(buffer)}
                 for kind, guide in wrong.items():
                     images[kind] = reconstruct(buffer, guide=guide)
+                    images[f"{kind}, no guard"] = reconstruct(buffer, guide=guide, guard=False)
                     saved = guided.trust
                     guided.trust = _ungated_share  # what the guide does without the gate
                     try:
@@ -235,11 +260,14 @@ def synthetic_table(rows: list[dict]) -> None:
 
 # ---------------------------------------------------------------------------- ablations
 def ablations(scenes: tuple[str, ...], spps: tuple[int, ...], cache: Path) -> list[dict[str, Any]]:
-    """Bundled tracer, group 0: the OIDN guide with the gate, without it and with its per-pixel form;
-    the feature pilot with 3 and 5 a-trous passes (and its time)."""
+    """Bundled tracer, group 0: the OIDN guide with the gate, without it and with its per-pixel form, as
+    the pilot of the first Wiener stage only, and without the SURE guard; the feature pilot with 3 and 5
+    a-trous passes (and its time)."""
     from awr_denoise import tracer
     variants = {"OIDN guide": ({"guide": guides.oidn}, {}), "OIDN guide, no gate": ({"guide": guides.oidn}, None),
                 "OIDN guide, per-pixel gate": ({"guide": guides.oidn}, "per-pixel"),
+                "OIDN guide, first stage only": ({"guide": guides.oidn}, "first stage only"),
+                "OIDN guide, no guard": ({"guide": guides.oidn, "guard": False}, {}),
                 "features, 3 passes": ({"features": True}, {"iterations": 3}),
                 "features, 5 passes": ({"features": True}, {"iterations": 5})}
     rows = []
@@ -253,6 +281,8 @@ def ablations(scenes: tuple[str, ...], spps: tuple[int, ...], cache: Path) -> li
                 saved = guided.trust
                 if setting is None or setting == "per-pixel":
                     guided.trust = _ungated_share if setting is None else _per_pixel_share
+                if setting == "first stage only":
+                    _RECONSTRUCT.pilots = _first_stage_only
                 try:
                     with _Passes(**(setting if isinstance(setting, dict) else {})):
                         start = time.perf_counter()
@@ -260,6 +290,7 @@ def ablations(scenes: tuple[str, ...], spps: tuple[int, ...], cache: Path) -> li
                         seconds = time.perf_counter() - start
                 finally:
                     guided.trust = saved
+                    _RECONSTRUCT.pilots = guided.pilots
                 rows.append({"scene": scene, "spp": spp, "variant": name, "seconds": seconds,
                              "relmse_ratio": relmse(image, ref) / relmse(base, ref),
                              "mse_ratio": mse(image, ref) / mse(base, ref)})
@@ -280,6 +311,84 @@ def ablation_table(rows: list[dict]) -> None:
         print(f"{k}: median {np.median([r['seconds'] for r in rows if r['variant'] == k]):.2f} s")
 
 
+# ---------------------------------------------------------------------------- avenues
+def _demodulated(buffer: SampleBuffer, eps: float = 0.02) -> np.ndarray:
+    """A guide without a network: the default reconstruction of the radiance over the albedo (+ ``eps``),
+    multiplied back (albedo demodulation as a pilot, gated like any guide)."""
+    albedo = np.asarray(buffer.features["albedo"].mean, dtype=np.float64) + eps
+    flat = SampleBuffer.from_moments(buffer.count, buffer.mean / albedo, buffer.estimated_variance() / albedo**2)
+    return albedo * reconstruct(flat)
+
+
+def _features_then_guide(buffer: SampleBuffer, stage1: np.ndarray, guide: np.ndarray | None,
+                         features: bool) -> tuple[np.ndarray, Any]:
+    """The guide where the gate trusts it, the (gated) feature pilot where not, then stage 1."""
+    fallback, _ = guided.pilots(buffer, stage1, None, True)
+    return guided.pilots(buffer, fallback, guide, False)
+
+
+def _features_every_stage(buffer: SampleBuffer, stage1: np.ndarray, guide: np.ndarray | None,
+                          features: bool) -> tuple[np.ndarray, Any]:
+    """The feature pilot kept by every Wiener stage, as a guide is."""
+    candidate = guided.feature_pilot(buffer, stage1)
+    share = guided.trust(candidate, buffer)
+    return share * candidate + (1.0 - share) * stage1, share
+
+
+AVENUES: dict[str, tuple[dict[str, Any], Any]] = {
+    "OIDN guide": ({"guide": guides.oidn}, None),
+    "OIDN guide, first stage only": ({"guide": guides.oidn}, _first_stage_only),
+    "OIDN guide, alpha 1": ({"guide": guides.oidn, "wiener_exponents": (0.75, 1.0)}, None),
+    "OIDN guide, no guard": ({"guide": guides.oidn, "guard": False}, None),
+    "OIDN guide + features where the gate closes": ({"guide": guides.oidn, "features": True}, _features_then_guide),
+    "clean image as guide": ({"guide": "reference"}, None),
+    "clean image as guide, alpha 1": ({"guide": "reference", "wiener_exponents": (0.75, 1.0)}, None),
+    "features": ({"features": True}, None),
+    "features, every stage": ({"features": True}, _features_every_stage),
+    "demodulated guide": ({"guide": _demodulated}, None),
+}
+"""What else was tried for the guide and the features: name -> (reconstruct options, replacement of
+:func:`awr_denoise.guided.pilots` or ``None``). ``"reference"`` stands for the scene's reference image."""
+
+
+def avenues(scenes: list[tuple[str, str, tuple[int, int] | None]], spp: int, groups: int,
+            cache: Path) -> list[dict[str, Any]]:
+    """Every scene at ``spp``: relMSE and MSE of each of :data:`AVENUES`, the default and OIDN alone."""
+    rows = []
+    for renderer, scene, shape in scenes:
+        ref = reference(renderer, scene, shape, cache)
+        for g in range(groups):
+            buffer = feature_buffers(renderer, scene, shape, SPPS, g, cache)[spp]
+            images = {"default": reconstruct(buffer), "OIDN": guides.oidn(buffer), "plain": filled_mean(buffer)}
+            for name, (options, replacement) in AVENUES.items():
+                options = {k: (ref if v == "reference" else v) for k, v in options.items()}
+                if replacement is not None:
+                    _RECONSTRUCT.pilots = replacement
+                try:
+                    images[name] = reconstruct(buffer, **options)
+                finally:
+                    _RECONSTRUCT.pilots = guided.pilots
+            for name, image in images.items():
+                rows.append({"renderer": renderer, "scene": scene, "spp": spp, "group": g, "method": name,
+                             "relmse": relmse(image, ref), "mse": mse(image, ref)})
+        print(f"{renderer} {scene}: done", flush=True)
+    return rows
+
+
+def avenue_table(rows: list[dict]) -> None:
+    """relMSE over OIDN's and over the default's, MSE over the plain mean's, of every avenue."""
+    names = [m for m in dict.fromkeys(r["method"] for r in rows) if m not in ("default", "OIDN", "plain")]
+    print("\nEach cell: relMSE / OIDN's, relMSE / the default's, MSE / the plain mean's.")
+    print("\n| scene | " + " | ".join(names) + " |")
+    print("|---|" + "---|" * len(names))
+    for renderer, scene in dict.fromkeys((r["renderer"], r["scene"]) for r in rows):
+        w = {"renderer": renderer, "scene": scene}
+        rel = {m: _mean(rows, "relmse", method=m, **w) for m in [*names, "default", "OIDN"]}
+        sq = {m: _mean(rows, "mse", method=m, **w) for m in [*names, "plain"]}
+        print(f"| {scene} | " + " | ".join(f"{rel[m] / rel['OIDN']:.2f}, {rel[m] / rel['default']:.2f}, "
+                                           f"{sq[m] / sq['plain']:.2f}" for m in names) + " |")
+
+
 # ---------------------------------------------------------------------------- crops
 CROPS = {("tracer", "cornell_gi"): (40, 40), ("tracer", "chess_dof"): (40, 40),
          ("mitsuba", "glossy_glass"): (96, 96), ("mitsuba", "dof_checker"): (96, 96)}
@@ -296,7 +405,7 @@ def crops(spp: int, cache: Path) -> list[str]:
         shape = MITSUBA_SHAPE if renderer == "mitsuba" else None
         ref = reference(renderer, scene, shape, cache)
         buffer = feature_buffers(renderer, scene, shape, SPPS, 0, cache)[spp]
-        tiles = [ref] + [_image(m, buffer) for m in METHODS]
+        tiles = [ref] + [_image(m, buffer) for m in CROP_METHODS]
         window = (slice(top, top + CROP), slice(left, left + CROP))
         row = np.concatenate([np.pad(t[window], ((0, 0), (0, 2), (0, 0)), constant_values=1.0) for t in tiles], 1)
         row = np.repeat(np.repeat(row, ZOOM, axis=0), ZOOM, axis=1)
@@ -316,7 +425,8 @@ def _update(section: str, value: Any, command: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("section", choices=("quality", "samplers", "synthetic", "ablations", "crops", "tables"))
+    parser.add_argument("section", choices=("quality", "samplers", "synthetic", "ablations", "avenues", "crops",
+                                            "tables"))
     parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
     parser.add_argument("--spps", nargs="+", type=int, default=list(SPPS))
     parser.add_argument("--groups", type=int, default=2)
@@ -351,12 +461,21 @@ def main(argv: list[str] | None = None) -> int:
         rows = ablations(tuple(args.scenes or TRACER_SCENES), tuple(s for s in args.spps if s in (8, 32)), args.cache)
         _update("ablations", rows, command)
         ablation_table(rows)
+    elif args.section == "avenues":
+        names = args.scenes or list(TRACER_SCENES) + list(MITSUBA_SCENES)
+        chosen = [("tracer", s, None) for s in names if s in TRACER_SCENES]
+        if any(s in MITSUBA_SCENES for s in names) and _mitsuba_available():
+            chosen += [("mitsuba", s, MITSUBA_SHAPE) for s in names if s in MITSUBA_SCENES]
+        rows = avenues(chosen, max(args.spps), args.groups, args.cache)
+        _update("avenues", rows, command)
+        avenue_table(rows)
     elif args.section == "crops":
         _update("crops", crops(args.crop_spp, args.cache), command)
     else:  # print the tables of the stored results
         data = json.loads(RESULTS.read_text())
         for section, show in (("quality", quality_tables), ("samplers", sampler_table),
-                              ("synthetic", synthetic_table), ("ablations", ablation_table)):
+                              ("synthetic", synthetic_table), ("ablations", ablation_table),
+                              ("avenues", avenue_table)):
             if section in data:
                 print(f"\n## {section} ({data[section]['command']})")
                 show(data[section]["rows"])

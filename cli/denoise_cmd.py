@@ -71,9 +71,10 @@ def add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--mode", default=DEFAULT_MODE, choices=MODES,
                    help="threshold every channel, or decide on luminance and keep hue (default %(default)s)")
     g.add_argument("--guide", choices=GUIDE_CHOICES,
-                   help="pilot of the first Wiener stage, used only where the samples allow it: 'oidn', Open Image "
-                        "Denoise on the means with the albedo and normal when present (extra oidn); 'features', "
-                        "an a-trous filter guided by albedo, normal and depth (default: neither)")
+                   help="pilot of the Wiener stages, used only where the samples allow it: 'oidn', Open Image "
+                        "Denoise on the means with the albedo and normal when present (extra oidn), for every "
+                        "stage; 'features', an a-trous filter guided by albedo, normal and depth, for the first "
+                        "(default: neither)")
 
 
 def reconstruction_kwargs(args: argparse.Namespace) -> dict:
