@@ -11,6 +11,7 @@ from awr_denoise.metrics import HIGHER_IS_BETTER, METRICS
 
 from awr_denoise.io.exr import check_same_windows, read_windows
 
+from . import interrupts
 from .common import EXIT_OK, RuntimeFailure, UsageError, print_json
 from .paths import PathPlan
 from .values import real
@@ -53,6 +54,7 @@ def run(args: argparse.Namespace) -> int:
     x = image.astype(np.float64)
     r = ref.astype(np.float64)
     result = {"file": args.input, "reference": args.ref} | {name: f(x, r) for name, f in METRICS.items()}
+    interrupts.check()  # a signal whose exception a C extension's import swallowed: no output after it
     if args.output:
         write_image(args.output, x - r, header={**provenance(input=args.input, reference=args.ref), **windows},
                     overwrite=args.overwrite)

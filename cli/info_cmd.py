@@ -7,6 +7,7 @@ from typing import Any
 
 from awr_denoise.io.describe import describe_file
 
+from . import interrupts
 from .common import EXIT_OK, add_plane_options, plane_kwargs, print_json
 from .paths import PathPlan, check_plane_windows, plane_options
 
@@ -92,6 +93,8 @@ def run(args: argparse.Namespace) -> int:
     plan.check()
     check_plane_windows(args.input, plane_options(args))
     info = describe(args.input, args)
+    # A signal whose exception a C extension's import swallowed: no report after it.
+    interrupts.check()
     if args.json:
         print_json(info)
     else:

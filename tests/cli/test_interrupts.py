@@ -167,3 +167,27 @@ def test_a_refusal_still_prints_one_line_through_the_console_script(work):
     done = run_awr(["denoise", "d.exr", "-o", "d.exr"], work.root)
     assert done.returncode == 2
     one_error_line(done.stderr, "is the input")
+
+
+@pytest.mark.parametrize("command", ["info", "diff"])
+def test_a_signal_swallowed_on_the_way_prints_no_report(work, capsys, monkeypatch, command):
+    """A SIGTERM whose exception a C extension's import lost (interrupts.received() is set, nothing
+    was raised): the command must not go on to print its report or write its output."""
+    from awr_denoise.cli import diff_cmd, info_cmd, interrupts
+    from awr_denoise.cli.main import main
+
+    module, name = (info_cmd, "describe") if command == "info" else (diff_cmd, "read_windows")
+    original = getattr(module, name)
+
+    def swallowed(*args, **kwargs):
+        interrupts._received.append(signal.SIGTERM)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(module, name, swallowed)
+    monkeypatch.chdir(work.root)
+    args = ["info", "d.exr"] if command == "info" else ["diff", "ref.exr", "-r", "ref.exr", "-o", "delta.exr"]
+    before = sorted(os.listdir(work.root))
+    status = main(args)
+    out, err = capsys.readouterr()
+    assert (status, err.strip(), out) == (143, "awr: terminated", "")
+    assert sorted(os.listdir(work.root)) == before
