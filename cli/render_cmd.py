@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -142,7 +143,7 @@ def _scene(args: argparse.Namespace) -> tuple[str, Any, str, tuple[int, int] | N
         if not given:
             raise UsageError(f"--renderer {args.renderer}: give the SCENE to render")
         if args.features:
-            offered = _listed_features(args.renderer)
+            offered = _registry(renderer_features, args.renderer)
             missing = [name for name in args.features if name not in offered]
             if missing:
                 raise UsageError(f"--features: --renderer {args.renderer} does not render {', '.join(missing)} "
@@ -159,18 +160,10 @@ def _scene(args: argparse.Namespace) -> tuple[str, Any, str, tuple[int, int] | N
     return name, tracer.load_scene(name, width=args.width, height=args.height), Path(name).stem, None, options
 
 
-def _listed_features(renderer: str) -> list[str]:
-    """The features the renderer renders, or a :class:`RuntimeFailure` naming the missing extra."""
+def _registry(lookup: Callable[[str], list[str]], renderer: str) -> list[str]:
+    """``lookup(renderer)`` (the registry's scenes or features), a missing extra as a :class:`RuntimeFailure`."""
     try:
-        return renderer_features(renderer)
-    except ImportError as exc:
-        raise RuntimeFailure(f"--renderer {renderer}: {exc}") from None
-
-
-def _bundled_scenes(renderer: str) -> list[str]:
-    """The renderer's bundled scenes, or a :class:`RuntimeFailure` naming the missing extra."""
-    try:
-        return renderer_scenes(renderer)
+        return lookup(renderer)
     except ImportError as exc:
         raise RuntimeFailure(f"--renderer {renderer}: {exc}") from None
 
@@ -180,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
     if args.renderer not in renderer_names():
         raise UsageError(f"--renderer: {args.renderer!r} is not one of {', '.join(renderer_names())}")
     if args.list_scenes:
-        for name in _bundled_scenes(args.renderer):
+        for name in _registry(renderer_scenes, args.renderer):
             print(name)
         return EXIT_OK
     if not args.output:
