@@ -41,8 +41,8 @@ from awr_denoise.renderers import create_renderer
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_reconstruct import (MITSUBA_SCENES, MITSUBA_SHAPE, TRACER_SCENES, _mitsuba_available,  # noqa: E402
-                              reference, uniform_buffers)
+from bench_reconstruct import (MITSUBA_SHAPE, TRACER_SCENES, _mitsuba_available, quality_scenes,  # noqa: E402
+                              recorded_command, reference, uniform_buffers)
 
 ROOT = Path(__file__).resolve().parent
 RESULTS = ROOT / "results" / "guides.json"
@@ -437,16 +437,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.section != "tables" and not guides.oidn_available():
         print(f"bench_guides: {guides.OIDN_HINT}", file=sys.stderr)
         return 2
-    given = list(argv if argv is not None else sys.argv[1:])
-    # The cache folder is this machine's business: the recorded command names it by its option only.
-    shown = ["DIR" if i > 0 and given[i - 1] == "--cache" else a for i, a in enumerate(given)]
-    command = "benchmarks/bench_guides.py " + " ".join(shown)
+    command = recorded_command("bench_guides.py", argv)
     if args.section == "quality":
-        names = args.scenes or list(TRACER_SCENES) + list(MITSUBA_SCENES)
-        scenes: list[tuple[str, str, tuple[int, int] | None]] = [("tracer", s, None) for s in names if s in TRACER_SCENES]
-        if any(s in MITSUBA_SCENES for s in names) and _mitsuba_available():
-            scenes += [("mitsuba", s, MITSUBA_SHAPE) for s in names if s in MITSUBA_SCENES]
-        rows = quality(scenes, tuple(sorted(args.spps)), args.groups, args.cache)
+        rows = quality(quality_scenes(args.scenes), tuple(sorted(args.spps)), args.groups, args.cache)
         _update("quality", rows, command)
         quality_tables(rows)
     elif args.section == "samplers":
@@ -462,11 +455,7 @@ def main(argv: list[str] | None = None) -> int:
         _update("ablations", rows, command)
         ablation_table(rows)
     elif args.section == "avenues":
-        names = args.scenes or list(TRACER_SCENES) + list(MITSUBA_SCENES)
-        chosen = [("tracer", s, None) for s in names if s in TRACER_SCENES]
-        if any(s in MITSUBA_SCENES for s in names) and _mitsuba_available():
-            chosen += [("mitsuba", s, MITSUBA_SHAPE) for s in names if s in MITSUBA_SCENES]
-        rows = avenues(chosen, max(args.spps), args.groups, args.cache)
+        rows = avenues(quality_scenes(args.scenes), max(args.spps), args.groups, args.cache)
         _update("avenues", rows, command)
         avenue_table(rows)
     elif args.section == "crops":

@@ -293,11 +293,9 @@ def _corrections(buffer: SampleBuffer) -> dict[str, np.ndarray]:
 def finishing(groups: int, cache: Path, mitsuba: bool) -> list[dict[str, Any]]:
     """Mean corrections on the Mitsuba scenes at 128x128 (``groups`` renders) and the synthetic fireflies."""
     rows = []
-    cases: list[tuple[str, str, Any]] = []
-    if mitsuba:
-        cases += [("mitsuba", s, None) for s in MITSUBA_SCENES]
-    cases.append(("synthetic", "fireflies", None))
-    for renderer, scene, _ in cases:
+    cases = [("mitsuba", s) for s in MITSUBA_SCENES] if mitsuba else []
+    cases.append(("synthetic", "fireflies"))
+    for renderer, scene in cases:
         if renderer == "mitsuba":
             ref = reference(renderer, scene, FINISHING_SHAPE, cache / "s128")
             per_group = [uniform_buffers(renderer, scene, FINISHING_SHAPE, FINISHING_SPPS, g, cache, prefix="s128_")
@@ -364,6 +362,22 @@ def speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
 
 
 # ---------------------------------------------------------------------------- main
+def recorded_command(script: str, argv: list[str] | None) -> str:
+    """The command a results section records; the cache folder (this machine's business) as ``DIR``."""
+    given = list(argv if argv is not None else sys.argv[1:])
+    shown = ["DIR" if i > 0 and given[i - 1] == "--cache" else a for i, a in enumerate(given)]
+    return f"benchmarks/{script} " + " ".join(shown)
+
+
+def quality_scenes(names: list[str] | None) -> list[tuple[str, str, tuple[int, int] | None]]:
+    """(renderer, scene, shape) of the named scenes (default: all); Mitsuba's only when it can run here."""
+    names = names or list(TRACER_SCENES) + list(MITSUBA_SCENES)
+    scenes: list[tuple[str, str, tuple[int, int] | None]] = [("tracer", s, None) for s in names if s in TRACER_SCENES]
+    if any(s in MITSUBA_SCENES for s in names) and _mitsuba_available():
+        scenes += [("mitsuba", s, MITSUBA_SHAPE) for s in names if s in MITSUBA_SCENES]
+    return scenes
+
+
 def _update(section: str, value: Any, command: str) -> None:
     data = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
     data[section] = {"command": command, "machine": machine_info(), "rows": value}
@@ -382,16 +396,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=0, help="speed: rounds per size (default 9, 3 at 1080p)")
     parser.add_argument("--cheaper", action="store_true", help="quality: also the cheaper variants (CHEAPER)")
     args = parser.parse_args(argv)
-    given = list(argv if argv is not None else sys.argv[1:])
-    # The cache folder is this machine's business: the recorded command names it by its option only.
-    shown = ["DIR" if i > 0 and given[i - 1] == "--cache" else a for i, a in enumerate(given)]
-    command = "benchmarks/bench_reconstruct.py " + " ".join(shown)
+    command = recorded_command("bench_reconstruct.py", argv)
     if args.section == "quality":
-        names = args.scenes or list(TRACER_SCENES) + list(MITSUBA_SCENES)
-        scenes: list[tuple[str, str, tuple[int, int] | None]] = [("tracer", s, None) for s in names if s in TRACER_SCENES]
-        if any(s in MITSUBA_SCENES for s in names) and _mitsuba_available():
-            scenes += [("mitsuba", s, MITSUBA_SHAPE) for s in names if s in MITSUBA_SCENES]
-        rows = quality(scenes, tuple(args.spps), args.groups or 4, args.cache,
+        rows = quality(quality_scenes(args.scenes), tuple(args.spps), args.groups or 4, args.cache,
                        {**METHODS, **(CHEAPER if args.cheaper else {})})
         _update("quality", rows, command)
         quality_tables(rows)
