@@ -238,12 +238,43 @@ def _mean_change(want: FloatArray, got: FloatArray, error: FloatArray | None, li
     return np.where(significant, change, bounded)
 
 
-def _fill(weight: FloatArray, cap: FloatArray, total: float) -> FloatArray:
+_FILL_STEPS = 64
+"""Steps of :func:`_fill`'s iteration before it sorts instead (each step fills at least one pixel)."""
+
+
+def _fill(weight: FloatArray, cap: FloatArray, total: float, *, steps: int = _FILL_STEPS) -> FloatArray:
     """``min(mu * weight, cap)`` with ``mu`` such that the sum is ``total`` (``0 <= total <= sum(cap)``).
 
-    Water-filling, exact: pixel ``i`` is full once ``mu >= cap_i / weight_i``; sorted by that
-    level, the sum is piecewise linear in ``mu`` and the piece holding ``total`` gives ``mu``.
+    Water-filling, exact. Start from ``mu = total / sum(weight)`` as if no pixel were full; the
+    pixels it fills (``mu * weight >= cap``) take their caps and ``mu`` is solved again on the
+    others. ``mu`` only grows (a filled pixel took at most ``mu * weight``), so a pixel once full
+    stays full and the loop ends when none fills: a few whole-image passes on real images. After
+    ``steps`` steps it sorts the pixels by the level at which each fills instead (:func:`_fill_sorted`).
     """
+    room = (cap > 0) & (weight > 0)
+    delta = np.where(room, cap, 0.0)                          # every pixel full, until shown otherwise
+    if total <= 0:
+        return np.zeros_like(cap)
+    at = np.flatnonzero(room)                                 # the pixels not full yet, as a list
+    a, c = weight.ravel()[at], cap.ravel()[at]
+    full = 0.0
+    for _ in range(steps):
+        if at.size == 0:                                      # every pixel full: total == sum(cap)
+            return delta
+        mu = (total - full) / float(a.sum())
+        filled = mu * a >= c
+        if not filled.any():
+            delta.ravel()[at] = mu * a
+            return delta
+        full += float(c[filled].sum())
+        keep = ~filled
+        at, a, c = at[keep], a[keep], c[keep]
+    return _fill_sorted(weight, cap, total)
+
+
+def _fill_sorted(weight: FloatArray, cap: FloatArray, total: float) -> FloatArray:
+    """:func:`_fill` by sorting: sorted by the level ``cap / weight`` at which each pixel is full, the
+    sum is piecewise linear in ``mu`` and the piece holding ``total`` gives ``mu``."""
     delta = np.zeros_like(cap)
     room = np.nonzero((cap > 0) & (weight > 0))
     if total <= 0 or room[0].size == 0:
@@ -333,16 +364,21 @@ def restore_mean(image: FloatArray, mean: FloatArray, variance: FloatArray | Non
         if not (want[c] > 0 and got[c] > 0 and np.isfinite(want[c]) and np.isfinite(got[c])) or change[c] == 0:
             continue
         sign = 1.0 if change[c] > 0 else -1.0
-        level = np.abs(o[..., c]) * unit
+        oc = o[..., c] * unit                                   # contiguous planes from here on
+        gap = x[..., c] * unit
+        gap -= oc
+        if sign < 0:
+            np.negative(gap, out=gap)
+        np.maximum(gap, 0.0, out=gap)                           # room towards the pixel's own mean
+        level = np.abs(oc)
         weight = level + offset * want[c]
-        gap = np.maximum(sign * (x[..., c] - o[..., c]) * unit, 0.0)  # room towards the pixel's own mean
-        cap = np.minimum(gap, share * weight)
+        cap = weight * share
+        np.minimum(cap, gap, out=cap)
         total, room = abs(change[c]) * pixels, float(cap.sum())
         delta = _fill(weight, cap, total) if total < room else cap
         rest = total - room if total > room * (1 + 1e-9) else 0.0  # not the rounding of sum(x - o)
         if rest > 0 and level.sum() > 0:
-            delta += rest * level / level.sum()
+            delta = delta + rest * level / level.sum()
         out[..., c] = o[..., c] + sign * delta / unit
-        with np.errstate(divide="ignore", invalid="ignore"):
-            blend[..., c] = np.where(gap > 0, delta / np.where(gap > 0, gap, 1.0), 0.0)
+        np.divide(delta, gap, out=blend[..., c], where=gap > 0)
     return out, np.minimum(blend, 1.0)

@@ -8,8 +8,8 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from scipy import ndimage
 
-from awr_denoise.finishing import (RESTORE_SHARE, _fill, clip_negative, match_mean, median3x3, pooled_clamp,
-                                   pooled_standard_error, restore_mean)
+from awr_denoise.finishing import (_FILL_STEPS, RESTORE_SHARE, _fill, clip_negative, match_mean, median3x3,
+                                   pooled_clamp, pooled_standard_error, restore_mean)
 
 
 @pytest.mark.parametrize("shape", [(1, 1), (1, 5), (2, 3, 1), (3, 3), (17, 11, 3), (64, 48, 2)])
@@ -123,13 +123,15 @@ def _fill_by_bisection(weight, cap, total):
     return np.minimum(hi * weight, cap)
 
 
+@pytest.mark.parametrize("steps", [_FILL_STEPS, 0], ids=["iterated", "sorted"])
 @pytest.mark.parametrize("seed", range(6))
-def test_fill_is_exact_water_filling(seed):
+def test_fill_is_exact_water_filling(seed, steps):
+    """Both ways (the iteration, and the sort it falls back to after ``steps``) against bisection."""
     rng = np.random.default_rng(seed)
     weight = rng.random((13, 7)) + 0.01
     cap = rng.random((13, 7)) ** 3 * (rng.random((13, 7)) < 0.7)
     for total in (0.0, 0.01 * cap.sum(), 0.5 * cap.sum(), 0.999 * cap.sum(), cap.sum()):
-        delta = _fill(weight, cap, total)
+        delta = _fill(weight, cap, total, steps=steps)
         assert delta.sum() == pytest.approx(total, rel=1e-12, abs=1e-15)
         assert (delta >= 0).all() and (delta <= cap).all()
         if 0 < total < cap.sum():
