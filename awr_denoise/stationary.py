@@ -167,7 +167,10 @@ class StationaryTransform:
         self._rows = _axis(h, self.levels, self.wavelet, False)
         self._cols = _axis(w, self.levels, self.wavelet, True)
         self._cache: dict = {}
-        self._cache_left = _CACHE_BYTES
+        # Every product (four kinds per band) is kept if all of them fit, none otherwise: a stage
+        # uses each once in turn, so a partial cache would hold memory and save little time.
+        product = h * (w // 2 + 1) * np.dtype(self._complex).itemsize
+        self._caching = 4 * (3 * self.levels + 1) * product <= _CACHE_BYTES
         # (row kind, column kind, level index) of every band, in the layout's order.
         self.bands: list[tuple[str, str, int]] = [("lo", "lo", self.levels - 1)]
         for j in range(self.levels - 1, -1, -1):
@@ -187,9 +190,8 @@ class StationaryTransform:
         rows, cols = getattr(self._rows, which), getattr(self._cols, which)
         # Each axis' factor rounded to the FFTs' precision first: one product in that precision.
         out = np.multiply.outer(rows[r][j].astype(self._complex), cols[c][j].astype(self._complex))
-        if self._cache_left >= out.nbytes:  # small images keep every product; large ones rebuild
+        if self._caching:
             self._cache[key] = out
-            self._cache_left -= out.nbytes
         return out
 
     def analysis(self, band: int) -> np.ndarray:
@@ -213,12 +215,17 @@ class StationaryTransform:
         """
         return self._outer("diagonal", band)
 
-    def spectrum(self, planes: FloatArray) -> np.ndarray:
-        """``rfft2`` of (..., H, W) planes in the transform's precision."""
+    def spectrum(self, planes: FloatArray, *, out: np.ndarray | None = None) -> np.ndarray:
+        """``rfft2`` of (..., H, W) planes in the transform's precision, into ``out`` if given."""
         a = np.asarray(planes, dtype=self.dtype)
         if self.backend == "scipy":
-            return sfft.rfft2(a, workers=self.workers)
-        out = np.empty(a.shape[:-1] + (a.shape[-1] // 2 + 1,), self._complex)
+            spec = sfft.rfft2(a, workers=self.workers)
+            if out is None:
+                return spec
+            out[...] = spec
+            return out
+        if out is None:
+            out = np.empty(a.shape[:-1] + (a.shape[-1] // 2 + 1,), self._complex)
         # One plane per call: ducc0 vectorises across the transforms of a call, so a batch's
         # rounding would depend on its size; plane by plane, a channel's result is the same
         # whether it runs alone, with others or on another thread.
@@ -226,11 +233,17 @@ class StationaryTransform:
             ducc0.fft.r2c(a[index], axes=(0, 1), out=out[index], nthreads=self.workers)
         return out
 
-    def planes(self, spectrum: np.ndarray, *, overwrite: bool = False) -> FloatArray:
-        """Inverse of :meth:`spectrum` (planes in the transform's precision); ``overwrite`` may reuse ``spectrum``."""
+    def planes(self, spectrum: np.ndarray, *, overwrite: bool = False, out: np.ndarray | None = None) -> FloatArray:
+        """Inverse of :meth:`spectrum` (planes in the transform's precision, into ``out`` if given);
+        ``overwrite`` may reuse ``spectrum``."""
         if self.backend == "scipy":
-            return sfft.irfft2(spectrum, s=self.shape, workers=self.workers, overwrite_x=overwrite)
-        out = np.empty(spectrum.shape[:-2] + self.shape, self.dtype)
+            image = sfft.irfft2(spectrum, s=self.shape, workers=self.workers, overwrite_x=overwrite)
+            if out is None:
+                return image
+            out[...] = image
+            return out
+        if out is None:
+            out = np.empty(spectrum.shape[:-2] + self.shape, self.dtype)
         for index in np.ndindex(spectrum.shape[:-2]):  # plane by plane, as in spectrum()
             # forward=False, inorm=2: the inverse of the forward transform (divided by H * W).
             ducc0.fft.c2r(spectrum[index], axes=(0, 1), lastsize=self.shape[1], forward=False, inorm=2,

@@ -89,22 +89,42 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
     lev = np.asarray(leverage, np.float64)
     if lev.ndim == o.ndim - 1:
         lev = lev[..., None]
-    change = o - x
-    gain = v * (1.0 - lev)  # what the change may remove, in expectation
     size = (window, window) + (1,) * (o.ndim - 2)
+    # Every full-size array below is float64 and the image may be 1080p or 4K: the sums are
+    # pooled in place and buffers reused, so at most five whole arrays are alive (not ten).
+    change = o - x
 
-    def pooled(a: FloatArray) -> FloatArray:
-        return ndimage.uniform_filter(a, size=size, mode="nearest")
-
-    squared = change * change
+    def gain() -> FloatArray:  # what the change may remove, in expectation: v (1 - L)
+        out = 1.0 - lev
+        if out.shape != v.shape:  # one leverage plane for every channel
+            return v * out
+        out *= v
+        return out
 
     def share(num: FloatArray, den: FloatArray) -> FloatArray:
-        num, den = pooled(num), pooled(den)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lam = np.where(den > 0, num / den, 1.0)
-        return np.clip(np.nan_to_num(lam, nan=1.0, posinf=1.0), 0.0, 1.0)
+        """The sums' ratio clipped to [0, 1] (1 where it is undefined), into ``num``; ``den`` is spent."""
+        ndimage.uniform_filter(num, size=size, mode="nearest", output=num)
+        ndimage.uniform_filter(den, size=size, mode="nearest", output=den)
+        undefined = ~(den > 0)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            np.divide(num, den, out=num)
+        num[undefined] = 1.0
+        num[np.isnan(num) | np.isposinf(num)] = 1.0
+        return np.clip(num, 0.0, 1.0, out=num)
 
-    relative = 1.0 / (np.abs(o) + k) ** 2
     # The squared-error criterion's weights are 1: its sums need no product.
-    lam = np.minimum(share(gain, squared), share(gain * relative, squared * relative))
-    return x + lam * change, lam
+    lam = share(gain(), change * change)
+    relative = np.abs(o)  # the relative criterion's weights 1 / (|o| + k)^2
+    relative += k
+    np.square(relative, out=relative)
+    np.divide(1.0, relative, out=relative)
+    weighted_gain = gain()
+    weighted_gain *= relative
+    squared = change * change
+    squared *= relative
+    del relative
+    np.minimum(lam, share(weighted_gain, squared), out=lam)
+    del weighted_gain, squared
+    change *= lam
+    change += x
+    return change, lam

@@ -132,21 +132,25 @@ def wiener_filter(transform: StationaryTransform, x: FloatArray, variance: Float
         raise ValueError(f"variance, pilot: shapes {np.shape(variance)} and {np.shape(pilot)} do not fit x's "
                          f"{np.shape(x)} (same shape, or one (H, W) plane each)")
     dtype = transform.dtype
-    out, out_e, diagonal = _filter(transform, _planes(x, dtype), _planes(variance, dtype), _planes(pilot, dtype),
+    out, out_e, diagonal = _filter(transform, [_planes(x, dtype), _planes(variance, dtype), _planes(pilot, dtype)],
                                    None if extra is None else _planes(extra, dtype), leverage)
     return WienerResult(_last(out, ndim), None if out_e is None else _last(out_e, 3),
                         None if diagonal is None else _last(diagonal, ndim if np.ndim(variance) == 3 else 2))
 
 
-def _filter(t: StationaryTransform, xs: np.ndarray, vs: np.ndarray, ps: np.ndarray, es: np.ndarray | None,
+def _filter(t: StationaryTransform, planes: list[np.ndarray], es: np.ndarray | None,
             leverage: bool) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """:func:`wiener_filter` on (C, H, W) planes in the transform's precision (``vs``, ``ps``: C or 1 planes).
+    """:func:`wiener_filter` on (C, H, W) planes in the transform's precision.
 
+    ``planes`` is ``[xs, vs, ps]`` (``vs``, ``ps``: C or 1 planes); it is emptied once their
+    spectra are taken, so a caller that holds no other reference frees them for the band loop.
     Every band costs three inverse FFTs (pilot, noise and image coefficients) and one forward
-    FFT (the scaled coefficients), one more forward FFT with ``leverage``; the elementwise work
-    runs in place in buffers reused from band to band.
+    FFT (the scaled coefficients) per plane, one more forward FFT with ``leverage``. The work
+    between them runs one plane at a time in buffers reused from band to band: at 1080p or 4K
+    the whole-image spectra are what memory holds, not one temporary per channel and step.
     """
-    spec_x, spec_p, spec_v = t.spectrum(xs), t.spectrum(ps), t.spectrum(vs)
+    spec_x, spec_v, spec_p = (t.spectrum(a) for a in planes)
+    planes.clear()
     spec_e = None if es is None else t.spectrum(es)
     keep = t.analysis(0) * t.synthesis(0)
     total = spec_x * keep
@@ -154,26 +158,34 @@ def _filter(t: StationaryTransform, xs: np.ndarray, vs: np.ndarray, ps: np.ndarr
     # The scale band's factor is 1: its share of the diagonal is h_0's sum, a constant.
     total_d = None if not leverage else np.zeros_like(spec_v) + t.spectrum(np.ones(t.shape)) * t.diagonal(0)
     tiny = np.finfo(t.dtype).tiny  # factor 1 where the variance is 0; ~0 where the pilot is 0
-    work_p, work_v = np.empty_like(spec_p), np.empty_like(spec_v)
-    work_x = np.empty_like(spec_x)
+    work = np.empty(spec_x.shape[-2:], spec_x.dtype)
+    factors = np.empty((spec_p.shape[0],) + t.shape, t.dtype)  # one per pilot plane
+    noise, coeff = np.empty(t.shape, t.dtype), np.empty(t.shape, t.dtype)
+
+    def scaled(spectrum: np.ndarray, a: np.ndarray, factor: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """The spectrum of one plane's band coefficients times ``factor``, taken back by ``s``, in ``work``."""
+        t.planes(np.multiply(spectrum, a, out=work), overwrite=True, out=coeff)
+        np.multiply(coeff, factor, out=coeff)
+        return _times(t.spectrum(coeff, out=work), s)
+
     for b in range(1, len(t.bands)):
-        a, s = t.analysis(b), t.synthesis(b)
-        factor = t.planes(np.multiply(spec_p, a, out=work_p), overwrite=True)
-        np.multiply(factor, factor, out=factor)
-        factor += tiny
-        noise = t.planes(np.multiply(spec_v, t.squared(b), out=work_v), overwrite=True)
-        np.maximum(noise, 0.0, out=noise)  # FFT rounding around exact zeros
-        noise += factor
-        np.divide(factor, noise, out=factor)
-        if total_d is not None:
-            total_d += _times(t.spectrum(factor), t.diagonal(b))
-        coeff = t.planes(np.multiply(spec_x, a, out=work_x), overwrite=True)
-        coeff *= factor
-        total += _times(t.spectrum(coeff), s)
-        if spec_e is not None:
-            coeff = t.planes(spec_e * a, overwrite=True)
-            coeff *= factor
-            total_e += _times(t.spectrum(coeff), s)
+        a, s, squared = t.analysis(b), t.synthesis(b), t.squared(b)
+        for c, factor in enumerate(factors):
+            t.planes(np.multiply(spec_p[c], a, out=work), overwrite=True, out=factor)
+            np.multiply(factor, factor, out=factor)
+            factor += tiny
+            t.planes(np.multiply(spec_v[c], squared, out=work), overwrite=True, out=noise)
+            np.maximum(noise, 0.0, out=noise)  # FFT rounding around exact zeros
+            noise += factor
+            np.divide(factor, noise, out=factor)
+            if total_d is not None:
+                total_d[c] += _times(t.spectrum(factor, out=work), t.diagonal(b))
+        for c in range(spec_x.shape[0]):
+            factor = factors[c if len(factors) > 1 else 0]
+            total[c] += scaled(spec_x[c], a, factor, s)
+            if spec_e is not None:
+                for n in range(spec_e.shape[0]):
+                    total_e[n, c] += scaled(spec_e[n, c], a, factor, s)  # type: ignore[index]
     return (t.planes(total, overwrite=True), None if total_e is None else t.planes(total_e, overwrite=True),
             None if total_d is None else t.planes(total_d, overwrite=True))
 
@@ -264,7 +276,9 @@ def relative_wiener(transform: StationaryTransform, x: FloatArray, variance: Flo
     if extra is not None:
         es = _planes(extra, t.dtype, copy=True)
         es /= w
-    out, out_e, diagonal = _filter(t, xs, vs, pilot_planes, es, leverage)
+    planes = [xs, vs, pilot_planes]
+    del xs, vs, pilot_planes  # _filter frees them once it has their spectra
+    out, out_e, diagonal = _filter(t, planes, es, leverage)
     out *= w
     if out_e is not None:
         out_e *= w

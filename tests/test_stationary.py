@@ -8,7 +8,8 @@ import pywt
 from numpy.testing import assert_allclose
 from scipy import stats
 
-from awr_denoise.stationary import StationaryTransform, stationary_transform
+from awr_denoise import stationary
+from awr_denoise.stationary import BACKENDS, StationaryTransform, stationary_transform
 
 MC_DRAWS = 3000
 MC_FAMILY_ALPHA = 1e-3
@@ -173,3 +174,35 @@ def test_a_plane_transforms_alike_alone_or_in_a_batch(rng, dtype):
     for c in range(3):
         np.testing.assert_array_equal(t.spectrum(planes[c]), batch[c])
         np.testing.assert_array_equal(t.planes(batch[c]), t.planes(batch)[c])
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_out_buffers_give_the_same_planes(rng, backend):
+    """``spectrum(out=)`` and ``planes(out=)`` (the Wiener stage's reused buffers) change no bit."""
+    t = StationaryTransform((30, 22), levels=2, dtype="float32", backend=backend)
+    planes = rng.standard_normal((2, 30, 22)).astype(np.float32)
+    spec = np.empty((2, 30, 12), np.complex64)
+    assert t.spectrum(planes, out=spec) is spec
+    np.testing.assert_array_equal(spec, t.spectrum(planes))
+    out = np.empty((2, 30, 22), np.float32)
+    assert t.planes(spec.copy(), out=out, overwrite=True) is out
+    np.testing.assert_array_equal(out, t.planes(spec))
+
+
+def test_transfer_products_are_cached_all_or_none(rng, monkeypatch):
+    """Small transforms keep every band's products; one too large for the budget keeps none
+    (a stage would cycle through a partial cache) and gives the same bits."""
+    small = StationaryTransform((32, 32), levels=3, dtype="float32")
+    assert small._caching
+    for b in range(len(small.bands)):
+        small.analysis(b), small.synthesis(b), small.squared(b), small.diagonal(b)
+    assert len(small._cache) == 4 * len(small.bands)
+    monkeypatch.setattr(stationary, "_CACHE_BYTES", 1)
+    large = StationaryTransform((32, 32), levels=3, dtype="float32")
+    assert not large._caching
+    for b in range(len(large.bands)):
+        np.testing.assert_array_equal(large.squared(b), small.squared(b))
+    assert large._cache == {}
+    image = rng.standard_normal((32, 32, 2))
+    for a, b in zip(_flat(large.forward(image)), _flat(small.forward(image))):
+        np.testing.assert_array_equal(a, b)

@@ -79,3 +79,38 @@ def test_bad_arguments_are_refused(rng, kwargs, message):
     truth, mean, variance = _flat(rng)
     with pytest.raises(ValueError, match=message):
         sure_blend(truth, mean, variance, np.zeros(SHAPE), **kwargs)
+
+
+def _plain_sure_blend(o, x, v, lev, k, window=9):
+    """The guard written out plainly (a new array per step): the in-place version's reference."""
+    lev = lev[..., None] if lev.ndim == o.ndim - 1 else lev
+    change, gain, size = o - x, v * (1.0 - lev), (window, window, 1)
+    pooled = lambda a: ndimage.uniform_filter(a, size=size, mode="nearest")  # noqa: E731
+
+    def share(num, den):
+        num, den = pooled(num), pooled(den)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            lam = np.where(den > 0, num / den, 1.0)
+        return np.clip(np.nan_to_num(lam, nan=1.0, posinf=1.0), 0.0, 1.0)
+
+    squared, relative = change * change, 1.0 / (np.abs(o) + k) ** 2
+    lam = np.minimum(share(gain, squared), share(gain * relative, squared * relative))
+    return x + lam * change, lam
+
+
+@pytest.mark.parametrize("shared_leverage", [False, True])
+def test_the_in_place_guard_is_the_plain_formula_bit_for_bit(rng, shared_leverage):
+    """Pooling in place and reusing buffers (for memory at 1080p and 4K) changes no bit, also where
+    the sums are zero (no variance, no change) or overflow."""
+    o = rng.lognormal(0.0, 2.0, (40, 36, 3))
+    x = o * rng.uniform(0.5, 1.5, o.shape)
+    v = rng.uniform(0.0, 0.5, o.shape) * o
+    v[:12, :12] = 0.0
+    x[20:32, 20:32] = o[20:32, 20:32]  # no change there
+    v[30:, :4] = 1e300  # the ratio overflows
+    lev = rng.uniform(0.0, 1.0, o.shape[:2] if shared_leverage else o.shape)
+    got, lam = sure_blend(o, x, v, lev, k=0.05)
+    want, want_lam = _plain_sure_blend(o, x, v, lev, 0.05)
+    np.testing.assert_array_equal(lam, want_lam)
+    np.testing.assert_array_equal(got, want)
+    assert not np.shares_memory(got, x) and not np.shares_memory(got, o)
