@@ -2,8 +2,8 @@
 
 1. **Stage 1** (:mod:`awr_denoise.thresholding`): every wavelet coefficient of the pixel means is
    soft-thresholded at ``c_s`` times its exact standard error (Eq. 10-11) on the decimated
-   transform, in the thresholding domain, and every pixel is clamped to ``pixel_clamp``
-   standard errors of its own mean. ``stages=1`` returns this, the paper's reconstruction.
+   transform, in the thresholding domain. ``stages=1`` returns this, the paper's reconstruction,
+   with every pixel clamped to ``pixel_clamp`` standard errors of its own mean.
 2. **Stages 2, 3, ...** (:mod:`awr_denoise.wiener`): the previous estimate is the pilot of an
    empirical Wiener filter on the undecimated transform (:mod:`awr_denoise.stationary`), in a
    domain relative to the pilot (``x / (|pilot| + k)^alpha``, one ``alpha`` per stage from
@@ -401,10 +401,10 @@ def reconstruct_detailed(
     pixel_clamp
         Keep every output pixel within ``pixel_clamp`` standard errors of its own mean: Eq. 11
         picks each *coefficient* inside its confidence interval, and this asks the same of each
-        *pixel*. In stage 1 it works in the thresholding domain; after the Wiener stages in
-        radiance, with each pixel's standard error pooled with its neighbours' (its 3x3 median
-        if larger). It stops the blur of a bright edge from leaking into dark pixels whose
-        means are precise. ``None`` turns both off. Default 2.5, see docs/reconstruction.md.
+        *pixel*. With ``stages=1`` in the thresholding domain; with Wiener stages once, after
+        them, in radiance, each pixel's standard error pooled with its neighbours' (its 3x3
+        median if larger); their pilot, stage 1, then runs unclamped. It stops the blur of a
+        bright edge from leaking into dark pixels whose means are precise. Default 2.5.
     stages
         ``1``: the paper's reconstruction (stage 1 alone). ``n > 1``: stage 1 as the pilot of
         ``n - 1`` empirical Wiener stages on the undecimated transform. Default
@@ -490,11 +490,11 @@ def reconstruct_detailed(
     luminance = None
     if mode == "luminance":
         luminance = (prepare(buffer, prepared.domain, luminance=True), luminance_weights(buffer.channels))
-    stage = threshold_stage(prepared, ops, settings.c_s, mode=mode, pixel_clamp=settings.pixel_clamp, run=run,
+    clamp = settings.pixel_clamp if settings.stages == 1 else None  # a clamped pilot measured worse
+    stage = threshold_stage(prepared, ops, settings.c_s, mode=mode, pixel_clamp=clamp, run=run,
                             luminance=None if luminance is None else luminance[0], precision=settings.precision,
                             weights=None if luminance is None else luminance[1])
-    variance = stage.output_variance(settings.probes, settings.seed) if settings.probes and settings.stages == 1 \
-        else None
+    variance = stage.output_variance(settings.probes, settings.seed) if settings.probes and settings.stages == 1 else None
     first, keep = pilots(buffer, stage.image, guide, features)
     image, variance = later_stages(prepared, first, variance, settings, levels=ops.levels, wavelet=ops.wavelet,
                                    luminance=luminance, run=run, keep=keep)

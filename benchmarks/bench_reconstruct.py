@@ -36,8 +36,11 @@ from awr_denoise.features import FEATURE_CHANNELS
 from awr_denoise.finishing import RESTORE_SHARE, match_mean, restore_mean
 from awr_denoise.metrics import mse, relmse
 from awr_denoise.prepare import prepare
+from awr_denoise.reconstruct import DEFAULT_DOMAIN, later_stages, resolve_settings
 from awr_denoise.renderers import create_renderer
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
+from awr_denoise.thresholding import threshold_stage
+from awr_denoise.wavelets import wavelet_operators
 
 ROOT = Path(__file__).resolve().parent
 RESULTS = ROOT / "results" / "reconstruct.json"
@@ -58,6 +61,20 @@ SPEED_VARIANTS = {
 }
 CHEAPER: dict[str, dict[str, Any] | None] = {"one Wiener stage": SPEED_VARIANTS["one Wiener stage"]}
 """``quality --cheaper``: variants that trade quality for speed, measured beside the default."""
+
+
+def clamped_pilot(buffer: SampleBuffer) -> np.ndarray:
+    """The default as it was before its pilot ran unclamped: stage 1 clamped too, then the rest."""
+    settings = resolve_settings()
+    prepared = prepare(buffer, DEFAULT_DOMAIN)
+    ops = wavelet_operators(buffer.shape)
+    stage = threshold_stage(prepared, ops, settings.c_s, pixel_clamp=settings.pixel_clamp,
+                            precision=settings.precision)
+    return later_stages(prepared, stage.image, None, settings, levels=ops.levels, wavelet=ops.wavelet)[0]
+
+
+COMPARED: dict[str, Any] = {"pilot clamped": clamped_pilot}
+"""``quality --compare``: earlier forms of the default, measured beside it."""
 
 
 # ---------------------------------------------------------------------------- buffers
@@ -132,7 +149,8 @@ def _measure(image: np.ndarray, x: np.ndarray, ref: np.ndarray, seconds: float) 
 
 
 def quality(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], groups: int, cache: Path,
-            methods: dict[str, dict[str, Any] | None]) -> list[dict[str, Any]]:
+            methods: dict[str, Any]) -> list[dict[str, Any]]:
+    """Every method (reconstruct's options, a function of the buffer, or None: the plain mean) on every group."""
     rows = []
     for renderer, scene, shape in scenes:
         ref = reference(renderer, scene, shape, cache)
@@ -141,7 +159,8 @@ def quality(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[i
                 x = prepare(buffer, "log").mean
                 for name, options in methods.items():
                     start = time.perf_counter()
-                    image = x if options is None else reconstruct(buffer, **options)
+                    image = (x if options is None else options(buffer) if callable(options)
+                             else reconstruct(buffer, **options))
                     rows.append({"renderer": renderer, "scene": scene, "spp": spp, "group": g, "method": name,
                                  **_measure(image, x, ref, time.perf_counter() - start)})
         print(f"{renderer} {scene}: done", flush=True)
@@ -182,12 +201,12 @@ def quality_tables(rows: list[dict], method: str = "default", base: str = "stage
         print(f"| {scene} | {' / '.join(f'{g:.2f}' for g in gains)} | {m:.2f} | {r:.2f} |")
     every = [g for _, gains, _, _ in summary for g in gains]
     print(f"\ngeometric mean of the gain at 8-32 spp: {np.exp(np.mean(np.log(every))):.2f}, least {min(every):.2f}")
-    for cheaper in (m for m in CHEAPER if any(r["method"] == m for r in rows)):
-        cheaper_table(rows, cheaper, method)
+    for other in (m for m in (*CHEAPER, *COMPARED) if any(r["method"] == m for r in rows)):
+        cheaper_table(rows, other, method)
 
 
 def cheaper_table(rows: list[dict], cheaper: str, method: str = "default") -> None:
-    """relMSE of a cheaper variant over the default's, and its MSE over the plain mean's, at 8-32 spp."""
+    """relMSE of a variant (cheaper or earlier) over the default's, and its MSE over the plain mean's, at 8-32 spp."""
     print(f"\n| scene | relMSE {cheaper} / {method}, 8 / 16 / 32 spp | max MSE / plain ({cheaper}) |")
     print("|---|---|---|")
     ratios = []
@@ -395,11 +414,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sizes", nargs="+", choices=tuple(SIZES), default=list(SIZES))
     parser.add_argument("--repeats", type=int, default=0, help="speed: rounds per size (default 9, 3 at 1080p)")
     parser.add_argument("--cheaper", action="store_true", help="quality: also the cheaper variants (CHEAPER)")
+    parser.add_argument("--compare", action="store_true", help="quality: also earlier forms of the default (COMPARED)")
     args = parser.parse_args(argv)
     command = recorded_command("bench_reconstruct.py", argv)
     if args.section == "quality":
         rows = quality(quality_scenes(args.scenes), tuple(args.spps), args.groups or 4, args.cache,
-                       {**METHODS, **(CHEAPER if args.cheaper else {})})
+                       {**METHODS, **(CHEAPER if args.cheaper else {}), **(COMPARED if args.compare else {})})
         _update("quality", rows, command)
         quality_tables(rows)
     elif args.section == "samplers":

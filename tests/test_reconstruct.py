@@ -10,9 +10,11 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from awr_denoise import SampleBuffer, SampleRequest, reconstruct, reconstruct_detailed
+from awr_denoise.channels import luminance_weights
 from awr_denoise.domains import DOMAIN_NAMES, Domain
 from awr_denoise.metrics import mse, relmse
 from awr_denoise.prepare import prepare
+from awr_denoise.reconstruct import DEFAULT_PILOT_C_S, later_stages, resolve_settings
 from awr_denoise.stationary import StationaryTransform
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
 from awr_denoise.thresholding import threshold_stage
@@ -389,9 +391,9 @@ def _scene_buffer(name, spp, seed, shape=(64, 64)):
 def test_the_image_mean_of_every_channel_is_the_inputs(name, mode):
     """Exact by construction (one positive factor per channel), on heavy tails too; a factor
     beyond 5% only where the change exceeds two standard errors of the input's image mean
-    (fireflies: 35%, five standard errors). Below that (hdr_source's blue channel at 4 spp needs
-    8%, 1.3 standard errors) the exposure moves by 5% and the rest stays."""
-    _, buf = _scene_buffer(name, 4, 3)
+    (fireflies: 35%, five standard errors). Below that (hdr_source's blue channel at 4 spp, seed
+    1, needs 6.8%, within two standard errors) the exposure moves by 5% and the rest stays."""
+    _, buf = _scene_buffer(name, 4, 1 if name == "hdr_source" else 3)
     out = reconstruct(buf, mode=mode)
     loose = reconstruct(buf, mode=mode, preserve_mean=False)
     want = buf.mean.mean(axis=(0, 1))
@@ -404,6 +406,35 @@ def test_the_image_mean_of_every_channel_is_the_inputs(name, mode):
     assert exact.any() and not np.allclose(loose.mean(axis=(0, 1)), want, rtol=1e-6)
     if name == "hdr_source" and mode == "channels":
         assert not exact.all()
+
+
+@pytest.mark.parametrize("mode", ["channels", "luminance"])
+def test_the_pixel_clamp_acts_once_after_the_wiener_stages_and_not_on_their_pilot(mode):
+    """With Wiener stages, stage 1 (their pilot) runs unclamped and the clamp acts once, pooled, at
+    the end: a clamped pilot measured 1-15% worse at 8-32 spp on both renderers (docs/reconstruction.md).
+    With ``stages=1`` the clamp is stage 1's own."""
+    _, buf = _scene_buffer("hdr_source", 8, 2)
+    prepared = prepare(buf, "log")
+    ops = wavelet_operators(buf.shape)
+    luminance = None
+    if mode == "luminance":
+        luminance = (prepare(buf, prepared.domain, luminance=True), luminance_weights(buf.channels))
+    settings = resolve_settings()
+
+    def composed(pilot_clamp):
+        stage = threshold_stage(prepared, ops, DEFAULT_PILOT_C_S, mode=mode, pixel_clamp=pilot_clamp,
+                                precision=settings.precision, luminance=None if luminance is None else luminance[0],
+                                weights=None if luminance is None else luminance[1])
+        return later_stages(prepared, stage.image, None, settings, levels=ops.levels, wavelet=ops.wavelet,
+                            luminance=luminance)[0]
+
+    out = reconstruct(buf, mode=mode)
+    assert_array_equal(out, composed(None))
+    assert not np.array_equal(out, composed(settings.pixel_clamp))
+    paper = reconstruct(buf, mode=mode, stages=1)
+    assert_array_equal(paper, threshold_stage(prepared, ops, 1.0, mode=mode, pixel_clamp=2.5, precision="float32",
+                                              luminance=None if luminance is None else luminance[0],
+                                              weights=None if luminance is None else luminance[1]).image)
 
 
 def test_the_mean_counts_filled_pixels_and_skips_channels_without_a_positive_mean(rng):
