@@ -494,15 +494,25 @@ class SampleBuffer:
         nb = other.count[..., None].astype(np.float64)
         n = na + nb
         safe = np.maximum(n, 1.0)
+        # Every (H, W, C) step in place (a sampler merges every round of a 1080p or 4K frame):
+        # the same operations in the same order as the formulas above, so the same bits.
+        m2 = self.m2
+        m2 += other.m2
         delta = other.mean - self.mean
-        mean = self.mean + delta * (nb / safe)
-        m2 = self.m2 + other.m2 + delta * delta * (na * nb / safe)
-        variance = m2 / np.maximum(n - 1.0, 1.0)
+        mean = delta * (nb / safe)
+        mean += self.mean
+        delta *= delta
+        delta *= na * nb / safe
+        m2 += delta
+        del delta
+        m2 /= np.maximum(n - 1.0, 1.0)
+        variance = m2
         # Where one side has no samples the other side's statistics are the answer: take them
         # as they are, so merging into an empty buffer (round 0, disjoint tiles) is bit-exact
         # rather than off by the rounding of variance * (n - 1) / (n - 1).
-        mean = np.where(na == 0, other.mean, np.where(nb == 0, self.mean, mean))
-        variance = np.where(na == 0, other.variance, np.where(nb == 0, self.variance, variance))
+        for out, a, b in ((mean, self.mean, other.mean), (variance, self.variance, other.variance)):
+            np.copyto(out, a, where=nb == 0)
+            np.copyto(out, b, where=na == 0)
         known = (self.variance_known | (self.count < 2)) & (other.variance_known | (other.count < 2))
         return SampleBuffer(self.count + other.count, mean, variance, self.channels, known,
                             self.nonfinite + other.nonfinite, merge_features(self, other))

@@ -379,3 +379,24 @@ def test_merge_with_an_empty_side_is_bit_exact(rng):
         assert_array_equal(merged.mean, buf.mean)
         assert_array_equal(merged.variance, buf.variance)
         assert_array_equal(merged.count, buf.count)
+
+
+def test_merge_in_place_is_chans_formula_bit_for_bit(rng):
+    """The merge works in place for memory and speed; it must still be Chan's update written out."""
+    shape = (23, 29)
+    a = SampleBuffer.from_moments(rng.integers(0, 5, shape), rng.lognormal(0, 3, shape + (3,)),
+                                  rng.lognormal(0, 3, shape + (3,)))
+    b = SampleBuffer.from_moments(rng.integers(0, 5, shape), rng.lognormal(0, 3, shape + (3,)),
+                                  rng.lognormal(0, 3, shape + (3,)))
+    na, nb = a.count[..., None].astype(np.float64), b.count[..., None].astype(np.float64)
+    n = na + nb
+    safe = np.maximum(n, 1.0)
+    delta = b.mean - a.mean
+    mean = a.mean + delta * (nb / safe)
+    variance = (a.m2 + b.m2 + delta * delta * (na * nb / safe)) / np.maximum(n - 1.0, 1.0)
+    mean = np.where(na == 0, b.mean, np.where(nb == 0, a.mean, mean))
+    variance = np.where(na == 0, b.variance, np.where(nb == 0, a.variance, variance))
+    merged = a.merge(b)
+    assert_array_equal(merged.mean, mean)
+    assert_array_equal(merged.variance, np.where(merged.variance_known[..., None], variance, 0.0))
+    assert_array_equal(merged.count, a.count + b.count)
