@@ -9,8 +9,8 @@ Run from the repository root::
 Prints markdown tables and writes ``benchmarks/results/core.json``. ``precision``: stage 1 in
 float32 (the default) against float64 on the tracer's and Mitsuba 3's buffers. Speed: at 1080p and 4K RGB,
 the floor (PyWavelets' 5-level bior4.4 ``wavedec2`` + ``waverec2`` of the float32 frame),
-``reconstruct(stages=1)`` (and its float64 reference), the default ``reconstruct`` and one
-``AdaptiveSampler.ask()`` round,
+``reconstruct(stages=1)`` (and its float64 reference), the default ``reconstruct``, one
+``AdaptiveSampler.ask()`` round and one ``tell()`` (merging a round's samples),
 on one core (OMP/MKL/OPENBLAS_NUM_THREADS=1, no executor) and with a 2-thread executor; medians of
 repeats in which the cases are interleaved, and ratios to the floor of the same run. Memory: in a
 fresh process per case, the tracemalloc peak above the built buffer and the peak RSS, as
@@ -40,7 +40,8 @@ import numpy as np  # noqa: E402
 import pywt  # noqa: E402
 from scipy import ndimage  # noqa: E402
 
-from awr_denoise import AdaptiveSampler, SampleRequest, UniformSampler, VarianceSampler, reconstruct  # noqa: E402
+from awr_denoise import (AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, VarianceSampler,  # noqa: E402
+                         reconstruct)
 from awr_denoise.bench import (OVERHEAD_SIZES, command_line, load_average, machine_info, noisy_buffer,  # noqa: E402
                                peak_memory, write_json)
 from awr_denoise.domains import Domain  # noqa: E402
@@ -74,6 +75,21 @@ class _Ask:
         self.sampler.ask()
 
 
+class _Tell(_Ask):
+    """One ``tell()``: a round's samples (the round's counts, random means) merged into the buffer."""
+
+    def setup(self) -> None:
+        super().setup()
+        self.request = self.sampler.ask()
+        counts = self.request.counts
+        rng = np.random.default_rng(0)
+        variance = rng.random(counts.shape + (3,)) * (counts[..., None] > 1)
+        self.batch = SampleBuffer.from_moments(counts, rng.random(counts.shape + (3,)), variance)
+
+    def __call__(self) -> None:
+        self.sampler.tell(self.request, self.batch)
+
+
 def _cases(buf, pool: ThreadPoolExecutor | None) -> dict:
     """What is timed, by name; with ``pool``, the channels on two threads."""
     image = buf.mean.astype(np.float32)
@@ -83,7 +99,7 @@ def _cases(buf, pool: ThreadPoolExecutor | None) -> dict:
                 # The float64 reference of stage 1 (float32 is the default in the log domain).
                 "reconstruct_stages1_float64": lambda: reconstruct(buf, stages=1, precision="float64"),
                 "reconstruct_default": lambda: reconstruct(buf),
-                "ask": _Ask(buf)}
+                "ask": _Ask(buf), "tell": _Tell(buf)}
     return {"reconstruct_stages1": lambda: reconstruct(buf, stages=1, executor=pool),
             "reconstruct_default": lambda: reconstruct(buf, executor=pool)}
 
@@ -154,7 +170,7 @@ def speed(sizes: list[str], repeats: int = 5) -> list[dict]:
               f"{t1['reconstruct_stages1']:.3f} s ({x1['reconstruct_stages1']:.1f}x) | "
               f"{t1['reconstruct_stages1_float64']:.3f} s ({x1['reconstruct_stages1_float64']:.1f}x) | "
               f"{t1['reconstruct_default']:.3f} s ({x1['reconstruct_default']:.1f}x) | "
-              f"{t1['ask']:.3f} s ({x1['ask']:.1f}x) | "
+              f"{t1['ask']:.3f} s ({x1['ask']:.1f}x) | {t1['tell']:.3f} s ({x1['tell']:.1f}x) | "
               f"{t2['reconstruct_stages1']:.3f} s ({x2['reconstruct_stages1']:.1f}x) | "
               f"{t2['reconstruct_default']:.3f} s ({x2['reconstruct_default']:.1f}x) | "
               + " | ".join(f"{row['memory'][c]['tracemalloc_peak_x_input']:.1f}x"
@@ -402,7 +418,7 @@ SECTIONS = {
                   lambda quick: precision(spps=(8,) if quick else (8, 32, 128))),
     "speed": ("Speed against the PyWavelets floor (medians of interleaved repeats; x floor of the same run) "
               "and peak memory (tracemalloc, x input buffer)",
-              "| size | input buffer | floor | stages=1 | stages=1 float64 | default | ask() | stages=1, 2 threads "
+              "| size | input buffer | floor | stages=1 | stages=1 float64 | default | ask() | tell() | stages=1, 2 threads "
               "| default, 2 threads | stages=1 peak | stages=1 float64 peak | default peak | ask() peak |",
               lambda quick: speed(["256x256"] if quick else SPEED_SIZES)),
     "fft_budget": ("The default reconstruction's FFTs against the floor (one core)",
