@@ -494,8 +494,7 @@ class SampleBuffer:
         nb = other.count[..., None].astype(np.float64)
         n = na + nb
         safe = np.maximum(n, 1.0)
-        # Every (H, W, C) step in place (a sampler merges every round of a 1080p or 4K frame):
-        # the same operations in the same order as the formulas above, so the same bits.
+        # In place (a sampler merges every round of a 1080p or 4K frame); the formulas above, same order and bits.
         m2 = self.m2
         m2 += other.m2
         delta = other.mean - self.mean
