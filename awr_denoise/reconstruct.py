@@ -252,6 +252,11 @@ class Settings:
     probes: int
     seed: int
 
+    @property
+    def stage1_clamp(self) -> float | None:
+        """Stage 1's pixel clamp: only where stage 1 is the output (a clamped pilot measured worse)."""
+        return self.pixel_clamp if self.stages == 1 else None
+
     def recorded(self) -> dict:
         """What a file's provenance records of them."""
         wiener = self.stages > 1
@@ -284,16 +289,12 @@ def resolve_settings(*, c_s: float | None = None, stages: int = DEFAULT_STAGES,
     if isinstance(variance_probes, (float, np.floating)):
         raise ValueError(f"variance_probes: must be an integer >= 0, got {variance_probes!r}")
     return Settings(
-        c_s=c_s,  # type: ignore[arg-type]
-        stages=stages,
-        exponents=exponents[:stages - 1],
-        pixel_clamp=_checks.real("pixel_clamp", pixel_clamp, minimum=0, none=True),
-        guard=guard,
+        c_s=c_s, stages=stages, exponents=exponents[:stages - 1],  # type: ignore[arg-type]
+        pixel_clamp=_checks.real("pixel_clamp", pixel_clamp, minimum=0, none=True), guard=guard,
         preserve_mean=stages > 1 if preserve_mean is None else _checks.flag("preserve_mean", preserve_mean),
         nonnegative=stages > 1 if nonnegative is None else _checks.flag("nonnegative", nonnegative),
-        precision=_checks.name("precision", precision, PRECISIONS),
+        precision=_checks.name("precision", precision, PRECISIONS), seed=_checks.seed("seed", seed),
         probes=_checks.whole("variance_probes", variance_probes, minimum=0, maximum=_MAX_PROBES),  # type: ignore[arg-type]
-        seed=_checks.seed("seed", seed),
     )
 
 
@@ -490,8 +491,7 @@ def reconstruct_detailed(
     luminance = None
     if mode == "luminance":
         luminance = (prepare(buffer, prepared.domain, luminance=True), luminance_weights(buffer.channels))
-    clamp = settings.pixel_clamp if settings.stages == 1 else None  # a clamped pilot measured worse
-    stage = threshold_stage(prepared, ops, settings.c_s, mode=mode, pixel_clamp=clamp, run=run,
+    stage = threshold_stage(prepared, ops, settings.c_s, mode=mode, pixel_clamp=settings.stage1_clamp, run=run,
                             luminance=None if luminance is None else luminance[0], precision=settings.precision,
                             weights=None if luminance is None else luminance[1])
     variance = stage.output_variance(settings.probes, settings.seed) if settings.probes and settings.stages == 1 else None

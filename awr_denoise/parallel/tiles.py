@@ -220,9 +220,7 @@ nonnegative, precision
     prepared = prepare(buffer, domain)  # fills, pools and fixes the domain's scale for the whole frame
     mean = prepared.mean
     options = {"c_s": settings.c_s, "wavelet": wavelet, "levels": levels, "domain": prepared.domain,
-               # Stage 1 is clamped only where it is the output, as in reconstruct().
-               "mode": mode, "boundary": boundary, "pixel_clamp": settings.pixel_clamp if settings.stages == 1 else None,
-               "stages": 1,
+               "mode": mode, "boundary": boundary, "pixel_clamp": settings.stage1_clamp, "stages": 1,
                "precision": settings.precision}
     # Windows carry the frame's per-sample variance with unknown entries already pooled over the
     # whole frame, so every window pixel is "known". A pixel with fewer than two samples (whose
