@@ -30,7 +30,7 @@ from .buffers import SampleBuffer
 from .channels import luminance_weights
 from .domains import Domain
 from .finishing import clip_negative, pooled_clamp, restore_mean
-from .guided import checked_inputs, pilots
+from .guided import checked_inputs, pilots, projected
 from .prepare import Prepared, prepare
 from .stationary import DTYPES, StationaryTransform, stationary_transform
 from .sure import sure_blend
@@ -68,9 +68,8 @@ DEFAULT_STAGES = 3
 DEFAULT_WIENER_EXPONENTS = (0.75, 0.4)
 """``alpha`` of each Wiener stage's domain ``x / (|pilot| + k)^alpha``: mostly relative, then closer to linear.
 
-Measured (docs/reconstruction.md): a more relative first stage keeps the noise of bright
-regions out of dark ones; a closer-to-linear last stage keeps isolated bright pixels from
-being pulled towards their surroundings (absolute error)."""
+Measured (docs/reconstruction.md): a more relative first stage keeps the noise of bright regions out
+of dark ones; a closer-to-linear last one keeps bright pixels from being pulled to their surroundings."""
 
 PRECISIONS = DTYPES
 """Precisions of stage 1 (log domain) and the Wiener stages' FFTs: ``"float64"`` (the reference), ``"float32"``."""
@@ -148,11 +147,8 @@ def _power_of_two(scale: float) -> float:
 
 
 def _wiener_levels(levels: int) -> int:
-    """Depth of the stationary stages: one level less than stage 1's from 4 levels on.
-
-    At 4-5 levels one less is as good and about 20% faster (docs/reconstruction.md); below
-    that, every level counts (a 32x32 image lost a third of the gain at 1 level instead of 2).
-    """
+    """Stationary stages' depth: stage 1's less one from 4 levels on (as good, 20% faster; below that
+    every level counts: a third of the gain lost at 32x32 with 1 level not 2; docs/reconstruction.md)."""
     return levels - 1 if levels >= 4 else levels
 
 
@@ -196,7 +192,8 @@ def _chain(transform: StationaryTransform, x: FloatArray, v: FloatArray, pilot: 
 
 def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float, ...], *, levels: int, wavelet: str,
                    precision: str, luminance: tuple[Prepared, FloatArray] | None, guard: bool, probes: int, seed: int,
-                   run: Callable, parallel: bool, keep: FloatArray | float) -> tuple[FloatArray, FloatArray | None]:
+                   run: Callable, parallel: bool, keep: FloatArray | float, guide: FloatArray | None
+                   ) -> tuple[FloatArray, FloatArray | None]:
     """Stages 2.. and the SURE guard on the image brought to unit scale; the probe variance if asked.
 
     In channel mode with ``parallel`` every channel runs on its own (over ``run``, an
@@ -221,19 +218,22 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
     else:
         chain = _chain(transform, x, v, pilot / s, exponents, weights=luminance[1],
                        shared=luminance[0].variance / s / s, seed=seed, **options)
-    out, var_out = chain.image, chain.variance
+    out, var_out, leverage = chain.image, chain.variance, chain.leverage
+    if guide is not None and luminance is None:  # channel mode: the means projected on the guide (.guided)
+        out, leverage, var_out = projected(transform, x, v, guide / s, out, leverage, keep, k=k, probes=probes, seed=seed,
+                                           probe_variance=var_out)
     if guard:
-        assert chain.leverage is not None
+        assert leverage is not None
         if luminance is None:
-            out, lam = sure_blend(out, x, v, chain.leverage, k=k)
+            out, lam = sure_blend(out, x, v, leverage, k=k)
         else:  # one share for every channel, decided on luminance: hue is kept
             weights = luminance[1]
-            _, lam = sure_blend(out @ weights, x @ weights, luminance[0].variance / s / s, chain.leverage[..., 0], k=k)
+            _, lam = sure_blend(out @ weights, x @ weights, luminance[0].variance / s / s, leverage[..., 0], k=k)
             lam = lam[..., None]
             out = x + lam * (out - x)
         if var_out is not None:
             # (1 - l) x + l o, with Cov(x, o) = L v on the diagonal of a linear map.
-            var_out = (1 - lam) ** 2 * v + lam * lam * var_out + 2 * lam * (1 - lam) * chain.leverage * v
+            var_out = (1 - lam) ** 2 * v + lam * lam * var_out + 2 * lam * (1 - lam) * leverage * v
     return out * s, None if var_out is None else var_out * s * s
 
 
@@ -300,7 +300,7 @@ def resolve_settings(*, c_s: float | None = None, stages: int = DEFAULT_STAGES,
 
 def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | None, settings: Settings, *, levels: int,
                  wavelet: str, luminance: tuple[Prepared, FloatArray] | None = None, run: Callable | None = None,
-                 keep: FloatArray | float = 0.0) -> tuple[FloatArray, FloatArray | None]:
+                 keep: FloatArray | float = 0.0, guide: FloatArray | None = None) -> tuple[FloatArray, FloatArray | None]:
     """Everything after stage 1: the Wiener stages, the guard, the pixel clamp, non-negativity, the mean.
 
     Parameters
@@ -309,7 +309,8 @@ def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | N
         The whole image's planes (:func:`~awr_denoise.prepare.prepare`).
     image, variance, keep
         Stage 1's result (the first Wiener stage's pilot) and its variance (or ``None``); ``keep``: the
-        (H, W, 1) share of that pilot every later stage keeps in its own (:func:`~awr_denoise.guided.pilots`).
+        (H, W, 1) share of that pilot every later stage keeps in its own (:func:`~awr_denoise.guided.pilots`);
+        ``guide``: the checked guide, whose projection joins the Wiener stages (:func:`~awr_denoise.guided.projected`).
     settings
         From :func:`resolve_settings`.
     levels, wavelet
@@ -331,7 +332,7 @@ def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | N
         image, variance = _wiener_stages(prepared, image, settings.exponents, levels=_wiener_levels(levels),
                                          wavelet=wavelet, precision=settings.precision, luminance=luminance,
                                          guard=settings.guard, probes=settings.probes, seed=settings.seed, run=run,
-                                         parallel=parallel, keep=keep)
+                                         parallel=parallel, keep=keep, guide=guide)
         if settings.pixel_clamp is not None:
             lum = None if luminance is None else luminance[0]
             image, moved = pooled_clamp(image, prepared.mean if lum is None else lum.mean,
@@ -443,15 +444,14 @@ def reconstruct_detailed(
     single sample, so they are smoothed over rather than read as black. Unknown per-sample
     variances are pooled from neighbours (:meth:`SampleBuffer.estimated_variance`).
 
-    The output variance is that of the last stage linearised around its result, estimated
-    without bias by Rademacher probes ``+-sqrt(v)``. With ``stages=1``, the shrink factor of
-    every coefficient is held fixed (soft thresholding has slope 1 where it keeps a
-    coefficient, 0 where it zeroes one) and the domain is undone by the delta method. With
-    Wiener stages, the last stage's pilot, weights and factors (and the guard's share) are held
-    fixed, so the map is linear in the means; clamped pixels take their mean's variance, zeroed
-    ones none, and the mean's restoration blends it with the mean's. It leaves out the noise that reaches the output through the
-    pilot (every earlier stage) and all bias, so it underestimates (docs/reconstruction.md
-    gives the measured ratio).
+    The output variance is that of the last stage linearised around its result, estimated without bias
+    by Rademacher probes ``+-sqrt(v)``. With ``stages=1``, the shrink factor of every coefficient is
+    held fixed (soft thresholding has slope 1 where it keeps a coefficient, 0 where it zeroes one) and
+    the domain is undone by the delta method. With Wiener stages, the last stage's pilot, weights and
+    factors (and the guard's share; a guide's clipping pattern) are held fixed, so the map is linear in
+    the means; clamped pixels take their mean's variance, zeroed ones none, and the mean's restoration
+    blends it with the mean's. It leaves out the noise that reaches the output through the pilot
+    (every earlier stage) and all bias, so it underestimates (docs/reconstruction.md: the ratio).
 
     Examples
     --------
@@ -497,7 +497,7 @@ def reconstruct_detailed(
     variance = stage.output_variance(settings.probes, settings.seed) if settings.probes and settings.stages == 1 else None
     first, keep = pilots(buffer, stage.image, guide, features)
     image, variance = later_stages(prepared, first, variance, settings, levels=ops.levels, wavelet=ops.wavelet,
-                                   luminance=luminance, run=run, keep=keep)
+                                   luminance=luminance, run=run, keep=keep, guide=guide)
     return Reconstruction(image=image, thresholds=stage.thresholds,
                           fraction_zeroed=stage.zeroed / stage.total if stage.total else 0.0,
                           variance=np.broadcast_to(np.nan, image.shape) if variance is None else variance,
