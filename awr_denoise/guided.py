@@ -3,7 +3,7 @@
 The Wiener stages (:mod:`awr_denoise.wiener`) scale every detail coefficient of the pixel means
 by ``P^2 / (P^2 + Delta^2)``, where ``P`` is the coefficient of a *pilot* estimate and ``Delta``
 its exact standard error. The pilot only chooses how much each coefficient of the *means* is
-shrunk: the output is a linear filter of the means, so
+shrunk: the stages' output is a linear filter of the means, so
 
 * as the samples grow (``Delta -> 0``) every factor tends to 1 wherever the pilot has signal,
   and the SURE guard (:mod:`awr_denoise.sure`) returns every neighbourhood where the pilot's

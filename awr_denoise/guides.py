@@ -1,7 +1,8 @@
 """Guide images for :func:`~awr_denoise.reconstruct`: a neural denoiser's view of the same samples.
 
-A guide is an (H, W, C) estimate of the clean image that the reconstruction uses only to choose
-how much to shrink each wavelet coefficient of the pixel means (:mod:`awr_denoise.guided`), so
+A guide is an (H, W, C) estimate of the clean image that the reconstruction uses to choose how
+much to shrink each wavelet coefficient of the pixel means, and follows only within three
+standard errors of each coefficient (:mod:`awr_denoise.guided`, :mod:`awr_denoise.projection`), so
 the result stays, coefficient by coefficient, within what the samples allow. The guides here
 need optional extras, imported when first used:
 
