@@ -18,9 +18,9 @@ differences summing to more than ``GATE_LOW`` times the variances), stage 1's pi
 fully from ``GATE_HIGH``. A biased pilot (a denoiser's hallucinated detail, a blur across an edge) is thus
 used only where the samples cannot tell it from the truth, and as the samples grow, only where it
 is right. Measured (docs/guides.md, "Wrong guides"): without this check a deliberately wrong guide
-cost up to 1.26x the plain mean's relMSE next to a small bright light; with it, never more than the
-plain mean's (at most 0.97x), and within 7% of the default's error from 64 spp on. The SURE guard is
-needed as well: without it the same wrong guides cost 1.04-1.07x the plain mean's relMSE there.
+cost up to 1.18x the plain mean's relMSE next to a small bright light; with it, never more than the
+plain mean's (at most 0.97x), and within 0.01 of the default's ratios to it from 64 spp on. The SURE
+guard is needed as well: without it the same wrong guides cost 1.06-1.12x the plain mean's relMSE there.
 
 Two pilots are built here (:func:`pilots`):
 
