@@ -384,6 +384,8 @@ def projected(transform: StationaryTransform, x: FloatArray, variance: FloatArra
     >>> bool(np.allclose(out, PROJECTION_SHARE * x + (1 - PROJECTION_SHARE) * smooth))
     True
     """
+    if not np.any(share):  # the gate is closed everywhere: nothing to blend, the FFTs spared
+        return image, leverage, probe_variance
     target = share * guide + (1.0 - share) * image
     result = project(transform, x, variance, target, offset=k, leverage=leverage is not None)
     s = PROJECTION_SHARE * np.asarray(share, np.float64)  # none where the gate is closed: no guide, no change
