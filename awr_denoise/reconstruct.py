@@ -147,8 +147,8 @@ def _power_of_two(scale: float) -> float:
 
 
 def _wiener_levels(levels: int) -> int:
-    """Stationary stages' depth: stage 1's less one from 4 levels on (as good, 20% faster; below that
-    every level counts: a third of the gain lost at 32x32 with 1 level not 2; docs/reconstruction.md)."""
+    """Stationary stages' depth: stage 1's less one from 4 levels on (as good, 20% faster; below, every
+    level counts: a third of the gain lost at 32x32 with 1 level not 2; docs/reconstruction.md)."""
     return levels - 1 if levels >= 4 else levels
 
 
@@ -220,8 +220,8 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
                        shared=luminance[0].variance / s / s, seed=seed, **options)
     out, var_out, leverage = chain.image, chain.variance, chain.leverage
     if guide is not None and luminance is None:  # channel mode: the means projected on the guide (.guided)
-        out, leverage, var_out = projected(transform, x, v, guide / s, out, leverage, keep, k=k, probes=probes, seed=seed,
-                                           probe_variance=var_out)
+        g = np.where(keep > 0, guide, 0.0) / s  # where the gate is closed a guide may be near overflow
+        out, leverage, var_out = projected(transform, x, v, g, out, leverage, keep, k=k, probes=probes, seed=seed, probe_variance=var_out)
     if guard:
         assert leverage is not None
         if luminance is None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
@@ -106,6 +108,23 @@ def test_a_guide_far_beyond_the_means_is_ignored(value):
     """Finite but absurd: the gate gives it no share (no overflow warning, no NaN)."""
     _, buf = _scene_buffer("edges", 8, 0)
     np.testing.assert_array_equal(reconstruct(buf, guide=np.full(buf.mean.shape, value)), reconstruct(buf))
+
+
+@pytest.mark.parametrize("value", [1.7e308, -1.7e308, 1e300])
+def test_one_guide_pixel_near_overflow_changes_nothing_far_from_it(value):
+    """The gate closes around it, so it enters neither a pilot nor the projection: no NaN, no warning,
+    and the image is the clean guide's away from that pixel's neighbourhood."""
+    scene, buf = _scene_buffer("edges", 8, 0)
+    guide = scene.reference().copy()
+    guide[10, 10, 0] = value
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = reconstruct(buf, guide=guide)
+    assert np.isfinite(out).all()
+    clean = reconstruct(buf, guide=scene.reference())
+    far = np.ones(out.shape[:2], bool)
+    far[:30, :30] = False
+    assert_allclose(out[far], clean[far], rtol=0.05, atol=0.02 * float(np.abs(clean).max()))
 
 
 def test_the_image_mean_is_kept_with_a_guide(rng):
