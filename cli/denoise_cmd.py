@@ -73,7 +73,8 @@ def add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--guide", choices=GUIDE_CHOICES,
                    help="pilot of the Wiener stages, used only where the samples allow it: 'oidn', Open Image "
                         "Denoise on the means with the albedo and normal when present (extra oidn), for every "
-                        "stage; 'features', an a-trous filter guided by albedo, normal and depth, for the first "
+                        "stage, and followed within three standard errors of each coefficient; 'features', an "
+                        "a-trous filter guided by albedo, normal and depth, for the first "
                         "(default: neither)")
 
 
