@@ -78,10 +78,11 @@ GATE_LOW, GATE_HIGH = 3.0, 9.0
 
 PROJECTION_SHARE = 0.5
 """Most of a guided result that :func:`projected` takes from the projection on the guide (times the
-gate's share), the Wiener stages' the rest. Measured (docs/guides.md): the projection alone followed
-OIDN's blur of fine texture (up to 1.7x the Wiener stages' relMSE on the tracer's textured scenes)
-and beat the Wiener stages under the Mitsuba scenes' lights; half of each was within 1-3% of the
-better share (0.65 or 0.8) on every scene where the projection helps, and lost less on texture."""
+gate's share), the Wiener stages' the rest. Measured at 32 spp (docs/guides.md, "What else was
+tried"): the projection alone (1) lost 18-22% relMSE on the tracer's finely textured scenes, where
+OIDN's blur stays within the noise, and gained at most 4% on the six scenes where the guide trails
+OIDN; 0.75 gained 1-2% on those six and lost 8-10% on the textured scenes; none (0) lost 9-19% on
+those six."""
 
 _COLOUR_SIGMA = 2.0  # colour differences are counted in the means' standard errors
 _KERNEL = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0  # the B3 spline of the a-trous transform
@@ -358,7 +359,7 @@ def projected(transform: StationaryTransform, x: FloatArray, variance: FloatArra
     means' coefficients are moved towards the gated guide's (``share * guide + (1 - share) *
     image``), each within
     :data:`~awr_denoise.projection.DEFAULT_RADIUS` standard errors (:func:`~awr_denoise.projection.project`,
-    in the domain ``|target| + k``), and blended with ``image``. Both are linear in the means
+    in its default domain ``x / sqrt(|target| + k)``), and blended with ``image``. Both are linear in the means
     once the factors and the clipping pattern are held fixed, so the blend's ``leverage`` is the
     same blend of theirs (what the SURE guard then needs); with ``probes``, the variance of the
     projection is probed like the Wiener stage's (``seed + c`` for channel ``c``) and combined

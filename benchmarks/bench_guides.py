@@ -24,6 +24,7 @@ it is not installed), 256x256 against the 1024-spp references ``bench_reconstruc
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 import time
@@ -32,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, guided, guides, reconstruct
+from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, guided, guides, projection, reconstruct
 from awr_denoise.bench import machine_info, write_json
 from awr_denoise.io.png import write_preview
 from awr_denoise.metrics import mse, relmse
@@ -205,6 +206,24 @@ def _per_pixel_share(candidate: np.ndarray, buffer: SampleBuffer) -> np.ndarray:
     return np.clip((guided.GATE_HIGH - r) / (guided.GATE_HIGH - guided.GATE_LOW), 0.0, 1.0)[..., None]
 
 
+class _Projection:
+    """The guide's projection (:func:`awr_denoise.guided.projected`) with another share of the result,
+    interval radius or domain exponent, for one measurement."""
+
+    def __init__(self, share: float | None = None, radius: float = projection.DEFAULT_RADIUS,
+                 exponent: float = projection.DEFAULT_EXPONENT) -> None:
+        self.share, self.radius, self.exponent = share, radius, exponent
+
+    def __enter__(self) -> None:
+        self.saved = guided.PROJECTION_SHARE, guided.project
+        if self.share is not None:
+            guided.PROJECTION_SHARE = self.share
+        guided.project = functools.partial(projection.project, radius=self.radius, exponent=self.exponent)
+
+    def __exit__(self, *exc: object) -> None:
+        guided.PROJECTION_SHARE, guided.project = self.saved
+
+
 _RECONSTRUCT = sys.modules["awr_denoise.reconstruct"]  # the module: the package exports a function of that name
 
 
@@ -340,6 +359,11 @@ AVENUES: dict[str, tuple[dict[str, Any], Any]] = {
     "OIDN guide, first stage only": ({"guide": guides.oidn}, _first_stage_only),
     "OIDN guide, alpha 1": ({"guide": guides.oidn, "wiener_exponents": (0.75, 1.0)}, None),
     "OIDN guide, no guard": ({"guide": guides.oidn, "guard": False}, None),
+    "OIDN guide, no projection": ({"guide": guides.oidn}, _Projection(share=0.0)),
+    "OIDN guide, projection only": ({"guide": guides.oidn}, _Projection(share=1.0)),
+    "OIDN guide, projection share 0.75": ({"guide": guides.oidn}, _Projection(share=0.75)),
+    "OIDN guide, radius 2": ({"guide": guides.oidn}, _Projection(radius=2.0)),
+    "OIDN guide, projection exponent 1": ({"guide": guides.oidn}, _Projection(exponent=1.0)),
     "OIDN guide + features where the gate closes": ({"guide": guides.oidn, "features": True}, _features_then_guide),
     "clean image as guide": ({"guide": "reference"}, None),
     "clean image as guide, alpha 1": ({"guide": "reference", "wiener_exponents": (0.75, 1.0)}, None),
@@ -348,7 +372,8 @@ AVENUES: dict[str, tuple[dict[str, Any], Any]] = {
     "demodulated guide": ({"guide": _demodulated}, None),
 }
 """What else was tried for the guide and the features: name -> (reconstruct options, replacement of
-:func:`awr_denoise.guided.pilots` or ``None``). ``"reference"`` stands for the scene's reference image."""
+:func:`awr_denoise.guided.pilots`, a :class:`_Projection` setting, or ``None``). ``"reference"`` stands
+for the scene's reference image."""
 
 
 def avenues(scenes: list[tuple[str, str, tuple[int, int] | None]], spp: int, groups: int,
@@ -362,6 +387,10 @@ def avenues(scenes: list[tuple[str, str, tuple[int, int] | None]], spp: int, gro
             images = {"default": reconstruct(buffer), "OIDN": guides.oidn(buffer), "plain": filled_mean(buffer)}
             for name, (options, replacement) in AVENUES.items():
                 options = {k: (ref if v == "reference" else v) for k, v in options.items()}
+                if isinstance(replacement, _Projection):
+                    with replacement:
+                        images[name] = reconstruct(buffer, **options)
+                    continue
                 if replacement is not None:
                     _RECONSTRUCT.pilots = replacement
                 try:
