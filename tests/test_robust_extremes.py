@@ -7,6 +7,7 @@ hypothesis); each test here pins one documented behaviour of ``docs/robustness.m
 from __future__ import annotations
 
 import math
+import warnings
 from fractions import Fraction
 
 import numpy as np
@@ -135,6 +136,36 @@ class TestFloatLimits:
     def test_linear_finite_at_1e307(self):
         buf = SampleBuffer.from_moments(np.full((8, 8), 4), np.full((8, 8, 1), 1e307), np.ones((8, 8, 1)))
         assert np.isfinite(reconstruct(buf, domain="linear")).all()
+
+
+class TestGuidedExtremes:
+    """A guide (with the projection on it) at the float64 extremes, on tiny and prime shapes, and with
+    zero variance: finite, no warning, the image mean kept."""
+
+    @pytest.mark.parametrize("magnitude", [1e-300, 1e-30, 1e30, 1e300, 1e307])
+    def test_extreme_magnitudes(self, magnitude):
+        rng = np.random.default_rng(SEED)
+        mean = magnitude * (0.5 + rng.random((16, 16, 3)))
+        small = np.minimum(mean, 1e150)  # 30% noise, up to the largest variance float64 holds
+        buf = SampleBuffer.from_moments(np.full((16, 16), 4), mean, np.where(mean > 1e150, 1e300, (0.3 * small) ** 2))
+        with warnings.catch_warnings():  # numpy's default: overflow, invalid and division warn
+            warnings.simplefilter("error")
+            out = reconstruct(buf, guide=mean * 1.01)
+        assert np.isfinite(out).all()
+        # scaled first: a plain sum of 256 means near 1e307 overflows
+        np.testing.assert_allclose((out / magnitude).mean(axis=(0, 1)), (mean / magnitude).mean(axis=(0, 1)), rtol=1e-9)
+
+    @pytest.mark.parametrize("shape", [(1, 1), (1, 97), (3, 5), (13, 7)])
+    def test_tiny_and_prime_shapes(self, shape):
+        buf = noisy_buffer(shape)
+        out = reconstruct(buf, guide=np.full(shape + (3,), 0.5))
+        assert out.shape == shape + (3,) and np.isfinite(out).all()
+
+    def test_zero_variance_returns_the_means_whatever_the_guide(self):
+        rng = np.random.default_rng(SEED)
+        mean = rng.random((12, 12, 3))
+        buf = SampleBuffer.from_moments(np.full((12, 12), 4), mean, np.zeros((12, 12, 3)))
+        np.testing.assert_allclose(reconstruct(buf, guide=mean[::-1]), mean, rtol=1e-6)
 
 
 class TestSamplerHostileStatistics:
