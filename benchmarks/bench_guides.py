@@ -7,6 +7,7 @@ Run from the repository root (each section updates its part of the JSON)::
     .venv/bin/python benchmarks/bench_guides.py synthetic   # known clean images: good and wrong guides, gate on/off
     .venv/bin/python benchmarks/bench_guides.py ablations   # the gate and the a-trous passes on the tracer's scenes
     .venv/bin/python benchmarks/bench_guides.py avenues     # what else was tried, every scene at 32 spp
+    .venv/bin/python benchmarks/bench_guides.py pbrt        # a third renderer: the pbrt-v4 files in tests/data
     .venv/bin/python benchmarks/bench_guides.py crops       # docs/img/guides_*.png
     .venv/bin/python benchmarks/bench_guides.py tables      # print the stored results
 
@@ -418,6 +419,45 @@ def avenue_table(rows: list[dict]) -> None:
                                            f"{sq[m] / sq['plain']:.2f}" for m in names) + " |")
 
 
+# ---------------------------------------------------------------------------- pbrt-v4
+PBRT = ROOT.parent / "tests" / "data" / "pbrt"
+PBRT_METHODS = {"default": {}, "default + features": {"features": True}, "default + OIDN guide": {"guide": guides.oidn},
+                "default + OIDN guide, no projection": ({"guide": guides.oidn}, _Projection(share=0.0))}
+
+
+def pbrt() -> list[dict[str, Any]]:
+    """Renders pbrt-v4 wrote (GBufferFilm, 64x64, 16 spp; independent seeds) against its reference."""
+    from awr_denoise.io import read_image, read_sample_buffer
+    ref = np.asarray(read_image(PBRT / "pbrt_ref.exr", channels=("R", "G", "B")), np.float64)
+    rows = []
+    for path in [PBRT / "pbrt_gbuffer_fp32.exr", *sorted((PBRT / "seeds").glob("*.exr"))]:
+        buffer = read_sample_buffer(path)
+        images = {"plain": filled_mean(buffer), "OIDN": guides.oidn(buffer)}
+        for name, spec in PBRT_METHODS.items():
+            options, setting = spec if isinstance(spec, tuple) else (spec, None)
+            if setting is None:
+                images[name] = reconstruct(buffer, **options)
+            else:
+                with setting:
+                    images[name] = reconstruct(buffer, **options)
+        rows += [{"file": path.name, "method": m, "relmse": relmse(i, ref), "mse": mse(i, ref)} for m, i in images.items()]
+    return rows
+
+
+def pbrt_table(rows: list[dict]) -> None:
+    names = list(dict.fromkeys(r["method"] for r in rows))
+    rel = {m: float(np.mean([r["relmse"] for r in rows if r["method"] == m])) for m in names}
+    sq = {m: float(np.mean([r["mse"] for r in rows if r["method"] == m])) for m in names}
+    files = len({r["file"] for r in rows})
+    print(f"\n{files} renders; relMSE over the default's and over OIDN's, MSE over the plain mean's.")
+    print("\n| | " + " | ".join(names) + " |")
+    print("|---|" + "---|" * len(names))
+    print("| relMSE | " + " | ".join(f"{rel[m]:.5f}" for m in names) + " |")
+    print("| relMSE / default | " + " | ".join(f"{rel[m] / rel['default']:.2f}" for m in names) + " |")
+    print("| relMSE / OIDN | " + " | ".join(f"{rel[m] / rel['OIDN']:.2f}" for m in names) + " |")
+    print("| MSE / plain | " + " | ".join(f"{sq[m] / sq['plain']:.2f}" for m in names) + " |")
+
+
 # ---------------------------------------------------------------------------- crops
 CROPS = {("tracer", "cornell_gi"): (40, 40), ("tracer", "chess_dof"): (40, 40),
          ("mitsuba", "glossy_glass"): (96, 96), ("mitsuba", "dof_checker"): (96, 96)}
@@ -454,8 +494,8 @@ def _update(section: str, value: Any, command: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("section", choices=("quality", "samplers", "synthetic", "ablations", "avenues", "crops",
-                                            "tables"))
+    parser.add_argument("section", choices=("quality", "samplers", "synthetic", "ablations", "avenues", "pbrt",
+                                            "crops", "tables"))
     parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
     parser.add_argument("--spps", nargs="+", type=int, default=list(SPPS))
     parser.add_argument("--groups", type=int, default=2)
@@ -487,13 +527,17 @@ def main(argv: list[str] | None = None) -> int:
         rows = avenues(quality_scenes(args.scenes), max(args.spps), args.groups, args.cache)
         _update("avenues", rows, command)
         avenue_table(rows)
+    elif args.section == "pbrt":
+        rows = pbrt()
+        _update("pbrt", rows, command)
+        pbrt_table(rows)
     elif args.section == "crops":
         _update("crops", crops(args.crop_spp, args.cache), command)
     else:  # print the tables of the stored results
         data = json.loads(RESULTS.read_text())
         for section, show in (("quality", quality_tables), ("samplers", sampler_table),
                               ("synthetic", synthetic_table), ("ablations", ablation_table),
-                              ("avenues", avenue_table)):
+                              ("avenues", avenue_table), ("pbrt", pbrt_table)):
             if section in data:
                 print(f"\n## {section} ({data[section]['command']})")
                 show(data[section]["rows"])
