@@ -20,7 +20,6 @@ import math
 from collections.abc import Callable, Sequence
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
-from typing import NamedTuple
 
 import numpy as np
 
@@ -32,11 +31,11 @@ from .domains import Domain
 from .finishing import clip_negative, pooled_clamp, restore_mean
 from .guided import checked_inputs, pilots, projected
 from .prepare import Prepared, prepare
-from .stationary import DTYPES, StationaryTransform, stationary_transform
+from .stationary import DTYPES, stationary_transform
 from .sure import sure_blend
 from .thresholding import threshold_stage
 from .wavelets import DEFAULT_WAVELET, wavelet_operators
-from .wiener import relative_wiener
+from .wiener import WienerChain, chain
 
 __all__ = ["reconstruct", "reconstruct_detailed", "Reconstruction", "Settings", "resolve_settings", "later_stages",
            "MODES", "DEFAULT_C_S", "DEFAULT_PILOT_C_S",
@@ -78,7 +77,6 @@ DEFAULT_PRECISION = "float32"
 """Default precision of stage 1 and the Wiener stages' FFTs (statistics stay float64; docs/reconstruction.md)."""
 
 _MAX_PROBES = 100_000  # each probe is a transform pair per channel; more is never meant
-_PROBE_BATCH = 8  # probes filtered together through the last Wiener stage
 
 
 @dataclass(frozen=True, eq=False)
@@ -152,44 +150,6 @@ def _wiener_levels(levels: int) -> int:
     return levels - 1 if levels >= 4 else levels
 
 
-class _Chain(NamedTuple):
-    """The Wiener stages of one group of channels, at unit scale."""
-
-    image: FloatArray
-    leverage: FloatArray | None  # the last stage's diagonal, for the guard
-    variance: FloatArray | None  # the last stage's probe variance, if asked for
-
-
-def _chain(transform: StationaryTransform, x: FloatArray, v: FloatArray, pilot: FloatArray,
-           exponents: tuple[float, ...], *, k: float, weights: FloatArray | None, shared: FloatArray | None,
-           leverage: bool, probes: int, seed: int, keep: FloatArray | float) -> _Chain:
-    """Every Wiener stage on (H, W, C) planes; with luminance ``weights``, factors from luminance.
-
-    Channel ``c`` of the probes draws its signs from ``seed + c``, so channels run one by one
-    (first channel ``c``, ``seed + c``) or together get the same probes.
-    """
-    out = pilot
-    for exponent in exponents[:-1]:
-        out = relative_wiener(transform, x, v if shared is None else shared, out if weights is None else out @ weights,
-                              k=k, exponent=exponent).image * (1 - keep) + keep * pilot
-    p = out if weights is None else out @ weights
-    variance = v if shared is None else shared
-    result = relative_wiener(transform, x, variance, p, k=k, exponent=exponents[-1], leverage=leverage)
-    var_out = None
-    if probes:
-        rngs = [np.random.default_rng(seed + c) for c in range(x.shape[2])]
-        sd = np.sqrt(v)
-        var_out = np.zeros_like(x)
-        for start in range(0, probes, _PROBE_BATCH):
-            size = (min(_PROBE_BATCH, probes - start),) + x.shape[:2]
-            e = sd * np.stack([rng.choice((-1.0, 1.0), size=size) for rng in rngs], axis=-1)
-            filtered = relative_wiener(transform, x, variance, p, k=k, exponent=exponents[-1], extra=e).extra
-            var_out += (filtered * filtered).sum(axis=0)
-        var_out /= probes
-    lev = result.leverage
-    return _Chain(result.image, None if lev is None else (lev if lev.ndim == 3 else lev[..., None]), var_out)
-
-
 def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float, ...], *, levels: int, wavelet: str,
                    precision: str, luminance: tuple[Prepared, FloatArray] | None, guard: bool, probes: int, seed: int,
                    run: Callable, parallel: bool, keep: FloatArray | float, guide: FloatArray | None
@@ -208,17 +168,17 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
     transform = stationary_transform(prepared.mean.shape[:2], wavelet, levels, precision)
     options = {"k": k, "leverage": guard, "probes": probes, "keep": keep}
     if luminance is None and parallel:
-        parts = run(lambda c: _chain(transform, x[..., c:c + 1], v[..., c:c + 1], pilot[..., c:c + 1] / s, exponents,
+        parts = run(lambda c: chain(transform, x[..., c:c + 1], v[..., c:c + 1], pilot[..., c:c + 1] / s, exponents,
                                      weights=None, shared=None, seed=seed + c, **options), range(x.shape[2]))
         join = (lambda field: None if getattr(parts[0], field) is None else
                 np.concatenate([getattr(part, field) for part in parts], axis=-1))
-        chain = _Chain(join("image"), join("leverage"), join("variance"))
+        done = WienerChain(join("image"), join("leverage"), join("variance"))
     elif luminance is None:  # one call for every channel: each band's transfer functions are built once
-        chain = _chain(transform, x, v, pilot / s, exponents, weights=None, shared=None, seed=seed, **options)
+        done = chain(transform, x, v, pilot / s, exponents, weights=None, shared=None, seed=seed, **options)
     else:
-        chain = _chain(transform, x, v, pilot / s, exponents, weights=luminance[1],
+        done = chain(transform, x, v, pilot / s, exponents, weights=luminance[1],
                        shared=luminance[0].variance / s / s, seed=seed, **options)
-    out, var_out, leverage = chain.image, chain.variance, chain.leverage
+    out, var_out, leverage = done.image, done.variance, done.leverage
     if guide is not None and luminance is None:  # channel mode: the means projected on the guide (.guided)
         g = np.where(keep > 0, guide, 0.0) / s  # where the gate is closed a guide may be near overflow
         out, leverage, var_out = projected(transform, x, v, g, out, leverage, keep, k=k, probes=probes, seed=seed, probe_variance=var_out)

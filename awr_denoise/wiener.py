@@ -29,7 +29,7 @@ from . import _checks
 from ._typing import FloatArray
 from .stationary import StationaryTransform
 
-__all__ = ["WienerResult", "wiener_filter", "relative_wiener", "stage_weights"]
+__all__ = ["WienerResult", "wiener_filter", "relative_wiener", "stage_weights", "WienerChain", "chain"]
 
 
 def _planes(a: FloatArray, dtype: np.dtype, *, copy: bool = False) -> np.ndarray:
@@ -284,3 +284,67 @@ def relative_wiener(transform: StationaryTransform, x: FloatArray, variance: Flo
         out_e *= w
     return WienerResult(_last(out, ndim), None if out_e is None else _last(out_e, 3),
                         None if diagonal is None else _last(diagonal, ndim if np.ndim(variance) == 3 else 2))
+
+
+class WienerChain(NamedTuple):
+    """What :func:`chain` returns: the last stage's image, diagonal and probe variance."""
+
+    image: FloatArray
+    leverage: FloatArray | None  # the last stage's diagonal (H, W, C or 1), for the SURE guard
+    variance: FloatArray | None  # the last stage's probe variance, if asked for
+
+
+_PROBE_BATCH = 8  # probes filtered together through the last Wiener stage
+
+
+def chain(transform: StationaryTransform, x: FloatArray, v: FloatArray, pilot: FloatArray,
+          exponents: tuple[float, ...], *, k: float, weights: FloatArray | None = None,
+          shared: FloatArray | None = None, leverage: bool = False, probes: int = 0, seed: int = 0,
+          keep: FloatArray | float = 0.0) -> WienerChain:
+    """Every Wiener stage in turn (:func:`relative_wiener`, one ``exponent`` each), each stage's
+    result the next one's pilot, on (H, W, C) planes at unit scale.
+
+    ``keep`` is the share of the first ``pilot`` every later stage keeps in its own (a trusted
+    guide's, :func:`~awr_denoise.guided.pilots`). With luminance ``weights`` (and the luminance
+    variance ``shared``) the factors come from luminance, one set for every channel. With
+    ``probes``, the last stage's output variance is estimated by Rademacher probes ``+-sqrt(v)``;
+    channel ``c`` draws its signs from ``seed + c``, so channels run one by one (first channel
+    ``c``, ``seed + c``) or together get the same probes.
+
+    Examples
+    --------
+    Two stages on a noisy ramp, starting from the noisy means themselves as the pilot (the
+    reconstruction starts from stage 1's thresholding, a better one); the second stage takes the
+    first one's result as its pilot:
+
+    >>> import numpy as np
+    >>> from awr_denoise.stationary import StationaryTransform
+    >>> from awr_denoise.wiener import chain
+    >>> clean = np.tile(np.linspace(1.0, 2.0, 32), (32, 1))[..., None]
+    >>> noisy = clean + 0.1 * np.random.default_rng(0).standard_normal(clean.shape)
+    >>> out = chain(StationaryTransform((32, 32), levels=3), noisy, np.full(clean.shape, 0.01), noisy,
+    ...             (0.75, 0.4), k=0.1, leverage=True)
+    >>> rms = lambda a: round(float(np.sqrt(np.mean((a - clean) ** 2))), 3)
+    >>> rms(noisy), rms(out.image), out.leverage.shape
+    (0.097, 0.056, (32, 32, 1))
+    """
+    out = pilot
+    for exponent in exponents[:-1]:
+        out = relative_wiener(transform, x, v if shared is None else shared, out if weights is None else out @ weights,
+                              k=k, exponent=exponent).image * (1 - keep) + keep * pilot
+    p = out if weights is None else out @ weights
+    variance = v if shared is None else shared
+    result = relative_wiener(transform, x, variance, p, k=k, exponent=exponents[-1], leverage=leverage)
+    var_out = None
+    if probes:
+        rngs = [np.random.default_rng(seed + c) for c in range(x.shape[2])]
+        sd = np.sqrt(v)
+        var_out = np.zeros_like(x)
+        for start in range(0, probes, _PROBE_BATCH):
+            size = (min(_PROBE_BATCH, probes - start),) + x.shape[:2]
+            e = sd * np.stack([rng.choice((-1.0, 1.0), size=size) for rng in rngs], axis=-1)
+            filtered = relative_wiener(transform, x, variance, p, k=k, exponent=exponents[-1], extra=e).extra
+            var_out += (filtered * filtered).sum(axis=0)
+        var_out /= probes
+    lev = result.leverage
+    return WienerChain(result.image, None if lev is None else (lev if lev.ndim == 3 else lev[..., None]), var_out)
