@@ -59,7 +59,8 @@ from .projection import project
 from .stationary import StationaryTransform
 
 __all__ = ["checked_guide", "checked_inputs", "feature_pilot", "trust", "gated", "pilots", "ATROUS_ITERATIONS",
-           "FEATURE_SIGMAS", "GATE_WINDOW", "GATE_LOW", "GATE_HIGH", "projected", "PROJECTION_SHARE"]
+           "FEATURE_SIGMAS", "GATE_WINDOW", "GATE_LOW", "GATE_HIGH", "projected", "PROJECTION_SHARE",
+           "checked_projection"]
 
 ATROUS_ITERATIONS = 3
 """A-trous passes of :func:`feature_pilot` (steps 1, 2, 4: a 29-pixel footprint). Five passes measured
@@ -351,9 +352,9 @@ def gated(candidate: FloatArray, stage1: FloatArray, buffer: SampleBuffer) -> Fl
 
 def projected(transform: StationaryTransform, x: FloatArray, variance: FloatArray, guide: FloatArray,
               image: FloatArray, leverage: FloatArray | None, share: FloatArray | float, *, k: float,
-              probes: int = 0, seed: int = 0, probe_variance: FloatArray | None = None
-              ) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
-    """The Wiener stages' ``image`` moved ``PROJECTION_SHARE * share`` of the way to the means projected on the guide.
+              probes: int = 0, seed: int = 0, probe_variance: FloatArray | None = None,
+              projection: float = PROJECTION_SHARE) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
+    """The Wiener stages' ``image`` moved ``projection * share`` of the way to the means projected on the guide.
 
     ``share`` is the gate's (:func:`trust`): where it is 0 the image is returned as it is. The
     means' coefficients are moved towards the gated guide's (``share * guide + (1 - share) *
@@ -385,11 +386,11 @@ def projected(transform: StationaryTransform, x: FloatArray, variance: FloatArra
     >>> bool(np.allclose(out, PROJECTION_SHARE * x + (1 - PROJECTION_SHARE) * smooth))
     True
     """
-    if not np.any(share):  # the gate is closed everywhere: nothing to blend, the FFTs spared
+    if projection == 0 or not np.any(share):  # nothing to blend (the gate closed everywhere): the FFTs spared
         return image, leverage, probe_variance
     target = share * guide + (1.0 - share) * image
     result = project(transform, x, variance, target, offset=k, leverage=leverage is not None)
-    s = PROJECTION_SHARE * np.asarray(share, np.float64)  # none where the gate is closed: no guide, no change
+    s = projection * np.asarray(share, np.float64)  # none where the gate is closed: no guide, no change
     out = image + s * (result.image - image)
     lev = None if leverage is None else leverage + s * (result.leverage - leverage)
     var_out = None
@@ -404,3 +405,24 @@ def projected(transform: StationaryTransform, x: FloatArray, variance: FloatArra
         var_out = np.where(s > 0, ((1 - s) * np.sqrt(probe_variance) + s * np.sqrt(total / probes)) ** 2,
                            probe_variance)
     return out, lev, var_out
+
+
+def checked_projection(value: object, guide: FloatArray | None) -> float:
+    """``guide_projection`` checked: a number in [0, 1], given only with a guide; ``None``: the default.
+
+    Examples
+    --------
+    >>> from awr_denoise.guided import checked_projection, PROJECTION_SHARE
+    >>> checked_projection(None, None), checked_projection(None, object()) == PROJECTION_SHARE
+    (0.0, True)
+    >>> checked_projection(0.25, None)
+    Traceback (most recent call last):
+        ...
+    ValueError: guide_projection: 0.25 given without a guide (it is the share of the guide's projection)
+    """
+    if value is None:
+        return 0.0 if guide is None else PROJECTION_SHARE
+    share = float(_checks.real("guide_projection", value, minimum=0, maximum=1))  # type: ignore[arg-type]
+    if guide is None:
+        raise ValueError(f"guide_projection: {value!r} given without a guide (it is the share of the guide's projection)")
+    return share

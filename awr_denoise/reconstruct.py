@@ -29,7 +29,7 @@ from .buffers import SampleBuffer
 from .channels import luminance_weights
 from .domains import Domain
 from .finishing import clip_negative, pooled_clamp, restore_mean
-from .guided import checked_inputs, pilots, projected
+from .guided import checked_inputs, checked_projection, pilots, projected
 from .prepare import Prepared, prepare
 from .stationary import DTYPES, stationary_transform
 from .sure import sure_blend
@@ -152,8 +152,8 @@ def _wiener_levels(levels: int) -> int:
 
 def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float, ...], *, levels: int, wavelet: str,
                    precision: str, luminance: tuple[Prepared, FloatArray] | None, guard: bool, probes: int, seed: int,
-                   run: Callable, parallel: bool, keep: FloatArray | float, guide: FloatArray | None
-                   ) -> tuple[FloatArray, FloatArray | None]:
+                   run: Callable, parallel: bool, keep: FloatArray | float, guide: FloatArray | None,
+                   projection: float) -> tuple[FloatArray, FloatArray | None]:
     """Stages 2.. and the SURE guard on the image brought to unit scale; the probe variance if asked.
 
     In channel mode with ``parallel`` every channel runs on its own (over ``run``, an
@@ -181,7 +181,8 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
     out, var_out, leverage = done.image, done.variance, done.leverage
     if guide is not None and luminance is None:  # channel mode: the means projected on the guide (.guided)
         g = np.where(keep > 0, guide, 0.0) / s  # where the gate is closed a guide may be near overflow
-        out, leverage, var_out = projected(transform, x, v, g, out, leverage, keep, k=k, probes=probes, seed=seed, probe_variance=var_out)
+        out, leverage, var_out = projected(transform, x, v, g, out, leverage, keep, k=k, probes=probes, seed=seed,
+                                           probe_variance=var_out, projection=projection)
     if guard:
         assert leverage is not None
         if luminance is None:
@@ -260,7 +261,8 @@ def resolve_settings(*, c_s: float | None = None, stages: int = DEFAULT_STAGES,
 
 def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | None, settings: Settings, *, levels: int,
                  wavelet: str, luminance: tuple[Prepared, FloatArray] | None = None, run: Callable | None = None,
-                 keep: FloatArray | float = 0.0, guide: FloatArray | None = None) -> tuple[FloatArray, FloatArray | None]:
+                 keep: FloatArray | float = 0.0, guide: FloatArray | None = None, projection: float = 0.0
+                 ) -> tuple[FloatArray, FloatArray | None]:
     """Everything after stage 1: the Wiener stages, the guard, the pixel clamp, non-negativity, the mean.
 
     Parameters
@@ -270,7 +272,7 @@ def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | N
     image, variance, keep
         Stage 1's result (the first Wiener stage's pilot) and its variance (or ``None``); ``keep``: the
         (H, W, 1) share of that pilot every later stage keeps in its own (:func:`~awr_denoise.guided.pilots`);
-        ``guide``: the checked guide, whose projection joins the Wiener stages (:func:`~awr_denoise.guided.projected`).
+        ``guide``: the checked guide, whose projection takes ``projection`` of the result (:func:`~awr_denoise.guided.projected`).
     settings
         From :func:`resolve_settings`.
     levels, wavelet
@@ -292,7 +294,7 @@ def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | N
         image, variance = _wiener_stages(prepared, image, settings.exponents, levels=_wiener_levels(levels),
                                          wavelet=wavelet, precision=settings.precision, luminance=luminance,
                                          guard=settings.guard, probes=settings.probes, seed=settings.seed, run=run,
-                                         parallel=parallel, keep=keep, guide=guide)
+                                         parallel=parallel, keep=keep, guide=guide, projection=projection)
         if settings.pixel_clamp is not None:
             lum = None if luminance is None else luminance[0]
             image, moved = pooled_clamp(image, prepared.mean if lum is None else lum.mean,
@@ -331,6 +333,7 @@ def reconstruct_detailed(
     variance_probes: int = 16,
     seed: int = 0,
     guide: FloatArray | None = None,
+    guide_projection: float | None = None,
     features: bool = False,
 ) -> Reconstruction:
     """Reconstruct an image from sample statistics and report what the stages did.
@@ -397,6 +400,9 @@ def reconstruct_detailed(
     guide, features
         An (H, W, C) image or a function of the buffer making one (:func:`awr_denoise.guides.oidn`), or ``True``:
         the pilot of the Wiener stages where the samples allow it, the guide's or the features' (:mod:`.guided`).
+    guide_projection
+        With a guide: the share of the result taken from the means projected on it, in [0, 1] (default
+        :data:`~awr_denoise.guided.PROJECTION_SHARE`; 0: the guide is the pilot only; docs/guides.md).
 
     Notes
     -----
@@ -445,6 +451,7 @@ def reconstruct_detailed(
                                 guard=guard, preserve_mean=preserve_mean, nonnegative=nonnegative, precision=precision,
                                 variance_probes=variance_probes, seed=seed)
     guide = checked_inputs(buffer, guide, features, settings.stages)
+    projection = checked_projection(guide_projection, guide)
     prepared = prepare(buffer, domain)
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     run: Callable | None = (lambda f, items: list(executor.map(f, items))) if executor is not None else None
@@ -457,14 +464,15 @@ def reconstruct_detailed(
     variance = stage.output_variance(settings.probes, settings.seed) if settings.probes and settings.stages == 1 else None
     first, keep = pilots(buffer, stage.image, guide, features)
     image, variance = later_stages(prepared, first, variance, settings, levels=ops.levels, wavelet=ops.wavelet,
-                                   luminance=luminance, run=run, keep=keep, guide=guide)
+                                   luminance=luminance, run=run, keep=keep, guide=guide, projection=projection)
     return Reconstruction(image=image, thresholds=stage.thresholds,
                           fraction_zeroed=stage.zeroed / stage.total if stage.total else 0.0,
                           variance=np.broadcast_to(np.nan, image.shape) if variance is None else variance,
                           levels=ops.levels, domain=prepared.bound.domain,
                           parameters={"wavelet": ops.wavelet, "levels": ops.levels,
                                       "domain": prepared.bound.domain.name, "mode": mode, "boundary": boundary,
-                                      "guide": guide is not None, "features": features, **settings.recorded()})
+                                      "guide": guide is not None, "features": features,
+                                      "guide_projection": None if guide is None else projection, **settings.recorded()})
 
 
 def reconstruct(
@@ -485,6 +493,7 @@ def reconstruct(
     nonnegative: bool | None = None,
     precision: str = DEFAULT_PRECISION,
     guide: FloatArray | None = None,
+    guide_projection: float | None = None,
     features: bool = False,
 ) -> FloatArray:
     """Denoise the pixel means: Eq. 10-11 (paper section 5), then empirical Wiener stages.
@@ -507,4 +516,4 @@ def reconstruct(
                                 boundary=boundary, executor=executor, pixel_clamp=pixel_clamp, stages=stages,
                                 wiener_exponents=wiener_exponents, guard=guard, preserve_mean=preserve_mean,
                                 nonnegative=nonnegative, precision=precision, variance_probes=0, guide=guide,
-                                features=features).image
+                                guide_projection=guide_projection, features=features).image

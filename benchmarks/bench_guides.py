@@ -208,21 +208,18 @@ def _per_pixel_share(candidate: np.ndarray, buffer: SampleBuffer) -> np.ndarray:
 
 
 class _Projection:
-    """The guide's projection (:func:`awr_denoise.guided.projected`) with another share of the result,
-    interval radius or domain exponent, for one measurement."""
+    """The guide's projection (:func:`awr_denoise.projection.project`) with another interval radius or
+    domain exponent, for one measurement (its share of the result is ``guide_projection``)."""
 
-    def __init__(self, share: float | None = None, radius: float = projection.DEFAULT_RADIUS,
-                 exponent: float = projection.DEFAULT_EXPONENT) -> None:
-        self.share, self.radius, self.exponent = share, radius, exponent
+    def __init__(self, radius: float = projection.DEFAULT_RADIUS, exponent: float = projection.DEFAULT_EXPONENT) -> None:
+        self.radius, self.exponent = radius, exponent
 
     def __enter__(self) -> None:
-        self.saved = guided.PROJECTION_SHARE, guided.project
-        if self.share is not None:
-            guided.PROJECTION_SHARE = self.share
+        self.saved = guided.project
         guided.project = functools.partial(projection.project, radius=self.radius, exponent=self.exponent)
 
     def __exit__(self, *exc: object) -> None:
-        guided.PROJECTION_SHARE, guided.project = self.saved
+        guided.project = self.saved
 
 
 _RECONSTRUCT = sys.modules["awr_denoise.reconstruct"]  # the module: the package exports a function of that name
@@ -360,9 +357,9 @@ AVENUES: dict[str, tuple[dict[str, Any], Any]] = {
     "OIDN guide, first stage only": ({"guide": guides.oidn}, _first_stage_only),
     "OIDN guide, alpha 1": ({"guide": guides.oidn, "wiener_exponents": (0.75, 1.0)}, None),
     "OIDN guide, no guard": ({"guide": guides.oidn, "guard": False}, None),
-    "OIDN guide, no projection": ({"guide": guides.oidn}, _Projection(share=0.0)),
-    "OIDN guide, projection only": ({"guide": guides.oidn}, _Projection(share=1.0)),
-    "OIDN guide, projection share 0.75": ({"guide": guides.oidn}, _Projection(share=0.75)),
+    "OIDN guide, no projection": ({"guide": guides.oidn, "guide_projection": 0.0}, None),
+    "OIDN guide, projection only": ({"guide": guides.oidn, "guide_projection": 1.0}, None),
+    "OIDN guide, projection share 0.75": ({"guide": guides.oidn, "guide_projection": 0.75}, None),
     "OIDN guide, radius 2": ({"guide": guides.oidn}, _Projection(radius=2.0)),
     "OIDN guide, projection exponent 1": ({"guide": guides.oidn}, _Projection(exponent=1.0)),
     "OIDN guide + features where the gate closes": ({"guide": guides.oidn, "features": True}, _features_then_guide),
@@ -422,7 +419,7 @@ def avenue_table(rows: list[dict]) -> None:
 # ---------------------------------------------------------------------------- pbrt-v4
 PBRT = ROOT.parent / "tests" / "data" / "pbrt"
 PBRT_METHODS = {"default": {}, "default + features": {"features": True}, "default + OIDN guide": {"guide": guides.oidn},
-                "default + OIDN guide, no projection": ({"guide": guides.oidn}, _Projection(share=0.0))}
+                "default + OIDN guide, no projection": {"guide": guides.oidn, "guide_projection": 0.0}}
 
 
 def pbrt() -> list[dict[str, Any]]:
@@ -433,13 +430,8 @@ def pbrt() -> list[dict[str, Any]]:
     for path in [PBRT / "pbrt_gbuffer_fp32.exr", *sorted((PBRT / "seeds").glob("*.exr"))]:
         buffer = read_sample_buffer(path)
         images = {"plain": filled_mean(buffer), "OIDN": guides.oidn(buffer)}
-        for name, spec in PBRT_METHODS.items():
-            options, setting = spec if isinstance(spec, tuple) else (spec, None)
-            if setting is None:
-                images[name] = reconstruct(buffer, **options)
-            else:
-                with setting:
-                    images[name] = reconstruct(buffer, **options)
+        for name, options in PBRT_METHODS.items():
+            images[name] = reconstruct(buffer, **options)
         rows += [{"file": path.name, "method": m, "relmse": relmse(i, ref), "mse": mse(i, ref)} for m, i in images.items()]
     return rows
 

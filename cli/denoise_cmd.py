@@ -8,6 +8,7 @@ from pathlib import Path
 
 from awr_denoise.domains import DOMAIN_NAMES
 from awr_denoise.errors import InputFileError
+from awr_denoise.guided import PROJECTION_SHARE
 from awr_denoise.guides import GUIDES, OIDN_HINT, oidn_available
 from awr_denoise.io import read_image
 from awr_denoise.io.atomic import OutputSet
@@ -76,13 +77,18 @@ def add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
                         "stage, and followed within three standard errors of each coefficient; 'features', an "
                         "a-trous filter guided by albedo, normal and depth, for the first "
                         "(default: neither)")
+    g.add_argument("--guide-projection", type=real(minimum=0, maximum=1), metavar="S",
+                   help="with --guide oidn: the share of the result taken from the means moved towards the guide "
+                        f"within three standard errors; 0 makes the guide the pilot only (default {PROJECTION_SHARE:g})")
 
 
 def reconstruction_kwargs(args: argparse.Namespace) -> dict:
     """Keyword arguments of :func:`awr_denoise.reconstruct_detailed` from the options."""
     guide = getattr(args, "guide", None)
+    projection = getattr(args, "guide_projection", None)
     return {"stages": args.stages, "c_s": args.c_s, "wavelet": args.wavelet, "levels": args.levels,
-            "domain": args.domain, "mode": args.mode, "guide": GUIDES.get(guide), "features": guide == "features"}
+            "domain": args.domain, "mode": args.mode, "guide": GUIDES.get(guide), "features": guide == "features",
+            **({} if projection is None else {"guide_projection": projection})}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -133,6 +139,8 @@ def check_reconstruction_options(args: argparse.Namespace, shape: tuple[int, int
         raise UsageError(f"--guide {guide}: it gives the pilot of the Wiener stages; it needs --stages 2 or more")
     if guide == "oidn" and not oidn_available():
         raise UsageError(f"--guide oidn: {OIDN_HINT}")
+    if getattr(args, "guide_projection", None) is not None and guide not in GUIDES:
+        raise UsageError("--guide-projection: it is the share of a guide's projection; it needs --guide oidn")
     if args.levels is not None and args.levels > max_levels(shape):
         h, w = shape
         raise UsageError(f"--levels: {args.levels} is outside 1..{max_levels(shape)} for the {w}x{h} image of {where}")

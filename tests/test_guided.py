@@ -231,24 +231,40 @@ def test_a_guide_in_luminance_mode_and_over_an_executor():
         np.testing.assert_array_equal(reconstruct(buf, guide=ref, executor=executor), reconstruct(buf, guide=ref))
 
 
-def test_the_projection_on_the_guide_gains_over_the_wiener_stages_alone(monkeypatch):
+def test_the_projection_on_the_guide_gains_over_the_wiener_stages_alone():
     """The clean image as guide, 16 spp, four seeds: the projection's share lowers relMSE and MSE
-    against the guided Wiener stages alone (share 0), on the edges and next to a small light."""
-    import awr_denoise.guided as guided_module
+    against the guided Wiener stages alone (``guide_projection=0``), on the edges and next to a small light."""
     for name in ("edges", "hdr_source"):
         with_projection = _errors(name, 16, lambda ref, seed: ref)[2]
-        monkeypatch.setattr(guided_module, "PROJECTION_SHARE", 0.0)
-        without = _errors(name, 16, lambda ref, seed: ref)[2]
-        monkeypatch.undo()
+        without = np.zeros(2)
+        for seed in SEEDS:
+            scene, buf = _scene_buffer(name, 16, seed)
+            image = reconstruct(buf, guide=scene.reference(), guide_projection=0.0)
+            without += (relmse(image, scene.reference()), mse(image, scene.reference()))
         assert (with_projection < 0.95 * without).all(), (name, with_projection, without)
 
 
-def test_the_variance_of_a_guided_reconstruction_includes_the_projection(monkeypatch):
-    import awr_denoise.guided as guided_module
+def test_guide_projection_is_checked_and_recorded():
+    scene, buf = _scene_buffer("edges", 8, 0)
+    ref = scene.reference()
+    assert reconstruct_detailed(buf, guide=ref, guide_projection=0.25, variance_probes=0).parameters[
+        "guide_projection"] == 0.25
+    assert reconstruct_detailed(buf, guide=ref, variance_probes=0).parameters["guide_projection"] == 0.5
+    assert reconstruct_detailed(buf, variance_probes=0).parameters["guide_projection"] is None
+    for bad in (-0.1, 1.5, float("nan"), "half"):
+        with pytest.raises((ValueError, TypeError), match="guide_projection"):
+            reconstruct(buf, guide=ref, guide_projection=bad)
+    with pytest.raises(ValueError, match="guide_projection: 0.5 given without a guide"):
+        reconstruct(buf, guide_projection=0.5)
+    # share 0: the Wiener stages alone, and the projection's FFTs are skipped
+    a = reconstruct(buf, guide=ref, guide_projection=0.0)
+    assert not np.array_equal(a, reconstruct(buf, guide=ref))
+
+
+def test_the_variance_of_a_guided_reconstruction_includes_the_projection():
     scene, buf = _scene_buffer("edges", 8, 0)
     result = reconstruct_detailed(buf, guide=scene.reference(), variance_probes=8)
-    monkeypatch.setattr(guided_module, "PROJECTION_SHARE", 0.0)
-    wiener_only = reconstruct_detailed(buf, guide=scene.reference(), variance_probes=8)
+    wiener_only = reconstruct_detailed(buf, guide=scene.reference(), guide_projection=0.0, variance_probes=8)
     assert np.isfinite(result.variance).all() and (result.variance >= 0).all()
     # a clean guide is followed where the projection acts: less of the means' noise is left
     assert result.variance.mean() < 0.9 * wiener_only.variance.mean()

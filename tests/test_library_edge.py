@@ -40,6 +40,7 @@ from awr_denoise.io.png import tonemap_srgb
 from awr_denoise.domains import DOMAIN_NAMES
 from awr_denoise.parallel import get_executor, halo_width, reconstruct_tiled, tile_grid
 from awr_denoise.prepare import prepare
+from awr_denoise.projection import project
 from awr_denoise.reconstruct import MODES, PRECISIONS
 from awr_denoise.stationary import DTYPES, StationaryTransform
 from awr_denoise.wavelets import WAVELET_NAMES
@@ -48,6 +49,7 @@ from awr_denoise.wiener import stage_weights
 H, W = 16, 16
 _rng = np.random.default_rng(0)
 BUF = SampleBuffer.from_moments(np.full((H, W), 4), 0.5 + 0.1 * _rng.random((H, W, 3)), np.full((H, W, 3), 0.01))
+_T = StationaryTransform((H, W), levels=2)
 IMG = _rng.random((H, W, 3))
 
 
@@ -92,6 +94,10 @@ PARAMS = [
     Param("mode", "name", lambda v: reconstruct(BUF, mode=v), choices=MODES),
     Param("boundary", "name", lambda v: reconstruct(BUF, boundary=v), choices=tuple(pywt.Modes.modes)),
     Param("domain", "name", lambda v: reconstruct(BUF, domain=v), choices=DOMAIN_NAMES),
+    Param("guide_projection", "fraction", lambda v: reconstruct(BUF, guide=BUF.mean, guide_projection=v), none=True),
+    Param("offset", "real>0", lambda v: project(_T, BUF.mean, BUF.variance, BUF.mean, offset=v)),
+    Param("radius", "real>=0", lambda v: project(_T, BUF.mean, BUF.variance, BUF.mean, offset=0.1, radius=v)),
+    Param("exponent", "fraction", lambda v: project(_T, BUF.mean, BUF.variance, BUF.mean, offset=0.1, exponent=v)),
     Param("offset", "real>0", lambda v: Domain("log", offset=v)),
     Param("gamma", "real>=1", lambda v: Domain("gamma", gamma=v)),
     Param("scale", "real>0", lambda v: Domain("log", scale=v), none=True),

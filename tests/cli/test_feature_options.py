@@ -79,6 +79,30 @@ def test_denoise_guide_oidn(tmp_path, capsys):
     np.testing.assert_allclose(image.mean(axis=(0, 1)), read_image(plain).mean(axis=(0, 1)), rtol=1e-3)
 
 
+def test_denoise_guide_projection(tmp_path, capsys):
+    """``--guide-projection S`` reaches the reconstruction (0: the guide is the pilot only) and is
+    recorded; out of [0, 1], not a number, or without ``--guide oidn`` it is refused before any output."""
+    pytest.importorskip("pyoidn", reason="the OIDN guide needs the extra oidn")
+    from awr_denoise.io import read_header, read_provenance
+    _images(tmp_path)
+    images = {}
+    for share in ("0", "1"):
+        out = tmp_path / f"g{share}.exr"
+        assert main(["denoise", str(tmp_path / "d.exr"), "--guide", "oidn", "--guide-projection", share,
+                     "-o", str(out), "-q"]) == 0
+        images[share] = read_image(out)
+        assert float(read_provenance(read_header(out))["guide_projection"]) == float(share)
+    assert not np.array_equal(images["0"], images["1"])
+    for bad, message in ((["--guide", "oidn", "--guide-projection", "1.5"], "--guide-projection: must be <= 1"),
+                         (["--guide", "oidn", "--guide-projection", "nan"], "--guide-projection: must be a finite number"),
+                         (["--guide-projection", "0.3"], "--guide-projection: it is the share of a guide's projection"),
+                         (["--guide", "features", "--guide-projection", "0.3"], "it needs --guide oidn")):
+        out = tmp_path / "bad.exr"
+        assert main(["denoise", str(tmp_path / "d.exr"), *bad, "-o", str(out)]) == 2, bad
+        assert message in one_error_line(capsys.readouterr().err)
+        assert not out.exists()
+
+
 def test_denoise_guide_oidn_without_pyoidn_is_refused(tmp_path, capsys, monkeypatch):
     import awr_denoise.cli.denoise_cmd as denoise_cmd
     monkeypatch.setattr(denoise_cmd, "oidn_available", lambda: False)
