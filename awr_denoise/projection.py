@@ -136,23 +136,25 @@ def project(transform: StationaryTransform, x: FloatArray, variance: FloatArray,
     work = np.empty(spec_d.shape[-2:], spec_d.dtype)
     coeff, bound, unclipped = (np.empty(t.shape, t.dtype) for _ in range(3))
     for b in range(1, len(t.bands)):
-        a, s = t.analysis(b), t.synthesis(b)
+        # Each band's transfer functions once (above ~512x512 they are built on every call).
+        a, s, squared = t.analysis(b), t.synthesis(b), t.squared(b)
+        diagonal = None if total_u is None else t.diagonal(b)
         for c in range(spec_d.shape[0]):
-            t.planes(np.multiply(spec_v[c], t.squared(b), out=work), overwrite=True, out=bound)
+            t.planes(np.multiply(spec_v[c], squared, out=work), overwrite=True, out=bound)
             np.maximum(bound, 0.0, out=bound)  # FFT rounding around exact zeros
             np.sqrt(bound, out=bound)
             bound *= radius
             t.planes(np.multiply(spec_d[c], a, out=work), overwrite=True, out=coeff)
             np.less_equal(np.abs(coeff), bound, out=unclipped, casting="unsafe")
             np.clip(coeff, -bound, bound, out=coeff)
-            total[c] += t.spectrum(coeff, out=work) * s
+            total[c] += np.multiply(t.spectrum(coeff, out=work), s, out=work)
             if total_u is not None:
-                total_u[c] += t.spectrum(unclipped, out=work) * t.diagonal(b)
+                total_u[c] += np.multiply(t.spectrum(unclipped, out=work), diagonal, out=work)
             if spec_e is not None:
                 for n in range(spec_e.shape[0]):  # the probes lose what the guide replaces
                     t.planes(np.multiply(spec_e[n, c], a, out=work), overwrite=True, out=coeff)
                     coeff *= unclipped
-                    total_e[n, c] -= t.spectrum(coeff, out=work) * s  # type: ignore[index]
+                    total_e[n, c] -= np.multiply(t.spectrum(coeff, out=work), s, out=work)  # type: ignore[index]
     # The moves back in the caller's layout, added to the means in float64: where every
     # coefficient is clipped to zero width (no variance) the result is the means to the bit.
     moves = t.planes(total, overwrite=True)
@@ -162,5 +164,5 @@ def project(transform: StationaryTransform, x: FloatArray, variance: FloatArray,
         out_e = t.planes(total_e, overwrite=True)
         out_e *= w
         out_e = _last(out_e, 3) + np.asarray(extra, np.float64)
-    diagonal = None if total_u is None else 1.0 - _last(t.planes(total_u, overwrite=True), 3)
-    return WienerResult(_last(moves, 3) + np.asarray(x, np.float64), out_e, diagonal)
+    lev = None if total_u is None else 1.0 - _last(t.planes(total_u, overwrite=True), 3)
+    return WienerResult(_last(moves, 3) + np.asarray(x, np.float64), out_e, lev)
