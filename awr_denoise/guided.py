@@ -57,6 +57,7 @@ from .buffers import SampleBuffer
 from .prepare import filled_mean
 from .projection import project
 from .stationary import StationaryTransform
+from .wiener import rademacher_probes
 
 __all__ = ["checked_guide", "checked_inputs", "feature_pilot", "trust", "gated", "pilots", "ATROUS_ITERATIONS",
            "FEATURE_SIGMAS", "GATE_WINDOW", "GATE_LOW", "GATE_HIGH", "projected", "PROJECTION_SHARE",
@@ -363,7 +364,7 @@ def projected(transform: StationaryTransform, x: FloatArray, variance: FloatArra
     in its default domain ``x / sqrt(|target| + k)``), and blended with ``image``. Both are linear in the means
     once the factors and the clipping pattern are held fixed, so the blend's ``leverage`` is the
     same blend of theirs (what the SURE guard then needs); with ``probes``, the variance of the
-    projection is probed like the Wiener stage's (``seed + c`` for channel ``c``) and combined
+    projection is probed like the Wiener stage's (:func:`~awr_denoise.wiener.rademacher_probes`) and combined
     with ``probe_variance`` by the bound ``((1 - s) sd_1 + s sd_2)^2``.
 
     Returns
@@ -395,13 +396,10 @@ def projected(transform: StationaryTransform, x: FloatArray, variance: FloatArra
     lev = None if leverage is None else leverage + s * (result.leverage - leverage)
     var_out = None
     if probes and probe_variance is not None:
-        rngs = [np.random.default_rng(seed + c) for c in range(x.shape[2])]
-        sd = np.sqrt(variance)
         total = np.zeros_like(x)
-        for _ in range(probes):  # one at a time: a probe costs what the image costs
-            e = sd * np.stack([rng.choice((-1.0, 1.0), size=x.shape[:2]) for rng in rngs], axis=-1)
-            filtered = project(transform, x, variance, target, offset=k, extra=e[None]).extra
-            total += filtered[0] ** 2  # type: ignore[index]
+        for e in rademacher_probes(variance, probes, seed):
+            filtered = project(transform, x, variance, target, offset=k, extra=e).extra
+            total += (filtered * filtered).sum(axis=0)  # type: ignore[operator]
         var_out = np.where(s > 0, ((1 - s) * np.sqrt(probe_variance) + s * np.sqrt(total / probes)) ** 2,
                            probe_variance)
     return out, lev, var_out

@@ -21,6 +21,7 @@ relMSE measures); ``alpha = 0`` is the linear domain (the error MSE measures).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from typing import NamedTuple
 
 import numpy as np
@@ -29,7 +30,8 @@ from . import _checks
 from ._typing import FloatArray
 from .stationary import StationaryTransform
 
-__all__ = ["WienerResult", "wiener_filter", "relative_wiener", "stage_weights", "WienerChain", "chain"]
+__all__ = ["WienerResult", "wiener_filter", "relative_wiener", "stage_weights", "WienerChain", "chain",
+           "rademacher_probes"]
 
 
 def _planes(a: FloatArray, dtype: np.dtype, *, copy: bool = False) -> np.ndarray:
@@ -297,6 +299,28 @@ class WienerChain(NamedTuple):
 _PROBE_BATCH = 8  # probes filtered together through the last Wiener stage
 
 
+def rademacher_probes(v: FloatArray, probes: int, seed: int) -> Iterator[np.ndarray]:
+    """Batches (n, H, W, C) of Rademacher probes ``+-sqrt(v)`` of the (H, W, C) variances ``v``.
+
+    Channel ``c`` draws its signs from ``seed + c``, so channels probed one by one (first channel
+    ``c``, ``seed + c``) or together get the same probes. Filtered through a linear map, their
+    mean square is the map's output variance, without bias.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise.wiener import rademacher_probes
+    >>> batches = list(rademacher_probes(np.full((2, 2, 1), 4.0), 10, seed=0))
+    >>> [b.shape for b in batches], sorted(set(np.concatenate(batches).ravel().tolist()))
+    ([(8, 2, 2, 1), (2, 2, 2, 1)], [-2.0, 2.0])
+    """
+    rngs = [np.random.default_rng(seed + c) for c in range(v.shape[2])]
+    sd = np.sqrt(v)
+    for start in range(0, probes, _PROBE_BATCH):
+        size = (min(_PROBE_BATCH, probes - start),) + v.shape[:2]
+        yield sd * np.stack([rng.choice((-1.0, 1.0), size=size) for rng in rngs], axis=-1)
+
+
 def chain(transform: StationaryTransform, x: FloatArray, v: FloatArray, pilot: FloatArray,
           exponents: tuple[float, ...], *, k: float, weights: FloatArray | None = None,
           shared: FloatArray | None = None, leverage: bool = False, probes: int = 0, seed: int = 0,
@@ -307,9 +331,7 @@ def chain(transform: StationaryTransform, x: FloatArray, v: FloatArray, pilot: F
     ``keep`` is the share of the first ``pilot`` every later stage keeps in its own (a trusted
     guide's, :func:`~awr_denoise.guided.pilots`). With luminance ``weights`` (and the luminance
     variance ``shared``) the factors come from luminance, one set for every channel. With
-    ``probes``, the last stage's output variance is estimated by Rademacher probes ``+-sqrt(v)``;
-    channel ``c`` draws its signs from ``seed + c``, so channels run one by one (first channel
-    ``c``, ``seed + c``) or together get the same probes.
+    ``probes``, the last stage's output variance is estimated by :func:`rademacher_probes`.
 
     Examples
     --------
@@ -337,12 +359,8 @@ def chain(transform: StationaryTransform, x: FloatArray, v: FloatArray, pilot: F
     result = relative_wiener(transform, x, variance, p, k=k, exponent=exponents[-1], leverage=leverage)
     var_out = None
     if probes:
-        rngs = [np.random.default_rng(seed + c) for c in range(x.shape[2])]
-        sd = np.sqrt(v)
         var_out = np.zeros_like(x)
-        for start in range(0, probes, _PROBE_BATCH):
-            size = (min(_PROBE_BATCH, probes - start),) + x.shape[:2]
-            e = sd * np.stack([rng.choice((-1.0, 1.0), size=size) for rng in rngs], axis=-1)
+        for e in rademacher_probes(v, probes, seed):
             filtered = relative_wiener(transform, x, variance, p, k=k, exponent=exponents[-1], extra=e).extra
             var_out += (filtered * filtered).sum(axis=0)
         var_out /= probes

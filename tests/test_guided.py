@@ -9,7 +9,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from awr_denoise import SampleBuffer, SampleRequest, reconstruct, reconstruct_detailed
-from awr_denoise.guided import checked_guide, feature_pilot, gated, trust
+from awr_denoise.guided import PROJECTION_SHARE, checked_guide, feature_pilot, gated, trust
 from awr_denoise.metrics import mse, relmse
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
 
@@ -124,7 +124,8 @@ def test_one_guide_pixel_near_overflow_changes_nothing_far_from_it(value):
     clean = reconstruct(buf, guide=scene.reference())
     far = np.ones(out.shape[:2], bool)
     far[:30, :30] = False
-    assert_allclose(out[far], clean[far], rtol=0.05, atol=0.02 * float(np.abs(clean).max()))
+    # measured: at most 5.4e-4 relative (the Wiener stages' kernels reach past the closed gate's window)
+    assert_allclose(out[far], clean[far], rtol=5e-3, atol=0)
 
 
 def test_the_image_mean_is_kept_with_a_guide(rng):
@@ -249,16 +250,15 @@ def test_guide_projection_is_checked_and_recorded():
     ref = scene.reference()
     assert reconstruct_detailed(buf, guide=ref, guide_projection=0.25, variance_probes=0).parameters[
         "guide_projection"] == 0.25
-    assert reconstruct_detailed(buf, guide=ref, variance_probes=0).parameters["guide_projection"] == 0.5
+    assert reconstruct_detailed(buf, guide=ref, variance_probes=0).parameters["guide_projection"] == PROJECTION_SHARE
     assert reconstruct_detailed(buf, variance_probes=0).parameters["guide_projection"] is None
     for bad in (-0.1, 1.5, float("nan"), "half"):
         with pytest.raises((ValueError, TypeError), match="guide_projection"):
             reconstruct(buf, guide=ref, guide_projection=bad)
     with pytest.raises(ValueError, match="guide_projection: 0.5 given without a guide"):
         reconstruct(buf, guide_projection=0.5)
-    # share 0: the Wiener stages alone, and the projection's FFTs are skipped
-    a = reconstruct(buf, guide=ref, guide_projection=0.0)
-    assert not np.array_equal(a, reconstruct(buf, guide=ref))
+    # share 0 is the Wiener stages alone: another image than the default share's
+    assert not np.array_equal(reconstruct(buf, guide=ref, guide_projection=0.0), reconstruct(buf, guide=ref))
 
 
 def test_the_variance_of_a_guided_reconstruction_includes_the_projection():
