@@ -13,8 +13,9 @@ from ._typing import CountArray, FloatArray, Shape2D
 __all__ = ["as_float64", "check_finite", "check_count", "flat_pixel_index"]
 
 
-def as_float64(name: str, array: object, ndim: int) -> FloatArray:
-    """A float64 copy of a numeric array of ``ndim`` dimensions (complex and bool refused)."""
+def as_float64(name: str, array: object, ndim: int, *, copy: bool = True) -> FloatArray:
+    """A float64 copy of a numeric array of ``ndim`` dimensions (complex and bool refused);
+    ``copy=False``: the array itself if it is float64 already."""
     a = np.asarray(array)
     if a.dtype.kind == "c":
         raise TypeError(f"{name}: complex values are not supported")
@@ -22,7 +23,7 @@ def as_float64(name: str, array: object, ndim: int) -> FloatArray:
         raise TypeError(f"{name}: expected a numeric array, got dtype {a.dtype}")
     if a.ndim != ndim:
         raise ValueError(f"{name}: expected {ndim} dimensions, got shape {a.shape}")
-    return a.astype(np.float64, copy=True)
+    return a.astype(np.float64, copy=copy)
 
 
 def check_finite(name: str, a: FloatArray) -> None:

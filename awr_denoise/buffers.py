@@ -22,6 +22,7 @@ from ._arrays import as_float64, check_count, check_finite, flat_pixel_index
 from ._typing import BoolArray, CountArray, FloatArray, Shape2D
 from .channels import channel_count, default_channel_names, luminance_weights, resolve_channels  # noqa: F401 - re-exported
 from .features import FEATURE_CHANNELS, checked_features, map_features, merge_features
+from .merging import merge_moments
 from .pooling import pooled_variance
 
 __all__ = ["SampleBuffer", "VARIANCE_KINDS", "NONFINITE_POLICIES"]
@@ -88,9 +89,13 @@ class SampleBuffer:
     features: Mapping[str, SampleBuffer] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
+        self._settle(copy=True)
+
+    def _settle(self, *, copy: bool) -> None:
+        """Check the fields and freeze them; ``copy=False`` takes float64 arrays nobody else holds as they are."""
         count = check_count(self.count)
-        mean = as_float64("mean", self.mean, 3)
-        variance = as_float64("variance", self.variance, 3)
+        mean = as_float64("mean", self.mean, 3, copy=copy)
+        variance = as_float64("variance", self.variance, 3, copy=copy)
         if mean.shape[:2] != count.shape:
             raise ValueError(f"mean: shape {mean.shape} does not match count {count.shape}")
         if variance.shape != mean.shape:
@@ -118,6 +123,18 @@ class SampleBuffer:
         object.__setattr__(self, "channels", channels)
         object.__setattr__(self, "nonfinite", int(self.nonfinite))
         object.__setattr__(self, "features", checked_features(self, self.features))
+
+    @classmethod
+    def _adopt(cls, count: CountArray, mean: FloatArray, variance: FloatArray, channels: tuple[str, ...],
+               known: BoolArray, nonfinite: int, features: Mapping[str, SampleBuffer]) -> SampleBuffer:
+        """A buffer of float64 ``mean`` and ``variance`` this module has just made: the constructor's
+        checks, without its copies (at 1080p two 50 MB copies per merge)."""
+        out = object.__new__(cls)
+        for name, value in (("count", count), ("mean", mean), ("variance", variance), ("channels", channels),
+                            ("variance_known", known), ("nonfinite", nonfinite), ("features", features)):
+            object.__setattr__(out, name, value)
+        out._settle(copy=False)
+        return out
 
     # ------------------------------------------------------------------ constructors
     @classmethod
@@ -490,31 +507,10 @@ class SampleBuffer:
                 f"{self.shape + (self.n_channels,)}")
         if other.channels != self.channels:
             raise ValueError(f"other: channels {other.channels} do not match {self.channels}")
-        na = self.count[..., None].astype(np.float64)
-        nb = other.count[..., None].astype(np.float64)
-        n = na + nb
-        safe = np.maximum(n, 1.0)
-        # In place (a sampler merges every round of a 1080p or 4K frame); the formulas above, same order and bits.
-        m2 = self.m2
-        m2 += other.m2
-        delta = other.mean - self.mean
-        mean = delta * (nb / safe)
-        mean += self.mean
-        delta *= delta
-        delta *= na * nb / safe
-        m2 += delta
-        del delta
-        m2 /= np.maximum(n - 1.0, 1.0)
-        variance = m2
-        # Where one side has no samples the other side's statistics are the answer: take them
-        # as they are, so merging into an empty buffer (round 0, disjoint tiles) is bit-exact
-        # rather than off by the rounding of variance * (n - 1) / (n - 1).
-        for out, a, b in ((mean, self.mean, other.mean), (variance, self.variance, other.variance)):
-            np.copyto(out, a, where=nb == 0)
-            np.copyto(out, b, where=na == 0)
+        mean, variance = merge_moments(self.count, self.mean, self.variance, other.count, other.mean, other.variance)
         known = (self.variance_known | (self.count < 2)) & (other.variance_known | (other.count < 2))
-        return SampleBuffer(self.count + other.count, mean, variance, self.channels, known,
-                            self.nonfinite + other.nonfinite, merge_features(self, other))
+        return SampleBuffer._adopt(self.count + other.count, mean, variance, self.channels, known,
+                                   self.nonfinite + other.nonfinite, merge_features(self, other))
 
     def crop(self, rows: slice, cols: slice) -> SampleBuffer:
         """The statistics of a rectangular region (a tile), as a new buffer.

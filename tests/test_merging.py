@@ -1,0 +1,56 @@
+"""Tests of awr_denoise.merging: Chan's update, block by block, against the formulas written out."""
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose, assert_array_equal
+
+from awr_denoise import merging
+from awr_denoise.merging import merge_moments
+
+
+def _chan(ca, ma, va, cb, mb, vb):
+    """The update on whole arrays at once, in the same order of operations."""
+    na, nb = ca[..., None].astype(np.float64), cb[..., None].astype(np.float64)
+    n = na + nb
+    safe = np.maximum(n, 1.0)
+    delta = mb - ma
+    mean = delta * (nb / safe) + ma
+    m2 = va * np.maximum(ca - 1, 0)[..., None] + vb * np.maximum(cb - 1, 0)[..., None] + delta * delta * (na * nb / safe)
+    variance = m2 / np.maximum(n - 1.0, 1.0)
+    mean = np.where(na == 0, mb, np.where(nb == 0, ma, mean))
+    variance = np.where(na == 0, vb, np.where(nb == 0, va, variance))
+    return mean, variance
+
+
+@pytest.mark.parametrize("block_bytes", [1, 8 * 29 * 3 * 4, merging.BLOCK_BYTES])
+def test_blocks_give_the_formulas_bits(rng, monkeypatch, block_bytes):
+    """One row per block, four rows per block (the last block short: 23 rows), or one block: the same bits."""
+    monkeypatch.setattr(merging, "BLOCK_BYTES", block_bytes)
+    shape = (23, 29)
+    sides = [(rng.integers(0, 5, shape), rng.lognormal(0, 3, shape + (3,)), rng.lognormal(0, 3, shape + (3,)))
+             for _ in range(2)]
+    mean, variance = merge_moments(*sides[0], *sides[1])
+    want_mean, want_variance = _chan(*sides[0], *sides[1])
+    assert_array_equal(mean.view(np.int64), want_mean.view(np.int64))
+    assert_array_equal(variance.view(np.int64), want_variance.view(np.int64))
+
+
+def test_equals_the_statistics_of_all_samples(rng):
+    samples = rng.normal(3.0, 2.0, (2, 4, 9))  # (H, W, samples)
+    a, b = samples[..., :4], samples[..., 4:]
+    stats = lambda s: (np.full((2, 4), s.shape[-1]), s.mean(-1)[..., None], s.var(-1, ddof=1)[..., None])  # noqa: E731
+    mean, variance = merge_moments(*stats(a), *stats(b))
+    assert_allclose(mean[..., 0], samples.mean(-1), rtol=1e-14)
+    assert_allclose(variance[..., 0], samples.var(-1, ddof=1), rtol=1e-12)
+
+
+def test_an_empty_side_gives_the_other_side_bit_for_bit(rng):
+    shape = (5, 7)
+    count = rng.integers(2, 50, shape)
+    mean, variance = rng.random(shape + (2,)), rng.random(shape + (2,))
+    zeros = np.zeros(shape + (2,))
+    for args in ((np.zeros(shape, np.int64), zeros, zeros, count, mean, variance),
+                 (count, mean, variance, np.zeros(shape, np.int64), zeros, zeros)):
+        got_mean, got_variance = merge_moments(*args)
+        assert_array_equal(got_mean, mean)
+        assert_array_equal(got_variance, variance)
