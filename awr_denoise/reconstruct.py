@@ -35,7 +35,7 @@ from .stationary import DTYPES, stationary_transform
 from .sure import sure_blend
 from .thresholding import threshold_stage
 from .wavelets import DEFAULT_WAVELET, wavelet_operators
-from .wiener import WienerChain, chain
+from .wiener import chain
 
 __all__ = ["reconstruct", "reconstruct_detailed", "Reconstruction", "Settings", "resolve_settings", "later_stages",
            "MODES", "DEFAULT_C_S", "DEFAULT_PILOT_C_S",
@@ -156,9 +156,8 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
                    projection: float) -> tuple[FloatArray, FloatArray | None]:
     """Stages 2.. and the SURE guard on the image brought to unit scale; the probe variance if asked.
 
-    In channel mode with ``parallel`` every channel runs on its own (over ``run``, an
-    executor's map); otherwise, and in luminance mode, the channels run together (the
-    probes' random signs then differ from the parallel run's, the image does not).
+    With ``parallel`` the Wiener stages filter their bands on ``run``'s threads (an executor's
+    map; :func:`~awr_denoise.wiener.chain`), every channel together: the same image, bit for bit.
     """
     scale = prepared.domain.resolved_scale(prepared.mean)
     s = _power_of_two(scale)
@@ -166,18 +165,13 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
     x = prepared.mean / s
     v = prepared.variance / s / s  # not s * s: that underflows for means near 1e-310
     transform = stationary_transform(prepared.mean.shape[:2], wavelet, levels, precision)
-    options = {"k": k, "leverage": guard, "probes": probes, "keep": keep}
-    if luminance is None and parallel:
-        parts = run(lambda c: chain(transform, x[..., c:c + 1], v[..., c:c + 1], pilot[..., c:c + 1] / s, exponents,
-                                     weights=None, shared=None, seed=seed + c, **options), range(x.shape[2]))
-        join = (lambda field: None if getattr(parts[0], field) is None else
-                np.concatenate([getattr(part, field) for part in parts], axis=-1))
-        done = WienerChain(join("image"), join("leverage"), join("variance"))
-    elif luminance is None:  # one call for every channel: each band's transfer functions are built once
-        done = chain(transform, x, v, pilot / s, exponents, weights=None, shared=None, seed=seed, **options)
+    options = {"k": k, "leverage": guard, "probes": probes, "keep": keep, "seed": seed,
+               "run": run if parallel else None}
+    if luminance is None:  # every channel in one call: each band's transfer functions are built once
+        done = chain(transform, x, v, pilot / s, exponents, weights=None, shared=None, **options)
     else:
         done = chain(transform, x, v, pilot / s, exponents, weights=luminance[1],
-                       shared=luminance[0].variance / s / s, seed=seed, **options)
+                     shared=luminance[0].variance / s / s, **options)
     out, var_out, leverage = done.image, done.variance, done.leverage
     if guide is not None and luminance is None:  # channel mode: the means projected on the guide (.guided)
         g = np.where(keep > 0, guide, 0.0) / s  # where the gate is closed a guide may be near overflow

@@ -21,7 +21,7 @@ relMSE measures); ``alpha = 0`` is the linear domain (the error MSE measures).
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import NamedTuple
 
 import numpy as np
@@ -140,8 +140,64 @@ def wiener_filter(transform: StationaryTransform, x: FloatArray, variance: Float
                         None if diagonal is None else _last(diagonal, ndim if np.ndim(variance) == 3 else 2))
 
 
+_PARALLEL_BANDS = 2  # bands filtered at once with ``run``: each holds its own scratch and contributions
+_PARALLEL_PIXELS = 2**18  # below 512x512 a band is too little work for a thread: with ``run``, the bands stay serial
+
+
+class _Scratch:
+    """One band's working planes; with ``slots``, every contribution spectrum also gets its own."""
+
+    def __init__(self, t: StationaryTransform, n_factors: int, shapes: dict | None) -> None:
+        self.work = np.empty(t.shape[:1] + (t.shape[1] // 2 + 1,), np.complex64 if t.dtype == np.float32
+                             else np.complex128)
+        self.factors = np.empty((n_factors,) + t.shape, t.dtype)  # one per pilot plane
+        self.noise, self.coeff = np.empty(t.shape, t.dtype), np.empty(t.shape, t.dtype)
+        self.slots = None if shapes is None else {kind: np.empty(shape, self.work.dtype)
+                                                  for kind, shape in shapes.items()}
+
+    def target(self, kind: str, index: tuple) -> np.ndarray:
+        """Where a contribution is written: its own slot, or the shared ``work`` plane."""
+        return self.work if self.slots is None else self.slots[kind][index]
+
+
+def _band(t: StationaryTransform, b: int, spectra: tuple, leverage: bool, scratch: _Scratch,
+          add: Callable[[str, tuple, np.ndarray], None]) -> None:
+    """Band ``b``'s Wiener factors and contributions (``add(kind, index, spectrum)``, in a fixed order).
+
+    Kinds: ``"d"`` the diagonal's share (per factor plane), ``"x"`` the scaled image (per
+    channel), ``"e"`` the scaled probes (per probe and channel).
+    """
+    spec_x, spec_v, spec_p, spec_e = spectra
+    a, s, squared = t.analysis(b), t.synthesis(b), t.squared(b)
+    work, noise, coeff = scratch.work, scratch.noise, scratch.coeff
+    tiny = np.finfo(t.dtype).tiny  # factor 1 where the variance is 0; ~0 where the pilot is 0
+
+    def scaled(spectrum: np.ndarray, factor: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """The spectrum of one plane's band coefficients times ``factor``, taken back by ``s``, in ``out``."""
+        t.planes(np.multiply(spectrum, a, out=work), overwrite=True, out=coeff)
+        np.multiply(coeff, factor, out=coeff)
+        return _times(t.spectrum(coeff, out=out), s)
+
+    for c, factor in enumerate(scratch.factors):
+        t.planes(np.multiply(spec_p[c], a, out=work), overwrite=True, out=factor)
+        np.multiply(factor, factor, out=factor)
+        factor += tiny
+        t.planes(np.multiply(spec_v[c], squared, out=work), overwrite=True, out=noise)
+        np.maximum(noise, 0.0, out=noise)  # FFT rounding around exact zeros
+        noise += factor
+        np.divide(factor, noise, out=factor)
+        if leverage:
+            add("d", (c,), _times(t.spectrum(factor, out=scratch.target("d", (c,))), t.diagonal(b)))
+    for c in range(spec_x.shape[0]):
+        factor = scratch.factors[c if len(scratch.factors) > 1 else 0]
+        add("x", (c,), scaled(spec_x[c], factor, scratch.target("x", (c,))))
+        if spec_e is not None:
+            for n in range(spec_e.shape[0]):
+                add("e", (n, c), scaled(spec_e[n, c], factor, scratch.target("e", (n, c))))
+
+
 def _filter(t: StationaryTransform, planes: list[np.ndarray], es: np.ndarray | None,
-            leverage: bool) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+            leverage: bool, run: Callable | None = None) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """:func:`wiener_filter` on (C, H, W) planes in the transform's precision.
 
     ``planes`` is ``[xs, vs, ps]`` (``vs``, ``ps``: C or 1 planes); it is emptied once their
@@ -150,46 +206,45 @@ def _filter(t: StationaryTransform, planes: list[np.ndarray], es: np.ndarray | N
     FFT (the scaled coefficients) per plane, one more forward FFT with ``leverage``. The work
     between them runs one plane at a time in buffers reused from band to band: at 1080p or 4K
     the whole-image spectra are what memory holds, not one temporary per channel and step.
+
+    With ``run`` (an executor's map) :data:`_PARALLEL_BANDS` bands at a time run on its threads,
+    each in its own buffers; their contributions are summed in band order, so the result is
+    the same, bit for bit, as without (at the cost of those bands' buffers in memory). Below
+    :data:`_PARALLEL_PIXELS` the bands run serially all the same (threads measured slower there:
+    ``benchmarks/bench_reconstruct.py speed``, docs/performance.md, Threads).
     """
     spec_x, spec_v, spec_p = (t.spectrum(a) for a in planes)
     planes.clear()
     spec_e = None if es is None else t.spectrum(es)
     keep = t.analysis(0) * t.synthesis(0)
-    total = spec_x * keep
-    total_e = None if spec_e is None else spec_e * keep
-    # The scale band's factor is 1: its share of the diagonal is h_0's sum, a constant.
-    total_d = None if not leverage else np.zeros_like(spec_v) + t.spectrum(np.ones(t.shape)) * t.diagonal(0)
-    tiny = np.finfo(t.dtype).tiny  # factor 1 where the variance is 0; ~0 where the pilot is 0
-    work = np.empty(spec_x.shape[-2:], spec_x.dtype)
-    factors = np.empty((spec_p.shape[0],) + t.shape, t.dtype)  # one per pilot plane
-    noise, coeff = np.empty(t.shape, t.dtype), np.empty(t.shape, t.dtype)
+    totals = {"x": spec_x * keep, "e": None if spec_e is None else spec_e * keep,
+              # The scale band's factor is 1: its share of the diagonal is h_0's sum, a constant.
+              "d": None if not leverage else np.zeros_like(spec_v) + t.spectrum(np.ones(t.shape)) * t.diagonal(0)}
+    spectra = (spec_x, spec_v, spec_p, spec_e)
 
-    def scaled(spectrum: np.ndarray, a: np.ndarray, factor: np.ndarray, s: np.ndarray) -> np.ndarray:
-        """The spectrum of one plane's band coefficients times ``factor``, taken back by ``s``, in ``work``."""
-        t.planes(np.multiply(spectrum, a, out=work), overwrite=True, out=coeff)
-        np.multiply(coeff, factor, out=coeff)
-        return _times(t.spectrum(coeff, out=work), s)
+    def add(kind: str, index: tuple, spectrum: np.ndarray) -> None:
+        totals[kind][index] += spectrum
 
-    for b in range(1, len(t.bands)):
-        a, s, squared = t.analysis(b), t.synthesis(b), t.squared(b)
-        for c, factor in enumerate(factors):
-            t.planes(np.multiply(spec_p[c], a, out=work), overwrite=True, out=factor)
-            np.multiply(factor, factor, out=factor)
-            factor += tiny
-            t.planes(np.multiply(spec_v[c], squared, out=work), overwrite=True, out=noise)
-            np.maximum(noise, 0.0, out=noise)  # FFT rounding around exact zeros
-            noise += factor
-            np.divide(factor, noise, out=factor)
-            if total_d is not None:
-                total_d[c] += _times(t.spectrum(factor, out=work), t.diagonal(b))
-        for c in range(spec_x.shape[0]):
-            factor = factors[c if len(factors) > 1 else 0]
-            total[c] += scaled(spec_x[c], a, factor, s)
-            if spec_e is not None:
-                for n in range(spec_e.shape[0]):
-                    total_e[n, c] += scaled(spec_e[n, c], a, factor, s)  # type: ignore[index]
-    return (t.planes(total, overwrite=True), None if total_e is None else t.planes(total_e, overwrite=True),
-            None if total_d is None else t.planes(total_d, overwrite=True))
+    bands = range(1, len(t.bands))
+    if run is None or t.shape[0] * t.shape[1] < _PARALLEL_PIXELS:
+        scratch = _Scratch(t, spec_p.shape[0], None)
+        for b in bands:
+            _band(t, b, spectra, leverage, scratch, add)
+    else:
+        shapes = {kind: total.shape for kind, total in totals.items() if total is not None}
+
+        def one(b: int) -> _Scratch:
+            scratch = _Scratch(t, spec_p.shape[0], shapes)
+            _band(t, b, spectra, leverage, scratch, lambda *_: None)
+            return scratch
+
+        for start in range(1, len(t.bands), _PARALLEL_BANDS):
+            for scratch in run(one, range(start, min(start + _PARALLEL_BANDS, len(t.bands)))):
+                assert scratch.slots is not None
+                for kind, slots in scratch.slots.items():
+                    totals[kind] += slots  # per band, every plane of a kind in one sum: the same bits
+    done = {kind: None if total is None else t.planes(total, overwrite=True) for kind, total in totals.items()}
+    return done["x"], done["e"], done["d"]
 
 
 def stage_weights(pilot: FloatArray, k: float, exponent: float, *, dtype: str | np.dtype = "float64") -> FloatArray:
@@ -215,8 +270,8 @@ def stage_weights(pilot: FloatArray, k: float, exponent: float, *, dtype: str | 
 
 
 def relative_wiener(transform: StationaryTransform, x: FloatArray, variance: FloatArray, pilot: FloatArray, *,
-                    k: float, exponent: float, extra: FloatArray | None = None, leverage: bool = False
-                    ) -> WienerResult:
+                    k: float, exponent: float, extra: FloatArray | None = None, leverage: bool = False,
+                    run: Callable | None = None) -> WienerResult:
     """One Wiener stage in the domain ``x / w``, ``w = (|pilot| + k)^exponent`` (module docstring).
 
     Parameters
@@ -235,6 +290,9 @@ def relative_wiener(transform: StationaryTransform, x: FloatArray, variance: Flo
         epsilon); must be > 0.
     exponent
         ``alpha`` in [0, 1]: 0 is the linear domain, 1 the ratio to the pilot.
+    run
+        ``run(f, items)``, an executor's map: bands in parallel on its threads, the same result
+        bit for bit (more memory: each band in flight holds its own planes).
 
     Returns
     -------
@@ -280,7 +338,7 @@ def relative_wiener(transform: StationaryTransform, x: FloatArray, variance: Flo
         es /= w
     planes = [xs, vs, pilot_planes]
     del xs, vs, pilot_planes  # _filter frees them once it has their spectra
-    out, out_e, diagonal = _filter(t, planes, es, leverage)
+    out, out_e, diagonal = _filter(t, planes, es, leverage, run)
     out *= w
     if out_e is not None:
         out_e *= w
@@ -324,7 +382,7 @@ def rademacher_probes(v: FloatArray, probes: int, seed: int) -> Iterator[np.ndar
 def chain(transform: StationaryTransform, x: FloatArray, v: FloatArray, pilot: FloatArray,
           exponents: tuple[float, ...], *, k: float, weights: FloatArray | None = None,
           shared: FloatArray | None = None, leverage: bool = False, probes: int = 0, seed: int = 0,
-          keep: FloatArray | float = 0.0) -> WienerChain:
+          keep: FloatArray | float = 0.0, run: Callable | None = None) -> WienerChain:
     """Every Wiener stage in turn (:func:`relative_wiener`, one ``exponent`` each), each stage's
     result the next one's pilot, on (H, W, C) planes at unit scale.
 
@@ -332,6 +390,7 @@ def chain(transform: StationaryTransform, x: FloatArray, v: FloatArray, pilot: F
     guide's, :func:`~awr_denoise.guided.pilots`). With luminance ``weights`` (and the luminance
     variance ``shared``) the factors come from luminance, one set for every channel. With
     ``probes``, the last stage's output variance is estimated by :func:`rademacher_probes`.
+    ``run`` (an executor's map) filters bands in parallel (:func:`relative_wiener`).
 
     Examples
     --------
@@ -353,15 +412,15 @@ def chain(transform: StationaryTransform, x: FloatArray, v: FloatArray, pilot: F
     out = pilot
     for exponent in exponents[:-1]:
         out = relative_wiener(transform, x, v if shared is None else shared, out if weights is None else out @ weights,
-                              k=k, exponent=exponent).image * (1 - keep) + keep * pilot
+                              k=k, exponent=exponent, run=run).image * (1 - keep) + keep * pilot
     p = out if weights is None else out @ weights
     variance = v if shared is None else shared
-    result = relative_wiener(transform, x, variance, p, k=k, exponent=exponents[-1], leverage=leverage)
+    result = relative_wiener(transform, x, variance, p, k=k, exponent=exponents[-1], leverage=leverage, run=run)
     var_out = None
     if probes:
         var_out = np.zeros_like(x)
         for e in rademacher_probes(v, probes, seed):
-            filtered = relative_wiener(transform, x, variance, p, k=k, exponent=exponents[-1], extra=e).extra
+            filtered = relative_wiener(transform, x, variance, p, k=k, exponent=exponents[-1], extra=e, run=run).extra
             var_out += (filtered * filtered).sum(axis=0)
         var_out /= probes
     lev = result.leverage

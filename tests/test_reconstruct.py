@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from awr_denoise import SampleBuffer, SampleRequest, reconstruct, reconstruct_detailed
+from awr_denoise import SampleBuffer, SampleRequest, reconstruct, reconstruct_detailed, wiener
 from awr_denoise.channels import luminance_weights
 from awr_denoise.domains import DOMAIN_NAMES, Domain
 from awr_denoise.metrics import mse, relmse
@@ -131,7 +131,12 @@ def test_channels_are_independent_in_channel_mode(rng):
     assert_allclose(reconstruct(buf, domain=d)[..., 1], reconstruct(single, domain=d)[..., 0], rtol=1e-12)
 
 
-def test_executor_gives_the_same_result(rng):
+@pytest.mark.parametrize("threaded_bands", [False, True])
+def test_executor_gives_the_same_result(rng, monkeypatch, threaded_bands):
+    """Stage 1's channels and (from 512x512 on; here with the threshold lowered) the Wiener
+    stages' bands on the executor's threads: the same image and variance, bit for bit."""
+    if threaded_bands:
+        monkeypatch.setattr(wiener, "_PARALLEL_PIXELS", 1)
     buf = _noisy_buffer(rng)
     with ThreadPoolExecutor(2) as pool:
         threaded = reconstruct_detailed(buf, executor=pool, variance_probes=3)
