@@ -157,7 +157,8 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
     """Stages 2.. and the SURE guard on the image brought to unit scale; the probe variance if asked.
 
     With ``parallel`` the Wiener stages filter their bands on ``run``'s threads (an executor's
-    map; :func:`~awr_denoise.wiener.chain`), every channel together: the same image, bit for bit.
+    map; :func:`~awr_denoise.wiener.chain`), every channel together, and the guard's two criteria
+    run side by side: the same image, bit for bit.
     """
     scale = prepared.domain.resolved_scale(prepared.mean)
     s = _power_of_two(scale)
@@ -180,7 +181,7 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
     if guard:
         assert leverage is not None
         if luminance is None:
-            out, lam = sure_blend(out, x, v, leverage, k=k)
+            out, lam = sure_blend(out, x, v, leverage, k=k, run=options["run"])
         else:  # one share for every channel, decided on luminance: hue is kept
             weights = luminance[1]
             _, lam = sure_blend(out @ weights, x @ weights, luminance[0].variance / s / s, leverage[..., 0], k=k)

@@ -26,6 +26,8 @@ samples grow, the blend tends to the mean wherever the estimate's bias does not 
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from scipy import ndimage
 
@@ -39,7 +41,7 @@ DEFAULT_WINDOW = 9
 
 
 def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, leverage: FloatArray, *, k: float,
-               window: int = DEFAULT_WINDOW) -> tuple[FloatArray, FloatArray]:
+               window: int = DEFAULT_WINDOW, run: Callable | None = None) -> tuple[FloatArray, FloatArray]:
     """``mean + lambda (estimate - mean)`` with ``lambda`` from SURE (module docstring).
 
     Parameters
@@ -54,6 +56,9 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
         Offset of the relative criterion's weights ``1 / (|o| + k)^2``; must be > 0.
     window
         Side of the neighbourhood sharing one ``lambda`` (odd, >= 1).
+    run
+        ``run(f, items)``, an executor's map: the two criteria's window sums on its threads (the
+        same bits; two more whole arrays alive at once).
 
     Returns
     -------
@@ -112,19 +117,26 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
         num[np.isnan(num) | np.isposinf(num)] = 1.0
         return np.clip(num, 0.0, 1.0, out=num)
 
+    def relative_sums() -> tuple[FloatArray, FloatArray]:
+        weights = np.abs(o)  # the relative criterion's weights 1 / (|o| + k)^2
+        weights += k
+        np.square(weights, out=weights)
+        np.divide(1.0, weights, out=weights)
+        weighted_gain = gain()
+        weighted_gain *= weights
+        squared = change * change
+        squared *= weights
+        return weighted_gain, squared
+
     # The squared-error criterion's weights are 1: its sums need no product.
-    lam = share(gain(), change * change)
-    relative = np.abs(o)  # the relative criterion's weights 1 / (|o| + k)^2
-    relative += k
-    np.square(relative, out=relative)
-    np.divide(1.0, relative, out=relative)
-    weighted_gain = gain()
-    weighted_gain *= relative
-    squared = change * change
-    squared *= relative
-    del relative
-    np.minimum(lam, share(weighted_gain, squared), out=lam)
-    del weighted_gain, squared
+    if run is None:
+        lam = share(gain(), change * change)
+        np.minimum(lam, share(*relative_sums()), out=lam)
+    else:
+        pairs = [(gain(), change * change), relative_sums()]
+        absolute, relative = run(lambda pair: share(*pair), pairs)
+        del pairs
+        lam = np.minimum(absolute, relative, out=absolute)
     change *= lam
     change += x
     return change, lam
