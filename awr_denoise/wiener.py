@@ -232,14 +232,16 @@ def _filter(t: StationaryTransform, planes: list[np.ndarray], es: np.ndarray | N
             _band(t, b, spectra, leverage, scratch, add)
     else:
         shapes = {kind: total.shape for kind, total in totals.items() if total is not None}
+        # One set of buffers per band in flight, reused from pair to pair: fresh ones for every
+        # band would cost the kernel's zeroing of their pages each time.
+        scratches = [_Scratch(t, spec_p.shape[0], shapes) for _ in range(_PARALLEL_BANDS)]
 
-        def one(b: int) -> _Scratch:
-            scratch = _Scratch(t, spec_p.shape[0], shapes)
-            _band(t, b, spectra, leverage, scratch, lambda *_: None)
-            return scratch
+        def one(job: tuple[int, _Scratch]) -> _Scratch:
+            _band(t, job[0], spectra, leverage, job[1], lambda *_: None)
+            return job[1]
 
         for start in range(1, len(t.bands), _PARALLEL_BANDS):
-            for scratch in run(one, range(start, min(start + _PARALLEL_BANDS, len(t.bands)))):
+            for scratch in run(one, list(zip(range(start, min(start + _PARALLEL_BANDS, len(t.bands))), scratches))):
                 assert scratch.slots is not None
                 for kind, slots in scratch.slots.items():
                     totals[kind] += slots  # per band, every plane of a kind in one sum: the same bits

@@ -120,7 +120,8 @@ def _interleaved(cases: dict, repeats: int) -> dict:
 def _memory_child(size: str, case: str) -> None:
     """In a fresh process: tracemalloc peak above the built buffer, and the process' peak RSS."""
     buf = noisy_buffer(OVERHEAD_SIZES[size], smooth=0.0, noise=0.0)
-    fn = _cases(buf, None)[case]  # the ask() case builds its sampler here, before the peak is measured
+    pool = ThreadPoolExecutor(2) if case.startswith("2threads:") else None
+    fn = _cases(buf, pool)[case.split(":")[-1]]  # the ask() case builds its sampler here, before the peak
     base_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     _, peak = peak_memory(fn)
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
@@ -157,7 +158,7 @@ def speed(sizes: list[str], repeats: int = 5) -> list[dict]:
                "x_floor_1core": {k: v / t1["floor"] for k, v in t1.items()},
                "x_floor_2threads": {k: v / t1["floor"] for k, v in t2.items()}}
         mem = {case: _memory(name, case) for case in ("reconstruct_stages1", "reconstruct_stages1_float64",
-                                                      "reconstruct_default", "ask")}
+                                                      "reconstruct_default", "ask", "2threads:reconstruct_default")}
         # maxrss_before: the process' peak once the synthetic buffer is built (its float64
         # temporaries often set the peak); the call's own peak is the tracemalloc figure.
         row["memory"] = {case: {"tracemalloc_peak_x_input": m["tracemalloc_peak"] / m["input"],
@@ -175,7 +176,7 @@ def speed(sizes: list[str], repeats: int = 5) -> list[dict]:
               f"{t2['reconstruct_default']:.3f} s ({x2['reconstruct_default']:.1f}x) | "
               + " | ".join(f"{row['memory'][c]['tracemalloc_peak_x_input']:.1f}x"
                            for c in ("reconstruct_stages1", "reconstruct_stages1_float64", "reconstruct_default",
-                                     "ask")) + " |", flush=True)
+                                     "ask", "2threads:reconstruct_default")) + " |", flush=True)
     return rows
 
 
@@ -419,7 +420,8 @@ SECTIONS = {
     "speed": ("Speed against the PyWavelets floor (medians of interleaved repeats; x floor of the same run) "
               "and peak memory (tracemalloc, x input buffer)",
               "| size | input buffer | floor | stages=1 | stages=1 float64 | default | ask() | tell() | stages=1, 2 threads "
-              "| default, 2 threads | stages=1 peak | stages=1 float64 peak | default peak | ask() peak |",
+              "| default, 2 threads | stages=1 peak | stages=1 float64 peak | default peak | ask() peak "
+              "| default, 2 threads, peak |",
               lambda quick: speed(["256x256"] if quick else SPEED_SIZES)),
     "fft_budget": ("The default reconstruction's FFTs against the floor (one core)",
                    "| size | plane FFTs (forward + inverse) | one forward + inverse pair | floor | FFTs alone |",
