@@ -35,7 +35,7 @@ from .stationary import DTYPES, stationary_transform
 from .sure import sure_blend
 from .thresholding import threshold_stage
 from .wavelets import DEFAULT_WAVELET, wavelet_operators
-from .wiener import chain
+from .wiener import DEFAULT_FLOOR, chain
 
 __all__ = ["reconstruct", "reconstruct_detailed", "Reconstruction", "Settings", "resolve_settings", "later_stages",
            "MODES", "DEFAULT_C_S", "DEFAULT_PILOT_C_S",
@@ -153,7 +153,7 @@ def _wiener_levels(levels: int) -> int:
 def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float, ...], *, levels: int, wavelet: str,
                    precision: str, luminance: tuple[Prepared, FloatArray] | None, guard: bool, probes: int, seed: int,
                    run: Callable, parallel: bool, keep: FloatArray | float, guide: FloatArray | None,
-                   projection: float) -> tuple[FloatArray, FloatArray | None]:
+                   projection: float, floor: bool = True) -> tuple[FloatArray, FloatArray | None]:
     """Stages 2.. and the SURE guard on the image brought to unit scale; the probe variance if asked.
 
     With ``parallel`` the Wiener stages filter their bands on ``run``'s threads (an executor's
@@ -168,8 +168,10 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
     transform = stationary_transform(prepared.mean.shape[:2], wavelet, levels, precision)
     options = {"k": k, "leverage": guard, "probes": probes, "keep": keep, "seed": seed,
                "run": run if parallel else None}
+    # The first Wiener stage's energy floor needs each channel's own factors: channel mode only.
+    floor_setting = DEFAULT_FLOOR if floor and luminance is None else None
     if luminance is None:  # every channel in one call: each band's transfer functions are built once
-        done = chain(transform, x, v, pilot / s, exponents, weights=None, shared=None, **options)
+        done = chain(transform, x, v, pilot / s, exponents, weights=None, shared=None, floor=floor_setting, **options)
     else:
         done = chain(transform, x, v, pilot / s, exponents, weights=luminance[1],
                      shared=luminance[0].variance / s / s, **options)
@@ -207,6 +209,7 @@ class Settings:
     precision: str
     probes: int
     seed: int
+    floor: bool = True  # the first Wiener stage's energy floor (wiener.DEFAULT_FLOOR; channel mode)
 
     @property
     def stage1_clamp(self) -> float | None:
@@ -289,7 +292,8 @@ def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | N
         image, variance = _wiener_stages(prepared, image, settings.exponents, levels=_wiener_levels(levels),
                                          wavelet=wavelet, precision=settings.precision, luminance=luminance,
                                          guard=settings.guard, probes=settings.probes, seed=settings.seed, run=run,
-                                         parallel=parallel, keep=keep, guide=guide, projection=projection)
+                                         parallel=parallel, keep=keep, guide=guide, projection=projection,
+                                         floor=settings.floor)
         if settings.pixel_clamp is not None:
             lum = None if luminance is None else luminance[0]
             image, moved = pooled_clamp(image, prepared.mean if lum is None else lum.mean,

@@ -22,6 +22,7 @@ much. Results: ``benchmarks/results/reconstruct.json``.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -77,7 +78,17 @@ def clamped_pilot(buffer: SampleBuffer) -> np.ndarray:
     return later_stages(prepared, stage.image, None, settings, levels=ops.levels, wavelet=ops.wavelet)[0]
 
 
-COMPARED: dict[str, Any] = {"pilot clamped": clamped_pilot}
+def no_energy_floor(buffer: SampleBuffer) -> np.ndarray:
+    """The default as it was before the first Wiener stage's energy floor (wiener.DEFAULT_FLOOR)."""
+    settings = dataclasses.replace(resolve_settings(), floor=False)
+    prepared = prepare(buffer, DEFAULT_DOMAIN)
+    ops = wavelet_operators(buffer.shape)
+    stage = threshold_stage(prepared, ops, settings.c_s, pixel_clamp=settings.stage1_clamp,
+                            precision=settings.precision)
+    return later_stages(prepared, stage.image, None, settings, levels=ops.levels, wavelet=ops.wavelet)[0]
+
+
+COMPARED: dict[str, Any] = {"pilot clamped": clamped_pilot, "no energy floor": no_energy_floor}
 """``quality --compare``: earlier forms of the default, measured beside it."""
 
 

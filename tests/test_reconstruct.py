@@ -3,6 +3,7 @@ and quality on known scenes."""
 
 from __future__ import annotations
 
+import dataclasses
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -539,3 +540,23 @@ def test_the_reported_variance_covers_the_last_stage_only():
 def test_bad_stage_arguments_are_refused(rng, kwargs, error, message):
     with pytest.raises(error, match=message):
         reconstruct(_noisy_buffer(rng), **kwargs)
+
+
+def test_the_energy_floor_acts_in_channel_mode_only(rng):
+    """The first Wiener stage's energy floor (Settings.floor, on by default) changes channel mode's
+    image and leaves luminance mode's (shared factors) as it is."""
+    buf = _noisy_buffer(rng)
+    for mode, changes in (("channels", True), ("luminance", False)):
+        prepared = prepare(buf, "log")
+        ops = wavelet_operators(buf.shape)
+        settings = resolve_settings()
+        lum = None
+        if mode == "luminance":
+            weights = luminance_weights(buf.channels)
+            lum = (prepare(buf, prepared.domain, luminance=True), weights)
+        stage = threshold_stage(prepared, ops, settings.c_s, mode=mode, precision=settings.precision,
+                                luminance=None if lum is None else lum[0], weights=None if lum is None else lum[1])
+        on, off = (later_stages(prepared, stage.image, None, s, levels=ops.levels, wavelet=ops.wavelet,
+                                luminance=lum)[0]
+                   for s in (settings, dataclasses.replace(settings, floor=False)))
+        assert settings.floor and (not np.array_equal(on, off)) == changes, mode

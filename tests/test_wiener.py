@@ -7,6 +7,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
+from scipy import ndimage
 
 from awr_denoise import wiener
 from awr_denoise.stationary import StationaryTransform
@@ -193,3 +194,64 @@ def test_small_images_keep_their_bands_serial(rng):
         raise AssertionError("run called")
     out = relative_wiener(t, x, x * 0.01, x, k=0.1, exponent=0.5, run=run)
     assert_array_equal(out.image, relative_wiener(t, x, x * 0.01, x, k=0.1, exponent=0.5).image)
+
+
+# ---------------------------------------------------------------------------- the energy floor
+def test_the_floor_is_the_local_evidence_formula(rng):
+    """Two levels, bior4.4, exponent 0 (the linear domain): every detail coefficient times
+    Q^2 / (Q^2 + Delta^2), Q^2 = max(P^2, box5(X^2 - 2 Delta^2)) on the periodic canvas, by hand."""
+    t = StationaryTransform(SHAPE, levels=2)
+    clean, noisy, variance = _scene(rng, channels=1)
+    pilot = 0.5 * clean  # a pilot short of the signal, as a thresholded one is
+    x, p, v = t.forward(noisy), t.forward(pilot), t.variance(variance)
+    bands = []
+    for level in range(1, 3):
+        level_bands = []
+        for xb, pb, vb in zip(x[level], p[level], v[level]):
+            evidence = ndimage.uniform_filter(xb * xb - 2.0 * vb, 5, mode="wrap")
+            q = np.maximum(pb * pb, evidence)
+            level_bands.append(xb * q / (q + vb))
+        bands.append(tuple(level_bands))
+    want = t.inverse([x[0]] + bands)
+    got = relative_wiener(t, noisy, variance, pilot, k=0.1, exponent=0.0, floor=(5, 2.0)).image
+    assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+    # The floor only ever raises a factor: without it the short pilot shrinks more.
+    plain = relative_wiener(t, noisy, variance, pilot, k=0.1, exponent=0.0).image
+    assert np.abs(got - noisy).mean() < np.abs(plain - noisy).mean()
+
+
+def test_the_floor_needs_each_channels_own_factors(rng, transform):
+    x = rng.random(SHAPE + (3,))
+    with pytest.raises(ValueError, match="floor: needs one pilot and variance plane per channel"):
+        relative_wiener(transform, x, x[..., 0] * 0.01, x[..., 0], k=0.1, exponent=0.5, floor=(5, 2.0))
+
+
+def test_the_floor_on_threads_gives_the_same_bits(rng, monkeypatch):
+    monkeypatch.setattr(wiener, "_PARALLEL_PIXELS", 1)
+    t = StationaryTransform((40, 36), levels=3, dtype="float32")
+    x = rng.lognormal(0, 1, (40, 36, 3))
+    v = rng.random(x.shape) * 0.1
+    serial = relative_wiener(t, x, v, 0.5 * x, k=0.1, exponent=0.5, leverage=True, floor=(5, 2.0))
+    with ThreadPoolExecutor(2) as pool:
+        threaded = relative_wiener(t, x, v, 0.5 * x, k=0.1, exponent=0.5, leverage=True, floor=(5, 2.0),
+                                   run=lambda f, items: list(pool.map(f, items)))
+    assert serial.extra is None and threaded.extra is None
+    for a, b in ((serial.image, threaded.image), (serial.leverage, threaded.leverage)):
+        assert_array_equal(a.view(np.int64), b.view(np.int64))
+
+
+@pytest.mark.parametrize("exponents", [(0.75, 0.4), (0.75, 0.5, 0.4), (0.4,)])
+def test_the_chain_floors_its_first_stage_only_and_only_when_stages_follow(rng, monkeypatch, exponents):
+    calls = []
+    original = wiener.relative_wiener
+
+    def spy(*args, **kwargs):
+        calls.append(kwargs.get("floor"))
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(wiener, "relative_wiener", spy)
+    x = rng.random(SHAPE + (2,)) + 0.5
+    wiener.chain(StationaryTransform(SHAPE, levels=2), x, x * 0.01, x, exponents, k=0.1, leverage=True,
+                 probes=2, floor=(5, 2.0))
+    floored = (5, 2.0) if len(exponents) > 1 else None
+    assert calls == [floored] + [None] * (len(exponents) - 2 + 1 + 1)  # later stages, then the probes' call
