@@ -153,7 +153,8 @@ def _wiener_levels(levels: int) -> int:
 def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float, ...], *, levels: int, wavelet: str,
                    precision: str, luminance: tuple[Prepared, FloatArray] | None, guard: bool, probes: int, seed: int,
                    run: Callable, parallel: bool, keep: FloatArray | float, guide: FloatArray | None,
-                   projection: float, floor: bool = True) -> tuple[FloatArray, FloatArray | None]:
+                   projection: float, floor: tuple[int, float] | None = DEFAULT_FLOOR
+                   ) -> tuple[FloatArray, FloatArray | None]:
     """Stages 2.. and the SURE guard on the image brought to unit scale; the probe variance if asked.
 
     With ``parallel`` the Wiener stages filter their bands on ``run``'s threads (an executor's
@@ -169,7 +170,7 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
     options = {"k": k, "leverage": guard, "probes": probes, "keep": keep, "seed": seed,
                "run": run if parallel else None}
     # The first Wiener stage's energy floor needs each channel's own factors: channel mode only.
-    floor_setting = DEFAULT_FLOOR if floor and luminance is None else None
+    floor_setting = floor if luminance is None else None
     if luminance is None:  # every channel in one call: each band's transfer functions are built once
         done = chain(transform, x, v, pilot / s, exponents, weights=None, shared=None, floor=floor_setting, **options)
     else:
@@ -209,7 +210,7 @@ class Settings:
     precision: str
     probes: int
     seed: int
-    floor: bool = True  # the first Wiener stage's energy floor (wiener.DEFAULT_FLOOR; channel mode)
+    floor: tuple[int, float] | None = DEFAULT_FLOOR  # the first Wiener stage's (window, margin); channel mode
 
     @property
     def stage1_clamp(self) -> float | None:

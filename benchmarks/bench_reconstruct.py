@@ -78,18 +78,23 @@ def clamped_pilot(buffer: SampleBuffer) -> np.ndarray:
     return later_stages(prepared, stage.image, None, settings, levels=ops.levels, wavelet=ops.wavelet)[0]
 
 
-def no_energy_floor(buffer: SampleBuffer) -> np.ndarray:
-    """The default as it was before the first Wiener stage's energy floor (wiener.DEFAULT_FLOOR)."""
-    settings = dataclasses.replace(resolve_settings(), floor=False)
-    prepared = prepare(buffer, DEFAULT_DOMAIN)
-    ops = wavelet_operators(buffer.shape)
-    stage = threshold_stage(prepared, ops, settings.c_s, pixel_clamp=settings.stage1_clamp,
-                            precision=settings.precision)
-    return later_stages(prepared, stage.image, None, settings, levels=ops.levels, wavelet=ops.wavelet)[0]
+def with_floor(floor: tuple[int, float] | None) -> Any:
+    """The default with the first Wiener stage's energy floor ``(window, margin)``, or none."""
+    def run(buffer: SampleBuffer) -> np.ndarray:
+        settings = dataclasses.replace(resolve_settings(), floor=floor)
+        prepared = prepare(buffer, DEFAULT_DOMAIN)
+        ops = wavelet_operators(buffer.shape)
+        stage = threshold_stage(prepared, ops, settings.c_s, pixel_clamp=settings.stage1_clamp,
+                                precision=settings.precision)
+        return later_stages(prepared, stage.image, None, settings, levels=ops.levels, wavelet=ops.wavelet)[0]
+    return run
 
 
-COMPARED: dict[str, Any] = {"pilot clamped": clamped_pilot, "no energy floor": no_energy_floor}
+COMPARED: dict[str, Any] = {"pilot clamped": clamped_pilot, "no energy floor": with_floor(None)}
 """``quality --compare``: earlier forms of the default, measured beside it."""
+FLOORS: dict[str, Any] = {"energy floor 3x3": with_floor((3, 2.0)), "energy floor 7x7": with_floor((7, 2.0)),
+                          "energy floor margin 1.5": with_floor((5, 1.5)), "energy floor margin 3": with_floor((5, 3.0))}
+"""``quality --floors``: the first Wiener stage's energy floor at other windows and margins than (5, 2)."""
 
 
 # ---------------------------------------------------------------------------- buffers
@@ -216,7 +221,7 @@ def quality_tables(rows: list[dict], method: str = "default", base: str = "stage
         print(f"| {scene} | {' / '.join(f'{g:.2f}' for g in gains)} | {m:.2f} | {r:.2f} |")
     every = [g for _, gains, _, _ in summary for g in gains]
     print(f"\ngeometric mean of the gain at 8-32 spp: {np.exp(np.mean(np.log(every))):.2f}, least {min(every):.2f}")
-    for other in (m for m in (*CHEAPER, *COMPARED) if any(r["method"] == m for r in rows)):
+    for other in (m for m in (*CHEAPER, *COMPARED, *FLOORS) if any(r["method"] == m for r in rows)):
         cheaper_table(rows, other, method)
 
 
@@ -433,11 +438,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=0, help="speed: rounds per size (default 9, 3 at 1080p)")
     parser.add_argument("--cheaper", action="store_true", help="quality: also the cheaper variants (CHEAPER)")
     parser.add_argument("--compare", action="store_true", help="quality: also earlier forms of the default (COMPARED)")
+    parser.add_argument("--floors", action="store_true", help="quality: also other energy floors (FLOORS)")
     args = parser.parse_args(argv)
     command = recorded_command("bench_reconstruct.py", argv)
     if args.section == "quality":
         rows = quality(quality_scenes(args.scenes), tuple(args.spps), args.groups or 4, args.cache,
-                       {**METHODS, **(CHEAPER if args.cheaper else {}), **(COMPARED if args.compare else {})})
+                       {**METHODS, **(CHEAPER if args.cheaper else {}), **(COMPARED if args.compare else {}),
+                        **(FLOORS if args.floors else {})})
         _update("quality", rows, command)
         quality_tables(rows)
     elif args.section == "samplers":

@@ -20,7 +20,7 @@ from awr_denoise.stationary import StationaryTransform
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
 from awr_denoise.thresholding import threshold_stage
 from awr_denoise.wavelets import default_levels, wavelet_operators
-from awr_denoise.wiener import relative_wiener
+from awr_denoise.wiener import DEFAULT_FLOOR, relative_wiener
 
 # Forward + inverse transform (and the domain's log/exp round trip) in float64.
 IDENTITY_ATOL = 1e-10
@@ -558,5 +558,5 @@ def test_the_energy_floor_acts_in_channel_mode_only(rng):
                                 luminance=None if lum is None else lum[0], weights=None if lum is None else lum[1])
         on, off = (later_stages(prepared, stage.image, None, s, levels=ops.levels, wavelet=ops.wavelet,
                                 luminance=lum)[0]
-                   for s in (settings, dataclasses.replace(settings, floor=False)))
-        assert settings.floor and (not np.array_equal(on, off)) == changes, mode
+                   for s in (settings, dataclasses.replace(settings, floor=None)))
+        assert settings.floor == DEFAULT_FLOOR and (not np.array_equal(on, off)) == changes, mode
