@@ -52,7 +52,7 @@ MITSUBA_REFERENCE_SPP = 1024
 SPPS = (8, 16, 32, 64, 128)
 METHODS: dict[str, dict[str, Any] | None] = {"plain": None, "stage 1": {"stages": 1}, "default": {}}
 SIZES = {"128x128": (128, 128), "256x256": (256, 256), "1080p": (1080, 1920)}
-SPEED_VARIANTS = {
+SPEED_VARIANTS: dict[str, Any] = {
     "stage 1 alone": {"stages": 1},
     "stage 1 alone, float64": {"stages": 1, "precision": "float64"},
     "default": {},
@@ -61,9 +61,11 @@ SPEED_VARIANTS = {
     "three Wiener stages": {"stages": 4, "wiener_exponents": (0.75, 0.5, 0.4)},
     "one Wiener stage": {"stages": 2, "wiener_exponents": (0.4,)},
     "default with a guide": {"guide": "reference"},
+    "default without the energy floor": "no energy floor",
 }
 """``speed``: reconstruct() options per variant; ``"reference"`` stands for the scene's clean image (a
-guide the gate trusts everywhere, so the projection on the guide runs on the whole image)."""
+guide the gate trusts everywhere, so the projection on the guide runs on the whole image); a
+string names an earlier form of :data:`COMPARED`."""
 CHEAPER: dict[str, dict[str, Any] | None] = {"one Wiener stage": SPEED_VARIANTS["one Wiener stage"]}
 """``quality --cheaper``: variants that trade quality for speed, measured beside the default."""
 
@@ -391,9 +393,11 @@ def speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
         seconds: dict[str, list[float]] = {name: [] for name in SPEED_VARIANTS}
         for round_ in range(n + 1):
             for name, options in SPEED_VARIANTS.items():
-                options = {k: (clean if v == "reference" else v) for k, v in options.items()}
                 start = time.perf_counter()
-                reconstruct(buffer, **options)
+                if isinstance(options, str):
+                    COMPARED[options](buffer)
+                else:
+                    reconstruct(buffer, **{k: (clean if v == "reference" else v) for k, v in options.items()})
                 if round_:  # the first round builds and caches the transforms' operators
                     seconds[name].append(time.perf_counter() - start)
         medians = {k: float(np.median(v)) for k, v in seconds.items()}
