@@ -200,9 +200,11 @@ def _band(t: StationaryTransform, b: int, spectra: tuple, leverage: bool, scratc
         if floor is not None:
             assert scratch.kept is not None and scratch.evidence is not None
             x_band = t.planes(np.multiply(spec_x[c], a, out=work), overwrite=True, out=scratch.kept[c])
-            evidence = np.multiply(x_band, x_band, out=scratch.evidence)
-            evidence -= floor[1] * noise
-            ndimage.uniform_filter(evidence, floor[0], mode="wrap", output=evidence)  # the periodic canvas
+            with np.errstate(over="ignore", invalid="ignore"):  # beyond the precision's range: no floor there
+                evidence = np.multiply(x_band, x_band, out=scratch.evidence)
+                evidence -= floor[1] * noise
+                ndimage.uniform_filter(evidence, floor[0], mode="wrap", output=evidence)  # the periodic canvas
+            np.nan_to_num(evidence, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
             np.maximum(factor, evidence, out=factor)
         factor += tiny
         noise += factor
@@ -362,6 +364,11 @@ def relative_wiener(transform: StationaryTransform, x: FloatArray, variance: Flo
     """
     t = transform
     ndim = np.ndim(x)
+    if floor is not None:
+        if not isinstance(floor, tuple) or len(floor) != 2:
+            raise ValueError(f"floor: expected (window, margin), got {floor!r}")
+        floor = (int(_checks.whole("floor window", floor[0], minimum=1, maximum=1023)),  # type: ignore[arg-type]
+                 float(_checks.real("floor margin", floor[1], minimum=0)))  # type: ignore[arg-type]
     # Planes first, in the transform's precision: the weights, the divisions and the products
     # back are as exact as the FFTs that sit between them.
     pilot_planes = _planes(pilot, t.dtype, copy=True)

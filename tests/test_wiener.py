@@ -255,3 +255,24 @@ def test_the_chain_floors_its_first_stage_only_and_only_when_stages_follow(rng, 
                  probes=2, floor=(5, 2.0))
     floored = (5, 2.0) if len(exponents) > 1 else None
     assert calls == [floored] + [None] * (len(exponents) - 2 + 1 + 1)  # later stages, then the probes' call
+
+
+def test_the_floor_beyond_single_precision_falls_back_to_no_floor(rng):
+    """A band whose square overflows float32 gives no evidence (no NaN): the pixels there are
+    those of the stage without the floor, as where the floor has nothing to add."""
+    t = StationaryTransform((32, 32), levels=2, dtype="float32")
+    x = rng.random((32, 32, 1)) + 1.0
+    x[10, 10] = 1e20  # its band coefficients square beyond float32
+    pilot = np.zeros_like(x)
+    with np.errstate(over="ignore", invalid="ignore"):
+        plain = relative_wiener(t, x, x * 0.01, pilot, k=0.1, exponent=0.0).image
+        floored = relative_wiener(t, x, x * 0.01, pilot, k=0.1, exponent=0.0, floor=(5, 2.0)).image
+    assert np.isfinite(plain).all() and np.isfinite(floored).all()
+
+
+@pytest.mark.parametrize("floor, message", [((0, 2.0), "floor window"), ((5, -1.0), "floor margin"),
+                                            ((5,), "floor: expected"), ((5, float("nan")), "floor margin")])
+def test_bad_floors_are_refused(rng, transform, floor, message):
+    x = rng.random(SHAPE + (1,))
+    with pytest.raises(ValueError, match=message):
+        relative_wiener(transform, x, x * 0.01, x, k=0.1, exponent=0.5, floor=floor)
