@@ -7,7 +7,9 @@
 2. **Stages 2, 3, ...** (:mod:`awr_denoise.wiener`): the previous estimate is the pilot of an
    empirical Wiener filter on the undecimated transform (:mod:`awr_denoise.stationary`), in a
    domain relative to the pilot (``x / (|pilot| + k)^alpha``, one ``alpha`` per stage from
-   ``wiener_exponents``). Every variance stays exact because each stage is linear in the means.
+   ``wiener_exponents``). Every variance stays exact because each stage is linear in the means
+   for its pilot. The first of several stages floors its pilot's (stage 1's, thresholded) energy
+   by the means' own local evidence (:data:`~awr_denoise.wiener.DEFAULT_FLOOR`, channel mode).
 3. **Finishing** (:mod:`awr_denoise.finishing`): the pooled pixel clamp, no negative radiance,
    and the image mean of every channel equal to the input's.
 
@@ -279,8 +281,8 @@ def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | N
     luminance
         Luminance mode: the luminance plane (prepared with ``prepared.domain``) and weights.
     run
-        ``run(f, items)`` maps ``f`` over the channels (an executor's ``map``); default: the
-        channels go through the Wiener stages together.
+        ``run(f, items)``, an executor's ``map``: the Wiener stages' bands two at a time on its
+        threads and the guard's two criteria side by side (the same result); default: one thread.
 
     Returns
     -------
@@ -361,8 +363,10 @@ def reconstruct_detailed(
     boundary
         PyWavelets signal extension mode of stage 1.
     executor
-        Optional ``concurrent.futures.Executor`` over which the channels are processed, in
-        every stage (numpy, scipy and PyWavelets release the GIL, so threads help).
+        Optional ``concurrent.futures.Executor``: stage 1's channels, the Wiener stages' bands
+        (two at a time, from 512x512 on) and the guard's two criteria run on its threads, with
+        the same result as without (numpy, scipy, PyWavelets and ducc0 release the GIL; more
+        memory: docs/performance.md, Threads).
     pixel_clamp
         Keep every output pixel within ``pixel_clamp`` standard errors of its own mean: Eq. 11
         picks each *coefficient* inside its confidence interval, and this asks the same of each

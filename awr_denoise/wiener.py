@@ -17,6 +17,11 @@ weight ``w = (|pilot| + k)^alpha`` fixed from the pilot before the transform and
 after. Because ``w`` is fixed, the stage is linear in the means and their variances stay exact,
 ``Var(x / w) = v / w^2``. ``alpha = 1`` makes the noise relative to the signal (the error
 relMSE measures); ``alpha = 0`` is the linear domain (the error MSE measures).
+
+A thresholded pilot (stage 1's) has lost every coefficient below its threshold, faint texture
+included, and its factors would remove that texture again. The *energy floor* of the first of
+several stages (:func:`chain`, :data:`DEFAULT_FLOOR`) uses ``max(P^2, S^2)`` instead of ``P^2``,
+``S^2`` the local mean of ``X^2 - margin Delta^2``: the energy the means themselves show.
 """
 
 from __future__ import annotations
