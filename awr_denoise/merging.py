@@ -12,8 +12,9 @@ section 3: the sampler adds samples round by round). :meth:`SampleBuffer.merge
 
 A sampler merges every round of a 1080p or 4K frame: the formulas are a dozen elementwise
 passes, run here block by block of rows so that their temporaries stay in the processor's
-cache rather than in memory (1.5x faster at 1080p, the same operations in the same order, so
-the same bits; ``benchmarks/bench_core.py``, ``tell()``).
+cache rather than in memory: the same operations in the same order, so the same bits, and
+``tell()`` went from 2.0x to 1.5x the PyWavelets floor at 1080p (``benchmarks/bench_core.py
+--only speed``; docs/performance.md).
 """
 
 from __future__ import annotations

@@ -243,8 +243,9 @@ def _filter(t: StationaryTransform, planes: list[np.ndarray], es: np.ndarray | N
     With ``run`` (an executor's map) :data:`_PARALLEL_BANDS` bands at a time run on its threads,
     each in its own buffers; their contributions are summed in band order, so the result is
     the same, bit for bit, as without (at the cost of those bands' buffers in memory). Below
-    :data:`_PARALLEL_PIXELS` the bands run serially all the same (threads measured slower there:
-    ``benchmarks/bench_reconstruct.py speed``, docs/performance.md, Threads).
+    :data:`_PARALLEL_PIXELS` the bands run serially all the same: threads were slower there in the
+    probes that set the threshold (docs/performance.md, Threads; ``benchmarks/bench_core.py
+    --only speed --sizes 256x256`` measures the default with and without a second thread).
     """
     spec_x, spec_v, spec_p = (t.spectrum(a) for a in planes)
     planes.clear()
