@@ -54,8 +54,11 @@ DEFAULT_MODE = MODES[0]
 DEFAULT_C_S = 1.0
 """``c_s`` of Eq. 11 when stage 1 is the whole reconstruction (``stages=1``): one standard error."""
 
-DEFAULT_PILOT_C_S = 1.5
-"""``c_s`` of stage 1 when it is the pilot of Wiener stages; chosen by measurement (docs/reconstruction.md)."""
+DEFAULT_PILOT_C_S = 2.0
+"""``c_s`` of stage 1 when it is the pilot of Wiener stages; chosen by measurement on both renderers.
+
+2 rather than 1.5 since the first Wiener stage's energy floor gives back, from the means, the faint
+detail a stricter pilot removes (docs/reconstruction.md, "The pilot's threshold, measured")."""
 
 DEFAULT_DOMAIN = "log"
 """Default thresholding domain of stage 1; chosen by measurement (docs/reconstruction.md)."""
@@ -347,7 +350,7 @@ def reconstruct_detailed(
     c_s
         Smoothing constant of Eq. 11 in stage 1: thresholds are ``c_s`` standard errors.
         ``0`` returns the Monte Carlo mean; about 0.5-2 is useful. Default
-        :data:`DEFAULT_C_S` (1.0) with ``stages=1``, :data:`DEFAULT_PILOT_C_S` (1.5) when
+        :data:`DEFAULT_C_S` (1.0) with ``stages=1``, :data:`DEFAULT_PILOT_C_S` (2.0) when
         stage 1 is the pilot of Wiener stages.
     wavelet
         PyWavelets wavelet of every stage; ``"bior4.4"`` (CDF 9/7) by default.

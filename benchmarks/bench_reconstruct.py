@@ -4,6 +4,7 @@ Run from the repository root (each section updates its part of the JSON)::
 
     .venv/bin/python benchmarks/bench_reconstruct.py quality      # bundled tracer (+ Mitsuba 3), 8-128 spp
     .venv/bin/python benchmarks/bench_reconstruct.py samplers     # AWR vs uniform vs variance sampling
+    .venv/bin/python benchmarks/bench_reconstruct.py seeds        # the same per seed on the synthetic scenes
     .venv/bin/python benchmarks/bench_reconstruct.py synthetic    # known clean images, 4-1024 spp
     .venv/bin/python benchmarks/bench_reconstruct.py speed        # 128x128, 256x256, 1080p
     .venv/bin/python benchmarks/bench_reconstruct.py finishing    # the image mean's correction, compared
@@ -92,11 +93,14 @@ def with_floor(floor: tuple[int, float] | None) -> Any:
     return run
 
 
-COMPARED: dict[str, Any] = {"pilot clamped": clamped_pilot, "no energy floor": with_floor(None)}
+COMPARED: dict[str, Any] = {"pilot clamped": clamped_pilot, "no energy floor": with_floor(None),
+                             "pilot c_s 1.5": {"c_s": 1.5}}
 """``quality --compare``: earlier forms of the default, measured beside it."""
 FLOORS: dict[str, Any] = {"energy floor 3x3": with_floor((3, 2.0)), "energy floor 7x7": with_floor((7, 2.0)),
                           "energy floor margin 1.5": with_floor((5, 1.5)), "energy floor margin 3": with_floor((5, 3.0))}
 """``quality --floors``: the first Wiener stage's energy floor at other windows and margins than (5, 2)."""
+PILOTS: dict[str, Any] = {"pilot c_s 2.5": {"c_s": 2.5}, "pilot c_s 3": {"c_s": 3.0}}
+"""``quality --pilots``: stage 1's threshold as the pilot at other values than the default (2); 1.5 is in COMPARED."""
 
 
 # ---------------------------------------------------------------------------- buffers
@@ -223,7 +227,7 @@ def quality_tables(rows: list[dict], method: str = "default", base: str = "stage
         print(f"| {scene} | {' / '.join(f'{g:.2f}' for g in gains)} | {m:.2f} | {r:.2f} |")
     every = [g for _, gains, _, _ in summary for g in gains]
     print(f"\ngeometric mean of the gain at 8-32 spp: {np.exp(np.mean(np.log(every))):.2f}, least {min(every):.2f}")
-    for other in (m for m in (*CHEAPER, *COMPARED, *FLOORS) if any(r["method"] == m for r in rows)):
+    for other in (m for m in (*CHEAPER, *COMPARED, *FLOORS, *PILOTS) if any(r["method"] == m for r in rows)):
         cheaper_table(rows, other, method)
 
 
@@ -279,6 +283,45 @@ def sampler_table(rows: list[dict]) -> None:
             print(f"| {scene} | {spp} | " + " | ".join(f"{v[k]:.5f}" for k in ("uniform", "variance", "awr",
                                                                              "awr, linear priorities"))
                   + f" | {v['uniform'] / v['awr']:.2f} | {v['variance'] / v['awr']:.2f} |")
+
+
+SEED_SCENES = ("gradient", "edges", "hdr_source", "fireflies")
+SEED_SHAPE = (64, 64)  # tests/test_sampling.py's size
+
+
+def seeds(names: tuple[str, ...], spps: tuple[int, ...], count: int) -> list[dict[str, Any]]:
+    """Per seed, as tests/test_sampling.py runs them: AWR and uniform sampling, each from scratch, the default."""
+    rows = []
+    for name in names:
+        scene = make_scene(name, SEED_SHAPE)
+        ref = scene.reference()
+        for spp in spps:
+            for seed in range(count):
+                for cls in (AdaptiveSampler, UniformSampler):
+                    buffer = cls(SEED_SHAPE, seed=seed).run(SyntheticRenderer(scene, seed=seed), spp)
+                    rows.append({"scene": name, "spp": spp, "seed": seed, "sampler": cls.strategy,
+                                 "relmse": relmse(reconstruct(buffer), ref),
+                                 "relmse_pilot_1.5": relmse(reconstruct(buffer, c_s=1.5), ref)})
+        print(f"{name}: done", flush=True)
+    return rows
+
+
+def seeds_table(rows: list[dict]) -> None:
+    print("\n| scene | spp | seeds | uniform / awr, least | most | mean | seeds where uniform wins | mean, pilot c_s 1.5 "
+          "| relMSE pilot 2 / 1.5, awr | relMSE pilot 2 / 1.5, uniform |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name in dict.fromkeys(r["scene"] for r in rows):
+        for spp in sorted({r["spp"] for r in rows if r["scene"] == name}):
+            pick = [r for r in rows if r["scene"] == name and r["spp"] == spp]
+            ids = sorted({r["seed"] for r in pick})
+            get = {(r["seed"], r["sampler"]): r for r in pick}
+            ratio = {i: get[i, "uniform"]["relmse"] / get[i, "awr"]["relmse"] for i in ids}
+            before = [get[i, "uniform"]["relmse_pilot_1.5"] / get[i, "awr"]["relmse_pilot_1.5"] for i in ids]
+            moved = {k: [get[i, k]["relmse"] / get[i, k]["relmse_pilot_1.5"] for i in ids] for k in ("awr", "uniform")}
+            lost = [str(i) for i in ids if ratio[i] <= 1] or ["none"]
+            print(f"| {name} | {spp} | 0-{ids[-1]} | {min(ratio.values()):.2f} | {max(ratio.values()):.2f} | "
+                  f"{np.mean(list(ratio.values())):.2f} | {', '.join(lost)} | {np.mean(before):.2f} | "
+                  + " | ".join(f"{min(moved[k]):.2f}-{max(moved[k]):.2f}" for k in ("awr", "uniform")) + " |")
 
 
 # ---------------------------------------------------------------------------- synthetic
@@ -432,7 +475,8 @@ def _update(section: str, value: Any, command: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("section", choices=("quality", "samplers", "synthetic", "speed", "finishing", "tables"))
+    parser.add_argument("section", choices=("quality", "samplers", "seeds", "synthetic", "speed", "finishing",
+                                                   "tables"))
     parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
     parser.add_argument("--spps", nargs="+", type=int, default=list(SPPS))
     parser.add_argument("--groups", type=int, default=0, help="renders per scene (default 4; finishing: 12)")
@@ -443,18 +487,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cheaper", action="store_true", help="quality: also the cheaper variants (CHEAPER)")
     parser.add_argument("--compare", action="store_true", help="quality: also earlier forms of the default (COMPARED)")
     parser.add_argument("--floors", action="store_true", help="quality: also other energy floors (FLOORS)")
+    parser.add_argument("--pilots", action="store_true", help="quality: also other pilot thresholds (PILOTS)")
     args = parser.parse_args(argv)
     command = recorded_command("bench_reconstruct.py", argv)
     if args.section == "quality":
         rows = quality(quality_scenes(args.scenes), tuple(args.spps), args.groups or 4, args.cache,
                        {**METHODS, **(CHEAPER if args.cheaper else {}), **(COMPARED if args.compare else {}),
-                        **(FLOORS if args.floors else {})})
+                        **(FLOORS if args.floors else {}), **(PILOTS if args.pilots else {})})
         _update("quality", rows, command)
         quality_tables(rows)
     elif args.section == "samplers":
         rows = samplers(tuple(args.scenes or TRACER_SCENES), tuple(s for s in args.spps if s <= 32) or (8, 16, 32), 0)
         _update("samplers", rows, command)
         sampler_table(rows)
+    elif args.section == "seeds":
+        rows = seeds(tuple(args.scenes or SEED_SCENES), tuple(s for s in args.spps if s <= 64) or (8, 16, 32, 64),
+                     args.groups or 10)
+        _update("seeds", rows, command)
+        seeds_table(rows)
     elif args.section == "synthetic":
         rows = synthetic(("gradient", "edges", "hdr_source", "fireflies", "rare_light"), (4, 16, 64, 256, 1024), 2,
                          (96, 96))
@@ -469,7 +519,8 @@ def main(argv: list[str] | None = None) -> int:
         finishing_table(rows)
     else:  # print the tables of the stored results
         data = json.loads(RESULTS.read_text())
-        for section, show in (("quality", quality_tables), ("samplers", sampler_table), ("synthetic", synthetic_table),
+        for section, show in (("quality", quality_tables), ("samplers", sampler_table), ("seeds", seeds_table),
+                              ("synthetic", synthetic_table),
                               ("finishing", finishing_table)):
             if section in data:
                 print(f"\n## {section} ({data[section]['command']})")
