@@ -242,7 +242,7 @@ def resolve_settings(*, c_s: float | None = None, stages: int = DEFAULT_STAGES,
     --------
     >>> from awr_denoise.reconstruct import resolve_settings
     >>> resolve_settings(stages=1).c_s, resolve_settings().c_s, resolve_settings().exponents
-    (1.0, 1.5, (0.75, 0.4))
+    (1.0, 2.0, (0.75, 0.4))
     """
     exponents = _exponents(wiener_exponents)
     stages = _checks.whole("stages", stages, minimum=1, maximum=1 + len(exponents))  # type: ignore[assignment]
