@@ -100,6 +100,8 @@ FLOORS: dict[str, Any] = {"energy floor 3x3": with_floor((3, 2.0)), "energy floo
                           "energy floor margin 1.5": with_floor((5, 1.5)), "energy floor margin 3": with_floor((5, 3.0))}
 """``quality --floors``: the first Wiener stage's energy floor at other windows and margins than (5, 2)."""
 PILOTS: dict[str, Any] = {"pilot c_s 2.5": {"c_s": 2.5}, "pilot c_s 3": {"c_s": 3.0}}
+WINDOWS: dict[str, Any] = {"guard window 13": {"guard_window": 13}, "guard window 17": {"guard_window": 17}}
+"""``quality --windows`` and ``synthetic --windows``: the SURE guard's window at other sides than the default (9)."""
 """``quality --pilots``: stage 1's threshold as the pilot at other values than the default (2); 1.5 is in COMPARED."""
 
 
@@ -227,7 +229,7 @@ def quality_tables(rows: list[dict], method: str = "default", base: str = "stage
         print(f"| {scene} | {' / '.join(f'{g:.2f}' for g in gains)} | {m:.2f} | {r:.2f} |")
     every = [g for _, gains, _, _ in summary for g in gains]
     print(f"\ngeometric mean of the gain at 8-32 spp: {np.exp(np.mean(np.log(every))):.2f}, least {min(every):.2f}")
-    for other in (m for m in (*CHEAPER, *COMPARED, *FLOORS, *PILOTS) if any(r["method"] == m for r in rows)):
+    for other in (m for m in (*CHEAPER, *COMPARED, *FLOORS, *PILOTS, *WINDOWS) if any(r["method"] == m for r in rows)):
         cheaper_table(rows, other, method)
 
 
@@ -325,8 +327,9 @@ def seeds_table(rows: list[dict]) -> None:
 
 
 # ---------------------------------------------------------------------------- synthetic
-def synthetic(names: tuple[str, ...], spps: tuple[int, ...], seeds: int, shape: tuple[int, int]) -> list[dict]:
-    """Known clean images: the plain mean, stage 1 and the default, seeds averaged, nested spp."""
+def synthetic(names: tuple[str, ...], spps: tuple[int, ...], seeds: int, shape: tuple[int, int],
+              methods: dict[str, Any] = METHODS) -> list[dict]:
+    """Known clean images: the plain mean, stage 1, the default (and ``methods``' others), seeds averaged, nested spp."""
     rows = []
     for name in names:
         scene = make_scene(name, shape)
@@ -337,7 +340,7 @@ def synthetic(names: tuple[str, ...], spps: tuple[int, ...], seeds: int, shape: 
                 part = renderer(SampleRequest.uniform(shape, spp - done, first_index=done))
                 buffer = part if buffer is None else buffer.merge(part)
                 done = spp
-                for method, options in METHODS.items():
+                for method, options in methods.items():
                     image = buffer.mean if options is None else reconstruct(buffer, **options)
                     rows.append({"scene": name, "shape": list(shape), "spp": spp, "seed": seed, "method": method,
                                  "relmse": relmse(image, ref), "mse": mse(image, ref)})
@@ -345,16 +348,17 @@ def synthetic(names: tuple[str, ...], spps: tuple[int, ...], seeds: int, shape: 
 
 
 def synthetic_table(rows: list[dict]) -> None:
-    print("\n| scene | size | spp | relMSE plain | stage 1 / plain (relMSE, MSE) | default / plain (relMSE, MSE) |")
-    print("|---|---|---|---|---|---|")
+    methods = [m for m in dict.fromkeys(r["method"] for r in rows) if m != "plain"]
+    print("\n| scene | size | spp | relMSE plain | " + " | ".join(f"{m} / plain (relMSE, MSE)" for m in methods) + " |")
+    print("|---|---|---|---|" + "---|" * len(methods))
     for name, shape in dict.fromkeys((r["scene"], tuple(r["shape"])) for r in rows):
         for spp in sorted({r["spp"] for r in rows if r["scene"] == name and tuple(r["shape"]) == shape}):
             w = {"scene": name, "spp": spp}
-            rel = {m: _mean([r for r in rows if tuple(r["shape"]) == shape], "relmse", method=m, **w) for m in METHODS}
-            sq = {m: _mean([r for r in rows if tuple(r["shape"]) == shape], "mse", method=m, **w) for m in METHODS}
+            same = [r for r in rows if tuple(r["shape"]) == shape]
+            rel = {m: _mean(same, "relmse", method=m, **w) for m in ["plain", *methods]}
+            sq = {m: _mean(same, "mse", method=m, **w) for m in ["plain", *methods]}
             print(f"| {name} | {shape[1]}x{shape[0]} | {spp} | {rel['plain']:.5f} | "
-                  f"{rel['stage 1'] / rel['plain']:.2f}, {sq['stage 1'] / sq['plain']:.2f} | "
-                  f"{rel['default'] / rel['plain']:.2f}, {sq['default'] / sq['plain']:.2f} |")
+                  + " | ".join(f"{rel[m] / rel['plain']:.2f}, {sq[m] / sq['plain']:.2f}" for m in methods) + " |")
 
 
 # ---------------------------------------------------------------------------- finishing
@@ -488,12 +492,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--compare", action="store_true", help="quality: also earlier forms of the default (COMPARED)")
     parser.add_argument("--floors", action="store_true", help="quality: also other energy floors (FLOORS)")
     parser.add_argument("--pilots", action="store_true", help="quality: also other pilot thresholds (PILOTS)")
+    parser.add_argument("--windows", action="store_true", help="quality, synthetic: also other guard windows (WINDOWS)")
     args = parser.parse_args(argv)
     command = recorded_command("bench_reconstruct.py", argv)
     if args.section == "quality":
         rows = quality(quality_scenes(args.scenes), tuple(args.spps), args.groups or 4, args.cache,
                        {**METHODS, **(CHEAPER if args.cheaper else {}), **(COMPARED if args.compare else {}),
-                        **(FLOORS if args.floors else {}), **(PILOTS if args.pilots else {})})
+                        **(FLOORS if args.floors else {}), **(PILOTS if args.pilots else {}),
+                        **(WINDOWS if args.windows else {})})
         _update("quality", rows, command)
         quality_tables(rows)
     elif args.section == "samplers":
@@ -506,9 +512,10 @@ def main(argv: list[str] | None = None) -> int:
         _update("seeds", rows, command)
         seeds_table(rows)
     elif args.section == "synthetic":
+        methods = {**METHODS, **(WINDOWS if args.windows else {})}
         rows = synthetic(("gradient", "edges", "hdr_source", "fireflies", "rare_light"), (4, 16, 64, 256, 1024), 2,
-                         (96, 96))
-        rows += synthetic(("hdr_source",), (8, 16, 32, 64, 128), 12, (64, 64))
+                         (96, 96), methods)
+        rows += synthetic(("hdr_source",), (8, 16, 32, 64, 128), 12, (64, 64), methods)
         _update("synthetic", rows, command)
         synthetic_table(rows)
     elif args.section == "speed":

@@ -4,6 +4,7 @@ and quality on known scenes."""
 from __future__ import annotations
 
 import dataclasses
+import sys
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -560,3 +561,35 @@ def test_the_energy_floor_acts_in_channel_mode_only(rng):
                                 luminance=lum)[0]
                    for s in (settings, dataclasses.replace(settings, floor=None)))
         assert settings.floor == DEFAULT_FLOOR and (not np.array_equal(on, off)) == changes, mode
+
+
+def test_the_guard_window_reaches_the_guard_and_is_recorded(monkeypatch):
+    """``guard_window`` is the side of the SURE guard's neighbourhood; 9 is the default and its result."""
+    module = sys.modules["awr_denoise.reconstruct"]  # the package's ``reconstruct`` attribute is the function
+    seen = []
+    original = module.sure_blend
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs["window"])
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(module, "sure_blend", spy)
+    _, buf = _scene_buffer("edges", 8, 1)
+    default = reconstruct_detailed(buf)
+    wide = reconstruct_detailed(buf, guard_window=17)
+    assert seen == [9, 17]
+    assert default.parameters["guard_window"] == 9 and wide.parameters["guard_window"] == 17
+    assert_array_equal(default.image, reconstruct(buf, guard_window=9))
+    assert not np.allclose(default.image, wide.image)
+    assert reconstruct_detailed(buf, stages=1).parameters["guard_window"] is None
+
+
+@pytest.mark.parametrize(("options", "message"), [
+    ({"guard_window": 8}, "must be odd"), ({"guard_window": 0}, ">= 1"), ({"guard_window": 1025}, "<= 1023"),
+    ({"guard_window": 2.5}, "whole number"), ({"guard_window": 17, "stages": 1}, "the guard is off"),
+    ({"guard_window": 17, "guard": False}, "the guard is off")])
+def test_bad_guard_windows_are_refused(options, message):
+    _, buf = _scene_buffer("edges", 4, 1, shape=(32, 32))
+    with pytest.raises(ValueError, match=message):
+        reconstruct(buf, **options)
+

@@ -37,6 +37,7 @@ from ..reconstruct import (
     reconstruct,
     resolve_settings,
 )
+from ..sure import DEFAULT_WINDOW
 from ..wavelets import WAVELET_NAMES, default_levels, max_levels
 from .executors import dask_client, executor_or_threads, executor_width, submit
 
@@ -150,7 +151,8 @@ def reconstruct_tiled(buffer: SampleBuffer, *, tile: int | tuple[int, int] = 512
                       levels: int | None = None, domain: str | Domain = DEFAULT_DOMAIN, mode: str = "channels",
                       boundary: str = "symmetric", pixel_clamp: float | None = DEFAULT_PIXEL_CLAMP,
                       stages: int = DEFAULT_STAGES, wiener_exponents: Sequence[float] = DEFAULT_WIENER_EXPONENTS,
-                      guard: bool | None = None, preserve_mean: bool | None = None, nonnegative: bool | None = None,
+                      guard: bool | None = None, guard_window: int = DEFAULT_WINDOW,
+                      preserve_mean: bool | None = None, nonnegative: bool | None = None,
                       precision: str = DEFAULT_PRECISION) -> FloatArray:
     """Reconstruct a frame tile by tile; equals :func:`~awr_denoise.reconstruct` to rounding.
 
@@ -177,8 +179,8 @@ def reconstruct_tiled(buffer: SampleBuffer, *, tile: int | tuple[int, int] = 512
         work.
     executor
         Runs the tiles; default a thread pool for this call.
-    c_s, wavelet, levels, domain, mode, boundary, pixel_clamp, stages, wiener_exponents, guard, preserve_mean, \
-nonnegative, precision
+    c_s, wavelet, levels, domain, mode, boundary, pixel_clamp, stages, wiener_exponents, guard, guard_window, \
+preserve_mean, nonnegative, precision
         As in :func:`~awr_denoise.reconstruct`; ``levels`` defaults to the whole frame's
         :func:`~awr_denoise.wavelets.default_levels`.
 
@@ -203,7 +205,7 @@ nonnegative, precision
     """
     settings = resolve_settings(c_s=c_s, stages=stages, wiener_exponents=wiener_exponents, pixel_clamp=pixel_clamp,
                                 guard=guard, preserve_mean=preserve_mean, nonnegative=nonnegative,
-                                precision=precision)
+                                precision=precision, guard_window=guard_window)
     if not isinstance(buffer, SampleBuffer):
         raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
     shape = buffer.shape

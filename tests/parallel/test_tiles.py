@@ -101,6 +101,14 @@ def test_reconstruct_tiled_handles_empty_pixels_and_unknown_variance():
                            reconstruct(buffer, mode=mode, precision="float64"))
 
 
+def test_reconstruct_tiled_takes_the_guard_window():
+    buffer = noisy_buffer("edges", shape=(64, 80), spp=8)
+    for window in (9, 15):
+        assert_tiled_close(reconstruct_tiled(buffer, tile=32, guard_window=window, precision="float64"),
+                           reconstruct(buffer, guard_window=window, precision="float64"))
+    assert not np.allclose(reconstruct_tiled(buffer, tile=32, guard_window=15), reconstruct(buffer))
+
+
 def test_reconstruct_tiled_is_wrong_without_the_halo():
     buffer = noisy_buffer()
     whole = reconstruct(buffer, levels=3)
