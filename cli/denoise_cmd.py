@@ -23,6 +23,7 @@ from awr_denoise.reconstruct import (
     DEFAULT_WIENER_EXPONENTS,
     MODES,
 )
+from awr_denoise.sure import DEFAULT_WINDOW
 from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 
 from . import interrupts
@@ -77,6 +78,9 @@ def add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
                         "stage, and followed within three standard errors of each coefficient; 'features', an "
                         "a-trous filter guided by albedo, normal and depth, for the first "
                         "(default: neither)")
+    g.add_argument("--guard-window", type=whole(minimum=1, maximum=1023), metavar="W",
+                   help=f"side of the SURE guard's square window, odd (default {DEFAULT_WINDOW}; wider is better on "
+                        "most scenes and worse next to small, very bright lights: docs/reconstruction.md)")
     g.add_argument("--guide-projection", type=real(minimum=0, maximum=1), metavar="S",
                    help="with --guide oidn: the share of the result taken from the means moved towards the guide "
                         f"within three standard errors; 0 makes the guide the pilot only (default {PROJECTION_SHARE:g})")
@@ -88,7 +92,8 @@ def reconstruction_kwargs(args: argparse.Namespace) -> dict:
     projection = getattr(args, "guide_projection", None)
     return {"stages": args.stages, "c_s": args.c_s, "wavelet": args.wavelet, "levels": args.levels,
             "domain": args.domain, "mode": args.mode, "guide": GUIDES.get(guide), "features": guide == "features",
-            **({} if projection is None else {"guide_projection": projection})}
+            **({} if projection is None else {"guide_projection": projection}),
+            **({} if getattr(args, "guard_window", None) is None else {"guard_window": args.guard_window})}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -139,6 +144,11 @@ def check_reconstruction_options(args: argparse.Namespace, shape: tuple[int, int
         raise UsageError(f"--guide {guide}: it gives the pilot of the Wiener stages; it needs --stages 2 or more")
     if guide == "oidn" and not oidn_available():
         raise UsageError(f"--guide oidn: {OIDN_HINT}")
+    window = getattr(args, "guard_window", None)
+    if window is not None and window % 2 == 0:
+        raise UsageError(f"--guard-window: must be odd, got {window}")
+    if window is not None and args.stages < 2:
+        raise UsageError(f"--guard-window {window}: the SURE guard follows the Wiener stages; it needs --stages 2 or more")
     if getattr(args, "guide_projection", None) is not None and guide not in GUIDES:
         raise UsageError("--guide-projection: it is the share of a guide's projection; it needs --guide oidn")
     if args.levels is not None and args.levels > max_levels(shape):

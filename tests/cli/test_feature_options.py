@@ -14,7 +14,15 @@ pytest.importorskip("OpenEXR")
 
 from awr_denoise import SampleBuffer, SampleRequest  # noqa: E402
 from awr_denoise.cli.main import main  # noqa: E402
-from awr_denoise.io import read_image, read_sample_dump, write_image, write_request, write_sample_buffer  # noqa: E402
+from awr_denoise.io import (  # noqa: E402
+    read_header,
+    read_image,
+    read_provenance,
+    read_sample_dump,
+    write_image,
+    write_request,
+    write_sample_buffer,
+)
 from cli_helpers import H, W, dump_buffer, one_error_line  # noqa: E402
 
 pytestmark = pytest.mark.exr
@@ -83,7 +91,6 @@ def test_denoise_guide_projection(tmp_path, capsys):
     """``--guide-projection S`` reaches the reconstruction (0: the guide is the pilot only) and is
     recorded; out of [0, 1], not a number, or without ``--guide oidn`` it is refused before any output."""
     pytest.importorskip("pyoidn", reason="the OIDN guide needs the extra oidn")
-    from awr_denoise.io import read_header, read_provenance
     _images(tmp_path)
     images = {}
     for share in ("0", "1"):
@@ -226,3 +233,23 @@ def test_render_features_from_a_renderer_that_renders_none_is_refused(tmp_path, 
     assert code == 2
     one_error_line(capsys.readouterr().err, "--features", "synthetic", "does not render albedo", "no features")
     assert os.listdir(tmp_path) == []
+
+
+def test_denoise_guard_window(tmp_path, capsys):
+    """``--guard-window W`` reaches the reconstruction and is recorded; even, out of range, or with
+    ``--stages 1`` it is refused before any output."""
+    _images(tmp_path)
+    default, wide = tmp_path / "default.exr", tmp_path / "wide.exr"
+    assert main(["denoise", str(tmp_path / "d.exr"), "-o", str(default), "-q"]) == 0
+    assert main(["denoise", str(tmp_path / "d.exr"), "--guard-window", "13", "-o", str(wide), "-q"]) == 0
+    assert int(read_provenance(read_header(wide))["guard_window"]) == 13
+    assert int(read_provenance(read_header(default))["guard_window"]) == 9
+    assert not np.array_equal(read_image(default), read_image(wide))
+    for bad, message in ((["--guard-window", "8"], "--guard-window: must be odd"),
+                         (["--guard-window", "0"], "--guard-window: must be >= 1"),
+                         (["--guard-window", "2000"], "--guard-window: must be <= 1023"),
+                         (["--guard-window", "13", "--stages", "1"], "it needs --stages 2 or more")):
+        out = tmp_path / "bad.exr"
+        assert main(["denoise", str(tmp_path / "d.exr"), *bad, "-o", str(out)]) == 2, bad
+        assert message in one_error_line(capsys.readouterr().err)
+        assert not out.exists()
