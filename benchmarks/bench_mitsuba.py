@@ -168,13 +168,13 @@ def uniform_run(renderer: MitsubaRenderer, spp: int, seed: int) -> tuple[np.ndar
     return image, time.perf_counter() - t, time.process_time() - c
 
 
-def awr_run(renderer: MitsubaRenderer, spp: int, seed: int) -> dict[str, Any]:
-    """AdaptiveSampler (library defaults) to ``spp`` through the adapter, then reconstruct.
+def awr_run(renderer: MitsubaRenderer, spp: int, seed: int, **sampler_options: Any) -> dict[str, Any]:
+    """AdaptiveSampler (library defaults, or ``sampler_options``) to ``spp`` through the adapter, then reconstruct.
 
     The loop is :meth:`Sampler.run`'s, written out so each part is timed on its own.
     """
     renderer.seed = seed
-    sampler = AdaptiveSampler(renderer.shape, seed=seed)
+    sampler = AdaptiveSampler(renderer.shape, seed=seed, **sampler_options)
     goal = int(round(spp * renderer.shape[0] * renderer.shape[1]))
     seconds = {"ask": 0.0, "render": 0.0, "tell": 0.0, "reconstruct": 0.0}
     rounds = 0
@@ -230,7 +230,9 @@ def equal_time(uniform: list[dict[str, Any]], awr: list[dict[str, Any]], key: st
 
 
 def bench_scene(name: str, shape: tuple[int, int], *, spps: list[int], reference_spp: int, repeats: int,
-                throughput_spp: int, cache: Path, regenerate: bool, seed: int) -> dict[str, Any]:
+                throughput_spp: int, cache: Path, regenerate: bool, seed: int,
+                sampler_options: dict[str, Any] | None = None) -> dict[str, Any]:
+    sampler_options = sampler_options or {}
     renderer = MitsubaRenderer(name, shape=shape, seed=seed)
     print(f"[{name} {shape[1]}x{shape[0]}] throughput at {throughput_spp} spp", flush=True)
     result: dict[str, Any] = {"scene": name, "shape": list(shape),
@@ -242,7 +244,7 @@ def bench_scene(name: str, shape: tuple[int, int], *, spps: list[int], reference
                            "image_mean": float(ref["mean"].mean()),
                            "mse_floor": float(ref["variance_of_mean"].mean()),
                            "relmse_floor": float((ref["variance_of_mean"] / (ref["mean"] ** 2 + eps)).mean())}
-    awr_run(renderer, min(spps), seed + 999)  # warm-up: kernels, wavelet operators
+    awr_run(renderer, min(spps), seed + 999, **sampler_options)  # warm-up: kernels, wavelet operators
     awr_spps = sorted({max(4, min(spps) // 2), *spps})
     uniform_points, awr_points = [], []
     for i, spp in enumerate(awr_spps):
@@ -253,7 +255,7 @@ def bench_scene(name: str, shape: tuple[int, int], *, spps: list[int], reference
             if spp in spps:
                 image, seconds, cpu = uniform_run(renderer, spp, run_seed)
                 runs_u.append({"seconds": seconds, "cpu_seconds": cpu, **_metrics(image, ref)})
-            run = awr_run(renderer, spp, run_seed)
+            run = awr_run(renderer, spp, run_seed, **sampler_options)
             runs_a.append({"seconds": run["seconds"], "cpu_seconds": run["cpu_seconds"], "parts": run["parts"],
                            "rounds": run["rounds"],
                            "spp_max": run["spp_max"], "awr": _metrics(run["image"], ref),
@@ -363,6 +365,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--hd-reference-spp", type=int, default=512)
     parser.add_argument("--hd-repeats", type=int, default=1)
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--round-growth", type=float, default=None,
+                        help="AdaptiveSampler's round_growth instead of its default (fewer, larger rounds when larger)")
     parser.add_argument("--cache", type=Path, default=CACHE)
     parser.add_argument("--regenerate-references", action="store_true")
     parser.add_argument("--update", action="store_true",
@@ -416,14 +420,16 @@ def main(argv: list[str] | None = None) -> int:
                     "awr_denoise": version("awr-denoise")},
         "settings": {"relmse_eps": RELMSE_EPSILON, "variant": "llvm_ad_rgb", "seed": args.seed,
                      "reference_pass_spp": REFERENCE_PASS_SPP, "timing": "wall clock, median of repeats",
-                     "library_defaults": _defaults()},
+                     "library_defaults": _defaults(),
+                     "sampler_options": {} if args.round_growth is None else {"round_growth": args.round_growth}},
         "scenes": [],
     }
     for name, shape, spps, reference_spp, repeats in cases:
         results["scenes"].append(bench_scene(
             name, shape, spps=spps, reference_spp=reference_spp, repeats=repeats,
             throughput_spp=args.throughput_spp if shape[0] * shape[1] <= 512 * 512 else 4,
-            cache=args.cache, regenerate=args.regenerate_references, seed=args.seed))
+            cache=args.cache, regenerate=args.regenerate_references, seed=args.seed,
+            sampler_options=results["settings"]["sampler_options"]))
     results["load_average_1_5_15min"]["end"] = _load_average()
     if args.update and output is not None and output.exists():
         previous = json.loads(output.read_text())
