@@ -46,3 +46,16 @@ def test_quick_run_writes_a_self_describing_json(bench, tmp_path, capsys):
     assert bench.main(["--report", "--output", str(out)]) == 0
     assert "| plain mean relMSE / MSE ratio |" in capsys.readouterr().out
     assert json.loads(out.read_text())["scenes"][0]["equal_time"][0]["uniform_spp"] == 4
+
+
+def test_round_growth_reaches_the_sampler_and_is_recorded(bench, tmp_path):
+    """``--round-growth`` makes fewer, larger rounds (to 8 spp on the tiny image: 2 at 1.0, 5 at the default)."""
+    runs = {}
+    for growth in (None, 1.0):
+        out = tmp_path / f"m{growth}.json"
+        extra = [] if growth is None else ["--round-growth", str(growth)]
+        assert bench.main(["--quick", "--cache", str(tmp_path / "cache"), "--output", str(out), *extra]) == 0
+        results = json.loads(out.read_text())
+        assert results["settings"]["sampler_options"] == ({} if growth is None else {"round_growth": growth})
+        runs[growth] = {run["spp"]: run["rounds"] for run in results["scenes"][0]["awr_runs"]}
+    assert runs[1.0][8] < runs[None][8]
