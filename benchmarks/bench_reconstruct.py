@@ -71,25 +71,25 @@ CHEAPER: dict[str, dict[str, Any] | None] = {"one Wiener stage": SPEED_VARIANTS[
 """``quality --cheaper``: variants that trade quality for speed, measured beside the default."""
 
 
+def _staged(buffer: SampleBuffer, settings: Any, stage1_clamp: float | None) -> np.ndarray:
+    """The default's steps from the library's stages, with ``settings`` and stage 1's clamp given."""
+    prepared = prepare(buffer, DEFAULT_DOMAIN)
+    ops = wavelet_operators(buffer.shape)
+    stage = threshold_stage(prepared, ops, settings.c_s, pixel_clamp=stage1_clamp, precision=settings.precision)
+    return later_stages(prepared, stage.image, None, settings, levels=ops.levels, wavelet=ops.wavelet)[0]
+
+
 def clamped_pilot(buffer: SampleBuffer) -> np.ndarray:
     """The default as it was before its pilot ran unclamped: stage 1 clamped too, then the rest."""
     settings = resolve_settings()
-    prepared = prepare(buffer, DEFAULT_DOMAIN)
-    ops = wavelet_operators(buffer.shape)
-    stage = threshold_stage(prepared, ops, settings.c_s, pixel_clamp=settings.pixel_clamp,
-                            precision=settings.precision)
-    return later_stages(prepared, stage.image, None, settings, levels=ops.levels, wavelet=ops.wavelet)[0]
+    return _staged(buffer, settings, settings.pixel_clamp)
 
 
 def with_floor(floor: tuple[int, float] | None) -> Any:
     """The default with the first Wiener stage's energy floor ``(window, margin)``, or none."""
     def run(buffer: SampleBuffer) -> np.ndarray:
         settings = dataclasses.replace(resolve_settings(), floor=floor)
-        prepared = prepare(buffer, DEFAULT_DOMAIN)
-        ops = wavelet_operators(buffer.shape)
-        stage = threshold_stage(prepared, ops, settings.c_s, pixel_clamp=settings.stage1_clamp,
-                                precision=settings.precision)
-        return later_stages(prepared, stage.image, None, settings, levels=ops.levels, wavelet=ops.wavelet)[0]
+        return _staged(buffer, settings, settings.stage1_clamp)
     return run
 
 
@@ -100,9 +100,9 @@ FLOORS: dict[str, Any] = {"energy floor 3x3": with_floor((3, 2.0)), "energy floo
                           "energy floor margin 1.5": with_floor((5, 1.5)), "energy floor margin 3": with_floor((5, 3.0))}
 """``quality --floors``: the first Wiener stage's energy floor at other windows and margins than (5, 2)."""
 PILOTS: dict[str, Any] = {"pilot c_s 2.5": {"c_s": 2.5}, "pilot c_s 3": {"c_s": 3.0}}
+"""``quality --pilots``: stage 1's threshold as the pilot at other values than the default (2); 1.5 is in COMPARED."""
 WINDOWS: dict[str, Any] = {"guard window 13": {"guard_window": 13}, "guard window 17": {"guard_window": 17}}
 """``quality --windows`` and ``synthetic --windows``: the SURE guard's window at other sides than the default (9)."""
-"""``quality --pilots``: stage 1's threshold as the pilot at other values than the default (2); 1.5 is in COMPARED."""
 
 
 # ---------------------------------------------------------------------------- buffers
@@ -292,7 +292,8 @@ SEED_SHAPE = (64, 64)  # tests/test_sampling.py's size
 
 
 def seeds(names: tuple[str, ...], spps: tuple[int, ...], count: int) -> list[dict[str, Any]]:
-    """Per seed, as tests/test_sampling.py runs them: AWR and uniform sampling, each from scratch, the default."""
+    """Per seed, as tests/test_sampling.py runs them: AWR and uniform sampling, each from scratch, the default
+    (relMSE and MSE), and relMSE with the previous pilot threshold (1.5)."""
     rows = []
     for name in names:
         scene = make_scene(name, SEED_SHAPE)
@@ -301,17 +302,18 @@ def seeds(names: tuple[str, ...], spps: tuple[int, ...], count: int) -> list[dic
             for seed in range(count):
                 for cls in (AdaptiveSampler, UniformSampler):
                     buffer = cls(SEED_SHAPE, seed=seed).run(SyntheticRenderer(scene, seed=seed), spp)
+                    image, before = reconstruct(buffer), reconstruct(buffer, c_s=1.5)
                     rows.append({"scene": name, "spp": spp, "seed": seed, "sampler": cls.strategy,
-                                 "relmse": relmse(reconstruct(buffer), ref),
-                                 "relmse_pilot_1.5": relmse(reconstruct(buffer, c_s=1.5), ref)})
+                                 "relmse": relmse(image, ref), "mse": mse(image, ref),
+                                 "relmse_pilot_1.5": relmse(before, ref)})
         print(f"{name}: done", flush=True)
     return rows
 
 
 def seeds_table(rows: list[dict]) -> None:
     print("\n| scene | spp | seeds | uniform / awr, least | most | mean | seeds where uniform wins | mean, pilot c_s 1.5 "
-          "| relMSE pilot 2 / 1.5, awr | relMSE pilot 2 / 1.5, uniform |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          "| relMSE pilot 2 / 1.5, awr | relMSE pilot 2 / 1.5, uniform | MSE uniform / awr, mean (least) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name in dict.fromkeys(r["scene"] for r in rows):
         for spp in sorted({r["spp"] for r in rows if r["scene"] == name}):
             pick = [r for r in rows if r["scene"] == name and r["spp"] == spp]
@@ -321,9 +323,11 @@ def seeds_table(rows: list[dict]) -> None:
             before = [get[i, "uniform"]["relmse_pilot_1.5"] / get[i, "awr"]["relmse_pilot_1.5"] for i in ids]
             moved = {k: [get[i, k]["relmse"] / get[i, k]["relmse_pilot_1.5"] for i in ids] for k in ("awr", "uniform")}
             lost = [str(i) for i in ids if ratio[i] <= 1] or ["none"]
+            squared = [get[i, "uniform"]["mse"] / get[i, "awr"]["mse"] for i in ids]
             print(f"| {name} | {spp} | 0-{ids[-1]} | {min(ratio.values()):.2f} | {max(ratio.values()):.2f} | "
                   f"{np.mean(list(ratio.values())):.2f} | {', '.join(lost)} | {np.mean(before):.2f} | "
-                  + " | ".join(f"{min(moved[k]):.2f}-{max(moved[k]):.2f}" for k in ("awr", "uniform")) + " |")
+                  + " | ".join(f"{min(moved[k]):.2f}-{max(moved[k]):.2f}" for k in ("awr", "uniform"))
+                  + f" | {np.mean(squared):.2f} ({min(squared):.2f}) |")
 
 
 # ---------------------------------------------------------------------------- synthetic

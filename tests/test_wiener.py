@@ -258,8 +258,8 @@ def test_the_chain_floors_its_first_stage_only_and_only_when_stages_follow(rng, 
 
 
 def test_the_floor_beyond_single_precision_falls_back_to_no_floor(rng):
-    """A band whose square overflows float32 gives no evidence (no NaN): the pixels there are
-    those of the stage without the floor, as where the floor has nothing to add."""
+    """A band whose square overflows float32 gives no evidence: no NaN or Inf comes out (without
+    the guard in ``_band`` the floored result holds NaN)."""
     t = StationaryTransform((32, 32), levels=2, dtype="float32")
     x = rng.random((32, 32, 1)) + 1.0
     x[10, 10] = 1e20  # its band coefficients square beyond float32

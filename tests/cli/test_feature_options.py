@@ -36,6 +36,15 @@ def _images(tmp_path: Path) -> None:
     write_image(tmp_path / "nrm.exr", np.broadcast_to([0.0, 0.0, 1.0], (H, W, 3)).copy(), channels=("X", "Y", "Z"))
 
 
+def _refused(tmp_path: Path, capsys, cases: list[tuple[list[str], str]]) -> None:
+    """Each option set is refused with exit 2 and one line holding ``message``, and nothing is written."""
+    for bad, message in cases:
+        out = tmp_path / "bad.exr"
+        assert main(["denoise", str(tmp_path / "d.exr"), *bad, "-o", str(out)]) == 2, bad
+        assert message in one_error_line(capsys.readouterr().err)
+        assert not out.exists()
+
+
 def test_denoise_reads_the_features_and_says_they_are_unused(tmp_path, capsys):
     _images(tmp_path)
     plain = tmp_path / "plain.exr"
@@ -100,14 +109,11 @@ def test_denoise_guide_projection(tmp_path, capsys):
         images[share] = read_image(out)
         assert float(read_provenance(read_header(out))["guide_projection"]) == float(share)
     assert not np.array_equal(images["0"], images["1"])
-    for bad, message in ((["--guide", "oidn", "--guide-projection", "1.5"], "--guide-projection: must be <= 1"),
-                         (["--guide", "oidn", "--guide-projection", "nan"], "--guide-projection: must be a finite number"),
-                         (["--guide-projection", "0.3"], "--guide-projection: it is the share of a guide's projection"),
-                         (["--guide", "features", "--guide-projection", "0.3"], "it needs --guide oidn")):
-        out = tmp_path / "bad.exr"
-        assert main(["denoise", str(tmp_path / "d.exr"), *bad, "-o", str(out)]) == 2, bad
-        assert message in one_error_line(capsys.readouterr().err)
-        assert not out.exists()
+    _refused(tmp_path, capsys, [
+        (["--guide", "oidn", "--guide-projection", "1.5"], "--guide-projection: must be <= 1"),
+        (["--guide", "oidn", "--guide-projection", "nan"], "--guide-projection: must be a finite number"),
+        (["--guide-projection", "0.3"], "--guide-projection: it is the share of a guide's projection"),
+        (["--guide", "features", "--guide-projection", "0.3"], "it needs --guide oidn")])
 
 
 def test_denoise_guide_oidn_without_pyoidn_is_refused(tmp_path, capsys, monkeypatch):
@@ -245,11 +251,7 @@ def test_denoise_guard_window(tmp_path, capsys):
     assert int(read_provenance(read_header(wide))["guard_window"]) == 13
     assert int(read_provenance(read_header(default))["guard_window"]) == 9
     assert not np.array_equal(read_image(default), read_image(wide))
-    for bad, message in ((["--guard-window", "8"], "--guard-window: must be odd"),
-                         (["--guard-window", "0"], "--guard-window: must be >= 1"),
-                         (["--guard-window", "2000"], "--guard-window: must be <= 1023"),
-                         (["--guard-window", "13", "--stages", "1"], "it needs --stages 2 or more")):
-        out = tmp_path / "bad.exr"
-        assert main(["denoise", str(tmp_path / "d.exr"), *bad, "-o", str(out)]) == 2, bad
-        assert message in one_error_line(capsys.readouterr().err)
-        assert not out.exists()
+    _refused(tmp_path, capsys, [(["--guard-window", "8"], "--guard-window: must be odd"),
+                                (["--guard-window", "0"], "--guard-window: must be >= 1"),
+                                (["--guard-window", "2000"], "--guard-window: must be <= 1023"),
+                                (["--guard-window", "13", "--stages", "1"], "it needs --stages 2 or more")])

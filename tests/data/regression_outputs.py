@@ -132,10 +132,11 @@ def compute() -> dict[str, tuple[np.ndarray, ...]]:
 
 def load() -> dict[str, tuple[np.ndarray, ...]]:
     """The stored outputs, as :func:`compute` returns them."""
-    with np.load(OUTPUTS) as data:
-        names = sorted({k.rsplit("/", 1)[0] for k in data.files})
-        return {name: tuple(data[f"{name}/{i}"] for i in range(sum(k.rsplit("/", 1)[0] == name for k in data.files)))
-                for name in names}
+    out: dict[str, list[np.ndarray]] = {}
+    with np.load(OUTPUTS) as data:  # keys are "name/index"
+        for name, index in sorted((k.rsplit("/", 1)[0], int(k.rsplit("/", 1)[1])) for k in data.files):
+            out.setdefault(name, []).append(data[f"{name}/{index}"])
+    return {name: tuple(arrays) for name, arrays in out.items()}
 
 
 def deviation(name: str, computed: tuple[np.ndarray, ...], stored: tuple[np.ndarray, ...]) -> str | None:
