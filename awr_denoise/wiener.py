@@ -166,7 +166,8 @@ class _Scratch:
         self.work = np.empty(t.shape[:1] + (t.shape[1] // 2 + 1,), np.complex64 if t.dtype == np.float32
                              else np.complex128)
         self.factors = np.empty((n_factors,) + t.shape, t.dtype)  # one per pilot plane
-        self.noise, self.coeff = np.empty(t.shape, t.dtype), np.empty(t.shape, t.dtype)
+        # The noise plane serves the factors, the coefficient plane the scaling after them: one buffer.
+        self.noise = self.coeff = np.empty(t.shape, t.dtype)
         # With the energy floor: every channel's band coefficients, computed for the factors and
         # kept for the scaling (not computed twice), and the evidence plane.
         self.kept = np.empty((n_factors,) + t.shape, t.dtype) if floor else None
@@ -188,7 +189,11 @@ def _band(t: StationaryTransform, b: int, spectra: tuple, leverage: bool, scratc
     per channel only): :func:`relative_wiener`'s energy floor.
     """
     spec_x, spec_v, spec_p, spec_e = spectra
-    a, s, squared = t.analysis(b), t.synthesis(b), t.squared(b)
+    # Each transfer function is alive only while it is used (above 512x512 each is built on the
+    # fly, a complex plane as large as a spectrum): the squared one and the diagonal's for the
+    # factors, the synthesis one for the scaling after them.
+    a, squared = t.analysis(b), t.squared(b)
+    diagonal = t.diagonal(b) if leverage else None
     work, noise, coeff = scratch.work, scratch.noise, scratch.coeff
     tiny = np.finfo(t.dtype).tiny  # factor 1 where the variance is 0; ~0 where the pilot is 0
 
@@ -215,8 +220,10 @@ def _band(t: StationaryTransform, b: int, spectra: tuple, leverage: bool, scratc
         factor += tiny
         noise += factor
         np.divide(factor, noise, out=factor)
-        if leverage:
-            add("d", (c,), _times(t.spectrum(factor, out=scratch.target("d", (c,))), t.diagonal(b)))
+        if diagonal is not None:
+            add("d", (c,), _times(t.spectrum(factor, out=scratch.target("d", (c,))), diagonal))
+    del squared, diagonal
+    s = t.synthesis(b)
     for c in range(spec_x.shape[0]):
         factor = scratch.factors[c if len(scratch.factors) > 1 else 0]
         if scratch.kept is not None:
@@ -270,17 +277,20 @@ def _filter(t: StationaryTransform, planes: list[np.ndarray], es: np.ndarray | N
     else:
         shapes = {kind: total.shape for kind, total in totals.items() if total is not None}
         # One set of buffers per band in flight, reused from pair to pair: fresh ones for every
-        # band would cost the kernel's zeroing of their pages each time.
-        scratches = [_Scratch(t, spec_p.shape[0], shapes, floor is not None) for _ in range(_PARALLEL_BANDS)]
+        # band would cost the kernel's zeroing of their pages each time. The first band of a
+        # group adds its contributions to the totals as it goes, as the serial loop does (every
+        # earlier band is summed by then); the others keep theirs in slots, summed after it in
+        # band order: the same bits, and one band's slots fewer in memory.
+        scratches = [_Scratch(t, spec_p.shape[0], None if i == 0 else shapes, floor is not None)
+                     for i in range(_PARALLEL_BANDS)]
 
         def one(job: tuple[int, _Scratch]) -> _Scratch:
-            _band(t, job[0], spectra, leverage, job[1], lambda *_: None, floor)
+            _band(t, job[0], spectra, leverage, job[1], add if job[1].slots is None else lambda *_: None, floor)
             return job[1]
 
         for start in range(1, len(t.bands), _PARALLEL_BANDS):
             for scratch in run(one, list(zip(range(start, min(start + _PARALLEL_BANDS, len(t.bands))), scratches))):
-                assert scratch.slots is not None
-                for kind, slots in scratch.slots.items():
+                for kind, slots in (scratch.slots or {}).items():
                     totals[kind] += slots  # per band, every plane of a kind in one sum: the same bits
     done = {kind: None if total is None else t.planes(total, overwrite=True) for kind, total in totals.items()}
     return done["x"], done["e"], done["d"]
