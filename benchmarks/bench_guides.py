@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy import ndimage
 
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, guided, guides, projection, reconstruct
 from awr_denoise.bench import machine_info, write_json
@@ -40,7 +41,9 @@ from awr_denoise.io.png import write_preview
 from awr_denoise.metrics import mse, relmse
 from awr_denoise.prepare import filled_mean
 from awr_denoise.renderers import create_renderer
+from awr_denoise.sure import sure_blend
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
+from awr_denoise.wiener import chain
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_reconstruct import (MITSUBA_SHAPE, TRACER_SCENES, _mitsuba_available, quality_scenes,  # noqa: E402
@@ -352,6 +355,107 @@ def _features_every_stage(buffer: SampleBuffer, stage1: np.ndarray, guide: np.nd
     return share * candidate + (1.0 - share) * stage1, share
 
 
+class _RegressionPilot:
+    """The feature pilot replaced by a first-order regression on the features, for one measurement:
+    in every ``2 radius + 1`` square the means are fitted as ``a + b . f`` over the features ``f``
+    (albedo, normal, log depth; the guided filter of He, Sun and Tang 2010 with a many-channel
+    guide, its ridge ``eps`` plus each feature's own noise), and each fit is evaluated at its
+    window's centre (averaging the fits, as the guided filter does, haloes across the horizon)."""
+
+    def __init__(self, radius: int = 4, eps: float = 1e-3) -> None:
+        self.radius, self.eps = radius, eps
+
+    def __enter__(self) -> None:
+        self.saved = guided.feature_pilot
+        guided.feature_pilot = self.pilot
+
+    def __exit__(self, *exc: object) -> None:
+        guided.feature_pilot = self.saved
+
+    def pilot(self, buffer: SampleBuffer, image: np.ndarray) -> np.ndarray:
+        size = (2 * self.radius + 1,) * 2
+
+        def box(a: np.ndarray) -> np.ndarray:
+            return ndimage.uniform_filter(a, size=size + (1,) * (a.ndim - 2), mode="nearest")
+
+        planes, noise = [], []
+        for name in ("albedo", "normal", "depth"):
+            if name not in buffer.features:
+                continue
+            feature = buffer.features[name]
+            mean = np.asarray(feature.mean, np.float64)
+            count = feature.count[..., None]
+            var = np.where(count > 1, feature.variance, 0.0) / np.maximum(count, 1)
+            if name == "depth":  # log depth, relative to the median hit; misses (0) at a far constant
+                scale = float(np.median(mean[mean > 0])) if (mean > 0).any() else 1.0
+                clipped = np.maximum(mean, 1e-6 * scale)
+                mean, var = np.log(clipped / scale), var / clipped**2
+            planes.append(mean)
+            noise.append(var)
+        f, fv = np.concatenate(planes, -1), np.concatenate(noise, -1)
+        y = filled_mean(buffer)
+        h, w, d = f.shape
+        c = y.shape[-1]
+        mf, my = box(f), box(y)
+        cov_ff = box((f[..., :, None] * f[..., None, :]).reshape(h, w, d * d)).reshape(h, w, d, d)
+        cov_ff -= mf[..., :, None] * mf[..., None, :]
+        cov_fy = box((f[..., :, None] * y[..., None, :]).reshape(h, w, d * c)).reshape(h, w, d, c)
+        cov_fy -= mf[..., :, None] * my[..., None, :]
+        cov_ff += np.eye(d) * (self.eps + box(fv))[..., None, :]
+        b = np.linalg.solve(cov_ff.reshape(-1, d, d), cov_fy.reshape(-1, d, c)).reshape(h, w, d, c)
+        return my + np.einsum("hwdc,hwd->hwc", b, f - mf)
+
+
+class _GuardTowardDefault:
+    """For one measurement, the SURE guard of a guided reconstruction first blends towards the
+    unguided Wiener stages' result (``u + lambda (g - u)``, both linear in the means for their
+    fixed factors: Stein's estimate of the blend's risk, ``lambda`` per 9x9 window, the smaller of
+    the squared and the relative criterion's), then towards the means as usual: a wrong guide falls
+    back to the default rather than to the plain mean."""
+
+    def __enter__(self) -> None:
+        self.saved = (_RECONSTRUCT.pilots, _RECONSTRUCT._wiener_stages)
+        _RECONSTRUCT.pilots, _RECONSTRUCT._wiener_stages = self._pilots, self._stages
+
+    def __exit__(self, *exc: object) -> None:
+        _RECONSTRUCT.pilots, _RECONSTRUCT._wiener_stages = self.saved
+
+    def _pilots(self, buffer: SampleBuffer, stage1: np.ndarray, guide: Any, features: bool) -> tuple:
+        self.stage1 = stage1
+        return self.saved[0](buffer, stage1, guide, features)
+
+    def _stages(self, prepared: Any, pilot: np.ndarray, exponents: tuple, **options: Any) -> tuple:
+        guide, keep, window = options["guide"], options["keep"], options.get("window", 9)
+        if guide is None or options["luminance"] is not None:
+            return self.saved[1](prepared, pilot, exponents, **options)
+        scale = prepared.domain.resolved_scale(prepared.mean)
+        s = _RECONSTRUCT._power_of_two(scale)
+        k = prepared.domain.offset * (scale / s)
+        x, v = prepared.mean / s, prepared.variance / s / s
+        t = _RECONSTRUCT.stationary_transform(prepared.mean.shape[:2], options["wavelet"], options["levels"],
+                                              options["precision"])
+        floor = options.get("floor", _RECONSTRUCT.DEFAULT_FLOOR)
+        base = chain(t, x, v, self.stage1 / s, exponents, k=k, leverage=True, floor=floor)
+        done = chain(t, x, v, pilot / s, exponents, k=k, leverage=True, floor=floor, keep=keep)
+        g = np.where(keep > 0, guide, 0.0) / s
+        out, lev, _ = guided.projected(t, x, v, g, done.image, done.leverage, keep, k=k,
+                                       projection=options["projection"])
+        lev_b = np.broadcast_to(base.leverage, out.shape)
+        lev = np.broadcast_to(lev, out.shape)
+        change = out - base.image
+        lams = []
+        for weight in (np.ones_like(out), 1.0 / (np.abs(out) + k) ** 2):
+            size = (window, window, 1)
+            num = ndimage.uniform_filter(-weight * ((base.image - x) * change + v * (lev - lev_b)), size, mode="nearest")
+            den = ndimage.uniform_filter(weight * change * change, size, mode="nearest")
+            with np.errstate(divide="ignore", invalid="ignore"):
+                lams.append(np.clip(np.nan_to_num(np.where(den > 0, num / den, 1.0), nan=1.0), 0.0, 1.0))
+        lam = np.minimum(*lams)
+        out, lev = base.image + lam * change, lev_b + lam * (lev - lev_b)
+        out, _ = sure_blend(out, x, v, lev, k=k, window=window)
+        return out * s, None
+
+
 AVENUES: dict[str, tuple[dict[str, Any], Any]] = {
     "OIDN guide": ({"guide": guides.oidn}, None),
     "OIDN guide, first stage only": ({"guide": guides.oidn}, _first_stage_only),
@@ -368,10 +472,13 @@ AVENUES: dict[str, tuple[dict[str, Any], Any]] = {
     "features": ({"features": True}, None),
     "features, every stage": ({"features": True}, _features_every_stage),
     "demodulated guide": ({"guide": _demodulated}, None),
+    "features, regression pilot": ({"features": True}, _RegressionPilot()),
+    "OIDN guide, guard towards the default": ({"guide": guides.oidn}, _GuardTowardDefault()),
 }
 """What else was tried for the guide and the features: name -> (reconstruct options, replacement of
-:func:`awr_denoise.guided.pilots`, a :class:`_Projection` setting, or ``None``). ``"reference"`` stands
-for the scene's reference image."""
+:func:`awr_denoise.guided.pilots`, a context that replaces a step for one measurement (:class:`_Projection`,
+:class:`_RegressionPilot`, :class:`_GuardTowardDefault`), or ``None``). ``"reference"`` stands for the
+scene's reference image."""
 
 
 def avenues(scenes: list[tuple[str, str, tuple[int, int] | None]], spp: int, groups: int,
@@ -385,7 +492,7 @@ def avenues(scenes: list[tuple[str, str, tuple[int, int] | None]], spp: int, gro
             images = {"default": reconstruct(buffer), "OIDN": guides.oidn(buffer), "plain": filled_mean(buffer)}
             for name, (options, replacement) in AVENUES.items():
                 options = {k: (ref if v == "reference" else v) for k, v in options.items()}
-                if isinstance(replacement, _Projection):
+                if hasattr(replacement, "__enter__"):
                     with replacement:
                         images[name] = reconstruct(buffer, **options)
                     continue
