@@ -400,3 +400,19 @@ def test_merge_in_place_is_chans_formula_bit_for_bit(rng):
     assert_array_equal(merged.mean, mean)
     assert_array_equal(merged.variance, np.where(merged.variance_known[..., None], variance, 0.0))
     assert_array_equal(merged.count, a.count + b.count)
+
+
+def test_pixels_without_samples_or_variance_are_zeroed_and_others_kept():
+    """The constructor zeroes the mean of pixels without samples and the variance of pixels with
+    fewer than two (or marked unknown); with none of either it writes nothing and keeps every value."""
+    count = np.array([[0, 1, 2], [3, 4, 5]])
+    mean = np.arange(1.0, 7.0).reshape(2, 3)
+    variance = np.full((2, 3), 0.5)
+    known = np.array([[True, True, True], [False, True, True]])
+    buf = SampleBuffer.from_moments(count, mean, variance, variance_known=known)
+    assert_array_equal(buf.mean[..., 0], [[0.0, 2.0, 3.0], [4.0, 5.0, 6.0]])
+    assert_array_equal(buf.variance[..., 0], [[0.0, 0.0, 0.5], [0.0, 0.5, 0.5]])
+    full = SampleBuffer.from_moments(count + 2, mean, variance)
+    assert_array_equal(full.mean[..., 0], mean)
+    assert full.variance_known.all()
+    assert_array_equal(full.variance[..., 0], variance)
