@@ -83,7 +83,9 @@ def sample_chunks(request: SampleRequest, batch_size: int) -> Iterator[Chunk]:
 
 
 _BLOCK = 1 << 15  # samples per block of the accumulation: its temporaries stay in the CPU's cache
-_EQUAL_RUNS = 16  # longest run summed sample by sample in a block of equal runs (measured: 3x faster up to 8)
+# Longest run summed sample index by sample index in a block of equal runs: measured 3-6x faster than
+# np.add.reduceat at 4 samples per pixel; from 32 on numpy's reduction along the runs is as fast.
+_EQUAL_RUNS = 16
 
 
 class PixelStatistics:
