@@ -149,6 +149,15 @@ def _power_of_two(scale: float) -> float:
     return math.ldexp(1.0, max(-1000, min(1000, math.frexp(scale)[1])))
 
 
+def _unit_scale(prepared: Prepared) -> tuple[float, float, FloatArray, FloatArray]:
+    """``(s, k, x, v)``: the power of two ``s`` the Wiener stages divide by, the offset ``k`` and the
+    means and their variances at that scale."""
+    scale = prepared.domain.resolved_scale(prepared.mean)
+    s = _power_of_two(scale)
+    k = prepared.domain.offset * (scale / s)  # not offset * scale: that underflows near 5e-324
+    return s, k, prepared.mean / s, prepared.variance / s / s  # not s * s: that underflows near 1e-310
+
+
 def _wiener_levels(levels: int) -> int:
     """Stationary stages' depth: stage 1's less one from 4 levels on (as good, 20% faster; below, every
     level counts: a third of the gain lost at 32x32 with 1 level not 2; docs/reconstruction.md)."""
@@ -166,11 +175,7 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
     map; :func:`~awr_denoise.wiener.chain`), every channel together, and the guard's two criteria
     run side by side: the same image, bit for bit.
     """
-    scale = prepared.domain.resolved_scale(prepared.mean)
-    s = _power_of_two(scale)
-    k = prepared.domain.offset * (scale / s)  # not offset * scale: that underflows near 5e-324
-    x = prepared.mean / s
-    v = prepared.variance / s / s  # not s * s: that underflows for means near 1e-310
+    s, k, x, v = _unit_scale(prepared)
     transform = stationary_transform(prepared.mean.shape[:2], wavelet, levels, precision)
     options = {"k": k, "leverage": guard, "probes": probes, "keep": keep, "seed": seed,
                "run": run if parallel else None}

@@ -196,13 +196,6 @@ def _band(t: StationaryTransform, b: int, spectra: tuple, leverage: bool, scratc
     diagonal = t.diagonal(b) if leverage else None
     work, noise, coeff = scratch.work, scratch.noise, scratch.coeff
     tiny = np.finfo(t.dtype).tiny  # factor 1 where the variance is 0; ~0 where the pilot is 0
-
-    def scaled(spectrum: np.ndarray, factor: np.ndarray, out: np.ndarray) -> np.ndarray:
-        """The spectrum of one plane's band coefficients times ``factor``, taken back by ``s``, in ``out``."""
-        t.planes(np.multiply(spectrum, a, out=work), overwrite=True, out=coeff)
-        np.multiply(coeff, factor, out=coeff)
-        return _times(t.spectrum(coeff, out=out), s)
-
     for c, factor in enumerate(scratch.factors):
         t.planes(np.multiply(spec_p[c], a, out=work), overwrite=True, out=factor)
         np.multiply(factor, factor, out=factor)
@@ -224,6 +217,13 @@ def _band(t: StationaryTransform, b: int, spectra: tuple, leverage: bool, scratc
             add("d", (c,), _times(t.spectrum(factor, out=scratch.target("d", (c,))), diagonal))
     del squared, diagonal
     s = t.synthesis(b)
+
+    def scaled(spectrum: np.ndarray, factor: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """The spectrum of one plane's band coefficients times ``factor``, taken back by ``s``, in ``out``."""
+        t.planes(np.multiply(spectrum, a, out=work), overwrite=True, out=coeff)
+        np.multiply(coeff, factor, out=coeff)
+        return _times(t.spectrum(coeff, out=out), s)
+
     for c in range(spec_x.shape[0]):
         factor = scratch.factors[c if len(scratch.factors) > 1 else 0]
         if scratch.kept is not None:

@@ -428,10 +428,7 @@ class _GuardTowardDefault:
         guide, keep, window = options["guide"], options["keep"], options.get("window", 9)
         if guide is None or options["luminance"] is not None:
             return self.saved[1](prepared, pilot, exponents, **options)
-        scale = prepared.domain.resolved_scale(prepared.mean)
-        s = _RECONSTRUCT._power_of_two(scale)
-        k = prepared.domain.offset * (scale / s)
-        x, v = prepared.mean / s, prepared.variance / s / s
+        s, k, x, v = _RECONSTRUCT._unit_scale(prepared)
         t = _RECONSTRUCT.stationary_transform(prepared.mean.shape[:2], options["wavelet"], options["levels"],
                                               options["precision"])
         floor = options.get("floor", _RECONSTRUCT.DEFAULT_FLOOR)
