@@ -16,6 +16,7 @@ three steps wherever it happens, so it happens here only:
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -112,6 +113,15 @@ class Prepared:
         if dom.name == "linear" or dom.scale is not None:
             return dom
         return dataclasses.replace(dom, scale=dom.resolved_scale(self.mean))
+
+    def unit_scaled(self) -> tuple[float, float, FloatArray, FloatArray]:
+        """``(s, k, x, v)``: a power of two ``s`` near the image's level (dividing by it is exact), and
+        the domain's offset ``k``, the means ``x`` and their variances ``v`` at that scale: where the
+        Wiener stages work, the image brought to about 1."""
+        scale = self.domain.resolved_scale(self.mean)
+        s = math.ldexp(1.0, max(-1000, min(1000, math.frexp(scale)[1])))
+        k = self.domain.offset * (scale / s)  # not offset * scale: that underflows near 5e-324
+        return s, k, self.mean / s, self.variance / s / s  # not s * s: that underflows near 1e-310
 
     @cached_property
     def variance(self) -> FloatArray:

@@ -18,7 +18,6 @@ docs/reconstruction.md has the measurements behind every default.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
@@ -108,6 +107,11 @@ class Reconstruction:
         The settings that made it, resolved (``c_s``, ``wavelet``, ``levels``, ``domain``
         name, ``mode``, ``boundary``, ``pixel_clamp``, ``stages``, ...): what a file's
         provenance records.
+    noise_gain
+        (H, W) share of each pixel's noise variance that the Wiener stages and the guard pass
+        on to the image, ``(1 - l)^2 + l (2 - l) L`` for the guard's share ``l`` and the stages'
+        diagonal ``L`` (channel mean; ``None`` without the guard). What
+        ``AdaptiveSampler(noise_model="reconstruction")`` spends samples by (docs/sampling.md).
 
     Examples
     --------
@@ -136,26 +140,13 @@ class Reconstruction:
     levels: int
     domain: Domain
     parameters: dict = field(default_factory=dict)
+    noise_gain: FloatArray | None = None
 
 
 def _exponents(value: Sequence[float]) -> tuple[float, ...]:
     if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
         raise TypeError(f"wiener_exponents: expected a sequence of numbers in [0, 1], got {value!r}")
     return tuple(_checks.real("wiener_exponents", a, minimum=0, maximum=1) for a in value)  # type: ignore[misc]
-
-
-def _power_of_two(scale: float) -> float:
-    """A power of two near ``scale``: dividing by it is exact, and it brings the image to ~1."""
-    return math.ldexp(1.0, max(-1000, min(1000, math.frexp(scale)[1])))
-
-
-def _unit_scale(prepared: Prepared) -> tuple[float, float, FloatArray, FloatArray]:
-    """``(s, k, x, v)``: the power of two ``s`` the Wiener stages divide by, the offset ``k`` and the
-    means and their variances at that scale."""
-    scale = prepared.domain.resolved_scale(prepared.mean)
-    s = _power_of_two(scale)
-    k = prepared.domain.offset * (scale / s)  # not offset * scale: that underflows near 5e-324
-    return s, k, prepared.mean / s, prepared.variance / s / s  # not s * s: that underflows near 1e-310
 
 
 def _wiener_levels(levels: int) -> int:
@@ -168,14 +159,14 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
                    precision: str, luminance: tuple[Prepared, FloatArray] | None, guard: bool, probes: int, seed: int,
                    run: Callable, parallel: bool, keep: FloatArray | float, guide: FloatArray | None,
                    projection: float, floor: tuple[int, float] | None = DEFAULT_FLOOR,
-                   window: int = DEFAULT_WINDOW) -> tuple[FloatArray, FloatArray | None]:
-    """Stages 2.. and the SURE guard on the image brought to unit scale; the probe variance if asked.
+                   window: int = DEFAULT_WINDOW) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
+    """Stages 2.. and the SURE guard on the image brought to unit scale; the probe variance if asked, the noise gain.
 
     With ``parallel`` the Wiener stages filter their bands on ``run``'s threads (an executor's
     map; :func:`~awr_denoise.wiener.chain`), every channel together, and the guard's two criteria
     run side by side: the same image, bit for bit.
     """
-    s, k, x, v = _unit_scale(prepared)
+    s, k, x, v = prepared.unit_scaled()
     transform = stationary_transform(prepared.mean.shape[:2], wavelet, levels, precision)
     options = {"k": k, "leverage": guard, "probes": probes, "keep": keep, "seed": seed,
                "run": run if parallel else None}
@@ -191,6 +182,7 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
         g = np.where(keep > 0, guide, 0.0) / s  # where the gate is closed a guide may be near overflow
         out, leverage, var_out = projected(transform, x, v, g, out, leverage, keep, k=k, probes=probes, seed=seed,
                                            probe_variance=var_out, projection=projection)
+    gain = None
     if guard:
         assert leverage is not None
         if luminance is None:
@@ -204,7 +196,10 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
         if var_out is not None:
             # (1 - l) x + l o, with Cov(x, o) = L v on the diagonal of a linear map.
             var_out = (1 - lam) ** 2 * v + lam * lam * var_out + 2 * lam * (1 - lam) * leverage * v
-    return out * s, None if var_out is None else var_out * s * s
+        # A pixel's noise reaches the blend as (1 - l)^2 + 2 l (1 - l) L + l^2 sum_q A_qp^2; the last sum
+        # is taken as L, its value for a projection (a shrinkage's is at most about L).
+        gain = np.mean((1 - lam) ** 2 + lam * (2 - lam) * leverage, axis=-1)
+    return out * s, None if var_out is None else var_out * s * s, gain
 
 
 @dataclass(frozen=True)
@@ -280,7 +275,7 @@ def resolve_settings(*, c_s: float | None = None, stages: int = DEFAULT_STAGES,
 def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | None, settings: Settings, *, levels: int,
                  wavelet: str, luminance: tuple[Prepared, FloatArray] | None = None, run: Callable | None = None,
                  keep: FloatArray | float = 0.0, guide: FloatArray | None = None, projection: float = 0.0
-                 ) -> tuple[FloatArray, FloatArray | None]:
+                 ) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
     """Everything after stage 1: the Wiener stages, the guard, the pixel clamp, non-negativity, the mean.
 
     Parameters
@@ -303,17 +298,18 @@ def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | N
 
     Returns
     -------
-    (numpy.ndarray, numpy.ndarray or None)
-        The image and its variance (see :func:`reconstruct_detailed`, Notes).
+    (numpy.ndarray, numpy.ndarray or None, numpy.ndarray or None)
+        The image, its variance (see :func:`reconstruct_detailed`, Notes) and the noise gain
+        (:attr:`Reconstruction.noise_gain`).
     """
     parallel = run is not None
-    run = run or (lambda f, items: [f(i) for i in items])
+    run, gain = run or (lambda f, items: [f(i) for i in items]), None
     if settings.stages > 1:
-        image, variance = _wiener_stages(prepared, image, settings.exponents, levels=_wiener_levels(levels),
-                                         wavelet=wavelet, precision=settings.precision, luminance=luminance,
-                                         guard=settings.guard, probes=settings.probes, seed=settings.seed, run=run,
-                                         parallel=parallel, keep=keep, guide=guide, projection=projection,
-                                         floor=settings.floor, window=settings.guard_window)
+        image, variance, gain = _wiener_stages(prepared, image, settings.exponents, levels=_wiener_levels(levels),
+                                               wavelet=wavelet, precision=settings.precision, luminance=luminance,
+                                               guard=settings.guard, probes=settings.probes, seed=settings.seed, run=run,
+                                               parallel=parallel, keep=keep, guide=guide, projection=projection,
+                                               floor=settings.floor, window=settings.guard_window)
         if settings.pixel_clamp is not None:
             lum = None if luminance is None else luminance[0]
             image, moved = pooled_clamp(image, prepared.mean if lum is None else lum.mean,
@@ -329,7 +325,7 @@ def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | N
         image, t = restore_mean(image, prepared.mean, prepared.variance)
         if variance is not None:  # a blend (1 - t) o + t x: at most the blend of the standard errors
             variance = ((1 - t) * np.sqrt(variance) + t * np.sqrt(prepared.variance)) ** 2
-    return image, variance
+    return image, variance, gain
 
 
 def reconstruct_detailed(
@@ -490,12 +486,12 @@ def reconstruct_detailed(
                             weights=None if luminance is None else luminance[1])
     variance = stage.output_variance(settings.probes, settings.seed) if settings.probes and settings.stages == 1 else None
     first, keep = pilots(buffer, stage.image, guide, features)
-    image, variance = later_stages(prepared, first, variance, settings, levels=ops.levels, wavelet=ops.wavelet,
+    image, variance, gain = later_stages(prepared, first, variance, settings, levels=ops.levels, wavelet=ops.wavelet,
                                    luminance=luminance, run=run, keep=keep, guide=guide, projection=projection)
     return Reconstruction(image=image, thresholds=stage.thresholds,
                           fraction_zeroed=stage.zeroed / stage.total if stage.total else 0.0,
                           variance=np.broadcast_to(np.nan, image.shape) if variance is None else variance,
-                          levels=ops.levels, domain=prepared.bound.domain,
+                          levels=ops.levels, domain=prepared.bound.domain, noise_gain=gain,
                           parameters={"wavelet": ops.wavelet, "levels": ops.levels,
                                       "domain": prepared.bound.domain.name, "mode": mode, "boundary": boundary,
                                       "guide": guide is not None, "features": features,

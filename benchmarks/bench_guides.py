@@ -428,7 +428,7 @@ class _GuardTowardDefault:
         guide, keep, window = options["guide"], options["keep"], options.get("window", 9)
         if guide is None or options["luminance"] is not None:
             return self.saved[1](prepared, pilot, exponents, **options)
-        s, k, x, v = _RECONSTRUCT._unit_scale(prepared)
+        s, k, x, v = prepared.unit_scaled()
         t = _RECONSTRUCT.stationary_transform(prepared.mean.shape[:2], options["wavelet"], options["levels"],
                                               options["precision"])
         floor = options.get("floor", _RECONSTRUCT.DEFAULT_FLOOR)
@@ -450,7 +450,7 @@ class _GuardTowardDefault:
         lam = np.minimum(*lams)
         out, lev = base.image + lam * change, lev_b + lam * (lev - lev_b)
         out, _ = sure_blend(out, x, v, lev, k=k, window=window)
-        return out * s, None
+        return out * s, None, None
 
 
 AVENUES: dict[str, tuple[dict[str, Any], Any]] = {

@@ -16,7 +16,7 @@ from awr_denoise.channels import luminance_weights
 from awr_denoise.domains import DOMAIN_NAMES, Domain
 from awr_denoise.metrics import mse, relmse
 from awr_denoise.prepare import prepare
-from awr_denoise.reconstruct import DEFAULT_PILOT_C_S, later_stages, resolve_settings
+from awr_denoise.reconstruct import DEFAULT_PILOT_C_S, MODES, later_stages, resolve_settings
 from awr_denoise.stationary import StationaryTransform
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
 from awr_denoise.thresholding import threshold_stage
@@ -593,3 +593,21 @@ def test_bad_guard_windows_are_refused(options, message):
     with pytest.raises(ValueError, match=message):
         reconstruct(buf, **options)
 
+
+
+def test_the_noise_gain_is_low_where_the_stages_average_and_high_where_the_means_are_kept(rng):
+    """Reconstruction.noise_gain: a flat noisy half is averaged (each pixel's noise spread thin), a
+    precise checkerboard half keeps its own means (the guard returns to them)."""
+    flat = 0.5 + 0.05 * rng.standard_normal((64, 64, 3))
+    checker = (np.indices((64, 64)).sum(axis=0) % 2)[..., None] * np.ones(3) + 0.1
+    left = np.arange(64)[None, :, None] < 32
+    buf = SampleBuffer.from_moments(np.full((64, 64), 8), np.where(left, flat, checker),
+                                    np.where(left, 0.02, 1e-8) * np.ones((64, 64, 3)))
+    for mode in MODES:
+        gain = reconstruct_detailed(buf, variance_probes=0, mode=mode).noise_gain
+        assert gain is not None and gain.shape == (64, 64), mode
+        assert (gain >= 0).all() and (gain <= 1 + 1e-9).all(), mode
+        assert gain[:, :24].mean() < 0.1 and gain[:, 40:].mean() > 0.9, mode
+    # No guard, no gain: the stages' diagonal alone would say nothing of the blend.
+    assert reconstruct_detailed(buf, stages=1).noise_gain is None
+    assert reconstruct_detailed(buf, guard=False, variance_probes=0).noise_gain is None

@@ -269,5 +269,4 @@ preserve_mean, nonnegative, precision
     luminance = None
     if mode == "luminance":
         luminance = (prepare(buffer, prepared.domain, luminance=True), luminance_weights(buffer.channels))
-    image, _ = later_stages(prepared, image, None, settings, levels=levels, wavelet=wavelet, luminance=luminance)
-    return image
+    return later_stages(prepared, image, None, settings, levels=levels, wavelet=wavelet, luminance=luminance)[0]
