@@ -236,6 +236,7 @@ def sampling_density(
     domain: str | Domain = "log",
     boundary: str = "symmetric",
     level_weight: float = 1.0,
+    noise_gain: FloatArray | None = None,
 ) -> FloatArray:
     """(H, W) target sample density ``a_p = s_p * 2^(-level_weight * l_p)`` (unnormalised).
 
@@ -243,6 +244,12 @@ def sampling_density(
     (a variance from four samples is too noisy to rank on), ``l_p`` the winning level of
     :func:`pixel_levels`. ``level_weight = 0`` ignores the wavelet structure (per-pixel
     variance-driven sampling).
+
+    The level term models what reconstruction leaves of a pixel's noise: a region averaged over
+    ``4^l`` pixels keeps ``4^-l`` of it, and ``n_p ~ s_p sqrt(4^-l)`` spends a budget best. Given
+    ``noise_gain``, that share measured on a reconstruction (``g_p``,
+    :attr:`~awr_denoise.Reconstruction.noise_gain`, pooled over 3x3 pixels like ``s_p``) takes the
+    level term's place: ``a_p = s_p * sqrt(g_p)``, and ``level_weight`` is not used.
 
     Examples
     --------
@@ -258,14 +265,31 @@ def sampling_density(
     >>> row = density[16] / density[16].max()
     >>> int(np.argmax(row)), bool(row[:8].mean() > row[24:].mean())
     (14, True)
+
+    A measured gain four times larger asks for twice the samples:
+
+    >>> gain = np.where(np.arange(32) < 16, 0.1, 0.4)[:, None] * np.ones((32, 32))
+    >>> flat = SampleBuffer.from_moments(np.full((32, 32), 4), np.ones((32, 32, 3)), np.full((32, 32, 3), 0.1))
+    >>> density = sampling_density(flat, noise_gain=gain)
+    >>> round(float(density[28, 5] / density[3, 5]), 6)
+    2.0
     """
     level_weight = _checks.real("level_weight", level_weight, minimum=0)
+    if noise_gain is not None:
+        noise_gain = np.asarray(noise_gain, dtype=np.float64)
+        if noise_gain.shape != buffer.shape:
+            raise ValueError(f"noise_gain: shape {noise_gain.shape} is not the buffer's {buffer.shape}")
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     plane = error_plane(buffer, domain)
     # The running-sum filter can leave -1e-17-sized residues next to large values: clip them.
     s2_pooled = ndimage.uniform_filter(plane[2], 3, mode="nearest")
     np.maximum(s2_pooled, 0.0, out=s2_pooled)
     s_pooled = np.sqrt(s2_pooled, out=s2_pooled)
+    if noise_gain is not None:
+        # Pooled like s_p; a NaN or negative gain (none is expected) must not send samples nowhere.
+        gain = np.nan_to_num(ndimage.uniform_filter(noise_gain, 3, mode="nearest"), nan=1.0)
+        s_pooled *= np.sqrt(np.maximum(gain, 0.0))
+        return s_pooled
     if level_weight == 0:
         return s_pooled
     # Levels do not change when the plane is scaled: normalised, the priorities cannot overflow.

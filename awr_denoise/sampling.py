@@ -32,16 +32,17 @@ from tqdm.auto import tqdm
 
 from . import _checks
 from ._typing import CountArray, FloatArray, Shape2D
-from .allocation import MAX_BUDGET, allocate
+from .allocation import MAX_BUDGET, allocate, allocate_mixed
 from .buffers import SampleBuffer
 from .domains import Domain
 from .errors import StaleRequestError
 from .priorities import error_plane, sampling_density
+from .reconstruct import reconstruct_detailed
 from .requests import Renderer, SampleRequest
 from .wavelets import DEFAULT_WAVELET, wavelet_operators
 
-__all__ = ["Sampler", "AdaptiveSampler", "UniformSampler", "VarianceSampler", "SAMPLERS", "DEFAULT_INITIAL_SPP",
-           "DEFAULT_ROUND_GROWTH"]
+__all__ = ["Sampler", "AdaptiveSampler", "UniformSampler", "VarianceSampler", "SAMPLERS", "NOISE_MODELS",
+           "DEFAULT_INITIAL_SPP", "DEFAULT_ROUND_GROWTH"]
 
 _sampler_ids = itertools.count(1)
 DEFAULT_ROUND_GROWTH = 0.25
@@ -452,7 +453,7 @@ class VarianceSampler(Sampler):
                  **options) -> None:
         super().__init__(shape, **options)
         self.domain = domain
-        self.uniform_fraction = _check_fraction(uniform_fraction)
+        self.uniform_fraction = _checks.real("uniform_fraction", uniform_fraction, minimum=0.0, maximum=1.0)
 
     def _density(self) -> FloatArray:
         _, _, s2_y = error_plane(self._buffer, self.domain)
@@ -460,7 +461,7 @@ class VarianceSampler(Sampler):
         return np.sqrt(np.maximum(ndimage.uniform_filter(s2_y, 3, mode="nearest"), 0.0))
 
     def _allocate(self, budget, current, capacity, rng):
-        return _mixed(self._density(), budget, current, capacity, rng, self.uniform_fraction)
+        return allocate_mixed(self._density(), current, budget, self.uniform_fraction, capacity=capacity, rng=rng)
 
 
 class AdaptiveSampler(Sampler):
@@ -491,6 +492,13 @@ class AdaptiveSampler(Sampler):
         sampler into per-pixel variance sampling.
     uniform_fraction
         Share of every round spread uniformly; 0 by default.
+    noise_model
+        What reconstruction leaves of a pixel's noise, the factor on ``s_p``: ``"levels"`` (the
+        paper's model above, the default) or ``"reconstruction"``: every round, the default
+        reconstruction's measured share ``g_p`` (:attr:`~awr_denoise.Reconstruction.noise_gain`),
+        ``n_p ~ s_p sqrt(g_p)``, which spends a budget best for that reconstruction. Measured
+        (docs/sampling.md, "The measured noise gain"): lower relMSE on every bundled and Mitsuba
+        scene for one default reconstruction per round; for renderers slow beside it.
 
     Examples
     --------
@@ -512,7 +520,7 @@ class AdaptiveSampler(Sampler):
                  wavelet: str = DEFAULT_WAVELET, levels: int | None = None, seed: int = 0,
                  spp_min: int | None = None, spp_max: int | None = None, round_spp: float | None = None,
                  round_growth: float = DEFAULT_ROUND_GROWTH, domain: str | Domain = "log", level_weight: float = 0.25,
-                 uniform_fraction: float = 0.0) -> None:
+                 uniform_fraction: float = 0.0, noise_model: str = "levels") -> None:
         super().__init__(shape, channels=channels, initial_spp=initial_spp, seed=seed, spp_min=spp_min,
                          spp_max=spp_max, round_spp=round_spp, round_growth=round_growth)
         wavelet_operators(self._shape, wavelet=wavelet, levels=levels)  # validates wavelet and levels now
@@ -520,30 +528,23 @@ class AdaptiveSampler(Sampler):
         self.levels = levels
         self.domain = domain
         self.level_weight = _checks.real("level_weight", level_weight, minimum=0)
-        self.uniform_fraction = _check_fraction(uniform_fraction)
+        self.uniform_fraction = _checks.real("uniform_fraction", uniform_fraction, minimum=0.0, maximum=1.0)
+        self.noise_model = _checks.name("noise_model", noise_model, NOISE_MODELS)
 
     def density(self) -> FloatArray:
         """(H, W) target density of the next round (see :func:`~awr_denoise.priorities.sampling_density`)."""
+        gain = None
+        if self.noise_model == "reconstruction":  # round 1 on (round 0 is uniform): one reconstruction each
+            gain = reconstruct_detailed(self._buffer, variance_probes=0).noise_gain
         return sampling_density(self._buffer, wavelet=self.wavelet, levels=self.levels, domain=self.domain,
-                                level_weight=self.level_weight)
+                                level_weight=self.level_weight, noise_gain=gain)
 
     def _allocate(self, budget, current, capacity, rng):
-        return _mixed(self.density(), budget, current, capacity, rng, self.uniform_fraction)
+        return allocate_mixed(self.density(), current, budget, self.uniform_fraction, capacity=capacity, rng=rng)
 
+
+NOISE_MODELS = ("levels", "reconstruction")
+"""``AdaptiveSampler``'s ``noise_model``: the paper's level term, or the default reconstruction's measured gain."""
 
 SAMPLERS: dict[str, type[Sampler]] = {cls.strategy: cls for cls in (AdaptiveSampler, UniformSampler, VarianceSampler)}
 """The samplers by strategy name: ``"awr"``, ``"uniform"``, ``"variance"``."""
-
-
-def _check_fraction(value: float) -> float:
-    return _checks.real("uniform_fraction", value, minimum=0.0, maximum=1.0)  # type: ignore[return-value]
-
-
-def _mixed(density, budget, current, capacity, rng, uniform_fraction):
-    """``uniform_fraction`` of the budget spread uniformly, the rest by ``density``."""
-    uniform_part = int(round(uniform_fraction * budget))
-    if uniform_part == 0:  # the default: no uniform share (allocate would return zeros and draw nothing)
-        return allocate(density, current, budget, capacity=capacity, rng=rng)
-    counts = allocate(np.ones(current.shape), current, uniform_part, capacity=capacity, rng=rng)
-    cap = None if capacity is None else capacity - counts
-    return counts + allocate(density, current + counts, budget - uniform_part, capacity=cap, rng=rng)

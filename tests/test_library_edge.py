@@ -42,6 +42,7 @@ from awr_denoise.parallel import get_executor, halo_width, reconstruct_tiled, ti
 from awr_denoise.prepare import prepare
 from awr_denoise.projection import project
 from awr_denoise.reconstruct import MODES, PRECISIONS
+from awr_denoise.sampling import NOISE_MODELS
 from awr_denoise.stationary import DTYPES, StationaryTransform
 from awr_denoise.wavelets import WAVELET_NAMES
 from awr_denoise.wiener import stage_weights
@@ -109,6 +110,7 @@ PARAMS = [
     Param("round_spp", "real>0", lambda v: UniformSampler((H, W), round_spp=v), none=True),
     Param("round_growth", "real>0", lambda v: UniformSampler((H, W), round_growth=v)),
     Param("level_weight", "real>=0", lambda v: AdaptiveSampler((H, W), level_weight=v)),
+    Param("noise_model", "name", lambda v: AdaptiveSampler((H, W), noise_model=v), choices=NOISE_MODELS),
     Param("uniform_fraction", "fraction", lambda v: VarianceSampler((H, W), uniform_fraction=v)),
     Param("shape", "int>=1", lambda v: UniformSampler((v, W))),
     Param("budget", "int>=0", lambda v: UniformSampler.from_buffer(BUF).ask(v), none=True),
