@@ -3,7 +3,7 @@
 Run from the repository root (each section updates its part of the JSON)::
 
     .venv/bin/python benchmarks/bench_reconstruct.py quality      # bundled tracer (+ Mitsuba 3), 8-128 spp
-    .venv/bin/python benchmarks/bench_reconstruct.py samplers     # AWR vs uniform vs variance sampling
+    .venv/bin/python benchmarks/bench_reconstruct.py samplers     # AWR vs uniform vs variance sampling, 2 seeds
     .venv/bin/python benchmarks/bench_reconstruct.py seeds        # the same per seed on the synthetic scenes
     .venv/bin/python benchmarks/bench_reconstruct.py synthetic    # known clean images, 4-1024 spp
     .venv/bin/python benchmarks/bench_reconstruct.py speed        # 128x128, 256x256, 1080p
@@ -252,39 +252,83 @@ def cheaper_table(rows: list[dict], cheaper: str, method: str = "default") -> No
 
 
 # ---------------------------------------------------------------------------- samplers
-def samplers(scenes: tuple[str, ...], spps: tuple[int, ...], seed: int) -> list[dict[str, Any]]:
-    """Equal samples: uniform, per-pixel variance and AWR sampling (log- and linear-domain priorities)."""
-    kinds = {"uniform": lambda s: UniformSampler(s, seed=seed), "variance": lambda s: VarianceSampler(s, seed=seed),
-             "awr": lambda s: AdaptiveSampler(s, seed=seed),
-             "awr, linear priorities": lambda s: AdaptiveSampler(s, seed=seed, domain="linear")}
+SAMPLER_KINDS: dict[str, Any] = {
+    "uniform": lambda shape, seed: UniformSampler(shape, seed=seed),
+    "variance": lambda shape, seed: VarianceSampler(shape, seed=seed),
+    "awr": lambda shape, seed: AdaptiveSampler(shape, seed=seed),
+    "awr, linear priorities": lambda shape, seed: AdaptiveSampler(shape, seed=seed, domain="linear"),
+    "awr, measured gain": lambda shape, seed: AdaptiveSampler(shape, seed=seed, noise_model="reconstruction"),
+}
+"""``samplers``: the strategies compared at equal samples, each made from (shape, seed)."""
+
+
+def samplers(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], seeds: int,
+             cache: Path) -> list[dict[str, Any]]:
+    """Equal samples: every kind of :data:`SAMPLER_KINDS`, renders of seeds ``0..seeds-1``, progressive to
+    each spp; stage 1 and the default on every buffer; the time spent in ``ask()`` (priorities + allocation)."""
     rows = []
-    for scene in scenes:
-        from awr_denoise import tracer
-        ref = np.asarray(tracer.load_reference(scene), dtype=np.float64)
-        for kind, make in kinds.items():
-            renderer = create_renderer("tracer", scene, seed=seed)
-            sampler = make(ref.shape[:2])
-            for spp in sorted(spps):
-                buffer = sampler.run(renderer, spp)
-                for name, options in (("stage 1", {"stages": 1}), ("default", {})):
-                    image = reconstruct(buffer, **options)
-                    rows.append({"scene": scene, "sampler": kind, "spp": spp, "method": name,
-                                 "relmse": relmse(image, ref), "mse": mse(image, ref)})
-            getattr(renderer, "close", lambda: None)()
-        print(f"{scene}: done", flush=True)
+    for renderer_name, scene, shape in scenes:
+        ref = reference(renderer_name, scene, shape, cache)
+        for seed in range(seeds):
+            for kind, make in SAMPLER_KINDS.items():
+                renderer = create_renderer(renderer_name, scene, shape=shape, seed=seed)
+                sampler = make(ref.shape[:2], seed)
+                asked = [0.0]
+                ask = sampler.ask
+
+                def timed_ask(budget: int | None = None, ask: Any = ask, asked: list = asked) -> Any:
+                    start = time.process_time()
+                    request = ask(budget)
+                    asked[0] += time.process_time() - start
+                    return request
+
+                sampler.ask = timed_ask  # type: ignore[method-assign]
+                for spp in sorted(spps):
+                    buffer = sampler.run(renderer, spp)
+                    x = prepare(buffer, "log").mean
+                    for name, options in (("stage 1", {"stages": 1}), ("default", {})):
+                        image = reconstruct(buffer, **options)
+                        rows.append({"renderer": renderer_name, "scene": scene, "seed": seed, "sampler": kind,
+                                     "spp": spp, "method": name, "ask_seconds": asked[0],
+                                     **_measure(image, x, ref, 0.0),  # its mean_error: against the means
+                                     "reference_mean_error": float(np.abs(image.mean(axis=(0, 1))
+                                                                          / ref.mean(axis=(0, 1)) - 1).max())})
+                getattr(renderer, "close", lambda: None)()
+        print(f"{renderer_name} {scene}: done", flush=True)
     return rows
 
 
 def sampler_table(rows: list[dict]) -> None:
+    def mean(key: str, **where: Any) -> float:
+        return _mean(rows, key, method="default", **where)
+
+    scenes = list(dict.fromkeys(r["scene"] for r in rows))
+    spps = sorted({r["spp"] for r in rows})
     print("\n| scene | spp | uniform | variance | awr | awr, linear priorities | uniform / awr | variance / awr |")
     print("|---|---|---|---|---|---|---|---|")
-    for scene in dict.fromkeys(r["scene"] for r in rows):
-        for spp in sorted({r["spp"] for r in rows}):
-            v = {r["sampler"]: r["relmse"] for r in rows if r["scene"] == scene and r["spp"] == spp
-                 and r["method"] == "default"}
+    for scene in scenes:
+        for spp in spps:
+            v = {k: mean("relmse", scene=scene, spp=spp, sampler=k) for k in SAMPLER_KINDS}
             print(f"| {scene} | {spp} | " + " | ".join(f"{v[k]:.5f}" for k in ("uniform", "variance", "awr",
                                                                              "awr, linear priorities"))
                   + f" | {v['uniform'] / v['awr']:.2f} | {v['variance'] / v['awr']:.2f} |")
+    print("\n| scene | spp | relMSE awr | relMSE measured gain | awr / measured gain | MSE awr / measured gain "
+          "| uniform / measured gain, relMSE and MSE | worst image-mean error against the reference %, awr and measured gain "
+          "| ask() CPU time to 32 spp, awr and measured gain |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for scene in scenes:
+        for spp in spps:
+            a, g, u = ({k: mean(k2, scene=scene, spp=spp, sampler=s) for k, k2 in (("r", "relmse"), ("m", "mse"))}
+                       for s in ("awr", "awr, measured gain", "uniform"))
+            worst = [max(r["reference_mean_error"] for r in rows if r["method"] == "default" and r["scene"] == scene
+                         and r["spp"] == spp and r["sampler"] == s) for s in ("awr", "awr, measured gain")]
+            time_cell = ""
+            if spp == max(spps):
+                ta, tg = (mean("ask_seconds", scene=scene, spp=spp, sampler=s) for s in ("awr", "awr, measured gain"))
+                time_cell = f"{ta:.2f} s, {tg:.2f} s"
+            print(f"| {scene} | {spp} | {a['r']:.5f} | {g['r']:.5f} | {a['r'] / g['r']:.2f} | {a['m'] / g['m']:.2f} "
+                  f"| {u['r'] / g['r']:.2f}, {u['m'] / g['m']:.2f} | {100 * worst[0]:.2f}, {100 * worst[1]:.2f} "
+                  f"| {time_cell} |")
 
 
 SEED_SCENES = ("gradient", "edges", "hdr_source", "fireflies")
@@ -292,18 +336,19 @@ SEED_SHAPE = (64, 64)  # tests/test_sampling.py's size
 
 
 def seeds(names: tuple[str, ...], spps: tuple[int, ...], count: int) -> list[dict[str, Any]]:
-    """Per seed, as tests/test_sampling.py runs them: AWR and uniform sampling, each from scratch, the default
-    (relMSE and MSE), and relMSE with the previous pilot threshold (1.5)."""
+    """Per seed, as tests/test_sampling.py runs them: AWR sampling (levels and measured gain) and uniform sampling,
+    each from scratch, the default (relMSE and MSE), and relMSE with the previous pilot threshold (1.5)."""
     rows = []
     for name in names:
         scene = make_scene(name, SEED_SHAPE)
         ref = scene.reference()
         for spp in spps:
             for seed in range(count):
-                for cls in (AdaptiveSampler, UniformSampler):
-                    buffer = cls(SEED_SHAPE, seed=seed).run(SyntheticRenderer(scene, seed=seed), spp)
+                for kind in ("awr", "uniform", "awr, measured gain"):
+                    sampler = SAMPLER_KINDS[kind](SEED_SHAPE, seed)
+                    buffer = sampler.run(SyntheticRenderer(scene, seed=seed), spp)
                     image, before = reconstruct(buffer), reconstruct(buffer, c_s=1.5)
-                    rows.append({"scene": name, "spp": spp, "seed": seed, "sampler": cls.strategy,
+                    rows.append({"scene": name, "spp": spp, "seed": seed, "sampler": kind,
                                  "relmse": relmse(image, ref), "mse": mse(image, ref),
                                  "relmse_pilot_1.5": relmse(before, ref)})
         print(f"{name}: done", flush=True)
@@ -328,6 +373,24 @@ def seeds_table(rows: list[dict]) -> None:
                   f"{np.mean(list(ratio.values())):.2f} | {', '.join(lost)} | {np.mean(before):.2f} | "
                   + " | ".join(f"{min(moved[k]):.2f}-{max(moved[k]):.2f}" for k in ("awr", "uniform"))
                   + f" | {np.mean(squared):.2f} ({min(squared):.2f}) |")
+    if not any(r["sampler"] == "awr, measured gain" for r in rows):
+        return
+    print("\n| scene | spp | seeds | relMSE levels / measured gain, least-most (mean) | uniform / measured gain, "
+          "least-most (mean) | seeds where uniform wins | MSE levels / measured gain, mean (least) |")
+    print("|---|---|---|---|---|---|---|")
+    for name in dict.fromkeys(r["scene"] for r in rows):
+        for spp in sorted({r["spp"] for r in rows if r["scene"] == name}):
+            get = {(r["seed"], r["sampler"]): r for r in rows if r["scene"] == name and r["spp"] == spp}
+            ids = sorted({i for i, _ in get})
+
+            def ratios(over: str, key: str = "relmse") -> list[float]:
+                return [get[i, over][key] / get[i, "awr, measured gain"][key] for i in ids]
+
+            lev, uni, sq = ratios("awr"), ratios("uniform"), ratios("awr", "mse")
+            lost = [str(i) for i, r in zip(ids, uni) if r <= 1] or ["none"]
+            print(f"| {name} | {spp} | 0-{ids[-1]} | {min(lev):.2f}-{max(lev):.2f} ({np.mean(lev):.2f}) | "
+                  f"{min(uni):.2f}-{max(uni):.2f} ({np.mean(uni):.2f}) | {', '.join(lost)} | "
+                  f"{np.mean(sq):.2f} ({min(sq):.2f}) |")
 
 
 # ---------------------------------------------------------------------------- synthetic
@@ -487,7 +550,8 @@ def main(argv: list[str] | None = None) -> int:
                                                    "tables"))
     parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
     parser.add_argument("--spps", nargs="+", type=int, default=list(SPPS))
-    parser.add_argument("--groups", type=int, default=0, help="renders per scene (default 4; finishing: 12)")
+    parser.add_argument("--groups", type=int, default=0,
+                        help="renders per scene (default 4; finishing: 12; samplers: seeds, 2)")
     parser.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "awr-denoise" / "reconstruct",
                         help="where rendered buffers and Mitsuba references are kept (default %(default)s)")
     parser.add_argument("--sizes", nargs="+", choices=tuple(SIZES), default=list(SIZES))
@@ -507,7 +571,8 @@ def main(argv: list[str] | None = None) -> int:
         _update("quality", rows, command)
         quality_tables(rows)
     elif args.section == "samplers":
-        rows = samplers(tuple(args.scenes or TRACER_SCENES), tuple(s for s in args.spps if s <= 32) or (8, 16, 32), 0)
+        rows = samplers(quality_scenes(args.scenes), tuple(s for s in args.spps if s <= 32) or (8, 16, 32),
+                        args.groups or 2, args.cache)
         _update("samplers", rows, command)
         sampler_table(rows)
     elif args.section == "seeds":
