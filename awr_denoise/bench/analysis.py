@@ -258,15 +258,16 @@ def _equal_time(uniform_curve: list[dict[str, Any]], row: dict[str, dict[str, An
 
 
 def _flags(name: str, sc: dict[str, Any]) -> list[str]:
-    """Every AWR reconstruction with library defaults that is worse than the plain mean."""
+    """Every AWR method with library defaults worse than the plain mean at equal samples, in relMSE or in MSE."""
     flags = []
     m = sc["methods"]
-    for meth in ("uniform+awr", "awr+awr", "variance+awr"):
+    for meth in ("uniform+awr", "awr+awr", "awr-gain+awr", "variance+awr"):
         for r in m.get(meth, []):
             u = row_at(m["uniform"], r["spp"])
-            if u is not None and r["relmse"] > u["relmse"]:
-                flags.append(f"{name}: {meth} at {r['spp']} spp is worse than the plain mean "
-                             f"(relMSE {r['relmse']:.4g} > {u['relmse']:.4g})")
+            for key, label in (("relmse", "relMSE"), ("mse", "MSE")):
+                if u is not None and r[key] > u[key]:
+                    flags.append(f"{name}: {meth} at {r['spp']} spp is worse than the plain mean "
+                                 f"({label} {r[key]:.4g} > {u[key]:.4g})")
     for r in sc.get("c_s_sweep", []):
         if r["domain"] == "log" and r["c_s"] == 1.0 and r.get("worse_than_mean"):
             flags.append(f"{name}: the default reconstruction (log, c_s=1) is worse than the plain mean "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import sys
 import time
 from collections.abc import Callable
@@ -175,7 +176,9 @@ def scene_benchmark(name: str, config: BenchmarkConfig, use_oidn: bool, tick: Ti
 
     uniform_curve, uniform_buffers = _uniform_stage(scene, reference, spps, config, use_oidn, methods, images)
     tick(f"{name}: uniform to {uniform_curve[-1]['spp']} spp")
-    for method, sampler_cls in (("awr+awr", AdaptiveSampler), ("variance+awr", VarianceSampler)):
+    for method, sampler_cls in (("awr+awr", AdaptiveSampler),
+                                ("awr-gain+awr", functools.partial(AdaptiveSampler, noise_model="reconstruction")),
+                                ("variance+awr", VarianceSampler)):
         _adaptive_stage(sampler_cls, scene, reference, spps, config, methods[method], images, method)
         tick(f"{name}: {method}")
 

@@ -50,8 +50,8 @@ def test_headline_spp_is_32_when_measured():
     assert headline_spp([4, 8, 16, 64]) == 16
 
 
-def _row(spp, relmse, cpu):
-    return {"spp": spp, "relmse": relmse, "equal_error_spp": float(spp), "total_cpu_s": cpu, "render_s": 1.0,
+def _row(spp, relmse, cpu, mse=1.0):
+    return {"spp": spp, "relmse": relmse, "mse": mse, "equal_error_spp": float(spp), "total_cpu_s": cpu, "render_s": 1.0,
             "render_cpu_s": 2.0, "sampler_s": 0.1, "sampler_cpu_s": 0.1, "reconstruct_s": 0.05,
             "reconstruct_cpu_s": 0.05, "rounds": 3}
 
@@ -71,3 +71,8 @@ def test_summarize_flags_a_reconstruction_worse_than_the_mean():
     # Equal time: at 2.5 s of CPU uniform MC reaches 0.05 * (2 / 2.5) in log-log.
     et = out["scenes"]["s"]["equal_time"]["awr+awr"]
     assert et["uniform_relmse"] == pytest.approx(0.05 * 2.0 / 2.5, rel=1e-9)
+    # Lower relMSE but higher MSE than the plain mean is flagged too (relMSE alone once hid it).
+    scene["methods"]["awr+awr"] = [_row(4, 0.04, 1.5, mse=0.5), _row(8, 0.04, 2.5, mse=1.5)]
+    scene["c_s_sweep"] = []
+    assert summarize({"scenes": {"s": scene}}, BenchmarkConfig(spps=(4, 8)))["flags"] == [
+        "s: awr+awr at 8 spp is worse than the plain mean (MSE 1.5 > 1)"]
