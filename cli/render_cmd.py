@@ -21,7 +21,7 @@ from awr_denoise.io.atomic import OutputSet
 from awr_denoise.parallel import RendererSpec, TiledRenderer
 from awr_denoise.renderers import create_renderer, renderer_features, renderer_names, renderer_scenes
 from awr_denoise.requests import Renderer, SampleTracer
-from awr_denoise.sampling import DEFAULT_INITIAL_SPP, DEFAULT_ROUND_GROWTH
+from awr_denoise.sampling import DEFAULT_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS
 
 from . import interrupts
 from .common import EXIT_OK, RuntimeFailure, UsageError, status
@@ -69,8 +69,8 @@ def derived_path(path: str | Path, suffix: str) -> Path:
 
 
 def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float, adaptive: bool, seed: int,
-                  initial_spp: int, quiet: bool,
-                  round_growth: float = DEFAULT_ROUND_GROWTH) -> tuple[SampleBuffer, Any, int]:
+                  initial_spp: int, quiet: bool, round_growth: float = DEFAULT_ROUND_GROWTH,
+                  noise_model: str = "levels") -> tuple[SampleBuffer, Any, int]:
     """(buffer, issued, next round) of a uniform or adaptive render at ``spp`` on average.
 
     The renderer is closed afterwards when it is a :class:`~awr_denoise.SampleTracer`.
@@ -83,7 +83,7 @@ def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float, ada
             buffer = renderer(request)
             return buffer, request.first_index + request.counts, 1
         awr = AdaptiveSampler(shape, initial_spp=min(initial_spp, max(1, int(spp))), seed=seed,
-                              round_growth=round_growth)
+                              round_growth=round_growth, noise_model=noise_model)
         buffer = awr.run(renderer, total_spp=spp, progress=not quiet)
         return buffer, awr.issued, awr.round
     finally:
@@ -115,6 +115,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--round-growth", type=real(above=0, maximum=1e6), metavar="G", default=DEFAULT_ROUND_GROWTH,
                    help="adaptive rounds ask for this share of the samples taken so far (default %(default)s; "
                         "larger: fewer, cheaper rounds, see docs/sampling.md)")
+    p.add_argument("--noise-model", choices=NOISE_MODELS, default="levels",
+                   help="adaptive rounds model what reconstruction leaves of a pixel's noise by the paper's levels "
+                        "(default) or by the default reconstruction's measured gain, reconstructing every round "
+                        "(lower error, ten times the sampler's time; docs/sampling.md)")
     p.add_argument("--seed", type=whole(minimum=0, maximum=MAX_SEED), default=0)
     p.add_argument("--sampler", default="independent",
                    help="the bundled tracer's sample sequence: independent (default) or sobol")
@@ -199,7 +203,7 @@ def run(args: argparse.Namespace) -> int:
         check_reconstruction_options(args, tuple(frame_shape), name)
     start = time.perf_counter()
     render = dict(spp=args.spp, adaptive=args.adaptive, seed=args.seed, initial_spp=args.initial_spp,
-                  quiet=args.quiet, round_growth=args.round_growth)
+                  quiet=args.quiet, round_growth=args.round_growth, noise_model=args.noise_model)
     if executor_requested(args):
         # Each worker builds its own renderer from a picklable spec; tiles of every round are
         # rendered there and merged exactly (addressable random numbers make it match serial).

@@ -15,7 +15,7 @@ import pytest
 pytestmark = pytest.mark.exr
 OpenEXR = pytest.importorskip("OpenEXR")
 
-from awr_denoise import SampleBuffer, SampleRequest  # noqa: E402
+from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest  # noqa: E402
 from awr_denoise.cli.common import expand_frames, parse_frames  # noqa: E402
 from awr_denoise.cli.main import main  # noqa: E402
 from awr_denoise.io import (  # noqa: E402
@@ -537,6 +537,34 @@ def test_plan_round_growth_sets_the_round_budget(tmp_path, capsys, rng, growth):
     assert main(["plan", str(tmp_path / "d.exr"), "--round-growth", "0", "-o", str(tmp_path / "s.exr")]) == 2
     _one_error_line(capsys, "--round-growth")
     assert not (tmp_path / "s.exr").exists()
+
+
+def test_plan_noise_model_spends_by_the_reconstructions_gain(tmp_path, capsys, rng):
+    _dump(tmp_path / "d.exr", rng)
+    counts = {}
+    for model in ("levels", "reconstruction"):
+        out = tmp_path / f"{model}.exr"
+        assert main(["plan", str(tmp_path / "d.exr"), "--noise-model", model, "-o", str(out), "-q"]) == 0
+        counts[model] = read_request(out).counts
+    dump = read_sample_dump(tmp_path / "d.exr")
+    expected = AdaptiveSampler.from_buffer(dump.buffer, round=1, issued=dump.issued, noise_model="reconstruction")
+    np.testing.assert_array_equal(counts["reconstruction"], expected.ask().counts)
+    assert not np.array_equal(counts["levels"], counts["reconstruction"])
+    assert main(["plan", str(tmp_path / "d.exr"), "--strategy", "uniform", "--noise-model", "reconstruction",
+                 "-o", str(tmp_path / "u.exr")]) == 2
+    _one_error_line(capsys, "--noise-model")
+    assert not (tmp_path / "u.exr").exists()
+
+
+def test_render_noise_model_reaches_the_sampler(tmp_path, fake_tracer):
+    counts = {}
+    for model in ("levels", "reconstruction"):
+        out = tmp_path / f"{model}.exr"
+        assert main(["render", "--spp", "8", "--noise-model", model, "-o", str(out), "-q"]) == 0
+        dump = read_sample_dump(out)
+        assert dump.buffer.total_samples == 8 * H * W
+        counts[model] = dump.buffer.count
+    assert not np.array_equal(counts["levels"], counts["reconstruction"])
 
 
 def test_render_round_growth_takes_fewer_rounds(tmp_path, fake_tracer):
