@@ -497,8 +497,8 @@ class AdaptiveSampler(Sampler):
         paper's model above, the default) or ``"reconstruction"``: every round, the default
         reconstruction's measured share ``g_p`` (:attr:`~awr_denoise.Reconstruction.noise_gain`),
         ``n_p ~ s_p sqrt(g_p)``, which spends a budget best for that reconstruction. Measured
-        (docs/sampling.md, "The measured noise gain"): lower relMSE on every bundled and Mitsuba
-        scene for one default reconstruction per round; for renderers slow beside it.
+        (docs/sampling.md, "The measured noise gain"): lower relMSE on nine of ten scenes of two
+        renderers, far lower MSE next to small bright sources, for ten times the sampler's time.
 
     Examples
     --------
