@@ -533,9 +533,9 @@ class AdaptiveSampler(Sampler):
 
     def density(self) -> FloatArray:
         """(H, W) target density of the next round (see :func:`~awr_denoise.priorities.sampling_density`)."""
-        gain = None
-        if self.noise_model == "reconstruction":  # round 1 on (round 0 is uniform): one reconstruction each
-            gain = reconstruct_detailed(self._buffer, variance_probes=0).noise_gain
+        # One reconstruction a round (round 0 is uniform), without the finishing steps: they leave the gain as it is.
+        gain = None if self.noise_model != "reconstruction" else reconstruct_detailed(
+            self._buffer, variance_probes=0, pixel_clamp=None, preserve_mean=False, nonnegative=False).noise_gain
         return sampling_density(self._buffer, wavelet=self.wavelet, levels=self.levels, domain=self.domain,
                                 level_weight=self.level_weight, noise_gain=gain)
 
