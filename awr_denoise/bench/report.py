@@ -280,8 +280,8 @@ def _equal_time(results: dict[str, Any], figures: dict[str, str], scenes: list[s
 
 def _density(results: dict[str, Any], figures: dict[str, str]) -> list[str]:
     lines = ["## Where the samples went\n",
-             f"Samples per pixel relative to the mean, at {results['summary']['headline_spp']} spp, for the two "
-             "adaptive samplers.\n"]
+             f"Samples per pixel relative to the mean, at {results['summary']['headline_spp']} spp, for the adaptive "
+             "samplers.\n"]
     if "density" in figures:
         lines.append(f"![sample density](img/{figures['density']})\n")
     return lines
