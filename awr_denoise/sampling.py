@@ -14,9 +14,8 @@ resulting :class:`SampleBuffer` is told back::
 paper starts at 4 spp); later rounds follow the sampler's strategy. Every request's ``counts``
 sum to the budget asked for, exactly.
 
-Three strategies share the interface so that benchmarks compare like with like:
-:class:`AdaptiveSampler` (AWR wavelet priorities), :class:`UniformSampler` and
-:class:`VarianceSampler` (per-pixel relative error, as Cycles' adaptive sampling).
+Three strategies share the interface so that benchmarks compare like with like: :class:`AdaptiveSampler`
+(AWR wavelet priorities), :class:`UniformSampler` and :class:`VarianceSampler` (per-pixel error, as Cycles').
 """
 
 from __future__ import annotations
@@ -27,7 +26,6 @@ import warnings
 from collections.abc import Callable
 
 import numpy as np
-from scipy import ndimage
 from tqdm.auto import tqdm
 
 from . import _checks
@@ -36,7 +34,7 @@ from .allocation import MAX_BUDGET, allocate, allocate_mixed
 from .buffers import SampleBuffer
 from .domains import Domain
 from .errors import StaleRequestError
-from .priorities import error_plane, sampling_density
+from .priorities import DEFAULT_ABSOLUTE_ABOVE, pooled_deviation, sampling_density
 from .reconstruct import reconstruct_detailed
 from .requests import Renderer, SampleRequest
 from .wavelets import DEFAULT_WAVELET, wavelet_operators
@@ -433,8 +431,8 @@ class VarianceSampler(Sampler):
     Samples go where the per-pixel *relative* error is large: the allocation equalises the
     marginal error reduction ``s2_p / (n_p (n_p + 1))`` of each pixel in the error domain
     (``"log"``: relative error), i.e. ``n_p ~ s_p``. No wavelet structure is used.
-    ``uniform_fraction`` as for :class:`AdaptiveSampler` (0 by default, so the two compare like
-    with like).
+    ``uniform_fraction`` and ``absolute_above`` as for :class:`AdaptiveSampler` (the same defaults,
+    so the two compare like with like).
 
     Examples
     --------
@@ -450,15 +448,14 @@ class VarianceSampler(Sampler):
     strategy = "variance"
 
     def __init__(self, shape: Shape2D, *, domain: str | Domain = "log", uniform_fraction: float = 0.0,
-                 **options) -> None:
+                 absolute_above: float | None = DEFAULT_ABSOLUTE_ABOVE, **options) -> None:
         super().__init__(shape, **options)
         self.domain = domain
         self.uniform_fraction = _checks.real("uniform_fraction", uniform_fraction, minimum=0.0, maximum=1.0)
+        self.absolute_above = _checks.real("absolute_above", absolute_above, above=0, none=True)
 
     def _density(self) -> FloatArray:
-        _, _, s2_y = error_plane(self._buffer, self.domain)
-        # The running-sum filter can leave -1e-17-sized residues next to large values.
-        return np.sqrt(np.maximum(ndimage.uniform_filter(s2_y, 3, mode="nearest"), 0.0))
+        return pooled_deviation(self._buffer, self.domain, absolute_above=self.absolute_above)
 
     def _allocate(self, budget, current, capacity, rng):
         return allocate_mixed(self._density(), current, budget, self.uniform_fraction, capacity=capacity, rng=rng)
@@ -492,13 +489,16 @@ class AdaptiveSampler(Sampler):
         sampler into per-pixel variance sampling.
     uniform_fraction
         Share of every round spread uniformly; 0 by default.
+    absolute_above
+        ``s_p`` is the error in ``domain`` with each pixel's level capped at this many times the image's
+        mean level: a small bright source is ranked by its absolute error, not starved (``None``: not
+        capped; :func:`~awr_denoise.priorities.pooled_deviation`, docs/sampling.md "Relative and absolute error").
     noise_model
         What reconstruction leaves of a pixel's noise, the factor on ``s_p``: ``"levels"`` (the
         paper's model above, the default) or ``"reconstruction"``: every round, the default
         reconstruction's measured share ``g_p`` (:attr:`~awr_denoise.Reconstruction.noise_gain`),
-        ``n_p ~ s_p sqrt(g_p)``, which spends a budget best for that reconstruction. Measured
-        (docs/sampling.md, "The measured noise gain"): lower relMSE on nine of ten scenes of two
-        renderers, far lower MSE next to small bright sources, for ten times the sampler's time.
+        ``n_p ~ s_p sqrt(g_p)``, which spends a budget best for that reconstruction (docs/sampling.md,
+        "The measured noise gain": lower errors on most scenes for ten times the sampler's time).
 
     Examples
     --------
@@ -520,16 +520,16 @@ class AdaptiveSampler(Sampler):
                  wavelet: str = DEFAULT_WAVELET, levels: int | None = None, seed: int = 0,
                  spp_min: int | None = None, spp_max: int | None = None, round_spp: float | None = None,
                  round_growth: float = DEFAULT_ROUND_GROWTH, domain: str | Domain = "log", level_weight: float = 0.25,
-                 uniform_fraction: float = 0.0, noise_model: str = "levels") -> None:
+                 uniform_fraction: float = 0.0, noise_model: str = "levels",
+                 absolute_above: float | None = DEFAULT_ABSOLUTE_ABOVE) -> None:
         super().__init__(shape, channels=channels, initial_spp=initial_spp, seed=seed, spp_min=spp_min,
                          spp_max=spp_max, round_spp=round_spp, round_growth=round_growth)
         wavelet_operators(self._shape, wavelet=wavelet, levels=levels)  # validates wavelet and levels now
-        self.wavelet = wavelet
-        self.levels = levels
-        self.domain = domain
+        self.wavelet, self.levels, self.domain = wavelet, levels, domain
         self.level_weight = _checks.real("level_weight", level_weight, minimum=0)
         self.uniform_fraction = _checks.real("uniform_fraction", uniform_fraction, minimum=0.0, maximum=1.0)
         self.noise_model = _checks.name("noise_model", noise_model, NOISE_MODELS)
+        self.absolute_above = _checks.real("absolute_above", absolute_above, above=0, none=True)
 
     def density(self) -> FloatArray:
         """(H, W) target density of the next round (see :func:`~awr_denoise.priorities.sampling_density`)."""
@@ -537,7 +537,7 @@ class AdaptiveSampler(Sampler):
         gain = None if self.noise_model != "reconstruction" else reconstruct_detailed(
             self._buffer, variance_probes=0, pixel_clamp=None, preserve_mean=False, nonnegative=False).noise_gain
         return sampling_density(self._buffer, wavelet=self.wavelet, levels=self.levels, domain=self.domain,
-                                level_weight=self.level_weight, noise_gain=gain)
+                                level_weight=self.level_weight, noise_gain=gain, absolute_above=self.absolute_above)
 
     def _allocate(self, budget, current, capacity, rng):
         return allocate_mixed(self.density(), current, budget, self.uniform_fraction, capacity=capacity, rng=rng)

@@ -9,7 +9,8 @@ from scipy import ndimage
 
 from awr_denoise import SampleBuffer, SampleRequest
 from awr_denoise.domains import Domain
-from awr_denoise.priorities import coefficient_priorities, error_plane, pixel_levels, sampling_density
+from awr_denoise.priorities import (coefficient_priorities, error_plane, pixel_levels, pooled_deviation,
+                                    sampling_density)
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
 from awr_denoise.wavelets import coefficient_variance, wavelet_operators
 
@@ -136,8 +137,32 @@ def test_density_without_levels_is_pooled_standard_deviation(rng):
     count = np.full((12, 12), 4)
     var = rng.uniform(0.0, 1.0, (12, 12))
     buf = _grey_buffer(np.full((12, 12), 1.0), var, count)
+    pooled = np.sqrt(ndimage.uniform_filter(var, 3, mode="nearest"))
+    density = sampling_density(buf, domain="linear", level_weight=0.0, absolute_above=None)
+    assert_allclose(density, pooled, rtol=1e-12)
+    # In the linear domain the capped level adds the same error over 6 times the image's level (1):
+    # one factor everywhere, the same allocation.
     density = sampling_density(buf, domain="linear", level_weight=0.0)
-    assert_allclose(density, np.sqrt(ndimage.uniform_filter(var, 3, mode="nearest")), rtol=1e-12)
+    assert_allclose(density, pooled * np.sqrt(1 + 1 / 36), rtol=1e-12)
+
+
+def test_a_pixel_far_brighter_than_the_image_is_ranked_by_its_absolute_error(rng):
+    """pooled_deviation: below 6 times the image's level, the relative ranking; far above it, the absolute."""
+    mean = np.full((24, 24), 1.0)
+    mean[12, 12] = 300.0  # a small light: relative noise 0.5 like the rest, absolute 150
+    buf = _grey_buffer(mean, (0.5 * mean) ** 2, np.full((24, 24), 4))
+    relative = pooled_deviation(buf, absolute_above=None)
+    capped = pooled_deviation(buf)
+    level = 6 * mean.mean()
+    assert capped[12, 12] / capped[2, 2] > 10 * relative[12, 12] / relative[2, 2]  # 12.6x here
+    assert_allclose(capped[12, 12] ** 2, relative[12, 12] ** 2 + ndimage.uniform_filter(
+        (0.5 * mean) ** 2 / level ** 2, 3, mode="nearest")[12, 12], rtol=1e-9)
+    # Dark pixels far from the light keep their relative ranking to within the small absolute share.
+    assert_allclose(capped[2, 2], relative[2, 2], rtol=0.01)
+    # An all-black image (its level taken as 1, every pixel at 0): one factor everywhere, the same ranking.
+    black = _grey_buffer(np.zeros((8, 8)), rng.uniform(0.05, 0.2, (8, 8)), np.full((8, 8), 4))
+    ratio = pooled_deviation(black) / pooled_deviation(black, absolute_above=None)
+    assert_allclose(ratio, np.sqrt(1 + (0.1 / 6) ** 2), rtol=1e-9)
 
 
 def test_density_is_higher_near_edges():
