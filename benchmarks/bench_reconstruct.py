@@ -258,6 +258,7 @@ SAMPLER_KINDS: dict[str, Any] = {
     "awr": lambda shape, seed: AdaptiveSampler(shape, seed=seed),
     "awr, linear priorities": lambda shape, seed: AdaptiveSampler(shape, seed=seed, domain="linear"),
     "awr, measured gain": lambda shape, seed: AdaptiveSampler(shape, seed=seed, noise_model="reconstruction"),
+    "awr, relative error alone": lambda shape, seed: AdaptiveSampler(shape, seed=seed, absolute_above=None),
 }
 """``samplers``: the strategies compared at equal samples, each made from (shape, seed)."""
 
@@ -312,6 +313,15 @@ def sampler_table(rows: list[dict]) -> None:
             print(f"| {scene} | {spp} | " + " | ".join(f"{v[k]:.5f}" for k in ("uniform", "variance", "awr",
                                                                              "awr, linear priorities"))
                   + f" | {v['uniform'] / v['awr']:.2f} | {v['variance'] / v['awr']:.2f} |")
+    print("\n| scene | spp | relMSE awr | relMSE relative error alone | relative alone / awr, relMSE and MSE "
+          "| uniform / awr, relMSE and MSE | uniform / relative alone, MSE |")
+    print("|---|---|---|---|---|---|---|")
+    for scene in scenes:
+        for spp in spps:
+            a, r, u = ({k: mean(k2, scene=scene, spp=spp, sampler=s) for k, k2 in (("r", "relmse"), ("m", "mse"))}
+                       for s in ("awr", "awr, relative error alone", "uniform"))
+            print(f"| {scene} | {spp} | {a['r']:.5f} | {r['r']:.5f} | {r['r'] / a['r']:.2f}, {r['m'] / a['m']:.2f} "
+                  f"| {u['r'] / a['r']:.2f}, {u['m'] / a['m']:.2f} | {u['m'] / r['m']:.2f} |")
     print("\n| scene | spp | relMSE awr | relMSE measured gain | awr / measured gain | MSE awr / measured gain "
           "| uniform / measured gain, relMSE and MSE | worst image-mean error against the reference %, awr and measured gain "
           "| ask() CPU time to 32 spp, awr and measured gain |")
