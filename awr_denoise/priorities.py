@@ -39,6 +39,7 @@ __all__ = ["coefficient_priorities", "pixel_levels", "sampling_density", "error_
 
 _SIGNIFICANCE = 2.0  # t: a detail coefficient counts as signal beyond t standard errors
 _FLOAT32_SAFE = (2.0**-100, 2.0**100)  # variances propagated in float32 when all lie in this range (or are 0)
+_FINITE_TOP = float(np.finfo(np.float64).max) / 16  # the largest pooled variance: a 3x3 mean of it stays finite
 
 DEFAULT_ABSOLUTE_ABOVE = 6.0
 """The samplers' ``absolute_above``: a pixel's level counts up to 6 times the image's mean level.
@@ -110,9 +111,11 @@ def pooled_deviation(buffer: SampleBuffer, domain: str | Domain = "log", *,
     if absolute_above is not None:
         absolute_above = _checks.real("absolute_above", absolute_above, above=0)
         level = absolute_above * p.domain.resolved_scale(p.mean)
-        if level > 0 and np.isfinite(level):  # not for an image beyond float64 (its pixels rank first anyway)
-            with np.errstate(over="ignore"):  # beyond float64 the pixel ranks first either way
+        if level > 0 and np.isfinite(level):  # an image whose level overflows keeps the domain's ranking
+            with np.errstate(over="ignore"):
                 s2 = s2 + p.sample_variance / level / level
+            # A sum past float64 is held finite: allocate() would read +inf as no density at all.
+            np.minimum(s2, _FINITE_TOP, out=s2)
     # The running-sum filter can leave -1e-17-sized residues next to large values: clip them.
     s2_pooled = ndimage.uniform_filter(s2, 3, mode="nearest")
     np.maximum(s2_pooled, 0.0, out=s2_pooled)

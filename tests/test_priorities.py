@@ -216,3 +216,13 @@ def test_variances_outside_float32_range_are_propagated_in_float64():
         patch.setattr(priorities, "_FLOAT32_SAFE", (np.inf, -np.inf))
         ref = priorities.coefficient_priorities(None, operators=ops, plane=plane)
     assert all(np.array_equal(a, b) for a, b in zip(got, ref))
+
+
+def test_a_deviation_past_float64_stays_finite_and_ranks_first():
+    """pooled_deviation holds a sum past float64 finite: allocate() reads +inf as no density."""
+    mean = np.full((8, 8), 1.0)
+    var = np.full((8, 8), 0.01)
+    var[4, 4] = 1e308  # relative and absolute terms each near float64's limit: their sum overflows
+    s = pooled_deviation(_grey_buffer(mean, var, np.full((8, 8), 4)), absolute_above=1e-5)
+    assert np.isfinite(s).all()
+    assert s[4, 4] == s.max() > 1e100 * s[0, 0]  # (its 3x3 pool shares the top)
