@@ -115,7 +115,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--round-growth", type=real(above=0, maximum=1e6), metavar="G", default=DEFAULT_ROUND_GROWTH,
                    help="adaptive rounds ask for this share of the samples taken so far (default %(default)s; "
                         "larger: fewer, cheaper rounds, see docs/sampling.md)")
-    p.add_argument("--noise-model", choices=NOISE_MODELS, default="levels",
+    p.add_argument("--noise-model", choices=NOISE_MODELS,
                    help="adaptive rounds model what reconstruction leaves of a pixel's noise by the paper's levels "
                         "(default) or by the default reconstruction's measured gain, reconstructing every round "
                         "(lower error, ten times the sampler's time; docs/sampling.md)")
@@ -182,6 +182,8 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_OK
     if not args.output:
         raise UsageError("render: -o/--output DUMP.exr is required")
+    if args.noise_model is not None and not args.adaptive:  # a setting that would do nothing is refused
+        raise UsageError("--noise-model: a uniform render has no adaptive rounds to model")
     if args.guide == "features" and not args.features:
         raise UsageError("--guide features: nothing to guide with; render the features too (--features all)")
     image_path = Path(args.image) if args.image else derived_path(args.output, ".denoised.exr")
@@ -203,7 +205,8 @@ def run(args: argparse.Namespace) -> int:
         check_reconstruction_options(args, tuple(frame_shape), name)
     start = time.perf_counter()
     render = dict(spp=args.spp, adaptive=args.adaptive, seed=args.seed, initial_spp=args.initial_spp,
-                  quiet=args.quiet, round_growth=args.round_growth, noise_model=args.noise_model)
+                  quiet=args.quiet, round_growth=args.round_growth,
+                  noise_model=args.noise_model or "levels")
     if executor_requested(args):
         # Each worker builds its own renderer from a picklable spec; tiles of every round are
         # rendered there and merged exactly (addressable random numbers make it match serial).

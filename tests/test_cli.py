@@ -556,7 +556,7 @@ def test_plan_noise_model_spends_by_the_reconstructions_gain(tmp_path, capsys, r
     assert not (tmp_path / "u.exr").exists()
 
 
-def test_render_noise_model_reaches_the_sampler(tmp_path, fake_tracer):
+def test_render_noise_model_reaches_the_sampler(tmp_path, capsys, fake_tracer):
     counts = {}
     for model in ("levels", "reconstruction"):
         out = tmp_path / f"{model}.exr"
@@ -565,6 +565,9 @@ def test_render_noise_model_reaches_the_sampler(tmp_path, fake_tracer):
         assert dump.buffer.total_samples == 8 * H * W
         counts[model] = dump.buffer.count
     assert not np.array_equal(counts["levels"], counts["reconstruction"])
+    assert main(["render", "--uniform", "--noise-model", "reconstruction", "-o", str(tmp_path / "u.exr")]) == 2
+    _one_error_line(capsys, "--noise-model")
+    assert not (tmp_path / "u.exr").exists()
 
 
 def test_render_round_growth_takes_fewer_rounds(tmp_path, fake_tracer):
