@@ -3,7 +3,7 @@
 Run from the repository root (each section updates its part of the JSON)::
 
     .venv/bin/python benchmarks/bench_reconstruct.py quality      # bundled tracer (+ Mitsuba 3), 8-128 spp
-    .venv/bin/python benchmarks/bench_reconstruct.py samplers     # AWR vs uniform vs variance sampling, 2 seeds
+    .venv/bin/python benchmarks/bench_reconstruct.py samplers     # samplers at equal samples (--caps)
     .venv/bin/python benchmarks/bench_reconstruct.py seeds        # the same per seed on the synthetic scenes
     .venv/bin/python benchmarks/bench_reconstruct.py synthetic    # known clean images, 4-1024 spp
     .venv/bin/python benchmarks/bench_reconstruct.py speed        # 128x128, 256x256, 1080p
@@ -261,17 +261,25 @@ SAMPLER_KINDS: dict[str, Any] = {
     "awr, relative error alone": lambda shape, seed: AdaptiveSampler(shape, seed=seed, absolute_above=None),
 }
 """``samplers``: the strategies compared at equal samples, each made from (shape, seed)."""
+CAPS = (1.0, 3.0, 10.0)
+"""``samplers --caps``: other values of ``absolute_above`` beside the default's 6, as samplers ``awr, cap C``."""
+
+
+def cap_kinds(caps: tuple[float, ...]) -> dict[str, Any]:
+    """Samplers ``awr, cap C``: AWR's default with ``absolute_above=C``."""
+    return {f"awr, cap {c:g}": (lambda shape, seed, c=c: AdaptiveSampler(shape, seed=seed, absolute_above=c))
+            for c in caps}
 
 
 def samplers(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], seeds: int,
-             cache: Path) -> list[dict[str, Any]]:
+             cache: Path, kinds: dict[str, Any] = SAMPLER_KINDS) -> list[dict[str, Any]]:
     """Equal samples: every kind of :data:`SAMPLER_KINDS`, renders of seeds ``0..seeds-1``, progressive to
     each spp; stage 1 and the default on every buffer; the time spent in ``ask()`` (priorities + allocation)."""
     rows = []
     for renderer_name, scene, shape in scenes:
         ref = reference(renderer_name, scene, shape, cache)
         for seed in range(seeds):
-            for kind, make in SAMPLER_KINDS.items():
+            for kind, make in kinds.items():
                 renderer = create_renderer(renderer_name, scene, shape=shape, seed=seed)
                 sampler = make(ref.shape[:2], seed)
                 asked = [0.0]
@@ -303,13 +311,18 @@ def sampler_table(rows: list[dict]) -> None:
     def mean(key: str, **where: Any) -> float:
         return _mean(rows, key, method="default", **where)
 
+    def errors(scene: str, spp: int, sampler: str) -> dict[str, float]:
+        """``{"r": relMSE, "m": MSE}`` of the default reconstruction, mean over seeds."""
+        return {k: mean(key, scene=scene, spp=spp, sampler=sampler) for k, key in (("r", "relmse"), ("m", "mse"))}
+
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
     spps = sorted({r["spp"] for r in rows})
     print("\n| scene | spp | uniform | variance | awr | awr, linear priorities | uniform / awr | variance / awr |")
     print("|---|---|---|---|---|---|---|---|")
     for scene in scenes:
         for spp in spps:
-            v = {k: mean("relmse", scene=scene, spp=spp, sampler=k) for k in SAMPLER_KINDS}
+            v = {k: mean("relmse", scene=scene, spp=spp, sampler=k) for k in ("uniform", "variance", "awr",
+                                                                              "awr, linear priorities")}
             print(f"| {scene} | {spp} | " + " | ".join(f"{v[k]:.5f}" for k in ("uniform", "variance", "awr",
                                                                              "awr, linear priorities"))
                   + f" | {v['uniform'] / v['awr']:.2f} | {v['variance'] / v['awr']:.2f} |")
@@ -318,18 +331,17 @@ def sampler_table(rows: list[dict]) -> None:
     print("|---|---|---|---|---|---|---|")
     for scene in scenes:
         for spp in spps:
-            a, r, u = ({k: mean(k2, scene=scene, spp=spp, sampler=s) for k, k2 in (("r", "relmse"), ("m", "mse"))}
-                       for s in ("awr", "awr, relative error alone", "uniform"))
+            a, r, u = (errors(scene, spp, s) for s in ("awr", "awr, relative error alone", "uniform"))
             print(f"| {scene} | {spp} | {a['r']:.5f} | {r['r']:.5f} | {r['r'] / a['r']:.2f}, {r['m'] / a['m']:.2f} "
                   f"| {u['r'] / a['r']:.2f}, {u['m'] / a['m']:.2f} | {u['m'] / r['m']:.2f} |")
     print("\n| scene | spp | relMSE awr | relMSE measured gain | awr / measured gain | MSE awr / measured gain "
-          "| uniform / measured gain, relMSE and MSE | worst image-mean error against the reference %, awr and measured gain "
+          "| uniform / measured gain, relMSE and MSE "
+          "| worst image-mean error against the reference %, awr and measured gain "
           "| ask() CPU time to 32 spp, awr and measured gain |")
     print("|---|---|---|---|---|---|---|---|---|")
     for scene in scenes:
         for spp in spps:
-            a, g, u = ({k: mean(k2, scene=scene, spp=spp, sampler=s) for k, k2 in (("r", "relmse"), ("m", "mse"))}
-                       for s in ("awr", "awr, measured gain", "uniform"))
+            a, g, u = (errors(scene, spp, s) for s in ("awr", "awr, measured gain", "uniform"))
             worst = [max(r["reference_mean_error"] for r in rows if r["method"] == "default" and r["scene"] == scene
                          and r["spp"] == spp and r["sampler"] == s) for s in ("awr", "awr, measured gain")]
             time_cell = ""
@@ -339,6 +351,19 @@ def sampler_table(rows: list[dict]) -> None:
             print(f"| {scene} | {spp} | {a['r']:.5f} | {g['r']:.5f} | {a['r'] / g['r']:.2f} | {a['m'] / g['m']:.2f} "
                   f"| {u['r'] / g['r']:.2f}, {u['m'] / g['m']:.2f} | {100 * worst[0]:.2f}, {100 * worst[1]:.2f} "
                   f"| {time_cell} |")
+    caps = sorted({float(r["sampler"].split()[-1]) for r in rows if r["sampler"].startswith("awr, cap ")})
+    if not caps:
+        return
+    print("\n| scene | spp | " + " | ".join(f"cap {c:g} / cap 6 (default), relMSE and MSE" for c in caps)
+          + " | relative alone / cap 6, relMSE and MSE |")
+    print("|---|---|" + "---|" * (len(caps) + 1))
+    for scene in scenes:
+        for spp in spps:
+            a = errors(scene, spp, "awr")
+            cells = [errors(scene, spp, f"awr, cap {c:g}") for c in caps] + [
+                errors(scene, spp, "awr, relative error alone")]
+            print(f"| {scene} | {spp} | " + " | ".join(f"{e['r'] / a['r']:.3f}, {e['m'] / a['m']:.2f}" for e in cells)
+                  + " |")
 
 
 SEED_SCENES = ("gradient", "edges", "hdr_source", "fireflies")
@@ -570,6 +595,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--compare", action="store_true", help="quality: also earlier forms of the default (COMPARED)")
     parser.add_argument("--floors", action="store_true", help="quality: also other energy floors (FLOORS)")
     parser.add_argument("--pilots", action="store_true", help="quality: also other pilot thresholds (PILOTS)")
+    parser.add_argument("--caps", action="store_true", help="samplers: also other absolute_above values (CAPS)")
     parser.add_argument("--windows", action="store_true", help="quality, synthetic: also other guard windows (WINDOWS)")
     args = parser.parse_args(argv)
     command = recorded_command("bench_reconstruct.py", argv)
@@ -582,7 +608,7 @@ def main(argv: list[str] | None = None) -> int:
         quality_tables(rows)
     elif args.section == "samplers":
         rows = samplers(quality_scenes(args.scenes), tuple(s for s in args.spps if s <= 32) or (8, 16, 32),
-                        args.groups or 2, args.cache)
+                        args.groups or 2, args.cache, {**SAMPLER_KINDS, **(cap_kinds(CAPS) if args.caps else {})})
         _update("samplers", rows, command)
         sampler_table(rows)
     elif args.section == "seeds":
