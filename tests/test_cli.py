@@ -556,14 +556,18 @@ def test_plan_noise_model_spends_by_the_reconstructions_gain(tmp_path, capsys, r
     assert not (tmp_path / "u.exr").exists()
 
 
+def _rendered(tmp_path, spp, option, value):
+    """The dump of ``awr render --spp SPP OPTION VALUE`` (the fake tracer), checked for its total."""
+    out = tmp_path / f"{option}{value}.exr"
+    assert main(["render", "--spp", str(spp), option, value, "-o", str(out), "-q"]) == 0
+    dump = read_sample_dump(out)
+    assert dump.buffer.total_samples == spp * H * W
+    return dump
+
+
 def test_render_noise_model_reaches_the_sampler(tmp_path, capsys, fake_tracer):
-    counts = {}
-    for model in ("levels", "reconstruction"):
-        out = tmp_path / f"{model}.exr"
-        assert main(["render", "--spp", "8", "--noise-model", model, "-o", str(out), "-q"]) == 0
-        dump = read_sample_dump(out)
-        assert dump.buffer.total_samples == 8 * H * W
-        counts[model] = dump.buffer.count
+    counts = {model: _rendered(tmp_path, 8, "--noise-model", model).buffer.count
+              for model in ("levels", "reconstruction")}
     assert not np.array_equal(counts["levels"], counts["reconstruction"])
     assert main(["render", "--uniform", "--noise-model", "reconstruction", "-o", str(tmp_path / "u.exr")]) == 2
     _one_error_line(capsys, "--noise-model")
@@ -571,13 +575,8 @@ def test_render_noise_model_reaches_the_sampler(tmp_path, capsys, fake_tracer):
 
 
 def test_render_round_growth_takes_fewer_rounds(tmp_path, fake_tracer):
-    rounds = {}
-    for growth in ("0.25", "1.0"):
-        out = tmp_path / f"g{growth}.exr"
-        assert main(["render", "--spp", "16", "--round-growth", growth, "-o", str(out), "-q"]) == 0
-        dump = read_sample_dump(out)
-        assert dump.buffer.total_samples == 16 * H * W
-        rounds[growth] = int(dump.attributes["awr:round"])
+    rounds = {growth: int(_rendered(tmp_path, 16, "--round-growth", growth).attributes["awr:round"])
+              for growth in ("0.25", "1.0")}
     assert rounds == {"0.25": 8, "1.0": 3}  # 4 spp, then rounds of 25% (or 100%) of the samples so far
 
 
