@@ -78,13 +78,13 @@ GATE_WINDOW = 5
 GATE_LOW, GATE_HIGH = 3.0, 9.0
 """Mean squared standard errors between pilot and samples where :func:`trust` starts and stops trusting."""
 
-PROJECTION_SHARE = 0.5
+PROJECTION_SHARE = 0.75
 """Most of a guided result that :func:`projected` takes from the projection on the guide (times the
-gate's share), the Wiener stages' the rest. Measured at 32 spp (docs/guides.md, "What else was
-tried"): the projection alone (1) lost 18-22% relMSE on the tracer's finely textured scenes, where
-OIDN's blur stays within the noise, and gained at most 4% on the six scenes where the guide trails
-OIDN; 0.75 gained 1-2% on those six and lost 8-10% on the textured scenes; none (0) lost 9-19% on
-those six."""
+gate's share), the Wiener stages' the rest. Measured at 32 spp with the guided guard window of 17
+(docs/guides.md): 0.75 brings the OIDN guide within 1.2x of OIDN's relMSE on all ten bundled and
+Mitsuba scenes (at 0.5 `cornell_gi` 1.19x and `glossy_glass` 1.22x) and costs 4-9% on the tracer's
+finely textured scenes, where OIDN's blur stays within the noise (still below OIDN's relMSE there);
+the projection alone (1) lost 18-22% there with the 9x9 guard."""
 
 _COLOUR_SIGMA = 2.0  # colour differences are counted in the means' standard errors
 _KERNEL = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0  # the B3 spline of the a-trous transform

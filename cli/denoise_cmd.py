@@ -23,7 +23,7 @@ from awr_denoise.reconstruct import (
     DEFAULT_WIENER_EXPONENTS,
     MODES,
 )
-from awr_denoise.sure import DEFAULT_WINDOW
+from awr_denoise.sure import DEFAULT_GUIDED_WINDOW, DEFAULT_WINDOW
 from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 
 from . import interrupts
@@ -79,7 +79,8 @@ def add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
                         "a-trous filter guided by albedo, normal and depth, for the first "
                         "(default: neither)")
     g.add_argument("--guard-window", type=whole(minimum=1, maximum=1023), metavar="W",
-                   help=f"side of the SURE guard's square window, odd (default {DEFAULT_WINDOW}; wider is better on "
+                   help=f"side of the SURE guard's square window, odd (default {DEFAULT_WINDOW}, {DEFAULT_GUIDED_WINDOW} with "
+                        "--guide oidn where the gate trusts it; wider is better on "
                         "most scenes and worse next to small, very bright lights: docs/reconstruction.md)")
     g.add_argument("--guide-projection", type=real(minimum=0, maximum=1), metavar="S",
                    help="with --guide oidn: the share of the result taken from the means moved towards the guide "

@@ -11,6 +11,7 @@ from numpy.testing import assert_allclose
 from awr_denoise import SampleBuffer, SampleRequest, reconstruct, reconstruct_detailed
 from awr_denoise.guided import PROJECTION_SHARE, checked_guide, feature_pilot, gated, trust
 from awr_denoise.metrics import mse, relmse
+from awr_denoise.sure import DEFAULT_GUIDED_WINDOW, DEFAULT_WINDOW
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
 
 SHAPE = (64, 64)
@@ -243,6 +244,22 @@ def test_the_projection_on_the_guide_gains_over_the_wiener_stages_alone():
             image = reconstruct(buf, guide=scene.reference(), guide_projection=0.0)
             without += (relmse(image, scene.reference()), mse(image, scene.reference()))
         assert (with_projection < 0.95 * without).all(), (name, with_projection, without)
+
+
+def test_a_trusted_guide_widens_the_guards_window():
+    """With a guide the gate trusts, the guard's default window is DEFAULT_GUIDED_WINDOW (17, measured
+    in docs/guides.md); a guide the gate shuts out everywhere leaves the default's window and result,
+    and an explicit ``guard_window`` wins."""
+    scene, buf = _scene_buffer("edges", 16, 0)
+    ref = scene.reference()
+    guided = reconstruct_detailed(buf, guide=ref, variance_probes=0)
+    assert guided.parameters["guard_window"] == DEFAULT_GUIDED_WINDOW == 17
+    np.testing.assert_array_equal(guided.image, reconstruct(buf, guide=ref, guard_window=17))
+    assert reconstruct_detailed(buf, guide=ref, guard_window=9, variance_probes=0).parameters["guard_window"] == 9
+    assert not np.array_equal(guided.image, reconstruct(buf, guide=ref, guard_window=9))
+    shut_out = reconstruct_detailed(buf, guide=np.full(buf.mean.shape, 1e30), variance_probes=0)
+    assert shut_out.parameters["guard_window"] == DEFAULT_WINDOW
+    assert reconstruct_detailed(buf, variance_probes=0).parameters["guard_window"] == DEFAULT_WINDOW
 
 
 def test_guide_projection_is_checked_and_recorded():

@@ -37,7 +37,6 @@ from ..reconstruct import (
     reconstruct,
     resolve_settings,
 )
-from ..sure import DEFAULT_WINDOW
 from ..wavelets import WAVELET_NAMES, default_levels, max_levels
 from .executors import dask_client, executor_or_threads, executor_width, submit
 
@@ -151,7 +150,7 @@ def reconstruct_tiled(buffer: SampleBuffer, *, tile: int | tuple[int, int] = 512
                       levels: int | None = None, domain: str | Domain = DEFAULT_DOMAIN, mode: str = "channels",
                       boundary: str = "symmetric", pixel_clamp: float | None = DEFAULT_PIXEL_CLAMP,
                       stages: int = DEFAULT_STAGES, wiener_exponents: Sequence[float] = DEFAULT_WIENER_EXPONENTS,
-                      guard: bool | None = None, guard_window: int = DEFAULT_WINDOW,
+                      guard: bool | None = None, guard_window: int | None = None,
                       preserve_mean: bool | None = None, nonnegative: bool | None = None,
                       precision: str = DEFAULT_PRECISION) -> FloatArray:
     """Reconstruct a frame tile by tile; equals :func:`~awr_denoise.reconstruct` to rounding.
