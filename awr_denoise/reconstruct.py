@@ -404,7 +404,8 @@ def reconstruct_detailed(
         it needs them (``stages > 1``).
     guard_window
         Side of the guard's square neighbourhood (odd; default :data:`~awr_denoise.sure.DEFAULT_WINDOW`,
-        9, and :data:`~awr_denoise.sure.DEFAULT_GUIDED_WINDOW`, 17, with a ``guide``). Wider windows estimate the share with less noise: 13 and 17 measured up to 7% lower
+        9, and :data:`~awr_denoise.sure.DEFAULT_GUIDED_WINDOW`, 17, with a ``guide`` the gate
+        trusts). Wider windows estimate the share with less noise: 13 and 17 measured up to 7% lower
         relMSE on eight of the ten bundled and Mitsuba scenes, but up to 11% higher MSE next to a
         small, very bright light (docs/reconstruction.md, "The guard's window, measured").
     preserve_mean
