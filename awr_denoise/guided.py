@@ -78,13 +78,13 @@ GATE_WINDOW = 5
 GATE_LOW, GATE_HIGH = 3.0, 9.0
 """Mean squared standard errors between pilot and samples where :func:`trust` starts and stops trusting."""
 
-PROJECTION_SHARE = 0.75
+PROJECTION_SHARE = 0.5
 """Most of a guided result that :func:`projected` takes from the projection on the guide (times the
 gate's share), the Wiener stages' the rest. Measured at 32 spp with the guided guard window of 17
-(docs/guides.md): 0.75 brings the OIDN guide within 1.2x of OIDN's relMSE on all ten bundled and
-Mitsuba scenes (at 0.5 `cornell_gi` 1.19x and `glossy_glass` 1.22x) and costs 4-9% on the tracer's
-finely textured scenes, where OIDN's blur stays within the noise (still below OIDN's relMSE there);
-the projection alone (1) lost 18-22% there with the 9x9 guard."""
+(docs/guides.md, "What else was tried"): 0.75 lowers relMSE by 1-3% on four scenes (`glossy_glass`
+1.19x OIDN's instead of 1.22x) but raises it by 4-10% on four of the tracer's and raises MSE on
+seven of ten; the projection alone (1) lost 18-22% on the finely textured scenes, where OIDN's blur
+stays within the noise; none (0) lost 9-19% on the six scenes where the guide trails OIDN."""
 
 _COLOUR_SIGMA = 2.0  # colour differences are counted in the means' standard errors
 _KERNEL = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0  # the B3 spline of the a-trous transform
