@@ -461,6 +461,7 @@ AVENUES: dict[str, tuple[dict[str, Any], Any]] = {
     "OIDN guide, no projection": ({"guide": guides.oidn, "guide_projection": 0.0}, None),
     "OIDN guide, projection only": ({"guide": guides.oidn, "guide_projection": 1.0}, None),
     "OIDN guide, projection share 0.75": ({"guide": guides.oidn, "guide_projection": 0.75}, None),
+    "OIDN guide, guard window 9": ({"guide": guides.oidn, "guard_window": 9}, None),
     "OIDN guide, radius 2": ({"guide": guides.oidn}, _Projection(radius=2.0)),
     "OIDN guide, projection exponent 1": ({"guide": guides.oidn}, _Projection(exponent=1.0)),
     "OIDN guide + features where the gate closes": ({"guide": guides.oidn, "features": True}, _features_then_guide),
