@@ -277,12 +277,16 @@ def _levels(priorities: list[FloatArray], operators: WaveletOperators) -> np.nda
     best = priorities[0].copy()
     level = np.zeros((h, w), np.uint8)
     better = np.empty((h, w), bool)
+    step = np.empty((h, w), np.uint8)
     for k in range(1, len(priorities)):
         key = (operators.wavelet, operators.boundary, operators.levels, k)
         at_pixels = _gather(priorities[k], _expansion(h, *key), _expansion(w, *key))
         np.greater(at_pixels, best, out=better)
-        np.copyto(best, at_pixels, where=better)
-        np.copyto(level, k, where=better)
+        # The last level that beat the best so far is the largest such k: a maximum, not a masked
+        # copy. fmax takes the larger value where at_pixels is larger and ignores a NaN in it, as
+        # the comparison does; best holds no NaN (level 0's variances are checked finite).
+        np.fmax(best, at_pixels, out=best)
+        np.maximum(level, np.multiply(better, np.uint8(k), out=step), out=level)
     return level
 
 

@@ -226,3 +226,29 @@ def test_a_deviation_past_float64_stays_finite_and_ranks_first():
     s = pooled_deviation(_grey_buffer(mean, var, np.full((8, 8), 4)), absolute_above=1e-5)
     assert np.isfinite(s).all()
     assert s[4, 4] == s.max() > 1e100 * s[0, 0]  # (its 3x3 pool shares the top)
+
+
+def test_levels_are_the_masked_copies_levels():
+    """_levels keeps a running maximum (fmax) and the largest winning level; the loop it replaced
+    copied values and levels under a mask. The same levels, with ties, a NaN and infinities."""
+    from awr_denoise.priorities import _expansion, _gather, _levels
+    from awr_denoise.wavelets import wavelet_operators
+
+    rng = np.random.default_rng(4)
+    ops = wavelet_operators((45, 70))
+    prio = [np.round(rng.random((45, 70)), 1)]  # few values: many ties between levels
+    for k in range(1, ops.levels + 1):
+        shape = ops.rows.approx[k - 1].shape[0], ops.cols.approx[k - 1].shape[0]
+        prio.append(np.round(rng.random(shape) * 1.2 - 0.1, 1))
+    prio[1][:2, :2], prio[2][:2, :2] = np.nan, 2.0  # a NaN is passed over: level 2 wins there
+    prio[2][3, 3], prio[1][2, 3] = np.inf, -np.inf
+
+    best, expected = prio[0].copy(), np.zeros((45, 70), np.uint8)
+    for k in range(1, len(prio)):
+        key = (ops.wavelet, ops.boundary, ops.levels, k)
+        at = _gather(prio[k], _expansion(45, *key), _expansion(70, *key))
+        better = at > best
+        best[better], expected[better] = at[better], k
+    got = _levels(prio, ops)
+    assert got.dtype == np.uint8 and len(np.unique(got)) == ops.levels + 1
+    np.testing.assert_array_equal(got, expected)

@@ -1,0 +1,90 @@
+"""The water-filling's rounding: the largest-remainder selection against a full partition.
+
+The contract of :func:`~awr_denoise.allocate` itself (budget, caps, refusals) is tested in
+test_sampling.py beside the samplers that call it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from awr_denoise import allocate
+from awr_denoise.allocation import _SELECT_DIRECT, _smallest
+
+
+def _reference(key: np.ndarray, count: int) -> np.ndarray:
+    """The selection as it was made before the bracketed search: one partition of every key."""
+    mask = np.zeros(key.size, bool)
+    mask[np.argpartition(key, count - 1)[:count]] = True
+    return mask
+
+
+def _keys(kind: str, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Keys like the rounding's: minus (remainder + tiny jitter), +Inf where a pixel has no room."""
+    if kind == "uniform":
+        frac = rng.random(n)
+    elif kind == "equal":  # a flat density: every remainder the same, only the jitter differs
+        frac = np.full(n, 0.375)
+    elif kind == "few values":
+        frac = rng.integers(0, 4, n) / 4.0
+    elif kind == "periodic":  # a pattern that repeats every 16 pixels: a strided sample would alias
+        frac = np.tile(np.linspace(0.0, 0.9, 16), n // 16 + 1)[:n]
+    else:  # sorted: the smallest keys all at one end of the image
+        frac = np.sort(rng.random(n))
+    key = -(frac + 1e-6 * rng.random(n))
+    if kind == "removal":  # the rounding's other use: the smallest remainders lose a sample
+        key = -key
+        key[rng.random(n) < 0.2] = np.inf  # pixels with no sample to give
+    if kind == "uniform":
+        key[rng.random(n) < 0.3] = np.inf  # pixels at their cap
+    return key
+
+
+@pytest.mark.parametrize("kind", ["uniform", "equal", "few values", "periodic", "sorted", "removal"])
+@pytest.mark.parametrize("share", [1e-5, 0.01, 0.37, 0.5, 0.69, 0.999])
+def test_the_bracketed_selection_is_the_full_partitions(kind, share):
+    rng = np.random.default_rng(7)
+    n = 3 * _SELECT_DIRECT + 11  # above the size where the bracket is used
+    key = _keys(kind, n, rng)
+    count = max(1, min(int(share * np.count_nonzero(np.isfinite(key))), n - 1))
+    got = _smallest(key, count)
+    assert got.dtype == bool and int(got.sum()) == count
+    np.testing.assert_array_equal(got, _reference(key, count))
+
+
+def test_a_sample_that_misses_falls_back_to_the_full_partition(monkeypatch):
+    """Places that all fall on the largest keys bracket the wrong values: the result is still exact."""
+    from awr_denoise import allocation
+
+    rng = np.random.default_rng(3)
+    n = 2 * _SELECT_DIRECT
+    key = -rng.random(n)
+    order = np.argsort(key)
+    monkeypatch.setattr(allocation, "_sample_places", lambda size: order[-(size // 16):])
+    count = n // 2
+    np.testing.assert_array_equal(_smallest(key, count), _reference(key, count))
+
+
+def test_small_images_partition_directly():
+    rng = np.random.default_rng(1)
+    key = -rng.random(1000)
+    np.testing.assert_array_equal(_smallest(key, 417), _reference(key, 417))
+
+
+def test_allocation_above_the_bracket_size_is_the_full_partitions(monkeypatch):
+    """Through allocate(), with caps and without: the counts of the full partition."""
+    from awr_denoise import allocation
+
+    rng = np.random.default_rng(11)
+    shape = (300, 500)
+    density = rng.random(shape) ** 3
+    current = rng.integers(0, 3, shape)
+    capacity = rng.integers(0, 6, shape)
+    for budget, cap in ((int(0.6 * capacity.sum()), capacity), (12345, capacity), (10**8, None)):
+        got = allocate(density, current, budget, capacity=cap, rng=np.random.default_rng(0))
+        with monkeypatch.context() as patch:
+            patch.setattr(allocation, "_smallest", _reference)
+            expected = allocate(density, current, budget, capacity=cap, rng=np.random.default_rng(0))
+        assert int(got.sum()) == budget and (cap is None or (got <= cap).all())
+        np.testing.assert_array_equal(got, expected)
