@@ -190,7 +190,9 @@ def _round_to_budget(m: FloatArray, cap_int: CountArray, budget: int, rng: np.ra
     # Integer arithmetic from here on: the search stops within 0.1% of the budget and float64
     # cannot hold every count above 2**53, so the residual may exceed the number of pixels.
     flat_cap = cap_int.reshape(-1)  # a view, also of a broadcast value
-    flat_base = np.minimum(np.minimum(floor_m, float(MAX_BUDGET), out=floor_m).ravel().astype(np.int64), flat_cap)
+    flat_base = np.minimum(floor_m, float(MAX_BUDGET), out=floor_m).ravel().astype(np.int64)
+    if flat_cap.strides != (0,):  # per-pixel caps (without, the cap is MAX_BUDGET, applied above)
+        np.minimum(flat_base, flat_cap, out=flat_base)
     left = budget - int(flat_base.sum())
     while left > 0:
         room = flat_cap - flat_base

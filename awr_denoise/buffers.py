@@ -482,12 +482,12 @@ class SampleBuffer:
     def luminance_variance(self) -> FloatArray:
         """(H, W) per-sample variance of luminance, from the per-channel variances.
 
-        Channel covariances are not stored; the colour channels of a path-traced sample are
-        strongly correlated (one path, one throughput), so this uses the fully correlated
-        value ``(sum_c w_c s_c)^2``, an upper bound that is exact for grey samples.
+        Channel covariances are not stored; the colour channels of a path-traced sample are strongly correlated
+        (one path, one throughput): this uses the fully correlated upper bound ``(sum_c w_c s_c)^2``, exact for grey.
         """
-        sd = np.sqrt(self.estimated_variance())
-        return (sd @ luminance_weights(self.channels)) ** 2
+        v = self.estimated_variance()  # the root in place, never in the buffer's own array:
+        y = np.sqrt(v, out=None if np.may_share_memory(v, self.variance) else v) @ luminance_weights(self.channels)
+        return np.square(y, out=y)
 
     # ------------------------------------------------------------------ combining
     def merge(self, other: SampleBuffer) -> SampleBuffer:

@@ -110,7 +110,8 @@ class Domain:
         if self.name == "linear":
             return _BoundDomain(self, 1.0)
         # Means near the smallest floats (1e-310) are valid: k may underflow, never to 0.
-        return _BoundDomain(self, max(self.offset * self.resolved_scale(mean), _SMALLEST))
+        scale = self.resolved_scale(mean)
+        return _BoundDomain(self, max(self.offset * scale, _SMALLEST), scale)
 
     def resolved_scale(self, mean: FloatArray) -> float:
         """The absolute reference level used for ``mean``: :attr:`scale`, or the image's own.
@@ -153,6 +154,7 @@ class Domain:
 class _BoundDomain:
     domain: Domain
     k: float
+    scale: float | None = None  # the level k was fixed from (None: linear), kept so it is not computed again
 
     def forward(self, x: FloatArray) -> FloatArray:
         name, k = self.domain.name, self.k

@@ -112,7 +112,8 @@ class Prepared:
         dom = self.bound.domain
         if dom.name == "linear" or dom.scale is not None:
             return dom
-        return dataclasses.replace(dom, scale=dom.resolved_scale(self.mean))
+        scale = self.bound.scale if self.bound.scale is not None else dom.resolved_scale(self.mean)
+        return dataclasses.replace(dom, scale=scale)
 
     def unit_scaled(self) -> tuple[float, float, FloatArray, FloatArray]:
         """``(s, k, x, v)``: a power of two ``s`` near the image's level (dividing by it is exact), and
