@@ -20,7 +20,7 @@ from ..metrics import mse, psnr, relmse, ssim
 from .config import DOMAINS, BenchmarkConfig
 
 __all__ = ["image_metrics", "fit_noise_floor", "equal_error_spp", "correct_for_noise_floor", "headline_spp",
-           "row_at", "summarize"]
+           "row_at", "summarize", "flag_candidates", "FLAG_METHODS"]
 
 
 def image_metrics(image: FloatArray, reference: FloatArray) -> dict[str, float]:
@@ -191,14 +191,19 @@ def summarize(results: dict[str, Any], config: BenchmarkConfig) -> dict[str, Any
     dict
         ``headline_spp``, per-scene ``scenes`` entries (relMSE and equal-error spp at the
         headline spp, goals, overhead shares, equal-time ratios), ``flags`` (a reconstruction
-        with defaults worse than the plain mean: a bug by the project's rule) and ``best_c_s``.
+        with defaults worse than the plain mean: a bug by the project's rule; checked over seeds
+        where ``results`` holds ``flag_checks``, :mod:`~awr_denoise.bench.flagcheck`),
+        ``flags_not_confirmed`` (one render above the plain mean, the error summed over the seeds
+        below it) and ``best_c_s``.
     """
     head_spp = headline_spp(sorted(config.spps))
-    out: dict[str, Any] = {"headline_spp": head_spp, "scenes": {}, "flags": []}
+    out: dict[str, Any] = {"headline_spp": head_spp, "scenes": {}, "flags": [], "flags_not_confirmed": []}
     big = next((r for r in results.get("overhead", {}).get("sizes", []) if r["size"] == "1080p"), None)
     for name, sc in results["scenes"].items():
         out["scenes"][name] = _scene_summary(sc, head_spp, big)
-        out["flags"].extend(_flags(name, sc))
+        flags, noise = _flags(name, sc, results.get("flag_checks", []))
+        out["flags"].extend(flags)
+        out["flags_not_confirmed"].extend(noise)
     out["best_c_s"] = _best_c_s(results)
     return out
 
@@ -257,22 +262,64 @@ def _equal_time(uniform_curve: list[dict[str, Any]], row: dict[str, dict[str, An
     return out
 
 
-def _flags(name: str, sc: dict[str, Any]) -> list[str]:
-    """Every AWR method with library defaults worse than the plain mean at equal samples, in relMSE or in MSE."""
-    flags = []
+FLAG_METHODS = ("uniform+awr", "awr+awr", "awr-gain+awr", "variance+awr")
+"""The methods whose defaults a flag judges against the plain mean at equal samples."""
+
+
+def _violations(sc: dict[str, Any]) -> list[tuple[str, int, str, float, float]]:
+    """``(method, spp, metric, value, plain mean's value)`` wherever a method is above the plain mean."""
+    out = []
     m = sc["methods"]
-    for meth in ("uniform+awr", "awr+awr", "awr-gain+awr", "variance+awr"):
+    for meth in FLAG_METHODS:
         for r in m.get(meth, []):
             u = row_at(m["uniform"], r["spp"])
-            for key, label in (("relmse", "relMSE"), ("mse", "MSE")):
+            for key in ("relmse", "mse"):
                 if u is not None and r[key] > u[key]:
-                    flags.append(f"{name}: {meth} at {r['spp']} spp is worse than the plain mean "
-                                 f"({label} {r[key]:.4g} > {u[key]:.4g})")
+                    out.append((meth, r["spp"], key, r[key], u[key]))
+    return out
+
+
+def flag_candidates(results: dict[str, Any]) -> list[tuple[str, str, int]]:
+    """Every (scene, method, spp) that :func:`summarize` flags, once each (in relMSE, MSE or both).
+
+    Examples
+    --------
+    >>> row = lambda spp, e: {"spp": spp, "relmse": e, "mse": e}
+    >>> scene = {"methods": {"uniform": [row(4, 1.0)], "awr+awr": [row(4, 2.0)], "uniform+awr": [row(4, 0.5)]}}
+    >>> flag_candidates({"scenes": {"s": scene}})
+    [('s', 'awr+awr', 4)]
+    """
+    seen: list[tuple[str, str, int]] = []
+    for name, sc in results["scenes"].items():
+        for meth, spp, *_ in _violations(sc):
+            if (name, meth, spp) not in seen:
+                seen.append((name, meth, spp))
+    return seen
+
+
+def _flags(name: str, sc: dict[str, Any], checks: list[dict[str, Any]]) -> tuple[list[str], list[str]]:
+    """``(flags, not confirmed)``: methods with library defaults worse than the plain mean at equal
+    samples, in relMSE or in MSE; a flag checked over seeds (:mod:`~awr_denoise.bench.flagcheck`)
+    stands when its error summed over them is above the plain mean's, and is not confirmed otherwise."""
+    flags, noise = [], []
+    labels = {"relmse": "relMSE", "mse": "MSE"}
+    for meth, spp, key, value, plain in _violations(sc):
+        text = f"{name}: {meth} at {spp} spp is worse than the plain mean ({labels[key]} {value:.4g} > {plain:.4g})"
+        check = next((c for c in checks if (c["scene"], c["method"], c["spp"]) == (name, meth, spp)), None)
+        if check is None or len(check["seeds"]) < 2:
+            flags.append(text)
+            continue
+        ratios = [a / b for a, b in zip(check[key], check[f"plain_{key}"])]
+        pooled = sum(check[key]) / sum(check[f"plain_{key}"])
+        text += (f"; over seeds {check['seeds'][0]}-{check['seeds'][-1]} the summed {labels[key]} is "
+                 f"{pooled:.2f}x the plain mean's, above it on {sum(r > 1 for r in ratios)} of {len(ratios)} "
+                 f"(per seed {min(ratios):.2f}-{max(ratios):.2f}x)")
+        (flags if pooled > 1 else noise).append(text)
     for r in sc.get("c_s_sweep", []):
         if r["domain"] == "log" and r["c_s"] == 1.0 and r.get("worse_than_mean"):
             flags.append(f"{name}: the default reconstruction (log, c_s=1) is worse than the plain mean "
                          f"in the c_s sweep at {r['spp']} spp")
-    return flags
+    return flags, noise
 
 
 def _best_c_s(results: dict[str, Any]) -> dict[str, dict[str, float]]:

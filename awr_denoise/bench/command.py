@@ -126,6 +126,8 @@ def run_from_args(args: argparse.Namespace) -> int:
           f"run time {results['meta']['run_seconds'] / 60:.1f} min")
     for flag in s["flags"]:
         print(f"FLAG: {flag}")
+    for flag in s.get("flags_not_confirmed", []):
+        print(f"flag not confirmed over seeds: {flag}")
     if args.output_dir is not None:
         print(f"wrote {args.output_dir / 'benchmarks.md'}")
     return 0

@@ -79,6 +79,10 @@ class BenchmarkConfig:
         (``None``: ``data/cache/mitsuba/`` of the source tree).
     seed
         Seed of the main renders (every method uses the same one: common random numbers).
+    flag_seeds
+        Seeds in all over which a flag (a default worse than the plain mean on the main render) is
+        checked: the main seed and the ones after it (:mod:`awr_denoise.bench.flagcheck`); 1
+        leaves flags unchecked.
 
     Examples
     --------
@@ -112,6 +116,7 @@ class BenchmarkConfig:
     mitsuba_reference_spp: int = 2048
     mitsuba_reference_dir: str | None = None
     seed: int = 0
+    flag_seeds: int = 6
 
     @classmethod
     def quick(cls, **overrides: Any) -> BenchmarkConfig:
@@ -135,5 +140,5 @@ class BenchmarkConfig:
         """
         base = cls(spps=(4, 8, 32), uniform_max_spp=256, mitsuba_size=64, mitsuba_reference_spp=512, sweep_spp=8, sweep_seeds=3,
                    c_s_values=(0.25, 0.5, 1.0, 2.0, 4.0), defaults_sweep=False, overhead_sizes=("256x256", "1080p"),
-                   overhead_levels=(1, 3, 5), overhead_levels_size="256x256")
+                   overhead_levels=(1, 3, 5), overhead_levels_size="256x256", flag_seeds=3)
         return replace(base, **overrides)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import sys
 import time
 from collections.abc import Callable
@@ -18,10 +17,11 @@ from .._typing import FloatArray
 from ..buffers import SampleBuffer
 from ..metrics import RELMSE_EPSILON, relmse
 from ..reconstruct import reconstruct
-from ..sampling import AdaptiveSampler, UniformSampler, VarianceSampler
-from .analysis import correct_for_noise_floor, headline_spp, image_metrics, summarize
+from ..sampling import UniformSampler
+from .analysis import correct_for_noise_floor, flag_candidates, headline_spp, image_metrics, summarize
 from .config import METHODS, BenchmarkConfig
 from .figures import require_matplotlib, write_figures
+from .flagcheck import ADAPTIVE_METHODS, check_flags
 from .measure import Timing, run_progressive, timed
 from .mitsuba import mitsuba_benchmark, mitsuba_scene_names
 from .overhead import measure_overhead
@@ -100,6 +100,9 @@ def run_benchmark(config: BenchmarkConfig | None = None, *, output_dir: str | Pa
     try:
         for name in scenes:
             results["scenes"][name], all_images[name] = scene_benchmark(name, config, use_oidn, tick)
+        if bar is not None and config.flag_seeds > 1:
+            bar.total += len(flag_candidates(results))  # known only now: the checks of what was flagged
+        results["flag_checks"] = check_flags(results, config, tick) if config.flag_seeds > 1 else []
         results["overhead"] = measure_overhead(config, tick) if config.overhead_sizes else {"sizes": [], "levels": []}
         results["mitsuba"] = mitsuba_benchmark(config, tick) if config.mitsuba else {"status": "not asked for",
                                                                                       "scenes": {}}
@@ -176,9 +179,7 @@ def scene_benchmark(name: str, config: BenchmarkConfig, use_oidn: bool, tick: Ti
 
     uniform_curve, uniform_buffers = _uniform_stage(scene, reference, spps, config, use_oidn, methods, images)
     tick(f"{name}: uniform to {uniform_curve[-1]['spp']} spp")
-    for method, sampler_cls in (("awr+awr", AdaptiveSampler),
-                                ("awr-gain+awr", functools.partial(AdaptiveSampler, noise_model="reconstruction")),
-                                ("variance+awr", VarianceSampler)):
+    for method, sampler_cls in ADAPTIVE_METHODS.items():
         _adaptive_stage(sampler_cls, scene, reference, spps, config, methods[method], images, method)
         tick(f"{name}: {method}")
 

@@ -76,3 +76,24 @@ def test_summarize_flags_a_reconstruction_worse_than_the_mean():
     scene["c_s_sweep"] = []
     assert summarize({"scenes": {"s": scene}}, BenchmarkConfig(spps=(4, 8)))["flags"] == [
         "s: awr+awr at 8 spp is worse than the plain mean (MSE 1.5 > 1)"]
+
+
+def test_a_flag_checked_over_seeds_stands_only_if_the_summed_error_is_above_the_plain_means():
+    """One render above the plain mean: confirmed when the error summed over the seeds is above
+    it too, reported as not confirmed otherwise, with the per-seed spread either way."""
+    scene = {"shape": [32, 32], "uniform_curve": [_row(4, 0.1, 1.0), _row(8, 0.05, 2.0)],
+             "methods": {"uniform": [_row(4, 0.1, 1.0, mse=1.0), _row(8, 0.05, 2.0, mse=1.0)],
+                         "uniform+awr": [_row(4, 0.05, 1.0, mse=1.2), _row(8, 0.02, 2.0, mse=1.1)]}}
+    checks = [{"scene": "s", "method": "uniform+awr", "spp": 4, "seeds": [0, 1, 2], "relmse": [0.05, 0.05, 0.05],
+               "mse": [1.2, 0.5, 0.6], "plain_relmse": [0.1, 0.1, 0.1], "plain_mse": [1.0, 1.0, 1.0]},
+              {"scene": "s", "method": "uniform+awr", "spp": 8, "seeds": [0, 1, 2], "relmse": [0.02, 0.02, 0.02],
+               "mse": [1.1, 1.3, 0.9], "plain_relmse": [0.05, 0.05, 0.05], "plain_mse": [1.0, 1.0, 1.0]}]
+    out = summarize({"scenes": {"s": scene}, "flag_checks": checks}, BenchmarkConfig(spps=(4, 8)))
+    assert out["flags"] == ["s: uniform+awr at 8 spp is worse than the plain mean (MSE 1.1 > 1); over seeds 0-2 the "
+                            "summed MSE is 1.10x the plain mean's, above it on 2 of 3 (per seed 0.90-1.30x)"]
+    assert out["flags_not_confirmed"] == [
+        "s: uniform+awr at 4 spp is worse than the plain mean (MSE 1.2 > 1); over seeds 0-2 the summed MSE is 0.77x "
+        "the plain mean's, above it on 1 of 3 (per seed 0.50-1.20x)"]
+    # Without checks (flag_seeds=1, or results from before them) every flag stands as it is.
+    plain = summarize({"scenes": {"s": scene}}, BenchmarkConfig(spps=(4, 8)))
+    assert len(plain["flags"]) == 2 and plain["flags_not_confirmed"] == []

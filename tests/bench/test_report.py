@@ -41,3 +41,17 @@ def test_notes_survive_a_rewrite(tiny_run, tmp_path):
     write_markdown(results, {}, path, None)
     assert f"{NOTES_BEGIN}\nA reading by hand.\n{NOTES_END}" in path.read_text()
     assert "![" not in path.read_text()  # no figure drawn, none linked
+
+
+def test_flags_not_confirmed_over_seeds_have_their_own_section(tiny_run, tmp_path):
+    import copy
+
+    results = copy.deepcopy(tiny_run[0])
+    results["summary"]["flags"] = []
+    results["summary"]["flags_not_confirmed"] = ["s: uniform+awr at 4 spp is worse than the plain mean (MSE 2 > 1)"]
+    path = tmp_path / "benchmarks.md"
+    write_markdown(results, {}, path, None)
+    page = path.read_text()
+    assert "### Flags not confirmed over seeds" in page and "- s: uniform+awr at 4 spp" in page
+    assert "on the main render or summed over 3 seeds" in page
+    assert "### Flags: a default worse than the plain mean" not in page
