@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import math
 import numbers
+from concurrent.futures import Executor
 from typing import Any
 
 import numpy as np
 
-__all__ = ["MAX_SEED", "MAX_SIDE", "MAX_LEVELS", "real", "whole", "flag", "seed", "shape2d", "name", "slices"]
+__all__ = ["MAX_SEED", "MAX_SIDE", "MAX_LEVELS", "real", "whole", "flag", "seed", "shape2d", "name", "slices",
+           "executor"]
 
 MAX_SEED = 2**63 - 1
 """Seeds are whole numbers in 0..2**63-1 (they are hashed as 64-bit integers)."""
@@ -116,3 +118,10 @@ def slices(**values: Any) -> None:
     for param, value in values.items():
         if not isinstance(value, slice):
             raise TypeError(f"{param}: expected a slice, got {type(value).__name__} {value!r}")
+
+
+def executor(param: str, value: Any) -> Executor | None:
+    """``value`` if it is a ``concurrent.futures.Executor`` (Dask's ``ClientExecutor`` is one) or None."""
+    if value is not None and not isinstance(value, Executor):
+        raise TypeError(f"{param}: expected a concurrent.futures.Executor, got {type(value).__name__}")
+    return value

@@ -21,6 +21,8 @@ deviation): samples concentrate on edges and spread thinly over smooth noisy reg
 
 from __future__ import annotations
 
+import functools
+from concurrent.futures import Executor
 from functools import lru_cache
 
 import numpy as np
@@ -135,6 +137,7 @@ def coefficient_priorities(
     boundary: str = "symmetric",
     operators: WaveletOperators | None = None,
     plane: tuple[FloatArray, FloatArray, FloatArray] | None = None,
+    executor: Executor | None = None,
 ) -> list[FloatArray]:
     """Priority ``P_k`` of every scale coefficient at levels ``k = 0..L``.
 
@@ -150,6 +153,9 @@ def coefficient_priorities(
         Prebuilt operators for the buffer's shape.
     plane
         A precomputed :func:`error_plane` of ``buffer``.
+    executor
+        Optional ``concurrent.futures.Executor`` (threads): the transform of the means runs on it
+        while the variances propagate in this thread; the same result as without.
 
     Returns
     -------
@@ -173,7 +179,10 @@ def coefficient_priorities(
     """
     (mean_y, var_y, _), c = _normalised(plane if plane is not None else error_plane(buffer, domain))
     ops = operators or wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
-    coeffs = forward(mean_y, wavelet=ops.wavelet, levels=ops.levels, boundary=ops.boundary)
+    executor = _checks.executor("executor", executor)
+    transform = functools.partial(forward, mean_y, wavelet=ops.wavelet, levels=ops.levels, boundary=ops.boundary)
+    pending = None if executor is None else executor.submit(transform)
+    coeffs = transform() if pending is None else None
     var_y = np.asarray(var_y, dtype=np.float64)
     if var_y.shape != ops.shape or not (np.isfinite(var_y.max(initial=0.0)) and var_y.min(initial=0.0) >= 0):
         coefficient_variance(var_y, operators=ops)  # raises the error that names the bad values
@@ -185,6 +194,8 @@ def coefficient_priorities(
     smallest = float(np.min(var_y, where=var_y > 0, initial=np.inf))
     single = var_y.max(initial=0.0) < _FLOAT32_SAFE[1] and (smallest == np.inf or smallest > _FLOAT32_SAFE[0])
     variances = _plane_variance(var_y.astype(np.float32) if single else var_y, ops, scales=scale_variances)
+    if pending is not None:
+        coeffs = pending.result()
     priorities = [var_y]
     for k in range(1, ops.levels + 1):
         j = ops.levels - k + 1  # position of level k's detail bands in pywt's layout
@@ -300,6 +311,7 @@ def sampling_density(
     level_weight: float = 1.0,
     noise_gain: FloatArray | None = None,
     absolute_above: float | None = DEFAULT_ABSOLUTE_ABOVE,
+    executor: Executor | None = None,
 ) -> FloatArray:
     """(H, W) target sample density ``a_p = s_p * 2^(-level_weight * l_p)`` (unnormalised).
 
@@ -314,6 +326,10 @@ def sampling_density(
     ``noise_gain``, that share measured on a reconstruction (``g_p``,
     :attr:`~awr_denoise.Reconstruction.noise_gain`, pooled over 3x3 pixels like ``s_p``) takes the
     level term's place: ``a_p = s_p * sqrt(g_p)``, and ``level_weight`` is not used.
+
+    With an ``executor`` (threads), ``s_p`` and the transform of the means are computed on it
+    while the coefficient variances propagate in this thread: the same density, sooner on two
+    cores (docs/performance.md, Threads).
 
     Examples
     --------
@@ -339,6 +355,7 @@ def sampling_density(
     2.0
     """
     level_weight = _checks.real("level_weight", level_weight, minimum=0)
+    executor = _checks.executor("executor", executor)
     if noise_gain is not None:
         noise_gain = np.asarray(noise_gain, dtype=np.float64)
         if noise_gain.shape != buffer.shape:
@@ -346,17 +363,20 @@ def sampling_density(
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     p = prepare(buffer, domain, luminance=True)  # once, for the deviation and the priorities
     plane = _plane(p)
-    s_pooled = pooled_deviation(buffer, domain, absolute_above=absolute_above, prepared=p)
+    deviation = functools.partial(pooled_deviation, buffer, domain, absolute_above=absolute_above, prepared=p)
     if noise_gain is not None:
+        s_pooled = deviation()
         # Pooled like s_p; a NaN or negative gain (none is expected) must not send samples nowhere.
         gain = np.nan_to_num(ndimage.uniform_filter(noise_gain, 3, mode="nearest"), nan=1.0)
         s_pooled *= np.sqrt(np.maximum(gain, 0.0))
         return s_pooled
     if level_weight == 0:
-        return s_pooled
+        return deviation()
+    pooled = None if executor is None else executor.submit(deviation)
     # Levels do not change when the plane is scaled: normalised, the priorities cannot overflow.
-    prio = coefficient_priorities(buffer, domain=domain, operators=ops, plane=_normalised(plane)[0])
+    prio = coefficient_priorities(buffer, domain=domain, operators=ops, plane=_normalised(plane)[0], executor=executor)
     level = _levels(prio, ops)
+    s_pooled = deviation() if pooled is None else pooled.result()
     with np.errstate(under="ignore"):  # a large level_weight leaves coarse levels nothing
         # One power per level, looked up per pixel: the same values as the power of every pixel.
         factor = 2.0 ** (-level_weight * np.arange(ops.levels + 1))

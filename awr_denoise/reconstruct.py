@@ -480,7 +480,7 @@ def reconstruct_detailed(
     projection = checked_projection(guide_projection, guide)
     prepared = prepare(buffer, domain)
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
-    run: Callable | None = (lambda f, items: list(executor.map(f, items))) if executor is not None else None
+    run = None if _checks.executor("executor", executor) is None else lambda f, items: list(executor.map(f, items))
     luminance = None
     if mode == "luminance":
         luminance = (prepare(buffer, prepared.domain, luminance=True), luminance_weights(buffer.channels))

@@ -24,6 +24,7 @@ import dataclasses
 import itertools
 import warnings
 from collections.abc import Callable
+from concurrent.futures import Executor
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -64,18 +65,16 @@ class Sampler:
     seed
         Seeds tie-breaking; the same seed and the same told buffers give the same requests.
     spp_min
-        Every pixel is brought up to this many samples before any strategy applies; default
-        ``initial_spp``.
+        Every pixel is brought up to this many samples before any strategy applies; default ``initial_spp``.
     spp_max
         Most samples any pixel may have; ``None`` for no cap.
     round_spp
         Default budget of a round after the first, in samples per pixel; ``None`` grows rounds
         with the image's samples (see ``round_growth``).
     round_growth
-        Without ``round_spp``, a round's default budget is this share of the samples taken so
-        far (at least 0.25 spp), so a render to ``S`` spp takes about
-        ``log(S / initial_spp) / log(1 + round_growth)`` rounds. Larger rounds cost fewer
-        priority analyses; docs/benchmarks.md ("The other defaults") measures the trade.
+        Without ``round_spp``, a round's default budget is this share of the samples taken so far (at
+        least 0.25 spp), so a render to ``S`` spp takes about ``log(S / initial_spp) / log(1 + round_growth)``
+        rounds. Larger rounds cost fewer priority analyses; docs/benchmarks.md ("The other defaults") measures it.
 
     Examples
     --------
@@ -383,9 +382,7 @@ class Sampler:
         goal = int(round(total_spp * pixels))
         if goal < self._issued.sum():
             raise ValueError(f"total_spp: {total_spp} is below the {self._issued.sum() / pixels:.3g} spp already taken")
-        bar = None
-        if progress:
-            bar = tqdm(total=goal, initial=int(self._issued.sum()), unit="sample", desc=self.strategy)
+        bar = tqdm(total=goal, initial=int(self._issued.sum()), unit="sample", desc=self.strategy) if progress else None
         try:
             while self._issued.sum() < goal:
                 remaining = goal - int(self._issued.sum())
@@ -402,8 +399,8 @@ class Sampler:
         return self._buffer
 
     # ------------------------------------------------------------------ strategy
-    def _allocate(self, budget: int, current: CountArray, capacity: CountArray | None,
-                  rng: np.random.Generator) -> CountArray:
+    def _allocate(self, budget: int, current: CountArray, capacity: CountArray | None, rng: np.random.Generator
+                  ) -> CountArray:
         raise NotImplementedError
 
 
@@ -468,10 +465,7 @@ class AdaptiveSampler(Sampler):
     highest priority ``P_k = 4^k (Var(S~_k) - sum_a max(0, W~^2 - (2 Delta)^2))``, and the
     round's budget is spread so that totals approach ``n_p ~ s_p 2^(-w l_p)``: samples concentrate
     on edges (fine levels win) and spread thinly over smooth noisy regions (coarse levels win),
-    see :mod:`awr_denoise.priorities`. An optional ``uniform_fraction`` of each round is spent
-    uniformly, insurance against variance estimates that are wrong (all first samples of a
-    region may miss a small light); measured, it cost relMSE and bought nothing (docs/sampling.md),
-    so it is off by default.
+    see :mod:`awr_denoise.priorities`.
 
     Parameters
     ----------
@@ -482,23 +476,26 @@ class AdaptiveSampler(Sampler):
     domain
         Error domain of the priorities; use the reconstruction's (``"log"`` by default).
     level_weight
-        Weight ``w`` of the level term, ``n_p ~ s_p 2^(-w l_p)``. The error model of
-        :mod:`awr_denoise.priorities` gives ``w = 1`` if reconstruction averaged a smooth
-        region completely; soft thresholding at ``c_s = 1`` keeps part of the noise, and
-        measurement (docs/sampling.md) puts the best value near 0.25, the default. 0 turns the
-        sampler into per-pixel variance sampling.
+        Weight ``w`` of the level term, ``n_p ~ s_p 2^(-w l_p)``. The error model of :mod:`awr_denoise.priorities`
+        gives ``w = 1`` if reconstruction averaged a smooth region completely; soft thresholding at ``c_s = 1``
+        keeps part of the noise, and measurement (docs/sampling.md) puts the best value near 0.25, the
+        default. 0 turns the sampler into per-pixel variance sampling.
     uniform_fraction
-        Share of every round spread uniformly; 0 by default.
+        Share of every round spread uniformly, insurance against variance estimates that are wrong
+        (all first samples of a region may miss a small light); off by default: measured, it cost
+        relMSE and bought nothing (docs/sampling.md).
     absolute_above
         ``s_p`` is the error in ``domain`` with each pixel's level capped at this many times the image's
         mean level: a small bright source is ranked by its absolute error, not starved (``None``: not
         capped; :func:`~awr_denoise.priorities.pooled_deviation`, docs/sampling.md "Relative and absolute error").
     noise_model
-        What reconstruction leaves of a pixel's noise, the factor on ``s_p``: ``"levels"`` (the
-        paper's model above, the default) or ``"reconstruction"``: every round, the default
-        reconstruction's measured share ``g_p`` (:attr:`~awr_denoise.Reconstruction.noise_gain`),
-        ``n_p ~ s_p sqrt(g_p)``, which spends a budget best for that reconstruction (docs/sampling.md,
-        "The measured noise gain": lower errors on most scenes for ten times the sampler's time).
+        What reconstruction leaves of a pixel's noise, the factor on ``s_p``: ``"levels"`` (the paper's model above,
+        the default) or ``"reconstruction"``: every round, the default reconstruction's measured share ``g_p``
+        (:attr:`~awr_denoise.Reconstruction.noise_gain`), ``n_p ~ s_p sqrt(g_p)``: lower errors on most scenes for ten
+        times the sampler's time (docs/sampling.md, "The measured noise gain").
+    executor
+        Optional ``concurrent.futures.Executor`` (threads) for every ``ask()``'s priorities (and the gain's
+        reconstruction): the same requests, sooner on two cores (docs/performance.md, Threads).
 
     Examples
     --------
@@ -521,7 +518,7 @@ class AdaptiveSampler(Sampler):
                  spp_min: int | None = None, spp_max: int | None = None, round_spp: float | None = None,
                  round_growth: float = DEFAULT_ROUND_GROWTH, domain: str | Domain = "log", level_weight: float = 0.25,
                  uniform_fraction: float = 0.0, noise_model: str = "levels",
-                 absolute_above: float | None = DEFAULT_ABSOLUTE_ABOVE) -> None:
+                 absolute_above: float | None = DEFAULT_ABSOLUTE_ABOVE, executor: Executor | None = None) -> None:
         super().__init__(shape, channels=channels, initial_spp=initial_spp, seed=seed, spp_min=spp_min,
                          spp_max=spp_max, round_spp=round_spp, round_growth=round_growth)
         wavelet_operators(self._shape, wavelet=wavelet, levels=levels)  # validates wavelet and levels now
@@ -530,14 +527,17 @@ class AdaptiveSampler(Sampler):
         self.uniform_fraction = _checks.real("uniform_fraction", uniform_fraction, minimum=0.0, maximum=1.0)
         self.noise_model = _checks.name("noise_model", noise_model, NOISE_MODELS)
         self.absolute_above = _checks.real("absolute_above", absolute_above, above=0, none=True)
+        self.executor = _checks.executor("executor", executor)
 
     def density(self) -> FloatArray:
         """(H, W) target density of the next round (see :func:`~awr_denoise.priorities.sampling_density`)."""
         # One reconstruction a round (round 0 is uniform), without the finishing steps: they leave the gain as it is.
         gain = None if self.noise_model != "reconstruction" else reconstruct_detailed(
-            self._buffer, variance_probes=0, pixel_clamp=None, preserve_mean=False, nonnegative=False).noise_gain
+            self._buffer, variance_probes=0, pixel_clamp=None, preserve_mean=False, nonnegative=False,
+            executor=self.executor).noise_gain
         return sampling_density(self._buffer, wavelet=self.wavelet, levels=self.levels, domain=self.domain,
-                                level_weight=self.level_weight, noise_gain=gain, absolute_above=self.absolute_above)
+                                level_weight=self.level_weight, noise_gain=gain, absolute_above=self.absolute_above,
+                                executor=self.executor)
 
     def _allocate(self, budget, current, capacity, rng):
         return allocate_mixed(self.density(), current, budget, self.uniform_fraction, capacity=capacity, rng=rng)

@@ -286,3 +286,15 @@ def test_a_huge_error_is_inf_not_a_warning():
     assert metrics.psnr(np.full(4, 1e300), np.zeros(4), peak=1.0) == -math.inf
     assert metrics.relmse(np.full(4, 1e300), np.full(4, 2e300)) == pytest.approx(0.25)
     assert metrics.tonemap(np.ones(2), exposure=1e6) == pytest.approx([1.0, 1.0])
+
+
+@pytest.mark.parametrize("bad", ["threads", 2, object(), map, get_executor])
+@pytest.mark.parametrize("call", [
+    lambda e: reconstruct(BUF, executor=e),
+    lambda e: AdaptiveSampler((H, W), executor=e),
+    lambda e: priorities.sampling_density(BUF, executor=e),
+    lambda e: priorities.coefficient_priorities(BUF, executor=e),
+], ids=["reconstruct", "AdaptiveSampler", "sampling_density", "coefficient_priorities"])
+def test_an_executor_that_is_not_one_is_refused_naming_it(call, bad):
+    with pytest.raises(TypeError, match=r"^executor: expected a concurrent\.futures\.Executor"):
+        call(bad)

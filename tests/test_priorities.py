@@ -252,3 +252,21 @@ def test_levels_are_the_masked_copies_levels():
     got = _levels(prio, ops)
     assert got.dtype == np.uint8 and len(np.unique(got)) == ops.levels + 1
     np.testing.assert_array_equal(got, expected)
+
+
+def test_an_executor_gives_the_same_priorities_and_density():
+    """The transform of the means and the pooled deviation on threads: bit for bit the serial result."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from awr_denoise import SampleRequest
+    from awr_denoise.priorities import coefficient_priorities, sampling_density
+    from awr_denoise.synthetic import SyntheticRenderer, make_scene
+
+    shape = (40, 56)
+    buf = SyntheticRenderer(make_scene("edges", shape), seed=3)(SampleRequest.uniform(shape, 4))
+    with ThreadPoolExecutor(2) as pool:
+        for a, b in zip(coefficient_priorities(buf), coefficient_priorities(buf, executor=pool)):
+            np.testing.assert_array_equal(a, b)
+        for options in ({}, {"level_weight": 0.0}, {"noise_gain": np.full(shape, 0.5)}):
+            np.testing.assert_array_equal(sampling_density(buf, **options),
+                                          sampling_density(buf, executor=pool, **options))

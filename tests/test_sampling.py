@@ -439,3 +439,14 @@ def test_the_measured_gain_beats_the_level_model_and_uniform_at_equal_samples(na
             assert errors["gain"][0] < errors["levels"][0], (seed, errors)
         mse_ratios.append(errors["levels"][1] / errors["gain"][1])
     assert np.mean(mse_ratios) > 1.0, mse_ratios
+
+
+@pytest.mark.parametrize("noise_model", ["levels", "reconstruction"])
+def test_an_executor_leaves_the_requests_as_they_are(noise_model):
+    from concurrent.futures import ThreadPoolExecutor
+
+    renderer = _edges_renderer(QUALITY_SHAPE)
+    serial = AdaptiveSampler(QUALITY_SHAPE, noise_model=noise_model).run(renderer, total_spp=10)
+    with ThreadPoolExecutor(2) as pool:
+        threaded = AdaptiveSampler(QUALITY_SHAPE, noise_model=noise_model, executor=pool).run(renderer, total_spp=10)
+    assert_array_equal(threaded.count, serial.count)
