@@ -53,5 +53,5 @@ def test_flags_not_confirmed_over_seeds_have_their_own_section(tiny_run, tmp_pat
     write_markdown(results, {}, path, None)
     page = path.read_text()
     assert "### Flags not confirmed over seeds" in page and "- s: uniform+awr at 4 spp" in page
-    assert "on the main render or summed over 3 seeds" in page
+    assert "No flag stands" in page and "summed over 3 seeds" in page
     assert "### Flags: a default worse than the plain mean" not in page
