@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from concurrent.futures import Executor
+from concurrent.futures import Executor, ProcessPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -121,7 +121,14 @@ def slices(**values: Any) -> None:
 
 
 def executor(param: str, value: Any) -> Executor | None:
-    """``value`` if it is a ``concurrent.futures.Executor`` (Dask's ``ClientExecutor`` is one) or None."""
+    """``value`` if it is an executor whose workers share this process' memory (threads), or None.
+
+    The core's executors run closures over whole-image arrays: a process pool cannot take them
+    (the parallel layer, :mod:`awr_denoise.parallel`, splits work for processes and Dask).
+    """
     if value is not None and not isinstance(value, Executor):
         raise TypeError(f"{param}: expected a concurrent.futures.Executor, got {type(value).__name__}")
+    if isinstance(value, ProcessPoolExecutor):
+        raise TypeError(f"{param}: a ProcessPoolExecutor cannot share the image's arrays; pass a ThreadPoolExecutor "
+                        "(awr_denoise.parallel splits work for processes)")
     return value

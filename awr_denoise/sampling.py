@@ -75,6 +75,9 @@ class Sampler:
         Without ``round_spp``, a round's default budget is this share of the samples taken so far (at
         least 0.25 spp), so a render to ``S`` spp takes about ``log(S / initial_spp) / log(1 + round_growth)``
         rounds. Larger rounds cost fewer priority analyses; docs/benchmarks.md ("The other defaults") measures it.
+    executor
+        Optional ``concurrent.futures.Executor`` (threads): :meth:`tell` merges on two of its threads,
+        :class:`AdaptiveSampler`'s priorities too; the same requests and buffers (docs/performance.md).
 
     Examples
     --------
@@ -100,8 +103,8 @@ class Sampler:
     strategy = "base"
 
     def __init__(self, shape: Shape2D, *, channels: int | tuple[str, ...] = 3, initial_spp: int = DEFAULT_INITIAL_SPP,
-                 seed: int = 0, spp_min: int | None = None, spp_max: int | None = None,
-                 round_spp: float | None = None, round_growth: float = DEFAULT_ROUND_GROWTH) -> None:
+                 seed: int = 0, spp_min: int | None = None, spp_max: int | None = None, round_spp: float | None = None,
+                 round_growth: float = DEFAULT_ROUND_GROWTH, executor: Executor | None = None) -> None:
         h, w = _checks.shape2d("shape", shape)
         initial_spp = _checks.whole("initial_spp", initial_spp, minimum=0, maximum=MAX_BUDGET)
         spp_min = _checks.whole("spp_min", spp_min, minimum=0, maximum=MAX_BUDGET, none=True)
@@ -124,6 +127,7 @@ class Sampler:
         self.round_spp = round_spp
         self.round_growth = float(round_growth)
         self.seed = int(seed)
+        self.executor = _checks.executor("executor", executor)
         self._buffer = SampleBuffer.empty((h, w), channels=channels)
         self._issued = np.zeros((h, w), np.int64)
         self._round = 0
@@ -351,7 +355,7 @@ class Sampler:
             warnings.warn(f"samples: {short} requested sample(s) missing (dropped by the renderer?)", stacklevel=2)
         if samples.channels != self._buffer.channels:
             samples = dataclasses.replace(samples, channels=self._buffer.channels)
-        self._buffer = self._buffer.merge(samples)
+        self._buffer = self._buffer.merge(samples, executor=self.executor)
         self._issued = self._issued + pending.counts
         self._round += 1
         self._pending = None
@@ -469,8 +473,8 @@ class AdaptiveSampler(Sampler):
 
     Parameters
     ----------
-    shape, channels, initial_spp, seed, spp_min, spp_max, round_spp, round_growth
-        See :class:`Sampler`.
+    shape, channels, initial_spp, seed, spp_min, spp_max, round_spp, round_growth, executor
+        See :class:`Sampler`; the executor's threads also compute every ``ask()``'s priorities (and gain).
     wavelet, levels
         Wavelet and depth of the priority analysis (as in :func:`~awr_denoise.reconstruct`).
     domain
@@ -493,9 +497,6 @@ class AdaptiveSampler(Sampler):
         the default) or ``"reconstruction"``: every round, the default reconstruction's measured share ``g_p``
         (:attr:`~awr_denoise.Reconstruction.noise_gain`), ``n_p ~ s_p sqrt(g_p)``: lower errors on most scenes for ten
         times the sampler's time (docs/sampling.md, "The measured noise gain").
-    executor
-        Optional ``concurrent.futures.Executor`` (threads) for every ``ask()``'s priorities (and the gain's
-        reconstruction): the same requests, sooner on two cores (docs/performance.md, Threads).
 
     Examples
     --------
@@ -520,14 +521,13 @@ class AdaptiveSampler(Sampler):
                  uniform_fraction: float = 0.0, noise_model: str = "levels",
                  absolute_above: float | None = DEFAULT_ABSOLUTE_ABOVE, executor: Executor | None = None) -> None:
         super().__init__(shape, channels=channels, initial_spp=initial_spp, seed=seed, spp_min=spp_min,
-                         spp_max=spp_max, round_spp=round_spp, round_growth=round_growth)
+                         spp_max=spp_max, round_spp=round_spp, round_growth=round_growth, executor=executor)
         wavelet_operators(self._shape, wavelet=wavelet, levels=levels)  # validates wavelet and levels now
         self.wavelet, self.levels, self.domain = wavelet, levels, domain
         self.level_weight = _checks.real("level_weight", level_weight, minimum=0)
         self.uniform_fraction = _checks.real("uniform_fraction", uniform_fraction, minimum=0.0, maximum=1.0)
         self.noise_model = _checks.name("noise_model", noise_model, NOISE_MODELS)
         self.absolute_above = _checks.real("absolute_above", absolute_above, above=0, none=True)
-        self.executor = _checks.executor("executor", executor)
 
     def density(self) -> FloatArray:
         """(H, W) target density of the next round (see :func:`~awr_denoise.priorities.sampling_density`)."""

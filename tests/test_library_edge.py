@@ -292,9 +292,23 @@ def test_a_huge_error_is_inf_not_a_warning():
 @pytest.mark.parametrize("call", [
     lambda e: reconstruct(BUF, executor=e),
     lambda e: AdaptiveSampler((H, W), executor=e),
+    lambda e: UniformSampler((H, W), executor=e),
+    lambda e: BUF.merge(BUF, executor=e),
     lambda e: priorities.sampling_density(BUF, executor=e),
     lambda e: priorities.coefficient_priorities(BUF, executor=e),
-], ids=["reconstruct", "AdaptiveSampler", "sampling_density", "coefficient_priorities"])
+], ids=["reconstruct", "AdaptiveSampler", "UniformSampler", "merge", "sampling_density", "coefficient_priorities"])
 def test_an_executor_that_is_not_one_is_refused_naming_it(call, bad):
     with pytest.raises(TypeError, match=r"^executor: expected a concurrent\.futures\.Executor"):
         call(bad)
+
+
+@pytest.mark.parametrize("call", [
+    lambda e: reconstruct(BUF, executor=e),
+    lambda e: UniformSampler((H, W), executor=e),
+    lambda e: BUF.merge(BUF, executor=e),
+], ids=["reconstruct", "UniformSampler", "merge"])
+def test_a_process_pool_is_refused_where_threads_share_the_arrays(call):
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(1) as pool, pytest.raises(TypeError, match=r"^executor: a ProcessPoolExecutor"):
+        call(pool)

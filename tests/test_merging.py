@@ -54,3 +54,25 @@ def test_an_empty_side_gives_the_other_side_bit_for_bit(rng):
         got_mean, got_variance = merge_moments(*args)
         assert_array_equal(got_mean, mean)
         assert_array_equal(got_variance, variance)
+
+
+@pytest.mark.parametrize("shape", [(1, 5), (3, 4), (37, 11), (200, 64)])
+def test_merging_on_two_threads_gives_the_same_bits(shape):
+    """The halves of the rows on an executor's threads: the serial merge's bits, at sizes with one
+    block, a half of zero blocks (serial) and halves that split blocks."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    rng = np.random.default_rng(9)
+    h, w = shape
+    args = []
+    for _ in range(2):
+        count = rng.integers(0, 4, shape)
+        args += [count, rng.random((h, w, 3)), rng.random((h, w, 3)) * (count[..., None] > 1)]
+    serial = merging.merge_moments(*args)
+    with ThreadPoolExecutor(2) as pool:
+        for block_bytes in (merging.BLOCK_BYTES, 3 * w * 3 * 8):  # one block, or blocks of three rows
+            with pytest.MonkeyPatch.context() as patch:
+                patch.setattr(merging, "BLOCK_BYTES", block_bytes)
+                threaded = merging.merge_moments(*args, executor=pool)
+            for a, b in zip(serial, threaded):
+                np.testing.assert_array_equal(a, b)
