@@ -11,8 +11,8 @@ float32 (the default) against float64 on the tracer's and Mitsuba 3's buffers. S
 the floor (PyWavelets' 5-level bior4.4 ``wavedec2`` + ``waverec2`` of the float32 frame),
 ``reconstruct(stages=1)`` (and its float64 reference), the default ``reconstruct``, one
 ``AdaptiveSampler.ask()`` round and one ``tell()`` (merging a round's samples),
-on one core (OMP/MKL/OPENBLAS_NUM_THREADS=1, no executor) and (the reconstructions and ``ask()``) with a
-2-thread executor; medians of
+on one core (OMP/MKL/OPENBLAS_NUM_THREADS=1, no executor) and again with a 2-thread executor
+(everything but the float64 reference); medians of
 repeats in which the cases are interleaved, and ratios to the floor of the same run. Memory: in a
 fresh process per case, the tracemalloc peak above the built buffer and the peak RSS, as
 multiples of the input buffer (count + mean + variance).
@@ -102,7 +102,8 @@ def _cases(buf, pool: ThreadPoolExecutor | None) -> dict:
                 "reconstruct_default": lambda: reconstruct(buf),
                 "ask": _Ask(buf), "tell": _Tell(buf)}
     return {"reconstruct_stages1": lambda: reconstruct(buf, stages=1, executor=pool),
-            "reconstruct_default": lambda: reconstruct(buf, executor=pool), "ask": _Ask(buf, pool)}
+            "reconstruct_default": lambda: reconstruct(buf, executor=pool), "ask": _Ask(buf, pool),
+            "tell": _Tell(buf, pool)}
 
 
 def _interleaved(cases: dict, repeats: int) -> dict:
@@ -175,7 +176,7 @@ def speed(sizes: list[str], repeats: int = 5) -> list[dict]:
               f"{t1['ask']:.3f} s ({x1['ask']:.1f}x) | {t1['tell']:.3f} s ({x1['tell']:.1f}x) | "
               f"{t2['reconstruct_stages1']:.3f} s ({x2['reconstruct_stages1']:.1f}x) | "
               f"{t2['reconstruct_default']:.3f} s ({x2['reconstruct_default']:.1f}x) | "
-              f"{t2['ask']:.3f} s ({x2['ask']:.1f}x) | "
+              f"{t2['ask']:.3f} s ({x2['ask']:.1f}x) | {t2['tell']:.3f} s ({x2['tell']:.1f}x) | "
               + " | ".join(f"{row['memory'][c]['tracemalloc_peak_x_input']:.1f}x"
                            for c in ("reconstruct_stages1", "reconstruct_stages1_float64", "reconstruct_default",
                                      "ask", "2threads:reconstruct_default")) + " |", flush=True)
@@ -422,7 +423,7 @@ SECTIONS = {
     "speed": ("Speed against the PyWavelets floor (medians of interleaved repeats; x floor of the same run) "
               "and peak memory (tracemalloc, x input buffer)",
               "| size | input buffer | floor | stages=1 | stages=1 float64 | default | ask() | tell() | stages=1, 2 threads "
-              "| default, 2 threads | ask(), 2 threads | stages=1 peak | stages=1 float64 peak | default peak | ask() peak "
+              "| default, 2 threads | ask(), 2 threads | tell(), 2 threads | stages=1 peak | stages=1 float64 peak | default peak | ask() peak "
               "| default, 2 threads, peak |",
               lambda quick: speed(["256x256"] if quick else SPEED_SIZES)),
     "fft_budget": ("The default reconstruction's FFTs against the floor (one core)",
