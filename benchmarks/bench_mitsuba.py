@@ -39,6 +39,7 @@ import platform
 import statistics
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from importlib.metadata import version
 from pathlib import Path
 from typing import Any
@@ -168,13 +169,15 @@ def uniform_run(renderer: MitsubaRenderer, spp: int, seed: int) -> tuple[np.ndar
     return image, time.perf_counter() - t, time.process_time() - c
 
 
-def awr_run(renderer: MitsubaRenderer, spp: int, seed: int, **sampler_options: Any) -> dict[str, Any]:
+def awr_run(renderer: MitsubaRenderer, spp: int, seed: int, *, executor: ThreadPoolExecutor | None = None,
+            **sampler_options: Any) -> dict[str, Any]:
     """AdaptiveSampler (library defaults, or ``sampler_options``) to ``spp`` through the adapter, then reconstruct.
 
-    The loop is :meth:`Sampler.run`'s, written out so each part is timed on its own.
+    The loop is :meth:`Sampler.run`'s, written out so each part is timed on its own. With
+    ``executor`` (``--threads``) the sampler and the reconstruction use its threads between renders.
     """
     renderer.seed = seed
-    sampler = AdaptiveSampler(renderer.shape, seed=seed, **sampler_options)
+    sampler = AdaptiveSampler(renderer.shape, seed=seed, executor=executor, **sampler_options)
     goal = int(round(spp * renderer.shape[0] * renderer.shape[1]))
     seconds = {"ask": 0.0, "render": 0.0, "tell": 0.0, "reconstruct": 0.0}
     rounds = 0
@@ -192,7 +195,7 @@ def awr_run(renderer: MitsubaRenderer, spp: int, seed: int, **sampler_options: A
         seconds["tell"] += t3 - t2
         rounds += 1
     t = time.perf_counter()
-    image = reconstruct(sampler.buffer)
+    image = reconstruct(sampler.buffer, executor=executor)
     seconds["reconstruct"] = time.perf_counter() - t
     return {"image": image, "plain_mean": np.array(sampler.buffer.mean), "seconds": sum(seconds.values()),
             "cpu_seconds": time.process_time() - cpu, "parts": seconds, "rounds": rounds, "spp_max": int(sampler.buffer.count.max())}
@@ -231,8 +234,9 @@ def equal_time(uniform: list[dict[str, Any]], awr: list[dict[str, Any]], key: st
 
 def bench_scene(name: str, shape: tuple[int, int], *, spps: list[int], reference_spp: int, repeats: int,
                 throughput_spp: int, cache: Path, regenerate: bool, seed: int,
-                sampler_options: dict[str, Any] | None = None) -> dict[str, Any]:
-    sampler_options = sampler_options or {}
+                sampler_options: dict[str, Any] | None = None,
+                executor: ThreadPoolExecutor | None = None) -> dict[str, Any]:
+    sampler_options = dict(sampler_options or {}, executor=executor)
     renderer = MitsubaRenderer(name, shape=shape, seed=seed)
     print(f"[{name} {shape[1]}x{shape[0]}] throughput at {throughput_spp} spp", flush=True)
     result: dict[str, Any] = {"scene": name, "shape": list(shape),
@@ -367,6 +371,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--round-growth", type=float, default=None,
                         help="AdaptiveSampler's round_growth instead of its default (fewer, larger rounds when larger)")
+    parser.add_argument("--threads", type=int, default=1,
+                        help="threads of the executor the sampler and the reconstruction use between renders "
+                             "(default 1: none; Mitsuba's own threads are unchanged)")
     parser.add_argument("--cache", type=Path, default=CACHE)
     parser.add_argument("--regenerate-references", action="store_true")
     parser.add_argument("--update", action="store_true",
@@ -421,15 +428,21 @@ def main(argv: list[str] | None = None) -> int:
         "settings": {"relmse_eps": RELMSE_EPSILON, "variant": "llvm_ad_rgb", "seed": args.seed,
                      "reference_pass_spp": REFERENCE_PASS_SPP, "timing": "wall clock, median of repeats",
                      "library_defaults": _defaults(),
-                     "sampler_options": {} if args.round_growth is None else {"round_growth": args.round_growth}},
+                     "sampler_options": {} if args.round_growth is None else {"round_growth": args.round_growth},
+                     "library_threads": args.threads},
         "scenes": [],
     }
-    for name, shape, spps, reference_spp, repeats in cases:
-        results["scenes"].append(bench_scene(
-            name, shape, spps=spps, reference_spp=reference_spp, repeats=repeats,
-            throughput_spp=args.throughput_spp if shape[0] * shape[1] <= 512 * 512 else 4,
-            cache=args.cache, regenerate=args.regenerate_references, seed=args.seed,
-            sampler_options=results["settings"]["sampler_options"]))
+    pool = ThreadPoolExecutor(args.threads) if args.threads > 1 else None
+    try:
+        for name, shape, spps, reference_spp, repeats in cases:
+            results["scenes"].append(bench_scene(
+                name, shape, spps=spps, reference_spp=reference_spp, repeats=repeats,
+                throughput_spp=args.throughput_spp if shape[0] * shape[1] <= 512 * 512 else 4,
+                cache=args.cache, regenerate=args.regenerate_references, seed=args.seed,
+                sampler_options=results["settings"]["sampler_options"], executor=pool))
+    finally:
+        if pool is not None:
+            pool.shutdown()
     results["load_average_1_5_15min"]["end"] = _load_average()
     if args.update and output is not None and output.exists():
         previous = json.loads(output.read_text())
