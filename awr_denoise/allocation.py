@@ -237,10 +237,10 @@ def _smallest(key: FloatArray, count: int) -> np.ndarray:
     """Boolean mask of the ``count`` smallest entries of the 1-D ``key`` (``0 < count < key.size``).
 
     The set ``np.argpartition(key, count - 1)[:count]`` selects (the two may differ only between
-    exactly equal keys at the boundary), without partitioning the whole image: a strided sample
-    (at fixed random places: a stride would alias with a periodic image) brackets the boundary value, every key below the bracket is taken at once and only the few
-    inside it are partitioned. Several times faster at 1080p, where the full partition was a
-    tenth of an ``ask()`` (docs/performance.md).
+    exactly equal keys at the boundary), without partitioning the whole image: a sample of the
+    keys at fixed random places (a stride would alias with a periodic image) brackets the key that
+    decides, every key below the bracket is taken at once and only the keys inside it are
+    partitioned. At 1080p the full partition was a tenth of an ``ask()`` (docs/performance.md).
     """
     n = key.size
     mask = np.zeros(n, bool)
