@@ -25,6 +25,7 @@ error, and the factor alone made the output's MSE exceed the plain mean's
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -297,7 +298,8 @@ def _fill_sorted(weight: FloatArray, cap: FloatArray, total: float) -> FloatArra
 
 def restore_mean(image: FloatArray, mean: FloatArray, variance: FloatArray | None = None, *,
                  limit: float = MEAN_LIMIT, significance: float = MEAN_SIGNIFICANCE,
-                 offset: float = RESTORE_OFFSET, share: float = RESTORE_SHARE) -> tuple[FloatArray, FloatArray]:
+                 offset: float = RESTORE_OFFSET, share: float = RESTORE_SHARE,
+                 run: Callable | None = None) -> tuple[FloatArray, FloatArray]:
     """Give every channel back the energy the stages took, where they took it; the image mean is exact.
 
     For a channel whose output ``o`` lost energy against its means ``x`` (``mean(x) > mean(o)``),
@@ -329,6 +331,9 @@ def restore_mean(image: FloatArray, mean: FloatArray, variance: FloatArray | Non
         (H, W, C) pixel means and the variances of the means (``None``: no change counts as significant).
     limit, significance, offset, share
         See above.
+    run
+        ``run(f, items)``, an executor's ``map``: the channels on its threads (each channel is
+        independent: the same result); default one after the other.
 
     Returns
     -------
@@ -360,9 +365,10 @@ def restore_mean(image: FloatArray, mean: FloatArray, variance: FloatArray | Non
     change = _mean_change(want, got, error, limit, significance)
     out = o.copy()
     blend = np.zeros(o.shape)
-    for c in range(o.shape[2]):
+
+    def channel(c: int) -> None:
         if not (want[c] > 0 and got[c] > 0 and np.isfinite(want[c]) and np.isfinite(got[c])) or change[c] == 0:
-            continue
+            return
         sign = 1.0 if change[c] > 0 else -1.0
         oc = o[..., c] * unit                                   # contiguous planes from here on
         gap = x[..., c] * unit
@@ -381,4 +387,6 @@ def restore_mean(image: FloatArray, mean: FloatArray, variance: FloatArray | Non
             delta = delta + rest * level / level.sum()
         out[..., c] = o[..., c] + sign * delta / unit
         np.divide(delta, gap, out=blend[..., c], where=gap > 0)
+
+    (run or (lambda f, items: [f(i) for i in items]))(channel, range(o.shape[2]))
     return out, np.minimum(blend, 1.0)

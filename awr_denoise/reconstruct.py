@@ -324,7 +324,7 @@ def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | N
         if variance is not None:
             variance = np.where(clipped, 0.0, variance)
     if settings.preserve_mean:
-        image, t = restore_mean(image, prepared.mean, prepared.variance)
+        image, t = restore_mean(image, prepared.mean, prepared.variance, run=run)
         if variance is not None:  # a blend (1 - t) o + t x: at most the blend of the standard errors
             variance = ((1 - t) * np.sqrt(variance) + t * np.sqrt(prepared.variance)) ** 2
     return image, variance, gain

@@ -192,3 +192,22 @@ def test_restore_mean_bounds_an_insignificant_change_and_leaves_non_positive_cha
     assert_array_equal(out[..., 1], image[..., 1])
     out, _ = restore_mean(image, mean, np.full(mean.shape, 1e-6))
     assert out[..., 0].mean() == pytest.approx(mean[..., 0].mean(), rel=1e-12)
+
+
+def test_restore_mean_on_threads_gives_the_same_bits():
+    """The channels on an executor's threads: each channel is independent, so the same result."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from awr_denoise.finishing import restore_mean
+
+    rng = np.random.default_rng(12)
+    mean = rng.random((40, 30, 3)) + 0.1
+    mean[..., 2] *= -1  # a channel it leaves as it is
+    image = mean * (0.9 + 0.1 * rng.random(mean.shape))
+    variance = np.full(mean.shape, 1e-4)
+    serial = restore_mean(image, mean, variance)
+    with ThreadPoolExecutor(2) as pool:
+        threaded = restore_mean(image, mean, variance, run=lambda f, items: list(pool.map(f, items)))
+    for a, b in zip(serial, threaded):
+        np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(serial[0][..., 0], image[..., 0])  # the energy came back to channel 0
