@@ -21,9 +21,8 @@ deviation): samples concentrate on edges and spread thinly over smooth noisy reg
 
 from __future__ import annotations
 
-import functools
 from concurrent.futures import Executor
-from functools import lru_cache
+from functools import lru_cache, partial
 
 import numpy as np
 from scipy import ndimage
@@ -180,7 +179,7 @@ def coefficient_priorities(
     (mean_y, var_y, _), c = _normalised(plane if plane is not None else error_plane(buffer, domain))
     ops = operators or wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     executor = _checks.executor("executor", executor)
-    transform = functools.partial(forward, mean_y, wavelet=ops.wavelet, levels=ops.levels, boundary=ops.boundary)
+    transform = partial(forward, mean_y, wavelet=ops.wavelet, levels=ops.levels, boundary=ops.boundary)
     pending = None if executor is None else executor.submit(transform)
     coeffs = transform() if pending is None else None
     var_y = np.asarray(var_y, dtype=np.float64)
@@ -283,9 +282,12 @@ def pixel_levels(priorities: list[FloatArray], operators: WaveletOperators) -> n
 
 
 def _levels(priorities: list[FloatArray], operators: WaveletOperators) -> np.ndarray:
-    """:func:`pixel_levels` as uint8, with in-place updates (the same comparisons, in order)."""
+    """:func:`pixel_levels` as uint8, with in-place updates (the same comparisons, in order); a NaN
+    priority never wins (at level 0 it counts as -inf)."""
     h, w = operators.shape
     best = priorities[0].copy()
+    if np.isnan(best.max(initial=-np.inf)):  # one reduction finds a NaN (max propagates it)
+        best[np.isnan(best)] = -np.inf
     level = np.zeros((h, w), np.uint8)
     better = np.empty((h, w), bool)
     step = np.empty((h, w), np.uint8)
@@ -295,7 +297,7 @@ def _levels(priorities: list[FloatArray], operators: WaveletOperators) -> np.nda
         np.greater(at_pixels, best, out=better)
         # The last level that beat the best so far is the largest such k: a maximum, not a masked
         # copy. fmax takes the larger value where at_pixels is larger and ignores a NaN in it, as
-        # the comparison does; best holds no NaN (level 0's variances are checked finite).
+        # the comparison does (best holds no NaN: level 0's were made -inf above).
         np.fmax(best, at_pixels, out=best)
         np.maximum(level, np.multiply(better, np.uint8(k), out=step), out=level)
     return level
@@ -363,7 +365,7 @@ def sampling_density(
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     p = prepare(buffer, domain, luminance=True)  # once, for the deviation and the priorities
     plane = _plane(p)
-    deviation = functools.partial(pooled_deviation, buffer, domain, absolute_above=absolute_above, prepared=p)
+    deviation = partial(pooled_deviation, buffer, domain, absolute_above=absolute_above, prepared=p)
     if noise_gain is not None:
         s_pooled = deviation()
         # Pooled like s_p; a NaN or negative gain (none is expected) must not send samples nowhere.

@@ -403,8 +403,8 @@ class Sampler:
         return self._buffer
 
     # ------------------------------------------------------------------ strategy
-    def _allocate(self, budget: int, current: CountArray, capacity: CountArray | None, rng: np.random.Generator
-                  ) -> CountArray:
+    def _allocate(self, budget: int, current: CountArray, capacity: CountArray | None,
+                  rng: np.random.Generator) -> CountArray:
         raise NotImplementedError
 
 

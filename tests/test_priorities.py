@@ -242,8 +242,9 @@ def test_levels_are_the_masked_copies_levels():
         prio.append(np.round(rng.random(shape) * 1.2 - 0.1, 1))
     prio[1][:2, :2], prio[2][:2, :2] = np.nan, 2.0  # a NaN is passed over: level 2 wins there
     prio[2][3, 3], prio[1][2, 3] = np.inf, -np.inf
+    prio[0][20:22, 30:33] = np.nan  # a NaN never wins at level 0 either: it counts as -inf
 
-    best, expected = prio[0].copy(), np.zeros((45, 70), np.uint8)
+    best, expected = np.where(np.isnan(prio[0]), -np.inf, prio[0]), np.zeros((45, 70), np.uint8)
     for k in range(1, len(prio)):
         key = (ops.wavelet, ops.boundary, ops.levels, k)
         at = _gather(prio[k], _expansion(45, *key), _expansion(70, *key))
@@ -251,6 +252,7 @@ def test_levels_are_the_masked_copies_levels():
         best[better], expected[better] = at[better], k
     got = _levels(prio, ops)
     assert got.dtype == np.uint8 and len(np.unique(got)) == ops.levels + 1
+    assert (got[20:22, 30:33] > 0).all()
     np.testing.assert_array_equal(got, expected)
 
 
