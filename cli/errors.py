@@ -13,8 +13,8 @@ from collections.abc import Iterator
 
 from awr_denoise.errors import InputFileWarning
 
-__all__ = ["EXIT_OK", "EXIT_FAILURE", "EXIT_USAGE", "EXIT_INTERRUPTED", "EXIT_TERMINATED", "EXIT_BROKEN_PIPE",
-           "UsageError", "RuntimeFailure", "one_line_warnings"]
+__all__ = ["EXIT_OK", "EXIT_FAILURE", "EXIT_USAGE", "EXIT_INTERRUPTED", "EXIT_TERMINATED", "EXIT_HANGUP",
+           "EXIT_BROKEN_PIPE", "UsageError", "RuntimeFailure", "one_line_warnings"]
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -23,6 +23,8 @@ EXIT_INTERRUPTED = 130
 """Ctrl-C (SIGINT): 128 + 2, the status a shell gives a command stopped by it."""
 EXIT_TERMINATED = 143
 """SIGTERM: 128 + 15."""
+EXIT_HANGUP = 129
+"""SIGHUP (the terminal closed): 128 + 1."""
 EXIT_BROKEN_PIPE = 141
 """The reader of stdout went away (``awr info --json x | head``): 128 + SIGPIPE, as for ``cat``."""
 

@@ -1,11 +1,12 @@
-"""Ctrl-C and SIGTERM as exceptions, raised once: the command unwinds, removes its temporaries
-and exits with one line.
+"""Ctrl-C, SIGTERM and SIGHUP as exceptions, raised once: the command unwinds, removes its
+temporaries and exits with one line.
 
 :func:`raising` is the first thing :func:`awr_denoise.cli.main.main` does, before the
 subcommands (and numpy, scipy, OpenEXR) are imported. The first signal raises; later ones are
 ignored while the command cleans up, so a second Ctrl-C cannot cut the cleanup short or print a
 traceback. A signal that was ignored when the command started (a background job, ``nohup``)
-stays ignored.
+stays ignored. SIGHUP (a closed terminal or a dropped ssh session) is a termination like SIGTERM:
+left at its default it would kill the process in the middle of a write and leave the temporary.
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ from typing import Any
 
 __all__ = ["Terminated", "raising", "restore", "received", "check"]
 
-_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+# SIGHUP exists on POSIX only.
+_SIGNALS = (signal.SIGINT, signal.SIGTERM) + ((signal.SIGHUP,) if hasattr(signal, "SIGHUP") else ())
 
 # The signal that arrived, kept even when the exception it raised was swallowed on the way up
 # (an interrupt inside a C extension's import comes back as an ImportError, or not at all).
@@ -26,7 +28,7 @@ _received: list[int] = []
 
 
 class Terminated(BaseException):
-    """SIGTERM arrived (a BaseException like KeyboardInterrupt: only ``main`` catches it)."""
+    """SIGTERM or SIGHUP arrived (a BaseException like KeyboardInterrupt: only ``main`` catches it)."""
 
 
 def _raise(signum: int, frame: FrameType | None) -> None:
@@ -39,7 +41,7 @@ def _raise(signum: int, frame: FrameType | None) -> None:
 
 
 def raising() -> dict[int, Any] | None:
-    """Make SIGINT raise KeyboardInterrupt and SIGTERM :class:`Terminated` (first signal only).
+    """Make SIGINT raise KeyboardInterrupt, SIGTERM and SIGHUP :class:`Terminated` (first signal only).
 
     Returns the previous handlers for :func:`restore`, or None when called outside the main
     thread (only the main thread can set handlers; the caller's own handling then stays).
@@ -69,7 +71,7 @@ def received() -> int | None:
 def check() -> None:
     """Raise now if a signal arrived whose exception was lost on the way (call before committing)."""
     signum = received()
-    if signum == signal.SIGTERM:
-        raise Terminated("SIGTERM")
+    if signum is not None and signum != signal.SIGINT:
+        raise Terminated(signal.Signals(signum).name)
     if signum is not None:
         raise KeyboardInterrupt

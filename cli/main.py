@@ -2,7 +2,8 @@
 
 Subcommands: ``info``, ``denoise``, ``plan`` (ask), ``merge`` (tell), ``diff``, ``render``,
 ``demo``, ``bench``. Exit status: 0 success, 1 runtime failure, 2 bad usage or bad input,
-130 interrupted (Ctrl-C), 143 terminated (SIGTERM), 141 when the reader of stdout went away.
+130 interrupted (Ctrl-C), 143 terminated (SIGTERM), 129 hung up (SIGHUP), 141 when the reader of
+stdout went away.
 A user mistake prints one line, ``awr: error: <file>: <channel>: <what>``, never a traceback.
 
 This module imports nothing heavy: :func:`main` installs the interrupt handling first and only
@@ -27,6 +28,7 @@ from . import interrupts
 from .errors import (
     EXIT_BROKEN_PIPE,
     EXIT_FAILURE,
+    EXIT_HANGUP,
     EXIT_INTERRUPTED,
     EXIT_OK,
     EXIT_TERMINATED,
@@ -156,6 +158,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if signum == signal.SIGTERM:
         print("awr: terminated", file=sys.stderr)
         return EXIT_TERMINATED
+    if signum is not None and signum == getattr(signal, "SIGHUP", None):
+        print("awr: hung up", file=sys.stderr)
+        return EXIT_HANGUP
     if signum is not None or status is None:
         print("awr: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

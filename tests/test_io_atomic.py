@@ -4,6 +4,7 @@ temporaries, long names, special files, rollback."""
 from __future__ import annotations
 
 import os
+import signal
 import time
 from pathlib import Path
 
@@ -14,6 +15,7 @@ from awr_denoise.io.atomic import (
     STAGING_PREFIX,
     STALE_AFTER,
     OutputSet,
+    _signals_deferred,
     _Staging,
     atomic_write,
     check_readable,
@@ -172,3 +174,23 @@ def test_stale_staging_directories_are_removed_and_live_ones_kept(tmp_path):
     assert live.path.exists() and young.exists() and other.exists() and foreign.exists()
     live.remove()
     assert not live.path.exists()
+
+
+@pytest.mark.parametrize("name", ["SIGINT", "SIGTERM", "SIGHUP"])
+def test_a_signal_while_files_move_into_place_waits_for_them(name):
+    """Ctrl-C, SIGTERM and SIGHUP (a closed terminal) are held while outputs are moved into place,
+    then handled once: a set of outputs is never half installed by one of them."""
+    if not hasattr(signal, name):
+        pytest.skip(f"{name} does not exist on this platform")
+    signum = getattr(signal, name)
+    seen: list[int] = []
+    previous = signal.signal(signum, lambda s, frame: seen.append(s))
+    try:
+        with _signals_deferred():
+            os.kill(os.getpid(), signum)
+            os.kill(os.getpid(), signum)
+            time.sleep(0.01)  # Python runs handlers between bytecodes: a handler would have run by now
+            assert seen == []
+        assert seen == [signum]
+    finally:
+        signal.signal(signum, previous)

@@ -300,7 +300,7 @@ class _Staging:
 
 @contextlib.contextmanager
 def _signals_deferred() -> Iterator[None]:
-    """Hold SIGINT/SIGTERM while files are moved into place, then act on them.
+    """Hold SIGINT/SIGTERM/SIGHUP while files are moved into place, then act on them.
 
     Only the main thread can change handlers; elsewhere signals are not delivered to the
     calling thread anyway (Python runs handlers in the main thread).
@@ -310,7 +310,7 @@ def _signals_deferred() -> Iterator[None]:
         return
     pending: list[int] = []
     saved = {}
-    for s in (signal.SIGINT, signal.SIGTERM):
+    for s in (signal.SIGINT, signal.SIGTERM) + ((signal.SIGHUP,) if hasattr(signal, "SIGHUP") else ()):
         handler = signal.getsignal(s)
         if handler is signal.SIG_IGN or handler is None:
             continue

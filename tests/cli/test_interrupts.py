@@ -1,7 +1,8 @@
 """Interrupts with real signals on a real ``awr`` process (cli/interrupts.py, io/atomic.py).
 
-* Ctrl-C or SIGTERM while the heavy imports load: exit 130 / 143, one line, no traceback.
-* Ctrl-C or SIGTERM once outputs are being written: no output at all, no temporary.
+* Ctrl-C, SIGTERM or SIGHUP while the heavy imports load: exit 130 / 143 / 129, one line, no traceback.
+* Ctrl-C, SIGTERM or SIGHUP (a closed terminal) once outputs are being written: no output at all,
+  no temporary.
 * SIGKILL leaves a staging directory; the next run into that folder removes it, while the
   staging directory of a live writer stays.
 * ``awr info --json x | head``: the reader goes away, ``awr`` exits 141 without a word.
@@ -66,7 +67,7 @@ def _finish(proc: subprocess.Popen) -> tuple[int, str, str]:
     return proc.returncode, out, err
 
 
-IMPORT_MARKERS = [("_multiarray_umath", signal.SIGINT), ("scipy", signal.SIGTERM),
+IMPORT_MARKERS = [("_multiarray_umath", signal.SIGINT), ("scipy", signal.SIGTERM), ("scipy", signal.SIGHUP),
                   pytest.param("pywt", signal.SIGINT, marks=pytest.mark.slow),
                   pytest.param("_multiarray_umath", signal.SIGTERM, marks=pytest.mark.slow)]
 
@@ -77,7 +78,8 @@ def test_a_signal_while_imports_load_is_one_line(work, marker, signum):
     _wait_for(proc, lambda: _mapped(proc, marker))
     proc.send_signal(signum)
     status, out, err = _finish(proc)
-    expected = (130, "awr: interrupted") if signum == signal.SIGINT else (143, "awr: terminated")
+    expected = {signal.SIGINT: (130, "awr: interrupted"), signal.SIGTERM: (143, "awr: terminated"),
+                signal.SIGHUP: (129, "awr: hung up")}[signum]
     assert (status, err.strip()) == expected, err
     assert out == ""
 
@@ -103,7 +105,8 @@ def _outputs(root: Path) -> list[str]:
 
 
 @pytest.mark.parametrize(("signum", "status", "line"), [(signal.SIGINT, 130, "awr: interrupted"),
-                                                        (signal.SIGTERM, 143, "awr: terminated")])
+                                                        (signal.SIGTERM, 143, "awr: terminated"),
+                                                        (signal.SIGHUP, 129, "awr: hung up")])
 def test_a_signal_after_the_first_output_leaves_no_partial_set(work, frames, signum, status, line):
     proc = _start(frames, work.root)
     _wait_for(proc, lambda: _staged(work.root))
