@@ -9,7 +9,7 @@ from numpy.testing import assert_allclose
 from scipy import stats
 
 from awr_denoise import stationary
-from awr_denoise.stationary import BACKENDS, StationaryTransform, stationary_transform
+from awr_denoise.stationary import BACKENDS, StationaryTransform, _plane_indices, stationary_transform
 
 MC_DRAWS = 3000
 MC_FAMILY_ALPHA = 1e-3
@@ -206,3 +206,9 @@ def test_transfer_products_are_cached_all_or_none(rng, monkeypatch):
     image = rng.standard_normal((32, 32, 2))
     for a, b in zip(_flat(large.forward(image)), _flat(small.forward(image))):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("leading", [(), (3,), (2, 3), (0,), (4, 0, 2)])
+def test_plane_indices_are_ndindex_order(leading):
+    # The planes of a batch are transformed one at a time in this order: the same as np.ndindex.
+    assert list(_plane_indices(leading)) == list(np.ndindex(leading))
