@@ -35,8 +35,8 @@ from .allocation import MAX_BUDGET, allocate, allocate_mixed
 from .buffers import SampleBuffer
 from .domains import Domain
 from .errors import StaleRequestError
+from .noise_gain import NOISE_MODELS, MeasuredGain
 from .priorities import DEFAULT_ABSOLUTE_ABOVE, pooled_deviation, sampling_density
-from .reconstruct import reconstruct_detailed
 from .requests import Renderer, SampleRequest
 from .wavelets import DEFAULT_WAVELET, wavelet_operators
 
@@ -492,11 +492,12 @@ class AdaptiveSampler(Sampler):
         ``s_p`` is the error in ``domain`` with each pixel's level capped at this many times the image's
         mean level: a small bright source is ranked by its absolute error, not starved (``None``: not
         capped; :func:`~awr_denoise.priorities.pooled_deviation`, docs/sampling.md "Relative and absolute error").
-    noise_model
+    noise_model, gain_refresh
         What reconstruction leaves of a pixel's noise, the factor on ``s_p``: ``"levels"`` (the paper's model above,
-        the default) or ``"reconstruction"``: every round, the default reconstruction's measured share ``g_p``
-        (:attr:`~awr_denoise.Reconstruction.noise_gain`), ``n_p ~ s_p sqrt(g_p)``: lower errors on most scenes for ten
-        times the sampler's time (docs/sampling.md, "The measured noise gain").
+        the default) or ``"reconstruction"``: the default reconstruction's measured share ``g_p``, ``n_p ~ s_p
+        sqrt(g_p)``, measured again once the samples grow by ``gain_refresh`` (default 1: every round; 1.5: every other
+        round, :class:`~awr_denoise.noise_gain.MeasuredGain`): lower errors on most scenes for several times the
+        sampler's time (docs/sampling.md, "The measured noise gain").
 
     Examples
     --------
@@ -518,7 +519,7 @@ class AdaptiveSampler(Sampler):
                  wavelet: str = DEFAULT_WAVELET, levels: int | None = None, seed: int = 0,
                  spp_min: int | None = None, spp_max: int | None = None, round_spp: float | None = None,
                  round_growth: float = DEFAULT_ROUND_GROWTH, domain: str | Domain = "log", level_weight: float = 0.25,
-                 uniform_fraction: float = 0.0, noise_model: str = "levels",
+                 uniform_fraction: float = 0.0, noise_model: str = "levels", gain_refresh: float | None = None,
                  absolute_above: float | None = DEFAULT_ABSOLUTE_ABOVE, executor: Executor | None = None) -> None:
         super().__init__(shape, channels=channels, initial_spp=initial_spp, seed=seed, spp_min=spp_min,
                          spp_max=spp_max, round_spp=round_spp, round_growth=round_growth, executor=executor)
@@ -527,14 +528,15 @@ class AdaptiveSampler(Sampler):
         self.level_weight = _checks.real("level_weight", level_weight, minimum=0)
         self.uniform_fraction = _checks.real("uniform_fraction", uniform_fraction, minimum=0.0, maximum=1.0)
         self.noise_model = _checks.name("noise_model", noise_model, NOISE_MODELS)
+        if gain_refresh is not None and self.noise_model != "reconstruction":  # it would do nothing: refused
+            raise ValueError(f"gain_refresh: {gain_refresh!r} needs noise_model='reconstruction' (the measured gain)")
+        self._gain = None if self.noise_model != "reconstruction" else (
+            MeasuredGain() if gain_refresh is None else MeasuredGain(gain_refresh))
         self.absolute_above = _checks.real("absolute_above", absolute_above, above=0, none=True)
 
     def density(self) -> FloatArray:
         """(H, W) target density of the next round (see :func:`~awr_denoise.priorities.sampling_density`)."""
-        # One reconstruction a round (round 0 is uniform), without the finishing steps: they leave the gain as it is.
-        gain = None if self.noise_model != "reconstruction" else reconstruct_detailed(
-            self._buffer, variance_probes=0, pixel_clamp=None, preserve_mean=False, nonnegative=False,
-            executor=self.executor).noise_gain
+        gain = None if self._gain is None else self._gain(self._buffer, self.executor)  # round 0 is uniform: none
         return sampling_density(self._buffer, wavelet=self.wavelet, levels=self.levels, domain=self.domain,
                                 level_weight=self.level_weight, noise_gain=gain, absolute_above=self.absolute_above,
                                 executor=self.executor)
@@ -542,9 +544,6 @@ class AdaptiveSampler(Sampler):
     def _allocate(self, budget, current, capacity, rng):
         return allocate_mixed(self.density(), current, budget, self.uniform_fraction, capacity=capacity, rng=rng)
 
-
-NOISE_MODELS = ("levels", "reconstruction")
-"""``AdaptiveSampler``'s ``noise_model``: the paper's level term, or the default reconstruction's measured gain."""
 
 SAMPLERS: dict[str, type[Sampler]] = {cls.strategy: cls for cls in (AdaptiveSampler, UniformSampler, VarianceSampler)}
 """The samplers by strategy name: ``"awr"``, ``"uniform"``, ``"variance"``."""

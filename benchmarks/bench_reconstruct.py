@@ -4,6 +4,7 @@ Run from the repository root (each section updates its part of the JSON)::
 
     .venv/bin/python benchmarks/bench_reconstruct.py quality      # bundled tracer (+ Mitsuba 3), 8-128 spp
     .venv/bin/python benchmarks/bench_reconstruct.py samplers     # samplers at equal samples (--caps)
+    .venv/bin/python benchmarks/bench_reconstruct.py refresh      # the measured gain measured less often
     .venv/bin/python benchmarks/bench_reconstruct.py seeds        # the same per seed on the synthetic scenes
     .venv/bin/python benchmarks/bench_reconstruct.py synthetic    # known clean images, 4-1024 spp
     .venv/bin/python benchmarks/bench_reconstruct.py speed        # 128x128, 256x256, 1080p
@@ -271,6 +272,15 @@ def cap_kinds(caps: tuple[float, ...]) -> dict[str, Any]:
             for c in caps}
 
 
+REFRESH_KINDS: dict[str, Any] = {
+    "awr": SAMPLER_KINDS["awr"],
+    "awr, measured gain": SAMPLER_KINDS["awr, measured gain"],
+    **{f"awr, measured gain, refresh {r:g}": (lambda shape, seed, r=r: AdaptiveSampler(
+        shape, seed=seed, noise_model="reconstruction", gain_refresh=r)) for r in (1.5, 2.0)},
+}
+"""``refresh``: the measured gain measured every round (the default) and once the samples grew by 1.5 or 2."""
+
+
 def samplers(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], seeds: int,
              cache: Path, kinds: dict[str, Any] = SAMPLER_KINDS) -> list[dict[str, Any]]:
     """Equal samples: every kind of :data:`SAMPLER_KINDS`, renders of seeds ``0..seeds-1``, progressive to
@@ -305,6 +315,29 @@ def samplers(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[
                 getattr(renderer, "close", lambda: None)()
         print(f"{renderer_name} {scene}: done", flush=True)
     return rows
+
+
+def refresh_table(rows: list[dict]) -> None:
+    """The gain measured less often against every round: relMSE and MSE ratios, and ask()'s time."""
+    refreshed = [k for k in dict.fromkeys(r["sampler"] for r in rows) if "refresh" in k]
+
+    def mean(key: str, **where: Any) -> float:
+        return _mean(rows, key, method="default", **where)
+
+    print("\n| scene | spp | relMSE awr / measured gain | " + " | ".join(
+        f"relMSE awr / {k.split(', ')[-1]}" for k in refreshed) + " | MSE awr / measured gain | " + " | ".join(
+        f"MSE awr / {k.split(', ')[-1]}" for k in refreshed) + " | ask() CPU time to the spp, awr / every round / "
+        + " / ".join(k.split(", ")[-1] for k in refreshed) + " |")
+    print("|---|---|" + "---|" * (3 + 2 * len(refreshed)))
+    for scene in dict.fromkeys(r["scene"] for r in rows):
+        for spp in sorted({r["spp"] for r in rows}):
+            kinds = ["awr", "awr, measured gain", *refreshed]
+            rel = {k: mean("relmse", scene=scene, spp=spp, sampler=k) for k in kinds}
+            sq = {k: mean("mse", scene=scene, spp=spp, sampler=k) for k in kinds}
+            ask = [mean("ask_seconds", scene=scene, spp=spp, sampler=k) for k in kinds]
+            print(f"| {scene} | {spp} | " + " | ".join(f"{rel['awr'] / rel[k]:.2f}" for k in kinds[1:]) + " | "
+                  + " | ".join(f"{sq['awr'] / sq[k]:.2f}" for k in kinds[1:]) + " | "
+                  + " / ".join(f"{t:.2f}" for t in ask) + " s |")
 
 
 def sampler_table(rows: list[dict]) -> None:
@@ -581,8 +614,8 @@ def _update(section: str, value: Any, command: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("section", choices=("quality", "samplers", "seeds", "synthetic", "speed", "finishing",
-                                                   "tables"))
+    parser.add_argument("section", choices=("quality", "samplers", "refresh", "seeds", "synthetic", "speed",
+                                            "finishing", "tables"))
     parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
     parser.add_argument("--spps", nargs="+", type=int, default=list(SPPS))
     parser.add_argument("--groups", type=int, default=0,
@@ -611,6 +644,11 @@ def main(argv: list[str] | None = None) -> int:
                         args.groups or 2, args.cache, {**SAMPLER_KINDS, **(cap_kinds(CAPS) if args.caps else {})})
         _update("samplers", rows, command)
         sampler_table(rows)
+    elif args.section == "refresh":
+        rows = samplers(quality_scenes(args.scenes), tuple(s for s in args.spps if s <= 32) or (8, 16, 32),
+                        args.groups or 2, args.cache, REFRESH_KINDS)
+        _update("refresh", rows, command)
+        refresh_table(rows)
     elif args.section == "seeds":
         rows = seeds(tuple(args.scenes or SEED_SCENES), tuple(s for s in args.spps if s <= 64) or (8, 16, 32, 64),
                      args.groups or 10)
@@ -631,7 +669,8 @@ def main(argv: list[str] | None = None) -> int:
         finishing_table(rows)
     else:  # print the tables of the stored results
         data = json.loads(RESULTS.read_text())
-        for section, show in (("quality", quality_tables), ("samplers", sampler_table), ("seeds", seeds_table),
+        for section, show in (("quality", quality_tables), ("samplers", sampler_table), ("refresh", refresh_table),
+                              ("seeds", seeds_table),
                               ("synthetic", synthetic_table),
                               ("finishing", finishing_table)):
             if section in data:

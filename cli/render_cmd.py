@@ -70,7 +70,7 @@ def derived_path(path: str | Path, suffix: str) -> Path:
 
 def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float, adaptive: bool, seed: int,
                   initial_spp: int, quiet: bool, round_growth: float = DEFAULT_ROUND_GROWTH,
-                  noise_model: str = "levels") -> tuple[SampleBuffer, Any, int]:
+                  noise_model: str = "levels", gain_refresh: float | None = None) -> tuple[SampleBuffer, Any, int]:
     """(buffer, issued, next round) of a uniform or adaptive render at ``spp`` on average.
 
     The renderer is closed afterwards when it is a :class:`~awr_denoise.SampleTracer`.
@@ -83,7 +83,7 @@ def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float, ada
             buffer = renderer(request)
             return buffer, request.first_index + request.counts, 1
         awr = AdaptiveSampler(shape, initial_spp=min(initial_spp, max(1, int(spp))), seed=seed,
-                              round_growth=round_growth, noise_model=noise_model)
+                              round_growth=round_growth, noise_model=noise_model, gain_refresh=gain_refresh)
         buffer = awr.run(renderer, total_spp=spp, progress=not quiet)
         return buffer, awr.issued, awr.round
     finally:
@@ -119,6 +119,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="adaptive rounds model what reconstruction leaves of a pixel's noise by the paper's levels "
                         "(default) or by the default reconstruction's measured gain, reconstructing every round "
                         "(lower error, ten times the sampler's time; docs/sampling.md)")
+    p.add_argument("--gain-refresh", type=real(minimum=1, maximum=1e6), metavar="F",
+                   help="with --noise-model reconstruction: measure the gain again only once the samples grew by "
+                        "this factor (default 1: every round; 1.5: every other round, half the sampler's time; "
+                        "docs/sampling.md)")
     p.add_argument("--seed", type=whole(minimum=0, maximum=MAX_SEED), default=0)
     p.add_argument("--sampler", default="independent",
                    help="the bundled tracer's sample sequence: independent (default) or sobol")
@@ -184,6 +188,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("render: -o/--output DUMP.exr is required")
     if args.noise_model is not None and not args.adaptive:  # a setting that would do nothing is refused
         raise UsageError("--noise-model: a uniform render has no adaptive rounds to model")
+    if args.gain_refresh is not None and args.noise_model != "reconstruction":
+        raise UsageError("--gain-refresh: only --noise-model reconstruction measures a gain")
     if args.guide == "features" and not args.features:
         raise UsageError("--guide features: nothing to guide with; render the features too (--features all)")
     image_path = Path(args.image) if args.image else derived_path(args.output, ".denoised.exr")
@@ -206,7 +212,7 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     render = dict(spp=args.spp, adaptive=args.adaptive, seed=args.seed, initial_spp=args.initial_spp,
                   quiet=args.quiet, round_growth=args.round_growth,
-                  noise_model=args.noise_model or "levels")
+                  noise_model=args.noise_model or "levels", gain_refresh=args.gain_refresh)
     if executor_requested(args):
         # Each worker builds its own renderer from a picklable spec; tiles of every round are
         # rendered there and merged exactly (addressable random numbers make it match serial).

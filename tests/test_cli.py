@@ -556,10 +556,10 @@ def test_plan_noise_model_spends_by_the_reconstructions_gain(tmp_path, capsys, r
     assert not (tmp_path / "u.exr").exists()
 
 
-def _rendered(tmp_path, spp, option, value):
+def _rendered(tmp_path, spp, option, value, extra=()):
     """The dump of ``awr render --spp SPP OPTION VALUE`` (the fake tracer), checked for its total."""
     out = tmp_path / f"{option}{value}.exr"
-    assert main(["render", "--spp", str(spp), option, value, "-o", str(out), "-q"]) == 0
+    assert main(["render", "--spp", str(spp), option, value, *extra, "-o", str(out), "-q"]) == 0
     dump = read_sample_dump(out)
     assert dump.buffer.total_samples == spp * H * W
     return dump
@@ -572,6 +572,26 @@ def test_render_noise_model_reaches_the_sampler(tmp_path, capsys, fake_tracer):
     assert main(["render", "--uniform", "--noise-model", "reconstruction", "-o", str(tmp_path / "u.exr")]) == 2
     _one_error_line(capsys, "--noise-model")
     assert not (tmp_path / "u.exr").exists()
+
+
+def test_render_gain_refresh_reaches_the_sampler(tmp_path, capsys, fake_tracer, monkeypatch):
+    from awr_denoise import noise_gain
+
+    measured = []
+    real = noise_gain.reconstruct_detailed
+    monkeypatch.setattr(noise_gain, "reconstruct_detailed", lambda *a, **k: measured.append(1) or real(*a, **k))
+    every = tmp_path / "every.exr"
+    assert main(["render", "--spp", "16", "--noise-model", "reconstruction", "-o", str(every), "-q"]) == 0
+    every_round = len(measured)
+    measured.clear()
+    dump = _rendered(tmp_path, 16, "--gain-refresh", "2", extra=["--noise-model", "reconstruction"])
+    assert 0 < len(measured) < every_round  # 16 spp from 4: the gain of every round, or of every third or fourth
+    assert not np.array_equal(dump.buffer.count, read_sample_dump(every).buffer.count)
+    for bad in (["--gain-refresh", "1.5"], ["--gain-refresh", "0.5", "--noise-model", "reconstruction"],
+                ["--gain-refresh", "nan", "--noise-model", "reconstruction"]):
+        assert main(["render", *bad, "-o", str(tmp_path / "bad.exr")]) == 2
+        _one_error_line(capsys, "--gain-refresh")
+    assert not (tmp_path / "bad.exr").exists()
 
 
 def test_render_round_growth_takes_fewer_rounds(tmp_path, fake_tracer):
