@@ -18,9 +18,10 @@ differences summing to more than ``GATE_LOW`` times the variances), stage 1's pi
 fully from ``GATE_HIGH``. A biased pilot (a denoiser's hallucinated detail, a blur across an edge) is thus
 used only where the samples cannot tell it from the truth, and as the samples grow, only where it
 is right. Measured (docs/guides.md, "Wrong guides"): without this check a deliberately wrong guide
-cost up to 1.18x the plain mean's relMSE next to a small bright light; with it, never more than the
-plain mean's (at most 0.97x), and within 0.01 of the default's ratios to it from 64 spp on. The SURE
-guard is needed as well: without it the same wrong guides cost 1.06-1.12x the plain mean's relMSE there.
+cost up to 1.17x the plain mean's relMSE next to a small bright light; with it, never more than the
+plain mean's (at most 0.97x), and within 0.02 of the default's ratios to it from 64 spp on. The SURE
+guard is needed as well: without it the same wrong guides cost 1.05-1.06x the plain mean's relMSE there
+at 64 spp.
 
 Two pilots are built here (:func:`pilots`):
 
@@ -39,9 +40,9 @@ Two pilots are built here (:func:`pilots`):
     it is the first Wiener stage's pilot only.
 
 A guide is also used directly, within what the samples allow (:func:`projected`): the means'
-detail coefficients are moved towards the guide's by at most three standard errors each
-(:mod:`awr_denoise.projection`), and half of that result (times the gate's share) replaces half of
-the Wiener stages'. Where the guide is within the noise, its noise-free detail is followed; where
+coefficients, the scale band's included, are moved towards the guide's by at most three standard
+errors each (:mod:`awr_denoise.projection`), and half of that result (times the gate's share)
+replaces half of the Wiener stages'. Where the guide is within the noise, its noise-free detail is followed; where
 the samples contradict it, the means' coefficients stay; the SURE guard then sees the blend's
 exact leverage. As the samples grow the intervals shrink and the result tends to the means.
 """
@@ -80,11 +81,11 @@ GATE_LOW, GATE_HIGH = 3.0, 9.0
 
 PROJECTION_SHARE = 0.5
 """Most of a guided result that :func:`projected` takes from the projection on the guide (times the
-gate's share), the Wiener stages' the rest. Measured at 32 spp with the guided guard window of 17
-(docs/guides.md, "What else was tried"): 0.75 lowers relMSE by 1-3% on four scenes (`glossy_glass`
-1.19x OIDN's instead of 1.22x) but raises it by 4-10% on four of the tracer's and raises MSE on
-seven of ten; the projection alone (1) lost 18-22% on the finely textured scenes, where OIDN's blur
-stays within the noise; none (0) lost 9-19% on the six scenes where the guide trails OIDN."""
+gate's share), the Wiener stages' the rest. Measured at 32 spp with the scale band projected
+(docs/guides.md, "What else was tried"): 0.75 lowers relMSE by 1-6% on four scenes (`glossy_glass`
+1.03x OIDN's instead of 1.10x) but raises it by 6-10% on four of the tracer's; the projection alone
+(1) lost 18-22% on the finely textured scenes, where OIDN's blur stays within the noise; none (0)
+lost 9-20% on the six scenes where the guide trails OIDN."""
 
 _COLOUR_SIGMA = 2.0  # colour differences are counted in the means' standard errors
 _KERNEL = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0  # the B3 spline of the a-trous transform

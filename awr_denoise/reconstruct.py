@@ -197,8 +197,8 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
             # (1 - l) x + l o, with Cov(x, o) = L v on the diagonal of a linear map.
             var_out = (1 - lam) ** 2 * v + lam * lam * var_out + 2 * lam * (1 - lam) * leverage * v
         # A pixel's noise reaches the blend as (1 - l)^2 + 2 l (1 - l) L + l^2 sum_q A_qp^2; the last sum
-        # is taken as L, its value for a projection (a shrinkage's is at most about L).
-        gain = np.mean((1 - lam) ** 2 + lam * (2 - lam) * leverage, axis=-1)
+        # is taken as L, its value for a projection (a shrinkage's is at most about L; held at 0 or above).
+        gain = np.maximum(np.mean((1 - lam) ** 2 + lam * (2 - lam) * leverage, axis=-1), 0.0)
     return out * s, None if var_out is None else var_out * s * s, gain
 
 

@@ -211,15 +211,18 @@ def _per_pixel_share(candidate: np.ndarray, buffer: SampleBuffer) -> np.ndarray:
 
 
 class _Projection:
-    """The guide's projection (:func:`awr_denoise.projection.project`) with another interval radius or
-    domain exponent, for one measurement (its share of the result is ``guide_projection``)."""
+    """The guide's projection (:func:`awr_denoise.projection.project`) with another interval radius,
+    domain exponent or the means' scale band kept, for one measurement (its share of the result is
+    ``guide_projection``)."""
 
-    def __init__(self, radius: float = projection.DEFAULT_RADIUS, exponent: float = projection.DEFAULT_EXPONENT) -> None:
-        self.radius, self.exponent = radius, exponent
+    def __init__(self, radius: float = projection.DEFAULT_RADIUS, exponent: float = projection.DEFAULT_EXPONENT,
+                 scale_band: bool = True) -> None:
+        self.radius, self.exponent, self.scale_band = radius, exponent, scale_band
 
     def __enter__(self) -> None:
         self.saved = guided.project
-        guided.project = functools.partial(projection.project, radius=self.radius, exponent=self.exponent)
+        guided.project = functools.partial(projection.project, radius=self.radius, exponent=self.exponent,
+                                           scale_band=self.scale_band)
 
     def __exit__(self, *exc: object) -> None:
         guided.project = self.saved
@@ -499,6 +502,7 @@ AVENUES: dict[str, tuple[dict[str, Any], Any]] = {
     "OIDN guide, guard window 9": ({"guide": guides.oidn, "guard_window": 9}, None),
     "OIDN guide, radius 2": ({"guide": guides.oidn}, _Projection(radius=2.0)),
     "OIDN guide, projection exponent 1": ({"guide": guides.oidn}, _Projection(exponent=1.0)),
+    "OIDN guide, scale band kept": ({"guide": guides.oidn}, _Projection(scale_band=False)),
     "OIDN guide + features where the gate closes": ({"guide": guides.oidn, "features": True}, _features_then_guide),
     "clean image as guide": ({"guide": "reference"}, None),
     "clean image as guide, alpha 1": ({"guide": "reference", "wiener_exponents": (0.75, 1.0)}, None),

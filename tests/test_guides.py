@@ -52,9 +52,10 @@ def test_the_oidn_guide_as_a_function_of_the_buffer():
 @pytest.mark.parametrize("name", ["edges", "hdr_source"])
 def test_the_oidn_guide_keeps_the_mean_and_never_exceeds_the_plain_means_error(name):
     """On the synthetic scenes (no features; 8 spp, three seeds): MSE and relMSE at or below the
-    plain mean's, the image mean exact. Against the default it is not always better: measured
-    1.11x its relMSE (0.88x its MSE) next to the small bright light of ``hdr_source``, where OIDN
-    dims the light's rim within what 8 samples can tell."""
+    plain mean's, the image mean exact. Against the default, measured: 0.47x its relMSE (0.49x its
+    MSE) on ``edges`` and 0.78x (0.82x) next to the small bright light of ``hdr_source``, where
+    OIDN dims the light's rim within what 8 samples can tell: 1.11x (0.88x) there while the
+    projection kept the means' scale band, an earlier version."""
     errors = np.zeros((3, 2))
     for seed in range(3):
         scene = make_scene(name, (64, 64))
