@@ -35,7 +35,7 @@ from .allocation import MAX_BUDGET, allocate, allocate_mixed
 from .buffers import SampleBuffer
 from .domains import Domain
 from .errors import StaleRequestError
-from .noise_gain import NOISE_MODELS, MeasuredGain
+from .noise_gain import DEFAULT_GAIN_REFRESH, NOISE_MODELS, MeasuredGain
 from .priorities import DEFAULT_ABSOLUTE_ABOVE, pooled_deviation, sampling_density
 from .requests import Renderer, SampleRequest
 from .wavelets import DEFAULT_WAVELET, wavelet_operators
@@ -530,8 +530,8 @@ class AdaptiveSampler(Sampler):
         self.noise_model = _checks.name("noise_model", noise_model, NOISE_MODELS)
         if gain_refresh is not None and self.noise_model != "reconstruction":  # it would do nothing: refused
             raise ValueError(f"gain_refresh: {gain_refresh!r} needs noise_model='reconstruction' (the measured gain)")
-        self._gain = None if self.noise_model != "reconstruction" else (
-            MeasuredGain() if gain_refresh is None else MeasuredGain(gain_refresh))
+        self._gain = None if self.noise_model != "reconstruction" else MeasuredGain(
+            DEFAULT_GAIN_REFRESH if gain_refresh is None else gain_refresh)
         self.absolute_above = _checks.real("absolute_above", absolute_above, above=0, none=True)
 
     def density(self) -> FloatArray:

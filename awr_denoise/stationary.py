@@ -68,8 +68,8 @@ def _transfer(taps: np.ndarray, n: int, step: int, half: bool) -> np.ndarray:
 def _plane_indices(leading: tuple[int, ...]) -> Iterator[tuple[int, ...]]:
     """The indices of every (H, W) plane of an array with these leading dimensions, in C order.
 
-    ``np.ndindex``'s order, without its cost: it builds a strided array per call, which at 128x128
-    came to about a tenth of a default reconstruction (an ad-hoc A/B; level within noise from 256x256).
+    ``np.ndindex``'s order, without its cost: it builds a strided array per call, which adds up
+    beside the FFTs of small planes.
     """
     return product(*(range(n) for n in leading))
 

@@ -43,7 +43,7 @@ from awr_denoise.prepare import filled_mean
 from awr_denoise.renderers import create_renderer
 from awr_denoise.sure import sure_blend
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
-from awr_denoise.wiener import chain
+from awr_denoise.wiener import chain, rademacher_probes
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_reconstruct import (MITSUBA_SHAPE, TRACER_SCENES, _mitsuba_available, quality_scenes,  # noqa: E402
@@ -468,13 +468,10 @@ class _ShareBySure:
     SHARES = (0.0, 0.25, 0.5, 0.75, 1.0)
     EPS = 0.1
 
-    def __init__(self) -> None:
-        self.chosen: list[tuple[str, float]] = []
-
     def image(self, buffer: SampleBuffer, options: dict[str, Any]) -> np.ndarray:
         x = filled_mean(buffer)
-        v = buffer.estimated_variance() / np.maximum(buffer.count, 1)[..., None]
-        n = np.sqrt(v) * np.random.default_rng(1).choice([-1.0, 1.0], size=x.shape)
+        v = buffer.estimated_variance() / np.maximum(buffer.count, 1)[..., None]  # as guided.trust's
+        n = next(rademacher_probes(v, 1, seed=1))[0]
         perturbed = SampleBuffer.from_moments(buffer.count, buffer.mean + self.EPS * n, buffer.variance,
                                               features=buffer.features)
         guide, guide_perturbed = guides.oidn(buffer), guides.oidn(perturbed)
