@@ -35,6 +35,7 @@ __all__ = [
     "forward",
     "inverse",
     "coefficient_variance",
+    "shrinkage_diagonal",
     "DETAIL_BANDS",
     "DEFAULT_WAVELET",
     "WAVELET_NAMES",
@@ -392,3 +393,103 @@ def coefficient_variance(variance_of_mean: FloatArray, *, wavelet: str = DEFAULT
         out.append(tuple(stack([p[level][b] for p in planes]) for b in range(3)))
     return out
 
+
+
+@lru_cache(maxsize=16)
+def _axis_diagonals(n: int, wavelet: str, boundary: str, levels: int,
+                    dtype: str = "float64") -> tuple[tuple[sparse.csr_matrix, ...], tuple[sparse.csr_matrix, ...]]:
+    """Per level k = 1..L, the (n, m_k) matrices ``S_k * A_k^T`` (entrywise) of one axis, approx and detail.
+
+    ``A_k`` is the level-k equivalent analysis operator, ``S_k`` the synthesis operator that takes
+    that band back to the n samples (impulses pushed through PyWavelets' own ``waverec`` of a
+    level-k decomposition, cropped to n as :func:`inverse` crops). Entry ``(i, a)`` is coefficient
+    a's weight on sample i times sample i's weight on coefficient a: its share of the map's
+    diagonal at i. ``dtype`` ``"float32"``: the same matrices rounded to float32.
+    """
+    if dtype != "float64":
+        approx, detail = _axis_diagonals(n, wavelet, boundary, levels)
+        return tuple(m.astype(dtype) for m in approx), tuple(m.astype(dtype) for m in detail)
+    ops = _axis_operators(n, wavelet, boundary, levels)
+    w = pywt.Wavelet(wavelet)
+
+    def synthesis(k: int, position: int) -> sparse.csr_matrix:
+        # A level-k decomposition is [cA_k, cD_k, ..., cD_1]: the first k steps of the level-L one.
+        lengths = [c.shape[0] for c in pywt.wavedec(np.zeros(n), w, mode=boundary, level=k)]
+
+        def apply(impulses: np.ndarray) -> np.ndarray:
+            coeffs = [np.zeros((m, impulses.shape[1])) for m in lengths]
+            coeffs[position] = impulses
+            return pywt.waverec(coeffs, w, mode=boundary, axis=0)[:n]
+        return _sparse_operator(apply, lengths[position])
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # levels past pywt's "useful" depth, as in _axis_operators
+        approx = tuple(synthesis(k, 0).multiply(ops.approx[k - 1].T).tocsr() for k in range(1, levels + 1))
+        detail = tuple(synthesis(k, 1).multiply(ops.detail[k - 1].T).tocsr() for k in range(1, levels + 1))
+    return approx, detail
+
+
+def _along_columns(matrix: sparse.csr_matrix, band: FloatArray) -> FloatArray:
+    """``band @ matrix.T`` for a C-ordered (m_h, m_w) band and an (W, m_w) sparse matrix, C-ordered."""
+    return np.ascontiguousarray((matrix @ np.ascontiguousarray(band.T)).T)
+
+
+def shrinkage_diagonal(factors: list, operators: WaveletOperators, *, precision: str = "float64") -> FloatArray:
+    """Diagonal of the linear map ``y -> inverse(f * forward(y))``: each pixel's weight on its own value.
+
+    With every detail coefficient scaled by its factor (held fixed) and the scale band by its own,
+    the map is ``sum_b S_b diag(f_b) A_b``, separable in each band, so its diagonal is
+    ``sum_b P_rows,b f_b P_cols,b^T`` with ``P = S * A^T`` entrywise per axis (exact, no probes):
+    the share of each pixel's noise that stays at that pixel after a shrinkage of the wavelet
+    coefficients, as the paper's reconstruction (section 4, Eq. 11) or a Wiener stage makes it.
+
+    Parameters
+    ----------
+    factors
+        In :func:`forward`'s layout: ``[f_A, (f_H, f_V, f_D)_L, ..., (f_H, f_V, f_D)_1]``, each the
+        shape of its band.
+    operators
+        :func:`wavelet_operators` of the image's shape.
+    precision
+        ``"float64"`` (the reference) or ``"float32"`` (half the memory traffic; factors in [0, 1]
+        give a diagonal within a few float32 epsilons of the reference's, tested).
+
+    Returns
+    -------
+    ndarray
+        (H, W) diagonal ``L_p`` in ``precision``.
+
+    Examples
+    --------
+    Keeping every coefficient is the identity (diagonal 1); keeping the scale band alone (two
+    levels here) leaves each pixel a small share of its own value (a wide average):
+
+    >>> import numpy as np
+    >>> from awr_denoise.wavelets import forward, shrinkage_diagonal, wavelet_operators
+    >>> ops = wavelet_operators((32, 32))
+    >>> ones = [np.ones_like(c) if i == 0 else tuple(np.ones_like(b) for b in c)
+    ...         for i, c in enumerate(forward(np.zeros((32, 32)), levels=ops.levels))]
+    >>> bool(np.allclose(shrinkage_diagonal(ones, ops), 1.0))
+    True
+    >>> scale_only = [ones[0]] + [tuple(np.zeros_like(b) for b in c) for c in ones[1:]]
+    >>> round(float(shrinkage_diagonal(scale_only, ops)[16, 16]), 3)
+    0.146
+    """
+    if precision not in ("float32", "float64"):
+        raise ValueError(f"precision: {precision!r} is not one of float32, float64")
+    rows_approx, rows_detail = _axis_diagonals(operators.shape[0], operators.wavelet, operators.boundary,
+                                               operators.levels, precision)
+    cols_approx, cols_detail = _axis_diagonals(operators.shape[1], operators.wavelet, operators.boundary,
+                                               operators.levels, precision)
+    levels = operators.levels
+    if len(factors) != levels + 1:
+        raise ValueError(f"factors: expected {levels + 1} entries (the scale band and {levels} levels), "
+                         f"got {len(factors)}")
+    out = rows_approx[-1] @ _along_columns(cols_approx[-1], np.asarray(factors[0], dtype=precision))
+    for k in range(1, levels + 1):
+        f_h, f_v, f_d = (np.asarray(b, dtype=precision) for b in factors[levels - k + 1])
+        # cH is high-pass down the rows and low-pass across the columns, cV the reverse, cD both
+        # high-pass: grouped by their row operator, two full-size products per level.
+        out += rows_detail[k - 1] @ (_along_columns(cols_approx[k - 1], f_h) + _along_columns(cols_detail[k - 1], f_d))
+        out += rows_approx[k - 1] @ _along_columns(cols_detail[k - 1], f_v)
+    return out

@@ -16,6 +16,7 @@ from awr_denoise.wavelets import (
     forward,
     inverse,
     max_levels,
+    shrinkage_diagonal,
     wavelet_operators,
 )
 
@@ -200,3 +201,54 @@ def test_monte_carlo_check_rejects_cascaded_squared_filters(rng, shape, levels):
     assert ((ratio < lo) | (ratio > hi)).sum() > naive.size // 10
     ratio = empirical / exact
     assert ((ratio >= lo) & (ratio <= hi)).all()
+
+
+# ---------------------------------------------------------------------------- the diagonal of a shrinkage
+def _random_factors(rng, shape, wavelet, levels, boundary):
+    template = forward(np.zeros(shape), wavelet=wavelet, levels=levels, boundary=boundary)
+    return [rng.random(template[0].shape)] + [tuple(rng.random(b.shape) for b in bands) for bands in template[1:]]
+
+
+def _dense_diagonal(factors, shape, wavelet, levels, boundary):
+    """The map's diagonal from its impulse responses: every pixel through forward, the factors, inverse."""
+    h, w = shape
+    impulses = np.eye(h * w).reshape(h, w, h * w)
+    coeffs = forward(impulses, wavelet=wavelet, levels=levels, boundary=boundary)
+    scaled = [coeffs[0] * factors[0][..., None]] + [tuple(b * f[..., None] for b, f in zip(bands, fs))
+                                                     for bands, fs in zip(coeffs[1:], factors[1:])]
+    out = inverse(scaled, shape, wavelet=wavelet, boundary=boundary).reshape(h * w, h * w)
+    return np.diagonal(out).reshape(h, w)
+
+
+@pytest.mark.parametrize(("shape", "wavelet", "levels", "boundary"), [
+    ((13, 17), "bior4.4", 2, "symmetric"), ((16, 16), "bior4.4", None, "symmetric"), ((9, 11), "haar", 3, "periodization"),
+    ((20, 7), "db2", 2, "zero"), ((1, 17), "bior4.4", 1, "symmetric")])
+def test_shrinkage_diagonal_equals_the_impulse_responses(rng, shape, wavelet, levels, boundary):
+    """Exact for odd sizes, other wavelets and boundary modes: the products S * A^T reproduce each
+    pixel's weight on itself through forward, the factors and inverse (cropping included)."""
+    ops = wavelet_operators(shape, wavelet=wavelet, levels=levels, boundary=boundary)
+    factors = _random_factors(rng, shape, wavelet, ops.levels, boundary)
+    expected = _dense_diagonal(factors, shape, wavelet, ops.levels, boundary)
+    assert_allclose(shrinkage_diagonal(factors, ops), expected, rtol=0, atol=1e-14)
+    # float32: the same to a few float32 epsilons of the largest value (factors in [0, 1]).
+    single = shrinkage_diagonal(factors, ops, precision="float32")
+    assert single.dtype == np.float32
+    assert_allclose(single, expected, rtol=0, atol=8 * np.finfo(np.float32).eps * np.abs(expected).max())
+
+
+def test_shrinkage_diagonal_of_the_identity_is_one_and_of_nothing_zero():
+    ops = wavelet_operators((24, 40))
+    template = forward(np.zeros((24, 40)), levels=ops.levels)
+    ones = [np.ones_like(template[0])] + [tuple(np.ones_like(b) for b in bands) for bands in template[1:]]
+    zeros = [np.zeros_like(template[0])] + [tuple(np.zeros_like(b) for b in bands) for bands in template[1:]]
+    assert_allclose(shrinkage_diagonal(ones, ops), 1.0, atol=1e-13)
+    assert_allclose(shrinkage_diagonal(zeros, ops), 0.0, atol=0)
+
+
+def test_shrinkage_diagonal_refuses_wrong_factors_and_precision():
+    ops = wavelet_operators((16, 16), levels=2)
+    template = forward(np.zeros((16, 16)), levels=2)
+    with pytest.raises(ValueError, match="factors: expected 3 entries"):
+        shrinkage_diagonal(template[:2], ops)
+    with pytest.raises(ValueError, match="precision"):
+        shrinkage_diagonal(template, ops, precision="float16")
