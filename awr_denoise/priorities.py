@@ -31,6 +31,7 @@ from . import _checks
 from ._typing import FloatArray
 from .buffers import SampleBuffer
 from .domains import Domain
+from .noise_gain import DEFAULT_NOISE_MODEL, NOISE_MODELS, shrinkage_gain
 from .prepare import Prepared, prepare
 from .wavelets import (DEFAULT_WAVELET, WaveletOperators, _plane_variance, coefficient_variance, forward,
                        wavelet_operators)
@@ -178,24 +179,9 @@ def coefficient_priorities(
     """
     (mean_y, var_y, _), c = _normalised(plane if plane is not None else error_plane(buffer, domain))
     ops = operators or wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
-    executor = _checks.executor("executor", executor)
-    transform = partial(forward, mean_y, wavelet=ops.wavelet, levels=ops.levels, boundary=ops.boundary)
-    pending = None if executor is None else executor.submit(transform)
-    coeffs = transform() if pending is None else None
-    var_y = np.asarray(var_y, dtype=np.float64)
-    if var_y.shape != ops.shape or not (np.isfinite(var_y.max(initial=0.0)) and var_y.min(initial=0.0) >= 0):
-        coefficient_variance(var_y, operators=ops)  # raises the error that names the bad values
-    # One pass of the squared operators gives the detail variances and every level's scale variance,
-    # in float32 where every positive variance is a normal float32 number with room to spare (the
-    # products then keep float32's 7 digits): a level changes only where two levels' priorities
-    # agree to 1e-7, which none of the 2M pixels of a 1080p buffer did (docs/performance.md).
     scale_variances: list = []
-    smallest = float(np.min(var_y, where=var_y > 0, initial=np.inf))
-    single = var_y.max(initial=0.0) < _FLOAT32_SAFE[1] and (smallest == np.inf or smallest > _FLOAT32_SAFE[0])
-    variances = _plane_variance(var_y.astype(np.float32) if single else var_y, ops, scales=scale_variances)
-    if pending is not None:
-        coeffs = pending.result()
-    priorities = [var_y]
+    coeffs, variances = _transformed(mean_y, var_y, ops, executor, scale_variances)
+    priorities = [np.asarray(var_y, dtype=np.float64)]
     for k in range(1, ops.levels + 1):
         j = ops.levels - k + 1  # position of level k's detail bands in pywt's layout
         # sum_a max(0, W~^2 - (t Delta)^2), accumulated in place (the same operations, in order).
@@ -214,6 +200,29 @@ def coefficient_priorities(
         with np.errstate(over="ignore"):  # Inf: a priority beyond float64 (means near 1e300)
             priorities = [p * c * c for p in priorities]
     return priorities
+
+
+def _transformed(mean_y: FloatArray, var_y: FloatArray, ops: WaveletOperators, executor: Executor | None,
+                 scales: list | None = None) -> tuple[list, list]:
+    """The plane's coefficients and their exact variances (and every level's scale variance into ``scales``).
+
+    The transform of the means runs on ``executor`` while the variances propagate in this thread.
+    """
+    executor = _checks.executor("executor", executor)
+    transform = partial(forward, mean_y, wavelet=ops.wavelet, levels=ops.levels, boundary=ops.boundary)
+    pending = None if executor is None else executor.submit(transform)
+    coeffs = transform() if pending is None else None
+    var_y = np.asarray(var_y, dtype=np.float64)
+    if var_y.shape != ops.shape or not (np.isfinite(var_y.max(initial=0.0)) and var_y.min(initial=0.0) >= 0):
+        coefficient_variance(var_y, operators=ops)  # raises the error that names the bad values
+    # One pass of the squared operators gives the detail variances and every level's scale variance,
+    # in float32 where every positive variance is a normal float32 number with room to spare (the
+    # products then keep float32's 7 digits): a level changes only where two levels' priorities
+    # agree to 1e-7, which none of the 2M pixels of a 1080p buffer did (docs/performance.md).
+    smallest = float(np.min(var_y, where=var_y > 0, initial=np.inf))
+    single = var_y.max(initial=0.0) < _FLOAT32_SAFE[1] and (smallest == np.inf or smallest > _FLOAT32_SAFE[0])
+    variances = _plane_variance(var_y.astype(np.float32) if single else var_y, ops, scales=scales)
+    return (coeffs if pending is None else pending.result()), variances
 
 
 def _normalised(plane: tuple[FloatArray, FloatArray, FloatArray]) -> tuple[tuple[FloatArray, FloatArray, FloatArray],
@@ -314,20 +323,22 @@ def sampling_density(
     noise_gain: FloatArray | None = None,
     absolute_above: float | None = DEFAULT_ABSOLUTE_ABOVE,
     executor: Executor | None = None,
+    noise_model: str = DEFAULT_NOISE_MODEL,
 ) -> FloatArray:
-    """(H, W) target sample density ``a_p = s_p * 2^(-level_weight * l_p)`` (unnormalised).
+    """(H, W) target sample density ``a_p = s_p * sqrt(g_p)`` (unnormalised).
 
     ``s_p`` is :func:`pooled_deviation` (the per-sample standard deviation in the error domain,
     pooled over 3x3 pixels, each pixel's level capped at ``absolute_above`` times the image's
-    mean level), ``l_p`` the winning level of
-    :func:`pixel_levels`. ``level_weight = 0`` ignores the wavelet structure (per-pixel
-    variance-driven sampling).
+    mean level). ``g_p``, the share of the pixel's noise that reconstruction leaves, is the noise
+    model's (:mod:`awr_denoise.noise_gain`); ``n_p ~ s_p sqrt(g_p)`` spends a budget best:
 
-    The level term models what reconstruction leaves of a pixel's noise: a region averaged over
-    ``4^l`` pixels keeps ``4^-l`` of it, and ``n_p ~ s_p sqrt(4^-l)`` spends a budget best. Given
-    ``noise_gain``, that share measured on a reconstruction (``g_p``,
-    :attr:`~awr_denoise.Reconstruction.noise_gain`, pooled over 3x3 pixels like ``s_p``) takes the
-    level term's place: ``a_p = s_p * sqrt(g_p)``, and ``level_weight`` is not used.
+    - ``"shrinkage"`` (the default): :func:`~awr_denoise.noise_gain.shrinkage_gain` of the same
+      plane's transform, pooled over 3x3 pixels like ``s_p``;
+    - ``"levels"``, the paper's: a region averaged over ``4^l`` pixels keeps ``4^-l`` of it,
+      ``a_p = s_p * 2^(-level_weight * l_p)`` with ``l_p`` the winning level of
+      :func:`pixel_levels` (``level_weight = 0``: per-pixel variance-driven sampling);
+    - a given ``noise_gain`` (``"reconstruction"``: the share measured on a reconstruction,
+      :attr:`~awr_denoise.Reconstruction.noise_gain`), pooled the same way, takes the model's place.
 
     With an ``executor`` (threads), ``s_p`` and the transform of the means are computed on it
     while the coefficient variances propagate in this thread: the same density, sooner on two
@@ -358,6 +369,9 @@ def sampling_density(
     """
     level_weight = _checks.real("level_weight", level_weight, minimum=0)
     executor = _checks.executor("executor", executor)
+    noise_model = _checks.name("noise_model", noise_model, NOISE_MODELS)
+    if noise_model == "reconstruction" and noise_gain is None:
+        raise ValueError("noise_gain: noise_model='reconstruction' needs the measured gain (Reconstruction.noise_gain)")
     if noise_gain is not None:
         noise_gain = np.asarray(noise_gain, dtype=np.float64)
         if noise_gain.shape != buffer.shape:
@@ -366,8 +380,15 @@ def sampling_density(
     p = prepare(buffer, domain, luminance=True)  # once, for the deviation and the priorities
     plane = _plane(p)
     deviation = partial(pooled_deviation, buffer, domain, absolute_above=absolute_above, prepared=p)
-    if noise_gain is not None:
+    if noise_gain is None and noise_model == "shrinkage":
+        # The gain takes the priorities' and levels' place; the plane is normalised as for them
+        # (the shrinkage factors do not change when it is scaled, and its squares cannot overflow).
+        pooled = None if executor is None else executor.submit(deviation)
+        noise_gain = shrinkage_gain(*_transformed(*_normalised(plane)[0][:2], ops, None), ops)
+        s_pooled = deviation() if pooled is None else pooled.result()
+    elif noise_gain is not None:
         s_pooled = deviation()
+    if noise_gain is not None:
         # Pooled like s_p; a NaN or negative gain (none is expected) must not send samples nowhere.
         gain = np.nan_to_num(ndimage.uniform_filter(noise_gain, 3, mode="nearest"), nan=1.0)
         s_pooled *= np.sqrt(np.maximum(gain, 0.0))

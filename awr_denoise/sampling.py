@@ -35,7 +35,7 @@ from .allocation import MAX_BUDGET, allocate, allocate_mixed
 from .buffers import SampleBuffer
 from .domains import Domain
 from .errors import StaleRequestError
-from .noise_gain import DEFAULT_GAIN_REFRESH, NOISE_MODELS, MeasuredGain
+from .noise_gain import DEFAULT_GAIN_REFRESH, DEFAULT_NOISE_MODEL, NOISE_MODELS, MeasuredGain
 from .priorities import DEFAULT_ABSOLUTE_ABOVE, pooled_deviation, sampling_density
 from .requests import Renderer, SampleRequest
 from .wavelets import DEFAULT_WAVELET, wavelet_operators
@@ -480,7 +480,7 @@ class AdaptiveSampler(Sampler):
     domain
         Error domain of the priorities; use the reconstruction's (``"log"`` by default).
     level_weight
-        Weight ``w`` of the level term, ``n_p ~ s_p 2^(-w l_p)``. The error model of :mod:`awr_denoise.priorities`
+        ``noise_model="levels"`` only: weight ``w`` of the level term, ``n_p ~ s_p 2^(-w l_p)``. The level model
         gives ``w = 1`` if reconstruction averaged a smooth region completely; soft thresholding at ``c_s = 1``
         keeps part of the noise, and measurement (docs/sampling.md) puts the best value near 0.25, the
         default. 0 turns the sampler into per-pixel variance sampling.
@@ -493,11 +493,11 @@ class AdaptiveSampler(Sampler):
         mean level: a small bright source is ranked by its absolute error, not starved (``None``: not
         capped; :func:`~awr_denoise.priorities.pooled_deviation`, docs/sampling.md "Relative and absolute error").
     noise_model, gain_refresh
-        What reconstruction leaves of a pixel's noise, the factor on ``s_p``: ``"levels"`` (the paper's model above,
-        the default) or ``"reconstruction"``: the default reconstruction's measured share ``g_p``, ``n_p ~ s_p
-        sqrt(g_p)``, measured again once the samples grow by ``gain_refresh`` (default 1: every round; 1.5: every other
-        round, :class:`~awr_denoise.noise_gain.MeasuredGain`): lower errors on most scenes for several times the
-        sampler's time (docs/sampling.md, "The measured noise gain").
+        What reconstruction leaves of a pixel's noise, the factor on ``s_p``: ``"levels"`` (the paper's model
+        above), ``"shrinkage"`` (the default: ``n_p ~ s_p sqrt(g_p)``, ``g_p`` a Wiener shrinkage's exact share,
+        :func:`~awr_denoise.noise_gain.shrinkage_gain`) or ``"reconstruction"`` (``g_p`` the default reconstruction's
+        measured share, measured again once the samples grow by ``gain_refresh``, default 1: every round,
+        :class:`~awr_denoise.noise_gain.MeasuredGain`; several times the sampler's time). docs/sampling.md, "The noise gain".
 
     Examples
     --------
@@ -519,7 +519,7 @@ class AdaptiveSampler(Sampler):
                  wavelet: str = DEFAULT_WAVELET, levels: int | None = None, seed: int = 0,
                  spp_min: int | None = None, spp_max: int | None = None, round_spp: float | None = None,
                  round_growth: float = DEFAULT_ROUND_GROWTH, domain: str | Domain = "log", level_weight: float = 0.25,
-                 uniform_fraction: float = 0.0, noise_model: str = "levels", gain_refresh: float | None = None,
+                 uniform_fraction: float = 0.0, noise_model: str = DEFAULT_NOISE_MODEL, gain_refresh: float | None = None,
                  absolute_above: float | None = DEFAULT_ABSOLUTE_ABOVE, executor: Executor | None = None) -> None:
         super().__init__(shape, channels=channels, initial_spp=initial_spp, seed=seed, spp_min=spp_min,
                          spp_max=spp_max, round_spp=round_spp, round_growth=round_growth, executor=executor)
@@ -539,7 +539,7 @@ class AdaptiveSampler(Sampler):
         gain = None if self._gain is None else self._gain(self._buffer, self.executor)  # round 0 is uniform: none
         return sampling_density(self._buffer, wavelet=self.wavelet, levels=self.levels, domain=self.domain,
                                 level_weight=self.level_weight, noise_gain=gain, absolute_above=self.absolute_above,
-                                executor=self.executor)
+                                executor=self.executor, noise_model=self.noise_model)
 
     def _allocate(self, budget, current, capacity, rng):
         return allocate_mixed(self.density(), current, budget, self.uniform_fraction, capacity=capacity, rng=rng)

@@ -7,6 +7,7 @@ import argparse
 from awr_denoise.allocation import MAX_BUDGET
 from awr_denoise.io import provenance, read_sample_dump, write_request
 from awr_denoise.io.exr import read_windows
+from awr_denoise.noise_gain import DEFAULT_NOISE_MODEL
 from awr_denoise.sampling import DEFAULT_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS, SAMPLERS, AdaptiveSampler
 from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 
@@ -49,8 +50,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--levels", type=whole(minimum=1, maximum=MAX_LEVELS), help="decomposition depth of the priority analysis")
     p.add_argument("--spp-max", type=whole(minimum=1, maximum=MAX_SPP), help="most samples any pixel may have")
     p.add_argument("--noise-model", choices=NOISE_MODELS,
-                   help="awr only: model what reconstruction leaves of a pixel's noise by the paper's levels (default) "
-                        "or by the default reconstruction's measured gain (reconstructs the dump; docs/sampling.md)")
+                   help="awr only: model what reconstruction leaves of a pixel's noise by a wavelet shrinkage's exact "
+                        "gain (shrinkage, the default), the paper's levels, or the default reconstruction's measured "
+                        "gain (reconstructs the dump; docs/sampling.md)")
     p.add_argument("-q", "--quiet", action="store_true")
     add_plane_options(p)
     p.set_defaults(run=run)
@@ -70,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     if args.round_growth is not None:
         options["round_growth"] = args.round_growth
     if cls is AdaptiveSampler:
-        options.update(wavelet=args.wavelet, levels=args.levels, noise_model=args.noise_model or "levels")
+        options.update(wavelet=args.wavelet, levels=args.levels, noise_model=args.noise_model or DEFAULT_NOISE_MODEL)
     elif args.noise_model is not None:  # a setting that would do nothing is refused, not ignored
         raise UsageError(f"--noise-model: only --strategy awr models the reconstruction's noise, not {args.strategy}")
     windows: dict = {}

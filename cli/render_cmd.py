@@ -18,6 +18,7 @@ from awr_denoise import AdaptiveSampler, SampleRequest, reconstruct_detailed
 from awr_denoise.buffers import SampleBuffer
 from awr_denoise.io import image_provenance, provenance, write_image, write_preview, write_sample_buffer
 from awr_denoise.io.atomic import OutputSet
+from awr_denoise.noise_gain import DEFAULT_NOISE_MODEL
 from awr_denoise.parallel import RendererSpec, TiledRenderer
 from awr_denoise.renderers import create_renderer, renderer_features, renderer_names, renderer_scenes
 from awr_denoise.requests import Renderer, SampleTracer
@@ -70,7 +71,7 @@ def derived_path(path: str | Path, suffix: str) -> Path:
 
 def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float, adaptive: bool, seed: int,
                   initial_spp: int, quiet: bool, round_growth: float = DEFAULT_ROUND_GROWTH,
-                  noise_model: str = "levels", gain_refresh: float | None = None) -> tuple[SampleBuffer, Any, int]:
+                  noise_model: str = DEFAULT_NOISE_MODEL, gain_refresh: float | None = None) -> tuple[SampleBuffer, Any, int]:
     """(buffer, issued, next round) of a uniform or adaptive render at ``spp`` on average.
 
     The renderer is closed afterwards when it is a :class:`~awr_denoise.SampleTracer`.
@@ -116,9 +117,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="adaptive rounds ask for this share of the samples taken so far (default %(default)s; "
                         "larger: fewer, cheaper rounds, see docs/sampling.md)")
     p.add_argument("--noise-model", choices=NOISE_MODELS,
-                   help="adaptive rounds model what reconstruction leaves of a pixel's noise by the paper's levels "
-                        "(default) or by the default reconstruction's measured gain, reconstructing every round "
-                        "(lower error, ten times the sampler's time; docs/sampling.md)")
+                   help="adaptive rounds model what reconstruction leaves of a pixel's noise: by a wavelet "
+                        "shrinkage's exact gain (shrinkage, the default), by the paper's levels, or by the default "
+                        "reconstruction's measured gain, reconstructing every round (ten times the sampler's time; "
+                        "docs/sampling.md)")
     p.add_argument("--gain-refresh", type=real(minimum=1, maximum=1e6), metavar="F",
                    help="with --noise-model reconstruction: measure the gain again only once the samples grew by "
                         "this factor (default 1: every round; 1.5: every other round, half the sampler's time; "
@@ -212,7 +214,7 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     render = dict(spp=args.spp, adaptive=args.adaptive, seed=args.seed, initial_spp=args.initial_spp,
                   quiet=args.quiet, round_growth=args.round_growth,
-                  noise_model=args.noise_model or "levels", gain_refresh=args.gain_refresh)
+                  noise_model=args.noise_model or DEFAULT_NOISE_MODEL, gain_refresh=args.gain_refresh)
     if executor_requested(args):
         # Each worker builds its own renderer from a picklable spec; tiles of every round are
         # rendered there and merged exactly (addressable random numbers make it match serial).

@@ -539,17 +539,21 @@ def test_plan_round_growth_sets_the_round_budget(tmp_path, capsys, rng, growth):
     assert not (tmp_path / "s.exr").exists()
 
 
-def test_plan_noise_model_spends_by_the_reconstructions_gain(tmp_path, capsys, rng):
+def test_plan_noise_model_reaches_the_sampler(tmp_path, capsys, rng):
     _dump(tmp_path / "d.exr", rng)
     counts = {}
-    for model in ("levels", "reconstruction"):
+    for model in ("levels", "reconstruction", "shrinkage", None):
         out = tmp_path / f"{model}.exr"
-        assert main(["plan", str(tmp_path / "d.exr"), "--noise-model", model, "-o", str(out), "-q"]) == 0
+        option = [] if model is None else ["--noise-model", model]
+        assert main(["plan", str(tmp_path / "d.exr"), *option, "-o", str(out), "-q"]) == 0
         counts[model] = read_request(out).counts
     dump = read_sample_dump(tmp_path / "d.exr")
-    expected = AdaptiveSampler.from_buffer(dump.buffer, round=1, issued=dump.issued, noise_model="reconstruction")
-    np.testing.assert_array_equal(counts["reconstruction"], expected.ask().counts)
+    for model in ("levels", "reconstruction", "shrinkage"):
+        expected = AdaptiveSampler.from_buffer(dump.buffer, round=1, issued=dump.issued, noise_model=model)
+        np.testing.assert_array_equal(counts[model], expected.ask().counts)
+    np.testing.assert_array_equal(counts[None], counts["shrinkage"])  # the default
     assert not np.array_equal(counts["levels"], counts["reconstruction"])
+    assert not np.array_equal(counts["levels"], counts["shrinkage"])
     assert main(["plan", str(tmp_path / "d.exr"), "--strategy", "uniform", "--noise-model", "reconstruction",
                  "-o", str(tmp_path / "u.exr")]) == 2
     _one_error_line(capsys, "--noise-model")
@@ -567,8 +571,11 @@ def _rendered(tmp_path, spp, option, value, extra=()):
 
 def test_render_noise_model_reaches_the_sampler(tmp_path, capsys, fake_tracer):
     counts = {model: _rendered(tmp_path, 8, "--noise-model", model).buffer.count
-              for model in ("levels", "reconstruction")}
+              for model in ("levels", "reconstruction", "shrinkage")}
     assert not np.array_equal(counts["levels"], counts["reconstruction"])
+    assert not np.array_equal(counts["levels"], counts["shrinkage"])
+    default = _rendered(tmp_path, 8, "--initial-spp", "4").buffer.count  # no --noise-model: the shrinkage
+    np.testing.assert_array_equal(default, counts["shrinkage"])
     assert main(["render", "--uniform", "--noise-model", "reconstruction", "-o", str(tmp_path / "u.exr")]) == 2
     _one_error_line(capsys, "--noise-model")
     assert not (tmp_path / "u.exr").exists()

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from numpy.testing import assert_array_equal
+from numpy.testing import assert_allclose, assert_array_equal
 
 from awr_denoise import AdaptiveSampler, SampleBuffer, noise_gain
-from awr_denoise.noise_gain import DEFAULT_GAIN_REFRESH, MeasuredGain
-from awr_denoise.reconstruct import reconstruct_detailed
+from awr_denoise.noise_gain import DEFAULT_GAIN_REFRESH, DEFAULT_NOISE_MODEL, NOISE_MODELS, MeasuredGain, shrinkage_gain
+from awr_denoise.reconstruct import DEFAULT_C_S, reconstruct_detailed
+from awr_denoise.wavelets import coefficient_variance, forward, inverse, shrinkage_diagonal, wavelet_operators
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
 
 
@@ -93,3 +94,73 @@ def test_refresh_one_gives_the_requests_of_a_gain_measured_every_round(refresh):
         request = sampler.ask()
         assert_array_equal(request.counts, fresh.ask().counts)
         sampler.tell(request, renderer(request))
+
+
+# ---------------------------------------------------------------------------- the shrinkage's gain
+def _wiener_of_soft(w, var, c_s):
+    """The factor written out: P^2 / (P^2 + Delta^2), P = max(|w| - c_s Delta, 0); 1 where both are 0."""
+    p = np.maximum(np.abs(w) - c_s * np.sqrt(var), 0.0)
+    total = p**2 + var
+    return np.divide(p**2, total, out=np.ones_like(total), where=total > 0)
+
+
+def test_the_shrinkage_gain_is_the_diagonal_of_the_wiener_map_on_the_soft_pilot(rng):
+    """Against the map built from impulses: each pixel's own weight through forward, the factors, inverse."""
+    shape = (12, 14)
+    mean = rng.random(shape) + np.where(np.arange(14) < 7, 0.0, 2.0)
+    var = rng.uniform(0.0, 0.05, shape)
+    ops = wavelet_operators(shape)
+    coeffs, variances = forward(mean, levels=ops.levels), coefficient_variance(var, operators=ops)
+    factors = [np.ones_like(coeffs[0])] + [tuple(_wiener_of_soft(w, v, DEFAULT_C_S) for w, v in zip(c, d))
+                                           for c, d in zip(coeffs[1:], variances[1:])]
+    impulses = np.eye(shape[0] * shape[1]).reshape(shape + (-1,))
+    through = forward(impulses, levels=ops.levels)
+    scaled = [through[0]] + [tuple(b * f[..., None] for b, f in zip(bands, fs)) for bands, fs in zip(through[1:], factors[1:])]
+    dense = np.diagonal(inverse(scaled, shape).reshape(impulses.shape[2], -1)).reshape(shape)
+    got = shrinkage_gain(coeffs, variances, ops)
+    assert got.dtype == np.float64
+    assert_allclose(got, np.maximum(dense, 0.0), rtol=0, atol=1e-6)  # computed in float32
+    # A larger pilot threshold shrinks more: less of the noise stays on average (not at every
+    # pixel: a pixel's weight on itself through a band can be negative).
+    assert shrinkage_gain(coeffs, variances, ops, c_s=3.0).mean() < got.mean()
+
+
+def test_exact_coefficients_are_kept_and_pure_noise_is_averaged(rng):
+    shape = (32, 32)
+    ops = wavelet_operators(shape)
+    # No noise at all: every factor is 1 (0 / 0 is an exact coefficient, kept), the identity.
+    flat = forward(np.ones(shape), levels=ops.levels)
+    assert_allclose(shrinkage_gain(flat, coefficient_variance(np.zeros(shape), operators=ops), ops), 1.0, atol=1e-6)
+    # A flat image under noise: its detail coefficients are 0, so every factor is 0 and the scale
+    # band alone keeps a small share of each pixel (more at the corners, where the symmetric
+    # extension reflects a pixel onto itself).
+    gain = shrinkage_gain(flat, coefficient_variance(np.full(shape, 0.1), operators=ops), ops)
+    scale_only = [np.ones_like(flat[0])] + [tuple(np.zeros_like(b) for b in bands) for bands in flat[1:]]
+    assert_allclose(gain, shrinkage_diagonal(scale_only, ops), atol=1e-6)
+    assert gain[8:-8, 8:-8].max() < 0.2 and gain.min() >= 0.0
+
+
+def test_the_default_noise_model_is_the_shrinkage():
+    assert DEFAULT_NOISE_MODEL == "shrinkage" and DEFAULT_NOISE_MODEL in NOISE_MODELS
+    assert AdaptiveSampler((16, 16)).noise_model == "shrinkage"
+
+
+@pytest.mark.parametrize("bad", [-1.0, float("nan"), "1"])
+def test_a_bad_pilot_threshold_is_refused(bad):
+    coeffs = forward(np.zeros((8, 8)), levels=1)
+    with pytest.raises((ValueError, TypeError), match="c_s"):
+        shrinkage_gain(coeffs, coeffs, wavelet_operators((8, 8), levels=1), c_s=bad)
+
+
+def test_the_wiener_factor_matches_its_formula(rng):
+    from awr_denoise.noise_gain import _wiener_factor
+
+    w, var = rng.standard_normal(1000) * 3, rng.uniform(0, 2, 1000)
+    for dtype in (np.float32, np.float64):  # the variances come in either precision
+        got = _wiener_factor(w, var.astype(dtype), DEFAULT_C_S)
+        assert got.dtype == np.float32
+        assert_allclose(got, _wiener_of_soft(w, var.astype(dtype), DEFAULT_C_S), rtol=1e-6, atol=1e-7)
+    # Exact coefficients (0 / 0) are kept, pure noise dropped, huge coefficients kept, silently.
+    with np.errstate(all="raise"):
+        edge = _wiener_factor(np.array([0.0, 0.0, 1e30, 1e150]), np.array([0.0, 1.0, 1.0, 1e150]), 1.0)
+    assert_allclose(edge, [1.0, 0.0, 1.0, 1.0])

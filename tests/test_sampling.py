@@ -343,16 +343,27 @@ def test_samples_concentrate_on_edges():
         assert counts[near].mean() > 1.03 * counts[~near].mean()
 
 
-def test_samples_spread_over_smooth_noisy_regions():
+@pytest.mark.parametrize("noise_model", ["levels", "shrinkage"])
+def test_samples_spread_over_smooth_noisy_regions(noise_model):
     """"gradient" scene (noise growing left to right): the spp map is smooth and spread out,
-    no pixel far above the mean, and it follows the noise (more on the right than the left)."""
+    no pixel far above the mean, and it follows the noise (more on the right than the left).
+
+    "Far above": for the level term, no pixel beyond 4x the image's mean count. The shrinkage's
+    gain follows the decimated grid, so a single pixel of the noisy side reaches 4.1x the mean
+    (seed 0; 3.2x and 3.5x on seeds 1 and 2): what must not happen is a spike, so every pixel
+    stays within 2.5x of its 7x7 neighbourhood's mean (measured at most 1.74, the level term 1.92)
+    and the 7x7-smoothed map within 4x of the mean (measured at most 2.82 for both)."""
     scene = make_scene("gradient", QUALITY_SHAPE)
     for seed in QUALITY_SEEDS:
-        counts = AdaptiveSampler(QUALITY_SHAPE, seed=seed).run(SyntheticRenderer(scene, seed=seed), 16).count
+        counts = AdaptiveSampler(QUALITY_SHAPE, seed=seed, noise_model=noise_model).run(
+            SyntheticRenderer(scene, seed=seed), 16).count
         counts = counts.astype(np.float64)
-        assert counts.max() < 4.0 * counts.mean()
-        assert np.mean(counts > 4) > 0.9  # nearly every pixel got samples beyond round 0
         smoothed = ndimage.uniform_filter(counts, 7, mode="nearest")
+        if noise_model == "levels":
+            assert counts.max() < 4.0 * counts.mean()
+        else:
+            assert (counts < 2.5 * smoothed).all() and smoothed.max() < 4.0 * counts.mean()
+        assert np.mean(counts > 4) > 0.9  # nearly every pixel got samples beyond round 0
         assert smoothed.std() / smoothed.mean() < 0.6
         # Smooth: neighbouring pixels differ little compared with the spread across the image.
         roughness = np.abs(np.diff(counts, axis=0)).mean()
@@ -374,15 +385,16 @@ def _equal_sample_relmse(name, spp, seed):
 
 
 _UNIFORM_CATCHES_UP = pytest.mark.xfail(strict=True, reason=(
-    "measured with the default reconstruction (docs/reconstruction.md, 'Sampling'; "
-    "benchmarks/bench_reconstruct.py seeds): its Wiener stages remove uniform sampling's noise well enough "
-    "that per seed AWR sampling no longer always wins here (uniform/AWR relMSE, seeds 0-9: gradient 16 spp "
-    "0.88-1.56; fireflies 16 spp 0.78-1.43, 32 spp 0.95-1.28, where the pilot's threshold of 2, against "
-    "1.5, lowered uniform's relMSE by 9-18% and moved AWR's by at most 3%)"))
+    "measured with the default reconstruction and sampler (docs/sampling.md, 'The noise gain'; "
+    "benchmarks/bench_reconstruct.py seeds): the Wiener stages remove uniform sampling's noise well enough "
+    "that per seed AWR sampling does not always win on fireflies (uniform/AWR relMSE, seeds 0-9: 8 spp "
+    "0.82-3.39, 16 spp 0.82-1.64, 32 spp 0.96-1.26; with the paper's level model, the previous default, "
+    "uniform also won single seeds on gradient at 16 and 64 spp and on edges at 8 spp, which the "
+    "shrinkage's gain no longer loses)"))
 
 
 @pytest.mark.parametrize(("name", "spp"), [
-    pytest.param("gradient", 16, marks=_UNIFORM_CATCHES_UP), ("gradient", 32), ("edges", 16), ("edges", 32),
+    ("gradient", 16), ("gradient", 32), ("edges", 16), ("edges", 32),
     ("hdr_source", 16), ("hdr_source", 32), pytest.param("fireflies", 16, marks=_UNIFORM_CATCHES_UP),
     pytest.param("fireflies", 32, marks=_UNIFORM_CATCHES_UP)])
 def test_adaptive_beats_uniform_at_equal_samples(name, spp):
@@ -398,8 +410,8 @@ def test_adaptive_beats_uniform_at_equal_samples(name, spp):
 
 @pytest.mark.slow
 @pytest.mark.parametrize(("name", "spp"), [
-    ("gradient", 8), pytest.param("gradient", 64, marks=_UNIFORM_CATCHES_UP),
-    pytest.param("edges", 8, marks=_UNIFORM_CATCHES_UP), ("edges", 64), ("hdr_source", 8), ("hdr_source", 64),
+    ("gradient", 8), ("gradient", 64),
+    ("edges", 8), ("edges", 64), ("hdr_source", 8), ("hdr_source", 64),
     pytest.param("fireflies", 8, marks=_UNIFORM_CATCHES_UP), ("fireflies", 64)])
 def test_adaptive_beats_uniform_at_equal_samples_more_seeds(name, spp):
     ratios = []
@@ -417,20 +429,22 @@ def test_the_measured_gain_model_spends_by_the_default_reconstructions_gain():
     assert not np.array_equal(sampler.density(), _after_round_zero(AdaptiveSampler)[0].density())
 
 
+@pytest.mark.parametrize("noise_model", ["shrinkage", "reconstruction"])
 @pytest.mark.parametrize("name", ["gradient", "edges", "hdr_source"])
-def test_the_measured_gain_beats_the_level_model_and_uniform_at_equal_samples(name):
-    """AdaptiveSampler(noise_model="reconstruction") against the default ("levels") and uniform sampling,
-    the same seeds, 16 spp, reconstructed with the defaults. Measured over seeds 0-9 (docs/sampling.md,
-    "The measured noise gain"; benchmarks/bench_reconstruct.py seeds): relMSE levels / gain 1.10-1.57
-    (gradient), 1.08-1.24 (edges), 0.84-1.55 (hdr_source, where the capped level already gives the light
-    its samples: not held per seed); uniform / gain 1.14 at least; MSE levels / gain 1.19-1.39 on average."""
+def test_the_gain_models_beat_the_level_model_and_uniform_at_equal_samples(name, noise_model):
+    """The shrinkage's gain (the default) and the measured gain against the paper's level model and
+    uniform sampling, the same seeds, 16 spp, reconstructed with the defaults. Measured over seeds 0-9
+    (docs/sampling.md, "The noise gain"; benchmarks/bench_reconstruct.py seeds): relMSE levels / shrinkage
+    1.20-1.38 (gradient), 1.08-1.18 (edges), 0.79-1.27 (hdr_source, where the capped level already gives
+    the light its samples: not held per seed); the measured gain within 0.90-1.22 of the shrinkage's;
+    uniform / either 1.08 at least; MSE levels / shrinkage 1.15-1.29 on average."""
     scene = make_scene(name, QUALITY_SHAPE)
     reference = scene.reference()
     mse_ratios = []
     for seed in QUALITY_SEEDS:
         errors = {}
-        for kind, sampler in (("gain", AdaptiveSampler(QUALITY_SHAPE, seed=seed, noise_model="reconstruction")),
-                              ("levels", AdaptiveSampler(QUALITY_SHAPE, seed=seed)),
+        for kind, sampler in (("gain", AdaptiveSampler(QUALITY_SHAPE, seed=seed, noise_model=noise_model)),
+                              ("levels", AdaptiveSampler(QUALITY_SHAPE, seed=seed, noise_model="levels")),
                               ("uniform", UniformSampler(QUALITY_SHAPE, seed=seed))):
             image = reconstruct(sampler.run(SyntheticRenderer(scene, seed=seed), 16))
             errors[kind] = relmse(image, reference), mse(image, reference)
@@ -441,7 +455,7 @@ def test_the_measured_gain_beats_the_level_model_and_uniform_at_equal_samples(na
     assert np.mean(mse_ratios) > 1.0, mse_ratios
 
 
-@pytest.mark.parametrize("noise_model", ["levels", "reconstruction"])
+@pytest.mark.parametrize("noise_model", ["shrinkage", "levels", "reconstruction"])
 def test_an_executor_leaves_the_requests_as_they_are(noise_model):
     from concurrent.futures import ThreadPoolExecutor
 
