@@ -259,6 +259,7 @@ SAMPLER_KINDS: dict[str, Any] = {
     "awr": lambda shape, seed: AdaptiveSampler(shape, seed=seed),
     "awr, linear priorities": lambda shape, seed: AdaptiveSampler(shape, seed=seed, domain="linear"),
     "awr, measured gain": lambda shape, seed: AdaptiveSampler(shape, seed=seed, noise_model="reconstruction"),
+    "awr, levels": lambda shape, seed: AdaptiveSampler(shape, seed=seed, noise_model="levels"),
     "awr, relative error alone": lambda shape, seed: AdaptiveSampler(shape, seed=seed, absolute_above=None),
 }
 """``samplers``: the strategies compared at equal samples, each made from (shape, seed)."""
@@ -273,12 +274,13 @@ def cap_kinds(caps: tuple[float, ...]) -> dict[str, Any]:
 
 
 REFRESH_KINDS: dict[str, Any] = {
-    "awr": SAMPLER_KINDS["awr"],
+    "awr, levels": SAMPLER_KINDS["awr, levels"],
     "awr, measured gain": SAMPLER_KINDS["awr, measured gain"],
     **{f"awr, measured gain, refresh {r:g}": (lambda shape, seed, r=r: AdaptiveSampler(
         shape, seed=seed, noise_model="reconstruction", gain_refresh=r)) for r in (1.5, 2.0)},
 }
-"""``refresh``: the measured gain measured every round (the default) and once the samples grew by 1.5 or 2."""
+"""``refresh``: the measured gain measured every round (the default) and once the samples grew by 1.5 or 2, against
+the paper's level model (the samplers' default when the section was written)."""
 
 
 def samplers(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], seeds: int,
@@ -324,19 +326,20 @@ def refresh_table(rows: list[dict]) -> None:
     def mean(key: str, **where: Any) -> float:
         return _mean(rows, key, method="default", **where)
 
-    print("\n| scene | spp | relMSE awr / measured gain | " + " | ".join(
-        f"relMSE awr / {k.split(', ')[-1]}" for k in refreshed) + " | MSE awr / measured gain | " + " | ".join(
-        f"MSE awr / {k.split(', ')[-1]}" for k in refreshed) + " | ask() CPU time to the spp, awr / every round / "
+    print("\n| scene | spp | relMSE levels / measured gain | " + " | ".join(
+        f"relMSE levels / {k.split(', ')[-1]}" for k in refreshed) + " | MSE levels / measured gain | " + " | ".join(
+        f"MSE levels / {k.split(', ')[-1]}" for k in refreshed) + " | ask() CPU time to the spp, levels / every round / "
         + " / ".join(k.split(", ")[-1] for k in refreshed) + " |")
     print("|---|---|" + "---|" * (3 + 2 * len(refreshed)))
     for scene in dict.fromkeys(r["scene"] for r in rows):
         for spp in sorted({r["spp"] for r in rows}):
-            kinds = ["awr", "awr, measured gain", *refreshed]
+            base = "awr, levels" if any(r["sampler"] == "awr, levels" for r in rows) else "awr"  # older runs: "awr"
+            kinds = [base, "awr, measured gain", *refreshed]
             rel = {k: mean("relmse", scene=scene, spp=spp, sampler=k) for k in kinds}
             sq = {k: mean("mse", scene=scene, spp=spp, sampler=k) for k in kinds}
             ask = [mean("ask_seconds", scene=scene, spp=spp, sampler=k) for k in kinds]
-            print(f"| {scene} | {spp} | " + " | ".join(f"{rel['awr'] / rel[k]:.2f}" for k in kinds[1:]) + " | "
-                  + " | ".join(f"{sq['awr'] / sq[k]:.2f}" for k in kinds[1:]) + " | "
+            print(f"| {scene} | {spp} | " + " | ".join(f"{rel[base] / rel[k]:.2f}" for k in kinds[1:]) + " | "
+                  + " | ".join(f"{sq[base] / sq[k]:.2f}" for k in kinds[1:]) + " | "
                   + " / ".join(f"{t:.2f}" for t in ask) + " s |")
 
 
@@ -384,6 +387,25 @@ def sampler_table(rows: list[dict]) -> None:
             print(f"| {scene} | {spp} | {a['r']:.5f} | {g['r']:.5f} | {a['r'] / g['r']:.2f} | {a['m'] / g['m']:.2f} "
                   f"| {u['r'] / g['r']:.2f}, {u['m'] / g['m']:.2f} | {100 * worst[0]:.2f}, {100 * worst[1]:.2f} "
                   f"| {time_cell} |")
+    levels, measured = "awr, levels", "awr, measured gain"
+    if any(r["sampler"] == levels for r in rows):
+        print("\n| scene | spp | relMSE levels | relMSE awr | levels / awr, relMSE and MSE "
+              "| measured gain / awr, relMSE and MSE | uniform / awr, relMSE and MSE "
+              "| worst image-mean error against the reference %, levels and awr "
+              "| ask() CPU time to 32 spp, levels, awr and measured gain |")
+        print("|---|---|---|---|---|---|---|---|---|")
+    for scene in scenes if any(r["sampler"] == levels for r in rows) else []:
+        for spp in spps:
+            a, lv, g, u = (errors(scene, spp, k) for k in ("awr", levels, measured, "uniform"))
+            worst = [max(r["reference_mean_error"] for r in rows if r["method"] == "default" and r["scene"] == scene
+                         and r["spp"] == spp and r["sampler"] == k) for k in (levels, "awr")]
+            time_cell = ""
+            if spp == max(spps):
+                times = (mean("ask_seconds", scene=scene, spp=spp, sampler=k) for k in (levels, "awr", measured))
+                time_cell = ", ".join(f"{t:.2f} s" for t in times)
+            print(f"| {scene} | {spp} | {lv['r']:.5f} | {a['r']:.5f} | {lv['r'] / a['r']:.2f}, {lv['m'] / a['m']:.2f} "
+                  f"| {g['r'] / a['r']:.2f}, {g['m'] / a['m']:.2f} | {u['r'] / a['r']:.2f}, {u['m'] / a['m']:.2f} "
+                  f"| {100 * worst[0]:.2f}, {100 * worst[1]:.2f} | {time_cell} |")
     caps = sorted({float(r["sampler"].split()[-1]) for r in rows if r["sampler"].startswith("awr, cap ")})
     if not caps:
         return
@@ -404,7 +426,7 @@ SEED_SHAPE = (64, 64)  # tests/test_sampling.py's size
 
 
 def seeds(names: tuple[str, ...], spps: tuple[int, ...], count: int) -> list[dict[str, Any]]:
-    """Per seed, as tests/test_sampling.py runs them: AWR sampling (levels and measured gain) and uniform sampling,
+    """Per seed, as tests/test_sampling.py runs them: AWR sampling (the default, levels, measured gain) and uniform,
     each from scratch, the default (relMSE and MSE), and relMSE with the previous pilot threshold (1.5)."""
     rows = []
     for name in names:
@@ -412,7 +434,7 @@ def seeds(names: tuple[str, ...], spps: tuple[int, ...], count: int) -> list[dic
         ref = scene.reference()
         for spp in spps:
             for seed in range(count):
-                for kind in ("awr", "uniform", "awr, measured gain"):
+                for kind in ("awr", "uniform", "awr, measured gain", "awr, levels"):
                     sampler = SAMPLER_KINDS[kind](SEED_SHAPE, seed)
                     buffer = sampler.run(SyntheticRenderer(scene, seed=seed), spp)
                     image, before = reconstruct(buffer), reconstruct(buffer, c_s=1.5)
@@ -443,8 +465,8 @@ def seeds_table(rows: list[dict]) -> None:
                   + f" | {np.mean(squared):.2f} ({min(squared):.2f}) |")
     if not any(r["sampler"] == "awr, measured gain" for r in rows):
         return
-    print("\n| scene | spp | seeds | relMSE levels / measured gain, least-most (mean) | uniform / measured gain, "
-          "least-most (mean) | seeds where uniform wins | MSE levels / measured gain, mean (least) |")
+    print("\n| scene | spp | seeds | relMSE awr / measured gain, least-most (mean) | uniform / measured gain, "
+          "least-most (mean) | seeds where uniform wins | MSE awr / measured gain, mean (least) |")
     print("|---|---|---|---|---|---|---|")
     for name in dict.fromkeys(r["scene"] for r in rows):
         for spp in sorted({r["spp"] for r in rows if r["scene"] == name}):
@@ -458,6 +480,23 @@ def seeds_table(rows: list[dict]) -> None:
             lost = [str(i) for i, r in zip(ids, uni) if r <= 1] or ["none"]
             print(f"| {name} | {spp} | 0-{ids[-1]} | {min(lev):.2f}-{max(lev):.2f} ({np.mean(lev):.2f}) | "
                   f"{min(uni):.2f}-{max(uni):.2f} ({np.mean(uni):.2f}) | {', '.join(lost)} | "
+                  f"{np.mean(sq):.2f} ({min(sq):.2f}) |")
+    if not any(r["sampler"] == "awr, levels" for r in rows):
+        return
+    print("\n| scene | spp | seeds | relMSE levels / awr, least-most (mean) | seeds where levels wins "
+          "| uniform / levels, least-most (mean) | seeds where uniform beats levels | MSE levels / awr, mean (least) |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name in dict.fromkeys(r["scene"] for r in rows):
+        for spp in sorted({r["spp"] for r in rows if r["scene"] == name}):
+            get = {(r["seed"], r["sampler"]): r for r in rows if r["scene"] == name and r["spp"] == spp}
+            ids = sorted({i for i, _ in get})
+            lev = [get[i, "awr, levels"]["relmse"] / get[i, "awr"]["relmse"] for i in ids]
+            uni = [get[i, "uniform"]["relmse"] / get[i, "awr, levels"]["relmse"] for i in ids]
+            sq = [get[i, "awr, levels"]["mse"] / get[i, "awr"]["mse"] for i in ids]
+            won = [str(i) for i, r in zip(ids, lev) if r < 1] or ["none"]
+            lost = [str(i) for i, r in zip(ids, uni) if r <= 1] or ["none"]
+            print(f"| {name} | {spp} | 0-{ids[-1]} | {min(lev):.2f}-{max(lev):.2f} ({np.mean(lev):.2f}) | "
+                  f"{', '.join(won)} | {min(uni):.2f}-{max(uni):.2f} ({np.mean(uni):.2f}) | {', '.join(lost)} | "
                   f"{np.mean(sq):.2f} ({min(sq):.2f}) |")
 
 

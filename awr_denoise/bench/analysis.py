@@ -262,7 +262,7 @@ def _equal_time(uniform_curve: list[dict[str, Any]], row: dict[str, dict[str, An
     return out
 
 
-FLAG_METHODS = ("uniform+awr", "awr+awr", "awr-gain+awr", "variance+awr")
+FLAG_METHODS = ("uniform+awr", "awr+awr", "awr-levels+awr", "awr-gain+awr", "variance+awr")
 """The methods whose defaults a flag judges against the plain mean at equal samples."""
 
 

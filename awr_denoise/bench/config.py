@@ -9,14 +9,17 @@ from ..domains import Domain
 
 __all__ = ["BenchmarkConfig", "METHODS", "METHOD_LABELS", "DOMAINS", "OVERHEAD_SIZES"]
 
-METHODS = ("uniform", "uniform+awr", "awr+awr", "awr-gain+awr", "variance+awr", "uniform+skimage", "uniform+oidn")
-"""Methods compared at equal samples. ``sampler+reconstruction``; ``uniform`` is the plain mean; ``awr-gain`` is
-``AdaptiveSampler(noise_model="reconstruction")``."""
+METHODS = ("uniform", "uniform+awr", "awr+awr", "awr-levels+awr", "awr-gain+awr", "variance+awr", "uniform+skimage",
+           "uniform+oidn")
+"""Methods compared at equal samples. ``sampler+reconstruction``; ``uniform`` is the plain mean; ``awr`` is
+``AdaptiveSampler()``, ``awr-levels`` the same with the paper's level term (``noise_model="levels"``), ``awr-gain``
+with the measured gain (``noise_model="reconstruction"``)."""
 
 METHOD_LABELS = {
     "uniform": "uniform MC (mean)",
     "uniform+awr": "uniform + AWR reconstruction",
     "awr+awr": "AWR sampling + AWR reconstruction",
+    "awr-levels+awr": "AWR sampling by the paper's levels + AWR reconstruction",
     "awr-gain+awr": "AWR sampling by the measured noise gain + AWR reconstruction",
     "variance+awr": "variance sampling + AWR reconstruction",
     "uniform+skimage": "uniform + skimage BayesShrink",

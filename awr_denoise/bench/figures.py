@@ -21,7 +21,8 @@ __all__ = ["PLOT_HINT", "require_matplotlib", "write_figures", "error_window"]
 
 PLOT_HINT = 'the benchmark plots need matplotlib; install it with pip install "awr-denoise[bench]"'
 
-_COLORS = {"uniform": "black", "uniform+awr": "tab:blue", "awr+awr": "tab:red", "awr-gain+awr": "tab:brown",
+_COLORS = {"uniform": "black", "uniform+awr": "tab:blue", "awr+awr": "tab:red", "awr-levels+awr": "tab:pink",
+           "awr-gain+awr": "tab:brown",
            "variance+awr": "tab:orange",
            "uniform+skimage": "tab:green", "uniform+oidn": "tab:purple"}
 _DOMAIN_COLORS = {"linear": "tab:gray", "log": "tab:blue", "gamma": "tab:green", "log robust": "tab:red"}
@@ -169,7 +170,7 @@ def _error_vs_time(figure: type, results: dict[str, Any], scenes: list[str]) -> 
 
 def _density(figure: type, images: dict[str, Any], scenes: list[str]) -> Any:
     """Sample density of the adaptive samplers, beside each scene's reference."""
-    dens_methods = [m for m in ("awr+awr", "awr-gain+awr", "variance+awr") if all(m in images[s]["density"] for s in scenes)]
+    dens_methods = [m for m in ("awr+awr", "awr-levels+awr", "awr-gain+awr", "variance+awr") if all(m in images[s]["density"] for s in scenes)]
     cols = 1 + len(dens_methods)
     fig = figure(figsize=(2.2 * cols, 2.2 * len(scenes)))
     for i, name in enumerate(scenes):

@@ -28,6 +28,7 @@ __all__ = ["ADAPTIVE_METHODS", "check_flags", "method_and_plain"]
 
 ADAPTIVE_METHODS: dict[str, Callable[..., Sampler]] = {
     "awr+awr": AdaptiveSampler,
+    "awr-levels+awr": functools.partial(AdaptiveSampler, noise_model="levels"),
     "awr-gain+awr": functools.partial(AdaptiveSampler, noise_model="reconstruction"),
     "variance+awr": VarianceSampler,
 }

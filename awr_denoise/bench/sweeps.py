@@ -14,6 +14,7 @@ import numpy as np
 from .._typing import FloatArray
 from ..buffers import SampleBuffer
 from ..metrics import relmse
+from ..noise_gain import DEFAULT_NOISE_MODEL
 from ..reconstruct import reconstruct
 from ..sampling import DEFAULT_ROUND_GROWTH, AdaptiveSampler
 from ..wavelets import default_levels, max_levels
@@ -82,7 +83,7 @@ def defaults_sweep(scene: Any, reference: FloatArray, config: BenchmarkConfig,
     """relMSE of one default changed at a time (mean over seeds), at ``defaults_spp``.
 
     Reconstruction settings (levels, wavelet, mode) on uniform buffers; sampler settings
-    (``uniform_fraction``, ``level_weight``, round size) with :class:`AdaptiveSampler` and the
+    (``uniform_fraction``, ``noise_model``, ``level_weight``, round size) with :class:`AdaptiveSampler` and the
     default reconstruction, with the sampler's CPU time as a share of the tracer's.
 
     Parameters
@@ -136,7 +137,11 @@ def _sampler_settings(add: Callable[..., None], scene: Any, reference: FloatArra
     shape = (scene.height, scene.width)
     spp = config.defaults_spp
     variants = [("uniform_fraction", v, {"uniform_fraction": v}, v == 0.0) for v in (0.0, 0.1, 0.3)]
-    variants += [("level_weight", v, {"level_weight": v}, v == 0.25) for v in (0.0, 0.25, 1.0)]
+    # The level weight acts only in the paper's level model, no longer the default noise model.
+    variants += [("noise_model", m, {"noise_model": m} | ({"level_weight": 0.25} if m == "levels" else {}),
+                  m == DEFAULT_NOISE_MODEL) for m in ("shrinkage", "levels")]
+    variants += [("level_weight (noise_model levels)", v, {"noise_model": "levels", "level_weight": v}, False)
+                 for v in (0.0, 0.25, 1.0)]
     variants += [("round_spp", v, {"round_spp": v}, False) for v in (0.25, 2.0, 8.0)]
     variants += [("round_growth", v, {"round_growth": v}, v == DEFAULT_ROUND_GROWTH) for v in (0.25, 0.5, 1.0)]
     cache: dict[tuple, tuple[list[float], float]] = {}

@@ -31,7 +31,8 @@ def test_benchmark_pipeline_on_tiny_scenes(tiny_run):
         assert scene["reference"]["spp"] == 256
         assert [r["spp"] for r in scene["uniform_curve"]] == [4, 8, 16, 32]
         methods = scene["methods"]
-        assert set(methods) == {"uniform", "uniform+awr", "awr+awr", "awr-gain+awr", "variance+awr", "uniform+skimage"}
+        assert set(methods) == {"uniform", "uniform+awr", "awr+awr", "awr-levels+awr", "awr-gain+awr", "variance+awr",
+                                "uniform+skimage"}
         for spp in (4, 8):
             mc = next(r for r in methods["uniform"] if r["spp"] == spp)
             for method in ("uniform+awr", "awr+awr", "awr-gain+awr"):
