@@ -13,13 +13,13 @@
 Measured on both renderers (docs/sampling.md, "The noise gain"), the shrinkage's gain has 1.01-1.25x
 lower relMSE than the level model on every scene and sample count, and is as good as the measured
 gain on average. The measured gain (:attr:`~awr_denoise.Reconstruction.noise_gain`) costs one
-reconstruction a round, ten to 32 spp at the samplers' default round growth. Between two rounds the image changes little, and the gain, a property of the image's
-structure (edges kept, smooth regions averaged), changes less: :class:`MeasuredGain` measures it
-again only once the buffer's samples have grown by a factor ``refresh`` since the last
-measurement. The default, 1, measures every round. Measured on both renderers (docs/sampling.md,
-"Measuring the gain less often"): 1.5 (every other round at the default round growth) halves the
-sampler's time and keeps most of the gain's advantage over the level model, 2 keeps less of it at
-a third of the time.
+reconstruction a round, ten to 32 spp at the samplers' default round growth. Between two rounds the
+image changes little, and the gain, a property of the image's structure (edges kept, smooth regions
+averaged), changes less: :class:`MeasuredGain` measures it again only once the buffer's samples have
+grown by a factor ``refresh`` since the last measurement. The default, 1, measures every round.
+Measured on both renderers (docs/sampling.md, "Measuring the gain less often"): 1.5 (every other
+round at the default round growth) halves the sampler's time and keeps most of the gain's advantage
+over the level model, 2 keeps less of it at a third of the time.
 """
 
 from __future__ import annotations

@@ -480,10 +480,9 @@ class AdaptiveSampler(Sampler):
     domain
         Error domain of the priorities; use the reconstruction's (``"log"`` by default).
     level_weight
-        ``noise_model="levels"`` only: weight ``w`` of the level term, ``n_p ~ s_p 2^(-w l_p)``. The level model
-        gives ``w = 1`` if reconstruction averaged a smooth region completely; soft thresholding at ``c_s = 1``
-        keeps part of the noise, and measurement (docs/sampling.md) puts the best value near 0.25, the
-        default. 0 turns the sampler into per-pixel variance sampling.
+        ``noise_model="levels"`` only (refused with the others): ``w`` in ``n_p ~ s_p 2^(-w l_p)``; ``w = 1`` if
+        reconstruction averaged a smooth region completely, measured best near 0.25, the default (docs/sampling.md).
+        0 turns the sampler into per-pixel variance sampling.
     uniform_fraction
         Share of every round spread uniformly, insurance against variance estimates that are wrong
         (all first samples of a region may miss a small light); off by default: measured, it cost
@@ -493,11 +492,11 @@ class AdaptiveSampler(Sampler):
         mean level: a small bright source is ranked by its absolute error, not starved (``None``: not
         capped; :func:`~awr_denoise.priorities.pooled_deviation`, docs/sampling.md "Relative and absolute error").
     noise_model, gain_refresh
-        What reconstruction leaves of a pixel's noise, the factor on ``s_p``: ``"levels"`` (the paper's model
-        above), ``"shrinkage"`` (the default: ``n_p ~ s_p sqrt(g_p)``, ``g_p`` a Wiener shrinkage's exact share,
+        What reconstruction leaves of a pixel's noise (docs/sampling.md, "The noise gain"): ``"levels"`` (the paper's
+        model above), ``"shrinkage"`` (the default: ``n_p ~ s_p sqrt(g_p)``, ``g_p`` a Wiener shrinkage's exact share,
         :func:`~awr_denoise.noise_gain.shrinkage_gain`) or ``"reconstruction"`` (``g_p`` the default reconstruction's
         measured share, measured again once the samples grow by ``gain_refresh``, default 1: every round,
-        :class:`~awr_denoise.noise_gain.MeasuredGain`; several times the sampler's time). docs/sampling.md, "The noise gain".
+        :class:`~awr_denoise.noise_gain.MeasuredGain`; several times the sampler's time).
 
     Examples
     --------
@@ -518,18 +517,20 @@ class AdaptiveSampler(Sampler):
     def __init__(self, shape: Shape2D, *, channels: int | tuple[str, ...] = 3, initial_spp: int = DEFAULT_INITIAL_SPP,
                  wavelet: str = DEFAULT_WAVELET, levels: int | None = None, seed: int = 0,
                  spp_min: int | None = None, spp_max: int | None = None, round_spp: float | None = None,
-                 round_growth: float = DEFAULT_ROUND_GROWTH, domain: str | Domain = "log", level_weight: float = 0.25,
+                 round_growth: float = DEFAULT_ROUND_GROWTH, domain: str | Domain = "log", level_weight: float | None = None,
                  uniform_fraction: float = 0.0, noise_model: str = DEFAULT_NOISE_MODEL, gain_refresh: float | None = None,
                  absolute_above: float | None = DEFAULT_ABSOLUTE_ABOVE, executor: Executor | None = None) -> None:
         super().__init__(shape, channels=channels, initial_spp=initial_spp, seed=seed, spp_min=spp_min,
                          spp_max=spp_max, round_spp=round_spp, round_growth=round_growth, executor=executor)
         wavelet_operators(self._shape, wavelet=wavelet, levels=levels)  # validates wavelet and levels now
         self.wavelet, self.levels, self.domain = wavelet, levels, domain
-        self.level_weight = _checks.real("level_weight", level_weight, minimum=0)
         self.uniform_fraction = _checks.real("uniform_fraction", uniform_fraction, minimum=0.0, maximum=1.0)
         self.noise_model = _checks.name("noise_model", noise_model, NOISE_MODELS)
-        if gain_refresh is not None and self.noise_model != "reconstruction":  # it would do nothing: refused
-            raise ValueError(f"gain_refresh: {gain_refresh!r} needs noise_model='reconstruction' (the measured gain)")
+        for name, value, model in (("level_weight", level_weight, "levels"),
+                                   ("gain_refresh", gain_refresh, "reconstruction")):
+            if value is not None and self.noise_model != model:  # it would do nothing: refused
+                raise ValueError(f"{name}: {value!r} needs noise_model={model!r}, not {self.noise_model!r}")
+        self.level_weight = _checks.real("level_weight", 0.25 if level_weight is None else level_weight, minimum=0)
         self._gain = None if self.noise_model != "reconstruction" else MeasuredGain(
             DEFAULT_GAIN_REFRESH if gain_refresh is None else gain_refresh)
         self.absolute_above = _checks.real("absolute_above", absolute_above, above=0, none=True)

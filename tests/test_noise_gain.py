@@ -53,7 +53,7 @@ def test_a_refresh_below_one_or_not_a_number_is_refused(bad):
 
 
 def test_the_sampler_takes_gain_refresh_only_with_the_measured_gain():
-    with pytest.raises(ValueError, match="gain_refresh: 2.0 needs noise_model='reconstruction'"):
+    with pytest.raises(ValueError, match="gain_refresh: 2.0 needs noise_model='reconstruction', not 'shrinkage'"):
         AdaptiveSampler((16, 16), gain_refresh=2.0)
     with pytest.raises(ValueError, match="gain_refresh"):
         AdaptiveSampler((16, 16), noise_model="reconstruction", gain_refresh=0.9)
@@ -164,3 +164,12 @@ def test_the_wiener_factor_matches_its_formula(rng):
     with np.errstate(all="raise"):
         edge = _wiener_factor(np.array([0.0, 0.0, 1e30, 1e150]), np.array([0.0, 1.0, 1.0, 1e150]), 1.0)
     assert_allclose(edge, [1.0, 0.0, 1.0, 1.0])
+
+
+def test_the_sampler_takes_level_weight_only_with_the_level_model():
+    """A setting that would do nothing is refused, not ignored: the level weight acts in the level term alone."""
+    for model in ("shrinkage", "reconstruction"):
+        with pytest.raises(ValueError, match=f"level_weight: 0.5 needs noise_model='levels', not '{model}'"):
+            AdaptiveSampler((16, 16), level_weight=0.5, noise_model=model)
+    assert AdaptiveSampler((16, 16), noise_model="levels").level_weight == 0.25
+    assert AdaptiveSampler((16, 16), level_weight=1.0, noise_model="levels").level_weight == 1.0
