@@ -468,36 +468,44 @@ def seeds_table(rows: list[dict]) -> None:
     print("\n| scene | spp | seeds | relMSE awr / measured gain, least-most (mean) | uniform / measured gain, "
           "least-most (mean) | seeds where uniform wins | MSE awr / measured gain, mean (least) |")
     print("|---|---|---|---|---|---|---|")
-    for name in dict.fromkeys(r["scene"] for r in rows):
-        for spp in sorted({r["spp"] for r in rows if r["scene"] == name}):
-            get = {(r["seed"], r["sampler"]): r for r in rows if r["scene"] == name and r["spp"] == spp}
-            ids = sorted({i for i, _ in get})
-
-            def ratios(over: str, key: str = "relmse") -> list[float]:
-                return [get[i, over][key] / get[i, "awr, measured gain"][key] for i in ids]
-
-            lev, uni, sq = ratios("awr"), ratios("uniform"), ratios("awr", "mse")
-            lost = [str(i) for i, r in zip(ids, uni) if r <= 1] or ["none"]
-            print(f"| {name} | {spp} | 0-{ids[-1]} | {min(lev):.2f}-{max(lev):.2f} ({np.mean(lev):.2f}) | "
-                  f"{min(uni):.2f}-{max(uni):.2f} ({np.mean(uni):.2f}) | {', '.join(lost)} | "
-                  f"{np.mean(sq):.2f} ({min(sq):.2f}) |")
+    for name, spp, ids, ratios in _seed_ratios(rows):
+        lev, uni, sq = (ratios(over, "awr, measured gain", key)
+                        for over, key in (("awr", "relmse"), ("uniform", "relmse"), ("awr", "mse")))
+        print(f"| {name} | {spp} | 0-{ids[-1]} | {_span(lev)} | {_span(uni)} | {_where(ids, uni)} | "
+              f"{np.mean(sq):.2f} ({min(sq):.2f}) |")
     if not any(r["sampler"] == "awr, levels" for r in rows):
         return
     print("\n| scene | spp | seeds | relMSE levels / awr, least-most (mean) | seeds where levels wins "
           "| uniform / levels, least-most (mean) | seeds where uniform beats levels | MSE levels / awr, mean (least) |")
     print("|---|---|---|---|---|---|---|---|")
+    for name, spp, ids, ratios in _seed_ratios(rows):
+        lev, uni = ratios("awr, levels", "awr"), ratios("uniform", "awr, levels")
+        sq = ratios("awr, levels", "awr", "mse")
+        won = ", ".join(str(i) for i, r in zip(ids, lev) if r < 1) or "none"  # levels' error below the default's
+        print(f"| {name} | {spp} | 0-{ids[-1]} | {_span(lev)} | {won} | {_span(uni)} | {_where(ids, uni)} | "
+              f"{np.mean(sq):.2f} ({min(sq):.2f}) |")
+
+
+def _seed_ratios(rows: list[dict]) -> Any:
+    """Per scene and spp: the seeds and ``ratios(over, under, key="relmse")``, two samplers' errors seed by seed."""
     for name in dict.fromkeys(r["scene"] for r in rows):
         for spp in sorted({r["spp"] for r in rows if r["scene"] == name}):
             get = {(r["seed"], r["sampler"]): r for r in rows if r["scene"] == name and r["spp"] == spp}
             ids = sorted({i for i, _ in get})
-            lev = [get[i, "awr, levels"]["relmse"] / get[i, "awr"]["relmse"] for i in ids]
-            uni = [get[i, "uniform"]["relmse"] / get[i, "awr, levels"]["relmse"] for i in ids]
-            sq = [get[i, "awr, levels"]["mse"] / get[i, "awr"]["mse"] for i in ids]
-            won = [str(i) for i, r in zip(ids, lev) if r < 1] or ["none"]
-            lost = [str(i) for i, r in zip(ids, uni) if r <= 1] or ["none"]
-            print(f"| {name} | {spp} | 0-{ids[-1]} | {min(lev):.2f}-{max(lev):.2f} ({np.mean(lev):.2f}) | "
-                  f"{', '.join(won)} | {min(uni):.2f}-{max(uni):.2f} ({np.mean(uni):.2f}) | {', '.join(lost)} | "
-                  f"{np.mean(sq):.2f} ({min(sq):.2f}) |")
+
+            def ratios(over: str, under: str, key: str = "relmse", get: dict = get, ids: list = ids) -> list[float]:
+                return [get[i, over][key] / get[i, under][key] for i in ids]
+
+            yield name, spp, ids, ratios
+
+
+def _span(values: list[float]) -> str:
+    return f"{min(values):.2f}-{max(values):.2f} ({np.mean(values):.2f})"
+
+
+def _where(ids: list, values: list[float]) -> str:
+    """The seeds whose ratio is at most 1 (uniform's error over a sampler's: where uniform wins)."""
+    return ", ".join(str(i) for i, r in zip(ids, values) if r <= 1) or "none"
 
 
 # ---------------------------------------------------------------------------- synthetic
