@@ -23,6 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from . import fused
 from ._typing import FloatArray
 from .prepare import Prepared
 from .wavelets import WaveletOperators, _forward, _plane_variance, coefficient_variance, forward, inverse
@@ -117,74 +118,24 @@ def _output_variance(var_y: FloatArray, factors: list, ops: WaveletOperators, pr
     return acc / probes
 
 
-def _single(x: float) -> np.float32:
-    """A non-negative setting as float32, the largest float32 where it is beyond (no overflow warning)."""
-    return np.float32(min(x, float(np.finfo(np.float32).max)))
+def _threshold_plane32(y: FloatArray, var_y: FloatArray, c_s: float,
+                       ops: WaveletOperators) -> tuple[FloatArray, list, int, int]:
+    """Eq. 10-11 on one float32 plane, in place where it can (:func:`~awr_denoise.fused.shrink_band`).
 
-
-def _log_plane32(mean: FloatArray, sample_variance: FloatArray, count: FloatArray,
-                 k: float) -> tuple[FloatArray, FloatArray] | None:
-    """One channel in the log domain in float32: ``y = sign(x) log(1 + |x| / k)`` and its
-    delta-method variance ``(s2 / n) / (|x| + k)^2``, computed as ``(s2 / k^2 / n) / (1 + |x| / k)^2``;
-    ``None`` when ``|x| / k`` or ``s2 / k^2`` do not fit in float32 (the caller then takes the
-    float64 path). ``log`` rather than ``log1p``: five times faster in float32, and the absolute
-    error it adds near 0 (a float32 epsilon of ``1 + |x| / k``) is that of float32 ``y`` anyway."""
-    u = np.empty(mean.shape, np.float32)
-    var_y = np.empty(mean.shape, np.float32)
-    with np.errstate(over="ignore"):  # checked below: an overflow sends the stage to float64
-        np.divide(mean, k, out=u, casting="unsafe")
-        np.divide(sample_variance, k * k, out=var_y, casting="unsafe")
-    a = np.abs(u)
-    if not (np.isfinite(a.max()) and np.isfinite(var_y.max())):
-        return None
-    var_y /= count
-    a += 1.0
-    y = np.log(a)
-    np.copysign(y, u, out=y)
-    a *= a
-    var_y /= a
-    return y, var_y
-
-
-def _threshold_plane32(y: FloatArray, var_y: FloatArray, c_s: float, ops: WaveletOperators,
-                       pixel_clamp: float | None) -> tuple[FloatArray, list, int, int, FloatArray | None]:
-    """Eq. 10-11 on one float32 plane, in place where it can; then the pixel clamp in the domain.
-
-    Returns the thresholded plane, the thresholds ``c_s * Delta``, the zeroed and total
-    detail coefficients, and where the clamp has zero width (``None`` without a clamp). The
-    shrink factors are not kept (see :func:`_factors32`).
+    Returns the synthesised plane (before the pixel clamp), the thresholds ``c_s * Delta``, and
+    the zeroed and total detail coefficients. The shrink factors are not kept (see
+    :func:`_factors32`).
     """
     coeffs = _forward(y, ops.wavelet, ops.levels, ops.boundary)  # y is finite: made and checked here
     variances = _plane_variance(var_y, ops)
     thresholds: list = [None]
     zeroed = total = 0
     for level in range(1, len(coeffs)):
-        band_t = []
-        for b in range(3):
-            w, t = coeffs[level][b], variances[level][b]
-            np.sqrt(t, out=t)
-            with np.errstate(over="ignore"):  # a huge c_s: infinite thresholds zero every coefficient
-                t *= _single(c_s)
-            shrunk = np.abs(w)  # Eq. 11 in place: sign(w) max(|w| - t, 0)
-            shrunk -= t
-            np.maximum(shrunk, 0.0, out=shrunk)
-            zeroed += w.size - int(np.count_nonzero(shrunk))
-            total += w.size
-            np.copysign(shrunk, w, out=w)
-            band_t.append(t)
-        thresholds.append(tuple(band_t))
-    out = inverse(coeffs, ops.shape, wavelet=ops.wavelet, boundary=ops.boundary)
-    pinned = None
-    if pixel_clamp is not None:
-        reach = np.sqrt(var_y, out=var_y)  # var_y is not needed after this
-        with np.errstate(over="ignore"):  # a huge pixel_clamp: an infinite reach clamps nothing
-            reach *= _single(pixel_clamp)
-        bound = y + reach
-        np.minimum(out, bound, out=out)
-        np.subtract(y, reach, out=bound)
-        np.maximum(out, bound, out=out)
-        pinned = reach == 0  # a clamp of zero width: these pixels keep their mean, bit for bit
-    return out, thresholds, zeroed, total, pinned
+        for b in range(3):  # Eq. 11 in place; the variances become the thresholds c_s * Delta
+            zeroed += fused.shrink_band(coeffs[level][b], variances[level][b], c_s)
+            total += coeffs[level][b].size
+        thresholds.append(variances[level])
+    return inverse(coeffs, ops.shape, wavelet=ops.wavelet, boundary=ops.boundary), thresholds, zeroed, total
 
 
 def _factors32(y: FloatArray, thresholds: list, ops: WaveletOperators) -> list:
@@ -202,26 +153,6 @@ def _factors32(y: FloatArray, thresholds: list, ops: WaveletOperators) -> list:
     return factors
 
 
-def _inverse_log_into(out: FloatArray, y: FloatArray, k: float) -> None:
-    """``out = sign(y) k (exp(|y|) - 1)`` written into ``out`` (an (H, W) float64 view).
-
-    float32 ``exp`` (vectorised, unlike ``expm1``) while ``|y|`` stays below its overflow;
-    beyond, float64 ``expm1`` capped at the largest float, as the float64 path does."""
-    a = np.abs(y)
-    if float(a.max()) < 88.0:  # exp(88) < 3.4e38: no float32 overflow
-        np.exp(a, out=a)
-        a -= 1.0
-        np.copysign(a, y, out=a)
-        np.multiply(a, k, out=out, dtype=np.float64)
-        return
-    else:
-        with np.errstate(over="ignore"):  # expm1 overflows past ~709: the largest finite float there
-            e = np.expm1(a, dtype=np.float64)
-        e *= k
-        np.minimum(e, np.finfo(np.float64).max, out=out)
-    np.copysign(out, y, out=out)
-
-
 def _stage32(prepared: Prepared, ops: WaveletOperators, c_s: float, pixel_clamp: float | None,
              run: Callable) -> tuple[FloatArray, list, int, int, Callable[[int], FloatArray]] | None:
     """Stage 1 in float32 (log domain, channel mode); ``None`` if the buffer needs float64."""
@@ -233,13 +164,12 @@ def _stage32(prepared: Prepared, ops: WaveletOperators, c_s: float, pixel_clamp:
     image = np.empty(mean.shape, np.float64)
 
     def one_channel(c: int) -> tuple[list, int, int] | None:
-        plane = _log_plane32(mean[:, :, c], s2[:, :, c], count, k)
+        plane = fused.log_plane(mean[:, :, c], s2[:, :, c], count, k)
         if plane is None:
             return None
-        out, thresholds, zeroed, total, pinned = _threshold_plane32(*plane, c_s, ops, pixel_clamp)
-        _inverse_log_into(image[:, :, c], out, k)
-        if pinned is not None and pinned.any():
-            np.copyto(image[:, :, c], mean[:, :, c], where=pinned)
+        y, var_y = plane
+        out, thresholds, zeroed, total = _threshold_plane32(y, var_y, c_s, ops)
+        fused.finish_plane(image[:, :, c], out, y, var_y, mean[:, :, c], k, pixel_clamp)
         return thresholds, zeroed, total
 
     results = run(one_channel, range(mean.shape[2]))
@@ -247,7 +177,7 @@ def _stage32(prepared: Prepared, ops: WaveletOperators, c_s: float, pixel_clamp:
         return None
 
     def factors(c: int) -> list:
-        plane = _log_plane32(mean[:, :, c], s2[:, :, c], count, k)
+        plane = fused.log_plane(mean[:, :, c], s2[:, :, c], count, k)
         assert plane is not None
         return _factors32(plane[0], results[c][0], ops)
 

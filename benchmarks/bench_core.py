@@ -9,7 +9,8 @@ Run from the repository root::
 Prints markdown tables and writes ``benchmarks/results/core.json``. ``precision``: stage 1 in
 float32 (the default) against float64 on the tracer's and Mitsuba 3's buffers. Speed: at 1080p and 4K RGB,
 the floor (PyWavelets' 5-level bior4.4 ``wavedec2`` + ``waverec2`` of the float32 frame),
-``reconstruct(stages=1)`` (and its float64 reference), the default ``reconstruct``, one
+``reconstruct(stages=1)`` (its fused kernels compiled by numba where the ``fast`` extra is
+installed; again with their numpy reference; and its float64 reference), the default ``reconstruct``, one
 ``AdaptiveSampler.ask()`` round and one ``tell()`` (merging a round's samples),
 on one core (OMP/MKL/OPENBLAS_NUM_THREADS=1, no executor) and again with a 2-thread executor
 (everything but the float64 reference); medians of
@@ -42,7 +43,7 @@ import pywt  # noqa: E402
 from scipy import ndimage  # noqa: E402
 
 from awr_denoise import (AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, VarianceSampler,  # noqa: E402
-                         reconstruct)
+                         fused, reconstruct)
 from awr_denoise.bench import (OVERHEAD_SIZES, command_line, load_average, machine_info, noisy_buffer,  # noqa: E402
                                peak_memory, write_json)
 from awr_denoise.domains import Domain  # noqa: E402
@@ -97,6 +98,8 @@ def _cases(buf, pool: ThreadPoolExecutor | None) -> dict:
     if pool is None:
         return {"floor": lambda: _floor(image),
                 "reconstruct_stages1": lambda: reconstruct(buf, stages=1),
+                # Stage 1 with the numpy reference of the fused kernels (the same with numba missing).
+                "reconstruct_stages1_numpy": lambda: _with_kernels("numpy", reconstruct, buf, stages=1),
                 # The float64 reference of stage 1 (float32 is the default in the log domain).
                 "reconstruct_stages1_float64": lambda: reconstruct(buf, stages=1, precision="float64"),
                 "reconstruct_default": lambda: reconstruct(buf),
@@ -105,6 +108,15 @@ def _cases(buf, pool: ThreadPoolExecutor | None) -> dict:
     return {"reconstruct_stages1": lambda: reconstruct(buf, stages=1, executor=pool),
             "reconstruct_default": lambda: reconstruct(buf, executor=pool), "ask": _Ask(buf, pool),
             "tell": _Tell(buf, pool)}
+
+
+def _with_kernels(name: str, fn, *args, **kwargs):
+    """``fn(*args, **kwargs)`` with the fused kernels' ``name`` backend, then the default again."""
+    fused.set_backend(name)
+    try:
+        return fn(*args, **kwargs)
+    finally:
+        fused.set_backend(None)
 
 
 def _interleaved(cases: dict, repeats: int) -> dict:
@@ -123,6 +135,7 @@ def _interleaved(cases: dict, repeats: int) -> dict:
 def _memory_child(size: str, case: str) -> None:
     """In a fresh process: tracemalloc peak above the built buffer, and the process' peak RSS."""
     buf = noisy_buffer(OVERHEAD_SIZES[size], smooth=0.0, noise=0.0)
+    reconstruct(noisy_buffer((64, 64), smooth=0.0, noise=0.0), stages=1)  # compiled kernels loaded before the peak
     pool = ThreadPoolExecutor(2) if case.startswith("2threads:") else None
     fn = _cases(buf, pool)[case.split(":")[-1]]  # the ask() case builds its sampler here, before the peak
     base_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
@@ -157,6 +170,7 @@ def speed(sizes: list[str], repeats: int = 5) -> list[dict]:
         t1 = {k: v for k, v in both.items() if not k.startswith("2threads:")}
         t2 = {k.split(":", 1)[1]: v for k, v in both.items() if k.startswith("2threads:")}
         row = {"size": name, "pixels": shape[0] * shape[1], "input_MB": buf.nbytes / 2**20, "repeats": reps,
+               "kernels": fused.backend(),
                "seconds_1core": t1, "seconds_2threads": t2,
                "x_floor_1core": {k: v / t1["floor"] for k, v in t1.items()},
                "x_floor_2threads": {k: v / t1["floor"] for k, v in t2.items()}}
@@ -172,6 +186,7 @@ def speed(sizes: list[str], repeats: int = 5) -> list[dict]:
         x1, x2 = row["x_floor_1core"], row["x_floor_2threads"]
         print(f"| {name} | {row['input_MB']:.0f} MB | {t1['floor']:.3f} s | "
               f"{t1['reconstruct_stages1']:.3f} s ({x1['reconstruct_stages1']:.1f}x) | "
+              f"{t1['reconstruct_stages1_numpy']:.3f} s ({x1['reconstruct_stages1_numpy']:.1f}x) | "
               f"{t1['reconstruct_stages1_float64']:.3f} s ({x1['reconstruct_stages1_float64']:.1f}x) | "
               f"{t1['reconstruct_default']:.3f} s ({x1['reconstruct_default']:.1f}x) | "
               f"{t1['ask']:.3f} s ({x1['ask']:.1f}x) | {t1['ask_levels']:.3f} s ({x1['ask_levels']:.1f}x) | "
@@ -424,7 +439,7 @@ SECTIONS = {
                   lambda quick: precision(spps=(8,) if quick else (8, 32, 128))),
     "speed": ("Speed against the PyWavelets floor (medians of interleaved repeats; x floor of the same run) "
               "and peak memory (tracemalloc, x input buffer)",
-              "| size | input buffer | floor | stages=1 | stages=1 float64 | default | ask() | ask(), levels | tell() "
+              "| size | input buffer | floor | stages=1 | stages=1, numpy kernels | stages=1 float64 | default | ask() | ask(), levels | tell() "
               "| stages=1, 2 threads "
               "| default, 2 threads | ask(), 2 threads | tell(), 2 threads | stages=1 peak | stages=1 float64 peak | default peak | ask() peak "
               "| default, 2 threads, peak |",

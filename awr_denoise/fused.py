@@ -1,0 +1,331 @@
+"""Fused float32 passes of stage 1 (Eq. 10-11 and the pixel clamp): numpy, or numba where installed.
+
+Stage 1 in float32 (:mod:`awr_denoise.thresholding`) spends most of its time outside the wavelet
+transforms in elementwise passes over whole planes: the log plane and its delta-method variance,
+Eq. 11 on every detail band, the pixel clamp and the way back to linear radiance. In numpy each is
+five to ten passes through memory; with the ``fast`` extra (numba) each is one compiled loop,
+which cuts a 1080p ``reconstruct(stages=1)`` by about a sixth (docs/performance.md).
+
+Every function here has one signature and two implementations: the numpy one is the reference,
+the numba one must give the same floats (tests/test_fused.py compares them bit for bit). The
+transcendental functions (``log``, ``exp``) stay numpy's vectorised ones in both, so only
+additions, multiplications, divisions and square roots are compiled, which IEEE 754 rounds
+the same everywhere.
+
+:func:`backend` names the implementation in use; :func:`set_backend` chooses one (for tests
+and the benchmark's side-by-side timing), and ``AWR_DENOISE_KERNELS=numpy`` does so from the
+environment.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from functools import lru_cache
+from types import SimpleNamespace
+
+import numpy as np
+
+from ._typing import FloatArray
+
+__all__ = ["BACKENDS", "backend", "set_backend", "log_plane", "shrink_band", "finish_plane"]
+
+BACKENDS = ("numpy", "numba")
+"""The implementations: ``"numpy"`` (the reference, always there) and ``"numba"`` (extra ``fast``)."""
+
+_chosen: str | None = None  # set_backend's choice; None: numba when it imports
+_F32_MAX = np.float32(np.finfo(np.float32).max)  # a global: numba takes it as a constant
+
+
+def set_backend(name: str | None) -> None:
+    """Use ``name`` (one of :data:`BACKENDS`) from now on, or the default with ``None``.
+
+    Examples
+    --------
+    >>> from awr_denoise import fused
+    >>> fused.set_backend("numpy"); fused.backend()
+    'numpy'
+    >>> fused.set_backend(None)
+    """
+    global _chosen
+    if name is not None and name not in BACKENDS:
+        raise ValueError(f"backend: {name!r} is not one of {', '.join(BACKENDS)}")
+    if name == "numba" and _compiled() is None:
+        raise ImportError("backend: numba is not installed; pip install 'awr-denoise[fast]'")
+    _chosen = name
+
+
+def backend() -> str:
+    """The implementation in use: ``"numba"`` when it imports (and the environment variable
+    ``AWR_DENOISE_KERNELS`` is not ``numpy``), else ``"numpy"``; :func:`set_backend` overrides.
+
+    Examples
+    --------
+    >>> from awr_denoise.fused import BACKENDS, backend
+    >>> backend() in BACKENDS
+    True
+    """
+    if _chosen is not None:
+        return _chosen
+    if os.environ.get("AWR_DENOISE_KERNELS", "").strip().lower() == "numpy":
+        return "numpy"
+    return "numba" if _compiled() is not None else "numpy"
+
+
+# ------------------------------------------------------------------------------- the log plane
+def log_plane(mean: FloatArray, sample_variance: FloatArray, count: FloatArray,
+              k: float) -> tuple[FloatArray, FloatArray] | None:
+    """One channel in the log domain in float32: ``y = sign(x) log(1 + |x| / k)`` and its
+    delta-method variance ``(s2 / n) / (|x| + k)^2``, computed as ``(s2 / k^2 / n) / (1 + |x| / k)^2``.
+
+    ``mean`` and ``sample_variance`` are (H, W) float64 (views of a channel), ``count`` (H, W)
+    float32. Returns ``None`` when ``|x| / k`` or ``s2 / k^2`` do not fit in float32 (the caller
+    then takes the float64 path). ``log`` rather than ``log1p``: five times faster in float32,
+    and the absolute error it adds near 0 (a float32 epsilon of ``1 + |x| / k``) is that of
+    float32 ``y`` anyway.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise.fused import log_plane
+    >>> y, var_y = log_plane(np.array([[3.0, -1.0]]), np.array([[4.0, 4.0]]), np.full((1, 2), 4, np.float32), 1.0)
+    >>> y.round(4), var_y                       # log(4), -log(2); 4 / 4 / 16, 4 / 4 / 4
+    (array([[ 1.3863, -0.6931]], dtype=float32), array([[0.0625, 0.25  ]], dtype=float32))
+    """
+    kernels = _kernels()
+    if kernels is None:
+        return _log_plane_numpy(mean, sample_variance, count, k)
+    u = np.empty(mean.shape, np.float32)
+    a = np.empty(mean.shape, np.float32)
+    var_y = np.empty(mean.shape, np.float32)
+    if not kernels.log_plane(mean, sample_variance, count, k, u, a, var_y):
+        return None
+    np.log(a, out=a)  # numpy's vectorised float32 log, as in the reference
+    np.copysign(a, u, out=a)
+    return a, var_y
+
+
+def _log_plane_numpy(mean: FloatArray, sample_variance: FloatArray, count: FloatArray,
+                     k: float) -> tuple[FloatArray, FloatArray] | None:
+    """:func:`log_plane` in numpy (the reference)."""
+    u = np.empty(mean.shape, np.float32)
+    var_y = np.empty(mean.shape, np.float32)
+    with np.errstate(over="ignore"):  # checked below: an overflow sends the stage to float64
+        np.divide(mean, k, out=u, casting="unsafe")
+        np.divide(sample_variance, k * k, out=var_y, casting="unsafe")
+    a = np.abs(u)
+    if not (np.isfinite(a.max()) and np.isfinite(var_y.max())):
+        return None
+    var_y /= count
+    a += 1.0
+    y = np.log(a)
+    np.copysign(y, u, out=y)
+    a *= a
+    var_y /= a
+    return y, var_y
+
+
+def _log_plane_loop(mean, sample_variance, count, k, u, a, var_y):  # pragma: no cover (compiled)
+    """The reference's arithmetic, pixel by pixel, before the ``log``; False on a float32 overflow."""
+    finite = True
+    k2 = k * k
+    one = np.float32(1.0)
+    for i in range(u.shape[0]):
+        for j in range(u.shape[1]):
+            ui = np.float32(mean[i, j] / k)
+            vi = np.float32(sample_variance[i, j] / k2)
+            ai = abs(ui)
+            if not (ai <= _F32_MAX and vi <= _F32_MAX):
+                finite = False
+            ai = ai + one
+            u[i, j] = ui
+            a[i, j] = ai
+            var_y[i, j] = (vi / count[i, j]) / (ai * ai)
+    return finite
+
+
+# ------------------------------------------------------------------------------------- Eq. 11
+def shrink_band(coeff: FloatArray, variance: FloatArray, c_s: float) -> int:
+    """Eq. 10-11 on one float32 detail band, in place; returns how many coefficients became 0.
+
+    ``variance`` (the coefficients' ``Delta^2``) becomes the thresholds ``c_s * Delta``, and
+    ``coeff`` becomes ``sign(W) max(|W| - c_s Delta, 0)``. Both are float32; ``c_s`` is taken
+    in float32 (the largest float32 where it is beyond).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise.fused import shrink_band
+    >>> w, v = np.array([[-3.0, 0.5, 2.0]], np.float32), np.array([[1.0, 1.0, 4.0]], np.float32)
+    >>> shrink_band(w, v, 1.0), w, v
+    (2, array([[-2.,  0.,  0.]], dtype=float32), array([[1., 1., 2.]], dtype=float32))
+    """
+    kernels = _kernels()
+    if kernels is None or not (coeff.flags.c_contiguous and variance.flags.c_contiguous):
+        return _shrink_band_numpy(coeff, variance, c_s)
+    return int(kernels.shrink_band(coeff.reshape(-1), variance.reshape(-1), _single(c_s)))
+
+
+def _shrink_band_numpy(coeff: FloatArray, variance: FloatArray, c_s: float) -> int:
+    """:func:`shrink_band` in numpy (the reference)."""
+    t = np.sqrt(variance, out=variance)
+    with np.errstate(over="ignore"):  # a huge c_s: infinite thresholds zero every coefficient
+        t *= _single(c_s)
+    shrunk = np.abs(coeff)  # Eq. 11 in place: sign(w) max(|w| - t, 0)
+    shrunk -= t
+    np.maximum(shrunk, 0.0, out=shrunk)
+    zeroed = coeff.size - int(np.count_nonzero(shrunk))
+    np.copysign(shrunk, coeff, out=coeff)
+    return zeroed
+
+
+def _shrink_band_loop(coeff, variance, c_s):  # pragma: no cover (compiled)
+    """The reference's arithmetic, coefficient by coefficient, on flat views."""
+    zeroed = 0
+    zero = np.float32(0.0)
+    for i in range(coeff.size):
+        t = np.float32(math.sqrt(variance[i])) * c_s  # float32's sqrt, correctly rounded via float64
+        variance[i] = t
+        w = coeff[i]
+        d = abs(w) - t
+        if d > zero:
+            coeff[i] = math.copysign(d, w)
+        else:
+            coeff[i] = math.copysign(zero, w)
+            zeroed += 1
+    return zeroed
+
+
+# ------------------------------------------------------------------------- clamp and way back
+def finish_plane(dest: FloatArray, out: FloatArray, y: FloatArray, var_y: FloatArray, mean: FloatArray,
+                 k: float, pixel_clamp: float | None) -> None:
+    """The pixel clamp in the log domain and the way back to radiance, into ``dest``.
+
+    ``out`` (the synthesised float32 plane) is clamped to ``y +- pixel_clamp * sqrt(var_y)``
+    (``None``: no clamp) and written to the float64 (H, W) view ``dest`` as
+    ``sign(out) k (exp(|out|) - 1)``; where the clamp has zero width the pixel keeps ``mean``
+    bit for bit. ``out``, ``y`` and ``var_y`` are overwritten. ``exp`` runs in float32 while
+    ``|out|`` stays below its overflow; beyond, in float64 ``expm1`` capped at the largest float.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise.fused import finish_plane
+    >>> dest = np.empty((1, 3))
+    >>> y, var = np.log(np.float32([[2.0, 3.0, 5.0]])), np.float32([[0.01, 0.0, 0.01]])
+    >>> finish_plane(dest, np.float32([[0.7, 0.0, 9.0]]), y, var, np.array([[1.0, 2.0, 4.0]]), 1.0, 2.0)
+    >>> dest.round(4)                           # e^0.7 - 1; the mean (zero width); e^(log 5 + 0.2) - 1
+    array([[1.0138, 2.    , 5.107 ]])
+    """
+    kernels = _kernels()
+    if kernels is None:
+        _finish_plane_numpy(dest, out, y, var_y, mean, k, pixel_clamp)
+        return
+    clamp = pixel_clamp is not None
+    c_p = _single(pixel_clamp) if clamp else np.float32(0.0)
+    top = kernels.clamp_plane(out, y, var_y, c_p, clamp)  # y: the clamped plane; out: its magnitude
+    if top < 88.0:  # exp(88) < 3.4e38: no float32 overflow
+        np.exp(out, out=out)
+        kernels.back_to_radiance(dest, out, y, var_y, mean, k, clamp)
+        return
+    _inverse_log_into(dest, y, k)
+    if clamp:
+        np.copyto(dest, mean, where=var_y == 0)
+
+
+def _finish_plane_numpy(dest: FloatArray, out: FloatArray, y: FloatArray, var_y: FloatArray, mean: FloatArray,
+                        k: float, pixel_clamp: float | None) -> None:
+    """:func:`finish_plane` in numpy (the reference)."""
+    if pixel_clamp is not None:
+        reach = np.sqrt(var_y, out=var_y)
+        with np.errstate(over="ignore"):  # a huge pixel_clamp: an infinite reach clamps nothing
+            reach *= _single(pixel_clamp)
+        bound = y + reach
+        np.minimum(out, bound, out=out)
+        np.subtract(y, reach, out=bound)
+        np.maximum(out, bound, out=out)
+    _inverse_log_into(dest, out, k)
+    if pixel_clamp is not None:
+        np.copyto(dest, mean, where=var_y == 0)  # a clamp of zero width: the mean, bit for bit
+
+
+def _inverse_log_into(out: FloatArray, y: FloatArray, k: float) -> None:
+    """``out = sign(y) k (exp(|y|) - 1)`` written into ``out`` (an (H, W) float64 view).
+
+    float32 ``exp`` (vectorised, unlike ``expm1``) while ``|y|`` stays below its overflow;
+    beyond, float64 ``expm1`` capped at the largest float, as the float64 path does."""
+    a = np.abs(y)
+    if float(a.max()) < 88.0:  # exp(88) < 3.4e38: no float32 overflow
+        np.exp(a, out=a)
+        a -= 1.0
+        np.copysign(a, y, out=a)
+        np.multiply(a, k, out=out, dtype=np.float64)
+        return
+    with np.errstate(over="ignore"):  # expm1 overflows past ~709: the largest finite float there
+        e = np.expm1(a, dtype=np.float64)
+    e *= k
+    np.minimum(e, np.finfo(np.float64).max, out=out)
+    np.copysign(out, y, out=out)
+
+
+def _clamp_plane_loop(out, y, var_y, c_p, clamp):  # pragma: no cover (compiled)
+    """The clamp of the reference; leaves the clamped plane in ``y``, its magnitude in ``out``,
+    the reach in ``var_y``; returns the largest magnitude."""
+    top = np.float32(0.0)
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            o = out[i, j]
+            if clamp:
+                r = np.float32(math.sqrt(var_y[i, j])) * c_p  # overflows to inf: clamps nothing
+                var_y[i, j] = r
+                hi = y[i, j] + r
+                lo = y[i, j] - r
+                o = min(o, hi)
+                o = max(o, lo)
+            y[i, j] = o
+            m = abs(o)
+            out[i, j] = m
+            top = max(top, m)
+    return top
+
+
+def _back_to_radiance_loop(dest, e, y, reach, mean, k, clamp):  # pragma: no cover (compiled)
+    """``dest = sign(y) k (e - 1)`` with ``e = exp(|y|)``; the mean where the reach is 0."""
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    for i in range(dest.shape[0]):
+        for j in range(dest.shape[1]):
+            if clamp and reach[i, j] == zero:
+                dest[i, j] = mean[i, j]
+            else:
+                dest[i, j] = math.copysign(np.float32(e[i, j] - one), y[i, j]) * k
+
+
+def _single(x: float) -> np.float32:
+    """A non-negative setting as float32, the largest float32 where it is beyond (no overflow warning)."""
+    return np.float32(min(x, float(_F32_MAX)))
+
+
+# ------------------------------------------------------------------------------ the compiled set
+def _kernels() -> SimpleNamespace | None:
+    """The compiled kernels when the numba backend is in use, else ``None`` (the references)."""
+    return _compiled() if backend() == "numba" else None
+
+
+@lru_cache(maxsize=1)
+def _compiled() -> SimpleNamespace | None:
+    """The loops above compiled by numba (once; cached on disk), or ``None`` without numba."""
+    try:
+        import numba  # optional extra "fast"
+    except ImportError:
+        return None
+
+    def jit(f):
+        # nogil: the channels of a 2-thread executor run at once; no fastmath: the reference's floats.
+        try:  # compiled once per machine: cached beside this file, or in the user's cache directory
+            return numba.njit(nogil=True, cache=True)(f)
+        except RuntimeError:  # neither is writable: compile in every process instead (about 2 s)
+            return numba.njit(nogil=True)(f)
+
+    return SimpleNamespace(log_plane=jit(_log_plane_loop), shrink_band=jit(_shrink_band_loop),
+                           clamp_plane=jit(_clamp_plane_loop), back_to_radiance=jit(_back_to_radiance_loop))

@@ -1,0 +1,180 @@
+"""The fused float32 passes of stage 1: the numba kernels give the numpy reference's floats, bit for bit."""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+from numpy.testing import assert_array_equal
+
+from awr_denoise import SampleRequest, fused, reconstruct
+from awr_denoise.synthetic import SyntheticRenderer, make_scene
+
+numba_missing = fused._compiled() is None
+needs_numba = pytest.mark.skipif(numba_missing, reason="numba is not installed (extra 'fast')")
+
+
+@pytest.fixture
+def restore_backend():
+    yield
+    fused.set_backend(None)
+
+
+def both(function, *arrays, **kwargs):
+    """``function`` run with each backend on its own copies of ``arrays``: (result, the arrays after) per backend."""
+    out = []
+    for name in fused.BACKENDS:
+        fused.set_backend(name)
+        copies = [a.copy() if isinstance(a, np.ndarray) else a for a in arrays]
+        out.append((function(*copies, **kwargs), [a for a in copies if isinstance(a, np.ndarray)]))
+    fused.set_backend(None)
+    return out
+
+
+def assert_same(a, b):
+    """Equal floats, the sign of zero included (``assert_array_equal`` takes -0.0 == 0.0)."""
+    assert_array_equal(a, b)
+    assert_array_equal(np.signbit(a), np.signbit(b))
+
+
+def channel_planes(rng, shape=(37, 53), scale=1.0):
+    """A channel of an (H, W, 3) mean and variance (strided views, as stage 1 passes them) and counts."""
+    mean = scale * rng.standard_normal(shape + (3,)) * rng.lognormal(0.0, 2.0, shape + (3,))
+    mean[0, :5, 1] = [0.0, -0.0, 1e-300, -1e-30, 5e-324]
+    variance = scale * scale * rng.lognormal(0.0, 2.0, shape + (3,))
+    variance[1, :3, 1] = 0.0
+    count = rng.integers(1, 64, shape).astype(np.float32)
+    return mean[:, :, 1], variance[:, :, 1], count
+
+
+# -------------------------------------------------------------------------------- the choice
+def test_backend_choice(monkeypatch, restore_backend):
+    fused.set_backend("numpy")
+    assert fused.backend() == "numpy"
+    fused.set_backend(None)
+    monkeypatch.setenv("AWR_DENOISE_KERNELS", "numpy")
+    assert fused.backend() == "numpy"
+    monkeypatch.delenv("AWR_DENOISE_KERNELS")
+    assert fused.backend() == ("numpy" if numba_missing else "numba")
+    with pytest.raises(ValueError, match="backend: 'cuda'"):
+        fused.set_backend("cuda")
+
+
+def test_without_numba_the_reference_runs_and_asking_for_numba_says_how_to_install(monkeypatch, restore_backend):
+    monkeypatch.setattr(fused, "_compiled", lambda: None)  # as if numba were not installed
+    assert fused.backend() == "numpy"
+    with pytest.raises(ImportError, match=r"awr-denoise\[fast\]"):
+        fused.set_backend("numba")
+
+
+# ------------------------------------------------------------------------- kernel by kernel
+@needs_numba
+@pytest.mark.parametrize("k", [1e-3, 0.37, 1e4])
+def test_log_plane_is_the_reference(rng, k):
+    mean, variance, count = channel_planes(rng)
+    (ref, _), (new, _) = both(fused.log_plane, mean, variance, count, k)
+    assert new[0].dtype == new[1].dtype == np.float32
+    assert_same(new[0], ref[0])
+    assert_same(new[1], ref[1])
+
+
+@needs_numba
+@pytest.mark.parametrize("where", ["mean", "variance"])
+def test_log_plane_refuses_what_float32_cannot_hold_like_the_reference(rng, where):
+    mean, variance, count = channel_planes(rng)
+    (mean if where == "mean" else variance)[3, 4] = 1e40  # beyond float32 once divided by k = 1
+    (ref, _), (new, _) = both(fused.log_plane, mean, variance, count, 1.0)
+    assert ref is None and new is None
+
+
+@needs_numba
+@pytest.mark.parametrize("c_s", [0.0, 0.5, 1.0, 3.0, 1e300])
+def test_shrink_band_is_the_reference(rng, c_s):
+    coeff = (rng.standard_normal((19, 27)) * rng.lognormal(0.0, 2.0, (19, 27))).astype(np.float32)
+    coeff[0, :4] = [0.0, -0.0, 1e-38, -1e-38]
+    variance = rng.lognormal(0.0, 2.0, (19, 27)).astype(np.float32)
+    variance[1, :2] = 0.0
+    (z_ref, (c_ref, t_ref)), (z_new, (c_new, t_new)) = both(fused.shrink_band, coeff, variance, c_s)
+    assert z_new == z_ref
+    assert_same(c_new, c_ref)
+    assert_same(t_new, t_ref)
+    if c_s == 1e300:  # infinite thresholds zero every coefficient but the exact ones (Delta = 0)
+        assert_array_equal(c_new[variance > 0], 0.0)
+        assert_same(c_new[variance == 0], coeff[variance == 0])
+
+
+def test_shrink_band_on_a_strided_band_keeps_the_reference(rng, restore_backend):
+    coeff = rng.standard_normal((12, 20)).astype(np.float32)
+    variance = np.full((12, 20), 0.25, np.float32)
+    expected, thresholds = np.sign(coeff) * np.maximum(np.abs(coeff) - 0.5, 0.0), np.full((12, 20), 0.5)
+    for name in (("numpy",) if numba_missing else fused.BACKENDS):
+        fused.set_backend(name)
+        c, v = coeff.copy(), variance.copy()
+        zeroed = fused.shrink_band(c[:, ::2], v[:, ::2], 1.0)  # non-contiguous: written in place all the same
+        assert zeroed == int((np.abs(coeff[:, ::2]) <= 0.5).sum())
+        np.testing.assert_allclose(c[:, ::2], expected[:, ::2], atol=1e-7)
+        np.testing.assert_allclose(v[:, ::2], thresholds[:, ::2])
+        assert_array_equal(c[:, 1::2], coeff[:, 1::2])
+
+
+@needs_numba
+@pytest.mark.parametrize("pixel_clamp", [None, 0.0, 2.0, 1e300])
+@pytest.mark.parametrize("reach", ["ordinary", "overflowing"])
+def test_finish_plane_is_the_reference(rng, pixel_clamp, reach):
+    mean, variance, count = channel_planes(rng)
+    fused.set_backend("numpy")
+    y, var_y = fused.log_plane(mean, variance, count, 0.3)
+    fused.set_backend(None)
+    out = y + (0.3 * rng.standard_normal(y.shape)).astype(np.float32)
+    if reach == "overflowing":  # |out| beyond float32 exp's range: the float64 expm1 path
+        out[2, 2], out[3, 3] = 95.0, -750.0
+        if pixel_clamp is not None:
+            var_y[2, 2] = var_y[3, 3] = 1e30
+    dest = np.full(mean.shape + (2,), np.nan)[:, :, 0]  # a strided float64 view, as stage 1 writes
+    (_, ref), (_, new) = both(fused.finish_plane, dest, out, y, var_y, mean, 0.3, pixel_clamp)
+    assert_same(new[0], ref[0])
+    assert np.isfinite(new[0]).all()
+    if pixel_clamp == 0.0:  # zero width everywhere: the means, bit for bit
+        assert_same(new[0], mean)
+
+
+# ------------------------------------------------------------------------------- end to end
+@needs_numba
+@pytest.mark.parametrize("spp", [1, 4, 64])
+def test_stage_1_and_the_default_are_the_same_with_either_backend(spp, restore_backend):
+    buffer = SyntheticRenderer(make_scene("edges", (45, 61)), seed=5)(SampleRequest.uniform((45, 61), spp))
+    out = {}
+    for name in fused.BACKENDS:
+        fused.set_backend(name)
+        out[name] = (reconstruct(buffer, stages=1), reconstruct(buffer, stages=1, pixel_clamp=None), reconstruct(buffer))
+    for ref, new in zip(out["numpy"], out["numba"]):
+        assert_same(new, ref)
+
+
+@needs_numba
+def test_kernels_run_on_two_threads(restore_backend):
+    buffer = SyntheticRenderer(make_scene("gradient", (40, 48)), seed=2)(SampleRequest.uniform((40, 48), 8))
+    fused.set_backend("numpy")
+    ref = reconstruct(buffer, stages=1)
+    fused.set_backend("numba")
+    with ThreadPoolExecutor(2) as pool:
+        assert_same(reconstruct(buffer, stages=1, executor=pool), ref)
+
+
+@needs_numba
+def test_kernels_compile_without_a_writable_cache(monkeypatch, restore_backend):
+    import numba.core.dispatcher
+
+    def refuse(self):
+        raise RuntimeError("cannot cache function: no locator available")  # what numba says then
+
+    monkeypatch.setattr(numba.core.dispatcher.Dispatcher, "enable_caching", refuse)
+    fused._compiled.cache_clear()
+    try:
+        kernels = fused._compiled()
+        coeff, variance = np.array([-3.0, 0.5], np.float32), np.array([1.0, 1.0], np.float32)
+        assert kernels.shrink_band(coeff, variance, np.float32(1.0)) == 1
+        assert_array_equal(coeff, [-2.0, 0.0])
+    finally:
+        fused._compiled.cache_clear()
