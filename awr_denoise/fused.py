@@ -1,10 +1,10 @@
-"""Fused float32 passes of stage 1 (Eq. 10-11 and the pixel clamp): numpy, or numba where installed.
+"""Fused float32 passes of stage 1 (Eq. 10-11 and the pixel clamp): numpy, or numba on request.
 
 Stage 1 in float32 (:mod:`awr_denoise.thresholding`) spends most of its time outside the wavelet
 transforms in elementwise passes over whole planes: the log plane and its delta-method variance,
 Eq. 11 on every detail band, the pixel clamp and the way back to linear radiance. In numpy each is
-five to ten passes through memory; with the ``fast`` extra (numba) each is one compiled loop,
-which cuts a 1080p ``reconstruct(stages=1)`` by about a sixth (docs/performance.md).
+five to ten passes through memory; with numba (extra ``fast``) each is one compiled loop, which
+makes a 1080p ``reconstruct(stages=1)`` about a sixth faster once compiled (docs/performance.md).
 
 Every function here has one signature and two implementations: the numpy one is the reference,
 the numba one must give the same floats (tests/test_fused.py compares them bit for bit). The
@@ -12,9 +12,11 @@ transcendental functions (``log``, ``exp``) stay numpy's vectorised ones in both
 additions, multiplications, divisions and square roots are compiled, which IEEE 754 rounds
 the same everywhere.
 
-:func:`backend` names the implementation in use; :func:`set_backend` chooses one (for tests
-and the benchmark's side-by-side timing), and ``AWR_DENOISE_KERNELS=numpy`` does so from the
-environment.
+The numpy reference is the default: importing numba and loading the compiled code costs about
+half a second per process, which only a process that runs stage 1 many times, or on very large
+frames, wins back (a render loop, a sequence, a server; the default reconstruction spends a few
+percent of its time in stage 1). ``AWR_DENOISE_KERNELS=numba`` in the environment, or
+:func:`set_backend`, chooses the compiled kernels; :func:`backend` names the one in use.
 """
 
 from __future__ import annotations
@@ -28,17 +30,19 @@ import numpy as np
 
 from ._typing import FloatArray
 
-__all__ = ["BACKENDS", "backend", "set_backend", "log_plane", "shrink_band", "finish_plane"]
+__all__ = ["BACKENDS", "available", "backend", "set_backend", "log_plane", "shrink_band", "finish_plane"]
 
 BACKENDS = ("numpy", "numba")
 """The implementations: ``"numpy"`` (the reference, always there) and ``"numba"`` (extra ``fast``)."""
 
-_chosen: str | None = None  # set_backend's choice; None: numba when it imports
+_chosen: str | None = None  # set_backend's choice; None: the environment's, numpy by default
 _F32_MAX = np.float32(np.finfo(np.float32).max)  # a global: numba takes it as a constant
+_ENVIRONMENT = "AWR_DENOISE_KERNELS"
+_HINT = "numba is not installed; pip install 'awr-denoise[fast]'"
 
 
 def set_backend(name: str | None) -> None:
-    """Use ``name`` (one of :data:`BACKENDS`) from now on, or the default with ``None``.
+    """Use ``name`` (one of :data:`BACKENDS`) from now on, or the environment's choice with ``None``.
 
     Examples
     --------
@@ -51,13 +55,20 @@ def set_backend(name: str | None) -> None:
     if name is not None and name not in BACKENDS:
         raise ValueError(f"backend: {name!r} is not one of {', '.join(BACKENDS)}")
     if name == "numba" and _compiled() is None:
-        raise ImportError("backend: numba is not installed; pip install 'awr-denoise[fast]'")
+        raise ImportError(f"backend: {_HINT}")
     _chosen = name
 
 
 def backend() -> str:
-    """The implementation in use: ``"numba"`` when it imports (and the environment variable
-    ``AWR_DENOISE_KERNELS`` is not ``numpy``), else ``"numpy"``; :func:`set_backend` overrides.
+    """The implementation in use: :func:`set_backend`'s choice, else the environment variable
+    ``AWR_DENOISE_KERNELS`` (``numpy`` or ``numba``), else ``"numpy"``.
+
+    Raises
+    ------
+    ValueError
+        If ``AWR_DENOISE_KERNELS`` names no backend.
+    ImportError
+        If it names ``numba`` and numba is not installed.
 
     Examples
     --------
@@ -67,9 +78,24 @@ def backend() -> str:
     """
     if _chosen is not None:
         return _chosen
-    if os.environ.get("AWR_DENOISE_KERNELS", "").strip().lower() == "numpy":
-        return "numpy"
-    return "numba" if _compiled() is not None else "numpy"
+    name = os.environ.get(_ENVIRONMENT, "").strip().lower() or "numpy"
+    if name not in BACKENDS:
+        raise ValueError(f"{_ENVIRONMENT}: {name!r} is not one of {', '.join(BACKENDS)}")
+    if name == "numba" and _compiled() is None:
+        raise ImportError(f"{_ENVIRONMENT}=numba: {_HINT}")
+    return name
+
+
+def available() -> tuple[str, ...]:
+    """The backends that can run here: ``("numpy",)``, and ``"numba"`` where it imports.
+
+    Examples
+    --------
+    >>> from awr_denoise.fused import available
+    >>> "numpy" in available()
+    True
+    """
+    return BACKENDS if _compiled() is not None else ("numpy",)
 
 
 # ------------------------------------------------------------------------------- the log plane
@@ -112,8 +138,8 @@ def _log_plane_numpy(mean: FloatArray, sample_variance: FloatArray, count: Float
     u = np.empty(mean.shape, np.float32)
     var_y = np.empty(mean.shape, np.float32)
     with np.errstate(over="ignore"):  # checked below: an overflow sends the stage to float64
-        # Times the reciprocals: a float64 division costs more than the rest of the pass, and
-        # x * (1 / k) is within a float64 epsilon of x / k, far below the float32 result's.
+        # Times the reciprocals: float64 divisions slowed the compiled pass, and x * (1 / k)
+        # is within a float64 epsilon of x / k, far below the float32 result's.
         np.multiply(mean, 1.0 / k, out=u, casting="unsafe")
         np.multiply(sample_variance, 1.0 / (k * k), out=var_y, casting="unsafe")
     a = np.abs(u)

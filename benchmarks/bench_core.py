@@ -10,7 +10,8 @@ Prints markdown tables and writes ``benchmarks/results/core.json``. ``precision`
 float32 (the default) against float64 on the tracer's and Mitsuba 3's buffers. Speed: at 1080p and 4K RGB,
 the floor (PyWavelets' 5-level bior4.4 ``wavedec2`` + ``waverec2`` of the float32 frame),
 ``reconstruct(stages=1)`` (its fused kernels compiled by numba where the ``fast`` extra is
-installed; again with their numpy reference; and its float64 reference), the default ``reconstruct``, one
+installed, again with their numpy reference, the library's default, and its float64
+reference), the default ``reconstruct``, one
 ``AdaptiveSampler.ask()`` round and one ``tell()`` (merging a round's samples),
 on one core (OMP/MKL/OPENBLAS_NUM_THREADS=1, no executor) and again with a 2-thread executor
 (everything but the float64 reference); medians of
@@ -54,6 +55,7 @@ from awr_denoise.wavelets import default_levels  # noqa: E402
 RESULTS = Path(__file__).resolve().parent / "results" / "core.json"
 FLOOR_LEVELS = 5
 SPEED_SIZES = ["1080p", "4K"]  # --sizes changes it
+FAST = fused.available()[-1]  # stage 1's fastest kernels here: "numba" with the extra "fast", else "numpy"
 
 
 def _floor(image: np.ndarray, levels: int = FLOOR_LEVELS) -> None:
@@ -97,21 +99,22 @@ def _cases(buf, pool: ThreadPoolExecutor | None) -> dict:
     image = buf.mean.astype(np.float32)
     if pool is None:
         return {"floor": lambda: _floor(image),
-                "reconstruct_stages1": lambda: reconstruct(buf, stages=1),
-                # Stage 1 with the numpy reference of the fused kernels (the same with numba missing).
+                # Stage 1 with the fused kernels compiled (where numba is installed), and with their
+                # numpy reference, the default.
+                "reconstruct_stages1": lambda: _with_kernels(FAST, reconstruct, buf, stages=1),
                 "reconstruct_stages1_numpy": lambda: _with_kernels("numpy", reconstruct, buf, stages=1),
                 # The float64 reference of stage 1 (float32 is the default in the log domain).
                 "reconstruct_stages1_float64": lambda: reconstruct(buf, stages=1, precision="float64"),
                 "reconstruct_default": lambda: reconstruct(buf),
                 # The paper's level model, the samplers' default before the shrinkage's gain.
                 "ask": _Ask(buf), "ask_levels": _Ask(buf, noise_model="levels"), "tell": _Tell(buf)}
-    return {"reconstruct_stages1": lambda: reconstruct(buf, stages=1, executor=pool),
+    return {"reconstruct_stages1": lambda: _with_kernels(FAST, reconstruct, buf, stages=1, executor=pool),
             "reconstruct_default": lambda: reconstruct(buf, executor=pool), "ask": _Ask(buf, pool),
             "tell": _Tell(buf, pool)}
 
 
 def _with_kernels(name: str, fn, *args, **kwargs):
-    """``fn(*args, **kwargs)`` with the fused kernels' ``name`` backend, then the default again."""
+    """``fn(*args, **kwargs)`` with the fused kernels' ``name`` backend, then the environment's again."""
     fused.set_backend(name)
     try:
         return fn(*args, **kwargs)
@@ -135,7 +138,7 @@ def _interleaved(cases: dict, repeats: int) -> dict:
 def _memory_child(size: str, case: str) -> None:
     """In a fresh process: tracemalloc peak above the built buffer, and the process' peak RSS."""
     buf = noisy_buffer(OVERHEAD_SIZES[size], smooth=0.0, noise=0.0)
-    reconstruct(noisy_buffer((64, 64), smooth=0.0, noise=0.0), stages=1)  # compiled kernels loaded before the peak
+    _with_kernels(FAST, reconstruct, noisy_buffer((64, 64), smooth=0.0, noise=0.0), stages=1)  # loaded before the peak
     pool = ThreadPoolExecutor(2) if case.startswith("2threads:") else None
     fn = _cases(buf, pool)[case.split(":")[-1]]  # the ask() case builds its sampler here, before the peak
     base_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
@@ -148,6 +151,36 @@ def _memory(size: str, case: str) -> dict:
     out = subprocess.run([sys.executable, __file__, "--memory-child", size, case], capture_output=True, text=True,
                          check=True, env=os.environ.copy())
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+# Run in a fresh interpreter that has not imported numba: the seconds the first compiled stage 1
+# costs beyond a second one (64x64), that is numba's import and the loading of the kernels'
+# machine code (compiled and cached on disk by the speed runs before): what a process pays once.
+_KERNEL_LOAD_CHILD = """
+import json, time
+from awr_denoise import fused, reconstruct
+from awr_denoise.bench import noisy_buffer
+buf = noisy_buffer((64, 64), smooth=0.0, noise=0.0)
+reconstruct(buf, stages=1)  # the numpy path warm: only the kernels' own cost is left
+assert "numba" not in __import__("sys").modules
+times = []
+for _ in range(2):
+    t = time.perf_counter()
+    fused.set_backend("numba")
+    reconstruct(buf, stages=1)
+    times.append(time.perf_counter() - t)
+print(json.dumps({"load_s": times[0] - times[1]}))
+"""
+
+
+def _kernel_load(repeats: int = 3) -> float | None:
+    """Median over fresh processes of what the compiled kernels cost once; ``None`` without numba."""
+    if FAST != "numba":
+        return None
+    runs = [json.loads(subprocess.run([sys.executable, "-c", _KERNEL_LOAD_CHILD], capture_output=True, text=True,
+                                      check=True).stdout.strip().splitlines()[-1])["load_s"]
+            for _ in range(repeats)]
+    return statistics.median(runs)
 
 
 def speed(sizes: list[str], repeats: int = 5) -> list[dict]:
@@ -170,7 +203,7 @@ def speed(sizes: list[str], repeats: int = 5) -> list[dict]:
         t1 = {k: v for k, v in both.items() if not k.startswith("2threads:")}
         t2 = {k.split(":", 1)[1]: v for k, v in both.items() if k.startswith("2threads:")}
         row = {"size": name, "pixels": shape[0] * shape[1], "input_MB": buf.nbytes / 2**20, "repeats": reps,
-               "kernels": fused.backend(),
+               "stage1_kernels": FAST,
                "seconds_1core": t1, "seconds_2threads": t2,
                "x_floor_1core": {k: v / t1["floor"] for k, v in t1.items()},
                "x_floor_2threads": {k: v / t1["floor"] for k, v in t2.items()}}
@@ -182,6 +215,9 @@ def speed(sizes: list[str], repeats: int = 5) -> list[dict]:
                                 "maxrss_MB": m["maxrss"] / 2**20, "maxrss_before_MB": m["maxrss_before"] / 2**20,
                                 "maxrss_x_input": m["maxrss"] / m["input"]}
                          for case, m in mem.items()}
+        # What the compiled kernels save per call, and what a process pays once for them.
+        row["stage1_kernel_saving_s"] = t1["reconstruct_stages1_numpy"] - t1["reconstruct_stages1"]
+        row["stage1_kernel_load_s"] = _kernel_load()
         rows.append(row)
         x1, x2 = row["x_floor_1core"], row["x_floor_2threads"]
         print(f"| {name} | {row['input_MB']:.0f} MB | {t1['floor']:.3f} s | "
@@ -197,6 +233,12 @@ def speed(sizes: list[str], repeats: int = 5) -> list[dict]:
               + " | ".join(f"{row['memory'][c]['tracemalloc_peak_x_input']:.1f}x"
                            for c in ("reconstruct_stages1", "reconstruct_stages1_float64", "reconstruct_default",
                                      "ask", "2threads:reconstruct_default")) + " |", flush=True)
+    for row in rows:
+        load, saving = row["stage1_kernel_load_s"], row["stage1_kernel_saving_s"]
+        if load is not None:
+            calls = f"{load / saving:.0f} calls" if saving > 0 else "never"
+            print(f"\n{row['size']}: the compiled kernels save {saving:.3f} s per stage 1 and cost {load:.2f} s "
+                  f"once per process (numba's import and cached code): they pay from {calls}", flush=True)
     return rows
 
 

@@ -21,7 +21,7 @@ import signal
 import sys
 from collections.abc import Sequence
 
-from awr_denoise import __version__
+from awr_denoise import __version__, fused
 from awr_denoise.errors import InputFileError
 
 from . import interrupts
@@ -94,10 +94,19 @@ def _silence_stdout() -> None:
         pass
 
 
+def _check_kernels() -> None:
+    """``AWR_DENOISE_KERNELS`` checked before any file is read or written (exit 2 if it is wrong)."""
+    try:
+        fused.backend()
+    except ImportError as exc:  # the compiled kernels asked for, numba missing: the user's setting
+        raise UsageError(str(exc)) from exc
+
+
 def _run(argv: Sequence[str] | None) -> int:
     try:
         parser = build_parser()
         args = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
+        _check_kernels()
         with one_line_warnings():
             status = int(args.run(args) or EXIT_OK)
         sys.stdout.flush()  # a closed pipe shows here, not at exit

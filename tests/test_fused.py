@@ -49,23 +49,34 @@ def channel_planes(rng, shape=(37, 53), scale=1.0):
 
 
 # -------------------------------------------------------------------------------- the choice
-def test_backend_choice(monkeypatch, restore_backend):
-    fused.set_backend("numpy")
+def test_the_reference_is_the_default_and_the_environment_or_set_backend_choose(monkeypatch, restore_backend):
+    monkeypatch.delenv("AWR_DENOISE_KERNELS", raising=False)
+    assert fused.backend() == "numpy"  # numba costs half a second per process: asked for, not assumed
+    monkeypatch.setenv("AWR_DENOISE_KERNELS", " NumPy ")
     assert fused.backend() == "numpy"
-    fused.set_backend(None)
-    monkeypatch.setenv("AWR_DENOISE_KERNELS", "numpy")
-    assert fused.backend() == "numpy"
-    monkeypatch.delenv("AWR_DENOISE_KERNELS")
-    assert fused.backend() == ("numpy" if numba_missing else "numba")
+    if not numba_missing:
+        monkeypatch.setenv("AWR_DENOISE_KERNELS", "numba")
+        assert fused.backend() == "numba"
+        fused.set_backend("numpy")  # set_backend overrides the environment
+        assert fused.backend() == "numpy"
+        fused.set_backend(None)
+        assert fused.backend() == "numba"
+    monkeypatch.setenv("AWR_DENOISE_KERNELS", "cuda")
+    with pytest.raises(ValueError, match="AWR_DENOISE_KERNELS: 'cuda' is not one of numpy, numba"):
+        fused.backend()
     with pytest.raises(ValueError, match="backend: 'cuda'"):
         fused.set_backend("cuda")
+    assert fused.available() == (("numpy",) if numba_missing else ("numpy", "numba"))
 
 
-def test_without_numba_the_reference_runs_and_asking_for_numba_says_how_to_install(monkeypatch, restore_backend):
+def test_without_numba_asking_for_it_says_how_to_install(monkeypatch, restore_backend):
     monkeypatch.setattr(fused, "_compiled", lambda: None)  # as if numba were not installed
-    assert fused.backend() == "numpy"
+    assert fused.available() == ("numpy",)
     with pytest.raises(ImportError, match=r"awr-denoise\[fast\]"):
         fused.set_backend("numba")
+    monkeypatch.setenv("AWR_DENOISE_KERNELS", "numba")
+    with pytest.raises(ImportError, match=r"AWR_DENOISE_KERNELS=numba: .*awr-denoise\[fast\]"):
+        fused.backend()
 
 
 # ------------------------------------------------------------------------- kernel by kernel

@@ -10,7 +10,8 @@ pytest.importorskip("OpenEXR")
 
 from awr_denoise.cli.main import main  # noqa: E402
 from awr_denoise.cli.values import MAX_SEED  # noqa: E402
-from awr_denoise.io import read_request, write_sample_buffer  # noqa: E402
+from awr_denoise import fused  # noqa: E402
+from awr_denoise.io import read_image, read_request, write_sample_buffer  # noqa: E402
 from cli_helpers import dump_buffer, one_error_line  # noqa: E402
 
 pytestmark = pytest.mark.exr
@@ -128,3 +129,32 @@ def test_extreme_but_valid_values_are_accepted(work, capsys, monkeypatch, base, 
     assert main(args) == 0, capsys.readouterr().err
     if base is PLAN and option == "--seed":
         assert read_request(work / "p.exr").total > 0
+
+
+@pytest.mark.parametrize(("value", "missing_numba"), [("cuda", False), ("numba", True)])
+def test_a_bad_kernel_setting_is_one_line_naming_it_and_writes_nothing(work, capsys, monkeypatch, value,
+                                                                        missing_numba):
+    monkeypatch.chdir(work.root)
+    monkeypatch.setenv("AWR_DENOISE_KERNELS", value)
+    if missing_numba:
+        monkeypatch.setattr(fused, "_compiled", lambda: None)  # as if the extra 'fast' were missing
+    before = work.state()
+    status = main(DENOISE)
+    err = capsys.readouterr().err
+    assert status == 2, err
+    line = one_error_line(err)
+    assert "AWR_DENOISE_KERNELS" in line and "internal error" not in line, line
+    if missing_numba:
+        assert "awr-denoise[fast]" in line
+    assert work.state() == before
+
+
+def test_the_compiled_kernels_give_the_same_file(work, capsys, monkeypatch):
+    pytest.importorskip("numba", reason="numba is not installed (extra 'fast')")
+    monkeypatch.chdir(work.root)
+    outputs = {}
+    for value in ("numpy", "numba"):
+        monkeypatch.setenv("AWR_DENOISE_KERNELS", value)
+        assert main(["denoise", "d.exr", "-o", f"{value}.exr", "-q", "--stages", "1"]) == 0, capsys.readouterr().err
+        outputs[value] = read_image(f"{value}.exr")
+    assert (outputs["numpy"] == outputs["numba"]).all()
