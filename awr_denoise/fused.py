@@ -4,7 +4,7 @@ Stage 1 in float32 (:mod:`awr_denoise.thresholding`) spends most of its time out
 transforms in elementwise passes over whole planes: the log plane and its delta-method variance,
 Eq. 11 on every detail band, the pixel clamp and the way back to linear radiance. In numpy each is
 five to ten passes through memory; with numba (extra ``fast``) each is one compiled loop, which
-makes a 1080p ``reconstruct(stages=1)`` about a sixth faster once compiled (docs/performance.md).
+made a 1080p ``reconstruct(stages=1)`` 3-18% faster once loaded (docs/performance.md).
 
 Every function here has one signature and two implementations: the numpy one is the reference,
 the numba one must give the same floats (tests/test_fused.py compares them bit for bit). The

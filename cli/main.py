@@ -21,7 +21,7 @@ import signal
 import sys
 from collections.abc import Sequence
 
-from awr_denoise import __version__, fused
+from awr_denoise import __version__
 from awr_denoise.errors import InputFileError
 
 from . import interrupts
@@ -96,6 +96,11 @@ def _silence_stdout() -> None:
 
 def _check_kernels() -> None:
     """``AWR_DENOISE_KERNELS`` checked before any file is read or written (exit 2 if it is wrong)."""
+    if not os.environ.get("AWR_DENOISE_KERNELS"):
+        return  # the default kernels: nothing to check
+    # Imported here, not at the top: it loads numpy, which must come after the interrupt handling.
+    from awr_denoise import fused
+
     try:
         fused.backend()
     except ImportError as exc:  # the compiled kernels asked for, numba missing: the user's setting
