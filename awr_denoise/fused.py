@@ -38,7 +38,6 @@ BACKENDS = ("numpy", "numba")
 _chosen: str | None = None  # set_backend's choice; None: the environment's, numpy by default
 _F32_MAX = np.float32(np.finfo(np.float32).max)  # a global: numba takes it as a constant
 _ENVIRONMENT = "AWR_DENOISE_KERNELS"
-_HINT = "numba is not installed; pip install 'awr-denoise[fast]'"
 
 
 def set_backend(name: str | None) -> None:
@@ -52,11 +51,7 @@ def set_backend(name: str | None) -> None:
     >>> fused.set_backend(None)
     """
     global _chosen
-    if name is not None and name not in BACKENDS:
-        raise ValueError(f"backend: {name!r} is not one of {', '.join(BACKENDS)}")
-    if name == "numba" and _compiled() is None:
-        raise ImportError(f"backend: {_HINT}")
-    _chosen = name
+    _chosen = None if name is None else _runnable(name, "backend")
 
 
 def backend() -> str:
@@ -78,11 +73,15 @@ def backend() -> str:
     """
     if _chosen is not None:
         return _chosen
-    name = os.environ.get(_ENVIRONMENT, "").strip().lower() or "numpy"
+    return _runnable(os.environ.get(_ENVIRONMENT, "").strip().lower() or "numpy", _ENVIRONMENT)
+
+
+def _runnable(name: str, what: str) -> str:
+    """``name`` if it is a backend that can run here; else the error naming ``what`` set it."""
     if name not in BACKENDS:
-        raise ValueError(f"{_ENVIRONMENT}: {name!r} is not one of {', '.join(BACKENDS)}")
+        raise ValueError(f"{what}: {name!r} is not one of {', '.join(BACKENDS)}")
     if name == "numba" and _compiled() is None:
-        raise ImportError(f"{_ENVIRONMENT}=numba: {_HINT}")
+        raise ImportError(f"{what}: numba is not installed; pip install 'awr-denoise[fast]'")
     return name
 
 

@@ -394,7 +394,6 @@ def coefficient_variance(variance_of_mean: FloatArray, *, wavelet: str = DEFAULT
     return out
 
 
-
 @lru_cache(maxsize=16)
 def _axis_diagonals(n: int, wavelet: str, boundary: str, levels: int,
                     dtype: str = "float64") -> tuple[tuple[sparse.csr_matrix, ...], tuple[sparse.csr_matrix, ...]]:

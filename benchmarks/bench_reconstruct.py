@@ -463,27 +463,34 @@ def seeds_table(rows: list[dict]) -> None:
                   f"{np.mean(list(ratio.values())):.2f} | {', '.join(lost)} | {np.mean(before):.2f} | "
                   + " | ".join(f"{min(moved[k]):.2f}-{max(moved[k]):.2f}" for k in ("awr", "uniform"))
                   + f" | {np.mean(squared):.2f} ({min(squared):.2f}) |")
-    if not any(r["sampler"] == "awr, measured gain" for r in rows):
-        return
-    print("\n| scene | spp | seeds | relMSE awr / measured gain, least-most (mean) | uniform / measured gain, "
-          "least-most (mean) | seeds where uniform wins | MSE awr / measured gain, mean (least) |")
-    print("|---|---|---|---|---|---|---|")
-    for name, spp, ids, ratios in _seed_ratios(rows):
+
+    def against_measured(ids: list, ratios: Any) -> list[str]:
         lev, uni, sq = (ratios(over, "awr, measured gain", key)
                         for over, key in (("awr", "relmse"), ("uniform", "relmse"), ("awr", "mse")))
-        print(f"| {name} | {spp} | 0-{ids[-1]} | {_span(lev)} | {_span(uni)} | {_where(ids, uni)} | "
-              f"{np.mean(sq):.2f} ({min(sq):.2f}) |")
-    if not any(r["sampler"] == "awr, levels" for r in rows):
-        return
-    print("\n| scene | spp | seeds | relMSE levels / awr, least-most (mean) | seeds where levels wins "
-          "| uniform / levels, least-most (mean) | seeds where uniform beats levels | MSE levels / awr, mean (least) |")
-    print("|---|---|---|---|---|---|---|---|")
-    for name, spp, ids, ratios in _seed_ratios(rows):
-        lev, uni = ratios("awr, levels", "awr"), ratios("uniform", "awr, levels")
-        sq = ratios("awr, levels", "awr", "mse")
+        return [_span(lev), _span(uni), _where(ids, uni), f"{np.mean(sq):.2f} ({min(sq):.2f})"]
+
+    def against_levels(ids: list, ratios: Any) -> list[str]:
+        lev, uni, sq = ratios("awr, levels", "awr"), ratios("uniform", "awr, levels"), ratios("awr, levels", "awr", "mse")
         won = ", ".join(str(i) for i, r in zip(ids, lev) if r < 1) or "none"  # levels' error below the default's
-        print(f"| {name} | {spp} | 0-{ids[-1]} | {_span(lev)} | {won} | {_span(uni)} | {_where(ids, uni)} | "
-              f"{np.mean(sq):.2f} ({min(sq):.2f}) |")
+        return [_span(lev), won, _span(uni), _where(ids, uni), f"{np.mean(sq):.2f} ({min(sq):.2f})"]
+
+    _seed_table(rows, "awr, measured gain", ("relMSE awr / measured gain, least-most (mean)",
+                                             "uniform / measured gain, least-most (mean)", "seeds where uniform wins",
+                                             "MSE awr / measured gain, mean (least)"), against_measured)
+    _seed_table(rows, "awr, levels", ("relMSE levels / awr, least-most (mean)", "seeds where levels wins",
+                                      "uniform / levels, least-most (mean)", "seeds where uniform beats levels",
+                                      "MSE levels / awr, mean (least)"), against_levels)
+
+
+def _seed_table(rows: list[dict], kind: str, header: tuple[str, ...], cells: Any) -> None:
+    """A per-seed table comparing sampler ``kind`` (none when the rows have no such run):
+    ``cells(ids, ratios)`` gives the columns after scene, spp and seeds (:func:`_seed_ratios`)."""
+    if not any(r["sampler"] == kind for r in rows):
+        return
+    print("\n| scene | spp | seeds | " + " | ".join(header) + " |")
+    print("|---" * (3 + len(header)) + "|")
+    for name, spp, ids, ratios in _seed_ratios(rows):
+        print(f"| {name} | {spp} | 0-{ids[-1]} | " + " | ".join(cells(ids, ratios)) + " |")
 
 
 def _seed_ratios(rows: list[dict]) -> Any:
