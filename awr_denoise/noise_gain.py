@@ -13,7 +13,7 @@
 Measured on both renderers (docs/sampling.md, "The noise gain"), the shrinkage's gain has 1.01-1.25x
 lower relMSE than the level model on every scene and sample count, and is as good as the measured
 gain on average. The measured gain (:attr:`~awr_denoise.Reconstruction.noise_gain`) costs one
-reconstruction a round, ten to 32 spp at the samplers' default round growth. Between two rounds the
+reconstruction a round, twelve to 32 spp at the samplers' default round growth. Between two rounds the
 image changes little, and the gain, a property of the image's structure (edges kept, smooth regions
 averaged), changes less: :class:`MeasuredGain` measures it again only once the buffer's samples have
 grown by a factor ``refresh`` since the last measurement. The default, 1, measures every round.

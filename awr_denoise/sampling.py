@@ -10,9 +10,9 @@ resulting :class:`SampleBuffer` is told back::
         sampler.tell(request, renderer(request))
     image = reconstruct(sampler.buffer)
 
-:meth:`Sampler.run` is exactly that loop. Round 0 spends ``initial_spp`` on every pixel (the
-paper starts at 4 spp); later rounds follow the sampler's strategy. Every request's ``counts``
-sum to the budget asked for, exactly.
+:meth:`Sampler.run` is exactly that loop. Round 0 spends ``initial_spp`` on every pixel (the paper
+starts at 4 spp, :class:`AdaptiveSampler` at 2); later rounds follow the sampler's strategy. Every
+request's ``counts`` sum to the budget asked for, exactly.
 
 Three strategies share the interface so that benchmarks compare like with like: :class:`AdaptiveSampler`
 (AWR wavelet priorities), :class:`UniformSampler` and :class:`VarianceSampler` (per-pixel error, as Cycles').
@@ -41,14 +41,16 @@ from .requests import Renderer, SampleRequest
 from .wavelets import DEFAULT_WAVELET, wavelet_operators
 
 __all__ = ["Sampler", "AdaptiveSampler", "UniformSampler", "VarianceSampler", "SAMPLERS", "NOISE_MODELS",
-           "DEFAULT_INITIAL_SPP", "DEFAULT_ROUND_GROWTH"]
+           "DEFAULT_INITIAL_SPP", "DEFAULT_AWR_INITIAL_SPP", "DEFAULT_ROUND_GROWTH"]
 
 _sampler_ids = itertools.count(1)
 DEFAULT_ROUND_GROWTH = 0.25
 """Default share of the samples taken so far that the next round asks for (docs/sampling.md)."""
 
 DEFAULT_INITIAL_SPP = 4
-"""Samples per pixel of round 0: the paper starts at 4 (section 4)."""
+"""Samples per pixel of round 0 of the uniform and variance samplers: the paper's 4 (section 4)."""
+DEFAULT_AWR_INITIAL_SPP = 2
+"""Round 0 of :class:`AdaptiveSampler`: 2, measured on both renderers (docs/sampling.md, "The first round")."""
 
 
 class Sampler:
@@ -61,7 +63,7 @@ class Sampler:
     channels
         Number of channels (or their names) renderers return.
     initial_spp
-        Samples per pixel of round 0 (the paper starts at 4).
+        Samples per pixel of round 0 (the paper starts at 4; :class:`AdaptiveSampler` at 2 by default).
     seed
         Seeds tie-breaking; the same seed and the same told buffers give the same requests.
     spp_min
@@ -73,7 +75,7 @@ class Sampler:
         with the image's samples (see ``round_growth``).
     round_growth
         Without ``round_spp``, a round's default budget is this share of the samples taken so far (at
-        least 0.25 spp), so a render to ``S`` spp takes about ``log(S / initial_spp) / log(1 + round_growth)``
+        least 1 spp), so a render to ``S`` spp takes about ``log(S / initial_spp) / log(1 + round_growth)``
         rounds. Larger rounds cost fewer priority analyses; docs/benchmarks.md ("The other defaults") measures it.
     executor
         Optional ``concurrent.futures.Executor`` (threads): :meth:`tell` merges on two of its threads,
@@ -195,10 +197,9 @@ class Sampler:
     def resume(self, request: SampleRequest) -> SampleRequest:
         """Take a request issued elsewhere as this sampler's pending one, so it can be told.
 
-        A loop that runs through files (``awr plan`` writes a request map, a renderer answers
-        it, ``awr merge`` folds the answer in) rebuilds the sampler from the dump with
-        :meth:`from_buffer` in every process; the request read back from its file then becomes
-        pending here and :meth:`tell` merges the batch exactly as in one process.
+        A loop that runs through files (``awr plan`` writes a request map, a renderer answers it, ``awr merge``
+        folds the answer in) rebuilds the sampler from the dump with :meth:`from_buffer` in every process; the
+        request read back from its file then becomes pending here and :meth:`tell` merges it as in one process.
 
         Raises
         ------
@@ -235,13 +236,13 @@ class Sampler:
         return request
 
     def default_budget(self) -> int:
-        """Budget of the next round when :meth:`ask` is given none."""
+        """Budget of the next round when :meth:`ask` is given none (a growing round: at least 1 spp)."""
         pixels = self._shape[0] * self._shape[1]
         if self._round == 0:
             return self.initial_spp * pixels
         if self.round_spp is not None:
             return max(1, int(round(self.round_spp * pixels)))
-        return max(int(0.25 * pixels), int(self.round_growth * self._issued.sum()), 1)
+        return max(pixels, int(self.round_growth * self._issued.sum()))
 
     def ask(self, budget: int | None = None) -> SampleRequest:
         """The next request; asking again before :meth:`tell` returns the same request.
@@ -287,8 +288,7 @@ class Sampler:
             if deficit.any():
                 # Bring every pixel up to spp_min first (uniformly if the budget is short).
                 share = min(target, int(deficit.sum()))
-                counts += allocate(deficit.astype(np.float64), np.zeros_like(deficit), share, capacity=deficit,
-                                   rng=rng)
+                counts += allocate(deficit.astype(np.float64), np.zeros_like(deficit), share, capacity=deficit, rng=rng)
                 topped_up = True
         rest = target - int(counts.sum()) if topped_up else target
         if rest:
@@ -304,8 +304,8 @@ class Sampler:
     def tell(self, request: SampleRequest | int, samples: SampleBuffer) -> SampleBuffer:
         """Merge the samples rendered for ``request``; returns the merged statistics.
 
-        Features the renderer returned with them (albedo, normal, depth) are merged the same
-        way (:func:`~awr_denoise.features.merge_features`).
+        Features the renderer returned with them (albedo, normal, depth) are merged the same way
+        (:func:`~awr_denoise.features.merge_features`).
 
         Raises
         ------
@@ -379,7 +379,7 @@ class Sampler:
         ...     rounds.append(request.total)
         ...     return len(rounds) < 2
         >>> AdaptiveSampler((16, 16)).run(renderer, total_spp=32, callback=two_rounds).total_samples, rounds
-        (1280, [1024, 256])
+        (768, [512, 256])
         """
         pixels = self._shape[0] * self._shape[1]
         total_spp = _checks.real("total_spp", total_spp, minimum=0, maximum=MAX_BUDGET / pixels)
@@ -514,7 +514,7 @@ class AdaptiveSampler(Sampler):
 
     strategy = "awr"
 
-    def __init__(self, shape: Shape2D, *, channels: int | tuple[str, ...] = 3, initial_spp: int = DEFAULT_INITIAL_SPP,
+    def __init__(self, shape: Shape2D, *, channels: int | tuple[str, ...] = 3, initial_spp: int = DEFAULT_AWR_INITIAL_SPP,
                  wavelet: str = DEFAULT_WAVELET, levels: int | None = None, seed: int = 0,
                  spp_min: int | None = None, spp_max: int | None = None, round_spp: float | None = None,
                  round_growth: float = DEFAULT_ROUND_GROWTH, domain: str | Domain = "log", level_weight: float | None = None,

@@ -267,6 +267,16 @@ CAPS = (1.0, 3.0, 10.0)
 """``samplers --caps``: other values of ``absolute_above`` beside the default's 6, as samplers ``awr, cap C``."""
 
 
+INITIALS = (1, 4)
+"""``samplers --initials``: other values of ``initial_spp`` beside the default's 2, as samplers ``awr, initial N``."""
+
+
+def initial_kinds(initials: tuple[int, ...]) -> dict[str, Any]:
+    """Samplers ``awr, initial N``: AWR's default with ``initial_spp=N``."""
+    return {f"awr, initial {n}": (lambda shape, seed, n=n: AdaptiveSampler(shape, seed=seed, initial_spp=n))
+            for n in initials}
+
+
 def cap_kinds(caps: tuple[float, ...]) -> dict[str, Any]:
     """Samplers ``awr, cap C``: AWR's default with ``absolute_above=C``."""
     return {f"awr, cap {c:g}": (lambda shape, seed, c=c: AdaptiveSampler(shape, seed=seed, absolute_above=c))
@@ -407,18 +417,30 @@ def sampler_table(rows: list[dict]) -> None:
                   f"| {g['r'] / a['r']:.2f}, {g['m'] / a['m']:.2f} | {u['r'] / a['r']:.2f}, {u['m'] / a['m']:.2f} "
                   f"| {100 * worst[0]:.2f}, {100 * worst[1]:.2f} | {time_cell} |")
     caps = sorted({float(r["sampler"].split()[-1]) for r in rows if r["sampler"].startswith("awr, cap ")})
-    if not caps:
-        return
-    print("\n| scene | spp | " + " | ".join(f"cap {c:g} / cap 6 (default), relMSE and MSE" for c in caps)
-          + " | relative alone / cap 6, relMSE and MSE |")
-    print("|---|---|" + "---|" * (len(caps) + 1))
-    for scene in scenes:
+    if caps:
+        print("\n| scene | spp | " + " | ".join(f"cap {c:g} / cap 6 (default), relMSE and MSE" for c in caps)
+              + " | relative alone / cap 6, relMSE and MSE |")
+        print("|---|---|" + "---|" * (len(caps) + 1))
+    for scene in scenes if caps else []:
         for spp in spps:
             a = errors(scene, spp, "awr")
             cells = [errors(scene, spp, f"awr, cap {c:g}") for c in caps] + [
                 errors(scene, spp, "awr, relative error alone")]
             print(f"| {scene} | {spp} | " + " | ".join(f"{e['r'] / a['r']:.3f}, {e['m'] / a['m']:.2f}" for e in cells)
                   + " |")
+    initials = [f"awr, initial {n}" for n in sorted({int(r["sampler"].split()[-1]) for r in rows
+                                                      if r["sampler"].startswith("awr, initial ")})]
+    if initials:
+        print("\n| scene | spp | " + " | ".join(f"{k[5:]} / initial 2 (default), relMSE and MSE" for k in initials)
+              + " | ask() CPU time to 32 spp, initial 2 and " + " and ".join(k[5:] for k in initials) + " |")
+        print("|---|---|" + "---|" * (len(initials) + 1))
+    for scene in scenes if initials else []:
+        for spp in spps:
+            a = errors(scene, spp, "awr")
+            cells = [errors(scene, spp, k) for k in initials]
+            times = [mean("ask_seconds", scene=scene, spp=spp, sampler=k) for k in ("awr", *initials)]
+            print(f"| {scene} | {spp} | " + " | ".join(f"{e['r'] / a['r']:.3f}, {e['m'] / a['m']:.2f}" for e in cells)
+                  + " | " + (", ".join(f"{t:.2f} s" for t in times) if spp == max(spps) else "") + " |")
 
 
 SEED_SCENES = ("gradient", "edges", "hdr_source", "fireflies")
@@ -683,6 +705,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--floors", action="store_true", help="quality: also other energy floors (FLOORS)")
     parser.add_argument("--pilots", action="store_true", help="quality: also other pilot thresholds (PILOTS)")
     parser.add_argument("--caps", action="store_true", help="samplers: also other absolute_above values (CAPS)")
+    parser.add_argument("--initials", action="store_true", help="samplers: also other initial_spp values (INITIALS)")
     parser.add_argument("--windows", action="store_true", help="quality, synthetic: also other guard windows (WINDOWS)")
     args = parser.parse_args(argv)
     command = recorded_command("bench_reconstruct.py", argv)
@@ -695,7 +718,8 @@ def main(argv: list[str] | None = None) -> int:
         quality_tables(rows)
     elif args.section == "samplers":
         rows = samplers(quality_scenes(args.scenes), tuple(s for s in args.spps if s <= 32) or (8, 16, 32),
-                        args.groups or 2, args.cache, {**SAMPLER_KINDS, **(cap_kinds(CAPS) if args.caps else {})})
+                        args.groups or 2, args.cache, {**SAMPLER_KINDS, **(cap_kinds(CAPS) if args.caps else {}),
+                                                       **(initial_kinds(INITIALS) if args.initials else {})})
         _update("samplers", rows, command)
         sampler_table(rows)
     elif args.section == "refresh":

@@ -13,7 +13,6 @@ from awr_denoise.io import provenance, write_image, write_preview
 from awr_denoise.metrics import mse, relmse
 from awr_denoise.reconstruct import DEFAULT_PILOT_C_S
 from awr_denoise.renderers import create_renderer
-from awr_denoise.sampling import DEFAULT_INITIAL_SPP
 
 from awr_denoise.io.atomic import OutputSet
 
@@ -65,11 +64,11 @@ def run(args: argparse.Namespace) -> int:
     status(f"rendering {name} uniformly at {args.spp:g} spp", quiet=args.quiet)
     renderer = create_renderer(TRACER, scene, seed=args.seed, progress=not args.quiet)
     uniform, _, _ = render_buffer(renderer, scene.shape, spp=round(args.spp), adaptive=False, seed=args.seed,
-                                  initial_spp=DEFAULT_INITIAL_SPP, quiet=args.quiet)
+                                  quiet=args.quiet)
     status(f"rendering {name} adaptively at {args.spp:g} spp", quiet=args.quiet)
     renderer = create_renderer(TRACER, scene, seed=args.seed + 1)
     adaptive, _, _ = render_buffer(renderer, scene.shape, spp=round(args.spp), adaptive=True, seed=args.seed + 1,
-                                   initial_spp=DEFAULT_INITIAL_SPP, quiet=args.quiet)
+                                   quiet=args.quiet)
     images = {
         "uniform_mean": uniform.mean,
         "uniform_awr": reconstruct(uniform, c_s=args.c_s),

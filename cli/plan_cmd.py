@@ -8,7 +8,8 @@ from awr_denoise.allocation import MAX_BUDGET
 from awr_denoise.io import provenance, read_sample_dump, write_request
 from awr_denoise.io.exr import read_windows
 from awr_denoise.noise_gain import DEFAULT_NOISE_MODEL
-from awr_denoise.sampling import DEFAULT_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS, SAMPLERS, AdaptiveSampler
+from awr_denoise.sampling import (DEFAULT_AWR_INITIAL_SPP, DEFAULT_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS, SAMPLERS,
+                                  AdaptiveSampler)
 from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 
 from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, status
@@ -39,8 +40,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="new samples of this round as a share of the samples taken so far (default "
                              f"{DEFAULT_ROUND_GROWTH})")
     p.add_argument("--size", type=image_size, metavar="WxH", help="image size of the first round (without a dump)")
-    p.add_argument("--initial-spp", type=whole(minimum=1, maximum=MAX_SPP), default=DEFAULT_INITIAL_SPP,
-                   help="samples per pixel of the first round (default %(default)s)")
+    p.add_argument("--initial-spp", type=whole(minimum=1, maximum=MAX_SPP),
+                   help=f"samples per pixel of the first round (default {DEFAULT_AWR_INITIAL_SPP} with the awr strategy, "
+                        f"{DEFAULT_INITIAL_SPP} with the others)")
     p.add_argument("--strategy", choices=STRATEGIES, default=AdaptiveSampler.strategy,
                    help="awr wavelet priorities (default), uniform, or per-pixel variance")
     p.add_argument("--seed", type=whole(minimum=0, maximum=MAX_SEED), help="seed of the renderer's sequences and tie-breaking "
@@ -69,6 +71,8 @@ def run(args: argparse.Namespace) -> int:
     check_plane_windows(args.input, plane_options(args))
     cls = SAMPLERS[args.strategy]
     options: dict = {"spp_max": args.spp_max}
+    if args.initial_spp is not None:  # else the strategy's own default
+        options["initial_spp"] = args.initial_spp
     if args.round_growth is not None:
         options["round_growth"] = args.round_growth
     if cls is AdaptiveSampler:
@@ -84,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError(f"--levels: {args.levels} is outside 1..{max_levels(shape)} for --size {args.size[1]}x"
                              f"{args.size[0]}")
         seed = 0 if args.seed is None else args.seed
-        sampler = cls(shape, initial_spp=args.initial_spp, seed=seed, **options)
+        sampler = cls(shape, seed=seed, **options)
         round_number = 0
         if args.round is not None and args.round != 0:
             raise UsageError("--round: the first round (without a dump) is round 0")
@@ -103,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
         if round_number < 1:
             raise UsageError(f"--round: rounds after the first are numbered from 1, got {round_number}")
         sampler = cls.from_buffer(dump.buffer, seed=seed, round=round_number, issued=dump.issued,
-                                  initial_spp=args.initial_spp, **options)
+                                  **options)
     budget = args.budget
     if args.round_spp is not None:
         h, w = sampler.shape

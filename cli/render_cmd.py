@@ -22,7 +22,7 @@ from awr_denoise.noise_gain import DEFAULT_NOISE_MODEL
 from awr_denoise.parallel import RendererSpec, TiledRenderer
 from awr_denoise.renderers import create_renderer, renderer_features, renderer_names, renderer_scenes
 from awr_denoise.requests import Renderer, SampleTracer
-from awr_denoise.sampling import DEFAULT_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS
+from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS
 
 from . import interrupts
 from .common import EXIT_OK, RuntimeFailure, UsageError, status
@@ -70,7 +70,7 @@ def derived_path(path: str | Path, suffix: str) -> Path:
 
 
 def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float, adaptive: bool, seed: int,
-                  initial_spp: int, quiet: bool, round_growth: float = DEFAULT_ROUND_GROWTH,
+                  initial_spp: int = DEFAULT_AWR_INITIAL_SPP, quiet: bool, round_growth: float = DEFAULT_ROUND_GROWTH,
                   noise_model: str = DEFAULT_NOISE_MODEL, gain_refresh: float | None = None) -> tuple[SampleBuffer, Any, int]:
     """(buffer, issued, next round) of a uniform or adaptive render at ``spp`` on average.
 
@@ -111,7 +111,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     mode.add_argument("--adaptive", dest="adaptive", action="store_true", default=True,
                       help="adaptive wavelet sampling (default)")
     mode.add_argument("--uniform", dest="adaptive", action="store_false", help="the same count at every pixel")
-    p.add_argument("--initial-spp", type=whole(minimum=1, maximum=MAX_SPP), default=DEFAULT_INITIAL_SPP,
+    p.add_argument("--initial-spp", type=whole(minimum=1, maximum=MAX_SPP), default=DEFAULT_AWR_INITIAL_SPP,
                    help="samples per pixel of the first adaptive round (default %(default)s)")
     p.add_argument("--round-growth", type=real(above=0, maximum=1e6), metavar="G", default=DEFAULT_ROUND_GROWTH,
                    help="adaptive rounds ask for this share of the samples taken so far (default %(default)s; "

@@ -27,6 +27,7 @@ from awr_denoise.io import (  # noqa: E402
     write_sample_buffer,
 )
 from awr_denoise.io.colour import MITSUBA_XYZ_TO_SRGB  # noqa: E402
+from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP  # noqa: E402
 
 DATA = Path(__file__).parent / "data"
 H, W = 24, 32
@@ -514,7 +515,16 @@ def test_info_on_plain_image_and_request(tmp_path, capsys):
     assert main(["plan", "--size", "3x2", "-o", str(tmp_path / "r.exr"), "-q"]) == 0
     assert main(["info", str(tmp_path / "r.exr"), "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
-    assert info["kind"] == "request" and info["total"] == 4 * 6
+    assert info["kind"] == "request" and info["total"] == DEFAULT_AWR_INITIAL_SPP * 6
+
+
+@pytest.mark.parametrize(("options", "spp"), [([], 2), (["--strategy", "uniform"], 4), (["--strategy", "variance"], 4),
+                                              (["--initial-spp", "3"], 3), (["--strategy", "variance", "--initial-spp", "1"], 1)])
+def test_plan_first_round_takes_the_strategy_s_initial_spp(tmp_path, options, spp):
+    """Without --initial-spp the first round is the strategy's own default: 2 for awr, 4 (the paper's) otherwise."""
+    assert main(["plan", "--size", "5x4", *options, "-o", str(tmp_path / "r.exr"), "-q"]) == 0
+    counts = read_request(tmp_path / "r.exr").counts
+    assert counts.shape == (4, 5) and (counts == spp).all()
 
 
 def test_plan_usage_errors(tmp_path, capsys, rng):
@@ -574,7 +584,7 @@ def test_render_noise_model_reaches_the_sampler(tmp_path, capsys, fake_tracer):
               for model in ("levels", "reconstruction", "shrinkage")}
     assert not np.array_equal(counts["levels"], counts["reconstruction"])
     assert not np.array_equal(counts["levels"], counts["shrinkage"])
-    default = _rendered(tmp_path, 8, "--initial-spp", "4").buffer.count  # no --noise-model: the shrinkage
+    default = _rendered(tmp_path, 8, "--initial-spp", "2").buffer.count  # no --noise-model: the shrinkage
     np.testing.assert_array_equal(default, counts["shrinkage"])
     assert main(["render", "--uniform", "--noise-model", "reconstruction", "-o", str(tmp_path / "u.exr")]) == 2
     _one_error_line(capsys, "--noise-model")
@@ -604,7 +614,8 @@ def test_render_gain_refresh_reaches_the_sampler(tmp_path, capsys, fake_tracer, 
 def test_render_round_growth_takes_fewer_rounds(tmp_path, fake_tracer):
     rounds = {growth: int(_rendered(tmp_path, 16, "--round-growth", growth).attributes["awr:round"])
               for growth in ("0.25", "1.0")}
-    assert rounds == {"0.25": 8, "1.0": 3}  # 4 spp, then rounds of 25% (or 100%) of the samples so far
+    # 2 spp, then rounds of 25% (or 100%) of the samples so far, each at least 1 spp
+    assert rounds == {"0.25": 10, "1.0": 4}
 
 
 def test_maxerror_failure_keeps_output_and_exits_1(tmp_path, capsys, rng):

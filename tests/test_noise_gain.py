@@ -59,10 +59,10 @@ def test_the_sampler_takes_gain_refresh_only_with_the_measured_gain():
         AdaptiveSampler((16, 16), noise_model="reconstruction", gain_refresh=0.9)
 
 
-@pytest.mark.parametrize(("refresh", "expected"), [(None, 10), (1.0, 10), (1.5, 5), (2.0, 3)])
+@pytest.mark.parametrize(("refresh", "expected"), [(None, 12), (1.0, 12), (1.5, 7), (2.0, 4)])
 def test_a_sampler_reconstructs_once_per_measurement(monkeypatch, refresh, expected):
-    """To 32 spp from 4 at the default round growth (a quarter of the samples so far): ten adaptive
-    rounds, each measured by default; a refresh of 1.5 measures every other one."""
+    """To 32 spp from 2 at the default round growth (a quarter of the samples so far, at least 1 spp):
+    twelve adaptive rounds, each measured by default; a refresh of 1.5 measures about every other one."""
     calls = []
     real = noise_gain.reconstruct_detailed
 

@@ -16,7 +16,7 @@ from ..buffers import SampleBuffer
 from ..metrics import relmse
 from ..noise_gain import DEFAULT_NOISE_MODEL
 from ..reconstruct import reconstruct
-from ..sampling import DEFAULT_ROUND_GROWTH, AdaptiveSampler
+from ..sampling import DEFAULT_AWR_INITIAL_SPP, DEFAULT_ROUND_GROWTH, AdaptiveSampler
 from ..wavelets import default_levels, max_levels
 from .config import DOMAINS, BenchmarkConfig
 from .measure import run_progressive
@@ -144,6 +144,7 @@ def _sampler_settings(add: Callable[..., None], scene: Any, reference: FloatArra
                  for v in (0.0, 0.25, 1.0)]
     variants += [("round_spp", v, {"round_spp": v}, False) for v in (0.25, 2.0, 8.0)]
     variants += [("round_growth", v, {"round_growth": v}, v == DEFAULT_ROUND_GROWTH) for v in (0.25, 0.5, 1.0)]
+    variants += [("initial_spp", v, {"initial_spp": v}, v == DEFAULT_AWR_INITIAL_SPP) for v in (1, 2, 4, 8)]
     cache: dict[tuple, tuple[list[float], float]] = {}
     for group, value, options, default in variants:
         key = tuple(sorted((k, v) for k, v in options.items() if not default))

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP
+
 SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_mitsuba.py"
 
 
@@ -26,7 +28,7 @@ def test_quick_run_writes_a_self_describing_json(bench, tmp_path, capsys):
     assert bench.main(args) == 0
     results = json.loads(out.read_text())
     assert {"description", "command", "machine", "settings", "scenes"} <= set(results)
-    assert results["settings"]["library_defaults"]["AdaptiveSampler"]["initial_spp"] == 4
+    assert results["settings"]["library_defaults"]["AdaptiveSampler"]["initial_spp"] == DEFAULT_AWR_INITIAL_SPP
     (scene,) = results["scenes"]
     assert scene["scene"] == "cornell_box" and scene["reference"]["cached"] is False
     assert scene["throughput"]["ratio"] > 0

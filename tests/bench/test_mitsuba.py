@@ -26,7 +26,7 @@ def test_a_missing_mitsuba_skips_the_section_with_its_reason(monkeypatch):
 
 
 def test_the_section_measures_both_samplers_and_caches_the_reference(mi, tmp_path):
-    config = BenchmarkConfig.quick(spps=(4, 8), mitsuba_size=16, mitsuba_reference_spp=64,
+    config = BenchmarkConfig.quick(spps=(2, 8), mitsuba_size=16, mitsuba_reference_spp=64,
                                    mitsuba_scenes=("cornell_box",), mitsuba_reference_dir=str(tmp_path))
     ticks = []
     result = bench_mitsuba.mitsuba_benchmark(config, ticks.append)
@@ -34,10 +34,10 @@ def test_the_section_measures_both_samplers_and_caches_the_reference(mi, tmp_pat
     scene = result["scenes"]["cornell_box"]
     assert scene["shape"] == [16, 16] and scene["reference"]["source"].startswith("rendered")
     for method in bench_mitsuba.MITSUBA_METHODS:
-        assert [row["spp"] for row in scene["methods"][method]] == [4, 8]
+        assert [row["spp"] for row in scene["methods"][method]] == [2, 8]
         for row in scene["methods"][method]:
             assert row["relmse"] > 0 and row["mse"] > 0 and abs(row["mean_error"]) < 0.5
-    # Uniform and adaptive sampling agree on the first round (4 spp everywhere) and part after it.
+    # Uniform and adaptive sampling agree on AdaptiveSampler's first round (2 spp everywhere) and part after it.
     assert scene["methods"]["uniform"][0] == scene["methods"]["awr"][0]
     assert scene["methods"]["uniform"][1] != scene["methods"]["awr"][1]
     again = bench_mitsuba.mitsuba_benchmark(config, lambda label: None)
