@@ -416,31 +416,31 @@ def sampler_table(rows: list[dict]) -> None:
             print(f"| {scene} | {spp} | {lv['r']:.5f} | {a['r']:.5f} | {lv['r'] / a['r']:.2f}, {lv['m'] / a['m']:.2f} "
                   f"| {g['r'] / a['r']:.2f}, {g['m'] / a['m']:.2f} | {u['r'] / a['r']:.2f}, {u['m'] / a['m']:.2f} "
                   f"| {100 * worst[0]:.2f}, {100 * worst[1]:.2f} | {time_cell} |")
+    def over_default(kinds: list[str], headers: list[str], time_header: str | None = None) -> None:
+        """relMSE and MSE of each kind over the default's (``awr``); with ``time_header``, ask()'s time to 32 spp."""
+        if not kinds:
+            return
+        print("\n| scene | spp | " + " | ".join(headers) + (f" | {time_header}" if time_header else "") + " |")
+        print("|---|---|" + "---|" * (len(kinds) + (time_header is not None)))
+        for scene in scenes:
+            for spp in spps:
+                a = errors(scene, spp, "awr")
+                line = " | ".join(f"{e['r'] / a['r']:.3f}, {e['m'] / a['m']:.2f}"
+                                  for e in (errors(scene, spp, k) for k in kinds))
+                if time_header:
+                    times = (mean("ask_seconds", scene=scene, spp=spp, sampler=k) for k in ("awr", *kinds))
+                    line += " | " + (", ".join(f"{t:.2f} s" for t in times) if spp == max(spps) else "")
+                print(f"| {scene} | {spp} | {line} |")
+
     caps = sorted({float(r["sampler"].split()[-1]) for r in rows if r["sampler"].startswith("awr, cap ")})
     if caps:
-        print("\n| scene | spp | " + " | ".join(f"cap {c:g} / cap 6 (default), relMSE and MSE" for c in caps)
-              + " | relative alone / cap 6, relMSE and MSE |")
-        print("|---|---|" + "---|" * (len(caps) + 1))
-    for scene in scenes if caps else []:
-        for spp in spps:
-            a = errors(scene, spp, "awr")
-            cells = [errors(scene, spp, f"awr, cap {c:g}") for c in caps] + [
-                errors(scene, spp, "awr, relative error alone")]
-            print(f"| {scene} | {spp} | " + " | ".join(f"{e['r'] / a['r']:.3f}, {e['m'] / a['m']:.2f}" for e in cells)
-                  + " |")
+        over_default([f"awr, cap {c:g}" for c in caps] + ["awr, relative error alone"],
+                     [f"cap {c:g} / cap 6 (default), relMSE and MSE" for c in caps]
+                     + ["relative alone / cap 6, relMSE and MSE"])
     initials = [f"awr, initial {n}" for n in sorted({int(r["sampler"].split()[-1]) for r in rows
                                                       if r["sampler"].startswith("awr, initial ")})]
-    if initials:
-        print("\n| scene | spp | " + " | ".join(f"{k[5:]} / initial 2 (default), relMSE and MSE" for k in initials)
-              + " | ask() CPU time to 32 spp, initial 2 and " + " and ".join(k[5:] for k in initials) + " |")
-        print("|---|---|" + "---|" * (len(initials) + 1))
-    for scene in scenes if initials else []:
-        for spp in spps:
-            a = errors(scene, spp, "awr")
-            cells = [errors(scene, spp, k) for k in initials]
-            times = [mean("ask_seconds", scene=scene, spp=spp, sampler=k) for k in ("awr", *initials)]
-            print(f"| {scene} | {spp} | " + " | ".join(f"{e['r'] / a['r']:.3f}, {e['m'] / a['m']:.2f}" for e in cells)
-                  + " | " + (", ".join(f"{t:.2f} s" for t in times) if spp == max(spps) else "") + " |")
+    over_default(initials, [f"{k[5:]} / initial 2 (default), relMSE and MSE" for k in initials],
+                 "ask() CPU time to 32 spp, initial 2 and " + " and ".join(k[5:] for k in initials))
 
 
 SEED_SCENES = ("gradient", "edges", "hdr_source", "fireflies")
