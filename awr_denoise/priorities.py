@@ -337,8 +337,9 @@ def sampling_density(
     - ``"levels"``, the paper's: a region averaged over ``4^l`` pixels keeps ``4^-l`` of it,
       ``a_p = s_p * 2^(-level_weight * l_p)`` with ``l_p`` the winning level of
       :func:`pixel_levels` (``level_weight = 0``: per-pixel variance-driven sampling);
-    - a given ``noise_gain`` (``"reconstruction"``: the share measured on a reconstruction,
-      :attr:`~awr_denoise.Reconstruction.noise_gain`), pooled the same way, takes the model's place.
+    - ``"reconstruction"``: ``noise_gain``, the share measured on a reconstruction
+      (:attr:`~awr_denoise.Reconstruction.noise_gain`), pooled the same way; it is given with this
+      model and with no other (refused, not ignored).
 
     With an ``executor`` (threads), ``s_p`` and the transform of the means are computed on it
     while the coefficient variances propagate in this thread: the same density, sooner on two
@@ -363,7 +364,7 @@ def sampling_density(
 
     >>> gain = np.where(np.arange(32) < 16, 0.1, 0.4)[:, None] * np.ones((32, 32))
     >>> flat = SampleBuffer.from_moments(np.full((32, 32), 4), np.ones((32, 32, 3)), np.full((32, 32, 3), 0.1))
-    >>> density = sampling_density(flat, noise_gain=gain)
+    >>> density = sampling_density(flat, noise_gain=gain, noise_model="reconstruction")
     >>> round(float(density[28, 5] / density[3, 5]), 6)
     2.0
     """
@@ -372,6 +373,8 @@ def sampling_density(
     noise_model = _checks.name("noise_model", noise_model, NOISE_MODELS)
     if noise_model == "reconstruction" and noise_gain is None:
         raise ValueError("noise_gain: noise_model='reconstruction' needs the measured gain (Reconstruction.noise_gain)")
+    if noise_model != "reconstruction" and noise_gain is not None:
+        raise ValueError(f"noise_gain: a measured gain needs noise_model='reconstruction', not {noise_model!r}")
     if noise_gain is not None:
         noise_gain = np.asarray(noise_gain, dtype=np.float64)
         if noise_gain.shape != buffer.shape:
@@ -380,13 +383,13 @@ def sampling_density(
     p = prepare(buffer, domain, luminance=True)  # once, for the deviation and the priorities
     plane = _plane(p)
     deviation = partial(pooled_deviation, buffer, domain, absolute_above=absolute_above, prepared=p)
-    if noise_gain is None and noise_model == "shrinkage":
+    if noise_model == "shrinkage":
         # The gain takes the priorities' and levels' place; the plane is normalised as for them
         # (the shrinkage factors do not change when it is scaled, and its squares cannot overflow).
         pooled = None if executor is None else executor.submit(deviation)
         noise_gain = shrinkage_gain(*_transformed(*_normalised(plane)[0][:2], ops, None), ops)
         s_pooled = deviation() if pooled is None else pooled.result()
-    elif noise_gain is not None:
+    elif noise_model == "reconstruction":
         s_pooled = deviation()
     if noise_gain is not None:
         # Pooled like s_p; a NaN or negative gain (none is expected) must not send samples nowhere.

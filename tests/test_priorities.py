@@ -197,7 +197,7 @@ def test_the_shrinkage_density_is_the_pooled_deviation_times_the_root_of_the_poo
     # The sampler's variances are propagated in float32: the same density to float32 precision.
     assert_allclose(sampling_density(buf, noise_model="shrinkage"), expected, rtol=1e-5)
     # The same through a given gain: the measured gain's route.
-    assert_allclose(sampling_density(buf, noise_gain=gain), expected, rtol=1e-12)
+    assert_allclose(sampling_density(buf, noise_gain=gain, noise_model="reconstruction"), expected, rtol=1e-12)
 
 
 def test_the_noise_model_is_checked():
@@ -206,6 +206,10 @@ def test_the_noise_model_is_checked():
         sampling_density(buf, noise_model="level")
     with pytest.raises(ValueError, match="noise_gain: noise_model='reconstruction' needs the measured gain"):
         sampling_density(buf, noise_model="reconstruction")
+    for model in ("shrinkage", "levels"):  # a gain that would do nothing is refused, not ignored
+        with pytest.raises(ValueError, match=f"noise_gain: a measured gain needs noise_model='reconstruction', "
+                                             f"not '{model}'"):
+            sampling_density(buf, noise_gain=np.ones(buf.shape), noise_model=model)
 
 
 def test_density_is_zero_for_a_deterministic_image():
@@ -303,6 +307,7 @@ def test_an_executor_gives_the_same_priorities_and_density():
     with ThreadPoolExecutor(2) as pool:
         for a, b in zip(coefficient_priorities(buf), coefficient_priorities(buf, executor=pool)):
             np.testing.assert_array_equal(a, b)
-        for options in ({}, {"level_weight": 0.0}, {"noise_gain": np.full(shape, 0.5)}):
+        for options in ({}, {"noise_model": "levels"}, {"noise_model": "levels", "level_weight": 0.0},
+                        {"noise_model": "reconstruction", "noise_gain": np.full(shape, 0.5)}):
             np.testing.assert_array_equal(sampling_density(buf, **options),
                                           sampling_density(buf, executor=pool, **options))

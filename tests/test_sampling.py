@@ -237,7 +237,8 @@ def test_round_budgets_grow_with_the_samples_taken(sampler_cls, initial_spp, rou
 
 
 def test_adaptive_sampler_starts_at_two_spp_and_the_others_at_four():
-    """AdaptiveSampler's round 0 is DEFAULT_AWR_INITIAL_SPP (measured, docs/sampling.md); the others keep the paper's 4."""
+    """AdaptiveSampler's round 0 is DEFAULT_AWR_INITIAL_SPP (measured, docs/sampling.md); the others keep the
+    paper's 4."""
     assert DEFAULT_AWR_INITIAL_SPP == 2 and DEFAULT_INITIAL_SPP == 4
     for cls, spp in ((AdaptiveSampler, 2), (UniformSampler, 4), (VarianceSampler, 4)):
         request = cls(SHAPE).ask()
@@ -437,7 +438,8 @@ def test_adaptive_beats_uniform_at_equal_samples_more_seeds(name, spp):
 def test_the_measured_gain_model_spends_by_the_default_reconstructions_gain():
     sampler, _ = _after_round_zero(AdaptiveSampler, noise_model="reconstruction")
     gain = reconstruct_detailed(sampler.buffer, variance_probes=0).noise_gain
-    assert_array_equal(sampler.density(), sampling_density(sampler.buffer, noise_gain=gain))
+    assert_array_equal(sampler.density(),
+                       sampling_density(sampler.buffer, noise_gain=gain, noise_model="reconstruction"))
     assert not np.array_equal(sampler.density(), _after_round_zero(AdaptiveSampler)[0].density())
 
 
