@@ -361,6 +361,11 @@ def sampler_table(rows: list[dict]) -> None:
         """``{"r": relMSE, "m": MSE}`` of the default reconstruction, mean over seeds."""
         return {k: mean(key, scene=scene, spp=spp, sampler=sampler) for k, key in (("r", "relmse"), ("m", "mse"))}
 
+    def worst_mean_error(scene: str, spp: int, sampler: str) -> float:
+        """The largest image-mean error against the reference over the seeds, in percent."""
+        return 100 * max(r["reference_mean_error"] for r in rows if r["method"] == "default" and r["scene"] == scene
+                         and r["spp"] == spp and r["sampler"] == sampler)
+
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
     spps = sorted({r["spp"] for r in rows})
     print("\n| scene | spp | uniform | variance | awr | awr, linear priorities | uniform / awr | variance / awr |")
@@ -388,14 +393,13 @@ def sampler_table(rows: list[dict]) -> None:
     for scene in scenes:
         for spp in spps:
             a, g, u = (errors(scene, spp, s) for s in ("awr", "awr, measured gain", "uniform"))
-            worst = [max(r["reference_mean_error"] for r in rows if r["method"] == "default" and r["scene"] == scene
-                         and r["spp"] == spp and r["sampler"] == s) for s in ("awr", "awr, measured gain")]
+            worst = [worst_mean_error(scene, spp, s) for s in ("awr", "awr, measured gain")]
             time_cell = ""
             if spp == max(spps):
                 ta, tg = (mean("ask_seconds", scene=scene, spp=spp, sampler=s) for s in ("awr", "awr, measured gain"))
                 time_cell = f"{ta:.2f} s, {tg:.2f} s"
             print(f"| {scene} | {spp} | {a['r']:.5f} | {g['r']:.5f} | {a['r'] / g['r']:.2f} | {a['m'] / g['m']:.2f} "
-                  f"| {u['r'] / g['r']:.2f}, {u['m'] / g['m']:.2f} | {100 * worst[0]:.2f}, {100 * worst[1]:.2f} "
+                  f"| {u['r'] / g['r']:.2f}, {u['m'] / g['m']:.2f} | {worst[0]:.2f}, {worst[1]:.2f} "
                   f"| {time_cell} |")
     levels, measured = "awr, levels", "awr, measured gain"
     if any(r["sampler"] == levels for r in rows):
@@ -407,27 +411,29 @@ def sampler_table(rows: list[dict]) -> None:
     for scene in scenes if any(r["sampler"] == levels for r in rows) else []:
         for spp in spps:
             a, lv, g, u = (errors(scene, spp, k) for k in ("awr", levels, measured, "uniform"))
-            worst = [max(r["reference_mean_error"] for r in rows if r["method"] == "default" and r["scene"] == scene
-                         and r["spp"] == spp and r["sampler"] == k) for k in (levels, "awr")]
+            worst = [worst_mean_error(scene, spp, k) for k in (levels, "awr")]
             time_cell = ""
             if spp == max(spps):
                 times = (mean("ask_seconds", scene=scene, spp=spp, sampler=k) for k in (levels, "awr", measured))
                 time_cell = ", ".join(f"{t:.2f} s" for t in times)
             print(f"| {scene} | {spp} | {lv['r']:.5f} | {a['r']:.5f} | {lv['r'] / a['r']:.2f}, {lv['m'] / a['m']:.2f} "
                   f"| {g['r'] / a['r']:.2f}, {g['m'] / a['m']:.2f} | {u['r'] / a['r']:.2f}, {u['m'] / a['m']:.2f} "
-                  f"| {100 * worst[0]:.2f}, {100 * worst[1]:.2f} | {time_cell} |")
-    def over_default(kinds: list[str], headers: list[str], time_header: str | None = None) -> None:
-        """relMSE and MSE of each kind over the default's (``awr``); with ``time_header``, ask()'s time to 32 spp."""
+                  f"| {worst[0]:.2f}, {worst[1]:.2f} | {time_cell} |")
+    def over_default(kinds: list[str], headers: list[str], names: str | None = None) -> None:
+        """relMSE and MSE of each kind over the default's (``awr``); with ``names`` (the default's and
+        the kinds'), also the worst image-mean error against the reference and ask()'s time to 32 spp."""
         if not kinds:
             return
-        print("\n| scene | spp | " + " | ".join(headers) + (f" | {time_header}" if time_header else "") + " |")
-        print("|---|---|" + "---|" * (len(kinds) + (time_header is not None)))
+        extra = [f"worst image-mean error against the reference %, {names}", f"ask() CPU time to 32 spp, {names}"]
+        print("\n| scene | spp | " + " | ".join(headers + (extra if names else [])) + " |")
+        print("|---|---|" + "---|" * (len(kinds) + 2 * (names is not None)))
         for scene in scenes:
             for spp in spps:
                 a = errors(scene, spp, "awr")
                 line = " | ".join(f"{e['r'] / a['r']:.3f}, {e['m'] / a['m']:.2f}"
                                   for e in (errors(scene, spp, k) for k in kinds))
-                if time_header:
+                if names:
+                    line += " | " + ", ".join(f"{worst_mean_error(scene, spp, k):.2f}" for k in ("awr", *kinds))
                     times = (mean("ask_seconds", scene=scene, spp=spp, sampler=k) for k in ("awr", *kinds))
                     line += " | " + (", ".join(f"{t:.2f} s" for t in times) if spp == max(spps) else "")
                 print(f"| {scene} | {spp} | {line} |")
@@ -440,7 +446,7 @@ def sampler_table(rows: list[dict]) -> None:
     initials = [f"awr, initial {n}" for n in sorted({int(r["sampler"].split()[-1]) for r in rows
                                                       if r["sampler"].startswith("awr, initial ")})]
     over_default(initials, [f"{k[5:]} / initial 2 (default), relMSE and MSE" for k in initials],
-                 "ask() CPU time to 32 spp, initial 2 and " + " and ".join(k[5:] for k in initials))
+                 "initial 2 and " + " and ".join(k[5:] for k in initials))
 
 
 SEED_SCENES = ("gradient", "edges", "hdr_source", "fireflies")
