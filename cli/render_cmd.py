@@ -69,9 +69,10 @@ def derived_path(path: str | Path, suffix: str) -> Path:
     return p.with_name(stem + suffix)
 
 
-def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float, adaptive: bool, seed: int,
-                  initial_spp: int = DEFAULT_AWR_INITIAL_SPP, quiet: bool, round_growth: float = DEFAULT_ROUND_GROWTH,
-                  noise_model: str = DEFAULT_NOISE_MODEL, gain_refresh: float | None = None) -> tuple[SampleBuffer, Any, int]:
+def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float, adaptive: bool, seed: int, quiet: bool,
+                  initial_spp: int = DEFAULT_AWR_INITIAL_SPP, round_growth: float = DEFAULT_ROUND_GROWTH,
+                  noise_model: str = DEFAULT_NOISE_MODEL,
+                  gain_refresh: float | None = None) -> tuple[SampleBuffer, Any, int]:
     """(buffer, issued, next round) of a uniform or adaptive render at ``spp`` on average.
 
     The renderer is closed afterwards when it is a :class:`~awr_denoise.SampleTracer`.
@@ -111,11 +112,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     mode.add_argument("--adaptive", dest="adaptive", action="store_true", default=True,
                       help="adaptive wavelet sampling (default)")
     mode.add_argument("--uniform", dest="adaptive", action="store_false", help="the same count at every pixel")
-    p.add_argument("--initial-spp", type=whole(minimum=1, maximum=MAX_SPP), default=DEFAULT_AWR_INITIAL_SPP,
-                   help="samples per pixel of the first adaptive round (default %(default)s)")
-    p.add_argument("--round-growth", type=real(above=0, maximum=1e6), metavar="G", default=DEFAULT_ROUND_GROWTH,
-                   help="adaptive rounds ask for this share of the samples taken so far (default %(default)s; "
-                        "larger: fewer, cheaper rounds, see docs/sampling.md)")
+    p.add_argument("--initial-spp", type=whole(minimum=1, maximum=MAX_SPP),
+                   help=f"samples per pixel of the first adaptive round (default {DEFAULT_AWR_INITIAL_SPP})")
+    p.add_argument("--round-growth", type=real(above=0, maximum=1e6), metavar="G",
+                   help="adaptive rounds ask for this share of the samples taken so far "
+                        f"(default {DEFAULT_ROUND_GROWTH}; larger: fewer, cheaper rounds, see docs/sampling.md)")
     p.add_argument("--noise-model", choices=NOISE_MODELS,
                    help="adaptive rounds model what reconstruction leaves of a pixel's noise: by a wavelet "
                         "shrinkage's exact gain (shrinkage, the default), by the paper's levels, or by the default "
@@ -188,8 +189,10 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_OK
     if not args.output:
         raise UsageError("render: -o/--output DUMP.exr is required")
-    if args.noise_model is not None and not args.adaptive:  # a setting that would do nothing is refused
-        raise UsageError("--noise-model: a uniform render has no adaptive rounds to model")
+    for option, value in (("--initial-spp", args.initial_spp), ("--round-growth", args.round_growth),
+                          ("--noise-model", args.noise_model)):
+        if value is not None and not args.adaptive:  # a setting that would do nothing is refused
+            raise UsageError(f"{option}: a uniform render has no adaptive rounds")
     if args.gain_refresh is not None and args.noise_model != "reconstruction":
         raise UsageError("--gain-refresh: only --noise-model reconstruction measures a gain")
     if args.guide == "features" and not args.features:
@@ -212,9 +215,10 @@ def run(args: argparse.Namespace) -> int:
         check_pixels("--width/--height", *frame_shape)
         check_reconstruction_options(args, tuple(frame_shape), name)
     start = time.perf_counter()
-    render = dict(spp=args.spp, adaptive=args.adaptive, seed=args.seed, initial_spp=args.initial_spp,
-                  quiet=args.quiet, round_growth=args.round_growth,
-                  noise_model=args.noise_model or DEFAULT_NOISE_MODEL, gain_refresh=args.gain_refresh)
+    render = dict(spp=args.spp, adaptive=args.adaptive, seed=args.seed, quiet=args.quiet,
+                  gain_refresh=args.gain_refresh)
+    render.update({k: v for k, v in (("initial_spp", args.initial_spp), ("round_growth", args.round_growth),
+                                     ("noise_model", args.noise_model)) if v is not None})  # else render_buffer's
     if executor_requested(args):
         # Each worker builds its own renderer from a picklable spec; tiles of every round are
         # rendered there and merged exactly (addressable random numbers make it match serial).

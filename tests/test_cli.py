@@ -586,9 +586,11 @@ def test_render_noise_model_reaches_the_sampler(tmp_path, capsys, fake_tracer):
     assert not np.array_equal(counts["levels"], counts["shrinkage"])
     default = _rendered(tmp_path, 8, "--initial-spp", "2").buffer.count  # no --noise-model: the shrinkage
     np.testing.assert_array_equal(default, counts["shrinkage"])
-    assert main(["render", "--uniform", "--noise-model", "reconstruction", "-o", str(tmp_path / "u.exr")]) == 2
-    _one_error_line(capsys, "--noise-model")
-    assert not (tmp_path / "u.exr").exists()
+    # The adaptive rounds' settings with a uniform render would do nothing: refused, nothing written.
+    for option, value in (("--noise-model", "reconstruction"), ("--initial-spp", "2"), ("--round-growth", "0.25")):
+        assert main(["render", "--uniform", option, value, "-o", str(tmp_path / "u.exr")]) == 2
+        _one_error_line(capsys, option, "a uniform render has no adaptive rounds")
+        assert not (tmp_path / "u.exr").exists()
 
 
 def test_render_gain_refresh_reaches_the_sampler(tmp_path, capsys, fake_tracer, monkeypatch):
