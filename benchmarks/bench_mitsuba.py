@@ -50,6 +50,7 @@ from awr_denoise import AdaptiveSampler, SampleRequest, reconstruct
 from awr_denoise.adapters import mitsuba_scenes
 from awr_denoise.adapters.mitsuba import MitsubaRenderer
 from awr_denoise.metrics import RELMSE_EPSILON, mse, relmse
+from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP
 
 ROOT = Path(__file__).resolve().parent
 RESULTS = ROOT / "results" / "mitsuba.json"
@@ -232,6 +233,20 @@ def equal_time(uniform: list[dict[str, Any]], awr: list[dict[str, Any]], key: st
     return rows
 
 
+def awr_sample_counts(spps: list[int], initial_spp: int) -> list[int]:
+    """The spp of the AWR runs: the uniform ones, half the smallest, and the sampler's first round alone.
+
+    The first round (``initial_spp``, uniform, then a reconstruction) is AWR's cheapest run: the
+    equal-time comparison has an AWR error only at times from that run's on (below it, "n/a").
+
+    >>> awr_sample_counts([8, 16, 32], 2)
+    [2, 4, 8, 16, 32]
+    >>> awr_sample_counts([4, 8], 4)
+    [4, 8]
+    """
+    return sorted({initial_spp, *(s for s in (min(spps) // 2,) if s > initial_spp), *spps})
+
+
 def bench_scene(name: str, shape: tuple[int, int], *, spps: list[int], reference_spp: int, repeats: int,
                 throughput_spp: int, cache: Path, regenerate: bool, seed: int,
                 sampler_options: dict[str, Any] | None = None,
@@ -249,7 +264,7 @@ def bench_scene(name: str, shape: tuple[int, int], *, spps: list[int], reference
                            "mse_floor": float(ref["variance_of_mean"].mean()),
                            "relmse_floor": float((ref["variance_of_mean"] / (ref["mean"] ** 2 + eps)).mean())}
     awr_run(renderer, min(spps), seed + 999, **sampler_options)  # warm-up: kernels, wavelet operators
-    awr_spps = sorted({max(4, min(spps) // 2), *spps})
+    awr_spps = awr_sample_counts(spps, sampler_options.get("initial_spp", DEFAULT_AWR_INITIAL_SPP))
     uniform_points, awr_points = [], []
     for i, spp in enumerate(awr_spps):
         print(f"[{name}] {spp} spp x {repeats}", flush=True)

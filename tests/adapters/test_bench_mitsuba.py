@@ -38,6 +38,9 @@ def test_quick_run_writes_a_self_describing_json(bench, tmp_path, capsys):
             assert math.isfinite(row[side]["relmse"]) and row[side]["mse"] > 0
     for run in scene["awr_runs"]:
         assert math.isclose(sum(run["shares"].values()), 1.0)
+    # AWR's cheapest run is its first round alone (uniform, then the reconstruction), so equal time
+    # has an AWR error from that run's time on, not only from the smallest uniform spp's half.
+    assert [(run["spp"], run["rounds"]) for run in scene["awr_runs"]][:2] == [(DEFAULT_AWR_INITIAL_SPP, 1), (4, 3)]
     assert len(scene["equal_time"]) == 2
     assert "| cornell_box |" in capsys.readouterr().out
     # The reference is cached: a second run reads it instead of rendering it again.
