@@ -386,6 +386,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--round-growth", type=float, default=None,
                         help="AdaptiveSampler's round_growth instead of its default (fewer, larger rounds when larger)")
+    parser.add_argument("--initial-spp", type=int, default=None,
+                        help="AdaptiveSampler's initial_spp (its uniform first round) instead of its default; "
+                             "the AWR runs start there")
     parser.add_argument("--threads", type=int, default=1,
                         help="threads of the executor the sampler and the reconstruction use between renders "
                              "(default 1: none; Mitsuba's own threads are unchanged)")
@@ -443,7 +446,9 @@ def main(argv: list[str] | None = None) -> int:
         "settings": {"relmse_eps": RELMSE_EPSILON, "variant": "llvm_ad_rgb", "seed": args.seed,
                      "reference_pass_spp": REFERENCE_PASS_SPP, "timing": "wall clock, median of repeats",
                      "library_defaults": _defaults(),
-                     "sampler_options": {} if args.round_growth is None else {"round_growth": args.round_growth},
+                     "sampler_options": {name: value for name, value in (("round_growth", args.round_growth),
+                                                                         ("initial_spp", args.initial_spp))
+                                         if value is not None},
                      "library_threads": args.threads},
         "scenes": [],
     }

@@ -64,3 +64,12 @@ def test_round_growth_reaches_the_sampler_and_is_recorded(bench, tmp_path):
         assert results["settings"]["sampler_options"] == ({} if growth is None else {"round_growth": growth})
         runs[growth] = {run["spp"]: run["rounds"] for run in results["scenes"][0]["awr_runs"]}
     assert runs[1.0][8] < runs[None][8]
+
+
+def test_initial_spp_reaches_the_sampler_and_starts_the_awr_runs(bench, tmp_path):
+    """``--initial-spp 4``: the AWR runs start at the sampler's first round of 4 spp (one round), and it is recorded."""
+    out = tmp_path / "initial4.json"
+    assert bench.main(["--quick", "--cache", str(tmp_path / "cache"), "--output", str(out), "--initial-spp", "4"]) == 0
+    results = json.loads(out.read_text())
+    assert results["settings"]["sampler_options"] == {"initial_spp": 4}
+    assert [(run["spp"], run["rounds"]) for run in results["scenes"][0]["awr_runs"]] == [(4, 1), (8, 5)]
