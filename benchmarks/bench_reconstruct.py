@@ -18,7 +18,8 @@ their 4096-spp references; Mitsuba 3 scenes run through the ``mitsuba`` renderer
 installed (skipped with a notice otherwise), 256x256 against a 1024-spp render cached once.
 ``speed`` times every variant in interleaved rounds on the same buffer and reports medians and
 ratios to stage 1 alone measured in the same rounds: on a shared machine only such ratios mean
-much. Results: ``benchmarks/results/reconstruct.json``.
+much. Results: ``benchmarks/results/reconstruct.json`` (``--output`` another file, which a partial run
+should use: a section is replaced whole).
 """
 
 from __future__ import annotations
@@ -68,8 +69,10 @@ SPEED_VARIANTS: dict[str, Any] = {
 """``speed``: reconstruct() options per variant; ``"reference"`` stands for the scene's clean image (a
 guide the gate trusts everywhere, so the projection on the guide runs on the whole image); a
 string names an earlier form of :data:`COMPARED`."""
-CHEAPER: dict[str, dict[str, Any] | None] = {"one Wiener stage": SPEED_VARIANTS["one Wiener stage"]}
-"""``quality --cheaper``: variants that trade quality for speed, measured beside the default."""
+CHEAPER: dict[str, dict[str, Any] | None] = {"one Wiener stage": SPEED_VARIANTS["one Wiener stage"],
+                                              "one Wiener stage, alpha 0.75": {"stages": 2, "wiener_exponents": (0.75,)}}
+"""``quality --cheaper``: variants that trade quality for speed, measured beside the default (one Wiener stage
+with the default's last exponent, and with its first)."""
 
 
 def _staged(buffer: SampleBuffer, settings: Any, stage1_clamp: float | None) -> np.ndarray:
@@ -688,10 +691,11 @@ def quality_scenes(names: list[str] | None) -> list[tuple[str, str, tuple[int, i
     return scenes
 
 
-def _update(section: str, value: Any, command: str) -> None:
-    data = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
+def _update(section: str, value: Any, command: str, results: Path = RESULTS) -> None:
+    """Replace ``section`` of the results file (its other sections are kept)."""
+    data = json.loads(results.read_text()) if results.exists() else {}
     data[section] = {"command": command, "machine": machine_info(), "rows": value}
-    write_json(RESULTS, data)
+    write_json(results, data)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -713,6 +717,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--caps", action="store_true", help="samplers: also other absolute_above values (CAPS)")
     parser.add_argument("--initials", action="store_true", help="samplers: also other initial_spp values (INITIALS)")
     parser.add_argument("--windows", action="store_true", help="quality, synthetic: also other guard windows (WINDOWS)")
+    parser.add_argument("--output", type=Path, default=RESULTS,
+                        help="results file whose section this run replaces, and that 'tables' prints "
+                             "(default benchmarks/results/reconstruct.json; another file keeps a partial run "
+                             "from replacing the stored section)")
     args = parser.parse_args(argv)
     command = recorded_command("bench_reconstruct.py", argv)
     if args.section == "quality":
@@ -720,39 +728,39 @@ def main(argv: list[str] | None = None) -> int:
                        {**METHODS, **(CHEAPER if args.cheaper else {}), **(COMPARED if args.compare else {}),
                         **(FLOORS if args.floors else {}), **(PILOTS if args.pilots else {}),
                         **(WINDOWS if args.windows else {})})
-        _update("quality", rows, command)
+        _update("quality", rows, command, args.output)
         quality_tables(rows)
     elif args.section == "samplers":
         rows = samplers(quality_scenes(args.scenes), tuple(s for s in args.spps if s <= 32) or (8, 16, 32),
                         args.groups or 2, args.cache, {**SAMPLER_KINDS, **(cap_kinds(CAPS) if args.caps else {}),
                                                        **(initial_kinds(INITIALS) if args.initials else {})})
-        _update("samplers", rows, command)
+        _update("samplers", rows, command, args.output)
         sampler_table(rows)
     elif args.section == "refresh":
         rows = samplers(quality_scenes(args.scenes), tuple(s for s in args.spps if s <= 32) or (8, 16, 32),
                         args.groups or 2, args.cache, REFRESH_KINDS)
-        _update("refresh", rows, command)
+        _update("refresh", rows, command, args.output)
         refresh_table(rows)
     elif args.section == "seeds":
         rows = seeds(tuple(args.scenes or SEED_SCENES), tuple(s for s in args.spps if s <= 64) or (8, 16, 32, 64),
                      args.groups or 10)
-        _update("seeds", rows, command)
+        _update("seeds", rows, command, args.output)
         seeds_table(rows)
     elif args.section == "synthetic":
         methods = {**METHODS, **(WINDOWS if args.windows else {})}
         rows = synthetic(("gradient", "edges", "hdr_source", "fireflies", "rare_light"), (4, 16, 64, 256, 1024), 2,
                          (96, 96), methods)
         rows += synthetic(("hdr_source",), (8, 16, 32, 64, 128), 12, (64, 64), methods)
-        _update("synthetic", rows, command)
+        _update("synthetic", rows, command, args.output)
         synthetic_table(rows)
     elif args.section == "speed":
-        _update("speed", speed(args.sizes, args.repeats), command)
+        _update("speed", speed(args.sizes, args.repeats), command, args.output)
     elif args.section == "finishing":
         rows = finishing(args.groups or 12, args.cache, _mitsuba_available())
-        _update("finishing", rows, command)
+        _update("finishing", rows, command, args.output)
         finishing_table(rows)
     else:  # print the tables of the stored results
-        data = json.loads(RESULTS.read_text())
+        data = json.loads(args.output.read_text())
         for section, show in (("quality", quality_tables), ("samplers", sampler_table), ("refresh", refresh_table),
                               ("seeds", seeds_table),
                               ("synthetic", synthetic_table),

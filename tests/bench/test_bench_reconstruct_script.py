@@ -1,0 +1,36 @@
+"""``benchmarks/bench_reconstruct.py``'s results file: ``--output`` keeps a partial run off the stored one."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_reconstruct.py"
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("bench_reconstruct", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_a_section_goes_to_the_given_file_and_the_others_stay(bench, tmp_path):
+    stored = bench.RESULTS.read_bytes()
+    out = tmp_path / "partial.json"
+    out.write_text(json.dumps({"seeds": {"command": "kept", "rows": []}}))
+    bench._update("quality", [{"scene": "s"}], "bench_reconstruct.py quality --output partial.json", out)
+    data = json.loads(out.read_text())
+    assert data["seeds"] == {"command": "kept", "rows": []}
+    assert data["quality"]["rows"] == [{"scene": "s"}] and data["quality"]["command"].endswith("partial.json")
+    assert bench.RESULTS.read_bytes() == stored  # the stored results are not touched
+
+
+def test_the_cheaper_variants_include_one_stage_at_either_exponent(bench):
+    """``quality --cheaper`` compares one Wiener stage at the default's last exponent and at its first."""
+    assert bench.CHEAPER == {"one Wiener stage": {"stages": 2, "wiener_exponents": (0.4,)},
+                             "one Wiener stage, alpha 0.75": {"stages": 2, "wiener_exponents": (0.75,)}}
