@@ -60,8 +60,9 @@ def add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("reconstruction")
     g.add_argument("--stages", type=whole(minimum=1, maximum=1 + len(DEFAULT_WIENER_EXPONENTS)),
                    default=DEFAULT_STAGES, metavar="N",
-                   help="1: the paper's thresholding alone (Eq. 10-11); N > 1: it and N - 1 Wiener stages, then the "
-                        "SURE guard, the image mean kept and no negative pixels (default %(default)d)")
+                   help="1: the paper's thresholding alone (Eq. 10-11); N > 1: it and the last N - 1 Wiener stages "
+                        "of the default, then the SURE guard, the image mean kept and no negative pixels "
+                        "(default %(default)d)")
     g.add_argument("--c-s", type=real(minimum=0), default=None, metavar="C",
                    help=f"threshold in standard errors (Eq. 11) of the first stage (default {DEFAULT_PILOT_C_S:g}, "
                         f"{DEFAULT_C_S:g} with --stages 1); 0 with --stages 1 returns the plain mean")

@@ -388,6 +388,17 @@ def test_with_c_s_0_the_pilot_is_the_mean(rng):
     assert_allclose(out, by_hand, rtol=1e-12)
 
 
+
+def test_fewer_stages_keep_the_last_exponents(rng):
+    """``stages=2`` runs the default's last Wiener stage (0.4), the measured cheaper trade, not its first (0.75)."""
+    buf = _noisy_buffer(rng)
+    one = reconstruct_detailed(buf, stages=2)
+    assert one.parameters["wiener_exponents"] == "0.4"
+    assert_allclose(one.image, reconstruct(buf, stages=2, wiener_exponents=(0.4,)), rtol=0, atol=0)
+    assert not np.allclose(one.image, reconstruct(buf, stages=2, wiener_exponents=(0.75,)))
+    # Any longer sequence: its last stages - 1 exponents.
+    assert reconstruct_detailed(buf, stages=3, wiener_exponents=(0.9, 0.6, 0.2)).parameters["wiener_exponents"] == "0.6,0.2"
+
 def _scene_buffer(name, spp, seed, shape=(64, 64)):
     scene = make_scene(name, shape)
     return scene, SyntheticRenderer(scene, seed=seed)(SampleRequest.uniform(scene.shape, spp))
