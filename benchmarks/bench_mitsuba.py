@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from awr_denoise import AdaptiveSampler, SampleRequest, reconstruct
+from awr_denoise.reconstruct import DEFAULT_WIENER_EXPONENTS
 from awr_denoise.adapters import mitsuba_scenes
 from awr_denoise.adapters.mitsuba import MitsubaRenderer
 from awr_denoise.metrics import RELMSE_EPSILON, mse, relmse
@@ -171,8 +172,9 @@ def uniform_run(renderer: MitsubaRenderer, spp: int, seed: int) -> tuple[np.ndar
 
 
 def awr_run(renderer: MitsubaRenderer, spp: int, seed: int, *, executor: ThreadPoolExecutor | None = None,
-            **sampler_options: Any) -> dict[str, Any]:
-    """AdaptiveSampler (library defaults, or ``sampler_options``) to ``spp`` through the adapter, then reconstruct.
+            reconstruct_options: dict[str, Any] | None = None, **sampler_options: Any) -> dict[str, Any]:
+    """AdaptiveSampler (library defaults, or ``sampler_options``) to ``spp`` through the adapter, then reconstruct
+    (library defaults, or ``reconstruct_options``).
 
     The loop is :meth:`Sampler.run`'s, written out so each part is timed on its own. With
     ``executor`` (``--threads``) the sampler and the reconstruction use its threads between renders.
@@ -196,7 +198,7 @@ def awr_run(renderer: MitsubaRenderer, spp: int, seed: int, *, executor: ThreadP
         seconds["tell"] += t3 - t2
         rounds += 1
     t = time.perf_counter()
-    image = reconstruct(sampler.buffer, executor=executor)
+    image = reconstruct(sampler.buffer, executor=executor, **(reconstruct_options or {}))
     seconds["reconstruct"] = time.perf_counter() - t
     return {"image": image, "plain_mean": np.array(sampler.buffer.mean), "seconds": sum(seconds.values()),
             "cpu_seconds": time.process_time() - cpu, "parts": seconds, "rounds": rounds, "spp_max": int(sampler.buffer.count.max())}
@@ -249,9 +251,9 @@ def awr_sample_counts(spps: list[int], initial_spp: int) -> list[int]:
 
 def bench_scene(name: str, shape: tuple[int, int], *, spps: list[int], reference_spp: int, repeats: int,
                 throughput_spp: int, cache: Path, regenerate: bool, seed: int,
-                sampler_options: dict[str, Any] | None = None,
+                sampler_options: dict[str, Any] | None = None, reconstruct_options: dict[str, Any] | None = None,
                 executor: ThreadPoolExecutor | None = None) -> dict[str, Any]:
-    sampler_options = dict(sampler_options or {}, executor=executor)
+    sampler_options = dict(sampler_options or {}, executor=executor, reconstruct_options=reconstruct_options)
     renderer = MitsubaRenderer(name, shape=shape, seed=seed)
     print(f"[{name} {shape[1]}x{shape[0]}] throughput at {throughput_spp} spp", flush=True)
     result: dict[str, Any] = {"scene": name, "shape": list(shape),
@@ -389,6 +391,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--initial-spp", type=int, default=None,
                         help="AdaptiveSampler's initial_spp (its uniform first round) instead of its default; "
                              "the AWR runs start there")
+    parser.add_argument("--stages", type=int, default=None, choices=range(1, 2 + len(DEFAULT_WIENER_EXPONENTS)),
+                        help="reconstruct()'s stages for the AWR runs instead of its default (2: one Wiener stage, "
+                             "the cheaper trade of docs/reconstruction.md)")
     parser.add_argument("--threads", type=int, default=1,
                         help="threads of the executor the sampler and the reconstruction use between renders "
                              "(default 1: none; Mitsuba's own threads are unchanged)")
@@ -449,6 +454,7 @@ def main(argv: list[str] | None = None) -> int:
                      "sampler_options": {name: value for name, value in (("round_growth", args.round_growth),
                                                                          ("initial_spp", args.initial_spp))
                                          if value is not None},
+                     "reconstruct_options": {} if args.stages is None else {"stages": args.stages},
                      "library_threads": args.threads},
         "scenes": [],
     }
@@ -459,7 +465,8 @@ def main(argv: list[str] | None = None) -> int:
                 name, shape, spps=spps, reference_spp=reference_spp, repeats=repeats,
                 throughput_spp=args.throughput_spp if shape[0] * shape[1] <= 512 * 512 else 4,
                 cache=args.cache, regenerate=args.regenerate_references, seed=args.seed,
-                sampler_options=results["settings"]["sampler_options"], executor=pool))
+                sampler_options=results["settings"]["sampler_options"],
+                reconstruct_options=results["settings"]["reconstruct_options"], executor=pool))
     finally:
         if pool is not None:
             pool.shutdown()
