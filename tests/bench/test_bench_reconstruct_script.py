@@ -8,6 +8,9 @@ from pathlib import Path
 
 import pytest
 
+from awr_denoise.bench import noisy_buffer
+from awr_denoise.wavelets import default_levels
+
 SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_reconstruct.py"
 
 
@@ -32,5 +35,16 @@ def test_a_section_goes_to_the_given_file_and_the_others_stay(bench, tmp_path):
 
 def test_the_cheaper_variants_include_one_stage_at_either_exponent(bench):
     """``quality --cheaper`` compares one Wiener stage at the default's last exponent and at its first."""
-    assert bench.CHEAPER == {"one Wiener stage": {"stages": 2, "wiener_exponents": (0.4,)},
-                             "one Wiener stage, alpha 0.75": {"stages": 2, "wiener_exponents": (0.75,)}}
+    assert bench.CHEAPER["one Wiener stage"] == {"stages": 2, "wiener_exponents": (0.4,)}
+    assert bench.CHEAPER["one Wiener stage, alpha 0.75"] == {"stages": 2, "wiener_exponents": (0.75,)}
+
+
+@pytest.mark.parametrize("shape", [(64, 64), (128, 128), (256, 256)])
+def test_one_wiener_level_fewer_is_the_default_one_level_shallower(bench, shape, monkeypatch):
+    """The variant runs the library's later stages with the Wiener depth one less, stage 1 unchanged."""
+    rec = importlib.import_module("awr_denoise.reconstruct")  # the module: the package's name is the function
+    depths = []
+    real = rec._wiener_stages
+    monkeypatch.setattr(rec, "_wiener_stages", lambda *a, **k: depths.append(k["levels"]) or real(*a, **k))
+    bench.fewer_wiener_levels(noisy_buffer(shape, smooth=0, noise=0))
+    assert depths == [rec._wiener_levels(default_levels(shape)) - 1]
