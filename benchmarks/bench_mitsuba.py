@@ -47,10 +47,10 @@ from typing import Any
 import numpy as np
 
 from awr_denoise import AdaptiveSampler, SampleRequest, reconstruct
-from awr_denoise.reconstruct import DEFAULT_WIENER_EXPONENTS
 from awr_denoise.adapters import mitsuba_scenes
 from awr_denoise.adapters.mitsuba import MitsubaRenderer
 from awr_denoise.metrics import RELMSE_EPSILON, mse, relmse
+from awr_denoise.reconstruct import DEFAULT_WIENER_EXPONENTS
 from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP
 
 ROOT = Path(__file__).resolve().parent

@@ -69,17 +69,16 @@ SPEED_VARIANTS: dict[str, Any] = {
 }
 """``speed``: reconstruct() options per variant; ``"reference"`` stands for the scene's clean image (a
 guide the gate trusts everywhere, so the projection on the guide runs on the whole image); a
-string names an earlier form of :data:`COMPARED`."""
+string names a function of :data:`COMPARED` (an earlier form) or :data:`CHEAPER`."""
+
+
 def fewer_wiener_levels(buffer: SampleBuffer) -> np.ndarray:
     """The default with its Wiener stages one undecimated level shallower; stage 1's depth unchanged."""
     settings = resolve_settings()
-    prepared = prepare(buffer, DEFAULT_DOMAIN)
-    ops = wavelet_operators(buffer.shape)
-    stage = threshold_stage(prepared, ops, settings.c_s, pixel_clamp=settings.stage1_clamp, precision=settings.precision)
-    target = _wiener_levels(ops.levels) - 1
+    target = _wiener_levels(wavelet_operators(buffer.shape).levels) - 1
     depth = target + 1 if target >= 3 else target  # later_stages takes stage 1's depth and derives the stages'
     assert _wiener_levels(depth) == target >= 1
-    return later_stages(prepared, stage.image, None, settings, levels=depth, wavelet=ops.wavelet)[0]
+    return _staged(buffer, settings, settings.stage1_clamp, depth)
 
 
 CHEAPER: dict[str, Any] = {"one Wiener stage": SPEED_VARIANTS["one Wiener stage"],
@@ -89,12 +88,14 @@ CHEAPER: dict[str, Any] = {"one Wiener stage": SPEED_VARIANTS["one Wiener stage"
 with the default's last exponent, and with its first; the Wiener stages one undecimated level shallower)."""
 
 
-def _staged(buffer: SampleBuffer, settings: Any, stage1_clamp: float | None) -> np.ndarray:
-    """The default's steps from the library's stages, with ``settings`` and stage 1's clamp given."""
+def _staged(buffer: SampleBuffer, settings: Any, stage1_clamp: float | None, depth: int | None = None) -> np.ndarray:
+    """The default's steps from the library's stages, with ``settings`` and stage 1's clamp given; ``depth``:
+    the stage-1 depth ``later_stages`` derives the Wiener stages' from (default: stage 1's own)."""
     prepared = prepare(buffer, DEFAULT_DOMAIN)
     ops = wavelet_operators(buffer.shape)
     stage = threshold_stage(prepared, ops, settings.c_s, pixel_clamp=stage1_clamp, precision=settings.precision)
-    return later_stages(prepared, stage.image, None, settings, levels=ops.levels, wavelet=ops.wavelet)[0]
+    return later_stages(prepared, stage.image, None, settings, levels=ops.levels if depth is None else depth,
+                        wavelet=ops.wavelet)[0]
 
 
 def clamped_pilot(buffer: SampleBuffer) -> np.ndarray:
