@@ -246,14 +246,15 @@ def awr_sample_counts(spps: list[int], initial_spp: int) -> list[int]:
     >>> awr_sample_counts([4, 8], 4)
     [4, 8]
     """
-    return sorted({initial_spp, *(s for s in (min(spps) // 2,) if s > initial_spp), *spps})
+    half = min(spps) // 2
+    return sorted({initial_spp, *spps} | ({half} if half > initial_spp else set()))
 
 
 def bench_scene(name: str, shape: tuple[int, int], *, spps: list[int], reference_spp: int, repeats: int,
                 throughput_spp: int, cache: Path, regenerate: bool, seed: int,
                 sampler_options: dict[str, Any] | None = None, reconstruct_options: dict[str, Any] | None = None,
                 executor: ThreadPoolExecutor | None = None) -> dict[str, Any]:
-    sampler_options = dict(sampler_options or {}, executor=executor, reconstruct_options=reconstruct_options)
+    run_options = dict(sampler_options or {}, executor=executor, reconstruct_options=reconstruct_options)
     renderer = MitsubaRenderer(name, shape=shape, seed=seed)
     print(f"[{name} {shape[1]}x{shape[0]}] throughput at {throughput_spp} spp", flush=True)
     result: dict[str, Any] = {"scene": name, "shape": list(shape),
@@ -265,8 +266,8 @@ def bench_scene(name: str, shape: tuple[int, int], *, spps: list[int], reference
                            "image_mean": float(ref["mean"].mean()),
                            "mse_floor": float(ref["variance_of_mean"].mean()),
                            "relmse_floor": float((ref["variance_of_mean"] / (ref["mean"] ** 2 + eps)).mean())}
-    awr_run(renderer, min(spps), seed + 999, **sampler_options)  # warm-up: kernels, wavelet operators
-    awr_spps = awr_sample_counts(spps, sampler_options.get("initial_spp", DEFAULT_AWR_INITIAL_SPP))
+    awr_run(renderer, min(spps), seed + 999, **run_options)  # warm-up: kernels, wavelet operators
+    awr_spps = awr_sample_counts(spps, run_options.get("initial_spp", DEFAULT_AWR_INITIAL_SPP))
     uniform_points, awr_points = [], []
     for i, spp in enumerate(awr_spps):
         print(f"[{name}] {spp} spp x {repeats}", flush=True)
@@ -276,7 +277,7 @@ def bench_scene(name: str, shape: tuple[int, int], *, spps: list[int], reference
             if spp in spps:
                 image, seconds, cpu = uniform_run(renderer, spp, run_seed)
                 runs_u.append({"seconds": seconds, "cpu_seconds": cpu, **_metrics(image, ref)})
-            run = awr_run(renderer, spp, run_seed, **sampler_options)
+            run = awr_run(renderer, spp, run_seed, **run_options)
             runs_a.append({"seconds": run["seconds"], "cpu_seconds": run["cpu_seconds"], "parts": run["parts"],
                            "rounds": run["rounds"],
                            "spp_max": run["spp_max"], "awr": _metrics(run["image"], ref),

@@ -53,38 +53,36 @@ def test_quick_run_writes_a_self_describing_json(bench, tmp_path, capsys):
     assert json.loads(out.read_text())["scenes"][0]["equal_time"][0]["uniform_spp"] == 4
 
 
+def _quick(bench, tmp_path, *options: str) -> dict:
+    """The results of a ``--quick`` run with ``options`` (references cached in ``tmp_path``)."""
+    out = tmp_path / f"quick{'_'.join(options)}.json"
+    assert bench.main(["--quick", "--cache", str(tmp_path / "cache"), "--output", str(out), *options]) == 0
+    return json.loads(out.read_text())
+
+
 def test_round_growth_reaches_the_sampler_and_is_recorded(bench, tmp_path):
     """``--round-growth`` makes fewer, larger rounds (to 8 spp on the tiny image: 2 at 1.0, 5 at the default)."""
-    runs = {}
-    for growth in (None, 1.0):
-        out = tmp_path / f"m{growth}.json"
-        extra = [] if growth is None else ["--round-growth", str(growth)]
-        assert bench.main(["--quick", "--cache", str(tmp_path / "cache"), "--output", str(out), *extra]) == 0
-        results = json.loads(out.read_text())
-        assert results["settings"]["sampler_options"] == ({} if growth is None else {"round_growth": growth})
-        runs[growth] = {run["spp"]: run["rounds"] for run in results["scenes"][0]["awr_runs"]}
-    assert runs[1.0][8] < runs[None][8]
+    default, larger = _quick(bench, tmp_path), _quick(bench, tmp_path, "--round-growth", "1.0")
+    assert default["settings"]["sampler_options"] == {}
+    assert larger["settings"]["sampler_options"] == {"round_growth": 1.0}
+    rounds = [{run["spp"]: run["rounds"] for run in r["scenes"][0]["awr_runs"]} for r in (default, larger)]
+    assert rounds[1][8] < rounds[0][8]
 
 
 def test_initial_spp_reaches_the_sampler_and_starts_the_awr_runs(bench, tmp_path):
     """``--initial-spp 4``: the AWR runs start at the sampler's first round of 4 spp (one round), and it is recorded."""
-    out = tmp_path / "initial4.json"
-    assert bench.main(["--quick", "--cache", str(tmp_path / "cache"), "--output", str(out), "--initial-spp", "4"]) == 0
-    results = json.loads(out.read_text())
+    results = _quick(bench, tmp_path, "--initial-spp", "4")
     assert results["settings"]["sampler_options"] == {"initial_spp": 4}
     assert [(run["spp"], run["rounds"]) for run in results["scenes"][0]["awr_runs"]] == [(4, 1), (8, 5)]
 
 
 def test_stages_reach_the_reconstruction_and_are_recorded(bench, tmp_path):
     """``--stages 1``: the AWR runs' reconstruction is stage 1 alone, so their images differ from the default's."""
-    runs = {}
-    for stages in (None, 1):
-        out = tmp_path / f"stages{stages}.json"
-        extra = [] if stages is None else ["--stages", str(stages)]
-        assert bench.main(["--quick", "--cache", str(tmp_path / "cache"), "--output", str(out), *extra]) == 0
-        results = json.loads(out.read_text())
-        assert results["settings"]["reconstruct_options"] == ({} if stages is None else {"stages": stages})
-        rows = results["scenes"][0]["equal_samples"]
-        runs[stages] = ([row["awr"]["relmse"] for row in rows], [row["awr_plain_mean"]["relmse"] for row in rows])
-    assert runs[1][1] == runs[None][1]  # the same samples: the sampler does not depend on the reconstruction
-    assert runs[1][0] != runs[None][0]
+    default, stage1 = _quick(bench, tmp_path), _quick(bench, tmp_path, "--stages", "1")
+    assert default["settings"]["reconstruct_options"] == {}
+    assert stage1["settings"]["reconstruct_options"] == {"stages": 1}
+    errors = [[(row["awr"]["relmse"], row["awr_plain_mean"]["relmse"]) for row in r["scenes"][0]["equal_samples"]]
+              for r in (default, stage1)]
+    # The same samples (the sampler does not depend on the reconstruction), other images.
+    assert [e[1] for e in errors[0]] == [e[1] for e in errors[1]]
+    assert [e[0] for e in errors[0]] != [e[0] for e in errors[1]]
