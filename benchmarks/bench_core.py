@@ -283,6 +283,91 @@ def fft_budget(size: str = "1080p", repeats: int = 5) -> dict:
     return row
 
 
+def _dilated(a: np.ndarray, taps: np.ndarray, axis: int, step: int) -> np.ndarray:
+    """Periodic correlation of ``a`` along ``axis`` with ``taps`` spaced ``step`` apart ("a trous").
+
+    The plane is viewed as ``step`` interleaved sequences along the axis (its length a multiple of
+    ``step``), each filtered with the undilated taps by ``scipy.ndimage``: no zero taps are multiplied.
+    """
+    n = a.shape[axis]
+    view = a.reshape(a.shape[:axis] + (n // step, step) + a.shape[axis + 1:])
+    return ndimage.correlate1d(view, taps, axis=axis, mode="wrap").reshape(a.shape)
+
+
+def _atrous_ndimage(plane: np.ndarray, wavelet: str, levels: int) -> list:
+    """The undecimated analysis as a cascade of scipy.ndimage's compiled 1-D filters: per level,
+    two passes along the rows (low and high) and four along the columns, dilated by ``2^(j-1)``."""
+    w = pywt.Wavelet(wavelet)
+    lo, hi = np.asarray(w.dec_lo[::-1], plane.dtype), np.asarray(w.dec_hi[::-1], plane.dtype)
+    approx, out = plane, []
+    for j in range(levels):
+        step = 2 ** j
+        rows_lo, rows_hi = _dilated(approx, lo, 1, step), _dilated(approx, hi, 1, step)
+        approx = _dilated(rows_lo, lo, 0, step)
+        out.append((_dilated(rows_lo, hi, 0, step), _dilated(rows_hi, lo, 0, step), _dilated(rows_hi, hi, 0, step)))
+    return [approx] + out[::-1]
+
+
+def atrous(size: str = "1080p", repeats: int = 5) -> dict:
+    """The Wiener stages' FFT route against direct a-trous filtering, one float32 plane, one core.
+
+    One of performance.md's design options for a cheaper default: filter the undecimated bands
+    directly (the kernels have 7-9 taps, dilated) instead of through FFTs. Timed interleaved on
+    one plane of the size, its height and width rounded up to a multiple of ``2^levels`` (what
+    PyWavelets' ``swt2`` needs), at the Wiener stages' depth for the size:
+
+    - the FFT route as a Wiener stage runs it: one forward FFT, then per band the product with
+      its transfer function and one inverse FFT (analysis); per band one forward FFT and the
+      product with its synthesis function, summed, then one inverse FFT (synthesis);
+    - PyWavelets' compiled a-trous transform, ``swt2`` and ``iswt2``: the same coefficients up
+      to a circular shift (``tests/bench/test_bench_core_atrous.py``);
+    - the analysis as a cascade of scipy.ndimage's compiled 1-D filters (:func:`_atrous_ndimage`).
+
+    The exact variance (Eq. 10) has no such cascade: its kernels are the bands' squared
+    equivalent filters, up to ``(2^L - 1) * 8 + 1`` taps per axis at depth ``L``; it stays an FFT.
+    """
+    from awr_denoise.reconstruct import _wiener_levels
+    from awr_denoise.stationary import stationary_transform
+
+    levels = _wiener_levels(default_levels(OVERHEAD_SIZES[size]))
+    m = 2 ** levels
+    shape = tuple(-(-n // m) * m for n in OVERHEAD_SIZES[size])
+    plane = np.random.default_rng(0).random(shape).astype(np.float32)
+    t = stationary_transform(shape, levels=levels, dtype="float32")
+    nb = len(t.bands)
+
+    def fft_analysis():
+        spec = t.spectrum(plane)
+        return [t.planes(spec * t.analysis(b)) for b in range(nb)]
+
+    bands = fft_analysis()
+
+    def fft_synthesis():
+        total = t.spectrum(bands[0]) * t.synthesis(0)
+        for b in range(1, nb):
+            total += t.spectrum(bands[b]) * t.synthesis(b)
+        return t.planes(total)
+
+    coeffs = pywt.swt2(plane, "bior4.4", level=levels, trim_approx=True)
+    frame = np.random.default_rng(1).random(OVERHEAD_SIZES[size] + (3,)).astype(np.float32)
+    times = _interleaved({"floor": lambda: _floor(frame), "fft_analysis": fft_analysis,
+                          "fft_synthesis": fft_synthesis,
+                          "swt2": lambda: pywt.swt2(plane, "bior4.4", level=levels, trim_approx=True),
+                          "iswt2": lambda: pywt.iswt2(coeffs, "bior4.4"),
+                          "ndimage_analysis": lambda: _atrous_ndimage(plane, "bior4.4", levels)}, repeats)
+    row = {"size": size, "plane": list(shape), "levels": levels, "bands": nb,
+           **{f"{k}_s": v for k, v in times.items()},
+           "swt2_x_fft": times["swt2"] / times["fft_analysis"],
+           "iswt2_x_fft": times["iswt2"] / times["fft_synthesis"],
+           "ndimage_x_fft": times["ndimage_analysis"] / times["fft_analysis"]}
+    print(f"| {size} ({shape[0]}x{shape[1]}, {levels} levels) | {times['floor']:.3f} s "
+          f"| {times['fft_analysis']:.3f} s | {times['swt2']:.3f} s ({row['swt2_x_fft']:.2f}x) "
+          f"| {times['ndimage_analysis']:.3f} s "
+          f"({row['ndimage_x_fft']:.2f}x) | {times['fft_synthesis']:.3f} s | {times['iswt2']:.3f} s "
+          f"({row['iswt2_x_fft']:.2f}x) |", flush=True)
+    return row
+
+
 def precision(spps=(8, 32, 128), group: int = 0) -> list[dict]:
     """Stage 1 in float32 (the default) against its float64 reference on buffers the renderers wrote.
 
@@ -489,6 +574,10 @@ SECTIONS = {
     "fft_budget": ("The default reconstruction's FFTs against the floor (one core)",
                    "| size | plane FFTs (forward + inverse) | one forward + inverse pair | floor | FFTs alone |",
                    lambda quick: [fft_budget("256x256" if quick else "1080p")]),
+    "atrous": ("The Wiener stages' FFT route against direct a-trous filtering (one float32 plane, one core; "
+               "x the FFT route in brackets)",
+               "| size | floor (RGB frame) | FFT analysis | swt2 | scipy.ndimage cascade | FFT synthesis | iswt2 |",
+               lambda quick: [atrous("256x256" if quick else "1080p")]),
     "quality": ("Quality, synthetic 128x128 (relMSE / MSE, equal samples)",
                 "| scene | spp | uniform mean | uniform + AWR | variance-driven + AWR | AWR adaptive + AWR |",
                 lambda quick: quality(spps=(8,) if quick else (8, 32))),
