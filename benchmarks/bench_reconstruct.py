@@ -46,6 +46,9 @@ from awr_denoise.synthetic import SyntheticRenderer, make_scene
 from awr_denoise.thresholding import threshold_stage
 from awr_denoise.wavelets import wavelet_operators
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from decimated_wiener import SHIFT_SETS, decimated_default  # noqa: E402
+
 ROOT = Path(__file__).resolve().parent
 RESULTS = ROOT / "results" / "reconstruct.json"
 TRACER_SCENES = ("default", "chess_dof", "rolling_balls", "sky_objects", "soft_shadows", "cornell_gi")
@@ -69,7 +72,7 @@ SPEED_VARIANTS: dict[str, Any] = {
 }
 """``speed``: reconstruct() options per variant; ``"reference"`` stands for the scene's clean image (a
 guide the gate trusts everywhere, so the projection on the guide runs on the whole image); a
-string names a function of :data:`COMPARED` (an earlier form) or :data:`CHEAPER`."""
+string names a function of :data:`COMPARED` (an earlier form) or :data:`CHEAPER`; ``--shifts`` adds :data:`SHIFTED`."""
 
 
 def fewer_wiener_levels(buffer: SampleBuffer) -> np.ndarray:
@@ -120,6 +123,10 @@ FLOORS: dict[str, Any] = {"energy floor 3x3": with_floor((3, 2.0)), "energy floo
 """``quality --floors``: the first Wiener stage's energy floor at other windows and margins than (5, 2)."""
 PILOTS: dict[str, Any] = {"pilot c_s 2.5": {"c_s": 2.5}, "pilot c_s 3": {"c_s": 3.0}}
 """``quality --pilots``: stage 1's threshold as the pilot at other values than the default (2); 1.5 is in COMPARED."""
+SHIFTED: dict[str, Any] = {f"decimated Wiener stages, {n} shift{'s' * (n > 1)}": decimated_default(n)
+                           for n in SHIFT_SETS}
+"""``quality --shifts`` and ``speed --shifts``: the Wiener stages on the decimated transform, cycle-spun over
+1, 4 and 16 shifts, against the default's undecimated transform (every shift at once; decimated_wiener.py)."""
 WINDOWS: dict[str, Any] = {"guard window 13": {"guard_window": 13}, "guard window 17": {"guard_window": 17}}
 """``quality --windows`` and ``synthetic --windows``: the SURE guard's window at other sides than the default (9)."""
 
@@ -248,7 +255,8 @@ def quality_tables(rows: list[dict], method: str = "default", base: str = "stage
         print(f"| {scene} | {' / '.join(f'{g:.2f}' for g in gains)} | {m:.2f} | {r:.2f} |")
     every = [g for _, gains, _, _ in summary for g in gains]
     print(f"\ngeometric mean of the gain at 8-32 spp: {np.exp(np.mean(np.log(every))):.2f}, least {min(every):.2f}")
-    for other in (m for m in (*CHEAPER, *COMPARED, *FLOORS, *PILOTS, *WINDOWS) if any(r["method"] == m for r in rows)):
+    variants = (*CHEAPER, *SHIFTED, *COMPARED, *FLOORS, *PILOTS, *WINDOWS)
+    for other in (m for m in variants if any(r["method"] == m for r in rows)):
         cheaper_table(rows, other, method)
 
 
@@ -662,22 +670,24 @@ def finishing_table(rows: list[dict]) -> None:
 
 
 # ---------------------------------------------------------------------------- speed
-def speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
+def speed(sizes: list[str], repeats: int, extra: tuple[str, ...] = ()) -> list[dict[str, Any]]:
+    """Median seconds of every variant of :data:`SPEED_VARIANTS` (and the ``extra`` ones of :data:`SHIFTED`)."""
+    variants = {**SPEED_VARIANTS, **{name: name for name in extra}}
     rows = []
-    print("| image | " + " | ".join(SPEED_VARIANTS) + " |")
-    print("|---|" + "---|" * len(SPEED_VARIANTS))
+    print("| image | " + " | ".join(variants) + " |")
+    print("|---|" + "---|" * len(variants))
     for size in sizes:
         shape = SIZES[size]
         n = repeats or (3 if size == "1080p" else 9)
         scene = make_scene("edges", shape)
         buffer = SyntheticRenderer(scene, seed=1)(SampleRequest.uniform(shape, 8))
         clean = scene.reference()
-        seconds: dict[str, list[float]] = {name: [] for name in SPEED_VARIANTS}
+        seconds: dict[str, list[float]] = {name: [] for name in variants}
         for round_ in range(n + 1):
-            for name, options in SPEED_VARIANTS.items():
+            for name, options in variants.items():
                 start = time.perf_counter()
                 if isinstance(options, str):
-                    {**COMPARED, **CHEAPER}[options](buffer)
+                    {**COMPARED, **CHEAPER, **SHIFTED}[options](buffer)
                 else:
                     reconstruct(buffer, **{k: (clean if v == "reference" else v) for k, v in options.items()})
                 if round_:  # the first round builds and caches the transforms' operators
@@ -726,6 +736,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sizes", nargs="+", choices=tuple(SIZES), default=list(SIZES))
     parser.add_argument("--repeats", type=int, default=0, help="speed: rounds per size (default 9, 3 at 1080p)")
     parser.add_argument("--cheaper", action="store_true", help="quality: also the cheaper variants (CHEAPER)")
+    parser.add_argument("--shifts", action="store_true",
+                        help="quality, speed: also the Wiener stages on the decimated transform, cycle-spun (SHIFTED)")
     parser.add_argument("--compare", action="store_true", help="quality: also earlier forms of the default (COMPARED)")
     parser.add_argument("--floors", action="store_true", help="quality: also other energy floors (FLOORS)")
     parser.add_argument("--pilots", action="store_true", help="quality: also other pilot thresholds (PILOTS)")
@@ -740,7 +752,8 @@ def main(argv: list[str] | None = None) -> int:
     command = recorded_command("bench_reconstruct.py", argv)
     if args.section == "quality":
         rows = quality(quality_scenes(args.scenes), tuple(args.spps), args.groups or 4, args.cache,
-                       {**METHODS, **(CHEAPER if args.cheaper else {}), **(COMPARED if args.compare else {}),
+                       {**METHODS, **(CHEAPER if args.cheaper else {}), **(SHIFTED if args.shifts else {}),
+                        **(COMPARED if args.compare else {}),
                         **(FLOORS if args.floors else {}), **(PILOTS if args.pilots else {}),
                         **(WINDOWS if args.windows else {})})
         _update("quality", rows, command, args.output)
@@ -769,7 +782,7 @@ def main(argv: list[str] | None = None) -> int:
         _update("synthetic", rows, command, args.output)
         synthetic_table(rows)
     elif args.section == "speed":
-        _update("speed", speed(args.sizes, args.repeats), command, args.output)
+        _update("speed", speed(args.sizes, args.repeats, tuple(SHIFTED) if args.shifts else ()), command, args.output)
     elif args.section == "finishing":
         rows = finishing(args.groups or 12, args.cache, _mitsuba_available())
         _update("finishing", rows, command, args.output)

@@ -48,3 +48,9 @@ def test_one_wiener_level_fewer_is_the_default_one_level_shallower(bench, shape,
     monkeypatch.setattr(rec, "_wiener_stages", lambda *a, **k: depths.append(k["levels"]) or real(*a, **k))
     bench.fewer_wiener_levels(noisy_buffer(shape, smooth=0, noise=0))
     assert depths == [rec._wiener_levels(default_levels(shape)) - 1]
+
+
+def test_shifts_adds_the_cycle_spun_decimated_stages(bench):
+    """``--shifts`` measures the decimated Wiener stages over 1, 4 and 16 shifts (decimated_wiener.py)."""
+    assert list(bench.SHIFTED) == [f"decimated Wiener stages, {n}" for n in ("1 shift", "4 shifts", "16 shifts")]
+    assert [f.__name__ for f in bench.SHIFTED.values()] == [f"decimated_wiener_{n}" for n in (1, 4, 16)]
