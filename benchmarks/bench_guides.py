@@ -7,6 +7,7 @@ Run from the repository root (each section updates its part of the JSON)::
     .venv/bin/python benchmarks/bench_guides.py synthetic   # known clean images: good and wrong guides, gate on/off
     .venv/bin/python benchmarks/bench_guides.py ablations   # the gate and the a-trous passes on the tracer's scenes
     .venv/bin/python benchmarks/bench_guides.py avenues     # what else was tried, every scene at 32 spp
+    .venv/bin/python benchmarks/bench_guides.py features    # what limits the features: noise-free ones, demodulation
     .venv/bin/python benchmarks/bench_guides.py pbrt        # a third renderer: the pbrt-v4 files in tests/data
     .venv/bin/python benchmarks/bench_guides.py crops       # docs/img/guides_*.png
     .venv/bin/python benchmarks/bench_guides.py tables      # print the stored results
@@ -25,6 +26,7 @@ it is not installed), 256x256 against the 1024-spp references ``bench_reconstruc
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import json
 import sys
@@ -334,13 +336,72 @@ def ablation_table(rows: list[dict]) -> None:
         print(f"{k}: median {np.median([r['seconds'] for r in rows if r['variant'] == k]):.2f} s")
 
 
+# ---------------------------------------------------------------------------- what limits the features
+ORACLE_SPP = 256
+ORACLE_GROUP = 1000  # the renderer seed of the feature render no compared buffer uses
+
+
+def feature_limits(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], groups: int,
+                   cache: Path) -> list[dict[str, Any]]:
+    """Does the features' own noise limit them? Each way of using them with the buffer's features and with
+    the features of an :data:`ORACLE_SPP`-spp render of the same scene (nearly noise-free): the feature
+    pilot (``features=True``) and the albedo-demodulated guide; and that guide with the albedo
+    reconstructed first (:func:`_demodulated_reconstructed`)."""
+    rows = []
+    for renderer, scene, shape in scenes:
+        ref = reference(renderer, scene, shape, cache)
+        oracle = feature_buffers(renderer, scene, shape, (ORACLE_SPP,), ORACLE_GROUP, cache)[ORACLE_SPP].features
+        for g in range(groups):
+            for spp, buffer in feature_buffers(renderer, scene, shape, spps, g, cache).items():
+                clean = dataclasses.replace(buffer, features=dict(oracle))
+                images = {"plain": filled_mean(buffer), "default": reconstruct(buffer),
+                          "feature pilot": reconstruct(buffer, features=True),
+                          "feature pilot, 256-spp features": reconstruct(clean, features=True),
+                          "demodulated guide": reconstruct(buffer, guide=_demodulated(buffer)),
+                          "demodulated guide, albedo reconstructed first":
+                              reconstruct(buffer, guide=_demodulated_reconstructed(buffer)),
+                          "demodulated guide, 256-spp albedo":
+                              reconstruct(buffer, guide=_demodulated(buffer, albedo=oracle["albedo"].mean))}
+                for name, image in images.items():
+                    rows.append({"renderer": renderer, "scene": scene, "spp": spp, "group": g, "method": name,
+                                 "relmse": relmse(image, ref), "mse": mse(image, ref)})
+        print(f"{renderer} {scene}: done", flush=True)
+    return rows
+
+
+def feature_limits_table(rows: list[dict]) -> None:
+    """relMSE of each way over the default's per spp (mean over groups), and the worst MSE over the plain mean's."""
+    names = [m for m in dict.fromkeys(r["method"] for r in rows) if m not in ("plain", "default")]
+    spps = sorted({r["spp"] for r in rows})
+    print(f"\nEach cell: relMSE / the default's at {' / '.join(map(str, spps))} spp; the worst MSE / the plain mean's.")
+    print("\n| scene | " + " | ".join(names) + " |")
+    print("|---|" + "---|" * len(names))
+    for renderer, scene in dict.fromkeys((r["renderer"], r["scene"]) for r in rows):
+        w = {"renderer": renderer, "scene": scene}
+        cells = []
+        for m in names:
+            rel = " / ".join(f"{_mean(rows, 'relmse', method=m, spp=s, **w) / base:.2f}" for s, base in
+                             ((s, _mean(rows, "relmse", method="default", spp=s, **w)) for s in spps))
+            worst = max(_mean(rows, "mse", method=m, spp=s, **w) / _mean(rows, "mse", method="plain", spp=s, **w)
+                        for s in spps)
+            cells.append(f"{rel}; {worst:.2f}")
+        print(f"| {scene} | " + " | ".join(cells) + " |")
+
+
 # ---------------------------------------------------------------------------- avenues
-def _demodulated(buffer: SampleBuffer, eps: float = 0.02) -> np.ndarray:
+def _demodulated(buffer: SampleBuffer, eps: float = 0.02, albedo: np.ndarray | None = None) -> np.ndarray:
     """A guide without a network: the default reconstruction of the radiance over the albedo (+ ``eps``),
-    multiplied back (albedo demodulation as a pilot, gated like any guide)."""
-    albedo = np.asarray(buffer.features["albedo"].mean, dtype=np.float64) + eps
+    multiplied back (albedo demodulation as a pilot, gated like any guide); ``albedo``: another albedo
+    image than the buffer's albedo means."""
+    albedo = np.asarray(buffer.features["albedo"].mean if albedo is None else albedo, dtype=np.float64) + eps
     flat = SampleBuffer.from_moments(buffer.count, buffer.mean / albedo, buffer.estimated_variance() / albedo**2)
     return albedo * reconstruct(flat)
+
+
+def _demodulated_reconstructed(buffer: SampleBuffer) -> np.ndarray:
+    """:func:`_demodulated` by the albedo's own default reconstruction: its noise (the lens' and the
+    pixel's sampling of the texture) taken out before it divides and multiplies the radiance."""
+    return _demodulated(buffer, albedo=reconstruct(buffer.features["albedo"]))
 
 
 def _features_then_guide(buffer: SampleBuffer, stage1: np.ndarray, guide: np.ndarray | None,
@@ -632,8 +693,8 @@ def _update(section: str, value: Any, command: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("section", choices=("quality", "samplers", "synthetic", "ablations", "avenues", "pbrt",
-                                            "crops", "tables"))
+    parser.add_argument("section", choices=("quality", "samplers", "synthetic", "ablations", "avenues", "features",
+                                            "pbrt", "crops", "tables"))
     parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
     parser.add_argument("--spps", nargs="+", type=int, default=list(SPPS))
     parser.add_argument("--groups", type=int, default=2)
@@ -665,6 +726,11 @@ def main(argv: list[str] | None = None) -> int:
         rows = avenues(quality_scenes(args.scenes), max(args.spps), args.groups, args.cache)
         _update("avenues", rows, command)
         avenue_table(rows)
+    elif args.section == "features":
+        rows = feature_limits(quality_scenes(args.scenes), tuple(s for s in args.spps if s in (8, 32)) or (8, 32),
+                              args.groups, args.cache)
+        _update("features", rows, command)
+        feature_limits_table(rows)
     elif args.section == "pbrt":
         rows = pbrt()
         _update("pbrt", rows, command)
@@ -675,7 +741,7 @@ def main(argv: list[str] | None = None) -> int:
         data = json.loads(RESULTS.read_text())
         for section, show in (("quality", quality_tables), ("samplers", sampler_table),
                               ("synthetic", synthetic_table), ("ablations", ablation_table),
-                              ("avenues", avenue_table), ("pbrt", pbrt_table)):
+                              ("avenues", avenue_table), ("features", feature_limits_table), ("pbrt", pbrt_table)):
             if section in data:
                 print(f"\n## {section} ({data[section]['command']})")
                 show(data[section]["rows"])

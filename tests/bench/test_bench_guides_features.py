@@ -1,0 +1,61 @@
+"""``benchmarks/bench_guides.py features``: the demodulated guides it compares use the albedo they name."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from awr_denoise import SampleBuffer, SampleRequest, reconstruct
+from awr_denoise.renderers import create_renderer
+
+BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
+
+
+@pytest.fixture(scope="module")
+def bench():
+    sys.path.insert(0, str(BENCHMARKS))
+    try:
+        spec = importlib.util.spec_from_file_location("bench_guides", BENCHMARKS / "bench_guides.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(BENCHMARKS))
+    return module
+
+
+@pytest.fixture(scope="module")
+def buffer():
+    """A textured, defocused scene: its albedo means are noisy and vary."""
+    return create_renderer("tracer", "chess_dof", shape=(32, 32), seed=0, features="all")(
+        SampleRequest.uniform((32, 32), 4))
+
+
+def test_a_constant_albedo_leaves_the_reconstruction_as_it_is(bench, buffer):
+    """Demodulating by a constant only rescales the radiance, which the reconstruction follows: the
+    guide is the default's image. The buffer's own (textured) albedo gives another one."""
+    assert buffer.features["albedo"].mean.std() > 0.1
+    half = np.full(buffer.mean.shape, 0.5 - 0.02)  # 0.5 with the guide's offset: an exact rescaling
+    np.testing.assert_allclose(bench._demodulated(buffer, albedo=half), reconstruct(buffer), rtol=1e-12, atol=0)
+    assert not np.allclose(bench._demodulated(buffer), reconstruct(buffer), rtol=1e-3)
+
+
+def test_the_reconstructed_albedo_is_the_one_divided_by(bench, buffer):
+    """With a noise-free albedo buffer its reconstruction is its means, so both demodulated guides agree;
+    with the noisy one they differ."""
+    albedo = buffer.features["albedo"]
+    exact = SampleBuffer.from_moments(albedo.count, albedo.mean, np.zeros_like(albedo.mean))
+    clean = dataclasses.replace(buffer, features={**buffer.features, "albedo": exact})
+    np.testing.assert_allclose(bench._demodulated_reconstructed(clean), bench._demodulated(clean), rtol=1e-9)
+    assert not np.allclose(bench._demodulated_reconstructed(buffer), bench._demodulated(buffer), rtol=1e-3)
+
+
+def test_the_table_divides_by_the_default_and_the_plain_mean(bench, capsys):
+    rows = [{"renderer": "r", "scene": "s", "spp": spp, "group": 0, "method": m, "relmse": rel, "mse": sq}
+            for spp in (8, 32) for m, rel, sq in (("plain", 4.0, 2.0), ("default", 2.0, 1.0), ("way", 1.0, 1.5))]
+    bench.feature_limits_table(rows)
+    assert "| s | 0.50 / 0.50; 0.75 |" in capsys.readouterr().out
