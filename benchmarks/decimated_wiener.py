@@ -7,8 +7,9 @@ one (``awr_denoise.stationary``). This module builds the other, for
 ``benchmarks/bench_reconstruct.py`` to measure beside it: the same steps as the default (stage 1's
 pilot, two relative Wiener stages with the exponents 0.75 and 0.4, the first one's energy floor,
 the SURE guard, the pooled clamp, non-negativity, the image mean), each Wiener stage computed
-on the decimated transform of stage 1 (``awr_denoise.wavelets``, symmetric boundary, the exact
-coefficient variance by its sparse operators) once per shift and averaged.
+on the decimated transform stage 1 uses (``awr_denoise.wavelets``, symmetric boundary, the exact
+coefficient variance by its sparse operators; the energy floor's 5x5 window on each decimated
+band) once per shift and averaged.
 
 A shift ``(dy, dx)`` drops the first ``dy`` rows and ``dx`` columns before the transform, which
 moves the decimation grid by that much without inventing pixels (a rolled or padded image would
