@@ -368,6 +368,53 @@ def atrous(size: str = "1080p", repeats: int = 5) -> dict:
     return row
 
 
+def _reach(touched: np.ndarray, level: int, taps: int) -> float:
+    """Share of level ``level``'s decimated coefficient positions whose ``taps``-tap analysis support,
+    ``(taps - 1) (2^level - 1) + 1`` pixels wide, holds a ``True`` pixel of ``touched``."""
+    width = (taps - 1) * (2**level - 1) + 1
+    step = 2**level
+    return float(ndimage.maximum_filter(touched, size=width, mode="mirror")[::step, ::step].mean())
+
+
+TOUCHED_SCENES = ("default", "chess_dof", "rolling_balls", "sky_objects", "soft_shadows", "cornell_gi")
+
+
+def touched(scenes: tuple[str, ...] = TOUCHED_SCENES, spp: int = 32) -> list[dict]:
+    """Could ``ask()`` be incremental? How much of the image one adaptive round changes.
+
+    The bundled tracer's scenes, ``AdaptiveSampler``'s defaults, rounds up to ``spp``: per round
+    after the first (uniform) one, the share of pixels that get samples, and the share of the
+    decimated wavelet coefficients of levels 1 and 2 whose support (the 9-tap bior4.4 analysis
+    filters, ``8 (2^j - 1) + 1`` pixels wide at level ``j``) holds one of them: the coefficients an
+    incremental ``ask()`` would have to redo at the least (level 1 holds three quarters of the
+    detail coefficients, level 2 three sixteenths; coarser supports are wider still).
+    """
+    from awr_denoise.renderers import create_renderer
+
+    taps = len(pywt.Wavelet("bior4.4").dec_lo)
+    rows = []
+    for name in scenes:
+        renderer = create_renderer("tracer", name, seed=0)
+        sampler = AdaptiveSampler(renderer.shape, seed=0)
+        pixels, level1, level2, total, rounds = [], [], [], 0, 0
+        while total < spp * renderer.shape[0] * renderer.shape[1]:
+            request = sampler.ask()
+            got = request.counts > 0
+            if rounds:
+                pixels.append(float(got.mean()))
+                level1.append(_reach(got, 1, taps))
+                level2.append(_reach(got, 2, taps))
+            sampler.tell(request, renderer(request))
+            total += int(request.counts.sum())
+            rounds += 1
+        row = {"scene": name, "shape": list(renderer.shape), "rounds": rounds, "pixels": pixels,
+               "level1_coefficients": level1, "level2_coefficients": level2}
+        rows.append(row)
+        print(f"| {name} | {rounds} | {min(pixels):.0%}-{max(pixels):.0%} | {min(level1):.0%}-{max(level1):.0%} "
+              f"| {min(level2):.0%}-{max(level2):.0%} |", flush=True)
+    return rows
+
+
 def precision(spps=(8, 32, 128), group: int = 0) -> list[dict]:
     """Stage 1 in float32 (the default) against its float64 reference on buffers the renderers wrote.
 
@@ -578,6 +625,10 @@ SECTIONS = {
                "x the FFT route in brackets)",
                "| size | floor (RGB frame) | FFT analysis | swt2 | scipy.ndimage cascade | FFT synthesis | iswt2 |",
                lambda quick: [atrous("256x256" if quick else "1080p")]),
+    "touched": ("How much of the image an adaptive round changes (bundled tracer, AdaptiveSampler's defaults, "
+                "to 32 spp)",
+                "| scene | rounds | pixels given samples per round | level-1 coefficients they reach | level 2 |",
+                lambda quick: touched(TOUCHED_SCENES[:2] if quick else TOUCHED_SCENES, 8 if quick else 32)),
     "quality": ("Quality, synthetic 128x128 (relMSE / MSE, equal samples)",
                 "| scene | spp | uniform mean | uniform + AWR | variance-driven + AWR | AWR adaptive + AWR |",
                 lambda quick: quality(spps=(8,) if quick else (8, 32))),
