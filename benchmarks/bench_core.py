@@ -376,13 +376,18 @@ def _reach(touched: np.ndarray, level: int, taps: int) -> float:
     return float(ndimage.maximum_filter(touched, size=width, mode="mirror")[::step, ::step].mean())
 
 
-TOUCHED_SCENES = ("default", "chess_dof", "rolling_balls", "sky_objects", "soft_shadows", "cornell_gi")
+TOUCHED_SCENES = (("tracer", "default"), ("tracer", "chess_dof"), ("tracer", "rolling_balls"),
+                  ("tracer", "sky_objects"), ("tracer", "soft_shadows"), ("tracer", "cornell_gi"),
+                  ("mitsuba", "cornell_box"), ("mitsuba", "envmap_sun"), ("mitsuba", "glossy_glass"),
+                  ("mitsuba", "dof_checker"))
+"""(renderer, scene): the bundled tracer's six scenes at their 128x128 and, with the extra ``mitsuba``,
+the adapter's four at 256x256 (skipped with a notice without it)."""
 
 
-def touched(scenes: tuple[str, ...] = TOUCHED_SCENES, spp: int = 32) -> list[dict]:
+def touched(scenes: tuple[tuple[str, str], ...] = TOUCHED_SCENES, spp: int = 32) -> list[dict]:
     """Could ``ask()`` be incremental? How much of the image one adaptive round changes.
 
-    The bundled tracer's scenes, ``AdaptiveSampler``'s defaults, rounds up to ``spp``: per round
+    Each scene, ``AdaptiveSampler``'s defaults, rounds up to ``spp``: per round
     after the first (uniform) one, the share of pixels that get samples, and the share of the
     decimated wavelet coefficients of levels 1 and 2 whose support (the 9-tap bior4.4 analysis
     filters, ``8 (2^j - 1) + 1`` pixels wide at level ``j``) holds one of them: the coefficients an
@@ -393,8 +398,12 @@ def touched(scenes: tuple[str, ...] = TOUCHED_SCENES, spp: int = 32) -> list[dic
 
     taps = len(pywt.Wavelet("bior4.4").dec_lo)
     rows = []
-    for name in scenes:
-        renderer = create_renderer("tracer", name, seed=0)
+    for kind, name in scenes:
+        try:
+            renderer = create_renderer(kind, name, seed=0, **({"shape": (256, 256)} if kind == "mitsuba" else {}))
+        except ImportError as error:  # the optional renderer's extra is missing
+            print(f"skipping {kind} {name}: {error}", flush=True)
+            continue
         sampler = AdaptiveSampler(renderer.shape, seed=0)
         pixels, level1, level2, total, rounds = [], [], [], 0, 0
         while total < spp * renderer.shape[0] * renderer.shape[1]:
@@ -407,7 +416,7 @@ def touched(scenes: tuple[str, ...] = TOUCHED_SCENES, spp: int = 32) -> list[dic
             sampler.tell(request, renderer(request))
             total += int(request.counts.sum())
             rounds += 1
-        row = {"scene": name, "shape": list(renderer.shape), "rounds": rounds, "pixels": pixels,
+        row = {"renderer": kind, "scene": name, "shape": list(renderer.shape), "rounds": rounds, "pixels": pixels,
                "level1_coefficients": level1, "level2_coefficients": level2}
         rows.append(row)
         print(f"| {name} | {rounds} | {min(pixels):.0%}-{max(pixels):.0%} | {min(level1):.0%}-{max(level1):.0%} "

@@ -31,6 +31,6 @@ def test_one_touched_pixel_reaches_the_coefficients_whose_support_holds_it(bench
 
 
 def test_touched_skips_the_uniform_first_round(bench):
-    (row,) = bench.touched(("default",), 4)
+    (row,) = bench.touched((("tracer", "default"),), 4)
     assert len(row["pixels"]) == row["rounds"] - 1 >= 1
     assert all(0 < x <= 1 for x in row["pixels"] + row["level1_coefficients"] + row["level2_coefficients"])
