@@ -339,6 +339,7 @@ def ablation_table(rows: list[dict]) -> None:
 # ---------------------------------------------------------------------------- what limits the features
 ORACLE_SPP = 256
 ORACLE_GROUP = 1000  # the renderer seed of the feature render no compared buffer uses
+DEMODULATION_FLOORS = (0.05, 0.1)  # albedos below which the radiance is not divided (sky, emitters)
 
 
 def feature_limits(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], groups: int,
@@ -346,7 +347,8 @@ def feature_limits(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: 
     """Does the features' own noise limit them? Each way of using them with the buffer's features and with
     the features of an :data:`ORACLE_SPP`-spp render of the same scene (nearly noise-free): the feature
     pilot (``features=True``) and the albedo-demodulated guide; and that guide with the albedo
-    reconstructed first (:func:`_demodulated_reconstructed`)."""
+    reconstructed first (:func:`_demodulated_reconstructed`), also without demodulating where that
+    albedo is below each of :data:`DEMODULATION_FLOORS`."""
     rows = []
     for renderer, scene, shape in scenes:
         ref = reference(renderer, scene, shape, cache)
@@ -360,6 +362,9 @@ def feature_limits(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: 
                           "demodulated guide": reconstruct(buffer, guide=_demodulated(buffer)),
                           "demodulated guide, albedo reconstructed first":
                               reconstruct(buffer, guide=_demodulated_reconstructed(buffer)),
+                          **{f"the same, none where the albedo is below {t}":
+                             reconstruct(buffer, guide=_demodulated_reconstructed(buffer, below=t))
+                             for t in DEMODULATION_FLOORS},
                           "demodulated guide, 256-spp albedo":
                               reconstruct(buffer, guide=_demodulated(buffer, albedo=oracle["albedo"].mean))}
                 for name, image in images.items():
@@ -389,19 +394,22 @@ def feature_limits_table(rows: list[dict]) -> None:
 
 
 # ---------------------------------------------------------------------------- avenues
-def _demodulated(buffer: SampleBuffer, eps: float = 0.02, albedo: np.ndarray | None = None) -> np.ndarray:
+def _demodulated(buffer: SampleBuffer, eps: float = 0.02, albedo: np.ndarray | None = None,
+                 below: float | None = None) -> np.ndarray:
     """A guide without a network: the default reconstruction of the radiance over the albedo (+ ``eps``),
     multiplied back (albedo demodulation as a pilot, gated like any guide); ``albedo``: another albedo
-    image than the buffer's albedo means."""
-    albedo = np.asarray(buffer.features["albedo"].mean if albedo is None else albedo, dtype=np.float64) + eps
+    image than the buffer's albedo means; ``below``: no demodulation (a divisor of 1) where the albedo
+    is below it (sky, emitters: no surface, or a black one)."""
+    albedo = np.asarray(buffer.features["albedo"].mean if albedo is None else albedo, dtype=np.float64)
+    albedo = albedo + eps if below is None else np.where(albedo < below, 1.0, albedo)
     flat = SampleBuffer.from_moments(buffer.count, buffer.mean / albedo, buffer.estimated_variance() / albedo**2)
     return albedo * reconstruct(flat)
 
 
-def _demodulated_reconstructed(buffer: SampleBuffer) -> np.ndarray:
+def _demodulated_reconstructed(buffer: SampleBuffer, below: float | None = None) -> np.ndarray:
     """:func:`_demodulated` by the albedo's own default reconstruction: its noise (the lens' and the
     pixel's sampling of the texture) taken out before it divides and multiplies the radiance."""
-    return _demodulated(buffer, albedo=reconstruct(buffer.features["albedo"]))
+    return _demodulated(buffer, albedo=reconstruct(buffer.features["albedo"]), below=below)
 
 
 def _features_then_guide(buffer: SampleBuffer, stage1: np.ndarray, guide: np.ndarray | None,

@@ -59,3 +59,13 @@ def test_the_table_divides_by_the_default_and_the_plain_mean(bench, capsys):
             for spp in (8, 32) for m, rel, sq in (("plain", 4.0, 2.0), ("default", 2.0, 1.0), ("way", 1.0, 1.5))]
     bench.feature_limits_table(rows)
     assert "| s | 0.50 / 0.50; 0.75 |" in capsys.readouterr().out
+
+
+def test_no_demodulation_below_the_floor(bench, buffer):
+    """Where the albedo is below ``below`` (sky, emitters) the radiance is not divided: an albedo below
+    it everywhere gives the default's image; the offset demodulation by the same (varying) albedo does not."""
+    dark = np.zeros(buffer.mean.shape)
+    dark[::2] = 0.04  # rows of black and of 0.04: both below 0.05
+    np.testing.assert_allclose(bench._demodulated(buffer, albedo=dark, below=0.05), reconstruct(buffer),
+                               rtol=1e-12, atol=0)
+    assert not np.allclose(bench._demodulated(buffer, albedo=dark), reconstruct(buffer), rtol=1e-3)
