@@ -1,13 +1,35 @@
-"""A tiny benchmark run shared by the tests of the runner, the figures and the page."""
+"""A tiny benchmark run shared by the tests of the runner, the figures and the page, and the loader of
+the scripts in ``benchmarks/`` that the script tests import."""
 
 from __future__ import annotations
 
+import importlib.util
+from collections.abc import Callable
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import pytest
 
 from awr_denoise.bench import BenchmarkConfig
+
+BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
+
+
+def _load_script(name: str) -> ModuleType:
+    """``benchmarks/<name>.py`` as a fresh module (the scripts put their own folder on ``sys.path``
+    where they import a sibling)."""
+    spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="session")
+def benchmark_script() -> Callable[[str], ModuleType]:
+    """The loader of a script in ``benchmarks/`` by name: ``benchmark_script("bench_core")``."""
+    return _load_script
+
 
 SMOOTH_SCENES = ("soft_shadows", "cornell_gi")
 """Smooth-dominated scenes (large smooth, noisy regions), where AWR gains the most in

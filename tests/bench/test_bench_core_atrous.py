@@ -3,9 +3,7 @@ stages' undecimated transform, so the timings compare like with like."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,15 +11,10 @@ import pywt
 
 from awr_denoise.stationary import stationary_transform
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_core.py"
-
 
 @pytest.fixture(scope="module")
-def bench():
-    spec = importlib.util.spec_from_file_location("bench_core", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def bench(benchmark_script):
+    return benchmark_script("bench_core")
 
 
 def _same_up_to_a_circular_shift(a: np.ndarray, b: np.ndarray) -> bool:

@@ -3,9 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,19 +10,10 @@ import pytest
 from awr_denoise import SampleBuffer, SampleRequest, reconstruct
 from awr_denoise.renderers import create_renderer
 
-BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
-
 
 @pytest.fixture(scope="module")
-def bench():
-    sys.path.insert(0, str(BENCHMARKS))
-    try:
-        spec = importlib.util.spec_from_file_location("bench_guides", BENCHMARKS / "bench_guides.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(BENCHMARKS))
-    return module
+def bench(benchmark_script):
+    return benchmark_script("bench_guides")
 
 
 @pytest.fixture(scope="module")

@@ -2,24 +2,18 @@
 
 from __future__ import annotations
 
-import importlib.util
+import importlib
 import json
-from pathlib import Path
 
 import pytest
 
 from awr_denoise.bench import noisy_buffer
 from awr_denoise.wavelets import default_levels
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_reconstruct.py"
-
 
 @pytest.fixture(scope="module")
-def bench():
-    spec = importlib.util.spec_from_file_location("bench_reconstruct", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def bench(benchmark_script):
+    return benchmark_script("bench_reconstruct")
 
 
 def test_a_section_goes_to_the_given_file_and_the_others_stay(bench, tmp_path):

@@ -3,29 +3,16 @@ measures beside the default's undecimated ones are what they claim to be."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from awr_denoise import SampleBuffer, reconstruct
 from awr_denoise.bench import noisy_buffer
 
-BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
-
 
 @pytest.fixture(scope="module")
-def dec():
-    sys.path.insert(0, str(BENCHMARKS))
-    try:
-        spec = importlib.util.spec_from_file_location("decimated_wiener", BENCHMARKS / "decimated_wiener.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(BENCHMARKS))
-    return module
+def dec(benchmark_script):
+    return benchmark_script("decimated_wiener")
 
 
 def _inputs(shape=(20, 18, 1), seed=0):
