@@ -337,6 +337,12 @@ def ablation_table(rows: list[dict]) -> None:
 
 
 # ---------------------------------------------------------------------------- what limits the features
+def _scored(images: dict[str, np.ndarray], ref: np.ndarray, **where: Any) -> list[dict[str, Any]]:
+    """One row per method of ``images``: ``where`` (renderer, scene, spp, group), relMSE and MSE against ``ref``."""
+    return [{**where, "method": name, "relmse": relmse(image, ref), "mse": mse(image, ref)}
+            for name, image in images.items()]
+
+
 ORACLE_SPP = 256
 ORACLE_GROUP = 1000  # the renderer seed of the feature render no compared buffer uses
 DEMODULATION_FLOORS = (0.05, 0.1)  # albedos below which the radiance is not divided (sky, emitters)
@@ -367,9 +373,7 @@ def feature_limits(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: 
                              for t in DEMODULATION_FLOORS},
                           "demodulated guide, 256-spp albedo":
                               reconstruct(buffer, guide=_demodulated(buffer, albedo=oracle["albedo"].mean))}
-                for name, image in images.items():
-                    rows.append({"renderer": renderer, "scene": scene, "spp": spp, "group": g, "method": name,
-                                 "relmse": relmse(image, ref), "mse": mse(image, ref)})
+                rows += _scored(images, ref, renderer=renderer, scene=scene, spp=spp, group=g)
         print(f"{renderer} {scene}: done", flush=True)
     return rows
 
@@ -610,9 +614,7 @@ def avenues(scenes: list[tuple[str, str, tuple[int, int] | None]], spp: int, gro
                     images[name] = reconstruct(buffer, **options)
                 finally:
                     _RECONSTRUCT.pilots = guided.pilots
-            for name, image in images.items():
-                rows.append({"renderer": renderer, "scene": scene, "spp": spp, "group": g, "method": name,
-                             "relmse": relmse(image, ref), "mse": mse(image, ref)})
+            rows += _scored(images, ref, renderer=renderer, scene=scene, spp=spp, group=g)
         print(f"{renderer} {scene}: done", flush=True)
     return rows
 
