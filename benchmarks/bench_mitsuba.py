@@ -15,6 +15,8 @@ For each scene (the bundled Mitsuba scenes at 256x256, and the Cornell box at 19
 References are rendered with ``mi.render`` in passes (seeds no other run uses) and cached under
 ``benchmarks/cache/mitsuba/`` (gitignored), keyed by the scene's content (its dict, bitmaps by their
 pixels), Mitsuba's version, size and spp; ``--regenerate-references`` renders them again.
+Compared runs are seeded by their spp and repeat (:func:`run_seed`), so runs of other settings
+(``--initial-spp``, ``--stages``, ``--threads``) at the same spp render the same uniform images.
 
 Usage (from the repository root)::
 
@@ -250,6 +252,22 @@ def awr_sample_counts(spps: list[int], initial_spp: int) -> list[int]:
     return sorted({initial_spp, *spps} | ({half} if half > initial_spp else set()))
 
 
+def run_seed(seed: int, spp: int, repeat: int) -> int:
+    """The seed of a compared run, keyed by its spp (a power of two) and repeat.
+
+    Runs of different settings (``--initial-spp``, ``--stages``, ...) at the same spp and repeat get
+    the same seed, whatever other sample counts their run lists hold: their uniform renders are the
+    same renders, and AWR runs whose samplers start alike draw the same first samples. The default
+    list (2, 4, 8, ...) keeps the seeds of the versions that numbered runs by their place in it.
+
+    >>> run_seed(1, 2, 0), run_seed(1, 32, 2)
+    (1001, 5003)
+    """
+    if spp < 2 or spp & (spp - 1) or not 0 <= repeat < 999:
+        raise ValueError(f"run_seed needs a power-of-two spp >= 2 and a repeat below 999, got {spp} and {repeat}")
+    return seed + 1000 * (spp.bit_length() - 1) + repeat
+
+
 def bench_scene(name: str, shape: tuple[int, int], *, spps: list[int], reference_spp: int, repeats: int,
                 throughput_spp: int, cache: Path, regenerate: bool, seed: int,
                 sampler_options: dict[str, Any] | None = None, reconstruct_options: dict[str, Any] | None = None,
@@ -269,15 +287,15 @@ def bench_scene(name: str, shape: tuple[int, int], *, spps: list[int], reference
     awr_run(renderer, min(spps), seed + 999, **run_options)  # warm-up: kernels, wavelet operators
     awr_spps = awr_sample_counts(spps, run_options.get("initial_spp", DEFAULT_AWR_INITIAL_SPP))
     uniform_points, awr_points = [], []
-    for i, spp in enumerate(awr_spps):
+    for spp in awr_spps:
         print(f"[{name}] {spp} spp x {repeats}", flush=True)
         runs_u, runs_a = [], []
         for r in range(repeats):
-            run_seed = seed + 1000 * (i + 1) + r
+            seed_r = run_seed(seed, spp, r)
             if spp in spps:
-                image, seconds, cpu = uniform_run(renderer, spp, run_seed)
+                image, seconds, cpu = uniform_run(renderer, spp, seed_r)
                 runs_u.append({"seconds": seconds, "cpu_seconds": cpu, **_metrics(image, ref)})
-            run = awr_run(renderer, spp, run_seed, **run_options)
+            run = awr_run(renderer, spp, seed_r, **run_options)
             runs_a.append({"seconds": run["seconds"], "cpu_seconds": run["cpu_seconds"], "parts": run["parts"],
                            "rounds": run["rounds"],
                            "spp_max": run["spp_max"], "awr": _metrics(run["image"], ref),
@@ -407,6 +425,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--report", action="store_true",
                         help="render nothing: recompute the derived comparisons of the results file and print its tables")
     args = parser.parse_args(argv)
+    # Runs are seeded by their spp (run_seed): every compared sample count is a power of two.
+    for option, values in (("--spp", args.spp), ("--hd-spp", args.hd_spp),
+                           ("--initial-spp", [args.initial_spp] if args.initial_spp is not None else [])):
+        if any(v < 2 or v & (v - 1) for v in values):
+            parser.error(f"{option} takes powers of two from 2 on (runs are seeded by their spp), got {values}")
+    if not 1 <= min(args.repeats, args.hd_repeats) <= max(args.repeats, args.hd_repeats) < 999:
+        parser.error("--repeats and --hd-repeats take 1 to 998")
     if args.report:
         path = args.output or RESULTS
         results = json.loads(path.read_text())

@@ -74,6 +74,20 @@ def test_initial_spp_reaches_the_sampler_and_starts_the_awr_runs(bench, tmp_path
     results = _quick(bench, tmp_path, "--initial-spp", "4")
     assert results["settings"]["sampler_options"] == {"initial_spp": 4}
     assert [(run["spp"], run["rounds"]) for run in results["scenes"][0]["awr_runs"]] == [(4, 1), (8, 5)]
+    # Runs are seeded by their spp, not by their place in the list of AWR sample counts (here 4, 8;
+    # 2, 4, 8 by default): the uniform renders at 4 and 8 spp are the default run's, error for error.
+    default = _quick(bench, tmp_path)
+    assert [row["uniform"] for row in results["scenes"][0]["equal_samples"]] == \
+        [row["uniform"] for row in default["scenes"][0]["equal_samples"]]
+
+
+@pytest.mark.parametrize("option", [["--spp", "4", "12"], ["--hd-spp", "6"], ["--initial-spp", "3"],
+                                    ["--initial-spp", "1"], ["--repeats", "0"], ["--repeats", "999"]])
+def test_sample_counts_that_cannot_be_seeded_by_their_spp_are_refused(bench, option, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        bench.main(["--quick", *option])
+    assert exit_info.value.code == 2
+    assert option[0] in capsys.readouterr().err
 
 
 def test_stages_reach_the_reconstruction_and_are_recorded(bench, tmp_path):
