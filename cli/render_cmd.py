@@ -203,6 +203,10 @@ def run(args: argparse.Namespace) -> int:
     given = args.scene_file or args.scene
     if given and (args.renderer != TRACER or Path(given).suffix == ".json") and Path(given).suffix:
         plan.read(given, "SCENE")
+        if args.renderer == TRACER:
+            plan.check()  # the scene file first: it is read for the files it names, checked with the rest
+            for field, path in tracer_module().scene_files(given):
+                plan.read(path, f"SCENE's {field}")
     plan.write(args.output, "-o/--output")
     plan.write(image_path, "--image" if args.image else "--image (DUMP.denoised.exr)")
     plan.write(preview_path, "--preview" if args.preview else "--preview (DUMP.denoised.png)")

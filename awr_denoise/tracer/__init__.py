@@ -25,7 +25,7 @@ if importlib.util.find_spec("embreex") is None:
 from typing import Any  # noqa: E402
 
 from .integrator import PathTracer, create_renderer, render  # noqa: E402
-from .scene import Scene, load_scene  # noqa: E402
+from .scene import Scene, load_scene, scene_files  # noqa: E402
 from ..features import FEATURE_NAMES  # noqa: E402
 
 # Resolved on first use (PEP 562) so ``python -m awr_denoise.tracer.reference`` and
@@ -42,7 +42,7 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 __all__ = ["PathTracer", "Scene", "create_renderer", "list_features", "list_scenes", "load_scene", "render", "load_reference", "render_reference",
-           "reference_path"]
+           "reference_path", "scene_files"]
 
 
 def list_features() -> list[str]:

@@ -14,6 +14,7 @@ EXR written by :func:`write_sky_envmap` hold identical values.
 
 from __future__ import annotations
 
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -230,12 +231,22 @@ def read_envmap_exr(path: str | Path) -> np.ndarray:
     """(H, W, 3) float64 radiance from an EXR with R, G, B channels."""
     import OpenEXR  # the [exr] extra; only an environment map read from a file needs it
 
-    with OpenEXR.File(str(path), separate_channels=True) as f:
-        channels = f.channels()
-        missing = [c for c in "RGB" if c not in channels]
-        if missing:
-            raise ValueError(f"path: {path} has no channel(s) {missing}; found {sorted(channels)}")
-        return np.stack([np.asarray(channels[c].pixels, np.float64) for c in "RGB"], axis=-1)
+    path = Path(path)
+    try:
+        kind = path.stat().st_mode
+    except OSError as exc:
+        raise ValueError(f"path: {path}: {exc.strerror}") from None
+    if not stat.S_ISREG(kind):  # never opened: reading a FIFO would block
+        raise ValueError(f"path: {path} is not a regular file")
+    try:
+        with OpenEXR.File(str(path), separate_channels=True) as f:
+            channels = f.channels()
+            missing = [c for c in "RGB" if c not in channels]
+            if missing:
+                raise ValueError(f"path: {path} has no channel(s) {missing}; found {sorted(channels)}")
+            return np.stack([np.asarray(channels[c].pixels, np.float64) for c in "RGB"], axis=-1)
+    except RuntimeError as exc:  # OpenEXR's "Unable to open ... for read" and the like
+        raise ValueError(f"path: {path} is not a readable EXR image ({exc})") from None
 
 
 def parse_environment(spec: dict[str, Any] | None, base_dir: Path | None = None
@@ -245,7 +256,10 @@ def parse_environment(spec: dict[str, Any] | None, base_dir: Path | None = None
         return None
     kind = spec.get("type")
     if kind == "constant":
-        radiance = np.broadcast_to(np.asarray(spec.get("radiance", 1.0), np.float64), (3,))
+        try:
+            radiance = np.broadcast_to(np.asarray(spec.get("radiance", 1.0), np.float64), (3,))
+        except (TypeError, ValueError):
+            raise ValueError("environment.radiance: expected a number or 3 numbers") from None
         if not np.all(np.isfinite(radiance)) or np.any(radiance < 0):
             raise ValueError("environment.radiance: must be finite and non-negative")
         return ConstantEnvironment(radiance)
@@ -254,11 +268,25 @@ def parse_environment(spec: dict[str, Any] | None, base_dir: Path | None = None
         unknown = set(spec) - set(SKY_DEFAULTS) - {"type", "scale"}
         if unknown:
             raise ValueError(f"environment: unknown sky field(s) {sorted(unknown)}; valid: {sorted(SKY_DEFAULTS)}")
-        return LatLongEnvironment(make_sky_envmap(**params), float(spec.get("scale", 1.0)))
+        return LatLongEnvironment(make_sky_envmap(**params), _scale(spec))
     if kind == "latlong":
+        if not isinstance(spec.get("path"), str) or not spec["path"]:
+            raise ValueError(f"environment.path: expected a file name, got {spec.get('path')!r:.40}")
         path = Path(spec["path"])
         if not path.is_absolute() and base_dir is not None:
             path = base_dir / path
-        return LatLongEnvironment(read_envmap_exr(path), float(spec.get("scale", 1.0)))
+        scale = _scale(spec)
+        try:
+            image = read_envmap_exr(path)
+        except ValueError as exc:
+            raise ValueError(f"environment.{exc}") from None
+        return LatLongEnvironment(image, scale)
     raise ValueError(f"environment.type: {kind!r} is not one of {', '.join(ENVIRONMENT_KINDS)}")
 
+
+def _scale(spec: dict[str, Any]) -> float:
+    """``environment.scale``, a finite number >= 0."""
+    scale = spec.get("scale", 1.0)
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not np.isfinite(scale) or scale < 0:
+        raise ValueError(f"environment.scale: expected a finite number >= 0, got {scale!r:.40}")
+    return float(scale)

@@ -37,12 +37,16 @@ from .materials import Material, parse_material
 from .meshes import CHESS_PROFILES, box_mesh, lathe_mesh, quad_mesh, rotation_matrices, sphere_mesh
 from .scenes import BUNDLED_SCENES
 
-__all__ = ["Scene", "SceneObject", "Motion", "SHAPE_KINDS", "load_scene", "parse_scene", "dimension_names"]
+__all__ = ["Scene", "SceneObject", "Motion", "SHAPE_KINDS", "load_scene", "parse_scene", "dimension_names",
+           "scene_files"]
 
 SHAPE_KINDS = ("sphere", "box", "quad", "lathe", "mesh")
 """Valid values of ``objects[i].shape``."""
 
 _DEFAULT_SPECULAR_DEPTH = 8
+MAX_SIDE = 2**20  # pixels per side, as the command line allows
+MAX_DEPTH = 256  # bounces: each adds two random dimensions, and memory and time grow with it
+MAX_SEGMENTS = 1024  # tessellation of spheres and lathes: a mesh of up to about a million triangles
 
 
 @dataclass(frozen=True)
@@ -172,10 +176,47 @@ def dimension_names(scene: Scene, max_depth: int) -> tuple[str, ...]:
     return tuple(names)
 
 
+def _mapping(value: Any, where: str) -> dict[str, Any]:
+    """``value`` if it is a JSON object, else a ValueError naming the field."""
+    if not isinstance(value, dict):
+        raise ValueError(f"{where}: expected an object {{...}}, got {_shown(value)}")
+    return value
+
+
+def _shown(value: Any) -> str:
+    """``repr(value)``, cut short: a refusal stays one readable line."""
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _whole(spec: dict[str, Any], key: str, where: str, default: int, low: int, high: int) -> int:
+    """An integer field in ``[low, high]``; a bool, a fraction or NaN is refused, not truncated."""
+    value = spec.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or value != value or value % 1:
+        raise ValueError(f"{where}.{key}: expected a whole number, got {_shown(value)}" if where else
+                         f"{key}: expected a whole number, got {_shown(value)}")
+    if not low <= value <= high:
+        raise ValueError(f"{where + '.' if where else ''}{key}: {_shown(value)} is outside {low}..{high}")
+    return int(value)
+
+
+def _real(spec: dict[str, Any], key: str, where: str, default: float, *, positive: bool = False) -> float:
+    """A finite number field (``positive``: above 0)."""
+    value = spec.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) \
+            or (positive and not value > 0):
+        kind = "a finite number above 0" if positive else "a finite number"
+        raise ValueError(f"{where}.{key}: expected {kind}, got {_shown(value)}")
+    return float(value)
+
+
 def _vec(spec: dict[str, Any], key: str, where: str, default: Any = None) -> np.ndarray:
     if key not in spec and default is None:
         raise ValueError(f"{where}.{key}: missing")
-    value = np.asarray(spec.get(key, default), float)
+    try:
+        value = np.asarray(spec.get(key, default), float)
+    except (TypeError, ValueError):
+        value = np.empty(0)
     if value.shape != (3,) or not np.all(np.isfinite(value)):
         raise ValueError(f"{where}.{key}: expected 3 finite numbers, got {spec.get(key)!r}")
     return value
@@ -186,11 +227,9 @@ def _build_shape(spec: dict[str, Any], where: str) -> tuple[np.ndarray, np.ndarr
     shape = spec.get("shape")
     if shape == "sphere":
         center = _vec(spec, "center", where)
-        radius = float(spec.get("radius", 1.0))
-        if radius <= 0:
-            raise ValueError(f"{where}.radius: {radius} must be > 0")
-        v, f, n = sphere_mesh(center, radius, segments=int(spec.get("segments", 48)),
-                              rings=int(spec.get("rings", 24)))
+        radius = _real(spec, "radius", where, 1.0, positive=True)
+        v, f, n = sphere_mesh(center, radius, segments=_whole(spec, "segments", where, 48, 3, MAX_SEGMENTS),
+                              rings=_whole(spec, "rings", where, 24, 2, MAX_SEGMENTS))
         return v, f, n, center
     if shape == "box":
         lo, hi = _vec(spec, "min", where), _vec(spec, "max", where)
@@ -209,15 +248,31 @@ def _build_shape(spec: dict[str, Any], where: str) -> tuple[np.ndarray, np.ndarr
             if profile not in CHESS_PROFILES:
                 raise ValueError(f"{where}.profile: {profile!r} is not one of {', '.join(CHESS_PROFILES)}")
             profile = CHESS_PROFILES[profile]
+        try:
+            profile = np.asarray(profile, float)
+        except (TypeError, ValueError):
+            profile = np.empty(0)
+        if profile.ndim != 2 or profile.shape[0] < 2 or profile.shape[1] != 2 or not np.all(np.isfinite(profile)):
+            raise ValueError(f"{where}.profile: expected two or more finite (radius, height) pairs")
         base = _vec(spec, "base", where)
-        v, f, n = lathe_mesh(np.asarray(profile, float), base, float(spec.get("scale", 1.0)),
-                             segments=int(spec.get("segments", 48)))
+        v, f, n = lathe_mesh(profile, base, _real(spec, "scale", where, 1.0, positive=True),
+                             segments=_whole(spec, "segments", where, 48, 3, MAX_SEGMENTS))
         return v, f, n, base
     if shape == "mesh":
-        v = np.asarray(spec["vertices"], float)
-        f = np.asarray(spec["faces"], np.int64)
-        if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
+        for key in ("vertices", "faces"):
+            if key not in spec:
+                raise ValueError(f"{where}.{key}: missing")
+        try:
+            v, f = np.asarray(spec["vertices"], float), np.asarray(spec["faces"], float)
+        except (TypeError, ValueError):
+            raise ValueError(f"{where}: mesh vertices and faces must be (N, 3) lists of numbers") from None
+        if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3 or not len(f):
             raise ValueError(f"{where}: mesh vertices and faces must be (N, 3)")
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"{where}.vertices: must be finite")
+        if not np.all(np.isfinite(f)) or np.any(f % 1):
+            raise ValueError(f"{where}.faces: must be whole vertex indices")
+        f = f.astype(np.int64)
         if f.min() < 0 or f.max() >= len(v):
             raise ValueError(f"{where}.faces: index out of range")
         e = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
@@ -238,27 +293,29 @@ _OBJECT_FIELDS = {"shape", "material", "emission", "motion", "name", "center", "
 def parse_scene(spec: dict[str, Any], *, width: int | None = None, height: int | None = None,
                 base_dir: Path | None = None) -> Scene:
     """Build a :class:`Scene` from a spec dict (see the module docstring for the format)."""
-    spec = copy.deepcopy(spec)
+    spec = copy.deepcopy(_mapping(spec, "scene"))
     unknown = set(spec) - _TOP_LEVEL
     if unknown:
         raise ValueError(f"scene: unknown field(s) {sorted(unknown)}; valid: {sorted(_TOP_LEVEL)}")
     name = str(spec.get("name", "custom"))
-    w = int(width if width is not None else spec.get("width", 128))
-    h = int(height if height is not None else spec.get("height", 128))
-    if w <= 0 or h <= 0:
-        raise ValueError(f"width, height: must be positive, got {w} x {h}")
-    camera = parse_camera(spec.get("camera", {}), w, h)
+    w = _whole({"width": width} if width is not None else spec, "width", "", 128, 1, MAX_SIDE)
+    h = _whole({"height": height} if height is not None else spec, "height", "", 128, 1, MAX_SIDE)
+    camera = parse_camera(_mapping(spec.get("camera", {}), "camera"), w, h)
 
-    material_specs = spec.get("materials", {})
+    material_specs = _mapping(spec.get("materials", {}), "materials")
     material_names = list(material_specs)
-    materials = [parse_material(n, material_specs[n]) for n in material_names]
+    materials = [parse_material(n, _mapping(material_specs[n], f"materials.{n}")) for n in material_names]
     # Emitters reflect nothing; they share one black material.
     material_names.append("__emitter__")
     materials.append(parse_material("__emitter__", {"type": "diffuse", "albedo": 0.0}))
 
     objects = []
-    for i, obj in enumerate(spec.get("objects", [])):
+    object_specs = spec.get("objects", [])
+    if not isinstance(object_specs, list):
+        raise ValueError(f"objects: expected a list [...], got {_shown(object_specs)}")
+    for i, obj in enumerate(object_specs):
         where = f"objects[{i}]"
+        obj = _mapping(obj, where)
         unknown = set(obj) - _OBJECT_FIELDS
         if unknown:
             raise ValueError(f"{where}: unknown field(s) {sorted(unknown)}; valid: {sorted(_OBJECT_FIELDS)}")
@@ -273,12 +330,12 @@ def parse_scene(spec: dict[str, Any], *, width: int | None = None, height: int |
             raise ValueError(f"{where}.material: {material_name!r} is not one of {', '.join(material_names[:-1])}")
         motion = None
         if "motion" in obj:
-            m = obj["motion"]
-            axis = np.asarray(m.get("axis", (0.0, 1.0, 0.0)), float)
+            m = _mapping(obj["motion"], f"{where}.motion")
+            axis = _vec(m, "axis", f"{where}.motion", (0.0, 1.0, 0.0))
             if np.linalg.norm(axis) == 0:
                 raise ValueError(f"{where}.motion.axis: must be non-zero")
-            motion = Motion(pivot, _vec(m, "velocity", f"{where}.motion", (0.0, 0.0, 0.0)),
-                            axis / np.linalg.norm(axis), np.radians(float(m.get("angular_velocity_degrees", 0.0))))
+            motion = Motion(pivot, _vec(m, "velocity", f"{where}.motion", (0.0, 0.0, 0.0)), axis / np.linalg.norm(axis),
+                            np.radians(_real(m, "angular_velocity_degrees", f"{where}.motion", 0.0)))
             if emission is not None and not motion.is_static:
                 raise ValueError(f"{where}.motion: emissive objects must be static")
             if motion.is_static:
@@ -288,13 +345,15 @@ def parse_scene(spec: dict[str, Any], *, width: int | None = None, height: int |
     if not objects:
         raise ValueError("objects: a scene needs at least one object")
 
-    delta_lights = [parse_delta_light(i, lt) for i, lt in enumerate(spec.get("lights", []))]
-    environment = parse_environment(spec.get("environment"), base_dir)
-    integrator = spec.get("integrator", {})
-    max_depth = int(integrator.get("max_depth", 0))
-    if max_depth < 0:
-        raise ValueError(f"integrator.max_depth: {max_depth} must be >= 0")
-    max_specular_depth = int(integrator.get("max_specular_depth", _DEFAULT_SPECULAR_DEPTH))
+    light_specs = spec.get("lights", [])
+    if not isinstance(light_specs, list):
+        raise ValueError(f"lights: expected a list [...], got {_shown(light_specs)}")
+    delta_lights = [parse_delta_light(i, _mapping(lt, f"lights[{i}]")) for i, lt in enumerate(light_specs)]
+    environment = spec.get("environment")
+    environment = parse_environment(None if environment is None else _mapping(environment, "environment"), base_dir)
+    integrator = _mapping(spec.get("integrator", {}), "integrator")
+    max_depth = _whole(integrator, "max_depth", "integrator", 0, 0, MAX_DEPTH)
+    max_specular_depth = _whole(integrator, "max_specular_depth", "integrator", _DEFAULT_SPECULAR_DEPTH, 0, MAX_DEPTH)
 
     # Objects that move while the shutter is closed are frozen at the opening time.
     if camera.shutter_length == 0:
@@ -309,7 +368,7 @@ def parse_scene(spec: dict[str, Any], *, width: int | None = None, height: int |
     scene = Scene(name, str(spec.get("description", "")), w, h, 0, camera, materials, material_names, objects,
                   delta_lights, environment, max_depth, max_specular_depth, spec)
     natural = len(scene.dimension_names())
-    stated = int(spec.get("dimension", natural))
+    stated = _whole(spec, "dimension", "", natural, 0, 2 * MAX_DEPTH + 16)
     if stated != natural:
         raise ValueError(f"dimension: the scene states {stated} but its effects need {natural} "
                          f"({', '.join(scene.dimension_names())})")
@@ -340,5 +399,49 @@ def load_scene(scene: str | Path | dict[str, Any] | Scene, *, width: int | None 
         return parse_scene(BUNDLED_SCENES[text], width=width, height=height)
     path = Path(text)
     if path.suffix == ".json" and path.is_file():
-        return parse_scene(json.loads(path.read_text()), width=width, height=height, base_dir=path.parent)
+        try:
+            return parse_scene(_read_json(path), width=width, height=height, base_dir=path.parent)
+        except ValueError as exc:
+            raise ValueError(f"{path}: {exc}") from None
     raise ValueError(f"scene: {text!r} is neither a JSON file nor one of {', '.join(BUNDLED_SCENES)}")
+
+
+def _read_json(path: Path) -> Any:
+    """A scene file's JSON; NaN and Infinity, which Python's reader takes, are refused."""
+    def refuse(constant: str) -> None:
+        raise ValueError(f"{constant} is not a number a scene may hold")
+
+    try:
+        return json.loads(path.read_text(), parse_constant=refuse)
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"not a JSON text file ({exc.reason})") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"not valid JSON: {exc}") from None
+
+
+def scene_files(scene: str | Path) -> list[tuple[str, Path]]:
+    """The files a JSON scene file reads besides itself, as ``(field, path)``: its environment map.
+
+    A command checks them with its other inputs before anything is read or written (a FIFO
+    would block the read; an output must never replace one). A bundled scene reads none.
+
+    Examples
+    --------
+    >>> scene_files("default")
+    []
+    """
+    path = Path(scene)
+    if str(scene) in BUNDLED_SCENES or path.suffix != ".json" or not path.is_file():
+        return []
+    try:
+        spec = _read_json(path)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    environment = spec.get("environment") if isinstance(spec, dict) else None
+    if isinstance(environment, dict) and environment.get("type") == "latlong" and "path" in environment:
+        file = environment["path"]
+        if not isinstance(file, str) or not file:
+            raise ValueError(f"{path}: environment.path: expected a file name, got {_shown(file)}")
+        file = Path(file)
+        return [("environment.path", file if file.is_absolute() else path.parent / file)]
+    return []

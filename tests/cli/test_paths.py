@@ -9,6 +9,7 @@ temporary, inputs untouched, a FIFO still a FIFO).
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import signal
 import stat
@@ -20,7 +21,7 @@ import pytest
 pytest.importorskip("OpenEXR")
 
 from awr_denoise.cli.main import main  # noqa: E402
-from awr_denoise.io import read_sample_dump, write_sample_buffer  # noqa: E402
+from awr_denoise.io import read_sample_dump, write_image, write_sample_buffer  # noqa: E402
 from cli_helpers import dump_buffer, one_error_line  # noqa: E402
 
 pytestmark = pytest.mark.exr
@@ -202,6 +203,25 @@ def test_a_special_file_is_refused_as_input_without_blocking(work, capsys, monke
     args = [a.replace("{IN}", name) for a in template]
     line = _refused(work, capsys, args)
     assert "not a regular file" in line or "is a directory" in line, line
+
+
+@pytest.mark.tracer
+def test_a_scene_files_environment_map_is_an_input(work, capsys, monkeypatch):
+    """The environment map a JSON scene names is checked like every input: never replaced by an
+    output, never opened when it is a FIFO."""
+    pytest.importorskip("embreex")
+    from awr_denoise.tracer.scenes import BUNDLED_SCENES
+
+    monkeypatch.chdir(work.root)
+    spec = dict(BUNDLED_SCENES["default"], width=8, height=8, environment={"type": "latlong", "path": "env.exr"})
+    (work / "s.json").write_text(json.dumps(spec))
+    write_image(work / "env.exr", np.ones((4, 8, 3)))
+    render = ["render", "s.json", "--spp", "2", "--uniform", "-q", "--overwrite"]
+    _refused(work, capsys, render + ["-o", "env.exr"], "is the input", "environment.path")
+    _refused(work, capsys, render + ["-o", "r.exr", "--image", "env.exr"], "--image", "is the input")
+    (work / "env.exr").unlink()
+    os.mkfifo(work / "env.exr")
+    _refused(work, capsys, render + ["-o", "r.exr"], "environment.path", "FIFO")
 
 
 def test_a_missing_input_names_its_option(work, capsys, monkeypatch):

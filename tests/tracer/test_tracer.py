@@ -97,6 +97,98 @@ def test_bad_input_names_the_parameter() -> None:
         load_scene(bad)
 
 
+def _scene_with(**changes) -> dict:
+    """The default scene with ``changes`` at dotted paths (``objects.1.radius``), as JSON would give it."""
+    spec = json.loads(json.dumps(BUNDLED_SCENES["default"]))
+    for dotted, value in changes.items():
+        *parents, last = dotted.split(".")
+        node = spec
+        for key in parents:
+            node = node[int(key)] if isinstance(node, list) else node.setdefault(key, {})
+        if isinstance(node, list):
+            node[int(last)] = value
+        else:
+            node[last] = value
+    return spec
+
+
+SPHERE = next(i for i, o in enumerate(BUNDLED_SCENES["default"]["objects"]) if o["shape"] == "sphere")
+MALFORMED = [  # (change, the field the refusal names)
+    ({"environment": "sky"}, "environment: expected an object"),
+    ({"materials.red": 5}, "materials.red: expected an object"),
+    ({"objects": {"a": 1}}, "objects: expected a list"),
+    ({"objects.0": 5}, r"objects\[0\]: expected an object"),
+    ({"camera": [1, 2]}, "camera: expected an object"),
+    ({"integrator": 3}, "integrator: expected an object"),
+    ({"lights": [7]}, r"lights\[0\]: expected an object"),
+    ({"width": 2.7}, "width: expected a whole number, got 2.7"),
+    ({"width": "abc"}, "width: expected a whole number"),
+    ({"width": True}, "width: expected a whole number"),
+    ({"width": 1e300}, r"width: 1e\+300 is outside 1..1048576"),
+    ({"dimension": "four"}, "dimension: expected a whole number"),
+    # Just past the bounds: 10**9 (a runaway allocation before the bounds) would take the machine with it.
+    ({"integrator.max_depth": 257}, "integrator.max_depth: 257 is outside 0..256"),
+    ({"integrator.max_specular_depth": -3}, "integrator.max_specular_depth: -3 is outside"),
+    ({f"objects.{SPHERE}.segments": 1025}, rf"objects\[{SPHERE}\].segments: 1025 is outside 3..1024"),
+    ({f"objects.{SPHERE}.rings": 0}, rf"objects\[{SPHERE}\].rings: 0 is outside"),
+    ({f"objects.{SPHERE}.radius": float("nan")}, rf"objects\[{SPHERE}\].radius: expected a finite number above 0"),
+    ({f"objects.{SPHERE}.radius": float("inf")}, rf"objects\[{SPHERE}\].radius: expected a finite number above 0"),
+    ({f"objects.{SPHERE}.radius": -1}, rf"objects\[{SPHERE}\].radius"),
+    ({"objects.0": {"shape": "mesh", "faces": [[0, 1, 2]]}}, r"objects\[0\].vertices: missing"),
+    ({"objects.0": {"shape": "mesh", "vertices": [[0, 0, 0], [1, 0, 0], [0, float("nan"), 0]], "faces": [[0, 1, 2]]}},
+     r"objects\[0\].vertices: must be finite"),
+    ({"objects.0": {"shape": "mesh", "vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0]], "faces": [[0, 1, 1.5]]}},
+     r"objects\[0\].faces: must be whole"),
+    ({"objects.0": {"shape": "lathe", "base": [0, 0, 0], "profile": [[1, 0]]}}, r"objects\[0\].profile"),
+    ({"objects.0": {"shape": "lathe", "base": [0, 0, 0], "scale": float("nan")}}, r"objects\[0\].scale"),
+    ({f"objects.{SPHERE}.motion": {"angular_velocity_degrees": float("nan")}}, "angular_velocity_degrees"),
+    ({"environment": {"type": "constant", "radiance": [1, 1]}}, "environment.radiance: expected a number or 3"),
+    ({"environment": {"type": "latlong"}}, "environment.path: expected a file name"),
+    ({"environment": {"type": "latlong", "path": "sky.exr", "scale": float("inf")}}, "environment.scale"),
+]
+
+
+@pytest.mark.parametrize("changes, needle", MALFORMED, ids=[str(m[0])[:40] for m in MALFORMED])
+def test_a_malformed_scene_is_refused_naming_the_field(changes, needle) -> None:
+    """Every malformed field gives a ValueError that names it: no KeyError, no truncation, no hang."""
+    with pytest.raises(ValueError, match=needle):
+        load_scene(_scene_with(**changes))
+
+
+def test_a_scene_file_names_itself_and_refuses_nan(tmp_path) -> None:
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps(_scene_with(**{f"objects.{SPHERE}.radius": 1.0})).replace("1.0", "NaN", 1))
+    with pytest.raises(ValueError, match=r"s\.json: NaN is not a number a scene may hold"):
+        load_scene(path)
+    path.write_text('{"width": }')
+    with pytest.raises(ValueError, match=r"s\.json: not valid JSON"):
+        load_scene(path)
+    path.write_text(json.dumps(_scene_with(width=0)))
+    with pytest.raises(ValueError, match=r"s\.json: width: 0 is outside"):
+        load_scene(path)
+
+
+@pytest.mark.exr
+def test_scene_files_lists_the_environment_map_and_a_fifo_is_never_opened(tmp_path) -> None:
+    import os
+
+    from awr_denoise.tracer import scene_files
+
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps(_scene_with(environment={"type": "latlong", "path": "env.exr"})))
+    assert scene_files(path) == [("environment.path", tmp_path / "env.exr")]
+    assert scene_files("default") == [] and scene_files(tmp_path / "none.json") == []
+    with pytest.raises(ValueError, match="environment.path: .*env.exr"):
+        load_scene(path)  # missing
+    os.mkfifo(tmp_path / "env.exr")
+    with pytest.raises(ValueError, match="environment.path: .*env.exr is not a regular file"):
+        load_scene(path)  # returns at once: a FIFO opened for reading would block here
+    (tmp_path / "env.exr").unlink()
+    (tmp_path / "env.exr").write_bytes(b"not an exr")
+    with pytest.raises(ValueError, match="environment.path: .*env.exr is not a readable EXR image"):
+        load_scene(path)
+
+
 def test_json_scene_files_match_the_bundled_dicts() -> None:
     for name, spec in BUNDLED_SCENES.items():
         path = REPO / "data" / "scenes" / f"{name}.json"
