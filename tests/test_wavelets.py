@@ -16,6 +16,7 @@ from awr_denoise.wavelets import (
     forward,
     inverse,
     max_levels,
+    _sparse_operator,
     shrinkage_diagonal,
     wavelet_operators,
 )
@@ -252,3 +253,54 @@ def test_shrinkage_diagonal_refuses_wrong_factors_and_precision():
         shrinkage_diagonal(template[:2], ops)
     with pytest.raises(ValueError, match="precision"):
         shrinkage_diagonal(template, ops, precision="float16")
+
+
+def _dense_matrix(apply, n_in):
+    """The map's matrix the O(n^2) way: every impulse pushed through it."""
+    return apply(np.eye(n_in))
+
+
+@pytest.mark.parametrize("wavelet", ["bior4.4", "haar", "db4", "sym3"])
+@pytest.mark.parametrize("boundary", sorted(pywt.Modes.modes))
+def test_operators_built_from_templates_equal_every_impulse_pushed_through(wavelet, boundary):
+    """The O(n) build (edge columns computed, interior ones shifted templates) is the dense matrix
+    bit for bit: one DWT step, and a level-k band's synthesis, at lengths around the edges' reach."""
+    w = pywt.Wavelet(wavelet)
+    edge = 2 * w.dec_len + 4
+    for n in (2 * edge + 1, 2 * edge + 3, 3 * edge + 8, 301):
+        for band in (0, 1):
+            step = lambda x, band=band: pywt.dwt(x, w, mode=boundary, axis=0)[band]  # noqa: E731
+            built = _sparse_operator(step, n, (2, 1), edge)
+            assert np.array_equal(built.toarray(), _dense_matrix(step, n)), (n, band)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            lengths = [c.shape[0] for c in pywt.wavedec(np.zeros(n), w, mode=boundary, level=3)]
+
+            def synthesis(x, lengths=lengths, n=n):
+                coeffs = [np.zeros((m, x.shape[1])) for m in lengths]
+                coeffs[1] = x
+                return pywt.waverec(coeffs, w, mode=boundary, axis=0)[:n]
+            built = _sparse_operator(synthesis, lengths[1], (1, 8), edge)
+            assert np.array_equal(built.toarray(), _dense_matrix(synthesis, lengths[1])), n
+
+
+def test_a_map_that_is_not_shift_invariant_is_built_column_by_column():
+    """The random probes catch a map whose interior columns are not shifted templates."""
+    weights = np.linspace(1.0, 2.0, 200)[:, None]
+    tapered = lambda x: pywt.dwt(x * weights, "db2", mode="symmetric", axis=0)[0]  # noqa: E731
+    built = _sparse_operator(tapered, 200, (2, 1), 12)
+    assert_allclose(built.toarray(), _dense_matrix(tapered, 200), rtol=0, atol=1e-15)
+
+
+def test_operators_of_a_long_side_are_built_in_linear_time():
+    """Building a side's operator pushes a fixed number of impulses through the DWT, not one per
+    sample (a 65536-sample side took minutes that way): the edges, two templates and the probes."""
+    pushed = []
+
+    def step(x):
+        pushed.append(x.shape[1])
+        return pywt.dwt(x, "bior4.4", mode="symmetric", axis=0)[1]
+    edge = 2 * pywt.Wavelet("bior4.4").dec_len + 4
+    built = _sparse_operator(step, 8192, (2, 1), edge)
+    assert sum(pushed) == 2 * edge + 2 + 2  # both edges, a template per phase, two random probes
+    assert built.shape == (4100, 8192) and built.nnz <= 8 * 8192
