@@ -234,6 +234,16 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
         return []
     options = {"exposure": exposure, "reference": reference, "overwrite": overwrite, "half": half,
                "read_options": dict(read_options or {}), **reconstruct_options}
+    if executor is None and len(sources) == 1:
+        # One frame runs in this thread, where Ctrl-C stops it at once; on a worker thread, which
+        # cannot be stopped, the caller would wait for the whole reconstruction first.
+        try:
+            result = _frame_task(sources[0], targets[0], None if shown is None else shown[0], options)
+        except Exception as exc:
+            raise FramesFailedError({sources[0]: exc}, 1) from exc
+        if on_frame is not None:
+            on_frame(result)
+        return [result.output]
     with executor_or_threads(executor, len(sources)) as pool:
         futures = {submit(pool, _frame_task, s, t, None if shown is None else shown[i], options): s
                    for i, (s, t) in enumerate(zip(sources, targets))}

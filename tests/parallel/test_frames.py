@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 
 import numpy as np
 import pytest
@@ -61,3 +62,26 @@ def test_denoise_frames_checks_its_arguments(tmp_path, dumps):
     with pytest.raises(ValueError, match="also an input"):
         denoise_frames(dumps[:1], dumps[:1], overwrite=True)
     assert denoise_frames([], []) == []
+
+
+def test_one_frame_runs_in_the_calling_thread(tmp_path, dumps, monkeypatch):
+    """Without an executor one frame runs in this thread, so Ctrl-C stops it at once (a worker
+    thread cannot be stopped: the caller would wait for the whole reconstruction); it is still
+    the serial run's image, and its failure is still a FramesFailedError."""
+    from awr_denoise.parallel import frames
+
+    threads = []
+    real = frames.denoise_frame
+    monkeypatch.setattr(frames, "denoise_frame",
+                        lambda *a, **k: threads.append(threading.current_thread()) or real(*a, **k))
+    serial = [tmp_path / "serial.exr"]
+    serial_frames(dumps[:1], serial)
+    seen = []
+    assert denoise_frames(dumps[:1], [tmp_path / "one.exr"], on_frame=seen.append) == [tmp_path / "one.exr"]
+    assert threads == [threading.main_thread()] and [f.output for f in seen] == [tmp_path / "one.exr"]
+    assert_same_files([tmp_path / "one.exr"], serial)
+    broken = tmp_path / "broken.exr"
+    broken.write_bytes(b"not an exr")
+    with pytest.raises(FramesFailedError, match="1 of 1") as info:
+        denoise_frames([broken], [tmp_path / "never.exr"])
+    assert list(info.value.failures) == [str(broken)] and not (tmp_path / "never.exr").exists()
