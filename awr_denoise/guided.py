@@ -390,6 +390,7 @@ def projected(transform: StationaryTransform, x: FloatArray, variance: FloatArra
     """
     if projection == 0 or not np.any(share):  # nothing to blend (the gate closed everywhere): the FFTs spared
         return image, leverage, probe_variance
+    variance = transform.bounded(variance)
     target = share * guide + (1.0 - share) * image
     result = project(transform, x, variance, target, offset=k, leverage=leverage is not None)
     s = projection * np.asarray(share, np.float64)  # none where the gate is closed: no guide, no change

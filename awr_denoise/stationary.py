@@ -226,6 +226,18 @@ class StationaryTransform:
         """
         return self._outer("diagonal", band)
 
+    def bounded(self, variance: FloatArray | None) -> FloatArray | None:
+        """``variance``, capped where this transform's sums over the image would overflow its dtype.
+
+        A float32 band's FFT sums its variances over the image: a pixel ~1e29 times noisier than
+        the image is bright (at 4K) would make it Inf and spread NaN. A Wiener factor or a
+        projection weight there is 0 with the cap as without it. float64: ``variance`` itself.
+        """
+        if variance is None or self.dtype != np.float32 or not variance.size:
+            return variance
+        cap = float(np.finfo(np.float32).max) / (64.0 * self.shape[0] * self.shape[1])
+        return variance if variance.max() <= cap else np.minimum(variance, cap)
+
     def spectrum(self, planes: FloatArray, *, out: np.ndarray | None = None) -> np.ndarray:
         """``rfft2`` of (..., H, W) planes in the transform's precision, into ``out`` if given."""
         a = np.asarray(planes, dtype=self.dtype)

@@ -478,6 +478,7 @@ def chain(transform: StationaryTransform, x: FloatArray, v: FloatArray, pilot: F
     >>> rms(noisy), rms(out.image), out.leverage.shape
     (0.097, 0.056, (32, 32, 1))
     """
+    v, shared = transform.bounded(v), transform.bounded(shared)
     out = pilot
     for i, exponent in enumerate(exponents[:-1]):
         out = relative_wiener(transform, x, v if shared is None else shared, out if weights is None else out @ weights,

@@ -138,6 +138,23 @@ class TestFloatLimits:
         assert np.isfinite(reconstruct(buf, domain="linear")).all()
 
 
+    @pytest.mark.parametrize("variance", [1e38, 1e300])
+    @pytest.mark.parametrize("guided", [False, True])
+    def test_a_channel_far_noisier_than_it_is_bright_stays_finite(self, variance, guided):
+        """Regression: a variance of 1e38 beside means of 0.5 overflowed the float32 Wiener stages'
+        (and the guide's projection's) FFTs: Inf, then NaN over the whole image. Capped where the
+        sums would overflow, the image is the float64 route's to float32 rounding."""
+        rng = np.random.default_rng(SEED)
+        mean = 0.5 + 0.1 * rng.random((8, 12, 3))
+        var = np.concatenate([np.full((8, 12, 1), variance), np.full((8, 12, 2), 0.04)], axis=2)
+        buf = SampleBuffer.from_moments(np.full((8, 12), 8), mean, var)
+        options = {"guide": np.full((8, 12, 3), 0.5)} if guided else {}
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            out = reconstruct(buf, **options)
+        np.testing.assert_allclose(out, reconstruct(buf, precision="float64", **options), atol=1e-6)
+
+
 class TestGuidedExtremes:
     """A guide (with the projection on it) at the float64 extremes, on tiny and prime shapes, and with
     zero variance: finite, no warning, the image mean kept."""
