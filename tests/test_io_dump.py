@@ -115,6 +115,9 @@ def _planes(**over):
     ("variance.R", -1.0, "negative"),
     ("sampleCount", -2.0, "negative"),
     ("sampleCount", 2.5, "not whole"),
+    # Not "negative" (1e30 wrapped around int64 before), nor a count a float channel holds exactly:
+    ("sampleCount", 1e30, "exceed 16777216"),
+    ("sampleCount", 2.0**25, "exceed 16777216"),
 ])
 def test_bad_values_name_file_and_channel(tmp_path, channel, value, what):
     planes = _planes()

@@ -209,8 +209,18 @@ def _statistics_planes(path: str | os.PathLike[str], planes: dict[str, np.ndarra
 
 
 def whole_counts(path: str | os.PathLike[str], name: str, values: np.ndarray) -> np.ndarray:
-    """A count channel as int64, refusing NaN/Inf, negatives and fractions."""
+    """A count channel as int64, refusing NaN/Inf, negatives, fractions and inexact floats.
+
+    A float channel holds whole numbers exactly only up to 2**24 (half floats up to 2048, which
+    stay far below it): a larger count there is not the renderer's count, and one beyond int64
+    would wrap to a negative number.
+    """
     c = checked_plane(path, name, values, nonnegative=True)
+    if np.asarray(values).dtype.kind == "f":
+        too_big = c > MAX_EXACT_COUNT
+        if too_big.any():
+            raise file_error(path, f"{int(too_big.sum())} pixel(s) exceed {MAX_EXACT_COUNT} (2**24), the largest "
+                                   "sample count a float channel holds exactly", name)
     frac = np.abs(c - np.rint(c)) > 1e-3
     if frac.any():
         raise file_error(path, f"{int(frac.sum())} pixel(s) are not whole sample counts", name)
