@@ -118,6 +118,22 @@ def test_generic_multi_file(tmp_path):
     np.testing.assert_allclose(buf.variance[..., 0], _ramp(0.2).astype(np.float64) * 7)
     # --spp when there is no count plane
     assert (read_sample_buffer(beauty, color="RGB", variance=f"{tmp_path / 'var.exr'}:err", spp=3).count == 3).all()
+    # ... and refused beside one, which it would be ignored for
+    with pytest.raises(InputFileError, match=r"n\.exr: n: holds per-pixel sample counts; spp=3"):
+        read_sample_buffer(beauty, color="RGB", variance=f"{tmp_path / 'var.exr'}:err",
+                           count=f"{tmp_path / 'n.exr'}:n", spp=3)
+
+
+def test_spp_is_refused_on_a_dump_that_has_its_counts(tmp_path):
+    from awr_denoise import SampleBuffer
+    from awr_denoise.io import write_sample_buffer
+
+    dump = tmp_path / "d.exr"
+    write_sample_buffer(dump, SampleBuffer.from_moments(np.full((H, W), 8), np.full((H, W, 3), 0.5),
+                                                        np.full((H, W, 3), 0.04)))
+    assert (read_sample_buffer(dump).count == 8).all()
+    with pytest.raises(InputFileError, match=r"d\.exr: sampleCount: holds per-pixel sample counts; spp=3"):
+        read_sample_buffer(dump, spp=3)
 
 
 def test_generic_size_mismatch_names_second_file(tmp_path):

@@ -286,6 +286,9 @@ class _Context:
         if self.count is None:
             return None
         counts = self.plane(self.count, what="count")
+        if self.spp is not None:  # it would be ignored: refused, so a wrong belief about the file shows
+            raise file_error(counts.path, f"holds per-pixel sample counts; spp={self.spp} / --spp is for files "
+                                          "without them", counts.label)
         if len(counts.channels) != 1:
             raise file_error(counts.path, f"a count plane has one channel, found {len(counts.channels)}",
                              counts.label)
@@ -682,6 +685,9 @@ def read_sample_dump(
         flat = [part for part in parts if not part.deep and COUNT_CHANNEL in part.channels]
         if not flat:
             raise file_error(p, "missing (not in the awr dump layout)", COUNT_CHANNEL)
+        if spp is not None:
+            raise file_error(p, f"holds per-pixel sample counts; spp={spp} / --spp is for files without them",
+                             COUNT_CHANNEL)
         dump = buffer_from_awr_part(p, flat[0], variance_kind=variance_kind)
         if not any(planes.values()) and features == "auto":
             return dump
