@@ -210,7 +210,11 @@ class SampleBuffer:
             var_arr = var_arr * n
         elif variance_kind == "second_moment":
             with np.errstate(invalid="ignore", divide="ignore"):
-                spread = np.maximum(var_arr - mean_arr**2, 0.0)
+                spread = var_arr - mean_arr**2  # E[x^2] >= mean^2: a deficit past rounding is not a moment
+                if (short := (spread < -1e-2 * mean_arr**2).any(axis=2)).any():
+                    raise ValueError(f"variance: {int(short.sum())} pixel(s) hold a second moment below the squared "
+                                     "mean: not E[x^2] (variance_kind)")
+                spread = np.maximum(spread, 0.0)
                 var_arr = np.where(n > 1, spread * n / np.maximum(n - 1, 1), 0.0)
         known = np.ones(count_arr.shape, bool) if variance_known is None else np.asarray(variance_known, bool)
         return cls(count_arr, mean_arr, var_arr, resolve_channels(channels, mean_arr.shape[2]), known,

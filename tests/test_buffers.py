@@ -156,6 +156,17 @@ def test_from_sums_and_all_variance_kinds_agree(rng):
         assert_allclose(buf.variance, ref.variance, rtol=SUMS_RTOL, err_msg=name)
 
 
+def test_a_second_moment_below_the_squared_mean_is_refused_not_clamped():
+    """E[x^2] >= mean^2: a plane far below it is not second moments (a variance given as one), while
+    a float32 file's rounding (a deficit of 1e-7 of mean^2) is clamped at 0 as before."""
+    mean = np.full((2, 3), 0.5)
+    with pytest.raises(ValueError, match=r"variance: 6 pixel\(s\) hold a second moment below the squared mean"):
+        SampleBuffer.from_moments(np.full((2, 3), 8), mean, np.full((2, 3), 0.01), variance_kind="second_moment")
+    rounded = SampleBuffer.from_moments(np.full((2, 3), 8), mean, np.full((2, 3), 0.25 * (1 - 1e-7)),
+                                        variance_kind="second_moment")
+    assert_array_equal(rounded.variance, 0.0)
+
+
 def test_from_moments_accepts_single_channel_planes():
     buf = SampleBuffer.from_moments(np.full((2, 2), 3), np.ones((2, 2)), np.full((2, 2), 0.5))
     assert buf.mean.shape == (2, 2, 1) and buf.channels == ("Y",)
