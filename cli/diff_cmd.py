@@ -37,6 +37,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``awr diff``; returns the exit status (errors are raised and reported by ``main``)."""
+    if args.maxerror is not None and args.maxerror < 0 and args.metric not in HIGHER_IS_BETTER:
+        # relMSE and MSE are never negative: such a bound fails every image, a typo for a check.
+        raise UsageError(f"--maxerror: {args.maxerror:g} is below 0, which {args.metric} never is")
     plan = PathPlan(overwrite=args.overwrite)
     plan.read(args.input, "IMAGE.exr")
     plan.read(args.ref, "-r/--ref")

@@ -153,6 +153,9 @@ def _scene(args: argparse.Namespace) -> tuple[str, Any, str, tuple[int, int] | N
     if args.renderer != TRACER:
         if not given:
             raise UsageError(f"--renderer {args.renderer}: give the SCENE to render")
+        if (args.width is None) != (args.height is None):  # no scene file here to keep the other side from
+            missing = "--height" if args.height is None else "--width"
+            raise UsageError(f"{missing}: --renderer {args.renderer} needs both --width and --height to resize")
         if args.features:
             offered = _registry(renderer_features, args.renderer)
             missing = [name for name in args.features if name not in offered]

@@ -268,6 +268,12 @@ def test_diff_metrics_maxerror_and_difference_image(tmp_path, capsys):
     assert main(["diff", str(tmp_path / "img.exr"), "-r", str(tmp_path / "ref.exr"), "--maxerror", "0.01"]) == 1
     _one_error_line(capsys, "img.exr", "relmse")
     assert main(["diff", str(tmp_path / "img.exr"), "-r", str(tmp_path / "ref.exr"), "--maxerror", "0.1"]) == 0
+    # A negative bound on an error that is never negative is refused (it would fail every image) ...
+    assert main(["diff", str(tmp_path / "img.exr"), "-r", str(tmp_path / "ref.exr"), "--maxerror", "-1"]) == 2
+    _one_error_line(capsys, "--maxerror", "below 0")
+    # ... and kept for SSIM, which can be negative
+    assert main(["diff", str(tmp_path / "img.exr"), "-r", str(tmp_path / "ref.exr"), "--metric", "ssim",
+                 "--maxerror", "-0.5"]) == 0
 
 
 def test_merge_is_exact_chan_update(tmp_path, rng, capsys):
@@ -460,6 +466,12 @@ def test_render_refuses_existing_outputs_before_rendering(tmp_path, fake_tracer,
     assert sorted(os.listdir(tmp_path)) == ["toy.denoised.png"]
     assert main(["render", "--scene", "nope", "--spp", "4", "-o", str(tmp_path / "t.exr"), "-q"]) == 2
     _one_error_line(capsys, "nope")
+    # A renderer without a scene file to keep the other side from: both sides or none, named
+    for side, other in (("--width", "--height"), ("--height", "--width")):
+        assert main(["render", "--renderer", "synthetic", "edges", side, "8", "-o", str(tmp_path / "s.exr"),
+                     "-q"]) == 2
+        _one_error_line(capsys, f"{other}: --renderer synthetic needs both")
+    assert sorted(os.listdir(tmp_path)) == ["toy.denoised.png"]
 
 
 def test_demo_prints_three_methods(tmp_path, fake_tracer, capsys):
