@@ -86,7 +86,7 @@ def plane_kwargs(args: argparse.Namespace) -> dict[str, Any]:
             "depth": args.depth}
 
 
-_RANGE = re.compile(r"^(-?\d{1,18})(?:-(-?\d{1,18})(?:[x:](\d{1,18}))?)?$")
+_RANGE = re.compile(r"^(-?[0-9]{1,18})(?:-(-?[0-9]{1,18})(?:[x:]([0-9]{1,18}))?)?$")  # ASCII digits only
 
 
 def parse_frames(spec: str) -> list[int]:

@@ -39,12 +39,18 @@ MAX_FRAMES = 1_000_000
 """Frames one ``--frames`` range may name."""
 
 
+_REAL = re.compile(r"\s*[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|inf(?:inity)?|nan)\s*",
+                   re.IGNORECASE)
+
+
 def real(*, minimum: float | None = None, maximum: float | None = None, above: float | None = None,
          name: str = "number") -> Callable[[str], float]:
     """An argparse type: a finite float within bounds (``above`` is an open lower bound)."""
 
     def parse(text: str) -> float:
         try:
+            if not _REAL.fullmatch(text):  # Python's float() also reads '1_0' as 10 and other scripts' digits
+                raise ValueError(text)
             value = float(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected a {name}, got {text!r}") from None
@@ -62,7 +68,7 @@ def real(*, minimum: float | None = None, maximum: float | None = None, above: f
     return parse
 
 
-_INTEGER = re.compile(r"^\s*[+-]?\d+\s*$")
+_INTEGER = re.compile(r"^\s*[+-]?[0-9]+\s*$")  # not Python's int(): no '1_0', no other scripts' digits
 
 
 def whole(*, minimum: int | None = None, maximum: int | None = None,
@@ -100,7 +106,7 @@ def check_pixels(option: str, height: int, width: int) -> None:
 
 def image_size(text: str) -> tuple[int, int]:
     """An argparse type: ``WIDTHxHEIGHT`` as (H, W), each side >= 1, within the size limits."""
-    m = re.fullmatch(r"\s*(\d{1,9})\s*[xX]\s*(\d{1,9})\s*", text)
+    m = re.fullmatch(r"\s*([0-9]{1,9})\s*[xX]\s*([0-9]{1,9})\s*", text)
     if not m or int(m.group(1)) <= 0 or int(m.group(2)) <= 0:
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 640x480, got {text!r}")
     width, height = int(m.group(1)), int(m.group(2))

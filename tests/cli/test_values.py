@@ -26,10 +26,10 @@ FIRST_PLAN = ["plan", "-o", "p.exr", "-q"]
 BAD = [
     (DENOISE, "--exposure", ["nan", "inf", "-inf", "1100", "x"]),
     (DENOISE + ["-r", "ref.exr"], "--maxerror", ["nan", "inf", "-1", "x"]),
-    (DENOISE, "--c-s", ["nan", "inf", "-1", "1e400", "x"]),
-    (DENOISE, "--levels", ["0", "-1", "100", "1.5", "nan", "5"]),
+    (DENOISE, "--c-s", ["nan", "inf", "-1", "1e400", "x", "1_0", "\u0663"]),  # \u0663: Arabic-Indic 3
+    (DENOISE, "--levels", ["0", "-1", "100", "1.5", "nan", "5", "\u0663", "1_0"]),
     (DENOISE, "--wavelet", ["nope", "", "haar2"]),
-    (DENOISE, "--frames", ["1-2000000000", "3-1", "x", "1-3x0"]),
+    (DENOISE, "--frames", ["1-2000000000", "3-1", "x", "1-3x0", "\uff11-\uff13"]),  # full-width digits
     (DENOISE, "--workers", ["0", "-2", "1.5", "inf"]),
     (["denoise", "d.exr", "-o", "o.exr", "--preset", "generic", "--color", "RGB", "--variance", "variance"], "--spp",
      ["-1", "inf", "1e30", "16777217", "2.5"]),
@@ -43,7 +43,7 @@ BAD = [
     (PLAN, "--spp-max", ["0", "inf"]),
     (PLAN, "--wavelet", ["nope"]),
     (PLAN, "--noise-model", ["nope", "", "Levels"]),
-    (FIRST_PLAN, "--size", ["65536x65536", "0x10", "10x0", "10", "-5x5", "1e3x10"]),
+    (FIRST_PLAN, "--size", ["65536x65536", "0x10", "10x0", "10", "-5x5", "1e3x10", "\u0663x3"]),
     (RENDER, "--spp", ["inf", "nan", "0", "-1", "1e30"]),
     (RENDER, "--seed", ["-1", "1180591620717411303424", "nan"]),
     (RENDER, "--width", ["0", "-1", "1.5", "2000000"]),
@@ -55,7 +55,7 @@ BAD = [
     (RENDER, "--noise-model", ["gain"]),
     (RENDER, "--initial-spp", ["0", "inf"]),
     (RENDER, "--tile", ["0", "-1"]),
-    (["diff", "ref.exr", "-r", "d.exr"], "--maxerror", ["nan", "inf", "x"]),
+    (["diff", "ref.exr", "-r", "d.exr"], "--maxerror", ["nan", "inf", "x", "-1", "0_1"]),
     (["demo", "--out", "demo"], "--spp", ["0", "nan", "inf"]),
     (["demo", "--out", "demo"], "--c-s", ["-1", "nan"]),
     (["demo", "--out", "demo"], "--exposure", ["nan"]),
