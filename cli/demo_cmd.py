@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -53,13 +54,15 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out: {out} exists and is not a directory")
-    out.mkdir(parents=True, exist_ok=True)
+    _check_creatable(out)  # created only once there is something to write: a refusal leaves no folder
     scene = tracer.load_scene(name)
     cached = getattr(tracer, "reference_path", None)
     if callable(cached) and not Path(cached(name)).is_file():
         status(f"rendering the reference of {name} once (cached as {cached(name)}); this takes a while",
                quiet=args.quiet)
     reference = np.asarray(tracer.load_reference(name), dtype=np.float64)
+    if reference.shape[:2] != tuple(scene.shape):  # before two renders, not after
+        raise UsageError(f"{name}: the reference is {reference.shape}, the scene {tuple(scene.shape)}")
     start = time.perf_counter()
     status(f"rendering {name} uniformly at {args.spp:g} spp", quiet=args.quiet)
     renderer = create_renderer(TRACER, scene, seed=args.seed, progress=not args.quiet)
@@ -77,6 +80,7 @@ def run(args: argparse.Namespace) -> int:
     if reference.shape != uniform.mean.shape:
         raise UsageError(f"{name}: the reference is {reference.shape}, the render {uniform.mean.shape}")
     results = {}
+    out.mkdir(parents=True, exist_ok=True)
     with OutputSet(overwrite=True) as outputs:  # every image of the demo, or none
         for label, image in images.items():
             exr = out / f"{name}_{label}.exr"
@@ -97,3 +101,12 @@ def run(args: argparse.Namespace) -> int:
     for label, r in results.items():
         print(f"  {label:<14} {r['relmse']:>10.5f} {r['mse']:>12.6g}")
     return EXIT_OK
+
+
+def _check_creatable(folder: Path) -> None:
+    """Refuse ``--out`` when it could not be created: its nearest existing parent must be a writable folder."""
+    parent = folder
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise UsageError(f"--out: {folder} cannot be created ({parent} is not a writable folder)")

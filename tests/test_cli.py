@@ -486,6 +486,20 @@ def test_demo_prints_three_methods(tmp_path, fake_tracer, capsys):
     assert "adaptive_awr" in capsys.readouterr().out
 
 
+def test_demo_refuses_before_creating_its_folder(tmp_path, fake_tracer, capsys, monkeypatch):
+    """A reference of the wrong size is refused before the renders, and --out is not left behind; nor
+    is a folder under one that cannot be written."""
+    from awr_denoise import tracer
+
+    monkeypatch.setattr(tracer, "load_reference", lambda name: np.zeros((3, 4, 3)), raising=False)
+    assert main(["demo", "--out", str(tmp_path / "new" / "sub"), "--spp", "8", "-q"]) == 2
+    _one_error_line(capsys, "the reference is (3, 4, 3)")
+    assert not (tmp_path / "new").exists()
+    (tmp_path / "file").write_bytes(b"")
+    assert main(["demo", "--out", str(tmp_path / "file" / "sub"), "--spp", "8", "-q"]) == 2
+    _one_error_line(capsys, "--out", "cannot be created")
+
+
 # ---------------------------------------------------------------- presets through the command line
 
 def _preset_file(tmp_path, preset):
