@@ -33,6 +33,7 @@ import shutil
 import signal
 import socket
 import stat
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -141,7 +142,8 @@ def check_writable(path: str | os.PathLike[str], *, overwrite: bool) -> Path:
         Its directory does not exist.
     ValueError
         The target exists and is not a regular file (refused even with ``overwrite``), its
-        directory is not writable, or its name is longer than the file system allows.
+        directory is not writable or accepts no new file (a probe is created and removed there),
+        or its name is longer than the file system allows.
     """
     if not os.fspath(path):
         raise ValueError("path: an empty file name")
@@ -169,6 +171,12 @@ def check_writable(path: str | os.PathLike[str], *, overwrite: bool) -> Path:
         raise FileNotFoundError(f"{target}: directory {parent} does not exist")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise ValueError(f"{target}: directory {parent} is not writable")
+    try:  # os.access answers for permissions only: /proc and /sys say yes to root, then refuse every file
+        fd, probe = tempfile.mkstemp(prefix=".awr-probe-", suffix=".tmp", dir=parent)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise ValueError(f"{target}: directory {parent} accepts no new file ({exc.strerror or exc})") from None
     limit = _name_max(parent)
     if len(os.fsencode(target.name)) > limit:
         raise ValueError(f"{target}: the file name is {len(os.fsencode(target.name))} bytes, "

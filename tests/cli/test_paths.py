@@ -238,6 +238,14 @@ def test_an_unwritable_folder_is_refused_before_any_work(work, capsys, monkeypat
     _refused(work, capsys, ["denoise", "d.exr", "-o", "d.exr/o.exr"], "-o/--output")
 
 
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux's /proc")
+def test_a_folder_that_accepts_no_file_is_refused_before_any_work(work, capsys, monkeypatch):
+    """/proc tells root it is writable (os.access) and then refuses every new file: the up-front
+    check creates and removes a probe, so the refusal comes before the reconstruction, naming -o."""
+    monkeypatch.chdir(work.root)
+    _refused(work, capsys, ["denoise", "d.exr", "-o", "/proc/o.exr"], "-o/--output", "/proc")
+
+
 # ------------------------------------------------------------------ merging a dump with itself
 
 def _copy_route(work, route: str) -> str:
