@@ -616,6 +616,58 @@ def uniform_fractions(shape=(128, 128), spps=(8, 32), seeds=(3, 4, 5, 6)) -> lis
     return rows
 
 
+OPERATOR_SHAPES = {"1080p": OVERHEAD_SIZES["1080p"], "4K": OVERHEAD_SIZES["4K"], "16K panorama": (8192, 16384)}
+
+
+def _every_impulse(apply, n_in: int, step=None, edge=None):
+    """An operator built the direct way, one impulse per sample (quadratic in the side): the build
+    the library used before its linear one, kept here as the reference it is timed against."""
+    from scipy import sparse
+
+    blocks = []
+    for start in range(0, n_in, 256):
+        stop = min(n_in, start + 256)
+        impulses = np.zeros((n_in, stop - start))
+        impulses[np.arange(start, stop), np.arange(stop - start)] = 1.0
+        blocks.append(sparse.csc_matrix(apply(impulses)))
+    return sparse.hstack(blocks, format="csr")
+
+
+def operators(shapes: dict = OPERATOR_SHAPES, repeats: int = 3) -> list[dict]:
+    """Cold build of an image's exact-variance operators, what every fresh process (each ``awr``
+    command, each round of the file-based loop) builds on its first reconstruction or ``ask()``:
+    both sides' equivalent filters and diagonals at the default depth, the library's linear build
+    against one impulse per sample (:func:`_every_impulse`). Medians of interleaved repeats."""
+    from awr_denoise import wavelets
+
+    def build(route):
+        def run():
+            wavelets._axis_operators.cache_clear()
+            wavelets._axis_diagonals.cache_clear()
+            original, wavelets._sparse_operator = wavelets._sparse_operator, route
+            try:
+                for n in dict.fromkeys(shape):
+                    wavelets._axis_operators(n, wavelets.DEFAULT_WAVELET, "symmetric", levels)
+                    wavelets._axis_diagonals(n, wavelets.DEFAULT_WAVELET, "symmetric", levels)
+            finally:
+                wavelets._sparse_operator = original
+                wavelets._axis_operators.cache_clear()
+                wavelets._axis_diagonals.cache_clear()
+        return run
+
+    rows = []
+    for name, shape in shapes.items():
+        levels = default_levels(shape)
+        times = _interleaved({"linear": build(wavelets._sparse_operator), "every_impulse": build(_every_impulse)},
+                             repeats)
+        row = {"size": name, "shape": list(shape), "levels": levels, "linear_s": times["linear"],
+               "every_impulse_s": times["every_impulse"], "speedup": times["every_impulse"] / times["linear"]}
+        print(f"| {name} ({shape[1]}x{shape[0]}, {levels} levels) | {times['every_impulse']:.3f} s "
+              f"| {times['linear']:.3f} s | {row['speedup']:.1f}x |", flush=True)
+        rows.append(row)
+    return rows
+
+
 SECTIONS = {
     "precision": ("Stage 1 in float32 against float64 (stages=1, rendered buffers): relative changes",
                   "| renderer | scene | spp | relMSE | MSE | image mean | largest pixel change (x (abs(x) + k)) |",
@@ -634,6 +686,9 @@ SECTIONS = {
                "x the FFT route in brackets)",
                "| size | floor (RGB frame) | FFT analysis | swt2 | scipy.ndimage cascade | FFT synthesis | iswt2 |",
                lambda quick: [atrous("256x256" if quick else "1080p")]),
+    "operators": ("Cold build of the exact variance's operators, both sides (what a fresh process builds first)",
+                  "| size | one impulse per sample | linear build | speed-up |",
+                  lambda quick: operators({"256x256": (256, 256)} if quick else OPERATOR_SHAPES, 1 if quick else 3)),
     "touched": ("How much of the image an adaptive round changes (bundled tracer, AdaptiveSampler's defaults, "
                 "to 32 spp)",
                 "| scene | rounds | pixels given samples per round | level-1 coefficients they reach | level 2 |",
