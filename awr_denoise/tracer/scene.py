@@ -176,6 +176,9 @@ def dimension_names(scene: Scene, max_depth: int) -> tuple[str, ...]:
     return tuple(names)
 
 
+_NUMBERS = (int, float, np.integer, np.floating)  # JSON's numbers, and numpy's from a caller
+
+
 def _mapping(value: Any, where: str) -> dict[str, Any]:
     """``value`` if it is a JSON object, else a ValueError naming the field."""
     if not isinstance(value, dict):
@@ -192,7 +195,7 @@ def _shown(value: Any) -> str:
 def _whole(spec: dict[str, Any], key: str, where: str, default: int, low: int, high: int) -> int:
     """An integer field in ``[low, high]``; a bool, a fraction or NaN is refused, not truncated."""
     value = spec.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or value != value or value % 1:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, _NUMBERS) or value != value or value % 1:
         raise ValueError(f"{where}.{key}: expected a whole number, got {_shown(value)}" if where else
                          f"{key}: expected a whole number, got {_shown(value)}")
     if not low <= value <= high:
@@ -203,7 +206,7 @@ def _whole(spec: dict[str, Any], key: str, where: str, default: int, low: int, h
 def _real(spec: dict[str, Any], key: str, where: str, default: float, *, positive: bool = False) -> float:
     """A finite number field (``positive``: above 0)."""
     value = spec.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) \
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, _NUMBERS) or not np.isfinite(value) \
             or (positive and not value > 0):
         kind = "a finite number above 0" if positive else "a finite number"
         raise ValueError(f"{where}.{key}: expected {kind}, got {_shown(value)}")

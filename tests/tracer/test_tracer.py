@@ -155,6 +155,12 @@ def test_a_malformed_scene_is_refused_naming_the_field(changes, needle) -> None:
         load_scene(_scene_with(**changes))
 
 
+def test_numpy_numbers_are_numbers_to_a_scene() -> None:
+    """A caller's numpy integers and floats pass the checks that refuse strings and bools."""
+    spec = _scene_with(**{f"objects.{SPHERE}.radius": np.float32(0.5), f"objects.{SPHERE}.segments": np.int64(12)})
+    assert load_scene(spec, width=np.int64(20), height=np.int32(10)).shape == (10, 20)
+
+
 def test_a_scene_file_names_itself_and_refuses_nan(tmp_path) -> None:
     path = tmp_path / "s.json"
     path.write_text(json.dumps(_scene_with(**{f"objects.{SPHERE}.radius": 1.0})).replace("1.0", "NaN", 1))
