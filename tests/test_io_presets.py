@@ -47,6 +47,12 @@ def test_pbrt_gbuffer(tmp_path):
     g = _write(tmp_path / "nospp.exr", planes)
     with pytest.raises(InputFileError, match=r"nospp\.exr: .*samplesPerPixel"):
         read_sample_buffer(g)
+    # A header count that is not a render's (whole, at least 1) is refused, not truncated or read as
+    # "no samples" (which discarded the file's values).
+    for bad in (16.7, -0.5, 0, "64.5"):
+        h = _write(tmp_path / "badspp.exr", planes, {"samplesPerPixel": bad})
+        with pytest.raises(InputFileError, match=r"badspp\.exr: samplesPerPixel: .*not a sample count"):
+            read_sample_buffer(h)
 
 
 @pytest.mark.parametrize("layer", ["ViewLayer", "View Layer 2"])
@@ -66,6 +72,14 @@ def test_cycles_multilayer_normalised_counts(tmp_path, layer):
     np.testing.assert_array_equal(buf.count, count)
     assert buf.channels == ("R", "G", "B")  # alpha is not a colour channel
     np.testing.assert_array_equal(buf.mean[..., 1], _ramp(1))
+    # A normalised count above 1 cannot come from Cycles (it divides by the samples taken): one such
+    # pixel would rescale every pixel's count, so it is refused.
+    stray = (count * np.float32(1.0 / samples)).astype(np.float32)
+    stray[0, 0] = 2.0
+    planes[f"{layer}.Debug Sample Count.X"] = stray
+    g = _write(tmp_path / "stray.exr", planes, {f"cycles.{layer}.samples": str(samples)})
+    with pytest.raises(InputFileError, match=r"stray\.exr: .*Debug Sample Count.X: .*reaches 2"):
+        read_sample_buffer(g, variance=f"{layer}.Variance AOV")
 
 
 def test_cycles_several_layers_need_a_choice(tmp_path):

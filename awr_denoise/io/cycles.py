@@ -115,6 +115,9 @@ def sample_count_scale(normalised: np.ndarray, requested: int | None, *,
         requested = None
     if values.size == 0:
         raise ValueError("the sample count pass is zero everywhere")
+    if values[-1] > 1.0 + 1e-6:  # one stray value would rescale every pixel's count
+        raise ValueError(f"the sample count pass reaches {values[-1]:.6g}; Cycles divides the counts by the "
+                         "samples taken, so no pixel holds more than 1")
     if values.size == 1:
         if requested is None:
             raise ValueError("every pixel has the same normalised count and the header has no "

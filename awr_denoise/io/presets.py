@@ -242,12 +242,12 @@ def _header_int(path: Path, header: dict, key: str) -> int | None:
         number = float(str(raw).strip())
     except ValueError:
         raise file_error(path, f"header attribute is not a number: {raw!r}", key) from None
-    if not np.isfinite(number) or number > MAX_EXACT_COUNT:
-        raise file_error(path, f"header attribute {raw!r} is not a sample count (at most {MAX_EXACT_COUNT})", key)
-    value = int(number)
-    if value < 0:
-        raise file_error(path, f"header attribute is negative: {value}", key)
-    return value
+    # A render's sample count: whole (16.7 was read as 16, -0.5 as 0) and at least 1 (0 read every
+    # pixel as sampleless, discarding the file's values).
+    if not np.isfinite(number) or number > MAX_EXACT_COUNT or number != int(number) or number < 1:
+        raise file_error(path, f"header attribute {raw!r} is not a sample count (a whole number 1..{MAX_EXACT_COUNT})",
+                         key)
+    return int(number)
 
 
 def _kind(value: str | None, default: str) -> str:
