@@ -204,11 +204,10 @@ class Sampler:
         Raises
         ------
         StaleRequestError
-            A request is pending already, or ``request`` does not start where this sampler's
-            samples stop (its ``first_index`` is not :attr:`issued`): its sample indices would
-            repeat or skip.
+            A request is pending already, or ``request`` does not start where this sampler's samples stop
+            (its ``first_index`` is not :attr:`issued`): its sample indices would repeat or skip.
         ValueError
-            ``request`` is for another image size.
+            ``request`` is for another image size, or would take a pixel past ``spp_max``.
 
         Examples
         --------
@@ -231,8 +230,9 @@ class Sampler:
         if not np.array_equal(request.first_index, self._issued):
             raise StaleRequestError(f"request: round {request.round} does not start where the samples so far stop "
                                     "(its first_index differs from the sample indices issued)")
-        self._pending = request
-        self._round = int(request.round)
+        if self.spp_max is not None and (over := request.first_index + request.counts > self.spp_max).any():
+            raise ValueError(f"request: {int(over.sum())} pixel(s) would exceed spp_max {self.spp_max}")
+        self._pending, self._round = request, int(request.round)
         return request
 
     def default_budget(self) -> int:

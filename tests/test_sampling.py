@@ -480,3 +480,16 @@ def test_an_executor_leaves_the_requests_as_they_are(noise_model):
         threaded = AdaptiveSampler(QUALITY_SHAPE, noise_model=noise_model, executor=pool).run(renderer, total_spp=10)
     for name in ("count", "mean", "variance"):  # the priorities and tell()'s merges on threads
         assert_array_equal(getattr(threaded, name), getattr(serial, name))
+
+
+def test_resume_refuses_a_request_past_spp_max():
+    """spp_max is a hard per-pixel cap: ask() keeps it, and so must a request resumed from a file
+    (a foreign or edited request map took a pixel capped at 2 to 52 samples)."""
+    sampler = AdaptiveSampler((8, 8), spp_max=2)
+    request = sampler.ask()
+    sampler.tell(request, SampleBuffer.from_moments(request.counts, np.ones((8, 8, 3)), np.zeros((8, 8, 3))))
+    with pytest.raises(ValueError, match=r"request: 64 pixel\(s\) would exceed spp_max 2"):
+        sampler.resume(SampleRequest(np.full((8, 8), 50), sampler.issued, round=1))
+    assert sampler.pending is None
+    within = SampleRequest(2 - sampler.issued, sampler.issued, round=1)
+    assert sampler.resume(within) is within
