@@ -166,6 +166,7 @@ def run(args: argparse.Namespace) -> int:
             status(f"{args.inputs[-1]}: {note}", quiet=args.quiet)
         seed = request_attributes(args.request).get("awr:seed")
         if seed is not None and "awr:seed" not in attrs:
+            header_whole(args.request, {"awr:seed": seed}, "awr:seed", 0, MAX_SEED)  # the request's, named so
             attrs["awr:seed"] = seed
     if rounds:  # without any round information (plain batches) plan starts at round 1
         attrs["awr:round"] = max(rounds) + 1

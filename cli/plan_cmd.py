@@ -105,7 +105,8 @@ def run(args: argparse.Namespace) -> int:
         round_number = args.round if args.round is not None else header_whole(args.input, dump.attributes,
                                                                                  "awr:round", 1, 2**31 - 1)
         if round_number < 1:
-            raise UsageError(f"--round: rounds after the first are numbered from 1, got {round_number}")
+            where = "--round" if args.round is not None else f"{args.input}: awr:round"  # whichever gave it
+            raise UsageError(f"{where}: rounds after the first are numbered from 1, got {round_number}")
         sampler = cls.from_buffer(dump.buffer, seed=seed, round=round_number, issued=dump.issued,
                                   **options)
     budget = args.budget

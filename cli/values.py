@@ -144,10 +144,9 @@ def header_whole(path: str, attributes: Mapping[str, Any], key: str, default: in
         Naming the file and the attribute.
     """
     raw = attributes.get(key, default)
-    try:
-        value = int(str(raw).strip())
-    except ValueError:
-        raise InputFileError(f"{path}: {key}: header attribute is not a whole number: {raw!r}") from None
+    if not _INTEGER.match(str(raw)) or len(str(raw).strip()) > 40:  # ASCII digits, as for options
+        raise InputFileError(f"{path}: {key}: header attribute is not a whole number: {raw!r}")
+    value = int(str(raw))
     if not 0 <= value <= maximum:
         raise InputFileError(f"{path}: {key}: header attribute {value} is outside 0..{maximum}")
     return value

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -208,6 +209,20 @@ def _statistics_planes(path: str | os.PathLike[str], planes: dict[str, np.ndarra
         planes[prefix + KNOWN_CHANNEL] = buffer.variance_known.astype(np.float32)
 
 
+def header_count(path: str | os.PathLike[str], attributes: dict, key: str, default: int, high: int) -> int:
+    """A whole-number ``awr:*`` header attribute in 0..``high``, refused naming the file and the key.
+
+    ASCII digits only: Python's ``int()`` also reads ``'1_000'`` and other scripts' digits.
+    """
+    raw = attributes.get(key, default)
+    text = str(raw).strip()
+    if not re.fullmatch(r"[+-]?[0-9]{1,40}", text):
+        raise file_error(path, f"header attribute is not a whole number: {raw!r}", key)
+    if not 0 <= int(text) <= high:
+        raise file_error(path, f"header attribute {int(text)} is outside 0..{high}", key)
+    return int(text)
+
+
 def whole_counts(path: str | os.PathLike[str], name: str, values: np.ndarray) -> np.ndarray:
     """A count channel as int64, refusing NaN/Inf, negatives, fractions and inexact floats.
 
@@ -265,7 +280,7 @@ def buffer_from_awr_part(path: str | os.PathLike[str], part: ExrPart, *,
                                            variance_kind=kind, channels=names, variance_known=known)
     except ValueError as exc:
         raise file_error(path, str(exc)) from None
-    nonfinite = int(attributes.get("awr:nonfinite", 0) or 0)
+    nonfinite = header_count(path, attributes, "awr:nonfinite", 0, 2**62)
     features = _read_features(path, part, attributes, count, kind)
     if nonfinite or features:
         buffer = dataclasses.replace(buffer, nonfinite=nonfinite, features=features)

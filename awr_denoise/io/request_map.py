@@ -20,7 +20,7 @@ from typing import Any
 
 from .._version import __version__
 from ..requests import SampleRequest
-from .dump import exact_counts, whole_counts
+from .dump import exact_counts, header_count, whole_counts
 from .exr import file_error, header_value, read_exr, write_exr
 
 __all__ = ["COUNTS_CHANNEL", "FIRST_INDEX_CHANNEL", "SEMANTICS_REQUEST", "read_request", "write_request",
@@ -93,16 +93,14 @@ def read_request(path: str | os.PathLike[str]) -> SampleRequest:
     first = whole_counts(p, FIRST_INDEX_CHANNEL, part.channels[FIRST_INDEX_CHANNEL])
     attrs = {k: header_value(part.header, k) for k in part.header if str(k).startswith("awr:")}
 
-    def _int(key: str, default: int) -> int:
-        try:
-            return int(str(attrs.get(key, default)))
-        except ValueError:
-            raise file_error(p, f"header attribute is not an integer: {attrs[key]!r}", key) from None
+    def _int(key: str, default: int, high: int = 2**62) -> int:
+        return header_count(p, attrs, key, default, high)
 
     total = attrs.get("awr:total")
     if total is not None and _int("awr:total", 0) != int(counts.sum()):
         raise file_error(p, f"counts sum to {int(counts.sum())} but awr:total says {total}", COUNTS_CHANNEL)
-    return SampleRequest(counts, first, _int("awr:round", 0), _int("awr:sampler_id", 0))
+    # The round stays below 2**31 - 1: a merge writes the next one, which must still be a round.
+    return SampleRequest(counts, first, _int("awr:round", 0, 2**31 - 2), _int("awr:sampler_id", 0))
 
 
 def request_attributes(path: str | os.PathLike[str]) -> dict[str, Any]:

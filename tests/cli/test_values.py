@@ -11,7 +11,8 @@ pytest.importorskip("OpenEXR")
 from awr_denoise.cli.main import main  # noqa: E402
 from awr_denoise.cli.values import MAX_SEED  # noqa: E402
 from awr_denoise import fused  # noqa: E402
-from awr_denoise.io import read_image, read_request, write_sample_buffer  # noqa: E402
+from awr_denoise import SampleRequest  # noqa: E402
+from awr_denoise.io import read_image, read_request, write_request, write_sample_buffer  # noqa: E402
 from cli_helpers import dump_buffer, one_error_line  # noqa: E402
 
 pytestmark = pytest.mark.exr
@@ -98,12 +99,24 @@ def test_a_huge_samples_per_pixel_header_is_refused_naming_it(work, capsys, monk
 
 def test_bad_dump_attributes_are_refused_naming_them(work, capsys, monkeypatch):
     monkeypatch.chdir(work.root)
-    for key, value in (("awr:seed", "-3"), ("awr:seed", str(2**70)), ("awr:round", "x")):
+    for key, value in (("awr:seed", "-3"), ("awr:seed", str(2**70)), ("awr:round", "x"), ("awr:round", "0"),
+                       ("awr:seed", "1_0"), ("awr:seed", "\u0663"), ("awr:nonfinite", "lots"), ("awr:nonfinite", "-5")):
         write_sample_buffer(work / "h.exr", dump_buffer(5), header={key: value}, overwrite=True)
         before = work.state()
         assert main(["plan", "h.exr", "-o", "p.exr", "-q"]) == 2
         one_error_line(capsys.readouterr().err, "h.exr", key)
         assert work.state() == before
+
+
+def test_a_request_whose_round_has_no_successor_is_refused_before_merging(work, capsys, monkeypatch):
+    """merge writes the request's round + 1: a request at the last round would give a dump that neither
+    plan nor merge can read, so it is refused, naming the request and its awr:round."""
+    monkeypatch.chdir(work.root)
+    write_request(work / "last.exr", SampleRequest.uniform(dump_buffer(0).shape, 8, first_index=8, round=2**31 - 1))
+    before = work.state()
+    assert main(["merge", "d.exr", "b.exr", "--request", "last.exr", "-o", "m.exr", "-q"]) == 2
+    one_error_line(capsys.readouterr().err, "last.exr", "awr:round")
+    assert work.state() == before
 
 
 GOOD = [
