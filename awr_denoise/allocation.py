@@ -45,7 +45,10 @@ def allocate(density: FloatArray, current: CountArray, budget: int, *,
     Raises
     ------
     ValueError
-        If the budget exceeds the total capacity.
+        If the budget exceeds the total capacity; if the arrays are not (H, W) of one shape, the
+        density not finite and >= 0, or the counts and caps not whole and >= 0.
+    TypeError
+        ``rng`` is not a numpy Generator.
 
     Examples
     --------
@@ -68,6 +71,37 @@ def allocate(density: FloatArray, current: CountArray, budget: int, *,
         ...
     ValueError: budget: 5 samples exceed the 2 that spp_max still allows
     """
+    density, current, capacity = _checked(density, current, capacity, rng)
+    return _allocate(density, current, budget, capacity=capacity, rng=rng)
+
+
+def _checked(density: FloatArray, current: CountArray, capacity: CountArray | None,
+             rng: np.random.Generator | None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The public functions' arguments checked: (H, W) arrays of one shape, a finite non-negative
+    density, whole non-negative counts and caps, a numpy Generator. The samplers' own densities
+    skip this: their NaN and +Inf (a sum past float64) mean "no information" there."""
+    current = np.asarray(current)
+    if current.ndim != 2 or current.dtype.kind not in "fiu":
+        raise ValueError(f"current: expected an (H, W) array of sample counts, got {current.dtype} {current.shape}")
+    arrays = {"density": np.asarray(density), "current": current}
+    if capacity is not None:
+        arrays["capacity"] = np.asarray(capacity)
+    for name, a in arrays.items():
+        if a.shape != current.shape or a.dtype.kind not in "fiu":
+            raise ValueError(f"{name}: expected a real (H, W) array like current's {current.shape}, "
+                             f"got {a.dtype} {a.shape}")
+        if not np.isfinite(a).all() or (a < 0).any():
+            raise ValueError(f"{name}: must be finite and >= 0")
+        if name != "density" and (a % 1).any():
+            raise ValueError(f"{name}: must be whole sample counts")
+    if rng is not None and not isinstance(rng, np.random.Generator):
+        raise TypeError(f"rng: expected a numpy Generator, got {type(rng).__name__}")
+    return arrays["density"], current.astype(np.int64), arrays.get("capacity")
+
+
+def _allocate(density: FloatArray, current: CountArray, budget: int, *, capacity: CountArray | None = None,
+              rng: np.random.Generator | None = None) -> CountArray:
+    """:func:`allocate` without the argument checks: NaN and +Inf densities count as 0 (the samplers')."""
     budget = _checks.whole("budget", budget, minimum=0)
     if budget > MAX_BUDGET:
         raise ValueError(f"budget: {budget} exceeds {MAX_BUDGET} (2**62), the most samples int64 counts hold safely")
@@ -122,12 +156,20 @@ def allocate_mixed(density: FloatArray, current: CountArray, budget: int, unifor
     >>> allocate_mixed(np.array([[0.0, 1.0]]), np.array([[0, 0]]), 8, 0.5)
     array([[2, 6]])
     """
-    uniform_part = int(round(uniform_fraction * budget))
+    density, current, capacity = _checked(density, current, capacity, rng)
+    return _allocate_mixed(density, current, budget, uniform_fraction, capacity=capacity, rng=rng)
+
+
+def _allocate_mixed(density: FloatArray, current: CountArray, budget: int, uniform_fraction: float, *,
+                    capacity: CountArray | None = None, rng: np.random.Generator | None = None) -> CountArray:
+    """:func:`allocate_mixed` without the argument checks (the samplers')."""
+    uniform_fraction = _checks.real("uniform_fraction", uniform_fraction, minimum=0, maximum=1)
+    uniform_part = int(round(uniform_fraction * _checks.whole("budget", budget, minimum=0)))
     if uniform_part == 0:  # the samplers' default: no uniform share (allocate would draw nothing for it)
-        return allocate(density, current, budget, capacity=capacity, rng=rng)
-    counts = allocate(np.ones(current.shape), current, uniform_part, capacity=capacity, rng=rng)
+        return _allocate(density, current, budget, capacity=capacity, rng=rng)
+    counts = _allocate(np.ones(current.shape), current, uniform_part, capacity=capacity, rng=rng)
     cap = None if capacity is None else capacity - counts
-    return counts + allocate(density, current + counts, budget - uniform_part, capacity=cap, rng=rng)
+    return counts + _allocate(density, current + counts, budget - uniform_part, capacity=cap, rng=rng)
 
 
 def _water_level(a: FloatArray, n: FloatArray, cap: FloatArray | None, budget: int) -> float:

@@ -31,7 +31,7 @@ from tqdm.auto import tqdm
 
 from . import _checks
 from ._typing import CountArray, FloatArray, Shape2D
-from .allocation import MAX_BUDGET, allocate, allocate_mixed
+from .allocation import MAX_BUDGET, _allocate, _allocate_mixed  # the samplers' arrays need no checks
 from .buffers import SampleBuffer
 from .domains import Domain
 from .errors import StaleRequestError
@@ -288,14 +288,14 @@ class Sampler:
             if deficit.any():
                 # Bring every pixel up to spp_min first (uniformly if the budget is short).
                 share = min(target, int(deficit.sum()))
-                counts += allocate(deficit.astype(np.float64), np.zeros_like(deficit), share, capacity=deficit, rng=rng)
+                counts += _allocate(deficit * 1.0, 0 * deficit, share, capacity=deficit, rng=rng)  # float, int
                 topped_up = True
         rest = target - int(counts.sum()) if topped_up else target
         if rest:
             current = self._issued + counts if topped_up else self._issued
             cap = None if capacity is None else capacity - counts
             if self._round == 0:
-                counts += allocate(np.ones(self._shape), current, rest, capacity=cap, rng=rng)
+                counts += _allocate(np.ones(self._shape), current, rest, capacity=cap, rng=rng)
             else:
                 counts += self._allocate(rest, current, cap, rng)
         self._pending = SampleRequest(counts, self._issued.copy(), self._round, self._id)
@@ -423,7 +423,7 @@ class UniformSampler(Sampler):
     strategy = "uniform"
 
     def _allocate(self, budget, current, capacity, rng):
-        return allocate(np.ones(self._shape), current, budget, capacity=capacity, rng=rng)
+        return _allocate(np.ones(self._shape), current, budget, capacity=capacity, rng=rng)
 
 
 class VarianceSampler(Sampler):
@@ -459,7 +459,7 @@ class VarianceSampler(Sampler):
         return pooled_deviation(self._buffer, self.domain, absolute_above=self.absolute_above)
 
     def _allocate(self, budget, current, capacity, rng):
-        return allocate_mixed(self._density(), current, budget, self.uniform_fraction, capacity=capacity, rng=rng)
+        return _allocate_mixed(self._density(), current, budget, self.uniform_fraction, capacity=capacity, rng=rng)
 
 
 class AdaptiveSampler(Sampler):
@@ -543,7 +543,7 @@ class AdaptiveSampler(Sampler):
                                 executor=self.executor, noise_model=self.noise_model)
 
     def _allocate(self, budget, current, capacity, rng):
-        return allocate_mixed(self.density(), current, budget, self.uniform_fraction, capacity=capacity, rng=rng)
+        return _allocate_mixed(self.density(), current, budget, self.uniform_fraction, capacity=capacity, rng=rng)
 
 
 SAMPLERS: dict[str, type[Sampler]] = {cls.strategy: cls for cls in (AdaptiveSampler, UniformSampler, VarianceSampler)}

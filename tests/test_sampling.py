@@ -18,6 +18,7 @@ from awr_denoise import (
     reconstruct,
     reconstruct_detailed,
 )
+from awr_denoise.allocation import _allocate, allocate_mixed
 from awr_denoise.metrics import mse, relmse
 from awr_denoise.priorities import sampling_density
 from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP, DEFAULT_INITIAL_SPP
@@ -90,9 +91,37 @@ def test_allocate_refuses_more_than_capacity_and_negative_budgets():
 
 @pytest.mark.parametrize("density", [np.zeros(SHAPE), np.full(SHAPE, np.nan)])
 def test_allocate_without_anything_to_rank_on_is_uniform(density):
-    counts = allocate(density, np.zeros(SHAPE, np.int64), 3 * PIXELS + 5)
+    """Zero density is nothing to rank on; so is NaN on the samplers' own path (their densities'
+    "no information"), while the public function refuses NaN instead of reading it silently."""
+    public = np.isfinite(density).all()
+    counts = (allocate if public else _allocate)(density, np.zeros(SHAPE, np.int64), 3 * PIXELS + 5)
     assert counts.sum() == 3 * PIXELS + 5
     assert counts.min() == 3 and counts.max() == 4
+    if not public:
+        with pytest.raises(ValueError, match="density: must be finite and >= 0"):
+            allocate(density, np.zeros(SHAPE, np.int64), 8)
+
+
+@pytest.mark.parametrize(("density", "current", "options", "message"), [
+    (np.ones((3, 3)), np.zeros((2, 2), int), {}, r"density: expected a real \(H, W\) array like current's"),
+    (np.ones((2, 2)), np.zeros((2, 2), int), {"capacity": np.ones((3, 3), int)}, "capacity: expected"),
+    (np.ones((2, 2)), [[0, 0], [0, 0]], {"rng": 3}, "rng: expected a numpy Generator"),
+    (np.full((2, 2), -1.0), np.zeros((2, 2), int), {}, "density: must be finite and >= 0"),
+    (np.full((2, 2), np.inf), np.zeros((2, 2), int), {}, "density: must be finite and >= 0"),
+    (np.ones((2, 2)), np.full((2, 2), np.nan), {}, "current: must be finite and >= 0"),
+    (np.ones((2, 2)), np.full((2, 2), -5), {}, "current: must be finite and >= 0"),
+    (np.ones((2, 2)), np.full((2, 2), 0.5), {}, "current: must be whole sample counts"),
+    (np.ones((2, 2)), np.zeros((2, 2), int), {"capacity": np.full((2, 2), 2.5)}, "capacity: must be whole"),
+    (np.ones(4), np.zeros(4, int), {}, r"current: expected an \(H, W\) array"),
+    (np.ones((2, 2)) + 1j, np.zeros((2, 2), int), {}, "density: expected a real"),
+])
+def test_allocate_refuses_arguments_it_would_misread(density, current, options, message):
+    """Found by a red-team pass: NaN, Inf and negative densities were read as 0, other shapes gave
+    numpy's broadcasting or IndexError, a list or an int rng an AttributeError."""
+    with pytest.raises((ValueError, TypeError), match=message):
+        allocate(density, current, 8, **options)
+    with pytest.raises((ValueError, TypeError), match=message):
+        allocate_mixed(density, current, 8, 0.5, **options)
 
 
 # ---------------------------------------------------------------------------- ask / tell contract
