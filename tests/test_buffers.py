@@ -167,6 +167,26 @@ def test_a_second_moment_below_the_squared_mean_is_refused_not_clamped():
     assert_array_equal(rounded.variance, 0.0)
 
 
+def test_second_moments_whose_squared_mean_overflows_are_refused():
+    """A mean of 1e200 needs an E[x^2] of 1e400, which float64 cannot hold: 1e300 is not one (its
+    variance came out 0 when mean^2 overflowed)."""
+    with pytest.raises(ValueError, match="second moment below the squared mean"):
+        SampleBuffer.from_moments(np.full((2, 2), 4), np.full((2, 2), 1e200), np.full((2, 2), 1e300),
+                                  variance_kind="second_moment")
+
+
+@pytest.mark.parametrize(("shape", "features", "error", "message"), [
+    ((2.7, 1), None, ValueError, "shape: must be a whole number"),
+    ((2, 1, 1), None, TypeError, r"shape: expected \(height, width\)"),
+    ("ab", None, TypeError, r"shape: expected \(height, width\)"),
+    (None, None, TypeError, r"shape: expected \(height, width\)"),
+    ((2, 2), [1, 2], TypeError, "features: expected a mapping"),
+])
+def test_from_samples_checks_shape_and_features_like_the_other_constructors(shape, features, error, message):
+    with pytest.raises(error, match=message):
+        SampleBuffer.from_samples([0], [[1.0, 1.0, 1.0]], shape, features=features)
+
+
 def test_from_moments_accepts_single_channel_planes():
     buf = SampleBuffer.from_moments(np.full((2, 2), 3), np.ones((2, 2)), np.full((2, 2), 0.5))
     assert buf.mean.shape == (2, 2, 1) and buf.channels == ("Y",)
