@@ -34,22 +34,22 @@ def check_finite(name: str, a: FloatArray) -> None:
         raise ValueError(f"{name}: {pixels} pixel(s) hold NaN or Inf")
 
 
-def check_count(count: object) -> CountArray:
-    """(H, W) whole, non-negative sample counts as int64."""
+def check_count(count: object, name: str = "count") -> CountArray:
+    """(H, W) whole, non-negative sample counts as int64 (``name``: the parameter a refusal names)."""
     c = np.asarray(count)
     if c.ndim != 2:
-        raise ValueError(f"count: expected shape (H, W), got {c.shape}")
+        raise ValueError(f"{name}: expected shape (H, W), got {c.shape}")
     if c.dtype.kind == "f":
         bad = ~(np.abs(c) <= 2**62)  # NaN, Inf, or beyond what int64 counts hold safely
         if bad.any():
-            raise ValueError(f"count: {int(bad.sum())} pixel(s) hold NaN or Inf (or exceed 2**62)")
+            raise ValueError(f"{name}: {int(bad.sum())} pixel(s) hold NaN or Inf (or exceed 2**62)")
         if (c != np.round(c)).any():
-            raise ValueError(f"count: {int((c != np.round(c)).sum())} pixel(s) are not whole numbers")
+            raise ValueError(f"{name}: {int((c != np.round(c)).sum())} pixel(s) are not whole numbers")
     elif c.dtype.kind not in "iu":
-        raise TypeError(f"count: expected an integer array, got dtype {c.dtype}")
+        raise TypeError(f"{name}: expected an integer array, got dtype {c.dtype}")
     c = c.astype(np.int64)
     if (c < 0).any():
-        raise ValueError(f"count: {int((c < 0).sum())} pixel(s) are negative")
+        raise ValueError(f"{name}: {int((c < 0).sum())} pixel(s) are negative")
     return c
 
 

@@ -29,7 +29,7 @@ from concurrent.futures import Executor
 import numpy as np
 from tqdm.auto import tqdm
 
-from . import _checks
+from . import _arrays, _checks
 from ._typing import CountArray, FloatArray, Shape2D
 from .allocation import MAX_BUDGET, _allocate, _allocate_mixed  # the samplers' arrays need no checks
 from .buffers import SampleBuffer
@@ -142,9 +142,8 @@ class Sampler:
                     **options) -> Sampler:
         """Resume from existing statistics (for example a sample dump on disk).
 
-        ``issued`` is the number of sample indices already handed out per pixel (default the
-        buffer's counts); new requests start at those indices. ``round`` numbers the next
-        request (it also seeds tie-breaking, so pass the dump's round to stay reproducible).
+        ``issued``: the sample indices already handed out per pixel (default the buffer's counts), where new requests
+        start. ``round`` numbers the next request (and seeds tie-breaking: pass the dump's to stay reproducible).
 
         Examples
         --------
@@ -155,10 +154,11 @@ class Sampler:
         >>> sampler.total_samples, sampler.ask().total, int(sampler.pending.first_index.min())
         (1024, 256, 4)
         """
-        options.setdefault("channels", buffer.channels)
-        sampler = cls(buffer.shape, **options)
+        if not isinstance(buffer, SampleBuffer):
+            raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
+        sampler = cls(buffer.shape, **{"channels": buffer.channels, **options})
         sampler._buffer = buffer
-        sampler._issued = np.array(buffer.count if issued is None else issued, dtype=np.int64)
+        sampler._issued = np.array(_arrays.check_count(buffer.count if issued is None else issued, "issued"))
         if sampler._issued.shape != buffer.shape or (sampler._issued < buffer.count).any():
             raise ValueError("issued: must have the buffer's shape and be >= its counts")
         sampler._round = _checks.whole("round", round, minimum=0, maximum=2**31 - 1)

@@ -522,3 +522,18 @@ def test_resume_refuses_a_request_past_spp_max():
     assert sampler.pending is None
     within = SampleRequest(2 - sampler.issued, sampler.issued, round=1)
     assert sampler.resume(within) is within
+
+
+@pytest.mark.parametrize(("buffer", "issued", "error", "message"), [
+    (None, None, TypeError, "buffer: expected a SampleBuffer, got NoneType"),
+    (np.ones((8, 8, 3)), None, TypeError, "buffer: expected a SampleBuffer, got ndarray"),
+    ("buffer", np.full((8, 8), 4.7), ValueError, r"issued: 64 pixel\(s\) are not whole numbers"),
+    ("buffer", "x", ValueError, r"issued: expected shape \(H, W\)"),
+    ("buffer", np.full((8, 8), 3), ValueError, "issued: must have the buffer's shape and be >= its counts"),
+])
+def test_from_buffer_names_what_it_refuses(buffer, issued, error, message):
+    """Second red-team pass: None gave an AttributeError, issued=4.7 was truncated to 4."""
+    if isinstance(buffer, str):
+        buffer = SampleBuffer.from_moments(np.full((8, 8), 4), np.ones((8, 8, 3)), np.ones((8, 8, 3)))
+    with pytest.raises(error, match=message):
+        AdaptiveSampler.from_buffer(buffer, issued=issued)
