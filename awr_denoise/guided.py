@@ -99,6 +99,8 @@ def checked_guide(guide: object, buffer: SampleBuffer) -> FloatArray:
     ValueError
         If its shape is not the buffer's (H, W, C) (an (H, W) plane is taken for one channel),
         or it holds NaN or infinite values.
+    TypeError
+        If it is not an array of real numbers (complex, bool, object, strings).
 
     Examples
     --------
@@ -113,10 +115,10 @@ def checked_guide(guide: object, buffer: SampleBuffer) -> FloatArray:
     ...
     ValueError: guide: shape (3, 2, 3) does not match the buffer's (2, 3, 3)
     """
-    try:
-        array = np.asarray(guide, dtype=np.float64)
-    except (TypeError, ValueError) as error:
-        raise ValueError(f"guide: expected an (H, W, C) array of numbers ({error})") from None
+    given = np.asarray(guide)
+    if given.dtype.kind not in "fiu":  # complex (cast to its real part), bool, object: refused as by the buffers
+        raise TypeError(f"guide: expected a real (H, W, C) array, got dtype {given.dtype}")
+    array = given.astype(np.float64)
     expected = (*buffer.shape, buffer.n_channels)
     if array.ndim == 2 and buffer.n_channels == 1:
         array = array[..., None]
@@ -276,6 +278,8 @@ def checked_inputs(buffer: SampleBuffer, guide: object, features: object, stages
         raise ValueError("features: the buffer carries no feature buffers (albedo, normal or depth)")
     if callable(guide):  # a guide that is made from the buffer, such as awr_denoise.guides.oidn
         guide = guide(buffer)
+        if guide is None:  # a failed denoiser wrapper must not pass for an unguided run
+            raise ValueError("guide: the guide function returned None, not an (H, W, C) image")
     return None if guide is None else checked_guide(guide, buffer)
 
 

@@ -160,11 +160,21 @@ def test_parameters_record_the_guide_and_the_features(rng):
     (np.full((24, 24, 3), np.nan), r"guide: 1728 values are NaN or infinite \(first at row 0, column 0, channel 0\)"),
     (np.where(np.arange(3) == 2, np.inf, np.zeros((24, 24, 3))), r"guide: 576 values are NaN or infinite "
                                                                   r"\(first at row 0, column 0, channel 2\)"),
-    ("bright", r"guide: expected an \(H, W, C\) array of numbers"),
+    (lambda buffer: None, "guide: the guide function returned None"),
 ])
 def test_bad_guides_are_refused(rng, guide, message):
     buf = SampleBuffer.from_moments(np.full((24, 24), 4), rng.random((24, 24, 3)), np.ones((24, 24, 3)))
     with pytest.raises(ValueError, match=message):
+        reconstruct(buf, guide=guide)
+
+
+@pytest.mark.parametrize("guide", ["bright", np.zeros((24, 24, 3)) + 1j, np.zeros((24, 24, 3), bool),
+                                   np.zeros((24, 24, 3), object)])
+def test_guides_that_are_not_real_arrays_are_refused(rng, guide):
+    """As the buffers refuse them: a complex guide was cast to its real part, bool and object taken
+    (second red-team pass); a guide function returning None gave the unguided image (above)."""
+    buf = SampleBuffer.from_moments(np.full((24, 24), 4), rng.random((24, 24, 3)), np.ones((24, 24, 3)))
+    with pytest.raises(TypeError, match=r"guide: expected a real \(H, W, C\) array, got dtype"):
         reconstruct(buf, guide=guide)
 
 
