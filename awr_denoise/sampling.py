@@ -33,7 +33,7 @@ from . import _arrays, _checks
 from ._typing import CountArray, FloatArray, Shape2D
 from .allocation import MAX_BUDGET, _allocate, _allocate_mixed  # the samplers' arrays need no checks
 from .buffers import SampleBuffer
-from .domains import Domain
+from .domains import Domain, resolve_domain
 from .errors import StaleRequestError
 from .noise_gain import DEFAULT_GAIN_REFRESH, DEFAULT_NOISE_MODEL, NOISE_MODELS, MeasuredGain
 from .priorities import DEFAULT_ABSOLUTE_ABOVE, pooled_deviation, sampling_density
@@ -451,7 +451,7 @@ class VarianceSampler(Sampler):
     def __init__(self, shape: Shape2D, *, domain: str | Domain = "log", uniform_fraction: float = 0.0,
                  absolute_above: float | None = DEFAULT_ABSOLUTE_ABOVE, **options) -> None:
         super().__init__(shape, **options)
-        self.domain = domain
+        self.domain = resolve_domain(domain)  # checked now, not at the first adaptive ask() after round 0
         self.uniform_fraction = _checks.real("uniform_fraction", uniform_fraction, minimum=0.0, maximum=1.0)
         self.absolute_above = _checks.real("absolute_above", absolute_above, above=0, none=True)
 
@@ -523,7 +523,7 @@ class AdaptiveSampler(Sampler):
         super().__init__(shape, channels=channels, initial_spp=initial_spp, seed=seed, spp_min=spp_min,
                          spp_max=spp_max, round_spp=round_spp, round_growth=round_growth, executor=executor)
         wavelet_operators(self._shape, wavelet=wavelet, levels=levels)  # validates wavelet and levels now
-        self.wavelet, self.levels, self.domain = wavelet, levels, domain
+        self.wavelet, self.levels, self.domain = wavelet, levels, resolve_domain(domain)  # checked before round 0
         self.uniform_fraction = _checks.real("uniform_fraction", uniform_fraction, minimum=0.0, maximum=1.0)
         self.noise_model = _checks.name("noise_model", noise_model, NOISE_MODELS)
         for name, value, model in (("level_weight", level_weight, "levels"),

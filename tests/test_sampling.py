@@ -537,3 +537,11 @@ def test_from_buffer_names_what_it_refuses(buffer, issued, error, message):
         buffer = SampleBuffer.from_moments(np.full((8, 8), 4), np.ones((8, 8, 3)), np.ones((8, 8, 3)))
     with pytest.raises(error, match=message):
         AdaptiveSampler.from_buffer(buffer, issued=issued)
+
+
+@pytest.mark.parametrize(("cls", "domain", "error"), [(AdaptiveSampler, "foo", ValueError),
+                                                      (VarianceSampler, 3, TypeError)])
+def test_a_bad_domain_is_refused_by_the_constructor(cls, domain, error):
+    """Before round 0 is rendered, not at the first adaptive ask() after it (second red-team pass)."""
+    with pytest.raises(error, match="domain"):
+        cls((8, 8), domain=domain)
