@@ -238,12 +238,10 @@ class SampleBuffer:
         (array([[2., 5.]]), array([[2., 0.]]), array([[ True, False]]))
         """
         count_arr = check_count(count)
-        s1 = np.asarray(sum, dtype=np.float64)
-        s2 = np.asarray(sum_sq, dtype=np.float64)
+        s1, s2 = np.asarray(sum), np.asarray(sum_sq)  # their dtypes checked, not cast: complex is refused
         if s1.ndim == 2:
             s1, s2 = s1[..., None], s2[..., None]
-        s1 = as_float64("sum", s1, 3)
-        s2 = as_float64("sum_sq", s2, 3)
+        s1, s2 = as_float64("sum", s1, 3), as_float64("sum_sq", s2, 3)
         if s2.shape != s1.shape or s1.shape[:2] != count_arr.shape:
             raise ValueError(f"sum/sum_sq: shapes {s1.shape}, {s2.shape} do not match count {count_arr.shape}")
         check_finite("sum", s1)

@@ -447,3 +447,11 @@ def test_pixels_without_samples_or_variance_are_zeroed_and_others_kept():
     assert_array_equal(full.mean[..., 0], mean)
     assert full.variance_known.all()
     assert_array_equal(full.variance[..., 0], variance)
+
+
+@pytest.mark.parametrize(("sums", "message"), [([[4 + 9j]], "sum: complex values are not supported"),
+                                               ([["x"]], "sum: expected a numeric array")])
+def test_from_sums_refuses_what_it_would_cast(sums, message):
+    """Second red-team pass: a complex sum lost its imaginary part, strings failed without a name."""
+    with pytest.raises(TypeError, match=message):
+        SampleBuffer.from_sums([[2]], sums, [[10.0]])
