@@ -97,6 +97,9 @@ def tonemap(x: FloatArray, *, exposure: float = 0.0) -> FloatArray:
 def psnr(x: FloatArray, reference: FloatArray, *, peak: float | None = None) -> float:
     """Peak signal-to-noise ratio in dB; ``peak`` defaults to the reference's maximum.
 
+    Equal images give ``inf``; an all-zero reference without ``peak`` gives ``-inf`` (no peak to
+    compare the error with): the limits of the formula, not a failure.
+
     Examples
     --------
     >>> import numpy as np
