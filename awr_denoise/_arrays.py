@@ -50,6 +50,9 @@ def check_count(count: object, name: str = "count") -> CountArray:
     c = c.astype(np.int64)
     if (c < 0).any():
         raise ValueError(f"{name}: {int((c < 0).sum())} pixel(s) are negative")
+    if c.sum(dtype=np.float64) > 2**62:  # summed in float64: an int64 sum would wrap to a negative total
+        raise ValueError(f"{name}: {c.sum(dtype=np.float64):.4g} samples in all exceed 2**62, the most int64 totals "
+                         "hold safely")
     return c
 
 

@@ -85,6 +85,9 @@ class SampleRequest:
             raise ValueError(f"counts: {int((counts < 0).sum())} pixel(s) are negative")
         if (first < 0).any():
             raise ValueError(f"first_index: {int((first < 0).sum())} pixel(s) are negative")
+        # The total summed in float64 (an int64 sum would wrap to a negative number); last indices compared exactly.
+        if counts.sum(dtype=np.float64) > 2**62 or (first > 2**62 - counts).any():
+            raise ValueError("counts: more than 2**62 samples in all or at a pixel's last index (int64's safe range)")
         counts.flags.writeable = False
         first.flags.writeable = False
         object.__setattr__(self, "counts", counts)

@@ -77,3 +77,15 @@ def test_renderer_protocol():
     assert isinstance(SyntheticRenderer(scene), Renderer)
     assert isinstance(lambda request: SampleBuffer.empty(request.shape), Renderer)
     assert not isinstance(42, Renderer)
+
+
+def test_totals_past_int64_are_refused_not_wrapped():
+    """Per-pixel counts were bounded, their sums not: totals wrapped to negative numbers (second
+    red-team pass)."""
+    with pytest.raises(ValueError, match="counts: more than 2\\*\\*62 samples"):
+        SampleRequest(np.full((1, 2), 2**62), np.zeros((1, 2), np.int64))
+    with pytest.raises(ValueError, match="counts: more than 2\\*\\*62 samples"):
+        SampleRequest(np.full((1, 1), 2**61), np.full((1, 1), 2**61 + 1))
+    with pytest.raises(ValueError, match="count: .* samples in all exceed 2\\*\\*62"):
+        SampleBuffer.from_moments(np.full((2, 3), 2**62), np.ones((2, 3, 3)), np.ones((2, 3, 3)))
+    assert SampleRequest(np.full((1, 2), 2**61), np.zeros((1, 2), np.int64)).total == 2**62
