@@ -125,6 +125,8 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
     _checks.real("exposure", exposure)
     buffer = read_sample_buffer(source, **(read_options or {}))
     windows = read_windows(source)  # the image keeps the dump's data and display windows
+    if not buffer.count.any():  # refused by the reconstruction too, but there without the file's name
+        raise InputFileError(f"{source}: no pixel has any sample")
     result = reconstruct_detailed(buffer, variance_probes=0, **reconstruct_options)
     error = _reference_error(reference, np.asarray(result.image), source, windows) if reference else None
     written = write_image(output, result.image, channels=buffer.channels, half=half, overwrite=overwrite,

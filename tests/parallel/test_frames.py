@@ -85,3 +85,14 @@ def test_one_frame_runs_in_the_calling_thread(tmp_path, dumps, monkeypatch):
     with pytest.raises(FramesFailedError, match="1 of 1") as info:
         denoise_frames([broken], [tmp_path / "never.exr"])
     assert list(info.value.failures) == [str(broken)] and not (tmp_path / "never.exr").exists()
+
+
+def test_a_dump_without_samples_is_refused_naming_it(tmp_path):
+    """The reconstruction's own refusal does not know the file (second red-team pass)."""
+    from awr_denoise import SampleBuffer
+    from awr_denoise.io import write_sample_buffer
+
+    write_sample_buffer(tmp_path / "empty.exr", SampleBuffer.empty((4, 4)))
+    with pytest.raises(FramesFailedError, match=r"empty\.exr: InputFileError: .*empty\.exr: no pixel has any sample"):
+        denoise_frames([tmp_path / "empty.exr"], [tmp_path / "out.exr"])
+    assert not (tmp_path / "out.exr").exists()
