@@ -40,12 +40,13 @@ def _fmt(bound: float) -> str:
 
 
 def _bounds(param: str, value: float, minimum: float | None, maximum: float | None, above: float | None) -> None:
+    shown = repr(value) if len(repr(value)) <= 40 else f"{value:.4g}"  # 1e300 as an int: not 301 digits
     if above is not None and not value > above:
-        raise ValueError(f"{param}: must be > {_fmt(above)}, got {value!r}")
+        raise ValueError(f"{param}: must be > {_fmt(above)}, got {shown}")
     if minimum is not None and value < minimum:
-        raise ValueError(f"{param}: must be >= {_fmt(minimum)}, got {value!r}")
+        raise ValueError(f"{param}: must be >= {_fmt(minimum)}, got {shown}")
     if maximum is not None and value > maximum:
-        raise ValueError(f"{param}: must be <= {_fmt(maximum)}, got {value!r}")
+        raise ValueError(f"{param}: must be <= {_fmt(maximum)}, got {shown}")
 
 
 def real(param: str, value: Any, *, minimum: float | None = None, maximum: float | None = None,

@@ -20,6 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from .. import _checks
+
 __all__ = [
     "ENVIRONMENT_KINDS",
     "ConstantEnvironment",
@@ -286,8 +288,4 @@ def parse_environment(spec: dict[str, Any] | None, base_dir: Path | None = None
 
 def _scale(spec: dict[str, Any]) -> float:
     """``environment.scale``, a finite number >= 0."""
-    scale = spec.get("scale", 1.0)
-    if isinstance(scale, (bool, np.bool_)) or not isinstance(scale, (int, float, np.integer, np.floating)) \
-            or not np.isfinite(scale) or scale < 0:
-        raise ValueError(f"environment.scale: expected a finite number >= 0, got {scale!r:.40}")
-    return float(scale)
+    return _checks.real("environment.scale", spec.get("scale", 1.0), minimum=0)

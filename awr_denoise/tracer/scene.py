@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import _checks
 from .camera import ThinLensCamera, parse_camera
 from .environment import ConstantEnvironment, LatLongEnvironment, parse_environment
 from .lights import AreaLights, DirectionalLight, PointLight, parse_delta_light
@@ -176,9 +177,6 @@ def dimension_names(scene: Scene, max_depth: int) -> tuple[str, ...]:
     return tuple(names)
 
 
-_NUMBERS = (int, float, np.integer, np.floating)  # JSON's numbers, and numpy's from a caller
-
-
 def _mapping(value: Any, where: str) -> dict[str, Any]:
     """``value`` if it is a JSON object, else a ValueError naming the field."""
     if not isinstance(value, dict):
@@ -193,24 +191,13 @@ def _shown(value: Any) -> str:
 
 
 def _whole(spec: dict[str, Any], key: str, where: str, default: int, low: int, high: int) -> int:
-    """An integer field in ``[low, high]``; a bool, a fraction or NaN is refused, not truncated."""
-    value = spec.get(key, default)
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, _NUMBERS) or value != value or value % 1:
-        raise ValueError(f"{where}.{key}: expected a whole number, got {_shown(value)}" if where else
-                         f"{key}: expected a whole number, got {_shown(value)}")
-    if not low <= value <= high:
-        raise ValueError(f"{where + '.' if where else ''}{key}: {_shown(value)} is outside {low}..{high}")
-    return int(value)
+    """The field ``where.key`` as a whole number in ``low..high`` (``_checks.whole``: no bool, no 2.7)."""
+    return _checks.whole(f"{where}.{key}" if where else key, spec.get(key, default), minimum=low, maximum=high)
 
 
 def _real(spec: dict[str, Any], key: str, where: str, default: float, *, positive: bool = False) -> float:
-    """A finite number field (``positive``: above 0)."""
-    value = spec.get(key, default)
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, _NUMBERS) or not np.isfinite(value) \
-            or (positive and not value > 0):
-        kind = "a finite number above 0" if positive else "a finite number"
-        raise ValueError(f"{where}.{key}: expected {kind}, got {_shown(value)}")
-    return float(value)
+    """The field ``where.key`` as a finite number (``positive``: above 0)."""
+    return _checks.real(f"{where}.{key}", spec.get(key, default), above=0 if positive else None)
 
 
 def _vec(spec: dict[str, Any], key: str, where: str, default: Any = None) -> np.ndarray:
@@ -404,8 +391,8 @@ def load_scene(scene: str | Path | dict[str, Any] | Scene, *, width: int | None 
     if path.suffix == ".json" and path.is_file():
         try:
             return parse_scene(_read_json(path), width=width, height=height, base_dir=path.parent)
-        except ValueError as exc:
-            raise ValueError(f"{path}: {exc}") from None
+        except (TypeError, ValueError) as exc:
+            raise type(exc)(f"{path}: {exc}") from None
     raise ValueError(f"scene: {text!r} is neither a JSON file nor one of {', '.join(BUNDLED_SCENES)}")
 
 

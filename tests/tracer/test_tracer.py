@@ -121,19 +121,19 @@ MALFORMED = [  # (change, the field the refusal names)
     ({"camera": [1, 2]}, "camera: expected an object"),
     ({"integrator": 3}, "integrator: expected an object"),
     ({"lights": [7]}, r"lights\[0\]: expected an object"),
-    ({"width": 2.7}, "width: expected a whole number, got 2.7"),
-    ({"width": "abc"}, "width: expected a whole number"),
-    ({"width": True}, "width: expected a whole number"),
-    ({"width": 1e300}, r"width: 1e\+300 is outside 1..1048576"),
-    ({"dimension": "four"}, "dimension: expected a whole number"),
+    ({"width": 2.7}, "width: must be a whole number, got 2.7"),
+    ({"width": "abc"}, "width: expected a number, got str 'abc'"),
+    ({"width": True}, "width: expected a number, got the bool True"),
+    ({"width": 1e300}, r"width: must be <= 1048576, got 1e\+300"),
+    ({"dimension": "four"}, "dimension: expected a number"),
     # Just past the bounds: 10**9 (a runaway allocation before the bounds) would take the machine with it.
-    ({"integrator.max_depth": 257}, "integrator.max_depth: 257 is outside 0..256"),
-    ({"integrator.max_specular_depth": -3}, "integrator.max_specular_depth: -3 is outside"),
-    ({f"objects.{SPHERE}.segments": 1025}, rf"objects\[{SPHERE}\].segments: 1025 is outside 3..1024"),
-    ({f"objects.{SPHERE}.rings": 0}, rf"objects\[{SPHERE}\].rings: 0 is outside"),
-    ({f"objects.{SPHERE}.radius": float("nan")}, rf"objects\[{SPHERE}\].radius: expected a finite number above 0"),
-    ({f"objects.{SPHERE}.radius": float("inf")}, rf"objects\[{SPHERE}\].radius: expected a finite number above 0"),
-    ({f"objects.{SPHERE}.radius": -1}, rf"objects\[{SPHERE}\].radius"),
+    ({"integrator.max_depth": 257}, "integrator.max_depth: must be <= 256, got 257"),
+    ({"integrator.max_specular_depth": -3}, "integrator.max_specular_depth: must be >= 0, got -3"),
+    ({f"objects.{SPHERE}.segments": 1025}, rf"objects\[{SPHERE}\].segments: must be <= 1024, got 1025"),
+    ({f"objects.{SPHERE}.rings": 0}, rf"objects\[{SPHERE}\].rings: must be >= 2, got 0"),
+    ({f"objects.{SPHERE}.radius": float("nan")}, rf"objects\[{SPHERE}\].radius: must be a finite number"),
+    ({f"objects.{SPHERE}.radius": float("inf")}, rf"objects\[{SPHERE}\].radius: must be a finite number"),
+    ({f"objects.{SPHERE}.radius": -1}, rf"objects\[{SPHERE}\].radius: must be > 0, got -1"),
     ({"objects.0": {"shape": "mesh", "faces": [[0, 1, 2]]}}, r"objects\[0\].vertices: missing"),
     ({"objects.0": {"shape": "mesh", "vertices": [[0, 0, 0], [1, 0, 0], [0, float("nan"), 0]], "faces": [[0, 1, 2]]}},
      r"objects\[0\].vertices: must be finite"),
@@ -150,8 +150,9 @@ MALFORMED = [  # (change, the field the refusal names)
 
 @pytest.mark.parametrize("changes, needle", MALFORMED, ids=[str(m[0])[:40] for m in MALFORMED])
 def test_a_malformed_scene_is_refused_naming_the_field(changes, needle) -> None:
-    """Every malformed field gives a ValueError that names it: no KeyError, no truncation, no hang."""
-    with pytest.raises(ValueError, match=needle):
+    """Every malformed field gives a ValueError (a TypeError for a wrong type) that names it: no
+    KeyError, no truncation, no hang."""
+    with pytest.raises((ValueError, TypeError), match=needle):
         load_scene(_scene_with(**changes))
 
 
@@ -170,7 +171,10 @@ def test_a_scene_file_names_itself_and_refuses_nan(tmp_path) -> None:
     with pytest.raises(ValueError, match=r"s\.json: not valid JSON"):
         load_scene(path)
     path.write_text(json.dumps(_scene_with(width=0)))
-    with pytest.raises(ValueError, match=r"s\.json: width: 0 is outside"):
+    with pytest.raises(ValueError, match=r"s\.json: width: must be >= 1, got 0"):
+        load_scene(path)
+    path.write_text(json.dumps(_scene_with(width="abc")))  # a wrong type: a TypeError, named by the file too
+    with pytest.raises(TypeError, match=r"s\.json: width: expected a number"):
         load_scene(path)
 
 
