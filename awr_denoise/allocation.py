@@ -13,6 +13,7 @@ from functools import lru_cache
 import numpy as np
 
 from . import _checks
+from ._arrays import as_float64, check_count, check_finite
 from ._typing import CountArray, FloatArray
 
 __all__ = ["allocate", "allocate_mixed", "MAX_BUDGET"]
@@ -80,23 +81,20 @@ def _checked(density: FloatArray, current: CountArray, capacity: CountArray | No
     """The public functions' arguments checked: (H, W) arrays of one shape, a finite non-negative
     density, whole non-negative counts and caps, a numpy Generator. The samplers' own densities
     skip this: their NaN and +Inf (a sum past float64) mean "no information" there."""
-    current = np.asarray(current)
-    if current.ndim != 2 or current.dtype.kind not in "fiu":
-        raise ValueError(f"current: expected an (H, W) array of sample counts, got {current.dtype} {current.shape}")
-    arrays = {"density": np.asarray(density), "current": current}
+    current = check_count(current, "current")
+    density = as_float64("density", density, 2)
+    if density.shape != current.shape:
+        raise ValueError(f"density: shape {density.shape} does not match current's {current.shape}")
+    check_finite("density", density[..., None])
+    if (density < 0).any():
+        raise ValueError(f"density: {int((density < 0).sum())} pixel(s) are negative")
     if capacity is not None:
-        arrays["capacity"] = np.asarray(capacity)
-    for name, a in arrays.items():
-        if a.shape != current.shape or a.dtype.kind not in "fiu":
-            raise ValueError(f"{name}: expected a real (H, W) array like current's {current.shape}, "
-                             f"got {a.dtype} {a.shape}")
-        if not np.isfinite(a).all() or (a < 0).any():
-            raise ValueError(f"{name}: must be finite and >= 0")
-        if name != "density" and (a % 1).any():
-            raise ValueError(f"{name}: must be whole sample counts")
+        capacity = np.asarray(check_count(capacity, "capacity"))
+        if capacity.shape != current.shape:
+            raise ValueError(f"capacity: shape {capacity.shape} does not match current's {current.shape}")
     if rng is not None and not isinstance(rng, np.random.Generator):
         raise TypeError(f"rng: expected a numpy Generator, got {type(rng).__name__}")
-    return arrays["density"], current.astype(np.int64), arrays.get("capacity")
+    return density, current, capacity
 
 
 def _allocate(density: FloatArray, current: CountArray, budget: int, *, capacity: CountArray | None = None,
