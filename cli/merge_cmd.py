@@ -18,11 +18,12 @@ from awr_denoise.io import (
     write_sample_buffer,
 )
 from awr_denoise.io.atomic import same_file
+from awr_denoise.io.dump import header_count
 from awr_denoise.io.exr import check_same_windows, read_windows
 
 from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, status
 from .paths import PathPlan, check_plane_windows, plane_options
-from .values import MAX_SEED, header_whole
+from .values import MAX_SEED
 
 __all__ = ["register", "run"]
 
@@ -157,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
         merged = merged.merge(dump.buffer)
         issued = issued + dump.issued
     attrs = {k: v for k, v in dumps[0].attributes.items() if k.removeprefix("awr:") in _KEPT}
-    rounds = [header_whole(p, d.attributes, "awr:round", 0, 2**31 - 2) for p, d in zip(args.inputs, dumps)
+    rounds = [header_count(p, d.attributes, "awr:round", 0, 2**31 - 2) for p, d in zip(args.inputs, dumps)
               if "awr:round" in d.attributes]
     if told is not None:
         merged, issued, request_round, note = _tell(merged, issued, args.request, told.buffer, args.inputs[-1])
@@ -166,12 +167,12 @@ def run(args: argparse.Namespace) -> int:
             status(f"{args.inputs[-1]}: {note}", quiet=args.quiet)
         seed = request_attributes(args.request).get("awr:seed")
         if seed is not None and "awr:seed" not in attrs:
-            header_whole(args.request, {"awr:seed": seed}, "awr:seed", 0, MAX_SEED)  # the request's, named so
+            header_count(args.request, {"awr:seed": seed}, "awr:seed", 0, MAX_SEED)  # the request's, named so
             attrs["awr:seed"] = seed
     if rounds:  # without any round information (plain batches) plan starts at round 1
         attrs["awr:round"] = max(rounds) + 1
     if "awr:seed" in attrs:
-        header_whole(args.inputs[0], attrs, "awr:seed", 0, MAX_SEED)
+        header_count(args.inputs[0], attrs, "awr:seed", 0, MAX_SEED)
     header = {**provenance(**{k.removeprefix("awr:"): v for k, v in attrs.items()}), **windows}
     write_sample_buffer(args.output, merged, header=header, issued=issued, overwrite=args.overwrite)
     h, w = merged.shape

@@ -6,6 +6,7 @@ import argparse
 
 from awr_denoise.allocation import MAX_BUDGET
 from awr_denoise.io import provenance, read_sample_dump, write_request
+from awr_denoise.io.dump import header_count
 from awr_denoise.io.exr import read_windows
 from awr_denoise.noise_gain import DEFAULT_NOISE_MODEL
 from awr_denoise.sampling import (DEFAULT_AWR_INITIAL_SPP, DEFAULT_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS, SAMPLERS,
@@ -14,7 +15,7 @@ from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 
 from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, status
 from .paths import PathPlan, check_plane_windows, plane_options
-from .values import MAX_LEVELS, MAX_SEED, MAX_SPP, header_whole, image_size, real, wavelet_name, whole
+from .values import MAX_LEVELS, MAX_SEED, MAX_SPP, image_size, real, wavelet_name, whole
 
 __all__ = ["register", "run", "STRATEGIES"]
 
@@ -100,9 +101,9 @@ def run(args: argparse.Namespace) -> int:
         if args.levels is not None and args.levels > max_levels(dump.buffer.shape):
             raise UsageError(f"--levels: {args.levels} is outside 1..{max_levels(dump.buffer.shape)} for the "
                              f"image of {args.input}")
-        seed = args.seed if args.seed is not None else header_whole(args.input, dump.attributes, "awr:seed", 0,
+        seed = args.seed if args.seed is not None else header_count(args.input, dump.attributes, "awr:seed", 0,
                                                                       MAX_SEED)
-        round_number = args.round if args.round is not None else header_whole(args.input, dump.attributes,
+        round_number = args.round if args.round is not None else header_count(args.input, dump.attributes,
                                                                                  "awr:round", 1, 2**31 - 1)
         if round_number < 1:
             where = "--round" if args.round is not None else f"{args.input}: awr:round"  # whichever gave it

@@ -10,17 +10,15 @@ from __future__ import annotations
 import argparse
 import math
 import re
-from collections.abc import Callable, Mapping
-from typing import Any
+from collections.abc import Callable
 
-from awr_denoise.errors import InputFileError
 from awr_denoise.features import feature_names
 from awr_denoise.wavelets import WAVELET_NAMES
 
 from .errors import UsageError
 
 __all__ = ["MAX_SPP", "MAX_SEED", "MAX_PIXELS", "MAX_SIDE", "MAX_LEVELS", "MAX_EXPOSURE", "MAX_FRAMES",
-           "real", "whole", "image_size", "check_pixels", "wavelet_name", "feature_list", "header_whole"]
+           "real", "whole", "image_size", "check_pixels", "wavelet_name", "feature_list"]
 
 MAX_SPP = 2**24
 """Samples per pixel: counts are stored as float32, exact up to 2**24."""
@@ -133,20 +131,3 @@ def feature_list(text: str) -> tuple[str, ...]:
     if not names:
         raise argparse.ArgumentTypeError(f"no feature named in {text!r} (albedo, normal, depth or all)")
     return names
-
-
-def header_whole(path: str, attributes: Mapping[str, Any], key: str, default: int, maximum: int) -> int:
-    """A whole-number header attribute of an input (``awr:seed``, ``awr:round``) within 0..maximum.
-
-    Raises
-    ------
-    InputFileError
-        Naming the file and the attribute.
-    """
-    raw = attributes.get(key, default)
-    if not _INTEGER.match(str(raw)) or len(str(raw).strip()) > 40:  # ASCII digits, as for options
-        raise InputFileError(f"{path}: {key}: header attribute is not a whole number: {raw!r}")
-    value = int(str(raw))
-    if not 0 <= value <= maximum:
-        raise InputFileError(f"{path}: {key}: header attribute {value} is outside 0..{maximum}")
-    return value
