@@ -150,6 +150,12 @@ def _sparse_operator(apply, n_in: int, step: tuple[int, int], edge: int) -> spar
     return matrix
 
 
+def _edge(w: pywt.Wavelet) -> int:
+    """Samples (or coefficients) from either end within reach of the boundary extension: the
+    columns :func:`_sparse_operator` computes rather than shifts (a margin over the filter length)."""
+    return 2 * w.dec_len + 4
+
+
 def _computed_columns(apply, n_in: int, columns: np.ndarray) -> sparse.csr_matrix:
     """The matrix of ``apply`` with only ``columns`` filled (impulses pushed through it, in chunks)."""
     blocks = []
@@ -189,9 +195,8 @@ def _axis_operators(n: int, wavelet: str, boundary: str, levels: int) -> _AxisOp
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
         for _ in range(levels):
-            edge = 2 * w.dec_len + 4  # inputs within reach of the boundary extension
-            lo = _sparse_operator(lambda x: pywt.dwt(x, w, mode=boundary, axis=0)[0], length, (2, 1), edge)
-            hi = _sparse_operator(lambda x: pywt.dwt(x, w, mode=boundary, axis=0)[1], length, (2, 1), edge)
+            lo = _sparse_operator(lambda x: pywt.dwt(x, w, mode=boundary, axis=0)[0], length, (2, 1), _edge(w))
+            hi = _sparse_operator(lambda x: pywt.dwt(x, w, mode=boundary, axis=0)[1], length, (2, 1), _edge(w))
             detail.append((hi @ previous).tocsr())
             previous = (lo @ previous).tocsr()
             approx.append(previous)
@@ -460,7 +465,7 @@ def _axis_diagonals(n: int, wavelet: str, boundary: str, levels: int,
             coeffs[position] = impulses
             return pywt.waverec(coeffs, w, mode=boundary, axis=0)[:n]
         # A level-k coefficient one place on moves its response 2^k samples on.
-        return _sparse_operator(apply, lengths[position], (1, 2 ** k), 2 * w.dec_len + 4)
+        return _sparse_operator(apply, lengths[position], (1, 2 ** k), _edge(w))
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # levels past pywt's "useful" depth, as in _axis_operators

@@ -16,6 +16,7 @@ from awr_denoise.wavelets import (
     forward,
     inverse,
     max_levels,
+    _edge,
     _sparse_operator,
     shrinkage_diagonal,
     wavelet_operators,
@@ -266,7 +267,7 @@ def test_operators_built_from_templates_equal_every_impulse_pushed_through(wavel
     """The O(n) build (edge columns computed, interior ones shifted templates) is the dense matrix
     bit for bit: one DWT step, and a level-k band's synthesis, at lengths around the edges' reach."""
     w = pywt.Wavelet(wavelet)
-    edge = 2 * w.dec_len + 4
+    edge = _edge(w)
     for n in (2 * edge + 1, 2 * edge + 3, 3 * edge + 8, 301):
         for band in (0, 1):
             step = lambda x, band=band: pywt.dwt(x, w, mode=boundary, axis=0)[band]  # noqa: E731
@@ -300,7 +301,7 @@ def test_operators_of_a_long_side_are_built_in_linear_time():
     def step(x):
         pushed.append(x.shape[1])
         return pywt.dwt(x, "bior4.4", mode="symmetric", axis=0)[1]
-    edge = 2 * pywt.Wavelet("bior4.4").dec_len + 4
+    edge = _edge(pywt.Wavelet("bior4.4"))
     built = _sparse_operator(step, 8192, (2, 1), edge)
     assert sum(pushed) == 2 * edge + 2 + 2  # both edges, a template per phase, two random probes
     assert built.shape == (4100, 8192) and built.nnz <= 8 * 8192
