@@ -560,6 +560,13 @@ def _layout(path: Path, f: _File, preset: str, *, color: str | None, variance: s
     return layout, ctx
 
 
+def _check_layer(p: Path, preset: str, layer: str | None) -> None:
+    """Refuse ``layer=`` on a file without view layers: ignored, it would read another plane than asked."""
+    if layer is not None and preset != "cycles":
+        raise file_error(p, f"layer={layer!r} / --layer: only Blender Cycles files have view layers; this file "
+                            f"reads as the {preset} layout")
+
+
 def _resolve_preset(p: Path, f: _File, preset: str, color: str | None, variance: str | None,
                     count: str | None) -> str:
     if preset == "auto":
@@ -672,6 +679,7 @@ def read_sample_dump(
     p = Path(path)
     parts = read_exr(p)
     if preset in ("auto", "deep") and parts[0].deep:
+        _check_layer(p, "deep", layer)
         buf = samples_from_deep_part(p, parts[0], nonfinite=nonfinite)
         return SampleDump(buf, buf.count, {})
     if preset == "deep":
@@ -680,6 +688,7 @@ def read_sample_dump(
     if not f.channels:
         raise file_error(p, "has no flat channels")
     preset = _resolve_preset(p, f, preset, color, variance, count)
+    _check_layer(p, preset, layer)
     planes = {"albedo": albedo, "normal": normal, "depth": depth}
     if preset == "awr" and color is None and variance is None:
         flat = [part for part in parts if not part.deep and COUNT_CHANNEL in part.channels]
@@ -760,6 +769,7 @@ def read_independent_renders(
         p = Path(path)
         f = _File(p, read_exr(p), view)
         name = _resolve_preset(p, f, preset, color, None, count)
+        _check_layer(p, name, layer)
         layout, ctx = _layout(p, f, name, color=color, variance=None, count=count, variance_kind=None, spp=spp,
                               layer=layer, view=view, need_variance=False, need_count=True)
         assert layout.count is not None
@@ -825,7 +835,8 @@ def read_sample_buffer(
         value, and for Cycles gives the samples the render took (the divisor of the
         normalised count pass).
     layer
-        Cycles view layer when the file has several.
+        Cycles view layer when the file has several; refused for the other layouts, which have
+        none.
     view
         View of a multi-view (stereo) file, e.g. ``"left"``; required when there are several.
     nonfinite

@@ -128,6 +128,28 @@ def test_cycles_layer_with_dot_stereo_and_missing_count():
         read_sample_dump(CY / "cycles_adaptive_nocount.exr", variance="ViewLayer.Combined")
 
 
+@pytest.mark.parametrize("path", [MI / "mitsuba_box.exr", DATA / "pbrt" / "pbrt_gbuffer_default.exr"],
+                         ids=["mitsuba", "pbrt"])
+def test_layer_on_a_file_without_view_layers_is_refused(path, tmp_path, capsys):
+    # Ignored, layer= would read the file's only colour while the user asked for another layer.
+    with pytest.raises(InputFileError, match=f"{path.name}: layer='beauty' / --layer: only Blender Cycles"):
+        read_sample_dump(path, layer="beauty")
+    out = tmp_path / "dump.exr"
+    assert main(["denoise", str(path), "-o", str(out), "--layer", "beauty", "-q"]) == 2
+    assert not out.exists()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "only Blender Cycles files have view layers" in err[0]
+    # A Cycles file keeps its layer (the file's only one, named).
+    assert read_sample_dump(CY / "cycles_default.exr", layer="ViewLayer", variance="ViewLayer.Combined",
+                            spp=16).buffer.shape
+
+
+def test_layer_on_independent_renders_without_view_layers_is_refused():
+    files = [MI / "mitsuba_box.exr", MI / "mitsuba_gaussian.exr"]
+    with pytest.raises(InputFileError, match="only Blender Cycles files have view layers"):
+        read_independent_renders(files, layer="ViewLayer")
+
+
 def test_cycles_independent_renders_merged_and_denoised(tmp_path):
     files = sorted(CY.glob("cycles_seed_*.exr"))
     with pytest.warns(InputFileWarning):
