@@ -166,9 +166,14 @@ def run(args: argparse.Namespace) -> int:
         if note:
             status(f"{args.inputs[-1]}: {note}", quiet=args.quiet)
         seed = request_attributes(args.request).get("awr:seed")
-        if seed is not None and "awr:seed" not in attrs:
-            header_count(args.request, {"awr:seed": seed}, "awr:seed", 0, MAX_SEED)  # the request's, named so
-            attrs["awr:seed"] = seed
+        if seed is not None:
+            seed = header_count(args.request, {"awr:seed": seed}, "awr:seed", 0, MAX_SEED)  # the request's, named so
+            if "awr:seed" not in attrs:
+                attrs["awr:seed"] = seed
+            elif seed != (kept := header_count(args.inputs[0], attrs, "awr:seed", 0, MAX_SEED)):
+                # Kept silently, the dump's seed would misname the batch's samples (another dump's request?).
+                raise UsageError(f"merge: {args.request}: awr:seed {seed} does not match awr:seed {kept} of "
+                                 f"{args.inputs[0]} (plan each request from the running dump)")
     if rounds:  # without any round information (plain batches) plan starts at round 1
         attrs["awr:round"] = max(rounds) + 1
     if "awr:seed" in attrs:

@@ -47,7 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--strategy", choices=STRATEGIES, default=AdaptiveSampler.strategy,
                    help="awr wavelet priorities (default), uniform, or per-pixel variance")
     p.add_argument("--seed", type=whole(minimum=0, maximum=MAX_SEED), help="seed of the renderer's sequences and tie-breaking "
-                                            "(default: the dump's awr:seed, else 0)")
+                                            "(default: the dump's awr:seed, which it must match, else 0)")
     p.add_argument("--round", type=whole(minimum=0, maximum=2**31 - 1), help="round number (default: the dump's awr:round, else 1)")
     p.add_argument("--wavelet", type=wavelet_name, default=DEFAULT_WAVELET, help="wavelet of the priority analysis (default %(default)s)")
     p.add_argument("--levels", type=whole(minimum=1, maximum=MAX_LEVELS), help="decomposition depth of the priority analysis")
@@ -101,8 +101,12 @@ def run(args: argparse.Namespace) -> int:
         if args.levels is not None and args.levels > max_levels(dump.buffer.shape):
             raise UsageError(f"--levels: {args.levels} is outside 1..{max_levels(dump.buffer.shape)} for the "
                              f"image of {args.input}")
-        seed = args.seed if args.seed is not None else header_count(args.input, dump.attributes, "awr:seed", 0,
-                                                                      MAX_SEED)
+        seed = header_count(args.input, dump.attributes, "awr:seed", 0, MAX_SEED)
+        if args.seed is not None and "awr:seed" in dump.attributes and args.seed != seed:
+            # A dump's samples continue one random sequence; merge would refuse the batch.
+            raise UsageError(f"--seed: {args.seed} differs from awr:seed {seed} of {args.input} (a dump's samples "
+                             "continue one sequence; plan without --seed)")
+        seed = args.seed if args.seed is not None else seed
         round_number = args.round if args.round is not None else header_count(args.input, dump.attributes,
                                                                                  "awr:round", 1, 2**31 - 1)
         if round_number < 1:

@@ -357,6 +357,34 @@ def test_file_only_loop(tmp_path, capsys):
     assert denoised < noisy
 
 
+def test_a_request_of_another_seed_is_refused_by_plan_and_merge(tmp_path, capsys):
+    """A dump's samples continue one random sequence: a request planned for another seed is refused."""
+    ext = _external()
+    assert main(["plan", "--size", f"{W}x{H}", "--seed", "5", "-o", str(tmp_path / "req0.exr"), "-q"]) == 0
+    assert ext.main([str(tmp_path / "req0.exr"), str(tmp_path / "batch0.exr")]) == 0
+    dump = tmp_path / "dump1.exr"
+    assert main(["merge", str(tmp_path / "batch0.exr"), "--request", str(tmp_path / "req0.exr"), "-o", str(dump),
+                 "-q"]) == 0
+    assert main(["plan", str(dump), "--seed", "6", "-o", str(tmp_path / "req1.exr"), "-q"]) == 2
+    _one_error_line(capsys, "--seed: 6 differs from awr:seed 5 of", "dump1.exr")
+    assert not (tmp_path / "req1.exr").exists()
+    assert main(["plan", str(dump), "--seed", "5", "-o", str(tmp_path / "req1.exr"), "-q"]) == 0  # the same: fine
+    # Another dump's request (seed 6, same size and round): merge refuses it, naming both files.
+    other = tmp_path / "other"
+    other.mkdir()
+    assert main(["plan", "--size", f"{W}x{H}", "--seed", "6", "-o", str(other / "req0.exr"), "-q"]) == 0
+    assert ext.main([str(other / "req0.exr"), str(other / "batch0.exr")]) == 0
+    assert main(["merge", str(other / "batch0.exr"), "--request", str(other / "req0.exr"), "-o",
+                 str(other / "dump1.exr"), "-q"]) == 0
+    assert main(["plan", str(other / "dump1.exr"), "-o", str(other / "req1.exr"), "-q"]) == 0
+    assert ext.main([str(other / "req1.exr"), str(other / "batch1.exr")]) == 0
+    out = tmp_path / "dump2.exr"
+    assert main(["merge", str(dump), str(other / "batch1.exr"), "--request", str(other / "req1.exr"), "-o",
+                 str(out), "-q"]) == 2
+    _one_error_line(capsys, "req1.exr: awr:seed 6 does not match awr:seed 5 of", "dump1.exr")
+    assert not out.exists()
+
+
 def test_merge_records_dropped_samples_as_issued(tmp_path, capsys):
     ext = _external()
     req = SampleRequest.uniform((H, W), 4)
