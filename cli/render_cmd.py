@@ -130,8 +130,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sampler", default="independent",
                    help="the bundled tracer's sample sequence: independent (default) or sobol")
     p.add_argument("--features", type=feature_list, metavar="NAMES",
-                   help="also render albedo, normal, depth (comma separated, or 'all') into the dump; the bundled "
-                        "tracer only; --guide features or --guide oidn uses them")
+                   help="also render albedo, normal, depth (comma separated, or 'all') into the dump (tracer and "
+                        "mitsuba render them); --guide features or --guide oidn uses them")
     p.add_argument("-o", "--output", metavar="DUMP.exr", help="sample dump to write (required unless --list-scenes)")
     p.add_argument("--image", metavar="OUT.exr", help="denoised image (default DUMP.denoised.exr)")
     p.add_argument("--preview", metavar="OUT.png", help="PNG preview (default DUMP.denoised.png)")
