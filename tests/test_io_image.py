@@ -115,6 +115,38 @@ def test_truncated_exr(tmp_path):
         read_image(tmp_path / "t.exr")
 
 
+def test_other_output_during_a_read_is_passed_through_not_read_as_corruption(tmp_path, monkeypatch, capfd):
+    """A progress bar drawn by another thread while OpenEXR reads lands in the read's capture.
+
+    It was taken for OpenEXR's corruption report: multi-frame ``awr denoise`` refused valid
+    frames. Now only OpenEXR's own lines count; the rest reaches the stream it was written to.
+    """
+    from awr_denoise.io import exr
+
+    write_image(tmp_path / "a.exr", np.ones((4, 4, 3)))
+    real = exr._openexr()
+
+    class Noisy:
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+        def File(self, *args, **kwargs):  # noqa: N802 - OpenEXR's name
+            os.write(2, b"\rframes:  17%|#7        | 2/12\r")  # what tqdm draws from another thread
+            os.write(1, b"a line on stdout\n")
+            return real.File(*args, **kwargs)
+
+    monkeypatch.setattr(exr, "_openexr", lambda: Noisy())
+    np.testing.assert_array_equal(read_image(tmp_path / "a.exr"), np.ones((4, 4, 3), np.float32))
+    out, err = capfd.readouterr()
+    assert out == "a line on stdout\n" and err == "\rframes:  17%|#7        | 2/12\r"
+    # OpenEXR's own report is still an error, and is not passed through.
+    data = (tmp_path / "a.exr").read_bytes()
+    (tmp_path / "t.exr").write_bytes(data[: len(data) - 8])
+    with pytest.raises(InputFileError, match=r"t\.exr: truncated or corrupt EXR \(.*EXR_ERR"):
+        read_image(tmp_path / "t.exr")
+    assert "EXR_ERR" not in "".join(capfd.readouterr())
+
+
 def test_missing_file(tmp_path):
     with pytest.raises(InputFileError, match="no such file"):
         read_image(tmp_path / "nope.exr")

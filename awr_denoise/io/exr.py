@@ -131,39 +131,61 @@ def _check_magic(path: Path) -> None:
 
 
 class _Captured:
-    text: str = ""
+    text: str = ""  # what the C library printed while reading (OpenEXR's messages)
 
 
 _CAPTURE_LOCK = threading.Lock()
 
 
+def _exr_message(line: str, path: str) -> bool:
+    """Whether a captured line is OpenEXR's report on the file being read.
+
+    OpenEXR names the file (``<path>: (EXR_ERR_...) ...``) or the part it failed on
+    (``Warning: Exception raised reading pixel data for part 0 - ...``).
+    """
+    return line.startswith(path + ": ") or "EXR_ERR_" in line or line.startswith("Warning: Exception raised")
+
+
 @contextlib.contextmanager
-def _captured_c_output() -> Iterator[_Captured]:
-    """Collect what the C++ library prints on stdout/stderr instead of letting it through.
+def _captured_c_output(path: str | os.PathLike[str]) -> Iterator[_Captured]:
+    """Collect what the C++ library prints on stdout/stderr about ``path`` instead of letting it through.
 
     OpenEXR reports corrupt chunks by printing (and then returning no parts); a command-line
-    user must see one clean error line, so the text is captured and folded into the error.
+    user must see one clean error line, so its text is captured and folded into the error.
     The redirection is process-wide, so reads are serialised by a lock: two threads
     redirecting at once would restore each other's sink and lose stdout for good (frames
     are read in threads by :func:`awr_denoise.parallel.denoise_frames`). Output of other
-    threads during a read lands in the capture too.
+    threads during a read (a progress bar) lands in the capture too: it is not OpenEXR's,
+    so it is written on to the stream it was meant for, and never read as a corruption report.
     """
-    captured = _Captured()
-    with _CAPTURE_LOCK, tempfile.TemporaryFile() as sink:
+    captured, name = _Captured(), os.fspath(path)
+    with _CAPTURE_LOCK, tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
         sys.stdout.flush()
         sys.stderr.flush()
         saved = [os.dup(1), os.dup(2)]
         try:
-            os.dup2(sink.fileno(), 1)
-            os.dup2(sink.fileno(), 2)
+            os.dup2(out.fileno(), 1)
+            os.dup2(err.fileno(), 2)
             yield captured
         finally:
             os.dup2(saved[0], 1)
             os.dup2(saved[1], 2)
             os.close(saved[0])
             os.close(saved[1])
-            sink.seek(0)
-            captured.text = sink.read().decode("utf-8", "replace")
+            reports = []
+            for sink, fd in ((out, 1), (err, 2)):
+                sink.seek(0)
+                passed = bytearray()
+                for line in sink.read().splitlines(keepends=True):
+                    text = line.decode("utf-8", "replace")
+                    if _exr_message(text.rstrip("\r\n"), name):
+                        reports.append(text)
+                    else:
+                        passed += line
+                if passed:
+                    with open(fd, "wb", closefd=False) as stream:  # the bytes as they were printed
+                        stream.write(passed)
+            captured.text = "".join(reports)
 
 
 def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list[ExrPart]:
@@ -187,7 +209,7 @@ def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list
     deep_types = {OpenEXR.deepscanline, OpenEXR.deeptile}
     parts: list[ExrPart] = []
     try:
-        with _captured_c_output() as captured, \
+        with _captured_c_output(p) as captured, \
                 OpenEXR.File(os.fspath(p), separate_channels=True, header_only=header_only) as f:
             for i, part in enumerate(f.parts):
                 header = _checked_header(p, dict(f.header(i)))
