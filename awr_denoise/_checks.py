@@ -7,15 +7,18 @@ the message starts with the parameter's name, as everywhere in the library.
 
 from __future__ import annotations
 
+import argparse
 import math
 import numbers
+import re
+from collections.abc import Callable
 from concurrent.futures import Executor, ProcessPoolExecutor
 from typing import Any
 
 import numpy as np
 
-__all__ = ["MAX_SEED", "MAX_SIDE", "MAX_LEVELS", "real", "whole", "flag", "seed", "shape2d", "name", "slices",
-           "executor"]
+__all__ = ["MAX_SEED", "MAX_SIDE", "MAX_LEVELS", "real", "whole", "whole_text", "whole_option", "flag", "seed", "shape2d", "name",
+           "slices", "executor"]
 
 MAX_SEED = 2**63 - 1
 """Seeds are whole numbers in 0..2**63-1 (they are hashed as 64-bit integers)."""
@@ -80,6 +83,56 @@ def whole(param: str, value: Any, *, minimum: int | None = None, maximum: int | 
         result = int(as_float)
     _bounds(param, result, minimum, maximum, None)
     return result
+
+
+_INTEGER = re.compile(r"^\s*[+-]?[0-9]+\s*$")  # not Python's int(): no '1_0', no other scripts' digits
+
+
+def whole_text(text: str, *, minimum: int | None = None, maximum: int | None = None,
+               name: str = "whole number") -> int:
+    """An integer written in ASCII digits (a command-line option), within the bounds.
+
+    The message does not name the option: the command line's parser puts it in front.
+
+    Examples
+    --------
+    >>> whole_text(" 12 ", minimum=1)
+    12
+    >>> whole_text("1_0")
+    Traceback (most recent call last):
+    ...
+    ValueError: expected a whole number, got '1_0'
+    """
+    if not _INTEGER.match(text) or len(text.strip()) > 40:
+        raise ValueError(f"expected a {name}, got {text!r}")
+    value = int(text)
+    if minimum is not None and value < minimum:
+        raise ValueError(f"must be >= {minimum}, got {value}")
+    if maximum is not None and value > maximum:
+        raise ValueError(f"must be <= {maximum}, got {value}")
+    return value
+
+
+def whole_option(*, minimum: int | None = None, maximum: int | None = None,
+                 name: str = "whole number") -> Callable[[str], int]:
+    """An argparse type: an integer within bounds (``1.5``, ``1e3``, ``inf`` and ``1_0`` are refused).
+
+    Examples
+    --------
+    >>> parser = argparse.ArgumentParser()
+    >>> _ = parser.add_argument("--spp", type=whole_option(minimum=1))
+    >>> parser.parse_args(["--spp", "4"]).spp
+    4
+    """
+
+    def parse(text: str) -> int:
+        try:
+            return whole_text(text, minimum=minimum, maximum=maximum, name=name)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    parse.__name__ = name
+    return parse
 
 
 def flag(param: str, value: Any) -> bool:

@@ -12,6 +12,7 @@ import math
 import re
 from collections.abc import Callable
 
+from awr_denoise import _checks
 from awr_denoise.features import feature_names
 from awr_denoise.wavelets import WAVELET_NAMES
 
@@ -66,25 +67,8 @@ def real(*, minimum: float | None = None, maximum: float | None = None, above: f
     return parse
 
 
-_INTEGER = re.compile(r"^\s*[+-]?[0-9]+\s*$")  # not Python's int(): no '1_0', no other scripts' digits
-
-
-def whole(*, minimum: int | None = None, maximum: int | None = None,
-          name: str = "whole number") -> Callable[[str], int]:
-    """An argparse type: an integer within bounds (``1.5``, ``1e3`` and ``inf`` are refused)."""
-
-    def parse(text: str) -> int:
-        if not _INTEGER.match(text) or len(text.strip()) > 40:
-            raise argparse.ArgumentTypeError(f"expected a {name}, got {text!r}")
-        value = int(text)
-        if minimum is not None and value < minimum:
-            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
-        if maximum is not None and value > maximum:
-            raise argparse.ArgumentTypeError(f"must be <= {maximum}, got {value}")
-        return value
-
-    parse.__name__ = name
-    return parse
+whole = _checks.whole_option
+"""An argparse type: an integer within bounds (``1.5``, ``1e3`` and ``inf`` are refused)."""
 
 
 def _too_many_pixels(height: int, width: int) -> str | None:

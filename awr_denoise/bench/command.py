@@ -9,10 +9,14 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from .._checks import whole_option
 from .config import OVERHEAD_SIZES, BenchmarkConfig
 from .runner import run_benchmark
 
 __all__ = ["DESCRIPTION", "add_arguments", "config_from_args", "run_from_args", "main"]
+
+_MAX_SPP = 2**24  # as awr render's --spp: float32 counts stay exact
+_SIDES = (16, 2**14)  # smaller images leave the crops and the c_s sweep nothing to show
 
 DESCRIPTION = "The speed/accuracy benchmark on the bundled path-traced scenes (``awr bench``)."
 """One-line description of ``python -m awr_denoise.bench``."""
@@ -43,11 +47,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                         help="where benchmarks.md and img/ go (default: docs)")
     parser.add_argument("--results", type=Path, default=None,
                         help="JSON output (default: benchmarks/results/quality.json beside the output dir)")
-    parser.add_argument("--reference-spp", type=int, default=None,
-                        help="re-render (and cache) references below this spp with the tracer")
-    parser.add_argument("--spp", type=int, nargs="+", default=None, help="average spp to measure at")
-    parser.add_argument("--size", type=int, nargs=2, metavar=("WIDTH", "HEIGHT"), default=None,
-                        help="override the scenes' resolution (references are then rendered on the fly)")
+    parser.add_argument("--reference-spp", type=whole_option(minimum=1, maximum=_MAX_SPP), default=None,
+                        help="re-render references below this spp with the tracer, replacing the cached ones "
+                             "(data/references in a checkout, or $AWR_DENOISE_REFERENCE_DIR)")
+    parser.add_argument("--spp", type=whole_option(minimum=1, maximum=_MAX_SPP), nargs="+", default=None,
+                        help="average spp to measure at")
+    parser.add_argument("--size", type=whole_option(minimum=_SIDES[0], maximum=_SIDES[1]), nargs=2,
+                        metavar=("WIDTH", "HEIGHT"), default=None,
+                        help=f"override the scenes' resolution, {_SIDES[0]}-{_SIDES[1]} pixels a side (references "
+                             "are then rendered on the fly)")
     parser.add_argument("--overhead-sizes", nargs="*", choices=tuple(OVERHEAD_SIZES), default=None, metavar="SIZE",
                         help=f"image sizes of the overhead measurement ({', '.join(OVERHEAD_SIZES)}; none to skip)")
     parser.add_argument("--no-oidn", action="store_true", help="skip Open Image Denoise even if installed")
@@ -102,8 +110,8 @@ def run_from_args(args: argparse.Namespace) -> int:
     Returns
     -------
     int
-        0, or 1 when the run itself fails (a missing extra, an unknown scene): one line on
-        stderr names the problem.
+        0; 2 for a bad option (an unknown scene, an output that cannot be written), 1 for a
+        missing extra: one line on stderr names the problem.
 
     Raises
     ------
@@ -115,9 +123,12 @@ def run_from_args(args: argparse.Namespace) -> int:
         results = run_benchmark(config, output_dir=args.output_dir, results_path=args.results,
                                 plots=not args.no_plots, progress=not args.quiet,
                                 mode_name="quick" if args.quick else "full")
-    except (ImportError, ValueError) as exc:
+    except ImportError as exc:
         print(f"awr bench: {exc}", file=sys.stderr)
         return 1
+    except (ValueError, FileExistsError, FileNotFoundError) as exc:  # the user's options: nothing was written
+        print(f"awr bench: {exc}", file=sys.stderr)
+        return 2
     s = results["summary"]
     print(f"{'scene':<14} " + " ".join(f"{m:>16}" for m in s["scenes"][next(iter(s["scenes"]))]["relmse"]))
     for name, entry in s["scenes"].items():

@@ -7,6 +7,7 @@ state), so drawing them leaves an interactive matplotlib untouched.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -46,7 +47,8 @@ def require_matplotlib() -> type:
     return Figure
 
 
-def write_figures(results: dict[str, Any], images: dict[str, Any], img_dir: Path) -> dict[str, str]:
+def write_figures(results: dict[str, Any], images: dict[str, Any], img_dir: Path, *,
+                  place: Callable[[Path], Path] | None = None) -> dict[str, str]:
     """Draw every figure of ``docs/benchmarks.md`` into ``img_dir``.
 
     Parameters
@@ -57,6 +59,10 @@ def write_figures(results: dict[str, Any], images: dict[str, Any], img_dir: Path
         Per scene, the images kept by :func:`awr_denoise.bench.runner.scene_benchmark`.
     img_dir
         Where the PNG files go (created).
+    place
+        Where each figure's file is written instead of its name in ``img_dir`` (a temporary,
+        moved into place with the run's other outputs), e.g. :meth:`OutputSet.add
+        <awr_denoise.io.atomic.OutputSet.add>`.
 
     Returns
     -------
@@ -69,17 +75,20 @@ def write_figures(results: dict[str, Any], images: dict[str, Any], img_dir: Path
     img_dir.mkdir(parents=True, exist_ok=True)
     scenes = list(results["scenes"])
     figs: dict[str, str] = {}
-    figs["error_vs_spp"] = _save(_error_vs_spp(figure, results, scenes), img_dir / "bench_error_vs_spp.png")
-    figs["error_vs_time"] = _save(_error_vs_time(figure, results, scenes), img_dir / "bench_error_vs_time.png")
-    figs["density"] = _save(_density(figure, images, scenes), img_dir / "bench_density.png")
-    figs["crops"] = _save(_crops(figure, images, scenes), img_dir / "bench_crops.png", dpi=90)
+    figs["error_vs_spp"] = _save(_error_vs_spp(figure, results, scenes), img_dir / "bench_error_vs_spp.png",
+                                 place=place)
+    figs["error_vs_time"] = _save(_error_vs_time(figure, results, scenes), img_dir / "bench_error_vs_time.png",
+                                  place=place)
+    figs["density"] = _save(_density(figure, images, scenes), img_dir / "bench_density.png", place=place)
+    figs["crops"] = _save(_crops(figure, images, scenes), img_dir / "bench_crops.png", dpi=90, place=place)
     for key, fields, fname in (("cs_relmse", ("relmse",), "bench_cs_relmse.png"),
                                ("cs_bias_variance", ("bias2", "variance"), "bench_cs_bias_variance.png")):
-        figs[key] = _save(_cs_sweep(figure, results, scenes, key, fields), img_dir / fname)
-    figs["domain_crops"] = _save(_domain_crops(figure, images, scenes), img_dir / "bench_domain_crops.png", dpi=90)
+        figs[key] = _save(_cs_sweep(figure, results, scenes, key, fields), img_dir / fname, place=place)
+    figs["domain_crops"] = _save(_domain_crops(figure, images, scenes), img_dir / "bench_domain_crops.png", dpi=90,
+                                 place=place)
     ov = results.get("overhead", {})
     if ov.get("sizes"):
-        figs["overhead"] = _save(_overhead(figure, ov), img_dir / "bench_overhead.png")
+        figs["overhead"] = _save(_overhead(figure, ov), img_dir / "bench_overhead.png", place=place)
     return figs
 
 
@@ -102,9 +111,9 @@ def error_window(error_map: FloatArray, size: int) -> tuple[slice, slice]:
     return slice(r, r + size), slice(c, c + size)
 
 
-def _save(fig: Any, path: Path, dpi: int = 80) -> str:
+def _save(fig: Any, path: Path, dpi: int = 80, place: Callable[[Path], Path] | None = None) -> str:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi, bbox_inches="tight")
+    fig.savefig(path if place is None else place(path), dpi=dpi, bbox_inches="tight", format="png")
     return path.name
 
 

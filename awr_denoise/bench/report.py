@@ -71,14 +71,17 @@ def _shown_path(path: Path) -> str:
 def _kept_notes(path: Path) -> str:
     """The hand-written notes of the existing page at ``path`` (empty when none)."""
     if path.is_file():
-        old = path.read_text()
+        try:
+            old = path.read_text(encoding="utf-8")
+        except UnicodeDecodeError:
+            raise ValueError(f"{path}: not a text page, so its notes cannot be kept; move it away") from None
         if NOTES_BEGIN in old and NOTES_END in old:
             return old[old.index(NOTES_BEGIN) + len(NOTES_BEGIN):old.index(NOTES_END)].strip("\n")
     return ""
 
 
 def write_markdown(results: dict[str, Any], figures: dict[str, str], path: Path,
-                   results_path: str | Path | None) -> None:
+                   results_path: str | Path | None, *, out: Path | None = None) -> None:
     """Write the benchmark's page to ``path``, keeping the notes of the page already there.
 
     Parameters
@@ -92,6 +95,9 @@ def write_markdown(results: dict[str, Any], figures: dict[str, str], path: Path,
         The page (``benchmarks.md``); its directory is created.
     results_path
         Where the raw numbers were written (named in the page), or ``None``.
+    out
+        Where to write the page instead of ``path`` (a temporary, moved into place with the
+        run's other outputs); the notes are read from ``path``.
     """
     scenes = list(results["scenes"])
     methods = [m for m in METHODS if all(m in results["scenes"][s]["methods"] for s in scenes)]
@@ -107,8 +113,9 @@ def write_markdown(results: dict[str, Any], figures: dict[str, str], path: Path,
     lines += _other_defaults(results, scenes)
     lines += _overhead(results, figures)
     lines += _mitsuba(results)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("\n".join(lines).rstrip() + "\n")
+    target = path if out is None else Path(out)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    target.write_text("\n".join(lines).rstrip() + "\n", encoding="utf-8")
 
 
 def _intro(results: dict[str, Any], scenes: list[str], results_path: str | Path | None, notes: str) -> list[str]:

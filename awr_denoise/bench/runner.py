@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from collections.abc import Callable
@@ -15,6 +16,7 @@ from tqdm import tqdm
 
 from .._typing import FloatArray
 from ..buffers import SampleBuffer
+from ..io.atomic import OutputSet, check_writable
 from ..metrics import RELMSE_EPSILON, relmse
 from ..reconstruct import reconstruct
 from ..sampling import UniformSampler
@@ -28,7 +30,7 @@ from .overhead import measure_overhead
 from .peers import oidn_available, oidn_denoise, require_skimage, skimage_denoise
 from .records import machine_info, write_json
 from .rendering import make_tracer, reference_image, tracer_module
-from .report import write_markdown
+from .report import _kept_notes, write_markdown
 from .sweeps import cs_sweep, defaults_sweep
 
 __all__ = ["run_benchmark", "scene_benchmark"]
@@ -66,12 +68,14 @@ def run_benchmark(config: BenchmarkConfig | None = None, *, output_dir: str | Pa
     Raises
     ------
     ValueError
-        An unknown scene name.
+        An unknown or repeated scene name, or an output that cannot be written (checked before
+        anything is measured; nothing is written then).
     ImportError
         A needed extra (``tracer``, ``bench``) is missing; the message says what to install.
     """
     config = config or BenchmarkConfig()
     scenes = _checked_scenes(config)
+    mitsuba_scene_names(config)  # unknown names are refused even when Mitsuba is not run
     require_skimage()
     if plots and output_dir is not None:
         require_matplotlib()  # fail early, with the install hint
@@ -79,6 +83,7 @@ def run_benchmark(config: BenchmarkConfig | None = None, *, output_dir: str | Pa
     out_dir = None if output_dir is None else Path(output_dir)
     if results_path is None and out_dir is not None:
         results_path = out_dir.resolve().parent / "benchmarks" / "results" / "quality.json"
+    _check_outputs(out_dir, None if results_path is None else Path(results_path), plots)
 
     stages = len(scenes) * (5 + int(config.defaults_sweep)) + len(config.overhead_sizes) + 1 + \
         (len(mitsuba_scene_names(config)) if config.mitsuba else 0)
@@ -111,21 +116,58 @@ def run_benchmark(config: BenchmarkConfig | None = None, *, output_dir: str | Pa
             bar.close()
     results["summary"] = summarize(results, config)
     results["meta"]["run_seconds"] = time.perf_counter() - started
-    if results_path is not None:
-        write_json(results_path, results)
-    if out_dir is not None:
-        figures = write_figures(results, all_images, out_dir / "img") if plots else {}
-        write_markdown(results, figures, out_dir / "benchmarks.md", results_path)
+    # The JSON, the figures and the page: all of them or none (an interrupt leaves the old ones).
+    with OutputSet(overwrite=True) as outputs:
+        if results_path is not None:
+            Path(results_path).parent.mkdir(parents=True, exist_ok=True)
+            write_json(outputs.add(results_path), results)
+        if out_dir is not None:
+            out_dir.mkdir(parents=True, exist_ok=True)
+            figures = write_figures(results, all_images, out_dir / "img", place=outputs.add) if plots else {}
+            write_markdown(results, figures, out_dir / "benchmarks.md", results_path,
+                           out=outputs.add(out_dir / "benchmarks.md"))
+        outputs.commit()
     return results
+
+
+def _check_outputs(out_dir: Path | None, results_path: Path | None, plots: bool) -> None:
+    """Refuse, before anything is measured, outputs the run could not write at its end."""
+    checks = []
+    if results_path is not None:
+        if results_path.suffix.lower() != ".json":
+            raise ValueError(f"results_path / --results: {results_path} is not a .json file")
+        checks.append(("results_path / --results", results_path))
+    if out_dir is not None:
+        checks.append(("output_dir / --output-dir", out_dir / "benchmarks.md"))
+        if plots:
+            checks.append(("output_dir / --output-dir", out_dir / "img" / "bench_crops.png"))
+    for param, path in checks:
+        folder = path.parent
+        while not folder.exists():  # created at the end: its nearest existing parent must take it
+            if not os.path.lexists(folder):
+                folder = folder.parent
+                continue
+            raise ValueError(f"{param}: {folder} is a broken symbolic link")
+        try:
+            if not folder.is_dir():
+                raise ValueError(f"{folder} is not a folder")
+            # The target itself when its folder exists (a regular file, replaced), else a probe there.
+            check_writable(path if folder == path.parent else folder / ".awr-bench", overwrite=True)
+        except (ValueError, FileNotFoundError) as exc:
+            raise ValueError(f"{param}: {exc}") from None
+    if out_dir is not None:
+        _kept_notes(out_dir / "benchmarks.md")  # an unreadable page is refused now, not after the run
 
 
 def _checked_scenes(config: BenchmarkConfig) -> list[str]:
     """The scenes to run; a :class:`ValueError` naming an unknown one."""
     tracer = tracer_module()
     scenes = list(config.scenes) if config.scenes else tracer.list_scenes()
-    for name in scenes:
+    for k, name in enumerate(scenes):
         if name not in tracer.list_scenes():
             raise ValueError(f"scenes: {name!r} is not one of {', '.join(tracer.list_scenes())}")
+        if name in scenes[:k]:
+            raise ValueError(f"scenes: {name!r} is given twice")
     return scenes
 
 

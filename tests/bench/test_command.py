@@ -29,7 +29,7 @@ def test_main_rejects_an_unknown_scene(tmp_path, capsys):
     pytest.importorskip("embreex")
     pytest.importorskip("skimage")
     code = main(["--quick", "--scenes", "no_such_scene", "--output-dir", str(tmp_path), "--quiet", "--no-plots"])
-    assert code == 1
+    assert code == 2
     assert "no_such_scene" in capsys.readouterr().err
     assert not (tmp_path / "benchmarks.md").exists()
 
@@ -57,4 +57,65 @@ def test_awr_bench_subcommand_runs_the_benchmark(tmp_path, capsys):
     assert "Headline" in page
     assert "Raw numbers: `q.json`" in page and str(tmp_path) not in page  # never a machine path
     assert awr_main(["bench", "--quick", "--scenes", "nowhere", "--quiet", "--no-plots",
-                     "--output-dir", str(tmp_path / "other")]) == 1
+                     "--output-dir", str(tmp_path / "other")]) == 2
+
+
+_TINY = ["bench", "--quick", "--scenes", "default", "--size", "16", "16", "--spp", "4", "--overhead-sizes",
+         "--no-oidn", "--no-mitsuba", "--quiet"]
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["--spp", "0"], "--spp"), (["--spp", "1_0"], "--spp"), (["--spp", "99999999999999999999"], "--spp"),
+    (["--size", "1", "1"], "--size"), (["--size", "16", "100000"], "--size"), (["--reference-spp", "-1"],
+                                                                                "--reference-spp")])
+def test_bad_values_are_refused_by_the_parser(argv, option, tmp_path, capsys):
+    from awr_denoise.cli.main import main as awr_main
+
+    assert awr_main(["bench", *argv, "--output-dir", str(tmp_path / "docs")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and option in err[0]
+    assert not any(tmp_path.iterdir())
+
+
+def _refused_before_the_run(tmp_path, monkeypatch, capsys, argv, needle):
+    """``awr bench`` refuses ``argv`` with exit 2 and one line, before measuring and writing anything."""
+    from awr_denoise.bench import runner
+    from awr_denoise.cli.main import main as awr_main
+
+    def no_run(*args, **kwargs):
+        raise AssertionError("the run started")
+
+    monkeypatch.setattr(runner, "scene_benchmark", no_run)
+    before = sorted((p.relative_to(tmp_path), p.is_file() and p.read_bytes()) for p in tmp_path.rglob("*"))
+    assert awr_main([*_TINY, *argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0], err
+    assert sorted((p.relative_to(tmp_path), p.is_file() and p.read_bytes()) for p in tmp_path.rglob("*")) == before
+
+
+def test_outputs_that_cannot_be_written_are_refused_before_the_run(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("embreex")
+    pytest.importorskip("skimage")
+    pytest.importorskip("matplotlib")
+    (tmp_path / "reference.exr").write_bytes(b"v/1\x01 an input")
+    (tmp_path / "afile").write_text("x")
+    (tmp_path / "docs" / "img").mkdir(parents=True)
+    (tmp_path / "docs2").mkdir()
+    (tmp_path / "docs2" / "img").write_text("a file where the figures go")
+    (tmp_path / "docs3").mkdir()
+    (tmp_path / "docs3" / "benchmarks.md").write_bytes(b"\xff\xfe\x00binary")
+    (tmp_path / "q.json").mkdir()
+    docs = ["--output-dir", str(tmp_path / "docs")]
+    for argv, needle in (
+            ([*docs, "--results", str(tmp_path / "reference.exr")], "--results"),  # an input, not a .json
+            ([*docs, "--results", str(tmp_path / "q.json")], "--results"),  # a folder
+            ([*docs, "--results", ""], "--results"),
+            (["--output-dir", str(tmp_path / "afile"), "--results", str(tmp_path / "r.json")], "--output-dir"),
+            (["--output-dir", str(tmp_path / "docs2"), "--results", str(tmp_path / "r.json")], "--output-dir"),
+            (["--output-dir", str(tmp_path / "docs3"), "--results", str(tmp_path / "r.json")], "benchmarks.md"),
+            ([*docs, "--results", str(tmp_path / "r.json"), "--scenes", "default", "default"], "given twice"),
+            ([*docs, "--results", str(tmp_path / "r.json"), "--mitsuba-scenes", "nosuch"], "nosuch")):
+        _refused_before_the_run(tmp_path, monkeypatch, capsys, argv, needle)
+    if __import__("os").path.isdir("/proc/self"):  # accepts mkdir from no one, root included
+        _refused_before_the_run(tmp_path, monkeypatch, capsys, ["--output-dir", "/proc/awr-bench",
+                                                               "--results", str(tmp_path / "r.json")], "--output-dir")

@@ -8,6 +8,7 @@ smooth-dominated scenes. No timing assertions.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -58,3 +59,27 @@ def test_unknown_scene_is_a_value_error_naming_it(tmp_path):
     with pytest.raises(ValueError, match="no_such_scene"):
         run_benchmark(BenchmarkConfig(scenes=("no_such_scene",)), output_dir=tmp_path, progress=False)
     assert not any(tmp_path.iterdir())
+
+
+def test_an_interrupt_while_the_outputs_are_written_leaves_the_old_ones(tmp_path, monkeypatch):
+    """The JSON, the figures and the page are replaced together or not at all."""
+    pytest.importorskip("embreex")
+    pytest.importorskip("skimage")
+    pytest.importorskip("matplotlib")
+    from awr_denoise.bench import figures, run_benchmark
+
+    config = BenchmarkConfig.quick(scenes=("default",), width=16, height=16, spps=(4,), uniform_max_spp=8,
+                                   inline_reference_spp=16, sweep_spp=4, sweep_seeds=2, c_s_values=(1.0,),
+                                   overhead_sizes=(), oidn=False, mitsuba=False, flag_seeds=1)
+    kwargs = dict(output_dir=tmp_path / "docs", results_path=tmp_path / "q.json", progress=False)
+    run_benchmark(config, **kwargs)
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    assert len(before) >= 3
+
+    def interrupted(*args, **kwargs):  # Ctrl-C after the JSON and two figures were written
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(figures, "_density", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run_benchmark(dataclasses.replace(config, seed=1), **kwargs)
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before  # no temporary left either
