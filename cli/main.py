@@ -143,7 +143,7 @@ def _run(argv: Sequence[str] | None) -> int:
     except ImportError as exc:
         return _error(exc, EXIT_FAILURE)
     except Exception as exc:  # a bug, not a user mistake: say so, traceback on request
-        if os.environ.get("AWR_TRACEBACK"):
+        if os.environ.get("AWR_TRACEBACK", "").strip().lower() in ("1", "true", "yes", "on"):
             raise
         return _error(f"internal error: {type(exc).__name__}: {_one_line(exc)} "
                       "(set AWR_TRACEBACK=1 to see the traceback)", EXIT_FAILURE)

@@ -171,3 +171,24 @@ def test_the_compiled_kernels_give_the_same_file(work, capsys, monkeypatch):
         assert main(["denoise", "d.exr", "-o", f"{value}.exr", "-q", "--stages", "1"]) == 0, capsys.readouterr().err
         outputs[value] = read_image(f"{value}.exr")
     assert (outputs["numpy"] == outputs["numba"]).all()
+
+
+@pytest.mark.parametrize("setting, shown", [(None, False), ("0", False), ("", False), ("no", False),
+                                            ("1", True), ("true", True)])
+def test_awr_traceback_shows_the_traceback_only_when_asked_for(setting, shown, monkeypatch, capsys):
+    from awr_denoise.cli import info_cmd
+
+    def bug(args):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(info_cmd, "run", bug)
+    if setting is None:
+        monkeypatch.delenv("AWR_TRACEBACK", raising=False)
+    else:
+        monkeypatch.setenv("AWR_TRACEBACK", setting)
+    if shown:
+        with pytest.raises(RuntimeError, match="a bug"):
+            main(["info", "x.exr"])
+    else:
+        assert main(["info", "x.exr"]) == 1
+        assert "internal error: RuntimeError: a bug" in capsys.readouterr().err
