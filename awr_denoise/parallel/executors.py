@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import json
 import multiprocessing
 import os
 import signal
@@ -146,15 +147,48 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
                 # instead of 8787, so several clusters can coexist without a port warning.
                 scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}))
             client = stack.enter_context(distributed.Client(cluster))
-        elif Path(scheduler).suffix == ".json" and Path(scheduler).is_file():
-            client = stack.enter_context(distributed.Client(scheduler_file=str(scheduler)))
         else:
-            client = stack.enter_context(distributed.Client(str(scheduler)))
+            client = stack.enter_context(_connect(distributed, _scheduler_address(distributed, scheduler)))
         executor = client.get_executor(pure=False)
         try:
             yield executor
         finally:
             executor.shutdown(wait=True)
+
+
+def _scheduler_address(distributed: Any, scheduler: str | os.PathLike[str]) -> str:
+    """The address of ``scheduler`` (an address, or a scheduler file's ``"address"``), checked before connecting."""
+    text = os.fspath(scheduler)
+    if Path(text).suffix == ".json":
+        try:
+            info = json.loads(Path(text).read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise ValueError(f"scheduler: {text}: no such scheduler file") from None
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"scheduler: {text}: not a Dask scheduler file ({exc})") from None
+        address = info.get("address") if isinstance(info, dict) else None
+        if not isinstance(address, str) or not address:
+            raise ValueError(f"scheduler: {text}: not a Dask scheduler file (no \"address\")")
+        text = address
+    try:
+        scheme, location = distributed.comm.parse_address(text)
+        distributed.comm.registry.get_backend(scheme)  # an unknown scheme: ValueError
+        if scheme in ("tcp", "tls"):
+            distributed.comm.addressing.parse_host_port(location)
+    except ValueError as exc:
+        raise ValueError(f"scheduler: {text!r} is not a scheduler address ({exc})") from None
+    return text
+
+
+def _connect(distributed: Any, address: str) -> Any:
+    """A ``distributed.Client`` of ``address``; a service that is not a Dask scheduler is a ``ConnectionError``."""
+    try:
+        return distributed.Client(address)
+    except MemoryError:  # another service's reply, read as the length of a Dask message (exabytes)
+        raise ConnectionError(f"scheduler: {address}: not a Dask scheduler (its reply is no Dask message)") from None
+    except OSError as exc:  # refused, timed out, closed (CommClosedError): nothing to run on
+        raise ConnectionError(f"scheduler: {address}: cannot connect ({' '.join(str(exc).split()) or type(exc).__name__})"
+                              ) from None
 
 
 @contextlib.contextmanager

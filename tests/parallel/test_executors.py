@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures as cf
+import contextlib
+import socket
 import sys
+import threading
 
 import pytest
 
@@ -58,3 +61,39 @@ def test_dask_executor_from_a_scheduler_file(cluster):
     assert cluster.scheduler_file_path.is_file()
     with get_executor(scheduler=cluster.scheduler_file_path) as executor:
         assert executor.submit(abs, -7).result() == 7
+
+
+def test_a_scheduler_that_is_not_one_is_refused_naming_it(tmp_path):
+    """Files and addresses are checked before connecting; a service that is not Dask fails at once."""
+    pytest.importorskip("distributed")
+    (tmp_path / "bad.json").write_text('{"garbage": true')
+    (tmp_path / "empty.json").write_text('{"type": "Scheduler"}')
+    for scheduler, match in ((tmp_path / "bad.json", "bad.json: not a Dask scheduler file"),
+                             (tmp_path / "empty.json", 'empty.json: not a Dask scheduler file .no "address"'),
+                             (tmp_path / "missing.json", "missing.json: no such scheduler file"),
+                             ("foo", "'foo' is not a scheduler address"),
+                             ("tcp://127.0.0.1:notaport", "is not a scheduler address"),
+                             ("http://127.0.0.1:1", "unknown address scheme 'http'")):
+        with pytest.raises(ValueError, match=f"scheduler: .*{match}"):
+            with get_executor(scheduler=scheduler):
+                pass
+    # A server that answers with something else (an HTTP error): read as a Dask message length of
+    # exabytes, it was reported as "out of memory".
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+
+    def answer() -> None:
+        with contextlib.suppress(OSError):
+            while True:
+                conn, _ = server.accept()
+                with conn:
+                    conn.sendall(b"HTTP/1.0 400 Bad Request\r\n\r\n" * 4)
+
+    threading.Thread(target=answer, daemon=True).start()
+    try:
+        # (Which of the two depends on how the Dask version reads the reply; never a MemoryError.)
+        with pytest.raises(ConnectionError, match=f"scheduler: tcp://127.0.0.1:{port}: (not a Dask|cannot connect)"):
+            with get_executor(scheduler=f"tcp://127.0.0.1:{port}"):
+                pass
+    finally:
+        server.close()
