@@ -12,9 +12,11 @@ from __future__ import annotations
 import concurrent.futures as cf
 import contextlib
 import json
+import logging
 import multiprocessing
 import os
 import signal
+import threading
 from collections.abc import Callable, Iterator
 from concurrent.futures import Executor
 from pathlib import Path
@@ -36,6 +38,25 @@ def _leave_interrupts_to_the_parent() -> None:
     """Worker processes ignore Ctrl-C: the terminal sends it to the whole process group, and the
     parent, which owns the pool, cancels the work and cleans up (no traceback per worker)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@contextlib.contextmanager
+def _children_ignore_interrupts() -> Iterator[None]:
+    """Processes started inside ignore Ctrl-C, as :func:`_leave_interrupts_to_the_parent` makes a pool's.
+
+    Dask's nannies start their worker processes themselves (no initializer to pass), but an
+    ignored SIGINT is inherited through ``exec`` and Python keeps it ignored: the parent, which
+    owns the cluster, stops the work and closes it, without a traceback per worker. Only the
+    main thread may set handlers; elsewhere nothing changes.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    saved = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, saved)
 
 
 def default_workers() -> int:
@@ -140,20 +161,29 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
     with contextlib.ExitStack() as stack:
         if scheduler is None:
             stack.enter_context(_glibc_malloc_tuning())
-            cluster = stack.enter_context(distributed.LocalCluster(
-                n_workers=n_workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                dashboard_address=None,
-                # No dashboard; the scheduler's remaining HTTP routes take a free loopback port
-                # instead of 8787, so several clusters can coexist without a port warning.
-                scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}))
+            with _children_ignore_interrupts():
+                cluster = distributed.LocalCluster(
+                    n_workers=n_workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                    dashboard_address=None,
+                    # No dashboard; the scheduler's remaining HTTP routes take a free loopback port
+                    # instead of 8787, so several clusters can coexist without a port warning.
+                    scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+                    # Task errors reach the caller as exceptions; the workers' warnings (a
+                    # cancelled task, a lost heartbeat while closing) are noise on a terminal.
+                    silence_logs=logging.ERROR)
+            stack.enter_context(cluster)
             client = stack.enter_context(distributed.Client(cluster))
         else:
             client = stack.enter_context(_connect(distributed, _scheduler_address(distributed, scheduler)))
         executor = client.get_executor(pure=False)
         try:
             yield executor
-        finally:
-            executor.shutdown(wait=True)
+        except BaseException:
+            # Ctrl-C reaches a local cluster's workers too (one process group): waiting for
+            # their futures would wait for ever. Cancel them; closing the cluster ends the rest.
+            executor.shutdown(wait=False)
+            raise
+        executor.shutdown(wait=True)
 
 
 def _scheduler_address(distributed: Any, scheduler: str | os.PathLike[str]) -> str:

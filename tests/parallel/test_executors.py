@@ -97,3 +97,27 @@ def test_a_scheduler_that_is_not_one_is_refused_naming_it(tmp_path):
                 pass
     finally:
         server.close()
+
+
+def _sigint_ignored() -> bool:
+    import signal
+
+    return signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+
+
+def test_a_local_dask_cluster_leaves_ctrl_c_to_the_parent():
+    """Its workers ignore SIGINT (a terminal sends it to the whole group), and an interrupt in
+    the parent cancels the work instead of waiting for it (it waited for ever once the workers
+    had died of the same Ctrl-C)."""
+    pytest.importorskip("distributed")
+    import signal
+    import time
+
+    handler = signal.getsignal(signal.SIGINT)
+    with pytest.raises(KeyboardInterrupt):
+        with get_executor("dask", workers=1) as executor:
+            assert executor.submit(_sigint_ignored).result() is True
+            assert signal.getsignal(signal.SIGINT) is handler  # the parent's own is back
+            pending = executor.submit(time.sleep, 20)
+            raise KeyboardInterrupt
+    assert pending.cancelled()
