@@ -11,13 +11,18 @@ import contextlib
 from concurrent.futures import Executor
 
 from awr_denoise.parallel import DASK_INSTALL_HINT, EXECUTOR_KINDS, get_executor
+from awr_denoise.parallel.executors import default_workers
 
 from .values import MAX_SIDE, whole
 
-__all__ = ["add_executor_arguments", "executor_from_args", "executor_requested", "MAX_WORKERS"]
+__all__ = ["add_executor_arguments", "executor_from_args", "executor_requested", "MAX_WORKERS",
+           "LOCAL_PROCESSES_PER_CPU"]
 
 MAX_WORKERS = 4096
 """Most workers one command starts."""
+
+LOCAL_PROCESSES_PER_CPU = 4
+"""Most local worker processes (``--executor processes`` or a local Dask cluster) per CPU."""
 
 
 def add_executor_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, *,
@@ -69,7 +74,8 @@ def executor_from_args(args: argparse.Namespace) -> contextlib.AbstractContextMa
     Raises
     ------
     ValueError
-        ``--scheduler`` with ``--executor threads`` or ``processes``, or ``--workers`` below 1.
+        ``--scheduler`` with ``--executor threads`` or ``processes``, ``--workers`` below 1, or
+        more local processes than :data:`LOCAL_PROCESSES_PER_CPU` per CPU.
     """
     workers = getattr(args, "workers", None)
     scheduler = getattr(args, "scheduler", None)
@@ -78,4 +84,9 @@ def executor_from_args(args: argparse.Namespace) -> contextlib.AbstractContextMa
         raise ValueError(f"--scheduler: needs --executor dask, not --executor {kind}")
     if workers is not None and workers < 1:
         raise ValueError(f"--workers: must be >= 1, got {workers}")
+    most = LOCAL_PROCESSES_PER_CPU * default_workers()
+    if workers is not None and workers > most and kind in ("processes", "dask") and scheduler is None:
+        # Each is a Python process with numpy (about 60-100 MB): thousands exhaust memory.
+        raise ValueError(f"--workers: {workers} local processes on a machine with {default_workers()} CPUs; "
+                         f"at most {most} (threads, the default --executor, are not limited so)")
     return get_executor(kind, workers=workers, scheduler=scheduler)

@@ -34,3 +34,19 @@ def test_executor_arguments_round_trip():
     assert with_tile.parse_args([]).tile == 128 and with_tile.parse_args(["--tile", "64"]).tile == 64
 
 
+
+
+def test_local_processes_are_limited_per_cpu(monkeypatch):
+    """--workers 4096 --executor processes started hundreds of processes and exhausted memory."""
+    from awr_denoise.cli import parallel_options
+
+    monkeypatch.setattr(parallel_options, "default_workers", lambda: 2)
+    parser = argparse.ArgumentParser()
+    add_executor_arguments(parser)
+    for argv in (["--executor", "processes", "--workers", "9"], ["--executor", "dask", "--workers", "4096"]):
+        with pytest.raises(ValueError, match=r"--workers: \d+ local processes on a machine with 2 CPUs; at most 8"):
+            executor_from_args(parser.parse_args(argv))
+    with executor_from_args(parser.parse_args(["--workers", "9"])) as executor:  # threads are cheap
+        assert executor._max_workers == 9
+    with executor_from_args(parser.parse_args(["--executor", "processes", "--workers", "8"])) as executor:
+        assert isinstance(executor, cf.ProcessPoolExecutor)
