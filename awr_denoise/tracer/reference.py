@@ -40,11 +40,14 @@ _HALF_MAX = 65504.0
 def reference_dir() -> Path:
     """Where references are cached.
 
-    ``$AWR_DENOISE_REFERENCE_DIR`` if set; else the repository's ``data/references`` when
-    running from a checkout; else ``~/.cache/awr-denoise/references``.
+    ``$AWR_DENOISE_REFERENCE_DIR`` if set (a folder, or a path to create one at; a file is a
+    ``ValueError``); else the repository's ``data/references`` when running from a checkout;
+    else ``~/.cache/awr-denoise/references``.
     """
     override = os.environ.get("AWR_DENOISE_REFERENCE_DIR")
     if override:
+        if os.path.exists(override) and not os.path.isdir(override):  # found now, not after a render
+            raise ValueError(f"AWR_DENOISE_REFERENCE_DIR: {override} is not a folder")
         return Path(override)
     repo_data = Path(__file__).resolve().parents[2] / "data"
     if repo_data.is_dir():

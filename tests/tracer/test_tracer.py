@@ -538,6 +538,18 @@ def test_reference_is_rendered_cached_and_reloaded(tmp_path: Path, monkeypatch: 
         load_reference("x")
 
 
+def test_a_reference_dir_that_is_a_file_is_refused_before_any_render(tmp_path: Path,
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    from awr_denoise.tracer.reference import reference_path
+
+    (tmp_path / "refs").write_text("a file")
+    monkeypatch.setenv("AWR_DENOISE_REFERENCE_DIR", str(tmp_path / "refs"))
+    with pytest.raises(ValueError, match="AWR_DENOISE_REFERENCE_DIR: .*refs is not a folder"):
+        reference_path("default")
+    monkeypatch.setenv("AWR_DENOISE_REFERENCE_DIR", str(tmp_path / "new"))  # to be created: fine
+    assert reference_path("default") == tmp_path / "new" / "default.exr"
+
+
 @pytest.mark.exr
 def test_committed_references_are_small_and_state_their_spp() -> None:
     pytest.importorskip("OpenEXR")
