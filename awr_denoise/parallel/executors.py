@@ -9,6 +9,7 @@ on two cores two threads were about as much faster than one as two Dask worker p
 
 from __future__ import annotations
 
+import asyncio
 import concurrent.futures as cf
 import contextlib
 import json
@@ -210,10 +211,47 @@ def _scheduler_address(distributed: Any, scheduler: str | os.PathLike[str]) -> s
     return text
 
 
+_ANSWER_SECONDS = 30.0
+"""How long a scheduler has to say who it is (Dask's own connect timeout)."""
+
+
+def _identity(distributed: Any, address: str, seconds: float) -> Any:
+    """What the service at ``address`` says it is (Dask's ``identity``), asked within ``seconds``.
+
+    ``distributed.Client`` waits for the handshake without a limit: a service that accepts the
+    connection and never answers (an HTTP server, as the dashboard's port) would hold it for
+    ever. ``None`` inside a running event loop (a notebook's), where the Client is left to it.
+    """
+
+    async def ask() -> Any:
+        comm = await distributed.comm.connect(address, timeout=seconds)
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    try:
+        asyncio.get_running_loop()
+    except RuntimeError:
+        # Past the connection's own timeout (an unreachable host is an OSError of its own first).
+        return asyncio.run(asyncio.wait_for(ask(), 2 * seconds))
+    return None
+
+
 def _connect(distributed: Any, address: str) -> Any:
     """A ``distributed.Client`` of ``address``; a service that is not a Dask scheduler is a ``ConnectionError``."""
     try:
+        identity = _identity(distributed, address, _ANSWER_SECONDS)
+        if identity is not None and (not isinstance(identity, dict) or identity.get("type") != "Scheduler"):
+            kind = identity.get("type") if isinstance(identity, dict) else None
+            raise ConnectionError(f"scheduler: {address}: a Dask {kind or 'service'}, not a scheduler")
         return distributed.Client(address)
+    except (asyncio.TimeoutError, TimeoutError):  # the same class from Python 3.11 on
+        raise ConnectionError(f"scheduler: {address}: no Dask answer within {2 * _ANSWER_SECONDS:g} s (another "
+                              "service on that port?)") from None
+    except ConnectionError:
+        raise
     except MemoryError:  # another service's reply, read as the length of a Dask message (exabytes)
         raise ConnectionError(f"scheduler: {address}: not a Dask scheduler (its reply is no Dask message)") from None
     except OSError as exc:  # refused, timed out, closed (CommClosedError): nothing to run on

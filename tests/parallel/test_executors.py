@@ -121,3 +121,27 @@ def test_a_local_dask_cluster_leaves_ctrl_c_to_the_parent():
             pending = executor.submit(time.sleep, 20)
             raise KeyboardInterrupt
     assert pending.cancelled()
+
+
+def test_a_service_that_never_answers_or_is_no_scheduler_is_refused(cluster, monkeypatch):
+    """A port that accepts and stays silent (an HTTP server) held the client for ever; a worker's
+    address was taken for a scheduler's."""
+    pytest.importorskip("distributed")
+    from awr_denoise.parallel import executors
+
+    monkeypatch.setattr(executors, "_ANSWER_SECONDS", 0.5)
+    server = socket.create_server(("127.0.0.1", 0))
+    accepted = []
+    threading.Thread(target=lambda: accepted.append(server.accept()), daemon=True).start()
+    try:
+        with pytest.raises(ConnectionError, match=r"no Dask answer within 1 s"):
+            with get_executor(scheduler=f"tcp://127.0.0.1:{server.getsockname()[1]}"):
+                pass
+    finally:
+        server.close()
+        for conn, _ in accepted:
+            conn.close()
+    worker = next(iter(cluster.scheduler_info["workers"]))
+    with pytest.raises(ConnectionError, match="a Dask Worker, not a scheduler"):
+        with get_executor(scheduler=worker):
+            pass
