@@ -255,8 +255,8 @@ def _connect(distributed: Any, address: str) -> Any:
     except MemoryError:  # another service's reply, read as the length of a Dask message (exabytes)
         raise ConnectionError(f"scheduler: {address}: not a Dask scheduler (its reply is no Dask message)") from None
     except OSError as exc:  # refused, timed out, closed (CommClosedError): nothing to run on
-        raise ConnectionError(f"scheduler: {address}: cannot connect ({' '.join(str(exc).split()) or type(exc).__name__})"
-                              ) from None
+        why = " ".join(str(exc).split()) or type(exc).__name__
+        raise ConnectionError(f"scheduler: {address}: cannot connect ({why})") from None
 
 
 @contextlib.contextmanager
