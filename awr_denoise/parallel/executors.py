@@ -48,7 +48,8 @@ def _children_ignore_interrupts() -> Iterator[None]:
     Dask's nannies start their worker processes themselves (no initializer to pass), but an
     ignored SIGINT is inherited through ``exec`` and Python keeps it ignored: the parent, which
     owns the cluster, stops the work and closes it, without a traceback per worker. Only the
-    main thread may set handlers; elsewhere nothing changes.
+    main thread may set handlers; elsewhere nothing changes. The price: a Ctrl-C while the
+    cluster starts (a second or two) is ignored; the next one stops the command.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
