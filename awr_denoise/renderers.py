@@ -32,12 +32,13 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable
 from importlib.metadata import entry_points
+from pathlib import Path
 from typing import Any
 
 from .requests import Renderer
 
 __all__ = ["ENTRY_POINT_GROUP", "RendererFactory", "create_renderer", "register_renderer", "renderer_factory",
-           "renderer_names", "renderer_features", "renderer_scenes"]
+           "renderer_names", "renderer_features", "renderer_scenes", "renderer_scene_files"]
 
 ENTRY_POINT_GROUP = "awr_denoise.renderers"
 """Entry-point group in which other packages declare renderer factories."""
@@ -175,13 +176,40 @@ def renderer_features(name: str) -> list[str]:
     return _listed(name, "list_features")
 
 
-def _listed(name: str, function: str) -> list[str]:
-    """What the module declaring renderer ``name``'s factory lists with ``function()``, or nothing."""
+def renderer_scene_files(name: str, scene: Any) -> list[tuple[str, Path]]:
+    """The files a scene of renderer ``name`` reads besides itself, as ``(what, path)``.
+
+    Its module's ``scene_files(scene)`` (a texture, a mesh, an environment map or an included
+    file a scene file names), or none. A command checks them with its other inputs before
+    anything is read or written: an output must never replace one, and a FIFO among them would
+    block the render.
+
+    Raises
+    ------
+    ValueError, ImportError
+        As :func:`renderer_factory`; a ``ValueError`` for a scene file the module cannot read.
+
+    Examples
+    --------
+    >>> from awr_denoise.renderers import renderer_scene_files
+    >>> renderer_scene_files("synthetic", "edges"), renderer_scene_files("tracer", "default")
+    ([], [])
+    """
+    found = getattr(importlib.import_module(_module(name)), "scene_files", None)
+    return [(str(what), Path(path)) for what, path in found(scene)] if callable(found) else []
+
+
+def _module(name: str) -> str:
+    """The module declaring renderer ``name``'s factory."""
     factory = renderer_factory(name)
     # The module the factory is declared in (``module:function``), not the one defining it: a
     # package may re-export a factory written in a submodule.
-    module = factory.__module__ if name in _registered else _declared()[name].partition(":")[0]
-    listed = getattr(importlib.import_module(module), function, None)
+    return factory.__module__ if name in _registered else _declared()[name].partition(":")[0]
+
+
+def _listed(name: str, function: str) -> list[str]:
+    """What the module declaring renderer ``name``'s factory lists with ``function()``, or nothing."""
+    listed = getattr(importlib.import_module(_module(name)), function, None)
     return [str(item) for item in listed()] if callable(listed) else []
 
 

@@ -20,7 +20,13 @@ from awr_denoise.io import image_provenance, provenance, write_image, write_prev
 from awr_denoise.io.atomic import OutputSet
 from awr_denoise.noise_gain import DEFAULT_NOISE_MODEL
 from awr_denoise.parallel import RendererSpec, TiledRenderer
-from awr_denoise.renderers import create_renderer, renderer_features, renderer_names, renderer_scenes
+from awr_denoise.renderers import (
+    create_renderer,
+    renderer_features,
+    renderer_names,
+    renderer_scene_files,
+    renderer_scenes,
+)
 from awr_denoise.requests import Renderer, SampleTracer
 from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS
 
@@ -174,6 +180,14 @@ def _scene(args: argparse.Namespace) -> tuple[str, Any, str, tuple[int, int] | N
     return name, tracer.load_scene(name, width=args.width, height=args.height), Path(name).stem, None, options
 
 
+def _scene_files(renderer: str, scene: str) -> list[tuple[str, Path]]:
+    """The files ``scene`` makes ``renderer`` read (the registry's), a missing extra as a :class:`RuntimeFailure`."""
+    try:
+        return renderer_scene_files(renderer, scene)
+    except ImportError as exc:
+        raise RuntimeFailure(f"--renderer {renderer}: {exc}") from None
+
+
 def _registry(lookup: Callable[[str], list[str]], renderer: str) -> list[str]:
     """``lookup(renderer)`` (the registry's scenes or features), a missing extra as a :class:`RuntimeFailure`."""
     try:
@@ -206,10 +220,9 @@ def run(args: argparse.Namespace) -> int:
     given = args.scene_file or args.scene
     if given and (args.renderer != TRACER or Path(given).suffix == ".json") and Path(given).suffix:
         plan.read(given, "SCENE")
-        if args.renderer == TRACER:
-            plan.check()  # the scene file first: it is read for the files it names, checked with the rest
-            for field, path in tracer_module().scene_files(given):
-                plan.read(path, f"SCENE's {field}")
+        plan.check()  # the scene file first: it is read for the files it names, checked with the rest
+        for field, path in _scene_files(args.renderer, given):
+            plan.read(path, f"SCENE's {field}")
     plan.write(args.output, "-o/--output")
     plan.write(image_path, "--image" if args.image else "--image (DUMP.denoised.exr)")
     plan.write(preview_path, "--preview" if args.preview else "--preview (DUMP.denoised.png)")

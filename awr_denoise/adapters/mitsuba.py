@@ -29,6 +29,7 @@ import os
 import time
 import warnings
 from collections.abc import Sequence
+from xml.etree import ElementTree
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +43,8 @@ from ._mitsuba_runtime import DEFAULT_VARIANT, import_mitsuba, variant_of_scene,
 from ._samples import Chunk, PixelStatistics, aligned_u32, sample_chunks
 from .mitsuba_scenes import SCENE_NAMES, scene_dict
 
-__all__ = ["MitsubaRenderer", "create_renderer", "list_features", "list_scenes", "FEATURES", "DEFAULT_BATCH_SIZE", "DEFAULT_VARIANT"]
+__all__ = ["MitsubaRenderer", "create_renderer", "list_features", "list_scenes", "scene_files", "FEATURES",
+           "DEFAULT_BATCH_SIZE", "DEFAULT_VARIANT"]
 
 logger = logging.getLogger(__name__)
 
@@ -520,6 +522,53 @@ def _resized(scene: dict[str, Any], shape: Shape2D | None) -> dict[str, Any]:
     if not found:
         raise ValueError("shape: the scene dict has no sensor with a film dict to resize")
     return out
+
+
+def scene_files(scene: Any) -> list[tuple[str, Path]]:
+    """The files a Mitsuba XML scene reads besides itself, as ``(what, path)``.
+
+    Every ``filename`` it names (``<string name="filename" value=...>``: textures, meshes,
+    environment maps; ``<include filename=...>``, followed into included XML files), beside the
+    file that names it, as ``mi.load_file`` looks for them. A name holding a ``$`` parameter is
+    left out (its value comes with the render); a bundled scene or a scene dict reads none.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> _ = (folder / "scene.xml").write_text('<scene version="3.0.0"><shape type="obj">'
+    ...                                       '<string name="filename" value="mesh.obj"/></shape></scene>')
+    >>> [(what, path.name) for what, path in scene_files(folder / "scene.xml")]
+    [('filename mesh.obj', 'mesh.obj')]
+    """
+    if not isinstance(scene, (str, os.PathLike)) or Path(scene).suffix.lower() != ".xml":
+        return []
+    files: list[tuple[str, Path]] = []
+    pending, seen = [Path(scene)], set()
+    while pending:
+        path = pending.pop()
+        if path.resolve() in seen or not path.is_file():  # not a regular file: the caller refuses it
+            continue
+        seen.add(path.resolve())
+        try:
+            root = ElementTree.parse(path).getroot()
+        except (ElementTree.ParseError, OSError) as exc:
+            raise ValueError(f"{path}: not a readable Mitsuba XML scene ({exc})") from None
+        for element in root.iter():
+            if element.tag == "string" and element.get("name") == "filename":
+                value, what = element.get("value"), "filename"
+            elif element.tag == "include":
+                value, what = element.get("filename"), "include"
+            else:
+                continue
+            if not value or "$" in value:
+                continue
+            file = Path(value) if Path(value).is_absolute() else path.parent / value
+            files.append((f"{what} {value}", file))
+            if what == "include":
+                pending.append(file)
+    return files
 
 
 def _load_file(mi: Any, variant: str, path: Path, shape: Shape2D | None, params: dict[str, Any]) -> Any:

@@ -224,6 +224,27 @@ def test_a_scene_files_environment_map_is_an_input(work, capsys, monkeypatch):
     _refused(work, capsys, render + ["-o", "r.exr"], "environment.path", "FIFO")
 
 
+def test_the_files_a_mitsuba_scene_names_are_inputs(work, capsys, monkeypatch):
+    """A texture (or an included file) a Mitsuba XML scene names is checked like every input, before
+    Mitsuba is loaded: never replaced by an output, never opened when it is a FIFO."""
+    monkeypatch.chdir(work.root)
+    (work / "parts").mkdir()
+    (work / "parts" / "more.xml").write_text('<scene version="3.0.0"><shape type="obj">'
+                                              '<string name="filename" value="mesh.obj"/></shape></scene>')
+    (work / "parts" / "mesh.obj").write_text("v 0 0 0\n")
+    (work / "scene.xml").write_text(
+        '<scene version="3.0.0"><include filename="parts/more.xml"/><bsdf type="diffuse">'
+        '<texture type="bitmap" name="reflectance"><string name="filename" value="tex.exr"/></texture></bsdf>'
+        '<string name="filename" value="$param.exr"/></scene>')
+    write_image(work / "tex.exr", np.ones((4, 4, 3)))
+    render = ["render", "--renderer", "mitsuba", "scene.xml", "--spp", "2", "--uniform", "-q", "--overwrite"]
+    _refused(work, capsys, render + ["-o", "tex.exr"], "is the input", "filename tex.exr")
+    _refused(work, capsys, render + ["-o", "r.exr", "--image", "parts/mesh.obj"], "--image", "filename mesh.obj")
+    (work / "tex.exr").unlink()
+    os.mkfifo(work / "tex.exr")
+    _refused(work, capsys, render + ["-o", "r.exr"], "filename tex.exr", "FIFO")
+
+
 def test_a_missing_input_names_its_option(work, capsys, monkeypatch):
     monkeypatch.chdir(work.root)
     _refused(work, capsys, ["denoise", "d.exr", "-o", "o.exr", "-r", "missing.exr"], "-r/--ref", "missing.exr")
