@@ -17,11 +17,14 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["MAX_SEED", "MAX_SIDE", "MAX_LEVELS", "real", "whole", "whole_text", "whole_option", "flag", "seed",
+__all__ = ["MAX_SEED", "MAX_SPP", "MAX_SIDE", "MAX_LEVELS", "real", "whole", "whole_text", "whole_option", "flag", "seed",
            "shape2d", "name", "slices", "executor"]
 
 MAX_SEED = 2**63 - 1
 """Seeds are whole numbers in 0..2**63-1 (they are hashed as 64-bit integers)."""
+
+MAX_SPP = 2**24
+"""Samples per pixel an option may ask for: counts are stored as float32, exact up to 2**24."""
 
 MAX_SIDE = 2**31 - 1
 """Largest image side (EXR windows are 32-bit)."""

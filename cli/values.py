@@ -21,7 +21,7 @@ from .errors import UsageError
 __all__ = ["MAX_SPP", "MAX_SEED", "MAX_PIXELS", "MAX_SIDE", "MAX_LEVELS", "MAX_EXPOSURE", "MAX_FRAMES",
            "real", "whole", "image_size", "check_pixels", "wavelet_name", "feature_list"]
 
-MAX_SPP = 2**24
+MAX_SPP = _checks.MAX_SPP
 """Samples per pixel: counts are stored as float32, exact up to 2**24."""
 MAX_SEED = 2**63 - 1
 """Seeds are non-negative and fit a signed 64-bit integer."""

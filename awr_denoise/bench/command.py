@@ -9,13 +9,12 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from .._checks import whole_option
+from .._checks import MAX_SPP, whole_option
 from .config import OVERHEAD_SIZES, BenchmarkConfig
 from .runner import run_benchmark
 
 __all__ = ["DESCRIPTION", "add_arguments", "config_from_args", "run_from_args", "main"]
 
-_MAX_SPP = 2**24  # as awr render's --spp: float32 counts stay exact
 _SIDES = (16, 2**14)  # smaller images leave the crops and the c_s sweep nothing to show
 
 def _path(text: str) -> Path:
@@ -54,10 +53,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                         help="where benchmarks.md and img/ go (default: docs)")
     parser.add_argument("--results", type=_path, default=None,
                         help="JSON output (default: benchmarks/results/quality.json beside the output dir)")
-    parser.add_argument("--reference-spp", type=whole_option(minimum=1, maximum=_MAX_SPP), default=None,
+    parser.add_argument("--reference-spp", type=whole_option(minimum=1, maximum=MAX_SPP), default=None,
                         help="re-render references below this spp with the tracer, replacing the cached ones "
                              "(data/references in a checkout, or $AWR_DENOISE_REFERENCE_DIR)")
-    parser.add_argument("--spp", type=whole_option(minimum=1, maximum=_MAX_SPP), nargs="+", default=None,
+    parser.add_argument("--spp", type=whole_option(minimum=1, maximum=MAX_SPP), nargs="+", default=None,
                         help="average spp to measure at")
     parser.add_argument("--size", type=whole_option(minimum=_SIDES[0], maximum=_SIDES[1]), nargs=2,
                         metavar=("WIDTH", "HEIGHT"), default=None,

@@ -15,7 +15,7 @@ import numpy as np
 from .analysis import row_at
 from .config import DOMAINS, METHODS
 
-__all__ = ["write_markdown", "format_number", "NOTES_BEGIN", "NOTES_END"]
+__all__ = ["write_markdown", "kept_notes", "format_number", "NOTES_BEGIN", "NOTES_END"]
 
 NOTES_BEGIN = "<!-- notes: kept across runs -->"
 NOTES_END = "<!-- /notes -->"
@@ -68,8 +68,14 @@ def _shown_path(path: Path) -> str:
         return path.name
 
 
-def _kept_notes(path: Path) -> str:
-    """The hand-written notes of the existing page at ``path`` (empty when none)."""
+def kept_notes(path: Path) -> str:
+    """The hand-written notes of the existing page at ``path`` (empty when none).
+
+    Raises
+    ------
+    ValueError
+        The page is not UTF-8 text (its notes cannot be kept).
+    """
     if path.is_file():
         try:
             old = path.read_text(encoding="utf-8")
@@ -101,7 +107,7 @@ def write_markdown(results: dict[str, Any], figures: dict[str, str], path: Path,
     """
     scenes = list(results["scenes"])
     methods = [m for m in METHODS if all(m in results["scenes"][s]["methods"] for s in scenes)]
-    lines = _intro(results, scenes, results_path, _kept_notes(path))
+    lines = _intro(results, scenes, results_path, kept_notes(path))
     lines += _reproduce()
     lines += _references(results, scenes)
     lines += _headline(results, figures, scenes, methods)

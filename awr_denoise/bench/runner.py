@@ -30,7 +30,7 @@ from .overhead import measure_overhead
 from .peers import oidn_available, oidn_denoise, require_skimage, skimage_denoise
 from .records import machine_info, write_json
 from .rendering import make_tracer, reference_image, tracer_module
-from .report import _kept_notes, write_markdown
+from .report import kept_notes, write_markdown
 from .sweeps import cs_sweep, defaults_sweep
 
 __all__ = ["run_benchmark", "scene_benchmark"]
@@ -156,7 +156,7 @@ def _check_outputs(out_dir: Path | None, results_path: Path | None, plots: bool)
         except (ValueError, FileNotFoundError) as exc:
             raise ValueError(f"{param}: {exc}") from None
     if out_dir is not None:
-        _kept_notes(out_dir / "benchmarks.md")  # an unreadable page is refused now, not after the run
+        kept_notes(out_dir / "benchmarks.md")  # an unreadable page is refused now, not after the run
 
 
 def _checked_scenes(config: BenchmarkConfig) -> list[str]:

@@ -216,12 +216,18 @@ def test_a_scene_files_environment_map_is_an_input(work, capsys, monkeypatch):
     spec = dict(BUNDLED_SCENES["default"], width=8, height=8, environment={"type": "latlong", "path": "env.exr"})
     (work / "s.json").write_text(json.dumps(spec))
     write_image(work / "env.exr", np.ones((4, 8, 3)))
-    render = ["render", "s.json", "--spp", "2", "--uniform", "-q", "--overwrite"]
-    _refused(work, capsys, render + ["-o", "env.exr"], "is the input", "environment.path")
-    _refused(work, capsys, render + ["-o", "r.exr", "--image", "env.exr"], "--image", "is the input")
-    (work / "env.exr").unlink()
-    os.mkfifo(work / "env.exr")
-    _refused(work, capsys, render + ["-o", "r.exr"], "environment.path", "FIFO")
+    _refuses_scene_input(work, capsys, ["render", "s.json", "--spp", "2", "--uniform", "-q", "--overwrite"],
+                         "env.exr", "environment.path")
+
+
+def _refuses_scene_input(work, capsys, render, name, field):
+    """``render`` reads ``name`` through its scene file (``field`` in the message): no output may
+    replace it, and as a FIFO it is refused unopened."""
+    _refused(work, capsys, render + ["-o", name], "is the input", field)
+    _refused(work, capsys, render + ["-o", "r.exr", "--image", name], "--image", field)
+    (work / name).unlink()
+    os.mkfifo(work / name)
+    _refused(work, capsys, render + ["-o", "r.exr"], field, "FIFO")
 
 
 def test_the_files_a_mitsuba_scene_names_are_inputs(work, capsys, monkeypatch):
@@ -238,11 +244,8 @@ def test_the_files_a_mitsuba_scene_names_are_inputs(work, capsys, monkeypatch):
         '<string name="filename" value="$param.exr"/></scene>')
     write_image(work / "tex.exr", np.ones((4, 4, 3)))
     render = ["render", "--renderer", "mitsuba", "scene.xml", "--spp", "2", "--uniform", "-q", "--overwrite"]
-    _refused(work, capsys, render + ["-o", "tex.exr"], "is the input", "filename tex.exr")
-    _refused(work, capsys, render + ["-o", "r.exr", "--image", "parts/mesh.obj"], "--image", "filename mesh.obj")
-    (work / "tex.exr").unlink()
-    os.mkfifo(work / "tex.exr")
-    _refused(work, capsys, render + ["-o", "r.exr"], "filename tex.exr", "FIFO")
+    _refused(work, capsys, render + ["-o", "parts/mesh.obj"], "is the input", "filename mesh.obj")  # included
+    _refuses_scene_input(work, capsys, render, "tex.exr", "filename tex.exr")
 
 
 def test_a_missing_input_names_its_option(work, capsys, monkeypatch):

@@ -79,24 +79,37 @@ def test_a_scheduler_that_is_not_one_is_refused_naming_it(tmp_path):
                 pass
     # A server that answers with something else (an HTTP error): read as a Dask message length of
     # exabytes, it was reported as "out of memory".
-    server = socket.create_server(("127.0.0.1", 0))
-    port = server.getsockname()[1]
+    with _server(b"HTTP/1.0 400 Bad Request\r\n\r\n" * 4) as address:
+        # (Which of the two depends on how the Dask version reads the reply; never a MemoryError.)
+        with pytest.raises(ConnectionError, match=f"scheduler: {address}: (not a Dask|cannot connect)"):
+            with get_executor(scheduler=address):
+                pass
 
-    def answer() -> None:
+
+@contextlib.contextmanager
+def _server(reply: bytes | None):
+    """A loopback TCP server's address: it sends ``reply`` to every connection and closes it, or
+    with ``None`` accepts and says nothing until the block ends."""
+    server = socket.create_server(("127.0.0.1", 0))
+    silent = []
+
+    def serve() -> None:
         with contextlib.suppress(OSError):
             while True:
                 conn, _ = server.accept()
+                if reply is None:
+                    silent.append(conn)
+                    continue
                 with conn:
-                    conn.sendall(b"HTTP/1.0 400 Bad Request\r\n\r\n" * 4)
+                    conn.sendall(reply)
 
-    threading.Thread(target=answer, daemon=True).start()
+    threading.Thread(target=serve, daemon=True).start()
     try:
-        # (Which of the two depends on how the Dask version reads the reply; never a MemoryError.)
-        with pytest.raises(ConnectionError, match=f"scheduler: tcp://127.0.0.1:{port}: (not a Dask|cannot connect)"):
-            with get_executor(scheduler=f"tcp://127.0.0.1:{port}"):
-                pass
+        yield f"tcp://127.0.0.1:{server.getsockname()[1]}"
     finally:
         server.close()
+        for conn in silent:
+            conn.close()
 
 
 def _sigint_ignored() -> bool:
@@ -130,17 +143,10 @@ def test_a_service_that_never_answers_or_is_no_scheduler_is_refused(cluster, mon
     from awr_denoise.parallel import executors
 
     monkeypatch.setattr(executors, "_ANSWER_SECONDS", 0.5)
-    server = socket.create_server(("127.0.0.1", 0))
-    accepted = []
-    threading.Thread(target=lambda: accepted.append(server.accept()), daemon=True).start()
-    try:
+    with _server(None) as address:
         with pytest.raises(ConnectionError, match=r"no Dask answer within 1 s"):
-            with get_executor(scheduler=f"tcp://127.0.0.1:{server.getsockname()[1]}"):
+            with get_executor(scheduler=address):
                 pass
-    finally:
-        server.close()
-        for conn, _ in accepted:
-            conn.close()
     worker = next(iter(cluster.scheduler_info["workers"]))
     with pytest.raises(ConnectionError, match="a Dask Worker, not a scheduler"):
         with get_executor(scheduler=worker):
