@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["MAX_SEED", "MAX_SPP", "MAX_SIDE", "MAX_LEVELS", "real", "whole", "whole_text", "whole_option", "flag", "seed",
-           "shape2d", "name", "slices", "executor"]
+__all__ = ["MAX_SEED", "MAX_SPP", "MAX_SIDE", "MAX_LEVELS", "real", "whole", "whole_text", "whole_option", "flag",
+           "seed", "shape2d", "name", "slices", "executor"]
 
 MAX_SEED = 2**63 - 1
 """Seeds are whole numbers in 0..2**63-1 (they are hashed as 64-bit integers)."""
