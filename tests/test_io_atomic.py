@@ -194,3 +194,84 @@ def test_a_signal_while_files_move_into_place_waits_for_them(name):
         assert seen == [signum]
     finally:
         signal.signal(signum, previous)
+
+
+def test_a_users_folder_that_looks_like_a_staging_directory_is_kept(tmp_path):
+    past = time.time() - STALE_AFTER - 10
+    named = tmp_path / f"{STAGING_PREFIX}mydata.tmp"  # not 10 hex digits: never ours
+    named.mkdir()
+    (named / "important.txt").write_text("precious")
+    os.utime(named, (past, past))
+    unlocked = tmp_path / f"{STAGING_PREFIX}notes.tmp"  # a "lock" of its own does not make it ours
+    unlocked.mkdir()
+    (unlocked / "lock").write_bytes(b"")
+    exact = tmp_path / f"{STAGING_PREFIX}0123456789.tmp"  # our name, but holding a file we never write
+    exact.mkdir()
+    (exact / "lock").write_bytes(b"")
+    (exact / "mywork.txt").write_text("data")
+    old = tmp_path / f"{STAGING_PREFIX}abcdefabcd.tmp"  # our name, no lock, old, a user's file inside
+    old.mkdir()
+    (old / "notes.txt").write_text("data")
+    os.utime(old, (past, past))
+    assert remove_stale_temporaries(tmp_path) == []
+    assert (named / "important.txt").exists() and (unlocked / "lock").exists()
+    assert (exact / "mywork.txt").exists() and (old / "notes.txt").exists()
+
+
+def test_a_fifo_named_lock_does_not_block_the_scan(tmp_path):
+    def expired(signum, frame):
+        raise TimeoutError("the scan blocked on the FIFO")
+
+    previous = signal.signal(signal.SIGALRM, expired)
+    signal.alarm(20)
+    try:
+        _scan_past_a_fifo_lock(tmp_path)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def _scan_past_a_fifo_lock(tmp_path):
+    trap = tmp_path / f"{STAGING_PREFIX}0123456789.tmp"
+    trap.mkdir()
+    os.mkfifo(trap / "lock")
+    linked = tmp_path / f"{STAGING_PREFIX}abcdefabcd.tmp"  # a symbolic link as the lock: not followed
+    linked.mkdir()
+    (tmp_path / "elsewhere").write_bytes(b"")
+    os.symlink(tmp_path / "elsewhere", linked / "lock")
+    assert remove_stale_temporaries(tmp_path) == []
+    assert trap.exists() and linked.exists()
+    atomic_write(tmp_path / "out.txt", lambda tmp: Path(tmp).write_text("done"))  # a write there goes on
+    assert (tmp_path / "out.txt").read_text() == "done"
+
+
+def test_a_staging_directory_of_a_nested_writer_is_still_cleaned(tmp_path):
+    dead = tmp_path / f"{STAGING_PREFIX}0123456789.tmp"  # a killed OutputSet writer's: temporaries and backups
+    (dead / f"{STAGING_PREFIX}abcdefabcd.tmp").mkdir(parents=True)
+    (dead / "lock").write_bytes(b"")
+    (dead / "1.exr").write_bytes(b"partial")
+    (dead / "2.exr.old").write_bytes(b"old")
+    assert remove_stale_temporaries(tmp_path) == [dead]
+    assert not dead.exists()
+
+
+def test_an_output_set_temporary_is_written_in_place_not_staged_again(tmp_path):
+    seen = []
+    with OutputSet() as outputs:
+        tmp = outputs.add(tmp_path / "a.txt")
+        atomic_write(tmp, lambda path: seen.append(sorted(os.listdir(Path(path).parent))) or Path(path).write_text("a"))
+        outputs.commit()
+    assert seen == [["lock"]]  # no staging directory inside the staging directory
+    assert _listing(tmp_path) == ["a.txt"]
+
+
+def test_no_room_for_the_staging_directory_names_the_target(tmp_path, monkeypatch):
+    def full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "mkdir", full)
+    with pytest.raises(OSError, match="out.txt") as info:
+        atomic_write(tmp_path / "out.txt", lambda tmp: Path(tmp).write_text("x"))
+    assert STAGING_PREFIX not in str(info.value)
+    with OutputSet() as outputs, pytest.raises(OSError, match="b.txt"):
+        outputs.add(tmp_path / "b.txt")

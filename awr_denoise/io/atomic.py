@@ -28,6 +28,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import re
 import secrets
 import shutil
 import signal
@@ -57,6 +58,12 @@ STALE_AFTER = 600.0
 creates its lock file within microseconds of the directory)."""
 
 _LOCK = "lock"
+# Only what this module creates is ever removed: its staging directories by their exact name, and
+# inside one nothing but its lock, temporaries ("1.exr"), their backups ("1.exr.old") and the
+# staging directory of a writer that stages again inside it.
+_STAGING_NAME = re.compile(r"\.awr-[0-9a-f]{10}\.tmp\Z")
+_LOCK_FLAGS = os.O_RDWR | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
+_STAGED_NAME = re.compile(r"(lock|lock\.new|[0-9]+(\.[^/]{1,16})?(\.old)?)\Z", re.DOTALL)
 _HOST = socket.gethostname()[:200]  # written into the lock file: whose lock it is
 _MAX_SUFFIX = 16  # longer "suffixes" are not file types; the temporary goes without one
 
@@ -226,7 +233,10 @@ _SCANNED_LOCK = threading.Lock()
 def remove_stale_temporaries(directory: str | os.PathLike[str]) -> list[Path]:
     """Remove the staging directories in ``directory`` that no live process holds.
 
-    Called by every write (once per directory and process); returns what it removed.
+    Called by every write (once per directory and process); returns what it removed. Only a
+    directory named ``.awr-<10 hex digits>.tmp`` that holds nothing but what a staging directory
+    holds is removed (a user's own ``.awr-notes.tmp`` is not ours), and its lock is read only if it
+    is a regular file (a FIFO there must not block every write into the folder).
     """
     removed: list[Path] = []
     try:
@@ -234,12 +244,15 @@ def remove_stale_temporaries(directory: str | os.PathLike[str]) -> list[Path]:
     except OSError:
         return removed
     for entry in entries:
-        if not (entry.name.startswith(STAGING_PREFIX) and entry.name.endswith(STAGING_SUFFIX)):
+        if not _STAGING_NAME.match(entry.name):
             continue
         try:
-            if not entry.is_dir(follow_symlinks=False):
+            if not entry.is_dir(follow_symlinks=False) or not _holds_only_staged_files(entry.path):
                 continue
-            fd = os.open(os.path.join(entry.path, _LOCK), os.O_RDWR | getattr(os, "O_CLOEXEC", 0))
+            lock = os.path.join(entry.path, _LOCK)
+            if not stat.S_ISREG(os.lstat(lock).st_mode):
+                continue
+            fd = os.open(lock, _LOCK_FLAGS)
         except FileNotFoundError:
             with contextlib.suppress(OSError):
                 if time.time() - entry.stat(follow_symlinks=False).st_mtime > STALE_AFTER:
@@ -249,15 +262,34 @@ def remove_stale_temporaries(directory: str | os.PathLike[str]) -> list[Path]:
         except OSError:
             continue
         try:
+            if not stat.S_ISREG(os.fstat(fd).st_mode):  # replaced between the lstat and the open
+                continue
             # Another host's lock says nothing here: on a network mount without lock sharing it
             # would look free while its writer runs. Those are left to a run on that host.
             owner = os.read(fd, 256).decode("utf-8", "replace")
             if (not owner or owner == _HOST) and _try_lock(fd):
                 shutil.rmtree(entry.path, ignore_errors=True)
                 removed.append(Path(entry.path))
+        except OSError:
+            continue
         finally:
             os.close(fd)
     return removed
+
+
+def _holds_only_staged_files(path: str, depth: int = 0) -> bool:
+    """Whether the directory ``path`` holds only names a staging directory holds (nested once at most)."""
+    try:
+        with os.scandir(path) as entries:
+            for entry in entries:
+                if entry.is_dir(follow_symlinks=False):
+                    if depth or not _STAGING_NAME.match(entry.name) or not _holds_only_staged_files(entry.path, 1):
+                        return False
+                elif not _STAGED_NAME.match(entry.name):
+                    return False
+    except OSError:
+        return False
+    return True
 
 
 class _Staging:
@@ -395,20 +427,38 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[str], None], *, 
     ('done', ['note.txt'])
     """
     target = check_writable(path, overwrite=overwrite)
-    staging = _Staging(target.parent if str(target.parent) else Path("."))
+    if os.fspath(target) in _PUBLIC:
+        # An OutputSet's temporary, inside its staging directory already: written in place (the
+        # set moves it, or removes it with its staging directory), not staged a second time.
+        _write_named(write, target, target)
+        _check_written(target, target)
+        return target
+    staging = _staging_for(target)
     try:
         tmp = staging.new_name(target)
-        try:
-            write(os.fspath(tmp))
-        except OSError as exc:
-            # A full disk or a lost file system: name the file being written, not its temporary.
-            raise OSError(exc.errno, exc.strerror or str(exc), public_name(target)) from None
+        _write_named(write, tmp, target)
         _check_written(tmp, target)
         with _signals_deferred():
             _install(tmp, target, overwrite=overwrite)
     finally:
         staging.remove()
     return target
+
+
+def _write_named(write: Callable[[str], None], tmp: Path, target: Path) -> None:
+    """``write(tmp)``; a full disk or a lost file system is reported naming the target, not the temporary."""
+    try:
+        write(os.fspath(tmp))
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror or str(exc), public_name(target)) from None
+
+
+def _staging_for(target: Path) -> _Staging:
+    """A staging directory beside ``target``; failing to make one (a full disk) names the target."""
+    try:
+        return _Staging(target.parent if str(target.parent) else Path("."))
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror or str(exc), public_name(target)) from None
 
 
 class OutputSet:
@@ -464,7 +514,7 @@ class OutputSet:
                 raise ValueError(f"{target}: the same file as the output {other}")
         directory = resolved.parent
         if directory not in self._staging:
-            self._staging[directory] = _Staging(target.parent if str(target.parent) else Path("."))
+            self._staging[directory] = _staging_for(target)
         tmp = self._staging[directory].new_name(target)
         self._staged[target] = tmp
         _PUBLIC[os.fspath(tmp)] = os.fspath(target)
