@@ -8,6 +8,7 @@ Mitsuba 3 adapter (``--renderer mitsuba SCENE.xml``).
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -218,7 +219,10 @@ def run(args: argparse.Namespace) -> int:
     preview_path = Path(args.preview) if args.preview else derived_path(args.output, ".denoised.png")
     plan = PathPlan(overwrite=args.overwrite)
     given = args.scene_file or args.scene
-    if given and (args.renderer != TRACER or Path(given).suffix == ".json") and Path(given).suffix:
+    # A scene file (a bundled scene is a bare name): a JSON scene of the tracer, or any path another
+    # renderer is given that names something or has a suffix (Mitsuba loads "scene.txt" as XML too).
+    if given and (Path(given).suffix == ".json" if args.renderer == TRACER
+                  else bool(Path(given).suffix) or os.path.lexists(given)):
         plan.read(given, "SCENE")
         plan.check()  # the scene file first: it is read for the files it names, checked with the rest
         for field, path in _scene_files(args.renderer, given):
@@ -250,6 +254,7 @@ def run(args: argparse.Namespace) -> int:
             spec = RendererSpec(args.renderer, given, shape, args.seed, tuple(sorted(options.items())))
             probe = spec()
             frame = probe.shape
+            check_pixels(f"SCENE {given}: its film", *frame)
             if isinstance(probe, SampleTracer):
                 probe.close()
         with executor_from_args(args) as executor:
@@ -261,6 +266,7 @@ def run(args: argparse.Namespace) -> int:
         if args.renderer == TRACER:
             options["progress"] = not args.quiet and not args.adaptive
         renderer = create_renderer(args.renderer, scene, shape=shape, seed=args.seed, **options)
+        check_pixels(f"SCENE {given}: its film", *renderer.shape)  # a size the scene file declares
         buffer, issued, next_round = render_buffer(renderer, renderer.shape, **render)
     seconds = time.perf_counter() - start
     strategy = "awr" if args.adaptive else "uniform"

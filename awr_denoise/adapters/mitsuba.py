@@ -26,10 +26,10 @@ import dataclasses
 import inspect
 import logging
 import os
+import re
 import time
 import warnings
 from collections.abc import Sequence
-from xml.etree import ElementTree
 from pathlib import Path
 from typing import Any
 
@@ -37,10 +37,12 @@ import numpy as np
 
 from .._typing import FloatArray, Shape2D
 from ..buffers import SampleBuffer
+from ..errors import InputFileError
 from ..features import feature_names
 from ..requests import SampleRequest
 from ._mitsuba_runtime import DEFAULT_VARIANT, import_mitsuba, variant_of_scene, variant_scope
 from ._samples import Chunk, PixelStatistics, aligned_u32, sample_chunks
+from .mitsuba_files import scene_files
 from .mitsuba_scenes import SCENE_NAMES, scene_dict
 
 __all__ = ["MitsubaRenderer", "create_renderer", "list_features", "list_scenes", "scene_files", "FEATURES",
@@ -225,6 +227,9 @@ class MitsubaRenderer:
                               "is rendered into its own pixel (box filter of radius 0.5), as AWR needs",
                               stacklevel=2)
             self.integrator = self.scene.integrator()
+            if self.integrator is None:
+                raise ValueError(f"{self.name}: the scene declares no integrator; the adapter needs a sampling "
+                                 "integrator (e.g. <integrator type=\"path\"/>)")
             if not isinstance(self.integrator, mi.SamplingIntegrator):
                 raise ValueError(f"{self.name}: integrator {self.integrator.class_name()} is not a sampling integrator; "
                                  "the adapter needs one that estimates radiance along a ray (e.g. 'path')")
@@ -256,7 +261,10 @@ class MitsubaRenderer:
                 return mi.load_dict(scene_dict(scene, shape, variant=self.variant)), scene
             if not path.is_file():
                 raise FileNotFoundError(f"{scene}: no such Mitsuba scene file (bundled scenes: {', '.join(SCENE_NAMES)})")
-            return _load_file(mi, self.variant, path, shape, params or {}), path.name
+            try:
+                return _load_file(mi, self.variant, path, shape, params or {}), path.name
+            except RuntimeError as exc:  # Mitsuba's parser: a bad plugin, parameter, include or file
+                raise InputFileError(f"{path}: Mitsuba cannot load this scene: {_parser_message(exc)}") from None
         raise TypeError(f"scene: expected a Mitsuba XML path, scene dict, mitsuba.Scene or bundled scene name, "
                         f"got {type(scene).__name__}")
 
@@ -524,51 +532,12 @@ def _resized(scene: dict[str, Any], shape: Shape2D | None) -> dict[str, Any]:
     return out
 
 
-def scene_files(scene: Any) -> list[tuple[str, Path]]:
-    """The files a Mitsuba XML scene reads besides itself, as ``(what, path)``.
-
-    Every ``filename`` it names (``<string name="filename" value=...>``: textures, meshes,
-    environment maps; ``<include filename=...>``, followed into included XML files), beside the
-    file that names it, as ``mi.load_file`` looks for them. A name holding a ``$`` parameter is
-    left out (its value comes with the render); a bundled scene or a scene dict reads none.
-
-    Examples
-    --------
-    >>> import tempfile
-    >>> from pathlib import Path
-    >>> folder = Path(tempfile.mkdtemp())
-    >>> _ = (folder / "scene.xml").write_text('<scene version="3.0.0"><shape type="obj">'
-    ...                                       '<string name="filename" value="mesh.obj"/></shape></scene>')
-    >>> [(what, path.name) for what, path in scene_files(folder / "scene.xml")]
-    [('filename mesh.obj', 'mesh.obj')]
-    """
-    if not isinstance(scene, (str, os.PathLike)) or Path(scene).suffix.lower() != ".xml":
-        return []
-    files: list[tuple[str, Path]] = []
-    pending, seen = [Path(scene)], set()
-    while pending:
-        path = pending.pop()
-        if path.resolve() in seen or not path.is_file():  # not a regular file: the caller refuses it
-            continue
-        seen.add(path.resolve())
-        try:
-            root = ElementTree.parse(path).getroot()
-        except (ElementTree.ParseError, OSError) as exc:
-            raise ValueError(f"{path}: not a readable Mitsuba XML scene ({exc})") from None
-        for element in root.iter():
-            if element.tag == "string" and element.get("name") == "filename":
-                value, what = element.get("value"), "filename"
-            elif element.tag == "include":
-                value, what = element.get("filename"), "include"
-            else:
-                continue
-            if not value or "$" in value:
-                continue
-            file = Path(value) if Path(value).is_absolute() else path.parent / value
-            files.append((f"{what} {value}", file))
-            if what == "include":
-                pending.append(file)
-    return files
+def _parser_message(exc: BaseException, limit: int = 300) -> str:
+    """Mitsuba's load error on one line: its innermost reason (an include loop nests one line per
+    file), without the source location, at most ``limit`` characters."""
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    text = re.sub(r"\[[\w./-]+:\d+\]\s*", "", lines[-1] if lines else type(exc).__name__)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _load_file(mi: Any, variant: str, path: Path, shape: Shape2D | None, params: dict[str, Any]) -> Any:

@@ -14,6 +14,7 @@ import pytest
 from awr_denoise import AdaptiveSampler, Renderer, SampleBuffer, SampleRequest
 from awr_denoise.adapters import mitsuba_scenes
 from awr_denoise.adapters.mitsuba import FEATURES, MitsubaRenderer, create_renderer
+from awr_denoise.errors import InputFileError
 
 SHAPE = (32, 32)
 
@@ -339,6 +340,50 @@ def test_bad_input(cornell, mi):
     with pytest.raises(ValueError, match="not a sampling integrator"):
         d = mitsuba_scenes.scene_dict("cornell_box", (8, 8))
         create_renderer({**d, "integrator": {"type": "ptracer"}})
+
+
+_SCENE = ('<scene version="3.0.0">{integrator}<sensor type="perspective"><film type="hdrfilm">'
+          '<integer name="width" value="{w}"/><integer name="height" value="8"/><rfilter type="box"/></film>'
+          '</sensor>{more}</scene>')
+
+
+_PATH = '<integrator type="path"/>'
+
+
+@pytest.mark.parametrize("case, needle", [
+    ("plugin", 'Plugin "nonesuch" not found'),
+    ("loop", "include recursion depth"),
+    ("parameter", "tx"),
+])
+def test_a_scene_mitsuba_cannot_load_is_bad_input_naming_the_file(mi, tmp_path, case, needle):
+    """Mitsuba's parser errors are the user's scene at fault: an InputFileError naming the file, one
+    line (an include loop nests a line per file), not an internal error."""
+    more = {"plugin": '<shape type="nonesuch"/>', "loop": '<include filename="loop.xml"/>',
+            "parameter": '<shape type="obj"><string name="filename" value="$tx"/></shape>'}[case]
+    (tmp_path / "loop.xml").write_text('<scene version="3.0.0"><include filename="loop.xml"/></scene>')
+    path = tmp_path / "bad.xml"
+    path.write_text(_SCENE.format(w=8, more=more, integrator=_PATH))
+    with pytest.raises(InputFileError, match=needle) as info:
+        create_renderer(str(path))
+    message = str(info.value)
+    assert message.startswith(f"{path}: Mitsuba cannot load") and "\n" not in message and len(message) < 500
+
+
+def test_a_scene_without_an_integrator_is_refused_naming_it(mi, tmp_path):
+    (tmp_path / "bare.xml").write_text(_SCENE.format(w=8, more="", integrator=""))
+    with pytest.raises(ValueError, match="bare.xml: the scene declares no integrator"):
+        create_renderer(str(tmp_path / "bare.xml"))
+
+
+def test_cli_refuses_a_film_larger_than_the_size_limits_before_rendering(mi, tmp_path, capsys):
+    from awr_denoise.cli.main import main
+
+    (tmp_path / "huge.xml").write_text(_SCENE.format(w=2**21, more="", integrator=_PATH))
+    assert main(["render", "--renderer", "mitsuba", str(tmp_path / "huge.xml"), "--spp", "1", "-q",
+                 "-o", str(tmp_path / "o.exr")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("awr: error: SCENE") and "film" in err[-1] and "sides up to" in err[-1]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["huge.xml"]
 
 
 def test_missing_libllvm_says_what_to_install():

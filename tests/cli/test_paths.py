@@ -248,6 +248,31 @@ def test_the_files_a_mitsuba_scene_names_are_inputs(work, capsys, monkeypatch):
     _refuses_scene_input(work, capsys, render, "tex.exr", "filename tex.exr")
 
 
+_TEXTURE = '<bsdf type="diffuse"><texture type="bitmap" name="reflectance">{}</texture></bsdf>'
+
+
+@pytest.mark.parametrize("route", ["default parameter", "spectrum attribute", "any scene name", "search folder"])
+def test_every_route_by_which_mitsuba_reads_a_file_makes_it_an_input(work, capsys, monkeypatch, route):
+    """Mitsuba also reads a file through a ``$parameter``'s default, a ``filename`` attribute, a
+    scene file not named .xml and a ``<path>`` search folder: each is an input like a plain one
+    (an output never replaces it, a FIFO there is never opened: it would hang Mitsuba's loader)."""
+    monkeypatch.chdir(work.root)
+    name, scene, body = "tex.exr", "scene.xml", _TEXTURE.format('<string name="filename" value="tex.exr"/>')
+    if route == "default parameter":
+        body = '<default name="tx" value="tex.exr"/>' + _TEXTURE.format('<string name="filename" value="$tx"/>')
+    elif route == "spectrum attribute":
+        name, body = "refl.spd", '<bsdf type="diffuse"><spectrum name="reflectance" filename="refl.spd"/></bsdf>'
+    elif route == "any scene name":
+        scene = "scene.mitsuba"
+    else:
+        (work / "maps").mkdir()
+        name, body = "maps/tex.exr", '<path value="maps"/>' + body
+    (work / scene).write_text(f'<scene version="3.0.0">{body}</scene>')
+    write_image(work / name, np.ones((4, 4, 3)))
+    render = ["render", "--renderer", "mitsuba", scene, "--spp", "2", "--uniform", "-q", "--overwrite"]
+    _refuses_scene_input(work, capsys, render, name, f"filename {Path(name).name}")
+
+
 def test_a_missing_input_names_its_option(work, capsys, monkeypatch):
     monkeypatch.chdir(work.root)
     _refused(work, capsys, ["denoise", "d.exr", "-o", "o.exr", "-r", "missing.exr"], "-r/--ref", "missing.exr")
