@@ -206,7 +206,7 @@ def run(args: argparse.Namespace) -> int:
     sources = [inputs[0] for inputs, _ in jobs]
     for src in sources:
         check_reconstruction_options(args, exr_shape(src), src)
-    check_plane_windows(sources[0], plane_options(args))
+        check_plane_windows(src, plane_options(args))  # every frame: each may have its own data window
     if args.ref:
         _check_reference(args.ref, sources)
 

@@ -92,6 +92,20 @@ def test_a_plane_file_in_another_window_is_refused(crops, capsys, monkeypatch):
         assert crops.state() == before
 
 
+def test_a_plane_file_is_checked_against_every_frame_not_only_the_first(crops, capsys, monkeypatch):
+    """With ``--frames`` each frame may have its own data window: a plane file that lines up with
+    the first frame but not with a later one is refused, as it is for that frame alone."""
+    monkeypatch.chdir(crops.root)
+    (crops / "d.exr").rename(crops / "shot.0001.exr")
+    (crops / "crop.exr").rename(crops / "shot.0002.exr")
+    write_sample_buffer(crops / "plane.exr", dump_buffer(24))  # the first frame's window, not the crop's
+    generic = ["--preset", "generic", "--color", "RGB", "--count", "sampleCount", "--variance", "plane.exr:variance"]
+    before = crops.state()
+    assert main(["denoise", "shot.####.exr", "--frames", "1-2", "-o", "o.####.exr", *generic]) == 2
+    one_error_line(capsys.readouterr().err, "plane.exr", "shot.0002.exr", "window")
+    assert crops.state() == before
+
+
 def test_info_shows_a_crop_and_its_json_holds_the_windows(crops, capsys, monkeypatch):
     import json
 
