@@ -97,3 +97,35 @@ def test_write_preview_readable(tmp_path):
     np.testing.assert_array_equal(back, tonemap_srgb(img))
     with pytest.raises(FileExistsError):
         write_preview(tmp_path / "p.png", img)
+
+
+@pytest.mark.parametrize("option, value, cli", [
+    ("color", "R", ["--color", "R"]), ("variance", "V", ["--variance", "V"]), ("count", "N", ["--count", "N"]),
+    ("spp", 4, ["--spp", "4"]), ("view", "left", ["--view", "left"]), ("albedo", "alb.exr", ["--alb", "alb.exr"]),
+    ("normal", "nrm.exr", ["--nrm", "nrm.exr"]), ("depth", "z.exr", ["--depth", "z.exr"]),
+])
+def test_options_a_deep_dump_would_ignore_are_refused(tmp_path, monkeypatch, capsys, option, value, cli):
+    """A deep dump's samples carry their own layout: a colour plane, a count, features or a view
+    asked for would be silently ignored (a guide run without its albedo), so each is refused."""
+    from awr_denoise.cli.main import main
+    from awr_denoise.io import read_sample_dump, write_image
+
+    monkeypatch.chdir(tmp_path)
+    write_deep_samples("deep.exr", np.repeat(np.arange(16), 2), np.ones((32, 3)), (4, 4))
+    for name in ("alb.exr", "nrm.exr", "z.exr"):
+        write_image(name, np.full((4, 4, 3), 0.5))
+    with pytest.raises(InputFileError, match=f"deep.exr: {option}= / {cli[0]} would be ignored"):
+        read_sample_dump("deep.exr", **{option: value})
+    assert main(["denoise", "deep.exr", "-o", "o.exr", "-q", *cli]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and cli[0] in err[0] and not (tmp_path / "o.exr").exists()
+    assert read_sample_dump("deep.exr").buffer.total_samples == 32  # without them it reads as before
+
+
+def test_a_count_plane_beside_an_awr_dumps_own_counts_is_refused(tmp_path):
+    from awr_denoise.io import read_sample_dump, write_sample_buffer
+
+    write_sample_buffer(tmp_path / "d.exr", SampleBuffer.from_moments(np.full((4, 4), 2), np.ones((4, 4, 3)),
+                                                                         np.ones((4, 4, 3))))
+    with pytest.raises(InputFileError, match="count= / --count would be ignored: an awr dump counts"):
+        read_sample_dump(tmp_path / "d.exr", count="N")

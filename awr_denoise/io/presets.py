@@ -32,6 +32,7 @@ import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -567,6 +568,19 @@ def _check_layer(p: Path, preset: str, layer: str | None) -> None:
                             f"reads as the {preset} layout")
 
 
+# The command line's name of each reader argument, for messages that name both.
+_OPTION = {"color": "--color", "variance": "--variance", "count": "--count", "variance_kind": "--variance-kind",
+           "spp": "--spp", "view": "--view", "albedo": "--alb", "normal": "--nrm", "depth": "--depth",
+           "features": "--guide features"}
+
+
+def _refuse_unused(p: Path, why: str, **given: Any) -> None:
+    """Refuse every argument given that this file's layout would ignore: read as asked, or not at all."""
+    for name, value in given.items():
+        if value is not None:
+            raise file_error(p, f"{name}= / {_OPTION[name]} would be ignored: {why}")
+
+
 def _resolve_preset(p: Path, f: _File, preset: str, color: str | None, variance: str | None,
                     count: str | None) -> str:
     if preset == "auto":
@@ -680,6 +694,9 @@ def read_sample_dump(
     parts = read_exr(p)
     if preset in ("auto", "deep") and parts[0].deep:
         _check_layer(p, "deep", layer)
+        _refuse_unused(p, "a deep dump's samples carry their own layout", color=color, variance=variance,
+                       count=count, variance_kind=variance_kind, spp=spp, view=view, albedo=albedo, normal=normal,
+                       depth=depth, features=None if features in (None, "auto") else features)
         buf = samples_from_deep_part(p, parts[0], nonfinite=nonfinite)
         return SampleDump(buf, buf.count, {})
     if preset == "deep":
@@ -691,6 +708,7 @@ def read_sample_dump(
     _check_layer(p, preset, layer)
     planes = {"albedo": albedo, "normal": normal, "depth": depth}
     if preset == "awr" and color is None and variance is None:
+        _refuse_unused(p, f"an awr dump counts its samples in {COUNT_CHANNEL}", count=count)
         flat = [part for part in parts if not part.deep and COUNT_CHANNEL in part.channels]
         if not flat:
             raise file_error(p, "missing (not in the awr dump layout)", COUNT_CHANNEL)
