@@ -149,6 +149,23 @@ def _run(argv: Sequence[str] | None) -> int:
                       "(set AWR_TRACEBACK=1 to see the traceback)", EXIT_FAILURE)
 
 
+def _standard_streams() -> None:
+    """Point a closed stdin, stdout or stderr at the null device (cron and daemon launchers close
+    them): left closed, the next file opened would take its number and receive the messages, and
+    a closed stream is not a reason to call an input corrupt."""
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            null = os.open(os.devnull, os.O_RDWR)
+            if null != fd:
+                os.dup2(null, fd)
+                os.close(null)
+    for name in ("stdin", "stdout", "stderr"):
+        if getattr(sys, name) is None:  # Python sets None for a stream closed at start-up
+            setattr(sys, name, open(os.devnull, "r" if name == "stdin" else "w", encoding="utf-8"))  # noqa: SIM115
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``awr`` command line and return its exit status.
 
@@ -157,6 +174,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv
         Arguments without the program name; ``sys.argv[1:]`` by default.
     """
+    _standard_streams()
     previous = None
     status = None
     try:

@@ -160,20 +160,23 @@ def _captured_c_output(path: str | os.PathLike[str]) -> Iterator[_Captured]:
     """
     captured, name = _Captured(), os.fspath(path)
     with _CAPTURE_LOCK, tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
-        sys.stdout.flush()
-        sys.stderr.flush()
-        saved = [os.dup(1), os.dup(2)]
+        for stream in (sys.stdout, sys.stderr):  # None when the process started with it closed
+            if stream is not None:
+                with contextlib.suppress(OSError, ValueError):  # the stream's own trouble is not the file's
+                    stream.flush()
+        # A closed stdout or stderr (a daemon, `>&-`) is left closed: nothing to restore, nothing lost.
+        sinks = [(sink, fd) for sink, fd in ((out, 1), (err, 2)) if _is_open(fd) and sink.fileno() != fd]
+        saved = [os.dup(fd) for _, fd in sinks]
         try:
-            os.dup2(out.fileno(), 1)
-            os.dup2(err.fileno(), 2)
+            for sink, fd in sinks:
+                os.dup2(sink.fileno(), fd)
             yield captured
         finally:
-            os.dup2(saved[0], 1)
-            os.dup2(saved[1], 2)
-            os.close(saved[0])
-            os.close(saved[1])
+            for (_, fd), kept in zip(sinks, saved):
+                os.dup2(kept, fd)
+                os.close(kept)
             reports = []
-            for sink, fd in ((out, 1), (err, 2)):
+            for sink, fd in sinks:
                 sink.seek(0)
                 passed = bytearray()
                 for line in sink.read().splitlines(keepends=True):
@@ -186,6 +189,14 @@ def _captured_c_output(path: str | os.PathLike[str]) -> Iterator[_Captured]:
                     with open(fd, "wb", closefd=False) as stream:  # the bytes as they were printed
                         stream.write(passed)
             captured.text = "".join(reports)
+
+
+def _is_open(fd: int) -> bool:
+    try:
+        os.fstat(fd)
+    except OSError:
+        return False
+    return True
 
 
 def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list[ExrPart]:

@@ -166,6 +166,19 @@ def test_a_closed_stdout_is_a_quiet_exit(work):
     assert err == ""
 
 
+@pytest.mark.parametrize("closed", [1, 2])
+def test_a_process_started_with_stdout_or_stderr_closed_reads_its_files(work, closed):
+    """Cron and daemon launchers start programs with stdout or stderr closed (``>&-``): a valid
+    file is still valid (it was called "truncated or corrupt"), and the command succeeds."""
+    for args, made in ((["info", "d.exr"], None), (["denoise", "d.exr", "-o", "o.exr"], "o.exr")):
+        done = subprocess.run([*awr_command(), *args], cwd=work.root, stdin=subprocess.DEVNULL, timeout=120,
+                              pass_fds=(), close_fds=True, capture_output=False,
+                              **{("stdout" if closed == 1 else "stderr"): subprocess.DEVNULL},
+                              preexec_fn=lambda fd=closed: os.close(fd))
+        assert done.returncode == 0, args
+        assert made is None or (work.root / made).is_file()
+
+
 def test_a_refusal_still_prints_one_line_through_the_console_script(work):
     done = run_awr(["denoise", "d.exr", "-o", "d.exr"], work.root)
     assert done.returncode == 2
