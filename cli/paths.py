@@ -85,6 +85,8 @@ class PathPlan:
 
     def check(self) -> None:
         """Refuse the plan (:class:`UsageError` or ``FileExistsError``) before anything is read."""
+        for entry in self.reads + self.writes:
+            _check_name(entry)
         for entry in self.reads:
             try:
                 check_readable(entry.path)
@@ -95,11 +97,11 @@ class PathPlan:
         for entry in self.reads:
             st = os.stat(entry.path)
             inputs.setdefault((st.st_dev, st.st_ino), entry)
-            resolved_inputs.setdefault(entry.path.resolve(), entry)
+            resolved_inputs.setdefault(_resolved(entry), entry)
         seen: dict[Path, _Entry] = {}
         seen_inodes: dict[tuple[int, int], _Entry] = {}
         for entry in self.writes:
-            resolved = entry.path.resolve()
+            resolved = _resolved(entry)
             source = resolved_inputs.get(resolved)
             try:
                 st = os.stat(entry.path)
@@ -125,6 +127,24 @@ class PathPlan:
                 raise FileExistsError(f"{entry.option}: {exc}") from None
             except (OSError, ValueError) as exc:
                 raise UsageError(f"{entry.option}: {exc}") from None
+
+
+def _check_name(entry: _Entry) -> None:
+    """Refuse a name the EXR library and the files' headers cannot carry: bytes that are not UTF-8
+    (Linux names are bytes; Python holds the undecodable ones as surrogates)."""
+    try:
+        os.fspath(entry.path).encode("utf-8")
+    except UnicodeEncodeError:
+        shown = os.fsencode(entry.path).decode("utf-8", "backslashreplace")
+        raise UsageError(f"{entry.option}: {shown}: the name is not valid UTF-8; rename the file") from None
+
+
+def _resolved(entry: _Entry) -> Path:
+    """``entry``'s path with every link followed; a loop of symbolic links is the user's to untie."""
+    try:
+        return entry.path.resolve()
+    except (RuntimeError, OSError) as exc:  # Python 3.11 raises RuntimeError for a loop
+        raise UsageError(f"{entry.option}: {entry.path}: {exc}") from None
 
 
 def check_plane_windows(main: str | os.PathLike[str] | None, specs: list[tuple[str | None, str]]) -> None:

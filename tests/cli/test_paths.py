@@ -273,6 +273,25 @@ def test_every_route_by_which_mitsuba_reads_a_file_makes_it_an_input(work, capsy
     _refuses_scene_input(work, capsys, render, name, f"filename {Path(name).name}")
 
 
+def test_a_name_that_is_not_utf8_is_refused_before_any_work(work, capsys, monkeypatch):
+    """Linux names are bytes: one that is not UTF-8 cannot reach OpenEXR or a header, so the file was
+    written and then called corrupt, or a render failed after its work without naming the file."""
+    monkeypatch.chdir(work.root)
+    bad = os.fsdecode(b"bad\xff.exr")
+    Path(bad).write_bytes((work / "d.exr").read_bytes())
+    _refused(work, capsys, ["info", bad], "bad\\xff.exr", "not valid UTF-8")
+    _refused(work, capsys, ["denoise", "d.exr", "-o", os.fsdecode(b"o\xfe.exr")], "-o/--output", "not valid UTF-8")
+    _refused(work, capsys, ["render", "--renderer", "synthetic", "edges", "--width", "16", "--height", "16",
+                            "-o", os.fsdecode(b"r\xfe.exr")], "-o/--output", "not valid UTF-8")
+
+
+def test_an_output_that_is_a_symbolic_link_loop_is_refused(work, capsys, monkeypatch):
+    monkeypatch.chdir(work.root)
+    os.symlink("loop2.exr", work / "loop1.exr")
+    os.symlink("loop1.exr", work / "loop2.exr")
+    _refused(work, capsys, ["denoise", "d.exr", "-o", "loop1.exr", "--overwrite"], "-o/--output", "loop1.exr")
+
+
 def test_a_missing_input_names_its_option(work, capsys, monkeypatch):
     monkeypatch.chdir(work.root)
     _refused(work, capsys, ["denoise", "d.exr", "-o", "o.exr", "-r", "missing.exr"], "-r/--ref", "missing.exr")
