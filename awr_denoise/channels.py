@@ -9,7 +9,8 @@ import numpy as np
 from . import _checks
 from ._typing import FloatArray
 
-__all__ = ["default_channel_names", "luminance_weights", "resolve_channels", "channel_count", "MAX_CHANNELS"]
+__all__ = ["default_channel_names", "adopted_channels", "luminance_weights", "resolve_channels", "channel_count",
+           "MAX_CHANNELS"]
 
 _REC709 = np.array([0.2126, 0.7152, 0.0722])
 
@@ -36,6 +37,29 @@ def default_channel_names(n_channels: int) -> tuple[str, ...]:
     if n_channels == 4:
         return ("R", "G", "B", "A")
     return tuple(f"ch{i}" for i in range(n_channels))
+
+
+def adopted_channels(given: Sequence[str], expected: Sequence[str]) -> tuple[str, ...]:
+    """``expected``, the names a batch of channels ``given`` takes when merged into statistics named ``expected``.
+
+    A renderer that did not name its channels (:func:`default_channel_names`) takes the
+    statistics' names; channels named otherwise must be the same names in the same order: merged
+    channel by channel, ``B,G,R`` or ``X,Y,Z`` into ``R,G,B`` would swap or mislabel them.
+
+    Examples
+    --------
+    >>> from awr_denoise.channels import adopted_channels
+    >>> adopted_channels(("R", "G", "B"), ("X", "Y", "Z"))       # unnamed (the defaults): renamed
+    ('X', 'Y', 'Z')
+    >>> adopted_channels(("B", "G", "R"), ("R", "G", "B"))
+    Traceback (most recent call last):
+    ...
+    ValueError: samples: channels B,G,R do not match the sampler's R,G,B
+    """
+    given, expected = tuple(given), tuple(expected)
+    if given != expected and given != default_channel_names(len(given)):
+        raise ValueError(f"samples: channels {','.join(given)} do not match the sampler's {','.join(expected)}")
+    return expected
 
 
 def luminance_weights(channels: Sequence[str]) -> FloatArray:

@@ -33,6 +33,7 @@ from . import _arrays, _checks
 from ._typing import CountArray, FloatArray, Shape2D
 from .allocation import MAX_BUDGET, _allocate, _allocate_mixed  # the samplers' arrays need no checks
 from .buffers import SampleBuffer
+from .channels import adopted_channels
 from .domains import Domain, resolve_domain
 from .errors import StaleRequestError
 from .noise_gain import DEFAULT_GAIN_REFRESH, DEFAULT_NOISE_MODEL, NOISE_MODELS, MeasuredGain
@@ -46,7 +47,6 @@ __all__ = ["Sampler", "AdaptiveSampler", "UniformSampler", "VarianceSampler", "S
 _sampler_ids = itertools.count(1)
 DEFAULT_ROUND_GROWTH = 0.25
 """Default share of the samples taken so far that the next round asks for (docs/sampling.md)."""
-
 DEFAULT_INITIAL_SPP = 4
 """Samples per pixel of round 0 of the uniform and variance samplers: the paper's 4 (section 4)."""
 DEFAULT_AWR_INITIAL_SPP = 2
@@ -353,8 +353,8 @@ class Sampler:
         short = int((pending.counts - samples.count).sum())
         if short:
             warnings.warn(f"samples: {short} requested sample(s) missing (dropped by the renderer?)", stacklevel=2)
-        if samples.channels != self._buffer.channels:
-            samples = dataclasses.replace(samples, channels=self._buffer.channels)
+        if samples.channels != self._buffer.channels:  # unnamed channels take the sampler's names; others must match
+            samples = dataclasses.replace(samples, channels=adopted_channels(samples.channels, self._buffer.channels))
         self._buffer = self._buffer.merge(samples, executor=self.executor)
         self._issued = self._issued + pending.counts
         self._round += 1

@@ -546,3 +546,21 @@ def test_a_bad_domain_is_refused_by_the_constructor(cls, domain, error):
     """Before round 0 is rendered, not at the first adaptive ask() after it (second red-team pass)."""
     with pytest.raises(error, match="domain"):
         cls((8, 8), domain=domain)
+
+
+def test_tell_refuses_a_batch_whose_named_channels_differ_from_the_samplers():
+    """Merged channel by channel, a B,G,R or X,Y,Z batch would land in R,G,B silently; a renderer that
+    did not name its channels (the defaults) still takes the sampler's names."""
+    from awr_denoise.synthetic import SyntheticRenderer, make_scene
+
+    renderer = SyntheticRenderer(make_scene("edges", (8, 8)))
+    for names in (("B", "G", "R"), ("X", "Y", "Z")):
+        sampler = AdaptiveSampler((8, 8))
+        request = sampler.ask()
+        batch = renderer(request)
+        renamed = SampleBuffer.from_moments(batch.count, batch.mean, batch.variance, channels=names)
+        with pytest.raises(ValueError, match=f"samples: channels {','.join(names)} do not match the sampler's R,G,B"):
+            sampler.tell(request, renamed)
+    sampler = AdaptiveSampler((8, 8), channels=("X", "Y", "Z"))
+    request = sampler.ask()
+    assert sampler.tell(request, renderer(request)).channels == ("X", "Y", "Z")
