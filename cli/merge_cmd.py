@@ -20,6 +20,7 @@ from awr_denoise.io import (
 from awr_denoise.io.atomic import same_file
 from awr_denoise.io.dump import header_count
 from awr_denoise.io.exr import check_same_windows, read_windows
+from awr_denoise.io.request_map import MAX_ROUND
 
 from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, status
 from .paths import PathPlan, check_plane_windows, plane_options
@@ -158,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
         merged = merged.merge(dump.buffer)
         issued = issued + dump.issued
     attrs = {k: v for k, v in dumps[0].attributes.items() if k.removeprefix("awr:") in _KEPT}
-    rounds = [header_count(p, d.attributes, "awr:round", 0, 2**31 - 2) for p, d in zip(args.inputs, dumps)
+    rounds = [header_count(p, d.attributes, "awr:round", 0, MAX_ROUND) for p, d in zip(args.inputs, dumps)
               if "awr:round" in d.attributes]
     if told is not None:
         merged, issued, request_round, note = _tell(merged, issued, args.request, told.buffer, args.inputs[-1])
@@ -175,6 +176,8 @@ def run(args: argparse.Namespace) -> int:
                 raise UsageError(f"merge: {args.request}: awr:seed {seed} does not match awr:seed {kept} of "
                                  f"{args.inputs[0]} (plan each request from the running dump)")
     if rounds:  # without any round information (plain batches) plan starts at round 1
+        if max(rounds) + 1 > MAX_ROUND:  # a dump that no tool would read again
+            raise UsageError(f"merge: the next round would be {max(rounds) + 1}, beyond the last ({MAX_ROUND})")
         attrs["awr:round"] = max(rounds) + 1
     if "awr:seed" in attrs:
         header_count(args.inputs[0], attrs, "awr:seed", 0, MAX_SEED)

@@ -8,6 +8,7 @@ from awr_denoise.allocation import MAX_BUDGET
 from awr_denoise.io import provenance, read_sample_dump, write_request
 from awr_denoise.io.dump import header_count
 from awr_denoise.io.exr import read_windows
+from awr_denoise.io.request_map import MAX_ROUND
 from awr_denoise.noise_gain import DEFAULT_NOISE_MODEL
 from awr_denoise.sampling import (DEFAULT_AWR_INITIAL_SPP, DEFAULT_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS, SAMPLERS,
                                   AdaptiveSampler)
@@ -48,7 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="awr wavelet priorities (default), uniform, or per-pixel variance")
     p.add_argument("--seed", type=whole(minimum=0, maximum=MAX_SEED), help="seed of the renderer's sequences and tie-breaking "
                                             "(default: the dump's awr:seed, which it must match, else 0)")
-    p.add_argument("--round", type=whole(minimum=0, maximum=2**31 - 1), help="round number (default: the dump's awr:round, else 1)")
+    p.add_argument("--round", type=whole(minimum=0, maximum=MAX_ROUND), help="round number (default: the dump's awr:round, else 1)")
     p.add_argument("--wavelet", type=wavelet_name, default=DEFAULT_WAVELET, help="wavelet of the priority analysis (default %(default)s)")
     p.add_argument("--levels", type=whole(minimum=1, maximum=MAX_LEVELS), help="decomposition depth of the priority analysis")
     p.add_argument("--spp-max", type=whole(minimum=1, maximum=MAX_SPP), help="most samples any pixel may have")
@@ -108,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
                              "continue one sequence; plan without --seed)")
         seed = args.seed if args.seed is not None else seed
         round_number = args.round if args.round is not None else header_count(args.input, dump.attributes,
-                                                                                 "awr:round", 1, 2**31 - 1)
+                                                                                 "awr:round", 1, MAX_ROUND)
         if round_number < 1:
             where = "--round" if args.round is not None else f"{args.input}: awr:round"  # whichever gave it
             raise UsageError(f"{where}: rounds after the first are numbered from 1, got {round_number}")

@@ -24,7 +24,11 @@ from .dump import exact_counts, header_count, whole_counts
 from .exr import file_error, header_value, read_exr, write_exr
 
 __all__ = ["COUNTS_CHANNEL", "FIRST_INDEX_CHANNEL", "SEMANTICS_REQUEST", "read_request", "write_request",
-           "request_attributes"]
+           "request_attributes", "MAX_ROUND"]
+
+MAX_ROUND = 2**31 - 2
+"""The largest round a request map or a dump may carry (``awr:round``): every tool reads what another
+writes, and ``awr merge`` writes the round after the last (a 32-bit signed attribute holds one more)."""
 
 COUNTS_CHANNEL = "counts"
 FIRST_INDEX_CHANNEL = "first_index"
@@ -99,8 +103,7 @@ def read_request(path: str | os.PathLike[str]) -> SampleRequest:
     total = attrs.get("awr:total")
     if total is not None and _int("awr:total", 0) != int(counts.sum()):
         raise file_error(p, f"counts sum to {int(counts.sum())} but awr:total says {total}", COUNTS_CHANNEL)
-    # The round stays below 2**31 - 1: a merge writes the next one, which must still be a round.
-    return SampleRequest(counts, first, _int("awr:round", 0, 2**31 - 2), _int("awr:sampler_id", 0))
+    return SampleRequest(counts, first, _int("awr:round", 0, MAX_ROUND), _int("awr:sampler_id", 0))
 
 
 def request_attributes(path: str | os.PathLike[str]) -> dict[str, Any]:

@@ -13,6 +13,7 @@ from awr_denoise.cli.values import MAX_SEED  # noqa: E402
 from awr_denoise import fused  # noqa: E402
 from awr_denoise import SampleRequest  # noqa: E402
 from awr_denoise.io import read_image, read_request, write_request, write_sample_buffer  # noqa: E402
+from awr_denoise.io.request_map import MAX_ROUND  # noqa: E402
 from cli_helpers import dump_buffer, one_error_line  # noqa: E402
 
 pytestmark = pytest.mark.exr
@@ -117,6 +118,15 @@ def test_a_request_whose_round_has_no_successor_is_refused_before_merging(work, 
     assert main(["merge", "d.exr", "b.exr", "--request", "last.exr", "-o", "m.exr", "-q"]) == 2
     one_error_line(capsys.readouterr().err, "last.exr", "awr:round")
     assert work.state() == before
+    # One round earlier: the request reads, but the dump merge would write (round MAX_ROUND + 1) is
+    # refused before anything is written; every round a tool writes, another reads.
+    write_request(work / "late.exr", SampleRequest.uniform(dump_buffer(0).shape, 8, first_index=8, round=MAX_ROUND))
+    before = work.state()
+    assert main(["merge", "d.exr", "b.exr", "--request", "late.exr", "-o", "m.exr", "-q"]) == 2
+    one_error_line(capsys.readouterr().err, "next round would be", str(MAX_ROUND))
+    assert work.state() == before
+    assert main(["plan", "d.exr", "--round", str(MAX_ROUND + 1), "-o", "p.exr", "-q"]) == 2
+    one_error_line(capsys.readouterr().err, "--round")
 
 
 GOOD = [
