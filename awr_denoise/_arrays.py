@@ -10,7 +10,7 @@ import numpy as np
 
 from ._typing import CountArray, FloatArray, Shape2D
 
-__all__ = ["as_float64", "check_finite", "check_count", "flat_pixel_index"]
+__all__ = ["as_float64", "check_finite", "check_count", "flat_pixel_index", "pixel_moments"]
 
 
 def as_float64(name: str, array: object, ndim: int, *, copy: bool = True) -> FloatArray:
@@ -75,3 +75,38 @@ def flat_pixel_index(pixels: np.ndarray, shape: Shape2D) -> np.ndarray:
             raise ValueError(f"pixels: {int(bad.sum())} index(es) fall outside the {h}x{w} image")
         return flat
     raise ValueError(f"pixels: expected (N, 2) coordinates or (N,) flat indices, got shape {p.shape}")
+
+
+def pixel_moments(pixel: np.ndarray, values: FloatArray, n_pixels: int) -> tuple[CountArray, FloatArray, FloatArray]:
+    """Per-pixel count, mean and sum of squared deviations (M2) of samples ``values`` (N, C) at ``pixel`` (N,).
+
+    Two-pass in float64, a channel at a time (every pixel and sample vectorised). Where the values
+    come near the float64 limit, the sums could overflow while the means do not: each pixel's samples
+    are then divided by a power of two near its own largest value (exact, the same bits) and the
+    results scaled back; a spread whose M2 is beyond float64 is refused naming ``values``.
+    """
+    count = np.bincount(pixel, minlength=n_pixels)
+    safe = np.maximum(count, 1)
+    top = float(np.abs(values).max(initial=0.0))
+    scale = None
+    if top > 2.0**500:
+        peak = np.zeros(n_pixels)
+        np.maximum.at(peak, pixel, np.abs(values).max(axis=1))
+        scale = np.ldexp(1.0, np.frexp(peak)[1] - 2)  # each pixel's values then lie within +-4
+        values = values / scale[pixel, None]
+    mean = np.empty((n_pixels, values.shape[1]))
+    m2 = np.empty_like(mean)
+    for c in range(values.shape[1]):
+        mean[:, c] = np.bincount(pixel, weights=values[:, c], minlength=n_pixels) / safe
+        dev = values[:, c] - mean[pixel, c]
+        m2[:, c] = np.bincount(pixel, weights=dev * dev, minlength=n_pixels)
+    if scale is not None:
+        with np.errstate(over="ignore"):
+            mean *= scale[:, None]
+            m2 *= scale[:, None]
+            m2 *= scale[:, None]  # twice, not by scale squared: that overflows first
+        beyond = int((~np.isfinite(m2).all(axis=1)).sum())
+        if beyond:
+            raise ValueError(f"values: the variance of {beyond} pixel(s) is beyond float64 (1.8e308): their samples "
+                             "spread that far, or are so large (above about 1e154) that rounding alone does")
+    return count, mean, m2

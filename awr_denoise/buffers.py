@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import _checks
-from ._arrays import as_float64, check_count, check_finite, flat_pixel_index
+from ._arrays import as_float64, check_count, check_finite, flat_pixel_index, pixel_moments
 from ._typing import BoolArray, CountArray, FloatArray, Shape2D
 from .channels import channel_count, default_channel_names, luminance_weights, resolve_channels  # noqa: F401 - re-exported
 from .features import FEATURE_CHANNELS, checked_features, map_features, merge_features
@@ -249,7 +249,12 @@ class SampleBuffer:
         n = count_arr[..., None].astype(np.float64)
         safe_n = np.maximum(n, 1.0)
         mean = np.where(n > 0, s1 / safe_n, 0.0)
-        m2 = np.maximum(s2 - s1 * mean, 0.0)
+        with np.errstate(over="ignore", invalid="ignore"):  # sum * mean beyond float64: refused below
+            m2 = s2 - s1 * mean
+        if not np.isfinite(m2).all():
+            raise ValueError("sum_sq: a second moment beyond float64 (sum * mean overflows); pass the variance "
+                             "to SampleBuffer.from_moments instead")
+        np.maximum(m2, 0.0, out=m2)
         variance = np.where(n > 1, m2 / np.maximum(n - 1, 1.0), 0.0)
         return cls(count_arr, mean, variance, resolve_channels(channels, s1.shape[2]),
                    np.ones(count_arr.shape, bool))
@@ -324,16 +329,8 @@ class SampleBuffer:
                     rows[bad] = 0.0
         feature_buffers = {name: cls.from_samples(flat, rows, (h, w), channels=FEATURE_CHANNELS.get(name))
                            for name, rows in per_sample.items()}
-        n_pix = h * w
-        count = np.bincount(flat, minlength=n_pix)
-        safe = np.maximum(count, 1)
         n_ch = vals.shape[1]
-        mean = np.empty((n_pix, n_ch))
-        m2 = np.empty((n_pix, n_ch))
-        for c in range(n_ch):  # a loop over channels; every pixel and sample is vectorised
-            mean[:, c] = np.bincount(flat, weights=vals[:, c], minlength=n_pix) / safe
-            dev = vals[:, c] - mean[flat, c]
-            m2[:, c] = np.bincount(flat, weights=dev * dev, minlength=n_pix)
+        count, mean, m2 = pixel_moments(flat, vals, h * w)
         variance = m2 / np.maximum(count - 1, 1)[:, None]
         return cls(count.reshape(h, w), mean.reshape(h, w, n_ch), variance.reshape(h, w, n_ch),
                    resolve_channels(channels, n_ch), np.ones((h, w), bool), n_bad if nonfinite != "raise" else 0,

@@ -361,7 +361,8 @@ def restore_mean(image: FloatArray, mean: FloatArray, variance: FloatArray | Non
     unit = math.ldexp(1.0, -max(-1000, min(1000, math.frexp(top)[1]))) if np.isfinite(top) and top > 0 else 1.0
     pixels = x.shape[0] * x.shape[1]
     want, got = (x * unit).mean(axis=(0, 1)), (o * unit).mean(axis=(0, 1))
-    error = None if variance is None else np.sqrt(np.sum(np.asarray(variance) * unit * unit, axis=(0, 1))) / pixels
+    with np.errstate(over="ignore"):  # variances near 1e308 sum past float64: an infinite error changes nothing
+        error = None if variance is None else np.sqrt(np.sum(np.asarray(variance) * unit * unit, axis=(0, 1))) / pixels
     change = _mean_change(want, got, error, limit, significance)
     out = o.copy()
     blend = np.zeros(o.shape)

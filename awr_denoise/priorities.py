@@ -382,6 +382,9 @@ def sampling_density(
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     p = prepare(buffer, domain, luminance=True)  # once, for the deviation and the priorities
     plane = _plane(p)
+    if not np.isfinite(plane[2].max(initial=0.0)):  # a finite variance the domain's derivative takes past 1.8e308
+        raise ValueError(f"buffer: the per-sample variance of {int((~np.isfinite(plane[2])).sum())} pixel(s) is "
+                         f"beyond float64 in the {p.domain.name} domain; scale the radiance down")
     deviation = partial(pooled_deviation, buffer, domain, absolute_above=absolute_above, prepared=p)
     if noise_model == "shrinkage":
         # The gain takes the priorities' and levels' place; the plane is normalised as for them

@@ -441,3 +441,41 @@ class TestOutputVariance:
         rec = reconstruct_detailed(buf, domain=domain, variance_probes=4)
         assert np.isfinite(rec.image).all()
         assert np.isfinite(rec.variance).all() and (rec.variance >= 0).all()
+
+
+def test_from_samples_near_the_float64_limit_scales_each_pixel_exactly():
+    """Sums of samples near 1e308 overflow where their means do not: each pixel is scaled by a power
+    of two of its own (exact), so a tiny pixel beside a huge one keeps its bits, and a scaled
+    image's statistics are the unscaled ones times the scale, bit for bit."""
+    rng = np.random.default_rng(3)
+    pixels, base = rng.integers(0, 6, 400), 1.0 + rng.random((400, 3))
+    plain = SampleBuffer.from_samples(pixels, base, (2, 3))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        big = SampleBuffer.from_samples(pixels, base * 2.0**505, (2, 3))
+        np.testing.assert_array_equal(big.mean, plain.mean * 2.0**505)
+        np.testing.assert_array_equal(big.variance, plain.variance * 2.0**1010)
+        equal = SampleBuffer.from_samples(np.zeros(200, int), np.full(200, 2.0**1000), (1, 1))  # the sum overflows
+        assert equal.mean[0, 0, 0] == 2.0**1000 and equal.variance[0, 0, 0] == 0.0
+        mixed = SampleBuffer.from_samples(np.array([0, 0, 1, 1]), np.array([1e153, 3e153, 1e-300, 3e-300]), (1, 2))
+        np.testing.assert_allclose(mixed.mean[0, :, 0], [2e153, 2e-300], rtol=1e-15)
+        with pytest.raises(ValueError, match="values: the variance of 1 pixel"):
+            SampleBuffer.from_samples(np.array([0, 0]), np.array([1e200, -1e200]), (1, 1))
+        with pytest.raises(ValueError, match="sum_sq: a second moment beyond float64"):
+            SampleBuffer.from_sums([[2]], [[1.7e308]], [[1e308]])
+
+
+@pytest.mark.parametrize("variance", [5e307, 1e308, 1.7e308])
+def test_variances_near_the_float64_limit(variance):
+    """The reconstruction keeps such a buffer without a warning; the sampler, whose log domain takes the
+    variance past float64, refuses it naming the buffer, not one of its internal arrays."""
+    buffer = SampleBuffer.from_moments(np.full((8, 8), 4), np.full((8, 8, 3), 0.5), np.full((8, 8, 3), variance))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert np.isfinite(reconstruct(buffer)).all()
+        try:
+            counts = AdaptiveSampler.from_buffer(buffer).ask(10).counts
+        except ValueError as exc:
+            assert str(exc).startswith("buffer: the per-sample variance of 64 pixel(s) is beyond float64")
+        else:
+            assert counts.sum() == 10
