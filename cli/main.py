@@ -20,6 +20,7 @@ import select
 import signal
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 from awr_denoise import __version__
 from awr_denoise.errors import InputFileError
@@ -48,6 +49,14 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> None:  # type: ignore[override]
         raise UsageError(f"{message} (see '{self.prog} --help')")
+
+    def _print_message(self, message: str, file: Any = None) -> None:
+        # argparse passes over a failed write (--help > /dev/full exited 0 with nothing written):
+        # written and flushed here, a failure is main's to report.
+        if message:
+            stream = file if file is not None else sys.stderr
+            stream.write(message)
+            stream.flush()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -107,6 +116,21 @@ def _check_kernels() -> None:
         raise UsageError(str(exc)) from exc
 
 
+def _run_failed(exc: OSError) -> int:
+    """The exit status of an ``OSError``: a reader gone from stdout is a quiet 141; anything else (a
+    full disk, a lost network file system) one line and exit 1. Writers leave no partial file behind."""
+    if isinstance(exc, BrokenPipeError):
+        if exc.filename is None and _stdout_is_broken():
+            _silence_stdout()
+            return EXIT_BROKEN_PIPE
+        return _error(f"{exc.filename}: {exc.strerror}" if exc.filename else exc.strerror or exc, EXIT_FAILURE)
+    where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+    what = exc.strerror or (os.strerror(exc.errno) if exc.errno else None) or exc
+    if exc.errno == errno.ENOSPC and not where:
+        what = "no space left on device"
+    return _error(f"{where}{what}", EXIT_FAILURE)
+
+
 def _run(argv: Sequence[str] | None) -> int:
     try:
         parser = build_parser()
@@ -125,19 +149,8 @@ def _run(argv: Sequence[str] | None) -> int:
     except (ValueError, TypeError) as exc:
         # Library argument validation (unknown wavelet, bad levels...): the user's input.
         return _error(exc, EXIT_USAGE)
-    except BrokenPipeError as exc:
-        if exc.filename is None and _stdout_is_broken():
-            _silence_stdout()
-            return EXIT_BROKEN_PIPE
-        return _error(f"{exc.filename}: {exc.strerror}" if exc.filename else exc.strerror or exc, EXIT_FAILURE)
     except OSError as exc:
-        # A real runtime failure (a full disk, a lost network file system): exit 1. Writers
-        # leave no partial file behind.
-        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
-        what = exc.strerror or (os.strerror(exc.errno) if exc.errno else None) or exc
-        if exc.errno == errno.ENOSPC and not where:
-            what = "no space left on device"
-        return _error(f"{where}{what}", EXIT_FAILURE)
+        return _run_failed(exc)
     except MemoryError as exc:
         return _error(f"out of memory{': ' + str(exc) if str(exc) else ''}", EXIT_FAILURE)
     except ImportError as exc:

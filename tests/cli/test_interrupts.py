@@ -179,6 +179,17 @@ def test_a_process_started_with_stdout_or_stderr_closed_reads_its_files(work, cl
         assert made is None or (work.root / made).is_file()
 
 
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full")
+@pytest.mark.parametrize("args", [["--help"], ["--version"], ["denoise", "--help"]])
+def test_help_that_cannot_be_written_is_a_failure(work, args):
+    """argparse passes over a failed write: ``awr --help > /dev/full`` exited 0 with nothing written."""
+    with open("/dev/full", "w") as full:
+        done = subprocess.run([*awr_command(), *args], cwd=work.root, stdout=full, stderr=subprocess.PIPE,
+                              text=True, timeout=120)
+    assert done.returncode == 1
+    one_error_line(done.stderr, "no space left on device")
+
+
 def test_a_refusal_still_prints_one_line_through_the_console_script(work):
     done = run_awr(["denoise", "d.exr", "-o", "d.exr"], work.root)
     assert done.returncode == 2
