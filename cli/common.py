@@ -169,4 +169,7 @@ def _jsonable(value: Any) -> Any:
 def status(message: str, *, quiet: bool) -> None:
     """A progress note on stderr (stdout is kept for results), printed above any progress bar."""
     if not quiet:
-        tqdm.write(message, file=sys.stderr)
+        try:
+            tqdm.write(message, file=sys.stderr)
+        except OSError:  # nobody reads stderr any more (a closed pipe): the work stands, its note is lost
+            pass

@@ -190,6 +190,18 @@ def test_help_that_cannot_be_written_is_a_failure(work, args):
     one_error_line(done.stderr, "no space left on device")
 
 
+def test_a_reader_gone_from_stderr_does_not_fail_a_finished_command(work):
+    """The last status line comes after the outputs are committed: a closed stderr pipe loses the
+    note, not the command's success (it exited 1 with the output written)."""
+    read, write = os.pipe()
+    proc = subprocess.Popen([*awr_command(), "denoise", "d.exr", "-o", "o.exr"], cwd=work.root,
+                            stdout=subprocess.DEVNULL, stderr=write)
+    os.close(write)
+    os.close(read)
+    assert proc.wait(timeout=120) == 0
+    assert (work.root / "o.exr").is_file()
+
+
 def test_a_refusal_still_prints_one_line_through_the_console_script(work):
     done = run_awr(["denoise", "d.exr", "-o", "d.exr"], work.root)
     assert done.returncode == 2
