@@ -112,11 +112,13 @@ _HASHES = re.compile(r"#+")
 
 
 def expand_frames(pattern: str, frame: int) -> str:
-    """``shot.####.exr`` with frame 7 is ``shot.0007.exr`` (the run of ``#`` gives the padding)."""
-    runs = _HASHES.findall(pattern)
-    if not runs:
+    """``shot.####.exr`` with frame 7 is ``shot.0007.exr`` (the run of ``#`` gives the padding).
+
+    Only the file name holds the placeholder: a ``#`` in a folder name (``take#1/``) is kept."""
+    folder, name = os.path.split(pattern)
+    if not _HASHES.search(name):
         raise UsageError(f"{pattern}: no #### frame placeholder in the file name")
-    return _HASHES.sub(lambda m: f"{frame:0{len(m.group(0))}d}", pattern)
+    return os.path.join(folder, _HASHES.sub(lambda m: f"{frame:0{len(m.group(0))}d}", name))
 
 
 def frame_jobs(inputs: Sequence[str], output: str, frames: str | None) -> list[tuple[list[str], str]]:
@@ -127,11 +129,12 @@ def frame_jobs(inputs: Sequence[str], output: str, frames: str | None) -> list[t
                 raise UsageError(f"{name}: the name has a #### frame placeholder but no --frames was given")
         return [(list(inputs), output)]
     numbers = parse_frames(frames)
-    if not _HASHES.search(output):
-        raise UsageError(f"{output}: with --frames the output needs a #### placeholder")
+    if not _HASHES.search(os.path.basename(output)):
+        raise UsageError(f"{output}: with --frames the output needs a #### placeholder in its file name")
     jobs = []
     for f in numbers:
-        jobs.append(([expand_frames(i, f) if _HASHES.search(i) else i for i in inputs], expand_frames(output, f)))
+        jobs.append(([expand_frames(i, f) if _HASHES.search(os.path.basename(i)) else i for i in inputs],
+                     expand_frames(output, f)))
     return jobs
 
 

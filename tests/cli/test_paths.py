@@ -364,3 +364,16 @@ def test_output_names_up_to_255_bytes_work(work, capsys, monkeypatch, length):
 def test_an_output_name_beyond_255_bytes_is_refused_naming_the_option(work, capsys, monkeypatch):
     monkeypatch.chdir(work.root)
     _refused(work, capsys, ["denoise", "d.exr", "-o", "o.exr", "--preview", "p" * 252 + ".png"], "--preview")
+
+
+def test_a_hash_in_a_folder_name_is_not_a_frame_placeholder(work, capsys, monkeypatch):
+    """``take#1/shot.####.exr``: only the file name's run of ``#`` is the frame number."""
+    monkeypatch.chdir(work.root)
+    (work / "take#1").mkdir()
+    (work / "out#1").mkdir()
+    for frame in (1, 2):
+        (work / "take#1" / f"shot.000{frame}.exr").write_bytes((work / "d.exr").read_bytes())
+    assert main(["denoise", "take#1/shot.####.exr", "--frames", "1-2", "-o", "out#1/o.####.exr", "-q"]) == 0
+    assert sorted(p.name for p in (work / "out#1").iterdir()) == ["o.0001.exr", "o.0002.exr"]
+    _refused(work, capsys, ["denoise", "take#1/shot.0001.exr", "--frames", "1", "-o", "out#1/o.exr"],
+             "out#1/o.exr", "placeholder in its file name")
