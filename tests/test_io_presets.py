@@ -173,3 +173,21 @@ def test_uint_count_plane_read_exactly(tmp_path):
     beauty = _write(tmp_path / "b.exr", {c: _ramp(i) for i, c in enumerate("RGB")}
                     | {f"v.{c}": _ramp() for c in "RGB"} | {"n": np.full((H, W), 3_000_000, np.uint32)})
     assert (read_sample_buffer(beauty, color="RGB", variance="v", count="n").count == 3_000_000).all()
+
+
+def test_a_feature_file_whose_name_holds_a_colon_is_read_whole(tmp_path, monkeypatch):
+    """``--alb take:2.exr``: a file of that whole name is the file (it was read as plane ``2.exr`` of
+    the input); ``beauty.exr:Albedo`` stays a plane of a file when no file has the whole name."""
+    from pathlib import Path
+
+    from awr_denoise import SampleBuffer
+    from awr_denoise.io import read_sample_dump, write_image, write_sample_buffer
+    from awr_denoise.io.presets import feature_plane_file
+
+    monkeypatch.chdir(tmp_path)
+    write_sample_buffer("d.exr", SampleBuffer.from_moments(np.full((4, 4), 2), np.ones((4, 4, 3)), np.ones((4, 4, 3))))
+    write_image("take:2.exr", np.full((4, 4, 3), 0.25))
+    assert feature_plane_file("take:2.exr") == Path("take:2.exr")
+    assert feature_plane_file("beauty.exr:Albedo") == Path("beauty.exr")
+    albedo = read_sample_dump("d.exr", albedo="take:2.exr").buffer.features["albedo"]
+    np.testing.assert_array_equal(albedo.mean, np.full((4, 4, 3), 0.25))

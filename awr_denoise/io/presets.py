@@ -165,7 +165,9 @@ def parse_plane(spec: str, default_file: str | os.PathLike[str] | None) -> tuple
 
 
 def _whole_file(spec: str) -> bool:
-    return ":" not in spec and (spec.lower().endswith(".exr") or Path(spec).is_file())
+    """Whether a feature spec names a whole file: one that exists under the whole name (colons and
+    all: ``take:2.exr``), or an EXR name without a colon."""
+    return Path(spec).is_file() or (":" not in spec and spec.lower().endswith(".exr"))
 
 
 def feature_plane_file(spec: str) -> Path | None:
@@ -178,7 +180,7 @@ def feature_plane_file(spec: str) -> Path | None:
     >>> feature_plane_file("albedo.exr"), feature_plane_file("beauty.exr:Albedo"), feature_plane_file("Albedo")
     (PosixPath('albedo.exr'), PosixPath('beauty.exr'), None)
     """
-    if _whole_file(spec) or (":" not in spec and os.path.lexists(spec)):  # a directory or FIFO: named, refused
+    if _whole_file(spec) or os.path.lexists(spec):  # a directory or FIFO: named, refused
         return Path(spec)
     try:
         return parse_plane(spec, None)[0]
