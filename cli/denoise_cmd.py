@@ -201,7 +201,7 @@ def run(args: argparse.Namespace) -> int:
         plan.read(inputs[0], _frame_label("DUMP.exr" if args.input else "--hdr", jobs, frame))
         plan.write(output, _frame_label("-o/--output", jobs, frame))
         if len(inputs) > 1:
-            plan.write(inputs[1], _frame_label("--preview", jobs, frame))
+            plan.write(inputs[1], _frame_label("--preview", jobs, frame), "png")
     plan.check()
     sources = [inputs[0] for inputs, _ in jobs]
     for src in sources:

@@ -51,6 +51,13 @@ def _plane_file(spec: str, option: str) -> Path | None:
 class _Entry:
     path: Path
     option: str
+    kind: str | None = None  # what an output is written as ("exr", "png"), checked against its name
+
+
+# Image file types a name can claim: an output whose name says another type than it is written in
+# is refused (-o out.png held an EXR that image viewers then refused).
+_IMAGE_SUFFIXES = {".exr": "exr", ".png": "png", ".jpg": "jpeg", ".jpeg": "jpeg", ".tif": "tiff", ".tiff": "tiff",
+                   ".hdr": "hdr", ".bmp": "bmp", ".ppm": "ppm", ".pfm": "pfm", ".tga": "tga", ".webp": "webp"}
 
 
 @dataclass
@@ -78,10 +85,10 @@ class PathPlan:
             return
         self.read(_plane_file(spec, option), option)  # None: a plane of the main input
 
-    def write(self, path: str | os.PathLike[str] | None, option: str) -> None:
-        """An output file (None is skipped)."""
+    def write(self, path: str | os.PathLike[str] | None, option: str, kind: str = "exr") -> None:
+        """An output file (None is skipped), written as ``kind`` (``"exr"`` or ``"png"``)."""
         if path is not None:
-            self.writes.append(_Entry(Path(path), option))
+            self.writes.append(_Entry(Path(path), option, kind))
 
     def check(self) -> None:
         """Refuse the plan (:class:`UsageError` or ``FileExistsError``) before anything is read."""
@@ -127,6 +134,11 @@ class PathPlan:
                 raise FileExistsError(f"{entry.option}: {exc}") from None
             except (OSError, ValueError) as exc:
                 raise UsageError(f"{entry.option}: {exc}") from None
+        for entry in self.writes:
+            claimed = _IMAGE_SUFFIXES.get(entry.path.suffix.lower())
+            if claimed is not None and entry.kind is not None and claimed != entry.kind:
+                raise UsageError(f"{entry.option}: {entry.path}: this output is written as {entry.kind.upper()}, "
+                                 f"but its name says {entry.path.suffix}; name it .{entry.kind}")
 
 
 def _check_name(entry: _Entry) -> None:

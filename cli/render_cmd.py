@@ -229,7 +229,7 @@ def run(args: argparse.Namespace) -> int:
             plan.read(path, f"SCENE's {field}")
     plan.write(args.output, "-o/--output")
     plan.write(image_path, "--image" if args.image else "--image (DUMP.denoised.exr)")
-    plan.write(preview_path, "--preview" if args.preview else "--preview (DUMP.denoised.png)")
+    plan.write(preview_path, "--preview" if args.preview else "--preview (DUMP.denoised.png)", "png")
     plan.check()  # refuse before spending time rendering
     if args.width is not None and args.height is not None:
         check_pixels("--width/--height", args.height, args.width)

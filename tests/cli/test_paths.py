@@ -377,3 +377,14 @@ def test_a_hash_in_a_folder_name_is_not_a_frame_placeholder(work, capsys, monkey
     assert sorted(p.name for p in (work / "out#1").iterdir()) == ["o.0001.exr", "o.0002.exr"]
     _refused(work, capsys, ["denoise", "take#1/shot.0001.exr", "--frames", "1", "-o", "out#1/o.exr"],
              "out#1/o.exr", "placeholder in its file name")
+
+
+@pytest.mark.parametrize("args, option", [
+    (["denoise", "d.exr", "-o", "o.png"], "-o/--output"),
+    (["denoise", "d.exr", "-o", "o.exr", "--preview", "p.exr"], "--preview"),
+    (["plan", "d.exr", "-o", "r.tif"], "-o/--output"),
+])
+def test_an_output_named_as_another_image_type_is_refused(work, capsys, monkeypatch, args, option):
+    """-o out.png wrote an EXR and --preview p.exr a PNG, files image viewers then refused."""
+    monkeypatch.chdir(work.root)
+    _refused(work, capsys, args, option, "this output is written as")
