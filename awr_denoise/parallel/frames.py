@@ -127,6 +127,9 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
     windows = read_windows(source)  # the image keeps the dump's data and display windows
     if not buffer.count.any():  # refused by the reconstruction too, but there without the file's name
         raise InputFileError(f"{source}: no pixel has any sample")
+    if reconstruct_options.get("features") and not buffer.features:  # the file's fault, named (not the argument's)
+        raise InputFileError(f"{source}: holds no feature buffers (albedo, normal or depth) to guide with; give "
+                             "them as files (--alb, --nrm, --depth; albedo=, normal=, depth=)")
     result = reconstruct_detailed(buffer, variance_probes=0, **reconstruct_options)
     error = _reference_error(reference, np.asarray(result.image), source, windows) if reference else None
     written = write_image(output, result.image, channels=buffer.channels, half=half, overwrite=overwrite,
