@@ -10,7 +10,7 @@ import numpy as np
 
 from ._typing import CountArray, FloatArray, Shape2D
 
-__all__ = ["as_float64", "check_finite", "check_count", "flat_pixel_index", "pixel_moments"]
+__all__ = ["as_float64", "check_finite", "check_count", "flat_pixel_index", "pixel_moments", "as_mask"]
 
 
 def as_float64(name: str, array: object, ndim: int, *, copy: bool = True) -> FloatArray:
@@ -110,3 +110,16 @@ def pixel_moments(pixel: np.ndarray, values: FloatArray, n_pixels: int) -> tuple
             raise ValueError(f"values: the variance of {beyond} pixel(s) is beyond float64 (1.8e308): their samples "
                              "spread that far, or are so large (above about 1e154) that rounding alone does")
     return count, mean, m2
+
+
+def as_mask(name: str, array: object) -> np.ndarray:
+    """A boolean array from booleans or the numbers 0 and 1; NaN, 0.5 or a string is refused, not cast
+    (``bool(nan)`` is True)."""
+    a = np.asarray(array)
+    if a.dtype == bool:
+        return a
+    if a.dtype.kind not in "fiu":
+        raise TypeError(f"{name}: expected booleans (or 0 and 1), got dtype {a.dtype}")
+    if not np.isin(a, (0, 1)).all():
+        raise ValueError(f"{name}: expected booleans (or 0 and 1), got other values (NaN, fractions)")
+    return a.astype(bool)

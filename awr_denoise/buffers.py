@@ -19,7 +19,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import _checks
-from ._arrays import as_float64, check_count, check_finite, flat_pixel_index, pixel_moments
+from ._arrays import (as_float64, as_mask, check_count, check_finite, flat_pixel_index,
+                      pixel_moments)
 from ._typing import BoolArray, CountArray, FloatArray, Shape2D
 from .channels import channel_count, default_channel_names, luminance_weights, resolve_channels  # noqa: F401 - re-exported
 from .features import FEATURE_CHANNELS, checked_features, map_features, merge_features
@@ -110,7 +111,7 @@ class SampleBuffer:
         known = np.asarray(self.variance_known)
         if known.shape != count.shape:
             raise ValueError(f"variance_known: shape {known.shape} does not match count {count.shape}")
-        known = known.astype(bool) & (count >= 2)
+        known = as_mask("variance_known", known) & (count >= 2)
         # Masked writes only where needed (a merged buffer has none): ~20 ms each at 1080p regardless.
         if (empty := count == 0).any():
             mean[empty] = 0.0
@@ -216,7 +217,7 @@ class SampleBuffer:
                                      "mean: not E[x^2] (variance_kind)")
                 spread = np.maximum(spread, 0.0)
                 var_arr = np.where(n > 1, spread * n / np.maximum(n - 1, 1), 0.0)
-        known = np.ones(count_arr.shape, bool) if variance_known is None else np.asarray(variance_known, bool)
+        known = np.ones(count_arr.shape, bool) if variance_known is None else np.asarray(variance_known)
         return cls(count_arr, mean_arr, var_arr, resolve_channels(channels, mean_arr.shape[2]), known,
                    features=features or {})
 

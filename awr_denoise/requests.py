@@ -79,6 +79,8 @@ class SampleRequest:
                     raise TypeError(f"{name}: expected whole numbers, got dtype {a.dtype}")
         counts = counts.astype(np.int64)
         first = first.astype(np.int64)
+        if counts.size == 0:
+            raise ValueError(f"counts: empty image of shape {counts.shape}")
         if counts.shape != first.shape:
             raise ValueError(f"first_index: shape {first.shape} does not match counts {counts.shape}")
         if (counts < 0).any():

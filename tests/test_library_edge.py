@@ -313,3 +313,21 @@ def test_a_process_pool_is_refused_where_threads_share_the_arrays(call):
 
     with ProcessPoolExecutor(1) as pool, pytest.raises(TypeError, match=r"^executor: a ProcessPoolExecutor"):
         call(pool)
+
+
+def test_fourth_review_edges(tmp_path):
+    """A mask of NaN or 0.5 was cast to True, an empty request accepted where every sampler refuses an
+    empty image, and a deep dump of no samples (an empty round) gave numpy's reshape error."""
+    from awr_denoise.io import read_deep_samples, write_deep_samples
+
+    for bad in (np.full((2, 2), np.nan), np.full((2, 2), 0.5)):
+        with pytest.raises(ValueError, match="variance_known: expected booleans"):
+            SampleBuffer.from_moments(np.full((2, 2), 2), np.ones((2, 2, 3)), np.ones((2, 2, 3)), variance_known=bad)
+    with pytest.raises(TypeError, match="variance_known: expected booleans"):
+        SampleBuffer.from_moments(np.full((1, 1), 2), np.ones((1, 1, 3)), np.ones((1, 1, 3)), variance_known=[["x"]])
+    ones = SampleBuffer.from_moments(np.full((1, 2), 2), np.ones((1, 2, 3)), np.ones((1, 2, 3)), variance_known=[[1, 0]])
+    assert ones.variance_known.tolist() == [[True, False]]
+    with pytest.raises(ValueError, match="counts: empty image"):
+        SampleRequest(np.zeros((0, 0), int), np.zeros((0, 0), int), 0, 0)
+    write_deep_samples(tmp_path / "empty.exr", np.zeros(0, int), np.zeros((0, 3)), (7, 7))
+    assert read_deep_samples(tmp_path / "empty.exr").total_samples == 0

@@ -78,7 +78,7 @@ def write_deep_samples(
         raise ValueError(f"channels: {', '.join(sorted(bad))} would be read as depth data or clash; rename them")
     p = np.asarray(pixels)
     flat = (p[:, 0].astype(np.int64) * w + p[:, 1].astype(np.int64)) if p.ndim == 2 else p.astype(np.int64)
-    vals = np.asarray(values, dtype=np.float64).reshape(flat.size, -1)
+    vals = np.asarray(values, dtype=np.float64).reshape(flat.size, check.n_channels)  # also no samples at all
     order = np.argsort(flat, kind="stable")
     sizes = np.bincount(flat, minlength=h * w)
     bounds = np.cumsum(sizes)[:-1]
