@@ -18,7 +18,7 @@ from awr_denoise.io import (
     write_sample_buffer,
 )
 from awr_denoise.io.atomic import same_file
-from awr_denoise.io.dump import MAX_EXACT_COUNT, header_count
+from awr_denoise.io.dump import header_count
 from awr_denoise.io.exr import check_same_windows, read_windows
 from awr_denoise.io.request_map import MAX_ROUND
 
@@ -88,10 +88,6 @@ def _tell(merged: SampleBuffer, issued: np.ndarray, request_path: str, batch: Sa
         except ValueError as exc:
             raise InputFileError(f"{batch_path}: sampleCount: {exc}") from None
     note = "; ".join(str(w.message) for w in caught) or None
-    beyond = int((sampler.issued > MAX_EXACT_COUNT).sum())
-    if beyond:  # the dump stores issued counts as float32, exact to 2**24: found here, not when writing
-        raise InputFileError(f"{request_path}: its counts take {beyond} pixel(s) past {MAX_EXACT_COUNT} (2**24) "
-                             "samples issued, the most a dump records exactly")
     return sampler.buffer, sampler.issued, request.round, note
 
 

@@ -4,7 +4,6 @@ the extremes that make sense are accepted."""
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 pytest.importorskip("OpenEXR")
@@ -128,20 +127,6 @@ def test_a_request_whose_round_has_no_successor_is_refused_before_merging(work, 
     assert work.state() == before
     assert main(["plan", "d.exr", "--round", str(MAX_ROUND + 1), "-o", "p.exr", "-q"]) == 2
     one_error_line(capsys.readouterr().err, "--round")
-
-
-def test_a_request_that_takes_issued_counts_past_float32_is_refused_naming_it(work, capsys, monkeypatch):
-    """A dump records the samples issued per pixel in float32, exact to 2**24: a request past it was
-    found only when writing the merged dump, in a message naming neither the request nor --request."""
-    monkeypatch.chdir(work.root)
-    shape = dump_buffer(0).shape
-    counts = np.full(shape, 8)
-    counts[0, 0] = 2**24
-    write_request(work / "huge.exr", SampleRequest(counts, np.full(shape, 8), 1, 0))
-    before = work.state()
-    assert main(["merge", "d.exr", "b.exr", "--request", "huge.exr", "-o", "m.exr", "-q"]) == 2
-    one_error_line(capsys.readouterr().err, "huge.exr", "2**24")
-    assert work.state() == before
 
 
 GOOD = [
