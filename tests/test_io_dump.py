@@ -257,3 +257,13 @@ def test_radiance_names_that_collide_with_feature_planes_are_refused(tmp_path, r
     with pytest.raises(ValueError, match="channel name 'depth.Z' collides with the dump layout"):
         write_sample_buffer(tmp_path / "x.exr", clash)
     assert not (tmp_path / "x.exr").exists()
+
+
+def test_a_request_file_past_the_exact_issued_count_is_refused_by_the_reader(tmp_path):
+    """write_request refuses first_index + counts past 2**24; a file edited by hand is refused when read,
+    naming it, rather than when a merge writes its dump (a message naming neither)."""
+    counts = np.full((2, 2), 8, np.float32)
+    counts[0, 0] = 2**24
+    _write(tmp_path / "r.exr", {"counts": counts, "first_index": np.full((2, 2), 8, np.float32)}, {})
+    with pytest.raises(InputFileError, match=r"r\.exr: counts: 1 pixel\(s\) would issue samples past index 16777216"):
+        read_request(tmp_path / "r.exr")

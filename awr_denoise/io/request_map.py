@@ -18,9 +18,11 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from .._version import __version__
 from ..requests import SampleRequest
-from .dump import exact_counts, header_count, whole_counts
+from .dump import MAX_EXACT_COUNT, exact_counts, header_count, whole_counts
 from .exr import file_error, header_value, read_exr, write_exr
 
 __all__ = ["COUNTS_CHANNEL", "FIRST_INDEX_CHANNEL", "SEMANTICS_REQUEST", "read_request", "write_request",
@@ -100,6 +102,10 @@ def read_request(path: str | os.PathLike[str]) -> SampleRequest:
     def _int(key: str, default: int, high: int = 2**62) -> int:
         return header_count(p, attrs, key, default, high)
 
+    beyond = int((first.astype(np.int64) + counts.astype(np.int64) > MAX_EXACT_COUNT).sum())
+    if beyond:  # as write_request refuses: the dump merged from it could not record the samples issued
+        raise file_error(p, f"{beyond} pixel(s) would issue samples past index {MAX_EXACT_COUNT} (2**24), "
+                            "beyond what a dump records exactly", COUNTS_CHANNEL)
     total = attrs.get("awr:total")
     if total is not None and _int("awr:total", 0) != int(counts.sum()):
         raise file_error(p, f"counts sum to {int(counts.sum())} but awr:total says {total}", COUNTS_CHANNEL)
