@@ -6,6 +6,7 @@ import argparse
 
 import numpy as np
 
+from awr_denoise.errors import InputFileError
 from awr_denoise.io import provenance, read_image, write_image
 from awr_denoise.metrics import HIGHER_IS_BETTER, METRICS
 
@@ -31,8 +32,27 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--metric", choices=tuple(METRICS), default="relmse", help="metric checked by --maxerror")
     p.add_argument("--maxerror", type=real(), metavar="E",
                    help="fail when the metric exceeds E (for psnr and ssim: falls below E)")
+    p.add_argument("--channels", metavar="LIST|LAYER",
+                   help="IMAGE's channels: comma-separated names (R,G,B), or a layer whose R,G,B are read "
+                        "(ViewLayer.Combined in a Blender file); the reference's R,G,B are read")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(run=run)
+
+
+def _image(path: str, spec: str | None) -> np.ndarray:
+    """IMAGE with ``--channels``: a comma-separated list of names, or one name: a layer's R,G,B if the
+    file has them, else that one channel."""
+    if spec is None:
+        return read_image(path)
+    names = [name.strip() for name in spec.split(",")]
+    if not all(names):
+        raise UsageError(f"--channels: {spec!r} has an empty channel name")
+    if len(names) > 1:
+        return read_image(path, channels=names)
+    try:
+        return read_image(path, channels=[f"{names[0]}.{c}" for c in "RGB"])
+    except InputFileError:
+        return read_image(path, channels=names)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -45,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     plan.read(args.ref, "-r/--ref")
     plan.write(args.output, "-o/--output")
     plan.check()
-    image = read_image(args.input)
+    image = _image(args.input, args.channels)
     ref = read_image(args.ref)
     windows = read_windows(args.input)
     if image.shape[:2] != ref.shape[:2]:

@@ -445,12 +445,13 @@ def _find_rgb(path: Path, names: Sequence[str]) -> list[str]:
         return [f"{layers[0]}.{c}" for c in "RGB"]
     if len(layers) > 1:
         raise file_error(path, f"ambiguous colour channels: layers {', '.join(layers)} all have R,G,B "
-                               "(choose one with channels=)")
+                               "(choose one with channels= / awr diff --channels)")
     if "Y" in names:
         return ["Y"]
     if len(names) == 1:
         return list(names)
-    raise file_error(path, f"no R,G,B channels (found {', '.join(sorted(names))}); choose with channels=")
+    raise file_error(path, f"no R,G,B channels (found {', '.join(sorted(names))}); choose with channels= / "
+                           "awr diff --channels")
 
 
 def read_image(path: str | os.PathLike[str], *, channels: Sequence[str] | None = None) -> FloatArray:
@@ -487,7 +488,8 @@ def read_image(path: str | os.PathLike[str], *, channels: Sequence[str] | None =
     p = Path(path)
     parts = [part for part in read_exr(p) if not part.deep]
     if not parts:
-        raise file_error(p, "is a deep EXR (read it with read_deep_samples)")
+        raise file_error(p, "is a deep EXR, a per-sample dump, not an image (read it with read_deep_samples, "
+                              "or denoise it first: awr denoise)")
     available: dict[str, tuple[ExrPart, np.ndarray]] = {}
     for part in parts:  # first part wins when two parts share a channel name
         for name, arr in part.channels.items():

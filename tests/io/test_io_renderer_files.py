@@ -208,3 +208,18 @@ def test_cycles_fresh_renders(tmp_path):
     predicted = (halves[0].variance_of_mean() + halves[1].variance_of_mean()) / 2
     ratio = measured.sum() / predicted.sum()
     assert 0.6 < ratio < 1.6, ratio
+
+
+def test_diff_reads_a_cycles_layer_with_channels(capsys):
+    """A Blender multilayer file has several layers with R,G,B: ``awr diff`` names the choice in its own
+    terms, and ``--channels ViewLayer.Combined`` (a layer) or a list of names reads it."""
+    image, ref = str(CY / "cycles_default.exr"), str(CY / "cycles_ref.exr")
+    assert main(["diff", image, "-r", ref]) == 2
+    assert "awr diff --channels" in capsys.readouterr().err
+    assert main(["diff", image, "-r", ref, "--channels", "ViewLayer.Combined", "--json"]) == 0
+    by_layer = capsys.readouterr().out
+    names = ",".join(f"ViewLayer.Combined.{c}" for c in "RGB")
+    assert main(["diff", image, "-r", ref, "--channels", names, "--json"]) == 0
+    assert capsys.readouterr().out == by_layer
+    assert main(["diff", image, "-r", ref, "--channels", "ViewLayer.Nope"]) == 2
+    assert "ViewLayer.Nope" in capsys.readouterr().err
