@@ -32,7 +32,9 @@ def describe(path: str, args: argparse.Namespace) -> dict[str, Any]:
 
 def _print(info: dict[str, Any]) -> None:
     views = f", views {', '.join(info['views'])}" if info.get("views") else ""
-    print(f"{info['file']}: {info['width']}x{info['height']}, {info['parts']} part(s)"
+    # A name holding a newline or another control character is shown escaped: the first line stays one line.
+    name = "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(info["file"]))
+    print(f"{name}: {info['width']}x{info['height']}, {info['parts']} part(s)"
           f"{', deep' if info['deep'] else ''}{views}, {info['kind']}")
     print(f"  channels: {', '.join(info['channels'])}")
     windows = info.get("windows", {})

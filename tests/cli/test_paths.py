@@ -388,3 +388,10 @@ def test_an_output_named_as_another_image_type_is_refused(work, capsys, monkeypa
     """-o out.png wrote an EXR and --preview p.exr a PNG, files image viewers then refused."""
     monkeypatch.chdir(work.root)
     _refused(work, capsys, args, option, "this output is written as")
+
+
+def test_info_shows_a_name_with_a_newline_on_one_line(work, capsys, monkeypatch):
+    monkeypatch.chdir(work.root)
+    Path("two\nlines.exr").write_bytes((work / "d.exr").read_bytes())
+    assert main(["info", "two\nlines.exr"]) == 0
+    assert capsys.readouterr().out.splitlines()[0].startswith("two\\nlines.exr: ")
