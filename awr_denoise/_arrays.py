@@ -92,7 +92,9 @@ def pixel_moments(pixel: np.ndarray, values: FloatArray, n_pixels: int) -> tuple
     if top > 2.0**500:
         peak = np.zeros(n_pixels)
         np.maximum.at(peak, pixel, np.abs(values).max(axis=1))
-        scale = np.ldexp(1.0, np.frexp(peak)[1] - 2)  # each pixel's values then lie within +-4
+        # Each pixel's values then lie within +-4; the exponent is held at -1020 or more so that a pixel
+        # of zeros or denormals gets a positive scale (2**-1076 would be 0).
+        scale = np.ldexp(1.0, np.maximum(np.frexp(peak)[1] - 2, -1020))
         values = values / scale[pixel, None]
     mean = np.empty((n_pixels, values.shape[1]))
     m2 = np.empty_like(mean)

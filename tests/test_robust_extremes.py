@@ -459,6 +459,10 @@ def test_from_samples_near_the_float64_limit_scales_each_pixel_exactly():
         assert equal.mean[0, 0, 0] == 2.0**1000 and equal.variance[0, 0, 0] == 0.0
         mixed = SampleBuffer.from_samples(np.array([0, 0, 1, 1]), np.array([1e153, 3e153, 1e-300, 3e-300]), (1, 2))
         np.testing.assert_allclose(mixed.mean[0, :, 0], [2e153, 2e-300], rtol=1e-15)
+        denormal = SampleBuffer.from_samples(np.array([0, 0, 1, 1]), np.array([1e200, 1e200, 5e-324, 0.0]), (1, 2))
+        assert denormal.mean[0, 1, 0] == (5e-324 + 0.0) / 2  # as unscaled float64 arithmetic rounds it
+        zeros = SampleBuffer.from_samples(np.array([0, 1]), np.array([1e200, 0.0]), (1, 2))
+        assert zeros.mean[0, 1, 0] == 0.0 and zeros.variance[0, 1, 0] == 0.0
         with pytest.raises(ValueError, match="values: the variance of 1 pixel"):
             SampleBuffer.from_samples(np.array([0, 0]), np.array([1e200, -1e200]), (1, 1))
         with pytest.raises(ValueError, match="sum_sq: a second moment beyond float64"):
