@@ -236,30 +236,52 @@ def test_the_files_a_mitsuba_scene_names_are_inputs(work, capsys, monkeypatch):
     monkeypatch.chdir(work.root)
     (work / "parts").mkdir()
     (work / "parts" / "more.xml").write_text('<scene version="3.0.0"><shape type="obj">'
-                                              '<string name="filename" value="mesh.obj"/></shape></scene>')
+                                              '<string name="filename" value="parts/mesh.obj"/></shape></scene>')
     (work / "parts" / "mesh.obj").write_text("v 0 0 0\n")
     (work / "scene.xml").write_text(
         '<scene version="3.0.0"><include filename="parts/more.xml"/><bsdf type="diffuse">'
         '<texture type="bitmap" name="reflectance"><string name="filename" value="tex.exr"/></texture></bsdf>'
-        '<string name="filename" value="$param.exr"/></scene>')
+        '</scene>')
     write_image(work / "tex.exr", np.ones((4, 4, 3)))
     render = ["render", "--renderer", "mitsuba", "scene.xml", "--spp", "2", "--uniform", "-q", "--overwrite"]
-    _refused(work, capsys, render + ["-o", "parts/mesh.obj"], "is the input", "filename mesh.obj")  # included
+    _refused(work, capsys, render + ["-o", "parts/mesh.obj"], "is the input", "filename parts/mesh.obj")  # included
     _refuses_scene_input(work, capsys, render, "tex.exr", "filename tex.exr")
 
 
 _TEXTURE = '<bsdf type="diffuse"><texture type="bitmap" name="reflectance">{}</texture></bsdf>'
 
 
-@pytest.mark.parametrize("route", ["default parameter", "spectrum attribute", "any scene name", "search folder"])
+_ROUTES = ["default parameter", "spectrum attribute", "any scene name", "search folder", "parameter inside a name",
+           "default of a default", "default in an include", "name in an include"]
+
+
+@pytest.mark.parametrize("route", _ROUTES)
 def test_every_route_by_which_mitsuba_reads_a_file_makes_it_an_input(work, capsys, monkeypatch, route):
     """Mitsuba also reads a file through a ``$parameter``'s default, a ``filename`` attribute, a
     scene file not named .xml and a ``<path>`` search folder: each is an input like a plain one
-    (an output never replaces it, a FIFO there is never opened: it would hang Mitsuba's loader)."""
+    (an output never replaces it, a FIFO there is never opened: it would hang Mitsuba's loader).
+    Names are substituted and looked up as Mitsuba 3.9's parser does: ``$t_x.exr`` with only ``t``
+    defined reads ``tex_x.exr``, defaults are substituted in document order across includes, and a
+    texture named in an included file is found beside the scene, not beside the include."""
     monkeypatch.chdir(work.root)
     name, scene, body = "tex.exr", "scene.xml", _TEXTURE.format('<string name="filename" value="tex.exr"/>')
+    (work / "sub").mkdir()
     if route == "default parameter":
         body = '<default name="tx" value="tex.exr"/>' + _TEXTURE.format('<string name="filename" value="$tx"/>')
+    elif route == "parameter inside a name":
+        name, body = "tex_x.exr", '<default name="t" value="tex"/>' + _TEXTURE.format(
+            '<string name="filename" value="$t_x.exr"/>')
+    elif route == "default of a default":
+        body = '<default name="b" value="tex"/><default name="a" value="$b"/>' + _TEXTURE.format(
+            '<string name="filename" value="$a.exr"/>')
+    elif route == "default in an include":
+        (work / "sub" / "defs.xml").write_text('<scene version="3.0.0"><default name="t" value="tex"/></scene>')
+        name, body = "sub/tex.exr", '<include filename="sub/defs.xml"/>' + _TEXTURE.format(
+            '<string name="filename" value="sub/$t.exr"/>')
+    elif route == "name in an include":
+        (work / "sub" / "part.xml").write_text(f'<scene version="3.0.0">{body}</scene>')
+        write_image(work / "sub" / "tex.exr", np.ones((4, 4, 3)))  # Mitsuba never reads this one
+        body = '<include filename="sub/part.xml"/>'
     elif route == "spectrum attribute":
         name, body = "refl.spd", '<bsdf type="diffuse"><spectrum name="reflectance" filename="refl.spd"/></bsdf>'
     elif route == "any scene name":
@@ -270,7 +292,8 @@ def test_every_route_by_which_mitsuba_reads_a_file_makes_it_an_input(work, capsy
     (work / scene).write_text(f'<scene version="3.0.0">{body}</scene>')
     write_image(work / name, np.ones((4, 4, 3)))
     render = ["render", "--renderer", "mitsuba", scene, "--spp", "2", "--uniform", "-q", "--overwrite"]
-    _refuses_scene_input(work, capsys, render, name, f"filename {Path(name).name}")
+    field = "filename sub/tex.exr" if route == "default in an include" else f"filename {Path(name).name}"
+    _refuses_scene_input(work, capsys, render, name, field)
 
 
 def test_a_name_that_is_not_utf8_is_refused_before_any_work(work, capsys, monkeypatch):
