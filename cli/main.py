@@ -179,6 +179,43 @@ def _standard_streams() -> None:
             setattr(sys, name, open(os.devnull, "r" if name == "stdin" else "w", encoding="utf-8"))  # noqa: SIM115
 
 
+class _DiagnosticStream:
+    """``sys.stderr`` while a command runs: once its reader has gone (a closed pipe), what is left
+    to say there is dropped and the work goes on. Progress bars and notes are not the command's
+    result; a render failed after its work on a progress bar's write (exit 1, nothing kept)."""
+
+    def __init__(self, stream: Any) -> None:
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        try:
+            return int(self._stream.write(text))
+        except BrokenPipeError:
+            self._reader_gone()
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._reader_gone()
+
+    def _reader_gone(self) -> None:
+        # The descriptor points at the null device from now on: OpenEXR's C messages and the
+        # text still buffered in the stream (flushed again at exit) go nowhere, without an error.
+        try:
+            fd = self._stream.fileno()
+        except (OSError, ValueError):  # not a file (captured by a test harness): drop it
+            self._stream = open(os.devnull, "w", encoding="utf-8")  # noqa: SIM115
+            return
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, fd)
+        os.close(null)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._stream, name)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``awr`` command line and return its exit status.
 
@@ -188,6 +225,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         Arguments without the program name; ``sys.argv[1:]`` by default.
     """
     _standard_streams()
+    stderr = sys.stderr
+    sys.stderr = _DiagnosticStream(stderr)  # type: ignore[assignment]
+    try:
+        return _main(argv)
+    finally:
+        sys.stderr = stderr
+
+
+def _main(argv: Sequence[str] | None) -> int:
+    """:func:`main` once the standard streams are set up."""
     previous = None
     status = None
     try:
