@@ -44,7 +44,11 @@ def adopted_channels(given: Sequence[str], expected: Sequence[str]) -> tuple[str
 
     A renderer that did not name its channels (:func:`default_channel_names`) takes the
     statistics' names; channels named otherwise must be the same names in the same order: merged
-    channel by channel, ``B,G,R`` or ``X,Y,Z`` into ``R,G,B`` would swap or mislabel them.
+    channel by channel, ``B,G,R`` or ``X,Y,Z`` into ``R,G,B`` would swap or mislabel them. The
+    default names are refused too where the statistics' names reorder them (``R,G,B`` into
+    ``B,G,R``): unnamed and really ``R,G,B`` cannot be told apart, and the two readings swap
+    channels. A batch that is really ``R,G,B`` merged into ``X,Y,Z`` statistics cannot be told
+    from an unnamed one: it is renamed.
 
     Examples
     --------
@@ -57,8 +61,14 @@ def adopted_channels(given: Sequence[str], expected: Sequence[str]) -> tuple[str
     ValueError: samples: channels B,G,R do not match the sampler's R,G,B
     """
     given, expected = tuple(given), tuple(expected)
-    if given != expected and given != default_channel_names(len(given)):
+    if given == expected:
+        return expected
+    if given != default_channel_names(len(given)):
         raise ValueError(f"samples: channels {','.join(given)} do not match the sampler's {','.join(expected)}")
+    bare = tuple(name.rsplit(".", 1)[-1].upper() for name in expected)
+    if bare != given and sorted(bare) == sorted(given):
+        raise ValueError(f"samples: channels {','.join(given)} (the default names) would be reordered into the "
+                         f"sampler's {','.join(expected)}; name the batch's channels")
     return expected
 
 

@@ -564,3 +564,16 @@ def test_tell_refuses_a_batch_whose_named_channels_differ_from_the_samplers():
     sampler = AdaptiveSampler((8, 8), channels=("X", "Y", "Z"))
     request = sampler.ask()
     assert sampler.tell(request, renderer(request)).channels == ("X", "Y", "Z")
+    # The default names R,G,B reordered by the sampler's (B,G,R): unnamed or really R,G,B, one
+    # reading swaps R and B, so the batch must name its channels (a review of the fourth pass).
+    for names in (("B", "G", "R"), ("beauty.B", "beauty.G", "beauty.R")):
+        sampler = AdaptiveSampler((8, 8), channels=names)
+        request = sampler.ask()
+        with pytest.raises(ValueError, match="the default names.*name the batch's channels"):
+            sampler.tell(request, renderer(request))
+        batch = renderer(request)
+        named = SampleBuffer.from_moments(batch.count, batch.mean[..., ::-1], batch.variance[..., ::-1], channels=names)
+        assert sampler.tell(request, named).channels == names
+    sampler = AdaptiveSampler((8, 8), channels=("beauty.R", "beauty.G", "beauty.B"))
+    request = sampler.ask()
+    assert sampler.tell(request, renderer(request)).channels == ("beauty.R", "beauty.G", "beauty.B")
