@@ -6,11 +6,10 @@ import argparse
 
 import numpy as np
 
-from awr_denoise.errors import InputFileError
 from awr_denoise.io import provenance, read_image, write_image
 from awr_denoise.metrics import HIGHER_IS_BETTER, METRICS
 
-from awr_denoise.io.exr import check_same_windows, read_windows
+from awr_denoise.io.exr import check_same_windows, read_header, read_windows
 
 from . import interrupts
 from .common import EXIT_OK, RuntimeFailure, UsageError, print_json
@@ -34,25 +33,32 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="fail when the metric exceeds E (for psnr and ssim: falls below E)")
     p.add_argument("--channels", metavar="LIST|LAYER",
                    help="IMAGE's channels: comma-separated names (R,G,B), or a layer whose R,G,B are read "
-                        "(ViewLayer.Combined in a Blender file); the reference's R,G,B are read")
+                        "(ViewLayer.Combined in a Blender file); default: its R,G,B")
+    p.add_argument("--ref-channels", metavar="LIST|LAYER", help="the reference's channels, as --channels")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(run=run)
 
 
-def _image(path: str, spec: str | None) -> np.ndarray:
-    """IMAGE with ``--channels``: a comma-separated list of names, or one name: a layer's R,G,B if the
-    file has them, else that one channel."""
+def _image(path: str, spec: str | None, option: str) -> np.ndarray:
+    """The image at ``path`` with its channel choice ``spec`` (given as ``option``): a
+    comma-separated list of names, or one name: a layer's R,G,B if the file has them, else that
+    one channel."""
     if spec is None:
         return read_image(path)
     names = [name.strip() for name in spec.split(",")]
     if not all(names):
-        raise UsageError(f"--channels: {spec!r} has an empty channel name")
+        raise UsageError(f"{option}: {spec!r} has an empty channel name")
+    if len(set(names)) < len(names):
+        raise UsageError(f"{option}: {spec!r} names a channel twice")
     if len(names) > 1:
         return read_image(path, channels=names)
-    try:
-        return read_image(path, channels=[f"{names[0]}.{c}" for c in "RGB"])
-    except InputFileError:
-        return read_image(path, channels=names)
+    present = {getattr(channel, "name", str(channel)) for channel in read_header(path).get("channels", [])}
+    layer = [f"{names[0]}.{c}" for c in "RGB"]
+    if set(layer) <= present:
+        return read_image(path, channels=layer)
+    if names[0] not in present:
+        raise UsageError(f"{path}: {option} {names[0]}: neither a channel nor a layer with R,G,B")
+    return read_image(path, channels=names)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -65,8 +71,8 @@ def run(args: argparse.Namespace) -> int:
     plan.read(args.ref, "-r/--ref")
     plan.write(args.output, "-o/--output")
     plan.check()
-    image = _image(args.input, args.channels)
-    ref = read_image(args.ref)
+    image = _image(args.input, args.channels, "--channels")
+    ref = _image(args.ref, args.ref_channels, "--ref-channels")
     windows = read_windows(args.input)
     if image.shape[:2] != ref.shape[:2]:
         raise UsageError(f"{args.ref}: size {ref.shape[1]}x{ref.shape[0]} does not match "

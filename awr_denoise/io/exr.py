@@ -445,13 +445,13 @@ def _find_rgb(path: Path, names: Sequence[str]) -> list[str]:
         return [f"{layers[0]}.{c}" for c in "RGB"]
     if len(layers) > 1:
         raise file_error(path, f"ambiguous colour channels: layers {', '.join(layers)} all have R,G,B "
-                               "(choose one with channels= / awr diff --channels)")
+                               "(choose one with channels= / awr diff --channels or --ref-channels)")
     if "Y" in names:
         return ["Y"]
     if len(names) == 1:
         return list(names)
     raise file_error(path, f"no R,G,B channels (found {', '.join(sorted(names))}); choose with channels= / "
-                           "awr diff --channels")
+                           "awr diff --channels or --ref-channels")
 
 
 def read_image(path: str | os.PathLike[str], *, channels: Sequence[str] | None = None) -> FloatArray:

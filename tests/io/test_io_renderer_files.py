@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import itertools
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -222,4 +223,12 @@ def test_diff_reads_a_cycles_layer_with_channels(capsys):
     assert main(["diff", image, "-r", ref, "--channels", names, "--json"]) == 0
     assert capsys.readouterr().out == by_layer
     assert main(["diff", image, "-r", ref, "--channels", "ViewLayer.Nope"]) == 2
-    assert "ViewLayer.Nope" in capsys.readouterr().err
+    assert "ViewLayer.Nope: neither a channel nor a layer" in capsys.readouterr().err
+    assert main(["diff", image, "-r", ref, "--channels", f"{names},ViewLayer.Combined.R"]) == 2
+    assert "names a channel twice" in capsys.readouterr().err
+    # The multilayer file as the reference: the hint names the reference's option, which reads it.
+    assert main(["diff", image, "-r", image, "--channels", "ViewLayer.Combined"]) == 2
+    assert "--ref-channels" in capsys.readouterr().err
+    assert main(["diff", image, "-r", image, "--channels", "ViewLayer.Combined", "--ref-channels",
+                 "ViewLayer.Combined", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["mse"] == 0.0
