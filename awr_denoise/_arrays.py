@@ -77,13 +77,14 @@ def flat_pixel_index(pixels: np.ndarray, shape: Shape2D) -> np.ndarray:
     raise ValueError(f"pixels: expected (N, 2) coordinates or (N,) flat indices, got shape {p.shape}")
 
 
-def pixel_moments(pixel: np.ndarray, values: FloatArray, n_pixels: int) -> tuple[CountArray, FloatArray, FloatArray]:
+def pixel_moments(pixel: np.ndarray, values: FloatArray, n_pixels: int,
+                  name: str = "values") -> tuple[CountArray, FloatArray, FloatArray]:
     """Per-pixel count, mean and sum of squared deviations (M2) of samples ``values`` (N, C) at ``pixel`` (N,).
 
     Two-pass in float64, a channel at a time (every pixel and sample vectorised). Where the values
     come near the float64 limit, the sums could overflow while the means do not: each pixel's samples
     are then divided by a power of two near its own largest value (exact, the same bits) and the
-    results scaled back; a spread whose M2 is beyond float64 is refused naming ``values``.
+    results scaled back; a spread whose M2 is beyond float64 is refused naming ``name``.
     """
     count = np.bincount(pixel, minlength=n_pixels)
     safe = np.maximum(count, 1)
@@ -109,7 +110,7 @@ def pixel_moments(pixel: np.ndarray, values: FloatArray, n_pixels: int) -> tuple
             m2 *= scale[:, None]  # twice, not by scale squared: that overflows first
         beyond = int((~np.isfinite(m2).all(axis=1)).sum())
         if beyond:
-            raise ValueError(f"values: the variance of {beyond} pixel(s) is beyond float64 (1.8e308): their samples "
+            raise ValueError(f"{name}: the variance of {beyond} pixel(s) is beyond float64 (1.8e308): their samples "
                              "spread that far, or are so large (above about 1e154) that rounding alone does")
     return count, mean, m2
 

@@ -328,14 +328,18 @@ class SampleBuffer:
                 vals[bad] = 0.0
                 for rows in per_sample.values():
                     rows[bad] = 0.0
-        feature_buffers = {name: cls.from_samples(flat, rows, (h, w), channels=FEATURE_CHANNELS.get(name))
+        feature_buffers = {name: cls._of_samples(flat, rows, (h, w), FEATURE_CHANNELS.get(name), f"features[{name!r}]")
                            for name, rows in per_sample.items()}
-        n_ch = vals.shape[1]
-        count, mean, m2 = pixel_moments(flat, vals, h * w)
+        return cls._of_samples(flat, vals, (h, w), channels, "values", n_bad, feature_buffers)  # 0 under "raise"
+
+    @classmethod
+    def _of_samples(cls, flat: np.ndarray, vals: FloatArray, shape: Shape2D, channels: Sequence[str] | int | None,
+                    name: str, n_bad: int = 0, features: dict[str, SampleBuffer] | None = None) -> SampleBuffer:
+        """The buffer of checked, finite samples ``vals`` (N, C) at flat pixels; ``name`` is theirs."""
+        count, mean, m2 = pixel_moments(flat, vals, shape[0] * shape[1], name)
         variance = m2 / np.maximum(count - 1, 1)[:, None]
-        return cls(count.reshape(h, w), mean.reshape(h, w, n_ch), variance.reshape(h, w, n_ch),
-                   resolve_channels(channels, n_ch), np.ones((h, w), bool), n_bad if nonfinite != "raise" else 0,
-                   feature_buffers)
+        return cls(count.reshape(shape), mean.reshape(*shape, -1), variance.reshape(*shape, -1),
+                   resolve_channels(channels, vals.shape[1]), np.ones(shape, bool), n_bad, features or {})
 
     @classmethod
     def from_independent_means(

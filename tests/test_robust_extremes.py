@@ -465,6 +465,9 @@ def test_from_samples_near_the_float64_limit_scales_each_pixel_exactly():
         assert zeros.mean[0, 1, 0] == 0.0 and zeros.variance[0, 1, 0] == 0.0
         with pytest.raises(ValueError, match="values: the variance of 1 pixel"):
             SampleBuffer.from_samples(np.array([0, 0]), np.array([1e200, -1e200]), (1, 1))
+        with pytest.raises(ValueError, match=r"features\['depth'\]: the variance of 1 pixel"):  # not "values"
+            SampleBuffer.from_samples(np.array([0, 0]), np.array([1.0, 2.0]), (1, 1),
+                                      features={"depth": np.array([-1e300, 1e300])})
         with pytest.raises(ValueError, match="sum_sq: a second moment beyond float64"):
             SampleBuffer.from_sums([[2]], [[1.7e308]], [[1e308]])
 
