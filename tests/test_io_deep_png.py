@@ -129,3 +129,16 @@ def test_a_count_plane_beside_an_awr_dumps_own_counts_is_refused(tmp_path):
                                                                          np.ones((4, 4, 3))))
     with pytest.raises(InputFileError, match="count= / --count would be ignored: an awr dump counts"):
         read_sample_dump(tmp_path / "d.exr", count="N")
+
+
+def test_a_deep_dump_is_not_an_independent_render(tmp_path, monkeypatch, capsys):
+    """``merge --independent`` said "cannot detect the layout (channels: )" of a deep dump."""
+    from awr_denoise.cli.main import main
+
+    monkeypatch.chdir(tmp_path)
+    for name, value in (("a.exr", 1.0), ("b.exr", 2.0)):
+        write_deep_samples(name, np.repeat(np.arange(16), 2), np.full((32, 3), value), (4, 4))
+    assert main(["merge", "a.exr", "b.exr", "-o", "m.exr", "-q", "--independent"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "a.exr: a per-sample (deep) dump" in err[0] and "--independent" in err[0], err
+    assert main(["merge", "a.exr", "b.exr", "-o", "m.exr", "-q"]) == 0

@@ -787,7 +787,11 @@ def read_independent_renders(
     channels: tuple[str, ...] | None = None
     for path in paths:
         p = Path(path)
-        f = _File(p, read_exr(p), view)
+        parts = read_exr(p)
+        if any(part.deep for part in parts):
+            raise file_error(p, "a per-sample (deep) dump, not a render's image: merge it without independent "
+                                "renders (--independent)")
+        f = _File(p, parts, view)
         name = _resolve_preset(p, f, preset, color, None, count)
         _check_layer(p, name, layer)
         layout, ctx = _layout(p, f, name, color=color, variance=None, count=count, variance_kind=None, spp=spp,
