@@ -19,6 +19,7 @@ from awr_denoise.io.atomic import OutputSet
 
 from . import interrupts
 from .common import EXIT_OK, UsageError, print_json, status
+from .paths import PathPlan
 from .values import MAX_EXPOSURE, MAX_SEED, MAX_SPP, real, whole
 from .render_cmd import TRACER, default_scene, render_buffer, tracer_module
 
@@ -52,9 +53,19 @@ def run(args: argparse.Namespace) -> int:
     if name not in tracer.list_scenes():
         raise UsageError(f"--scene: {name!r} is not one of {', '.join(sorted(tracer.list_scenes()))}")
     out = Path(args.out)
-    if out.exists() and not out.is_dir():
+    labels = ("uniform_mean", "uniform_awr", "adaptive_awr")
+    plan = PathPlan(overwrite=True)  # the demo replaces its own files
+    for label in labels:
+        plan.write(out / f"{name}_{label}.exr", "--out")
+        plan.write(out / f"{name}_{label}.png", "--out", "png")
+    plan.write(out / f"{name}_reference.png", "--out", "png")
+    if os.path.lexists(out) and not out.is_dir():  # a file, a broken link or a loop of links
         raise UsageError(f"--out: {out} exists and is not a directory")
-    _check_creatable(out)  # created only once there is something to write: a refusal leaves no folder
+    if out.is_dir():
+        plan.check()  # before two renders: an image name taken by a folder or a FIFO, say
+    else:
+        plan.check_names()
+        _check_creatable(out)  # created only once there is something to write: a refusal leaves no folder
     scene = tracer.load_scene(name)
     cached = getattr(tracer, "reference_path", None)
     if callable(cached) and not Path(cached(name)).is_file():
@@ -72,11 +83,7 @@ def run(args: argparse.Namespace) -> int:
     renderer = create_renderer(TRACER, scene, seed=args.seed + 1)
     adaptive, _, _ = render_buffer(renderer, scene.shape, spp=round(args.spp), adaptive=True, seed=args.seed + 1,
                                    quiet=args.quiet)
-    images = {
-        "uniform_mean": uniform.mean,
-        "uniform_awr": reconstruct(uniform, c_s=args.c_s),
-        "adaptive_awr": reconstruct(adaptive, c_s=args.c_s),
-    }
+    images = dict(zip(labels, (uniform.mean, reconstruct(uniform, c_s=args.c_s), reconstruct(adaptive, c_s=args.c_s))))
     if reference.shape != uniform.mean.shape:
         raise UsageError(f"{name}: the reference is {reference.shape}, the render {uniform.mean.shape}")
     results = {}

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from awr_denoise.io.atomic import check_readable, check_writable
+from awr_denoise.io.atomic import check_readable, check_utf8_name, check_writable
 from awr_denoise.io.exr import check_same_windows, read_windows
 from awr_denoise.io.presets import feature_plane_file, parse_plane
 
@@ -90,10 +90,14 @@ class PathPlan:
         if path is not None:
             self.writes.append(_Entry(Path(path), option, kind))
 
-    def check(self) -> None:
-        """Refuse the plan (:class:`UsageError` or ``FileExistsError``) before anything is read."""
+    def check_names(self) -> None:
+        """Refuse a name the files cannot carry (:class:`UsageError`), without looking at the disk."""
         for entry in self.reads + self.writes:
             _check_name(entry)
+
+    def check(self) -> None:
+        """Refuse the plan (:class:`UsageError` or ``FileExistsError``) before anything is read."""
+        self.check_names()
         for entry in self.reads:
             try:
                 check_readable(entry.path)
@@ -142,13 +146,11 @@ class PathPlan:
 
 
 def _check_name(entry: _Entry) -> None:
-    """Refuse a name the EXR library and the files' headers cannot carry: bytes that are not UTF-8
-    (Linux names are bytes; Python holds the undecodable ones as surrogates)."""
+    """Refuse a name the EXR library and the files' headers cannot carry (bytes that are not UTF-8)."""
     try:
-        os.fspath(entry.path).encode("utf-8")
-    except UnicodeEncodeError:
-        shown = os.fsencode(entry.path).decode("utf-8", "backslashreplace")
-        raise UsageError(f"{entry.option}: {shown}: the name is not valid UTF-8; rename the file") from None
+        check_utf8_name(entry.path)
+    except ValueError as exc:
+        raise UsageError(f"{entry.option}: {exc}") from None
 
 
 def _resolved(entry: _Entry) -> Path:

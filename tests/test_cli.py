@@ -528,6 +528,29 @@ def test_demo_refuses_before_creating_its_folder(tmp_path, fake_tracer, capsys, 
     _one_error_line(capsys, "--out", "cannot be created")
 
 
+def test_demo_checks_its_outputs_before_rendering(tmp_path, fake_tracer, capsys, monkeypatch):
+    """--out and the images under it are checked like every output, before the two renders: a name
+    that is not UTF-8 created an empty folder and named no option, a loop of links was "[Errno 17]"."""
+    from awr_denoise.cli import demo_cmd
+
+    def no_render(*args, **kwargs):
+        raise AssertionError("rendered before the outputs were checked")
+
+    monkeypatch.setattr(demo_cmd, "render_buffer", no_render)
+    monkeypatch.chdir(tmp_path)
+    assert main(["demo", "--out", os.fsdecode(b"bad\xffdir"), "--spp", "8", "-q"]) == 2
+    _one_error_line(capsys, "--out", "not valid UTF-8")
+    os.symlink("loop2", "loop1")
+    os.symlink("loop1", "loop2")
+    assert main(["demo", "--out", "loop1", "--spp", "8", "-q"]) == 2
+    _one_error_line(capsys, "--out", "loop1", "is not a directory")
+    assert sorted(os.listdir(tmp_path)) == ["loop1", "loop2"]
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "toy_uniform_awr.exr").mkdir()  # an image's name taken by a folder
+    assert main(["demo", "--out", "out", "--spp", "8", "-q"]) == 2
+    _one_error_line(capsys, "--out", "toy_uniform_awr.exr")
+
+
 # ---------------------------------------------------------------- presets through the command line
 
 def _preset_file(tmp_path, preset):
