@@ -184,3 +184,17 @@ def test_threaded_reads_keep_stdout(tmp_path, capfd):
     assert results.count(None) == 20
     os.write(1, b"still here\n")
     assert "still here" in capfd.readouterr().out
+
+
+def test_a_name_that_is_not_utf8_is_refused_naming_it(tmp_path):
+    """OpenEXR's binding refused such an output as "use write(path: str)", naming nothing, and a
+    valid input was "truncated or corrupt"; both are refused by name, nothing written."""
+    folder = os.fsdecode(os.fsencode(tmp_path) + b"/dir\xff")
+    os.mkdir(folder)
+    with pytest.raises(ValueError, match=r"dir\\xff/w.exr: the name is not valid UTF-8"):
+        write_image(os.path.join(folder, "w.exr"), np.ones((2, 2, 3)))
+    assert os.listdir(folder) == []
+    write_image(tmp_path / "ok.exr", np.ones((2, 2, 3)))
+    os.link(tmp_path / "ok.exr", os.path.join(folder, "in.exr"))
+    with pytest.raises(InputFileError, match=r"dir\\xff/in.exr: the name is not valid UTF-8"):
+        read_image(os.path.join(folder, "in.exr"))

@@ -46,8 +46,8 @@ try:
 except ImportError:  # pragma: no cover - not on Windows: stale temporaries are then kept
     fcntl = None  # type: ignore[assignment]
 
-__all__ = ["atomic_write", "check_writable", "check_readable", "file_kind", "same_file", "OutputSet", "public_name",
-           "remove_stale_temporaries", "STAGING_PREFIX", "STAGING_SUFFIX", "STALE_AFTER"]
+__all__ = ["atomic_write", "check_writable", "check_readable", "check_utf8_name", "file_kind", "same_file", "OutputSet",
+           "public_name", "remove_stale_temporaries", "STAGING_PREFIX", "STAGING_SUFFIX", "STALE_AFTER"]
 
 STAGING_PREFIX = ".awr-"
 STAGING_SUFFIX = ".tmp"
@@ -94,6 +94,29 @@ def _name_max(directory: Path) -> int:
         return int(os.pathconf(directory, "PC_NAME_MAX"))
     except (AttributeError, OSError, ValueError):
         return 255
+
+
+def check_utf8_name(path: str | os.PathLike[str]) -> None:
+    """Refuse a name that is not UTF-8 (``ValueError``, the bad bytes shown escaped): Linux names
+    are bytes, Python holds undecodable ones as surrogates, and neither OpenEXR nor a header can
+    take them (OpenEXR's binding refused the name as "use write(path: str)", or the file was
+    called corrupt).
+
+    Examples
+    --------
+    >>> import os
+    >>> from awr_denoise.io.atomic import check_utf8_name
+    >>> check_utf8_name("ok.exr")
+    >>> check_utf8_name(os.fsdecode(b"bad\\xff.exr"))
+    Traceback (most recent call last):
+    ...
+    ValueError: bad\\xff.exr: the name is not valid UTF-8; rename the file
+    """
+    try:
+        os.fspath(path).encode("utf-8")
+    except UnicodeEncodeError:
+        shown = os.fsencode(path).decode("utf-8", "backslashreplace")
+        raise ValueError(f"{shown}: the name is not valid UTF-8; rename the file") from None
 
 
 def check_readable(path: str | os.PathLike[str], *, what: str = "input") -> Path:
@@ -154,6 +177,7 @@ def check_writable(path: str | os.PathLike[str], *, overwrite: bool) -> Path:
     """
     if not os.fspath(path):
         raise ValueError("path: an empty file name")
+    check_utf8_name(path)
     target = Path(path)
     parent = target.parent if str(target.parent) else Path(".")
     try:

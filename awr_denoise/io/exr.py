@@ -30,7 +30,7 @@ from .._typing import FloatArray
 from .._version import __version__
 from ..channels import default_channel_names
 from ..errors import InputFileError
-from .atomic import atomic_write, check_writable, file_kind, public_name
+from .atomic import atomic_write, check_utf8_name, check_writable, file_kind, public_name
 
 __all__ = [
     "ExrPart",
@@ -110,6 +110,10 @@ class ExrPart:
 
 
 def _check_magic(path: Path) -> None:
+    try:
+        check_utf8_name(path)
+    except ValueError as exc:
+        raise InputFileError(str(exc)) from None
     try:
         st = os.stat(path)
     except (FileNotFoundError, NotADirectoryError):
