@@ -39,7 +39,7 @@ from .common import (
     status,
 )
 from .parallel_options import add_executor_arguments, executor_from_args, executor_requested
-from .paths import PathPlan, check_plane_windows, plane_options
+from .paths import PathPlan, check_file_name, check_plane_windows, plane_options
 from .values import MAX_EXPOSURE, MAX_LEVELS, real, wavelet_name, whole
 
 __all__ = ["register", "run", "add_reconstruction_options", "reconstruction_kwargs", "check_reconstruction_options",
@@ -189,6 +189,9 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("no input: give DUMP.exr (or --hdr DUMP.exr)")
     if args.maxerror is not None and not args.ref:
         raise UsageError("--maxerror needs --ref REF.exr")
+    check_file_name(args.output, "-o/--output")  # before the frames' placeholders are looked for in the name
+    if args.preview:
+        check_file_name(args.preview, "--preview")
     if args.frames is not None and args.preview and "#" not in Path(args.preview).name:
         raise UsageError(f"--preview: {args.preview}: with --frames the preview needs a #### placeholder")
     jobs = frame_jobs([source] + ([args.preview] if args.preview else []), args.output, args.frames)

@@ -25,7 +25,7 @@ from awr_denoise.io.presets import feature_plane_file, parse_plane
 
 from .errors import UsageError
 
-__all__ = ["PathPlan", "check_plane_windows", "plane_options", "FEATURE_OPTIONS"]
+__all__ = ["PathPlan", "check_file_name", "check_plane_windows", "plane_options", "FEATURE_OPTIONS"]
 
 FEATURE_OPTIONS = ("--alb", "--nrm", "--depth")
 """Options naming a feature plane, which may also be a whole image file (``--alb albedo.exr``)."""
@@ -88,6 +88,7 @@ class PathPlan:
     def write(self, path: str | os.PathLike[str] | None, option: str, kind: str = "exr") -> None:
         """An output file (None is skipped), written as ``kind`` (``"exr"`` or ``"png"``)."""
         if path is not None:
+            check_file_name(path, option)
             self.writes.append(_Entry(Path(path), option, kind))
 
     def check_names(self) -> None:
@@ -143,6 +144,14 @@ class PathPlan:
             if claimed is not None and entry.kind is not None and claimed != entry.kind:
                 raise UsageError(f"{entry.option}: {entry.path}: this output is written as {entry.kind.upper()}, "
                                  f"but its name says {entry.path.suffix}; name it .{entry.kind}")
+
+
+def check_file_name(path: str | os.PathLike[str], option: str) -> None:
+    """Refuse an output name ending in ``/``: it names a folder, yet ``Path`` drops the slash, so a
+    file was written under the name without it (``-o out.exr/`` wrote ``out.exr``)."""
+    name = os.fspath(path)
+    if name.endswith(os.sep) or (os.altsep and name.endswith(os.altsep)):
+        raise UsageError(f"{option}: {name}: ends with {os.sep!r}, which names a folder; give the file's name")
 
 
 def _check_name(entry: _Entry) -> None:

@@ -418,3 +418,17 @@ def test_info_shows_a_name_with_a_newline_on_one_line(work, capsys, monkeypatch)
     Path("two\nlines.exr").write_bytes((work / "d.exr").read_bytes())
     assert main(["info", "two\nlines.exr"]) == 0
     assert capsys.readouterr().out.splitlines()[0].startswith("two\\nlines.exr: ")
+
+
+@pytest.mark.parametrize("args, option", [
+    (["denoise", "d.exr", "-o", "slash.exr/"], "-o/--output"),
+    (["denoise", "d.exr", "-o", "o#.exr/"], "-o/--output"),
+    (["denoise", "shot.####.exr", "--frames", "1-2", "-o", "o.####.exr", "--preview", "out#2/"], "--preview"),
+    (["plan", "d.exr", "-o", "req.exr/", "--budget", "100"], "-o/--output"),
+    (["diff", "ref.exr", "-r", "ref.exr", "-o", "delta.exr/"], "-o/--output"),
+])
+def test_an_output_name_ending_in_a_slash_is_refused(work, capsys, monkeypatch, args, option):
+    """``-o out.exr/`` names a folder, yet a file ``out.exr`` was written (``Path`` drops the slash);
+    with a ``#`` the frame checks read an empty file name and named the wrong problem."""
+    monkeypatch.chdir(work.root)
+    _refused(work, capsys, args, option, "ends with '/', which names a folder")  # nothing written
