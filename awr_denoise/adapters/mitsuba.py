@@ -544,10 +544,11 @@ def _load_file(mi: Any, variant: str, path: Path, shape: Shape2D | None, params:
     """Load a Mitsuba XML file, resizing every film to ``shape`` through Mitsuba's parser."""
     if shape is None:
         return mi.load_file(str(path), **params)
-    # Files the scene names are found beside it, as mi.load_file arranges.
+    # Files the scene names are found beside it, as mi.load_file arranges (beside a link, not
+    # beside its target: the folder as named).
     previous = mi.file_resolver()
     resolver = mi.FileResolver(previous)
-    resolver.prepend(str(path.resolve().parent))
+    resolver.prepend(str(path.absolute().parent))
     mi.set_file_resolver(resolver)
     try:
         config = mi.parser.ParserConfig(variant)

@@ -1,55 +1,65 @@
-"""The files a Mitsuba 3 XML scene reads besides itself, found without loading it.
+"""The files a Mitsuba 3 XML scene may read besides itself, found without loading it.
 
 ``awr render --renderer mitsuba SCENE.xml`` checks them with its other inputs before Mitsuba runs:
 an output must never replace a texture, and a FIFO among them would block Mitsuba's loader in a
-thread no signal reaches. The walk follows Mitsuba 3's parser (``src/core/parser.cpp``) in
-document order, includes where they stand:
+thread no signal reaches. Emulating exactly which file Mitsuba opens proved fragile (which
+elements its parser visits, how its resolver's folders change inside includes, how pugixml
+decodes a file), so the list is a superset, built from what Mitsuba's parser
+(``src/core/parser.cpp``) and pugixml do:
 
-- every attribute's ``$name`` is replaced by the defined parameter whose name is the longest
-  match (``$t_x.exr`` with only ``t`` defined reads ``<t>_x.exr``), ``\\$`` is a literal ``$``,
-  and a ``<default name=... value=...>`` defines a parameter from that point on, in any file,
-  unless the render or an earlier ``<default>`` did (an undefined one stops the parse);
-- an ``<include filename=...>`` or a ``filename`` attribute (``<spectrum filename=...>``) is
-  read while parsing: looked up beside the file that names it, then in the folders known there;
-- a plugin's ``<string name="filename" value=...>`` (textures, meshes, environment maps) is read
-  after parsing, with the main scene's resolver only: its ``<path>`` folders (the last declared
-  first), the scene's folder, the working folder. An included file's folder and its ``<path>``
-  folders are not searched then: a texture named in ``sub/part.xml`` is found beside the scene.
+- the text is decoded as pugixml decodes it (a byte-order mark, a Latin-1 declaration, else
+  UTF-8, other declared encodings ignored); comments, CDATA, processing instructions and the
+  DOCTYPE are skipped, and only the five XML entities and character references are replaced
+  (``&t;`` stays ``&t;``, as in Mitsuba); malformed markup that pugixml tolerates is read too;
+- every attribute value of every element, with ``$name`` replaced as Mitsuba does (the longest
+  defined name first, ``\\$`` a literal ``$``; the ``<default>`` values of the scene and of its
+  includes, the render's parameters first), may name a file;
+- it is looked up in every folder any of Mitsuba's lookups may use: the working folder, the
+  scene's folder, each XML file's folder (and its target's, for a symbolic link) and each
+  ``<path>`` folder. Every file found there that is not a folder is listed (a name found
+  nowhere is not: Mitsuba cannot read it, so no output can replace it and it cannot block);
+- included files found so are read in turn (regular files only: a FIFO is listed, never opened).
 
 The scene file may have any name: Mitsuba loads ``scene.txt`` as XML too.
 """
 
 from __future__ import annotations
 
+import codecs
+import html
 import os
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
-from xml.etree import ElementTree
 
 from .mitsuba_scenes import SCENE_NAMES
 
 __all__ = ["scene_files"]
 
-# Mitsuba's ParserConfig.max_include_depth: deeper includes are refused, so never followed.
-_MAX_DEPTH = 15
-
-
-class _Stop(Exception):
-    """Mitsuba refuses the scene at this point: nothing after it is read."""
+# Markup pugixml skips: comments, CDATA, processing instructions (the XML declaration), the DOCTYPE
+# with its internal subset (never expanded).
+_SKIPPED = re.compile(r"<!--.*?-->|<!\[CDATA\[.*?\]\]>|<\?.*?\?>|<!DOCTYPE(?:[^\[>]|\[.*?\])*>", re.DOTALL)
+_TAG = re.compile(r"""<([^\s/>!?]+)((?:[^"'>]|"[^"]*"|'[^']*')*)>""")
+_ATTRIBUTE = re.compile(r"""([^\s=/>"']+)\s*=\s*(?:"([^"]*)"|'([^']*)')""")
+_REFERENCE = re.compile(r"&(?:(amp|lt|gt|quot|apos)|#([0-9]+)|#x([0-9a-fA-F]+));")
+_LATIN1 = re.compile(rb"""<\?xml[^>]*encoding\s*=\s*["'](?:iso-8859-1|latin-?1)["']""", re.IGNORECASE)
+_MAX_FILES = 1000  # included XML files read at most
+_MAX_DEPTH = 32  # includes followed this deep (Mitsuba refuses a depth of 15)
+_RANK = {"include": 0, "filename": 1}
 
 
 class _Walk:
     """What one walk over a scene gathers: its parameters (``$name``, value; the longest name
-    first), the files named with the folders they are looked up in, the main resolver's folders."""
+    first), the values its elements hold, and the folders a name may be looked up in."""
 
-    def __init__(self, scene: Path, params: Mapping[str, Any]) -> None:
+    def __init__(self, params: Mapping[str, Any]) -> None:
         self.params: list[tuple[str, str]] = []
         for name, value in params.items():
             self.define(str(name), str(value))
-        self.named: list[tuple[str, str, list[Path]]] = []
-        # mi.load_file's resolver: the scene's folder before the working folder (Mitsuba's default).
-        self.main = [scene.parent, Path()]
+        self.values: dict[str, str] = {}  # raw value -> how the message names it
+        self.folders: list[Path] = [Path()]
+        self.read: set[Path] = set()
 
     def define(self, name: str, value: str) -> None:
         """Define ``$name`` unless it is; equal lengths keep their order, as Mitsuba's insert."""
@@ -59,9 +69,9 @@ class _Walk:
         at = next((i for i, (known, _) in enumerate(self.params) if len(key) > len(known)), len(self.params))
         self.params.insert(at, (key, value))
 
-    def substituted(self, value: str) -> str:
-        """``value`` as Mitsuba's ``substitute_parameters`` leaves it; :class:`_Stop` on an
-        undefined parameter."""
+    def substituted(self, value: str) -> str | None:
+        """``value`` as Mitsuba's ``substitute_parameters`` leaves it; None when a ``$`` is left
+        over (an undefined parameter: Mitsuba refuses the scene if it gets there)."""
         for key, replacement in self.params:
             pos = value.find(key)
             while pos >= 0:
@@ -71,17 +81,20 @@ class _Walk:
                     value = value[:pos] + replacement + value[pos + len(key):]
                     pos = value.find(key, pos + len(replacement))
         if any(value[i] == "$" and (i == 0 or value[i - 1] != "\\") for i in range(len(value))):
-            raise _Stop
+            return None
         return value.replace("\\$", "$")
+
+    def folder(self, folder: Path) -> None:
+        if folder not in self.folders:
+            self.folders.append(folder)
 
 
 def scene_files(scene: Any, params: Mapping[str, Any] | None = None) -> list[tuple[str, Path]]:
-    """The files a Mitsuba XML scene reads besides itself, as ``(what, path)``, in document order.
+    """The files a Mitsuba XML scene may read besides itself, as ``(what, path)``.
 
-    Each is where Mitsuba 3's file resolver finds it (see the module's notes); a name found
-    nowhere is given as Mitsuba opens it then, from the working folder. Where Mitsuba would
-    refuse the scene (an undefined parameter, a missing include), the files read before that
-    point are listed. A bundled scene name or a scene dict reads none.
+    A superset (see the module's notes): every existing file, not a folder, that an attribute
+    value of the scene or of its included files names in a folder Mitsuba may look in. A bundled
+    scene name or a scene dict reads none.
 
     Parameters
     ----------
@@ -91,16 +104,13 @@ def scene_files(scene: Any, params: Mapping[str, Any] | None = None) -> list[tup
         The render's parameters, as given to ``mi.load_file(scene, **params)``; they take
         precedence over the scene's ``<default>`` values.
 
-    Raises
-    ------
-    ValueError
-        A scene or included file that is not XML.
-
     Examples
     --------
     >>> import tempfile
     >>> from pathlib import Path
     >>> folder = Path(tempfile.mkdtemp())
+    >>> for name in ("bunny_lod0.obj", "cube_lod0.obj", "glass.spd"):
+    ...     _ = (folder / name).write_text("")
     >>> _ = (folder / "scene.xml").write_text(
     ...     '<scene version="3.0.0"><default name="mesh" value="bunny"/>'
     ...     '<shape type="obj"><string name="filename" value="$mesh_lod0.obj"/></shape>'
@@ -115,74 +125,113 @@ def scene_files(scene: Any, params: Mapping[str, Any] | None = None) -> list[tup
     first = Path(scene)
     if isinstance(scene, str) and scene in SCENE_NAMES and not os.path.lexists(first):
         return []  # a bundled scene, built from a dict
-    walk = _Walk(first, params or {})
+    walk = _Walk(params or {})
+    _read_file(walk, first, 0)
+    named: dict[str, str] = {}
+    for raw, what in walk.values.items():
+        value = walk.substituted(raw)
+        if value and _RANK.get(what, 2) < _RANK.get(named.get(value, ""), 3):  # the message names its likeliest use
+            named[value] = what
+    files: list[tuple[str, Path]] = []
+    seen: set[Path] = set()
+    for value, what in named.items():
+        for path in _found(value, walk.folders):
+            if path not in seen:
+                seen.add(path)
+                files.append((f"{what} {value}", path))
+    return files
+
+
+def _read_file(walk: _Walk, path: Path, depth: int) -> None:
+    """Gather one XML file's defaults, ``<path>`` folders and values, and follow its includes
+    where they stand (document order: a default counts from there on)."""
+    if depth > _MAX_DEPTH or len(walk.read) >= _MAX_FILES or not path.is_file():  # a FIFO: listed, never opened
+        return
+    key = path.resolve()
+    if key in walk.read:
+        return
+    walk.read.add(key)
+    walk.folder(path.parent)
+    walk.folder(key.parent)  # where a loader that resolves links looks
     try:
-        _visit_file(walk, first, walk.main, 0)
-    except _Stop:
-        # Parsing stopped: nothing is instantiated, so only the files parsing reads are read.
-        walk.named = [entry for entry in walk.named if entry[2] is not walk.main]
-    return [(what, _resolved(value, folders)) for what, value, folders in walk.named]
-
-
-def _visit_file(walk: _Walk, path: Path, folders: list[Path], depth: int) -> None:
-    """Walk one XML file (the scene or an include) with the resolver's ``folders`` of that point."""
-    if not path.is_file():  # missing or special: the caller refuses it, and it is never opened
-        raise _Stop
-    _visit(walk, _parsed(path), path, folders, depth, 0)
-
-
-def _visit(walk: _Walk, element: ElementTree.Element, path: Path, folders: list[Path], depth: int,
-           level: int) -> None:
-    """One element as Mitsuba's ``parse_xml_node`` treats it, then its children (``level`` 0 is
-    the file's root; ``<path>`` may stand at level 1 only)."""
-    values = {key: walk.substituted(value) for key, value in element.attrib.items()}
-    tag, filename = element.tag, values.get("filename")
-    if tag == "default" and values.get("name"):
-        walk.define(values["name"], values.get("value", ""))
-    elif tag == "path" and "value" in values:
-        if level != 1:
-            raise _Stop  # "<path> can only be child of root"
-        folder = Path(values["value"])
-        if not folder.is_absolute():
-            beside = path.parent / folder
-            folder = beside if os.path.exists(beside) else _resolved(values["value"], folders)
-        folders.insert(0, folder)
-    elif tag == "include" and filename is not None:
-        scope = [path.parent, *folders]  # the including file's folder first, for this include only
-        walk.named.append((f"include {filename}", filename, scope))
-        if depth + 1 >= _MAX_DEPTH:
-            raise _Stop
-        _visit_file(walk, _resolved(filename, scope), scope, depth + 1)
-    elif filename is not None:
-        walk.named.append((f"filename {filename}", filename, list(folders)))  # read while parsing
-    elif tag == "string" and values.get("name") == "filename" and values.get("value"):
-        walk.named.append((f"filename {values['value']}", values["value"], walk.main))  # read after
-    for child in element:
-        _visit(walk, child, path, folders, depth, level + 1)
-
-
-def _parsed(path: Path) -> ElementTree.Element:
-    """The root element of ``path``; a byte that is not UTF-8 (in a comment, say) is replaced and
-    the file read again, as pugixml, which does not check the encoding, loads it."""
-    try:
-        data = path.read_bytes()
+        text = _decoded(path.read_bytes())
     except OSError as exc:
         raise ValueError(f"{path}: not a readable Mitsuba XML scene ({exc.strerror})") from None
-    try:
-        return ElementTree.fromstring(data)
-    except ElementTree.ParseError as exc:
-        try:
-            return ElementTree.fromstring(data.decode("utf-8", "replace"))
-        except ElementTree.ParseError:
-            raise ValueError(f"{path}: not a readable Mitsuba XML scene ({exc})") from None
+    for tag in _TAG.finditer(_SKIPPED.sub(" ", text)):
+        attributes: dict[str, str] = {}
+        for attribute in _ATTRIBUTE.finditer(tag.group(2)):
+            value = attribute.group(2) if attribute.group(2) is not None else attribute.group(3)
+            attributes.setdefault(attribute.group(1), _unescaped(value))  # pugixml reads the first
+        name = tag.group(1)
+        for key, value in attributes.items():
+            what = "include" if name == "include" else "filename" if _names_a_file(name, key, attributes) else key
+            if _RANK.get(what, 2) < _RANK.get(walk.values.get(value, ""), 3):
+                walk.values[value] = what
+        if name == "default" and "name" in attributes:
+            value = walk.substituted(attributes.get("value", ""))
+            if value is not None:
+                walk.define(attributes["name"], value)
+        elif name == "path" and "value" in attributes:
+            value = walk.substituted(attributes["value"])
+            for folder in _candidates(value, [path.parent, *walk.folders]) if value else []:
+                if folder.is_dir():
+                    walk.folder(folder)
+        elif name == "include" and "filename" in attributes:
+            value = walk.substituted(attributes["filename"])
+            for file in _candidates(value, [path.parent, *walk.folders]) if value else []:
+                _read_file(walk, file, depth + 1)
 
 
-def _resolved(value: str, folders: list[Path]) -> Path:
-    """Where Mitsuba's ``FileResolver.resolve`` finds ``value``: the first of ``folders`` holding
-    it (``fs::exists``: links followed), else the name as given."""
+def _names_a_file(tag: str, key: str, attributes: Mapping[str, str]) -> bool:
+    return key == "filename" or (tag == "string" and key == "value" and attributes.get("name") == "filename")
+
+
+def _decoded(data: bytes) -> str:
+    """The text as pugixml reads it (``encoding_auto``): by its byte-order mark, Latin-1 when it
+    declares it, else UTF-8; bytes that are not UTF-8 are kept as the surrogates Python gives
+    undecodable file names, so they name the same files."""
+    for bom, codec in ((codecs.BOM_UTF32_BE, "utf-32-be"), (codecs.BOM_UTF32_LE, "utf-32-le"),
+                       (codecs.BOM_UTF8, "utf-8"), (codecs.BOM_UTF16_BE, "utf-16-be"),
+                       (codecs.BOM_UTF16_LE, "utf-16-le")):
+        if data.startswith(bom):
+            return data[len(bom):].decode(codec, "replace")
+    if data[:4] in (b"<\0?\0", b"<\0\0\0") or data[:2] == b"<\0":
+        return data.decode("utf-16-le", "replace")
+    if data[:2] == b"\0<":
+        return data.decode("utf-16-be", "replace")
+    if _LATIN1.match(data):
+        return data.decode("latin-1")
+    return data.decode("utf-8", "surrogateescape")
+
+
+def _unescaped(value: str) -> str:
+    """An attribute value as pugixml gives it: line ends and whitespace as spaces, the five XML
+    entities and character references replaced, any other ``&name;`` kept as written."""
+    value = value.replace("\r\n", "\n").replace("\r", "\n").replace("\n", " ").replace("\t", " ")
+    return _REFERENCE.sub(_reference, value)
+
+
+def _reference(match: re.Match[str]) -> str:
+    if match.group(1):
+        return html.unescape(f"&{match.group(1)};")
+    code = int(match.group(2)) if match.group(2) else int(match.group(3), 16)
+    return chr(code) if 0 < code <= 0x10FFFF else match.group(0)
+
+
+def _candidates(value: str, folders: list[Path]) -> list[Path]:
+    """``value`` in each of ``folders`` (itself if absolute)."""
     name = Path(value)
-    if not name.is_absolute():
-        for folder in folders:
-            if os.path.exists(folder / name):
-                return folder / name
-    return name
+    return [name] if name.is_absolute() else [folder / name for folder in folders]
+
+
+def _found(value: str, folders: list[Path]) -> list[Path]:
+    """The candidates of ``value`` that exist and are not folders (a FIFO, a device or a link to
+    one included: those are refused, never opened)."""
+    found = []
+    for path in _candidates(value, folders):
+        try:
+            if os.path.exists(path) and not os.path.isdir(path):
+                found.append(path)
+        except (OSError, ValueError):  # a name too long, or holding a NUL: no such file
+            continue
+    return found

@@ -1,4 +1,4 @@
-"""The files a Mitsuba scene reads: found as Mitsuba 3's parser finds them, checked against Mitsuba."""
+"""The files a Mitsuba scene may read: a superset of what Mitsuba 3 reads, checked against Mitsuba itself."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ _TEXTURE = ('<bsdf type="diffuse"><texture type="bitmap" name="reflectance">'
             '<string name="filename" value="{}"/></texture></bsdf>')
 
 # name: (files other than the texture, the scene, where Mitsuba reads the texture, decoys: the
-# same name where a plausible but wrong lookup would find it)
+# same name where a plausible but wrong lookup would find it; the superset may list them too)
 CASES = {
     "parameter inside a name": ({"a.xml": _SCENE.format('<default name="t" value="img"/>'
                                                         + _TEXTURE.format("$t_x.exr"))}, "a.xml", "img_x.exr", []),
@@ -60,73 +60,126 @@ def _texture(path: Path) -> None:
     write_image(path, np.full((2, 2, 3), 0.5))
 
 
+def _listed(scene) -> list[str]:
+    return [os.path.normpath(path) for _, path in scene_files(scene)]
+
+
 @pytest.mark.parametrize("case", CASES)
-def test_the_texture_listed_is_the_one_mitsuba_reads(mi, tmp_path, monkeypatch, case):
+def test_the_file_mitsuba_reads_is_listed(mi, tmp_path, monkeypatch, case):
     """With decoys where a plausible lookup would look, Mitsuba loads the scene, and fails once the
-    listed texture is not an image: it reads that file, as the walk says."""
+    texture it is said to read is not an image: it reads that file, and the file is listed."""
     files, scene, read, decoys = CASES[case]
     monkeypatch.chdir(tmp_path)
     _write(tmp_path, files)
     for decoy in decoys:
         _texture(tmp_path / decoy)
     _texture(tmp_path / read)
-    listed = [path for what, path in scene_files(scene) if not what.startswith("include")]
-    assert [os.path.normpath(path) for path in listed] == [os.path.normpath(read)]
+    assert os.path.normpath(read) in _listed(scene)
     mi.load_file(scene)
     (tmp_path / read).write_text("not an image")
     with pytest.raises(RuntimeError):
         mi.load_file(scene)
 
 
-def test_a_spectrum_in_an_include_is_looked_up_from_the_including_file(mi, tmp_path, monkeypatch):
-    """A ``filename`` attribute is read while parsing: beside the file holding the ``<include>``."""
+@pytest.mark.parametrize("markup", [
+    '<!DOCTYPE scene [<!ENTITY t "other">]><scene version="3.0.0">{}</scene>',  # an entity stays as written
+    '<scene version="3.0.0">{}<bsdf type="diffuse" id="a&b"/></scene>',  # a bare &
+    '<scene version="3.0.0"><!-- a -- b -->{}</scene>',  # -- inside a comment
+    '<scene version="3.0.0">{}<bsdf type="diffuse" id="x<y"/></scene>',  # < inside an attribute
+])
+def test_markup_mitsuba_reads_and_expat_refuses_or_reads_otherwise(mi, tmp_path, monkeypatch, markup):
+    """pugixml (Mitsuba's parser) leaves an unknown entity as written and tolerates malformed
+    markup: the file it reads is listed, where a strict XML parser refused the scene or expanded
+    the entity to another name."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "a.xml").write_text(markup.format(_TEXTURE.format("&t;.exr")))
+    _texture(tmp_path / "&t;.exr")
+    _texture(tmp_path / "other.exr")
+    assert "&t;.exr" in _listed("a.xml")
+    mi.load_file("a.xml")
+    (tmp_path / "&t;.exr").write_text("not an image")
+    with pytest.raises(RuntimeError):
+        mi.load_file("a.xml")
+
+
+def test_a_latin1_byte_names_the_file_mitsuba_reads(mi, tmp_path, monkeypatch):
+    """pugixml takes the bytes of a file declaring windows-1252 as UTF-8 (it converts only Latin-1):
+    the name keeps its raw byte, as Mitsuba opens it (decoding it as windows-1252 named another file)."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "a.xml").write_bytes(b'<?xml version="1.0" encoding="windows-1252"?><scene version="3.0.0">'
+                                     + _TEXTURE.format("t@.exr").encode("ascii").replace(b"@", b"\xe9")
+                                     + b"</scene>")
+    raw = os.fsdecode(b"t\xe9.exr")
+    _texture(tmp_path / "decoy.exr")
+    os.rename(tmp_path / "decoy.exr", tmp_path / raw)
+    _texture(tmp_path / "t\u00e9.exr")  # what a decoder of windows-1252 would name
+    assert raw in _listed("a.xml")
+    mi.load_file("a.xml")
+    (tmp_path / raw).write_text("not an image")
+    with pytest.raises((RuntimeError, UnicodeDecodeError)):  # Mitsuba's message holds the raw byte
+        mi.load_file("a.xml")
+
+
+def test_a_spectrum_in_an_include_is_listed_where_mitsuba_reads_it(mi, tmp_path, monkeypatch):
+    """A ``filename`` attribute is read while parsing, beside the file holding the ``<include>``."""
     monkeypatch.chdir(tmp_path)
     _write(tmp_path, {"f.xml": _SCENE.format('<include filename="sub/part.xml"/>'),
                       "sub/part.xml": _SCENE.format('<bsdf type="diffuse"><spectrum name="reflectance" '
                                                     'filename="r.spd"/></bsdf>'),
                       "sub/r.spd": "400 0.5\n700 0.5\n"})
-    assert scene_files("f.xml") == [("include sub/part.xml", Path("sub/part.xml")), ("filename r.spd", Path("r.spd"))]
     with pytest.raises(RuntimeError, match="r.spd"):
         mi.load_file("f.xml")
     (tmp_path / "r.spd").write_text("400 0.5\n700 0.5\n")
     mi.load_file("f.xml")
+    assert {"r.spd", os.path.normpath("sub/part.xml")} <= set(_listed("f.xml"))
 
 
 # ---------------------------------------------------------------------------- no Mitsuba needed
-def test_an_undefined_parameter_stops_the_walk_as_it_stops_mitsuba(tmp_path):
-    """Mitsuba refuses the scene while parsing: the files parsing read before are listed, those
-    instantiation would read are not."""
-    _write(tmp_path, {"a.xml": _SCENE.format(_TEXTURE.format("tex.exr") + '<spectrum name="s" filename="a.spd"/>'
-                                             '<string name="filename" value="$nope.exr"/>'
-                                             '<spectrum name="t" filename="b.spd"/>')})
-    assert [what for what, _ in scene_files(tmp_path / "a.xml")] == ["filename a.spd"]
+def test_an_undefined_parameter_skips_only_its_own_value(tmp_path):
+    """Mitsuba may never reach the element (a transform's grandchild): the rest is still listed."""
+    for name in ("tex.exr", "a.spd"):
+        (tmp_path / name).write_text("")
+    _write(tmp_path, {"a.xml": _SCENE.format('<transform name="to_world"><translate x="1"><path value="$nope"/>'
+                                             '</translate></transform>' + _TEXTURE.format("tex.exr")
+                                             + '<spectrum name="s" filename="a.spd"/>'
+                                             '<string name="filename" value="$nope.exr"/>')})
+    assert [what for what, _ in scene_files(tmp_path / "a.xml")] == ["filename tex.exr", "filename a.spd"]
 
 
 def test_render_parameters_take_precedence_over_defaults(tmp_path):
+    for name in ("given.exr", "img.exr"):
+        (tmp_path / name).write_text("")
     _write(tmp_path, {"a.xml": _SCENE.format('<default name="t" value="img"/>' + _TEXTURE.format("$t.exr"))})
     assert [path.name for _, path in scene_files(tmp_path / "a.xml", params={"t": "given"})] == ["given.exr"]
     assert [path.name for _, path in scene_files(tmp_path / "a.xml")] == ["img.exr"]
 
 
-def test_an_include_that_is_not_a_regular_file_is_listed_and_never_opened(tmp_path):
+def test_special_files_are_listed_unopened_folders_and_missing_names_are_not(tmp_path):
+    """A FIFO (an include or a texture) is listed, so the command refuses it, and never opened; a
+    folder named like a value, or a name found nowhere, cannot be read as a file."""
     os.mkfifo(tmp_path / "part.xml")  # opening it would block
-    _write(tmp_path, {"a.xml": _SCENE.format('<include filename="part.xml"/>' + _TEXTURE.format("tex.exr"))})
-    assert scene_files(tmp_path / "a.xml") == [("include part.xml", tmp_path / "part.xml")]
+    os.mkfifo(tmp_path / "tex.exr")
+    (tmp_path / "diffuse").mkdir()
+    _write(tmp_path, {"a.xml": _SCENE.format('<include filename="part.xml"/>' + _TEXTURE.format("tex.exr")
+                                             + _TEXTURE.format("missing.exr"))})
+    assert scene_files(tmp_path / "a.xml") == [("include part.xml", tmp_path / "part.xml"),
+                                               ("filename tex.exr", tmp_path / "tex.exr")]
 
 
-def test_an_include_loop_stops_at_mitsubas_depth(tmp_path):
+def test_an_include_loop_ends(tmp_path):
+    (tmp_path / "tex.exr").write_text("")
     _write(tmp_path, {"loop.xml": _SCENE.format('<include filename="loop.xml"/>' + _TEXTURE.format("tex.exr"))})
-    assert [what for what, _ in scene_files(tmp_path / "loop.xml")] == ["include loop.xml"] * 15
+    assert [what for what, _ in scene_files(tmp_path / "loop.xml")] == ["include loop.xml", "filename tex.exr"]
 
 
-def test_a_byte_that_is_not_utf8_in_a_comment_is_read_as_mitsuba_reads_it(tmp_path):
-    """pugixml does not check the encoding; expat refuses the byte, so the file is read again."""
-    (tmp_path / "a.xml").write_bytes(b'<scene version="3.0.0"><!-- caf\xe9 -->'
-                                     + _TEXTURE.format("tex.exr").encode() + b"</scene>")
-    assert [what for what, _ in scene_files(tmp_path / "a.xml")] == ["filename tex.exr"]
-    (tmp_path / "b.xml").write_text("<scene><unclosed></scene>")
-    with pytest.raises(ValueError, match="b.xml: not a readable Mitsuba XML scene"):
-        scene_files(tmp_path / "b.xml")
+def test_a_linked_scene_lists_the_files_beside_its_target_too(tmp_path):
+    """``mi.load_file`` looks beside the link, a loader that resolves the name beside the target."""
+    _write(tmp_path, {"real/a.xml": _SCENE.format(_TEXTURE.format("tex.exr"))})
+    (tmp_path / "real" / "tex.exr").write_text("")
+    (tmp_path / "tex.exr").write_text("")
+    os.symlink(tmp_path / "real" / "a.xml", tmp_path / "a.xml")
+    assert {path for _, path in scene_files(tmp_path / "a.xml")} == {tmp_path / "tex.exr",
+                                                                      tmp_path / "real" / "tex.exr"}
 
 
 def test_a_bundled_name_or_a_dict_reads_nothing():
