@@ -191,3 +191,67 @@ def test_a_feature_file_whose_name_holds_a_colon_is_read_whole(tmp_path, monkeyp
     assert feature_plane_file("beauty.exr:Albedo") == Path("beauty.exr")
     albedo = read_sample_dump("d.exr", albedo="take:2.exr").buffer.features["albedo"]
     np.testing.assert_array_equal(albedo.mean, np.full((4, 4, 3), 0.25))
+
+
+def _parts_file(path, parts):
+    """A multi-part EXR written by OpenEXR itself: ``parts`` is [(header, planes)]."""
+    import OpenEXR
+
+    base = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    written = [OpenEXR.Part({**base, **header}, {k: np.array(v) for k, v in planes.items()}, name=f"part{i}")
+               for i, (header, planes) in enumerate(parts)]  # copies: the binding turns the values into Channels
+    with OpenEXR.File(written) as f:
+        f.write(str(path))
+    return path
+
+
+def _awr_planes(tmp_path, scale=1.0):
+    import OpenEXR
+
+    from awr_denoise.buffers import SampleBuffer
+    from awr_denoise.io import write_sample_buffer
+
+    rng = np.random.default_rng(5)
+    write_sample_buffer(tmp_path / "one.exr", SampleBuffer.from_moments(np.full((6, 8), 4), rng.random((6, 8, 3)),
+                                                                       rng.random((6, 8, 3)) * 0.1), overwrite=True)
+    with OpenEXR.File(str(tmp_path / "one.exr"), separate_channels=True) as f:
+        header = {k: v for k, v in f.header().items() if k.startswith("awr:")}
+        planes = {k: v.pixels * np.float32(scale) if k in "RGB" else v.pixels.copy() for k, v in f.channels().items()}
+    return header, planes
+
+
+def test_the_view_asked_for_is_the_one_read_from_an_awr_dump(tmp_path):
+    """``--view right`` on a two-view awr dump read the left view's samples, exit 0 (red-team pass 5)."""
+    from awr_denoise.io import read_sample_dump
+
+    header, left = _awr_planes(tmp_path)
+    _, right = _awr_planes(tmp_path, scale=10.0)
+    path = _parts_file(tmp_path / "stereo.exr", [({**header, "view": "left"}, left),
+                                                 ({**header, "view": "right"}, right)])
+    means = {view: read_sample_dump(path, view=view).buffer.mean for view in ("left", "right")}
+    np.testing.assert_allclose(means["right"], means["left"] * 10, rtol=1e-6)
+    with pytest.raises(InputFileError, match="several views"):
+        read_sample_dump(path)
+    two = _parts_file(tmp_path / "two.exr", [(header, left), (header, right)])  # two sample parts, no views
+    with pytest.raises(InputFileError, match="2 parts hold samples"):
+        read_sample_dump(two)
+
+
+def test_parts_with_another_data_window_are_refused(tmp_path):
+    """The samples in part 1 at (0, 0), an image in part 0 at (100, 200): the outputs took part 0's
+    window, placing the denoised pixels elsewhere, exit 0 (red-team pass 5)."""
+    from awr_denoise.io import read_image, read_sample_dump
+
+    header, planes = _awr_planes(tmp_path)
+    h, w = planes["R"].shape
+    preview = {"preview." + c: planes[c] for c in "RGB"}
+    path = _parts_file(tmp_path / "w.exr", [({"dataWindow": ((100, 200), (100 + w - 1, 200 + h - 1))}, preview),
+                                            ({**header, "dataWindow": ((0, 0), (w - 1, h - 1))}, planes)])
+    with pytest.raises(InputFileError, match="part 1's data window differs from the first part's"):
+        read_sample_dump(path)
+    with pytest.raises(InputFileError, match="R: its part's data window differs"):
+        read_image(path)
+    stereo = _parts_file(tmp_path / "s.exr", [({"view": "left"}, {c: planes[c] for c in "RGB"}),
+                                              ({"view": "right"}, {c: planes[c] * 10 for c in "RGB"})])
+    with pytest.raises(InputFileError, match="R: is in several parts"):  # read_image took the first view
+        read_image(stereo)

@@ -495,16 +495,25 @@ def read_image(path: str | os.PathLike[str], *, channels: Sequence[str] | None =
         raise file_error(p, "is a deep EXR, a per-sample dump, not an image (read it with read_deep_samples, "
                               "or denoise it first: awr denoise)")
     available: dict[str, tuple[ExrPart, np.ndarray]] = {}
-    for part in parts:  # first part wins when two parts share a channel name
+    shared: set[str] = set()
+    for part in parts:
         for name, arr in part.channels.items():
+            if name in available:
+                shared.add(name)  # two views (or parts) of one name: never pick one silently
             available.setdefault(name, (part, arr))
     wanted = list(channels) if channels is not None else _find_rgb(p, list(available))
+    first_window = header_windows(parts[0].header).get("dataWindow")
     planes = []
     shape = None
     for name in wanted:
         if name not in available:
             raise file_error(p, f"no such channel (found {', '.join(sorted(available))})", name)
+        if name in shared:
+            raise file_error(p, "is in several parts (views); this reader takes one-part images", name)
         part, arr = available[name]
+        if header_windows(part.header).get("dataWindow") != first_window:
+            # The writers copy the first part's windows: this channel would be placed elsewhere.
+            raise file_error(p, "its part's data window differs from the first part's", name)
         if shape is not None and arr.shape != shape:
             raise file_error(p, f"size {arr.shape} differs from {shape} of the other channels", name)
         shape = arr.shape

@@ -44,7 +44,7 @@ from .colour import MITSUBA_XYZ_TO_SRGB, PBRT_XYZ_TO_SRGB, xyz_statistics_to_rgb
 from .cycles import COLOUR_PASSES, cycles_layers, sample_count_scale
 from .deep import samples_from_deep_part
 from .dump import COUNT_CHANNEL, MAX_EXACT_COUNT, VARIANCE_PREFIX, SampleDump, buffer_from_awr_part, whole_counts
-from .exr import ExrPart, checked_plane, file_error, header_value, read_exr
+from .exr import ExrPart, checked_plane, file_error, header_value, header_windows, read_exr
 from .features import MITSUBA_AOV_NAMES, auto_feature_planes, feature_from_planes
 from .mitsuba import filter_correlation
 
@@ -91,6 +91,10 @@ def file_views(parts: Sequence[ExrPart]) -> list[str]:
     return views
 
 
+def _part_view(part: ExrPart) -> str | None:
+    return str(header_value(part.header, "view")) if "view" in part.header else None
+
+
 class _File:
     """An EXR file's flat channels (all parts of one view merged, first part wins) and headers."""
 
@@ -108,10 +112,13 @@ class _File:
         if view is None and views:
             view = views[0]
         self.view = view
-        for part in parts:
-            part_view = str(header_value(part.header, "view")) if "view" in part.header else None
-            if part.deep or part_view not in (None, view):
-                continue
+        self.used = [part for part in parts if not part.deep and _part_view(part) in (None, view)]
+        first_window = header_windows(parts[0].header).get("dataWindow")
+        for part in self.used:
+            if header_windows(part.header).get("dataWindow") != first_window:
+                # Outputs keep the first part's windows: these pixels would be placed elsewhere.
+                raise file_error(path, f"part {part.index}'s data window differs from the first part's; "
+                                       "read a file whose parts share one window")
             for name, arr in part.channels.items():
                 self.channels.setdefault(name, arr)
         # Every part's attributes count, whatever its view: Cycles puts cycles.<layer>.samples
@@ -711,9 +718,11 @@ def read_sample_dump(
     planes = {"albedo": albedo, "normal": normal, "depth": depth}
     if preset == "awr" and color is None and variance is None:
         _refuse_unused(p, f"an awr dump counts its samples in {COUNT_CHANNEL}", count=count)
-        flat = [part for part in parts if not part.deep and COUNT_CHANNEL in part.channels]
+        flat = [part for part in f.used if COUNT_CHANNEL in part.channels]  # of the view asked for
         if not flat:
             raise file_error(p, "missing (not in the awr dump layout)", COUNT_CHANNEL)
+        if len(flat) > 1:  # never pick one silently
+            raise file_error(p, f"{len(flat)} parts hold samples; give a file with one", COUNT_CHANNEL)
         if spp is not None:
             raise file_error(p, f"holds per-pixel sample counts; spp={spp} / --spp is for files without them",
                              COUNT_CHANNEL)
