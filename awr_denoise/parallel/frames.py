@@ -22,7 +22,7 @@ from .. import _checks
 from ..errors import AWRError, InputFileError
 from ..io import read_image, read_sample_buffer, write_image, write_preview
 from ..io.atomic import check_writable
-from ..io.exr import check_same_windows, read_windows
+from ..io.exr import check_same_windows, read_header, read_windows
 from ..io.presets import parse_plane
 from ..io.provenance import image_provenance
 from ..metrics import relmse
@@ -81,16 +81,21 @@ class FrameResult:
     features: tuple[str, ...] = ()
 
 
-def _reference_error(reference: str | os.PathLike[str], image: np.ndarray, source: str,
+def _reference_error(reference: str | os.PathLike[str], image: np.ndarray, channels: Sequence[str], source: str,
                      windows: dict[str, Any]) -> float:
-    """relMSE of ``image`` against the reference image file (shared channels only)."""
-    ref = read_image(reference)
+    """relMSE of ``image`` (its ``channels``) against the reference image file: its channels of those
+    names, else its colour, which must have as many channels (a one-channel depth map compared
+    with R alone gave another verdict than ``awr diff``, which refused it)."""
+    names = {getattr(c, "name", str(c)) for c in read_header(reference).get("channels", [])}
+    ref = read_image(reference, channels=list(channels)) if set(channels) <= names else read_image(reference)
     if ref.shape[:2] != image.shape[:2]:
         raise InputFileError(f"{os.fspath(reference)}: size {ref.shape[1]}x{ref.shape[0]} does not match "
                              f"{image.shape[1]}x{image.shape[0]} of {source}")
+    if ref.shape[2] != image.shape[2]:
+        raise InputFileError(f"{os.fspath(reference)}: {ref.shape[2]} channel(s), the image of {source} has "
+                             f"{image.shape[2]} ({','.join(channels)})")
     check_same_windows(reference, read_windows(reference), source, windows)
-    k = min(ref.shape[2], image.shape[2])
-    return relmse(image[..., :k], ref[..., :k])
+    return relmse(image, ref)
 
 
 def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str], *,
@@ -131,7 +136,8 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
         raise InputFileError(f"{source}: holds no feature buffers (albedo, normal or depth) to guide with; give "
                              "them as files (--alb, --nrm, --depth; albedo=, normal=, depth=)")
     result = reconstruct_detailed(buffer, variance_probes=0, **reconstruct_options)
-    error = _reference_error(reference, np.asarray(result.image), source, windows) if reference else None
+    image = np.asarray(result.image)
+    error = _reference_error(reference, image, buffer.channels, source, windows) if reference else None
     written = write_image(output, result.image, channels=buffer.channels, half=half, overwrite=overwrite,
                           header={**image_provenance(result, buffer, source=source), **windows})
     shown = write_preview(preview, result.image, exposure=exposure, overwrite=overwrite) if preview else None

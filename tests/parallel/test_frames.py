@@ -96,3 +96,20 @@ def test_a_dump_without_samples_is_refused_naming_it(tmp_path):
     with pytest.raises(FramesFailedError, match=r"empty\.exr: InputFileError: .*empty\.exr: no pixel has any sample"):
         denoise_frames([tmp_path / "empty.exr"], [tmp_path / "out.exr"])
     assert not (tmp_path / "out.exr").exists()
+
+
+def test_a_reference_with_other_channels_is_refused_not_compared_in_part(tmp_path, dumps):
+    """A one-channel depth map as the reference was compared with R alone (``awr diff`` refused it):
+    the reference has the image's channel names or as many colour channels (red-team pass 5)."""
+    from awr_denoise.errors import InputFileError
+    from awr_denoise.io import read_sample_buffer, write_image
+    from awr_denoise.parallel.frames import denoise_frame
+
+    clean = reconstruct(read_sample_buffer(dumps[0]))
+    write_image(tmp_path / "z.exr", clean[..., :1], channels=("Z",))
+    with pytest.raises(InputFileError, match="z.exr: 1 channel"):
+        denoise_frame(dumps[0], tmp_path / "o.exr", reference=tmp_path / "z.exr")
+    assert not (tmp_path / "o.exr").exists()
+    write_image(tmp_path / "rgba.exr", np.concatenate([clean, np.ones_like(clean[..., :1])], axis=-1),
+                channels=("R", "G", "B", "A"))  # the image's channels by name: A left out
+    assert denoise_frame(dumps[0], tmp_path / "o.exr", reference=tmp_path / "rgba.exr").relmse < 1e-10
