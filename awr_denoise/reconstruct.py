@@ -31,7 +31,7 @@ from .domains import Domain
 from .finishing import clip_negative, pooled_clamp, restore_mean
 from .guided import checked_inputs, checked_projection, pilots, projected
 from .prepare import Prepared, prepare
-from .stationary import DTYPES, stationary_transform
+from .stationary import DTYPES, precision_for, stationary_transform
 from .sure import DEFAULT_GUIDED_WINDOW, DEFAULT_WINDOW, sure_blend
 from .thresholding import threshold_stage
 from .wavelets import DEFAULT_WAVELET, wavelet_operators
@@ -164,7 +164,7 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
     run side by side: the same image, bit for bit.
     """
     s, k, x, v = prepared.unit_scaled()
-    transform = stationary_transform(prepared.mean.shape[:2], wavelet, levels, precision)
+    transform = stationary_transform(x.shape[:2], wavelet, levels, precision_for(precision, k, x, pilot / s))
     options = {"k": k, "leverage": guard, "probes": probes, "keep": keep, "seed": seed,
                "run": run if parallel else None}
     # The first Wiener stage's energy floor needs each channel's own factors: channel mode only.

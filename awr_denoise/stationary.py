@@ -38,7 +38,7 @@ from . import _checks
 from ._typing import FloatArray, Shape2D
 from .wavelets import DEFAULT_WAVELET, WAVELET_NAMES, default_levels, max_levels
 
-__all__ = ["StationaryTransform", "stationary_transform", "DTYPES", "BACKENDS"]
+__all__ = ["StationaryTransform", "stationary_transform", "precision_for", "DTYPES", "BACKENDS"]
 
 DTYPES = ("float64", "float32")
 """Precisions of the FFTs: ``"float64"`` (the reference) and ``"float32"``."""
@@ -332,3 +332,25 @@ def stationary_transform(shape: Shape2D, wavelet: str = DEFAULT_WAVELET, levels:
     True
     """
     return StationaryTransform(shape, wavelet=wavelet, levels=levels, dtype=dtype, workers=workers, backend=backend)
+
+
+_FLOAT32_RANGE = 2.0**100
+"""The largest magnitude a float32 stage takes: its FFTs sum up to ``H * W`` products of values."""
+
+
+def precision_for(dtype: str, *values: FloatArray | float) -> str:
+    """``dtype``, or ``"float64"`` where a float32 stage could not hold ``values``: a domain's offset
+    or scale chosen so that the image or the relative stage's ``k`` exceeds float32's range gave
+    NaN over the whole image (a review of the library's options). Variances are capped instead
+    (:meth:`StationaryTransform.bounded`).
+
+    Examples
+    --------
+    >>> from awr_denoise.stationary import precision_for
+    >>> precision_for("float32", 0.5, 1e3), precision_for("float32", 1e39), precision_for("float64", 1e39)
+    ('float32', 'float64', 'float64')
+    """
+    if dtype != "float32":
+        return dtype
+    largest = max((float(np.abs(v).max(initial=0.0)) for v in values), default=0.0)
+    return dtype if largest < _FLOAT32_RANGE else "float64"

@@ -212,3 +212,21 @@ def test_transfer_products_are_cached_all_or_none(rng, monkeypatch):
 def test_plane_indices_are_ndindex_order(leading):
     # The planes of a batch are transformed one at a time in this order: the same as np.ndindex.
     assert list(_plane_indices(leading)) == list(np.ndindex(leading))
+
+
+@pytest.mark.parametrize("domain", [{"offset": 1e39}, {"scale": 1e-38}])
+def test_a_domain_beyond_float32_runs_its_stages_in_float64(domain):
+    """A log domain's offset or scale that left ``k`` or the image beyond float32 gave NaN over the
+    whole image, with warnings only (red-team pass 5): those stages run in float64."""
+    import warnings
+
+    from awr_denoise import Domain, SampleBuffer, reconstruct
+
+    rng = np.random.default_rng(0)
+    buffer = SampleBuffer.from_moments(np.full((32, 32), 4), 0.5 + 0.1 * rng.standard_normal((32, 32, 3)),
+                                       np.full((32, 32, 3), 0.08))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = reconstruct(buffer, domain=Domain("log", **domain))
+    reference = reconstruct(buffer, domain=Domain("log", **domain), precision="float64")
+    np.testing.assert_allclose(out, reference, rtol=1e-12)
