@@ -132,6 +132,9 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
     windows = read_windows(source)  # the image keeps the dump's data and display windows
     if not buffer.count.any():  # refused by the reconstruction too, but there without the file's name
         raise InputFileError(f"{source}: no pixel has any sample")
+    if preview is not None and buffer.n_channels not in (1, 3, 4):  # before the work, not after it
+        raise InputFileError(f"{source}: {buffer.n_channels} channels ({','.join(buffer.channels)}); a preview "
+                             "(preview= / --preview) shows 1, 3 or 4")
     if reconstruct_options.get("features") and not buffer.features:  # the file's fault, named (not the argument's)
         raise InputFileError(f"{source}: holds no feature buffers (albedo, normal or depth) to guide with; give "
                              "them as files (--alb, --nrm, --depth; albedo=, normal=, depth=)")

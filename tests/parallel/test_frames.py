@@ -113,3 +113,17 @@ def test_a_reference_with_other_channels_is_refused_not_compared_in_part(tmp_pat
     write_image(tmp_path / "rgba.exr", np.concatenate([clean, np.ones_like(clean[..., :1])], axis=-1),
                 channels=("R", "G", "B", "A"))  # the image's channels by name: A left out
     assert denoise_frame(dumps[0], tmp_path / "o.exr", reference=tmp_path / "rgba.exr").relmse < 1e-10
+
+
+def test_a_preview_of_two_channels_is_refused_before_the_work(tmp_path, monkeypatch):
+    """It failed after the reconstruction, naming the library's ``image`` (red-team pass 5)."""
+    from awr_denoise import SampleBuffer
+    from awr_denoise.errors import InputFileError
+    from awr_denoise.io import write_sample_buffer
+    from awr_denoise.parallel import frames
+
+    write_sample_buffer(tmp_path / "uv.exr", SampleBuffer.from_moments(np.full((8, 8), 4), np.ones((8, 8, 2)),
+                                                                       np.ones((8, 8, 2)), channels=("U", "V")))
+    monkeypatch.setattr(frames, "reconstruct_detailed", lambda *a, **k: pytest.fail("reconstructed first"))
+    with pytest.raises(InputFileError, match=r"uv.exr: 2 channels \(U,V\); a preview"):
+        frames.denoise_frame(tmp_path / "uv.exr", tmp_path / "o.exr", preview=tmp_path / "p.png")
