@@ -198,3 +198,21 @@ def test_a_name_that_is_not_utf8_is_refused_naming_it(tmp_path):
     os.link(tmp_path / "ok.exr", os.path.join(folder, "in.exr"))
     with pytest.raises(InputFileError, match=r"dir\\xff/in.exr: the name is not valid UTF-8"):
         read_image(os.path.join(folder, "in.exr"))
+
+
+def test_a_mipmapped_file_is_named_as_such_not_corrupt(tmp_path):
+    """OpenEXR writes it, the bindings cannot read its levels: "truncated or corrupt" was wrong."""
+    import OpenEXR
+
+    tiles = OpenEXR.TileDescription()
+    tiles.xSize = tiles.ySize = 8
+    tiles.mode = OpenEXR.MIPMAP_LEVELS
+    planes = {c: np.ones((16, 16), np.float32) for c in "RGB"}
+    with OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.tiledimage, "tiles": tiles},
+                      planes) as f:
+        f.write(str(tmp_path / "mip.exr"))
+    with pytest.raises(InputFileError, match="mip.exr: part 0 is a multi-level tiled EXR"):
+        read_image(tmp_path / "mip.exr")
+    (tmp_path / "cut.exr").write_bytes((tmp_path / "mip.exr").read_bytes()[:-40])
+    with pytest.raises(InputFileError):
+        read_image(tmp_path / "cut.exr")

@@ -236,18 +236,32 @@ def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list
         raise
     except Exception as exc:  # the bindings raise RuntimeError/ValueError/... for corrupt data
         detail = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise file_error(p, f"truncated or corrupt EXR ({detail})") from None
+        raise _unreadable(p, detail, header_only) from None
     if not parts or (captured.text and not header_only):
         # The bindings report unreadable pixel data on the C streams and return no parts.
         detail = captured.text.strip().splitlines()[-1] if captured.text.strip() else "no readable parts"
-        detail = detail.replace(os.fspath(p) + ": ", "")
-        raise file_error(p, f"truncated or corrupt EXR ({detail})")
+        raise _unreadable(p, detail.replace(os.fspath(p) + ": ", ""), header_only)
     if not header_only:
         for part in parts:
             for name, arr in part.channels.items():
                 if arr is None or (not part.deep and arr.shape != part.shape):
                     raise file_error(p, "truncated or corrupt EXR (channel data missing)", name)
     return parts
+
+
+def _unreadable(path: Path, detail: str, header_only: bool) -> InputFileError:
+    """Why the pixels of ``path`` could not be read: a valid multi-level (mipmap, ripmap) tiled
+    file, which the bindings cannot read, or a truncated or corrupt one."""
+    if not header_only:
+        try:
+            for part in read_exr(path, header_only=True):
+                mode = getattr(part.header.get("tiles"), "mode", None)
+                if mode is not None and "LEVELS" in str(mode) and "ONE_LEVEL" not in str(mode):
+                    return file_error(path, f"part {part.index} is a multi-level tiled EXR ({mode.name}), which "
+                                            "is not read; write it with one level")
+        except InputFileError:
+            pass
+    return file_error(path, f"truncated or corrupt EXR ({detail})")
 
 
 def _checked_header(path: Path, header: dict[str, Any]) -> dict[str, Any]:
