@@ -11,14 +11,16 @@ decodes a file), so the list is a superset, built from what Mitsuba's parser
   UTF-8, other declared encodings ignored); comments, CDATA, processing instructions and the
   DOCTYPE are skipped, and only the five XML entities and character references are replaced
   (``&t;`` stays ``&t;``, as in Mitsuba); malformed markup that pugixml tolerates is read too;
-- every attribute value of every element, with ``$name`` replaced as Mitsuba does (the longest
-  defined name first, ``\\$`` a literal ``$``; the ``<default>`` values of the scene and of its
-  includes, the render's parameters first), may name a file;
+- every attribute value of every element may name a file, read every way Mitsuba's
+  substitution may leave it: ``$name`` replaced by each value a ``<default>`` of the scene or of
+  an include gives it (which one Mitsuba keeps depends on which include it reads first) or by the
+  render's parameter, the longest name first, ``\\$`` a literal ``$``;
 - it is looked up in every folder any of Mitsuba's lookups may use: the working folder, the
   scene's folder, each XML file's folder (and its target's, for a symbolic link) and each
   ``<path>`` folder. Every file found there that is not a folder is listed (a name found
   nowhere is not: Mitsuba cannot read it, so no output can replace it and it cannot block);
-- included files found so are read in turn (regular files only: a FIFO is listed, never opened).
+- included files found so are read in turn, until no include names a file not yet read (regular
+  files only: a FIFO is listed, never opened); a scene of more than 1000 XML files is refused.
 
 The scene file may have any name: Mitsuba loads ``scene.txt`` as XML too.
 """
@@ -37,56 +39,84 @@ from .mitsuba_scenes import SCENE_NAMES
 
 __all__ = ["scene_files"]
 
-# Markup pugixml skips: comments, CDATA, processing instructions (the XML declaration), the DOCTYPE
-# with its internal subset (never expanded).
-_SKIPPED = re.compile(r"<!--.*?-->|<!\[CDATA\[.*?\]\]>|<\?.*?\?>|<!DOCTYPE(?:[^\[>]|\[.*?\])*>", re.DOTALL)
-_TAG = re.compile(r"""<([^\s/>!?]+)((?:[^"'>]|"[^"]*"|'[^']*')*)>""")
+# In one left-to-right pass, as pugixml reads: markup it skips (comments, CDATA, processing
+# instructions such as the XML declaration, the DOCTYPE with its internal subset, never expanded),
+# or an element's start tag, whose quoted values may hold "<!--" or ">".
+_MARKUP = re.compile(r"""<!--.*?-->|<!\[CDATA\[.*?\]\]>|<\?.*?\?>|<!DOCTYPE(?:[^\[>]|\[.*?\])*>"""
+                     r"""|<([^\s/>!?]+)((?:[^"'>]|"[^"]*"|'[^']*')*)>""", re.DOTALL)
 _ATTRIBUTE = re.compile(r"""([^\s=/>"']+)\s*=\s*(?:"([^"]*)"|'([^']*)')""")
 _REFERENCE = re.compile(r"&(?:(amp|lt|gt|quot|apos)|#([0-9]+)|#x([0-9a-fA-F]+));")
 _LATIN1 = re.compile(rb"""<\?xml[^>]*encoding\s*=\s*["'](?:iso-8859-1|latin-?1)["']""", re.IGNORECASE)
-_MAX_FILES = 1000  # included XML files read at most
-_MAX_DEPTH = 32  # includes followed this deep (Mitsuba refuses a depth of 15)
+_MAX_FILES = 1000  # included XML files read at most; a scene with more is refused, not half checked
+_MAX_VARIANTS = 256  # the ways one value may read (its parameters' <default> values combined)
+_MAX_ROUNDS = 4  # parameters within parameters' values followed this deep
 _RANK = {"include": 0, "filename": 1}
 
 
 class _Walk:
-    """What one walk over a scene gathers: its parameters (``$name``, value; the longest name
-    first), the values its elements hold, and the folders a name may be looked up in."""
+    """What one walk over a scene gathers: every value each parameter may take (``$name``), the
+    values its elements hold, and the folders a name may be looked up in."""
 
     def __init__(self, params: Mapping[str, Any]) -> None:
-        self.params: list[tuple[str, str]] = []
-        for name, value in params.items():
-            self.define(str(name), str(value))
+        # The render's parameters are the only values of theirs; a <default> cannot change them.
+        self.fixed = {"$" + str(name) for name in params}
+        self.params: dict[str, list[str]] = {"$" + str(name): [str(value)] for name, value in params.items()}
         self.values: dict[str, str] = {}  # raw value -> how the message names it
+        self.paths: list[tuple[str, Path]] = []  # <path value=...> and the folder of its file
+        self.includes: list[tuple[str, Path]] = []  # <include filename=...> and the folder of its file
         self.folders: list[Path] = [Path()]
         self.read: set[Path] = set()
 
     def define(self, name: str, value: str) -> None:
-        """Define ``$name`` unless it is; equal lengths keep their order, as Mitsuba's insert."""
+        """One more value ``$name`` may take: each ``<default>`` met (Mitsuba keeps the first it
+        reads, and which file it reads first is what a superset does not decide)."""
         key = "$" + name
-        if any(known == key for known, _ in self.params):
-            return
-        at = next((i for i, (known, _) in enumerate(self.params) if len(key) > len(known)), len(self.params))
-        self.params.insert(at, (key, value))
+        if key not in self.fixed and value not in self.params.setdefault(key, []):
+            self.params[key].append(value)
 
-    def substituted(self, value: str) -> str | None:
-        """``value`` as Mitsuba's ``substitute_parameters`` leaves it; None when a ``$`` is left
-        over (an undefined parameter: Mitsuba refuses the scene if it gets there)."""
-        for key, replacement in self.params:
-            pos = value.find(key)
-            while pos >= 0:
-                if pos > 0 and value[pos - 1] == "\\":
-                    pos = value.find(key, pos + len(key))
-                else:
-                    value = value[:pos] + replacement + value[pos + len(key):]
-                    pos = value.find(key, pos + len(replacement))
-        if any(value[i] == "$" and (i == 0 or value[i - 1] != "\\") for i in range(len(value))):
-            return None
-        return value.replace("\\$", "$")
+    def substituted(self, value: str) -> list[str]:
+        """Every way ``value`` may read once Mitsuba's ``substitute_parameters`` has replaced its
+        parameters (the longest name first, ``\\$`` a literal ``$``, a value that holds a parameter
+        substituted in turn); none left with an undefined one (Mitsuba refuses the scene there)."""
+        keys = sorted(self.params, key=len, reverse=True)
+        found: list[str] = []
+        pending, rounds = [value], 0
+        while pending and rounds < _MAX_ROUNDS:
+            rounds += 1
+            done = []
+            for key in keys:
+                done = []
+                for text in pending:
+                    positions = _unescaped_positions(text, key)
+                    if not positions:
+                        done.append(text)
+                        continue
+                    for replacement in self.params[key]:
+                        out, last = [], 0
+                        for pos in positions:
+                            out.append(text[last:pos] + replacement)
+                            last = pos + len(key)
+                        done.append("".join(out) + text[last:])
+                pending = list(dict.fromkeys(done))[:_MAX_VARIANTS]
+            # Mitsuba substitutes once; a <default> whose value held a parameter was substituted
+            # where it stood, so a value still holding one goes round again (at most a few times).
+            found += [text for text in pending if not _unescaped_positions(text, "$")]
+            pending = [text for text in pending if _unescaped_positions(text, "$") and text != value]
+        return [text.replace("\\$", "$") for text in dict.fromkeys(found)]
 
     def folder(self, folder: Path) -> None:
         if folder not in self.folders:
             self.folders.append(folder)
+
+
+def _unescaped_positions(text: str, key: str) -> list[int]:
+    """Where ``key`` stands in ``text`` not after a backslash, as Mitsuba's search finds them."""
+    positions, pos = [], text.find(key)
+    while pos >= 0:
+        if not (pos > 0 and text[pos - 1] == "\\"):
+            positions.append(pos)
+        pos = text.find(key, pos + len(key))
+    return positions
 
 
 def scene_files(scene: Any, params: Mapping[str, Any] | None = None) -> list[tuple[str, Path]]:
@@ -126,12 +156,29 @@ def scene_files(scene: Any, params: Mapping[str, Any] | None = None) -> list[tup
     if isinstance(scene, str) and scene in SCENE_NAMES and not os.path.lexists(first):
         return []  # a bundled scene, built from a dict
     walk = _Walk(params or {})
-    _read_file(walk, first, 0)
+    pending, done, state = [first], 0, None
+    while pending:  # until no include names a file not yet read: a later <default> or <path> may
+        for file in pending:
+            _read_file(walk, file)
+        for raw, base in walk.paths:
+            for value in walk.substituted(raw):
+                for folder in _candidates(value, [base, *walk.folders]):
+                    if folder.is_dir():
+                        walk.folder(folder)
+        # Every include again when a parameter or a folder is new, else only the new ones.
+        now = (sum(map(len, walk.params.values())), len(walk.folders))
+        start, done, state = (0 if now != state else done), len(walk.includes), now
+        pending = list(dict.fromkeys(file for raw, base in walk.includes[start:] for value in walk.substituted(raw)
+                                     for file in _candidates(value, [base, *walk.folders])
+                                     if file.is_file() and file.resolve() not in walk.read))  # a FIFO: never opened
+        if len(walk.read) + len(pending) > _MAX_FILES:
+            raise ValueError(f"{first}: includes more than {_MAX_FILES} XML files; the files they name are not "
+                             "checked")
     named: dict[str, str] = {}
     for raw, what in walk.values.items():
-        value = walk.substituted(raw)
-        if value and _RANK.get(what, 2) < _RANK.get(named.get(value, ""), 3):  # the message names its likeliest use
-            named[value] = what
+        for value in walk.substituted(raw):
+            if _RANK.get(what, 2) < _RANK.get(named.get(value, ""), 3):  # the message names its likeliest use
+                named[value] = what
     files: list[tuple[str, Path]] = []
     seen: set[Path] = set()
     for value, what in named.items():
@@ -142,13 +189,10 @@ def scene_files(scene: Any, params: Mapping[str, Any] | None = None) -> list[tup
     return files
 
 
-def _read_file(walk: _Walk, path: Path, depth: int) -> None:
-    """Gather one XML file's defaults, ``<path>`` folders and values, and follow its includes
-    where they stand (document order: a default counts from there on)."""
-    if depth > _MAX_DEPTH or len(walk.read) >= _MAX_FILES or not path.is_file():  # a FIFO: listed, never opened
-        return
+def _read_file(walk: _Walk, path: Path) -> None:
+    """Gather one XML file's values, ``<default>`` values, ``<path>`` folders and includes."""
     key = path.resolve()
-    if key in walk.read:
+    if key in walk.read or not path.is_file():
         return
     walk.read.add(key)
     walk.folder(path.parent)
@@ -157,29 +201,24 @@ def _read_file(walk: _Walk, path: Path, depth: int) -> None:
         text = _decoded(path.read_bytes())
     except OSError as exc:
         raise ValueError(f"{path}: not a readable Mitsuba XML scene ({exc.strerror})") from None
-    for tag in _TAG.finditer(_SKIPPED.sub(" ", text)):
+    for tag in _MARKUP.finditer(text):
+        name = tag.group(1)
+        if name is None:
+            continue  # a comment, CDATA, a processing instruction or the DOCTYPE: pugixml skips them
         attributes: dict[str, str] = {}
         for attribute in _ATTRIBUTE.finditer(tag.group(2)):
             value = attribute.group(2) if attribute.group(2) is not None else attribute.group(3)
             attributes.setdefault(attribute.group(1), _unescaped(value))  # pugixml reads the first
-        name = tag.group(1)
         for key, value in attributes.items():
             what = "include" if name == "include" else "filename" if _names_a_file(name, key, attributes) else key
             if _RANK.get(what, 2) < _RANK.get(walk.values.get(value, ""), 3):
                 walk.values[value] = what
         if name == "default" and "name" in attributes:
-            value = walk.substituted(attributes.get("value", ""))
-            if value is not None:
-                walk.define(attributes["name"], value)
+            walk.define(attributes["name"], attributes.get("value", ""))
         elif name == "path" and "value" in attributes:
-            value = walk.substituted(attributes["value"])
-            for folder in _candidates(value, [path.parent, *walk.folders]) if value else []:
-                if folder.is_dir():
-                    walk.folder(folder)
+            walk.paths.append((attributes["value"], path.parent))
         elif name == "include" and "filename" in attributes:
-            value = walk.substituted(attributes["filename"])
-            for file in _candidates(value, [path.parent, *walk.folders]) if value else []:
-                _read_file(walk, file, depth + 1)
+            walk.includes.append((attributes["filename"], path.parent))
 
 
 def _names_a_file(tag: str, key: str, attributes: Mapping[str, str]) -> bool:

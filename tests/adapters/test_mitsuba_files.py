@@ -134,7 +134,47 @@ def test_a_spectrum_in_an_include_is_listed_where_mitsuba_reads_it(mi, tmp_path,
     assert {"r.spd", os.path.normpath("sub/part.xml")} <= set(_listed("f.xml"))
 
 
+def test_every_value_a_default_may_take_is_followed(mi, tmp_path, monkeypatch):
+    """Two includes of one name, one beside the scene and one in a ``<path>`` folder, each giving
+    ``$t`` another default: which Mitsuba reads first decides, so both values are listed (the
+    first one met named a file Mitsuba never reads; a review of this pass)."""
+    monkeypatch.chdir(tmp_path)
+    _write(tmp_path, {"scene.xml": _SCENE.format('<path value="sub"/><include filename="part.xml"/>'
+                                                 + _TEXTURE.format("$t.exr")),
+                      "part.xml": _SCENE.format('<default name="t" value="decoy"/>'),
+                      "sub/part.xml": _SCENE.format('<default name="t" value="real"/>')})
+    _texture(tmp_path / "decoy.exr")
+    _texture(tmp_path / "real.exr")
+    assert {"real.exr", "decoy.exr"} <= set(_listed("scene.xml"))
+    mi.load_file("scene.xml")
+    (tmp_path / "real.exr").write_text("not an image")
+    with pytest.raises(RuntimeError):
+        mi.load_file("scene.xml")
+
+
 # ---------------------------------------------------------------------------- no Mitsuba needed
+def test_markup_inside_a_value_hides_no_element(tmp_path):
+    """``<!--`` in one attribute value and ``-->`` in a later one hid the texture between them."""
+    (tmp_path / "tex.exr").write_text("")
+    _write(tmp_path, {"a.xml": _SCENE.format('<bsdf type="diffuse" id="a<!--b"/>' + _TEXTURE.format("tex.exr")
+                                             + '<bsdf type="diffuse" id="-->"/><bsdf type="diffuse" id="<?x"/>')})
+    assert [path.name for _, path in scene_files(tmp_path / "a.xml")] == ["tex.exr"]
+
+
+def test_a_default_after_the_include_that_uses_it_is_followed(tmp_path):
+    (tmp_path / "tex.exr").write_text("")
+    _write(tmp_path, {"a.xml": _SCENE.format('<include filename="$part.xml"/><default name="part" value="p"/>'),
+                      "p.xml": _SCENE.format(_TEXTURE.format("tex.exr"))})
+    assert [what for what, _ in scene_files(tmp_path / "a.xml")] == ["include p.xml", "filename tex.exr"]
+
+
+def test_more_includes_than_checked_are_refused_not_half_checked(tmp_path):
+    files = {f"p{i}.xml": _SCENE.format(f'<include filename="p{i + 1}.xml"/>') for i in range(1001)}
+    _write(tmp_path, {"a.xml": _SCENE.format('<include filename="p0.xml"/>'), **files})
+    with pytest.raises(ValueError, match="includes more than 1000 XML files"):
+        scene_files(tmp_path / "a.xml")
+
+
 def test_an_undefined_parameter_skips_only_its_own_value(tmp_path):
     """Mitsuba may never reach the element (a transform's grandchild): the rest is still listed."""
     for name in ("tex.exr", "a.spd"):
