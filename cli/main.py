@@ -180,9 +180,10 @@ def _standard_streams() -> None:
 
 
 class _DiagnosticStream:
-    """``sys.stderr`` while a command runs: once its reader has gone (a closed pipe), what is left
-    to say there is dropped and the work goes on. Progress bars and notes are not the command's
-    result; a render failed after its work on a progress bar's write (exit 1, nothing kept)."""
+    """``sys.stderr`` while a command runs: once it cannot be written (its reader has gone, a full
+    device), what is left to say there is dropped and the work goes on. Progress bars and notes
+    are not the command's result; a render failed after its work on a progress bar's write (exit
+    1, nothing kept), and a refusal exited 1 instead of 2."""
 
     def __init__(self, stream: Any) -> None:
         self._stream = stream
@@ -190,14 +191,14 @@ class _DiagnosticStream:
     def write(self, text: str) -> int:
         try:
             return int(self._stream.write(text))
-        except BrokenPipeError:
+        except OSError:
             self._reader_gone()
             return len(text)
 
     def flush(self) -> None:
         try:
             self._stream.flush()
-        except BrokenPipeError:
+        except OSError:
             self._reader_gone()
 
     def _reader_gone(self) -> None:

@@ -206,6 +206,19 @@ def test_a_reader_gone_from_stderr_does_not_fail_the_command(work, args):
     assert (work.root / "o.exr").is_file()
 
 
+def test_a_full_stderr_does_not_fail_the_command_nor_change_a_refusals_status(work):
+    """stderr on a full device: a render without -q failed at its first progress bar's write
+    (exit 1, nothing kept), and a refusal exited 1, not 2 (a review of this pass)."""
+    render = ["render", "--renderer", "synthetic", "edges", "--width", "32", "--height", "32", "--spp", "4"]
+    with open("/dev/full", "w") as full:
+        done = subprocess.run([*awr_command(), *render, "-o", "f.exr"], cwd=work.root, stdout=subprocess.DEVNULL,
+                              stderr=full, timeout=120)
+        assert done.returncode == 0 and (work.root / "f.exr").is_file()
+        refused = subprocess.run([*awr_command(), "denoise", "d.exr", "-o", "d.exr"], cwd=work.root,
+                                 stdout=subprocess.DEVNULL, stderr=full, timeout=120)
+        assert refused.returncode == 2
+
+
 def test_a_refusal_still_prints_one_line_through_the_console_script(work):
     done = run_awr(["denoise", "d.exr", "-o", "d.exr"], work.root)
     assert done.returncode == 2
