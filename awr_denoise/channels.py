@@ -45,9 +45,9 @@ def adopted_channels(given: Sequence[str], expected: Sequence[str]) -> tuple[str
     A renderer that did not name its channels (:func:`default_channel_names`) takes the
     statistics' names; channels named otherwise must be the same names in the same order: merged
     channel by channel, ``B,G,R`` or ``X,Y,Z`` into ``R,G,B`` would swap or mislabel them. The
-    default names are refused too where the statistics' names reorder them (``R,G,B`` into
-    ``B,G,R``): unnamed and really ``R,G,B`` cannot be told apart, and the two readings swap
-    channels. A batch that is really ``R,G,B`` merged into ``X,Y,Z`` statistics cannot be told
+    default names are refused too where the statistics' names hold one of them elsewhere (``R,G,B``
+    into ``B,G,R`` or ``B,G,R,depth``): unnamed and really ``R,G,B`` cannot be told apart, and the
+    two readings swap channels. A batch that is really ``R,G,B`` merged into ``X,Y,Z`` statistics cannot be told
     from an unnamed one: it is renamed.
 
     Examples
@@ -65,8 +65,8 @@ def adopted_channels(given: Sequence[str], expected: Sequence[str]) -> tuple[str
         return expected
     if given != default_channel_names(len(given)):
         raise ValueError(f"samples: channels {','.join(given)} do not match the sampler's {','.join(expected)}")
-    bare = tuple(name.rsplit(".", 1)[-1].upper() for name in expected)
-    if bare != given and sorted(bare) == sorted(given):
+    bare = [name.rsplit(".", 1)[-1].upper() for name in expected]
+    if any(name in bare and bare.index(name) != i for i, name in enumerate(given)):
         raise ValueError(f"samples: channels {','.join(given)} (the default names) would be reordered into the "
                          f"sampler's {','.join(expected)}; name the batch's channels")
     return expected

@@ -574,6 +574,12 @@ def test_tell_refuses_a_batch_whose_named_channels_differ_from_the_samplers():
         batch = renderer(request)
         named = SampleBuffer.from_moments(batch.count, batch.mean[..., ::-1], batch.variance[..., ::-1], channels=names)
         assert sampler.tell(request, named).channels == names
+    from awr_denoise.channels import adopted_channels, default_channel_names
+
+    for names in (("B", "G", "R", "depth"), ("B", "R", "Z"), ("Y", "B", "G", "R")):  # one default name elsewhere
+        with pytest.raises(ValueError, match="the default names"):
+            adopted_channels(default_channel_names(len(names)), names)
+    assert adopted_channels(("R", "G", "B", "A"), ("X", "Y", "Z", "A")) == ("X", "Y", "Z", "A")
     sampler = AdaptiveSampler((8, 8), channels=("beauty.R", "beauty.G", "beauty.B"))
     request = sampler.ask()
     assert sampler.tell(request, renderer(request)).channels == ("beauty.R", "beauty.G", "beauty.B")
