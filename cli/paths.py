@@ -147,11 +147,13 @@ class PathPlan:
 
 
 def check_file_name(path: str | os.PathLike[str], option: str) -> None:
-    """Refuse an output name ending in ``/``: it names a folder, yet ``Path`` drops the slash, so a
-    file was written under the name without it (``-o out.exr/`` wrote ``out.exr``)."""
+    """Refuse an output name ending in ``/``, ``/.`` or ``/..``: it names a folder, yet ``Path``
+    drops the slash, so a file was written under the name without it (``-o out.exr/`` wrote
+    ``out.exr``)."""
     name = os.fspath(path)
-    if name.endswith(os.sep) or (os.altsep and name.endswith(os.altsep)):
-        raise UsageError(f"{option}: {name}: ends with {os.sep!r}, which names a folder; give the file's name")
+    if os.path.basename(name) in ("", ".", ".."):  # out.exr/, out.exr/. and out.exr/.. all name a folder
+        raise UsageError(f"{option}: {name}: ends with {os.sep!r}, '.' or '..', which names a folder; "
+                         "give the file's name")
 
 
 def _check_name(entry: _Entry) -> None:
