@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
 def _check_creatable(folder: Path) -> None:
     """Refuse ``--out`` when it could not be created: its nearest existing parent must be a writable folder."""
     parent = folder
-    while not parent.exists():
+    while not os.path.lexists(parent):  # a broken link or a loop of links exists as a name, not a folder
         parent = parent.parent
     if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
         raise UsageError(f"--out: {folder} cannot be created ({parent} is not a writable folder)")

@@ -544,7 +544,11 @@ def test_demo_checks_its_outputs_before_rendering(tmp_path, fake_tracer, capsys,
     os.symlink("loop1", "loop2")
     assert main(["demo", "--out", "loop1", "--spp", "8", "-q"]) == 2
     _one_error_line(capsys, "--out", "loop1", "is not a directory")
-    assert sorted(os.listdir(tmp_path)) == ["loop1", "loop2"]
+    os.symlink("nowhere", "dangling")
+    for parent in ("loop1", "dangling"):  # under a link that is not a folder
+        assert main(["demo", "--out", f"{parent}/sub", "--spp", "8", "-q"]) == 2
+        _one_error_line(capsys, "--out", f"{parent}/sub", "cannot be created")
+    assert sorted(os.listdir(tmp_path)) == ["dangling", "loop1", "loop2"]
     (tmp_path / "out").mkdir()
     (tmp_path / "out" / "toy_uniform_awr.exr").mkdir()  # an image's name taken by a folder
     assert main(["demo", "--out", "out", "--spp", "8", "-q"]) == 2
