@@ -198,6 +198,11 @@ def test_a_name_that_is_not_utf8_is_refused_naming_it(tmp_path):
     os.link(tmp_path / "ok.exr", os.path.join(folder, "in.exr"))
     with pytest.raises(InputFileError, match=r"dir\\xff/in.exr: the name is not valid UTF-8"):
         read_image(os.path.join(folder, "in.exr"))
+    from awr_denoise.io.atomic import check_utf8_name
+
+    for name in (b"in\xff.exr", "in\ud800.exr"):  # bytes, and a surrogate no file name's bytes give
+        with pytest.raises(ValueError, match="the name is not valid UTF-8"):
+            check_utf8_name(name)
 
 
 def test_a_mipmapped_file_is_named_as_such_not_corrupt(tmp_path):

@@ -112,11 +112,17 @@ def check_utf8_name(path: str | os.PathLike[str]) -> None:
     ...
     ValueError: bad\\xff.exr: the name is not valid UTF-8; rename the file
     """
+    name = os.fspath(path)
     try:
-        os.fspath(path).encode("utf-8")
-    except UnicodeEncodeError:
-        shown = os.fsencode(path).decode("utf-8", "backslashreplace")
-        raise ValueError(f"{shown}: the name is not valid UTF-8; rename the file") from None
+        name.decode("utf-8") if isinstance(name, bytes) else name.encode("utf-8")
+        return
+    except UnicodeError:
+        pass
+    try:
+        shown = os.fsencode(name).decode("utf-8", "backslashreplace")
+    except UnicodeError:  # a lone surrogate that no file name's bytes gave
+        shown = name.encode("utf-8", "backslashreplace").decode("utf-8")
+    raise ValueError(f"{shown}: the name is not valid UTF-8; rename the file") from None
 
 
 def check_readable(path: str | os.PathLike[str], *, what: str = "input") -> Path:
