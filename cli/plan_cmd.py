@@ -49,7 +49,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="awr wavelet priorities (default), uniform, or per-pixel variance")
     p.add_argument("--seed", type=whole(minimum=0, maximum=MAX_SEED), help="seed of the renderer's sequences and tie-breaking "
                                             "(default: the dump's awr:seed, which it must match, else 0)")
-    p.add_argument("--round", type=whole(minimum=0, maximum=MAX_ROUND), help="round number (default: the dump's awr:round, else 1)")
+    p.add_argument("--round", type=whole(minimum=0, maximum=MAX_ROUND - 1),  # merge numbers the next round
+                   help="round number (default: the dump's awr:round, else 1)")
     p.add_argument("--wavelet", type=wavelet_name, default=DEFAULT_WAVELET, help="wavelet of the priority analysis (default %(default)s)")
     p.add_argument("--levels", type=whole(minimum=1, maximum=MAX_LEVELS), help="decomposition depth of the priority analysis")
     p.add_argument("--spp-max", type=whole(minimum=1, maximum=MAX_SPP), help="most samples any pixel may have")
@@ -109,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
                              "continue one sequence; plan without --seed)")
         seed = args.seed if args.seed is not None else seed
         round_number = args.round if args.round is not None else header_count(args.input, dump.attributes,
-                                                                                 "awr:round", 1, MAX_ROUND)
+                                                                                 "awr:round", 1, MAX_ROUND - 1)
         if round_number < 1:
             where = "--round" if args.round is not None else f"{args.input}: awr:round"  # whichever gave it
             raise UsageError(f"{where}: rounds after the first are numbered from 1, got {round_number}")

@@ -238,6 +238,8 @@ def run(args: argparse.Namespace) -> int:
     if frame_shape is not None:
         check_pixels("--width/--height", *frame_shape)
         check_reconstruction_options(args, tuple(frame_shape), name)
+        if round(args.spp * frame_shape[0] * frame_shape[1]) < 1:  # else refused after the set-up, as "buffer"
+            raise UsageError(f"--spp: {args.spp:g} per pixel of {frame_shape[1]}x{frame_shape[0]} is not one sample")
     start = time.perf_counter()
     render = dict(spp=args.spp, adaptive=args.adaptive, seed=args.seed, quiet=args.quiet,
                   gain_refresh=args.gain_refresh)
