@@ -106,7 +106,8 @@ def oidn(buffer: SampleBuffer, albedo: FloatArray | None = None, normal: FloatAr
     ...     assert guide.shape == out.shape == (32, 32, 3)
     """
     if buffer.n_channels != 3:
-        raise ValueError(f"buffer: OIDN denoises RGB images; this buffer has {buffer.n_channels} channel(s)")
+        raise ValueError(f"buffer: OIDN (guides.oidn / --guide oidn) denoises RGB images; this buffer has "
+                         f"{buffer.n_channels} channel(s)")
     if quality not in ("high", "balanced", "fast"):
         raise ValueError(f"quality: {quality!r} is not one of high, balanced, fast")
     if normal is not None and albedo is None and "albedo" not in buffer.features:

@@ -120,11 +120,28 @@ def run(args: argparse.Namespace) -> int:
     if args.round_spp is not None:
         h, w = sampler.shape
         budget = max(1, int(round(args.round_spp * h * w)))
-    request = sampler.ask(budget)
-    write_request(args.output, request, header={**provenance(seed=seed, strategy=args.strategy), **windows},
-                  overwrite=args.overwrite)
+    try:
+        request = sampler.ask(budget)
+        write_request(args.output, request, header={**provenance(seed=seed, strategy=args.strategy), **windows},
+                      overwrite=args.overwrite)
+    except ValueError as exc:  # the library names its arguments; name the option that set them
+        option = _option_behind(str(exc), args)
+        if option is None:
+            raise
+        raise UsageError(f"{option}: {str(exc).split(': ', 1)[-1]}") from None
     h, w = request.shape
     status(f"{args.output}: round {request.round}, {request.total} samples "
            f"({request.total / (h * w):.3g} per pixel), seed {seed}", quiet=args.quiet)
     return EXIT_OK
 
+
+def _option_behind(message: str, args: argparse.Namespace) -> str | None:
+    """The option given that set what a sampler's refusal names (``spp_max``, the round's size)."""
+    if "spp_max" in message and args.spp_max is not None:
+        return f"--spp-max {args.spp_max:g}"
+    if message.startswith(("budget:", "first_index + counts:")):
+        if args.round_spp is not None:
+            return f"--round-spp {args.round_spp:.10g}"
+        if args.budget is not None:
+            return f"--budget {args.budget}"
+    return None

@@ -81,7 +81,8 @@ def test_bad_auxiliary_images_are_refused(kwargs, message):
 
 def test_oidn_needs_rgb_and_an_albedo_with_a_normal():
     one = SampleBuffer.from_moments(np.full((8, 8), 2), np.ones((8, 8, 1)), np.ones((8, 8, 1)))
-    with pytest.raises(ValueError, match=r"buffer: OIDN denoises RGB images; this buffer has 1 channel\(s\)"):
+    with pytest.raises(ValueError, match=r"buffer: OIDN \(guides.oidn / --guide oidn\) denoises RGB images; "
+                                         r"this buffer has 1 channel\(s\)"):
         guides.oidn(one)
     rgb = SampleBuffer.from_moments(np.full((8, 8), 2), np.ones((8, 8, 3)), np.ones((8, 8, 3)))
     with pytest.raises(ValueError, match=r"normal: OIDN takes a normal image only with an albedo image"):

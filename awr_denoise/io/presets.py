@@ -802,6 +802,9 @@ def read_independent_renders(
                                 "renders (--independent)")
         f = _File(p, parts, view)
         name = _resolve_preset(p, f, preset, color, None, count)
+        if name == "awr" and color is None:
+            raise file_error(p, "an awr dump holds statistics, not a render's image: merge it without independent "
+                                "renders (--independent)")
         _check_layer(p, name, layer)
         layout, ctx = _layout(p, f, name, color=color, variance=None, count=count, variance_kind=None, spp=spp,
                               layer=layer, view=view, need_variance=False, need_count=True)

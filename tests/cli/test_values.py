@@ -202,3 +202,19 @@ def test_awr_traceback_shows_the_traceback_only_when_asked_for(setting, shown, m
     else:
         assert main(["info", "x.exr"]) == 1
         assert "internal error: RuntimeError: a bug" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("args", "needles"), [
+    (PLAN + ["--spp-max", "1"], ("--spp-max 1:", "spp_max still allows")),
+    (PLAN + ["--round-spp", "16777216"], ("--round-spp 16777216:", "2**24")),
+    (["merge", "d.exr", "b.exr", "-o", "m.exr", "--independent"], ("d.exr: an awr dump holds statistics",)),
+])
+def test_a_refusal_names_the_option_that_caused_it(work, capsys, monkeypatch, args, needles):
+    """The sampler's refusals named its arguments (``budget``, ``first_index + counts``) where the
+    user gave ``--spp-max`` or ``--round-spp``; ``--independent`` on awr dumps said "no sample
+    count in the file" of a file that has one (red-team pass 5)."""
+    monkeypatch.chdir(work.root)
+    before = work.state()
+    assert main(args) == 2
+    one_error_line(capsys.readouterr().err, *needles)
+    assert work.state() == before
