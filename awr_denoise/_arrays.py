@@ -10,7 +10,8 @@ import numpy as np
 
 from ._typing import CountArray, FloatArray, Shape2D
 
-__all__ = ["as_float64", "check_finite", "check_count", "flat_pixel_index", "pixel_moments", "as_mask"]
+__all__ = ["as_float64", "check_finite", "check_count", "flat_pixel_index", "pixel_moments", "as_mask",
+           "ReadOnlyArrays"]
 
 
 def as_float64(name: str, array: object, ndim: int, *, copy: bool = True) -> FloatArray:
@@ -126,3 +127,15 @@ def as_mask(name: str, array: object) -> np.ndarray:
     if not np.isin(a, (0, 1)).all():
         raise ValueError(f"{name}: expected booleans (or 0 and 1), got other values (NaN, fractions)")
     return a.astype(bool)
+
+
+class ReadOnlyArrays:
+    """A frozen dataclass whose arrays stay read-only through pickle and deepcopy (buffers and
+    requests travel to worker processes and Dask workers), which rebuild arrays writeable: a
+    count edited there to -3 was taken without a check."""
+
+    def __setstate__(self, state: dict) -> None:
+        for name, value in state.items():
+            if isinstance(value, np.ndarray):
+                value.flags.writeable = False
+            object.__setattr__(self, name, value)

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import _checks
-from ._arrays import (as_float64, as_mask, check_count, check_finite, flat_pixel_index,
+from ._arrays import (ReadOnlyArrays, as_float64, as_mask, check_count, check_finite, flat_pixel_index,
                       pixel_moments)
 from ._typing import BoolArray, CountArray, FloatArray, Shape2D
 from .channels import channel_count, default_channel_names, luminance_weights, resolve_channels  # noqa: F401 - re-exported
@@ -36,7 +36,7 @@ NONFINITE_POLICIES = ("raise", "drop", "zero")
 """What to do with NaN/Inf samples: refuse them, leave them out, or count them as 0."""
 
 @dataclass(frozen=True, eq=False)
-class SampleBuffer:
+class SampleBuffer(ReadOnlyArrays):
     """Per-pixel sample count, mean and unbiased per-sample variance of an image.
 
     Parameters

@@ -19,6 +19,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from . import _checks
+from ._arrays import ReadOnlyArrays
 from ._typing import CountArray, FloatArray, Shape2D
 from .buffers import SampleBuffer
 
@@ -26,7 +27,7 @@ __all__ = ["SampleRequest", "Renderer", "SampleTracer", "FeatureTracer"]
 
 
 @dataclass(frozen=True, eq=False)
-class SampleRequest:
+class SampleRequest(ReadOnlyArrays):
     """Samples a renderer is asked to add in one round.
 
     Parameters

@@ -455,3 +455,23 @@ def test_from_sums_refuses_what_it_would_cast(sums, message):
     """Second red-team pass: a complex sum lost its imaginary part, strings failed without a name."""
     with pytest.raises(TypeError, match=message):
         SampleBuffer.from_sums([[2]], sums, [[10.0]])
+
+
+def test_arrays_stay_read_only_through_pickle_and_deepcopy():
+    """Buffers and requests go to worker processes pickled; their arrays came back writeable, so a
+    count edited to -3 there was reconstructed without a check (red-team pass 5)."""
+    import copy
+    import pickle
+
+    from awr_denoise import SampleRequest
+
+    buffer = SampleBuffer.from_samples(np.array([0, 0, 1]), np.ones(3), (1, 2), features={"depth": np.ones(3)})
+    request = SampleRequest.uniform((2, 2), 2)
+    for clone in (pickle.loads(pickle.dumps(buffer)), copy.deepcopy(buffer)):
+        for array in (clone.count, clone.mean, clone.variance, clone.variance_known, clone.features["depth"].mean):
+            with pytest.raises(ValueError, match="read-only"):
+                array[0, 0] = -3
+        np.testing.assert_array_equal(clone.mean, buffer.mean)
+    for clone in (pickle.loads(pickle.dumps(request)), copy.deepcopy(request)):
+        with pytest.raises(ValueError, match="read-only"):
+            clone.counts[0, 0] = -3
