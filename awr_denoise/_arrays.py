@@ -11,7 +11,7 @@ import numpy as np
 from ._typing import CountArray, FloatArray, Shape2D
 
 __all__ = ["as_float64", "check_finite", "check_count", "flat_pixel_index", "pixel_moments", "as_mask",
-           "ReadOnlyArrays"]
+           "ReadOnlyArrays", "summed_counts"]
 
 
 def as_float64(name: str, array: object, ndim: int, *, copy: bool = True) -> FloatArray:
@@ -48,6 +48,8 @@ def check_count(count: object, name: str = "count") -> CountArray:
             raise ValueError(f"{name}: {int((c != np.round(c)).sum())} pixel(s) are not whole numbers")
     elif c.dtype.kind not in "iu":
         raise TypeError(f"{name}: expected an integer array, got dtype {c.dtype}")
+    elif c.dtype.kind == "u" and (c > 2**62).any():  # cast to int64 it would wrap and read as negative
+        raise ValueError(f"{name}: {int((c > 2**62).sum())} pixel(s) exceed 2**62, the most int64 counts hold safely")
     c = c.astype(np.int64)
     if (c < 0).any():
         raise ValueError(f"{name}: {int((c < 0).sum())} pixel(s) are negative")
@@ -55,6 +57,15 @@ def check_count(count: object, name: str = "count") -> CountArray:
         raise ValueError(f"{name}: {c.sum(dtype=np.float64):.4g} samples in all exceed 2**62, the most int64 totals "
                          "hold safely")
     return c
+
+
+def summed_counts(a: CountArray, b: CountArray) -> CountArray:
+    """``a + b`` of two checked count arrays, refused where it passes 2**62 (int64 would wrap it to
+    a negative count, reported as one)."""
+    if (a > 2**62 - b).any():
+        raise ValueError(f"other: {int((a > 2**62 - b).sum())} pixel(s) would hold more than 2**62 samples merged, "
+                         "the most int64 counts hold safely")
+    return a + b
 
 
 def flat_pixel_index(pixels: np.ndarray, shape: Shape2D) -> np.ndarray:

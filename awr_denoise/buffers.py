@@ -20,7 +20,7 @@ import numpy as np
 
 from . import _checks
 from ._arrays import (ReadOnlyArrays, as_float64, as_mask, check_count, check_finite, flat_pixel_index,
-                      pixel_moments)
+                      pixel_moments, summed_counts)
 from ._typing import BoolArray, CountArray, FloatArray, Shape2D
 from .channels import channel_count, default_channel_names, luminance_weights, resolve_channels  # noqa: F401 - re-exported
 from .features import FEATURE_CHANNELS, checked_features, map_features, merge_features
@@ -513,7 +513,7 @@ class SampleBuffer(ReadOnlyArrays):
         mean, variance = merge_moments(self.count, self.mean, self.variance, other.count, other.mean, other.variance,
                                        executor=_checks.executor("executor", executor))
         known = (self.variance_known | (self.count < 2)) & (other.variance_known | (other.count < 2))
-        return SampleBuffer._adopt(self.count + other.count, mean, variance, self.channels, known,
+        return SampleBuffer._adopt(summed_counts(self.count, other.count), mean, variance, self.channels, known,
                                    self.nonfinite + other.nonfinite, merge_features(self, other))
 
     def crop(self, rows: slice, cols: slice) -> SampleBuffer:

@@ -486,3 +486,13 @@ def test_variances_near_the_float64_limit(variance):
             assert str(exc).startswith("buffer: the per-sample variance of 64 pixel(s) is beyond float64")
         else:
             assert counts.sum() == 10
+
+
+def test_counts_beyond_int64_are_named_as_such_not_negative():
+    """Two buffers of 2**62 samples merged, or a uint64 count of 2**64-1, were "negative" (the int64
+    sum or cast wrapped; red-team pass 5)."""
+    one = SampleBuffer.from_moments(np.array([[2**62]]), np.ones((1, 1, 1)), np.ones((1, 1, 1)))
+    with pytest.raises(ValueError, match="more than 2\\*\\*62 samples merged"):
+        one.merge(one)
+    with pytest.raises(ValueError, match="count: 1 pixel\\(s\\) exceed 2\\*\\*62"):
+        SampleBuffer.from_moments(np.array([[2**64 - 1]], dtype=np.uint64), np.ones((1, 1, 1)), np.ones((1, 1, 1)))
