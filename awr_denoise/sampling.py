@@ -108,7 +108,8 @@ class Sampler:
                  seed: int = 0, spp_min: int | None = None, spp_max: int | None = None, round_spp: float | None = None,
                  round_growth: float = DEFAULT_ROUND_GROWTH, executor: Executor | None = None) -> None:
         h, w = _checks.shape2d("shape", shape)
-        initial_spp = _checks.whole("initial_spp", initial_spp, minimum=0, maximum=MAX_BUDGET)
+        least = int(self.strategy != "uniform")  # a strategy ranking pixels by statistics needs a round 0 with some
+        initial_spp = _checks.whole("initial_spp", initial_spp, minimum=least, maximum=MAX_BUDGET)
         spp_min = _checks.whole("spp_min", spp_min, minimum=0, maximum=MAX_BUDGET, none=True)
         spp_max = _checks.whole("spp_max", spp_max, minimum=1, maximum=MAX_BUDGET, none=True)
         if spp_min is not None and spp_max is not None and int(spp_min) > int(spp_max):
@@ -124,8 +125,7 @@ class Sampler:
         self.spp_min = self.initial_spp if spp_min is None else int(spp_min)
         self.spp_max = None if spp_max is None else int(spp_max)
         if self.spp_max is not None:
-            self.initial_spp = min(self.initial_spp, self.spp_max)
-            self.spp_min = min(self.spp_min, self.spp_max)
+            self.initial_spp, self.spp_min = min(self.initial_spp, self.spp_max), min(self.spp_min, self.spp_max)
         self.round_spp = round_spp
         self.round_growth = float(round_growth)
         self.seed = int(seed)

@@ -583,3 +583,14 @@ def test_tell_refuses_a_batch_whose_named_channels_differ_from_the_samplers():
     sampler = AdaptiveSampler((8, 8), channels=("beauty.R", "beauty.G", "beauty.B"))
     request = sampler.ask()
     assert sampler.tell(request, renderer(request)).channels == ("beauty.R", "beauty.G", "beauty.B")
+
+
+def test_a_ranking_sampler_refuses_an_empty_first_round():
+    """``initial_spp=0`` was accepted and ``run()`` then failed on a buffer without samples (red-team
+    pass 5); a uniform sampler needs no statistics and still takes it."""
+    from awr_denoise import UniformSampler
+
+    for cls in (AdaptiveSampler, VarianceSampler):
+        with pytest.raises(ValueError, match="initial_spp: must be >= 1"):
+            cls((4, 4), initial_spp=0)
+    assert UniformSampler((4, 4), initial_spp=0).initial_spp == 0
