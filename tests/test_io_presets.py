@@ -255,3 +255,19 @@ def test_parts_with_another_data_window_are_refused(tmp_path):
                                               ({"view": "right"}, {c: planes[c] * 10 for c in "RGB"})])
     with pytest.raises(InputFileError, match="R: is in several parts"):  # read_image took the first view
         read_image(stereo)
+
+
+@pytest.mark.parametrize("compression", ["DWAA_COMPRESSION", "PXR24_COMPRESSION"])
+def test_a_lossily_compressed_dump_is_read_with_a_warning(tmp_path, compression):
+    """A DWAA dump's means came back changed by up to 0.02, without a word (red-team pass 5)."""
+    import OpenEXR
+
+    from awr_denoise.io import read_sample_dump
+
+    header, planes = _awr_planes(tmp_path)
+    path = _parts_file(tmp_path / "lossy.exr", [({**header, "compression": getattr(OpenEXR, compression)}, planes)])
+    with pytest.warns(InputFileWarning, match=f"{compression.removesuffix('_COMPRESSION')} compression is lossy"):
+        try:
+            read_sample_dump(path)
+        except InputFileError as exc:  # DWAA can make a small variance negative: refused then, warned first
+            assert "negative" in str(exc)

@@ -658,6 +658,19 @@ def _features(ctx: _Context, preset: str, layout: _Layout, count: np.ndarray, pl
     return features
 
 
+# OpenEXR's lossy compressions (PXR24 rounds float32 to 24 bits; B44 and DWA are lossy for half, DWA by channel name
+# for float too): statistics read back are not those written.
+_LOSSY = ("PXR24_COMPRESSION", "B44_COMPRESSION", "B44A_COMPRESSION", "DWAA_COMPRESSION", "DWAB_COMPRESSION")
+
+
+def _lossy(p: Path, parts: Sequence[ExrPart]) -> list[str]:
+    """A warning per lossy compression among ``parts`` (the statistics were accepted without a word)."""
+    names = {getattr(part.header.get("compression"), "name", "") for part in parts}
+    return [f"{p}: {name.removesuffix('_COMPRESSION')} compression is lossy: the means and variances read are "
+            "not those the renderer computed; write sample dumps losslessly (ZIP, PIZ)" for name in sorted(names)
+            if name in _LOSSY]
+
+
 def _warn(messages: Sequence[str]) -> None:
     for message in messages:
         warnings.warn(message, InputFileWarning, stacklevel=3)
@@ -711,6 +724,7 @@ def read_sample_dump(
     if preset == "deep":
         raise file_error(p, "is not a deep EXR")
     f = _File(p, parts, view)
+    _warn(_lossy(p, f.used))
     if not f.channels:
         raise file_error(p, "has no flat channels")
     preset = _resolve_preset(p, f, preset, color, variance, count)
