@@ -24,6 +24,8 @@ from .errors import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, RuntimeFailure, UsageErro
 from .values import MAX_FRAMES, MAX_SPP, whole
 
 __all__ = [
+    "available_memory",
+    "check_memory",
     "EXIT_OK",
     "EXIT_FAILURE",
     "EXIT_USAGE",
@@ -176,3 +178,24 @@ def status(message: str, *, quiet: bool) -> None:
             tqdm.write(message, file=sys.stderr)
         except OSError:  # nobody reads stderr any more (a closed pipe): the work stands, its note is lost
             pass
+
+
+def available_memory() -> int | None:
+    """Bytes of memory the system can still give (``MemAvailable``), or None where it does not say."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as info:
+            for line in info:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def check_memory(option: str, needed: float, what: str) -> None:
+    """Refuse, naming ``option``, work that needs more memory than is available: the kernel's
+    out-of-memory killer ends the process without a word (exit 137) otherwise."""
+    free = available_memory()
+    if free is not None and needed > free:
+        raise UsageError(f"{option}: {what} needs about {needed / 2**30:.1f} GiB of memory, and "
+                         f"{free / 2**30:.1f} GiB are available")

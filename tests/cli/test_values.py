@@ -218,3 +218,17 @@ def test_a_refusal_names_the_option_that_caused_it(work, capsys, monkeypatch, ar
     assert main(args) == 2
     one_error_line(capsys.readouterr().err, *needles)
     assert work.state() == before
+
+
+def test_a_first_round_larger_than_memory_is_refused_naming_size(work, capsys, monkeypatch):
+    """``plan --size 16384x16384`` (within the size limits) was ended by the out-of-memory killer,
+    exit 137 without a word (red-team pass 5)."""
+    from awr_denoise.cli import common
+
+    monkeypatch.chdir(work.root)
+    monkeypatch.setattr(common, "available_memory", lambda: 2**30)
+    before = work.state()
+    assert main(["plan", "--size", "4096x4096", "-o", "p.exr"]) == 2
+    one_error_line(capsys.readouterr().err, "--size", "needs about 1.8 GiB", "1.0 GiB are available")
+    assert work.state() == before
+    assert main(["plan", "--size", "64x64", "-o", "p.exr", "-q"]) == 0
