@@ -142,3 +142,14 @@ def test_a_deep_dump_is_not_an_independent_render(tmp_path, monkeypatch, capsys)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "a.exr: a per-sample (deep) dump" in err[0] and "--independent" in err[0], err
     assert main(["merge", "a.exr", "b.exr", "-o", "m.exr", "-q"]) == 0
+
+
+def test_a_deep_dump_as_a_plane_file_is_named_as_one(tmp_path, monkeypatch):
+    """``--variance deep.exr:R,G,B`` said "(channels: none)" of a file that has channels, deep ones."""
+    from awr_denoise.io import read_sample_dump, write_image
+
+    monkeypatch.chdir(tmp_path)
+    write_deep_samples("deep.exr", np.repeat(np.arange(16), 2), np.ones((32, 3)), (4, 4))
+    write_image("img.exr", np.ones((4, 4, 3)))
+    with pytest.raises(InputFileError, match="deep.exr: a per-sample \\(deep\\) dump holds no planes"):
+        read_sample_dump("img.exr", preset="generic", color="RGB", variance="deep.exr:R,G,B", spp=4)

@@ -152,7 +152,10 @@ def _open(path: str | os.PathLike[str], opened: dict[Path, _File], view: str | N
     p = Path(path)
     key = p.resolve() if p.exists() else p
     if key not in opened:
-        opened[key] = _File(p, read_exr(p), view)
+        parts = read_exr(p)
+        if all(part.deep for part in parts):  # said "(channels: none)" of it
+            raise file_error(p, "a per-sample (deep) dump holds no planes to read from it")
+        opened[key] = _File(p, parts, view)
     return opened[key]
 
 
