@@ -153,3 +153,13 @@ def test_a_deep_dump_as_a_plane_file_is_named_as_one(tmp_path, monkeypatch):
     write_image("img.exr", np.ones((4, 4, 3)))
     with pytest.raises(InputFileError, match="deep.exr: a per-sample \\(deep\\) dump holds no planes"):
         read_sample_dump("img.exr", preset="generic", color="RGB", variance="deep.exr:R,G,B", spp=4)
+
+
+def test_a_preview_wider_than_libpng_allows_is_written_without_its_errors(tmp_path, capfd):
+    """OpenImageIO's libpng refused more than 10**6 pixels a side with two error lines on stderr,
+    then the built-in encoder wrote the file (red-team pass 5): it now writes it alone."""
+    write_preview(tmp_path / "wide.png", np.full((1, 1_000_001), 0.5))
+    assert "libpng" not in capfd.readouterr().err
+    header = (tmp_path / "wide.png").read_bytes()[:24]  # the signature, then IHDR's width and height
+    assert header[:8] == b"\x89PNG\r\n\x1a\n" and header[12:16] == b"IHDR"
+    assert int.from_bytes(header[16:20], "big") == 1_000_001 and int.from_bytes(header[20:24], "big") == 1

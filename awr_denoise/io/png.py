@@ -65,14 +65,19 @@ def encode_png(pixels: np.ndarray) -> bytes:
     return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b"")
 
 
+_LIBPNG_LIMIT = 1_000_000  # libpng's default user limit on width and height
+
+
 def _write_png(tmp: str, pixels: np.ndarray) -> None:
     try:
         import OpenImageIO as oiio  # the optional ``exr`` extra; the built-in encoder below does without
     except ImportError:
         oiio = None
-    if oiio is not None:
+    h, w, c = pixels.shape
+    # libpng refuses more than 10**6 pixels a side by default, and says so on stderr: the built-in
+    # encoder writes those without a word.
+    if oiio is not None and max(h, w) <= _LIBPNG_LIMIT:
         out = oiio.ImageOutput.create("png")
-        h, w, c = pixels.shape
         if out is not None and out.open(tmp, oiio.ImageSpec(w, h, c, oiio.UINT8)):
             ok = out.write_image(pixels)
             out.close()
