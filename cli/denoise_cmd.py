@@ -192,6 +192,8 @@ def run(args: argparse.Namespace) -> int:
     check_file_name(args.output, "-o/--output")  # before the frames' placeholders are looked for in the name
     if args.preview:
         check_file_name(args.preview, "--preview")
+    if args.frames is not None and "#" not in Path(source).name:  # each frame would denoise the one dump again
+        raise UsageError(f"{source}: with --frames the input needs a #### placeholder in its file name")
     if args.frames is not None and args.preview and "#" not in Path(args.preview).name:
         raise UsageError(f"--preview: {args.preview}: with --frames the preview needs a #### placeholder")
     jobs = frame_jobs([source] + ([args.preview] if args.preview else []), args.output, args.frames)

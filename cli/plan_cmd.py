@@ -51,7 +51,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                             "(default: the dump's awr:seed, which it must match, else 0)")
     p.add_argument("--round", type=whole(minimum=0, maximum=MAX_ROUND - 1),  # merge numbers the next round
                    help="round number (default: the dump's awr:round, else 1)")
-    p.add_argument("--wavelet", type=wavelet_name, default=DEFAULT_WAVELET, help="wavelet of the priority analysis (default %(default)s)")
+    p.add_argument("--wavelet", type=wavelet_name,
+                   help=f"wavelet of the priority analysis (default {DEFAULT_WAVELET})")
     p.add_argument("--levels", type=whole(minimum=1, maximum=MAX_LEVELS), help="decomposition depth of the priority analysis")
     p.add_argument("--spp-max", type=whole(minimum=1, maximum=MAX_SPP), help="most samples any pixel may have")
     p.add_argument("--noise-model", choices=NOISE_MODELS,
@@ -79,9 +80,14 @@ def run(args: argparse.Namespace) -> int:
     if args.round_growth is not None:
         options["round_growth"] = args.round_growth
     if cls is AdaptiveSampler:
-        options.update(wavelet=args.wavelet, levels=args.levels, noise_model=args.noise_model or DEFAULT_NOISE_MODEL)
-    elif args.noise_model is not None:  # a setting that would do nothing is refused, not ignored
-        raise UsageError(f"--noise-model: only --strategy awr models the reconstruction's noise, not {args.strategy}")
+        options.update(wavelet=args.wavelet or DEFAULT_WAVELET, levels=args.levels,
+                       noise_model=args.noise_model or DEFAULT_NOISE_MODEL)
+    else:  # a setting that would do nothing is refused, not ignored
+        for option, value, what in (("--noise-model", args.noise_model, "models the reconstruction's noise"),
+                                    ("--wavelet", args.wavelet, "analyses the image in wavelets"),
+                                    ("--levels", args.levels, "analyses the image in wavelets")):
+            if value is not None:
+                raise UsageError(f"{option}: only --strategy awr {what}, not {args.strategy}")
     windows: dict = {}
     if args.input is None:
         if args.size is None:

@@ -648,6 +648,10 @@ def test_plan_noise_model_reaches_the_sampler(tmp_path, capsys, rng):
     assert main(["plan", str(tmp_path / "d.exr"), "--strategy", "uniform", "--noise-model", "reconstruction",
                  "-o", str(tmp_path / "u.exr")]) == 2
     _one_error_line(capsys, "--noise-model")
+    for option, value in (("--wavelet", "haar"), ("--levels", "2")):  # accepted and ignored before
+        assert main(["plan", str(tmp_path / "d.exr"), "--strategy", "variance", option, value,
+                     "-o", str(tmp_path / "u.exr")]) == 2
+        _one_error_line(capsys, option, "only --strategy awr analyses the image in wavelets")
     assert not (tmp_path / "u.exr").exists()
 
 

@@ -398,8 +398,10 @@ def test_a_hash_in_a_folder_name_is_not_a_frame_placeholder(work, capsys, monkey
         (work / "take#1" / f"shot.000{frame}.exr").write_bytes((work / "d.exr").read_bytes())
     assert main(["denoise", "take#1/shot.####.exr", "--frames", "1-2", "-o", "out#1/o.####.exr", "-q"]) == 0
     assert sorted(p.name for p in (work / "out#1").iterdir()) == ["o.0001.exr", "o.0002.exr"]
-    _refused(work, capsys, ["denoise", "take#1/shot.0001.exr", "--frames", "1", "-o", "out#1/o.exr"],
+    _refused(work, capsys, ["denoise", "take#1/shot.####.exr", "--frames", "1", "-o", "out#1/o.exr"],
              "out#1/o.exr", "placeholder in its file name")
+    _refused(work, capsys, ["denoise", "take#1/shot.0001.exr", "--frames", "1", "-o", "out#1/o.####.exr"],
+             "take#1/shot.0001.exr", "placeholder in its file name")
 
 
 @pytest.mark.parametrize("args, option", [
@@ -435,3 +437,10 @@ def test_an_output_name_ending_in_a_slash_is_refused(work, capsys, monkeypatch, 
     with a ``#`` the frame checks read an empty file name and named the wrong problem."""
     monkeypatch.chdir(work.root)
     _refused(work, capsys, args, option, "which names a folder")  # nothing written
+
+
+def test_frames_without_a_placeholder_in_the_input_are_refused(work, capsys, monkeypatch):
+    """Every frame denoised the one dump again, N identical outputs, exit 0 (red-team pass 5)."""
+    monkeypatch.chdir(work.root)
+    _refused(work, capsys, ["denoise", "d.exr", "--frames", "1-3", "-o", "o.####.exr"], "d.exr",
+             "the input needs a #### placeholder")
