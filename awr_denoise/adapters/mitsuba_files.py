@@ -43,7 +43,7 @@ __all__ = ["scene_files"]
 # instructions such as the XML declaration, the DOCTYPE with its internal subset, never expanded),
 # or an element's start tag, whose quoted values may hold "<!--" or ">".
 _MARKUP = re.compile(r"""<!--.*?-->|<!\[CDATA\[.*?\]\]>|<\?.*?\?>|<!DOCTYPE(?:[^\[>]|\[.*?\])*>"""
-                     r"""|<([^\s/>!?]+)((?:[^"'>]|"[^"]*"|'[^']*')*)>""", re.DOTALL)
+                     r"""|<([^\s/>!?]+)([^"'>]*(?:(?:"[^"]*"|'[^']*')[^"'>]*)*)>""", re.DOTALL)  # linear: unrolled
 _ATTRIBUTE = re.compile(r"""([^\s=/>"']+)\s*=\s*(?:"([^"]*)"|'([^']*)')""")
 _REFERENCE = re.compile(r"&(?:(amp|lt|gt|quot|apos)|#([0-9]+)|#x([0-9a-fA-F]+));")
 _LATIN1 = re.compile(rb"""<\?xml[^>]*encoding\s*=\s*["'](?:iso-8859-1|latin-?1)["']""", re.IGNORECASE)
@@ -181,8 +181,9 @@ def scene_files(scene: Any, params: Mapping[str, Any] | None = None) -> list[tup
                 named[value] = what
     files: list[tuple[str, Path]] = []
     seen: set[Path] = set()
+    listings: dict[Path, set[str]] = {}
     for value, what in named.items():
-        for path in _found(value, walk.folders):
+        for path in _found(value, walk.folders, listings):
             if path not in seen:
                 seen.add(path)
                 files.append((f"{what} {value}", path))
@@ -246,6 +247,8 @@ def _decoded(data: bytes) -> str:
 def _unescaped(value: str) -> str:
     """An attribute value as pugixml gives it: line ends and whitespace as spaces, the five XML
     entities and character references replaced, any other ``&name;`` kept as written."""
+    if "&" not in value and "\n" not in value and "\r" not in value and "\t" not in value:
+        return value  # the common case, as written
     value = value.replace("\r\n", "\n").replace("\r", "\n").replace("\n", " ").replace("\t", " ")
     return _REFERENCE.sub(_reference, value)
 
@@ -263,14 +266,29 @@ def _candidates(value: str, folders: list[Path]) -> list[Path]:
     return [name] if name.is_absolute() else [folder / name for folder in folders]
 
 
-def _found(value: str, folders: list[Path]) -> list[Path]:
+def _found(value: str, folders: list[Path], listings: dict[Path, set[str]]) -> list[Path]:
     """The candidates of ``value`` that exist and are not folders (a FIFO, a device or a link to
-    one included: those are refused, never opened)."""
+    one included: those are refused, never opened). A plain name is looked up in each folder's
+    listing first (``listings``): a large scene's values are mostly numbers, and a stat of each in
+    each folder took seconds."""
+    if os.sep in value or (os.altsep and os.altsep in value) or value in (".", "..") or Path(value).is_absolute():
+        candidates = _candidates(value, folders)
+    else:
+        candidates = [folder / value for folder in folders if value in _listing(folder, listings)]
     found = []
-    for path in _candidates(value, folders):
+    for path in candidates:
         try:
             if os.path.exists(path) and not os.path.isdir(path):
                 found.append(path)
         except (OSError, ValueError):  # a name too long, or holding a NUL: no such file
             continue
     return found
+
+
+def _listing(folder: Path, listings: dict[Path, set[str]]) -> set[str]:
+    if folder not in listings:
+        try:
+            listings[folder] = set(os.listdir(folder))
+        except (OSError, ValueError):  # not a folder (any more), unreadable: nothing found there
+            listings[folder] = set()
+    return listings[folder]
