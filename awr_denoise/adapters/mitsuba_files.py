@@ -20,7 +20,11 @@ decodes a file), so the list is a superset, built from what Mitsuba's parser
   ``<path>`` folder. Every file found there that is not a folder is listed (a name found
   nowhere is not: Mitsuba cannot read it, so no output can replace it and it cannot block);
 - included files found so are read in turn, until no include names a file not yet read (regular
-  files only: a FIFO is listed, never opened); a scene of more than 1000 XML files is refused.
+  files only: a FIFO is listed, never opened); a scene of more than 1000 XML files, or a value
+  that may read in more than 256 ways, is refused rather than half checked;
+- the files plugins look up by a fixed name through the same resolver are listed from each of
+  those folders too: plugin libraries (``plugins/*.so``), conductor data (``data/ior/*.spd``),
+  the sun and sky model's tables (``data/sunsky/*.bin``) and ``data/srgb.coeff``.
 
 The scene file may have any name: Mitsuba loads ``scene.txt`` as XML too.
 """
@@ -48,8 +52,7 @@ _ATTRIBUTE = re.compile(r"""([^\s=/>"']+)\s*=\s*(?:"([^"]*)"|'([^']*)')""")
 _REFERENCE = re.compile(r"&(?:(amp|lt|gt|quot|apos)|#([0-9]+)|#x([0-9a-fA-F]+));")
 _LATIN1 = re.compile(rb"""<\?xml[^>]*encoding\s*=\s*["'](?:iso-8859-1|latin-?1)["']""", re.IGNORECASE)
 _MAX_FILES = 1000  # included XML files read at most; a scene with more is refused, not half checked
-_MAX_VARIANTS = 256  # the ways one value may read (its parameters' <default> values combined)
-_MAX_ROUNDS = 4  # parameters within parameters' values followed this deep
+_MAX_VARIANTS = 256  # the ways one value may read (its parameters' <default> values combined); more: refused
 _RANK = {"include": 0, "filename": 1}
 
 
@@ -57,7 +60,8 @@ class _Walk:
     """What one walk over a scene gathers: every value each parameter may take (``$name``), the
     values its elements hold, and the folders a name may be looked up in."""
 
-    def __init__(self, params: Mapping[str, Any]) -> None:
+    def __init__(self, scene: Path, params: Mapping[str, Any]) -> None:
+        self.scene = scene
         # The render's parameters are the only values of theirs; a <default> cannot change them.
         self.fixed = {"$" + str(name) for name in params}
         self.params: dict[str, list[str]] = {"$" + str(name): [str(value)] for name, value in params.items()}
@@ -76,14 +80,14 @@ class _Walk:
 
     def substituted(self, value: str) -> list[str]:
         """Every way ``value`` may read once Mitsuba's ``substitute_parameters`` has replaced its
-        parameters (the longest name first, ``\\$`` a literal ``$``, a value that holds a parameter
-        substituted in turn); none left with an undefined one (Mitsuba refuses the scene there)."""
+        parameters (the longest name first, ``\\$`` a literal ``$``; a ``<default>`` whose value
+        holds another parameter substituted in turn, along a chain of any length); none left with
+        an undefined one (Mitsuba refuses the scene there). More than ``_MAX_VARIANTS`` readings
+        are refused, not cut short: a reading left out would be a file left unchecked."""
         keys = sorted(self.params, key=len, reverse=True)
         found: list[str] = []
-        pending, rounds = [value], 0
-        while pending and rounds < _MAX_ROUNDS:
-            rounds += 1
-            done = []
+        pending, seen = [value], {value}
+        for _ in range(len(keys) + 1):  # each round resolves one more link of the longest chain
             for key in keys:
                 done = []
                 for text in pending:
@@ -97,11 +101,15 @@ class _Walk:
                             out.append(text[last:pos] + replacement)
                             last = pos + len(key)
                         done.append("".join(out) + text[last:])
-                pending = list(dict.fromkeys(done))[:_MAX_VARIANTS]
-            # Mitsuba substitutes once; a <default> whose value held a parameter was substituted
-            # where it stood, so a value still holding one goes round again (at most a few times).
+                pending = list(dict.fromkeys(done))
+                if len(pending) + len(found) > _MAX_VARIANTS:
+                    raise ValueError(f"{self.scene}: {value!r} may read in more than {_MAX_VARIANTS} ways through "
+                                     "its parameters' <default> values; the files it names are not checked")
             found += [text for text in pending if not _unescaped_positions(text, "$")]
-            pending = [text for text in pending if _unescaped_positions(text, "$") and text != value]
+            pending = [text for text in pending if _unescaped_positions(text, "$") and text not in seen]
+            seen.update(pending)
+            if not pending:
+                break
         return [text.replace("\\$", "$") for text in dict.fromkeys(found)]
 
     def folder(self, folder: Path) -> None:
@@ -155,7 +163,7 @@ def scene_files(scene: Any, params: Mapping[str, Any] | None = None) -> list[tup
     first = Path(scene)
     if isinstance(scene, str) and scene in SCENE_NAMES and not os.path.lexists(first):
         return []  # a bundled scene, built from a dict
-    walk = _Walk(params or {})
+    walk = _Walk(first, params or {})
     pending, done, state = [first], 0, None
     while pending:  # until no include names a file not yet read: a later <default> or <path> may
         for file in pending:
@@ -187,7 +195,34 @@ def scene_files(scene: Any, params: Mapping[str, Any] | None = None) -> list[tup
             if path not in seen:
                 seen.add(path)
                 files.append((f"{what} {value}", path))
+    for name, path in _resources(walk.folders):
+        if path not in seen:
+            seen.add(path)
+            files.append((f"resource {name}", path))
     return files
+
+
+# Files Mitsuba's plugins look up by a fixed name through the same resolver, so a copy beside the
+# scene wins: each plugin's library (plugins/<type>.so, loaded on first use, any plugin the scene
+# uses implicitly too), a conductor's data/ior/<material>.eta.spd and .k.spd, the sun and sky
+# model's data/sunsky/*.bin, the spectral variants' data/srgb.coeff (core/plugin.cpp,
+# render/ior.h, render/sunsky.h, render/srgb.cpp).
+_RESOURCE_FOLDERS = (("plugins", (".so", ".dll", ".dylib")), ("data/ior", (".spd",)), ("data/sunsky", (".bin",)))
+_RESOURCE_FILES = ("data/srgb.coeff",)
+
+
+def _resources(folders: list[Path]) -> list[tuple[str, Path]]:
+    """``(name, path)`` of every such file present in ``folders`` (not a folder itself)."""
+    found = []
+    for folder in folders:
+        for sub, suffixes in _RESOURCE_FOLDERS:
+            try:
+                names = sorted(os.listdir(folder / sub))
+            except (OSError, ValueError):  # no such folder: nothing looked up there
+                continue
+            found += [(f"{sub}/{name}", folder / sub / name) for name in names if name.endswith(suffixes)]
+        found += [(name, folder / name) for name in _RESOURCE_FILES if os.path.lexists(folder / name)]
+    return [(name, path) for name, path in found if not os.path.isdir(path)]
 
 
 def _read_file(walk: _Walk, path: Path) -> None:

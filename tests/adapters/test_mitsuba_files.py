@@ -152,6 +152,22 @@ def test_every_value_a_default_may_take_is_followed(mi, tmp_path, monkeypatch):
         mi.load_file("scene.xml")
 
 
+def test_a_conductors_data_beside_the_scene_is_listed_and_read(mi, tmp_path, monkeypatch):
+    """Mitsuba looks up ``data/ior/<material>.eta.spd`` through the scene's resolver: a copy beside
+    the scene wins, and ``-o`` could replace it (a review of this pass)."""
+    monkeypatch.chdir(tmp_path)
+    _write(tmp_path, {"a.xml": _SCENE.format('<bsdf type="conductor"><string name="material" value="Cu"/></bsdf>')})
+    bundled = Path(mi.__file__).parent / "data" / "ior"
+    (tmp_path / "data" / "ior").mkdir(parents=True)
+    for name in ("Cu.eta.spd", "Cu.k.spd"):
+        (tmp_path / "data" / "ior" / name).write_bytes((bundled / name).read_bytes())
+    assert {os.path.normpath("data/ior/Cu.eta.spd"), os.path.normpath("data/ior/Cu.k.spd")} <= set(_listed("a.xml"))
+    mi.load_file("a.xml")
+    (tmp_path / "data" / "ior" / "Cu.eta.spd").write_text("not a spectrum")
+    with pytest.raises(RuntimeError):
+        mi.load_file("a.xml")
+
+
 # ---------------------------------------------------------------------------- no Mitsuba needed
 def test_markup_inside_a_value_hides_no_element(tmp_path):
     """``<!--`` in one attribute value and ``-->`` in a later one hid the texture between them."""
@@ -224,3 +240,34 @@ def test_a_linked_scene_lists_the_files_beside_its_target_too(tmp_path):
 
 def test_a_bundled_name_or_a_dict_reads_nothing():
     assert scene_files("cornell_box") == [] and scene_files({"type": "scene"}) == []
+
+
+def test_plugin_libraries_beside_the_scene_are_listed_unopened(tmp_path):
+    """Mitsuba loads ``plugins/<type>.so`` through the scene's resolver on first use: a FIFO there
+    hung the render (a review of this pass)."""
+    (tmp_path / "plugins").mkdir()
+    os.mkfifo(tmp_path / "plugins" / "conductor.so")
+    _write(tmp_path, {"a.xml": _SCENE.format('<bsdf type="conductor"/>')})
+    assert scene_files(tmp_path / "a.xml") == [("resource plugins/conductor.so", tmp_path / "plugins" / "conductor.so")]
+
+
+def test_a_chain_of_defaults_of_any_length_is_followed(tmp_path):
+    """A name built through seven nested ``<default>`` values was not followed past four."""
+    (tmp_path / "tex.exr").write_text("")
+    chain = '<default name="d0" value="tex"/>' + "".join(f'<default name="d{i}" value="$d{i - 1}"/>'
+                                                         for i in range(1, 7))
+    _write(tmp_path, {"a.xml": _SCENE.format(chain + _TEXTURE.format("$d6.exr"))})
+    assert [what for what, _ in scene_files(tmp_path / "a.xml")] == ["filename tex.exr"]
+    loop = '<default name="a" value="$b"/><default name="b" value="$a"/>'  # Mitsuba refuses it; this ends
+    _write(tmp_path, {"b.xml": _SCENE.format(loop + _TEXTURE.format("$a.exr") + _TEXTURE.format("tex.exr"))})
+    assert [what for what, _ in scene_files(tmp_path / "b.xml")] == ["filename tex.exr"]
+
+
+def test_a_value_of_too_many_readings_is_refused_not_cut_short(tmp_path):
+    defaults = "".join(f'<default name="p{k}" value="{v}"/>' for k in range(9) for v in ("x", "y"))
+    includes = "".join(f'<include filename="i{k}.xml"/>' for k in range(9))
+    files = {f"i{k}.xml": _SCENE.format(f'<default name="p{k}" value="z"/>') for k in range(9)}
+    name = "".join(f"$p{k}" for k in range(9)) + ".exr"  # 3**9 readings
+    _write(tmp_path, {"a.xml": _SCENE.format(defaults + includes + _TEXTURE.format(name)), **files})
+    with pytest.raises(ValueError, match="may read in more than 256 ways"):
+        scene_files(tmp_path / "a.xml")
