@@ -221,8 +221,9 @@ def _resources(folders: list[Path]) -> list[tuple[str, Path]]:
             except (OSError, ValueError):  # no such folder: nothing looked up there
                 continue
             found += [(f"{sub}/{name}", folder / sub / name) for name in names if name.endswith(suffixes)]
-        found += [(name, folder / name) for name in _RESOURCE_FILES if os.path.lexists(folder / name)]
-    return [(name, path) for name, path in found if not os.path.isdir(path)]
+        found += [(name, folder / name) for name in _RESOURCE_FILES]
+    # As Mitsuba's lookup: a broken link is no file (it looks further), a FIFO is one (refused).
+    return [(name, path) for name, path in found if os.path.exists(path) and not os.path.isdir(path)]
 
 
 def _read_file(walk: _Walk, path: Path) -> None:
