@@ -4,7 +4,7 @@ Usage::
 
     python tests/data/generate/mitsuba_files.py OUTDIR [NAME ...] [--seeds FIRST:LAST NAME]
 
-Writes tiny 32x32 EXR files as Mitsuba 3 writes them into OUTDIR (``tests/data/mitsuba`` for
+Writes tiny 32x32 (16x16 for the variations) EXR files as Mitsuba 3 writes them into OUTDIR (``tests/data/mitsuba`` for
 the committed copies). Without NAME every file of ``FILES`` is rendered. ``--seeds 1:40 box``
 renders the ``box`` scene once per seed into ``box_seed_K.exr`` (independent replicates, for
 checking variances against the spread of means).
@@ -33,7 +33,25 @@ FILES: dict[str, tuple[str, str, int]] = {
     "mitsuba_gaussian": ("moment", "gaussian", 8),  # mi.cornell_box()'s own filter
     "mitsuba_aov": ("moment_aov", "box", 8),        # moment around an aov integrator
     "mitsuba_ref": ("path", "box", 4096),           # high-sample reference (plain RGB)
+    # Variations that real renders differ by (16x16, the readers' routes only):
+    "mitsuba_mono": ("moment", "box", 8),           # a mono variant: X = Y = Z in every moment
+    "mitsuba_half_aov": ("moment_aov", "box", 16),  # float16: subnormal normals, underflowed E[x^2]
+    "mitsuba_uint32": ("path", "box", 8),           # component_format uint32: fixed point, clamped
+    "mitsuba_mitchell": ("moment", "mitchell", 8),  # a filter with negative lobes: E[x^2] < 0
+    "mitsuba_aov_position": ("moment_aov_position", "box", 8),  # AOVs with X,Y,Z nested in m2_main
+    "mitsuba_aov_of_moment": ("aov_of_moment", "box", 8),       # img.m2_nested: moment inside aov
+    "mitsuba_two": ("moment_two", "box", 8),        # two nested integrators: two radiance moments
+    "mitsuba_xyz": ("path", "box", 8),              # pixel_format xyz: an image of X,Y,Z
 }
+# name -> (variant, film options) where they differ from VARIANT and the film's defaults
+OPTIONS: dict[str, tuple[str, dict]] = {
+    "mitsuba_mono": ("llvm_ad_mono", {}),
+    "mitsuba_half_aov": (VARIANT, {"component_format": "float16"}),
+    "mitsuba_uint32": (VARIANT, {"component_format": "uint32"}),
+    "mitsuba_xyz": (VARIANT, {"pixel_format": "xyz"}),
+}
+SMALL = 16
+ORIGINAL = ("mitsuba_box", "mitsuba_gaussian", "mitsuba_aov", "mitsuba_ref")
 
 
 def _integrator(kind: str) -> dict:
@@ -42,20 +60,30 @@ def _integrator(kind: str) -> dict:
         return path
     if kind == "moment":
         return {"type": "moment", "nested": path}
+    if kind == "moment_aov_position":
+        return {"type": "moment", "main": {"type": "aov", "aovs": "albedo:albedo,position:position,gn:geo_normal",
+                                           "img": path}}
+    if kind == "aov_of_moment":
+        return {"type": "aov", "aovs": "albedo:albedo,depth:depth,normal:sh_normal",
+                "img": {"type": "moment", "nested": path}}
+    if kind == "moment_two":
+        return {"type": "moment", "a": path, "b": {"type": "direct"}}
     # The aov integrator's nested image is RGB: its moments need no colour conversion.
     return {"type": "moment", "main": {"type": "aov", "aovs": "albedo:albedo,depth:depth,normal:sh_normal",
-                                            "img": path}}
+                                       "img": path}}
 
 
 def render(name: str, outdir: Path, *, seed: int = 0, kind: str | None = None, rfilter: str | None = None,
            spp: int | None = None) -> Path:
     """Render one file through the Python API; returns the file written."""
-    mi.set_variant(VARIANT)
+    variant, film = OPTIONS.get(name, (VARIANT, {}))
+    mi.set_variant(variant)
     k, f, n = FILES.get(name, (None, None, None))
     kind, rfilter, spp = kind or k, rfilter or f, spp or n
     scene = mi.cornell_box()
     scene["integrator"] = _integrator(kind)
-    scene["sensor"]["film"].update(width=SIZE, height=SIZE, rfilter={"type": rfilter})
+    size = SIZE if name in ORIGINAL else SMALL
+    scene["sensor"]["film"].update(width=size, height=size, rfilter={"type": rfilter}, **film)
     loaded = mi.load_dict(scene)
     mi.render(loaded, spp=spp, seed=seed)
     path = outdir / f"{name}.exr"
