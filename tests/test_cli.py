@@ -571,8 +571,12 @@ def _preset_file(tmp_path, preset):
     if preset == "renderman":
         planes = {f"Ci.{c}": one * 0.5 for c in "rgb"} | {f"mse.{c}": one * 0.01 for c in "rgb"}
         return _write(tmp_path / "r.exr", planes | {"sampleCount": one * 12}), [], 12
-    planes = {f"img.{c}": one * 0.5 for c in "XYZ"} | {f"m2_img.{c}": one * 0.5 for c in "XYZ"}
+    # A colour: X = Y = Z would be a mono render's luminance.
+    planes = {f"img.{c}": one * t for c, t in zip("XYZ", _XYZ)} | {f"m2_img.{c}": one * 0.5 for c in "XYZ"}
     return _write(tmp_path / "m.exr", planes), ["--spp", "6"], 6
+
+
+_XYZ = (0.475, 0.5, 0.545)
 
 
 @pytest.mark.parametrize("preset", ["pbrt", "cycles", "renderman", "mitsuba"])
@@ -583,8 +587,8 @@ def test_presets_detected_and_denoised(tmp_path, capsys, preset):
     info = json.loads(capsys.readouterr().out)
     assert info["preset"] == preset and info["spp"]["mean"] == spp
     assert main(["denoise", str(src), "-o", str(tmp_path / "o.exr"), "-q", *extra]) == 0
-    # Mitsuba's moments are CIE XYZ: a flat XYZ of 0.5 is the sRGB colour 0.5 x M's row sums.
-    expected = 0.5 * MITSUBA_XYZ_TO_SRGB.sum(axis=1) if preset == "mitsuba" else 0.5
+    # Mitsuba's moments are CIE XYZ: a flat XYZ is the sRGB colour M @ XYZ.
+    expected = MITSUBA_XYZ_TO_SRGB @ np.array(_XYZ) if preset == "mitsuba" else 0.5
     np.testing.assert_allclose(read_image(tmp_path / "o.exr"), np.broadcast_to(expected, (H, W, 3)), rtol=1e-4)
 
 

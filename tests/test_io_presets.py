@@ -10,7 +10,7 @@ OpenEXR = pytest.importorskip("OpenEXR")
 
 from awr_denoise.errors import InputFileError  # noqa: E402
 from awr_denoise.errors import InputFileWarning  # noqa: E402
-from awr_denoise.io import detect_preset, read_sample_buffer  # noqa: E402
+from awr_denoise.io import detect_preset, read_sample_buffer, read_sample_dump  # noqa: E402
 from awr_denoise.io.colour import MITSUBA_XYZ_TO_SRGB, PBRT_XYZ_TO_SRGB  # noqa: E402
 
 H, W = 4, 5
@@ -108,8 +108,10 @@ def test_renderman(tmp_path):
 
 def test_mitsuba_moment(tmp_path):
     mean = _ramp(0.5)
-    m2 = (mean.astype(np.float64) ** 2 + 0.3).astype(np.float32)
-    planes = {f"nested.{c}": mean for c in "XYZ"} | {f"m2_nested.{c}": m2 for c in "XYZ"}
+    tint = {"X": 0.9, "Y": 1.0, "Z": 1.1}  # a colour: X, Y and Z differ
+    means = {c: (mean * t).astype(np.float32) for c, t in tint.items()}
+    m2s = {c: (means[c].astype(np.float64) ** 2 + 0.3).astype(np.float32) for c in "XYZ"}
+    planes = {f"nested.{c}": means[c] for c in "XYZ"} | {f"m2_nested.{c}": m2s[c] for c in "XYZ"}
     f = _write(tmp_path / "mi.exr", planes)
     assert detect_preset(list(planes), {}) == "mitsuba"
     with pytest.raises(InputFileError, match=r"mi\.exr: .*no per-pixel sample count"):
@@ -117,9 +119,39 @@ def test_mitsuba_moment(tmp_path):
     buf = read_sample_buffer(f, spp=8)
     assert buf.channels == ("R", "G", "B") and (buf.count == 8).all()
     # The moments are CIE XYZ: the mean and the standard deviation go through Mitsuba's matrix.
-    xyz_sd = np.sqrt((m2.astype(np.float64) - mean.astype(np.float64) ** 2) * 8 / 7)
-    np.testing.assert_allclose(buf.mean[..., 0], mean * MITSUBA_XYZ_TO_SRGB[0].sum(), rtol=1e-5)
-    np.testing.assert_allclose(buf.variance[..., 2], (xyz_sd * MITSUBA_XYZ_TO_SRGB[2].sum()) ** 2, rtol=1e-5)
+    xyz = np.stack([means[c] for c in "XYZ"], -1).astype(np.float64)
+    xyz_sd = np.sqrt((np.stack([m2s[c] for c in "XYZ"], -1).astype(np.float64) - xyz**2) * 8 / 7)
+    np.testing.assert_allclose(buf.mean, xyz @ MITSUBA_XYZ_TO_SRGB.T, rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(buf.variance, (xyz_sd @ MITSUBA_XYZ_TO_SRGB.T) ** 2, rtol=1e-5)
+
+
+def test_mitsuba_mono_variant_is_luminance(tmp_path):
+    # The mono variants write X = Y = Z (the luminance) in every moment: the XYZ matrix would tint
+    # a grey value (R +20%, B -9% on a real Mitsuba render).
+    mean = _ramp(0.5)
+    m2 = (mean.astype(np.float64) ** 2 + 0.3).astype(np.float32)
+    f = _write(tmp_path / "mono.exr", {f"nested.{c}": mean for c in "XYZ"} | {f"m2_nested.{c}": m2 for c in "XYZ"})
+    dump = read_sample_dump(f, spp=8)
+    assert dump.buffer.channels == ("Y",)
+    np.testing.assert_allclose(dump.buffer.mean[..., 0], mean)
+    np.testing.assert_allclose(dump.buffer.variance[..., 0], (m2 - mean.astype(np.float64) ** 2) * 8 / 7, rtol=1e-5)
+    assert any("mono" in note for note in dump.notes)
+
+
+def test_mitsuba_half_second_moment_underflow_is_unknown(tmp_path):
+    # float16 moments of a dim render: E[x^2] = 0 beside a mean of 6e-6 (its square is below half's
+    # smallest subnormal). Refused as "not E[x^2]" before; the variance is lost, not zero.
+    mean = np.full((H, W), 6.25e-6, np.float16)
+    m2 = np.zeros((H, W), np.float16)
+    m2[0, 0] = mean[0, 0]  # one pixel with a second moment that survived
+    mean[1, 1] = m2[1, 1] = 0  # a black pixel: known, no spread
+    planes = {f"nested.{c}": mean * t for c, t in zip("XYZ", (0.9, 1.0, 1.1))} | {f"m2_nested.{c}": m2 for c in "XYZ"}
+    f = _write(tmp_path / "dim.exr", planes)
+    with pytest.warns(InputFileWarning, match=r"dim\.exr: m2_nested: .*underflowed HALF"):
+        buf = read_sample_buffer(f, spp=8)
+    expected = np.zeros((H, W), bool)
+    expected[0, 0] = expected[1, 1] = True
+    np.testing.assert_array_equal(buf.variance_known, expected)
 
 
 def test_generic_multi_file(tmp_path):

@@ -118,7 +118,9 @@ def describe_file(path: str | os.PathLike[str], *, preset: str = "auto", color: 
                                              "(awr merge --independent A.exr B.exr ...) or give --variance PLANE"
                                              if name == "cycles" else "give --variance PLANE"))
         if layout.count is None:
-            missing.append("a sample count: " + ("Mitsuba 3 writes none; give --spp N (the sampler's sample_count)"
+            missing.append("a sample count: " + ("Mitsuba 3 writes none; give --spp N, the samples it took per "
+                                                 "pixel (the sampler's sample_count, rounded up by stratified, "
+                                                 "multijitter, orthogonal and ldsampler)"
                                                  if name == "mitsuba" else "give --spp N or --count PLANE"))
     else:
         return _read_fully(info, p, options, chosen_view, nonfinite, preset="deep", missing=missing)

@@ -230,7 +230,7 @@ def whole_counts(path: str | os.PathLike[str], name: str, values: np.ndarray) ->
     stay far below it): a larger count there is not the renderer's count, and one beyond int64
     would wrap to a negative number.
     """
-    c = checked_plane(path, name, values, nonnegative=True)
+    c = checked_plane(path, name, values, nonnegative=True, whole=True)
     if np.asarray(values).dtype.kind == "f":
         too_big = c > MAX_EXACT_COUNT
         if too_big.any():
@@ -274,7 +274,7 @@ def buffer_from_awr_part(path: str | os.PathLike[str], part: ExrPart, *,
                                        nonnegative=True))
     known = None
     if KNOWN_CHANNEL in ch:
-        known = checked_plane(path, KNOWN_CHANNEL, ch[KNOWN_CHANNEL]) > 0.5
+        known = checked_plane(path, KNOWN_CHANNEL, ch[KNOWN_CHANNEL], whole=True) > 0.5
     try:
         buffer = SampleBuffer.from_moments(count, np.stack(means, -1), np.stack(variances, -1),
                                            variance_kind=kind, channels=names, variance_known=known)
@@ -315,7 +315,7 @@ def _read_features(path: str | os.PathLike[str], part: ExrPart, attributes: Mapp
             own = whole_counts(path, prefix + COUNT_CHANNEL, ch[prefix + COUNT_CHANNEL])
         known = None
         if prefix + KNOWN_CHANNEL in ch:
-            known = checked_plane(path, prefix + KNOWN_CHANNEL, ch[prefix + KNOWN_CHANNEL]) > 0.5
+            known = checked_plane(path, prefix + KNOWN_CHANNEL, ch[prefix + KNOWN_CHANNEL], whole=True) > 0.5
         mean = np.stack([checked_plane(path, p, ch[p]) for p in planes], -1)
         variance = np.stack([checked_plane(path, VARIANCE_PREFIX + p, ch[VARIANCE_PREFIX + p], nonnegative=True)
                              for p in planes], -1)

@@ -367,14 +367,21 @@ def _window(path: str | os.PathLike[str], key: str, value: Any, shape: tuple[int
 
 
 def checked_plane(path: str | os.PathLike[str], name: str, array: np.ndarray, *,
-                  nonnegative: bool = False, unit: str = "pixel") -> FloatArray:
+                  nonnegative: bool = False, unit: str = "pixel", whole: bool = False) -> FloatArray:
     """A channel as float64, refusing NaN, Inf (half overflow named) and, optionally, negatives.
 
     ``unit`` names what the entries are in messages (``"pixel"``, or ``"sample"`` for deep data).
+    ``whole``: the channel holds whole numbers (counts, masks), which a UINT channel may; a UINT
+    channel of values is refused.
     """
     a = np.asarray(array)
     if a.dtype.kind not in "fiu":
         raise file_error(path, f"unsupported channel type {a.dtype}", name)
+    if a.dtype.kind in "iu" and not whole:
+        # Mitsuba's component_format="uint32" stores clamp(x, 0, 1) * 2**32: read as numbers these
+        # are values 10**9 times too large, and clamped.
+        raise file_error(path, "a UINT channel holds fixed-point or integer data, not floating-point values; "
+                               "write HALF or FLOAT channels (Mitsuba: component_format float32)", name)
     out = a.astype(np.float64)
     if out.size and np.isfinite(out).all() and not nonnegative:
         return out
@@ -464,6 +471,9 @@ def _find_rgb(path: Path, names: Sequence[str]) -> list[str]:
     if len(layers) > 1:
         raise file_error(path, f"ambiguous colour channels: layers {', '.join(layers)} all have R,G,B "
                                "(choose one with channels= / awr diff --channels or --ref-channels)")
+    if {"X", "Y", "Z"} <= set(names):  # Y alone was compared: a third of the image, without a word
+        raise file_error(path, "holds CIE X,Y,Z, not R,G,B; compare X,Y,Z images with channels= / awr diff "
+                               "--channels X,Y,Z --ref-channels ...")
     if "Y" in names:
         return ["Y"]
     if len(names) == 1:

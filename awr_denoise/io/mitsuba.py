@@ -13,7 +13,9 @@ Measured on Mitsuba 3.9 renders of its Cornell box (32x32 and 64x64, 2-256 spp; 
 docs/io.md), the median of ``d^2 / (v[x-1] + 4 v[x] + v[x+1])`` over all pixel triplets and
 channels was 0.72-1.29 with a box filter, 0.06-0.23 with ``gaussian`` up to 64 spp (0.42 at
 256 spp), 0.13-0.35 with ``tent`` and 0.15-0.38 with ``mitchell``; ``lanczos`` (0.35-1.5) is
-not told apart. Below :data:`CORRELATED_BELOW` the reader warns.
+not told apart. Below :data:`CORRELATED_BELOW` the reader warns. Filters with negative lobes
+(``mitchell``, ``catmullrom``, ``lanczos``) also leave some pixels with a negative second
+moment, which no set of samples has: the reader refuses such a file before this test runs.
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -211,7 +211,7 @@ def detect_preset(channels: Sequence[str], header: dict) -> str:
     if any(n == "mse" or n.startswith("mse.") for n in names) or any(n.startswith("Ci.") or n == "Ci"
                                                                          for n in names):
         return "renderman"
-    if any(n.startswith("m2_") for n in names):
+    if _moment_prefixes(names):
         return "mitsuba"
     return "generic"
 
@@ -335,9 +335,9 @@ def _pbrt(ctx: _Context) -> _Layout:
     # pbrt writes 0 where it has no estimate (environment-only pixels): unknown, not converged.
     known = ~(_values(spread, nonnegative=True) == 0).all(axis=-1)
     convert = None
-    if ctx.variance is None and len(spread.channels) == 3:
+    if spread.channels == ("Variance.R", "Variance.G", "Variance.B"):
         # GBufferFilm accumulates Variance on sensor RGB (CIE XYZ for the default sensor) and
-        # converts only the means to the output colour space.
+        # converts only the means to the output colour space; also when the plane is named.
         convert = (PBRT_XYZ_TO_SRGB, "variance")
         ctx.notes.append("Variance holds pbrt's sensor XYZ: converted to linear sRGB (channels taken as fully "
                          "correlated)")
@@ -400,7 +400,7 @@ def _cycles_counts(ctx: _Context, layer: str, shape: tuple[int, int]) -> tuple[n
             return ctx.spp_counts(shape, f"no Debug Sample Count pass, no cycles.{layer}.samples"), None
         return np.full(shape, n, np.int64), None
     counts = ctx.plane(debug_name, what="count")
-    values = checked_plane(ctx.path, counts.channels[0], counts.arrays[0], nonnegative=True)
+    values = checked_plane(ctx.path, counts.channels[0], counts.arrays[0], nonnegative=True, whole=True)
     if ctx.spp is not None:
         scale = int(ctx.spp)
         ctx.notes.append(f"sample count pass times spp={scale}")
@@ -451,39 +451,76 @@ def _renderman(ctx: _Context) -> _Layout:
     return _Layout(colour, spread, kind, ctx.spp_counts(colour.shape, f"no {COUNT_CHANNEL} channel"))
 
 
-def _plane_prefixes(channels: Sequence[str], start: str) -> list[str]:
-    return sorted({c.rsplit(".", 1)[0] if "." in c else c for c in channels if c.startswith(start)})
-
-
 def _components(ctx: _Context, prefix: str) -> set[str]:
     return {c.rsplit(".", 1)[1] for c in ctx.file.channels if "." in c and c.rsplit(".", 1)[0] == prefix}
+
+
+def _moment_prefixes(channels: Iterable[str]) -> list[str]:
+    """Mitsuba's second-moment planes: ``m2_<name>``, or ``<layer>.m2_<name>`` when an ``aov``
+    integrator holds the ``moment`` one; an AOV nested under one (``m2_<name>.position``) is not."""
+    found = set()
+    for c in channels:
+        prefix = c.rsplit(".", 1)[0] if "." in c else c
+        if prefix.rsplit(".", 1)[-1].startswith("m2_"):
+            found.add(prefix)
+    return sorted(found)
+
+
+def _moment_mean(prefix: str) -> str:
+    """The mean plane of a second-moment plane: ``m2_a`` -> ``a``, ``img.m2_a`` -> ``img.a``."""
+    head, _, last = prefix.rpartition(".")
+    return f"{head}.{last[len('m2_'):]}" if head else last[len("m2_"):]
+
+
+def _moment_of(ctx: _Context, colour: str) -> str:
+    """The second-moment plane of a named mean plane: ``m2_<colour>``, else ``<layer>.m2_<name>``."""
+    if any(c == "m2_" + colour or c.startswith(f"m2_{colour}.") for c in ctx.file.channels) or "." not in colour:
+        return "m2_" + colour
+    head, _, last = colour.rpartition(".")
+    return f"{head}.m2_{last}"
+
+
+def _mono(colour: _Plane, spread: _Plane) -> bool:
+    """X, Y and Z equal everywhere (and not all zero): a ``mono`` variant's luminance, not a colour."""
+    planes = [np.asarray(a) for a in colour.arrays[:3] + spread.arrays[:3]]
+    return (all(np.array_equal(planes[0], a) for a in planes[1:3]) and
+            all(np.array_equal(planes[3], a) for a in planes[4:6]) and bool(np.any(planes[0])))
 
 
 def _mitsuba(ctx: _Context) -> _Layout:
     variance = ctx.variance
     if variance is None:
-        m2 = _plane_prefixes(list(ctx.file.channels), "m2_")
+        m2 = _moment_prefixes(ctx.file.channels)
         if not m2:
             raise file_error(ctx.path, "no m2_<name> second-moment channels (Mitsuba 3 moment integrator)", "m2_*")
         if ctx.color is not None:
-            variance = "m2_" + ctx.color
+            variance = _moment_of(ctx, ctx.color)
         else:
             # The moment integrator's own results are <name>.X/Y/Z; RGB moments are AOVs.
             # A normal AOV has X, Y, Z components too: feature AOVs are not the radiance.
             xyz = [p for p in m2 if {"X", "Y", "Z"} <= _components(ctx, p)
-                   and p.rsplit(".", 1)[-1] not in _FEATURE_AOVS]
+                   and _moment_mean(p).rsplit(".", 1)[-1] not in _FEATURE_AOVS]
             if len(xyz) > 1:
-                raise file_error(ctx.path, f"ambiguous: several second moments ({', '.join(xyz)}); choose with "
-                                           "color=/variance=", "m2_*")
+                raise file_error(ctx.path, f"ambiguous: several second moments ({', '.join(xyz)}); choose one "
+                                           "with color= / --color NAME (the plane without m2_)", "m2_*")
             variance = (xyz or m2)[0]
-    colour = ctx.plane(ctx.color or variance[len("m2_"):], colour=True, what="colour")
+    colour = ctx.plane(ctx.color or _moment_mean(variance), colour=True, what="colour")
     spread = ctx.plane(variance, what="second moment")
     if len(spread.channels) > len(colour.channels):  # an alpha moment has no colour counterpart
         k = len(colour.channels)
         spread = _Plane(spread.path, spread.channels[:k], spread.arrays[:k])
+    negative = (_values(spread) < 0).any(axis=-1)
+    if negative.any():  # E[x^2] of samples is never negative: the film's filter weighted some negatively
+        raise file_error(spread.path, f"{int(negative.sum())} pixel(s) hold a negative second moment: the film's "
+                                      "reconstruction filter has negative lobes (mitchell, catmullrom, lanczos); "
+                                      "render the moments with rfilter box", spread.label)
     convert = None
     suffixes = tuple(c.rsplit(".", 1)[-1] for c in colour.channels)
-    if suffixes == ("X", "Y", "Z"):
+    if suffixes == ("X", "Y", "Z") and _mono(colour, spread):
+        colour, spread = (_Plane(q.path, q.channels[1:2], q.arrays[1:2]) for q in (colour, spread))
+        ctx.notes.append(f"{colour.label}: X, Y and Z are equal everywhere, a mono render's luminance: read as "
+                         "one channel Y")
+    elif suffixes == ("X", "Y", "Z"):
         exact = None if ctx.color is not None else _mitsuba_rgb_twin(ctx, colour)
         if exact is not None:
             colour, spread = exact
@@ -497,8 +534,9 @@ def _mitsuba(ctx: _Context) -> _Layout:
     given = ctx.count_plane()
     if given is not None:
         return _Layout(colour, spread, kind, given[1], given[0], convert=convert)
-    cnt = ctx.spp_counts(colour.shape, "Mitsuba 3 writes no per-pixel sample count; give the sampler's "
-                                       "sample_count")
+    cnt = ctx.spp_counts(colour.shape, "Mitsuba 3 writes no per-pixel sample count; give the samples it took per "
+                                       "pixel: the sampler's sample_count, rounded up by stratified, multijitter, "
+                                       "orthogonal and ldsampler")
     return _Layout(colour, spread, kind, cnt, convert=convert)
 
 
@@ -507,7 +545,8 @@ def _mitsuba_rgb_twin(ctx: _Context, xyz: _Plane) -> tuple[_Plane, _Plane] | Non
     integrator's nested image inside ``moment``), whose moments need no colour conversion."""
     target = _values(xyz) @ MITSUBA_XYZ_TO_SRGB.T
     scale = max(float(np.abs(target).max()), 1e-6)
-    for prefix in _plane_prefixes(list(ctx.file.channels), "m2_"):
+    aov_moments = {c.rsplit(".", 1)[0] for c in ctx.file.channels if c.startswith("m2_") and "." in c}
+    for prefix in sorted(aov_moments):
         name = prefix[len("m2_"):]
         if not {"R", "G", "B"} <= _components(ctx, name) or not {"R", "G", "B"} <= _components(ctx, prefix):
             continue
@@ -538,7 +577,24 @@ _READERS = {"pbrt": _pbrt, "cycles": _cycles, "renderman": _renderman, "mitsuba"
             "generic": _generic, "awr": _generic}
 
 
-def _assemble(path: Path, layout: _Layout) -> SampleBuffer:
+def _is_half(plane: _Plane) -> bool:
+    return any(np.asarray(a).dtype == np.float16 for a in plane.arrays)
+
+
+def _half_moments(mean: FloatArray, second: FloatArray, plane: _Plane) -> FloatArray:
+    """Second moments stored as HALF, short of the squared mean by no more than a half's rounding of
+    both (2**-9 of the square bounds the two relative roundings; 2**-24 is the step below the
+    normal range): the square (no spread), not a refusal.
+
+    A dim pixel's ``E[x^2]`` underflows to 0 or a subnormal while its mean still holds digits.
+    """
+    if not _is_half(plane):
+        return second
+    square = mean**2
+    return np.where((second < square) & (square - second <= 2.0**-9 * square + 2.0**-24), square, second)
+
+
+def _assemble(path: Path, layout: _Layout, warnings: list[str] | None = None) -> SampleBuffer:
     colour, spread, kind = layout.colour, layout.spread, layout.kind
     assert spread is not None and layout.count is not None
     if len(spread.channels) == len(colour.channels) + 1 and spread.channels[-1].rsplit(".", 1)[-1] in _ALPHA:
@@ -548,9 +604,19 @@ def _assemble(path: Path, layout: _Layout) -> SampleBuffer:
                                       f"{colour.label} has {len(colour.channels)}", spread.label)
     mean = _values(colour)
     variance = _values(spread, nonnegative=kind != "second_moment")
+    known = layout.known
+    if kind == "second_moment" and _is_half(spread):
+        lost = ((variance == 0) & (mean != 0)).any(axis=-1)  # E[x^2] underflowed: no spread left to read
+        variance = _half_moments(mean, variance, spread)
+        if lost.any():
+            known = ~lost if known is None else known & ~lost
+            if warnings is not None:
+                warnings.append(f"{spread.path}: {spread.label}: {int(lost.sum())} pixel(s) hold a second moment "
+                                "that underflowed HALF (0 beside a nonzero mean): variance unknown, borrowed from "
+                                "neighbours; write FLOAT channels (Mitsuba: component_format float32)")
     try:
         buffer = SampleBuffer.from_moments(layout.count, mean, variance, variance_kind=kind,
-                                           channels=_channel_names(colour), variance_known=layout.known)
+                                           channels=_channel_names(colour), variance_known=known)
     except ValueError as exc:
         raise file_error(path, str(exc)) from None
     if layout.convert is None:
@@ -596,7 +662,11 @@ def _refuse_unused(p: Path, why: str, **given: Any) -> None:
 def _resolve_preset(p: Path, f: _File, preset: str, color: str | None, variance: str | None,
                     count: str | None) -> str:
     if preset == "auto":
-        preset = "generic" if color is not None else detect_preset(list(f.channels), f.header)
+        preset = detect_preset(list(f.channels), f.header)
+        # A plane named in a pbrt or Mitsuba file keeps the preset: read generically, pbrt's XYZ
+        # variance and Mitsuba's XYZ second moments passed for sRGB variances, without a word.
+        if color is not None and preset not in ("pbrt", "mitsuba"):
+            preset = "generic"
     if preset == "generic" and color is None and variance is None and count is None:
         raise file_error(p, "cannot detect the layout (channels: " + ", ".join(sorted(f.channels))
                          + "); choose a preset or give color=/variance=/count= (--color/--variance/--count)")
@@ -653,8 +723,12 @@ def _features(ctx: _Context, preset: str, layout: _Layout, count: np.ndarray, pl
         if sum(keep) == width:  # an RGBA albedo: alpha left out
             plane = _Plane(plane.path, *(tuple(x for x, k in zip(xs, keep) if k) for xs in (plane.channels, plane.arrays)))
         _check_shapes([layout.colour, plane] + ([moment] if moment else []))
-        second = None if moment is None else _values(_Plane(moment.path, moment.channels[:width], moment.arrays[:width]))
-        features[name] = feature_from_planes(plane.path, name, plane.label, _values(plane), count, second)
+        mean = _values(plane)
+        second = None
+        if moment is not None:
+            moment = _Plane(moment.path, moment.channels[:width], moment.arrays[:width])
+            second = _half_moments(mean, _values(moment), moment)
+        features[name] = feature_from_planes(plane.path, name, plane.label, mean, count, second)
         ctx.feature_planes[name] = plane.label if plane.path == ctx.path else f"{plane.path}:{plane.label}"
         ctx.notes.append(f"{name}: {plane.label}" + (f" (variance from {moment.label})" if moment else
                                                      " (no variance in the file)"))
@@ -757,7 +831,7 @@ def read_sample_dump(
         return dataclasses.replace(dump, buffer=buffer, notes=dump.notes + tuple(ctx.notes))
     layout, ctx = _layout(p, f, preset, color=color, variance=variance, count=count, variance_kind=variance_kind,
                           spp=spp, layer=layer, view=view, need_variance=True, need_count=True)
-    buffer = _assemble(p, layout)
+    buffer = _assemble(p, layout, ctx.warnings)
     found = _features(ctx, preset, layout, buffer.count, planes, features)
     if found:
         buffer = dataclasses.replace(buffer, features=found)

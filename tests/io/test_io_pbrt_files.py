@@ -37,6 +37,17 @@ def test_read_real_gbuffer(name):
     assert any("sensor XYZ" in n for n in dump.notes)
 
 
+@pytest.mark.parametrize("named", [{"variance": "Variance"}, {"color": "RGB"},
+                                   {"color": "RGB", "variance": "Variance"}])
+def test_naming_pbrts_own_planes_keeps_the_conversion(named):
+    # --variance Variance read pbrt's sensor-XYZ variance as sRGB (ratios 0 to 7.6e5 per pixel), and
+    # --color RGB switched to the generic layout.
+    default = read_sample_dump(DATA / "pbrt_gbuffer_default.exr").buffer
+    dump = read_sample_dump(DATA / "pbrt_gbuffer_default.exr", **named)
+    np.testing.assert_array_equal(dump.buffer.variance, default.variance)
+    assert any("sensor XYZ" in n for n in dump.notes)
+
+
 def test_variance_converted_to_rgb_matches_seed_replicates():
     """The spread of the R, G, B means over 8 independent renders against the file's variance."""
     assert len(SEEDS) == 8

@@ -64,6 +64,84 @@ def test_mitsuba_aov_rgb_moments_used_and_close_to_conversion():
     assert 0.85 < ratio < 1.15  # measured 0.95-0.99 per channel (docs/io.md)
 
 
+def test_mitsuba_mono_variant_reads_its_luminance():
+    # llvm_ad_mono writes X = Y = Z (the luminance) in every moment; the XYZ matrix made it a tinted
+    # colour (R +20%, B -9%).
+    ch = _channels(MI / "mitsuba_mono.exr")
+    dump = read_sample_dump(MI / "mitsuba_mono.exr", spp=8)
+    assert dump.buffer.channels == ("Y",)
+    np.testing.assert_array_equal(dump.buffer.mean[..., 0], ch["nested.Y"])
+    np.testing.assert_allclose(dump.buffer.mean[..., 0], ch["Y"], rtol=1e-5, atol=1e-7)  # the film's own
+    m2 = ch["m2_nested.Y"]
+    np.testing.assert_allclose(dump.buffer.variance[..., 0], np.maximum(m2 - ch["nested.Y"] ** 2, 0) * 8 / 7,
+                               rtol=1e-6, atol=1e-12)
+
+
+def test_mitsuba_half_moments_within_rounding_are_read():
+    # component_format float16: a wall's normal.Z is a half subnormal (-6e-8) beside E[x^2] = 0.
+    ch = _channels(MI / "mitsuba_half_aov.exr")
+    z, z2 = ch["main.normal.Z"], ch["m2_main.normal.Z"]
+    assert (z2 < 0.99 * z**2).any()  # what was refused as "not E[x^2]"
+    dump = read_sample_dump(MI / "mitsuba_half_aov.exr", spp=16)
+    normal = dump.buffer.features["normal"]
+    assert np.isfinite(normal.variance).all() and (normal.variance >= 0).all()
+    np.testing.assert_array_equal(normal.mean[..., 2], z)
+
+
+def test_mitsuba_uint32_channels_are_refused(tmp_path, capsys):
+    # component_format uint32 stores clamp(x, 0, 1) * 2**32: read as numbers, 10**9 times too large.
+    assert main(["diff", str(MI / "mitsuba_uint32.exr"), "-r", str(MI / "mitsuba_ref.exr")]) == 2
+    err = capsys.readouterr().err
+    assert "mitsuba_uint32.exr" in err and "UINT" in err and "Traceback" not in err
+    with pytest.raises(InputFileError, match="UINT"):
+        read_image(MI / "mitsuba_uint32.exr")
+
+
+def test_mitsuba_negative_lobed_filter_is_named():
+    with pytest.raises(InputFileError, match=r"mitsuba_mitchell\.exr: .*negative second moment.*rfilter box"):
+        read_sample_dump(MI / "mitsuba_mitchell.exr", spp=8)
+
+
+def test_mitsuba_aovs_nested_in_a_moment_are_not_radiance():
+    # position and geo_normal AOVs have X,Y,Z components too: m2_main.position was taken for a
+    # second radiance moment ("ambiguous").
+    dump = read_sample_dump(MI / "mitsuba_aov_position.exr", spp=8)
+    assert any("exact RGB variances" in n for n in dump.notes)
+    ch = _channels(MI / "mitsuba_aov_position.exr")
+    np.testing.assert_array_equal(dump.buffer.mean, np.stack([ch[f"main.img.{c}"] for c in "RGB"], -1))
+
+
+def test_mitsuba_moment_inside_an_aov_integrator_is_detected():
+    ch = _channels(MI / "mitsuba_aov_of_moment.exr")
+    assert not any(c.startswith("m2_") for c in ch)  # img.m2_nested.*: no channel starts with m2_
+    buf = read_sample_dump(MI / "mitsuba_aov_of_moment.exr", spp=8).buffer
+    film = np.stack([ch[f"img.{c}"] for c in "RGB"], -1)
+    np.testing.assert_allclose(buf.mean, film, rtol=5e-3, atol=1e-4 * film.max())
+
+
+def test_mitsuba_two_moments_named_by_colour_keep_the_conversion(capsys):
+    with pytest.raises(InputFileError, match="ambiguous.*--color"):
+        read_sample_dump(MI / "mitsuba_two.exr", spp=8)
+    chosen = read_sample_dump(MI / "mitsuba_two.exr", spp=8, color="a").buffer
+    preset = read_sample_dump(MI / "mitsuba_two.exr", spp=8, color="a", preset="mitsuba").buffer
+    np.testing.assert_array_equal(chosen.mean, preset.mean)
+    np.testing.assert_array_equal(chosen.variance, preset.variance)
+    ch = _channels(MI / "mitsuba_two.exr")
+    assert not np.allclose(chosen.mean[..., 0], ch["a.X"])  # XYZ converted, not passed as R
+    # Naming the planes the generic way keeps them Mitsuba's (it read XYZ as RGB and E[x^2] as a variance).
+    assert main(["info", str(MI / "mitsuba_two.exr"), "--spp", "8", "--color", "a", "--variance", "m2_a"]) == 0
+    assert "layout: mitsuba" in capsys.readouterr().out
+
+
+def test_xyz_image_is_not_compared_by_y_alone(capsys):
+    with pytest.raises(InputFileError, match="X,Y,Z"):
+        read_image(MI / "mitsuba_xyz.exr")
+    assert main(["diff", str(MI / "mitsuba_xyz.exr"), "-r", str(MI / "mitsuba_xyz.exr")]) == 2
+    assert "X,Y,Z" in capsys.readouterr().err
+    image = read_image(MI / "mitsuba_xyz.exr", channels=["X", "Y", "Z"])
+    assert image.shape == (16, 16, 3)
+
+
 def test_mitsuba_gaussian_filter_warns_box_does_not():
     with pytest.warns(InputFileWarning, match="film filter is probably not 'box'"):
         read_sample_dump(MI / "mitsuba_gaussian.exr", spp=8)
