@@ -24,6 +24,8 @@ float64 transform is the reference the tests compare it against.
 
 from __future__ import annotations
 
+import os
+import re
 from collections.abc import Iterator
 from functools import lru_cache
 from itertools import product
@@ -38,7 +40,8 @@ from . import _checks
 from ._typing import FloatArray, Shape2D
 from .wavelets import DEFAULT_WAVELET, WAVELET_NAMES, default_levels, max_levels
 
-__all__ = ["StationaryTransform", "stationary_transform", "precision_for", "DTYPES", "BACKENDS"]
+__all__ = ["StationaryTransform", "stationary_transform", "precision_for", "check_fft_environment", "DTYPES",
+           "BACKENDS"]
 
 DTYPES = ("float64", "float32")
 """Precisions of the FFTs: ``"float64"`` (the reference) and ``"float32"``."""
@@ -46,6 +49,33 @@ DTYPES = ("float64", "float32")
 BACKENDS = ("ducc0", "scipy")
 """FFT libraries: ``"ducc0"`` (the default, docs/performance.md) and ``"scipy"`` (``scipy.fft``, the
 reference the tests compare with)."""
+
+def check_fft_environment() -> None:
+    """Refuse a thread count in the environment that ducc0 cannot read.
+
+    ducc0 reads ``DUCC0_NUM_THREADS``, else ``OMP_NUM_THREADS``, when its first FFT runs, whatever
+    ``workers`` says, and stops with a C++ assertion on anything but a whole number: an empty
+    value (``export OMP_NUM_THREADS=$UNSET_VARIABLE`` in a job script), ``4,2`` (valid for
+    OpenMP), ``-1``. Checked here, before any work, with the variable named.
+
+    Raises
+    ------
+    ValueError
+        Naming the variable and its value.
+
+    Examples
+    --------
+    >>> from awr_denoise.stationary import check_fft_environment
+    >>> check_fft_environment()  # the variables unset or whole numbers
+    """
+    for name in ("DUCC0_NUM_THREADS", "OMP_NUM_THREADS"):  # ducc0's order: the first one set counts
+        if name in os.environ:
+            value = os.environ[name]
+            if not re.fullmatch(r"\s*\+?\d+\s*", value):
+                raise ValueError(f"{name}={value!r}: the FFT library (ducc0) reads it as a whole number of threads; "
+                                 "set it to one, or unset it")
+            return
+
 
 _CACHE_BYTES = 64 * 2**20  # 2-D transfer functions kept per transform (all of them up to about 512x512)
 
@@ -174,6 +204,8 @@ class StationaryTransform:
         self.dtype = np.dtype(_checks.name("dtype", dtype, DTYPES))
         self.workers = _checks.whole("workers", workers, minimum=1, maximum=1024)
         self.backend = _checks.name("backend", backend, BACKENDS)
+        if self.backend == "ducc0":
+            check_fft_environment()
         self._complex = np.complex64 if self.dtype == np.float32 else np.complex128
         self._rows = _axis(h, self.levels, self.wavelet, False)
         self._cols = _axis(w, self.levels, self.wavelet, True)

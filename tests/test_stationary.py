@@ -230,3 +230,15 @@ def test_a_domain_beyond_float32_runs_its_stages_in_float64(domain):
         out = reconstruct(buffer, domain=Domain("log", **domain))
     reference = reconstruct(buffer, domain=Domain("log", **domain), precision="float64")
     np.testing.assert_allclose(out, reference, rtol=1e-12)
+
+
+@pytest.mark.parametrize("value", ["", "4,2", "-1", "abc", "1e3"])
+def test_a_thread_count_ducc0_cannot_read_is_named(monkeypatch, value):
+    # ducc0 stopped with a C++ assertion, "could not convert '' to desired data type", at its first FFT.
+    monkeypatch.delenv("DUCC0_NUM_THREADS", raising=False)
+    monkeypatch.setenv("OMP_NUM_THREADS", value)
+    with pytest.raises(ValueError, match="OMP_NUM_THREADS"):
+        StationaryTransform((8, 8))
+    StationaryTransform((8, 8), backend="scipy")  # scipy.fft reads neither
+    monkeypatch.setenv("DUCC0_NUM_THREADS", " 2 ")  # ducc0 reads it first; spaces are fine
+    StationaryTransform((8, 8)).forward(np.ones((8, 8)))
