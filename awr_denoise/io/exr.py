@@ -163,7 +163,7 @@ def _captured_c_output(path: str | os.PathLike[str]) -> Iterator[_Captured]:
     so it is written on to the stream it was meant for, and never read as a corruption report.
     """
     captured, name = _Captured(), os.fspath(path)
-    with _CAPTURE_LOCK, tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+    with _CAPTURE_LOCK, _temporary(name) as out, _temporary(name) as err:
         for stream in (sys.stdout, sys.stderr):  # None when the process started with it closed
             if stream is not None:
                 with contextlib.suppress(OSError, ValueError):  # the stream's own trouble is not the file's
@@ -193,6 +193,21 @@ def _captured_c_output(path: str | os.PathLike[str]) -> Iterator[_Captured]:
                     with open(fd, "wb", closefd=False) as stream:  # the bytes as they were printed
                         stream.write(passed)
             captured.text = "".join(reports)
+
+
+def _temporary(name: str) -> Any:
+    """A temporary file for the C library's messages; without one (no writable temporary folder,
+    no file descriptor left) the reading fails for the machine's reason, not as a corrupt file."""
+    try:
+        return tempfile.TemporaryFile()
+    except OSError as exc:
+        raise OSError(exc.errno if exc.errno in _RESOURCE_ERRNOS else None,
+                      f"{name}: no temporary file for OpenEXR's messages ({exc.strerror or exc}); "
+                      "set TMPDIR to a writable folder") from None
+
+
+# Failures of the machine, not of the file: kept as they are (exit 1), never called a corrupt EXR.
+_RESOURCE_ERRNOS = (errno.EMFILE, errno.ENFILE, errno.ENOMEM, errno.ENOSPC, errno.EFBIG)
 
 
 def _is_open(fd: int) -> bool:
@@ -232,14 +247,20 @@ def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list
                 name = header.get("name")
                 parts.append(ExrPart(i, str(name) if name is not None else None, header, channels,
                                      header.get("type") in deep_types))
-    except InputFileError:
+    except (InputFileError, MemoryError):
         raise
+    except OSError as exc:  # raised by this module's own calls (the capture), not by the bindings
+        if exc.errno is None or exc.errno in _RESOURCE_ERRNOS:
+            raise
+        raise _unreadable(p, str(exc), header_only) from None
     except Exception as exc:  # the bindings raise RuntimeError/ValueError/... for corrupt data
         detail = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise _unreadable(p, detail, header_only) from None
     if not parts or (captured.text and not header_only):
         # The bindings report unreadable pixel data on the C streams and return no parts.
         detail = captured.text.strip().splitlines()[-1] if captured.text.strip() else "no readable parts"
+        if "MemoryError" in captured.text:  # the bindings ran out of memory reading the pixels
+            raise MemoryError(f"reading {p}")
         raise _unreadable(p, detail.replace(os.fspath(p) + ": ", ""), header_only)
     if not header_only:
         for part in parts:
@@ -455,7 +476,8 @@ def write_exr(path: str | os.PathLike[str], channels: Mapping[str, np.ndarray],
             try:
                 f.write(tmp)
             except RuntimeError as exc:  # the bindings report I/O errors (a full disk) this way
-                code = errno.ENOSPC if "No space left" in str(exc) else errno.EIO
+                code = (errno.ENOSPC if "No space left" in str(exc) else
+                        errno.EFBIG if "File too large" in str(exc) else errno.EIO)
                 raise OSError(code, os.strerror(code), public_name(path)) from None
 
     return atomic_write(path, _write, overwrite=overwrite)
