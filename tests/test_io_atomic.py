@@ -246,13 +246,42 @@ def _scan_past_a_fifo_lock(tmp_path):
 
 
 def test_a_staging_directory_of_a_nested_writer_is_still_cleaned(tmp_path):
-    dead = tmp_path / f"{STAGING_PREFIX}0123456789.tmp"  # a killed OutputSet writer's: temporaries and backups
+    dead = tmp_path / f"{STAGING_PREFIX}0123456789.tmp"  # a killed OutputSet writer's temporaries
     (dead / f"{STAGING_PREFIX}abcdefabcd.tmp").mkdir(parents=True)
     (dead / "lock").write_bytes(b"")
     (dead / "1.exr").write_bytes(b"partial")
-    (dead / "2.exr.old").write_bytes(b"old")
     assert remove_stale_temporaries(tmp_path) == [dead]
     assert not dead.exists()
+
+
+def test_a_backup_of_a_replaced_file_is_never_removed(tmp_path):
+    # SIGKILL between two moves of a commit: out.exr new, out.png old, and the old out.exr only as
+    # the backup, which the next write into the folder removed.
+    dead = tmp_path / f"{STAGING_PREFIX}0123456789.tmp"
+    dead.mkdir()
+    (dead / "lock").write_bytes(b"")
+    (dead / "1.exr.old").write_bytes(b"the only copy")
+    assert remove_stale_temporaries(tmp_path) == []
+    assert (dead / "1.exr.old").read_bytes() == b"the only copy"
+
+
+def test_a_umask_without_owner_bits_still_writes(tmp_path):
+    # umask 0222 made the staging directory 0500: every write failed, "Permission denied", and a
+    # umask of 0777 left a directory no later run could list.
+    modes = []
+
+    def write(tmp):
+        modes.append(os.stat(Path(tmp).parent).st_mode & 0o777)  # root writes into 0o000 anyway: look
+        Path(tmp).write_text("done")
+
+    old = os.umask(0o777)
+    try:
+        atomic_write(tmp_path / "out.txt", write)
+    finally:
+        os.umask(old)
+    assert modes == [0o700]
+    assert (tmp_path / "out.txt").read_text() == "done"
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(STAGING_PREFIX)]
 
 
 def test_an_output_set_temporary_is_written_in_place_not_staged_again(tmp_path):

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -184,6 +186,17 @@ def test_threaded_reads_keep_stdout(tmp_path, capfd):
     assert results.count(None) == 20
     os.write(1, b"still here\n")
     assert "still here" in capfd.readouterr().out
+
+
+def test_a_locale_that_decodes_names_otherwise_is_named(tmp_path):
+    """In a locale whose file names are not UTF-8 (ASCII under LC_ALL=POSIX without coercion,
+    Latin-1), Python's name and OpenEXR's bytes differ: a UTF-8 name was "not valid UTF-8", and a
+    Latin-1 one was written under one name and then read as "truncated or corrupt" under another."""
+    code = ("import os\nfrom awr_denoise.io.atomic import check_utf8_name\n"
+            "try:\n    check_utf8_name(os.fsdecode(b'r\\xc3\\xa9.exr'))\nexcept ValueError as e:\n    print(e)\n")
+    env = dict(os.environ, LC_ALL="POSIX", PYTHONUTF8="0", PYTHONCOERCECLOCALE="0", PYTHONIOENCODING="utf-8")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    assert "decoded as ascii here" in out and "UTF-8 locale" in out, out
 
 
 def test_a_name_that_is_not_utf8_is_refused_naming_it(tmp_path):

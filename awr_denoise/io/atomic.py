@@ -34,12 +34,15 @@ import shutil
 import signal
 import socket
 import stat
+import sys
 import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import TracebackType
+
+from .._signals import TERMINATING_SIGNALS
 
 try:
     import fcntl
@@ -114,15 +117,26 @@ def check_utf8_name(path: str | os.PathLike[str]) -> None:
     """
     name = os.fspath(path)
     try:
-        name.decode("utf-8") if isinstance(name, bytes) else name.encode("utf-8")
-        return
+        if isinstance(name, bytes):
+            name.decode("utf-8")
+            return
+        if name.encode("utf-8") == os.fsencode(name):
+            return
     except UnicodeError:
         pass
     try:
-        shown = os.fsencode(name).decode("utf-8", "backslashreplace")
+        raw = os.fsencode(name)
+        shown = raw.decode("utf-8", "backslashreplace")
     except UnicodeError:  # a lone surrogate that no file name's bytes gave
-        shown = name.encode("utf-8", "backslashreplace").decode("utf-8")
-    raise ValueError(f"{shown}: the name is not valid UTF-8; rename the file") from None
+        raw, shown = b"\xff", name.encode("utf-8", "backslashreplace").decode("utf-8")
+    try:
+        raw.decode("utf-8")
+    except UnicodeError:
+        raise ValueError(f"{shown}: the name is not valid UTF-8; rename the file") from None
+    # UTF-8 bytes that this locale decodes otherwise (Latin-1, or ASCII under LC_ALL=POSIX):
+    # OpenEXR opens the name's UTF-8 bytes, another file than the one named.
+    raise ValueError(f"{shown}: file names are decoded as {sys.getfilesystemencoding()} here, and OpenEXR opens "
+                     "them as UTF-8; run in a UTF-8 locale (LC_ALL=C.UTF-8)") from None
 
 
 def check_readable(path: str | os.PathLike[str], *, what: str = "input") -> Path:
@@ -308,14 +322,16 @@ def remove_stale_temporaries(directory: str | os.PathLike[str]) -> list[Path]:
 
 
 def _holds_only_staged_files(path: str, depth: int = 0) -> bool:
-    """Whether the directory ``path`` holds only names a staging directory holds (nested once at most)."""
+    """Whether the directory ``path`` holds only names a staging directory holds (nested once at most),
+    and no backup of a replaced file: a process killed between two moves of its commit leaves the
+    only copy of a target's previous version there (``1.exr.old``), which is not removed."""
     try:
         with os.scandir(path) as entries:
             for entry in entries:
                 if entry.is_dir(follow_symlinks=False):
                     if depth or not _STAGING_NAME.match(entry.name) or not _holds_only_staged_files(entry.path, 1):
                         return False
-                elif not _STAGED_NAME.match(entry.name):
+                elif not _STAGED_NAME.match(entry.name) or entry.name.endswith(".old"):
                     return False
     except OSError:
         return False
@@ -341,6 +357,13 @@ class _Staging:
                 continue
         else:  # pragma: no cover - 8 collisions of 40 random bits
             raise FileExistsError(f"{directory}: cannot create a staging directory")
+        try:
+            # The umask took bits off 0o700 (0222 left 0500): the lock and the temporaries could
+            # not be made in it, and no later run could list it to clean it up.
+            os.chmod(path, 0o700)
+        except OSError:
+            shutil.rmtree(path, ignore_errors=True)
+            raise
         self.path = path
         self._count = 0
         self._fd: int | None = None
@@ -370,7 +393,8 @@ class _Staging:
 
 @contextlib.contextmanager
 def _signals_deferred() -> Iterator[None]:
-    """Hold SIGINT/SIGTERM/SIGHUP while files are moved into place, then act on them.
+    """Hold SIGINT, SIGTERM, SIGHUP and the other terminating signals while files are moved into
+    place, then act on them.
 
     Only the main thread can change handlers; elsewhere signals are not delivered to the
     calling thread anyway (Python runs handlers in the main thread).
@@ -380,7 +404,7 @@ def _signals_deferred() -> Iterator[None]:
         return
     pending: list[int] = []
     saved = {}
-    for s in (signal.SIGINT, signal.SIGTERM) + ((signal.SIGHUP,) if hasattr(signal, "SIGHUP") else ()):
+    for s in TERMINATING_SIGNALS:
         handler = signal.getsignal(s)
         if handler is signal.SIG_IGN or handler is None:
             continue
