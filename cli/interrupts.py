@@ -17,10 +17,12 @@ from collections.abc import Callable
 from types import FrameType
 from typing import Any
 
+from awr_denoise._signals import TERMINATING_SIGNALS
+
 __all__ = ["Terminated", "raising", "restore", "received", "check"]
 
-# SIGHUP exists on POSIX only.
-_SIGNALS = (signal.SIGINT, signal.SIGTERM) + ((signal.SIGHUP,) if hasattr(signal, "SIGHUP") else ())
+# SIGHUP, SIGUSR1... exist on POSIX only.
+_SIGNALS = TERMINATING_SIGNALS
 
 # The signal that arrived, kept even when the exception it raised was swallowed on the way up
 # (an interrupt inside a C extension's import comes back as an ImportError, or not at all).
@@ -28,7 +30,8 @@ _received: list[int] = []
 
 
 class Terminated(BaseException):
-    """SIGTERM or SIGHUP arrived (a BaseException like KeyboardInterrupt: only ``main`` catches it)."""
+    """SIGTERM, SIGHUP or another terminating signal arrived (a BaseException like KeyboardInterrupt:
+    only ``main`` catches it)."""
 
 
 def _raise(signum: int, frame: FrameType | None) -> None:
@@ -41,7 +44,8 @@ def _raise(signum: int, frame: FrameType | None) -> None:
 
 
 def raising() -> dict[int, Any] | None:
-    """Make SIGINT raise KeyboardInterrupt, SIGTERM and SIGHUP :class:`Terminated` (first signal only).
+    """Make SIGINT raise KeyboardInterrupt, SIGTERM, SIGHUP and the other terminating signals
+    :class:`Terminated` (first signal only).
 
     Returns the previous handlers for :func:`restore`, or None when called outside the main
     thread (only the main thread can set handlers; the caller's own handling then stays).
