@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import _checks
+from .._workers import exit_with_parent
 
 __all__ = ["EXECUTOR_KINDS", "DASK_INSTALL_HINT", "get_executor", "executor_or_threads", "executor_width",
            "submit", "default_workers", "dask_client"]
@@ -35,10 +36,12 @@ DASK_INSTALL_HINT = 'pip install "awr-denoise[dask]"'
 """How to install the optional Dask dependency."""
 
 
-def _leave_interrupts_to_the_parent() -> None:
+def _leave_interrupts_to_the_parent(parent: int) -> None:
     """Worker processes ignore Ctrl-C: the terminal sends it to the whole process group, and the
-    parent, which owns the pool, cancels the work and cleans up (no traceback per worker)."""
+    parent, which owns the pool, cancels the work and cleans up (no traceback per worker). They
+    end when the parent dies without closing the pool (SIGKILL): orphans stayed for good."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    exit_with_parent(parent)
 
 
 @contextlib.contextmanager
@@ -156,7 +159,7 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
         return
     if kind == "processes":
         with cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=multiprocessing.get_context("spawn"),
-                                    initializer=_leave_interrupts_to_the_parent) as pool:
+                                    initializer=_leave_interrupts_to_the_parent, initargs=(os.getpid(),)) as pool:
             yield pool
         return
     distributed = _import_distributed()

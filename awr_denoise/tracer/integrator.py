@@ -24,6 +24,7 @@ import dataclasses
 import logging
 import time as _time
 import multiprocessing
+import os
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -31,6 +32,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from .._workers import exit_with_parent
 from ..buffers import SampleBuffer
 from ..features import FEATURE_CHANNELS, feature_names
 from ..requests import SampleRequest
@@ -55,8 +57,9 @@ _worker_tracer: PathTracer | None = None
 
 
 def _start_worker(scene: Scene, seed: int, sampler: str, max_depth: int, batch_size: int,
-                  features: tuple[str, ...]) -> None:
+                  features: tuple[str, ...], parent: int) -> None:
     global _worker_tracer
+    exit_with_parent(parent)  # a parent killed without closing the pool left its workers for good
     _worker_tracer = PathTracer(scene, seed=seed, sampler=sampler, max_depth=max_depth, threads=1,
                                 batch_size=batch_size, features=features)
 
@@ -247,7 +250,7 @@ class PathTracer:
                     max_workers=self.threads, mp_context=multiprocessing.get_context("spawn"),
                     initializer=_start_worker,
                     initargs=(self.scene, self.seed, self.sampler_name, self.max_depth, self.batch_size,
-                              self.features))
+                              self.features, os.getpid()))
             futures = [self._pool.submit(_worker_trace, rows[lo:hi], cols[lo:hi], sample_index[lo:hi])
                        for lo, hi in bounds]
 

@@ -5,9 +5,12 @@ from __future__ import annotations
 import argparse
 import concurrent.futures as cf
 import contextlib
+import os
 import socket
+import subprocess
 import sys
 import threading
+import time
 
 import pytest
 
@@ -151,3 +154,35 @@ def test_a_service_that_never_answers_or_is_no_scheduler_is_refused(cluster, mon
     with pytest.raises(ConnectionError, match="a Dask Worker, not a scheduler"):
         with get_executor(scheduler=worker):
             pass
+
+
+_ORPHAN_SCRIPT = """
+import os, sys, time
+from awr_denoise.parallel import get_executor
+with get_executor("processes", workers=2) as pool:
+    pids = {f.result() for f in [pool.submit(os.getpid) for _ in range(8)]}
+    futures = [pool.submit(time.sleep, 60) for _ in range(2)]
+    print(" ".join(map(str, pids)), flush=True)
+    os.kill(os.getpid(), 9)  # the parent dies without closing the pool (a farm's timeout, the OOM killer)
+"""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    with open(f"/proc/{pid}/stat") as f:  # a zombie waiting for init is gone for our purpose
+        return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="needs /proc to see the workers")
+def test_process_workers_end_when_their_parent_is_killed():
+    # They stayed for good (parent 1), blocked on their pipes, with the pool's resource tracker.
+    done = subprocess.run([sys.executable, "-c", _ORPHAN_SCRIPT], capture_output=True, text=True, timeout=120)
+    pids = [int(p) for p in done.stdout.split()]
+    assert len(pids) >= 1, done.stderr
+    deadline = time.monotonic() + 20
+    while any(_alive(p) for p in pids) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not any(_alive(p) for p in pids)
