@@ -18,6 +18,7 @@ from tqdm import tqdm
 
 from ..buffers import SampleBuffer
 from ..io import provenance, read_header, read_image, read_provenance, write_image
+from ..io.atomic import check_writable
 from ..requests import SampleRequest
 from .integrator import PathTracer
 from .scene import load_scene
@@ -78,6 +79,10 @@ def render_reference(scene_name: str, *, spp: int = DEFAULT_REFERENCE_SPP, seed:
     _check_scene_name(scene_name)
     if int(spp) < 1:
         raise ValueError(f"spp: {spp} must be >= 1")
+    target = Path(path) if path is not None else reference_path(scene_name)
+    # A FIFO or a folder where the reference goes: refused now, not after minutes of rendering.
+    target.parent.mkdir(parents=True, exist_ok=True)
+    check_writable(target, overwrite=True)
     scene = load_scene(scene_name)
     tracer = PathTracer(scene, seed=seed, sampler=sampler, threads=threads, workers=workers)
     buffer = SampleBuffer.empty(tracer.shape)
@@ -91,8 +96,6 @@ def render_reference(scene_name: str, *, spp: int = DEFAULT_REFERENCE_SPP, seed:
     finally:
         tracer.close()
     image = buffer.mean
-    target = Path(path) if path is not None else reference_path(scene_name)
-    target.parent.mkdir(parents=True, exist_ok=True)
     half = np.clip(image, 0.0, _HALF_MAX).astype(np.float16)
     header = provenance(scene=scene_name, spp=int(spp), sampler=sampler, seed=int(seed),
                         nonfinite=int(buffer.nonfinite), render_seconds=round(float(tracer.stats["seconds"]), 1))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -548,6 +549,19 @@ def test_a_reference_dir_that_is_a_file_is_refused_before_any_render(tmp_path: P
         reference_path("default")
     monkeypatch.setenv("AWR_DENOISE_REFERENCE_DIR", str(tmp_path / "new"))  # to be created: fine
     assert reference_path("default") == tmp_path / "new" / "default.exr"
+
+
+def test_a_cached_reference_that_is_a_fifo_is_refused_before_any_render(tmp_path: Path,
+                                                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    # awr demo rendered the reference for 21 s, then refused to write over the FIFO.
+    from awr_denoise.tracer import load_reference
+    from awr_denoise.tracer import reference as module
+
+    os.mkfifo(tmp_path / "default.exr")
+    monkeypatch.setenv("AWR_DENOISE_REFERENCE_DIR", str(tmp_path))
+    monkeypatch.setattr(module, "PathTracer", None)  # any render would fail on this instead
+    with pytest.raises(ValueError, match="default.exr: is a FIFO"):
+        load_reference("default")
 
 
 @pytest.mark.exr
