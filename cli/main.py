@@ -2,8 +2,8 @@
 
 Subcommands: ``info``, ``denoise``, ``plan`` (ask), ``merge`` (tell), ``diff``, ``render``,
 ``demo``, ``bench``. Exit status: 0 success, 1 runtime failure, 2 bad usage or bad input,
-130 interrupted (Ctrl-C), 143 terminated (SIGTERM), 129 hung up (SIGHUP), 141 when the reader of
-stdout went away.
+130 interrupted (Ctrl-C), 143 terminated (SIGTERM), 129 hung up (SIGHUP), 128 + n for the other
+terminating signals (SIGUSR1...), 141 when the reader of stdout went away.
 A user mistake prints one line, ``awr: error: <file>: <channel>: <what>``, never a traceback.
 
 This module imports nothing heavy: :func:`main` installs the interrupt handling first and only
@@ -13,6 +13,7 @@ then imports the subcommands (and with them numpy, scipy and OpenEXR).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
 import importlib
 import os
@@ -103,8 +104,21 @@ def _silence_stdout() -> None:
         pass
 
 
-def _check_kernels() -> None:
-    """``AWR_DENOISE_KERNELS`` checked before any file is read or written (exit 2 if it is wrong)."""
+# The commands that run FFTs (the reconstruction, the samplers' noise gain): the thread-count
+# variables ducc0 reads are checked before their work, not found wrong after a render.
+_FFT_COMMANDS = ("denoise", "plan", "render", "demo", "bench")
+
+
+def _check_kernels(command: str | None) -> None:
+    """``AWR_DENOISE_KERNELS`` (and the FFTs' thread variables) checked before any file is read or
+    written (exit 2 if it is wrong)."""
+    if command in _FFT_COMMANDS:
+        from awr_denoise.stationary import check_fft_environment  # numpy: after the interrupt handling
+
+        try:
+            check_fft_environment()
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
     if not os.environ.get("AWR_DENOISE_KERNELS"):
         return  # the default kernels: nothing to check
     # Imported here, not at the top: it loads numpy, which must come after the interrupt handling.
@@ -135,7 +149,7 @@ def _run(argv: Sequence[str] | None) -> int:
     try:
         parser = build_parser()
         args = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
-        _check_kernels()
+        _check_kernels(getattr(args, "command", None))
         with one_line_warnings():
             status = int(args.run(args) or EXIT_OK)
         sys.stdout.flush()  # a closed pipe shows here, not at exit
@@ -154,6 +168,8 @@ def _run(argv: Sequence[str] | None) -> int:
     except MemoryError as exc:
         return _error(f"out of memory{': ' + str(exc) if str(exc) else ''}", EXIT_FAILURE)
     except ImportError as exc:
+        if "failed to map segment" in str(exc):  # the loader's words for a library that did not fit
+            return _error(f"out of memory loading a library ({_one_line(exc)})", EXIT_FAILURE)
         return _error(exc, EXIT_FAILURE)
     except Exception as exc:  # a bug, not a user mistake: say so, traceback on request
         if os.environ.get("AWR_TRACEBACK", "").strip().lower() in ("1", "true", "yes", "on"):
@@ -177,6 +193,11 @@ def _standard_streams() -> None:
     for name in ("stdin", "stdout", "stderr"):
         if getattr(sys, name) is None:  # Python sets None for a stream closed at start-up
             setattr(sys, name, open(os.devnull, "r" if name == "stdin" else "w", encoding="utf-8"))  # noqa: SIM115
+    for stream in (sys.stdout, sys.stderr):
+        # A name the stream's encoding cannot show (PYTHONIOENCODING=ascii, a non-UTF-8 name) is
+        # shown escaped: it failed the command on a valid file, "'ascii' codec can't encode".
+        with contextlib.suppress(AttributeError, ValueError, OSError):
+            stream.reconfigure(errors="backslashreplace")
 
 
 class _DiagnosticStream:
@@ -217,6 +238,19 @@ class _DiagnosticStream:
         return getattr(self._stream, name)
 
 
+def _one_blas_thread_under_a_memory_limit() -> None:
+    """Under an address-space limit (``ulimit -v``), OpenBLAS (loaded by scipy) retried its thread
+    buffers' ``mmap`` for ever at import, deaf to SIGTERM; with one thread it allocates none. The
+    command's own threads are its executor's, not BLAS's (its matrices are 3x3)."""
+    try:
+        import resource
+    except ImportError:  # not POSIX
+        return
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft != resource.RLIM_INFINITY:
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``awr`` command line and return its exit status.
 
@@ -225,6 +259,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv
         Arguments without the program name; ``sys.argv[1:]`` by default.
     """
+    _one_blas_thread_under_a_memory_limit()  # before numpy and scipy are imported
     _standard_streams()
     stderr = sys.stderr
     sys.stderr = _DiagnosticStream(stderr)  # type: ignore[assignment]
@@ -254,6 +289,9 @@ def _main(argv: Sequence[str] | None) -> int:
     if signum is not None and signum == getattr(signal, "SIGHUP", None):
         print("awr: hung up", file=sys.stderr)
         return EXIT_HANGUP
+    if signum is not None and signum != signal.SIGINT:  # SIGUSR1, SIGXCPU...: the shell's 128 + n
+        print(f"awr: terminated by {signal.Signals(signum).name}", file=sys.stderr)
+        return 128 + int(signum)
     if signum is not None or status is None:
         print("awr: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

@@ -157,11 +157,18 @@ def check_file_name(path: str | os.PathLike[str], option: str) -> None:
 
 
 def _check_name(entry: _Entry) -> None:
-    """Refuse a name the EXR library and the files' headers cannot carry (bytes that are not UTF-8)."""
+    """Refuse a name the EXR library and the files' headers cannot carry (bytes that are not UTF-8),
+    and a relative name when the current folder is gone (said "[Errno 2] No such file or directory")."""
     try:
         check_utf8_name(entry.path)
     except ValueError as exc:
         raise UsageError(f"{entry.option}: {exc}") from None
+    if not entry.path.is_absolute():
+        try:
+            os.getcwd()
+        except FileNotFoundError:
+            raise UsageError(f"{entry.option}: {entry.path}: the current folder no longer exists (deleted while "
+                             "this shell was in it); cd to a folder, or give absolute paths") from None
 
 
 def _resolved(entry: _Entry) -> Path:

@@ -106,7 +106,11 @@ def _outputs(root: Path) -> list[str]:
 
 @pytest.mark.parametrize(("signum", "status", "line"), [(signal.SIGINT, 130, "awr: interrupted"),
                                                         (signal.SIGTERM, 143, "awr: terminated"),
-                                                        (signal.SIGHUP, 129, "awr: hung up")])
+                                                        (signal.SIGHUP, 129, "awr: hung up"),
+                                                        # a scheduler's warning or a CPU limit: killed
+                                                        # without a word, the staging folder left
+                                                        (signal.SIGUSR1, 138, "awr: terminated by SIGUSR1"),
+                                                        (signal.SIGXCPU, 152, "awr: terminated by SIGXCPU")])
 def test_a_signal_after_the_first_output_leaves_no_partial_set(work, frames, signum, status, line):
     proc = _start(frames, work.root)
     _wait_for(proc, lambda: _staged(work.root))

@@ -13,6 +13,7 @@ import json
 import os
 import signal
 import stat
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,7 @@ pytest.importorskip("OpenEXR")
 
 from awr_denoise.cli.main import main  # noqa: E402
 from awr_denoise.io import read_sample_dump, write_image, write_sample_buffer  # noqa: E402
-from cli_helpers import dump_buffer, one_error_line  # noqa: E402
+from cli_helpers import awr_command, dump_buffer, one_error_line  # noqa: E402
 
 pytestmark = pytest.mark.exr
 
@@ -134,6 +135,16 @@ def test_hard_linked_outputs_are_one_file(work, capsys, monkeypatch):
     os.link(work / "x.exr", work / "y.png")
     _refused(work, capsys, ["denoise", "d.exr", "-o", "x.exr", "--preview", "y.png", "--overwrite"],
              "written twice")
+
+
+def test_a_relative_name_in_a_deleted_current_folder_is_named(work, capsys, monkeypatch):
+    gone = work.root / "gone"
+    gone.mkdir()
+    monkeypatch.chdir(gone)
+    gone.rmdir()  # the shell's folder deleted under it: "[Errno 2] No such file or directory"
+    assert main(["denoise", str(work / "d.exr"), "-o", "out.exr", "-q"]) == 2
+    one_error_line(capsys.readouterr().err, "out.exr", "current folder no longer exists")
+    assert main(["denoise", str(work / "d.exr"), "-o", str(work / "abs.exr"), "-q"]) == 0  # absolute: fine
 
 
 # ------------------------------------------------------------------ special files
@@ -306,6 +317,16 @@ def test_a_name_that_is_not_utf8_is_refused_before_any_work(work, capsys, monkey
     _refused(work, capsys, ["denoise", "d.exr", "-o", os.fsdecode(b"o\xfe.exr")], "-o/--output", "not valid UTF-8")
     _refused(work, capsys, ["render", "--renderer", "synthetic", "edges", "--width", "16", "--height", "16",
                             "-o", os.fsdecode(b"r\xfe.exr")], "-o/--output", "not valid UTF-8")
+
+
+def test_a_name_the_terminal_cannot_show_is_escaped_not_an_error(work):
+    """PYTHONIOENCODING=ascii: printing a valid file's non-ASCII name failed the command, exit 2."""
+    (work / "réndu.exr").write_bytes((work / "d.exr").read_bytes())
+    env = dict(os.environ, PYTHONIOENCODING="ascii")
+    done = subprocess.run([*awr_command(), "info", "réndu.exr"], cwd=work.root, env=env, capture_output=True,
+                          text=True, encoding="ascii", errors="strict", timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("r\\xe9ndu.exr: ")
 
 
 def test_an_output_that_is_a_symbolic_link_loop_is_refused(work, capsys, monkeypatch):

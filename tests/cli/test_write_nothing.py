@@ -9,6 +9,7 @@ from __future__ import annotations
 import errno
 import os
 import subprocess
+import sys
 import uuid
 from pathlib import Path
 
@@ -20,7 +21,7 @@ pytest.importorskip("OpenEXR")
 from awr_denoise.cli import denoise_cmd, render_cmd  # noqa: E402
 from awr_denoise.cli.main import main  # noqa: E402
 from awr_denoise.io import write_image, write_sample_buffer  # noqa: E402
-from cli_helpers import H, W, dump_buffer, one_error_line  # noqa: E402
+from cli_helpers import H, W, awr_command, dump_buffer, one_error_line  # noqa: E402
 
 pytestmark = pytest.mark.exr
 
@@ -178,3 +179,65 @@ def test_a_full_disk_is_one_line_exit_1_and_no_partial_file(work, capsys, monkey
     assert status == 1, err
     one_error_line(err, "o.exr", "No space left on device")
     assert os.listdir(tiny_disk) == []  # no image, no preview, no temporary
+
+
+# ------------------------------------------------------------------ the machine's limits
+
+def _limited(limit: str, value: int):
+    resource = pytest.importorskip("resource")  # POSIX
+
+    def apply() -> None:  # in the child, before exec: the limit is the run's, not the test's
+        resource.setrlimit(getattr(resource, limit), (value, value))
+    return apply
+
+
+def _run_limited(work, args, limit, value):
+    return subprocess.run([*awr_command(), *args], cwd=work.root, capture_output=True, text=True, timeout=120,
+                          preexec_fn=_limited(limit, value))
+
+
+def test_a_file_size_limit_is_named_not_an_io_error(work):
+    # ulimit -f: OpenEXR's "File too large" was reported as "Input/output error".
+    done = _run_limited(work, ["denoise", "d.exr", "-o", "o.exr", "-q"], "RLIMIT_FSIZE", 4096)
+    assert done.returncode == 1, done.stderr
+    one_error_line(done.stderr, "o.exr", "File too large")
+    assert not (work / "o.exr").exists()
+    assert not list(work.root.glob(".awr-*"))
+
+
+@pytest.mark.parametrize(("limit", "value", "needle"), [("RLIMIT_NOFILE", 6, "Too many open files"),
+                                                         ("RLIMIT_FSIZE", 0, "no temporary file")])
+def test_a_resource_limit_is_not_a_corrupt_input(work, limit, value, needle):
+    # Too few file descriptors, or no usable temporary folder: "truncated or corrupt EXR", exit 2.
+    done = _run_limited(work, ["info", "d.exr"], limit, value)
+    assert done.returncode == 1, done.stderr
+    line = one_error_line(done.stderr, needle)
+    assert "corrupt" not in line
+
+
+def test_an_unreadable_thread_count_is_refused_before_any_work(work, capsys, monkeypatch):
+    # ducc0 stops with a C++ assertion on OMP_NUM_THREADS='' (a job script's unset variable), after
+    # a render's whole work.
+    monkeypatch.chdir(work.root)
+    monkeypatch.setenv("OMP_NUM_THREADS", "")
+    assert main(["denoise", "d.exr", "-o", "o.exr", "-q"]) == 2
+    one_error_line(capsys.readouterr().err, "OMP_NUM_THREADS=''")
+    assert main(["render", "--renderer", "synthetic", "edges", "--width", "16", "--height", "16", "-o", "r.exr",
+                 "-q"]) == 2
+    one_error_line(capsys.readouterr().err, "OMP_NUM_THREADS=''")
+    assert not (work / "o.exr").exists() and not (work / "r.exr").exists()
+    assert main(["info", "d.exr"]) == 0  # no FFT there
+    monkeypatch.setenv("DUCC0_NUM_THREADS", "1")  # ducc0 reads this one first
+    assert main(["denoise", "d.exr", "-o", "o.exr", "-q"]) == 0
+
+
+def test_one_blas_thread_under_an_address_space_limit(work):
+    # ulimit -v: scipy's OpenBLAS retried its thread buffers' mmap for ever at import, deaf to SIGTERM.
+    code = ("import os\nfrom awr_denoise.cli import main\nmain._one_blas_thread_under_a_memory_limit()\n"
+            "print(os.environ.get('OPENBLAS_NUM_THREADS'))\n")
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    for value, expected in ((64 * 2**30, "1"), (None, "None")):
+        preexec = _limited("RLIMIT_AS", value) if value else None
+        done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120,
+                              preexec_fn=preexec)
+        assert done.stdout.strip() == expected, done.stderr
