@@ -659,13 +659,28 @@ def _refuse_unused(p: Path, why: str, **given: Any) -> None:
             raise file_error(p, f"{name}= / {_OPTION[name]} would be ignored: {why}")
 
 
+def _preset_variance(p: Path, preset: str, variance: str | None) -> bool:
+    """Whether ``variance=`` is absent or names the preset's own statistic: pbrt's ``Variance``
+    plane, or one of Mitsuba's second moments (``m2_<name>``, ``<layer>.m2_<name>``)."""
+    if variance is None:
+        return True
+    name = parse_plane(variance, p)[1]
+    if preset == "pbrt":
+        return name == "Variance" or name.startswith("Variance.")
+    return any(part.startswith("m2_") for part in name.split("."))
+
+
 def _resolve_preset(p: Path, f: _File, preset: str, color: str | None, variance: str | None,
                     count: str | None) -> str:
     if preset == "auto":
         preset = detect_preset(list(f.channels), f.header)
         # A plane named in a pbrt or Mitsuba file keeps the preset: read generically, pbrt's XYZ
         # variance and Mitsuba's XYZ second moments passed for sRGB variances, without a word.
-        if color is not None and preset not in ("pbrt", "mitsuba"):
+        # A variance plane of the user's own (not Variance.*, not m2_*) is not the preset's
+        # statistic: read as a second moment, it would be refused or silently wrong.
+        if preset in ("pbrt", "mitsuba") and not _preset_variance(p, preset, variance):
+            preset = "generic"
+        elif color is not None and preset not in ("pbrt", "mitsuba"):
             preset = "generic"
     if preset == "generic" and color is None and variance is None and count is None:
         raise file_error(p, "cannot detect the layout (channels: " + ", ".join(sorted(f.channels))

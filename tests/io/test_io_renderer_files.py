@@ -20,6 +20,7 @@ from awr_denoise import reconstruct  # noqa: E402
 from awr_denoise.cli.main import main  # noqa: E402
 from awr_denoise.errors import InputFileError, InputFileWarning  # noqa: E402
 from awr_denoise.io import read_image, read_independent_renders, read_sample_dump  # noqa: E402
+from awr_denoise.io.exr import write_exr  # noqa: E402
 
 DATA = Path(__file__).parent.parent / "data"
 GEN = DATA / "generate"
@@ -131,6 +132,25 @@ def test_mitsuba_two_moments_named_by_colour_keep_the_conversion(capsys):
     # Naming the planes the generic way keeps them Mitsuba's (it read XYZ as RGB and E[x^2] as a variance).
     assert main(["info", str(MI / "mitsuba_two.exr"), "--spp", "8", "--color", "a", "--variance", "m2_a"]) == 0
     assert "layout: mitsuba" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("name, colour", [("mitsuba/mitsuba_box.exr", "RGB"), ("pbrt/pbrt_gbuffer_fp32.exr", "RGB")])
+def test_a_variance_plane_of_the_users_own_is_read_generically(tmp_path, name, colour):
+    """A per-sample variance the user added to a renderer's file is not the preset's statistic:
+    read as Mitsuba's second moment or pbrt's XYZ variance it would be refused or silently wrong."""
+    planes = _channels(DATA / name)
+    rng = np.random.default_rng(3)
+    shape = planes["R"].shape
+    variance = {f"myvar.{c}": rng.uniform(0.5, 2.0, shape).astype(np.float32) for c in "RGB"}
+    path = tmp_path / "with_variance.exr"
+    write_exr(path, {k: v.astype(np.float32) for k, v in planes.items()} | variance,
+              header={"samplesPerPixel": 8} if "pbrt" in name else None)
+    auto = read_sample_dump(path, spp=8, color=colour, variance="myvar")
+    generic = read_sample_dump(path, spp=8, color=colour, variance="myvar", preset="generic")
+    np.testing.assert_array_equal(auto.buffer.mean, generic.buffer.mean)
+    np.testing.assert_array_equal(auto.buffer.variance, generic.buffer.variance)
+    stacked = np.stack([variance[f"myvar.{c}"] for c in "RGB"], axis=-1).astype(np.float64)
+    np.testing.assert_allclose(auto.buffer.variance, stacked)
 
 
 def test_xyz_image_is_not_compared_by_y_alone(capsys):
