@@ -117,6 +117,60 @@ def test_truncated_exr(tmp_path):
         read_image(tmp_path / "t.exr")
 
 
+def _claiming(path, side):
+    """A small valid file whose header claims ``side`` x ``side`` pixels (a corrupt header)."""
+    write_image(path, np.ones((64, 64, 3)))
+    data = bytearray(path.read_bytes())
+    for key in (b"dataWindow\0box2i\0", b"displayWindow\0box2i\0"):
+        at = data.find(key) + len(key) + 4  # after the attribute's size
+        data[at:at + 16] = np.array([0, 0, side - 1, side - 1], "<i4").tobytes()
+    path.write_bytes(bytes(data))
+    return path
+
+
+def test_a_header_claiming_more_than_the_machine_holds_is_the_files_error(tmp_path, monkeypatch):
+    """A 600-byte file claiming 2000000x2000000 pixels was "out of memory" (exit 1, the machine's
+    fault); it is the file's: refused naming it and the size it claims."""
+    from awr_denoise.cli.main import main
+    from awr_denoise.io import exr
+
+    path = _claiming(tmp_path / "huge.exr", 2_000_000)
+    with pytest.raises(InputFileError, match=r"huge\.exr: its data window claims [\d.]+ GiB of pixels"):
+        read_image(path)
+    assert main(["diff", str(path), "-r", str(path)]) == 2
+    # Memory the machine could hold but did not have is still the machine's (exit 1).
+    monkeypatch.setattr(exr, "_memory_limit", lambda: 2**62)
+    with pytest.raises(MemoryError):
+        read_image(path)
+
+
+def test_a_corrupt_file_under_a_folder_named_memoryerror_is_corrupt(tmp_path):
+    """The bindings' report names the file: a path holding "MemoryError" made any corrupt file
+    "out of memory"."""
+    folder = tmp_path / "MemoryError"
+    folder.mkdir()
+    write_image(folder / "a.exr", np.random.default_rng(1).random((64, 64, 3)))
+    data = (folder / "a.exr").read_bytes()
+    (folder / "t.exr").write_bytes(data[: len(data) // 2])
+    with pytest.raises(InputFileError, match=r"t\.exr: .*(truncated|corrupt)"):
+        read_image(folder / "t.exr")
+
+
+def test_the_bindings_report_is_caught_under_a_python_level_redirect(tmp_path):
+    """The bindings print through Python's sys.stdout: under a caller's redirect (a notebook) the
+    report leaked into it and the error said only "no readable parts"."""
+    import contextlib
+    import io
+
+    path = _claiming(tmp_path / "huge.exr", 2_000_000)
+    seen = io.StringIO()
+    with contextlib.redirect_stdout(seen), pytest.raises(InputFileError, match="claims"):
+        read_image(path)
+    with contextlib.redirect_stdout(seen):
+        print("the caller's own line")
+    assert seen.getvalue() == "the caller's own line\n"
+
+
 def test_other_output_during_a_read_is_passed_through_not_read_as_corruption(tmp_path, monkeypatch, capfd):
     """A progress bar drawn by another thread while OpenEXR reads lands in the read's capture.
 
