@@ -56,7 +56,7 @@ def check_fft_environment() -> None:
     ducc0 reads ``DUCC0_NUM_THREADS``, else ``OMP_NUM_THREADS``, when its first FFT runs, whatever
     ``workers`` says, and stops with a C++ assertion on anything but a whole number: an empty
     value (``export OMP_NUM_THREADS=$UNSET_VARIABLE`` in a job script), ``4,2`` (valid for
-    OpenMP), ``-1``. Checked here, before any work, with the variable named.
+    OpenMP), ``-1``, a number past ``2**63 - 1``. Checked here, before any work, with the variable named.
 
     Raises
     ------
@@ -71,7 +71,8 @@ def check_fft_environment() -> None:
     for name in ("DUCC0_NUM_THREADS", "OMP_NUM_THREADS"):  # ducc0's order: the first one set counts
         if name in os.environ:
             value = os.environ[name]
-            if not re.fullmatch(r"\s*\+?\d+\s*", value):
+            # ducc0 parses a C long: a longer number of digits stops it as an empty value does.
+            if not re.fullmatch(r"\s*\+?\d+\s*", value) or int(value) > 2**63 - 1:
                 raise ValueError(f"{name}={value!r}: the FFT library (ducc0) reads it as a whole number of threads; "
                                  "set it to one, or unset it")
             return

@@ -227,6 +227,12 @@ def test_an_unreadable_thread_count_is_refused_before_any_work(work, capsys, mon
     one_error_line(capsys.readouterr().err, "OMP_NUM_THREADS=''")
     assert not (work / "o.exr").exists() and not (work / "r.exr").exists()
     assert main(["info", "d.exr"]) == 0  # no FFT there
+    # plan runs one only for the measured noise model: the other routes plan, refused with it.
+    assert main(["plan", "d.exr", "-o", "q.exr", "--budget", "100", "-q"]) == 0
+    assert main(["plan", "d.exr", "-o", "m.exr", "--budget", "100", "--strategy", "awr", "--noise-model",
+                 "reconstruction", "-q"]) == 2
+    one_error_line(capsys.readouterr().err, "OMP_NUM_THREADS=''")
+    assert (work / "q.exr").exists() and not (work / "m.exr").exists()
     monkeypatch.setenv("DUCC0_NUM_THREADS", "1")  # ducc0 reads this one first
     assert main(["denoise", "d.exr", "-o", "o.exr", "-q"]) == 0
 
