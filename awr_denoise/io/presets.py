@@ -204,7 +204,7 @@ def detect_preset(channels: Sequence[str], header: dict) -> str:
     if str(header.get("awr:semantics", "")) == "sample-statistics" or (
             COUNT_CHANNEL in names and any(n.startswith(VARIANCE_PREFIX) for n in names)):
         return "awr"
-    if any(n.startswith("Variance.") for n in names):
+    if any(n.startswith("Variance.") for n in names) and not _moment_prefixes(names):  # pbrt writes no m2_*
         return "pbrt"
     if cycles_layers(names):
         return "cycles"
@@ -329,13 +329,19 @@ class _Layout:
     convert: tuple[np.ndarray, str] | None = None
 
 
+def _in_input(ctx: _Context, plane: _Plane) -> bool:
+    """Whether a plane is the input file's own (not ``other.exr:plane``): only there do the
+    renderer's conventions (pbrt's XYZ variance, Mitsuba's second moments) hold."""
+    return plane.path == ctx.path or plane.path.resolve() == ctx.path.resolve()
+
+
 def _pbrt(ctx: _Context) -> _Layout:
     colour = ctx.plane(ctx.color or "RGB", colour=True, what="colour")
     spread = ctx.plane(ctx.variance or "Variance", what="variance")
     # pbrt writes 0 where it has no estimate (environment-only pixels): unknown, not converged.
     known = ~(_values(spread, nonnegative=True) == 0).all(axis=-1)
     convert = None
-    if spread.channels == ("Variance.R", "Variance.G", "Variance.B"):
+    if spread.channels == ("Variance.R", "Variance.G", "Variance.B") and _in_input(ctx, spread):
         # GBufferFilm accumulates Variance on sensor RGB (CIE XYZ for the default sensor) and
         # converts only the means to the output colour space; also when the plane is named.
         convert = (PBRT_XYZ_TO_SRGB, "variance")
@@ -467,9 +473,14 @@ def _moment_prefixes(channels: Iterable[str]) -> list[str]:
 
 
 def _moment_mean(prefix: str) -> str:
-    """The mean plane of a second-moment plane: ``m2_a`` -> ``a``, ``img.m2_a`` -> ``img.a``."""
-    head, _, last = prefix.rpartition(".")
-    return f"{head}.{last[len('m2_'):]}" if head else last[len("m2_"):]
+    """The mean plane of a second-moment plane: ``m2_a`` -> ``a``, ``img.m2_a`` -> ``img.a``,
+    ``m2_main.albedo`` (an AOV's moment) -> ``main.albedo``."""
+    parts = prefix.split(".")
+    k = next((i for i, part in enumerate(parts) if part.startswith("m2_")), None)
+    if k is None:
+        return prefix
+    parts[k] = parts[k][len("m2_"):]
+    return ".".join(parts)
 
 
 def _moment_of(ctx: _Context, colour: str) -> str:
@@ -487,30 +498,41 @@ def _mono(colour: _Plane, spread: _Plane) -> bool:
             all(np.array_equal(planes[3], a) for a in planes[4:6]) and bool(np.any(planes[0])))
 
 
+def _mitsuba_moment(ctx: _Context) -> str:
+    """The second-moment plane to read: the named colour's, else the moment integrator's own."""
+    m2 = _moment_prefixes(ctx.file.channels)
+    if not m2:
+        raise file_error(ctx.path, "no m2_<name> second-moment channels (Mitsuba 3 moment integrator)", "m2_*")
+    if ctx.color is not None:
+        return _moment_of(ctx, ctx.color)
+    # The moment integrator's own results are <name>.X/Y/Z; RGB moments are AOVs.
+    # A normal AOV has X, Y, Z components too: feature AOVs are not the radiance.
+    xyz = [p for p in m2 if {"X", "Y", "Z"} <= _components(ctx, p)
+           and _moment_mean(p).rsplit(".", 1)[-1] not in _FEATURE_AOVS]
+    if len(xyz) > 1:
+        raise file_error(ctx.path, f"ambiguous: several second moments ({', '.join(xyz)}); choose one "
+                                   "with color= / --color NAME (the plane without m2_)", "m2_*")
+    return (xyz or m2)[0]
+
+
 def _mitsuba(ctx: _Context) -> _Layout:
-    variance = ctx.variance
-    if variance is None:
-        m2 = _moment_prefixes(ctx.file.channels)
-        if not m2:
-            raise file_error(ctx.path, "no m2_<name> second-moment channels (Mitsuba 3 moment integrator)", "m2_*")
-        if ctx.color is not None:
-            variance = _moment_of(ctx, ctx.color)
-        else:
-            # The moment integrator's own results are <name>.X/Y/Z; RGB moments are AOVs.
-            # A normal AOV has X, Y, Z components too: feature AOVs are not the radiance.
-            xyz = [p for p in m2 if {"X", "Y", "Z"} <= _components(ctx, p)
-                   and _moment_mean(p).rsplit(".", 1)[-1] not in _FEATURE_AOVS]
-            if len(xyz) > 1:
-                raise file_error(ctx.path, f"ambiguous: several second moments ({', '.join(xyz)}); choose one "
-                                           "with color= / --color NAME (the plane without m2_)", "m2_*")
-            variance = (xyz or m2)[0]
-    colour = ctx.plane(ctx.color or _moment_mean(variance), colour=True, what="colour")
-    spread = ctx.plane(variance, what="second moment")
+    # A variance plane of the user's own (not one of the input's m2_* moments) is read as a
+    # per-sample variance, in the preset, so its sample count and features are kept.
+    spread = None if ctx.variance is None else ctx.plane(ctx.variance, what="variance")
+    moments = spread is None or (_in_input(ctx, spread) and
+                                 any(p.startswith("m2_") for p in spread.channels[0].split(".")))
+    if moments:
+        variance = ctx.variance or _mitsuba_moment(ctx)
+        colour = ctx.plane(ctx.color or _moment_mean(variance), colour=True, what="colour")
+        spread = ctx.plane(variance, what="second moment")
+    else:
+        colour = ctx.plane(ctx.color or _moment_mean(_mitsuba_moment(ctx)), colour=True, what="colour")
+    assert spread is not None
     if len(spread.channels) > len(colour.channels):  # an alpha moment has no colour counterpart
         k = len(colour.channels)
         spread = _Plane(spread.path, spread.channels[:k], spread.arrays[:k])
     negative = (_values(spread) < 0).any(axis=-1)
-    if negative.any():  # E[x^2] of samples is never negative: the film's filter weighted some negatively
+    if moments and negative.any():  # E[x^2] of samples is never negative: the film's filter weighted some so
         raise file_error(spread.path, f"{int(negative.sum())} pixel(s) hold a negative second moment: the film's "
                                       "reconstruction filter has negative lobes (mitchell, catmullrom, lanczos); "
                                       "render the moments with rfilter box", spread.label)
@@ -520,17 +542,22 @@ def _mitsuba(ctx: _Context) -> _Layout:
         colour, spread = (_Plane(q.path, q.channels[1:2], q.arrays[1:2]) for q in (colour, spread))
         ctx.notes.append(f"{colour.label}: X, Y and Z are equal everywhere, a mono render's luminance: read as "
                          "one channel Y")
+    elif suffixes == ("X", "Y", "Z") and not moments and tuple(c.rsplit(".", 1)[-1] for c in spread.channels) \
+            != suffixes:
+        raise file_error(spread.path, f"{colour.label} is CIE XYZ and this variance is not (channels "
+                                      f"{', '.join(spread.channels)}): name a variance in X, Y, Z, or an RGB "
+                                      "colour plane", spread.label)
     elif suffixes == ("X", "Y", "Z"):
-        exact = None if ctx.color is not None else _mitsuba_rgb_twin(ctx, colour)
+        exact = None if ctx.color is not None or ctx.variance is not None else _mitsuba_rgb_twin(ctx, colour)
         if exact is not None:
             colour, spread = exact
             ctx.notes.append(f"colour: {colour.label}, an RGB AOV holding the same samples as the XYZ moments: "
                              "its own second moments give exact RGB variances")
         else:
             convert = (MITSUBA_XYZ_TO_SRGB, "mean_and_variance")
-            ctx.notes.append(f"{colour.label} moments are CIE XYZ: converted to linear sRGB (channels taken as "
-                             "fully correlated)")
-    kind = _kind(ctx.variance_kind, "second_moment")
+            ctx.notes.append(f"{colour.label} {'moments' if moments else 'and its variance'} are CIE XYZ: "
+                             "converted to linear sRGB (channels taken as fully correlated)")
+    kind = _kind(ctx.variance_kind, "second_moment" if moments else "sample")
     given = ctx.count_plane()
     if given is not None:
         return _Layout(colour, spread, kind, given[1], given[0], convert=convert)
@@ -659,28 +686,15 @@ def _refuse_unused(p: Path, why: str, **given: Any) -> None:
             raise file_error(p, f"{name}= / {_OPTION[name]} would be ignored: {why}")
 
 
-def _preset_variance(p: Path, preset: str, variance: str | None) -> bool:
-    """Whether ``variance=`` is absent or names the preset's own statistic: pbrt's ``Variance``
-    plane, or one of Mitsuba's second moments (``m2_<name>``, ``<layer>.m2_<name>``)."""
-    if variance is None:
-        return True
-    name = parse_plane(variance, p)[1]
-    if preset == "pbrt":
-        return name == "Variance" or name.startswith("Variance.")
-    return any(part.startswith("m2_") for part in name.split("."))
-
-
 def _resolve_preset(p: Path, f: _File, preset: str, color: str | None, variance: str | None,
                     count: str | None) -> str:
     if preset == "auto":
         preset = detect_preset(list(f.channels), f.header)
         # A plane named in a pbrt or Mitsuba file keeps the preset: read generically, pbrt's XYZ
         # variance and Mitsuba's XYZ second moments passed for sRGB variances, without a word.
-        # A variance plane of the user's own (not Variance.*, not m2_*) is not the preset's
-        # statistic: read as a second moment, it would be refused or silently wrong.
-        if preset in ("pbrt", "mitsuba") and not _preset_variance(p, preset, variance):
-            preset = "generic"
-        elif color is not None and preset not in ("pbrt", "mitsuba"):
+        # A variance plane of the user's own is read as such inside the preset (which keeps its
+        # sample count and features): see _pbrt and _mitsuba.
+        if color is not None and preset not in ("pbrt", "mitsuba"):
             preset = "generic"
     if preset == "generic" and color is None and variance is None and count is None:
         raise file_error(p, "cannot detect the layout (channels: " + ", ".join(sorted(f.channels))

@@ -134,23 +134,63 @@ def test_mitsuba_two_moments_named_by_colour_keep_the_conversion(capsys):
     assert "layout: mitsuba" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("name, colour", [("mitsuba/mitsuba_box.exr", "RGB"), ("pbrt/pbrt_gbuffer_fp32.exr", "RGB")])
-def test_a_variance_plane_of_the_users_own_is_read_generically(tmp_path, name, colour):
-    """A per-sample variance the user added to a renderer's file is not the preset's statistic:
-    read as Mitsuba's second moment or pbrt's XYZ variance it would be refused or silently wrong."""
-    planes = _channels(DATA / name)
-    rng = np.random.default_rng(3)
-    shape = planes["R"].shape
-    variance = {f"myvar.{c}": rng.uniform(0.5, 2.0, shape).astype(np.float32) for c in "RGB"}
+def test_a_variance_plane_of_the_users_own_in_a_mitsuba_file(tmp_path, capsys):
+    """A per-sample variance the user added is not one of Mitsuba's second moments: read as E[x^2]
+    it was refused, or wrong where it exceeds the squared mean. It is read as a variance, in the
+    preset (its XYZ converted like the moments)."""
+    planes = _channels(MI / "mitsuba_box.exr")
+    # The unbiased per-sample variance of the same 8 samples, as a user would store it.
+    own = {f"myvar.{c}": np.maximum(planes[f"m2_nested.{c}"] - planes[f"nested.{c}"] ** 2, 0) * 8 / 7
+           for c in "XYZ"}
+    rgb = {f"rgbvar.{c}": own[f"myvar.{x}"] for c, x in zip("RGB", "XYZ")}
     path = tmp_path / "with_variance.exr"
-    write_exr(path, {k: v.astype(np.float32) for k, v in planes.items()} | variance,
-              header={"samplesPerPixel": 8} if "pbrt" in name else None)
-    auto = read_sample_dump(path, spp=8, color=colour, variance="myvar")
-    generic = read_sample_dump(path, spp=8, color=colour, variance="myvar", preset="generic")
-    np.testing.assert_array_equal(auto.buffer.mean, generic.buffer.mean)
-    np.testing.assert_array_equal(auto.buffer.variance, generic.buffer.variance)
-    stacked = np.stack([variance[f"myvar.{c}"] for c in "RGB"], axis=-1).astype(np.float64)
-    np.testing.assert_allclose(auto.buffer.variance, stacked)
+    write_exr(path, {k: v.astype(np.float32) for k, v in (planes | own | rgb).items()})
+    moments = read_sample_dump(path, spp=8, color="nested")
+    users = read_sample_dump(path, spp=8, color="nested", variance="myvar")
+    assert users.buffer.channels == ("R", "G", "B")
+    np.testing.assert_array_equal(users.buffer.mean, moments.buffer.mean)
+    np.testing.assert_allclose(users.buffer.variance, moments.buffer.variance, rtol=1e-5,
+                               atol=1e-6 * moments.buffer.variance.max())
+    with pytest.raises(InputFileError, match="nested is CIE XYZ and this variance is not"):
+        read_sample_dump(path, spp=8, color="nested", variance="rgbvar")
+    assert main(["info", str(path), "--spp", "8", "--color", "nested", "--variance", "myvar"]) == 0
+    assert "layout: mitsuba" in capsys.readouterr().out
+
+
+def test_a_variance_plane_of_the_users_own_in_a_pbrt_file(tmp_path):
+    """pbrt's count and features are kept beside the user's variance (they were lost when it
+    switched to the generic reader); another file's ``Variance`` is not pbrt's XYZ."""
+    source = DATA / "pbrt" / "pbrt_gbuffer_fp32.exr"
+    planes = _channels(source)
+    rng = np.random.default_rng(3)
+    mine = {f"myvar.{c}": rng.uniform(0.5, 2.0, planes["R"].shape) for c in "RGB"}
+    path = tmp_path / "with_variance.exr"
+    write_exr(path, {k: v.astype(np.float32) for k, v in (planes | mine).items()},
+              header={"samplesPerPixel": 16})
+    read = read_sample_dump(path, variance="myvar")
+    assert set(read.buffer.features) == {"albedo", "normal", "depth"}
+    assert (read.buffer.count == 16).all()
+    stacked = np.stack([mine[f"myvar.{c}"] for c in "RGB"], axis=-1).astype(np.float32)
+    np.testing.assert_array_equal(read.buffer.variance, stacked.astype(np.float64))
+    other = tmp_path / "other.exr"
+    write_exr(other, {f"Variance.{c}": np.ones(planes["R"].shape, np.float32) for c in "RGB"})
+    named = read_sample_dump(path, variance=f"{other}:Variance")
+    np.testing.assert_array_equal(named.buffer.variance, 1.0)  # not converted from XYZ
+
+
+def test_an_aovs_moment_named_reads_with_its_mean(tmp_path):
+    """``m2_main.img`` (an AOV's moment inside ``moment``) was "m2_main.: no colour channel(s)";
+    a Mitsuba file holding a ``Variance.*`` plane of the user's was read as pbrt's."""
+    named = read_sample_dump(MI / "mitsuba_aov.exr", spp=4, variance="m2_main.img")
+    by_colour = read_sample_dump(MI / "mitsuba_aov.exr", spp=4, color="main.img")
+    np.testing.assert_array_equal(named.buffer.mean, by_colour.buffer.mean)
+    np.testing.assert_array_equal(named.buffer.variance, by_colour.buffer.variance)
+    planes = _channels(MI / "mitsuba_box.exr")
+    path = tmp_path / "with_variance.exr"
+    write_exr(path, {k: v.astype(np.float32) for k, v in planes.items()}
+              | {f"Variance.{c}": np.ones_like(planes["R"], np.float32) for c in "RGB"})
+    np.testing.assert_array_equal(read_sample_dump(path, spp=8).buffer.mean,
+                                  read_sample_dump(MI / "mitsuba_box.exr", spp=8).buffer.mean)
 
 
 def test_xyz_image_is_not_compared_by_y_alone(capsys):
