@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import io
 import os
 import re
 import stat
@@ -173,29 +172,15 @@ def _captured_c_output(path: str | os.PathLike[str]) -> Iterator[_Captured]:
         # A closed stdout or stderr (a daemon, `>&-`) is left closed: nothing to restore, nothing lost.
         sinks = [(sink, fd) for sink, fd in ((out, 1), (err, 2)) if _is_open(fd) and sink.fileno() != fd]
         saved = [os.dup(fd) for _, fd in sinks]
-        # The bindings print their pixel-data report through Python's sys.stdout, which need not
-        # be file descriptor 1 (a notebook, a test runner, a caller's redirect_stdout): caught too.
-        py_out, py_err = io.StringIO(), io.StringIO()
         try:
             for sink, fd in sinks:
                 os.dup2(sink.fileno(), fd)
-            with contextlib.redirect_stdout(py_out), contextlib.redirect_stderr(py_err):
-                yield captured
+            yield captured
         finally:
             for (_, fd), kept in zip(sinks, saved):
                 os.dup2(kept, fd)
                 os.close(kept)
             reports = []
-            for text, stream in ((py_out.getvalue(), sys.stdout), (py_err.getvalue(), sys.stderr)):
-                passed_text = ""
-                for line in text.splitlines(keepends=True):
-                    if _exr_message(line.rstrip("\r\n"), name):
-                        reports.append(line)
-                    else:
-                        passed_text += line
-                if passed_text and stream is not None:
-                    with contextlib.suppress(OSError, ValueError):
-                        stream.write(passed_text)
             for sink, fd in sinks:
                 sink.seek(0)
                 passed = bytearray()
@@ -266,7 +251,9 @@ def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list
     except InputFileError:
         raise
     except MemoryError:
-        raise _too_large(p) from None
+        if header_only:
+            raise
+        raise _out_of_memory(p) from None
     except OSError as exc:  # raised by this module's own calls (the capture), not by the bindings
         if exc.errno is None or exc.errno in _RESOURCE_ERRNOS:
             raise
@@ -277,8 +264,12 @@ def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list
     if not parts or (captured.text and not header_only):
         # The bindings report unreadable pixel data on the C streams and return no parts.
         detail = captured.text.strip().splitlines()[-1] if captured.text.strip() else "no readable parts"
-        if _MEMORY_REPORT.search(captured.text):  # the bindings ran out of memory reading the pixels
-            raise _too_large(p)
+        # The bindings' report names the file: a path holding their phrase must not be read as it.
+        if _MEMORY_REPORT.search(captured.text.replace(os.fspath(p), "")):
+            raise _out_of_memory(p)  # the bindings ran out of memory reading the pixels
+        impossible = None if captured.text else _impossible_size(p)  # their report may have gone elsewhere
+        if impossible is not None:
+            raise impossible
         raise _unreadable(p, detail.replace(os.fspath(p) + ": ", ""), header_only)
     if not header_only:
         for part in parts:
@@ -293,37 +284,41 @@ def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list
 _MEMORY_REPORT = re.compile(r"^Warning: Exception raised reading pixel data for part \d+ - MemoryError\b", re.M)
 
 
-def _too_large(path: Path) -> Exception:
-    """The error for a read that ran out of memory: the file's (for a header claiming more pixels
-    than this machine can hold, e.g. 200000x200000 in a 10 KB file), else the machine's."""
+# No EXR compression shrinks pixels a millionfold (zlib's bound is about 1032:1): a header claiming
+# more than this many times the file's size is corrupt, whatever the machine's memory.
+_MAX_RATIO = 2**20
+
+
+def _claimed_bytes(path: Path) -> int:
+    """A lower bound on the bytes the headers' data windows claim (2 a sample: HALF), 0 if unknown."""
     claimed = 0
     with contextlib.suppress(InputFileError, OSError, MemoryError, KeyError, TypeError, ValueError):
         for part in read_exr(path, header_only=True):
             (x0, y0), (x1, y1) = header_windows(part.header)["dataWindow"]
-            pixels = (int(x1) - int(x0) + 1) * (int(y1) - int(y0) + 1)
-            for ch in part.header.get("channels", ()):  # at least 2 bytes a sample (HALF)
+            pixels = (x1 - x0 + 1) * (y1 - y0 + 1)
+            for ch in part.header.get("channels", ()):
                 claimed += 2 * pixels // max(1, int(ch.xSampling) * int(ch.ySampling))
-    limit = _memory_limit()
-    if limit is not None and claimed > limit:
-        return file_error(path, f"its data window claims {claimed / 2**30:.1f} GiB of pixels, more than this "
-                                f"machine's {limit / 2**30:.1f} GiB of memory: a corrupt header, or an image too "
-                                "large to read here")
-    return MemoryError(f"reading {path}")
+    return claimed
 
 
-def _memory_limit() -> int | None:
-    """Bytes this process could ever hold: physical memory, or a lower address-space limit."""
-    try:
-        limit = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
-        return None
-    with contextlib.suppress(ImportError, ValueError, OSError):
-        import resource  # POSIX only: elsewhere physical memory is the limit
+def _impossible_size(path: Path, claimed: int | None = None) -> InputFileError | None:
+    """The file's error if its headers claim more pixel data than its size could hold."""
+    claimed = _claimed_bytes(path) if claimed is None else claimed
+    with contextlib.suppress(OSError):
+        if claimed > _MAX_RATIO * max(path.stat().st_size, 1):
+            return file_error(path, f"its data window claims {claimed / 2**30:.3g} GiB of pixels in a file of "
+                                    f"{path.stat().st_size} bytes (truncated or corrupt header)")
+    return None
 
-        soft = resource.getrlimit(resource.RLIMIT_AS)[0]
-        if soft != resource.RLIM_INFINITY:
-            limit = min(limit, soft)
-    return limit
+
+def _out_of_memory(path: Path) -> Exception:
+    """A read that ran out of memory: the file's error for a header no file of its size could
+    hold (200000x200000 pixels in 600 bytes), else the machine's, naming the claimed size."""
+    claimed = _claimed_bytes(path)
+    impossible = _impossible_size(path, claimed)
+    if impossible is not None:
+        return impossible
+    return MemoryError(f"reading {path}" + (f" (its pixels take {claimed / 2**30:.3g} GiB or more)" if claimed else ""))
 
 
 def _unreadable(path: Path, detail: str, header_only: bool) -> InputFileError:
