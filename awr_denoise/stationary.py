@@ -71,8 +71,8 @@ def check_fft_environment() -> None:
     for name in ("DUCC0_NUM_THREADS", "OMP_NUM_THREADS"):  # ducc0's order: the first one set counts
         if name in os.environ:
             value = os.environ[name]
-            # ducc0 parses a C long: a longer number of digits stops it as an empty value does.
-            if not re.fullmatch(r"\s*\+?\d+\s*", value) or int(value) > 2**63 - 1:
+            # ducc0 parses a C long from ASCII: more digits, or non-ASCII digits or spaces, stop it.
+            if not re.fullmatch(r"\s*\+?[0-9]+\s*", value, re.ASCII) or int(value) > 2**63 - 1:
                 raise ValueError(f"{name}={value!r}: the FFT library (ducc0) reads it as a whole number of threads; "
                                  "set it to one, or unset it")
             return

@@ -232,7 +232,7 @@ def test_a_domain_beyond_float32_runs_its_stages_in_float64(domain):
     np.testing.assert_allclose(out, reference, rtol=1e-12)
 
 
-@pytest.mark.parametrize("value", ["", "4,2", "-1", "abc", "1e3", "9223372036854775808"])
+@pytest.mark.parametrize("value", ["", "4,2", "-1", "abc", "1e3", "9223372036854775808", "\u0663", "\uff19", "\u20034"])
 def test_a_thread_count_ducc0_cannot_read_is_named(monkeypatch, value):
     # ducc0 stopped with a C++ assertion, "could not convert '' to desired data type", at its first FFT.
     monkeypatch.delenv("DUCC0_NUM_THREADS", raising=False)
