@@ -191,6 +191,33 @@ def test_an_impossible_claim_is_found_under_a_python_level_redirect(tmp_path):
         read_image(path)
 
 
+
+def test_where_the_bindings_reason_went_is_said(tmp_path, monkeypatch):
+    """As the bindings do: print the reason through Python's sys.stdout and return no parts."""
+    import contextlib
+    import io
+
+    from awr_denoise.io import exr
+
+    write_image(tmp_path / "a.exr", np.ones((4, 4, 3)))
+    real = exr._openexr()
+
+    class Silent:
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+        @contextlib.contextmanager
+        def File(self, *args, **kwargs):  # noqa: N802 - OpenEXR's name
+            print("Warning: Exception raised reading pixel data for part 0 - MemoryError: Unable to allocate")
+            yield type("NoParts", (), {"parts": []})()
+
+    monkeypatch.setattr(exr, "_openexr", lambda: Silent())
+    seen = io.StringIO()
+    with contextlib.redirect_stdout(seen), pytest.raises(InputFileError, match="printed its reason to Python"):
+        read_image(tmp_path / "a.exr")
+    assert "MemoryError" in seen.getvalue()
+
+
 def test_a_folder_named_like_the_bindings_report_is_not_read_as_it(tmp_path, monkeypatch):
     # OpenEXR's lines start with the path as given: a relative one can start like the report.
     monkeypatch.chdir(tmp_path)

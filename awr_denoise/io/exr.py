@@ -267,9 +267,13 @@ def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list
         # The bindings' report names the file: a path holding their phrase must not be read as it.
         if _MEMORY_REPORT.search(captured.text.replace(os.fspath(p), "")):
             raise _out_of_memory(p)  # the bindings ran out of memory reading the pixels
-        impossible = None if captured.text else _impossible_size(p)  # their report may have gone elsewhere
+        # Their report may have gone elsewhere; the headers' own read never asks (it would recurse).
+        impossible = None if captured.text or header_only else _impossible_size(p)
         if impossible is not None:
             raise impossible
+        if not captured.text and _python_stdout_elsewhere():
+            # Not captured here (a global swap of sys.stdout would reach other threads): said where.
+            detail += "; OpenEXR printed its reason to Python's sys.stdout"
         raise _unreadable(p, detail.replace(os.fspath(p) + ": ", ""), header_only)
     if not header_only:
         for part in parts:
@@ -277,6 +281,15 @@ def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list
                 if arr is None or (not part.deep and arr.shape != part.shape):
                     raise file_error(p, "truncated or corrupt EXR (channel data missing)", name)
     return parts
+
+
+def _python_stdout_elsewhere() -> bool:
+    """Whether Python's sys.stdout, where the bindings print their pixel-data report, is not file
+    descriptor 1 (a notebook, a test runner, a caller's ``redirect_stdout``)."""
+    try:
+        return sys.stdout is not None and sys.stdout.fileno() != 1
+    except (AttributeError, OSError, ValueError):  # io.UnsupportedOperation is both
+        return True
 
 
 # The bindings' own report of running out of memory; anchored so that a file or folder named
