@@ -133,9 +133,14 @@ def run(args: argparse.Namespace) -> int:
         if given:
             raise UsageError(f"{given[0]}: features are not read with --independent (each render's would need "
                              "merging as a render of its own)")
+        kwargs = plane_kwargs(args)
+        # Independent renders' variance is their spread; a named plane would be ignored.
+        for key, option in (("variance", "--variance"), ("variance_kind", "--variance-kind")):
+            if kwargs.get(key) is not None:
+                raise UsageError(f"{option}: not read with --independent (the variance is the renders' spread "
+                                 "about their mean)")
         if not args.allow_duplicates:
             _refuse_duplicates(args.inputs)
-        kwargs = plane_kwargs(args)
         dump = read_independent_renders(args.inputs, **{k: kwargs[k] for k in ("preset", "color", "count", "spp",
                                                                                  "layer", "view")})
         write_sample_buffer(args.output, dump.buffer, header=windows, overwrite=args.overwrite)

@@ -332,7 +332,12 @@ class _Layout:
 def _in_input(ctx: _Context, plane: _Plane) -> bool:
     """Whether a plane is the input file's own (not ``other.exr:plane``): only there do the
     renderer's conventions (pbrt's XYZ variance, Mitsuba's second moments) hold."""
-    return plane.path == ctx.path or plane.path.resolve() == ctx.path.resolve()
+    if plane.path == ctx.path:
+        return True
+    try:
+        return os.path.samefile(plane.path, ctx.path)  # a link, hard or symbolic, to the input is the input
+    except OSError:
+        return False
 
 
 def _pbrt(ctx: _Context) -> _Layout:
@@ -474,9 +479,10 @@ def _moment_prefixes(channels: Iterable[str]) -> list[str]:
 
 def _moment_mean(prefix: str) -> str:
     """The mean plane of a second-moment plane: ``m2_a`` -> ``a``, ``img.m2_a`` -> ``img.a``,
-    ``m2_main.albedo`` (an AOV's moment) -> ``main.albedo``."""
+    ``m2_main.albedo`` (an AOV's moment) -> ``main.albedo``, ``m2_pass.m2_a`` -> ``m2_pass.a``."""
     parts = prefix.split(".")
-    k = next((i for i, part in enumerate(parts) if part.startswith("m2_")), None)
+    # The last such component: a layer may itself be named m2_<...> (m2_pass.m2_a -> m2_pass.a).
+    k = next((i for i in reversed(range(len(parts))) if parts[i].startswith("m2_")), None)
     if k is None:
         return prefix
     parts[k] = parts[k][len("m2_"):]
@@ -493,6 +499,8 @@ def _moment_of(ctx: _Context, colour: str) -> str:
 
 def _mono(colour: _Plane, spread: _Plane) -> bool:
     """X, Y and Z equal everywhere (and not all zero): a ``mono`` variant's luminance, not a colour."""
+    if len(colour.arrays) < 3 or len(spread.arrays) < 3:  # a user's one-channel variance: not a mono triple
+        return False
     planes = [np.asarray(a) for a in colour.arrays[:3] + spread.arrays[:3]]
     return (all(np.array_equal(planes[0], a) for a in planes[1:3]) and
             all(np.array_equal(planes[3], a) for a in planes[4:6]) and bool(np.any(planes[0])))
@@ -523,14 +531,19 @@ def _mitsuba(ctx: _Context) -> _Layout:
                                  any(p.startswith("m2_") for p in spread.channels[0].split(".")))
     if moments:
         variance = ctx.variance or _mitsuba_moment(ctx)
-        colour = ctx.plane(ctx.color or _moment_mean(variance), colour=True, what="colour")
+        # A moment named with its file (input.exr:m2_a) has its mean in the input, by plane name.
+        colour = ctx.plane(ctx.color or _moment_mean(parse_plane(variance, ctx.path)[1]), colour=True,
+                           what="colour")
         spread = ctx.plane(variance, what="second moment")
     else:
         colour = ctx.plane(ctx.color or _moment_mean(_mitsuba_moment(ctx)), colour=True, what="colour")
     assert spread is not None
     if len(spread.channels) > len(colour.channels):  # an alpha moment has no colour counterpart
-        k = len(colour.channels)
-        spread = _Plane(spread.path, spread.channels[:k], spread.arrays[:k])
+        keep = [i for i, c in enumerate(spread.channels) if c.rsplit(".", 1)[-1] not in _ALPHA]
+        spread = _Plane(spread.path, tuple(spread.channels[i] for i in keep), tuple(spread.arrays[i] for i in keep))
+    if len(spread.channels) != len(colour.channels):
+        raise file_error(spread.path, f"{len(spread.channels)} variance channel(s) ({', '.join(spread.channels)}) "
+                                      f"for the {len(colour.channels)} of the colour {colour.label}", spread.label)
     negative = (_values(spread) < 0).any(axis=-1)
     if moments and negative.any():  # E[x^2] of samples is never negative: the film's filter weighted some so
         raise file_error(spread.path, f"{int(negative.sum())} pixel(s) hold a negative second moment: the film's "

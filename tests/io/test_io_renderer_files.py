@@ -193,6 +193,58 @@ def test_an_aovs_moment_named_reads_with_its_mean(tmp_path):
                                   read_sample_dump(MI / "mitsuba_box.exr", spp=8).buffer.mean)
 
 
+def test_a_moment_named_with_its_file_or_through_a_link_is_still_a_moment(tmp_path):
+    """``input.exr:m2_nested`` read E[x^2] as the colour (exit 0); a hard link to the input was
+    not the input, so its moment was read as a per-sample variance."""
+    planes = _channels(MI / "mitsuba_box.exr")
+    path = tmp_path / "box.exr"
+    write_exr(path, {k: v.astype(np.float32) for k, v in planes.items()})
+    (tmp_path / "hard.exr").hardlink_to(path)
+    expected = read_sample_dump(path, spp=8).buffer
+    for spec in (f"{path}:m2_nested", f"{tmp_path / 'hard.exr'}:m2_nested"):
+        got = read_sample_dump(path, spp=8, variance=spec).buffer
+        np.testing.assert_array_equal(got.mean, expected.mean)
+        np.testing.assert_array_equal(got.variance, expected.variance)
+
+
+def test_a_users_variance_of_another_width_is_refused_not_cut(tmp_path):
+    """A one-channel variance beside a mono file's X,Y,Z was an IndexError; an R,G,B,Z variance
+    beside R,G,B lost its Z without a word (the cut was meant for an alpha moment)."""
+    mono = _channels(MI / "mitsuba_mono.exr")
+    box = _channels(MI / "mitsuba_box.exr")
+    path = tmp_path / "mono.exr"
+    ones = np.ones_like(mono["nested.Y"], np.float32)
+    write_exr(path, {k: v.astype(np.float32) for k, v in mono.items()} | {"v1": ones})
+    with pytest.raises(InputFileError, match=r"1 variance channel\(s\) \(v1\) for the 3 of the colour"):
+        read_sample_dump(path, spp=8, variance="v1")
+    path = tmp_path / "box.exr"
+    write_exr(path, {k: v.astype(np.float32) for k, v in box.items()}
+              | {f"v4.{c}": np.ones_like(box["R"], np.float32) for c in "RGBZ"})
+    with pytest.raises(InputFileError, match=r"4 variance channel\(s\)"):
+        read_sample_dump(path, spp=8, color="RGB", variance="v4")
+    write_exr(path, {k: v.astype(np.float32) for k, v in box.items()}
+              | {f"v4.{c}": np.full_like(box["R"], 1e-6, np.float32) for c in "RGBA"}, overwrite=True)
+    read = read_sample_dump(path, spp=8, color="RGB", variance="v4")  # an alpha variance is dropped
+    np.testing.assert_array_equal(read.buffer.variance, np.float32(1e-6))
+
+
+def test_a_layer_named_like_a_moment(tmp_path):
+    planes = _channels(MI / "mitsuba_box.exr")
+    path = tmp_path / "layer.exr"
+    write_exr(path, {f"m2_pass.{k}": v.astype(np.float32) for k, v in planes.items() if "nested" in k})
+    got = read_sample_dump(path, spp=8, variance="m2_pass.m2_nested").buffer
+    np.testing.assert_array_equal(got.mean, read_sample_dump(MI / "mitsuba_box.exr", spp=8).buffer.mean)
+
+
+def test_independent_renders_refuse_a_named_variance(tmp_path, capsys):
+    files = [str(p) for p in sorted(CY.glob("cycles_seed_*.exr"))]
+    for option in ("--variance", "--variance-kind"):
+        value = "x" if option == "--variance" else "sample"
+        assert main(["merge", *files, "--independent", "-o", str(tmp_path / "o.exr"), option, value]) == 2
+        assert f"{option}: not read with --independent" in capsys.readouterr().err
+    assert not (tmp_path / "o.exr").exists()
+
+
 def test_xyz_image_is_not_compared_by_y_alone(capsys):
     with pytest.raises(InputFileError, match="X,Y,Z"):
         read_image(MI / "mitsuba_xyz.exr")
