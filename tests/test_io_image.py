@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -118,9 +119,14 @@ def test_truncated_exr(tmp_path):
         read_image(tmp_path / "t.exr")
 
 
-def _claiming(path, side):
+def _claiming(path, side, compression=None):
     """A small valid file whose header claims ``side`` x ``side`` pixels (a corrupt header)."""
-    write_image(path, np.ones((64, 64, 3)))
+    if compression is None:
+        write_image(path, np.ones((64, 64, 3)))
+    else:
+        with OpenEXR.File({"compression": compression, "type": OpenEXR.scanlineimage},
+                          {c: np.ones((64, 64), np.float16) for c in "RGB"}) as f:
+            f.write(str(path))
     data = bytearray(path.read_bytes())
     for key in (b"dataWindow\0box2i\0", b"displayWindow\0box2i\0"):
         at = data.find(key) + len(key) + 4  # after the attribute's size
@@ -138,6 +144,48 @@ def test_a_header_claiming_more_than_its_file_holds_is_the_files_error(tmp_path,
     with pytest.raises(InputFileError, match=r"huge\.exr: its data window claims [\d.e+]+ GiB of pixels in a file "):
         read_image(path)
     assert main(["diff", str(path), "-r", str(path)]) == 2
+
+
+def test_a_compression_without_a_bound_is_never_called_impossible(tmp_path):
+    """HTJ2K keeps a chunk's size almost constant as it grows (a valid 20000x20000 constant tile
+    takes 627 bytes, over a millionfold): no claim proves such a file corrupt, so running out of
+    memory stays the machine's."""
+    path = _claiming(tmp_path / "htj2k.exr", 2_000_000, OpenEXR.HTJ2K256_COMPRESSION)
+    # A fresh process: its sys.stdout is file descriptor 1, where the bindings' report is read.
+    run = "import sys; from awr_denoise.cli.main import main; sys.exit(main(sys.argv[1:]))"
+    done = subprocess.run([sys.executable, "-c", run, "diff", str(path), "-r", str(path)], capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 1, done.stderr
+    assert "out of memory" in done.stderr and "its pixels take" in done.stderr
+
+
+@pytest.mark.parametrize("report", ["Warning: Exception raised reading pixel data for part 0 - std::bad_alloc",
+                                    "{path}: (EXR_ERR_OUT_OF_MEMORY) Decode pipeline unable to allocate"])
+def test_the_cxx_and_openexr_out_of_memory_reports_are_out_of_memory(tmp_path, monkeypatch, report):
+    """Valid tiled files under ``ulimit -v`` were "truncated or corrupt" (exit 2): the C++
+    allocator's and OpenEXR's own reports of running out of memory were not recognised."""
+    from awr_denoise.io import exr
+
+    path = tmp_path / "a.exr"
+    write_image(path, np.ones((4, 4, 3)))
+    real = exr._openexr()
+
+    class Starved:
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+        @contextlib.contextmanager
+        def File(self, *args, header_only=False, **kwargs):  # noqa: N802 - OpenEXR's name
+            if header_only:
+                with real.File(*args, header_only=True, **kwargs) as f:
+                    yield f
+                return
+            os.write(1, (report.format(path=path) + "\n").encode())  # as the C++ library prints
+            yield type("NoParts", (), {"parts": []})()
+
+    monkeypatch.setattr(exr, "_openexr", lambda: Starved())
+    with pytest.raises(MemoryError, match="its pixels take"):
+        read_image(path)
 
 
 def test_running_out_of_memory_on_a_plausible_file_is_the_machines(tmp_path, monkeypatch):

@@ -292,34 +292,46 @@ def _python_stdout_elsewhere() -> bool:
         return True
 
 
-# The bindings' own report of running out of memory; anchored so that a file or folder named
-# "MemoryError" in another report (a corrupt file's path) is not taken for it.
-_MEMORY_REPORT = re.compile(r"^Warning: Exception raised reading pixel data for part \d+ - MemoryError\b", re.M)
+# The bindings' own reports of running out of memory (Python's, the C++ allocator's, OpenEXR's),
+# matched with the file's path removed so that a path holding their phrase is not taken for one.
+_MEMORY_REPORT = re.compile(r"^Warning: Exception raised reading pixel data for part \d+ - "
+                            r"(MemoryError|std::bad_alloc)\b|\(EXR_ERR_OUT_OF_MEMORY\)", re.M)
 
+# Compressions whose ratio is bounded far below _MAX_RATIO: zlib's is about 1032:1 a chunk, zstd's
+# 32768:1 (a run-length block), RLE's 64:1, the others' fixed or a zlib stage's. HTJ2K (and any
+# compression added later) keeps its per-chunk size almost constant as the chunk grows: no bound.
+_BOUNDED = {"NO", "RLE", "ZIPS", "ZIP", "PIZ", "PXR24", "B44", "B44A", "DWAA", "DWAB", "ZSTD"}
 
-# No EXR compression shrinks pixels a millionfold (zlib's bound is about 1032:1): a header claiming
-# more than this many times the file's size is corrupt, whatever the machine's memory.
+# No bounded compression shrinks pixels a millionfold: a header claiming more than this many
+# times the file's size is corrupt, whatever the machine's memory.
 _MAX_RATIO = 2**20
 
 
-def _claimed_bytes(path: Path) -> int:
-    """A lower bound on the bytes the headers' data windows claim (2 a sample: HALF), 0 if unknown."""
-    claimed = 0
+def _claimed_bytes(path: Path) -> tuple[int, bool]:
+    """A lower bound on the bytes the headers' flat data windows claim (2 a sample: HALF; 0 if
+    unknown), and whether every part's compression bounds its ratio (deep parts never do: a pixel
+    may hold no sample)."""
+    claimed, bounded = 0, True
     with contextlib.suppress(InputFileError, OSError, MemoryError, KeyError, TypeError, ValueError):
         for part in read_exr(path, header_only=True):
+            name = str(part.header.get("compression", "")).rsplit(".", 1)[-1].removesuffix("_COMPRESSION")
+            bounded = bounded and not part.deep and name in _BOUNDED
+            if part.deep:
+                continue
             (x0, y0), (x1, y1) = header_windows(part.header)["dataWindow"]
             pixels = (x1 - x0 + 1) * (y1 - y0 + 1)
             for ch in part.header.get("channels", ()):
                 claimed += 2 * pixels // max(1, int(ch.xSampling) * int(ch.ySampling))
-    return claimed
+        return claimed, bounded
+    return 0, False
 
 
-def _impossible_size(path: Path, claimed: int | None = None) -> InputFileError | None:
+def _impossible_size(path: Path, claimed: tuple[int, bool] | None = None) -> InputFileError | None:
     """The file's error if its headers claim more pixel data than its size could hold."""
-    claimed = _claimed_bytes(path) if claimed is None else claimed
+    size, bounded = _claimed_bytes(path) if claimed is None else claimed
     with contextlib.suppress(OSError):
-        if claimed > _MAX_RATIO * max(path.stat().st_size, 1):
-            return file_error(path, f"its data window claims {claimed / 2**30:.3g} GiB of pixels in a file of "
+        if bounded and size > _MAX_RATIO * max(path.stat().st_size, 1):
+            return file_error(path, f"its data window claims {size / 2**30:.3g} GiB of pixels in a file of "
                                     f"{path.stat().st_size} bytes (truncated or corrupt header)")
     return None
 
@@ -331,7 +343,8 @@ def _out_of_memory(path: Path) -> Exception:
     impossible = _impossible_size(path, claimed)
     if impossible is not None:
         return impossible
-    return MemoryError(f"reading {path}" + (f" (its pixels take {claimed / 2**30:.3g} GiB or more)" if claimed else ""))
+    size = claimed[0]
+    return MemoryError(f"reading {path}" + (f" (its pixels take {size / 2**30:.3g} GiB or more)" if size else ""))
 
 
 def _unreadable(path: Path, detail: str, header_only: bool) -> InputFileError:
