@@ -72,7 +72,9 @@ def check_fft_environment() -> None:
         if name in os.environ:
             value = os.environ[name]
             # ducc0 parses a C long from ASCII: more digits, or non-ASCII digits or spaces, stop it.
-            if not re.fullmatch(r"\s*\+?[0-9]+\s*", value, re.ASCII) or int(value) > 2**63 - 1:
+            digits = value.strip(" \t\n\r\f\v").lstrip("+").lstrip("0")  # leading zeros: any number (ducc0 too)
+            valid = re.fullmatch(r"\s*\+?[0-9]+\s*", value, re.ASCII) is not None
+            if not valid or len(digits) > 19 or int(digits or 0) > 2**63 - 1:
                 raise ValueError(f"{name}={value!r}: the FFT library (ducc0) reads it as a whole number of threads; "
                                  "set it to one, or unset it")
             return

@@ -9,7 +9,8 @@ from numpy.testing import assert_allclose
 from scipy import stats
 
 from awr_denoise import stationary
-from awr_denoise.stationary import BACKENDS, StationaryTransform, _plane_indices, stationary_transform
+from awr_denoise.stationary import (BACKENDS, StationaryTransform, _plane_indices, check_fft_environment,
+                                    stationary_transform)
 
 MC_DRAWS = 3000
 MC_FAMILY_ALPHA = 1e-3
@@ -240,5 +241,7 @@ def test_a_thread_count_ducc0_cannot_read_is_named(monkeypatch, value):
     with pytest.raises(ValueError, match="OMP_NUM_THREADS"):
         StationaryTransform((8, 8))
     StationaryTransform((8, 8), backend="scipy")  # scipy.fft reads neither
+    monkeypatch.setenv("DUCC0_NUM_THREADS", "0" * 5000 + "2")  # leading zeros are fine (not Python's digit limit)
+    check_fft_environment()
     monkeypatch.setenv("DUCC0_NUM_THREADS", " 2 ")  # ducc0 reads it first; spaces are fine
     StationaryTransform((8, 8)).forward(np.ones((8, 8)))
