@@ -294,8 +294,10 @@ def _python_stdout_elsewhere() -> bool:
 
 # The bindings' own reports of running out of memory (Python's, the C++ allocator's, OpenEXR's),
 # matched with the file's path removed so that a path holding their phrase is not taken for one.
+# OpenEXR's EXR_ERR_OUT_OF_MEMORY alone is not one: it also reports corrupt compressed data
+# ("Unable to decompress ... got 0"); only its failed allocation is.
 _MEMORY_REPORT = re.compile(r"^Warning: Exception raised reading pixel data for part \d+ - "
-                            r"(MemoryError|std::bad_alloc)\b|\(EXR_ERR_OUT_OF_MEMORY\)", re.M)
+                            r"(MemoryError|std::bad_alloc)\b|\(EXR_ERR_OUT_OF_MEMORY\) Unable to allocate\b", re.M)
 
 # Compressions whose ratio is bounded far below _MAX_RATIO: zlib's is about 1032:1 a chunk, zstd's
 # 32768:1 (a run-length block), RLE's 64:1, the others' fixed or a zlib stage's. HTJ2K (and any
