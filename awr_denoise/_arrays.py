@@ -10,21 +10,58 @@ import numpy as np
 
 from ._typing import CountArray, FloatArray, Shape2D
 
-__all__ = ["as_float64", "check_finite", "check_count", "flat_pixel_index", "pixel_moments", "as_mask",
-           "ReadOnlyArrays", "summed_counts"]
+__all__ = ["plain", "numeric", "frozen", "as_float64", "check_finite", "check_count", "flat_pixel_index",
+           "pixel_moments", "as_mask", "ReadOnlyArrays", "summed_counts"]
+
+
+def plain(name: str, array: object) -> np.ndarray:
+    """``np.asarray(array)``, refusing a masked array that masks anything: ``asarray`` drops the mask
+    and the values under it would be used (a masked firefly kept, a masked NaN reported as a NaN)."""
+    if isinstance(array, np.ma.MaskedArray):
+        masked = int(np.ma.getmaskarray(array).sum())
+        if masked:
+            raise TypeError(f"{name}: a masked array with {masked} masked entries; fill them (numpy.ma.filled) or "
+                            "leave those pixels or samples out")
+    return np.asarray(array)
+
+
+def numeric(name: str, array: object) -> np.ndarray:
+    """:func:`plain`, refusing complex (its imaginary part would be dropped), bool (a mask passed by
+    mistake), object and string arrays, naming ``name``."""
+    a = plain(name, array)
+    if a.dtype.kind == "c":
+        raise TypeError(f"{name}: complex values are not supported")
+    if a.dtype.kind not in "fiu":
+        raise TypeError(f"{name}: expected a numeric array, got dtype {a.dtype}")
+    return a
+
+
+def frozen(array: np.ndarray, *, adopt: bool = False) -> np.ndarray:
+    """A read-only, C-ordered view of ``array`` whose memory's owner is read-only too: numpy lets
+    anyone set ``writeable`` back on an array that owns its memory (a sampler's request edited
+    after ``ask()`` was then checked against itself by ``tell()``), never on a view of a read-only
+    owner. ``adopt``: the owner is the library's own, handed over (made read-only, not copied)."""
+    a = np.ascontiguousarray(array)
+    owner = a
+    while isinstance(owner.base, np.ndarray):
+        owner = owner.base
+    if owner is not a and owner.flags.writeable and not adopt:  # someone else's memory: a copy of our own
+        a = owner = a.copy()
+    owner.flags.writeable = False
+    view = a.view()
+    view.flags.writeable = False
+    return view
 
 
 def as_float64(name: str, array: object, ndim: int, *, copy: bool = True) -> FloatArray:
-    """A float64 copy of a numeric array of ``ndim`` dimensions (complex and bool refused);
-    ``copy=False``: the array itself if it is float64 already."""
-    a = np.asarray(array)
-    if a.dtype.kind == "c":
-        raise TypeError(f"{name}: complex values are not supported")
-    if a.dtype.kind not in "fiu":  # bools are not values (a mask passed by mistake)
-        raise TypeError(f"{name}: expected a numeric array, got dtype {a.dtype}")
+    """A C-ordered float64 copy of a numeric array of ``ndim`` dimensions (complex, bool and masked
+    entries refused); ``copy=False``: the array itself if it is C-ordered float64 already."""
+    a = numeric(name, array)
     if a.ndim != ndim:
         raise ValueError(f"{name}: expected {ndim} dimensions, got shape {a.shape}")
-    return a.astype(np.float64, copy=copy)
+    # C order: a buffer of a transposed (W, H) array would otherwise keep its memory order, and a
+    # result's last bits (and every file writer) depended on it.
+    return a.astype(np.float64, order="C", copy=copy)
 
 
 def check_finite(name: str, a: FloatArray) -> None:
@@ -37,7 +74,7 @@ def check_finite(name: str, a: FloatArray) -> None:
 
 def check_count(count: object, name: str = "count") -> CountArray:
     """(H, W) whole, non-negative sample counts as int64 (``name``: the parameter a refusal names)."""
-    c = np.asarray(count)
+    c = plain(name, count)
     if c.ndim != 2:
         raise ValueError(f"{name}: expected shape (H, W), got {c.shape}")
     if c.dtype.kind == "f":
@@ -50,7 +87,7 @@ def check_count(count: object, name: str = "count") -> CountArray:
         raise TypeError(f"{name}: expected an integer array, got dtype {c.dtype}")
     elif c.dtype.kind == "u" and (c > 2**62).any():  # cast to int64 it would wrap and read as negative
         raise ValueError(f"{name}: {int((c > 2**62).sum())} pixel(s) exceed 2**62, the most int64 counts hold safely")
-    c = c.astype(np.int64)
+    c = c.astype(np.int64, order="C")
     if (c < 0).any():
         raise ValueError(f"{name}: {int((c < 0).sum())} pixel(s) are negative")
     if c.sum(dtype=np.float64) > 2**62:  # summed in float64: an int64 sum would wrap to a negative total
@@ -71,7 +108,7 @@ def summed_counts(a: CountArray, b: CountArray) -> CountArray:
 def flat_pixel_index(pixels: np.ndarray, shape: Shape2D) -> np.ndarray:
     """Row-major flat indices of ``(row, col)`` pairs or flat indices, checked against ``shape``."""
     h, w = shape
-    p = np.asarray(pixels)
+    p = plain("pixels", pixels)
     if p.dtype.kind not in "iu":
         raise TypeError(f"pixels: expected integer coordinates, got dtype {p.dtype}")
     if p.ndim == 2 and p.shape[1] == 2:
@@ -130,7 +167,7 @@ def pixel_moments(pixel: np.ndarray, values: FloatArray, n_pixels: int,
 def as_mask(name: str, array: object) -> np.ndarray:
     """A boolean array from booleans or the numbers 0 and 1; NaN, 0.5 or a string is refused, not cast
     (``bool(nan)`` is True)."""
-    a = np.asarray(array)
+    a = plain(name, array)
     if a.dtype == bool:
         return a
     if a.dtype.kind not in "fiu":
@@ -147,6 +184,4 @@ class ReadOnlyArrays:
 
     def __setstate__(self, state: dict) -> None:
         for name, value in state.items():
-            if isinstance(value, np.ndarray):
-                value.flags.writeable = False
-            object.__setattr__(self, name, value)
+            object.__setattr__(self, name, frozen(value) if isinstance(value, np.ndarray) else value)

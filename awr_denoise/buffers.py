@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import _checks
-from ._arrays import (ReadOnlyArrays, as_float64, as_mask, check_count, check_finite, flat_pixel_index,
+from ._arrays import (ReadOnlyArrays, as_float64, as_mask, check_count, check_finite, flat_pixel_index, frozen, plain,
                       pixel_moments, summed_counts)
 from ._typing import BoolArray, CountArray, FloatArray, Shape2D
 from .channels import channel_count, default_channel_names, luminance_weights, resolve_channels  # noqa: F401 - re-exported
@@ -119,8 +119,7 @@ class SampleBuffer(ReadOnlyArrays):
         if unknown.any():
             variance[unknown] = 0.0
         channels = resolve_channels(self.channels, mean.shape[2])
-        for a in (count, mean, variance, known):
-            a.flags.writeable = False
+        count, mean, variance, known = (frozen(a, adopt=not copy) for a in (count, mean, variance, known))
         object.__setattr__(self, "count", count)
         object.__setattr__(self, "mean", mean)
         object.__setattr__(self, "variance", variance)
@@ -191,8 +190,8 @@ class SampleBuffer(ReadOnlyArrays):
         if variance_kind not in VARIANCE_KINDS:
             raise ValueError(f"variance_kind: {variance_kind!r} is not one of {', '.join(VARIANCE_KINDS)}")
         count_arr = check_count(count)
-        mean_arr = np.asarray(mean)
-        var_arr = np.asarray(variance)
+        mean_arr = plain("mean", mean)
+        var_arr = plain("variance", variance)
         if mean_arr.ndim == 2:
             mean_arr = mean_arr[..., None]
         if var_arr.ndim == 2:
@@ -217,7 +216,7 @@ class SampleBuffer(ReadOnlyArrays):
                                      "mean: not E[x^2] (variance_kind)")
                 spread = np.maximum(spread, 0.0)
                 var_arr = np.where(n > 1, spread * n / np.maximum(n - 1, 1), 0.0)
-        known = np.ones(count_arr.shape, bool) if variance_known is None else np.asarray(variance_known)
+        known = np.ones(count_arr.shape, bool) if variance_known is None else plain("variance_known", variance_known)
         return cls(count_arr, mean_arr, var_arr, resolve_channels(channels, mean_arr.shape[2]), known,
                    features=features or {})
 
@@ -239,7 +238,7 @@ class SampleBuffer(ReadOnlyArrays):
         (array([[2., 5.]]), array([[2., 0.]]), array([[ True, False]]))
         """
         count_arr = check_count(count)
-        s1, s2 = np.asarray(sum), np.asarray(sum_sq)  # their dtypes checked, not cast: complex is refused
+        s1, s2 = plain("sum", sum), plain("sum_sq", sum_sq)  # their dtypes checked, not cast: complex is refused
         if s1.ndim == 2:
             s1, s2 = s1[..., None], s2[..., None]
         s1, s2 = as_float64("sum", s1, 3), as_float64("sum_sq", s2, 3)
@@ -300,7 +299,7 @@ class SampleBuffer(ReadOnlyArrays):
             raise ValueError(f"nonfinite: {nonfinite!r} is not one of {', '.join(NONFINITE_POLICIES)}")
         h, w = _checks.shape2d("shape", shape)  # whole sides within the limits: (2.7, 1) is not (2, 1)
         flat = flat_pixel_index(pixels, (h, w))
-        vals = np.asarray(values)
+        vals = plain("values", values)
         if vals.ndim == 1:
             vals = vals[:, None]
         if vals.ndim != 2 or vals.shape[0] != flat.shape[0]:
@@ -382,8 +381,8 @@ class SampleBuffer(ReadOnlyArrays):
         >>> int(buf.count[0, 0]), float(buf.mean[0, 0, 0]), float(buf.variance[0, 0, 0])
         (12, 2.0, 4.0)
         """
-        c = np.asarray(counts)
-        m = np.asarray(means)
+        c = plain("counts", counts)
+        m = plain("means", means)
         if m.ndim == 3:
             m = m[..., None]
         if c.ndim != 3 or m.ndim != 4 or m.shape[:3] != c.shape:
@@ -538,7 +537,7 @@ class SampleBuffer(ReadOnlyArrays):
 
 def _feature_rows(name: str, rows: object, n: int) -> FloatArray:
     """Per-sample values of feature ``name`` as an (N, channels) float64 copy."""
-    a = np.asarray(rows)
+    a = plain(f"features[{name!r}]", rows)
     a = a[:, None] if a.ndim == 1 else a
     width = len(FEATURE_CHANNELS.get(name, ()))
     if not width:

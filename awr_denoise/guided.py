@@ -53,6 +53,7 @@ import numpy as np
 from scipy import ndimage
 
 from . import _checks
+from ._arrays import plain
 from ._typing import FloatArray
 from .buffers import SampleBuffer
 from .prepare import filled_mean
@@ -115,7 +116,7 @@ def checked_guide(guide: object, buffer: SampleBuffer) -> FloatArray:
     ...
     ValueError: guide: shape (3, 2, 3) does not match the buffer's (2, 3, 3)
     """
-    given = np.asarray(guide)
+    given = plain("guide", guide)
     if given.dtype.kind not in "fiu":  # complex (cast to its real part), bool, object: refused as by the buffers
         raise TypeError(f"guide: expected a real (H, W, C) array, got dtype {given.dtype}")
     array = given.astype(np.float64)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._arrays import numeric
 from ._typing import FloatArray
 from .buffers import SampleBuffer
 from .prepare import filled_mean
@@ -53,8 +54,8 @@ def _auxiliary(name: str, given: object, buffer: SampleBuffer, low: float, high:
             return None
         given = buffer.features[name].mean
     try:
-        image = np.asarray(given, dtype=np.float64)
-    except (TypeError, ValueError) as error:
+        image = numeric(name, given).astype(np.float64)  # complex, bool, object and masked entries refused
+    except ValueError as error:  # ragged lists
         raise ValueError(f"{name}: expected an (H, W, 3) array of numbers ({error})") from None
     if image.shape != (*buffer.shape, 3):
         raise ValueError(f"{name}: shape {image.shape} does not match the buffer's {(*buffer.shape, 3)}")

@@ -12,6 +12,7 @@ import numpy as np
 from scipy import ndimage
 
 from . import _checks
+from ._arrays import numeric
 from ._typing import FloatArray
 
 __all__ = ["mse", "relmse", "psnr", "ssim", "tonemap", "RELMSE_EPSILON", "METRICS", "HIGHER_IS_BETTER"]
@@ -20,11 +21,8 @@ RELMSE_EPSILON = 0.01
 
 
 def _pair(x: FloatArray, reference: FloatArray) -> tuple[FloatArray, FloatArray]:
-    for name, arr in (("image", x), ("reference", reference)):
-        if np.asarray(arr).dtype.kind not in "fiu":
-            raise TypeError(f"{name}: expected a numeric array, got dtype {np.asarray(arr).dtype}")
-    a = np.asarray(x, dtype=np.float64)
-    b = np.asarray(reference, dtype=np.float64)
+    a = numeric("image", x).astype(np.float64, copy=False)
+    b = numeric("reference", reference).astype(np.float64, copy=False)
     if a.shape != b.shape:
         raise ValueError(f"reference: shape {b.shape} does not match image {a.shape}")
     if a.size == 0:
@@ -90,7 +88,7 @@ def tonemap(x: FloatArray, *, exposure: float = 0.0) -> FloatArray:
     """
     exposure = _checks.real("exposure", exposure)
     with np.errstate(over="ignore"):  # 2**1023 already saturates every positive float
-        v = np.clip(np.asarray(x, dtype=np.float64) * 2.0 ** min(exposure, 1023.0), 0.0, 1.0)
+        v = np.clip(numeric("x", x).astype(np.float64) * 2.0 ** min(exposure, 1023.0), 0.0, 1.0)
     return np.where(v <= 0.0031308, 12.92 * v, 1.055 * np.power(v, 1 / 2.4) - 0.055)
 
 

@@ -19,7 +19,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from . import _checks
-from ._arrays import ReadOnlyArrays
+from ._arrays import ReadOnlyArrays, check_count, frozen
 from ._typing import CountArray, FloatArray, Shape2D
 from .buffers import SampleBuffer
 
@@ -67,32 +67,18 @@ class SampleRequest(ReadOnlyArrays):
     sampler_id: int = 0
 
     def __post_init__(self) -> None:
-        counts = np.array(self.counts, copy=True)
-        first = np.array(self.first_index, copy=True)
-        for name, a in (("counts", counts), ("first_index", first)):
-            if a.ndim != 2:
-                raise ValueError(f"{name}: expected shape (H, W), got {a.shape}")
-            if a.dtype.kind not in "iu":
-                if (a.dtype.kind == "f" and np.isfinite(a).all() and (a == np.round(a)).all()
-                        and not (np.abs(a) > 2**62).any()):
-                    pass
-                else:
-                    raise TypeError(f"{name}: expected whole numbers, got dtype {a.dtype}")
-        counts = counts.astype(np.int64)
-        first = first.astype(np.int64)
+        # check_count refuses NaN, fractions, masked entries and a uint64 past 2**62 (cast first, it read
+        # as negative), naming the field; it returns a C-ordered int64 copy.
+        counts = check_count(self.counts, "counts")
+        first = check_count(self.first_index, "first_index")
         if counts.size == 0:
             raise ValueError(f"counts: empty image of shape {counts.shape}")
         if counts.shape != first.shape:
             raise ValueError(f"first_index: shape {first.shape} does not match counts {counts.shape}")
-        if (counts < 0).any():
-            raise ValueError(f"counts: {int((counts < 0).sum())} pixel(s) are negative")
-        if (first < 0).any():
-            raise ValueError(f"first_index: {int((first < 0).sum())} pixel(s) are negative")
         # The total summed in float64 (an int64 sum would wrap to a negative number); last indices compared exactly.
         if counts.sum(dtype=np.float64) > 2**62 or (first > 2**62 - counts).any():
             raise ValueError("counts: more than 2**62 samples in all or at a pixel's last index (int64's safe range)")
-        counts.flags.writeable = False
-        first.flags.writeable = False
+        counts, first = frozen(counts), frozen(first)
         object.__setattr__(self, "counts", counts)
         object.__setattr__(self, "first_index", first)
         object.__setattr__(self, "round", _checks.whole("round", self.round, minimum=0, maximum=2**31 - 1))

@@ -475,3 +475,43 @@ def test_arrays_stay_read_only_through_pickle_and_deepcopy():
     for clone in (pickle.loads(pickle.dumps(request)), copy.deepcopy(request)):
         with pytest.raises(ValueError, match="read-only"):
             clone.counts[0, 0] = -3
+
+
+def test_masked_entries_are_refused_not_dropped():
+    """``np.asarray`` drops a mask: a masked firefly was kept (and reached the reconstruction), a
+    masked NaN reported as a NaN (red-team pass of the API's array layouts)."""
+    mean = np.full((4, 4, 3), 0.5)
+    mean[1, 1] = 1e6
+    masked = np.ma.masked_array(mean, mask=mean > 1)
+    count, variance = np.full((4, 4), 4), np.full((4, 4, 3), 0.01)
+    with pytest.raises(TypeError, match="mean: a masked array with 3 masked entries"):
+        SampleBuffer.from_moments(count, masked, variance)
+    with pytest.raises(TypeError, match="count: a masked array"):
+        SampleBuffer.from_moments(np.ma.masked_equal(count, 4), mean, variance)
+    values = np.ma.masked_invalid(np.array([[0.5], [np.nan]]))
+    with pytest.raises(TypeError, match="values: a masked array with 1 masked entries"):
+        SampleBuffer.from_samples(np.array([0, 1]), values, (1, 2))
+    with pytest.raises(TypeError, match="sum: a masked array"):
+        SampleBuffer.from_sums(count, np.ma.masked_array(mean * 4, mask=mean > 1), mean * mean * 4)
+    # A masked array that masks nothing is an array like any other.
+    same = SampleBuffer.from_moments(count, np.ma.masked_array(mean), variance)
+    assert_array_equal(same.mean, mean)
+
+
+def test_buffers_are_c_ordered_and_stay_read_only():
+    """A buffer kept its caller's memory order (a transposed array: results differed in their last
+    bits, and every file writer depended on it), and its arrays owned their memory, so anyone could
+    set ``writeable`` back and change a sampler's statistics."""
+    rng = np.random.default_rng(3)
+    mean = rng.random((5, 6, 3))
+    variance = rng.random((5, 6, 3)) * 0.1
+    count = rng.integers(2, 9, (5, 6))
+    plain = SampleBuffer.from_moments(count, mean, variance)
+    transposed = SampleBuffer.from_moments(np.ascontiguousarray(count.T).T, np.asfortranarray(mean),
+                                           np.moveaxis(np.ascontiguousarray(np.moveaxis(variance, 2, 0)), 0, 2))
+    for buffer in (plain, transposed, plain.merge(transposed)):
+        for a in (buffer.count, buffer.mean, buffer.variance, buffer.variance_known):
+            assert a.flags.c_contiguous and not a.flags.writeable
+            with pytest.raises(ValueError):
+                a.flags.writeable = True
+    assert_array_equal(transposed.mean, plain.mean)

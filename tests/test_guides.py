@@ -79,6 +79,20 @@ def test_bad_auxiliary_images_are_refused(kwargs, message):
         guides.oidn(buf, **kwargs)
 
 
+@pytest.mark.parametrize(("kwargs", "message"), [
+    # These were cast (the imaginary part dropped with numpy's ComplexWarning, True read as 1, a mask dropped).
+    ({"albedo": np.full((64, 64, 3), 0.5 + 1j)}, "albedo: complex values are not supported"),
+    ({"albedo": np.ones((64, 64, 3), bool)}, "albedo: expected a numeric array, got dtype bool"),
+    ({"albedo": np.full((64, 64, 3), 0.5, object)}, "albedo: expected a numeric array, got dtype object"),
+    ({"albedo": np.full((64, 64, 3), 0.5), "normal": np.ma.masked_greater(np.full((64, 64, 3), 2.0), 1)},
+     "normal: a masked array with 12288 masked entries"),
+])
+def test_auxiliary_images_of_other_kinds_are_refused(kwargs, message):
+    _, buf = _textured()
+    with pytest.raises(TypeError, match=message):
+        guides.oidn(buf, **kwargs)
+
+
 def test_oidn_needs_rgb_and_an_albedo_with_a_normal():
     one = SampleBuffer.from_moments(np.full((8, 8), 2), np.ones((8, 8, 1)), np.ones((8, 8, 1)))
     with pytest.raises(ValueError, match=r"buffer: OIDN \(guides.oidn / --guide oidn\) denoises RGB images; "

@@ -163,3 +163,20 @@ def test_a_preview_wider_than_libpng_allows_is_written_without_its_errors(tmp_pa
     header = (tmp_path / "wide.png").read_bytes()[:24]  # the signature, then IHDR's width and height
     assert header[:8] == b"\x89PNG\r\n\x1a\n" and header[12:16] == b"IHDR"
     assert int.from_bytes(header[16:20], "big") == 1_000_001 and int.from_bytes(header[20:24], "big") == 1
+
+
+def test_tonemap_refuses_complex_bool_and_masked_images():
+    """These were cast: ``0.5+9j`` became grey 188 (red-team pass of the API's array layouts)."""
+    with pytest.raises(TypeError, match="image: complex values are not supported"):
+        tonemap_srgb(np.full((2, 2, 3), 0.5 + 9j))
+    with pytest.raises(TypeError, match="image: expected a numeric array, got dtype bool"):
+        tonemap_srgb(np.ones((2, 2, 3), bool))
+    with pytest.raises(TypeError, match="image: a masked array with 12 masked entries"):
+        tonemap_srgb(np.ma.masked_array(np.ones((2, 2, 3)), mask=True))
+
+
+def test_deep_sample_indices_refuse_complex(tmp_path):
+    with pytest.raises(TypeError, match="sample_index: complex values are not supported"):
+        write_deep_samples(tmp_path / "never.exr", np.array([0, 1]), np.ones((2, 3)), (1, 2),
+                           sample_index=np.array([0j, 1j]))
+    assert not (tmp_path / "never.exr").exists()

@@ -267,3 +267,48 @@ def test_a_request_file_past_the_exact_issued_count_is_refused_by_the_reader(tmp
     _write(tmp_path / "r.exr", {"counts": counts, "first_index": np.full((2, 2), 8, np.float32)}, {})
     with pytest.raises(InputFileError, match=r"r\.exr: counts: 1 pixel\(s\) would issue samples past index 16777216"):
         read_request(tmp_path / "r.exr")
+
+
+@pytest.mark.parametrize("layout", ["transposed", "fortran", "row broadcast"])
+def test_count_planes_keep_their_pixels_in_any_memory_layout(tmp_path, rng, layout):
+    """The OpenEXR bindings write a plane's raw memory and ignore its strides: counts, issued
+    counts, the known-variance mask and a request's counts and first indices of a transposed,
+    Fortran-ordered or broadcast array were written as a permutation of their pixels, with the
+    same total, so no check caught it (red-team pass of the API's array layouts)."""
+    h, w = 4, 5
+    if layout == "transposed":  # a renderer storing (W, H) hands over its array transposed
+        counts = (np.arange(h * w).reshape(w, h) + 2).T
+    elif layout == "fortran":
+        counts = np.asfortranarray(np.arange(h * w).reshape(h, w) + 2)
+    else:
+        counts = np.broadcast_to(np.arange(w) + 2, (h, w))
+    known = np.asfortranarray(counts % 3 != 0)
+    mean = rng.random((h, w, 3))
+    buffer = SampleBuffer.from_moments(counts, mean, np.full((h, w, 3), 0.1), variance_known=known)
+    issued = np.asfortranarray(counts + 1 + np.arange(h)[:, None])
+    write_sample_buffer(tmp_path / "d.exr", buffer, issued=issued)
+    dump = read_sample_dump(tmp_path / "d.exr")
+    np.testing.assert_array_equal(dump.buffer.count, counts)
+    np.testing.assert_array_equal(dump.buffer.variance_known, known)
+    np.testing.assert_array_equal(dump.issued, issued)
+    np.testing.assert_array_equal(dump.buffer.mean, mean.astype(np.float32))
+    first = np.asfortranarray(np.arange(h * w).reshape(h, w) * 7)
+    write_request(tmp_path / "r.exr", SampleRequest(counts, first))
+    back = read_request(tmp_path / "r.exr")
+    np.testing.assert_array_equal(back.counts, counts)
+    np.testing.assert_array_equal(back.first_index, first)
+
+
+def test_issued_counts_are_checked_before_compared(tmp_path, rng):
+    """A NaN issued count was cast to an integer first (a RuntimeWarning) and reported as "fewer
+    issued than counted"; a complex one was written as its real part."""
+    buffer = _buffer(rng, shape=(2, 2))
+    issued = np.asarray(buffer.count, np.float64).copy()
+    issued[0, 1] = np.nan
+    with pytest.raises(ValueError, match="issued: counts must be whole numbers"):
+        write_sample_buffer(tmp_path / "d.exr", buffer, issued=issued)
+    with pytest.raises(TypeError, match="issued: complex"):
+        write_sample_buffer(tmp_path / "d.exr", buffer, issued=buffer.count + 0j)
+    with pytest.raises(ValueError, match="issued: 4 pixel\\(s\\) exceed 16777216"):
+        write_sample_buffer(tmp_path / "d.exr", buffer, issued=np.full((2, 2), 2**63 + 5, np.uint64))
+    assert not (tmp_path / "d.exr").exists()

@@ -71,3 +71,16 @@ def test_bad_inputs_are_refused(metric):
         metric(np.zeros((4, 4)), np.where(np.eye(4, dtype=bool) & (np.arange(4) == 2), np.inf, 0.0))
     with pytest.raises(ValueError, match="image: empty"):
         metric(np.zeros((0, 3)), np.zeros((0, 3)))
+
+
+def test_masked_entries_are_refused_not_compared():
+    """``np.asarray`` drops a mask: the values under it were compared (red-team pass of the API's
+    array layouts); a complex image lost its imaginary part in ``tonemap``."""
+    image = np.ma.masked_greater(np.array([[0.5, 100.0]]), 1)
+    with pytest.raises(TypeError, match="image: a masked array with 1 masked entries"):
+        mse(image, np.full((1, 2), 0.5))
+    with pytest.raises(TypeError, match="reference: a masked array"):
+        relmse(np.full((1, 2), 0.5), image)
+    with pytest.raises(TypeError, match="x: complex values are not supported"):
+        tonemap(np.array([0.5 + 1j]))
+    assert mse(np.ma.masked_array([[0.5, 1.0]]), np.full((1, 2), 0.5)) == pytest.approx(0.125)

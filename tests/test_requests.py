@@ -64,8 +64,14 @@ def test_whole_float_counts_are_accepted():
     (np.ones((2, 2), int), np.zeros((2, 3), int), ValueError, r"first_index: shape \(2, 3\) does not match"),
     (np.array([[1, -1], [-2, 0]]), np.zeros((2, 2), int), ValueError, r"counts: 2 pixel\(s\) are negative"),
     (np.ones((2, 2), int), np.array([[0, -1], [0, 0]]), ValueError, r"first_index: 1 pixel\(s\) are negative"),
-    (np.full((2, 2), 0.5), np.zeros((2, 2), int), TypeError, "counts: expected whole numbers"),
-    (np.full((2, 2), np.nan), np.zeros((2, 2), int), TypeError, "counts: expected whole numbers"),
+    # A fraction or NaN is a value error, named as the buffer's counts name it (it was a TypeError
+    # naming the dtype, although whole float64 counts are accepted).
+    (np.full((2, 2), 0.5), np.zeros((2, 2), int), ValueError, r"counts: 4 pixel\(s\) are not whole numbers"),
+    (np.full((2, 2), np.nan), np.zeros((2, 2), int), ValueError, r"counts: 4 pixel\(s\) hold NaN"),
+    # A uint64 past 2**63 was cast first and reported as negative.
+    (np.full((2, 2), 2**63 + 5, np.uint64), np.zeros((2, 2), int), ValueError, r"counts: 4 pixel\(s\) exceed 2\*\*62"),
+    (np.ones((2, 2), int), np.full((2, 2), 2**64 - 1, np.uint64), ValueError, r"first_index: 4 pixel\(s\) exceed"),
+    (np.array(["1"] * 4).reshape(2, 2), np.zeros((2, 2), int), TypeError, "counts: expected an integer array"),
 ])
 def test_bad_requests_are_refused(counts, first, error, message):
     with pytest.raises(error, match=message):
@@ -82,10 +88,23 @@ def test_renderer_protocol():
 def test_totals_past_int64_are_refused_not_wrapped():
     """Per-pixel counts were bounded, their sums not: totals wrapped to negative numbers (second
     red-team pass)."""
-    with pytest.raises(ValueError, match="counts: more than 2\\*\\*62 samples"):
+    with pytest.raises(ValueError, match="counts: .* samples in all exceed 2\\*\\*62"):
         SampleRequest(np.full((1, 2), 2**62), np.zeros((1, 2), np.int64))
     with pytest.raises(ValueError, match="counts: more than 2\\*\\*62 samples"):
         SampleRequest(np.full((1, 1), 2**61), np.full((1, 1), 2**61 + 1))
     with pytest.raises(ValueError, match="count: .* samples in all exceed 2\\*\\*62"):
         SampleBuffer.from_moments(np.full((2, 3), 2**62), np.ones((2, 3, 3)), np.ones((2, 3, 3)))
     assert SampleRequest(np.full((1, 2), 2**61), np.zeros((1, 2), np.int64)).total == 2**62
+
+
+def test_a_request_cannot_be_made_writeable_again():
+    """``ask()`` hands out the request ``tell()`` checks the batch against: its arrays owned their
+    memory, so a renderer could set ``writeable`` back, add samples in place, and ``tell()`` took
+    them (red-team pass of the API's array layouts)."""
+    request = SampleRequest(np.asfortranarray(np.full((3, 4), 2)), np.zeros((3, 4), int))
+    for a in (request.counts, request.first_index):
+        assert a.flags.c_contiguous and not a.flags.writeable
+        with pytest.raises(ValueError):
+            a.flags.writeable = True
+    with pytest.raises(TypeError, match="counts: a masked array with 1 masked entries"):
+        SampleRequest(np.ma.masked_equal(np.array([[1, 2]]), 2), np.zeros((1, 2), int))

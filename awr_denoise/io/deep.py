@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from .._arrays import numeric
 from .._typing import FloatArray, Shape2D
 from ..buffers import NONFINITE_POLICIES, SampleBuffer
 from .._version import __version__
@@ -86,7 +87,7 @@ def write_deep_samples(
     for c, name in enumerate(names):  # a loop over channels; pixels and samples are vectorised
         planes[name] = _object_grid(np.split(vals[order, c].astype(np.float32), bounds), (h, w))
     if sample_index is not None:
-        idx = np.asarray(sample_index)
+        idx = numeric("sample_index", sample_index)
         if idx.shape != (flat.size,):
             raise ValueError(f"sample_index: expected shape ({flat.size},), got {idx.shape}")
         planes[SAMPLE_INDEX_CHANNEL] = _object_grid(np.split(exact_counts("sample_index", idx)[order], bounds),

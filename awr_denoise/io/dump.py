@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from .._arrays import numeric
 from .._typing import CountArray
 from .._version import __version__
 from ..buffers import VARIANCE_KINDS, SampleBuffer
@@ -93,9 +94,12 @@ class SampleDump:
 
 def exact_counts(name: str, counts: np.ndarray) -> np.ndarray:
     """Counts as float32 after checking they are whole, non-negative and exactly representable."""
-    c = np.asarray(counts)
+    c = numeric(name, counts)
     if c.dtype.kind == "f" and (~np.isfinite(c) | (c != np.round(c))).any():
         raise ValueError(f"{name}: counts must be whole numbers")
+    if c.dtype.kind == "u" and (c > MAX_EXACT_COUNT).any():  # cast to int64 first, 2**63 and more read as negative
+        raise ValueError(f"{name}: {int((c > MAX_EXACT_COUNT).sum())} pixel(s) exceed {MAX_EXACT_COUNT} "
+                         "(2**24), the largest count a float32 channel stores exactly")
     c = c.astype(np.int64)
     if (c < 0).any():
         raise ValueError(f"{name}: {int((c < 0).sum())} pixel(s) are negative")
@@ -170,13 +174,14 @@ def write_sample_buffer(path: str | os.PathLike[str], buffer: SampleBuffer, *,
     for name, feature in buffer.features.items():
         _statistics_planes(path, planes, feature, f"{name}.", like=buffer.count)
     if issued is not None:
-        iss = np.asarray(issued)
+        iss = numeric("issued", issued)
         if iss.shape != buffer.shape:
             raise ValueError(f"issued: shape {iss.shape} does not match the buffer {buffer.shape}")
-        if (iss.astype(np.int64) < buffer.count).any():
+        issued_plane = exact_counts("issued", iss)  # whole, not negative, exact in float32: checked before compared
+        if (issued_plane < buffer.count).any():
             raise ValueError("issued: fewer samples issued than counted at some pixels")
-        if (iss != buffer.count).any():
-            planes[ISSUED_CHANNEL] = exact_counts("issued", iss)
+        if (issued_plane != buffer.count).any():
+            planes[ISSUED_CHANNEL] = issued_plane
     attrs: dict[str, Any] = {
         "awr:semantics": SEMANTICS_STATISTICS,
         "awr:variance_kind": "sample",

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from .._arrays import plain
 from .._typing import FloatArray
 from .._version import __version__
 from ..channels import default_channel_names
@@ -543,7 +544,10 @@ def write_exr(path: str | os.PathLike[str], channels: Mapping[str, np.ndarray],
         "compression": OpenEXR.ZIPS_COMPRESSION if deep else OpenEXR.ZIP_COMPRESSION,
         "type": OpenEXR.deepscanline if deep else OpenEXR.scanlineimage,
     }
-    data = dict(channels)
+    # The bindings write a plane's raw buffer and ignore its strides: a Fortran-ordered, transposed
+    # or broadcast plane (counts a renderer stores (W, H) and hands over transposed) was written in
+    # memory order, a permutation of its pixels. Each plane goes in as a C-ordered array.
+    data = {name: np.ascontiguousarray(plane) for name, plane in channels.items()}
     shape = next((tuple(np.shape(a))[:2] for a in data.values()), None)
     for key, value in (header or {}).items():
         key = str(key)
@@ -647,7 +651,7 @@ def read_image(path: str | os.PathLike[str], *, channels: Sequence[str] | None =
 
 
 def _image_channels(image: np.ndarray, channels: Sequence[str]) -> tuple[np.ndarray, tuple[str, ...]]:
-    a = np.asarray(image)
+    a = plain("image", image)
     if a.dtype.kind not in "fiub":
         raise TypeError(f"image: expected a numeric array, got dtype {a.dtype}")
     if a.ndim == 2:

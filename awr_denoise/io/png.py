@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._arrays import numeric
 from .._typing import FloatArray
 from .atomic import atomic_write
 
@@ -31,7 +32,7 @@ def tonemap_srgb(image: FloatArray, *, exposure: float = 0.0) -> np.ndarray:
     >>> tonemap_srgb(np.array([[[0.0, 0.5, 1.0]]]))[0, 0].tolist()
     [0, 188, 255]
     """
-    a = np.asarray(image, dtype=np.float64)
+    a = numeric("image", image).astype(np.float64)  # complex, bool, object, masked entries refused
     if a.ndim == 2:
         a = a[..., None]
     if a.ndim != 3 or a.shape[2] not in (1, 3, 4):
