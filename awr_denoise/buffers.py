@@ -23,7 +23,7 @@ from ._arrays import (ReadOnlyArrays, as_float64, as_mask, check_count, check_fi
                       pixel_moments, summed_counts)
 from ._typing import BoolArray, CountArray, FloatArray, Shape2D
 from .channels import channel_count, default_channel_names, luminance_weights, resolve_channels  # noqa: F401 - re-exported
-from .features import FEATURE_CHANNELS, checked_features, map_features, merge_features
+from .features import FEATURE_CHANNELS, checked_features, feature_rows, map_features, merge_features
 from .merging import merge_moments
 from .pooling import pooled_variance
 
@@ -108,15 +108,14 @@ class SampleBuffer(ReadOnlyArrays):
         check_finite("variance", variance)
         if (variance < 0).any():  # per pixel only to count them: a reduction along 3 channels is 10x slower
             raise ValueError(f"variance: {int((variance < 0).any(axis=2).sum())} pixel(s) are negative")
-        known = np.asarray(self.variance_known)
+        known = plain("variance_known", self.variance_known)
         if known.shape != count.shape:
             raise ValueError(f"variance_known: shape {known.shape} does not match count {count.shape}")
         known = as_mask("variance_known", known) & (count >= 2)
         # Masked writes only where needed (a merged buffer has none): ~20 ms each at 1080p regardless.
         if (empty := count == 0).any():
             mean[empty] = 0.0
-        unknown = ~known
-        if unknown.any():
+        if (unknown := ~known).any():
             variance[unknown] = 0.0
         channels = resolve_channels(self.channels, mean.shape[2])
         count, mean, variance, known = (frozen(a, adopt=not copy) for a in (count, mean, variance, known))
@@ -309,7 +308,7 @@ class SampleBuffer(ReadOnlyArrays):
         vals = vals.astype(np.float64)
         if features is not None and not isinstance(features, Mapping):
             raise TypeError(f"features: expected a mapping of feature name to rows, got {type(features).__name__}")
-        per_sample = {name: _feature_rows(name, rows, flat.shape[0]) for name, rows in (features or {}).items()}
+        per_sample = {name: feature_rows(name, rows, flat.shape[0]) for name, rows in (features or {}).items()}
         bad = ~np.isfinite(vals).all(axis=1)
         culprit = "values" if bad.any() else ""
         for name, rows in per_sample.items():
@@ -515,6 +514,22 @@ class SampleBuffer(ReadOnlyArrays):
         return SampleBuffer._adopt(summed_counts(self.count, other.count), mean, variance, self.channels, known,
                                    self.nonfinite + other.nonfinite, merge_features(self, other))
 
+    def select(self, channels: Sequence[int]) -> SampleBuffer:
+        """The buffer of some of its channels (indices, in the order given), with its features.
+
+        Examples
+        --------
+        >>> buf = SampleBuffer.from_moments(np.full((1, 1), 4), np.ones((1, 1, 4)), np.zeros((1, 1, 4)))
+        >>> buf.select([3]).channels
+        ('A',)
+        """
+        index = [_checks.whole("channels", i, minimum=0, maximum=self.n_channels - 1) for i in channels]
+        if not index or len(set(index)) != len(index):
+            raise ValueError(f"channels: expected distinct channel indices, got {list(channels)}")
+        names = tuple(self.channels[i] for i in index)
+        return SampleBuffer._adopt(self.count, self.mean[..., index], self.variance[..., index], names,
+                                   self.variance_known, self.nonfinite, self.features)
+
     def crop(self, rows: slice, cols: slice) -> SampleBuffer:
         """The statistics of a rectangular region (a tile), as a new buffer.
 
@@ -533,17 +548,3 @@ class SampleBuffer(ReadOnlyArrays):
         return (f"SampleBuffer(shape={self.shape}, channels={self.channels}, "
                 f"total_samples={self.total_samples}, spp={self.total_samples / self.count.size:.3g}"
                 + (f", features={tuple(self.features)})" if self.features else ")"))
-
-
-def _feature_rows(name: str, rows: object, n: int) -> FloatArray:
-    """Per-sample values of feature ``name`` as an (N, channels) float64 copy."""
-    a = plain(f"features[{name!r}]", rows)
-    a = a[:, None] if a.ndim == 1 else a
-    width = len(FEATURE_CHANNELS.get(name, ()))
-    if not width:
-        raise ValueError(f"features: {name!r} is not one of {', '.join(FEATURE_CHANNELS)}")
-    if a.ndim != 2 or a.shape != (n, width):
-        raise ValueError(f"features[{name!r}]: expected ({n}, {width}) per-sample values, got shape {np.shape(rows)}")
-    if a.dtype.kind not in "fiu":
-        raise TypeError(f"features[{name!r}]: expected a numeric array, got dtype {a.dtype}")
-    return a.astype(np.float64)

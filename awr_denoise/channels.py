@@ -9,8 +9,8 @@ import numpy as np
 from . import _checks
 from ._typing import FloatArray
 
-__all__ = ["default_channel_names", "adopted_channels", "luminance_weights", "resolve_channels", "channel_count",
-           "MAX_CHANNELS"]
+__all__ = ["default_channel_names", "adopted_channels", "luminance_weights", "channel_groups", "resolve_channels",
+           "channel_count", "MAX_CHANNELS"]
 
 _REC709 = np.array([0.2126, 0.7152, 0.0722])
 
@@ -97,6 +97,32 @@ def luminance_weights(channels: Sequence[str]) -> FloatArray:
             weights[names.index(name)] = w
         return weights
     return np.full(len(names), 1.0 / len(names))
+
+
+def channel_groups(channels: Sequence[str]) -> list[tuple[int, ...]] | None:
+    """The channels a reconstruction treats apart: R,G,B together, every other channel alone.
+
+    ``None`` (one group, every channel together) unless the names hold R, G and B (as
+    :func:`luminance_weights` finds them, any layer prefix) and more. The domain's scale is the
+    mean of its channels and the luminance mode's factor is made from the colour: an alpha or an
+    AOV (a depth of 1000) reconstructed with the colour moved the colour, and the luminance factor
+    moved an exact alpha (docs/robustness.md, "Channels that are not colour").
+
+    Examples
+    --------
+    >>> from awr_denoise.channels import channel_groups
+    >>> channel_groups(["R", "G", "B", "A"])
+    [(0, 1, 2), (3,)]
+    >>> channel_groups(["A", "B", "G", "R", "depth"])
+    [(1, 2, 3), (0,), (4,)]
+    >>> channel_groups(["R", "G", "B"]) is None, channel_groups(["ch0", "ch1"]) is None
+    (True, True)
+    """
+    names = [str(c).rsplit(".", 1)[-1].upper() for c in channels]
+    if len(names) <= 3 or not {"R", "G", "B"} <= set(names):
+        return None
+    colour = tuple(sorted(names.index(name) for name in "RGB"))  # the first of each, as luminance_weights
+    return [colour] + [(i,) for i in range(len(names)) if i not in colour]
 
 
 def resolve_channels(channels: Sequence[str] | int | None, n_channels: int) -> tuple[str, ...]:

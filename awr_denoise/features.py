@@ -30,11 +30,15 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 from types import MappingProxyType
 from typing import TYPE_CHECKING
 
+import numpy as np
+
+from ._arrays import plain
+
 if TYPE_CHECKING:  # the buffer imports this module; annotations only
     from .buffers import SampleBuffer
 
 __all__ = ["FEATURE_CHANNELS", "FEATURE_NAMES", "FeatureMap", "feature_channels", "feature_names",
-           "checked_features", "merge_features", "map_features"]
+           "checked_features", "merge_features", "map_features", "feature_rows"]
 
 FEATURE_CHANNELS: Mapping[str, tuple[str, ...]] = MappingProxyType({
     "albedo": ("R", "G", "B"),
@@ -193,3 +197,17 @@ def merge_features(first: SampleBuffer, second: SampleBuffer) -> dict[str, Sampl
             merged[name] = a.merge(b)
     return merged
 
+
+def feature_rows(name: str, rows: object, n: int) -> np.ndarray:
+    """Per-sample values of feature ``name`` for ``n`` samples as an (N, channels) float64 copy
+    (:meth:`~awr_denoise.buffers.SampleBuffer.from_samples`' ``features``), checked."""
+    a = plain(f"features[{name!r}]", rows)
+    a = a[:, None] if a.ndim == 1 else a
+    width = len(FEATURE_CHANNELS.get(name, ()))
+    if not width:
+        raise ValueError(f"features: {name!r} is not one of {', '.join(FEATURE_CHANNELS)}")
+    if a.ndim != 2 or a.shape != (n, width):
+        raise ValueError(f"features[{name!r}]: expected ({n}, {width}) per-sample values, got shape {np.shape(rows)}")
+    if a.dtype.kind not in "fiu":
+        raise TypeError(f"features[{name!r}]: expected a numeric array, got dtype {a.dtype}")
+    return a.astype(np.float64)

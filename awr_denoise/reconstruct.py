@@ -26,12 +26,14 @@ import numpy as np
 from . import _checks
 from ._typing import FloatArray
 from .buffers import SampleBuffer
-from .channels import luminance_weights
+from .channels import channel_groups, luminance_weights
 from .domains import Domain
 from .finishing import clip_negative, pooled_clamp, restore_mean
 from .guided import checked_inputs, checked_projection, pilots, projected
 from .prepare import Prepared, prepare
-from .stationary import DTYPES, precision_for, stationary_transform
+from .settings import (DEFAULT_C_S, DEFAULT_PILOT_C_S, DEFAULT_PIXEL_CLAMP, DEFAULT_PRECISION, DEFAULT_STAGES,
+                       DEFAULT_WIENER_EXPONENTS, PRECISIONS, Settings, resolve_settings)
+from .stationary import precision_for, stationary_transform
 from .sure import DEFAULT_GUIDED_WINDOW, DEFAULT_WINDOW, sure_blend
 from .thresholding import threshold_stage
 from .wavelets import DEFAULT_WAVELET, wavelet_operators
@@ -48,37 +50,8 @@ decided on luminance, the same shrink factor applied to every channel (hue-prese
 DEFAULT_MODE = MODES[0]
 """Default mode: every channel thresholded with its own Delta."""
 
-DEFAULT_C_S = 1.0
-"""``c_s`` of Eq. 11 when stage 1 is the whole reconstruction (``stages=1``): one standard error."""
-
-DEFAULT_PILOT_C_S = 2.0
-"""``c_s`` of stage 1 when it is the pilot of Wiener stages; chosen by measurement on both renderers: 2 rather
-than 1.5 since the first Wiener stage's energy floor gives back, from the means, the faint detail a stricter
-pilot removes (docs/reconstruction.md, "The pilot's threshold, measured")."""
-
 DEFAULT_DOMAIN = "log"
 """Default thresholding domain of stage 1; chosen by measurement (docs/reconstruction.md)."""
-
-DEFAULT_PIXEL_CLAMP = 2.5
-"""Default pixel confidence clamp in standard errors; chosen by measurement (docs/reconstruction.md)."""
-
-DEFAULT_STAGES = 3
-"""Stage 1 (Eq. 10-11) and the Wiener stages after it; chosen by measurement (docs/reconstruction.md)."""
-
-DEFAULT_WIENER_EXPONENTS = (0.75, 0.4)
-"""``alpha`` of each Wiener stage's domain ``x / (|pilot| + k)^alpha``: mostly relative, then closer to linear.
-Measured (docs/reconstruction.md): a more relative first stage keeps the noise of bright regions out of dark
-ones; a closer-to-linear last one keeps bright pixels from being pulled to their surroundings, and is the one
-``stages=2`` keeps (1-15% lower relMSE than the first alone, on every scene of both renderers)."""
-
-PRECISIONS = DTYPES
-"""Precisions of stage 1 (log domain) and the Wiener stages' FFTs: ``"float64"`` (the reference), ``"float32"``."""
-
-DEFAULT_PRECISION = "float32"
-"""Default precision of stage 1 and the Wiener stages' FFTs (statistics stay float64; docs/reconstruction.md)."""
-
-_MAX_PROBES = 100_000  # each probe is a transform pair per channel; more is never meant
-
 
 @dataclass(frozen=True, eq=False)
 class Reconstruction:
@@ -140,12 +113,6 @@ class Reconstruction:
     noise_gain: FloatArray | None = None
 
 
-def _exponents(value: Sequence[float]) -> tuple[float, ...]:
-    if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
-        raise TypeError(f"wiener_exponents: expected a sequence of numbers in [0, 1], got {value!r}")
-    return tuple(_checks.real("wiener_exponents", a, minimum=0, maximum=1) for a in value)  # type: ignore[misc]
-
-
 def _wiener_levels(levels: int) -> int:
     """Stationary stages' depth: stage 1's less one from 4 levels on (as good, 20% faster; below, every
     level counts: a third of the gain lost at 32x32 with 1 level not 2; docs/reconstruction.md)."""
@@ -197,80 +164,6 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
         # is taken as L, its value for a projection (a shrinkage's is at most about L; held at 0 or above).
         gain = np.maximum(np.mean((1 - lam) ** 2 + lam * (2 - lam) * leverage, axis=-1), 0.0)
     return out * s, None if var_out is None else var_out * s * s, gain
-
-
-@dataclass(frozen=True)
-class Settings:
-    """The stage settings of one reconstruction, checked and resolved (defaults filled in)."""
-
-    c_s: float
-    stages: int
-    exponents: tuple[float, ...]
-    pixel_clamp: float | None
-    guard: bool
-    preserve_mean: bool
-    nonnegative: bool
-    precision: str
-    probes: int
-    seed: int
-    floor: tuple[int, float] | None = DEFAULT_FLOOR  # the first Wiener stage's (window, margin); channel mode
-    guard_window: int = DEFAULT_WINDOW  # side of the guard's square neighbourhood
-
-    @property
-    def stage1_clamp(self) -> float | None:
-        """Stage 1's pixel clamp: only where stage 1 is the output (a clamped pilot measured worse)."""
-        return self.pixel_clamp if self.stages == 1 else None
-
-    def recorded(self) -> dict:
-        """What a file's provenance records of them."""
-        wiener = self.stages > 1
-        return {"c_s": self.c_s, "pixel_clamp": self.pixel_clamp, "stages": self.stages,
-                "wiener_exponents": ",".join(f"{a:g}" for a in self.exponents) if wiener else None,
-                "guard": self.guard, "guard_window": self.guard_window if self.guard else None,
-                "preserve_mean": self.preserve_mean, "nonnegative": self.nonnegative, "precision": self.precision}
-
-
-def resolve_settings(*, c_s: float | None = None, stages: int = DEFAULT_STAGES,
-                     wiener_exponents: Sequence[float] = DEFAULT_WIENER_EXPONENTS,
-                     pixel_clamp: float | None = DEFAULT_PIXEL_CLAMP, guard: bool | None = None,
-                     preserve_mean: bool | None = None, nonnegative: bool | None = None,
-                     precision: str = DEFAULT_PRECISION, variance_probes: int = 0, seed: int = 0,
-                     guard_window: int | None = None) -> Settings:
-    """Check the stage parameters of :func:`reconstruct_detailed` and fill in their defaults.
-
-    Examples
-    --------
-    >>> from awr_denoise.reconstruct import resolve_settings
-    >>> resolve_settings(stages=1).c_s, resolve_settings().c_s, resolve_settings().exponents
-    (1.0, 2.0, (0.75, 0.4))
-    >>> resolve_settings(stages=2).exponents, resolve_settings(stages=1).exponents   # the last ones
-    ((0.4,), ())
-    """
-    exponents = _exponents(wiener_exponents)
-    stages = _checks.whole("stages", stages, minimum=1, maximum=1 + len(exponents))  # type: ignore[assignment]
-    c_s = _checks.real("c_s", (DEFAULT_C_S if stages == 1 else DEFAULT_PILOT_C_S) if c_s is None else c_s,
-                       minimum=0)
-    guard = stages > 1 if guard is None else _checks.flag("guard", guard)
-    if guard and stages == 1:
-        raise ValueError("guard: the SURE guard follows the Wiener stages; it needs stages > 1")
-    if isinstance(variance_probes, (float, np.floating)):
-        raise ValueError(f"variance_probes: must be an integer >= 0, got {variance_probes!r}")
-    if guard_window is None:
-        guard_window = DEFAULT_WINDOW
-    elif not guard:  # a setting that would do nothing is refused, not ignored
-        raise ValueError(f"guard_window: {guard_window} sets the SURE guard's window, but the guard is off")
-    guard_window = _checks.whole("guard_window", guard_window, minimum=1, maximum=1023)  # type: ignore[assignment]
-    if guard_window % 2 == 0:  # type: ignore[operator]
-        raise ValueError(f"guard_window: must be odd, got {guard_window}")
-    return Settings(
-        c_s=c_s, stages=stages, exponents=exponents[len(exponents) - (stages - 1):],  # type: ignore[arg-type, operator]
-        pixel_clamp=_checks.real("pixel_clamp", pixel_clamp, minimum=0, none=True), guard=guard,
-        preserve_mean=stages > 1 if preserve_mean is None else _checks.flag("preserve_mean", preserve_mean),
-        nonnegative=stages > 1 if nonnegative is None else _checks.flag("nonnegative", nonnegative),
-        precision=_checks.name("precision", precision, PRECISIONS), seed=_checks.seed("seed", seed),
-        probes=_checks.whole("variance_probes", variance_probes, minimum=0, maximum=_MAX_PROBES),  # type: ignore[arg-type]
-        guard_window=guard_window,  # type: ignore[arg-type]
-    )
 
 
 def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | None, settings: Settings, *, levels: int,
@@ -432,6 +325,10 @@ def reconstruct_detailed(
 
     Notes
     -----
+    Channels beside R, G and B (an alpha, an AOV) are reconstructed apart, each alone with the same
+    settings, so that none moves the colour (the domain's scale is the mean of the channels it is
+    given, the luminance factor is the colour's): :func:`~awr_denoise.channels.channel_groups`.
+
     Pixels without samples take their nearest sampled neighbour's mean and the variance of a
     single sample, so they are smoothed over rather than read as black. Unknown per-sample
     variances are pooled from neighbours (:meth:`SampleBuffer.estimated_variance`).
@@ -478,6 +375,16 @@ def reconstruct_detailed(
                                 variance_probes=variance_probes, seed=seed, guard_window=guard_window)
     guide = checked_inputs(buffer, guide, features, settings.stages)
     projection = checked_projection(guide_projection, guide)
+    groups = channel_groups(buffer.channels)
+    if groups is not None:  # R,G,B together, an alpha or an AOV beside them alone: none moves another
+        options = dict(c_s=c_s, wavelet=wavelet, levels=levels, domain=domain, mode=mode, boundary=boundary,
+                       executor=executor, pixel_clamp=pixel_clamp, stages=stages, wiener_exponents=wiener_exponents,
+                       guard=guard, guard_window=guard_window, preserve_mean=preserve_mean, nonnegative=nonnegative,
+                       precision=precision, variance_probes=variance_probes, seed=seed,
+                       guide_projection=guide_projection, features=features)
+        parts = [reconstruct_detailed(buffer.select(group), guide=None if guide is None else guide[..., list(group)],
+                                      **options) for group in groups]
+        return _assembled(parts, groups, probed=settings.probes > 0)
     prepared = prepare(buffer, domain)
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     run = None if _checks.executor("executor", executor) is None else lambda f, items: list(executor.map(f, items))
@@ -502,6 +409,24 @@ def reconstruct_detailed(
                                       "domain": prepared.bound.domain.name, "mode": mode, "boundary": boundary,
                                       "guide": guide is not None, "features": features,
                                       "guide_projection": None if guide is None else projection, **settings.recorded()})
+
+
+def _assembled(parts: list[Reconstruction], groups: list[tuple[int, ...]], *, probed: bool) -> Reconstruction:
+    """One :class:`Reconstruction` of channel groups reconstructed apart, in the buffer's channel order;
+    the colour's (the first group's) domain, depth and parameters, the channel means of the rest."""
+    order = np.argsort([i for group in groups for i in group])
+    weights = [len(group) / len(order) for group in groups]
+    thresholds = [t for part in parts for t in part.thresholds]
+    gains = [part.noise_gain for part in parts]
+    image = np.concatenate([part.image for part in parts], axis=2)[..., order]
+    return Reconstruction(
+        image=image,
+        thresholds=[thresholds[i] for i in order],
+        fraction_zeroed=float(sum(w * part.fraction_zeroed for w, part in zip(weights, parts))),
+        variance=(np.concatenate([part.variance for part in parts], axis=2)[..., order] if probed
+                  else np.broadcast_to(np.nan, image.shape)),
+        levels=parts[0].levels, domain=parts[0].domain, parameters=parts[0].parameters,
+        noise_gain=None if any(g is None for g in gains) else sum(w * g for w, g in zip(weights, gains)))
 
 
 def reconstruct(

@@ -515,3 +515,22 @@ def test_buffers_are_c_ordered_and_stay_read_only():
             with pytest.raises(ValueError):
                 a.flags.writeable = True
     assert_array_equal(transposed.mean, plain.mean)
+
+
+def test_select_keeps_the_statistics_and_features_of_the_channels_chosen():
+    rng = np.random.default_rng(5)
+    depth = SampleBuffer.from_moments(np.full((3, 4), 2), rng.random((3, 4)), np.zeros((3, 4)), channels=("Z",))
+    buf = SampleBuffer.from_moments(rng.integers(0, 4, (3, 4)), rng.random((3, 4, 4)), rng.random((3, 4, 4)),
+                                    variance_known=rng.random((3, 4)) > 0.5, features={"depth": depth})
+    two = buf.select([3, 1])
+    assert two.channels == ("A", "G")
+    assert_array_equal(two.mean, buf.mean[..., [3, 1]])
+    assert_array_equal(two.variance, buf.variance[..., [3, 1]])
+    assert_array_equal(two.count, buf.count)
+    assert_array_equal(two.variance_known, buf.variance_known)
+    assert two.features["depth"] is buf.features["depth"]
+    for bad, error in (([], ValueError), ([1, 1], ValueError), ([4], ValueError), ([0.5], ValueError)):
+        with pytest.raises(error, match="channels"):
+            buf.select(bad)
+    with pytest.raises(TypeError, match="variance_known: a masked array"):
+        SampleBuffer(buf.count, buf.mean, buf.variance, buf.channels, np.ma.masked_array(buf.variance_known, True))

@@ -24,7 +24,7 @@ import pywt
 from .. import _checks
 from .._typing import FloatArray, Shape2D
 from ..buffers import SampleBuffer
-from ..channels import luminance_weights
+from ..channels import channel_groups, luminance_weights
 from ..domains import Domain, resolve_domain
 from ..prepare import prepare
 from ..reconstruct import (
@@ -207,6 +207,14 @@ preserve_mean, nonnegative, precision
                                 precision=precision, guard_window=guard_window)
     if not isinstance(buffer, SampleBuffer):
         raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
+    groups = channel_groups(buffer.channels)
+    if groups is not None:  # R,G,B together, any other channel alone, as reconstruct does
+        parts = [reconstruct_tiled(buffer.select(group), tile=tile, halo=halo, executor=executor, c_s=c_s,
+                                   wavelet=wavelet, levels=levels, domain=domain, mode=mode, boundary=boundary,
+                                   pixel_clamp=pixel_clamp, stages=stages, wiener_exponents=wiener_exponents,
+                                   guard=guard, guard_window=guard_window, preserve_mean=preserve_mean,
+                                   nonnegative=nonnegative, precision=precision) for group in groups]
+        return np.concatenate(parts, axis=2)[..., np.argsort([i for group in groups for i in group])]
     shape = buffer.shape
     levels = default_levels(shape) if levels is None else levels
     if isinstance(levels, bool) or not 1 <= int(levels) <= max_levels(shape):

@@ -101,6 +101,22 @@ def test_reconstruct_tiled_handles_empty_pixels_and_unknown_variance():
                            reconstruct(buffer, mode=mode, precision="float64"))
 
 
+@pytest.mark.parametrize("mode", ["channels", "luminance"])
+def test_reconstruct_tiled_treats_a_channel_beside_the_colour_as_reconstruct_does(mode):
+    """R,G,B together and an alpha alone, in tiles as in the whole frame (the domain's scale of
+    each group fixed before the tiles leave)."""
+    rgb = noisy_buffer()
+    h, w = rgb.shape
+    alpha = np.clip(0.5 + 0.1 * np.random.default_rng(3).standard_normal((h, w, 1)), 0, 1)
+    rgba = SampleBuffer.from_moments(rgb.count, np.concatenate([rgb.mean, alpha], 2),
+                                     np.concatenate([rgb.variance, np.full((h, w, 1), 0.01)], 2),
+                                     channels=("R", "G", "B", "A"))
+    options = {"mode": mode, "precision": "float64"}
+    tiled = reconstruct_tiled(rgba, tile=40, **options)
+    assert_tiled_close(tiled, reconstruct(rgba, **options))
+    assert_tiled_close(tiled[..., :3], reconstruct(rgb, **options))
+
+
 def test_reconstruct_tiled_takes_the_guard_window():
     buffer = noisy_buffer("edges", shape=(64, 80), spp=8)
     for window in (9, 15):
