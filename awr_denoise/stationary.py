@@ -273,6 +273,12 @@ class StationaryTransform:
         cap = float(np.finfo(np.float32).max) / (64.0 * self.shape[0] * self.shape[1])
         return variance if variance.max() <= cap else np.minimum(variance, cap)
 
+    def cap(self, planes: np.ndarray) -> None:
+        """Cap variance ``planes`` in place where their sums over the image would overflow this
+        transform's dtype (float32 or float64; Inf becomes the cap): :meth:`bounded` in a stage's own
+        domain, after its weights."""
+        np.minimum(planes, float(np.finfo(self.dtype).max) / (64.0 * self.shape[0] * self.shape[1]), out=planes)
+
     def spectrum(self, planes: FloatArray, *, out: np.ndarray | None = None) -> np.ndarray:
         """``rfft2`` of (..., H, W) planes in the transform's precision, into ``out`` if given."""
         a = np.asarray(planes, dtype=self.dtype)

@@ -393,8 +393,13 @@ def relative_wiener(transform: StationaryTransform, x: FloatArray, variance: Flo
     xs = _planes(x, t.dtype, copy=True)
     xs /= w
     vs = _planes(variance, t.dtype, copy=True)
-    vs /= w
-    vs /= w  # not w * w: that over/underflows first
+    # Capped in the stage's domain, where it is summed: divided by w^2 (about k^1.5 beside means of 0)
+    # a variance of 5.7e36 passed float32's range and overflowed in the factors. A factor is 0 there
+    # with the cap as without it.
+    with np.errstate(over="ignore"):
+        vs /= w
+        vs /= w  # not w * w: that over/underflows first
+    t.cap(vs)
     pilot_planes /= w
     es = None
     if extra is not None:

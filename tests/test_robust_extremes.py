@@ -488,6 +488,18 @@ def test_variances_near_the_float64_limit(variance):
             assert counts.sum() == 10
 
 
+@pytest.mark.parametrize("domain", ["linear", "log"])
+def test_a_huge_variance_beside_means_of_zero_is_capped_in_the_wiener_stages_domain(domain):
+    """The Wiener stages divide the variances by their weights squared, about k^1.5 beside means of 0:
+    a variance of 5.7e36 went past float32's range there and overflowed in the factors (a warning;
+    found by the documented exploration run, ``AWR_ROBUST_EXPLORE=2000``). The cap is in the stage's domain."""
+    buffer = SampleBuffer.from_moments(np.array([[2, 0]]), np.zeros((1, 2)), np.array([[5.73e36, 0.0]]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = reconstruct(buffer, domain=domain, c_s=0, levels=1, pixel_clamp=None)
+    assert np.array_equal(out, np.zeros((1, 2, 1)))
+
+
 def test_counts_beyond_int64_are_named_as_such_not_negative():
     """Two buffers of 2**62 samples merged, or a uint64 count of 2**64-1, were "negative" (the int64
     sum or cast wrapped; red-team pass 5)."""
