@@ -129,11 +129,11 @@ def run_from_args(args: argparse.Namespace) -> int:
         results = run_benchmark(config, output_dir=args.output_dir, results_path=args.results,
                                 plots=not args.no_plots, progress=not args.quiet,
                                 mode_name="quick" if args.quick else "full")
-    except ImportError as exc:
-        print(f"awr bench: {exc}", file=sys.stderr)
+    except ImportError as exc:  # one line in the form of every awr error (docs/cli.md)
+        print(f"awr: error: {exc}", file=sys.stderr)
         return 1
     except (ValueError, FileExistsError, FileNotFoundError) as exc:  # the user's options: nothing was written
-        print(f"awr bench: {exc}", file=sys.stderr)
+        print(f"awr: error: {exc}", file=sys.stderr)
         return 2
     s = results["summary"]
     print(f"{'scene':<14} " + " ".join(f"{m:>16}" for m in s["scenes"][next(iter(s["scenes"]))]["relmse"]))

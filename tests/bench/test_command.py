@@ -30,7 +30,8 @@ def test_main_rejects_an_unknown_scene(tmp_path, capsys):
     pytest.importorskip("skimage")
     code = main(["--quick", "--scenes", "no_such_scene", "--output-dir", str(tmp_path), "--quiet", "--no-plots"])
     assert code == 2
-    assert "no_such_scene" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert err.startswith("awr: error: scenes: 'no_such_scene' is not one of") and err.count("\n") == 1
     assert not (tmp_path / "benchmarks.md").exists()
 
 
