@@ -20,7 +20,8 @@ OIDN guide (``guide=guides.oidn``: Open Image Denoise with the albedo and normal
 relMSE, MSE and the image mean. The bundled tracer's scenes are 128x128 with their 4096-spp
 references; the Mitsuba 3 scenes run through the ``mitsuba`` renderer (skipped with a notice when
 it is not installed), 256x256 against the 1024-spp references ``bench_reconstruct.py`` caches
-(the same ``--cache`` shares them). Results: ``benchmarks/results/guides.json``.
+(the same ``--cache`` shares them). Results: ``benchmarks/results/guides.json`` (``--output``
+another file and ``--images`` another folder, which a trial run keeps off the stored ones).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import argparse
 import dataclasses
 import functools
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -674,8 +676,8 @@ CROP = 48
 ZOOM = 3
 
 
-def crops(spp: int, cache: Path) -> list[str]:
-    """One PNG per scene of :data:`CROPS`: reference, mean, default, + features, + OIDN guide, OIDN."""
+def crops(spp: int, cache: Path, images: Path = IMAGES) -> list[str]:
+    """One PNG per scene of :data:`CROPS` in ``images``: reference, mean, default, + features, + OIDN guide, OIDN."""
     written = []
     for (renderer, scene), (top, left) in CROPS.items():
         if renderer == "mitsuba" and not _mitsuba_available():
@@ -687,18 +689,20 @@ def crops(spp: int, cache: Path) -> list[str]:
         window = (slice(top, top + CROP), slice(left, left + CROP))
         row = np.concatenate([np.pad(t[window], ((0, 0), (0, 2), (0, 0)), constant_values=1.0) for t in tiles], 1)
         row = np.repeat(np.repeat(row, ZOOM, axis=0), ZOOM, axis=1)
-        path = IMAGES / f"guides_{renderer}_{scene}_{spp}spp.png"
+        path = images / f"guides_{renderer}_{scene}_{spp}spp.png"
         write_preview(path, row, overwrite=True)
-        written.append(str(path.relative_to(ROOT.parent)))
-        print(f"wrote {path.relative_to(ROOT.parent)}", flush=True)
+        shown = os.path.relpath(path, ROOT.parent)
+        written.append(shown)
+        print(f"wrote {shown}", flush=True)
     return written
 
 
 # ---------------------------------------------------------------------------- main
-def _update(section: str, value: Any, command: str) -> None:
-    data = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
+def _update(section: str, value: Any, command: str, path: Path = RESULTS) -> None:
+    """Store one section's rows in ``path``, keeping its other sections."""
+    data = json.loads(path.read_text()) if path.exists() else {}
     data[section] = {"command": command, "machine": machine_info("pyoidn"), "rows": value}
-    write_json(RESULTS, data)
+    write_json(path, data)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -711,6 +715,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--crop-spp", type=int, default=8, choices=SPPS, help="crops: spp shown (default 8)")
     parser.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "awr-denoise" / "reconstruct",
                         help="where rendered buffers and Mitsuba references are kept (default %(default)s)")
+    parser.add_argument("--output", type=Path, default=RESULTS,
+                        help="results JSON (default benchmarks/results/guides.json); a trial run keeps the stored one")
+    parser.add_argument("--images", type=Path, default=IMAGES, help="crops: folder of the PNGs (default docs/img)")
     args = parser.parse_args(argv)
     if args.section != "tables" and not guides.oidn_available():
         print(f"bench_guides: {guides.OIDN_HINT}", file=sys.stderr)
@@ -718,37 +725,37 @@ def main(argv: list[str] | None = None) -> int:
     command = recorded_command("bench_guides.py", argv)
     if args.section == "quality":
         rows = quality(quality_scenes(args.scenes), tuple(sorted(args.spps)), args.groups, args.cache)
-        _update("quality", rows, command)
+        _update("quality", rows, command, args.output)
         quality_tables(rows)
     elif args.section == "samplers":
         rows = samplers(tuple(args.scenes or TRACER_SCENES), tuple(s for s in args.spps if s >= 16) or (16, 32), 0)
-        _update("samplers", rows, command)
+        _update("samplers", rows, command, args.output)
         sampler_table(rows)
     elif args.section == "synthetic":
         rows = synthetic(("gradient", "edges", "hdr_source"), (4, 16, 64, 256), 4)
-        _update("synthetic", rows, command)
+        _update("synthetic", rows, command, args.output)
         synthetic_table(rows)
     elif args.section == "ablations":
         rows = ablations(tuple(args.scenes or TRACER_SCENES), tuple(s for s in args.spps if s in (8, 32)), args.cache)
-        _update("ablations", rows, command)
+        _update("ablations", rows, command, args.output)
         ablation_table(rows)
     elif args.section == "avenues":
         rows = avenues(quality_scenes(args.scenes), max(args.spps), args.groups, args.cache)
-        _update("avenues", rows, command)
+        _update("avenues", rows, command, args.output)
         avenue_table(rows)
     elif args.section == "features":
         rows = feature_limits(quality_scenes(args.scenes), tuple(s for s in args.spps if s in (8, 32)) or (8, 32),
                               args.groups, args.cache)
-        _update("features", rows, command)
+        _update("features", rows, command, args.output)
         feature_limits_table(rows)
     elif args.section == "pbrt":
         rows = pbrt()
-        _update("pbrt", rows, command)
+        _update("pbrt", rows, command, args.output)
         pbrt_table(rows)
     elif args.section == "crops":
-        _update("crops", crops(args.crop_spp, args.cache), command)
+        _update("crops", crops(args.crop_spp, args.cache, args.images), command, args.output)
     else:  # print the tables of the stored results
-        data = json.loads(RESULTS.read_text())
+        data = json.loads(args.output.read_text())
         for section, show in (("quality", quality_tables), ("samplers", sampler_table),
                               ("synthetic", synthetic_table), ("ablations", ablation_table),
                               ("avenues", avenue_table), ("features", feature_limits_table), ("pbrt", pbrt_table)):
