@@ -100,29 +100,44 @@ def luminance_weights(channels: Sequence[str]) -> FloatArray:
 
 
 def channel_groups(channels: Sequence[str]) -> list[tuple[int, ...]] | None:
-    """The channels a reconstruction treats apart: R,G,B together, every other channel alone.
+    """The channels a reconstruction treats apart: each colour together, every other channel alone.
 
-    ``None`` (one group, every channel together) unless the names hold R, G and B (as
-    :func:`luminance_weights` finds them, any layer prefix) and more. The domain's scale is the
-    mean of its channels and the luminance mode's factor is made from the colour: an alpha or an
-    AOV (a depth of 1000) reconstructed with the colour moved the colour, and the luminance factor
-    moved an exact alpha (docs/robustness.md, "Channels that are not colour").
+    A colour is R, G and B of one layer (the name's part before its last dot), else X, Y and Z,
+    else a single Y; every other channel (an alpha, a depth, an AOV) is a group of its own. ``None``
+    (every channel together) where that leaves one group: one colour alone, or no colour at all
+    (``ch0``, ``ch1``). The domain's scale is the mean of its channels and the luminance mode's
+    factor is made from the colour: an alpha or an AOV reconstructed with the colour moved the
+    colour, and the luminance factor moved an exact alpha (docs/robustness.md, "Channels that are
+    not colour").
 
     Examples
     --------
     >>> from awr_denoise.channels import channel_groups
     >>> channel_groups(["R", "G", "B", "A"])
     [(0, 1, 2), (3,)]
-    >>> channel_groups(["A", "B", "G", "R", "depth"])
-    [(1, 2, 3), (0,), (4,)]
+    >>> channel_groups(["A", "B", "G", "R", "depth"]), channel_groups(["Y", "A"])
+    ([(1, 2, 3), (0,), (4,)], [(0,), (1,)])
+    >>> channel_groups(["a.R", "a.G", "a.B", "b.R", "b.G", "b.B"])    # two layers, two colours
+    [(0, 1, 2), (3, 4, 5)]
     >>> channel_groups(["R", "G", "B"]) is None, channel_groups(["ch0", "ch1"]) is None
     (True, True)
     """
-    names = [str(c).rsplit(".", 1)[-1].upper() for c in channels]
-    if len(names) <= 3 or not {"R", "G", "B"} <= set(names):
-        return None
-    colour = tuple(sorted(names.index(name) for name in "RGB"))  # the first of each, as luminance_weights
-    return [colour] + [(i,) for i in range(len(names)) if i not in colour]
+    names = [str(c) for c in channels]
+    bare = [name.rsplit(".", 1)[-1].upper() for name in names]
+    layers = [name.rsplit(".", 1)[0] if "." in name else "" for name in names]
+    groups: list[tuple[int, ...]] = []
+    taken: set[int] = set()
+    for colour in (("R", "G", "B"), ("X", "Y", "Z"), ("Y",)):
+        for layer in dict.fromkeys(layers):  # the layers in their order
+            first: dict[str, int] = {}
+            for i, (name, of) in enumerate(zip(bare, layers)):
+                if of == layer and name in colour and i not in taken:
+                    first.setdefault(name, i)  # the first of each, as luminance_weights
+            if len(first) == len(colour):
+                groups.append(tuple(sorted(first.values())))
+                taken.update(first.values())
+    groups += [(i,) for i in range(len(names)) if i not in taken]
+    return groups if taken and len(groups) > 1 else None
 
 
 def resolve_channels(channels: Sequence[str] | int | None, n_channels: int) -> tuple[str, ...]:

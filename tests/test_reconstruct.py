@@ -644,4 +644,31 @@ def test_a_channel_beside_the_colour_does_not_change_it(mode, kwargs):
         assert_array_equal(result.variance[..., 1:], colour.variance)
         assert [len(t) for t in result.thresholds[1:]] == [len(t) for t in colour.thresholds]
         assert result.levels == colour.levels and result.parameters == colour.parameters
+        # The colour's share and gain: an exact alpha's averaged in halved the one and doubled the other.
+        assert result.fraction_zeroed == colour.fraction_zeroed
+        assert_array_equal(result.noise_gain, colour.noise_gain)
     assert np.all(np.isnan(reconstruct_detailed(both, variance_probes=0).variance))
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_an_alpha_beside_a_mono_or_xyz_colour_and_a_second_layer_stay_apart(mode):
+    """The colour is R,G,B of a layer, else X,Y,Z, else Y: an alpha beside Y or X,Y,Z moved the colour,
+    and a second layer's R,G,B were split into single channels (a review of the first fix)."""
+    rgb = SyntheticRenderer(make_scene("edges", (32, 32)), seed=2)(SampleRequest.uniform((32, 32), 4))
+    h, w = rgb.shape
+    alpha_mean, alpha_var = np.ones((h, w, 1)), np.zeros((h, w, 1))
+    for names in (("X", "Y", "Z"), ("Y",)):
+        n = len(names)
+        colour = SampleBuffer.from_moments(rgb.count, rgb.mean[..., :n], rgb.variance[..., :n], channels=names)
+        both = SampleBuffer.from_moments(rgb.count, np.concatenate([colour.mean, alpha_mean], 2),
+                                         np.concatenate([colour.variance, alpha_var], 2), channels=names + ("A",))
+        out = reconstruct(both, mode=mode)
+        assert_array_equal(out[..., :n], reconstruct(colour, mode=mode))
+        assert_allclose(out[..., n], 1.0, rtol=1e-9)
+    layers = SampleBuffer.from_moments(rgb.count, np.concatenate([rgb.mean, 2 * rgb.mean], 2),
+                                       np.concatenate([rgb.variance, 4 * rgb.variance], 2),
+                                       channels=("a.R", "a.G", "a.B", "b.R", "b.G", "b.B"))
+    second = SampleBuffer.from_moments(rgb.count, 2 * rgb.mean, 4 * rgb.variance, channels=("b.R", "b.G", "b.B"))
+    out = reconstruct(layers, mode=mode)
+    assert_array_equal(out[..., :3], reconstruct(rgb, mode=mode))
+    assert_array_equal(out[..., 3:], reconstruct(second, mode=mode))

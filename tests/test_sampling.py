@@ -594,3 +594,25 @@ def test_a_ranking_sampler_refuses_an_empty_first_round():
         with pytest.raises(ValueError, match="initial_spp: must be >= 1"):
             cls((4, 4), initial_spp=0)
     assert UniformSampler((4, 4), initial_spp=0).initial_spp == 0
+
+
+def test_an_alpha_beside_the_colour_does_not_move_the_measured_gains_samples():
+    """With ``noise_model="reconstruction"`` an exact alpha sent 692 of 4096 samples elsewhere in the
+    second round: the measured gain was the mean over every channel, the alpha's 1 included (a review
+    of the channel groups). The gain is now the colour's: the same requests, round by round."""
+    renderer = SyntheticRenderer(make_scene("edges", (32, 32)), seed=1)
+
+    def with_alpha(batch: SampleBuffer) -> SampleBuffer:
+        h, w = batch.shape
+        return SampleBuffer.from_moments(batch.count, np.concatenate([batch.mean, np.ones((h, w, 1))], 2),
+                                         np.concatenate([batch.variance, np.zeros((h, w, 1))], 2),
+                                         channels=("R", "G", "B", "A"))
+
+    rgb = AdaptiveSampler((32, 32), noise_model="reconstruction", seed=0)
+    rgba = AdaptiveSampler((32, 32), channels=("R", "G", "B", "A"), noise_model="reconstruction", seed=0)
+    for _ in range(3):
+        a, b = rgb.ask(4096), rgba.ask(4096)
+        np.testing.assert_array_equal(a.counts, b.counts)
+        batch = renderer(a)
+        rgb.tell(a, batch)
+        rgba.tell(b, with_alpha(batch))
