@@ -72,8 +72,9 @@ def check_finite(name: str, a: FloatArray) -> None:
         raise ValueError(f"{name}: {pixels} pixel(s) hold NaN or Inf")
 
 
-def check_count(count: object, name: str = "count") -> CountArray:
-    """(H, W) whole, non-negative sample counts as int64 (``name``: the parameter a refusal names)."""
+def check_count(count: object, name: str = "count", *, summed: bool = True) -> CountArray:
+    """(H, W) whole, non-negative sample counts as int64 (``name``: the parameter a refusal names);
+    ``summed``: their total too is held to 2**62 (not for per-pixel sample indices)."""
     c = plain(name, count)
     if c.ndim != 2:
         raise ValueError(f"{name}: expected shape (H, W), got {c.shape}")
@@ -90,7 +91,7 @@ def check_count(count: object, name: str = "count") -> CountArray:
     c = c.astype(np.int64, order="C")
     if (c < 0).any():
         raise ValueError(f"{name}: {int((c < 0).sum())} pixel(s) are negative")
-    if c.sum(dtype=np.float64) > 2**62:  # summed in float64: an int64 sum would wrap to a negative total
+    if summed and c.sum(dtype=np.float64) > 2**62:  # summed in float64: an int64 sum would wrap to a negative total
         raise ValueError(f"{name}: {c.sum(dtype=np.float64):.4g} samples in all exceed 2**62, the most int64 totals "
                          "hold safely")
     return c

@@ -28,6 +28,7 @@ import numpy as np
 from scipy import ndimage
 
 from . import _checks
+from ._arrays import numeric
 from ._typing import FloatArray
 from .buffers import SampleBuffer
 from .domains import Domain
@@ -376,7 +377,7 @@ def sampling_density(
     if noise_model != "reconstruction" and noise_gain is not None:
         raise ValueError(f"noise_gain: a measured gain needs noise_model='reconstruction', not {noise_model!r}")
     if noise_gain is not None:
-        noise_gain = np.asarray(noise_gain, dtype=np.float64)
+        noise_gain = numeric("noise_gain", noise_gain).astype(np.float64)  # complex, bool, masked entries refused
         if noise_gain.shape != buffer.shape:
             raise ValueError(f"noise_gain: shape {noise_gain.shape} is not the buffer's {buffer.shape}")
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)

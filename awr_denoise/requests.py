@@ -70,7 +70,7 @@ class SampleRequest(ReadOnlyArrays):
         # check_count refuses NaN, fractions, masked entries and a uint64 past 2**62 (cast first, it read
         # as negative), naming the field; it returns a C-ordered int64 copy.
         counts = check_count(self.counts, "counts")
-        first = check_count(self.first_index, "first_index")
+        first = check_count(self.first_index, "first_index", summed=False)  # indices: each within 2**62
         if counts.size == 0:
             raise ValueError(f"counts: empty image of shape {counts.shape}")
         if counts.shape != first.shape:

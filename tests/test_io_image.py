@@ -18,6 +18,25 @@ from awr_denoise.errors import InputFileError  # noqa: E402
 from awr_denoise.io import read_header, read_image, write_image  # noqa: E402
 
 
+def test_write_exr_takes_any_byte_order_and_names_what_it_refuses(tmp_path):
+    """A big-endian plane, a masked plane (its hidden values were written), a float64 or a complex one:
+    the bindings' message named no plane (a review of the array-layout fixes)."""
+    from awr_denoise.io.exr import write_exr
+
+    plane = np.arange(12, dtype=">f4").reshape(3, 4)
+    write_exr(tmp_path / "be.exr", {"R": plane, "G": plane.T.copy().T, "B": np.asfortranarray(plane)})
+    back = read_image(tmp_path / "be.exr")
+    for c in range(3):
+        np.testing.assert_array_equal(back[..., c], plane.astype(np.float32))
+    ones = np.ones((2, 2), np.float32)
+    for bad, message in ((np.ma.masked_array(ones, mask=[[1, 0], [0, 0]]), "R: a masked array with 1 masked entries"),
+                         (ones.astype(np.float64), "R: a plane of dtype float64"),
+                         (ones + 0j, "R: a plane of dtype complex64")):
+        with pytest.raises(TypeError, match=message):
+            write_exr(tmp_path / "bad.exr", {"R": bad})
+    assert not (tmp_path / "bad.exr").exists()
+
+
 def test_round_trip_float32_exact(tmp_path):
     img = np.random.default_rng(0).random((5, 7, 3)).astype(np.float32)
     write_image(tmp_path / "a.exr", img, header={"awr:c_s": 1.5, "awr:wavelet": "bior4.4"})

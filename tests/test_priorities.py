@@ -212,6 +212,18 @@ def test_the_noise_model_is_checked():
             sampling_density(buf, noise_gain=np.ones(buf.shape), noise_model=model)
 
 
+def test_a_measured_gain_of_another_kind_is_refused():
+    """A masked gain's hidden values were used, a bool gain read as 0 and 1, a complex one cast with a
+    warning (a review of the array-layout fixes)."""
+    _, buf = _scene_buffer("edges")
+    gain = np.ones(buf.shape)
+    for bad, message in ((np.ma.masked_array(gain, mask=gain > 0), "noise_gain: a masked array"),
+                         (gain > 0, "noise_gain: expected a numeric array, got dtype bool"),
+                         (gain + 0j, "noise_gain: complex values")):
+        with pytest.raises(TypeError, match=message):
+            sampling_density(buf, noise_gain=bad, noise_model="reconstruction")
+
+
 def test_density_is_zero_for_a_deterministic_image():
     buf = _grey_buffer(np.linspace(0, 1, 64).reshape(8, 8), np.zeros((8, 8)), np.full((8, 8), 4))
     assert_array_equal(sampling_density(buf), 0.0)

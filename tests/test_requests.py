@@ -108,3 +108,12 @@ def test_a_request_cannot_be_made_writeable_again():
             a.flags.writeable = True
     with pytest.raises(TypeError, match="counts: a masked array with 1 masked entries"):
         SampleRequest(np.ma.masked_equal(np.array([[1, 2]]), 2), np.zeros((1, 2), int))
+
+
+def test_large_first_indices_are_per_pixel_not_summed():
+    """The first indices are each within 2**62, not their sum: ``uniform(..., first_index=2**49)`` of
+    a 128x128 image was refused as "samples in all exceed 2**62" (a review of this check)."""
+    request = SampleRequest.uniform((128, 128), 4, first_index=2**49)
+    assert int(request.first_index.max()) == 2**49 and request.total == 4 * 128 * 128
+    with pytest.raises(ValueError, match="first_index: 1 pixel\\(s\\) exceed 2\\*\\*62"):
+        SampleRequest(np.ones((1, 1), int), np.full((1, 1), 2**62 + 1, np.uint64))

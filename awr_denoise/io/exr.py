@@ -520,6 +520,21 @@ def _attribute(key: str, value: Any) -> Any:
     return str(value)
 
 
+_WRITABLE = {np.dtype(np.float32), np.dtype(np.float16), np.dtype(np.uint32)}
+
+
+def _plane_to_write(name: str, plane: object, deep: bool) -> np.ndarray:
+    """A plane as the bindings take it: C-ordered, native byte order, FLOAT, HALF or UINT (object
+    arrays of per-pixel samples for deep data); masked entries and other types refused, naming it."""
+    a = plain(name, plane)
+    if deep and a.dtype == object:
+        return np.ascontiguousarray(a)
+    native = a.dtype.newbyteorder("=")
+    if native not in _WRITABLE:
+        raise TypeError(f"{name}: a plane of dtype {a.dtype}; write float32 (FLOAT), float16 (HALF) or uint32 (UINT)")
+    return np.ascontiguousarray(a, dtype=native)
+
+
 def write_exr(path: str | os.PathLike[str], channels: Mapping[str, np.ndarray],
               header: Mapping[str, Any] | None = None, *, overwrite: bool = False,
               deep: bool = False) -> Path:
@@ -547,7 +562,7 @@ def write_exr(path: str | os.PathLike[str], channels: Mapping[str, np.ndarray],
     # The bindings write a plane's raw buffer and ignore its strides: a Fortran-ordered, transposed
     # or broadcast plane (counts a renderer stores (W, H) and hands over transposed) was written in
     # memory order, a permutation of its pixels. Each plane goes in as a C-ordered array.
-    data = {name: np.ascontiguousarray(plane) for name, plane in channels.items()}
+    data = {name: _plane_to_write(name, plane, deep) for name, plane in channels.items()}
     shape = next((tuple(np.shape(a))[:2] for a in data.values()), None)
     for key, value in (header or {}).items():
         key = str(key)
