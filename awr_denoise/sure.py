@@ -133,9 +133,11 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
         np.square(weights, out=weights)
         np.divide(1.0, weights, out=weights)
         weighted_gain = gain()
-        weighted_gain *= weights
         squared = change * change
-        squared *= weights
+        # Past float64 beside means of 0 (k tiny, a variance of 1e307): Inf, which share() reads.
+        with np.errstate(over="ignore"):
+            weighted_gain *= weights
+            squared *= weights
         return weighted_gain, squared
 
     # The squared-error criterion's weights are 1: its sums need no product.

@@ -260,6 +260,11 @@ def threshold_stage(prepared: Prepared, ops: WaveletOperators, c_s: float, *, mo
     if precision not in PRECISIONS:
         raise ValueError(f"precision: {precision!r} is not one of {', '.join(PRECISIONS)}")
     bound = prepared.bound
+    far = prepared.variance_y.max(initial=0.0)  # Var f'(mean)^2: a finite variance beside means of 0 overflows it
+    if not np.isfinite(far):
+        bad = int((~np.isfinite(prepared.variance_y)).any(axis=-1).sum())
+        raise ValueError(f"buffer: the variance of {bad} pixel(s) is beyond float64 in the {bound.domain.name} "
+                         "domain (divided by the square of its slope there); reconstruct it in domain='linear'")
     # c_s = 0 is Eq. 11's identity: float64 returns the means to float64's rounding, as it promises.
     if precision == "float32" and c_s > 0 and mode == "channels" and bound.domain.name == "log" \
             and not bound.domain.robust:

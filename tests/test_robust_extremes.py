@@ -500,6 +500,21 @@ def test_a_huge_variance_beside_means_of_zero_is_capped_in_the_wiener_stages_dom
     assert np.array_equal(out, np.zeros((1, 2, 1)))
 
 
+@pytest.mark.parametrize("variance", [1e307, 1.7e308])
+def test_a_variance_past_float64_in_the_log_domain_is_named_and_the_linear_domain_takes_it(variance):
+    """Beside means of 0 the log domain divides a variance of 1e307 by k^2 (k tiny) past float64: the
+    refusal named ``variance_of_mean``, an array the caller never passed; the linear domain leaked the
+    guard's overflow warning (a review of the array-layout fixes)."""
+    buffer = SampleBuffer.from_moments(np.full((8, 8), 4), np.zeros((8, 8, 3)), np.full((8, 8, 3), variance))
+    with pytest.raises(ValueError, match=r"buffer: the variance of 64 pixel\(s\) is beyond float64 in the log "
+                                         r"domain .* domain='linear'"):
+        reconstruct(buffer)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for precision in ("float32", "float64"):
+            assert np.array_equal(reconstruct(buffer, domain="linear", precision=precision), np.zeros((8, 8, 3)))
+
+
 def test_counts_beyond_int64_are_named_as_such_not_negative():
     """Two buffers of 2**62 samples merged, or a uint64 count of 2**64-1, were "negative" (the int64
     sum or cast wrapped; red-team pass 5)."""
