@@ -385,7 +385,8 @@ def sampling_density(
     plane = _plane(p)
     if not np.isfinite(plane[2].max(initial=0.0)):  # a finite variance the domain's derivative takes past 1.8e308
         raise ValueError(f"buffer: the per-sample variance of {int((~np.isfinite(plane[2])).sum())} pixel(s) is "
-                         f"beyond float64 in the {p.domain.name} domain; scale the radiance down")
+                         f"beyond float64 in the {p.domain.name} domain; sample it in domain='linear' (scaling "
+                         "the radiance changes nothing: the domain's offset scales with it)")
     deviation = partial(pooled_deviation, buffer, domain, absolute_above=absolute_above, prepared=p)
     if noise_model == "shrinkage":
         # The gain takes the priorities' and levels' place; the plane is normalised as for them
