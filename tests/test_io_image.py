@@ -235,10 +235,14 @@ def test_running_out_of_memory_on_a_plausible_file_is_the_machines(tmp_path, mon
         read_image(tmp_path / "a.exr")
 
 
-def test_a_corrupt_file_under_a_folder_named_memoryerror_is_corrupt(tmp_path):
-    """The bindings' report names the file: a path holding "MemoryError" made any corrupt file
-    "out of memory"."""
-    folder = tmp_path / "MemoryError"
+@pytest.mark.parametrize("name", ["MemoryError",
+                                  "Warning: Exception raised reading pixel data for part 0 - MemoryError"])
+def test_a_corrupt_file_under_a_folder_named_like_the_bindings_report_is_corrupt(tmp_path, monkeypatch, name):
+    """The bindings' report names the file: a path holding "MemoryError" made any corrupt file "out
+    of memory"; OpenEXR's lines start with the path as given, so a relative one can start like the
+    report."""
+    monkeypatch.chdir(tmp_path)
+    folder = Path(name)
     folder.mkdir()
     write_image(folder / "a.exr", np.random.default_rng(1).random((64, 64, 3)))
     data = (folder / "a.exr").read_bytes()
@@ -256,7 +260,6 @@ def test_an_impossible_claim_is_found_under_a_python_level_redirect(tmp_path):
     path = _claiming(tmp_path / "huge.exr", 2_000_000)
     with contextlib.redirect_stdout(io.StringIO()), pytest.raises(InputFileError, match="claims"):
         read_image(path)
-
 
 
 def test_where_the_bindings_reason_went_is_said(tmp_path, monkeypatch):
@@ -283,18 +286,6 @@ def test_where_the_bindings_reason_went_is_said(tmp_path, monkeypatch):
     with contextlib.redirect_stdout(seen), pytest.raises(InputFileError, match="printed its reason to Python"):
         read_image(tmp_path / "a.exr")
     assert "MemoryError" in seen.getvalue()
-
-
-def test_a_folder_named_like_the_bindings_report_is_not_read_as_it(tmp_path, monkeypatch):
-    # OpenEXR's lines start with the path as given: a relative one can start like the report.
-    monkeypatch.chdir(tmp_path)
-    folder = Path("Warning: Exception raised reading pixel data for part 0 - MemoryError")
-    folder.mkdir()
-    write_image(folder / "a.exr", np.random.default_rng(1).random((64, 64, 3)))
-    data = (folder / "a.exr").read_bytes()
-    (folder / "t.exr").write_bytes(data[: len(data) // 2])
-    with pytest.raises(InputFileError, match=r"t\.exr: .*(truncated|corrupt)"):
-        read_image(folder / "t.exr")
 
 
 def test_other_output_during_a_read_is_passed_through_not_read_as_corruption(tmp_path, monkeypatch, capfd):

@@ -97,9 +97,8 @@ def exact_counts(name: str, counts: np.ndarray) -> np.ndarray:
     c = numeric(name, counts)
     if c.dtype.kind == "f" and (~np.isfinite(c) | (c != np.round(c))).any():
         raise ValueError(f"{name}: counts must be whole numbers")
-    if c.dtype.kind == "u" and (c > MAX_EXACT_COUNT).any():  # cast to int64 first, 2**63 and more read as negative
-        raise ValueError(f"{name}: {int((c > MAX_EXACT_COUNT).sum())} pixel(s) exceed {MAX_EXACT_COUNT} "
-                         "(2**24), the largest count a float32 channel stores exactly")
+    if c.dtype.kind == "u":  # 2**63 and more would wrap to negative in int64: held just past the limit checked below
+        c = np.minimum(c, MAX_EXACT_COUNT + 1)
     c = c.astype(np.int64)
     if (c < 0).any():
         raise ValueError(f"{name}: {int((c < 0).sum())} pixel(s) are negative")
