@@ -207,32 +207,56 @@ def test_the_cxx_and_openexr_out_of_memory_reports_are_out_of_memory(tmp_path, m
         read_image(path)
 
 
+class _Starved:
+    """OpenEXR's bindings whose pixel reads (and, with ``headers=False``, header reads) run out of memory."""
+
+    def __init__(self, real, *, headers: bool = True):
+        self.real, self.headers = real, headers
+
+    def __getattr__(self, name):
+        return getattr(self.real, name)
+
+    def File(self, *args, header_only=False, **kwargs):  # noqa: N802 - OpenEXR's name
+        if header_only and self.headers:
+            return self.real.File(*args, header_only=header_only, **kwargs)
+        raise MemoryError
+
+
 def test_running_out_of_memory_on_a_plausible_file_is_the_machines(tmp_path, monkeypatch):
     """The bindings' MemoryError on a file whose size could hold its pixels stays out of memory
     (exit 1), naming what the pixels take; a header read failing so too does not recurse."""
     from awr_denoise.io import exr
 
     write_image(tmp_path / "a.exr", np.ones((64, 64, 3)))
-    real = exr._openexr()
-
-    class Starved:
-        def __init__(self, *, headers: bool):
-            self.headers = headers
-
-        def __getattr__(self, name):
-            return getattr(real, name)
-
-        def File(self, *args, header_only=False, **kwargs):  # noqa: N802 - OpenEXR's name
-            if header_only and self.headers:
-                return real.File(*args, header_only=header_only, **kwargs)
-            raise MemoryError
-
-    monkeypatch.setattr(exr, "_openexr", lambda: Starved(headers=True))
+    starved = _Starved(exr._openexr())
+    monkeypatch.setattr(exr, "_openexr", lambda: starved)
     with pytest.raises(MemoryError, match=r"a\.exr \(its pixels take [\d.e+-]+ GiB or more\)"):
         read_image(tmp_path / "a.exr")
-    monkeypatch.setattr(exr, "_openexr", lambda: Starved(headers=False))
+    starved.headers = False
     with pytest.raises(MemoryError, match=r"reading .*a\.exr$"):
         read_image(tmp_path / "a.exr")
+
+
+@pytest.mark.parametrize("compression", ["B44A", "B44", "RLE", "NO"])
+def test_a_claim_past_its_compressions_own_ratio_is_the_files_error(tmp_path, monkeypatch, compression):
+    """Under an address-space limit a corrupt B44A file claiming 6.25 GiB in 24 KB was "out of
+    memory" (exit 1): the bound was one ratio (2**20) for every compression. Each now has its own
+    (B44A shrinks a flat 4x4 block of HALF to 3 bytes, 10.7:1), and a valid file near that ratio
+    (a constant 2048x2048 image) stays the machine's."""
+    from awr_denoise.io import exr
+
+    kind = getattr(OpenEXR, f"{compression}_COMPRESSION")
+    corrupt = _claiming(tmp_path / "claims.exr", 2000, kind)
+    assert 2 * 3 * 2000**2 < 2**20 * corrupt.stat().st_size  # within the old single bound
+    flat = tmp_path / "flat.exr"
+    with OpenEXR.File({"compression": kind, "type": OpenEXR.scanlineimage},
+                      {c: np.zeros((2048, 2048), np.float16) for c in "RGB"}) as f:
+        f.write(str(flat))
+    monkeypatch.setattr(exr, "_openexr", lambda real=exr._openexr(): _Starved(real))
+    with pytest.raises(InputFileError, match=r"claims\.exr: its data window claims [\d.e+-]+ GiB of pixels in a file"):
+        read_image(corrupt)
+    with pytest.raises(MemoryError, match=r"flat\.exr \(its pixels take"):
+        read_image(flat)
 
 
 @pytest.mark.parametrize("name", ["MemoryError",

@@ -300,40 +300,44 @@ def _python_stdout_elsewhere() -> bool:
 _MEMORY_REPORT = re.compile(r"^Warning: Exception raised reading pixel data for part \d+ - "
                             r"(MemoryError|std::bad_alloc)\b|\(EXR_ERR_OUT_OF_MEMORY\) Unable to allocate\b", re.M)
 
-# Compressions whose ratio is bounded far below _MAX_RATIO: zlib's is about 1032:1 a chunk, zstd's
-# 32768:1 (a run-length block), RLE's 64:1, the others' fixed or a zlib stage's. HTJ2K (and any
+# The most a compression can shrink a chunk of HALF samples (the claim below counts 2 bytes a
+# sample; FLOAT and UINT take more, so their ratio is lower), with a margin of 1.5 or more: uncompressed 1;
+# B44 a 4x4 block of 32 bytes to 14, B44A a flat block to 3 (other channel types are stored
+# uncompressed); RLE 128 bytes to a 2-byte run; zlib (ZIP, ZIPS and PXR24's stage) about 1032:1.
+# PIZ, DWAA, DWAB and ZSTD (32768:1 a run-length block) are held to _MAX_RATIO. HTJ2K (and any
 # compression added later) keeps its per-chunk size almost constant as the chunk grows: no bound.
-_BOUNDED = {"NO", "RLE", "ZIPS", "ZIP", "PIZ", "PXR24", "B44", "B44A", "DWAA", "DWAB", "ZSTD"}
-
-# No bounded compression shrinks pixels a millionfold: a header claiming more than this many
-# times the file's size is corrupt, whatever the machine's memory.
 _MAX_RATIO = 2**20
+_RATIOS = {"NO": 2, "B44": 4, "B44A": 16, "RLE": 128, "ZIPS": 2048, "ZIP": 2048, "PXR24": 2048,
+           "PIZ": _MAX_RATIO, "DWAA": _MAX_RATIO, "DWAB": _MAX_RATIO, "ZSTD": _MAX_RATIO}
+"""No bounded compression shrinks pixels by more than its ratio here (at most a millionfold): a
+header claiming more than that many times the file's size is corrupt, whatever the machine's memory."""
 
 
-def _claimed_bytes(path: Path) -> tuple[int, bool]:
+def _claimed_bytes(path: Path) -> tuple[int, int | None]:
     """A lower bound on the bytes the headers' flat data windows claim (2 a sample: HALF; 0 if
-    unknown), and whether every part's compression bounds its ratio (deep parts never do: a pixel
-    may hold no sample)."""
-    claimed, bounded = 0, True
+    unknown), and the largest ratio any part's compression allows (``None``: no bound, as for deep
+    parts, where a pixel may hold no sample)."""
+    claimed, ratio = 0, 1
     with contextlib.suppress(InputFileError, OSError, MemoryError, KeyError, TypeError, ValueError):
         for part in read_exr(path, header_only=True):
             name = str(part.header.get("compression", "")).rsplit(".", 1)[-1].removesuffix("_COMPRESSION")
-            bounded = bounded and not part.deep and name in _BOUNDED
+            bound = None if part.deep else _RATIOS.get(name)
+            ratio = None if bound is None or ratio is None else max(ratio, bound)
             if part.deep:
                 continue
             (x0, y0), (x1, y1) = header_windows(part.header)["dataWindow"]
             pixels = (x1 - x0 + 1) * (y1 - y0 + 1)
             for ch in part.header.get("channels", ()):
                 claimed += 2 * pixels // max(1, int(ch.xSampling) * int(ch.ySampling))
-        return claimed, bounded
-    return 0, False
+        return claimed, ratio
+    return 0, None
 
 
-def _impossible_size(path: Path, claimed: tuple[int, bool] | None = None) -> InputFileError | None:
+def _impossible_size(path: Path, claimed: tuple[int, int | None] | None = None) -> InputFileError | None:
     """The file's error if its headers claim more pixel data than its size could hold."""
-    size, bounded = _claimed_bytes(path) if claimed is None else claimed
+    size, ratio = _claimed_bytes(path) if claimed is None else claimed
     with contextlib.suppress(OSError):
-        if bounded and size > _MAX_RATIO * max(path.stat().st_size, 1):
+        if ratio is not None and size > ratio * max(path.stat().st_size, 1):
             return file_error(path, f"its data window claims {size / 2**30:.3g} GiB of pixels in a file of "
                                     f"{path.stat().st_size} bytes (truncated or corrupt header)")
     return None
