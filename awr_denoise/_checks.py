@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["MAX_SEED", "MAX_SPP", "MAX_SIDE", "MAX_LEVELS", "real", "whole", "whole_text", "whole_option", "flag",
+__all__ = ["MAX_SEED", "MAX_SPP", "MAX_SIDE", "MAX_LEVELS", "scalar", "described", "real", "whole", "whole_text", "whole_option", "flag",
            "seed", "shape2d", "name", "slices", "executor"]
 
 MAX_SEED = 2**63 - 1
@@ -33,12 +33,43 @@ MAX_LEVELS = 31
 """Deepest wavelet decomposition of any image (each level halves a side of at most 2**31)."""
 
 
+def scalar(value: Any) -> Any:
+    """A 0-d array as its number (what ``np.asarray`` of a number or a reduction's ``out=`` gives);
+    anything else as it is. A masked 0-d array stays an array (and is refused as one).
+
+    Examples
+    --------
+    >>> isinstance(scalar(np.array(16)), np.ndarray), scalar(np.array(16)) == 16, scalar([16])
+    (False, True, [16])
+    """
+    if isinstance(value, np.ndarray) and value.ndim == 0 and not isinstance(value, np.ma.MaskedArray):
+        return value[()]
+    return value
+
+
 def _number(param: str, value: Any) -> numbers.Real:
+    value = scalar(value)
     if isinstance(value, (bool, np.bool_)):
         raise TypeError(f"{param}: expected a number, got the bool {value!r}")
     if not isinstance(value, numbers.Real):
-        raise TypeError(f"{param}: expected a number, got {type(value).__name__} {value!r}")
+        raise TypeError(f"{param}: expected a number, got {described(value)}")
     return value
+
+
+def described(value: Any) -> str:
+    """A value for a one-line message: an array by its type, shape and dtype, else its repr, cut.
+
+    Examples
+    --------
+    >>> described(np.ones((2, 3))), described("abc")
+    ('ndarray of shape (2, 3) and dtype float64', "str 'abc'")
+    """
+    if isinstance(value, np.ndarray):
+        return f"{type(value).__name__} of shape {value.shape} and dtype {value.dtype}"
+    shown = repr(value)
+    if len(shown) > 60 or "\n" in shown:
+        shown = shown.split("\n", 1)[0][:57] + "..."
+    return f"{type(value).__name__} {shown}"
 
 
 def _fmt(bound: float) -> str:
@@ -72,11 +103,14 @@ def real(param: str, value: Any, *, minimum: float | None = None, maximum: float
 
 
 def whole(param: str, value: Any, *, minimum: int | None = None, maximum: int | None = None,
-          none: bool = False) -> int | None:
-    """``value`` as an int within the bounds; floats are accepted only when whole (4.0)."""
+          none: bool = False, integral: bool = False) -> int | None:
+    """``value`` as an int within the bounds; floats are accepted only when whole (4.0), and not
+    at all with ``integral``."""
     if value is None and none:
         return None
     number = _number(param, value)
+    if integral and not isinstance(number, numbers.Integral):
+        raise TypeError(f"{param}: expected an integer, got {described(number)}")
     if isinstance(number, numbers.Integral):
         result = int(number)
     else:
@@ -141,7 +175,7 @@ def whole_option(*, minimum: int | None = None, maximum: int | None = None,
 def flag(param: str, value: Any) -> bool:
     """``value`` as a bool; anything but True/False (a string, a number) is refused."""
     if not isinstance(value, (bool, np.bool_)):
-        raise TypeError(f"{param}: expected True or False, got {type(value).__name__} {value!r}")
+        raise TypeError(f"{param}: expected True or False, got {described(value)}")
     return bool(value)
 
 
@@ -152,8 +186,9 @@ def seed(param: str, value: Any) -> int:
 
 def shape2d(param: str, value: Any, *, minimum: int = 1) -> tuple[int, int]:
     """An (H, W) image shape of whole numbers in ``minimum``..:data:`MAX_SIDE`."""
-    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 2:
-        raise TypeError(f"{param}: expected (height, width), got {value!r}")
+    value = scalar(value)
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or getattr(value, "ndim", 1) == 0 or len(value) != 2:
+        raise TypeError(f"{param}: expected (height, width), got {described(value)}")
     h, w = (whole(param, s, maximum=MAX_SIDE) for s in value)
     if min(h, w) < minimum:  # type: ignore[type-var]
         raise ValueError(f"{param}: empty image {(h, w)}" if min(h, w) >= 0 else
@@ -164,7 +199,7 @@ def shape2d(param: str, value: Any, *, minimum: int = 1) -> tuple[int, int]:
 def name(param: str, value: Any, choices: tuple[str, ...] | None = None) -> str:
     """A name (a str), one of ``choices`` when given."""
     if not isinstance(value, str):
-        raise TypeError(f"{param}: expected a name, got {type(value).__name__} {value!r}")
+        raise TypeError(f"{param}: expected a name, got {described(value)}")
     if choices is not None and value not in choices:
         raise ValueError(f"{param}: {value!r} is not one of {', '.join(choices)}")
     return value
@@ -174,7 +209,7 @@ def slices(**values: Any) -> None:
     """Refuse anything but ``slice`` objects (a tile's rows and columns)."""
     for param, value in values.items():
         if not isinstance(value, slice):
-            raise TypeError(f"{param}: expected a slice, got {type(value).__name__} {value!r}")
+            raise TypeError(f"{param}: expected a slice, got {described(value)}")
 
 
 def executor(param: str, value: Any) -> Executor | None:

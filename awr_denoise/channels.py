@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -140,6 +141,19 @@ def channel_groups(channels: Sequence[str]) -> list[tuple[int, ...]] | None:
     return groups if taken and len(groups) > 1 else None
 
 
+def _names_or_count(channels: object, kind: str) -> Any:
+    """``channels`` checked as a number of channels or an ordered collection of names (one with
+    ``kind``, ``__len__`` or ``__iter__``); a set is refused, its order is not the data's."""
+    channels = _checks.scalar(channels)
+    if isinstance(channels, (set, frozenset)):
+        raise TypeError("channels: a set of names has no order; give them as a list or a tuple, in the data's order")
+    if isinstance(channels, (bool, np.bool_, float, np.floating, str, bytes)) or not (
+            isinstance(channels, (int, np.integer)) or hasattr(channels, kind)) or (
+            isinstance(channels, np.ndarray) and channels.ndim == 0):  # a masked 0-d array
+        raise TypeError(f"channels: expected a number of channels or their names, got {_checks.described(channels)}")
+    return channels
+
+
 def resolve_channels(channels: Sequence[str] | int | None, n_channels: int) -> tuple[str, ...]:
     """Channel names for ``n_channels`` channels: given names checked, or :func:`default_channel_names`.
 
@@ -151,9 +165,7 @@ def resolve_channels(channels: Sequence[str] | int | None, n_channels: int) -> t
     """
     if channels is None:
         return default_channel_names(n_channels)
-    if isinstance(channels, (bool, np.bool_, float, np.floating, str, bytes)) or not (
-            isinstance(channels, (int, np.integer)) or hasattr(channels, "__iter__")):
-        raise TypeError(f"channels: expected a number of channels or their names, got {channels!r}")
+    channels = _names_or_count(channels, "__iter__")
     if isinstance(channels, (int, np.integer)):
         if channels != n_channels:
             raise ValueError(f"channels: {channels} given but the data has {n_channels}")
@@ -175,9 +187,7 @@ def channel_count(channels: Sequence[str] | int) -> int:
     >>> channel_count(3), channel_count(["R", "G", "B", "A"])
     (3, 4)
     """
-    if isinstance(channels, (bool, np.bool_, float, np.floating, str, bytes)) or not (
-            isinstance(channels, (int, np.integer)) or hasattr(channels, "__len__")):
-        raise TypeError(f"channels: expected a number of channels or their names, got {channels!r}")
+    channels = _names_or_count(channels, "__len__")
     if isinstance(channels, (int, np.integer)):
         return _checks.whole("channels", channels, minimum=1, maximum=MAX_CHANNELS)  # type: ignore[return-value]
     return len(channels)

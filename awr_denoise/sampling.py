@@ -261,10 +261,7 @@ class Sampler:
         >>> request.total, sorted(set(request.counts.ravel().tolist())), sampler.ask() is request
         (100, [1, 2], True)
         """
-        if budget is not None:
-            if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)):
-                raise TypeError(f"budget: expected an integer, got {budget!r}")
-            _checks.whole("budget", budget, minimum=0, maximum=MAX_BUDGET)
+        budget = _checks.whole("budget", budget, minimum=0, maximum=MAX_BUDGET, none=True, integral=True)
         if self._pending is not None:
             if budget is not None and int(budget) != self._pending.total:
                 raise StaleRequestError(

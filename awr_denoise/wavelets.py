@@ -87,10 +87,11 @@ def default_levels(shape: Shape2D) -> int:
 
 
 def _check_levels(levels: int | None, shape: Shape2D) -> int:
+    levels = _checks.scalar(levels)
     if levels is None:
         return default_levels(shape)
     if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)):
-        raise TypeError(f"levels: expected an integer, got {levels!r}")
+        raise TypeError(f"levels: expected an integer, got {_checks.described(levels)}")
     top = max_levels(shape)
     if not 1 <= int(levels) <= top:
         raise ValueError(f"levels: {levels} is outside 1..{top} for an image of shape {tuple(shape)}")

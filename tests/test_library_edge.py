@@ -208,6 +208,7 @@ def _refuses(param: Param, value: object) -> None:
     named = param.name in message or (param.name == "name" and "domain" in message) or (
         param.name in ("offset", "gamma", "scale", "robust") and "domain" in message)
     assert named, f"{param.name}={value!r}: {type(caught.value).__name__}: {message}"
+    assert "\n" not in message, f"{param.name}: a message of more than one line: {message!r}"
 
 
 def _good(param: Param, value: object) -> bool:
@@ -249,6 +250,25 @@ def test_any_bad_name_or_flag_is_refused_naming_the_parameter(param, value):
     if _good(param, value):
         return
     _refuses(param, value)
+
+
+NUMBER_PARAMS = [p for p in PARAMS if p.kind not in ("name", "names", "flag")]
+ARRAY_FILLED = {"count", "mean", "variance", "values", "features", "image", "variance_of_mean"}  # np.full(.., v)
+_GOOD = {"real>=0": 0.5, "real>0": 0.5, "real": 0.5, "real>=1": 1.5, "fraction": 0.5, "int>=0": 2, "int>=1": 2,
+         "size>=0": 2, "size>=1": 2, "seed": 2}
+
+
+@pytest.mark.parametrize("param", NUMBER_PARAMS, ids=[f"{i}-{p.name}" for i, p in enumerate(NUMBER_PARAMS)])
+def test_a_zero_dimensional_array_is_its_number(param):
+    """``ask(np.array(16))`` was "expected an integer, got array(16)": a 0-d array (what np.asarray
+    of a number or a reduction with ``out=`` gives) is taken as its number wherever one is taken, and
+    a 0-d array of a bad value, a 1-element array and a masked number are refused in one line."""
+    good = _GOOD[param.kind]
+    param.call(np.array(good))
+    bads = [np.array(np.nan), np.array(True), np.array(-(2**70))]
+    for bad in bads + ([] if param.name in ARRAY_FILLED else [np.ones(100), np.ma.array(good)]):
+        if not _good(param, bad[()] if bad.ndim == 0 and not np.ma.isMaskedArray(bad) else bad):
+            _refuses(param, bad)
 
 
 # ------------------------------------------------------------------ valid extremes

@@ -6,8 +6,6 @@ writer otherwise, so previews never need an optional dependency.
 
 from __future__ import annotations
 
-import math
-import numbers
 import os
 import struct
 import zlib
@@ -15,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import _checks
 from .._arrays import numeric
 from .._typing import FloatArray
 from .atomic import atomic_write
@@ -37,10 +36,7 @@ def tonemap_srgb(image: FloatArray, *, exposure: float = 0.0) -> np.ndarray:
         a = a[..., None]
     if a.ndim != 3 or a.shape[2] not in (1, 3, 4):
         raise ValueError(f"image: expected (H, W), (H, W, 1), (H, W, 3) or (H, W, 4), got {np.shape(image)}")
-    if isinstance(exposure, (bool, np.bool_)) or not isinstance(exposure, numbers.Real):
-        raise TypeError(f"exposure: expected a number, got {exposure!r}")
-    if not math.isfinite(float(exposure)):
-        raise ValueError(f"exposure: must be finite, got {exposure}")
+    exposure = _checks.real("exposure", exposure)
     # 2**1023 already saturates every positive float; beyond it the scale itself would overflow.
     with np.errstate(over="ignore"):
         x = np.nan_to_num(a * 2.0 ** min(float(exposure), 1023.0), nan=0.0, posinf=1.0, neginf=0.0)

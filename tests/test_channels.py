@@ -1,0 +1,38 @@
+"""Channel names and counts (awr_denoise.channels)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from awr_denoise import SampleBuffer
+from awr_denoise.channels import channel_count, resolve_channels
+
+ONES = np.ones((4, 4)), np.ones((4, 4, 3)), np.ones((4, 4, 3))
+
+
+@pytest.mark.parametrize("names", [{"R", "G", "B"}, frozenset("RGB")])
+def test_a_set_of_names_is_refused(names):
+    """A set's order is its hashes' (random between runs for strings): ``channels={"R", "G", "B"}``
+    named the data's channels in an arbitrary order, so R could be labelled B without a word."""
+    for call in (lambda: SampleBuffer.from_moments(*ONES, channels=names),
+                 lambda: SampleBuffer.empty((4, 4), channels=names), lambda: channel_count(names)):
+        with pytest.raises(TypeError, match="channels: a set of names has no order"):
+            call()
+
+
+@pytest.mark.parametrize("given", [("B", "G", "R"), ["B", "G", "R"], np.array(["B", "G", "R"]), {"B": 0, "G": 1, "R": 2}])
+def test_ordered_names_keep_their_order(given):
+    assert resolve_channels(given, 3) == ("B", "G", "R")
+    assert SampleBuffer.from_moments(*ONES, channels=given).channels == ("B", "G", "R")
+
+
+@pytest.mark.parametrize("bad", [np.ma.array(3), np.array(True), 3.0, "RGB"])
+def test_a_count_or_names_is_all_that_is_taken(bad):
+    with pytest.raises(TypeError, match=r"^channels: expected a number of channels or their names, got [^\n]+$"):
+        channel_count(bad)
+
+
+def test_a_zero_dimensional_count_is_its_number():
+    assert channel_count(np.array(4)) == 4
+    assert SampleBuffer.empty((2, 2), channels=np.array(2)).n_channels == 2
