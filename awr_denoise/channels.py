@@ -10,7 +10,7 @@ import numpy as np
 from . import _checks
 from ._typing import FloatArray
 
-__all__ = ["default_channel_names", "adopted_channels", "luminance_weights", "channel_groups", "resolve_channels",
+__all__ = ["default_channel_names", "adopted_channels", "luminance_weights", "channel_groups", "colours", "resolve_channels",
            "channel_count", "MAX_CHANNELS"]
 
 _REC709 = np.array([0.2126, 0.7152, 0.0722])
@@ -123,6 +123,24 @@ def channel_groups(channels: Sequence[str]) -> list[tuple[int, ...]] | None:
     >>> channel_groups(["R", "G", "B"]) is None, channel_groups(["ch0", "ch1"]) is None
     (True, True)
     """
+    groups = colours(channels)
+    taken = {i for group in groups for i in group}
+    groups += [(i,) for i in range(len(channels)) if i not in taken]
+    return groups if taken and len(groups) > 1 else None
+
+
+def colours(channels: Sequence[str]) -> list[tuple[int, ...]]:
+    """The colours among ``channels``, each as its channels' indices in the data's order.
+
+    A colour is R, G and B of one layer (the name's part before its last dot; the first of each
+    name), else X, Y and Z, else a single Y (:func:`channel_groups`).
+
+    Examples
+    --------
+    >>> from awr_denoise.channels import colours
+    >>> colours(["A", "B", "G", "R", "depth"]), colours(["Y", "A"]), colours(["ch0", "ch1"])
+    ([(1, 2, 3)], [(0,)], [])
+    """
     names = [str(c) for c in channels]
     bare = [name.rsplit(".", 1)[-1].upper() for name in names]
     layers = [name.rsplit(".", 1)[0] if "." in name else "" for name in names]
@@ -137,8 +155,7 @@ def channel_groups(channels: Sequence[str]) -> list[tuple[int, ...]] | None:
             if len(first) == len(colour):
                 groups.append(tuple(sorted(first.values())))
                 taken.update(first.values())
-    groups += [(i,) for i in range(len(names)) if i not in taken]
-    return groups if taken and len(groups) > 1 else None
+    return groups
 
 
 def _names_or_count(channels: object, kind: str) -> Any:

@@ -56,12 +56,13 @@ from . import _checks
 from ._arrays import plain
 from ._typing import FloatArray
 from .buffers import SampleBuffer
+from .channels import colours
 from .prepare import filled_mean
 from .projection import project
 from .stationary import StationaryTransform
 from .wiener import rademacher_probes
 
-__all__ = ["checked_guide", "checked_inputs", "feature_pilot", "trust", "gated", "pilots", "ATROUS_ITERATIONS",
+__all__ = ["checked_guide", "checked_inputs", "guide_colour", "feature_pilot", "trust", "gated", "pilots", "ATROUS_ITERATIONS",
            "FEATURE_SIGMAS", "GATE_WINDOW", "GATE_LOW", "GATE_HIGH", "projected", "PROJECTION_SHARE",
            "checked_projection"]
 
@@ -92,14 +93,35 @@ _COLOUR_SIGMA = 2.0  # colour differences are counted in the means' standard err
 _KERNEL = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0  # the B3 spline of the a-trous transform
 
 
+def guide_colour(buffer: SampleBuffer) -> tuple[int, ...] | None:
+    """The channels a guide of the colour alone stands for: the buffer's only colour, where other
+    channels (an alpha, an AOV) are beside it; else ``None`` (a guide then has every channel).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise import SampleBuffer
+    >>> from awr_denoise.guided import guide_colour
+    >>> rgba = SampleBuffer.from_moments(np.ones((2, 2)), np.ones((2, 2, 4)), np.zeros((2, 2, 4)),
+    ...                                  channels=["R", "G", "B", "A"])
+    >>> guide_colour(rgba), guide_colour(rgba.select((0, 1, 2)))
+    ((0, 1, 2), None)
+    """
+    found = colours(buffer.channels)
+    return found[0] if len(found) == 1 and len(found[0]) < buffer.n_channels else None
+
+
 def checked_guide(guide: object, buffer: SampleBuffer) -> FloatArray:
     """The guide as a float64 (H, W, C) array, checked against the buffer.
+
+    A guide has the buffer's channels, or, beside other channels (an alpha, an AOV), those of its
+    only colour (:func:`guide_colour`), in the buffer's order: it then guides the colour alone.
 
     Raises
     ------
     ValueError
-        If its shape is not the buffer's (H, W, C) (an (H, W) plane is taken for one channel),
-        or it holds NaN or infinite values.
+        If its shape is not the buffer's (H, W, C) nor its colour's (an (H, W) plane is taken for
+        one channel), or it holds NaN or infinite values.
     TypeError
         If it is not an array of real numbers (complex, bool, object, strings).
 
@@ -120,11 +142,13 @@ def checked_guide(guide: object, buffer: SampleBuffer) -> FloatArray:
     if given.dtype.kind not in "fiu":  # complex (cast to its real part), bool, object: refused as by the buffers
         raise TypeError(f"guide: expected a real (H, W, C) array, got dtype {given.dtype}")
     array = given.astype(np.float64)
-    expected = (*buffer.shape, buffer.n_channels)
-    if array.ndim == 2 and buffer.n_channels == 1:
+    colour = guide_colour(buffer)
+    shapes = [(*buffer.shape, buffer.n_channels)] + ([] if colour is None else [(*buffer.shape, len(colour))])
+    if array.ndim == 2 and 1 in (shape[2] for shape in shapes):
         array = array[..., None]
-    if array.shape != expected:
-        raise ValueError(f"guide: shape {array.shape} does not match the buffer's {expected}")
+    if array.shape not in shapes:
+        raise ValueError(f"guide: shape {array.shape} does not match the buffer's {shapes[0]}"
+                         + ("" if colour is None else f" nor its colour's {shapes[1]}"))
     bad = ~np.isfinite(array)
     if bad.any():
         row, col, channel = (int(i) for i in np.argwhere(bad)[0])

@@ -21,6 +21,7 @@ import numpy as np
 from ._arrays import numeric
 from ._typing import FloatArray
 from .buffers import SampleBuffer
+from .guided import guide_colour
 from .prepare import filled_mean
 
 __all__ = ["oidn", "oidn_available", "OIDN_HINT", "GUIDES"]
@@ -71,8 +72,10 @@ def oidn(buffer: SampleBuffer, albedo: FloatArray | None = None, normal: FloatAr
     Parameters
     ----------
     buffer
-        The samples; an RGB buffer (three channels). Pixels without samples take their nearest
-        neighbour's mean, negative means count as 0 (OIDN takes non-negative HDR colour).
+        The samples: three channels, or one three-channel colour beside an alpha or an AOV, whose
+        guide this is (:func:`~awr_denoise.guided.checked_guide`). Channels named R, G and B go to
+        OIDN in that order. Pixels without samples take their nearest neighbour's mean, negative
+        means count as 0 (OIDN takes non-negative HDR colour).
     albedo, normal
         (H, W, 3) auxiliary images; by default the buffer's ``albedo`` and ``normal`` features
         when it carries them (:mod:`awr_denoise.features`). Clipped to OIDN's ranges ([0, 1]
@@ -84,14 +87,14 @@ def oidn(buffer: SampleBuffer, albedo: FloatArray | None = None, normal: FloatAr
     Returns
     -------
     numpy.ndarray
-        The (H, W, 3) denoised image, float64.
+        The (H, W, 3) denoised colour, float64, its channels in the buffer's order.
 
     Raises
     ------
     ImportError
         ``pyoidn`` is not installed (extra ``oidn``); the message says what to install.
     ValueError
-        Not three channels, a normal without an albedo, or bad auxiliary images.
+        No three-channel colour, a normal without an albedo, or bad auxiliary images.
 
     Examples
     --------
@@ -106,9 +109,7 @@ def oidn(buffer: SampleBuffer, albedo: FloatArray | None = None, normal: FloatAr
     ...     out = reconstruct(buffer, guide=guide)
     ...     assert guide.shape == out.shape == (32, 32, 3)
     """
-    if buffer.n_channels != 3:
-        raise ValueError(f"buffer: OIDN (guides.oidn / --guide oidn) denoises RGB images; this buffer has "
-                         f"{buffer.n_channels} channel(s)")
+    order, back = _rgb(buffer)
     if quality not in ("high", "balanced", "fast"):
         raise ValueError(f"quality: {quality!r} is not one of high, balanced, fast")
     if normal is not None and albedo is None and "albedo" not in buffer.features:
@@ -119,8 +120,21 @@ def oidn(buffer: SampleBuffer, albedo: FloatArray | None = None, normal: FloatAr
         import pyoidn  # optional extra "oidn", imported lazily
     except ImportError as error:
         raise ImportError(OIDN_HINT) from error
-    colour = np.ascontiguousarray(np.clip(filled_mean(buffer), 0.0, _FLOAT32_MAX), dtype=np.float32)
-    return np.asarray(pyoidn.denoise(colour, alb, nrm, hdr=True, quality=quality), dtype=np.float64)
+    colour = np.ascontiguousarray(np.clip(filled_mean(buffer)[..., order], 0.0, _FLOAT32_MAX), dtype=np.float32)
+    return np.asarray(pyoidn.denoise(colour, alb, nrm, hdr=True, quality=quality), dtype=np.float64)[..., back]
+
+
+def _rgb(buffer: SampleBuffer) -> tuple[list[int], list[int]]:
+    """The buffer's channels OIDN denoises, in R, G, B order where they are so named, and the order
+    that puts OIDN's result back in the buffer's: its three channels, or its only colour beside an
+    alpha or an AOV (:func:`~awr_denoise.guided.guide_colour`)."""
+    group = guide_colour(buffer) or (tuple(range(3)) if buffer.n_channels == 3 else None)
+    if group is None or len(group) != 3:
+        raise ValueError(f"buffer: OIDN (guides.oidn / --guide oidn) denoises one three-channel colour (R,G,B); this "
+                         f"buffer's channels are {','.join(buffer.channels)}")
+    bare = [buffer.channels[i].rsplit(".", 1)[-1].upper() for i in group]
+    order = [group[bare.index(c)] for c in "RGB"] if sorted(bare) == ["B", "G", "R"] else list(group)
+    return order, [order.index(i) for i in group]
 
 
 GUIDES = {"oidn": oidn}

@@ -29,7 +29,7 @@ from .buffers import SampleBuffer
 from .channels import channel_groups, luminance_weights
 from .domains import Domain
 from .finishing import clip_negative, pooled_clamp, restore_mean
-from .guided import checked_inputs, checked_projection, pilots, projected
+from .guided import checked_inputs, checked_projection, guide_colour, pilots, projected
 from .prepare import Prepared, prepare
 from .settings import (DEFAULT_C_S, DEFAULT_PILOT_C_S, DEFAULT_PIXEL_CLAMP, DEFAULT_PRECISION, DEFAULT_STAGES,
                        DEFAULT_WIENER_EXPONENTS, PRECISIONS, Settings, resolve_settings)
@@ -320,6 +320,7 @@ def reconstruct_detailed(
     guide, features
         An (H, W, C) image or a function of the buffer making one (:func:`awr_denoise.guides.oidn`), or ``True``:
         the pilot of the Wiener stages where the samples allow it, the guide's or the features' (:mod:`.guided`).
+        Beside an alpha or an AOV a guide may hold the colour's channels alone, and guides it alone.
     guide_projection
         With a guide: the share of the result taken from the means projected on it, in [0, 1] (default
         :data:`~awr_denoise.guided.PROJECTION_SHARE`; 0: the guide is the pilot only; docs/guides.md).
@@ -381,10 +382,12 @@ def reconstruct_detailed(
         options = dict(c_s=c_s, wavelet=wavelet, levels=levels, domain=domain, mode=mode, boundary=boundary,
                        executor=executor, pixel_clamp=pixel_clamp, stages=stages, wiener_exponents=wiener_exponents,
                        guard=guard, guard_window=guard_window, preserve_mean=preserve_mean, nonnegative=nonnegative,
-                       precision=precision, variance_probes=variance_probes, seed=seed,
-                       guide_projection=guide_projection, features=features)
-        parts = [reconstruct_detailed(buffer.select(group), guide=None if guide is None else guide[..., list(group)],
-                                      **options) for group in groups]
+                       precision=precision, variance_probes=variance_probes, seed=seed, features=features)
+        guides = [None if guide is None else guide[..., list(group)] if guide.shape[2] == buffer.n_channels
+                  else guide if group == guide_colour(buffer) else None for group in groups]  # the colour's alone
+        parts = [reconstruct_detailed(buffer.select(group), guide=part_guide, **options,
+                                      guide_projection=None if part_guide is None else guide_projection)
+                 for group, part_guide in zip(groups, guides)]
         return _assembled(parts, groups, probed=settings.probes > 0)
     prepared = prepare(buffer, domain)
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)

@@ -93,11 +93,53 @@ def test_auxiliary_images_of_other_kinds_are_refused(kwargs, message):
         guides.oidn(buf, **kwargs)
 
 
+@needs_oidn
+def test_beside_an_alpha_the_oidn_guide_is_the_colours():
+    """``guides.oidn`` refused an R,G,B,A buffer (OIDN denoises R,G,B only), so no buffer with an
+    alpha could be guided. It now denoises the colour, in R,G,B order whatever the buffer's (a
+    B,G,R buffer went to OIDN as B,G,R), and the guide of the colour guides the colour alone: the
+    colour is the R,G,B buffer's guided result to the bit, the alpha its unguided one."""
+    _, rgb = _textured()
+    alpha = np.clip(rgb.mean[..., :1], 0, 1)
+    rgba = SampleBuffer.from_moments(rgb.count, np.concatenate([rgb.mean, alpha], 2),
+                                     np.concatenate([rgb.variance, np.full_like(alpha, 0.01)], 2),
+                                     channels=["R", "G", "B", "A"], features=rgb.features)
+    abgr = rgba.select((3, 2, 1, 0))
+    guide = guides.oidn(rgb)
+    np.testing.assert_array_equal(guides.oidn(rgba), guide)
+    np.testing.assert_array_equal(guides.oidn(abgr), guide[..., ::-1])
+    np.testing.assert_array_equal(guides.oidn(abgr.select((1, 2, 3))), guide[..., ::-1])
+    for buffer, colour, alpha_at in ((rgba, (0, 1, 2), 3), (abgr, (1, 2, 3), 0)):
+        out = reconstruct(buffer, guide=guides.oidn, guide_projection=0.25)
+        alone = buffer.select(colour)
+        np.testing.assert_array_equal(out[..., list(colour)], reconstruct(alone, guide=guides.oidn(alone),
+                                                                          guide_projection=0.25))
+        np.testing.assert_array_equal(out[..., alpha_at], reconstruct(buffer.select((alpha_at,)))[..., 0])
+        np.testing.assert_array_equal(reconstruct(buffer, guide=guides.oidn(buffer), guide_projection=0.25), out)
+    np.testing.assert_array_equal(reconstruct(rgba, guide=guide)[..., :3], reconstruct(rgb, guide=guide))
+
+
+def test_a_guide_of_the_colour_alone_needs_one_colour():
+    """Only a buffer with one colour beside other channels takes a guide of the colour alone."""
+    mean = np.ones((8, 8, 4))
+    rgba = SampleBuffer.from_moments(np.full((8, 8), 2), mean, mean, channels=["R", "G", "B", "A"])
+    assert reconstruct(rgba, guide=np.ones((8, 8, 3))).shape == (8, 8, 4)
+    with pytest.raises(ValueError, match=r"guide: shape \(8, 8, 2\) does not match the buffer's \(8, 8, 4\) nor its "
+                                         r"colour's \(8, 8, 3\)"):
+        reconstruct(rgba, guide=np.ones((8, 8, 2)))
+    plain = SampleBuffer.from_moments(np.full((8, 8), 2), mean, mean, channels=["c0", "c1", "c2", "c3"])
+    with pytest.raises(ValueError, match=r"guide: shape \(8, 8, 3\) does not match the buffer's \(8, 8, 4\)$"):
+        reconstruct(plain, guide=np.ones((8, 8, 3)))
+
+
 def test_oidn_needs_rgb_and_an_albedo_with_a_normal():
     one = SampleBuffer.from_moments(np.full((8, 8), 2), np.ones((8, 8, 1)), np.ones((8, 8, 1)))
-    with pytest.raises(ValueError, match=r"buffer: OIDN \(guides.oidn / --guide oidn\) denoises RGB images; "
-                                         r"this buffer has 1 channel\(s\)"):
-        guides.oidn(one)
+    two_layers = SampleBuffer.from_moments(np.full((8, 8), 2), np.ones((8, 8, 6)), np.ones((8, 8, 6)),
+                                           channels=["a.R", "a.G", "a.B", "b.R", "b.G", "b.B"])
+    for buffer in (one, two_layers):
+        with pytest.raises(ValueError, match=r"buffer: OIDN \(guides.oidn / --guide oidn\) denoises one three-channel "
+                                             r"colour \(R,G,B\); this buffer's channels are (Y|a.R,.*,b.B)$"):
+            guides.oidn(buffer)
     rgb = SampleBuffer.from_moments(np.full((8, 8), 2), np.ones((8, 8, 3)), np.ones((8, 8, 3)))
     with pytest.raises(ValueError, match=r"normal: OIDN takes a normal image only with an albedo image"):
         guides.oidn(rgb, normal=np.zeros((8, 8, 3)))
