@@ -17,7 +17,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["MAX_SEED", "MAX_SPP", "MAX_SIDE", "MAX_LEVELS", "scalar", "described", "real", "whole", "whole_text", "whole_option", "flag",
+__all__ = ["MAX_SEED", "MAX_SPP", "MAX_SIDE", "MAX_LEVELS", "scalar", "described", "real", "whole", "whole_text",
+           "whole_option", "flag",
            "seed", "shape2d", "name", "slices", "executor"]
 
 MAX_SEED = 2**63 - 1
@@ -187,7 +188,8 @@ def seed(param: str, value: Any) -> int:
 def shape2d(param: str, value: Any, *, minimum: int = 1) -> tuple[int, int]:
     """An (H, W) image shape of whole numbers in ``minimum``..:data:`MAX_SIDE`."""
     value = scalar(value)
-    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or getattr(value, "ndim", 1) == 0 or len(value) != 2:
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or getattr(value, "ndim", 1) == 0 \
+            or len(value) != 2:
         raise TypeError(f"{param}: expected (height, width), got {described(value)}")
     h, w = (whole(param, s, maximum=MAX_SIDE) for s in value)
     if min(h, w) < minimum:  # type: ignore[type-var]

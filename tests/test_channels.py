@@ -21,7 +21,8 @@ def test_a_set_of_names_is_refused(names):
             call()
 
 
-@pytest.mark.parametrize("given", [("B", "G", "R"), ["B", "G", "R"], np.array(["B", "G", "R"]), {"B": 0, "G": 1, "R": 2}])
+@pytest.mark.parametrize("given", [("B", "G", "R"), ["B", "G", "R"], np.array(["B", "G", "R"]),
+                                   {"B": 0, "G": 1, "R": 2}])
 def test_ordered_names_keep_their_order(given):
     assert resolve_channels(given, 3) == ("B", "G", "R")
     assert SampleBuffer.from_moments(*ONES, channels=given).channels == ("B", "G", "R")

@@ -56,7 +56,8 @@ def tile_grid(shape: Shape2D, tile: int | tuple[int, int]) -> list[tuple[slice, 
     tile = _checks.scalar(tile)
     if isinstance(tile, (int, np.integer)) and not isinstance(tile, (bool, np.bool_)):
         tile = (tile, tile)
-    if isinstance(tile, (str, bytes)) or not hasattr(tile, "__len__") or getattr(tile, "ndim", 1) == 0 or len(tile) != 2:
+    if isinstance(tile, (str, bytes)) or not hasattr(tile, "__len__") or getattr(tile, "ndim", 1) == 0 \
+            or len(tile) != 2:
         raise TypeError(f"tile: expected a side in pixels or (height, width), got {_checks.described(tile)}")
     th, tw = (_checks.whole("tile", t, minimum=1) for t in tile)
     h, w = _checks.shape2d("shape", shape, minimum=0)
