@@ -93,6 +93,27 @@ def test_variance_kind_header_is_honoured(tmp_path, kind, factor):
     np.testing.assert_allclose(read_sample_buffer(tmp_path / "d.exr").variance, 0.25 * factor)
 
 
+def test_a_variance_kind_option_against_the_files_own_header_is_refused(tmp_path):
+    """``awr merge DUMP BATCH --request R --variance-kind mean`` (the batch's variance is of the mean,
+    its header silent) applied the option to the running dump too, whose header says "sample":
+    its variance multiplied by its counts, the merge 1.38x too noisy, exit 0 (a red-team pass)."""
+    from awr_denoise.cli.main import main
+
+    one = np.ones((2, 2), np.float32)
+    planes = {c: one * 0.5 for c in "RGB"} | {f"variance.{c}": one * 0.25 for c in "RGB"}
+    planes["sampleCount"] = one * 4
+    _write(tmp_path / "d.exr", planes, {"awr:variance_kind": "sample"})
+    _write(tmp_path / "silent.exr", planes, {})
+    with pytest.raises(InputFileError, match=r"d\.exr: awr:variance_kind: its header says what its variance holds "
+                                             r"\('sample'\); variance_kind 'mean' \(--variance-kind\) contradicts it"):
+        read_sample_dump(tmp_path / "d.exr", variance_kind="mean")
+    np.testing.assert_allclose(read_sample_buffer(tmp_path / "d.exr", variance_kind="sample").variance, 0.25)
+    np.testing.assert_allclose(read_sample_buffer(tmp_path / "silent.exr", variance_kind="mean").variance, 1.0)
+    args = ["merge", str(tmp_path / "d.exr"), str(tmp_path / "silent.exr"), "--variance-kind", "mean", "-q",
+            "-o", str(tmp_path / "m.exr")]
+    assert main(args) == 2 and not (tmp_path / "m.exr").exists()
+
+
 def test_second_moment_kind(tmp_path):
     one = np.ones((2, 2), np.float32)
     planes = {c: one * 0.5 for c in "RGB"} | {f"variance.{c}": one * 0.5 for c in "RGB"}
