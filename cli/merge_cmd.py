@@ -18,7 +18,8 @@ from awr_denoise.io import (
     write_sample_buffer,
 )
 from awr_denoise.io.atomic import same_file
-from awr_denoise.io.dump import header_count
+from awr_denoise.io.deep import check_answers
+from awr_denoise.io.dump import SampleDump, header_count
 from awr_denoise.io.exr import check_same_windows, read_windows
 from awr_denoise.io.request_map import MAX_ROUND
 
@@ -64,7 +65,7 @@ def _check_match(path: str, buffer: SampleBuffer, first: SampleBuffer, first_pat
                              f"{','.join(first.channels)} of {first_path}")
 
 
-def _tell(merged: SampleBuffer, issued: np.ndarray, request_path: str, batch: SampleBuffer,
+def _tell(merged: SampleBuffer, issued: np.ndarray, request_path: str, batch: SampleDump,
           batch_path: str) -> tuple[SampleBuffer, np.ndarray, int, str | None]:
     """Tell the last batch as the answer to its request (the library's :meth:`Sampler.tell`).
 
@@ -72,10 +73,12 @@ def _tell(merged: SampleBuffer, issued: np.ndarray, request_path: str, batch: Sa
     requested samples the batch lacks.
     """
     request = read_request(request_path)
-    if request.shape != batch.shape:
+    if request.shape != batch.buffer.shape:
         h, w = request.shape
-        raise InputFileError(f"{request_path}: size {w}x{h} does not match {batch.shape[1]}x{batch.shape[0]} "
-                             f"of {batch_path}")
+        raise InputFileError(f"{request_path}: size {w}x{h} does not match {batch.buffer.shape[1]}x"
+                             f"{batch.buffer.shape[0]} of {batch_path}")
+    if batch.index_bounds is not None:  # a deep batch names its samples: they must be the ones issued
+        check_answers(batch_path, batch.index_bounds, request)
     sampler = Sampler.from_buffer(merged, issued=issued, round=request.round)
     try:
         sampler.resume(request)
@@ -84,7 +87,7 @@ def _tell(merged: SampleBuffer, issued: np.ndarray, request_path: str, batch: Sa
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            sampler.tell(request, batch)
+            sampler.tell(request, batch.buffer)
         except ValueError as exc:
             raise InputFileError(f"{batch_path}: sampleCount: {exc}") from None
     note = "; ".join(str(w.message) for w in caught) or None
@@ -167,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
     rounds = [header_count(p, d.attributes, "awr:round", 0, MAX_ROUND) for p, d in zip(args.inputs, dumps)
               if "awr:round" in d.attributes]
     if told is not None:
-        merged, issued, request_round, note = _tell(merged, issued, args.request, told.buffer, args.inputs[-1])
+        merged, issued, request_round, note = _tell(merged, issued, args.request, told, args.inputs[-1])
         rounds.append(request_round)
         if note:
             status(f"{args.inputs[-1]}: {note}", quiet=args.quiet)

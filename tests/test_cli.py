@@ -408,6 +408,37 @@ def test_merge_records_dropped_samples_as_issued(tmp_path, capsys):
     _one_error_line(capsys, "b2.exr", "sampleCount", "more samples")
 
 
+def test_a_deep_batch_whose_indices_are_not_the_requests_is_refused(tmp_path, capsys):
+    """A deep batch records each sample's index (``sampleIndex``), but ``merge --request`` never read
+    it: a renderer that ignored ``first_index`` (indices from 0 again: the dump's own samples a
+    second time) or a deep batch of another round was merged, exit 0 (a red-team pass)."""
+    from awr_denoise.io import write_deep_samples, write_request
+
+    rng = np.random.default_rng(0)
+    write_request(tmp_path / "r0.exr", SampleRequest.uniform((H, W), 4))
+    write_deep_samples(tmp_path / "b0.exr", np.repeat(np.arange(H * W), 4), rng.random((4 * H * W, 3)), (H, W),
+                       sample_index=np.tile([0, 1, 2, 3], H * W))
+    assert main(["merge", str(tmp_path / "b0.exr"), "--request", str(tmp_path / "r0.exr"), "-o",
+                 str(tmp_path / "d0.exr"), "-q"]) == 0
+    write_request(tmp_path / "r.exr", SampleRequest.uniform((H, W), 2, first_index=4, round=1))
+    pixel = np.repeat(np.arange(H * W), 2)
+    values = rng.random((pixel.size, 3))
+    for name, index in (("ok", np.tile([4, 5], H * W)), ("zero", np.tile([0, 1], H * W)),
+                        ("late", np.tile([5, 6], H * W)), ("twice", np.tile([4, 4], H * W))):
+        write_deep_samples(tmp_path / f"{name}.exr", pixel, values, (H, W), sample_index=index)
+    assert main(["merge", str(tmp_path / "d0.exr"), str(tmp_path / "ok.exr"), "--request", str(tmp_path / "r.exr"),
+                 "-o", str(tmp_path / "d.exr"), "-q"]) == 0
+    assert read_sample_dump(tmp_path / "d.exr").buffer.total_samples == 6 * H * W
+    for name, why in (("zero", r"0\.\.1, issued 4\.\.5\): another round's batch, or a renderer that ignored first_index"),
+                      ("late", r"5\.\.6, issued 4\.\.5\)"), ("twice", r"repeat an index of their pixel .*index 4\)")):
+        assert main(["merge", str(tmp_path / "d0.exr"), str(tmp_path / f"{name}.exr"), "--request",
+                     str(tmp_path / "r.exr"), "-o", str(tmp_path / f"{name}_d.exr"), "-q"]) == 2
+        assert not (tmp_path / f"{name}_d.exr").exists()
+        err = capsys.readouterr().err.strip()
+        assert err.startswith(f"awr: error: {tmp_path / name}.exr: sampleIndex: ") and "\n" not in err, err
+        assert __import__("re").search(why, err), err
+
+
 # ---------------------------------------------------------------- end to end through processes
 
 def _awr(*args, cwd):

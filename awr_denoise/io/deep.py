@@ -23,12 +23,13 @@ import numpy as np
 from .._arrays import numeric
 from .._typing import FloatArray, Shape2D
 from ..buffers import NONFINITE_POLICIES, SampleBuffer
+from ..requests import SampleRequest
 from .._version import __version__
 from .dump import exact_counts
 from .exr import ExrPart, checked_plane, file_error, header_value, read_exr, write_exr
 
 __all__ = ["SEMANTICS_SAMPLES", "SAMPLE_INDEX_CHANNEL", "read_deep_samples", "write_deep_samples",
-           "samples_from_deep_part"]
+           "samples_from_deep_part", "sample_index_bounds", "check_answers"]
 
 SEMANTICS_SAMPLES = "mc-samples"
 SAMPLE_INDEX_CHANNEL = "sampleIndex"
@@ -230,3 +231,70 @@ def read_deep_samples(path: str | os.PathLike[str], *, nonfinite: str = "raise")
     if not deep:
         raise file_error(path, "is not a deep EXR")
     return samples_from_deep_part(Path(path), deep[0], nonfinite=nonfinite)
+
+
+def sample_index_bounds(path: str | os.PathLike[str], part: ExrPart) -> tuple[np.ndarray, np.ndarray] | None:
+    """Each pixel's lowest and one past its highest ``sampleIndex`` in a deep part (0 and 0 where a
+    pixel has no samples), or ``None`` when the part has no such channel.
+
+    Raises
+    ------
+    InputFileError
+        Indices that are not whole, non-negative and exact in float32, or an index repeated within
+        a pixel (the same sample twice).
+    """
+    if SAMPLE_INDEX_CHANNEL not in part.channels:
+        return None
+    grid = part.channels[SAMPLE_INDEX_CHANNEL]
+    sizes = _sizes(grid)
+    flat = grid.ravel()
+    nonempty = sizes > 0
+    raw = np.concatenate(flat[nonempty]) if nonempty.any() else np.zeros(0, np.float32)
+    try:
+        index = exact_counts(SAMPLE_INDEX_CHANNEL, raw).astype(np.int64)
+    except ValueError as exc:
+        raise file_error(path, str(exc).split(": ", 1)[-1], SAMPLE_INDEX_CHANNEL) from None
+    pixel = np.repeat(np.arange(sizes.size, dtype=np.int64), sizes)
+    order = np.lexsort((index, pixel))
+    index, pixel = index[order], pixel[order]
+    repeated = (pixel[1:] == pixel[:-1]) & (index[1:] == index[:-1])
+    if repeated.any():
+        row, col = divmod(int(pixel[1:][repeated][0]), part.shape[1])
+        raise file_error(path, f"{int(repeated.sum())} sample(s) repeat an index of their pixel (first at row {row}, "
+                               f"column {col}: index {int(index[1:][repeated][0])}): the same sample twice",
+                         SAMPLE_INDEX_CHANNEL)
+    low, high = np.zeros(sizes.size, np.int64), np.zeros(sizes.size, np.int64)
+    ends = np.cumsum(sizes)
+    low[nonempty] = index[(ends - sizes)[nonempty]]
+    high[nonempty] = index[ends[nonempty] - 1] + 1
+    return low.reshape(part.shape), high.reshape(part.shape)
+
+
+def check_answers(path: str | os.PathLike[str], bounds: tuple[np.ndarray, np.ndarray], request: SampleRequest) -> None:
+    """Refuse a batch whose recorded sample indices are not the ones ``request`` issued.
+
+    A pixel's samples must lie in ``first_index .. first_index + counts - 1``: indices from 0 (a
+    renderer that ignored ``first_index``) repeat the dump's samples, and another round's batch
+    answers another request.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise import SampleRequest
+    >>> request = SampleRequest.uniform((1, 2), 2, first_index=4, round=2)
+    >>> check_answers("b.exr", (np.array([[4, 4]]), np.array([[6, 5]])), request)
+    >>> check_answers("b.exr", (np.array([[0, 4]]), np.array([[2, 5]])), request)
+    Traceback (most recent call last):
+    ...
+    awr_denoise.errors.InputFileError: b.exr: sampleIndex: 1 pixel(s) hold samples outside the indices their request issued (first at row 0, column 0: 0..1, issued 4..5): another round's batch, or a renderer that ignored first_index
+    """
+    low, high = bounds
+    first = np.asarray(request.first_index, np.int64)
+    end = first + np.asarray(request.counts, np.int64)
+    outside = (high > low) & ((low < first) | (high > end))
+    if outside.any():
+        row, col = (int(i) for i in np.argwhere(outside)[0])
+        raise file_error(path, f"{int(outside.sum())} pixel(s) hold samples outside the indices their request issued "
+                               f"(first at row {row}, column {col}: {low[row, col]}..{high[row, col] - 1}, issued "
+                               f"{first[row, col]}..{end[row, col] - 1}): another round's batch, or a renderer that "
+                               "ignored first_index", SAMPLE_INDEX_CHANNEL)

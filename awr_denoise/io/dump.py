@@ -84,12 +84,17 @@ class SampleDump:
         What the reader decided about a renderer's file, one sentence each (which pass gave
         the colour, how counts were derived, conversions made); warnings among them are also
         issued as :class:`~awr_denoise.errors.InputFileWarning`.
+    index_bounds
+        Each pixel's range of sample indices, where the file records them (deep dumps).
     """
 
     buffer: SampleBuffer
     issued: CountArray
     attributes: dict[str, Any] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
+    index_bounds: tuple[CountArray, CountArray] | None = None
+    """(H, W) lowest and one past the highest sample index of each pixel's samples, where the file
+    records them (a deep dump's ``sampleIndex``; 0 and 0 at pixels without samples), else ``None``."""
 
 
 def exact_counts(name: str, counts: np.ndarray) -> np.ndarray:

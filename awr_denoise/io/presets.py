@@ -42,7 +42,7 @@ from ..errors import InputFileWarning
 from ..features import FEATURE_CHANNELS, FEATURE_NAMES, feature_names
 from .colour import MITSUBA_XYZ_TO_SRGB, PBRT_XYZ_TO_SRGB, xyz_statistics_to_rgb
 from .cycles import COLOUR_PASSES, cycles_layers, sample_count_scale
-from .deep import samples_from_deep_part
+from .deep import sample_index_bounds, samples_from_deep_part
 from .dump import COUNT_CHANNEL, MAX_EXACT_COUNT, VARIANCE_PREFIX, SampleDump, buffer_from_awr_part, whole_counts
 from .exr import ExrPart, checked_plane, file_error, header_value, header_windows, read_exr
 from .features import MITSUBA_AOV_NAMES, auto_feature_planes, feature_from_planes
@@ -839,7 +839,7 @@ def read_sample_dump(
                        count=count, variance_kind=variance_kind, spp=spp, view=view, albedo=albedo, normal=normal,
                        depth=depth, features=None if features in (None, "auto") else features)
         buf = samples_from_deep_part(p, parts[0], nonfinite=nonfinite)
-        return SampleDump(buf, buf.count, {})
+        return SampleDump(buf, buf.count, {}, index_bounds=sample_index_bounds(p, parts[0]))
     if preset == "deep":
         raise file_error(p, "is not a deep EXR")
     f = _File(p, parts, view)
