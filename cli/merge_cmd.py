@@ -7,7 +7,7 @@ import warnings
 
 import numpy as np
 
-from awr_denoise import Sampler, SampleBuffer
+from awr_denoise import Sampler, SampleBuffer, SampleRequest
 from awr_denoise.errors import InputFileError, StaleRequestError
 from awr_denoise.io import (
     provenance,
@@ -79,6 +79,7 @@ def _tell(merged: SampleBuffer, issued: np.ndarray, request_path: str, batch: Sa
                              f"{batch.buffer.shape[0]} of {batch_path}")
     if batch.index_bounds is not None:  # a deep batch names its samples: they must be the ones issued
         check_answers(batch_path, batch.index_bounds, request)
+    _check_answered(batch_path, batch.attributes, request_path, request)
     sampler = Sampler.from_buffer(merged, issued=issued, round=request.round)
     try:
         sampler.resume(request)
@@ -92,6 +93,25 @@ def _tell(merged: SampleBuffer, issued: np.ndarray, request_path: str, batch: Sa
             raise InputFileError(f"{batch_path}: sampleCount: {exc}") from None
     note = "; ".join(str(w.message) for w in caught) or None
     return sampler.buffer, sampler.issued, request.round, note
+
+
+ANSWERS = {"awr:request_round": "round", "awr:request_total": "total"}
+"""Optional batch header attributes: the request a batch answers, checked by ``merge --request``."""
+
+
+def _check_answered(batch_path: str, attributes: dict, request_path: str, request: SampleRequest) -> None:
+    """Refuse a batch whose header names another request than the one it is told with.
+
+    A flat batch holds no sample indices, so a stale batch (the last round's, told again with the
+    next request) would merge its samples twice; a renderer that copies the request's round and
+    total into ``awr:request_round`` and ``awr:request_total`` lets this be caught.
+    """
+    for key, field in ANSWERS.items():
+        if key in attributes:
+            value = header_count(batch_path, attributes, key, 0, 2**63 - 1)
+            if value != getattr(request, field):
+                raise InputFileError(f"{batch_path}: {key}: it answers a request of {field} {value}, not "
+                                     f"{request_path} ({field} {getattr(request, field)}): a batch of another round?")
 
 
 def _same_samples(a: SampleBuffer, b: SampleBuffer) -> bool:

@@ -355,6 +355,11 @@ def test_file_only_loop(tmp_path, capsys):
     assert main(["diff", str(tmp_path / "final.exr"), "-r", str(tmp_path / "ref.exr"), "--json"]) == 0
     denoised = json.loads(capsys.readouterr().out)["relmse"]
     assert denoised < noisy
+    # A stale batch (round 2's, told again with round 3's request) named its request: refused, nothing written.
+    assert main(["merge", str(tmp_path / "dump3.exr"), str(tmp_path / "batch2.exr"), "--request",
+                 str(tmp_path / "req3.exr"), "-o", str(tmp_path / "stale.exr"), "-q"]) == 2
+    _one_error_line(capsys, "batch2.exr", "awr:request_round", "answers a request of round 2, not")
+    assert not (tmp_path / "stale.exr").exists()
 
 
 def test_a_request_of_another_seed_is_refused_by_plan_and_merge(tmp_path, capsys):

@@ -52,18 +52,24 @@ def render_samples(counts: np.ndarray, first_index: np.ndarray, seed: int) -> tu
     return pixel, clean(x, y, width, height) + noise
 
 
-def _read_request(path: str) -> tuple[np.ndarray, np.ndarray, int]:
+def _read_request(path: str) -> tuple[np.ndarray, np.ndarray, int, dict[str, str]]:
     with OpenEXR.File(path, separate_channels=True) as f:
         ch = f.channels()
         counts = ch["counts"].pixels.astype(np.int64)  # FLOAT channels holding whole numbers
         first = ch["first_index"].pixels.astype(np.int64)
         # Read header values inside the block: the header dict is emptied when the file closes.
-        seed = int(str(f.header().get("awr:seed", 0)))
-    return counts, first, seed
+        header = f.header()
+        seed = int(str(header.get("awr:seed", 0)))
+        # Which request the batch answers, so that merge refuses it with another (a stale batch).
+        answers = {"awr:request_round": str(header.get("awr:round", 0)),
+                   "awr:request_total": str(header.get("awr:total", int(counts.sum())))}
+    return counts, first, seed, answers
 
 
-def write_batch(path: str, counts: np.ndarray, pixel: np.ndarray, values: np.ndarray) -> None:
-    """Per-pixel count, mean and unbiased per-sample variance in the awr dump layout."""
+def write_batch(path: str, counts: np.ndarray, pixel: np.ndarray, values: np.ndarray,
+                answers: dict[str, str] | None = None) -> None:
+    """Per-pixel count, mean and unbiased per-sample variance in the awr dump layout, and the
+    request it answers (``awr:request_round``, ``awr:request_total``) when given."""
     height, width = counts.shape
     n = np.bincount(pixel, minlength=height * width).astype(np.float64)
     safe = np.maximum(n, 1.0)
@@ -75,7 +81,7 @@ def write_batch(path: str, counts: np.ndarray, pixel: np.ndarray, values: np.nda
         channels[name] = mean.reshape(height, width).astype(np.float32)
         channels["variance." + name] = var.reshape(height, width).astype(np.float32)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
-              "awr:variance_kind": "sample"}
+              "awr:variance_kind": "sample", **(answers or {})}
     with OpenEXR.File(header, channels) as f:
         f.write(path)
 
@@ -101,9 +107,9 @@ def main(argv: list[str]) -> int:
     if len(argv) != 2:
         print(__doc__, file=sys.stderr)
         return 2
-    counts, first, seed = _read_request(argv[0])
+    counts, first, seed, answers = _read_request(argv[0])
     pixel, values = render_samples(counts, first, seed)
-    write_batch(argv[1], counts, pixel, values)
+    write_batch(argv[1], counts, pixel, values, answers)
     return 0
 
 
