@@ -19,7 +19,7 @@ from awr_denoise.io import (
 )
 from awr_denoise.io.atomic import same_file
 from awr_denoise.io.deep import check_answers
-from awr_denoise.io.dump import SampleDump, header_count
+from awr_denoise.io.dump import SEMANTICS_STATISTICS, SampleDump, header_count
 from awr_denoise.io.exr import check_same_windows, read_windows
 from awr_denoise.io.request_map import MAX_ROUND
 
@@ -119,6 +119,17 @@ def _same_samples(a: SampleBuffer, b: SampleBuffer) -> bool:
                                          ((a.count, b.count), (a.mean, b.mean), (a.variance, b.variance)))
 
 
+def _same_sequence(a: SampleDump, b: SampleDump) -> int:
+    """The pixels where two running dumps of the same seed both hold samples: a loop's dump holds
+    each pixel's samples from index 0 on (``first_index`` starts there), so both hold the same ones."""
+    if not all(d.attributes.get("awr:semantics") == SEMANTICS_STATISTICS and "awr:round" in d.attributes
+               and "awr:seed" in d.attributes for d in (a, b)):
+        return 0
+    if str(a.attributes["awr:seed"]).strip() != str(b.attributes["awr:seed"]).strip():
+        return 0
+    return int(np.count_nonzero((a.buffer.count > 0) & (b.buffer.count > 0)))
+
+
 def _refuse_duplicates(paths: list[str], dumps: list | None = None) -> None:
     """Refuse two inputs that are one file, or hold the same samples (a copy: merged, they count twice).
 
@@ -130,6 +141,10 @@ def _refuse_duplicates(paths: list[str], dumps: list | None = None) -> None:
                 why = "are the same file"
             elif dumps is not None and _same_samples(dumps[i].buffer, dumps[j].buffer):
                 why = "hold the same samples (a copy?)"
+            elif dumps is not None and (shared := _same_sequence(dumps[i], dumps[j])):
+                seed = dumps[j].attributes["awr:seed"]
+                why = (f"are running dumps of one sample sequence (awr:seed {seed}): at {shared} pixel(s) both hold "
+                       "its first samples, the same samples (loops on two machines need two seeds)")
             else:
                 continue
             raise UsageError(f"merge: {paths[j]} and {paths[i]} {why}; merging would count their samples twice "

@@ -362,6 +362,35 @@ def test_file_only_loop(tmp_path, capsys):
     assert not (tmp_path / "stale.exr").exists()
 
 
+def test_running_dumps_of_one_seed_are_not_merged(tmp_path, capsys):
+    """Two machines running the documented loop with the same ``--seed`` hold the same first samples
+    at every pixel: ``merge A B`` counted them twice, exit 0 (a red-team pass). Refused unless
+    ``--allow-duplicates``; loops of two seeds merge."""
+    ext = _external()
+
+    def loop(name, seed):
+        folder = tmp_path / name
+        folder.mkdir()
+        assert main(["plan", "--size", f"{W}x{H}", "--seed", str(seed), "-o", str(folder / "r0.exr"), "-q"]) == 0
+        assert ext.main([str(folder / "r0.exr"), str(folder / "b0.exr")]) == 0
+        assert main(["merge", str(folder / "b0.exr"), "--request", str(folder / "r0.exr"), "-o",
+                     str(folder / "d1.exr"), "-q"]) == 0
+        if name == "b":  # another round: not a copy of the other dump, the same first samples still
+            assert main(["plan", str(folder / "d1.exr"), "--round-spp", "2", "-o", str(folder / "r1.exr"), "-q"]) == 0
+            assert ext.main([str(folder / "r1.exr"), str(folder / "b1.exr")]) == 0
+            assert main(["merge", str(folder / "d1.exr"), str(folder / "b1.exr"), "--request", str(folder / "r1.exr"),
+                         "-o", str(folder / "d2.exr"), "-q"]) == 0
+            return str(folder / "d2.exr")
+        return str(folder / "d1.exr")
+
+    a, b, c = loop("a", 7), loop("b", 7), loop("c", 8)
+    assert main(["merge", a, b, "-o", str(tmp_path / "ab.exr"), "-q"]) == 2
+    _one_error_line(capsys, "are running dumps of one sample sequence (awr:seed 7)", "--allow-duplicates")
+    assert not (tmp_path / "ab.exr").exists()
+    assert main(["merge", a, c, "-o", str(tmp_path / "ac.exr"), "-q"]) == 0
+    assert main(["merge", a, b, "--allow-duplicates", "-o", str(tmp_path / "ab.exr"), "-q"]) == 0
+
+
 def test_a_request_of_another_seed_is_refused_by_plan_and_merge(tmp_path, capsys):
     """A dump's samples continue one random sequence: a request planned for another seed is refused."""
     ext = _external()
