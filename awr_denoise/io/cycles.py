@@ -98,7 +98,10 @@ def sample_count_scale(normalised: np.ndarray, requested: int | None, *,
     convergence checks, ``step`` samples apart, so counts differ by multiples of ``step``;
     assuming the finest difference seen is one step (true as soon as two pixels stopped at
     consecutive checks) fixes ``k = step / D`` with ``D`` the gcd of the differences of
-    ``value * d``. When every pixel has the same count (all values 1) the pass says nothing
+    ``value * d``. A render whose sample count is off the checks' grid (100: checks at 16, 32,
+    ..., 96) stops its last pixels at ``S`` itself, one step or less after the last check: the
+    differences are then taken below the top value, and where that leaves fewer than two values,
+    the requested number is taken if it puts every count below the top on the grid. When every pixel has the same count (all values 1) the pass says nothing
     about ``S`` and the requested number is taken. Checked on real Blender 5.0 renders: a render
     asking for 256 samples that converged at 64 is bit-identical to one asking for 64, and this
     returns 64 for it (tests/io/test_cycles_files.py).
@@ -108,6 +111,8 @@ def sample_count_scale(normalised: np.ndarray, requested: int | None, *,
     >>> import numpy as np
     >>> sample_count_scale(np.array([48, 64, 64]) / 64, 256)
     (64, 'adaptive counts differ by multiples of 16 samples: 64 samples rendered (256 requested)')
+    >>> sample_count_scale(np.array([48, 64, 96, 100]) / 100, 100)[0]     # the last check is 96
+    100
     """
     values = np.unique(np.asarray(normalised, dtype=np.float64))
     values = values[values > 0]
@@ -129,14 +134,22 @@ def sample_count_scale(normalised: np.ndarray, requested: int | None, *,
     if d is None:
         raise ValueError(f"normalised counts are not whole numbers of 1/S for any S up to {limit}")
     whole = np.rint(values * d).astype(np.int64)
-    diffs = np.diff(whole)
-    gcd = int(np.gcd.reduce(diffs)) if diffs.size else 1
-    if step % gcd == 0 and (requested is None or d * (step // gcd) <= requested):
-        scale = d * (step // gcd)
-        how = f"adaptive counts differ by multiples of {step} samples: {scale} samples rendered"
-    else:  # not the adaptive pattern: the smallest consistent divisor
-        scale = d
-        how = f"the smallest whole-number scale is {scale} samples"
+    for below, rule in ((whole, f"adaptive counts differ by multiples of {step} samples"),
+                        # A render whose end is off the checks' grid (S = 100): the top pixels stopped at S.
+                        (whole[:-1], f"adaptive counts below the top differ by multiples of {step} samples, the "
+                                     "top pixels ran to the end of the render")):
+        gcd = int(np.gcd.reduce(np.diff(below))) if below.size > 1 else 0
+        if gcd and step % gcd == 0 and (requested is None or d * (step // gcd) <= requested):
+            scale = d * (step // gcd)
+            how = f"{rule}: {scale} samples rendered"
+            break
+    else:
+        if requested is not None and all(int(w) * (requested // d) % step == 0 for w in whole[:-1]):
+            scale = requested  # every count below the top on the checks' grid: the render ran to its end
+            how = f"adaptive counts below the top are multiples of {step} samples: {scale} samples rendered"
+        else:  # not the adaptive pattern: the smallest consistent divisor, a guess
+            scale = d
+            how = f"the smallest whole-number scale is {scale} samples: a guess (pass spp= if it is not)"
     if requested is not None:
         how += f" ({requested} requested)"
     return scale, how

@@ -421,7 +421,7 @@ def _cycles_counts(ctx: _Context, layer: str, shape: tuple[int, int]) -> tuple[n
         except ValueError as exc:
             raise file_error(ctx.path, f"{exc}; pass spp= / --spp N (the samples the render took)",
                              counts.channels[0]) from None
-        if "same count" in how:
+        if "same count" in how or "a guess" in how:
             # A uniform pass cannot tell how many samples a time limit or early convergence left.
             ctx.warnings.append(f"{ctx.path}: {counts.channels[0]}: {how}")
         else:

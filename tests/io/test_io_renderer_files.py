@@ -300,6 +300,17 @@ def test_cycles_count_scale_is_the_samples_rendered():
     del read_sample_independent
 
 
+def test_cycles_counts_of_a_render_off_the_checks_grid():
+    """Asked for 100 samples (checks at 16, ..., 96), most pixels converged at 48 and 26 ran to 100:
+    the finest count difference (96 to 100) is not a check's step, and the counts were read as
+    12..25, a quarter of the truth, with a note only (a red-team pass, on Blender 5's file)."""
+    counts = _channels(CY / "cycles_adaptive_100.exr")["ViewLayer.Debug Sample Count.X"]
+    dump = read_sample_dump(CY / "cycles_adaptive_100.exr", variance="ViewLayer.Combined")
+    np.testing.assert_array_equal(dump.buffer.count, np.rint(counts * 100))
+    assert dump.buffer.count.max() == 100 and (dump.buffer.count[dump.buffer.count < 100] % 16 == 0).all()
+    assert any("ran to the end of the render: 100 samples" in note for note in dump.notes)
+
+
 def test_cycles_time_limit_counts_consistent():
     buf = read_sample_dump(CY / "cycles_time_limit.exr", variance="ViewLayer.Combined").buffer
     assert buf.count.max() <= 4096 and (buf.count % 16 == 0).all() and buf.count.min() >= 64

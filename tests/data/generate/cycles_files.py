@@ -95,6 +95,9 @@ FILES: dict[str, dict] = {
     # The same scene asked for exactly 304 samples renders bit-identically to the previous one,
     # so its header is the truth for the samples the previous one took.
     "cycles_converged_304": dict(samples=304, adaptive=True, threshold=0.1),
+    # Asked for 100 samples, off the convergence checks' grid (16, 32, ..., 96): the pixels that
+    # do not converge stop at 100 itself, so the count pass is not all multiples of 16/100.
+    "cycles_adaptive_100": dict(samples=100, adaptive=True, threshold=0.05),
     # A time limit stops the render long before the 4096 samples requested.
     "cycles_time_limit": dict(samples=4096, adaptive=True, threshold=0.01, time_limit=1.0),
     # Adaptive sampling on but no count pass: awr must warn.
