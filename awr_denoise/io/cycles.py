@@ -147,9 +147,10 @@ def sample_count_scale(normalised: np.ndarray, requested: int | None, *,
         if requested is not None and all(int(w) * (requested // d) % step == 0 for w in whole[:-1]):
             scale = requested  # every count below the top on the checks' grid: the render ran to its end
             how = f"adaptive counts below the top are multiples of {step} samples: {scale} samples rendered"
-        else:  # not the adaptive pattern: the smallest consistent divisor, a guess
+        else:  # not the adaptive pattern: the smallest consistent divisor, a guess below the requested
             scale = d
-            how = f"the smallest whole-number scale is {scale} samples: a guess (pass spp= if it is not)"
+            how = f"the smallest whole-number scale is {scale} samples" + (
+                "" if scale == requested else ": a guess (pass spp= if it is not)")
     if requested is not None:
         how += f" ({requested} requested)"
     return scale, how

@@ -389,9 +389,9 @@ def _cycles_colour(ctx: _Context, layer: str, passes: set[str]) -> _Plane:
         ctx.notes.append("colour: Noisy Image (Combined is the denoiser's output)")
         return ctx.plane(f"{layer}.{COLOUR_PASSES[0]}", colour=True, what="colour")
     if passes & {"Denoising Albedo", "Denoising Normal", "Denoising Depth"}:
-        ctx.warnings.append(f"{ctx.path}: {layer}.Combined: Blender's denoiser was on (denoising passes are "
-                            "present) but there is no Noisy Image pass, so Combined is already denoised; "
-                            "render with the denoiser off or enable the Noisy Image pass")
+        # Blender (5.0) writes Noisy Image whenever its denoiser runs: denoising passes without it
+        # are "Denoising Data" stored with the denoiser off, and Combined is the Monte Carlo mean.
+        ctx.notes.append("colour: Combined (denoising passes without a Noisy Image pass: the denoiser was off)")
     return ctx.plane(f"{layer}.Combined", colour=True, what="colour")
 
 

@@ -311,6 +311,21 @@ def test_cycles_counts_of_a_render_off_the_checks_grid():
     assert any("ran to the end of the render: 100 samples" in note for note in dump.notes)
 
 
+def test_cycles_denoising_passes_with_the_denoiser_off_are_not_called_denoised():
+    """The denoiser off with its passes stored (what ``--guide`` needs) was warned about as "Combined
+    is already denoised": Blender 5 writes Noisy Image whenever its denoiser runs (cycles_default),
+    so denoising passes without it mean the denoiser was off (a red-team pass)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message=".*denois", category=InputFileWarning)
+        dump = read_sample_dump(CY / "cycles_features.exr", variance="ViewLayer.Combined", spp=16)
+    assert set(dump.buffer.features) == {"albedo", "normal", "depth"}
+    assert any("the denoiser was off" in note for note in dump.notes)
+    combined = _channels(CY / "cycles_features.exr")
+    np.testing.assert_array_equal(dump.buffer.mean[..., 0], combined["ViewLayer.Combined.R"])
+
+
 def test_cycles_time_limit_counts_consistent():
     buf = read_sample_dump(CY / "cycles_time_limit.exr", variance="ViewLayer.Combined").buffer
     assert buf.count.max() <= 4096 and (buf.count % 16 == 0).all() and buf.count.min() >= 64

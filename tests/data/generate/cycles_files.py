@@ -24,7 +24,7 @@ import bpy  # the whole script is Blender: run it with the bpy wheel installed
 
 def _scene(*, samples: int, seed: int = 0, adaptive: bool = False, threshold: float = 0.01,
            time_limit: float = 0.0, denoise: bool = False, layer: str = "ViewLayer",
-           stereo: bool = False, size: int = 32) -> bpy.types.Scene:
+           stereo: bool = False, size: int = 32, passes: bool | None = None) -> bpy.types.Scene:
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     scene.render.engine = "CYCLES"
@@ -65,7 +65,7 @@ def _scene(*, samples: int, seed: int = 0, adaptive: bool = False, threshold: fl
     view_layer = scene.view_layers[0]
     view_layer.name = layer
     view_layer.cycles.pass_debug_sample_count = adaptive
-    view_layer.cycles.denoising_store_passes = denoise
+    view_layer.cycles.denoising_store_passes = denoise if passes is None else passes  # Denoising Data
     if stereo:
         scene.render.use_multiview = True
         scene.render.views_format = "STEREO_3D"
@@ -98,6 +98,9 @@ FILES: dict[str, dict] = {
     # Asked for 100 samples, off the convergence checks' grid (16, 32, ..., 96): the pixels that
     # do not converge stop at 100 itself, so the count pass is not all multiples of 16/100.
     "cycles_adaptive_100": dict(samples=100, adaptive=True, threshold=0.05),
+    # The denoiser off and its passes stored (albedo, normal, depth: what --guide needs): Combined
+    # is the Monte Carlo mean, and Blender writes no Noisy Image pass.
+    "cycles_features": dict(samples=16, adaptive=True, passes=True),
     # A time limit stops the render long before the 4096 samples requested.
     "cycles_time_limit": dict(samples=4096, adaptive=True, threshold=0.01, time_limit=1.0),
     # Adaptive sampling on but no count pass: awr must warn.
