@@ -9,7 +9,7 @@ import numpy as np
 from awr_denoise.io import provenance, read_image, write_image
 from awr_denoise.metrics import HIGHER_IS_BETTER, METRICS
 
-from awr_denoise.io.exr import check_same_windows, read_header, read_windows
+from awr_denoise.io.exr import check_same_windows, read_exr, read_windows
 
 from . import interrupts
 from .common import EXIT_OK, RuntimeFailure, UsageError, print_json
@@ -52,7 +52,9 @@ def _image(path: str, spec: str | None, option: str) -> np.ndarray:
         raise UsageError(f"{option}: {spec!r} names a channel twice")
     if len(names) > 1:
         return read_image(path, channels=names)
-    present = {getattr(channel, "name", str(channel)) for channel in read_header(path).get("channels", [])}
+    # Every part's channels: Blender writes one part per pass (a later pass's layer is no less there).
+    present = {getattr(channel, "name", str(channel)) for part in read_exr(path, header_only=True)
+               if not part.deep for channel in part.header.get("channels", [])}
     layer = [f"{names[0]}.{c}" for c in "RGB"]
     if set(layer) <= present:
         return read_image(path, channels=layer)

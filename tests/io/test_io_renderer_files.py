@@ -448,3 +448,11 @@ def test_diff_reads_a_cycles_layer_with_channels(capsys):
     assert main(["diff", image, "-r", image, "--channels", "ViewLayer.Combined", "--ref-channels",
                  "ViewLayer.Combined", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["mse"] == 0.0
+    # A layer in a later part (Blender writes one part per pass) was "neither a channel nor a layer".
+    noisy = ",".join(f"ViewLayer.Noisy Image.{c}" for c in "RGB")
+    assert main(["diff", image, "-r", ref, "--channels", noisy, "--ref-channels", "ViewLayer.Combined",
+                 "--json"]) == 0
+    spelled = capsys.readouterr().out
+    assert main(["diff", image, "-r", ref, "--channels", "ViewLayer.Noisy Image", "--ref-channels",
+                 "ViewLayer.Combined", "--json"]) == 0
+    assert capsys.readouterr().out == spelled
