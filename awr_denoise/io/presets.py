@@ -44,7 +44,7 @@ from .colour import MITSUBA_XYZ_TO_SRGB, PBRT_XYZ_TO_SRGB, xyz_statistics_to_rgb
 from .cycles import COLOUR_PASSES, cycles_layers, sample_count_scale
 from .deep import sample_index_bounds, samples_from_deep_part
 from .dump import COUNT_CHANNEL, MAX_EXACT_COUNT, VARIANCE_PREFIX, SampleDump, buffer_from_awr_part, whole_counts
-from .exr import ExrPart, checked_plane, file_error, header_value, header_windows, read_exr
+from .exr import ExrPart, check_same_windows, checked_plane, file_error, header_value, header_windows, read_exr
 from .features import MITSUBA_AOV_NAMES, auto_feature_planes, feature_from_planes
 from .mitsuba import filter_correlation
 
@@ -146,6 +146,13 @@ class _File:
         return _Plane(self.path, tuple(names), tuple(self.channels[n] for n in names))
 
 
+
+
+def _window_size(windows: dict) -> tuple[int, int] | None:
+    if "dataWindow" not in windows:
+        return None
+    (x0, y0), (x1, y1) = windows["dataWindow"]
+    return y1 - y0 + 1, x1 - x0 + 1
 
 
 def _open(path: str | os.PathLike[str], opened: dict[Path, _File], view: str | None = None) -> _File:
@@ -292,7 +299,17 @@ class _Context:
 
     def plane(self, spec: str, *, colour: bool = False, what: str) -> _Plane:
         file_path, name = parse_plane(spec, self.path)
-        return _open(file_path, self.opened, self.view).plane(name, colour=colour, what=what)
+        return self.open(file_path).plane(name, colour=colour, what=what)
+
+    def open(self, path: str | os.PathLike[str]) -> _File:
+        """Another file a plane names, its pixels checked to line up with the main file's: a plane of
+        the same size in another data window would pair its values with other pixels."""
+        f = _open(path, self.opened, self.view)
+        if f is not self.file:
+            ours, theirs = (header_windows(g.parts[0].header) for g in (self.file, f))
+            if _window_size(ours) == _window_size(theirs):  # another size is named by channel, later
+                check_same_windows(f.path, theirs, self.path, ours)
+        return f
 
     def count_plane(self) -> tuple[_Plane, np.ndarray] | None:
         """The ``count=`` plane and its whole counts, if one was given."""
@@ -725,7 +742,7 @@ def _feature_plane(ctx: _Context, spec: str, name: str) -> _Plane:
         raise ValueError(f"{name}: expected a plane or a file, got {spec!r}")
     if not _whole_file(spec):
         return ctx.plane(spec, what=name)
-    f = _open(spec, ctx.opened, ctx.view)
+    f = ctx.open(spec)
     width = len(FEATURE_CHANNELS[name])
     for names in ((("R", "G", "B"), ("X", "Y", "Z")) if width == 3 else (("Z",), ("Y",))):
         if set(names) <= set(f.channels):

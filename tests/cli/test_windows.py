@@ -92,6 +92,23 @@ def test_a_plane_file_in_another_window_is_refused(crops, capsys, monkeypatch):
         assert crops.state() == before
 
 
+def test_the_library_refuses_a_plane_file_in_another_window_as_the_command_line_does(crops):
+    """``read_sample_dump(..., variance="other.exr:plane")`` or ``albedo="other.exr"`` took a plane of the
+    same size in another data window without a word: values paired with other pixels (a red-team
+    pass; the command line's own check did not cover the library)."""
+    from awr_denoise.errors import InputFileError
+    from awr_denoise.io import read_sample_dump
+
+    write_image(crops / "alb.exr", np.full((H, W, 3), 0.5))  # data window at (0, 0)
+    write_image(crops / "cropalb.exr", np.full((H, W, 3), 0.5), header=CROP)
+    generic = dict(preset="generic", color="RGB", count="sampleCount")
+    for kwargs in ({"variance": f"{crops / 'd.exr'}:variance", **generic}, {"albedo": str(crops / "alb.exr")},
+                   {"albedo": f"{crops / 'alb.exr'}:RGB"}):
+        with pytest.raises(InputFileError, match=r"data window \(0,0\)-.* does not match \(100,200\)-.*crop\.exr"):
+            read_sample_dump(crops / "crop.exr", **kwargs)
+    assert read_sample_dump(crops / "crop.exr", albedo=str(crops / "cropalb.exr")).buffer.features["albedo"].shape
+
+
 def test_a_plane_file_is_checked_against_every_frame_not_only_the_first(crops, capsys, monkeypatch):
     """With ``--frames`` each frame may have its own data window: a plane file that lines up with
     the first frame but not with a later one is refused, as it is for that frame alone."""
