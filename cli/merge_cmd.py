@@ -167,6 +167,9 @@ def run(args: argparse.Namespace) -> int:
     for path in [*args.inputs[1:], *([args.request] if args.request else [])]:
         check_same_windows(path, read_windows(path), args.inputs[0], windows)
     if args.independent:
+        if args.request:  # a setting that would do nothing is refused, not ignored
+            raise UsageError("--request: not read with --independent (whole renders answer no request; merge "
+                             "their result into a running dump with --request after)")
         given = [option for spec, option in plane_options(args)[3:] if spec is not None]
         if given:
             raise UsageError(f"{given[0]}: features are not read with --independent (each render's would need "

@@ -16,7 +16,7 @@ import pytest
 pytestmark = pytest.mark.exr
 OpenEXR = pytest.importorskip("OpenEXR")
 
-from awr_denoise import reconstruct  # noqa: E402
+from awr_denoise import SampleRequest, reconstruct  # noqa: E402
 from awr_denoise.cli.main import main  # noqa: E402
 from awr_denoise.errors import InputFileError, InputFileWarning  # noqa: E402
 from awr_denoise.io import read_image, read_independent_renders, read_sample_dump  # noqa: E402
@@ -237,9 +237,14 @@ def test_a_layer_named_like_a_moment(tmp_path):
 
 
 def test_independent_renders_refuse_a_named_variance(tmp_path, capsys):
+    """Options that would do nothing with --independent are refused (``--request`` was ignored, its
+    round and seed not recorded, exit 0: a red-team pass)."""
+    from awr_denoise.io import write_request
+
     files = [str(p) for p in sorted(CY.glob("cycles_seed_*.exr"))]
-    for option in ("--variance", "--variance-kind"):
-        value = "x" if option == "--variance" else "sample"
+    write_request(tmp_path / "r.exr", SampleRequest.uniform((32, 32), 16))
+    for option in ("--variance", "--variance-kind", "--request"):
+        value = {"--variance": "x", "--variance-kind": "sample", "--request": str(tmp_path / "r.exr")}[option]
         assert main(["merge", *files, "--independent", "-o", str(tmp_path / "o.exr"), option, value]) == 2
         assert f"{option}: not read with --independent" in capsys.readouterr().err
     assert not (tmp_path / "o.exr").exists()
