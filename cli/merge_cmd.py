@@ -212,6 +212,9 @@ def run(args: argparse.Namespace) -> int:
         rounds.append(request_round)
         if note:
             status(f"{args.inputs[-1]}: {note}", quiet=args.quiet)
+        strategy = request_attributes(args.request).get("awr:strategy")
+        if strategy is not None:  # the rounds' strategy, which plan continues (a uniform run stays uniform)
+            attrs["awr:strategy"] = strategy
         seed = request_attributes(args.request).get("awr:seed")
         if seed is not None:
             seed = header_count(args.request, {"awr:seed": seed}, "awr:seed", 0, MAX_SEED)  # the request's, named so

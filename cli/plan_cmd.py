@@ -6,8 +6,9 @@ import argparse
 
 from awr_denoise.allocation import MAX_BUDGET
 from awr_denoise.io import provenance, read_sample_dump, write_request
+from awr_denoise.errors import InputFileError
 from awr_denoise.io.dump import header_count
-from awr_denoise.io.exr import read_windows
+from awr_denoise.io.exr import header_value, read_header, read_windows
 from awr_denoise.io.request_map import MAX_ROUND
 from awr_denoise.noise_gain import DEFAULT_NOISE_MODEL
 from awr_denoise.sampling import (DEFAULT_AWR_INITIAL_SPP, DEFAULT_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS, SAMPLERS,
@@ -44,9 +45,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--size", type=image_size, metavar="WxH", help="image size of the first round (without a dump)")
     p.add_argument("--initial-spp", type=whole(minimum=1, maximum=MAX_SPP),
                    help=f"samples per pixel of the first round (default {DEFAULT_AWR_INITIAL_SPP} with the awr strategy, "
-                        f"{DEFAULT_INITIAL_SPP} with the others)")
-    p.add_argument("--strategy", choices=STRATEGIES, default=AdaptiveSampler.strategy,
-                   help="awr wavelet priorities (default), uniform, or per-pixel variance")
+                        f"{DEFAULT_INITIAL_SPP} with the others); with a dump, the least any pixel is brought up to")
+    p.add_argument("--strategy", choices=STRATEGIES,
+                   help="awr wavelet priorities, uniform, or per-pixel variance (default: the dump's awr:strategy, "
+                        "the strategy of the rounds before, else awr)")
     p.add_argument("--seed", type=whole(minimum=0, maximum=MAX_SEED), help="seed of the renderer's sequences and tie-breaking "
                                             "(default: the dump's awr:seed, which it must match, else 0)")
     p.add_argument("--round", type=whole(minimum=0, maximum=MAX_ROUND - 1),  # merge numbers the next round
@@ -73,6 +75,12 @@ def run(args: argparse.Namespace) -> int:
     plan.write(args.output, "-o/--output")
     plan.check()
     check_plane_windows(args.input, plane_options(args))
+    if args.strategy is None:  # a run planned uniform stays uniform: a comparison through files
+        kept = None if args.input is None else read_header(args.input).get("awr:strategy")
+        args.strategy = AdaptiveSampler.strategy if kept is None else str(header_value({"s": kept}, "s"))
+        if args.strategy not in SAMPLERS:
+            raise InputFileError(f"{args.input}: awr:strategy: {args.strategy!r} is not one of "
+                                 f"{', '.join(STRATEGIES)}")
     cls = SAMPLERS[args.strategy]
     options: dict = {"spp_max": args.spp_max}
     if args.initial_spp is not None:  # else the strategy's own default

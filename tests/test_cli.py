@@ -362,6 +362,23 @@ def test_file_only_loop(tmp_path, capsys):
     assert not (tmp_path / "stale.exr").exists()
 
 
+def test_a_uniform_run_through_files_stays_uniform(tmp_path):
+    """The strategy was not carried into the merged dump and ``plan`` defaulted to awr: a uniform
+    baseline run through files became adaptive after round 0 without a word (a red-team pass)."""
+    ext = _external()
+    assert main(["plan", "--size", f"{W}x{H}", "--strategy", "uniform", "-o", str(tmp_path / "r0.exr"), "-q"]) == 0
+    assert ext.main([str(tmp_path / "r0.exr"), str(tmp_path / "b0.exr")]) == 0
+    assert main(["merge", str(tmp_path / "b0.exr"), "--request", str(tmp_path / "r0.exr"), "-o",
+                 str(tmp_path / "d1.exr"), "-q"]) == 0
+    assert read_sample_dump(tmp_path / "d1.exr").attributes["awr:strategy"] == "uniform"
+    assert main(["plan", str(tmp_path / "d1.exr"), "--round-spp", "2", "-o", str(tmp_path / "r1.exr"), "-q"]) == 0
+    request = read_request(tmp_path / "r1.exr")
+    assert request.counts.min() == request.counts.max() == 2
+    assert main(["plan", str(tmp_path / "d1.exr"), "--round-spp", "2", "--strategy", "awr", "-o",
+                 str(tmp_path / "r1a.exr"), "-q"]) == 0  # a strategy given is the one used
+    assert read_request(tmp_path / "r1a.exr").counts.max() > 2
+
+
 def test_running_dumps_of_one_seed_are_not_merged(tmp_path, capsys):
     """Two machines running the documented loop with the same ``--seed`` hold the same first samples
     at every pixel: ``merge A B`` counted them twice, exit 0 (a red-team pass). Refused unless
