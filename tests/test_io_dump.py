@@ -130,6 +130,20 @@ def _planes(**over):
     return planes
 
 
+def test_a_half_count_from_2048_on_is_refused(tmp_path):
+    """A HALF count channel stores 2049 samples as 2048 (its spacing is 2 there): read as 2048
+    without a word (a red-team pass). Counts below 2048 are exact and read; from 2048 on, refused
+    with the advice."""
+    planes = _planes(sampleCount=np.full((3, 4), 2047, np.float16))
+    _write(tmp_path / "ok.exr", planes)
+    assert read_sample_buffer(tmp_path / "ok.exr").count.max() == 2047
+    planes["sampleCount"] = np.full((3, 4), 2049, np.float16)  # stored as 2048
+    _write(tmp_path / "half.exr", planes)
+    with pytest.raises(InputFileError, match=r"half\.exr: sampleCount: 12 pixel\(s\) reach 2048, where a HALF channel "
+                                             r"stops holding sample counts exactly .*; write the count as FLOAT"):
+        read_sample_buffer(tmp_path / "half.exr")
+
+
 @pytest.mark.parametrize("channel,value,what", [
     ("G", np.nan, "NaN"),
     ("variance.B", np.inf, "Inf"),

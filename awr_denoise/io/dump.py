@@ -235,16 +235,21 @@ def header_count(path: str | os.PathLike[str], attributes: dict, key: str, defau
 def whole_counts(path: str | os.PathLike[str], name: str, values: np.ndarray) -> np.ndarray:
     """A count channel as int64, refusing NaN/Inf, negatives, fractions and inexact floats.
 
-    A float channel holds whole numbers exactly only up to 2**24 (half floats up to 2048, which
-    stay far below it): a larger count there is not the renderer's count, and one beyond int64
-    would wrap to a negative number.
+    A float channel holds whole numbers exactly only up to 2**24 (the project's own dumps stop
+    there), a HALF channel up to 2048, which is also what 2049 rounds to: a HALF count of 2048 or
+    more may not be the renderer's count, a larger float one is not, and one beyond int64 would
+    wrap to a negative number.
     """
     c = checked_plane(path, name, values, nonnegative=True, whole=True)
-    if np.asarray(values).dtype.kind == "f":
-        too_big = c > MAX_EXACT_COUNT
+    dtype = np.asarray(values).dtype
+    if dtype.kind == "f":
+        half = dtype.itemsize == 2
+        too_big = c >= 2048 if half else c > MAX_EXACT_COUNT
         if too_big.any():
-            raise file_error(path, f"{int(too_big.sum())} pixel(s) exceed {MAX_EXACT_COUNT} (2**24), the largest "
-                                   "sample count a float channel holds exactly", name)
+            raise file_error(path, f"{int(too_big.sum())} pixel(s) " + (
+                "reach 2048, where a HALF channel stops holding sample counts exactly (2049 is stored as 2048); "
+                "write the count as FLOAT" if half else
+                f"exceed {MAX_EXACT_COUNT} (2**24), the largest sample count a float channel holds exactly"), name)
     frac = np.abs(c - np.rint(c)) > 1e-3
     if frac.any():
         raise file_error(path, f"{int(frac.sum())} pixel(s) are not whole sample counts", name)
