@@ -130,6 +130,18 @@ def _planes(**over):
     return planes
 
 
+def test_a_variance_below_float32s_range_stays_a_noisy_pixel(tmp_path):
+    """Means near 1e-22 have variances near 1e-44: float32 stored some as 0, which read back as known
+    noise-free pixels (a red-team pass). Kept at float32's least subnormal instead."""
+    rng = np.random.default_rng(2)
+    variance = rng.uniform(1e-47, 1e-44, (4, 4, 3))
+    buf = SampleBuffer.from_moments(np.full((4, 4), 4), 1e-22 * (1 + rng.random((4, 4, 3))), variance)
+    write_sample_buffer(tmp_path / "d.exr", buf)
+    back = read_sample_buffer(tmp_path / "d.exr")
+    assert (back.variance > 0).all() and back.variance_known.all()
+    np.testing.assert_allclose(back.variance, variance, atol=1.5e-45)  # float32 subnormals' spacing
+
+
 def test_a_half_count_from_2048_on_is_refused(tmp_path):
     """A HALF count channel stores 2049 samples as 2048 (its spacing is 2 there): read as 2048
     without a word (a red-team pass). Counts below 2048 are exact and read; from 2048 on, refused

@@ -210,8 +210,11 @@ def _statistics_planes(path: str | os.PathLike[str], planes: dict[str, np.ndarra
         planes[prefix + COUNT_CHANNEL] = exact_counts(f"{prefix}count", buffer.count)
     for i, name in enumerate(buffer.channels):
         planes[prefix + name] = _float32(path, prefix + name, buffer.mean[..., i])
-        planes[VARIANCE_PREFIX + prefix + name] = _float32(path, VARIANCE_PREFIX + prefix + name,
-                                                           buffer.variance[..., i])
+        variance = _float32(path, VARIANCE_PREFIX + prefix + name, buffer.variance[..., i])
+        # Below float32's least subnormal (1.4e-45) a variance rounds to 0, which reads back as a
+        # known, noise-free pixel: kept at that least value instead, still tiny, still noisy.
+        variance[(variance == 0) & (buffer.variance[..., i] > 0)] = np.nextafter(np.float32(0), np.float32(1))
+        planes[VARIANCE_PREFIX + prefix + name] = variance
     # Pixels with fewer than two samples are unknown by definition; only a renderer's
     # explicit "unknown" needs the mask.
     if (~buffer.variance_known & (buffer.count >= 2)).any():
