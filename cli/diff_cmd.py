@@ -35,32 +35,34 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="IMAGE's channels: comma-separated names (R,G,B), or a layer whose R,G,B are read "
                         "(ViewLayer.Combined in a Blender file); default: its R,G,B")
     p.add_argument("--ref-channels", metavar="LIST|LAYER", help="the reference's channels, as --channels")
+    p.add_argument("--view", metavar="NAME", help="the view of a multi-view IMAGE to compare (stereo: left, right)")
+    p.add_argument("--ref-view", metavar="NAME", help="the view of a multi-view reference, as --view")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(run=run)
 
 
-def _image(path: str, spec: str | None, option: str) -> np.ndarray:
+def _image(path: str, spec: str | None, option: str, view: str | None) -> np.ndarray:
     """The image at ``path`` with its channel choice ``spec`` (given as ``option``): a
     comma-separated list of names, or one name: a layer's R,G,B if the file has them, else that
     one channel."""
     if spec is None:
-        return read_image(path)
+        return read_image(path, view=view)
     names = [name.strip() for name in spec.split(",")]
     if not all(names):
         raise UsageError(f"{option}: {spec!r} has an empty channel name")
     if len(set(names)) < len(names):
         raise UsageError(f"{option}: {spec!r} names a channel twice")
     if len(names) > 1:
-        return read_image(path, channels=names)
+        return read_image(path, channels=names, view=view)
     # Every part's channels: Blender writes one part per pass (a later pass's layer is no less there).
     present = {getattr(channel, "name", str(channel)) for part in read_exr(path, header_only=True)
                if not part.deep for channel in part.header.get("channels", [])}
     layer = [f"{names[0]}.{c}" for c in "RGB"]
     if set(layer) <= present:
-        return read_image(path, channels=layer)
+        return read_image(path, channels=layer, view=view)
     if names[0] not in present:
         raise UsageError(f"{path}: {option} {names[0]}: neither a channel nor a layer with R,G,B")
-    return read_image(path, channels=names)
+    return read_image(path, channels=names, view=view)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -73,8 +75,8 @@ def run(args: argparse.Namespace) -> int:
     plan.read(args.ref, "-r/--ref")
     plan.write(args.output, "-o/--output")
     plan.check()
-    image = _image(args.input, args.channels, "--channels")
-    ref = _image(args.ref, args.ref_channels, "--ref-channels")
+    image = _image(args.input, args.channels, "--channels", args.view)
+    ref = _image(args.ref, args.ref_channels, "--ref-channels", args.ref_view)
     windows = read_windows(args.input)
     if image.shape[:2] != ref.shape[:2]:
         raise UsageError(f"{args.ref}: size {ref.shape[1]}x{ref.shape[0]} does not match "

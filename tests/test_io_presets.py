@@ -284,8 +284,12 @@ def test_parts_with_another_data_window_are_refused(tmp_path):
         read_image(path)
     stereo = _parts_file(tmp_path / "s.exr", [({"view": "left"}, {c: planes[c] for c in "RGB"}),
                                               ({"view": "right"}, {c: planes[c] * 10 for c in "RGB"})])
-    with pytest.raises(InputFileError, match="R: is in several parts"):  # read_image took the first view
-        read_image(stereo)
+    with pytest.raises(InputFileError, match=r"R: is in several parts \(views left, right: choose one with view=; "
+                                         r"awr diff: --view, --ref-view\)"):
+        read_image(stereo)  # it took the first view
+    np.testing.assert_array_equal(read_image(stereo, view="right"), 10 * read_image(stereo, view="left"))
+    with pytest.raises(InputFileError, match=r"s\.exr: no view 'centre' \(views: left, right\)"):
+        read_image(stereo, view="centre")
 
 
 @pytest.mark.parametrize("compression", ["DWAA_COMPRESSION", "PXR24_COMPRESSION"])

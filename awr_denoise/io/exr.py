@@ -606,7 +606,8 @@ def _find_rgb(path: Path, names: Sequence[str]) -> list[str]:
                            "awr diff --channels or --ref-channels")
 
 
-def read_image(path: str | os.PathLike[str], *, channels: Sequence[str] | None = None) -> FloatArray:
+def read_image(path: str | os.PathLike[str], *, channels: Sequence[str] | None = None,
+               view: str | None = None) -> FloatArray:
     """Read an image from an EXR file as an (H, W, C) float32 array.
 
     Parameters
@@ -617,6 +618,9 @@ def read_image(path: str | os.PathLike[str], *, channels: Sequence[str] | None =
         Channel names to read, in this order. By default ``R, G, B``; else the ``R, G, B``
         of the only layer that has them (``ViewLayer.Combined.R``...); else ``Y``; else the
         single channel of a one-channel file.
+    view
+        The view to read of a multi-view file (stereo: ``left``, ``right``), whose views repeat
+        the same channel names; parts without a view are read with any.
 
     Returns
     -------
@@ -642,6 +646,11 @@ def read_image(path: str | os.PathLike[str], *, channels: Sequence[str] | None =
     if not parts:
         raise file_error(p, "is a deep EXR, a per-sample dump, not an image (read it with read_deep_samples, "
                               "or denoise it first: awr denoise)")
+    views = list(dict.fromkeys(str(header_value(part.header, "view")) for part in parts if "view" in part.header))
+    if view is not None:
+        if view not in views:
+            raise file_error(p, f"no view {view!r} (views: {', '.join(views) or 'none, a single-view file'})")
+        parts = [part for part in parts if "view" not in part.header or str(header_value(part.header, "view")) == view]
     available: dict[str, tuple[ExrPart, np.ndarray]] = {}
     shared: set[str] = set()
     for part in parts:
@@ -657,7 +666,8 @@ def read_image(path: str | os.PathLike[str], *, channels: Sequence[str] | None =
         if name not in available:
             raise file_error(p, f"no such channel (found {', '.join(sorted(available))})", name)
         if name in shared:
-            raise file_error(p, "is in several parts (views); this reader takes one-part images", name)
+            raise file_error(p, "is in several parts" + (f" (views {', '.join(views)}: choose one with view=; awr diff: --view, --ref-view)"
+                                                         if len(views) > 1 and view is None else ""), name)
         part, arr = available[name]
         if header_windows(part.header).get("dataWindow") != first_window:
             # The writers copy the first part's windows: this channel would be placed elsewhere.

@@ -461,3 +461,12 @@ def test_diff_reads_a_cycles_layer_with_channels(capsys):
     assert main(["diff", image, "-r", ref, "--channels", "ViewLayer.Noisy Image", "--ref-channels",
                  "ViewLayer.Combined", "--json"]) == 0
     assert capsys.readouterr().out == spelled
+    # A stereo reference: one view of it (there was no way to compare against one).
+    stereo, layer = str(CY / "cycles_stereo.exr"), ["--channels", "ViewLayer.Combined", "--ref-channels",
+                                                    "ViewLayer.Combined"]
+    assert main(["diff", stereo, "-r", stereo, *layer]) == 2
+    assert "choose one with view=; awr diff: --view, --ref-view" in capsys.readouterr().err
+    assert main(["diff", stereo, "-r", stereo, *layer, "--view", "left", "--ref-view", "left", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["mse"] == 0.0
+    assert main(["diff", stereo, "-r", stereo, *layer, "--view", "left", "--ref-view", "right", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["mse"] > 0
