@@ -70,10 +70,11 @@ def merge_moments(count_a: CountArray, mean_a: FloatArray, variance_a: FloatArra
     rows = max(1, BLOCK_BYTES // (w * c * 8))
 
     def merge_rows(span: tuple[int, int]) -> None:
-        for start in range(span[0], span[1], rows):
-            block = slice(start, min(start + rows, span[1]))
-            _merge_block(count_a[block], mean_a[block], variance_a[block], count_b[block], mean_b[block],
-                         variance_b[block], mean[block], variance[block])
+        with np.errstate(over="ignore", invalid="ignore"):  # past float64: refused below, by name (per thread)
+            for start in range(span[0], span[1], rows):
+                block = slice(start, min(start + rows, span[1]))
+                _merge_block(count_a[block], mean_a[block], variance_a[block], count_b[block], mean_b[block],
+                             variance_b[block], mean[block], variance[block])
 
     # Each pixel's statistics depend on that pixel alone: the halves are independent, the same bits.
     half = (h // 2 // rows) * rows
@@ -81,6 +82,10 @@ def merge_moments(count_a: CountArray, mean_a: FloatArray, variance_a: FloatArra
         merge_rows((0, h))
     else:
         list(executor.map(merge_rows, [(0, half), (half, h)]))
+    beyond = ~(np.isfinite(mean) & np.isfinite(variance)).all(axis=2)
+    if beyond.any():
+        raise ValueError(f"other: merged, the mean or variance of {int(beyond.sum())} pixel(s) is beyond float64 "
+                         "(1.8e308): their samples spread that far (all of them at once are refused alike)")
     return mean, variance
 
 

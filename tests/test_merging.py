@@ -76,3 +76,24 @@ def test_merging_on_two_threads_gives_the_same_bits(shape):
                 threaded = merging.merge_moments(*args, executor=pool)
             for a, b in zip(serial, threaded):
                 np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("big", [1e200, 1.5e308])
+@pytest.mark.parametrize("threads", [False, True])
+def test_statistics_past_float64_once_merged_are_refused_by_name_without_warnings(big, threads, monkeypatch):
+    """Two buffers of samples +big and -big: the merged variance (or the difference of the means)
+    passes float64. The merge leaked numpy's overflow warnings and was refused as "variance: 1
+    pixel(s) hold NaN or Inf", an array the caller never passed (a red-team pass)."""
+    import warnings
+    from concurrent.futures import ThreadPoolExecutor
+
+    from awr_denoise import SampleBuffer
+
+    monkeypatch.setattr(merging, "BLOCK_BYTES", 16)  # a block a row: the last rows on the second thread
+    at = np.array([7, 7])  # row 3 of a (4, 2) image
+    a = SampleBuffer.from_samples(at, np.array([[big], [big]]), (4, 2))
+    b = SampleBuffer.from_samples(at, np.array([[-big], [-big]]), (4, 2))
+    with warnings.catch_warnings(), ThreadPoolExecutor(2) as pool:
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match=r"^other: merged, the mean or variance of 1 pixel\(s\) is beyond float64"):
+            a.merge(b, executor=pool if threads else None)
