@@ -683,6 +683,12 @@ def test_info_on_plain_image_and_request(tmp_path, capsys):
     assert main(["info", str(tmp_path / "r.exr"), "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
     assert info["kind"] == "request" and info["total"] == DEFAULT_AWR_INITIAL_SPP * 6
+    # A request where samples belong (arguments swapped) is named as one, not "cannot detect the layout".
+    for args in (["denoise", str(tmp_path / "r.exr"), "-o", str(tmp_path / "o.exr")],
+                 ["merge", str(tmp_path / "r.exr"), str(tmp_path / "r.exr"), "--allow-duplicates", "-o",
+                  str(tmp_path / "o.exr")], ["plan", str(tmp_path / "r.exr"), "-o", str(tmp_path / "o.exr")]):
+        assert main(args) == 2
+        _one_error_line(capsys, "r.exr: is a request map (awr plan's output: the samples to render), not samples")
 
 
 @pytest.mark.parametrize(("options", "spp"), [([], 2), (["--strategy", "uniform"], 4), (["--strategy", "variance"], 4),

@@ -727,6 +727,9 @@ def _resolve_preset(p: Path, f: _File, preset: str, color: str | None, variance:
         if color is not None and preset not in ("pbrt", "mitsuba"):
             preset = "generic"
     if preset == "generic" and color is None and variance is None and count is None:
+        if str(f.header.get("awr:semantics", "")) == "sample-request" or {"counts", "first_index"} <= set(f.channels):
+            raise file_error(p, "is a request map (awr plan's output: the samples to render), not samples; render "
+                                "it and give the renderer's batch")
         raise file_error(p, "cannot detect the layout (channels: " + ", ".join(sorted(f.channels))
                          + "); choose a preset or give color=/variance=/count= (--color/--variance/--count)")
     return preset
