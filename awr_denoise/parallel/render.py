@@ -101,7 +101,8 @@ _worker_state = threading.local()
 
 
 def _cached_renderer(factory: Callable[[], Renderer]) -> Renderer:
-    """The renderer ``factory`` builds, built once per worker thread (a few kept, newest first)."""
+    """The renderer ``factory`` builds, built once per worker thread (a few kept, newest first;
+    one pushed out is closed)."""
     try:
         key: Any = pickle.dumps(factory)
     except Exception:  # an unpicklable factory only ever runs in this process
@@ -109,28 +110,45 @@ def _cached_renderer(factory: Callable[[], Renderer]) -> Renderer:
     cache = getattr(_worker_state, "renderers", None)
     if cache is None:
         cache = _worker_state.renderers = OrderedDict()
+    # The factory is kept with its renderer: an id is only unique while its object lives, and a
+    # new lambda at a freed one's address took that one's renderer (another scene, another seed).
     if key in cache:
         cache.move_to_end(key)
-        return cache[key]
+        return cache[key][1]
     renderer = factory()
-    cache[key] = renderer
+    cache[key] = (factory, renderer)
     while len(cache) > _RENDERER_CACHE_SIZE:
-        cache.popitem(last=False)
+        _close(cache.popitem(last=False)[1][1])
     return renderer
+
+
+def _close(renderer: Renderer) -> None:
+    """Release a renderer's workers (a path tracer's process pool) if it has any to release."""
+    close = getattr(renderer, "close", None)
+    if callable(close):
+        close()
 
 
 def _render_tile(factory: Callable[[], Renderer], counts: np.ndarray, first_index: np.ndarray,
                  origin: tuple[int, int], image_shape: Shape2D) -> SampleBuffer:
-    """Render one tile of a request and return the tile's statistics (runs in a worker).
+    """Render one tile of a request with the worker's renderer (runs in a worker)."""
+    return _render_tile_with(_cached_renderer(factory), counts, first_index, origin, image_shape)
+
+
+def _render_tile_with(renderer: Renderer, counts: np.ndarray, first_index: np.ndarray, origin: tuple[int, int],
+                      image_shape: Shape2D) -> SampleBuffer:
+    """Render one tile of a request and return the tile's statistics.
 
     A :class:`~awr_denoise.SampleTracer` is asked for exactly the tile's samples; any other
     renderer gets a full-size request with no samples outside the tile.
     """
-    renderer = _cached_renderer(factory)
     tile_request = SampleRequest(counts, first_index)
     r0, c0 = origin
     th, tw = counts.shape
     if isinstance(renderer, SampleTracer):
+        if tuple(renderer.shape) != tuple(image_shape):  # its pixels addressed absolutely: a crop, else
+            raise ValueError(f"request: shape {tuple(image_shape)} does not match the renderer's "
+                             f"{tuple(renderer.shape)}")
         rows, cols, sample_index = tile_request.pixel_list()
         before = renderer.stats["nonfinite"]
         features = None
@@ -202,6 +220,7 @@ class TiledRenderer:
         self.renderer_factory = renderer_factory
         self.tile = tile
         self.executor = executor
+        self._renderer: Renderer | None = None  # without an executor, built at the first request
 
     def __call__(self, request: SampleRequest) -> SampleBuffer:
         """Render ``request`` tile by tile and return its statistics."""
@@ -211,11 +230,18 @@ class TiledRenderer:
         tiles = [t for t in tile_grid(shape, self.tile) if request.counts[t].any()] or tile_grid(shape, self.tile)[:1]
         args = [(self.renderer_factory, request.counts[t], request.first_index[t], (t[0].start, t[1].start), shape)
                 for t in tiles]
-        if self.executor is None:
-            results = [_render_tile(*a) for a in args]
+        if self.executor is None:  # this renderer's own, built once: no cache outlives it
+            if self._renderer is None:
+                self._renderer = self.renderer_factory()
+            results = [_render_tile_with(self._renderer, *a[1:]) for a in args]
         else:
             futures = [submit(self.executor, _render_tile, *a) for a in args]
-            results = [f.result() for f in futures]
+            try:
+                results = [f.result() for f in futures]
+            except BaseException:  # a failed tile, Ctrl-C: the round's other tiles are not rendered
+                for f in futures:
+                    f.cancel()
+                raise
         return _stitch(shape, tiles, results)
 
 

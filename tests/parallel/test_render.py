@@ -83,3 +83,80 @@ def test_tiled_renderer_checks_its_arguments():
         RendererSpec("synthetic", "edges")
     with pytest.raises(ValueError, match="kind"):
         RendererSpec("oidn", "edges", (8, 8))
+
+
+def test_factories_that_cannot_be_pickled_get_their_own_renderers():
+    """An unpicklable factory (a lambda, a closure) was cached under its id, which Python gives to the
+    next object at the same address: frames 1-5 of a loop rendered with frame 0's seed, a second
+    scene came back as the first (a red-team pass)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    shape = (16, 16)
+    scenes = {name: make_scene(name, shape) for name in ("edges", "gradient", "fireflies")}
+
+    def frame(name, seed, pool):  # a new lambda per frame, freed when the frame is done
+        factory = lambda: SyntheticRenderer(scenes[name], seed=seed)  # noqa: E731
+        return render_tiled(factory, UniformSampler(shape), total_spp=2, tile=8, executor=pool)
+
+    with ThreadPoolExecutor(1) as pool:  # one long-lived worker thread: its cache lives across frames
+        for seed, name in enumerate(["gradient", "gradient", "edges", "fireflies", "gradient", "edges"]):
+            tiled = frame(name, seed, pool)
+            assert_same_buffer(tiled, UniformSampler(shape).run(SyntheticRenderer(scenes[name], seed=seed), 2))
+
+
+def test_a_renderer_of_another_size_is_refused_not_cropped():
+    """A 64x64 scene with a 32x32 sampler: ``sampler.run`` refuses it, ``render_tiled`` returned the
+    top-left quarter of the image (a red-team pass)."""
+    spec = RendererSpec.synthetic("edges", (64, 64))
+    with pytest.raises(ValueError, match=r"request: shape \(32, 32\) does not match the renderer's \(64, 64\)"):
+        render_tiled(spec, UniformSampler((32, 32)), total_spp=2, tile=16)
+
+
+def test_a_failed_tile_cancels_the_rest_of_the_round():
+    """A tile's error (or Ctrl-C) reached the caller only after every other tile of the round had
+    rendered (64 tiles of a slow renderer: 16 s instead of 1; a red-team pass)."""
+    import threading
+
+    calls = []
+    lock = threading.Lock()
+
+    class Failing:
+        def __call__(self, request):
+            with lock:
+                calls.append(1)
+                if len(calls) == 2:
+                    raise RuntimeError("tile failed")
+            return RendererSpec.synthetic("edges", (64, 64))()(request)
+
+    with get_executor("threads", workers=1) as executor:
+        with pytest.raises(RuntimeError, match="tile failed"):
+            TiledRenderer(Failing, tile=8, executor=executor)(SampleRequest.uniform((64, 64), 1))
+    assert len(calls) < 64 // 2
+
+
+def test_renderers_pushed_out_of_a_workers_cache_are_closed(monkeypatch):
+    """Tracers kept by the calling thread's cache held their process pools for good (8 child processes
+    after six TiledRenderer calls without an executor): without one a TiledRenderer builds its own
+    renderer, and one pushed out of a worker's cache is closed."""
+    from awr_denoise.parallel import render as render_module
+
+    closed = []
+
+    @dataclasses.dataclass(frozen=True)
+    class Closing:
+        seed: int
+
+        def __call__(self):
+            inner = RendererSpec.synthetic("edges", (16, 16), seed=self.seed)()
+            inner.close = lambda: closed.append(self.seed)
+            return inner
+
+    monkeypatch.setattr(render_module, "_RENDERER_CACHE_SIZE", 1)
+    request = SampleRequest.uniform((16, 16), 1)
+    before = dict(getattr(render_module._worker_state, "renderers", {}))
+    TiledRenderer(Closing(9), tile=8)(request)
+    assert dict(getattr(render_module._worker_state, "renderers", {})) == before  # no cache without an executor
+    with get_executor("threads", workers=1) as executor:
+        for seed in range(3):
+            TiledRenderer(Closing(seed), tile=8, executor=executor)(request)
+    assert closed == [0, 1]
