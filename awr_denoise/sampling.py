@@ -269,11 +269,11 @@ class Sampler:
                     f"tell it before asking for {budget}")
             return self._pending
         target = self.default_budget() if budget is None else int(budget)
-        capacity = None if self.spp_max is None else self.spp_max - self._issued
-        if capacity is not None and target > int(np.maximum(capacity, 0).sum()):
+        # A resumed buffer's pixels may already be past a new spp_max: no room there, never negative room.
+        capacity = None if self.spp_max is None else np.maximum(self.spp_max - self._issued, 0)
+        if capacity is not None and target > int(capacity.sum()):
             # Checked here so the message gives the budget asked for, not a strategy's share of it.
-            raise ValueError(f"budget: {target} samples exceed the {int(np.maximum(capacity, 0).sum())} "
-                             "that spp_max still allows")
+            raise ValueError(f"budget: {target} samples exceed the {int(capacity.sum())} that spp_max still allows")
         rng = np.random.default_rng([self.seed, self._round])
         counts = np.zeros(self._shape, np.int64)
         topped_up = False

@@ -616,3 +616,21 @@ def test_an_alpha_beside_the_colour_does_not_move_the_measured_gains_samples():
         batch = renderer(a)
         rgb.tell(a, batch)
         rgba.tell(b, with_alpha(batch))
+
+
+@pytest.mark.parametrize("make", [
+    lambda dump: UniformSampler.from_buffer(dump, round=3, spp_max=4),
+    lambda dump: VarianceSampler.from_buffer(dump, round=3, spp_max=4),
+    lambda dump: AdaptiveSampler.from_buffer(dump, round=3, spp_min=4, spp_max=4),
+])
+def test_resuming_past_a_new_spp_max_leaves_those_pixels_alone(make):
+    """Half the pixels at 8 spp, half at 2, resumed with spp_max=4: a budget of 40 (64 places free)
+    was refused as "budget: must be >= 0, got -64", the spp_min top-up taking the full pixels'
+    negative room (a red-team pass)."""
+    counts = np.full((8, 8), 8)
+    counts[:, :4] = 2
+    dump = SyntheticRenderer(make_scene("edges", (8, 8)))(SampleRequest(counts, np.zeros((8, 8), int)))
+    request = make(dump).ask(40)
+    assert request.total == 40
+    assert not request.counts[:, 4:].any() and (counts + request.counts).max() <= 8
+    assert (request.counts[:, :4] <= 2).all()
