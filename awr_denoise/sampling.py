@@ -381,8 +381,10 @@ class Sampler:
         pixels = self._shape[0] * self._shape[1]
         total_spp = _checks.real("total_spp", total_spp, minimum=0, maximum=MAX_BUDGET / pixels)
         goal = int(round(total_spp * pixels))
-        if goal < self._issued.sum():
-            raise ValueError(f"total_spp: {total_spp} is below the {self._issued.sum() / pixels:.3g} spp already taken")
+        taken = int(self._issued.sum()) + (0 if self._pending is None else self._pending.total)  # told whole
+        if goal < taken:
+            raise ValueError(f"total_spp: {total_spp} is below the {taken / pixels:.3g} spp already taken"
+                             + ("" if self._pending is None else f" with pending round {self._pending.round}"))
         bar = tqdm(total=goal, initial=int(self._issued.sum()), unit="sample", desc=self.strategy) if progress else None
         try:
             while self._issued.sum() < goal:

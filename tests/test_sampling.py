@@ -634,3 +634,14 @@ def test_resuming_past_a_new_spp_max_leaves_those_pixels_alone(make):
     assert request.total == 40
     assert not request.counts[:, 4:].any() and (counts + request.counts).max() <= 8
     assert (request.counts[:, :4] <= 2).all()
+
+
+def test_run_refuses_a_goal_below_its_pending_round():
+    """``ask(64 * 256)`` then ``run(total_spp=8)`` told the pending round whole and ended at 64 spp,
+    the docstring's "the total is exact" broken without a word (a red-team pass)."""
+    renderer = SyntheticRenderer(make_scene("edges", (16, 16)))
+    sampler = UniformSampler((16, 16))
+    sampler.ask(64 * 256)
+    with pytest.raises(ValueError, match=r"total_spp: 8 is below the 64 spp already taken with pending round 0"):
+        sampler.run(renderer, total_spp=8)
+    assert sampler.run(renderer, total_spp=64).total_samples == 64 * 256  # the pending round, told
