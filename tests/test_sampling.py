@@ -642,6 +642,6 @@ def test_run_refuses_a_goal_below_its_pending_round():
     renderer = SyntheticRenderer(make_scene("edges", (16, 16)))
     sampler = UniformSampler((16, 16))
     sampler.ask(64 * 256)
-    with pytest.raises(ValueError, match=r"total_spp: 8 is below the 64 spp already taken with pending round 0"):
+    with pytest.raises(ValueError, match=r"total_spp: 8.0 is below the 64 spp already taken with pending round 0"):
         sampler.run(renderer, total_spp=8)
     assert sampler.run(renderer, total_spp=64).total_samples == 64 * 256  # the pending round, told
