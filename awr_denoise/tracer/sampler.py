@@ -180,6 +180,10 @@ class SobolSampler:
 
     def start(self, pixel: np.ndarray, sample_index: np.ndarray) -> np.ndarray:
         """Per-pixel base key (the sample index enters through the shuffled Sobol' index)."""
+        index = np.asarray(sample_index)
+        if index.size and int(index.max()) >= 2**32:  # cast to 32 bits, sample 2**32 + k would be sample k again
+            raise ValueError(f"sample_index: {int(index.max())} is past the Sobol' sampler's 2**32 points a pixel; "
+                             "render past them with sampler='independent'")
         return hash_u64(self.seed, pixel)
 
     def get(self, key: np.ndarray, dimension: int, *, pixel: np.ndarray | None = None,

@@ -322,6 +322,17 @@ def test_sobol_pairs_are_stratified_and_pixels_independent() -> None:
     assert stats.kstest(u, "uniform").pvalue > 1e-3
 
 
+def test_sobol_indices_past_its_sequence_are_refused() -> None:
+    """The Sobol' sampler reads indices as 32 bits: sample 2**32 + k was sample k again, a request at
+    ``first_index=2**32`` rendered the first samples twice without a word (a red-team pass)."""
+    tracer = PathTracer(load_scene("default", width=8, height=8), sampler="sobol", seed=1)
+    tracer(SampleRequest.uniform(tracer.shape, 2, first_index=2**32 - 2))  # the last two points: fine
+    with pytest.raises(ValueError, match=r"sample_index: 4294967296 is past the Sobol' sampler's 2\*\*32 points"):
+        tracer(SampleRequest.uniform(tracer.shape, 1, first_index=2**32))
+    independent = PathTracer(load_scene("default", width=8, height=8), sampler="independent", seed=1)
+    assert independent(SampleRequest.uniform(independent.shape, 1, first_index=2**32)).total_samples == 64
+
+
 # ------------------------------------------------------------------ radiometry
 @pytest.mark.parametrize("max_depth", [0, 3])
 def test_white_furnace(max_depth: int) -> None:
