@@ -645,3 +645,24 @@ def test_run_refuses_a_goal_below_its_pending_round():
     with pytest.raises(ValueError, match=r"total_spp: 8.0 is below the 64 spp already taken with pending round 0"):
         sampler.run(renderer, total_spp=8)
     assert sampler.run(renderer, total_spp=64).total_samples == 64 * 256  # the pending round, told
+
+
+def test_the_documented_loop_is_run_with_a_renderer_that_drops_samples():
+    """docs/integrate_your_renderer.md's loop counted the samples told back: with a renderer that drops
+    its NaN samples it took 16 rounds to run()'s 13 and issued 36.8 spp (for ever if every sample is
+    dropped). Counted by the samples handed out, as run() does, the two are the same (a red-team pass)."""
+    def renderer(request):
+        rows, cols, index = request.pixel_list()
+        radiance = np.random.default_rng(0).random((rows.size, 3))
+        radiance[(index % 4 == 0) & (cols < 8)] = np.nan  # a quarter of the left half's samples
+        return SampleBuffer.from_samples(np.stack([rows, cols], 1), radiance, request.shape, nonfinite="drop")
+
+    sampler = AdaptiveSampler((16, 16), seed=1)
+    goal = 32 * 16 * 16
+    while sampler.issued.sum() < goal:  # the documented loop
+        request = sampler.ask(min(sampler.default_budget(), goal - int(sampler.issued.sum())))
+        sampler.tell(request, renderer(request))
+    ran = AdaptiveSampler((16, 16), seed=1)
+    ran.run(renderer, total_spp=32)
+    assert ran.round == sampler.round and ran.issued.sum() == sampler.issued.sum() == goal
+    assert_array_equal(ran.buffer.mean, sampler.buffer.mean)
