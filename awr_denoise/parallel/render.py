@@ -130,17 +130,18 @@ def _close(renderer: Renderer) -> None:
 
 
 def _render_tile(factory: Callable[[], Renderer], counts: np.ndarray, first_index: np.ndarray,
-                 origin: tuple[int, int], image_shape: Shape2D) -> SampleBuffer:
+                 origin: tuple[int, int], image_shape: Shape2D, names: tuple[int, int] = (0, 0)) -> SampleBuffer:
     """Render one tile of a request with the worker's renderer (runs in a worker)."""
-    return _render_tile_with(_cached_renderer(factory), counts, first_index, origin, image_shape)
+    return _render_tile_with(_cached_renderer(factory), counts, first_index, origin, image_shape, names)
 
 
 def _render_tile_with(renderer: Renderer, counts: np.ndarray, first_index: np.ndarray, origin: tuple[int, int],
-                      image_shape: Shape2D) -> SampleBuffer:
+                      image_shape: Shape2D, names: tuple[int, int] = (0, 0)) -> SampleBuffer:
     """Render one tile of a request and return the tile's statistics.
 
     A :class:`~awr_denoise.SampleTracer` is asked for exactly the tile's samples; any other
-    renderer gets a full-size request with no samples outside the tile.
+    renderer gets a full-size request with no samples outside the tile, named as the request was
+    (``names``: its round and sampler id, which a renderer may read).
     """
     tile_request = SampleRequest(counts, first_index)
     r0, c0 = origin
@@ -165,7 +166,7 @@ def _render_tile_with(renderer: Renderer, counts: np.ndarray, first_index: np.nd
     window = (slice(r0, r0 + th), slice(c0, c0 + tw))
     full_counts[window] = counts
     full_first[window] = first_index
-    full = renderer(SampleRequest(full_counts, full_first))
+    full = renderer(SampleRequest(full_counts, full_first, *names))
     return dataclasses.replace(full.crop(*window), nonfinite=full.nonfinite)
 
 
@@ -228,8 +229,8 @@ class TiledRenderer:
             raise TypeError(f"request: expected a SampleRequest, got {type(request).__name__}")
         shape = request.shape
         tiles = [t for t in tile_grid(shape, self.tile) if request.counts[t].any()] or tile_grid(shape, self.tile)[:1]
-        args = [(self.renderer_factory, request.counts[t], request.first_index[t], (t[0].start, t[1].start), shape)
-                for t in tiles]
+        args = [(self.renderer_factory, request.counts[t], request.first_index[t], (t[0].start, t[1].start), shape,
+                 (request.round, request.sampler_id)) for t in tiles]
         if self.executor is None:  # this renderer's own, built once: no cache outlives it
             if self._renderer is None:
                 self._renderer = self.renderer_factory()

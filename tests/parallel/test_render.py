@@ -160,3 +160,20 @@ def test_renderers_pushed_out_of_a_workers_cache_are_closed(monkeypatch):
         for seed in range(3):
             TiledRenderer(Closing(seed), tile=8, executor=executor)(request)
     assert closed == [0, 1]
+
+
+def test_a_plain_renderer_sees_the_requests_round_and_sampler():
+    """A renderer that is not a SampleTracer got every tile's request as round 0 of sampler 0, whatever
+    the sampler's round (a renderer may read them, as the file protocol's batches copy the round)."""
+    seen = []
+
+    class Reading:
+        def __call__(self, request):
+            seen.append((request.round, request.sampler_id))
+            return RendererSpec.synthetic("edges", (16, 16))()(request)
+
+    sampler = UniformSampler((16, 16))
+    own = sampler.ask().sampler_id  # round 0's request, planned here: the sampler's id
+    render_tiled(Reading, sampler, total_spp=6, tile=8, executor=None)
+    assert own != 0 and {s for _, s in seen} == {own}
+    assert sorted({r for r, _ in seen}) == list(range(sampler.round)) and sampler.round > 1
