@@ -96,7 +96,8 @@ def _tell(merged: SampleBuffer, issued: np.ndarray, request_path: str, batch: Sa
 
 
 ANSWERS = {"awr:request_round": "round", "awr:request_total": "total"}
-"""Optional batch header attributes: the request a batch answers, checked by ``merge --request``."""
+"""Optional batch header attributes: the request a batch answers, checked by ``merge --request``
+(a batch that copied its request's header names it by ``awr:round`` and ``awr:total``)."""
 
 
 def _check_answered(batch_path: str, attributes: dict, request_path: str, request: SampleRequest) -> None:
@@ -106,7 +107,9 @@ def _check_answered(batch_path: str, attributes: dict, request_path: str, reques
     next request) would merge its samples twice; a renderer that copies the request's round and
     total into ``awr:request_round`` and ``awr:request_total`` lets this be caught.
     """
-    for key, field in ANSWERS.items():
+    copied = attributes.get("awr:semantics") == "sample-request"  # the request's own header, copied whole
+    named = {**ANSWERS, **({"awr:round": "round", "awr:total": "total"} if copied else {})}
+    for key, field in named.items():
         if key in attributes:
             value = header_count(batch_path, attributes, key, 0, 2**63 - 1)
             if value != getattr(request, field):
@@ -119,10 +122,15 @@ def _same_samples(a: SampleBuffer, b: SampleBuffer) -> bool:
                                          ((a.count, b.count), (a.mean, b.mean), (a.variance, b.variance)))
 
 
+RUNNING = "awr:running"
+"""Set by ``merge --request`` on its output: a loop's running dump, each pixel's samples its seed's
+sequence from index 0 on (a batch, even one naming its seed and round, starts at ``first_index``)."""
+
+
 def _same_sequence(a: SampleDump, b: SampleDump) -> int:
     """The pixels where two running dumps of the same seed both hold samples: a loop's dump holds
     each pixel's samples from index 0 on (``first_index`` starts there), so both hold the same ones."""
-    if not all(d.attributes.get("awr:semantics") == SEMANTICS_STATISTICS and "awr:round" in d.attributes
+    if not all(d.attributes.get("awr:semantics") == SEMANTICS_STATISTICS and str(d.attributes.get(RUNNING)) == "1"
                and "awr:seed" in d.attributes for d in (a, b)):
         return 0
     if str(a.attributes["awr:seed"]).strip() != str(b.attributes["awr:seed"]).strip():
@@ -230,6 +238,8 @@ def run(args: argparse.Namespace) -> int:
         attrs["awr:round"] = max(rounds) + 1
     if "awr:seed" in attrs:
         header_count(args.inputs[0], attrs, "awr:seed", 0, MAX_SEED)
+    if told is not None:  # a loop's running dump: its samples are every pixel's sequence from index 0
+        attrs[RUNNING] = 1
     header = {**provenance(**{k.removeprefix("awr:"): v for k, v in attrs.items()}), **windows}
     write_sample_buffer(args.output, merged, header=header, issued=issued, overwrite=args.overwrite)
     h, w = merged.shape

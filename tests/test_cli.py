@@ -27,6 +27,7 @@ from awr_denoise.io import (  # noqa: E402
     write_sample_buffer,
 )
 from awr_denoise.io.colour import MITSUBA_XYZ_TO_SRGB  # noqa: E402
+from awr_denoise.io.provenance import provenance  # noqa: E402
 from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP  # noqa: E402
 
 DATA = Path(__file__).parent / "data"
@@ -406,6 +407,41 @@ def test_running_dumps_of_one_seed_are_not_merged(tmp_path, capsys):
     assert not (tmp_path / "ab.exr").exists()
     assert main(["merge", a, c, "-o", str(tmp_path / "ac.exr"), "-q"]) == 0
     assert main(["merge", a, b, "--allow-duplicates", "-o", str(tmp_path / "ab.exr"), "-q"]) == 0
+    # A batch naming its seed and round (written by the library with provenance) is a batch, not a
+    # running dump: told with its request, it merges (a review of this check).
+    folder = tmp_path / "a"
+    assert main(["plan", a, "--round-spp", "2", "-o", str(folder / "r1.exr"), "-q"]) == 0
+    request = read_request(folder / "r1.exr")
+    pixel, values = ext.render_samples(request.counts, request.first_index, 7)
+    batch = SampleBuffer.from_samples(pixel, values, (H, W))
+    write_sample_buffer(folder / "b1.exr", batch, header=provenance(seed=7, round=1))
+    assert main(["merge", a, str(folder / "b1.exr"), "--request", str(folder / "r1.exr"), "-o",
+                 str(folder / "d2.exr"), "-q"]) == 0
+
+
+def test_a_stale_batch_that_copied_its_requests_header_is_refused(tmp_path, capsys):
+    """A renderer that copies its request's header into the batch (``awr:semantics = sample-request``,
+    ``awr:round``, ``awr:total``) names the request it answers: told again with the next round's
+    request it merged its samples twice, exit 0 (a review of the ``awr:request_round`` check)."""
+    ext = _external()
+    header = lambda path: {k: str(v) for k, v in read_header(path).items() if str(k).startswith("awr:")}  # noqa: E731
+    assert main(["plan", "--size", f"{W}x{H}", "--strategy", "uniform", "-o", str(tmp_path / "r0.exr"), "-q"]) == 0
+    dump = None
+    for k in range(3):
+        request_path = tmp_path / f"r{k}.exr"
+        if k:
+            assert main(["plan", str(dump), "--round-spp", "2", "-o", str(request_path), "-q"]) == 0
+        request = read_request(request_path)
+        pixel, values = ext.render_samples(request.counts, request.first_index, 0)
+        ext.write_batch(str(tmp_path / f"b{k}.exr"), request.counts, pixel, values, header(request_path))
+        if k < 2:
+            inputs = [str(tmp_path / f"b{k}.exr")] if dump is None else [str(dump), str(tmp_path / f"b{k}.exr")]
+            assert main(["merge", *inputs, "--request", str(request_path), "-o", str(tmp_path / f"d{k + 1}.exr"),
+                         "-q"]) == 0
+            dump = tmp_path / f"d{k + 1}.exr"
+    assert main(["merge", str(dump), str(tmp_path / "b1.exr"), "--request", str(tmp_path / "r2.exr"), "-o",
+                 str(tmp_path / "stale.exr"), "-q"]) == 2
+    _one_error_line(capsys, "b1.exr: awr:round: it answers a request of round 1, not")
 
 
 def test_a_request_of_another_seed_is_refused_by_plan_and_merge(tmp_path, capsys):
