@@ -20,7 +20,7 @@ from awr_denoise.io import (
 from awr_denoise.io.atomic import same_file
 from awr_denoise.io.deep import check_answers
 from awr_denoise.io.dump import SEMANTICS_STATISTICS, SampleDump, header_count
-from awr_denoise.io.exr import check_same_windows, read_windows
+from awr_denoise.io.exr import check_same_windows, read_exr, read_windows
 from awr_denoise.io.request_map import MAX_ROUND
 
 from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, status
@@ -117,6 +117,20 @@ def _check_answered(batch_path: str, attributes: dict, request_path: str, reques
                                      f"{request_path} ({field} {getattr(request, field)}): a batch of another round?")
 
 
+def _input_kwargs(args: argparse.Namespace) -> list[dict]:
+    """Each input's reading options: ``--variance-kind`` describes the inputs whose header does not
+    say what their variance holds (a renderer's batch beside the running dump, which says
+    ``sample``); with every input saying, it reaches them all, and one it contradicts is refused."""
+    kwargs = plane_kwargs(args)
+    if kwargs.get("variance_kind") is None:
+        return [kwargs] * len(args.inputs)
+    declared = [any("awr:variance_kind" in part.header for part in read_exr(path, header_only=True))
+                for path in args.inputs]
+    if all(declared):
+        return [kwargs] * len(args.inputs)
+    return [{**kwargs, "variance_kind": None} if said else kwargs for said in declared]
+
+
 def _same_samples(a: SampleBuffer, b: SampleBuffer) -> bool:
     return bool(a.total_samples) and all(np.array_equal(x, y) for x, y in
                                          ((a.count, b.count), (a.mean, b.mean), (a.variance, b.variance)))
@@ -199,7 +213,7 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_OK
     if len(args.inputs) == 1 and not args.request:
         raise UsageError("merge: give the running dump and at least one batch (or --request for a first batch)")
-    dumps = [read_sample_dump(path, **plane_kwargs(args)) for path in args.inputs]
+    dumps = [read_sample_dump(path, **kwargs) for path, kwargs in zip(args.inputs, _input_kwargs(args))]
     first = dumps[0].buffer
     for path, dump in zip(args.inputs[1:], dumps[1:]):
         _check_match(path, dump.buffer, first, args.inputs[0])

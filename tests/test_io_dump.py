@@ -96,7 +96,8 @@ def test_variance_kind_header_is_honoured(tmp_path, kind, factor):
 def test_a_variance_kind_option_against_the_files_own_header_is_refused(tmp_path):
     """``awr merge DUMP BATCH --request R --variance-kind mean`` (the batch's variance is of the mean,
     its header silent) applied the option to the running dump too, whose header says "sample":
-    its variance multiplied by its counts, the merge 1.38x too noisy, exit 0 (a red-team pass)."""
+    its variance multiplied by its counts, the merge 1.38x too noisy, exit 0 (a red-team pass). A
+    file's own header is now never contradicted; in a merge the option is the silent inputs'."""
     from awr_denoise.cli.main import main
 
     one = np.ones((2, 2), np.float32)
@@ -109,9 +110,19 @@ def test_a_variance_kind_option_against_the_files_own_header_is_refused(tmp_path
         read_sample_dump(tmp_path / "d.exr", variance_kind="mean")
     np.testing.assert_allclose(read_sample_buffer(tmp_path / "d.exr", variance_kind="sample").variance, 0.25)
     np.testing.assert_allclose(read_sample_buffer(tmp_path / "silent.exr", variance_kind="mean").variance, 1.0)
+    # In a merge the option describes the inputs whose header is silent (the batch), not the running dump.
     args = ["merge", str(tmp_path / "d.exr"), str(tmp_path / "silent.exr"), "--variance-kind", "mean", "-q",
             "-o", str(tmp_path / "m.exr")]
-    assert main(args) == 2 and not (tmp_path / "m.exr").exists()
+    assert main(args) == 0
+    both = read_sample_buffer(tmp_path / "m.exr")
+    expected = SampleBuffer.from_moments(np.full((2, 2), 4), np.full((2, 2, 3), 0.5), np.full((2, 2, 3), 0.25)).merge(
+        SampleBuffer.from_moments(np.full((2, 2), 4), np.full((2, 2, 3), 0.5), np.full((2, 2, 3), 1.0)))
+    np.testing.assert_allclose(both.variance, expected.variance, rtol=1e-6)
+    # Every input saying, the option reaches them all: one it contradicts is refused, nothing written.
+    _write(tmp_path / "d2.exr", planes, {"awr:variance_kind": "sample"})
+    args = ["merge", str(tmp_path / "d.exr"), str(tmp_path / "d2.exr"), "--variance-kind", "mean", "-q",
+            "-o", str(tmp_path / "n.exr")]
+    assert main(args) == 2 and not (tmp_path / "n.exr").exists()
 
 
 def test_second_moment_kind(tmp_path):

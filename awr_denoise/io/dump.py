@@ -278,10 +278,10 @@ def buffer_from_awr_part(path: str | os.PathLike[str], part: ExrPart, *,
         raise file_error(path, "no variance.<channel> channels found", VARIANCE_PREFIX + "*")
     declared = attributes.get("awr:variance_kind")
     if variance_kind is not None and declared is not None and str(declared) != variance_kind:
-        # An option describes files that do not say; a merge applies it to every input, the running dump's too.
+        # An option describes files that do not say (awr merge gives it to those inputs only).
         raise file_error(path, f"its header says what its variance holds ({str(declared)!r}); "
-                               f"variance_kind {variance_kind!r} (--variance-kind) contradicts it: leave the option "
-                               "out for this file, or merge it apart", "awr:variance_kind")
+                               f"variance_kind {variance_kind!r} (--variance-kind) contradicts it: the option is for "
+                               "files that do not say", "awr:variance_kind")
     kind = variance_kind or str(attributes.get("awr:variance_kind", "sample"))
     if kind not in VARIANCE_KINDS:
         raise file_error(path, f"awr:variance_kind {kind!r} is not one of {', '.join(VARIANCE_KINDS)}",
