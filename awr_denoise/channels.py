@@ -88,9 +88,7 @@ def luminance_weights(channels: Sequence[str]) -> FloatArray:
     >>> luminance_weights(["Y"]), luminance_weights(["albedo", "depth"])
     (array([1.]), array([0.5, 0.5]))
     """
-    if isinstance(channels, (str, bytes)) or not hasattr(channels, "__iter__"):
-        raise TypeError(f"channels: expected a sequence of channel names, got {channels!r}")
-    names = [_checks.name("channels", c).rsplit(".", 1)[-1].upper() for c in channels]
+    names = [_checks.name("channels", c).rsplit(".", 1)[-1].upper() for c in _sequence(channels)]
     if not names:
         raise ValueError("channels: no channel names given")
     weights = np.zeros(len(names))
@@ -124,7 +122,7 @@ def channel_groups(channels: Sequence[str]) -> list[tuple[int, ...]] | None:
     >>> channel_groups(["R", "G", "B"]) is None, channel_groups(["ch0", "ch1"]) is None
     (True, True)
     """
-    groups = colours(channels)
+    groups = colours(_sequence(channels))
     taken = {i for group in groups for i in group}
     groups += [(i,) for i in range(len(channels)) if i not in taken]
     return groups if taken and len(groups) > 1 else None
@@ -142,7 +140,7 @@ def colours(channels: Sequence[str]) -> list[tuple[int, ...]]:
     >>> colours(["A", "B", "G", "R", "depth"]), colours(["Y", "A"]), colours(["ch0", "ch1"])
     ([(1, 2, 3)], [(0,)], [])
     """
-    names = [str(c) for c in channels]
+    names = [str(c) for c in _sequence(channels)]
     bare = [name.rsplit(".", 1)[-1].upper() for name in names]
     layers = [name.rsplit(".", 1)[0] if "." in name else "" for name in names]
     groups: list[tuple[int, ...]] = []
@@ -159,12 +157,21 @@ def colours(channels: Sequence[str]) -> list[tuple[int, ...]]:
     return groups
 
 
+def _sequence(channels: object) -> list:
+    """Channel names in the data's order: a sequence, not a set (its order is its hashes')."""
+    if isinstance(channels, (set, frozenset)):
+        raise TypeError("channels: a set of names has no order; give them as a list or a tuple, in the data's order")
+    if isinstance(channels, (str, bytes)) or not hasattr(channels, "__iter__") or getattr(channels, "ndim", 1) == 0:
+        raise TypeError(f"channels: expected a sequence of channel names, got {_checks.described(channels)}")
+    return list(channels)
+
+
 def _names_or_count(channels: object, kind: str) -> Any:
     """``channels`` checked as a number of channels or an ordered collection of names (one with
     ``kind``, ``__len__`` or ``__iter__``); a set is refused, its order is not the data's."""
     channels = _checks.scalar(channels)
     if isinstance(channels, (set, frozenset)):
-        raise TypeError("channels: a set of names has no order; give them as a list or a tuple, in the data's order")
+        _sequence(channels)  # refused, as a set
     if isinstance(channels, (bool, np.bool_, float, np.floating, str, bytes)) or not (
             isinstance(channels, (int, np.integer)) or hasattr(channels, kind)) or (
             isinstance(channels, np.ndarray) and channels.ndim == 0):  # a masked 0-d array

@@ -37,3 +37,22 @@ def test_a_count_or_names_is_all_that_is_taken(bad):
 def test_a_zero_dimensional_count_is_its_number():
     assert channel_count(np.array(4)) == 4
     assert SampleBuffer.empty((2, 2), channels=np.array(2)).n_channels == 2
+
+
+def test_every_route_that_takes_channel_names_refuses_a_set(tmp_path):
+    """``read_image(channels={"R", "G", "B"})`` returned the channels in hash order (it changes with
+    PYTHONHASHSEED); ``luminance_weights``, ``channel_groups`` and ``colours`` took sets; a set as
+    ``color=`` was Python's "unhashable type" (a review of the set refusal)."""
+    pytest.importorskip("OpenEXR")
+    from awr_denoise.channels import channel_groups, colours, luminance_weights
+    from awr_denoise.io import read_image, read_sample_dump, write_image
+
+    for call in (luminance_weights, channel_groups, colours):
+        with pytest.raises(TypeError, match="channels: a set of names has no order"):
+            call({"R", "G", "B"})
+    write_image(tmp_path / "a.exr", np.ones((2, 2, 3)))
+    with pytest.raises(TypeError, match="channels: expected a list or tuple of channel names"):
+        read_image(tmp_path / "a.exr", channels={"R", "G", "B"})
+    with pytest.raises(TypeError, match="color: expected a plane name or file.exr:plane, got set"):
+        read_sample_dump(tmp_path / "a.exr", color={"R", "G", "B"})
+    assert read_image(tmp_path / "a.exr", channels=["B", "G", "R"]).shape == (2, 2, 3)

@@ -641,6 +641,10 @@ def read_image(path: str | os.PathLike[str], *, channels: Sequence[str] | None =
     >>> read_image(f).shape
     (2, 3, 3)
     """
+    if channels is not None and (isinstance(channels, (str, bytes, set, frozenset))
+                                 or not hasattr(channels, "__iter__")):
+        raise TypeError(f"channels: expected a list or tuple of channel names in the image's order, got "
+                        f"{type(channels).__name__}")
     p = Path(path)
     parts = [part for part in read_exr(p) if not part.deep]
     if not parts:
@@ -666,8 +670,8 @@ def read_image(path: str | os.PathLike[str], *, channels: Sequence[str] | None =
         if name not in available:
             raise file_error(p, f"no such channel (found {', '.join(sorted(available))})", name)
         if name in shared:
-            raise file_error(p, "is in several parts" + (f" (views {', '.join(views)}: choose one with view=; awr diff: --view, --ref-view)"
-                                                         if len(views) > 1 and view is None else ""), name)
+            choose = f" (views {', '.join(views)}: choose one with view=; awr diff: --view, --ref-view)"
+            raise file_error(p, "is in several parts" + (choose if len(views) > 1 and view is None else ""), name)
         part, arr = available[name]
         if header_windows(part.header).get("dataWindow") != first_window:
             # The writers copy the first part's windows: this channel would be placed elsewhere.

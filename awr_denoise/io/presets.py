@@ -843,6 +843,9 @@ def read_sample_dump(
     """
     if preset not in PRESETS:
         raise ValueError(f"preset: {preset!r} is not one of {', '.join(sorted(PRESETS))}")
+    for name, plane in (("color", color), ("variance", variance), ("count", count)):
+        if plane is not None and not isinstance(plane, str):  # a set or a list of names: one plane is one name
+            raise TypeError(f"{name}: expected a plane name or file.exr:plane, got {type(plane).__name__}")
     if variance_kind is not None:
         _kind(variance_kind, "sample")
     if spp is not None:
