@@ -516,6 +516,8 @@ def test_a_deep_batch_whose_indices_are_not_the_requests_is_refused(tmp_path, ca
     assert main(["merge", str(tmp_path / "d0.exr"), str(tmp_path / "ok.exr"), "--request", str(tmp_path / "r.exr"),
                  "-o", str(tmp_path / "d.exr"), "-q"]) == 0
     assert read_sample_dump(tmp_path / "d.exr").buffer.total_samples == 6 * H * W
+    # Read alone, a deep file may hold an index twice (two seeds' samples in one file): only a batch may not.
+    assert read_sample_dump(tmp_path / "twice.exr").buffer.total_samples == 2 * H * W
     for name, why in (("zero", r"0\.\.1, issued 4\.\.5\): another round's batch, or a renderer that ignored first_index"),
                       ("late", r"5\.\.6, issued 4\.\.5\)"), ("twice", r"repeat an index of their pixel .*index 4\)")):
         assert main(["merge", str(tmp_path / "d0.exr"), str(tmp_path / f"{name}.exr"), "--request",

@@ -16,7 +16,7 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -29,7 +29,7 @@ from .dump import exact_counts
 from .exr import ExrPart, checked_plane, file_error, header_value, read_exr, write_exr
 
 __all__ = ["SEMANTICS_SAMPLES", "SAMPLE_INDEX_CHANNEL", "read_deep_samples", "write_deep_samples",
-           "samples_from_deep_part", "sample_index_bounds", "check_answers"]
+           "samples_from_deep_part", "sample_index_bounds", "check_answers", "IndexBounds"]
 
 SEMANTICS_SAMPLES = "mc-samples"
 SAMPLE_INDEX_CHANNEL = "sampleIndex"
@@ -233,15 +233,24 @@ def read_deep_samples(path: str | os.PathLike[str], *, nonfinite: str = "raise")
     return samples_from_deep_part(Path(path), deep[0], nonfinite=nonfinite)
 
 
-def sample_index_bounds(path: str | os.PathLike[str], part: ExrPart) -> tuple[np.ndarray, np.ndarray] | None:
-    """Each pixel's lowest and one past its highest ``sampleIndex`` in a deep part (0 and 0 where a
-    pixel has no samples), or ``None`` when the part has no such channel.
+class IndexBounds(NamedTuple):
+    """Each pixel's recorded sample indices: the lowest and one past the highest (0 and 0 at pixels
+    without samples), and the indices repeated within a pixel (their number, the first's row,
+    column and index), which only a loop's batch must not have."""
+
+    low: np.ndarray
+    high: np.ndarray
+    repeated: int = 0
+    first_repeat: tuple[int, int, int] | None = None
+
+
+def sample_index_bounds(path: str | os.PathLike[str], part: ExrPart) -> IndexBounds | None:
+    """The :class:`IndexBounds` of a deep part's ``sampleIndex``, or ``None`` when it has none.
 
     Raises
     ------
     InputFileError
-        Indices that are not whole, non-negative and exact in float32, or an index repeated within
-        a pixel (the same sample twice).
+        Indices that are not whole, non-negative and exact in float32.
     """
     if SAMPLE_INDEX_CHANNEL not in part.channels:
         return None
@@ -258,37 +267,40 @@ def sample_index_bounds(path: str | os.PathLike[str], part: ExrPart) -> tuple[np
     order = np.lexsort((index, pixel))
     index, pixel = index[order], pixel[order]
     repeated = (pixel[1:] == pixel[:-1]) & (index[1:] == index[:-1])
+    first = None
     if repeated.any():
         row, col = divmod(int(pixel[1:][repeated][0]), part.shape[1])
-        raise file_error(path, f"{int(repeated.sum())} sample(s) repeat an index of their pixel (first at row {row}, "
-                               f"column {col}: index {int(index[1:][repeated][0])}): the same sample twice",
-                         SAMPLE_INDEX_CHANNEL)
+        first = (row, col, int(index[1:][repeated][0]))
     low, high = np.zeros(sizes.size, np.int64), np.zeros(sizes.size, np.int64)
     ends = np.cumsum(sizes)
     low[nonempty] = index[(ends - sizes)[nonempty]]
     high[nonempty] = index[ends[nonempty] - 1] + 1
-    return low.reshape(part.shape), high.reshape(part.shape)
+    return IndexBounds(low.reshape(part.shape), high.reshape(part.shape), int(repeated.sum()), first)
 
 
-def check_answers(path: str | os.PathLike[str], bounds: tuple[np.ndarray, np.ndarray], request: SampleRequest) -> None:
+def check_answers(path: str | os.PathLike[str], bounds: IndexBounds, request: SampleRequest) -> None:
     """Refuse a batch whose recorded sample indices are not the ones ``request`` issued.
 
-    A pixel's samples must lie in ``first_index .. first_index + counts - 1``: indices from 0 (a
-    renderer that ignored ``first_index``) repeat the dump's samples, and another round's batch
-    answers another request.
+    A pixel's samples must lie in ``first_index .. first_index + counts - 1``, each once: indices
+    from 0 (a renderer that ignored ``first_index``) repeat the dump's samples, another round's
+    batch answers another request, and an index twice is the same sample twice.
 
     Examples
     --------
     >>> import numpy as np
     >>> from awr_denoise import SampleRequest
     >>> request = SampleRequest.uniform((1, 2), 2, first_index=4, round=2)
-    >>> check_answers("b.exr", (np.array([[4, 4]]), np.array([[6, 5]])), request)
-    >>> check_answers("b.exr", (np.array([[0, 4]]), np.array([[2, 5]])), request)
+    >>> check_answers("b.exr", IndexBounds(np.array([[4, 4]]), np.array([[6, 5]])), request)
+    >>> check_answers("b.exr", IndexBounds(np.array([[0, 4]]), np.array([[2, 5]])), request)
     Traceback (most recent call last):
     ...
     awr_denoise.errors.InputFileError: b.exr: sampleIndex: 1 pixel(s) hold samples outside the indices their request issued (first at row 0, column 0: 0..1, issued 4..5): another round's batch, or a renderer that ignored first_index
     """
-    low, high = bounds
+    if bounds.repeated:
+        row, col, index = bounds.first_repeat  # type: ignore[misc]
+        raise file_error(path, f"{bounds.repeated} sample(s) repeat an index of their pixel (first at row {row}, "
+                               f"column {col}: index {index}): the same sample twice", SAMPLE_INDEX_CHANNEL)
+    low, high = bounds.low, bounds.high
     first = np.asarray(request.first_index, np.int64)
     end = first + np.asarray(request.counts, np.int64)
     outside = (high > low) & ((low < first) | (high > end))

@@ -92,9 +92,9 @@ class SampleDump:
     issued: CountArray
     attributes: dict[str, Any] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
-    index_bounds: tuple[CountArray, CountArray] | None = None
-    """(H, W) lowest and one past the highest sample index of each pixel's samples, where the file
-    records them (a deep dump's ``sampleIndex``; 0 and 0 at pixels without samples), else ``None``."""
+    index_bounds: Any = None
+    """Each pixel's recorded sample indices (:class:`~awr_denoise.io.deep.IndexBounds`), where the
+    file records them (a deep dump's ``sampleIndex``), else ``None``."""
 
 
 def exact_counts(name: str, counts: np.ndarray) -> np.ndarray:
