@@ -144,7 +144,8 @@ def sample_count_scale(normalised: np.ndarray, requested: int | None, *,
             how = f"{rule}: {scale} samples rendered"
             break
     else:
-        if requested is not None and all(int(w) * (requested // d) % step == 0 for w in whole[:-1]):
+        if requested is not None and requested % d == 0 and all(int(w) * (requested // d) % step == 0
+                                                                for w in whole[:-1]):
             scale = requested  # every count below the top on the checks' grid: the render ran to its end
             how = f"adaptive counts below the top are multiples of {step} samples: {scale} samples rendered"
         else:  # not the adaptive pattern: the smallest consistent divisor, a guess below the requested

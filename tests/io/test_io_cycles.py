@@ -27,3 +27,10 @@ def test_a_divisor_the_pattern_does_not_fix_is_called_a_guess():
     of 10) is taken, and said to be a guess so that the reader warns."""
     scale, how = sample_count_scale(np.array([0.3, 1.0]), 50)
     assert scale == 10 and "a guess (pass spp=" in how
+
+
+def test_the_requested_count_is_taken_only_where_the_counts_are_whole_at_it():
+    """Counts 16 and 17 of 256 requested (a time limit at 17): 256 was taken because 16 * (256 // 17)
+    is on the grid, though 16/17 * 256 is not whole (a review of the off-grid rule)."""
+    scale, how = sample_count_scale(np.array([16, 17]) / 17, 256)
+    assert scale == 17 and "a guess" in how
