@@ -29,7 +29,7 @@ from .values import MAX_SEED
 
 __all__ = ["register", "run"]
 
-_KEPT = ("seed", "round", "strategy", "scene")  # provenance carried from the running dump
+_KEPT = ("seed", "round", "strategy", "initial_spp", "scene")  # provenance carried from the running dump
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -234,9 +234,10 @@ def run(args: argparse.Namespace) -> int:
         rounds.append(request_round)
         if note:
             status(f"{args.inputs[-1]}: {note}", quiet=args.quiet)
-        strategy = request_attributes(args.request).get("awr:strategy")
-        if strategy is not None:  # the rounds' strategy, which plan continues (a uniform run stays uniform)
-            attrs["awr:strategy"] = strategy
+        asked = request_attributes(args.request)
+        for key in ("awr:strategy", "awr:initial_spp"):  # the run's, which plan continues (uniform stays uniform)
+            if asked.get(key) is not None:
+                attrs[key] = asked[key]
         seed = request_attributes(args.request).get("awr:seed")
         if seed is not None:
             seed = header_count(args.request, {"awr:seed": seed}, "awr:seed", 0, MAX_SEED)  # the request's, named so

@@ -75,14 +75,20 @@ def run(args: argparse.Namespace) -> int:
     plan.write(args.output, "-o/--output")
     plan.check()
     check_plane_windows(args.input, plane_options(args))
-    if args.strategy is None:  # a run planned uniform stays uniform: a comparison through files
-        kept = None if args.input is None else read_header(args.input).get("awr:strategy")
-        args.strategy = AdaptiveSampler.strategy if kept is None else str(header_value({"s": kept}, "s"))
+    # A run keeps its strategy and first round's spp (the least a pixel is brought up to) through
+    # files: merge carries them from each request into the dump (a uniform baseline stays uniform).
+    header = {} if args.input is None else read_header(args.input)
+    from_dump = args.strategy is None and "awr:strategy" in header
+    if args.strategy is None:
+        args.strategy = str(header_value(header, "awr:strategy")) if from_dump else AdaptiveSampler.strategy
         if args.strategy not in SAMPLERS:
             raise InputFileError(f"{args.input}: awr:strategy: {args.strategy!r} is not one of "
                                  f"{', '.join(STRATEGIES)}")
     cls = SAMPLERS[args.strategy]
     options: dict = {"spp_max": args.spp_max}
+    same_run = "awr:strategy" not in header or str(header_value(header, "awr:strategy")) == args.strategy
+    if args.initial_spp is None and "awr:initial_spp" in header and same_run:  # another strategy: its own default
+        args.initial_spp = header_count(args.input, header, "awr:initial_spp", 1, MAX_SPP)
     if args.initial_spp is not None:  # else the strategy's own default
         options["initial_spp"] = args.initial_spp
     if args.round_growth is not None:
@@ -95,7 +101,8 @@ def run(args: argparse.Namespace) -> int:
                                     ("--wavelet", args.wavelet, "analyses the image in wavelets"),
                                     ("--levels", args.levels, "analyses the image in wavelets")):
             if value is not None:
-                raise UsageError(f"{option}: only --strategy awr {what}, not {args.strategy}")
+                raise UsageError(f"{option}: only --strategy awr {what}, not {args.strategy}"
+                                 + (f" (the awr:strategy of {args.input}; give --strategy awr)" if from_dump else ""))
     windows: dict = {}
     if args.input is None:
         if args.size is None:
@@ -139,7 +146,8 @@ def run(args: argparse.Namespace) -> int:
         budget = max(1, int(round(args.round_spp * h * w)))
     try:
         request = sampler.ask(budget)
-        write_request(args.output, request, header={**provenance(seed=seed, strategy=args.strategy), **windows},
+        write_request(args.output, request, header={**provenance(seed=seed, strategy=args.strategy,
+                                                                  initial_spp=sampler.initial_spp), **windows},
                       overwrite=args.overwrite)
     except ValueError as exc:  # the library names its arguments; name the option that set them
         option = _option_behind(str(exc), args)

@@ -378,6 +378,16 @@ def test_a_uniform_run_through_files_stays_uniform(tmp_path):
     assert main(["plan", str(tmp_path / "d1.exr"), "--round-spp", "2", "--strategy", "awr", "-o",
                  str(tmp_path / "r1a.exr"), "-q"]) == 0  # a strategy given is the one used
     assert read_request(tmp_path / "r1a.exr").counts.max() > 2
+    # The first round's --initial-spp is carried too: the least a pixel is brought up to (a review).
+    v = tmp_path / "v"
+    v.mkdir()
+    assert main(["plan", "--size", f"{W}x{H}", "--strategy", "variance", "--initial-spp", "2", "-o",
+                 str(v / "r0.exr"), "-q"]) == 0
+    assert ext.main([str(v / "r0.exr"), str(v / "b0.exr")]) == 0
+    assert main(["merge", str(v / "b0.exr"), "--request", str(v / "r0.exr"), "-o", str(v / "d1.exr"), "-q"]) == 0
+    for name, given in (("carried", []), ("given", ["--initial-spp", "2"])):
+        assert main(["plan", str(v / "d1.exr"), "--budget", "800", *given, "-o", str(v / f"{name}.exr"), "-q"]) == 0
+    assert np.array_equal(read_request(v / "carried.exr").counts, read_request(v / "given.exr").counts)
 
 
 def test_running_dumps_of_one_seed_are_not_merged(tmp_path, capsys):
