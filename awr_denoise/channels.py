@@ -174,7 +174,7 @@ def _names_or_count(channels: object, kind: str) -> Any:
         _sequence(channels)  # refused, as a set
     if isinstance(channels, (bool, np.bool_, float, np.floating, str, bytes)) or not (
             isinstance(channels, (int, np.integer)) or hasattr(channels, kind)) or (
-            isinstance(channels, np.ndarray) and channels.ndim == 0):  # a masked 0-d array
+            isinstance(channels, np.ndarray) and channels.ndim != 1):  # a masked 0-d array, a 2-D one
         raise TypeError(f"channels: expected a number of channels or their names, got {_checks.described(channels)}")
     return channels
 
@@ -199,7 +199,8 @@ def resolve_channels(channels: Sequence[str] | int | None, n_channels: int) -> t
     if len(names) != n_channels:
         raise ValueError(f"channels: {len(names)} names given for {n_channels} channel(s)")
     if len(set(names)) != len(names):
-        raise ValueError(f"channels: duplicate names in {names}")
+        twice = sorted({n for n in names if names.count(n) > 1})
+        raise ValueError(f"channels: duplicate names {_checks.described(twice)}")
     return names
 
 

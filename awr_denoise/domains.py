@@ -239,4 +239,4 @@ def resolve_domain(domain: str | Domain) -> Domain:
         return domain
     if isinstance(domain, str):
         return Domain(domain)
-    raise TypeError(f"domain: expected a name ({', '.join(DOMAIN_NAMES)}) or a Domain, got {domain!r}")
+    raise TypeError(f"domain: expected a name ({', '.join(DOMAIN_NAMES)}) or a Domain, got {_checks.described(domain)}")

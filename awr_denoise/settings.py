@@ -52,7 +52,7 @@ _MAX_PROBES = 100_000  # each probe is a transform pair per channel; more is nev
 
 def _exponents(value: Sequence[float]) -> tuple[float, ...]:
     if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
-        raise TypeError(f"wiener_exponents: expected a sequence of numbers in [0, 1], got {value!r}")
+        raise TypeError(f"wiener_exponents: expected a sequence of numbers in [0, 1], got {_checks.described(value)}")
     return tuple(_checks.real("wiener_exponents", a, minimum=0, maximum=1) for a in value)  # type: ignore[misc]
 
 

@@ -351,3 +351,19 @@ def test_fourth_review_edges(tmp_path):
         SampleRequest(np.zeros((0, 0), int), np.zeros((0, 0), int), 0, 0)
     write_deep_samples(tmp_path / "empty.exr", np.zeros(0, int), np.zeros((0, 3)), (7, 7))
     assert read_deep_samples(tmp_path / "empty.exr").total_samples == 0
+
+
+@pytest.mark.parametrize("call", [
+    lambda v: reconstruct(BUF, wiener_exponents=v), lambda v: reconstruct(BUF, domain=v),
+    lambda v: reconstruct(BUF, mode=v), lambda v: SampleBuffer.empty((4, 4), channels=v),
+    lambda v: SampleBuffer.from_moments(np.full((H, W), 4), IMG, IMG, channels=v),
+])
+def test_an_array_where_a_name_or_a_list_belongs_is_refused_in_one_line(call):
+    """A 40x40 array as ``mode`` was numpy's "truth value ... ambiguous", as ``domain`` or
+    ``wiener_exponents`` its 300-character repr, as ``channels`` a 5109-character list of "names"
+    (a review of the one-line messages)."""
+    with pytest.raises((TypeError, ValueError)) as caught:
+        call(np.ones((40, 40)))
+    message = str(caught.value)
+    assert "\n" not in message and len(message) < 160 and message.split(":")[0] in (
+        "wiener_exponents", "domain", "mode", "channels"), message
