@@ -452,6 +452,8 @@ def test_a_stale_batch_that_copied_its_requests_header_is_refused(tmp_path, caps
     assert main(["merge", str(dump), str(tmp_path / "b1.exr"), "--request", str(tmp_path / "r2.exr"), "-o",
                  str(tmp_path / "stale.exr"), "-q"]) == 2
     _one_error_line(capsys, "b1.exr: awr:round: it answers a request of round 1, not")
+    assert main(["info", str(tmp_path / "b1.exr"), "--json"]) == 0  # samples, not a request ("counts: missing")
+    assert json.loads(capsys.readouterr().out)["kind"] != "request"
 
 
 def test_a_request_of_another_seed_is_refused_by_plan_and_merge(tmp_path, capsys):

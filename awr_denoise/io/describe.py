@@ -81,7 +81,8 @@ def describe_file(path: str | os.PathLike[str], *, preset: str = "auto", color: 
                             "height": int(hi[1] - lo[1] + 1), "windows": window, "parts": len(parts),
                             "deep": any(part.deep for part in parts), "views": views, "channels": channels,
                             "attributes": attrs}
-    if str(attrs.get("awr:semantics", "")) == "sample-request":
+    # A renderer's batch may carry its request's header, semantics and all: its channels say which it is.
+    if str(attrs.get("awr:semantics", "")) == "sample-request" and "counts" in channels:
         req = read_request(p)
         info.update(kind="request", round=req.round, total=req.total, spp=_stats(req.counts),
                     first_index=_stats(req.first_index))
