@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import hashlib
 import warnings
 
 import numpy as np
@@ -131,46 +133,60 @@ def _input_kwargs(args: argparse.Namespace) -> list[dict]:
     return [{**kwargs, "variance_kind": None} if said else kwargs for said in declared]
 
 
-def _same_samples(a: SampleBuffer, b: SampleBuffer) -> bool:
-    return bool(a.total_samples) and all(np.array_equal(x, y) for x, y in
-                                         ((a.count, b.count), (a.mean, b.mean), (a.variance, b.variance)))
-
-
 RUNNING = "awr:running"
 """Set by ``merge --request`` on its output: a loop's running dump, each pixel's samples its seed's
 sequence from index 0 on (a batch, even one naming its seed and round, starts at ``first_index``)."""
 
 
-def _same_sequence(a: SampleDump, b: SampleDump) -> int:
-    """The pixels where two running dumps of the same seed both hold samples: a loop's dump holds
-    each pixel's samples from index 0 on (``first_index`` starts there), so both hold the same ones."""
-    if not all(d.attributes.get("awr:semantics") == SEMANTICS_STATISTICS and str(d.attributes.get(RUNNING)) == "1"
-               and "awr:seed" in d.attributes for d in (a, b)):
-        return 0
-    if str(a.attributes["awr:seed"]).strip() != str(b.attributes["awr:seed"]).strip():
-        return 0
-    return int(np.count_nonzero((a.buffer.count > 0) & (b.buffer.count > 0)))
+@dataclasses.dataclass(frozen=True)
+class _Seen:
+    """What the duplicate checks keep of an input once it is merged: not its statistics."""
+
+    path: str
+    digest: bytes | None  # of its count, mean and variance, when it holds samples
+    running: tuple[str, np.ndarray] | None  # a running dump's seed and the pixels where it has samples
 
 
-def _refuse_duplicates(paths: list[str], dumps: list | None = None) -> None:
-    """Refuse two inputs that are one file, or hold the same samples (a copy: merged, they count twice).
+def _seen(path: str, dump: SampleDump) -> _Seen:
+    buffer = dump.buffer
+    digest = None
+    if buffer.total_samples:
+        h = hashlib.sha256()
+        for a in (buffer.count, buffer.mean, buffer.variance):
+            h.update(repr((a.dtype.str, a.shape)).encode())
+            h.update(np.ascontiguousarray(a).data)
+        digest = h.digest()
+    a = dump.attributes
+    running = None
+    if a.get("awr:semantics") == SEMANTICS_STATISTICS and str(a.get(RUNNING)) == "1" and "awr:seed" in a:
+        # A loop's running dump holds each pixel's samples from index 0 on (first_index starts there).
+        running = (str(a["awr:seed"]).strip(), buffer.count > 0)
+    return _Seen(path, digest, running)
 
-    Without ``dumps`` only the files are compared.
-    """
+
+def _refuse_copies(earlier: list[_Seen], new: _Seen) -> None:
+    """Refuse an input that holds the same samples as an earlier one (a copy, or two running dumps of
+    one seed with samples at the same pixels): merged, they would count twice."""
+    for old in earlier:
+        if new.digest is not None and new.digest == old.digest:
+            why = "hold the same samples (a copy?)"
+        elif new.running and old.running and new.running[0] == old.running[0] and (
+                shared := int(np.count_nonzero(new.running[1] & old.running[1]))):
+            why = (f"are running dumps of one sample sequence (awr:seed {new.running[0]}): at {shared} pixel(s) "
+                   "both hold its first samples, the same samples (loops on two machines need two seeds)")
+        else:
+            continue
+        raise UsageError(f"merge: {new.path} and {old.path} {why}; merging would count their samples twice "
+                         "(pass --allow-duplicates to merge them anyway)")
+
+
+def _refuse_duplicates(paths: list[str]) -> None:
+    """Refuse two inputs that are one file (merged, its samples would count twice)."""
     for j in range(1, len(paths)):
         for i in range(j):
             if same_file(paths[i], paths[j]):
-                why = "are the same file"
-            elif dumps is not None and _same_samples(dumps[i].buffer, dumps[j].buffer):
-                why = "hold the same samples (a copy?)"
-            elif dumps is not None and (shared := _same_sequence(dumps[i], dumps[j])):
-                seed = dumps[j].attributes["awr:seed"]
-                why = (f"are running dumps of one sample sequence (awr:seed {seed}): at {shared} pixel(s) both hold "
-                       "its first samples, the same samples (loops on two machines need two seeds)")
-            else:
-                continue
-            raise UsageError(f"merge: {paths[j]} and {paths[i]} {why}; merging would count their samples twice "
-                             "(pass --allow-duplicates to merge them anyway)")
+                raise UsageError(f"merge: {paths[j]} and {paths[i]} are the same file; merging would count their "
+                                 "samples twice (pass --allow-duplicates to merge them anyway)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -213,22 +229,34 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_OK
     if len(args.inputs) == 1 and not args.request:
         raise UsageError("merge: give the running dump and at least one batch (or --request for a first batch)")
-    dumps = [read_sample_dump(path, **kwargs) for path, kwargs in zip(args.inputs, _input_kwargs(args))]
-    first = dumps[0].buffer
-    for path, dump in zip(args.inputs[1:], dumps[1:]):
-        _check_match(path, dump.buffer, first, args.inputs[0])
     if not args.allow_duplicates:
-        _refuse_duplicates(args.inputs, dumps)
-    # Plain batches merge with Chan's update; a batch answering --request is told to a sampler.
-    told = dumps[-1] if args.request else None
-    merged = SampleBuffer.empty(first.shape, channels=first.channels) if told is dumps[0] else first
-    issued = np.zeros(first.shape, np.int64) if told is dumps[0] else np.array(dumps[0].issued)
-    for dump in dumps[1:len(dumps) - (told is not None)]:
-        merged = merged.merge(dump.buffer)
-        issued = issued + dump.issued
-    attrs = {k: v for k, v in dumps[0].attributes.items() if k.removeprefix("awr:") in _KEPT}
-    rounds = [header_count(p, d.attributes, "awr:round", 0, MAX_ROUND) for p, d in zip(args.inputs, dumps)
-              if "awr:round" in d.attributes]
+        _refuse_duplicates(args.inputs)
+    # One input in memory at a time beside the merged statistics: read, checked, merged, let go.
+    # Plain batches merge with Chan's update; a batch answering --request (the last) is told to a sampler.
+    seen: list[_Seen] = []
+    rounds: list[int] = []
+    merged = issued = told = None
+    for index, (path, kwargs) in enumerate(zip(args.inputs, _input_kwargs(args))):
+        dump = read_sample_dump(path, **kwargs)
+        if index == 0:
+            first, attrs = dump.buffer, {k: v for k, v in dump.attributes.items() if k.removeprefix("awr:") in _KEPT}
+        else:
+            _check_match(path, dump.buffer, first, args.inputs[0])
+        if not args.allow_duplicates:
+            _refuse_copies(seen, new := _seen(path, dump))
+            seen.append(new)
+        if "awr:round" in dump.attributes:
+            rounds.append(header_count(path, dump.attributes, "awr:round", 0, MAX_ROUND))
+        if args.request and index == len(args.inputs) - 1:
+            told = dump
+        elif merged is None:
+            merged, issued = dump.buffer, np.array(dump.issued)
+        else:
+            merged, issued = merged.merge(dump.buffer), issued + dump.issued
+        del dump
+    if merged is None:  # the first batch of a run, told alone
+        merged, issued = SampleBuffer.empty(first.shape, channels=first.channels), np.zeros(first.shape, np.int64)
+    del first
     if told is not None:
         merged, issued, request_round, note = _tell(merged, issued, args.request, told, args.inputs[-1])
         rounds.append(request_round)
