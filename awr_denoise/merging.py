@@ -65,6 +65,9 @@ def merge_moments(count_a: CountArray, mean_a: FloatArray, variance_a: FloatArra
     >>> float(mean[0, 0, 0]), float(variance[0, 0, 0])
     (5.0, 10.0)
     """
+    if count_a is count_b and mean_a is mean_b and variance_a is variance_b:  # b.merge(b)
+        raise ValueError("other: the same statistics as the buffer merged into (the same arrays): merged, its "
+                         "samples would count twice")
     h, w, c = mean_a.shape
     mean, variance = np.empty((h, w, c)), np.empty((h, w, c))
     rows = max(1, BLOCK_BYTES // (w * c * 8))

@@ -97,3 +97,16 @@ def test_statistics_past_float64_once_merged_are_refused_by_name_without_warning
         warnings.simplefilter("error")
         with pytest.raises(ValueError, match=r"^other: merged, the mean or variance of 1 pixel\(s\) is beyond float64"):
             a.merge(b, executor=pool if threads else None)
+
+
+def test_a_buffer_merged_with_itself_is_refused():
+    """``b.merge(b)`` doubled the counts of the same samples without a word (the command line refuses
+    its equivalent; a red-team pass). A buffer with equal but separate statistics still merges."""
+    import copy
+
+    from awr_denoise import SampleBuffer
+
+    b = SampleBuffer.from_samples(np.array([0, 0, 1]), np.array([[1.0], [2.0], [3.0]]), (1, 2))
+    with pytest.raises(ValueError, match=r"^other: the same statistics as the buffer merged into"):
+        b.merge(b)
+    assert b.merge(copy.deepcopy(b)).total_samples == 6

@@ -6,6 +6,7 @@ hypothesis); each test here pins one documented behaviour of ``docs/robustness.m
 
 from __future__ import annotations
 
+import copy
 import math
 import warnings
 from fractions import Fraction
@@ -522,6 +523,6 @@ def test_counts_beyond_int64_are_named_as_such_not_negative():
     sum or cast wrapped; red-team pass 5)."""
     one = SampleBuffer.from_moments(np.array([[2**62]]), np.ones((1, 1, 1)), np.ones((1, 1, 1)))
     with pytest.raises(ValueError, match="more than 2\\*\\*62 samples merged"):
-        one.merge(one)
+        one.merge(copy.deepcopy(one))
     with pytest.raises(ValueError, match="count: 1 pixel\\(s\\) exceed 2\\*\\*62"):
         SampleBuffer.from_moments(np.array([[2**64 - 1]], dtype=np.uint64), np.ones((1, 1, 1)), np.ones((1, 1, 1)))

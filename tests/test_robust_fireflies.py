@@ -10,6 +10,8 @@ default's own guarantees next to a firefly (exposure, locality) are tested at th
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 
@@ -279,7 +281,7 @@ def test_nonfinite_policies_are_counted_and_carried(policy):
         assert buf.mean[0, 0, 0] == pytest.approx(np.mean(np.r_[values[0:3, 0], 0.0]))
     out = reconstruct(buf)
     assert np.isfinite(out).all()
-    assert buf.merge(buf).nonfinite == 2 * bad
+    assert buf.merge(copy.deepcopy(buf)).nonfinite == 2 * bad
 
 
 def test_sampler_accumulates_the_nonfinite_count():

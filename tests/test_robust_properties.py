@@ -10,6 +10,7 @@ derandomised so a CI run is reproducible; bounds and tolerances are those docume
 
 from __future__ import annotations
 
+import copy
 import os
 
 import numpy as np
@@ -309,7 +310,7 @@ def test_nonfinite_policies_count_exactly(shape, seed, bad_fraction, policy):
     assert np.isfinite(buf.mean).all() and np.isfinite(buf.variance).all()
     expected = n - n_bad if policy == "drop" else n
     assert buf.total_samples == expected
-    twice = buf.merge(buf)
+    twice = buf.merge(copy.deepcopy(buf))
     assert twice.nonfinite == 2 * n_bad
     if buf.total_samples:
         assert np.isfinite(reconstruct(buf)).all()
