@@ -102,6 +102,20 @@ ANSWERS = {"awr:request_round": "round", "awr:request_total": "total"}
 (a batch that copied its request's header names it by ``awr:round`` and ``awr:total``)."""
 
 
+def _answer_keys(attributes: dict) -> dict[str, str]:
+    """The header keys naming a batch's request, and the request field each names."""
+    copied = attributes.get("awr:semantics") == "sample-request"  # the request's own header, copied whole
+    named = {**ANSWERS, **({"awr:round": "round", "awr:total": "total"} if copied else {})}
+    return {key: field for key, field in named.items() if key in attributes}
+
+
+def _answers(path: str, attributes: dict) -> dict[str, int] | None:
+    """The round and total of the request a batch names (``awr:request_*``, or its copied header)."""
+    found = {field: header_count(path, attributes, key, 0, 2**63 - 1)
+             for key, field in _answer_keys(attributes).items()}
+    return found if set(found) == {"round", "total"} else None
+
+
 def _check_answered(batch_path: str, attributes: dict, request_path: str, request: SampleRequest) -> None:
     """Refuse a batch whose header names another request than the one it is told with.
 
@@ -109,14 +123,11 @@ def _check_answered(batch_path: str, attributes: dict, request_path: str, reques
     next request) would merge its samples twice; a renderer that copies the request's round and
     total into ``awr:request_round`` and ``awr:request_total`` lets this be caught.
     """
-    copied = attributes.get("awr:semantics") == "sample-request"  # the request's own header, copied whole
-    named = {**ANSWERS, **({"awr:round": "round", "awr:total": "total"} if copied else {})}
-    for key, field in named.items():
-        if key in attributes:
-            value = header_count(batch_path, attributes, key, 0, 2**63 - 1)
-            if value != getattr(request, field):
-                raise InputFileError(f"{batch_path}: {key}: it answers a request of {field} {value}, not "
-                                     f"{request_path} ({field} {getattr(request, field)}): a batch of another round?")
+    for key, field in _answer_keys(attributes).items():
+        value = header_count(batch_path, attributes, key, 0, 2**63 - 1)
+        if value != getattr(request, field):
+            raise InputFileError(f"{batch_path}: {key}: it answers a request of {field} {value}, not "
+                                 f"{request_path} ({field} {getattr(request, field)}): a batch of another round?")
 
 
 def _input_kwargs(args: argparse.Namespace) -> list[dict]:
@@ -134,8 +145,17 @@ def _input_kwargs(args: argparse.Namespace) -> list[dict]:
 
 
 RUNNING = "awr:running"
-"""Set by ``merge --request`` on its output: a loop's running dump, each pixel's samples its seed's
-sequence from index 0 on (a batch, even one naming its seed and round, starts at ``first_index``)."""
+"""1 on a loop's running dump (``merge --request``'s output, ``awr render``'s, a plain merge of running
+dumps), each pixel's samples its seed's sequence from index 0 on; 0 on a plain merge of anything
+else (batches start at ``first_index``). Files without it (older versions) are judged by their round."""
+
+
+def _running(attributes: dict) -> bool:
+    """Whether a file is a running dump: marked so, or, unmarked, statistics naming a seed and a round."""
+    if attributes.get("awr:semantics") != SEMANTICS_STATISTICS or "awr:seed" not in attributes:
+        return False
+    marked = attributes.get(RUNNING)
+    return str(marked).strip() == "1" if marked is not None else "awr:round" in attributes
 
 
 @dataclasses.dataclass(frozen=True)
@@ -147,7 +167,7 @@ class _Seen:
     running: tuple[str, np.ndarray] | None  # a running dump's seed and the pixels where it has samples
 
 
-def _seen(path: str, dump: SampleDump) -> _Seen:
+def _seen(path: str, dump: SampleDump, told: bool) -> _Seen:
     buffer = dump.buffer
     digest = None
     if buffer.total_samples:
@@ -156,11 +176,9 @@ def _seen(path: str, dump: SampleDump) -> _Seen:
             h.update(repr((a.dtype.str, a.shape)).encode())
             h.update(np.ascontiguousarray(a).data)
         digest = h.digest()
-    a = dump.attributes
     running = None
-    if a.get("awr:semantics") == SEMANTICS_STATISTICS and str(a.get(RUNNING)) == "1" and "awr:seed" in a:
-        # A loop's running dump holds each pixel's samples from index 0 on (first_index starts there).
-        running = (str(a["awr:seed"]).strip(), buffer.count > 0)
+    if not told and _running(dump.attributes):  # a told batch starts at its request's first_index
+        running = (str(dump.attributes["awr:seed"]).strip(), buffer.count > 0)
     return _Seen(path, digest, running)
 
 
@@ -235,6 +253,8 @@ def run(args: argparse.Namespace) -> int:
     # Plain batches merge with Chan's update; a batch answering --request (the last) is told to a sampler.
     seen: list[_Seen] = []
     rounds: list[int] = []
+    answers: list[dict | None] = []
+    all_running = True
     merged = issued = told = None
     for index, (path, kwargs) in enumerate(zip(args.inputs, _input_kwargs(args))):
         dump = read_sample_dump(path, **kwargs)
@@ -242,12 +262,15 @@ def run(args: argparse.Namespace) -> int:
             first, attrs = dump.buffer, {k: v for k, v in dump.attributes.items() if k.removeprefix("awr:") in _KEPT}
         else:
             _check_match(path, dump.buffer, first, args.inputs[0])
+        is_told = bool(args.request) and index == len(args.inputs) - 1
+        all_running = all_running and _running(dump.attributes)
+        answers.append(_answers(path, dump.attributes))
         if not args.allow_duplicates:
-            _refuse_copies(seen, new := _seen(path, dump))
+            _refuse_copies(seen, new := _seen(path, dump, is_told))
             seen.append(new)
         if "awr:round" in dump.attributes:
             rounds.append(header_count(path, dump.attributes, "awr:round", 0, MAX_ROUND))
-        if args.request and index == len(args.inputs) - 1:
+        if is_told:
             told = dump
         elif merged is None:
             merged, issued = dump.buffer, np.array(dump.issued)
@@ -281,8 +304,11 @@ def run(args: argparse.Namespace) -> int:
         attrs["awr:round"] = max(rounds) + 1
     if "awr:seed" in attrs:
         header_count(args.inputs[0], attrs, "awr:seed", 0, MAX_SEED)
-    if told is not None:  # a loop's running dump: its samples are every pixel's sequence from index 0
-        attrs[RUNNING] = 1
+    # A loop's running dump (told, or running dumps merged): its samples are every pixel's sequence from 0.
+    attrs[RUNNING] = int(told is not None or all_running)
+    if told is None and answers and all(a is not None and a == answers[0] for a in answers):
+        # Tiles of one batch, merged before they are told: still naming their request.
+        attrs.update({key: answers[0][field] for key, field in ANSWERS.items()})
     header = {**provenance(**{k.removeprefix("awr:"): v for k, v in attrs.items()}), **windows}
     write_sample_buffer(args.output, merged, header=header, issued=issued, overwrite=args.overwrite)
     h, w = merged.shape

@@ -76,6 +76,11 @@ def derived_path(path: str | Path, suffix: str) -> Path:
     return p.with_name(stem + suffix)
 
 
+def first_round_spp(initial_spp: int, spp: float) -> int:
+    """The first adaptive round's samples per pixel: ``initial_spp``, at most the render's own, at least 1."""
+    return min(initial_spp, max(1, int(spp)))
+
+
 def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float, adaptive: bool, seed: int, quiet: bool,
                   initial_spp: int = DEFAULT_AWR_INITIAL_SPP, round_growth: float = DEFAULT_ROUND_GROWTH,
                   noise_model: str = DEFAULT_NOISE_MODEL,
@@ -91,7 +96,7 @@ def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float, ada
             request = SampleRequest.uniform(shape, int(spp))
             buffer = renderer(request)
             return buffer, request.first_index + request.counts, 1
-        awr = AdaptiveSampler(shape, initial_spp=min(initial_spp, max(1, int(spp))), seed=seed,
+        awr = AdaptiveSampler(shape, initial_spp=first_round_spp(initial_spp, spp), seed=seed,
                               round_growth=round_growth, noise_model=noise_model, gain_refresh=gain_refresh)
         buffer = awr.run(renderer, total_spp=spp, progress=not quiet)
         return buffer, awr.issued, awr.round
@@ -272,8 +277,13 @@ def run(args: argparse.Namespace) -> int:
         buffer, issued, next_round = render_buffer(renderer, renderer.shape, **render)
     seconds = time.perf_counter() - start
     strategy = "awr" if args.adaptive else "uniform"
+    # A running dump (its samples every pixel's sequence from 0), and the run's strategy and first
+    # round, which awr plan continues.
+    first = {}
+    if args.adaptive:
+        first["initial_spp"] = first_round_spp(args.initial_spp or DEFAULT_AWR_INITIAL_SPP, args.spp)
     header = provenance(scene=name, seed=args.seed, sampler=args.sampler, strategy=strategy, round=next_round,
-                        render_seconds=float(seconds), renderer=args.renderer)
+                        render_seconds=float(seconds), renderer=args.renderer, running=1, **first)
     check_reconstruction_options(args, buffer.shape, name)
     result = reconstruct_detailed(buffer, variance_probes=0, **reconstruction_kwargs(args))
     # The dump, the image and the preview: all three or none.

@@ -429,6 +429,46 @@ def test_running_dumps_of_one_seed_are_not_merged(tmp_path, capsys):
                  str(folder / "d2.exr"), "-q"]) == 0
 
 
+def test_renders_old_dumps_and_merged_running_dumps_of_one_seed_are_running_dumps(tmp_path, capsys):
+    """Marking only ``merge --request``'s outputs as running dumps let three copies through again (a
+    review): two ``awr render`` dumps of one seed, a dump written before the mark (no ``awr:running``:
+    judged by its round), and a plain merge of running dumps (it carries the mark). A plain merge of
+    batches is marked 0, and names the request of tiles that all name the same one."""
+    render = ["render", "--renderer", "synthetic", "--scene", "edges", "--width", "16", "--height", "12",
+              "--seed", "7", "-q"]
+    assert main([*render, "--spp", "4", "-o", str(tmp_path / "a.exr")]) == 0
+    assert main([*render, "--spp", "8", "-o", str(tmp_path / "b.exr")]) == 0
+    assert read_sample_dump(tmp_path / "b.exr").attributes["awr:running"] == 1
+    assert main(["merge", str(tmp_path / "a.exr"), str(tmp_path / "b.exr"), "-o", str(tmp_path / "ab.exr"), "-q"]) == 2
+    _one_error_line(capsys, "running dumps of one sample sequence (awr:seed 7)")
+    dump = read_sample_dump(tmp_path / "a.exr")
+    old = {k: v for k, v in dump.attributes.items() if k != "awr:running"}  # as an older version wrote it
+    write_sample_buffer(tmp_path / "old.exr", dump.buffer, header=old)
+    assert main(["merge", str(tmp_path / "old.exr"), str(tmp_path / "b.exr"), "-o", str(tmp_path / "ob.exr"),
+                 "-q"]) == 2
+    _one_error_line(capsys, "running dumps of one sample sequence")
+    render[render.index("7")] = "8"
+    assert main([*render, "--spp", "4", "-o", str(tmp_path / "c.exr")]) == 0
+    assert main(["merge", str(tmp_path / "a.exr"), str(tmp_path / "c.exr"), "-o", str(tmp_path / "ac.exr"), "-q"]) == 0
+    assert read_sample_dump(tmp_path / "ac.exr").attributes["awr:running"] == 1  # running dumps of two seeds
+    assert main(["merge", str(tmp_path / "ac.exr"), str(tmp_path / "b.exr"), "-o", str(tmp_path / "acb.exr"),
+                 "-q"]) == 2
+    # Tiles of one batch naming their request: their plain merge is not a running dump, and names it.
+    request = SampleRequest.uniform((12, 16), 2, first_index=8, round=3)
+    for name, rows in (("tA", slice(0, 6)), ("tB", slice(6, 12))):
+        counts = np.zeros((12, 16), int)
+        counts[rows] = 2
+        rows_, cols, _ = SampleRequest(counts, request.first_index).pixel_list()
+        tile = SampleBuffer.from_samples(np.stack([rows_, cols], 1), np.ones((rows_.size, 3)), (12, 16))
+        write_sample_buffer(tmp_path / f"{name}.exr", tile,
+                            header={"awr:request_round": 3, "awr:request_total": request.total})
+    assert main(["merge", str(tmp_path / "tA.exr"), str(tmp_path / "tB.exr"), "-o", str(tmp_path / "t.exr"),
+                 "-q"]) == 0
+    merged = read_sample_dump(tmp_path / "t.exr").attributes
+    assert merged["awr:running"] == 0 and merged["awr:request_round"] == 3
+    assert merged["awr:request_total"] == request.total
+
+
 def test_a_stale_batch_that_copied_its_requests_header_is_refused(tmp_path, capsys):
     """A renderer that copies its request's header into the batch (``awr:semantics = sample-request``,
     ``awr:round``, ``awr:total``) names the request it answers: told again with the next round's
