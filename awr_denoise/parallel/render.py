@@ -101,8 +101,10 @@ _worker_state = threading.local()
 
 
 def _cached_renderer(factory: Callable[[], Renderer]) -> Renderer:
-    """The renderer ``factory`` builds, built once per worker thread (a few kept, newest first;
-    one pushed out is closed)."""
+    """The renderer ``factory`` builds, built once per worker thread (a few kept, newest first).
+
+    One pushed out is let go, not closed: a factory may hand out a renderer its caller still uses
+    (``lambda: renderer``); a path tracer's workers end when it is collected."""
     try:
         key: Any = pickle.dumps(factory)
     except Exception:  # an unpicklable factory only ever runs in this process
@@ -118,15 +120,8 @@ def _cached_renderer(factory: Callable[[], Renderer]) -> Renderer:
     renderer = factory()
     cache[key] = (factory, renderer)
     while len(cache) > _RENDERER_CACHE_SIZE:
-        _close(cache.popitem(last=False)[1][1])
+        cache.popitem(last=False)
     return renderer
-
-
-def _close(renderer: Renderer) -> None:
-    """Release a renderer's workers (a path tracer's process pool) if it has any to release."""
-    close = getattr(renderer, "close", None)
-    if callable(close):
-        close()
 
 
 def _render_tile(factory: Callable[[], Renderer], counts: np.ndarray, first_index: np.ndarray,

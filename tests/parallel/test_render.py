@@ -134,32 +134,41 @@ def test_a_failed_tile_cancels_the_rest_of_the_round():
     assert len(calls) < 64 // 2
 
 
-def test_renderers_pushed_out_of_a_workers_cache_are_closed(monkeypatch):
+def test_no_renderer_outlives_its_tiled_renderer_and_the_cache_lets_go(monkeypatch):
     """Tracers kept by the calling thread's cache held their process pools for good (8 child processes
     after six TiledRenderer calls without an executor): without one a TiledRenderer builds its own
-    renderer, and one pushed out of a worker's cache is closed."""
+    renderer; one pushed out of a worker's cache is let go, not closed (a factory may return a
+    renderer its caller still uses: closing it broke the caller's later calls, a review)."""
+    import gc
+    import weakref
+
     from awr_denoise.parallel import render as render_module
 
-    closed = []
+    built = []
 
     @dataclasses.dataclass(frozen=True)
-    class Closing:
+    class Recording:
         seed: int
 
         def __call__(self):
             inner = RendererSpec.synthetic("edges", (16, 16), seed=self.seed)()
-            inner.close = lambda: closed.append(self.seed)
+            built.append(weakref.ref(inner))
             return inner
 
     monkeypatch.setattr(render_module, "_RENDERER_CACHE_SIZE", 1)
     request = SampleRequest.uniform((16, 16), 1)
     before = dict(getattr(render_module._worker_state, "renderers", {}))
-    TiledRenderer(Closing(9), tile=8)(request)
+    TiledRenderer(Recording(9), tile=8)(request)
     assert dict(getattr(render_module._worker_state, "renderers", {})) == before  # no cache without an executor
+    shared = RendererSpec.synthetic("edges", (16, 16))()
     with get_executor("threads", workers=1) as executor:
         for seed in range(3):
-            TiledRenderer(Closing(seed), tile=8, executor=executor)(request)
-    assert closed == [0, 1]
+            TiledRenderer(Recording(seed), tile=8, executor=executor)(request)
+            TiledRenderer(lambda: shared, tile=8, executor=executor)(request)  # noqa: B023 - the caller's own
+        gc.collect()
+        assert all(ref() is None for ref in built)  # each pushed out by the shared one, and let go
+    assert_same_buffer(shared(request), RendererSpec.synthetic("edges", (16, 16))()(request))  # still usable
+
 
 
 def test_a_plain_renderer_sees_the_requests_round_and_sampler():
