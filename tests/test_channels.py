@@ -53,6 +53,9 @@ def test_every_route_that_takes_channel_names_refuses_a_set(tmp_path):
     write_image(tmp_path / "a.exr", np.ones((2, 2, 3)))
     with pytest.raises(TypeError, match="channels: expected a list or tuple of channel names"):
         read_image(tmp_path / "a.exr", channels={"R", "G", "B"})
+    with pytest.raises(TypeError, match="channels: expected a list or tuple of names in the image's order, got set"):
+        write_image(tmp_path / "b.exr", np.ones((2, 2, 3)), channels={"R", "G", "B"})
+    assert not (tmp_path / "b.exr").exists()
     with pytest.raises(TypeError, match="color: expected a plane name or file.exr:plane, got set"):
         read_sample_dump(tmp_path / "a.exr", color={"R", "G", "B"})
     assert read_image(tmp_path / "a.exr", channels=["B", "G", "R"]).shape == (2, 2, 3)

@@ -691,6 +691,9 @@ def _image_channels(image: np.ndarray, channels: Sequence[str]) -> tuple[np.ndar
         a = a[..., None]
     if a.ndim != 3 or a.shape[0] == 0 or a.shape[1] == 0:
         raise ValueError(f"image: expected shape (H, W) or (H, W, C), got {np.shape(image)}")
+    if isinstance(channels, (str, bytes, set, frozenset)):  # a set's order is its hashes'
+        raise TypeError("channels: expected a list or tuple of names in the image's order, got "
+                        f"{type(channels).__name__}")
     names = tuple(str(c) for c in channels)
     if len(names) != a.shape[2]:
         if tuple(names) == ("R", "G", "B"):
