@@ -162,6 +162,8 @@ def _render_tile_with(renderer: Renderer, counts: np.ndarray, first_index: np.nd
     full_counts[window] = counts
     full_first[window] = first_index
     full = renderer(SampleRequest(full_counts, full_first, *names))
+    if tuple(full.shape) != tuple(image_shape):  # cropped, another size would pass for this one
+        raise ValueError(f"request: shape {tuple(image_shape)} does not match the renderer's {tuple(full.shape)}")
     return dataclasses.replace(full.crop(*window), nonfinite=full.nonfinite)
 
 

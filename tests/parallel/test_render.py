@@ -108,8 +108,14 @@ def test_a_renderer_of_another_size_is_refused_not_cropped():
     """A 64x64 scene with a 32x32 sampler: ``sampler.run`` refuses it, ``render_tiled`` returned the
     top-left quarter of the image (a red-team pass)."""
     spec = RendererSpec.synthetic("edges", (64, 64))
-    with pytest.raises(ValueError, match=r"request: shape \(32, 32\) does not match the renderer's \(64, 64\)"):
-        render_tiled(spec, UniformSampler((32, 32)), total_spp=2, tile=16)
+
+    class Own:  # a renderer of requests only, rendering its own 64x64 film whatever it is asked
+        def __call__(self, request):
+            return spec()(SampleRequest.uniform((64, 64), 1))
+
+    for factory in (spec, Own):  # a SampleTracer, and a plain renderer (its result was cropped too)
+        with pytest.raises(ValueError, match=r"request: shape \(32, 32\) does not match the renderer's \(64, 64\)"):
+            render_tiled(factory, UniformSampler((32, 32)), total_spp=2, tile=16)
 
 
 def test_a_failed_tile_cancels_the_rest_of_the_round():
