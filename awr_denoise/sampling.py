@@ -269,8 +269,7 @@ class Sampler:
                     f"tell it before asking for {budget}")
             return self._pending
         target = self.default_budget() if budget is None else int(budget)
-        # A resumed buffer's pixels may already be past a new spp_max: no room there, never negative room.
-        capacity = None if self.spp_max is None else np.maximum(self.spp_max - self._issued, 0)
+        capacity = None if self.spp_max is None else np.maximum(self.spp_max - self._issued, 0)  # resumed: >= 0
         if capacity is not None and target > int(capacity.sum()):
             # Checked here so the message gives the budget asked for, not a strategy's share of it.
             raise ValueError(f"budget: {target} samples exceed the {int(capacity.sum())} that spp_max still allows")
@@ -381,10 +380,12 @@ class Sampler:
         pixels = self._shape[0] * self._shape[1]
         total_spp = _checks.real("total_spp", total_spp, minimum=0, maximum=MAX_BUDGET / pixels)
         goal = int(round(total_spp * pixels))
-        taken = int(self._issued.sum()) + (0 if self._pending is None else self._pending.total)  # told whole
+        taken, asked = int(self._issued.sum()), (0 if self._pending is None else self._pending.total)
         if goal < taken:
-            raise ValueError(f"total_spp: {total_spp} is below the {taken / pixels:.3g} spp already taken"
-                             + ("" if self._pending is None else f" with pending round {self._pending.round}"))
+            raise ValueError(f"total_spp: {total_spp} is below the {taken / pixels:.3g} spp already taken")
+        if taken < goal < taken + asked:  # a pending round is told whole, if at all
+            raise ValueError(f"total_spp: {total_spp} falls inside pending round {self._pending.round} "
+                             f"({taken / pixels:.3g} to {(taken + asked) / pixels:.3g} spp), which is told whole")
         bar = tqdm(total=goal, initial=int(self._issued.sum()), unit="sample", desc=self.strategy) if progress else None
         try:
             while self._issued.sum() < goal:
