@@ -199,12 +199,13 @@ def shape2d(param: str, value: Any, *, minimum: int = 1) -> tuple[int, int]:
 
 
 def name(param: str, value: Any, choices: tuple[str, ...] | None = None) -> str:
-    """A name (a str), one of ``choices`` when given."""
+    """A name (a str, or a 0-d array of one), one of ``choices`` when given."""
+    value = scalar(value)
     if not isinstance(value, str):
         raise TypeError(f"{param}: expected a name, got {described(value)}")
     if choices is not None and value not in choices:
         raise ValueError(f"{param}: {value!r} is not one of {', '.join(choices)}")
-    return value
+    return str(value)
 
 
 def slices(**values: Any) -> None:

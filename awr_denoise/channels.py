@@ -200,7 +200,7 @@ def resolve_channels(channels: Sequence[str] | int | None, n_channels: int) -> t
         raise ValueError(f"channels: {len(names)} names given for {n_channels} channel(s)")
     if len(set(names)) != len(names):
         twice = sorted({n for n in names if names.count(n) > 1})
-        raise ValueError(f"channels: duplicate names {_checks.described(twice)}")
+        raise ValueError(f"channels: duplicate names {', '.join(twice[:5])}" + (", ..." if len(twice) > 5 else ""))
     return names
 
 

@@ -370,7 +370,7 @@ def reconstruct_detailed(
     """
     if not isinstance(buffer, SampleBuffer):
         raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
-    _checks.name("mode", mode, MODES)
+    mode = _checks.name("mode", mode, MODES)
     settings = resolve_settings(c_s=c_s, stages=stages, wiener_exponents=wiener_exponents, pixel_clamp=pixel_clamp,
                                 guard=guard, preserve_mean=preserve_mean, nonnegative=nonnegative, precision=precision,
                                 variance_probes=variance_probes, seed=seed, guard_window=guard_window)

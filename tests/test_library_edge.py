@@ -367,3 +367,9 @@ def test_an_array_where_a_name_or_a_list_belongs_is_refused_in_one_line(call):
     message = str(caught.value)
     assert "\n" not in message and len(message) < 160 and message.split(":")[0] in (
         "wiener_exponents", "domain", "mode", "channels"), message
+
+
+def test_a_zero_dimensional_name_is_its_name():
+    """``mode=np.array("luminance")`` was accepted before names were checked as names (a review): a 0-d
+    array of a name is that name, as a 0-d array of a number is that number."""
+    np.testing.assert_array_equal(reconstruct(BUF, mode=np.array("luminance")), reconstruct(BUF, mode="luminance"))

@@ -278,7 +278,8 @@ def sample_index_bounds(path: str | os.PathLike[str], part: ExrPart) -> IndexBou
     return IndexBounds(low.reshape(part.shape), high.reshape(part.shape), int(repeated.sum()), first)
 
 
-def check_answers(path: str | os.PathLike[str], bounds: IndexBounds, request: SampleRequest) -> None:
+def check_answers(path: str | os.PathLike[str], bounds: IndexBounds | tuple[np.ndarray, np.ndarray],
+                  request: SampleRequest) -> None:
     """Refuse a batch whose recorded sample indices are not the ones ``request`` issued.
 
     A pixel's samples must lie in ``first_index .. first_index + counts - 1``, each once: indices
@@ -290,12 +291,13 @@ def check_answers(path: str | os.PathLike[str], bounds: IndexBounds, request: Sa
     >>> import numpy as np
     >>> from awr_denoise import SampleRequest
     >>> request = SampleRequest.uniform((1, 2), 2, first_index=4, round=2)
-    >>> check_answers("b.exr", IndexBounds(np.array([[4, 4]]), np.array([[6, 5]])), request)
+    >>> check_answers("b.exr", (np.array([[4, 4]]), np.array([[6, 5]])), request)
     >>> check_answers("b.exr", IndexBounds(np.array([[0, 4]]), np.array([[2, 5]])), request)
     Traceback (most recent call last):
     ...
     awr_denoise.errors.InputFileError: b.exr: sampleIndex: 1 pixel(s) hold samples outside the indices their request issued (first at row 0, column 0: 0..1, issued 4..5): another round's batch, or a renderer that ignored first_index
     """
+    bounds = IndexBounds(*bounds)  # a (low, high) pair too
     if bounds.repeated:
         row, col, index = bounds.first_repeat  # type: ignore[misc]
         raise file_error(path, f"{bounds.repeated} sample(s) repeat an index of their pixel (first at row {row}, "
