@@ -290,6 +290,17 @@ def test_parts_with_another_data_window_are_refused(tmp_path):
     np.testing.assert_array_equal(read_image(stereo, view="right"), 10 * read_image(stereo, view="left"))
     with pytest.raises(InputFileError, match=r"s\.exr: no view 'centre' \(views: left, right\)"):
         read_image(stereo, view="centre")
+    # One part holding both views (OpenEXR's multiView: the first view's channels bare, right.R...):
+    # --view right was "no view 'right'", and without a view the left one was read silently (a review).
+    import OpenEXR
+
+    one = tmp_path / "one.exr"
+    with OpenEXR.File({"multiView": ["left", "right"]},
+                      {**{c: planes[c] for c in "RGB"}, **{f"right.{c}": planes[c] * 10 for c in "RGB"}}) as f:
+        f.write(str(one))
+    np.testing.assert_array_equal(read_image(one, view="right"), 10 * read_image(one, view="left"))
+    with pytest.raises(InputFileError, match=r"one\.exr: R: holds views left, right in one part"):
+        read_image(one)
 
 
 @pytest.mark.parametrize("compression", ["DWAA_COMPRESSION", "PXR24_COMPRESSION"])

@@ -651,6 +651,10 @@ def read_image(path: str | os.PathLike[str], *, channels: Sequence[str] | None =
         raise file_error(p, "is a deep EXR, a per-sample dump, not an image (read it with read_deep_samples, "
                               "or denoise it first: awr denoise)")
     views = list(dict.fromkeys(str(header_value(part.header, "view")) for part in parts if "view" in part.header))
+    # A single-part multi-view file (OpenEXR's multiView): the first view's channels bare, the others'
+    # prefixed with their view's name (right.R).
+    within = [str(v) for part in parts if "multiView" in part.header for v in part.header["multiView"]]
+    views += [v for v in within if v not in views]
     if view is not None:
         if view not in views:
             raise file_error(p, f"no view {view!r} (views: {', '.join(views) or 'none, a single-view file'})")
@@ -663,6 +667,11 @@ def read_image(path: str | os.PathLike[str], *, channels: Sequence[str] | None =
                 shared.add(name)  # two views (or parts) of one name: never pick one silently
             available.setdefault(name, (part, arr))
     wanted = list(channels) if channels is not None else _find_rgb(p, list(available))
+    if view is not None and view in within[1:]:
+        wanted = [f"{view}.{name}" for name in wanted]
+    elif view is None and any(f"{v}.{name}" in available for v in within[1:] for name in wanted):
+        raise file_error(p, f"holds views {', '.join(within)} in one part (the first's channels bare): choose one "
+                            "with view=; awr diff: --view, --ref-view", wanted[0])
     first_window = header_windows(parts[0].header).get("dataWindow")
     planes = []
     shape = None
