@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 from pathlib import Path
 
 from awr_denoise.domains import DOMAIN_NAMES
@@ -125,6 +126,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
+def _named_as_output(error: BaseException, final: dict[Path, str]) -> BaseException:
+    """A frame's error naming its output, not the staged file a worker wrote (the names of the
+    staging folder are known to this process only: a process or Dask worker's message holds them)."""
+    text = str(error)
+    for staged, output in final.items():
+        for form in sorted({os.fspath(staged), os.path.abspath(staged)}, key=len, reverse=True):  # longest first
+            text = text.replace(form, output)
+    if text == str(error) or isinstance(error, OSError):  # an OSError's errno and paths stay its own
+        return error
+    try:
+        return type(error)(text)
+    except Exception:  # noqa: BLE001 - an exception type with other arguments: its own message, then
+        return error
+
+
 def _note(frame: FrameResult, output: str, nonfinite_policy: str, guided: bool = False) -> str:
     """The one-line summary of a denoised frame."""
     h, w = frame.shape
@@ -238,13 +254,15 @@ def run(args: argparse.Namespace) -> int:
         executor = executor_from_args(args) if executor_requested(args) else contextlib.nullcontext(None)
         with executor as pool:
             try:
+                # The staging folder is this run's: a frame run again (a Dask worker lost) replaces
+                # its own staged file, as a first run writes it.
                 denoise_frames(sources, [i for i, _ in staged],
                                previews=[p for _, p in staged] if args.preview else None, exposure=args.exposure,
-                               reference=args.ref, executor=pool, half=args.half,
+                               reference=args.ref, executor=pool, half=args.half, overwrite=True,
                                read_options=plane_kwargs(args), on_frame=done, **reconstruction_kwargs(args))
             except FramesFailedError as exc:
                 # The first failed frame's own error, so it keeps its exit status and one-line message.
-                raise next(iter(exc.failures.values())) from None
+                raise _named_as_output(next(iter(exc.failures.values())), final) from None
             finally:
                 bar.close()
         interrupts.check()

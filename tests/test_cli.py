@@ -978,3 +978,19 @@ def test_merge_holds_one_input_at_a_time(tmp_path):
             tracemalloc.stop()
     assert peaks[1] < 1.2 * peaks[0], peaks
     assert read_sample_dump(tmp_path / "m12.exr").buffer.total_samples == 12 * 4 * 128 * 128
+
+
+def test_a_frame_failing_on_a_worker_process_is_named_by_its_output(tmp_path, capsys):
+    """A frame that failed on a process (or Dask) worker was reported under the staging folder's
+    temporary name, which only the calling process can map to the output (a red-team pass)."""
+    mean = np.full((16, 16, 3), 0.5)
+    mean[4:8, 4:8] = 1e6  # past HALF's range: --half refuses it
+    for i in (1, 2):
+        write_sample_buffer(tmp_path / f"h.{i:04d}.exr",
+                            SampleBuffer.from_moments(np.full((16, 16), 4), mean, np.full((16, 16, 3), 0.01)))
+    out = tmp_path / "o.####.exr"
+    assert main(["denoise", str(tmp_path / "h.####.exr"), "--frames", "1-2", "-o", str(out), "--half", "-q",
+                 "--executor", "processes", "--workers", "1"]) == 2
+    line = _one_error_line(capsys, "beyond the half-float range")
+    assert line.startswith(f"awr: error: {tmp_path / 'o.000'}") and ".awr-" not in line, line
+    assert not list(tmp_path.glob("o.*")) and not list(tmp_path.glob(".awr-*"))

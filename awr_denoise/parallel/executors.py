@@ -173,9 +173,10 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
                     # No dashboard; the scheduler's remaining HTTP routes take a free loopback port
                     # instead of 8787, so several clusters can coexist without a port warning.
                     scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
-                    # Task errors reach the caller as exceptions; the workers' warnings (a
-                    # cancelled task, a lost heartbeat while closing) are noise on a terminal.
-                    silence_logs=logging.ERROR)
+                    # Task errors reach the caller as exceptions; the workers' logs of them (a
+                    # multi-line "Compute Failed" each), of a cancelled task or of a lost heartbeat
+                    # while closing are noise on a terminal.
+                    silence_logs=logging.CRITICAL)
             stack.enter_context(cluster)
             client = stack.enter_context(distributed.Client(cluster))
         else:
@@ -218,6 +219,9 @@ def _scheduler_address(distributed: Any, scheduler: str | os.PathLike[str]) -> s
 _ANSWER_SECONDS = 30.0
 """How long a scheduler has to say who it is (Dask's own connect timeout)."""
 
+_WORKER_SECONDS = 60.0
+"""How long a scheduler without workers is given for one to join (a cluster still starting)."""
+
 
 def _identity(distributed: Any, address: str, seconds: float) -> Any:
     """What the service at ``address`` says it is (Dask's ``identity``), asked within ``seconds``.
@@ -250,7 +254,7 @@ def _connect(distributed: Any, address: str) -> Any:
         if identity is not None and (not isinstance(identity, dict) or identity.get("type") != "Scheduler"):
             kind = identity.get("type") if isinstance(identity, dict) else None
             raise ConnectionError(f"scheduler: {address}: a Dask {kind or 'service'}, not a scheduler")
-        return distributed.Client(address)
+        client = distributed.Client(address)
     except (asyncio.TimeoutError, TimeoutError):  # the same class from Python 3.11 on
         raise ConnectionError(f"scheduler: {address}: no Dask answer within {2 * _ANSWER_SECONDS:g} s (another "
                               "service on that port?)") from None
@@ -261,6 +265,12 @@ def _connect(distributed: Any, address: str) -> Any:
     except OSError as exc:  # refused, timed out, closed (CommClosedError): nothing to run on
         why = " ".join(str(exc).split()) or type(exc).__name__
         raise ConnectionError(f"scheduler: {address}: cannot connect ({why})") from None
+    try:  # a scheduler without workers (none started yet, all gone) would take the tasks and wait for ever
+        client.wait_for_workers(1, timeout=_WORKER_SECONDS)
+    except (asyncio.TimeoutError, TimeoutError):
+        client.close()
+        raise ConnectionError(f"scheduler: {address}: no workers joined within {_WORKER_SECONDS:g} s") from None
+    return client
 
 
 @contextlib.contextmanager

@@ -9,6 +9,7 @@ executor. ``awr denoise`` runs its frames through :func:`denoise_frames`, with o
 from __future__ import annotations
 
 import concurrent.futures as cf
+import dataclasses
 import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import Executor
@@ -27,7 +28,7 @@ from ..io.presets import parse_plane
 from ..io.provenance import image_provenance
 from ..metrics import relmse
 from ..reconstruct import reconstruct_detailed
-from .executors import executor_or_threads, submit
+from .executors import dask_client, executor_or_threads, submit
 
 __all__ = ["FrameResult", "FramesFailedError", "denoise_frame", "denoise_frames"]
 
@@ -156,6 +157,22 @@ def _stat(path: str) -> os.stat_result | None:
         return None
 
 
+_PLANE_OPTIONS = ("color", "variance", "count", "albedo", "normal", "depth")
+"""The reading options that may name a file (``file.exr:plane``, or a whole file for a feature)."""
+
+
+def _absolute_plane(spec: Any) -> Any:
+    """A plane option with its file's path made absolute (a plane of the input itself unchanged)."""
+    if not isinstance(spec, str):
+        return spec
+    if os.path.lexists(spec):
+        return os.path.abspath(spec)
+    if _names_file(spec):
+        file, plane = spec.rsplit(":", 1)
+        return f"{os.path.abspath(file)}:{plane}"
+    return spec
+
+
 def _names_file(spec: str) -> bool:
     try:
         parse_plane(spec, None)
@@ -248,6 +265,15 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
         return []
     options = {"exposure": exposure, "reference": reference, "overwrite": overwrite, "half": half,
                "read_options": dict(read_options or {}), **reconstruct_options}
+    given = (list(sources), list(targets), None if shown is None else list(shown))
+    if executor is not None and dask_client(executor) is not None:
+        # A Dask worker runs in its own folder (dask worker started from $HOME): a relative path
+        # there names another file. Every path goes as the caller sees it, absolute.
+        sources, targets = [os.path.abspath(p) for p in sources], [os.path.abspath(p) for p in targets]
+        shown = None if shown is None else [os.path.abspath(p) for p in shown]
+        options["reference"] = None if reference is None else os.path.abspath(reference)
+        options["read_options"] = {k: _absolute_plane(v) if k in _PLANE_OPTIONS else v
+                                   for k, v in options["read_options"].items()}
     if executor is None and len(sources) == 1:
         # One frame runs in this thread, where Ctrl-C stops it at once; on a worker thread, which
         # cannot be stopped, the caller would wait for the whole reconstruction first.
@@ -258,24 +284,33 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
         if on_frame is not None:
             on_frame(result)
         return [result.output]
+    failures: dict[str, BaseException] = {}
     with executor_or_threads(executor, len(sources)) as pool:
-        futures = {submit(pool, _frame_task, s, t, None if shown is None else shown[i], options): s
+        pending = {submit(pool, _frame_task, s, t, None if shown is None else shown[i], options): i
                    for i, (s, t) in enumerate(zip(sources, targets))}
         try:
-            for future in cf.as_completed(futures):
-                if future.exception() is None and on_frame is not None:
-                    on_frame(future.result())
+            while pending:
+                done, _ = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+                for future in done:
+                    # Let go of a finished frame at once: a Dask cluster that loses the worker holding
+                    # its result would otherwise run the frame again, over its own written output.
+                    index = pending.pop(future)
+                    if future.exception() is not None:
+                        failures[given[0][index]] = future.exception()
+                    elif on_frame is not None:  # named as the caller named it
+                        on_frame(dataclasses.replace(future.result(), source=given[0][index],
+                                                     output=Path(given[1][index]), preview=None if given[2] is None
+                                                     else Path(given[2][index])))
         except BaseException:
             # Ctrl-C or a failing callback: frames not started yet never start (the ones
             # running finish, since threads cannot be stopped, before the pool closes).
-            for future in futures:
+            for future in pending:
                 future.cancel()
             raise
-    failures = {s: f.exception() for f, s in futures.items() if f.exception() is not None}
     if failures:
-        ordered = {s: failures[s] for s in sources if s in failures}
+        ordered = {s: failures[s] for s in given[0] if s in failures}
         raise FramesFailedError(ordered, len(sources)) from next(iter(ordered.values()))
-    return [f.result().output for f in futures]
+    return [Path(t) for t in given[1]]
 
 
 def _frame_task(source: str, output: str, preview: str | None, options: dict[str, Any]) -> FrameResult:

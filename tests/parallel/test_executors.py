@@ -186,3 +186,20 @@ def test_process_workers_end_when_their_parent_is_killed():
     while any(_alive(p) for p in pids) and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not any(_alive(p) for p in pids)
+
+
+def test_a_scheduler_without_workers_is_refused_in_time(monkeypatch):
+    """``--scheduler`` on a scheduler no worker had joined took the frames and waited for ever,
+    silent (a red-team pass); a worker is now waited for (60 s), then refused naming the scheduler."""
+    distributed = pytest.importorskip("distributed")
+    from awr_denoise.parallel import executors
+
+    monkeypatch.setattr(executors, "_WORKER_SECONDS", 1.0)
+    with distributed.LocalCluster(n_workers=0, processes=True, host="127.0.0.1", dashboard_address=None,
+                                  scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}) as empty:
+        address = empty.scheduler_address
+        start = time.monotonic()
+        with pytest.raises(ConnectionError, match=rf"^scheduler: {address}: no workers joined within 1 s$"):
+            with get_executor(scheduler=address):
+                pass
+        assert time.monotonic() - start < 30

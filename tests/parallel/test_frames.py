@@ -127,3 +127,25 @@ def test_a_preview_of_two_channels_is_refused_before_the_work(tmp_path, monkeypa
     monkeypatch.setattr(frames, "reconstruct_detailed", lambda *a, **k: pytest.fail("reconstructed first"))
     with pytest.raises(InputFileError, match=r"uv.exr: 2 channels \(U,V\); a preview"):
         frames.denoise_frame(tmp_path / "uv.exr", tmp_path / "o.exr", preview=tmp_path / "p.png")
+
+
+def test_relative_paths_on_dask_workers_in_another_folder(tmp_path, dumps, cluster, monkeypatch):
+    """A Dask worker runs in its own folder (``dask worker`` started from $HOME): relative frame paths
+    were read and written there, from other dumps of the same names, and the caller found no output
+    (exit 0; a red-team pass). Paths now go to the workers absolute, and come back as given."""
+    distributed = pytest.importorskip("distributed")
+    from awr_denoise.io import read_sample_buffer
+
+    monkeypatch.chdir(tmp_path)  # the cluster's workers started in the test run's folder, not here
+    names = [str(p.relative_to(tmp_path)) for p in dumps]
+    outputs = [f"out.{i:04d}.exr" for i in range(len(dumps))]
+    seen = []
+    with distributed.Client(cluster.scheduler_address) as client:
+        written = denoise_frames(names, outputs, executor=client.get_executor(pure=False), on_frame=seen.append,
+                                 read_options={"variance": None})
+    assert [str(p) for p in written] == outputs and sorted(str(f.output) for f in seen) == outputs
+    assert sorted(f.source for f in seen) == sorted(names)
+    serial = [tmp_path / f"serial.{i:04d}.exr" for i in range(len(dumps))]
+    serial_frames(dumps, serial)
+    assert_same_files([tmp_path / o for o in outputs], serial)
+    assert read_sample_buffer(dumps[0]).shape  # the caller's own dumps were read
