@@ -101,8 +101,9 @@ def sample_count_scale(normalised: np.ndarray, requested: int | None, *,
     ``value * d``. A render whose sample count is off the checks' grid (100: checks at 16, 32,
     ..., 96) stops its last pixels at ``S`` itself, one step or less after the last check: the
     differences are then taken below the top value, and where that leaves fewer than two values,
-    the requested number is taken if it puts every count below the top on the grid. When every pixel has the same count (all values 1) the pass says nothing
-    about ``S`` and the requested number is taken. Checked on real Blender 5.0 renders: a render
+    the requested number is taken if it puts every count below the top on the grid. When every
+    pixel has the same count (all values 1) the pass says nothing about ``S`` and the requested
+    number is taken. Checked on real Blender 5.0 renders: a render
     asking for 256 samples that converged at 64 is bit-identical to one asking for 64, and this
     returns 64 for it (tests/io/test_cycles_files.py).
 
