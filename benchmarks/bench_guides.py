@@ -40,7 +40,7 @@ import numpy as np
 from scipy import ndimage
 
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, guided, guides, projection, reconstruct
-from awr_denoise.bench import machine_info, write_json
+from awr_denoise.bench import update_section
 from awr_denoise.io.png import write_preview
 from awr_denoise.metrics import mse, relmse
 from awr_denoise.prepare import filled_mean
@@ -698,13 +698,6 @@ def crops(spp: int, cache: Path, images: Path = IMAGES) -> list[str]:
 
 
 # ---------------------------------------------------------------------------- main
-def _update(section: str, value: Any, command: str, path: Path = RESULTS) -> None:
-    """Store one section's rows in ``path``, keeping its other sections."""
-    data = json.loads(path.read_text()) if path.exists() else {}
-    data[section] = {"command": command, "machine": machine_info("pyoidn"), "rows": value}
-    write_json(path, data)
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("section", choices=("quality", "samplers", "synthetic", "ablations", "avenues", "features",
@@ -725,35 +718,35 @@ def main(argv: list[str] | None = None) -> int:
     command = recorded_command("bench_guides.py", argv)
     if args.section == "quality":
         rows = quality(quality_scenes(args.scenes), tuple(sorted(args.spps)), args.groups, args.cache)
-        _update("quality", rows, command, args.output)
+        update_section(args.output, "quality", rows, command, "pyoidn")
         quality_tables(rows)
     elif args.section == "samplers":
         rows = samplers(tuple(args.scenes or TRACER_SCENES), tuple(s for s in args.spps if s >= 16) or (16, 32), 0)
-        _update("samplers", rows, command, args.output)
+        update_section(args.output, "samplers", rows, command, "pyoidn")
         sampler_table(rows)
     elif args.section == "synthetic":
         rows = synthetic(("gradient", "edges", "hdr_source"), (4, 16, 64, 256), 4)
-        _update("synthetic", rows, command, args.output)
+        update_section(args.output, "synthetic", rows, command, "pyoidn")
         synthetic_table(rows)
     elif args.section == "ablations":
         rows = ablations(tuple(args.scenes or TRACER_SCENES), tuple(s for s in args.spps if s in (8, 32)), args.cache)
-        _update("ablations", rows, command, args.output)
+        update_section(args.output, "ablations", rows, command, "pyoidn")
         ablation_table(rows)
     elif args.section == "avenues":
         rows = avenues(quality_scenes(args.scenes), max(args.spps), args.groups, args.cache)
-        _update("avenues", rows, command, args.output)
+        update_section(args.output, "avenues", rows, command, "pyoidn")
         avenue_table(rows)
     elif args.section == "features":
         rows = feature_limits(quality_scenes(args.scenes), tuple(s for s in args.spps if s in (8, 32)) or (8, 32),
                               args.groups, args.cache)
-        _update("features", rows, command, args.output)
+        update_section(args.output, "features", rows, command, "pyoidn")
         feature_limits_table(rows)
     elif args.section == "pbrt":
         rows = pbrt()
-        _update("pbrt", rows, command, args.output)
+        update_section(args.output, "pbrt", rows, command, "pyoidn")
         pbrt_table(rows)
     elif args.section == "crops":
-        _update("crops", crops(args.crop_spp, args.cache, args.images), command, args.output)
+        update_section(args.output, "crops", crops(args.crop_spp, args.cache, args.images), command, "pyoidn")
     else:  # print the tables of the stored results
         data = json.loads(args.output.read_text())
         for section, show in (("quality", quality_tables), ("samplers", sampler_table),

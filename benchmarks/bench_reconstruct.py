@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, VarianceSampler, reconstruct
-from awr_denoise.bench import machine_info, write_json
+from awr_denoise.bench import update_section
 from awr_denoise.features import FEATURE_CHANNELS
 from awr_denoise.finishing import RESTORE_SHARE, match_mean, restore_mean
 from awr_denoise.metrics import mse, relmse
@@ -716,13 +716,6 @@ def quality_scenes(names: list[str] | None) -> list[tuple[str, str, tuple[int, i
     return scenes
 
 
-def _update(section: str, value: Any, command: str, results: Path = RESULTS) -> None:
-    """Replace ``section`` of the results file (its other sections are kept)."""
-    data = json.loads(results.read_text()) if results.exists() else {}
-    data[section] = {"command": command, "machine": machine_info(), "rows": value}
-    write_json(results, data)
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("section", choices=("quality", "samplers", "refresh", "seeds", "synthetic", "speed",
@@ -756,36 +749,37 @@ def main(argv: list[str] | None = None) -> int:
                         **(COMPARED if args.compare else {}),
                         **(FLOORS if args.floors else {}), **(PILOTS if args.pilots else {}),
                         **(WINDOWS if args.windows else {})})
-        _update("quality", rows, command, args.output)
+        update_section(args.output, "quality", rows, command)
         quality_tables(rows)
     elif args.section == "samplers":
         rows = samplers(quality_scenes(args.scenes), tuple(s for s in args.spps if s <= 32) or (8, 16, 32),
                         args.groups or 2, args.cache, {**SAMPLER_KINDS, **(cap_kinds(CAPS) if args.caps else {}),
                                                        **(initial_kinds(INITIALS) if args.initials else {})})
-        _update("samplers", rows, command, args.output)
+        update_section(args.output, "samplers", rows, command)
         sampler_table(rows)
     elif args.section == "refresh":
         rows = samplers(quality_scenes(args.scenes), tuple(s for s in args.spps if s <= 32) or (8, 16, 32),
                         args.groups or 2, args.cache, REFRESH_KINDS)
-        _update("refresh", rows, command, args.output)
+        update_section(args.output, "refresh", rows, command)
         refresh_table(rows)
     elif args.section == "seeds":
         rows = seeds(tuple(args.scenes or SEED_SCENES), tuple(s for s in args.spps if s <= 64) or (8, 16, 32, 64),
                      args.groups or 10)
-        _update("seeds", rows, command, args.output)
+        update_section(args.output, "seeds", rows, command)
         seeds_table(rows)
     elif args.section == "synthetic":
         methods = {**METHODS, **(WINDOWS if args.windows else {})}
         rows = synthetic(("gradient", "edges", "hdr_source", "fireflies", "rare_light"), (4, 16, 64, 256, 1024), 2,
                          (96, 96), methods)
         rows += synthetic(("hdr_source",), (8, 16, 32, 64, 128), 12, (64, 64), methods)
-        _update("synthetic", rows, command, args.output)
+        update_section(args.output, "synthetic", rows, command)
         synthetic_table(rows)
     elif args.section == "speed":
-        _update("speed", speed(args.sizes, args.repeats, tuple(SHIFTED) if args.shifts else ()), command, args.output)
+        rows = speed(args.sizes, args.repeats, tuple(SHIFTED) if args.shifts else ())
+        update_section(args.output, "speed", rows, command)
     elif args.section == "finishing":
         rows = finishing(args.groups or 12, args.cache, _mitsuba_available())
-        _update("finishing", rows, command, args.output)
+        update_section(args.output, "finishing", rows, command)
         finishing_table(rows)
     else:  # print the tables of the stored results
         data = json.loads(args.output.read_text())

@@ -47,7 +47,7 @@ from .command import add_arguments, main, run_from_args
 from .config import DOMAINS, METHODS, OVERHEAD_SIZES, BenchmarkConfig
 from .measure import median_time, noisy_buffer, peak_memory, timed
 from .peers import oidn_available, oidn_denoise, skimage_denoise
-from .records import command_line, json_ready, load_average, machine_info, write_json
+from .records import command_line, json_ready, load_average, machine_info, update_section, write_json
 from .runner import run_benchmark
 
 __all__ = [
@@ -72,5 +72,6 @@ __all__ = [
     "run_from_args",
     "skimage_denoise",
     "timed",
+    "update_section",
     "write_json",
 ]

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["json_ready", "write_json", "machine_info", "load_average", "command_line"]
+__all__ = ["json_ready", "write_json", "update_section", "machine_info", "load_average", "command_line"]
 
 
 def json_ready(value: Any) -> Any:
@@ -74,6 +74,27 @@ def write_json(path: str | os.PathLike[str], data: Any, *, indent: int = 1) -> P
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(json_ready(data), indent=indent) + "\n")
     return path
+
+
+def update_section(path: str | os.PathLike[str], section: str, rows: Any, command: str,
+                   *packages: str) -> Path:
+    """Replace one section of a results file (its rows, the command that made them, the machine),
+    keeping its other sections: a script run for one section, or into a trial file, leaves the rest.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     out = write_json(Path(tmp) / "r.json", {"old": {"rows": [1]}})
+    ...     _ = update_section(out, "new", [2], "bench.py new")
+    ...     data = json.loads(out.read_text())
+    >>> data["old"], data["new"]["rows"], data["new"]["command"]
+    ({'rows': [1]}, [2], 'bench.py new')
+    """
+    path = Path(path)
+    data = json.loads(path.read_text()) if path.exists() else {}
+    data[section] = {"command": command, "machine": machine_info(*packages), "rows": rows}
+    return write_json(path, data)
 
 
 def machine_info(*packages: str) -> dict[str, Any]:

@@ -1,9 +1,8 @@
-"""``benchmarks/bench_guides.py``: the demodulated guides of ``features`` use the albedo they name; ``--output``."""
+"""``benchmarks/bench_guides.py``: the demodulated guides of ``features`` use the albedo they name."""
 
 from __future__ import annotations
 
 import dataclasses
-import json
 
 import numpy as np
 import pytest
@@ -58,16 +57,3 @@ def test_no_demodulation_below_the_floor(bench, buffer):
     np.testing.assert_allclose(bench._demodulated(buffer, albedo=dark, below=0.05), reconstruct(buffer),
                                rtol=1e-12, atol=0)
     assert not np.allclose(bench._demodulated(buffer, albedo=dark), reconstruct(buffer), rtol=1e-3)
-
-
-def test_a_section_goes_to_the_given_file_and_the_stored_results_stay(bench, tmp_path):
-    """``--output``: a trial run rewrote the tracked ``benchmarks/results/guides.json`` (a check of the
-    documented commands)."""
-    stored = bench.RESULTS.read_bytes()
-    out = tmp_path / "trial.json"
-    out.write_text(json.dumps({"pbrt": {"command": "kept", "rows": []}}))
-    bench._update("features", [{"scene": "s"}], "bench_guides.py features --output trial.json", out)
-    data = json.loads(out.read_text())
-    assert data["pbrt"] == {"command": "kept", "rows": []}
-    assert data["features"]["rows"] == [{"scene": "s"}]
-    assert bench.RESULTS.read_bytes() == stored

@@ -1,9 +1,8 @@
-"""``benchmarks/bench_reconstruct.py``'s results file: ``--output`` keeps a partial run off the stored one."""
+"""``benchmarks/bench_reconstruct.py``'s variants of the default reconstruction."""
 
 from __future__ import annotations
 
 import importlib
-import json
 
 import pytest
 
@@ -14,17 +13,6 @@ from awr_denoise.wavelets import default_levels
 @pytest.fixture(scope="module")
 def bench(benchmark_script):
     return benchmark_script("bench_reconstruct")
-
-
-def test_a_section_goes_to_the_given_file_and_the_others_stay(bench, tmp_path):
-    stored = bench.RESULTS.read_bytes()
-    out = tmp_path / "partial.json"
-    out.write_text(json.dumps({"seeds": {"command": "kept", "rows": []}}))
-    bench._update("quality", [{"scene": "s"}], "bench_reconstruct.py quality --output partial.json", out)
-    data = json.loads(out.read_text())
-    assert data["seeds"] == {"command": "kept", "rows": []}
-    assert data["quality"]["rows"] == [{"scene": "s"}] and data["quality"]["command"].endswith("partial.json")
-    assert bench.RESULTS.read_bytes() == stored  # the stored results are not touched
 
 
 def test_the_cheaper_variants_include_one_stage_at_either_exponent(bench):

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from awr_denoise.bench import command_line, json_ready, load_average, machine_info, write_json
+from awr_denoise.bench import command_line, json_ready, load_average, machine_info, update_section, write_json
 
 
 def test_json_ready_makes_numpy_and_non_finite_values_portable():
@@ -38,3 +38,16 @@ def test_load_average_and_command_line():
     assert load is None or (len(load) == 3 and all(v >= 0 for v in load))
     assert command_line("benchmarks/bench_core.py", []) == "python benchmarks/bench_core.py"
     assert command_line("s.py", ["--quick", "--seed", "7"]) == "python s.py --quick --seed 7"
+
+
+def test_a_section_goes_to_its_file_and_the_others_stay(tmp_path):
+    """``bench_reconstruct.py`` and ``bench_guides.py --output FILE``: a trial run of one section
+    rewrote the tracked results; each section is now replaced alone, in the file named."""
+    stored = write_json(tmp_path / "stored.json", {"quality": {"command": "stored", "rows": [1]}})
+    before = stored.read_bytes()
+    trial = write_json(tmp_path / "trial.json", {"seeds": {"command": "kept", "rows": []}})
+    update_section(trial, "quality", [{"scene": "s"}], "bench.py quality --output trial.json", "pyoidn")
+    data = json.loads(trial.read_text())
+    assert data["seeds"] == {"command": "kept", "rows": []}
+    assert data["quality"]["rows"] == [{"scene": "s"}] and data["quality"]["command"].endswith("trial.json")
+    assert "pyoidn" in data["quality"]["machine"] and stored.read_bytes() == before
