@@ -157,10 +157,15 @@ def colours(channels: Sequence[str]) -> list[tuple[int, ...]]:
     return groups
 
 
-def _sequence(channels: object) -> list:
-    """Channel names in the data's order: a sequence, not a set (its order is its hashes')."""
+def _refuse_set(channels: object) -> None:
+    """Refuse a set of names: its order is its hashes', not the data's (random between runs)."""
     if isinstance(channels, (set, frozenset)):
         raise TypeError("channels: a set of names has no order; give them as a list or a tuple, in the data's order")
+
+
+def _sequence(channels: object) -> list:
+    """Channel names in the data's order: a sequence, not a set."""
+    _refuse_set(channels)
     if isinstance(channels, (str, bytes)) or not hasattr(channels, "__iter__") or getattr(channels, "ndim", 1) == 0:
         raise TypeError(f"channels: expected a sequence of channel names, got {_checks.described(channels)}")
     return list(channels)
@@ -170,8 +175,7 @@ def _names_or_count(channels: object, kind: str) -> Any:
     """``channels`` checked as a number of channels or an ordered collection of names (one with
     ``kind``, ``__len__`` or ``__iter__``); a set is refused, its order is not the data's."""
     channels = _checks.scalar(channels)
-    if isinstance(channels, (set, frozenset)):
-        _sequence(channels)  # refused, as a set
+    _refuse_set(channels)
     if isinstance(channels, (bool, np.bool_, float, np.floating, str, bytes)) or not (
             isinstance(channels, (int, np.integer)) or hasattr(channels, kind)) or (
             isinstance(channels, np.ndarray) and channels.ndim != 1):  # a masked 0-d array, a 2-D one

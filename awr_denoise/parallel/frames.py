@@ -265,7 +265,7 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
         return []
     options = {"exposure": exposure, "reference": reference, "overwrite": overwrite, "half": half,
                "read_options": dict(read_options or {}), **reconstruct_options}
-    given = (list(sources), list(targets), None if shown is None else list(shown))
+    as_given = list(zip(sources, targets, shown if shown is not None else [None] * len(sources)))
     if executor is not None and dask_client(executor) is not None:
         # A Dask worker runs in its own folder (dask worker started from $HOME): a relative path
         # there names another file. Every path goes as the caller sees it, absolute.
@@ -294,13 +294,12 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
                 for future in done:
                     # Let go of a finished frame at once: a Dask cluster that loses the worker holding
                     # its result would otherwise run the frame again, over its own written output.
-                    index = pending.pop(future)
+                    source, output, preview = as_given[pending.pop(future)]
                     if future.exception() is not None:
-                        failures[given[0][index]] = future.exception()
+                        failures[source] = future.exception()
                     elif on_frame is not None:  # named as the caller named it
-                        on_frame(dataclasses.replace(future.result(), source=given[0][index],
-                                                     output=Path(given[1][index]), preview=None if given[2] is None
-                                                     else Path(given[2][index])))
+                        on_frame(dataclasses.replace(future.result(), source=source, output=Path(output),
+                                                     preview=None if preview is None else Path(preview)))
         except BaseException:
             # Ctrl-C or a failing callback: frames not started yet never start (the ones
             # running finish, since threads cannot be stopped, before the pool closes).
@@ -308,9 +307,9 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
                 future.cancel()
             raise
     if failures:
-        ordered = {s: failures[s] for s in given[0] if s in failures}
+        ordered = {s: failures[s] for s, _, _ in as_given if s in failures}
         raise FramesFailedError(ordered, len(sources)) from next(iter(ordered.values()))
-    return [Path(t) for t in given[1]]
+    return [Path(t) for _, t, _ in as_given]
 
 
 def _frame_task(source: str, output: str, preview: str | None, options: dict[str, Any]) -> FrameResult:
