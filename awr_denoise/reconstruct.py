@@ -382,8 +382,9 @@ def reconstruct_detailed(
                        executor=executor, pixel_clamp=pixel_clamp, stages=stages, wiener_exponents=wiener_exponents,
                        guard=guard, guard_window=guard_window, preserve_mean=preserve_mean, nonnegative=nonnegative,
                        precision=precision, variance_probes=variance_probes, seed=seed, features=features)
-        guides = [None if guide is None else guide[..., list(group)] if guide.shape[2] == buffer.n_channels
-                  else guide if group == guide_colour(buffer) else None for group in groups]  # the colour's alone
+        whole = guide is not None and guide.shape[2] == buffer.n_channels  # else the colour's alone
+        guides = [guide[..., list(group)] if whole else guide if group == guide_colour(buffer) else None
+                  for group in groups]
         parts = [reconstruct_detailed(buffer.select(group), guide=part_guide, **options,
                                       guide_projection=None if part_guide is None else guide_projection)
                  for group, part_guide in zip(groups, guides)]
