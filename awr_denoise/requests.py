@@ -13,6 +13,9 @@ worker for exactly a tile's samples). Renderers need not subclass either.
 
 from __future__ import annotations
 
+import dataclasses
+import warnings
+import weakref
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -22,8 +25,13 @@ from . import _checks
 from ._arrays import ReadOnlyArrays, check_count, frozen
 from ._typing import CountArray, FloatArray, Shape2D
 from .buffers import SampleBuffer
+from .channels import adopted_channels
 
 __all__ = ["SampleRequest", "Renderer", "SampleTracer", "FeatureTracer"]
+
+# The batches each sampler was told, by identity, held weakly: a renderer that hands back one
+# SampleBuffer object every round would otherwise have the same samples merged every round.
+_TOLD: weakref.WeakKeyDictionary[SampleBuffer, dict[int, int]] = weakref.WeakKeyDictionary()
 
 
 @dataclass(frozen=True, eq=False)
@@ -146,6 +154,52 @@ class SampleRequest(ReadOnlyArrays):
         """
         _checks.slices(rows=rows, cols=cols)
         return SampleRequest(self.counts[rows, cols], self.first_index[rows, cols], self.round, self.sampler_id)
+
+    def check_answer(self, samples: SampleBuffer, channels: tuple[str, ...]) -> SampleBuffer:
+        """``samples`` checked as the renderer's answer to this request, for an image of ``channels``.
+
+        What :meth:`Sampler.tell <awr_denoise.sampling.Sampler.tell>` checks before it merges
+        (paper section 4: each round adds the samples its request asked for): the image's shape and
+        channels, no pixel with more samples than asked, and not the very buffer object told for an
+        earlier round of the same sampler (a renderer returning its one buffer every round). Fewer
+        samples than asked warn (a renderer may drop some). Unnamed channels take ``channels``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from awr_denoise import SampleBuffer, SampleRequest
+        >>> request = SampleRequest.uniform((1, 2), 1)
+        >>> batch = SampleBuffer.from_samples(np.array([0, 1]), np.array([0.5, 2.0]), (1, 2))
+        >>> request.check_answer(batch, ("Y",)).channels
+        ('Y',)
+        >>> SampleRequest.uniform((1, 2), 0).check_answer(batch, ("Y",))
+        Traceback (most recent call last):
+            ...
+        ValueError: samples: 2 pixel(s) hold more samples than requested
+        """
+        if not isinstance(samples, SampleBuffer):
+            raise TypeError(f"samples: expected a SampleBuffer, got {type(samples).__name__}")
+        if samples.shape != self.shape:
+            raise ValueError(f"samples: shape {samples.shape} does not match the sampler's {self.shape}")
+        if samples.n_channels != len(channels):
+            raise ValueError(f"samples: {samples.n_channels} channel(s), the sampler expects {len(channels)}")
+        over = samples.count > self.counts
+        if over.any():
+            raise ValueError(f"samples: {int(over.sum())} pixel(s) hold more samples than requested")
+        told = _TOLD.setdefault(samples, {})
+        if self.sampler_id in told and samples.total_samples:  # an empty buffer adds nothing, however often
+            raise ValueError(f"samples: the SampleBuffer told for round {told[self.sampler_id]} again: a renderer "
+                             "must return a new buffer of new samples for every request")
+        short = int((self.counts - samples.count).sum())
+        if short:
+            warnings.warn(f"samples: {short} requested sample(s) missing (dropped by the renderer?)", stacklevel=3)
+        if samples.channels != channels:  # unnamed channels take the sampler's names; others must match
+            samples = dataclasses.replace(samples, channels=adopted_channels(samples.channels, channels))
+        return samples
+
+    def mark_told(self, samples: SampleBuffer) -> None:
+        """Remember ``samples`` (the object) as told for this request's round (:meth:`check_answer`)."""
+        _TOLD.setdefault(samples, {})[self.sampler_id] = self.round
 
     def __repr__(self) -> str:
         return f"SampleRequest(round={self.round}, shape={self.shape}, total={self.total})"

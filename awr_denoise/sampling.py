@@ -20,9 +20,7 @@ Three strategies share the interface so that benchmarks compare like with like: 
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
-import warnings
 from collections.abc import Callable
 from concurrent.futures import Executor
 
@@ -33,7 +31,6 @@ from . import _arrays, _checks
 from ._typing import CountArray, FloatArray, Shape2D
 from .allocation import MAX_BUDGET, _allocate, _allocate_mixed  # the samplers' arrays need no checks
 from .buffers import SampleBuffer
-from .channels import adopted_channels
 from .domains import Domain, resolve_domain
 from .errors import StaleRequestError
 from .noise_gain import DEFAULT_GAIN_REFRESH, DEFAULT_NOISE_MODEL, NOISE_MODELS, MeasuredGain
@@ -337,21 +334,12 @@ class Sampler:
                 raise StaleRequestError(f"request: round {request} is not the pending round {pending.round}")
         else:
             raise TypeError(f"request: expected a SampleRequest or a round number, got {type(request).__name__}")
-        if not isinstance(samples, SampleBuffer):
-            raise TypeError(f"samples: expected a SampleBuffer, got {type(samples).__name__}")
-        if samples.shape != self._shape:
-            raise ValueError(f"samples: shape {samples.shape} does not match the sampler's {self._shape}")
-        if samples.n_channels != self._buffer.n_channels:
-            raise ValueError(f"samples: {samples.n_channels} channel(s), the sampler expects {self._buffer.n_channels}")
-        over = samples.count > pending.counts
-        if over.any():
-            raise ValueError(f"samples: {int(over.sum())} pixel(s) hold more samples than requested")
-        short = int((pending.counts - samples.count).sum())
-        if short:
-            warnings.warn(f"samples: {short} requested sample(s) missing (dropped by the renderer?)", stacklevel=2)
-        if samples.channels != self._buffer.channels:  # unnamed channels take the sampler's names; others must match
-            samples = dataclasses.replace(samples, channels=adopted_channels(samples.channels, self._buffer.channels))
-        self._buffer = self._buffer.merge(samples, executor=self.executor)
+        told = pending.check_answer(samples, self._buffer.channels)
+        try:
+            self._buffer = self._buffer.merge(told, executor=self.executor)
+        except ValueError as error:  # shapes and channels are checked: only a merge past float64 is left
+            raise ValueError(f"samples: {str(error).removeprefix('other: ')}") from None
+        pending.mark_told(samples)
         self._issued = self._issued + pending.counts
         self._round += 1
         self._pending = None
@@ -386,6 +374,9 @@ class Sampler:
         if taken < goal < taken + asked:  # a pending round is told whole, if at all
             raise ValueError(f"total_spp: {total_spp} falls inside pending round {self._pending.round} "
                              f"({taken / pixels:.3g} to {(taken + asked) / pixels:.3g} spp), which is told whole")
+        if self.spp_max is not None and goal > taken + (room := int(np.maximum(self.spp_max - self._issued, 0).sum())):
+            raise ValueError(f"total_spp: {total_spp} exceeds the {(taken + room) / pixels:.6g} spp that spp_max "
+                             f"{self.spp_max} allows")
         bar = tqdm(total=goal, initial=int(self._issued.sum()), unit="sample", desc=self.strategy) if progress else None
         try:
             while self._issued.sum() < goal:

@@ -671,3 +671,54 @@ def test_the_documented_loop_is_run_with_a_renderer_that_drops_samples():
         ran.run(renderer, total_spp=32)
     assert ran.round == sampler.round and ran.issued.sum() == sampler.issued.sum() == goal
     assert_array_equal(ran.buffer.mean, sampler.buffer.mean)
+
+
+def test_the_same_buffer_object_told_again_is_refused(sampler_cls):
+    """A renderer that hands back its one SampleBuffer every round had the same samples merged every
+    round: the counts grew, the variance shrank, the image stayed that of round 0 (a red-team pass)."""
+    sampler = sampler_cls(SHAPE, initial_spp=4, spp_min=8)
+    request = sampler.ask()
+    first = _edges_renderer()(request)
+    sampler.tell(request, first)
+    request = sampler.ask(10 * PIXELS)  # spp_min: 4 more at every pixel, round 0's buffer fits inside it
+    assert (request.counts >= first.count).all()
+    with pytest.raises(ValueError, match="samples: the SampleBuffer told for round 0 again"):
+        sampler.tell(request, first)
+    assert sampler.pending is request and sampler.total_samples == 4 * PIXELS  # nothing merged
+    # A copy is another object of other samples as far as the sampler can tell; an empty buffer adds nothing.
+    sampler.tell(request, _edges_renderer(seed=1)(request))
+    empty = SampleBuffer.empty(SHAPE)
+    for _ in range(2):
+        sampler.tell(sampler.ask(0), empty)
+    # Another sampler may be told the same object (another image of the same samples).
+    other = sampler_cls(SHAPE, initial_spp=4)
+    assert other.tell(other.ask(), first).total_samples == 4 * PIXELS
+
+
+def test_tell_past_float64_names_the_samples():
+    """A batch whose merge passes float64 was refused naming `other`, merge's argument, not tell's."""
+    sampler = UniformSampler((2, 2), channels=1)
+    for i, value in enumerate([1.7e308, -1.7e308]):
+        request = sampler.ask()
+        batch = SampleBuffer.from_moments(request.counts, np.full((2, 2, 1), value), np.zeros((2, 2, 1)))
+        if i == 0:
+            sampler.tell(request, batch)
+    with pytest.raises(ValueError, match=r"^samples: merged, the mean or variance of 4 pixel\(s\) is beyond float64"):
+        sampler.tell(request, batch)
+    assert sampler.pending is request
+
+
+def test_run_past_spp_max_is_refused_before_rendering(sampler_cls):
+    """run(total_spp) beyond what spp_max allows rendered rounds up to the cap and was refused only
+    when the round past it was asked for, naming the budget (a red-team pass)."""
+    calls = []
+
+    def renderer(request):
+        calls.append(request.round)
+        return _edges_renderer()(request)
+
+    sampler = sampler_cls(SHAPE, spp_max=6)
+    with pytest.raises(ValueError, match=r"total_spp: 8.0 exceeds the 6 spp that spp_max 6 allows"):
+        sampler.run(renderer, total_spp=8)
+    assert calls == [] and sampler.round == 0
+    assert sampler.run(renderer, total_spp=6).total_samples == 6 * PIXELS  # the cap itself is reachable
