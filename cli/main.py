@@ -21,6 +21,7 @@ import select
 import signal
 import sys
 from collections.abc import Sequence
+from concurrent.futures import BrokenExecutor, CancelledError
 from typing import Any
 
 from awr_denoise import __version__
@@ -167,6 +168,11 @@ def _run(argv: Sequence[str] | None) -> int:
         return _run_failed(exc)
     except MemoryError as exc:
         return _error(f"out of memory{': ' + str(exc) if str(exc) else ''}", EXIT_FAILURE)
+    except BrokenExecutor as exc:  # a process-pool worker killed (the OOM killer, a signal): not a bug of ours
+        return _error(f"a worker process died (killed, or out of memory?): {_one_line(exc)}", EXIT_FAILURE)
+    except CancelledError as exc:  # a Dask scheduler stopped or lost mid-run cancels every future it held
+        return _error(f"the parallel work was cancelled from outside (a Dask scheduler stopped or lost?): "
+                      f"{_one_line(exc)}", EXIT_FAILURE)
     except ImportError as exc:
         if "failed to map segment" in str(exc):  # the loader's words for a library that did not fit
             return _error(f"out of memory loading a library ({_one_line(exc)})", EXIT_FAILURE)
