@@ -11,7 +11,7 @@ import argparse
 import math
 import numbers
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import Executor, ProcessPoolExecutor
 from typing import Any
 
@@ -19,7 +19,7 @@ import numpy as np
 
 __all__ = ["MAX_SEED", "MAX_SPP", "MAX_SIDE", "MAX_LEVELS", "scalar", "described", "real", "whole", "whole_text",
            "whole_option", "flag",
-           "seed", "shape2d", "name", "slices", "executor"]
+           "seed", "shape2d", "name", "slices", "executor", "indices"]
 
 MAX_SEED = 2**63 - 1
 """Seeds are whole numbers in 0..2**63-1 (they are hashed as 64-bit integers)."""
@@ -227,3 +227,25 @@ def executor(param: str, value: Any) -> Executor | None:
         raise TypeError(f"{param}: a ProcessPoolExecutor cannot share the image's arrays; pass a ThreadPoolExecutor "
                         "(awr_denoise.parallel splits work for processes)")
     return value
+
+
+def indices(param: str, value: Any, n: int) -> list[int]:
+    """Distinct whole numbers in ``0..n-1``, from a sequence in its order (a set, whose order is the
+    hash's, a string, a mapping or a single number refused).
+
+    Examples
+    --------
+    >>> indices("channels", (2, np.int64(0)), 3)
+    [2, 0]
+    >>> indices("channels", np.array(0), 3)
+    Traceback (most recent call last):
+        ...
+    TypeError: channels: expected a sequence of indices, got ndarray of shape () and dtype int64
+    """
+    if (isinstance(value, (str, bytes, set, frozenset, Mapping)) or not isinstance(value, Iterable)
+            or (isinstance(value, np.ndarray) and value.ndim != 1)):
+        raise TypeError(f"{param}: expected a sequence of indices, got {described(value)}")
+    items = [whole(param, i, minimum=0, maximum=n - 1) for i in value]
+    if not items or len(set(items)) != len(items):
+        raise ValueError(f"{param}: expected distinct indices, got {items}")
+    return items

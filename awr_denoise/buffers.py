@@ -523,9 +523,7 @@ class SampleBuffer(ReadOnlyArrays):
         >>> buf.select([3]).channels
         ('A',)
         """
-        index = [_checks.whole("channels", i, minimum=0, maximum=self.n_channels - 1) for i in channels]
-        if not index or len(set(index)) != len(index):
-            raise ValueError(f"channels: expected distinct channel indices, got {list(channels)}")
+        index = _checks.indices("channels", channels, self.n_channels)
         names = tuple(self.channels[i] for i in index)
         return SampleBuffer._adopt(self.count, self.mean[..., index], self.variance[..., index], names,
                                    self.variance_known, self.nonfinite, self.features)

@@ -533,5 +533,11 @@ def test_select_keeps_the_statistics_and_features_of_the_channels_chosen():
     for bad, error in (([], ValueError), ([1, 1], ValueError), ([4], ValueError), ([0.5], ValueError)):
         with pytest.raises(error, match="channels"):
             buf.select(bad)
+    # One index where a sequence belongs was "iteration over a 0-d array" or "'int' object is not
+    # iterable", naming nothing; a set was taken in hash order (a red-team pass).
+    for bad in (np.array(0), 0, {0, 1}, "RG", np.zeros((1, 2), int)):
+        with pytest.raises(TypeError, match=r"^channels: expected a sequence of indices, got"):
+            buf.select(bad)
+    assert buf.select(np.array([3, 1])).channels == buf.select(i for i in (3, 1)).channels == ("A", "G")
     with pytest.raises(TypeError, match="variance_known: a masked array"):
         SampleBuffer(buf.count, buf.mean, buf.variance, buf.channels, np.ma.masked_array(buf.variance_known, True))
