@@ -1,0 +1,35 @@
+"""``benchmarks/bench_limits.py``: the synthetic inputs where the default loses to the plain mean."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+
+@pytest.fixture(scope="module")
+def bench(benchmark_script):
+    return benchmark_script("bench_limits")
+
+
+def test_each_case_makes_the_image_it_describes(bench):
+    rng = np.random.default_rng(0)
+    truth, buffer = bench.glints(4, rng)
+    assert (truth > 4).all(axis=2).sum() == 30 and buffer.count.min() == 4
+    truth, buffer = bench.hit_or_zero(0.1)(8, rng)
+    assert (truth == 0.3).all() and set(np.unique(buffer.count)) == {8}
+    assert abs(buffer.mean.mean() - 0.3) < 0.05  # hits of 3 in a tenth of the samples: unbiased
+    truth, _ = bench.dark_line(10.0)(8, rng)
+    assert (truth[:, 32] == 0.01).all() and (np.delete(truth, 32, axis=1) == 10.0).all()
+
+
+def test_a_short_run_records_every_case_and_prints_its_table(bench, tmp_path, capsys):
+    out = tmp_path / "limits.json"
+    assert bench.main(["--seed-scale", "0.01", "--output", str(out)]) == 0
+    rows = json.loads(out.read_text())["limits"]["rows"]
+    assert {r["case"] for r in rows} == {name for name, *_ in bench.CASES}
+    assert {r["method"] for r in rows} == {"plain", *bench.METHODS}
+    assert all(np.isfinite(r["mse"]) and np.isfinite(r["relmse"]) for r in rows)
+    printed = capsys.readouterr().out
+    assert all(f"| {name} |" in printed for name, *_ in bench.CASES)
