@@ -49,6 +49,7 @@ exact leverage. As the samples grow the intervals shrink and the result tends to
 
 from __future__ import annotations
 
+import math
 import numpy as np
 from scipy import ndimage
 
@@ -166,16 +167,31 @@ def _shifted(a: np.ndarray, dy: int, dx: int) -> np.ndarray:
     return a[rows][:, cols]
 
 
+_LARGEST = 2.0**400
+"""Values are brought below this (by a power of two) before the pilot squares their differences."""
+
+
+def _unit(mean: np.ndarray, variance: np.ndarray) -> float:
+    """1, or the power of two that brings ``|mean|`` and the standard errors below :data:`_LARGEST`:
+    squared differences of means near 1e155 pass float64 (inf / inf: a NaN the stages spread)."""
+    top = max(float(np.abs(mean).max(initial=0.0)), math.sqrt(float(variance.max(initial=0.0))))
+    return 1.0 if top <= _LARGEST else math.ldexp(1.0, -math.frexp(top)[1])
+
+
 def _feature_planes(buffer: SampleBuffer) -> list[tuple[np.ndarray, np.ndarray, float, bool]]:
-    """(mean, variance of the mean, sigma, relative) of every feature the buffer carries."""
+    """(mean, variance of the mean, sigma, relative) of every feature the buffer carries; a relative
+    feature (depth) in a unit of its own where its values are too large to square."""
     planes = []
     for name, sigma in FEATURE_SIGMAS.items():
         if name not in buffer.features:
             continue
         feature = buffer.features[name]
         n = np.maximum(feature.count, 1).astype(np.float64)[..., None]
+        mean = np.asarray(feature.mean, np.float64)
         variance = np.where(feature.count[..., None] > 1, np.nan_to_num(feature.variance), 0.0) / n
-        planes.append((np.asarray(feature.mean, np.float64), variance, sigma, name == "depth"))
+        relative = name == "depth"
+        unit = _unit(mean, variance) if relative else 1.0  # a relative distance does not change with it
+        planes.append((mean * unit, variance * unit * unit, sigma, relative))
     return planes
 
 
@@ -235,6 +251,9 @@ def feature_pilot(buffer: SampleBuffer, image: FloatArray, *, iterations: int = 
     """
     out = np.array(image, dtype=np.float64)
     variance = buffer.estimated_variance() / np.maximum(buffer.count, 1)[..., None]  # as prepare's
+    unit = _unit(out, variance)  # the colour's distances are relative to its variances: the same in any unit
+    out *= unit
+    variance = variance * unit * unit
     floor = np.finfo(np.float64).tiny + 1e-12 * float(np.mean(np.abs(out)) ** 2)
     features = _feature_planes(buffer)
     for i in range(iterations):
@@ -250,7 +269,9 @@ def feature_pilot(buffer: SampleBuffer, image: FloatArray, *, iterations: int = 
                 for mean, var, sigma, relative in features:
                     f_q = _shifted(mean, dy, dx)
                     scale = sigma * np.minimum(mean, f_q)[..., 0] if relative else sigma
-                    d += ((mean - f_q) ** 2).sum(-1) / (scale**2 + (var + _shifted(var, dy, dx)).sum(-1) + 1e-12)
+                    with np.errstate(over="ignore", invalid="ignore"):  # an albedo or normal past 1e154
+                        far = ((mean - f_q) ** 2).sum(-1) / (scale**2 + (var + _shifted(var, dy, dx)).sum(-1) + 1e-12)
+                    d += np.where(np.isnan(far), np.inf, far)  # inf / inf: as far as can be (the centre tap is 0)
                 w = ky * kx * np.exp(-d)
                 total += w[..., None] * c_q
                 weights += w
@@ -259,7 +280,7 @@ def feature_pilot(buffer: SampleBuffer, image: FloatArray, *, iterations: int = 
         # Later passes compare smoothed colours: their differences count against the smoothed
         # noise (as in SVGF), so an edge a few smoothed standard errors high stops the filter.
         variance = spread / (weights * weights)[..., None]
-    return out
+    return out / unit
 
 
 def checked_inputs(buffer: SampleBuffer, guide: object, features: object, stages: int) -> FloatArray | None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import numpy as np
@@ -295,3 +296,33 @@ def test_the_variance_of_a_guided_reconstruction_includes_the_projection():
     assert np.isfinite(result.variance).all() and (result.variance >= 0).all()
     # a clean guide is followed where the projection acts: less of the means' noise is left
     assert result.variance.mean() < 0.9 * wiener_only.variance.mean()
+
+
+def _with_features(rng, depth_scale=1.0, albedo_scale=1.0, radiance_scale=1.0):
+    count = np.full((16, 16), 8)
+    depth = SampleBuffer.from_moments(count, depth_scale * (1 + rng.random((16, 16))), np.zeros((16, 16)),
+                                      channels=["Z"])
+    albedo = SampleBuffer.from_moments(count, albedo_scale * rng.random((16, 16, 3)), np.zeros((16, 16, 3)))
+    mean = radiance_scale * (0.5 + 0.1 * rng.random((16, 16, 3)))
+    variance = np.full((16, 16, 3), math.ldexp(1e250, -1060)) * radiance_scale * radiance_scale  # 1e250 at 2**530
+    return SampleBuffer.from_moments(count, mean, variance, features={"depth": depth, "albedo": albedo})
+
+
+@pytest.mark.parametrize("scales, same", [({"depth_scale": 2.0**530}, True), ({"depth_scale": -(2.0**530)}, False),
+                                          ({"radiance_scale": 2.0**530}, True), ({"albedo_scale": 2.0**512}, False)])
+def test_the_feature_pilot_is_finite_and_the_same_at_any_scale(scales, same):
+    """Depths, radiance or albedos near 1e155 and beyond squared past float64 in the feature pilot:
+    inf / inf, a NaN over the whole image spread by the stages' FFTs, and overflow warnings (a red-team
+    pass). The colour and the depth are relative: the same image in any unit; an albedo that large is
+    as far from its neighbours as can be."""
+    plain = _with_features(np.random.default_rng(3))
+    scaled = _with_features(np.random.default_rng(3), **scales)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = feature_pilot(scaled, scaled.mean)
+        image = reconstruct(scaled, features=True)
+    assert np.isfinite(out).all() and np.isfinite(image).all()
+    if same:
+        factor = scales.get("radiance_scale", 1.0)
+        assert_allclose(out / factor, feature_pilot(plain, plain.mean), rtol=1e-9)
+        assert_allclose(image / factor, reconstruct(plain, features=True), rtol=1e-6)
