@@ -28,6 +28,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from . import _arrays, _checks
+from ._serial import OneAtATime, one_at_a_time
 from ._typing import CountArray, FloatArray, Shape2D
 from .allocation import MAX_BUDGET, _allocate, _allocate_mixed  # the samplers' arrays need no checks
 from .buffers import SampleBuffer
@@ -50,7 +51,7 @@ DEFAULT_AWR_INITIAL_SPP = 2
 """Round 0 of :class:`AdaptiveSampler`: 2, measured on both renderers (docs/sampling.md, "The first round")."""
 
 
-class Sampler:
+class Sampler(OneAtATime):
     """Base of the ask/tell samplers: request bookkeeping, validation and the run loop.
 
     Parameters
@@ -132,6 +133,7 @@ class Sampler:
         self._round = 0
         self._pending: SampleRequest | None = None
         self._id = next(_sampler_ids)
+        OneAtATime.__init__(self)  # ask, tell and resume: one call at a time, from any thread
 
     # ------------------------------------------------------------------ state
     @classmethod
@@ -191,6 +193,7 @@ class Sampler:
         return self._buffer.total_samples
 
     # ------------------------------------------------------------------ ask / tell
+    @one_at_a_time
     def resume(self, request: SampleRequest) -> SampleRequest:
         """Take a request issued elsewhere as this sampler's pending one, so it can be told.
 
@@ -241,6 +244,7 @@ class Sampler:
             return max(1, int(round(self.round_spp * pixels)))
         return max(pixels, int(self.round_growth * self._issued.sum()))
 
+    @one_at_a_time
     def ask(self, budget: int | None = None) -> SampleRequest:
         """The next request; asking again before :meth:`tell` returns the same request.
 
@@ -294,6 +298,7 @@ class Sampler:
         self._pending = SampleRequest(counts, self._issued.copy(), self._round, self._id)
         return self._pending
 
+    @one_at_a_time
     def tell(self, request: SampleRequest | int, samples: SampleBuffer) -> SampleBuffer:
         """Merge the samples rendered for ``request``; returns the merged statistics.
 
