@@ -11,8 +11,9 @@ import argparse
 import math
 import numbers
 import re
+import threading
 from collections.abc import Callable, Iterable, Mapping
-from concurrent.futures import Executor, ProcessPoolExecutor
+from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -226,7 +227,19 @@ def executor(param: str, value: Any) -> Executor | None:
     if isinstance(value, ProcessPoolExecutor):
         raise TypeError(f"{param}: a ProcessPoolExecutor cannot share the image's arrays; pass a ThreadPoolExecutor "
                         "(awr_denoise.parallel splits work for processes)")
+    if isinstance(value, ThreadPoolExecutor) and _on_own_thread(value):
+        # Work waited for on the pool's own threads waits for itself once every thread does: a silent hang.
+        raise ValueError(f"{param}: called on one of the executor's own threads, it would wait for itself; "
+                         "inside a pool's task pass another executor or None")
     return value
+
+
+def _on_own_thread(pool: ThreadPoolExecutor) -> bool:
+    """Whether this thread is one of ``pool``'s workers: its threads (a pool adds a new thread to them
+    only after starting it, so a first task can run before), or the thread running the pool's queue."""
+    current = threading.current_thread()
+    queue = getattr(pool, "_work_queue", None)
+    return current in getattr(pool, "_threads", ()) or any(a is queue for a in getattr(current, "_args", ()))
 
 
 def indices(param: str, value: Any, n: int) -> list[int]:

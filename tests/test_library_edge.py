@@ -335,6 +335,30 @@ def test_a_process_pool_is_refused_where_threads_share_the_arrays(call):
         call(pool)
 
 
+def _renderer_of(shape):
+    return synthetic.SyntheticRenderer(synthetic.make_scene("edges", shape))
+
+
+@pytest.mark.parametrize("call", [
+    lambda e: reconstruct(BUF, executor=e),
+    lambda e: BUF.merge(SampleBuffer.empty((H, W), channels=BUF.channels), executor=e),
+    lambda e: priorities.sampling_density(BUF, executor=e),
+    lambda e: AdaptiveSampler((H, W), executor=e).run(_renderer_of((H, W)), total_spp=4),
+], ids=["reconstruct", "merge", "sampling_density", "sampler"])
+def test_an_executor_used_from_its_own_thread_is_refused_not_a_hang(call):
+    """``pool.submit(reconstruct, buf, executor=pool)`` on a one-thread pool waited for ever: its work
+    queued behind the task that waits for it (a red-team pass). Refused on any of the pool's threads,
+    naming the executor; two threads here, so that a regression finishes (and fails) instead of hanging."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(2) as pool:
+        for _ in range(3):  # the first task runs before its thread is listed among the pool's
+            future = pool.submit(call, pool)
+            with pytest.raises(ValueError, match=r"^executor: called on one of the executor's own threads"):
+                future.result(timeout=60)
+        assert call(pool) is not None  # from another thread, the same pool is fine
+
+
 def test_fourth_review_edges(tmp_path):
     """A mask of NaN or 0.5 was cast to True, an empty request accepted where every sampler refuses an
     empty image, and a deep dump of no samples (an empty round) gave numpy's reshape error."""
