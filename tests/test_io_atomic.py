@@ -304,3 +304,46 @@ def test_no_room_for_the_staging_directory_names_the_target(tmp_path, monkeypatc
     assert STAGING_PREFIX not in str(info.value)
     with OutputSet() as outputs, pytest.raises(OSError, match="b.txt"):
         outputs.add(tmp_path / "b.txt")
+
+
+@pytest.mark.parametrize("how", ["atomic_write", "OutputSet"])
+def test_an_output_that_is_a_symbolic_link_is_written_through_it(tmp_path, how):
+    """A rename replaced the link itself with a regular file, the file it named left as it was (as
+    root, `-o /dev/stdout --overwrite` replaced the machine's /dev/stdout; a red-team pass). Written
+    through, as a shell's `>` writes: the link stays, the file it names is replaced."""
+    (tmp_path / "real").mkdir()
+    real, link = tmp_path / "real" / "out.txt", tmp_path / "link.txt"
+    real.write_text("old")
+    os.chmod(real, 0o640)
+    link.symlink_to(real)
+    if how == "atomic_write":
+        with pytest.raises(FileExistsError, match="link.txt: already exists"):
+            atomic_write(link, lambda tmp: Path(tmp).write_text("new"))
+        atomic_write(link, lambda tmp: Path(tmp).write_text("new"), overwrite=True)
+    else:
+        with OutputSet(overwrite=True) as outputs:
+            Path(outputs.add(link)).write_text("new")
+            outputs.commit()
+    assert link.is_symlink() and os.readlink(link) == str(real)
+    assert real.read_text() == "new" and (real.stat().st_mode & 0o777) == 0o640
+    assert _listing(tmp_path) == ["link.txt", "real"] and _listing(tmp_path / "real") == ["out.txt"]
+
+
+def test_a_link_into_another_file_system_is_staged_beside_the_file_it_names(tmp_path):
+    """Staged beside the link, the temporary could not be renamed onto the file it names on another
+    file system: "Invalid cross-device link" naming the hidden temporary, after all the work."""
+    other = Path("/dev/shm")
+    if not other.is_dir() or not os.access(other, os.W_OK) or other.stat().st_dev == tmp_path.stat().st_dev:
+        pytest.skip("no writable /dev/shm on another file system than the temporary folder")
+    real = other / f"awr-test-{os.getpid()}-{tmp_path.name}.txt"
+    try:
+        real.write_text("old")
+        (tmp_path / "link.txt").symlink_to(real)
+        with OutputSet(overwrite=True) as outputs:
+            Path(outputs.add(tmp_path / "link.txt")).write_text("new")
+            Path(outputs.add(tmp_path / "plain.txt")).write_text("plain")
+            outputs.commit()
+        assert real.read_text() == "new" and (tmp_path / "plain.txt").read_text() == "plain"
+        assert not list(other.glob(STAGING_PREFIX + "*")) and not list(tmp_path.glob(STAGING_PREFIX + "*"))
+    finally:
+        real.unlink(missing_ok=True)

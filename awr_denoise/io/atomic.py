@@ -422,23 +422,31 @@ def _signals_deferred() -> Iterator[None]:
                 os.kill(os.getpid(), s)
 
 
+def _through_links(target: Path) -> Path:
+    """The file ``target`` names once its symbolic links are followed: an output that is a link is
+    written through it, as a shell's ``>`` writes, and staged beside the file it names (a rename
+    replaced the link itself, ``/dev/stdout`` included, and crossed file systems when the link did)."""
+    return Path(os.path.realpath(target))
+
+
 def _install(tmp: Path, target: Path, *, overwrite: bool) -> None:
-    """Move a finished temporary to its target (never replacing one unless ``overwrite``)."""
-    os.chmod(tmp, _new_file_mode(target))
+    """Move a finished temporary to its target, through its links (never replacing one unless ``overwrite``)."""
+    final = _through_links(target)
+    os.chmod(tmp, _new_file_mode(final))
     if overwrite:
         check_writable(target, overwrite=True)  # it may have become a FIFO meanwhile
-        os.replace(tmp, target)
+        os.replace(tmp, final)
         return
     # A hard link fails if the target appeared meanwhile, where a rename would clobber it.
     try:
-        os.link(tmp, target)
+        os.link(tmp, final)
     except FileExistsError:
         raise FileExistsError(f"{target}: already exists (pass overwrite=True / --overwrite to replace it)") from None
     except OSError:
-        if os.path.lexists(target):
+        if os.path.lexists(final):
             raise FileExistsError(
                 f"{target}: already exists (pass overwrite=True / --overwrite to replace it)") from None
-        os.replace(tmp, target)  # file systems without hard links
+        os.replace(tmp, final)  # file systems without hard links
 
 
 def _check_written(tmp: Path, target: Path) -> None:
@@ -487,7 +495,7 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[str], None], *, 
         _write_named(write, target, target)
         _check_written(target, target)
         return target
-    staging = _staging_for(target)
+    staging = _staging_for(target, _through_links(target))
     try:
         tmp = staging.new_name(target)
         _write_named(write, tmp, target)
@@ -507,10 +515,11 @@ def _write_named(write: Callable[[str], None], tmp: Path, target: Path) -> None:
         raise OSError(exc.errno, exc.strerror or str(exc), public_name(target)) from None
 
 
-def _staging_for(target: Path) -> _Staging:
-    """A staging directory beside ``target``; failing to make one (a full disk) names the target."""
+def _staging_for(target: Path, final: Path) -> _Staging:
+    """A staging directory beside ``final``, the file ``target`` names; failing to make one (a full
+    disk) names the target."""
     try:
-        return _Staging(target.parent if str(target.parent) else Path("."))
+        return _Staging(final.parent)
     except OSError as exc:
         raise OSError(exc.errno, exc.strerror or str(exc), public_name(target)) from None
 
@@ -558,7 +567,7 @@ class OutputSet:
         if self._done:
             raise RuntimeError("OutputSet: already committed or aborted")
         target = check_writable(path, overwrite=self.overwrite)
-        resolved = target.resolve()
+        resolved = _through_links(target)
         if resolved in self._resolved:
             raise ValueError(f"{target}: the same output is listed twice (also {self._resolved[resolved]})")
         with contextlib.suppress(OSError):
@@ -568,7 +577,7 @@ class OutputSet:
                 raise ValueError(f"{target}: the same file as the output {other}")
         directory = resolved.parent
         if directory not in self._staging:
-            self._staging[directory] = _staging_for(target)
+            self._staging[directory] = _staging_for(target, resolved)
         tmp = self._staging[directory].new_name(target)
         self._staged[target] = tmp
         _PUBLIC[os.fspath(tmp)] = os.fspath(target)
@@ -611,22 +620,22 @@ class OutputSet:
             for target in self._staged:
                 check_writable(target, overwrite=self.overwrite)
             for target, tmp in self._staged.items():
-                backup = None
-                if self.overwrite and os.path.lexists(target):
+                backup, final = None, _through_links(target)
+                if self.overwrite and os.path.lexists(final):
                     backup = tmp.with_name(tmp.name + ".old")
                     try:
-                        os.link(target, backup)
+                        os.link(final, backup)
                     except OSError:
                         backup = None  # no hard links here: the replaced file cannot be put back
                 _install(tmp, target, overwrite=self.overwrite)
-                moved.append((target, backup))
+                moved.append((final, backup))
         except BaseException:
-            for target, backup in reversed(moved):
+            for final, backup in reversed(moved):
                 with contextlib.suppress(OSError):
                     if backup is not None:
-                        os.replace(backup, target)
+                        os.replace(backup, final)
                     else:
-                        os.unlink(target)
+                        os.unlink(final)
             raise
 
     def abort(self) -> None:
