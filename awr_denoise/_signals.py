@@ -10,10 +10,17 @@ default they killed the process without a word and left a staging folder behind.
 from __future__ import annotations
 
 import signal
+from collections.abc import Callable
 
-__all__ = ["TERMINATING_SIGNALS"]
+__all__ = ["TERMINATING_SIGNALS", "COMMIT_CHECKS"]
 
 TERMINATING_SIGNALS: tuple[int, ...] = tuple(
     getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP", "SIGUSR1", "SIGUSR2", "SIGXCPU", "SIGALRM",
                                        "SIGVTALRM", "SIGPWR") if hasattr(signal, name))
 """Signals whose first arrival ends a command cleanly (those the platform has)."""
+
+COMMIT_CHECKS: list[Callable[[], None]] = []
+"""Called, in order, before any output file moves into place (``awr_denoise.io.atomic``): the command
+line raises there a signal whose exception was lost on the way (Python only prints an exception raised
+in a weakref callback, as importlib's module locks run, and carries on), so no output of a terminated
+command is committed."""

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -87,8 +89,8 @@ def run(args: argparse.Namespace) -> int:
     if reference.shape != uniform.mean.shape:
         raise UsageError(f"{name}: the reference is {reference.shape}, the render {uniform.mean.shape}")
     results = {}
-    out.mkdir(parents=True, exist_ok=True)
-    with OutputSet(overwrite=True) as outputs:  # every image of the demo, or none
+    made = _make_folders(out)
+    with _removed_unless_committed(made), OutputSet(overwrite=True) as outputs:  # every image of the demo, or none
         for label, image in images.items():
             exr = out / f"{name}_{label}.exr"
             write_image(outputs.add(exr), image,
@@ -108,6 +110,30 @@ def run(args: argparse.Namespace) -> int:
     for label, r in results.items():
         print(f"  {label:<14} {r['relmse']:>10.5f} {r['mse']:>12.6g}")
     return EXIT_OK
+
+
+def _make_folders(folder: Path) -> list[Path]:
+    """Create ``folder`` and its missing parents; returns those created, deepest first."""
+    made = []
+    missing = folder
+    while not missing.exists():
+        made.append(missing)
+        missing = missing.parent
+    folder.mkdir(parents=True, exist_ok=True)
+    return made
+
+
+@contextlib.contextmanager
+def _removed_unless_committed(folders: list[Path]) -> Iterator[None]:
+    """The folders the demo made are removed again (while empty) when it stops before its commit:
+    SIGTERM in its last moments left `--out NEW/sub` behind, empty."""
+    try:
+        yield
+    except BaseException:
+        for folder in folders:
+            with contextlib.suppress(OSError):
+                folder.rmdir()  # only an empty folder: anything put there meanwhile stays
+        raise
 
 
 def _check_creatable(folder: Path) -> None:

@@ -11,13 +11,15 @@ left at its default it would kill the process in the middle of a write and leave
 
 from __future__ import annotations
 
+import contextlib
 import signal
+import sys
 import threading
 from collections.abc import Callable
 from types import FrameType
 from typing import Any
 
-from awr_denoise._signals import TERMINATING_SIGNALS
+from awr_denoise._signals import COMMIT_CHECKS, TERMINATING_SIGNALS
 
 __all__ = ["Terminated", "raising", "restore", "received", "check"]
 
@@ -27,6 +29,7 @@ _SIGNALS = TERMINATING_SIGNALS
 # The signal that arrived, kept even when the exception it raised was swallowed on the way up
 # (an interrupt inside a C extension's import comes back as an ImportError, or not at all).
 _received: list[int] = []
+_hooks: list[Callable[[Any], None]] = []  # the unraisable hook :func:`raising` replaced
 
 
 class Terminated(BaseException):
@@ -53,6 +56,11 @@ def raising() -> dict[int, Any] | None:
     _received.clear()
     if threading.current_thread() is not threading.main_thread():
         return None
+    if check not in COMMIT_CHECKS:
+        COMMIT_CHECKS.append(check)  # every output commit asks first (merge, plan, bench had no check of their own)
+    if sys.unraisablehook is not _quiet_unraisable:
+        _hooks[:] = [sys.unraisablehook]
+        sys.unraisablehook = _quiet_unraisable
     previous: dict[int, Callable[..., Any] | int | None] = {}
     for s in _SIGNALS:
         previous[s] = signal.getsignal(s)
@@ -63,8 +71,22 @@ def raising() -> dict[int, Any] | None:
 
 def restore(previous: dict[int, Any] | None) -> None:
     """Put back the handlers :func:`raising` replaced."""
-    for s, handler in (previous or {}).items():
+    if previous is None:
+        return
+    for s, handler in previous.items():
         signal.signal(s, signal.SIG_DFL if handler is None else handler)
+    with contextlib.suppress(ValueError):
+        COMMIT_CHECKS.remove(check)
+    if _hooks:
+        sys.unraisablehook = _hooks.pop()
+
+
+def _quiet_unraisable(unraisable: Any) -> None:
+    """A signal's exception raised where Python can only print it (a weakref callback of importlib's
+    module locks) printed a traceback; it is kept (:func:`received`) and acted on, not printed."""
+    if isinstance(unraisable.exc_value, (KeyboardInterrupt, Terminated)):
+        return
+    (_hooks[0] if _hooks else sys.__unraisablehook__)(unraisable)
 
 
 def received() -> int | None:

@@ -287,7 +287,8 @@ def _main(argv: Sequence[str] | None) -> int:
     finally:
         interrupts.restore(previous)
     # A signal counts even when the exception it raised was lost on the way (inside a C
-    # extension); the outputs were not committed then (see awr_denoise.io.atomic.OutputSet).
+    # extension, a weakref callback); no output was committed after it (every commit asks first:
+    # awr_denoise._signals.COMMIT_CHECKS).
     signum = interrupts.received()
     if signum == signal.SIGTERM:
         print("awr: terminated", file=sys.stderr)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -699,6 +700,26 @@ def test_demo_refuses_before_creating_its_folder(tmp_path, fake_tracer, capsys, 
     (tmp_path / "file").write_bytes(b"")
     assert main(["demo", "--out", str(tmp_path / "file" / "sub"), "--spp", "8", "-q"]) == 2
     _one_error_line(capsys, "--out", "cannot be created")
+
+
+def test_demo_stopped_before_its_commit_removes_the_folders_it_made(tmp_path, fake_tracer, capsys, monkeypatch):
+    """SIGTERM in the demo's last moments (after `--out NEW/sub` was made, before the images were
+    committed) left the empty folders behind (a red-team pass)."""
+    from awr_denoise.cli import demo_cmd, interrupts
+
+    real = demo_cmd.write_preview
+
+    def terminated(*args, **kwargs):
+        real(*args, **kwargs)
+        interrupts._received.append(signal.SIGTERM)  # as the handler does
+        raise interrupts.Terminated("SIGTERM")
+
+    monkeypatch.setattr(demo_cmd, "write_preview", terminated)
+    (tmp_path / "kept").mkdir()
+    for out in (tmp_path / "new" / "sub", tmp_path / "kept" / "sub"):
+        assert main(["demo", "--out", str(out), "--spp", "8", "-q"]) == 143
+        assert capsys.readouterr().err.strip() == "awr: terminated"
+    assert sorted(os.listdir(tmp_path)) == ["kept"] and os.listdir(tmp_path / "kept") == []
 
 
 def test_demo_checks_its_outputs_before_rendering(tmp_path, fake_tracer, capsys, monkeypatch):

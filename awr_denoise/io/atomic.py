@@ -42,7 +42,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import TracebackType
 
-from .._signals import TERMINATING_SIGNALS
+from .._signals import COMMIT_CHECKS, TERMINATING_SIGNALS
 
 try:
     import fcntl
@@ -500,6 +500,8 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[str], None], *, 
         tmp = staging.new_name(target)
         _write_named(write, tmp, target)
         _check_written(tmp, target)
+        for check in COMMIT_CHECKS:  # a signal whose exception was lost: no output after it
+            check()
         with _signals_deferred():
             _install(tmp, target, overwrite=overwrite)
     finally:
@@ -608,6 +610,8 @@ class OutputSet:
         try:
             for target, tmp in self._staged.items():
                 _check_written(tmp, target)
+            for check in COMMIT_CHECKS:  # a signal whose exception was lost: no output after it
+                check()
             with _signals_deferred():
                 self._move_all()
         finally:

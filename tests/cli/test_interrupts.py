@@ -251,3 +251,56 @@ def test_a_signal_swallowed_on_the_way_prints_no_report(work, capsys, monkeypatc
     out, err = capsys.readouterr()
     assert (status, err.strip(), out) == (143, "awr: terminated", "")
     assert sorted(os.listdir(work.root)) == before
+
+
+@pytest.mark.parametrize("args", [["merge", "d.exr", "b.exr", "-o", "m.exr"], ["plan", "d.exr", "-o", "r.exr"],
+                                  ["denoise", "d.exr", "-o", "o.exr", "-q"]], ids=lambda a: a[0])
+def test_a_signal_swallowed_before_the_commit_writes_no_output(work, capsys, monkeypatch, args):
+    """A SIGTERM raised where Python can only print it (a weakref callback of importlib's module locks)
+    was lost: `merge` and `plan` (which had no check of their own) then wrote their output and exited
+    143 with a traceback (a red-team pass). Every commit now asks first."""
+    from awr_denoise.cli import interrupts
+    from awr_denoise.cli.main import main
+    from awr_denoise.io import atomic
+
+    original = atomic.check_writable
+
+    def swallowed(*a, **k):
+        interrupts._received.append(signal.SIGTERM)
+        return original(*a, **k)
+
+    monkeypatch.setattr(atomic, "check_writable", swallowed)
+    monkeypatch.chdir(work.root)
+    before = sorted(os.listdir(work.root))
+    status = main(args)
+    out, err = capsys.readouterr()
+    assert (status, err.strip()) == (143, "awr: terminated")
+    assert sorted(os.listdir(work.root)) == before
+
+
+def test_a_signal_raised_where_python_can_only_print_it_prints_nothing(monkeypatch):
+    """`Exception ignored in: ... Terminated: SIGTERM` and its traceback were printed before `awr:
+    terminated`; the signal is kept (interrupts.received) and acted on, not printed. Any other such
+    exception still goes to the hook that was there before."""
+    from awr_denoise.cli import interrupts
+
+    reported = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda u: reported.append(type(u.exc_value).__name__))
+
+    class Unlucky:
+        def __init__(self, error):
+            self.error = error
+
+        def __del__(self):
+            raise self.error
+
+    previous = interrupts.raising()
+    try:
+        Unlucky(interrupts.Terminated("SIGTERM"))  # dropped at once: raised where Python can only report it
+        Unlucky(KeyboardInterrupt())
+        Unlucky(ZeroDivisionError())
+    finally:
+        interrupts.restore(previous)
+    assert reported == ["ZeroDivisionError"]
+    Unlucky(ValueError())  # the hook before is back
+    assert reported == ["ZeroDivisionError", "ValueError"]
