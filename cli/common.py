@@ -20,7 +20,7 @@ from tqdm.auto import tqdm
 from awr_denoise.buffers import NONFINITE_POLICIES, VARIANCE_KINDS
 from awr_denoise.io import PRESETS
 
-from .errors import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, RuntimeFailure, UsageError, one_line_warnings
+from .errors import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, RuntimeFailure, UsageError, one_line_warnings, shown
 from .values import MAX_FRAMES, MAX_SPP, whole
 
 __all__ = [
@@ -175,7 +175,7 @@ def status(message: str, *, quiet: bool) -> None:
     """A progress note on stderr (stdout is kept for results), printed above any progress bar."""
     if not quiet:
         try:
-            tqdm.write(message, file=sys.stderr)
+            tqdm.write(shown(message), file=sys.stderr)  # a name's escape sequences are shown, not obeyed
         except OSError:  # nobody reads stderr any more (a closed pipe): the work stands, its note is lost
             pass
 

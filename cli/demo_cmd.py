@@ -20,6 +20,7 @@ from awr_denoise.renderers import create_renderer
 from awr_denoise.io.atomic import OutputSet
 
 from . import interrupts
+from .errors import shown
 from .common import EXIT_OK, UsageError, print_json, status
 from .paths import PathPlan
 from .values import MAX_EXPOSURE, MAX_SEED, MAX_SPP, real, whole
@@ -105,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
         print_json({"scene": name, "spp": args.spp, "seconds": seconds, "results": results})
         return EXIT_OK
     h, w = uniform.shape
-    print(f"{name} {w}x{h}, {args.spp:g} spp on average, c_s {args.c_s:g} ({seconds:.1f} s); images in {out}/")
+    print(f"{name} {w}x{h}, {args.spp:g} spp on average, c_s {args.c_s:g} ({seconds:.1f} s); images in {shown(out)}/")
     print(f"  {'method':<14} {'relMSE':>10} {'MSE':>12}")
     for label, r in results.items():
         print(f"  {label:<14} {r['relmse']:>10.5f} {r['mse']:>12.6g}")

@@ -13,6 +13,7 @@ from awr_denoise.io.exr import check_same_windows, read_exr, read_windows
 
 from . import interrupts
 from .common import EXIT_OK, RuntimeFailure, UsageError, print_json
+from .errors import shown
 from .paths import PathPlan
 from .values import real
 
@@ -94,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(result)
     else:
-        print(f"{args.input}: relMSE {result['relmse']:.6g}  MSE {result['mse']:.6g}  "
+        print(f"{shown(args.input)}: relMSE {result['relmse']:.6g}  MSE {result['mse']:.6g}  "
               f"PSNR {result['psnr']:.4g} dB  SSIM {result['ssim']:.4f}")
     if args.maxerror is not None:
         value = result[args.metric]

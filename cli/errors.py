@@ -37,13 +37,33 @@ class RuntimeFailure(RuntimeError):
     """The command ran but did not achieve its goal, e.g. an error above ``--maxerror`` (exit 1)."""
 
 
+def shown(text: object, *, keep: str = "") -> str:
+    r"""``text`` with its control and other unprintable characters escaped (``\x1b``, ``\r``), but
+    those in ``keep``: a file name is shown as it is named, and cannot rewrite the terminal's line (an
+    escape sequence in a name erased an error line and printed a green "ok" over it).
+
+    Examples
+    --------
+    >>> from awr_denoise.cli.errors import shown
+    >>> print(shown("evil\x1b[2K\rok.exr"))
+    evil\x1b[2K\rok.exr
+    """
+    return "".join(c if c.isprintable() or c in keep else repr(c)[1:-1] for c in str(text))
+
+
+def one_line(message: object) -> str:
+    """``message`` on one line: unprintable characters escaped (:func:`shown`), its lines and runs of
+    white space joined by single spaces (a library's multi-line report)."""
+    return " ".join(shown(message, keep="\n\t").split()) or "unknown error"
+
+
 @contextlib.contextmanager
 def one_line_warnings() -> Iterator[None]:
     """Within the block, the library's input warnings print as ``awr: warning: <message>``, one
     line each on stderr (never as exceptions or two-line Python warnings), whatever the caller's
     warning filters."""
     def show(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001 - warnings' signature
-        print(f"awr: warning: {' '.join(str(message).split())}", file=sys.stderr)
+        print(f"awr: warning: {one_line(message)}", file=sys.stderr)
 
     with warnings.catch_warnings():
         warnings.simplefilter("always", InputFileWarning)

@@ -9,6 +9,7 @@ from awr_denoise.io.describe import describe_file
 
 from . import interrupts
 from .common import EXIT_OK, add_plane_options, plane_kwargs, print_json
+from .errors import shown
 from .paths import PathPlan, check_plane_windows, plane_options
 
 __all__ = ["register", "run", "describe"]
@@ -30,36 +31,40 @@ def describe(path: str, args: argparse.Namespace) -> dict[str, Any]:
     return describe_file(path, **plane_kwargs(args))
 
 
+def _line(text: str) -> None:
+    """One line of the report: names and header values from the file shown, never obeyed (a channel
+    named with an escape sequence rewrote the terminal)."""
+    print(shown(text))
+
+
 def _print(info: dict[str, Any]) -> None:
     views = f", views {', '.join(info['views'])}" if info.get("views") else ""
-    # A name holding a newline or another control character is shown escaped: the first line stays one line.
-    name = "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(info["file"]))
-    print(f"{name}: {info['width']}x{info['height']}, {info['parts']} part(s)"
+    _line(f"{info['file']}: {info['width']}x{info['height']}, {info['parts']} part(s)"
           f"{', deep' if info['deep'] else ''}{views}, {info['kind']}")
-    print(f"  channels: {', '.join(info['channels'])}")
+    _line(f"  channels: {', '.join(info['channels'])}")
     windows = info.get("windows", {})
     data, display = windows.get("dataWindow"), windows.get("displayWindow")
     if data and display and data != display:
         # A crop (or an overscan) is worth a line; a plain full frame is not.
-        print(f"  data window ({data[0][0]}, {data[0][1]})-({data[1][0]}, {data[1][1]}) inside display window "
+        _line(f"  data window ({data[0][0]}, {data[0][1]})-({data[1][0]}, {data[1][1]}) inside display window "
               f"({display[0][0]}, {display[0][1]})-({display[1][0]}, {display[1][1]})")
     if info["kind"] == "samples":
         if "colour" in info:
-            print(f"  layout: {info['preset']}; colour {info['colour']}, variance {info['variance'] or 'none'}")
+            _line(f"  layout: {info['preset']}; colour {info['colour']}, variance {info['variance'] or 'none'}")
         else:
-            print(f"  layout: {info['preset']}")
+            _line(f"  layout: {info['preset']}")
         for layer, passes in info.get("layers", {}).items():
-            print(f"  layer {layer}: {', '.join(passes)}")
+            _line(f"  layer {layer}: {', '.join(passes)}")
         if "spp" in info:
             s = info["spp"]
-            print(f"  samples: {info['total_samples']} total, "
+            _line(f"  samples: {info['total_samples']} total, "
                   f"spp min {s['min']:g} / mean {s['mean']:.4g} / max {s['max']:g}; "
                   f"{info['pixels_without_samples']} pixel(s) without samples; "
                   f"{info['variance_unknown']} with unknown variance; {info['nonfinite_dropped']} non-finite "
                   "sample(s) dropped or zeroed")
         elif info.get("count"):
             s = info["count"]
-            print(f"  samples per pixel: min {s['min']:g} / mean {s['mean']:.4g} / max {s['max']:g}")
+            _line(f"  samples per pixel: min {s['min']:g} / mean {s['mean']:.4g} / max {s['max']:g}")
         for name, feature in info.get("features", {}).items():
             where = f" from {feature['plane']}" if "plane" in feature else ""
             values = ""
@@ -67,23 +72,23 @@ def _print(info: dict[str, Any]) -> None:
                 m = feature["mean"]
                 values = (f": mean min {m['min']:.4g} / max {m['max']:.4g}, variance known at "
                           f"{feature['variance_known']} pixel(s)")
-            print(f"  feature {name}{where}{values}")
+            _line(f"  feature {name}{where}{values}")
         if info.get("features"):
-            print("  (features are read and carried; awr denoise --guide features or --guide oidn uses them)")
+            _line("  (features are read and carried; awr denoise --guide features or --guide oidn uses them)")
         for note in info.get("notes", []):
-            print(f"  note: {note}")
+            _line(f"  note: {note}")
         for warning in info.get("warnings", []):
-            print(f"  warning: {warning}")
+            _line(f"  warning: {warning}")
         missing = info.get("missing", [])
-        print("  ready to denoise" if not missing else "  missing before denoising:")
+        _line("  ready to denoise" if not missing else "  missing before denoising:")
         for item in missing:
-            print(f"    - {item}")
+            _line(f"    - {item}")
     elif info["kind"] == "request":
         s = info["spp"]
-        print(f"  request: round {info['round']}, {info['total']} samples, per pixel min {s['min']:g} / "
+        _line(f"  request: round {info['round']}, {info['total']} samples, per pixel min {s['min']:g} / "
               f"mean {s['mean']:.4g} / max {s['max']:g}")
     for key, value in sorted(info["attributes"].items()):
-        print(f"  {key} = {value}")
+        _line(f"  {key} = {value}")
 
 
 def run(args: argparse.Namespace) -> int:

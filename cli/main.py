@@ -38,6 +38,7 @@ from .errors import (
     EXIT_USAGE,
     RuntimeFailure,
     UsageError,
+    one_line,
     one_line_warnings,
 )
 
@@ -74,14 +75,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _one_line(message: object) -> str:
-    return " ".join(str(message).split()) or "unknown error"
-
-
 def _error(message: object, status: int) -> int:
     if interrupts.received() is not None:  # the error is the interrupt's doing: main says so
         return status
-    print(f"awr: error: {_one_line(message)}", file=sys.stderr)
+    print(f"awr: error: {one_line(message)}", file=sys.stderr)
     return status
 
 
@@ -169,18 +166,18 @@ def _run(argv: Sequence[str] | None) -> int:
     except MemoryError as exc:
         return _error(f"out of memory{': ' + str(exc) if str(exc) else ''}", EXIT_FAILURE)
     except BrokenExecutor as exc:  # a process-pool worker killed (the OOM killer, a signal): not a bug of ours
-        return _error(f"a worker process died (killed, or out of memory?): {_one_line(exc)}", EXIT_FAILURE)
+        return _error(f"a worker process died (killed, or out of memory?): {one_line(exc)}", EXIT_FAILURE)
     except CancelledError as exc:  # a Dask scheduler stopped or lost mid-run cancels every future it held
         return _error(f"the parallel work was cancelled from outside (a Dask scheduler stopped or lost?): "
-                      f"{_one_line(exc)}", EXIT_FAILURE)
+                      f"{one_line(exc)}", EXIT_FAILURE)
     except ImportError as exc:
         if "failed to map segment" in str(exc):  # the loader's words for a library that did not fit
-            return _error(f"out of memory loading a library ({_one_line(exc)})", EXIT_FAILURE)
+            return _error(f"out of memory loading a library ({one_line(exc)})", EXIT_FAILURE)
         return _error(exc, EXIT_FAILURE)
     except Exception as exc:  # a bug, not a user mistake: say so, traceback on request
         if os.environ.get("AWR_TRACEBACK", "").strip().lower() in ("1", "true", "yes", "on"):
             raise
-        return _error(f"internal error: {type(exc).__name__}: {_one_line(exc)} "
+        return _error(f"internal error: {type(exc).__name__}: {one_line(exc)} "
                       "(set AWR_TRACEBACK=1 to see the traceback)", EXIT_FAILURE)
 
 

@@ -465,3 +465,24 @@ def test_frames_without_a_placeholder_in_the_input_are_refused(work, capsys, mon
     monkeypatch.chdir(work.root)
     _refused(work, capsys, ["denoise", "d.exr", "--frames", "1-3", "-o", "o.####.exr"], "d.exr",
              "the input needs a #### placeholder")
+
+
+FORGED = "evil\x1b[2K\x1b[1G\x1b[32mawr: ok all fine\x1b[0m\rFAKE\nline"
+
+
+def test_a_name_cannot_rewrite_the_terminal(work, capsys, monkeypatch):
+    """File names were printed raw in error and status lines: an escape sequence in a name erased the
+    error line and printed a green "ok" over it, a carriage return or newline forged lines (a red-team
+    pass). Shown escaped, as `awr info` showed them."""
+    monkeypatch.chdir(work.root)
+    assert main(["denoise", FORGED + ".exr", "-o", "o.exr"]) == 2
+    err = capsys.readouterr().err
+    line = one_error_line(err, "evil\\x1b[2K", "\\r")
+    assert not any(c in err for c in "\x1b\r") and err.count("\n") == 1, line
+    assert main(["denoise", "d.exr", "-o", FORGED + ".exr"]) == 0  # status lines on stderr
+    out, err = capsys.readouterr()
+    assert "\x1b" not in err + out and "\r" not in err + out and "evil\\x1b[2K" in err
+    write_image(work / "hostile.exr", np.ones((4, 4, 3)), channels=["R\x1b[2K", "G", "B"])
+    assert main(["info", "hostile.exr"]) == 0  # a channel named by the file
+    out = capsys.readouterr().out
+    assert "\x1b" not in out and "R\\x1b[2K" in out
