@@ -22,7 +22,10 @@ def plain(name: str, array: object) -> np.ndarray:
         if masked:
             raise TypeError(f"{name}: a masked array with {masked} masked entries; fill them (numpy.ma.filled) or "
                             "leave those pixels or samples out")
-    return np.asarray(array)
+    try:
+        return np.asarray(array)
+    except ValueError:  # ragged nested lists: numpy's own words name no argument
+        raise TypeError(f"{name}: not an array (nested sequences of different lengths?)") from None
 
 
 def numeric(name: str, array: object) -> np.ndarray:

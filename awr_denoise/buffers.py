@@ -124,7 +124,7 @@ class SampleBuffer(ReadOnlyArrays):
         object.__setattr__(self, "variance", variance)
         object.__setattr__(self, "variance_known", known)
         object.__setattr__(self, "channels", channels)
-        object.__setattr__(self, "nonfinite", int(self.nonfinite))
+        object.__setattr__(self, "nonfinite", _checks.whole("nonfinite", self.nonfinite, minimum=0, maximum=2**62))
         object.__setattr__(self, "features", checked_features(self, self.features))
 
     @classmethod

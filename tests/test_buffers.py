@@ -541,3 +541,25 @@ def test_select_keeps_the_statistics_and_features_of_the_channels_chosen():
     assert buf.select(np.array([3, 1])).channels == buf.select(i for i in (3, 1)).channels == ("A", "G")
     with pytest.raises(TypeError, match="variance_known: a masked array"):
         SampleBuffer(buf.count, buf.mean, buf.variance, buf.channels, np.ma.masked_array(buf.variance_known, True))
+
+
+@pytest.mark.parametrize("bad, error", [(-5, ValueError), (1.5, ValueError), (True, TypeError), ("3", TypeError),
+                                        (None, TypeError), (float("nan"), ValueError), (2**70, ValueError)])
+def test_the_constructor_checks_nonfinite(bad, error):
+    """`SampleBuffer(...)` took -5, 2**70, True and "3" as counts of dropped samples, truncated 1.5 and
+    gave bare `int()` errors for NaN and None (a red-team pass)."""
+    args = (np.full((1, 1), 2), np.ones((1, 1, 1)), np.ones((1, 1, 1)), ("Y",), np.ones((1, 1), bool))
+    with pytest.raises(error, match="^nonfinite: "):
+        SampleBuffer(*args, nonfinite=bad)
+    assert SampleBuffer(*args, nonfinite=np.int64(3)).nonfinite == 3
+
+
+@pytest.mark.parametrize("call", [
+    lambda: SampleBuffer.from_moments([[1, 2], [3]], np.ones((2, 2, 1)), np.ones((2, 2, 1))),
+    lambda: SampleBuffer.from_samples([[0], [1, 2]], [1.0, 2.0], (1, 2)),
+    lambda: SampleBuffer.from_moments(np.full((1, 2), 2), [[[1.0], [2.0, 3.0]]], np.ones((1, 2, 1))),
+], ids=["count", "pixels", "mean"])
+def test_ragged_lists_are_refused_naming_the_argument(call):
+    """numpy's "setting an array element with a sequence" named no argument (a red-team pass)."""
+    with pytest.raises(TypeError, match=r"^\w+: not an array \(nested sequences of different lengths\?\)$"):
+        call()
