@@ -210,10 +210,16 @@ def name(param: str, value: Any, choices: tuple[str, ...] | None = None) -> str:
 
 
 def slices(**values: Any) -> None:
-    """Refuse anything but ``slice`` objects (a tile's rows and columns)."""
+    """Refuse anything but ``slice`` objects of whole bounds and a step of 1 (a tile's rows and columns:
+    a step of 2 subsampled the image, -1 mirrored it, 0 or 2.5 gave Python's bare errors)."""
     for param, value in values.items():
         if not isinstance(value, slice):
             raise TypeError(f"{param}: expected a slice, got {described(value)}")
+        for bound in (value.start, value.stop):
+            if bound is not None:
+                whole(param, bound)
+        if value.step not in (None, 1):
+            raise ValueError(f"{param}: a tile is contiguous; expected a step of 1, got {value.step!r}")
 
 
 def executor(param: str, value: Any) -> Executor | None:

@@ -109,6 +109,8 @@ def oidn(buffer: SampleBuffer, albedo: FloatArray | None = None, normal: FloatAr
     ...     out = reconstruct(buffer, guide=guide)
     ...     assert guide.shape == out.shape == (32, 32, 3)
     """
+    if not isinstance(buffer, SampleBuffer):  # an image instead of the samples: say so, not "no attribute"
+        raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
     order, back = _rgb(buffer)
     if quality not in ("high", "balanced", "fast"):
         raise ValueError(f"quality: {quality!r} is not one of high, balanced, fast")

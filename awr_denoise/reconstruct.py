@@ -321,9 +321,12 @@ def reconstruct_detailed(
         An (H, W, C) image or a function of the buffer making one (:func:`awr_denoise.guides.oidn`), or ``True``:
         the pilot of the Wiener stages where the samples allow it, the guide's or the features' (:mod:`.guided`).
         Beside an alpha or an AOV a guide may hold the colour's channels alone, and guides it alone.
+        Given both, the guide is the pilot and the features are not used (measured: the feature pilot
+        where the guide's gate closes changed nothing, docs/guides.md, "What else was tried").
     guide_projection
         With a guide: the share of the result taken from the means projected on it, in [0, 1] (default
         :data:`~awr_denoise.guided.PROJECTION_SHARE`; 0: the guide is the pilot only; docs/guides.md).
+        In ``mode="luminance"`` the means are not projected (the guide is the pilot only).
 
     Notes
     -----

@@ -151,3 +151,10 @@ def test_without_pyoidn_the_error_says_what_to_install(monkeypatch):
     assert not guides.oidn_available()
     with pytest.raises(ImportError, match=r'needs pyoidn .*pip install "awr-denoise\[oidn\]"'):
         guides.oidn(buf)
+
+
+def test_oidn_names_an_image_given_for_the_buffer():
+    """`guides.oidn(image)` raised AttributeError "'numpy.ndarray' object has no attribute 'channels'"."""
+    for given in (np.ones((4, 4, 3)), None):
+        with pytest.raises(TypeError, match="^buffer: expected a SampleBuffer, got "):
+            guides.oidn(given)

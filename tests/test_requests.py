@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
@@ -117,3 +119,16 @@ def test_large_first_indices_are_per_pixel_not_summed():
     assert int(request.first_index.max()) == 2**49 and request.total == 4 * 128 * 128
     with pytest.raises(ValueError, match="first_index: 1 pixel\\(s\\) exceed 2\\*\\*62"):
         SampleRequest(np.ones((1, 1), int), np.full((1, 1), 2**62 + 1, np.uint64))
+
+
+@pytest.mark.parametrize("rows, message", [(slice(0, 4, 2), "step of 1, got 2"), (slice(None, None, -1), "step of 1, got -1"),
+                                           (slice(None, None, 0), "step of 1, got 0"),
+                                           (slice(0, 2.5), "must be a whole number")])
+def test_a_crop_is_a_contiguous_tile(rows, message):
+    """A step of 2 subsampled the image and -1 mirrored it; 0 and 2.5 gave Python's bare slice errors
+    (a red-team pass). Buffers and requests crop alike."""
+    buffer = SampleBuffer.from_moments(np.full((4, 4), 2), np.ones((4, 4, 3)), np.ones((4, 4, 3)))
+    for item in (buffer, SampleRequest.uniform((4, 4), 2)):
+        with pytest.raises(ValueError, match=f"^rows: .*{re.escape(message)}"):
+            item.crop(rows, slice(0, 2))
+    assert buffer.crop(slice(np.int64(1), 3), slice(None, None, None)).shape == (2, 4)
