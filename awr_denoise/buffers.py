@@ -217,7 +217,7 @@ class SampleBuffer(ReadOnlyArrays):
                 var_arr = np.where(n > 1, spread * n / np.maximum(n - 1, 1), 0.0)
         known = np.ones(count_arr.shape, bool) if variance_known is None else plain("variance_known", variance_known)
         return cls(count_arr, mean_arr, var_arr, resolve_channels(channels, mean_arr.shape[2]), known,
-                   features=features or {})
+                   features=features if features is not None else {})
 
     @classmethod
     def from_sums(cls, count: CountArray, sum: FloatArray,  # noqa: A002 - the name the literature uses
@@ -337,7 +337,7 @@ class SampleBuffer(ReadOnlyArrays):
         count, mean, m2 = pixel_moments(flat, vals, shape[0] * shape[1], name)
         variance = m2 / np.maximum(count - 1, 1)[:, None]
         return cls(count.reshape(shape), mean.reshape(*shape, -1), variance.reshape(*shape, -1),
-                   resolve_channels(channels, vals.shape[1]), np.ones(shape, bool), n_bad, features or {})
+                   resolve_channels(channels, vals.shape[1]), np.ones(shape, bool), n_bad, features if features is not None else {})
 
     @classmethod
     def from_independent_means(

@@ -194,7 +194,10 @@ def merge_features(first: SampleBuffer, second: SampleBuffer) -> dict[str, Sampl
         elif b is None:
             merged[name] = a
         else:
-            merged[name] = a.merge(b)
+            try:
+                merged[name] = a.merge(b)
+            except ValueError as error:  # past float64, or one statistics object twice: the feature's, named
+                raise ValueError(f"features[{name!r}]: {str(error).removeprefix('other: ')}") from None
     return merged
 
 

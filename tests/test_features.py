@@ -194,3 +194,27 @@ def test_sampler_tell_merges_the_renderers_features():
     assert_array_equal(depth.count, buffer.count)
     assert_allclose(depth.mean[..., 0], np.arange(1, 7)[None, :] * np.ones((4, 1)), atol=0.1)
     assert depth.variance_known.all() and (depth.variance > 0).all()
+
+
+@pytest.mark.parametrize("bad", [0, [], "", ()])
+def test_features_that_are_not_a_mapping_are_refused_even_when_empty(bad):
+    """`from_moments(features=0, [] or '')` was taken as no features (`features or {}`), where the same
+    values anywhere else are refused (a red-team pass)."""
+    with pytest.raises(TypeError, match="^features: expected a mapping"):
+        SampleBuffer.from_moments(np.full((2, 2), 2), np.ones((2, 2, 3)), np.ones((2, 2, 3)), features=bad)
+
+
+def test_a_features_merge_refusal_names_the_feature():
+    """A depth whose merge passed float64, or one depth object shared by two batches, was refused naming
+    `other` and "the same statistics" as if the radiance were at fault."""
+    count = np.full((2, 2), 2)
+
+    def with_depth(depth):
+        return SampleBuffer.from_moments(count, np.ones((2, 2, 3)), np.ones((2, 2, 3)), features={"depth": depth})
+
+    high, low = (SampleBuffer.from_moments(count, np.full((2, 2), v), np.zeros((2, 2)), channels=["Z"])
+                 for v in (1.7e308, -1.7e308))
+    with pytest.raises(ValueError, match=r"^features\['depth'\]: merged, the mean or variance of 4 pixel"):
+        with_depth(high).merge(with_depth(low))
+    with pytest.raises(ValueError, match=r"^features\['depth'\]: the same statistics"):
+        with_depth(high).merge(with_depth(high))
