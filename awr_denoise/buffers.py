@@ -337,7 +337,8 @@ class SampleBuffer(ReadOnlyArrays):
         count, mean, m2 = pixel_moments(flat, vals, shape[0] * shape[1], name)
         variance = m2 / np.maximum(count - 1, 1)[:, None]
         return cls(count.reshape(shape), mean.reshape(*shape, -1), variance.reshape(*shape, -1),
-                   resolve_channels(channels, vals.shape[1]), np.ones(shape, bool), n_bad, features if features is not None else {})
+                   resolve_channels(channels, vals.shape[1]), np.ones(shape, bool), n_bad,
+                   features if features is not None else {})
 
     @classmethod
     def from_independent_means(

@@ -121,7 +121,8 @@ def test_large_first_indices_are_per_pixel_not_summed():
         SampleRequest(np.ones((1, 1), int), np.full((1, 1), 2**62 + 1, np.uint64))
 
 
-@pytest.mark.parametrize("rows, message", [(slice(0, 4, 2), "step of 1, got 2"), (slice(None, None, -1), "step of 1, got -1"),
+@pytest.mark.parametrize("rows, message", [(slice(0, 4, 2), "step of 1, got 2"),
+                                           (slice(None, None, -1), "step of 1, got -1"),
                                            (slice(None, None, 0), "step of 1, got 0"),
                                            (slice(0, 2.5), "must be a whole number")])
 def test_a_crop_is_a_contiguous_tile(rows, message):
