@@ -215,28 +215,30 @@ def slices(**values: Any) -> None:
     for param, value in values.items():
         if not isinstance(value, slice):
             raise TypeError(f"{param}: expected a slice, got {described(value)}")
-        for bound in (value.start, value.stop):
-            if bound is not None:
-                whole(param, bound)
+        for bound in (value.start, value.stop, value.step):
+            if bound is not None and (isinstance(bound, (bool, np.bool_)) or not isinstance(bound, numbers.Integral)):
+                raise TypeError(f"{param}: slice bounds must be integers, got {described(bound)}")  # 2.0 too
         if value.step not in (None, 1):
             raise ValueError(f"{param}: a tile is contiguous; expected a step of 1, got {value.step!r}")
 
 
-def executor(param: str, value: Any) -> Executor | None:
+def executor(param: str, value: Any, *, here: bool = True) -> Executor | None:
     """``value`` if it is an executor whose workers share this process' memory (threads), or None.
 
     The core's executors run closures over whole-image arrays: a process pool cannot take them
-    (the parallel layer, :mod:`awr_denoise.parallel`, splits work for processes and Dask).
+    (the parallel layer, :mod:`awr_denoise.parallel`, splits work for processes and Dask). ``here``:
+    the executor is used now, on this thread; called on one of its own threads (a task of that pool)
+    the work runs serially on it, ``None``: work waited for on a pool's own threads waits for itself
+    once every thread does (with one thread, for ever). An object keeping the executor for later (a
+    sampler) passes ``here=False``.
     """
     if value is not None and not isinstance(value, Executor):
         raise TypeError(f"{param}: expected a concurrent.futures.Executor, got {type(value).__name__}")
     if isinstance(value, ProcessPoolExecutor):
         raise TypeError(f"{param}: a ProcessPoolExecutor cannot share the image's arrays; pass a ThreadPoolExecutor "
                         "(awr_denoise.parallel splits work for processes)")
-    if isinstance(value, ThreadPoolExecutor) and _on_own_thread(value):
-        # Work waited for on the pool's own threads waits for itself once every thread does: a silent hang.
-        raise ValueError(f"{param}: called on one of the executor's own threads, it would wait for itself; "
-                         "inside a pool's task pass another executor or None")
+    if here and isinstance(value, ThreadPoolExecutor) and _on_own_thread(value):
+        return None  # the same results: every use of an executor gives the serial bits
     return value
 
 

@@ -160,8 +160,8 @@ class SampleRequest(ReadOnlyArrays):
 
         What :meth:`Sampler.tell <awr_denoise.sampling.Sampler.tell>` checks before it merges
         (paper section 4: each round adds the samples its request asked for): the image's shape and
-        channels, no pixel with more samples than asked, and not the very buffer object told for an
-        earlier round of the same sampler (a renderer returning its one buffer every round). Fewer
+        channels, no pixel with more samples than asked, and not the very buffer object told for another
+        round of the same sampler (a renderer returning its one buffer every round). Fewer
         samples than asked warn (a renderer may drop some). Unnamed channels take ``channels``.
 
         Examples
@@ -187,7 +187,9 @@ class SampleRequest(ReadOnlyArrays):
         if over.any():
             raise ValueError(f"samples: {int(over.sum())} pixel(s) hold more samples than requested")
         told = _TOLD.setdefault(samples, {})
-        if self.sampler_id in told and samples.total_samples:  # an empty buffer adds nothing, however often
+        # Another round of the same sampler: a renderer's one buffer again (a copy of the sampler, a
+        # snapshot restored, may tell it for its own round once more). An empty buffer adds nothing.
+        if told.get(self.sampler_id, self.round) != self.round and samples.total_samples:
             raise ValueError(f"samples: the SampleBuffer told for round {told[self.sampler_id]} again: a renderer "
                              "must return a new buffer of new samples for every request")
         short = int((self.counts - samples.count).sum())

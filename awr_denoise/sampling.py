@@ -127,7 +127,7 @@ class Sampler(OneAtATime):
         self.round_spp = round_spp
         self.round_growth = float(round_growth)
         self.seed = int(seed)
-        self.executor = _checks.executor("executor", executor)
+        self.executor = _checks.executor("executor", executor, here=False)
         self._buffer = SampleBuffer.empty((h, w), channels=channels)
         self._issued = np.zeros((h, w), np.int64)
         self._round = 0
@@ -342,7 +342,9 @@ class Sampler(OneAtATime):
         told = pending.check_answer(samples, self._buffer.channels)
         try:
             self._buffer = self._buffer.merge(told, executor=self.executor)
-        except ValueError as error:  # shapes and channels are checked: only a merge past float64 is left
+        except ValueError as error:  # shapes and channels are checked: a merge past float64 names merge's `other`
+            if not str(error).startswith("other: "):
+                raise
             raise ValueError(f"samples: {str(error).removeprefix('other: ')}") from None
         pending.mark_told(samples)
         self._issued = self._issued + pending.counts
@@ -531,6 +533,7 @@ class AdaptiveSampler(Sampler):
             DEFAULT_GAIN_REFRESH if gain_refresh is None else gain_refresh)
         self.absolute_above = _checks.real("absolute_above", absolute_above, above=0, none=True)
 
+    @one_at_a_time
     def density(self) -> FloatArray:
         """(H, W) target density of the next round (see :func:`~awr_denoise.priorities.sampling_density`)."""
         gain = None if self._gain is None else self._gain(self._buffer, self.executor)  # round 0 is uniform: none

@@ -76,11 +76,11 @@ def texture(low: float, high: float, log: bool, blur: float = 0.0) -> Any:
     return make
 
 
-def dark_line(level: float) -> Any:
+def dark_line(level: float, width: int = 1) -> Any:
     def make(spp: int, rng: np.random.Generator) -> tuple[np.ndarray, SampleBuffer]:
-        """A column of 0.01 in a field of ``level``, 64x64, relative noise 0.5."""
+        """``width`` columns of 0.01 in a field of ``level``, 64x64, relative noise 0.5."""
         truth = np.full((64, 64, 1), level)
-        truth[:, 32] = 0.01
+        truth[:, 32:32 + width] = 0.01
         return truth, gaussian(truth, spp, 0.5, rng)
     return make
 
@@ -97,6 +97,8 @@ CASES: list[tuple[str, Any, tuple[int, ...], int]] = [
     ("dark 1-px line in a field of 1", dark_line(1.0), (8,), 8),
     ("dark 1-px line in a field of 10", dark_line(10.0), (8, 64), 8),
     ("dark 1-px line in a field of 100", dark_line(100.0), (8,), 8),
+    ("dark 2-px line in a field of 100", dark_line(100.0, 2), (8,), 8),
+    ("dark 3-px line in a field of 100", dark_line(100.0, 3), (8,), 8),
 ]
 """(name, make, spps, seeds) of every case; ``make(spp, rng)`` gives the clean image and the buffer of one render."""
 

@@ -7,7 +7,9 @@ scipy load, so an interrupt during those imports is already handled.
 from __future__ import annotations
 
 import contextlib
+import re
 import sys
+import unicodedata
 import warnings
 from collections.abc import Iterator
 
@@ -38,7 +40,7 @@ class RuntimeFailure(RuntimeError):
 
 
 def shown(text: object, *, keep: str = "") -> str:
-    r"""``text`` with its control and other unprintable characters escaped (``\x1b``, ``\r``), but
+    r"""``text`` with the characters a terminal obeys escaped (``\x1b``, ``\r``; :func:`_obeyed`), but
     those in ``keep``: a file name is shown as it is named, and cannot rewrite the terminal's line (an
     escape sequence in a name erased an error line and printed a green "ok" over it).
 
@@ -48,13 +50,24 @@ def shown(text: object, *, keep: str = "") -> str:
     >>> print(shown("evil\x1b[2K\rok.exr"))
     evil\x1b[2K\rok.exr
     """
-    return "".join(c if c.isprintable() or c in keep else repr(c)[1:-1] for c in str(text))
+    return "".join(repr(c)[1:-1] if c not in keep and _obeyed(c) else c for c in str(text))
+
+
+_BIDI_CONTROLS = frozenset("\u061c\u200e\u200f\u202a\u202b\u202c\u202d\u202e\u2066\u2067\u2068\u2069")
+
+
+def _obeyed(c: str) -> bool:
+    """Whether a terminal acts on ``c`` rather than showing it: control characters (escape, carriage
+    return, newline), line and paragraph separators, and the bidirectional controls that reorder what
+    follows. Other spaces (U+3000, U+00A0) and joiners (an emoji's U+200D) are shown as they are."""
+    return unicodedata.category(c) in ("Cc", "Zl", "Zp") or c in _BIDI_CONTROLS
 
 
 def one_line(message: object) -> str:
-    """``message`` on one line: unprintable characters escaped (:func:`shown`), its lines and runs of
+    """``message`` on one line: obeyed characters escaped (:func:`shown`), its lines and runs of
     white space joined by single spaces (a library's multi-line report)."""
-    return " ".join(shown(message, keep="\n\t").split()) or "unknown error"
+    # Runs of ASCII white space only: a name's own U+3000 or no-break space is part of it.
+    return " ".join(part for part in re.split(r"[ \t\n]+", shown(message, keep="\n\t")) if part) or "unknown error"
 
 
 @contextlib.contextmanager

@@ -78,7 +78,9 @@ def restore(previous: dict[int, Any] | None) -> None:
     with contextlib.suppress(ValueError):
         COMMIT_CHECKS.remove(check)
     if _hooks:
-        sys.unraisablehook = _hooks.pop()
+        hook = _hooks.pop()
+        if sys.unraisablehook is _quiet_unraisable:  # a hook set meanwhile by the command's own code stays
+            sys.unraisablehook = hook
 
 
 def _quiet_unraisable(unraisable: Any) -> None:

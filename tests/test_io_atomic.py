@@ -317,7 +317,7 @@ def test_an_output_that_is_a_symbolic_link_is_written_through_it(tmp_path, how):
     os.chmod(real, 0o640)
     link.symlink_to(real)
     if how == "atomic_write":
-        with pytest.raises(FileExistsError, match="link.txt: already exists"):
+        with pytest.raises(FileExistsError, match=r"link.txt \(a link to .*out.txt\): already exists"):
             atomic_write(link, lambda tmp: Path(tmp).write_text("new"))
         atomic_write(link, lambda tmp: Path(tmp).write_text("new"), overwrite=True)
     else:
@@ -347,3 +347,15 @@ def test_a_link_into_another_file_system_is_staged_beside_the_file_it_names(tmp_
         assert not list(other.glob(STAGING_PREFIX + "*")) and not list(tmp_path.glob(STAGING_PREFIX + "*"))
     finally:
         real.unlink(missing_ok=True)
+
+
+@pytest.mark.skipif(not os.path.isfile("/proc/version"), reason="needs /proc/version, a file in a folder of no new files")
+def test_a_link_is_checked_in_the_folder_of_the_file_it_names(tmp_path):
+    """The folder checks ran in the link's folder: a link to a file in a folder that takes no new file
+    passed them, and the command failed after all its work (a review)."""
+    (tmp_path / "link").symlink_to("/proc/version")
+    with pytest.raises(ValueError, match=r"link \(a link to /proc/version\): directory /proc accepts no new file"):
+        check_writable(tmp_path / "link", overwrite=True)
+    with OutputSet(overwrite=True) as outputs, pytest.raises(ValueError, match="accepts no new file"):
+        outputs.add(tmp_path / "link")
+    assert _listing(tmp_path) == ["link"]

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 import pywt
+from numpy.testing import assert_array_equal
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -341,22 +342,31 @@ def _renderer_of(shape):
 
 @pytest.mark.parametrize("call", [
     lambda e: reconstruct(BUF, executor=e),
-    lambda e: BUF.merge(SampleBuffer.empty((H, W), channels=BUF.channels), executor=e),
+    lambda e: BUF.merge(SampleBuffer.empty((H, W), channels=BUF.channels), executor=e).mean,
     lambda e: priorities.sampling_density(BUF, executor=e),
-    lambda e: AdaptiveSampler((H, W), executor=e).run(_renderer_of((H, W)), total_spp=4),
+    lambda e: AdaptiveSampler((H, W), executor=e).run(_renderer_of((H, W)), total_spp=4).mean,
 ], ids=["reconstruct", "merge", "sampling_density", "sampler"])
-def test_an_executor_used_from_its_own_thread_is_refused_not_a_hang(call):
+def test_an_executor_used_from_its_own_thread_runs_serially_not_a_hang(call):
     """``pool.submit(reconstruct, buf, executor=pool)`` on a one-thread pool waited for ever: its work
-    queued behind the task that waits for it (a red-team pass). Refused on any of the pool's threads,
-    naming the executor; two threads here, so that a regression finishes (and fails) instead of hanging."""
+    queued behind the task that waits for it (a red-team pass). On the pool's own threads the work
+    runs serially, the same bits. Two threads here and the work submitted from them counted: a
+    regression fails at once instead of hanging."""
+    import threading
     from concurrent.futures import ThreadPoolExecutor
 
-    with ThreadPoolExecutor(2) as pool:
+    class Watched(ThreadPoolExecutor):
+        nested = 0
+
+        def submit(self, fn, /, *args, **kwargs):
+            self.nested += threading.current_thread().name.startswith("watched")
+            return super().submit(fn, *args, **kwargs)
+
+    serial = call(None)
+    with Watched(2, thread_name_prefix="watched") as pool:
         for _ in range(3):  # the first task runs before its thread is listed among the pool's
-            future = pool.submit(call, pool)
-            with pytest.raises(ValueError, match=r"^executor: called on one of the executor's own threads"):
-                future.result(timeout=60)
-        assert call(pool) is not None  # from another thread, the same pool is fine
+            assert_array_equal(pool.submit(call, pool).result(timeout=60), serial)
+        assert pool.nested == 0
+        assert_array_equal(call(pool), serial)  # from another thread, on the pool's threads
 
 
 def test_fourth_review_edges(tmp_path):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import pickle
 import threading
 
@@ -693,9 +694,17 @@ def test_the_same_buffer_object_told_again_is_refused(sampler_cls):
     empty = SampleBuffer.empty(SHAPE)
     for _ in range(2):
         sampler.tell(sampler.ask(0), empty)
-    # Another sampler may be told the same object (another image of the same samples).
+    # Another sampler may be told the same object (another image of the same samples), and so may a
+    # copy of a sampler, or a snapshot restored, for the round it was rendered for (a review).
     other = sampler_cls(SHAPE, initial_spp=4)
     assert other.tell(other.ask(), first).total_samples == 4 * PIXELS
+    again = sampler_cls(SHAPE, initial_spp=4, spp_min=8)
+    request = again.ask()
+    batch = _edges_renderer()(request)
+    snapshot = pickle.dumps(again)
+    copy_of = copy.deepcopy(again)
+    again.tell(request, batch)
+    assert copy_of.tell(request, batch).total_samples == pickle.loads(snapshot).tell(request, batch).total_samples
 
 
 def test_tell_past_float64_names_the_samples():

@@ -199,38 +199,41 @@ def check_writable(path: str | os.PathLike[str], *, overwrite: bool) -> Path:
         raise ValueError("path: an empty file name")
     check_utf8_name(path)
     target = Path(path)
-    parent = target.parent if str(target.parent) else Path(".")
+    # A link is written through (_install): the file it names is the one whose folder must take it.
+    final = _through_links(target) if os.path.islink(target) else target
+    parent = final.parent if str(final.parent) else Path(".")
+    name = str(target) if final is target else f"{target} (a link to {final})"  # in every refusal below
     try:
         st = os.stat(target)
     except FileNotFoundError:
         st = None
         if os.path.lexists(target):
-            raise ValueError(f"{target}: is a symbolic link to a missing file; remove it or write elsewhere") from None
+            raise ValueError(f"{name}: is a symbolic link to a missing file; remove it or write elsewhere") from None
     except NotADirectoryError:
-        raise FileNotFoundError(f"{target}: {parent} is not a directory") from None
+        raise FileNotFoundError(f"{name}: {parent} is not a directory") from None
     except OSError as exc:
         if exc.errno == errno.ENAMETOOLONG:
-            raise ValueError(f"{target}: file name too long for the file system") from None
-        raise ValueError(f"{target}: cannot use as output: {exc.strerror or exc}") from None
+            raise ValueError(f"{name}: file name too long for the file system") from None
+        raise ValueError(f"{name}: cannot use as output: {exc.strerror or exc}") from None
     if st is not None:
         if not stat.S_ISREG(st.st_mode):
-            raise ValueError(f"{target}: is a {file_kind(st.st_mode)}, not a regular file; "
+            raise ValueError(f"{name}: is a {file_kind(st.st_mode)}, not a regular file; "
                              "refusing to write over it")
         if not overwrite:
-            raise FileExistsError(f"{target}: already exists (pass overwrite=True / --overwrite to replace it)")
+            raise FileExistsError(f"{name}: already exists (pass overwrite=True / --overwrite to replace it)")
     if not parent.is_dir():
-        raise FileNotFoundError(f"{target}: directory {parent} does not exist")
+        raise FileNotFoundError(f"{name}: directory {parent} does not exist")
     if not os.access(parent, os.W_OK | os.X_OK):
-        raise ValueError(f"{target}: directory {parent} is not writable")
+        raise ValueError(f"{name}: directory {parent} is not writable")
     try:  # os.access answers for permissions only: /proc and /sys say yes to root, then refuse every file
         fd, probe = tempfile.mkstemp(prefix=".awr-probe-", suffix=".tmp", dir=parent)
         os.close(fd)
         os.unlink(probe)
     except OSError as exc:
-        raise ValueError(f"{target}: directory {parent} accepts no new file ({exc.strerror or exc})") from None
+        raise ValueError(f"{name}: directory {parent} accepts no new file ({exc.strerror or exc})") from None
     limit = _name_max(parent)
-    if len(os.fsencode(target.name)) > limit:
-        raise ValueError(f"{target}: the file name is {len(os.fsencode(target.name))} bytes, "
+    if len(os.fsencode(final.name)) > limit:
+        raise ValueError(f"{name}: the file name is {len(os.fsencode(final.name))} bytes, "
                          f"the file system allows {limit}")
     return target
 

@@ -482,6 +482,11 @@ def test_a_name_cannot_rewrite_the_terminal(work, capsys, monkeypatch):
     assert main(["denoise", "d.exr", "-o", FORGED + ".exr"]) == 0  # status lines on stderr
     out, err = capsys.readouterr()
     assert "\x1b" not in err + out and "\r" not in err + out and "evil\\x1b[2K" in err
+    # Names are shown as they are named otherwise: other spaces and joiners kept, a bidi override escaped (a review).
+    assert main(["denoise", "東京\u3000夜景 é\u00a0🧑\u200d💻.exr", "-o", "o2.exr"]) == 2
+    one_error_line(capsys.readouterr().err, "東京\u3000夜景 é\u00a0🧑\u200d💻.exr")
+    assert main(["denoise", "a\u202egpj.exr", "-o", "o2.exr"]) == 2
+    one_error_line(capsys.readouterr().err, "a\\u202egpj.exr")
     write_image(work / "hostile.exr", np.ones((4, 4, 3)), channels=["R\x1b[2K", "G", "B"])
     assert main(["info", "hostile.exr"]) == 0  # a channel named by the file
     out = capsys.readouterr().out
