@@ -16,6 +16,8 @@ Pass the function itself as the guide and the reconstruction calls it on the buf
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ._arrays import numeric
@@ -122,8 +124,13 @@ def oidn(buffer: SampleBuffer, albedo: FloatArray | None = None, normal: FloatAr
         import pyoidn  # optional extra "oidn", imported lazily
     except ImportError as error:
         raise ImportError(OIDN_HINT) from error
-    colour = np.ascontiguousarray(np.clip(filled_mean(buffer)[..., order], 0.0, _FLOAT32_MAX), dtype=np.float32)
-    return np.asarray(pyoidn.denoise(colour, alb, nrm, hdr=True, quality=quality), dtype=np.float64)[..., back]
+    mean = filled_mean(buffer)[..., order]
+    # OIDN denoises float32 (HDR: any exposure alike, measured to 1e-6 at 1e30): means past 2**64 or
+    # below 2**-64 are brought in by a power of two and back (at 1e100 they were clipped: garbage).
+    top = float(np.max(mean, initial=0.0))
+    unit = math.ldexp(1.0, -math.frexp(top)[1]) if top > 0 and not 2.0**-64 <= top <= 2.0**64 else 1.0
+    colour = np.ascontiguousarray(np.clip(mean * unit, 0.0, _FLOAT32_MAX), dtype=np.float32)
+    return np.asarray(pyoidn.denoise(colour, alb, nrm, hdr=True, quality=quality), dtype=np.float64)[..., back] / unit
 
 
 def _rgb(buffer: SampleBuffer) -> tuple[list[int], list[int]]:

@@ -158,3 +158,16 @@ def test_oidn_names_an_image_given_for_the_buffer():
     for given in (np.ones((4, 4, 3)), None):
         with pytest.raises(TypeError, match="^buffer: expected a SampleBuffer, got "):
             guides.oidn(given)
+
+
+@needs_oidn
+@pytest.mark.parametrize("power", [330, -300])
+def test_oidn_denoises_means_beyond_float32_at_their_scale(power):
+    """Means of 1e100 were clipped to float32's largest value before OIDN: the guide came back 0.6 off
+    on an image of 0.55 (a red-team pass); 1e-60 flushed to zero. In by a power of two and back out,
+    the same image as at the usual scale, bit for bit."""
+    rng = np.random.default_rng(0)
+    mean, count = 0.5 + 0.1 * rng.random((32, 32, 3)), np.full((32, 32), 8)
+    base = guides.oidn(SampleBuffer.from_moments(count, mean, np.full((32, 32, 3), 0.01)))
+    scaled = guides.oidn(SampleBuffer.from_moments(count, np.ldexp(mean, power), np.zeros((32, 32, 3))))
+    np.testing.assert_array_equal(np.ldexp(base, power), scaled)
