@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import dataclasses
+import filecmp
 import os
+import tempfile
 from collections.abc import Callable, Sequence
 from concurrent.futures import Executor
 from dataclasses import dataclass
@@ -102,7 +104,8 @@ def _reference_error(reference: str | os.PathLike[str], image: np.ndarray, chann
 def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str], *,
                   preview: str | os.PathLike[str] | None = None, exposure: float = 0.0,
                   reference: str | os.PathLike[str] | None = None, overwrite: bool = False, half: bool = False,
-                  read_options: dict[str, Any] | None = None, **reconstruct_options: Any) -> FrameResult:
+                  read_options: dict[str, Any] | None = None, again: bool = False,
+                  **reconstruct_options: Any) -> FrameResult:
     """Read one dump, reconstruct it, write the image (and a preview) atomically.
 
     Parameters
@@ -120,6 +123,10 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
         As in :func:`~awr_denoise.io.write_image`.
     read_options
         Keyword arguments of :func:`~awr_denoise.io.read_sample_buffer`.
+    again
+        The frame may be a task run again (Dask runs a finished task again when the worker holding
+        its result dies before it was fetched): an existing output, or preview, identical byte for
+        byte to what this attempt writes is its earlier attempt's, and is taken as written.
     **reconstruct_options
         Keyword arguments of :func:`~awr_denoise.reconstruct`.
 
@@ -142,12 +149,30 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
     result = reconstruct_detailed(buffer, variance_probes=0, **reconstruct_options)
     image = np.asarray(result.image)
     error = _reference_error(reference, image, buffer.channels, source, windows) if reference else None
-    written = write_image(output, result.image, channels=buffer.channels, half=half, overwrite=overwrite,
-                          header={**image_provenance(result, buffer, source=source), **windows})
-    shown = write_preview(preview, result.image, exposure=exposure, overwrite=overwrite) if preview else None
+    header = {**image_provenance(result, buffer, source=source), **windows}
+
+    def write(path: str | os.PathLike[str], replace: bool) -> str | os.PathLike[str]:
+        return write_image(path, result.image, channels=buffer.channels, half=half, overwrite=replace, header=header)
+
+    def draw(path: str | os.PathLike[str], replace: bool) -> str | os.PathLike[str]:
+        return write_preview(path, result.image, exposure=exposure, overwrite=replace)
+
+    written = write(output, overwrite or (again and _identical(output, write)))
+    shown = draw(preview, overwrite or (again and _identical(preview, draw))) if preview else None
     return FrameResult(source, Path(written), None if shown is None else Path(shown), buffer.shape,
                        buffer.total_samples / buffer.count.size, float(result.fraction_zeroed),
                        int(buffer.nonfinite), error, tuple(buffer.features))
+
+
+def _identical(target: str | os.PathLike[str], write: Callable[[str, bool], Any]) -> bool:
+    """Whether ``target`` exists and holds, byte for byte, what ``write(path, replace)`` writes (a
+    frame's writers are deterministic), written for the comparison in a temporary folder."""
+    if not os.path.isfile(target):
+        return False
+    with tempfile.TemporaryDirectory(prefix="awr-frame-") as folder:
+        probe = os.path.join(folder, os.path.basename(os.fspath(target)))
+        write(probe, True)
+        return filecmp.cmp(probe, target, shallow=False)
 
 
 def _stat(path: str) -> os.stat_result | None:
@@ -265,6 +290,11 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
         return []
     options = {"exposure": exposure, "reference": reference, "overwrite": overwrite, "half": half,
                "read_options": dict(read_options or {}), **reconstruct_options}
+    if executor is not None and dask_client(executor) is not None:
+        # Dask runs a finished frame again when the worker holding its result dies before it was
+        # fetched: that attempt finds the output the first wrote, complete, and took it for someone
+        # else's file (a frame written, reported as failed).
+        options["again"] = True
     as_given = list(zip(sources, targets, shown if shown is not None else [None] * len(sources)))
     if executor is not None and dask_client(executor) is not None:
         # A Dask worker runs in its own folder (dask worker started from $HOME): a relative path

@@ -203,3 +203,65 @@ def test_a_scheduler_without_workers_is_refused_in_time(monkeypatch):
             with get_executor(scheduler=address):
                 pass
         assert time.monotonic() - start < 30
+
+
+class _Task:
+    """A stand-in Dask future for :func:`executors._settle`: its status, and what gathering it gives."""
+
+    def __init__(self, status, outcome):
+        self.status, self.outcome = status, outcome
+
+
+class _Client:
+    async def _gather(self, task):
+        if isinstance(task.outcome, BaseException):
+            raise task.outcome
+        return [task.outcome]
+
+    def gather(self, tasks, asynchronous):
+        assert asynchronous
+        return self._gather(tasks[0])
+
+
+@pytest.mark.parametrize("task, expected", [
+    (_Task("finished", 7), 7),
+    # A result lost with its worker, the task run again and failing (a frame finding the output its
+    # first run wrote): Dask's ClientExecutor let this error escape and its future stayed pending
+    # for ever, `awr denoise --frames` on Dask waiting on written frames (a red-team pass).
+    (_Task("error", FileExistsError("f0048.exr: already exists")), FileExistsError),
+    (_Task("lost", RuntimeError("an error of Dask's own while gathering")), RuntimeError),
+    (_Task("cancelled", cf.CancelledError()), "cancelled"),
+])
+def test_every_outcome_of_a_dask_task_settles_its_future(task, expected):
+    import asyncio
+
+    from awr_denoise.parallel import executors
+
+    answer = cf.Future()
+    waiter = threading.Thread(target=cf.wait, args=([answer],))  # cf.wait must wake in every case
+    waiter.start()
+    asyncio.run(executors._settle(_Client(), task, answer))
+    waiter.join(timeout=10)
+    assert not waiter.is_alive() and answer.done()
+    if expected == "cancelled":
+        assert answer.cancelled()
+    elif isinstance(expected, type):
+        assert isinstance(answer.exception(), expected)
+    else:
+        assert answer.result() == expected
+
+
+def test_a_dask_tasks_error_and_cancellation_reach_its_future():
+    pytest.importorskip("distributed")
+    from awr_denoise.parallel.executors import submit
+
+    with get_executor("dask", workers=1) as executor:
+        assert submit(executor, abs, -3).result(timeout=60) == 3
+        failed = submit(executor, int, "not a number")
+        assert isinstance(failed.exception(timeout=60), ValueError)
+        slow = submit(executor, time.sleep, 30)
+        queued = submit(executor, abs, -1)  # one worker thread: queued behind the sleep
+        assert queued.cancel()
+        done, _ = cf.wait([queued], timeout=30)
+        assert queued in done and queued.cancelled()
+        slow.cancel()

@@ -149,3 +149,26 @@ def test_relative_paths_on_dask_workers_in_another_folder(tmp_path, dumps, clust
     serial_frames(dumps, serial)
     assert_same_files([tmp_path / o for o in outputs], serial)
     assert read_sample_buffer(dumps[0]).shape  # the caller's own dumps were read
+
+
+def test_a_frame_run_again_takes_its_own_identical_output_as_written(tmp_path, dumps):
+    """Dask runs a finished frame again when the worker holding its result dies before the result was
+    fetched: the second attempt found the output the first had written, complete, and the frame was
+    reported as failed with FileExistsError (a red-team pass, 1 run in 6). An output identical byte for
+    byte to what the attempt writes is its own; any other file is still refused."""
+    from awr_denoise.parallel import denoise_frame
+
+    out, png = tmp_path / "out.exr", tmp_path / "out.png"
+    first = denoise_frame(dumps[0], out, preview=png)
+    before = out.read_bytes(), png.read_bytes()
+    again = denoise_frame(dumps[0], out, preview=png, again=True)
+    assert (again.output, again.preview) == (first.output, first.preview)
+    assert (out.read_bytes(), png.read_bytes()) == before
+    with pytest.raises(FileExistsError, match="out.exr"):
+        denoise_frame(dumps[0], out, preview=png)  # not a task run again
+    with pytest.raises(FileExistsError, match="out.exr"):
+        denoise_frame(dumps[1], out, preview=png, again=True)  # another frame's image
+    png.unlink()
+    denoise_frame(dumps[0], out, preview=png, again=True)  # killed between the image and its preview
+    assert png.read_bytes() == before[1] and sorted(p.name for p in tmp_path.iterdir() if "out" in p.name) == [
+        "out.exr", "out.png"]
