@@ -127,10 +127,12 @@ def oidn(buffer: SampleBuffer, albedo: FloatArray | None = None, normal: FloatAr
     mean = filled_mean(buffer)[..., order]
     # OIDN denoises float32 (HDR: any exposure alike, measured to 1e-6 at 1e30): means past 2**64 or
     # below 2**-64 are brought in by a power of two and back (at 1e100 they were clipped: garbage).
+    # The array is scaled by its exponent, not multiplied by 2**-e, which passes float64 for subnormal means.
     top = float(np.max(mean, initial=0.0))
-    unit = math.ldexp(1.0, -math.frexp(top)[1]) if top > 0 and not 2.0**-64 <= top <= 2.0**64 else 1.0
-    colour = np.ascontiguousarray(np.clip(mean * unit, 0.0, _FLOAT32_MAX), dtype=np.float32)
-    return np.asarray(pyoidn.denoise(colour, alb, nrm, hdr=True, quality=quality), dtype=np.float64)[..., back] / unit
+    power = math.frexp(top)[1] if top > 0 and not 2.0**-64 <= top <= 2.0**64 else 0
+    colour = np.ascontiguousarray(np.clip(np.ldexp(mean, -power), 0.0, _FLOAT32_MAX), dtype=np.float32)
+    out = np.asarray(pyoidn.denoise(colour, alb, nrm, hdr=True, quality=quality), dtype=np.float64)
+    return np.ldexp(out, power)[..., back]
 
 
 def _rgb(buffer: SampleBuffer) -> tuple[list[int], list[int]]:

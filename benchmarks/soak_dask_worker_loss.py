@@ -109,10 +109,11 @@ def main(argv: list[str] | None = None) -> int:
     rows = soak(args.runs, args.frames, args.delay, args.timeout)
     counts = {k: sum(r["outcome"] == k for r in rows) for k in dict.fromkeys(r["outcome"] for r in rows)}
     written = sum(bool(r.get("all_written")) for r in rows)
-    print(f"{len(rows)} runs: {counts}; every output written and whole in {written}")
+    unkilled = sum(r.get("killed") == {} for r in rows)  # finished before the kill: they test nothing
+    print(f"{len(rows)} runs: {counts}; every output written and whole in {written}; no worker killed in {unkilled}")
     command = "benchmarks/soak_dask_worker_loss.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    args.output.write_text(json.dumps({"command": command, "counts": counts, "all_written": written, "rows": rows},
-                                      indent=1) + "\n")
+    args.output.write_text(json.dumps({"command": command, "counts": counts, "all_written": written,
+                                       "no_worker_killed": unkilled, "rows": rows}, indent=1) + "\n")
     return 0
 
 

@@ -171,3 +171,14 @@ def test_oidn_denoises_means_beyond_float32_at_their_scale(power):
     base = guides.oidn(SampleBuffer.from_moments(count, mean, np.full((32, 32, 3), 0.01)))
     scaled = guides.oidn(SampleBuffer.from_moments(count, np.ldexp(mean, power), np.zeros((32, 32, 3))))
     np.testing.assert_array_equal(np.ldexp(base, power), scaled)
+
+
+@needs_oidn
+def test_oidn_denoises_subnormal_means():
+    """Means below float64's least normal number (1e-309) raised OverflowError: the factor 2**1030
+    that would bring them in passes float64 (a review). The array is scaled by its exponent."""
+    rng = np.random.default_rng(0)
+    mean, count = 0.5 + 0.1 * rng.random((32, 32, 3)), np.full((32, 32), 8)
+    base = guides.oidn(SampleBuffer.from_moments(count, mean, np.zeros((32, 32, 3))))
+    tiny = guides.oidn(SampleBuffer.from_moments(count, np.ldexp(mean, -1030), np.zeros((32, 32, 3))))
+    np.testing.assert_allclose(np.ldexp(tiny, 1030), base, rtol=1e-5)

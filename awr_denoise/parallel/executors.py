@@ -343,11 +343,14 @@ async def _settle(client: Any, task: Any, answer: cf.Future) -> None:
     except BaseException as exc:  # handed to the caller waiting on the answer, never dropped
         if task.status == "cancelled":
             answer.cancel()
-            with contextlib.suppress(RuntimeError):  # wakes cf.wait(); notified already is fine
-                answer.set_running_or_notify_cancel()
         else:
             with contextlib.suppress(cf.InvalidStateError):  # cancelled by the caller meanwhile
                 answer.set_exception(exc)
-        return
-    with contextlib.suppress(cf.InvalidStateError):
-        answer.set_result(value)
+    else:
+        with contextlib.suppress(cf.InvalidStateError):  # cancelled by the caller meanwhile
+            answer.set_result(value)
+    finally:
+        task.release()  # the result is the caller's now: the cluster need not keep it
+    if answer.cancelled():  # by the caller or by Dask: cf.wait() learns it only from this call
+        with contextlib.suppress(RuntimeError):  # notified already is fine
+            answer.set_running_or_notify_cancel()
