@@ -349,7 +349,8 @@ def test_a_link_into_another_file_system_is_staged_beside_the_file_it_names(tmp_
         real.unlink(missing_ok=True)
 
 
-@pytest.mark.skipif(not os.path.isfile("/proc/version"), reason="needs /proc/version, a file in a folder of no new files")
+@pytest.mark.skipif(not os.path.isfile("/proc/version"),
+                    reason="needs /proc/version, a file in a folder that takes no new file")
 def test_a_link_is_checked_in_the_folder_of_the_file_it_names(tmp_path):
     """The folder checks ran in the link's folder: a link to a file in a folder that takes no new file
     passed them, and the command failed after all its work (a review)."""
