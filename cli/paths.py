@@ -151,6 +151,9 @@ def check_file_name(path: str | os.PathLike[str], option: str) -> None:
     drops the slash, so a file was written under the name without it (``-o out.exr/`` wrote
     ``out.exr``)."""
     name = os.fspath(path)
+    if name == "-":  # the shells' convention for standard output, which no command writes images to
+        raise UsageError(f"{option}: '-' would write a file named '-', not standard output; give a file name "
+                         "('./-' for that file)")
     if os.path.basename(name) in ("", ".", ".."):  # out.exr/, out.exr/. and out.exr/.. all name a folder
         raise UsageError(f"{option}: {name}: ends with {os.sep!r}, '.' or '..', which names a folder; "
                          "give the file's name")

@@ -491,3 +491,16 @@ def test_a_name_cannot_rewrite_the_terminal(work, capsys, monkeypatch):
     assert main(["info", "hostile.exr"]) == 0  # a channel named by the file
     out = capsys.readouterr().out
     assert "\x1b" not in out and "R\\x1b[2K" in out
+
+
+@pytest.mark.parametrize("args", [["denoise", "d.exr", "-o", "-"],
+                                  ["denoise", "d.exr", "-o", "o.exr", "--preview", "-"],
+                                  ["merge", "d.exr", "b.exr", "-o", "-"], ["plan", "d.exr", "-o", "-"]],
+                         ids=["denoise", "preview", "merge", "plan"])
+def test_a_dash_is_not_taken_for_a_file_named_dash(work, capsys, monkeypatch, args):
+    """`-o -` wrote a file named `-` where a shell user means standard output (a red-team pass)."""
+    monkeypatch.chdir(work.root)
+    before = sorted(os.listdir(work.root))
+    assert main(args) == 2
+    one_error_line(capsys.readouterr().err, "'-' would write a file named '-'")
+    assert sorted(os.listdir(work.root)) == before
