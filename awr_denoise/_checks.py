@@ -216,8 +216,8 @@ def slices(**values: Any) -> None:
         if not isinstance(value, slice):
             raise TypeError(f"{param}: expected a slice, got {described(value)}")
         for bound in (value.start, value.stop, value.step):
-            if bound is not None and (isinstance(bound, (bool, np.bool_)) or not isinstance(bound, numbers.Integral)):
-                raise TypeError(f"{param}: slice bounds must be integers, got {described(bound)}")  # 2.0 too
+            if bound is not None:
+                whole(param, bound, integral=True)  # 2.0 too: Python's own words named nothing
         if value.step not in (None, 1):
             raise ValueError(f"{param}: a tile is contiguous; expected a step of 1, got {value.step!r}")
 

@@ -50,6 +50,7 @@ exact leverage. As the samples grow the intervals shrink and the result tends to
 from __future__ import annotations
 
 import math
+
 import numpy as np
 from scipy import ndimage
 

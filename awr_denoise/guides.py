@@ -125,8 +125,8 @@ def oidn(buffer: SampleBuffer, albedo: FloatArray | None = None, normal: FloatAr
     except ImportError as error:
         raise ImportError(OIDN_HINT) from error
     mean = filled_mean(buffer)[..., order]
-    # OIDN denoises float32 (HDR: any exposure alike, measured to 1e-6 at 1e30): means past 2**64 or
-    # below 2**-64 are brought in by a power of two and back (at 1e100 they were clipped: garbage).
+    # OIDN denoises float32 in HDR: means past 2**64 or below 2**-64 are brought in by a power of two
+    # and back, the same image bit for bit (at 1e100 they were clipped: garbage; tests/test_guides.py).
     # The array is scaled by its exponent, not multiplied by 2**-e, which passes float64 for subnormal means.
     top = float(np.max(mean, initial=0.0))
     power = math.frexp(top)[1] if top > 0 and not 2.0**-64 <= top <= 2.0**64 else 0

@@ -27,7 +27,6 @@ from awr_denoise.reconstruct import (
 from awr_denoise.sure import DEFAULT_GUIDED_WINDOW, DEFAULT_WINDOW
 from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 
-from . import interrupts
 from .common import (
     EXIT_OK,
     RuntimeFailure,
@@ -265,8 +264,7 @@ def run(args: argparse.Namespace) -> int:
                 raise _named_as_output(next(iter(exc.failures.values())), final) from None
             finally:
                 bar.close()
-        interrupts.check()
-        outputs.commit()
+        outputs.commit()  # asks first for a signal whose exception was lost (interrupts.raising)
     order = {src: i for i, src in enumerate(sources)}
     for frame in sorted(frames, key=lambda f: order.get(f.source, 0)):
         shown = final[frame.output]

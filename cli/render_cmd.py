@@ -31,7 +31,6 @@ from awr_denoise.renderers import (
 from awr_denoise.requests import Renderer, SampleTracer
 from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS
 
-from . import interrupts
 from .common import EXIT_OK, RuntimeFailure, UsageError, status
 from .denoise_cmd import add_reconstruction_options, check_reconstruction_options, reconstruction_kwargs
 from .parallel_options import add_executor_arguments, executor_from_args, executor_requested
@@ -292,8 +291,7 @@ def run(args: argparse.Namespace) -> int:
         write_image(outputs.add(image_path), result.image, channels=buffer.channels,
                     header=image_provenance(result, buffer, source=args.output, scene=name))
         write_preview(outputs.add(preview_path), result.image, exposure=args.exposure)
-        interrupts.check()
-        outputs.commit()
+        outputs.commit()  # asks first for a signal whose exception was lost (interrupts.raising)
     h, w = buffer.shape
     carried = f"; features {', '.join(buffer.features)} in the dump (not used: see --guide)" \
         if buffer.features and args.guide is None else ""

@@ -163,9 +163,9 @@ def test_oidn_names_an_image_given_for_the_buffer():
 @needs_oidn
 @pytest.mark.parametrize("power", [330, -300])
 def test_oidn_denoises_means_beyond_float32_at_their_scale(power):
-    """Means of 1e100 were clipped to float32's largest value before OIDN: the guide came back 0.6 off
-    on an image of 0.55 (a red-team pass); 1e-60 flushed to zero. In by a power of two and back out,
-    the same image as at the usual scale, bit for bit."""
+    """Means of 1e100 were clipped to float32's largest value before OIDN, and the guide came back far
+    off the colour (a red-team pass); 1e-60 flushed to zero. In by a power of two and back out, the
+    same image as at the usual scale, bit for bit."""
     rng = np.random.default_rng(0)
     mean, count = 0.5 + 0.1 * rng.random((32, 32, 3)), np.full((32, 32), 8)
     base = guides.oidn(SampleBuffer.from_moments(count, mean, np.full((32, 32, 3), 0.01)))

@@ -312,7 +312,7 @@ def submit(executor: Executor, fn: Callable[..., Any], *args: Any) -> cf.Future:
     here (:func:`_settle`), not by Dask's ``ClientExecutor``: when the worker holding a finished
     result dies before the client has fetched it, Dask runs the task again, and when that run
     fails (a frame finds the output its first run wrote) the error escaped the wrapper's callback,
-    whose future then stayed pending for ever (6 of 25 runs of 200 frames with a worker killed).
+    whose future then stayed pending for ever (docs/distributed.md, "A worker lost mid-run").
     """
     client = dask_client(executor)
     if client is None:

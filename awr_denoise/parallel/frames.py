@@ -290,13 +290,12 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
         return []
     options = {"exposure": exposure, "reference": reference, "overwrite": overwrite, "half": half,
                "read_options": dict(read_options or {}), **reconstruct_options}
+    as_given = list(zip(sources, targets, shown if shown is not None else [None] * len(sources)))
     if executor is not None and dask_client(executor) is not None:
         # Dask runs a finished frame again when the worker holding its result dies before it was
         # fetched: that attempt finds the output the first wrote, complete, and took it for someone
         # else's file (a frame written, reported as failed).
         options["again"] = True
-    as_given = list(zip(sources, targets, shown if shown is not None else [None] * len(sources)))
-    if executor is not None and dask_client(executor) is not None:
         # A Dask worker runs in its own folder (dask worker started from $HOME): a relative path
         # there names another file. Every path goes as the caller sees it, absolute.
         sources, targets = [os.path.abspath(p) for p in sources], [os.path.abspath(p) for p in targets]

@@ -272,7 +272,7 @@ def test_a_dask_tasks_error_and_cancellation_reach_its_future():
 
 def test_a_future_cancelled_by_its_caller_after_the_task_finished_still_wakes_its_waiters():
     """The caller's cancel() succeeds until the answer is settled; settling it then failed quietly and
-    cf.wait() never learnt of the cancellation (14 of 15 tries, a review)."""
+    cf.wait() never learnt of the cancellation (a review)."""
     import asyncio
 
     from awr_denoise.parallel import executors

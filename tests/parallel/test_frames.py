@@ -154,7 +154,7 @@ def test_relative_paths_on_dask_workers_in_another_folder(tmp_path, dumps, clust
 def test_a_frame_run_again_takes_its_own_identical_output_as_written(tmp_path, dumps):
     """Dask runs a finished frame again when the worker holding its result dies before the result was
     fetched: the second attempt found the output the first had written, complete, and the frame was
-    reported as failed with FileExistsError (a red-team pass, 1 run in 6). An output identical byte for
+    reported as failed with FileExistsError (a red-team pass). An output identical byte for
     byte to what the attempt writes is its own; any other file is still refused."""
     from awr_denoise.parallel import denoise_frame
 
