@@ -25,7 +25,7 @@ from ._typing import BoolArray, CountArray, FloatArray, Shape2D
 from .channels import channel_count, default_channel_names, luminance_weights, resolve_channels  # noqa: F401 - re-exported
 from .features import FEATURE_CHANNELS, checked_features, feature_rows, map_features, merge_features
 from .merging import merge_moments
-from .pooling import pooled_variance
+from .pooling import estimated_variance
 
 __all__ = ["SampleBuffer", "VARIANCE_KINDS", "NONFINITE_POLICIES"]
 
@@ -430,13 +430,13 @@ class SampleBuffer(ReadOnlyArrays):
 
     # ------------------------------------------------------------------ statistics
     def estimated_variance(self) -> FloatArray:
-        """(H, W, C) per-sample variance with unknown entries filled from neighbours.
+        """(H, W, C) per-sample variance, unknown entries and samples that all agreed helped by neighbours.
 
-        Where :attr:`variance_known` is False (fewer than two samples, or a renderer's
-        "unknown"), the variance is pooled from the known pixels in a 5x5 window,
-        ``sum(M2) / sum(n - 1)``, and from the whole image where the window has none.
-        A single sample never counts as zero variance. With no variance known anywhere the
-        result is 0 (nothing is known to be noisy).
+        Where :attr:`variance_known` is False (fewer than two samples, or a renderer's "unknown"), the
+        variance is pooled from the known pixels in a 5x5 window, ``sum(M2) / sum(n - 1)``, and from the
+        whole image where the window has none: a single sample never counts as zero variance, nor do samples
+        that all agreed (moderated towards the window's, :func:`~awr_denoise.pooling.agreed_variance`).
+        With no variance known anywhere the result is 0 (nothing is known to be noisy).
 
         A pixel with two or more samples whose variance the renderer left unknown (pbrt-v4's
         environment-only pixels) has a mean of its own, and the borrowed variance must not cross
@@ -454,7 +454,7 @@ class SampleBuffer(ReadOnlyArrays):
         >>> float(buf.estimated_variance()[0, 1, 0]) < 1.0           # not the light's 5e8
         True
         """
-        return pooled_variance(self.count, self.mean, self.variance, self.variance_known)
+        return estimated_variance(self.count, self.mean, self.variance, self.variance_known)
 
     def variance_of_mean(self) -> FloatArray:
         """(H, W, C) variance of each pixel mean, ``s2 / n`` (paper section 3: ``v_p``).

@@ -3,16 +3,22 @@
 A pixel's variance is unknown when it has fewer than two samples, or when the renderer said so
 (pbrt-v4 writes 0 for pixels that only saw the environment). Taking such a variance as zero
 would call the pixel exact and freeze it; instead it is pooled from the known pixels around it.
+
+A pixel whose samples all agreed (a sample variance of exactly 0, typically every path missed a
+small light) is not known to be exact either: its variance is moderated towards its neighbours'
+(:func:`agreed_variance`), as an empirical-Bayes prior of :data:`AGREED_PRIOR` degrees of freedom.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from scipy import ndimage
 
 from ._typing import BoolArray, CountArray, FloatArray
 
-__all__ = ["pooled_variance", "POOL_WINDOW", "JUMP_RATIO"]
+__all__ = ["estimated_variance", "pooled_variance", "agreed_variance", "POOL_WINDOW", "JUMP_RATIO", "AGREED_PRIOR"]
 
 POOL_WINDOW = 5
 """Window (pixels) over which an unknown per-sample variance is pooled from neighbours."""
@@ -20,6 +26,127 @@ POOL_WINDOW = 5
 JUMP_RATIO = 4.0
 """A pixel with a mean of its own borrows only from neighbours whose ``|mean|`` is at most this
 many times its own: a renderer's "unknown" next to a light must not import the light's variance."""
+
+AGREED_PRIOR = 1.0
+"""Degrees of freedom the neighbours' pooled variance counts for in a pixel whose samples all agreed.
+
+Such a pixel's per-sample variance becomes ``d0 s2_local / (n - 1 + d0)`` (the posterior of a scaled
+inverse-chi-square prior of ``d0`` degrees of freedom centred on ``s2_local``, given ``n - 1`` of
+zero spread): ``s2_local / n`` at ``d0 = 1``, fading as the pixel's own agreeing samples grow.
+Measured (docs/reconstruction.md, "Samples that all agreed"): samples that are a light's value or
+exactly 0 went from up to 5.3x the plain mean's MSE to 0.08x; on the rendered scenes of both
+renderers relMSE and MSE moved by a few per cent, mostly down; ``d0`` of 0.5-4 differed by less
+than 10% there, a larger ``d0`` costing the Mitsuba Cornell box's relMSE at 8 spp most."""
+
+
+def estimated_variance(count: CountArray, mean: FloatArray, variance: FloatArray, known: BoolArray, *,
+                       copy: bool = True) -> FloatArray:
+    """(H, W, C) per-sample variance to threshold with: unknown entries pooled (:func:`pooled_variance`),
+    entries whose samples all agreed moderated (:func:`agreed_variance`).
+
+    ``copy=False`` may return ``variance`` itself when neither applies (it is never written to).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise.pooling import estimated_variance
+    >>> count = np.full((5, 5), 4); mean = np.zeros((5, 5, 1)); variance = np.zeros((5, 5, 1))
+    >>> mean[2, 2] = 1.0; variance[2, 2] = 4 / 3              # samples 4, 0, 0, 0 in the middle pixel
+    >>> v = estimated_variance(count, mean, variance, count >= 2)  # moderated: agreed_variance
+    >>> bool(0 < v[0, 0, 0] < v[2, 2, 0]), round(float(v[2, 2, 0]), 5)
+    (True, 1.33333)
+    """
+    out = variance if known.all() else pooled_variance(count, mean, variance, known)
+    out = agreed_variance(count, mean, out, known)
+    return np.array(out) if copy and out is variance else out
+
+
+def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, known: BoolArray,
+                    prior: float | None = None) -> FloatArray:
+    """Per-sample variance with the entries whose samples all agreed moderated towards their neighbours'.
+
+    An entry is moderated where ``known`` holds (two or more samples) and the variance is exactly 0,
+    every sample at the mean ``c``: to ``prior * s2_local / (n - 1 + prior)``, ``prior`` defaulting to
+    :data:`AGREED_PRIOR` (0 leaves every entry as it is). ``s2_local`` pools the known pixels of the
+    :data:`POOL_WINDOW` square around it, each weighted by its ``n - 1`` and by ``z^n``, where
+    ``z = s2 / (s2 + (m - c)^2)`` bounds the chance that one sample of that neighbour's distribution
+    (mean ``m``, variance ``s2``) lands on ``c`` (Cantelli's inequality): ``n`` samples at 0 next to
+    pixels that are sometimes 0 (a small light reached now and then) borrow their spread, next to a
+    steady light they borrow nearly nothing, and a region where every pixel agreed stays exact.
+    Returns ``variance`` itself when no entry is moderated.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise.pooling import agreed_variance
+    >>> count = np.full((5, 5), 2); mean = np.zeros((5, 5, 1)); variance = np.zeros((5, 5, 1))
+    >>> mean[2, 2], variance[2, 2] = 1.0, 2.0     # samples 0 and 2 in the middle, 0 and 0 elsewhere
+    >>> v = agreed_variance(count, mean, variance, count >= 2)   # z = 2 / 3: 2 z^2 / (24 + z^2), over n = 2
+    >>> round(float(v[0, 0, 0]), 6), float(v[2, 2, 0])
+    (0.018182, 2.0)
+    >>> variance[2, 2] = 0.02                     # samples 0.9 and 1.1: a steady neighbour, z = 0.02 / 1.02
+    >>> bool(agreed_variance(count, mean, variance, count >= 2)[0, 0, 0] < 1e-5)
+    True
+    """
+    prior = AGREED_PRIOR if prior is None else prior
+    agreed = known[..., None] & (variance == 0)
+    if not prior or not agreed.any():
+        return variance
+    # Only entries with a spread neighbour can borrow anything: a region that all agreed stays 0.
+    todo = agreed & ndimage.maximum_filter(known[..., None] & (variance > 0), size=(POOL_WINDOW, POOL_WINDOW, 1),
+                                           mode="nearest")
+    if not todo.any():
+        return variance
+    unit = math.ldexp(1.0, math.frexp(float(variance.max()))[1])  # spreads scaled to at most 1: no overflow
+    dof = np.where(known, count - 1, 0).astype(np.float64)
+    dof /= dof.max()
+    out = np.array(variance)
+    # Pixels of one count whose samples all missed (0) share their neighbours' weights, channel by
+    # channel: where many did, two window sums over the plane, not 25 gathers per entry (1080p: 6x faster).
+    for samples in np.unique(count[known]):
+        same = count == samples
+        for c in range(variance.shape[2]):
+            at = todo[..., c] & same & (mean[..., c] == 0)
+            if np.count_nonzero(at) * 16 < count.size:
+                continue
+            s2 = variance[..., c] / unit
+            weight = dof * _chance(s2, np.abs(mean[..., c]), unit) ** float(samples)
+            local = _window_sum(weight * s2)[at] / _window_sum(weight)[at] * unit
+            out[..., c][at] = prior * local / (samples - 1.0 + prior)
+            todo[..., c] &= ~at
+    rows, cols, chans = np.nonzero(todo)
+    if not rows.size:
+        return out
+    h, w = count.shape
+    r = POOL_WINDOW // 2
+    level, n = mean[rows, cols, chans], count[rows, cols]
+    num, den = np.zeros(rows.size), np.zeros(rows.size)
+    for dy in range(-r, r + 1):  # the other entries: a loop over the 25 window offsets, entries vectorised
+        near_y = np.clip(rows + dy, 0, h - 1)
+        for dx in range(-r, r + 1):
+            near_x = np.clip(cols + dx, 0, w - 1)
+            s2 = variance[near_y, near_x, chans] / unit
+            weight = dof[near_y, near_x] * _chance(s2, np.abs(mean[near_y, near_x, chans] - level), unit) ** n
+            num += weight * s2
+            den += weight
+    out[rows, cols, chans] = prior * (num / den * unit) / (n - 1.0 + prior)
+    return out
+
+
+def _chance(s2: FloatArray, gap: FloatArray, unit: float) -> FloatArray:
+    """Cantelli's bound on the chance that a sample of mean ``m`` and variance ``s2 * unit`` lands ``gap``
+    away from it: ``s2 / (s2 + gap^2)``; for ``s2 == 0``, 1 at a gap of 0 and 0 elsewhere."""
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        return np.where(s2 > 0, 1.0 / (1.0 + np.square(gap / np.sqrt(s2 * unit))), gap == 0)
+
+
+def _window_sum(a: FloatArray) -> FloatArray:
+    """Sum over the :data:`POOL_WINDOW` square around each pixel, edges repeated; plain sums of shifted
+    slices (a running sum, as ``uniform_filter``'s, leaves rounding residues beside large values)."""
+    r = POOL_WINDOW // 2
+    padded = np.pad(a, r, mode="edge")
+    down = sum(padded[i:i + a.shape[0]] for i in range(POOL_WINDOW))
+    return sum(down[:, j:j + a.shape[1]] for j in range(POOL_WINDOW))
 
 
 def pooled_variance(count: CountArray, mean: FloatArray, variance: FloatArray, known: BoolArray) -> FloatArray:

@@ -7,8 +7,10 @@ three steps wherever it happens, so it happens here only:
 1. pixels without samples take their nearest sampled neighbour's mean (:func:`filled_mean`), so
    they are smoothed over rather than read as black;
 2. unknown per-sample variances (fewer than two samples, or a renderer's "unknown") are pooled
-   from neighbours (:meth:`SampleBuffer.estimated_variance <awr_denoise.SampleBuffer.estimated_variance>`),
-   and a sample-less pixel counts as one sample of that pooled variance;
+   from neighbours, and the zero variances of samples that all agreed moderated towards theirs
+   (:mod:`awr_denoise.pooling`, as :meth:`SampleBuffer.estimated_variance
+   <awr_denoise.SampleBuffer.estimated_variance>`); a sample-less pixel counts as one sample of the
+   pooled variance;
 3. the domain is bound to the image (its offset fixed from the image's level) and the variance
    is carried into it by the delta method (:mod:`awr_denoise.domains`).
 """
@@ -28,6 +30,7 @@ from ._typing import FloatArray
 from .buffers import SampleBuffer
 from .channels import luminance_weights
 from .domains import Domain, _BoundDomain, resolve_domain
+from .pooling import estimated_variance
 
 __all__ = ["Prepared", "filled_mean", "prepare"]
 
@@ -192,6 +195,7 @@ def prepare(buffer: SampleBuffer, domain: str | Domain = "log", *, luminance: bo
     else:
         # The buffer's own arrays (read-only) where nothing is filled or pooled: no copies.
         mean = _filled(buffer, copy=False)
-        sample_variance = buffer.variance if buffer.variance_known.all() else buffer.estimated_variance()
+        sample_variance = estimated_variance(buffer.count, buffer.mean, buffer.variance, buffer.variance_known,
+                                             copy=False)
         n = n[..., None]
     return Prepared(mean, sample_variance, n, dom.bound(mean))

@@ -408,7 +408,10 @@ def _demodulated(buffer: SampleBuffer, eps: float = 0.02, albedo: np.ndarray | N
     is below it (sky, emitters: no surface, or a black one)."""
     albedo = np.asarray(buffer.features["albedo"].mean if albedo is None else albedo, dtype=np.float64)
     albedo = albedo + eps if below is None else np.where(albedo < below, 1.0, albedo)
-    flat = SampleBuffer.from_moments(buffer.count, buffer.mean / albedo, buffer.estimated_variance() / albedo**2)
+    # The renderer's own moments, pooled and moderated by the reconstruction of ``flat`` as of any buffer:
+    # estimated variances given as known ones would be moderated a second time.
+    flat = SampleBuffer.from_moments(buffer.count, buffer.mean / albedo, buffer.variance / albedo**2,
+                                     variance_known=buffer.variance_known)
     return albedo * reconstruct(flat)
 
 

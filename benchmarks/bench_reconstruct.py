@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, VarianceSampler, reconstruct
+from awr_denoise import pooling
 from awr_denoise.bench import update_section
 from awr_denoise.features import FEATURE_CHANNELS
 from awr_denoise.finishing import RESTORE_SHARE, match_mean, restore_mean
@@ -115,8 +116,17 @@ def with_floor(floor: tuple[int, float] | None) -> Any:
     return run
 
 
+def agreed_held_exact(buffer: SampleBuffer) -> np.ndarray:
+    """The default as it was before samples that all agreed were moderated: their zero variance taken as exact."""
+    prior, pooling.AGREED_PRIOR = pooling.AGREED_PRIOR, 0.0
+    try:
+        return reconstruct(buffer)
+    finally:
+        pooling.AGREED_PRIOR = prior
+
+
 COMPARED: dict[str, Any] = {"pilot clamped": clamped_pilot, "no energy floor": with_floor(None),
-                             "pilot c_s 1.5": {"c_s": 1.5}}
+                             "pilot c_s 1.5": {"c_s": 1.5}, "agreed samples held exact": agreed_held_exact}
 """``quality --compare``: earlier forms of the default, measured beside it."""
 FLOORS: dict[str, Any] = {"energy floor 3x3": with_floor((3, 2.0)), "energy floor 7x7": with_floor((7, 2.0)),
                           "energy floor margin 1.5": with_floor((5, 1.5)), "energy floor margin 3": with_floor((5, 3.0))}

@@ -215,11 +215,14 @@ def test_paper_light_leaks_into_black_within_measured_bounds(light_edge, domain,
 
 @pytest.mark.parametrize("domain", ALL, ids=_ids)
 def test_default_clamp_keeps_exact_black_black(light_edge, domain):
-    """Zero-variance black pixels have a zero-width confidence interval: the default clamp
-    keeps them exactly 0 (measured in every domain), so nothing leaks or rings into them."""
+    """Black pixels whose 16 samples were all 0 borrow a steady light's spread only as much as its
+    samples could be 0 (``agreed_variance``: z = 0.25 / 1.25 per sample, z^16 ~ 7e-12): the default
+    clamp keeps them within 1e-4 of the light's level beside it (2e-5 measured in every domain), and
+    exactly 0 out of the light's pooling window, so nothing leaks or rings into them."""
     out = reconstruct(light_edge, domain=domain, stages=1)[..., 0]
     assert np.isfinite(out).all()
-    assert np.abs(out[:, :32]).max() == 0.0
+    assert np.abs(out[:, :32]).max() < 1e-4 * 1e3
+    assert np.abs(out[:, :30]).max() == 0.0
 
 
 # ---------------------------------------------------------------------------- bias of the policies

@@ -1,0 +1,129 @@
+"""Variances borrowed from neighbours: unknown ones pooled, ones whose samples all agreed moderated."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose, assert_array_equal
+
+from awr_denoise import SampleBuffer
+from awr_denoise.pooling import AGREED_PRIOR, POOL_WINDOW, agreed_variance, estimated_variance
+from awr_denoise.prepare import prepare
+
+
+def _reference(count, mean, variance, known, prior=AGREED_PRIOR):
+    """agreed_variance written out pixel by pixel (the window's edges repeated, as ``mode="nearest"``)."""
+    h, w, channels = mean.shape
+    r = POOL_WINDOW // 2
+    out = np.array(variance)
+    for i in range(h):
+        for j in range(w):
+            for c in range(channels):
+                if not known[i, j] or variance[i, j, c] != 0:
+                    continue
+                num = den = 0.0
+                for y in range(i - r, i + r + 1):
+                    for x in range(j - r, j + r + 1):
+                        yy, xx = min(max(y, 0), h - 1), min(max(x, 0), w - 1)
+                        if not known[yy, xx]:
+                            continue
+                        s2, gap = variance[yy, xx, c], mean[yy, xx, c] - mean[i, j, c]
+                        z = s2 / (s2 + gap**2) if s2 > 0 else float(gap == 0)
+                        weight = (count[yy, xx] - 1) * z ** count[i, j]
+                        num, den = num + weight * s2, den + weight
+                out[i, j, c] = prior * num / den / (count[i, j] - 1 + prior)
+    return out
+
+
+def _hit_or_zero(rng, shape=(12, 14), spp=3, p=0.15, channels=2):
+    pixel = np.repeat(np.arange(shape[0] * shape[1]), spp)
+    values = (rng.random((pixel.size, channels)) < p) * rng.uniform(1.0, 5.0, (pixel.size, channels))
+    return SampleBuffer.from_samples(pixel, values, shape)
+
+
+def test_matches_the_pixel_by_pixel_definition(rng):
+    """Samples that are a hit or exactly 0, counts 1-5 (single samples unknown), two channels."""
+    buf = _hit_or_zero(rng)
+    count = rng.integers(1, 6, buf.shape)
+    buf = SampleBuffer.from_moments(count, buf.mean, buf.variance)
+    assert ((buf.variance == 0) & buf.variance_known[..., None]).sum() > 20
+    got = agreed_variance(buf.count, buf.mean, buf.variance, buf.variance_known)
+    assert_allclose(got, _reference(buf.count, buf.mean, buf.variance, buf.variance_known), rtol=1e-12, atol=0)
+    assert (got[(buf.variance == 0) & buf.variance_known[..., None]] > 0).any()
+
+
+def test_pixels_that_missed_among_hits_are_not_exact(rng):
+    """Before: a pixel whose samples all missed had variance 0, held at 0 by every stage and the clamp."""
+    buf = _hit_or_zero(rng, shape=(16, 16), spp=2, p=0.1, channels=1)
+    missed = (buf.variance == 0)[..., 0] & buf.variance_known
+    prepared = prepare(buf, "log")
+    assert (prepared.variance[missed] > 0).mean() > 0.9
+    lum = prepare(buf, "log", luminance=True)  # the luminance plane borrows as the channels do
+    assert (lum.variance[missed] > 0).mean() > 0.9
+
+
+def test_a_region_that_all_agreed_stays_exact():
+    """Constant pixels (a black background, a flat emitter seen directly) with no spread anywhere near."""
+    count = np.full((9, 9), 4)
+    mean = np.zeros((9, 9, 3))
+    mean[:, 5:] = 7.0
+    variance = np.zeros_like(mean)
+    assert agreed_variance(count, mean, variance, count >= 2) is variance
+    variance[:, 8] = 0.5  # spread 3 or more pixels from the black ones: out of their window
+    out = agreed_variance(count, mean, variance, count >= 2)
+    assert_array_equal(out[:, :6], 0.0)
+    assert (out[:, 6:8] > 0).all()
+
+
+def test_a_steady_light_lends_next_to_nothing():
+    """Zeros beside pixels that are never 0 (a light of 100, sd 10) borrow z^n of their spread,
+    z = 100 / (100 + 100^2); beside pixels that are 0 half the time (z = 1/2) they borrow much more."""
+    count = np.full((5, 6), 8)
+    mean = np.zeros((5, 6, 1))
+    variance = np.zeros_like(mean)
+    mean[:, 3:], variance[:, 3:] = 100.0, 100.0
+    steady = agreed_variance(count, mean, variance, count >= 2)[:, 2, 0]
+    variance[:, 3:] = 100.0**2 * 8 / 7  # samples of 200 and 0, half each: mean 100
+    sometimes = agreed_variance(count, mean, variance, count >= 2)[:, 2, 0]
+    assert (steady > 0).all() and (steady < 1e-10).all()
+    assert (sometimes > 1e7 * steady).all()
+
+
+@pytest.mark.parametrize("spp", [2, 8, 64])
+def test_the_prior_counts_as_its_degrees_of_freedom(spp):
+    """``prior * s2_local / (n - 1 + prior)``: the neighbours' evidence fades as the pixel's own agreeing
+    samples grow; ``prior=0`` leaves the variance as it was, the same array."""
+    count = np.full((5, 5), spp)
+    mean = np.zeros((5, 5, 1))
+    variance = np.zeros_like(mean)
+    mean[2, 2], variance[2, 2] = 1.0, 3.0
+    one = agreed_variance(count, mean, variance, count >= 2, prior=1.0)
+    three = agreed_variance(count, mean, variance, count >= 2, prior=3.0)
+    assert_allclose(three[0, 0] / one[0, 0], 3.0 * spp / (spp + 2.0), rtol=1e-12)
+    assert agreed_variance(count, mean, variance, count >= 2, prior=0.0) is variance
+
+
+@pytest.mark.parametrize("exponent", [-500, -40, 40, 500])
+def test_the_same_bits_at_any_scale(rng, exponent):
+    """Means times 2^k, variances times 4^k: the moderated variances times 4^k exactly, at 1e150 and 1e-150 too."""
+    buf = _hit_or_zero(rng)
+    scale = np.ldexp(1.0, exponent)
+    base = estimated_variance(buf.count, buf.mean, buf.variance, buf.variance_known)
+    scaled = estimated_variance(buf.count, buf.mean * scale, buf.variance * scale**2, buf.variance_known)
+    assert np.isfinite(scaled).all()
+    assert_array_equal(scaled, base * scale**2)
+
+
+def test_huge_spreads_do_not_overflow():
+    count = np.full((5, 5), 2**40)
+    mean = np.zeros((5, 5, 1))
+    variance = np.zeros_like(mean)
+    mean[2, 2], variance[2, 2] = 1e150, 1e300
+    out = agreed_variance(count, mean, variance, count >= 2)
+    assert np.isfinite(out).all() and out[2, 2, 0] == 1e300
+
+
+def test_the_buffer_and_the_preparation_agree(rng):
+    buf = _hit_or_zero(rng)
+    assert_array_equal(buf.estimated_variance(), prepare(buf, "linear").sample_variance)
+    assert_array_equal(buf.variance_of_mean(), prepare(buf, "linear").variance)
