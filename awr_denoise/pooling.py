@@ -32,11 +32,11 @@ AGREED_PRIOR = 1.0
 
 Such a pixel's per-sample variance becomes ``d0 s2_local / (n - 1 + d0)`` (the posterior of a scaled
 inverse-chi-square prior of ``d0`` degrees of freedom centred on ``s2_local``, given ``n - 1`` of
-zero spread): ``s2_local / n`` at ``d0 = 1``, fading as the pixel's own agreeing samples grow.
-Measured (docs/reconstruction.md, "Samples that all agreed"): samples that are a light's value or
-exactly 0 went from up to 5.3x the plain mean's MSE to 0.08x; on the rendered scenes of both
-renderers relMSE and MSE moved by a few per cent, mostly down; ``d0`` of 0.5-4 differed by less
-than 10% there, a larger ``d0`` costing the Mitsuba Cornell box's relMSE at 8 spp most."""
+zero spread): ``s2_local / n`` at ``d0 = 1``, the prior worth one sample, fading as the pixel's own
+agreeing samples grow. Measured in docs/reconstruction.md, "Samples that all agreed": images of
+samples that are a light's value or exactly 0 from up to 5.3x the plain mean's MSE to 0.16x at most
+(``benchmarks/bench_limits.py``), the rendered scenes of both renderers within 0.4% or better in relMSE
+(``bench_reconstruct.py quality --compare``), other ``d0`` beside 1 (``quality --priors``)."""
 
 
 def estimated_variance(count: CountArray, mean: FloatArray, variance: FloatArray, known: BoolArray, *,

@@ -8,6 +8,7 @@ Run from the repository root (each section updates its part of the JSON)::
     .venv/bin/python benchmarks/bench_reconstruct.py seeds        # the same per seed on the synthetic scenes
     .venv/bin/python benchmarks/bench_reconstruct.py synthetic    # known clean images, 4-1024 spp
     .venv/bin/python benchmarks/bench_reconstruct.py speed        # 128x128, 256x256, 1080p
+    .venv/bin/python benchmarks/bench_reconstruct.py agreed       # the cost of moderating samples that agreed
     .venv/bin/python benchmarks/bench_reconstruct.py finishing    # the image mean's correction, compared
 
 ``quality`` renders every scene with uniform sampling in four disjoint sample groups (renderer
@@ -116,13 +117,20 @@ def with_floor(floor: tuple[int, float] | None) -> Any:
     return run
 
 
+def with_agreed_prior(prior: float) -> Any:
+    """The default with ``pooling.AGREED_PRIOR`` at ``prior`` (put back afterwards)."""
+    def run(buffer: SampleBuffer) -> np.ndarray:
+        kept, pooling.AGREED_PRIOR = pooling.AGREED_PRIOR, prior
+        try:
+            return reconstruct(buffer)
+        finally:
+            pooling.AGREED_PRIOR = kept
+    return run
+
+
 def agreed_held_exact(buffer: SampleBuffer) -> np.ndarray:
     """The default as it was before samples that all agreed were moderated: their zero variance taken as exact."""
-    prior, pooling.AGREED_PRIOR = pooling.AGREED_PRIOR, 0.0
-    try:
-        return reconstruct(buffer)
-    finally:
-        pooling.AGREED_PRIOR = prior
+    return with_agreed_prior(0.0)(buffer)
 
 
 COMPARED: dict[str, Any] = {"pilot clamped": clamped_pilot, "no energy floor": with_floor(None),
@@ -137,6 +145,9 @@ SHIFTED: dict[str, Any] = {f"decimated Wiener stages, {n} shift{'s' * (n > 1)}":
                            for n in SHIFT_SETS}
 """``quality --shifts`` and ``speed --shifts``: the Wiener stages on the decimated transform, cycle-spun over
 1, 4 and 16 shifts, against the default's undecimated transform (every shift at once; decimated_wiener.py)."""
+PRIORS: dict[str, Any] = {f"agreed prior {d:g}": with_agreed_prior(d) for d in (0.5, 2.0, 4.0)}
+"""``quality --priors``: the degrees of freedom of samples that all agreed (``pooling.AGREED_PRIOR``) beside the
+default's 1 (0, the previous form, is in COMPARED)."""
 WINDOWS: dict[str, Any] = {"guard window 13": {"guard_window": 13}, "guard window 17": {"guard_window": 17}}
 """``quality --windows`` and ``synthetic --windows``: the SURE guard's window at other sides than the default (9)."""
 
@@ -265,7 +276,7 @@ def quality_tables(rows: list[dict], method: str = "default", base: str = "stage
         print(f"| {scene} | {' / '.join(f'{g:.2f}' for g in gains)} | {m:.2f} | {r:.2f} |")
     every = [g for _, gains, _, _ in summary for g in gains]
     print(f"\ngeometric mean of the gain at 8-32 spp: {np.exp(np.mean(np.log(every))):.2f}, least {min(every):.2f}")
-    variants = (*CHEAPER, *SHIFTED, *COMPARED, *FLOORS, *PILOTS, *WINDOWS)
+    variants = (*CHEAPER, *SHIFTED, *COMPARED, *FLOORS, *PILOTS, *PRIORS, *WINDOWS)
     for other in (m for m in variants if any(r["method"] == m for r in rows)):
         cheaper_table(rows, other, method)
 
@@ -709,6 +720,47 @@ def speed(sizes: list[str], repeats: int, extra: tuple[str, ...] = ()) -> list[d
     return rows
 
 
+def agreed_buffers(shape: tuple[int, int]) -> dict[str, SampleBuffer]:
+    """Buffers where many pixels' samples all agreed, for ``agreed``: black squares of 120 pixels (every sample
+    0) beside noisy ones at 8 spp, as a tracer's scene before a black background; and samples of 3 in 10% of
+    draws, else exactly 0, at 2 spp (every pixel that missed beside one that hit: the most work)."""
+    rng = np.random.default_rng(5)
+    h, w = shape
+    mean, variance = rng.random((h, w, 3)), 0.1 * rng.random((h, w, 3))
+    black = (np.arange(h)[:, None] // 120 + np.arange(w)[None, :] // 120) % 2 == 0
+    mean[black], variance[black] = 0.0, 0.0
+    pixel = np.repeat(np.arange(h * w), 2)
+    hits = (rng.random(pixel.size) < 0.1)[:, None] * np.full((1, 3), 3.0)
+    return {"black squares, 8 spp": SampleBuffer.from_moments(np.full(shape, 8), mean, variance),
+            "hit or zero, 2 spp": SampleBuffer.from_samples(pixel, hits, shape)}
+
+
+def agreed_speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
+    """Median seconds of the moderation alone (``pooling.estimated_variance``), the default reconstruction and
+    the default with agreeing samples held exact (:func:`agreed_held_exact`), interleaved, on :func:`agreed_buffers`."""
+    rows = []
+    print("| image | buffer | moderation alone | default | agreed samples held exact | default / held exact |")
+    print("|---|---|---|---|---|---|")
+    for size in sizes:
+        for kind, buffer in agreed_buffers(SIZES[size]).items():
+            cases = {"moderation alone": lambda b=buffer: pooling.estimated_variance(b.count, b.mean, b.variance,
+                                                                                      b.variance_known),
+                     "default": lambda b=buffer: reconstruct(b),
+                     "agreed samples held exact": lambda b=buffer: agreed_held_exact(b)}
+            seconds: dict[str, list[float]] = {name: [] for name in cases}
+            for round_ in range(1 + (repeats or (3 if size == "1080p" else 9))):
+                for name, run in cases.items():
+                    start = time.perf_counter()
+                    run()
+                    if round_:  # the first round builds and caches the transforms' operators
+                        seconds[name].append(time.perf_counter() - start)
+            medians = {k: float(np.median(v)) for k, v in seconds.items()}
+            rows.append({"size": size, "buffer": kind, "repeats": len(seconds["default"]), "seconds": medians})
+            m = list(medians.values())
+            print(f"| {size} | {kind} | {m[0]:.3f} s | {m[1]:.3f} s | {m[2]:.3f} s | {m[1] / m[2]:.3f} |", flush=True)
+    return rows
+
+
 # ---------------------------------------------------------------------------- main
 def recorded_command(script: str, argv: list[str] | None) -> str:
     """The command a results section records; the cache folder (this machine's business) as ``DIR``."""
@@ -729,7 +781,7 @@ def quality_scenes(names: list[str] | None) -> list[tuple[str, str, tuple[int, i
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("section", choices=("quality", "samplers", "refresh", "seeds", "synthetic", "speed",
-                                            "finishing", "tables"))
+                                            "agreed", "finishing", "tables"))
     parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
     parser.add_argument("--spps", nargs="+", type=int, default=list(SPPS))
     parser.add_argument("--groups", type=int, default=0,
@@ -744,6 +796,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--compare", action="store_true", help="quality: also earlier forms of the default (COMPARED)")
     parser.add_argument("--floors", action="store_true", help="quality: also other energy floors (FLOORS)")
     parser.add_argument("--pilots", action="store_true", help="quality: also other pilot thresholds (PILOTS)")
+    parser.add_argument("--priors", action="store_true", help="quality: also other agreed-sample priors (PRIORS)")
     parser.add_argument("--caps", action="store_true", help="samplers: also other absolute_above values (CAPS)")
     parser.add_argument("--initials", action="store_true", help="samplers: also other initial_spp values (INITIALS)")
     parser.add_argument("--windows", action="store_true", help="quality, synthetic: also other guard windows (WINDOWS)")
@@ -758,6 +811,7 @@ def main(argv: list[str] | None = None) -> int:
                        {**METHODS, **(CHEAPER if args.cheaper else {}), **(SHIFTED if args.shifts else {}),
                         **(COMPARED if args.compare else {}),
                         **(FLOORS if args.floors else {}), **(PILOTS if args.pilots else {}),
+                        **(PRIORS if args.priors else {}),
                         **(WINDOWS if args.windows else {})})
         update_section(args.output, "quality", rows, command)
         quality_tables(rows)
@@ -787,6 +841,9 @@ def main(argv: list[str] | None = None) -> int:
     elif args.section == "speed":
         rows = speed(args.sizes, args.repeats, tuple(SHIFTED) if args.shifts else ())
         update_section(args.output, "speed", rows, command)
+    elif args.section == "agreed":
+        rows = agreed_speed(args.sizes, args.repeats)
+        update_section(args.output, "agreed", rows, command)
     elif args.section == "finishing":
         rows = finishing(args.groups or 12, args.cache, _mitsuba_available())
         update_section(args.output, "finishing", rows, command)

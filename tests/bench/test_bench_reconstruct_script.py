@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib
 
+import numpy as np
 import pytest
 
 from awr_denoise.bench import noisy_buffer
@@ -36,3 +37,35 @@ def test_shifts_adds_the_cycle_spun_decimated_stages(bench):
     """``--shifts`` measures the decimated Wiener stages over 1, 4 and 16 shifts (decimated_wiener.py)."""
     assert list(bench.SHIFTED) == [f"decimated Wiener stages, {n}" for n in ("1 shift", "4 shifts", "16 shifts")]
     assert [f.__name__ for f in bench.SHIFTED.values()] == [f"decimated_wiener_{n}" for n in (1, 4, 16)]
+
+
+def test_agreed_held_exact_is_the_default_before_moderation_and_restores_it(bench):
+    """``quality --compare``'s "agreed samples held exact": the default with ``AGREED_PRIOR`` 0, the prior put
+    back afterwards (every later default in the run moderates again)."""
+    from awr_denoise import pooling, reconstruct
+    buffer = bench.agreed_buffers((64, 64))["hit or zero, 2 spp"]
+    held = bench.agreed_held_exact(buffer)
+    assert pooling.AGREED_PRIOR == 1.0
+    assert not np.allclose(held, reconstruct(buffer))
+    pooling_prior = pooling.AGREED_PRIOR
+    try:
+        pooling.AGREED_PRIOR = 0.0
+        assert np.array_equal(held, reconstruct(buffer))
+    finally:
+        pooling.AGREED_PRIOR = pooling_prior
+
+
+def test_agreed_buffers_have_the_agreeing_pixels_they_name(bench):
+    buffers = bench.agreed_buffers((240, 240))
+    black = buffers["black squares, 8 spp"]
+    agreed = (black.variance == 0) & black.variance_known[..., None]
+    assert agreed[:120, :120].all() and not agreed[:120, 120:].any()
+    hits = buffers["hit or zero, 2 spp"]
+    assert 0.7 < ((hits.variance == 0) & hits.variance_known[..., None]).mean() < 0.9
+
+
+def test_the_agreed_section_times_every_case(bench, capsys):
+    rows = bench.agreed_speed(["128x128"], 1)
+    assert [r["buffer"] for r in rows] == ["black squares, 8 spp", "hit or zero, 2 spp"]
+    assert all(set(r["seconds"]) == {"moderation alone", "default", "agreed samples held exact"} for r in rows)
+    assert "| 128x128 | hit or zero, 2 spp |" in capsys.readouterr().out
