@@ -30,6 +30,7 @@ import dataclasses
 import json
 import sys
 import time
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -737,19 +738,26 @@ def agreed_buffers(shape: tuple[int, int]) -> dict[str, SampleBuffer]:
 
 def agreed_speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
     """Median seconds of the moderation alone (``pooling.estimated_variance``), the default reconstruction and
-    the default with agreeing samples held exact (:func:`agreed_held_exact`), interleaved, on :func:`agreed_buffers`."""
+    one ``AdaptiveSampler.ask()`` round (a sampler that has the buffer), each beside the same with agreeing
+    samples held exact (``AGREED_PRIOR`` 0), interleaved, on :func:`agreed_buffers`."""
     rows = []
-    print("| image | buffer | moderation alone | default | agreed samples held exact | default / held exact |")
-    print("|---|---|---|---|---|---|")
+    print("| image | buffer | moderation alone | default | held exact | ratio | ask() | held exact | ratio |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for size in sizes:
         for kind, buffer in agreed_buffers(SIZES[size]).items():
-            cases = {"moderation alone": lambda b=buffer: pooling.estimated_variance(b.count, b.mean, b.variance,
-                                                                                      b.variance_known),
-                     "default": lambda b=buffer: reconstruct(b),
-                     "agreed samples held exact": lambda b=buffer: agreed_held_exact(b)}
+            # Each case is set up untimed and returns the call that is timed: a sampler that has the buffer is
+            # built anew before each ask() (asking again before tell() returns the same request).
+            cases = {"moderation alone": lambda b=buffer: partial(pooling.estimated_variance, b.count, b.mean,
+                                                                  b.variance, b.variance_known),
+                     "default": lambda b=buffer: partial(reconstruct, b),
+                     "agreed samples held exact": lambda b=buffer: partial(agreed_held_exact, b),
+                     "ask()": lambda b=buffer: AdaptiveSampler.from_buffer(b, round=1).ask,
+                     "ask(), agreed samples held exact":
+                         lambda b=buffer: partial(_held_exact, AdaptiveSampler.from_buffer(b, round=1).ask)}
             seconds: dict[str, list[float]] = {name: [] for name in cases}
             for round_ in range(1 + (repeats or (3 if size == "1080p" else 9))):
-                for name, run in cases.items():
+                for name, setup in cases.items():
+                    run = setup()
                     start = time.perf_counter()
                     run()
                     if round_:  # the first round builds and caches the transforms' operators
@@ -757,8 +765,18 @@ def agreed_speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
             medians = {k: float(np.median(v)) for k, v in seconds.items()}
             rows.append({"size": size, "buffer": kind, "repeats": len(seconds["default"]), "seconds": medians})
             m = list(medians.values())
-            print(f"| {size} | {kind} | {m[0]:.3f} s | {m[1]:.3f} s | {m[2]:.3f} s | {m[1] / m[2]:.3f} |", flush=True)
+            print(f"| {size} | {kind} | {m[0]:.3f} s | {m[1]:.3f} s | {m[2]:.3f} s | {m[1] / m[2]:.2f} | {m[3]:.3f} s "
+                  f"| {m[4]:.3f} s | {m[3] / m[4]:.2f} |", flush=True)
     return rows
+
+
+def _held_exact(run: Any) -> Any:
+    """``run()`` with ``pooling.AGREED_PRIOR`` at 0, put back afterwards."""
+    kept, pooling.AGREED_PRIOR = pooling.AGREED_PRIOR, 0.0
+    try:
+        return run()
+    finally:
+        pooling.AGREED_PRIOR = kept
 
 
 # ---------------------------------------------------------------------------- main
