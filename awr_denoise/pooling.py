@@ -16,6 +16,7 @@ import math
 import numpy as np
 from scipy import ndimage
 
+from . import _checks
 from ._typing import BoolArray, CountArray, FloatArray
 
 __all__ = ["estimated_variance", "pooled_variance", "agreed_variance", "POOL_WINDOW", "JUMP_RATIO", "AGREED_PRIOR"]
@@ -88,7 +89,7 @@ def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
     >>> bool(agreed_variance(count, mean, variance, count >= 2)[0, 0, 0] < 1e-5)
     True
     """
-    prior = AGREED_PRIOR if prior is None else prior
+    prior = _checks.real("prior", AGREED_PRIOR if prior is None else prior, minimum=0.0)
     agreed = known[..., None] & (variance == 0)
     if not prior or not agreed.any():
         return variance
@@ -111,7 +112,8 @@ def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
         groups, sizes = np.unique(count[missed], return_counts=True)
         big = groups[sizes * 16 >= count.size]
         if big.size:
-            chance = _chance(s2[..., c], np.abs(mean[..., c]) / g)
+            with np.errstate(over="ignore"):  # a level past float64 over g is a chance of 0
+                chance = _chance(s2[..., c], np.abs(mean[..., c]) / g)
         for samples in big:
             at = missed & (count == samples)
             weight = dof * chance ** float(samples)
@@ -120,14 +122,15 @@ def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
             todo[..., c] &= ~at
     if todo.any():
         rows, cols, chans = np.nonzero(todo)
-        local = _gathered_local(count, mean / g, s2, dof, (rows, cols, chans))
+        local = _gathered_local(count, mean, g, s2, dof, (rows, cols, chans))
         out[rows, cols, chans] = prior * local * g * g / (count[rows, cols] - 1.0 + prior)
     return out
 
 
-def _gathered_local(count: CountArray, mean: FloatArray, s2: FloatArray, dof: FloatArray, where: tuple) -> FloatArray:
-    """:func:`agreed_variance`'s ``s2_local`` at the entries ``where``, window offset by window offset: flat
-    indices into the planes padded by their edges (as ``mode="nearest"``)."""
+def _gathered_local(count: CountArray, mean: FloatArray, g: float, s2: FloatArray, dof: FloatArray,
+                    where: tuple) -> FloatArray:
+    """:func:`agreed_variance`'s ``s2_local`` at the entries ``where`` (``s2`` the variances over ``g^2``), window
+    offset by window offset: flat indices into the planes padded by their edges (as ``mode="nearest"``)."""
     rows, cols, chans = where
     r = POOL_WINDOW // 2
     channels = s2.shape[2]
@@ -142,7 +145,9 @@ def _gathered_local(count: CountArray, mean: FloatArray, s2: FloatArray, dof: Fl
         for dx in range(-r, r + 1):
             near = pixel + (dy * width + dx)
             spread = s2_flat.take(near * channels + chans)
-            weight = dof_flat.take(near) * _chance(spread, np.abs(mean_flat.take(near * channels + chans) - level)) ** n
+            with np.errstate(over="ignore"):  # a gap past float64 is a chance of 0
+                gap = np.abs(mean_flat.take(near * channels + chans) - level) / g
+            weight = dof_flat.take(near) * _chance(spread, gap) ** n
             num += weight * spread
             den += weight
     return num / den

@@ -28,7 +28,8 @@ def _reference(count, mean, variance, known, prior=AGREED_PRIOR):
                         if not known[yy, xx]:
                             continue
                         s2, gap = variance[yy, xx, c], mean[yy, xx, c] - mean[i, j, c]
-                        z = s2 / (s2 + gap**2) if s2 > 0 else float(gap == 0)
+                        with np.errstate(over="ignore"):  # a gap past float64 is a chance of 0
+                            z = s2 / (s2 + gap**2) if s2 > 0 else float(gap == 0)
                         weight = (count[yy, xx] - 1) * z ** count[i, j]
                         num, den = num + weight * s2, den + weight
                 out[i, j, c] = prior * num / den / (count[i, j] - 1 + prior)
@@ -146,3 +147,24 @@ def test_the_buffer_and_the_preparation_agree(rng):
     buf = _hit_or_zero(rng)
     assert_array_equal(buf.estimated_variance(), prepare(buf, "linear").sample_variance)
     assert_array_equal(buf.variance_of_mean(), prepare(buf, "linear").variance)
+
+
+def test_means_far_beyond_the_spread():
+    """Levels of 1e10 beside spreads of 1e-300 (the scale follows the spread): the gaps overflow the scaled
+    units, which is a chance of 0, not a NaN; a neighbour at the same level still lends its spread."""
+    count = np.full((5, 6), 4)
+    mean = np.full((5, 6, 1), 1e10)
+    variance = np.zeros_like(mean)
+    mean[:, 5], variance[:, 5] = -1e300, 1e-300       # far away: lends nothing
+    variance[0, 0] = 1e-300                           # the same level: lends its spread
+    out = agreed_variance(count, mean, variance, count >= 2)
+    assert np.isfinite(out).all()
+    assert_allclose(out, _reference(count, mean, variance, count >= 2), rtol=1e-12, atol=1e-320)
+    assert out[1, 1, 0] > 0 and out[2, 3, 0] == 0.0
+
+
+@pytest.mark.parametrize("prior", [-1.0, float("nan"), float("inf"), "1"])
+def test_a_bad_prior_is_named(prior):
+    count = np.full((3, 3), 2)
+    with pytest.raises((TypeError, ValueError), match="prior"):
+        agreed_variance(count, np.zeros((3, 3, 1)), np.zeros((3, 3, 1)), count >= 2, prior=prior)
