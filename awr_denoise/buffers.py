@@ -22,7 +22,8 @@ from . import _checks
 from ._arrays import (ReadOnlyArrays, as_float64, as_mask, check_count, check_finite, flat_pixel_index, frozen, plain,
                       pixel_moments, summed_counts)
 from ._typing import BoolArray, CountArray, FloatArray, Shape2D
-from .channels import channel_count, default_channel_names, luminance_weights, resolve_channels  # noqa: F401 - re-exported
+from .channels import (channel_count, default_channel_names, luminance_variance,  # noqa: F401 - re-exported
+                       luminance_weights, resolve_channels)
 from .features import FEATURE_CHANNELS, checked_features, feature_rows, map_features, merge_features
 from .merging import merge_moments
 from .pooling import estimated_variance
@@ -478,14 +479,9 @@ class SampleBuffer(ReadOnlyArrays):
         return self.mean @ luminance_weights(self.channels)
 
     def luminance_variance(self) -> FloatArray:
-        """(H, W) per-sample variance of luminance, from the per-channel variances.
-
-        Channel covariances are not stored; the colour channels of a path-traced sample are strongly correlated
-        (one path, one throughput): this uses the fully correlated upper bound ``(sum_c w_c s_c)^2``, exact for grey.
-        """
-        v = self.estimated_variance()  # the root in place, never in the buffer's own array:
-        y = np.sqrt(v, out=None if np.may_share_memory(v, self.variance) else v) @ luminance_weights(self.channels)
-        return np.square(y, out=y)
+        """(H, W) per-sample variance of luminance, from the estimated per-channel variances
+        (:func:`~awr_denoise.channels.luminance_variance`: the fully correlated bound ``(sum_c w_c s_c)^2``)."""
+        return luminance_variance(self.estimated_variance(), luminance_weights(self.channels))
 
     # ------------------------------------------------------------------ combining
     def merge(self, other: SampleBuffer, *, executor: Executor | None = None) -> SampleBuffer:

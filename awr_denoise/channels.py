@@ -10,7 +10,7 @@ import numpy as np
 from . import _checks
 from ._typing import FloatArray
 
-__all__ = ["default_channel_names", "adopted_channels", "luminance_weights", "channel_groups", "colours",
+__all__ = ["default_channel_names", "adopted_channels", "luminance_weights", "luminance_variance", "channel_groups", "colours",
            "resolve_channels",
            "channel_count", "MAX_CHANNELS"]
 
@@ -72,6 +72,23 @@ def adopted_channels(given: Sequence[str], expected: Sequence[str]) -> tuple[str
         raise ValueError(f"samples: channels {','.join(given)} (the default names) would be reordered into the "
                          f"sampler's {','.join(expected)}; name the batch's channels")
     return expected
+
+
+def luminance_variance(variance: FloatArray, weights: FloatArray) -> FloatArray:
+    """(H, W) per-sample variance of luminance from (H, W, C) per-channel variances: ``(sum_c w_c s_c)^2``.
+
+    Channel covariances are not stored; the colour channels of a path-traced sample are strongly
+    correlated (one path, one throughput): this is the fully correlated upper bound, exact for grey.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise.channels import luminance_variance
+    >>> luminance_variance(np.full((1, 1, 2), 4.0), np.array([0.5, 0.5]))
+    array([[4.]])
+    """
+    y = np.sqrt(variance) @ weights
+    return np.square(y, out=y)
 
 
 def luminance_weights(channels: Sequence[str]) -> FloatArray:

@@ -42,8 +42,8 @@ samples that are a light's value or exactly 0 from up to 5.3x the plain mean's M
 
 def estimated_variance(count: CountArray, mean: FloatArray, variance: FloatArray, known: BoolArray, *,
                        copy: bool = True) -> FloatArray:
-    """(H, W, C) per-sample variance to threshold with: unknown entries pooled (:func:`pooled_variance`),
-    entries whose samples all agreed moderated (:func:`agreed_variance`).
+    """(H, W, C) per-sample variance to threshold with: entries whose samples all agreed moderated
+    (:func:`agreed_variance`), then unknown entries pooled from the result (:func:`pooled_variance`).
 
     ``copy=False`` may return ``variance`` itself when neither applies (it is never written to).
 
@@ -57,8 +57,10 @@ def estimated_variance(count: CountArray, mean: FloatArray, variance: FloatArray
     >>> bool(0 < v[0, 0, 0] < v[2, 2, 0]), round(float(v[2, 2, 0]), 5)
     (True, 1.33333)
     """
-    out = variance if known.all() else pooled_variance(count, mean, variance, known)
-    out = agreed_variance(count, mean, out, known)
+    # Moderated first: an unknown variance is then pooled from its neighbours' moderated ones (a single
+    # sample beside samples that all agreed at 0, beside a hit, is not exact either).
+    out = agreed_variance(count, mean, variance, known)
+    out = out if known.all() else pooled_variance(count, mean, out, known)
     return np.array(out) if copy and out is variance else out
 
 
@@ -141,15 +143,29 @@ def _gathered_local(count: CountArray, mean: FloatArray, g: float, s2: FloatArra
     pixel = (rows + r) * width + (cols + r)
     level, n = mean[where], count[rows, cols].astype(np.float64)
     num, den = np.zeros(rows.size), np.zeros(rows.size)
-    for dy in range(-r, r + 1):  # a loop over the 25 window offsets; entries are vectorised
-        for dx in range(-r, r + 1):
-            near = pixel + (dy * width + dx)
-            spread = s2_flat.take(near * channels + chans)
-            with np.errstate(over="ignore"):  # a gap past float64 is a chance of 0
-                gap = np.abs(mean_flat.take(near * channels + chans) - level) / g
-            weight = dof_flat.take(near) * _chance(spread, gap) ** n
-            num += weight * spread
-            den += weight
+    # At level 0 (every sample missed) a neighbour's chance does not depend on the entry: its logarithm is
+    # taken once per pixel, and the entry's weight is exp(n log z).
+    with np.errstate(over="ignore", divide="ignore"):  # log 0 = -inf: a weight of 0
+        log_chance = np.log(_chance(s2_flat, np.abs(mean_flat) / g))
+    for part in (np.flatnonzero(level == 0), np.flatnonzero(level != 0)):
+        if not part.size:
+            continue
+        base, c, lv, k, zero = pixel[part], chans[part], level[part], n[part], level[part[0]] == 0
+        acc_num, acc_den = np.zeros(part.size), np.zeros(part.size)
+        for dy in range(-r, r + 1):  # a loop over the 25 window offsets; entries are vectorised
+            for dx in range(-r, r + 1):
+                near = base + (dy * width + dx)
+                at = near * channels + c
+                spread = s2_flat.take(at)
+                if zero:
+                    power = np.exp(k * log_chance.take(at))
+                else:
+                    with np.errstate(over="ignore"):  # a gap past float64 is a chance of 0
+                        power = _chance(spread, np.abs(mean_flat.take(at) - lv) / g) ** k
+                weight = dof_flat.take(near) * power
+                acc_num += weight * spread
+                acc_den += weight
+        num[part], den[part] = acc_num, acc_den
     return num / den
 
 

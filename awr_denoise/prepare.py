@@ -28,11 +28,11 @@ from scipy import ndimage
 from . import _checks
 from ._typing import FloatArray
 from .buffers import SampleBuffer
-from .channels import luminance_weights
+from .channels import luminance_variance, luminance_weights
 from .domains import Domain, _BoundDomain, resolve_domain
 from .pooling import estimated_variance
 
-__all__ = ["Prepared", "filled_mean", "prepare"]
+__all__ = ["EstimatedBuffer", "Prepared", "filled_mean", "prepare"]
 
 
 def filled_mean(buffer: SampleBuffer) -> FloatArray:
@@ -64,6 +64,16 @@ def _filled(buffer: SampleBuffer, *, copy: bool) -> FloatArray:
         raise ValueError("buffer: no pixel has any sample")
     _, (rows, cols) = ndimage.distance_transform_edt(empty, return_indices=True)
     return buffer.mean[rows, cols]
+
+
+class EstimatedBuffer(SampleBuffer):
+    """A buffer whose per-sample variances are already estimated (pooled and moderated, :mod:`~awr_denoise.pooling`):
+    :func:`prepare` takes them as they are.
+
+    A tile of a larger frame (:func:`~awr_denoise.parallel.reconstruct_tiled`) carries the variances the whole
+    frame's preparation estimated; estimating them again inside the tile would see other neighbours (the tile's
+    moderated ones) and give the tile other variances than the frame's.
+    """
 
 
 @dataclass(frozen=True, eq=False)
@@ -189,13 +199,14 @@ def prepare(buffer: SampleBuffer, domain: str | Domain = "log", *, luminance: bo
     dom = resolve_domain(domain)
     _checks.flag("luminance", luminance)
     n = np.maximum(buffer.count, 1).astype(np.float64)
+    # The buffer's own arrays (read-only) where nothing is filled or pooled: no copies.
+    sample_variance = (buffer.variance if isinstance(buffer, EstimatedBuffer) else
+                       estimated_variance(buffer.count, buffer.mean, buffer.variance, buffer.variance_known, copy=False))
     if luminance:
-        mean = _filled(buffer, copy=False) @ luminance_weights(buffer.channels)  # a new array: no copy needed
-        sample_variance = buffer.luminance_variance()
+        weights = luminance_weights(buffer.channels)
+        mean = _filled(buffer, copy=False) @ weights  # a new array: no copy needed
+        sample_variance = luminance_variance(sample_variance, weights)
     else:
-        # The buffer's own arrays (read-only) where nothing is filled or pooled: no copies.
         mean = _filled(buffer, copy=False)
-        sample_variance = estimated_variance(buffer.count, buffer.mean, buffer.variance, buffer.variance_known,
-                                             copy=False)
         n = n[..., None]
     return Prepared(mean, sample_variance, n, dom.bound(mean))

@@ -723,8 +723,9 @@ def speed(sizes: list[str], repeats: int, extra: tuple[str, ...] = ()) -> list[d
 
 def agreed_buffers(shape: tuple[int, int]) -> dict[str, SampleBuffer]:
     """Buffers where many pixels' samples all agreed, for ``agreed``: black squares of 120 pixels (every sample
-    0) beside noisy ones at 8 spp, as a tracer's scene before a black background; and samples of 3 in 10% of
-    draws, else exactly 0, at 2 spp (every pixel that missed beside one that hit: the most work)."""
+    0) beside noisy ones at 8 spp, as a tracer's scene before a black background; samples of 3 in 10% of
+    draws, else exactly 0, at 2 spp (every pixel that missed beside one that hit); and those means and
+    variances at counts of 2-39, as an adaptive run leaves them."""
     rng = np.random.default_rng(5)
     h, w = shape
     mean, variance = rng.random((h, w, 3)), 0.1 * rng.random((h, w, 3))
@@ -732,8 +733,13 @@ def agreed_buffers(shape: tuple[int, int]) -> dict[str, SampleBuffer]:
     mean[black], variance[black] = 0.0, 0.0
     pixel = np.repeat(np.arange(h * w), 2)
     hits = (rng.random(pixel.size) < 0.1)[:, None] * np.full((1, 3), 3.0)
+    hit_or_zero = SampleBuffer.from_samples(pixel, hits, shape)
+    # The same hits and misses at the counts of an adaptive run: no count holds a sixteenth of the pixels, every
+    # entry that missed takes the offset-by-offset path (the slowest the moderation gets).
+    counts = rng.integers(2, 40, shape)
     return {"black squares, 8 spp": SampleBuffer.from_moments(np.full(shape, 8), mean, variance),
-            "hit or zero, 2 spp": SampleBuffer.from_samples(pixel, hits, shape)}
+            "hit or zero, 2 spp": hit_or_zero,
+            "hit or zero, 2-39 spp": SampleBuffer.from_moments(counts, hit_or_zero.mean, hit_or_zero.variance)}
 
 
 def agreed_speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:

@@ -113,6 +113,16 @@ def _emitters(rng, shape=(12, 14)):
     return SampleBuffer.from_moments(count, mean, variance)
 
 
+def test_many_counts_at_0_match_the_definition(rng):
+    """Pixels that missed at 40 different counts (an adaptive buffer): no count holds a sixteenth of the
+    pixels, so every entry goes offset by offset."""
+    buf = _hit_or_zero(rng, shape=(20, 24), spp=2)
+    buf = SampleBuffer.from_moments(rng.integers(2, 42, buf.shape), buf.mean, buf.variance)
+    got = agreed_variance(buf.count, buf.mean, buf.variance, buf.variance_known)
+    assert_allclose(got, _reference(buf.count, buf.mean, buf.variance, buf.variance_known), rtol=1e-12, atol=0)
+    assert (got[buf.variance == 0] > 0).mean() > 0.3
+
+
 def test_agreeing_levels_other_than_0_match_the_definition(rng):
     buf = _emitters(rng)
     got = agreed_variance(buf.count, buf.mean, buf.variance, buf.variance_known)
@@ -168,3 +178,17 @@ def test_a_bad_prior_is_named(prior):
     count = np.full((3, 3), 2)
     with pytest.raises((TypeError, ValueError), match="prior"):
         agreed_variance(count, np.zeros((3, 3, 1)), np.zeros((3, 3, 1)), count >= 2, prior=prior)
+
+
+def test_a_single_sample_beside_moderated_pixels_is_not_exact():
+    """Pooling runs after the moderation: a pixel of one sample whose known neighbours all agreed at 0, one
+    of them two pixels from a hit, pools their moderated variances (before: 0, read as exact)."""
+    count = np.full((1, 9), 4)
+    count[0, 3] = 1                          # its window, columns 1-5, holds no hit: only moderated zeros
+    mean = np.zeros((1, 9, 1))
+    variance = np.zeros_like(mean)
+    mean[0, 0], variance[0, 0] = 1.0, 4 / 3  # samples 4, 0, 0, 0
+    out = estimated_variance(count, mean, variance, count >= 2)
+    assert out[0, 1, 0] > 0.01 and out[0, 2, 0] > 0.001
+    assert out[0, 3, 0] > 0.001
+    assert out[0, 8, 0] == 0.0  # out of every window that saw spread

@@ -26,7 +26,7 @@ from .._typing import FloatArray, Shape2D
 from ..buffers import SampleBuffer
 from ..channels import channel_groups, luminance_weights
 from ..domains import Domain, resolve_domain
-from ..prepare import prepare
+from ..prepare import EstimatedBuffer, prepare
 from ..reconstruct import (
     DEFAULT_DOMAIN,
     DEFAULT_PIXEL_CLAMP,
@@ -143,7 +143,7 @@ def _window(core: slice, halo: int, align: int, length: int) -> slice:
 def _reconstruct_window(count: np.ndarray, mean: FloatArray, variance: FloatArray, channels: tuple[str, ...],
                         core: tuple[slice, slice], options: dict[str, Any]) -> FloatArray:
     """Reconstruct one tile+halo window and return the tile's pixels (runs in a worker)."""
-    window = SampleBuffer(count, mean, variance, channels, np.ones(count.shape, bool))
+    window = EstimatedBuffer(count, mean, variance, channels, np.ones(count.shape, bool))  # the frame's, as they are
     return reconstruct(window, **options)[core]
 
 
