@@ -522,8 +522,9 @@ class SampleBuffer(ReadOnlyArrays):
         """
         index = _checks.indices("channels", channels, self.n_channels)
         names = tuple(self.channels[i] for i in index)
-        return SampleBuffer._adopt(self.count, self.mean[..., index], self.variance[..., index], names,
-                                   self.variance_known, self.nonfinite, self.features)
+        # type(self): some channels of a buffer keep its kind (prepare.EstimatedBuffer's variances stay final).
+        return type(self)._adopt(self.count, self.mean[..., index], self.variance[..., index], names,
+                                 self.variance_known, self.nonfinite, self.features)
 
     def crop(self, rows: slice, cols: slice) -> SampleBuffer:
         """The statistics of a rectangular region (a tile), as a new buffer.

@@ -10,8 +10,8 @@ import numpy as np
 from . import _checks
 from ._typing import FloatArray
 
-__all__ = ["default_channel_names", "adopted_channels", "luminance_weights", "luminance_variance", "channel_groups", "colours",
-           "resolve_channels",
+__all__ = ["default_channel_names", "adopted_channels", "luminance_weights", "luminance_variance", "channel_groups",
+           "colours", "resolve_channels",
            "channel_count", "MAX_CHANNELS"]
 
 _REC709 = np.array([0.2126, 0.7152, 0.0722])

@@ -143,14 +143,16 @@ def _gathered_local(count: CountArray, mean: FloatArray, g: float, s2: FloatArra
     pixel = (rows + r) * width + (cols + r)
     level, n = mean[where], count[rows, cols].astype(np.float64)
     num, den = np.zeros(rows.size), np.zeros(rows.size)
-    # At level 0 (every sample missed) a neighbour's chance does not depend on the entry: its logarithm is
-    # taken once per pixel, and the entry's weight is exp(n log z).
-    with np.errstate(over="ignore", divide="ignore"):  # log 0 = -inf: a weight of 0
-        log_chance = np.log(_chance(s2_flat, np.abs(mean_flat) / g))
-    for part in (np.flatnonzero(level == 0), np.flatnonzero(level != 0)):
+    for zero in (True, False):
+        part = np.flatnonzero((level == 0) == zero)
         if not part.size:
             continue
-        base, c, lv, k, zero = pixel[part], chans[part], level[part], n[part], level[part[0]] == 0
+        if zero:
+            # At level 0 (every sample missed) a neighbour's chance does not depend on the entry: its logarithm
+            # is taken once per pixel, and the entry's weight is exp(n log z).
+            with np.errstate(over="ignore", divide="ignore"):  # log 0 = -inf: a weight of 0
+                log_chance = np.log(_chance(s2_flat, np.abs(mean_flat) / g))
+        base, c, lv, k = pixel[part], chans[part], level[part], n[part]
         acc_num, acc_den = np.zeros(part.size), np.zeros(part.size)
         for dy in range(-r, r + 1):  # a loop over the 25 window offsets; entries are vectorised
             for dx in range(-r, r + 1):

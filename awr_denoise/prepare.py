@@ -200,8 +200,11 @@ def prepare(buffer: SampleBuffer, domain: str | Domain = "log", *, luminance: bo
     _checks.flag("luminance", luminance)
     n = np.maximum(buffer.count, 1).astype(np.float64)
     # The buffer's own arrays (read-only) where nothing is filled or pooled: no copies.
-    sample_variance = (buffer.variance if isinstance(buffer, EstimatedBuffer) else
-                       estimated_variance(buffer.count, buffer.mean, buffer.variance, buffer.variance_known, copy=False))
+    if isinstance(buffer, EstimatedBuffer):
+        sample_variance = buffer.variance
+    else:
+        sample_variance = estimated_variance(buffer.count, buffer.mean, buffer.variance, buffer.variance_known,
+                                             copy=False)
     if luminance:
         weights = luminance_weights(buffer.channels)
         mean = _filled(buffer, copy=False) @ weights  # a new array: no copy needed

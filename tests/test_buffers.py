@@ -563,3 +563,13 @@ def test_ragged_lists_are_refused_naming_the_argument(call):
     """numpy's "setting an array element with a sequence" named no argument (a red-team pass)."""
     with pytest.raises(TypeError, match=r"^\w+: not an array \(nested sequences of different lengths\?\)$"):
         call()
+
+
+def test_select_keeps_the_buffer_kind():
+    """Some channels of a buffer whose variances are final (prepare.EstimatedBuffer, a tile's) keep them final."""
+    from awr_denoise.prepare import EstimatedBuffer
+    buf = EstimatedBuffer(np.full((2, 2), 4), np.ones((2, 2, 4)), np.zeros((2, 2, 4)), ("R", "G", "B", "A"),
+                          np.ones((2, 2), bool))
+    assert type(buf.select([0, 1, 2])) is EstimatedBuffer
+    assert type(SampleBuffer.from_moments(np.full((1, 1), 4), np.ones((1, 1, 2)), np.zeros((1, 1, 2))).select([0])) \
+        is SampleBuffer
