@@ -5,7 +5,8 @@ Three per-image guarantees run after the last stage (:func:`~awr_denoise.reconst
 1. :func:`pooled_clamp`: every pixel within ``z`` standard errors of its own mean, the standard
    error pooled with its 3x3 neighbours' (``max(s, median_3x3(s))``), so a pixel whose few
    samples agreed by chance is not pinned to its noisy mean while a precise pixel next to a
-   light still is;
+   light still is; given the sample counts, only the neighbours the pixel's samples could have
+   come from pool (:data:`POOL_CHANCE`), so a dark line one pixel wide keeps its own interval;
 2. :func:`clip_negative`: no negative radiance in channels whose means are all non-negative;
 3. :func:`restore_mean`: the energy the stages took (or added) is given back where it was
    taken, so that every channel's image mean is the input's exactly. The clamp and the relative
@@ -32,10 +33,24 @@ import numpy as np
 from ._typing import FloatArray
 
 __all__ = ["median3x3", "pooled_standard_error", "pooled_clamp", "clip_negative", "match_mean", "restore_mean", "POOL",
-           "MEAN_LIMIT", "MEAN_SIGNIFICANCE", "RESTORE_OFFSET", "RESTORE_SHARE"]
+           "POOL_CHANCE", "MEAN_LIMIT", "MEAN_SIGNIFICANCE", "RESTORE_OFFSET", "RESTORE_SHARE"]
 
 POOL = 3
 """Side of the neighbourhood over which the clamp pools standard errors."""
+
+POOL_CHANCE = 1e-3
+"""Least chance that a pixel's samples came from a neighbour's distribution for that neighbour to pool.
+
+With the sample counts, a 3x3 neighbour (mean ``m``, per-sample standard deviation ``S``) pools into a
+pixel's clamp (``n`` samples, mean ``c``, per-sample deviation ``s``) only where ``z^n`` is at least this,
+``z = S^2 / (S^2 + g^2)`` Cantelli's bound on the chance that one sample of the neighbour's lands ``g`` or
+further from ``m``, and ``g = |m - c| - s (n - 1) / sqrt(n)`` the least distance any of the pixel's samples
+can have from ``m`` (Samuelson's inequality). A pixel whose samples missed a heavy tail its neighbours
+caught still pools (``z`` near 1); a dark line one pixel wide in a bright field does not (relMSE 195x the
+plain mean's in a field of 100 at 8 spp before, ``benchmarks/bench_limits.py``). Cantelli's bound is
+nearly attained by two-point distributions (a pixel covered in part by an edge), so a chance below
+1e-3 also separates a few such pixels from their neighbours: docs/reconstruction.md, "The clamp's
+neighbours" (``bench_reconstruct.py quality --compare``). 0 pools every neighbour (the form before)."""
 
 MEAN_LIMIT = 0.05
 """Largest change of a channel's image mean made unless the change is significant (5%)."""
@@ -101,15 +116,24 @@ def median3x3(a: FloatArray) -> FloatArray:
     return _median3(largest_min, mid_of_mids, smallest_max)
 
 
-def pooled_standard_error(variance: FloatArray) -> FloatArray:
-    """``max(s, median of s over the POOL x POOL neighbourhood)``, ``s = sqrt(variance)``, per channel."""
+def pooled_standard_error(variance: FloatArray, mean: FloatArray | None = None,
+                          count: FloatArray | None = None) -> FloatArray:
+    """``max(s, median of s over the POOL x POOL neighbourhood)``, ``s = sqrt(variance)``, per channel.
+
+    With ``mean`` and the (H, W) sample ``count``, the median is taken over the neighbours the pixel's
+    samples could have come from (:data:`POOL_CHANCE`; the pixel itself always counts), the upper one of
+    an even number.
+    """
     s = np.sqrt(variance)
-    return np.maximum(s, median3x3(s))
+    if mean is None or count is None:
+        return np.maximum(s, median3x3(s))
+    return np.maximum(s, _pooled_median_at(s, mean, count, np.nonzero(np.ones(s.shape, dtype=bool))).reshape(s.shape))
 
 
 def pooled_clamp(image: FloatArray, mean: FloatArray, variance: FloatArray, z: float, *,
-                 weights: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
-    """Keep every pixel within ``z`` pooled standard errors of its mean.
+                 weights: FloatArray | None = None,
+                 count: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
+    """Keep every pixel within ``z`` pooled standard errors of its mean (:func:`pooled_standard_error`).
 
     Parameters
     ----------
@@ -121,6 +145,9 @@ def pooled_clamp(image: FloatArray, mean: FloatArray, variance: FloatArray, z: f
         Width of the interval in standard errors.
     weights
         Luminance weights: clamp luminance and scale every channel alike (hue is kept).
+    count
+        (H, W) sample counts (or (H, W, 1)): pool only the neighbours the pixel's samples could have
+        come from (:data:`POOL_CHANCE`); without, every 3x3 neighbour pools.
 
     Returns
     -------
@@ -137,6 +164,17 @@ def pooled_clamp(image: FloatArray, mean: FloatArray, variance: FloatArray, z: f
     >>> out, moved = pooled_clamp(image, mean, variance, 2.5)
     >>> float(out[0, 0, 0]), float(out[1, 1, 0]), int(moved.sum())
     (1.25, 1.1, 1)
+
+    A dark line one pixel wide in a field of 100 (8 samples a pixel, 50% noise), smoothed towards the field:
+    its bright neighbours' standard error would let it stay at 1.5; its own holds it near 0.01.
+
+    >>> mean = np.full((3, 3, 1), 100.0); mean[:, 1] = 0.01
+    >>> variance = (0.5 * mean) ** 2 / 8                     # of the means
+    >>> image = np.where(mean < 1, 1.5, 100.0)
+    >>> round(float(pooled_clamp(image, mean, variance, 2.5)[0][1, 1, 0]), 4)
+    1.5
+    >>> round(float(pooled_clamp(image, mean, variance, 2.5, count=np.full((3, 3), 8))[0][1, 1, 0]), 4)
+    0.0144
     """
     s = np.sqrt(variance)
     reach = z * s
@@ -146,7 +184,8 @@ def pooled_clamp(image: FloatArray, mean: FloatArray, variance: FloatArray, z: f
     # stays, so the 3x3 medians are needed only where it lies outside, a few per cent of pixels.
     outside = np.nonzero((value < low) | (value > high))
     if outside[0].size:
-        reach_out = z * np.maximum(s[outside], _median3x3_at(s, outside))
+        pooled = _median3x3_at(s, outside) if count is None else _pooled_median_at(s, mean, count, outside)
+        reach_out = z * np.maximum(s[outside], pooled)
         low[outside] = mean[outside] - reach_out
         high[outside] = mean[outside] + reach_out
     if weights is None:
@@ -168,6 +207,28 @@ def _median3x3_at(a: FloatArray, where: tuple) -> FloatArray:
     values = np.stack([a[(np.clip(rows + i, 0, h - 1), np.clip(cols + j, 0, w - 1)) + rest]
                        for i in (-1, 0, 1) for j in (-1, 0, 1)])
     return np.partition(values, 4, axis=0)[4]
+
+
+def _pooled_median_at(s: FloatArray, mean: FloatArray, count: FloatArray, where: tuple) -> FloatArray:
+    """The median of the standard errors ``s`` over the 3x3 neighbours at ``where`` that pass :data:`POOL_CHANCE`'s
+    test (the upper median of an even number); every neighbour with ``POOL_CHANCE`` at 0."""
+    h, w = s.shape[:2]
+    rows, cols, rest = where[0], where[1], where[2:]
+    near = [(np.clip(rows + i, 0, h - 1), np.clip(cols + j, 0, w - 1)) for i in (-1, 0, 1) for j in (-1, 0, 1)]
+    values = np.stack([s[ix + rest] for ix in near])
+    if not POOL_CHANCE:
+        return np.partition(values, 4, axis=0)[4]
+    count = np.asarray(count, dtype=np.float64).reshape(h, w)
+    n, own_s, own_m = count[rows, cols], s[where], mean[where]
+    # s is the standard error of a mean: the pixel's samples lie within s (n - 1) of their mean (Samuelson),
+    # the neighbour's per-sample deviation is its s sqrt(n). In ratios, so no square over- or underflows.
+    gap = np.maximum(np.abs(np.stack([mean[ix + rest] for ix in near]) - own_m) - own_s * (n - 1), 0.0)
+    spread = values * np.sqrt(np.stack([count[ix] for ix in near]))
+    with np.errstate(over="ignore"):
+        ratio = np.divide(gap, spread, out=np.where(gap > 0, np.inf, 0.0), where=spread > 0)
+        keep = n * np.log1p(np.square(ratio)) <= -math.log(POOL_CHANCE)   # z^n >= POOL_CHANCE, z = 1 / (1 + ratio^2)
+    values = np.sort(np.where(keep, values, np.inf), axis=0)  # the pixel itself (gap 0) is always kept
+    return np.take_along_axis(values, (keep.sum(axis=0) // 2)[None], axis=0)[0]
 
 
 def clip_negative(image: FloatArray, mean: FloatArray) -> tuple[FloatArray, FloatArray]:

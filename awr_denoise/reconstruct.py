@@ -209,7 +209,7 @@ def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | N
             lum = None if luminance is None else luminance[0]
             image, moved = pooled_clamp(image, prepared.mean if lum is None else lum.mean,
                                         prepared.variance if lum is None else lum.variance, settings.pixel_clamp,
-                                        weights=None if luminance is None else luminance[1])
+                                        weights=None if luminance is None else luminance[1], count=prepared.count)
             if variance is not None:
                 variance = np.where(moved, prepared.variance, variance)
     if settings.nonnegative:

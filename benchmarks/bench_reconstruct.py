@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, VarianceSampler, reconstruct
-from awr_denoise import pooling
+from awr_denoise import finishing, pooling
 from awr_denoise.bench import update_section
 from awr_denoise.features import FEATURE_CHANNELS
 from awr_denoise.finishing import RESTORE_SHARE, match_mean, restore_mean
@@ -134,8 +134,18 @@ def agreed_held_exact(buffer: SampleBuffer) -> np.ndarray:
     return with_agreed_prior(0.0)(buffer)
 
 
+def clamp_pools_every_neighbour(buffer: SampleBuffer) -> np.ndarray:
+    """The default as it was before the clamp's neighbours were tested: ``finishing.POOL_CHANCE`` at 0."""
+    kept, finishing.POOL_CHANCE = finishing.POOL_CHANCE, 0.0
+    try:
+        return reconstruct(buffer)
+    finally:
+        finishing.POOL_CHANCE = kept
+
+
 COMPARED: dict[str, Any] = {"pilot clamped": clamped_pilot, "no energy floor": with_floor(None),
-                             "pilot c_s 1.5": {"c_s": 1.5}, "agreed samples held exact": agreed_held_exact}
+                             "pilot c_s 1.5": {"c_s": 1.5}, "agreed samples held exact": agreed_held_exact,
+                             "clamp pools every neighbour": clamp_pools_every_neighbour}
 """``quality --compare``: earlier forms of the default, measured beside it."""
 FLOORS: dict[str, Any] = {"energy floor 3x3": with_floor((3, 2.0)), "energy floor 7x7": with_floor((7, 2.0)),
                           "energy floor margin 1.5": with_floor((5, 1.5)), "energy floor margin 3": with_floor((5, 3.0))}

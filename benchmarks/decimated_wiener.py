@@ -101,7 +101,8 @@ def _later(prepared: Prepared, pilot: np.ndarray, settings, levels: int, shifts:
         out, _ = sure_blend(out, x, v, lev, k=k, window=settings.guard_window)
     image = out * s
     if settings.pixel_clamp is not None:
-        image, _ = pooled_clamp(image, prepared.mean, prepared.variance, settings.pixel_clamp)
+        image, _ = pooled_clamp(image, prepared.mean, prepared.variance, settings.pixel_clamp,
+                                count=prepared.count)
     if settings.nonnegative:
         image, _ = clip_negative(image, prepared.mean)
     if settings.preserve_mean:

@@ -8,8 +8,9 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from scipy import ndimage
 
-from awr_denoise.finishing import (_FILL_STEPS, RESTORE_SHARE, _fill, clip_negative, match_mean, median3x3,
-                                   pooled_clamp, pooled_standard_error, restore_mean)
+from awr_denoise import finishing
+from awr_denoise.finishing import (_FILL_STEPS, POOL_CHANCE, RESTORE_SHARE, _fill, clip_negative, match_mean,
+                                   median3x3, pooled_clamp, pooled_standard_error, restore_mean)
 
 
 @pytest.mark.parametrize("shape", [(1, 1), (1, 5), (2, 3, 1), (3, 3), (17, 11, 3), (64, 48, 2)])
@@ -37,6 +38,82 @@ def test_pooled_clamp_keeps_pixels_within_z_pooled_standard_errors(rng):
     assert (np.abs(out - mean) <= reach + 1e-15).all()
     assert_array_equal(out[~moved], image[~moved])
     assert moved.any() and not moved.all()
+
+
+def _gated_pooled_error_by_definition(variance, mean, count):
+    """POOL_CHANCE's definition, pixel by pixel: the upper median of s over the 3x3 neighbours (edges repeated)
+    with z^n >= POOL_CHANCE, z = S^2 / (S^2 + g^2), g = max(|m - c| - s_px (n - 1) / sqrt(n), 0)."""
+    s = np.sqrt(variance)
+    out = np.empty_like(s)
+    h, w = s.shape[:2]
+    for index in np.ndindex(s.shape):
+        i, j, rest = index[0], index[1], index[2:]
+        n, c, own = count[i, j], mean[index], s[index] * np.sqrt(count[i, j])  # per-sample deviations
+        kept = []
+        for di in (-1, 0, 1):
+            for dj in (-1, 0, 1):
+                a, b = min(max(i + di, 0), h - 1), min(max(j + dj, 0), w - 1)
+                big_s2 = variance[(a, b) + rest] * count[a, b]
+                g = max(abs(mean[(a, b) + rest] - c) - own * (n - 1) / np.sqrt(n), 0.0)
+                z = 1.0 if big_s2 + g * g == 0 else big_s2 / (big_s2 + g * g)
+                if z**n >= POOL_CHANCE:
+                    kept.append(s[(a, b) + rest])
+        out[index] = max(s[index], sorted(kept)[len(kept) // 2])
+    return out
+
+
+@pytest.mark.parametrize("shape", [(1, 1, 1), (2, 5, 1), (7, 6, 2), (9, 8)])
+def test_pooled_standard_error_with_counts_pools_the_neighbours_the_samples_could_come_from(rng, shape):
+    for _ in range(3):
+        count = rng.integers(1, 20, shape[:2]).astype(float)
+        mean = rng.choice([0.01, 0.5, 1.0, 100.0], shape) * rng.uniform(0.9, 1.1, shape)
+        variance = (rng.uniform(0.0, 0.6, shape) * mean) ** 2 / count.reshape(count.shape + (1,) * (len(shape) - 2))
+        variance[rng.random(shape) < 0.1] = 0.0
+        expected = _gated_pooled_error_by_definition(variance, mean, count)
+        assert_allclose(pooled_standard_error(variance, mean, count), expected, rtol=1e-12, atol=0)
+
+
+def test_a_dark_line_keeps_its_own_interval_a_pixel_that_missed_a_tail_does_not():
+    """8 samples a pixel. A line of 0.01 (samples 0.01 +- 0.005) in a field of 1 with 50% noise: the field
+    cannot have given those samples (Cantelli: 0.19^8 = 2e-6 < POOL_CHANCE), so the line's interval is its
+    own. A pixel whose 8 samples all missed a tail of 20 that its neighbours caught now and then (samples
+    0.2, or 20 with chance 0.05): z = 1 / (1 + 0.05) per sample, 0.68 for 8, so it pools as before."""
+    count = np.full((3, 3), 8.0)
+    mean = np.full((3, 3, 1), 1.0)
+    mean[:, 1] = 0.01
+    variance = (0.5 * mean) ** 2 / 8
+    gated = pooled_standard_error(variance, mean, count)
+    assert_array_equal(gated[:, 1], np.sqrt(variance[:, 1]))
+    assert_array_equal(pooled_standard_error(variance)[:, 1], np.sqrt(variance[:, 0]))  # without counts
+    tail = np.full((3, 3, 1), 0.2 + 0.05 * 19.8)  # mean 1.19, per-sample variance 0.05 * 0.95 * 19.8^2
+    tail_variance = np.full((3, 3, 1), 0.05 * 0.95 * 19.8**2 / 8)
+    tail[1, 1], tail_variance[1, 1] = 0.2, 0.0
+    assert_array_equal(pooled_standard_error(tail_variance, tail, count)[1, 1], np.sqrt(tail_variance[0, 0]))
+
+
+def test_pool_chance_zero_pools_every_neighbour(rng, monkeypatch):
+    mean = rng.choice([0.01, 1.0, 100.0], (8, 9, 2))
+    variance = (0.5 * mean) ** 2 / 8
+    image = mean + rng.normal(0.0, 50.0, mean.shape)
+    count = np.full((8, 9), 8.0)
+    assert not np.array_equal(pooled_clamp(image, mean, variance, 2.5, count=count)[0],
+                              pooled_clamp(image, mean, variance, 2.5)[0])
+    monkeypatch.setattr(finishing, "POOL_CHANCE", 0.0)
+    assert_array_equal(pooled_standard_error(variance, mean, count), pooled_standard_error(variance))
+    assert_array_equal(pooled_clamp(image, mean, variance, 2.5, count=count)[0], pooled_clamp(image, mean, variance, 2.5)[0])
+
+
+def test_the_clamps_test_is_exact_under_power_of_two_scaling(rng):
+    """Ratios of standard errors and gaps only: scaling every value by 2^k changes nothing but the scale, from
+    1e-150 to 1e150 (no square of a value is formed)."""
+    count = rng.integers(1, 16, (10, 12)).astype(float)
+    mean = rng.choice([0.01, 1.0, 100.0], (10, 12, 1))
+    variance = (rng.uniform(0.1, 0.6, mean.shape) * mean) ** 2 / count[..., None]
+    image = mean * rng.uniform(0.0, 3.0, mean.shape)
+    out = pooled_clamp(image, mean, variance, 2.5, count=count)[0]
+    for k in (-498, 498):
+        f = 2.0**k
+        assert_array_equal(pooled_clamp(image * f, mean * f, variance * f * f, 2.5, count=count)[0], out * f)
 
 
 def test_pooled_clamp_in_luminance_keeps_hue():
@@ -96,11 +173,14 @@ def test_pooled_clamp_is_the_plain_clip_to_pooled_errors_bit_for_bit(rng, shape)
         variance = rng.random(shape) ** 3 * (rng.random(shape) < 0.9)  # zeros: pixels whose samples agreed
         mean = rng.random(shape)
         image = mean + rng.normal(0.0, 1.0, shape) * np.sqrt(variance) * rng.uniform(0.0, 5.0, shape)
-        reach = 2.5 * pooled_standard_error(variance)
-        out, moved = pooled_clamp(image, mean, variance, 2.5)
-        expected = np.clip(image, mean - reach, mean + reach)
-        assert_array_equal(out, expected)
-        assert_array_equal(moved, expected != image)
+        count = rng.integers(1, 9, shape[:2]).astype(float)
+        for counts in (None, count):
+            reach = 2.5 * (pooled_standard_error(variance) if counts is None else
+                           pooled_standard_error(variance, mean, counts))
+            out, moved = pooled_clamp(image, mean, variance, 2.5, count=counts)
+            expected = np.clip(image, mean - reach, mean + reach)
+            assert_array_equal(out, expected)
+            assert_array_equal(moved, expected != image)
         weights = rng.dirichlet(np.ones(shape[2]))
         lum, lum_variance = mean @ weights, variance @ weights
         reach = 2.5 * pooled_standard_error(lum_variance)
