@@ -37,7 +37,8 @@ from typing import Any
 import numpy as np
 
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, VarianceSampler, reconstruct
-from awr_denoise import finishing, pooling
+from awr_denoise import finishing as finishing_steps
+from awr_denoise import pooling
 from awr_denoise.bench import update_section
 from awr_denoise.features import FEATURE_CHANNELS
 from awr_denoise.finishing import RESTORE_SHARE, match_mean, restore_mean
@@ -136,11 +137,11 @@ def agreed_held_exact(buffer: SampleBuffer) -> np.ndarray:
 
 def clamp_pools_every_neighbour(buffer: SampleBuffer) -> np.ndarray:
     """The default as it was before the clamp's neighbours were tested: ``finishing.POOL_CHANCE`` at 0."""
-    kept, finishing.POOL_CHANCE = finishing.POOL_CHANCE, 0.0
+    kept, finishing_steps.POOL_CHANCE = finishing_steps.POOL_CHANCE, 0.0
     try:
         return reconstruct(buffer)
     finally:
-        finishing.POOL_CHANCE = kept
+        finishing_steps.POOL_CHANCE = kept
 
 
 COMPARED: dict[str, Any] = {"pilot clamped": clamped_pilot, "no energy floor": with_floor(None),

@@ -55,6 +55,29 @@ def test_agreed_held_exact_is_the_default_before_moderation_and_restores_it(benc
         pooling.AGREED_PRIOR = pooling_prior
 
 
+def test_clamp_pools_every_neighbour_is_the_default_before_the_test_and_restores_it(bench, monkeypatch):
+    """``quality --compare``'s "clamp pools every neighbour": the default with ``finishing.POOL_CHANCE`` 0, the
+    chance put back afterwards; on a dark line one pixel wide the two differ."""
+    from awr_denoise import SampleBuffer, finishing, reconstruct
+    rng = np.random.default_rng(0)
+    truth = np.full((32, 32, 1), 100.0)
+    truth[:, 16] = 0.01
+    buffer = SampleBuffer.from_moments(np.full((32, 32), 8), truth * (1 + 0.2 * rng.standard_normal(truth.shape)),
+                                       (0.5 * truth) ** 2)
+    every = bench.clamp_pools_every_neighbour(buffer)
+    assert finishing.POOL_CHANCE == 1e-3
+    assert not np.allclose(every, reconstruct(buffer))
+    monkeypatch.setattr(finishing, "POOL_CHANCE", 0.0)
+    assert np.array_equal(every, reconstruct(buffer))
+
+
+@pytest.mark.parametrize("name", ["pilot clamped", "no energy floor", "agreed samples held exact",
+                                  "clamp pools every neighbour"])
+def test_every_compared_form_runs(bench, name):
+    out = bench.COMPARED[name](noisy_buffer((32, 32)))
+    assert out.shape == (32, 32, 3) and np.isfinite(out).all()
+
+
 def test_agreed_buffers_have_the_agreeing_pixels_they_name(bench):
     buffers = bench.agreed_buffers((240, 240))
     black = buffers["black squares, 8 spp"]
