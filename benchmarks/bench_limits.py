@@ -3,7 +3,7 @@ default loses to the plain mean").
 
 Run from the repository root::
 
-    .venv/bin/python benchmarks/bench_limits.py
+    .venv/bin/python benchmarks/bench_limits.py [--chances]
 
 Four synthetic kinds of image, each with a known clean image, many noise seeds, and the same samples given to
 every method: isolated true bright pixels (glints), samples that are either a hit or exactly 0 (a small light
@@ -11,7 +11,8 @@ reached now and then), texture at the scale of one pixel, and a dark line one pi
 Each cell is a ratio to the plain mean's error over the same renders: of the summed MSE (or relMSE) over every
 seed (the average render), and the worst single render's ratio. Beside the default: without the SURE guard,
 without the image mean's restoration, and stage 1 alone, which says which part of the default each loss comes
-from. Results: ``benchmarks/results/limits.json``.
+from; the clamp as it was before its neighbours were tested (and, with ``--chances``, at smaller least chances
+than the default's). Results: ``benchmarks/results/limits.json``.
 """
 
 from __future__ import annotations
@@ -24,13 +25,27 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-from awr_denoise import SampleBuffer, reconstruct
+from awr_denoise import SampleBuffer, finishing, reconstruct
 from awr_denoise.bench import update_section
 from awr_denoise.metrics import mse, relmse
 
 RESULTS = Path(__file__).resolve().parent / "results" / "limits.json"
 METHODS: dict[str, dict[str, Any]] = {"default": {}, "no guard": {"guard": False},
                                       "no mean restoration": {"preserve_mean": False}, "stage 1": {"stages": 1}}
+CHANCES: dict[str, float] = {"clamp pools every neighbour": 0.0}
+"""Columns of the default with ``finishing.POOL_CHANCE`` at another value; 0 is the form before the clamp's
+neighbours were tested (docs/reconstruction.md, "The clamp's neighbours")."""
+MORE_CHANCES: dict[str, float] = {"pool chance 1e-4": 1e-4, "pool chance 1e-5": 1e-5}
+"""``--chances``: smaller least chances than the default's 1e-3."""
+
+
+def at_chance(buffer: SampleBuffer, chance: float) -> np.ndarray:
+    """The default reconstruction with ``finishing.POOL_CHANCE`` at ``chance`` (put back afterwards)."""
+    kept, finishing.POOL_CHANCE = finishing.POOL_CHANCE, chance
+    try:
+        return reconstruct(buffer)
+    finally:
+        finishing.POOL_CHANCE = kept
 
 
 def gaussian(truth: np.ndarray, spp: int, relative_sd: float, rng: np.random.Generator) -> SampleBuffer:
@@ -103,13 +118,14 @@ CASES: list[tuple[str, Any, tuple[int, ...], int]] = [
 """(name, make, spps, seeds) of every case; ``make(spp, rng)`` gives the clean image and the buffer of one render."""
 
 
-def run(seed_scale: float = 1.0) -> list[dict[str, Any]]:
+def run(seed_scale: float = 1.0, chances: dict[str, float] = CHANCES) -> list[dict[str, Any]]:
     rows = []
     for name, make, spps, seeds in CASES:
         for spp in spps:
             for seed in range(max(1, round(seeds * seed_scale))):
                 truth, buffer = make(spp, np.random.default_rng(1000 * spp + seed))
-                images = {"plain": buffer.mean, **{m: reconstruct(buffer, **o) for m, o in METHODS.items()}}
+                images = {"plain": buffer.mean, **{m: reconstruct(buffer, **o) for m, o in METHODS.items()},
+                          **{m: at_chance(buffer, c) for m, c in chances.items()}}
                 for method, image in images.items():
                     rows.append({"case": name, "spp": spp, "seed": seed, "method": method,
                                  "mse": mse(image, truth), "relmse": relmse(image, truth),
@@ -118,7 +134,7 @@ def run(seed_scale: float = 1.0) -> list[dict[str, Any]]:
 
 
 def table(rows: list[dict[str, Any]]) -> None:
-    methods = list(METHODS)
+    methods = list(dict.fromkeys(r["method"] for r in rows if r["method"] != "plain"))
     print("\n| case | spp | seeds | " + " | ".join(f"{m}: MSE, relMSE / plain (worst render)" for m in methods)
           + " | largest image-mean change: default, no mean restoration |")
     print("|---|---|---|" + "---|" * (len(methods) + 1))
@@ -139,9 +155,11 @@ def table(rows: list[dict[str, Any]]) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed-scale", type=float, default=1.0, help="seeds per case times this (a quick look: 0.25)")
+    parser.add_argument("--chances", action="store_true",
+                        help="also the default at smaller least chances for the clamp's neighbours (MORE_CHANCES)")
     parser.add_argument("--output", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
-    rows = run(args.seed_scale)
+    rows = run(args.seed_scale, {**CHANCES, **(MORE_CHANCES if args.chances else {})})
     update_section(args.output, "limits", rows, "benchmarks/bench_limits.py " + " ".join(argv or sys.argv[1:]))
     table(rows)
     return 0

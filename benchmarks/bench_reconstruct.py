@@ -135,13 +135,20 @@ def agreed_held_exact(buffer: SampleBuffer) -> np.ndarray:
     return with_agreed_prior(0.0)(buffer)
 
 
+def with_pool_chance(chance: float) -> Any:
+    """The default with ``finishing.POOL_CHANCE`` at ``chance`` (put back afterwards)."""
+    def run(buffer: SampleBuffer) -> np.ndarray:
+        kept, finishing_steps.POOL_CHANCE = finishing_steps.POOL_CHANCE, chance
+        try:
+            return reconstruct(buffer)
+        finally:
+            finishing_steps.POOL_CHANCE = kept
+    return run
+
+
 def clamp_pools_every_neighbour(buffer: SampleBuffer) -> np.ndarray:
     """The default as it was before the clamp's neighbours were tested: ``finishing.POOL_CHANCE`` at 0."""
-    kept, finishing_steps.POOL_CHANCE = finishing_steps.POOL_CHANCE, 0.0
-    try:
-        return reconstruct(buffer)
-    finally:
-        finishing_steps.POOL_CHANCE = kept
+    return with_pool_chance(0.0)(buffer)
 
 
 COMPARED: dict[str, Any] = {"pilot clamped": clamped_pilot, "no energy floor": with_floor(None),
@@ -160,6 +167,9 @@ SHIFTED: dict[str, Any] = {f"decimated Wiener stages, {n} shift{'s' * (n > 1)}":
 PRIORS: dict[str, Any] = {f"agreed prior {d:g}": with_agreed_prior(d) for d in (0.5, 2.0, 4.0)}
 """``quality --priors``: the degrees of freedom of samples that all agreed (``pooling.AGREED_PRIOR``) beside the
 default's 1 (0, the previous form, is in COMPARED)."""
+CHANCES: dict[str, Any] = {f"pool chance {c:g}": with_pool_chance(c) for c in (1e-4, 1e-5)}
+"""``quality --chances``: the least chance for a neighbour to pool into the clamp (``finishing.POOL_CHANCE``) beside
+the default's 1e-3 (0, the previous form, is in COMPARED)."""
 WINDOWS: dict[str, Any] = {"guard window 13": {"guard_window": 13}, "guard window 17": {"guard_window": 17}}
 """``quality --windows`` and ``synthetic --windows``: the SURE guard's window at other sides than the default (9)."""
 
@@ -288,7 +298,7 @@ def quality_tables(rows: list[dict], method: str = "default", base: str = "stage
         print(f"| {scene} | {' / '.join(f'{g:.2f}' for g in gains)} | {m:.2f} | {r:.2f} |")
     every = [g for _, gains, _, _ in summary for g in gains]
     print(f"\ngeometric mean of the gain at 8-32 spp: {np.exp(np.mean(np.log(every))):.2f}, least {min(every):.2f}")
-    variants = (*CHEAPER, *SHIFTED, *COMPARED, *FLOORS, *PILOTS, *PRIORS, *WINDOWS)
+    variants = (*CHEAPER, *SHIFTED, *COMPARED, *FLOORS, *PILOTS, *PRIORS, *CHANCES, *WINDOWS)
     for other in (m for m in variants if any(r["method"] == m for r in rows)):
         cheaper_table(rows, other, method)
 
@@ -832,6 +842,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--floors", action="store_true", help="quality: also other energy floors (FLOORS)")
     parser.add_argument("--pilots", action="store_true", help="quality: also other pilot thresholds (PILOTS)")
     parser.add_argument("--priors", action="store_true", help="quality: also other agreed-sample priors (PRIORS)")
+    parser.add_argument("--chances", action="store_true",
+                        help="quality: also other least chances for the clamp's neighbours (CHANCES)")
     parser.add_argument("--caps", action="store_true", help="samplers: also other absolute_above values (CAPS)")
     parser.add_argument("--initials", action="store_true", help="samplers: also other initial_spp values (INITIALS)")
     parser.add_argument("--windows", action="store_true", help="quality, synthetic: also other guard windows (WINDOWS)")
@@ -847,6 +859,7 @@ def main(argv: list[str] | None = None) -> int:
                         **(COMPARED if args.compare else {}),
                         **(FLOORS if args.floors else {}), **(PILOTS if args.pilots else {}),
                         **(PRIORS if args.priors else {}),
+                        **(CHANCES if args.chances else {}),
                         **(WINDOWS if args.windows else {})})
         update_section(args.output, "quality", rows, command)
         quality_tables(rows)

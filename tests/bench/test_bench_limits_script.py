@@ -29,7 +29,24 @@ def test_a_short_run_records_every_case_and_prints_its_table(bench, tmp_path, ca
     assert bench.main(["--seed-scale", "0.01", "--output", str(out)]) == 0
     rows = json.loads(out.read_text())["limits"]["rows"]
     assert {r["case"] for r in rows} == {name for name, *_ in bench.CASES}
-    assert {r["method"] for r in rows} == {"plain", *bench.METHODS}
+    assert {r["method"] for r in rows} == {"plain", *bench.METHODS, *bench.CHANCES}
     assert all(np.isfinite(r["mse"]) and np.isfinite(r["relmse"]) for r in rows)
     printed = capsys.readouterr().out
     assert all(f"| {name} |" in printed for name, *_ in bench.CASES)
+
+
+def test_the_chance_columns_set_the_clamps_chance_and_put_it_back(bench, tmp_path, capsys):
+    """"clamp pools every neighbour" is the default with ``finishing.POOL_CHANCE`` 0 (the form before); ``--chances``
+    adds smaller chances; the module's value is the default's again afterwards."""
+    from awr_denoise import finishing, reconstruct
+    truth, buffer = bench.dark_line(100.0)(8, np.random.default_rng(0))
+    assert np.array_equal(bench.at_chance(buffer, finishing.POOL_CHANCE), reconstruct(buffer))
+    every = bench.at_chance(buffer, 0.0)
+    assert finishing.POOL_CHANCE == 1e-3
+    assert np.mean((every - truth) ** 2 / (truth**2 + 0.01)) > 10 * np.mean((reconstruct(buffer) - truth) ** 2
+                                                                            / (truth**2 + 0.01))
+    out = tmp_path / "limits.json"
+    assert bench.main(["--seed-scale", "0.01", "--chances", "--output", str(out)]) == 0
+    rows = json.loads(out.read_text())["limits"]["rows"]
+    assert {r["method"] for r in rows} == {"plain", *bench.METHODS, *bench.CHANCES, *bench.MORE_CHANCES}
+    assert "pool chance 1e-5: MSE, relMSE / plain (worst render)" in capsys.readouterr().out
