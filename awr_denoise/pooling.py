@@ -40,6 +40,11 @@ samples that are a light's value or exactly 0 from up to 5.3x the plain mean's M
 (``bench_reconstruct.py quality --compare``), other ``d0`` beside 1 (``quality --priors``)."""
 
 
+_SCATTER_SHARE = 8
+"""Entries at 0 that are at least ``1 / _SCATTER_SHARE`` of the planes are weighed from their spread neighbours
+outward (:func:`_scattered_at_zero`); fewer, gathered offset by offset. The same values either way, to rounding."""
+
+
 def estimated_variance(count: CountArray, mean: FloatArray, variance: FloatArray, known: BoolArray, *,
                        copy: bool = True) -> FloatArray:
     """(H, W, C) per-sample variance to threshold with: entries whose samples all agreed moderated
@@ -131,44 +136,93 @@ def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
 
 def _gathered_local(count: CountArray, mean: FloatArray, g: float, s2: FloatArray, dof: FloatArray,
                     where: tuple) -> FloatArray:
-    """:func:`agreed_variance`'s ``s2_local`` at the entries ``where`` (``s2`` the variances over ``g^2``), window
-    offset by window offset: flat indices into the planes padded by their edges (as ``mode="nearest"``)."""
+    """:func:`agreed_variance`'s ``s2_local`` at the entries ``where`` (``s2`` the variances over ``g^2``): entries at
+    level 0 from their spread neighbours outward (:func:`_scattered_at_zero`), the others window offset by window
+    offset, with flat indices into the planes padded by their edges (as ``mode="nearest"``)."""
     rows, cols, chans = where
-    r = POOL_WINDOW // 2
-    channels = s2.shape[2]
-    pad = ((r, r), (r, r), (0, 0))
-    s2_flat, mean_flat = np.pad(s2, pad, mode="edge").ravel(), np.pad(mean, pad, mode="edge").ravel()
-    dof_flat = np.pad(dof, r, mode="edge").ravel()
-    width = s2.shape[1] + 2 * r
-    pixel = (rows + r) * width + (cols + r)
-    level, n = mean[where], count[rows, cols].astype(np.float64)
+    level = mean[where]
     num, den = np.zeros(rows.size), np.zeros(rows.size)
-    for zero in (True, False):
-        part = np.flatnonzero((level == 0) == zero)
-        if not part.size:
-            continue
-        if zero:
-            # At level 0 (every sample missed) a neighbour's chance does not depend on the entry: its logarithm
-            # is taken once per pixel, and the entry's weight is exp(n log z).
-            with np.errstate(over="ignore", divide="ignore"):  # log 0 = -inf: a weight of 0
-                log_chance = np.log(_chance(s2_flat, np.abs(mean_flat) / g))
-        base, c, lv, k = pixel[part], chans[part], level[part], n[part]
-        acc_num, acc_den = np.zeros(part.size), np.zeros(part.size)
+    # From the spread neighbours outward where the entries at 0 are many (a share of the planes of at least
+    # 1 / _SCATTER_SHARE); for a few (a ring around a black region) the passes over the planes would cost more.
+    zero = level == 0
+    if zero.sum() * _SCATTER_SHARE >= s2.size:
+        num[zero], den[zero] = _scattered_at_zero(count, mean, g, s2, dof, (rows[zero], cols[zero], chans[zero]))
+    else:
+        zero[:] = False
+    other = np.flatnonzero(~zero)
+    if other.size:
+        r = POOL_WINDOW // 2
+        channels = s2.shape[2]
+        pad = ((r, r), (r, r), (0, 0))
+        s2_flat, mean_flat = np.pad(s2, pad, mode="edge").ravel(), np.pad(mean, pad, mode="edge").ravel()
+        dof_flat = np.pad(dof, r, mode="edge").ravel()
+        width = s2.shape[1] + 2 * r
+        base, c = (rows[other] + r) * width + (cols[other] + r), chans[other]
+        lv, k = level[other], count[rows[other], cols[other]].astype(np.float64)
+        acc_num, acc_den = np.zeros(other.size), np.zeros(other.size)
         for dy in range(-r, r + 1):  # a loop over the 25 window offsets; entries are vectorised
             for dx in range(-r, r + 1):
                 near = base + (dy * width + dx)
                 at = near * channels + c
                 spread = s2_flat.take(at)
-                if zero:
-                    power = np.exp(k * log_chance.take(at))
-                else:
-                    with np.errstate(over="ignore"):  # a gap past float64 is a chance of 0
-                        power = _chance(spread, np.abs(mean_flat.take(at) - lv) / g) ** k
+                with np.errstate(over="ignore"):  # a gap past float64 is a chance of 0
+                    power = _chance(spread, np.abs(mean_flat.take(at) - lv) / g) ** k
                 weight = dof_flat.take(near) * power
                 acc_num += weight * spread
                 acc_den += weight
-        num[part], den[part] = acc_num, acc_den
+        num[other], den[other] = acc_num, acc_den
     return num / den
+
+
+def _scattered_at_zero(count: CountArray, mean: FloatArray, g: float, s2: FloatArray, dof: FloatArray,
+                       where: tuple) -> tuple[FloatArray, FloatArray]:
+    """``s2_local``'s numerator and denominator at entries at level 0 (every sample missed).
+
+    A neighbour that agreed weighs its ``n - 1`` where it agreed at 0 too (a chance of 1) and nothing elsewhere,
+    whatever the entry's count: one window sum. A spread neighbour's chance does not depend on the entry but its
+    power ``n`` does: each spread neighbour near such an entry is visited once per window offset and adds
+    ``exp(n log z)`` to the entry it is an offset of. Where few pixels are spread (many missed, an adaptive run's
+    scattered counts) that is far fewer powers than 25 per entry."""
+    rows, cols, chans = where
+    h, w, channels = s2.shape
+    r = POOL_WINDOW // 2
+    with np.errstate(over="ignore"):  # a level past float64 over g is a chance of 0
+        chance = _chance(s2, np.abs(mean) / g)
+    den = np.zeros(rows.size)
+    agreed_at_zero = dof[..., None] * ((s2 == 0) & (chance == 1))
+    for c in range(channels):
+        on = chans == c
+        if on.any():
+            den[on] = _window_sum(agreed_at_zero[..., c])[rows[on], cols[on]]
+    # Entry numbers on a map padded by 2r (-1 elsewhere): a neighbour in the edge-padded planes (r each side) minus
+    # any offset lands on it, never past it.
+    pad = ((r, r), (r, r), (0, 0))
+    s2_p, chance_p = np.pad(s2, pad, mode="edge"), np.pad(chance, pad, mode="edge")
+    dof_p = np.pad(dof, r, mode="edge")
+    entry = np.full((h + 4 * r, w + 4 * r, channels), -1, dtype=np.intp)
+    entry[rows + 2 * r, cols + 2 * r, chans] = np.arange(rows.size)
+    # Spread neighbours (known, s2 > 0) within the window of an entry.
+    reach = np.zeros(s2_p.shape, dtype=bool)
+    reach[rows + r, cols + r, chans] = True
+    reach = ndimage.maximum_filter(reach, size=(POOL_WINDOW, POOL_WINDOW, 1), mode="constant")
+    sr, sc, sch = np.nonzero(reach & (s2_p > 0) & (dof_p > 0)[..., None])
+    width = w + 4 * r
+    at = ((sr + r) * width + (sc + r)) * channels + sch
+    spread, weight = s2_p[sr, sc, sch], dof_p[sr, sc]
+    with np.errstate(divide="ignore"):  # log 0 = -inf: a weight of 0
+        log_chance = np.log(chance_p[sr, sc, sch])
+    # The last slot takes what lands on no entry (-1): no mask, no compress, in each of the 25 passes below.
+    entries, n = entry.ravel(), np.append(count[rows, cols].astype(np.float64), 1.0)
+    num, den = np.zeros(rows.size + 1), np.append(den, 0.0)
+    for dy in range(-r, r + 1):  # a loop over the 25 window offsets; spread neighbours are vectorised
+        for dx in range(-r, r + 1):
+            target = entries.take(at - (dy * width + dx) * channels)
+            share = weight * np.exp(n.take(target) * log_chance)
+            # One offset maps distinct neighbours to distinct entries: no entry is added to twice.
+            num[target] += share * spread
+            den[target] += share
+    num, den = num[:-1], den[:-1]
+    return num, den
 
 
 def _chance(s2: FloatArray, gap: FloatArray) -> FloatArray:

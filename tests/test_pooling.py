@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from awr_denoise import SampleBuffer
+from awr_denoise import SampleBuffer, pooling
 from awr_denoise.pooling import AGREED_PRIOR, POOL_WINDOW, agreed_variance, estimated_variance
 from awr_denoise.prepare import prepare
 
@@ -121,6 +121,18 @@ def test_many_counts_at_0_match_the_definition(rng):
     got = agreed_variance(buf.count, buf.mean, buf.variance, buf.variance_known)
     assert_allclose(got, _reference(buf.count, buf.mean, buf.variance, buf.variance_known), rtol=1e-12, atol=0)
     assert (got[buf.variance == 0] > 0).mean() > 0.3
+
+
+@pytest.mark.parametrize("share", [0, 10**9])
+def test_both_paths_for_entries_at_0_match_the_definition(rng, monkeypatch, share):
+    """Entries at 0 at scattered counts, weighed from their spread neighbours outward (share 10^9: always) or
+    gathered offset by offset (share 0: never), on an image with edges, corners and a single row."""
+    monkeypatch.setattr(pooling, "_SCATTER_SHARE", share)
+    for shape in [(20, 24), (1, 9), (7, 1), (2, 3)]:
+        buf = _hit_or_zero(rng, shape=shape, spp=2, p=0.3, channels=3)
+        buf = SampleBuffer.from_moments(rng.integers(2, 42, buf.shape), buf.mean, buf.variance)
+        got = agreed_variance(buf.count, buf.mean, buf.variance, buf.variance_known)
+        assert_allclose(got, _reference(buf.count, buf.mean, buf.variance, buf.variance_known), rtol=1e-12, atol=0)
 
 
 def test_agreeing_levels_other_than_0_match_the_definition(rng):
