@@ -40,9 +40,10 @@ samples that are a light's value or exactly 0 from up to 5.3x the plain mean's M
 (``bench_reconstruct.py quality --compare``), other ``d0`` beside 1 (``quality --priors``)."""
 
 
-_SCATTER_SHARE = 8
-"""Entries at 0 that are at least ``1 / _SCATTER_SHARE`` of the planes are weighed from their spread neighbours
-outward (:func:`_scattered_at_zero`); fewer, gathered offset by offset. The same values either way, to rounding."""
+_SCATTER_SHARE = 2.0
+"""Entries at 0 at least this many times the spread pixels (known, variance above 0) are weighed from those
+outward (:func:`_scattered_at_zero`), fewer are gathered offset by offset: the same values, to rounding, and
+the work of each path follows the number it loops over."""
 
 
 def estimated_variance(count: CountArray, mean: FloatArray, variance: FloatArray, known: BoolArray, *,
@@ -136,41 +137,52 @@ def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
 
 def _gathered_local(count: CountArray, mean: FloatArray, g: float, s2: FloatArray, dof: FloatArray,
                     where: tuple) -> FloatArray:
-    """:func:`agreed_variance`'s ``s2_local`` at the entries ``where`` (``s2`` the variances over ``g^2``): entries at
-    level 0 from their spread neighbours outward (:func:`_scattered_at_zero`), the others window offset by window
-    offset, with flat indices into the planes padded by their edges (as ``mode="nearest"``)."""
+    """:func:`agreed_variance`'s ``s2_local`` at the entries ``where`` (``s2`` the variances over ``g^2``), window
+    offset by window offset: flat indices into the planes padded by their edges (as ``mode="nearest"``); entries
+    at 0 that outnumber the spread pixels by :data:`_SCATTER_SHARE`, from those outward (:func:`_scattered_at_zero`)."""
     rows, cols, chans = where
     level = mean[where]
     num, den = np.zeros(rows.size), np.zeros(rows.size)
-    # From the spread neighbours outward where the entries at 0 are many (a share of the planes of at least
-    # 1 / _SCATTER_SHARE); for a few (a ring around a black region) the passes over the planes would cost more.
-    zero = level == 0
-    if zero.sum() * _SCATTER_SHARE >= s2.size:
-        num[zero], den[zero] = _scattered_at_zero(count, mean, g, s2, dof, (rows[zero], cols[zero], chans[zero]))
-    else:
-        zero[:] = False
-    other = np.flatnonzero(~zero)
-    if other.size:
-        r = POOL_WINDOW // 2
-        channels = s2.shape[2]
-        pad = ((r, r), (r, r), (0, 0))
-        s2_flat, mean_flat = np.pad(s2, pad, mode="edge").ravel(), np.pad(mean, pad, mode="edge").ravel()
-        dof_flat = np.pad(dof, r, mode="edge").ravel()
-        width = s2.shape[1] + 2 * r
-        base, c = (rows[other] + r) * width + (cols[other] + r), chans[other]
-        lv, k = level[other], count[rows[other], cols[other]].astype(np.float64)
-        acc_num, acc_den = np.zeros(other.size), np.zeros(other.size)
+    # Where many missed beside few spread pixels (an adaptive run's scattered counts), the powers are taken once
+    # per spread neighbour and entry, not 25 times per entry.
+    at_zero = level == 0
+    scatter = at_zero.any() and at_zero.sum() >= _SCATTER_SHARE * np.count_nonzero((s2 > 0) & (dof > 0)[..., None])
+    if scatter:
+        num[at_zero], den[at_zero] = _scattered_at_zero(count, mean, g, s2, dof,
+                                                        (rows[at_zero], cols[at_zero], chans[at_zero]))
+    r = POOL_WINDOW // 2
+    channels = s2.shape[2]
+    pad = ((r, r), (r, r), (0, 0))
+    s2_flat, mean_flat = np.pad(s2, pad, mode="edge").ravel(), np.pad(mean, pad, mode="edge").ravel()
+    dof_flat = np.pad(dof, r, mode="edge").ravel()
+    width = s2.shape[1] + 2 * r
+    pixel = (rows + r) * width + (cols + r)
+    n = count[rows, cols].astype(np.float64)
+    for zero in (False,) if scatter else (True, False):
+        part = np.flatnonzero(at_zero == zero)
+        if not part.size:
+            continue
+        if zero:
+            # At level 0 (every sample missed) a neighbour's chance does not depend on the entry: its logarithm
+            # is taken once per pixel, and the entry's weight is exp(n log z).
+            with np.errstate(over="ignore", divide="ignore"):  # log 0 = -inf: a weight of 0
+                log_chance = np.log(_chance(s2_flat, np.abs(mean_flat) / g))
+        base, c, lv, k = pixel[part], chans[part], level[part], n[part]
+        acc_num, acc_den = np.zeros(part.size), np.zeros(part.size)
         for dy in range(-r, r + 1):  # a loop over the 25 window offsets; entries are vectorised
             for dx in range(-r, r + 1):
                 near = base + (dy * width + dx)
                 at = near * channels + c
                 spread = s2_flat.take(at)
-                with np.errstate(over="ignore"):  # a gap past float64 is a chance of 0
-                    power = _chance(spread, np.abs(mean_flat.take(at) - lv) / g) ** k
+                if zero:
+                    power = np.exp(k * log_chance.take(at))
+                else:
+                    with np.errstate(over="ignore"):  # a gap past float64 is a chance of 0
+                        power = _chance(spread, np.abs(mean_flat.take(at) - lv) / g) ** k
                 weight = dof_flat.take(near) * power
                 acc_num += weight * spread
                 acc_den += weight
-        num[other], den[other] = acc_num, acc_den
+        num[part], den[part] = acc_num, acc_den
     return num / den
 
 

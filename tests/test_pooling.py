@@ -125,8 +125,8 @@ def test_many_counts_at_0_match_the_definition(rng):
 
 @pytest.mark.parametrize("share", [0, 10**9])
 def test_both_paths_for_entries_at_0_match_the_definition(rng, monkeypatch, share):
-    """Entries at 0 at scattered counts, weighed from their spread neighbours outward (share 10^9: always) or
-    gathered offset by offset (share 0: never), on an image with edges, corners and a single row."""
+    """Entries at 0 at scattered counts, weighed from their spread neighbours outward (share 0: always) or
+    gathered offset by offset (share 10^9: never), on an image with edges, corners and a single row."""
     monkeypatch.setattr(pooling, "_SCATTER_SHARE", share)
     for shape in [(20, 24), (1, 9), (7, 1), (2, 3)]:
         buf = _hit_or_zero(rng, shape=shape, spp=2, p=0.3, channels=3)
