@@ -714,8 +714,9 @@ def finishing_table(rows: list[dict]) -> None:
 
 # ---------------------------------------------------------------------------- speed
 def speed(sizes: list[str], repeats: int, extra: tuple[str, ...] = ()) -> list[dict[str, Any]]:
-    """Median seconds of every variant of :data:`SPEED_VARIANTS` (and the ``extra`` ones of :data:`SHIFTED`)."""
-    variants = {**SPEED_VARIANTS, **{name: name for name in extra}}
+    """Median seconds of every variant of :data:`SPEED_VARIANTS` (and the ``extra`` ones of :data:`SHIFTED` and
+    :data:`COMPARED`)."""
+    variants = {**SPEED_VARIANTS, **{name: COMPARED.get(name, name) for name in extra}}
     rows = []
     print("| image | " + " | ".join(variants) + " |")
     print("|---|" + "---|" * len(variants))
@@ -729,8 +730,8 @@ def speed(sizes: list[str], repeats: int, extra: tuple[str, ...] = ()) -> list[d
         for round_ in range(n + 1):
             for name, options in variants.items():
                 start = time.perf_counter()
-                if isinstance(options, str):
-                    {**COMPARED, **CHEAPER, **SHIFTED}[options](buffer)
+                if isinstance(options, str) or callable(options):
+                    (options if callable(options) else {**COMPARED, **CHEAPER, **SHIFTED}[options])(buffer)
                 else:
                     reconstruct(buffer, **{k: (clean if v == "reference" else v) for k, v in options.items()})
                 if round_:  # the first round builds and caches the transforms' operators
@@ -838,7 +839,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cheaper", action="store_true", help="quality: also the cheaper variants (CHEAPER)")
     parser.add_argument("--shifts", action="store_true",
                         help="quality, speed: also the Wiener stages on the decimated transform, cycle-spun (SHIFTED)")
-    parser.add_argument("--compare", action="store_true", help="quality: also earlier forms of the default (COMPARED)")
+    parser.add_argument("--compare", action="store_true",
+                        help="quality and speed: also earlier forms of the default (COMPARED)")
     parser.add_argument("--floors", action="store_true", help="quality: also other energy floors (FLOORS)")
     parser.add_argument("--pilots", action="store_true", help="quality: also other pilot thresholds (PILOTS)")
     parser.add_argument("--priors", action="store_true", help="quality: also other agreed-sample priors (PRIORS)")
@@ -887,7 +889,7 @@ def main(argv: list[str] | None = None) -> int:
         update_section(args.output, "synthetic", rows, command)
         synthetic_table(rows)
     elif args.section == "speed":
-        rows = speed(args.sizes, args.repeats, tuple(SHIFTED) if args.shifts else ())
+        rows = speed(args.sizes, args.repeats, (*(SHIFTED if args.shifts else ()), *(COMPARED if args.compare else ())))
         update_section(args.output, "speed", rows, command)
     elif args.section == "agreed":
         rows = agreed_speed(args.sizes, args.repeats)

@@ -100,7 +100,8 @@ def test_pool_chance_zero_pools_every_neighbour(rng, monkeypatch):
                               pooled_clamp(image, mean, variance, 2.5)[0])
     monkeypatch.setattr(finishing, "POOL_CHANCE", 0.0)
     assert_array_equal(pooled_standard_error(variance, mean, count), pooled_standard_error(variance))
-    assert_array_equal(pooled_clamp(image, mean, variance, 2.5, count=count)[0], pooled_clamp(image, mean, variance, 2.5)[0])
+    assert_array_equal(pooled_clamp(image, mean, variance, 2.5, count=count)[0],
+                       pooled_clamp(image, mean, variance, 2.5)[0])
 
 
 def test_the_clamps_test_is_exact_under_power_of_two_scaling(rng):

@@ -93,3 +93,11 @@ def test_the_agreed_section_times_every_case(bench, capsys):
     assert all(set(r["seconds"]) == {"moderation alone", "default", "agreed samples held exact", "ask()",
                                      "ask(), agreed samples held exact"} for r in rows)
     assert "| 128x128 | hit or zero, 2 spp |" in capsys.readouterr().out
+
+
+def test_speed_times_the_compared_forms_it_is_given(bench):
+    """``speed --compare``: a compared form that is a function is called, one that is a set of options is passed
+    to ``reconstruct``."""
+    rows = bench.speed(["128x128"], 1, ("clamp pools every neighbour", "pilot c_s 1.5"))
+    assert {"default", "clamp pools every neighbour", "pilot c_s 1.5"} <= set(rows[0]["seconds"])
+    assert all(v > 0 for v in rows[0]["seconds"].values())
