@@ -48,9 +48,11 @@ further from ``m``, and ``g = |m - c| - s (n - 1) / sqrt(n)`` the least distance
 can have from ``m`` (Samuelson's inequality). A pixel whose samples missed a heavy tail its neighbours
 caught still pools (``z`` near 1); a dark line one pixel wide in a bright field does not (relMSE 195x the
 plain mean's in a field of 100 at 8 spp before, ``benchmarks/bench_limits.py``). Cantelli's bound is
-nearly attained by two-point distributions (a pixel covered in part by an edge), so a chance below
-1e-3 also separates a few such pixels from their neighbours: docs/reconstruction.md, "The clamp's
-neighbours" (``bench_reconstruct.py quality --compare``). 0 pools every neighbour (the form before)."""
+nearly attained by two-point distributions (a pixel covered in part by an edge), so the test also
+separates a few real pixels from their neighbours (1-3% more relMSE on the defocused ``chess_dof``):
+the trade, and smaller chances, in docs/reconstruction.md, "The clamp's neighbours" (``bench_reconstruct.py
+quality --compare`` and ``--chances``, ``bench_limits.py --chances``). 0 pools every neighbour (the form
+before)."""
 
 MEAN_LIMIT = 0.05
 """Largest change of a channel's image mean made unless the change is significant (5%)."""
@@ -67,7 +69,7 @@ row): without this cap the noise of the removed fireflies comes back on the synt
 left the worst render of the Mitsuba ``glossy_glass`` scene at 4 spp at 1.056x the plain mean's
 MSE and 0.2 at 0.996x (a real renderer's MSE, the rule every default is held to); since samples
 that all agreed are moderated (:mod:`awr_denoise.pooling`) both give 0.995x there, 0.2 a lower
-average MSE on that scene by 0.1-0.5% of the plain mean's, and 0.05 lower relMSE (``fireflies`` at
+average MSE on that scene by up to 0.5% of the plain mean's, and 0.05 lower relMSE (``fireflies`` at
 64 spp: 0.14x the plain mean's against 0.20x)."""
 
 MEAN_SIGNIFICANCE = 2.0
@@ -209,26 +211,49 @@ def _median3x3_at(a: FloatArray, where: tuple) -> FloatArray:
     return np.partition(values, 4, axis=0)[4]
 
 
+_SORT9 = ((0, 1), (3, 4), (6, 7), (1, 2), (4, 5), (7, 8), (0, 1), (3, 4), (6, 7), (0, 3), (3, 6), (0, 3), (1, 4),
+          (4, 7), (1, 4), (2, 5), (5, 8), (2, 5), (1, 3), (5, 7), (2, 6), (4, 6), (2, 4), (2, 3), (5, 6))
+"""A sorting network for nine values (25 compare-exchanges; tests check it on every input of 0s and 1s): elementwise
+minima and maxima over whole rows, several times faster than ``np.sort`` along an axis of nine."""
+
+
 def _pooled_median_at(s: FloatArray, mean: FloatArray, count: FloatArray, where: tuple) -> FloatArray:
     """The median of the standard errors ``s`` over the 3x3 neighbours at ``where`` that pass :data:`POOL_CHANCE`'s
     test (the upper median of an even number); every neighbour with ``POOL_CHANCE`` at 0."""
-    h, w = s.shape[:2]
-    rows, cols, rest = where[0], where[1], where[2:]
-    near = [(np.clip(rows + i, 0, h - 1), np.clip(cols + j, 0, w - 1)) for i in (-1, 0, 1) for j in (-1, 0, 1)]
-    values = np.stack([s[ix + rest] for ix in near])
     if not POOL_CHANCE:
-        return np.partition(values, 4, axis=0)[4]
-    count = np.asarray(count, dtype=np.float64).reshape(h, w)
-    n, own_s, own_m = count[rows, cols], s[where], mean[where]
+        return _median3x3_at(s, where)
+    h, w = s.shape[:2]
+    rows, cols = where[0], where[1]
+    channels = s.shape[2] if s.ndim == 3 else 1
+    chan = where[2] if s.ndim == 3 else 0
+    # Flat indices into the planes padded by one pixel, edges repeated (as the median filter's mode="nearest").
+    pad = ((1, 1), (1, 1), (0, 0))
+    s_flat = np.pad(s.reshape(h, w, channels), pad, mode="edge").ravel()
+    mean_flat = np.pad(mean.reshape(h, w, channels), pad, mode="edge").ravel()
+    count_flat = np.pad(np.asarray(count, dtype=np.float64).reshape(h, w), 1, mode="edge").ravel()
+    pixel = (rows + 1) * (w + 2) + (cols + 1)
+    n, own_s, own_m = count_flat.take(pixel), s[where], mean[where]
+    # z^n >= POOL_CHANCE with z = S^2 / (S^2 + g^2) is g <= S sqrt(expm1(-log(POOL_CHANCE) / n)): one root per
+    # pixel, and a neighbour's test is a product and a comparison (no square of a value, so no overflow).
     # s is the standard error of a mean: the pixel's samples lie within s (n - 1) of their mean (Samuelson),
-    # the neighbour's per-sample deviation is its s sqrt(n). In ratios, so no square over- or underflows.
-    gap = np.maximum(np.abs(np.stack([mean[ix + rest] for ix in near]) - own_m) - own_s * (n - 1), 0.0)
-    spread = values * np.sqrt(np.stack([count[ix] for ix in near]))
-    with np.errstate(over="ignore"):
-        ratio = np.divide(gap, spread, out=np.where(gap > 0, np.inf, 0.0), where=spread > 0)
-        keep = n * np.log1p(np.square(ratio)) <= -math.log(POOL_CHANCE)   # z^n >= POOL_CHANCE, z = 1 / (1 + ratio^2)
-    values = np.sort(np.where(keep, values, np.inf), axis=0)  # the pixel itself (gap 0) is always kept
-    return np.take_along_axis(values, (keep.sum(axis=0) // 2)[None], axis=0)[0]
+    # a neighbour's per-sample deviation S is its s sqrt(n).
+    reach = np.sqrt(np.expm1(-math.log(POOL_CHANCE) / n))
+    near_edge = own_s * (n - 1)
+    values = []
+    for i in (-1, 0, 1):
+        for j in (-1, 0, 1):
+            nb = pixel + (i * (w + 2) + j)
+            at = nb * channels + chan
+            value = s_flat.take(at)
+            gap = np.abs(mean_flat.take(at) - own_m) - near_edge
+            keep = gap <= value * np.sqrt(count_flat.take(nb)) * reach   # the pixel itself (gap <= 0) always
+            values.append(np.where(keep, value, np.inf))
+    kept = sum(np.isfinite(v).astype(np.intp) for v in values)
+    for i, j in _SORT9:
+        low = np.minimum(values[i], values[j])
+        np.maximum(values[i], values[j], out=values[j])
+        values[i] = low
+    return np.choose(kept // 2, values)
 
 
 def clip_negative(image: FloatArray, mean: FloatArray) -> tuple[FloatArray, FloatArray]:

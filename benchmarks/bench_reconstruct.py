@@ -167,7 +167,7 @@ SHIFTED: dict[str, Any] = {f"decimated Wiener stages, {n} shift{'s' * (n > 1)}":
 PRIORS: dict[str, Any] = {f"agreed prior {d:g}": with_agreed_prior(d) for d in (0.5, 2.0, 4.0)}
 """``quality --priors``: the degrees of freedom of samples that all agreed (``pooling.AGREED_PRIOR``) beside the
 default's 1 (0, the previous form, is in COMPARED)."""
-CHANCES: dict[str, Any] = {f"pool chance {c:g}": with_pool_chance(c) for c in (1e-4, 1e-5)}
+CHANCES: dict[str, Any] = {"pool chance 1e-4": with_pool_chance(1e-4), "pool chance 1e-5": with_pool_chance(1e-5)}
 """``quality --chances``: the least chance for a neighbour to pool into the clamp (``finishing.POOL_CHANCE``) beside
 the default's 1e-3 (0, the previous form, is in COMPARED)."""
 WINDOWS: dict[str, Any] = {"guard window 13": {"guard_window": 13}, "guard window 17": {"guard_window": 17}}

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
@@ -71,6 +73,15 @@ def test_pooled_standard_error_with_counts_pools_the_neighbours_the_samples_coul
         variance[rng.random(shape) < 0.1] = 0.0
         expected = _gated_pooled_error_by_definition(variance, mean, count)
         assert_allclose(pooled_standard_error(variance, mean, count), expected, rtol=1e-12, atol=0)
+
+
+def test_the_nine_value_sorting_network_sorts_every_input():
+    """By the 0-1 principle a comparator network that sorts every input of 0s and 1s sorts every input."""
+    for bits in itertools.product((0, 1), repeat=9):
+        values = list(bits)
+        for i, j in finishing._SORT9:
+            values[i], values[j] = min(values[i], values[j]), max(values[i], values[j])
+        assert values == sorted(bits)
 
 
 def test_a_dark_line_keeps_its_own_interval_a_pixel_that_missed_a_tail_does_not():
