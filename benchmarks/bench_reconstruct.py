@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import sys
 import time
 from functools import partial
@@ -767,16 +768,21 @@ def agreed_buffers(shape: tuple[int, int]) -> dict[str, SampleBuffer]:
 def agreed_speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
     """Median seconds of the moderation alone (``pooling.estimated_variance``), the default reconstruction and
     one ``AdaptiveSampler.ask()`` round (a sampler that has the buffer), each beside the same with agreeing
-    samples held exact (``AGREED_PRIOR`` 0), interleaved, on :func:`agreed_buffers`."""
+    samples held exact (``AGREED_PRIOR`` 0), interleaved, on :func:`agreed_buffers`; the moderation also with every
+    entry gathered offset by offset (``pooling._SCATTER_SHARE`` infinite), the form before entries at 0 were weighed
+    from the spread pixels outward."""
     rows = []
-    print("| image | buffer | moderation alone | default | held exact | ratio | ask() | held exact | ratio |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| image | buffer | moderation alone | gathered only | ratio | default | held exact | ratio | ask() "
+          "| held exact | ratio |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for size in sizes:
         for kind, buffer in agreed_buffers(SIZES[size]).items():
             # Each case is set up untimed and returns the call that is timed: a sampler that has the buffer is
             # built anew before each ask() (asking again before tell() returns the same request).
-            cases = {"moderation alone": lambda b=buffer: partial(pooling.estimated_variance, b.count, b.mean,
-                                                                  b.variance, b.variance_known),
+            moderate = partial(pooling.estimated_variance, buffer.count, buffer.mean, buffer.variance,
+                               buffer.variance_known)
+            cases = {"moderation alone": lambda m=moderate: m,
+                     "moderation, gathered only": lambda m=moderate: partial(_gathered_only, m),
                      "default": lambda b=buffer: partial(reconstruct, b),
                      "agreed samples held exact": lambda b=buffer: partial(agreed_held_exact, b),
                      "ask()": lambda b=buffer: AdaptiveSampler.from_buffer(b, round=1).ask,
@@ -793,9 +799,18 @@ def agreed_speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
             medians = {k: float(np.median(v)) for k, v in seconds.items()}
             rows.append({"size": size, "buffer": kind, "repeats": len(seconds["default"]), "seconds": medians})
             m = list(medians.values())
-            print(f"| {size} | {kind} | {m[0]:.3f} s | {m[1]:.3f} s | {m[2]:.3f} s | {m[1] / m[2]:.2f} | {m[3]:.3f} s "
-                  f"| {m[4]:.3f} s | {m[3] / m[4]:.2f} |", flush=True)
+            print(f"| {size} | {kind} | {m[0]:.3f} s | {m[1]:.3f} s | {m[0] / m[1]:.2f} | {m[2]:.3f} s | {m[3]:.3f} s "
+                  f"| {m[2] / m[3]:.2f} | {m[4]:.3f} s | {m[5]:.3f} s | {m[4] / m[5]:.2f} |", flush=True)
     return rows
+
+
+def _gathered_only(run: Any) -> Any:
+    """``run()`` with every entry of the moderation gathered offset by offset (``pooling._SCATTER_SHARE`` infinite)."""
+    kept, pooling._SCATTER_SHARE = pooling._SCATTER_SHARE, math.inf
+    try:
+        return run()
+    finally:
+        pooling._SCATTER_SHARE = kept
 
 
 def _held_exact(run: Any) -> Any:

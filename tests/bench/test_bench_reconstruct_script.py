@@ -90,9 +90,24 @@ def test_agreed_buffers_have_the_agreeing_pixels_they_name(bench):
 def test_the_agreed_section_times_every_case(bench, capsys):
     rows = bench.agreed_speed(["128x128"], 1)
     assert [r["buffer"] for r in rows] == ["black squares, 8 spp", "hit or zero, 2 spp", "hit or zero, 2-39 spp"]
-    assert all(set(r["seconds"]) == {"moderation alone", "default", "agreed samples held exact", "ask()",
-                                     "ask(), agreed samples held exact"} for r in rows)
+    assert all(set(r["seconds"]) == {"moderation alone", "moderation, gathered only", "default",
+                                     "agreed samples held exact", "ask()", "ask(), agreed samples held exact"}
+               for r in rows)
     assert "| 128x128 | hit or zero, 2 spp |" in capsys.readouterr().out
+
+
+def test_gathered_only_is_the_moderation_without_the_outward_path_and_restores_it(bench, monkeypatch):
+    """The agreed section's "gathered only": every entry offset by offset; the same values to rounding."""
+    from awr_denoise import pooling
+    b = bench.agreed_buffers((64, 64))["hit or zero, 2-39 spp"]
+    args = (b.count, b.mean, b.variance, b.variance_known)
+    paths = []
+    real = pooling._scattered_at_zero
+    monkeypatch.setattr(pooling, "_scattered_at_zero", lambda *a: paths.append("outward") or real(*a))
+    gathered = bench._gathered_only(lambda: pooling.estimated_variance(*args))
+    assert paths == [] and pooling._SCATTER_SHARE == 2.0
+    np.testing.assert_allclose(pooling.estimated_variance(*args), gathered, rtol=1e-12)
+    assert paths == ["outward"]
 
 
 def test_speed_times_the_compared_forms_it_is_given(bench):
