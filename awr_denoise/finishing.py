@@ -239,7 +239,7 @@ def _pooled_median_at(s: FloatArray, mean: FloatArray, count: FloatArray, where:
     # a neighbour's per-sample deviation S is its s sqrt(n).
     reach = np.sqrt(np.expm1(-math.log(POOL_CHANCE) / n))
     near_edge = own_s * (n - 1)
-    values = []
+    values, kept = [], np.zeros(rows.size, dtype=np.intp)
     for i in (-1, 0, 1):
         for j in (-1, 0, 1):
             nb = pixel + (i * (w + 2) + j)
@@ -248,7 +248,7 @@ def _pooled_median_at(s: FloatArray, mean: FloatArray, count: FloatArray, where:
             gap = np.abs(mean_flat.take(at) - own_m) - near_edge
             keep = gap <= value * np.sqrt(count_flat.take(nb)) * reach   # the pixel itself (gap <= 0) always
             values.append(np.where(keep, value, np.inf))
-    kept = sum(np.isfinite(v).astype(np.intp) for v in values)
+            kept += keep
     for i, j in _SORT9:
         low = np.minimum(values[i], values[j])
         np.maximum(values[i], values[j], out=values[j])

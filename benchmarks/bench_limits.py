@@ -21,6 +21,7 @@ import argparse
 import sys
 from pathlib import Path
 from typing import Any
+from unittest import mock
 
 import numpy as np
 from scipy import ndimage
@@ -41,11 +42,8 @@ MORE_CHANCES: dict[str, float] = {"pool chance 1e-4": 1e-4, "pool chance 1e-5": 
 
 def at_chance(buffer: SampleBuffer, chance: float) -> np.ndarray:
     """The default reconstruction with ``finishing.POOL_CHANCE`` at ``chance`` (put back afterwards)."""
-    kept, finishing.POOL_CHANCE = finishing.POOL_CHANCE, chance
-    try:
+    with mock.patch.object(finishing, "POOL_CHANCE", chance):
         return reconstruct(buffer)
-    finally:
-        finishing.POOL_CHANCE = kept
 
 
 def gaussian(truth: np.ndarray, spp: int, relative_sd: float, rng: np.random.Generator) -> SampleBuffer:

@@ -34,6 +34,7 @@ import time
 from functools import partial
 from pathlib import Path
 from typing import Any
+from unittest import mock
 
 import numpy as np
 
@@ -120,15 +121,17 @@ def with_floor(floor: tuple[int, float] | None) -> Any:
     return run
 
 
-def with_agreed_prior(prior: float) -> Any:
-    """The default with ``pooling.AGREED_PRIOR`` at ``prior`` (put back afterwards)."""
+def with_constant(module: Any, name: str, value: Any) -> Any:
+    """The default reconstruction with ``module.name`` at ``value`` (put back afterwards)."""
     def run(buffer: SampleBuffer) -> np.ndarray:
-        kept, pooling.AGREED_PRIOR = pooling.AGREED_PRIOR, prior
-        try:
+        with mock.patch.object(module, name, value):
             return reconstruct(buffer)
-        finally:
-            pooling.AGREED_PRIOR = kept
     return run
+
+
+def with_agreed_prior(prior: float) -> Any:
+    """The default with ``pooling.AGREED_PRIOR`` at ``prior``."""
+    return with_constant(pooling, "AGREED_PRIOR", prior)
 
 
 def agreed_held_exact(buffer: SampleBuffer) -> np.ndarray:
@@ -137,14 +140,8 @@ def agreed_held_exact(buffer: SampleBuffer) -> np.ndarray:
 
 
 def with_pool_chance(chance: float) -> Any:
-    """The default with ``finishing.POOL_CHANCE`` at ``chance`` (put back afterwards)."""
-    def run(buffer: SampleBuffer) -> np.ndarray:
-        kept, finishing_steps.POOL_CHANCE = finishing_steps.POOL_CHANCE, chance
-        try:
-            return reconstruct(buffer)
-        finally:
-            finishing_steps.POOL_CHANCE = kept
-    return run
+    """The default with ``finishing.POOL_CHANCE`` at ``chance``."""
+    return with_constant(finishing_steps, "POOL_CHANCE", chance)
 
 
 def clamp_pools_every_neighbour(buffer: SampleBuffer) -> np.ndarray:
@@ -809,20 +806,14 @@ def agreed_speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
 
 def _gathered_only(run: Any) -> Any:
     """``run()`` with every entry of the moderation gathered offset by offset (``pooling._SCATTER_SHARE`` infinite)."""
-    kept, pooling._SCATTER_SHARE = pooling._SCATTER_SHARE, math.inf
-    try:
+    with mock.patch.object(pooling, "_SCATTER_SHARE", math.inf):
         return run()
-    finally:
-        pooling._SCATTER_SHARE = kept
 
 
 def _held_exact(run: Any) -> Any:
     """``run()`` with ``pooling.AGREED_PRIOR`` at 0, put back afterwards."""
-    kept, pooling.AGREED_PRIOR = pooling.AGREED_PRIOR, 0.0
-    try:
+    with mock.patch.object(pooling, "AGREED_PRIOR", 0.0):
         return run()
-    finally:
-        pooling.AGREED_PRIOR = kept
 
 
 # ---------------------------------------------------------------------------- main
