@@ -124,7 +124,8 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
                    precision: str, luminance: tuple[Prepared, FloatArray] | None, guard: bool, probes: int, seed: int,
                    run: Callable, parallel: bool, keep: FloatArray | float, guide: FloatArray | None,
                    projection: float, floor: tuple[int, float] | None = DEFAULT_FLOOR,
-                   window: int = DEFAULT_WINDOW) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
+                   window: int = DEFAULT_WINDOW, guard_probes: int = 0
+                   ) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
     """Stages 2.. and the SURE guard on the image brought to unit scale; the probe variance if asked, the noise gain.
 
     With ``parallel`` the Wiener stages filter their bands on ``run``'s threads (an executor's
@@ -134,7 +135,7 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
     s, k, x, v = prepared.unit_scaled()
     transform = stationary_transform(x.shape[:2], wavelet, levels, precision_for(precision, k, x, pilot / s))
     options = {"k": k, "leverage": guard, "probes": probes, "keep": keep, "seed": seed,
-               "run": run if parallel else None}
+               "run": run if parallel else None, "divergence_probes": guard_probes if guard else 0}
     # The first Wiener stage's energy floor needs each channel's own factors: channel mode only.
     floor_setting = floor if luminance is None else None
     if luminance is None:  # every channel in one call: each band's transfer functions are built once
@@ -150,11 +151,14 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
     gain = None
     if guard:
         assert leverage is not None
+        # The guard's risk needs the stages' divergence: their diagonal (factors held), or measured.
+        divergence = leverage if done.divergence is None else done.divergence
         if luminance is None:
-            out, lam = sure_blend(out, x, v, leverage, k=k, window=window, run=options["run"])
+            out, lam = sure_blend(out, x, v, divergence, k=k, window=window, run=options["run"])
         else:  # one share for every channel, decided on luminance: hue is kept
             weights = luminance[1]
-            _, lam = sure_blend(out @ weights, x @ weights, luminance[0].variance / s / s, leverage[..., 0], k=k,
+            _, lam = sure_blend(out @ weights, x @ weights, luminance[0].variance / s / s,
+                                divergence[..., 0] if done.divergence is None else divergence @ weights, k=k,
                                 window=window)
             lam = lam[..., None]
             out = x + lam * (out - x)
@@ -204,7 +208,8 @@ def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | N
                                                wavelet=wavelet, precision=settings.precision, luminance=luminance,
                                                guard=settings.guard, probes=settings.probes, seed=settings.seed, run=run,
                                                parallel=parallel, keep=keep, guide=guide, projection=projection,
-                                               floor=settings.floor, window=settings.guard_window)
+                                               floor=settings.floor, window=settings.guard_window,
+                                               guard_probes=settings.guard_probes)
         if settings.pixel_clamp is not None:
             lum = None if luminance is None else luminance[0]
             image, moved = pooled_clamp(image, prepared.mean if lum is None else lum.mean,
@@ -238,6 +243,7 @@ def reconstruct_detailed(
     wiener_exponents: Sequence[float] = DEFAULT_WIENER_EXPONENTS,
     guard: bool | None = None,
     guard_window: int | None = None,
+    guard_probes: int | None = None,
     preserve_mean: bool | None = None,
     nonnegative: bool | None = None,
     precision: str = DEFAULT_PRECISION,
@@ -302,6 +308,15 @@ def reconstruct_detailed(
         trusts). Wider windows estimate the share with less noise: 13 and 17 measured up to 7% lower
         relMSE on eight of the ten bundled and Mitsuba scenes, but up to 11% higher MSE next to a
         small, very bright light (docs/reconstruction.md, "The guard's window, measured").
+    guard_probes
+        ``0`` (default): the guard's risk takes the Wiener stages' diagonal with their factors held
+        fixed. ``n > 0``: their divergence measured by ``n`` random probes, each a second run of the
+        Wiener stages (:func:`~awr_denoise.wiener.chain`). The stages follow a pixel's own mean more
+        than their diagonal says (each stage's pilot is made from the same means), most in texture at
+        the scale of one pixel, where the default has up to 2.5x the plain mean's relMSE and one
+        probe brings it to 1.3x or below; on the rendered scenes of both renderers it costs 2-10%
+        relMSE and 1.7-1.9x the time (docs/reconstruction.md, "The guard's divergence"). Not with a
+        ``guide``.
     preserve_mean
         Give every channel back the energy the stages took, where they took it, so its image
         mean equals the input's, exactly (to rounding; :func:`~awr_denoise.finishing.restore_mean`).
@@ -376,15 +391,19 @@ def reconstruct_detailed(
     mode = _checks.name("mode", mode, MODES)
     settings = resolve_settings(c_s=c_s, stages=stages, wiener_exponents=wiener_exponents, pixel_clamp=pixel_clamp,
                                 guard=guard, preserve_mean=preserve_mean, nonnegative=nonnegative, precision=precision,
-                                variance_probes=variance_probes, seed=seed, guard_window=guard_window)
+                                variance_probes=variance_probes, seed=seed, guard_window=guard_window,
+                                guard_probes=guard_probes)
     guide = checked_inputs(buffer, guide, features, settings.stages)
+    if guide is not None and settings.guard_probes:  # the projection on a guide comes after the probed stages
+        raise ValueError("guard_probes: not with a guide (its projection is not probed)")
     projection = checked_projection(guide_projection, guide)
     groups = channel_groups(buffer.channels)
     if groups is not None:  # R,G,B together, an alpha or an AOV beside them alone: none moves another
         options = dict(c_s=c_s, wavelet=wavelet, levels=levels, domain=domain, mode=mode, boundary=boundary,
                        executor=executor, pixel_clamp=pixel_clamp, stages=stages, wiener_exponents=wiener_exponents,
-                       guard=guard, guard_window=guard_window, preserve_mean=preserve_mean, nonnegative=nonnegative,
-                       precision=precision, variance_probes=variance_probes, seed=seed, features=features)
+                       guard=guard, guard_window=guard_window, guard_probes=guard_probes, preserve_mean=preserve_mean,
+                       nonnegative=nonnegative, precision=precision, variance_probes=variance_probes, seed=seed,
+                       features=features)
         whole = guide is not None and guide.shape[2] == buffer.n_channels  # else the colour's alone
         guides = [guide[..., list(group)] if whole else guide if group == guide_colour(buffer) else None
                   for group in groups]
@@ -453,6 +472,7 @@ def reconstruct(
     wiener_exponents: Sequence[float] = DEFAULT_WIENER_EXPONENTS,
     guard: bool | None = None,
     guard_window: int | None = None,
+    guard_probes: int | None = None,
     preserve_mean: bool | None = None,
     nonnegative: bool | None = None,
     precision: str = DEFAULT_PRECISION,
@@ -479,6 +499,7 @@ def reconstruct(
     return reconstruct_detailed(buffer, c_s=c_s, wavelet=wavelet, levels=levels, domain=domain, mode=mode,
                                 boundary=boundary, executor=executor, pixel_clamp=pixel_clamp, stages=stages,
                                 wiener_exponents=wiener_exponents, guard=guard, guard_window=guard_window,
-                                preserve_mean=preserve_mean, nonnegative=nonnegative, precision=precision,
+                                guard_probes=guard_probes, preserve_mean=preserve_mean, nonnegative=nonnegative,
+                                precision=precision,
                                 variance_probes=0, guide=guide,
                                 guide_projection=guide_projection, features=features).image

@@ -72,6 +72,7 @@ class Settings:
     seed: int
     floor: tuple[int, float] | None = DEFAULT_FLOOR  # the first Wiener stage's (window, margin); channel mode
     guard_window: int = DEFAULT_WINDOW  # side of the guard's square neighbourhood
+    guard_probes: int = 0  # probes of the Wiener stages' divergence for the guard; 0: their diagonal
 
     @property
     def stage1_clamp(self) -> float | None:
@@ -84,6 +85,7 @@ class Settings:
         return {"c_s": self.c_s, "pixel_clamp": self.pixel_clamp, "stages": self.stages,
                 "wiener_exponents": ",".join(f"{a:g}" for a in self.exponents) if wiener else None,
                 "guard": self.guard, "guard_window": self.guard_window if self.guard else None,
+                "guard_probes": self.guard_probes if self.guard else None,
                 "preserve_mean": self.preserve_mean, "nonnegative": self.nonnegative, "precision": self.precision}
 
 
@@ -92,7 +94,7 @@ def resolve_settings(*, c_s: float | None = None, stages: int = DEFAULT_STAGES,
                      pixel_clamp: float | None = DEFAULT_PIXEL_CLAMP, guard: bool | None = None,
                      preserve_mean: bool | None = None, nonnegative: bool | None = None,
                      precision: str = DEFAULT_PRECISION, variance_probes: int = 0, seed: int = 0,
-                     guard_window: int | None = None) -> Settings:
+                     guard_window: int | None = None, guard_probes: int | None = None) -> Settings:
     """Check the stage parameters of :func:`reconstruct_detailed` and fill in their defaults.
 
     Examples
@@ -119,6 +121,12 @@ def resolve_settings(*, c_s: float | None = None, stages: int = DEFAULT_STAGES,
     guard_window = _checks.whole("guard_window", guard_window, minimum=1, maximum=1023)  # type: ignore[assignment]
     if guard_window % 2 == 0:  # type: ignore[operator]
         raise ValueError(f"guard_window: must be odd, got {guard_window}")
+    if guard_probes is None:
+        guard_probes = 0
+    elif not guard:
+        raise ValueError(f"guard_probes: {guard_probes} measures the SURE guard's divergence, but the guard is off")
+    if isinstance(guard_probes, (float, np.floating)):
+        raise ValueError(f"guard_probes: must be an integer >= 0, got {guard_probes!r}")
     return Settings(
         c_s=c_s, stages=stages, exponents=exponents[len(exponents) - (stages - 1):],  # type: ignore[arg-type, operator]
         pixel_clamp=_checks.real("pixel_clamp", pixel_clamp, minimum=0, none=True), guard=guard,
@@ -127,4 +135,6 @@ def resolve_settings(*, c_s: float | None = None, stages: int = DEFAULT_STAGES,
         precision=_checks.name("precision", precision, PRECISIONS), seed=_checks.seed("seed", seed),
         probes=_checks.whole("variance_probes", variance_probes, minimum=0, maximum=_MAX_PROBES),  # type: ignore[arg-type]
         guard_window=guard_window,  # type: ignore[arg-type]
+        guard_probes=_checks.whole("guard_probes", guard_probes, minimum=0,  # type: ignore[arg-type]
+                                   maximum=_MAX_PROBES),
     )

@@ -83,6 +83,10 @@ def add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
                    help=f"side of the SURE guard's square window, odd (default {DEFAULT_WINDOW}, {DEFAULT_GUIDED_WINDOW} with "
                         "--guide oidn where the gate trusts it; wider is better on "
                         "most scenes and worse next to small, very bright lights: docs/reconstruction.md)")
+    g.add_argument("--guard-probes", type=whole(minimum=0, maximum=100_000), metavar="N",
+                   help="measure the Wiener stages' divergence for the SURE guard with N probes, each a second run "
+                        "of the stages (default 0: their diagonal); 1 keeps texture at the scale of one pixel near "
+                        "the plain mean's error, at some cost elsewhere: docs/reconstruction.md")
     g.add_argument("--guide-projection", type=real(minimum=0, maximum=1), metavar="S",
                    help="with --guide oidn: the share of the result taken from the means moved towards the guide "
                         f"within three standard errors; 0 makes the guide the pilot only (default {PROJECTION_SHARE:g})")
@@ -95,7 +99,8 @@ def reconstruction_kwargs(args: argparse.Namespace) -> dict:
     return {"stages": args.stages, "c_s": args.c_s, "wavelet": args.wavelet, "levels": args.levels,
             "domain": args.domain, "mode": args.mode, "guide": GUIDES.get(guide), "features": guide == "features",
             **({} if projection is None else {"guide_projection": projection}),
-            **({} if getattr(args, "guard_window", None) is None else {"guard_window": args.guard_window})}
+            **({} if getattr(args, "guard_window", None) is None else {"guard_window": args.guard_window}),
+            **({} if getattr(args, "guard_probes", None) is None else {"guard_probes": args.guard_probes})}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -166,6 +171,12 @@ def check_reconstruction_options(args: argparse.Namespace, shape: tuple[int, int
         raise UsageError(f"--guard-window: must be odd, got {window}")
     if window is not None and args.stages < 2:
         raise UsageError(f"--guard-window {window}: the SURE guard follows the Wiener stages; it needs --stages 2 or more")
+    probes = getattr(args, "guard_probes", None)
+    if probes is not None and args.stages < 2:
+        raise UsageError(f"--guard-probes {probes}: the SURE guard follows the Wiener stages; "
+                         "it needs --stages 2 or more")
+    if probes and guide in GUIDES:
+        raise UsageError(f"--guard-probes {probes}: not with --guide {guide} (its projection is not probed)")
     if getattr(args, "guide_projection", None) is not None and guide not in GUIDES:
         raise UsageError("--guide-projection: it is the share of a guide's projection; it needs --guide oidn")
     if args.levels is not None and args.levels > max_levels(shape):

@@ -286,6 +286,62 @@ def test_a_dark_line_one_pixel_wide_stays_below_the_plain_mean(field):
     assert errors[0] < 0.5 * errors[1]
 
 
+def test_guard_probes_keep_pixel_scale_texture_at_the_plain_means_error():
+    """Texture at the scale of one pixel (10^U(-1, 1), 50% noise, 16 spp): the Wiener stages follow each
+    pixel's own mean more than their diagonal says, so the guard, which took the diagonal for their
+    divergence, kept too much of their change: relMSE 1.35x the plain mean's. Measured by one probe, the
+    divergence brings it to the plain mean's (benchmarks/bench_limits.py, "guard probes 1")."""
+    errors = np.zeros(3)
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        truth = 10.0 ** rng.uniform(-1, 1, (64, 64, 1))
+        mean = truth + 0.5 * truth / 4 * rng.standard_normal(truth.shape)
+        variance = (0.5 * truth) ** 2 * rng.chisquare(15, truth.shape) / 15
+        buf = SampleBuffer.from_moments(np.full((64, 64), 16), mean, variance)
+        errors += [relmse(image, truth) for image in (buf.mean, reconstruct(buf), reconstruct(buf, guard_probes=1))]
+    assert errors[1] > 1.2 * errors[0]  # the loss the probes are for
+    assert errors[2] < 1.05 * errors[0]
+
+
+def test_guard_probes_reach_the_guard_and_are_recorded(monkeypatch):
+    """``guard_probes`` replace the diagonal the guard is given by the chain's probed divergence, and nothing
+    else: without them the result is the default's, bit for bit."""
+    module = sys.modules["awr_denoise.reconstruct"]
+    seen = []
+    original = module.sure_blend
+
+    def spy(estimate, mean, variance, leverage, **kwargs):
+        seen.append(leverage)
+        return original(estimate, mean, variance, leverage, **kwargs)
+
+    monkeypatch.setattr(module, "sure_blend", spy)
+    _, buf = _scene_buffer("edges", 8, 1)
+    default = reconstruct_detailed(buf, variance_probes=0)
+    probed = reconstruct_detailed(buf, variance_probes=0, guard_probes=2)
+    assert default.parameters["guard_probes"] == 0 and probed.parameters["guard_probes"] == 2
+    assert reconstruct_detailed(buf, stages=1).parameters["guard_probes"] is None
+    assert_array_equal(default.image, reconstruct(buf, guard_probes=0))
+    assert not np.allclose(seen[0], seen[1]) and not np.allclose(default.image, probed.image)
+    for mode in MODES:  # luminance: one share for every channel, from the channels' divergences
+        assert np.isfinite(reconstruct(buf, mode=mode, guard_probes=1)).all(), mode
+
+
+@pytest.mark.parametrize(("options", "message"), [
+    ({"guard_probes": -1}, ">= 0"), ({"guard_probes": 1.0}, "an integer"), ({"guard_probes": 10**6}, "<= 100000"),
+    ({"guard_probes": 1, "stages": 1}, "the guard is off"), ({"guard_probes": 1, "guard": False}, "the guard is off")])
+def test_bad_guard_probes_are_refused(options, message):
+    _, buf = _scene_buffer("edges", 4, 1, shape=(32, 32))
+    with pytest.raises(ValueError, match=message):
+        reconstruct(buf, **options)
+
+
+def test_guard_probes_are_refused_with_a_guide():
+    """A guide's projection comes after the probed stages: its divergence would be missing."""
+    _, buf = _scene_buffer("edges", 4, 1, shape=(32, 32))
+    with pytest.raises(ValueError, match="guard_probes: not with a guide"):
+        reconstruct(buf, guide=buf.mean, guard_probes=1)
+
+
 def test_buffer_without_samples_is_refused():
     with pytest.raises(ValueError, match="buffer: no pixel has any sample"):
         reconstruct(SampleBuffer.empty((8, 8)))

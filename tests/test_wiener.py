@@ -276,3 +276,55 @@ def test_bad_floors_are_refused(rng, transform, floor, message):
     x = rng.random(SHAPE + (1,))
     with pytest.raises(ValueError, match=message):
         relative_wiener(transform, x, x * 0.01, x, k=0.1, exponent=0.5, floor=floor)
+
+
+def _texture(rng, shape=(8, 10)):
+    """Every pixel its own value (10^U(-1, 1)) with noise of one variance: where the stages follow the means most.
+
+    One variance keeps each probe's noise on a pixel (the rest of the Jacobian's row, each neighbour's move
+    over the pixel's own) the same everywhere, so one tolerance fits every pixel."""
+    truth = 10.0 ** rng.uniform(-1, 1, shape + (1,))
+    variance = np.full(truth.shape, 0.1)
+    return truth + np.sqrt(variance) * rng.standard_normal(truth.shape), variance
+
+
+def test_the_divergence_of_one_stage_on_a_fixed_pilot_is_its_diagonal(rng):
+    """One stage on a pilot from outside is linear in the means: its probed divergence tends to its diagonal
+    (each probe adds the rest of the Jacobian's row times random signs, which averages out)."""
+    x, v = _texture(rng)
+    t = StationaryTransform(x.shape[:2], levels=2)
+    pilot = ndimage.uniform_filter(x, (3, 3, 1))
+    one = wiener.chain(t, x, v, pilot, (0.4,), k=0.1, leverage=True, divergence_probes=400)
+    assert_allclose(one.divergence, one.leverage, atol=0.08)
+    assert abs(one.divergence.mean() - one.leverage.mean()) < 0.01
+    assert wiener.chain(t, x, v, pilot, (0.4,), k=0.1, leverage=True).divergence is None
+
+
+def test_the_divergence_counts_the_pilot_the_first_stage_makes(rng):
+    """Two stages: the second's pilot is the first's result, made from the same means, so the chain follows a
+    pixel's own mean more than the last stage's diagonal says. The probes match the Jacobian's diagonal taken
+    one pixel at a time (each mean moved alone by the same step), not the diagonal."""
+    x, v = _texture(rng)
+    t = StationaryTransform(x.shape[:2], levels=2)
+    pilot = ndimage.uniform_filter(x, (3, 3, 1))
+    done = wiener.chain(t, x, v, pilot, (0.75, 0.4), k=0.1, leverage=True, divergence_probes=400)
+    step = wiener.DIVERGENCE_STEP * np.sqrt(v)
+    alone = np.zeros_like(x)
+    for i, j in np.ndindex(x.shape[:2]):
+        moved = x.copy()
+        moved[i, j] += step[i, j]
+        alone[i, j] = (wiener.chain(t, moved, v, pilot, (0.75, 0.4), k=0.1).image[i, j] - done.image[i, j]) / step[i, j]
+    assert alone.mean() > 1.2 * done.leverage.mean()  # what the guard missed before it could probe
+    assert_allclose(done.divergence, alone, atol=0.08)
+    assert abs(done.divergence.mean() - alone.mean()) < 0.01
+
+
+def test_pixels_without_variance_are_not_probed(rng):
+    """A pixel whose mean is exact is not moved by a probe and has no divergence to report (the guard's gain
+    ``v (1 - D)`` is 0 there whatever it is)."""
+    x, v = _texture(rng)
+    v[2:4, 3:6] = 0.0
+    t = StationaryTransform(x.shape[:2], levels=2)
+    done = wiener.chain(t, x, v, x, (0.75, 0.4), k=0.1, divergence_probes=3)
+    assert_array_equal(done.divergence[2:4, 3:6], 0.0)
+    assert np.all(np.isfinite(done.divergence)) and np.any(done.divergence != 0)

@@ -152,7 +152,7 @@ def reconstruct_tiled(buffer: SampleBuffer, *, tile: int | tuple[int, int] = 512
                       levels: int | None = None, domain: str | Domain = DEFAULT_DOMAIN, mode: str = "channels",
                       boundary: str = "symmetric", pixel_clamp: float | None = DEFAULT_PIXEL_CLAMP,
                       stages: int = DEFAULT_STAGES, wiener_exponents: Sequence[float] = DEFAULT_WIENER_EXPONENTS,
-                      guard: bool | None = None, guard_window: int | None = None,
+                      guard: bool | None = None, guard_window: int | None = None, guard_probes: int | None = None,
                       preserve_mean: bool | None = None, nonnegative: bool | None = None,
                       precision: str = DEFAULT_PRECISION) -> FloatArray:
     """Reconstruct a frame tile by tile; equals :func:`~awr_denoise.reconstruct` to rounding.
@@ -181,7 +181,7 @@ def reconstruct_tiled(buffer: SampleBuffer, *, tile: int | tuple[int, int] = 512
     executor
         Runs the tiles; default a thread pool for this call.
     c_s, wavelet, levels, domain, mode, boundary, pixel_clamp, stages, wiener_exponents, guard, guard_window, \
-preserve_mean, nonnegative, precision
+guard_probes, preserve_mean, nonnegative, precision
         As in :func:`~awr_denoise.reconstruct`; ``levels`` defaults to the whole frame's
         :func:`~awr_denoise.wavelets.default_levels`.
 
@@ -206,7 +206,7 @@ preserve_mean, nonnegative, precision
     """
     settings = resolve_settings(c_s=c_s, stages=stages, wiener_exponents=wiener_exponents, pixel_clamp=pixel_clamp,
                                 guard=guard, preserve_mean=preserve_mean, nonnegative=nonnegative,
-                                precision=precision, guard_window=guard_window)
+                                precision=precision, guard_window=guard_window, guard_probes=guard_probes)
     if not isinstance(buffer, SampleBuffer):
         raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
     groups = channel_groups(buffer.channels)
@@ -214,8 +214,9 @@ preserve_mean, nonnegative, precision
         parts = [reconstruct_tiled(buffer.select(group), tile=tile, halo=halo, executor=executor, c_s=c_s,
                                    wavelet=wavelet, levels=levels, domain=domain, mode=mode, boundary=boundary,
                                    pixel_clamp=pixel_clamp, stages=stages, wiener_exponents=wiener_exponents,
-                                   guard=guard, guard_window=guard_window, preserve_mean=preserve_mean,
-                                   nonnegative=nonnegative, precision=precision) for group in groups]
+                                   guard=guard, guard_window=guard_window, guard_probes=guard_probes,
+                                   preserve_mean=preserve_mean, nonnegative=nonnegative, precision=precision)
+                 for group in groups]
         return np.concatenate(parts, axis=2)[..., np.argsort([i for group in groups for i in group])]
     shape = buffer.shape
     levels = default_levels(shape) if levels is None else levels

@@ -255,3 +255,18 @@ def test_denoise_guard_window(tmp_path, capsys):
                                 (["--guard-window", "0"], "--guard-window: must be >= 1"),
                                 (["--guard-window", "2000"], "--guard-window: must be <= 1023"),
                                 (["--guard-window", "13", "--stages", "1"], "it needs --stages 2 or more")])
+
+
+def test_denoise_guard_probes(tmp_path, capsys):
+    """``--guard-probes N`` reaches the reconstruction and is recorded; negative, fractional or with
+    ``--stages 1`` it is refused before any output."""
+    _images(tmp_path)
+    default, probed = tmp_path / "default.exr", tmp_path / "probed.exr"
+    assert main(["denoise", str(tmp_path / "d.exr"), "-o", str(default), "-q"]) == 0
+    assert main(["denoise", str(tmp_path / "d.exr"), "--guard-probes", "1", "-o", str(probed), "-q"]) == 0
+    assert int(read_provenance(read_header(probed))["guard_probes"]) == 1
+    assert int(read_provenance(read_header(default))["guard_probes"]) == 0
+    assert not np.array_equal(read_image(default), read_image(probed))
+    _refused(tmp_path, capsys, [(["--guard-probes", "-1"], "--guard-probes: must be >= 0"),
+                                (["--guard-probes", "1.5"], "--guard-probes"),
+                                (["--guard-probes", "1", "--stages", "1"], "it needs --stages 2 or more")])
