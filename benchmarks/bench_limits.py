@@ -11,8 +11,9 @@ reached now and then), texture at the scale of one pixel, and a dark line one pi
 Each cell is a ratio to the plain mean's error over the same renders: of the summed MSE (or relMSE) over every
 seed (the average render), and the worst single render's ratio. Beside the default: without the SURE guard,
 without the image mean's restoration, and stage 1 alone, which says which part of the default each loss comes
-from; the clamp as it was before its neighbours were tested (and, with ``--chances``, at smaller least chances
-than the default's). Results: ``benchmarks/results/limits.json``.
+from; the guard given the Wiener stages' divergence measured by one probe (``guard_probes=1``); the clamp as
+it was before its neighbours were tested (and, with ``--chances``, at smaller least chances than the default's).
+Results: ``benchmarks/results/limits.json``.
 """
 
 from __future__ import annotations
@@ -32,7 +33,8 @@ from awr_denoise.metrics import mse, relmse
 
 RESULTS = Path(__file__).resolve().parent / "results" / "limits.json"
 METHODS: dict[str, dict[str, Any]] = {"default": {}, "no guard": {"guard": False},
-                                      "no mean restoration": {"preserve_mean": False}, "stage 1": {"stages": 1}}
+                                      "no mean restoration": {"preserve_mean": False}, "stage 1": {"stages": 1},
+                                      "guard probes 1": {"guard_probes": 1}}
 CHANCES: dict[str, float] = {"clamp pools every neighbour": 0.0}
 """Columns of the default with ``finishing.POOL_CHANCE`` at another value; 0 is the form before the clamp's
 neighbours were tested (docs/reconstruction.md, "The clamp's neighbours")."""

@@ -170,6 +170,10 @@ CHANCES: dict[str, Any] = {"pool chance 1e-4": with_pool_chance(1e-4), "pool cha
 the default's 1e-3 (0, the previous form, is in COMPARED)."""
 WINDOWS: dict[str, Any] = {"guard window 13": {"guard_window": 13}, "guard window 17": {"guard_window": 17}}
 """``quality --windows`` and ``synthetic --windows``: the SURE guard's window at other sides than the default (9)."""
+PROBES: dict[str, Any] = {"guard probes 1": {"guard_probes": 1}}
+"""``quality --probes``, ``synthetic --probes`` and ``speed --probes``: the guard given the Wiener stages'
+divergence measured by one probe (``guard_probes``) instead of their diagonal (docs/reconstruction.md, "The
+guard's divergence")."""
 
 
 # ---------------------------------------------------------------------------- buffers
@@ -296,7 +300,7 @@ def quality_tables(rows: list[dict], method: str = "default", base: str = "stage
         print(f"| {scene} | {' / '.join(f'{g:.2f}' for g in gains)} | {m:.2f} | {r:.2f} |")
     every = [g for _, gains, _, _ in summary for g in gains]
     print(f"\ngeometric mean of the gain at 8-32 spp: {np.exp(np.mean(np.log(every))):.2f}, least {min(every):.2f}")
-    variants = (*CHEAPER, *SHIFTED, *COMPARED, *FLOORS, *PILOTS, *PRIORS, *CHANCES, *WINDOWS)
+    variants = (*CHEAPER, *SHIFTED, *COMPARED, *FLOORS, *PILOTS, *PRIORS, *CHANCES, *WINDOWS, *PROBES)
     for other in (m for m in variants if any(r["method"] == m for r in rows)):
         cheaper_table(rows, other, method)
 
@@ -712,9 +716,9 @@ def finishing_table(rows: list[dict]) -> None:
 
 # ---------------------------------------------------------------------------- speed
 def speed(sizes: list[str], repeats: int, extra: tuple[str, ...] = ()) -> list[dict[str, Any]]:
-    """Median seconds of every variant of :data:`SPEED_VARIANTS` (and the ``extra`` ones of :data:`SHIFTED` and
-    :data:`COMPARED`)."""
-    variants = {**SPEED_VARIANTS, **{name: COMPARED.get(name, name) for name in extra}}
+    """Median seconds of every variant of :data:`SPEED_VARIANTS` (and the ``extra`` ones of :data:`SHIFTED`,
+    :data:`COMPARED` and :data:`PROBES`)."""
+    variants = {**SPEED_VARIANTS, **{name: {**COMPARED, **PROBES}.get(name, name) for name in extra}}
     rows = []
     print("| image | " + " | ".join(variants) + " |")
     print("|---|" + "---|" * len(variants))
@@ -858,6 +862,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--caps", action="store_true", help="samplers: also other absolute_above values (CAPS)")
     parser.add_argument("--initials", action="store_true", help="samplers: also other initial_spp values (INITIALS)")
     parser.add_argument("--windows", action="store_true", help="quality, synthetic: also other guard windows (WINDOWS)")
+    parser.add_argument("--probes", action="store_true",
+                        help="quality, synthetic, speed: also the guard with its divergence probed (PROBES)")
     parser.add_argument("--output", type=Path, default=RESULTS,
                         help="results file whose section this run replaces, and that 'tables' prints "
                              "(default benchmarks/results/reconstruct.json; another file keeps a partial run "
@@ -871,7 +877,7 @@ def main(argv: list[str] | None = None) -> int:
                         **(FLOORS if args.floors else {}), **(PILOTS if args.pilots else {}),
                         **(PRIORS if args.priors else {}),
                         **(CHANCES if args.chances else {}),
-                        **(WINDOWS if args.windows else {})})
+                        **(WINDOWS if args.windows else {}), **(PROBES if args.probes else {})})
         update_section(args.output, "quality", rows, command)
         quality_tables(rows)
     elif args.section == "samplers":
@@ -891,14 +897,15 @@ def main(argv: list[str] | None = None) -> int:
         update_section(args.output, "seeds", rows, command)
         seeds_table(rows)
     elif args.section == "synthetic":
-        methods = {**METHODS, **(WINDOWS if args.windows else {})}
+        methods = {**METHODS, **(WINDOWS if args.windows else {}), **(PROBES if args.probes else {})}
         rows = synthetic(("gradient", "edges", "hdr_source", "fireflies", "rare_light"), (4, 16, 64, 256, 1024), 2,
                          (96, 96), methods)
         rows += synthetic(("hdr_source",), (8, 16, 32, 64, 128), 12, (64, 64), methods)
         update_section(args.output, "synthetic", rows, command)
         synthetic_table(rows)
     elif args.section == "speed":
-        rows = speed(args.sizes, args.repeats, (*(SHIFTED if args.shifts else ()), *(COMPARED if args.compare else ())))
+        rows = speed(args.sizes, args.repeats, (*(SHIFTED if args.shifts else ()), *(COMPARED if args.compare else ()),
+                                                *(PROBES if args.probes else ())))
         update_section(args.output, "speed", rows, command)
     elif args.section == "agreed":
         rows = agreed_speed(args.sizes, args.repeats)
