@@ -111,8 +111,8 @@ def test_gathered_only_is_the_moderation_without_the_outward_path_and_restores_i
 
 
 def test_speed_times_the_compared_forms_it_is_given(bench):
-    """``speed --compare``: a compared form that is a function is called, one that is a set of options is passed
-    to ``reconstruct``."""
-    rows = bench.speed(["128x128"], 1, ("clamp pools every neighbour", "pilot c_s 1.5"))
-    assert {"default", "clamp pools every neighbour", "pilot c_s 1.5"} <= set(rows[0]["seconds"])
+    """``speed --compare`` and ``--probes``: a compared form that is a function is called, one that is a set of
+    options is passed to ``reconstruct``."""
+    rows = bench.speed(["128x128"], 1, ("clamp pools every neighbour", "pilot c_s 1.5", "guard probes 1"))
+    assert {"default", "clamp pools every neighbour", "pilot c_s 1.5", "guard probes 1"} <= set(rows[0]["seconds"])
     assert all(v > 0 for v in rows[0]["seconds"].values())
