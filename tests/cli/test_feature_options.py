@@ -270,3 +270,13 @@ def test_denoise_guard_probes(tmp_path, capsys):
     _refused(tmp_path, capsys, [(["--guard-probes", "-1"], "--guard-probes: must be >= 0"),
                                 (["--guard-probes", "1.5"], "--guard-probes"),
                                 (["--guard-probes", "1", "--stages", "1"], "it needs --stages 2 or more")])
+
+
+def test_denoise_guard_probes_are_refused_with_the_oidn_guide(tmp_path, capsys):
+    """The guide's projection comes after the probed stages; 0 probes (the default) is accepted with it."""
+    pytest.importorskip("pyoidn", reason="the OIDN guide needs the extra oidn")
+    _images(tmp_path)
+    _refused(tmp_path, capsys, [(["--guide", "oidn", "--guard-probes", "1"],
+                                 "--guard-probes 1: not with --guide oidn")])
+    out = tmp_path / "guided.exr"
+    assert main(["denoise", str(tmp_path / "d.exr"), "--guide", "oidn", "--guard-probes", "0", "-o", str(out), "-q"]) == 0
