@@ -108,7 +108,8 @@ def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
         return variance
     # Means and standard deviations over one power of two near the largest deviation: exact, no overflow.
     g = math.ldexp(1.0, math.frexp(math.sqrt(float(variance.max())))[1])
-    s2 = variance / g / g
+    s2 = variance / g
+    s2 /= g  # in place: at 1080p every whole temporary costs its page faults on each ask()
     dof = np.where(known, count - 1, 0).astype(np.float64)
     dof /= dof.max()
     out = np.array(variance)
@@ -121,7 +122,7 @@ def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
         big = groups[sizes * 16 >= count.size]
         if big.size:
             with np.errstate(over="ignore"):  # a level past float64 over g is a chance of 0
-                chance = _chance(s2[..., c], np.abs(mean[..., c]) / g)
+                chance = _chance(s2[..., c], np.abs(mean[..., c]) / g, overwrite=True)
         for samples in big:
             at = missed & (count == samples)
             weight = dof * chance ** float(samples)
@@ -153,7 +154,10 @@ def _gathered_local(count: CountArray, mean: FloatArray, g: float, s2: FloatArra
     r = POOL_WINDOW // 2
     channels = s2.shape[2]
     pad = ((r, r), (r, r), (0, 0))
-    s2_flat, mean_flat = np.pad(s2, pad, mode="edge").ravel(), np.pad(mean, pad, mode="edge").ravel()
+    # Only the planes a path reads are padded, and the chances at level 0 are taken before padding, in place:
+    # where half the image missed at 1080p, each whole temporary was a sixth of the moderation's time.
+    s2_flat = np.pad(s2, pad, mode="edge").ravel()
+    mean_flat = np.pad(mean, pad, mode="edge").ravel() if not at_zero.all() else None
     dof_flat = np.pad(dof, r, mode="edge").ravel()
     width = s2.shape[1] + 2 * r
     pixel = (rows + r) * width + (cols + r)
@@ -166,7 +170,11 @@ def _gathered_local(count: CountArray, mean: FloatArray, g: float, s2: FloatArra
             # At level 0 (every sample missed) a neighbour's chance does not depend on the entry: its logarithm
             # is taken once per pixel, and the entry's weight is exp(n log z).
             with np.errstate(over="ignore", divide="ignore"):  # log 0 = -inf: a weight of 0
-                log_chance = np.log(_chance(s2_flat, np.abs(mean_flat) / g))
+                log_chance = np.abs(mean)
+                log_chance /= g
+                log_chance = _chance(s2, log_chance, overwrite=True)
+                np.log(log_chance, out=log_chance)
+            log_chance = np.pad(log_chance, pad, mode="edge").ravel()
         base, c, lv, k = pixel[part], chans[part], level[part], n[part]
         acc_num, acc_den = np.zeros(part.size), np.zeros(part.size)
         for dy in range(-r, r + 1):  # a loop over the 25 window offsets; entries are vectorised
@@ -177,8 +185,9 @@ def _gathered_local(count: CountArray, mean: FloatArray, g: float, s2: FloatArra
                 if zero:
                     power = np.exp(k * log_chance.take(at))
                 else:
+                    assert mean_flat is not None
                     with np.errstate(over="ignore"):  # a gap past float64 is a chance of 0
-                        power = _chance(spread, np.abs(mean_flat.take(at) - lv) / g) ** k
+                        power = _chance(spread, np.abs(mean_flat.take(at) - lv) / g, overwrite=True) ** k
                 weight = dof_flat.take(near) * power
                 acc_num += weight * spread
                 acc_den += weight
@@ -198,31 +207,35 @@ def _scattered_at_zero(count: CountArray, mean: FloatArray, g: float, s2: FloatA
     rows, cols, chans = where
     h, w, channels = s2.shape
     r = POOL_WINDOW // 2
+    # Whole-image temporaries are few and made in place: at 1080p each costs its page faults on every ask().
     with np.errstate(over="ignore"):  # a level past float64 over g is a chance of 0
-        chance = _chance(s2, np.abs(mean) / g)
+        chance = np.abs(mean)
+        chance /= g
+        chance = _chance(s2, chance, overwrite=True)
     den = np.zeros(rows.size)
-    agreed_at_zero = dof[..., None] * ((s2 == 0) & (chance == 1))
     for c in range(channels):
         on = chans == c
         if on.any():
-            den[on] = _window_sum(agreed_at_zero[..., c])[rows[on], cols[on]]
+            agreed_at_zero = dof * ((s2[..., c] == 0) & (chance[..., c] == 1))
+            den[on] = _window_sum(agreed_at_zero)[rows[on], cols[on]]
     # Entry numbers on a map padded by 2r (-1 elsewhere): a neighbour in the edge-padded planes (r each side) minus
-    # any offset lands on it, never past it.
+    # any offset lands on it, never past it. Neighbours are found on the padded grid and read from the pixels their
+    # places repeat (the planes themselves are not padded).
     pad = ((r, r), (r, r), (0, 0))
-    s2_p, chance_p = np.pad(s2, pad, mode="edge"), np.pad(chance, pad, mode="edge")
-    dof_p = np.pad(dof, r, mode="edge")
-    entry = np.full((h + 4 * r, w + 4 * r, channels), -1, dtype=np.intp)
+    entry = np.full((h + 4 * r, w + 4 * r, channels), -1, dtype=np.intp)  # int32 measured slower: converted per take
     entry[rows + 2 * r, cols + 2 * r, chans] = np.arange(rows.size)
     # Spread neighbours (known, s2 > 0) within the window of an entry.
-    reach = np.zeros(s2_p.shape, dtype=bool)
+    reach = np.zeros((h + 2 * r, w + 2 * r, channels), dtype=bool)
     reach[rows + r, cols + r, chans] = True
     reach = ndimage.maximum_filter(reach, size=(POOL_WINDOW, POOL_WINDOW, 1), mode="constant")
-    sr, sc, sch = np.nonzero(reach & (s2_p > 0) & (dof_p > 0)[..., None])
+    reach &= np.pad((s2 > 0) & (dof > 0)[..., None], pad, mode="edge")
+    sr, sc, sch = np.nonzero(reach)
     width = w + 4 * r
     at = ((sr + r) * width + (sc + r)) * channels + sch
-    spread, weight = s2_p[sr, sc, sch], dof_p[sr, sc]
+    sr, sc = np.clip(sr - r, 0, h - 1, out=sr), np.clip(sc - r, 0, w - 1, out=sc)  # the pixel each place repeats
+    spread, weight = s2[sr, sc, sch], dof[sr, sc]
     with np.errstate(divide="ignore"):  # log 0 = -inf: a weight of 0
-        log_chance = np.log(chance_p[sr, sc, sch])
+        log_chance = np.log(chance[sr, sc, sch])
     # The last slot takes what lands on no entry (-1): no mask, no compress, in each of the 25 passes below.
     entries, n = entry.ravel(), np.append(count[rows, cols].astype(np.float64), 1.0)
     num, den = np.zeros(rows.size + 1), np.append(den, 0.0)
@@ -237,12 +250,19 @@ def _scattered_at_zero(count: CountArray, mean: FloatArray, g: float, s2: FloatA
     return num, den
 
 
-def _chance(s2: FloatArray, gap: FloatArray) -> FloatArray:
+def _chance(s2: FloatArray, gap: FloatArray, *, overwrite: bool = False) -> FloatArray:
     """Cantelli's bound on the chance that a sample of variance ``s2`` lands ``gap`` from its mean,
-    ``s2 / (s2 + gap^2)``; 1 where both are 0 (a neighbour that agreed at the same value)."""
+    ``s2 / (s2 + gap^2)``; 1 where both are 0 (a neighbour that agreed at the same value).
+
+    ``overwrite``: ``gap`` is the caller's temporary, and the result is written into it (one whole array
+    fewer; the same values)."""
     with np.errstate(over="ignore", under="ignore"):
-        total = s2 + np.square(gap)
-    return np.divide(s2, total, out=np.ones_like(total), where=total > 0)
+        total = np.square(gap, out=gap if overwrite else None)
+        total += s2
+    positive = total > 0
+    np.divide(s2, total, out=total, where=positive)
+    total[~positive] = 1.0
+    return total
 
 
 def _window_sum(a: FloatArray) -> FloatArray:
