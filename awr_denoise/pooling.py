@@ -139,8 +139,9 @@ def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
 def _gathered_local(count: CountArray, mean: FloatArray, g: float, s2: FloatArray, dof: FloatArray,
                     where: tuple) -> FloatArray:
     """:func:`agreed_variance`'s ``s2_local`` at the entries ``where`` (``s2`` the variances over ``g^2``), window
-    offset by window offset: flat indices into the planes padded by their edges (as ``mode="nearest"``); entries
-    at 0 that outnumber the spread pixels by :data:`_SCATTER_SHARE`, from those outward (:func:`_scattered_at_zero`)."""
+    offset by window offset: flat indices of each neighbour, the edge pixel past an edge (as ``mode="nearest"``);
+    entries at 0 that outnumber the spread pixels by :data:`_SCATTER_SHARE`, from those outward
+    (:func:`_scattered_at_zero`)."""
     rows, cols, chans = where
     level = mean[where]
     num, den = np.zeros(rows.size), np.zeros(rows.size)
@@ -152,21 +153,27 @@ def _gathered_local(count: CountArray, mean: FloatArray, g: float, s2: FloatArra
         num[at_zero], den[at_zero] = _scattered_at_zero(count, mean, g, s2, dof,
                                                         (rows[at_zero], cols[at_zero], chans[at_zero]))
     r = POOL_WINDOW // 2
-    channels = s2.shape[2]
-    pad = ((r, r), (r, r), (0, 0))
-    # Only the planes a path reads are padded, and the chances at level 0 are taken before padding, in place:
-    # where half the image missed at 1080p, each whole temporary was a sixth of the moderation's time.
-    s2_flat = np.pad(s2, pad, mode="edge").ravel()
-    mean_flat = np.pad(mean, pad, mode="edge").ravel() if not at_zero.all() else None
-    dof_flat = np.pad(dof, r, mode="edge").ravel()
-    width = s2.shape[1] + 2 * r
-    pixel = (rows + r) * width + (cols + r)
+    h, w, channels = s2.shape
     n = count[rows, cols].astype(np.float64)
+    # Few entries (fewer visits than values in the image: most rounds of an adaptive run) read their neighbours
+    # where they are and take each chance at its visit; many read planes padded by their edges, the chances at
+    # level 0 taken once per pixel, in place. At 1080p each whole-image temporary costs its page faults: a few
+    # thousand entries must not pay for the image.
+    padded = rows.size * POOL_WINDOW**2 >= s2.size
+    if padded:
+        pad = ((r, r), (r, r), (0, 0))
+        s2_flat = np.pad(s2, pad, mode="edge").ravel()
+        mean_flat = np.pad(mean, pad, mode="edge").ravel() if not at_zero.all() else None
+        dof_flat = np.pad(dof, r, mode="edge").ravel()
+        width = w + 2 * r
+    else:
+        s2_flat, mean_flat, dof_flat = s2.ravel(), mean.ravel(), dof.ravel()
     for zero in (False,) if scatter else (True, False):
         part = np.flatnonzero(at_zero == zero)
         if not part.size:
             continue
-        if zero:
+        log_chance = None
+        if zero and padded:
             # At level 0 (every sample missed) a neighbour's chance does not depend on the entry: its logarithm
             # is taken once per pixel, and the entry's weight is exp(n log z).
             with np.errstate(over="ignore", divide="ignore"):  # log 0 = -inf: a weight of 0
@@ -175,15 +182,28 @@ def _gathered_local(count: CountArray, mean: FloatArray, g: float, s2: FloatArra
                 log_chance = _chance(s2, log_chance, overwrite=True)
                 np.log(log_chance, out=log_chance)
             log_chance = np.pad(log_chance, pad, mode="edge").ravel()
-        base, c, lv, k = pixel[part], chans[part], level[part], n[part]
+        rr, cc, c, lv, k = rows[part], cols[part], chans[part], level[part], n[part]
+        base = (rr + r) * width + (cc + r) if padded else None
         acc_num, acc_den = np.zeros(part.size), np.zeros(part.size)
         for dy in range(-r, r + 1):  # a loop over the 25 window offsets; entries are vectorised
             for dx in range(-r, r + 1):
-                near = base + (dy * width + dx)
+                if base is not None:
+                    near = base + (dy * width + dx)
+                else:  # the edge pixel for a neighbour past the edge, as the padding repeats it
+                    near = np.clip(rr + dy, 0, h - 1) * w + np.clip(cc + dx, 0, w - 1)
                 at = near * channels + c
                 spread = s2_flat.take(at)
                 if zero:
-                    power = np.exp(k * log_chance.take(at))
+                    if log_chance is None:
+                        assert mean_flat is not None
+                        with np.errstate(over="ignore", divide="ignore"):  # log 0 = -inf: a weight of 0
+                            gap = np.abs(mean_flat.take(at))
+                            gap /= g
+                            power = np.log(_chance(spread, gap, overwrite=True))
+                    else:
+                        power = log_chance.take(at)
+                    power *= k
+                    power = np.exp(power, out=power)
                 else:
                     assert mean_flat is not None
                     with np.errstate(over="ignore"):  # a gap past float64 is a chance of 0

@@ -135,6 +135,26 @@ def test_both_paths_for_entries_at_0_match_the_definition(rng, monkeypatch, shar
         assert_allclose(got, _reference(buf.count, buf.mean, buf.variance, buf.variance_known), rtol=1e-12, atol=0)
 
 
+@pytest.mark.parametrize("level", [0.0, 2.5])
+def test_few_entries_read_where_they_are_match_the_definition(rng, level):
+    """A few entries that agreed (at 0, or at an emitter's level) among spread pixels, in corners, on edges and
+    inside, at scattered counts: fewer window visits than values in the image, so each neighbour is read where
+    it is (the edge pixel past an edge) and each chance taken at its visit, with no padded plane."""
+    h, w = 30, 34
+    count = rng.integers(2, 40, (h, w))
+    mean = rng.uniform(0.5, 4.0, (h, w, 3))
+    variance = rng.uniform(0.1, 2.0, (h, w, 3))
+    spots = [(0, 0), (0, w - 1), (h - 1, 0), (h - 1, w - 1), (0, 7), (13, 0), (h - 2, 20), (15, 16), (1, 1)]
+    for i, j in spots:
+        mean[i, j, 1], variance[i, j, 1] = level, 0.0
+    mean[15, 17, :], variance[15, 17, :] = level, 0.0  # next to an entry that agreed at the same level
+    known = count >= 2
+    assert len(spots) + 3 < mean.size // POOL_WINDOW**2
+    got = agreed_variance(count, mean, variance, known)
+    assert_allclose(got, _reference(count, mean, variance, known), rtol=1e-12, atol=0)
+    assert (got[variance == 0] > 0).all()
+
+
 def test_agreeing_levels_other_than_0_match_the_definition(rng):
     buf = _emitters(rng)
     got = agreed_variance(buf.count, buf.mean, buf.variance, buf.variance_known)
