@@ -122,7 +122,7 @@ def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
         big = groups[sizes * 16 >= count.size]
         if big.size:
             with np.errstate(over="ignore"):  # a level past float64 over g is a chance of 0
-                chance = _chance(s2[..., c], np.abs(mean[..., c]) / g, overwrite=True)
+                chance = _chance(s2[..., c], mean[..., c], g)
         for samples in big:
             at = missed & (count == samples)
             weight = dof * chance ** float(samples)
@@ -177,9 +177,7 @@ def _gathered_local(count: CountArray, mean: FloatArray, g: float, s2: FloatArra
             # At level 0 (every sample missed) a neighbour's chance does not depend on the entry: its logarithm
             # is taken once per pixel, and the entry's weight is exp(n log z).
             with np.errstate(over="ignore", divide="ignore"):  # log 0 = -inf: a weight of 0
-                log_chance = np.abs(mean)
-                log_chance /= g
-                log_chance = _chance(s2, log_chance, overwrite=True)
+                log_chance = _chance(s2, mean, g)
                 np.log(log_chance, out=log_chance)
             log_chance = np.pad(log_chance, pad, mode="edge").ravel()
         rr, cc, c, lv, k = rows[part], cols[part], chans[part], level[part], n[part]
@@ -197,9 +195,7 @@ def _gathered_local(count: CountArray, mean: FloatArray, g: float, s2: FloatArra
                     if log_chance is None:
                         assert mean_flat is not None
                         with np.errstate(over="ignore", divide="ignore"):  # log 0 = -inf: a weight of 0
-                            gap = np.abs(mean_flat.take(at))
-                            gap /= g
-                            power = np.log(_chance(spread, gap, overwrite=True))
+                            power = np.log(_chance(spread, mean_flat.take(at), g))
                     else:
                         power = log_chance.take(at)
                     power *= k
@@ -207,7 +203,7 @@ def _gathered_local(count: CountArray, mean: FloatArray, g: float, s2: FloatArra
                 else:
                     assert mean_flat is not None
                     with np.errstate(over="ignore"):  # a gap past float64 is a chance of 0
-                        power = _chance(spread, np.abs(mean_flat.take(at) - lv) / g, overwrite=True) ** k
+                        power = _chance(spread, mean_flat.take(at), g, level=lv) ** k
                 weight = dof_flat.take(near) * power
                 acc_num += weight * spread
                 acc_den += weight
@@ -229,9 +225,7 @@ def _scattered_at_zero(count: CountArray, mean: FloatArray, g: float, s2: FloatA
     r = POOL_WINDOW // 2
     # Whole-image temporaries are few and made in place: at 1080p each costs its page faults on every ask().
     with np.errstate(over="ignore"):  # a level past float64 over g is a chance of 0
-        chance = np.abs(mean)
-        chance /= g
-        chance = _chance(s2, chance, overwrite=True)
+        chance = _chance(s2, mean, g)
     den = np.zeros(rows.size)
     for c in range(channels):
         on = chans == c
@@ -270,14 +264,14 @@ def _scattered_at_zero(count: CountArray, mean: FloatArray, g: float, s2: FloatA
     return num, den
 
 
-def _chance(s2: FloatArray, gap: FloatArray, *, overwrite: bool = False) -> FloatArray:
-    """Cantelli's bound on the chance that a sample of variance ``s2`` lands ``gap`` from its mean,
-    ``s2 / (s2 + gap^2)``; 1 where both are 0 (a neighbour that agreed at the same value).
-
-    ``overwrite``: ``gap`` is the caller's temporary, and the result is written into it (one whole array
-    fewer; the same values)."""
+def _chance(s2: FloatArray, mean: FloatArray, g: float, level: FloatArray | float = 0.0) -> FloatArray:
+    """Cantelli's bound on the chance that a sample of variance ``s2`` (over ``g^2``) with mean ``mean`` lands on
+    ``level``: ``s2 / (s2 + gap^2)``, ``gap = |mean - level| / g``; 1 where both are 0 (a neighbour that agreed at
+    the same value). One whole temporary, the gap, which takes the result."""
     with np.errstate(over="ignore", under="ignore"):
-        total = np.square(gap, out=gap if overwrite else None)
+        total = np.abs(mean - level) if np.ndim(level) or level else np.abs(mean)
+        total /= g
+        np.square(total, out=total)
         total += s2
     positive = total > 0
     np.divide(s2, total, out=total, where=positive)
