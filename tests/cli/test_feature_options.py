@@ -279,4 +279,5 @@ def test_denoise_guard_probes_are_refused_with_the_oidn_guide(tmp_path, capsys):
     _refused(tmp_path, capsys, [(["--guide", "oidn", "--guard-probes", "1"],
                                  "--guard-probes 1: not with --guide oidn")])
     out = tmp_path / "guided.exr"
-    assert main(["denoise", str(tmp_path / "d.exr"), "--guide", "oidn", "--guard-probes", "0", "-o", str(out), "-q"]) == 0
+    assert main(["denoise", str(tmp_path / "d.exr"), "--guide", "oidn", "--guard-probes", "0",
+                 "-o", str(out), "-q"]) == 0
