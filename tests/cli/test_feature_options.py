@@ -241,35 +241,24 @@ def test_render_features_from_a_renderer_that_renders_none_is_refused(tmp_path, 
     assert os.listdir(tmp_path) == []
 
 
-def test_denoise_guard_window(tmp_path, capsys):
-    """``--guard-window W`` reaches the reconstruction and is recorded; even, out of range, or with
-    ``--stages 1`` it is refused before any output."""
+@pytest.mark.parametrize(("option", "value", "key", "default", "refusals"), [
+    ("--guard-window", "13", "guard_window", 9, [(["--guard-window", "8"], "--guard-window: must be odd"),
+                                                 (["--guard-window", "0"], "--guard-window: must be >= 1"),
+                                                 (["--guard-window", "2000"], "--guard-window: must be <= 1023")]),
+    ("--guard-probes", "1", "guard_probes", 0, [(["--guard-probes", "-1"], "--guard-probes: must be >= 0"),
+                                               (["--guard-probes", "1.5"], "--guard-probes")]),
+])
+def test_denoise_guard_options(tmp_path, capsys, option, value, key, default, refusals):
+    """``--guard-window W`` and ``--guard-probes N`` reach the reconstruction and are recorded; out of range,
+    not whole, or with ``--stages 1`` they are refused before any output."""
     _images(tmp_path)
-    default, wide = tmp_path / "default.exr", tmp_path / "wide.exr"
-    assert main(["denoise", str(tmp_path / "d.exr"), "-o", str(default), "-q"]) == 0
-    assert main(["denoise", str(tmp_path / "d.exr"), "--guard-window", "13", "-o", str(wide), "-q"]) == 0
-    assert int(read_provenance(read_header(wide))["guard_window"]) == 13
-    assert int(read_provenance(read_header(default))["guard_window"]) == 9
-    assert not np.array_equal(read_image(default), read_image(wide))
-    _refused(tmp_path, capsys, [(["--guard-window", "8"], "--guard-window: must be odd"),
-                                (["--guard-window", "0"], "--guard-window: must be >= 1"),
-                                (["--guard-window", "2000"], "--guard-window: must be <= 1023"),
-                                (["--guard-window", "13", "--stages", "1"], "it needs --stages 2 or more")])
-
-
-def test_denoise_guard_probes(tmp_path, capsys):
-    """``--guard-probes N`` reaches the reconstruction and is recorded; negative, fractional or with
-    ``--stages 1`` it is refused before any output."""
-    _images(tmp_path)
-    default, probed = tmp_path / "default.exr", tmp_path / "probed.exr"
-    assert main(["denoise", str(tmp_path / "d.exr"), "-o", str(default), "-q"]) == 0
-    assert main(["denoise", str(tmp_path / "d.exr"), "--guard-probes", "1", "-o", str(probed), "-q"]) == 0
-    assert int(read_provenance(read_header(probed))["guard_probes"]) == 1
-    assert int(read_provenance(read_header(default))["guard_probes"]) == 0
-    assert not np.array_equal(read_image(default), read_image(probed))
-    _refused(tmp_path, capsys, [(["--guard-probes", "-1"], "--guard-probes: must be >= 0"),
-                                (["--guard-probes", "1.5"], "--guard-probes"),
-                                (["--guard-probes", "1", "--stages", "1"], "it needs --stages 2 or more")])
+    plain, given = tmp_path / "default.exr", tmp_path / "given.exr"
+    assert main(["denoise", str(tmp_path / "d.exr"), "-o", str(plain), "-q"]) == 0
+    assert main(["denoise", str(tmp_path / "d.exr"), option, value, "-o", str(given), "-q"]) == 0
+    assert int(read_provenance(read_header(given))[key]) == int(value)
+    assert int(read_provenance(read_header(plain))[key]) == default
+    assert not np.array_equal(read_image(plain), read_image(given))
+    _refused(tmp_path, capsys, [*refusals, ([option, value, "--stages", "1"], "it needs --stages 2 or more")])
 
 
 def test_denoise_guard_probes_are_refused_with_the_oidn_guide(tmp_path, capsys):
