@@ -134,10 +134,22 @@ def pixel_moments(pixel: np.ndarray, values: FloatArray, n_pixels: int,
                   name: str = "values") -> tuple[CountArray, FloatArray, FloatArray]:
     """Per-pixel count, mean and sum of squared deviations (M2) of samples ``values`` (N, C) at ``pixel`` (N,).
 
-    Two-pass in float64, a channel at a time (every pixel and sample vectorised). Where the values
-    come near the float64 limit, the sums could overflow while the means do not: each pixel's samples
-    are then divided by a power of two near its own largest value (exact, the same bits) and the
-    results scaled back; a spread whose M2 is beyond float64 is refused naming ``name``.
+    Corrected two-pass in float64 (Chan, Golub and LeVeque 1983), a channel at a time (every pixel and
+    sample vectorised): the mean of the deviations from the first mean corrects it, so samples that
+    all agree give their value and an M2 of exactly 0 (the first mean's rounding alone, squared and
+    scaled back from near the float64 limit, was a variance beyond float64 for 7 samples of 1e200).
+    Where the values come near the float64 limit, the sums could overflow while the means do not:
+    each pixel's samples are then divided by a power of two near its own largest value (exact, the
+    same bits) and the results scaled back; a spread whose M2 is beyond float64 is refused naming
+    ``name``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise._arrays import pixel_moments
+    >>> count, mean, m2 = pixel_moments(np.zeros(7, int), np.full((7, 1), 0.1), 1)
+    >>> count, bool(mean[0, 0] == 0.1), m2                  # 7 x 0.1 / 7 is not 0.1 in float64
+    (array([7]), True, array([[0.]]))
     """
     count = np.bincount(pixel, minlength=n_pixels)
     safe = np.maximum(count, 1)
@@ -153,9 +165,13 @@ def pixel_moments(pixel: np.ndarray, values: FloatArray, n_pixels: int,
     mean = np.empty((n_pixels, values.shape[1]))
     m2 = np.empty_like(mean)
     for c in range(values.shape[1]):
-        mean[:, c] = np.bincount(pixel, weights=values[:, c], minlength=n_pixels) / safe
-        dev = values[:, c] - mean[pixel, c]
-        m2[:, c] = np.bincount(pixel, weights=dev * dev, minlength=n_pixels)
+        column = np.ascontiguousarray(values[:, c])  # one strided read, not three
+        m = np.bincount(pixel, weights=column, minlength=n_pixels) / safe
+        dev = column - m.take(pixel)
+        m += np.bincount(pixel, weights=dev, minlength=n_pixels) / safe
+        np.subtract(column, m.take(pixel), out=dev)
+        dev *= dev
+        mean[:, c], m2[:, c] = m, np.bincount(pixel, weights=dev, minlength=n_pixels)
     if scale is not None:
         with np.errstate(over="ignore"):
             mean *= scale[:, None]

@@ -20,7 +20,7 @@ import numpy as np
 
 __all__ = ["MAX_SEED", "MAX_SPP", "MAX_SIDE", "MAX_LEVELS", "scalar", "described", "real", "whole", "whole_text",
            "whole_option", "flag",
-           "seed", "shape2d", "name", "slices", "executor", "indices"]
+           "seed", "shape2d", "name", "tile", "executor", "indices"]
 
 MAX_SEED = 2**63 - 1
 """Seeds are whole numbers in 0..2**63-1 (they are hashed as 64-bit integers)."""
@@ -209,10 +209,11 @@ def name(param: str, value: Any, choices: tuple[str, ...] | None = None) -> str:
     return str(value)
 
 
-def slices(**values: Any) -> None:
-    """Refuse anything but ``slice`` objects of whole bounds and a step of 1 (a tile's rows and columns:
-    a step of 2 subsampled the image, -1 mirrored it, 0 or 2.5 gave Python's bare errors)."""
-    for param, value in values.items():
+def tile(shape: tuple[int, int], rows: Any, cols: Any) -> None:
+    """Refuse anything but ``slice`` objects of whole bounds and a step of 1 that hold at least one of the
+    ``shape`` (H, W) image's rows and columns (a tile's: a step of 2 subsampled the image, -1 mirrored it,
+    0 or 2.5 gave Python's bare errors, a tile past the edge was "count: empty image")."""
+    for param, value, size in (("rows", rows, shape[0]), ("cols", cols, shape[1])):
         if not isinstance(value, slice):
             raise TypeError(f"{param}: expected a slice, got {described(value)}")
         for bound in (value.start, value.stop, value.step):
@@ -220,6 +221,10 @@ def slices(**values: Any) -> None:
                 whole(param, bound, integral=True)  # 2.0 too: Python's own words named nothing
         if value.step not in (None, 1):
             raise ValueError(f"{param}: a tile is contiguous; expected a step of 1, got {value.step!r}")
+        if not len(range(size)[value]):
+            bounds = ":".join("" if b is None else str(b) for b in (value.start, value.stop))
+            raise ValueError(f"{param}: {bounds} holds none of the image's {size} "
+                             f"{'rows' if param == 'rows' else 'columns'}")
 
 
 def executor(param: str, value: Any, *, here: bool = True) -> Executor | None:

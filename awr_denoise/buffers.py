@@ -535,7 +535,7 @@ class SampleBuffer(ReadOnlyArrays):
         >>> buf.crop(slice(1, 3), slice(0, 2)).count.tolist()
         [[4, 5], [8, 9]]
         """
-        _checks.slices(rows=rows, cols=cols)
+        _checks.tile(self.shape, rows, cols)
         return SampleBuffer(self.count[rows, cols], self.mean[rows, cols], self.variance[rows, cols],
                             self.channels, self.variance_known[rows, cols], 0,
                             map_features(self.features, lambda f: f.crop(rows, cols)))

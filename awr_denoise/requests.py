@@ -152,7 +152,7 @@ class SampleRequest(ReadOnlyArrays):
         >>> tile, tile.counts.tolist()
         (SampleRequest(round=2, shape=(2, 2), total=12), [[1, 2], [4, 5]])
         """
-        _checks.slices(rows=rows, cols=cols)
+        _checks.tile(self.shape, rows, cols)
         return SampleRequest(self.counts[rows, cols], self.first_index[rows, cols], self.round, self.sampler_id)
 
     def check_answer(self, samples: SampleBuffer, channels: tuple[str, ...]) -> SampleBuffer:

@@ -126,10 +126,14 @@ def test_large_first_indices_are_per_pixel_not_summed():
                                            (slice(None, None, 0), "step of 1, got 0"),
                                            (slice(0, 2.5), "expected an integer, got float 2.5"),
                                            (slice(2.0, 4), "expected an integer, got float 2.0"),
-                                           (slice(0, 4, 1.0), "expected an integer, got float 1.0")])
+                                           (slice(0, 4, 1.0), "expected an integer, got float 1.0"),
+                                           (slice(4, 9), "4:9 holds none of the image's 4 rows"),
+                                           (slice(2, 2), "2:2 holds none of the image's 4 rows"),
+                                           (slice(-9, -4), "-9:-4 holds none of the image's 4 rows")])
 def test_a_crop_is_a_contiguous_tile(rows, message):
     """A step of 2 subsampled the image and -1 mirrored it; 0 and 2.5 gave Python's bare slice errors
-    (a red-team pass). Buffers and requests crop alike."""
+    (a red-team pass); a tile holding no pixel was "count: empty image" (the tenth pass). Buffers and
+    requests crop alike."""
     buffer = SampleBuffer.from_moments(np.full((4, 4), 2), np.ones((4, 4, 3)), np.ones((4, 4, 3)))
     for item in (buffer, SampleRequest.uniform((4, 4), 2)):
         with pytest.raises((ValueError, TypeError), match=f"^rows: .*{re.escape(message)}"):

@@ -444,6 +444,15 @@ class TestOutputVariance:
         assert np.isfinite(rec.variance).all() and (rec.variance >= 0).all()
 
 
+@pytest.mark.parametrize("value", [0.1, 1e200, -3e250, 1e300, 5e-324])
+@pytest.mark.parametrize("n", [3, 7, 101])
+def test_samples_that_all_agree_have_their_value_and_no_variance(value, n):
+    """The first mean's rounding (7 x 0.1 / 7 is not 0.1), squared, was a spread of samples that all agreed:
+    near 1e200, scaled back, a variance beyond float64, and the buffer was refused."""
+    buf = SampleBuffer.from_samples(np.zeros(n, int), np.full((n, 2), value), (1, 1))
+    assert buf.mean[0, 0, 0] == value and buf.variance[0, 0, 0] == 0.0
+
+
 def test_from_samples_near_the_float64_limit_scales_each_pixel_exactly():
     """Sums of samples near 1e308 overflow where their means do not: each pixel is scaled by a power
     of two of its own (exact), so a tiny pixel beside a huge one keeps its bits, and a scaled
