@@ -433,7 +433,7 @@ def reconstruct_detailed(
                           levels=ops.levels, domain=prepared.bound.domain, noise_gain=gain,
                           parameters={"wavelet": ops.wavelet, "levels": ops.levels,
                                       "domain": prepared.bound.domain.name, "mode": mode, "boundary": boundary,
-                                      "guide": guide is not None, "features": features,
+                                      "guide": guide is not None, "features": features and guide is None,
                                       "guide_projection": None if guide is None else projection, **settings.recorded()})
 
 

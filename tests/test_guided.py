@@ -151,6 +151,11 @@ def test_parameters_record_the_guide_and_the_features(rng):
     plain = reconstruct_detailed(buf, variance_probes=0).parameters
     guided = reconstruct_detailed(buf, guide=scene.reference(), variance_probes=0).parameters
     assert (plain["guide"], plain["features"], guided["guide"]) == (False, False, True)
+    clean, textured = _textured_buffer(4, 0)
+    featured = reconstruct_detailed(textured, features=True, variance_probes=0).parameters
+    both = reconstruct_detailed(textured, guide=clean, features=True, variance_probes=0).parameters
+    # Beside a guide the features are not used: recorded as used, the provenance said otherwise.
+    assert (featured["features"], both["guide"], both["features"]) == (True, True, False)
 
 
 # ---------------------------------------------------------------------------- refusals
