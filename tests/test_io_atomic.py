@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import os
 import signal
+import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from awr_denoise.io import atomic
 from awr_denoise.io.atomic import (
     STAGING_PREFIX,
     STALE_AFTER,
@@ -131,6 +133,46 @@ def test_a_failure_while_moving_puts_the_old_files_back(tmp_path):
     assert (tmp_path / "a.txt").read_text() == "old a.txt"
     assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith(STAGING_PREFIX)) == ["a.txt", "b.txt"]
     assert not list(tmp_path.glob(STAGING_PREFIX + "*"))
+
+
+def _staged_set(tmp_path: Path, writer: str) -> OutputSet:
+    outputs = OutputSet(overwrite=True)
+    for name in ("image.exr", "dump.exr"):
+        Path(outputs.add(tmp_path / name)).write_text(writer)
+    return outputs
+
+
+def test_two_commits_to_the_same_outputs_take_turns_as_wholes(tmp_path, monkeypatch):
+    """Two runs of one command to one output (``awr render --overwrite -o``) moved their files in turns:
+    one run's dump was left beside the other's image. Commits into one folder now take turns as wholes."""
+    first, second = _staged_set(tmp_path, "first"), _staged_set(tmp_path, "second")
+    install, other = atomic._install, threading.Thread(target=second.commit)
+
+    def install_then_let_the_other_run(tmp, target, *, overwrite):
+        install(tmp, target, overwrite=overwrite)
+        if not other.is_alive() and other.ident is None:  # after the first run's first file
+            other.start()
+            other.join(0.5)  # unlocked, the whole other commit lands here, between the first run's files
+
+    monkeypatch.setattr(atomic, "_install", install_then_let_the_other_run)
+    first.commit()
+    other.join(30)
+    assert {(tmp_path / name).read_text() for name in ("image.exr", "dump.exr")} == {"second"}
+    assert not list(tmp_path.glob(STAGING_PREFIX + "*"))
+
+
+def test_a_folder_locked_by_someone_else_delays_a_commit_but_does_not_stop_it(tmp_path, monkeypatch):
+    monkeypatch.setattr(atomic, "COMMIT_WAIT", 0.2)
+    fcntl = pytest.importorskip("fcntl", reason="folder locks need flock (POSIX)")
+    held = os.open(tmp_path, os.O_RDONLY)
+    try:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        start = time.monotonic()
+        _staged_set(tmp_path, "run").commit()
+        assert time.monotonic() - start >= 0.2
+    finally:
+        os.close(held)
+    assert (tmp_path / "dump.exr").read_text() == "run"
 
 
 def test_a_target_that_appears_meanwhile_is_not_clobbered(tmp_path):

@@ -50,7 +50,7 @@ except ImportError:  # pragma: no cover - not on Windows: stale temporaries are 
     fcntl = None  # type: ignore[assignment]
 
 __all__ = ["atomic_write", "check_writable", "check_readable", "check_utf8_name", "file_kind", "same_file", "OutputSet",
-           "public_name", "remove_stale_temporaries", "STAGING_PREFIX", "STAGING_SUFFIX", "STALE_AFTER"]
+           "public_name", "remove_stale_temporaries", "STAGING_PREFIX", "STAGING_SUFFIX", "STALE_AFTER", "COMMIT_WAIT"]
 
 STAGING_PREFIX = ".awr-"
 STAGING_SUFFIX = ".tmp"
@@ -271,6 +271,34 @@ def _try_lock(fd: int) -> bool | None:
     except OSError:
         return None
     return True
+
+
+COMMIT_WAIT = 10.0
+"""Seconds a commit waits for another process' commit into the same folders before it moves its files anyway."""
+
+
+@contextlib.contextmanager
+def _folders_locked(directories: list[Path]) -> Iterator[None]:
+    """Hold ``directories`` (their ``flock``, in one order) while an :class:`OutputSet` moves its files.
+
+    Two commands writing the same outputs (two ``awr render --overwrite`` of one ``-o``) each moved their
+    files all or none, but in turns: one run's dump could end up beside the other's image. Commits into
+    the same folder now take turns as wholes, so the last one's files are all there. A commit takes
+    milliseconds; one that waited :data:`COMMIT_WAIT` (a folder someone else keeps locked) goes on
+    without the lock, as it does where locks are not supported.
+    """
+    fds: list[int] = []
+    try:
+        for directory in sorted(set(directories)):  # one order: two commits never wait for each other
+            with contextlib.suppress(OSError):
+                fds.append(os.open(directory, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0)))
+                deadline = time.monotonic() + COMMIT_WAIT
+                while _try_lock(fds[-1]) is False and time.monotonic() < deadline:
+                    time.sleep(0.005)
+        yield
+    finally:
+        for fd in fds:
+            os.close(fd)  # the lock goes with its descriptor
 
 
 _SCANNED: set[Path] = set()
@@ -615,7 +643,7 @@ class OutputSet:
                 _check_written(tmp, target)
             for check in COMMIT_CHECKS:  # a signal whose exception was lost: no output after it
                 check()
-            with _signals_deferred():
+            with _folders_locked([_through_links(target).parent for target in self._staged]), _signals_deferred():
                 self._move_all()
         finally:
             self.abort()
