@@ -273,8 +273,11 @@ def _try_lock(fd: int) -> bool | None:
     return True
 
 
-COMMIT_WAIT = 10.0
-"""Seconds a commit waits for another process' commit into the same folders before it moves its files anyway."""
+COMMIT_WAIT = 2.0
+"""Seconds a commit waits for another process' commit into the same folders before it moves its files anyway
+(a commit takes milliseconds); a folder that made it wait that long is not waited for again by this process."""
+
+_HELD_ELSEWHERE: set[Path] = set()  # folders locked by something that is not a commit (a wrapper's `flock DIR cmd`)
 
 
 @contextlib.contextmanager
@@ -284,17 +287,20 @@ def _folders_locked(directories: list[Path]) -> Iterator[None]:
     Two commands writing the same outputs (two ``awr render --overwrite`` of one ``-o``) each moved their
     files all or none, but in turns: one run's dump could end up beside the other's image. Commits into
     the same folder now take turns as wholes, so the last one's files are all there. A commit takes
-    milliseconds; one that waited :data:`COMMIT_WAIT` (a folder someone else keeps locked) goes on
-    without the lock, as it does where locks are not supported.
+    milliseconds; one that waited :data:`COMMIT_WAIT` (a folder someone else keeps locked, as
+    ``flock DIR awr ...`` does for the whole command) goes on without the lock, as it does where locks
+    are not supported, and later commits of this process into that folder do not wait for it.
     """
     fds: list[int] = []
     try:
-        for directory in sorted(set(directories)):  # one order: two commits never wait for each other
+        for directory in sorted(set(directories) - _HELD_ELSEWHERE):  # one order: commits never wait for each other
             with contextlib.suppress(OSError):
                 fds.append(os.open(directory, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0)))
                 deadline = time.monotonic() + COMMIT_WAIT
-                while _try_lock(fds[-1]) is False and time.monotonic() < deadline:
+                while (taken := _try_lock(fds[-1])) is False and time.monotonic() < deadline:
                     time.sleep(0.005)
+                if taken is False:
+                    _HELD_ELSEWHERE.add(directory)
         yield
     finally:
         for fd in fds:
