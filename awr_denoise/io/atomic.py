@@ -277,6 +277,7 @@ COMMIT_WAIT = 2.0
 """Seconds a commit waits for another process' commit into the same folders before it moves its files anyway
 (a commit takes milliseconds); a folder that made it wait that long is not waited for again by this process."""
 
+_DIRECTORY_FLAGS = getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0)
 _HELD_ELSEWHERE: set[Path] = set()  # folders locked by something that is not a commit (a wrapper's `flock DIR cmd`)
 
 
@@ -295,7 +296,7 @@ def _folders_locked(directories: list[Path]) -> Iterator[None]:
     try:
         for directory in sorted(set(directories) - _HELD_ELSEWHERE):  # one order: commits never wait for each other
             with contextlib.suppress(OSError):
-                fds.append(os.open(directory, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0)))
+                fds.append(os.open(directory, os.O_RDONLY | _DIRECTORY_FLAGS))
                 deadline = time.monotonic() + COMMIT_WAIT
                 while (taken := _try_lock(fds[-1])) is False and time.monotonic() < deadline:
                     time.sleep(0.005)
