@@ -166,10 +166,8 @@ def test_a_folder_locked_by_someone_else_delays_one_commit_but_stops_none(tmp_pa
     ones (the next frames) do not wait again."""
     monkeypatch.setattr(atomic, "COMMIT_WAIT", 0.3)
     monkeypatch.setattr(atomic, "_HELD_ELSEWHERE", set())
-    fcntl = pytest.importorskip("fcntl", reason="folder locks need flock (POSIX)")
-    held = os.open(tmp_path, os.O_RDONLY)
+    held = _held(tmp_path)
     try:
-        fcntl.flock(held, fcntl.LOCK_EX)
         start = time.monotonic()
         _staged_set(tmp_path, "first").commit()
         waited = time.monotonic() - start
@@ -179,6 +177,70 @@ def test_a_folder_locked_by_someone_else_delays_one_commit_but_stops_none(tmp_pa
     finally:
         os.close(held)
     assert (tmp_path / "dump.exr").read_text() == "second"
+
+
+def _held(folder: Path) -> int:
+    """A descriptor holding ``folder``'s flock, as ``flock DIR cmd`` does."""
+    fcntl = pytest.importorskip("fcntl", reason="folder locks need flock (POSIX)")
+    fd = os.open(folder, os.O_RDONLY)
+    fcntl.flock(fd, fcntl.LOCK_EX)
+    return fd
+
+
+def test_a_commit_waits_at_most_commit_wait_whatever_its_folders(tmp_path, monkeypatch):
+    """Three folders held elsewhere cost one COMMIT_WAIT, not one each (a red-team review)."""
+    monkeypatch.setattr(atomic, "COMMIT_WAIT", 0.3)
+    monkeypatch.setattr(atomic, "_HELD_ELSEWHERE", set())
+    folders = [tmp_path / name for name in "abc"]
+    outputs = OutputSet(overwrite=True)
+    for folder in folders:
+        folder.mkdir()
+        Path(outputs.add(folder / "out.exr")).write_text("run")
+    held = [_held(folder) for folder in folders]
+    try:
+        start = time.monotonic()
+        outputs.commit()
+        assert 0.3 <= time.monotonic() - start < 0.6
+    finally:
+        for fd in held:
+            os.close(fd)
+
+
+def test_a_commit_waiting_for_one_folder_holds_no_other(tmp_path, monkeypatch):
+    """A commit into a and b, b held by a wrapper, kept a locked while it waited: another commit into a
+    timed out and took a for a folder held elsewhere, and stopped taking turns there (a red-team review)."""
+    monkeypatch.setattr(atomic, "COMMIT_WAIT", 1.0)
+    monkeypatch.setattr(atomic, "_HELD_ELSEWHERE", set())
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir(), b.mkdir()
+    waiting = OutputSet(overwrite=True)
+    Path(waiting.add(a / "image.exr")).write_text("waiting")
+    Path(waiting.add(b / "dump.exr")).write_text("waiting")
+    held = _held(b)
+    try:
+        other = threading.Thread(target=waiting.commit)
+        other.start()
+        time.sleep(0.2)
+        quick = OutputSet(overwrite=True)
+        Path(quick.add(a / "frame.exr")).write_text("quick")
+        start = time.monotonic()
+        quick.commit()
+        assert time.monotonic() - start < 0.5 and a not in atomic._HELD_ELSEWHERE
+    finally:
+        os.close(held)
+        other.join(30)
+
+
+def test_one_folder_by_two_paths_is_locked_once(tmp_path, monkeypatch):
+    """A bind mount names one folder twice: two descriptors of it would wait for each other."""
+    pytest.importorskip("fcntl", reason="folder locks need flock (POSIX)")
+    monkeypatch.setattr(atomic, "COMMIT_WAIT", 0.5)
+    monkeypatch.setattr(atomic, "_HELD_ELSEWHERE", set())
+    (tmp_path / "alias").symlink_to(tmp_path, target_is_directory=True)  # resolved by commit(); not here
+    start = time.monotonic()
+    with atomic._folders_locked([tmp_path, tmp_path / "alias"]):
+        pass
+    assert time.monotonic() - start < 0.25 and not atomic._HELD_ELSEWHERE
 
 
 def test_a_target_that_appears_meanwhile_is_not_clobbered(tmp_path):

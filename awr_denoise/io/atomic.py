@@ -283,29 +283,49 @@ _HELD_ELSEWHERE: set[Path] = set()  # folders locked by something that is not a 
 
 @contextlib.contextmanager
 def _folders_locked(directories: list[Path]) -> Iterator[None]:
-    """Hold ``directories`` (their ``flock``, in one order) while an :class:`OutputSet` moves its files.
+    """Hold ``directories`` (their ``flock``) while an :class:`OutputSet` moves its files.
 
     Two commands writing the same outputs (two ``awr render --overwrite`` of one ``-o``) each moved their
     files all or none, but in turns: one run's dump could end up beside the other's image. Commits into
-    the same folder now take turns as wholes, so the last one's files are all there. A commit takes
-    milliseconds; one that waited :data:`COMMIT_WAIT` (a folder someone else keeps locked, as
-    ``flock DIR awr ...`` does for the whole command) goes on without the lock, as it does where locks
-    are not supported, and later commits of this process into that folder do not wait for it.
+    the same folder now take turns as wholes, so the last one's files are all there. The locks are taken
+    all at once or none is kept: a commit waiting for one folder holds no other, so two commits never
+    wait for each other, whatever their folders' order or names (one folder by two paths, a bind mount,
+    is locked once). A commit takes milliseconds; one that waited :data:`COMMIT_WAIT` in all (a folder
+    something else keeps locked, as ``flock DIR awr ...`` does for the whole command) goes on with the
+    locks it can take, as where locks are not supported, and later commits of this process do not wait
+    for the others.
     """
-    fds: list[int] = []
+    folders: dict[tuple[int, int], tuple[int, Path]] = {}
     try:
-        for directory in sorted(set(directories) - _HELD_ELSEWHERE):  # one order: commits never wait for each other
-            with contextlib.suppress(OSError):
-                fds.append(os.open(directory, os.O_RDONLY | _DIRECTORY_FLAGS))
-                deadline = time.monotonic() + COMMIT_WAIT
-                while (taken := _try_lock(fds[-1])) is False and time.monotonic() < deadline:
-                    time.sleep(0.005)
-                if taken is False:
-                    _HELD_ELSEWHERE.add(directory)
+        for directory in set(directories) - _HELD_ELSEWHERE:
+            with contextlib.suppress(OSError):  # a folder that cannot be opened (no read permission): no lock
+                fd = os.open(directory, os.O_RDONLY | _DIRECTORY_FLAGS)
+                st = os.fstat(fd)
+                if (st.st_dev, st.st_ino) in folders:
+                    os.close(fd)  # the same folder by another path: a second descriptor would wait for the first
+                else:
+                    folders[(st.st_dev, st.st_ino)] = (fd, directory)
+        deadline = time.monotonic() + COMMIT_WAIT
+        while True:
+            busy = [directory for fd, directory in folders.values() if _try_lock(fd) is False]
+            if not busy:
+                break
+            if time.monotonic() >= deadline:
+                _HELD_ELSEWHERE.update(busy)  # go on with the locks taken in this last pass
+                break
+            for fd, _ in folders.values():
+                _unlock(fd)
+            time.sleep((2 + secrets.randbelow(6)) / 1000)  # apart: two commits do not retry in step
         yield
     finally:
-        for fd in fds:
+        for fd, _ in folders.values():
             os.close(fd)  # the lock goes with its descriptor
+
+
+def _unlock(fd: int) -> None:
+    if fcntl is not None:
+        with contextlib.suppress(OSError):
+            fcntl.flock(fd, fcntl.LOCK_UN)
 
 
 _SCANNED: set[Path] = set()
