@@ -393,9 +393,10 @@ def reconstruct_detailed(
                                 guard=guard, preserve_mean=preserve_mean, nonnegative=nonnegative, precision=precision,
                                 variance_probes=variance_probes, seed=seed, guard_window=guard_window,
                                 guard_probes=guard_probes)
+    if guide is not None and settings.guard_probes:  # before a guide function (OIDN) runs for nothing
+        # The guide's gate and projection follow the means, outside the probed stages.
+        raise ValueError("guard_probes: not with a guide (its gate and projection are not probed)")
     guide = checked_inputs(buffer, guide, features, settings.stages)
-    if guide is not None and settings.guard_probes:  # the projection on a guide comes after the probed stages
-        raise ValueError("guard_probes: not with a guide (its projection is not probed)")
     projection = checked_projection(guide_projection, guide)
     groups = channel_groups(buffer.channels)
     if groups is not None:  # R,G,B together, an alpha or an AOV beside them alone: none moves another
@@ -433,7 +434,7 @@ def reconstruct_detailed(
                           levels=ops.levels, domain=prepared.bound.domain, noise_gain=gain,
                           parameters={"wavelet": ops.wavelet, "levels": ops.levels,
                                       "domain": prepared.bound.domain.name, "mode": mode, "boundary": boundary,
-                                      "guide": guide is not None, "features": features and guide is None,
+                                      "guide": guide is not None, "features": bool(features) and guide is None,
                                       "guide_projection": None if guide is None else projection, **settings.recorded()})
 
 

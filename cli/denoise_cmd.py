@@ -176,7 +176,7 @@ def check_reconstruction_options(args: argparse.Namespace, shape: tuple[int, int
         raise UsageError(f"--guard-probes {probes}: the SURE guard follows the Wiener stages; "
                          "it needs --stages 2 or more")
     if probes and guide in GUIDES:
-        raise UsageError(f"--guard-probes {probes}: not with --guide {guide} (its projection is not probed)")
+        raise UsageError(f"--guard-probes {probes}: not with --guide {guide} (its gate and projection are not probed)")
     if getattr(args, "guide_projection", None) is not None and guide not in GUIDES:
         raise UsageError("--guide-projection: it is the share of a guide's projection; it needs --guide oidn")
     if args.levels is not None and args.levels > max_levels(shape):

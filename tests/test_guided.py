@@ -156,6 +156,8 @@ def test_parameters_record_the_guide_and_the_features(rng):
     both = reconstruct_detailed(textured, guide=clean, features=True, variance_probes=0).parameters
     # Beside a guide the features are not used: recorded as used, the provenance said otherwise.
     assert (featured["features"], both["guide"], both["features"]) == (True, True, False)
+    numpy_flag = reconstruct_detailed(textured, features=np.False_, variance_probes=0).parameters["features"]
+    assert numpy_flag is False  # a Python bool, as the other flags are recorded
 
 
 # ---------------------------------------------------------------------------- refusals

@@ -335,11 +335,15 @@ def test_bad_guard_probes_are_refused(options, message):
         reconstruct(buf, **options)
 
 
-def test_guard_probes_are_refused_with_a_guide():
-    """A guide's projection comes after the probed stages: its divergence would be missing."""
+def test_guard_probes_are_refused_with_a_guide_before_the_guide_is_made():
+    """A guide's gate and projection follow the means outside the probed stages: their divergence would be
+    missing. A guide function (OIDN) ran before the refusal (a red-team review)."""
     _, buf = _scene_buffer("edges", 4, 1, shape=(32, 32))
-    with pytest.raises(ValueError, match="guard_probes: not with a guide"):
-        reconstruct(buf, guide=buf.mean, guard_probes=1)
+    made = []
+    for guide in (buf.mean, lambda b: made.append(b) or b.mean):
+        with pytest.raises(ValueError, match="guard_probes: not with a guide"):
+            reconstruct(buf, guide=guide, guard_probes=1)
+    assert not made
 
 
 def test_buffer_without_samples_is_refused():
