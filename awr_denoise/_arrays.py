@@ -132,30 +132,32 @@ def flat_pixel_index(pixels: np.ndarray, shape: Shape2D) -> np.ndarray:
 
 def pixel_moments(pixel: np.ndarray, values: FloatArray, n_pixels: int,
                   name: str = "values") -> tuple[CountArray, FloatArray, FloatArray]:
-    """Per-pixel count, mean and sum of squared deviations (M2) of samples ``values`` (N, C) at ``pixel`` (N,).
+    """Per-pixel count, mean and sample variance (``M2 / (n - 1)``, 0 below two samples) of samples
+    ``values`` (N, C) at ``pixel`` (N,).
 
     Corrected two-pass in float64 (Chan, Golub and LeVeque 1983), a channel at a time (every pixel and
     sample vectorised): the mean of the deviations from the first mean corrects it, so samples that
-    all agree give their value and an M2 of exactly 0 (the first mean's rounding alone, squared and
+    all agree give their value and a variance of exactly 0 (the first mean's rounding alone, squared and
     scaled back from near the float64 limit, was a variance beyond float64 for 7 samples of 1e200).
-    Where the values come near the float64 limit, the sums could overflow while the means do not:
-    each pixel's samples are then divided by a power of two near its own largest value (exact, the
-    same bits) and the results scaled back; a spread whose M2 is beyond float64 is refused naming
-    ``name``.
+    Where the squares could overflow (values above 2**480: at 2**64 samples a pixel, 2**480 squared
+    stays below float64's limit), each pixel's samples are divided by a power of two near its own
+    largest value (exact, the same bits) and the variance, not M2, is scaled back: a variance within
+    float64 is kept whatever M2 (2**24 samples of +-2**500 have an M2 of 2**1024); one beyond it is
+    refused naming ``name``.
 
     Examples
     --------
     >>> import numpy as np
     >>> from awr_denoise._arrays import pixel_moments
-    >>> count, mean, m2 = pixel_moments(np.zeros(7, int), np.full((7, 1), 0.1), 1)
-    >>> count, bool(mean[0, 0] == 0.1), m2                  # 7 x 0.1 / 7 is not 0.1 in float64
+    >>> count, mean, variance = pixel_moments(np.zeros(7, int), np.full((7, 1), 0.1), 1)
+    >>> count, bool(mean[0, 0] == 0.1), variance              # 7 x 0.1 / 7 is not 0.1 in float64
     (array([7]), True, array([[0.]]))
     """
     count = np.bincount(pixel, minlength=n_pixels)
     safe = np.maximum(count, 1)
     top = float(np.abs(values).max(initial=0.0))
     scale = None
-    if top > 2.0**500:
+    if top > 2.0**480:
         peak = np.zeros(n_pixels)
         np.maximum.at(peak, pixel, np.abs(values).max(axis=1))
         # Each pixel's values then lie within +-4; the exponent is held at -1020 or more so that a pixel
@@ -163,7 +165,7 @@ def pixel_moments(pixel: np.ndarray, values: FloatArray, n_pixels: int,
         scale = np.ldexp(1.0, np.maximum(np.frexp(peak)[1] - 2, -1020))
         values = values / scale[pixel, None]
     mean = np.empty((n_pixels, values.shape[1]))
-    m2 = np.empty_like(mean)
+    variance = np.empty_like(mean)
     for c in range(values.shape[1]):
         column = np.ascontiguousarray(values[:, c])  # one strided read, not three
         m = np.bincount(pixel, weights=column, minlength=n_pixels) / safe
@@ -171,17 +173,18 @@ def pixel_moments(pixel: np.ndarray, values: FloatArray, n_pixels: int,
         m += np.bincount(pixel, weights=dev, minlength=n_pixels) / safe
         np.subtract(column, m.take(pixel), out=dev)
         dev *= dev
-        mean[:, c], m2[:, c] = m, np.bincount(pixel, weights=dev, minlength=n_pixels)
+        mean[:, c], variance[:, c] = m, np.bincount(pixel, weights=dev, minlength=n_pixels)
+    variance /= np.maximum(count - 1, 1)[:, None]
     if scale is not None:
         with np.errstate(over="ignore"):
             mean *= scale[:, None]
-            m2 *= scale[:, None]
-            m2 *= scale[:, None]  # twice, not by scale squared: that overflows first
-        beyond = int((~np.isfinite(m2).all(axis=1)).sum())
+            variance *= scale[:, None]
+            variance *= scale[:, None]  # twice, not by scale squared: that overflows first
+        beyond = int((~np.isfinite(variance).all(axis=1)).sum())
         if beyond:
             raise ValueError(f"{name}: the variance of {beyond} pixel(s) is beyond float64 (1.8e308): their samples "
                              "spread that far, or are so large (above about 1e154) that rounding alone does")
-    return count, mean, m2
+    return count, mean, variance
 
 
 def as_mask(name: str, array: object) -> np.ndarray:

@@ -335,8 +335,7 @@ class SampleBuffer(ReadOnlyArrays):
     def _of_samples(cls, flat: np.ndarray, vals: FloatArray, shape: Shape2D, channels: Sequence[str] | int | None,
                     name: str, n_bad: int = 0, features: dict[str, SampleBuffer] | None = None) -> SampleBuffer:
         """The buffer of checked, finite samples ``vals`` (N, C) at flat pixels; ``name`` is theirs."""
-        count, mean, m2 = pixel_moments(flat, vals, shape[0] * shape[1], name)
-        variance = m2 / np.maximum(count - 1, 1)[:, None]
+        count, mean, variance = pixel_moments(flat, vals, shape[0] * shape[1], name)
         return cls(count.reshape(shape), mean.reshape(*shape, -1), variance.reshape(*shape, -1),
                    resolve_channels(channels, vals.shape[1]), np.ones(shape, bool), n_bad,
                    features if features is not None else {})

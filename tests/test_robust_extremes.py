@@ -453,6 +453,18 @@ def test_samples_that_all_agree_have_their_value_and_no_variance(value, n):
     assert buf.mean[0, 0, 0] == value and buf.variance[0, 0, 0] == 0.0
 
 
+@pytest.mark.parametrize("n, power", [(2**20, 510), pytest.param(2**24, 500, marks=pytest.mark.slow)])
+def test_a_variance_within_float64_is_kept_whatever_its_sum_of_squares(n, power):
+    """n samples of +-2**power: a variance of about 2**(2 power), within float64, and a sum of squared deviations
+    of n times that, beyond it. The scaled sum was refused as a variance beyond float64 (2**20 samples of
+    +-2**510), and at 2**500, below the scaling threshold, it overflowed unscaled (found by a review)."""
+    values = np.where(np.arange(n) % 2 == 0, 2.0**power, -(2.0**power))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        buf = SampleBuffer.from_samples(np.zeros(n, int), values, (1, 1))
+    assert buf.mean[0, 0, 0] == 0.0 and buf.variance[0, 0, 0] == 2.0 ** (2 * power) * (n / (n - 1))
+
+
 def test_from_samples_near_the_float64_limit_scales_each_pixel_exactly():
     """Sums of samples near 1e308 overflow where their means do not: each pixel is scaled by a power
     of two of its own (exact), so a tiny pixel beside a huge one keeps its bits, and a scaled
