@@ -279,6 +279,7 @@ COMMIT_WAIT = 2.0
 
 _DIRECTORY_FLAGS = getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0)
 _HELD_ELSEWHERE: set[Path] = set()  # folders locked by something that is not a commit (a wrapper's `flock DIR cmd`)
+_HELD_LOCK = threading.Lock()  # commits of several threads (frames written side by side) read and add to it
 
 
 @contextlib.contextmanager
@@ -297,21 +298,29 @@ def _folders_locked(directories: list[Path]) -> Iterator[None]:
     """
     folders: dict[tuple[int, int], tuple[int, Path]] = {}
     try:
-        for directory in set(directories) - _HELD_ELSEWHERE:
-            with contextlib.suppress(OSError):  # a folder that cannot be opened (no read permission): no lock
+        with _HELD_LOCK:
+            skipped = set(_HELD_ELSEWHERE)
+        for directory in set(directories) - skipped:
+            try:
                 fd = os.open(directory, os.O_RDONLY | _DIRECTORY_FLAGS)
+            except OSError:  # a folder that cannot be opened (no read permission): no lock
+                continue
+            try:
                 st = os.fstat(fd)
-                if (st.st_dev, st.st_ino) in folders:
-                    os.close(fd)  # the same folder by another path: a second descriptor would wait for the first
-                else:
-                    folders[(st.st_dev, st.st_ino)] = (fd, directory)
+            except OSError:
+                st = None
+            if st is None or (st.st_dev, st.st_ino) in folders:
+                os.close(fd)  # the same folder by another path: a second descriptor would wait for the first
+            else:
+                folders[(st.st_dev, st.st_ino)] = (fd, directory)
         deadline = time.monotonic() + COMMIT_WAIT
         while True:
             busy = [directory for fd, directory in folders.values() if _try_lock(fd) is False]
             if not busy:
                 break
             if time.monotonic() >= deadline:
-                _HELD_ELSEWHERE.update(busy)  # go on with the locks taken in this last pass
+                with _HELD_LOCK:
+                    _HELD_ELSEWHERE.update(busy)  # go on with the locks taken in this last pass
                 break
             for fd, _ in folders.values():
                 _unlock(fd)
