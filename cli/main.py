@@ -27,7 +27,7 @@ from typing import Any
 from awr_denoise import __version__
 from awr_denoise.errors import InputFileError
 
-from . import interrupts
+from . import interrupts, memory
 from .errors import (
     EXIT_BROKEN_PIPE,
     EXIT_FAILURE,
@@ -263,6 +263,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         Arguments without the program name; ``sys.argv[1:]`` by default.
     """
     _one_blas_thread_under_a_memory_limit()  # before numpy and scipy are imported
+    memory.keep_freed_memory()  # whole-image temporaries reused, not mapped afresh (cli/memory.py)
     _standard_streams()
     stderr = sys.stderr
     sys.stderr = _DiagnosticStream(stderr)  # type: ignore[assignment]
