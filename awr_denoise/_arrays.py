@@ -139,8 +139,8 @@ def pixel_moments(pixel: np.ndarray, values: FloatArray, n_pixels: int,
     sample vectorised): the mean of the deviations from the first mean corrects it, so samples that
     all agree give their value and a variance of exactly 0 (the first mean's rounding alone, squared and
     scaled back from near the float64 limit, was a variance beyond float64 for 7 samples of 1e200).
-    Where the squares could overflow (values above 2**480: at 2**64 samples a pixel, 2**480 squared
-    stays below float64's limit), each pixel's samples are divided by a power of two near its own
+    Where the squares could overflow (values above 2**480; below it, squared deviations summed over
+    fewer than 2**60 samples stay within float64), each pixel's samples are divided by a power of two near its own
     largest value (exact, the same bits) and the variance, not M2, is scaled back: a variance within
     float64 is kept whatever M2 (2**24 samples of +-2**500 have an M2 of 2**1024); one beyond it is
     refused naming ``name``.
