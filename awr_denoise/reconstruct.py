@@ -501,6 +501,5 @@ def reconstruct(
                                 boundary=boundary, executor=executor, pixel_clamp=pixel_clamp, stages=stages,
                                 wiener_exponents=wiener_exponents, guard=guard, guard_window=guard_window,
                                 guard_probes=guard_probes, preserve_mean=preserve_mean, nonnegative=nonnegative,
-                                precision=precision,
-                                variance_probes=0, guide=guide,
+                                precision=precision, variance_probes=0, guide=guide,
                                 guide_projection=guide_projection, features=features).image
