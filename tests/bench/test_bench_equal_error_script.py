@@ -1,0 +1,61 @@
+"""``benchmarks/bench_equal_error.py``: AWR sampling's equal-error spp at 32 spp over render seeds."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("embreex", reason="the bundled tracer needs the extra `tracer` (embreex)")
+
+
+@pytest.fixture(scope="module")
+def bench(benchmark_script):
+    return benchmark_script("bench_equal_error")
+
+
+@pytest.fixture(scope="module")
+def run(bench, tmp_path_factory):
+    out = tmp_path_factory.mktemp("equal_error") / "equal_error.json"
+    argv = ["--scenes", "default", "--seeds", "0", "1", "--size", "16", "--uniform-max-spp", "128",
+            "--output", str(out)]
+    assert bench.main(argv) == 0
+    return json.loads(out.read_text())["seeds"]
+
+
+def test_each_seed_is_rendered_with_its_own_samples_and_uniform_curve(run):
+    rows = run["rows"]
+    assert [(r["scene"], r["seed"]) for r in rows] == [("default", 0), ("default", 1)]
+    assert [s for s, _ in rows[0]["uniform_curve"]] == [4, 8, 16, 32, 64, 128]
+    assert rows[0]["uniform_curve"] != rows[1]["uniform_curve"]
+    assert rows[0]["default"]["relmse"] != rows[1]["default"]["relmse"]
+    for row in rows:
+        for sampler in ("default", "relative error alone"):
+            assert 0 < row[sampler]["relmse"] and np.isfinite(row[sampler]["mse"])
+
+
+def test_the_equal_error_spp_is_the_benchmarks_on_the_seeds_own_curve(bench, run):
+    """The same floor-corrected interpolation as ``awr bench``: recomputed from the stored curve, it agrees."""
+    from awr_denoise.bench.analysis import equal_error_spp, fit_noise_floor
+    for row in run["rows"]:
+        spps, errors = zip(*row["uniform_curve"])
+        slope, floor = fit_noise_floor(spps, errors)
+        assert (slope, floor) == pytest.approx((row["slope"], row["floor"]))
+        expected, _ = equal_error_spp(row["default"]["relmse"] - floor, spps, [e - floor for e in errors], slope)
+        assert row["default"]["equal_error_spp"] == pytest.approx(expected)
+
+
+def test_the_table_gives_each_seed_and_the_means(bench):
+    def row(seed, spp, alone, mse_ratio):
+        return {"scene": "s", "seed": seed, "default": {"equal_error_spp": spp, "mse": 1.0},
+                "relative error alone": {"equal_error_spp": alone, "mse": mse_ratio}}
+    text = bench.table([row(0, 200.0, 210.0, 2.0), row(3, 100.0, 90.0, 4.0)])
+    assert text.splitlines()[0].startswith("| scene | seed 0 | seed 3 | mean |")
+    assert "| s | 200 (210) | 100 (90) | 150 | 150 | 3.00 |" in text
+
+
+def test_a_uniform_curve_short_of_the_adaptive_spp_is_refused(bench, capsys):
+    with pytest.raises(SystemExit) as err:
+        bench.main(["--uniform-max-spp", "32"])
+    assert err.value.code == 2 and "--uniform-max-spp must be at least 64" in capsys.readouterr().err
