@@ -291,7 +291,9 @@ class Sampler(OneAtATime):
         if rest:
             current = self._issued + counts if topped_up else self._issued
             cap = None if capacity is None else capacity - counts
-            if self._round == 0:
+            # Round 0, or every sample told so far was dropped (a renderer's non-finite samples):
+            # there is nothing to rank on, so the round is uniform, as the first.
+            if self._round == 0 or self._buffer.total_samples == 0:
                 counts += _allocate(np.ones(self._shape), current, rest, capacity=cap, rng=rng)
             else:
                 counts += self._allocate(rest, current, cap, rng)

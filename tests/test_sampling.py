@@ -677,6 +677,31 @@ def test_the_documented_loop_is_run_with_a_renderer_that_drops_samples():
     assert_array_equal(ran.buffer.mean, sampler.buffer.mean)
 
 
+def test_a_sampler_whose_first_rounds_were_all_dropped_asks_uniformly_again(sampler_cls):
+    """A renderer whose first samples were all non-finite, dropped: the ranking samplers' every later
+    ``ask()`` raised "buffer: no pixel has any sample", stuck for good (a red-team pass). With nothing
+    to rank on a round is uniform, as the first; once samples come back the strategy applies."""
+    edges = _edges_renderer()
+
+    def renderer(request):  # the first two rounds' samples are all NaN
+        if request.round >= 2:
+            return edges(request)
+        rows, cols, _ = request.pixel_list()
+        values = np.full((rows.size, 3), np.nan)
+        return SampleBuffer.from_samples(np.stack([rows, cols], 1), values, request.shape, nonfinite="drop")
+
+    sampler = sampler_cls(SHAPE, seed=0)
+    with pytest.warns(UserWarning, match="missing"):
+        for _ in range(2):
+            sampler.tell(request := sampler.ask(), renderer(request))
+    assert sampler.total_samples == 0 and sampler.round == 2
+    request = sampler.ask(3 * PIXELS)
+    assert_array_equal(request.counts, 3)  # nothing to rank on: uniform
+    sampler.tell(request, renderer(request))
+    assert sampler.total_samples == 3 * PIXELS
+    assert sampler.run(renderer, total_spp=16).total_samples > 3 * PIXELS
+
+
 def test_the_same_buffer_object_told_again_is_refused(sampler_cls):
     """A renderer that hands back its one SampleBuffer every round had the same samples merged every
     round: the counts grew, the variance shrank, the image stayed that of round 0 (a red-team pass)."""
