@@ -206,7 +206,11 @@ class SampleBuffer(ReadOnlyArrays):
         check_finite("variance", var_arr)
         n = count_arr[..., None].astype(np.float64)
         if variance_kind == "mean":
-            var_arr = var_arr * n
+            with np.errstate(over="ignore"):
+                var_arr = var_arr * n
+            if (far := ~np.isfinite(var_arr).all(axis=2)).any():
+                raise ValueError(f"variance: {int(far.sum())} pixel(s) hold a variance of the mean that, times their "
+                                 "count, is a per-sample variance beyond float64 (1.8e308)")
         elif variance_kind == "second_moment":
             with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
                 # E[x^2] >= mean^2: a deficit past rounding, or a mean^2 past float64, is not a second moment
@@ -389,17 +393,34 @@ class SampleBuffer(ReadOnlyArrays):
             raise ValueError(f"counts/means: expected (N, H, W) and (N, H, W, C), got {c.shape}, {np.shape(means)}")
         if c.shape[0] < 2:
             raise ValueError(f"means: {c.shape[0]} render(s) given; the spread of means needs at least 2")
-        per_render = np.stack([check_count(ck) for ck in c]).astype(np.float64)
+        per_render = np.stack([check_count(ck) for ck in c])
         m = np.stack([as_float64("means", mk, 3) for mk in m])
         check_finite("means", m.reshape(-1, *m.shape[2:]))
-        n = per_render.sum(axis=0)
-        w = per_render[..., None]
-        safe = np.maximum(n, 1.0)[..., None]
-        mean = (w * m).sum(axis=0) / safe
-        m2 = (w * (m - mean) ** 2).sum(axis=0)
+        beyond = per_render.sum(axis=0, dtype=np.float64) > 2**62  # in float64: an int64 sum could wrap
+        if beyond.any():
+            raise ValueError(f"counts: {int(beyond.sum())} pixel(s) would hold more than 2**62 samples merged, the "
+                             "most int64 counts hold safely")
+        n = per_render.sum(axis=0)  # exact in int64 below 2**62 (in float64 2**53 + 1 was 2**53)
         renders = (per_render > 0).sum(axis=0)
+        # Each pixel's means divided by a power of two near their largest (exact), so that neither the
+        # weighted sums nor the squared spread overflow; the variance is scaled back and refused beyond float64.
+        peak = np.abs(m).max(axis=(0, 3))
+        scale = np.ldexp(1.0, np.clip(np.frexp(peak)[1] - 2, -1020, None))[..., None]
+        m = m / scale
+        share = per_render / np.maximum(n, 1)  # each render's share of the pixel's samples
+        w = share[..., None]
+        mean = (w * m).sum(axis=0)
+        mean += (w * (m - mean)).sum(axis=0)  # corrected two-pass: means that all agree give their value
+        m2 = (w * (m - mean) ** 2).sum(axis=0) * n[..., None]
         variance = m2 / np.maximum(renders - 1, 1)[..., None]
-        return cls(n.astype(np.int64), mean, variance, resolve_channels(channels, m.shape[3]), renders >= 2)
+        with np.errstate(over="ignore"):
+            mean *= scale
+            variance *= scale
+            variance *= scale  # twice, not by scale squared: that overflows first
+        far = int((~np.isfinite(variance).all(axis=2)).sum())
+        if far:
+            raise ValueError(f"means: the spread of {far} pixel(s) over the renders is beyond float64 (1.8e308)")
+        return cls(n, mean, variance, resolve_channels(channels, m.shape[3]), renders >= 2)
 
     # ------------------------------------------------------------------ properties
     @property

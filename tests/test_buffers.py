@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import copy
 import itertools
+import warnings
+from fractions import Fraction
 
 import numpy as np
 import pytest
@@ -174,6 +176,52 @@ def test_second_moments_whose_squared_mean_overflows_are_refused():
     with pytest.raises(ValueError, match="second moment below the squared mean"):
         SampleBuffer.from_moments(np.full((2, 2), 4), np.full((2, 2), 1e200), np.full((2, 2), 1e300),
                                   variance_kind="second_moment")
+
+
+def test_a_variance_of_the_mean_past_float64_times_its_count_is_refused_by_name():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no overflow warning on the way (a red-team pass)
+        with pytest.raises(ValueError, match="variance: 1 pixel.*per-sample variance beyond float64"):
+            SampleBuffer.from_moments([[2**62]], [[1.0]], [[1e300]], variance_kind="mean")
+
+
+def test_independent_means_merge_as_the_definition(rng):
+    """N renders known by counts and means: n = sum n_k, the weighted mean, and the spread of the means
+    ``sum n_k (m_k - mean)^2 / (N' - 1)`` over the N' renders with samples, against a Fraction reference."""
+    counts = rng.integers(0, 5, size=(4, 3, 5))
+    means = rng.normal(size=(4, 3, 5, 2)) * 10.0 ** rng.integers(-3, 4, size=(4, 3, 5, 1))
+    buf = SampleBuffer.from_independent_means(counts, means)
+    for i, j, c in itertools.product(range(3), range(5), range(2)):
+        n = [int(k) for k in counts[:, i, j]]
+        m = [Fraction(float(x)) for x in means[:, i, j, c]]
+        total = sum(n)
+        mean = sum(nk * mk for nk, mk in zip(n, m)) / max(total, 1)
+        renders = sum(nk > 0 for nk in n)
+        spread = sum(nk * (mk - mean) ** 2 for nk, mk in zip(n, m)) / max(renders - 1, 1)
+        assert buf.count[i, j] == total and bool(buf.variance_known[i, j]) == (renders >= 2)
+        assert buf.mean[i, j, c] == pytest.approx(float(mean), rel=1e-14, abs=1e-300)
+        assert buf.variance[i, j, c] == pytest.approx(float(spread), rel=1e-12, abs=1e-300)
+
+
+def test_independent_means_at_the_edges_of_float64_and_int64():
+    """Means near the float64 limit were refused as NaN or Inf (the weighted sum overflowed), counts were
+    summed in float64 (2**53 + 1 samples came out 2**53), a total past int64 was "negative" (a red-team
+    pass); renders that agree give their value and no spread at any magnitude."""
+    def merged(counts, means):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            return SampleBuffer.from_independent_means(np.reshape(counts, (-1, 1, 1)), np.reshape(means, (-1, 1, 1)))
+
+    for value in (1e308, -1.7e308, 0.1, 5e-324, 1e-300):
+        buf = merged([4, 7, 3], [value] * 3)
+        assert buf.mean.item() == value and buf.variance.item() == 0.0 and buf.count.item() == 14
+    assert merged([2**53, 1], [1.0, 1.0]).count.item() == 2**53 + 1
+    spread = merged([4, 4], [1e150, -1e150])
+    assert spread.mean.item() == 0.0 and spread.variance.item() == pytest.approx(8e300)
+    with pytest.raises(ValueError, match=r"counts: 1 pixel\(s\) would hold more than 2\*\*62 samples merged"):
+        merged([2**62, 2**62], [1.0, 1.0])
+    with pytest.raises(ValueError, match=r"means: the spread of 1 pixel\(s\) over the renders is beyond float64"):
+        merged([4, 4], [1e160, -1e160])
 
 
 @pytest.mark.parametrize(("shape", "features", "error", "message"), [
