@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import pickle
+import re
 import threading
 
 import numpy as np
@@ -542,6 +543,21 @@ def test_from_buffer_names_what_it_refuses(buffer, issued, error, message):
         buffer = SampleBuffer.from_moments(np.full((8, 8), 4), np.ones((8, 8, 3)), np.ones((8, 8, 3)))
     with pytest.raises(error, match=message):
         AdaptiveSampler.from_buffer(buffer, issued=issued)
+
+
+@pytest.mark.parametrize(("channels", "message"), [
+    (2, "channels: ch0, ch1 given, but the buffer holds R, G, B"),
+    (("B", "G", "R"), "channels: B, G, R given, but the buffer holds R, G, B"),
+    (("X", "Y", "Z"), "channels: X, Y, Z given, but the buffer holds R, G, B"),
+])
+def test_from_buffer_refuses_channels_that_contradict_the_buffer(sampler_cls, channels, message):
+    """They were taken without a word, the sampler keeping the buffer's (a red-team pass); the buffer's
+    own, or their count, are accepted."""
+    buffer = SampleBuffer.from_moments(np.full((8, 8), 4), np.ones((8, 8, 3)), np.ones((8, 8, 3)))
+    with pytest.raises(ValueError, match=re.escape(message)):
+        sampler_cls.from_buffer(buffer, channels=channels)
+    for same in (3, ("R", "G", "B")):
+        assert sampler_cls.from_buffer(buffer, channels=same).buffer.channels == ("R", "G", "B")
 
 
 @pytest.mark.parametrize(("cls", "domain", "error"), [(AdaptiveSampler, "foo", ValueError),
