@@ -63,14 +63,19 @@ def relmse(x: FloatArray, reference: FloatArray, eps: float = RELMSE_EPSILON) ->
     """
     a, b = _pair(x, reference)
     eps = _checks.real("eps", eps, minimum=0)
-    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+    with np.errstate(over="ignore", under="ignore", divide="ignore", invalid="ignore"):
         d = a - b
         num, den = d * d, b * b + eps
-        # eps = 0 is exact where the reference is not 0; where it is, an exact pixel costs 0.
-        ratio = np.where(num == 0, 0.0, num / den)
-        bad = ~np.isfinite(ratio) & (num != 0) & (den != 0)
-        if bad.any():  # values near 1e300: squares overflow, the ratio need not
-            ratio[bad] = (d[bad] / np.hypot(b[bad], math.sqrt(eps))) ** 2
+        # eps = 0 is exact where the reference is not 0; where it is, an exact pixel costs 0 and any
+        # other an infinite relative error.
+        ratio = np.where(d == 0, 0.0, num / den)
+        # Values near 1e300 overflow the squares and values near 1e-170 underflow them (an error of 1e-170
+        # read as none), where the ratio itself need do neither: those pixels again without the squares.
+        black = (b == 0) & (eps == 0)
+        redo = (d != 0) & ((num == 0) | (den == 0) | ~np.isfinite(ratio)) & ~black
+        if redo.any():
+            ratio[redo] = (d[redo] / np.hypot(b[redo], math.sqrt(eps))) ** 2
+        ratio[black & (d != 0)] = np.inf
         return float(np.mean(ratio))
 
 
@@ -87,8 +92,11 @@ def tonemap(x: FloatArray, *, exposure: float = 0.0) -> FloatArray:
     array([0.6343])
     """
     exposure = _checks.real("exposure", exposure)
+    x = numeric("x", x).astype(np.float64)
+    if np.isnan(x).any():  # +-Inf is a value a viewer clips; NaN is none
+        raise ValueError(f"x: {int(np.isnan(x).sum())} value(s) are NaN")
     with np.errstate(over="ignore"):  # 2**1023 already saturates every positive float
-        v = np.clip(numeric("x", x).astype(np.float64) * 2.0 ** min(exposure, 1023.0), 0.0, 1.0)
+        v = np.clip(x * 2.0 ** min(exposure, 1023.0), 0.0, 1.0)
     return np.where(v <= 0.0031308, 12.92 * v, 1.055 * np.power(v, 1 / 2.4) - 0.055)
 
 
@@ -111,11 +119,17 @@ def psnr(x: FloatArray, reference: FloatArray, *, peak: float | None = None) -> 
     peak = _checks.real("peak", peak, above=0, none=True)
     top = float(np.max(np.abs(b))) if peak is None else peak
     with np.errstate(over="ignore"):
-        err = float(np.mean((a - b) ** 2))
-    if err == 0:
+        d = a - b
+    largest = float(np.max(np.abs(d)))
+    if largest == 0:
         return float("inf")
-    # In logarithms: top * top and the error overflow for values near 1e300.
-    return 20.0 * np.log10(top) - 10.0 * np.log10(err) if top > 0 else float("-inf")
+    if top == 0:
+        return float("-inf")
+    # In logarithms, the error divided by its largest term: the squares overflow near 1e300 and underflow
+    # near 1e-170 (an error read as none), the logarithm of the scaled mean does neither.
+    with np.errstate(over="ignore", under="ignore"):
+        scaled = float(np.mean((d / largest) ** 2)) if np.isfinite(largest) else float("inf")
+    return 20.0 * (np.log10(top) - np.log10(largest)) - 10.0 * np.log10(scaled)
 
 
 def ssim(x: FloatArray, reference: FloatArray, *, exposure: float = 0.0, sigma: float = 1.5) -> float:
@@ -136,6 +150,8 @@ def ssim(x: FloatArray, reference: FloatArray, *, exposure: float = 0.0, sigma: 
     True
     """
     a, b = _pair(x, reference)
+    if a.ndim not in (2, 3):
+        raise ValueError(f"image: expected (H, W) or (H, W, C), got shape {a.shape}")
     sigma = _checks.real("sigma", sigma, above=0, maximum=1e4)
     a, b = tonemap(a, exposure=exposure), tonemap(b, exposure=exposure)
     if a.ndim == 2:

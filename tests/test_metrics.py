@@ -84,3 +84,30 @@ def test_masked_entries_are_refused_not_compared():
     with pytest.raises(TypeError, match="x: complex values are not supported"):
         tonemap(np.array([0.5 + 1j]))
     assert mse(np.ma.masked_array([[0.5, 1.0]]), np.full((1, 2), 0.5)) == pytest.approx(0.125)
+
+
+@pytest.mark.parametrize("scale", [1.0, 1e-100, 1e-170, 1e-200, 1e-300, 1e150, 1e300])
+def test_scale_free_metrics_hold_at_every_scale(scale):
+    """PSNR and relMSE with ``eps = 0`` do not depend on the images' scale: near 1e-170 the squared error
+    underflowed to 0 and read as none, PSNR inf and relMSE 0 (a red-team pass; near 1e300 the squares
+    overflowed, fixed before)."""
+    x, r = np.full((4, 4), 2 * scale), np.full((4, 4), scale)
+    x[0, 0] = 4 * scale  # errors of two sizes: the scaled mean, not one term
+    assert psnr(x, r) == pytest.approx(-10 * np.log10((15 + 9) / 16), rel=1e-12)
+    assert relmse(x, r, eps=0) == pytest.approx((15 + 9) / 16, rel=1e-12)
+    assert psnr(r, r) == np.inf and relmse(r, r, eps=0) == 0.0
+
+
+def test_relmse_without_epsilon_is_infinite_only_on_an_error_over_a_black_reference():
+    assert relmse(np.array([1e-200, 0.0]), np.array([0.0, 0.0]), eps=0) == np.inf
+    assert relmse(np.array([0.0, 1e-200]), np.array([0.0, 1e-200]), eps=0) == 0.0
+
+
+def test_ssim_refuses_what_is_not_an_image_and_tonemap_refuses_nan():
+    """A 1-D or 0-d input raised IndexError; ``tonemap`` passed NaN through (a red-team pass)."""
+    for shape in [(8,), (), (2, 3, 4, 5)]:
+        with pytest.raises(ValueError, match=r"image: expected \(H, W\) or \(H, W, C\)"):
+            ssim(np.zeros(shape), np.zeros(shape))
+    with pytest.raises(ValueError, match=r"x: 1 value\(s\) are NaN"):
+        tonemap(np.array([np.nan, 0.5]))
+    assert_allclose(tonemap(np.array([np.inf, -np.inf])), [1.0, 0.0])  # a viewer clips them
