@@ -124,9 +124,13 @@ def _allocate(density: FloatArray, current: CountArray, budget: int, *, capacity
     if not top > 0:
         a = np.ones(shape)  # nothing to rank on (a deterministic image): spread uniformly
     else:
+        # Scaled by a power of two to a largest value in [0.5, 1): exact (the same counts at any scale) and
+        # the water level's sums neither overflow (densities near 1e308) nor underflow (subnormal ones).
+        exponent = int(np.frexp(top)[1])
+        np.ldexp(a, -exponent, out=a)
         # A floor so no open pixel is unreachable: otherwise a budget larger than what the
         # positive-density pixels can absorb would have nowhere to go.
-        np.maximum(a, 1e-9 * top, out=a)
+        np.maximum(a, 1e-9 * float(np.ldexp(top, -exponent)), out=a)
     n = current.astype(np.float64)
     alpha = _water_level(a, n, None if capacity is None else cap, budget)
     m = np.multiply(a, alpha)  # the values of max(alpha * a - n, 0), in place

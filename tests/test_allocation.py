@@ -6,8 +6,11 @@ test_sampling.py beside the samplers that call it.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
+from numpy.testing import assert_array_equal
 
 from awr_denoise import allocate
 from awr_denoise.allocation import _SELECT_DIRECT, _smallest
@@ -88,3 +91,22 @@ def test_allocation_above_the_bracket_size_is_the_full_partitions(monkeypatch):
             expected = allocate(density, current, budget, capacity=cap, rng=np.random.default_rng(0))
         assert int(got.sum()) == budget and (cap is None or (got <= cap).all())
         np.testing.assert_array_equal(got, expected)
+
+
+def test_the_counts_do_not_depend_on_the_densitys_scale():
+    """Documented as "any scale": near 1e308 the water level's sum overflowed and the density was
+    ignored (a uniform split and a warning; a red-team pass), and subnormal densities underflowed."""
+    rng = np.random.default_rng(5)
+    current = rng.integers(0, 3, size=(9, 11))
+    density = rng.random((9, 11)) ** 3
+    density[0, :3] = 0.0
+    expected = allocate(density, current, 500, rng=np.random.default_rng(1))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for scale in (2.0**-1060, 1e-300, 1e300, 1.7e308 / density.max()):
+            got = allocate(density * scale, current, 500, rng=np.random.default_rng(1))
+            assert_array_equal(got, expected, err_msg=f"scale {scale:g}")
+            capped = allocate(density * scale, current, 300, capacity=np.full((9, 11), 4),
+                              rng=np.random.default_rng(1))
+            assert_array_equal(capped, allocate(density, current, 300, capacity=np.full((9, 11), 4),
+                                                rng=np.random.default_rng(1)))
