@@ -11,7 +11,7 @@ import numpy as np
 from ._typing import CountArray, FloatArray, Shape2D
 
 __all__ = ["plain", "numeric", "frozen", "as_float64", "check_finite", "check_count", "flat_pixel_index",
-           "pixel_moments", "as_mask", "ReadOnlyArrays", "summed_counts"]
+           "pixel_moments", "independent_moments", "as_mask", "ReadOnlyArrays", "summed_counts"]
 
 
 def plain(name: str, array: object) -> np.ndarray:
@@ -185,6 +185,47 @@ def pixel_moments(pixel: np.ndarray, values: FloatArray, n_pixels: int,
             raise ValueError(f"{name}: the variance of {beyond} pixel(s) is beyond float64 (1.8e308): their samples "
                              "spread that far, or are so large (above about 1e154) that rounding alone does")
     return count, mean, variance
+
+
+def independent_moments(counts: CountArray, means: FloatArray) -> tuple[CountArray, FloatArray, FloatArray, np.ndarray]:
+    """Per-pixel count, mean and spread of N independent renders known by their checked counts (N, H, W)
+    and finite means (N, H, W, C): ``n = sum n_k``, the weighted mean, ``sum n_k (m_k - mean)^2 / (N' - 1)``
+    over the ``N'`` renders with samples, and ``N'``.
+
+    Counts are summed in int64 (exact; refused past 2**62); each pixel's means are divided by a power of two
+    near their largest (exact) so that neither the weighted sums nor the squared spread overflow, the mean is
+    the corrected two-pass one (renders that agree give their value and no spread), and a spread beyond
+    float64 is refused naming ``means``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise._arrays import independent_moments
+    >>> n, mean, spread, renders = independent_moments(np.full((2, 1, 1), 4), np.full((2, 1, 1, 1), 1e308))
+    >>> int(n[0, 0]), float(mean[0, 0, 0]), float(spread[0, 0, 0]), int(renders[0, 0])
+    (8, 1e+308, 0.0, 2)
+    """
+    beyond = counts.sum(axis=0, dtype=np.float64) > 2**62  # in float64: an int64 sum could wrap
+    if beyond.any():
+        raise ValueError(f"counts: {int(beyond.sum())} pixel(s) would hold more than 2**62 samples merged, the "
+                         "most int64 counts hold safely")
+    n = counts.sum(axis=0)  # exact in int64 below 2**62 (in float64 2**53 + 1 was 2**53)
+    renders = (counts > 0).sum(axis=0)
+    peak = np.abs(means).max(axis=(0, 3))
+    scale = np.ldexp(1.0, np.clip(np.frexp(peak)[1] - 2, -1020, None))[..., None]
+    m = means / scale
+    w = (counts / np.maximum(n, 1))[..., None]  # each render's share of the pixel's samples
+    mean = (w * m).sum(axis=0)
+    mean += (w * (m - mean)).sum(axis=0)  # corrected two-pass
+    variance = (w * (m - mean) ** 2).sum(axis=0) * n[..., None] / np.maximum(renders - 1, 1)[..., None]
+    with np.errstate(over="ignore"):
+        mean *= scale
+        variance *= scale
+        variance *= scale  # twice, not by scale squared: that overflows first
+    far = int((~np.isfinite(variance).all(axis=2)).sum())
+    if far:
+        raise ValueError(f"means: the spread of {far} pixel(s) over the renders is beyond float64 (1.8e308)")
+    return n, mean, variance, renders
 
 
 def as_mask(name: str, array: object) -> np.ndarray:

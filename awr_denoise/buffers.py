@@ -20,7 +20,7 @@ import numpy as np
 
 from . import _checks
 from ._arrays import (ReadOnlyArrays, as_float64, as_mask, check_count, check_finite, flat_pixel_index, frozen, plain,
-                      pixel_moments, summed_counts)
+                      independent_moments, pixel_moments, summed_counts)
 from ._typing import BoolArray, CountArray, FloatArray, Shape2D
 from .channels import (channel_count, default_channel_names, luminance_variance,  # noqa: F401 - re-exported
                        luminance_weights, resolve_channels)
@@ -396,30 +396,7 @@ class SampleBuffer(ReadOnlyArrays):
         per_render = np.stack([check_count(ck) for ck in c])
         m = np.stack([as_float64("means", mk, 3) for mk in m])
         check_finite("means", m.reshape(-1, *m.shape[2:]))
-        beyond = per_render.sum(axis=0, dtype=np.float64) > 2**62  # in float64: an int64 sum could wrap
-        if beyond.any():
-            raise ValueError(f"counts: {int(beyond.sum())} pixel(s) would hold more than 2**62 samples merged, the "
-                             "most int64 counts hold safely")
-        n = per_render.sum(axis=0)  # exact in int64 below 2**62 (in float64 2**53 + 1 was 2**53)
-        renders = (per_render > 0).sum(axis=0)
-        # Each pixel's means divided by a power of two near their largest (exact), so that neither the
-        # weighted sums nor the squared spread overflow; the variance is scaled back and refused beyond float64.
-        peak = np.abs(m).max(axis=(0, 3))
-        scale = np.ldexp(1.0, np.clip(np.frexp(peak)[1] - 2, -1020, None))[..., None]
-        m = m / scale
-        share = per_render / np.maximum(n, 1)  # each render's share of the pixel's samples
-        w = share[..., None]
-        mean = (w * m).sum(axis=0)
-        mean += (w * (m - mean)).sum(axis=0)  # corrected two-pass: means that all agree give their value
-        m2 = (w * (m - mean) ** 2).sum(axis=0) * n[..., None]
-        variance = m2 / np.maximum(renders - 1, 1)[..., None]
-        with np.errstate(over="ignore"):
-            mean *= scale
-            variance *= scale
-            variance *= scale  # twice, not by scale squared: that overflows first
-        far = int((~np.isfinite(variance).all(axis=2)).sum())
-        if far:
-            raise ValueError(f"means: the spread of {far} pixel(s) over the renders is beyond float64 (1.8e308)")
+        n, mean, variance, renders = independent_moments(per_render, m)
         return cls(n, mean, variance, resolve_channels(channels, m.shape[3]), renders >= 2)
 
     # ------------------------------------------------------------------ properties

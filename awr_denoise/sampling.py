@@ -23,6 +23,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Callable
 from concurrent.futures import Executor
+from contextlib import nullcontext
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -294,8 +295,7 @@ class Sampler(OneAtATime):
         if rest:
             current = self._issued + counts if topped_up else self._issued
             cap = None if capacity is None else capacity - counts
-            # Round 0, or every sample told so far was dropped (a renderer's non-finite samples):
-            # there is nothing to rank on, so the round is uniform, as the first.
+            # Round 0, or every sample told so far dropped (non-finite): nothing to rank on, so uniform.
             if self._round == 0 or self._buffer.total_samples == 0:
                 counts += _allocate(np.ones(self._shape), current, rest, capacity=cap, rng=rng)
             else:
@@ -389,8 +389,7 @@ class Sampler(OneAtATime):
         if self.spp_max is not None and goal > taken + (room := int(np.maximum(self.spp_max - self._issued, 0).sum())):
             raise ValueError(f"total_spp: {total_spp} exceeds the {(taken + room) / pixels:.6g} spp that spp_max "
                              f"{self.spp_max} allows")
-        bar = tqdm(total=goal, initial=int(self._issued.sum()), unit="sample", desc=self.strategy) if progress else None
-        try:
+        with tqdm(total=goal, initial=taken, unit="sample", desc=self.strategy) if progress else nullcontext() as bar:
             while self._issued.sum() < goal:
                 remaining = goal - int(self._issued.sum())
                 budget = min(self.default_budget(), remaining) if self._pending is None else None
@@ -400,9 +399,6 @@ class Sampler(OneAtATime):
                     bar.update(request.total)
                 if callback is not None and callback(request, buffer) is False:
                     break
-        finally:
-            if bar is not None:
-                bar.close()
         return self._buffer
 
     # ------------------------------------------------------------------ strategy

@@ -305,7 +305,7 @@ def test_extreme_magnitudes_are_accepted_without_warnings(scale, spread):
 
 def test_a_huge_error_is_inf_not_a_warning():
     assert metrics.mse(np.full(4, 1e300), np.full(4, -1e300)) == math.inf
-    assert metrics.psnr(np.full(4, 1e300), np.zeros(4), peak=1.0) == -math.inf
+    assert metrics.psnr(np.full(4, 1e300), np.zeros(4), peak=1.0) == pytest.approx(-6000.0)  # in logarithms
     assert metrics.relmse(np.full(4, 1e300), np.full(4, 2e300)) == pytest.approx(0.25)
     assert metrics.tonemap(np.ones(2), exposure=1e6) == pytest.approx([1.0, 1.0])
 

@@ -811,3 +811,12 @@ def test_a_sampler_pickles_with_its_lock_left_out():
     assert_array_equal(request.counts, sampler.ask().counts)
     clone.tell(request, renderer(request))
     assert clone.round == 2 and sampler.round == 1
+
+
+def test_run_shows_its_progress_from_the_samples_already_taken(capsys):
+    renderer = _edges_renderer((16, 16))
+    sampler = AdaptiveSampler((16, 16))
+    sampler.run(renderer, total_spp=4)
+    capsys.readouterr()
+    assert sampler.run(renderer, total_spp=8, progress=True).total_samples == 8 * 256
+    assert "2048/2048" in capsys.readouterr().err  # started at the 1024 taken, closed at the goal
