@@ -35,11 +35,38 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--channels", metavar="LIST|LAYER",
                    help="IMAGE's channels: comma-separated names (R,G,B), or a layer whose R,G,B are read "
                         "(ViewLayer.Combined in a Blender file); default: its R,G,B")
-    p.add_argument("--ref-channels", metavar="LIST|LAYER", help="the reference's channels, as --channels")
+    p.add_argument("--ref-channels", metavar="LIST|LAYER",
+                   help="the reference's channels, as --channels; default: the channels --channels names where the "
+                        "reference holds them all (paired by name), else its R,G,B")
     p.add_argument("--view", metavar="NAME", help="the view of a multi-view IMAGE to compare (stereo: left, right)")
     p.add_argument("--ref-view", metavar="NAME", help="the view of a multi-view reference, as --view")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(run=run)
+
+
+def _channel_names(path: str) -> set[str]:
+    """Every part's channel names: Blender writes one part per pass (a later pass's layer is no less there)."""
+    return {getattr(channel, "name", str(channel)) for part in read_exr(path, header_only=True)
+            if not part.deep for channel in part.header.get("channels", [])}
+
+
+def _counterpart(spec: str | None, other: str, option: str) -> str | None:
+    """The channel choice of the file whose option was not given, when ``option`` gave ``spec`` for the
+    other: the same names where ``other`` holds them all (paired by name), else its R,G,B (by position).
+
+    A list that is R,G,B in another order (``B,G,R``, the order ``awr info`` prints) would pair B with
+    the other file's R by position: refused, asking for the other file's channels."""
+    names = [] if spec is None else [name.strip() for name in spec.split(",")]
+    if len(names) < 2:  # none, or a layer or one channel: R,G,B in that order on both sides
+        return None
+    if set(names) <= _channel_names(other):
+        return spec
+    bases = [name.rsplit(".", 1)[-1].upper() for name in names]
+    if sorted(bases) in (["B", "G", "R"], ["A", "B", "G", "R"]) and bases[:3] != ["R", "G", "B"]:
+        counter = "--ref-channels" if option == "--channels" else "--channels"
+        raise UsageError(f"{option}: {spec} would be paired by position with {shown(other)}'s R,G,B; "
+                         f"give {counter} too")
+    return None
 
 
 def _image(path: str, spec: str | None, option: str, view: str | None) -> np.ndarray:
@@ -55,9 +82,7 @@ def _image(path: str, spec: str | None, option: str, view: str | None) -> np.nda
         raise UsageError(f"{option}: {spec!r} names a channel twice")
     if len(names) > 1:
         return read_image(path, channels=names, view=view)
-    # Every part's channels: Blender writes one part per pass (a later pass's layer is no less there).
-    present = {getattr(channel, "name", str(channel)) for part in read_exr(path, header_only=True)
-               if not part.deep for channel in part.header.get("channels", [])}
+    present = _channel_names(path)
     layer = [f"{names[0]}.{c}" for c in "RGB"]
     if set(layer) <= present:
         return read_image(path, channels=layer, view=view)
@@ -76,8 +101,13 @@ def run(args: argparse.Namespace) -> int:
     plan.read(args.ref, "-r/--ref")
     plan.write(args.output, "-o/--output")
     plan.check()
-    image = _image(args.input, args.channels, "--channels", args.view)
-    ref = _image(args.ref, args.ref_channels, "--ref-channels", args.ref_view)
+    image_spec, ref_spec = args.channels, args.ref_channels  # one given: the other pairs by name
+    if ref_spec is None:
+        ref_spec = _counterpart(image_spec, args.ref, "--channels")
+    elif image_spec is None:
+        image_spec = _counterpart(ref_spec, args.input, "--ref-channels")
+    image = _image(args.input, image_spec, "--channels", args.view)
+    ref = _image(args.ref, ref_spec, "--ref-channels", args.ref_view)
     windows = read_windows(args.input)
     if image.shape[:2] != ref.shape[:2]:
         raise UsageError(f"{args.ref}: size {ref.shape[1]}x{ref.shape[0]} does not match "
