@@ -61,6 +61,9 @@ def run(args: argparse.Namespace) -> int:
         plan.write(out / f"{name}_{label}.exr", "--out")
         plan.write(out / f"{name}_{label}.png", "--out", "png")
     plan.write(out / f"{name}_reference.png", "--out", "png")
+    cached = getattr(tracer, "reference_path", None)
+    if callable(cached) and Path(cached(name)).is_file():  # an input: no output may be it, by a link or a name
+        plan.read(cached(name), "the cached reference")
     if os.path.lexists(out) and not out.is_dir():  # a file, a broken link or a loop of links
         raise UsageError(f"--out: {out} exists and is not a directory")
     if out.is_dir():
@@ -69,7 +72,6 @@ def run(args: argparse.Namespace) -> int:
         plan.check_names()
         _check_creatable(out)  # created only once there is something to write: a refusal leaves no folder
     scene = tracer.load_scene(name)
-    cached = getattr(tracer, "reference_path", None)
     if callable(cached) and not Path(cached(name)).is_file():
         status(f"rendering the reference of {name} once (cached as {cached(name)}); this takes a while",
                quiet=args.quiet)

@@ -721,6 +721,21 @@ def test_demo_refuses_before_creating_its_folder(tmp_path, fake_tracer, capsys, 
     _one_error_line(capsys, "--out", "cannot be created")
 
 
+def test_demo_refuses_an_output_that_is_its_cached_reference(tmp_path, fake_tracer, capsys, monkeypatch):
+    """``out/toy_uniform_mean.exr`` linked to the cached reference: the demo read the reference and wrote the
+    8-spp mean over it, exit 0 (a red-team pass). It is an input of the command, refused as an output."""
+    reference = tmp_path / "ref" / "toy.exr"
+    reference.parent.mkdir()
+    write_image(reference, np.full((H, W, 3), 0.5))
+    kept = reference.read_bytes()
+    monkeypatch.setattr(fake_tracer, "reference_path", lambda name: tmp_path / "ref" / f"{name}.exr", raising=False)
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "toy_uniform_mean.exr").symlink_to(reference)
+    assert main(["demo", "--out", str(tmp_path / "out"), "--spp", "8", "-q"]) == 2
+    _one_error_line(capsys, "toy_uniform_mean.exr: --out is the input", "(the cached reference)")
+    assert reference.read_bytes() == kept and os.listdir(tmp_path / "out") == ["toy_uniform_mean.exr"]
+
+
 def test_demo_stopped_before_its_commit_removes_the_folders_it_made(tmp_path, fake_tracer, capsys, monkeypatch):
     """SIGTERM in the demo's last moments (after `--out NEW/sub` was made, before the images were
     committed) left the empty folders behind (a red-team pass)."""

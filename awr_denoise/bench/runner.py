@@ -25,7 +25,7 @@ from .config import METHODS, BenchmarkConfig
 from .figures import require_matplotlib, write_figures
 from .flagcheck import ADAPTIVE_METHODS, check_flags
 from .measure import Timing, run_progressive, timed
-from .mitsuba import mitsuba_benchmark, mitsuba_scene_names
+from .mitsuba import DEFAULT_REFERENCE_DIR, mitsuba_benchmark, mitsuba_scene_names
 from .overhead import measure_overhead
 from .peers import oidn_available, oidn_denoise, require_skimage, skimage_denoise
 from .records import machine_info, write_json
@@ -84,6 +84,7 @@ def run_benchmark(config: BenchmarkConfig | None = None, *, output_dir: str | Pa
     if results_path is None and out_dir is not None:
         results_path = out_dir.resolve().parent / "benchmarks" / "results" / "quality.json"
     _check_outputs(out_dir, None if results_path is None else Path(results_path), plots)
+    _refuse_outputs_onto_references(out_dir, None if results_path is None else Path(results_path), scenes, config)
 
     stages = len(scenes) * (5 + int(config.defaults_sweep)) + len(config.overhead_sizes) + 1 + \
         (len(mitsuba_scene_names(config)) if config.mitsuba else 0)
@@ -157,6 +158,30 @@ def _check_outputs(out_dir: Path | None, results_path: Path | None, plots: bool)
             raise ValueError(f"{param}: {exc}") from None
     if out_dir is not None:
         kept_notes(out_dir / "benchmarks.md")  # an unreadable page is refused now, not after the run
+
+
+def _refuse_outputs_onto_references(out_dir: Path | None, results_path: Path | None, scenes: list[str],
+                                    config: BenchmarkConfig) -> None:
+    """Refuse an output that is a reference the run reads, by a link or another name: ``--results q.json``
+    linked to ``data/references/default.exr`` replaced that reference with the JSON."""
+    outputs = [] if results_path is None else [("results_path / --results", results_path)]
+    if out_dir is not None:
+        outputs.append(("output_dir / --output-dir", out_dir / "benchmarks.md"))
+        outputs += [("output_dir / --output-dir", p) for p in sorted((out_dir / "img").glob("bench_*.png"))]
+    tracer = tracer_module()
+    mitsuba_dir = Path(config.mitsuba_reference_dir or DEFAULT_REFERENCE_DIR)
+    references = [tracer.reference_path(name) for name in scenes]
+    references += sorted(mitsuba_dir.glob("*.npy")) if config.mitsuba and mitsuba_dir.is_dir() else []
+    known = {}
+    for path in references:
+        if path.is_file():
+            st = path.stat()
+            known[path.resolve()] = known[(st.st_dev, st.st_ino)] = path
+    for param, path in outputs:
+        st = path.stat() if path.exists() else None
+        source = known.get(path.resolve()) or (None if st is None else known.get((st.st_dev, st.st_ino)))
+        if source is not None:
+            raise ValueError(f"{param}: {path} is the reference {source}, which the run reads; write elsewhere")
 
 
 def _checked_scenes(config: BenchmarkConfig) -> list[str]:

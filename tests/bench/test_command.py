@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 
@@ -93,6 +94,27 @@ def _refused_before_the_run(tmp_path, monkeypatch, capsys, argv, needle):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and needle in err[0], err
     assert sorted((p.relative_to(tmp_path), p.is_file() and p.read_bytes()) for p in tmp_path.rglob("*")) == before
+
+
+def test_an_output_that_is_a_reference_the_run_reads_is_refused(tmp_path, monkeypatch, capsys):
+    """``--results q.json`` linked to the cached reference of a scene: the run read the reference and replaced
+    it with its JSON (a red-team pass); by a link or by a hard link, it is refused before the run."""
+    pytest.importorskip("embreex")
+    pytest.importorskip("skimage")
+    from awr_denoise import tracer
+
+    refs = tmp_path / "refs"
+    refs.mkdir()
+    reference = refs / "default.exr"
+    reference.write_bytes(tracer.reference_path("default").read_bytes())
+    monkeypatch.setenv("AWR_DENOISE_REFERENCE_DIR", str(refs))
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "q.json").symlink_to(reference)
+    os.link(reference, tmp_path / "out" / "hard.json")
+    for name in ("q.json", "hard.json"):
+        _refused_before_the_run(tmp_path, monkeypatch, capsys, ["--no-plots", "--output-dir", str(tmp_path / "docs"),
+                                                                "--results", str(tmp_path / "out" / name)],
+                                f"is the reference {reference}, which the run reads")
 
 
 def test_outputs_that_cannot_be_written_are_refused_before_the_run(tmp_path, monkeypatch, capsys):
