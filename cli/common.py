@@ -154,6 +154,8 @@ def print_json(data: Any) -> None:
 
 
 def _finite(value: Any) -> Any:
+    if isinstance(value, (np.ndarray, np.generic)):  # a header's vector or matrix may hold NaN too
+        value = value.tolist()
     if isinstance(value, float) and not math.isfinite(value):
         return str(value)
     if isinstance(value, dict):

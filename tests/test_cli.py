@@ -256,6 +256,25 @@ def test_info_json(tmp_path, rng, capsys):
     assert info["total_samples"] == 6 * H * W and info["spp"]["mean"] == 6
 
 
+def test_info_json_writes_a_header_vector_holding_nan_as_text(tmp_path, rng, capsys):
+    """A valid file whose ``awr:*`` vector attribute holds NaN: ``awr info --json`` failed with "Out of range
+    float values are not JSON compliant", naming nothing (a red-team pass); numpy values are strict JSON now."""
+    import OpenEXR
+
+    src = tmp_path / "d.exr"
+    _dump(src, rng, spp=2)
+    with OpenEXR.File(str(src), separate_channels=True) as f:
+        header = {k: v for k, v in f.header().items() if k.startswith("awr")}
+        channels = {k: OpenEXR.Channel(k, v.pixels.copy()) for k, v in f.channels().items()}
+    header.update(compression=OpenEXR.ZIP_COMPRESSION, type=OpenEXR.scanlineimage,
+                  **{"awr:offset": np.array([np.nan, 1.0], dtype=np.float32)})
+    with OpenEXR.File(header, channels) as out:
+        out.write(str(tmp_path / "v.exr"))
+    capsys.readouterr()
+    assert main(["info", str(tmp_path / "v.exr"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["attributes"]["awr:offset"] == ["nan", 1.0]
+
+
 def test_diff_metrics_maxerror_and_difference_image(tmp_path, capsys):
     ref = np.full((H, W, 3), 0.5)
     write_image(tmp_path / "ref.exr", ref)
