@@ -461,6 +461,20 @@ def test_a_link_into_another_file_system_is_staged_beside_the_file_it_names(tmp_
 
 @pytest.mark.skipif(not os.path.isfile("/proc/version"),
                     reason="needs /proc/version, a file in a folder that takes no new file")
+def test_a_link_to_a_deleted_file_is_refused_not_written_under_its_text(tmp_path):
+    """``-o /proc/self/fd/N`` of a deleted file: its link's text is "gone.exr (deleted)", and the output was
+    written as a new file under that name, exit 0 (a red-team pass)."""
+    with open(tmp_path / "gone.exr", "ab") as held:
+        os.unlink(tmp_path / "gone.exr")
+        target = Path(f"/proc/self/fd/{held.fileno()}")
+        for overwrite in (True, False):
+            with pytest.raises(ValueError, match=r"\(deleted\)\): names a file that is in no folder"):
+                check_writable(target, overwrite=overwrite)
+        with OutputSet(overwrite=True) as outputs, pytest.raises(ValueError, match="in no folder"):
+            outputs.add(target)
+    assert _listing(tmp_path) == []
+
+
 def test_a_link_is_checked_in_the_folder_of_the_file_it_names(tmp_path):
     """The folder checks ran in the link's folder: a link to a file in a folder that takes no new file
     passed them, and the command failed after all its work (a review)."""

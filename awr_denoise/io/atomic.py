@@ -219,6 +219,11 @@ def check_writable(path: str | os.PathLike[str], *, overwrite: bool) -> Path:
         if not stat.S_ISREG(st.st_mode):
             raise ValueError(f"{name}: is a {file_kind(st.st_mode)}, not a regular file; "
                              "refusing to write over it")
+        if final is not target and not _same_file(final, st):
+            # /proc/self/fd/N of a deleted file: its link's text ("x.exr (deleted)") names no file, and
+            # writing through it would create one under that name.
+            raise ValueError(f"{name}: names a file that is in no folder (deleted, or another mount's); "
+                             "write to a file by its path")
         if not overwrite:
             raise FileExistsError(f"{name}: already exists (pass overwrite=True / --overwrite to replace it)")
     if not parent.is_dir():
@@ -236,6 +241,15 @@ def check_writable(path: str | os.PathLike[str], *, overwrite: bool) -> Path:
         raise ValueError(f"{name}: the file name is {len(os.fsencode(final.name))} bytes, "
                          f"the file system allows {limit}")
     return target
+
+
+def _same_file(path: Path, st: os.stat_result) -> bool:
+    """Whether ``path`` is the file ``st`` describes (both links followed)."""
+    try:
+        other = os.stat(path)
+    except OSError:
+        return False
+    return (other.st_dev, other.st_ino) == (st.st_dev, st.st_ino)
 
 
 def _new_file_mode(target: Path) -> int:
