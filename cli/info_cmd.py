@@ -46,8 +46,11 @@ def _print(info: dict[str, Any]) -> None:
     data, display = windows.get("dataWindow"), windows.get("displayWindow")
     if data and display and data != display:
         # A crop (or an overscan) is worth a line; a plain full frame is not.
-        _line(f"  data window ({data[0][0]}, {data[0][1]})-({data[1][0]}, {data[1][1]}) inside display window "
-              f"({display[0][0]}, {display[0][1]})-({display[1][0]}, {display[1][1]})")
+        (x0, y0), (x1, y1) = data
+        (u0, v0), (u1, v1) = display
+        inside, apart = x0 >= u0 and y0 >= v0 and x1 <= u1 and y1 <= v1, x0 > u1 or y0 > v1 or x1 < u0 or y1 < v0
+        where = "inside" if inside else "outside" if apart else "overlapping"
+        _line(f"  data window ({x0}, {y0})-({x1}, {y1}) {where} display window ({u0}, {v0})-({u1}, {v1})")
     if info["kind"] == "samples":
         if "colour" in info:
             _line(f"  layout: {info['preset']}; colour {info['colour']}, variance {info['variance'] or 'none'}")

@@ -136,3 +136,9 @@ def test_info_shows_a_crop_and_its_json_holds_the_windows(crops, capsys, monkeyp
     write_image(crops / "full.exr", np.ones((H, W, 3)))
     assert main(["info", "full.exr"]) == 0
     assert "window" not in capsys.readouterr().out  # a plain full frame gets no line
+    # A data window beside the display window, or across its edge, was said to lie "inside" it (a red-team pass).
+    for origin, where in (((5000, 200), "outside"), ((1900, 200), "overlapping"), ((-10, 0), "overlapping")):
+        box = {**CROP, "dataWindow": (origin, (origin[0] + W - 1, origin[1] + H - 1))}
+        write_image(crops / "odd.exr", np.ones((H, W, 3)), header=box, overwrite=True)
+        assert main(["info", "odd.exr"]) == 0
+        assert f"{where} display window (0, 0)-(1919, 1079)" in capsys.readouterr().out, where
