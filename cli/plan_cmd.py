@@ -169,4 +169,6 @@ def _option_behind(message: str, args: argparse.Namespace) -> str | None:
             return f"--round-spp {args.round_spp:.10g}"
         if args.budget is not None:
             return f"--budget {args.budget}"
+    if message.startswith("first_index + counts:"):  # the default round past what the input already holds
+        return f"{args.input}: its samples and the next round's"
     return None

@@ -223,6 +223,22 @@ def test_a_refusal_names_the_option_that_caused_it(work, capsys, monkeypatch, ar
     assert work.state() == before
 
 
+def test_a_dump_whose_counts_leave_no_room_for_the_next_round_is_named(work, capsys, monkeypatch):
+    """Pixels already holding 2**24 - 1 samples: the default round's indices pass what a request map stores
+    exactly, refused as "first_index + counts: ...", naming neither a file nor an option (a red-team pass)."""
+    import numpy as np
+
+    from awr_denoise import SampleBuffer
+
+    monkeypatch.chdir(work.root)
+    count = np.full((4, 5), 2**24 - 1)
+    write_sample_buffer("full.exr", SampleBuffer.from_moments(count, np.ones((4, 5, 3)), np.ones((4, 5, 3))))
+    before = work.state()
+    assert main(["plan", "full.exr", "-o", "p.exr", "-q"]) == 2
+    one_error_line(capsys.readouterr().err, "full.exr: its samples and the next round's:", "2**24")
+    assert work.state() == before
+
+
 def test_a_first_round_larger_than_memory_is_refused_naming_size(work, capsys, monkeypatch):
     """``plan --size 16384x16384`` (within the size limits) was ended by the out-of-memory killer,
     exit 137 without a word (red-team pass 5)."""
