@@ -13,7 +13,7 @@ from awr_denoise.guided import PROJECTION_SHARE
 from awr_denoise.guides import GUIDES, OIDN_HINT, oidn_available
 from awr_denoise.io import read_image
 from awr_denoise.io.atomic import OutputSet
-from awr_denoise.io.exr import check_same_windows, read_windows
+from awr_denoise.io.exr import check_same_windows, read_windows, recorded_windows
 from awr_denoise.parallel import FrameResult, FramesFailedError, denoise_frames
 from awr_denoise.reconstruct import (
     DEFAULT_C_S,
@@ -51,7 +51,11 @@ GUIDE_CHOICES = (*GUIDES, "features")
 
 def exr_shape(path: str) -> tuple[int, int]:
     """(H, W) of an EXR file from its data window (the header only is read)."""
-    (x0, y0), (x1, y1) = read_windows(path)["dataWindow"]
+    return _shape(read_windows(path))
+
+
+def _shape(windows: dict) -> tuple[int, int]:
+    (x0, y0), (x1, y1) = windows["dataWindow"]
     return y1 - y0 + 1, x1 - x0 + 1
 
 
@@ -188,17 +192,39 @@ def _frame_label(option: str, jobs: list, frame: int | None) -> str:
     return option if len(jobs) == 1 or frame is None else f"{option} (frame {frame})"
 
 
-def _check_reference(ref: str, sources: list[str]) -> None:
-    """Read the reference once (finite, readable) and match its size and windows to every input."""
-    image = read_image(ref)
-    ref_windows = read_windows(ref)
-    for source in sources:
-        windows = read_windows(source)
-        (x0, y0), (x1, y1) = windows["dataWindow"]
-        if image.shape[:2] != (y1 - y0 + 1, x1 - x0 + 1):
-            raise InputFileError(f"{ref}: size {image.shape[1]}x{image.shape[0]} does not match "
-                                 f"{x1 - x0 + 1}x{y1 - y0 + 1} of {source}")
-        check_same_windows(ref, ref_windows, source, windows)
+def _check_reference(ref: str, sources: list[str], windows: list[dict]) -> None:
+    """Read the reference once (finite, readable) and match its size and windows to every input's
+    ``windows``, those its other checks were made in."""
+    with recorded_windows() as reads:  # the windows of the read that gave its pixels (not of another)
+        image = read_image(ref)
+    ref_windows = reads[0][1]
+    for source, theirs in zip(sources, windows):
+        h, w = _shape(theirs)
+        if image.shape[:2] != (h, w):
+            raise InputFileError(f"{ref}: size {image.shape[1]}x{image.shape[0]} does not match {w}x{h} of {source}")
+        check_same_windows(ref, ref_windows, source, theirs)
+
+
+_Identity = tuple[int, int, int, int]
+
+
+def _identity(path: Path) -> _Identity | None:
+    """What tells one version of a file from the next: a renderer replacing it by rename makes a new
+    inode, one rewriting it in place changes its size or modification time (None: gone)."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns
+
+
+def _check_unchanged(first: dict[Path, _Identity | None]) -> None:
+    """Refuse, naming it, an input that is no longer the file it was before its first read: its reads
+    may have met two versions (the pixels of one in the other's window; an error naming the output)."""
+    for path, identity in first.items():
+        if _identity(path) != identity:
+            raise InputFileError(f"{path}: changed while it was read (replaced or rewritten during the command); "
+                                 "nothing was written: run again once it is complete")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -234,12 +260,23 @@ def run(args: argparse.Namespace) -> int:
         if len(inputs) > 1:
             plan.write(inputs[1], _frame_label("--preview", jobs, frame), "png")
     plan.check()
+    # Every input as it is before its first read. One replaced (a renderer writing its next version by
+    # rename) or rewritten before its last read is refused by name before anything is committed.
+    first = {entry.path: _identity(entry.path) for entry in plan.reads}
     sources = [inputs[0] for inputs, _ in jobs]
-    for src in sources:
-        check_reconstruction_options(args, exr_shape(src), src)
-        check_plane_windows(src, plane_options(args))  # every frame: each may have its own data window
-    if args.ref:
-        _check_reference(args.ref, sources)
+    # Each input's windows, read once: its checks are made in them, and its frame refuses samples read
+    # in others (the file replaced since).
+    windows: list[dict] = []
+    try:
+        for src in sources:
+            windows.append(read_windows(src))
+            check_reconstruction_options(args, _shape(windows[-1]), src)
+            check_plane_windows(src, plane_options(args))  # every frame: each may have its own data window
+        if args.ref:
+            _check_reference(args.ref, sources, windows)
+    except ValueError:  # UsageError, InputFileError: a check failed, maybe on an input replaced meanwhile
+        _check_unchanged(first)
+        raise
 
     frames: list[FrameResult] = []
     final: dict[Path, str] = {}
@@ -269,12 +306,15 @@ def run(args: argparse.Namespace) -> int:
                 denoise_frames(sources, [i for i, _ in staged],
                                previews=[p for _, p in staged] if args.preview else None, exposure=args.exposure,
                                reference=args.ref, executor=pool, half=args.half, overwrite=True,
-                               read_options=plane_kwargs(args), on_frame=done, **reconstruction_kwargs(args))
+                               read_options=plane_kwargs(args), on_frame=done, windows=windows,
+                               **reconstruction_kwargs(args))
             except FramesFailedError as exc:
+                _check_unchanged(first)  # a frame failed on an input replaced meanwhile: that is the error
                 # The first failed frame's own error, so it keeps its exit status and one-line message.
                 raise _named_as_output(next(iter(exc.failures.values())), final) from None
             finally:
                 bar.close()
+        _check_unchanged(first)  # after the last read of every input, before anything is committed
         outputs.commit()  # asks first for a signal whose exception was lost (interrupts.raising)
     order = {src: i for i, src in enumerate(sources)}
     for frame in sorted(frames, key=lambda f: order.get(f.source, 0)):

@@ -48,6 +48,7 @@ __all__ = [
     "WINDOWS",
     "header_windows",
     "read_windows",
+    "recorded_windows",
     "format_window",
     "check_same_windows",
 ]
@@ -281,7 +282,32 @@ def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list
             for name, arr in part.channels.items():
                 if arr is None or (not part.deep and arr.shape != part.shape):
                     raise file_error(p, "truncated or corrupt EXR (channel data missing)", name)
+        log = getattr(_RECORDS, "log", None)
+        if log is not None:
+            log.append((os.fspath(p), header_windows(parts[0].header)))
     return parts
+
+
+# The reads of this thread a caller is recording (recorded_windows), or None.
+_RECORDS = threading.local()
+
+
+@contextlib.contextmanager
+def recorded_windows() -> Iterator[list[tuple[str, dict[str, Window]]]]:
+    """``(path, windows of part 0)`` of each file :func:`read_exr` reads with its pixels in this thread
+    meanwhile, in the order read.
+
+    The windows are those of the very read that gave the pixels. A reader that returns pixels alone
+    (``read_sample_buffer``) followed by :func:`read_windows` opens the path twice: a file replaced by
+    rename in between (a renderer writing its next version) gave one version's pixels and the
+    other's windows, the pixels written at the wrong place.
+    """
+    outer = getattr(_RECORDS, "log", None)
+    _RECORDS.log = log = []
+    try:
+        yield log
+    finally:
+        _RECORDS.log = outer
 
 
 def _python_stdout_elsewhere() -> bool:

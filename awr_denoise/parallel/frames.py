@@ -13,7 +13,7 @@ import dataclasses
 import filecmp
 import os
 import tempfile
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Executor
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,7 +25,7 @@ from .. import _checks
 from ..errors import AWRError, InputFileError
 from ..io import read_image, read_sample_buffer, write_image, write_preview
 from ..io.atomic import check_writable
-from ..io.exr import check_same_windows, read_header, read_windows
+from ..io.exr import Window, check_same_windows, format_window, read_header, recorded_windows
 from ..io.presets import parse_plane
 from ..io.provenance import image_provenance
 from ..metrics import relmse
@@ -90,22 +90,31 @@ def _reference_error(reference: str | os.PathLike[str], image: np.ndarray, chann
     names, else its colour, which must have as many channels (a one-channel depth map compared
     with R alone gave another verdict than ``awr diff``, which refused it)."""
     names = {getattr(c, "name", str(c)) for c in read_header(reference).get("channels", [])}
-    ref = read_image(reference, channels=list(channels)) if set(channels) <= names else read_image(reference)
+    with recorded_windows() as reads:  # its windows from the read of its pixels, not from another
+        ref = read_image(reference, channels=list(channels)) if set(channels) <= names else read_image(reference)
     if ref.shape[:2] != image.shape[:2]:
         raise InputFileError(f"{os.fspath(reference)}: size {ref.shape[1]}x{ref.shape[0]} does not match "
                              f"{image.shape[1]}x{image.shape[0]} of {source}")
     if ref.shape[2] != image.shape[2]:
         raise InputFileError(f"{os.fspath(reference)}: {ref.shape[2]} channel(s), the image of {source} has "
                              f"{image.shape[2]} ({','.join(channels)})")
-    check_same_windows(reference, read_windows(reference), source, windows)
+    check_same_windows(reference, reads[0][1], source, windows)
     return relmse(image, ref)
+
+
+def _changed(source: str, checked: Mapping[str, Window], found: Mapping[str, Window]) -> InputFileError:
+    """The error of a source whose windows, read with its samples, are not those it was checked in."""
+    key = "dataWindow" if checked.get("dataWindow") != found.get("dataWindow") else "displayWindow"
+    shown = [format_window(w[key]) if key in w else "none" for w in (checked, found)]
+    return InputFileError(f"{source}: changed while it was read (replaced or rewritten meanwhile: {key} "
+                          f"{shown[0]} when checked, {shown[1]} with its samples); nothing was written from it")
 
 
 def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str], *,
                   preview: str | os.PathLike[str] | None = None, exposure: float = 0.0,
                   reference: str | os.PathLike[str] | None = None, overwrite: bool = False, half: bool = False,
                   read_options: dict[str, Any] | None = None, again: bool = False,
-                  **reconstruct_options: Any) -> FrameResult:
+                  windows: Mapping[str, Window] | None = None, **reconstruct_options: Any) -> FrameResult:
     """Read one dump, reconstruct it, write the image (and a preview) atomically.
 
     Parameters
@@ -127,6 +136,10 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
         The frame may be a task run again (Dask runs a finished task again when the worker holding
         its result dies before it was fetched): an existing output, or preview, identical byte for
         byte to what this attempt writes is its earlier attempt's, and is taken as written.
+    windows
+        The data and display windows (:func:`~awr_denoise.io.exr.read_windows`) the caller found the
+        source in and checked its other inputs and options against: a source read in others was
+        replaced or rewritten since, and is refused (:class:`InputFileError`) before any work.
     **reconstruct_options
         Keyword arguments of :func:`~awr_denoise.reconstruct`.
 
@@ -136,8 +149,16 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
     """
     source = os.fspath(source)
     _checks.real("exposure", exposure)
-    buffer = read_sample_buffer(source, **(read_options or {}))
-    windows = read_windows(source)  # the image keeps the dump's data and display windows
+    if windows is not None and not isinstance(windows, Mapping):
+        raise TypeError(f"windows: expected a dict like read_windows() returns, got {type(windows).__name__}")
+    # The image keeps the dump's data and display windows, taken from the read that gave the samples
+    # (the reader reads the source first): a second read of the path met the next version of a file
+    # replaced meanwhile, and placed one version's pixels in the other's window.
+    with recorded_windows() as reads:
+        buffer = read_sample_buffer(source, **(read_options or {}))
+    checked, windows = windows, reads[0][1]
+    if checked is not None and dict(checked) != windows:
+        raise _changed(source, checked, windows)
     if not buffer.count.any():  # refused by the reconstruction too, but there without the file's name
         raise InputFileError(f"{source}: no pixel has any sample")
     if preview is not None and buffer.n_channels not in (1, 3, 4):  # before the work, not after it
@@ -226,7 +247,9 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
                    previews: Sequence[str | os.PathLike[str]] | None = None, exposure: float = 0.0,
                    reference: str | os.PathLike[str] | None = None, executor: Executor | None = None,
                    overwrite: bool = False, half: bool = False, read_options: dict[str, Any] | None = None,
-                   on_frame: Callable[[FrameResult], None] | None = None, **reconstruct_options: Any) -> list[Path]:
+                   on_frame: Callable[[FrameResult], None] | None = None,
+                   windows: Sequence[Mapping[str, Window] | None] | None = None,
+                   **reconstruct_options: Any) -> list[Path]:
     """Denoise a sequence of sample dumps, one task per frame (:func:`denoise_frame`).
 
     Every image is bitwise identical to a serial run whatever the executor; writes are atomic,
@@ -256,6 +279,9 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
         ``color``, ``variance``, ...).
     on_frame
         Called in this thread with each frame's :class:`FrameResult` as the frame completes.
+    windows
+        For each input, the windows the caller found it in (or None): an input read in others fails
+        its frame (see :func:`denoise_frame`).
     **reconstruct_options
         Keyword arguments of :func:`~awr_denoise.reconstruct` (``c_s``, ``wavelet``,
         ``levels``, ``domain``, ``mode``, ``boundary``). Each frame runs on one worker.
@@ -282,6 +308,11 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
     if len(sources) != len(targets) or (shown is not None and len(shown) != len(sources)):
         raise ValueError(f"outputs: {len(targets)} given for {len(sources)} input(s)"
                          + ("" if shown is None else f" (and {len(shown)} previews)"))
+    if windows is not None and (isinstance(windows, (str, bytes, Mapping)) or not isinstance(windows, Sequence)):
+        raise TypeError(f"windows: expected one read_windows() dict (or None) per input, got {type(windows).__name__}")
+    checked = [None] * len(sources) if windows is None else list(windows)
+    if len(checked) != len(sources):
+        raise ValueError(f"windows: {len(checked)} given for {len(sources)} input(s)")
     read = sources + ([os.fspath(reference)] if reference is not None else [])
     read += [str(parse_plane(spec, None)[0]) for spec in (read_options or {}).values()
              if isinstance(spec, str) and ":" in spec and _names_file(spec)]
@@ -307,7 +338,7 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
         # One frame runs in this thread, where Ctrl-C stops it at once; on a worker thread, which
         # cannot be stopped, the caller would wait for the whole reconstruction first.
         try:
-            result = _frame_task(sources[0], targets[0], None if shown is None else shown[0], options)
+            result = _frame_task(sources[0], targets[0], None if shown is None else shown[0], checked[0], options)
         except Exception as exc:
             raise FramesFailedError({sources[0]: exc}, 1) from exc
         if on_frame is not None:
@@ -315,7 +346,7 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
         return [result.output]
     failures: dict[str, BaseException] = {}
     with executor_or_threads(executor, len(sources)) as pool:
-        pending = {submit(pool, _frame_task, s, t, None if shown is None else shown[i], options): i
+        pending = {submit(pool, _frame_task, s, t, None if shown is None else shown[i], checked[i], options): i
                    for i, (s, t) in enumerate(zip(sources, targets))}
         try:
             while pending:
@@ -341,6 +372,7 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
     return [Path(t) for _, t, _ in as_given]
 
 
-def _frame_task(source: str, output: str, preview: str | None, options: dict[str, Any]) -> FrameResult:
+def _frame_task(source: str, output: str, preview: str | None, windows: Mapping[str, Window] | None,
+                options: dict[str, Any]) -> FrameResult:
     """:func:`denoise_frame` with its options in one picklable dict (runs in a worker)."""
-    return denoise_frame(source, output, preview=preview, **options)
+    return denoise_frame(source, output, preview=preview, windows=windows, **options)
