@@ -205,28 +205,6 @@ def _check_reference(ref: str, sources: list[str], windows: list[dict]) -> None:
         check_same_windows(ref, ref_windows, source, theirs)
 
 
-_Identity = tuple[int, int, int, int]
-
-
-def _identity(path: Path) -> _Identity | None:
-    """What tells one version of a file from the next: a renderer replacing it by rename makes a new
-    inode, one rewriting it in place changes its size or modification time (None: gone)."""
-    try:
-        st = os.stat(path)
-    except OSError:
-        return None
-    return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns
-
-
-def _check_unchanged(first: dict[Path, _Identity | None]) -> None:
-    """Refuse, naming it, an input that is no longer the file it was before its first read: its reads
-    may have met two versions (the pixels of one in the other's window; an error naming the output)."""
-    for path, identity in first.items():
-        if _identity(path) != identity:
-            raise InputFileError(f"{path}: changed while it was read (replaced or rewritten during the command); "
-                                 "nothing was written: run again once it is complete")
-
-
 def run(args: argparse.Namespace) -> int:
     """Run ``awr denoise``; returns the exit status (errors are raised and reported by ``main``).
 
@@ -259,10 +237,7 @@ def run(args: argparse.Namespace) -> int:
         plan.write(output, _frame_label("-o/--output", jobs, frame))
         if len(inputs) > 1:
             plan.write(inputs[1], _frame_label("--preview", jobs, frame), "png")
-    plan.check()
-    # Every input as it is before its first read. One replaced (a renderer writing its next version by
-    # rename) or rewritten before its last read is refused by name before anything is committed.
-    first = {entry.path: _identity(entry.path) for entry in plan.reads}
+    plan.check()  # and each input's version: one replaced before its last read is refused before the commit
     sources = [inputs[0] for inputs, _ in jobs]
     # Each input's windows, read once: its checks are made in them, and its frame refuses samples read
     # in others (the file replaced since).
@@ -275,7 +250,7 @@ def run(args: argparse.Namespace) -> int:
         if args.ref:
             _check_reference(args.ref, sources, windows)
     except ValueError:  # UsageError, InputFileError: a check failed, maybe on an input replaced meanwhile
-        _check_unchanged(first)
+        plan.check_unchanged()
         raise
 
     frames: list[FrameResult] = []
@@ -309,12 +284,12 @@ def run(args: argparse.Namespace) -> int:
                                read_options=plane_kwargs(args), on_frame=done, windows=windows,
                                **reconstruction_kwargs(args))
             except FramesFailedError as exc:
-                _check_unchanged(first)  # a frame failed on an input replaced meanwhile: that is the error
+                plan.check_unchanged()  # a frame failed on an input replaced meanwhile: that is the error
                 # The first failed frame's own error, so it keeps its exit status and one-line message.
                 raise _named_as_output(next(iter(exc.failures.values())), final) from None
             finally:
                 bar.close()
-        _check_unchanged(first)  # after the last read of every input, before anything is committed
+        plan.check_unchanged()  # after the last read of every input, before anything is committed
         outputs.commit()  # asks first for a signal whose exception was lost (interrupts.raising)
     order = {src: i for i, src in enumerate(sources)}
     for frame in sorted(frames, key=lambda f: order.get(f.source, 0)):

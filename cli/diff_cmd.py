@@ -9,7 +9,7 @@ import numpy as np
 from awr_denoise.io import provenance, read_image, write_image
 from awr_denoise.metrics import HIGHER_IS_BETTER, METRICS
 
-from awr_denoise.io.exr import check_same_windows, read_exr, read_windows
+from awr_denoise.io.exr import check_same_windows, read_exr, recorded_windows
 
 from . import interrupts
 from .common import EXIT_OK, RuntimeFailure, UsageError, print_json
@@ -106,19 +106,27 @@ def run(args: argparse.Namespace) -> int:
         ref_spec = _counterpart(image_spec, args.ref, "--channels")
     elif image_spec is None:
         image_spec = _counterpart(ref_spec, args.input, "--ref-channels")
-    image = _image(args.input, image_spec, "--channels", args.view)
-    ref = _image(args.ref, ref_spec, "--ref-channels", args.ref_view)
-    windows = read_windows(args.input)
-    if image.shape[:2] != ref.shape[:2]:
-        raise UsageError(f"{args.ref}: size {ref.shape[1]}x{ref.shape[0]} does not match "
-                         f"{image.shape[1]}x{image.shape[0]} of {args.input}")
-    if image.shape[2] != ref.shape[2]:
-        raise UsageError(f"{args.ref}: {ref.shape[2]} channel(s), {args.input} has {image.shape[2]}")
-    check_same_windows(args.ref, read_windows(args.ref), args.input, windows)
+    # Each file's windows from the read of its pixels (another read could meet the file's next version).
+    with recorded_windows() as reads:
+        image = _image(args.input, image_spec, "--channels", args.view)
+    windows = reads[-1][1]
+    with recorded_windows() as reads:
+        ref = _image(args.ref, ref_spec, "--ref-channels", args.ref_view)
+    try:
+        if image.shape[:2] != ref.shape[:2]:
+            raise UsageError(f"{args.ref}: size {ref.shape[1]}x{ref.shape[0]} does not match "
+                             f"{image.shape[1]}x{image.shape[0]} of {args.input}")
+        if image.shape[2] != ref.shape[2]:
+            raise UsageError(f"{args.ref}: {ref.shape[2]} channel(s), {args.input} has {image.shape[2]}")
+        check_same_windows(args.ref, reads[-1][1], args.input, windows)
+    except ValueError:  # maybe a file replaced between the reads: that is the error then
+        plan.check_unchanged()
+        raise
     x = image.astype(np.float64)
     r = ref.astype(np.float64)
     result = {"file": args.input, "reference": args.ref} | {name: f(x, r) for name, f in METRICS.items()}
     interrupts.check()  # a signal whose exception a C extension's import swallowed: no output after it
+    plan.check_unchanged()  # after the last read: each image and its windows of one version
     if args.output:
         write_image(args.output, x - r, header={**provenance(input=args.input, reference=args.ref), **windows},
                     overwrite=args.overwrite)

@@ -240,6 +240,7 @@ def run(args: argparse.Namespace) -> int:
             _refuse_duplicates(args.inputs)
         dump = read_independent_renders(args.inputs, **{k: kwargs[k] for k in ("preset", "color", "count", "spp",
                                                                                  "layer", "view")})
+        plan.check_unchanged()  # after the last read: every render and its windows of one version
         write_sample_buffer(args.output, dump.buffer, header=windows, overwrite=args.overwrite)
         h, w = dump.buffer.shape
         status(f"{args.output}: {len(args.inputs)} independent renders, {dump.buffer.total_samples} samples "
@@ -310,6 +311,7 @@ def run(args: argparse.Namespace) -> int:
         # Tiles of one batch, merged before they are told: still naming their request.
         attrs.update({key: answers[0][field] for key, field in ANSWERS.items()})
     header = {**provenance(**{k.removeprefix("awr:"): v for k, v in attrs.items()}), **windows}
+    plan.check_unchanged()  # after the last read: every dump and its windows of one version
     write_sample_buffer(args.output, merged, header=header, issued=issued, overwrite=args.overwrite)
     h, w = merged.shape
     status(f"{args.output}: {merged.total_samples} samples ({merged.total_samples / (h * w):.4g} spp), "

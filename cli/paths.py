@@ -10,6 +10,10 @@ naming the option and the file:
 * two outputs that are one file (two options, or two frames of a sequence);
 * an output that exists without ``--overwrite``, or is not a regular file even with it
   (a FIFO, a device, a directory), or whose folder is missing or not writable.
+
+It also records what each input is then; :meth:`PathPlan.check_unchanged`, called after the last read
+and before anything is written, refuses an input replaced or rewritten meanwhile (a renderer writing
+its next version): the reads may have met two versions of it.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from awr_denoise.errors import InputFileError
 from awr_denoise.io.atomic import check_readable, check_utf8_name, check_writable
 from awr_denoise.io.exr import check_same_windows, read_windows
 from awr_denoise.io.presets import feature_plane_file, parse_plane
@@ -73,6 +78,7 @@ class PathPlan:
     overwrite: bool = False
     reads: list[_Entry] = field(default_factory=list)
     writes: list[_Entry] = field(default_factory=list)
+    versions: dict[Path, tuple[int, ...] | None] = field(default_factory=dict)
 
     def read(self, path: str | os.PathLike[str] | None, option: str) -> None:
         """An input file (None is skipped)."""
@@ -106,6 +112,7 @@ class PathPlan:
                 raise UsageError(f"{entry.option}: {exc}") from None
         inputs: dict[tuple[int, int], _Entry] = {}
         resolved_inputs: dict[Path, _Entry] = {}
+        self.versions = {entry.path: _version(entry.path) for entry in self.reads}
         for entry in self.reads:
             st = os.stat(entry.path)
             inputs.setdefault((st.st_dev, st.st_ino), entry)
@@ -144,6 +151,26 @@ class PathPlan:
             if claimed is not None and entry.kind is not None and claimed != entry.kind:
                 raise UsageError(f"{entry.option}: {entry.path}: this output is written as {entry.kind.upper()}, "
                                  f"but its name says {entry.path.suffix}; name it .{entry.kind}")
+
+
+    def check_unchanged(self) -> None:
+        """Refuse (:class:`~awr_denoise.errors.InputFileError`, naming it) an input that is no longer the
+        file :meth:`check` found: its reads may have met two versions (one's pixels in the other's window,
+        or an error blaming the output)."""
+        for path, version in self.versions.items():
+            if _version(path) != version:
+                raise InputFileError(f"{path}: changed while it was read (replaced or rewritten during the "
+                                     "command); nothing was written: run again once it is complete")
+
+
+def _version(path: Path) -> tuple[int, ...] | None:
+    """What tells one version of a file from the next: a renderer replacing it by rename makes a new inode,
+    one rewriting it in place changes its size or modification time (None: gone)."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns
 
 
 def check_file_name(path: str | os.PathLike[str], option: str) -> None:

@@ -146,6 +146,7 @@ def run(args: argparse.Namespace) -> int:
         budget = max(1, int(round(args.round_spp * h * w)))
     try:
         request = sampler.ask(budget)
+        plan.check_unchanged()  # after the last read: the dump and its windows are of one version
         write_request(args.output, request, header={**provenance(seed=seed, strategy=args.strategy,
                                                                   initial_spp=sampler.initial_spp), **windows},
                       overwrite=args.overwrite)

@@ -236,7 +236,7 @@ def test_a_signal_swallowed_on_the_way_prints_no_report(work, capsys, monkeypatc
     from awr_denoise.cli import diff_cmd, info_cmd, interrupts
     from awr_denoise.cli.main import main
 
-    module, name = (info_cmd, "describe") if command == "info" else (diff_cmd, "read_windows")
+    module, name = (info_cmd, "describe") if command == "info" else (diff_cmd, "read_image")
     original = getattr(module, name)
 
     def swallowed(*args, **kwargs):

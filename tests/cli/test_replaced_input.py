@@ -173,3 +173,23 @@ def test_a_check_failing_on_the_next_version_names_the_change(folder, capsys, mo
     assert main(["denoise", "in.exr", "--alb", "alb.exr", "-o", "o.exr", "-q"]) == 2
     assert fired
     _refused(capsys, work, before, "in.exr")
+
+
+@pytest.mark.parametrize(("argv", "module"), [
+    (["diff", "in.exr", "-r", "ref.exr", "-o", "o.exr"], exr),
+    (["plan", "in.exr", "-o", "o.exr", "-q"], presets),
+    (["merge", "in.exr", "batch.exr", "-o", "o.exr", "-q"], presets),
+])
+@pytest.mark.parametrize("version", sorted(VERSIONS))
+def test_the_other_commands_refuse_an_input_replaced_while_read(folder, capsys, monkeypatch, argv, module, version):
+    """``awr diff``, ``plan`` and ``merge`` read an input's windows apart from its pixels too (a review of the
+    fix above): one replaced after its first read is refused by name before anything is written."""
+    work, versions = folder
+    write_image(work / "ref.exr", np.full((H, W, 3), 0.5))
+    write_sample_buffer(work / "batch.exr", dump_buffer(6))
+    fired = _after_first_read(monkeypatch, module, "read_exr", work / "in.exr",
+                              lambda: _replace(work / "in.exr", versions / f"{version}.exr"))
+    before = sorted(os.listdir(work))
+    assert main(argv) == 2
+    assert fired
+    _refused(capsys, work, before, "in.exr")
