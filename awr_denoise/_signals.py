@@ -9,10 +9,13 @@ default they killed the process without a word and left a staging folder behind.
 
 from __future__ import annotations
 
+import contextlib
+import os
 import signal
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Iterator
 
-__all__ = ["TERMINATING_SIGNALS", "COMMIT_CHECKS"]
+__all__ = ["TERMINATING_SIGNALS", "COMMIT_CHECKS", "deferred"]
 
 TERMINATING_SIGNALS: tuple[int, ...] = tuple(
     getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP", "SIGUSR1", "SIGUSR2", "SIGXCPU", "SIGALRM",
@@ -24,3 +27,36 @@ COMMIT_CHECKS: list[Callable[[], None]] = []
 line raises there a signal whose exception was lost on the way (Python only prints an exception raised
 in a weakref callback, as importlib's module locks run, and carries on), so no output of a terminated
 command is committed."""
+
+
+@contextlib.contextmanager
+def deferred() -> Iterator[None]:
+    """Hold SIGINT, SIGTERM, SIGHUP and the other terminating signals meanwhile, then act on the first
+    that came: while output files are moved into place (``awr_denoise.io.atomic``), while worker
+    processes start (``awr_denoise.parallel.executors``), while Mitsuba loads (its import aborted the
+    process when a signal's exception was raised inside it).
+
+    Only the main thread can change handlers; elsewhere signals are not delivered to the
+    calling thread anyway (Python runs handlers in the main thread).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending: list[int] = []
+    saved = {}
+    for s in TERMINATING_SIGNALS:
+        handler = signal.getsignal(s)
+        if handler is signal.SIG_IGN or handler is None:
+            continue
+        saved[s] = handler
+        signal.signal(s, lambda signum, frame: pending.append(signum))
+    try:
+        yield
+    finally:
+        for s, handler in saved.items():
+            signal.signal(s, handler)
+        for s in pending[:1]:
+            if callable(saved[s]):
+                saved[s](s, None)
+            else:  # SIG_DFL: what would have happened, now that the held work is done
+                os.kill(os.getpid(), s)

@@ -14,6 +14,8 @@ import threading
 from collections.abc import Iterator
 from types import ModuleType
 
+from .._signals import deferred as _signals_deferred
+
 __all__ = ["DEFAULT_VARIANT", "import_mitsuba", "variant_scope", "variant_of_scene"]
 
 DEFAULT_VARIANT = "llvm_ad_rgb"
@@ -50,6 +52,16 @@ def import_mitsuba(variant: str = DEFAULT_VARIANT) -> tuple[ModuleType, ModuleTy
         says what to install. The scalar variants are never used as a silent fallback.
     """
     _check_variant_name(variant)
+    # Signals held while Mitsuba loads (_signals_deferred), then acted on: a signal's exception raised
+    # inside the import (in a Python callback of nanobind's) or while Dr.Jit starts its backend
+    # aborted the process ("terminate called after throwing nanobind::python_error") or crashed it
+    # at exit with Dr.Jit's threads half started: SIGABRT or SIGSEGV instead of one line and 143.
+    with _signals_deferred():
+        return _load(variant)
+
+
+def _load(variant: str) -> tuple[ModuleType, ModuleType]:
+    """:func:`import_mitsuba` once the signals are held."""
     try:
         # Optional extra, imported lazily: the adapter is the only user of Mitsuba.
         import drjit as dr
@@ -70,6 +82,13 @@ def import_mitsuba(variant: str = DEFAULT_VARIANT) -> tuple[ModuleType, ModuleTy
     return mi, dr
 
 
+def _set_variant(mi: ModuleType, variant: str) -> None:
+    """``mi.set_variant(variant)`` with the signals held, as in :func:`import_mitsuba`: the first
+    switch to a variant imports its module and starts its Dr.Jit backend."""
+    with _signals_deferred():
+        mi.set_variant(variant)
+
+
 _MITSUBA_LOCK = threading.RLock()
 """Held around every use of Mitsuba: the active variant is process-wide, and Dr.Jit launches from
 several Python threads at once failed now and then (``jitc_var_rcp(): Invalid variable type``;
@@ -88,12 +107,12 @@ def variant_scope(mi: ModuleType, variant: str) -> Iterator[None]:
         if previous == variant:
             yield
             return
-        mi.set_variant(variant)
-        try:
+        try:  # a signal held during the switch raises after it: the caller's variant is restored
+            _set_variant(mi, variant)
             yield
         finally:
             if previous is not None:
-                mi.set_variant(previous)
+                _set_variant(mi, previous)
 
 
 def variant_of_scene(mi: ModuleType, scene: object) -> str | None:

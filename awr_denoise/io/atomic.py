@@ -31,7 +31,6 @@ import os
 import re
 import secrets
 import shutil
-import signal
 import socket
 import stat
 import sys
@@ -42,7 +41,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import TracebackType
 
-from .._signals import COMMIT_CHECKS, TERMINATING_SIGNALS
+from .._signals import COMMIT_CHECKS
+from .._signals import deferred as _signals_deferred
 
 try:
     import fcntl
@@ -470,37 +470,6 @@ class _Staging:
             with contextlib.suppress(OSError):
                 os.close(self._fd)
             self._fd = None
-
-
-@contextlib.contextmanager
-def _signals_deferred() -> Iterator[None]:
-    """Hold SIGINT, SIGTERM, SIGHUP and the other terminating signals while files are moved into
-    place, then act on them.
-
-    Only the main thread can change handlers; elsewhere signals are not delivered to the
-    calling thread anyway (Python runs handlers in the main thread).
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    pending: list[int] = []
-    saved = {}
-    for s in TERMINATING_SIGNALS:
-        handler = signal.getsignal(s)
-        if handler is signal.SIG_IGN or handler is None:
-            continue
-        saved[s] = handler
-        signal.signal(s, lambda signum, frame: pending.append(signum))
-    try:
-        yield
-    finally:
-        for s, handler in saved.items():
-            signal.signal(s, handler)
-        for s in pending[:1]:
-            if callable(saved[s]):
-                saved[s](s, None)
-            else:  # SIG_DFL: what would have happened, now that the files are in place
-                os.kill(os.getpid(), s)
 
 
 def _through_links(target: Path) -> Path:

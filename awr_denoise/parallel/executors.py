@@ -15,6 +15,7 @@ import contextlib
 import json
 import logging
 import multiprocessing
+import multiprocessing.resource_tracker
 import os
 import signal
 import threading
@@ -24,7 +25,9 @@ from pathlib import Path
 from typing import Any
 
 from .. import _checks
+from .._signals import TERMINATING_SIGNALS
 from .._workers import exit_with_parent
+from .._signals import deferred as _signals_deferred
 
 __all__ = ["EXECUTOR_KINDS", "DASK_INSTALL_HINT", "get_executor", "executor_or_threads", "executor_width",
            "submit", "default_workers", "dask_client"]
@@ -37,11 +40,67 @@ DASK_INSTALL_HINT = 'pip install "awr-denoise[dask]"'
 
 
 def _leave_interrupts_to_the_parent(parent: int) -> None:
-    """Worker processes ignore Ctrl-C: the terminal sends it to the whole process group, and the
-    parent, which owns the pool, cancels the work and cleans up (no traceback per worker). They
-    end when the parent dies without closing the pool (SIGKILL): orphans stayed for good."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    """Worker processes ignore Ctrl-C, SIGTERM, SIGHUP and the other terminating signals: a terminal,
+    a closed session or a batch scheduler sends them to the whole process group, and the parent,
+    which owns the pool, cancels the work and closes the pool (no traceback per worker, no worker
+    dead under a pool still in use). They end when the parent dies without closing the pool
+    (SIGKILL): orphans stayed for good.
+
+    The workers start with these signals blocked (:func:`_children_spared_signals`): one that came
+    while the worker imported the package is dropped here, once ignored.
+    """
+    for s in TERMINATING_SIGNALS:
+        signal.signal(s, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, TERMINATING_SIGNALS)
     exit_with_parent(parent)
+
+
+@contextlib.contextmanager
+def _children_spared_signals() -> Iterator[None]:
+    """Processes started inside begin with the terminating signals blocked; the caller's own are
+    held, then acted on.
+
+    A spawned worker spends its first second importing the package (numpy, scipy) before its
+    initializer can ignore anything: a Ctrl-C to the process group in that second printed a
+    KeyboardInterrupt traceback per worker, and SIGTERM or SIGHUP killed it, which broke the pool
+    while the parent was cleaning up (the command then never exited). A blocked signal stays
+    blocked across ``fork`` and ``exec``, whichever thread starts the process, until the worker's
+    initializer has ignored it (:func:`_leave_interrupts_to_the_parent`). Multiprocessing's resource
+    tracker is started (or started again) here too: it unblocks only the SIGINT and SIGTERM it
+    ignores, so SIGHUP no longer kills it ("resource_tracker: process died unexpectedly", then
+    KeyError tracebacks).
+
+    In the main thread the handlers are also deferred (the mechanism of an output commit,
+    :mod:`awr_denoise.io.atomic`): a signal's exception cannot land between a worker's start and
+    the pool's record of it (a worker the pool would not know of); it is raised on the way out, at once.
+    """
+    with _signals_deferred():
+        if not hasattr(signal, "pthread_sigmask"):  # not POSIX: no inherited mask to use
+            yield
+            return
+        previous = signal.pthread_sigmask(signal.SIG_BLOCK, TERMINATING_SIGNALS)
+        try:
+            multiprocessing.resource_tracker.ensure_running()  # a check when it runs already
+            # Starting it unblocks SIGINT and SIGTERM in this thread on the way out: blocked again.
+            signal.pthread_sigmask(signal.SIG_BLOCK, TERMINATING_SIGNALS)
+            yield
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+class _ProcessPool(cf.ProcessPoolExecutor):
+    """A ``spawn`` process pool whose workers leave every terminating signal to the parent."""
+
+    def __init__(self, max_workers: int) -> None:
+        with _children_spared_signals():  # the pool's queues start the resource tracker
+            super().__init__(max_workers=max_workers, mp_context=multiprocessing.get_context("spawn"),
+                             initializer=_leave_interrupts_to_the_parent, initargs=(os.getpid(),))
+
+    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> cf.Future:
+        """``ProcessPoolExecutor.submit``; the workers it starts (on demand) spare the signals."""
+        with _children_spared_signals():
+            return super().submit(fn, *args, **kwargs)
 
 
 @contextlib.contextmanager
@@ -62,6 +121,37 @@ def _children_ignore_interrupts() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGINT, saved)
+
+
+def _close(pool: cf.ProcessPoolExecutor, *, cancel: bool) -> None:
+    """Shut ``pool`` down and wait for it; the workers of a broken pool are killed, not waited for.
+
+    Parameters
+    ----------
+    pool
+        The pool to close.
+    cancel
+        Cancel the tasks not started yet (else they run first).
+
+    Notes
+    -----
+    When a worker dies abruptly (the OOM killer, SIGKILL), Python ends the others with SIGTERM,
+    which they ignore (:func:`_leave_interrupts_to_the_parent`), then waits for them: one blocked on
+    the task queue's lock, which the dead worker held, kept the command from exiting for ever. The
+    wait runs on a helper thread so that this one can kill them instead. ``_broken`` and
+    ``_processes`` are the pool's own attributes (Python 3.10 to 3.13); without them the wait is
+    Python's alone.
+    """
+    workers = list((getattr(pool, "_processes", None) or {}).values())
+    closing = threading.Thread(target=pool.shutdown, kwargs={"wait": True, "cancel_futures": cancel},
+                               name="awr-pool-shutdown", daemon=True)
+    closing.start()
+    while closing.is_alive():
+        closing.join(0.1)
+        if getattr(pool, "_broken", False):
+            for worker in workers:
+                with contextlib.suppress(Exception):  # ended meanwhile, or closed
+                    worker.kill()
 
 
 def default_workers() -> int:
@@ -158,9 +248,17 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
             yield pool
         return
     if kind == "processes":
-        with cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=multiprocessing.get_context("spawn"),
-                                    initializer=_leave_interrupts_to_the_parent, initargs=(os.getpid(),)) as pool:
+        pool = _ProcessPool(n_workers)
+        try:
             yield pool
+        except BaseException:
+            # Ctrl-C, SIGTERM, a failed task: work not started never starts; the running tasks end
+            # as on threads (the workers ignored the signal: none died under the pool). Cancelled
+            # here, they also leave the pool's books, where Python 3.11 failed them again if the
+            # pool broke meanwhile (a thread's "InvalidStateError: CANCELLED" traceback).
+            _close(pool, cancel=True)
+            raise
+        _close(pool, cancel=False)
         return
     distributed = _import_distributed()
     with contextlib.ExitStack() as stack:
