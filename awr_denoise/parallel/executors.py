@@ -27,6 +27,7 @@ from typing import Any
 from .. import _checks
 from .._signals import TERMINATING_SIGNALS
 from .._workers import exit_with_parent
+from ..io.atomic import check_readable
 from .._signals import deferred as _signals_deferred
 
 __all__ = ["EXECUTOR_KINDS", "DASK_INSTALL_HINT", "get_executor", "executor_or_threads", "executor_width",
@@ -36,6 +37,8 @@ EXECUTOR_KINDS = ("threads", "processes", "dask")
 """Kinds of executor :func:`get_executor` can make."""
 
 DASK_INSTALL_HINT = 'pip install "awr-denoise[dask]"'
+SCHEDULER_FILE_MAX = 2**20
+"""The most bytes read of a ``--scheduler`` JSON file (Dask writes a few hundred)."""
 """How to install the optional Dask dependency."""
 
 
@@ -290,16 +293,31 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
         executor.shutdown(wait=True)
 
 
+def _scheduler_file(text: str) -> Any:
+    """The JSON of the scheduler file ``text``: checked to be a regular file before it is opened (a FIFO
+    blocked in ``open()`` for ever, ``/dev/zero`` was read without end), and read up to a scheduler file's
+    size (Dask writes a few hundred bytes)."""
+    try:
+        check_readable(text, what="scheduler file")
+    except FileNotFoundError:
+        raise ValueError(f"scheduler: {text}: no such scheduler file") from None
+    except ValueError as exc:
+        raise ValueError(f"scheduler: {exc}") from None
+    try:
+        with open(text, "rb") as file:
+            raw = file.read(SCHEDULER_FILE_MAX + 1)
+        if len(raw) > SCHEDULER_FILE_MAX:
+            raise ValueError(f"larger than {SCHEDULER_FILE_MAX} bytes")
+        return json.loads(raw.decode("utf-8"))
+    except (OSError, ValueError) as exc:  # UnicodeDecodeError and JSONDecodeError are ValueErrors
+        raise ValueError(f"scheduler: {text}: not a Dask scheduler file ({exc})") from None
+
+
 def _scheduler_address(distributed: Any, scheduler: str | os.PathLike[str]) -> str:
     """The address of ``scheduler`` (an address, or a scheduler file's ``"address"``), checked before connecting."""
     text = os.fspath(scheduler)
     if Path(text).suffix == ".json":
-        try:
-            info = json.loads(Path(text).read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise ValueError(f"scheduler: {text}: no such scheduler file") from None
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise ValueError(f"scheduler: {text}: not a Dask scheduler file ({exc})") from None
+        info = _scheduler_file(text)
         address = info.get("address") if isinstance(info, dict) else None
         if not isinstance(address, str) or not address:
             raise ValueError(f"scheduler: {text}: not a Dask scheduler file (no \"address\")")
@@ -308,7 +326,9 @@ def _scheduler_address(distributed: Any, scheduler: str | os.PathLike[str]) -> s
         scheme, location = distributed.comm.parse_address(text)
         distributed.comm.registry.get_backend(scheme)  # an unknown scheme: ValueError
         if scheme in ("tcp", "tls"):
-            distributed.comm.addressing.parse_host_port(location)
+            _, port = distributed.comm.addressing.parse_host_port(location)
+            if not 0 <= int(port) <= 65535:  # Dask takes 99999, then waits its whole timeout to connect
+                raise ValueError(f"port {port} is outside 0..65535")
     except ValueError as exc:
         raise ValueError(f"scheduler: {text!r} is not a scheduler address ({exc})") from None
     return text

@@ -76,6 +76,7 @@ def test_a_scheduler_that_is_not_one_is_refused_naming_it(tmp_path):
                              (tmp_path / "missing.json", "missing.json: no such scheduler file"),
                              ("foo", "'foo' is not a scheduler address"),
                              ("tcp://127.0.0.1:notaport", "is not a scheduler address"),
+                             ("tcp://[::1]:99999", r"port 99999 is outside 0..65535"),
                              ("http://127.0.0.1:1", "unknown address scheme 'http'")):
         with pytest.raises(ValueError, match=f"scheduler: .*{match}"):
             with get_executor(scheduler=scheduler):
@@ -86,6 +87,22 @@ def test_a_scheduler_that_is_not_one_is_refused_naming_it(tmp_path):
         # (Which of the two depends on how the Dask version reads the reply; never a MemoryError.)
         with pytest.raises(ConnectionError, match=f"scheduler: {address}: (not a Dask|cannot connect)"):
             with get_executor(scheduler=address):
+                pass
+
+
+def test_a_scheduler_file_that_is_no_regular_file_or_too_large_is_refused_unread(tmp_path):
+    """A FIFO named ``x.json`` blocked in ``open()`` for ever and a link to ``/dev/zero`` was read until
+    memory ran out, deaf to SIGTERM (a red-team pass): refused before it is opened, or after a scheduler
+    file's size."""
+    pytest.importorskip("distributed")
+    os.mkfifo(tmp_path / "fifo.json")
+    (tmp_path / "zero.json").symlink_to("/dev/zero")
+    (tmp_path / "big.json").write_text('{"address": "tcp://127.0.0.1:1", "pad": "' + "x" * 2**20 + '"}')
+    for name, match in (("fifo.json", "fifo.json: is a FIFO, not a regular file"),
+                        ("zero.json", "zero.json: is a character device, not a regular file"),
+                        ("big.json", "big.json: not a Dask scheduler file .larger than 1048576 bytes")):
+        with pytest.raises(ValueError, match=f"scheduler: .*{match}"):
+            with get_executor(scheduler=tmp_path / name):
                 pass
 
 
