@@ -114,12 +114,9 @@ _MESSAGES = {signal.SIGTERM: "awr: terminated", signal.SIGINT: "awr: interrupted
 @pytest.mark.slow
 @pytest.mark.skipif(os.name != "posix", reason="POSIX signals")
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
-def test_a_signal_while_the_command_loads_mitsuba_exits_with_one_line(tmp_path, signum):
+def test_a_signal_while_the_command_loads_mitsuba_exits_with_one_line(tmp_path, signum, mi):
     """``awr render --renderer mitsuba`` signalled at moments around Mitsuba's import (380-510 ms
     after its start on the development machine, where 3 of 28 runs died of SIGABRT or SIGSEGV)."""
-    from conftest import start_mitsuba
-
-    start_mitsuba()
     command = [sys.executable, "-c", "import sys; from awr_denoise.cli.main import main; sys.exit(main())",
                "render", "--renderer", "mitsuba", "cornell_box", "--spp", "256", "-o", "r.exr", "-q"]
     bad = []
@@ -135,4 +132,5 @@ def test_a_signal_while_the_command_loads_mitsuba_exits_with_one_line(tmp_path, 
         if (code, err.strip()) != (128 + signum, _MESSAGES[signum]):
             bad.append((ms, code, err[-500:]))
     assert bad == []
-    assert os.listdir(tmp_path) == [] or os.listdir(tmp_path) == ["r.exr"]
+    # Nothing from a signalled run (no staging folder); the outputs of one that finished, all of them.
+    assert sorted(os.listdir(tmp_path)) in ([], ["r.denoised.exr", "r.denoised.png", "r.exr"])
