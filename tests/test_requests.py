@@ -139,3 +139,33 @@ def test_a_crop_is_a_contiguous_tile(rows, message):
         with pytest.raises((ValueError, TypeError), match=f"^rows: .*{re.escape(message)}"):
             item.crop(rows, slice(0, 2))
     assert buffer.crop(slice(np.int64(1), 3), slice(None, None, None)).shape == (2, 4)
+
+
+@pytest.mark.parametrize("max_samples", [1, 2, 5, 17, 40, 10**6])
+def test_pieces_ask_for_every_sample_once_and_hold_at_most_their_share(max_samples):
+    """Every sample of the request in exactly one part (the same pixel and sample index), parts of the
+    whole shape, at most ``max_samples`` each where a row allows, at most one row's pixels at one sample
+    otherwise; bands of whole rows keep each pixel in one part."""
+    rng = np.random.default_rng(max_samples)
+    request = SampleRequest(rng.integers(0, 9, (5, 7)) * (rng.random((5, 7)) < 0.8), rng.integers(0, 50, (5, 7)),
+                            round=3, sampler_id=4)
+    parts = list(request.pieces(max_samples))
+    assert all(p.shape == request.shape and (p.round, p.sampler_id) == (3, 4) for p in parts)
+    asked = sorted(zip(*(a.tolist() for a in request.pixel_list())))
+    assert sorted(s for p in parts for s in zip(*(a.tolist() for a in p.pixel_list()))) == asked
+    assert all(p.total <= max(max_samples, 7) for p in parts)
+    if max_samples >= request.counts.sum(axis=1).max():  # bands of rows only: no pixel in two parts
+        assert (sum((p.counts > 0).astype(int) for p in parts) <= 1).all()
+    assert len(parts) == 1 if max_samples >= request.total else len(parts) > 1
+
+
+def test_one_pixels_many_samples_come_in_runs():
+    """1e9 samples at one pixel: parts of at most the share (a renderer holding a part's samples at once
+    raised MemoryError, a red-team pass); only the first few are built here."""
+    request = SampleRequest(np.array([[10**9]]), np.array([[7]]))
+    parts = request.pieces(2**22)
+    first, second = next(parts), next(parts)
+    assert (first.total, int(first.first_index[0, 0])) == (2**22, 7)
+    assert (second.total, int(second.first_index[0, 0])) == (2**22, 7 + 2**22)
+    with pytest.raises(ValueError, match="max_samples"):
+        next(request.pieces(0))
