@@ -28,7 +28,11 @@ from ._typing import CountArray, FloatArray, Shape2D
 from .buffers import SampleBuffer
 from .channels import adopted_channels
 
-__all__ = ["SampleRequest", "Renderer", "SampleTracer", "FeatureTracer"]
+__all__ = ["SampleRequest", "Renderer", "SampleTracer", "FeatureTracer", "MAX_PART_SAMPLES"]
+
+MAX_PART_SAMPLES = 2**22
+"""Samples the bundled renderers hold at once (:meth:`SampleRequest.pieces`): about 0.5 GB at the tracer's
+120 bytes a sample."""
 
 # The batches each sampler was told, by identity, held weakly: a renderer that hands back one
 # SampleBuffer object every round would otherwise have the same samples merged every round.

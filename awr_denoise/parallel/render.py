@@ -21,7 +21,7 @@ import numpy as np
 from .._typing import Shape2D
 from ..buffers import SampleBuffer
 from ..renderers import create_renderer, renderer_names
-from ..requests import FeatureTracer, Renderer, SampleRequest, SampleTracer
+from ..requests import MAX_PART_SAMPLES, FeatureTracer, Renderer, SampleRequest, SampleTracer
 from ..sampling import Sampler
 from .executors import default_workers, executor_or_threads, submit
 from .tiles import tile_grid
@@ -145,16 +145,20 @@ def _render_tile_with(renderer: Renderer, counts: np.ndarray, first_index: np.nd
         if tuple(renderer.shape) != tuple(image_shape):  # its pixels addressed absolutely: a crop, else
             raise ValueError(f"request: shape {tuple(image_shape)} does not match the renderer's "
                              f"{tuple(renderer.shape)}")
-        rows, cols, sample_index = tile_request.pixel_list()
         before = renderer.stats["nonfinite"]
-        features = None
-        if isinstance(renderer, FeatureTracer) and renderer.features:
-            values, features = renderer.trace_features(rows + r0, cols + c0, sample_index)
-        else:
-            values = renderer.trace_samples(rows + r0, cols + c0, sample_index)
+        tile = None
+        # In parts, as the tracer traces a request: every sample of a part is held at once.
+        for part in tile_request.pieces(getattr(renderer, "max_part_samples", MAX_PART_SAMPLES)):
+            rows, cols, sample_index = part.pixel_list()
+            features = None
+            if isinstance(renderer, FeatureTracer) and renderer.features:
+                values, features = renderer.trace_features(rows + r0, cols + c0, sample_index)
+            else:
+                values = renderer.trace_samples(rows + r0, cols + c0, sample_index)
+            told = SampleBuffer.from_samples(rows * tw + cols, np.asarray(values), (th, tw),
+                                             channels=renderer.channels, features=features)
+            tile = told if tile is None else tile.merge(told)
         dropped = int(renderer.stats["nonfinite"] - before)
-        tile = SampleBuffer.from_samples(rows * tw + cols, np.asarray(values), (th, tw), channels=renderer.channels,
-                                         features=features)
         return dataclasses.replace(tile, nonfinite=dropped) if dropped else tile
     full_counts = np.zeros(image_shape, np.int64)
     full_first = np.zeros(image_shape, np.int64)

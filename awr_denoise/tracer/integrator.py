@@ -35,7 +35,7 @@ from tqdm import tqdm
 from .._workers import exit_with_parent
 from ..buffers import SampleBuffer
 from ..features import FEATURE_CHANNELS, feature_names
-from ..requests import SampleRequest
+from ..requests import MAX_PART_SAMPLES, SampleRequest
 from .accel import Accelerator
 from .features import FeatureRecorder
 from .lights import DirectionalLight, PointLight
@@ -142,7 +142,7 @@ class PathTracer:
     """
 
     channels: tuple[str, ...] = ("R", "G", "B")
-    max_part_samples: int = 2**22
+    max_part_samples: int = MAX_PART_SAMPLES
     """Most samples traced at once (:meth:`SampleRequest.pieces`): a larger request is traced in parts,
     so its memory stays near 0.5 GB whatever its size (a uniform 1080p render at 128 spp needed 32 GB)."""
 

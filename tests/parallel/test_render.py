@@ -192,3 +192,20 @@ def test_a_plain_renderer_sees_the_requests_round_and_sampler():
     render_tiled(Reading, sampler, total_spp=6, tile=8, executor=None)
     assert own != 0 and {s for _, s in seen} == {own}
     assert sorted({r for r, _ in seen}) == list(range(sampler.round)) and sampler.round > 1
+
+
+def test_a_tile_is_traced_in_parts_with_the_same_statistics(monkeypatch):
+    """A tile's samples were held at once (a 128x128 tile at 1024 spp: 2 GB); it is traced in parts of
+    at most ``MAX_PART_SAMPLES`` (bands of rows: the serial render bit for bit)."""
+    from awr_denoise.parallel import render as render_module
+
+    shape = (70, 90)
+    spec = RendererSpec.synthetic("fireflies", shape, seed=5)
+    expected = UniformSampler(shape, seed=2).run(spec(), 12)
+    sizes = []
+    trace = SyntheticRenderer.trace_samples
+    monkeypatch.setattr(SyntheticRenderer, "trace_samples",
+                        lambda self, rows, *rest: sizes.append(rows.size) or trace(self, rows, *rest))
+    monkeypatch.setattr(render_module, "MAX_PART_SAMPLES", 1000)
+    assert_same_buffer(render_tiled(spec, UniformSampler(shape, seed=2), total_spp=12, tile=32), expected)
+    assert sizes and max(sizes) <= 1000 and sum(sizes) == 12 * 70 * 90
