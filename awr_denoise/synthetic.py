@@ -20,7 +20,7 @@ import numpy as np
 from . import _checks
 from ._typing import FloatArray, Shape2D
 from .buffers import SampleBuffer
-from .requests import SampleRequest
+from .requests import MAX_PART_SAMPLES, SampleRequest
 
 __all__ = ["SyntheticScene", "SyntheticRenderer", "SCENES", "create_renderer", "list_scenes", "make_scene",
            "hash_uniform"]
@@ -221,9 +221,13 @@ class SyntheticRenderer:
         return self.scene.noise(clean, x, y, u)
 
     def __call__(self, request: SampleRequest) -> SampleBuffer:
-        pixel, values = self.samples(request)
-        self.stats["samples"] += pixel.size
-        return SampleBuffer.from_samples(pixel, values, self.scene.shape)
+        buffer = None
+        for part in request.pieces(MAX_PART_SAMPLES):  # every sample of a part is held at once
+            pixel, values = self.samples(part)
+            self.stats["samples"] += pixel.size
+            told = SampleBuffer.from_samples(pixel, values, self.scene.shape)
+            buffer = told if buffer is None else buffer.merge(told)
+        return buffer
 
 
 # ---------------------------------------------------------------------------- noise models

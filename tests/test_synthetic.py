@@ -53,6 +53,24 @@ def test_same_samples_however_the_request_is_split(name):
     assert renderer.samples_rendered == 16 * SHAPE[0] * SHAPE[1]
 
 
+def test_a_large_request_is_rendered_in_parts_with_the_same_statistics(monkeypatch):
+    """Every sample of a request was held at once; in parts of ``MAX_PART_SAMPLES`` (bands of rows) the
+    statistics are the same bit for bit, and each part holds at most that many samples."""
+    import awr_denoise.synthetic as synthetic
+
+    renderer = SyntheticRenderer(make_scene("edges", (20, 30)), seed=1)
+    rng = np.random.default_rng(0)
+    request = SampleRequest(rng.integers(0, 9, (20, 30)), rng.integers(0, 5, (20, 30)))
+    whole = renderer(request)
+    sizes, samples = [], renderer.samples
+    monkeypatch.setattr(renderer, "samples", lambda part: sizes.append(part.total) or samples(part))
+    monkeypatch.setattr(synthetic, "MAX_PART_SAMPLES", 300)
+    parts = renderer(request)
+    assert len(sizes) > 1 and max(sizes) <= 300 and sum(sizes) == request.total
+    for field in ("count", "mean", "variance", "variance_known"):
+        assert_array_equal(getattr(parts, field), getattr(whole, field))
+
+
 def test_seeds_give_reproducible_and_different_samples():
     scene = make_scene("gradient", SHAPE)
     req = SampleRequest.uniform(SHAPE, 2)
