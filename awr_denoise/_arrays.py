@@ -211,9 +211,12 @@ def independent_moments(counts: CountArray, means: FloatArray) -> tuple[CountArr
                          "most int64 counts hold safely")
     n = counts.sum(axis=0)  # exact in int64 below 2**62 (in float64 2**53 + 1 was 2**53)
     renders = (counts > 0).sum(axis=0)
-    peak = np.abs(means).max(axis=(0, 3))
-    scale = np.ldexp(1.0, np.clip(np.frexp(peak)[1] - 2, -1020, None))[..., None]
-    m = means / scale
+    # Each channel's scale from the renders with samples there: a render without any may hold anything,
+    # and one scale for every channel underflowed the small ones (3e-300 beside 1e300 came out 0).
+    m = np.where(counts[..., None] > 0, means, 0.0)
+    peak = np.abs(m).max(axis=0)
+    scale = np.ldexp(1.0, np.clip(np.frexp(peak)[1] - 2, -1020, None))
+    m = m / scale
     w = (counts / np.maximum(n, 1))[..., None]  # each render's share of the pixel's samples
     mean = (w * m).sum(axis=0)
     mean += (w * (m - mean)).sum(axis=0)  # corrected two-pass

@@ -20,7 +20,7 @@ import numpy as np
 
 __all__ = ["MAX_SEED", "MAX_SPP", "MAX_SIDE", "MAX_LEVELS", "scalar", "described", "real", "whole", "whole_text",
            "whole_option", "flag",
-           "seed", "shape2d", "name", "tile", "executor", "indices"]
+           "seed", "shape2d", "name", "tile", "executor", "indices", "same_channels"]
 
 MAX_SEED = 2**63 - 1
 """Seeds are whole numbers in 0..2**63-1 (they are hashed as 64-bit integers)."""
@@ -275,3 +275,20 @@ def indices(param: str, value: Any, n: int) -> list[int]:
     if not items or len(set(items)) != len(items):
         raise ValueError(f"{param}: expected distinct indices, got {items}")
     return items
+
+
+def same_channels(given: object, resolved: tuple[str, ...], held: tuple[str, ...]) -> None:
+    """Refuse ``channels`` given (``resolved`` to names) for statistics named ``held`` otherwise; a count
+    of theirs names nothing and is theirs.
+
+    Examples
+    --------
+    >>> from awr_denoise._checks import same_channels
+    >>> same_channels(3, ("R", "G", "B"), ("X", "Y", "Z"))
+    >>> same_channels(("B", "G", "R"), ("B", "G", "R"), ("R", "G", "B"))
+    Traceback (most recent call last):
+    ...
+    ValueError: channels: B, G, R given, but the buffer holds R, G, B
+    """
+    if tuple(resolved) != tuple(held) and not (type(given) is int and given == len(held)):
+        raise ValueError(f"channels: {', '.join(resolved)} given, but the buffer holds {', '.join(held)}")

@@ -157,9 +157,7 @@ class Sampler(OneAtATime):
         if not isinstance(buffer, SampleBuffer):
             raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
         sampler = cls(buffer.shape, **{"channels": buffer.channels, **options})
-        if sampler._buffer.channels != buffer.channels:  # the caller's channels, resolved, against the statistics'
-            raise ValueError(f"channels: {', '.join(sampler._buffer.channels)} given, but the buffer holds "
-                             f"{', '.join(buffer.channels)}")
+        _checks.same_channels(options.get("channels"), sampler._buffer.channels, buffer.channels)
         sampler._buffer = buffer
         sampler._issued = np.array(_arrays.check_count(buffer.count if issued is None else issued, "issued"))
         if sampler._issued.shape != buffer.shape or (sampler._issued < buffer.count).any():

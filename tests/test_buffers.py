@@ -222,6 +222,11 @@ def test_independent_means_at_the_edges_of_float64_and_int64():
         merged([2**62, 2**62], [1.0, 1.0])
     with pytest.raises(ValueError, match=r"means: the spread of 1 pixel\(s\) over the renders is beyond float64"):
         merged([4, 4], [1e160, -1e160])
+    # Each channel scaled on its own, from the renders with samples (a review: one scale for the pixel
+    # zeroed a channel of 3e-300 beside one of 1e300, and a render without samples set the scale).
+    two = SampleBuffer.from_independent_means(np.full((2, 1, 1), 4), np.array([[[[1e300, 3e-300]]]] * 2))
+    assert two.mean.ravel().tolist() == [1e300, 3e-300] and two.variance.max() == 0.0
+    assert merged([4, 4, 0], [3e-300, 5e-300, 1e300]).mean.item() == 4e-300
 
 
 @pytest.mark.parametrize(("shape", "features", "error", "message"), [

@@ -558,6 +558,10 @@ def test_from_buffer_refuses_channels_that_contradict_the_buffer(sampler_cls, ch
         sampler_cls.from_buffer(buffer, channels=channels)
     for same in (3, ("R", "G", "B")):
         assert sampler_cls.from_buffer(buffer, channels=same).buffer.channels == ("R", "G", "B")
+    # A count names nothing: the buffer's own names stand (a review: X,Y,Z with channels=3 was refused).
+    xyz = SampleBuffer.from_moments(np.full((8, 8), 4), np.ones((8, 8, 3)), np.ones((8, 8, 3)),
+                                    channels=("X", "Y", "Z"))
+    assert sampler_cls.from_buffer(xyz, channels=3).buffer.channels == ("X", "Y", "Z")
 
 
 @pytest.mark.parametrize(("cls", "domain", "error"), [(AdaptiveSampler, "foo", ValueError),
