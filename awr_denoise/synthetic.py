@@ -20,6 +20,7 @@ import numpy as np
 from . import _checks
 from ._typing import FloatArray, Shape2D
 from .buffers import SampleBuffer
+from .parts import render_in_parts
 from .requests import MAX_PART_SAMPLES, SampleRequest
 
 __all__ = ["SyntheticScene", "SyntheticRenderer", "SCENES", "create_renderer", "list_scenes", "make_scene",
@@ -221,13 +222,15 @@ class SyntheticRenderer:
         return self.scene.noise(clean, x, y, u)
 
     def __call__(self, request: SampleRequest) -> SampleBuffer:
-        buffer = None
-        for part in request.pieces(MAX_PART_SAMPLES):  # every sample of a part is held at once
-            pixel, values = self.samples(part)
-            self.stats["samples"] += pixel.size
-            told = SampleBuffer.from_samples(pixel, values, self.scene.shape)
-            buffer = told if buffer is None else buffer.merge(told)
-        return buffer
+        if request.shape != self.scene.shape:
+            raise ValueError(f"request: shape {request.shape} does not match the scene's {self.scene.shape}")
+        return render_in_parts(request, self._render_part, MAX_PART_SAMPLES)  # a part's samples held at once
+
+    def _render_part(self, first_row: int, part: SampleRequest) -> SampleBuffer:
+        rows, cols, index = part.pixel_list()
+        self.stats["samples"] += rows.size
+        return SampleBuffer.from_samples(rows * part.shape[1] + cols, self._values(rows + first_row, cols, index),
+                                         part.shape)
 
 
 # ---------------------------------------------------------------------------- noise models

@@ -62,8 +62,8 @@ def test_a_large_request_is_rendered_in_parts_with_the_same_statistics(monkeypat
     rng = np.random.default_rng(0)
     request = SampleRequest(rng.integers(0, 9, (20, 30)), rng.integers(0, 5, (20, 30)))
     whole = renderer(request)
-    sizes, samples = [], renderer.samples
-    monkeypatch.setattr(renderer, "samples", lambda part: sizes.append(part.total) or samples(part))
+    sizes, values = [], renderer._values
+    monkeypatch.setattr(renderer, "_values", lambda rows, *rest: sizes.append(rows.size) or values(rows, *rest))
     monkeypatch.setattr(synthetic, "MAX_PART_SAMPLES", 300)
     parts = renderer(request)
     assert len(sizes) > 1 and max(sizes) <= 300 and sum(sizes) == request.total

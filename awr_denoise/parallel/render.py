@@ -21,6 +21,7 @@ import numpy as np
 from .._typing import Shape2D
 from ..buffers import SampleBuffer
 from ..renderers import create_renderer, renderer_names
+from ..parts import render_in_parts, stitch
 from ..requests import MAX_PART_SAMPLES, FeatureTracer, Renderer, SampleRequest, SampleTracer
 from ..sampling import Sampler
 from .executors import default_workers, executor_or_threads, submit
@@ -145,21 +146,22 @@ def _render_tile_with(renderer: Renderer, counts: np.ndarray, first_index: np.nd
         if tuple(renderer.shape) != tuple(image_shape):  # its pixels addressed absolutely: a crop, else
             raise ValueError(f"request: shape {tuple(image_shape)} does not match the renderer's "
                              f"{tuple(renderer.shape)}")
-        before = renderer.stats["nonfinite"]
-        tile = None
-        # In parts, as the tracer traces a request: every sample of a part is held at once.
-        for part in tile_request.pieces(getattr(renderer, "max_part_samples", MAX_PART_SAMPLES)):
+        features_too = isinstance(renderer, FeatureTracer) and renderer.features
+
+        def render_part(first_row: int, part: SampleRequest) -> SampleBuffer:
             rows, cols, sample_index = part.pixel_list()
-            features = None
-            if isinstance(renderer, FeatureTracer) and renderer.features:
-                values, features = renderer.trace_features(rows + r0, cols + c0, sample_index)
+            before, features = renderer.stats["nonfinite"], None
+            if features_too:
+                values, features = renderer.trace_features(rows + r0 + first_row, cols + c0, sample_index)
             else:
-                values = renderer.trace_samples(rows + r0, cols + c0, sample_index)
-            told = SampleBuffer.from_samples(rows * tw + cols, np.asarray(values), (th, tw),
+                values = renderer.trace_samples(rows + r0 + first_row, cols + c0, sample_index)
+            told = SampleBuffer.from_samples(rows * tw + cols, np.asarray(values), part.shape,
                                              channels=renderer.channels, features=features)
-            tile = told if tile is None else tile.merge(told)
-        dropped = int(renderer.stats["nonfinite"] - before)
-        return dataclasses.replace(tile, nonfinite=dropped) if dropped else tile
+            dropped = int(renderer.stats["nonfinite"] - before)
+            return dataclasses.replace(told, nonfinite=dropped) if dropped else told
+
+        # In parts, as the tracer renders a request: every sample of a part is held at once.
+        return render_in_parts(tile_request, render_part, getattr(renderer, "max_part_samples", MAX_PART_SAMPLES))
     full_counts = np.zeros(image_shape, np.int64)
     full_first = np.zeros(image_shape, np.int64)
     window = (slice(r0, r0 + th), slice(c0, c0 + tw))
@@ -171,19 +173,6 @@ def _render_tile_with(renderer: Renderer, counts: np.ndarray, first_index: np.nd
     return dataclasses.replace(full.crop(*window), nonfinite=full.nonfinite)
 
 
-def _stitch(shape: Shape2D, tiles: list[tuple[slice, slice]], parts: list[SampleBuffer]) -> SampleBuffer:
-    """The buffers of disjoint tiles put side by side (features too), with no arithmetic."""
-    first = parts[0]
-    count = np.zeros(shape, np.int64)
-    mean = np.zeros(shape + (first.n_channels,))
-    variance = np.zeros_like(mean)
-    known = np.zeros(shape, bool)
-    for t, part in zip(tiles, parts):
-        count[t], mean[t], variance[t], known[t] = part.count, part.mean, part.variance, part.variance_known
-    features = {name: _stitch(shape, tiles, [p.features[name] for p in parts]) for name in first.features}
-    return SampleBuffer(count, mean, variance, first.channels, known, sum(p.nonfinite for p in parts), features)
-
-
 class TiledRenderer:
     """A :class:`~awr_denoise.Renderer` that renders each request as pixel tiles on an executor.
 
@@ -191,7 +180,8 @@ class TiledRenderer:
     ``renderer_factory`` (once per worker thread) and renders the tile's samples. Tiles do not
     overlap, so the request's statistics are the tiles' statistics put side by side, with no
     arithmetic: with a renderer whose random numbers are addressed by
-    (seed, pixel, sample index, dimension) the result is bitwise the one-piece render.
+    (seed, pixel, sample index, dimension) the result is bitwise the one-piece render (to rounding where
+    one row of a request holds more than ``MAX_PART_SAMPLES``: docs/distributed.md).
 
     Parameters
     ----------
@@ -244,7 +234,7 @@ class TiledRenderer:
                 for f in futures:
                     f.cancel()
                 raise
-        return _stitch(shape, tiles, results)
+        return stitch(shape, tiles, results)
 
 
 def render_tiled(renderer_factory: Callable[[], Renderer], sampler: Sampler, *, total_spp: float,
@@ -255,7 +245,8 @@ def render_tiled(renderer_factory: Callable[[], Renderer], sampler: Sampler, *, 
     Exactly :meth:`Sampler.run <awr_denoise.Sampler.run>` with a :class:`TiledRenderer`: the
     sampler decides each round on the driver, the tiles of its request are rendered by the
     workers, and the merged statistics are told back. With addressable random numbers the
-    result is bitwise identical to ``sampler.run(renderer_factory(), total_spp)``.
+    result is bitwise identical to ``sampler.run(renderer_factory(), total_spp)`` (to rounding where one
+    row of a round holds more than ``MAX_PART_SAMPLES``: docs/distributed.md).
 
     Parameters
     ----------

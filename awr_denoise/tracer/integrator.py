@@ -35,6 +35,7 @@ from tqdm import tqdm
 from .._workers import exit_with_parent
 from ..buffers import SampleBuffer
 from ..features import FEATURE_CHANNELS, feature_names
+from ..parts import render_in_parts
 from ..requests import MAX_PART_SAMPLES, SampleRequest
 from .accel import Accelerator
 from .features import FeatureRecorder
@@ -205,15 +206,16 @@ class PathTracer:
             raise TypeError(f"request: expected a SampleRequest, got {type(request).__name__}")
         if request.shape != self.shape:
             raise ValueError(f"request: shape {request.shape} does not match the scene's {self.shape}")
-        buffer, nonfinite = None, 0
         # In parts of at most max_part_samples: every sample of a part is held at once (about 120 bytes each).
-        for part in request.pieces(self.max_part_samples):
-            rows, cols, sample_index = part.pixel_list()
-            radiance, features, dropped = self._trace(rows, cols, sample_index)
-            # Non-finite samples were already zeroed and counted in _trace; the buffer carries the count.
-            told = SampleBuffer.from_samples(rows * self.shape[1] + cols, radiance, self.shape,
-                                             channels=self.channels, features=features)
-            buffer, nonfinite = (told if buffer is None else buffer.merge(told)), nonfinite + dropped
+        return render_in_parts(request, self._render_part, self.max_part_samples)
+
+    def _render_part(self, first_row: int, part: SampleRequest) -> SampleBuffer:
+        """The statistics of ``part``, whose row 0 is the image's ``first_row``."""
+        rows, cols, sample_index = part.pixel_list()
+        radiance, features, nonfinite = self._trace(rows + first_row, cols, sample_index)
+        # Non-finite samples were already zeroed and counted in _trace; the buffer carries the count.
+        buffer = SampleBuffer.from_samples(rows * part.shape[1] + cols, radiance, part.shape, channels=self.channels,
+                                           features=features)
         return dataclasses.replace(buffer, nonfinite=nonfinite)
 
     def trace_samples(self, rows: np.ndarray, cols: np.ndarray, sample_index: np.ndarray) -> np.ndarray:
