@@ -192,8 +192,9 @@ def independent_moments(counts: CountArray, means: FloatArray) -> tuple[CountArr
     and finite means (N, H, W, C): ``n = sum n_k``, the weighted mean, ``sum n_k (m_k - mean)^2 / (N' - 1)``
     over the ``N'`` renders with samples, and ``N'``.
 
-    Counts are summed in int64 (exact; refused past 2**62); each pixel's means are divided by a power of two
-    near their largest (exact) so that neither the weighted sums nor the squared spread overflow, the mean is
+    Counts are summed in int64 (exact; refused past 2**62); each pixel's means are divided, channel by channel,
+    by a power of two near the largest of the renders with samples there (exact) so that neither the weighted
+    sums nor the squared spread overflow, nor a small channel beside a large one underflow, the mean is
     the corrected two-pass one (renders that agree give their value and no spread), and a spread beyond
     float64 is refused naming ``means``.
 

@@ -80,26 +80,20 @@ def _refused(capsys, work: Path, before: list[str], *needles: str) -> str:
     return line
 
 
-@pytest.mark.parametrize("route", ["serial", "threads"])
-@pytest.mark.parametrize("version", sorted(VERSIONS))
-def test_input_replaced_after_its_samples_were_read(folder, capsys, monkeypatch, version, route):
-    """The samples read from one version, the windows (read apart) from the next: pixels placed in the
-    other version's window, exit 0, or an error naming the output."""
-    work, versions = folder
-    fired = _after_first_read(monkeypatch, presets, "read_exr", work / "in.exr",
-                              lambda: _replace(work / "in.exr", versions / f"{version}.exr"))
-    before = sorted(os.listdir(work))
-    assert main(["denoise", "in.exr", "-o", "o.exr", "-q", *ROUTES[route]]) == 2
-    assert fired
-    _refused(capsys, work, before, "in.exr")
+# Which read is followed by the replacement: the samples' (the windows, read apart before the fix, came
+# from the next version: pixels placed in its window, exit 0, or an error naming the output), or the
+# checks' (the options and plane files checked in one version's windows, the frame denoising the next).
+# The samples are read in the worker, where a patch of this process reaches threads only.
+AFTER = {"the samples": (presets, "read_exr", ["serial", "threads"]),
+         "the checks": (denoise_cmd, "read_windows", sorted(ROUTES))}
 
 
-@pytest.mark.parametrize("route", sorted(ROUTES))
+@pytest.mark.parametrize(("read", "route"), [(read, route) for read, (*_, routes) in AFTER.items() for route in routes])
 @pytest.mark.parametrize("version", sorted(VERSIONS))
-def test_input_replaced_after_the_checks_read_it(folder, capsys, monkeypatch, version, route):
-    """The options and plane files checked in one version's windows, the frame denoising the next."""
+def test_input_replaced_after_a_read(folder, capsys, monkeypatch, version, read, route):
     work, versions = folder
-    fired = _after_first_read(monkeypatch, denoise_cmd, "read_windows", work / "in.exr",
+    module, name, _ = AFTER[read]
+    fired = _after_first_read(monkeypatch, module, name, work / "in.exr",
                               lambda: _replace(work / "in.exr", versions / f"{version}.exr"))
     before = sorted(os.listdir(work))
     assert main(["denoise", "in.exr", "-o", "o.exr", "-q", *ROUTES[route]]) == 2
