@@ -59,3 +59,50 @@ def test_a_uniform_curve_short_of_the_adaptive_spp_is_refused(bench, capsys):
     with pytest.raises(SystemExit) as err:
         bench.main(["--uniform-max-spp", "32"])
     assert err.value.code == 2 and "--uniform-max-spp must be at least 64" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def variant_rows(bench, run, tmp_path_factory):
+    out = tmp_path_factory.mktemp("variants") / "equal_error.json"
+    out.write_text(json.dumps({"seeds": run}))
+    argv = ["--variants", "--scenes", "default", "--seeds", "0", "--size", "16", "--output", str(out)]
+    assert bench.main(argv) == 0
+    return json.loads(out.read_text())["variants"]["rows"]
+
+
+def test_variants_try_every_option_on_the_stored_seeds_curve(bench, run, variant_rows):
+    from awr_denoise.bench.analysis import equal_error_spp
+    assert [r["variant"] for r in variant_rows] == (["default"] + list(bench.RECONSTRUCTIONS)
+                                                    + list(bench.SAMPLERS_AROUND))
+    stored = run["rows"][0]
+    assert variant_rows[0]["relmse"] == pytest.approx(stored["default"]["relmse"], rel=1e-9)
+    spps, errors = zip(*stored["uniform_curve"])
+    for row in variant_rows:
+        expected, _ = equal_error_spp(row["relmse"] - stored["floor"], spps, [e - stored["floor"] for e in errors],
+                                      stored["slope"])
+        assert row["equal_error_spp"] == pytest.approx(expected)
+    # The options change the images: each its own error (stages=2 drops a Wiener stage, levels another model).
+    by = {r["variant"]: r["relmse"] for r in variant_rows}
+    assert by["stages=2"] != by["default"] != by["noise_model=levels"]
+
+
+def test_variants_refuse_a_stored_run_of_other_samples(bench, run, tmp_path):
+    out = tmp_path / "equal_error.json"
+    out.write_text(json.dumps({"seeds": run}))
+    with pytest.raises(SystemExit, match="default seed 0: the default's relMSE .* is not the stored"):
+        bench.main(["--variants", "--scenes", "default", "--seeds", "0", "--size", "24", "--output", str(out)])
+
+
+def test_variants_without_a_stored_run_are_refused(bench, tmp_path, capsys):
+    with pytest.raises(SystemExit) as err:
+        bench.main(["--variants", "--output", str(tmp_path / "none.json")])
+    assert err.value.code == 2 and "holds no stored seed" in capsys.readouterr().err
+
+
+def test_the_variants_table_gives_mean_spp_and_mse_over_the_defaults(bench):
+    def row(variant, seed, spp, mse):
+        kind = "default" if variant == "default" else "sampler"
+        return {"scene": "s", "seed": seed, "kind": kind, "variant": variant, "equal_error_spp": spp, "mse": mse}
+    text = bench.variants_table([row("default", 0, 200.0, 1.0), row("default", 1, 100.0, 2.0),
+                                 row("x", 0, 220.0, 0.5), row("x", 1, 120.0, 3.0)])
+    assert "| default | 150 (1.00) |" in text and "| x | 170 (1.00) |" in text
