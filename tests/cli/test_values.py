@@ -59,7 +59,7 @@ BAD = [
     (RENDER, "--round-growth", ["0", "inf"]),
     (RENDER, "--noise-model", ["gain"]),
     (RENDER, "--initial-spp", ["0", "inf"]),
-    (RENDER, "--tile", ["0", "-1"]),
+    (RENDER, "--tile", ["0", "-1", "1", "7"]),
     (["diff", "ref.exr", "-r", "d.exr"], "--maxerror", ["nan", "inf", "x", "-1", "0_1"]),
     (["demo", "--out", "demo"], "--spp", ["0", "nan", "inf"]),
     (["demo", "--out", "demo"], "--c-s", ["-1", "nan"]),
