@@ -396,7 +396,9 @@ def restore_mean(image: FloatArray, mean: FloatArray, variance: FloatArray | Non
     chosen so that the channel's image mean becomes ``mean(x)``; a channel that gained energy is
     treated the other way round. Only when these caps leave some of the change over (the stages
     removed much more than noise, as on a scene of real fireflies) is the rest spread over every
-    pixel in proportion to ``|o|``, as one factor would. So, by construction:
+    pixel in proportion to ``|o|``, as one factor would (where the channel gained energy, to its
+    level after the capped move: no pixel is pushed below 0 where the capped image is not). So, by
+    construction:
 
     - a pixel moves towards its own mean and never past it, by at most ``share`` of its level,
       unless that rest is spread;
@@ -472,6 +474,11 @@ def restore_mean(image: FloatArray, mean: FloatArray, variance: FloatArray | Non
         total, room = abs(change[c]) * pixels, float(cap.sum())
         delta = _fill(weight, cap, total) if total < room else cap
         rest = total - room if total > room * (1 + 1e-9) else 0.0  # not the rounding of sum(x - o)
+        if rest > 0 and sign < 0:
+            # One factor on the image the caps left, not on the stages' output: a pixel the caps brought down to
+            # its own mean of 0 must not be pushed below it (the rest is less than the level left, whose mean is
+            # the channel's target, so no pixel at or above 0 crosses it).
+            level = np.abs(oc - delta)
         if rest > 0 and level.sum() > 0:
             delta = delta + rest * level / level.sum()
         out[..., c] = o[..., c] + sign * delta / unit

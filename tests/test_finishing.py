@@ -275,6 +275,21 @@ def test_restore_mean_caps_each_pixel_and_spreads_the_rest_by_brightness():
     assert out[0, 0, 0] - image[0, 0, 0] > RESTORE_SHARE * 5.0
 
 
+def test_restore_mean_never_pushes_a_brightened_channel_below_zero():
+    """A channel the stages brightened far beyond its caps: its rest is taken from the image the caps left, so a
+    pixel of mean 0 the stages lifted a little (its cap takes it back to 0) is not pushed below 0."""
+    mean = np.zeros((4, 4, 1))
+    mean[0, 0] = 1.0
+    image = np.full((4, 4, 1), 0.5)
+    image[0, 0] = 1.0
+    image[3, 3] = 1e-7                                          # lifted a little: its whole gap is its cap
+    out, _ = restore_mean(image, mean, np.full(mean.shape, 1e-9))
+    assert out.mean() == pytest.approx(mean.mean(), rel=1e-12)
+    assert out.min() >= 0.0
+    moved = out[..., 0] / image[..., 0]
+    assert_allclose(moved[1:3, 1:3], moved[1, 1])               # one factor over the pixels the caps left alike
+
+
 def test_restore_mean_bounds_an_insignificant_change_and_leaves_non_positive_channels(rng):
     mean = rng.random((8, 9, 2))
     image = mean * np.array([0.5, 1.0])

@@ -578,6 +578,17 @@ def test_the_output_is_never_negative_where_the_samples_are_not(rng, mode):
     assert (reconstruct(buf, mode=mode, nonnegative=False) < 0).any()
 
 
+@pytest.mark.parametrize("domain", ["log", "gamma"])
+def test_the_image_means_correction_keeps_dark_pixels_at_or_above_zero(rng, domain):
+    """A strip of dark pixels (mean 0, a spread) beside one bright one: the stages brighten the dark ones and the
+    exact-mean correction takes more back than its caps allow; the rest must not push them below 0."""
+    count = np.array([2, 8, 8, 8, 1, 2, 2, 64, 8])[:, None]
+    mean = np.zeros((9, 1, 4))
+    mean[8] = 1.0
+    buf = SampleBuffer.from_moments(count, mean, rng.uniform(2e-6, 0.0086, (9, 1, 4)))
+    assert reconstruct(buf, domain=domain).min() >= 0.0
+
+
 @pytest.mark.parametrize("name", ["gradient", "edges", "hdr_source"])
 def test_error_falls_like_the_means(name):
     """Consistency against a known clean image: relMSE and MSE stay at or below the plain mean's
