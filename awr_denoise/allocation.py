@@ -8,6 +8,7 @@ priority is highest, spread over a coefficient's support).
 
 from __future__ import annotations
 
+from fractions import Fraction
 from functools import lru_cache
 
 import numpy as np
@@ -119,8 +120,11 @@ def _allocate(density: FloatArray, current: CountArray, budget: int, *, capacity
     if not np.isfinite(a.max(initial=0.0)):  # NaN or +Inf somewhere (-Inf becomes 0 below either way)
         np.nan_to_num(a, copy=False, nan=0.0, posinf=0.0)
     np.maximum(a, 0.0, out=a)
-    reachable = a if capacity is None else a[cap > 0]  # the open pixels' densities
-    top = float(reachable.max(initial=0.0))  # no NaN is left: any density > 0 exactly when the largest is
+    if capacity is not None:
+        # Closed pixels take nothing whatever their density: left in, one far above the open ones overflowed the
+        # scaling below and the water level refused a budget that fits.
+        a[cap <= 0] = 0.0
+    top = float(a.max(initial=0.0))  # no NaN is left: any density > 0 exactly when the largest is
     if not top > 0:
         a = np.ones(shape)  # nothing to rank on (a deterministic image): spread uniformly
     else:
@@ -166,7 +170,8 @@ def _allocate_mixed(density: FloatArray, current: CountArray, budget: int, unifo
                     capacity: CountArray | None = None, rng: np.random.Generator | None = None) -> CountArray:
     """:func:`allocate_mixed` without the argument checks (the samplers')."""
     uniform_fraction = _checks.real("uniform_fraction", uniform_fraction, minimum=0, maximum=1)
-    uniform_part = int(round(uniform_fraction * _checks.whole("budget", budget, minimum=0)))
+    # In exact arithmetic: the float product rounds above 2**53 (2**53 + 3 at a fraction of 1 gave 2**53 + 4).
+    uniform_part = min(budget, round(Fraction(uniform_fraction) * _checks.whole("budget", budget, minimum=0)))
     if uniform_part == 0:  # the samplers' default: no uniform share (allocate would draw nothing for it)
         return _allocate(density, current, budget, capacity=capacity, rng=rng)
     counts = _allocate(np.ones(current.shape), current, uniform_part, capacity=capacity, rng=rng)

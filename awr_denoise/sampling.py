@@ -232,7 +232,9 @@ class Sampler(OneAtATime):
         if not np.array_equal(request.first_index, self._issued):
             raise StaleRequestError(f"request: round {request.round} does not start where the samples so far stop "
                                     "(its first_index differs from the sample indices issued)")
-        if self.spp_max is not None and (over := request.first_index + request.counts > self.spp_max).any():
+        # Only where it samples: ask() leaves alone a pixel already past the cap (rendered before it was set).
+        if self.spp_max is not None and (over := (request.counts > 0)
+                                         & (request.first_index + request.counts > self.spp_max)).any():
             raise ValueError(f"request: {int(over.sum())} pixel(s) would exceed spp_max {self.spp_max}")
         self._pending, self._round = request, int(request.round)
         return request

@@ -13,7 +13,7 @@ import pytest
 from numpy.testing import assert_array_equal
 
 from awr_denoise import allocate
-from awr_denoise.allocation import _SELECT_DIRECT, _smallest
+from awr_denoise.allocation import _SELECT_DIRECT, _smallest, allocate_mixed
 
 
 def _reference(key: np.ndarray, count: int) -> np.ndarray:
@@ -110,3 +110,23 @@ def test_the_counts_do_not_depend_on_the_densitys_scale():
                               rng=np.random.default_rng(1))
             assert_array_equal(capped, allocate(density, current, 300, capacity=np.full((9, 11), 4),
                                                 rng=np.random.default_rng(1)))
+
+
+@pytest.mark.parametrize("closed", [1.5e308, 1e200, 1.0])
+def test_a_closed_pixel_of_any_density_leaves_the_budget_to_the_open_ones(closed):
+    """A pixel at its cap takes nothing whatever its density: one 2**1024 times denser than the open ones
+    overflowed their scaling, and a budget that fits was refused (a red-team pass)."""
+    density = np.array([[closed, 2e-200, 1e-200]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = allocate(density, np.zeros((1, 3), np.int64), 3, capacity=np.array([[0, 5, 5]]))
+    assert_array_equal(got, [[0, 2, 1]])
+
+
+@pytest.mark.parametrize("fraction", [1.0, 0.5, 0.9999999])
+def test_the_uniform_share_of_a_budget_past_2_53_is_exact(fraction):
+    """The uniform share in exact arithmetic: 1.0 * (2**53 + 3) rounded in float64 to 2**53 + 4, one more than
+    the budget ("budget: must be >= 0, got -1")."""
+    budget = 2**53 + 3
+    got = allocate_mixed(np.ones((1, 2)), np.zeros((1, 2), np.int64), budget, fraction)
+    assert int(got.sum()) == budget and abs(int(got[0, 0]) - int(got[0, 1])) <= 1

@@ -530,6 +530,16 @@ def test_resume_refuses_a_request_past_spp_max():
     assert sampler.resume(within) is within
 
 
+@pytest.mark.parametrize("sampler_cls", [UniformSampler, AdaptiveSampler, VarianceSampler])
+def test_resume_takes_the_request_of_a_sampler_already_past_spp_max_at_a_pixel(sampler_cls):
+    """A buffer rendered before the cap was set holds 8 samples at a pixel capped at 5: ask() adds none there, and
+    the same request resumed by a sampler rebuilt from the buffer (awr plan, then awr merge) is its own."""
+    buffer = SampleBuffer.from_moments(np.array([[8, 2, 2, 2]]), np.ones((1, 4)), np.full((1, 4), 0.1))
+    request = sampler_cls.from_buffer(buffer, spp_max=5).ask(6)
+    assert request.counts[0, 0] == 0
+    assert sampler_cls.from_buffer(buffer, spp_max=5).resume(request) is request
+
+
 @pytest.mark.parametrize(("buffer", "issued", "error", "message"), [
     (None, None, TypeError, "buffer: expected a SampleBuffer, got NoneType"),
     (np.ones((8, 8, 3)), None, TypeError, "buffer: expected a SampleBuffer, got ndarray"),
