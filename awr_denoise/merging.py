@@ -86,6 +86,12 @@ def merge_moments(count_a: CountArray, mean_a: FloatArray, variance_a: FloatArra
     else:
         list(executor.map(merge_rows, [(0, half), (half, h)]))
     beyond = ~(np.isfinite(mean) & np.isfinite(variance)).all(axis=2)
+    if beyond.any():  # the sums passed float64, not always the result: those pixels again, each scaled on its own
+        at = np.nonzero(beyond)
+        with np.errstate(over="ignore", invalid="ignore"):
+            mean[at], variance[at] = _merge_scaled(count_a[at], mean_a[at], variance_a[at], count_b[at], mean_b[at],
+                                                   variance_b[at])
+        beyond = ~(np.isfinite(mean) & np.isfinite(variance)).all(axis=2)
     if beyond.any():
         raise ValueError(f"other: merged, the mean or variance of {int(beyond.sum())} pixel(s) is beyond float64 "
                          "(1.8e308): their samples spread that far (all of them at once are refused alike)")
@@ -114,3 +120,16 @@ def _merge_block(ca: CountArray, ma: FloatArray, va: FloatArray, cb: CountArray,
     for out, a, b in ((mean, ma, mb), (variance, va, vb)):
         np.copyto(out, a, where=nb == 0)
         np.copyto(out, b, where=na == 0)
+
+
+def _merge_scaled(ca: CountArray, ma: FloatArray, va: FloatArray, cb: CountArray, mb: FloatArray,
+                  vb: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Chan's update of (P, C) pixels whose sums overflow, each pixel divided first by a power of two near its
+    largest mean or standard deviation, so ``d^2`` and ``M2`` stay finite (samples of +-2**510 merged into a
+    variance of 1.1e307, as all of them at once give, not a refusal); exact but for what falls 2**1074 below that
+    largest value. Both sides have samples here."""
+    top = np.maximum(np.maximum(np.abs(ma), np.abs(mb)), np.sqrt(np.maximum(va, vb))).max(axis=1)
+    unit = np.ldexp(1.0, -np.frexp(top)[1])[:, None]
+    mean, variance = np.empty(ma.shape), np.empty(ma.shape)
+    _merge_block(ca, ma * unit, va * unit * unit, cb, mb * unit, vb * unit * unit, mean, variance)
+    return mean / unit, variance / unit / unit

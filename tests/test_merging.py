@@ -99,6 +99,31 @@ def test_statistics_past_float64_once_merged_are_refused_by_name_without_warning
             a.merge(b, executor=pool if threads else None)
 
 
+@pytest.mark.parametrize("threads", [False, True])
+def test_a_merge_whose_sums_pass_float64_but_not_its_result_is_the_statistics_of_all_samples(threads):
+    """Samples of +-2**510 (and two singles of +-0.75e154): their M2 and the squared difference of the halves'
+    means pass float64, the variance does not. from_samples gives it; the merge refused it, so a pixel traced in
+    parts, or told in two rounds, was refused where one part was not (a red-team pass)."""
+    import warnings
+    from concurrent.futures import ThreadPoolExecutor
+
+    from awr_denoise import SampleBuffer
+
+    signs = np.where(np.arange(4096) % 3 == 0, 1.0, -1.0)
+    cases = [(np.zeros(4096, np.int64) + 5, np.ldexp(signs, 510)[:, None], 2048),
+             (np.array([5, 5]), np.array([[0.75e154], [-0.75e154]]), 1)]
+    for at, samples, half in cases:
+        whole = SampleBuffer.from_samples(at, samples, (2, 3))
+        a = SampleBuffer.from_samples(at[:half], samples[:half], (2, 3))
+        b = SampleBuffer.from_samples(at[half:], samples[half:], (2, 3))
+        with warnings.catch_warnings(), ThreadPoolExecutor(2) as pool:
+            warnings.simplefilter("error")
+            merged = a.merge(b, executor=pool if threads else None)
+        assert 1e306 < whole.variance[1, 2, 0] < 1.8e308
+        np.testing.assert_allclose(merged.variance, whole.variance, rtol=1e-12)
+        np.testing.assert_allclose(merged.mean, whole.mean, rtol=1e-12, atol=1e-12 * np.abs(samples).max())
+
+
 def test_a_buffer_merged_with_itself_is_refused():
     """``b.merge(b)`` doubled the counts of the same samples without a word (the command line refuses
     its equivalent; a red-team pass). A buffer with equal but separate statistics still merges."""
