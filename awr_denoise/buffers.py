@@ -393,7 +393,7 @@ class SampleBuffer(ReadOnlyArrays):
             raise ValueError(f"counts/means: expected (N, H, W) and (N, H, W, C), got {c.shape}, {np.shape(means)}")
         if c.shape[0] < 2:
             raise ValueError(f"means: {c.shape[0]} render(s) given; the spread of means needs at least 2")
-        per_render = np.stack([check_count(ck) for ck in c])
+        per_render = np.stack([check_count(ck, "counts") for ck in c])
         m = np.stack([as_float64("means", mk, 3) for mk in m])
         check_finite("means", m.reshape(-1, *m.shape[2:]))
         n, mean, variance, renders = independent_moments(per_render, m)

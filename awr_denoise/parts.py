@@ -53,7 +53,7 @@ def render_in_parts(request: SampleRequest, render_part: Callable[[int, SampleRe
     """
     bands: list[tuple[int, SampleBuffer]] = []
     for first_row, part in request.pieces(max_samples):
-        told = render_part(first_row, part)
+        told = _checked(render_part(first_row, part), part, first_row, bands[0][1] if bands else None)
         if bands and bands[-1][0] == first_row:  # the next run of one row's samples
             bands[-1] = (first_row, bands[-1][1].merge(told))
         else:
@@ -62,6 +62,21 @@ def render_in_parts(request: SampleRequest, render_part: Callable[[int, SampleRe
         return bands[0][1]
     windows = [(slice(row, row + band.shape[0]), slice(None)) for row, band in bands]
     return stitch(request.shape, windows, [band for _, band in bands])
+
+
+def _checked(told: object, part: SampleRequest, first_row: int, first: SampleBuffer | None) -> SampleBuffer:
+    """``told`` if it is the statistics of ``part`` (its shape, the first part's channels), else a ValueError
+    naming the part: merged or stitched, a wrong answer gave numpy's broadcasting error."""
+    last = first_row + part.shape[0] - 1
+    rows = f"render_part: the part of row {first_row}" if last == first_row else \
+        f"render_part: the part of rows {first_row}-{last}"
+    if not isinstance(told, SampleBuffer):
+        raise TypeError(f"{rows} came back as {type(told).__name__}, not a SampleBuffer")
+    if told.shape != part.shape:
+        raise ValueError(f"{rows} came back with shape {told.shape}, not the part's {part.shape}")
+    if first is not None and told.channels != first.channels:
+        raise ValueError(f"{rows} came back with channels {told.channels}, not the first part's {first.channels}")
+    return told
 
 
 def stitch(shape: Shape2D, windows: Sequence[tuple[slice, slice]], parts: Sequence[SampleBuffer]) -> SampleBuffer:
@@ -76,6 +91,8 @@ def stitch(shape: Shape2D, windows: Sequence[tuple[slice, slice]], parts: Sequen
     >>> stitch((2, 3), [(slice(0, 1), slice(None))], [top]).count.tolist()
     [[2, 2, 2], [0, 0, 0]]
     """
+    if not parts or len(parts) != len(windows):
+        raise ValueError(f"parts: {len(parts)} part(s) for {len(windows)} window(s); at least one of each, as many")
     first = parts[0]
     count = np.zeros(shape, np.int64)
     mean = np.zeros(tuple(shape) + (first.n_channels,))

@@ -220,6 +220,8 @@ def test_independent_means_at_the_edges_of_float64_and_int64():
     assert spread.mean.item() == 0.0 and spread.variance.item() == pytest.approx(8e300)
     with pytest.raises(ValueError, match=r"counts: 1 pixel\(s\) would hold more than 2\*\*62 samples merged"):
         merged([2**62, 2**62], [1.0, 1.0])
+    with pytest.raises(TypeError, match=r"^counts: expected an integer array, got dtype bool"):
+        merged([True, True], [1.0, 1.0])
     with pytest.raises(ValueError, match=r"means: the spread of 1 pixel\(s\) over the renders is beyond float64"):
         merged([4, 4], [1e160, -1e160])
     # Each channel scaled on its own, from the renders with samples (a review: one scale for the pixel

@@ -47,3 +47,30 @@ def test_stitch_puts_tiles_side_by_side_and_sums_what_they_dropped():
     assert both.count.tolist() == [[3, 0, 0], [3, 5, 5], [0, 5, 5]] and both.nonfinite == 4
     assert both.mean[1, 0].tolist() == [1.0] * 3 and both.mean[2, 2].tolist() == [2.0] * 3
     assert both.variance[0, 1].tolist() == [0.0] * 3 and not both.variance_known[0, 1]
+
+
+def test_a_wrong_answer_for_a_part_is_named_not_broadcast():
+    """A part's statistics of another shape or channels, or none at all, gave numpy's "could not broadcast" or
+    an AttributeError from the merge (a red-team pass)."""
+    import pytest
+
+    request = SampleRequest.uniform((4, 2), 2)
+
+    def answer(make):
+        return lambda first_row, part: make(part)
+
+    wrong = [(lambda part: None, TypeError, r"^render_part: the part of rows 0-1 came back as NoneType"),
+             (lambda part: SampleBuffer.empty((part.shape[0] + 1, 2)), ValueError,
+              r"^render_part: the part of rows 0-1 came back with shape \(3, 2\), not the part's \(2, 2\)")]
+    for make, error, message in wrong:
+        with pytest.raises(error, match=message):
+            render_in_parts(request, answer(make), max_samples=8)
+    channels = iter([3, 1])
+    with pytest.raises(ValueError, match=r"^render_part: the part of rows 2-3 came back with channels \('Y',\)"):
+        render_in_parts(request, answer(lambda part: SampleBuffer.empty(part.shape, channels=next(channels))),
+                        max_samples=8)
+    with pytest.raises(TypeError, match=r"^render_part: the part of row 3 came back as int"):
+        render_in_parts(request, lambda first_row, part: SampleBuffer.empty(part.shape) if first_row < 3 else 0,
+                        max_samples=4)
+    with pytest.raises(ValueError, match=r"^parts: 0 part\(s\) for 0 window\(s\)"):
+        stitch((2, 2), [], [])
