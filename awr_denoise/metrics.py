@@ -95,8 +95,10 @@ def tonemap(x: FloatArray, *, exposure: float = 0.0) -> FloatArray:
     x = numeric("x", x).astype(np.float64)
     if np.isnan(x).any():  # +-Inf is a value a viewer clips; NaN is none
         raise ValueError(f"x: {int(np.isnan(x).sum())} value(s) are NaN")
-    with np.errstate(over="ignore"):  # 2**1023 already saturates every positive float
+    with np.errstate(over="ignore", invalid="ignore"):  # 2**1023 already saturates every positive float
         v = np.clip(x * 2.0 ** min(exposure, 1023.0), 0.0, 1.0)
+    if np.isinf(x).any():  # at an exposure below -1074 the scale is 0, and inf * 0 is NaN: +inf is white still
+        v[np.isposinf(x)], v[np.isneginf(x)] = 1.0, 0.0
     return np.where(v <= 0.0031308, 12.92 * v, 1.055 * np.power(v, 1 / 2.4) - 0.055)
 
 
@@ -120,6 +122,10 @@ def psnr(x: FloatArray, reference: FloatArray, *, peak: float | None = None) -> 
     top = float(np.max(np.abs(b))) if peak is None else peak
     with np.errstate(over="ignore"):
         d = a - b
+    # Finite values whose difference passes float64 (1.7e308 against -1.7e308): halved first, exactly.
+    halved = not np.isfinite(d).all()
+    if halved:
+        d = a * 0.5 - b * 0.5
     largest = float(np.max(np.abs(d)))
     if largest == 0:
         return float("inf")
@@ -127,9 +133,9 @@ def psnr(x: FloatArray, reference: FloatArray, *, peak: float | None = None) -> 
         return float("-inf")
     # In logarithms, the error divided by its largest term: the squares overflow near 1e300 and underflow
     # near 1e-170 (an error read as none), the logarithm of the scaled mean does neither.
-    with np.errstate(over="ignore", under="ignore"):
-        scaled = float(np.mean((d / largest) ** 2)) if np.isfinite(largest) else float("inf")
-    return 20.0 * (np.log10(top) - np.log10(largest)) - 10.0 * np.log10(scaled)
+    with np.errstate(under="ignore"):
+        scaled = float(np.mean((d / largest) ** 2))
+    return 20.0 * (np.log10(top) - np.log10(largest) - halved * np.log10(2.0)) - 10.0 * np.log10(scaled)
 
 
 def ssim(x: FloatArray, reference: FloatArray, *, exposure: float = 0.0, sigma: float = 1.5) -> float:

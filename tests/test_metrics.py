@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
@@ -96,6 +98,23 @@ def test_scale_free_metrics_hold_at_every_scale(scale):
     assert psnr(x, r) == pytest.approx(-10 * np.log10((15 + 9) / 16), rel=1e-12)
     assert relmse(x, r, eps=0) == pytest.approx((15 + 9) / 16, rel=1e-12)
     assert psnr(r, r) == np.inf and relmse(r, r, eps=0) == 0.0
+
+
+def test_psnr_of_images_whose_difference_passes_float64():
+    """1.7e308 against -1.7e308: each value is finite, their difference is not; PSNR was -inf, not -3 dB."""
+    top = 1.7e308
+    assert psnr(np.array([top, 0.0]), np.array([-top, 0.0])) == pytest.approx(-10 * np.log10(2.0), rel=1e-12)
+    assert psnr(np.array([top, 0.0]), np.array([-top, 0.0])) == pytest.approx(
+        psnr(np.array([1.7, 0.0]), np.array([-1.7, 0.0])), rel=1e-12)
+
+
+@pytest.mark.parametrize("exposure", [0.0, -1e6, 2000.0])
+def test_tonemap_shows_infinities_as_white_and_black_at_any_exposure(exposure):
+    """Below an exposure of -1074 the scale is 0 and inf * 0 was NaN (a red-team pass)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        shown = tonemap(np.array([np.inf, -np.inf]), exposure=exposure)
+    assert shown.tolist() == tonemap(np.array([1.0, 0.0])).tolist()
 
 
 def test_relmse_without_epsilon_is_infinite_only_on_an_error_over_a_black_reference():
