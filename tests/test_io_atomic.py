@@ -484,3 +484,15 @@ def test_a_link_is_checked_in_the_folder_of_the_file_it_names(tmp_path):
     with OutputSet(overwrite=True) as outputs, pytest.raises(ValueError, match="accepts no new file"):
         outputs.add(tmp_path / "link")
     assert _listing(tmp_path) == ["link"]
+
+
+def test_read_without_waiting_reads_a_file_and_never_waits_on_one_that_would_block(tmp_path):
+    """A scheduler or scene file linked to ``/proc/kmsg`` (a "regular file" that waits for data) hung the
+    command (a red-team pass); a FIFO put in a file's place after it was checked would have too."""
+    from awr_denoise.io.atomic import read_without_waiting
+
+    (tmp_path / "a.json").write_bytes(b"x" * 10)
+    assert read_without_waiting(tmp_path / "a.json", limit=100) == b"x" * 10
+    assert read_without_waiting(tmp_path / "a.json", limit=4) == b"x" * 5   # the caller sees it is larger
+    os.mkfifo(tmp_path / "fifo")
+    assert read_without_waiting(tmp_path / "fifo", limit=100) == b""       # no writer: nothing, at once

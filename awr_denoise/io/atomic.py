@@ -49,7 +49,8 @@ try:
 except ImportError:  # pragma: no cover - not on Windows: stale temporaries are then kept
     fcntl = None  # type: ignore[assignment]
 
-__all__ = ["atomic_write", "check_writable", "check_readable", "check_utf8_name", "file_kind", "same_file", "OutputSet",
+__all__ = ["atomic_write", "check_writable", "check_readable", "check_utf8_name", "file_kind", "read_without_waiting",
+           "same_file", "OutputSet",
            "public_name", "remove_stale_temporaries", "STAGING_PREFIX", "STAGING_SUFFIX", "STALE_AFTER", "COMMIT_WAIT"]
 
 STAGING_PREFIX = ".awr-"
@@ -165,6 +166,28 @@ def check_readable(path: str | os.PathLike[str], *, what: str = "input") -> Path
     if not os.access(p, os.R_OK):
         raise ValueError(f"{p}: permission denied (cannot read this {what})")
     return p
+
+
+def read_without_waiting(path: str | os.PathLike[str], *, limit: int) -> bytes:
+    """The bytes of a small file, up to ``limit`` + 1 (a caller refuses more), read without ever waiting.
+
+    Opened non-blocking: a regular file reads as always, but one that only looks regular and waits for
+    data (``/proc/kmsg``: a configuration file linked there hung the command, a red-team pass), or a FIFO
+    put in its place after :func:`check_readable`, raises ``BlockingIOError`` (an ``OSError``).
+    """
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    try:
+        chunks: list[bytes] = []
+        size = 0
+        while size <= limit:
+            chunk = os.read(fd, min(2**20, limit + 1 - size))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            size += len(chunk)
+        return b"".join(chunks)
+    finally:
+        os.close(fd)
 
 
 def same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:

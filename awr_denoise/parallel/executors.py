@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures as cf
 import contextlib
+import ipaddress
 import json
 import logging
 import multiprocessing
@@ -27,7 +28,7 @@ from typing import Any
 from .. import _checks
 from .._signals import TERMINATING_SIGNALS
 from .._workers import exit_with_parent
-from ..io.atomic import check_readable
+from ..io.atomic import check_readable, read_without_waiting
 from .._signals import deferred as _signals_deferred
 
 __all__ = ["EXECUTOR_KINDS", "DASK_INSTALL_HINT", "get_executor", "executor_or_threads", "executor_width",
@@ -304,8 +305,7 @@ def _scheduler_file(text: str) -> Any:
     except ValueError as exc:
         raise ValueError(f"scheduler: {exc}") from None
     try:
-        with open(text, "rb") as file:
-            raw = file.read(SCHEDULER_FILE_MAX + 1)
+        raw = read_without_waiting(text, limit=SCHEDULER_FILE_MAX)
         if len(raw) > SCHEDULER_FILE_MAX:
             raise ValueError(f"larger than {SCHEDULER_FILE_MAX} bytes")
         return json.loads(raw.decode("utf-8"))
@@ -325,13 +325,27 @@ def _scheduler_address(distributed: Any, scheduler: str | os.PathLike[str]) -> s
     try:
         scheme, location = distributed.comm.parse_address(text)
         distributed.comm.registry.get_backend(scheme)  # an unknown scheme: ValueError
-        if scheme in ("tcp", "tls"):
-            _, port = distributed.comm.addressing.parse_host_port(location)
-            if not 0 <= int(port) <= 65535:  # Dask takes 99999, then waits its whole timeout to connect
-                raise ValueError(f"port {port} is outside 0..65535")
+        if scheme not in ("tcp", "tls"):  # inproc is this process's own; ucx and ws need what is not given here
+            raise ValueError(f"{scheme}:// does not reach a scheduler of another process; give tcp://HOST:PORT")
+        host, port = distributed.comm.addressing.parse_host_port(location)
+        _check_host(host)
+        if not 1 <= int(port) <= 65535:  # Dask takes 99999 or 0, then waits its whole timeout to connect
+            raise ValueError(f"port {port} is outside 1..65535")
     except ValueError as exc:
         raise ValueError(f"scheduler: {text!r} is not a scheduler address ({exc})") from None
     return text
+
+
+def _check_host(host: str) -> None:
+    """Refuse a host no connection can reach, at once: Dask looked each of these up and waited its timeout."""
+    if not host or any(ch.isspace() or not ch.isprintable() for ch in host):
+        raise ValueError(f"host {host!r} is empty or holds a space")
+    labels = host.split(".")
+    if all(label.isdigit() for label in labels):  # a numeric address must be an IPv4 one (999.1.1.1 is none)
+        try:
+            ipaddress.IPv4Address(host)
+        except ValueError:
+            raise ValueError(f"host {host} is no IPv4 address") from None
 
 
 _ANSWER_SECONDS = 30.0
@@ -383,6 +397,9 @@ def _connect(distributed: Any, address: str) -> Any:
     except OSError as exc:  # refused, timed out, closed (CommClosedError): nothing to run on
         why = " ".join(str(exc).split()) or type(exc).__name__
         raise ConnectionError(f"scheduler: {address}: cannot connect ({why})") from None
+    except (TypeError, ValueError) as exc:  # Dask's own refusal of what it cannot use (tls without certificates)
+        why = " ".join(str(exc).split()) or type(exc).__name__
+        raise ValueError(f"scheduler: {address}: cannot connect ({why})") from None
     try:  # a scheduler without workers (none started yet, all gone) would take the tasks and wait for ever
         client.wait_for_workers(1, timeout=_WORKER_SECONDS)
     except (asyncio.TimeoutError, TimeoutError):

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from .. import _checks
+from ..io.atomic import read_without_waiting
 from .camera import ThinLensCamera, parse_camera
 from .environment import ConstantEnvironment, LatLongEnvironment, parse_environment
 from .lights import AreaLights, DirectionalLight, PointLight, parse_delta_light
@@ -396,13 +397,23 @@ def load_scene(scene: str | Path | dict[str, Any] | Scene, *, width: int | None 
     raise ValueError(f"scene: {text!r} is neither a JSON file nor one of {', '.join(BUNDLED_SCENES)}")
 
 
+SCENE_FILE_MAX = 2**26
+"""Bytes of the largest scene file read (64 MiB: a scene names its meshes and maps, it does not hold them)."""
+
+
 def _read_json(path: Path) -> Any:
     """A scene file's JSON; NaN and Infinity, which Python's reader takes, are refused."""
     def refuse(constant: str) -> None:
         raise ValueError(f"{constant} is not a number a scene may hold")
 
     try:
-        return json.loads(path.read_text(), parse_constant=refuse)
+        raw = read_without_waiting(path, limit=SCENE_FILE_MAX)
+    except OSError as exc:  # a file that waits for data to be read (/proc/kmsg): refused, not waited on
+        raise ValueError(f"cannot read this scene file ({exc.strerror or exc})") from None
+    if len(raw) > SCENE_FILE_MAX:
+        raise ValueError(f"larger than {SCENE_FILE_MAX} bytes; no scene file is")
+    try:
+        return json.loads(raw.decode("utf-8"), parse_constant=refuse)
     except UnicodeDecodeError as exc:
         raise ValueError(f"not a JSON text file ({exc.reason})") from None
     except json.JSONDecodeError as exc:

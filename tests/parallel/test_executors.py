@@ -76,11 +76,22 @@ def test_a_scheduler_that_is_not_one_is_refused_naming_it(tmp_path):
                              (tmp_path / "missing.json", "missing.json: no such scheduler file"),
                              ("foo", "'foo' is not a scheduler address"),
                              ("tcp://127.0.0.1:notaport", "is not a scheduler address"),
-                             ("tcp://[::1]:99999", r"port 99999 is outside 0..65535"),
-                             ("http://127.0.0.1:1", "unknown address scheme 'http'")):
+                             ("tcp://[::1]:99999", r"port 99999 is outside 1..65535"),
+                             ("http://127.0.0.1:1", "unknown address scheme 'http'"),
+                             # Each of these waited Dask's 30 s or raised its own message (a red-team pass):
+                             ("tcp://:0", "host '' is empty or holds a space"),
+                             ("tcp://127.0.0.1:0", r"port 0 is outside 1..65535"),
+                             ("tcp://999.1.1.1:80", "host 999.1.1.1 is no IPv4 address"),
+                             ("tcp://a b:80", "host 'a b' is empty or holds a space"),
+                             ("inproc://", "inproc:// does not reach a scheduler of another process"),
+                             ("ucx://127.0.0.1:1", "ucx:// does not reach a scheduler of another process")):
         with pytest.raises(ValueError, match=f"scheduler: .*{match}"):
             with get_executor(scheduler=scheduler):
                 pass
+    # tls:// without certificates: Dask's own TypeError, which named no option.
+    with pytest.raises(ValueError, match=r"^scheduler: tls://127.0.0.1:1: cannot connect \(TLS expects"):
+        with get_executor(scheduler="tls://127.0.0.1:1"):
+            pass
     # A server that answers with something else (an HTTP error): read as a Dask message length of
     # exabytes, it was reported as "out of memory".
     with _server(b"HTTP/1.0 400 Bad Request\r\n\r\n" * 4) as address:
