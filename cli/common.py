@@ -60,7 +60,7 @@ def add_plane_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--count", metavar="PLANE", help="per-pixel sample count plane")
     g.add_argument("--variance-kind", choices=VARIANCE_KINDS,
                    help="what --variance holds: per-sample variance, variance of the mean, or E[x^2]")
-    g.add_argument("--spp", type=whole(minimum=0, maximum=MAX_SPP), metavar="N",
+    g.add_argument("--spp", type=whole(minimum=1, maximum=MAX_SPP), metavar="N",
                    help="samples per pixel when the file has no count")
     g.add_argument("--layer", metavar="NAME", help="Cycles view layer when the file has several")
     g.add_argument("--view", metavar="NAME", help="view of a stereo/multiview file, e.g. 'left' (required when "

@@ -35,7 +35,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "per pixel, reconstruct both, write EXR and PNG images under --out, and print "
                                    "the error of each against the scene's reference.")
     p.add_argument("--scene", help="bundled scene (default: the tracer's default scene)")
-    p.add_argument("--spp", type=real(minimum=1, maximum=MAX_SPP), default=8, help="average samples per pixel of both renders (default 8)")
+    p.add_argument("--spp", type=whole(minimum=1, maximum=MAX_SPP), default=8,
+                   help="samples per pixel of both renders, on average for the adaptive one (default 8)")
     p.add_argument("--seed", type=whole(minimum=0, maximum=MAX_SEED - 1), default=0)
     p.add_argument("--c-s", type=real(minimum=0), default=DEFAULT_PILOT_C_S,
                    help="threshold of the reconstruction's first stage (Eq. 11; default %(default)g)")
@@ -79,13 +80,13 @@ def run(args: argparse.Namespace) -> int:
     if reference.shape[:2] != tuple(scene.shape):  # before two renders, not after
         raise UsageError(f"{name}: the reference is {reference.shape}, the scene {tuple(scene.shape)}")
     start = time.perf_counter()
-    status(f"rendering {name} uniformly at {args.spp:g} spp", quiet=args.quiet)
+    status(f"rendering {name} uniformly at {args.spp} spp", quiet=args.quiet)
     renderer = create_renderer(TRACER, scene, seed=args.seed, progress=not args.quiet)
-    uniform, _, _ = render_buffer(renderer, scene.shape, spp=round(args.spp), adaptive=False, seed=args.seed,
+    uniform, _, _ = render_buffer(renderer, scene.shape, spp=args.spp, adaptive=False, seed=args.seed,
                                   quiet=args.quiet)
-    status(f"rendering {name} adaptively at {args.spp:g} spp", quiet=args.quiet)
+    status(f"rendering {name} adaptively at {args.spp} spp", quiet=args.quiet)
     renderer = create_renderer(TRACER, scene, seed=args.seed + 1)
-    adaptive, _, _ = render_buffer(renderer, scene.shape, spp=round(args.spp), adaptive=True, seed=args.seed + 1,
+    adaptive, _, _ = render_buffer(renderer, scene.shape, spp=args.spp, adaptive=True, seed=args.seed + 1,
                                    quiet=args.quiet)
     images = dict(zip(labels, (uniform.mean, reconstruct(uniform, c_s=args.c_s), reconstruct(adaptive, c_s=args.c_s))))
     if reference.shape != uniform.mean.shape:
@@ -96,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
         for label, image in images.items():
             exr = out / f"{name}_{label}.exr"
             write_image(outputs.add(exr), image,
-                        header=provenance(scene=name, spp=float(args.spp), c_s=args.c_s, method=label))
+                        header=provenance(scene=name, spp=args.spp, c_s=args.c_s, method=label))
             write_preview(outputs.add(out / f"{name}_{label}.png"), image, exposure=args.exposure)
             results[label] = {"relmse": relmse(image, reference), "mse": mse(image, reference), "file": str(exr)}
         write_preview(outputs.add(out / f"{name}_reference.png"), reference, exposure=args.exposure)
@@ -106,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
         print_json({"scene": name, "spp": args.spp, "seconds": seconds, "results": results})
         return EXIT_OK
     h, w = uniform.shape
-    print(f"{name} {w}x{h}, {args.spp:g} spp on average, c_s {args.c_s:g} ({seconds:.1f} s); images in {shown(out)}/")
+    print(f"{name} {w}x{h}, {args.spp} spp on average, c_s {args.c_s:g} ({seconds:.1f} s); images in {shown(out)}/")
     print(f"  {'method':<14} {'relMSE':>10} {'MSE':>12}")
     for label, r in results.items():
         print(f"  {label:<14} {r['relmse']:>10.5f} {r['mse']:>12.6g}")

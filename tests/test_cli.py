@@ -154,6 +154,17 @@ def test_cycles_without_variance_is_explained(tmp_path, capsys):
     assert info["preset"] == "cycles" and any("awr merge --independent" in m for m in info["missing"])
 
 
+def test_info_does_not_call_a_dump_without_samples_ready(tmp_path, capsys):
+    """Every count 0: awr denoise refuses it ("no pixel has any sample"), awr info said "ready to denoise"."""
+    path = tmp_path / "none.exr"
+    write_sample_buffer(path, SampleBuffer.empty((H, W)))
+    assert main(["info", str(path), "--json"]) == 0
+    assert "samples: no pixel has any sample" in json.loads(capsys.readouterr().out)["missing"]
+    assert main(["info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "ready to denoise" not in out and "no pixel has any sample" in out
+
+
 def test_missing_input_and_usage_errors(tmp_path, capsys):
     assert main(["denoise", str(tmp_path / "nope.exr"), "-o", str(tmp_path / "o.exr")]) == 2
     _one_error_line(capsys, "nope.exr", "no such file")

@@ -158,6 +158,8 @@ def _read_fully(info: dict[str, Any], p: Path, options: dict[str, Any], view: st
                 variance_unknown=int((~buf.variance_known & (buf.count >= 2)).sum()),
                 nonfinite_dropped=int(buf.nonfinite), mean=_stats(buf.mean),
                 issued_total=int(np.asarray(dump.issued).sum()))
+    if buf.total_samples == 0:  # what awr denoise refuses: "ready" would be a false promise
+        info["missing"].append("samples: no pixel has any sample")
     described = info.setdefault("features", {})
     for name, feature in buf.features.items():
         described.setdefault(name, {}).update(

@@ -37,7 +37,7 @@ BAD = [
     (DENOISE, "--frames", ["1-2000000000", "3-1", "x", "1-3x0", "\uff11-\uff13"]),  # full-width digits
     (DENOISE, "--workers", ["0", "-2", "1.5", "inf"]),
     (["denoise", "d.exr", "-o", "o.exr", "--preset", "generic", "--color", "RGB", "--variance", "variance"], "--spp",
-     ["-1", "inf", "1e30", "16777217", "2.5"]),
+     ["-1", "0", "inf", "1e30", "16777217", "2.5"]),
     (PLAN, "--round-spp", ["inf", "nan", "0", "-1", "1e30"]),
     (PLAN, "--round-growth", ["0", "-1", "inf", "nan"]),
     (PLAN, "--budget", ["-1", "1.5", "inf", str(2**62 + 1)]),
@@ -61,7 +61,7 @@ BAD = [
     (RENDER, "--initial-spp", ["0", "inf"]),
     (RENDER, "--tile", ["0", "-1", "1", "7"]),
     (["diff", "ref.exr", "-r", "d.exr"], "--maxerror", ["nan", "inf", "x", "-1", "0_1"]),
-    (["demo", "--out", "demo"], "--spp", ["0", "nan", "inf"]),
+    (["demo", "--out", "demo"], "--spp", ["0", "nan", "inf", "2.5"]),
     (["demo", "--out", "demo"], "--c-s", ["-1", "nan"]),
     (["demo", "--out", "demo"], "--exposure", ["nan"]),
 ]
