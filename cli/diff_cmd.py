@@ -96,6 +96,9 @@ def run(args: argparse.Namespace) -> int:
     if args.maxerror is not None and args.maxerror < 0 and args.metric not in HIGHER_IS_BETTER:
         # relMSE and MSE are never negative: such a bound fails every image, a typo for a check.
         raise UsageError(f"--maxerror: {args.maxerror:g} is below 0, which {args.metric} never is")
+    if args.maxerror is not None and args.metric == "ssim" and not -1 <= args.maxerror <= 1:
+        # Above 1 every image fails, below -1 every image passes: a typo for a check either way.
+        raise UsageError(f"--maxerror: {args.maxerror:g} is outside -1..1, the range of ssim")
     plan = PathPlan(overwrite=args.overwrite)
     plan.read(args.input, "IMAGE.exr")
     plan.read(args.ref, "-r/--ref")

@@ -306,6 +306,11 @@ def test_diff_metrics_maxerror_and_difference_image(tmp_path, capsys):
     # ... and kept for SSIM, which can be negative
     assert main(["diff", str(tmp_path / "img.exr"), "-r", str(tmp_path / "ref.exr"), "--metric", "ssim",
                  "--maxerror", "-0.5"]) == 0
+    # ... but not outside SSIM's range: above 1 every image failed, below -1 every image passed
+    for bound in ("2", "-2"):
+        assert main(["diff", str(tmp_path / "img.exr"), "-r", str(tmp_path / "ref.exr"), "--metric", "ssim",
+                     "--maxerror", bound]) == 2
+        _one_error_line(capsys, "--maxerror", "outside -1..1, the range of ssim")
 
 
 def test_diff_pairs_channels_by_name_when_one_side_names_them(tmp_path, capsys):
