@@ -122,8 +122,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", metavar="RANGE", help="frame numbers for #### patterns, e.g. 1-100 or 1-100x5")
     p.add_argument("--half", action="store_true", help="write HALF channels (refused above 65504)")
     p.add_argument("--preview", metavar="OUT.png", help="also write an sRGB PNG preview (may hold ####)")
-    p.add_argument("--exposure", type=real(minimum=-MAX_EXPOSURE, maximum=MAX_EXPOSURE), default=0.0,
-                   help="preview exposure in stops (default 0)")
+    p.add_argument("--exposure", type=real(minimum=-MAX_EXPOSURE, maximum=MAX_EXPOSURE),
+                   help="preview exposure in stops (default 0; with --preview)")
     p.add_argument("-r", "--ref", metavar="REF.exr", help="reference image to compare the result with")
     p.add_argument("--maxerror", type=real(minimum=0), metavar="E",
                    help="with --ref: fail (exit 1) when the relative MSE exceeds E")
@@ -219,6 +219,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("no input: give DUMP.exr (or --hdr DUMP.exr)")
     if args.maxerror is not None and not args.ref:
         raise UsageError("--maxerror needs --ref REF.exr")
+    if args.exposure is not None and not args.preview:  # it sets the preview alone: refused, not ignored
+        raise UsageError("--exposure needs --preview OUT.png (it sets the preview's exposure alone)")
     check_file_name(args.output, "-o/--output")  # before the frames' placeholders are looked for in the name
     if args.preview:
         check_file_name(args.preview, "--preview")
@@ -279,7 +281,7 @@ def run(args: argparse.Namespace) -> int:
                 # The staging folder is this run's: a frame run again (a Dask worker lost) replaces
                 # its own staged file, as a first run writes it.
                 denoise_frames(sources, [i for i, _ in staged],
-                               previews=[p for _, p in staged] if args.preview else None, exposure=args.exposure,
+                               previews=[p for _, p in staged] if args.preview else None, exposure=args.exposure or 0.0,
                                reference=args.ref, executor=pool, half=args.half, overwrite=True,
                                read_options=plane_kwargs(args), on_frame=done, windows=windows,
                                **reconstruction_kwargs(args))

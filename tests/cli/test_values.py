@@ -29,7 +29,7 @@ FIRST_PLAN = ["plan", "-o", "p.exr", "-q"]
 
 # (base command, option, bad values)
 BAD = [
-    (DENOISE, "--exposure", ["nan", "inf", "-inf", "1100", "x"]),
+    (DENOISE, "--exposure", ["nan", "inf", "-inf", "1100", "x", "3"]),  # 3: without --preview, nothing to expose
     (DENOISE + ["-r", "ref.exr"], "--maxerror", ["nan", "inf", "-1", "x"]),
     (DENOISE, "--c-s", ["nan", "inf", "-1", "1e400", "x", "1_0", "\u0663"]),  # \u0663: Arabic-Indic 3
     (DENOISE, "--levels", ["0", "-1", "100", "1.5", "nan", "5", "\u0663", "1_0"]),
