@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from awr_denoise.allocation import MAX_BUDGET
+from awr_denoise.buffers import NONFINITE_POLICIES
 from awr_denoise.io import provenance, read_sample_dump, write_request
 from awr_denoise.errors import InputFileError
 from awr_denoise.io.dump import header_count
@@ -107,13 +108,11 @@ def run(args: argparse.Namespace) -> int:
     if args.input is None:
         if args.size is None:
             raise UsageError("plan: give a running DUMP.exr, or --size WxH for the first round")
+        _refuse_what_a_first_round_ignores(args)
         shape = args.size
         # About 112 bytes a pixel at the peak (the sampler's statistics, the request, the file's planes:
         # 1.39 GB more at 4096x4096 than at 2048x2048 in a measurement of the maximum resident size).
         check_memory("--size", 112.0 * shape[0] * shape[1], f"a first round of {shape[1]}x{shape[0]}")
-        if args.levels is not None and args.levels > max_levels(shape):
-            raise UsageError(f"--levels: {args.levels} is outside 1..{max_levels(shape)} for --size {args.size[1]}x"
-                             f"{args.size[0]}")
         seed = 0 if args.seed is None else args.seed
         sampler = cls(shape, seed=seed, **options)
         round_number = 0
@@ -159,6 +158,23 @@ def run(args: argparse.Namespace) -> int:
     status(f"{args.output}: round {request.round}, {request.total} samples "
            f"({request.total / (h * w):.3g} per pixel), seed {seed}", quiet=args.quiet)
     return EXIT_OK
+
+
+def _refuse_what_a_first_round_ignores(args: argparse.Namespace) -> None:
+    """The first round reads no dump and is uniform: the layout of a dump and what shapes later rounds would do
+    nothing in it, so they are refused, not ignored."""
+    given = [(option, spec) for spec, option in plane_options(args)]
+    given += [("--preset", None if args.preset == "auto" else args.preset), ("--variance-kind", args.variance_kind),
+              ("--spp", args.spp), ("--layer", args.layer), ("--view", args.view),
+              ("--nonfinite", None if args.nonfinite == NONFINITE_POLICIES[0] else args.nonfinite)]
+    for option, value in given:
+        if value is not None:
+            raise UsageError(f"{option}: describes a running DUMP.exr; the first round (--size) reads none")
+    for option, value in (("--round-growth", args.round_growth), ("--wavelet", args.wavelet),
+                          ("--levels", args.levels), ("--noise-model", args.noise_model)):
+        if value is not None:
+            raise UsageError(f"{option}: acts from round 1, planned from its dump; the first round (--size) is "
+                             "uniform")
 
 
 def _option_behind(message: str, args: argparse.Namespace) -> str | None:

@@ -49,6 +49,12 @@ BAD = [
     (PLAN, "--wavelet", ["nope", "dmey"]),
     (PLAN, "--noise-model", ["nope", "", "Levels"]),
     (FIRST_PLAN, "--size", ["65536x65536", "0x10", "10x0", "10", "-5x5", "1e3x10", "\u0663x3"]),
+    # The first round reads no dump and is uniform: what describes a dump or shapes later rounds did nothing.
+    (FIRST_PLAN + ["--size", "8x8"], "--alb", ["a.exr"]), (FIRST_PLAN + ["--size", "8x8"], "--view", ["left"]),
+    (FIRST_PLAN + ["--size", "8x8"], "--nonfinite", ["drop"]), (FIRST_PLAN + ["--size", "8x8"], "--spp", ["4"]),
+    (FIRST_PLAN + ["--size", "8x8"], "--round-growth", ["0.5"]),
+    (FIRST_PLAN + ["--size", "8x8"], "--noise-model", ["reconstruction"]),
+    (FIRST_PLAN + ["--size", "8x8"], "--levels", ["2"]),
     (RENDER, "--spp", ["inf", "nan", "0", "-1", "1e30", "1e-9"]),
     (RENDER, "--seed", ["-1", "1180591620717411303424", "nan"]),
     (RENDER, "--width", ["0", "-1", "1.5", "2000000"]),
