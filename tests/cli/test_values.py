@@ -70,6 +70,7 @@ BAD = [
     (["demo", "--out", "demo"], "--spp", ["0", "nan", "inf", "2.5"]),
     (["demo", "--out", "demo"], "--c-s", ["-1", "nan"]),
     (["demo", "--out", "demo"], "--exposure", ["nan"]),
+    (["demo"], "--out", ["", " "]),  # '' wrote the demo's files into the working folder
 ]
 
 BAD_CASES = [(base, option, value) for base, option, values in BAD for value in values]
