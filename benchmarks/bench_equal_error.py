@@ -192,7 +192,8 @@ def main(argv: list[str] | None = None) -> int:
         stored = json.loads(args.output.read_text()).get("seeds", {}).get("rows", []) if args.output.exists() else []
         chosen = [r for r in stored if r["scene"] in args.scenes and r["seed"] in args.seeds]
         if not chosen:
-            parser.error(f"--variants: {args.output} holds no stored seed of these scenes; run without --variants first")
+            parser.error(f"--variants: {args.output} holds no stored seed of these scenes; "
+                         "run without --variants first")
         rows = [v for row in chosen for v in variants(row, config)]
         update_section(args.output, "variants", rows, command)
         print(variants_table(rows))

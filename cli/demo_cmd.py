@@ -132,9 +132,9 @@ def _removed_unless_committed(folders: list[Path]) -> Iterator[None]:
     try:
         yield
     except BaseException:
-        for folder in folders:
+        for made in folders:
             with contextlib.suppress(OSError):
-                folder.rmdir()  # only an empty folder: anything put there meanwhile stays
+                made.rmdir()  # only an empty folder: anything put there meanwhile stays
         raise
 
 
