@@ -65,8 +65,8 @@ def render_in_parts(request: SampleRequest, render_part: Callable[[int, SampleRe
 
 
 def _checked(told: object, part: SampleRequest, first_row: int, first: SampleBuffer | None) -> SampleBuffer:
-    """``told`` if it is the statistics of ``part`` (its shape, the first part's channels), else a ValueError
-    naming the part: merged or stitched, a wrong answer gave numpy's broadcasting error."""
+    """``told`` if it is the statistics of ``part`` (its shape, the first part's channels), else a TypeError or
+    ValueError naming the part: merged or stitched, a wrong answer gave numpy's broadcasting error."""
     last = first_row + part.shape[0] - 1
     rows = f"render_part: the part of row {first_row}" if last == first_row else \
         f"render_part: the part of rows {first_row}-{last}"

@@ -341,7 +341,8 @@ def _check_host(host: str) -> None:
     if not host or any(ch.isspace() or not ch.isprintable() for ch in host):
         raise ValueError(f"host {host!r} is empty or holds a space")
     labels = host.split(".")
-    if all(label.isdigit() for label in labels):  # a numeric address must be an IPv4 one (999.1.1.1 is none)
+    # A dotted quad of numbers must be an IPv4 address (999.1.1.1 is none; shorter forms such as 127.1 resolve).
+    if len(labels) == 4 and all(label.isdigit() for label in labels):
         try:
             ipaddress.IPv4Address(host)
         except ValueError:
