@@ -16,8 +16,8 @@ from __future__ import annotations
 import dataclasses
 import warnings
 import weakref
-from dataclasses import dataclass
 from collections.abc import Iterator
+from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -178,9 +178,10 @@ class SampleRequest(ReadOnlyArrays):
         start = 0
         while start < h:  # a step per band, not per pixel
             stop = max(start + 1, int(np.searchsorted(reached, reached[start] + max_samples, side="right")) - 1)
-            if reached[stop] == reached[start]:  # rows without samples
-                pass
-            elif stop - start > 1 or per_row[start] <= max_samples:
+            if reached[stop] == reached[start]:  # rows without samples: no part
+                start = stop
+                continue
+            if stop - start > 1 or per_row[start] <= max_samples:
                 yield start, self.crop(slice(start, stop), slice(None))
             else:  # one row holding more: runs of each pixel's sequence, shared by the pixels with samples
                 row, first = self.counts[start:stop], self.first_index[start:stop]

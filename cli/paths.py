@@ -152,7 +152,6 @@ class PathPlan:
                 raise UsageError(f"{entry.option}: {entry.path}: this output is written as {entry.kind.upper()}, "
                                  f"but its name says {entry.path.suffix}; name it .{entry.kind}")
 
-
     def check_unchanged(self) -> None:
         """Refuse (:class:`~awr_denoise.errors.InputFileError`, naming it) an input that is no longer the
         file :meth:`check` found: its reads may have met two versions (one's pixels in the other's window,

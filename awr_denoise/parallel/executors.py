@@ -27,9 +27,9 @@ from typing import Any
 
 from .. import _checks
 from .._signals import TERMINATING_SIGNALS
+from .._signals import deferred as _signals_deferred
 from .._workers import exit_with_parent
 from ..io.atomic import check_readable, read_without_waiting
-from .._signals import deferred as _signals_deferred
 
 __all__ = ["EXECUTOR_KINDS", "DASK_INSTALL_HINT", "get_executor", "executor_or_threads", "executor_width",
            "submit", "default_workers", "dask_client"]
@@ -38,9 +38,10 @@ EXECUTOR_KINDS = ("threads", "processes", "dask")
 """Kinds of executor :func:`get_executor` can make."""
 
 DASK_INSTALL_HINT = 'pip install "awr-denoise[dask]"'
+"""How to install the optional Dask dependency."""
+
 SCHEDULER_FILE_MAX = 2**20
 """The most bytes read of a ``--scheduler`` JSON file (Dask writes a few hundred)."""
-"""How to install the optional Dask dependency."""
 
 
 def _leave_interrupts_to_the_parent(parent: int) -> None:
