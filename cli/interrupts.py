@@ -11,7 +11,9 @@ left at its default it would kill the process in the middle of a write and leave
 
 from __future__ import annotations
 
+import atexit
 import contextlib
+import os
 import signal
 import sys
 import threading
@@ -21,7 +23,7 @@ from typing import Any
 
 from awr_denoise._signals import COMMIT_CHECKS, TERMINATING_SIGNALS
 
-__all__ = ["Terminated", "raising", "restore", "received", "check"]
+__all__ = ["Terminated", "raising", "restore", "ending", "say", "received", "check"]
 
 # SIGHUP, SIGUSR1... exist on POSIX only.
 _SIGNALS = TERMINATING_SIGNALS
@@ -30,6 +32,9 @@ _SIGNALS = TERMINATING_SIGNALS
 # (an interrupt inside a C extension's import comes back as an ImportError, or not at all).
 _received: list[int] = []
 _hooks: list[Callable[[Any], None]] = []  # the unraisable hook :func:`raising` replaced
+_line: list[str] = []  # the command's line, once the process ends with it: "writing", then "written"
+_late: list[int] = []  # a signal that came after the command's end (:func:`ending`)
+_exit_after_line: list[int] = []  # the status a late signal left to :func:`say` to exit with once the line is out
 
 
 class Terminated(BaseException):
@@ -54,6 +59,9 @@ def raising() -> dict[int, Any] | None:
     thread (only the main thread can set handlers; the caller's own handling then stays).
     """
     _received.clear()
+    _line.clear()
+    _late.clear()
+    _exit_after_line.clear()
     if threading.current_thread() is not threading.main_thread():
         return None
     if check not in COMMIT_CHECKS:
@@ -81,6 +89,81 @@ def restore(previous: dict[int, Any] | None) -> None:
         hook = _hooks.pop()
         if sys.unraisablehook is _quiet_unraisable:  # a hook set meanwhile by the command's own code stays
             sys.unraisablehook = hook
+
+
+def ending(previous: dict[int, Any] | None, outcome: Callable[[], tuple[int, str | None]]) -> None:
+    """The command's end when the process ends with it (the console script): the process ends with
+    ``outcome()``'s status and line (:func:`say` prints it) whatever signal comes from now on; a first one lets
+    Python finish, a second ends the process at once.
+
+    :func:`restore` would put back the default actions: a signal that landed after a command had committed its
+    outputs, while Python was still finishing (joining threads, unloading modules), ended the process by its own
+    action (-2, -15 or -1: a shell's 130, 143 or 129) without the line, or printed a KeyboardInterrupt
+    traceback. The command's work is over here, its outputs committed or removed, so a late signal decides
+    nothing: ``outcome`` reads the signals that came before (:func:`received`), which a late one does not join.
+    A second late signal stops the wait (threads still finishing the tasks of an interrupted command). Python's
+    exit runs its exit functions with the signals ignored: after them it would put back the default actions of
+    handlers like this one before it frees the modules (numpy's, scipy's: tens of milliseconds), and an ignored
+    signal stays ignored.
+
+    Parameters
+    ----------
+    previous
+        What :func:`raising` returned (None: nothing was replaced, the caller's handling stays).
+    outcome
+        The exit status and the line to print, or None for none.
+    """
+    caught = [s for s, handler in (previous or {}).items() if handler is not signal.SIG_IGN]  # not nohup's
+
+    def late(signum: int, frame: FrameType | None) -> None:
+        status, line = outcome()
+        if not _late:
+            # The first: Python finishes what is done (its exit functions release a process pool's semaphores:
+            # skipped, multiprocessing's resource tracker printed a "leaked semaphore objects" warning).
+            _late.append(signum)
+            return
+        if _line == ["writing"] and not _exit_after_line:
+            # It interrupted :func:`say` writing the line: say ends the process once the line is out (a further
+            # signal, while that write waits on a pipe nobody reads, ends it at once, below).
+            _exit_after_line.append(status)
+            return
+        for s in caught:  # a further signal ends the process even if a write below waits
+            signal.signal(s, lambda *_: os._exit(status))
+        if line is not None and not _line:
+            _write_line(line)
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):  # closed, full, or in the flush this signal interrupted
+                stream.flush()
+        os._exit(status)
+
+    for s in caught:
+        signal.signal(s, late)
+    # Registered last, run first: after the threads are joined (a late signal ended that wait), before the
+    # exit functions registered at import (multiprocessing's, logging's), which finish what is already done.
+    atexit.register(lambda: [signal.signal(s, signal.SIG_IGN) for s in caught])
+
+
+def say(outcome: Callable[[], tuple[int, str | None]]) -> int:
+    """``outcome()``'s status, its line printed unless :func:`ending`'s late signal has printed it."""
+    status, line = outcome()
+    if line is not None and not _line:
+        with contextlib.suppress(OSError, ValueError):  # what the command wrote there goes first
+            sys.stderr.flush()
+        _write_line(line)
+    if _exit_after_line:  # a second late signal came while the line was written
+        with contextlib.suppress(Exception):
+            sys.stdout.flush()
+        os._exit(_exit_after_line[0])
+    return status
+
+
+def _write_line(line: str) -> None:
+    """``line`` on stderr in one write of the descriptor (not Python's stream, whose flush a signal may have
+    interrupted: a reentrant flush fails and lost the line); its state in ``_line`` for a late signal."""
+    _line.append("writing")
+    with contextlib.suppress(OSError, ValueError):  # stderr gone or closed: the status still says it
+        os.write(sys.stderr.fileno(), (line + "\n").encode("ascii", "backslashreplace"))
+    _line.append("written")
 
 
 def _quiet_unraisable(unraisable: Any) -> None:

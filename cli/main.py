@@ -42,7 +42,7 @@ from .errors import (
     one_line_warnings,
 )
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "run", "build_parser"]
 
 _COMMANDS = ("info", "denoise", "plan", "merge", "diff", "render", "demo", "bench")
 
@@ -254,13 +254,16 @@ def _one_blas_thread_under_a_memory_limit() -> None:
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None, *, ending: bool = False) -> int:
     """Run the ``awr`` command line and return its exit status.
 
     Parameters
     ----------
     argv
         Arguments without the program name; ``sys.argv[1:]`` by default.
+    ending
+        The process ends with the command (:func:`run`): the signal handlers are not put back, and
+        a signal after the command's end ends the process at once with its status.
     """
     _one_blas_thread_under_a_memory_limit()  # before numpy and scipy are imported
     memory.keep_freed_memory()  # whole-image temporaries reused, not mapped afresh (cli/memory.py)
@@ -268,40 +271,62 @@ def main(argv: Sequence[str] | None = None) -> int:
     stderr = sys.stderr
     sys.stderr = _DiagnosticStream(stderr)  # type: ignore[assignment]
     try:
-        return _main(argv)
+        return _main(argv, ending)
     finally:
         sys.stderr = stderr
 
 
-def _main(argv: Sequence[str] | None) -> int:
+def run() -> None:
+    """The ``awr`` console script: :func:`main`, then the process ends with its status. A signal that
+    lands once the command has ended (its outputs committed or removed) ends the process at once with
+    that status and the command's line (:func:`interrupts.ending`)."""
+    sys.exit(main(ending=True))
+
+
+def _main(argv: Sequence[str] | None, ending: bool = False) -> int:
     """:func:`main` once the standard streams are set up."""
     previous = None
     status = None
+
+    def outcome() -> tuple[int, str | None]:
+        return _outcome(status)
+
     try:
         previous = interrupts.raising()
         status = _run(argv)
+        if ending:  # inside the try: a first signal until the handlers are swapped is the command's
+            interrupts.ending(previous, outcome)
     except (KeyboardInterrupt, interrupts.Terminated):
-        pass
+        if ending:  # the first signal has set the others ignored: nothing raises here
+            interrupts.ending(previous, outcome)
     finally:
-        interrupts.restore(previous)
-    # A signal counts even when the exception it raised was lost on the way (inside a C
-    # extension, a weakref callback); no output was committed after it (every commit asks first:
-    # awr_denoise._signals.COMMIT_CHECKS).
-    signum = interrupts.received()
-    if signum == signal.SIGTERM:
-        print("awr: terminated", file=sys.stderr)
-        return EXIT_TERMINATED
-    if signum is not None and signum == getattr(signal, "SIGHUP", None):
-        print("awr: hung up", file=sys.stderr)
-        return EXIT_HANGUP
-    if signum is not None and signum != signal.SIGINT:  # SIGUSR1, SIGXCPU...: the shell's 128 + n
-        print(f"awr: terminated by {signal.Signals(signum).name}", file=sys.stderr)
-        return 128 + int(signum)
-    if signum is not None or status is None:
-        print("awr: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        if not ending:
+            interrupts.restore(previous)
+    if ending:
+        return interrupts.say(outcome)
+    status, line = outcome()
+    if line is not None:
+        print(line, file=sys.stderr)
     return status
 
 
+def _outcome(status: int | None) -> tuple[int, str | None]:
+    """The exit status and the line to print, from the command's status (None: it was interrupted).
+
+    A signal counts even when the exception it raised was lost on the way (inside a C extension, a
+    weakref callback); no output was committed after it (every commit asks first:
+    awr_denoise._signals.COMMIT_CHECKS)."""
+    signum = interrupts.received()
+    if signum == signal.SIGTERM:
+        return EXIT_TERMINATED, "awr: terminated"
+    if signum is not None and signum == getattr(signal, "SIGHUP", None):
+        return EXIT_HANGUP, "awr: hung up"
+    if signum is not None and signum != signal.SIGINT:  # SIGUSR1, SIGXCPU...: the shell's 128 + n
+        return 128 + int(signum), f"awr: terminated by {signal.Signals(signum).name}"
+    if signum is not None or status is None:
+        return EXIT_INTERRUPTED, "awr: interrupted"
+    return status, None
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    run()

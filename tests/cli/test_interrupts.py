@@ -14,6 +14,7 @@ mapped into it, the files it has written), not after guessed delays.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -27,9 +28,9 @@ import pytest
 pytest.importorskip("OpenEXR")
 
 from awr_denoise import SampleBuffer  # noqa: E402
-from awr_denoise.io import write_sample_buffer  # noqa: E402
+from awr_denoise.io import read_image, write_sample_buffer  # noqa: E402
 from awr_denoise.io.atomic import STAGING_PREFIX  # noqa: E402
-from cli_helpers import awr_command, one_error_line, run_awr  # noqa: E402
+from cli_helpers import H, W, awr_command, one_error_line, run_awr  # noqa: E402
 
 pytestmark = [pytest.mark.exr,
               pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/PID/maps")]
@@ -118,6 +119,25 @@ def test_a_signal_after_the_first_output_leaves_no_partial_set(work, frames, sig
     got, _, err = _finish(proc)
     assert (got, err.strip()) == (status, line), err
     assert _outputs(work.root) == []
+
+
+@pytest.mark.parametrize(("signum", "status", "line"), [(signal.SIGINT, 130, "awr: interrupted"),
+                                                        (signal.SIGTERM, 143, "awr: terminated"),
+                                                        (signal.SIGHUP, 129, "awr: hung up")])
+def test_signals_after_the_commit_end_with_the_commands_status_and_line(work, signum, status, line):
+    # Signals, one after another, from the moment the output is in place until the process has ended: while the
+    # command finishes, while Python joins its threads and unloads its modules. The command's work is done: it
+    # ends as it would have (0, nothing said) or as the first signal had it (its status, its one line), never by
+    # the signal's own action (-2, -15, -1) or with a traceback.
+    proc = _start(["denoise", "d.exr", "-o", "out.exr", "-q"], work.root)
+    _wait_for(proc, lambda: (work.root / "out.exr").exists())
+    while proc.poll() is None:
+        with contextlib.suppress(ProcessLookupError):
+            proc.send_signal(signum)
+        time.sleep(0.0002)
+    got, _, err = _finish(proc)
+    assert (got, err.strip()) in {(0, ""), (status, line)}, (got, err)
+    assert read_image(work / "out.exr").shape[:2] == (H, W)  # the whole image
 
 
 @pytest.mark.slow
@@ -227,6 +247,17 @@ def test_a_refusal_still_prints_one_line_through_the_console_script(work):
     done = run_awr(["denoise", "d.exr", "-o", "d.exr"], work.root)
     assert done.returncode == 2
     one_error_line(done.stderr, "is the input")
+
+
+def test_main_called_in_a_program_puts_its_callers_handlers_back(work, capsys, monkeypatch):
+    """Only the console script (``run``) keeps its handlers to the end; ``main(argv)`` in a program returns
+    with the program's own handlers in place, the same for a command that failed."""
+    from awr_denoise.cli.main import main
+
+    monkeypatch.chdir(work.root)
+    handlers = [signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)]
+    assert (main(["info", "d.exr"]), main(["info", "missing.exr"])) == (0, 2)
+    assert [signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)] == handlers
 
 
 @pytest.mark.parametrize("command", ["info", "diff"])
