@@ -14,6 +14,7 @@ from __future__ import annotations
 import atexit
 import contextlib
 import os
+import select
 import signal
 import sys
 import threading
@@ -32,7 +33,7 @@ _SIGNALS = TERMINATING_SIGNALS
 # (an interrupt inside a C extension's import comes back as an ImportError, or not at all).
 _received: list[int] = []
 _hooks: list[Callable[[Any], None]] = []  # the unraisable hook :func:`raising` replaced
-_line: list[str] = []  # the command's line, once the process ends with it: "writing", then "written"
+_line: list[str] = []  # the command's line, once the process ends with it: "waiting", "writing", "written"
 _late: list[int] = []  # a signal that came after the command's end (:func:`ending`)
 _exit_after_line: list[int] = []  # the status a late signal left to :func:`say` to exit with once the line is out
 
@@ -117,20 +118,24 @@ def ending(previous: dict[int, Any] | None, outcome: Callable[[], tuple[int, str
 
     def late(signum: int, frame: FrameType | None) -> None:
         status, line = outcome()
-        if not _late:
-            # The first: Python finishes what is done (its exit functions release a process pool's semaphores:
-            # skipped, multiprocessing's resource tracker printed a "leaked semaphore objects" warning).
-            _late.append(signum)
+        state = _line[-1] if _line else None
+        if state == "writing":
+            # It came while :func:`say` writes the line, a write that does not wait (its descriptor was
+            # writable): say ends the process once the line is out.
+            _exit_after_line[:] = [status]
             return
-        if _line == ["writing"] and not _exit_after_line:
-            # It interrupted :func:`say` writing the line: say ends the process once the line is out (a further
-            # signal, while that write waits on a pipe nobody reads, ends it at once, below).
-            _exit_after_line.append(status)
+        if state != "waiting" and not _late:
+            # The first, and the line is not waiting for stderr to be read: Python finishes what is done (its
+            # exit functions release a process pool's semaphores: skipped, multiprocessing's resource tracker
+            # printed a "leaked semaphore objects" warning).
+            _late.append(signum)
             return
         for s in caught:  # a further signal ends the process even if a write below waits
             signal.signal(s, lambda *_: os._exit(status))
-        if line is not None and not _line:
-            _write_line(line)
+        if line is not None and state != "written":
+            # Not yet said, or waiting: written now if stderr takes it at once (the signal may have come between
+            # say's steps), else (nobody reads it) the process ends without it.
+            _write_line(line, wait=state is None)
         for stream in (sys.stdout, sys.stderr):
             with contextlib.suppress(Exception):  # closed, full, or in the flush this signal interrupted
                 stream.flush()
@@ -157,12 +162,23 @@ def say(outcome: Callable[[], tuple[int, str | None]]) -> int:
     return status
 
 
-def _write_line(line: str) -> None:
-    """``line`` on stderr in one write of the descriptor (not Python's stream, whose flush a signal may have
-    interrupted: a reentrant flush fails and lost the line); its state in ``_line`` for a late signal."""
-    _line.append("writing")
+def _write_line(line: str, wait: bool = True) -> None:
+    """``line`` on stderr in one write of the descriptor once it can take it (at once only, without ``wait``),
+    its state in ``_line`` for a late signal: "waiting" for stderr to be read (a late signal then writes it if
+    it can, else ends the process: nobody reads the line), then "writing" (a write that does not wait), then
+    "written". The descriptor, not Python's stream: a flush that a signal interrupted fails again in the
+    handler (reentrant), and lost the line."""
     with contextlib.suppress(OSError, ValueError):  # stderr gone or closed: the status still says it
-        os.write(sys.stderr.fileno(), (line + "\n").encode("ascii", "backslashreplace"))
+        fd = sys.stderr.fileno()
+        _line.append("waiting")
+        if hasattr(select, "poll"):
+            ready = select.poll()
+            ready.register(fd, select.POLLOUT)
+            # Writable, or its reader gone (an error event): the write below does not wait.
+            if not ready.poll(None if wait else 0):
+                return
+        _line.append("writing")
+        os.write(fd, (line + "\n").encode("ascii", "backslashreplace"))
     _line.append("written")
 
 

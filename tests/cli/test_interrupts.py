@@ -140,6 +140,32 @@ def test_signals_after_the_commit_end_with_the_commands_status_and_line(work, si
     assert read_image(work / "out.exr").shape[:2] == (H, W)  # the whole image
 
 
+def test_a_second_signal_ends_a_process_whose_line_nobody_reads(work):
+    # stderr is a pipe already full that nobody reads: the line of the first signal waits for ever; the second
+    # ends the process at once with the first one's status (its default action ended it, -15, before).
+    read_end, write_end = os.pipe()
+    os.set_blocking(write_end, False)
+    with contextlib.suppress(BlockingIOError):
+        while True:
+            os.write(write_end, b"x" * 4096)
+    os.set_blocking(write_end, True)
+    proc = subprocess.Popen([*awr_command(), "info", "d.exr"], cwd=work.root, stdout=subprocess.DEVNULL,
+                            stderr=write_end)
+    try:
+        _wait_for(proc, lambda: _mapped(proc, "_multiarray_umath"))
+        proc.send_signal(signal.SIGTERM)
+        # Waiting for stderr to take "awr: terminated": the kernel names where it sleeps (poll_schedule_timeout,
+        # pipe_write for a plain write).
+        _wait_for(proc, lambda: any(k in Path(f"/proc/{proc.pid}/wchan").read_text() for k in ("poll", "pipe")))
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=30) == 143
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        os.close(read_end)
+        os.close(write_end)
+
+
 @pytest.mark.slow
 def test_a_second_ctrl_c_during_cleanup_changes_nothing(work, frames):
     proc = _start(frames, work.root)
