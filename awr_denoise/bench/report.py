@@ -156,7 +156,8 @@ def _reproduce() -> list[str]:
         "```\npython -m awr_denoise.tracer.reference all --spp 4096   # references (once; about 20 min)\n"
         "awr bench --quick                                        # a few minutes\n"
         "awr bench                                                # the full run\n```\n",
-        "`awr bench` is `python -m awr_denoise.bench`; it needs the `tracer` and `bench` extras, and "
+        "`awr bench` runs `python -m awr_denoise.bench` with the command line's handling of signals and "
+        "errors (one line, no partial output: docs/cli.md); it needs the `tracer` and `bench` extras, and "
         "`oidn` for the Open Image Denoise peer.\n",
         "`--scenes a b` restricts the scenes, `--output-dir DIR` writes the page and figures elsewhere, "
         "`--reference-spp N` re-renders (and caches) any reference below N spp with the tracer's "
