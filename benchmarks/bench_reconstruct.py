@@ -822,9 +822,11 @@ def _held_exact(run: Any) -> Any:
 
 # ---------------------------------------------------------------------------- main
 def recorded_command(script: str, argv: list[str] | None) -> str:
-    """The command a results section records; the cache folder (this machine's business) as ``DIR``."""
+    """The command a results section records; the cache folder and a trial's output (this machine's business)
+    as ``DIR`` and ``FILE``."""
     given = list(argv if argv is not None else sys.argv[1:])
-    shown = ["DIR" if i > 0 and given[i - 1] == "--cache" else a for i, a in enumerate(given)]
+    hidden = {"--cache": "DIR", "--images": "DIR", "--output": "FILE"}
+    shown = [hidden.get(given[i - 1], a) if i > 0 else a for i, a in enumerate(given)]
     return f"benchmarks/{script} " + " ".join(shown)
 
 
