@@ -262,8 +262,9 @@ def main(argv: Sequence[str] | None = None, *, ending: bool = False) -> int:
     argv
         Arguments without the program name; ``sys.argv[1:]`` by default.
     ending
-        The process ends with the command (:func:`run`): the signal handlers are not put back, and
-        a signal after the command's end ends the process at once with its status.
+        The process ends with the command (:func:`run`): the signal handlers are not put back, and a
+        signal after the command's end changes neither its status nor its line (a second one ends the
+        process at once).
     """
     _one_blas_thread_under_a_memory_limit()  # before numpy and scipy are imported
     memory.keep_freed_memory()  # whole-image temporaries reused, not mapped afresh (cli/memory.py)
@@ -278,8 +279,8 @@ def main(argv: Sequence[str] | None = None, *, ending: bool = False) -> int:
 
 def run() -> None:
     """The ``awr`` console script: :func:`main`, then the process ends with its status. A signal that
-    lands once the command has ended (its outputs committed or removed) ends the process at once with
-    that status and the command's line (:func:`interrupts.ending`)."""
+    lands once the command has ended (its outputs committed or removed) changes neither that status nor
+    the command's line; a second one ends the process at once (:func:`interrupts.ending`)."""
     sys.exit(main(ending=True))
 
 
