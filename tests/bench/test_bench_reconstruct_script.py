@@ -120,6 +120,6 @@ def test_speed_times_the_compared_forms_it_is_given(bench):
 
 def test_a_recorded_command_names_no_folder_or_file_of_this_machine(bench):
     """Results sections record their command with the cache, the images' folder and a trial's output hidden."""
-    command = bench.recorded_command("bench_guides.py", ["quality", "--output", "/tmp/x.json", "--cache", "/c",
-                                                         "--images", "/i", "--spps", "8"])
+    command = bench.recorded_command("bench_guides.py", ["quality", "--output", "trial.json", "--cache", "cache",
+                                                         "--images", "img", "--spps", "8"])
     assert command == "benchmarks/bench_guides.py quality --output FILE --cache DIR --images DIR --spps 8"
