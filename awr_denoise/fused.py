@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from functools import lru_cache
 from types import SimpleNamespace
 
@@ -30,7 +31,7 @@ import numpy as np
 
 from ._typing import FloatArray
 
-__all__ = ["BACKENDS", "available", "backend", "set_backend", "log_plane", "shrink_band", "finish_plane"]
+__all__ = ["BACKENDS", "available", "backend", "set_backend", "compile_loop", "log_plane", "shrink_band", "finish_plane"]
 
 BACKENDS = ("numpy", "numba")
 """The implementations: ``"numpy"`` (the reference, always there) and ``"numba"`` (extra ``fast``)."""
@@ -343,17 +344,33 @@ def _kernels() -> SimpleNamespace | None:
 @lru_cache(maxsize=1)
 def _compiled() -> SimpleNamespace | None:
     """The loops above compiled by numba (once; cached on disk), or ``None`` without numba."""
+    loops = [compile_loop(f) for f in (_log_plane_loop, _shrink_band_loop, _clamp_plane_loop, _back_to_radiance_loop)]
+    if loops[0] is None:
+        return None
+    return SimpleNamespace(log_plane=loops[0], shrink_band=loops[1], clamp_plane=loops[2], back_to_radiance=loops[3])
+
+
+def compile_loop(loop: Callable) -> Callable | None:
+    """``loop`` compiled by numba as this module's kernels are, or ``None`` without numba.
+
+    Other modules' loops behind the same backend (:mod:`awr_denoise.pooling`'s) are compiled here, so that
+    one policy holds for all: ``nogil``, no ``fastmath``, machine code cached on disk where it can be.
+
+    Examples
+    --------
+    >>> from awr_denoise.fused import compile_loop
+    >>> def twice(x):
+    ...     return 2.0 * x
+    >>> loop = compile_loop(twice)               # None where numba is not installed
+    >>> loop is None or loop(1.5) == 3.0
+    True
+    """
     try:
         import numba  # optional extra "fast"
     except ImportError:
         return None
-
-    def jit(f):
-        # nogil: the channels of a 2-thread executor run at once; no fastmath: the reference's floats.
-        try:  # compiled once per machine: cached beside this file, or in the user's cache directory
-            return numba.njit(nogil=True, cache=True)(f)
-        except RuntimeError:  # neither is writable: compile in every process instead (about 2 s)
-            return numba.njit(nogil=True)(f)
-
-    return SimpleNamespace(log_plane=jit(_log_plane_loop), shrink_band=jit(_shrink_band_loop),
-                           clamp_plane=jit(_clamp_plane_loop), back_to_radiance=jit(_back_to_radiance_loop))
+    # nogil: the channels of a 2-thread executor run at once; no fastmath: the reference's floats and their order.
+    try:  # compiled once per machine: cached beside the loop's module, or in the user's cache directory
+        return numba.njit(nogil=True, cache=True)(loop)
+    except RuntimeError:  # neither is writable: compile in every process instead (about 2 s)
+        return numba.njit(nogil=True)(loop)

@@ -12,11 +12,13 @@ small light) is not known to be exact either: its variance is moderated towards 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from functools import lru_cache
 
 import numpy as np
 from scipy import ndimage
 
-from . import _checks
+from . import _checks, fused
 from ._typing import BoolArray, CountArray, FloatArray
 
 __all__ = ["estimated_variance", "pooled_variance", "agreed_variance", "POOL_WINDOW", "JUMP_RATIO", "AGREED_PRIOR"]
@@ -118,8 +120,7 @@ def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
     # 25 gathers per entry.
     for c in range(variance.shape[2]):
         missed = todo[..., c] & (mean[..., c] == 0)
-        groups, sizes = np.unique(count[missed], return_counts=True)
-        big = groups[sizes * 16 >= count.size]
+        big = _frequent(count[missed], -(-count.size // 16))
         if big.size:
             with np.errstate(over="ignore"):  # a level past float64 over g is a chance of 0
                 chance = _chance(s2[..., c], mean[..., c], g)
@@ -129,11 +130,29 @@ def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
             local = _window_sum(weight * s2[..., c])[at] / _window_sum(weight)[at]
             out[..., c][at] = prior * local * g * g / (samples - 1.0 + prior)
             todo[..., c] &= ~at
-    if todo.any():
-        rows, cols, chans = np.nonzero(todo)
-        local = _gathered_local(count, mean, g, s2, dof, (rows, cols, chans))
-        out[rows, cols, chans] = prior * local * g * g / (count[rows, cols] - 1.0 + prior)
+    if not todo.any():
+        return out
+    loop = _compiled_moderation() if fused.backend() == "numba" else None
+    if loop is not None:
+        with np.errstate(over="ignore"):  # a level past float64 over g is a chance of 0
+            chance = _chance(s2, mean, g)  # at level 0, for every entry at 0 (numpy's, as the reference's)
+        loop(todo, count, mean, s2, dof, g, chance, float(prior), out)
+        return out
+    rows, cols, chans = np.nonzero(todo)
+    local = _gathered_local(count, mean, g, s2, dof, (rows, cols, chans))
+    out[rows, cols, chans] = prior * local * g * g / (count[rows, cols] - 1.0 + prior)
     return out
+
+
+def _frequent(values: CountArray, times: int) -> CountArray:
+    """The values (counts, 0 or more) that occur ``times`` times or more, ascending: counted by ``bincount`` where
+    the largest is below the number of values (a sort of millions of counts cost more than the rest of an adaptive
+    round's moderation), else by ``unique`` (a count past any array's length)."""
+    if values.size and values.max() < values.size:
+        frequency = np.bincount(values.astype(np.intp, copy=False))
+        return np.flatnonzero(frequency >= times)
+    groups, sizes = np.unique(values, return_counts=True)
+    return groups[sizes >= times]
 
 
 def _gathered_local(count: CountArray, mean: FloatArray, g: float, s2: FloatArray, dof: FloatArray,
@@ -209,6 +228,72 @@ def _gathered_local(count: CountArray, mean: FloatArray, g: float, s2: FloatArra
                 acc_den += weight
         num[part], den[part] = acc_num, acc_den
     return num / den
+
+
+def _moderation_loop(todo, count, mean, s2, dof, g, chance0, prior, out):  # pragma: no cover (compiled)
+    """:func:`agreed_variance`'s offset-by-offset moderation of the entries ``todo``, written into ``out``, compiled
+    by numba (``AWR_DENOISE_KERNELS=numba``): :func:`_gathered_local`'s sums entry by entry, offsets in its order,
+    the edge pixel past an edge; ``chance0`` the chances at level 0.
+
+    Where numpy loops over 25 offsets with whole arrays of entries (and entries at 0 from the spread pixels
+    outward), this reads each neighbour where it is and takes a power only where the chance is strictly between
+    0 and 1 (a spread neighbour): ``z**n`` by repeated squaring for counts up to :data:`_SQUARING`, else
+    ``exp(n log z)`` and ``**`` from the C library. The values agree with numpy's to rounding (a few units of
+    the last place), not bit for bit (tests/test_pooling.py runs both on every case)."""
+    h, w, channels = s2.shape
+    r = POOL_WINDOW // 2
+    for y in range(h):
+        for x in range(w):
+            n = count[y, x]
+            k = float(n)
+            for c in range(channels):
+                if not todo[y, x, c]:
+                    continue
+                level = mean[y, x, c]
+                a = 0.0
+                b = 0.0
+                for dy in range(-r, r + 1):
+                    yy = min(max(y + dy, 0), h - 1)
+                    for dx in range(-r, r + 1):
+                        xx = min(max(x + dx, 0), w - 1)
+                        if level == 0.0:
+                            z = chance0[yy, xx, c]
+                        else:
+                            gap = abs(mean[yy, xx, c] - level) / g  # past float64: inf, a chance of 0 (as _chance)
+                            total = gap * gap + s2[yy, xx, c]
+                            z = s2[yy, xx, c] / total if total > 0.0 else 1.0
+                        if z == 0.0:  # a weight of 0: nothing to add (numpy adds 0.0)
+                            continue
+                        if z == 1.0:  # 1**n exactly
+                            power = 1.0
+                        elif n <= _SQUARING:  # z**n by squaring: fewer roundings than n, no exp
+                            power = 1.0
+                            base = z
+                            e = n
+                            while e:
+                                if e & 1:
+                                    power *= base
+                                base *= base
+                                e >>= 1
+                        elif level == 0.0:
+                            power = math.exp(k * math.log(z))
+                        else:
+                            power = z**k
+                        weight = dof[yy, xx] * power
+                        a += weight * s2[yy, xx, c]
+                        b += weight
+                out[y, x, c] = prior * (a / b) * g * g / (k - 1.0 + prior)
+
+
+_SQUARING = 64
+"""Counts up to which the compiled moderation takes ``z**n`` by repeated squaring (relative error at most about
+``n`` float64 epsilons, the size of ``exp(n log z)``'s); above, ``exp`` keeps the error from growing with ``n``."""
+
+
+@lru_cache(maxsize=1)
+def _compiled_moderation() -> Callable | None:
+    """:func:`_moderation_loop` compiled (once per process; its machine code cached on disk), ``None`` without numba."""
+    return fused.compile_loop(_moderation_loop)
 
 
 def _scattered_at_zero(count: CountArray, mean: FloatArray, g: float, s2: FloatArray, dof: FloatArray,

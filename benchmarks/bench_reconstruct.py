@@ -40,7 +40,7 @@ import numpy as np
 
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, VarianceSampler, reconstruct
 from awr_denoise import finishing as finishing_steps
-from awr_denoise import pooling
+from awr_denoise import fused, pooling
 from awr_denoise.bench import update_section
 from awr_denoise.features import FEATURE_CHANNELS
 from awr_denoise.finishing import RESTORE_SHARE, match_mean, restore_mean
@@ -771,11 +771,13 @@ def agreed_speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
     one ``AdaptiveSampler.ask()`` round (a sampler that has the buffer), each beside the same with agreeing
     samples held exact (``AGREED_PRIOR`` 0), interleaved, on :func:`agreed_buffers`; the moderation also with every
     entry gathered offset by offset (``pooling._SCATTER_SHARE`` infinite), the form before entries at 0 were weighed
-    from the spread pixels outward."""
+    from the spread pixels outward; and, where numba is installed (extra ``fast``), the moderation and ``ask()`` with
+    the moderation's compiled loop (``AWR_DENOISE_KERNELS=numba``, ``pooling._moderation_loop``)."""
     rows = []
+    compiled = "numba" in fused.available()
     print("| image | buffer | moderation alone | gathered only | ratio | default | held exact | ratio | ask() "
-          "| held exact | ratio |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "| held exact | ratio |" + (" moderation, compiled | ratio | ask(), compiled | ratio |" if compiled else ""))
+    print("|---|---|---|---|---|---|---|---|---|---|---|" + "---|" * 4 * compiled)
     for size in sizes:
         for kind, buffer in agreed_buffers(SIZES[size]).items():
             # Each case is set up untimed and returns the call that is timed: a sampler that has the buffer is
@@ -789,6 +791,9 @@ def agreed_speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
                      "ask()": lambda b=buffer: AdaptiveSampler.from_buffer(b, round=1).ask,
                      "ask(), agreed samples held exact":
                          lambda b=buffer: partial(_held_exact, AdaptiveSampler.from_buffer(b, round=1).ask)}
+            if compiled:
+                cases["moderation, compiled"] = lambda m=moderate: partial(_compiled, m)
+                cases["ask(), compiled"] = lambda b=buffer: partial(_compiled, AdaptiveSampler.from_buffer(b, round=1).ask)
             seconds: dict[str, list[float]] = {name: [] for name in cases}
             names = list(cases)
             for round_ in range(1 + (repeats or (3 if size == "1080p" else 9))):
@@ -804,7 +809,9 @@ def agreed_speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
             rows.append({"size": size, "buffer": kind, "repeats": len(seconds["default"]), "seconds": medians})
             m = list(medians.values())
             print(f"| {size} | {kind} | {m[0]:.3f} s | {m[1]:.3f} s | {m[0] / m[1]:.2f} | {m[2]:.3f} s | {m[3]:.3f} s "
-                  f"| {m[2] / m[3]:.2f} | {m[4]:.3f} s | {m[5]:.3f} s | {m[4] / m[5]:.2f} |", flush=True)
+                  f"| {m[2] / m[3]:.2f} | {m[4]:.3f} s | {m[5]:.3f} s | {m[4] / m[5]:.2f} |"
+                  + (f" {m[6]:.3f} s | {m[6] / m[0]:.2f} | {m[7]:.3f} s | {m[7] / m[4]:.2f} |" if compiled else ""),
+                  flush=True)
     return rows
 
 
@@ -812,6 +819,15 @@ def _gathered_only(run: Any) -> Any:
     """``run()`` with every entry of the moderation gathered offset by offset (``pooling._SCATTER_SHARE`` infinite)."""
     with mock.patch.object(pooling, "_SCATTER_SHARE", math.inf):
         return run()
+
+
+def _compiled(run: Any) -> Any:
+    """``run()`` with the compiled kernels (``fused.set_backend("numba")``), then the environment's again."""
+    fused.set_backend("numba")
+    try:
+        return run()
+    finally:
+        fused.set_backend(None)
 
 
 def _held_exact(run: Any) -> Any:

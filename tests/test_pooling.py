@@ -6,9 +6,20 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from awr_denoise import SampleBuffer, pooling
+from awr_denoise import AdaptiveSampler, SampleBuffer, fused, pooling, reconstruct
 from awr_denoise.pooling import AGREED_PRIOR, POOL_WINDOW, agreed_variance, estimated_variance
 from awr_denoise.prepare import prepare
+
+needs_numba = pytest.mark.skipif(fused._compiled() is None, reason="numba is not installed (extra 'fast')")
+
+
+@pytest.fixture(autouse=True, params=["numpy", pytest.param("numba", marks=needs_numba)])
+def kernels(request):
+    """Every test with each backend: numpy's offset-by-offset moderation (the reference) and the compiled loop
+    (``AWR_DENOISE_KERNELS=numba``), each against the pixel-by-pixel definition below."""
+    fused.set_backend(request.param)
+    yield request.param
+    fused.set_backend(None)
 
 
 def _reference(count, mean, variance, known, prior=AGREED_PRIOR):
@@ -224,3 +235,71 @@ def test_a_single_sample_beside_moderated_pixels_is_not_exact():
     assert out[0, 1, 0] > 0.01 and out[0, 2, 0] > 0.001
     assert out[0, 3, 0] > 0.001
     assert out[0, 8, 0] == 0.0  # out of every window that saw spread
+
+
+@pytest.mark.parametrize("top", [60, 70, 400, 2**40])
+def test_counts_past_the_compiled_loops_squaring_match_the_definition(rng, top):
+    """Counts around and far past ``_SQUARING`` (where the compiled loop takes ``exp(n log z)`` instead of
+    repeated squaring), at 0 and at an emitter's level, against the pixel-by-pixel definition. Half the spread
+    neighbours lie a hair from a level (gaps of 1e-7 to 2e-6 beside spreads near 1): ``z**n`` stays well
+    above 0 even at ``n = 2**40``."""
+    shape = (14, 15)
+    count = rng.integers(max(2, top - 20), top + 1, shape)
+    level = np.where(rng.random(shape + (2,)) < 0.5, 0.0, 2.5)
+    spread = rng.random(shape + (2,)) < 0.4
+    gap = np.where(rng.random(shape + (2,)) < 0.5, rng.uniform(1e-7, 2e-6, shape + (2,)), rng.uniform(0.1, 1.0, shape + (2,)))
+    mean = level + spread * gap
+    variance = spread * rng.uniform(0.5, 2.0, shape + (2,))
+    got = agreed_variance(count, mean, variance, count >= 2)
+    want = _reference(count, mean, variance, count >= 2)
+    assert_allclose(got, want, rtol=1e-12, atol=0)
+    assert_array_equal(got == 0, want == 0)
+    assert (got[variance == 0] > 0).mean() > 0.5
+
+
+@needs_numba
+def test_the_compiled_loop_agrees_with_numpy_on_an_adaptive_buffer(rng):
+    """The compiled loop against the numpy path it replaces, on an image of an adaptive run's scattered counts
+    (entries at 0 weighed outward by numpy, gathered by the loop): to rounding, with the same zeros."""
+    buf = _hit_or_zero(rng, shape=(90, 110), spp=2, p=0.1, channels=3)
+    buf = SampleBuffer.from_moments(rng.integers(2, 40, buf.shape), buf.mean, buf.variance)
+    out = {}
+    for name in fused.BACKENDS:
+        fused.set_backend(name)
+        out[name] = estimated_variance(buf.count, buf.mean, buf.variance, buf.variance_known)
+    moderated = (buf.variance == 0) & buf.variance_known[..., None]
+    assert (out["numpy"][moderated] > 0).mean() > 0.5
+    assert_allclose(out["numba"], out["numpy"], rtol=1e-13, atol=0)
+    assert_array_equal(out["numba"] == 0, out["numpy"] == 0)
+
+
+@pytest.mark.parametrize("dtype", [np.int32, np.uint64, np.int64])
+def test_counts_of_any_integer_type(rng, dtype):
+    """Counts as int32 or uint64 (the library takes any integer array): the same values as int64."""
+    buf = _hit_or_zero(rng, shape=(20, 24), spp=2)
+    count = rng.integers(2, 6, buf.shape)
+    want = agreed_variance(count, buf.mean, buf.variance, count >= 2)
+    assert_array_equal(agreed_variance(count.astype(dtype), buf.mean, buf.variance, count >= 2), want)
+
+
+@pytest.mark.parametrize("values", [[], [5], [2, 2, 3, 9, 9, 9], [2, 2**40, 2**40, 7], list(range(2, 40)) * 3])
+def test_frequent_counts_as_unique_counts_them(values):
+    values = np.array(values, dtype=np.int64)
+    for times in (1, 2, 3):
+        groups, sizes = np.unique(values, return_counts=True)
+        assert_array_equal(pooling._frequent(values, times), groups[sizes >= times])
+
+
+@needs_numba
+def test_the_default_and_a_round_of_requests_are_the_same_with_either_backend(rng):
+    """End to end on scattered counts: the default reconstruction to rounding, and one ``ask()`` round's counts
+    (the sampler's priorities go through the same moderation) the same."""
+    buf = _hit_or_zero(rng, shape=(48, 64), spp=2, p=0.1, channels=3)
+    buf = SampleBuffer.from_moments(rng.integers(2, 40, buf.shape), buf.mean, buf.variance)
+    out = {}
+    for name in fused.BACKENDS:
+        fused.set_backend(name)
+        out[name] = reconstruct(buf), AdaptiveSampler.from_buffer(buf, round=1).ask().counts
+    image, counts = out["numpy"]
+    assert_allclose(out["numba"][0], image, rtol=0, atol=1e-12 * np.abs(image).max())
+    assert_array_equal(out["numba"][1], counts)

@@ -7,6 +7,7 @@ import importlib
 import numpy as np
 import pytest
 
+from awr_denoise import fused
 from awr_denoise.bench import noisy_buffer
 from awr_denoise.wavelets import default_levels
 
@@ -90,10 +91,30 @@ def test_agreed_buffers_have_the_agreeing_pixels_they_name(bench):
 def test_the_agreed_section_times_every_case(bench, capsys):
     rows = bench.agreed_speed(["128x128"], 1)
     assert [r["buffer"] for r in rows] == ["black squares, 8 spp", "hit or zero, 2 spp", "hit or zero, 2-39 spp"]
+    compiled = {"moderation, compiled", "ask(), compiled"} if "numba" in fused.available() else set()
     assert all(set(r["seconds"]) == {"moderation alone", "moderation, gathered only", "default",
-                                     "agreed samples held exact", "ask()", "ask(), agreed samples held exact"}
+                                     "agreed samples held exact", "ask()", "ask(), agreed samples held exact"} | compiled
                for r in rows)
-    assert "| 128x128 | hit or zero, 2 spp |" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "| 128x128 | hit or zero, 2 spp |" in out
+    assert ("moderation, compiled" in out) == bool(compiled)
+
+
+def test_compiled_runs_with_the_compiled_moderation_and_puts_the_backend_back(bench, monkeypatch):
+    """The agreed section's compiled cases: the moderation's compiled loop runs, and the backend is the
+    environment's again afterwards (also when the call raises)."""
+    from awr_denoise import pooling
+    if "numba" not in fused.available():
+        pytest.skip("numba is not installed (extra 'fast')")
+    b = bench.agreed_buffers((64, 64))["hit or zero, 2-39 spp"]
+    calls, before = [], fused.backend()
+    real = pooling._compiled_moderation
+    monkeypatch.setattr(pooling, "_compiled_moderation", lambda: calls.append(1) or real())
+    bench._compiled(lambda: pooling.estimated_variance(b.count, b.mean, b.variance, b.variance_known))
+    assert calls == [1] and fused.backend() == before
+    with pytest.raises(ZeroDivisionError):
+        bench._compiled(lambda: 1 / 0)
+    assert fused.backend() == before
 
 
 def test_gathered_only_is_the_moderation_without_the_outward_path_and_restores_it(bench, monkeypatch):
