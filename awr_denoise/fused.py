@@ -17,6 +17,11 @@ half a second per process, which only a process that runs stage 1 many times, or
 frames, wins back (a render loop, a sequence, a server; the default reconstruction spends a few
 percent of its time in stage 1). ``AWR_DENOISE_KERNELS=numba`` in the environment, or
 :func:`set_backend`, chooses the compiled kernels; :func:`backend` names the one in use.
+
+The same choice runs one loop of another module compiled (:func:`compile_loop` compiles it with these
+kernels' policy): the moderation of samples that all agreed, at an adaptive run's scattered counts
+(:mod:`awr_denoise.pooling`). That loop takes ``exp`` and powers in the compiled code, so it agrees with its
+numpy reference to rounding rather than bit for bit (tests/test_pooling.py).
 """
 
 from __future__ import annotations

@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from awr_denoise import AdaptiveSampler, SampleRequest, reconstruct
+from awr_denoise import AdaptiveSampler, SampleRequest, fused, reconstruct
 from awr_denoise.adapters import mitsuba_scenes
 from awr_denoise.adapters.mitsuba import MitsubaRenderer
 from awr_denoise.metrics import RELMSE_EPSILON, mse, relmse
@@ -475,6 +475,7 @@ def main(argv: list[str] | None = None) -> int:
                     "numpy": np.__version__, "mitsuba": version("mitsuba"), "drjit": version("drjit"),
                     "awr_denoise": version("awr-denoise")},
         "settings": {"relmse_eps": RELMSE_EPSILON, "variant": "llvm_ad_rgb", "seed": args.seed,
+                     "kernels": fused.backend(),  # AWR_DENOISE_KERNELS: the compiled loops or numpy's
                      "reference_pass_spp": REFERENCE_PASS_SPP, "timing": "wall clock, median of repeats",
                      "library_defaults": _defaults(),
                      "sampler_options": {name: value for name, value in (("round_growth", args.round_growth),
