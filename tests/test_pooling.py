@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
@@ -303,3 +305,19 @@ def test_the_default_and_a_round_of_requests_are_the_same_with_either_backend(rn
     image, counts = out["numpy"]
     assert_allclose(out["numba"][0], image, rtol=0, atol=1e-12 * np.abs(image).max())
     assert_array_equal(out["numba"][1], counts)
+
+
+@needs_numba
+def test_the_compiled_loop_runs_on_two_threads(rng):
+    """Two threads moderating at once (a 2-thread executor's channels or two samplers): each gets its own
+    result, the same as one thread's."""
+    buffers = []
+    for _ in range(4):
+        buf = _hit_or_zero(rng, shape=(60, 70), spp=2, p=0.1, channels=3)
+        buffers.append(SampleBuffer.from_moments(rng.integers(2, 40, buf.shape), buf.mean, buf.variance))
+    fused.set_backend("numba")
+    alone = [estimated_variance(b.count, b.mean, b.variance, b.variance_known) for b in buffers]
+    with ThreadPoolExecutor(2) as pool:
+        together = list(pool.map(lambda b: estimated_variance(b.count, b.mean, b.variance, b.variance_known), buffers))
+    for a, t in zip(alone, together):
+        assert_array_equal(t, a)
