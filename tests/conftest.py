@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import signal
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -27,6 +29,20 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(SEED)
+
+
+def _signals_at_default() -> None:
+    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(signum, signal.SIG_DFL)
+
+
+@pytest.fixture
+def signals_at_default() -> Callable[[], None]:
+    """A ``preexec_fn`` for a child process a test signals: SIGINT, SIGTERM and SIGHUP at their default
+    actions, as from a terminal. An ignored signal is inherited across ``exec``, and the command leaves an
+    ignored signal ignored: without this, a test run from a shell's background job (SIGINT ignored) or
+    under ``nohup`` (SIGHUP ignored) would see the command finish its work instead of stopping."""
+    return _signals_at_default
 
 
 def start_mitsuba():

@@ -114,14 +114,14 @@ _MESSAGES = {signal.SIGTERM: "awr: terminated", signal.SIGINT: "awr: interrupted
 @pytest.mark.slow
 @pytest.mark.skipif(os.name != "posix", reason="POSIX signals")
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
-def test_a_signal_while_the_command_loads_mitsuba_exits_with_one_line(tmp_path, signum, mi):
+def test_a_signal_while_the_command_loads_mitsuba_exits_with_one_line(tmp_path, signum, mi, signals_at_default):
     """``awr render --renderer mitsuba`` signalled at moments around Mitsuba's import (380-510 ms
     after its start on the development machine, where 3 of 28 runs died of SIGABRT or SIGSEGV)."""
     command = [sys.executable, "-c", "import sys; from awr_denoise.cli.main import main; sys.exit(main())",
                "render", "--renderer", "mitsuba", "cornell_box", "--spp", "256", "-o", "r.exr", "-q"]
     bad = []
     for ms in range(300, 620, 20):
-        proc = subprocess.Popen(command, cwd=tmp_path, stderr=subprocess.PIPE, text=True)
+        proc = subprocess.Popen(command, cwd=tmp_path, stderr=subprocess.PIPE, text=True, preexec_fn=signals_at_default)
         time.sleep(ms / 1000)
         proc.send_signal(signum)
         code = proc.wait(timeout=120)

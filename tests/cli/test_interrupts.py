@@ -36,11 +36,17 @@ pytestmark = [pytest.mark.exr,
               pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/PID/maps")]
 
 
+def _as_from_a_terminal() -> None:
+    """The terminating signals at their default actions: a shell's background job ignores SIGINT and ``nohup``
+    SIGHUP, the child inherits that, and the command leaves an ignored signal ignored (conftest's
+    ``signals_at_default``, for the helpers here that take no fixtures)."""
+    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(signum, signal.SIG_DFL)
+
+
 def _start(args, cwd: Path, **kwargs) -> subprocess.Popen:
-    # As from a terminal: SIGINT at its default (a background job of a shell ignores it).
     return subprocess.Popen([*awr_command(), *map(str, args)], cwd=cwd, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL), **kwargs)
+                            stderr=subprocess.PIPE, text=True, preexec_fn=_as_from_a_terminal, **kwargs)
 
 
 def _wait_for(proc: subprocess.Popen, ready, timeout: float = 60.0) -> None:
@@ -150,7 +156,7 @@ def test_a_second_signal_ends_a_process_whose_line_nobody_reads(work):
             os.write(write_end, b"x" * 4096)
     os.set_blocking(write_end, True)
     proc = subprocess.Popen([*awr_command(), "info", "d.exr"], cwd=work.root, stdout=subprocess.DEVNULL,
-                            stderr=write_end)
+                            stderr=write_end, preexec_fn=_as_from_a_terminal)
     try:
         _wait_for(proc, lambda: _mapped(proc, "_multiarray_umath"))
         proc.send_signal(signal.SIGTERM)

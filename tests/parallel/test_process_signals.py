@@ -59,7 +59,8 @@ def _wait_for(condition, seconds: float) -> bool:
     ("SIGHUP", 129, "awr: hung up", (0.2,)),
     ("SIGTERM", 143, "awr: terminated", (0.2,)),
 ])
-def test_a_signal_to_the_group_while_the_workers_start_ends_the_command_cleanly(tmp_path, name, status, line, waits):
+def test_a_signal_to_the_group_while_the_workers_start_ends_the_command_cleanly(tmp_path, name, status, line, waits,
+                                                                             signals_at_default):
     """Ctrl-C at a terminal signals the whole process group. In the second a spawned worker spends
     importing the package, each worker printed a KeyboardInterrupt traceback (SIGTERM and SIGHUP killed
     it), the pool broke under the parent's cleanup ("InvalidStateError: CANCELLED") and the command
@@ -70,7 +71,7 @@ def test_a_signal_to_the_group_while_the_workers_start_ends_the_command_cleanly(
         folder = tmp_path / f"{name}-{wait}"
         folder.mkdir()
         proc = subprocess.Popen([sys.executable, "-c", _AWR, *_RENDER], cwd=folder, stderr=subprocess.PIPE,
-                                text=True, start_new_session=True)
+                                text=True, start_new_session=True, preexec_fn=signals_at_default)
         try:
             # The workers are spawned at the first tile; a signal sent then meets them importing.
             assert _wait_for(lambda: bool(_workers(proc.pid)) or proc.poll() is not None, 60)
