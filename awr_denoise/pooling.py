@@ -134,9 +134,13 @@ def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
         return out
     loop = _compiled_moderation() if fused.backend() == "numba" else None
     if loop is not None:
-        with np.errstate(over="ignore"):  # a level past float64 over g is a chance of 0
-            chance = _chance(s2, mean, g)  # at level 0, for every entry at 0 (numpy's, as the reference's)
-        loop(todo, count, mean, s2, dof, g, chance, float(prior), out)
+        # Many entries (more window visits than values in the image: an adaptive run's scattered counts) read the
+        # chances at level 0 from one plane taken by numpy; few take each where they visit (the same floats).
+        chance0 = s2[:0]
+        if np.count_nonzero(todo) * POOL_WINDOW**2 >= s2.size:
+            with np.errstate(over="ignore"):  # a level past float64 over g is a chance of 0
+                chance0 = _chance(s2, mean, g)
+        loop(todo, count, mean, s2, dof, g, chance0, float(prior), out)
         return out
     rows, cols, chans = np.nonzero(todo)
     local = _gathered_local(count, mean, g, s2, dof, (rows, cols, chans))
@@ -233,13 +237,14 @@ def _gathered_local(count: CountArray, mean: FloatArray, g: float, s2: FloatArra
 def _moderation_loop(todo, count, mean, s2, dof, g, chance0, prior, out):  # pragma: no cover (compiled)
     """:func:`agreed_variance`'s offset-by-offset moderation of the entries ``todo``, written into ``out``, compiled
     by numba (``AWR_DENOISE_KERNELS=numba``): :func:`_gathered_local`'s sums entry by entry, offsets in its order,
-    the edge pixel past an edge; ``chance0`` the chances at level 0.
+    the edge pixel past an edge; ``chance0`` the chances at level 0 as a plane, or empty.
 
     Where numpy loops over 25 offsets with whole arrays of entries (and entries at 0 from the spread pixels
-    outward), this reads each neighbour where it is and takes a power only where the chance is strictly between
-    0 and 1 (a spread neighbour): ``z**n`` by repeated squaring for counts up to :data:`_SQUARING`, else
-    ``exp(n log z)`` and ``**`` from the C library. The values agree with numpy's to rounding (a few units of
-    the last place), not bit for bit (tests/test_pooling.py runs both on every case)."""
+    outward), this reads each neighbour where it is, takes its chance there (:func:`_chance`'s operations, the
+    same floats) unless ``chance0`` holds it, and a power only where the chance is strictly between 0 and 1 (a
+    spread neighbour): ``z**n`` by repeated squaring for counts up to :data:`_SQUARING`, else ``exp(n log z)``
+    and ``**`` from the C library. The values agree with numpy's to rounding (a few units of the last place),
+    not bit for bit (tests/test_pooling.py runs both on every case)."""
     h, w, channels = s2.shape
     r = POOL_WINDOW // 2
     for y in range(h):
@@ -256,7 +261,7 @@ def _moderation_loop(todo, count, mean, s2, dof, g, chance0, prior, out):  # pra
                     yy = min(max(y + dy, 0), h - 1)
                     for dx in range(-r, r + 1):
                         xx = min(max(x + dx, 0), w - 1)
-                        if level == 0.0:
+                        if level == 0.0 and chance0.shape[0]:
                             z = chance0[yy, xx, c]
                         else:
                             gap = abs(mean[yy, xx, c] - level) / g  # past float64: inf, a chance of 0 (as _chance)
