@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -321,3 +322,27 @@ def test_the_compiled_loop_runs_on_two_threads(rng):
         together = list(pool.map(lambda b: estimated_variance(b.count, b.mean, b.variance, b.variance_known), buffers))
     for a, t in zip(alone, together):
         assert_array_equal(t, a)
+
+
+@needs_numba
+def test_the_compiled_loops_chances_where_it_visits_are_numpys_plane(rng):
+    """The compiled loop takes the chances at level 0 from numpy's plane (many entries) or where it visits
+    (few): the same operations, the same floats, bit for bit, at ordinary and at extreme scales."""
+    buf = _hit_or_zero(rng, shape=(30, 40), spp=2, p=0.2, channels=3)
+    count = rng.integers(2, 80, buf.shape)
+    for scale in (1.0, 1e-150, 1e150):
+        mean, variance = buf.mean * scale, buf.variance * scale**2
+        variance[0, :5] = 1e-300  # spreads far below the means: gaps past float64 over g
+        known = count >= 2
+        todo = known[..., None] & (variance == 0)
+        g = math.ldexp(1.0, math.frexp(math.sqrt(float(variance.max())))[1])
+        s2 = variance / g / g
+        dof = np.where(known, count - 1, 0).astype(np.float64)
+        dof /= dof.max()
+        loop = pooling._compiled_moderation()
+        out = []
+        for chance0 in (np.zeros((0, 0, 0)), pooling._chance(s2, mean, g)):
+            out.append(np.zeros_like(variance))
+            loop(todo, count, mean, s2, dof, g, chance0, 1.0, out[-1])
+        assert_array_equal(out[0], out[1])
+        assert (out[0][todo] > 0).mean() > 0.3
