@@ -364,6 +364,35 @@ def test_a_staging_directory_of_a_nested_writer_is_still_cleaned(tmp_path):
     assert not dead.exists()
 
 
+def test_a_killed_writers_probe_leaves_its_staging_directory_removable(tmp_path):
+    """SIGKILL between ``check_writable``'s probe and its removal, while a temporary was checked inside the
+    staging directory: the probe stayed there, the directory no longer held only what a staging directory
+    holds, and no later run removed it (seen once in 40 runs of `awr denoise --frames` killed under load)."""
+    dead = tmp_path / f"{STAGING_PREFIX}0123456789.tmp"
+    dead.mkdir()
+    (dead / "lock").write_bytes(b"")
+    (dead / "3.exr").write_bytes(b"partial")
+    (dead / ".awr-probe-n3ytb2n0.tmp").write_bytes(b"")
+    assert remove_stale_temporaries(tmp_path) == [dead]
+    assert not dead.exists()
+
+
+def test_probes_a_killed_process_left_are_removed_once_stale(tmp_path):
+    """An empty probe untouched for STALE_AFTER is a killed process's; a fresh one may be a live writer's (removing
+    it would fail that write), and a file of data, a folder or another name is not a probe of ours."""
+    past = time.time() - STALE_AFTER - 10
+    stale, fresh, full = (tmp_path / f".awr-probe-{k}.tmp" for k in ("ab_c1234", "zz9_8765", "q1w2e3r4"))
+    notes, folder = tmp_path / ".awr-probe-notes.tmp", tmp_path / ".awr-probe-f0lder00.tmp"
+    for path in (stale, fresh, notes):
+        path.write_bytes(b"")
+    full.write_bytes(b"data")
+    folder.mkdir()
+    for path in (stale, full, notes, folder):
+        os.utime(path, (past, past))
+    assert remove_stale_temporaries(tmp_path) == [stale]
+    assert not stale.exists() and fresh.exists() and full.exists() and notes.exists() and folder.exists()
+
+
 def test_a_backup_of_a_replaced_file_is_never_removed(tmp_path):
     # SIGKILL between two moves of a commit: out.exr new, out.png old, and the old out.exr only as
     # the backup, which the next write into the folder removed.

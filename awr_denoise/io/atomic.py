@@ -17,7 +17,10 @@ older than :data:`STALE_AFTER` seconds; staging directories of live writers (ano
 writing into the same folder of a render farm) stay locked and are left alone. The lock file
 names its host, and only staging directories of this host are judged by their lock (a
 network mount may not share locks between hosts): another host's leftovers wait for a run
-on that host. On file systems without working locks nothing is removed.
+on that host. On file systems without working locks nothing is removed. A writability probe
+(``.awr-probe-*.tmp``, empty, made and removed by :func:`check_writable`) that a killed process
+left goes with its dead writer's staging directory, or, in a target's folder, once older than
+:data:`STALE_AFTER`.
 
 Outputs must be regular files, or not exist: a FIFO, a device, a socket or a directory is
 refused even with ``overwrite=True`` (writing "over" ``/dev/null`` as root would replace it).
@@ -67,7 +70,11 @@ _LOCK = "lock"
 # staging directory of a writer that stages again inside it.
 _STAGING_NAME = re.compile(r"\.awr-[0-9a-f]{10}\.tmp\Z")
 _LOCK_FLAGS = os.O_RDWR | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
-_STAGED_NAME = re.compile(r"(lock|lock\.new|[0-9]+(\.[^/]{1,16})?(\.old)?)\Z", re.DOTALL)
+_STAGED_NAME = re.compile(r"(lock|lock\.new|[0-9]+(\.[^/]{1,16})?(\.old)?|\.awr-probe-[a-z0-9_]{8}\.tmp)\Z",
+                          re.DOTALL)
+# check_writable's probe (tempfile.mkstemp's 8 random characters): a process killed between its creation and
+# its removal leaves it, empty, in a staging directory (which must stay removable) or in a target's folder.
+_PROBE_NAME = re.compile(r"\.awr-probe-[a-z0-9_]{8}\.tmp\Z")
 _HOST = socket.gethostname()[:200]  # written into the lock file: whose lock it is
 _MAX_SUFFIX = 16  # longer "suffixes" are not file types; the temporary goes without one
 
@@ -392,6 +399,9 @@ def remove_stale_temporaries(directory: str | os.PathLike[str]) -> list[Path]:
     except OSError:
         return removed
     for entry in entries:
+        if _PROBE_NAME.match(entry.name):
+            _remove_stale_probe(entry, removed)
+            continue
         if not _STAGING_NAME.match(entry.name):
             continue
         try:
@@ -423,6 +433,16 @@ def remove_stale_temporaries(directory: str | os.PathLike[str]) -> list[Path]:
         finally:
             os.close(fd)
     return removed
+
+
+def _remove_stale_probe(entry: os.DirEntry, removed: list[Path]) -> None:
+    """Remove a writability probe a killed process left: an empty regular file of the probe's name, untouched for
+    :data:`STALE_AFTER` (a live one exists for microseconds; removing it under its writer would fail that write)."""
+    with contextlib.suppress(OSError):
+        st = entry.stat(follow_symlinks=False)
+        if stat.S_ISREG(st.st_mode) and st.st_size == 0 and time.time() - st.st_mtime > STALE_AFTER:
+            os.unlink(entry.path)
+            removed.append(Path(entry.path))
 
 
 def _holds_only_staged_files(path: str, depth: int = 0) -> bool:
