@@ -36,7 +36,8 @@ import numpy as np
 
 from ._typing import FloatArray
 
-__all__ = ["BACKENDS", "available", "backend", "set_backend", "compile_loop", "log_plane", "shrink_band", "finish_plane"]
+__all__ = ["BACKENDS", "available", "backend", "set_backend", "compile_loop", "log_plane", "shrink_band",
+           "finish_plane"]
 
 BACKENDS = ("numpy", "numba")
 """The implementations: ``"numpy"`` (the reference, always there) and ``"numba"`` (extra ``fast``)."""

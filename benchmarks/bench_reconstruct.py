@@ -793,7 +793,8 @@ def agreed_speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
                          lambda b=buffer: partial(_held_exact, AdaptiveSampler.from_buffer(b, round=1).ask)}
             if compiled:
                 cases["moderation, compiled"] = lambda m=moderate: partial(_compiled, m)
-                cases["ask(), compiled"] = lambda b=buffer: partial(_compiled, AdaptiveSampler.from_buffer(b, round=1).ask)
+                cases["ask(), compiled"] = lambda b=buffer: partial(_compiled,
+                                                                    AdaptiveSampler.from_buffer(b, round=1).ask)
             seconds: dict[str, list[float]] = {name: [] for name in cases}
             names = list(cases)
             for round_ in range(1 + (repeats or (3 if size == "1080p" else 9))):

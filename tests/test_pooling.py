@@ -250,7 +250,8 @@ def test_counts_past_the_compiled_loops_squaring_match_the_definition(rng, top):
     count = rng.integers(max(2, top - 20), top + 1, shape)
     level = np.where(rng.random(shape + (2,)) < 0.5, 0.0, 2.5)
     spread = rng.random(shape + (2,)) < 0.4
-    gap = np.where(rng.random(shape + (2,)) < 0.5, rng.uniform(1e-7, 2e-6, shape + (2,)), rng.uniform(0.1, 1.0, shape + (2,)))
+    gap = np.where(rng.random(shape + (2,)) < 0.5, rng.uniform(1e-7, 2e-6, shape + (2,)),
+                   rng.uniform(0.1, 1.0, shape + (2,)))
     mean = level + spread * gap
     variance = spread * rng.uniform(0.5, 2.0, shape + (2,))
     got = agreed_variance(count, mean, variance, count >= 2)
