@@ -367,7 +367,8 @@ def test_a_staging_directory_of_a_nested_writer_is_still_cleaned(tmp_path):
 def test_a_killed_writers_probe_leaves_its_staging_directory_removable(tmp_path):
     """SIGKILL between ``check_writable``'s probe and its removal, while a temporary was checked inside the
     staging directory: the probe stayed there, the directory no longer held only what a staging directory
-    holds, and no later run removed it (seen once in 40 runs of `awr denoise --frames` killed under load)."""
+    holds, and no later run removed it (seen when `awr denoise --frames` was killed, now and then, on a loaded
+    machine: tests/cli/test_interrupts.py's killed run)."""
     dead = tmp_path / f"{STAGING_PREFIX}0123456789.tmp"
     dead.mkdir()
     (dead / "lock").write_bytes(b"")
