@@ -14,12 +14,13 @@ import re
 import threading
 from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 __all__ = ["MAX_SEED", "MAX_SPP", "MAX_SIDE", "MAX_LEVELS", "scalar", "described", "real", "whole", "whole_text",
-           "whole_option", "flag",
+           "whole_option", "path_option", "flag",
            "seed", "shape2d", "name", "tile", "executor", "indices", "same_channels"]
 
 MAX_SEED = 2**63 - 1
@@ -172,6 +173,21 @@ def whole_option(*, minimum: int | None = None, maximum: int | None = None,
 
     parse.__name__ = name
     return parse
+
+
+def path_option(text: str) -> Path:
+    """An argparse type: a path, not empty (``''``, or spaces, would quietly mean the working directory).
+
+    Examples
+    --------
+    >>> parser = argparse.ArgumentParser()
+    >>> _ = parser.add_argument("--out", type=path_option)
+    >>> str(parser.parse_args(["--out", "renders"]).out)
+    'renders'
+    """
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty path (give . for this folder)")
+    return Path(text)
 
 
 def flag(param: str, value: Any) -> bool:

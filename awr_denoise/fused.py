@@ -16,7 +16,8 @@ The numpy reference is the default: importing numba and loading the compiled cod
 half a second per process, which only a process that runs stage 1 many times, or on very large
 frames, wins back (a render loop, a sequence, a server; the default reconstruction spends a few
 percent of its time in stage 1). ``AWR_DENOISE_KERNELS=numba`` in the environment, or
-:func:`set_backend`, chooses the compiled kernels; :func:`backend` names the one in use.
+:func:`set_backend` (or :func:`using`, for a ``with`` block), chooses the compiled kernels;
+:func:`backend` names the one in use.
 
 The same choice runs one loop of another module compiled (:func:`compile_loop` compiles it with these
 kernels' policy): the moderation of samples that all agreed, at an adaptive run's scattered counts
@@ -26,9 +27,10 @@ numpy reference to rounding rather than bit for bit (tests/test_pooling.py).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from functools import lru_cache
 from types import SimpleNamespace
 
@@ -36,7 +38,7 @@ import numpy as np
 
 from ._typing import FloatArray
 
-__all__ = ["BACKENDS", "available", "backend", "set_backend", "compile_loop", "log_plane", "shrink_band",
+__all__ = ["BACKENDS", "available", "backend", "set_backend", "using", "compile_loop", "log_plane", "shrink_band",
            "finish_plane"]
 
 BACKENDS = ("numpy", "numba")
@@ -59,6 +61,26 @@ def set_backend(name: str | None) -> None:
     """
     global _chosen
     _chosen = None if name is None else _runnable(name, "backend")
+
+
+@contextlib.contextmanager
+def using(name: str | None) -> Iterator[None]:
+    """:func:`set_backend` ``name`` inside the ``with`` block, then the choice made before it again.
+
+    Examples
+    --------
+    >>> from awr_denoise import fused
+    >>> with fused.using("numpy"):
+    ...     fused.backend()
+    'numpy'
+    """
+    global _chosen
+    before = _chosen
+    set_backend(name)
+    try:
+        yield
+    finally:
+        _chosen = before
 
 
 def backend() -> str:

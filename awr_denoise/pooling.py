@@ -234,6 +234,11 @@ def _gathered_local(count: CountArray, mean: FloatArray, g: float, s2: FloatArra
     return num / den
 
 
+_SQUARING = 64
+"""Counts up to which the compiled moderation takes ``z**n`` by repeated squaring (relative error at most about
+``n`` float64 epsilons, the size of ``exp(n log z)``'s); above, ``exp`` keeps the error from growing with ``n``."""
+
+
 def _moderation_loop(todo, count, mean, s2, dof, g, chance0, prior, out):  # pragma: no cover (compiled)
     """:func:`agreed_variance`'s offset-by-offset moderation of the entries ``todo``, written into ``out``, compiled
     by numba (``AWR_DENOISE_KERNELS=numba``): :func:`_gathered_local`'s sums entry by entry, offsets in its order,
@@ -288,11 +293,6 @@ def _moderation_loop(todo, count, mean, s2, dof, g, chance0, prior, out):  # pra
                         a += weight * s2[yy, xx, c]
                         b += weight
                 out[y, x, c] = prior * (a / b) * g * g / (k - 1.0 + prior)
-
-
-_SQUARING = 64
-"""Counts up to which the compiled moderation takes ``z**n`` by repeated squaring (relative error at most about
-``n`` float64 epsilons, the size of ``exp(n log z)``'s); above, ``exp`` keeps the error from growing with ``n``."""
 
 
 @lru_cache(maxsize=1)

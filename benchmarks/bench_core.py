@@ -114,12 +114,9 @@ def _cases(buf, pool: ThreadPoolExecutor | None) -> dict:
 
 
 def _with_kernels(name: str, fn, *args, **kwargs):
-    """``fn(*args, **kwargs)`` with the fused kernels' ``name`` backend, then the environment's again."""
-    fused.set_backend(name)
-    try:
+    """``fn(*args, **kwargs)`` with the fused kernels' ``name`` backend, then the choice before again."""
+    with fused.using(name):
         return fn(*args, **kwargs)
-    finally:
-        fused.set_backend(None)
 
 
 def _interleaved(cases: dict, repeats: int) -> dict:

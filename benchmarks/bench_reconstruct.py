@@ -823,12 +823,9 @@ def _gathered_only(run: Any) -> Any:
 
 
 def _compiled(run: Any) -> Any:
-    """``run()`` with the compiled kernels (``fused.set_backend("numba")``), then the environment's again."""
-    fused.set_backend("numba")
-    try:
+    """``run()`` with the compiled kernels (``fused.using("numba")``)."""
+    with fused.using("numba"):
         return run()
-    finally:
-        fused.set_backend(None)
 
 
 def _held_exact(run: Any) -> Any:

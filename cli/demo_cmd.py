@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from awr_denoise import reconstruct
+from awr_denoise._checks import path_option
 from awr_denoise.io import provenance, write_image, write_preview
 from awr_denoise.metrics import mse, relmse
 from awr_denoise.reconstruct import DEFAULT_PILOT_C_S
@@ -22,7 +23,7 @@ from awr_denoise.io.atomic import OutputSet
 from .errors import shown
 from .common import EXIT_OK, UsageError, print_json, status
 from .paths import PathPlan
-from .values import MAX_EXPOSURE, MAX_SEED, MAX_SPP, folder, real, whole
+from .values import MAX_EXPOSURE, MAX_SEED, MAX_SPP, real, whole
 from .render_cmd import TRACER, default_scene, render_buffer, tracer_module
 
 __all__ = ["register", "run"]
@@ -40,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=whole(minimum=0, maximum=MAX_SEED - 1), default=0)
     p.add_argument("--c-s", type=real(minimum=0), default=DEFAULT_PILOT_C_S,
                    help="threshold of the reconstruction's first stage (Eq. 11; default %(default)g)")
-    p.add_argument("--out", type=folder, default="out", metavar="DIR",
+    p.add_argument("--out", type=path_option, default="out", metavar="DIR",
                    help="output directory (default out/); the demo replaces its own files there")
     p.add_argument("--exposure", type=real(minimum=-MAX_EXPOSURE, maximum=MAX_EXPOSURE), default=0.0,
                    help="preview exposure in stops")

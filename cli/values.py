@@ -19,7 +19,7 @@ from awr_denoise.wavelets import WAVELET_NAMES
 from .errors import UsageError
 
 __all__ = ["MAX_SPP", "MAX_SEED", "MAX_PIXELS", "MAX_SIDE", "MAX_LEVELS", "MAX_EXPOSURE", "MAX_FRAMES",
-           "real", "whole", "image_size", "check_pixels", "wavelet_name", "feature_list", "folder"]
+           "real", "whole", "image_size", "check_pixels", "wavelet_name", "feature_list"]
 
 MAX_SPP = _checks.MAX_SPP
 """Samples per pixel: counts are stored as float32, exact up to 2**24."""
@@ -118,10 +118,3 @@ def feature_list(text: str) -> tuple[str, ...]:
     if not names:
         raise argparse.ArgumentTypeError(f"no feature named in {text!r} (albedo, normal, depth or all)")
     return names
-
-
-def folder(text: str) -> str:
-    """A folder to write into, not empty: ``''`` quietly meant the working directory."""
-    if not text.strip():
-        raise argparse.ArgumentTypeError("an empty folder name (give . for this folder)")
-    return text

@@ -189,3 +189,16 @@ def test_kernels_compile_without_a_writable_cache(monkeypatch, restore_backend):
         assert_array_equal(coeff, [-2.0, 0.0])
     finally:
         fused._compiled.cache_clear()
+
+
+def test_using_puts_back_the_choice_made_before_it_even_when_the_block_raises(restore_backend):
+    fused.set_backend("numpy")
+    with pytest.raises(ZeroDivisionError):
+        with fused.using(fused.available()[-1]):
+            assert fused.backend() == fused.available()[-1]
+            1 / 0
+    assert fused._chosen == "numpy"
+    fused.set_backend(None)
+    with fused.using("numpy"):
+        pass
+    assert fused._chosen is None  # the environment's choice again, not "numpy"

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import signal
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -392,6 +393,14 @@ def test_probes_a_killed_process_left_are_removed_once_stale(tmp_path):
         os.utime(path, (past, past))
     assert remove_stale_temporaries(tmp_path) == [stale]
     assert not stale.exists() and fresh.exists() and full.exists() and notes.exists() and folder.exists()
+
+
+def test_the_probes_check_writable_makes_are_the_names_cleaned_up(tmp_path):
+    """The cleanup knows probes by the names ``tempfile.mkstemp`` gives them: checked on the names it makes here."""
+    for _ in range(20):
+        fd, probe = tempfile.mkstemp(prefix=atomic._PROBE_PREFIX, suffix=atomic._PROBE_SUFFIX, dir=tmp_path)
+        os.close(fd)
+        assert atomic._PROBE_NAME.match(os.path.basename(probe)), probe
 
 
 def test_a_backup_of_a_replaced_file_is_never_removed(tmp_path):

@@ -20,9 +20,8 @@ needs_numba = pytest.mark.skipif(fused._compiled() is None, reason="numba is not
 def kernels(request):
     """Every test with each backend: numpy's offset-by-offset moderation (the reference) and the compiled loop
     (``AWR_DENOISE_KERNELS=numba``), each against the pixel-by-pixel definition below."""
-    fused.set_backend(request.param)
-    yield request.param
-    fused.set_backend(None)
+    with fused.using(request.param):
+        yield request.param
 
 
 def _reference(count, mean, variance, known, prior=AGREED_PRIOR):

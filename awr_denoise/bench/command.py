@@ -9,20 +9,13 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from .._checks import MAX_SPP, whole_option
+from .._checks import MAX_SPP, path_option, whole_option
 from .config import OVERHEAD_SIZES, BenchmarkConfig
 from .runner import run_benchmark
 
 __all__ = ["DESCRIPTION", "add_arguments", "config_from_args", "run_from_args", "main"]
 
 _SIDES = (16, 2**14)  # smaller images leave the crops and the c_s sweep nothing to show
-
-def _path(text: str) -> Path:
-    """An argparse type: a path, not empty (``''`` would quietly mean the working directory)."""
-    if not text.strip():
-        raise argparse.ArgumentTypeError("an empty path")
-    return Path(text)
-
 
 DESCRIPTION = "The speed/accuracy benchmark on the bundled path-traced scenes (``awr bench``)."
 """One-line description of ``python -m awr_denoise.bench``."""
@@ -49,9 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """
     parser.add_argument("--quick", action="store_true", help="fewer sample counts, seeds and sizes (a few minutes)")
     parser.add_argument("--scenes", nargs="+", metavar="SCENE", default=None, help="bundled scenes (default: all)")
-    parser.add_argument("--output-dir", type=_path, default=Path("docs"),
+    parser.add_argument("--output-dir", type=path_option, default=Path("docs"),
                         help="where benchmarks.md and img/ go (default: docs)")
-    parser.add_argument("--results", type=_path, default=None,
+    parser.add_argument("--results", type=path_option, default=None,
                         help="JSON output (default: benchmarks/results/quality.json beside the output dir)")
     parser.add_argument("--reference-spp", type=whole_option(minimum=1, maximum=MAX_SPP), default=None,
                         help="re-render references below this spp with the tracer, replacing the cached ones "

@@ -70,11 +70,13 @@ _LOCK = "lock"
 # staging directory of a writer that stages again inside it.
 _STAGING_NAME = re.compile(r"\.awr-[0-9a-f]{10}\.tmp\Z")
 _LOCK_FLAGS = os.O_RDWR | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
-_STAGED_NAME = re.compile(r"(lock|lock\.new|[0-9]+(\.[^/]{1,16})?(\.old)?|\.awr-probe-[a-z0-9_]{8}\.tmp)\Z",
-                          re.DOTALL)
-# check_writable's probe (tempfile.mkstemp's 8 random characters): a process killed between its creation and
-# its removal leaves it, empty, in a staging directory (which must stay removable) or in a target's folder.
-_PROBE_NAME = re.compile(r"\.awr-probe-[a-z0-9_]{8}\.tmp\Z")
+# check_writable's probe, named by tempfile.mkstemp (8 random characters between these): a process killed between
+# its creation and its removal leaves it, empty, in a staging directory (which must stay removable) or in a
+# target's folder.
+_PROBE_PREFIX, _PROBE_SUFFIX = ".awr-probe-", ".tmp"
+_PROBE = re.escape(_PROBE_PREFIX) + "[a-z0-9_]{8}" + re.escape(_PROBE_SUFFIX)
+_PROBE_NAME = re.compile(_PROBE + r"\Z")
+_STAGED_NAME = re.compile(rf"(lock|lock\.new|[0-9]+(\.[^/]{{1,16}})?(\.old)?|{_PROBE})\Z", re.DOTALL)
 _HOST = socket.gethostname()[:200]  # written into the lock file: whose lock it is
 _MAX_SUFFIX = 16  # longer "suffixes" are not file types; the temporary goes without one
 
@@ -261,7 +263,7 @@ def check_writable(path: str | os.PathLike[str], *, overwrite: bool) -> Path:
     if not os.access(parent, os.W_OK | os.X_OK):
         raise ValueError(f"{name}: directory {parent} is not writable")
     try:  # os.access answers for permissions only: /proc and /sys say yes to root, then refuse every file
-        fd, probe = tempfile.mkstemp(prefix=".awr-probe-", suffix=".tmp", dir=parent)
+        fd, probe = tempfile.mkstemp(prefix=_PROBE_PREFIX, suffix=_PROBE_SUFFIX, dir=parent)
         os.close(fd)
         os.unlink(probe)
     except OSError as exc:
