@@ -100,27 +100,30 @@ def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
     True
     """
     prior = _checks.real("prior", AGREED_PRIOR if prior is None else prior, minimum=0.0)
-    agreed = known[..., None] & (variance == 0)
+    agreed = _in_pixels(variance == 0, known)
     if not prior or not agreed.any():
         return variance
-    # Only entries with a spread neighbour can borrow anything: a region that all agreed stays 0.
-    todo = agreed & ndimage.maximum_filter(known[..., None] & (variance > 0), size=(POOL_WINDOW, POOL_WINDOW, 1),
-                                           mode="nearest")
-    if not todo.any():
+    # Only entries with a spread neighbour (known, two or more samples, a variance above 0) can borrow anything:
+    # a region that all agreed stays 0.
+    dof = np.where(known, count - 1, 0).astype(np.float64)
+    spread = _in_pixels(variance > 0, dof > 0)
+    todo = agreed & _near(spread)
+    entries = np.count_nonzero(todo)
+    if not entries:
         return variance
     # Means and standard deviations over one power of two near the largest deviation: exact, no overflow.
     g = math.ldexp(1.0, math.frexp(math.sqrt(float(variance.max())))[1])
     s2 = variance / g
     s2 /= g  # in place: at 1080p every whole temporary costs its page faults on each ask()
-    dof = np.where(known, count - 1, 0).astype(np.float64)
     dof /= dof.max()
     out = np.array(variance)
     # Pixels of one count whose samples all missed (0) share their neighbours' weights, channel by channel:
     # where many are (a black background, hits now and then), two window sums over the plane instead of
     # 25 gathers per entry.
-    for c in range(variance.shape[2]):
+    often = -(-count.size // 16)
+    for c in range(variance.shape[2]) if entries >= often else ():  # fewer entries in all: no count is frequent
         missed = todo[..., c] & (mean[..., c] == 0)
-        big = _frequent(count[missed], -(-count.size // 16))
+        big = _frequent(count[missed], often)
         if big.size:
             with np.errstate(over="ignore"):  # a level past float64 over g is a chance of 0
                 chance = _chance(s2[..., c], mean[..., c], g)
@@ -137,13 +140,13 @@ def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
         # Many entries (more window visits than values in the image: an adaptive run's scattered counts) read the
         # chances at level 0 from one plane taken by numpy; few take each where they visit (the same floats).
         chance0 = s2[:0]
-        if np.count_nonzero(todo) * POOL_WINDOW**2 >= s2.size:
+        if np.count_nonzero(todo) * POOL_WINDOW**2 >= s2.size:  # todo as the groups above left it
             with np.errstate(over="ignore"):  # a level past float64 over g is a chance of 0
                 chance0 = _chance(s2, mean, g)
         loop(todo, count, mean, s2, dof, g, chance0, float(prior), out)
         return out
-    rows, cols, chans = np.nonzero(todo)
-    local = _gathered_local(count, mean, g, s2, dof, (rows, cols, chans))
+    rows, cols, chans = _nonzero(todo)
+    local = _gathered_local(count, mean, g, s2, dof, (rows, cols, chans), np.count_nonzero(spread))
     out[rows, cols, chans] = prior * local * g * g / (count[rows, cols] - 1.0 + prior)
     return out
 
@@ -160,18 +163,18 @@ def _frequent(values: CountArray, times: int) -> CountArray:
 
 
 def _gathered_local(count: CountArray, mean: FloatArray, g: float, s2: FloatArray, dof: FloatArray,
-                    where: tuple) -> FloatArray:
+                    where: tuple, spread: int) -> FloatArray:
     """:func:`agreed_variance`'s ``s2_local`` at the entries ``where`` (``s2`` the variances over ``g^2``), window
     offset by window offset: flat indices of each neighbour, the edge pixel past an edge (as ``mode="nearest"``);
     entries at 0 that outnumber the spread pixels by :data:`_SCATTER_SHARE`, from those outward
-    (:func:`_scattered_at_zero`)."""
+    (:func:`_scattered_at_zero`); ``spread`` the number of spread entries (known, ``dof`` and variance above 0)."""
     rows, cols, chans = where
     level = mean[where]
     num, den = np.zeros(rows.size), np.zeros(rows.size)
     # Where many missed beside few spread pixels (an adaptive run's scattered counts), the powers are taken once
     # per spread neighbour and entry, not 25 times per entry.
     at_zero = level == 0
-    scatter = at_zero.any() and at_zero.sum() >= _SCATTER_SHARE * np.count_nonzero((s2 > 0) & (dof > 0)[..., None])
+    scatter = at_zero.any() and at_zero.sum() >= _SCATTER_SHARE * spread
     if scatter:
         num[at_zero], den[at_zero] = _scattered_at_zero(count, mean, g, s2, dof,
                                                         (rows[at_zero], cols[at_zero], chans[at_zero]))
@@ -331,9 +334,9 @@ def _scattered_at_zero(count: CountArray, mean: FloatArray, g: float, s2: FloatA
     # Spread neighbours (known, s2 > 0) within the window of an entry.
     reach = np.zeros((h + 2 * r, w + 2 * r, channels), dtype=bool)
     reach[rows + r, cols + r, chans] = True
-    reach = ndimage.maximum_filter(reach, size=(POOL_WINDOW, POOL_WINDOW, 1), mode="constant")
-    reach &= np.pad((s2 > 0) & (dof > 0)[..., None], pad, mode="edge")
-    sr, sc, sch = np.nonzero(reach)
+    reach = _near(reach)
+    reach &= np.pad(_in_pixels(s2 > 0, dof > 0), pad, mode="edge")
+    sr, sc, sch = _nonzero(reach)
     width = w + 4 * r
     at = ((sr + r) * width + (sc + r)) * channels + sch
     sr, sc = np.clip(sr - r, 0, h - 1, out=sr), np.clip(sc - r, 0, w - 1, out=sc)  # the pixel each place repeats
@@ -367,6 +370,36 @@ def _chance(s2: FloatArray, mean: FloatArray, g: float, level: FloatArray | floa
     np.divide(s2, total, out=total, where=positive)
     total[~positive] = 1.0
     return total
+
+
+def _in_pixels(plane: BoolArray, pixels: BoolArray) -> BoolArray:
+    """``plane & pixels[..., None]``, written into ``plane``: channel by channel (numpy's broadcast of a last axis
+    of 3 loops 3 entries at a time, twice as long at 1080p), and nothing to do where every pixel is in."""
+    if not pixels.all():
+        for c in range(plane.shape[2]):
+            plane[..., c] &= pixels
+    return plane
+
+
+def _nonzero(mask: BoolArray) -> tuple[np.ndarray, ...]:
+    """``np.nonzero(mask)`` by one flat scan and a division: of a 3-D mask at 1080p, numpy's takes 15 times as long."""
+    return np.unravel_index(np.flatnonzero(mask), mask.shape)
+
+
+def _near(mask: BoolArray) -> BoolArray:
+    """True where the :data:`POOL_WINDOW` square around a pixel (rows and columns; cut at the edges) holds a True:
+    ``ndimage.maximum_filter`` of a boolean, with either edge mode, as ORs of shifted slices, row then column.
+    scipy's filter takes several times as long on a 1080p plane, and an adaptive round runs it on every ``ask()``."""
+    r = POOL_WINDOW // 2
+    down = mask.copy()
+    for d in range(1, r + 1):
+        down[d:] |= mask[:-d]
+        down[:-d] |= mask[d:]
+    near = down.copy()
+    for d in range(1, r + 1):
+        near[:, d:] |= down[:, :-d]
+        near[:, :-d] |= down[:, d:]
+    return near
 
 
 def _window_sum(a: FloatArray) -> FloatArray:

@@ -8,6 +8,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
+from scipy import ndimage
 
 from awr_denoise import AdaptiveSampler, SampleBuffer, fused, pooling, reconstruct
 from awr_denoise.pooling import AGREED_PRIOR, POOL_WINDOW, agreed_variance, estimated_variance
@@ -258,6 +259,35 @@ def test_counts_past_the_compiled_loops_squaring_match_the_definition(rng, top):
     assert_allclose(got, want, rtol=1e-12, atol=0)
     assert_array_equal(got == 0, want == 0)
     assert (got[variance == 0] > 0).mean() > 0.5
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 7), (4, 3), (9, 11), (6, 8, 3), (2, 13, 1)])
+@pytest.mark.parametrize("share", [0.0, 0.02, 0.3, 1.0])
+def test_near_is_scipys_maximum_filter_with_either_edge_mode(rng, shape, share):
+    """The spread-neighbour mask by shifted ORs is the maximum filter the moderation used before (both edge modes
+    it used), on planes narrower than the window too."""
+    mask = rng.random(shape) < share
+    size = (POOL_WINDOW, POOL_WINDOW) + (1,) * (len(shape) - 2)
+    for mode in ("nearest", "constant"):
+        assert_array_equal(pooling._near(mask), ndimage.maximum_filter(mask, size=size, mode=mode))
+    assert not np.shares_memory(pooling._near(mask), mask)
+
+
+@pytest.mark.parametrize("shape", [(0, 3, 2), (1, 1, 1), (4, 5, 3), (3, 7)])
+def test_nonzero_is_numpys(rng, shape):
+    mask = rng.random(shape) < 0.3
+    for want, got in zip(np.nonzero(mask), pooling._nonzero(mask), strict=True):
+        assert got.dtype == want.dtype
+        assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("share", [0.0, 0.5, 1.0])
+def test_in_pixels_is_the_broadcast_and(rng, share):
+    plane, pixels = rng.random((5, 6, 3)) < 0.5, rng.random((5, 6)) < share
+    want = plane & pixels[..., None]
+    got = pooling._in_pixels(plane, pixels)
+    assert got is plane
+    assert_array_equal(got, want)
 
 
 @needs_numba
