@@ -37,6 +37,7 @@ from typing import Any
 from unittest import mock
 
 import numpy as np
+from scipy import ndimage
 
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, VarianceSampler, reconstruct
 from awr_denoise import finishing as finishing_steps
@@ -772,12 +773,15 @@ def agreed_speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
     samples held exact (``AGREED_PRIOR`` 0), interleaved, on :func:`agreed_buffers`; the moderation also with every
     entry gathered offset by offset (``pooling._SCATTER_SHARE`` infinite), the form before entries at 0 were weighed
     from the spread pixels outward; and, where numba is installed (extra ``fast``), the moderation and ``ask()`` with
-    the moderation's compiled loop (``AWR_DENOISE_KERNELS=numba``, ``pooling._moderation_loop``)."""
+    the moderation's compiled loop (``AWR_DENOISE_KERNELS=numba``, ``pooling._moderation_loop``); and the moderation
+    and ``ask()`` with the masks as they were made before (:func:`_masks_as_before`), each ratio this version's time
+    over theirs."""
     rows = []
     compiled = "numba" in fused.available()
     print("| image | buffer | moderation alone | gathered only | ratio | default | held exact | ratio | ask() "
-          "| held exact | ratio |" + (" moderation, compiled | ratio | ask(), compiled | ratio |" if compiled else ""))
-    print("|---|---|---|---|---|---|---|---|---|---|---|" + "---|" * 4 * compiled)
+          "| held exact | ratio |" + (" moderation, compiled | ratio | ask(), compiled | ratio |" if compiled else "")
+          + " moderation, masks as before | ratio | ask(), masks as before | ratio |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|" + "---|" * 4 * compiled + "---|" * 4)
     for size in sizes:
         for kind, buffer in agreed_buffers(SIZES[size]).items():
             # Each case is set up untimed and returns the call that is timed: a sampler that has the buffer is
@@ -795,6 +799,9 @@ def agreed_speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
                 cases["moderation, compiled"] = lambda m=moderate: partial(_compiled, m)
                 cases["ask(), compiled"] = lambda b=buffer: partial(_compiled,
                                                                     AdaptiveSampler.from_buffer(b, round=1).ask)
+            cases["moderation, masks as before"] = lambda m=moderate: partial(_masks_as_before, m)
+            cases["ask(), masks as before"] = lambda b=buffer: partial(_masks_as_before,
+                                                                       AdaptiveSampler.from_buffer(b, round=1).ask)
             seconds: dict[str, list[float]] = {name: [] for name in cases}
             names = list(cases)
             for round_ in range(1 + (repeats or (3 if size == "1080p" else 9))):
@@ -811,8 +818,8 @@ def agreed_speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
             m = list(medians.values())
             print(f"| {size} | {kind} | {m[0]:.3f} s | {m[1]:.3f} s | {m[0] / m[1]:.2f} | {m[2]:.3f} s | {m[3]:.3f} s "
                   f"| {m[2] / m[3]:.2f} | {m[4]:.3f} s | {m[5]:.3f} s | {m[4] / m[5]:.2f} |"
-                  + (f" {m[6]:.3f} s | {m[6] / m[0]:.2f} | {m[7]:.3f} s | {m[7] / m[4]:.2f} |" if compiled else ""),
-                  flush=True)
+                  + (f" {m[6]:.3f} s | {m[6] / m[0]:.2f} | {m[7]:.3f} s | {m[7] / m[4]:.2f} |" if compiled else "")
+                  + f" {m[-2]:.3f} s | {m[0] / m[-2]:.2f} | {m[-1]:.3f} s | {m[4] / m[-1]:.2f} |", flush=True)
     return rows
 
 
@@ -825,6 +832,17 @@ def _gathered_only(run: Any) -> Any:
 def _compiled(run: Any) -> Any:
     """``run()`` with the compiled kernels (``fused.using("numba")``)."""
     with fused.using("numba"):
+        return run()
+
+
+def _masks_as_before(run: Any) -> Any:
+    """``run()`` with the moderation's whole-image masks made as before commit 683014f: scipy's maximum filter for
+    the spread neighbours, numpy's broadcast over the channels for the known pixels, ``np.nonzero`` of the 3-D mask
+    (the same results)."""
+    size = (pooling.POOL_WINDOW, pooling.POOL_WINDOW, 1)
+    with mock.patch.object(pooling, "_near", lambda mask: ndimage.maximum_filter(mask, size=size, mode="nearest")), \
+            mock.patch.object(pooling, "_in_pixels", lambda plane, pixels: plane & pixels[..., None]), \
+            mock.patch.object(pooling, "_nonzero", np.nonzero):
         return run()
 
 

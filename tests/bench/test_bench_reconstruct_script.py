@@ -93,7 +93,7 @@ def test_the_agreed_section_times_every_case(bench, capsys):
     assert [r["buffer"] for r in rows] == ["black squares, 8 spp", "hit or zero, 2 spp", "hit or zero, 2-39 spp"]
     compiled = {"moderation, compiled", "ask(), compiled"} if "numba" in fused.available() else set()
     cases = {"moderation alone", "moderation, gathered only", "default", "agreed samples held exact", "ask()",
-             "ask(), agreed samples held exact"}
+             "ask(), agreed samples held exact", "moderation, masks as before", "ask(), masks as before"}
     assert all(set(r["seconds"]) == cases | compiled for r in rows)
     out = capsys.readouterr().out
     assert "| 128x128 | hit or zero, 2 spp |" in out
@@ -129,6 +129,23 @@ def test_gathered_only_is_the_moderation_without_the_outward_path_and_restores_i
     assert paths == [] and pooling._SCATTER_SHARE == 2.0
     np.testing.assert_allclose(pooling.estimated_variance(*args), gathered, rtol=1e-12)
     assert paths == ["outward"]
+
+
+def test_masks_as_before_give_the_same_moderation_and_restore_the_helpers(bench, monkeypatch):
+    """The agreed section's "masks as before": scipy's filter, the broadcast and the 3-D nonzero run instead of
+    this version's helpers, with the same bits, and the helpers are put back."""
+    from awr_denoise import pooling
+    b = bench.agreed_buffers((64, 64))["black squares, 8 spp"]
+    known = b.variance_known.copy()
+    known[::7] = False  # some pixels unknown: the masks of known pixels are made
+    args = (b.count, b.mean, b.variance, known)
+    helpers = (pooling._near, pooling._in_pixels, pooling._nonzero)
+    calls = []
+    real = bench.ndimage.maximum_filter
+    monkeypatch.setattr(bench.ndimage, "maximum_filter", lambda *a, **k: calls.append(1) or real(*a, **k))
+    before = bench._masks_as_before(lambda: pooling.agreed_variance(*args))
+    assert calls and (pooling._near, pooling._in_pixels, pooling._nonzero) == helpers
+    np.testing.assert_array_equal(pooling.agreed_variance(*args).view(np.int64), before.view(np.int64))
 
 
 def test_speed_times_the_compared_forms_it_is_given(bench):
