@@ -109,7 +109,7 @@ def _merge_block(ca: CountArray, ma: FloatArray, va: FloatArray, cb: CountArray,
     n = na + nb
     safe = np.maximum(n, 1.0)
     # The degrees of freedom as floats before the products: an integer factor makes numpy convert it in a buffered
-    # loop, a third slower.
+    # loop, about a quarter slower.
     m2 = va * np.maximum(ca - 1, 0).astype(np.float64)[..., None]
     m2 += vb * np.maximum(cb - 1, 0).astype(np.float64)[..., None]
     delta = mb - ma
@@ -122,7 +122,7 @@ def _merge_block(ca: CountArray, ma: FloatArray, va: FloatArray, cb: CountArray,
     # Where one side has no samples the other side's statistics are the answer: taken as they
     # are, so merging into an empty buffer (round 0, disjoint tiles) is bit-exact rather than
     # off by the rounding of variance * (n - 1) / (n - 1). The mask is repeated over the channels: copyto under
-    # a mask broadcast over them took twice as long as the rest of the block.
+    # a mask broadcast over them took two fifths of the block's time at 1080p, twice what it takes so.
     for counts, (m, v) in ((cb, (ma, va)), (ca, (mb, vb))):
         empty = counts == 0
         if empty.any():
