@@ -36,17 +36,10 @@ pytestmark = [pytest.mark.exr,
               pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/PID/maps")]
 
 
-def _as_from_a_terminal() -> None:
-    """The terminating signals at their default actions: a shell's background job ignores SIGINT and ``nohup``
-    SIGHUP, the child inherits that, and the command leaves an ignored signal ignored (conftest's
-    ``signals_at_default``, for the helpers here that take no fixtures)."""
-    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-        signal.signal(signum, signal.SIG_DFL)
-
-
-def _start(args, cwd: Path, **kwargs) -> subprocess.Popen:
+def _start(args, cwd: Path, preexec_fn, **kwargs) -> subprocess.Popen:
+    """The command as from a terminal: ``preexec_fn`` is the ``signals_at_default`` fixture (tests/conftest.py)."""
     return subprocess.Popen([*awr_command(), *map(str, args)], cwd=cwd, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, preexec_fn=_as_from_a_terminal, **kwargs)
+                            stderr=subprocess.PIPE, text=True, preexec_fn=preexec_fn, **kwargs)
 
 
 def _wait_for(proc: subprocess.Popen, ready, timeout: float = 60.0) -> None:
@@ -80,8 +73,8 @@ IMPORT_MARKERS = [("_multiarray_umath", signal.SIGINT), ("scipy", signal.SIGTERM
 
 
 @pytest.mark.parametrize(("marker", "signum"), IMPORT_MARKERS)
-def test_a_signal_while_imports_load_is_one_line(work, marker, signum):
-    proc = _start(["info", "d.exr"], work.root)
+def test_a_signal_while_imports_load_is_one_line(work, marker, signum, signals_at_default):
+    proc = _start(["info", "d.exr"], work.root, signals_at_default)
     _wait_for(proc, lambda: _mapped(proc, marker))
     proc.send_signal(signum)
     status, out, err = _finish(proc)
@@ -118,8 +111,8 @@ def _outputs(root: Path) -> list[str]:
                                                         # without a word, the staging folder left
                                                         (signal.SIGUSR1, 138, "awr: terminated by SIGUSR1"),
                                                         (signal.SIGXCPU, 152, "awr: terminated by SIGXCPU")])
-def test_a_signal_after_the_first_output_leaves_no_partial_set(work, frames, signum, status, line):
-    proc = _start(frames, work.root)
+def test_a_signal_after_the_first_output_leaves_no_partial_set(work, frames, signum, status, line, signals_at_default):
+    proc = _start(frames, work.root, signals_at_default)
     _wait_for(proc, lambda: _staged(work.root))
     proc.send_signal(signum)
     got, _, err = _finish(proc)
@@ -130,12 +123,12 @@ def test_a_signal_after_the_first_output_leaves_no_partial_set(work, frames, sig
 @pytest.mark.parametrize(("signum", "status", "line"), [(signal.SIGINT, 130, "awr: interrupted"),
                                                         (signal.SIGTERM, 143, "awr: terminated"),
                                                         (signal.SIGHUP, 129, "awr: hung up")])
-def test_signals_after_the_commit_end_with_the_commands_status_and_line(work, signum, status, line):
+def test_signals_after_the_commit_end_with_the_commands_status_and_line(work, signum, status, line, signals_at_default):
     # Signals, one after another, from the moment the output is in place until the process has ended: while the
     # command finishes, while Python joins its threads and unloads its modules. The command's work is done: it
     # ends as it would have (0, nothing said) or as the first signal had it (its status, its one line), never by
     # the signal's own action (-2, -15, -1) or with a traceback.
-    proc = _start(["denoise", "d.exr", "-o", "out.exr", "-q"], work.root)
+    proc = _start(["denoise", "d.exr", "-o", "out.exr", "-q"], work.root, signals_at_default)
     _wait_for(proc, lambda: (work.root / "out.exr").exists())
     while proc.poll() is None:
         with contextlib.suppress(ProcessLookupError):
@@ -146,7 +139,7 @@ def test_signals_after_the_commit_end_with_the_commands_status_and_line(work, si
     assert read_image(work / "out.exr").shape[:2] == (H, W)  # the whole image
 
 
-def test_a_second_signal_ends_a_process_whose_line_nobody_reads(work):
+def test_a_second_signal_ends_a_process_whose_line_nobody_reads(work, signals_at_default):
     # stderr is a pipe already full that nobody reads: the line of the first signal waits for ever; the second
     # ends the process at once with the first one's status (its default action ended it, -15, before).
     read_end, write_end = os.pipe()
@@ -156,7 +149,7 @@ def test_a_second_signal_ends_a_process_whose_line_nobody_reads(work):
             os.write(write_end, b"x" * 4096)
     os.set_blocking(write_end, True)
     proc = subprocess.Popen([*awr_command(), "info", "d.exr"], cwd=work.root, stdout=subprocess.DEVNULL,
-                            stderr=write_end, preexec_fn=_as_from_a_terminal)
+                            stderr=write_end, preexec_fn=signals_at_default)
     try:
         _wait_for(proc, lambda: _mapped(proc, "_multiarray_umath"))
         proc.send_signal(signal.SIGTERM)
@@ -173,8 +166,8 @@ def test_a_second_signal_ends_a_process_whose_line_nobody_reads(work):
 
 
 @pytest.mark.slow
-def test_a_second_ctrl_c_during_cleanup_changes_nothing(work, frames):
-    proc = _start(frames, work.root)
+def test_a_second_ctrl_c_during_cleanup_changes_nothing(work, frames, signals_at_default):
+    proc = _start(frames, work.root, signals_at_default)
     _wait_for(proc, lambda: _staged(work.root))
     proc.send_signal(signal.SIGINT)
     time.sleep(0.01)
@@ -184,8 +177,8 @@ def test_a_second_ctrl_c_during_cleanup_changes_nothing(work, frames):
     assert _outputs(work.root) == []
 
 
-def test_temporaries_of_a_killed_run_are_removed_by_the_next_run(work, frames):
-    proc = _start(frames, work.root)
+def test_temporaries_of_a_killed_run_are_removed_by_the_next_run(work, frames, signals_at_default):
+    proc = _start(frames, work.root, signals_at_default)
     _wait_for(proc, lambda: _staged(work.root))
     proc.kill()
     _finish(proc)
@@ -212,9 +205,9 @@ def test_temporaries_of_a_killed_run_are_removed_by_the_next_run(work, frames):
     assert list(work.root.glob(STAGING_PREFIX + "*")) == []
 
 
-def test_a_closed_stdout_is_a_quiet_exit(work):
+def test_a_closed_stdout_is_a_quiet_exit(work, signals_at_default):
     """``awr info --json d.exr | head -c 0``: the reader is gone before awr writes."""
-    proc = _start(["info", "--json", "d.exr"], work.root)
+    proc = _start(["info", "--json", "d.exr"], work.root, signals_at_default)
     proc.stdout.close()
     err = proc.stderr.read()
     proc.stderr.close()
