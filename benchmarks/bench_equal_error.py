@@ -4,6 +4,7 @@ Run from the repository root::
 
     .venv/bin/python benchmarks/bench_equal_error.py [--scenes NAME ...] [--seeds N ...]
     .venv/bin/python benchmarks/bench_equal_error.py --variants   # after the run above: options around the defaults
+    .venv/bin/python benchmarks/bench_equal_error.py --baseline   # after the run above: the goal's version, same seeds
 
 (``--size``, ``--uniform-max-spp`` and ``--output`` make a smaller trial run, as the script's test does.)
 
@@ -20,6 +21,14 @@ small bright light holds the squared error and whose MSE is higher there. Result
 seed of the stored run it renders the default sampler's 32 spp again (the stored figure is checked), then
 reconstructs those samples with the public options of :data:`RECONSTRUCTIONS` and samples again with those of
 :data:`SAMPLERS_AROUND`, each against the seed's stored uniform curve and floor (section ``variants``).
+
+``--baseline [COMMIT]`` measures the version the reconstruction issue's goal doubles (:data:`BASELINE`, the last
+commit before its first change: the single-stage reconstruction and the sampler of then) on the same scenes and
+seeds: the commit's files are taken from the repository's history (``git archive``) into a temporary folder and
+its own ``AdaptiveSampler``, ``reconstruct`` and benchmark helpers render each seed's AWR samples to 32 spp in a
+child process; their equal-error spp is computed here, against each seed's stored uniform curve and floor (the
+tracer renders the same samples in both versions: the uniform curves agree), beside this version's (section
+``baseline``). The goal's figures were that version's on seed 0 alone.
 """
 
 from __future__ import annotations
@@ -27,7 +36,11 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import subprocess
 import sys
+import tarfile
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -58,6 +71,43 @@ SAMPLERS_AROUND: dict[str, dict[str, Any]] = {
     "initial_spp=4": {"initial_spp": 4}, "round_growth=0.5": {"round_growth": 0.5},
     "absolute_above=3": {"absolute_above": 3.0}, "absolute_above=10": {"absolute_above": 10.0}}
 """``AdaptiveSampler`` options tried with the default reconstruction (``--variants``)."""
+BASELINE = "f36d7fb690f9498cb7143f1e36b881dbfd9c0dab"
+"""The version whose seed-0 equal-error spp the reconstruction issue's goal doubles (``--baseline``): the merge of the
+Mitsuba 3 adapter, the last commit on main before the staged reconstruction (its docs/benchmarks.md: 95-260)."""
+_BASELINE_CHILD = """
+import sys
+import numpy as np
+import awr_denoise
+from awr_denoise import AdaptiveSampler, reconstruct
+from awr_denoise.bench.config import BenchmarkConfig
+from awr_denoise.bench.measure import run_progressive
+from awr_denoise.bench.rendering import make_tracer, tracer_module
+
+out_path, files, size = sys.argv[1], sys.argv[2], int(sys.argv[3]) or None
+targets, jobs = [int(t) for t in sys.argv[4].split(",")], sys.argv[5:]
+if not awr_denoise.__file__.startswith(files):
+    sys.exit(f"the baseline imported the package from {awr_denoise.__file__}, not from its own files")
+config = BenchmarkConfig(width=size, height=size)
+images = {}
+for job in jobs:
+    name, seed = job.rsplit(":", 1)
+    scene = tracer_module().load_scene(name, width=config.width, height=config.height)
+    got = {}
+
+    def snapshot(spp, buffer, timing):
+        if spp == targets[-1]:
+            got["image"] = np.asarray(reconstruct(buffer), dtype=np.float64)
+
+    renderer = make_tracer(scene, int(seed), config.threads)
+    try:
+        run_progressive(AdaptiveSampler((scene.height, scene.width), seed=int(seed)), renderer, targets, snapshot)
+    finally:
+        getattr(renderer, "close", lambda: None)()
+    images[job] = got["image"]
+np.savez(out_path, **images)
+"""
+"""Runs in the baseline's own files: the API it uses (``AdaptiveSampler``, ``reconstruct``, ``BenchmarkConfig``,
+``run_progressive``, ``make_tracer``, ``tracer_module``) is the same in both versions."""
 
 
 def _run(sampler: Any, renderer: Any, targets: tuple[int, ...], on_snapshot: Any) -> None:
@@ -138,6 +188,76 @@ def variants(row: dict[str, Any], config: BenchmarkConfig) -> list[dict[str, Any
     return out
 
 
+def has_commit(commit: str) -> bool:
+    """Whether the repository this script is in holds ``commit`` (a shallow clone may not)."""
+    root = Path(__file__).resolve().parent.parent
+    found = subprocess.run(["git", "-C", str(root), "rev-parse", "--verify", "--quiet", f"{commit}^{{commit}}"],
+                           capture_output=True, text=True)
+    return found.returncode == 0
+
+
+def baseline_images(commit: str, jobs: list[tuple[str, int]], size: int | None) -> dict[tuple[str, int], np.ndarray]:
+    """Each (scene, seed)'s AWR reconstruction at 32 spp by the version at ``commit``, run from its own files."""
+    root = Path(__file__).resolve().parent.parent
+    with tempfile.TemporaryDirectory(prefix="awr-baseline-") as tmp:
+        archive = Path(tmp) / "version.tar"
+        made = subprocess.run(["git", "-C", str(root), "archive", "--format=tar", "--output", str(archive), commit],
+                              capture_output=True, text=True)
+        if made.returncode != 0:
+            raise SystemExit(f"--baseline: commit {commit} is not in this checkout's history "
+                             f"({made.stderr.strip() or 'git archive failed'})")
+        files = Path(tmp) / "version"
+        with tarfile.open(archive) as tar:
+            tar.extractall(files, **({"filter": "data"} if hasattr(tarfile, "data_filter") else {}))
+        out = Path(tmp) / "images.npz"
+        # Its own package first on the path (the child checks it); numpy, embreex and the rest are this environment's.
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(files), os.environ.get("PYTHONPATH")]))}
+        subprocess.run([sys.executable, "-c", _BASELINE_CHILD, str(out), str(files), str(size or 0),
+                        ",".join(map(str, TARGETS)), *(f"{name}:{seed}" for name, seed in jobs)],
+                       env=env, cwd=files, check=True)
+        with np.load(out) as images:
+            return {(name, seed): images[f"{name}:{seed}"] for name, seed in jobs}
+
+
+def baseline(rows: list[dict[str, Any]], commit: str, config: BenchmarkConfig,
+             size: int | None) -> list[dict[str, Any]]:
+    """The version at ``commit`` on every stored scene and seed, against the seed's stored curve and floor, beside
+    this version's stored figure."""
+    images = baseline_images(commit, [(r["scene"], r["seed"]) for r in rows], size)
+    out = []
+    for row in rows:
+        scene = tracer_module().load_scene(row["scene"], width=config.width, height=config.height)
+        reference, _ = reference_image(row["scene"], scene, config)
+        c_spps, corrected = [s for s, _ in row["uniform_curve"]], [e - row["floor"] for _, e in row["uniform_curve"]]
+        image = images[row["scene"], row["seed"]]
+        error = relmse(image, reference)
+        eq, extrapolated = equal_error_spp(error - row["floor"], c_spps, corrected, row["slope"])
+        out.append({"scene": row["scene"], "seed": row["seed"], "commit": commit, "relmse": error,
+                    "mse": mse(image, reference), "equal_error_spp": eq, "extrapolated": extrapolated,
+                    "this_version": row["default"]["equal_error_spp"],
+                    "this_version_mse": row["default"]["mse"]})
+    return out
+
+
+def baseline_table(rows: list[dict[str, Any]]) -> str:
+    """Markdown: per scene, each seed's equal-error spp of the baseline and of this version, and the ratios."""
+    seeds = sorted({r["seed"] for r in rows})
+    lines = ["| scene | " + " | ".join(f"seed {s}" for s in seeds)
+             + " | mean | ratio of the means | ratio per seed | MSE over the baseline's, mean |",
+             "|" + "---|" * (len(seeds) + 5)]
+    for name in dict.fromkeys(r["scene"] for r in rows):
+        mine = {r["seed"]: r for r in rows if r["scene"] == name}
+        cells = [f"{mine[s]['equal_error_spp']:.0f} -> {mine[s]['this_version']:.0f}" if s in mine else ""
+                 for s in seeds]
+        old = np.mean([r["equal_error_spp"] for r in mine.values()])
+        new = np.mean([r["this_version"] for r in mine.values()])
+        ratios = [r["this_version"] / r["equal_error_spp"] for r in mine.values()]
+        mse_ratio = np.mean([r["this_version_mse"] / r["mse"] for r in mine.values()])
+        lines.append(f"| {name} | " + " | ".join(cells) + f" | {old:.0f} -> {new:.0f} | {new / old:.2f} | "
+                     f"{min(ratios):.2f}-{max(ratios):.2f} | {mse_ratio:.2f} |")
+    return "\n".join(lines)
+
+
 def variants_table(rows: list[dict[str, Any]]) -> str:
     """Markdown: per option (rows) and scene (columns), the mean equal-error spp over seeds and, in brackets, the
     mean of its MSE over the default's."""
@@ -183,17 +303,30 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--output", type=Path, default=RESULTS)
     parser.add_argument("--variants", action="store_true",
                         help="options around the defaults, on the scenes and seeds stored in --output")
+    parser.add_argument("--baseline", nargs="?", const=BASELINE, default=None, metavar="COMMIT",
+                        help="the version at COMMIT (default: the goal's, %(const).7s) on the scenes and seeds stored "
+                             "in --output")
     args = parser.parse_args(argv)
+    if args.variants and args.baseline:
+        parser.error("--variants and --baseline: one at a time")
+    if args.baseline and not has_commit(args.baseline):
+        parser.error(f"--baseline: {args.baseline} is not a commit in this checkout's history")
     if args.uniform_max_spp < 2 * SPP:
         parser.error(f"--uniform-max-spp must be at least {2 * SPP}")
     config = BenchmarkConfig(width=args.size, height=args.size, uniform_max_spp=args.uniform_max_spp)
     command = "benchmarks/bench_equal_error.py " + " ".join(sys.argv[1:] if argv is None else argv)
-    if args.variants:
+    if args.variants or args.baseline:
+        option = "--variants" if args.variants else "--baseline"
         stored = json.loads(args.output.read_text()).get("seeds", {}).get("rows", []) if args.output.exists() else []
         chosen = [r for r in stored if r["scene"] in args.scenes and r["seed"] in args.seeds]
         if not chosen:
-            parser.error(f"--variants: {args.output} holds no stored seed of these scenes; "
-                         "run without --variants first")
+            parser.error(f"{option}: {args.output} holds no stored seed of these scenes; "
+                         f"run without {option} first")
+        if args.baseline:
+            rows = baseline(chosen, args.baseline, config, args.size)
+            update_section(args.output, "baseline", rows, command)
+            print(baseline_table(rows))
+            return 0
         rows = [v for row in chosen for v in variants(row, config)]
         update_section(args.output, "variants", rows, command)
         print(variants_table(rows))

@@ -106,3 +106,46 @@ def test_the_variants_table_gives_mean_spp_and_mse_over_the_defaults(bench):
     text = bench.variants_table([row("default", 0, 200.0, 1.0), row("default", 1, 100.0, 2.0),
                                  row("x", 0, 220.0, 0.5), row("x", 1, 120.0, 3.0)])
     assert "| default | 150 (1.00) |" in text and "| x | 170 (1.00) |" in text
+
+
+@pytest.fixture(scope="module")
+def baseline_rows(bench, run, tmp_path_factory):
+    if not bench.has_commit(bench.BASELINE):
+        pytest.skip(f"the baseline commit {bench.BASELINE[:7]} is not in this checkout's history (a shallow clone)")
+    out = tmp_path_factory.mktemp("baseline") / "equal_error.json"
+    out.write_text(json.dumps({"seeds": run}))
+    argv = ["--baseline", "--scenes", "default", "--seeds", "0", "1", "--size", "16", "--output", str(out)]
+    assert bench.main(argv) == 0
+    return json.loads(out.read_text())["baseline"]["rows"]
+
+
+def test_the_baseline_runs_the_goals_version_on_the_stored_seeds_curves(bench, run, baseline_rows):
+    """The goal's version samples and reconstructs (its own code: another error than this version's on the same
+    seed), measured on each seed's stored curve, beside this version's stored figure."""
+    from awr_denoise.bench.analysis import equal_error_spp
+    assert [(r["scene"], r["seed"], r["commit"]) for r in baseline_rows] == [("default", 0, bench.BASELINE),
+                                                                             ("default", 1, bench.BASELINE)]
+    for row, stored in zip(baseline_rows, run["rows"]):
+        assert row["this_version"] == stored["default"]["equal_error_spp"]
+        assert row["relmse"] != pytest.approx(stored["default"]["relmse"], rel=1e-3)
+        spps, errors = zip(*stored["uniform_curve"])
+        expected, _ = equal_error_spp(row["relmse"] - stored["floor"], spps, [e - stored["floor"] for e in errors],
+                                      stored["slope"])
+        assert row["equal_error_spp"] == pytest.approx(expected)
+    assert baseline_rows[0]["relmse"] != baseline_rows[1]["relmse"]
+
+
+def test_the_baseline_table_gives_both_versions_and_their_ratios(bench):
+    rows = [{"scene": "s", "seed": 0, "equal_error_spp": 100.0, "this_version": 200.0, "mse": 2.0,
+             "this_version_mse": 1.0},
+            {"scene": "s", "seed": 2, "equal_error_spp": 50.0, "this_version": 125.0, "mse": 1.0,
+             "this_version_mse": 1.0}]
+    text = bench.baseline_table(rows)
+    assert text.splitlines()[0].startswith("| scene | seed 0 | seed 2 | mean | ratio of the means |")
+    assert "| s | 100 -> 200 | 50 -> 125 | 75 -> 162 | 2.17 | 2.00-2.50 | 0.75 |" in text
+
+
+def test_a_baseline_not_in_the_history_is_refused_by_name(bench, capsys):
+    with pytest.raises(SystemExit) as err:
+        bench.main(["--baseline", "0" * 40])
+    assert err.value.code == 2 and f"--baseline: {'0' * 40} is not a commit" in capsys.readouterr().err
