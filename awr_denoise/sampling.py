@@ -23,10 +23,8 @@ from __future__ import annotations
 import itertools
 from collections.abc import Callable
 from concurrent.futures import Executor
-from contextlib import nullcontext
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from . import _arrays, _checks
 from ._serial import OneAtATime, one_at_a_time
@@ -38,6 +36,7 @@ from .errors import StaleRequestError
 from .noise_gain import DEFAULT_GAIN_REFRESH, DEFAULT_NOISE_MODEL, NOISE_MODELS, MeasuredGain
 from .priorities import DEFAULT_ABSOLUTE_ABOVE, pooled_deviation, sampling_density
 from .requests import Renderer, SampleRequest
+from .rounds import DEFAULT_RUN_SPP, MAX_SECONDS, run_rounds
 from .wavelets import DEFAULT_WAVELET, wavelet_operators
 
 __all__ = ["Sampler", "AdaptiveSampler", "UniformSampler", "VarianceSampler", "SAMPLERS", "NOISE_MODELS",
@@ -357,12 +356,15 @@ class Sampler(OneAtATime):
         self._pending = None
         return self._buffer
 
-    def run(self, renderer: Renderer, total_spp: float = 32.0, *, progress: bool = False,
-            callback: Callable[[SampleRequest, SampleBuffer], bool | None] | None = None) -> SampleBuffer:
-        """Ask, render, tell until the image holds ``total_spp`` samples per pixel on average.
+    def run(self, renderer: Renderer, total_spp: float | None = None, *, seconds: float | None = None,
+            progress: bool = False, callback: Callable[[SampleRequest, SampleBuffer], bool | None] | None = None
+            ) -> SampleBuffer:
+        """Ask, render, tell until the image holds ``total_spp`` samples per pixel on average, or for ``seconds``.
 
-        Built only from :meth:`ask` and :meth:`tell`. The last round is trimmed so the total is
-        exact. ``callback(request, buffer)`` runs after every round; returning ``False`` stops.
+        Built only from :meth:`ask` and :meth:`tell` (:mod:`.rounds`); the last round is trimmed so the total is
+        exact. ``total_spp``: 32 without ``seconds``, no goal with it. With ``seconds`` the rounds are planned to
+        end within it (the first is always rendered; docs/sampling.md, "A time budget"), and the counts depend on
+        the machine. ``callback(request, buffer)`` runs after every round; returning ``False`` stops.
 
         Examples
         --------
@@ -376,8 +378,15 @@ class Sampler(OneAtATime):
         ...     return len(rounds) < 2
         >>> AdaptiveSampler((16, 16)).run(renderer, total_spp=32, callback=two_rounds).total_samples, rounds
         (768, [512, 256])
+        >>> AdaptiveSampler((16, 16)).run(renderer, seconds=0.5).total_samples >= 512   # as many as 0.5 s allow
+        True
         """
         pixels = self._shape[0] * self._shape[1]
+        seconds = _checks.real("seconds", seconds, above=0, maximum=MAX_SECONDS, none=True)
+        if total_spp is None and seconds is None:
+            total_spp = DEFAULT_RUN_SPP
+        if total_spp is None:
+            return run_rounds(self, renderer, None, seconds=seconds, progress=progress, callback=callback)
         total_spp = _checks.real("total_spp", total_spp, minimum=0, maximum=MAX_BUDGET / pixels)
         goal = int(round(total_spp * pixels))
         taken, asked = int(self._issued.sum()), (0 if self._pending is None else self._pending.total)
@@ -389,17 +398,7 @@ class Sampler(OneAtATime):
         if self.spp_max is not None and goal > taken + (room := int(np.maximum(self.spp_max - self._issued, 0).sum())):
             raise ValueError(f"total_spp: {total_spp} exceeds the {(taken + room) / pixels:.6g} spp that spp_max "
                              f"{self.spp_max} allows")
-        with tqdm(total=goal, initial=taken, unit="sample", desc=self.strategy) if progress else nullcontext() as bar:
-            while self._issued.sum() < goal:
-                remaining = goal - int(self._issued.sum())
-                budget = min(self.default_budget(), remaining) if self._pending is None else None
-                request = self.ask(budget)
-                buffer = self.tell(request, renderer(request))
-                if bar is not None:
-                    bar.update(request.total)
-                if callback is not None and callback(request, buffer) is False:
-                    break
-        return self._buffer
+        return run_rounds(self, renderer, goal, seconds=seconds, progress=progress, callback=callback)
 
     # ------------------------------------------------------------------ strategy
     def _allocate(self, budget: int, current: CountArray, capacity: CountArray | None,

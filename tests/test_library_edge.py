@@ -121,7 +121,9 @@ PARAMS = [
     Param("budget", "int>=0", lambda v: UniformSampler.from_buffer(BUF).ask(v), none=True),
     Param("round", "int>=0", lambda v: UniformSampler.from_buffer(BUF, round=v)),
     Param("total_spp", "real>=0", lambda v: UniformSampler((4, 4)).run(
-        synthetic.create_renderer("gradient", shape=(4, 4)), total_spp=v)),
+        synthetic.create_renderer("gradient", shape=(4, 4)), total_spp=v), none=True),
+    Param("seconds", "real>0", lambda v: UniformSampler((4, 4)).run(
+        synthetic.create_renderer("gradient", shape=(4, 4)), total_spp=8, seconds=v), none=True),
     Param("budget", "int>=0", lambda v: allocate(np.ones((H, W)), np.zeros((H, W), np.int64), v)),
     Param("spp", "int>=0", lambda v: SampleRequest.uniform((H, W), v)),
     Param("first_index", "int>=0", lambda v: SampleRequest.uniform((H, W), 1, first_index=v)),

@@ -1,0 +1,161 @@
+"""``awr_denoise.rounds``: ``Sampler.run``'s loop under a sample goal and under a time budget.
+
+Time is a fake clock here (``rounds._clock`` replaced): the renderer advances it by a fixed cost per sample and
+the sampler's ``ask`` by a fixed cost per round, so the plan's arithmetic is tested exactly, not the machine's
+speed (the measured trade is in docs/sampling.md, "A time budget").
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from awr_denoise import AdaptiveSampler, UniformSampler, rounds
+from awr_denoise.rounds import ROUND_OVERHEAD, RoundPlan
+from awr_denoise.synthetic import SyntheticRenderer, make_scene
+
+SHAPE = (16, 16)
+PIXELS = SHAPE[0] * SHAPE[1]
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+@pytest.fixture
+def clock(monkeypatch):
+    fake = FakeClock()
+    monkeypatch.setattr(rounds, "_clock", fake)
+    return fake
+
+
+class TimedRenderer:
+    """The synthetic ``edges`` scene; every sample costs ``per_sample`` seconds of the fake clock."""
+
+    def __init__(self, clock: FakeClock, per_sample: float) -> None:
+        self.clock, self.per_sample = clock, per_sample
+        self.inner = SyntheticRenderer(make_scene("edges", SHAPE), seed=0)
+        self.rounds: list[int] = []
+
+    def __call__(self, request):
+        self.clock.now += request.total * self.per_sample
+        self.rounds.append(request.total)
+        return self.inner(request)
+
+
+def timed_sampler(clock: FakeClock, overhead: float, cls=AdaptiveSampler, **options):
+    """A sampler whose ``ask`` costs ``overhead`` seconds of the fake clock."""
+    sampler = cls(SHAPE, seed=0, **options)
+    ask = sampler.ask
+
+    def costly_ask(budget=None):
+        clock.now += overhead
+        return ask(budget)
+
+    sampler.ask = costly_ask
+    return sampler
+
+
+@pytest.mark.parametrize("seconds", [0.5, 1.0, 1.5, 2.0])
+def test_a_time_budget_ends_the_run_within_it_and_the_last_round_takes_what_is_left(clock, seconds):
+    renderer, overhead = TimedRenderer(clock, 1e-4), 0.01
+    sampler = timed_sampler(clock, overhead)
+    buffer = sampler.run(renderer, seconds=seconds)
+    assert clock.now <= seconds
+    # The round before the deadline took what was left, not a round with too little time after it for another
+    # (at 1.5 s the rounds' growth alone would leave 23 ms unused).
+    assert clock.now > seconds - 2 * renderer.per_sample
+    assert buffer.total_samples == sum(renderer.rounds) == sampler.total_samples
+
+
+def test_rounds_grow_until_the_samplers_time_is_its_share_of_their_render_time(clock):
+    renderer, overhead = TimedRenderer(clock, 1e-5), 0.01
+    timed_sampler(clock, overhead).run(renderer, seconds=5.0)
+    least = math.ceil(overhead / (ROUND_OVERHEAD * renderer.per_sample))
+    middle = renderer.rounds[1:-1]  # the first is round 0 (nothing measured), the last takes what is left
+    assert middle and all(n >= least for n in middle)
+    assert renderer.rounds[-1] >= least
+    # Without the deadline the same sampler would have asked for its default rounds, far smaller here.
+    plain = TimedRenderer(clock, 1e-5)
+    AdaptiveSampler(SHAPE, seed=0).run(plain, total_spp=sum(renderer.rounds) / PIXELS)
+    assert len(plain.rounds) > len(renderer.rounds) and max(plain.rounds[1:4]) < least / 10
+
+
+def test_a_slow_renderer_keeps_the_samplers_own_rounds(clock):
+    """Where the sampler's time is already a small share of the render's, the deadline changes no request but
+    the last: the same counts, pixel for pixel, as without it."""
+    renderer = TimedRenderer(clock, 1e-2)
+    seen = []
+    timed_sampler(clock, 1e-3).run(renderer, seconds=60.0, callback=lambda request, _: seen.append(request.counts))
+    plain = []
+    AdaptiveSampler(SHAPE, seed=0).run(SyntheticRenderer(make_scene("edges", SHAPE), seed=0),
+                                      total_spp=sum(renderer.rounds) / PIXELS,
+                                      callback=lambda request, _: plain.append(request.counts))
+    assert len(seen) == len(plain) >= 4
+    for ours, theirs in zip(seen[:-2], plain[:-2]):
+        np.testing.assert_array_equal(ours, theirs)
+
+
+def test_the_first_round_is_rendered_whatever_the_budget(clock):
+    renderer = TimedRenderer(clock, 1e-3)
+    buffer = timed_sampler(clock, 0.01).run(renderer, seconds=1e-9)
+    assert renderer.rounds == [2 * PIXELS] and buffer.total_samples == 2 * PIXELS  # round 0 at 2 spp
+
+
+def test_a_sample_goal_and_a_time_budget_stop_at_whichever_comes_first(clock):
+    fast = TimedRenderer(clock, 1e-6)
+    assert timed_sampler(clock, 1e-4).run(fast, total_spp=8, seconds=100.0).total_samples == 8 * PIXELS
+    clock.now = 0.0
+    slow = TimedRenderer(clock, 1e-3)
+    buffer = timed_sampler(clock, 1e-4).run(slow, total_spp=1000, seconds=2.0)
+    assert clock.now <= 2.0 and buffer.total_samples < 1000 * PIXELS
+
+
+def test_spp_max_ends_a_run_without_a_goal(clock):
+    renderer = TimedRenderer(clock, 1e-6)
+    sampler = timed_sampler(clock, 1e-4, cls=UniformSampler, spp_max=6)
+    buffer = sampler.run(renderer, seconds=1e6)
+    assert (buffer.count == 6).all() and clock.now < 1.0
+
+
+def test_a_renderer_too_fast_for_the_clock_runs_the_default_rounds_until_the_time_is_up(clock):
+    renderer = TimedRenderer(clock, 0.0)
+    sampler = timed_sampler(clock, 0.25)
+    sampler.run(renderer, seconds=2.0)
+    assert 2.0 <= clock.now <= 2.25 and len(renderer.rounds) == 8  # a round starts while time is left
+
+
+def test_without_a_time_budget_the_run_goes_to_32_spp_as_before():
+    renderer = SyntheticRenderer(make_scene("edges", SHAPE), seed=0)
+    assert AdaptiveSampler(SHAPE).run(renderer).total_samples == 32 * PIXELS
+    assert AdaptiveSampler(SHAPE).run(renderer, total_spp=None).total_samples == 32 * PIXELS
+
+
+def test_a_pending_round_is_told_first_and_counted_in_the_budget(clock):
+    renderer = TimedRenderer(clock, 1e-4)
+    sampler = timed_sampler(clock, 0.01)
+    first = sampler.ask()
+    buffer = sampler.run(renderer, seconds=1.0)
+    assert renderer.rounds[0] == first.total and sampler.pending is None and clock.now <= 1.0 + 0.01
+    assert buffer.total_samples == sum(renderer.rounds)
+
+
+@pytest.mark.parametrize("seconds", [0, -1.0, float("nan"), float("inf"), 1e10, True, "1"])
+def test_a_time_budget_is_checked_by_name(seconds):
+    renderer = SyntheticRenderer(make_scene("edges", SHAPE), seed=0)
+    with pytest.raises((ValueError, TypeError), match="seconds"):
+        AdaptiveSampler(SHAPE).run(renderer, seconds=seconds)
+
+
+def test_the_plan_stops_when_less_than_one_sample_per_pixel_fits():
+    plan = RoundPlan(1.0, pixels=100, start=0.0)
+    plan.record(overhead=0.1, render=0.01, samples=100)  # 0.1 ms per sample
+    assert plan.budget(50, now=0.0) > 0
+    assert plan.budget(50, now=1.0 - 0.1 - 100 * 1e-4 + 1e-6) == 0
+    assert plan.budget(50, now=2.0) == 0
