@@ -29,6 +29,7 @@ from awr_denoise.renderers import (
     renderer_scenes,
 )
 from awr_denoise.requests import Renderer, SampleTracer
+from awr_denoise.rounds import MAX_SECONDS
 from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS
 
 from .common import EXIT_OK, RuntimeFailure, UsageError, status
@@ -41,6 +42,8 @@ __all__ = ["register", "run", "tracer_module", "default_scene", "render_buffer",
 
 TRACER = "tracer"
 """Name of the bundled path tracer in the renderer registry (the default renderer)."""
+DEFAULT_RENDER_SPP = 16.0
+"""``awr render``'s samples per pixel when given neither ``--spp`` nor ``--seconds``."""
 
 
 def tracer_module() -> ModuleType:
@@ -75,21 +78,23 @@ def derived_path(path: str | Path, suffix: str) -> Path:
     return p.with_name(stem + suffix)
 
 
-def first_round_spp(initial_spp: int, spp: float) -> int:
-    """The first adaptive round's samples per pixel: ``initial_spp``, at most the render's own, at least 1."""
-    return min(initial_spp, max(1, int(spp)))
+def first_round_spp(initial_spp: int, spp: float | None) -> int:
+    """The first adaptive round's samples per pixel: ``initial_spp``, at most the render's own (if any), at least 1."""
+    return initial_spp if spp is None else min(initial_spp, max(1, int(spp)))
 
 
-def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float, adaptive: bool, seed: int, quiet: bool,
-                  initial_spp: int = DEFAULT_AWR_INITIAL_SPP, round_growth: float = DEFAULT_ROUND_GROWTH,
-                  noise_model: str = DEFAULT_NOISE_MODEL,
-                  gain_refresh: float | None = None) -> tuple[SampleBuffer, Any, int]:
-    """(buffer, issued, next round) of a uniform or adaptive render at ``spp`` on average.
+def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float | None, adaptive: bool, seed: int,
+                  quiet: bool, initial_spp: int = DEFAULT_AWR_INITIAL_SPP, round_growth: float = DEFAULT_ROUND_GROWTH,
+                  noise_model: str = DEFAULT_NOISE_MODEL, gain_refresh: float | None = None,
+                  seconds: float | None = None) -> tuple[SampleBuffer, Any, int]:
+    """(buffer, issued, next round) of a uniform or adaptive render at ``spp`` on average, or adaptive rounds for
+    ``seconds`` (``spp`` then a cap, ``None`` for none: :meth:`~awr_denoise.Sampler.run`).
 
     The renderer is closed afterwards when it is a :class:`~awr_denoise.SampleTracer`.
     """
     try:
         if not adaptive:
+            assert spp is not None and seconds is None, "a uniform render is one request of a given spp"
             if spp != int(spp):
                 raise UsageError(f"--spp: a uniform render needs whole samples per pixel, got {spp}")
             request = SampleRequest.uniform(shape, int(spp))
@@ -97,7 +102,7 @@ def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float, ada
             return buffer, request.first_index + request.counts, 1
         awr = AdaptiveSampler(shape, initial_spp=first_round_spp(initial_spp, spp), seed=seed,
                               round_growth=round_growth, noise_model=noise_model, gain_refresh=gain_refresh)
-        buffer = awr.run(renderer, total_spp=spp, progress=not quiet)
+        buffer = awr.run(renderer, total_spp=spp, seconds=seconds, progress=not quiet)
         return buffer, awr.issued, awr.round
     finally:
         if isinstance(renderer, SampleTracer):
@@ -117,8 +122,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--list-scenes", action="store_true", help="print the bundled scenes and exit")
     p.add_argument("--width", type=whole(minimum=1, maximum=MAX_SIDE), help="image width (default: the scene's)")
     p.add_argument("--height", type=whole(minimum=1, maximum=MAX_SIDE), help="image height (default: the scene's)")
-    p.add_argument("--spp", type=real(above=0, maximum=MAX_SPP), default=16,
-                   help="average samples per pixel (default 16)")
+    p.add_argument("--spp", type=real(above=0, maximum=MAX_SPP), default=None,
+                   help=f"average samples per pixel (default {DEFAULT_RENDER_SPP:g}; with --seconds a cap, "
+                        "by default none)")
+    p.add_argument("--seconds", type=real(above=0, maximum=MAX_SECONDS), metavar="S",
+                   help="adaptive rounds for at most S seconds of rendering (the denoising after them is not counted); "
+                        "the first round is always rendered")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--adaptive", dest="adaptive", action="store_true", default=True,
                       help="adaptive wavelet sampling (default)")
@@ -212,9 +221,10 @@ def run(args: argparse.Namespace) -> int:
     if not args.output:
         raise UsageError("render: -o/--output DUMP.exr is required")
     for option, value in (("--initial-spp", args.initial_spp), ("--round-growth", args.round_growth),
-                          ("--noise-model", args.noise_model)):
+                          ("--noise-model", args.noise_model), ("--seconds", args.seconds)):
         if value is not None and not args.adaptive:  # a setting that would do nothing is refused
             raise UsageError(f"{option}: a uniform render has no adaptive rounds")
+    spp = args.spp if args.spp is not None or args.seconds is not None else DEFAULT_RENDER_SPP
     if args.gain_refresh is not None and args.noise_model != "reconstruction":
         raise UsageError("--gain-refresh: only --noise-model reconstruction measures a gain")
     if args.guide == "features" and not args.features:
@@ -242,11 +252,11 @@ def run(args: argparse.Namespace) -> int:
     if frame_shape is not None:
         check_pixels("--width/--height", *frame_shape)
         check_reconstruction_options(args, tuple(frame_shape), name)
-        if round(args.spp * frame_shape[0] * frame_shape[1]) < 1:  # else refused after the set-up, as "buffer"
-            raise UsageError(f"--spp: {args.spp:g} per pixel of {frame_shape[1]}x{frame_shape[0]} is not one sample")
+        if spp is not None and round(spp * frame_shape[0] * frame_shape[1]) < 1:  # else refused later, as "buffer"
+            raise UsageError(f"--spp: {spp:g} per pixel of {frame_shape[1]}x{frame_shape[0]} is not one sample")
     start = time.perf_counter()
-    render = dict(spp=args.spp, adaptive=args.adaptive, seed=args.seed, quiet=args.quiet,
-                  gain_refresh=args.gain_refresh)
+    render = dict(spp=spp, adaptive=args.adaptive, seed=args.seed, quiet=args.quiet,
+                  gain_refresh=args.gain_refresh, seconds=args.seconds)
     render.update({k: v for k, v in (("initial_spp", args.initial_spp), ("round_growth", args.round_growth),
                                      ("noise_model", args.noise_model)) if v is not None})  # else render_buffer's
     if executor_requested(args):
@@ -280,7 +290,7 @@ def run(args: argparse.Namespace) -> int:
     # round, which awr plan continues.
     first = {}
     if args.adaptive:
-        first["initial_spp"] = first_round_spp(args.initial_spp or DEFAULT_AWR_INITIAL_SPP, args.spp)
+        first["initial_spp"] = first_round_spp(args.initial_spp or DEFAULT_AWR_INITIAL_SPP, spp)
     header = provenance(scene=name, seed=args.seed, sampler=args.sampler, strategy=strategy, round=next_round,
                         render_seconds=float(seconds), renderer=args.renderer, running=1, **first)
     check_reconstruction_options(args, buffer.shape, name)

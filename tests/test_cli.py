@@ -978,6 +978,24 @@ def test_render_round_growth_takes_fewer_rounds(tmp_path, fake_tracer):
     assert rounds == {"0.25": 10, "1.0": 4}
 
 
+def test_render_seconds_renders_adaptive_rounds_for_that_long_with_spp_as_a_cap(tmp_path, fake_tracer, capsys):
+    timed = tmp_path / "timed.exr"
+    assert main(["render", "--seconds", "1", "-o", str(timed), "-q"]) == 0
+    dump = read_sample_dump(timed)
+    assert dump.attributes["awr:strategy"] == "awr" and dump.attributes["awr:initial_spp"] == 2
+    assert dump.buffer.total_samples > 16 * H * W  # the stand-in renders fast: past the default 16 spp in 1 s
+    assert read_image(tmp_path / "timed.denoised.exr").shape == (H, W, 3)
+    capped = tmp_path / "capped.exr"
+    assert main(["render", "--seconds", "100", "--spp", "4", "-o", str(capped), "-q"]) == 0
+    assert read_sample_dump(capped).buffer.total_samples == 4 * H * W
+    for bad in ("0", "-1", "nan", "inf", "1e10", "x"):
+        assert main(["render", "--seconds", bad, "-o", str(tmp_path / "bad.exr")]) == 2
+        _one_error_line(capsys, "--seconds")
+    assert main(["render", "--uniform", "--seconds", "1", "-o", str(tmp_path / "u.exr")]) == 2
+    _one_error_line(capsys, "--seconds", "a uniform render has no adaptive rounds")
+    assert not (tmp_path / "bad.exr").exists() and not (tmp_path / "u.exr").exists()
+
+
 def test_maxerror_failure_keeps_output_and_exits_1(tmp_path, capsys, rng):
     _dump(tmp_path / "d.exr", rng)
     write_image(tmp_path / "ref.exr", np.full((H, W, 3), 5.0))

@@ -63,6 +63,8 @@ BAD = [
     (RENDER, "--c-s", ["-1", "nan"]),
     (RENDER, "--wavelet", ["nope"]),
     (RENDER, "--round-growth", ["0", "inf"]),
+    (RENDER, "--seconds", ["0", "-1", "nan", "inf", "1e10", "x"]),
+    (RENDER + ["--uniform"], "--seconds", ["1"]),  # a uniform render is one request: nothing to time
     (RENDER, "--noise-model", ["gain"]),
     (RENDER, "--initial-spp", ["0", "inf"]),
     (RENDER, "--tile", ["0", "-1", "1", "7"]),
