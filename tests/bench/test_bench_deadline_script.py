@@ -1,0 +1,63 @@
+"""``benchmarks/bench_deadline.py``: AWR under a time budget against uniform sampling in the same time."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from awr_denoise import rounds
+
+
+@pytest.fixture(scope="module")
+def bench(benchmark_script):
+    return benchmark_script("bench_deadline")
+
+
+@pytest.fixture(scope="module")
+def rows(bench, tmp_path_factory):
+    out = tmp_path_factory.mktemp("deadline") / "deadline.json"
+    assert bench.main(["--renderers", "synthetic", "--spps", "1", "256", "--output", str(out)]) == 0
+    return json.loads(out.read_text())["deadline"]["rows"]
+
+
+def test_each_budget_is_the_uniform_renders_time_and_each_sizing_runs_within_reach_of_it(bench, rows):
+    assert [(r["scene"], r["uniform_spp"]) for r in rows] == [("edges", 1), ("edges", 256)]
+    short, long = rows
+    # 1 spp renders in far less time than a reconstruction takes: nothing fits.
+    assert short["seconds"] < short["reconstruction_seconds"] and short["awr"] == {}
+    assert long["seconds"] > long["reconstruction_seconds"] and list(long["awr"]) == list(bench.SIZINGS)
+    for run in long["awr"].values():
+        assert len(run["repeats"]) == 3  # the default --repeats, their medians beside them
+        assert run["relmse_ratio"] == sorted(r["relmse_ratio"] for r in run["repeats"])[1]
+        assert run["rounds"] >= 1 and run["spp"] >= 2 and run["largest_round_spp"] <= run["spp"]
+        assert run["run_seconds"] <= run["seconds"]
+        assert math.isfinite(run["relmse_ratio"]) and math.isfinite(run["mse_ratio"]) and run["mse_ratio"] > 0
+    assert long["uniform_relmse"] < short["uniform_relmse"]
+
+
+def test_the_sizings_set_the_libraries_share_and_put_it_back(bench):
+    library = rounds.ROUND_OVERHEAD
+    for share in bench.SIZINGS.values():
+        with bench.overhead_share(share):
+            assert rounds.ROUND_OVERHEAD == (library if share is None else share)
+        assert rounds.ROUND_OVERHEAD == library
+    with pytest.raises(RuntimeError), bench.overhead_share(0.5):
+        raise RuntimeError
+    assert rounds.ROUND_OVERHEAD == library
+
+
+def test_the_table_gives_every_sizing_or_na(bench):
+    run = {"spp": 12.34, "rounds": 3, "seconds": 0.9, "relmse_ratio": 0.5, "mse_ratio": 0.25}
+    text = bench.table([
+        {"renderer": "r", "scene": "s", "uniform_spp": 64, "seconds": 1.0, "awr": {k: run for k in bench.SIZINGS}},
+        {"renderer": "r", "scene": "s", "uniform_spp": 8, "seconds": 0.1, "awr": {}}])
+    assert "| r | s | 64 | 1.000 | 12.3, 3, 0.90, 0.50, 0.25 |" in text
+    assert "| r | s | 8 | 0.100 | " + " | ".join(["n/a"] * len(bench.SIZINGS)) + " |" in text
+
+
+def test_a_size_with_the_tracers_fixed_references_is_refused(bench, capsys):
+    with pytest.raises(SystemExit) as err:
+        bench.main(["--renderers", "tracer", "--size", "64"])
+    assert err.value.code == 2 and "--size" in capsys.readouterr().err
