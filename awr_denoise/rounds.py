@@ -39,8 +39,8 @@ MAX_SECONDS = 1e9
 
 ROUND_OVERHEAD = 0.1
 """Under a time budget, the sampler's time per round (``ask`` and ``tell``) as the largest share of the round's
-render time: rounds grow until it holds. Measured against the default rounds and a share of 0.25 beside Mitsuba 3
-and the bundled tracer (docs/sampling.md, "A time budget")."""
+render time: rounds grow until it holds. Measured against shares of 0.05 and 0.25 and the sampler's default rounds
+beside Mitsuba 3 and the bundled tracer (docs/sampling.md, "A time budget")."""
 
 _clock: Callable[[], float] = time.perf_counter
 """The clock of the deadline (a test replaces it)."""
