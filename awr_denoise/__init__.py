@@ -17,7 +17,7 @@ import types
 from typing import TYPE_CHECKING, Any
 
 from ._version import __version__
-from .errors import AWRError, InputFileError, InputFileWarning, StaleRequestError
+from .errors import AWRError, InputFileError, InputFileWarning, StaleRequestError, TimeBudgetWarning
 
 if TYPE_CHECKING:  # what the lazy names resolve to, for type checkers and IDEs
     from .allocation import allocate
@@ -61,6 +61,7 @@ __all__ = [
     "SampleBuffer",
     "SampleRequest",
     "StaleRequestError",
+    "TimeBudgetWarning",
     "luminance_weights",
     "__version__",
 ]

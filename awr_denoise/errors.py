@@ -7,7 +7,7 @@ also a ``ValueError`` so generic callers can catch either.
 
 from __future__ import annotations
 
-__all__ = ["AWRError", "StaleRequestError", "InputFileError", "InputFileWarning"]
+__all__ = ["AWRError", "StaleRequestError", "InputFileError", "InputFileWarning", "TimeBudgetWarning"]
 
 
 class AWRError(Exception):
@@ -31,4 +31,10 @@ class InputFileWarning(UserWarning):
 
     The message names the file and fits on one line; the command line prints it as
     ``awr: warning: <message>``.
+    """
+
+
+class TimeBudgetWarning(UserWarning):
+    """A run given a time budget (:meth:`~awr_denoise.Sampler.run`'s ``seconds``) could not keep it: its first
+    round, always rendered, alone took longer. The command line prints it as ``awr: warning: <message>``.
     """

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections.abc import Callable
 from contextlib import nullcontext
 from dataclasses import dataclass, field
@@ -24,6 +25,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from .allocation import MAX_BUDGET
+from .errors import TimeBudgetWarning
 from .requests import Renderer, SampleRequest
 
 if TYPE_CHECKING:  # the samplers import this module
@@ -119,6 +121,7 @@ def run_rounds(sampler: Sampler, renderer: Renderer, goal: int | None, *, second
     """
     pixels = sampler.shape[0] * sampler.shape[1]
     plan = None if seconds is None else RoundPlan(seconds, pixels)
+    rounds = 0
     with tqdm(total=goal, initial=sampler.total_samples, unit="sample", desc=sampler.strategy) \
             if progress else nullcontext() as bar:
         while True:
@@ -141,6 +144,7 @@ def run_rounds(sampler: Sampler, renderer: Renderer, goal: int | None, *, second
             samples = renderer(request)
             rendered = _clock()
             buffer = sampler.tell(request, samples)
+            rounds += 1
             if plan is not None:
                 plan.record(overhead=(asked - started) + (_clock() - rendered), render=rendered - asked,
                             samples=request.total)
@@ -148,4 +152,8 @@ def run_rounds(sampler: Sampler, renderer: Renderer, goal: int | None, *, second
                 bar.update(request.total)
             if callback is not None and callback(request, buffer) is False:
                 break
+    if plan is not None and rounds == 1 and (spent := _clock() - plan.start) > plan.seconds:
+        warnings.warn(f"seconds: the first round alone took {spent:.3g} s of a {plan.seconds:.3g}-s budget; a uniform "
+                      "render may spend a budget this short better (docs/sampling.md, 'A time budget')",
+                      TimeBudgetWarning, stacklevel=3)
     return sampler.buffer

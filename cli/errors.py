@@ -13,7 +13,7 @@ import unicodedata
 import warnings
 from collections.abc import Iterator
 
-from awr_denoise.errors import InputFileWarning
+from awr_denoise.errors import InputFileWarning, TimeBudgetWarning
 
 __all__ = ["EXIT_OK", "EXIT_FAILURE", "EXIT_USAGE", "EXIT_INTERRUPTED", "EXIT_TERMINATED", "EXIT_HANGUP",
            "EXIT_BROKEN_PIPE", "UsageError", "RuntimeFailure", "one_line_warnings"]
@@ -72,13 +72,14 @@ def one_line(message: object) -> str:
 
 @contextlib.contextmanager
 def one_line_warnings() -> Iterator[None]:
-    """Within the block, the library's input warnings print as ``awr: warning: <message>``, one
-    line each on stderr (never as exceptions or two-line Python warnings), whatever the caller's
+    """Within the block, the library's input and time-budget warnings print as ``awr: warning: <message>``,
+    one line each on stderr (never as exceptions or two-line Python warnings), whatever the caller's
     warning filters."""
     def show(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001 - warnings' signature
         print(f"awr: warning: {one_line(message)}", file=sys.stderr)
 
     with warnings.catch_warnings():
         warnings.simplefilter("always", InputFileWarning)
+        warnings.simplefilter("always", TimeBudgetWarning)
         warnings.showwarning = show
         yield

@@ -985,6 +985,12 @@ def test_render_seconds_renders_adaptive_rounds_for_that_long_with_spp_as_a_cap(
     assert dump.attributes["awr:strategy"] == "awr" and dump.attributes["awr:initial_spp"] == 2
     assert dump.buffer.total_samples > 16 * H * W  # the stand-in renders fast: past the default 16 spp in 1 s
     assert read_image(tmp_path / "timed.denoised.exr").shape == (H, W, 3)
+    capsys.readouterr()
+    short = tmp_path / "short.exr"
+    assert main(["render", "--seconds", "1e-9", "-o", str(short), "-q"]) == 0  # the first round, and a warning
+    assert read_sample_dump(short).buffer.total_samples == 2 * H * W
+    warned = [line for line in capsys.readouterr().err.splitlines() if line]
+    assert len(warned) == 1 and warned[0].startswith("awr: warning: seconds: the first round alone took"), warned
     capped = tmp_path / "capped.exr"
     assert main(["render", "--seconds", "100", "--spp", "4", "-o", str(capped), "-q"]) == 0
     assert read_sample_dump(capped).buffer.total_samples == 4 * H * W

@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from awr_denoise import AdaptiveSampler, UniformSampler, rounds
+from awr_denoise import AdaptiveSampler, TimeBudgetWarning, UniformSampler, rounds
 from awr_denoise.rounds import ROUND_OVERHEAD, RoundPlan
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
 
@@ -102,10 +102,16 @@ def test_a_slow_renderer_keeps_the_samplers_own_rounds(clock):
         np.testing.assert_array_equal(ours, theirs)
 
 
-def test_the_first_round_is_rendered_whatever_the_budget(clock):
+def test_the_first_round_is_rendered_whatever_the_budget_and_a_budget_it_overran_is_said(clock):
     renderer = TimedRenderer(clock, 1e-3)
-    buffer = timed_sampler(clock, 0.01).run(renderer, seconds=1e-9)
+    with pytest.warns(TimeBudgetWarning, match=r"seconds: the first round alone took 0\.522 s of a 1e-09-s budget"):
+        buffer = timed_sampler(clock, 0.01).run(renderer, seconds=1e-9)
     assert renderer.rounds == [2 * PIXELS] and buffer.total_samples == 2 * PIXELS  # round 0 at 2 spp
+
+
+def test_a_run_of_several_rounds_says_nothing(clock, recwarn):
+    timed_sampler(clock, 0.01).run(TimedRenderer(clock, 1e-4), seconds=1.0)
+    assert not [w for w in recwarn if "seconds" in str(w.message)]
 
 
 def test_a_sample_goal_and_a_time_budget_stop_at_whichever_comes_first(clock):
