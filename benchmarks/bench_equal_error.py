@@ -54,7 +54,8 @@ from awr_denoise.bench.measure import Timing, run_progressive
 from awr_denoise.bench.rendering import make_tracer, reference_image, tracer_module
 from awr_denoise.metrics import mse, relmse
 
-RESULTS = Path(__file__).resolve().parent / "results" / "equal_error.json"
+REPOSITORY = Path(__file__).resolve().parent.parent
+RESULTS = REPOSITORY / "benchmarks" / "results" / "equal_error.json"
 SAMPLERS: dict[str, dict[str, Any]] = {"default": {}, "relative error alone": {"absolute_above": None}}
 TARGETS = (4, 8, 16, 32)
 """The AWR runs stop at these spp on the way to 32, as in ``awr bench`` (the round before each is cut to land on
@@ -190,18 +191,16 @@ def variants(row: dict[str, Any], config: BenchmarkConfig) -> list[dict[str, Any
 
 def has_commit(commit: str) -> bool:
     """Whether the repository this script is in holds ``commit`` (a shallow clone may not)."""
-    root = Path(__file__).resolve().parent.parent
-    found = subprocess.run(["git", "-C", str(root), "rev-parse", "--verify", "--quiet", f"{commit}^{{commit}}"],
+    found = subprocess.run(["git", "-C", str(REPOSITORY), "rev-parse", "--verify", "--quiet", f"{commit}^{{commit}}"],
                            capture_output=True, text=True)
     return found.returncode == 0
 
 
 def baseline_images(commit: str, jobs: list[tuple[str, int]], size: int | None) -> dict[tuple[str, int], np.ndarray]:
     """Each (scene, seed)'s AWR reconstruction at 32 spp by the version at ``commit``, run from its own files."""
-    root = Path(__file__).resolve().parent.parent
     with tempfile.TemporaryDirectory(prefix="awr-baseline-") as tmp:
         archive = Path(tmp) / "version.tar"
-        made = subprocess.run(["git", "-C", str(root), "archive", "--format=tar", "--output", str(archive), commit],
+        made = subprocess.run(["git", "-C", str(REPOSITORY), "archive", "--format=tar", "--output", str(archive), commit],
                               capture_output=True, text=True)
         if made.returncode != 0:
             raise SystemExit(f"--baseline: commit {commit} is not in this checkout's history "
@@ -219,11 +218,10 @@ def baseline_images(commit: str, jobs: list[tuple[str, int]], size: int | None) 
             return {(name, seed): images[f"{name}:{seed}"] for name, seed in jobs}
 
 
-def baseline(rows: list[dict[str, Any]], commit: str, config: BenchmarkConfig,
-             size: int | None) -> list[dict[str, Any]]:
+def baseline(rows: list[dict[str, Any]], commit: str, config: BenchmarkConfig) -> list[dict[str, Any]]:
     """The version at ``commit`` on every stored scene and seed, against the seed's stored curve and floor, beside
     this version's stored figure."""
-    images = baseline_images(commit, [(r["scene"], r["seed"]) for r in rows], size)
+    images = baseline_images(commit, [(r["scene"], r["seed"]) for r in rows], config.width)
     out = []
     for row in rows:
         scene = tracer_module().load_scene(row["scene"], width=config.width, height=config.height)
@@ -323,7 +321,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"{option}: {args.output} holds no stored seed of these scenes; "
                          f"run without {option} first")
         if args.baseline:
-            rows = baseline(chosen, args.baseline, config, args.size)
+            rows = baseline(chosen, args.baseline, config)
             update_section(args.output, "baseline", rows, command)
             print(baseline_table(rows))
             return 0
