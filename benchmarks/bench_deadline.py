@@ -12,11 +12,11 @@ that time ``T`` is the budget of an AWR run: ``AdaptiveSampler(...).run(renderer
 ``reconstruct``, with ``t_rec`` the median of three default reconstructions of a 2-spp buffer of the scene (the
 time the run leaves the reconstruction). Each AWR run is measured whole (the run and the reconstruction) against
 ``T``; its relMSE and MSE against the reference over the uniform render's (the plain mean of ``N`` spp, what that
-time buys without AWR). Four ways of sizing the rounds under the deadline, each in the same conditions:
-the library's (``rounds.ROUND_OVERHEAD``, 0.1), shares of 0.05 and 0.25, and the sampler's default rounds
-(``round_growth``, no share); ``--repeats`` runs of each (3; seeds ``N + k``), interleaved, their medians (the
-machine's speed moves a single run's samples by a fifth). "n/a": ``T`` is shorter than ``t_rec`` (the
-reconstruction alone would not fit).
+time buys without AWR), and both images' mean error against the reference's. Four ways of sizing the rounds
+under the deadline, each in the same conditions: the library's (``rounds.ROUND_OVERHEAD``, 0.1), shares of 0.05
+and 0.25, and the sampler's default rounds (``round_growth``, no share); ``--repeats`` runs of each (3; seeds
+``N + k``), interleaved, their medians (the machine's speed moves a single run's samples by a fifth). "n/a": ``T``
+is shorter than ``t_rec`` (the reconstruction alone would not fit).
 
 References: the bundled tracer's cached 4096-spp references (128x128), Mitsuba's 2048-spp film renders cached by
 ``bench_mitsuba.py`` under ``benchmarks/cache/mitsuba/`` (256x256). ``--renderers synthetic`` runs the synthetic
@@ -138,6 +138,11 @@ class Scene:
                 "rounds": len(told), "largest_round_spp": max(told) / pixels}
 
 
+def mean_error(image: np.ndarray, reference: np.ndarray) -> float:
+    """The image mean's error against the reference's, the largest over the channels, in per cent."""
+    return float(100 * np.abs(image.mean(axis=(0, 1)) / reference.mean(axis=(0, 1)) - 1).max())
+
+
 def measure(renderer: str, name: str, spps: list[int], size: int | tuple[int, int] | None,
             repeats: int = 1) -> list[dict[str, Any]]:
     """Every uniform sample count of one scene: the uniform render's time and error, and each sizing's AWR runs
@@ -152,7 +157,8 @@ def measure(renderer: str, name: str, spps: list[int], size: int | tuple[int, in
         row: dict[str, Any] = {"renderer": renderer, "scene": name, "shape": list(scene.shape), "uniform_spp": spp,
                                "seconds": budget, "reconstruction_seconds": t_rec,
                                "uniform_relmse": relmse(image, scene.reference),
-                               "uniform_mse": mse(image, scene.reference), "awr": {}}
+                               "uniform_mse": mse(image, scene.reference),
+                               "uniform_mean_error": mean_error(image, scene.reference), "awr": {}}
         if budget > t_rec:
             runs: dict[str, list[dict[str, Any]]] = {label: [] for label in SIZINGS}
             for k in range(repeats):  # interleaved: the machine's drift falls on every sizing alike
@@ -160,7 +166,8 @@ def measure(renderer: str, name: str, spps: list[int], size: int | tuple[int, in
                     run = scene.awr(budget - t_rec, seed=spp + k, share=share)
                     result = run.pop("image")
                     runs[label].append({"relmse_ratio": relmse(result, scene.reference) / row["uniform_relmse"],
-                                        "mse_ratio": mse(result, scene.reference) / row["uniform_mse"], **run})
+                                        "mse_ratio": mse(result, scene.reference) / row["uniform_mse"],
+                                        "mean_error": mean_error(result, scene.reference), **run})
             row["awr"] = {label: {**{key: statistics.median(r[key] for r in each) for key in each[0]},
                                   "repeats": each} for label, each in runs.items()}
         rows.append(row)
@@ -178,16 +185,19 @@ def _line(row: dict[str, Any]) -> str:
 
 
 def table(rows: list[dict[str, Any]]) -> str:
-    """Markdown: per scene and budget, each sizing's spp, rounds, time over the budget and errors over uniform's."""
+    """Markdown: per scene and budget, the uniform render's image-mean error and each sizing's spp, rounds, time over
+    the budget, errors over uniform's and image-mean error."""
     labels = list(SIZINGS)
-    lines = ["| renderer | scene | uniform spp | seconds | "
-             + " | ".join(f"{k}: spp, rounds, time / budget, relMSE / uniform, MSE / uniform" for k in labels) + " |",
-             "|" + "---|" * (4 + len(labels))]
+    lines = ["| renderer | scene | uniform spp | seconds | uniform: mean error % | "
+             + " | ".join(f"{k}: spp, rounds, time / budget, relMSE / uniform, MSE / uniform, mean error %"
+                          for k in labels) + " |",
+             "|" + "---|" * (5 + len(labels))]
     for row in rows:
         cells = [(f"{a['spp']:.1f}, {a['rounds']}, {a['seconds'] / row['seconds']:.2f}, {a['relmse_ratio']:.2f}, "
-                  f"{a['mse_ratio']:.2f}") if (a := row["awr"].get(k)) else "n/a" for k in labels]
+                  f"{a['mse_ratio']:.2f}, {a['mean_error']:.2f}") if (a := row["awr"].get(k)) else "n/a"
+                 for k in labels]
         lines.append(f"| {row['renderer']} | {row['scene']} | {row['uniform_spp']} | {row['seconds']:.3f} | "
-                     + " | ".join(cells) + " |")
+                     f"{row['uniform_mean_error']:.2f} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 

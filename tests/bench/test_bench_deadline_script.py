@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pytest
 
 from awr_denoise import rounds
@@ -34,6 +35,7 @@ def test_each_budget_is_the_uniform_renders_time_and_each_sizing_runs_within_rea
         assert run["rounds"] >= 1 and run["spp"] >= 2 and run["largest_round_spp"] <= run["spp"]
         assert run["run_seconds"] <= run["seconds"]
         assert math.isfinite(run["relmse_ratio"]) and math.isfinite(run["mse_ratio"]) and run["mse_ratio"] > 0
+        assert 0 <= run["mean_error"] < 100
     assert long["uniform_relmse"] < short["uniform_relmse"]
 
 
@@ -49,12 +51,19 @@ def test_the_sizings_set_the_libraries_share_and_put_it_back(bench):
 
 
 def test_the_table_gives_every_sizing_or_na(bench):
-    run = {"spp": 12.34, "rounds": 3, "seconds": 0.9, "relmse_ratio": 0.5, "mse_ratio": 0.25}
+    run = {"spp": 12.34, "rounds": 3, "seconds": 0.9, "relmse_ratio": 0.5, "mse_ratio": 0.25, "mean_error": 0.125}
     text = bench.table([
-        {"renderer": "r", "scene": "s", "uniform_spp": 64, "seconds": 1.0, "awr": {k: run for k in bench.SIZINGS}},
-        {"renderer": "r", "scene": "s", "uniform_spp": 8, "seconds": 0.1, "awr": {}}])
-    assert "| r | s | 64 | 1.000 | 12.3, 3, 0.90, 0.50, 0.25 |" in text
-    assert "| r | s | 8 | 0.100 | " + " | ".join(["n/a"] * len(bench.SIZINGS)) + " |" in text
+        {"renderer": "r", "scene": "s", "uniform_spp": 64, "seconds": 1.0, "uniform_mean_error": 1.5,
+         "awr": {k: run for k in bench.SIZINGS}},
+        {"renderer": "r", "scene": "s", "uniform_spp": 8, "seconds": 0.1, "uniform_mean_error": 2.0, "awr": {}}])
+    assert "| r | s | 64 | 1.000 | 1.50 | 12.3, 3, 0.90, 0.50, 0.25, 0.12 |" in text
+    assert "| r | s | 8 | 0.100 | 2.00 | " + " | ".join(["n/a"] * len(bench.SIZINGS)) + " |" in text
+
+
+def test_the_mean_error_is_the_worst_channels_in_per_cent(bench):
+    reference = np.ones((2, 2, 3))
+    image = reference * np.array([1.0, 1.02, 0.97])
+    assert bench.mean_error(image, reference) == pytest.approx(3.0)
 
 
 def test_a_size_with_the_tracers_fixed_references_is_refused(bench, capsys):
