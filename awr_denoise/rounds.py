@@ -2,14 +2,15 @@
 
 Without a deadline every round asks for the sampler's default budget (``round_growth`` of the samples so far;
 paper section 4 leaves the round size open), the last one cut to land on the goal. With a time budget
-(``seconds``) the rounds are planned from what the last one measured (:class:`RoundPlan`): how long the
-renderer took per sample and how long the sampler's own work took (``ask`` and ``tell``, whose priority
-analysis costs about the same whatever the round's size). A round then asks for at least enough samples that
-the sampler's work is :data:`ROUND_OVERHEAD` of its render time (a fast renderer gets fewer, larger rounds:
-more of the budget goes to samples), for no more than the time left can render, and the round before the
-deadline takes all that is left. The run stops when less than one sample per pixel fits. The final
-reconstruction is the caller's, after the run: leave it its time (docs/sampling.md, "A time budget").
-"""
+(``seconds``) the rounds are planned from what was measured (:class:`RoundPlan`): the sampler ranks the pixels
+first (its priority analysis, whose cost hardly depends on the round's size, timed before the size is chosen),
+and the last round told how long the renderer took per sample and the rest of the sampler's work (allocation and
+``tell``). A round then asks for at least enough samples that the sampler's work is :data:`ROUND_OVERHEAD` of its
+render time (a fast renderer gets fewer, larger rounds: more of the budget goes to samples), for no more than the
+time left can render, and the round before the deadline takes all that is left. The first ranked round asks for
+the sampler's default budget: what its samples cost is measured on it, not inferred from round 0's uniform ones.
+The run stops when less than one sample per pixel fits. The final reconstruction is the caller's, after the run:
+leave it its time (docs/sampling.md, "A time budget")."""
 
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from tqdm.auto import tqdm
 
+from . import _checks
 from .allocation import MAX_BUDGET
 from .errors import TimeBudgetWarning
 from .requests import Renderer, SampleRequest
@@ -52,6 +54,13 @@ _clock: Callable[[], float] = time.perf_counter
 class RoundPlan:
     """The budget of each round under a deadline, from the costs the last round measured.
 
+    The sampler's time per round is two parts: its ranking of the pixels (the priority analysis, timed before the
+    round's size is chosen: :meth:`budget` takes this round's), and the rest (``ask``'s allocation and ``tell``),
+    taken from the last round. The renderer's time per sample is the last round's; the first round placed by a
+    ranking asks for no more than the sampler's default budget, because round 0's uniform samples do not tell
+    what the ranked ones cost (beside Mitsuba 3 at 1080p, 1.6 times as much per sample: docs/sampling.md, "A time
+    budget").
+
     Parameters
     ----------
     seconds
@@ -76,23 +85,38 @@ class RoundPlan:
     280
     >>> plan.budget(16, now=0.95)           # less than one sample per pixel fits: stop
     0
+    >>> plan.budget(16, now=0.04, ranking=0.01)  # this round's ranking took 10 ms (spent): 30 ms a round
+    300
+    >>> plan.record(overhead=0.02, render=0.016, samples=16, ranked=False)   # round 0's uniform samples
+    >>> plan.budget(16, now=0.04, ranking=0.1)   # the first ranked round: the default, to measure them
+    16
     """
 
     seconds: float
     pixels: int
     start: float = field(default_factory=lambda: _clock())
     overhead: float | None = None
-    """The sampler's seconds (``ask`` and ``tell``) in the last round."""
+    """The sampler's seconds in the last round but its ranking (``ask``'s allocation and ``tell``)."""
+    ranking: float = 0.0
+    """The sampler's seconds ranking the pixels in the last round."""
     per_sample: float | None = None
     """The renderer's seconds per sample in the last round."""
+    ranked: bool = True
+    """Whether ``per_sample`` was measured on samples a ranking placed (round 0's are uniform)."""
 
-    def record(self, *, overhead: float, render: float, samples: int) -> None:
-        """What a round cost: the sampler's seconds, the renderer's seconds and its samples."""
-        self.overhead = max(0.0, float(overhead))
-        self.per_sample = max(0.0, float(render)) / samples if samples > 0 else self.per_sample
+    def record(self, *, overhead: float, render: float, samples: int, ranking: float = 0.0,
+               ranked: bool = True) -> None:
+        """What a round cost: the sampler's seconds (its ranking apart), the renderer's seconds and its samples."""
+        self.overhead, self.ranking = max(0.0, float(overhead)), max(0.0, float(ranking))
+        if samples > 0:
+            self.per_sample, self.ranked = max(0.0, float(render)) / samples, ranked
 
-    def budget(self, default: int, *, now: float | None = None) -> int:
-        """Samples of the next round (0: stop), given the sampler's ``default`` budget."""
+    def budget(self, default: int, *, now: float | None = None, ranking: float | None = None) -> int:
+        """Samples of the next round (0: stop), given the sampler's ``default`` budget.
+
+        ``ranking``: the seconds this round's ranking took, already spent by ``now`` (``None``: not timed
+        apart, the last round's is expected).
+        """
         if self.overhead is None:  # nothing measured yet
             return default
         left = self.seconds - ((_clock() if now is None else now) - self.start)
@@ -100,26 +124,34 @@ class RoundPlan:
             return 0
         if not self.per_sample:  # a renderer too fast for the clock: the default rounds until the time is up
             return default
-        o, r = self.overhead, self.per_sample
-        afford = min((left - o) / r, MAX_BUDGET)
+        to_spend = self.overhead + (self.ranking if ranking is None else 0.0)  # this round's sampler time to come
+        whole = self.overhead + (self.ranking if ranking is None else ranking)  # a round's sampler time
+        r = self.per_sample
+        afford = min((left - to_spend) / r, MAX_BUDGET)
         if afford < self.pixels:
             return 0
         afford = int(afford)
-        budget = min(max(default, math.ceil(o / (ROUND_OVERHEAD * r))), afford)
-        if left - o - budget * r < o + self.pixels * r:  # no room for one more round after it
+        if not self.ranked:  # what ranked samples cost is not known yet: measure it on the default round
+            return min(default, afford)
+        budget = min(max(default, math.ceil(whole / (ROUND_OVERHEAD * r))), afford)
+        if left - to_spend - budget * r < whole + self.pixels * r:  # no room for one more round after it
             budget = afford
         return budget
 
 
-def run_rounds(sampler: Sampler, renderer: Renderer, goal: int | None, *, seconds: float | None = None,
+def run_rounds(sampler: Sampler, renderer: Renderer, total_spp: float | None, *, seconds: float | None = None,
                progress: bool = False, callback: Callable[[SampleRequest, SampleBuffer], bool | None] | None = None
                ) -> SampleBuffer:
-    """Ask, render, tell until ``goal`` samples were issued (``None``: no goal) or the time budget ends.
+    """:meth:`~awr_denoise.sampling.Sampler.run`: ask, render, tell until ``total_spp`` or the time budget ends.
 
-    The caller (:meth:`~awr_denoise.sampling.Sampler.run`) has checked ``goal`` and ``seconds``. A pending
-    round is told first, whole. Returns the sampler's buffer.
+    ``total_spp`` and ``seconds`` are checked here, by name (``total_spp`` ``None``: 32 without ``seconds``, no
+    goal with it). A pending round is told first, whole. Returns the sampler's buffer.
     """
     pixels = sampler.shape[0] * sampler.shape[1]
+    seconds = _checks.real("seconds", seconds, above=0, maximum=MAX_SECONDS, none=True)
+    if total_spp is None and seconds is None:
+        total_spp = DEFAULT_RUN_SPP
+    goal = None if total_spp is None else _goal(sampler, total_spp)
     plan = None if seconds is None else RoundPlan(seconds, pixels)
     rounds = 0
     with tqdm(total=goal, initial=sampler.total_samples, unit="sample", desc=sampler.strategy) \
@@ -130,11 +162,16 @@ def run_rounds(sampler: Sampler, renderer: Renderer, goal: int | None, *, second
             remaining = [n for n in (None if goal is None else goal - int(issued.sum()), room) if n is not None]
             if remaining and min(remaining) <= 0:  # a pending round fits in both: it was asked within them
                 break
-            budget = None
+            budget, ranking = None, 0.0
             if sampler.pending is None:
                 budget = sampler.default_budget()
                 if plan is not None:
-                    budget = plan.budget(budget)
+                    if plan.budget(budget) == 0:  # no round fits, with the last ranking's cost: none is ranked
+                        break
+                    started = _clock()
+                    sampler._prepare()  # this round's ranking: its cost is known before the round's size
+                    ranking = _clock() - started
+                    budget = plan.budget(budget, ranking=ranking)
                     if budget == 0:
                         break
                 budget = min([budget, *remaining])
@@ -147,7 +184,7 @@ def run_rounds(sampler: Sampler, renderer: Renderer, goal: int | None, *, second
             rounds += 1
             if plan is not None:
                 plan.record(overhead=(asked - started) + (_clock() - rendered), render=rendered - asked,
-                            samples=request.total)
+                            samples=request.total, ranking=ranking, ranked=request.round > 0)
             if bar is not None:
                 bar.update(request.total)
             if callback is not None and callback(request, buffer) is False:
@@ -157,3 +194,22 @@ def run_rounds(sampler: Sampler, renderer: Renderer, goal: int | None, *, second
                       "render may spend a budget this short better (docs/sampling.md, 'A time budget')",
                       TimeBudgetWarning, stacklevel=3)
     return sampler.buffer
+
+
+def _goal(sampler: Sampler, total_spp: float) -> int:
+    """``total_spp`` as a number of samples, checked against what the sampler took and may still take."""
+    pixels = sampler.shape[0] * sampler.shape[1]
+    total_spp = _checks.real("total_spp", total_spp, minimum=0, maximum=MAX_BUDGET / pixels)
+    goal = int(round(total_spp * pixels))
+    pending = sampler.pending
+    taken, asked = int(sampler.issued.sum()), (0 if pending is None else pending.total)
+    if goal < taken:
+        raise ValueError(f"total_spp: {total_spp} is below the {taken / pixels:.3g} spp already taken")
+    if taken < goal < taken + asked:  # a pending round is told whole, if at all
+        raise ValueError(f"total_spp: {total_spp} falls inside pending round {pending.round} "
+                         f"({taken / pixels:.3g} to {(taken + asked) / pixels:.3g} spp), which is told whole")
+    if sampler.spp_max is not None and goal > taken + (room := int(np.maximum(sampler.spp_max - sampler.issued,
+                                                                            0).sum())):
+        raise ValueError(f"total_spp: {total_spp} exceeds the {(taken + room) / pixels:.6g} spp that spp_max "
+                         f"{sampler.spp_max} allows")
+    return goal

@@ -36,7 +36,7 @@ from .errors import StaleRequestError
 from .noise_gain import DEFAULT_GAIN_REFRESH, DEFAULT_NOISE_MODEL, NOISE_MODELS, MeasuredGain
 from .priorities import DEFAULT_ABSOLUTE_ABOVE, pooled_deviation, sampling_density
 from .requests import Renderer, SampleRequest
-from .rounds import DEFAULT_RUN_SPP, MAX_SECONDS, run_rounds
+from .rounds import run_rounds
 from .wavelets import DEFAULT_WAVELET, wavelet_operators
 
 __all__ = ["Sampler", "AdaptiveSampler", "UniformSampler", "VarianceSampler", "SAMPLERS", "NOISE_MODELS",
@@ -381,26 +381,13 @@ class Sampler(OneAtATime):
         >>> AdaptiveSampler((16, 16)).run(renderer, seconds=0.5).total_samples >= 512   # as many as 0.5 s allow
         True
         """
-        pixels = self._shape[0] * self._shape[1]
-        seconds = _checks.real("seconds", seconds, above=0, maximum=MAX_SECONDS, none=True)
-        if total_spp is None and seconds is None:
-            total_spp = DEFAULT_RUN_SPP
-        if total_spp is None:
-            return run_rounds(self, renderer, None, seconds=seconds, progress=progress, callback=callback)
-        total_spp = _checks.real("total_spp", total_spp, minimum=0, maximum=MAX_BUDGET / pixels)
-        goal = int(round(total_spp * pixels))
-        taken, asked = int(self._issued.sum()), (0 if self._pending is None else self._pending.total)
-        if goal < taken:
-            raise ValueError(f"total_spp: {total_spp} is below the {taken / pixels:.3g} spp already taken")
-        if taken < goal < taken + asked:  # a pending round is told whole, if at all
-            raise ValueError(f"total_spp: {total_spp} falls inside pending round {self._pending.round} "
-                             f"({taken / pixels:.3g} to {(taken + asked) / pixels:.3g} spp), which is told whole")
-        if self.spp_max is not None and goal > taken + (room := int(np.maximum(self.spp_max - self._issued, 0).sum())):
-            raise ValueError(f"total_spp: {total_spp} exceeds the {(taken + room) / pixels:.6g} spp that spp_max "
-                             f"{self.spp_max} allows")
-        return run_rounds(self, renderer, goal, seconds=seconds, progress=progress, callback=callback)
+        return run_rounds(self, renderer, total_spp, seconds=seconds, progress=progress, callback=callback)
 
     # ------------------------------------------------------------------ strategy
+    def _prepare(self) -> None:
+        """Rank the pixels for the next :meth:`ask` now, so that a time budget knows what it cost before the
+        round's size is chosen (:mod:`.rounds`); nothing to rank here."""
+
     def _allocate(self, budget: int, current: CountArray, capacity: CountArray | None,
                   rng: np.random.Generator) -> CountArray:
         raise NotImplementedError
@@ -529,6 +516,7 @@ class AdaptiveSampler(Sampler):
             if value is not None and self.noise_model != model:  # it would do nothing: refused
                 raise ValueError(f"{name}: {value!r} needs noise_model={model!r}, not {self.noise_model!r}")
         self.level_weight = _checks.real("level_weight", 0.25 if level_weight is None else level_weight, minimum=0)
+        self._prepared: tuple[int, FloatArray] | None = None  # (round, density) ranked ahead of ask()
         self._gain = None if self.noise_model != "reconstruction" else MeasuredGain(
             DEFAULT_GAIN_REFRESH if gain_refresh is None else gain_refresh)
         self.absolute_above = _checks.real("absolute_above", absolute_above, above=0, none=True)
@@ -541,8 +529,14 @@ class AdaptiveSampler(Sampler):
                                 level_weight=self.level_weight, noise_gain=gain, absolute_above=self.absolute_above,
                                 executor=self.executor, noise_model=self.noise_model)
 
+    def _prepare(self) -> None:
+        if self._round > 0 and self._pending is None and self._buffer.total_samples > 0:
+            self._prepared = (self._round, self.density())
+
     def _allocate(self, budget, current, capacity, rng):
-        return _allocate_mixed(self.density(), current, budget, self.uniform_fraction, capacity=capacity, rng=rng)
+        prepared, self._prepared = self._prepared, None
+        density = prepared[1] if prepared is not None and prepared[0] == self._round else self.density()
+        return _allocate_mixed(density, current, budget, self.uniform_fraction, capacity=capacity, rng=rng)
 
 
 SAMPLERS: dict[str, type[Sampler]] = {cls.strategy: cls for cls in (AdaptiveSampler, UniformSampler, VarianceSampler)}

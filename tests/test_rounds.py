@@ -78,13 +78,81 @@ def test_rounds_grow_until_the_samplers_time_is_its_share_of_their_render_time(c
     renderer, overhead = TimedRenderer(clock, 1e-5), 0.01
     timed_sampler(clock, overhead).run(renderer, seconds=5.0)
     least = math.ceil(overhead / (ROUND_OVERHEAD * renderer.per_sample))
-    middle = renderer.rounds[1:-1]  # the first is round 0 (nothing measured), the last takes what is left
+    # Round 0 (nothing measured), then the first ranked round at the sampler's default (1 spp: what ranked
+    # samples cost is measured on it); the last takes what is left.
+    assert renderer.rounds[1] == PIXELS
+    middle = renderer.rounds[2:-1]
     assert middle and all(n >= least for n in middle)
-    assert renderer.rounds[-1] >= least
     # Without the deadline the same sampler would have asked for its default rounds, far smaller here.
     plain = TimedRenderer(clock, 1e-5)
     AdaptiveSampler(SHAPE, seed=0).run(plain, total_spp=sum(renderer.rounds) / PIXELS)
     assert len(plain.rounds) > len(renderer.rounds) and max(plain.rounds[1:4]) < least / 10
+
+
+class RankedCostRenderer(TimedRenderer):
+    """Samples after round 0 cost ``ranked_factor`` times as much: a ranking sends them to costlier pixels (beside
+    Mitsuba 3 at 1080p, 1.6 times round 0's uniform ones)."""
+
+    def __init__(self, clock: FakeClock, per_sample: float, ranked_factor: float) -> None:
+        super().__init__(clock, per_sample)
+        self.ranked_factor = ranked_factor
+
+    def __call__(self, request):
+        if request.round > 0:
+            self.clock.now += request.total * self.per_sample * (self.ranked_factor - 1)
+        return super().__call__(request)
+
+
+@pytest.mark.parametrize("seconds", [0.3, 0.5, 1.0])
+def test_ranked_samples_costlier_than_round_0s_do_not_overrun_the_budget(clock, seconds):
+    """Round 0's rate would let the first ranked round take all that is left (at 3x the cost per sample, past
+    the budget); it is the default round instead (1 spp, which fits here even at 3x), and the rounds after it are
+    sized on its rate."""
+    renderer = RankedCostRenderer(clock, 1e-4, ranked_factor=3.0)
+    timed_sampler(clock, 0.01).run(renderer, seconds=seconds)
+    assert clock.now <= seconds and len(renderer.rounds) >= 2
+    assert renderer.rounds[1] == PIXELS
+
+
+def slow_ranking(sampler: AdaptiveSampler, clock: FakeClock, seconds: float) -> AdaptiveSampler:
+    """``sampler``'s priority analysis (``density``) costs ``seconds`` of the fake clock."""
+    density = sampler.density
+
+    def costly_density():
+        clock.now += seconds
+        return density()
+
+    sampler.density = costly_density
+    return sampler
+
+
+@pytest.mark.parametrize("seconds", [0.5, 1.0, 2.0])
+def test_the_rankings_cost_is_known_before_the_rounds_size(clock, seconds):
+    """A priority analysis of 0.3 s per round, far more than round 0's ``ask``: each round's is timed before its
+    size is chosen, and no ranking starts that would leave no room for its round."""
+    renderer = TimedRenderer(clock, 1e-4)
+    sampler = slow_ranking(timed_sampler(clock, 0.001), clock, 0.3)
+    sampler.run(renderer, seconds=seconds)
+    assert clock.now <= seconds
+    # The time is used: less than one more ranked round (its ranking and 1 spp) would have fitted.
+    assert clock.now > seconds - (0.3 + 0.001 + PIXELS * renderer.per_sample)
+
+
+def test_a_ranking_done_ahead_is_the_one_the_round_allocates_by(clock):
+    """Under a deadline each ranked round's priorities are computed once, ahead of ``ask``, and allocated by:
+    the same requests, pixel for pixel, as the run without a deadline, which ranks inside ``ask``."""
+    seen, plain, calls = [], [], []
+    sampler = timed_sampler(clock, 1e-3)
+    density = sampler.density
+    sampler.density = lambda: calls.append(sampler.round) or density()
+    sampler.run(TimedRenderer(clock, 1e-2), seconds=60.0, callback=lambda request, _: seen.append(request.counts))
+    assert calls == list(range(1, len(seen)))  # once per round after round 0
+    AdaptiveSampler(SHAPE, seed=0).run(SyntheticRenderer(make_scene("edges", SHAPE), seed=0),
+                                      total_spp=sum(int(c.sum()) for c in seen) / PIXELS,
+                                      callback=lambda request, _: plain.append(request.counts))
+    assert len(seen) == len(plain) >= 4
+    for ours, theirs in zip(seen[:-2], plain[:-2]):
+        np.testing.assert_array_equal(ours, theirs)
 
 
 def test_a_slow_renderer_keeps_the_samplers_own_rounds(clock):
