@@ -7,8 +7,8 @@ first (its priority analysis, whose cost hardly depends on the round's size, tim
 and the last round told how long the renderer took per sample and the rest of the sampler's work (allocation and
 ``tell``). A round then asks for at least enough samples that the sampler's work is :data:`ROUND_OVERHEAD` of its
 render time (a fast renderer gets fewer, larger rounds: more of the budget goes to samples), for no more than the
-time left can render, and the round before the deadline takes all that is left. The first ranked round asks for
-the sampler's default budget: what its samples cost is measured on it, not inferred from round 0's uniform ones.
+time left can render, and the round before the deadline takes all that is left. Samples placed by a ranking are
+planned at :data:`RANKED_COST_MARGIN` times round 0's uniform ones' cost until a ranked round was measured.
 The run stops when less than one sample per pixel fits. The final reconstruction is the caller's, after the run:
 leave it its time (docs/sampling.md, "A time budget")."""
 
@@ -34,7 +34,7 @@ if TYPE_CHECKING:  # the samplers import this module
     from .buffers import SampleBuffer
     from .sampling import Sampler
 
-__all__ = ["ROUND_OVERHEAD", "DEFAULT_RUN_SPP", "MAX_SECONDS", "RoundPlan", "run_rounds"]
+__all__ = ["ROUND_OVERHEAD", "RANKED_COST_MARGIN", "DEFAULT_RUN_SPP", "MAX_SECONDS", "RoundPlan", "run_rounds"]
 
 DEFAULT_RUN_SPP = 32.0
 """:meth:`~awr_denoise.sampling.Sampler.run`'s goal in samples per pixel given neither ``total_spp`` nor ``seconds``."""
@@ -46,6 +46,11 @@ ROUND_OVERHEAD = 0.1
 render time: rounds grow until it holds. Measured against shares of 0.05 and 0.25 and the sampler's default rounds
 beside Mitsuba 3 and the bundled tracer (docs/sampling.md, "A time budget")."""
 
+RANKED_COST_MARGIN = 2.0
+"""Until a ranked round was measured, its samples are planned at this many times round 0's cost per sample: a
+ranking sends them to other pixels, scattered (beside Mitsuba 3 1.85 times round 0's at 1080p, 0.97-1.28 times at
+256x256; beside the bundled tracer 0.96-1.15 times: docs/sampling.md, "A time budget")."""
+
 _clock: Callable[[], float] = time.perf_counter
 """The clock of the deadline (a test replaces it)."""
 
@@ -56,10 +61,9 @@ class RoundPlan:
 
     The sampler's time per round is two parts: its ranking of the pixels (the priority analysis, timed before the
     round's size is chosen: :meth:`budget` takes this round's), and the rest (``ask``'s allocation and ``tell``),
-    taken from the last round. The renderer's time per sample is the last round's; the first round placed by a
-    ranking asks for no more than the sampler's default budget, because round 0's uniform samples do not tell
-    what the ranked ones cost (beside Mitsuba 3 at 1080p, 1.6 times as much per sample: docs/sampling.md, "A time
-    budget").
+    taken from the last round. The renderer's time per sample is the last round's; when that round was round 0
+    (uniform), the next one's samples are planned at :data:`RANKED_COST_MARGIN` times its rate, since a ranking
+    sends them to other pixels, which may cost more.
 
     Parameters
     ----------
@@ -88,8 +92,8 @@ class RoundPlan:
     >>> plan.budget(16, now=0.04, ranking=0.01)  # this round's ranking took 10 ms (spent): 30 ms a round
     300
     >>> plan.record(overhead=0.02, render=0.016, samples=16, ranked=False)   # round 0's uniform samples
-    >>> plan.budget(16, now=0.04, ranking=0.1)   # the first ranked round: the default, to measure them
-    16
+    >>> plan.budget(16, now=0.6, ranking=0.1)    # ranked ones planned at 2 ms each: 190 fit in what is left
+    190
     """
 
     seconds: float
@@ -126,13 +130,11 @@ class RoundPlan:
             return default
         to_spend = self.overhead + (self.ranking if ranking is None else 0.0)  # this round's sampler time to come
         whole = self.overhead + (self.ranking if ranking is None else ranking)  # a round's sampler time
-        r = self.per_sample
+        r = self.per_sample * (1.0 if self.ranked else RANKED_COST_MARGIN)
         afford = min((left - to_spend) / r, MAX_BUDGET)
         if afford < self.pixels:
             return 0
         afford = int(afford)
-        if not self.ranked:  # what ranked samples cost is not known yet: measure it on the default round
-            return min(default, afford)
         budget = min(max(default, math.ceil(whole / (ROUND_OVERHEAD * r))), afford)
         if left - to_spend - budget * r < whole + self.pixels * r:  # no room for one more round after it
             budget = afford

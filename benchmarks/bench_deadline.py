@@ -5,6 +5,7 @@ Run from the repository root::
     .venv/bin/python benchmarks/bench_deadline.py                  # both renderers, about 15 minutes
     .venv/bin/python benchmarks/bench_deadline.py --renderers tracer --spps 32 64
     .venv/bin/python benchmarks/bench_deadline.py --renderers --hd  # Mitsuba's 1080p Cornell box, 32 spp
+    .venv/bin/python benchmarks/bench_deadline.py --costs --hd      # what ranked samples cost, a few minutes
 
 For each scene and uniform sample count ``N`` (32, 64, 128): the uniform render of ``N`` spp is timed (the median
 of three renders; Mitsuba 3's own ``mi.render`` through its film, the bundled tracer's uniform request), and
@@ -23,6 +24,13 @@ References: the bundled tracer's cached 4096-spp references (128x128), Mitsuba's
 ``edges`` scene against its clean image (the script's test). ``--hd`` adds Mitsuba's Cornell box at 1920x1080
 and 32 spp (its 512-spp reference, ``bench_mitsuba.py``'s; section ``deadline_hd``; ``--renderers`` with no
 name: it alone). Results: ``benchmarks/results/deadline.json``.
+
+``--costs`` asks what the plan cannot know before the first ranked round (section ``costs``): on each scene the
+renderer's time per sample on round 0's uniform request (2 spp) and on the first ranked request of the same total
+(the sampler's ``ask`` after round 0), and on that request's counts shuffled over the pixels (the same numbers per
+pixel, other pixels: whether it is the pixels the ranking picks that cost more, or the scattered requests); and the
+priority analysis' time (``density``), beside ``ask`` and ``tell`` of round 0. Each renders ``--repeats`` times,
+interleaved; medians.
 """
 
 from __future__ import annotations
@@ -138,6 +146,57 @@ class Scene:
                 "rounds": len(told), "largest_round_spp": max(told) / pixels}
 
 
+def costs(renderer: str, name: str, size: int | tuple[int, int] | None, repeats: int = 3) -> dict[str, Any]:
+    """The renderer's seconds per sample on round 0's request, the first ranked one and its counts shuffled; the
+    sampler's ranking (``density``) and round 0's ``ask`` and ``tell`` (``--costs``)."""
+    scene = Scene(renderer, name, size)
+    scene.reseed(0)
+    sampler = AdaptiveSampler(scene.shape, seed=0)
+    clock = time.perf_counter
+    start = clock()
+    first = sampler.ask()
+    asked = clock()
+    samples = scene.renderer(first)
+    rendered = clock()
+    sampler.tell(first, samples)
+    told = clock()
+    rankings = []
+    for _ in range(repeats):
+        begun = clock()
+        sampler.density()
+        rankings.append(clock() - begun)
+    ranked = sampler.ask(first.total)
+    shuffled = SampleRequest(np.random.default_rng(0).permutation(ranked.counts.ravel()).reshape(scene.shape),
+                             ranked.first_index, ranked.round, ranked.sampler_id)
+    requests = {"uniform": SampleRequest.uniform(scene.shape, sampler.initial_spp), "ranked": ranked,
+                "ranked, shuffled": shuffled}
+    times: dict[str, list[float]] = {label: [] for label in requests}
+    for _ in range(repeats):  # interleaved: the machine's drift falls on each alike
+        for label, request in requests.items():
+            begun = clock()
+            scene.renderer(request)
+            times[label].append((clock() - begun) / request.total)
+    getattr(scene.renderer, "close", lambda: None)()
+    per_sample = {label: statistics.median(t) for label, t in times.items()}
+    return {"renderer": renderer, "scene": name, "shape": list(scene.shape), "samples": first.total,
+            "per_sample": per_sample, "ranked_over_uniform": per_sample["ranked"] / per_sample["uniform"],
+            "shuffled_over_uniform": per_sample["ranked, shuffled"] / per_sample["uniform"],
+            "ranking_seconds": statistics.median(rankings), "round0_ask_seconds": asked - start,
+            "round0_tell_seconds": told - rendered, "round0_render_seconds": rendered - asked}
+
+
+def costs_table(rows: list[dict[str, Any]]) -> str:
+    """Markdown of ``--costs``: per scene the time per sample, the ratios and the sampler's times."""
+    lines = ["| renderer | scene | shape | uniform: us per sample | ranked over uniform | ranked, shuffled over "
+             "uniform | ranking s | round 0: ask s, tell s, render s |", "|" + "---|" * 8]
+    for r in rows:
+        lines.append(f"| {r['renderer']} | {r['scene']} | {r['shape'][1]}x{r['shape'][0]} | "
+                     f"{1e6 * r['per_sample']['uniform']:.3f} | {r['ranked_over_uniform']:.2f} | "
+                     f"{r['shuffled_over_uniform']:.2f} | {r['ranking_seconds']:.3f} | {r['round0_ask_seconds']:.3f}, "
+                     f"{r['round0_tell_seconds']:.3f}, {r['round0_render_seconds']:.3f} |")
+    return "\n".join(lines)
+
+
 def mean_error(image: np.ndarray, reference: np.ndarray) -> float:
     """The image mean's error against the reference's, the largest over the channels, in per cent."""
     return float(100 * np.abs(image.mean(axis=(0, 1)) / reference.mean(axis=(0, 1)) - 1).max())
@@ -213,6 +272,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="also Mitsuba's Cornell box at 1920x1080 at 32 spp (section deadline_hd)")
     parser.add_argument("--repeats", type=int, default=3, metavar="N",
                         help="AWR runs of each sizing per budget (seeds spp + k), interleaved; medians (default 3)")
+    parser.add_argument("--costs", action="store_true",
+                        help="instead: what ranked samples and the ranking cost against round 0's (section costs)")
     parser.add_argument("--output", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
     if not 1 <= args.repeats <= 99:
@@ -226,6 +287,13 @@ def main(argv: list[str] | None = None) -> int:
     command = "benchmarks/bench_deadline.py " + " ".join(sys.argv[1:] if argv is None else argv)
     if not args.renderers and not args.hd:
         parser.error("--renderers: none given and no --hd: nothing to run")
+    if args.costs:
+        jobs = [(r, n, args.size) for r in args.renderers for n in SCENES[r] if args.scenes is None or n in args.scenes]
+        jobs += [("mitsuba", "cornell_box", HD)] if args.hd else []
+        found = [costs(*job, repeats=args.repeats) for job in jobs]
+        update_section(args.output, "costs", found, command)
+        print(costs_table(found))
+        return 0
     rows = []
     for renderer in args.renderers:
         for name in SCENES[renderer]:

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from awr_denoise import AdaptiveSampler, TimeBudgetWarning, UniformSampler, rounds
-from awr_denoise.rounds import ROUND_OVERHEAD, RoundPlan
+from awr_denoise.rounds import RANKED_COST_MARGIN, ROUND_OVERHEAD, RoundPlan
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
 
 SHAPE = (16, 16)
@@ -78,9 +78,9 @@ def test_rounds_grow_until_the_samplers_time_is_its_share_of_their_render_time(c
     renderer, overhead = TimedRenderer(clock, 1e-5), 0.01
     timed_sampler(clock, overhead).run(renderer, seconds=5.0)
     least = math.ceil(overhead / (ROUND_OVERHEAD * renderer.per_sample))
-    # Round 0 (nothing measured), then the first ranked round at the sampler's default (1 spp: what ranked
-    # samples cost is measured on it); the last takes what is left.
-    assert renderer.rounds[1] == PIXELS
+    # Round 0 (nothing measured), then the first ranked round, planned at twice round 0's cost per sample (what
+    # ranked samples cost is not known yet): half the share rule's samples; the last takes what is left.
+    assert renderer.rounds[1] == math.ceil(least / RANKED_COST_MARGIN)
     middle = renderer.rounds[2:-1]
     assert middle and all(n >= least for n in middle)
     # Without the deadline the same sampler would have asked for its default rounds, far smaller here.
@@ -103,15 +103,13 @@ class RankedCostRenderer(TimedRenderer):
         return super().__call__(request)
 
 
-@pytest.mark.parametrize("seconds", [0.3, 0.5, 1.0])
+@pytest.mark.parametrize("seconds", [0.15, 0.2, 0.25, 0.5])
 def test_ranked_samples_costlier_than_round_0s_do_not_overrun_the_budget(clock, seconds):
-    """Round 0's rate would let the first ranked round take all that is left (at 3x the cost per sample, past
-    the budget); it is the default round instead (1 spp, which fits here even at 3x), and the rounds after it are
-    sized on its rate."""
-    renderer = RankedCostRenderer(clock, 1e-4, ranked_factor=3.0)
+    """Ranked samples at up to RANKED_COST_MARGIN times round 0's cost: planned at round 0's rate, the first ranked
+    round would have run past the budget; the rounds after it are planned at its own rate."""
+    renderer = RankedCostRenderer(clock, 1e-4, ranked_factor=RANKED_COST_MARGIN)
     timed_sampler(clock, 0.01).run(renderer, seconds=seconds)
     assert clock.now <= seconds and len(renderer.rounds) >= 2
-    assert renderer.rounds[1] == PIXELS
 
 
 def slow_ranking(sampler: AdaptiveSampler, clock: FakeClock, seconds: float) -> AdaptiveSampler:

@@ -70,3 +70,16 @@ def test_a_size_with_the_tracers_fixed_references_is_refused(bench, capsys):
     with pytest.raises(SystemExit) as err:
         bench.main(["--renderers", "tracer", "--size", "64"])
     assert err.value.code == 2 and "--size" in capsys.readouterr().err
+
+
+def test_costs_time_round_0s_samples_the_ranked_ones_and_the_ranking(bench, tmp_path):
+    out = tmp_path / "costs.json"
+    assert bench.main(["--renderers", "synthetic", "--costs", "--repeats", "2", "--output", str(out)]) == 0
+    (row,) = json.loads(out.read_text())["costs"]["rows"]
+    assert (row["renderer"], row["scene"], row["shape"]) == ("synthetic", "edges", [32, 32])
+    assert row["samples"] == 2 * 32 * 32  # round 0 at the sampler's 2 spp, and the ranked request of as many
+    assert set(row["per_sample"]) == {"uniform", "ranked", "ranked, shuffled"}
+    assert all(t > 0 for t in row["per_sample"].values())
+    assert row["ranked_over_uniform"] == row["per_sample"]["ranked"] / row["per_sample"]["uniform"]
+    assert row["ranking_seconds"] > 0 and row["round0_render_seconds"] > 0
+    assert "| synthetic | edges | 32x32 | " in bench.costs_table([row])
