@@ -136,6 +136,16 @@ def test_the_rankings_cost_is_known_before_the_rounds_size(clock, seconds):
     assert clock.now > seconds - (0.3 + 0.001 + PIXELS * renderer.per_sample)
 
 
+@pytest.mark.parametrize("seconds", [0.14, 0.15, 0.16])
+def test_the_round_after_a_ranking_is_sized_on_the_time_it_left(clock, seconds):
+    """The first ranking (30 ms, where round 0's ``ask`` took 1 ms) is timed before its round's size: the round
+    that takes what is left takes what the ranking left. Sized as if the ranking cost what round 0's ``ask`` did,
+    it runs past the budget at 0.14 and 0.15 s (ranked samples at the margin's cost: nothing else absorbs it)."""
+    renderer = RankedCostRenderer(clock, 1e-4, ranked_factor=RANKED_COST_MARGIN)
+    slow_ranking(timed_sampler(clock, 0.001), clock, 0.03).run(renderer, seconds=seconds)
+    assert clock.now <= seconds + 1e-12 and len(renderer.rounds) == 2
+
+
 def test_a_ranking_done_ahead_is_the_one_the_round_allocates_by(clock):
     """Under a deadline each ranked round's priorities are computed once, ahead of ``ask``, and allocated by:
     the same requests, pixel for pixel, as the run without a deadline, which ranks inside ``ask``."""
