@@ -31,6 +31,9 @@ renderer's time per sample on round 0's uniform request (2 spp) and on the first
 pixel, other pixels: whether it is the pixels the ranking picks that cost more, or the scattered requests); and the
 priority analysis' time (``density``), beside ``ask`` and ``tell`` of round 0. Each renders ``--repeats`` times,
 interleaved; medians.
+
+``--stages N`` reconstructs with ``stages=N`` instead of the default, in ``t_rec`` and after each run: a cheaper
+reconstruction leaves the rounds more of the budget (the trade docs/sampling.md measures at 1080p).
 """
 
 from __future__ import annotations
@@ -119,19 +122,19 @@ class Scene:
         if self.renderer_name == "mitsuba":
             self.renderer.seed = seed
 
-    def reconstruction_seconds(self) -> float:
-        """The median of three default reconstructions of a 2-spp buffer of the scene."""
+    def reconstruction_seconds(self, stages: int | None = None) -> float:
+        """The median of three reconstructions of a 2-spp buffer of the scene (``stages``: the default's, or these)."""
         self.reseed(10**6)
         buffer = self.renderer(SampleRequest.uniform(self.shape, RECONSTRUCTION_SPP))
         times = []
         for _ in range(3):
             start = time.perf_counter()
-            reconstruct(buffer)
+            reconstruct(buffer, **_options(stages))
             times.append(time.perf_counter() - start)
         return statistics.median(times)
 
-    def awr(self, seconds: float, seed: int, share: float | None) -> dict[str, Any]:
-        """An AWR run to ``seconds`` with rounds sized by ``share``, then the default reconstruction."""
+    def awr(self, seconds: float, seed: int, share: float | None, stages: int | None = None) -> dict[str, Any]:
+        """An AWR run to ``seconds`` with rounds sized by ``share``, then the reconstruction (``stages``)."""
         self.reseed(seed)
         sampler = AdaptiveSampler(self.shape, seed=seed)
         told: list[int] = []
@@ -139,7 +142,7 @@ class Scene:
         with overhead_share(share):
             sampler.run(self.renderer, seconds=seconds, callback=lambda request, _: told.append(request.total))
         ran = time.perf_counter() - start
-        image = reconstruct(sampler.buffer)
+        image = reconstruct(sampler.buffer, **_options(stages))
         total = time.perf_counter() - start
         pixels = self.shape[0] * self.shape[1]
         return {"image": image, "seconds": total, "run_seconds": ran, "spp": sampler.total_samples / pixels,
@@ -202,19 +205,24 @@ def mean_error(image: np.ndarray, reference: np.ndarray) -> float:
     return float(100 * np.abs(image.mean(axis=(0, 1)) / reference.mean(axis=(0, 1)) - 1).max())
 
 
+def _options(stages: int | None) -> dict[str, Any]:
+    """``reconstruct``'s options: the default's, or ``stages`` of them (``--stages``)."""
+    return {} if stages is None else {"stages": stages}
+
+
 def measure(renderer: str, name: str, spps: list[int], size: int | tuple[int, int] | None,
-            repeats: int = 1) -> list[dict[str, Any]]:
+            repeats: int = 1, stages: int | None = None) -> list[dict[str, Any]]:
     """Every uniform sample count of one scene: the uniform render's time and error, and each sizing's AWR runs
     (``repeats`` of each, interleaved, seeds ``spp + k``; medians)."""
     scene = Scene(renderer, name, size)
-    t_rec = scene.reconstruction_seconds()
+    t_rec = scene.reconstruction_seconds(stages)
     rows = []
     for spp in spps:
         renders = [scene.uniform(spp, seed=1000 * spp + k) for k in range(3)]
         budget = statistics.median(t for _, t in renders)
         image = renders[0][0]
         row: dict[str, Any] = {"renderer": renderer, "scene": name, "shape": list(scene.shape), "uniform_spp": spp,
-                               "seconds": budget, "reconstruction_seconds": t_rec,
+                               "seconds": budget, "reconstruction_seconds": t_rec, "stages": stages,
                                "uniform_relmse": relmse(image, scene.reference),
                                "uniform_mse": mse(image, scene.reference),
                                "uniform_mean_error": mean_error(image, scene.reference), "awr": {}}
@@ -222,7 +230,7 @@ def measure(renderer: str, name: str, spps: list[int], size: int | tuple[int, in
             runs: dict[str, list[dict[str, Any]]] = {label: [] for label in SIZINGS}
             for k in range(repeats):  # interleaved: the machine's drift falls on every sizing alike
                 for label, share in SIZINGS.items():
-                    run = scene.awr(budget - t_rec, seed=spp + k, share=share)
+                    run = scene.awr(budget - t_rec, seed=spp + k, share=share, stages=stages)
                     result = run.pop("image")
                     runs[label].append({"relmse_ratio": relmse(result, scene.reference) / row["uniform_relmse"],
                                         "mse_ratio": mse(result, scene.reference) / row["uniform_mse"],
@@ -272,6 +280,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="also Mitsuba's Cornell box at 1920x1080 at 32 spp (section deadline_hd)")
     parser.add_argument("--repeats", type=int, default=3, metavar="N",
                         help="AWR runs of each sizing per budget (seeds spp + k), interleaved; medians (default 3)")
+    parser.add_argument("--stages", type=int, choices=[1, 2, 3], default=None,
+                        help="reconstruct with this many stages instead of the default (its time then reserved)")
     parser.add_argument("--costs", action="store_true",
                         help="instead: what ranked samples and the ranking cost against round 0's (section costs)")
     parser.add_argument("--output", type=Path, default=RESULTS)
@@ -298,11 +308,11 @@ def main(argv: list[str] | None = None) -> int:
     for renderer in args.renderers:
         for name in SCENES[renderer]:
             if args.scenes is None or name in args.scenes:
-                rows += measure(renderer, name, args.spps, args.size, args.repeats)
+                rows += measure(renderer, name, args.spps, args.size, args.repeats, args.stages)
     if rows:
         update_section(args.output, "deadline", rows, command)
     if args.hd:
-        hd = measure("mitsuba", "cornell_box", [32], HD, args.repeats)
+        hd = measure("mitsuba", "cornell_box", [32], HD, args.repeats, args.stages)
         update_section(args.output, "deadline_hd", hd, command)
         rows += hd
     print(table(rows))

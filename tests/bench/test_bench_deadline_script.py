@@ -83,3 +83,15 @@ def test_costs_time_round_0s_samples_the_ranked_ones_and_the_ranking(bench, tmp_
     assert row["ranked_over_uniform"] == row["per_sample"]["ranked"] / row["per_sample"]["uniform"]
     assert row["ranking_seconds"] > 0 and row["round0_render_seconds"] > 0
     assert "| synthetic | edges | 32x32 | " in bench.costs_table([row])
+
+
+def test_stages_reconstructs_with_them_and_reserves_their_time(bench, tmp_path, monkeypatch):
+    seen = []
+    real = bench.reconstruct
+    monkeypatch.setattr(bench, "reconstruct", lambda buffer, **options: seen.append(options) or real(buffer, **options))
+    out = tmp_path / "stages.json"
+    assert bench.main(["--renderers", "synthetic", "--spps", "256", "--stages", "1", "--repeats", "1",
+                       "--output", str(out)]) == 0
+    (row,) = json.loads(out.read_text())["deadline"]["rows"]
+    assert row["stages"] == 1 and row["awr"]
+    assert seen and all(options == {"stages": 1} for options in seen)  # t_rec's three and every run's
