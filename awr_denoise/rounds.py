@@ -42,9 +42,9 @@ MAX_SECONDS = 1e9
 """The longest time budget :meth:`~awr_denoise.sampling.Sampler.run` takes (about 30 years: more is a mistake)."""
 
 ROUND_OVERHEAD = 0.1
-"""Under a time budget, the sampler's time per round (``ask`` and ``tell``) as the largest share of the round's
-render time: rounds grow until it holds. Measured against shares of 0.05 and 0.25 and the sampler's default rounds
-beside Mitsuba 3 and the bundled tracer (docs/sampling.md, "A time budget")."""
+"""Under a time budget, the sampler's time per round (its ranking, ``ask`` and ``tell``) as the largest share of the
+round's render time: rounds grow until it holds. Measured against shares of 0.05 and 0.25 and the sampler's default
+rounds beside Mitsuba 3 and the bundled tracer (docs/sampling.md, "A time budget")."""
 
 RANKED_COST_MARGIN = 2.0
 """Until a ranked round was measured, its samples are planned at this many times round 0's cost per sample: a
