@@ -8,9 +8,10 @@ Mitsuba 3 adapter (``--renderer mitsuba SCENE.xml``).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -194,6 +195,18 @@ def _scene(args: argparse.Namespace) -> tuple[str, Any, str, tuple[int, int] | N
     return name, tracer.load_scene(name, width=args.width, height=args.height), Path(name).stem, None, options
 
 
+@contextlib.contextmanager
+def _sized(renderer: str) -> Iterator[None]:
+    """A renderer's refusal of its ``shape`` (a synthetic scene has no size of its own) as the options that give it."""
+    try:
+        yield
+    except ValueError as error:
+        text = str(error)
+        if not text.startswith("shape: "):
+            raise
+        raise UsageError(f"--width/--height: --renderer {renderer} needs both here ({text[len('shape: '):]})") from None
+
+
 def _scene_files(renderer: str, scene: str) -> list[tuple[str, Path]]:
     """The files ``scene`` makes ``renderer`` read (the registry's), a missing extra as a :class:`RuntimeFailure`."""
     try:
@@ -267,8 +280,9 @@ def run(args: argparse.Namespace) -> int:
                                        **options)
             frame = scene.shape
         else:
-            spec = RendererSpec(args.renderer, given, shape, args.seed, tuple(sorted(options.items())))
-            probe = spec()
+            with _sized(args.renderer):
+                spec = RendererSpec(args.renderer, given, shape, args.seed, tuple(sorted(options.items())))
+                probe = spec()
             frame = probe.shape
             check_pixels(f"SCENE {given}: its film", *frame)
             if isinstance(probe, SampleTracer):
@@ -281,7 +295,8 @@ def run(args: argparse.Namespace) -> int:
         # the sampler's bar instead of one renderer bar per round.
         if args.renderer == TRACER:
             options["progress"] = not args.quiet and not args.adaptive
-        renderer = create_renderer(args.renderer, scene, shape=shape, seed=args.seed, **options)
+        with _sized(args.renderer):
+            renderer = create_renderer(args.renderer, scene, shape=shape, seed=args.seed, **options)
         check_pixels(f"SCENE {given}: its film", *renderer.shape)  # a size the scene file declares
         buffer, issued, next_round = render_buffer(renderer, renderer.shape, **render)
     seconds = time.perf_counter() - start

@@ -727,6 +727,11 @@ def test_render_refuses_existing_outputs_before_rendering(tmp_path, fake_tracer,
         assert main(["render", "--renderer", "synthetic", "edges", side, "8", "-o", str(tmp_path / "s.exr"),
                      "-q"]) == 2
         _one_error_line(capsys, f"{other}: --renderer synthetic needs both")
+    # ... and a synthetic scene, which has no size of its own, the two options, not the library's parameter
+    for parallel in ([], ["--executor", "threads", "--workers", "2"]):
+        assert main(["render", "--renderer", "synthetic", "edges", "-o", str(tmp_path / "s.exr"), "-q",
+                     *parallel]) == 2
+        _one_error_line(capsys, "--width/--height: --renderer synthetic needs both here (a synthetic scene needs")
     assert sorted(os.listdir(tmp_path)) == ["toy.denoised.png"]
 
 
