@@ -19,10 +19,11 @@ percent of its time in stage 1). ``AWR_DENOISE_KERNELS=numba`` in the environmen
 :func:`set_backend` (or :func:`using`, for a ``with`` block), chooses the compiled kernels;
 :func:`backend` names the one in use.
 
-The same choice runs one loop of another module compiled (:func:`compile_loop` compiles it with these
-kernels' policy): the moderation of samples that all agreed, at an adaptive run's scattered counts
-(:mod:`awr_denoise.pooling`). That loop takes ``exp`` and powers in the compiled code, so it agrees with its
-numpy reference to rounding rather than bit for bit (tests/test_pooling.py).
+The same choice runs loops of other modules compiled (:func:`compile_loop` compiles them with these
+kernels' policy): the merge of two sets of sample statistics, every ``tell()`` (:mod:`awr_denoise.merging`,
+bit for bit, tests/test_merging.py), and the moderation of samples that all agreed, at an adaptive run's
+scattered counts (:mod:`awr_denoise.pooling`). That loop takes ``exp`` and powers in the compiled code, so it
+agrees with its numpy reference to rounding rather than bit for bit (tests/test_pooling.py).
 """
 
 from __future__ import annotations
@@ -381,8 +382,9 @@ def _compiled() -> SimpleNamespace | None:
 def compile_loop(loop: Callable) -> Callable | None:
     """``loop`` compiled by numba as this module's kernels are, or ``None`` without numba.
 
-    Other modules' loops behind the same backend (:mod:`awr_denoise.pooling`'s) are compiled here, so that
-    one policy holds for all: ``nogil``, no ``fastmath``, machine code cached on disk where it can be.
+    Other modules' loops behind the same backend (:mod:`awr_denoise.merging`'s, :mod:`awr_denoise.pooling`'s)
+    are compiled here, so that one policy holds for all: ``nogil``, no ``fastmath``, machine code cached on
+    disk where it can be.
 
     Examples
     --------

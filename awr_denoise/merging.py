@@ -14,15 +14,21 @@ A sampler merges every round of a 1080p or 4K frame: the formulas are a dozen el
 passes, run here block by block of rows so that their temporaries stay in the processor's
 cache rather than in memory: the same operations in the same order, so the same bits, and
 ``tell()`` went from 2.0x to 1.5x the PyWavelets floor at 1080p (``benchmarks/bench_core.py
---only speed``; docs/performance.md).
+--only speed``; docs/performance.md). With the compiled kernels (extra ``fast``,
+``AWR_DENOISE_KERNELS=numba``: :mod:`awr_denoise.fused`) the same floats come from one loop over the
+pixels, which reads each input once and makes no temporaries (tests/test_merging.py compares them bit
+for bit: additions, multiplications and divisions in the same order, no fused multiply-add).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from concurrent.futures import Executor
+from functools import lru_cache
 
 import numpy as np
 
+from . import fused
 from ._typing import CountArray, FloatArray
 
 __all__ = ["merge_moments", "BLOCK_BYTES"]
@@ -71,8 +77,14 @@ def merge_moments(count_a: CountArray, mean_a: FloatArray, variance_a: FloatArra
     h, w, c = mean_a.shape
     mean, variance = np.empty((h, w, c)), np.empty((h, w, c))
     rows = max(1, BLOCK_BYTES // (w * c * 8))
+    loop = _compiled_merge() if fused.backend() == "numba" else None
 
     def merge_rows(span: tuple[int, int]) -> None:
+        if loop is not None:  # one pass, no temporaries: no blocks needed (past float64 is refused below alike)
+            block = slice(*span)
+            loop(count_a[block], mean_a[block], variance_a[block], count_b[block], mean_b[block], variance_b[block],
+                 mean[block], variance[block])
+            return
         with np.errstate(over="ignore", invalid="ignore"):  # past float64: refused below, by name (per thread)
             for start in range(span[0], span[1], rows):
                 block = slice(start, min(start + rows, span[1]))
@@ -129,6 +141,37 @@ def _merge_block(ca: CountArray, ma: FloatArray, va: FloatArray, cb: CountArray,
             where = np.repeat(empty, mean.shape[-1]).reshape(mean.shape)
             np.copyto(mean, m, where=where)
             np.copyto(variance, v, where=where)
+
+
+def _merge_loop(ca: CountArray, ma: FloatArray, va: FloatArray, cb: CountArray, mb: FloatArray, vb: FloatArray,
+                mean: FloatArray, variance: FloatArray) -> None:
+    """:func:`_merge_block`'s floats one pixel and channel at a time, the same operations in the same order
+    (compiled by :func:`_compiled_merge`; as Python it is the reference the tests read, far too slow to run)."""
+    h, w, channels = mean.shape
+    for i in range(h):
+        for j in range(w):
+            a, b = ca[i, j], cb[i, j]
+            na, nb = float(a), float(b)
+            n = na + nb
+            safe = max(n, 1.0)
+            dof_a, dof_b = float(max(a - 1, 0)), float(max(b - 1, 0))
+            share, weight, dof = nb / safe, na * nb / safe, max(n - 1.0, 1.0)
+            for k in range(channels):
+                if a == 0:  # one side without samples: the other side's statistics as they are (both: b's)
+                    mean[i, j, k], variance[i, j, k] = mb[i, j, k], vb[i, j, k]
+                elif b == 0:
+                    mean[i, j, k], variance[i, j, k] = ma[i, j, k], va[i, j, k]
+                else:
+                    delta = mb[i, j, k] - ma[i, j, k]
+                    mean[i, j, k] = delta * share + ma[i, j, k]
+                    m2 = va[i, j, k] * dof_a + vb[i, j, k] * dof_b
+                    variance[i, j, k] = (m2 + delta * delta * weight) / dof
+
+
+@lru_cache(maxsize=1)
+def _compiled_merge() -> Callable | None:
+    """:func:`_merge_loop` compiled (once per process; its machine code cached on disk), ``None`` without numba."""
+    return fused.compile_loop(_merge_loop)
 
 
 def _merge_scaled(ca: CountArray, ma: FloatArray, va: FloatArray, cb: CountArray, mb: FloatArray,

@@ -17,7 +17,8 @@ on one core (OMP/MKL/OPENBLAS_NUM_THREADS=1, no executor) and again with a 2-thr
 (everything but the float64 reference); medians of
 repeats in which the cases are interleaved, and ratios to the floor of the same run. Memory: in a
 fresh process per case, the tracemalloc peak above the built buffer and the peak RSS, as
-multiples of the input buffer (count + mean + variance).
+multiples of the input buffer (count + mean + variance). ``tell``: one ``tell()`` with the merge compiled
+(extra ``fast``) against its numpy reference, on one thread and two, beside the floor.
 """
 
 from __future__ import annotations
@@ -111,6 +112,50 @@ def _cases(buf, pool: ThreadPoolExecutor | None) -> dict:
     return {"reconstruct_stages1": lambda: _with_kernels(FAST, reconstruct, buf, stages=1, executor=pool),
             "reconstruct_default": lambda: reconstruct(buf, executor=pool), "ask": _Ask(buf, pool),
             "tell": _Tell(buf, pool)}
+
+
+class _TellKernels(_Tell):
+    """One ``tell()`` with the merge's ``kernels`` backend (:mod:`awr_denoise.merging`: numba or its numpy reference)."""
+
+    def __init__(self, buf, kernels: str, executor: ThreadPoolExecutor | None = None) -> None:
+        self.kernels = kernels
+        super().__init__(buf, executor)
+
+    def __call__(self) -> None:
+        with fused.using(self.kernels):
+            super().__call__()
+
+
+def tell(sizes: list[str], repeats: int = 7) -> list[dict]:
+    """One ``tell()`` (a round's samples merged into the buffer) with the merge compiled against its numpy reference.
+
+    The four cases (each backend on one thread and on two) and the floor interleaved in every repeat; medians.
+    Both backends give the same bits (tests/test_merging.py); "compiled" is numba where the extra ``fast`` is
+    installed (else the numpy reference twice).
+    """
+    rows = []
+    for name in sizes:
+        buf = noisy_buffer(OVERHEAD_SIZES[name], smooth=0.0, noise=0.0)
+        image = buf.mean.astype(np.float32)
+        with ThreadPoolExecutor(2) as pool:
+            cases = {"floor": lambda: _floor(image)}
+            for threads, executor in ((1, None), (2, pool)):
+                for kernels in ("numpy", FAST):
+                    cases[f"{kernels}_{threads}"] = _TellKernels(buf, kernels, executor)
+            for fn in cases.values():  # warm-up: the compiled loop loaded, pages touched
+                fn()
+            times = _interleaved(cases, repeats)
+        row = {"size": name, "kernels": FAST, "repeats": repeats, "seconds": times,
+               "x_floor": {k: v / times["floor"] for k, v in times.items()},
+               "compiled_x_numpy_1": times[f"{FAST}_1"] / times["numpy_1"],
+               "compiled_x_numpy_2": times[f"{FAST}_2"] / times["numpy_2"]}
+        rows.append(row)
+        x = row["x_floor"]
+        print(f"| {name} | {times['floor']:.3f} s | {times['numpy_1']:.3f} s ({x['numpy_1']:.2f}x) | "
+              f"{times[f'{FAST}_1']:.3f} s ({x[f'{FAST}_1']:.2f}x) | {times['numpy_2']:.3f} s ({x['numpy_2']:.2f}x) | "
+              f"{times[f'{FAST}_2']:.3f} s ({x[f'{FAST}_2']:.2f}x) | {row['compiled_x_numpy_1']:.2f} / "
+              f"{row['compiled_x_numpy_2']:.2f} |", flush=True)
+    return rows
 
 
 def _with_kernels(name: str, fn, *args, **kwargs):
@@ -676,6 +721,11 @@ SECTIONS = {
               "| default, 2 threads | ask(), 2 threads | tell(), 2 threads | stages=1 peak | stages=1 float64 peak | default peak | ask() peak "
               "| default, 2 threads, peak |",
               lambda quick: speed(["256x256"] if quick else SPEED_SIZES)),
+    "tell": ("One tell() with the merge compiled (extra fast) against its numpy reference (medians of interleaved "
+             "repeats; x floor of the same run)",
+             "| size | floor | tell(), numpy | tell(), compiled | tell(), numpy, 2 threads | tell(), compiled, 2 threads "
+             "| compiled / numpy, 1 / 2 threads |",
+             lambda quick: tell(["256x256"] if quick else SPEED_SIZES)),
     "fft_budget": ("The default reconstruction's FFTs against the floor (one core)",
                    "| size | plane FFTs (forward + inverse) | one forward + inverse pair | floor | FFTs alone |",
                    lambda quick: [fft_budget("256x256" if quick else "1080p")]),

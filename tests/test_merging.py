@@ -4,8 +4,12 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from awr_denoise import merging
+from awr_denoise import fused, merging
 from awr_denoise.merging import merge_moments
+
+BACKENDS = [pytest.param(name, marks=pytest.mark.skipif(name not in fused.available(),
+                                                        reason="numba is not installed (extra 'fast')"))
+            for name in fused.BACKENDS]
 
 
 def _chan(ca, ma, va, cb, mb, vb):
@@ -33,6 +37,41 @@ def test_blocks_give_the_formulas_bits(rng, monkeypatch, block_bytes):
     want_mean, want_variance = _chan(*sides[0], *sides[1])
     assert_array_equal(mean.view(np.int64), want_mean.view(np.int64))
     assert_array_equal(variance.view(np.int64), want_variance.view(np.int64))
+
+
+def _sides(rng, shape, channels=3):
+    """Two sides' statistics over many magnitudes and both signs, with pixels of 0, 1 and more samples."""
+    out = []
+    for _ in range(2):
+        count = rng.integers(0, 6, shape)
+        mean = rng.lognormal(0, 20, shape + (channels,)) * rng.choice([-1.0, 1.0], shape + (channels,))
+        out += [count, mean, rng.lognormal(0, 20, shape + (channels,)) * (count[..., None] > 1)]
+    return out
+
+
+def test_the_loop_written_out_gives_the_blocks_bits(rng):
+    """The compiled kernel's source, run as Python: each pixel and channel the floats of the whole-array passes."""
+    args = _sides(rng, (6, 5), channels=2)
+    mean, variance = np.empty((6, 5, 2)), np.empty((6, 5, 2))
+    merging._merge_loop(*args, mean, variance)
+    want_mean, want_variance = merge_moments(*args)
+    assert_array_equal(mean.view(np.int64), want_mean.view(np.int64))
+    assert_array_equal(variance.view(np.int64), want_variance.view(np.int64))
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("shape", [(1, 1), (23, 29), (64, 7)])
+def test_each_backend_gives_the_references_bits_on_one_thread_and_two(rng, backend, shape):
+    """The compiled merge (``AWR_DENOISE_KERNELS=numba``) against the numpy blocks, bit for bit."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    args = _sides(rng, shape)
+    with fused.using("numpy"):
+        want = merge_moments(*args)
+    with fused.using(backend), ThreadPoolExecutor(2) as pool:
+        for executor in (None, pool):
+            for got, expected in zip(merge_moments(*args, executor=executor), want):
+                assert_array_equal(got.view(np.int64), expected.view(np.int64))
 
 
 def test_equals_the_statistics_of_all_samples(rng):
@@ -78,9 +117,11 @@ def test_merging_on_two_threads_gives_the_same_bits(shape):
                 np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("big", [1e200, 1.5e308])
 @pytest.mark.parametrize("threads", [False, True])
-def test_statistics_past_float64_once_merged_are_refused_by_name_without_warnings(big, threads, monkeypatch):
+def test_statistics_past_float64_once_merged_are_refused_by_name_without_warnings(big, threads, backend,
+                                                                                   monkeypatch):
     """Two buffers of samples +big and -big: the merged variance (or the difference of the means)
     passes float64. The merge leaked numpy's overflow warnings and was refused as "variance: 1
     pixel(s) hold NaN or Inf", an array the caller never passed (a red-team pass)."""
@@ -93,14 +134,15 @@ def test_statistics_past_float64_once_merged_are_refused_by_name_without_warning
     at = np.array([7, 7])  # row 3 of a (4, 2) image
     a = SampleBuffer.from_samples(at, np.array([[big], [big]]), (4, 2))
     b = SampleBuffer.from_samples(at, np.array([[-big], [-big]]), (4, 2))
-    with warnings.catch_warnings(), ThreadPoolExecutor(2) as pool:
+    with warnings.catch_warnings(), ThreadPoolExecutor(2) as pool, fused.using(backend):
         warnings.simplefilter("error")
         with pytest.raises(ValueError, match=r"^other: merged, the mean or variance of 1 pixel\(s\) is beyond float64"):
             a.merge(b, executor=pool if threads else None)
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("threads", [False, True])
-def test_a_merge_whose_sums_pass_float64_but_not_its_result_is_the_statistics_of_all_samples(threads):
+def test_a_merge_whose_sums_pass_float64_but_not_its_result_is_the_statistics_of_all_samples(threads, backend):
     """Samples of +-2**510 (and two singles of +-0.75e154): their M2 and the squared difference of the halves'
     means pass float64, the variance does not. from_samples gives it; the merge refused it, so a pixel traced in
     parts, or told in two rounds, was refused where one part was not (a red-team pass)."""
@@ -116,7 +158,7 @@ def test_a_merge_whose_sums_pass_float64_but_not_its_result_is_the_statistics_of
         whole = SampleBuffer.from_samples(at, samples, (2, 3))
         a = SampleBuffer.from_samples(at[:half], samples[:half], (2, 3))
         b = SampleBuffer.from_samples(at[half:], samples[half:], (2, 3))
-        with warnings.catch_warnings(), ThreadPoolExecutor(2) as pool:
+        with warnings.catch_warnings(), ThreadPoolExecutor(2) as pool, fused.using(backend):
             warnings.simplefilter("error")
             merged = a.merge(b, executor=pool if threads else None)
         assert 1e306 < whole.variance[1, 2, 0] < 1.8e308
