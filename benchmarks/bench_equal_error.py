@@ -70,7 +70,9 @@ RECONSTRUCTIONS: dict[str, dict[str, Any]] = {
 SAMPLERS_AROUND: dict[str, dict[str, Any]] = {
     "noise_model=levels": {"noise_model": "levels"}, "noise_model=reconstruction": {"noise_model": "reconstruction"},
     "initial_spp=4": {"initial_spp": 4}, "round_growth=0.5": {"round_growth": 0.5},
-    "absolute_above=3": {"absolute_above": 3.0}, "absolute_above=10": {"absolute_above": 10.0}}
+    "absolute_above=3": {"absolute_above": 3.0}, "absolute_above=10": {"absolute_above": 10.0},
+    "sampler wavelet=haar": {"wavelet": "haar"}, "sampler wavelet=sym4": {"wavelet": "sym4"},
+    "sampler domain=linear": {"domain": "linear"}}
 """``AdaptiveSampler`` options tried with the default reconstruction (``--variants``)."""
 BASELINE = "f36d7fb690f9498cb7143f1e36b881dbfd9c0dab"
 """The version whose seed-0 equal-error spp the reconstruction issue's goal doubles (``--baseline``): the merge of the
