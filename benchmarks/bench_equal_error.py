@@ -54,6 +54,9 @@ from awr_denoise.bench.measure import Timing, run_progressive
 from awr_denoise.bench.rendering import make_tracer, reference_image, tracer_module
 from awr_denoise.metrics import mse, relmse
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from moderated_variances import VARIANTS as MODERATED  # noqa: E402
+
 REPOSITORY = Path(__file__).resolve().parent.parent
 RESULTS = REPOSITORY / "benchmarks" / "results" / "equal_error.json"
 SAMPLERS: dict[str, dict[str, Any]] = {"default": {}, "relative error alone": {"absolute_above": None}}
@@ -65,8 +68,9 @@ RECONSTRUCTIONS: dict[str, dict[str, Any]] = {
     "c_s=3": {"c_s": 3.0}, "c_s=4": {"c_s": 4.0}, "stages=2": {"stages": 2},
     "stages=4": {"stages": 4, "wiener_exponents": (0.75, 0.4, 0.4)}, "wiener_exponents=(0.5, 0.4)":
     {"wiener_exponents": (0.5, 0.4)}, "wavelet=sym4": {"wavelet": "sym4"}, "domain=linear": {"domain": "linear"},
-    "guard=False": {"guard": False}, "pixel_clamp=None": {"pixel_clamp": None}}
-"""``reconstruct`` options tried on the default sampler's samples (``--variants``)."""
+    "guard=False": {"guard": False}, "pixel_clamp=None": {"pixel_clamp": None}, **MODERATED}
+"""``reconstruct`` options tried on the default sampler's samples (``--variants``); a function of the buffer is a
+reconstruction of its own (every variance moderated, ``moderated_variances.py``)."""
 SAMPLERS_AROUND: dict[str, dict[str, Any]] = {
     "noise_model=levels": {"noise_model": "levels"}, "noise_model=reconstruction": {"noise_model": "reconstruction"},
     "initial_spp=4": {"initial_spp": 4}, "round_growth=0.5": {"round_growth": 0.5},
@@ -186,7 +190,8 @@ def variants(row: dict[str, Any], config: BenchmarkConfig) -> list[dict[str, Any
     if not math.isclose(out[0]["relmse"], row["default"]["relmse"], rel_tol=1e-9):
         raise SystemExit(f"{name} seed {seed}: the default's relMSE {out[0]['relmse']:.6e} is not the stored "
                          f"{row['default']['relmse']:.6e}; run the seeds again first")
-    out += [measured("reconstruction", v, reconstruct(buffer, **o)) for v, o in RECONSTRUCTIONS.items()]
+    out += [measured("reconstruction", v, o(buffer) if callable(o) else reconstruct(buffer, **o))
+            for v, o in RECONSTRUCTIONS.items()]
     out += [measured("sampler", v, reconstruct(_adaptive(name, seed, o, config))) for v, o in SAMPLERS_AROUND.items()]
     return out
 

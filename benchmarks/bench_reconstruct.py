@@ -55,6 +55,7 @@ from awr_denoise.wavelets import wavelet_operators
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from decimated_wiener import SHIFT_SETS, decimated_default  # noqa: E402
+from moderated_variances import VARIANTS as MODERATED  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent
 RESULTS = ROOT / "results" / "reconstruct.json"
@@ -301,7 +302,7 @@ def quality_tables(rows: list[dict], method: str = "default", base: str = "stage
         print(f"| {scene} | {' / '.join(f'{g:.2f}' for g in gains)} | {m:.2f} | {r:.2f} |")
     every = [g for _, gains, _, _ in summary for g in gains]
     print(f"\ngeometric mean of the gain at 8-32 spp: {np.exp(np.mean(np.log(every))):.2f}, least {min(every):.2f}")
-    variants = (*CHEAPER, *SHIFTED, *COMPARED, *FLOORS, *PILOTS, *PRIORS, *CHANCES, *WINDOWS, *PROBES)
+    variants = (*CHEAPER, *SHIFTED, *COMPARED, *FLOORS, *PILOTS, *PRIORS, *MODERATED, *CHANCES, *WINDOWS, *PROBES)
     for other in (m for m in variants if any(r["method"] == m for r in rows)):
         cheaper_table(rows, other, method)
 
@@ -891,6 +892,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--floors", action="store_true", help="quality: also other energy floors (FLOORS)")
     parser.add_argument("--pilots", action="store_true", help="quality: also other pilot thresholds (PILOTS)")
     parser.add_argument("--priors", action="store_true", help="quality: also other agreed-sample priors (PRIORS)")
+    parser.add_argument("--moderated", action="store_true",
+                        help="quality: also every variance moderated towards its neighbours' (moderated_variances.py)")
     parser.add_argument("--chances", action="store_true",
                         help="quality: also other least chances for the clamp's neighbours (CHANCES)")
     parser.add_argument("--caps", action="store_true", help="samplers: also other absolute_above values (CAPS)")
@@ -909,7 +912,7 @@ def main(argv: list[str] | None = None) -> int:
                        {**METHODS, **(CHEAPER if args.cheaper else {}), **(SHIFTED if args.shifts else {}),
                         **(COMPARED if args.compare else {}),
                         **(FLOORS if args.floors else {}), **(PILOTS if args.pilots else {}),
-                        **(PRIORS if args.priors else {}),
+                        **(PRIORS if args.priors else {}), **(MODERATED if args.moderated else {}),
                         **(CHANCES if args.chances else {}),
                         **(WINDOWS if args.windows else {}), **(PROBES if args.probes else {})})
         update_section(args.output, "quality", rows, command)
