@@ -115,7 +115,8 @@ def _cases(buf, pool: ThreadPoolExecutor | None) -> dict:
 
 
 class _TellKernels(_Tell):
-    """One ``tell()`` with the merge's ``kernels`` backend (:mod:`awr_denoise.merging`: numba or its numpy reference)."""
+    """One ``tell()`` with the merge's ``kernels`` backend (:mod:`awr_denoise.merging`: numba or its numpy
+    reference)."""
 
     def __init__(self, buf, kernels: str, executor: ThreadPoolExecutor | None = None) -> None:
         self.kernels = kernels
@@ -723,8 +724,8 @@ SECTIONS = {
               lambda quick: speed(["256x256"] if quick else SPEED_SIZES)),
     "tell": ("One tell() with the merge compiled (extra fast) against its numpy reference (medians of interleaved "
              "repeats; x floor of the same run)",
-             "| size | floor | tell(), numpy | tell(), compiled | tell(), numpy, 2 threads | tell(), compiled, 2 threads "
-             "| compiled / numpy, 1 / 2 threads |",
+             "| size | floor | tell(), numpy | tell(), compiled | tell(), numpy, 2 threads "
+             "| tell(), compiled, 2 threads | compiled / numpy, 1 / 2 threads |",
              lambda quick: tell(["256x256"] if quick else SPEED_SIZES)),
     "fft_budget": ("The default reconstruction's FFTs against the floor (one core)",
                    "| size | plane FFTs (forward + inverse) | one forward + inverse pair | floor | FFTs alone |",
