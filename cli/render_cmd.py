@@ -204,7 +204,7 @@ def _sized(renderer: str) -> Iterator[None]:
         text = str(error)
         if not text.startswith("shape: "):
             raise
-        raise UsageError(f"--width/--height: --renderer {renderer} needs both here ({text[len('shape: '):]})") from None
+        raise UsageError(f"--width/--height: --renderer {renderer}: {text[len('shape: '):]}") from None
 
 
 def _scene_files(renderer: str, scene: str) -> list[tuple[str, Path]]:

@@ -731,7 +731,7 @@ def test_render_refuses_existing_outputs_before_rendering(tmp_path, fake_tracer,
     for parallel in ([], ["--executor", "threads", "--workers", "2"]):
         assert main(["render", "--renderer", "synthetic", "edges", "-o", str(tmp_path / "s.exr"), "-q",
                      *parallel]) == 2
-        _one_error_line(capsys, "--width/--height: --renderer synthetic needs both here (a synthetic scene needs")
+        _one_error_line(capsys, "--width/--height: --renderer synthetic: a synthetic scene needs its (H, W)")
     assert sorted(os.listdir(tmp_path)) == ["toy.denoised.png"]
 
 
