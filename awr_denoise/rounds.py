@@ -106,7 +106,8 @@ class RoundPlan:
     per_sample: float | None = None
     """The renderer's seconds per sample in the last round."""
     ranked: bool = True
-    """Whether ``per_sample`` was measured on samples a ranking placed (round 0's are uniform)."""
+    """Whether ``per_sample`` was measured on samples placed as the next round's will be: a ranked round's, or any
+    round's of a sampler that does not rank (round 0's are uniform; a ranking's may cost more)."""
 
     def record(self, *, overhead: float, render: float, samples: int, ranking: float = 0.0,
                ranked: bool = True) -> None:
@@ -186,7 +187,7 @@ def run_rounds(sampler: Sampler, renderer: Renderer, total_spp: float | None, *,
             rounds += 1
             if plan is not None:
                 plan.record(overhead=(asked - started) + (_clock() - rendered), render=rendered - asked,
-                            samples=request.total, ranking=ranking, ranked=request.round > 0)
+                            samples=request.total, ranking=ranking, ranked=request.round > 0 or not sampler._ranks)
             if bar is not None:
                 bar.update(request.total)
             if callback is not None and callback(request, buffer) is False:

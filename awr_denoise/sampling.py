@@ -101,12 +101,15 @@ class Sampler(OneAtATime):
     """
 
     strategy = "base"
+    _ranks = True
+    """Whether rounds after the first rank the pixels (a time budget then plans their samples at a margin over round
+    0's cost until one was measured: :data:`~awr_denoise.rounds.RANKED_COST_MARGIN`)."""
 
     def __init__(self, shape: Shape2D, *, channels: int | tuple[str, ...] = 3, initial_spp: int = DEFAULT_INITIAL_SPP,
                  seed: int = 0, spp_min: int | None = None, spp_max: int | None = None, round_spp: float | None = None,
                  round_growth: float = DEFAULT_ROUND_GROWTH, executor: Executor | None = None) -> None:
         h, w = _checks.shape2d("shape", shape)
-        least = int(self.strategy != "uniform")  # a strategy ranking pixels by statistics needs a round 0 with some
+        least = int(self._ranks)  # a strategy ranking pixels by statistics needs a round 0 with some
         initial_spp = _checks.whole("initial_spp", initial_spp, minimum=least, maximum=MAX_BUDGET)
         spp_min = _checks.whole("spp_min", spp_min, minimum=0, maximum=MAX_BUDGET, none=True)
         spp_max = _checks.whole("spp_max", spp_max, minimum=1, maximum=MAX_BUDGET, none=True)
@@ -406,6 +409,7 @@ class UniformSampler(Sampler):
     """
 
     strategy = "uniform"
+    _ranks = False
 
     def _allocate(self, budget, current, capacity, rng):
         return _allocate(np.ones(self._shape), current, budget, capacity=capacity, rng=rng)

@@ -89,6 +89,14 @@ def test_rounds_grow_until_the_samplers_time_is_its_share_of_their_render_time(c
     assert len(plain.rounds) > len(renderer.rounds) and max(plain.rounds[1:4]) < least / 10
 
 
+def test_a_sampler_that_does_not_rank_plans_its_second_round_at_round_0s_rate(clock):
+    """A uniform sampler's later samples are placed as round 0's: no margin for a ranking's costlier pixels."""
+    renderer, overhead = TimedRenderer(clock, 1e-5), 0.01
+    timed_sampler(clock, overhead, cls=UniformSampler).run(renderer, seconds=5.0)
+    assert renderer.rounds[1] == math.ceil(overhead / (ROUND_OVERHEAD * renderer.per_sample))
+    assert clock.now <= 5.0
+
+
 class RankedCostRenderer(TimedRenderer):
     """Samples after round 0 cost ``ranked_factor`` times as much: a ranking sends them to costlier pixels (beside
     Mitsuba 3 at 1080p, 1.6 times round 0's uniform ones)."""
