@@ -22,7 +22,7 @@ __all__ = ["register", "run"]
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``diff`` sub-parser to ``sub``."""
-    p = sub.add_parser("diff", help="compare an image with a reference (MSE, relMSE, PSNR, SSIM)",
+    p = sub.add_parser("diff", help="compare an image with a reference (relMSE, MSE, image mean, PSNR, SSIM)",
                        description="Error metrics of IMAGE against REF. With --maxerror, exit 1 when the chosen "
                                    "metric is worse than the bound (a golden-image check).")
     p.add_argument("input", metavar="IMAGE.exr", help="image or sample dump (its R,G,B are the mean)")
@@ -137,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
         print_json(result)
     else:
         print(f"{shown(args.input)}: relMSE {result['relmse']:.6g}  MSE {result['mse']:.6g}  "
-              f"PSNR {result['psnr']:.4g} dB  SSIM {result['ssim']:.4f}")
+              f"mean error {100 * result['mean_error']:.3g}%  PSNR {result['psnr']:.4g} dB  SSIM {result['ssim']:.4f}")
     if args.maxerror is not None:
         value = result[args.metric]
         worse = value < args.maxerror if args.metric in HIGHER_IS_BETTER else value > args.maxerror

@@ -296,6 +296,7 @@ def test_diff_metrics_maxerror_and_difference_image(tmp_path, capsys):
     res = json.loads(capsys.readouterr().out)
     assert res["mse"] == pytest.approx(0.01, rel=1e-5)
     assert res["relmse"] == pytest.approx(0.01 / 0.26, rel=1e-5)
+    assert res["mean_error"] == pytest.approx(0.2, rel=1e-5)
     np.testing.assert_allclose(read_image(tmp_path / "d.exr"), 0.1, rtol=1e-6)
     assert main(["diff", str(tmp_path / "img.exr"), "-r", str(tmp_path / "ref.exr"), "--maxerror", "0.01"]) == 1
     _one_error_line(capsys, "img.exr", "relmse")
@@ -311,6 +312,25 @@ def test_diff_metrics_maxerror_and_difference_image(tmp_path, capsys):
         assert main(["diff", str(tmp_path / "img.exr"), "-r", str(tmp_path / "ref.exr"), "--metric", "ssim",
                      "--maxerror", bound]) == 2
         _one_error_line(capsys, "--maxerror", "outside -1..1, the range of ssim")
+
+
+def test_diff_checks_the_image_mean(tmp_path, capsys):
+    """An exposure change relMSE and MSE hardly see: 0.8% on every pixel passes ``--maxerror 0.01`` of
+    relMSE and fails ``--metric mean_error --maxerror 0.005``; errors that cancel keep the mean."""
+    ref = np.full((H, W, 3), 0.5)
+    write_image(tmp_path / "ref.exr", ref)
+    write_image(tmp_path / "dark.exr", ref * 0.992)
+    checkerboard = (np.indices((H, W)).sum(axis=0) % 2 * 2 - 1)[..., None] * 0.1
+    write_image(tmp_path / "noisy.exr", ref + checkerboard)
+    args = ["-r", str(tmp_path / "ref.exr")]
+    capsys.readouterr()
+    assert main(["diff", str(tmp_path / "dark.exr"), *args, "--maxerror", "0.01"]) == 0
+    assert "mean error 0.8%" in capsys.readouterr().out
+    assert main(["diff", str(tmp_path / "dark.exr"), *args, "--metric", "mean_error", "--maxerror", "0.005"]) == 1
+    _one_error_line(capsys, "dark.exr", "mean_error 0.008")
+    assert main(["diff", str(tmp_path / "noisy.exr"), *args, "--metric", "mean_error", "--maxerror", "0.005"]) == 0
+    assert main(["diff", str(tmp_path / "noisy.exr"), *args, "--metric", "mean_error", "--maxerror", "-0.1"]) == 2
+    _one_error_line(capsys, "--maxerror", "below 0, which mean_error never is")
 
 
 def test_diff_pairs_channels_by_name_when_one_side_names_them(tmp_path, capsys):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from awr_denoise.metrics import RELMSE_EPSILON, mse, psnr, relmse, ssim, tonemap
+from awr_denoise.metrics import METRICS, RELMSE_EPSILON, mean_error, mse, psnr, relmse, ssim, tonemap
 
 EXACT = 1e-12
 
@@ -61,7 +61,44 @@ def test_ssim_of_a_shifted_constant_is_hand_checked():
     assert ssim(np.full((16, 16), 0.2), np.full((16, 16), 0.4)) == pytest.approx(expected, rel=1e-10)
 
 
-@pytest.mark.parametrize("metric", [mse, relmse, psnr, ssim])
+def test_mean_error_hand_checked_per_channel():
+    """The largest channel's change of mean: 1% on R, -4% on G, none on B (its errors cancel)."""
+    ref = np.full((2, 2, 3), 0.5)
+    image = ref.copy()
+    image[..., 0] = 0.505
+    image[..., 1] = 0.48
+    image[0, :, 2], image[1, :, 2] = 0.4, 0.6
+    assert mean_error(image, ref) == pytest.approx(0.04, rel=EXACT)
+    assert mean_error(image[..., 0], ref[..., 0]) == pytest.approx(0.01, rel=EXACT)  # (H, W): one channel
+    assert mean_error(image[..., 2], ref[..., 2]) == 0.0
+    assert mean_error(np.array([0.25, 1.0]), np.array([0.5, 0.5])) == pytest.approx(0.25, rel=EXACT)
+    # A negative mean (a difference image as reference) is a change relative to its magnitude.
+    assert mean_error(np.array([-0.9]), np.array([-1.0])) == pytest.approx(0.1, rel=EXACT)
+    assert METRICS["mean_error"] is mean_error
+
+
+def test_mean_error_over_a_black_channel_is_zero_or_infinite():
+    ref = np.zeros((2, 2, 3))
+    assert mean_error(ref, ref) == 0.0
+    image = ref.copy()
+    image[0, 0, 1] = 1e-300
+    assert mean_error(image, ref) == np.inf
+
+
+@pytest.mark.parametrize("scale", [1.0, 1e-100, 1e-200, 1e-300, 1e-320, 1e150, 1e300, 1.7e308])
+def test_mean_error_holds_at_every_scale(scale):
+    """Means of values near 1e308 overflow a plain sum (inf / inf is NaN) and those near 1e-320 are
+    subnormal (their sum's digits run out): the channel's largest value is divided out first."""
+    ref = np.full((8, 8, 3), 0.5)
+    image = ref.copy()
+    image[0, 0] = 1.0  # +0.5 on one pixel of 64: +1/64 of the mean
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        value = mean_error(image * scale, ref * scale)
+    assert value == pytest.approx(1 / 64, rel=1e-3 if scale < 1e-307 else EXACT)
+
+
+@pytest.mark.parametrize("metric", [mse, relmse, mean_error, psnr, ssim])
 def test_bad_inputs_are_refused(metric):
     with pytest.raises(ValueError, match=r"reference: shape \(3, 3\) does not match image \(3, 4\)"):
         metric(np.zeros((3, 4)), np.zeros((3, 3)))
