@@ -49,7 +49,7 @@ from awr_denoise import (AdaptiveSampler, SampleBuffer, SampleRequest, UniformSa
 from awr_denoise.bench import (OVERHEAD_SIZES, command_line, load_average, machine_info, noisy_buffer,  # noqa: E402
                                peak_memory, write_json)
 from awr_denoise.domains import Domain  # noqa: E402
-from awr_denoise.metrics import mse, relmse  # noqa: E402
+from awr_denoise.metrics import mean_error, mse, relmse  # noqa: E402
 from awr_denoise.synthetic import SyntheticRenderer, make_scene  # noqa: E402
 from awr_denoise.wavelets import default_levels  # noqa: E402
 
@@ -492,7 +492,7 @@ def precision(spps=(8, 32, 128), group: int = 0) -> list[dict]:
             row = {"renderer": renderer, "scene": scene, "spp": spp,
                    "relmse_float32": relmse(single, ref), "relmse_float64": relmse(double, ref),
                    "mse_float32": mse(single, ref), "mse_float64": mse(double, ref),
-                   "mean_change": float(np.abs(single.mean(axis=(0, 1)) / double.mean(axis=(0, 1)) - 1).max()),
+                   "mean_change": mean_error(single, double),
                    "largest_pixel_change": float((np.abs(single - double) / (np.abs(double) + k)).max())}
             rows.append(row)
             print(f"| {renderer} | {scene} | {spp} | {row['relmse_float32'] / row['relmse_float64'] - 1:+.1e} | "

@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from awr_denoise import AdaptiveSampler, SampleRequest, reconstruct, rounds
+from awr_denoise import AdaptiveSampler, SampleRequest, metrics, reconstruct, rounds
 from awr_denoise.bench import update_section
 from awr_denoise.metrics import mse, relmse
 from awr_denoise.renderers import create_renderer
@@ -202,7 +202,7 @@ def costs_table(rows: list[dict[str, Any]]) -> str:
 
 def mean_error(image: np.ndarray, reference: np.ndarray) -> float:
     """The image mean's error against the reference's, the largest over the channels, in per cent."""
-    return float(100 * np.abs(image.mean(axis=(0, 1)) / reference.mean(axis=(0, 1)) - 1).max())
+    return 100 * metrics.mean_error(image, reference)
 
 
 def _options(stages: int | None) -> dict[str, Any]:

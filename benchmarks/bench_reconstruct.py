@@ -45,7 +45,7 @@ from awr_denoise import fused, pooling
 from awr_denoise.bench import update_section
 from awr_denoise.features import FEATURE_CHANNELS
 from awr_denoise.finishing import RESTORE_SHARE, match_mean, restore_mean
-from awr_denoise.metrics import mse, relmse
+from awr_denoise.metrics import mean_error, mse, relmse
 from awr_denoise.prepare import prepare
 from awr_denoise.reconstruct import DEFAULT_DOMAIN, _wiener_levels, later_stages, resolve_settings
 from awr_denoise.renderers import create_renderer
@@ -244,8 +244,7 @@ def _mitsuba_available() -> bool:
 
 # ---------------------------------------------------------------------------- quality
 def _measure(image: np.ndarray, x: np.ndarray, ref: np.ndarray, seconds: float) -> dict[str, Any]:
-    ratio = image.mean(axis=(0, 1)) / x.mean(axis=(0, 1)) - 1.0
-    return {"relmse": relmse(image, ref), "mse": mse(image, ref), "mean_error": float(np.abs(ratio).max()),
+    return {"relmse": relmse(image, ref), "mse": mse(image, ref), "mean_error": mean_error(image, x),
             "negative": int((image < 0).sum()), "seconds": seconds}
 
 
@@ -395,8 +394,7 @@ def samplers(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[
                         rows.append({"renderer": renderer_name, "scene": scene, "seed": seed, "sampler": kind,
                                      "spp": spp, "method": name, "ask_seconds": asked[0],
                                      **_measure(image, x, ref, 0.0),  # its mean_error: against the means
-                                     "reference_mean_error": float(np.abs(image.mean(axis=(0, 1))
-                                                                          / ref.mean(axis=(0, 1)) - 1).max())})
+                                     "reference_mean_error": mean_error(image, ref)})
                 getattr(renderer, "close", lambda: None)()
         print(f"{renderer_name} {scene}: done", flush=True)
     return rows
