@@ -16,24 +16,25 @@ from typing import Any
 import numpy as np
 
 from .._typing import FloatArray
-from ..metrics import mse, psnr, relmse, ssim
+from ..metrics import mean_error, mse, psnr, relmse, ssim
 from .config import DOMAINS, BenchmarkConfig
 
 __all__ = ["image_metrics", "fit_noise_floor", "equal_error_spp", "correct_for_noise_floor", "headline_spp",
-           "row_at", "summarize", "flag_candidates", "FLAG_METHODS"]
+           "row_at", "summarize", "flag_candidates", "FLAG_METHODS", "MEAN_CHANGE_BOUND"]
 
 
 def image_metrics(image: FloatArray, reference: FloatArray) -> dict[str, float]:
-    """relMSE, MSE, PSNR and SSIM of ``image`` against ``reference`` (:mod:`awr_denoise.metrics`).
+    """relMSE, MSE, the image mean's error, PSNR and SSIM of ``image`` against ``reference``
+    (:mod:`awr_denoise.metrics`).
 
     Examples
     --------
     >>> m = image_metrics(np.full((4, 4, 3), 0.5), np.full((4, 4, 3), 0.4))
-    >>> round(m["mse"], 6), round(m["relmse"], 6)
-    (0.01, 0.058824)
+    >>> round(m["mse"], 6), round(m["relmse"], 6), round(m["mean_error"], 6)
+    (0.01, 0.058824, 0.25)
     """
-    return {"relmse": relmse(image, reference), "mse": mse(image, reference), "psnr": psnr(image, reference),
-            "ssim": ssim(image, reference)}
+    return {"relmse": relmse(image, reference), "mse": mse(image, reference),
+            "mean_error": mean_error(image, reference), "psnr": psnr(image, reference), "ssim": ssim(image, reference)}
 
 
 def fit_noise_floor(spps: Sequence[float], errors: Sequence[float]) -> tuple[float, float]:
@@ -265,6 +266,10 @@ def _equal_time(uniform_curve: list[dict[str, Any]], row: dict[str, dict[str, An
 FLAG_METHODS = ("uniform+awr", "awr+awr", "awr-levels+awr", "awr-gain+awr", "variance+awr")
 """The methods whose defaults a flag judges against the plain mean at equal samples."""
 
+MEAN_CHANGE_BOUND = 0.005
+"""The most a default reconstruction may move the image mean of its own samples (the largest channel's
+relative change, :func:`~awr_denoise.metrics.mean_error`): the reconstruction issue's bound of 0.5%."""
+
 
 def _violations(sc: dict[str, Any]) -> list[tuple[str, int, str, float, float]]:
     """``(method, spp, metric, value, plain mean's value)`` wherever a method is above the plain mean."""
@@ -300,7 +305,9 @@ def flag_candidates(results: dict[str, Any]) -> list[tuple[str, str, int]]:
 def _flags(name: str, sc: dict[str, Any], checks: list[dict[str, Any]]) -> tuple[list[str], list[str]]:
     """``(flags, not confirmed)``: methods with library defaults worse than the plain mean at equal
     samples, in relMSE or in MSE; a flag checked over seeds (:mod:`~awr_denoise.bench.flagcheck`)
-    stands when its error summed over them is above the plain mean's, and is not confirmed otherwise."""
+    stands when its error summed over them is above the plain mean's, and is not confirmed otherwise.
+    A default that moves its own samples' image mean by more than :data:`MEAN_CHANGE_BOUND` is flagged
+    on that render alone."""
     flags, noise = [], []
     labels = {"relmse": "relMSE", "mse": "MSE"}
     for meth, spp, key, value, plain in _violations(sc):
@@ -315,6 +322,13 @@ def _flags(name: str, sc: dict[str, Any], checks: list[dict[str, Any]]) -> tuple
                  f"{pooled:.2f}x the plain mean's, above it on {sum(r > 1 for r in ratios)} of {len(ratios)} "
                  f"(per seed {min(ratios):.2f}-{max(ratios):.2f}x)")
         (flags if pooled > 1 else noise).append(text)
+    # The image mean is judged on the render itself, not over seeds: a default that moves its own samples'
+    # mean by more than the bound has changed that render's exposure, whatever another render does.
+    for meth in FLAG_METHODS:
+        for r in sc["methods"].get(meth, []):
+            if r.get("mean_change", 0.0) > MEAN_CHANGE_BOUND:
+                flags.append(f"{name}: {meth} at {r['spp']} spp moves the image mean of its samples by "
+                             f"{100 * r['mean_change']:.2f}% (more than {100 * MEAN_CHANGE_BOUND:g}%)")
     for r in sc.get("c_s_sweep", []):
         if r["domain"] == "log" and r["c_s"] == 1.0 and r.get("worse_than_mean"):
             flags.append(f"{name}: the default reconstruction (log, c_s=1) is worse than the plain mean "

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from .analysis import row_at
+from .analysis import MEAN_CHANGE_BOUND, row_at
 from .config import DOMAINS, METHODS
 
 __all__ = ["write_markdown", "kept_notes", "format_number", "NOTES_BEGIN", "NOTES_END"]
@@ -58,6 +58,13 @@ def _eq(row: dict[str, Any] | None) -> str:
     if not np.isfinite(v):
         return "below floor"
     return f"{v:.0f}" + ("*" if row["equal_error_extrapolated"] else "")
+
+
+def _mean_cells(row: dict[str, Any]) -> str:
+    """The image mean's error against the reference and its change from the method's own samples, in per
+    cent (``-`` in results measured before they were recorded)."""
+    cells = [f"{100 * row[k]:.2f}%" if k in row else "-" for k in ("mean_error", "mean_change")]
+    return ", ".join(cells)
 
 
 def _shown_path(path: Path) -> str:
@@ -137,7 +144,8 @@ def _intro(results: dict[str, Any], scenes: list[str], results_path: str | Path 
         f"2-core machine. Raw numbers: {raw}. Every figure on this page is "
         "written by that command; the text between the notes markers is kept across runs.\n",
         f"Scenes: {', '.join(scenes)}, at {shape[1]}x{shape[0]} pixels. relMSE = mean of `(x - r)^2 / (r^2 + "
-        f"{meta['relmse_epsilon']:g})` over pixels and channels; SSIM on the sRGB-tonemapped image. All methods "
+        f"{meta['relmse_epsilon']:g})` over pixels and channels; the image mean's error is the largest channel's "
+        "relative difference of means; SSIM on the sRGB-tonemapped image. All methods "
         f"use render seed {cfg['seed']} (the tracer's addressable random numbers make this common random "
         "numbers: method differences are not seed noise). Reconstruction is `reconstruct(buffer)` with the "
         "library defaults unless stated.\n",
@@ -256,7 +264,7 @@ def _goals(results: dict[str, Any], scenes: list[str]) -> list[str]:
                      f"render is below it in the error summed over {seeds} seeds (next section).\n")
     else:
         lines.append("No method with library defaults was worse than the plain mean on any scene at any spp, in relMSE "
-                     "or in MSE.\n")
+                     f"or in MSE, nor moved its samples' image mean by more than {100 * MEAN_CHANGE_BOUND:g}%.\n")
     if noise:
         lines += ["### Flags not confirmed over seeds\n",
                   f"Worse than the plain mean on the main render (seed {results['meta']['config']['seed']}), but not "
@@ -270,16 +278,21 @@ def _goals(results: dict[str, Any], scenes: list[str]) -> list[str]:
 
 
 def _all_metrics(results: dict[str, Any], scenes: list[str], methods: list[str]) -> list[str]:
-    lines = ["## All metrics\n"]
+    lines = ["## All metrics\n",
+             "Image mean: its error against the reference's, and its change from the plain mean of the method's "
+             "own samples (each the largest channel's relative difference, `awr_denoise.metrics.mean_error`; "
+             f"a default that changes it by more than {100 * MEAN_CHANGE_BOUND:g}% is flagged).\n"]
     for name in scenes:
         m = results["scenes"][name]["methods"]
         lines += [f"### {name}\n",
-                  "| method | spp | relMSE | MSE | PSNR (dB) | SSIM | equal-error spp | CPU time (s) | wall time (s) |",
-                  "|---|---|---|---|---|---|---|---|---|"]
+                  "| method | spp | relMSE | MSE | image mean: error, change | PSNR (dB) | SSIM | equal-error spp "
+                  "| CPU time (s) | wall time (s) |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
         for meth in methods:
             for r in m[meth]:
-                lines.append(f"| {meth} | {r['spp']} | {_fmt(r['relmse'])} | {_fmt(r['mse'])} | {r['psnr']:.2f} | "
-                             f"{r['ssim']:.4f} | {_eq(r)} | {r['total_cpu_s']:.2f} | {r['total_s']:.2f} |")
+                lines.append(f"| {meth} | {r['spp']} | {_fmt(r['relmse'])} | {_fmt(r['mse'])} | {_mean_cells(r)} | "
+                             f"{r['psnr']:.2f} | {r['ssim']:.4f} | {_eq(r)} | {r['total_cpu_s']:.2f} | "
+                             f"{r['total_s']:.2f} |")
         lines.append("")
     return lines
 

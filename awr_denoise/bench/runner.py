@@ -17,7 +17,7 @@ from tqdm import tqdm
 from .._typing import FloatArray
 from ..buffers import SampleBuffer
 from ..io.atomic import OutputSet, check_writable
-from ..metrics import RELMSE_EPSILON, relmse
+from ..metrics import RELMSE_EPSILON, mean_error, relmse
 from ..reconstruct import reconstruct
 from ..sampling import UniformSampler
 from .analysis import correct_for_noise_floor, flag_candidates, headline_spp, image_metrics, summarize
@@ -296,7 +296,8 @@ def _uniform_stage(scene: Any, reference: FloatArray, spps: list[int], config: B
         if use_oidn:
             outs["uniform+oidn"] = timed(lambda: oidn_denoise(mean))
         for method, (image, seconds) in outs.items():
-            methods[method].append({"spp": spp, **image_metrics(image, reference), **_time_fields(timing, seconds)})
+            methods[method].append({"spp": spp, **image_metrics(image, reference), **_time_fields(timing, seconds),
+                                    "mean_change": mean_error(image, mean)})
             if spp == images["show_spp"]:
                 images["crops"][method] = image
 
@@ -315,6 +316,7 @@ def _adaptive_stage(sampler_cls: type, scene: Any, reference: FloatArray, spps: 
     def snapshot(spp: int, buffer: SampleBuffer, timing: Timing) -> None:
         image, seconds = timed(lambda: reconstruct(buffer))
         rows.append({"spp": spp, **image_metrics(image, reference), **_time_fields(timing, seconds),
+                     "mean_change": mean_error(image, buffer.mean),
                      "plain_mean_relmse": relmse(buffer.mean, reference),
                      "max_pixel_spp": int(buffer.count.max()),
                      "min_pixel_spp": int(buffer.count.min())})

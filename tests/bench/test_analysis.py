@@ -97,3 +97,22 @@ def test_a_flag_checked_over_seeds_stands_only_if_the_summed_error_is_above_the_
     # Without checks (flag_seeds=1, or results from before them) every flag stands as it is.
     plain = summarize({"scenes": {"s": scene}}, BenchmarkConfig(spps=(4, 8)))
     assert len(plain["flags"]) == 2 and plain["flags_not_confirmed"] == []
+
+
+def test_a_default_that_moves_its_samples_image_mean_is_flagged_on_that_render():
+    """The image mean is the third judged quantity: a reconstruction that lowers relMSE and MSE but moves
+    its samples' mean by more than 0.5% (the reconstruction issue's bound) has changed the exposure. It
+    is flagged as it stands, not re-rendered over seeds (``flag_candidates`` does not list it)."""
+    from awr_denoise.bench.analysis import MEAN_CHANGE_BOUND, flag_candidates
+
+    scene = {"shape": [32, 32], "uniform_curve": [_row(4, 0.1, 1.0), _row(8, 0.05, 2.0)],
+             "methods": {"uniform": [_row(4, 0.1, 1.0), _row(8, 0.05, 2.0)],
+                         "uniform+awr": [{**_row(4, 0.05, 1.0), "mean_change": 0.006},
+                                         {**_row(8, 0.02, 2.0), "mean_change": MEAN_CHANGE_BOUND}],
+                         "uniform+oidn": [{**_row(4, 0.05, 1.0), "mean_change": 0.05}]}}
+    out = summarize({"scenes": {"s": scene}}, BenchmarkConfig(spps=(4, 8)))
+    assert out["flags"] == ["s: uniform+awr at 4 spp moves the image mean of its samples by 0.60% (more than 0.5%)"]
+    assert flag_candidates({"scenes": {"s": scene}}) == []
+    # Results recorded before the image mean was (no ``mean_change``) raise no flag.
+    del scene["methods"]["uniform+awr"][0]["mean_change"]
+    assert summarize({"scenes": {"s": scene}}, BenchmarkConfig(spps=(4, 8)))["flags"] == []

@@ -29,6 +29,9 @@ def test_page_has_every_section_and_its_figures(tiny_run):
     assert "## Overhead" not in page and "## The other defaults" not in page  # neither was measured
     for link in page.split("](img/")[1:]:
         assert (out / "docs" / "img" / link.split(")")[0]).is_file()
+    # The image mean beside relMSE and MSE: the plain mean changes nothing of its own samples' mean.
+    assert "| image mean: error, change |" in page
+    assert all(", 0.00% |" in line for line in page.splitlines() if line.startswith("| uniform | "))
 
 
 def test_notes_survive_a_rewrite(tiny_run, tmp_path):
