@@ -312,6 +312,8 @@ def _scheduler_file(text: str) -> Any:
         return json.loads(raw.decode("utf-8"))
     except (OSError, ValueError) as exc:  # UnicodeDecodeError and JSONDecodeError are ValueErrors
         raise ValueError(f"scheduler: {text}: not a Dask scheduler file ({exc})") from None
+    except RecursionError:  # arrays or objects nested thousands deep: the file's fault, not an internal error
+        raise ValueError(f"scheduler: {text}: not a Dask scheduler file (its JSON is nested too deeply)") from None
 
 
 def _scheduler_address(distributed: Any, scheduler: str | os.PathLike[str]) -> str:

@@ -418,6 +418,8 @@ def _read_json(path: Path) -> Any:
         raise ValueError(f"not a JSON text file ({exc.reason})") from None
     except json.JSONDecodeError as exc:
         raise ValueError(f"not valid JSON: {exc}") from None
+    except RecursionError:  # arrays or objects nested thousands deep: the file's fault, not an internal error
+        raise ValueError("not a scene: its JSON is nested deeper than Python's reader goes") from None
 
 
 def scene_files(scene: str | Path) -> list[tuple[str, Path]]:

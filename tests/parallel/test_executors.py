@@ -71,7 +71,9 @@ def test_a_scheduler_that_is_not_one_is_refused_naming_it(tmp_path):
     pytest.importorskip("distributed")
     (tmp_path / "bad.json").write_text('{"garbage": true')
     (tmp_path / "empty.json").write_text('{"type": "Scheduler"}')
+    (tmp_path / "deep.json").write_text("[" * 100_000 + "]" * 100_000)  # RecursionError: was an internal error
     for scheduler, match in ((tmp_path / "bad.json", "bad.json: not a Dask scheduler file"),
+                             (tmp_path / "deep.json", "deep.json: not a Dask scheduler file .its JSON is nested"),
                              (tmp_path / "empty.json", 'empty.json: not a Dask scheduler file .no "address"'),
                              (tmp_path / "missing.json", "missing.json: no such scheduler file"),
                              ("foo", "'foo' is not a scheduler address"),

@@ -171,6 +171,12 @@ def test_a_scene_file_names_itself_and_refuses_nan(tmp_path) -> None:
     path.write_text('{"width": }')
     with pytest.raises(ValueError, match=r"s\.json: not valid JSON"):
         load_scene(path)
+    # Nested thousands deep, Python's reader raised RecursionError: an internal error of the command, exit 1
+    # (a red-team pass); it is the file's.
+    for deep in ("[" * 100_000 + "]" * 100_000, '{"a":' * 100_000 + "1" + "}" * 100_000):
+        path.write_text(deep)
+        with pytest.raises(ValueError, match=r"s\.json: not a scene: its JSON is nested deeper"):
+            load_scene(path)
     path.write_text(json.dumps(_scene_with(width=0)))
     with pytest.raises(ValueError, match=r"s\.json: width: must be >= 1, got 0"):
         load_scene(path)
