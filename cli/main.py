@@ -62,6 +62,29 @@ class _Parser(argparse.ArgumentParser):
             stream.flush()
 
 
+_GIVEN = "_awr_given_options"
+"""The namespace attribute in which :class:`_StoreOnce` keeps the options given so far (removed after parsing)."""
+
+
+class _StoreOnce(argparse._StoreAction):
+    """An option that takes a value, refused when given twice. argparse keeps the last one: a wrapper
+    script that appended ``-o``, ``-r`` or ``--maxerror`` to a user's arguments got another output,
+    reference or bound with exit 0 (a red-team pass), where two spellings of one input (SCENE and
+    ``--scene``) were already refused."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        given = getattr(namespace, _GIVEN, None)
+        if given is None:
+            given = set()
+            setattr(namespace, _GIVEN, given)
+        if self.dest in given:
+            raise UsageError(f"{'/'.join(self.option_strings)}: given twice (the second: {option_string} "
+                             f"{' '.join(map(str, values)) if isinstance(values, list) else values}); give it once")
+        given.add(self.dest)
+        super().__call__(parser, namespace, values, option_string)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The full argument parser (one sub-parser per subcommand)."""
     parser = _Parser(prog="awr", description="Adaptive Wavelet Rendering: denoise Monte Carlo sample dumps "
@@ -72,6 +95,10 @@ def build_parser() -> argparse.ArgumentParser:
     for name in _COMMANDS:
         module = importlib.import_module(f"{__package__}.{name}_cmd")
         module.register(sub)
+    for command in sub.choices.values():
+        for action in command._actions:
+            if type(action) is argparse._StoreAction and action.option_strings:
+                action.__class__ = _StoreOnce
     return parser
 
 
@@ -147,6 +174,7 @@ def _run(argv: Sequence[str] | None) -> int:
     try:
         parser = build_parser()
         args = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
+        vars(args).pop(_GIVEN, None)
         _check_kernels(getattr(args, "command", None))
         with one_line_warnings():
             status = int(args.run(args) or EXIT_OK)

@@ -184,6 +184,32 @@ def test_bad_option_value_is_usage_error(tmp_path, capsys, rng):
     assert not (tmp_path / "o.exr").exists()
 
 
+@pytest.mark.parametrize("twice", [["-o", "a.exr", "-o", "b.exr"], ["--c-s", "1", "--c-s", "4"],
+                                   ["--stages", "1", "--stages", "3"]])
+def test_an_option_given_twice_is_refused(tmp_path, rng, capsys, twice):
+    """argparse kept the last of two: a wrapper that appended ``-o`` or a bound to a user's arguments got
+    another output or setting with exit 0 (a red-team pass). Refused before anything is written."""
+    src = tmp_path / "d.exr"
+    _dump(src, rng)
+    argv = ["denoise", str(src), *[str(tmp_path / a) if a.endswith(".exr") else a for a in twice], "-q"]
+    if "-o" not in twice:
+        argv += ["-o", str(tmp_path / "a.exr")]
+    assert main(argv) == 2
+    _one_error_line(capsys, twice[0], "given twice", f"(the second: {twice[2]} ")
+    assert list(tmp_path.iterdir()) == [src]
+    ref = tmp_path / "r.exr"
+    write_image(ref, np.full((H, W, 3), 0.5))
+    for option, values in (("-r", [str(ref), str(src)]), ("--maxerror", ["0.0001", "100"]),
+                           ("--metric", ["mse", "psnr"])):
+        argv = ["diff", str(ref)] + ([] if option == "-r" else ["-r", str(ref)])
+        for value in values:
+            argv += [option, value]
+        assert main(argv) == 2
+        _one_error_line(capsys, option, "given twice")
+    # A flag given twice is still one choice, and one value each is not refused.
+    assert main(["denoise", str(src), "-o", str(tmp_path / "a.exr"), "--c-s", "4", "-q", "-q"]) == 0
+
+
 # ---------------------------------------------------------------- outputs are safe
 
 def test_denoise_writes_image_with_provenance(tmp_path, rng, capsys):
