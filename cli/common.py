@@ -21,7 +21,7 @@ from awr_denoise.buffers import NONFINITE_POLICIES, VARIANCE_KINDS
 from awr_denoise.io import PRESETS
 
 from .errors import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, RuntimeFailure, UsageError, one_line_warnings, shown
-from .values import MAX_FRAMES, MAX_SPP, whole
+from .values import MAX_FRAMES, MAX_SPP, nonempty, whole
 
 __all__ = [
     "available_memory",
@@ -46,7 +46,7 @@ __all__ = [
 
 def add_output_options(parser: argparse.ArgumentParser, *, output_help: str) -> None:
     """``-o/--output`` and ``--overwrite``."""
-    parser.add_argument("-o", "--output", required=True, metavar="FILE", help=output_help)
+    parser.add_argument("-o", "--output", type=nonempty, required=True, metavar="FILE", help=output_help)
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
 
 
@@ -55,15 +55,15 @@ def add_plane_options(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("input layout (see docs/io.md)")
     g.add_argument("--preset", default="auto", choices=PRESETS,
                    help="renderer layout of the input; 'auto' detects it from the channel names")
-    g.add_argument("--color", metavar="PLANE", help="mean plane, e.g. 'RGB', 'Ci' or 'beauty.exr:RGB'")
-    g.add_argument("--variance", metavar="PLANE", help="spread plane, e.g. 'Variance' or 'var.exr:mse'")
-    g.add_argument("--count", metavar="PLANE", help="per-pixel sample count plane")
+    g.add_argument("--color", type=nonempty, metavar="PLANE", help="mean plane, e.g. 'RGB', 'Ci' or 'beauty.exr:RGB'")
+    g.add_argument("--variance", type=nonempty, metavar="PLANE", help="spread plane, e.g. 'Variance' or 'var.exr:mse'")
+    g.add_argument("--count", type=nonempty, metavar="PLANE", help="per-pixel sample count plane")
     g.add_argument("--variance-kind", choices=VARIANCE_KINDS,
                    help="what --variance holds: per-sample variance, variance of the mean, or E[x^2]")
     g.add_argument("--spp", type=whole(minimum=1, maximum=MAX_SPP), metavar="N",
                    help="samples per pixel when the file has no count")
-    g.add_argument("--layer", metavar="NAME", help="Cycles view layer when the file has several")
-    g.add_argument("--view", metavar="NAME", help="view of a stereo/multiview file, e.g. 'left' (required when "
+    g.add_argument("--layer", type=nonempty, metavar="NAME", help="Cycles view layer when the file has several")
+    g.add_argument("--view", type=nonempty, metavar="NAME", help="view of a stereo/multiview file, e.g. 'left' (required when "
                                                   "the file has several)")
     g.add_argument("--nonfinite", default=NONFINITE_POLICIES[0], choices=NONFINITE_POLICIES,
                    help="NaN/Inf samples of a deep per-sample dump: refuse them (default), leave them "
@@ -72,11 +72,11 @@ def add_plane_options(parser: argparse.ArgumentParser) -> None:
                                   "Read automatically where the preset knows the planes (pbrt, Cycles, Mitsuba "
                                   "aov, awr dumps); these options name them. They are carried into the buffer "
                                   "and its dumps; the reconstruction uses them with --guide features or --guide oidn.")
-    f.add_argument("--alb", metavar="FILE[:PLANE]",
+    f.add_argument("--alb", type=nonempty, metavar="FILE[:PLANE]",
                    help="albedo: an image file (its R,G,B, as oidnDenoise --alb), FILE:PLANE, or a PLANE of the input")
-    f.add_argument("--nrm", metavar="FILE[:PLANE]",
+    f.add_argument("--nrm", type=nonempty, metavar="FILE[:PLANE]",
                    help="shading normal: an image file (R,G,B or X,Y,Z), FILE:PLANE, or a PLANE of the input")
-    f.add_argument("--depth", metavar="FILE[:PLANE]",
+    f.add_argument("--depth", type=nonempty, metavar="FILE[:PLANE]",
                    help="depth: an image file (its Z or only channel), FILE:PLANE, or a PLANE of the input")
 
 

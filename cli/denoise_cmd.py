@@ -40,7 +40,7 @@ from .common import (
 )
 from .parallel_options import add_executor_arguments, executor_from_args, executor_requested
 from .paths import PathPlan, check_file_name, check_plane_windows, plane_options
-from .values import MAX_EXPOSURE, MAX_LEVELS, real, wavelet_name, whole
+from .values import MAX_EXPOSURE, MAX_LEVELS, nonempty, real, wavelet_name, whole
 
 __all__ = ["register", "run", "add_reconstruction_options", "reconstruction_kwargs", "check_reconstruction_options",
            "exr_shape", "GUIDE_CHOICES"]
@@ -116,15 +116,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "checked; --guide oidn or --guide features uses them.")
     p.add_argument("input", nargs="?", metavar="DUMP.exr",
                    help="sample dump (any preset); may hold a #### frame placeholder")
-    p.add_argument("--hdr", metavar="DUMP.exr", help="same as the positional input (oidnDenoise's name)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.exr", help="denoised image (may hold ####)")
+    p.add_argument("--hdr", type=nonempty, metavar="DUMP.exr", help="same as the positional input (oidnDenoise's name)")
+    p.add_argument("-o", "--output", type=nonempty, required=True, metavar="OUT.exr", help="denoised image (may hold ####)")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--frames", metavar="RANGE", help="frame numbers for #### patterns, e.g. 1-100 or 1-100x5")
     p.add_argument("--half", action="store_true", help="write HALF channels (refused above 65504)")
-    p.add_argument("--preview", metavar="OUT.png", help="also write an sRGB PNG preview (may hold ####)")
+    p.add_argument("--preview", type=nonempty, metavar="OUT.png", help="also write an sRGB PNG preview (may hold ####)")
     p.add_argument("--exposure", type=real(minimum=-MAX_EXPOSURE, maximum=MAX_EXPOSURE),
                    help="preview exposure in stops (default 0; with --preview)")
-    p.add_argument("-r", "--ref", metavar="REF.exr", help="reference image to compare the result with")
+    p.add_argument("-r", "--ref", type=nonempty, metavar="REF.exr", help="reference image to compare the result with")
     p.add_argument("--maxerror", type=real(minimum=0), metavar="E",
                    help="with --ref: fail (exit 1) when the relative MSE exceeds E")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")

@@ -15,7 +15,7 @@ from . import interrupts
 from .common import EXIT_OK, RuntimeFailure, UsageError, print_json
 from .errors import shown
 from .paths import PathPlan
-from .values import real
+from .values import nonempty, real
 
 __all__ = ["register", "run"]
 
@@ -26,8 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Error metrics of IMAGE against REF. With --maxerror, exit 1 when the chosen "
                                    "metric is worse than the bound (a golden-image check).")
     p.add_argument("input", metavar="IMAGE.exr", help="image or sample dump (its R,G,B are the mean)")
-    p.add_argument("-r", "--ref", required=True, metavar="REF.exr", help="reference image")
-    p.add_argument("-o", "--output", metavar="DIFF.exr", help="write the signed difference IMAGE - REF")
+    p.add_argument("-r", "--ref", type=nonempty, required=True, metavar="REF.exr", help="reference image")
+    p.add_argument("-o", "--output", type=nonempty, metavar="DIFF.exr", help="write the signed difference IMAGE - REF")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     p.add_argument("--metric", choices=tuple(METRICS), default="relmse", help="metric checked by --maxerror")
     p.add_argument("--maxerror", type=real(), metavar="E",

@@ -27,7 +27,7 @@ from awr_denoise.io.request_map import MAX_ROUND
 
 from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, status
 from .paths import PathPlan, check_plane_windows, plane_options
-from .values import MAX_SEED
+from .values import MAX_SEED, nonempty
 
 __all__ = ["register", "run"]
 
@@ -41,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "variance, and write the result in the awr dump layout. The first input is "
                                    "the running dump (or the first batch).")
     p.add_argument("inputs", nargs="+", metavar="DUMP.exr", help="running dump, then new batches")
-    p.add_argument("-o", "--output", required=True, metavar="MERGED.exr",
+    p.add_argument("-o", "--output", type=nonempty, required=True, metavar="MERGED.exr",
                    help="merged dump (a new file: inputs are never replaced)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     p.add_argument("--request", metavar="REQUEST.exr",

@@ -65,6 +65,12 @@ _IMAGE_SUFFIXES = {".exr": "exr", ".png": "png", ".jpg": "jpeg", ".jpeg": "jpeg"
                    ".hdr": "hdr", ".bmp": "bmp", ".ppm": "ppm", ".pfm": "pfm", ".tga": "tga", ".webp": "webp"}
 
 
+def _not_empty(path: str | os.PathLike[str], option: str) -> None:
+    # Path("") is Path("."): an empty name (a script's unset variable) was refused as the folder "."
+    if not os.fspath(path):
+        raise UsageError(f"{option}: an empty path")
+
+
 @dataclass
 class PathPlan:
     """The reads and writes of one command.
@@ -83,6 +89,7 @@ class PathPlan:
     def read(self, path: str | os.PathLike[str] | None, option: str) -> None:
         """An input file (None is skipped)."""
         if path is not None:
+            _not_empty(path, option)
             self.reads.append(_Entry(Path(path), option))
 
     def read_plane(self, spec: str | None, option: str) -> None:
@@ -176,6 +183,7 @@ def check_file_name(path: str | os.PathLike[str], option: str) -> None:
     """Refuse an output name ending in ``/``, ``/.`` or ``/..``: it names a folder, yet ``Path``
     drops the slash, so a file was written under the name without it (``-o out.exr/`` wrote
     ``out.exr``)."""
+    _not_empty(path, option)
     name = os.fspath(path)
     if name == "-":  # the shells' convention for standard output, which no command writes images to
         raise UsageError(f"{option}: '-' would write a file named '-', not standard output; give a file name "

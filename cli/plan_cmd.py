@@ -18,7 +18,7 @@ from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 
 from .common import EXIT_OK, UsageError, add_plane_options, check_memory, plane_kwargs, status
 from .paths import PathPlan, check_plane_windows, plane_options
-from .values import MAX_LEVELS, MAX_SEED, MAX_SPP, image_size, real, wavelet_name, whole
+from .values import MAX_LEVELS, MAX_SEED, MAX_SPP, image_size, nonempty, real, wavelet_name, whole
 
 __all__ = ["register", "run", "STRATEGIES"]
 
@@ -33,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "map (counts, first_index) for an external renderer. Without a dump, plan "
                                    "the uniform first round of an image of --size.")
     p.add_argument("input", nargs="?", metavar="DUMP.exr", help="running sample dump (omit for the first round)")
-    p.add_argument("-o", "--output", required=True, metavar="REQUEST.exr")
+    p.add_argument("-o", "--output", type=nonempty, required=True, metavar="REQUEST.exr")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     budget = p.add_mutually_exclusive_group()
     budget.add_argument("--budget", type=whole(minimum=0, maximum=MAX_BUDGET), metavar="N",

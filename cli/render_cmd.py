@@ -37,7 +37,7 @@ from .common import EXIT_OK, RuntimeFailure, UsageError, status
 from .denoise_cmd import add_reconstruction_options, check_reconstruction_options, reconstruction_kwargs
 from .parallel_options import add_executor_arguments, executor_from_args, executor_requested
 from .paths import PathPlan
-from .values import MAX_EXPOSURE, MAX_SEED, MAX_SIDE, MAX_SPP, check_pixels, feature_list, real, whole
+from .values import MAX_EXPOSURE, MAX_SEED, MAX_SIDE, MAX_SPP, check_pixels, feature_list, nonempty, real, whole
 
 __all__ = ["register", "run", "tracer_module", "default_scene", "render_buffer", "derived_path"]
 
@@ -153,9 +153,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--features", type=feature_list, metavar="NAMES",
                    help="also render albedo, normal, depth (comma separated, or 'all') into the dump (tracer and "
                         "mitsuba render them); --guide features or --guide oidn uses them")
-    p.add_argument("-o", "--output", metavar="DUMP.exr", help="sample dump to write (required unless --list-scenes)")
-    p.add_argument("--image", metavar="OUT.exr", help="denoised image (default DUMP.denoised.exr)")
-    p.add_argument("--preview", metavar="OUT.png", help="PNG preview (default DUMP.denoised.png)")
+    p.add_argument("-o", "--output", type=nonempty, metavar="DUMP.exr", help="sample dump to write (required unless --list-scenes)")
+    p.add_argument("--image", type=nonempty, metavar="OUT.exr", help="denoised image (default DUMP.denoised.exr)")
+    p.add_argument("--preview", type=nonempty, metavar="OUT.png", help="PNG preview (default DUMP.denoised.png)")
     p.add_argument("--exposure", type=real(minimum=-MAX_EXPOSURE, maximum=MAX_EXPOSURE), default=0.0,
                    help="preview exposure in stops")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
@@ -231,7 +231,7 @@ def run(args: argparse.Namespace) -> int:
         for name in _registry(renderer_scenes, args.renderer):
             print(name)
         return EXIT_OK
-    if not args.output:
+    if args.output is None:
         raise UsageError("render: -o/--output DUMP.exr is required")
     for option, value in (("--initial-spp", args.initial_spp), ("--round-growth", args.round_growth),
                           ("--noise-model", args.noise_model), ("--seconds", args.seconds)):

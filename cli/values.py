@@ -19,7 +19,7 @@ from awr_denoise.wavelets import WAVELET_NAMES
 from .errors import UsageError
 
 __all__ = ["MAX_SPP", "MAX_SEED", "MAX_PIXELS", "MAX_SIDE", "MAX_LEVELS", "MAX_EXPOSURE", "MAX_FRAMES",
-           "real", "whole", "image_size", "check_pixels", "wavelet_name", "feature_list"]
+           "real", "whole", "nonempty", "image_size", "check_pixels", "wavelet_name", "feature_list"]
 
 MAX_SPP = _checks.MAX_SPP
 """Samples per pixel: counts are stored as float32, exact up to 2**24."""
@@ -96,6 +96,15 @@ def image_size(text: str) -> tuple[int, int]:
     if problem:
         raise argparse.ArgumentTypeError(problem)
     return height, width
+
+
+def nonempty(text: str) -> str:
+    """An argparse type: a name that is not empty (a plane, a file, a layer, a view). An empty one, from a
+    script's unset variable (``--alb "$ALB"``), was taken as no option at all, or refused by a message
+    about something else (the default colour's variance, the folder ``.``)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"an empty name ({text!r})")
+    return text
 
 
 def wavelet_name(text: str) -> str:

@@ -210,6 +210,29 @@ def test_an_option_given_twice_is_refused(tmp_path, rng, capsys, twice):
     assert main(["denoise", str(src), "-o", str(tmp_path / "a.exr"), "--c-s", "4", "-q", "-q"]) == 0
 
 
+@pytest.mark.parametrize("argv, option", [
+    (["denoise", "{d}", "-o", "{o}", "--alb", ""], "--alb"),
+    (["denoise", "{d}", "-o", "{o}", "--nrm", ""], "--nrm"),
+    (["plan", "{d}", "-o", "{o}", "--depth", ""], "--depth"),
+    (["denoise", "{d}", "-o", "{o}", "--color", ""], "--color"),
+    (["denoise", "{d}", "-o", "{o}", "--variance", ""], "--variance"),
+    (["denoise", "{d}", "-o", "{o}", "--preview", ""], "--preview"),
+    (["denoise", "{d}", "-o", ""], "-o/--output"),
+    (["diff", "{d}", "-r", ""], "-r/--ref"),
+    (["info", ""], "FILE.exr: an empty path"),
+    (["merge", "{d}", "", "-o", "{o}"], "DUMP.exr: an empty path"),
+])
+def test_an_empty_name_is_refused_as_empty(tmp_path, rng, capsys, argv, option):
+    """A script's unset variable (``--alb "$ALB"``) gave an empty name: the feature options took it as not
+    given (exit 0, no albedo), the others refused it for something else (the folder '.', the default
+    colour's variance); a red-team pass."""
+    src = tmp_path / "d.exr"
+    _dump(src, rng)
+    assert main([a.format(d=src, o=tmp_path / "o.exr") for a in argv] + ([] if argv[0] == "info" else ["-q"])) == 2
+    _one_error_line(capsys, option, "an empty")
+    assert list(tmp_path.iterdir()) == [src]
+
+
 # ---------------------------------------------------------------- outputs are safe
 
 def test_denoise_writes_image_with_provenance(tmp_path, rng, capsys):
