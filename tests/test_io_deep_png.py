@@ -131,6 +131,27 @@ def test_a_count_plane_beside_an_awr_dumps_own_counts_is_refused(tmp_path):
         read_sample_dump(tmp_path / "d.exr", count="N")
 
 
+@pytest.mark.parametrize("policy", ["drop", "zero"])
+def test_a_nonfinite_policy_on_a_flat_file_is_refused(tmp_path, monkeypatch, capsys, policy):
+    """The policy is for a deep dump's samples; on a flat dump it did nothing, without a word, and its NaN
+    mean was then refused as though no policy had been asked for (a red-team pass)."""
+    from awr_denoise.cli.main import main
+    from awr_denoise.io import read_sample_dump, write_sample_buffer
+
+    monkeypatch.chdir(tmp_path)
+    write_sample_buffer("d.exr", SampleBuffer.from_moments(np.full((4, 4), 2), np.ones((4, 4, 3)), np.ones((4, 4, 3))))
+    with pytest.raises(InputFileError, match="d.exr: nonfinite= / --nonfinite would be ignored: a flat file"):
+        read_sample_dump("d.exr", nonfinite=policy)
+    for argv in (["denoise", "d.exr", "-o", "o.exr"], ["plan", "d.exr", "-o", "o.exr"],
+                 ["merge", "d.exr", "d.exr", "--allow-duplicates", "-o", "o.exr"]):
+        assert main([*argv, "-q", "--nonfinite", policy]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--nonfinite would be ignored" in err[0] and not (tmp_path / "o.exr").exists()
+    assert read_sample_dump("d.exr", nonfinite="raise").buffer.total_samples == 32
+    write_deep_samples("deep.exr", np.repeat(np.arange(16), 2), np.ones((32, 3)), (4, 4))
+    assert read_sample_dump("deep.exr", nonfinite=policy).buffer.total_samples == 32  # what it is for
+
+
 def test_a_deep_dump_is_not_an_independent_render(tmp_path, monkeypatch, capsys):
     """``merge --independent`` said "cannot detect the layout (channels: )" of a deep dump."""
     from awr_denoise.cli.main import main

@@ -706,7 +706,7 @@ def _check_layer(p: Path, preset: str, layer: str | None) -> None:
 # The command line's name of each reader argument, for messages that name both.
 _OPTION = {"color": "--color", "variance": "--variance", "count": "--count", "variance_kind": "--variance-kind",
            "spp": "--spp", "view": "--view", "albedo": "--alb", "normal": "--nrm", "depth": "--depth",
-           "features": "--guide features"}
+           "features": "--guide features", "nonfinite": "--nonfinite"}
 
 
 def _refuse_unused(p: Path, why: str, **given: Any) -> None:
@@ -865,6 +865,10 @@ def read_sample_dump(
         return SampleDump(buf, buf.count, {}, index_bounds=sample_index_bounds(p, parts[0]))
     if preset == "deep":
         raise file_error(p, "is not a deep EXR")
+    # A policy for samples, on a file of statistics: accepted without a word, it did nothing, and a NaN
+    # mean was then refused as if the policy had not been asked for (a red-team pass).
+    _refuse_unused(p, "a flat file holds statistics, where NaN or Inf is always an error; the policy is for a "
+                   "deep dump's samples", nonfinite=None if nonfinite == "raise" else nonfinite)
     f = _File(p, parts, view)
     _warn(_lossy(p, f.used))
     if not f.channels:
@@ -1034,7 +1038,7 @@ def read_sample_buffer(
     nonfinite
         Policy for NaN/Inf *samples* of a deep per-sample dump: ``"raise"`` (default),
         ``"drop"`` or ``"zero"``, counted in the buffer's ``nonfinite``. Flat files hold
-        statistics, where NaN/Inf is always an error.
+        statistics, where NaN/Inf is always an error: another policy is refused for them.
     albedo, normal, depth
         Feature planes (:mod:`awr_denoise.features`): a plane of the input, ``file.exr:plane``,
         or a whole image file (its ``R,G,B``/``X,Y,Z``, or ``Z``), as ``oidnDenoise --alb/--nrm``
