@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     options: dict = {"spp_max": args.spp_max}
     same_run = "awr:strategy" not in header or str(header_value(header, "awr:strategy")) == args.strategy
     if args.initial_spp is None and "awr:initial_spp" in header and same_run:  # another strategy: its own default
-        args.initial_spp = header_count(args.input, header, "awr:initial_spp", 1, MAX_SPP)
+        args.initial_spp = header_count(args.input, header, "awr:initial_spp", 1, MAX_SPP, low=1)
     if args.initial_spp is not None:  # else the strategy's own default
         options["initial_spp"] = args.initial_spp
     if args.round_growth is not None:

@@ -425,6 +425,21 @@ def test_merge_is_exact_chan_update(tmp_path, rng, capsys):
     np.testing.assert_allclose(merged.variance, direct.variance, rtol=2e-5, atol=1e-7)
 
 
+@pytest.mark.parametrize("attribute, value, needle", [("awr:strategy", "evil", "'evil' is not one of awr"),
+                                                      ("awr:initial_spp", 0, "outside 1..")])
+def test_merge_refuses_a_run_setting_plan_would_refuse(tmp_path, rng, capsys, attribute, value, needle):
+    """merge carried a running dump's strategy and first round's spp into its output unchecked: exit 0, and the
+    next plan refused the dump it wrote; plan's refusal of an initial spp of 0 named neither the file nor the
+    attribute (a red-team pass)."""
+    buf = _dump(tmp_path / "d.exr", rng)
+    write_sample_buffer(tmp_path / "bad.exr", buf, header={attribute: value})
+    for argv in (["merge", str(tmp_path / "bad.exr"), str(tmp_path / "d.exr"), "--allow-duplicates",
+                  "-o", str(tmp_path / "m.exr")], ["plan", str(tmp_path / "bad.exr"), "-o", str(tmp_path / "r.exr")]):
+        assert main(argv + ["-q"]) == 2
+        _one_error_line(capsys, "bad.exr", attribute, needle)
+    assert not (tmp_path / "m.exr").exists() and not (tmp_path / "r.exr").exists()
+
+
 def test_merge_size_mismatch(tmp_path, rng, capsys):
     _dump(tmp_path / "a.exr", rng)
     _dump(tmp_path / "b.exr", rng, shape=(H, W + 1))

@@ -221,8 +221,9 @@ def _statistics_planes(path: str | os.PathLike[str], planes: dict[str, np.ndarra
         planes[prefix + KNOWN_CHANNEL] = buffer.variance_known.astype(np.float32)
 
 
-def header_count(path: str | os.PathLike[str], attributes: dict, key: str, default: int, high: int) -> int:
-    """A whole-number ``awr:*`` header attribute in 0..``high``, refused naming the file and the key.
+def header_count(path: str | os.PathLike[str], attributes: dict, key: str, default: int, high: int, *,
+                 low: int = 0) -> int:
+    """A whole-number ``awr:*`` header attribute in ``low``..``high``, refused naming the file and the key.
 
     ASCII digits only: Python's ``int()`` also reads ``'1_000'`` and other scripts' digits.
     """
@@ -230,8 +231,8 @@ def header_count(path: str | os.PathLike[str], attributes: dict, key: str, defau
     text = str(raw).strip()
     if not re.fullmatch(r"[+-]?[0-9]{1,40}", text):
         raise file_error(path, f"header attribute is not a whole number: {raw!r}", key)
-    if not 0 <= int(text) <= high:
-        raise file_error(path, f"header attribute {int(text)} is outside 0..{high}", key)
+    if not low <= int(text) <= high:
+        raise file_error(path, f"header attribute {int(text)} is outside {low}..{high}", key)
     return int(text)
 
 
