@@ -230,8 +230,14 @@ def write_sky_envmap(path: str | Path | None = None, **parameters: Any) -> Path:
 
 
 def read_envmap_exr(path: str | Path) -> np.ndarray:
-    """(H, W, 3) float64 radiance from an EXR with R, G, B channels."""
-    import OpenEXR  # the [exr] extra; only an environment map read from a file needs it
+    """(H, W, 3) float64 radiance from an EXR with R, G, B channels.
+
+    Read by the project's reader (:func:`awr_denoise.io.read_image`), as every other input file: the
+    OpenEXR bindings read directly printed the C library's messages on stdout and stderr for a
+    truncated map and allocated whatever size a header claimed (a 4 kB file claiming 30000x30000
+    asked for 20 GiB), where the reader names the file and refuses the claim first (a red-team pass).
+    """
+    from ..io import read_image  # the file layer needs the [exr] extra; only a map read from a file does
 
     path = Path(path)
     try:
@@ -241,14 +247,9 @@ def read_envmap_exr(path: str | Path) -> np.ndarray:
     if not stat.S_ISREG(kind):  # never opened: reading a FIFO would block
         raise ValueError(f"path: {path} is not a regular file")
     try:
-        with OpenEXR.File(str(path), separate_channels=True) as f:
-            channels = f.channels()
-            missing = [c for c in "RGB" if c not in channels]
-            if missing:
-                raise ValueError(f"path: {path} has no channel(s) {missing}; found {sorted(channels)}")
-            return np.stack([np.asarray(channels[c].pixels, np.float64) for c in "RGB"], axis=-1)
-    except RuntimeError as exc:  # OpenEXR's "Unable to open ... for read" and the like
-        raise ValueError(f"path: {path} is not a readable EXR image ({exc})") from None
+        return np.asarray(read_image(path, channels=["R", "G", "B"]), np.float64)
+    except ValueError as exc:  # InputFileError: the file named, and what it does not hold
+        raise ValueError(f"path: {exc}") from None
 
 
 def parse_environment(spec: dict[str, Any] | None, base_dir: Path | None = None

@@ -202,7 +202,16 @@ def test_scene_files_lists_the_environment_map_and_a_fifo_is_never_opened(tmp_pa
         load_scene(path)  # returns at once: a FIFO opened for reading would block here
     (tmp_path / "env.exr").unlink()
     (tmp_path / "env.exr").write_bytes(b"not an exr")
-    with pytest.raises(ValueError, match="environment.path: .*env.exr is not a readable EXR image"):
+    with pytest.raises(ValueError, match="environment.path: .*env.exr: not an OpenEXR file"):
+        load_scene(path)
+    # Read with the OpenEXR bindings directly, a truncated map printed the C library's messages on stdout and
+    # stderr and was refused as "environment.Invalid part index '0'" (a red-team pass): the project's reader.
+    from awr_denoise.io import write_image
+
+    (tmp_path / "env.exr").unlink()
+    write_image(tmp_path / "full.exr", np.random.default_rng(0).random((32, 64, 3)))
+    (tmp_path / "env.exr").write_bytes((tmp_path / "full.exr").read_bytes()[:2000])
+    with pytest.raises(ValueError, match="environment.path: .*env.exr: truncated or corrupt EXR"):
         load_scene(path)
 
 
