@@ -287,6 +287,27 @@ def test_stale_staging_directories_are_removed_and_live_ones_kept(tmp_path):
     assert not live.path.exists()
 
 
+def test_no_output_goes_into_a_folder_named_as_a_staging_folder(tmp_path, monkeypatch):
+    """An output written into ``.awr-<10 hex>.tmp/`` (named so by a user, or by an attacker) was removed with its
+    folder by a later write beside it, as a leftover, once the folder was STALE_AFTER old (a red-team pass).
+    Refused by name, by any route to that folder; an output set's own temporaries are written there as ever."""
+    staged = tmp_path / f"{STAGING_PREFIX}abcdefabce.tmp"
+    staged.mkdir()
+    (tmp_path / "link").symlink_to(staged.name)
+    monkeypatch.chdir(staged)
+    for path in (staged / "1.exr", tmp_path / "link" / "1.exr", "1.exr"):
+        with pytest.raises(ValueError, match=f"its folder {staged.name} is named as awr's staging folders"):
+            check_writable(path, overwrite=False)
+        with pytest.raises(ValueError, match="staging folders"):
+            atomic_write(path, lambda tmp: Path(tmp).write_text("x"))
+    assert os.listdir(staged) == []
+    with OutputSet() as outputs:
+        tmp = outputs.add(tmp_path / "a.txt")
+        atomic_write(tmp, lambda path: Path(path).write_text("a"))  # in a staging folder: its own
+        outputs.commit()
+    assert (tmp_path / "a.txt").read_text() == "a"
+
+
 @pytest.mark.parametrize("name", ["SIGINT", "SIGTERM", "SIGHUP"])
 def test_a_signal_while_files_move_into_place_waits_for_them(name):
     """Ctrl-C, SIGTERM and SIGHUP (a closed terminal) are held while outputs are moved into place,

@@ -260,6 +260,12 @@ def check_writable(path: str | os.PathLike[str], *, overwrite: bool) -> Path:
             raise FileExistsError(f"{name}: already exists (pass overwrite=True / --overwrite to replace it)")
     if not parent.is_dir():
         raise FileNotFoundError(f"{name}: directory {parent} does not exist")
+    folder = os.path.basename(os.path.realpath(parent))
+    if _STAGING_NAME.match(folder) and os.fspath(target) not in _PUBLIC:  # not an OutputSet's own temporary
+        # The next write into the folder above would remove it as a killed writer's leftover, this output
+        # with it, once it is STALE_AFTER old and holds no lock (a red-team pass): not a place for an output.
+        raise ValueError(f"{name}: its folder {folder} is named as awr's staging folders, which later writes remove "
+                         "as leftovers; write elsewhere")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise ValueError(f"{name}: directory {parent} is not writable")
     try:  # os.access answers for permissions only: /proc and /sys say yes to root, then refuse every file
