@@ -78,8 +78,10 @@ def run(args: argparse.Namespace) -> int:
         status(f"rendering the reference of {name} once (cached as {cached(name)}); this takes a while",
                quiet=args.quiet)
     reference = np.asarray(tracer.load_reference(name), dtype=np.float64)
+    where = cached(name) if callable(cached) else name  # the file, which the user can remove (a stale cache)
     if reference.shape[:2] != tuple(scene.shape):  # before two renders, not after
-        raise UsageError(f"{name}: the reference is {reference.shape}, the scene {tuple(scene.shape)}")
+        raise UsageError(f"{where}: the reference of {name} is {reference.shape[1]}x{reference.shape[0]}, the scene "
+                         f"{scene.shape[1]}x{scene.shape[0]}; remove it to render it again")
     start = time.perf_counter()
     status(f"rendering {name} uniformly at {args.spp} spp", quiet=args.quiet)
     renderer = create_renderer(TRACER, scene, seed=args.seed, progress=not args.quiet)
@@ -91,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
                                    quiet=args.quiet)
     images = dict(zip(labels, (uniform.mean, reconstruct(uniform, c_s=args.c_s), reconstruct(adaptive, c_s=args.c_s))))
     if reference.shape != uniform.mean.shape:
-        raise UsageError(f"{name}: the reference is {reference.shape}, the render {uniform.mean.shape}")
+        raise UsageError(f"{where}: the reference of {name} is {reference.shape}, the render {uniform.mean.shape}")
     results = {}
     made = _make_folders(out)
     with _removed_unless_committed(made), OutputSet(overwrite=True) as outputs:  # every image of the demo, or none

@@ -837,8 +837,11 @@ def test_demo_refuses_before_creating_its_folder(tmp_path, fake_tracer, capsys, 
     from awr_denoise import tracer
 
     monkeypatch.setattr(tracer, "load_reference", lambda name: np.zeros((3, 4, 3)), raising=False)
+    # Named by its file, which a user can remove (it named the scene alone; a red-team pass).
+    monkeypatch.setattr(tracer, "reference_path", lambda name: tmp_path / f"{name}_ref.exr", raising=False)
     assert main(["demo", "--out", str(tmp_path / "new" / "sub"), "--spp", "8", "-q"]) == 2
-    _one_error_line(capsys, "the reference is (3, 4, 3)")
+    _one_error_line(capsys, f"{tmp_path / 'toy_ref.exr'}: the reference of toy is 4x3, the scene 32x24",
+                    "remove it to render it again")
     assert not (tmp_path / "new").exists()
     (tmp_path / "file").write_bytes(b"")
     assert main(["demo", "--out", str(tmp_path / "file" / "sub"), "--spp", "8", "-q"]) == 2
