@@ -248,6 +248,9 @@ def run(args: argparse.Namespace) -> int:
             if kwargs.get(key) is not None:
                 raise UsageError(f"{option}: not read with --independent (the variance is the renders' spread "
                                  "about their mean)")
+        if len(args.inputs) < 2:  # the library's refusal named its parameter, ``paths``
+            raise UsageError(f"--independent: {len(args.inputs)} render given; the spread of their means needs at "
+                             "least 2")
         if not args.allow_duplicates:
             _refuse_duplicates(args.inputs)
         dump = read_independent_renders(args.inputs, **{k: kwargs[k] for k in ("preset", "color", "count", "spp",

@@ -197,14 +197,16 @@ def _scene(args: argparse.Namespace) -> tuple[str, Any, str, tuple[int, int] | N
 
 @contextlib.contextmanager
 def _sized(renderer: str) -> Iterator[None]:
-    """A renderer's refusal of its ``shape`` (a synthetic scene has no size of its own) as the options that give it."""
+    """A renderer's refusal of its ``shape`` (a synthetic scene has no size of its own) or of its scene's ``name``
+    as the options that give them."""
     try:
         yield
     except ValueError as error:
         text = str(error)
-        if not text.startswith("shape: "):
-            raise
-        raise UsageError(f"--width/--height: --renderer {renderer}: {text[len('shape: '):]}") from None
+        for parameter, options in (("shape: ", "--width/--height"), ("name: ", "SCENE/--scene")):
+            if text.startswith(parameter):
+                raise UsageError(f"{options}: --renderer {renderer}: {text[len(parameter):]}") from None
+        raise
 
 
 def _scene_files(renderer: str, scene: str) -> list[tuple[str, Path]]:

@@ -440,6 +440,14 @@ def test_merge_refuses_a_run_setting_plan_would_refuse(tmp_path, rng, capsys, at
     assert not (tmp_path / "m.exr").exists() and not (tmp_path / "r.exr").exists()
 
 
+def test_merge_independent_needs_two_renders_by_its_option(tmp_path, rng, capsys):
+    """The library's refusal named its parameter ("paths: 1 file(s) given"; a red-team pass)."""
+    _dump(tmp_path / "d.exr", rng)
+    assert main(["merge", "--independent", str(tmp_path / "d.exr"), "-o", str(tmp_path / "m.exr"), "-q"]) == 2
+    _one_error_line(capsys, "--independent: 1 render given; the spread of their means needs at least 2")
+    assert not (tmp_path / "m.exr").exists()
+
+
 def test_merge_size_mismatch(tmp_path, rng, capsys):
     _dump(tmp_path / "a.exr", rng)
     _dump(tmp_path / "b.exr", rng, shape=(H, W + 1))
@@ -816,6 +824,10 @@ def test_render_refuses_existing_outputs_before_rendering(tmp_path, fake_tracer,
         assert main(["render", "--renderer", "synthetic", "edges", "-o", str(tmp_path / "s.exr"), "-q",
                      *parallel]) == 2
         _one_error_line(capsys, "--width/--height: --renderer synthetic: a synthetic scene needs its (H, W)")
+    # ... and a scene it does not have, by the options that name it (it said "name:", a red-team pass)
+    assert main(["render", "--renderer", "synthetic", "nope", "--width", "8", "--height", "8", "-o",
+                 str(tmp_path / "s.exr"), "-q"]) == 2
+    _one_error_line(capsys, "SCENE/--scene: --renderer synthetic: 'nope' is not one of edges")
     assert sorted(os.listdir(tmp_path)) == ["toy.denoised.png"]
 
 
