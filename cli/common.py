@@ -63,8 +63,8 @@ def add_plane_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--spp", type=whole(minimum=1, maximum=MAX_SPP), metavar="N",
                    help="samples per pixel when the file has no count")
     g.add_argument("--layer", type=nonempty, metavar="NAME", help="Cycles view layer when the file has several")
-    g.add_argument("--view", type=nonempty, metavar="NAME", help="view of a stereo/multiview file, e.g. 'left' (required when "
-                                                  "the file has several)")
+    g.add_argument("--view", type=nonempty, metavar="NAME",
+                   help="view of a stereo/multiview file, e.g. 'left' (required when the file has several)")
     g.add_argument("--nonfinite", default=NONFINITE_POLICIES[0], choices=NONFINITE_POLICIES,
                    help="NaN/Inf samples of a deep per-sample dump: refuse them (default), leave them "
                         "out, or count them as 0; dropped or zeroed samples are reported")

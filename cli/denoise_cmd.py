@@ -117,7 +117,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("input", nargs="?", metavar="DUMP.exr",
                    help="sample dump (any preset); may hold a #### frame placeholder")
     p.add_argument("--hdr", type=nonempty, metavar="DUMP.exr", help="same as the positional input (oidnDenoise's name)")
-    p.add_argument("-o", "--output", type=nonempty, required=True, metavar="OUT.exr", help="denoised image (may hold ####)")
+    p.add_argument("-o", "--output", type=nonempty, required=True, metavar="OUT.exr",
+                   help="denoised image (may hold ####)")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--frames", metavar="RANGE", help="frame numbers for #### patterns, e.g. 1-100 or 1-100x5")
     p.add_argument("--half", action="store_true", help="write HALF channels (refused above 65504)")

@@ -153,7 +153,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--features", type=feature_list, metavar="NAMES",
                    help="also render albedo, normal, depth (comma separated, or 'all') into the dump (tracer and "
                         "mitsuba render them); --guide features or --guide oidn uses them")
-    p.add_argument("-o", "--output", type=nonempty, metavar="DUMP.exr", help="sample dump to write (required unless --list-scenes)")
+    p.add_argument("-o", "--output", type=nonempty, metavar="DUMP.exr",
+                   help="sample dump to write (required unless --list-scenes)")
     p.add_argument("--image", type=nonempty, metavar="OUT.exr", help="denoised image (default DUMP.denoised.exr)")
     p.add_argument("--preview", type=nonempty, metavar="OUT.png", help="PNG preview (default DUMP.denoised.png)")
     p.add_argument("--exposure", type=real(minimum=-MAX_EXPOSURE, maximum=MAX_EXPOSURE), default=0.0,
