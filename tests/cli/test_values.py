@@ -23,6 +23,8 @@ pytestmark = pytest.mark.exr
 
 RENDER = ["render", "--renderer", "synthetic", "edges", "--width", "16", "--height", "12", "--spp", "2",
           "-o", "r.exr", "-q"]
+RENDER_ANY_SPP = ["render", "--renderer", "synthetic", "edges", "--width", "16", "--height", "12", "-o", "r.exr", "-q"]
+"""RENDER without its ``--spp``, for a case that gives its own (an option given twice is refused)."""
 DENOISE = ["denoise", "d.exr", "-o", "o.exr", "-q"]
 PLAN = ["plan", "d.exr", "-o", "p.exr", "-q"]
 FIRST_PLAN = ["plan", "-o", "p.exr", "-q"]
@@ -55,7 +57,7 @@ BAD = [
     (FIRST_PLAN + ["--size", "8x8"], "--round-growth", ["0.5"]),
     (FIRST_PLAN + ["--size", "8x8"], "--noise-model", ["reconstruction"]),
     (FIRST_PLAN + ["--size", "8x8"], "--levels", ["2"]),
-    (RENDER, "--spp", ["inf", "nan", "0", "-1", "1e30", "1e-9"]),
+    (RENDER_ANY_SPP, "--spp", ["inf", "nan", "0", "-1", "1e30", "1e-9"]),
     (RENDER, "--seed", ["-1", "1180591620717411303424", "nan"]),
     (RENDER, "--width", ["0", "-1", "1.5", "2000000"]),
     (RENDER, "--exposure", ["nan", "inf", "1100"]),
@@ -90,6 +92,7 @@ def test_a_bad_option_value_is_one_line_naming_it_and_writes_nothing(work, capsy
     name = {"--width": "--width"}.get(option, option)
     assert name in line or "frames" in line, line
     assert "internal error" not in line
+    assert "given twice" not in line, line  # the value refused, not the option's repetition
     assert work.state() == before
 
 
@@ -153,7 +156,7 @@ GOOD = [
     (PLAN, "--round-spp", "0.001"),
     (FIRST_PLAN, "--size", "1x1"),
     (RENDER, "--seed", str(MAX_SEED)),
-    (RENDER, "--spp", "0.5"),
+    (RENDER_ANY_SPP, "--spp", "0.5"),
 ]
 
 
