@@ -140,6 +140,39 @@ def frame_jobs(inputs: Sequence[str], output: str, frames: str | None) -> list[t
     return jobs
 
 
+_PLANE_KWARGS = {"--color": "color", "--variance": "variance", "--count": "count", "--alb": "albedo",
+                 "--nrm": "normal", "--depth": "depth"}
+"""The keyword of :func:`plane_kwargs` each plane option sets."""
+
+
+def frame_planes(specs: Sequence[tuple[str | None, str]], frames: Sequence[int | None]
+                 ) -> list[list[tuple[str | None, str]]]:
+    """Each frame's plane options ``(spec, option)``: a file name with a ``####`` placeholder (``--alb
+    alb.####.exr``, ``--variance var.####.exr:V``) names each frame's own file; one without serves every
+    frame. Without frames (``[None]``) a placeholder is refused, as in an input's name."""
+    out = []
+    for frame in frames:
+        specs_of_frame = []
+        for spec, option in specs:
+            if spec is not None and _HASHES.search(os.path.basename(spec)):
+                if frame is None:
+                    raise UsageError(f"{option}: {spec}: the name has a #### frame placeholder but no --frames "
+                                     "was given")
+                spec = expand_frames(spec, frame)
+            specs_of_frame.append((spec, option))
+        out.append(specs_of_frame)
+    return out
+
+
+def frame_plane_kwargs(args: argparse.Namespace, planes: Sequence[Sequence[tuple[str | None, str]]]
+                       ) -> dict[str, Any] | list[dict[str, Any]]:
+    """:func:`plane_kwargs` for every frame of ``planes`` (:func:`frame_planes`): one dict when the frames
+    share their plane files, else one per frame."""
+    common = plane_kwargs(args)
+    per_frame = [common | {_PLANE_KWARGS[option]: spec for spec, option in specs} for specs in planes]
+    return common if all(frame == common for frame in per_frame) else per_frame
+
+
 def progress(iterable: Iterable[Any], *, quiet: bool, total: int | None = None, desc: str = "") -> Iterator[Any]:
     """tqdm progress bar on stderr unless ``quiet`` (or only one item)."""
     if quiet or (total is not None and total <= 1):

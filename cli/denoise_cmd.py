@@ -33,8 +33,9 @@ from .common import (
     UsageError,
     add_plane_options,
     frame_jobs,
+    frame_plane_kwargs,
+    frame_planes,
     parse_frames,
-    plane_kwargs,
     progress,
     status,
 )
@@ -231,10 +232,15 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--preview: {args.preview}: with --frames the preview needs a #### placeholder")
     jobs = frame_jobs([source] + ([args.preview] if args.preview else []), args.output, args.frames)
     numbers = parse_frames(args.frames) if args.frames is not None else [None]
+    planes = frame_planes(plane_options(args), numbers)  # each frame's plane files (alb.####.exr)
     plan = PathPlan(overwrite=args.overwrite)
     plan.read(args.ref, "-r/--ref")
-    for spec, option in plane_options(args):
-        plan.read_plane(spec, option)
+    varies = {option for i, (_, option) in enumerate(planes[0]) if len({specs[i][0] for specs in planes}) > 1}
+    for index, (specs, frame) in enumerate(zip(planes, numbers)):
+        for spec, option in specs:
+            if index and option not in varies:  # one file for every frame: read once
+                continue
+            plan.read_plane(spec, _frame_label(option, jobs, frame) if option in varies else option)
     for (inputs, output), frame in zip(jobs, numbers):
         plan.read(inputs[0], _frame_label("DUMP.exr" if args.input else "--hdr", jobs, frame))
         plan.write(output, _frame_label("-o/--output", jobs, frame))
@@ -249,7 +255,7 @@ def run(args: argparse.Namespace) -> int:
         for src in sources:
             windows.append(read_windows(src))
             check_reconstruction_options(args, _shape(windows[-1]), src)
-            check_plane_windows(src, plane_options(args))  # every frame: each may have its own data window
+            check_plane_windows(src, planes[len(windows) - 1])  # every frame: each may have its own data window
         if args.ref:
             _check_reference(args.ref, sources, windows)
     except ValueError:  # UsageError, InputFileError: a check failed, maybe on an input replaced meanwhile
@@ -284,7 +290,7 @@ def run(args: argparse.Namespace) -> int:
                 denoise_frames(sources, [i for i, _ in staged],
                                previews=[p for _, p in staged] if args.preview else None, exposure=args.exposure or 0.0,
                                reference=args.ref, executor=pool, half=args.half, overwrite=True,
-                               read_options=plane_kwargs(args), on_frame=done, windows=windows,
+                               read_options=frame_plane_kwargs(args, planes), on_frame=done, windows=windows,
                                **reconstruction_kwargs(args))
             except FramesFailedError as exc:
                 plan.check_unchanged()  # a frame failed on an input replaced meanwhile: that is the error

@@ -303,6 +303,38 @@ def test_frame_pattern_denoise(tmp_path, rng, capsys):
     _one_error_line(capsys, "--frames")
 
 
+def test_frames_read_each_frames_own_plane_files(tmp_path, rng, capsys):
+    """``--alb alb.####.exr`` with ``--frames``: each frame its own albedo, as a run per frame reads it (the
+    placeholder was taken as a file name, "no such file"; a red-team pass). A plane file without one serves
+    every frame; a placeholder without --frames is refused, as in an input's name."""
+    for f in (1, 2):
+        _dump(tmp_path / f"shot.{f:04d}.exr", rng)
+        write_image(tmp_path / f"alb.{f:04d}.exr", rng.random((H, W, 3)))
+    guided = ["--guide", "features", "-q"]
+    assert main(["denoise", str(tmp_path / "shot.####.exr"), "--frames", "1-2", "-o", str(tmp_path / "den.####.exr"),
+                 "--alb", str(tmp_path / "alb.####.exr"), *guided]) == 0
+    for f in (1, 2):
+        assert main(["denoise", str(tmp_path / f"shot.{f:04d}.exr"), "-o", str(tmp_path / f"one.{f}.exr"),
+                     "--alb", str(tmp_path / f"alb.{f:04d}.exr"), *guided]) == 0
+        assert (read_image(tmp_path / f"den.{f:04d}.exr") == read_image(tmp_path / f"one.{f}.exr")).all()
+    assert main(["denoise", str(tmp_path / "shot.0002.exr"), "-o", str(tmp_path / "other.exr"),
+                 "--alb", str(tmp_path / "alb.0001.exr"), *guided]) == 0
+    assert not (read_image(tmp_path / "other.exr") == read_image(tmp_path / "den.0002.exr")).all()
+    # One albedo for every frame, as before.
+    assert main(["denoise", str(tmp_path / "shot.####.exr"), "--frames", "1-2", "-o", str(tmp_path / "all.####.exr"),
+                 "--alb", str(tmp_path / "alb.0001.exr"), *guided]) == 0
+    assert (read_image(tmp_path / "all.0001.exr") == read_image(tmp_path / "den.0001.exr")).all()
+    # A frame's file of another size is named with its frame; nothing is written.
+    write_image(tmp_path / "alb.0002.exr", rng.random((4, 4, 3)), overwrite=True)
+    assert main(["denoise", str(tmp_path / "shot.####.exr"), "--frames", "1-2", "-o", str(tmp_path / "bad.####.exr"),
+                 "--alb", str(tmp_path / "alb.####.exr"), *guided]) == 2
+    _one_error_line(capsys, "alb.0002.exr")
+    assert not list(tmp_path.glob("bad.*"))
+    assert main(["denoise", str(tmp_path / "shot.0001.exr"), "-o", str(tmp_path / "bad.exr"),
+                 "--alb", str(tmp_path / "alb.####.exr"), "-q"]) == 2
+    _one_error_line(capsys, "--alb", "#### frame placeholder but no --frames")
+
+
 # ---------------------------------------------------------------- info, diff, merge
 
 def test_info_json(tmp_path, rng, capsys):

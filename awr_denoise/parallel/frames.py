@@ -219,6 +219,21 @@ def _absolute_plane(spec: Any) -> Any:
     return spec
 
 
+def _read_options_per_frame(read_options: Mapping[str, Any] | Sequence[Mapping[str, Any]] | None,
+                            frames: int) -> list[dict[str, Any]]:
+    """``read_options`` as one dict per frame: the same for every frame, or the caller's list of them."""
+    if read_options is None or isinstance(read_options, Mapping):
+        return [dict(read_options or {}) for _ in range(frames)]
+    if isinstance(read_options, (str, bytes)) or not isinstance(read_options, Sequence):
+        raise TypeError(f"read_options: expected a dict, or one dict per input, got {type(read_options).__name__}")
+    if len(read_options) != frames:
+        raise ValueError(f"read_options: {len(read_options)} given for {frames} input(s)")
+    for frame in read_options:
+        if not isinstance(frame, Mapping):
+            raise TypeError(f"read_options: expected one dict per input, got a {type(frame).__name__} among them")
+    return [dict(frame) for frame in read_options]
+
+
 def _names_file(spec: str) -> bool:
     try:
         parse_plane(spec, None)
@@ -246,7 +261,8 @@ def _check_outputs(sources: list[str], targets: list[str], previews: list[str] |
 def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[str | os.PathLike[str]], *,
                    previews: Sequence[str | os.PathLike[str]] | None = None, exposure: float = 0.0,
                    reference: str | os.PathLike[str] | None = None, executor: Executor | None = None,
-                   overwrite: bool = False, half: bool = False, read_options: dict[str, Any] | None = None,
+                   overwrite: bool = False, half: bool = False,
+                   read_options: Mapping[str, Any] | Sequence[Mapping[str, Any]] | None = None,
                    on_frame: Callable[[FrameResult], None] | None = None,
                    windows: Sequence[Mapping[str, Window] | None] | None = None,
                    **reconstruct_options: Any) -> list[Path]:
@@ -276,7 +292,8 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
         Write HALF channels (see :func:`~awr_denoise.io.write_image`).
     read_options
         Keyword arguments of :func:`~awr_denoise.io.read_sample_buffer` (``preset``,
-        ``color``, ``variance``, ...).
+        ``color``, ``variance``, ``albedo``, ...): one dict for every frame, or one per input (each
+        frame's own plane files, ``albedo="alb.0007.exr"``).
     on_frame
         Called in this thread with each frame's :class:`FrameResult` as the frame completes.
     windows
@@ -313,14 +330,15 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
     checked = [None] * len(sources) if windows is None else list(windows)
     if len(checked) != len(sources):
         raise ValueError(f"windows: {len(checked)} given for {len(sources)} input(s)")
+    per_frame = _read_options_per_frame(read_options, len(sources))
     read = sources + ([os.fspath(reference)] if reference is not None else [])
-    read += [str(parse_plane(spec, None)[0]) for spec in (read_options or {}).values()
+    read += [str(parse_plane(spec, None)[0]) for frame in per_frame for spec in frame.values()
              if isinstance(spec, str) and ":" in spec and _names_file(spec)]
     _check_outputs(read, targets, shown, overwrite)
     if not sources:
         return []
     options = {"exposure": exposure, "reference": reference, "overwrite": overwrite, "half": half,
-               "read_options": dict(read_options or {}), **reconstruct_options}
+               **reconstruct_options}
     as_given = list(zip(sources, targets, shown if shown is not None else [None] * len(sources)))
     if executor is not None and dask_client(executor) is not None:
         # Dask runs a finished frame again when the worker holding its result dies before it was
@@ -332,13 +350,14 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
         sources, targets = [os.path.abspath(p) for p in sources], [os.path.abspath(p) for p in targets]
         shown = None if shown is None else [os.path.abspath(p) for p in shown]
         options["reference"] = None if reference is None else os.path.abspath(reference)
-        options["read_options"] = {k: _absolute_plane(v) if k in _PLANE_OPTIONS else v
-                                   for k, v in options["read_options"].items()}
+        per_frame = [{k: _absolute_plane(v) if k in _PLANE_OPTIONS else v for k, v in frame.items()}
+                      for frame in per_frame]
     if executor is None and len(sources) == 1:
         # One frame runs in this thread, where Ctrl-C stops it at once; on a worker thread, which
         # cannot be stopped, the caller would wait for the whole reconstruction first.
         try:
-            result = _frame_task(sources[0], targets[0], None if shown is None else shown[0], checked[0], options)
+            result = _frame_task(sources[0], targets[0], None if shown is None else shown[0], checked[0],
+                                 {**options, "read_options": per_frame[0]})
         except Exception as exc:
             raise FramesFailedError({sources[0]: exc}, 1) from exc
         if on_frame is not None:
@@ -346,7 +365,8 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
         return [result.output]
     failures: dict[str, BaseException] = {}
     with executor_or_threads(executor, len(sources)) as pool:
-        pending = {submit(pool, _frame_task, s, t, None if shown is None else shown[i], checked[i], options): i
+        pending = {submit(pool, _frame_task, s, t, None if shown is None else shown[i], checked[i],
+                          {**options, "read_options": per_frame[i]}): i
                    for i, (s, t) in enumerate(zip(sources, targets))}
         try:
             while pending:

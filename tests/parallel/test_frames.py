@@ -32,6 +32,31 @@ def test_denoise_frames_equals_the_serial_run_bitwise(tmp_path, dumps):
                                   reconstruct(read_sample_buffer(dumps[1]), **options).astype(np.float32))
 
 
+def test_each_frame_may_read_its_own_plane_files(tmp_path, dumps):
+    """``read_options`` one dict per input: frame i reads its own albedo, as a serial run with it does."""
+    from awr_denoise.io import read_image, read_sample_buffer, write_image
+
+    rng = np.random.default_rng(3)
+    shape = read_sample_buffer(dumps[0]).shape
+    albedos = [tmp_path / f"alb.{i}.exr" for i in range(len(dumps))]
+    for path in albedos:
+        write_image(path, rng.random((*shape, 3)))
+    per_frame = [{"albedo": str(path)} for path in albedos]
+    outputs = [tmp_path / f"out.{i}.exr" for i in range(len(dumps))]
+    denoise_frames(dumps, outputs, read_options=per_frame, features=True)
+    for dump, albedo, output in zip(dumps, albedos, outputs):
+        alone = reconstruct(read_sample_buffer(dump, albedo=str(albedo)), features=True).astype(np.float32)
+        np.testing.assert_array_equal(read_image(output), alone)
+    other = reconstruct(read_sample_buffer(dumps[1], albedo=str(albedos[0])), features=True).astype(np.float32)
+    assert not np.array_equal(read_image(outputs[1]), other)
+    with pytest.raises(ValueError, match=f"read_options: 2 given for {len(dumps)} input"):
+        denoise_frames(dumps, [tmp_path / f"x.{i}.exr" for i in range(len(dumps))], read_options=per_frame[:2])
+    with pytest.raises(TypeError, match="read_options: expected one dict per input"):
+        denoise_frames(dumps, [tmp_path / f"x.{i}.exr" for i in range(len(dumps))],
+                       read_options=[*per_frame[:-1], "albedo"])
+    assert not list(tmp_path.glob("x.*"))
+
+
 def test_denoise_frames_refuses_existing_outputs_before_any_work(tmp_path, dumps):
     outputs = [tmp_path / f"out.{i}.exr" for i in range(len(dumps))]
     outputs[2].write_bytes(b"keep me")
