@@ -14,7 +14,7 @@ import numpy as np
 from awr_denoise import reconstruct
 from awr_denoise._checks import path_option
 from awr_denoise.io import provenance, write_image, write_preview
-from awr_denoise.metrics import mse, relmse
+from awr_denoise.metrics import mean_error, mse, relmse
 from awr_denoise.reconstruct import DEFAULT_PILOT_C_S
 from awr_denoise.renderers import create_renderer
 
@@ -102,7 +102,8 @@ def run(args: argparse.Namespace) -> int:
             write_image(outputs.add(exr), image,
                         header=provenance(scene=name, spp=args.spp, c_s=args.c_s, method=label))
             write_preview(outputs.add(out / f"{name}_{label}.png"), image, exposure=args.exposure)
-            results[label] = {"relmse": relmse(image, reference), "mse": mse(image, reference), "file": str(exr)}
+            results[label] = {"relmse": relmse(image, reference), "mse": mse(image, reference),
+                              "mean_error": mean_error(image, reference), "file": str(exr)}
         write_preview(outputs.add(out / f"{name}_reference.png"), reference, exposure=args.exposure)
         outputs.commit()  # asks first for a signal whose exception was lost (interrupts.raising)
     seconds = time.perf_counter() - start
@@ -111,9 +112,9 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_OK
     h, w = uniform.shape
     print(f"{name} {w}x{h}, {args.spp} spp on average, c_s {args.c_s:g} ({seconds:.1f} s); images in {shown(out)}/")
-    print(f"  {'method':<14} {'relMSE':>10} {'MSE':>12}")
+    print(f"  {'method':<14} {'relMSE':>10} {'MSE':>12} {'mean error':>11}")
     for label, r in results.items():
-        print(f"  {label:<14} {r['relmse']:>10.5f} {r['mse']:>12.6g}")
+        print(f"  {label:<14} {r['relmse']:>10.5f} {r['mse']:>12.6g} {100 * r['mean_error']:>10.2f}%")
     return EXIT_OK
 
 
