@@ -72,7 +72,9 @@ whole = _checks.whole_option
 
 
 def _too_many_pixels(height: int, width: int) -> str | None:
-    if height > MAX_SIDE or width > MAX_SIDE or height * width > MAX_PIXELS:
+    if height > MAX_SIDE or width > MAX_SIDE:  # the side at fault, not a pixel count within the limit
+        return f"{width}x{height}: a side of {max(height, width)} pixels; sides up to {MAX_SIDE} are supported"
+    if height * width > MAX_PIXELS:
         side = math.isqrt(MAX_PIXELS)
         return (f"{width}x{height} is {width * height} pixels; at most {MAX_PIXELS} ({side}x{side}) "
                 f"with sides up to {MAX_SIDE} are supported")

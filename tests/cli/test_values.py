@@ -251,6 +251,18 @@ def test_a_dump_whose_counts_leave_no_room_for_the_next_round_is_named(work, cap
     assert work.state() == before
 
 
+@pytest.mark.parametrize("size, needle", [("1048577x1", "1048577x1: a side of 1048577 pixels; sides up to 1048576"),
+                                          ("65536x65536", "65536x65536 is 4294967296 pixels; at most 268435456")])
+def test_a_size_past_the_limits_names_what_is_past_them(work, capsys, monkeypatch, size, needle):
+    """A side past the limit led with the pixel count, within the limit (1048577x1 is 1048577 pixels;
+    a red-team pass): the side is named."""
+    monkeypatch.chdir(work.root)
+    before = work.state()
+    assert main([*FIRST_PLAN, f"--size={size}"]) == 2
+    one_error_line(capsys.readouterr().err, "--size", needle)
+    assert work.state() == before
+
+
 def test_a_first_round_larger_than_memory_is_refused_naming_size(work, capsys, monkeypatch):
     """``plan --size 16384x16384`` (within the size limits) was ended by the out-of-memory killer,
     exit 137 without a word (red-team pass 5)."""
