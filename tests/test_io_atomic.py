@@ -287,6 +287,53 @@ def test_stale_staging_directories_are_removed_and_live_ones_kept(tmp_path):
     assert not live.path.exists()
 
 
+def test_a_signal_while_a_probe_or_a_staging_folder_is_made_leaves_nothing(tmp_path, monkeypatch):
+    """SIGTERM between the probe's creation and its removal left ``.awr-probe-*.tmp`` in the user's folder
+    after an interrupted command (the Mitsuba signal sweep, 1 run in 12): the signal is acted on once the
+    probe is gone."""
+    class Stop(BaseException):
+        pass
+
+    def stop(signum, frame):
+        raise Stop
+
+    real = tempfile.mkstemp
+
+    def signalled(*args, **kwargs):
+        made = real(*args, **kwargs)
+        os.kill(os.getpid(), signal.SIGTERM)
+        for _ in range(1000):  # the handler runs at the next bytecodes: here, without the hold
+            pass
+        return made
+
+    monkeypatch.setattr(atomic.tempfile, "mkstemp", signalled)
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        with pytest.raises(Stop):
+            check_writable(tmp_path / "out.exr", overwrite=False)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert os.listdir(tmp_path) == []
+    # The same between the staging folder's creation and its lock: a lock-less folder was left.
+    monkeypatch.undo()
+    chmod = os.chmod
+
+    def chmod_signalled(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        for _ in range(1000):
+            pass
+        return chmod(*args, **kwargs)
+
+    monkeypatch.setattr(atomic.os, "chmod", chmod_signalled)
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        with pytest.raises(Stop):
+            atomic_write(tmp_path / "out.txt", lambda tmp: Path(tmp).write_text("x"))
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert os.listdir(tmp_path) == []
+
+
 def test_no_output_goes_into_a_folder_named_as_a_staging_folder(tmp_path, monkeypatch):
     """An output written into ``.awr-<10 hex>.tmp/`` (named so by a user, or by an attacker) was removed with its
     folder by a later write beside it, as a leftover, once the folder was STALE_AFTER old (a red-team pass).

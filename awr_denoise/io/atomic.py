@@ -269,9 +269,13 @@ def check_writable(path: str | os.PathLike[str], *, overwrite: bool) -> Path:
     if not os.access(parent, os.W_OK | os.X_OK):
         raise ValueError(f"{name}: directory {parent} is not writable")
     try:  # os.access answers for permissions only: /proc and /sys say yes to root, then refuse every file
-        fd, probe = tempfile.mkstemp(prefix=_PROBE_PREFIX, suffix=_PROBE_SUFFIX, dir=parent)
-        os.close(fd)
-        os.unlink(probe)
+        # Signals held while the probe exists (microseconds): a Ctrl-C or SIGTERM between its creation and
+        # its removal left it in the user's folder, where an interrupted command must leave nothing (the
+        # command line's signal sweep around Mitsuba's load found it, 1 run in 12).
+        with _signals_deferred():
+            fd, probe = tempfile.mkstemp(prefix=_PROBE_PREFIX, suffix=_PROBE_SUFFIX, dir=parent)
+            os.close(fd)
+            os.unlink(probe)
     except OSError as exc:
         raise ValueError(f"{name}: directory {parent} accepts no new file ({exc.strerror or exc})") from None
     limit = _name_max(parent)
@@ -480,6 +484,18 @@ class _Staging:
             _SCANNED.add(key)
         if fresh:
             remove_stale_temporaries(directory)
+        # Signals held from the folder's creation until it is locked (microseconds): a Ctrl-C in between
+        # left a lock-less folder that only a run 10 minutes later removed (as it left a writability probe,
+        # check_writable). One that came meanwhile is acted on here, the folder removed first.
+        try:
+            with _signals_deferred():
+                self._create(directory)
+        except BaseException:
+            if getattr(self, "path", None) is not None:
+                self.remove()
+            raise
+
+    def _create(self, directory: Path) -> None:
         for _ in range(8):
             path = directory / f"{STAGING_PREFIX}{secrets.token_hex(5)}{STAGING_SUFFIX}"
             try:
