@@ -18,7 +18,11 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from awr_denoise.buffers import NONFINITE_POLICIES, VARIANCE_KINDS
+from awr_denoise.errors import InputFileError
 from awr_denoise.io import PRESETS
+from awr_denoise.io.dump import header_count
+from awr_denoise.io.exr import header_value
+from awr_denoise.sampling import SAMPLERS
 
 from .errors import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, RuntimeFailure, UsageError, one_line_warnings, shown
 from .values import MAX_FRAMES, MAX_SPP, nonempty, whole
@@ -138,6 +142,22 @@ def frame_jobs(inputs: Sequence[str], output: str, frames: str | None) -> list[t
         jobs.append(([expand_frames(i, f) if _HASHES.search(os.path.basename(i)) else i for i in inputs],
                      expand_frames(output, f)))
     return jobs
+
+
+def run_settings(path: str | os.PathLike[str], attributes: dict) -> tuple[str | None, int | None]:
+    """The strategy and first round's spp (``awr:strategy``, ``awr:initial_spp``) a running dump or request
+    carries for ``plan`` to continue its run (``None`` where absent), refused naming the file and the
+    attribute where no run could go on: ``merge`` read and wrote them on unchecked, and the next ``plan``
+    refused the dump (an initial spp of 0 without naming either)."""
+    strategy = None
+    if "awr:strategy" in attributes:
+        strategy = str(header_value(attributes, "awr:strategy"))
+        if strategy not in SAMPLERS:
+            raise InputFileError(f"{path}: awr:strategy: {strategy!r} is not one of {', '.join(SAMPLERS)}")
+    initial = None
+    if "awr:initial_spp" in attributes:
+        initial = header_count(path, attributes, "awr:initial_spp", 1, MAX_SPP, low=1)
+    return strategy, initial
 
 
 _PLANE_KWARGS = {"--color": "color", "--variance": "variance", "--count": "count", "--alb": "albedo",

@@ -10,7 +10,6 @@ import warnings
 import numpy as np
 
 from awr_denoise import Sampler, SampleBuffer, SampleRequest
-from awr_denoise.sampling import SAMPLERS
 from awr_denoise.errors import InputFileError, StaleRequestError
 from awr_denoise.io import (
     provenance,
@@ -23,27 +22,16 @@ from awr_denoise.io import (
 from awr_denoise.io.atomic import same_file
 from awr_denoise.io.deep import check_answers
 from awr_denoise.io.dump import SEMANTICS_STATISTICS, SampleDump, header_count
-from awr_denoise.io.exr import check_same_windows, header_value, read_exr, read_windows
+from awr_denoise.io.exr import check_same_windows, read_exr, read_windows
 from awr_denoise.io.request_map import MAX_ROUND
 
-from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, status
+from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, run_settings, status
 from .paths import PathPlan, check_plane_windows, plane_options
-from .values import MAX_SEED, MAX_SPP, nonempty
+from .values import MAX_SEED, nonempty
 
 __all__ = ["register", "run"]
 
 _KEPT = ("seed", "round", "strategy", "initial_spp", "scene")  # provenance carried from the running dump
-
-
-def _check_run(path: str, attributes: dict) -> None:
-    """The run's strategy and first round's spp, carried into the merged dump for ``plan`` to continue: refused
-    here, naming ``path``, when ``plan`` would refuse them (merge wrote a dump the next plan refused)."""
-    if "awr:strategy" in attributes:
-        strategy = str(header_value(attributes, "awr:strategy"))
-        if strategy not in SAMPLERS:
-            raise InputFileError(f"{path}: awr:strategy: {strategy!r} is not one of {', '.join(SAMPLERS)}")
-    if "awr:initial_spp" in attributes:
-        header_count(path, attributes, "awr:initial_spp", 1, MAX_SPP, low=1)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -276,7 +264,7 @@ def run(args: argparse.Namespace) -> int:
         dump = read_sample_dump(path, **kwargs)
         if index == 0:
             first, attrs = dump.buffer, {k: v for k, v in dump.attributes.items() if k.removeprefix("awr:") in _KEPT}
-            _check_run(path, attrs)
+            run_settings(path, attrs)  # carried into the output for plan: checked as plan checks them
         else:
             _check_match(path, dump.buffer, first, args.inputs[0])
         is_told = bool(args.request) and index == len(args.inputs) - 1
@@ -303,7 +291,7 @@ def run(args: argparse.Namespace) -> int:
         if note:
             status(f"{args.inputs[-1]}: {note}", quiet=args.quiet)
         asked = request_attributes(args.request)
-        _check_run(args.request, {k: v for k, v in asked.items() if v is not None})
+        run_settings(args.request, {k: v for k, v in asked.items() if v is not None})
         for key in ("awr:strategy", "awr:initial_spp"):  # the run's, which plan continues (uniform stays uniform)
             if asked.get(key) is not None:
                 attrs[key] = asked[key]

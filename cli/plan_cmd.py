@@ -7,16 +7,15 @@ import argparse
 from awr_denoise.allocation import MAX_BUDGET
 from awr_denoise.buffers import NONFINITE_POLICIES
 from awr_denoise.io import provenance, read_sample_dump, write_request
-from awr_denoise.errors import InputFileError
 from awr_denoise.io.dump import header_count
-from awr_denoise.io.exr import header_value, read_header, read_windows
+from awr_denoise.io.exr import read_header, read_windows
 from awr_denoise.io.request_map import MAX_ROUND
 from awr_denoise.noise_gain import DEFAULT_NOISE_MODEL
 from awr_denoise.sampling import (DEFAULT_AWR_INITIAL_SPP, DEFAULT_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS, SAMPLERS,
                                   AdaptiveSampler)
 from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 
-from .common import EXIT_OK, UsageError, add_plane_options, check_memory, plane_kwargs, status
+from .common import EXIT_OK, UsageError, add_plane_options, check_memory, plane_kwargs, run_settings, status
 from .paths import PathPlan, check_plane_windows, plane_options
 from .values import MAX_LEVELS, MAX_SEED, MAX_SPP, image_size, nonempty, real, wavelet_name, whole
 
@@ -78,18 +77,15 @@ def run(args: argparse.Namespace) -> int:
     check_plane_windows(args.input, plane_options(args))
     # A run keeps its strategy and first round's spp (the least a pixel is brought up to) through
     # files: merge carries them from each request into the dump (a uniform baseline stays uniform).
-    header = {} if args.input is None else read_header(args.input)
-    from_dump = args.strategy is None and "awr:strategy" in header
+    dumped, dumped_initial = (None, None) if args.input is None else run_settings(args.input, read_header(args.input))
+    from_dump = args.strategy is None and dumped is not None
     if args.strategy is None:
-        args.strategy = str(header_value(header, "awr:strategy")) if from_dump else AdaptiveSampler.strategy
-        if args.strategy not in SAMPLERS:
-            raise InputFileError(f"{args.input}: awr:strategy: {args.strategy!r} is not one of "
-                                 f"{', '.join(STRATEGIES)}")
+        args.strategy = dumped or AdaptiveSampler.strategy
     cls = SAMPLERS[args.strategy]
     options: dict = {"spp_max": args.spp_max}
-    same_run = "awr:strategy" not in header or str(header_value(header, "awr:strategy")) == args.strategy
-    if args.initial_spp is None and "awr:initial_spp" in header and same_run:  # another strategy: its own default
-        args.initial_spp = header_count(args.input, header, "awr:initial_spp", 1, MAX_SPP, low=1)
+    same_run = dumped is None or dumped == args.strategy
+    if args.initial_spp is None and dumped_initial is not None and same_run:  # another strategy: its own default
+        args.initial_spp = dumped_initial
     if args.initial_spp is not None:  # else the strategy's own default
         options["initial_spp"] = args.initial_spp
     if args.round_growth is not None:
