@@ -102,9 +102,8 @@ def mean_error(x: FloatArray, reference: FloatArray) -> float:
     0.0
     """
     a, b = _pair(x, reference)
-    if a.ndim != 3:
-        a, b = a.reshape(-1, 1), b.reshape(-1, 1)
-    a, b = a.reshape(-1, a.shape[-1]), b.reshape(-1, b.shape[-1])
+    channels = a.shape[-1] if a.ndim == 3 else 1
+    a, b = a.reshape(-1, channels), b.reshape(-1, channels)
     top = np.maximum(np.max(np.abs(a), axis=0), np.max(np.abs(b), axis=0))
     scale = np.where(top > 0, top, 1.0)
     mx, mr = np.mean(a / scale, axis=0), np.mean(b / scale, axis=0)

@@ -232,15 +232,16 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--preview: {args.preview}: with --frames the preview needs a #### placeholder")
     jobs = frame_jobs([source] + ([args.preview] if args.preview else []), args.output, args.frames)
     numbers = parse_frames(args.frames) if args.frames is not None else [None]
-    planes = frame_planes(plane_options(args), numbers)  # each frame's plane files (alb.####.exr)
+    given = plane_options(args)
+    planes = frame_planes(given, numbers)  # each frame's plane files (alb.####.exr)
     plan = PathPlan(overwrite=args.overwrite)
     plan.read(args.ref, "-r/--ref")
-    varies = {option for i, (_, option) in enumerate(planes[0]) if len({specs[i][0] for specs in planes}) > 1}
     for index, (specs, frame) in enumerate(zip(planes, numbers)):
-        for spec, option in specs:
-            if index and option not in varies:  # one file for every frame: read once
-                continue
-            plan.read_plane(spec, _frame_label(option, jobs, frame) if option in varies else option)
+        for (spec, option), (as_given, _) in zip(specs, given):
+            if spec != as_given:  # the frame's own file, from a #### placeholder
+                plan.read_plane(spec, _frame_label(option, jobs, frame))
+            elif index == 0:  # one file for every frame: read once
+                plan.read_plane(spec, option)
     for (inputs, output), frame in zip(jobs, numbers):
         plan.read(inputs[0], _frame_label("DUMP.exr" if args.input else "--hdr", jobs, frame))
         plan.write(output, _frame_label("-o/--output", jobs, frame))
@@ -252,10 +253,10 @@ def run(args: argparse.Namespace) -> int:
     # in others (the file replaced since).
     windows: list[dict] = []
     try:
-        for src in sources:
+        for src, specs in zip(sources, planes):
             windows.append(read_windows(src))
             check_reconstruction_options(args, _shape(windows[-1]), src)
-            check_plane_windows(src, planes[len(windows) - 1])  # every frame: each may have its own data window
+            check_plane_windows(src, specs)  # every frame: each may have its own data window
         if args.ref:
             _check_reference(args.ref, sources, windows)
     except ValueError:  # UsageError, InputFileError: a check failed, maybe on an input replaced meanwhile

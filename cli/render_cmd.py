@@ -197,7 +197,7 @@ def _scene(args: argparse.Namespace) -> tuple[str, Any, str, tuple[int, int] | N
 
 
 @contextlib.contextmanager
-def _sized(renderer: str) -> Iterator[None]:
+def _as_options(renderer: str) -> Iterator[None]:
     """A renderer's refusal of its ``shape`` (a synthetic scene has no size of its own) or of its scene's ``name``
     as the options that give them."""
     try:
@@ -283,7 +283,7 @@ def run(args: argparse.Namespace) -> int:
                                        **options)
             frame = scene.shape
         else:
-            with _sized(args.renderer):
+            with _as_options(args.renderer):
                 spec = RendererSpec(args.renderer, given, shape, args.seed, tuple(sorted(options.items())))
                 probe = spec()
             frame = probe.shape
@@ -298,7 +298,7 @@ def run(args: argparse.Namespace) -> int:
         # the sampler's bar instead of one renderer bar per round.
         if args.renderer == TRACER:
             options["progress"] = not args.quiet and not args.adaptive
-        with _sized(args.renderer):
+        with _as_options(args.renderer):
             renderer = create_renderer(args.renderer, scene, shape=shape, seed=args.seed, **options)
         check_pixels(f"SCENE {given}: its film", *renderer.shape)  # a size the scene file declares
         buffer, issued, next_round = render_buffer(renderer, renderer.shape, **render)
