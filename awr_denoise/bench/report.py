@@ -453,9 +453,12 @@ def _mitsuba(results: dict[str, Any]) -> list[str]:
                          f"{_fmt(aa['relmse'])} | {ua['mse'] / u['mse']:.2f}, {aa['mse'] / a['mse']:.2f} | "
                          f"{100 * ua['mean_error']:+.2f}%, {100 * aa['mean_error']:+.2f}% |")
             for plain, denoised in ((u, ua), (a, aa)):
-                if denoised["relmse"] > plain["relmse"] or denoised["mse"] > plain["mse"]:
+                # The image mean's change from the samples', from the two errors against the reference.
+                moved = abs((1 + denoised["mean_error"]) / (1 + plain["mean_error"]) - 1) > MEAN_CHANGE_BOUND
+                if denoised["relmse"] > plain["relmse"] or denoised["mse"] > plain["mse"] or moved:
                     worse.append(f"{name} at {spp} spp")
         lines.append("")
-    lines.append("Reconstructions worse than the plain mean of their own samples (relMSE or MSE): "
+    lines.append("Reconstructions worse than the plain mean of their own samples (relMSE or MSE), or that move "
+                 f"its image mean by more than {100 * MEAN_CHANGE_BOUND:g}%: "
                  + (", ".join(dict.fromkeys(worse)) if worse else "none") + ".\n")
     return lines

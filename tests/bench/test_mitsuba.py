@@ -45,3 +45,19 @@ def test_the_section_measures_both_samplers_and_caches_the_reference(mi, tmp_pat
     assert again["scenes"]["cornell_box"]["methods"] == scene["methods"]  # seeded: the same numbers
     page = "\n".join(_mitsuba(json.loads(json.dumps({"mitsuba": result}))))
     assert "**cornell_box** (16x16" in page and "| 8 |" in page
+
+
+def test_the_section_lists_a_reconstruction_that_moves_its_samples_image_mean():
+    """Judged on relMSE, MSE and the image mean together: a reconstruction better in both errors but 1%
+    brighter than its own samples is listed, one within 0.5% is not."""
+    def row(spp, relmse, mse, mean_error):
+        return {"spp": spp, "relmse": relmse, "mse": mse, "mean_error": mean_error}
+
+    methods = {"uniform": [row(8, 0.1, 0.1, 0.002)], "uniform+awr": [row(8, 0.05, 0.05, 0.012)],
+               "awr": [row(8, 0.1, 0.1, -0.01)], "awr+awr": [row(8, 0.05, 0.05, -0.006)]}
+    result = {"status": "measured", "scenes": {"s": {"shape": [4, 4], "reference": {"spp": 64}, "methods": methods}}}
+    assert _mitsuba({"mitsuba": result})[-1] == ("Reconstructions worse than the plain mean of their own samples "
+                                                  "(relMSE or MSE), or that move its image mean by more than 0.5%: "
+                                                  "s at 8 spp.\n")
+    methods["uniform+awr"] = [row(8, 0.05, 0.05, 0.004)]
+    assert _mitsuba({"mitsuba": result})[-1].endswith(": none.\n")
