@@ -112,7 +112,10 @@ def feature_names(names: str | Iterable[str] | None) -> tuple[str, ...]:
     if names is None:
         return ()
     if isinstance(names, str):
-        names = FEATURE_NAMES if names == "all" else [n.strip() for n in names.split(",") if n.strip()]
+        parts = [n.strip() for n in names.split(",")] if names.strip() else []
+        if "" in parts:  # "albedo," or "albedo,,depth": a name left out, not a list to tidy
+            raise ValueError(f"features: {names!r} has an empty name between its commas")
+        names = FEATURE_NAMES if names == "all" else parts
     if not isinstance(names, Iterable):
         raise TypeError(f"features: expected feature names, got {type(names).__name__} {names!r}")
     chosen = [n for n in names]

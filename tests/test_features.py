@@ -53,6 +53,10 @@ def test_feature_names_are_checked_and_ordered():
         feature_names("depth,depth")
     with pytest.raises(TypeError, match="features"):
         feature_names(3)
+    for left_out in ("albedo,", ",albedo", "albedo,,depth", " , "):  # a name left out is not tidied away
+        with pytest.raises(ValueError, match="empty name between its commas"):
+            feature_names(left_out)
+    assert feature_names("") == feature_names("  ") == ()
 
 
 def test_from_samples_features_equal_their_own_two_pass_statistics(rng):

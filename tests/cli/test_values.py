@@ -4,6 +4,7 @@ the extremes that make sense are accepted."""
 
 from __future__ import annotations
 
+import argparse
 from concurrent.futures import CancelledError
 from concurrent.futures.process import BrokenProcessPool
 
@@ -12,6 +13,7 @@ import pytest
 pytest.importorskip("OpenEXR")
 
 from awr_denoise.cli.main import main  # noqa: E402
+from awr_denoise.cli import values  # noqa: E402
 from awr_denoise.cli.values import MAX_SEED  # noqa: E402
 from awr_denoise import fused  # noqa: E402
 from awr_denoise import SampleRequest  # noqa: E402
@@ -295,3 +297,11 @@ def test_a_lost_worker_or_scheduler_is_one_line_not_an_internal_error(error, wor
     assert main(["info", "x.exr"]) == 1
     line = one_error_line(capsys.readouterr().err)
     assert words in line and "internal error" not in line and str(error).split()[0] in line, line
+
+
+@pytest.mark.parametrize("text", ["albedo,", ",depth", "albedo,,normal", "", " ", "Albedo"])
+def test_a_feature_list_with_a_name_left_out_is_refused(text):
+    """``--features albedo,`` rendered the albedo alone, the comma's second name dropped without a word."""
+    with pytest.raises(argparse.ArgumentTypeError):
+        values.feature_list(text)
+    assert values.feature_list("depth, albedo") == ("albedo", "depth")
