@@ -10,7 +10,8 @@ render time (a fast renderer gets fewer, larger rounds: more of the budget goes 
 time left can render, and the round before the deadline takes all that is left. Samples placed by a ranking are
 planned at :data:`RANKED_COST_MARGIN` times round 0's uniform ones' cost until a ranked round was measured.
 The run stops when less than one sample per pixel fits. The final reconstruction is the caller's, after the run:
-leave it its time (docs/sampling.md, "A time budget")."""
+``reserve`` keeps its time out of the rounds' budget, given in seconds or timed on round 0's samples
+(:func:`reconstruction_seconds`; docs/sampling.md, "A time budget")."""
 
 from __future__ import annotations
 
@@ -28,13 +29,15 @@ from tqdm.auto import tqdm
 from . import _checks
 from .allocation import MAX_BUDGET
 from .errors import TimeBudgetWarning
+from .reconstruct import reconstruct as _reconstruct
 from .requests import Renderer, SampleRequest
 
 if TYPE_CHECKING:  # the samplers import this module
     from .buffers import SampleBuffer
     from .sampling import Sampler
 
-__all__ = ["ROUND_OVERHEAD", "RANKED_COST_MARGIN", "DEFAULT_RUN_SPP", "MAX_SECONDS", "RoundPlan", "run_rounds"]
+__all__ = ["ROUND_OVERHEAD", "RANKED_COST_MARGIN", "RESERVE_MARGIN", "DEFAULT_RUN_SPP", "MAX_SECONDS", "RoundPlan",
+           "reconstruction_seconds", "run_rounds"]
 
 DEFAULT_RUN_SPP = 32.0
 """:meth:`~awr_denoise.sampling.Sampler.run`'s goal in samples per pixel given neither ``total_spp`` nor ``seconds``."""
@@ -50,6 +53,15 @@ RANKED_COST_MARGIN = 2.0
 """Until a ranked round was measured, its samples are planned at this many times round 0's cost per sample: a
 ranking sends them to other pixels, scattered (beside Mitsuba 3 1.85 times round 0's at 1080p, 0.97-1.28 times at
 256x256; beside the bundled tracer 0.96-1.15 times: docs/sampling.md, "A time budget")."""
+
+RESERVE_MARGIN = 1.3
+""":func:`reconstruction_seconds`' factor on a reconstruction's time scaled from its buffer's central quarter: a
+whole image took 1.03-1.20 times four quarters' time at 256x256 to 1920x1080 (its work grows a little faster than
+its pixels), and the machine's load moves single timings by a tenth or more (docs/sampling.md, "A time budget":
+``benchmarks/bench_budget.py --trial``)."""
+
+WHOLE_BELOW = 128 * 128
+""":func:`reconstruction_seconds` times a buffer of fewer pixels whole: a quarter would be mostly fixed costs."""
 
 _clock: Callable[[], float] = time.perf_counter
 """The clock of the deadline (a test replaces it)."""
@@ -143,15 +155,23 @@ class RoundPlan:
 
 
 def run_rounds(sampler: Sampler, renderer: Renderer, total_spp: float | None, *, seconds: float | None = None,
-               progress: bool = False, callback: Callable[[SampleRequest, SampleBuffer], bool | None] | None = None
-               ) -> SampleBuffer:
+               reserve: float | Callable[[SampleBuffer], float] | None = None, progress: bool = False,
+               callback: Callable[[SampleRequest, SampleBuffer], bool | None] | None = None) -> SampleBuffer:
     """:meth:`~awr_denoise.sampling.Sampler.run`: ask, render, tell until ``total_spp`` or the time budget ends.
 
-    ``total_spp`` and ``seconds`` are checked here, by name (``total_spp`` ``None``: 32 without ``seconds``, no
-    goal with it). A pending round is told first, whole. Returns the sampler's buffer.
+    ``total_spp``, ``seconds`` and ``reserve`` are checked here, by name (``total_spp`` ``None``: 32 without
+    ``seconds``, no goal with it). ``reserve``: seconds of ``seconds`` kept for other work than the rounds
+    (the reconstruction after them), or a function of round 0's buffer returning them (its own time spent from the
+    budget). A pending round is told first, whole.
+    Returns the sampler's buffer.
     """
     pixels = sampler.shape[0] * sampler.shape[1]
     seconds = _checks.real("seconds", seconds, above=0, maximum=MAX_SECONDS, none=True)
+    if reserve is not None:
+        if seconds is None:  # it would do nothing: refused
+            raise ValueError("reserve: only a time budget (seconds) keeps time for after the run")
+        if not callable(reserve):
+            reserve = _checks.real("reserve", reserve, minimum=0, maximum=MAX_SECONDS)
     if total_spp is None and seconds is None:
         total_spp = DEFAULT_RUN_SPP
     goal = None if total_spp is None else _goal(sampler, total_spp)
@@ -188,15 +208,76 @@ def run_rounds(sampler: Sampler, renderer: Renderer, total_spp: float | None, *,
             if plan is not None:
                 plan.record(overhead=(asked - started) + (_clock() - rendered), render=rendered - asked,
                             samples=request.total, ranking=ranking, ranked=request.round > 0 or not sampler._ranks)
+                if rounds == 1 and reserve is not None:  # round 0's samples: what the reconstruction will see
+                    _keep(plan, reserve, buffer)
             if bar is not None:
                 bar.update(request.total)
             if callback is not None and callback(request, buffer) is False:
                 break
-    if plan is not None and rounds == 1 and (spent := _clock() - plan.start) > plan.seconds:
-        warnings.warn(f"seconds: the first round alone took {spent:.3g} s of a {plan.seconds:.3g}-s budget; a uniform "
+    if plan is not None and rounds == 1 and (spent := _clock() - plan.start) > seconds:
+        warnings.warn(f"seconds: the first round alone took {spent:.3g} s of a {seconds:.3g}-s budget; a uniform "
                       "render may spend a budget this short better (docs/sampling.md, 'A time budget')",
                       TimeBudgetWarning, stacklevel=3)
     return sampler.buffer
+
+
+def _keep(plan: RoundPlan, reserve: float | Callable[[SampleBuffer], float], buffer: SampleBuffer) -> None:
+    """Take ``reserve`` (seconds, or a function of round 0's ``buffer`` giving them) out of ``plan``'s budget."""
+    kept = _checks.real("reserve", reserve(buffer) if callable(reserve) else reserve, minimum=0,
+                        maximum=MAX_SECONDS)
+    budget, plan.seconds, spent = plan.seconds, plan.seconds - kept, _clock() - plan.start
+    if plan.seconds <= spent <= budget:  # (a first round past the budget is said by itself)
+        warnings.warn(f"seconds: {kept:.3g} s of the {budget:.3g}-s budget kept for other work (reserve) leave no "
+                      "time for rounds after the first (docs/sampling.md, 'A time budget')", TimeBudgetWarning,
+                      stacklevel=4)
+
+
+def reconstruction_seconds(buffer: SampleBuffer, reconstruct: Callable[[SampleBuffer], object] | None = None
+                           ) -> float:
+    """The seconds ``reconstruct(buffer)`` is expected to take on this machine: a run's ``reserve``.
+
+    Timed on the buffer's central quarter (half of each side), times four and :data:`RESERVE_MARGIN`: the
+    reconstruction's time hardly depends on the samples, only on the pixels and the settings. A buffer of fewer
+    than :data:`WHOLE_BELOW` pixels, or whose quarter ``reconstruct`` refuses (``levels`` its half sides cannot
+    take), is timed whole. Like every time budget, the estimate follows the machine's load when it is taken.
+
+    Parameters
+    ----------
+    buffer
+        The samples so far (round 0's, as a run's ``reserve``): their shape, channels and features.
+    reconstruct
+        The reconstruction the caller runs after the run, with its settings (default
+        :func:`~awr_denoise.reconstruct`: paper section 5, Eq. 10-11, and the project's later stages).
+
+    Examples
+    --------
+    Rounds for half a second, of which the default reconstruction's time, timed on round 0's samples, is kept
+    for it (docs/sampling.md, "A time budget"):
+
+    >>> from awr_denoise import AdaptiveSampler
+    >>> from awr_denoise.rounds import reconstruction_seconds
+    >>> from awr_denoise.synthetic import SyntheticRenderer, make_scene
+    >>> renderer = SyntheticRenderer(make_scene("edges", (64, 64)))
+    >>> buffer = AdaptiveSampler((64, 64)).run(renderer, seconds=0.5, reserve=reconstruction_seconds)
+    >>> 0 < reconstruction_seconds(buffer) < 0.5
+    True
+    """
+    reconstruct = _reconstruct if reconstruct is None else reconstruct
+    h, w = buffer.shape
+    scale = 1.0
+    if h * w >= WHOLE_BELOW:
+        rows, cols = slice(h // 4, h // 4 + h // 2), slice(w // 4, w // 4 + w // 2)
+        part, scale = buffer.crop(rows, cols), (h * w) / ((h // 2) * (w // 2))
+        started = _clock()
+        try:
+            reconstruct(part)
+        except ValueError:  # settings the half sides cannot take: timed whole
+            scale = 1.0
+        else:
+            return RESERVE_MARGIN * scale * (_clock() - started)
+    started = _clock()
+    reconstruct(buffer)
+    return RESERVE_MARGIN * (_clock() - started)
 
 
 def _goal(sampler: Sampler, total_spp: float) -> int:

@@ -360,14 +360,16 @@ class Sampler(OneAtATime):
         return self._buffer
 
     def run(self, renderer: Renderer, total_spp: float | None = None, *, seconds: float | None = None,
-            progress: bool = False, callback: Callable[[SampleRequest, SampleBuffer], bool | None] | None = None
-            ) -> SampleBuffer:
+            reserve: float | Callable[[SampleBuffer], float] | None = None, progress: bool = False,
+            callback: Callable[[SampleRequest, SampleBuffer], bool | None] | None = None) -> SampleBuffer:
         """Ask, render, tell until the image holds ``total_spp`` samples per pixel on average, or for ``seconds``.
 
         Built only from :meth:`ask` and :meth:`tell` (:mod:`.rounds`); the last round is trimmed so the total is
         exact. ``total_spp``: 32 without ``seconds``, no goal with it. With ``seconds`` the rounds are planned to
         end within it (the first is always rendered; docs/sampling.md, "A time budget"), and the counts depend on
-        the machine. ``callback(request, buffer)`` runs after every round; returning ``False`` stops.
+        the machine; ``reserve`` keeps seconds of it for the reconstruction after the run: a number, or a function
+        of round 0's buffer returning them (:func:`~awr_denoise.rounds.reconstruction_seconds` times the default
+        reconstruction). ``callback(request, buffer)`` runs after every round; returning ``False`` stops.
 
         Examples
         --------
@@ -384,7 +386,8 @@ class Sampler(OneAtATime):
         >>> AdaptiveSampler((16, 16)).run(renderer, seconds=0.5).total_samples >= 512   # as many as 0.5 s allow
         True
         """
-        return run_rounds(self, renderer, total_spp, seconds=seconds, progress=progress, callback=callback)
+        return run_rounds(self, renderer, total_spp, seconds=seconds, reserve=reserve, progress=progress,
+                          callback=callback)
 
     # ------------------------------------------------------------------ strategy
     def _prepare(self) -> None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import os
 import time
 from collections.abc import Callable, Iterator
@@ -30,7 +31,7 @@ from awr_denoise.renderers import (
     renderer_scenes,
 )
 from awr_denoise.requests import Renderer, SampleTracer
-from awr_denoise.rounds import MAX_SECONDS
+from awr_denoise.rounds import MAX_SECONDS, reconstruction_seconds
 from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS
 
 from .common import EXIT_OK, RuntimeFailure, UsageError, status
@@ -45,6 +46,10 @@ TRACER = "tracer"
 """Name of the bundled path tracer in the renderer registry (the default renderer)."""
 DEFAULT_RENDER_SPP = 16.0
 """``awr render``'s samples per pixel when given neither ``--spp`` nor ``--seconds``."""
+WRITE_SHARE = 0.3
+"""Under ``--seconds``, writing the dump, the image and the preview as a share of the denoising's time: 0.19-0.24
+at 256x256 to 1920x1080 (medians; single runs up to 0.37), with a margin (docs/sampling.md, "A time budget":
+``benchmarks/bench_budget.py --trial``)."""
 
 
 def tracer_module() -> ModuleType:
@@ -87,9 +92,11 @@ def first_round_spp(initial_spp: int, spp: float | None) -> int:
 def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float | None, adaptive: bool, seed: int,
                   quiet: bool, initial_spp: int = DEFAULT_AWR_INITIAL_SPP, round_growth: float = DEFAULT_ROUND_GROWTH,
                   noise_model: str = DEFAULT_NOISE_MODEL, gain_refresh: float | None = None,
-                  seconds: float | None = None) -> tuple[SampleBuffer, Any, int]:
+                  seconds: float | None = None, reserve: Callable[[SampleBuffer], float] | None = None
+                  ) -> tuple[SampleBuffer, Any, int]:
     """(buffer, issued, next round) of a uniform or adaptive render at ``spp`` on average, or adaptive rounds for
-    ``seconds`` (``spp`` then a cap, ``None`` for none: :meth:`~awr_denoise.Sampler.run`).
+    ``seconds`` (``spp`` then a cap, ``None`` for none) of which ``reserve`` keeps the denoising's time
+    (:meth:`~awr_denoise.Sampler.run`).
 
     The renderer is closed afterwards when it is a :class:`~awr_denoise.SampleTracer`.
     """
@@ -103,11 +110,22 @@ def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float | No
             return buffer, request.first_index + request.counts, 1
         awr = AdaptiveSampler(shape, initial_spp=first_round_spp(initial_spp, spp), seed=seed,
                               round_growth=round_growth, noise_model=noise_model, gain_refresh=gain_refresh)
-        buffer = awr.run(renderer, total_spp=spp, seconds=seconds, progress=not quiet)
+        buffer = awr.run(renderer, total_spp=spp, seconds=seconds, reserve=reserve, progress=not quiet)
         return buffer, awr.issued, awr.round
     finally:
         if isinstance(renderer, SampleTracer):
             renderer.close()
+
+
+def _reserve(args: argparse.Namespace, start: float) -> Callable[[SampleBuffer], float] | None:
+    """Under ``--seconds``: the seconds of the budget not for rounds, asked after round 0: the time since ``start``
+    before the rounds (the renderer's setup), the denoising's, timed on round 0's samples with the command's
+    settings (:func:`~awr_denoise.rounds.reconstruction_seconds`), and the files' (:data:`WRITE_SHARE` of it)."""
+    if args.seconds is None:
+        return None
+    denoise = functools.partial(reconstruct_detailed, variance_probes=0, **reconstruction_kwargs(args))
+    ready = time.perf_counter()  # the renderer is set up: the rounds begin
+    return lambda buffer: (ready - start) + (1 + WRITE_SHARE) * reconstruction_seconds(buffer, denoise)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -127,8 +145,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"average samples per pixel (default {DEFAULT_RENDER_SPP:g}; with --seconds a cap, "
                         "by default none)")
     p.add_argument("--seconds", type=real(above=0, maximum=MAX_SECONDS), metavar="S",
-                   help="adaptive rounds for at most S seconds of rendering (the denoising after them is not counted); "
-                        "the first round is always rendered")
+                   help="adaptive rounds, the denoising and the files in about S seconds: the rounds leave the "
+                        "denoising the time a trial on the first round's samples predicts; the first round is "
+                        "always rendered")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--adaptive", dest="adaptive", action="store_true", default=True,
                       help="adaptive wavelet sampling (default)")
@@ -292,7 +311,7 @@ def run(args: argparse.Namespace) -> int:
                 probe.close()
         with executor_from_args(args) as executor:
             tiled = TiledRenderer(spec, tile=args.tile, executor=executor)
-            buffer, issued, next_round = render_buffer(tiled, frame, **render)
+            buffer, issued, next_round = render_buffer(tiled, frame, reserve=_reserve(args, start), **render)
     else:
         # A uniform render is one request: the renderer's own bar shows it. Adaptive rounds get
         # the sampler's bar instead of one renderer bar per round.
@@ -301,7 +320,7 @@ def run(args: argparse.Namespace) -> int:
         with _as_options(args.renderer):
             renderer = create_renderer(args.renderer, scene, shape=shape, seed=args.seed, **options)
         check_pixels(f"SCENE {given}: its film", *renderer.shape)  # a size the scene file declares
-        buffer, issued, next_round = render_buffer(renderer, renderer.shape, **render)
+        buffer, issued, next_round = render_buffer(renderer, renderer.shape, reserve=_reserve(args, start), **render)
     seconds = time.perf_counter() - start
     strategy = "awr" if args.adaptive else "uniform"
     # A running dump (its samples every pixel's sequence from 0), and the run's strategy and first
@@ -323,6 +342,7 @@ def run(args: argparse.Namespace) -> int:
     h, w = buffer.shape
     carried = f"; features {', '.join(buffer.features)} in the dump (not used: see --guide)" \
         if buffer.features and args.guide is None else ""
+    done = time.perf_counter() - start - seconds
     status(f"{args.output}: {name} {w}x{h}, {buffer.total_samples / (h * w):.3g} spp ({strategy}) in {seconds:.1f} s; "
-           f"denoised {image_path}, preview {preview_path}{carried}", quiet=args.quiet)
+           f"denoised {image_path}, preview {preview_path} in {done:.1f} s{carried}", quiet=args.quiet)
     return EXIT_OK

@@ -1107,6 +1107,27 @@ def test_render_gain_refresh_reaches_the_sampler(tmp_path, capsys, fake_tracer, 
     assert not (tmp_path / "bad.exr").exists()
 
 
+def test_render_seconds_leaves_the_denoising_the_time_its_trial_predicts(tmp_path, fake_tracer, monkeypatch, capsys):
+    from awr_denoise.cli import render_cmd
+
+    asked = []
+
+    def predicted(buffer, reconstruct):
+        asked.append((buffer.total_samples, reconstruct.keywords))
+        return 100.0
+
+    monkeypatch.setattr(render_cmd, "reconstruction_seconds", predicted)
+    out = tmp_path / "d.exr"
+    assert main(["render", "--seconds", "1", "--c-s", "0.7", "-o", str(out), "-q"]) == 0
+    assert read_sample_dump(out).buffer.total_samples == 2 * H * W  # round 0 alone: the rest is the denoising's
+    (total, settings), = asked  # asked once, on round 0's samples, with the command's settings
+    assert total == 2 * H * W and settings["c_s"] == 0.7 and settings["variance_probes"] == 0
+    warned = [line for line in capsys.readouterr().err.splitlines() if line]
+    assert len(warned) == 1 and warned[0].startswith("awr: warning: seconds: "), warned
+    kept = float(warned[0].split()[3])  # the denoising's and the files' share, and the setup's seconds
+    assert (1 + render_cmd.WRITE_SHARE) * 100 <= kept < (1 + render_cmd.WRITE_SHARE) * 100 + 1, warned
+
+
 def test_render_round_growth_takes_fewer_rounds(tmp_path, fake_tracer):
     rounds = {growth: int(_rendered(tmp_path, 16, "--round-growth", growth).attributes["awr:round"])
               for growth in ("0.25", "1.0")}

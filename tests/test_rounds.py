@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from awr_denoise import AdaptiveSampler, TimeBudgetWarning, UniformSampler, rounds
+from awr_denoise import AdaptiveSampler, SampleBuffer, TimeBudgetWarning, UniformSampler, rounds
 from awr_denoise.rounds import RANKED_COST_MARGIN, ROUND_OVERHEAD, RoundPlan
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
 
@@ -249,3 +249,82 @@ def test_the_plan_stops_when_less_than_one_sample_per_pixel_fits():
     assert plan.budget(50, now=0.0) > 0
     assert plan.budget(50, now=1.0 - 0.1 - 100 * 1e-4 + 1e-6) == 0
     assert plan.budget(50, now=2.0) == 0
+
+
+@pytest.mark.parametrize("reserve", [0.3, 1.2])
+def test_a_reserve_ends_the_rounds_that_much_earlier(clock, reserve):
+    renderer = TimedRenderer(clock, 1e-4)
+    timed_sampler(clock, 0.01).run(renderer, seconds=2.0, reserve=reserve)
+    assert 2.0 - reserve - 2 * renderer.per_sample < clock.now <= 2.0 - reserve
+
+
+def test_a_reserve_function_sees_round_0s_samples_once_and_its_own_time_is_spent(clock):
+    renderer, seen = TimedRenderer(clock, 1e-4), []
+
+    def reserve(buffer):
+        seen.append(buffer.total_samples)
+        clock.now += 0.2  # timing a reconstruction takes time too
+        return 0.5
+
+    timed_sampler(clock, 0.01).run(renderer, seconds=2.0, reserve=reserve)
+    assert seen == [2 * PIXELS] and len(renderer.rounds) > 2
+    assert 1.5 - 2 * renderer.per_sample < clock.now <= 1.5
+
+
+def test_a_reserve_that_leaves_no_time_for_rounds_is_said_once(clock):
+    renderer = TimedRenderer(clock, 1e-3)  # round 0: 0.512 s of rendering, 0.01 s of asking
+    with pytest.warns(TimeBudgetWarning, match=r"seconds: 0\.8 s of the 1-s budget kept for other work \(reserve\) "
+                                               r"leave no time for rounds after the first") as said:
+        timed_sampler(clock, 0.01).run(renderer, seconds=1.0, reserve=0.8)
+    assert renderer.rounds == [2 * PIXELS] and len(said) == 1
+    clock.now = 0.0
+    with pytest.warns(TimeBudgetWarning, match="the first round alone took") as said:
+        timed_sampler(clock, 0.01).run(TimedRenderer(clock, 1e-3), seconds=0.1, reserve=0.05)
+    assert len(said) == 1  # the round's overrun, not the reserve's too
+
+
+@pytest.mark.parametrize("reserve", [-1.0, float("nan"), float("inf"), 1e10, True, "1"])
+def test_a_reserve_is_checked_by_name(clock, reserve):
+    with pytest.raises((ValueError, TypeError), match="reserve"):
+        timed_sampler(clock, 0.01).run(TimedRenderer(clock, 1e-4), seconds=1.0, reserve=reserve)
+    with pytest.raises((ValueError, TypeError), match="reserve"):  # what a function returns, too
+        timed_sampler(clock, 0.01).run(TimedRenderer(clock, 1e-4), seconds=1.0, reserve=lambda _: reserve)
+    with pytest.raises(ValueError, match="reserve: only a time budget"):
+        timed_sampler(clock, 0.01).run(TimedRenderer(clock, 1e-4), total_spp=4, reserve=0.1)
+
+
+class TimedReconstruction:
+    """A reconstruction costing ``per_pixel`` seconds of the fake clock per pixel, refusing sides below ``least``."""
+
+    def __init__(self, clock: FakeClock, per_pixel: float, least: int = 1) -> None:
+        self.clock, self.per_pixel, self.least, self.seen = clock, per_pixel, least, []
+
+    def __call__(self, buffer):
+        self.seen.append(buffer)
+        if min(buffer.shape) < self.least:
+            raise ValueError("levels: too many for this image")
+        self.clock.now += buffer.count.size * self.per_pixel
+
+
+@pytest.mark.parametrize("shape", [(256, 256), (255, 257), (128, 128)])
+def test_reconstruction_seconds_times_the_central_quarter_and_scales_it(clock, shape):
+    mean = np.arange(shape[0] * shape[1], dtype=float).reshape(shape)
+    buffer = SampleBuffer.from_moments(np.ones(shape, dtype=np.int64), mean, np.zeros(shape))
+    timed = TimedReconstruction(clock, 1e-6)
+    estimate = rounds.reconstruction_seconds(buffer, timed)
+    (part,) = timed.seen
+    h, w = shape[0] // 2, shape[1] // 2
+    np.testing.assert_array_equal(part.mean[..., 0], mean[shape[0] // 4:shape[0] // 4 + h, shape[1] // 4:][:, :w])
+    assert estimate == pytest.approx(rounds.RESERVE_MARGIN * shape[0] * shape[1] * 1e-6)
+
+
+def test_reconstruction_seconds_times_a_small_buffer_or_a_refused_quarter_whole(clock):
+    small = SampleBuffer.from_moments(np.ones((64, 100), dtype=np.int64), np.ones((64, 100)), np.zeros((64, 100)))
+    timed = TimedReconstruction(clock, 1e-6)
+    assert rounds.reconstruction_seconds(small, timed) == pytest.approx(rounds.RESERVE_MARGIN * 6400e-6)
+    assert [b.shape for b in timed.seen] == [(64, 100)]
+    large = SampleBuffer.from_moments(np.ones((256, 256), dtype=np.int64), np.ones((256, 256)),
+                                             np.zeros((256, 256)))
+    refusing = TimedReconstruction(clock, 1e-6, least=200)
+    assert rounds.reconstruction_seconds(large, refusing) == pytest.approx(rounds.RESERVE_MARGIN * 65536e-6)
+    assert [b.shape for b in refusing.seen] == [(128, 128), (256, 256)]

@@ -1,0 +1,196 @@
+"""``awr render --seconds S`` end to end: how long the whole command takes against ``S``.
+
+Run from the repository root::
+
+    .venv/bin/python benchmarks/bench_budget.py                       # about 6 minutes
+    .venv/bin/python benchmarks/bench_budget.py --renderers tracer --repeats 1
+
+Each case runs the command as a user does (a new process: ``awr render --seconds S`` on a scene at a size,
+writing the dump, the denoised image and the preview into a fresh folder) and reads the two times it prints:
+the rounds' (from the command's start, the renderer's setup included) and the denoising's and the files'. The
+budget covers both: the rounds leave the denoising the time its trial on round 0's samples predicted
+(``rounds.reconstruction_seconds`` with the command's settings, times ``1 + WRITE_SHARE`` for the files).
+Python's start-up comes before the command starts and is not in ``S``: it is measured in the same run as the
+wall time of ``awr --version`` (the floor), and the wall time of each render is reported beside it. Cases run
+``--repeats`` times (3), interleaved; medians. Results: ``benchmarks/results/budget.json``.
+
+``--trial`` measures what the prediction rests on instead (section ``trial``): on 2-spp uniform buffers of the
+tracer's default scene at each size, the default reconstruction of the whole image against four times its
+central quarter's (``RESERVE_MARGIN``), writing the dump, the image and the preview against the reconstruction
+(``WRITE_SHARE``), and ``reconstruction_seconds``' estimate against both together; ``--repeats`` times
+interleaved, medians.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from awr_denoise import SampleRequest, reconstruct_detailed
+from awr_denoise.bench import update_section
+from awr_denoise.io import write_image, write_preview, write_sample_buffer
+from awr_denoise.renderers import create_renderer
+from awr_denoise.rounds import reconstruction_seconds
+
+RESULTS = Path(__file__).resolve().parent / "results" / "budget.json"
+CASES: dict[str, list[tuple[str, tuple[int, int], float]]] = {
+    "tracer": [("default", (256, 256), 5.0), ("default", (512, 512), 10.0), ("default", (1920, 1080), 30.0)],
+    "mitsuba": [("cornell_box", (256, 256), 5.0), ("cornell_box", (1920, 1080), 30.0)],
+    "synthetic": [("edges", (64, 64), 1.0)],
+}
+"""(scene, (width, height), S) per renderer (``synthetic``: the script's test, not run by default)."""
+TRIAL_SIZES = ("256x256", "512x512", "1920x1080")
+""":func:`trial`'s sizes by default."""
+_STATUS = re.compile(r"([0-9.]+) spp \(awr\) in ([0-9.]+) s; .* in ([0-9.]+) s")
+"""The command's last line: spp, the rounds' seconds, the denoising's and the files' seconds."""
+
+
+def _awr(*args: str) -> tuple[subprocess.CompletedProcess, float]:
+    """Run ``awr`` in a new process as a user does; (the finished process, its wall time)."""
+    started = time.perf_counter()
+    done = subprocess.run([sys.executable, "-c", "import sys; from cli.main import main; sys.exit(main())", *args],
+                          capture_output=True, text=True, check=False)
+    return done, time.perf_counter() - started
+
+
+def render(renderer: str, scene: str, size: tuple[int, int], seconds: float, seed: int) -> dict[str, Any]:
+    """One ``awr render --seconds`` run: its printed times and its wall time."""
+    with tempfile.TemporaryDirectory() as folder:
+        done, wall = _awr("render", scene, "--renderer", renderer, "--width", str(size[0]), "--height", str(size[1]),
+                          "--seconds", str(seconds), "--seed", str(seed), "-o", str(Path(folder) / "dump.exr"))
+    if done.returncode != 0:
+        raise RuntimeError(f"awr render {renderer} {scene}: exit {done.returncode}: {done.stderr.strip()}")
+    found = _STATUS.search(done.stderr)
+    if found is None:
+        raise RuntimeError(f"awr render {renderer} {scene}: no status line in {done.stderr!r}")
+    spp, rounds, finish = map(float, found.groups())
+    warned = [line for line in done.stderr.splitlines() if "warning" in line]
+    return {"spp": spp, "rounds": rounds, "finish": finish, "command": rounds + finish, "wall": wall,
+            "warnings": warned}
+
+
+def measure(renderers: list[str], repeats: int) -> list[dict[str, Any]]:
+    """Every case of ``renderers``, ``repeats`` times interleaved; per case the medians and the runs."""
+    cases = [(r, *case) for r in renderers for case in CASES[r]]
+    runs: dict[int, list[dict[str, Any]]] = {i: [] for i in range(len(cases))}
+    floors = []
+    for k in range(repeats):
+        floors.append(_awr("--version")[1])
+        for i, (renderer, scene, size, seconds) in enumerate(cases):
+            runs[i].append(render(renderer, scene, size, seconds, seed=k))
+    floor = statistics.median(floors)
+    rows = []
+    for i, (renderer, scene, size, seconds) in enumerate(cases):
+        median = {key: statistics.median(run[key] for run in runs[i])
+                  for key in ("spp", "rounds", "finish", "command", "wall")}
+        rows.append({"renderer": renderer, "scene": scene, "size": list(size), "seconds": seconds, **median,
+                     "command_over_budget": median["command"] / seconds, "startup": floor,
+                     "worst_over_budget": max(run["command"] for run in runs[i]) / seconds, "runs": runs[i]})
+    return rows
+
+
+def _seconds(work: Any, *args: Any) -> float:
+    started = time.perf_counter()
+    work(*args)
+    return time.perf_counter() - started
+
+
+def _files(buffer: Any, image: Any) -> None:
+    """Write what ``awr render`` writes: the dump, the denoised image and its preview."""
+    with tempfile.TemporaryDirectory() as folder:
+        write_sample_buffer(Path(folder) / "dump.exr", buffer)
+        write_image(Path(folder) / "dump.denoised.exr", image)
+        write_preview(Path(folder) / "dump.denoised.png", image)
+
+
+def trial(sizes: list[tuple[int, int]], repeats: int) -> list[dict[str, Any]]:
+    """Per size: the whole reconstruction over four quarters', the files over the reconstruction, the estimate
+    over both (2-spp uniform buffers of the tracer's default scene; medians of ``repeats``, interleaved)."""
+    denoise = functools.partial(reconstruct_detailed, variance_probes=0)
+    buffers = []
+    for width, height in sizes:
+        renderer = create_renderer("tracer", "default", shape=(height, width), seed=0)
+        buffers.append(renderer(SampleRequest.uniform((height, width), 2)))
+    found: list[dict[str, list[float]]] = [{} for _ in sizes]
+    for _ in range(repeats):
+        for buffer, seen in zip(buffers, found):
+            h, w = buffer.shape
+            quarter = buffer.crop(slice(h // 4, h // 4 + h // 2), slice(w // 4, w // 4 + w // 2))
+            started = time.perf_counter()
+            image = denoise(buffer).image
+            whole = time.perf_counter() - started
+            times = {"whole": whole, "quarter": _seconds(denoise, quarter), "files": _seconds(_files, buffer, image),
+                     "estimate": reconstruction_seconds(buffer, denoise)}
+            for key, value in times.items():
+                seen.setdefault(key, []).append(value)
+    rows = []
+    for (width, height), seen in zip(sizes, found):
+        median = {key: statistics.median(values) for key, values in seen.items()}
+        rows.append({"size": [width, height], **median, "runs": seen,
+                     "whole_over_quarters": median["whole"] / (4 * median["quarter"]),
+                     "files_over_whole": median["files"] / median["whole"],
+                     "estimate_over_both": median["estimate"] / (median["whole"] + median["files"])})
+    return rows
+
+
+def trial_table(rows: list[dict[str, Any]]) -> str:
+    """The trial's rows as a Markdown table."""
+    lines = ["| size | reconstruction s | whole / 4 quarters | files / reconstruction | estimate / (reconstruction "
+             "+ files) |", "|---|---|---|---|---|"]
+    for row in rows:
+        lines.append(f"| {row['size'][0]}x{row['size'][1]} | {row['whole']:.2f} | {row['whole_over_quarters']:.2f} | "
+                     f"{row['files_over_whole']:.2f} | {row['estimate_over_both']:.2f} |")
+    return "\n".join(lines)
+
+
+def table(rows: list[dict[str, Any]]) -> str:
+    """The rows as a Markdown table."""
+    lines = ["| renderer | scene | size | S | spp | rounds s | denoise + files s | command / S (worst) | wall s "
+             "(start-up) |", "|---|---|---|---|---|---|---|---|---|"]
+    for row in rows:
+        lines.append(f"| {row['renderer']} | {row['scene']} | {row['size'][0]}x{row['size'][1]} | {row['seconds']:g} "
+                     f"| {row['spp']:.3g} | {row['rounds']:.1f} | {row['finish']:.1f} | "
+                     f"{row['command_over_budget']:.2f} ({row['worst_over_budget']:.2f}) | {row['wall']:.1f} "
+                     f"({row['startup']:.1f}) |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--renderers", nargs="+", choices=list(CASES), default=["tracer", "mitsuba"])
+    parser.add_argument("--repeats", type=int, default=3, metavar="N", help="runs of each case, interleaved (3)")
+    parser.add_argument("--trial", nargs="*", metavar="WxH",
+                        help="instead: what the prediction rests on, at these sizes (default 256x256 512x512 "
+                             "1920x1080; section trial)")
+    parser.add_argument("--output", type=Path, default=RESULTS)
+    args = parser.parse_args(argv)
+    if not 1 <= args.repeats <= 99:
+        parser.error("--repeats: 1 to 99")
+    command = "benchmarks/bench_budget.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    if args.trial is not None:
+        try:
+            sizes = [tuple(int(side) for side in size.split("x")) for size in args.trial or TRIAL_SIZES]
+        except ValueError:
+            parser.error("--trial: sizes as WxH")
+        if any(len(size) != 2 or min(size) < 16 for size in sizes):
+            parser.error("--trial: sizes as WxH, each side at least 16")
+        rows = trial(sizes, args.repeats)
+        update_section(args.output, "trial", rows, command)
+        print(trial_table(rows))
+        return 0
+    rows = measure(args.renderers, args.repeats)
+    update_section(args.output, "budget", rows, command)
+    print(table(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
