@@ -19,6 +19,7 @@ import multiprocessing
 import multiprocessing.resource_tracker
 import os
 import signal
+import tempfile
 import threading
 from collections.abc import Callable, Iterator
 from concurrent.futures import Executor
@@ -266,13 +267,19 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
         _close(pool, cancel=False)
         return
     distributed = _import_distributed()
+    import dask  # distributed's own dependency, there once it is
+
     with contextlib.ExitStack() as stack:
         if scheduler is None:
             stack.enter_context(_glibc_malloc_tuning())
+            # The workers' scratch folder (Dask's "dask-scratch-space", left in $TMPDIR after the
+            # cluster) in one of this run's own, removed once the cluster has closed.
+            scratch = stack.enter_context(tempfile.TemporaryDirectory(prefix="awr-dask-"))
+            stack.enter_context(dask.config.set({"temporary-directory": scratch}))  # the scheduler's
             with _children_ignore_interrupts():
                 cluster = distributed.LocalCluster(
                     n_workers=n_workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                    dashboard_address=None,
+                    dashboard_address=None, local_directory=scratch,
                     # No dashboard; the scheduler's remaining HTTP routes take a free loopback port
                     # instead of 8787, so several clusters can coexist without a port warning.
                     scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},

@@ -284,6 +284,18 @@ def test_every_outcome_of_a_dask_task_settles_its_future(task, expected):
         assert answer.result() == expected
 
 
+def test_a_local_dask_cluster_leaves_nothing_in_the_temporary_folder(tmp_path, monkeypatch):
+    """Dask's workers left an empty ``dask-scratch-space`` in $TMPDIR after every run."""
+    pytest.importorskip("distributed")
+    import tempfile
+
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    monkeypatch.setattr(tempfile, "tempdir", None)  # read $TMPDIR again
+    with get_executor("dask", workers=1) as executor:
+        assert executor.submit(abs, -2).result(timeout=60) == 2
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_dask_tasks_error_and_cancellation_reach_its_future():
     pytest.importorskip("distributed")
     from awr_denoise.parallel.executors import submit
