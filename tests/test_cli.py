@@ -1251,6 +1251,28 @@ def test_merge_holds_one_input_at_a_time(tmp_path):
     assert read_sample_dump(tmp_path / "m12.exr").buffer.total_samples == 12 * 4 * 128 * 128
 
 
+@pytest.mark.parametrize("executor", ["processes", "dask"])
+def test_frames_on_worker_processes_write_the_serial_runs_bytes(tmp_path, executor):
+    """Every denoise on process or Dask workers was refused (exit 2, "its folder .awr-....tmp is named as awr's
+    staging folders"): a worker process did not know its outputs were the command's own staged temporaries."""
+    if executor == "dask":
+        pytest.importorskip("distributed", reason="the dask extra")
+    for i in (1, 2):
+        write_sample_buffer(tmp_path / f"d.{i:04d}.exr", SampleBuffer.from_moments(
+            np.full((16, 16), 4), np.random.default_rng(i).random((16, 16, 3)), np.full((16, 16, 3), 0.01)))
+    common = [str(tmp_path / "d.####.exr"), "--frames", "1-2", "-q"]
+    assert main(["denoise", *common, "-o", str(tmp_path / "s.####.exr"), "--preview", str(tmp_path / "s.####.png")]) == 0
+    assert main(["denoise", *common, "-o", str(tmp_path / "w.####.exr"), "--preview", str(tmp_path / "w.####.png"),
+                 "--executor", executor, "--workers", "1"]) == 0
+    assert main(["denoise", str(tmp_path / "d.0001.exr"), "-o", str(tmp_path / "one.exr"), "-q",
+                 "--executor", executor, "--workers", "1"]) == 0
+    for i in (1, 2):
+        for kind in ("exr", "png"):
+            assert (tmp_path / f"w.{i:04d}.{kind}").read_bytes() == (tmp_path / f"s.{i:04d}.{kind}").read_bytes()
+    assert (tmp_path / "one.exr").read_bytes() == (tmp_path / "s.0001.exr").read_bytes()
+    assert not list(tmp_path.glob(".awr-*"))
+
+
 def test_a_frame_failing_on_a_worker_process_is_named_by_its_output(tmp_path, capsys):
     """A frame that failed on a process (or Dask) worker was reported under the staging folder's
     temporary name, which only the calling process can map to the output (a red-team pass)."""

@@ -603,3 +603,22 @@ def test_read_without_waiting_reads_a_file_and_never_waits_on_one_that_would_blo
     assert read_without_waiting(tmp_path / "a.json", limit=4) == b"x" * 5   # the caller sees it is larger
     os.mkfifo(tmp_path / "fifo")
     assert read_without_waiting(tmp_path / "fifo", limit=100) == b""       # no writer: nothing, at once
+
+
+def test_standing_for_takes_another_processes_temporaries_as_its_own_while_it_lasts(tmp_path):
+    """A worker process writing into its caller's staging folder: written in place, named as the target;
+    names this process held already stay held afterwards."""
+    with atomic.OutputSet() as outputs:
+        mine = outputs.add(tmp_path / "mine.exr")
+        theirs = mine.with_name("frame-of-another-process.exr")  # in the same staging folder
+        with pytest.raises(ValueError, match="named as awr's staging folders"):
+            atomic.check_writable(theirs, overwrite=False)
+        with atomic.standing_for({os.fspath(theirs): "out.exr", os.fspath(mine): "mine.exr"}):
+            assert atomic.public_name(theirs) == "out.exr" and atomic.public_name(mine) == str(tmp_path / "mine.exr")
+            atomic.atomic_write(theirs, lambda tmp: Path(tmp).write_text("frame"))
+        assert theirs.read_text() == "frame" and sorted(p.name for p in theirs.parent.iterdir()) == [
+            theirs.name, "lock"]  # in place: no staging folder inside the staging folder
+        assert atomic.public_name(theirs) == os.fspath(theirs) and atomic.public_name(mine) != os.fspath(mine)
+        mine.write_text("mine")
+        outputs.commit()
+    assert (tmp_path / "mine.exr").read_text() == "mine"

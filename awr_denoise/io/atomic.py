@@ -54,7 +54,7 @@ except ImportError:  # pragma: no cover - not on Windows: stale temporaries are 
 
 __all__ = ["atomic_write", "check_writable", "check_readable", "check_utf8_name", "file_kind", "read_without_waiting",
            "same_file", "OutputSet",
-           "public_name", "remove_stale_temporaries", "STAGING_PREFIX", "STAGING_SUFFIX", "STALE_AFTER", "COMMIT_WAIT"]
+           "public_name", "standing_for", "remove_stale_temporaries", "STAGING_PREFIX", "STAGING_SUFFIX", "STALE_AFTER", "COMMIT_WAIT"]
 
 STAGING_PREFIX = ".awr-"
 STAGING_SUFFIX = ".tmp"
@@ -90,6 +90,25 @@ def public_name(path: str | os.PathLike[str]) -> str:
     """The name to show for ``path``: the target an :class:`OutputSet` temporary stands for."""
     name = os.fspath(path)
     return _PUBLIC.get(name, name)
+
+
+@contextlib.contextmanager
+def standing_for(names: dict[str, str]) -> Iterator[None]:
+    """Take ``names`` (temporary path -> the target it stands for) as :class:`OutputSet` temporaries here.
+
+    For a worker process (a process pool's, a Dask worker's) writing into the staging folder of its caller's
+    :class:`OutputSet`: its writes go in place, named as their targets, as the caller's own would (the folder
+    is otherwise refused as a staging folder, whose files later writes remove). Names this process holds
+    already (a thread of the caller's) stay as they are afterwards.
+    """
+    added = [tmp for tmp in names if tmp not in _PUBLIC]
+    for tmp in added:
+        _PUBLIC[tmp] = names[tmp]
+    try:
+        yield
+    finally:
+        for tmp in added:
+            _PUBLIC.pop(tmp, None)
 
 
 def file_kind(mode: int) -> str:

@@ -24,7 +24,7 @@ import numpy as np
 from .. import _checks
 from ..errors import AWRError, InputFileError
 from ..io import read_image, read_sample_buffer, write_image, write_preview
-from ..io.atomic import check_writable
+from ..io.atomic import check_writable, public_name, standing_for
 from ..io.exr import Window, check_same_windows, format_window, read_header, recorded_windows
 from ..io.presets import parse_plane
 from ..io.provenance import image_provenance
@@ -340,6 +340,8 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
     options = {"exposure": exposure, "reference": reference, "overwrite": overwrite, "half": half,
                **reconstruct_options}
     as_given = list(zip(sources, targets, shown if shown is not None else [None] * len(sources)))
+    staged = [{path: public_name(path) for path in (target, preview) if path is not None and public_name(path) != path}
+              for _, target, preview in as_given]  # a caller's OutputSet temporaries (awr denoise's)
     if executor is not None and dask_client(executor) is not None:
         # Dask runs a finished frame again when the worker holding its result dies before it was
         # fetched: that attempt finds the output the first wrote, complete, and took it for someone
@@ -347,6 +349,7 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
         options["again"] = True
         # A Dask worker runs in its own folder (dask worker started from $HOME): a relative path
         # there names another file. Every path goes as the caller sees it, absolute.
+        staged = [{os.path.abspath(p): name for p, name in names.items()} for names in staged]
         sources, targets = [os.path.abspath(p) for p in sources], [os.path.abspath(p) for p in targets]
         shown = None if shown is None else [os.path.abspath(p) for p in shown]
         options["reference"] = None if reference is None else os.path.abspath(reference)
@@ -357,7 +360,7 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
         # cannot be stopped, the caller would wait for the whole reconstruction first.
         try:
             result = _frame_task(sources[0], targets[0], None if shown is None else shown[0], checked[0],
-                                 {**options, "read_options": per_frame[0]})
+                                 {**options, "read_options": per_frame[0]}, staged[0])
         except Exception as exc:
             raise FramesFailedError({sources[0]: exc}, 1) from exc
         if on_frame is not None:
@@ -366,7 +369,7 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
     failures: dict[str, BaseException] = {}
     with executor_or_threads(executor, len(sources)) as pool:
         pending = {submit(pool, _frame_task, s, t, None if shown is None else shown[i], checked[i],
-                          {**options, "read_options": per_frame[i]}): i
+                          {**options, "read_options": per_frame[i]}, staged[i]): i
                    for i, (s, t) in enumerate(zip(sources, targets))}
         try:
             while pending:
@@ -393,6 +396,9 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
 
 
 def _frame_task(source: str, output: str, preview: str | None, windows: Mapping[str, Window] | None,
-                options: dict[str, Any]) -> FrameResult:
-    """:func:`denoise_frame` with its options in one picklable dict (runs in a worker)."""
-    return denoise_frame(source, output, preview=preview, windows=windows, **options)
+                options: dict[str, Any], staged: dict[str, str]) -> FrameResult:
+    """:func:`denoise_frame` with its options in one picklable dict (runs in a worker). ``staged``: the outputs
+    that are temporaries of the caller's :class:`~awr_denoise.io.atomic.OutputSet`, with their targets' names
+    (a worker process knows nothing of it: :func:`~awr_denoise.io.atomic.standing_for`)."""
+    with standing_for(staged):
+        return denoise_frame(source, output, preview=preview, windows=windows, **options)
