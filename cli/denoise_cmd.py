@@ -239,7 +239,7 @@ def run(args: argparse.Namespace) -> int:
     for index, (specs, frame) in enumerate(zip(planes, numbers)):
         for (spec, option), (as_given, _) in zip(specs, given):
             if spec != as_given:  # the frame's own file, from a #### placeholder
-                plan.read_plane(spec, _frame_label(option, jobs, frame))
+                plan.read_plane(spec, option, _frame_label(option, jobs, frame))
             elif index == 0:  # one file for every frame: read once
                 plan.read_plane(spec, option)
     for (inputs, output), frame in zip(jobs, numbers):

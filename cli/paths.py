@@ -92,11 +92,12 @@ class PathPlan:
             _not_empty(path, option)
             self.reads.append(_Entry(Path(path), option))
 
-    def read_plane(self, spec: str | None, option: str) -> None:
-        """The file of a ``file.exr:plane`` option (or a feature option's whole file), if it names one."""
+    def read_plane(self, spec: str | None, option: str, label: str | None = None) -> None:
+        """The file of a ``file.exr:plane`` option (or a feature option's whole file), if it names one;
+        ``label`` names it in messages instead of ``option`` (a frame's: "--alb (frame 3)")."""
         if spec is None:
             return
-        self.read(_plane_file(spec, option), option)  # None: a plane of the main input
+        self.read(_plane_file(spec, option), label or option)  # None: a plane of the main input
 
     def write(self, path: str | os.PathLike[str] | None, option: str, kind: str = "exr") -> None:
         """An output file (None is skipped), written as ``kind`` (``"exr"`` or ``"png"``)."""

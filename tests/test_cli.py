@@ -335,6 +335,24 @@ def test_frames_read_each_frames_own_plane_files(tmp_path, rng, capsys):
     _one_error_line(capsys, "--alb", "#### frame placeholder but no --frames")
 
 
+def test_a_frames_own_plane_file_is_an_input_no_output_may_replace(tmp_path, rng, capsys):
+    """``-o alb.####.exr --alb alb.####.exr --overwrite`` replaced every frame's albedo with its denoised image
+    (exit 0), and frame 1's output could be frame 11's albedo: a frame's plane file was not an input of the
+    command's path checks (a red-team pass). A missing one was the reader's "no such file", without the option."""
+    for f in (1, 11):
+        _dump(tmp_path / f"shot.{f}.exr", rng)
+        write_image(tmp_path / f"alb.{f}.exr", rng.random((H, W, 3)))
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    common = [str(tmp_path / "shot.#.exr"), "--frames", "1,11", "--overwrite", "-q", "--guide", "features"]
+    assert main(["denoise", *common, "-o", str(tmp_path / "alb.#.exr"), "--alb", str(tmp_path / "alb.#.exr")]) == 2
+    _one_error_line(capsys, "-o/--output (frame 1) is the input", "--alb (frame 1)")
+    assert main(["denoise", *common, "-o", str(tmp_path / "alb.1#.exr"), "--alb", str(tmp_path / "alb.#.exr")]) == 2
+    _one_error_line(capsys, "alb.11.exr", "--alb (frame 11)")
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+    assert main(["denoise", *common, "-o", str(tmp_path / "o.#.exr"), "--alb", str(tmp_path / "none.#.exr")]) == 2
+    _one_error_line(capsys, "--alb (frame 1)", "no such file")
+
+
 # ---------------------------------------------------------------- info, diff, merge
 
 def test_info_json(tmp_path, rng, capsys):
