@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-r", "--ref", type=nonempty, required=True, metavar="REF.exr", help="reference image")
     p.add_argument("-o", "--output", type=nonempty, metavar="DIFF.exr", help="write the signed difference IMAGE - REF")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
-    p.add_argument("--metric", choices=tuple(METRICS), default="relmse", help="metric checked by --maxerror")
+    p.add_argument("--metric", choices=tuple(METRICS), help="metric checked by --maxerror (default relmse)")
     p.add_argument("--maxerror", type=real(), metavar="E",
                    help="fail when the metric exceeds E (for psnr and ssim: falls below E)")
     p.add_argument("--channels", metavar="LIST|LAYER",
@@ -69,17 +69,23 @@ def _counterpart(spec: str | None, other: str, option: str) -> str | None:
     return None
 
 
+def _names(spec: str, option: str) -> list[str]:
+    """The channel names of ``spec``, given as ``option``: none empty, none twice."""
+    names = [name.strip() for name in spec.split(",")]
+    if not all(names):
+        raise UsageError(f"{option}: {spec!r} has an empty channel name")
+    if len(set(names)) < len(names):
+        raise UsageError(f"{option}: {spec!r} names a channel twice")
+    return names
+
+
 def _image(path: str, spec: str | None, option: str, view: str | None) -> np.ndarray:
     """The image at ``path`` with its channel choice ``spec`` (given as ``option``): a
     comma-separated list of names, or one name: a layer's R,G,B if the file has them, else that
     one channel."""
     if spec is None:
         return read_image(path, view=view)
-    names = [name.strip() for name in spec.split(",")]
-    if not all(names):
-        raise UsageError(f"{option}: {spec!r} has an empty channel name")
-    if len(set(names)) < len(names):
-        raise UsageError(f"{option}: {spec!r} names a channel twice")
+    names = _names(spec, option)
     if len(names) > 1:
         return read_image(path, channels=names, view=view)
     present = _channel_names(path)
@@ -93,6 +99,13 @@ def _image(path: str, spec: str | None, option: str, view: str | None) -> np.nda
 
 def run(args: argparse.Namespace) -> int:
     """Run ``awr diff``; returns the exit status (errors are raised and reported by ``main``)."""
+    if args.metric is not None and args.maxerror is None:  # it chooses what --maxerror checks: alone, nothing
+        raise UsageError(f"--metric: {args.metric} is the metric --maxerror checks; give --maxerror E too "
+                         "(every metric is printed)")
+    args.metric = args.metric or "relmse"
+    for spec, option in ((args.channels, "--channels"), (args.ref_channels, "--ref-channels")):
+        if spec is not None:  # each list checked as given, before one is lent to the other file
+            _names(spec, option)
     if args.maxerror is not None and args.maxerror < 0 and args.metric not in HIGHER_IS_BETTER:
         # relMSE and MSE are never negative: such a bound fails every image, a typo for a check.
         raise UsageError(f"--maxerror: {args.maxerror:g} is below 0, which {args.metric} never is")
@@ -120,7 +133,8 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError(f"{args.ref}: size {ref.shape[1]}x{ref.shape[0]} does not match "
                              f"{image.shape[1]}x{image.shape[0]} of {args.input}")
         if image.shape[2] != ref.shape[2]:
-            raise UsageError(f"{args.ref}: {ref.shape[2]} channel(s), {args.input} has {image.shape[2]}")
+            raise UsageError(f"{args.ref}: {ref.shape[2]} channel(s) read from the reference, {image.shape[2]} from "
+                             f"IMAGE {args.input}; choose matching ones with --channels and --ref-channels")
         check_same_windows(args.ref, reads[-1][1], args.input, windows)
     except ValueError:  # maybe a file replaced between the reads: that is the error then
         plan.check_unchanged()

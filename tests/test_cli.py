@@ -432,6 +432,20 @@ def test_diff_checks_the_image_mean(tmp_path, capsys):
     _one_error_line(capsys, "--maxerror", "below 0, which mean_error never is")
 
 
+def test_diff_options_that_would_do_nothing_or_be_blamed_on_the_other_file(tmp_path, capsys):
+    """A red-team pass: ``--metric`` without ``--maxerror`` was accepted and did nothing; a list given as
+    ``--ref-channels`` was refused as ``--channels``, which was not given; a channel count that differed named
+    neither side."""
+    write_image(tmp_path / "rgb.exr", np.full((H, W, 3), 0.5))
+    base = ["diff", str(tmp_path / "rgb.exr"), "-r", str(tmp_path / "rgb.exr")]
+    assert main([*base, "--metric", "ssim"]) == 2
+    _one_error_line(capsys, "--metric: ssim is the metric --maxerror checks; give --maxerror")
+    assert main([*base, "--ref-channels", "R,G,B,R"]) == 2
+    _one_error_line(capsys, "--ref-channels: 'R,G,B,R' names a channel twice")
+    assert main([*base, "--channels", "R"]) == 2
+    _one_error_line(capsys, "3 channel(s) read from the reference, 1 from IMAGE", "--channels and --ref-channels")
+
+
 def test_diff_pairs_channels_by_name_when_one_side_names_them(tmp_path, capsys):
     """``--channels B,G,R`` (the order ``awr info`` prints) paired the image's B with the reference's R by
     position: an image against itself came out with a relMSE of 0.14, exit 0 (a red-team pass)."""
