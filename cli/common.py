@@ -28,6 +28,7 @@ from .errors import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, RuntimeFailure, UsageErro
 from .values import MAX_FRAMES, MAX_SPP, nonempty, whole
 
 __all__ = [
+    "dump_options_given",
     "available_memory",
     "check_memory",
     "EXIT_OK",
@@ -90,6 +91,18 @@ def plane_kwargs(args: argparse.Namespace) -> dict[str, Any]:
             "variance_kind": args.variance_kind, "spp": args.spp, "layer": args.layer,
             "view": args.view, "nonfinite": args.nonfinite, "albedo": args.alb, "normal": args.nrm,
             "depth": args.depth}
+
+
+def dump_options_given(args: argparse.Namespace) -> list[tuple[str, Any]]:
+    """``(option, value)`` of every option describing a sample dump that was given (not at its default): the
+    plane files and planes, then the layout's options. A command whose file is no dump refuses them."""
+    given = [(option, spec) for option, spec in (("--color", args.color), ("--variance", args.variance),
+                                                 ("--count", args.count), ("--alb", args.alb), ("--nrm", args.nrm),
+                                                 ("--depth", args.depth))]
+    given += [("--preset", None if args.preset == "auto" else args.preset), ("--variance-kind", args.variance_kind),
+              ("--spp", args.spp), ("--layer", args.layer), ("--view", args.view),
+              ("--nonfinite", None if args.nonfinite == NONFINITE_POLICIES[0] else args.nonfinite)]
+    return [(option, value) for option, value in given if value is not None]
 
 
 _RANGE = re.compile(r"^(-?[0-9]{1,18})(?:-(-?[0-9]{1,18})(?:[x:]([0-9]{1,18}))?)?$")  # ASCII digits only

@@ -8,7 +8,7 @@ from typing import Any
 from awr_denoise.io.describe import describe_file
 
 from . import interrupts
-from .common import EXIT_OK, add_plane_options, plane_kwargs, print_json
+from .common import EXIT_OK, UsageError, add_plane_options, dump_options_given, plane_kwargs, print_json
 from .errors import shown
 from .paths import PathPlan, check_plane_windows, plane_options
 
@@ -103,6 +103,10 @@ def run(args: argparse.Namespace) -> int:
     plan.check()
     check_plane_windows(args.input, plane_options(args))
     info = describe(args.input, args)
+    if info["kind"] in ("request", "image"):  # described without them: refused, not ignored
+        for option, _ in dump_options_given(args)[:1]:
+            what = "a request map" if info["kind"] == "request" else "an image"
+            raise UsageError(f"{option}: describes a sample dump; {args.input} is {what}")
     # A signal whose exception a C extension's import swallowed: no report after it.
     interrupts.check()
     if args.json:

@@ -26,6 +26,8 @@ LOCAL_PROCESSES_PER_CPU = 4
 
 MIN_TILE = 8
 """The smallest ``--tile`` side the command line takes."""
+DEFAULT_TILE = 128
+"""``--tile``'s side when the work is split over workers and no ``--tile`` is given."""
 
 
 def add_executor_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, *,
@@ -55,8 +57,9 @@ def add_executor_arguments(parser: argparse.ArgumentParser | argparse._ArgumentG
     if tile_option:
         # A tile is a task per round: below 8 pixels a side the tasks cost more than the pixels they share
         # (a 128x128 render took 34 s with tiles of 1); the library's TiledRenderer keeps any size.
-        group.add_argument("--tile", type=whole(minimum=MIN_TILE, maximum=MAX_SIDE), default=128, metavar="PIXELS",
-                           help=f"tile side when the work is split over workers (default 128, at least {MIN_TILE})")
+        group.add_argument("--tile", type=whole(minimum=MIN_TILE, maximum=MAX_SIDE), metavar="PIXELS",
+                           help=f"tile side when the work is split over workers (default {DEFAULT_TILE}, at least "
+                                f"{MIN_TILE}; refused without them)")
 
 
 def executor_requested(args: argparse.Namespace) -> bool:

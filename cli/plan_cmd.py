@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 
 from awr_denoise.allocation import MAX_BUDGET
-from awr_denoise.buffers import NONFINITE_POLICIES
 from awr_denoise.io import provenance, read_sample_dump, write_request
 from awr_denoise.io.dump import header_count
 from awr_denoise.io.exr import read_header, read_windows
@@ -15,7 +14,8 @@ from awr_denoise.sampling import (DEFAULT_AWR_INITIAL_SPP, DEFAULT_INITIAL_SPP, 
                                   AdaptiveSampler)
 from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 
-from .common import EXIT_OK, UsageError, add_plane_options, check_memory, plane_kwargs, run_settings, status
+from .common import (EXIT_OK, UsageError, add_plane_options, check_memory, dump_options_given, plane_kwargs,
+                     run_settings, status)
 from .paths import PathPlan, check_plane_windows, plane_options
 from .values import MAX_LEVELS, MAX_SEED, MAX_SPP, image_size, nonempty, real, wavelet_name, whole
 
@@ -84,6 +84,9 @@ def run(args: argparse.Namespace) -> int:
     cls = SAMPLERS[args.strategy]
     options: dict = {"spp_max": args.spp_max}
     same_run = dumped is None or dumped == args.strategy
+    if args.initial_spp is not None and args.spp_max is not None and args.initial_spp > args.spp_max:
+        raise UsageError(f"--initial-spp: {args.initial_spp} exceeds --spp-max {args.spp_max}, the most any pixel "
+                         "may have")
     if args.initial_spp is None and dumped_initial is not None and same_run:  # another strategy: its own default
         args.initial_spp = dumped_initial
     if args.initial_spp is not None:  # else the strategy's own default
@@ -159,18 +162,16 @@ def run(args: argparse.Namespace) -> int:
 def _refuse_what_a_first_round_ignores(args: argparse.Namespace) -> None:
     """The first round reads no dump and is uniform: the layout of a dump and what shapes later rounds would do
     nothing in it, so they are refused, not ignored."""
-    given = [(option, spec) for spec, option in plane_options(args)]
-    given += [("--preset", None if args.preset == "auto" else args.preset), ("--variance-kind", args.variance_kind),
-              ("--spp", args.spp), ("--layer", args.layer), ("--view", args.view),
-              ("--nonfinite", None if args.nonfinite == NONFINITE_POLICIES[0] else args.nonfinite)]
-    for option, value in given:
-        if value is not None:
-            raise UsageError(f"{option}: describes a running DUMP.exr; the first round (--size) reads none")
+    for option, _ in dump_options_given(args)[:1]:
+        raise UsageError(f"{option}: describes a running DUMP.exr; the first round (--size) reads none")
     for option, value in (("--round-growth", args.round_growth), ("--wavelet", args.wavelet),
                           ("--levels", args.levels), ("--noise-model", args.noise_model)):
         if value is not None:
             raise UsageError(f"{option}: acts from round 1, planned from its dump; the first round (--size) is "
                              "uniform")
+    size = "--budget" if args.budget is not None else "--round-spp" if args.round_spp is not None else None
+    if size is not None and args.initial_spp is not None:  # two sizes of one round: one would be dropped
+        raise UsageError(f"--initial-spp: the first round's samples per pixel, which {size} sets too; give one")
 
 
 def _option_behind(message: str, args: argparse.Namespace) -> str | None:

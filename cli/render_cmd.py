@@ -36,7 +36,7 @@ from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP, DEFAULT_ROUND_GROWTH, 
 
 from .common import EXIT_OK, RuntimeFailure, UsageError, status
 from .denoise_cmd import add_reconstruction_options, check_reconstruction_options, reconstruction_kwargs
-from .parallel_options import add_executor_arguments, executor_from_args, executor_requested
+from .parallel_options import DEFAULT_TILE, add_executor_arguments, executor_from_args, executor_requested
 from .paths import PathPlan
 from .values import MAX_EXPOSURE, MAX_SEED, MAX_SIDE, MAX_SPP, check_pixels, feature_list, nonempty, real, whole
 
@@ -260,6 +260,11 @@ def run(args: argparse.Namespace) -> int:
         if value is not None and not args.adaptive:  # a setting that would do nothing is refused
             raise UsageError(f"{option}: a uniform render has no adaptive rounds")
     spp = args.spp if args.spp is not None or args.seconds is not None else DEFAULT_RENDER_SPP
+    if args.initial_spp is not None and spp is not None and args.initial_spp > spp:  # else cut to it, unsaid
+        raise UsageError(f"--initial-spp: {args.initial_spp} exceeds --spp {spp:g}, the whole render's samples "
+                         "per pixel")
+    if args.tile is not None and not executor_requested(args):  # the tiles are the workers' tasks
+        raise UsageError("--tile: tiles split the work over workers; give --workers N (or --executor, --scheduler)")
     if args.gain_refresh is not None and args.noise_model != "reconstruction":
         raise UsageError("--gain-refresh: only --noise-model reconstruction measures a gain")
     if args.guide == "features" and not args.features:
@@ -310,7 +315,7 @@ def run(args: argparse.Namespace) -> int:
             if isinstance(probe, SampleTracer):
                 probe.close()
         with executor_from_args(args) as executor:
-            tiled = TiledRenderer(spec, tile=args.tile, executor=executor)
+            tiled = TiledRenderer(spec, tile=args.tile or DEFAULT_TILE, executor=executor)
             buffer, issued, next_round = render_buffer(tiled, frame, reserve=_reserve(args, start), **render)
     else:
         # A uniform render is one request: the renderer's own bar shows it. Adaptive rounds get

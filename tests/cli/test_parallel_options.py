@@ -31,7 +31,7 @@ def test_executor_arguments_round_trip():
     assert executor_requested(parser.parse_args(["--executor", "threads"]))
     with_tile = argparse.ArgumentParser()
     add_executor_arguments(with_tile, tile_option=True)
-    assert with_tile.parse_args([]).tile == 128 and with_tile.parse_args(["--tile", "64"]).tile == 64
+    assert with_tile.parse_args([]).tile is None and with_tile.parse_args(["--tile", "64"]).tile == 64
 
 
 

@@ -50,6 +50,9 @@ BAD = [
     (PLAN, "--levels", ["0", "100", "5"]),
     (PLAN, "--initial-spp", ["0", "-1", "inf", "16777217"]),
     (PLAN, "--spp-max", ["0", "inf"]),
+    (PLAN + ["--spp-max", "2"], "--initial-spp", ["3"]),  # more than any pixel may have: was cut to 2, unsaid
+    (FIRST_PLAN + ["--size", "8x8", "--round-spp", "3"], "--initial-spp", ["2"]),  # two sizes of round 0
+    (FIRST_PLAN + ["--size", "8x8", "--budget", "64"], "--initial-spp", ["2"]),
     (PLAN, "--wavelet", ["nope", "dmey"]),
     (PLAN, "--noise-model", ["nope", "", "Levels"]),
     (FIRST_PLAN, "--size", ["65536x65536", "0x10", "10x0", "10", "-5x5", "1e3x10", "\u0663x3"]),
@@ -71,8 +74,13 @@ BAD = [
     (RENDER + ["--uniform"], "--seconds", ["1"]),  # a uniform render is one request: nothing to time
     (RENDER, "--noise-model", ["gain"]),
     (RENDER, "--initial-spp", ["0", "inf"]),
-    (RENDER, "--tile", ["0", "-1", "1", "7"]),
+    (RENDER, "--tile", ["0", "-1", "1", "7", "64"]),  # 64: no workers to split the work over
+    (RENDER, "--initial-spp", ["3"]),  # above the render's --spp 2: was cut to it, unsaid
     (["diff", "ref.exr", "-r", "d.exr"], "--maxerror", ["nan", "inf", "x", "-1", "0_1"]),
+    (["diff", "ref.exr", "-r", "d.exr"], "--metric", ["mse"]),  # without --maxerror it chooses nothing
+    (["info", "req.exr"], "--spp", ["3"]),  # a request map or an image has no layout to describe
+    (["info", "req.exr"], "--alb", ["ref.exr"]),
+    (["info", "ref.exr"], "--variance-kind", ["sample"]),
     (["demo", "--out", "demo"], "--spp", ["0", "nan", "inf", "2.5"]),
     (["demo", "--out", "demo"], "--c-s", ["-1", "nan"]),
     (["demo", "--out", "demo"], "--exposure", ["nan"]),
