@@ -53,6 +53,16 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # type: ignore[override]
         raise UsageError(f"{message} (see '{self.prog} --help')")
 
+    def parse_args(self, args: Any = None, namespace: Any = None) -> argparse.Namespace:  # type: ignore[override]
+        # Left-over words are found by the top parser, after the command's: its help is the one to see
+        # ('awr merge a.exr -o m.exr b.exr' pointed at 'awr --help').
+        namespace, extras = self.parse_known_args(args, namespace)
+        if extras:
+            command = getattr(namespace, "command", None)
+            raise UsageError(f"unrecognized arguments: {' '.join(extras)} "
+                             f"(see '{self.prog}{'' if command is None else ' ' + command} --help')")
+        return namespace
+
     def _print_message(self, message: str, file: Any = None) -> None:
         # argparse passes over a failed write (--help > /dev/full exited 0 with nothing written):
         # written and flushed here, a failure is main's to report.

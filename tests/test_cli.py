@@ -165,6 +165,25 @@ def test_info_does_not_call_a_dump_without_samples_ready(tmp_path, capsys):
     assert "ready to denoise" not in out and "no pixel has any sample" in out
 
 
+def test_info_gives_the_readers_reason_for_a_count_plane_on_an_awr_dump(tmp_path, rng, capsys):
+    """``--count`` on an awr dump: info described it through another layout ("variance none", asking for
+    --variance), where denoise refuses it for what it is (a red-team pass)."""
+    path = tmp_path / "d.exr"
+    _dump(path, rng)
+    assert main(["info", str(path), "--count", "sampleCount", "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["preset"] == "awr" and len(info["missing"]) == 1, info["missing"]
+    assert "count= / --count would be ignored: an awr dump counts its samples in sampleCount" in info["missing"][0]
+
+
+def test_a_word_left_over_points_at_its_commands_help(capsys):
+    """``awr merge a.exr -o m.exr b.exr`` (a batch after an option) pointed at ``awr --help``."""
+    assert main(["merge", "a.exr", "-o", "m.exr", "b.exr"]) == 2
+    _one_error_line(capsys, "unrecognized arguments: b.exr (see 'awr merge --help')")
+    assert main(["info", "a.exr", "--bogus"]) == 2
+    _one_error_line(capsys, "unrecognized arguments: --bogus (see 'awr info --help')")
+
+
 def test_missing_input_and_usage_errors(tmp_path, capsys):
     assert main(["denoise", str(tmp_path / "nope.exr"), "-o", str(tmp_path / "o.exr")]) == 2
     _one_error_line(capsys, "nope.exr", "no such file")

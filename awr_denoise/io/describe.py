@@ -102,7 +102,9 @@ def describe_file(path: str | os.PathLike[str], *, preset: str = "auto", color: 
             if detect_preset(flat, header) == "generic":
                 info.update(kind="image")
                 return info
-        if (preset == "awr" or (preset == "auto" and color is None and variance is None and count is None
+        # A count given for an awr dump goes to its reader, which says why it is refused (an awr dump counts its
+        # samples in sampleCount), not to a layout that finds no variance in it.
+        if (preset == "awr" or (preset == "auto" and color is None and variance is None
                                 and detect_preset(channels, header) == "awr")):
             return _read_fully(info, p, options, chosen_view, nonfinite, preset="awr", missing=missing)
         name, layout, notes, warned, planes = describe_layout(p, parts, **options, view=chosen_view)

@@ -793,7 +793,8 @@ def _features(ctx: _Context, preset: str, layout: _Layout, count: np.ndarray, pl
         features[name] = feature_from_planes(plane.path, name, plane.label, mean, count, second)
         ctx.feature_planes[name] = plane.label if plane.path == ctx.path else f"{plane.path}:{plane.label}"
         ctx.notes.append(f"{name}: {plane.label}" + (f" (variance from {moment.label})" if moment else
-                                                     " (no variance in the file)"))
+                                                     " (no variance in the file)" if spec is None else
+                                                     " (given as a plane: its values, no variance)"))
     return features
 
 
@@ -891,6 +892,7 @@ def read_sample_dump(
             return dump
         layout, ctx = _layout(p, f, "generic", color="RGB", variance=None, count=None, variance_kind=None,
                               spp=None, layer=None, view=view, need_variance=False, need_count=False)
+        del ctx.notes[:]  # what the stand-in layout found (no count plane) says nothing of the dump or its features
         given = _features(ctx, "awr", layout, dump.buffer.count, planes, None)
         kept = dict(dump.buffer.features) if features is not None else {}
         missing = [n for n in (() if features in (None, "auto") else feature_names(features)) if n not in kept]

@@ -127,6 +127,11 @@ def test_planes_given_override_and_whole_files_are_read(tmp_path):
     write_sample_buffer(tmp_path / "d.exr", pbrt)
     dump = _read(tmp_path / "d.exr", albedo=str(tmp_path / "alb.exr")).buffer
     assert (dump.features["albedo"].mean == 0.25).all() and "normal" in dump.features
+    # What it says of them is theirs: no note of the stand-in layout that found them ("no sample count in the
+    # file", said of a dump that counts every pixel), no "no variance in the file" of a file that has one.
+    write_image(tmp_path / "layers.exr", np.full(pbrt.shape + (3,), 0.5), channels=("a.R", "a.G", "a.B"))
+    notes = read_sample_dump(tmp_path / "d.exr", albedo=f"{tmp_path / 'layers.exr'}:a").notes
+    assert notes == ("albedo: a (given as a plane: its values, no variance)",), notes
 
 
 @pytest.mark.parametrize("kw, message", [
