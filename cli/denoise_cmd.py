@@ -126,7 +126,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--preview", type=nonempty, metavar="OUT.png", help="also write an sRGB PNG preview (may hold ####)")
     p.add_argument("--exposure", type=real(minimum=-MAX_EXPOSURE, maximum=MAX_EXPOSURE),
                    help="preview exposure in stops (default 0; with --preview)")
-    p.add_argument("-r", "--ref", type=nonempty, metavar="REF.exr", help="reference image to compare the result with")
+    p.add_argument("-r", "--ref", type=nonempty, metavar="REF.exr", help="reference image to compare the result with (may hold ####: each frame's own)")
     p.add_argument("--maxerror", type=real(minimum=0), metavar="E",
                    help="with --ref: fail (exit 1) when the relative MSE exceeds E")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
@@ -194,13 +194,15 @@ def _frame_label(option: str, jobs: list, frame: int | None) -> str:
     return option if len(jobs) == 1 or frame is None else f"{option} (frame {frame})"
 
 
-def _check_reference(ref: str, sources: list[str], windows: list[dict]) -> None:
-    """Read the reference once (finite, readable) and match its size and windows to every input's
-    ``windows``, those its other checks were made in."""
-    with recorded_windows() as reads:  # the windows of the read that gave its pixels (not of another)
-        image = read_image(ref)
-    ref_windows = reads[0][1]
-    for source, theirs in zip(sources, windows):
+def _check_references(refs: list[str], sources: list[str], windows: list[dict]) -> None:
+    """Read each frame's reference once (finite, readable; one file serving every frame is read once) and match
+    its size and windows to its input's ``windows``, those its other checks were made in."""
+    read: dict[str, tuple] = {}
+    for ref, source, theirs in zip(refs, sources, windows):
+        if ref not in read:
+            with recorded_windows() as reads:  # the windows of the read that gave its pixels (not of another)
+                read[ref] = (read_image(ref), reads[0][1])
+        image, ref_windows = read[ref]
         h, w = _shape(theirs)
         if image.shape[:2] != (h, w):
             raise InputFileError(f"{ref}: size {image.shape[1]}x{image.shape[0]} does not match {w}x{h} of {source}")
@@ -234,8 +236,11 @@ def run(args: argparse.Namespace) -> int:
     numbers = parse_frames(args.frames) if args.frames is not None else [None]
     given = plane_options(args)
     planes = frame_planes(given, numbers)  # each frame's plane files (alb.####.exr)
+    refs = [specs[0][0] for specs in frame_planes([(args.ref, "-r/--ref")], numbers)]  # each frame's (ref.####.exr)
     plan = PathPlan(overwrite=args.overwrite)
-    plan.read(args.ref, "-r/--ref")
+    for index, (ref, frame) in enumerate(zip(refs, numbers)):
+        if ref != args.ref or index == 0:  # a frame's own reference, or the one for every frame, read once
+            plan.read(ref, _frame_label("-r/--ref", jobs, frame) if ref != args.ref else "-r/--ref")
     for index, (specs, frame) in enumerate(zip(planes, numbers)):
         for (spec, option), (as_given, _) in zip(specs, given):
             if spec != as_given:  # the frame's own file, from a #### placeholder
@@ -258,7 +263,7 @@ def run(args: argparse.Namespace) -> int:
             check_reconstruction_options(args, _shape(windows[-1]), src)
             check_plane_windows(src, specs)  # every frame: each may have its own data window
         if args.ref:
-            _check_reference(args.ref, sources, windows)
+            _check_references(refs, sources, windows)
     except ValueError:  # UsageError, InputFileError: a check failed, maybe on an input replaced meanwhile
         plan.check_unchanged()
         raise
@@ -290,7 +295,7 @@ def run(args: argparse.Namespace) -> int:
                 # its own staged file, as a first run writes it.
                 denoise_frames(sources, [i for i, _ in staged],
                                previews=[p for _, p in staged] if args.preview else None, exposure=args.exposure or 0.0,
-                               reference=args.ref, executor=pool, half=args.half, overwrite=True,
+                               reference=refs if args.ref else None, executor=pool, half=args.half, overwrite=True,
                                read_options=frame_plane_kwargs(args, planes), on_frame=done, windows=windows,
                                **reconstruction_kwargs(args))
             except FramesFailedError as exc:
@@ -306,9 +311,10 @@ def run(args: argparse.Namespace) -> int:
         shown = final[frame.output]
         status(_note(frame, shown, args.nonfinite, args.guide is not None), quiet=args.quiet)
     if args.maxerror is not None:
-        over = [f for f in frames if f.relmse is not None and f.relmse > args.maxerror]
+        over = [f for f in sorted(frames, key=lambda f: order.get(f.source, 0))  # the first frame, not the first done
+                if f.relmse is not None and f.relmse > args.maxerror]
         if over:
             f = over[0]
-            raise RuntimeFailure(f"{final[f.output]}: relMSE {f.relmse:.4g} against {args.ref} exceeds "
+            raise RuntimeFailure(f"{final[f.output]}: relMSE {f.relmse:.4g} against {refs[order[f.source]]} exceeds "
                                  f"--maxerror {args.maxerror:g}")
     return EXIT_OK

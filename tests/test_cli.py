@@ -354,6 +354,28 @@ def test_frames_read_each_frames_own_plane_files(tmp_path, rng, capsys):
     _one_error_line(capsys, "--alb", "#### frame placeholder but no --frames")
 
 
+def test_frames_compared_with_each_frames_own_reference(tmp_path, rng, capsys):
+    """``-r ref.####.exr`` with --frames: each frame against its own (the placeholder was taken as a file name,
+    "no such file"); --maxerror names the frame's reference; without --frames a placeholder is refused."""
+    for f in (1, 2):
+        _dump(tmp_path / f"shot.{f}.exr", rng)
+        write_image(tmp_path / f"ref.{f}.exr", rng.random((H, W, 3)))
+    common = [str(tmp_path / "shot.#.exr"), "--frames", "1-2", "-r", str(tmp_path / "ref.#.exr")]
+    assert main(["denoise", *common, "-o", str(tmp_path / "den.#.exr")]) == 0
+    printed = [line.split("relMSE ")[1] for line in capsys.readouterr().err.splitlines() if "relMSE" in line]
+    for f in (1, 2):
+        assert main(["denoise", str(tmp_path / f"shot.{f}.exr"), "-o", str(tmp_path / f"one.{f}.exr"),
+                     "-r", str(tmp_path / f"ref.{f}.exr")]) == 0
+        assert printed[f - 1] in capsys.readouterr().err
+    assert main(["denoise", *common, "-o", str(tmp_path / "bad.#.exr"), "--maxerror", "1e-9", "-q"]) == 1
+    _one_error_line(capsys, "bad.1.exr: relMSE", f"against {tmp_path / 'ref.1.exr'} exceeds")
+    assert main(["denoise", str(tmp_path / "shot.1.exr"), "-o", str(tmp_path / "x.exr"),
+                 "-r", str(tmp_path / "ref.#.exr"), "-q"]) == 2
+    _one_error_line(capsys, "-r/--ref", "#### frame placeholder but no --frames")
+    assert main(["denoise", *common, "-o", str(tmp_path / "ref.#.exr"), "--overwrite", "-q"]) == 2
+    _one_error_line(capsys, "is the input", "-r/--ref (frame 1)")
+
+
 def test_a_frames_own_plane_file_is_an_input_no_output_may_replace(tmp_path, rng, capsys):
     """``-o alb.####.exr --alb alb.####.exr --overwrite`` replaced every frame's albedo with its denoised image
     (exit 0), and frame 1's output could be frame 11's albedo: a frame's plane file was not an input of the

@@ -234,6 +234,21 @@ def _read_options_per_frame(read_options: Mapping[str, Any] | Sequence[Mapping[s
     return [dict(frame) for frame in read_options]
 
 
+def _references_per_frame(reference: str | os.PathLike[str] | Sequence[str | os.PathLike[str]] | None,
+                          frames: int) -> list[str | None]:
+    """``reference`` as one path (or None) per frame: the same for every frame, or the caller's list of them."""
+    if reference is None or isinstance(reference, (str, os.PathLike)):
+        return [None if reference is None else os.fspath(reference)] * frames
+    if isinstance(reference, bytes) or not isinstance(reference, Sequence):
+        raise TypeError(f"reference: expected a path, or one path per input, got {type(reference).__name__}")
+    if len(reference) != frames:
+        raise ValueError(f"reference: {len(reference)} given for {frames} input(s)")
+    for path in reference:
+        if not isinstance(path, (str, os.PathLike)):
+            raise TypeError(f"reference: expected one path per input, got a {type(path).__name__} among them")
+    return [os.fspath(path) for path in reference]
+
+
 def _names_file(spec: str) -> bool:
     try:
         parse_plane(spec, None)
@@ -260,8 +275,8 @@ def _check_outputs(sources: list[str], targets: list[str], previews: list[str] |
 
 def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[str | os.PathLike[str]], *,
                    previews: Sequence[str | os.PathLike[str]] | None = None, exposure: float = 0.0,
-                   reference: str | os.PathLike[str] | None = None, executor: Executor | None = None,
-                   overwrite: bool = False, half: bool = False,
+                   reference: str | os.PathLike[str] | Sequence[str | os.PathLike[str]] | None = None,
+                   executor: Executor | None = None, overwrite: bool = False, half: bool = False,
                    read_options: Mapping[str, Any] | Sequence[Mapping[str, Any]] | None = None,
                    on_frame: Callable[[FrameResult], None] | None = None,
                    windows: Sequence[Mapping[str, Window] | None] | None = None,
@@ -281,7 +296,8 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
     previews
         Optional PNG preview for each input (same length), at ``exposure`` stops.
     reference
-        Optional reference image every frame is compared with (:attr:`FrameResult.relmse`).
+        Optional reference image every frame is compared with (:attr:`FrameResult.relmse`), or one per input
+        (same length: each frame's own).
     executor
         Runs the frames; default this thread for one frame, else a thread pool of up to one
         thread per CPU for this call.
@@ -331,14 +347,14 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
     if len(checked) != len(sources):
         raise ValueError(f"windows: {len(checked)} given for {len(sources)} input(s)")
     per_frame = _read_options_per_frame(read_options, len(sources))
-    read = sources + ([os.fspath(reference)] if reference is not None else [])
+    references = _references_per_frame(reference, len(sources))
+    read = sources + sorted({r for r in references if r is not None})
     read += [str(parse_plane(spec, None)[0]) for frame in per_frame for spec in frame.values()
              if isinstance(spec, str) and ":" in spec and _names_file(spec)]
     _check_outputs(read, targets, shown, overwrite)
     if not sources:
         return []
-    options = {"exposure": exposure, "reference": reference, "overwrite": overwrite, "half": half,
-               **reconstruct_options}
+    options = {"exposure": exposure, "overwrite": overwrite, "half": half, **reconstruct_options}
     as_given = list(zip(sources, targets, shown if shown is not None else [None] * len(sources)))
     staged = [{path: public_name(path) for path in (target, preview) if path is not None and public_name(path) != path}
               for _, target, preview in as_given]  # a caller's OutputSet temporaries (awr denoise's)
@@ -352,7 +368,7 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
         staged = [{os.path.abspath(p): name for p, name in names.items()} for names in staged]
         sources, targets = [os.path.abspath(p) for p in sources], [os.path.abspath(p) for p in targets]
         shown = None if shown is None else [os.path.abspath(p) for p in shown]
-        options["reference"] = None if reference is None else os.path.abspath(reference)
+        references = [None if r is None else os.path.abspath(r) for r in references]
         per_frame = [{k: _absolute_plane(v) if k in _PLANE_OPTIONS else v for k, v in frame.items()}
                       for frame in per_frame]
     if executor is None and len(sources) == 1:
@@ -360,7 +376,7 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
         # cannot be stopped, the caller would wait for the whole reconstruction first.
         try:
             result = _frame_task(sources[0], targets[0], None if shown is None else shown[0], checked[0],
-                                 {**options, "read_options": per_frame[0]}, staged[0])
+                                 {**options, "read_options": per_frame[0], "reference": references[0]}, staged[0])
         except Exception as exc:
             raise FramesFailedError({sources[0]: exc}, 1) from exc
         if on_frame is not None:
@@ -369,7 +385,7 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
     failures: dict[str, BaseException] = {}
     with executor_or_threads(executor, len(sources)) as pool:
         pending = {submit(pool, _frame_task, s, t, None if shown is None else shown[i], checked[i],
-                          {**options, "read_options": per_frame[i]}, staged[i]): i
+                          {**options, "read_options": per_frame[i], "reference": references[i]}, staged[i]): i
                    for i, (s, t) in enumerate(zip(sources, targets))}
         try:
             while pending:

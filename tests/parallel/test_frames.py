@@ -57,6 +57,32 @@ def test_each_frame_may_read_its_own_plane_files(tmp_path, dumps):
     assert not list(tmp_path.glob("x.*"))
 
 
+def test_each_frame_may_have_its_own_reference(tmp_path, dumps):
+    """``reference`` one path per input: frame i's error against its own, as a run per frame gives it."""
+    from awr_denoise.io import read_sample_buffer, write_image
+    from awr_denoise.parallel import denoise_frame
+
+    rng = np.random.default_rng(5)
+    shape = read_sample_buffer(dumps[0]).shape
+    refs = [tmp_path / f"ref.{i}.exr" for i in range(len(dumps))]
+    for path in refs:
+        write_image(path, rng.random((*shape, 3)))
+    seen = []
+    denoise_frames(dumps, [tmp_path / f"out.{i}.exr" for i in range(len(dumps))], reference=refs, on_frame=seen.append)
+    errors = {frame.source: frame.relmse for frame in seen}
+    for i, (dump, ref) in enumerate(zip(dumps, refs)):
+        assert errors[str(dump)] == denoise_frame(dump, tmp_path / f"alone.{i}.exr", reference=ref).relmse
+    assert errors[str(dumps[1])] != denoise_frame(dumps[1], tmp_path / "other.exr", reference=refs[0]).relmse
+    with pytest.raises(ValueError, match=f"reference: 2 given for {len(dumps)} input"):
+        denoise_frames(dumps, [tmp_path / f"x.{i}.exr" for i in range(len(dumps))], reference=refs[:2])
+    with pytest.raises(TypeError, match="reference: expected one path per input"):
+        denoise_frames(dumps, [tmp_path / f"x.{i}.exr" for i in range(len(dumps))], reference=[*refs[:-1], 3])
+    with pytest.raises(ValueError, match="input"):  # an output that is a frame's reference
+        denoise_frames(dumps, [*refs[:1], *[tmp_path / f"x.{i}.exr" for i in range(1, len(dumps))]], reference=refs,
+                       overwrite=True)
+    assert not list(tmp_path.glob("x.*"))
+
+
 def test_denoise_frames_refuses_existing_outputs_before_any_work(tmp_path, dumps):
     outputs = [tmp_path / f"out.{i}.exr" for i in range(len(dumps))]
     outputs[2].write_bytes(b"keep me")
