@@ -14,9 +14,13 @@ from typing import Any
 
 import numpy as np
 
+from .. import _checks
+from .limits import check_reach, reach, refuse_unknown, vector
 from .meshes import cross, normalize
 
 __all__ = ["ThinLensCamera", "concentric_disk", "parse_camera"]
+
+_CAMERA_FIELDS = {"from", "to", "up", "fov", "aperture_radius", "focus_distance", "shutter"}
 
 
 def concentric_disk(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -115,26 +119,33 @@ class ThinLensCamera:
 
 
 def parse_camera(spec: dict[str, Any], width: int, height: int) -> ThinLensCamera:
-    """Build the camera of a scene spec, validating every field."""
-    known = {"from", "to", "up", "fov", "aperture_radius", "focus_distance", "shutter"}
-    unknown = set(spec) - known
-    if unknown:
-        raise ValueError(f"camera: unknown field(s) {sorted(unknown)}; valid: {sorted(known)}")
-    look_from = np.asarray(spec.get("from", (0.0, 0.0, 0.0)), float)
-    look_at = np.asarray(spec.get("to", (0.0, 0.0, 1.0)), float)
+    """Build the camera of a scene spec, validating every field.
+
+    Its position, target, lens radius and focus distance are lengths the rays start from or reach:
+    each is bounded by :data:`~awr_denoise.tracer.limits.MAX_COORDINATE`, as the geometry is.
+    """
+    refuse_unknown("camera", spec, _CAMERA_FIELDS)
+    look_from = vector(spec, "from", "camera", (0.0, 0.0, 0.0))
+    look_at = vector(spec, "to", "camera", (0.0, 0.0, 1.0))
+    up = vector(spec, "up", "camera", (0.0, 1.0, 0.0))
+    check_reach("camera.from", reach(look_from))
+    check_reach("camera.to", reach(look_at))
     if np.allclose(look_from, look_at):
         raise ValueError("camera.to: must differ from camera.from")
-    fov = float(spec.get("fov", 40.0))
+    fov = _checks.real("camera.fov", spec.get("fov", 40.0))
     if not 0 < fov < 180:
         raise ValueError(f"camera.fov: {fov} is outside (0, 180) degrees")
-    aperture = float(spec.get("aperture_radius", 0.0))
-    if aperture < 0 or not np.isfinite(aperture):
-        raise ValueError(f"camera.aperture_radius: {aperture} must be finite and >= 0")
-    focus = float(spec.get("focus_distance", np.linalg.norm(look_at - look_from)))
-    if focus <= 0:
-        raise ValueError(f"camera.focus_distance: {focus} must be > 0")
-    shutter = tuple(float(s) for s in spec.get("shutter", (0.0, 0.0)))
-    if len(shutter) != 2 or shutter[1] < shutter[0]:
+    aperture = _checks.real("camera.aperture_radius", spec.get("aperture_radius", 0.0), minimum=0)
+    check_reach("camera.aperture_radius", aperture)
+    if "focus_distance" in spec:
+        focus = _checks.real("camera.focus_distance", spec["focus_distance"], above=0)
+        check_reach("camera.focus_distance", focus)
+    else:
+        focus = float(np.linalg.norm(look_at - look_from))
+    shutter = spec.get("shutter", (0.0, 0.0))
+    if not isinstance(shutter, (list, tuple, np.ndarray)) or len(shutter) != 2:
+        raise ValueError(f"camera.shutter: expected [open, close], got {shutter!r:.40}")
+    shutter = tuple(_checks.real("camera.shutter", s) for s in shutter)
+    if shutter[1] < shutter[0]:
         raise ValueError(f"camera.shutter: expected [open, close] with close >= open, got {shutter}")
-    return ThinLensCamera(look_from, look_at, np.asarray(spec.get("up", (0.0, 1.0, 0.0)), float), fov,
-                          width, height, aperture, focus, shutter[0], shutter[1])
+    return ThinLensCamera(look_from, look_at, up, fov, width, height, aperture, focus, shutter[0], shutter[1])

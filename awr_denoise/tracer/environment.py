@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from .. import _checks
+from .limits import check_radiance, refuse_unknown, rgb_radiance
 
 __all__ = [
     "ENVIRONMENT_KINDS",
@@ -48,6 +49,9 @@ SKY_DEFAULTS: dict[str, Any] = {
     "sky_intensity": 1.0,
 }
 """Parameters of the bundled procedural sky."""
+
+_ENVIRONMENT_FIELDS = {"constant": {"type", "radiance"}, "sky": {"type", "scale", *SKY_DEFAULTS},
+                       "latlong": {"type", "path", "scale"}}
 
 _LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
@@ -254,39 +258,49 @@ def read_envmap_exr(path: str | Path) -> np.ndarray:
 
 def parse_environment(spec: dict[str, Any] | None, base_dir: Path | None = None
                       ) -> ConstantEnvironment | LatLongEnvironment | None:
-    """Build the environment of a scene spec (``None`` when the scene has none)."""
+    """Build the environment of a scene spec (``None`` when the scene has none), validating every field.
+
+    Its radiance, after ``scale``, is bounded as every light's is (:data:`~awr_denoise.tracer.limits.MAX_RADIANCE`).
+    """
     if spec is None:
         return None
     kind = spec.get("type")
+    if kind not in ENVIRONMENT_KINDS:
+        raise ValueError(f"environment.type: {kind!r} is not one of {', '.join(ENVIRONMENT_KINDS)}")
+    refuse_unknown("environment", spec, _ENVIRONMENT_FIELDS[kind])
     if kind == "constant":
-        try:
-            radiance = np.broadcast_to(np.asarray(spec.get("radiance", 1.0), np.float64), (3,))
-        except (TypeError, ValueError):
-            raise ValueError("environment.radiance: expected a number or 3 numbers") from None
-        if not np.all(np.isfinite(radiance)) or np.any(radiance < 0):
-            raise ValueError("environment.radiance: must be finite and non-negative")
-        return ConstantEnvironment(radiance)
+        return ConstantEnvironment(rgb_radiance("environment.radiance", spec.get("radiance", 1.0)))
     if kind == "sky":
         params = {k: spec[k] for k in SKY_DEFAULTS if k in spec}
-        unknown = set(spec) - set(SKY_DEFAULTS) - {"type", "scale"}
-        if unknown:
-            raise ValueError(f"environment: unknown sky field(s) {sorted(unknown)}; valid: {sorted(SKY_DEFAULTS)}")
-        return LatLongEnvironment(make_sky_envmap(**params), _scale(spec))
-    if kind == "latlong":
-        if not isinstance(spec.get("path"), str) or not spec["path"]:
-            raise ValueError(f"environment.path: expected a file name, got {spec.get('path')!r:.40}")
-        path = Path(spec["path"])
-        if not path.is_absolute() and base_dir is not None:
-            path = base_dir / path
-        scale = _scale(spec)
-        try:
-            image = read_envmap_exr(path)
-        except ValueError as exc:
-            raise ValueError(f"environment.{exc}") from None
-        return LatLongEnvironment(image, scale)
-    raise ValueError(f"environment.type: {kind!r} is not one of {', '.join(ENVIRONMENT_KINDS)}")
+        return _scaled(make_sky_envmap(**params), spec, "the sky's")
+    if not isinstance(spec.get("path"), str) or not spec["path"]:
+        raise ValueError(f"environment.path: expected a file name, got {spec.get('path')!r:.40}")
+    path = Path(spec["path"])
+    if not path.is_absolute() and base_dir is not None:
+        path = base_dir / path
+    _scale(spec)  # checked before the map is read
+    try:
+        image = read_envmap_exr(path)
+    except ValueError as exc:
+        raise ValueError(f"environment.{exc}") from None
+    return _scaled(image, spec, "the map's")
 
 
 def _scale(spec: dict[str, Any]) -> float:
     """``environment.scale``, a finite number >= 0."""
     return _checks.real("environment.scale", spec.get("scale", 1.0), minimum=0)
+
+
+def _scaled(image: np.ndarray, spec: dict[str, Any], whose: str) -> LatLongEnvironment:
+    """The lat-long environment of ``image`` times ``environment.scale``, its peak within the radiance bound.
+
+    The field blamed is the scale when the scene gives one (a map of sane values scaled too far), else the
+    map itself (``path``: an EXR may hold up to 3.4e38; the sky's parameters keep it in half floats).
+    """
+    scale = _scale(spec)
+    with np.errstate(over="ignore", invalid="ignore"):  # an Inf or NaN in the map: refused by the constructor
+        peak = float(np.max(image, initial=0.0) * scale) if np.all(np.isfinite(image)) else 0.0
+    field = "scale" if "scale" in spec else "path" if "path" in spec else "type"
+    said = f"{whose} radiance times the scale {scale:g}" if "scale" in spec else f"{whose} radiance"
+    check_radiance(f"environment.{field}", peak, said)
+    return LatLongEnvironment(image, scale)

@@ -14,12 +14,15 @@ from typing import Any
 
 import numpy as np
 
+from .limits import check_reach, reach, refuse_unknown, rgb_radiance, vector
 from .meshes import cross, dot, normalize
 
 __all__ = ["AreaLights", "PointLight", "DirectionalLight", "DELTA_LIGHT_KINDS", "parse_delta_light"]
 
 DELTA_LIGHT_KINDS = ("point", "directional")
 """Valid values of a ``lights[i].type``."""
+
+_LIGHT_FIELDS = {"point": {"type", "position", "intensity"}, "directional": {"type", "direction", "irradiance"}}
 
 
 class AreaLights:
@@ -85,18 +88,24 @@ class DirectionalLight:
 
 
 def parse_delta_light(index: int, spec: dict[str, Any]) -> PointLight | DirectionalLight:
-    """Build a delta light from a scene-file entry."""
+    """Build a delta light from a scene-file entry, validating every field.
+
+    A point light's position is bounded as the geometry is (:data:`~awr_denoise.tracer.limits.MAX_COORDINATE`),
+    its intensity, or a directional light's irradiance, as radiances are
+    (:data:`~awr_denoise.tracer.limits.MAX_RADIANCE`).
+    """
     kind = spec.get("type")
     name = f"lights[{index}]"
+    if kind not in DELTA_LIGHT_KINDS:
+        raise ValueError(f"{name}.type: {kind!r} is not one of {', '.join(DELTA_LIGHT_KINDS)}")
+    refuse_unknown(name, spec, _LIGHT_FIELDS[kind])
     if kind == "point":
-        intensity = np.broadcast_to(np.asarray(spec.get("intensity", 1.0), float), (3,)).copy()
-        if np.any(intensity < 0) or not np.all(np.isfinite(intensity)):
-            raise ValueError(f"{name}.intensity: must be finite and >= 0")
-        return PointLight(np.asarray(spec["position"], float), intensity)
-    if kind == "directional":
-        irradiance = np.broadcast_to(np.asarray(spec.get("irradiance", 1.0), float), (3,)).copy()
-        if np.any(irradiance < 0) or not np.all(np.isfinite(irradiance)):
-            raise ValueError(f"{name}.irradiance: must be finite and >= 0")
-        direction = normalize(np.asarray(spec["direction"], float)[None])[0]
-        return DirectionalLight(direction, irradiance)
-    raise ValueError(f"{name}.type: {kind!r} is not one of {', '.join(DELTA_LIGHT_KINDS)}")
+        intensity = rgb_radiance(f"{name}.intensity", spec.get("intensity", 1.0))
+        position = vector(spec, "position", name)
+        check_reach(f"{name}.position", reach(position))
+        return PointLight(position, intensity)
+    irradiance = rgb_radiance(f"{name}.irradiance", spec.get("irradiance", 1.0))
+    direction = vector(spec, "direction", name)
+    if not np.any(direction):
+        raise ValueError(f"{name}.direction: must be non-zero")
+    return DirectionalLight(normalize(direction[None])[0], irradiance)

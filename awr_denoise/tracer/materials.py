@@ -20,6 +20,9 @@ from typing import Any
 
 import numpy as np
 
+from .. import _checks
+from .limits import refuse_unknown, vector
+
 __all__ = [
     "MATERIAL_KINDS",
     "Material",
@@ -40,6 +43,7 @@ MATERIAL_KINDS = ("diffuse", "glossy", "mirror")
 _INV_PI = 1.0 / np.pi
 # Roughness below this is clamped: GGX with alpha -> 0 is a delta and its pdf overflows.
 _MIN_ALPHA = 1e-3
+_CHECKER_FIELDS = {"type", "color_a", "color_b", "scale", "axes", "offset"}
 
 
 @dataclass(frozen=True)
@@ -163,10 +167,7 @@ def parse_material(name: str, spec: dict[str, Any]) -> Material:
     kind = spec.get("type", "diffuse")
     if kind not in MATERIAL_KINDS:
         raise ValueError(f"materials.{name}.type: {kind!r} is not one of {', '.join(MATERIAL_KINDS)}")
-    known = {"type", "albedo", "specular", "roughness", "texture"}
-    unknown = set(spec) - known
-    if unknown:
-        raise ValueError(f"materials.{name}: unknown field(s) {sorted(unknown)}; valid: {sorted(known)}")
+    refuse_unknown(f"materials.{name}", spec, {"type", "albedo", "specular", "roughness", "texture"})
     albedo = _rgb(f"materials.{name}.albedo", spec.get("albedo", 0.0 if kind == "mirror" else 0.8))
     specular = _rgb(f"materials.{name}.specular", spec.get("specular", 1.0 if kind == "mirror" else 0.0))
     if kind == "glossy" and np.any(albedo + specular > 1.0 + 1e-12):
@@ -176,16 +177,21 @@ def parse_material(name: str, spec: dict[str, Any]) -> Material:
         raise ValueError(f"materials.{name}.roughness: {roughness} is outside (0, 1]")
     texture = None
     if "texture" in spec:
+        where = f"materials.{name}.texture"
         t = spec["texture"]
+        if not isinstance(t, dict):
+            raise ValueError(f"{where}: expected an object {{...}}, got {t!r:.40}")
         if t.get("type", "checker") != "checker":
-            raise ValueError(f"materials.{name}.texture.type: {t.get('type')!r} is not one of checker")
+            raise ValueError(f"{where}.type: {t.get('type')!r} is not one of checker")
+        refuse_unknown(where, t, _CHECKER_FIELDS)
         axes = str(t.get("axes", "xyz"))
         if not axes or set(axes) - set("xyz"):
-            raise ValueError(f"materials.{name}.texture.axes: {axes!r} must be letters from 'xyz'")
-        texture = CheckerTexture(_rgb(f"materials.{name}.texture.color_a", t.get("color_a", 0.8)),
-                                 _rgb(f"materials.{name}.texture.color_b", t.get("color_b", 0.1)),
-                                 float(t.get("scale", 1.0)), axes,
-                                 np.asarray(t.get("offset", (0.0, 0.0, 0.0)), np.float64))
+            raise ValueError(f"{where}.axes: {axes!r} must be letters from 'xyz'")
+        # floor(p / scale) is cast to int64: a scale of 0 or NaN gave garbage parities, not a refusal.
+        scale = _checks.real(f"{where}.scale", t.get("scale", 1.0), above=0)
+        texture = CheckerTexture(_rgb(f"{where}.color_a", t.get("color_a", 0.8)),
+                                 _rgb(f"{where}.color_b", t.get("color_b", 0.1)), scale, axes,
+                                 vector(t, "offset", where, (0.0, 0.0, 0.0)))
     return Material(kind, albedo, specular, roughness, texture)
 
 

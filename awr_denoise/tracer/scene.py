@@ -18,6 +18,12 @@ Shapes: ``sphere`` (center, radius), ``box`` (min, max), ``quad`` (corner, edge_
 and ``mesh`` (vertices, faces). The scene states its integrand ``dimension`` (paper section 1;
 docs/concepts.md, "The pixel integral"); :func:`load_scene` checks it against the random
 dimensions the path tracer will actually draw for the scene (:meth:`Scene.dimension_names`).
+
+Every field is checked and a refusal is one ValueError naming it; a field the format does not
+know is refused, not ignored (a typo did nothing). Numbers finite in float64 are also bounded
+where float32 takes over (:mod:`~awr_denoise.tracer.limits`): the built geometry, over the
+shutter, and the camera and point lights within ±``MAX_COORDINATE`` (Embree traces in float32),
+radiances up to ``MAX_RADIANCE`` (the buffers store the variance, a sample squared, in float32).
 """
 
 from __future__ import annotations
@@ -35,6 +41,8 @@ from ..io.atomic import read_without_waiting
 from .camera import ThinLensCamera, parse_camera
 from .environment import ConstantEnvironment, LatLongEnvironment, parse_environment
 from .lights import AreaLights, DirectionalLight, PointLight, parse_delta_light
+from .limits import check_reach, reach, refuse_unknown, rgb_radiance
+from .limits import vector as _vec
 from .materials import Material, parse_material
 from .meshes import CHESS_PROFILES, box_mesh, lathe_mesh, quad_mesh, rotation_matrices, sphere_mesh
 from .scenes import BUNDLED_SCENES
@@ -201,18 +209,6 @@ def _real(spec: dict[str, Any], key: str, where: str, default: float, *, positiv
     return _checks.real(f"{where}.{key}", spec.get(key, default), above=0 if positive else None)
 
 
-def _vec(spec: dict[str, Any], key: str, where: str, default: Any = None) -> np.ndarray:
-    if key not in spec and default is None:
-        raise ValueError(f"{where}.{key}: missing")
-    try:
-        value = np.asarray(spec.get(key, default), float)
-    except (TypeError, ValueError):
-        value = np.empty(0)
-    if value.shape != (3,) or not np.all(np.isfinite(value)):
-        raise ValueError(f"{where}.{key}: expected 3 finite numbers, got {spec.get(key)!r}")
-    return value
-
-
 def _build_shape(spec: dict[str, Any], where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Mesh of an object spec plus its pivot (the natural centre for rotations)."""
     shape = spec.get("shape")
@@ -279,15 +275,27 @@ _TOP_LEVEL = {"name", "description", "dimension", "width", "height", "camera", "
               "objects", "lights", "environment"}
 _OBJECT_FIELDS = {"shape", "material", "emission", "motion", "name", "center", "radius", "segments", "rings",
                   "min", "max", "corner", "edge_u", "edge_v", "profile", "base", "scale", "vertices", "faces"}
+_MOTION_FIELDS = {"velocity", "axis", "angular_velocity_degrees"}
+_INTEGRATOR_FIELDS = {"max_depth", "max_specular_depth"}
+
+
+def _swept_reach(vertices: np.ndarray, motion: Motion, t0: float, t1: float) -> float:
+    """A bound on the coordinates ``vertices`` reach moving by ``motion`` over the times ``[t0, t1]``.
+
+    ``x(t) = (pivot + velocity t) + R(t) (x - pivot)``: the first term is linear in ``t`` (largest at an
+    end of the interval) and the rotation keeps the length of the second.
+    """
+    with np.errstate(over="ignore", invalid="ignore"):  # a velocity or time past float64: inf, refused
+        arm = float(np.sqrt(((vertices - motion.pivot) ** 2).sum(axis=1)).max())
+        centre = max(reach(motion.pivot + motion.velocity * t) for t in (t0, t1))
+        return centre + arm
 
 
 def parse_scene(spec: dict[str, Any], *, width: int | None = None, height: int | None = None,
                 base_dir: Path | None = None) -> Scene:
     """Build a :class:`Scene` from a spec dict (see the module docstring for the format)."""
     spec = copy.deepcopy(_mapping(spec, "scene"))
-    unknown = set(spec) - _TOP_LEVEL
-    if unknown:
-        raise ValueError(f"scene: unknown field(s) {sorted(unknown)}; valid: {sorted(_TOP_LEVEL)}")
+    refuse_unknown("scene", spec, _TOP_LEVEL)
     name = str(spec.get("name", "custom"))
     w = _whole({"width": width} if width is not None else spec, "width", "", 128, 1, MAX_SIDE)
     h = _whole({"height": height} if height is not None else spec, "height", "", 128, 1, MAX_SIDE)
@@ -307,21 +315,19 @@ def parse_scene(spec: dict[str, Any], *, width: int | None = None, height: int |
     for i, obj in enumerate(object_specs):
         where = f"objects[{i}]"
         obj = _mapping(obj, where)
-        unknown = set(obj) - _OBJECT_FIELDS
-        if unknown:
-            raise ValueError(f"{where}: unknown field(s) {sorted(unknown)}; valid: {sorted(_OBJECT_FIELDS)}")
-        vertices, faces, normals, pivot = _build_shape(obj, where)
-        emission = None
-        if "emission" in obj:
-            emission = np.broadcast_to(np.asarray(obj["emission"], float), (3,)).copy()
-            if not np.all(np.isfinite(emission)) or np.any(emission < 0):
-                raise ValueError(f"{where}.emission: must be finite and >= 0")
+        refuse_unknown(where, obj, _OBJECT_FIELDS)
+        # A shape past float64 (a lathe scaled by 1e308) overflows while it is built: refused by its reach.
+        with np.errstate(over="ignore", invalid="ignore"):
+            vertices, faces, normals, pivot = _build_shape(obj, where)
+        check_reach(where, reach(vertices), "its geometry")
+        emission = rgb_radiance(f"{where}.emission", obj["emission"]) if "emission" in obj else None
         material_name = obj.get("material", "__emitter__" if emission is not None else None)
         if material_name not in material_names:
             raise ValueError(f"{where}.material: {material_name!r} is not one of {', '.join(material_names[:-1])}")
         motion = None
         if "motion" in obj:
             m = _mapping(obj["motion"], f"{where}.motion")
+            refuse_unknown(f"{where}.motion", m, _MOTION_FIELDS)
             axis = _vec(m, "axis", f"{where}.motion", (0.0, 1.0, 0.0))
             if np.linalg.norm(axis) == 0:
                 raise ValueError(f"{where}.motion.axis: must be non-zero")
@@ -331,6 +337,10 @@ def parse_scene(spec: dict[str, Any], *, width: int | None = None, height: int |
                 raise ValueError(f"{where}.motion: emissive objects must be static")
             if motion.is_static:
                 motion = None
+            else:  # Embree traces the rest pose, the rays mapped into it: the swept positions must fit too.
+                shutter = (camera.shutter_open, camera.shutter_close)
+                check_reach(f"{where}.motion", _swept_reach(vertices, motion, *shutter),
+                            f"over the shutter [{shutter[0]:g}, {shutter[1]:g}] its geometry")
         objects.append(SceneObject(vertices, faces, normals, material_names.index(material_name), emission,
                                    motion, str(obj.get("name", f"object{i}"))))
     if not objects:
@@ -343,6 +353,7 @@ def parse_scene(spec: dict[str, Any], *, width: int | None = None, height: int |
     environment = spec.get("environment")
     environment = parse_environment(None if environment is None else _mapping(environment, "environment"), base_dir)
     integrator = _mapping(spec.get("integrator", {}), "integrator")
+    refuse_unknown("integrator", integrator, _INTEGRATOR_FIELDS)
     max_depth = _whole(integrator, "max_depth", "integrator", 0, 0, MAX_DEPTH)
     max_specular_depth = _whole(integrator, "max_specular_depth", "integrator", _DEFAULT_SPECULAR_DEPTH, 0, MAX_DEPTH)
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -146,6 +147,15 @@ MALFORMED = [  # (change, the field the refusal names)
     ({"environment": {"type": "constant", "radiance": [1, 1]}}, "environment.radiance: expected a number or 3"),
     ({"environment": {"type": "latlong"}}, "environment.path: expected a file name"),
     ({"environment": {"type": "latlong", "path": "sky.exr", "scale": float("inf")}}, "environment.scale"),
+    # A light without a position was a KeyError, a zero direction a NaN light, a checker of scale 0 or a
+    # camera's NaN shutter garbage: each is one line naming it.
+    ({"lights": [{"type": "point"}]}, r"lights\[0\]\.position: missing"),
+    ({"lights": [{"type": "directional", "direction": [0, 0, 0]}]}, r"lights\[0\]\.direction: must be non-zero"),
+    ({"materials.floor.texture.scale": 0}, r"materials\.floor\.texture\.scale: must be > 0"),
+    ({"materials.floor.texture": "checker"}, r"materials\.floor\.texture: expected an object"),
+    ({"camera.fov": "wide"}, "camera.fov: expected a number, got str 'wide'"),
+    ({"camera.shutter": [0, float("nan")]}, "camera.shutter: must be a finite number"),
+    ({"camera.up": [0, 1]}, "camera.up: expected 3 finite numbers"),
 ]
 
 
@@ -155,6 +165,135 @@ def test_a_malformed_scene_is_refused_naming_the_field(changes, needle) -> None:
     KeyError, no truncation, no hang."""
     with pytest.raises((ValueError, TypeError), match=needle):
         load_scene(_scene_with(**changes))
+
+
+LIGHT = next(i for i, o in enumerate(BUNDLED_SCENES["default"]["objects"]) if "emission" in o)
+OBJECTS = BUNDLED_SCENES["default"]["objects"]
+FAR = 1e39  # finite in float64, Inf in float32
+BEYOND_FLOAT32 = [  # (change, the refusal naming the field): each rendered all black, or failed only at the write
+    ({"objects": [*OBJECTS, {"shape": "sphere", "center": [FAR, 0, 0], "radius": 1, "material": "red"}]},
+     rf"objects\[{len(OBJECTS)}\]: its geometry reaches 1e\+39, beyond the ±1e\+11 scene units the tracer traces "
+     r"in \(float32\)"),
+    ({f"objects.{SPHERE}.radius": 1e300}, rf"objects\[{SPHERE}\]: its geometry reaches 1e\+300, beyond the ±1e\+11"),
+    ({"objects": [*OBJECTS, {"shape": "mesh", "vertices": [[0, 0, 0], [1, 0, 0], [0, FAR, 0]], "faces": [[0, 1, 2]],
+                             "material": "red"}]}, rf"objects\[{len(OBJECTS)}\]: its geometry reaches 1e\+39"),
+    # Past float64 while it is built (the lathe's profile times 1e308): refused, without numpy's overflow warnings.
+    ({"objects.0": {"shape": "lathe", "base": [0, 0, 0], "scale": 1e308, "material": "red"}},
+     r"objects\[0\]: its geometry reaches inf, beyond the ±1e\+11"),
+    ({"camera.shutter": [0, 1], f"objects.{SPHERE}.motion": {"velocity": [FAR, 0, 0]}},
+     rf"objects\[{SPHERE}\]\.motion: over the shutter \[0, 1\] its geometry reaches 1e\+39, beyond the ±1e\+11"),
+    ({"camera.shutter": [0, 1e300], f"objects.{SPHERE}.motion": {"velocity": [1, 0, 0]}},
+     rf"objects\[{SPHERE}\]\.motion: over the shutter \[0, 1e\+300\] its geometry reaches 1e\+300"),
+    ({"camera.from": [0, FAR, 4]}, r"camera\.from: 1e\+39 is beyond the ±1e\+11 scene units"),
+    ({"camera.to": [0, 0, -FAR]}, r"camera\.to: 1e\+39 is beyond the ±1e\+11"),
+    ({"camera.aperture_radius": FAR}, r"camera\.aperture_radius: 1e\+39 is beyond the ±1e\+11"),
+    ({"camera.aperture_radius": 0.1, "camera.focus_distance": FAR}, r"camera\.focus_distance: 1e\+39 is beyond"),
+    ({"lights": [{"type": "point", "position": [FAR, 0, 0]}]}, r"lights\[0\]\.position: 1e\+39 is beyond the ±1e\+11"),
+    ({"lights": [{"type": "point", "position": [0, 3, 0], "intensity": 1e30}]},
+     r"lights\[0\]\.intensity: 1e\+30 is beyond the 1e\+15 a radiance may reach \(a sample's square, its variance, "
+     r"must stay within float32\)"),
+    ({"lights": [{"type": "directional", "direction": [0, -1, 0], "irradiance": [1, FAR, 1]}]},
+     r"lights\[0\]\.irradiance: 1e\+39 is beyond the 1e\+15"),
+    ({f"objects.{LIGHT}.emission": 1e30}, rf"objects\[{LIGHT}\]\.emission: 1e\+30 is beyond the 1e\+15"),
+    ({"environment": {"type": "constant", "radiance": 1e35}}, r"environment\.radiance: 1e\+35 is beyond the 1e\+15"),
+    ({"environment": {"type": "sky", "scale": 1e30}},
+     r"environment\.scale: the sky's radiance times the scale 1e\+30 reaches .*e\+32, beyond the 1e\+15"),
+]
+
+
+@pytest.mark.parametrize("changes, needle", BEYOND_FLOAT32,
+                         ids=[m[1].split(":")[0].replace("\\", "") for m in BEYOND_FLOAT32])
+def test_a_scene_beyond_float32_is_refused_naming_the_field(changes, needle) -> None:
+    """Finite in float64 is not enough: Embree traces in float32 (one vertex at Inf and every ray misses the
+    whole BVH, exit 0 with a black image) and the buffers store a sample's square, which past 1e19 was refused
+    only at the write, blaming the output file. The scene is refused instead, the field named first."""
+    with np.errstate(over="raise", invalid="raise"):  # no overflow of the parser's own leaks as a warning
+        with pytest.raises(ValueError, match="^" + needle):
+            load_scene(_scene_with(**changes))
+
+
+def _scaled_default(k: float) -> dict:
+    """The default scene with every length times ``k`` (the checker too): the same image, lit by its area light."""
+    spec = _scene_with(width=16, height=16)
+    for obj in spec["objects"]:
+        for key in ("center", "min", "max", "corner", "edge_u", "edge_v"):
+            if key in obj:
+                obj[key] = [k * x for x in obj[key]]
+        if "radius" in obj:
+            obj["radius"] *= k
+    spec["camera"]["from"] = [k * x for x in spec["camera"]["from"]]
+    spec["camera"]["to"] = [k * x for x in spec["camera"]["to"]]
+    spec["materials"]["floor"]["texture"]["scale"] *= k
+    return spec
+
+
+def test_a_scene_reaching_the_coordinate_bound_renders_as_at_unit_scale() -> None:
+    """The bound leaves Embree's float32 room: the default scene scaled until it reaches ±1e11 (its camera
+    there) renders the image it does at its own scale, where ±2e12 already loses hits."""
+    from awr_denoise.tracer.limits import MAX_COORDINATE
+
+    k = 0.999 * MAX_COORDINATE / max(abs(x) for x in BUNDLED_SCENES["default"]["camera"]["from"])
+    images = []
+    for spec in (_scaled_default(1.0), _scaled_default(k)):
+        tracer = PathTracer(load_scene(spec), seed=3, threads=1)
+        images.append(tracer(SampleRequest.uniform(tracer.shape, 4)).mean)
+    assert images[0].max() > 0.1
+    np.testing.assert_allclose(images[1], images[0], rtol=1e-4, atol=1e-5)
+    with pytest.raises(ValueError, match=r"camera\.from: 1\.0\d*e\+11 is beyond"):
+        load_scene(_scaled_default(1.002 * k))
+
+
+UNKNOWN_FIELDS = [  # (change, where, the unknown field, the field meant): a typo did nothing
+    ({"integrator.max_dept": 3}, "integrator", "max_dept", "max_depth"),
+    ({"lights": [{"type": "point", "position": [0, 3, 0], "intensty": 5}]}, r"lights\[0\]", "intensty", "intensity"),
+    ({"lights": [{"type": "directional", "direction": [0, -1, 0], "irradience": 2}]}, r"lights\[0\]", "irradience",
+     "irradiance"),
+    ({"environment": {"type": "constant", "radince": 2}}, "environment", "radince", "radiance"),
+    ({"environment": {"type": "latlong", "path": "sky.exr", "scal": 2}}, "environment", "scal", "scale"),
+    ({"materials.floor.texture.scal": 2}, r"materials\.floor\.texture", "scal", "scale"),
+    ({f"objects.{SPHERE}.motion": {"velocty": [1, 0, 0]}}, rf"objects\[{SPHERE}\]\.motion", "velocty", "velocity"),
+    # Refused before, the same way: the message is one pattern wherever the typo is.
+    ({"environment": {"type": "sky", "sun_elevation": 10}}, "environment", "sun_elevation", "sun_elevation_degrees"),
+    ({"camera.fov_degrees": 30}, "camera", "fov_degrees", "fov"),
+    ({"materials.red.albdo": 0.5}, r"materials\.red", "albdo", "albedo"),
+    ({f"objects.{SPHERE}.radus": 2}, rf"objects\[{SPHERE}\]", "radus", "radius"),
+    ({"lihgts": []}, "scene", "lihgts", "lights"),
+]
+
+
+@pytest.mark.parametrize("changes, where, unknown, meant", UNKNOWN_FIELDS,
+                         ids=[f"{u[1]}.{u[2]}".replace("\\", "") for u in UNKNOWN_FIELDS])
+def test_an_unknown_field_is_refused_naming_it_and_the_valid_ones(changes, where, unknown, meant) -> None:
+    with pytest.raises(ValueError, match=rf"^{where}: unknown field\(s\) \['{unknown}'\]; valid: \[.*'{meant}'.*\]$"):
+        load_scene(_scene_with(**changes))
+
+
+def test_a_scene_file_beyond_float32_or_with_a_typo_names_the_file_and_the_field(tmp_path) -> None:
+    path = tmp_path / "far.json"
+    far = {"shape": "sphere", "center": [FAR, 0, 0], "radius": 1, "material": "red"}
+    path.write_text(json.dumps(_scene_with(objects=[*OBJECTS, far])))
+    named = re.escape(str(path))
+    with pytest.raises(ValueError, match=rf"^{named}: objects\[{len(OBJECTS)}\]: its geometry reaches 1e\+39"):
+        load_scene(path)
+    path.write_text(json.dumps(_scene_with(**{"integrator.max_dept": 3})))
+    with pytest.raises(ValueError, match=rf"^{named}: integrator: unknown field\(s\) \['max_dept'\]"):
+        load_scene(path)
+
+
+def test_awr_render_refuses_a_scene_beyond_float32_and_writes_nothing(tmp_path) -> None:
+    """The report: ``awr render far.json`` exited 0 with an all-black image; now exit 2, one line, no file."""
+    path = tmp_path / "far.json"
+    far = {"shape": "sphere", "center": [FAR, 0, 0], "radius": 1, "material": "red"}
+    path.write_text(json.dumps(_scene_with(objects=[*OBJECTS, far])))
+    script = Path(sys.executable).with_name("awr")
+    command = [str(script)] if script.exists() else [sys.executable, "-m", "awr_denoise.cli.main"]
+    out = subprocess.run([*command, "render", str(path), "--spp", "4", "--width", "16", "--height", "16",
+                          "-o", str(tmp_path / "far.exr"), "-q"], capture_output=True, text=True, cwd=tmp_path,
+                         timeout=300)
+    assert out.returncode == 2, out.stderr
+    assert out.stderr.strip().splitlines() == [f"awr: error: {path}: objects[{len(OBJECTS)}]: its geometry reaches "
+                                               "1e+39, beyond the ±1e+11 scene units the tracer traces in (float32)"]
+    assert not list(tmp_path.glob("far.*exr"))
 
 
 def test_numpy_numbers_are_numbers_to_a_scene() -> None:
