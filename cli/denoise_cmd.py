@@ -126,7 +126,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--preview", type=nonempty, metavar="OUT.png", help="also write an sRGB PNG preview (may hold ####)")
     p.add_argument("--exposure", type=real(minimum=-MAX_EXPOSURE, maximum=MAX_EXPOSURE),
                    help="preview exposure in stops (default 0; with --preview)")
-    p.add_argument("-r", "--ref", type=nonempty, metavar="REF.exr", help="reference image to compare the result with (may hold ####: each frame's own)")
+    p.add_argument("-r", "--ref", type=nonempty, metavar="REF.exr",
+                   help="reference image to compare the result with (may hold ####: each frame's own)")
     p.add_argument("--maxerror", type=real(minimum=0), metavar="E",
                    help="with --ref: fail (exit 1) when the relative MSE exceeds E")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")

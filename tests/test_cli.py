@@ -1334,7 +1334,8 @@ def test_frames_on_worker_processes_write_the_serial_runs_bytes(tmp_path, execut
         write_sample_buffer(tmp_path / f"d.{i:04d}.exr", SampleBuffer.from_moments(
             np.full((16, 16), 4), np.random.default_rng(i).random((16, 16, 3)), np.full((16, 16, 3), 0.01)))
     common = [str(tmp_path / "d.####.exr"), "--frames", "1-2", "-q"]
-    assert main(["denoise", *common, "-o", str(tmp_path / "s.####.exr"), "--preview", str(tmp_path / "s.####.png")]) == 0
+    assert main(["denoise", *common, "-o", str(tmp_path / "s.####.exr"),
+                 "--preview", str(tmp_path / "s.####.png")]) == 0
     assert main(["denoise", *common, "-o", str(tmp_path / "w.####.exr"), "--preview", str(tmp_path / "w.####.png"),
                  "--executor", executor, "--workers", "1"]) == 0
     assert main(["denoise", str(tmp_path / "d.0001.exr"), "-o", str(tmp_path / "one.exr"), "-q",

@@ -54,7 +54,8 @@ except ImportError:  # pragma: no cover - not on Windows: stale temporaries are 
 
 __all__ = ["atomic_write", "check_writable", "check_readable", "check_utf8_name", "file_kind", "read_without_waiting",
            "same_file", "OutputSet",
-           "public_name", "standing_for", "remove_stale_temporaries", "STAGING_PREFIX", "STAGING_SUFFIX", "STALE_AFTER", "COMMIT_WAIT"]
+           "public_name", "standing_for", "remove_stale_temporaries", "STAGING_PREFIX", "STAGING_SUFFIX", "STALE_AFTER",
+           "COMMIT_WAIT"]
 
 STAGING_PREFIX = ".awr-"
 STAGING_SUFFIX = ".tmp"
