@@ -13,6 +13,7 @@ import numbers
 import re
 import threading
 from collections.abc import Callable, Iterable, Mapping
+from os import PathLike
 from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -195,6 +196,23 @@ def flag(param: str, value: Any) -> bool:
     if not isinstance(value, (bool, np.bool_)):
         raise TypeError(f"{param}: expected True or False, got {described(value)}")
     return bool(value)
+
+
+def file_path(param: str, value: Any) -> str:
+    """A file name (``str`` or ``os.PathLike`` of ``str``, not empty) as ``str``."""
+    text = value.__fspath__() if isinstance(value, PathLike) else value
+    if not isinstance(text, str):
+        raise TypeError(f"{param}: expected a file name, got {described(value)}")
+    if not text:  # a script's unset variable: refused, not read as "no file"
+        raise ValueError(f"{param}: an empty file name")
+    return text
+
+
+def file_paths(param: str, value: Any) -> list[str]:
+    """A list of file names (not one name, which would be read character by character)."""
+    if isinstance(value, (str, bytes, PathLike)) or not isinstance(value, Iterable):
+        raise TypeError(f"{param}: expected a list of file names, got {described(value)}")
+    return [file_path(param, item) for item in value]
 
 
 def seed(param: str, value: Any) -> int:

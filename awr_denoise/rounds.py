@@ -27,13 +27,13 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from . import _checks
+from .buffers import SampleBuffer
 from .allocation import MAX_BUDGET
 from .errors import TimeBudgetWarning
 from .reconstruct import reconstruct as _reconstruct
 from .requests import Renderer, SampleRequest
 
 if TYPE_CHECKING:  # the samplers import this module
-    from .buffers import SampleBuffer
     from .sampling import Sampler
 
 __all__ = ["ROUND_OVERHEAD", "RANKED_COST_MARGIN", "RESERVE_MARGIN", "DEFAULT_RUN_SPP", "MAX_SECONDS", "RoundPlan",
@@ -167,6 +167,9 @@ def run_rounds(sampler: Sampler, renderer: Renderer, total_spp: float | None, *,
     """
     pixels = sampler.shape[0] * sampler.shape[1]
     seconds = _checks.real("seconds", seconds, above=0, maximum=MAX_SECONDS, none=True)
+    progress = _checks.flag("progress", progress)
+    if callback is not None and not callable(callback):  # found after round 0, else
+        raise TypeError(f"callback: expected a function of (request, buffer), got {_checks.described(callback)}")
     if reserve is not None:
         if seconds is None:  # it would do nothing: refused
             raise ValueError("reserve: only a time budget (seconds) keeps time for after the run")
@@ -262,17 +265,20 @@ def reconstruction_seconds(buffer: SampleBuffer, reconstruct: Callable[[SampleBu
     >>> 0 < reconstruction_seconds(buffer) < 0.5
     True
     """
+    if not isinstance(buffer, SampleBuffer):
+        raise TypeError(f"buffer: expected a SampleBuffer, got {_checks.described(buffer)}")
+    if reconstruct is not None and not callable(reconstruct):
+        raise TypeError(f"reconstruct: expected a function of a SampleBuffer, got {_checks.described(reconstruct)}")
     reconstruct = _reconstruct if reconstruct is None else reconstruct
     h, w = buffer.shape
-    scale = 1.0
-    if h * w >= WHOLE_BELOW:
+    if h * w >= WHOLE_BELOW and min(h, w) >= 2:  # (a strip one pixel thin has no central quarter)
         rows, cols = slice(h // 4, h // 4 + h // 2), slice(w // 4, w // 4 + w // 2)
         part, scale = buffer.crop(rows, cols), (h * w) / ((h // 2) * (w // 2))
         started = _clock()
         try:
             reconstruct(part)
         except ValueError:  # settings the half sides cannot take: timed whole
-            scale = 1.0
+            pass
         else:
             return RESERVE_MARGIN * scale * (_clock() - started)
     started = _clock()

@@ -622,3 +622,29 @@ def test_standing_for_takes_another_processes_temporaries_as_its_own_while_it_la
         mine.write_text("mine")
         outputs.commit()
     assert (tmp_path / "mine.exr").read_text() == "mine"
+
+
+def test_flags_and_names_of_the_writers_are_checked(tmp_path):
+    """``overwrite="no"`` and ``OutputSet(overwrite="False")`` replaced the file, ``half="no"`` wrote HALF
+    channels (a red-team pass): a flag is True or False; a name is a str; a target not added is named."""
+    from awr_denoise.io import write_image
+
+    keep = tmp_path / "keep.exr"
+    keep.write_bytes(b"precious")
+    for call in (lambda: write_image(keep, np.ones((2, 2, 3)), overwrite="no"),
+                 lambda: atomic.OutputSet(overwrite="False"),
+                 lambda: atomic.check_writable(keep, overwrite=1)):
+        with pytest.raises(TypeError, match="overwrite: expected True or False"):
+            call()
+    with pytest.raises(TypeError, match="half: expected True or False"):
+        write_image(tmp_path / "h.exr", np.ones((2, 2, 3)), half="no")
+    with pytest.raises(TypeError, match="path: expected a file name, got NoneType"):
+        atomic.check_writable(None, overwrite=False)
+    with pytest.raises(TypeError, match="names: expected a dict"):
+        with atomic.standing_for({Path("x"): "y"}):
+            pass
+    with atomic.OutputSet() as outputs:
+        outputs.add(tmp_path / "a.exr")
+        with pytest.raises(ValueError, match="was not added"):
+            outputs.temporary(tmp_path / "never.exr")
+    assert keep.read_bytes() == b"precious" and not (tmp_path / "h.exr").exists()

@@ -83,6 +83,9 @@ def test_mean_error_over_a_black_channel_is_zero_or_infinite():
     image = ref.copy()
     image[0, 0, 1] = 1e-300
     assert mean_error(image, ref) == np.inf
+    with warnings.catch_warnings():  # a subnormal reference against a normal image: inf without a warning
+        warnings.simplefilter("error")
+        assert mean_error(np.ones((2, 2)), np.full((2, 2), 1e-310)) == np.inf
 
 
 @pytest.mark.parametrize("scale", [1.0, 1e-100, 1e-200, 1e-300, 1e-320, 1e150, 1e300, 1.7e308])

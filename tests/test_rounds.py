@@ -328,3 +328,25 @@ def test_reconstruction_seconds_times_a_small_buffer_or_a_refused_quarter_whole(
     refusing = TimedReconstruction(clock, 1e-6, least=200)
     assert rounds.reconstruction_seconds(large, refusing) == pytest.approx(rounds.RESERVE_MARGIN * 65536e-6)
     assert [b.shape for b in refusing.seen] == [(128, 128), (256, 256)]
+
+
+def test_reconstruction_seconds_times_a_strip_one_pixel_thin_whole(clock):
+    """A 1x16384 buffer has no central quarter: it was "rows: 0:0 holds none of the image's 1 rows"."""
+    for shape in ((1, 16384), (16384, 1)):
+        strip = SampleBuffer.from_moments(np.ones(shape, dtype=np.int64), np.ones(shape), np.zeros(shape))
+        timed = TimedReconstruction(clock, 1e-6)
+        assert rounds.reconstruction_seconds(strip, timed) == pytest.approx(rounds.RESERVE_MARGIN * 16384e-6)
+        assert [b.shape for b in timed.seen] == [shape]
+
+
+def test_run_and_reconstruction_seconds_check_their_arguments_before_any_round(clock):
+    renderer = TimedRenderer(clock, 1e-4)
+    with pytest.raises(TypeError, match="callback: expected a function"):
+        timed_sampler(clock, 0.01).run(renderer, total_spp=4, callback=5)
+    with pytest.raises(TypeError, match="progress: expected True or False"):
+        timed_sampler(clock, 0.01).run(renderer, total_spp=4, progress="no")
+    assert renderer.rounds == []
+    with pytest.raises(TypeError, match="buffer: expected a SampleBuffer"):
+        rounds.reconstruction_seconds(np.zeros((16, 16, 3)))
+    with pytest.raises(TypeError, match="reconstruct: expected a function"):
+        rounds.reconstruction_seconds(SampleBuffer.empty(SHAPE), 5)

@@ -44,6 +44,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import TracebackType
 
+from .. import _checks
 from .._signals import COMMIT_CHECKS
 from .._signals import deferred as _signals_deferred
 
@@ -102,6 +103,8 @@ def standing_for(names: dict[str, str]) -> Iterator[None]:
     is otherwise refused as a staging folder, whose files later writes remove). Names this process holds
     already (a thread of the caller's) stay as they are afterwards.
     """
+    if not isinstance(names, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in names.items()):
+        raise TypeError(f"names: expected a dict of temporary paths (str) to target names (str), got {names!r}")
     added = [tmp for tmp in names if tmp not in _PUBLIC]
     for tmp in added:
         _PUBLIC[tmp] = names[tmp]
@@ -247,6 +250,10 @@ def check_writable(path: str | os.PathLike[str], *, overwrite: bool) -> Path:
         directory is not writable or accepts no new file (a probe is created and removed there),
         or its name is longer than the file system allows.
     """
+    # A string or a number would be read as its truth: overwrite="no" replaced the file (a red-team pass).
+    _checks.flag("overwrite", overwrite)
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"path: expected a file name, got {type(path).__name__} {path!r}")
     if not os.fspath(path):
         raise ValueError("path: an empty file name")
     check_utf8_name(path)
@@ -694,7 +701,7 @@ class OutputSet:
     """
 
     def __init__(self, *, overwrite: bool = False) -> None:
-        self.overwrite = bool(overwrite)
+        self.overwrite = _checks.flag("overwrite", overwrite)
         self._staged: dict[Path, Path] = {}
         self._resolved: dict[Path, Path] = {}
         self._inodes: dict[tuple[int, int], Path] = {}
@@ -724,8 +731,11 @@ class OutputSet:
         return tmp
 
     def temporary(self, path: str | os.PathLike[str]) -> Path:
-        """The temporary path of an added target."""
-        return self._staged[Path(path)]
+        """The temporary path of an added target (named as it was added)."""
+        try:
+            return self._staged[Path(path)]
+        except (KeyError, TypeError):
+            raise ValueError(f"path: {path!r} was not added to this OutputSet") from None
 
     @property
     def targets(self) -> list[Path]:

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import _checks
 from .._arrays import plain
 from .._typing import FloatArray
 from .._version import __version__
@@ -769,6 +770,7 @@ def write_image(path: str | os.PathLike[str], image: np.ndarray, *,
     Path
         The written file.
     """
+    half = _checks.flag("half", half)  # half="no" wrote HALF channels
     a, names = _image_channels(image, channels)
     data = a.astype(np.float64)
     bad = ~np.isfinite(data)

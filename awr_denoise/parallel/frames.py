@@ -147,8 +147,21 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
     -------
     FrameResult
     """
-    source = os.fspath(source)
+    source, output = _checks.file_path("source", source), _checks.file_path("output", output)
+    preview = None if preview is None else _checks.file_path("preview", preview)
+    reference = None if reference is None else _checks.file_path("reference", reference)
     _checks.real("exposure", exposure)
+    overwrite, half, again = (_checks.flag(name, value) for name, value in
+                              (("overwrite", overwrite), ("half", half), ("again", again)))
+    if exposure != 0 and preview is None:  # it sets the preview alone: refused, not ignored
+        raise ValueError(f"exposure: {exposure:g} sets the preview's exposure; there is no preview")
+    if read_options is not None and not isinstance(read_options, Mapping):
+        raise TypeError(f"read_options: expected a dict, got {_checks.described(read_options)}")
+    # Before the work, as denoise_frames checks its lists: an output that is the input, the reference, a plane
+    # file or the preview was replaced after the reconstruction (a red-team pass). A task run again (``again``)
+    # may find its own output, compared below.
+    read = [source, *([reference] if reference else []), *_plane_files(read_options or {})]
+    _check_outputs(read, [output], None if preview is None else [preview], overwrite or again)
     if windows is not None and not isinstance(windows, Mapping):
         raise TypeError(f"windows: expected a dict like read_windows() returns, got {type(windows).__name__}")
     # The image keeps the dump's data and display windows, taken from the read that gave the samples
@@ -238,7 +251,7 @@ def _references_per_frame(reference: str | os.PathLike[str] | Sequence[str | os.
                           frames: int) -> list[str | None]:
     """``reference`` as one path (or None) per frame: the same for every frame, or the caller's list of them."""
     if reference is None or isinstance(reference, (str, os.PathLike)):
-        return [None if reference is None else os.fspath(reference)] * frames
+        return [None if reference is None else _checks.file_path("reference", reference)] * frames
     if isinstance(reference, bytes) or not isinstance(reference, Sequence):
         raise TypeError(f"reference: expected a path, or one path per input, got {type(reference).__name__}")
     if len(reference) != frames:
@@ -246,7 +259,13 @@ def _references_per_frame(reference: str | os.PathLike[str] | Sequence[str | os.
     for path in reference:
         if not isinstance(path, (str, os.PathLike)):
             raise TypeError(f"reference: expected one path per input, got a {type(path).__name__} among them")
-    return [os.fspath(path) for path in reference]
+    return [_checks.file_path("reference", path) for path in reference]
+
+
+def _plane_files(read_options: Mapping[str, Any]) -> list[str]:
+    """The files a frame's ``file.exr:plane`` read options name."""
+    return [str(parse_plane(spec, None)[0]) for spec in read_options.values()
+            if isinstance(spec, str) and ":" in spec and _names_file(spec)]
 
 
 def _names_file(spec: str) -> bool:
@@ -335,9 +354,13 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
         Mismatched lengths, an output listed twice, or an output that is also an input.
     """
     _checks.real("exposure", exposure)
-    sources = [os.fspath(p) for p in inputs]
-    targets = [os.fspath(p) for p in outputs]
-    shown = None if previews is None else [os.fspath(p) for p in previews]
+    overwrite, half = _checks.flag("overwrite", overwrite), _checks.flag("half", half)
+    if on_frame is not None and not callable(on_frame):  # found after the frames were written, else
+        raise TypeError(f"on_frame: expected a function of a FrameResult, got {_checks.described(on_frame)}")
+    sources, targets = _checks.file_paths("inputs", inputs), _checks.file_paths("outputs", outputs)
+    shown = None if previews is None else _checks.file_paths("previews", previews)
+    if exposure != 0 and shown is None:  # it sets the previews alone: refused, not ignored
+        raise ValueError(f"exposure: {exposure:g} sets the previews' exposure; there are no previews")
     if len(sources) != len(targets) or (shown is not None and len(shown) != len(sources)):
         raise ValueError(f"outputs: {len(targets)} given for {len(sources)} input(s)"
                          + ("" if shown is None else f" (and {len(shown)} previews)"))
@@ -349,8 +372,7 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
     per_frame = _read_options_per_frame(read_options, len(sources))
     references = _references_per_frame(reference, len(sources))
     read = sources + sorted({r for r in references if r is not None})
-    read += [str(parse_plane(spec, None)[0]) for frame in per_frame for spec in frame.values()
-             if isinstance(spec, str) and ":" in spec and _names_file(spec)]
+    read += [path for frame in per_frame for path in _plane_files(frame)]
     _check_outputs(read, targets, shown, overwrite)
     if not sources:
         return []

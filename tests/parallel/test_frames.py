@@ -223,3 +223,61 @@ def test_a_frame_run_again_takes_its_own_identical_output_as_written(tmp_path, d
     denoise_frame(dumps[0], out, preview=png, again=True)  # killed between the image and its preview
     assert png.read_bytes() == before[1] and sorted(p.name for p in tmp_path.iterdir() if "out" in p.name) == [
         "out.exr", "out.png"]
+
+
+def test_denoise_frame_checks_its_outputs_before_the_work_as_denoise_frames_does(tmp_path, dumps):
+    """``denoise_frame`` (public) replaced its input, its reference or its own output with the preview, after
+    the reconstruction; a preview that existed was found after the image was written (a red-team pass)."""
+    import shutil
+
+    from awr_denoise.parallel import denoise_frame
+
+    shutil.copy(dumps[0], tmp_path / "dump.exr")
+    before = (tmp_path / "dump.exr").read_bytes()
+    for kwargs, message in (({"output": tmp_path / "o.exr", "preview": tmp_path / "o.exr"}, "more than once"),
+                            ({"output": tmp_path / "o.exr", "preview": tmp_path / "dump.exr"}, "also an input"),
+                            ({"output": tmp_path / "dump.exr"}, "also an input"),
+                            ({"output": tmp_path / "o.exr", "reference": tmp_path / "dump.exr",
+                              "preview": tmp_path / "dump.exr"}, "also an input")):
+        with pytest.raises(ValueError, match=message):
+            denoise_frame(tmp_path / "dump.exr", overwrite=True, **kwargs)
+    (tmp_path / "p.png").write_bytes(b"x")
+    with pytest.raises(FileExistsError, match="p.png"):
+        denoise_frame(tmp_path / "dump.exr", tmp_path / "o.exr", preview=tmp_path / "p.png")
+    assert not (tmp_path / "o.exr").exists() and (tmp_path / "dump.exr").read_bytes() == before
+
+
+@pytest.mark.parametrize("call", ["frame", "frames"])
+def test_frame_arguments_are_checked_by_name_before_any_work(tmp_path, dumps, call):
+    """Truthy strings were read as flags (``overwrite="no"`` replaced the outputs), an empty reference
+    compared nothing, an exposure without previews did nothing, a callback that is no function failed after
+    the outputs were written, one path for a list was read character by character."""
+    from awr_denoise.parallel import denoise_frame
+
+    out = tmp_path / "o.exr"
+    out.write_bytes(b"precious")
+
+    def run(**kwargs):
+        if call == "frame":
+            return denoise_frame(dumps[0], out, **kwargs)
+        return denoise_frames([dumps[0]], [out], **kwargs)
+
+    for kwargs, error, message in (({"overwrite": "no"}, TypeError, "overwrite: expected True or False"),
+                                   ({"overwrite": True, "half": 1}, TypeError, "half: expected True or False"),
+                                   ({"overwrite": True, "reference": ""}, ValueError, "reference: an empty file"),
+                                   ({"overwrite": True, "exposure": 2.0}, ValueError, "exposure: 2 sets the")):
+        with pytest.raises(error, match=message):
+            run(**kwargs)
+    if call == "frames":
+        with pytest.raises(TypeError, match="on_frame: expected a function"):
+            run(overwrite=True, on_frame=5)
+        with pytest.raises(TypeError, match="inputs: expected a list of file names, got str"):
+            denoise_frames(str(dumps[0]), str(out), overwrite=True)
+        with pytest.raises(ValueError, match="reference: an empty file name"):
+            denoise_frames([dumps[0]], [out], reference=[""], overwrite=True)
+    else:
+        with pytest.raises(TypeError, match="reference: expected a file name, got list"):
+            run(overwrite=True, reference=[str(out)])
+        with pytest.raises(TypeError, match="read_options: expected a dict"):
+            run(overwrite=True, read_options=[{}])
+    assert out.read_bytes() == b"precious"
