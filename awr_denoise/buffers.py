@@ -258,6 +258,12 @@ class SampleBuffer(ReadOnlyArrays):
         if not np.isfinite(m2).all():
             raise ValueError("sum_sq: a second moment beyond float64 (sum * mean overflows); pass the variance "
                              "to SampleBuffer.from_moments instead")
+        # sum_sq >= sum^2 / n: a deficit past rounding (1%, as from_moments allows a second moment) is not a sum of
+        # squares (a negative one was clamped to variance 0); a pixel without samples has nothing to sum.
+        if (short := (m2 < -1e-2 * np.abs(s1 * mean)).any(axis=2)).any():
+            raise ValueError(f"sum_sq: {int(short.sum())} pixel(s) hold less than sum^2 / count: not a sum of squares")
+        if (empty := ((n[..., 0] == 0) & ((s1 != 0) | (s2 != 0)).any(axis=2))).any():
+            raise ValueError(f"sum: {int(empty.sum())} pixel(s) without samples (count 0) hold a non-zero sum")
         np.maximum(m2, 0.0, out=m2)
         variance = np.where(n > 1, m2 / np.maximum(n - 1, 1.0), 0.0)
         return cls(count_arr, mean, variance, resolve_channels(channels, s1.shape[2]),

@@ -216,7 +216,12 @@ def resolve_channels(channels: Sequence[str] | int | None, n_channels: int) -> t
         if channels != n_channels:
             raise ValueError(f"channels: {channels} given but the data has {n_channels}")
         return default_channel_names(n_channels)
-    names = tuple(str(c) for c in channels)
+    names = tuple(channels)
+    for name in names:  # None or b"G" became the names 'None' and "b'G'"; an empty one cannot be written
+        if not isinstance(name, str):
+            raise TypeError(f"channels: expected names (str), got {type(name).__name__} {name!r} among them")
+        if not name:
+            raise ValueError("channels: an empty name")
     if len(names) != n_channels:
         raise ValueError(f"channels: {len(names)} names given for {n_channels} channel(s)")
     if len(set(names)) != len(names):

@@ -398,6 +398,9 @@ def reconstruct_detailed(
         raise ValueError("guard_probes: not with a guide (its gate and projection are not probed)")
     guide = checked_inputs(buffer, guide, features, settings.stages)
     projection = checked_projection(guide_projection, guide)
+    if guide_projection is not None and mode == "luminance":  # it would do nothing: refused
+        raise ValueError(f"guide_projection: {guide_projection!r} with mode='luminance', where the means are not "
+                         "projected (the guide is the pilot only)")
     groups = channel_groups(buffer.channels)
     if groups is not None:  # R,G,B together, an alpha or an AOV beside them alone: none moves another
         options = dict(c_s=c_s, wavelet=wavelet, levels=levels, domain=domain, mode=mode, boundary=boundary,

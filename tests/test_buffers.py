@@ -513,6 +513,17 @@ def test_from_sums_refuses_what_it_would_cast(sums, message):
         SampleBuffer.from_sums([[2]], sums, [[10.0]])
 
 
+def test_from_sums_refuses_sums_no_samples_have():
+    """A negative sum of squares (or one far below sum^2 / n) was clamped to variance 0, and a pixel without
+    samples holding a sum was zeroed without a word (a red-team pass); rounding's deficit is still clamped."""
+    with pytest.raises(ValueError, match="sum_sq: 1 pixel"):
+        SampleBuffer.from_sums([[2]], [[2.0]], [[-100.0]])
+    with pytest.raises(ValueError, match="sum: 1 pixel"):
+        SampleBuffer.from_sums([[0]], [[5.0]], [[30.0]])
+    rounded = SampleBuffer.from_sums([[2]], [[2e8]], [[2e16 * (1 - 1e-12)]])  # equal samples, rounding below
+    assert rounded.variance.item() == 0.0
+
+
 def test_arrays_stay_read_only_through_pickle_and_deepcopy():
     """Buffers and requests go to worker processes pickled; their arrays came back writeable, so a
     count edited to -3 there was reconstructed without a check (red-team pass 5)."""

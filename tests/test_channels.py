@@ -59,3 +59,15 @@ def test_every_route_that_takes_channel_names_refuses_a_set(tmp_path):
     with pytest.raises(TypeError, match="color: expected a plane name or file.exr:plane, got set"):
         read_sample_dump(tmp_path / "a.exr", color={"R", "G", "B"})
     assert read_image(tmp_path / "a.exr", channels=["B", "G", "R"]).shape == (2, 2, 3)
+
+
+def test_channel_names_are_strings_and_none_is_empty():
+    """``channels=(None, b"G", nan)`` became the names 'None', "b'G'" and 'nan' (a red-team pass)."""
+    from awr_denoise.channels import resolve_channels
+
+    for names in ((None, "G", "B"), (b"R", "G", "B"), ("R", float("nan"), "B")):
+        with pytest.raises(TypeError, match="channels: expected names"):
+            resolve_channels(names, 3)
+    with pytest.raises(ValueError, match="channels: an empty name"):
+        resolve_channels(("",), 1)
+    assert resolve_channels((np.str_("R"), "G", "B"), 3) == ("R", "G", "B")
