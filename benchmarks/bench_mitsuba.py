@@ -410,6 +410,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--initial-spp", type=int, default=None,
                         help="AdaptiveSampler's initial_spp (its uniform first round) instead of its default; "
                              "the AWR runs start there")
+    parser.add_argument("--uniform-fraction", type=float, default=None,
+                        help="AdaptiveSampler's uniform_fraction instead of its default (0): the share of every "
+                             "round spread uniformly")
     parser.add_argument("--stages", type=int, default=None, choices=range(1, 2 + len(DEFAULT_WIENER_EXPONENTS)),
                         help="reconstruct()'s stages for the AWR runs instead of its default (2: one Wiener stage, "
                              "the cheaper trade of docs/reconstruction.md)")
@@ -430,6 +433,8 @@ def main(argv: list[str] | None = None) -> int:
                            ("--initial-spp", [args.initial_spp] if args.initial_spp is not None else [])):
         if any(v < 2 or v & (v - 1) for v in values):
             parser.error(f"{option} takes powers of two from 2 on (runs are seeded by their spp), got {values}")
+    if args.uniform_fraction is not None and not 0 <= args.uniform_fraction <= 1:
+        parser.error(f"--uniform-fraction takes 0 to 1, got {args.uniform_fraction}")
     if not 1 <= min(args.repeats, args.hd_repeats) <= max(args.repeats, args.hd_repeats) < 999:
         parser.error("--repeats and --hd-repeats take 1 to 998")
     if args.report:
@@ -479,7 +484,8 @@ def main(argv: list[str] | None = None) -> int:
                      "reference_pass_spp": REFERENCE_PASS_SPP, "timing": "wall clock, median of repeats",
                      "library_defaults": _defaults(),
                      "sampler_options": {name: value for name, value in (("round_growth", args.round_growth),
-                                                                         ("initial_spp", args.initial_spp))
+                                                                         ("initial_spp", args.initial_spp),
+                                                                         ("uniform_fraction", args.uniform_fraction))
                                          if value is not None},
                      "reconstruct_options": {} if args.stages is None else {"stages": args.stages},
                      "library_threads": args.threads},
