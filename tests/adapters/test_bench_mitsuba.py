@@ -81,8 +81,17 @@ def test_initial_spp_reaches_the_sampler_and_starts_the_awr_runs(bench, tmp_path
         [row["uniform"] for row in default["scenes"][0]["equal_samples"]]
 
 
+def test_uniform_fraction_reaches_the_sampler_and_is_recorded(bench, tmp_path):
+    """``--uniform-fraction 0.3`` (docs/sampling.md, "The share and the image mean"): recorded, and other runs."""
+    shared, default = _quick(bench, tmp_path, "--uniform-fraction", "0.3"), _quick(bench, tmp_path)
+    assert shared["settings"]["sampler_options"] == {"uniform_fraction": 0.3}
+    assert [run["awr"] for run in shared["scenes"][0]["equal_samples"]] != \
+        [run["awr"] for run in default["scenes"][0]["equal_samples"]]
+
+
 @pytest.mark.parametrize("option", [["--spp", "4", "12"], ["--hd-spp", "6"], ["--initial-spp", "3"],
-                                    ["--initial-spp", "1"], ["--repeats", "0"], ["--repeats", "999"]])
+                                    ["--initial-spp", "1"], ["--repeats", "0"], ["--repeats", "999"],
+                                    ["--uniform-fraction", "1.5"]])
 def test_sample_counts_that_cannot_be_seeded_by_their_spp_are_refused(bench, option, capsys):
     with pytest.raises(SystemExit) as exit_info:
         bench.main(["--quick", *option])
