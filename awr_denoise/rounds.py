@@ -161,8 +161,8 @@ def run_rounds(sampler: Sampler, renderer: Renderer, total_spp: float | None, *,
 
     ``total_spp``, ``seconds`` and ``reserve`` are checked here, by name (``total_spp`` ``None``: 32 without
     ``seconds``, no goal with it). ``reserve``: seconds of ``seconds`` kept for other work than the rounds
-    (the reconstruction after them), or a function of round 0's buffer returning them (its own time spent from the
-    budget). A pending round is told first, whole.
+    (the reconstruction after them; below ``seconds``), or a function of the buffer after the run's first round
+    (round 0's samples, or a pending round's) returning them, its own time spent from the budget. A pending round is told first, whole.
     Returns the sampler's buffer.
     """
     pixels = sampler.shape[0] * sampler.shape[1]
@@ -175,6 +175,8 @@ def run_rounds(sampler: Sampler, renderer: Renderer, total_spp: float | None, *,
             raise ValueError("reserve: only a time budget (seconds) keeps time for after the run")
         if not callable(reserve):
             reserve = _checks.real("reserve", reserve, minimum=0, maximum=MAX_SECONDS)
+            if reserve >= seconds:  # known before any round: refused, not found after the first
+                raise ValueError(f"reserve: {reserve:g} s leaves nothing of the {seconds:g}-s budget for rounds")
     if total_spp is None and seconds is None:
         total_spp = DEFAULT_RUN_SPP
     goal = None if total_spp is None else _goal(sampler, total_spp)

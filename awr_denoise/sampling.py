@@ -367,9 +367,9 @@ class Sampler(OneAtATime):
         Built only from :meth:`ask` and :meth:`tell` (:mod:`.rounds`); the last round is trimmed so the total is
         exact. ``total_spp``: 32 without ``seconds``, no goal with it. With ``seconds`` the rounds are planned to
         end within it (the first is always rendered; docs/sampling.md, "A time budget"), and the counts depend on
-        the machine; ``reserve`` keeps seconds of it for the reconstruction after the run: a number, or a function
-        of round 0's buffer returning them (:func:`~awr_denoise.rounds.reconstruction_seconds` times the default
-        reconstruction). ``callback(request, buffer)`` runs after every round; returning ``False`` stops.
+        the machine; ``reserve`` keeps seconds of it for the reconstruction after the run: a number below it, or a
+        function of the buffer after the run's first round returning them
+        (:func:`~awr_denoise.rounds.reconstruction_seconds` times the default reconstruction). ``callback(request, buffer)`` runs after every round; returning ``False`` stops.
 
         Examples
         --------

@@ -11,6 +11,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import dataclasses
 import filecmp
+import inspect
 import os
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
@@ -30,6 +31,7 @@ from ..io.presets import parse_plane
 from ..io.provenance import image_provenance
 from ..metrics import relmse
 from ..reconstruct import reconstruct_detailed
+from ..settings import resolve_settings
 from .executors import dask_client, executor_or_threads, submit
 
 __all__ = ["FrameResult", "FramesFailedError", "denoise_frame", "denoise_frames"]
@@ -262,6 +264,19 @@ def _references_per_frame(reference: str | os.PathLike[str] | Sequence[str | os.
     return [_checks.file_path("reference", path) for path in reference]
 
 
+def _check_reconstruct_options(options: Mapping[str, Any]) -> None:
+    """The options every frame's reconstruction takes, checked once before any frame is read: a name it does not
+    take or a setting out of range failed every frame after its read (a red-team pass). What depends on a frame
+    (its levels against its size) is its own."""
+    known = set(inspect.signature(reconstruct_detailed).parameters) - {"buffer", "variance_probes"}
+    unknown = sorted(set(options) - known)
+    if unknown:
+        raise TypeError(f"{unknown[0]}: not an option of the reconstruction (reconstruct_detailed takes "
+                        f"{', '.join(sorted(known))})")
+    settings = set(inspect.signature(resolve_settings).parameters)
+    resolve_settings(**{name: value for name, value in options.items() if name in settings})
+
+
 def _plane_files(read_options: Mapping[str, Any]) -> list[str]:
     """The files a frame's ``file.exr:plane`` read options name."""
     return [str(parse_plane(spec, None)[0]) for spec in read_options.values()
@@ -376,6 +391,7 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
     _check_outputs(read, targets, shown, overwrite)
     if not sources:
         return []
+    _check_reconstruct_options(reconstruct_options)
     options = {"exposure": exposure, "overwrite": overwrite, "half": half, **reconstruct_options}
     as_given = list(zip(sources, targets, shown if shown is not None else [None] * len(sources)))
     staged = [{path: public_name(path) for path in (target, preview) if path is not None and public_name(path) != path}

@@ -281,3 +281,17 @@ def test_frame_arguments_are_checked_by_name_before_any_work(tmp_path, dumps, ca
         with pytest.raises(TypeError, match="read_options: expected a dict"):
             run(overwrite=True, read_options=[{}])
     assert out.read_bytes() == b"precious"
+
+
+def test_reconstruction_options_are_checked_once_before_any_frame(tmp_path, dumps, monkeypatch):
+    """``c_s=-1`` or a misspelt option failed every frame after its read, as a FramesFailedError."""
+    from awr_denoise.parallel import frames
+
+    monkeypatch.setattr(frames, "read_sample_buffer", lambda *a, **k: pytest.fail("a frame was read"))
+    outputs = [tmp_path / f"o.{i}.exr" for i in range(len(dumps))]
+    with pytest.raises(ValueError, match="c_s: must be >= 0"):
+        denoise_frames(dumps, outputs, c_s=-1)
+    with pytest.raises(TypeError, match="cs: not an option of the reconstruction"):
+        denoise_frames(dumps, outputs, cs=1.0)
+    with pytest.raises(TypeError, match="variance_probes: not an option"):  # each frame's is 0
+        denoise_frames(dumps, outputs, variance_probes=4)
