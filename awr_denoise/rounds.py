@@ -162,8 +162,8 @@ def run_rounds(sampler: Sampler, renderer: Renderer, total_spp: float | None, *,
     ``total_spp``, ``seconds`` and ``reserve`` are checked here, by name (``total_spp`` ``None``: 32 without
     ``seconds``, no goal with it). ``reserve``: seconds of ``seconds`` kept for other work than the rounds
     (the reconstruction after them; below ``seconds``), or a function of the buffer after the run's first round
-    (round 0's samples, or a pending round's) returning them, its own time spent from the budget. A pending round is told first, whole.
-    Returns the sampler's buffer.
+    (round 0's samples, or a pending round's) returning them, its own time spent from the budget. A pending
+    round is told first, whole. Returns the sampler's buffer.
     """
     pixels = sampler.shape[0] * sampler.shape[1]
     seconds = _checks.real("seconds", seconds, above=0, maximum=MAX_SECONDS, none=True)

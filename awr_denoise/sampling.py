@@ -368,8 +368,8 @@ class Sampler(OneAtATime):
         exact. ``total_spp``: 32 without ``seconds``, no goal with it. With ``seconds`` the rounds are planned to
         end within it (the first is always rendered; docs/sampling.md, "A time budget"), and the counts depend on
         the machine; ``reserve`` keeps seconds of it for the reconstruction after the run: a number below it, or a
-        function of the buffer after the run's first round returning them
-        (:func:`~awr_denoise.rounds.reconstruction_seconds` times the default reconstruction). ``callback(request, buffer)`` runs after every round; returning ``False`` stops.
+        function of the buffer after the first round (:func:`~awr_denoise.rounds.reconstruction_seconds`).
+        ``callback(request, buffer)`` runs after every round; returning ``False`` stops.
 
         Examples
         --------
