@@ -103,10 +103,10 @@ def run(args: argparse.Namespace) -> int:
     plan.check()
     check_plane_windows(args.input, plane_options(args))
     info = describe(args.input, args)
-    if info["kind"] in ("request", "image"):  # described without them: refused, not ignored
-        for option, _ in dump_options_given(args)[:1]:
-            what = "a request map" if info["kind"] == "request" else "an image"
-            raise UsageError(f"{option}: describes a sample dump; {args.input} is {what}")
+    given = dump_options_given(args)
+    if given and info["kind"] in ("request", "image"):  # described without them: refused, not ignored
+        what = "a request map" if info["kind"] == "request" else "an image"
+        raise UsageError(f"{given[0][0]}: describes a sample dump; {args.input} is {what}")
     # A signal whose exception a C extension's import swallowed: no report after it.
     interrupts.check()
     if args.json:

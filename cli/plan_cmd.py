@@ -162,8 +162,9 @@ def run(args: argparse.Namespace) -> int:
 def _refuse_what_a_first_round_ignores(args: argparse.Namespace) -> None:
     """The first round reads no dump and is uniform: the layout of a dump and what shapes later rounds would do
     nothing in it, so they are refused, not ignored."""
-    for option, _ in dump_options_given(args)[:1]:
-        raise UsageError(f"{option}: describes a running DUMP.exr; the first round (--size) reads none")
+    given = dump_options_given(args)
+    if given:
+        raise UsageError(f"{given[0][0]}: describes a running DUMP.exr; the first round (--size) reads none")
     for option, value in (("--round-growth", args.round_growth), ("--wavelet", args.wavelet),
                           ("--levels", args.levels), ("--noise-model", args.noise_model)):
         if value is not None:
