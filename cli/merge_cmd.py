@@ -10,6 +10,7 @@ import warnings
 import numpy as np
 
 from awr_denoise import Sampler, SampleBuffer, SampleRequest
+from awr_denoise.buffers import NONFINITE_POLICIES
 from awr_denoise.errors import InputFileError, StaleRequestError
 from awr_denoise.io import (
     provenance,
@@ -27,7 +28,7 @@ from awr_denoise.io.request_map import MAX_ROUND
 
 from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, run_settings, status
 from .paths import PathPlan, check_plane_windows, plane_options
-from .values import MAX_SEED, nonempty
+from .values import MAX_SEED, MAX_SPP, nonempty
 
 __all__ = ["register", "run"]
 
@@ -236,6 +237,17 @@ def run(args: argparse.Namespace) -> int:
             if kwargs.get(key) is not None:
                 raise UsageError(f"{option}: not read with --independent (the variance is the renders' spread "
                                  "about their mean)")
+        if args.nonfinite != NONFINITE_POLICIES[0]:  # a render's NaN is refused: its mean has no samples to drop
+            raise UsageError(f"--nonfinite: {args.nonfinite} is not read with --independent (a render's mean holds "
+                             "no samples to drop or zero)")
+        if args.allow_duplicates:  # identical renders are refused by what they are, not as copies
+            raise UsageError("--allow-duplicates: not read with --independent (renders with the same pixels are "
+                             "refused: their spread is no variance)")
+        if args.preset == "deep":  # the library's refusal named its parameter, ``preset``
+            raise UsageError("--preset: deep is not read with --independent (whole renders are flat images)")
+        if args.spp is not None and args.spp * len(args.inputs) > MAX_SPP:
+            raise UsageError(f"--spp: {args.spp} per render, {len(args.inputs)} renders, exceed {MAX_SPP} samples "
+                             "per pixel (2**24, the counts' float32 limit)")
         if len(args.inputs) < 2:  # the library's refusal named its parameter, ``paths``
             raise UsageError(f"--independent: {len(args.inputs)} render given; the spread of their means needs at "
                              "least 2")

@@ -553,6 +553,23 @@ def test_merge_independent_needs_two_renders_by_its_option(tmp_path, rng, capsys
     assert not (tmp_path / "m.exr").exists()
 
 
+def test_merge_independent_refuses_options_it_does_not_read(tmp_path, rng, capsys):
+    """``--nonfinite`` and ``--allow-duplicates`` did nothing with --independent; ``--preset deep`` and an
+    ``--spp`` past the counts' limit were named by the library's parameters (a red-team pass)."""
+    renders = []
+    for i in range(2):
+        renders.append(str(tmp_path / f"r{i}.exr"))
+        write_image(renders[-1], rng.random((H, W, 3)))
+    base = ["merge", "--independent", *renders, "--color", "RGB", "-o", str(tmp_path / "m.exr"), "-q"]
+    for extra, needle in ((["--spp", "4", "--nonfinite", "zero"], "--nonfinite: zero is not read with --independent"),
+                          (["--spp", "4", "--allow-duplicates"], "--allow-duplicates: not read with --independent"),
+                          (["--spp", "4", "--preset", "deep"], "--preset: deep is not read with --independent"),
+                          (["--spp", "16777216"], "--spp: 16777216 per render, 2 renders, exceed 16777216")):
+        assert main([*base, *extra]) == 2
+        _one_error_line(capsys, needle)
+    assert main([*base, "--spp", "4"]) == 0 and (tmp_path / "m.exr").exists()
+
+
 def test_merge_size_mismatch(tmp_path, rng, capsys):
     _dump(tmp_path / "a.exr", rng)
     _dump(tmp_path / "b.exr", rng, shape=(H, W + 1))
