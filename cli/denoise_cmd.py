@@ -11,7 +11,7 @@ from awr_denoise.domains import DOMAIN_NAMES
 from awr_denoise.errors import InputFileError
 from awr_denoise.guided import PROJECTION_SHARE
 from awr_denoise.guides import GUIDES, OIDN_HINT, oidn_available
-from awr_denoise.io import read_image
+from awr_denoise.io import read_image, read_sample_buffer
 from awr_denoise.io.atomic import OutputSet
 from awr_denoise.io.exr import check_same_windows, read_windows, recorded_windows
 from awr_denoise.parallel import FrameResult, FramesFailedError, denoise_frames
@@ -152,7 +152,17 @@ def _named_as_output(error: BaseException, final: dict[Path, str]) -> BaseExcept
         return error
 
 
-def _note(frame: FrameResult, output: str, nonfinite_policy: str, guided: bool = False) -> str:
+def unused_features(features: tuple[str, ...], guide: str | None) -> tuple[str, ...]:
+    """The features a reconstruction with ``--guide guide`` does not use: all without a guide; with OIDN the depth,
+    and a normal without an albedo beside it (OIDN takes a normal only with an albedo)."""
+    if guide is None:
+        return tuple(features)
+    if guide == "oidn":
+        return tuple(n for n in features if n == "depth" or (n == "normal" and "albedo" not in features))
+    return ()
+
+
+def _note(frame: FrameResult, output: str, nonfinite_policy: str, guide: str | None = None) -> str:
     """The one-line summary of a denoised frame."""
     h, w = frame.shape
     note = f"{output}: {w}x{h}, {frame.spp:.3g} spp, {100 * frame.fraction_zeroed:.1f}% coefficients zeroed"
@@ -161,8 +171,9 @@ def _note(frame: FrameResult, output: str, nonfinite_policy: str, guided: bool =
                 "on input"
     if frame.relmse is not None:
         note += f", relMSE {frame.relmse:.4g}"
-    if frame.features and not guided:
-        note += f"; features {', '.join(frame.features)} read but not used (see --guide)"
+    if unused := unused_features(frame.features, guide):
+        note += f"; features {', '.join(unused)} read but not used " + (
+            "(see --guide)" if guide is None else f"by --guide {guide}")
     return note
 
 
@@ -224,6 +235,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("no input: give DUMP.exr (or --hdr DUMP.exr)")
     if args.maxerror is not None and not args.ref:
         raise UsageError("--maxerror needs --ref REF.exr")
+    if args.guide == "oidn" and args.depth:  # read and dropped: refused, not ignored
+        raise UsageError("--depth: --guide oidn uses no depth (--guide features does)")
     if args.exposure is not None and not args.preview:  # it sets the preview alone: refused, not ignored
         raise UsageError("--exposure needs --preview OUT.png (it sets the preview's exposure alone)")
     check_file_name(args.output, "-o/--output")  # before the frames' placeholders are looked for in the name
@@ -265,6 +278,12 @@ def run(args: argparse.Namespace) -> int:
             check_plane_windows(src, specs)  # every frame: each may have its own data window
         if args.ref:
             _check_references(refs, sources, windows)
+        if args.guide == "oidn" and args.nrm and not args.alb:  # the first frame says whether it has an albedo
+            first = frame_plane_kwargs(args, planes[:1])  # a dict, or a list of one (its own plane files)
+            first = first[0] if isinstance(first, list) else first
+            if "albedo" not in read_sample_buffer(sources[0], **first).features:
+                raise UsageError(f"--nrm: OIDN takes a normal only beside an albedo, and {sources[0]} holds none; "
+                                 "give --alb too")
     except ValueError:  # UsageError, InputFileError: a check failed, maybe on an input replaced meanwhile
         plan.check_unchanged()
         raise
@@ -310,7 +329,7 @@ def run(args: argparse.Namespace) -> int:
     order = {src: i for i, src in enumerate(sources)}
     for frame in sorted(frames, key=lambda f: order.get(f.source, 0)):
         shown = final[frame.output]
-        status(_note(frame, shown, args.nonfinite, args.guide is not None), quiet=args.quiet)
+        status(_note(frame, shown, args.nonfinite, args.guide), quiet=args.quiet)
     if args.maxerror is not None:
         over = [f for f in sorted(frames, key=lambda f: order.get(f.source, 0))  # the first frame, not the first done
                 if f.relmse is not None and f.relmse > args.maxerror]

@@ -35,7 +35,8 @@ from awr_denoise.rounds import MAX_SECONDS, reconstruction_seconds
 from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS
 
 from .common import EXIT_OK, RuntimeFailure, UsageError, status
-from .denoise_cmd import add_reconstruction_options, check_reconstruction_options, reconstruction_kwargs
+from .denoise_cmd import (add_reconstruction_options, check_reconstruction_options, reconstruction_kwargs,
+                          unused_features)
 from .parallel_options import DEFAULT_TILE, add_executor_arguments, executor_from_args, executor_requested
 from .paths import PathPlan
 from .values import MAX_EXPOSURE, MAX_SEED, MAX_SIDE, MAX_SPP, check_pixels, feature_list, nonempty, real, whole
@@ -267,6 +268,9 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--tile: tiles split the work over workers; give --workers N (or --executor, --scheduler)")
     if args.gain_refresh is not None and args.noise_model != "reconstruction":
         raise UsageError("--gain-refresh: only --noise-model reconstruction measures a gain")
+    if args.guide == "oidn" and "normal" in (args.features or ()) and "albedo" not in args.features:
+        raise UsageError("--features: --guide oidn uses a normal only beside an albedo; render it too "
+                         "(--features albedo,normal)")
     if args.guide == "features" and not args.features:
         raise UsageError("--guide features: nothing to guide with; render the features too (--features all)")
     image_path = Path(args.image) if args.image else derived_path(args.output, ".denoised.exr")
@@ -345,8 +349,9 @@ def run(args: argparse.Namespace) -> int:
         write_preview(outputs.add(preview_path), result.image, exposure=args.exposure)
         outputs.commit()  # asks first for a signal whose exception was lost (interrupts.raising)
     h, w = buffer.shape
-    carried = f"; features {', '.join(buffer.features)} in the dump (not used: see --guide)" \
-        if buffer.features and args.guide is None else ""
+    unused = unused_features(tuple(buffer.features), args.guide)
+    carried = "" if not unused else f"; features {', '.join(unused)} in the dump (not used: " + (
+        "see --guide)" if args.guide is None else f"--guide {args.guide} does not use them)")
     done = time.perf_counter() - start - seconds
     status(f"{args.output}: {name} {w}x{h}, {buffer.total_samples / (h * w):.3g} spp ({strategy}) in {seconds:.1f} s; "
            f"denoised {image_path}, preview {preview_path} in {done:.1f} s{carried}", quiet=args.quiet)

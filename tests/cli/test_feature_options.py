@@ -270,3 +270,32 @@ def test_denoise_guard_probes_are_refused_with_the_oidn_guide(tmp_path, capsys):
     out = tmp_path / "guided.exr"
     assert main(["denoise", str(tmp_path / "d.exr"), "--guide", "oidn", "--guard-probes", "0",
                  "-o", str(out), "-q"]) == 0
+
+
+def test_guide_oidn_says_or_refuses_the_features_it_does_not_use(tmp_path, capsys):
+    """OIDN takes a normal only beside an albedo and no depth: ``--nrm`` without an albedo, ``--depth`` and a
+    rendered normal without an albedo did nothing with ``--guide oidn``, without a word (a red-team pass)."""
+    from awr_denoise.guides import oidn_available
+
+    if not oidn_available():
+        pytest.skip("the OIDN guide needs the extra oidn (pyoidn)")
+    _images(tmp_path)
+    write_image(tmp_path / "depth.exr", np.full((H, W, 1), 2.0), channels=("Z",))
+    _refused(tmp_path, capsys, [
+        (["--guide", "oidn", "--nrm", str(tmp_path / "nrm.exr")], "--nrm: OIDN takes a normal only beside an albedo"),
+        (["--guide", "oidn", "--alb", str(tmp_path / "alb.exr"), "--depth", str(tmp_path / "depth.exr")],
+         "--depth: --guide oidn uses no depth")])
+    assert main(["denoise", str(tmp_path / "d.exr"), "--guide", "oidn", "--alb", str(tmp_path / "alb.exr"),
+                 "--nrm", str(tmp_path / "nrm.exr"), "-o", str(tmp_path / "o.exr")]) == 0
+    assert "not used" not in capsys.readouterr().err
+    # A dump's own normal without an albedo, or its depth, is said to be unused.
+    carried = SampleBuffer.from_moments(np.full((H, W), 4), np.full((H, W, 3), 0.5), np.full((H, W, 3), 0.01),
+                                        features={"normal": SampleBuffer.from_moments(
+                                            np.full((H, W), 4), np.broadcast_to([0.0, 0.0, 1.0], (H, W, 3)).copy(),
+                                            np.zeros((H, W, 3)), channels=("X", "Y", "Z"))})
+    write_sample_buffer(tmp_path / "n.exr", carried)
+    assert main(["denoise", str(tmp_path / "n.exr"), "--guide", "oidn", "-o", str(tmp_path / "n.out.exr")]) == 0
+    assert "features normal read but not used by --guide oidn" in capsys.readouterr().err
+    common = ["render", "--renderer", "synthetic", "edges", "--width", "16", "--height", "12", "--spp", "2"]
+    assert main([*common, "--features", "normal", "--guide", "oidn", "-o", str(tmp_path / "r.exr")]) == 2
+    one_error_line(capsys.readouterr().err, "--features: --guide oidn uses a normal only beside an albedo")
