@@ -11,6 +11,7 @@ from typing import Any
 
 from .._checks import MAX_SPP, path_option, whole_option
 from .config import OVERHEAD_SIZES, BenchmarkConfig
+from .rendering import tracer_module
 from .runner import run_benchmark
 
 __all__ = ["DESCRIPTION", "add_arguments", "config_from_args", "run_from_args", "main"]
@@ -98,6 +99,25 @@ def config_from_args(args: argparse.Namespace) -> BenchmarkConfig:
     return BenchmarkConfig.quick(**overrides) if args.quick else replace(BenchmarkConfig(), **overrides)
 
 
+_OPTION_NAMES = (("results_path / --results:", "--results:"), ("output_dir / --output-dir:", "--output-dir:"),
+                 ("mitsuba_scenes:", "--mitsuba-scenes:"), ("scenes:", "--scenes:"))
+"""The library's parameter names at the start of a refusal, and the options that set them."""
+
+
+def _refuse_unread(args: argparse.Namespace, config: BenchmarkConfig) -> None:
+    """Options the run would not read: refused, not ignored (a red-team pass found both accepted)."""
+    if args.mitsuba_scenes and args.no_mitsuba:
+        raise ValueError("--mitsuba-scenes: no Mitsuba scene runs with --no-mitsuba")
+    if args.reference_spp is not None and args.size:
+        tracer = tracer_module()
+        for name in config.scenes or tracer.list_scenes():
+            scene = tracer.load_scene(name) if name in tracer.list_scenes() else None  # unknown: refused later
+            if scene is not None and (scene.width, scene.height) != tuple(args.size):
+                raise ValueError(f"--reference-spp: read at each scene's own size, and {name} is "
+                                 f"{scene.width}x{scene.height}; at --size {args.size[0]} {args.size[1]} its reference "
+                                 f"is rendered on the spot at {config.inline_reference_spp} spp")
+
+
 def run_from_args(args: argparse.Namespace) -> int:
     """Run the benchmark with options parsed by :func:`add_arguments`; print the summary.
 
@@ -119,6 +139,7 @@ def run_from_args(args: argparse.Namespace) -> int:
     """
     config = config_from_args(args)
     try:
+        _refuse_unread(args, config)
         results = run_benchmark(config, output_dir=args.output_dir, results_path=args.results,
                                 plots=not args.no_plots, progress=not args.quiet,
                                 mode_name="quick" if args.quick else "full")
@@ -126,7 +147,11 @@ def run_from_args(args: argparse.Namespace) -> int:
         print(f"awr: error: {exc}", file=sys.stderr)
         return 1
     except (ValueError, FileExistsError, FileNotFoundError) as exc:  # the user's options: nothing was written
-        print(f"awr: error: {exc}", file=sys.stderr)
+        message = str(exc)
+        for name, option in _OPTION_NAMES:  # the library names its parameters; the command line its options
+            if message.startswith(name):
+                message = option + message[len(name):]
+        print(f"awr: error: {message}", file=sys.stderr)
         return 2
     s = results["summary"]
     print(f"{'scene':<14} " + " ".join(f"{m:>16}" for m in s["scenes"][next(iter(s["scenes"]))]["relmse"]))

@@ -18,7 +18,7 @@ from .._typing import FloatArray
 from ..metrics import RELMSE_EPSILON, relmse, tonemap
 from .config import DOMAINS, METHOD_LABELS, METHODS
 
-__all__ = ["PLOT_HINT", "require_matplotlib", "write_figures", "error_window"]
+__all__ = ["PLOT_HINT", "FIGURE_FILES", "require_matplotlib", "write_figures", "error_window"]
 
 PLOT_HINT = 'the benchmark plots need matplotlib; install it with pip install "awr-denoise[bench]"'
 
@@ -27,6 +27,13 @@ _COLORS = {"uniform": "black", "uniform+awr": "tab:blue", "awr+awr": "tab:red", 
            "variance+awr": "tab:orange",
            "uniform+skimage": "tab:green", "uniform+oidn": "tab:purple"}
 _DOMAIN_COLORS = {"linear": "tab:gray", "log": "tab:blue", "gamma": "tab:green", "log robust": "tab:red"}
+
+
+FIGURE_FILES = {"error_vs_spp": "bench_error_vs_spp.png", "error_vs_time": "bench_error_vs_time.png",
+                "density": "bench_density.png", "crops": "bench_crops.png", "cs_relmse": "bench_cs_relmse.png",
+                "cs_bias_variance": "bench_cs_bias_variance.png", "domain_crops": "bench_domain_crops.png",
+                "overhead": "bench_overhead.png"}
+"""The file of each figure :func:`write_figures` may draw, in ``img/`` (checked before a run: all of them)."""
 
 
 def require_matplotlib() -> type:
@@ -75,20 +82,17 @@ def write_figures(results: dict[str, Any], images: dict[str, Any], img_dir: Path
     img_dir.mkdir(parents=True, exist_ok=True)
     scenes = list(results["scenes"])
     figs: dict[str, str] = {}
-    figs["error_vs_spp"] = _save(_error_vs_spp(figure, results, scenes), img_dir / "bench_error_vs_spp.png",
-                                 place=place)
-    figs["error_vs_time"] = _save(_error_vs_time(figure, results, scenes), img_dir / "bench_error_vs_time.png",
-                                  place=place)
-    figs["density"] = _save(_density(figure, images, scenes), img_dir / "bench_density.png", place=place)
-    figs["crops"] = _save(_crops(figure, images, scenes), img_dir / "bench_crops.png", dpi=90, place=place)
-    for key, fields, fname in (("cs_relmse", ("relmse",), "bench_cs_relmse.png"),
-                               ("cs_bias_variance", ("bias2", "variance"), "bench_cs_bias_variance.png")):
-        figs[key] = _save(_cs_sweep(figure, results, scenes, key, fields), img_dir / fname, place=place)
-    figs["domain_crops"] = _save(_domain_crops(figure, images, scenes), img_dir / "bench_domain_crops.png", dpi=90,
-                                 place=place)
+    files = {key: img_dir / name for key, name in FIGURE_FILES.items()}
+    figs["error_vs_spp"] = _save(_error_vs_spp(figure, results, scenes), files["error_vs_spp"], place=place)
+    figs["error_vs_time"] = _save(_error_vs_time(figure, results, scenes), files["error_vs_time"], place=place)
+    figs["density"] = _save(_density(figure, images, scenes), files["density"], place=place)
+    figs["crops"] = _save(_crops(figure, images, scenes), files["crops"], dpi=90, place=place)
+    for key, fields in (("cs_relmse", ("relmse",)), ("cs_bias_variance", ("bias2", "variance"))):
+        figs[key] = _save(_cs_sweep(figure, results, scenes, key, fields), files[key], place=place)
+    figs["domain_crops"] = _save(_domain_crops(figure, images, scenes), files["domain_crops"], dpi=90, place=place)
     ov = results.get("overhead", {})
     if ov.get("sizes"):
-        figs["overhead"] = _save(_overhead(figure, ov), img_dir / "bench_overhead.png", place=place)
+        figs["overhead"] = _save(_overhead(figure, ov), files["overhead"], place=place)
     return figs
 
 

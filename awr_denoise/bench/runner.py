@@ -16,13 +16,13 @@ from tqdm import tqdm
 
 from .._typing import FloatArray
 from ..buffers import SampleBuffer
-from ..io.atomic import OutputSet, check_writable
+from ..io.atomic import STAGING_NAME, OutputSet, check_writable
 from ..metrics import RELMSE_EPSILON, mean_error, relmse
 from ..reconstruct import reconstruct
 from ..sampling import UniformSampler
 from .analysis import correct_for_noise_floor, flag_candidates, headline_spp, image_metrics, summarize
 from .config import METHODS, BenchmarkConfig
-from .figures import require_matplotlib, write_figures
+from .figures import FIGURE_FILES, require_matplotlib, write_figures
 from .flagcheck import ADAPTIVE_METHODS, check_flags
 from .measure import Timing, run_progressive, timed
 from .mitsuba import DEFAULT_REFERENCE_DIR, mitsuba_benchmark, mitsuba_scene_names
@@ -140,15 +140,17 @@ def _check_outputs(out_dir: Path | None, results_path: Path | None, plots: bool)
         checks.append(("results_path / --results", results_path))
     if out_dir is not None:
         checks.append(("output_dir / --output-dir", out_dir / "benchmarks.md"))
-        if plots:
-            checks.append(("output_dir / --output-dir", out_dir / "img" / "bench_crops.png"))
+        if plots:  # every figure: a FIFO or a folder at any of their names was found after the run
+            checks += [("output_dir / --output-dir", out_dir / "img" / name) for name in FIGURE_FILES.values()]
     for param, path in checks:
         folder = path.parent
         while not folder.exists():  # created at the end: its nearest existing parent must take it
-            if not os.path.lexists(folder):
-                folder = folder.parent
-                continue
-            raise ValueError(f"{param}: {folder} is a broken symbolic link")
+            if os.path.lexists(folder):
+                raise ValueError(f"{param}: {folder} is a broken symbolic link")
+            if STAGING_NAME.match(folder.name):  # refused at the commit, after the run, as an existing one is
+                raise ValueError(f"{param}: {folder} would be named as awr's staging folders, which later writes "
+                                 "remove as leftovers; write elsewhere")
+            folder = folder.parent
         try:
             if not folder.is_dir():
                 raise ValueError(f"{folder} is not a folder")

@@ -55,7 +55,8 @@ except ImportError:  # pragma: no cover - not on Windows: stale temporaries are 
 
 __all__ = ["atomic_write", "check_writable", "check_readable", "check_utf8_name", "file_kind", "read_without_waiting",
            "same_file", "OutputSet",
-           "public_name", "standing_for", "remove_stale_temporaries", "STAGING_PREFIX", "STAGING_SUFFIX", "STALE_AFTER",
+           "public_name", "standing_for", "remove_stale_temporaries", "STAGING_PREFIX", "STAGING_SUFFIX",
+           "STAGING_NAME", "STALE_AFTER",
            "COMMIT_WAIT"]
 
 STAGING_PREFIX = ".awr-"
@@ -70,7 +71,8 @@ _LOCK = "lock"
 # Only what this module creates is ever removed: its staging directories by their exact name, and
 # inside one nothing but its lock, temporaries ("1.exr"), their backups ("1.exr.old") and the
 # staging directory of a writer that stages again inside it.
-_STAGING_NAME = re.compile(r"\.awr-[0-9a-f]{10}\.tmp\Z")
+STAGING_NAME = re.compile(r"\.awr-[0-9a-f]{10}\.tmp\Z")
+"""The name of a staging directory (:data:`STAGING_PREFIX`, 10 hex digits, :data:`STAGING_SUFFIX`)."""
 _LOCK_FLAGS = os.O_RDWR | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
 # check_writable's probe, named by tempfile.mkstemp (8 random characters between these): a process killed between
 # its creation and its removal leaves it, empty, in a staging directory (which must stay removable) or in a
@@ -288,7 +290,7 @@ def check_writable(path: str | os.PathLike[str], *, overwrite: bool) -> Path:
     if not parent.is_dir():
         raise FileNotFoundError(f"{name}: directory {parent} does not exist")
     folder = os.path.basename(os.path.realpath(parent))
-    if _STAGING_NAME.match(folder) and os.fspath(target) not in _PUBLIC:  # not an OutputSet's own temporary
+    if STAGING_NAME.match(folder) and os.fspath(target) not in _PUBLIC:  # not an OutputSet's own temporary
         # The next write into the folder above would remove it as a killed writer's leftover, this output
         # with it, once it is STALE_AFTER old and holds no lock (a red-team pass): not a place for an output.
         raise ValueError(f"{name}: its folder {folder} is named as awr's staging folders, which later writes remove "
@@ -441,7 +443,7 @@ def remove_stale_temporaries(directory: str | os.PathLike[str]) -> list[Path]:
         if _PROBE_NAME.match(entry.name):
             _remove_stale_probe(entry, removed)
             continue
-        if not _STAGING_NAME.match(entry.name):
+        if not STAGING_NAME.match(entry.name):
             continue
         try:
             if not entry.is_dir(follow_symlinks=False) or not _holds_only_staged_files(entry.path):
@@ -492,7 +494,7 @@ def _holds_only_staged_files(path: str, depth: int = 0) -> bool:
         with os.scandir(path) as entries:
             for entry in entries:
                 if entry.is_dir(follow_symlinks=False):
-                    if depth or not _STAGING_NAME.match(entry.name) or not _holds_only_staged_files(entry.path, 1):
+                    if depth or not STAGING_NAME.match(entry.name) or not _holds_only_staged_files(entry.path, 1):
                         return False
                 elif not _STAGED_NAME.match(entry.name) or entry.name.endswith(".old"):
                     return False

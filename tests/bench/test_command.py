@@ -32,7 +32,7 @@ def test_main_rejects_an_unknown_scene(tmp_path, capsys):
     code = main(["--quick", "--scenes", "no_such_scene", "--output-dir", str(tmp_path), "--quiet", "--no-plots"])
     assert code == 2
     err = capsys.readouterr().err
-    assert err.startswith("awr: error: scenes: 'no_such_scene' is not one of") and err.count("\n") == 1
+    assert err.startswith("awr: error: --scenes: 'no_such_scene' is not one of") and err.count("\n") == 1
     assert not (tmp_path / "benchmarks.md").exists()
 
 
@@ -138,7 +138,21 @@ def test_outputs_that_cannot_be_written_are_refused_before_the_run(tmp_path, mon
             (["--output-dir", str(tmp_path / "docs2"), "--results", str(tmp_path / "r.json")], "--output-dir"),
             (["--output-dir", str(tmp_path / "docs3"), "--results", str(tmp_path / "r.json")], "benchmarks.md"),
             ([*docs, "--results", str(tmp_path / "r.json"), "--scenes", "default", "default"], "given twice"),
-            ([*docs, "--results", str(tmp_path / "r.json"), "--mitsuba-scenes", "nosuch"], "nosuch")):
+            # Options the run would not read (a red-team pass): Mitsuba's scenes without Mitsuba, a reference
+            # spp at a size whose reference is rendered on the spot.
+            ([*docs, "--results", str(tmp_path / "r.json"), "--mitsuba-scenes", "nosuch"], "--mitsuba-scenes"),
+            ([*docs, "--results", str(tmp_path / "r.json"), "--mitsuba-scenes", "cornell_box"],
+             "--mitsuba-scenes: no Mitsuba scene runs with --no-mitsuba"),
+            ([*docs, "--results", str(tmp_path / "r.json"), "--reference-spp", "4"],
+             "--reference-spp: read at each scene's own size"),
+            # Found only at the commit, after the whole run: a folder to create named as a staging folder, a FIFO
+            # or a folder at a figure's name other than the one checked.
+            (["--output-dir", str(tmp_path / "new" / ".awr-0123456789.tmp"), "--results", str(tmp_path / "r.json")],
+             "would be named as awr's staging folders"),
+            ([*docs, "--results", str(tmp_path / "new" / ".awr-0123456789.tmp" / "q.json")], "--results"),
+            (["--output-dir", str(tmp_path / "docs4"), "--results", str(tmp_path / "r.json")], "bench_density.png")):
+        if argv[1].endswith("docs4"):
+            (tmp_path / "docs4" / "img" / "bench_density.png").mkdir(parents=True)
         _refused_before_the_run(tmp_path, monkeypatch, capsys, argv, needle)
     if __import__("os").path.isdir("/proc/self"):  # accepts mkdir from no one, root included
         _refused_before_the_run(tmp_path, monkeypatch, capsys, ["--output-dir", "/proc/awr-bench",
