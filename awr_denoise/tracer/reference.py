@@ -10,6 +10,7 @@ writing go through :mod:`awr_denoise.io` (extra ``exr``).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 from pathlib import Path
 
@@ -18,7 +19,7 @@ from tqdm import tqdm
 
 from ..buffers import SampleBuffer
 from ..io import provenance, read_header, read_image, read_provenance, write_image
-from ..io.atomic import check_writable
+from ..io.atomic import STAGING_NAME, check_writable
 from ..requests import SampleRequest
 from .integrator import PathTracer
 from .scene import load_scene
@@ -80,8 +81,26 @@ def render_reference(scene_name: str, *, spp: int = DEFAULT_REFERENCE_SPP, seed:
     if int(spp) < 1:
         raise ValueError(f"spp: {spp} must be >= 1")
     target = Path(path) if path is not None else reference_path(scene_name)
-    # A FIFO or a folder where the reference goes: refused now, not after minutes of rendering.
+    # A FIFO or a folder where the reference goes: refused now, not after minutes of rendering. The folders
+    # made for it are removed again if the reference is not written (an interrupted or refused run left them).
+    missing = [folder for folder in [target.parent, *target.parent.parents] if not os.path.lexists(folder)]
+    for folder in missing:
+        if STAGING_NAME.match(folder.name):
+            raise ValueError(f"{target}: its folder {folder.name} would be named as awr's staging folders, which "
+                             "later writes remove as leftovers; write elsewhere")
     target.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        return _render_into(target, scene_name, spp, seed, sampler, progress, threads, workers)
+    except BaseException:
+        for folder in missing:  # the deepest first: each empty now, unless someone else wrote there meanwhile
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        raise
+
+
+def _render_into(target: Path, scene_name: str, spp: int, seed: int, sampler: str, progress: bool, threads: int,
+                 workers: str) -> np.ndarray:
+    """:func:`render_reference`'s render and write, its folder made."""
     check_writable(target, overwrite=True)
     scene = load_scene(scene_name)
     tracer = PathTracer(scene, seed=seed, sampler=sampler, threads=threads, workers=workers)

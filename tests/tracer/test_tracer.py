@@ -756,6 +756,24 @@ def test_a_cached_reference_that_is_a_fifo_is_refused_before_any_render(tmp_path
         load_reference("default")
 
 
+def test_a_reference_not_written_leaves_no_folder_it_made(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """An interrupted or refused ``awr demo`` / ``awr bench`` left the folders made for the reference under
+    AWR_DENOISE_REFERENCE_DIR; a folder to make named as a staging folder was made, then refused."""
+    from awr_denoise.tracer import reference as module
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(module, "PathTracer", interrupted)
+    (tmp_path / "kept").mkdir()
+    with pytest.raises(KeyboardInterrupt):
+        module.render_reference("default", spp=1, path=tmp_path / "kept" / "a" / "b" / "default.exr")
+    assert [p.name for p in tmp_path.rglob("*")] == ["kept"]
+    with pytest.raises(ValueError, match="would be named as awr's staging folders"):
+        module.render_reference("default", spp=1, path=tmp_path / "new" / ".awr-0123456789.tmp" / "default.exr")
+    assert [p.name for p in tmp_path.rglob("*")] == ["kept"]
+
+
 @pytest.mark.exr
 def test_committed_references_are_small_and_state_their_spp() -> None:
     pytest.importorskip("OpenEXR")
