@@ -81,9 +81,10 @@ def run_benchmark(config: BenchmarkConfig | None = None, *, output_dir: str | Pa
         require_matplotlib()  # fail early, with the install hint
     use_oidn = bool(config.oidn) and oidn_available()
     out_dir = None if output_dir is None else Path(output_dir)
-    if results_path is None and out_dir is not None:
+    derived = results_path is None and out_dir is not None  # beside the output folder: named by it
+    if derived:
         results_path = out_dir.resolve().parent / "benchmarks" / "results" / "quality.json"
-    _check_outputs(out_dir, None if results_path is None else Path(results_path), plots)
+    _check_outputs(out_dir, None if results_path is None else Path(results_path), plots, derived=derived)
     _refuse_outputs_onto_references(out_dir, None if results_path is None else Path(results_path), scenes, config)
 
     stages = len(scenes) * (5 + int(config.defaults_sweep)) + len(config.overhead_sizes) + 1 + \
@@ -131,13 +132,14 @@ def run_benchmark(config: BenchmarkConfig | None = None, *, output_dir: str | Pa
     return results
 
 
-def _check_outputs(out_dir: Path | None, results_path: Path | None, plots: bool) -> None:
-    """Refuse, before anything is measured, outputs the run could not write at its end."""
+def _check_outputs(out_dir: Path | None, results_path: Path | None, plots: bool, *, derived: bool = False) -> None:
+    """Refuse, before anything is measured, outputs the run could not write at its end (``derived``: the
+    results' path was made from the output folder's, which a refusal then names)."""
     checks = []
     if results_path is not None:
         if results_path.suffix.lower() != ".json":
             raise ValueError(f"results_path / --results: {results_path} is not a .json file")
-        checks.append(("results_path / --results", results_path))
+        checks.append(("output_dir / --output-dir" if derived else "results_path / --results", results_path))
     if out_dir is not None:
         checks.append(("output_dir / --output-dir", out_dir / "benchmarks.md"))
         if plots:  # every figure: a FIFO or a folder at any of their names was found after the run

@@ -150,7 +150,9 @@ def test_outputs_that_cannot_be_written_are_refused_before_the_run(tmp_path, mon
             (["--output-dir", str(tmp_path / "new" / ".awr-0123456789.tmp"), "--results", str(tmp_path / "r.json")],
              "would be named as awr's staging folders"),
             ([*docs, "--results", str(tmp_path / "new" / ".awr-0123456789.tmp" / "q.json")], "--results"),
-            (["--output-dir", str(tmp_path / "docs4"), "--results", str(tmp_path / "r.json")], "bench_density.png")):
+            (["--output-dir", str(tmp_path / "docs4"), "--results", str(tmp_path / "r.json")], "bench_density.png"),
+            # The results beside an output folder under a file: the folder given is named, not --results.
+            (["--output-dir", str(tmp_path / "afile" / "sub")], "--output-dir: ")):
         if argv[1].endswith("docs4"):
             (tmp_path / "docs4" / "img" / "bench_density.png").mkdir(parents=True)
         _refused_before_the_run(tmp_path, monkeypatch, capsys, argv, needle)
