@@ -234,34 +234,34 @@ def _absolute_plane(spec: Any) -> Any:
     return spec
 
 
+def _per_frame(param: str, value: Any, frames: int, one: Callable[[Any], bool], what: str) -> list[Any]:
+    """``value`` as one item per frame: ``value`` itself for every frame when ``one(value)`` (the same for all),
+    else the caller's list of ``frames`` items, each ``one`` of them and none None."""
+    if one(value):
+        return [value] * frames
+    if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
+        raise TypeError(f"{param}: expected a {what}, or one {what} per input, got {type(value).__name__}")
+    if len(value) != frames:
+        raise ValueError(f"{param}: {len(value)} given for {frames} input(s)")
+    for item in value:
+        if item is None or not one(item):
+            raise TypeError(f"{param}: expected one {what} per input, got a {type(item).__name__} among them")
+    return list(value)
+
+
 def _read_options_per_frame(read_options: Mapping[str, Any] | Sequence[Mapping[str, Any]] | None,
                             frames: int) -> list[dict[str, Any]]:
     """``read_options`` as one dict per frame: the same for every frame, or the caller's list of them."""
-    if read_options is None or isinstance(read_options, Mapping):
-        return [dict(read_options or {}) for _ in range(frames)]
-    if isinstance(read_options, (str, bytes)) or not isinstance(read_options, Sequence):
-        raise TypeError(f"read_options: expected a dict, or one dict per input, got {type(read_options).__name__}")
-    if len(read_options) != frames:
-        raise ValueError(f"read_options: {len(read_options)} given for {frames} input(s)")
-    for frame in read_options:
-        if not isinstance(frame, Mapping):
-            raise TypeError(f"read_options: expected one dict per input, got a {type(frame).__name__} among them")
-    return [dict(frame) for frame in read_options]
+    given = _per_frame("read_options", read_options, frames, lambda v: v is None or isinstance(v, Mapping), "dict")
+    return [dict(options or {}) for options in given]
 
 
 def _references_per_frame(reference: str | os.PathLike[str] | Sequence[str | os.PathLike[str]] | None,
                           frames: int) -> list[str | None]:
     """``reference`` as one path (or None) per frame: the same for every frame, or the caller's list of them."""
-    if reference is None or isinstance(reference, (str, os.PathLike)):
-        return [None if reference is None else _checks.file_path("reference", reference)] * frames
-    if isinstance(reference, bytes) or not isinstance(reference, Sequence):
-        raise TypeError(f"reference: expected a path, or one path per input, got {type(reference).__name__}")
-    if len(reference) != frames:
-        raise ValueError(f"reference: {len(reference)} given for {frames} input(s)")
-    for path in reference:
-        if not isinstance(path, (str, os.PathLike)):
-            raise TypeError(f"reference: expected one path per input, got a {type(path).__name__} among them")
-    return [_checks.file_path("reference", path) for path in reference]
+    given = _per_frame("reference", reference, frames, lambda v: v is None or isinstance(v, (str, os.PathLike)),
+                       "path")
+    return [None if path is None else _checks.file_path("reference", path) for path in given]
 
 
 def _check_reconstruct_options(options: Mapping[str, Any]) -> None:

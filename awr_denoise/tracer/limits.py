@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["MAX_COORDINATE", "MAX_RADIANCE", "vector", "rgb_radiance", "reach", "check_reach", "check_radiance",
-           "refuse_unknown"]
+__all__ = ["MAX_COORDINATE", "MAX_RADIANCE", "shown", "vector", "rgb_radiance", "reach", "check_reach",
+           "check_radiance", "refuse_unknown"]
 
 MAX_COORDINATE = 1e11
 """Largest coordinate (scene units, either sign) of any vertex over the shutter, and of the camera and point lights.
@@ -38,7 +38,7 @@ distance, a 1 / pdf). The bundled sky's sun is 600: the bound leaves twelve orde
 """
 
 
-def _shown(value: Any) -> str:
+def shown(value: Any) -> str:
     """``repr(value)``, cut short: a refusal stays one readable line."""
     text = repr(value)
     return text if len(text) <= 40 else text[:37] + "..."
@@ -60,7 +60,7 @@ def vector(spec: dict[str, Any], key: str, where: str, default: Any = None) -> n
     except (TypeError, ValueError):
         value = np.empty(0)
     if value.shape != (3,) or not np.all(np.isfinite(value)):
-        raise ValueError(f"{where}.{key}: expected 3 finite numbers, got {_shown(spec.get(key))}")
+        raise ValueError(f"{where}.{key}: expected 3 finite numbers, got {shown(spec.get(key))}")
     return value
 
 
@@ -95,8 +95,8 @@ def rgb_radiance(where: str, value: Any) -> np.ndarray:
     try:
         rgb = np.broadcast_to(np.asarray(value, np.float64), (3,)).copy()
     except (TypeError, ValueError):
-        raise ValueError(f"{where}: expected a number or 3 numbers, got {_shown(value)}") from None
+        raise ValueError(f"{where}: expected a number or 3 numbers, got {shown(value)}") from None
     if not np.all(np.isfinite(rgb)) or np.any(rgb < 0):
-        raise ValueError(f"{where}: must be finite and >= 0, got {_shown(value)}")
+        raise ValueError(f"{where}: must be finite and >= 0, got {shown(value)}")
     check_radiance(where, float(rgb.max()))
     return rgb

@@ -41,7 +41,7 @@ from ..io.atomic import read_without_waiting
 from .camera import ThinLensCamera, parse_camera
 from .environment import ConstantEnvironment, LatLongEnvironment, parse_environment
 from .lights import AreaLights, DirectionalLight, PointLight, parse_delta_light
-from .limits import check_reach, reach, refuse_unknown, rgb_radiance
+from .limits import check_reach, reach, refuse_unknown, rgb_radiance, shown
 from .limits import vector as _vec
 from .materials import Material, parse_material
 from .meshes import CHESS_PROFILES, box_mesh, lathe_mesh, quad_mesh, rotation_matrices, sphere_mesh
@@ -189,14 +189,8 @@ def dimension_names(scene: Scene, max_depth: int) -> tuple[str, ...]:
 def _mapping(value: Any, where: str) -> dict[str, Any]:
     """``value`` if it is a JSON object, else a ValueError naming the field."""
     if not isinstance(value, dict):
-        raise ValueError(f"{where}: expected an object {{...}}, got {_shown(value)}")
+        raise ValueError(f"{where}: expected an object {{...}}, got {shown(value)}")
     return value
-
-
-def _shown(value: Any) -> str:
-    """``repr(value)``, cut short: a refusal stays one readable line."""
-    text = repr(value)
-    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def _whole(spec: dict[str, Any], key: str, where: str, default: int, low: int, high: int) -> int:
@@ -311,7 +305,7 @@ def parse_scene(spec: dict[str, Any], *, width: int | None = None, height: int |
     objects = []
     object_specs = spec.get("objects", [])
     if not isinstance(object_specs, list):
-        raise ValueError(f"objects: expected a list [...], got {_shown(object_specs)}")
+        raise ValueError(f"objects: expected a list [...], got {shown(object_specs)}")
     for i, obj in enumerate(object_specs):
         where = f"objects[{i}]"
         obj = _mapping(obj, where)
@@ -348,7 +342,7 @@ def parse_scene(spec: dict[str, Any], *, width: int | None = None, height: int |
 
     light_specs = spec.get("lights", [])
     if not isinstance(light_specs, list):
-        raise ValueError(f"lights: expected a list [...], got {_shown(light_specs)}")
+        raise ValueError(f"lights: expected a list [...], got {shown(light_specs)}")
     delta_lights = [parse_delta_light(i, _mapping(lt, f"lights[{i}]")) for i, lt in enumerate(light_specs)]
     environment = spec.get("environment")
     environment = parse_environment(None if environment is None else _mapping(environment, "environment"), base_dir)
@@ -455,7 +449,7 @@ def scene_files(scene: str | Path) -> list[tuple[str, Path]]:
     if isinstance(environment, dict) and environment.get("type") == "latlong" and "path" in environment:
         file = environment["path"]
         if not isinstance(file, str) or not file:
-            raise ValueError(f"{path}: environment.path: expected a file name, got {_shown(file)}")
+            raise ValueError(f"{path}: environment.path: expected a file name, got {shown(file)}")
         file = Path(file)
         return [("environment.path", file if file.is_absolute() else path.parent / file)]
     return []

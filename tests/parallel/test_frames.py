@@ -32,15 +32,23 @@ def test_denoise_frames_equals_the_serial_run_bitwise(tmp_path, dumps):
                                   reconstruct(read_sample_buffer(dumps[1]), **options).astype(np.float32))
 
 
+def _images_per_frame(tmp_path, dumps, stem: str, seed: int) -> list:
+    """One random RGB image per dump, of its size, at ``tmp_path / f"{stem}.{i}.exr"``."""
+    from awr_denoise.io import read_sample_buffer, write_image
+
+    rng = np.random.default_rng(seed)
+    shape = read_sample_buffer(dumps[0]).shape
+    paths = [tmp_path / f"{stem}.{i}.exr" for i in range(len(dumps))]
+    for path in paths:
+        write_image(path, rng.random((*shape, 3)))
+    return paths
+
+
 def test_each_frame_may_read_its_own_plane_files(tmp_path, dumps):
     """``read_options`` one dict per input: frame i reads its own albedo, as a serial run with it does."""
-    from awr_denoise.io import read_image, read_sample_buffer, write_image
+    from awr_denoise.io import read_image, read_sample_buffer
 
-    rng = np.random.default_rng(3)
-    shape = read_sample_buffer(dumps[0]).shape
-    albedos = [tmp_path / f"alb.{i}.exr" for i in range(len(dumps))]
-    for path in albedos:
-        write_image(path, rng.random((*shape, 3)))
+    albedos = _images_per_frame(tmp_path, dumps, "alb", 3)
     per_frame = [{"albedo": str(path)} for path in albedos]
     outputs = [tmp_path / f"out.{i}.exr" for i in range(len(dumps))]
     denoise_frames(dumps, outputs, read_options=per_frame, features=True)
@@ -59,14 +67,9 @@ def test_each_frame_may_read_its_own_plane_files(tmp_path, dumps):
 
 def test_each_frame_may_have_its_own_reference(tmp_path, dumps):
     """``reference`` one path per input: frame i's error against its own, as a run per frame gives it."""
-    from awr_denoise.io import read_sample_buffer, write_image
     from awr_denoise.parallel import denoise_frame
 
-    rng = np.random.default_rng(5)
-    shape = read_sample_buffer(dumps[0]).shape
-    refs = [tmp_path / f"ref.{i}.exr" for i in range(len(dumps))]
-    for path in refs:
-        write_image(path, rng.random((*shape, 3)))
+    refs = _images_per_frame(tmp_path, dumps, "ref", 5)
     seen = []
     denoise_frames(dumps, [tmp_path / f"out.{i}.exr" for i in range(len(dumps))], reference=refs, on_frame=seen.append)
     errors = {frame.source: frame.relmse for frame in seen}
