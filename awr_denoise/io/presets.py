@@ -46,7 +46,7 @@ from .deep import sample_index_bounds, samples_from_deep_part
 from .dump import COUNT_CHANNEL, MAX_EXACT_COUNT, VARIANCE_PREFIX, SampleDump, buffer_from_awr_part, whole_counts
 from .exr import ExrPart, check_same_windows, checked_plane, file_error, header_value, header_windows, read_exr
 from .features import MITSUBA_AOV_NAMES, auto_feature_planes, feature_from_planes
-from .mitsuba import filter_correlation
+from .mitsuba import MomentBound, filter_correlation, moment_bound
 
 __all__ = ["PRESETS", "detect_preset", "read_sample_buffer", "read_sample_dump", "read_independent_renders",
            "parse_plane", "feature_plane_file", "file_views"]
@@ -651,6 +651,18 @@ def _half_moments(mean: FloatArray, second: FloatArray, plane: _Plane) -> FloatA
     return np.where((second < square) & (square - second <= 2.0**-9 * square + 2.0**-24), square, second)
 
 
+def _moment_bound(layout: _Layout) -> MomentBound | None:
+    """:func:`~awr_denoise.io.mitsuba.moment_bound` of a layout's radiance moments as stored (before any XYZ
+    conversion: X, Y and Z of non-negative radiance are non-negative too); None for a variance plane."""
+    colour, spread = layout.colour, layout.spread
+    if layout.kind != "second_moment" or spread is None or layout.count is None:
+        return None
+    if len(spread.channels) == len(colour.channels) + 1:  # an alpha moment: no colour counterpart
+        spread = _Plane(spread.path, spread.channels[:-1], spread.arrays[:-1])
+    smallest = 2.0**-14 if _is_half(colour) or _is_half(spread) else float(np.finfo(np.float32).tiny)
+    return moment_bound(layout.count, _values(colour), _values(spread), smallest=smallest)
+
+
 def _assemble(path: Path, layout: _Layout, warnings: list[str] | None = None) -> SampleBuffer:
     colour, spread, kind = layout.colour, layout.spread, layout.kind
     assert spread is not None and layout.count is not None
@@ -907,9 +919,19 @@ def read_sample_dump(
     if found:
         buffer = dataclasses.replace(buffer, features=found)
     if preset == "mitsuba":
+        # The moments' bound is a proof (unequal weights, or more samples than counted), refused; the neighbours'
+        # correlation a measurement, warned about: it is all that is left where the bound holds.
+        bound = _moment_bound(layout)
+        if bound is not None and bound.exceeded:
+            assert layout.spread is not None
+            raise file_error(layout.spread.path, bound.message, layout.spread.label)
         ratio = filter_correlation(buffer)
         if ratio is not None and ratio.correlated:
             ctx.warnings.append(f"{p}: {layout.colour.label}: {ratio.message}")
+        if bound is not None and bound.agreed:
+            ctx.warnings.append(f"{p}: {layout.colour.label}: every pixel's samples agree exactly (second moment = "
+                                f"squared mean) though counted {int(buffer.count.max())} per pixel: moments of one "
+                                "sample per pixel? Give spp 1 if so; each variance read is the rounding of m2 - m1^2")
     _warn(ctx.warnings)
     return SampleDump(buffer, buffer.count, {}, tuple(ctx.notes + ctx.warnings))
 

@@ -181,8 +181,8 @@ def test_a_variance_plane_of_the_users_own_in_a_pbrt_file(tmp_path):
 def test_an_aovs_moment_named_reads_with_its_mean(tmp_path):
     """``m2_main.img`` (an AOV's moment inside ``moment``) was "m2_main.: no colour channel(s)";
     a Mitsuba file holding a ``Variance.*`` plane of the user's was read as pbrt's."""
-    named = read_sample_dump(MI / "mitsuba_aov.exr", spp=4, variance="m2_main.img")
-    by_colour = read_sample_dump(MI / "mitsuba_aov.exr", spp=4, color="main.img")
+    named = read_sample_dump(MI / "mitsuba_aov.exr", spp=8, variance="m2_main.img")
+    by_colour = read_sample_dump(MI / "mitsuba_aov.exr", spp=8, color="main.img")
     np.testing.assert_array_equal(named.buffer.mean, by_colour.buffer.mean)
     np.testing.assert_array_equal(named.buffer.variance, by_colour.buffer.variance)
     planes = _channels(MI / "mitsuba_box.exr")
@@ -259,10 +259,53 @@ def test_xyz_image_is_not_compared_by_y_alone(capsys):
     assert image.shape == (16, 16, 3)
 
 
-def test_mitsuba_gaussian_filter_warns_box_does_not():
-    with pytest.warns(InputFileWarning, match="film filter is probably not 'box'"):
-        read_sample_dump(MI / "mitsuba_gaussian.exr", spp=8)
+@pytest.mark.parametrize("name", ["mitsuba_gaussian", "mitsuba_narrow_gaussian"])
+def test_mitsuba_unequal_sample_weights_are_proved_by_the_moments(name, capsys):
+    """Mitsuba's default gaussian filter was warned about (its neighbours' means correlated); one within the
+    pixel (stddev 0.1) shares no sample, passed that test and understated the variances 3-10x (a red-team
+    pass). Equally weighted non-negative samples give m2 <= n m1^2: both are refused by it."""
+    with pytest.raises(InputFileError, match=r"m2_nested: pixel \(x \d+, y \d+\)'s second moment is [\d.]+ times its "
+                                             r"squared mean, which 8 equally weighted .*rfilter box"):
+        read_sample_dump(MI / f"{name}.exr", spp=8)
+    assert main(["denoise", str(MI / f"{name}.exr"), "--spp", "8", "-o", "never.exr"]) == 2
+    assert "weighted them unequally" in capsys.readouterr().err
     read_sample_dump(MI / "mitsuba_box.exr", spp=8)  # filterwarnings=error: any warning fails
+
+
+def test_an_spp_below_what_the_moments_hold_is_refused(tmp_path, capsys):
+    """8-spp moments read as 2 spp had 4x the variance; a 16-spp file merged as 8 spp weighted its mean as half
+    its samples. Some pixel of 8 samples has one nonzero sample: its moments need exactly 8."""
+    for spp in (2, 7):
+        with pytest.raises(InputFileError, match=r"is 8 times its squared mean, which %d equally" % spp):
+            read_sample_dump(MI / "mitsuba_box.exr", spp=spp)
+    with pytest.raises(InputFileError, match=r"m2_main: .* is 16\.0\d* times .* which 8 equally"):  # HALF, 16 spp
+        read_sample_dump(MI / "mitsuba_half_aov.exr", spp=8)
+    read_sample_dump(MI / "mitsuba_half_aov.exr", spp=16)  # its rounding (16.01) is not a sample more
+    out = tmp_path / "merged.exr"
+    assert main(["merge", str(MI / "mitsuba_aov_position.exr"), str(MI / "mitsuba_half_aov.exr"), "--spp", "8",
+                 "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "mitsuba_half_aov.exr: m2_main" in err[0] and not out.exists()
+
+
+def test_moments_of_one_sample_read_as_more_are_warned_about():
+    """A 1-spp film read with spp 8: every variance exactly 0, every pixel "converged", no word."""
+    with pytest.warns(InputFileWarning, match="every pixel's samples agree exactly .* counted 8 per pixel"):
+        dump = read_sample_dump(MI / "mitsuba_spp1.exr", spp=8)
+    buffer = dump.buffer  # m2 - m1^2 to float32's rounding (spread over R, G, B by the XYZ conversion)
+    assert (buffer.variance.sum(axis=-1) <= 1e-5 * (buffer.mean**2).sum(axis=-1)).all()
+    read_sample_dump(MI / "mitsuba_spp1.exr", spp=1)  # no warning
+
+
+def test_the_filter_correlation_still_warns_where_the_moments_cannot_tell(tmp_path):
+    """A per-sample variance of the user's own is no moment: the bound does not apply, the neighbours' test does."""
+    planes = _channels(MI / "mitsuba_gaussian.exr")
+    own = {f"myvar.{c}": np.maximum(planes[f"m2_nested.{c}"] - planes[f"nested.{c}"] ** 2, 0) * 8 / 7
+           for c in "XYZ"}
+    path = tmp_path / "gaussian_with_variance.exr"
+    write_exr(path, {k: v.astype(np.float32) for k, v in (planes | own).items()})
+    with pytest.warns(InputFileWarning, match="film filter is probably not 'box'"):
+        read_sample_dump(path, spp=8, color="nested", variance="myvar")
 
 
 def test_mitsuba_info_without_spp_and_denoise_asks_for_it(tmp_path, capsys):

@@ -42,7 +42,11 @@ FILES: dict[str, tuple[str, str, int]] = {
     "mitsuba_aov_of_moment": ("aov_of_moment", "box", 8),       # img.m2_nested: moment inside aov
     "mitsuba_two": ("moment_two", "box", 8),        # two nested integrators: two radiance moments
     "mitsuba_xyz": ("path", "box", 8),              # pixel_format xyz: an image of X,Y,Z
+    "mitsuba_narrow_gaussian": ("moment", "narrow_gaussian", 8),  # a filter within the pixel: unequal weights
+    "mitsuba_spp1": ("moment", "box", 1),           # one sample per pixel: every second moment its mean squared
 }
+RFILTERS: dict[str, dict] = {"narrow_gaussian": {"type": "gaussian", "stddev": 0.1}}
+"""Filters with parameters, by the name ``FILES`` gives; any other name is the filter's type with its defaults."""
 # name -> (variant, film options) where they differ from VARIANT and the film's defaults
 OPTIONS: dict[str, tuple[str, dict]] = {
     "mitsuba_mono": ("llvm_ad_mono", {}),
@@ -83,7 +87,7 @@ def render(name: str, outdir: Path, *, seed: int = 0, kind: str | None = None, r
     scene = mi.cornell_box()
     scene["integrator"] = _integrator(kind)
     size = SIZE if name in ORIGINAL else SMALL
-    scene["sensor"]["film"].update(width=size, height=size, rfilter={"type": rfilter}, **film)
+    scene["sensor"]["film"].update(width=size, height=size, rfilter=RFILTERS.get(rfilter, {"type": rfilter}), **film)
     loaded = mi.load_dict(scene)
     mi.render(loaded, spp=spp, seed=seed)
     path = outdir / f"{name}.exr"
