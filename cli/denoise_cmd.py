@@ -39,6 +39,7 @@ from .common import (
     progress,
     status,
 )
+from .errors import shown
 from .parallel_options import add_executor_arguments, executor_from_args, executor_requested
 from .paths import PathPlan, check_file_name, check_plane_windows, plane_options
 from .values import MAX_EXPOSURE, MAX_LEVELS, nonempty, real, wavelet_name, whole
@@ -328,8 +329,10 @@ def run(args: argparse.Namespace) -> int:
         outputs.commit()  # asks first for a signal whose exception was lost (interrupts.raising)
     order = {src: i for i, src in enumerate(sources)}
     for frame in sorted(frames, key=lambda f: order.get(f.source, 0)):
-        shown = final[frame.output]
-        status(_note(frame, shown, args.nonfinite, args.guide), quiet=args.quiet)
+        output = final[frame.output]
+        status(_note(frame, output, args.nonfinite, args.guide), quiet=args.quiet)
+        if frame.relmse is not None:  # a result, as awr diff prints its own: on stdout, with -q too
+            print(f"{shown(output)}: relMSE {frame.relmse:.6g} against {shown(refs[order[frame.source]])}")
     if args.maxerror is not None:
         over = [f for f in sorted(frames, key=lambda f: order.get(f.source, 0))  # the first frame, not the first done
                 if f.relmse is not None and f.relmse > args.maxerror]

@@ -52,7 +52,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=whole(minimum=0, maximum=MAX_SEED), help="seed of the renderer's sequences and tie-breaking "
                                             "(default: the dump's awr:seed, which it must match, else 0)")
     p.add_argument("--round", type=whole(minimum=0, maximum=MAX_ROUND - 1),  # merge numbers the next round
-                   help="round number (default: the dump's awr:round, else 1)")
+                   help="round number (default: the dump's awr:round, else 1; the first round, without a dump, "
+                        "is 0)")
     p.add_argument("--wavelet", type=wavelet_name,
                    help=f"wavelet of the priority analysis (default {DEFAULT_WAVELET})")
     p.add_argument("--levels", type=whole(minimum=1, maximum=MAX_LEVELS), help="decomposition depth of the priority analysis")

@@ -195,6 +195,9 @@ def _scene(args: argparse.Namespace) -> tuple[str, Any, str, tuple[int, int] | N
     if args.renderer != TRACER:
         if not given:
             raise UsageError(f"--renderer {args.renderer}: give the SCENE to render")
+        if args.sampler != "independent":  # the header would record a sequence this renderer never used
+            raise UsageError(f"--sampler {args.sampler}: the bundled tracer's sequence; --renderer {args.renderer} "
+                             "draws independent samples")
         if (args.width is None) != (args.height is None):  # no scene file here to keep the other side from
             missing = "--height" if args.height is None else "--width"
             raise UsageError(f"{missing}: --renderer {args.renderer} needs both --width and --height to resize")

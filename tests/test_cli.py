@@ -29,6 +29,7 @@ from awr_denoise.io import (  # noqa: E402
 )
 from awr_denoise.io.colour import MITSUBA_XYZ_TO_SRGB  # noqa: E402
 from awr_denoise.io.provenance import provenance  # noqa: E402
+from awr_denoise.metrics import relmse  # noqa: E402
 from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP  # noqa: E402
 
 DATA = Path(__file__).parent / "data"
@@ -352,6 +353,24 @@ def test_frames_read_each_frames_own_plane_files(tmp_path, rng, capsys):
     assert main(["denoise", str(tmp_path / "shot.0001.exr"), "-o", str(tmp_path / "bad.exr"),
                  "--alb", str(tmp_path / "alb.####.exr"), "-q"]) == 2
     _one_error_line(capsys, "--alb", "#### frame placeholder but no --frames")
+
+
+def test_the_comparison_with_a_reference_is_a_result_on_stdout(tmp_path, rng, capsys):
+    """``-r`` printed its relMSE only in the summary line on stderr, which ``-q`` silences (a docs audit)."""
+    for f in (1, 2):
+        _dump(tmp_path / f"shot.{f}.exr", rng)
+        write_image(tmp_path / f"ref.{f}.exr", rng.random((H, W, 3)))
+    assert main(["denoise", str(tmp_path / "shot.#.exr"), "--frames", "1-2", "-r", str(tmp_path / "ref.#.exr"),
+                 "-o", str(tmp_path / "den.#.exr"), "-q"]) == 0
+    out, err = capsys.readouterr()
+    assert err == ""
+    lines = out.splitlines()
+    assert [line.split(": relMSE ")[0] for line in lines] == [str(tmp_path / f"den.{f}.exr") for f in (1, 2)]
+    for f, line in zip((1, 2), lines):
+        value = float(line.split("relMSE ")[1].split()[0])
+        assert line.endswith(f"against {tmp_path / f'ref.{f}.exr'}")
+        assert value == pytest.approx(relmse(read_image(tmp_path / f"den.{f}.exr"),
+                                             read_image(tmp_path / f"ref.{f}.exr")), rel=1e-5)
 
 
 def test_frames_compared_with_each_frames_own_reference(tmp_path, rng, capsys):
@@ -950,6 +969,10 @@ def test_render_refuses_existing_outputs_before_rendering(tmp_path, fake_tracer,
     assert main(["render", "--renderer", "synthetic", "nope", "--width", "8", "--height", "8", "-o",
                  str(tmp_path / "s.exr"), "-q"]) == 2
     _one_error_line(capsys, "SCENE/--scene: --renderer synthetic: 'nope' is not one of edges")
+    # ... and the tracer's Sobol' sequence, which another renderer ignored while its header recorded it
+    assert main(["render", "--renderer", "synthetic", "edges", "--width", "8", "--height", "8", "--sampler", "sobol",
+                 "-o", str(tmp_path / "s.exr"), "-q"]) == 2
+    _one_error_line(capsys, "--sampler sobol: the bundled tracer's sequence; --renderer synthetic draws independent")
     assert sorted(os.listdir(tmp_path)) == ["toy.denoised.png"]
 
 
