@@ -65,6 +65,30 @@ def test_mitsuba_aov_rgb_moments_used_and_close_to_conversion():
     assert 0.85 < ratio < 1.15  # measured 0.95-0.99 per channel (docs/io.md)
 
 
+def test_a_mono_renders_aovs_are_found_beside_its_luminance(tmp_path):
+    """A mono variant's moment around an aov integrator: its colour plane is main.Y, and its AOVs were looked for
+    beside it (main.Y.albedo): dropped by info, refused by --guide features (a red-team pass)."""
+    dump = read_sample_dump(MI / "mitsuba_mono_aov.exr", spp=8)
+    assert dump.buffer.channels == ("Y",)
+    assert set(dump.buffer.features) == {"albedo", "normal", "depth"}
+    assert all(f.variance_known.all() for f in dump.buffer.features.values())  # each AOV's m2_ moment
+    ch = _channels(MI / "mitsuba_mono_aov.exr")
+    np.testing.assert_array_equal(dump.buffer.features["albedo"].mean[..., 0], ch["main.albedo.R"])
+    out = tmp_path / "guided.exr"
+    assert main(["denoise", str(MI / "mitsuba_mono_aov.exr"), "--spp", "8", "--guide", "features", "-q",
+                 "-o", str(out)]) == 0
+    assert read_image(out, channels=["Y"]).shape == (16, 16, 1)
+
+
+def test_a_mitsuba_aov_named_as_a_feature_keeps_its_moment():
+    """``--alb FILE:main.albedo`` read the plane's values alone: its m2_main.albedo beside it was not used."""
+    named = read_sample_dump(MI / "mitsuba_aov.exr", spp=8, albedo="main.albedo").buffer.features["albedo"]
+    found = read_sample_dump(MI / "mitsuba_aov.exr", spp=8).buffer.features["albedo"]
+    assert named.variance_known.all()
+    np.testing.assert_array_equal(named.variance, found.variance)
+    np.testing.assert_array_equal(named.mean, found.mean)
+
+
 def test_mitsuba_mono_variant_reads_its_luminance():
     # llvm_ad_mono writes X = Y = Z (the luminance) in every moment; the XYZ matrix made it a tinted
     # colour (R +20%, B -9%).

@@ -44,12 +44,14 @@ FILES: dict[str, tuple[str, str, int]] = {
     "mitsuba_xyz": ("path", "box", 8),              # pixel_format xyz: an image of X,Y,Z
     "mitsuba_narrow_gaussian": ("moment", "narrow_gaussian", 8),  # a filter within the pixel: unequal weights
     "mitsuba_spp1": ("moment", "box", 1),           # one sample per pixel: every second moment its mean squared
+    "mitsuba_mono_aov": ("moment_aov", "box", 8),   # a mono variant's moment around an aov integrator: features
 }
 RFILTERS: dict[str, dict] = {"narrow_gaussian": {"type": "gaussian", "stddev": 0.1}}
 """Filters with parameters, by the name ``FILES`` gives; any other name is the filter's type with its defaults."""
 # name -> (variant, film options) where they differ from VARIANT and the film's defaults
 OPTIONS: dict[str, tuple[str, dict]] = {
     "mitsuba_mono": ("llvm_ad_mono", {}),
+    "mitsuba_mono_aov": ("llvm_ad_mono", {}),
     "mitsuba_half_aov": (VARIANT, {"component_format": "float16"}),
     "mitsuba_uint32": (VARIANT, {"component_format": "uint32"}),
     "mitsuba_xyz": (VARIANT, {"pixel_format": "xyz"}),
