@@ -34,6 +34,7 @@ from .._version import __version__
 from ..channels import default_channel_names
 from ..errors import InputFileError
 from .atomic import atomic_write, check_utf8_name, check_writable, file_kind, public_name
+from .mitsuba import RAW_FILM
 
 __all__ = [
     "ExrPart",
@@ -699,6 +700,10 @@ def read_image(path: str | os.PathLike[str], *, channels: Sequence[str] | None =
     elif view is None and any(f"{v}.{name}" in available for v in within[1:] for name in wanted):
         raise file_error(p, f"holds views {', '.join(within)} in one part (the first's channels bare): choose one "
                             "with view=; awr diff: --view, --ref-view", wanted[0])
+    if "W" in available and "." not in wanted[0] and str(header_value(parts[0].header, "generatedBy")
+                                                            if "generatedBy" in parts[0].header else "").startswith("Mitsuba"):
+        # Mitsuba's raw film: weighted sums beside their weights (a red-team pass: awr diff compared the sums)
+        raise file_error(p, RAW_FILM, "W")
     first_window = header_windows(parts[0].header).get("dataWindow")
     planes = []
     shape = None

@@ -46,7 +46,7 @@ from .deep import sample_index_bounds, samples_from_deep_part
 from .dump import COUNT_CHANNEL, MAX_EXACT_COUNT, VARIANCE_PREFIX, SampleDump, buffer_from_awr_part, whole_counts
 from .exr import ExrPart, check_same_windows, checked_plane, file_error, header_value, header_windows, read_exr
 from .features import MITSUBA_AOV_NAMES, _present, auto_feature_planes, feature_from_planes
-from .mitsuba import MomentBound, filter_correlation, moment_bound
+from .mitsuba import RAW_FILM, MomentBound, filter_correlation, moment_bound
 
 __all__ = ["PRESETS", "detect_preset", "read_sample_buffer", "read_sample_dump", "read_independent_renders",
            "parse_plane", "feature_plane_file", "file_views"]
@@ -541,6 +541,8 @@ def _mitsuba_moment(ctx: _Context) -> str:
 
 
 def _mitsuba(ctx: _Context) -> _Layout:
+    if "W" in ctx.file.channels:  # its "moments" are sums: m2 below m1^2, refused before as the wrong variance kind
+        raise file_error(ctx.path, RAW_FILM, "W")
     # A variance plane of the user's own (not one of the input's m2_* moments) is read as a
     # per-sample variance, in the preset, so its sample count and features are kept.
     spread = None if ctx.variance is None else ctx.plane(ctx.variance, what="variance")

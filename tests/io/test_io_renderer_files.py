@@ -89,6 +89,23 @@ def test_a_mitsuba_aov_named_as_a_feature_keeps_its_moment():
     np.testing.assert_array_equal(named.mean, found.mean)
 
 
+def test_mitsubas_raw_film_is_refused_as_a_dump_and_as_an_image(tmp_path, capsys):
+    """film.bitmap(raw=True): weighted sums and their weights W. As a dump it was refused as "not E[x^2]
+    (variance_kind)"; awr diff compared the sums as an image, exit 0 (a red-team pass)."""
+    raw = MI / "mitsuba_raw.exr"
+    assert "W" in _channels(raw)
+    with pytest.raises(InputFileError, match=r"mitsuba_raw\.exr: W: holds Mitsuba's unnormalised film"):
+        read_sample_dump(raw, spp=8)
+    with pytest.raises(InputFileError, match="divide every plane by W"):
+        read_image(raw)
+    for argv in ([str(raw), "-r", str(MI / "mitsuba_ref.exr")], [str(MI / "mitsuba_ref.exr"), "-r", str(raw)]):
+        assert main(["diff", *argv]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "unnormalised film" in err[0]
+    write_exr(tmp_path / "rgbw.exr", {c: np.ones((4, 4), np.float32) for c in "RGBW"})  # not Mitsuba's: an image
+    assert read_image(tmp_path / "rgbw.exr").shape == (4, 4, 3)
+
+
 def test_mitsuba_mono_variant_reads_its_luminance():
     # llvm_ad_mono writes X = Y = Z (the luminance) in every moment; the XYZ matrix made it a tinted
     # colour (R +20%, B -9%).

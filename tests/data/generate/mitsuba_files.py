@@ -45,7 +45,10 @@ FILES: dict[str, tuple[str, str, int]] = {
     "mitsuba_narrow_gaussian": ("moment", "narrow_gaussian", 8),  # a filter within the pixel: unequal weights
     "mitsuba_spp1": ("moment", "box", 1),           # one sample per pixel: every second moment its mean squared
     "mitsuba_mono_aov": ("moment_aov", "box", 8),   # a mono variant's moment around an aov integrator: features
+    "mitsuba_raw": ("moment", "box", 8),            # film.bitmap(raw=True): weighted sums beside their weights W
 }
+RAW = ("mitsuba_raw",)
+"""Files written from the film's unnormalised bitmap rather than by ``film.write()``."""
 RFILTERS: dict[str, dict] = {"narrow_gaussian": {"type": "gaussian", "stddev": 0.1}}
 """Filters with parameters, by the name ``FILES`` gives; any other name is the filter's type with its defaults."""
 # name -> (variant, film options) where they differ from VARIANT and the film's defaults
@@ -93,7 +96,11 @@ def render(name: str, outdir: Path, *, seed: int = 0, kind: str | None = None, r
     loaded = mi.load_dict(scene)
     mi.render(loaded, spp=spp, seed=seed)
     path = outdir / f"{name}.exr"
-    loaded.sensors()[0].film().write(os.fspath(path))
+    sensor_film = loaded.sensors()[0].film()
+    if name in RAW:
+        sensor_film.bitmap(raw=True).write(os.fspath(path))
+    else:
+        sensor_film.write(os.fspath(path))
     return path
 
 
