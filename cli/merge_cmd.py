@@ -22,7 +22,7 @@ from awr_denoise.io import (
 )
 from awr_denoise.io.atomic import same_file
 from awr_denoise.io.deep import check_answers
-from awr_denoise.io.dump import SEMANTICS_STATISTICS, SampleDump, header_count
+from awr_denoise.io.dump import COUNT_CHANNEL, SEMANTICS_STATISTICS, SampleDump, header_count
 from awr_denoise.io.exr import check_same_windows, read_exr, read_windows
 from awr_denoise.io.request_map import MAX_ROUND
 
@@ -134,15 +134,30 @@ def _check_answered(batch_path: str, attributes: dict, request_path: str, reques
 def _input_kwargs(args: argparse.Namespace) -> list[dict]:
     """Each input's reading options: ``--variance-kind`` describes the inputs whose header does not
     say what their variance holds (a renderer's batch beside the running dump, which says
-    ``sample``); with every input saying, it reaches them all, and one it contradicts is refused."""
+    ``sample``), and ``--spp`` the inputs without their own sample counts (a Mitsuba batch beside
+    the running dump, which counts its samples per pixel); with every input saying, either reaches
+    them all, and an input it contradicts is refused."""
     kwargs = plane_kwargs(args)
-    if kwargs.get("variance_kind") is None:
-        return [kwargs] * len(args.inputs)
-    declared = [any("awr:variance_kind" in part.header for part in read_exr(path, header_only=True))
-                for path in args.inputs]
-    if all(declared):
-        return [kwargs] * len(args.inputs)
-    return [{**kwargs, "variance_kind": None} if said else kwargs for said in declared]
+    per_input = [dict(kwargs) for _ in args.inputs]
+    for option, says in (("variance_kind", _says_variance_kind), ("spp", _counts_its_samples)):
+        if kwargs.get(option) is None:
+            continue
+        said = [says(path) for path in args.inputs]
+        if not all(said):
+            for options, own in zip(per_input, said):
+                if own:
+                    options[option] = None
+    return per_input
+
+
+def _says_variance_kind(path: str) -> bool:
+    return any("awr:variance_kind" in part.header for part in read_exr(path, header_only=True))
+
+
+def _counts_its_samples(path: str) -> bool:
+    """An awr dump's per-pixel count channel, or a deep dump's samples."""
+    return any(part.deep or any(getattr(c, "name", None) == COUNT_CHANNEL for c in part.header.get("channels", ()))
+               for part in read_exr(path, header_only=True))
 
 
 RUNNING = "awr:running"

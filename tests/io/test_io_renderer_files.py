@@ -106,6 +106,24 @@ def test_mitsubas_raw_film_is_refused_as_a_dump_and_as_an_image(tmp_path, capsys
     assert read_image(tmp_path / "rgbw.exr").shape == (4, 4, 3)
 
 
+def test_a_mitsuba_batch_merges_into_a_running_dump_with_its_spp(tmp_path, capsys):
+    """--spp reads the inputs without their own counts: an awr dump beside a Mitsuba file refused it ("holds
+    per-pixel sample counts") and the Mitsuba file refused its absence (a red-team pass): no way to merge them."""
+    first = tmp_path / "dump.exr"
+    assert main(["merge", str(MI / "mitsuba_aov_position.exr"), str(MI / "mitsuba_aov_of_moment.exr"), "--spp", "8",
+                 "-o", str(first), "-q"]) == 0
+    merged = tmp_path / "merged.exr"
+    assert main(["merge", str(first), str(MI / "mitsuba_half_aov.exr"), "--spp", "16", "-o", str(merged), "-q"]) == 0
+    buffer = read_sample_dump(merged).buffer
+    assert (buffer.count == 8 + 8 + 16).all()
+    half = read_sample_dump(MI / "mitsuba_half_aov.exr", spp=16).buffer
+    np.testing.assert_allclose(buffer.mean, (16 * read_sample_dump(first).buffer.mean + 16 * half.mean) / 32,
+                               rtol=1e-5, atol=1e-7)
+    # With every input counting its own samples, --spp still describes none of them: refused.
+    assert main(["merge", str(first), str(merged), "--spp", "8", "-o", str(tmp_path / "x.exr"), "-q"]) == 2
+    assert "--spp is for files without them" in capsys.readouterr().err
+
+
 def test_mitsuba_mono_variant_reads_its_luminance():
     # llvm_ad_mono writes X = Y = Z (the luminance) in every moment; the XYZ matrix made it a tinted
     # colour (R +20%, B -9%).
