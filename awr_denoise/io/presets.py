@@ -935,6 +935,9 @@ def read_sample_dump(
         ratio = filter_correlation(buffer)
         if ratio is not None and ratio.correlated:
             ctx.warnings.append(f"{p}: {layout.colour.label}: {ratio.message}")
+        if not buffer.mean.any():  # a black image is possible, a radiance plane nothing wrote more likely
+            ctx.warnings.append(f"{p}: {layout.colour.label}: every pixel is 0; an aov integrator inside moment "
+                                "without a radiance integrator of its own (such as img: path) writes 0 there")
         if bound is not None and bound.agreed:
             ctx.warnings.append(f"{p}: {layout.colour.label}: every pixel's samples agree exactly (second moment = "
                                 f"squared mean) though counted {int(buffer.count.max())} per pixel: moments of one "

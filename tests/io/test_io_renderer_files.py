@@ -124,6 +124,14 @@ def test_a_mitsuba_batch_merges_into_a_running_dump_with_its_spp(tmp_path, capsy
     assert "--spp is for files without them" in capsys.readouterr().err
 
 
+def test_an_aov_integrator_without_radiance_is_warned_about():
+    """moment around an aov integrator with no radiance integrator inside: Mitsuba writes 0 for the radiance,
+    read and denoised into a black image without a word (a red-team pass)."""
+    with pytest.warns(InputFileWarning, match=r"main: every pixel is 0; an aov integrator inside moment without"):
+        dump = read_sample_dump(MI / "mitsuba_aov_no_radiance.exr", spp=8)
+    assert not dump.buffer.mean.any() and set(dump.buffer.features) == {"albedo", "normal", "depth"}
+
+
 def test_mitsuba_mono_variant_reads_its_luminance():
     # llvm_ad_mono writes X = Y = Z (the luminance) in every moment; the XYZ matrix made it a tinted
     # colour (R +20%, B -9%).

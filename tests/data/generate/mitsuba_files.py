@@ -46,6 +46,7 @@ FILES: dict[str, tuple[str, str, int]] = {
     "mitsuba_spp1": ("moment", "box", 1),           # one sample per pixel: every second moment its mean squared
     "mitsuba_mono_aov": ("moment_aov", "box", 8),   # a mono variant's moment around an aov integrator: features
     "mitsuba_raw": ("moment", "box", 8),            # film.bitmap(raw=True): weighted sums beside their weights W
+    "mitsuba_aov_no_radiance": ("moment_aov_no_radiance", "box", 8),  # aov without a radiance integrator: all 0
 }
 RAW = ("mitsuba_raw",)
 """Files written from the film's unnormalised bitmap rather than by ``film.write()``."""
@@ -75,6 +76,8 @@ def _integrator(kind: str) -> dict:
     if kind == "aov_of_moment":
         return {"type": "aov", "aovs": "albedo:albedo,depth:depth,normal:sh_normal",
                 "img": {"type": "moment", "nested": path}}
+    if kind == "moment_aov_no_radiance":
+        return {"type": "moment", "main": {"type": "aov", "aovs": "albedo:albedo,depth:depth,normal:sh_normal"}}
     if kind == "moment_two":
         return {"type": "moment", "a": path, "b": {"type": "direct"}}
     # The aov integrator's nested image is RGB: its moments need no colour conversion.
