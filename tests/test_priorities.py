@@ -134,17 +134,42 @@ def test_edges_are_won_by_finer_levels():
 
 
 # ---------------------------------------------------------------------------- density
-def test_density_without_levels_is_pooled_standard_deviation(rng):
+def _neighbour_mean(x):
+    """Mean of the 8 neighbours of every pixel, edges mirrored (index -1 is index 1): the pixel itself left out."""
+    h, w = x.shape
+    out = np.zeros_like(x)
+    for i in range(h):
+        for j in range(w):
+            values = [x[abs(i + di) if i + di < h else 2 * h - 2 - (i + di),
+                        abs(j + dj) if j + dj < w else 2 * w - 2 - (j + dj)]
+                      for di in (-1, 0, 1) for dj in (-1, 0, 1) if (di, dj) != (0, 0)]
+            out[i, j] = np.mean(values)
+    return out
+
+
+def test_density_without_levels_is_the_neighbours_pooled_standard_deviation(rng):
+    """The relative (here: the domain's) error of the 8 neighbours, the pixel's own samples left out; the
+    absolute term of 3x3 pixels, its own included (docs/sampling.md, "The pixel's own samples")."""
     count = np.full((12, 12), 4)
     var = rng.uniform(0.0, 1.0, (12, 12))
     buf = _grey_buffer(np.full((12, 12), 1.0), var, count)
-    pooled = np.sqrt(ndimage.uniform_filter(var, 3, mode="nearest"))
+    neighbours = _neighbour_mean(var)
     density = sampling_density(buf, domain="linear", level_weight=0.0, absolute_above=None, noise_model="levels")
-    assert_allclose(density, pooled, rtol=1e-12)
-    # In the linear domain the capped level adds the same error over 6 times the image's level (1):
-    # one factor everywhere, the same allocation.
+    assert_allclose(density, np.sqrt(neighbours), rtol=1e-12)
+    # In the linear domain the capped level adds the same error over 6 times the image's level (1).
     density = sampling_density(buf, domain="linear", level_weight=0.0, noise_model="levels")
-    assert_allclose(density, pooled * np.sqrt(1 + 1 / 36), rtol=1e-12)
+    assert_allclose(density, np.sqrt(neighbours + ndimage.uniform_filter(var, 3, mode="nearest") / 36), rtol=1e-12)
+
+
+def test_a_pixels_own_samples_do_not_rank_it_but_rank_its_neighbours():
+    """One pixel whose samples caught a bright path: it gains nothing over its quiet neighbours' level; they do."""
+    var = np.full((9, 9), 0.01)
+    var[4, 4] = 4.0
+    buf = _grey_buffer(np.full((9, 9), 1.0), var, np.full((9, 9), 4))
+    s = pooled_deviation(buf, domain="linear", absolute_above=None)
+    assert s[4, 4] == pytest.approx(0.1)  # its 8 neighbours' 0.01
+    assert s[4, 5] == pytest.approx(np.sqrt((4.0 + 7 * 0.01) / 8))
+    assert s[0, 0] == pytest.approx(0.1)
 
 
 def test_a_pixel_far_brighter_than_the_image_is_ranked_by_its_absolute_error(rng):
@@ -160,10 +185,11 @@ def test_a_pixel_far_brighter_than_the_image_is_ranked_by_its_absolute_error(rng
         (0.5 * mean) ** 2 / level ** 2, 3, mode="nearest")[12, 12], rtol=1e-9)
     # Dark pixels far from the light keep their relative ranking to within the small absolute share.
     assert_allclose(capped[2, 2], relative[2, 2], rtol=0.01)
-    # An all-black image (its level taken as 1, every pixel at 0): one factor everywhere, the same ranking.
+    # An all-black image (its level taken as 1, every pixel at 0): about one factor everywhere, the same
+    # ranking (to 1e-4: the absolute term pools the pixel's own samples, the relative one its neighbours').
     black = _grey_buffer(np.zeros((8, 8)), rng.uniform(0.05, 0.2, (8, 8)), np.full((8, 8), 4))
     ratio = pooled_deviation(black) / pooled_deviation(black, absolute_above=None)
-    assert_allclose(ratio, np.sqrt(1 + (0.1 / 6) ** 2), rtol=1e-9)
+    assert_allclose(ratio, np.sqrt(1 + (0.1 / 6) ** 2), rtol=1e-4)
 
 
 def test_density_is_higher_near_edges():
@@ -275,7 +301,9 @@ def test_a_deviation_past_float64_stays_finite_and_ranks_first():
     var[4, 4] = 1e308  # relative and absolute terms each near float64's limit: their sum overflows
     s = pooled_deviation(_grey_buffer(mean, var, np.full((8, 8), 4)), absolute_above=1e-5)
     assert np.isfinite(s).all()
-    assert s[4, 4] == s.max() > 1e100 * s[0, 0]  # (its 3x3 pool shares the top)
+    # Its own relative error ranks its 8 neighbours, its own absolute error it and them: all far above the rest.
+    assert s[3:6, 3:6].min() > 1e100 * s[0, 0] and np.unravel_index(np.argmax(s), s.shape) != (4, 4)
+    assert s[3:6, 3:6].max() == s.max()
 
 
 def test_levels_are_the_masked_copies_levels():

@@ -396,21 +396,19 @@ def test_samples_spread_over_smooth_noisy_regions(noise_model):
     """"gradient" scene (noise growing left to right): the spp map is smooth and spread out,
     no pixel far above the mean, and it follows the noise (more on the right than the left).
 
-    "Far above": for the level term, no pixel beyond 4x the image's mean count. The shrinkage's
-    gain follows the decimated grid, so a single pixel of the noisy side reaches 4.1x the mean
-    (seed 0; 3.2x and 3.5x on seeds 1 and 2): what must not happen is a spike, so every pixel
-    stays within 2.5x of its 7x7 neighbourhood's mean (measured at most 1.74, the level term 1.92)
-    and the 7x7-smoothed map within 4x of the mean (measured at most 2.82 for both)."""
+    "Far above": single pixels of the noisy side reach about 4x the image's mean count (seeds 0-2:
+    the shrinkage's gain, which follows the decimated grid, 3.5-4.9x; the level term 3.6-4.4x since
+    pixels are ranked by their neighbours' noise, docs/sampling.md "The pixel's own samples", at most
+    4x before): what must not happen is a spike, so every pixel stays within 2.5x of its 7x7
+    neighbourhood's mean (measured at most 2.38, the level term 2.26) and the 7x7-smoothed map within
+    4x of the mean (measured at most 2.70)."""
     scene = make_scene("gradient", QUALITY_SHAPE)
     for seed in QUALITY_SEEDS:
         counts = AdaptiveSampler(QUALITY_SHAPE, seed=seed, noise_model=noise_model).run(
             SyntheticRenderer(scene, seed=seed), 16).count
         counts = counts.astype(np.float64)
         smoothed = ndimage.uniform_filter(counts, 7, mode="nearest")
-        if noise_model == "levels":
-            assert counts.max() < 4.0 * counts.mean()
-        else:
-            assert (counts < 2.5 * smoothed).all() and smoothed.max() < 4.0 * counts.mean()
+        assert (counts < 2.5 * smoothed).all() and smoothed.max() < 4.0 * counts.mean()
         assert np.mean(counts > 4) > 0.9  # nearly every pixel got samples beyond round 0
         assert smoothed.std() / smoothed.mean() < 0.6
         # Smooth: neighbouring pixels differ little compared with the spread across the image.

@@ -1,0 +1,218 @@
+"""AWR sampling's own image mean: the bias a pixel's own samples make when they rank it, and what removing it costs.
+
+Run from the repository root::
+
+    .venv/bin/python benchmarks/sampler_bias.py                     # about 15 minutes
+    .venv/bin/python benchmarks/sampler_bias.py --report            # the tables of the stored results
+
+Ranked by statistics its own samples are part of, a pixel whose first samples caught a bright path ranks high,
+takes more samples and is diluted back towards its mean; one whose first samples missed it ranks low and keeps
+its low mean: on heavy-tailed scenes the AWR buffer's image mean came out low. ``AdaptiveSampler`` therefore ranks
+each pixel by its 8 neighbours' relative error, its own left out (``awr_denoise.priorities.pooled_deviation``;
+docs/sampling.md, "The pixel's own samples"). This script measures the buffer's plain image mean against the
+reference, its mean over the runs (the bias) and its root mean square (what one render is off by), beside the
+default reconstruction's relMSE and MSE, on both renderers (the bundled tracer's six scenes at 128x128, Mitsuba
+3's four at 256x256, the cached references of ``awr bench`` and ``bench_mitsuba.py``), for the default sampler
+and variants:
+
+- ``own pixel ranked``: the previous default, every term pooled over 3x3 pixels with the pixel's own samples
+  (:func:`own_pixel_ranked` swaps it in for the run);
+- ``uniform share 0.3``: the public ``uniform_fraction=0.3`` beside the default;
+- ``own pixel ranked, uniform share 0.3``: the remedy measured before the default changed.
+
+Uniform sampling's plain mean (the adapter's or the tracer's uniform request, the same seeds) is the unbiased
+baseline beside them. Results: ``benchmarks/results/sampler_bias.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import math
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import ndimage
+
+import awr_denoise.priorities as priorities
+from awr_denoise import AdaptiveSampler, SampleRequest, reconstruct
+from awr_denoise.metrics import mse, relmse
+from awr_denoise.prepare import prepare
+
+REPOSITORY = Path(__file__).resolve().parent.parent
+RESULTS = REPOSITORY / "benchmarks" / "results" / "sampler_bias.json"
+TRACER_SCENES = ("default", "chess_dof", "rolling_balls", "sky_objects", "soft_shadows", "cornell_gi")
+MITSUBA_SCENES = ("cornell_box", "envmap_sun", "glossy_glass", "dof_checker")
+VARIANTS: dict[str, dict[str, Any]] = {
+    "default": {},
+    "own pixel ranked": {"own_pixel": True},
+    "uniform share 0.3": {"uniform_fraction": 0.3},
+    "own pixel ranked, uniform share 0.3": {"own_pixel": True, "uniform_fraction": 0.3},
+}
+_FINITE_TOP = float(np.finfo(np.float64).max) / 16
+
+
+def _pooled_with_own_pixel(buffer: Any, domain: Any = "log", *, absolute_above: float | None = 6.0,
+                           prepared: Any = None) -> np.ndarray:
+    """``pooled_deviation`` before the pixel's own samples were left out: both terms pooled over 3x3 pixels."""
+    p = prepare(buffer, domain, luminance=True) if prepared is None else prepared
+    s2 = p.sample_variance_y
+    if absolute_above is not None:
+        level = absolute_above * p.domain.resolved_scale(p.mean)
+        if level > 0 and np.isfinite(level):
+            with np.errstate(over="ignore"):
+                s2 = np.minimum(s2 + p.sample_variance / level / level, _FINITE_TOP)
+    return np.sqrt(np.maximum(ndimage.uniform_filter(s2, 3, mode="nearest"), 0.0))
+
+
+@contextlib.contextmanager
+def own_pixel_ranked(enabled: bool = True) -> Iterator[None]:
+    """The samplers' deviation as it was before this version (:func:`_pooled_with_own_pixel`) for the block."""
+    saved = priorities.pooled_deviation
+    if enabled:
+        priorities.pooled_deviation = _pooled_with_own_pixel
+    try:
+        yield
+    finally:
+        priorities.pooled_deviation = saved
+
+
+def _tracer_cases() -> Iterator[tuple[str, Any, np.ndarray]]:
+    """(scene, renderer by seed, reference) for the bundled tracer's scenes at their size (``awr bench``'s)."""
+    from awr_denoise.bench.config import BenchmarkConfig
+    from awr_denoise.bench.rendering import make_tracer, reference_image, tracer_module
+
+    config = BenchmarkConfig()
+    for name in TRACER_SCENES:
+        scene = tracer_module().load_scene(name, width=config.width, height=config.height)
+        reference, _ = reference_image(name, scene, config)
+        @contextlib.contextmanager
+        def factory(seed: int, scene: Any = scene) -> Iterator[Any]:
+            renderer = make_tracer(scene, seed, config.threads)
+            try:
+                yield renderer
+            finally:
+                renderer.close()
+
+        yield name, factory, reference
+
+
+def _mitsuba_cases() -> Iterator[tuple[str, Any, np.ndarray]]:
+    """The same for Mitsuba 3's scenes at 256x256, through the adapter, against ``bench_mitsuba.py``'s references."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import bench_mitsuba  # noqa: E402 (the reference cache and its keys)
+    from awr_denoise.adapters.mitsuba import MitsubaRenderer
+
+    for name in MITSUBA_SCENES:
+        renderer = MitsubaRenderer(name, shape=(256, 256), seed=0)
+        ref = bench_mitsuba.reference(renderer, name, 2048, cache=REPOSITORY / "benchmarks" / "cache" / "mitsuba",
+                                      regenerate=False)
+
+        @contextlib.contextmanager
+        def factory(seed: int, renderer: Any = renderer) -> Iterator[Any]:
+            renderer.seed = seed  # one scene load for every run: the adapter is closed after the scene's last
+            yield renderer
+
+        try:
+            yield name, factory, ref["mean"]
+        finally:
+            renderer.close()
+
+
+def measure(name: str, factory: Any, reference: np.ndarray, spps: list[int], seeds: list[int]) -> dict[str, Any]:
+    """Every variant and uniform sampling at each spp over ``seeds``: image-mean errors, relMSE, MSE (means)."""
+    ref_mean = float(reference.mean())
+    shape = reference.shape[:2]
+    out: dict[str, Any] = {"scene": name, "reference_image_mean": ref_mean, "spp": {}}
+    for spp in spps:
+        rows: dict[str, list[tuple[float, float, float]]] = {"uniform": []}
+        for seed in seeds:
+            with factory(seed) as renderer:
+                buffer = renderer(SampleRequest.uniform(shape, spp))
+            plain = np.asarray(buffer.mean)
+            rows["uniform"].append((plain.mean() / ref_mean - 1, relmse(plain, reference), mse(plain, reference)))
+        for label, options in VARIANTS.items():
+            options = dict(options)
+            own = options.pop("own_pixel", False)
+            rows[label] = []
+            for seed in seeds:
+                with factory(seed) as renderer, own_pixel_ranked(own):
+                    buffer = AdaptiveSampler(shape, seed=seed, **options).run(renderer, total_spp=spp)
+                image = reconstruct(buffer)
+                rows[label].append((float(np.asarray(buffer.mean).mean()) / ref_mean - 1,
+                                    relmse(image, reference), mse(image, reference)))
+        out["spp"][str(spp)] = {label: {"image_mean_error": float(np.mean([r[0] for r in runs])),
+                                        "image_mean_error_sd": float(np.std([r[0] for r in runs], ddof=1)
+                                                                     / np.sqrt(len(runs))),
+                                        "relmse": float(np.mean([r[1] for r in runs])),
+                                        "mse": float(np.mean([r[2] for r in runs]))}
+                                for label, runs in rows.items()}
+        print(f"[{name}] {spp} spp: " + ", ".join(
+            f"{label} {100 * v['image_mean_error']:+.2f}%" for label, v in out["spp"][str(spp)].items()), flush=True)
+    return out
+
+
+def rms_error(values: dict[str, float], runs: int) -> float:
+    """Root mean square over the runs of the image-mean error, from their mean and its standard error."""
+    return math.sqrt(values["image_mean_error"] ** 2 + (runs - 1) * values["image_mean_error_sd"] ** 2)
+
+
+def table(results: dict[str, Any]) -> str:
+    """Markdown: per scene and spp, the image mean's error, mean over the runs (its bias) and root mean square
+    (what one render is off by), for uniform sampling's plain mean and each variant's AWR buffer; then each
+    variant's relMSE and MSE over the default's."""
+    labels = list(VARIANTS)
+    runs = len(results["seeds"])
+    head = ("| renderer | scene | spp | image mean, bias: uniform / " + " / ".join(labels)
+            + " | image mean, root mean square: uniform / " + " / ".join(labels)
+            + " | relMSE over the default's: " + " / ".join(labels[1:])
+            + " | MSE over the default's: " + " / ".join(labels[1:]) + " |")
+    lines = [head, "|---" * 7 + "|"]
+    for renderer, scenes in results["renderers"].items():
+        for row in scenes:
+            for spp, v in row["spp"].items():
+                d = v["default"]
+                lines.append(
+                    f"| {renderer} | {row['scene']} | {spp} | "
+                    + " / ".join(f"{100 * v[k]['image_mean_error']:+.2f}%" for k in ["uniform", *labels]) + " | "
+                    + " / ".join(f"{100 * rms_error(v[k], runs):.2f}%" for k in ["uniform", *labels]) + " | "
+                    + " / ".join(f"{v[k]['relmse'] / d['relmse']:.2f}" for k in labels[1:]) + " | "
+                    + " / ".join(f"{v[k]['mse'] / d['mse']:.2f}" for k in labels[1:]) + " |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--spp", type=int, nargs="+", default=[8, 32])
+    parser.add_argument("--seeds", type=int, default=6, help="render seeds 0..N-1 (default 6)")
+    parser.add_argument("--renderers", nargs="+", choices=("tracer", "mitsuba"), default=["tracer", "mitsuba"])
+    parser.add_argument("--output", type=Path, default=RESULTS)
+    parser.add_argument("--report", action="store_true", help="print the tables of --output and render nothing")
+    args = parser.parse_args(argv)
+    if args.report:
+        print(table(json.loads(args.output.read_text())))
+        return 0
+    if args.seeds < 2 or min(args.spp) < 4:
+        parser.error("--seeds needs 2 or more (a spread), --spp 4 or more (AWR's first round is 2)")
+    seeds = list(range(args.seeds))
+    start = time.perf_counter()
+    results: dict[str, Any] = {"command": " ".join(["benchmarks/sampler_bias.py", *(argv or sys.argv[1:])]),
+                               "seeds": seeds, "variants": VARIANTS, "renderers": {}}
+    for renderer in args.renderers:
+        cases = _tracer_cases() if renderer == "tracer" else _mitsuba_cases()
+        results["renderers"][renderer] = [measure(name, factory, reference, args.spp, seeds)
+                                          for name, factory, reference in cases]
+    results["seconds"] = time.perf_counter() - start
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(json.dumps(results, indent=1) + "\n")
+    print(table(results))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,100 @@
+"""``benchmarks/sampler_bias.py``: the previous ranking swapped in for a run, and the measurement of every variant."""
+
+from __future__ import annotations
+
+import contextlib
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+import awr_denoise.priorities as priorities
+from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest
+from awr_denoise.synthetic import SyntheticRenderer, make_scene
+
+
+@pytest.fixture(scope="module")
+def bias(benchmark_script):
+    return benchmark_script("sampler_bias")
+
+
+def _buffer(seed=0, shape=(12, 10)):
+    rng = np.random.default_rng(seed)
+    mean = rng.uniform(0.5, 2.0, (*shape, 3))
+    return SampleBuffer.from_moments(np.full(shape, 4), mean, rng.uniform(0.01, 1.0, (*shape, 3)) * mean**2)
+
+
+def test_the_previous_ranking_is_swapped_in_for_the_block_and_back(bias):
+    library = priorities.pooled_deviation
+    buffer = _buffer()
+    with bias.own_pixel_ranked():
+        assert priorities.pooled_deviation is bias._pooled_with_own_pixel
+        swapped = AdaptiveSampler.from_buffer(buffer, seed=0).density()
+    assert priorities.pooled_deviation is library
+    assert not np.allclose(swapped, AdaptiveSampler.from_buffer(buffer, seed=0).density())  # it reaches the sampler
+    with contextlib.suppress(RuntimeError), bias.own_pixel_ranked():
+        raise RuntimeError("the ranking comes back on an error too")
+    assert priorities.pooled_deviation is library
+    with bias.own_pixel_ranked(False):
+        assert priorities.pooled_deviation is library
+
+
+def test_the_previous_ranking_is_the_3x3_pool_of_both_terms(bias):
+    buffer = SampleBuffer.from_moments(np.full((6, 6), 4), np.ones((6, 6, 3)), np.full((6, 6, 3), 0.25))
+    var = np.full((6, 6), 0.25)
+    var[2, 3] = 4.0
+    flat = SampleBuffer.from_moments(np.full((6, 6), 4), np.ones((6, 6, 3)), np.repeat(var[..., None], 3, -1))
+    got = bias._pooled_with_own_pixel(flat, "linear", absolute_above=None)
+    np.testing.assert_allclose(got, np.sqrt(ndimage.uniform_filter(var, 3, mode="nearest")), rtol=1e-12)
+    with_abs = bias._pooled_with_own_pixel(buffer, "linear")  # level 6 x the mean: 1/36 more
+    np.testing.assert_allclose(with_abs, np.sqrt(0.25 * (1 + 1 / 36)), rtol=1e-12)
+
+
+def test_every_variant_is_measured_against_uniform_sampling(bias):
+    scene = make_scene("fireflies", (32, 32))
+    reference = scene.reference()
+
+    @contextlib.contextmanager
+    def factory(seed):
+        yield SyntheticRenderer(scene, seed=seed)
+
+    row = bias.measure("fireflies", factory, reference, [8], [0, 1])
+    got = row["spp"]["8"]
+    assert list(got) == ["uniform", *bias.VARIANTS]
+    for values in got.values():
+        assert set(values) == {"image_mean_error", "image_mean_error_sd", "relmse", "mse"}
+        assert np.isfinite(list(values.values())).all() and values["relmse"] > 0
+    # The variants sample differently from the default; the uniform runs are the renderer's own.
+    assert len({got[k]["mse"] for k in bias.VARIANTS}) == len(bias.VARIANTS)
+    plains = [np.asarray(SyntheticRenderer(scene, seed=s)(SampleRequest.uniform((32, 32), 8)).mean) for s in (0, 1)]
+    assert got["uniform"]["mse"] == pytest.approx(np.mean([((p - reference) ** 2).mean() for p in plains]))
+    assert got["uniform"]["image_mean_error"] == pytest.approx(np.mean([p.mean() / reference.mean() - 1
+                                                                        for p in plains]))
+    # The default's buffer is AdaptiveSampler's own, run as a user runs it.
+    buffer = AdaptiveSampler((32, 32), seed=1).run(SyntheticRenderer(scene, seed=1), total_spp=8)
+    assert got["default"]["image_mean_error"] != got["own pixel ranked"]["image_mean_error"]
+    assert buffer.total_samples == 8 * 32 * 32
+
+
+def test_the_table_has_a_row_per_scene_and_spp(bias):
+    scene = make_scene("edges", (16, 16))
+
+    @contextlib.contextmanager
+    def factory(seed):
+        yield SyntheticRenderer(scene, seed=seed)
+
+    row = bias.measure("edges", factory, scene.reference(), [4], [0, 1, 2])
+    results = {"seeds": [0, 1, 2], "renderers": {"synthetic": [row]}}
+    head, rule, line = bias.table(results).split("\n")
+    cells = line.strip("|").split("|")
+    assert [c.strip() for c in cells[:3]] == ["synthetic", "edges", "4"]
+    assert len(cells) == len(head.strip("|").split("|")) == 7 and rule.count("---") == 7
+    for column in (3, 4):  # bias, then root mean square, of uniform and every variant
+        assert len(cells[column].split("/")) == 1 + len(bias.VARIANTS) and cells[column].strip().endswith("%")
+    assert len(cells[5].split("/")) == len(bias.VARIANTS) - 1  # over the default's
+
+
+def test_the_root_mean_square_is_the_runs_own(bias):
+    errors = np.array([0.01, -0.02, 0.04, 0.005])
+    values = {"image_mean_error": errors.mean(), "image_mean_error_sd": errors.std(ddof=1) / 2}
+    assert bias.rms_error(values, 4) == pytest.approx(np.sqrt((errors**2).mean()))
