@@ -700,8 +700,8 @@ def read_image(path: str | os.PathLike[str], *, channels: Sequence[str] | None =
     elif view is None and any(f"{v}.{name}" in available for v in within[1:] for name in wanted):
         raise file_error(p, f"holds views {', '.join(within)} in one part (the first's channels bare): choose one "
                             "with view=; awr diff: --view, --ref-view", wanted[0])
-    if "W" in available and "." not in wanted[0] and str(header_value(parts[0].header, "generatedBy")
-                                                            if "generatedBy" in parts[0].header else "").startswith("Mitsuba"):
+    writer = str(header_value(parts[0].header, "generatedBy")) if "generatedBy" in parts[0].header else ""
+    if "W" in available and "." not in wanted[0] and writer.startswith("Mitsuba"):
         # Mitsuba's raw film: weighted sums beside their weights (a red-team pass: awr diff compared the sums)
         raise file_error(p, RAW_FILM, "W")
     first_window = header_windows(parts[0].header).get("dataWindow")

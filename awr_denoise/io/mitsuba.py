@@ -44,7 +44,8 @@ CORRELATED_BELOW = 0.3
 _MIN_TRIPLETS = 200
 RAW_FILM = ("holds Mitsuba's unnormalised film (film.bitmap(raw=True)): its planes are sums weighted by the filter "
             "and W is their weights; write film.write() or film.bitmap(), or divide every plane by W")
-"""Why a Mitsuba file with a root ``W`` channel is refused as a dump and as an image (``awr diff`` compared the sums)."""
+"""Why a Mitsuba file with a root ``W`` channel is refused, as a dump and as an image (``awr diff`` compared
+its sums)."""
 _BOUND_SLACK = 0.01  # m2 / (n m1^2) beyond 1 + this: not the rounding of float32 or HALF sums (2**-9 and less)
 _AGREED_WITHIN = 2.0**-9  # m2 / m1^2 - 1 below this: samples that agreed, to a HALF's rounding
 _MIN_AGREED = 64  # pixels that must all agree before a file is called one sample per pixel
