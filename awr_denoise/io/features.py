@@ -30,7 +30,7 @@ from ..buffers import SampleBuffer
 from ..features import FEATURE_CHANNELS
 from .exr import file_error
 
-__all__ = ["AUTO_FEATURE_PLANES", "MITSUBA_AOV_NAMES", "auto_feature_planes", "feature_from_planes"]
+__all__ = ["AUTO_FEATURE_PLANES", "MITSUBA_AOV_NAMES", "auto_feature_planes", "feature_from_planes", "plane_present"]
 
 AUTO_FEATURE_PLANES: dict[str, dict[str, str]] = {
     "pbrt": {"albedo": "Albedo", "normal": "Ns", "depth": "P.Z"},
@@ -50,8 +50,17 @@ MITSUBA_AOV_NAMES: dict[str, tuple[str, ...]] = {
 _COMPONENTS = {"albedo": ({"R", "G", "B"},), "normal": ({"X", "Y", "Z"},), "depth": ({"Z"}, {"T"}, {"Y"})}
 
 
-def _present(prefix: str, channels: Collection[str], name: str) -> bool:
-    """The plane ``prefix`` is a channel, or has every component the feature needs."""
+def plane_present(prefix: str, channels: Collection[str], name: str) -> bool:
+    """Whether the plane ``prefix`` is a channel, or has every component the feature ``name`` needs.
+
+    Examples
+    --------
+    >>> from awr_denoise.io.features import plane_present
+    >>> plane_present("main.albedo", ["main.albedo.R", "main.albedo.G", "main.albedo.B"], "albedo")
+    True
+    >>> plane_present("main.albedo", ["main.albedo.R"], "albedo")       # one component is no albedo
+    False
+    """
     if prefix in channels:
         return True
     components = {c.rsplit(".", 1)[1] for c in channels if "." in c and c.rsplit(".", 1)[0] == prefix}
@@ -79,16 +88,16 @@ def auto_feature_planes(preset: str, channels: Collection[str], *, layer: str | 
     if preset in AUTO_FEATURE_PLANES:
         for name, plane in AUTO_FEATURE_PLANES[preset].items():
             plane = plane.format(layer=layer)
-            if _present(plane, channels, name):
+            if plane_present(plane, channels, name):
                 found[name] = (plane, None)
     elif preset == "mitsuba" and colour:
         base = colour[: -len(".img")] if colour.endswith(".img") else colour
         for name, aovs in MITSUBA_AOV_NAMES.items():
             for aov in aovs:
                 plane = f"{base}.{aov}"
-                if _present(plane, channels, name):
+                if plane_present(plane, channels, name):
                     moment = f"m2_{plane}"
-                    found[name] = (plane, moment if _present(moment, channels, name) else None)
+                    found[name] = (plane, moment if plane_present(moment, channels, name) else None)
                     break
     return found
 

@@ -45,7 +45,7 @@ from .cycles import COLOUR_PASSES, cycles_layers, sample_count_scale
 from .deep import sample_index_bounds, samples_from_deep_part
 from .dump import COUNT_CHANNEL, MAX_EXACT_COUNT, VARIANCE_PREFIX, SampleDump, buffer_from_awr_part, whole_counts
 from .exr import ExrPart, check_same_windows, checked_plane, file_error, header_value, header_windows, read_exr
-from .features import MITSUBA_AOV_NAMES, _present, auto_feature_planes, feature_from_planes
+from .features import MITSUBA_AOV_NAMES, auto_feature_planes, feature_from_planes, plane_present
 from .mitsuba import RAW_FILM, MomentBound, filter_correlation, moment_bound
 
 __all__ = ["PRESETS", "detect_preset", "read_sample_buffer", "read_sample_dump", "read_independent_renders",
@@ -787,8 +787,9 @@ def _features(ctx: _Context, preset: str, layout: _Layout, count: np.ndarray, pl
         spec, moment = planes.get(name), None
         if spec is not None:
             plane = _feature_plane(ctx, spec, name)
-            if preset == "mitsuba" and _in_input(ctx, plane) and _present(f"m2_{plane.label}", ctx.file.channels, name):
-                moment = ctx.plane(f"m2_{plane.label}", what=f"{name} second moment")  # its AOV's moment beside it
+            beside = f"m2_{plane.label}"  # a Mitsuba AOV's moment, beside the plane named
+            if preset == "mitsuba" and _in_input(ctx, plane) and plane_present(beside, ctx.file.channels, name):
+                moment = ctx.plane(beside, what=f"{name} second moment")
         elif name in found:
             plane = ctx.plane(found[name][0], what=name)
             if found[name][1] is not None:
