@@ -125,7 +125,8 @@ def pooled_deviation(buffer: SampleBuffer, domain: str | Domain = "log", *,
         if level > 0 and np.isfinite(level):  # an image whose level overflows keeps the domain's ranking
             with np.errstate(over="ignore"):
                 s2_abs = np.minimum(p.sample_variance / level / level, _FINITE_TOP)
-            # A light's own absolute error keeps ranking it: left out, a small sun went unsampled (MSE 1.4-1.7x).
+            # A light's own absolute error keeps ranking it: left out, a small light's pixels rank by their
+            # darker neighbours and keep their first rounds' few samples.
             s2_pooled += ndimage.uniform_filter(s2_abs, 3, mode="nearest")
     # The running-sum filters can leave -1e-17-sized residues next to large values: clip them.
     np.maximum(s2_pooled, 0.0, out=s2_pooled)
