@@ -20,7 +20,7 @@ moment, which no set of samples has: the reader refuses such a file before this 
 A filter narrower than a pixel (``gaussian`` with ``stddev`` 0.1, ``tent`` with ``radius`` 0.4) shares
 no sample between pixels, so the test above cannot see it, but it weights a pixel's samples unequally,
 some by 0: the pixel's effective sample count falls far below ``spp`` and ``m2 - m1^2`` understates
-the noise of its mean (3-10x, measured in a red-team pass). :func:`moment_bound` proves it from the
+the noise of its mean several times over (found in a red-team pass). :func:`moment_bound` proves it from the
 moments themselves. Radiance samples are never negative, and ``n`` samples ``x_i >= 0`` satisfy
 ``sum x_i^2 <= (sum x_i)^2``, so equally weighted ones give ``m2 <= n m1^2``: a pixel beyond that
 bound holds more samples than its count says, or samples weighted unequally. The same bound refuses
