@@ -13,8 +13,8 @@ import numbers
 import re
 import threading
 from collections.abc import Callable, Iterable, Mapping
-from os import PathLike
 from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
+from os import PathLike
 from pathlib import Path
 from typing import Any
 

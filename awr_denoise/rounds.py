@@ -27,8 +27,8 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from . import _checks
-from .buffers import SampleBuffer
 from .allocation import MAX_BUDGET
+from .buffers import SampleBuffer
 from .errors import TimeBudgetWarning
 from .reconstruct import reconstruct as _reconstruct
 from .requests import Renderer, SampleRequest

@@ -23,7 +23,7 @@ from awr_denoise.io import (
 from awr_denoise.io.atomic import same_file
 from awr_denoise.io.deep import check_answers
 from awr_denoise.io.dump import COUNT_CHANNEL, SEMANTICS_STATISTICS, SampleDump, header_count
-from awr_denoise.io.exr import check_same_windows, read_exr, read_windows
+from awr_denoise.io.exr import ExrPart, check_same_windows, read_exr, read_windows
 from awr_denoise.io.request_map import MAX_ROUND
 
 from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, run_settings, status
@@ -139,10 +139,11 @@ def _input_kwargs(args: argparse.Namespace) -> list[dict]:
     them all, and an input it contradicts is refused."""
     kwargs = plane_kwargs(args)
     per_input = [dict(kwargs) for _ in args.inputs]
-    for option, says in (("variance_kind", _says_variance_kind), ("spp", _counts_its_samples)):
-        if kwargs.get(option) is None:
-            continue
-        said = [says(path) for path in args.inputs]
+    given = [(option, says) for option, says in (("variance_kind", _says_variance_kind), ("spp", _counts_its_samples))
+             if kwargs.get(option) is not None]
+    parts = [read_exr(path, header_only=True) for path in args.inputs] if given else []
+    for option, says in given:
+        said = [says(file_parts) for file_parts in parts]
         if not all(said):
             for options, own in zip(per_input, said):
                 if own:
@@ -150,14 +151,15 @@ def _input_kwargs(args: argparse.Namespace) -> list[dict]:
     return per_input
 
 
-def _says_variance_kind(path: str) -> bool:
-    return any("awr:variance_kind" in part.header for part in read_exr(path, header_only=True))
+def _says_variance_kind(parts: list[ExrPart]) -> bool:
+    """A header saying what the file's variance holds (an awr dump's)."""
+    return any("awr:variance_kind" in part.header for part in parts)
 
 
-def _counts_its_samples(path: str) -> bool:
+def _counts_its_samples(parts: list[ExrPart]) -> bool:
     """An awr dump's per-pixel count channel, or a deep dump's samples."""
     return any(part.deep or any(getattr(c, "name", None) == COUNT_CHANNEL for c in part.header.get("channels", ()))
-               for part in read_exr(path, header_only=True))
+               for part in parts)
 
 
 RUNNING = "awr:running"

@@ -254,10 +254,7 @@ def check_writable(path: str | os.PathLike[str], *, overwrite: bool) -> Path:
     """
     # A string or a number would be read as its truth: overwrite="no" replaced the file (a red-team pass).
     _checks.flag("overwrite", overwrite)
-    if not isinstance(path, (str, os.PathLike)):
-        raise TypeError(f"path: expected a file name, got {type(path).__name__} {path!r}")
-    if not os.fspath(path):
-        raise ValueError("path: an empty file name")
+    _checks.file_path("path", path)  # a name (str, or a path of one), not empty
     check_utf8_name(path)
     target = Path(path)
     # A link is written through (_install): the file it names is the one whose folder must take it.
