@@ -205,7 +205,6 @@ def _ungated_share(candidate: np.ndarray, buffer: SampleBuffer) -> np.ndarray:
 def _per_pixel_share(candidate: np.ndarray, buffer: SampleBuffer) -> np.ndarray:
     """An earlier form of the gate: the mean of the per-pixel ratios ``(candidate - mean)^2 / v``
     over the neighbourhood, instead of :func:`awr_denoise.guided.trust`'s ratio of the sums."""
-    from scipy import ndimage
     x = filled_mean(buffer)
     v = buffer.estimated_variance() / np.maximum(buffer.count, 1)[..., None]
     z = np.where(v > 0, (candidate - x) ** 2 / np.where(v > 0, v, 1.0), np.where(candidate == x, 0.0, np.inf))
@@ -374,6 +373,13 @@ def feature_limits(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: 
                              for t in DEMODULATION_FLOORS},
                           "demodulated guide, 256-spp albedo":
                               reconstruct(buffer, guide=_demodulated(buffer, albedo=oracle["albedo"].mean))}
+                below = DEMODULATION_FLOORS[0]
+                images["the same as the 0.05 column, chosen by window by Monte-Carlo SURE"] = _chosen_by_sure(
+                    buffer, images["default"], lambda b: _demodulated_reconstructed(b, below=below))
+                images["the same, the albedo's noise taken as the radiance's"] = _chosen_by_sure(
+                    buffer, images["default"], lambda b: _demodulated_reconstructed(b, below=below), rho=1.0)
+                images["the same, 256-spp albedo, chosen by window"] = _chosen_by_sure(
+                    buffer, images["default"], lambda b: _demodulated(b, albedo=oracle["albedo"].mean, below=below))
                 rows += _scored(images, ref, renderer=renderer, scene=scene, spp=spp, group=g)
         print(f"{renderer} {scene}: done", flush=True)
     return rows
@@ -418,6 +424,48 @@ def _demodulated_reconstructed(buffer: SampleBuffer, below: float | None = None)
     """:func:`_demodulated` by the albedo's own default reconstruction: its noise (the lens' and the
     pixel's sampling of the texture) taken out before it divides and multiplies the radiance."""
     return _demodulated(buffer, albedo=reconstruct(buffer.features["albedo"]), below=below)
+
+
+SURE_WINDOW = 9  # the default guard's window (awr_denoise.sure.DEFAULT_WINDOW)
+SURE_EPS = 0.1  # the probe's step, in standard errors of the means (as _ShareBySure's)
+
+
+def _chosen_by_sure(buffer: SampleBuffer, default: np.ndarray, make_guide: Any, rho: float = 0.0) -> np.ndarray:
+    """The default ``A`` and the demodulated guide's reconstruction ``C`` mixed window by window, ``A + mu (C - A)``,
+    ``mu`` in [0, 1] least in Stein's risk estimate of the mix (the smaller of the squared and the relative
+    criterion's, as the guard's; :mod:`awr_denoise.sure`):
+
+        mu = -sum_N w [(A - x)(C - A) + d_C - d_A] / sum_N w (C - A)^2,
+
+    with each map's divergence ``d_i = v_i df_i/dx_i`` from one Rademacher probe ``n`` of the means scaled by
+    their standard errors (Monte-Carlo SURE, Ramani, Blu and Unser 2008: ``n (f(x + eps n) - f(x)) / eps``,
+    the guide made again from the perturbed buffer, so its dependence on the means is counted). The albedo
+    comes from the same paths as the radiance, and its noise is not in the means' divergence: ``rho`` 1 also
+    moves the albedo's means by ``n`` times the ratio of their standard errors (noise taken as fully
+    correlated, channel by channel; no buffer holds the cross moments)."""
+    x = filled_mean(buffer)
+    v = buffer.estimated_variance() / np.maximum(buffer.count, 1)[..., None]  # as guided.trust's
+    n = next(rademacher_probes(v, 1, seed=1))[0]
+    features = dict(buffer.features)
+    if rho:
+        albedo = buffer.features["albedo"]
+        va = albedo.estimated_variance() / np.maximum(albedo.count, 1)[..., None]
+        shift = SURE_EPS * rho * n * np.sqrt(np.divide(va, v, out=np.zeros_like(v), where=v > 0))
+        features["albedo"] = SampleBuffer.from_moments(albedo.count, albedo.mean + shift, albedo.variance,
+                                                       variance_known=albedo.variance_known)
+    moved = SampleBuffer.from_moments(buffer.count, buffer.mean + SURE_EPS * n, buffer.variance,
+                                      variance_known=buffer.variance_known, features=features)
+    chosen = reconstruct(buffer, guide=make_guide(buffer))
+    d_default = n * (reconstruct(moved) - default) / SURE_EPS
+    d_chosen = n * (reconstruct(moved, guide=make_guide(moved)) - chosen) / SURE_EPS
+    change = chosen - default
+    size = (SURE_WINDOW, SURE_WINDOW, 1)
+    shares = []
+    for w in (np.ones_like(x), 1.0 / (default * default + 0.01)):  # MSE's and relMSE's weights (its epsilon)
+        num = ndimage.uniform_filter(w * ((default - x) * change + d_chosen - d_default), size=size, mode="reflect")
+        den = ndimage.uniform_filter(w * change * change, size=size, mode="reflect")
+        shares.append(np.clip(-num / np.maximum(den, 1e-300), 0.0, 1.0))
+    return default + np.minimum(*shares) * change
 
 
 def _features_then_guide(buffer: SampleBuffer, stage1: np.ndarray, guide: np.ndarray | None,

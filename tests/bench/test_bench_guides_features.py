@@ -1,4 +1,5 @@
-"""``benchmarks/bench_guides.py``: the demodulated guides of ``features`` use the albedo they name."""
+"""``benchmarks/bench_guides.py``: the demodulated guides of ``features`` use the albedo they name, and their
+choice window by window follows Stein's estimate."""
 
 from __future__ import annotations
 
@@ -57,3 +58,56 @@ def test_no_demodulation_below_the_floor(bench, buffer):
     np.testing.assert_allclose(bench._demodulated(buffer, albedo=dark, below=0.05), reconstruct(buffer),
                                rtol=1e-12, atol=0)
     assert not np.allclose(bench._demodulated(buffer, albedo=dark), reconstruct(buffer), rtol=1e-3)
+
+
+def _fake_reconstruct(buffer, guide=None):
+    """The means without a guide; with one, the guide itself (each candidate a known map of the means)."""
+    return np.array(buffer.mean) if guide is None else np.array(guide)
+
+
+def _box3(buffer):
+    from scipy import ndimage
+    return ndimage.uniform_filter(np.asarray(buffer.mean), size=(3, 3, 1), mode="reflect")
+
+
+def _noisy(mean, sd, seed=0):
+    rng = np.random.default_rng(seed)
+    count = np.full(mean.shape[:2], 16)
+    return SampleBuffer.from_moments(count, mean + rng.normal(0, sd, mean.shape), np.full(mean.shape, sd * sd * 16))
+
+
+def test_the_choice_by_sure_takes_a_smoothing_of_noise_and_leaves_detail(bench, monkeypatch):
+    """Against the means (divergence 1 per pixel), a 3x3 box (1/9) wins on a flat noisy image and loses on
+    a checkerboard whose noise is tiny: the divergence's sign and size decide, as in Stein's estimate (with
+    the sign turned, the flat image keeps its means)."""
+    monkeypatch.setattr(bench, "reconstruct", _fake_reconstruct)
+    # noise small beside the level: the relative criterion's weights, from the default's image (here the
+    # noisy means themselves), hardly follow the noise
+    flat = _noisy(np.full((32, 32, 3), 1.0), 0.05)
+    chosen = bench._chosen_by_sure(flat, np.array(flat.mean), _box3)
+    error = {name: np.mean((image - 1.0) ** 2) for name, image in
+             (("chosen", chosen), ("box", _box3(flat)), ("means", flat.mean))}
+    # one probe's divergence is noisy window by window: the box is taken nearly everywhere, not everywhere
+    assert error["box"] < error["chosen"] < 1.5 * error["box"] < 0.3 * error["means"], error
+    board = (np.indices((32, 32)).sum(axis=0) % 2)[..., None] * np.ones(3) + 0.5
+    detail = _noisy(board, 1e-3)
+    chosen = bench._chosen_by_sure(detail, np.array(detail.mean), _box3)
+    assert np.abs(chosen - detail.mean).max() < 1e-3 < np.abs(_box3(detail) - detail.mean).max()
+
+
+def test_the_albedo_moves_with_the_probe_only_when_asked(bench, monkeypatch):
+    """A guide that is the albedo's means, whose noise is twice the radiance's and from the same paths
+    (a texture's): held fixed (``rho`` 0) its divergence is 0 and it is taken, at four times the means'
+    error; its noise counted with the radiance's (``rho`` 1), the means are kept."""
+    monkeypatch.setattr(bench, "reconstruct", _fake_reconstruct)
+    base = _noisy(np.full((32, 32, 3), 1.0), 0.05)
+    albedo = SampleBuffer.from_moments(base.count, 2 * np.array(base.mean) - 1, 4 * np.array(base.variance))
+    buffer = dataclasses.replace(base, features={"albedo": albedo})
+    follow = lambda b: np.array(b.features["albedo"].mean)  # noqa: E731
+    def error(image):
+        return float(np.mean((image - 1.0) ** 2))
+
+    fixed = bench._chosen_by_sure(buffer, np.array(buffer.mean), follow)
+    counted = bench._chosen_by_sure(buffer, np.array(buffer.mean), follow, rho=1.0)
+    assert error(fixed) > 2.5 * error(buffer.mean), (error(fixed), error(buffer.mean))
+    assert error(counted) < 1.1 * error(buffer.mean), (error(counted), error(buffer.mean))
