@@ -4,6 +4,7 @@ Run from the repository root::
 
     .venv/bin/python benchmarks/sampler_bias.py                     # about 15 minutes
     .venv/bin/python benchmarks/sampler_bias.py --report            # the tables of the stored results
+    .venv/bin/python benchmarks/sampler_bias.py --routes            # what is left: each route taken out, 8 spp
 
 Ranked by statistics its own samples are part of, a pixel whose first samples caught a bright path ranks high,
 takes more samples and is diluted back towards its mean; one whose first samples missed it ranks low and keeps
@@ -22,6 +23,9 @@ and variants:
 
 Uniform sampling's plain mean (the adapter's or the tracer's uniform request, the same seeds) is the unbiased
 baseline beside them. Results: ``benchmarks/results/sampler_bias.json``.
+
+``--routes`` measures, in the same way, what is left of the bias: through which of the ranking's terms a pixel's own
+samples still reach its next ones (:data:`ROUTES`; ``benchmarks/results/sampler_bias_routes.json``).
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ from awr_denoise.prepare import prepare
 
 REPOSITORY = Path(__file__).resolve().parent.parent
 RESULTS = REPOSITORY / "benchmarks" / "results" / "sampler_bias.json"
+ROUTES_RESULTS = REPOSITORY / "benchmarks" / "results" / "sampler_bias_routes.json"
 TRACER_SCENES = ("default", "chess_dof", "rolling_balls", "sky_objects", "soft_shadows", "cornell_gi")
 MITSUBA_SCENES = ("cornell_box", "envmap_sun", "glossy_glass", "dof_checker")
 VARIANTS: dict[str, dict[str, Any]] = {
@@ -54,6 +59,15 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "uniform share 0.3": {"uniform_fraction": 0.3},
     "own pixel ranked, uniform share 0.3": {"own_pixel": True, "uniform_fraction": 0.3},
 }
+ROUTES: dict[str, dict[str, Any]] = {
+    "default": {},
+    # the capped absolute term pools the pixel's own samples (3x3); the shrinkage gain's coefficients hold its mean
+    "no absolute term": {"absolute_above": None},
+    "neighbours + absolute term": {"noise_model": "levels", "level_weight": 0.0},  # no gain
+    "neighbours only": {"noise_model": "levels", "level_weight": 0.0, "absolute_above": None},  # neither
+}
+"""The routes through which a pixel's own samples still rank it, taken out one at a time and together: with
+neither, each pixel is ranked by its 8 neighbours' relative error alone, which its own samples never reach."""
 _FINITE_TOP = float(np.finfo(np.float64).max) / 16
 
 
@@ -124,8 +138,10 @@ def _mitsuba_cases() -> Iterator[tuple[str, Any, np.ndarray]]:
             renderer.close()
 
 
-def measure(name: str, factory: Any, reference: np.ndarray, spps: list[int], seeds: list[int]) -> dict[str, Any]:
-    """Every variant and uniform sampling at each spp over ``seeds``: image-mean errors, relMSE, MSE (means)."""
+def measure(name: str, factory: Any, reference: np.ndarray, spps: list[int], seeds: list[int],
+            variants: dict[str, dict[str, Any]] | None = None) -> dict[str, Any]:
+    """Every variant (default :data:`VARIANTS`) and uniform sampling at each spp over ``seeds``: image-mean
+    errors, relMSE, MSE (means)."""
     ref_mean = float(reference.mean())
     shape = reference.shape[:2]
     out: dict[str, Any] = {"scene": name, "reference_image_mean": ref_mean, "spp": {}}
@@ -136,7 +152,7 @@ def measure(name: str, factory: Any, reference: np.ndarray, spps: list[int], see
                 buffer = renderer(SampleRequest.uniform(shape, spp))
             plain = np.asarray(buffer.mean)
             rows["uniform"].append((plain.mean() / ref_mean - 1, relmse(plain, reference), mse(plain, reference)))
-        for label, options in VARIANTS.items():
+        for label, options in (VARIANTS if variants is None else variants).items():
             options = dict(options)
             own = options.pop("own_pixel", False)
             rows[label] = []
@@ -166,7 +182,7 @@ def table(results: dict[str, Any]) -> str:
     """Markdown: per scene and spp, the image mean's error, mean over the runs (its bias) and root mean square
     (what one render is off by), for uniform sampling's plain mean and each variant's AWR buffer; then each
     variant's relMSE and MSE over the default's."""
-    labels = list(VARIANTS)
+    labels = list(results.get("variants", VARIANTS))
     runs = len(results["seeds"])
     head = ("| renderer | scene | spp | image mean, bias: uniform / " + " / ".join(labels)
             + " | image mean, root mean square: uniform / " + " / ".join(labels)
@@ -188,12 +204,19 @@ def table(results: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--spp", type=int, nargs="+", default=[8, 32])
-    parser.add_argument("--seeds", type=int, default=6, help="render seeds 0..N-1 (default 6)")
+    parser.add_argument("--spp", type=int, nargs="+", help="sample counts (default 8 32; 8 with --routes)")
+    parser.add_argument("--seeds", type=int, default=10, help="render seeds 0..N-1 (default 10)")
     parser.add_argument("--renderers", nargs="+", choices=("tracer", "mitsuba"), default=["tracer", "mitsuba"])
     parser.add_argument("--output", type=Path, default=RESULTS)
     parser.add_argument("--report", action="store_true", help="print the tables of --output and render nothing")
+    parser.add_argument("--routes", action="store_true",
+                        help="the routes of what bias is left (ROUTES) instead of VARIANTS; default --spp 8, "
+                             "--output benchmarks/results/sampler_bias_routes.json")
     args = parser.parse_args(argv)
+    variants = ROUTES if args.routes else VARIANTS
+    if args.routes and args.output == RESULTS:
+        args.output = ROUTES_RESULTS
+    args.spp = args.spp or ([8] if args.routes else [8, 32])
     if args.report:
         print(table(json.loads(args.output.read_text())))
         return 0
@@ -202,10 +225,10 @@ def main(argv: list[str] | None = None) -> int:
     seeds = list(range(args.seeds))
     start = time.perf_counter()
     results: dict[str, Any] = {"command": " ".join(["benchmarks/sampler_bias.py", *(argv or sys.argv[1:])]),
-                               "seeds": seeds, "variants": VARIANTS, "renderers": {}}
+                               "seeds": seeds, "variants": variants, "renderers": {}}
     for renderer in args.renderers:
         cases = _tracer_cases() if renderer == "tracer" else _mitsuba_cases()
-        results["renderers"][renderer] = [measure(name, factory, reference, args.spp, seeds)
+        results["renderers"][renderer] = [measure(name, factory, reference, args.spp, seeds, variants)
                                           for name, factory, reference in cases]
     results["seconds"] = time.perf_counter() - start
     args.output.parent.mkdir(parents=True, exist_ok=True)

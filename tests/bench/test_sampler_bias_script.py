@@ -98,3 +98,40 @@ def test_the_root_mean_square_is_the_runs_own(bias):
     errors = np.array([0.01, -0.02, 0.04, 0.005])
     values = {"image_mean_error": errors.mean(), "image_mean_error_sd": errors.std(ddof=1) / 2}
     assert bias.rms_error(values, 4) == pytest.approx(np.sqrt((errors**2).mean()))
+
+
+def _density(buffer, options):
+    return AdaptiveSampler.from_buffer(buffer, seed=0, **options).density()
+
+
+def test_only_the_neighbours_ranking_keeps_a_pixels_own_samples_from_its_rank(bias):
+    """The routes: a pixel whose samples caught a bright path (mean 40x, variance 1600x) keeps its own density
+    only when neither the absolute term nor the gain is there; each of them alone lets it through (1.6-2.7x
+    here)."""
+    buffer = _buffer(shape=(16, 16))
+    mean, variance = np.array(buffer.mean), np.array(buffer.variance)
+    mean[8, 8] *= 40.0
+    variance[8, 8] *= 1600.0
+    caught = SampleBuffer.from_moments(buffer.count, mean, variance)
+    for label, options in bias.ROUTES.items():
+        change = _density(caught, options) / _density(buffer, options)
+        # every pixel moves a little with the image's mean level (the log domain's offset): the pixel's own
+        # change is measured against the image's median one
+        own = change[8, 8] / np.median(change)
+        if label == "neighbours only":
+            assert own == pytest.approx(1.0, abs=0.01), label
+        else:
+            assert own > 1.5, (label, own)
+
+
+def test_the_routes_are_measured_and_tabled_like_the_variants(bias):
+    scene = make_scene("fireflies", (16, 16))
+
+    @contextlib.contextmanager
+    def factory(seed):
+        yield SyntheticRenderer(scene, seed=seed)
+
+    row = bias.measure("fireflies", factory, scene.reference(), [4], [0, 1], bias.ROUTES)
+    assert list(row["spp"]["4"]) == ["uniform", *bias.ROUTES]
+    head, _, line = bias.table({"seeds": [0, 1], "variants": bias.ROUTES, "renderers": {"synthetic": [row]}}).split("\n")
+    assert "neighbours only" in head and len(line.strip("|").split("|")[3].split("/")) == 1 + len(bias.ROUTES)
