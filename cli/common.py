@@ -173,6 +173,18 @@ def run_settings(path: str | os.PathLike[str], attributes: dict) -> tuple[str | 
     return strategy, initial
 
 
+def run_settings_refused(path: str | os.PathLike[str], attributes: dict, *, max_seed: int, max_round: int) -> str | None:
+    """The line ``plan`` would refuse a running dump with for its ``awr:*`` run settings (strategy, first round's
+    spp, seed, round), or ``None``: ``info`` reports it beside "ready to denoise", which is about ``denoise``."""
+    try:
+        run_settings(path, attributes)
+        header_count(path, attributes, "awr:seed", 0, max_seed)
+        header_count(path, attributes, "awr:round", 1, max_round - 1, low=1)  # plan: "numbered from 1"
+    except InputFileError as error:
+        return str(error)
+    return None
+
+
 _PLANE_KWARGS = {"--color": "color", "--variance": "variance", "--count": "count", "--alb": "albedo",
                  "--nrm": "normal", "--depth": "depth"}
 """The keyword of :func:`plane_kwargs` each plane option sets."""

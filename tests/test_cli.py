@@ -564,6 +564,27 @@ def test_merge_refuses_a_run_setting_plan_would_refuse(tmp_path, rng, capsys, at
     assert not (tmp_path / "m.exr").exists() and not (tmp_path / "r.exr").exists()
 
 
+@pytest.mark.parametrize("attribute, value, needle", [("awr:strategy", "evil", "'evil' is not one of awr"),
+                                                      ("awr:initial_spp", 0, "outside 1.."),
+                                                      ("awr:seed", "x", "not a whole number"),
+                                                      ("awr:round", 0, "outside 1..")])
+def test_info_says_which_run_setting_plan_refuses(tmp_path, rng, capsys, attribute, value, needle):
+    """info said only "ready to denoise" (true: denoise reads the file) for a dump plan refuses as a running
+    dump; it now warns, naming the attribute, on its lines and in --json. A valid dump gets no such warning."""
+    buf = _dump(tmp_path / "d.exr", rng)
+    write_sample_buffer(tmp_path / "bad.exr", buf, header={attribute: value})
+    assert main(["plan", str(tmp_path / "bad.exr"), "-o", str(tmp_path / "r.exr"), "-q"]) == 2
+    capsys.readouterr()
+    assert main(["info", str(tmp_path / "bad.exr")]) == 0
+    out = capsys.readouterr().out
+    warning = [line for line in out.splitlines() if "awr plan refuses it" in line]
+    assert len(warning) == 1 and attribute in warning[0] and needle in warning[0] and "ready to denoise" in out
+    assert main(["info", str(tmp_path / "bad.exr"), "--json"]) == 0
+    assert any(attribute in w for w in json.loads(capsys.readouterr().out)["warnings"])
+    assert main(["info", str(tmp_path / "d.exr")]) == 0
+    assert "awr plan refuses" not in capsys.readouterr().out
+
+
 def test_merge_independent_needs_two_renders_by_its_option(tmp_path, rng, capsys):
     """The library's refusal named its parameter ("paths: 1 file(s) given"; a red-team pass)."""
     _dump(tmp_path / "d.exr", rng)
