@@ -33,6 +33,7 @@ import json
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -346,6 +347,8 @@ def _scored(images: dict[str, np.ndarray], ref: np.ndarray, **where: Any) -> lis
 ORACLE_SPP = 256
 ORACLE_GROUP = 1000  # the renderer seed of the feature render no compared buffer uses
 DEMODULATION_FLOORS = (0.05, 0.1)  # albedos below which the radiance is not divided (sky, emitters)
+RICHER = 4  # an albedo of this many times the radiance's samples (a renderer could render first hits apart)
+RICHER_GROUP = 2000  # its render's seed: independent of the compared buffers, whose hits a renderer's would share
 
 
 def feature_limits(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], groups: int,
@@ -354,7 +357,9 @@ def feature_limits(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: 
     the features of an :data:`ORACLE_SPP`-spp render of the same scene (nearly noise-free): the feature
     pilot (``features=True``) and the albedo-demodulated guide; and that guide with the albedo
     reconstructed first (:func:`_demodulated_reconstructed`), also without demodulating where that
-    albedo is below each of :data:`DEMODULATION_FLOORS`."""
+    albedo is below each of :data:`DEMODULATION_FLOORS`; that guide chosen window by window against the
+    default (:func:`_chosen_by_sure`); and demodulated by the reconstructed albedo of :data:`RICHER` times the
+    samples (another render), what a renderer could hand over at the cost of extra first hits."""
     rows = []
     for renderer, scene, shape in scenes:
         ref = reference(renderer, scene, shape, cache)
@@ -380,6 +385,13 @@ def feature_limits(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: 
                     buffer, images["default"], lambda b: _demodulated_reconstructed(b, below=below), rho=1.0)
                 images["the same, 256-spp albedo, chosen by window"] = _chosen_by_sure(
                     buffer, images["default"], lambda b: _demodulated(b, albedo=oracle["albedo"].mean, below=below))
+                # What a renderer could hand over: the albedo of more samples (first hits only), reconstructed.
+                richer = reconstruct(feature_buffers(renderer, scene, shape, (RICHER * spp,), RICHER_GROUP,
+                                                     cache)[RICHER * spp].features["albedo"])
+                images[f"demodulated guide, albedo of {RICHER}x the samples"] = reconstruct(
+                    buffer, guide=_demodulated(buffer, albedo=richer, below=below))
+                images["the same, chosen by window"] = _chosen_by_sure(
+                    buffer, images["default"], lambda b: _demodulated(b, albedo=richer, below=below))
                 rows += _scored(images, ref, renderer=renderer, scene=scene, spp=spp, group=g)
         print(f"{renderer} {scene}: done", flush=True)
     return rows
@@ -430,7 +442,8 @@ SURE_WINDOW = 9  # the default guard's window (awr_denoise.sure.DEFAULT_WINDOW)
 SURE_EPS = 0.1  # the probe's step, in standard errors of the means (as _ShareBySure's)
 
 
-def _chosen_by_sure(buffer: SampleBuffer, default: np.ndarray, make_guide: Any, rho: float = 0.0) -> np.ndarray:
+def _chosen_by_sure(buffer: SampleBuffer, default: np.ndarray, make_guide: Callable[[SampleBuffer], np.ndarray],
+                    rho: float = 0.0) -> np.ndarray:
     """The default ``A`` and the demodulated guide's reconstruction ``C`` mixed window by window, ``A + mu (C - A)``,
     ``mu`` in [0, 1] least in Stein's risk estimate of the mix (the smaller of the squared and the relative
     criterion's, as the guard's; :mod:`awr_denoise.sure`):

@@ -173,7 +173,8 @@ def run_settings(path: str | os.PathLike[str], attributes: dict) -> tuple[str | 
     return strategy, initial
 
 
-def run_settings_refused(path: str | os.PathLike[str], attributes: dict, *, max_seed: int, max_round: int) -> str | None:
+def run_settings_refused(path: str | os.PathLike[str], attributes: dict, *, max_seed: int,
+                         max_round: int) -> str | None:
     """The line ``plan`` would refuse a running dump with for its ``awr:*`` run settings (strategy, first round's
     spp, seed, round), or ``None``: ``info`` reports it beside "ready to denoise", which is about ``denoise``."""
     try:

@@ -133,5 +133,6 @@ def test_the_routes_are_measured_and_tabled_like_the_variants(bias):
 
     row = bias.measure("fireflies", factory, scene.reference(), [4], [0, 1], bias.ROUTES)
     assert list(row["spp"]["4"]) == ["uniform", *bias.ROUTES]
-    head, _, line = bias.table({"seeds": [0, 1], "variants": bias.ROUTES, "renderers": {"synthetic": [row]}}).split("\n")
+    results = {"seeds": [0, 1], "variants": bias.ROUTES, "renderers": {"synthetic": [row]}}
+    head, _, line = bias.table(results).split("\n")
     assert "neighbours only" in head and len(line.strip("|").split("|")[3].split("/")) == 1 + len(bias.ROUTES)
