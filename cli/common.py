@@ -22,10 +22,11 @@ from awr_denoise.errors import InputFileError
 from awr_denoise.io import PRESETS
 from awr_denoise.io.dump import header_count
 from awr_denoise.io.exr import header_value
+from awr_denoise.io.request_map import MAX_ROUND
 from awr_denoise.sampling import SAMPLERS
 
 from .errors import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, RuntimeFailure, UsageError, one_line_warnings, shown
-from .values import MAX_FRAMES, MAX_SPP, nonempty, whole
+from .values import MAX_FRAMES, MAX_SEED, MAX_SPP, nonempty, whole
 
 __all__ = [
     "dump_options_given",
@@ -173,14 +174,25 @@ def run_settings(path: str | os.PathLike[str], attributes: dict) -> tuple[str | 
     return strategy, initial
 
 
-def run_settings_refused(path: str | os.PathLike[str], attributes: dict, *, max_seed: int,
-                         max_round: int) -> str | None:
+def dumped_seed(path: str | os.PathLike[str], attributes: dict) -> int:
+    """A running dump's ``awr:seed`` (0 without), refused naming the file and the attribute."""
+    return header_count(path, attributes, "awr:seed", 0, MAX_SEED)
+
+
+def dumped_round(path: str | os.PathLike[str], attributes: dict) -> int:
+    """A running dump's ``awr:round`` (1 without): rounds after the first are numbered from 1, and merge
+    numbers the next one, so the last round has none."""
+    return header_count(path, attributes, "awr:round", 1, MAX_ROUND - 1, low=1)
+
+
+def run_settings_refused(path: str | os.PathLike[str], attributes: dict) -> str | None:
     """The line ``plan`` would refuse a running dump with for its ``awr:*`` run settings (strategy, first round's
-    spp, seed, round), or ``None``: ``info`` reports it beside "ready to denoise", which is about ``denoise``."""
+    spp, seed, round; plan's own checks), or ``None``: ``info`` reports it beside "ready to denoise", which is
+    about ``denoise``."""
     try:
         run_settings(path, attributes)
-        header_count(path, attributes, "awr:seed", 0, max_seed)
-        header_count(path, attributes, "awr:round", 1, max_round - 1, low=1)  # plan: "numbered from 1"
+        dumped_seed(path, attributes)
+        dumped_round(path, attributes)
     except InputFileError as error:
         return str(error)
     return None

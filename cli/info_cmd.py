@@ -7,14 +7,12 @@ from typing import Any
 
 from awr_denoise.io.describe import describe_file
 from awr_denoise.io.exr import read_header
-from awr_denoise.io.request_map import MAX_ROUND
 
 from . import interrupts
 from .common import (EXIT_OK, UsageError, add_plane_options, dump_options_given, plane_kwargs, print_json,
                      run_settings_refused)
 from .errors import shown
 from .paths import PathPlan, check_plane_windows, plane_options
-from .values import MAX_SEED
 
 __all__ = ["register", "run", "describe"]
 
@@ -113,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"{given[0][0]}: describes a sample dump; {args.input} is {what}")
     if info["kind"] == "samples":
         # "ready to denoise" is about denoise; a running dump's run settings are plan's, said here too
-        refused = run_settings_refused(args.input, read_header(args.input), max_seed=MAX_SEED, max_round=MAX_ROUND)
+        refused = run_settings_refused(args.input, read_header(args.input))
         if refused is not None:
             info.setdefault("warnings", []).append(f"awr plan refuses it as a running dump: {refused}")
     # A signal whose exception a C extension's import swallowed: no report after it.

@@ -6,7 +6,6 @@ import argparse
 
 from awr_denoise.allocation import MAX_BUDGET
 from awr_denoise.io import provenance, read_sample_dump, write_request
-from awr_denoise.io.dump import header_count
 from awr_denoise.io.exr import read_header, read_windows
 from awr_denoise.io.request_map import MAX_ROUND
 from awr_denoise.noise_gain import DEFAULT_NOISE_MODEL
@@ -14,8 +13,8 @@ from awr_denoise.sampling import (DEFAULT_AWR_INITIAL_SPP, DEFAULT_INITIAL_SPP, 
                                   AdaptiveSampler)
 from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 
-from .common import (EXIT_OK, UsageError, add_plane_options, check_memory, dump_options_given, plane_kwargs,
-                     run_settings, status)
+from .common import (EXIT_OK, UsageError, add_plane_options, check_memory, dump_options_given, dumped_round,
+                     dumped_seed, plane_kwargs, run_settings, status)
 from .paths import PathPlan, check_plane_windows, plane_options
 from .values import MAX_LEVELS, MAX_SEED, MAX_SPP, image_size, nonempty, real, wavelet_name, whole
 
@@ -126,17 +125,15 @@ def run(args: argparse.Namespace) -> int:
         if args.levels is not None and args.levels > max_levels(dump.buffer.shape):
             raise UsageError(f"--levels: {args.levels} is outside 1..{max_levels(dump.buffer.shape)} for the "
                              f"image of {args.input}")
-        seed = header_count(args.input, dump.attributes, "awr:seed", 0, MAX_SEED)
+        seed = dumped_seed(args.input, dump.attributes)
         if args.seed is not None and "awr:seed" in dump.attributes and args.seed != seed:
             # A dump's samples continue one random sequence; merge would refuse the batch.
             raise UsageError(f"--seed: {args.seed} differs from awr:seed {seed} of {args.input} (a dump's samples "
                              "continue one sequence; plan without --seed)")
         seed = args.seed if args.seed is not None else seed
-        round_number = args.round if args.round is not None else header_count(args.input, dump.attributes,
-                                                                                 "awr:round", 1, MAX_ROUND - 1)
+        round_number = args.round if args.round is not None else dumped_round(args.input, dump.attributes)
         if round_number < 1:
-            where = "--round" if args.round is not None else f"{args.input}: awr:round"  # whichever gave it
-            raise UsageError(f"{where}: rounds after the first are numbered from 1, got {round_number}")
+            raise UsageError(f"--round: rounds after the first are numbered from 1, got {round_number}")
         sampler = cls.from_buffer(dump.buffer, seed=seed, round=round_number, issued=dump.issued,
                                   **options)
     budget = args.budget
