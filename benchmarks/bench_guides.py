@@ -46,7 +46,7 @@ from awr_denoise.io.png import write_preview
 from awr_denoise.metrics import mean_error, mse, relmse
 from awr_denoise.prepare import filled_mean
 from awr_denoise.renderers import create_renderer
-from awr_denoise.sure import sure_blend
+from awr_denoise.sure import DEFAULT_WINDOW, sure_blend
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
 from awr_denoise.wiener import chain, rademacher_probes
 
@@ -438,24 +438,14 @@ def _demodulated_reconstructed(buffer: SampleBuffer, below: float | None = None)
     return _demodulated(buffer, albedo=reconstruct(buffer.features["albedo"]), below=below)
 
 
-SURE_WINDOW = 9  # the default guard's window (awr_denoise.sure.DEFAULT_WINDOW)
-SURE_EPS = 0.1  # the probe's step, in standard errors of the means (as _ShareBySure's)
+SURE_EPS = 0.1  # the probe's step, in standard errors of the means
 
 
-def _chosen_by_sure(buffer: SampleBuffer, default: np.ndarray, make_guide: Callable[[SampleBuffer], np.ndarray],
-                    rho: float = 0.0) -> np.ndarray:
-    """The default ``A`` and the demodulated guide's reconstruction ``C`` mixed window by window, ``A + mu (C - A)``,
-    ``mu`` in [0, 1] least in Stein's risk estimate of the mix (the smaller of the squared and the relative
-    criterion's, as the guard's; :mod:`awr_denoise.sure`):
-
-        mu = -sum_N w [(A - x)(C - A) + d_C - d_A] / sum_N w (C - A)^2,
-
-    with each map's divergence ``d_i = v_i df_i/dx_i`` from one Rademacher probe ``n`` of the means scaled by
-    their standard errors (Monte-Carlo SURE, Ramani, Blu and Unser 2008: ``n (f(x + eps n) - f(x)) / eps``,
-    the guide made again from the perturbed buffer, so its dependence on the means is counted). The albedo
-    comes from the same paths as the radiance, and its noise is not in the means' divergence: ``rho`` 1 also
-    moves the albedo's means by ``n`` times the ratio of their standard errors (noise taken as fully
-    correlated, channel by channel; no buffer holds the cross moments)."""
+def _probed(buffer: SampleBuffer, rho: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, SampleBuffer]:
+    """Monte-Carlo SURE's probe (Ramani, Blu and Unser 2008): the means ``x``, their variances ``v``, one
+    Rademacher probe ``n`` scaled by their standard errors, and the buffer with its means moved by ``SURE_EPS n``;
+    ``rho`` 1 moves the albedo's means with them, by ``n`` times the ratio of the standard errors (its noise
+    taken as the radiance's, channel by channel: no buffer holds the cross moments)."""
     x = filled_mean(buffer)
     v = buffer.estimated_variance() / np.maximum(buffer.count, 1)[..., None]  # as guided.trust's
     n = next(rademacher_probes(v, 1, seed=1))[0]
@@ -468,11 +458,29 @@ def _chosen_by_sure(buffer: SampleBuffer, default: np.ndarray, make_guide: Calla
                                                        variance_known=albedo.variance_known)
     moved = SampleBuffer.from_moments(buffer.count, buffer.mean + SURE_EPS * n, buffer.variance,
                                       variance_known=buffer.variance_known, features=features)
+    return x, v, n, moved
+
+
+def _chosen_by_sure(buffer: SampleBuffer, default: np.ndarray, make_guide: Callable[[SampleBuffer], np.ndarray],
+                    rho: float = 0.0) -> np.ndarray:
+    """The default ``A`` and the demodulated guide's reconstruction ``C`` mixed window by window, ``A + mu (C - A)``,
+    ``mu`` in [0, 1] least in Stein's risk estimate of the mix (the smaller of the squared and the relative
+    criterion's, as the guard's; :mod:`awr_denoise.sure`):
+
+        mu = -sum_N w [(A - x)(C - A) + d_C - d_A] / sum_N w (C - A)^2,
+
+    with each map's divergence ``d_i = v_i df_i/dx_i`` from one Rademacher probe ``n`` of the means scaled by
+    their standard errors (Monte-Carlo SURE, Ramani, Blu and Unser 2008: ``n (f(x + eps n) - f(x)) / eps``,
+    the guide made again from the perturbed buffer, so its dependence on the means is counted; :func:`_probed`).
+    The albedo comes from the same paths as the radiance, and its noise is not in the means' divergence: ``rho``
+    1 also moves the albedo's means with the probe. Each window is the default guard's
+    (:data:`awr_denoise.sure.DEFAULT_WINDOW`)."""
+    x, _, n, moved = _probed(buffer, rho)
     chosen = reconstruct(buffer, guide=make_guide(buffer))
     d_default = n * (reconstruct(moved) - default) / SURE_EPS
     d_chosen = n * (reconstruct(moved, guide=make_guide(moved)) - chosen) / SURE_EPS
     change = chosen - default
-    size = (SURE_WINDOW, SURE_WINDOW, 1)
+    size = (DEFAULT_WINDOW, DEFAULT_WINDOW, 1)
     shares = []
     for w in (np.ones_like(x), 1.0 / (default * default + 0.01)):  # MSE's and relMSE's weights (its epsilon)
         num = ndimage.uniform_filter(w * ((default - x) * change + d_chosen - d_default), size=size, mode="reflect")
@@ -604,21 +612,16 @@ class _ShareBySure:
     reconstructions and two OIDN runs per candidate share."""
 
     SHARES = (0.0, 0.25, 0.5, 0.75, 1.0)
-    EPS = 0.1
 
     def image(self, buffer: SampleBuffer, options: dict[str, Any]) -> np.ndarray:
-        x = filled_mean(buffer)
-        v = buffer.estimated_variance() / np.maximum(buffer.count, 1)[..., None]  # as guided.trust's
-        n = next(rademacher_probes(v, 1, seed=1))[0]
-        perturbed = SampleBuffer.from_moments(buffer.count, buffer.mean + self.EPS * n, buffer.variance,
-                                              features=buffer.features)
+        x, v, n, perturbed = _probed(buffer)
         guide, guide_perturbed = guides.oidn(buffer), guides.oidn(perturbed)
         best = None
         for share in self.SHARES:
             f0 = reconstruct(buffer, guide=guide, guide_projection=share)
             f1 = reconstruct(perturbed, guide=guide_perturbed, guide_projection=share)
             w = 1.0 / (f0 * f0 + 0.01)  # relMSE's weights (its epsilon), the result standing in for the reference
-            risk = float(np.sum(w * (f0 - x) ** 2) + 2 * np.sum(w * n * (f1 - f0)) / self.EPS - np.sum(w * v))
+            risk = float(np.sum(w * (f0 - x) ** 2) + 2 * np.sum(w * n * (f1 - f0)) / SURE_EPS - np.sum(w * v))
             if best is None or risk < best[0]:
                 best = (risk, share, f0)
         assert best is not None
