@@ -26,7 +26,7 @@ from typing import Any
 from awr_denoise.errors import InputFileError
 from awr_denoise.io.atomic import check_readable, check_utf8_name, check_writable
 from awr_denoise.io.exr import check_same_windows, read_windows
-from awr_denoise.io.presets import feature_plane_file, parse_plane
+from awr_denoise.io.presets import feature_plane_file, plane_file
 
 from .errors import UsageError
 
@@ -44,12 +44,7 @@ def plane_options(args: Any) -> list[tuple[str | None, str]]:
 
 def _plane_file(spec: str, option: str) -> Path | None:
     """The file a plane option reads, or None for a plane of the main input."""
-    if option in FEATURE_OPTIONS:
-        return feature_plane_file(spec)
-    try:
-        return parse_plane(spec, None)[0]
-    except ValueError:
-        return None
+    return feature_plane_file(spec) if option in FEATURE_OPTIONS else plane_file(spec)
 
 
 @dataclass
@@ -97,7 +92,11 @@ class PathPlan:
         ``label`` names it in messages instead of ``option`` (a frame's: "--alb (frame 3)")."""
         if spec is None:
             return
-        self.read(_plane_file(spec, option), label or option)  # None: a plane of the main input
+        try:
+            file = _plane_file(spec, option)  # None: a plane of the main input
+        except ValueError as exc:  # an empty plane name after the file's colon
+            raise UsageError(f"{label or option}: {exc}") from None
+        self.read(file, label or option)
 
     def write(self, path: str | os.PathLike[str] | None, option: str, kind: str = "exr") -> None:
         """An output file (None is skipped), written as ``kind`` (``"exr"`` or ``"png"``)."""

@@ -253,6 +253,22 @@ def test_an_empty_name_is_refused_as_empty(tmp_path, rng, capsys, argv, option):
     assert list(tmp_path.iterdir()) == [src]
 
 
+@pytest.mark.parametrize("argv, option", [
+    (["denoise", "{d}", "-o", "{o}", "--color", "{d}:RGB", "--variance", "{d}:"], "--variance"),
+    (["denoise", "{d}", "-o", "{o}", "--alb", "{d}:"], "--alb"),
+    (["plan", "{d}", "-o", "{o}", "--nrm", "{d}:"], "--nrm"),
+    (["info", "{d}", "--color", "{d}:"], "--color"),
+])
+def test_an_empty_plane_after_the_files_colon_is_refused(tmp_path, rng, capsys, argv, option):
+    """``--variance "$F:$PLANE"`` with PLANE unset named the file's R,G,B: the means were read as their
+    own variance, the beauty as the albedo, exit 0 (a red-team pass)."""
+    src = tmp_path / "d.exr"
+    _dump(src, rng)
+    assert main([a.format(d=src, o=tmp_path / "o.exr") for a in argv] + ([] if argv[0] == "info" else ["-q"])) == 2
+    _one_error_line(capsys, option, "no plane name after the file's colon")
+    assert list(tmp_path.iterdir()) == [src]
+
+
 # ---------------------------------------------------------------- outputs are safe
 
 def test_denoise_writes_image_with_provenance(tmp_path, rng, capsys):

@@ -57,6 +57,37 @@ def test_deep_refuses_depth_channels_and_depth_files(tmp_path):
         read_deep_samples(tmp_path / "depth.exr")
 
 
+def _deep_with(tmp_path, name, channels_attribute, keep):
+    """A valid deep dump rewritten with ``awr:channels`` set to ``channels_attribute`` (None: removed)
+    and only the channels in ``keep``."""
+    pixels = np.repeat(np.arange(4), 3)
+    write_deep_samples(tmp_path / "ok.exr", pixels, np.arange(36.0).reshape(12, 3), (2, 2),
+                       sample_index=np.tile(np.arange(3.0), 4), overwrite=True)
+    f = OpenEXR.File(str(tmp_path / "ok.exr"), separate_channels=True)
+    header = {k: v for k, v in f.header().items() if k not in ("channels", "awr:channels")}
+    if channels_attribute is not None:
+        header["awr:channels"] = channels_attribute
+    planes = {k: OpenEXR.Channel(c.pixels) for k, c in f.channels().items() if k in keep}
+    with OpenEXR.File(header, planes) as g:
+        g.write(str(tmp_path / name))
+    return tmp_path / name
+
+
+@pytest.mark.parametrize("attribute,keep,what", [
+    ("", ("R", "G", "B", "sampleIndex"), "names no channel"),
+    (",", ("R", "G", "B", "sampleIndex"), "names no channel"),
+    (None, ("sampleIndex",), "is not given, and no channel but the sample index"),
+    ("sampleIndex", ("R", "G", "B", "sampleIndex"), "names sampleIndex, which a Monte Carlo sample dump reserves"),
+])
+def test_a_deep_dump_without_sample_values_is_named(tmp_path, attribute, keep, what):
+    """No value channel left gave an IndexError (an internal error, exit 1); the sample index named as
+    a value was denoised as radiance (a red-team pass)."""
+    path = _deep_with(tmp_path, "bad.exr", attribute, keep)
+    with pytest.raises(InputFileError, match=rf"bad\.exr: awr:channels: {what}"):
+        read_deep_samples(path)
+    np.testing.assert_array_equal(read_deep_samples(tmp_path / "ok.exr").count, 3)
+
+
 def test_deep_nan_sample_named(tmp_path):
     obj = np.fromiter([np.array([1.0, np.nan], np.float32)], object, 1).reshape(1, 1)
     with OpenEXR.File({"type": OpenEXR.deepscanline, "compression": OpenEXR.ZIPS_COMPRESSION,

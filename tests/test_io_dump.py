@@ -173,6 +173,9 @@ def test_a_half_count_from_2048_on_is_refused(tmp_path):
     ("variance.R", -1.0, "negative"),
     ("sampleCount", -2.0, "negative"),
     ("sampleCount", 2.5, "not whole"),
+    # Not rounded to 4 and to 0 (a pixel without samples) either, however close (a red-team pass):
+    ("sampleCount", 4.0009, "not whole"),
+    ("sampleCount", 0.0009, "not whole"),
     # Not "negative" (1e30 wrapped around int64 before), nor a count a float channel holds exactly:
     ("sampleCount", 1e30, "exceed 16777216"),
     ("sampleCount", 2.0**25, "exceed 16777216"),
@@ -184,6 +187,18 @@ def test_bad_values_name_file_and_channel(tmp_path, channel, value, what):
     planes[channel] = bad
     _write(tmp_path / "bad.exr", planes)
     with pytest.raises(InputFileError, match=rf"bad\.exr: {channel}: .*{what}"):
+        read_sample_buffer(tmp_path / "bad.exr")
+
+
+@pytest.mark.parametrize("value", [7.0, -3.0, 0.5])
+def test_a_variance_known_mask_other_than_0_or_1_is_refused(tmp_path, value):
+    """``varianceKnown`` is a mask: 7 or -3 was read as known or unknown without a word (a red-team pass)."""
+    known = np.ones((3, 4), np.float32)
+    _write(tmp_path / "ok.exr", _planes(varianceKnown=known))
+    assert read_sample_buffer(tmp_path / "ok.exr").variance_known.all()
+    known[2, 3] = value
+    _write(tmp_path / "bad.exr", _planes(varianceKnown=known))
+    with pytest.raises(InputFileError, match=r"bad\.exr: varianceKnown: 1 pixel\(s\) are neither 0 .* nor 1"):
         read_sample_buffer(tmp_path / "bad.exr")
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -12,6 +14,7 @@ from awr_denoise.errors import InputFileError  # noqa: E402
 from awr_denoise.errors import InputFileWarning  # noqa: E402
 from awr_denoise.io import detect_preset, read_sample_buffer, read_sample_dump  # noqa: E402
 from awr_denoise.io.colour import MITSUBA_XYZ_TO_SRGB, PBRT_XYZ_TO_SRGB  # noqa: E402
+from awr_denoise.io.presets import parse_plane, plane_file  # noqa: E402
 
 H, W = 4, 5
 
@@ -317,3 +320,15 @@ def test_a_lossily_compressed_dump_is_read_with_a_warning(tmp_path, compression)
             read_sample_dump(path)
         except InputFileError as exc:  # DWAA can make a small variance negative: refused then, warned first
             assert "negative" in str(exc)
+
+
+def test_an_empty_plane_name_after_a_files_colon_is_refused(tmp_path):
+    """``file.exr:`` is not the file's default plane (a script's unset ``$PLANE``); a bare plane is the
+    main input's, and a plane name may hold colons of its own."""
+    with pytest.raises(ValueError, match=r"plane 'beauty\.exr:': no plane name after the file's colon"):
+        parse_plane("beauty.exr:", None)
+    with pytest.raises(ValueError, match="no plane name"):
+        plane_file("beauty.exr:")
+    assert plane_file("variance") is None and plane_file("layer:variance") is None
+    assert parse_plane("beauty.exr:variance", None) == (Path("beauty.exr"), "variance")
+    assert parse_plane("variance", tmp_path / "d.exr") == (tmp_path / "d.exr", "variance")

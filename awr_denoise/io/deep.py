@@ -173,6 +173,15 @@ def samples_from_deep_part(path: str | os.PathLike[str], part: ExrPart, *, nonfi
         names = [n for n in str(header_value(part.header, "awr:channels")).split(",") if n]
     else:
         names = sorted(n for n in part.channels if n not in _DEPTH_CHANNELS | {SAMPLE_INDEX_CHANNEL})
+    if not names:
+        held = ", ".join(sorted(part.channels)) or "none"
+        what = ("names no channel" if "awr:channels" in part.header
+                else "is not given, and no channel but the sample index and depth ones is held")
+        raise file_error(path, f"{what}: no sample values to read (channels: {held})", "awr:channels")
+    reserved = sorted((_DEPTH_CHANNELS | {SAMPLE_INDEX_CHANNEL}).intersection(names))
+    if reserved:  # the sample's index or depth compositing's channels: never a sample's value
+        raise file_error(path, f"names {', '.join(reserved)}, which a Monte Carlo sample dump reserves "
+                               "(the sample's index, depth compositing): not sample values", "awr:channels")
     for name in names:
         if name not in part.channels:
             raise file_error(path, "missing", name)

@@ -254,10 +254,21 @@ def whole_counts(path: str | os.PathLike[str], name: str, values: np.ndarray) ->
                 "reach 2048, where a HALF channel stops holding sample counts exactly (2049 is stored as 2048); "
                 "write the count as FLOAT" if half else
                 f"exceed {MAX_EXACT_COUNT} (2**24), the largest sample count a float channel holds exactly"), name)
-    frac = np.abs(c - np.rint(c)) > 1e-3
+    # Exactly whole: every float type holds the whole counts it may carry exactly (above), so a
+    # fraction, however small, is not a count (0.0009 must not become a pixel without samples).
+    frac = c != np.rint(c)
     if frac.any():
         raise file_error(path, f"{int(frac.sum())} pixel(s) are not whole sample counts", name)
-    return np.rint(c).astype(np.int64)
+    return c.astype(np.int64)
+
+
+def _known_mask(path: str | os.PathLike[str], name: str, values: np.ndarray) -> np.ndarray:
+    """A ``varianceKnown`` channel as a bool mask, refusing values other than 0 and 1 (and NaN/Inf)."""
+    c = checked_plane(path, name, values, whole=True)
+    odd = (c != 0) & (c != 1)
+    if odd.any():
+        raise file_error(path, f"{int(odd.sum())} pixel(s) are neither 0 (variance unknown) nor 1 (known)", name)
+    return c == 1
 
 
 def buffer_from_awr_part(path: str | os.PathLike[str], part: ExrPart, *,
@@ -298,7 +309,7 @@ def buffer_from_awr_part(path: str | os.PathLike[str], part: ExrPart, *,
                                        nonnegative=True))
     known = None
     if KNOWN_CHANNEL in ch:
-        known = checked_plane(path, KNOWN_CHANNEL, ch[KNOWN_CHANNEL], whole=True) > 0.5
+        known = _known_mask(path, KNOWN_CHANNEL, ch[KNOWN_CHANNEL])
     try:
         buffer = SampleBuffer.from_moments(count, np.stack(means, -1), np.stack(variances, -1),
                                            variance_kind=kind, channels=names, variance_known=known)
@@ -339,7 +350,7 @@ def _read_features(path: str | os.PathLike[str], part: ExrPart, attributes: Mapp
             own = whole_counts(path, prefix + COUNT_CHANNEL, ch[prefix + COUNT_CHANNEL])
         known = None
         if prefix + KNOWN_CHANNEL in ch:
-            known = checked_plane(path, prefix + KNOWN_CHANNEL, ch[prefix + KNOWN_CHANNEL], whole=True) > 0.5
+            known = _known_mask(path, prefix + KNOWN_CHANNEL, ch[prefix + KNOWN_CHANNEL])
         mean = np.stack([checked_plane(path, p, ch[p]) for p in planes], -1)
         variance = np.stack([checked_plane(path, VARIANCE_PREFIX + p, ch[VARIANCE_PREFIX + p], nonnegative=True)
                              for p in planes], -1)

@@ -49,7 +49,7 @@ from .features import MITSUBA_AOV_NAMES, auto_feature_planes, feature_from_plane
 from .mitsuba import RAW_FILM, MomentBound, filter_correlation, moment_bound
 
 __all__ = ["PRESETS", "detect_preset", "read_sample_buffer", "read_sample_dump", "read_independent_renders",
-           "parse_plane", "feature_plane_file", "file_views"]
+           "parse_plane", "plane_file", "feature_plane_file", "file_views"]
 
 PRESETS = ("auto", "awr", "pbrt", "cycles", "renderman", "mitsuba", "generic", "deep")
 """Accepted values of ``preset``."""
@@ -166,16 +166,40 @@ def _open(path: str | os.PathLike[str], opened: dict[Path, _File], view: str | N
     return opened[key]
 
 
-def parse_plane(spec: str, default_file: str | os.PathLike[str] | None) -> tuple[Path, str]:
-    """Split ``file.exr:plane`` into (file, plane); a bare ``plane`` refers to ``default_file``.
+def plane_file(spec: str) -> Path | None:
+    """The file of ``file.exr:plane``, or None for a bare ``plane`` (of the command's main input).
 
-    Only the last colon separates, and only when what precedes it names an EXR file, so
-    plane names and drive letters keep their colons.
+    Only the last colon separates, and only when what precedes it names an EXR file, so plane
+    names and drive letters keep their colons.
+
+    Raises
+    ------
+    ValueError
+        If nothing follows the file's colon (``"$FILE:$PLANE"`` with ``PLANE`` unset): an empty
+        plane name is refused, never read as the file's default plane.
+
+    Examples
+    --------
+    >>> from awr_denoise.io.presets import plane_file
+    >>> plane_file("beauty.exr:variance"), plane_file("variance")
+    (PosixPath('beauty.exr'), None)
     """
     if ":" in spec:
         file_part, plane = spec.rsplit(":", 1)
         if file_part.lower().endswith(".exr") or Path(file_part).is_file():
-            return Path(file_part), plane
+            if not plane:
+                raise ValueError(f"plane {spec!r}: no plane name after the file's colon; write "
+                                 f"{file_part}:PLANE, or the file alone where the option takes one")
+            return Path(file_part)
+    return None
+
+
+def parse_plane(spec: str, default_file: str | os.PathLike[str] | None) -> tuple[Path, str]:
+    """Split ``file.exr:plane`` into (file, plane); a bare ``plane`` refers to ``default_file``
+    (:func:`plane_file` says which, and refuses an empty plane name)."""
+    file = plane_file(spec)
+    if file is not None:
+        return file, spec.rsplit(":", 1)[1]
     if default_file is None:
         raise ValueError(f"plane {spec!r}: no input file given; write it as file.exr:{spec}")
     return Path(default_file), spec
@@ -199,10 +223,7 @@ def feature_plane_file(spec: str) -> Path | None:
     """
     if _whole_file(spec) or os.path.lexists(spec):  # a directory or FIFO: named, refused
         return Path(spec)
-    try:
-        return parse_plane(spec, None)[0]
-    except ValueError:
-        return None
+    return plane_file(spec)
 
 
 def detect_preset(channels: Sequence[str], header: dict) -> str:

@@ -27,7 +27,7 @@ from ..errors import AWRError, InputFileError
 from ..io import read_image, read_sample_buffer, write_image, write_preview
 from ..io.atomic import check_writable, public_name, standing_for
 from ..io.exr import Window, check_same_windows, format_window, read_header, recorded_windows
-from ..io.presets import parse_plane
+from ..io.presets import plane_file
 from ..io.provenance import image_provenance
 from ..metrics import relmse
 from ..reconstruct import reconstruct_detailed
@@ -228,7 +228,7 @@ def _absolute_plane(spec: Any) -> Any:
         return spec
     if os.path.lexists(spec):
         return os.path.abspath(spec)
-    if _names_file(spec):
+    if plane_file(spec) is not None:  # its files were checked before: no empty plane name
         file, plane = spec.rsplit(":", 1)
         return f"{os.path.abspath(file)}:{plane}"
     return spec
@@ -278,17 +278,16 @@ def _check_reconstruct_options(options: Mapping[str, Any]) -> None:
 
 
 def _plane_files(read_options: Mapping[str, Any]) -> list[str]:
-    """The files a frame's ``file.exr:plane`` read options name."""
-    return [str(parse_plane(spec, None)[0]) for spec in read_options.values()
-            if isinstance(spec, str) and ":" in spec and _names_file(spec)]
-
-
-def _names_file(spec: str) -> bool:
-    try:
-        parse_plane(spec, None)
-    except ValueError:
-        return False
-    return True
+    """The files a frame's ``file.exr:plane`` read options name (an empty plane name refused, named)."""
+    files = []
+    for option, spec in read_options.items():
+        if isinstance(spec, str):
+            try:
+                file = plane_file(spec)
+            except ValueError as exc:
+                raise ValueError(f"{option}: {exc}") from None
+            files += [] if file is None else [str(file)]
+    return files
 
 
 def _check_outputs(sources: list[str], targets: list[str], previews: list[str] | None, overwrite: bool) -> None:
