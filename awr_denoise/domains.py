@@ -28,6 +28,27 @@ __all__ = ["Domain", "DOMAIN_NAMES", "resolve_domain"]
 DOMAIN_NAMES = ("linear", "log", "gamma")
 
 _SMALLEST = float(np.nextafter(0.0, 1.0))  # the smallest positive float64 (5e-324)
+_LARGEST = float(np.finfo(np.float64).max)
+
+
+def _log1p_ratio(a: FloatArray, k: float) -> FloatArray:
+    """``log(1 + a / k)`` for ``a >= 0``, also where ``a / k`` passes float64 (a scale given far below
+    the image's level): ``log(a) - log(k)`` there, ``a`` being that far above ``k``."""
+    with np.errstate(over="ignore", divide="ignore"):
+        out = np.log1p(np.divide(a, k))
+        if np.isinf(out).any():
+            out = np.where(np.isinf(out), np.log(a) - np.log(k), out)
+    return out
+
+
+def _k_expm1(k: float, t: FloatArray) -> FloatArray:
+    """``k (exp(t) - 1)`` for ``t >= 0``, also where ``exp(t)`` passes float64 but the product does not;
+    the largest float where the product itself would (the honest answer there)."""
+    with np.errstate(over="ignore"):
+        out = k * np.expm1(t)
+        if np.isinf(out).any():
+            out = np.where(np.isinf(out), np.minimum(np.exp(t + np.log(k)), _LARGEST), out)
+    return out
 
 
 @dataclass(frozen=True)
@@ -163,15 +184,21 @@ class _BoundDomain:
         a = np.abs(x)
         if name == "log":
             if not isinstance(a, np.ndarray) or a.dtype != np.float64:
-                return np.sign(x) * np.log1p(a / k)
+                return np.sign(x) * _log1p_ratio(np.asarray(a, dtype=np.float64), k)
             # In place (the same operations and values as the line above, fewer whole-image arrays).
-            a /= k
+            with np.errstate(over="ignore"):
+                a /= k
             np.log1p(a, out=a)
+            if a.size and np.isinf(a.max()):  # |x| / k past float64: a scale given far below the image's
+                a = _log1p_ratio(np.abs(x), k)
             sign = np.sign(x)
             sign *= a
             return sign
         p = 1.0 / self.domain.gamma
-        return np.sign(x) * ((a + k) ** p - k**p)
+        # (a + k)^p - k^p written as k^p (exp(p log(1 + a / k)) - 1): the difference cancelled to
+        # nothing for pixels far below k (a light 1e18 times the background: the background was 3
+        # or -288), and a + k overflowed for means near 1.7e308 (a red-team pass).
+        return np.sign(x) * _k_expm1(k**p, p * _log1p_ratio(np.asarray(a, dtype=np.float64), k))
 
     def derivative(self, x: FloatArray) -> FloatArray:
         name, k = self.domain.name, self.k
@@ -183,10 +210,14 @@ class _BoundDomain:
                 if not isinstance(a, np.ndarray) or a.dtype != np.float64:
                     return 1.0 / (a + k)
                 a += k  # in place: the values of 1.0 / (a + k)
+                if a.size and np.isinf(a.max()):  # |x| + k past float64 (means near 1.7e308): halved
+                    a = np.abs(x) * 0.5 + k * 0.5
+                    return np.divide(0.5, a, out=a)
                 return np.divide(1.0, a, out=a)
         p = 1.0 / self.domain.gamma
-        with np.errstate(over="ignore"):
-            return p * (a + k) ** (p - 1.0)
+        # p (a + k)^(p - 1) as p exp((p - 1) (log k + log(1 + a / k))): a + k overflows near 1.7e308.
+        with np.errstate(over="ignore", under="ignore"):
+            return p * np.exp((p - 1.0) * (np.log(k) + _log1p_ratio(np.asarray(a, dtype=np.float64), k)))
 
     def inverse(self, y: FloatArray) -> FloatArray:
         name, k = self.domain.name, self.k
@@ -194,11 +225,12 @@ class _BoundDomain:
             return np.array(y, dtype=np.float64)
         a = np.abs(y)
         if name == "log":
-            # expm1 overflows past ~709; the largest finite float is the honest answer there.
-            with np.errstate(over="ignore"):
-                return np.sign(y) * np.minimum(k * np.expm1(a), np.finfo(np.float64).max)
+            # expm1 overflows past ~709 where k times it may not (a k far below 1); past float64 the
+            # largest finite float is the honest answer.
+            return np.sign(y) * _k_expm1(k, np.asarray(a, dtype=np.float64))
         p = 1.0 / self.domain.gamma
-        return np.sign(y) * ((a + k**p) ** (1.0 / p) - k)
+        # ((a + k^p)^(1/p) - k) as k (exp(log(1 + a / k^p) / p) - 1): the forward's form, no cancellation.
+        return np.sign(y) * _k_expm1(k, _log1p_ratio(np.asarray(a, dtype=np.float64), k**p) / p)
 
     def variance(self, mean: FloatArray, variance: FloatArray) -> FloatArray:
         """Delta-method variance in the transformed domain, ``Var(x) f'(mean)^2``."""

@@ -29,7 +29,7 @@ from . import _checks
 from ._typing import FloatArray
 from .buffers import SampleBuffer
 from .channels import luminance_variance, luminance_weights
-from .domains import Domain, _BoundDomain, resolve_domain
+from .domains import _SMALLEST, Domain, _BoundDomain, resolve_domain
 from .pooling import estimated_variance
 
 __all__ = ["EstimatedBuffer", "Prepared", "filled_mean", "prepare"]
@@ -133,9 +133,14 @@ class Prepared:
         the domain's offset ``k``, the means ``x`` and their variances ``v`` at that scale: where the
         Wiener stages work, the image brought to about 1."""
         scale = self.domain.resolved_scale(self.mean)
-        s = math.ldexp(1.0, max(-1000, min(1000, math.frexp(scale)[1])))
-        k = self.domain.offset * (scale / s)  # not offset * scale: that underflows near 5e-324
-        return s, k, self.mean / s, self.variance / s / s  # not s * s: that underflows near 1e-310
+        # The image's own level, not a scale given to the domain: a Domain(scale=1e-300) beside means
+        # of 0.5 took the variances past float64 there, a NaN image (a red-team pass).
+        level = dataclasses.replace(self.domain, scale=None).resolved_scale(self.mean)
+        s = math.ldexp(1.0, max(-1000, min(1000, math.frexp(level)[1])))
+        with np.errstate(over="ignore"):  # scale / s: past float64 only for a scale 1e300 times the image's
+            ratio = min(np.float64(scale) / s, np.finfo(np.float64).max)
+        k = max(self.domain.offset * ratio, _SMALLEST)  # not offset * scale: that underflows near 5e-324
+        return s, float(k), self.mean / s, self.variance / s / s  # not s * s: that underflows near 1e-310
 
     @cached_property
     def variance(self) -> FloatArray:
@@ -212,4 +217,12 @@ def prepare(buffer: SampleBuffer, domain: str | Domain = "log", *, luminance: bo
     else:
         mean = _filled(buffer, copy=False)
         n = n[..., None]
-    return Prepared(mean, sample_variance, n, dom.bound(mean))
+    bound = dom.bound(mean)
+    if dom.scale is not None and dom.name != "linear":
+        top = float(np.abs(mean).max(initial=0.0))
+        if top > 0 and bound.forward(np.array([top]))[0] == 0:
+            # Every mean would be 0 in the domain: a black image, without a word (a red-team pass).
+            raise ValueError(f"domain scale: {dom.scale:g} is so far above the image's level (largest |mean| "
+                             f"{top:.3g}) that every mean underflows to 0 in the {dom.name} domain; give a "
+                             "scale near the image's level, or None for its own")
+    return Prepared(mean, sample_variance, n, bound)

@@ -133,7 +133,8 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
     run side by side: the same image, bit for bit.
     """
     s, k, x, v = prepared.unit_scaled()
-    transform = stationary_transform(x.shape[:2], wavelet, levels, precision_for(precision, k, x, pilot / s))
+    # 1 / k as well: a domain scale given far below the image's level leaves k tiny at the image's.
+    transform = stationary_transform(x.shape[:2], wavelet, levels, precision_for(precision, k, 1.0 / k, x, pilot / s))
     options = {"k": k, "leverage": guard, "probes": probes, "keep": keep, "seed": seed,
                "run": run if parallel else None, "divergence_probes": guard_probes if guard else 0}
     # The first Wiener stage's energy floor needs each channel's own factors: channel mode only.

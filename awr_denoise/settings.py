@@ -106,7 +106,11 @@ def resolve_settings(*, c_s: float | None = None, stages: int = DEFAULT_STAGES,
     ((0.4,), ())
     """
     exponents = _exponents(wiener_exponents)
-    stages = _checks.whole("stages", stages, minimum=1, maximum=1 + len(exponents))  # type: ignore[assignment]
+    stages = _checks.whole("stages", stages, minimum=1)  # type: ignore[assignment]
+    if stages > 1 + len(exponents):  # type: ignore[operator]
+        # Named with the exponents it depends on: wiener_exponents=() said "stages: must be <= 1" alone.
+        raise ValueError(f"stages: must be <= {1 + len(exponents)} with {len(exponents)} wiener_exponents (one per "
+                         f"stage after the first), got {stages}")
     c_s = _checks.real("c_s", (DEFAULT_C_S if stages == 1 else DEFAULT_PILOT_C_S) if c_s is None else c_s,
                        minimum=0)
     guard = stages > 1 if guard is None else _checks.flag("guard", guard)

@@ -130,7 +130,8 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
     def relative_sums() -> tuple[FloatArray, FloatArray]:
         weights = np.abs(o)  # the relative criterion's weights 1 / (|o| + k)^2
         weights += k
-        np.square(weights, out=weights)
+        with np.errstate(over="ignore"):  # a k past 1e154 (a domain scale far above the image's): weights 0,
+            np.square(weights, out=weights)  # the relative criterion undefined, the squared one decides
         np.divide(1.0, weights, out=weights)
         weighted_gain = gain()
         squared = change * change

@@ -36,6 +36,30 @@ PRECISIONS = ("float32", "float64")
 # float32 keeps about 7 digits: the log domain's values (at most ~89 there) lose nothing the
 # noise has not, as long as the offset k itself is an ordinary float32 number.
 _K_RANGE = (2.0**-100, 2.0**100)
+# But float32 resolves y only to about its epsilon times max(1, |y|) (``log(1 + |x| / k)`` rounds
+# ``1 + |x| / k`` first): a pixel darker than k by ~1e7, beside a light that sets k, is 0 there.
+# Where that resolution is not below a quarter of the dimmer pixels' standard error in y (the
+# 10th percentile of the positive ones, on a regular grid of pixels), stage 1 runs in float64.
+_RESOLUTION_SHARE = 0.25
+_EPS32 = float(np.finfo(np.float32).eps)
+
+
+def _float32_resolves(y: FloatArray, mean: FloatArray, sample_variance: FloatArray, count: FloatArray,
+                      k: float) -> bool:
+    """Whether float32 ``y`` resolves the plane's noise (:data:`_RESOLUTION_SHARE`): a bright light
+    far above a dim background leaves the background below float32's resolution near the light's
+    level (a red-team pass: the background came back as exactly 0). The noise is taken in float64
+    (on the sampled pixels), where float32 may have underflowed it to 0."""
+    step = max(1, min(mean.shape) // 128)  # some 16000 pixels or more: a percentile's worth, 0.5% of stage 1
+    on = (slice(None, None, step),) * 2
+    with np.errstate(divide="ignore", invalid="ignore"):  # pixels without samples: NaN, dropped
+        var_y = sample_variance[on] / count[on] / (np.abs(mean[on]) + k) ** 2
+    positive = var_y[var_y > 0]
+    if positive.size == 0:
+        return True  # no noise to threshold: nothing for the rounding to change
+    dim = float(np.sqrt(np.percentile(positive, 10)))
+    resolution = _EPS32 * max(1.0, float(np.abs(y).max()))
+    return resolution <= _RESOLUTION_SHARE * dim
 
 
 def soft_threshold(coeff: FloatArray, threshold: FloatArray) -> FloatArray:
@@ -168,6 +192,8 @@ def _stage32(prepared: Prepared, ops: WaveletOperators, c_s: float, pixel_clamp:
         if plane is None:
             return None
         y, var_y = plane
+        if not _float32_resolves(y, mean[:, :, c], s2[:, :, c], count, k):
+            return None
         out, thresholds, zeroed, total = _threshold_plane32(y, var_y, c_s, ops)
         fused.finish_plane(image[:, :, c], out, y, var_y, mean[:, :, c], k, pixel_clamp)
         return thresholds, zeroed, total

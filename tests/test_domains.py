@@ -110,3 +110,38 @@ def test_resolve_domain():
     assert resolve_domain(d) is d
     with pytest.raises(TypeError, match="domain"):
         resolve_domain(3)
+
+
+@pytest.mark.parametrize("k", [1e6, 1e18, 1e40])
+def test_gamma_resolves_pixels_far_below_its_offset(k):
+    """``(x + k)^p - k^p`` cancelled to nothing for x far below k (a light 1e18 times the background
+    set k: the background came back as 3 or -288, a red-team pass). Written as ``k^p expm1(p log1p(x / k))``
+    the forward map is ``p k^(p - 1) x`` to first order, and the inverse returns x."""
+    bound = Domain("gamma", gamma=2.0, scale=k / 0.1).bound(np.array([1.0]))
+    assert bound.k == pytest.approx(k)
+    x = np.array([0.5, 3.0, 1e-3])
+    y = bound.forward(x)
+    assert_allclose(y, 0.5 * k**-0.5 * x, rtol=1e-6)
+    assert_allclose(bound.inverse(y), x, rtol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["log", "gamma"])
+@pytest.mark.parametrize("top", [1.65e308, 1.7e308, np.finfo(np.float64).max])
+def test_domains_take_means_up_to_the_largest_float(name, top):
+    """``|x| + k`` overflowed for means near 1.7e308: the gamma domain refused them as "NaN or Inf", its
+    derivative (and the log domain's) was 0 there (a red-team pass)."""
+    x = np.array([0.5 * top, top])
+    bound = Domain(name).bound(x)
+    y, d = bound.forward(x), bound.derivative(x)
+    assert np.isfinite(y).all() and np.isfinite(d).all() and (d > 0).all()
+    assert_allclose(bound.inverse(y), x, rtol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["log", "gamma"])
+def test_a_scale_far_below_the_image_keeps_the_domain_finite(name):
+    """``|x| / k`` past float64 (a scale of 1e-300 beside means of 1e10) gave y = Inf."""
+    bound = Domain(name, scale=1e-300).bound(np.array([1.0]))
+    x = np.array([1e10, 1e300])
+    y = bound.forward(x)
+    assert np.isfinite(y).all()
+    assert_allclose(bound.inverse(y), x, rtol=1e-10)

@@ -305,6 +305,23 @@ def test_extreme_magnitudes_are_accepted_without_warnings(scale, spread):
     assert not math.isnan(metrics.psnr(buf.mean, buf.mean * 1.1))
 
 
+@pytest.mark.parametrize("name", ["log", "linear", "gamma"])
+@pytest.mark.parametrize("scale", [1e-300, 1e-160, 1e100, 1e300])
+def test_a_domain_scale_far_from_the_image_is_finite_or_refused(name, scale):
+    """A ``Domain(scale=1e-300)`` beside means of 0.5 gave a NaN image with 37 warnings (the Wiener stages
+    worked at the domain's scale, not the image's; a red-team pass), and a scale 1e400 times the image's
+    level a black one (every mean 0 in the domain): finite, the image's mean kept, or refused."""
+    for stages in (1, 3):
+        out = reconstruct(_extreme_buffer(0.5, 0.1), domain=Domain(name, scale=scale), stages=stages)
+        assert np.isfinite(out).all() and out.mean() == pytest.approx(0.5 * 1.05, rel=0.02)
+    tiny = _extreme_buffer(1e-300, 0.1)
+    if name != "linear" and scale >= 1e100:
+        with pytest.raises(ValueError, match=r"domain scale: .* every mean underflows to 0"):
+            reconstruct(tiny, domain=Domain(name, scale=scale), stages=1)
+    else:
+        assert np.isfinite(reconstruct(tiny, domain=Domain(name, scale=scale))).all()
+
+
 def test_a_huge_error_is_inf_not_a_warning():
     assert metrics.mse(np.full(4, 1e300), np.full(4, -1e300)) == math.inf
     assert metrics.psnr(np.full(4, 1e300), np.zeros(4), peak=1.0) == pytest.approx(-6000.0)  # in logarithms

@@ -652,7 +652,8 @@ def test_the_reported_variance_covers_the_last_stage_only():
 @pytest.mark.parametrize(("kwargs", "error", "message"), [
     ({"stages": 1, "guard": True}, ValueError, "guard: .* needs stages > 1"),
     ({"stages": 4}, ValueError, "stages: must be <= 3"),
-    ({"stages": 3, "wiener_exponents": (1.0,)}, ValueError, "stages: must be <= 2"),
+    ({"stages": 3, "wiener_exponents": (1.0,)}, ValueError, "stages: must be <= 2 with 1 wiener_exponents"),
+    ({"wiener_exponents": ()}, ValueError, "stages: must be <= 1 with 0 wiener_exponents"),
     ({"wiener_exponents": 0.5}, TypeError, "wiener_exponents"),
     ({"wiener_exponents": (0.5, 1.5)}, ValueError, "wiener_exponents"),
     ({"precision": "float16"}, ValueError, "precision"),

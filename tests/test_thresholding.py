@@ -95,6 +95,24 @@ def test_float32_falls_back_to_float64_where_values_do_not_fit(rng, scale):
     assert_array_equal(_stage(buf, "float32")[1].image, _stage(buf, "float64")[1].image)
 
 
+@pytest.mark.parametrize("light", [1e10, 1e16, 1e25])
+def test_float32_falls_back_to_float64_where_it_cannot_resolve_a_dim_background(rng, light):
+    """A 4x4 light far above a dim background sets the log domain's offset k: the background's
+    ``log(1 + x / k)`` rounds to 0 in float32 and came back as exactly 0 (a red-team pass), or its
+    variance there underflowed float32 (1e25). The float64 path then, bit for bit; a light the
+    rendered scenes' range keeps float32."""
+    mean = 0.5 + 0.07 * rng.standard_normal((32, 32, 3))
+    var = np.full((32, 32, 3), 0.04)
+    mean[14:18, 14:18], var[14:18, 14:18] = light, (0.01 * light) ** 2
+    buf = SampleBuffer.from_moments(np.full((32, 32), 8), mean, var)
+    fast, exact = _stage(buf, "float32")[1].image, _stage(buf, "float64")[1].image
+    assert_array_equal(fast, exact)
+    assert (exact[:8, :8] > 0).all()
+    mean[14:18, 14:18], var[14:18, 14:18] = 1e3, 1e2
+    buf = SampleBuffer.from_moments(np.full((32, 32), 8), mean, var)
+    assert not np.array_equal(_stage(buf, "float32")[1].image, _stage(buf, "float64")[1].image)
+
+
 def test_float32_applies_to_the_log_domain_in_channel_mode_only(rng):
     buf = SampleBuffer.from_moments(np.full((16, 16), 4), rng.random((16, 16, 3)), np.full((16, 16, 3), 0.01))
     ops = wavelet_operators(buf.shape)
