@@ -89,6 +89,22 @@ def test_nonfinite_refused_on_write(tmp_path, value, what):
     assert os.listdir(tmp_path) == []
 
 
+@pytest.mark.parametrize("half, value", [(True, 1e-40), (True, 2e-8), (False, 1e-46)])
+def test_a_channel_that_would_be_stored_black_is_refused(tmp_path, half, value):
+    """Every value of a channel below the stored type's smallest became 0: ``--half`` on means near 1e-40
+    wrote an all-black image, exit 0 (a red-team pass). A channel with some values that survive is
+    written (a value that small beside them is 0 for any reader), and a black channel stays black."""
+    img = np.full((2, 2, 3), 0.5)
+    img[..., 1] = value
+    with pytest.raises(ValueError, match=r"o\.exr: G: every value of the channel is below the .* stored as 0"):
+        write_image(tmp_path / "o.exr", img, half=half)
+    assert not (tmp_path / "o.exr").exists()
+    img[0, 0, 1], img[..., 2] = 0.5, 0.0
+    write_image(tmp_path / "o.exr", img, half=half)
+    back = read_image(tmp_path / "o.exr")
+    assert back[0, 0, 1] == 0.5 and back[1, 1, 1] == 0 and (back[..., 2] == 0).all()
+
+
 def test_nonfinite_and_half_overflow_refused_on_read(tmp_path):
     r = np.zeros((2, 2), np.float16)
     r[0, 0] = np.float16(np.inf)

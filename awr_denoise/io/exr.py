@@ -795,6 +795,15 @@ def write_image(path: str | os.PathLike[str], image: np.ndarray, *,
         raise ValueError(f"{public_name(path)}: {names[c]}: image has {int(over[..., c].sum())} pixel(s) beyond "
                          f"the {'half-float' if half else 'float32'} range {limit:g}, which would be stored "
                          f"as Inf{hint}")
+    # The other end: a channel whose every value is below the type's smallest would be stored black
+    # (`--half` on means near 1e-40 wrote an all-zero image, exit 0; a red-team pass).
+    lost = (data != 0).any(axis=(0, 1)) & ~(stored != 0).any(axis=(0, 1))
+    if lost.any():
+        c = int(np.nonzero(lost)[0][0])
+        tiny = float(np.finfo(dtype).smallest_subnormal)
+        raise ValueError(f"{public_name(path)}: {names[c]}: every value of the channel is below the "
+                         f"{'half-float' if half else 'float32'} smallest {tiny:.3g} and would be stored as 0; "
+                         "scale the image" + (" or write FLOAT channels (half=False)" if half else ""))
     planes = {name: np.ascontiguousarray(stored[..., i]) for i, name in enumerate(names)}
     attrs: dict[str, Any] = {"awr:version": __version__}
     attrs.update(header or {})
