@@ -189,8 +189,8 @@ class _BoundDomain:
             with np.errstate(over="ignore"):
                 a /= k
             np.log1p(a, out=a)
-            if a.size and np.isinf(a.max()):  # |x| / k past float64: a scale given far below the image's
-                a = _log1p_ratio(np.abs(x), k)
+            if a.size and not np.isfinite(a.max()):  # |x| / k past float64 (a scale given far below the
+                a = _log1p_ratio(np.abs(x), k)  # image's); a NaN, kept as NaN, must not hide an Inf beside it
             sign = np.sign(x)
             sign *= a
             return sign
@@ -210,7 +210,7 @@ class _BoundDomain:
                 if not isinstance(a, np.ndarray) or a.dtype != np.float64:
                     return 1.0 / (a + k)
                 a += k  # in place: the values of 1.0 / (a + k)
-                if a.size and np.isinf(a.max()):  # |x| + k past float64 (means near 1.7e308): halved
+                if a.size and not np.isfinite(a.max()):  # |x| + k past float64 (means near 1.7e308): halved
                     a = np.abs(x) * 0.5 + k * 0.5
                     return np.divide(0.5, a, out=a)
                 return np.divide(1.0, a, out=a)

@@ -29,7 +29,7 @@ from . import _checks
 from ._typing import FloatArray
 from .buffers import SampleBuffer
 from .channels import luminance_variance, luminance_weights
-from .domains import _SMALLEST, Domain, _BoundDomain, resolve_domain
+from .domains import _LARGEST, _SMALLEST, Domain, _BoundDomain, resolve_domain
 from .pooling import estimated_variance
 
 __all__ = ["EstimatedBuffer", "Prepared", "filled_mean", "prepare"]
@@ -137,9 +137,9 @@ class Prepared:
         # of 0.5 took the variances past float64 there, a NaN image (a red-team pass).
         level = dataclasses.replace(self.domain, scale=None).resolved_scale(self.mean)
         s = math.ldexp(1.0, max(-1000, min(1000, math.frexp(level)[1])))
-        with np.errstate(over="ignore"):  # scale / s: past float64 only for a scale 1e300 times the image's
-            ratio = min(np.float64(scale) / s, np.finfo(np.float64).max)
-        k = max(self.domain.offset * ratio, _SMALLEST)  # not offset * scale: that underflows near 5e-324
+        with np.errstate(over="ignore"):  # past float64 only for a scale some 1e300 times the image's
+            k = np.float64(self.domain.offset) * (np.float64(scale) / s)  # not offset * scale: underflows near 5e-324
+        k = min(max(k, _SMALLEST), _LARGEST)  # k = Inf failed the stages' own checks
         return s, float(k), self.mean / s, self.variance / s / s  # not s * s: that underflows near 1e-310
 
     @cached_property

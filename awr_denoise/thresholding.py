@@ -39,7 +39,8 @@ _K_RANGE = (2.0**-100, 2.0**100)
 # But float32 resolves y only to about its epsilon times max(1, |y|) (``log(1 + |x| / k)`` rounds
 # ``1 + |x| / k`` first): a pixel darker than k by ~1e7, beside a light that sets k, is 0 there.
 # Where that resolution is not below a quarter of the dimmer pixels' standard error in y (the
-# 10th percentile of the positive ones, on a regular grid of pixels), stage 1 runs in float64.
+# 10th percentile of the positive ones, on a regular grid of pixels), stage 1 runs in float64 (every
+# channel: one that cannot sends the whole stage there).
 _RESOLUTION_SHARE = 0.25
 _EPS32 = float(np.finfo(np.float32).eps)
 
@@ -50,15 +51,15 @@ def _float32_resolves(y: FloatArray, mean: FloatArray, sample_variance: FloatArr
     far above a dim background leaves the background below float32's resolution near the light's
     level (a red-team pass: the background came back as exactly 0). The noise is taken in float64
     (on the sampled pixels), where float32 may have underflowed it to 0."""
-    step = max(1, min(mean.shape) // 128)  # some 16000 pixels or more: a percentile's worth, 0.5% of stage 1
+    step = max(1, min(mean.shape) // 128)  # some 16000 pixels or more: a percentile's worth
     on = (slice(None, None, step),) * 2
-    with np.errstate(divide="ignore", invalid="ignore"):  # pixels without samples: NaN, dropped
+    with np.errstate(divide="ignore", invalid="ignore"):  # no samples: NaN (dropped) or Inf (a large noise)
         var_y = sample_variance[on] / count[on] / (np.abs(mean[on]) + k) ** 2
     positive = var_y[var_y > 0]
     if positive.size == 0:
         return True  # no noise to threshold: nothing for the rounding to change
     dim = float(np.sqrt(np.percentile(positive, 10)))
-    resolution = _EPS32 * max(1.0, float(np.abs(y).max()))
+    resolution = _EPS32 * max(1.0, float(y.max()), -float(y.min()))  # max |y| without an |y| plane
     return resolution <= _RESOLUTION_SHARE * dim
 
 

@@ -124,7 +124,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--frames", metavar="RANGE", help="frame numbers for #### patterns, e.g. 1-100 or 1-100x5")
     p.add_argument("--half", action="store_true",
-                   help="write HALF channels (refused above 65504, or where a whole channel is below 6e-8)")
+                   help="write HALF channels (refused above 65504, or where a whole channel would round to 0: below 3e-8)")
     p.add_argument("--preview", type=nonempty, metavar="OUT.png", help="also write an sRGB PNG preview (may hold ####)")
     p.add_argument("--exposure", type=real(minimum=-MAX_EXPOSURE, maximum=MAX_EXPOSURE),
                    help="preview exposure in stops (default 0; with --preview)")

@@ -145,3 +145,11 @@ def test_a_scale_far_below_the_image_keeps_the_domain_finite(name):
     y = bound.forward(x)
     assert np.isfinite(y).all()
     assert_allclose(bound.inverse(y), x, rtol=1e-10)
+
+
+def test_a_nan_beside_an_overflowing_ratio_stays_nan_alone():
+    """The overflow fallback was skipped when the plane's maximum was NaN: an Inf left beside it."""
+    bound = Domain("log", scale=1e-299).bound(np.array([1.0]))
+    y = bound.forward(np.array([np.nan, 1e10, 1.0]))
+    assert np.isnan(y[0]) and np.isfinite(y[1:]).all()
+    assert np.isnan(bound.derivative(np.array([np.nan, 1.7e308]))[0])

@@ -322,6 +322,15 @@ def test_a_domain_scale_far_from_the_image_is_finite_or_refused(name, scale):
         assert np.isfinite(reconstruct(tiny, domain=Domain(name, scale=scale))).all()
 
 
+@pytest.mark.parametrize("domain, level", [(Domain("linear", offset=2.0, scale=1e300), 1e-10),
+                                           (Domain("log", offset=10.0, scale=1e8), 1e-300)])
+def test_a_domain_offset_past_float64_at_the_images_level_is_capped(domain, level):
+    """The domain's offset carried to the image's level passed float64 (``k: must be a finite number,
+    got inf``, naming nothing the caller gave; a review of the nineteenth pass's fix): capped."""
+    out = reconstruct(_extreme_buffer(level, 0.1), domain=domain)
+    assert np.isfinite(out).all()
+
+
 def test_a_huge_error_is_inf_not_a_warning():
     assert metrics.mse(np.full(4, 1e300), np.full(4, -1e300)) == math.inf
     assert metrics.psnr(np.full(4, 1e300), np.zeros(4), peak=1.0) == pytest.approx(-6000.0)  # in logarithms

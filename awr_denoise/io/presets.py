@@ -188,8 +188,7 @@ def plane_file(spec: str) -> Path | None:
         file_part, plane = spec.rsplit(":", 1)
         if file_part.lower().endswith(".exr") or Path(file_part).is_file():
             if not plane:
-                raise ValueError(f"plane {spec!r}: no plane name after the file's colon; write "
-                                 f"{file_part}:PLANE, or the file alone where the option takes one")
+                raise ValueError(f"plane {spec!r}: no plane name after the file's colon; write {file_part}:PLANE")
             return Path(file_part)
     return None
 
