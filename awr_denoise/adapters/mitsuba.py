@@ -42,7 +42,7 @@ from ..features import feature_names
 from ..requests import SampleRequest
 from ._mitsuba_runtime import DEFAULT_VARIANT, import_mitsuba, variant_of_scene, variant_scope
 from ._samples import Chunk, PixelStatistics, aligned_u32, sample_chunks
-from .mitsuba_files import scene_files
+from .mitsuba_files import check_numbers, scene_files
 from .mitsuba_scenes import SCENE_NAMES, scene_dict
 
 __all__ = ["MitsubaRenderer", "create_renderer", "list_features", "list_scenes", "scene_files", "FEATURES",
@@ -218,6 +218,9 @@ class MitsubaRenderer:
             film = self.sensor.film()
             crop = film.crop_size()
             self._shape: Shape2D = (int(crop[1]), int(crop[0]))
+            if min(self._shape) < 1:  # Mitsuba takes a film of width 0; a request of it named "counts"
+                raise ValueError(f"{self.name}: its film (crop) is {self._shape[1]}x{self._shape[0]} pixels; "
+                                 "a film needs at least 1x1")
             if shape is not None and shape != self._shape:
                 raise ValueError(f"shape: {shape} differs from the film of {self.name} ({self._shape}); "
                                  "a loaded mitsuba.Scene cannot be resized, pass its file or dict instead")
@@ -262,9 +265,17 @@ class MitsubaRenderer:
             if not path.is_file():
                 raise FileNotFoundError(f"{scene}: no such Mitsuba scene file (bundled scenes: {', '.join(SCENE_NAMES)})")
             try:
-                return _load_file(mi, self.variant, path, shape, params or {}), path.name
+                loaded = _load_file(mi, self.variant, path, shape, params or {})
             except RuntimeError as exc:  # Mitsuba's parser: a bad plugin, parameter, include or file
                 raise InputFileError(f"{path}: Mitsuba cannot load this scene: {_parser_message(exc)}") from None
+            except UnicodeDecodeError:  # Mitsuba's message quoted bytes of a file that are not text
+                raise InputFileError(f"{path}: Mitsuba cannot load this scene: a file it reads is not what the "
+                                     "scene declares (its error quotes bytes that are not text)") from None
+            try:  # after Mitsuba has read the file: its own refusals come first
+                check_numbers(path, params)
+            except ValueError as exc:
+                raise InputFileError(str(exc)) from None
+            return loaded, path.name
         raise TypeError(f"scene: expected a Mitsuba XML path, scene dict, mitsuba.Scene or bundled scene name, "
                         f"got {type(scene).__name__}")
 

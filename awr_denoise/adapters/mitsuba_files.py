@@ -41,7 +41,7 @@ from typing import Any
 
 from .mitsuba_scenes import SCENE_NAMES
 
-__all__ = ["scene_files"]
+__all__ = ["scene_files", "check_numbers"]
 
 # In one left-to-right pass, as pugixml reads: markup it skips (comments, CDATA, processing
 # instructions such as the XML declaration, the DOCTYPE with its internal subset, never expanded),
@@ -68,6 +68,7 @@ class _Walk:
         self.values: dict[str, str] = {}  # raw value -> how the message names it
         self.paths: list[tuple[str, Path]] = []  # <path value=...> and the folder of its file
         self.includes: list[tuple[str, Path]] = []  # <include filename=...> and the folder of its file
+        self.numbers: list[tuple[Path, str, str, str, str]] = []  # (file, tag, name, attribute, value) of numbers
         self.folders: list[Path] = [Path()]
         self.read: set[Path] = set()
 
@@ -163,25 +164,7 @@ def scene_files(scene: Any, params: Mapping[str, Any] | None = None) -> list[tup
     first = Path(scene)
     if isinstance(scene, str) and scene in SCENE_NAMES and not os.path.lexists(first):
         return []  # a bundled scene, built from a dict
-    walk = _Walk(first, params or {})
-    pending, done, state = [first], 0, None
-    while pending:  # until no include names a file not yet read: a later <default> or <path> may
-        for file in pending:
-            _read_file(walk, file)
-        for raw, base in walk.paths:
-            for value in walk.substituted(raw):
-                for folder in _candidates(value, [base, *walk.folders]):
-                    if folder.is_dir():
-                        walk.folder(folder)
-        # Every include again when a parameter or a folder is new, else only the new ones.
-        now = (sum(map(len, walk.params.values())), len(walk.folders))
-        start, done, state = (0 if now != state else done), len(walk.includes), now
-        pending = list(dict.fromkeys(file for raw, base in walk.includes[start:] for value in walk.substituted(raw)
-                                     for file in _candidates(value, [base, *walk.folders])
-                                     if file.is_file() and file.resolve() not in walk.read))  # a FIFO: never opened
-        if len(walk.read) + len(pending) > _MAX_FILES:
-            raise ValueError(f"{first}: includes more than {_MAX_FILES} XML files; the files they name are not "
-                             "checked")
+    walk = _walked(first, params or {})
     named: dict[str, str] = {}
     for raw, what in walk.values.items():
         for value in walk.substituted(raw):
@@ -200,6 +183,59 @@ def scene_files(scene: Any, params: Mapping[str, Any] | None = None) -> list[tup
             seen.add(path)
             files.append((f"resource {name}", path))
     return files
+
+
+def _walked(first: Path, params: Mapping[str, Any]) -> _Walk:
+    """One walk over a scene file and every file it includes."""
+    walk = _Walk(first, params)
+    pending, done, state = [first], 0, None
+    while pending:  # until no include names a file not yet read: a later <default> or <path> may
+        for file in pending:
+            _read_file(walk, file)
+        for raw, base in walk.paths:
+            for value in walk.substituted(raw):
+                for folder in _candidates(value, [base, *walk.folders]):
+                    if folder.is_dir():
+                        walk.folder(folder)
+        # Every include again when a parameter or a folder is new, else only the new ones.
+        now = (sum(map(len, walk.params.values())), len(walk.folders))
+        start, done, state = (0 if now != state else done), len(walk.includes), now
+        pending = list(dict.fromkeys(file for raw, base in walk.includes[start:] for value in walk.substituted(raw)
+                                     for file in _candidates(value, [base, *walk.folders])
+                                     if file.is_file() and file.resolve() not in walk.read))  # a FIFO: never opened
+        if len(walk.read) + len(pending) > _MAX_FILES:
+            raise ValueError(f"{first}: includes more than {_MAX_FILES} XML files; the files they name are not "
+                             "checked")
+    return walk
+
+
+_NUMERIC_TAGS = frozenset({"float", "point", "vector", "rgb", "translate", "scale", "rotate", "lookat"})
+_F32_MAX = 3.4028234663852886e38
+
+
+def check_numbers(scene: Any, params: Mapping[str, Any] | None = None) -> None:
+    """Refuse a scene file whose numbers Mitsuba takes without a word but cannot use: NaN, Inf or past
+    float32, in the file or a file it includes, parameters substituted (a sphere of radius NaN or 1e39,
+    a camera's fov of NaN: the object or the camera vanished from the image, exit 0; a red-team pass).
+
+    Raises
+    ------
+    ValueError
+        Naming the file, the element and the value.
+    """
+    if not isinstance(scene, (str, os.PathLike)) or not Path(scene).is_file():
+        return
+    walk = _walked(Path(scene), params or {})
+    for path, tag, name, attribute, raw in walk.numbers:
+        for value in walk.substituted(raw):
+            for word in re.split(r"[\s,]+", value.strip()):
+                try:
+                    number = float(word)
+                except ValueError:
+                    continue  # not a number: Mitsuba's parser has refused or read it already
+                if not abs(number) <= _F32_MAX:
+                    raise ValueError(f"{path}: <{tag} name=\"{name}\"> {attribute}=\"{value}\": {word} is not a "
+                                     "number Mitsuba can use (NaN, Inf or past float32)")
 
 
 # Files Mitsuba's plugins look up by a fixed name through the same resolver, so a copy beside the
@@ -256,6 +292,9 @@ def _read_file(walk: _Walk, path: Path) -> None:
             walk.paths.append((attributes["value"], path.parent))
         elif name == "include" and "filename" in attributes:
             walk.includes.append((attributes["filename"], path.parent))
+        if name in _NUMERIC_TAGS:
+            walk.numbers += [(path, name, attributes.get("name", ""), key, value) for key, value in attributes.items()
+                             if key not in ("name", "id", "type")]
 
 
 def _names_a_file(tag: str, key: str, attributes: Mapping[str, str]) -> bool:

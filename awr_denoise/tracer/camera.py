@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from .. import _checks
-from .limits import check_reach, reach, refuse_unknown, vector
+from .limits import check_reach, reach, refuse_unknown, shown, unit, vector
 from .meshes import cross, normalize
 
 __all__ = ["ThinLensCamera", "concentric_disk", "parse_camera"]
@@ -130,8 +130,14 @@ def parse_camera(spec: dict[str, Any], width: int, height: int) -> ThinLensCamer
     up = vector(spec, "up", "camera", (0.0, 1.0, 0.0))
     check_reach("camera.from", reach(look_from))
     check_reach("camera.to", reach(look_at))
-    if np.allclose(look_from, look_at):
+    if np.array_equal(look_from, look_at):  # not allclose: points 1 apart at 1e6 are a camera (a red-team pass)
         raise ValueError("camera.to: must differ from camera.from")
+    # The up hint picks the image's vertical: parallel to the view (looking straight up with the
+    # default up) or zero it leaves none, and every pixel took one ray (Mitsuba refuses it too).
+    view, hint = unit("camera.to", look_at - look_from), unit("camera.up", up)
+    if np.linalg.norm(np.cross(view, hint)) < 1e-6:
+        raise ValueError(f"camera.up: {shown(spec.get('up', [0.0, 1.0, 0.0]))} is parallel to the view direction "
+                         "from camera.from to camera.to; give an up vector across it")
     fov = _checks.real("camera.fov", spec.get("fov", 40.0))
     if not 0 < fov < 180:
         raise ValueError(f"camera.fov: {fov} is outside (0, 180) degrees")

@@ -54,6 +54,7 @@ _ENVIRONMENT_FIELDS = {"constant": {"type", "radiance"}, "sky": {"type", "scale"
                        "latlong": {"type", "path", "scale"}}
 
 _LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+_HALF_MAX = float(np.finfo(np.float16).max)
 
 
 def uv_to_direction(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -209,6 +210,9 @@ def make_sky_envmap(width: int = SKY_DEFAULTS["width"], height: int = SKY_DEFAUL
     sun_color = np.array([1.0, 0.93, 0.82])
     radiance = radiance + (disk * sun_radiance + halo)[:, None] * sun_color
     image = radiance.reshape(height, width, 3)
+    if image.max(initial=0.0) > _HALF_MAX:  # half floats would hold Inf: numpy's warning, then a refusal naming "image"
+        raise ValueError(f"sun_radiance, sky_intensity: the sky reaches {image.max():g}, beyond the half floats "
+                         f"({_HALF_MAX:g}) its map is held in")
     return image.astype(np.float16).astype(np.float64)
 
 
@@ -271,8 +275,7 @@ def parse_environment(spec: dict[str, Any] | None, base_dir: Path | None = None
     if kind == "constant":
         return ConstantEnvironment(rgb_radiance("environment.radiance", spec.get("radiance", 1.0)))
     if kind == "sky":
-        params = {k: spec[k] for k in SKY_DEFAULTS if k in spec}
-        return _scaled(make_sky_envmap(**params), spec, "the sky's")
+        return _scaled(make_sky_envmap(**_sky_parameters(spec)), spec, "the sky's")
     if not isinstance(spec.get("path"), str) or not spec["path"]:
         raise ValueError(f"environment.path: expected a file name, got {spec.get('path')!r:.40}")
     path = Path(spec["path"])
@@ -284,6 +287,26 @@ def parse_environment(spec: dict[str, Any] | None, base_dir: Path | None = None
     except ValueError as exc:
         raise ValueError(f"environment.{exc}") from None
     return _scaled(image, spec, "the map's")
+
+
+MAX_SKY_WIDTH = 4096
+"""Widest procedural sky map (its height at most half of it): 200 MB as float64, the whole sky sampled
+from it. A width of 100000 asked for 37 GiB, unchecked (a red-team pass)."""
+
+
+def _sky_parameters(spec: dict[str, Any]) -> dict[str, Any]:
+    """The sky's fields, each checked and named: none was (a string width was compared with an int,
+    ``sky_intensity: true`` taken as 1, a sun of 1e308 a warning and a field the file does not have)."""
+    where = "environment."
+    params = {"width": _checks.whole(where + "width", spec.get("width", SKY_DEFAULTS["width"]),
+                                     minimum=4, maximum=MAX_SKY_WIDTH),
+              "height": _checks.whole(where + "height", spec.get("height", SKY_DEFAULTS["height"]),
+                                      minimum=2, maximum=MAX_SKY_WIDTH // 2)}
+    bounds = {"sun_elevation_degrees": (-90.0, 90.0), "sun_azimuth_degrees": (-360.0, 360.0),
+              "sun_radius_degrees": (0.0, 90.0), "sun_radiance": (0.0, _HALF_MAX), "sky_intensity": (0.0, _HALF_MAX)}
+    for key, (low, high) in bounds.items():
+        params[key] = _checks.real(where + key, spec.get(key, SKY_DEFAULTS[key]), minimum=low, maximum=high)
+    return params
 
 
 def _scale(spec: dict[str, Any]) -> float:

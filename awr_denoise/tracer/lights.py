@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from .limits import check_reach, reach, refuse_unknown, rgb_radiance, vector
+from .limits import check_reach, reach, refuse_unknown, rgb_radiance, unit, vector
 from .meshes import cross, dot, normalize
 
 __all__ = ["AreaLights", "PointLight", "DirectionalLight", "DELTA_LIGHT_KINDS", "parse_delta_light"]
@@ -105,7 +105,4 @@ def parse_delta_light(index: int, spec: dict[str, Any]) -> PointLight | Directio
         check_reach(f"{name}.position", reach(position))
         return PointLight(position, intensity)
     irradiance = rgb_radiance(f"{name}.irradiance", spec.get("irradiance", 1.0))
-    direction = vector(spec, "direction", name)
-    if not np.any(direction):
-        raise ValueError(f"{name}.direction: must be non-zero")
-    return DirectionalLight(normalize(direction[None])[0], irradiance)
+    return DirectionalLight(unit(f"{name}.direction", vector(spec, "direction", name)), irradiance)

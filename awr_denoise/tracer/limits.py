@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["MAX_COORDINATE", "MAX_RADIANCE", "shown", "vector", "rgb_radiance", "reach", "check_reach",
-           "check_radiance", "refuse_unknown"]
+__all__ = ["MAX_COORDINATE", "MAX_RADIANCE", "shown", "numbers", "unit", "vector", "rgb_radiance", "reach",
+           "check_reach", "check_radiance", "refuse_unknown"]
 
 MAX_COORDINATE = 1e11
 """Largest coordinate (scene units, either sign) of any vertex over the shutter, and of the camera and point lights.
@@ -51,16 +51,53 @@ def refuse_unknown(where: str, spec: dict[str, Any], known: set[str] | frozenset
         raise ValueError(f"{where}: unknown field(s) {sorted(unknown)}; valid: {sorted(known)}")
 
 
+def numbers(where: str, value: Any, what: str = "numbers") -> np.ndarray:
+    """``value`` (a JSON number or nested lists of them) as a float64 array; refused, naming ``where``, when
+    any entry is not a number: strings and booleans (``"0.5"``, ``true``), which ``np.asarray(..., float)``
+    converted without a word, an integer past float64 (an internal ``OverflowError``) or ragged lists.
+
+    Examples
+    --------
+    >>> from awr_denoise.tracer.limits import numbers
+    >>> numbers("albedo", [0.5, 1, 0.25])
+    array([0.5 , 1.  , 0.25])
+    >>> numbers("albedo", ["0.5", "0.5", "0.5"])
+    Traceback (most recent call last):
+    ...
+    ValueError: albedo: expected numbers, got ['0.5', '0.5', '0.5']
+    """
+    try:
+        array = np.asarray(value)
+    except (TypeError, ValueError, OverflowError):  # ragged lists
+        array = np.empty(0, object)
+    # Integers and floats only: kind "b" (booleans), "U" (strings), "O" (mixed, ints past int64) refused,
+    # and booleans among integers, which numpy makes integers ([false, true, 2]: a face of vertices 0, 1, 2).
+    if array.dtype.kind not in "iuf" or (array.dtype.kind in "iu" and array.size and not isinstance(value, np.ndarray)
+                                         and bool in set(map(type, np.asarray(value, dtype=object).ravel()))):
+        raise ValueError(f"{where}: expected {what}, got {shown(value)}")
+    with np.errstate(over="ignore"):  # a uint64 or float beyond float64 cannot occur; an int64 fits
+        return array.astype(np.float64)
+
+
+def unit(where: str, direction: np.ndarray) -> np.ndarray:
+    """``direction`` scaled to length 1, first by its largest entry so that lengths past 1e154 (whose
+    squares overflow) and below 1e-154 (whose squares underflow) keep their direction; a zero vector
+    refused, naming ``where`` (a light direction of 1e200 was dropped, an axis of 1e-170 refused)."""
+    largest = float(np.abs(direction).max(initial=0.0))
+    if not largest > 0:
+        raise ValueError(f"{where}: must be non-zero")
+    scaled = direction / largest
+    return scaled / np.linalg.norm(scaled)
+
+
 def vector(spec: dict[str, Any], key: str, where: str, default: Any = None) -> np.ndarray:
     """The field ``where.key`` as 3 finite numbers (``default`` when absent; absent without one: refused)."""
     if key not in spec and default is None:
         raise ValueError(f"{where}.{key}: missing")
-    try:
-        value = np.asarray(spec.get(key, default), float)
-    except (TypeError, ValueError):
-        value = np.empty(0)
+    what = "3 finite numbers"
+    value = numbers(f"{where}.{key}", spec.get(key, default), what)
     if value.shape != (3,) or not np.all(np.isfinite(value)):
-        raise ValueError(f"{where}.{key}: expected 3 finite numbers, got {shown(spec.get(key))}")
+        raise ValueError(f"{where}.{key}: expected {what}, got {shown(spec.get(key))}")
     return value
 
 
@@ -92,10 +129,11 @@ def check_radiance(where: str, peak: float, what: str = "") -> None:
 
 def rgb_radiance(where: str, value: Any) -> np.ndarray:
     """``value`` (a number or 3) as RGB: finite, >= 0, at most :data:`MAX_RADIANCE`; else refused, named ``where``."""
+    what = "a number or 3 numbers"
     try:
-        rgb = np.broadcast_to(np.asarray(value, np.float64), (3,)).copy()
-    except (TypeError, ValueError):
-        raise ValueError(f"{where}: expected a number or 3 numbers, got {shown(value)}") from None
+        rgb = np.broadcast_to(numbers(where, value, what), (3,)).copy()
+    except ValueError:
+        raise ValueError(f"{where}: expected {what}, got {shown(value)}") from None
     if not np.all(np.isfinite(rgb)) or np.any(rgb < 0):
         raise ValueError(f"{where}: must be finite and >= 0, got {shown(value)}")
     check_radiance(where, float(rgb.max()))

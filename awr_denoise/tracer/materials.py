@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from .. import _checks
-from .limits import refuse_unknown, vector
+from .limits import MAX_COORDINATE, numbers, refuse_unknown, shown, vector
 
 __all__ = [
     "MATERIAL_KINDS",
@@ -172,9 +172,7 @@ def parse_material(name: str, spec: dict[str, Any]) -> Material:
     specular = _rgb(f"materials.{name}.specular", spec.get("specular", 1.0 if kind == "mirror" else 0.0))
     if kind == "glossy" and np.any(albedo + specular > 1.0 + 1e-12):
         raise ValueError(f"materials.{name}: albedo + specular must be <= 1 per channel (energy conservation)")
-    roughness = float(spec.get("roughness", 0.2))
-    if not 0.0 < roughness <= 1.0:
-        raise ValueError(f"materials.{name}.roughness: {roughness} is outside (0, 1]")
+    roughness = _checks.real(f"materials.{name}.roughness", spec.get("roughness", 0.2), above=0, maximum=1)
     texture = None
     if "texture" in spec:
         where = f"materials.{name}.texture"
@@ -189,14 +187,20 @@ def parse_material(name: str, spec: dict[str, Any]) -> Material:
             raise ValueError(f"{where}.axes: {axes!r} must be letters from 'xyz'")
         # floor(p / scale) is cast to int64: a scale of 0 or NaN gave garbage parities, not a refusal.
         scale = _checks.real(f"{where}.scale", t.get("scale", 1.0), above=0)
+        offset = vector(t, "offset", where, (0.0, 0.0, 0.0))
+        # Past the scene's coordinates p - offset keeps none of p's digits: a pattern of noise, no word.
+        if np.abs(offset).max() > MAX_COORDINATE:
+            raise ValueError(f"{where}.offset: beyond the ±{MAX_COORDINATE:g} scene units the tracer traces in")
         texture = CheckerTexture(_rgb(f"{where}.color_a", t.get("color_a", 0.8)),
-                                 _rgb(f"{where}.color_b", t.get("color_b", 0.1)), scale, axes,
-                                 vector(t, "offset", where, (0.0, 0.0, 0.0)))
+                                 _rgb(f"{where}.color_b", t.get("color_b", 0.1)), scale, axes, offset)
     return Material(kind, albedo, specular, roughness, texture)
 
 
 def _rgb(name: str, value: Any) -> np.ndarray:
-    rgb = np.broadcast_to(np.asarray(value, np.float64), (3,)).copy()
+    try:
+        rgb = np.broadcast_to(numbers(name, value, "a number or 3 numbers"), (3,)).copy()
+    except ValueError:  # two or four numbers: numpy's words named nothing
+        raise ValueError(f"{name}: expected a number or 3 numbers in [0, 1], got {shown(value)}") from None
     if not np.all(np.isfinite(rgb)) or np.any(rgb < 0) or np.any(rgb > 1):
         raise ValueError(f"{name}: reflectances must be finite and in [0, 1], got {value!r}")
     return rgb

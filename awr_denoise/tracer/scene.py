@@ -41,14 +41,14 @@ from ..io.atomic import read_without_waiting
 from .camera import ThinLensCamera, parse_camera
 from .environment import ConstantEnvironment, LatLongEnvironment, parse_environment
 from .lights import AreaLights, DirectionalLight, PointLight, parse_delta_light
-from .limits import check_reach, reach, refuse_unknown, rgb_radiance, shown
+from .limits import check_reach, numbers, reach, refuse_unknown, rgb_radiance, shown, unit
 from .limits import vector as _vec
 from .materials import Material, parse_material
 from .meshes import CHESS_PROFILES, box_mesh, lathe_mesh, quad_mesh, rotation_matrices, sphere_mesh
 from .scenes import BUNDLED_SCENES
 
-__all__ = ["Scene", "SceneObject", "Motion", "SHAPE_KINDS", "load_scene", "parse_scene", "dimension_names",
-           "scene_files"]
+__all__ = ["Scene", "SceneObject", "Motion", "SHAPE_KINDS", "MAX_TRIANGLES", "MAX_DELTA_LIGHTS", "load_scene",
+           "parse_scene", "dimension_names", "scene_files"]
 
 SHAPE_KINDS = ("sphere", "box", "quad", "lathe", "mesh")
 """Valid values of ``objects[i].shape``."""
@@ -57,6 +57,13 @@ _DEFAULT_SPECULAR_DEPTH = 8
 MAX_SIDE = 2**20  # pixels per side, as the command line allows
 MAX_DEPTH = 256  # bounces: each adds two random dimensions, and memory and time grow with it
 MAX_SEGMENTS = 1024  # tessellation of spheres and lathes: a mesh of up to about a million triangles
+MAX_TRIANGLES = 2**22
+"""Triangles of a whole scene. The tracer holds each in float64 with its normals and Embree's copy: 40
+spheres of the largest tessellation, a 6.5 kB file, asked for some 48 GB (a red-team pass). The bundled
+scenes have at most 7778."""
+MAX_DELTA_LIGHTS = 64
+"""Point and directional lights of a scene: each adds a shadow ray for every sample of a batch at every
+bounce, all held at once (10,000 point lights in a 0.5 MB file ran out of memory at 64x64)."""
 
 
 @dataclass(frozen=True)
@@ -203,14 +210,21 @@ def _real(spec: dict[str, Any], key: str, where: str, default: float, *, positiv
     return _checks.real(f"{where}.{key}", spec.get(key, default), above=0 if positive else None)
 
 
+def _area(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Total area of a mesh's triangles."""
+    t = vertices[faces]
+    return float(0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1).sum())
+
+
 def _build_shape(spec: dict[str, Any], where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Mesh of an object spec plus its pivot (the natural centre for rotations)."""
     shape = spec.get("shape")
     if shape == "sphere":
         center = _vec(spec, "center", where)
         radius = _real(spec, "radius", where, 1.0, positive=True)
-        v, f, n = sphere_mesh(center, radius, segments=_whole(spec, "segments", where, 48, 3, MAX_SEGMENTS),
-                              rings=_whole(spec, "rings", where, 24, 2, MAX_SEGMENTS))
+        segments = _whole(spec, "segments", where, 48, 3, MAX_SEGMENTS)
+        rings = _whole(spec, "rings", where, 24, 2, MAX_SEGMENTS)
+        v, f, n = sphere_mesh(center, radius, segments=segments, rings=rings)
         return v, f, n, center
     if shape == "box":
         lo, hi = _vec(spec, "min", where), _vec(spec, "max", where)
@@ -236,17 +250,17 @@ def _build_shape(spec: dict[str, Any], where: str) -> tuple[np.ndarray, np.ndarr
         if profile.ndim != 2 or profile.shape[0] < 2 or profile.shape[1] != 2 or not np.all(np.isfinite(profile)):
             raise ValueError(f"{where}.profile: expected two or more finite (radius, height) pairs")
         base = _vec(spec, "base", where)
-        v, f, n = lathe_mesh(profile, base, _real(spec, "scale", where, 1.0, positive=True),
-                             segments=_whole(spec, "segments", where, 48, 3, MAX_SEGMENTS))
+        segments = _whole(spec, "segments", where, 48, 3, MAX_SEGMENTS)
+        # Counted before it is built: 100000 profile points turned 1024 times is 2e8 triangles.
+        _check_triangles(where, 2 * segments * (len(profile) - 1), "its profile turned segments times has")
+        v, f, n = lathe_mesh(profile, base, _real(spec, "scale", where, 1.0, positive=True), segments=segments)
         return v, f, n, base
     if shape == "mesh":
         for key in ("vertices", "faces"):
             if key not in spec:
                 raise ValueError(f"{where}.{key}: missing")
-        try:
-            v, f = np.asarray(spec["vertices"], float), np.asarray(spec["faces"], float)
-        except (TypeError, ValueError):
-            raise ValueError(f"{where}: mesh vertices and faces must be (N, 3) lists of numbers") from None
+        what = "(N, 3) lists of numbers"
+        v, f = numbers(f"{where}.vertices", spec["vertices"], what), numbers(f"{where}.faces", spec["faces"], what)
         if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3 or not len(f):
             raise ValueError(f"{where}: mesh vertices and faces must be (N, 3)")
         if not np.all(np.isfinite(v)):
@@ -273,6 +287,13 @@ _MOTION_FIELDS = {"velocity", "axis", "angular_velocity_degrees"}
 _INTEGRATOR_FIELDS = {"max_depth", "max_specular_depth"}
 
 
+def _check_triangles(where: str, count: int, what: str = "the scene has") -> None:
+    """Refuse, naming ``where``, a triangle ``count`` beyond :data:`MAX_TRIANGLES`."""
+    if count > MAX_TRIANGLES:
+        raise ValueError(f"{where}: {what} {count} triangles, beyond the {MAX_TRIANGLES} a scene may hold "
+                         "(memory: each is held in float64 with its normals and the ray tracer's copy)")
+
+
 def _swept_reach(vertices: np.ndarray, motion: Motion, t0: float, t1: float) -> float:
     """A bound on the coordinates ``vertices`` reach moving by ``motion`` over the times ``[t0, t1]``.
 
@@ -288,7 +309,8 @@ def _swept_reach(vertices: np.ndarray, motion: Motion, t0: float, t1: float) -> 
 def parse_scene(spec: dict[str, Any], *, width: int | None = None, height: int | None = None,
                 base_dir: Path | None = None) -> Scene:
     """Build a :class:`Scene` from a spec dict (see the module docstring for the format)."""
-    spec = copy.deepcopy(_mapping(spec, "scene"))
+    _check_depth(_mapping(spec, "scene"))  # before the copy, which recursed past Python's limit
+    spec = copy.deepcopy(spec)
     refuse_unknown("scene", spec, _TOP_LEVEL)
     name = str(spec.get("name", "custom"))
     w = _whole({"width": width} if width is not None else spec, "width", "", 128, 1, MAX_SIDE)
@@ -302,7 +324,8 @@ def parse_scene(spec: dict[str, Any], *, width: int | None = None, height: int |
     material_names.append("__emitter__")
     materials.append(parse_material("__emitter__", {"type": "diffuse", "albedo": 0.0}))
 
-    objects = []
+    objects: list[SceneObject] = []
+    triangles = 0
     object_specs = spec.get("objects", [])
     if not isinstance(object_specs, list):
         raise ValueError(f"objects: expected a list [...], got {shown(object_specs)}")
@@ -314,7 +337,11 @@ def parse_scene(spec: dict[str, Any], *, width: int | None = None, height: int |
         with np.errstate(over="ignore", invalid="ignore"):
             vertices, faces, normals, pivot = _build_shape(obj, where)
         check_reach(where, reach(vertices), "its geometry")
+        triangles += len(faces)  # counted as built: at most one object's past the bound is ever held
+        _check_triangles(where, triangles, "the scene up to it has")
         emission = rgb_radiance(f"{where}.emission", obj["emission"]) if "emission" in obj else None
+        if emission is not None and not _area(vertices, faces) > 0:  # found only when the tracer was built
+            raise ValueError(f"{where}.emission: an emissive object needs an area; its triangles have none")
         material_name = obj.get("material", "__emitter__" if emission is not None else None)
         if material_name not in material_names:
             raise ValueError(f"{where}.material: {material_name!r} is not one of {', '.join(material_names[:-1])}")
@@ -322,10 +349,8 @@ def parse_scene(spec: dict[str, Any], *, width: int | None = None, height: int |
         if "motion" in obj:
             m = _mapping(obj["motion"], f"{where}.motion")
             refuse_unknown(f"{where}.motion", m, _MOTION_FIELDS)
-            axis = _vec(m, "axis", f"{where}.motion", (0.0, 1.0, 0.0))
-            if np.linalg.norm(axis) == 0:
-                raise ValueError(f"{where}.motion.axis: must be non-zero")
-            motion = Motion(pivot, _vec(m, "velocity", f"{where}.motion", (0.0, 0.0, 0.0)), axis / np.linalg.norm(axis),
+            axis = unit(f"{where}.motion.axis", _vec(m, "axis", f"{where}.motion", (0.0, 1.0, 0.0)))
+            motion = Motion(pivot, _vec(m, "velocity", f"{where}.motion", (0.0, 0.0, 0.0)), axis,
                             np.radians(_real(m, "angular_velocity_degrees", f"{where}.motion", 0.0)))
             if emission is not None and not motion.is_static:
                 raise ValueError(f"{where}.motion: emissive objects must be static")
@@ -343,6 +368,10 @@ def parse_scene(spec: dict[str, Any], *, width: int | None = None, height: int |
     light_specs = spec.get("lights", [])
     if not isinstance(light_specs, list):
         raise ValueError(f"lights: expected a list [...], got {shown(light_specs)}")
+    if len(light_specs) > MAX_DELTA_LIGHTS:
+        raise ValueError(f"lights: {len(light_specs)} lights, beyond the {MAX_DELTA_LIGHTS} a scene may have "
+                         "(each adds a shadow ray for every sample, all held at once); an emissive object is "
+                         "sampled as one light whatever its triangles")
     delta_lights = [parse_delta_light(i, _mapping(lt, f"lights[{i}]")) for i, lt in enumerate(light_specs)]
     environment = spec.get("environment")
     environment = parse_environment(None if environment is None else _mapping(environment, "environment"), base_dir)
@@ -417,14 +446,41 @@ def _read_json(path: Path) -> Any:
         raise ValueError(f"cannot read this scene file ({exc.strerror or exc})") from None
     if len(raw) > SCENE_FILE_MAX:
         raise ValueError(f"larger than {SCENE_FILE_MAX} bytes; no scene file is")
+    def once(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+        """An object whose every field is given once: JSON keeps the last of two, the first ignored."""
+        seen: set[str] = set()
+        for key, _ in pairs:
+            if key in seen:
+                raise ValueError(f"the field {shown(key)} is given twice in one object; the first would be "
+                                 "ignored")
+            seen.add(key)
+        return dict(pairs)
+
     try:
-        return json.loads(raw.decode("utf-8"), parse_constant=refuse)
+        spec = json.loads(raw.decode("utf-8"), parse_constant=refuse, object_pairs_hook=once)
     except UnicodeDecodeError as exc:
         raise ValueError(f"not a JSON text file ({exc.reason})") from None
     except json.JSONDecodeError as exc:
         raise ValueError(f"not valid JSON: {exc}") from None
     except RecursionError:  # arrays or objects nested thousands deep: the file's fault, not an internal error
         raise ValueError("not a scene: its JSON is nested deeper than Python's reader goes") from None
+    return spec
+
+
+MAX_NESTING = 32
+"""Deepest nesting of a scene file's arrays and objects (a scene needs 5; copying one 500 deep ran out of
+Python's recursion, an internal error)."""
+
+
+def _check_depth(spec: Any) -> None:
+    """Refuse JSON nested deeper than :data:`MAX_NESTING`, walked without recursion."""
+    level = [spec]
+    for depth in range(MAX_NESTING + 1):
+        level = [child for node in level if isinstance(node, (dict, list))
+                 for child in (node.values() if isinstance(node, dict) else node)]
+        if not level:
+            return
+    raise ValueError(f"not a scene: its JSON is nested deeper than {MAX_NESTING} levels")
 
 
 def scene_files(scene: str | Path) -> list[tuple[str, Path]]:

@@ -369,6 +369,25 @@ def test_a_scene_mitsuba_cannot_load_is_bad_input_naming_the_file(mi, tmp_path, 
     assert message.startswith(f"{path}: Mitsuba cannot load") and "\n" not in message and len(message) < 500
 
 
+def test_a_film_without_pixels_a_garbage_mesh_and_a_nan_radius_are_refused_naming_the_scene(mi, tmp_path):
+    """A film of width 0 was refused as ``counts: empty image``; a PLY of two bytes that are not text as
+    a bare ``'utf-8' codec can't decode``; a radius of NaN rendered without the sphere, exit 0 (a red-team
+    pass): each names the scene file."""
+    (tmp_path / "w0.xml").write_text(_SCENE.format(w=0, more="", integrator=_PATH).replace(
+        '<sensor type="perspective">', '<sensor type="perspective"><float name="fov" value="45"/>'))
+    with pytest.raises(ValueError, match=r"w0\.xml: its film \(crop\) is 0x8 pixels; a film needs at least 1x1"):
+        create_renderer(str(tmp_path / "w0.xml"))
+    (tmp_path / "bad.ply").write_bytes(b"\xa9\xdf")
+    mesh = '<shape type="ply"><string name="filename" value="bad.ply"/></shape>'
+    (tmp_path / "ply.xml").write_text(_SCENE.format(w=8, more=mesh, integrator=_PATH))
+    with pytest.raises(InputFileError, match=r"ply\.xml: Mitsuba cannot load this scene: a file it reads is not"):
+        create_renderer(str(tmp_path / "ply.xml"))
+    sphere = '<shape type="sphere"><float name="radius" value="nan"/></shape>'
+    (tmp_path / "nan.xml").write_text(_SCENE.format(w=8, more=sphere, integrator=_PATH))
+    with pytest.raises(InputFileError, match=r'nan\.xml: <float name="radius"> value="nan": nan is not a number'):
+        create_renderer(str(tmp_path / "nan.xml"))
+
+
 def test_a_scene_without_an_integrator_is_refused_naming_it(mi, tmp_path):
     (tmp_path / "bare.xml").write_text(_SCENE.format(w=8, more="", integrator=""))
     with pytest.raises(ValueError, match="bare.xml: the scene declares no integrator"):

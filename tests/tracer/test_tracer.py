@@ -115,6 +115,7 @@ def _scene_with(**changes) -> dict:
 
 
 SPHERE = next(i for i, o in enumerate(BUNDLED_SCENES["default"]["objects"]) if o["shape"] == "sphere")
+LIGHT_INDEX = next(i for i, o in enumerate(BUNDLED_SCENES["default"]["objects"]) if "emission" in o)
 MALFORMED = [  # (change, the field the refusal names)
     ({"environment": "sky"}, "environment: expected an object"),
     ({"materials.red": 5}, "materials.red: expected an object"),
@@ -156,6 +157,31 @@ MALFORMED = [  # (change, the field the refusal names)
     ({"camera.fov": "wide"}, "camera.fov: expected a number, got str 'wide'"),
     ({"camera.shutter": [0, float("nan")]}, "camera.shutter: must be a finite number"),
     ({"camera.up": [0, 1]}, "camera.up: expected 3 finite numbers"),
+    # The nineteenth pass: strings, booleans and integers past float64 in vectors, colours and meshes were
+    # converted (or an internal OverflowError), numpy's words named no field, a degenerate camera or light
+    # rendered without a word, a small file asked for tens of GB.
+    ({"materials.red.albedo": ["0.5", "0.5", "0.5"]}, r"materials\.red\.albedo: expected a number or 3 numbers"),
+    ({"materials.red.albedo": [1, 2]}, r"materials\.red\.albedo: expected a number or 3 numbers"),
+    ({f"objects.{SPHERE}.center": [10**400, 0, 0]}, rf"objects\[{SPHERE}\]\.center: expected 3 finite numbers"),
+    ({f"objects.{SPHERE}.center": [True, 0, 0]}, rf"objects\[{SPHERE}\]\.center: expected 3 finite numbers"),
+    ({"objects.0": {"shape": "mesh", "vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0]], "faces": [[False, True, 2]]}},
+     r"objects\[0\]\.faces: expected \(N, 3\) lists of numbers"),
+    ({"materials.red.roughness": None}, r"materials\.red\.roughness: expected a number"),
+    ({"camera.to": [0.0, 10.0, 4.2]}, r"camera\.up: .* is parallel to the view direction"),
+    ({"camera.up": [0, 0, 0]}, r"camera\.up: must be non-zero"),
+    ({"materials.floor.texture.offset": [1e20, 0, 0]}, r"materials\.floor\.texture\.offset: beyond"),
+    ({f"objects.{LIGHT_INDEX}.edge_v": [0, 0, 0]},
+     rf"objects\[{LIGHT_INDEX}\]\.emission: an emissive object needs an area"),
+    ({"lights": [{"type": "point", "position": [0, 2, 0]}] * 65}, r"lights: 65 lights, beyond the 64"),
+    ({"objects": [{"shape": "sphere", "center": [0, 0, 0], "segments": 1024, "rings": 1024, "material": "red"}] * 3},
+     r"objects\[2\]: the scene up to it has \d+ triangles, beyond the 4194304"),
+    ({"objects.0": {"shape": "lathe", "base": [0, 0, 0], "segments": 1024, "profile": [[1, i] for i in range(3000)]}},
+     r"objects\[0\]: its profile turned segments times has 6141952 triangles"),
+    ({"environment": {"type": "sky", "width": 100000}}, r"environment\.width: must be <= 4096"),
+    ({"environment": {"type": "sky", "sun_radiance": 1e308}}, r"environment\.sun_radiance: must be <= 65504"),
+    ({"environment": {"type": "sky", "sky_intensity": True}}, r"environment\.sky_intensity: expected a number"),
+    ({"description": [[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[["deep"]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]},
+     "nested deeper than 32 levels"),
 ]
 
 
@@ -278,6 +304,28 @@ def test_a_scene_file_beyond_float32_or_with_a_typo_names_the_file_and_the_field
     path.write_text(json.dumps(_scene_with(**{"integrator.max_dept": 3})))
     with pytest.raises(ValueError, match=rf"^{named}: integrator: unknown field\(s\) \['max_dept'\]"):
         load_scene(path)
+
+
+def test_a_field_given_twice_in_a_scene_file_is_refused(tmp_path) -> None:
+    """JSON keeps the second of two equal keys: an invalid first material, or a first fov, did nothing."""
+    path = tmp_path / "twice.json"
+    text = json.dumps(_scene_with())
+    path.write_text(text.replace('"fov": 38', '"fov": 179.9, "fov": 38'))
+    with pytest.raises(ValueError, match=rf"^{re.escape(str(path))}: the field 'fov' is given twice in one object"):
+        load_scene(path)
+
+
+def test_directions_far_from_length_one_keep_their_direction() -> None:
+    """A light direction of 1e200 (its square past float64) was normalised to 0, the light dropped; an
+    axis of 1e-170 (its square below the smallest float) was refused as zero; a camera 1 unit long at
+    1e6 was refused as a camera of no length (np.allclose's relative tolerance)."""
+    scene = load_scene(_scene_with(lights=[{"type": "directional", "direction": [0, -1e200, 0]}]))
+    np.testing.assert_array_equal(scene.delta_lights[0].direction, [0.0, -1.0, 0.0])
+    moving = load_scene(_scene_with(**{f"objects.{SPHERE}.motion": {"axis": [0, 1e-170, 0],
+                                                                     "angular_velocity_degrees": 90},
+                                       "camera.shutter": [0, 1], "dimension": 5}))
+    np.testing.assert_array_equal(next(o.motion for o in moving.objects if o.motion is not None).axis, [0, 1, 0])
+    load_scene(_scene_with(**{"camera.from": [1e6, 1, 1], "camera.to": [1e6 + 1, 1, 1]}))
 
 
 def test_awr_render_refuses_a_scene_beyond_float32_and_writes_nothing(tmp_path) -> None:
