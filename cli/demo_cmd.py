@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +16,7 @@ from awr_denoise.metrics import mean_error, mse, relmse
 from awr_denoise.reconstruct import DEFAULT_PILOT_C_S
 from awr_denoise.renderers import create_renderer
 
-from awr_denoise.io.atomic import OutputSet
+from awr_denoise.io.atomic import OutputSet, folders_made
 
 from .errors import shown
 from .common import EXIT_OK, UsageError, print_json, status
@@ -95,8 +93,7 @@ def run(args: argparse.Namespace) -> int:
     if reference.shape != uniform.mean.shape:
         raise UsageError(f"{where}: the reference of {name} is {reference.shape}, the render {uniform.mean.shape}")
     results = {}
-    made = _make_folders(out)
-    with _removed_unless_committed(made), OutputSet(overwrite=True) as outputs:  # every image of the demo, or none
+    with folders_made(out), OutputSet(overwrite=True) as outputs:  # every image of the demo, or none (new folders too)
         for label, image in images.items():
             exr = out / f"{name}_{label}.exr"
             write_image(outputs.add(exr), image,
@@ -116,30 +113,6 @@ def run(args: argparse.Namespace) -> int:
     for label, r in results.items():
         print(f"  {label:<14} {r['relmse']:>10.5f} {r['mse']:>12.6g} {100 * r['mean_error']:>10.2f}%")
     return EXIT_OK
-
-
-def _make_folders(folder: Path) -> list[Path]:
-    """Create ``folder`` and its missing parents; returns those created, deepest first."""
-    made = []
-    missing = folder
-    while not missing.exists():
-        made.append(missing)
-        missing = missing.parent
-    folder.mkdir(parents=True, exist_ok=True)
-    return made
-
-
-@contextlib.contextmanager
-def _removed_unless_committed(folders: list[Path]) -> Iterator[None]:
-    """The folders the demo made are removed again (while empty) when it stops before its commit:
-    SIGTERM in its last moments left `--out NEW/sub` behind, empty."""
-    try:
-        yield
-    except BaseException:
-        for made in folders:
-            with contextlib.suppress(OSError):
-                made.rmdir()  # only an empty folder: anything put there meanwhile stays
-        raise
 
 
 def _check_creatable(folder: Path) -> None:

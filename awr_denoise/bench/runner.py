@@ -16,7 +16,7 @@ from tqdm import tqdm
 
 from .._typing import FloatArray
 from ..buffers import SampleBuffer
-from ..io.atomic import STAGING_NAME, OutputSet, check_writable
+from ..io.atomic import STAGING_NAME, OutputSet, check_writable, folders_made
 from ..metrics import RELMSE_EPSILON, mean_error, relmse
 from ..reconstruct import reconstruct
 from ..sampling import UniformSampler
@@ -119,12 +119,13 @@ def run_benchmark(config: BenchmarkConfig | None = None, *, output_dir: str | Pa
     results["summary"] = summarize(results, config)
     results["meta"]["run_seconds"] = time.perf_counter() - started
     # The JSON, the figures and the page: all of them or none (an interrupt leaves the old ones).
-    with OutputSet(overwrite=True) as outputs:
+    # The folders it makes for them too: an interrupt while they are written left them behind, empty.
+    folders = ([Path(results_path).parent] if results_path is not None else []) + \
+        ([out_dir / "img" if plots else out_dir] if out_dir is not None else [])
+    with folders_made(*folders), OutputSet(overwrite=True) as outputs:
         if results_path is not None:
-            Path(results_path).parent.mkdir(parents=True, exist_ok=True)
             write_json(outputs.add(results_path), results)
         if out_dir is not None:
-            out_dir.mkdir(parents=True, exist_ok=True)
             figures = write_figures(results, all_images, out_dir / "img", place=outputs.add) if plots else {}
             write_markdown(results, figures, out_dir / "benchmarks.md", results_path,
                            out=outputs.add(out_dir / "benchmarks.md"))

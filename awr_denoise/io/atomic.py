@@ -54,7 +54,7 @@ except ImportError:  # pragma: no cover - not on Windows: stale temporaries are 
     fcntl = None  # type: ignore[assignment]
 
 __all__ = ["atomic_write", "check_writable", "check_readable", "check_utf8_name", "file_kind", "read_without_waiting",
-           "same_file", "OutputSet",
+           "same_file", "OutputSet", "folders_made",
            "public_name", "standing_for", "remove_stale_temporaries", "STAGING_PREFIX", "STAGING_SUFFIX",
            "STAGING_NAME", "STALE_AFTER",
            "COMMIT_WAIT"]
@@ -667,6 +667,44 @@ def _staging_for(target: Path, final: Path) -> _Staging:
         return _Staging(final.parent)
     except OSError as exc:
         raise OSError(exc.errno, exc.strerror or str(exc), public_name(target)) from None
+
+
+@contextlib.contextmanager
+def folders_made(*folders: str | os.PathLike[str]) -> Iterator[list[Path]]:
+    """Create ``folders`` (and their missing parents) for the outputs of a ``with`` block; when the block
+    is left by an exception (a failure, Ctrl-C, SIGTERM) the folders created here are removed again, those
+    still empty, deepest first. Put it around the block's :class:`OutputSet`, whose staging folder goes
+    first. ``awr demo --out NEW/sub`` and ``awr bench --output-dir NEW`` stopped before their commit left
+    the new folders behind, empty (red-team passes).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from awr_denoise.io.atomic import folders_made
+    >>> root = Path(tempfile.mkdtemp())
+    >>> try:
+    ...     with folders_made(root / "new" / "sub"):
+    ...         raise KeyboardInterrupt
+    ... except KeyboardInterrupt:
+    ...     pass
+    >>> (root / "new").exists()
+    False
+    """
+    made: list[Path] = []
+    try:
+        for folder in map(Path, folders):
+            missing = folder
+            while not os.path.lexists(missing) and missing != missing.parent:
+                made.append(missing)
+                missing = missing.parent
+            folder.mkdir(parents=True, exist_ok=True)
+        yield made
+    except BaseException:
+        for folder in sorted(set(made), key=lambda p: len(p.parts), reverse=True):
+            with contextlib.suppress(OSError):
+                folder.rmdir()  # only an empty folder: anything put there meanwhile stays
+        raise
 
 
 class OutputSet:
