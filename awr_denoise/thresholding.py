@@ -45,22 +45,23 @@ _RESOLUTION_SHARE = 0.25
 _EPS32 = float(np.finfo(np.float32).eps)
 
 
-def _float32_resolves(y: FloatArray, mean: FloatArray, sample_variance: FloatArray, count: FloatArray,
-                      k: float) -> bool:
-    """Whether float32 ``y`` resolves the plane's noise (:data:`_RESOLUTION_SHARE`): a bright light
-    far above a dim background leaves the background below float32's resolution near the light's
-    level (a red-team pass: the background came back as exactly 0). The noise is taken in float64
-    (on the sampled pixels), where float32 may have underflowed it to 0."""
+def _float32_margin(y: FloatArray, mean: FloatArray, sample_variance: FloatArray, count: FloatArray,
+                    k: float) -> float:
+    """How far float32 ``y`` is from not resolving the plane's noise: a quarter (:data:`_RESOLUTION_SHARE`)
+    of the dimmer pixels' standard error in y over float32's resolution there; below 1, stage 1 runs in
+    float64 (a bright light far above a dim background left the background below float32's resolution
+    near the light's level: it came back as exactly 0, a red-team pass). The noise is taken in float64
+    (on a grid of pixels), where float32 may have underflowed it to 0; inf without noise."""
     step = max(1, min(mean.shape) // 128)  # some 16000 pixels or more: a percentile's worth
     on = (slice(None, None, step),) * 2
     with np.errstate(divide="ignore", invalid="ignore"):  # no samples: NaN (dropped) or Inf (a large noise)
         var_y = sample_variance[on] / count[on] / (np.abs(mean[on]) + k) ** 2
     positive = var_y[var_y > 0]
     if positive.size == 0:
-        return True  # no noise to threshold: nothing for the rounding to change
+        return float("inf")  # no noise to threshold: nothing for the rounding to change
     dim = float(np.sqrt(np.percentile(positive, 10)))
     resolution = _EPS32 * max(1.0, float(y.max()), -float(y.min()))  # max |y| without an |y| plane
-    return resolution <= _RESOLUTION_SHARE * dim
+    return _RESOLUTION_SHARE * dim / resolution
 
 
 def soft_threshold(coeff: FloatArray, threshold: FloatArray) -> FloatArray:
@@ -193,7 +194,7 @@ def _stage32(prepared: Prepared, ops: WaveletOperators, c_s: float, pixel_clamp:
         if plane is None:
             return None
         y, var_y = plane
-        if not _float32_resolves(y, mean[:, :, c], s2[:, :, c], count, k):
+        if not _float32_margin(y, mean[:, :, c], s2[:, :, c], count, k) >= 1:
             return None
         out, thresholds, zeroed, total = _threshold_plane32(y, var_y, c_s, ops)
         fused.finish_plane(image[:, :, c], out, y, var_y, mean[:, :, c], k, pixel_clamp)

@@ -49,6 +49,8 @@ from awr_denoise import (AdaptiveSampler, SampleBuffer, SampleRequest, UniformSa
 from awr_denoise.bench import (OVERHEAD_SIZES, command_line, load_average, machine_info, noisy_buffer,  # noqa: E402
                                peak_memory, write_json)
 from awr_denoise.domains import Domain  # noqa: E402
+from awr_denoise.prepare import prepare  # noqa: E402
+from awr_denoise.thresholding import _float32_margin  # noqa: E402
 from awr_denoise.metrics import mean_error, mse, relmse  # noqa: E402
 from awr_denoise.synthetic import SyntheticRenderer, make_scene  # noqa: E402
 from awr_denoise.wavelets import default_levels  # noqa: E402
@@ -489,7 +491,7 @@ def precision(spps=(8, 32, 128), group: int = 0) -> list[dict]:
             single = reconstruct(buf, stages=1)
             double = reconstruct(buf, stages=1, precision="float64")
             k = 0.1 * Domain("log").resolved_scale(buf.mean)
-            row = {"renderer": renderer, "scene": scene, "spp": spp,
+            row = {"renderer": renderer, "scene": scene, "spp": spp, "float32_margin": _float32_margin_of(buf),
                    "relmse_float32": relmse(single, ref), "relmse_float64": relmse(double, ref),
                    "mse_float32": mse(single, ref), "mse_float64": mse(double, ref),
                    "mean_change": mean_error(single, double),
@@ -497,8 +499,20 @@ def precision(spps=(8, 32, 128), group: int = 0) -> list[dict]:
             rows.append(row)
             print(f"| {renderer} | {scene} | {spp} | {row['relmse_float32'] / row['relmse_float64'] - 1:+.1e} | "
                   f"{row['mse_float32'] / row['mse_float64'] - 1:+.1e} | {row['mean_change']:.1e} | "
-                  f"{row['largest_pixel_change']:.1e} |", flush=True)
+                  f"{row['largest_pixel_change']:.1e} | {row['float32_margin']:.3g} |", flush=True)
     return rows
+
+
+def _float32_margin_of(buffer: SampleBuffer) -> float:
+    """The smallest over channels of stage 1's margin to its switch to float64 (below 1: float64)."""
+    p = prepare(buffer, "log")
+    count = p.count[:, :, 0].astype(np.float32)
+    margins = []
+    for c in range(p.mean.shape[2]):
+        plane = fused.log_plane(p.mean[:, :, c], p.sample_variance[:, :, c], count, p.bound.k)
+        if plane is not None:  # else beyond float32 altogether: float64 anyway
+            margins.append(_float32_margin(plane[0], p.mean[:, :, c], p.sample_variance[:, :, c], count, p.bound.k))
+    return min(margins, default=0.0)
 
 
 def quality(shape=(128, 128), spps=(8, 32), seed=3) -> list[dict]:
@@ -713,7 +727,8 @@ def operators(shapes: dict = OPERATOR_SHAPES, repeats: int = 3) -> list[dict]:
 
 SECTIONS = {
     "precision": ("Stage 1 in float32 against float64 (stages=1, rendered buffers): relative changes",
-                  "| renderer | scene | spp | relMSE | MSE | image mean | largest pixel change (x (abs(x) + k)) |",
+                  "| renderer | scene | spp | relMSE | MSE | image mean | largest pixel change (x (abs(x) + k)) "
+              "| float32 margin (below 1: float64) |",
                   lambda quick: precision(spps=(8,) if quick else (8, 32, 128))),
     "speed": ("Speed against the PyWavelets floor (medians of interleaved repeats; x floor of the same run) "
               "and peak memory (tracemalloc, x input buffer)",
