@@ -41,7 +41,7 @@ from typing import Any
 
 from .mitsuba_scenes import SCENE_NAMES
 
-__all__ = ["scene_files", "check_numbers"]
+__all__ = ["scene_files"]
 
 # In one left-to-right pass, as pugixml reads: markup it skips (comments, CDATA, processing
 # instructions such as the XML declaration, the DOCTYPE with its internal subset, never expanded),
@@ -68,7 +68,6 @@ class _Walk:
         self.values: dict[str, str] = {}  # raw value -> how the message names it
         self.paths: list[tuple[str, Path]] = []  # <path value=...> and the folder of its file
         self.includes: list[tuple[str, Path]] = []  # <include filename=...> and the folder of its file
-        self.numbers: list[tuple[Path, str, str, str, str]] = []  # (file, tag, name, attribute, value) of numbers
         self.folders: list[Path] = [Path()]
         self.read: set[Path] = set()
 
@@ -164,30 +163,7 @@ def scene_files(scene: Any, params: Mapping[str, Any] | None = None) -> list[tup
     first = Path(scene)
     if isinstance(scene, str) and scene in SCENE_NAMES and not os.path.lexists(first):
         return []  # a bundled scene, built from a dict
-    walk = _walked(first, params or {})
-    named: dict[str, str] = {}
-    for raw, what in walk.values.items():
-        for value in walk.substituted(raw):
-            if _RANK.get(what, 2) < _RANK.get(named.get(value, ""), 3):  # the message names its likeliest use
-                named[value] = what
-    files: list[tuple[str, Path]] = []
-    seen: set[Path] = set()
-    listings: dict[Path, set[str]] = {}
-    for value, what in named.items():
-        for path in _found(value, walk.folders, listings):
-            if path not in seen:
-                seen.add(path)
-                files.append((f"{what} {value}", path))
-    for name, path in _resources(walk.folders):
-        if path not in seen:
-            seen.add(path)
-            files.append((f"resource {name}", path))
-    return files
-
-
-def _walked(first: Path, params: Mapping[str, Any]) -> _Walk:
-    """One walk over a scene file and every file it includes."""
-    walk = _Walk(first, params)
+    walk = _Walk(first, params or {})
     pending, done, state = [first], 0, None
     while pending:  # until no include names a file not yet read: a later <default> or <path> may
         for file in pending:
@@ -206,36 +182,24 @@ def _walked(first: Path, params: Mapping[str, Any]) -> _Walk:
         if len(walk.read) + len(pending) > _MAX_FILES:
             raise ValueError(f"{first}: includes more than {_MAX_FILES} XML files; the files they name are not "
                              "checked")
-    return walk
-
-
-_NUMERIC_TAGS = frozenset({"float", "point", "vector", "rgb", "translate", "scale", "rotate", "lookat"})
-_F32_MAX = 3.4028234663852886e38
-
-
-def check_numbers(scene: Any, params: Mapping[str, Any] | None = None) -> None:
-    """Refuse a scene file whose numbers Mitsuba takes without a word but cannot use: NaN, Inf or past
-    float32, in the file or a file it includes, parameters substituted (a sphere of radius NaN or 1e39,
-    a camera's fov of NaN: the object or the camera vanished from the image, exit 0; a red-team pass).
-
-    Raises
-    ------
-    ValueError
-        Naming the file, the element and the value.
-    """
-    if not isinstance(scene, (str, os.PathLike)) or not Path(scene).is_file():
-        return
-    walk = _walked(Path(scene), params or {})
-    for path, tag, name, attribute, raw in walk.numbers:
+    named: dict[str, str] = {}
+    for raw, what in walk.values.items():
         for value in walk.substituted(raw):
-            for word in re.split(r"[\s,]+", value.strip()):
-                try:
-                    number = float(word)
-                except ValueError:
-                    continue  # not a number: Mitsuba's parser has refused or read it already
-                if not abs(number) <= _F32_MAX:
-                    raise ValueError(f"{path}: <{tag} name=\"{name}\"> {attribute}=\"{value}\": {word} is not a "
-                                     "number Mitsuba can use (NaN, Inf or past float32)")
+            if _RANK.get(what, 2) < _RANK.get(named.get(value, ""), 3):  # the message names its likeliest use
+                named[value] = what
+    files: list[tuple[str, Path]] = []
+    seen: set[Path] = set()
+    listings: dict[Path, set[str]] = {}
+    for value, what in named.items():
+        for path in _found(value, walk.folders, listings):
+            if path not in seen:
+                seen.add(path)
+                files.append((f"{what} {value}", path))
+    for name, path in _resources(walk.folders):
+        if path not in seen:
+            seen.add(path)
+            files.append((f"resource {name}", path))
+    return files
 
 
 # Files Mitsuba's plugins look up by a fixed name through the same resolver, so a copy beside the
@@ -292,9 +256,6 @@ def _read_file(walk: _Walk, path: Path) -> None:
             walk.paths.append((attributes["value"], path.parent))
         elif name == "include" and "filename" in attributes:
             walk.includes.append((attributes["filename"], path.parent))
-        if name in _NUMERIC_TAGS:
-            walk.numbers += [(path, name, attributes.get("name", ""), key, value) for key, value in attributes.items()
-                             if key not in ("name", "id", "type")]
 
 
 def _names_a_file(tag: str, key: str, attributes: Mapping[str, str]) -> bool:

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from .. import _checks
-from .limits import check_reach, reach, refuse_unknown, shown, unit, vector
+from .limits import check_reach, in_range, reach, refuse_unknown, shown, vector
 from .meshes import cross, normalize
 
 __all__ = ["ThinLensCamera", "concentric_disk", "parse_camera"]
@@ -78,8 +78,10 @@ class ThinLensCamera:
     @property
     def world_from_camera(self) -> np.ndarray:
         """(3, 3) rotation whose columns are camera x (right), y (up), z (forward) in world space."""
-        forward = normalize(np.asarray(self.look_at, float) - np.asarray(self.look_from, float))
-        right = normalize(cross(forward, np.asarray(self.up, float)))
+        # Scaled into range first (by powers of two, exact; nothing for ordinary cameras): a from and a to
+        # 1e-170 apart, or an up of 1e200, normalised to zero and rendered black.
+        forward = normalize(in_range("camera.to", np.asarray(self.look_at, float) - np.asarray(self.look_from, float)))
+        right = normalize(in_range("camera.up", cross(forward, in_range("camera.up", np.asarray(self.up, float)))))
         true_up = cross(right, forward)
         return np.stack([right, true_up, forward], axis=1)
 
@@ -132,10 +134,9 @@ def parse_camera(spec: dict[str, Any], width: int, height: int) -> ThinLensCamer
     check_reach("camera.to", reach(look_at))
     if np.array_equal(look_from, look_at):  # not allclose: points 1 apart at 1e6 are a camera (a red-team pass)
         raise ValueError("camera.to: must differ from camera.from")
-    # The up hint picks the image's vertical: parallel to the view (looking straight up with the
+    # The up hint picks the image's vertical: exactly parallel to the view (looking straight up with the
     # default up) or zero it leaves none, and every pixel took one ray (Mitsuba refuses it too).
-    view, hint = unit("camera.to", look_at - look_from), unit("camera.up", up)
-    if np.linalg.norm(np.cross(view, hint)) < 1e-6:
+    if not np.any(np.cross(in_range("camera.to", look_at - look_from), in_range("camera.up", up))):
         raise ValueError(f"camera.up: {shown(spec.get('up', [0.0, 1.0, 0.0]))} is parallel to the view direction "
                          "from camera.from to camera.to; give an up vector across it")
     fov = _checks.real("camera.fov", spec.get("fov", 40.0))

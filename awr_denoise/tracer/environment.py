@@ -210,7 +210,9 @@ def make_sky_envmap(width: int = SKY_DEFAULTS["width"], height: int = SKY_DEFAUL
     sun_color = np.array([1.0, 0.93, 0.82])
     radiance = radiance + (disk * sun_radiance + halo)[:, None] * sun_color
     image = radiance.reshape(height, width, 3)
-    if image.max(initial=0.0) > _HALF_MAX:  # half floats would hold Inf: numpy's warning, then a refusal naming "image"
+    with np.errstate(over="ignore"):  # half floats would hold Inf: numpy's warning, then a refusal naming "image"
+        beyond = not np.isfinite(image.astype(np.float16)).all()
+    if beyond:
         raise ValueError(f"sun_radiance, sky_intensity: the sky reaches {image.max():g}, beyond the half floats "
                          f"({_HALF_MAX:g}) its map is held in")
     return image.astype(np.float16).astype(np.float64)
@@ -275,7 +277,11 @@ def parse_environment(spec: dict[str, Any] | None, base_dir: Path | None = None
     if kind == "constant":
         return ConstantEnvironment(rgb_radiance("environment.radiance", spec.get("radiance", 1.0)))
     if kind == "sky":
-        return _scaled(make_sky_envmap(**_sky_parameters(spec)), spec, "the sky's")
+        try:
+            sky = make_sky_envmap(**_sky_parameters(spec))
+        except ValueError as exc:  # its radiance past half floats: named as the scene's fields
+            raise ValueError(f"environment.{exc}") from None
+        return _scaled(sky, spec, "the sky's")
     if not isinstance(spec.get("path"), str) or not spec["path"]:
         raise ValueError(f"environment.path: expected a file name, got {spec.get('path')!r:.40}")
     path = Path(spec["path"])
@@ -302,7 +308,7 @@ def _sky_parameters(spec: dict[str, Any]) -> dict[str, Any]:
                                      minimum=4, maximum=MAX_SKY_WIDTH),
               "height": _checks.whole(where + "height", spec.get("height", SKY_DEFAULTS["height"]),
                                       minimum=2, maximum=MAX_SKY_WIDTH // 2)}
-    bounds = {"sun_elevation_degrees": (-90.0, 90.0), "sun_azimuth_degrees": (-360.0, 360.0),
+    bounds = {"sun_elevation_degrees": (-90.0, 90.0), "sun_azimuth_degrees": (-1e6, 1e6),
               "sun_radius_degrees": (0.0, 90.0), "sun_radiance": (0.0, _HALF_MAX), "sky_intensity": (0.0, _HALF_MAX)}
     for key, (low, high) in bounds.items():
         params[key] = _checks.real(where + key, spec.get(key, SKY_DEFAULTS[key]), minimum=low, maximum=high)

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from .limits import check_reach, reach, refuse_unknown, rgb_radiance, unit, vector
+from .limits import check_reach, in_range, reach, refuse_unknown, rgb_radiance, vector
 from .meshes import cross, dot, normalize
 
 __all__ = ["AreaLights", "PointLight", "DirectionalLight", "DELTA_LIGHT_KINDS", "parse_delta_light"]
@@ -105,4 +105,5 @@ def parse_delta_light(index: int, spec: dict[str, Any]) -> PointLight | Directio
         check_reach(f"{name}.position", reach(position))
         return PointLight(position, intensity)
     irradiance = rgb_radiance(f"{name}.irradiance", spec.get("irradiance", 1.0))
-    return DirectionalLight(unit(f"{name}.direction", vector(spec, "direction", name)), irradiance)
+    return DirectionalLight(normalize(in_range(f"{name}.direction", vector(spec, "direction", name))[None])[0],
+                            irradiance)

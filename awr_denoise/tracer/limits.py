@@ -9,11 +9,12 @@ naming the field, with the bounds below.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 
-__all__ = ["MAX_COORDINATE", "MAX_RADIANCE", "shown", "numbers", "unit", "vector", "rgb_radiance", "reach",
+__all__ = ["MAX_COORDINATE", "MAX_RADIANCE", "shown", "numbers", "in_range", "vector", "rgb_radiance", "reach",
            "check_reach", "check_radiance", "refuse_unknown"]
 
 MAX_COORDINATE = 1e11
@@ -71,23 +72,33 @@ def numbers(where: str, value: Any, what: str = "numbers") -> np.ndarray:
     except (TypeError, ValueError, OverflowError):  # ragged lists
         array = np.empty(0, object)
     # Integers and floats only: kind "b" (booleans), "U" (strings), "O" (mixed, ints past int64) refused,
-    # and booleans among integers, which numpy makes integers ([false, true, 2]: a face of vertices 0, 1, 2).
-    if array.dtype.kind not in "iuf" or (array.dtype.kind in "iu" and array.size and not isinstance(value, np.ndarray)
+    # and booleans among numbers, which numpy makes numbers ([false, true, 2]: a face of vertices 0, 1, 2).
+    if array.dtype.kind not in "iuf" or (array.size and not isinstance(value, np.ndarray)
                                          and bool in set(map(type, np.asarray(value, dtype=object).ravel()))):
         raise ValueError(f"{where}: expected {what}, got {shown(value)}")
     with np.errstate(over="ignore"):  # a uint64 or float beyond float64 cannot occur; an int64 fits
         return array.astype(np.float64)
 
 
-def unit(where: str, direction: np.ndarray) -> np.ndarray:
-    """``direction`` scaled to length 1, first by its largest entry so that lengths past 1e154 (whose
-    squares overflow) and below 1e-154 (whose squares underflow) keep their direction; a zero vector
-    refused, naming ``where`` (a light direction of 1e200 was dropped, an axis of 1e-170 refused)."""
+def in_range(where: str, direction: np.ndarray) -> np.ndarray:
+    """``direction`` scaled by a power of two (exact) into lengths whose squares neither overflow nor
+    underflow; unchanged when they do not, so a direction normalises to the same bits as before. A zero
+    vector is refused, naming ``where``. A light direction of 1e200 normalised to zero (its square past
+    float64: the light dropped), a motion axis of 1e-170 was refused as zero (a red-team pass).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise.tracer.limits import in_range
+    >>> in_range("axis", np.array([0.0, 1e200, 0.0])) / np.linalg.norm(in_range("axis", np.array([0.0, 1e200, 0.0])))
+    array([0., 1., 0.])
+    """
     largest = float(np.abs(direction).max(initial=0.0))
     if not largest > 0:
         raise ValueError(f"{where}: must be non-zero")
-    scaled = direction / largest
-    return scaled / np.linalg.norm(scaled)
+    if 2.0**-500 <= largest <= 2.0**500:
+        return direction
+    return np.ldexp(direction, -math.frexp(largest)[1])
 
 
 def vector(spec: dict[str, Any], key: str, where: str, default: Any = None) -> np.ndarray:

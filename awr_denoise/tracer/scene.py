@@ -41,7 +41,7 @@ from ..io.atomic import read_without_waiting
 from .camera import ThinLensCamera, parse_camera
 from .environment import ConstantEnvironment, LatLongEnvironment, parse_environment
 from .lights import AreaLights, DirectionalLight, PointLight, parse_delta_light
-from .limits import check_reach, numbers, reach, refuse_unknown, rgb_radiance, shown, unit
+from .limits import check_reach, in_range, numbers, reach, refuse_unknown, rgb_radiance, shown
 from .limits import vector as _vec
 from .materials import Material, parse_material
 from .meshes import CHESS_PROFILES, box_mesh, lathe_mesh, quad_mesh, rotation_matrices, sphere_mesh
@@ -252,7 +252,7 @@ def _build_shape(spec: dict[str, Any], where: str) -> tuple[np.ndarray, np.ndarr
         base = _vec(spec, "base", where)
         segments = _whole(spec, "segments", where, 48, 3, MAX_SEGMENTS)
         # Counted before it is built: 100000 profile points turned 1024 times is 2e8 triangles.
-        _check_triangles(where, 2 * segments * (len(profile) - 1), "its profile turned segments times has")
+        _check_triangles(where, 2 * segments * (len(profile) - 1), "its profile turned segments times makes up to")
         v, f, n = lathe_mesh(profile, base, _real(spec, "scale", where, 1.0, positive=True), segments=segments)
         return v, f, n, base
     if shape == "mesh":
@@ -349,8 +349,8 @@ def parse_scene(spec: dict[str, Any], *, width: int | None = None, height: int |
         if "motion" in obj:
             m = _mapping(obj["motion"], f"{where}.motion")
             refuse_unknown(f"{where}.motion", m, _MOTION_FIELDS)
-            axis = unit(f"{where}.motion.axis", _vec(m, "axis", f"{where}.motion", (0.0, 1.0, 0.0)))
-            motion = Motion(pivot, _vec(m, "velocity", f"{where}.motion", (0.0, 0.0, 0.0)), axis,
+            axis = in_range(f"{where}.motion.axis", _vec(m, "axis", f"{where}.motion", (0.0, 1.0, 0.0)))
+            motion = Motion(pivot, _vec(m, "velocity", f"{where}.motion", (0.0, 0.0, 0.0)), axis / np.linalg.norm(axis),
                             np.radians(_real(m, "angular_velocity_degrees", f"{where}.motion", 0.0)))
             if emission is not None and not motion.is_static:
                 raise ValueError(f"{where}.motion: emissive objects must be static")

@@ -382,10 +382,17 @@ def test_a_film_without_pixels_a_garbage_mesh_and_a_nan_radius_are_refused_namin
     (tmp_path / "ply.xml").write_text(_SCENE.format(w=8, more=mesh, integrator=_PATH))
     with pytest.raises(InputFileError, match=r"ply\.xml: Mitsuba cannot load this scene: a file it reads is not"):
         create_renderer(str(tmp_path / "ply.xml"))
-    sphere = '<shape type="sphere"><float name="radius" value="nan"/></shape>'
-    (tmp_path / "nan.xml").write_text(_SCENE.format(w=8, more=sphere, integrator=_PATH))
-    with pytest.raises(InputFileError, match=r'nan\.xml: <float name="radius"> value="nan": nan is not a number'):
-        create_renderer(str(tmp_path / "nan.xml"))
+    for value, owner, parameter in (("nan", "Sphere", "to_world"), ("1e39", "Sphere", "to_world")):
+        sphere = f'<shape type="sphere"><float name="radius" value="{value}"/></shape>'
+        (tmp_path / "nan.xml").write_text(_SCENE.format(w=8, more=sphere, integrator=_PATH))
+        with pytest.raises(InputFileError, match=rf"nan\.xml: {owner} parameter '{parameter}' holds NaN or Inf"):
+            create_renderer(str(tmp_path / "nan.xml"))
+    lens = ('<float name="fov" value="45"/><float name="aperture_radius" value="nan"/>'
+            '<float name="focus_distance" value="3"/>')
+    (tmp_path / "lens.xml").write_text(_SCENE.format(w=8, more="", integrator=_PATH).replace(
+        '<sensor type="perspective">', f'<sensor type="thinlens">{lens}'))
+    with pytest.raises(InputFileError, match=r"lens\.xml: ThinLensCamera parameter 'aperture_radius' holds NaN"):
+        create_renderer(str(tmp_path / "lens.xml"))
 
 
 def test_a_scene_without_an_integrator_is_refused_naming_it(mi, tmp_path):

@@ -176,7 +176,7 @@ MALFORMED = [  # (change, the field the refusal names)
     ({"objects": [{"shape": "sphere", "center": [0, 0, 0], "segments": 1024, "rings": 1024, "material": "red"}] * 3},
      r"objects\[2\]: the scene up to it has \d+ triangles, beyond the 4194304"),
     ({"objects.0": {"shape": "lathe", "base": [0, 0, 0], "segments": 1024, "profile": [[1, i] for i in range(3000)]}},
-     r"objects\[0\]: its profile turned segments times has 6141952 triangles"),
+     r"objects\[0\]: its profile turned segments times makes up to 6141952 triangles"),
     ({"environment": {"type": "sky", "width": 100000}}, r"environment\.width: must be <= 4096"),
     ({"environment": {"type": "sky", "sun_radiance": 1e308}}, r"environment\.sun_radiance: must be <= 65504"),
     ({"environment": {"type": "sky", "sky_intensity": True}}, r"environment\.sky_intensity: expected a number"),
