@@ -135,7 +135,8 @@ class Prepared:
         scale = self.domain.resolved_scale(self.mean)
         # The image's own level, not a scale given to the domain: a Domain(scale=1e-300) beside means
         # of 0.5 took the variances past float64 there, a NaN image (a red-team pass).
-        level = dataclasses.replace(self.domain, scale=None).resolved_scale(self.mean)
+        given = self.bound.domain.scale is not None  # else the image's level is the scale, already known
+        level = dataclasses.replace(self.domain, scale=None).resolved_scale(self.mean) if given else scale
         s = math.ldexp(1.0, max(-1000, min(1000, math.frexp(level)[1])))
         with np.errstate(over="ignore"):  # past float64 only for a scale some 1e300 times the image's
             k = np.float64(self.domain.offset) * (np.float64(scale) / s)  # not offset * scale: underflows near 5e-324
