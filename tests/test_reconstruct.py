@@ -77,6 +77,20 @@ def test_zero_smoothing_returns_the_mean(rng, domain, wavelet):
                         buf.mean, rtol=IDENTITY_RTOL, atol=IDENTITY_ATOL)
 
 
+@pytest.mark.parametrize("light, deviation", [(1e6, (1.5e-8, 4e-8)), (1e12, (1.5e-2, 4e-2))])
+def test_zero_smoothing_keeps_a_dim_background_to_float64s_resolution_of_the_range(light, deviation):
+    """Beside a small light far above the background, c_s = 0 returns the background to float64's
+    resolution at the light's level in the log domain, about 1e-14 times the range: 2.4e-8 of the
+    background beside a light 1e6 times it, 2.4% at 1e12 (docs/robustness.md, the c_s row)."""
+    rng = np.random.default_rng(1)
+    mean = 0.5 + 0.07 * rng.standard_normal((32, 32, 3))
+    variance = np.full((32, 32, 3), 0.04)
+    mean[14:18, 14:18], variance[14:18, 14:18] = light, (0.01 * light) ** 2
+    out = reconstruct(SampleBuffer.from_moments(np.full((32, 32), 8), mean, variance), c_s=0.0, stages=1)
+    worst = float((np.abs(out - mean) / mean).max())
+    assert deviation[0] < worst < deviation[1], worst
+
+
 @pytest.mark.parametrize("domain", DOMAIN_NAMES)
 @pytest.mark.parametrize("mode", ["channels", "luminance"])
 @pytest.mark.parametrize("stages", [1, 2, 3])

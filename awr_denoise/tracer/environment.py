@@ -297,7 +297,7 @@ def parse_environment(spec: dict[str, Any] | None, base_dir: Path | None = None
 
 MAX_SKY_WIDTH = 4096
 """Widest procedural sky map (its height at most half of it): 200 MB as float64, the whole sky sampled
-from it. A width of 100000 asked for 37 GiB, unchecked (a red-team pass)."""
+from it. A width of 100000, unchecked, asked for tens of GB (a red-team pass)."""
 
 
 def _sky_parameters(spec: dict[str, Any]) -> dict[str, Any]:

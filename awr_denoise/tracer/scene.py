@@ -58,12 +58,12 @@ MAX_SIDE = 2**20  # pixels per side, as the command line allows
 MAX_DEPTH = 256  # bounces: each adds two random dimensions, and memory and time grow with it
 MAX_SEGMENTS = 1024  # tessellation of spheres and lathes: a mesh of up to about a million triangles
 MAX_TRIANGLES = 2**22
-"""Triangles of a whole scene. The tracer holds each in float64 with its normals and Embree's copy: 40
-spheres of the largest tessellation, a 6.5 kB file, asked for some 48 GB (a red-team pass). The bundled
-scenes have at most 7778."""
+"""Triangles of a whole scene. The tracer holds each in float64 with its normals and Embree's copy: a
+file of a few kB of spheres of the largest tessellation asked for more memory than the machine had (a
+red-team pass). The bundled scenes hold a few thousand."""
 MAX_DELTA_LIGHTS = 64
 """Point and directional lights of a scene: each adds a shadow ray for every sample of a batch at every
-bounce, all held at once (10,000 point lights in a 0.5 MB file ran out of memory at 64x64)."""
+bounce, all held at once (thousands of point lights ran out of memory on a small image)."""
 
 
 @dataclass(frozen=True)

@@ -61,25 +61,34 @@ def test_unknown_scene_is_a_value_error_naming_it(tmp_path):
     assert not any(tmp_path.iterdir())
 
 
-def test_an_interrupt_while_the_outputs_are_written_leaves_the_old_ones(tmp_path, monkeypatch):
-    """The JSON, the figures and the page are replaced together or not at all."""
+def _interrupted_in_the_figures(monkeypatch) -> BenchmarkConfig:
+    """The smallest run that writes the JSON, the figures and the page, with a Ctrl-C once the JSON and
+    two figures are written (the third figure interrupted)."""
     pytest.importorskip("embreex")
     pytest.importorskip("skimage")
     pytest.importorskip("matplotlib")
-    from awr_denoise.bench import figures, run_benchmark
+    from awr_denoise.bench import figures
 
-    config = BenchmarkConfig.quick(scenes=("default",), width=16, height=16, spps=(4,), uniform_max_spp=8,
-                                   inline_reference_spp=16, sweep_spp=4, sweep_seeds=2, c_s_values=(1.0,),
-                                   overhead_sizes=(), oidn=False, mitsuba=False, flag_seeds=1)
-    kwargs = dict(output_dir=tmp_path / "docs", results_path=tmp_path / "q.json", progress=False)
-    run_benchmark(config, **kwargs)
-    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
-    assert len(before) >= 3
-
-    def interrupted(*args, **kwargs):  # Ctrl-C after the JSON and two figures were written
+    def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(figures, "_density", interrupted)
+    return BenchmarkConfig.quick(scenes=("default",), width=16, height=16, spps=(4,), uniform_max_spp=8,
+                                 inline_reference_spp=16, sweep_spp=4, sweep_seeds=2, c_s_values=(1.0,),
+                                 overhead_sizes=(), oidn=False, mitsuba=False, flag_seeds=1)
+
+
+def test_an_interrupt_while_the_outputs_are_written_leaves_the_old_ones(tmp_path, monkeypatch):
+    """The JSON, the figures and the page are replaced together or not at all."""
+    from awr_denoise.bench import run_benchmark
+
+    kwargs = dict(output_dir=tmp_path / "docs", results_path=tmp_path / "q.json", progress=False)
+    with monkeypatch.context() as undone:  # a first, whole run: the old outputs
+        config = _interrupted_in_the_figures(undone)
+    run_benchmark(config, **kwargs)
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    assert len(before) >= 3
+    _interrupted_in_the_figures(monkeypatch)
     with pytest.raises(KeyboardInterrupt):
         run_benchmark(dataclasses.replace(config, seed=1), **kwargs)
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before  # no temporary left either
@@ -88,19 +97,9 @@ def test_an_interrupt_while_the_outputs_are_written_leaves_the_old_ones(tmp_path
 def test_an_interrupt_while_the_outputs_are_written_removes_the_folders_it_made(tmp_path, monkeypatch):
     """New output folders (the results' and the page's, its img/) were left behind, empty, when the run
     stopped while writing into them (a red-team pass: 8 of 18 interrupts in that phase)."""
-    pytest.importorskip("embreex")
-    pytest.importorskip("skimage")
-    pytest.importorskip("matplotlib")
-    from awr_denoise.bench import figures, run_benchmark
+    from awr_denoise.bench import run_benchmark
 
-    config = BenchmarkConfig.quick(scenes=("default",), width=16, height=16, spps=(4,), uniform_max_spp=8,
-                                   inline_reference_spp=16, sweep_spp=4, sweep_seeds=2, c_s_values=(1.0,),
-                                   overhead_sizes=(), oidn=False, mitsuba=False, flag_seeds=1)
-
-    def interrupted(*args, **kwargs):
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(figures, "_density", interrupted)
+    config = _interrupted_in_the_figures(monkeypatch)
     (tmp_path / "kept").mkdir()
     with pytest.raises(KeyboardInterrupt):
         run_benchmark(config, output_dir=tmp_path / "n1" / "docs", results_path=tmp_path / "n2" / "q.json",
