@@ -1,0 +1,265 @@
+"""Every command line the docs quote is one its program accepts.
+
+The docs give a command for every figure they quote and show the ``awr`` command line by example. An
+option renamed or removed leaves those commands failing for the next reader, and a figure without a
+command that regenerates it. Here every command that the README, ``docs/*.md`` and the benchmark scripts'
+docstrings quote, in code blocks and in inline code, is checked against the parser of its program: ``awr``
+(``build_parser``) and the scripts of ``benchmarks/`` and ``tests/data/`` (their own parsers, in a child
+process, ``tests/data/script_parsers.py``). Every option word must be one the program, or the sub-command
+given, defines. A whole command (from a code block, with no placeholder such as ``DUMP.exr`` or ``N``) must
+also parse. So must the command each file of ``benchmarks/results/`` records as the one that made it (its
+``command`` or ``commands``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import json
+import re
+import shlex
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from awr_denoise.cli.errors import UsageError
+from awr_denoise.cli.main import build_parser
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+SCRIPTS = sorted((ROOT / "benchmarks").glob("*.py"))  # their module docstrings say how to run them
+
+_START = re.compile(r"^(?:\.venv/bin/)?(?:awr(?:\s|$)|python3?\s+(?:benchmarks|tests/data)/\S+\.py)")
+# A word the reader replaces (DUMP.exr, N, WxH, FILE[:plane], ...), or a synopsis' brackets and ellipses.
+_PLACEHOLDER = re.compile(r"[A-Z]{2,}|^[A-Z]$|\.\.\.|[][|<>{}]|^\$|\bW\b|^S$")
+_OPTION = re.compile(r"(?<![\w./'\"=-])(--?[A-Za-z][\w-]*)")
+
+
+@dataclass(frozen=True)
+class Quoted:
+    """One command line quoted in a doc: where, what, and whether it is whole (a code block's, no placeholder)."""
+
+    doc: str
+    line: int
+    text: str
+    block: bool
+
+    @property
+    def words(self) -> list[str]:
+        """The command's words, its shell comment and anything after a pipe left out."""
+        text = re.split(r"\s#", self.text.replace("\\|", "|"), maxsplit=1)[0]  # not shot.####.exr's
+        try:
+            words = shlex.split(text)
+        except ValueError:  # an unbalanced quote in a fragment: its option words are still checked
+            words = text.split()
+        if "|" in words:
+            words = words[: words.index("|")]
+        return words
+
+    @property
+    def whole(self) -> bool:
+        return self.block and not any(_PLACEHOLDER.search(word) for word in self.words)
+
+    @property
+    def options(self) -> list[str]:
+        """Every option word, placeholders' synopses included (``[--stages N]`` gives ``--stages``)."""
+        text = re.split(r"\s#", self.text.replace("\\|", "|"), maxsplit=1)[0].split("|")
+        found = []
+        for part in text:
+            found += _OPTION.findall(part)
+        return found
+
+    def __str__(self) -> str:
+        return f"{self.doc}:{self.line}: {self.text}"
+
+
+def _code(text: str) -> list[tuple[int, str, bool]]:
+    """(line, text, from a block) of every code block line and inline code span of a markdown page."""
+    lines = text.splitlines()
+    found: list[tuple[int, str, bool]] = []
+    fenced = False
+    for number, line in enumerate(lines, 1):
+        if line.strip().startswith("```"):
+            fenced = not fenced
+            continue
+        if fenced or line.startswith("    "):
+            found.append((number, line.strip(), True))
+    for number, line in enumerate(lines, 1):
+        found += [(number, span.strip(), False) for span in re.findall(r"`([^`]+)`", line)]
+    return found
+
+
+def _page(path: Path) -> str:
+    """A markdown page, or a script's module docstring (line numbers then count from the docstring's)."""
+    text = path.read_text(encoding="utf-8")
+    return ast.get_docstring(ast.parse(text), clean=True) or "" if path.suffix == ".py" else text
+
+
+def _pieces(code: list[tuple[int, str, bool]]) -> list[tuple[int, str, bool]]:
+    """Shell lines cut at ``&&`` and ``;`` (the README's ``python3 -m venv .venv && ... && .venv/bin/awr demo``)."""
+    return [(number, piece, block) for number, text, block in code
+            for piece in re.split(r"\s+(?:&&|;)\s+", text)]
+
+
+def quoted_commands(path: Path, root: Path = ROOT) -> list[Quoted]:
+    """The ``awr`` and script command lines ``path`` quotes, continuation lines (``\\``) joined."""
+    commands = []
+    pending: tuple[int, str] | None = None
+    for number, text, block in _pieces(_code(_page(path))):
+        if pending is not None and block:
+            pending = (pending[0], f"{pending[1]} {text}")
+        elif _START.match(text):
+            pending = (number, text)
+        else:
+            pending = None
+            continue
+        if pending[1].endswith("\\") and block:
+            pending = (pending[0], pending[1][:-1].rstrip())
+            continue
+        commands.append(Quoted(path.relative_to(root).as_posix(), pending[0], pending[1], block))
+        pending = None
+    return commands
+
+
+def _all_quoted() -> list[Quoted]:
+    return [command for path in DOCS + SCRIPTS for command in quoted_commands(path)]
+
+
+def recorded_commands(path: Path) -> list[Quoted]:
+    """The commands a results file says made it (``command``/``commands`` at any depth), as whole commands."""
+
+    def walk(node: object) -> list[str]:
+        if isinstance(node, list):
+            return [text for item in node for text in walk(item)]
+        if not isinstance(node, dict):
+            return []
+        found = []
+        for key, value in node.items():
+            if key in ("command", "commands"):
+                values = value.values() if isinstance(value, dict) else value if isinstance(value, list) else [value]
+                found += [text for text in values if isinstance(text, str)]
+            else:
+                found += walk(value)
+        return found
+
+    commands = []
+    for text in dict.fromkeys(walk(json.loads(path.read_text(encoding="utf-8")))):
+        text = re.sub(r"^(?:\.venv/bin/)?python3? ", "", text.strip())
+        commands.append(Quoted(path.relative_to(ROOT).as_posix(), 0, f"python {text}", True))
+    return commands
+
+
+def _program(command: Quoted) -> tuple[str, list[str]]:
+    """``("awr", argv)`` or ``(script path, argv)``."""
+    words = command.words
+    first = words[0].removeprefix(".venv/bin/")
+    if first == "awr":
+        return "awr", words[1:]
+    return words[1], words[2:]
+
+
+def awr_problems(command: Quoted, parser: argparse.ArgumentParser) -> list[str]:
+    """What ``awr``'s parser says against ``command``: unknown options, and its refusal of a whole command."""
+    _, argv = _program(command)
+    commands = next(action for action in parser._actions if isinstance(action, argparse._SubParsersAction))
+    name = argv[0] if argv and argv[0] in commands.choices else None
+    if name is None:  # 'awr ... --nonfinite drop': the option of some command
+        known = set(parser._option_string_actions).union(
+            *(set(sub._option_string_actions) for sub in commands.choices.values()))
+    else:
+        known = set(parser._option_string_actions) | set(commands.choices[name]._option_string_actions)
+    problems = [f"awr {name or ''} defines no option {option}".replace("  ", " ")
+                for option in command.options if option not in known]
+    if argv and argv[0] not in commands.choices and not argv[0].startswith("-") and argv[0] != "...":
+        problems.append(f"awr has no command {argv[0]!r}")
+    if command.whole and not problems and argv:
+        try:
+            parser.parse_args(argv)
+        except UsageError as exc:
+            problems.append(f"awr refuses it: {exc}")
+    return problems
+
+
+def script_problems(commands: list[Quoted]) -> list[str]:
+    """The scripts' parsers against ``commands`` (a child process: importing a script may change its process)."""
+    requests, checked = [], []
+    problems = []
+    for command in commands:
+        script, argv = _program(command)
+        if not (ROOT / script).is_file():
+            problems.append(f"{command}\n    no such script: {script}")
+            continue
+        if "argparse" not in (ROOT / script).read_text(encoding="utf-8"):
+            continue  # a script that takes positional words of its own (tests/data/generate/*.py)
+        requests.append({"script": script, "argv": argv, "options": command.options, "whole": command.whole})
+        checked.append(command)
+    result = subprocess.run([sys.executable, str(ROOT / "tests" / "data" / "script_parsers.py")],
+                            input=json.dumps(requests), capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert result.returncode == 0, result.stderr
+    for index, problem in json.loads(result.stdout):
+        problems.append(f"{checked[index]}\n    {problem}")
+    return problems
+
+
+def test_the_docs_quote_commands_of_every_program() -> None:
+    """The extraction finds what it checks: the README's main job, cli.md's synopses, the benchmark commands."""
+    quoted = _all_quoted()
+    texts = {command.text for command in quoted}
+    assert any(text.startswith(".venv/bin/awr demo") for text in texts)
+    assert "awr denoise DUMP.exr -o OUT.exr" in texts
+    scripts = {_program(command)[0] for command in quoted if _program(command)[0] != "awr"}
+    assert {"benchmarks/bench_core.py", "benchmarks/bench_reconstruct.py", "benchmarks/bench_equal_error.py",
+            "benchmarks/bench_mitsuba.py", "tests/data/regression_outputs.py"} <= scripts
+    assert sum(command.whole for command in quoted) >= 50
+
+
+def test_every_awr_command_the_docs_quote_is_one_awr_accepts() -> None:
+    parser = build_parser()
+    problems = [f"{command}\n    {problem}" for command in _all_quoted() if _program(command)[0] == "awr"
+                for problem in awr_problems(command, parser)]
+    assert not problems, "\n".join(problems)
+
+
+def test_every_script_command_the_docs_quote_is_one_the_script_accepts() -> None:
+    commands = [command for command in _all_quoted() if _program(command)[0] != "awr"]
+    problems = script_problems(commands)
+    assert not problems, "\n".join(problems)
+
+
+def test_every_command_a_results_file_records_is_one_its_script_accepts() -> None:
+    commands = [command for path in sorted((ROOT / "benchmarks" / "results").glob("*.json"))
+                for command in recorded_commands(path)]
+    assert len({command.doc for command in commands}) >= 20  # the files that record their command
+    problems = script_problems(commands)
+    assert not problems, "\n".join(problems)
+
+
+@pytest.mark.parametrize("line, expected", [
+    ("    awr denoise DUMP.exr -o OUT.exr --no-such-option", "defines no option --no-such-option"),
+    ("    awr denoise in.exr -o out.exr --stages two", "refuses it"),
+    ("Run `awr denoize in.exr` first.", "has no command 'denoize'"),
+    ("    awr render --scene cornell_gi --spp 32 \\\n      --no-such-option -o out.exr", "--no-such-option"),
+])
+def test_a_stale_awr_command_is_found(tmp_path: Path, line: str, expected: str) -> None:
+    page = tmp_path / "page.md"
+    page.write_text(f"# A page\n\n{line}\n", encoding="utf-8")
+    quoted = quoted_commands(page, root=tmp_path)
+    assert len(quoted) == 1
+    problems = awr_problems(quoted[0], build_parser())
+    assert any(expected in problem for problem in problems), problems
+
+
+@pytest.mark.parametrize("text, expected", [
+    (".venv/bin/python benchmarks/bench_core.py --only speed --no-such-option", "defines no option"),
+    (".venv/bin/python benchmarks/bench_core.py --only no_such_section", "refuses it"),
+    (".venv/bin/python benchmarks/bench_guides.py ablations --cach DIR", "defines no option --cach"),
+    (".venv/bin/python benchmarks/bench_reconstruct.py qualty --probes", "invalid choice: 'qualty'"),
+    (".venv/bin/python benchmarks/bench_nothing.py", "no such script"),
+])
+def test_a_stale_script_command_is_found(text: str, expected: str) -> None:
+    problems = script_problems([Quoted("page.md", 1, text, True)])
+    assert any(expected in problem for problem in problems), problems
+
