@@ -1,4 +1,4 @@
-"""Image error metrics for HDR renders (docs/benchmarks.md, "How quality is measured").
+"""Image error metrics for HDR renders (docs/benchmarks.md, its opening paragraphs).
 
 relMSE is the mean over pixels and channels of ``(x - r)^2 / (r^2 + eps)`` with ``eps = 0.01``
 (the usual damping, reported with every figure); SSIM is computed on a tonemapped image. Neither sees a

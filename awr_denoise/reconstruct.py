@@ -262,7 +262,8 @@ def reconstruct_detailed(
         Per-pixel sample statistics.
     c_s
         Smoothing constant of Eq. 11 in stage 1: thresholds are ``c_s`` standard errors.
-        ``0`` returns the Monte Carlo mean; about 0.5-2 is useful. Default
+        ``0`` with ``stages=1`` returns the Monte Carlo mean (as the Wiener stages' pilot, the means
+        are what they shrink against); about 0.5-2 is useful. Default
         :data:`DEFAULT_C_S` (1.0) with ``stages=1``, :data:`DEFAULT_PILOT_C_S` (2.0) when
         stage 1 is the pilot of Wiener stages.
     wavelet

@@ -129,7 +129,7 @@ class SyntheticScene:
 
 
 class SyntheticRenderer:
-    """A :class:`~awr_denoise.Renderer` (and :class:`~awr_denoise.SampleTracer`) for a :class:`SyntheticScene`.
+    """A :class:`~awr_denoise.Renderer` (and :class:`~awr_denoise.requests.SampleTracer`) for a :class:`SyntheticScene`.
 
     Attributes
     ----------

@@ -99,7 +99,7 @@ def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float | No
     ``seconds`` (``spp`` then a cap, ``None`` for none) of which ``reserve`` keeps the denoising's time
     (:meth:`~awr_denoise.Sampler.run`).
 
-    The renderer is closed afterwards when it is a :class:`~awr_denoise.SampleTracer`.
+    The renderer is closed afterwards when it is a :class:`~awr_denoise.requests.SampleTracer`.
     """
     try:
         if not adaptive:

@@ -105,7 +105,7 @@ def sample_count_scale(normalised: np.ndarray, requested: int | None, *,
     pixel has the same count (all values 1) the pass says nothing about ``S`` and the requested
     number is taken. Checked on real Blender 5.0 renders: a render
     asking for 256 samples that converged at 64 is bit-identical to one asking for 64, and this
-    returns 64 for it (tests/io/test_cycles_files.py).
+    returns 64 for it (tests/io/test_io_cycles.py).
 
     Examples
     --------

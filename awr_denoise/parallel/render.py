@@ -135,7 +135,7 @@ def _render_tile_with(renderer: Renderer, counts: np.ndarray, first_index: np.nd
                       image_shape: Shape2D, names: tuple[int, int] = (0, 0)) -> SampleBuffer:
     """Render one tile of a request and return the tile's statistics.
 
-    A :class:`~awr_denoise.SampleTracer` is asked for exactly the tile's samples; any other
+    A :class:`~awr_denoise.requests.SampleTracer` is asked for exactly the tile's samples; any other
     renderer gets a full-size request with no samples outside the tile, named as the request was
     (``names``: its round and sampler id, which a renderer may read).
     """
@@ -195,7 +195,7 @@ class TiledRenderer:
 
     Notes
     -----
-    A :class:`~awr_denoise.SampleTracer` (the bundled path tracer, the synthetic renderer, the
+    A :class:`~awr_denoise.requests.SampleTracer` (the bundled path tracer, the synthetic renderer, the
     Mitsuba 3 adapter) is asked for exactly a tile's samples, so a task's memory follows the
     tile. Any other renderer receives a full-size request with zero
     samples outside the tile and its result is cropped: correct, but each task then holds
