@@ -8,7 +8,8 @@ docstrings quote, in code blocks and in inline code, is checked against the pars
 process, ``tests/data/script_parsers.py``). Every option word must be one the program, or the sub-command
 given, defines. A whole command (from a code block, with no placeholder such as ``DUMP.exr`` or ``N``) must
 also parse. So must the command each file of ``benchmarks/results/`` records as the one that made it (its
-``command`` or ``commands``).
+``command`` or ``commands``). And every repository path the docs and the sources name (a test, a script,
+a page, a data file, ``file.py::test_name``) exists.
 """
 
 from __future__ import annotations
@@ -235,6 +236,48 @@ def test_every_command_a_results_file_records_is_one_its_script_accepts() -> Non
     assert len({command.doc for command in commands}) >= 20  # the files that record their command
     problems = script_problems(commands)
     assert not problems, "\n".join(problems)
+
+
+_PATH = re.compile(r"(?<![\w./<-])((?:tests|benchmarks|docs|data|awr_denoise|cli)/[\w./-]*\.(?:py|md|json|exr|npz|png))"
+                   r"(?:::(\w+))?")
+
+
+def named_paths(text: str) -> list[tuple[int, str, str | None]]:
+    """(line, path, test or other name after ``::``) of every repository path ``text`` names."""
+    return [(number, match.group(1).rstrip("."), match.group(2)) for number, line in enumerate(text.splitlines(), 1)
+            for match in _PATH.finditer(line)]
+
+
+def missing_paths(text: str, root: Path = ROOT) -> list[str]:
+    """The paths ``text`` names that do not exist under ``root``, and the ``file::name`` whose file defines no
+    ``name``. A placeholder in capitals (``data/references/SCENE.exr``) names no file."""
+    missing = []
+    for number, path, name in named_paths(text):
+        if re.search(r"/[A-Z_]+\.\w+$", path):
+            continue
+        target = root / path
+        if not target.exists():
+            missing.append(f"{number}: {path}")
+        elif name and target.is_file() and not re.search(rf"^\s*(?:def|class) {name}\b",
+                                                         target.read_text(encoding="utf-8"), re.MULTILINE):
+            missing.append(f"{number}: {path}::{name}")
+    return missing
+
+
+def test_every_repository_path_the_docs_and_docstrings_name_exists() -> None:
+    """A test, script, page or data file that the README, a page of docs/ or a source file names
+    (``tests/io/test_io_cycles.py``, ``tests/test_wiener.py::test_name``) exists, and defines the name."""
+    sources = [ROOT / "README.md", *DOCS[1:], *sorted(ROOT.glob("awr_denoise/**/*.py")), *sorted(ROOT.glob("cli/*.py")),
+               *SCRIPTS, *sorted(ROOT.glob("tests/**/*.py"))]
+    problems = [f"{path.relative_to(ROOT)}:{problem}" for path in sources if path.name != Path(__file__).name
+                for problem in missing_paths(path.read_text(encoding="utf-8"))]
+    assert not problems, "\n".join(problems)
+
+
+def test_a_missing_path_is_found() -> None:
+    text = "see tests/io/test_io_cycles.py and tests/io/test_cycles_files.py, tests/test_wiener.py::no_such_test\n" \
+           "and data/references/SCENE.exr"
+    assert missing_paths(text) == ["1: tests/io/test_cycles_files.py", "1: tests/test_wiener.py::no_such_test"]
 
 
 @pytest.mark.parametrize("line, expected", [
