@@ -1,6 +1,6 @@
 """Check command lines of the repository's scripts against their own argument parsers, without running them.
 
-Used by ``tests/test_docs_commands.py`` in a child process (importing a benchmark script may set environment
+Used by ``tests/test_docs.py`` in a child process (importing a benchmark script may set environment
 variables or ``sys.path`` for its run, which must not leak into the test session)::
 
     echo '[{"script": "benchmarks/bench_core.py", "argv": ["--only", "speed"], "options": ["--only"],

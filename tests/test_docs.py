@@ -1,4 +1,4 @@
-"""Every command line the docs quote is one its program accepts.
+"""The docs held to the code: the commands they quote, the files and sections they name.
 
 The docs give a command for every figure they quote and show the ``awr`` command line by example. An
 option renamed or removed leaves those commands failing for the next reader, and a figure without a
@@ -9,7 +9,8 @@ process, ``tests/data/script_parsers.py``). Every option word must be one the pr
 given, defines. A whole command (from a code block, with no placeholder such as ``DUMP.exr`` or ``N``) must
 also parse. So must the command each file of ``benchmarks/results/`` records as the one that made it (its
 ``command`` or ``commands``). And every repository path the docs and the sources name (a test, a script,
-a page, a data file, ``file.py::test_name``) exists.
+a page, a data file, ``file.py::test_name``) exists, and every section a reference quotes (``sampling.md,
+"The noise gain"``) is a heading or a bold title of that page.
 """
 
 from __future__ import annotations
@@ -272,6 +273,48 @@ def test_every_repository_path_the_docs_and_docstrings_name_exists() -> None:
     problems = [f"{path.relative_to(ROOT)}:{problem}" for path in sources if path.name != Path(__file__).name
                 for problem in missing_paths(path.read_text(encoding="utf-8"))]
     assert not problems, "\n".join(problems)
+
+
+_SECTION = re.compile(r"(\w+)\.md\)?(?:'s)?,? (?:sections? )?\"([^\"]+)\"")
+
+
+def page_titles(page: Path) -> list[str]:
+    """The headings and bold titles of a page, without their numbers (``3. Fireflies``) and code marks."""
+    text = page.read_text(encoding="utf-8")
+    titles = re.findall(r"^#+ (.+)$", text, re.MULTILINE) + re.findall(r"\*\*([^*]+)\*\*", text)
+    return [re.sub(r"^\d+\. ", "", title.strip()).replace("`", "") for title in titles]
+
+
+def missing_sections(text: str, docs: Path = ROOT / "docs") -> list[str]:
+    """The ``page.md, "Section"`` references of ``text`` whose section no heading or bold title of the page
+    begins with (``"Domains"`` finds ``Domains, and why the default is "log"``)."""
+    missing, titles = [], {}
+    for number, line in enumerate(text.splitlines(), 1):
+        for match in _SECTION.finditer(line):
+            page, section = docs / f"{match.group(1)}.md", match.group(2).rstrip(".").replace("`", "")
+            if not page.is_file():
+                continue
+            if page not in titles:
+                titles[page] = page_titles(page)
+            if not any(title.startswith(section) for title in titles[page]):
+                missing.append(f"{number}: {page.name}, \"{section}\"")
+    return missing
+
+
+def test_every_section_a_reference_quotes_is_on_its_page() -> None:
+    sources = [ROOT / "README.md", *DOCS[1:], *sorted(ROOT.glob("awr_denoise/**/*.py")), *sorted(ROOT.glob("cli/*.py")),
+               *SCRIPTS, *sorted(ROOT.glob("tests/**/*.py"))]
+    found = [len(_SECTION.findall(path.read_text(encoding="utf-8"))) for path in sources]
+    assert sum(found) >= 100  # the references this checks
+    problems = [f"{path.relative_to(ROOT)}:{problem}" for path in sources if path.name != Path(__file__).name
+                for problem in missing_sections(path.read_text(encoding="utf-8"))]
+    assert not problems, "\n".join(problems)
+
+
+def test_a_missing_section_is_found() -> None:
+    text = '(docs/benchmarks.md, "How quality is measured"); [sampling.md](sampling.md), "The noise gain";\n' \
+           'robustness.md, "Fireflies"'
+    assert missing_sections(text) == ['1: benchmarks.md, "How quality is measured"']
 
 
 def test_a_missing_path_is_found() -> None:
