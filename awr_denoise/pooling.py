@@ -6,7 +6,9 @@ would call the pixel exact and freeze it; instead it is pooled from the known pi
 
 A pixel whose samples all agreed (a sample variance of exactly 0, typically every path missed a
 small light) is not known to be exact either: its variance is moderated towards its neighbours'
-(:func:`agreed_variance`), as an empirical-Bayes prior of :data:`AGREED_PRIOR` degrees of freedom.
+(:func:`agreed_variance`), as an empirical-Bayes prior of :data:`AGREED_PRIOR` degrees of freedom. A light's rim
+seen against an exact background (samples all at the two exact levels beside it) lends nothing: it is a coverage of
+the two, not noise they share.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from functools import lru_cache
 import numpy as np
 from scipy import ndimage
 
-from . import _checks, fused
+from . import _checks, fused, rims
 from ._typing import BoolArray, CountArray, FloatArray
 
 __all__ = ["estimated_variance", "pooled_variance", "agreed_variance", "POOL_WINDOW", "JUMP_RATIO", "AGREED_PRIOR"]
@@ -83,7 +85,10 @@ def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
     ``z = s2 / (s2 + (m - c)^2)`` bounds the chance that one sample of that neighbour's distribution
     (mean ``m``, variance ``s2``) lands on ``c`` (Cantelli's inequality): ``n`` samples at 0 next to
     pixels that are sometimes 0 (a small light reached now and then) borrow their spread, next to a
-    steady light they borrow nearly nothing, and a region where every pixel agreed stays exact.
+    steady light they borrow nearly nothing, and a region where every pixel agreed stays exact. A light's rim
+    between two exact regions (every sample at one of their levels: :func:`.rims.coverage_edges`)
+    lends nothing: the background beside a light seen directly keeps no halo (docs/reconstruction.md, "Samples
+    that all agreed").
     Returns ``variance`` itself when no entry is moderated.
 
     Examples
@@ -107,6 +112,11 @@ def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
     # a region that all agreed stays 0.
     dof = np.where(known, count - 1, 0).astype(np.float64)
     spread = _in_pixels(variance > 0, dof > 0)
+    # A pixel whose samples are all at the levels of two exact regions beside it (the rim of a light seen directly
+    # against an exact background) is a coverage of those regions, not noise they could share: no source.
+    edges = rims.coverage_edges(count, mean, variance, agreed, spread, window=POOL_WINDOW, jump_ratio=JUMP_RATIO)
+    if edges is not None:
+        spread &= ~edges
     todo = agreed & _near(spread)
     entries = np.count_nonzero(todo)
     if not entries:
@@ -115,6 +125,8 @@ def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
     g = math.ldexp(1.0, math.frexp(math.sqrt(float(variance.max())))[1])
     s2 = variance / g
     s2 /= g  # in place: at 1080p every whole temporary costs its page faults on each ask()
+    if edges is not None:
+        s2[edges] = 0.0  # a chance of 0 at any other level: no weight in any pool
     dof /= dof.max()
     out = np.array(variance)
     # Pixels of one count whose samples all missed (0) share their neighbours' weights, channel by channel:

@@ -5,14 +5,16 @@ Run from the repository root::
 
     .venv/bin/python benchmarks/bench_limits.py [--chances]
 
-Four synthetic kinds of image, each with a known clean image, many noise seeds, and the same samples given to
+Five synthetic kinds of image, each with a known clean image, many noise seeds, and the same samples given to
 every method: isolated true bright pixels (glints), samples that are either a hit or exactly 0 (a small light
-reached now and then), texture at the scale of one pixel, and a dark line one pixel wide in a bright field.
+reached now and then), a light seen directly on an exact background (its rim hit or missed), texture at the scale
+of one pixel, and a dark line one pixel wide in a bright field.
 Each cell is a ratio to the plain mean's error over the same renders: of the summed MSE (or relMSE) over every
 seed (the average render), and the worst single render's ratio. Beside the default: without the SURE guard,
 without the image mean's restoration, and stage 1 alone, which says which part of the default each loss comes
 from; the guard given the Wiener stages' divergence measured by one probe (``guard_probes=1``); the clamp as
-it was before its neighbours were tested (and, with ``--chances``, at smaller least chances than the default's).
+it was before its neighbours were tested (and, with ``--chances``, at smaller least chances than the default's);
+the default before a light's rim stopped lending its spread to the exact pixels beside it.
 Results: ``benchmarks/results/limits.json``.
 """
 
@@ -27,7 +29,7 @@ from unittest import mock
 import numpy as np
 from scipy import ndimage
 
-from awr_denoise import SampleBuffer, finishing, reconstruct
+from awr_denoise import SampleBuffer, finishing, reconstruct, rims
 from awr_denoise.bench import update_section
 from awr_denoise.metrics import mse, relmse
 
@@ -45,6 +47,13 @@ MORE_CHANCES: dict[str, float] = {"pool chance 1e-4": 1e-4, "pool chance 1e-5": 
 def at_chance(buffer: SampleBuffer, chance: float) -> np.ndarray:
     """The default reconstruction with ``finishing.POOL_CHANCE`` at ``chance`` (put back afterwards)."""
     with mock.patch.object(finishing, "POOL_CHANCE", chance):
+        return reconstruct(buffer)
+
+
+def rims_lend(buffer: SampleBuffer) -> np.ndarray:
+    """The default as it was before a light's rim stopped lending its spread to the exact pixels beside it
+    (``rims.EDGE_REGION`` out of reach: no pixel is a rim; docs/reconstruction.md, "Samples that all agreed")."""
+    with mock.patch.object(rims, "EDGE_REGION", sys.maxsize):
         return reconstruct(buffer)
 
 
@@ -79,6 +88,26 @@ def hit_or_zero(p: float) -> Any:
     return make
 
 
+def light_on_black(background: float) -> Any:
+    def make(spp: int, rng: np.random.Generator) -> tuple[np.ndarray, SampleBuffer]:
+        """A disc of 100 and radius 2.5 pixels on an exact ``background``, 64x64 RGB, each sample at a uniform point
+        of its pixel: the rim hits or misses the light, every other pixel is exact (a light seen directly against
+        an empty backdrop). The clean image is each pixel's covered share, from 64x64 points."""
+        h = w = 64
+        centre = (h / 2 + 0.2, w / 2 + 0.3)
+
+        def radiance(y: np.ndarray, x: np.ndarray) -> np.ndarray:
+            return np.where((y - centre[0]) ** 2 + (x - centre[1]) ** 2 < 2.5**2, 100.0, background)
+
+        grid = (np.arange(64) + 0.5) / 64
+        y, x = np.arange(h)[:, None, None, None] + grid[:, None], np.arange(w)[None, :, None, None] + grid
+        truth = radiance(y, x).mean(axis=(2, 3))[..., None] * np.ones(3)
+        pixel = np.repeat(np.arange(h * w), spp)
+        values = radiance(pixel // w + rng.random(pixel.size), pixel % w + rng.random(pixel.size))
+        return truth, SampleBuffer.from_samples(pixel, values[:, None] * np.ones(3), (h, w))
+    return make
+
+
 def texture(low: float, high: float, log: bool, blur: float = 0.0) -> Any:
     def make(spp: int, rng: np.random.Generator) -> tuple[np.ndarray, SampleBuffer]:
         """Every pixel its own value, U(low, high) or 10^U(low, high), 64x64, relative noise 0.5; ``blur``:
@@ -105,6 +134,8 @@ CASES: list[tuple[str, Any, tuple[int, ...], int]] = [
     ("one glint of 30 on 0.1", one_glint, (4, 16), 40),
     ("hit or zero, p = 0.02", hit_or_zero(0.02), (2, 4, 8, 64), 12),
     ("hit or zero, p = 0.1", hit_or_zero(0.1), (2, 4, 8), 12),
+    ("a light of 100 seen directly on black", light_on_black(0.0), (2, 4, 16, 64), 8),
+    ("the same on an exact 0.05", light_on_black(0.05), (2, 4, 16, 64), 8),
     ("pixel-scale texture, U(0.2, 0.8)", texture(0.2, 0.8, False), (4, 16, 64, 256), 8),
     ("pixel-scale texture, 10^U(-1, 1)", texture(-1.0, 1.0, True), (4, 16, 64, 256), 8),
     ("the same, blurred by 0.5 px", texture(-1.0, 1.0, True, 0.5), (4, 16), 8),
@@ -125,7 +156,7 @@ def run(seed_scale: float = 1.0, chances: dict[str, float] = CHANCES) -> list[di
             for seed in range(max(1, round(seeds * seed_scale))):
                 truth, buffer = make(spp, np.random.default_rng(1000 * spp + seed))
                 images = {"plain": buffer.mean, **{m: reconstruct(buffer, **o) for m, o in METHODS.items()},
-                          **{m: at_chance(buffer, c) for m, c in chances.items()}}
+                          **{m: at_chance(buffer, c) for m, c in chances.items()}, "rims lend": rims_lend(buffer)}
                 for method, image in images.items():
                     rows.append({"case": name, "spp": spp, "seed": seed, "method": method,
                                  "mse": mse(image, truth), "relmse": relmse(image, truth),

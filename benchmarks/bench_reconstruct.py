@@ -41,7 +41,7 @@ from scipy import ndimage
 
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, VarianceSampler, reconstruct
 from awr_denoise import finishing as finishing_steps
-from awr_denoise import fused, pooling
+from awr_denoise import fused, pooling, rims
 from awr_denoise.bench import update_section
 from awr_denoise.features import FEATURE_CHANNELS
 from awr_denoise.finishing import RESTORE_SHARE, match_mean, restore_mean
@@ -172,6 +172,10 @@ CHANCES: dict[str, Any] = {"pool chance 1e-4": with_pool_chance(1e-4), "pool cha
 the default's 1e-3 (0, the previous form, is in COMPARED)."""
 WINDOWS: dict[str, Any] = {"guard window 13": {"guard_window": 13}, "guard window 17": {"guard_window": 17}}
 """``quality --windows`` and ``synthetic --windows``: the SURE guard's window at other sides than the default (9)."""
+RIMS: dict[str, Any] = {"rims lend": with_constant(rims, "EDGE_REGION", sys.maxsize)}
+"""``quality --rims``: the default as it was before a light's rim stopped lending its spread to the exact pixels
+beside it (``rims.EDGE_REGION`` out of reach: no pixel is a rim; docs/reconstruction.md, "Samples that all
+agreed")."""
 PROBES: dict[str, Any] = {"guard probes 1": {"guard_probes": 1}}
 """``quality --probes``, ``synthetic --probes`` and ``speed --probes``: the guard given the Wiener stages'
 divergence measured by one probe (``guard_probes``) instead of their diagonal (docs/reconstruction.md, "The
@@ -301,14 +305,17 @@ def quality_tables(rows: list[dict], method: str = "default", base: str = "stage
         print(f"| {scene} | {' / '.join(f'{g:.2f}' for g in gains)} | {m:.2f} | {r:.2f} |")
     every = [g for _, gains, _, _ in summary for g in gains]
     print(f"\ngeometric mean of the gain at 8-32 spp: {np.exp(np.mean(np.log(every))):.2f}, least {min(every):.2f}")
-    variants = (*CHEAPER, *SHIFTED, *COMPARED, *FLOORS, *PILOTS, *PRIORS, *MODERATED, *CHANCES, *WINDOWS, *PROBES)
+    variants = (*CHEAPER, *SHIFTED, *COMPARED, *FLOORS, *PILOTS, *PRIORS, *MODERATED, *CHANCES, *RIMS, *WINDOWS,
+                *PROBES)
     for other in (m for m in variants if any(r["method"] == m for r in rows)):
         cheaper_table(rows, other, method)
 
 
 def cheaper_table(rows: list[dict], cheaper: str, method: str = "default") -> None:
     """relMSE of a variant (cheaper or earlier) over the default's, and its MSE over the plain mean's, at 8-32 spp."""
-    print(f"\n| scene | relMSE {cheaper} / {method}, 8 / 16 / 32 spp | max MSE / plain ({cheaper}) |")
+    compared = sorted({r["spp"] for r in rows if r["spp"] <= 32})
+    columns = " / ".join(map(str, compared))
+    print(f"\n| scene | relMSE {cheaper} / {method}, {columns} spp | max MSE / plain ({cheaper}) |")
     print("|---|---|---|")
     ratios = []
     for renderer, scene in dict.fromkeys((r["renderer"], r["scene"]) for r in rows):
@@ -320,8 +327,8 @@ def cheaper_table(rows: list[dict], cheaper: str, method: str = "default") -> No
                     for s in sorted({r["spp"] for r in rows if r["scene"] == scene}))
         ratios += mine
         print(f"| {scene} | {' / '.join(f'{r:.2f}' for r in mine)} | {worst:.2f} |")
-    print(f"\ngeometric mean of {cheaper} / {method} at 8-32 spp: {np.exp(np.mean(np.log(ratios))):.2f}, "
-          f"most {max(ratios):.2f}")
+    print(f"\ngeometric mean of {cheaper} / {method} at {compared[0]}-{compared[-1]} spp: "
+          f"{np.exp(np.mean(np.log(ratios))):.2f}, most {max(ratios):.2f}")
 
 
 # ---------------------------------------------------------------------------- samplers
@@ -773,14 +780,15 @@ def agreed_speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
     entry gathered offset by offset (``pooling._SCATTER_SHARE`` infinite), the form before entries at 0 were weighed
     from the spread pixels outward; and, where numba is installed (extra ``fast``), the moderation and ``ask()`` with
     the moderation's compiled loop (``AWR_DENOISE_KERNELS=numba``, ``pooling._moderation_loop``); and the moderation
-    and ``ask()`` with the masks as they were made before (:func:`_masks_as_before`), each ratio this version's time
-    over theirs."""
+    and ``ask()`` with the masks as they were made before (:func:`_masks_as_before`) and with no light's rim looked
+    for (:func:`_rims_lend`), each ratio this version's time over theirs."""
     rows = []
     compiled = "numba" in fused.available()
     print("| image | buffer | moderation alone | gathered only | ratio | default | held exact | ratio | ask() "
           "| held exact | ratio |" + (" moderation, compiled | ratio | ask(), compiled | ratio |" if compiled else "")
-          + " moderation, masks as before | ratio | ask(), masks as before | ratio |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|" + "---|" * 4 * compiled + "---|" * 4)
+          + " moderation, masks as before | ratio | ask(), masks as before | ratio | moderation, rims lend | ratio "
+          "| ask(), rims lend | ratio |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|" + "---|" * 4 * compiled + "---|" * 8)
     for size in sizes:
         for kind, buffer in agreed_buffers(SIZES[size]).items():
             # Each case is set up untimed and returns the call that is timed: a sampler that has the buffer is
@@ -801,6 +809,9 @@ def agreed_speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
             cases["moderation, masks as before"] = lambda m=moderate: partial(_masks_as_before, m)
             cases["ask(), masks as before"] = lambda b=buffer: partial(_masks_as_before,
                                                                        AdaptiveSampler.from_buffer(b, round=1).ask)
+            cases["moderation, rims lend"] = lambda m=moderate: partial(_rims_lend, m)
+            cases["ask(), rims lend"] = lambda b=buffer: partial(_rims_lend,
+                                                                 AdaptiveSampler.from_buffer(b, round=1).ask)
             seconds: dict[str, list[float]] = {name: [] for name in cases}
             names = list(cases)
             for round_ in range(1 + (repeats or (3 if size == "1080p" else 9))):
@@ -818,6 +829,7 @@ def agreed_speed(sizes: list[str], repeats: int) -> list[dict[str, Any]]:
             print(f"| {size} | {kind} | {m[0]:.3f} s | {m[1]:.3f} s | {m[0] / m[1]:.2f} | {m[2]:.3f} s | {m[3]:.3f} s "
                   f"| {m[2] / m[3]:.2f} | {m[4]:.3f} s | {m[5]:.3f} s | {m[4] / m[5]:.2f} |"
                   + (f" {m[6]:.3f} s | {m[6] / m[0]:.2f} | {m[7]:.3f} s | {m[7] / m[4]:.2f} |" if compiled else "")
+                  + f" {m[-4]:.3f} s | {m[0] / m[-4]:.2f} | {m[-3]:.3f} s | {m[4] / m[-3]:.2f} |"
                   + f" {m[-2]:.3f} s | {m[0] / m[-2]:.2f} | {m[-1]:.3f} s | {m[4] / m[-1]:.2f} |", flush=True)
     return rows
 
@@ -842,6 +854,13 @@ def _masks_as_before(run: Any) -> Any:
     with mock.patch.object(pooling, "_near", lambda mask: ndimage.maximum_filter(mask, size=size, mode="nearest")), \
             mock.patch.object(pooling, "_in_pixels", lambda plane, pixels: plane & pixels[..., None]), \
             mock.patch.object(pooling, "_nonzero", np.nonzero):
+        return run()
+
+
+def _rims_lend(run: Any) -> Any:
+    """``run()`` as before a light's rim stopped lending its spread: no pixel is a rim (``rims.EDGE_REGION`` out of
+    reach), so no rim is looked for past the test for two agreeing levels."""
+    with mock.patch.object(rims, "EDGE_REGION", sys.maxsize):
         return run()
 
 
@@ -894,6 +913,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="quality: also every variance moderated towards its neighbours' (moderated_variances.py)")
     parser.add_argument("--chances", action="store_true",
                         help="quality: also other least chances for the clamp's neighbours (CHANCES)")
+    parser.add_argument("--rims", action="store_true",
+                        help="quality: also the default before a light's rim stopped lending its spread (RIMS)")
     parser.add_argument("--caps", action="store_true", help="samplers: also other absolute_above values (CAPS)")
     parser.add_argument("--initials", action="store_true", help="samplers: also other initial_spp values (INITIALS)")
     parser.add_argument("--windows", action="store_true", help="quality, synthetic: also other guard windows (WINDOWS)")
@@ -911,7 +932,7 @@ def main(argv: list[str] | None = None) -> int:
                         **(COMPARED if args.compare else {}),
                         **(FLOORS if args.floors else {}), **(PILOTS if args.pilots else {}),
                         **(PRIORS if args.priors else {}), **(MODERATED if args.moderated else {}),
-                        **(CHANCES if args.chances else {}),
+                        **(CHANCES if args.chances else {}), **(RIMS if args.rims else {}),
                         **(WINDOWS if args.windows else {}), **(PROBES if args.probes else {})})
         update_section(args.output, "quality", rows, command)
         quality_tables(rows)

@@ -10,7 +10,7 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 from scipy import ndimage
 
-from awr_denoise import AdaptiveSampler, SampleBuffer, fused, pooling, reconstruct
+from awr_denoise import AdaptiveSampler, SampleBuffer, fused, pooling, reconstruct, rims
 from awr_denoise.pooling import AGREED_PRIOR, POOL_WINDOW, agreed_variance, estimated_variance
 from awr_denoise.prepare import prepare
 
@@ -26,10 +26,16 @@ def kernels(request):
 
 
 def _reference(count, mean, variance, known, prior=AGREED_PRIOR):
-    """agreed_variance written out pixel by pixel (the window's edges repeated, as ``mode="nearest"``)."""
+    """agreed_variance written out pixel by pixel (the window's edges repeated, as ``mode="nearest"``); a light's
+    rim lends nothing (``rims.coverage_edges``, held to its own definition in tests/test_rims.py)."""
     h, w, channels = mean.shape
     r = POOL_WINDOW // 2
     out = np.array(variance)
+    known_pixels = np.asarray(known)[..., None]
+    rim = rims.coverage_edges(count, mean, variance, known_pixels & (variance == 0),
+                              known_pixels & (np.asarray(count)[..., None] >= 2) & (variance > 0),
+                              window=POOL_WINDOW, jump_ratio=pooling.JUMP_RATIO)
+    rim = np.zeros(mean.shape, bool) if rim is None else rim
     for i in range(h):
         for j in range(w):
             for c in range(channels):
@@ -39,7 +45,7 @@ def _reference(count, mean, variance, known, prior=AGREED_PRIOR):
                 for y in range(i - r, i + r + 1):
                     for x in range(j - r, j + r + 1):
                         yy, xx = min(max(y, 0), h - 1), min(max(x, 0), w - 1)
-                        if not known[yy, xx]:
+                        if not known[yy, xx] or rim[yy, xx, c]:
                             continue
                         s2, gap = variance[yy, xx, c], mean[yy, xx, c] - mean[i, j, c]
                         with np.errstate(over="ignore"):  # a gap past float64 is a chance of 0
@@ -102,6 +108,60 @@ def test_a_steady_light_lends_next_to_nothing():
     sometimes = agreed_variance(count, mean, variance, count >= 2)[:, 2, 0]
     assert (steady > 0).all() and (steady < 1e-10).all()
     assert (sometimes > 1e7 * steady).all()
+
+
+def _light_on_black(spp, seed=0, level=100.0, background=0.0, shape=(24, 24), radius=4.5):
+    """A disc of ``level`` on an exact ``background`` whose samples land uniformly in each pixel: the rim's hit or
+    miss, every other pixel exact (a light seen directly against an empty backdrop)."""
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    pixel = np.repeat(np.arange(h * w), spp)
+    y = pixel // w + rng.random(pixel.size)
+    x = pixel % w + rng.random(pixel.size)
+    inside = (y - h / 2 - 0.3) ** 2 + (x - w / 2 - 0.2) ** 2 < radius**2
+    values = np.where(inside, level, background)[:, None] * np.ones((1, 3))
+    return SampleBuffer.from_samples(pixel, values, shape)
+
+
+@pytest.mark.parametrize("spp", [2, 4, 16])
+def test_a_lights_rim_lends_the_exact_background_nothing(spp):
+    """Before: the background's zeros borrowed the rim's spread (a rim pixel is 0 whenever its samples miss), and the
+    stages spread the light into them (relMSE hundreds of times the plain mean's: benchmarks/bench_limits.py). Its
+    samples are all at the inside's level or the background's: a coverage of the two, not noise."""
+    buf = _light_on_black(spp)
+    missed = buf.variance_known & (buf.mean[..., 0] == 0)
+    rim = (buf.variance[..., 0] > 0) & buf.variance_known
+    assert rim.sum() >= 8 and missed.sum() > 100
+    out = agreed_variance(buf.count, buf.mean, buf.variance, buf.variance_known)
+    assert_array_equal(out[missed], 0.0)
+    assert_array_equal(out[rim], buf.variance[rim])  # the rim keeps its own
+    assert_allclose(out, _reference(buf.count, buf.mean, buf.variance, buf.variance_known), rtol=1e-12, atol=0)
+    image = reconstruct(buf)
+    assert np.abs(image[missed & (np.abs(np.arange(24)[:, None] - 12) > 7)]).max() == 0.0
+    assert image[missed].max() < 1e-6 * 100
+
+
+def test_a_rim_between_close_levels_still_lends():
+    """Two exact regions within JUMP_RATIO of each other (texels of a texture): the pixels between them may be
+    either, so the agreeing ones beside them still borrow their spread."""
+    buf = _light_on_black(4, level=3.0, background=1.0)
+    agreed = buf.variance_known[..., None] & (buf.variance == 0)
+    near_rim = agreed & ndimage.binary_dilation((buf.variance > 0).any(2), iterations=1)[..., None]
+    out = agreed_variance(buf.count, buf.mean, buf.variance, buf.variance_known)
+    assert (out[near_rim] > 0).all()
+
+
+def test_a_pixel_whose_samples_all_hit_still_borrows():
+    """One pixel whose samples all hit a small light (its level held by no region) beside pixels that hit or missed:
+    not a rim's inside, so its neighbours lend it their spread as before."""
+    count = np.full((7, 7), 2)
+    mean, variance = np.zeros((7, 7, 1)), np.zeros((7, 7, 1))
+    mean[2:5, 2:5], variance[2:5, 2:5] = 25.0, 1250.0   # samples 0 and 50 around ...
+    mean[3, 3], variance[3, 3] = 50.0, 0.0              # ... samples 50 and 50
+    out = agreed_variance(count, mean, variance, count >= 2)
+    assert out[3, 3, 0] > 0
+    assert (out[1, 1:6, 0] > 0).all()  # the background beside them too
+    assert_allclose(out, _reference(count, mean, variance, count >= 2), rtol=1e-12, atol=0)
 
 
 @pytest.mark.parametrize("spp", [2, 8, 64])

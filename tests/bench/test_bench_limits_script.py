@@ -24,12 +24,25 @@ def test_each_case_makes_the_image_it_describes(bench):
     assert (truth[:, 32] == 0.01).all() and (np.delete(truth, 32, axis=1) == 10.0).all()
 
 
+def test_the_light_on_black_and_the_rims_lend_column(bench):
+    """A disc of 100 on exact black whose rim is hit or missed; "rims lend" is the default before the rim stopped
+    lending its spread (a halo in the black beside it), and puts ``rims.EDGE_REGION`` back."""
+    from awr_denoise import reconstruct, rims
+    truth, buffer = bench.light_on_black(0.0)(4, np.random.default_rng(0))
+    assert truth.max() == 100.0 and truth.min() == 0.0 and ((truth > 0) & (truth < 100)).any()
+    assert ((buffer.variance > 0) & (buffer.mean < 100)).any()  # a rim: hits and misses
+    black = (buffer.mean[..., 0] == 0) & (buffer.variance[..., 0] == 0)
+    assert reconstruct(buffer)[black].max() == 0.0
+    assert bench.rims_lend(buffer)[black].max() > 1.0
+    assert rims.EDGE_REGION == 2
+
+
 def test_a_short_run_records_every_case_and_prints_its_table(bench, tmp_path, capsys):
     out = tmp_path / "limits.json"
     assert bench.main(["--seed-scale", "0.01", "--output", str(out)]) == 0
     rows = json.loads(out.read_text())["limits"]["rows"]
     assert {r["case"] for r in rows} == {name for name, *_ in bench.CASES}
-    assert {r["method"] for r in rows} == {"plain", *bench.METHODS, *bench.CHANCES}
+    assert {r["method"] for r in rows} == {"plain", *bench.METHODS, *bench.CHANCES, "rims lend"}
     assert all(np.isfinite(r["mse"]) and np.isfinite(r["relmse"]) for r in rows)
     printed = capsys.readouterr().out
     assert all(f"| {name} |" in printed for name, *_ in bench.CASES)
@@ -48,5 +61,5 @@ def test_the_chance_columns_set_the_clamps_chance_and_put_it_back(bench, tmp_pat
     out = tmp_path / "limits.json"
     assert bench.main(["--seed-scale", "0.01", "--chances", "--output", str(out)]) == 0
     rows = json.loads(out.read_text())["limits"]["rows"]
-    assert {r["method"] for r in rows} == {"plain", *bench.METHODS, *bench.CHANCES, *bench.MORE_CHANCES}
+    assert {r["method"] for r in rows} == {"plain", *bench.METHODS, *bench.CHANCES, *bench.MORE_CHANCES, "rims lend"}
     assert "pool chance 1e-5: MSE, relMSE / plain (worst render)" in capsys.readouterr().out

@@ -93,11 +93,24 @@ def test_the_agreed_section_times_every_case(bench, capsys):
     assert [r["buffer"] for r in rows] == ["black squares, 8 spp", "hit or zero, 2 spp", "hit or zero, 2-39 spp"]
     compiled = {"moderation, compiled", "ask(), compiled"} if "numba" in fused.available() else set()
     cases = {"moderation alone", "moderation, gathered only", "default", "agreed samples held exact", "ask()",
-             "ask(), agreed samples held exact", "moderation, masks as before", "ask(), masks as before"}
+             "ask(), agreed samples held exact", "moderation, masks as before", "ask(), masks as before",
+             "moderation, rims lend", "ask(), rims lend"}
     assert all(set(r["seconds"]) == cases | compiled for r in rows)
     out = capsys.readouterr().out
     assert "| 128x128 | hit or zero, 2 spp |" in out
     assert ("moderation, compiled" in out) == bool(compiled)
+
+
+def test_rims_lend_looks_for_no_rim_and_puts_the_region_back(bench, monkeypatch):
+    """The agreed section's "rims lend" cases: no light's rim is looked for past the test for two levels, as
+    before the rims stopped lending, and ``rims.EDGE_REGION`` is the default's again afterwards."""
+    from awr_denoise import pooling, rims
+    calls = []
+    real = rims.coverage_edges
+    monkeypatch.setattr(rims, "coverage_edges", lambda *a, **k: calls.append(real(*a, **k)) or calls[-1])
+    b = bench.agreed_buffers((64, 64))["hit or zero, 2 spp"]
+    bench._rims_lend(lambda: pooling.estimated_variance(b.count, b.mean, b.variance, b.variance_known))
+    assert calls == [None] and rims.EDGE_REGION == 2
 
 
 def test_compiled_runs_with_the_compiled_moderation_and_puts_the_backend_back(bench, monkeypatch):

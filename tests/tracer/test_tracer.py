@@ -882,3 +882,35 @@ def test_process_workers_trace_the_same_samples_as_threads() -> None:
     assert spawned.stats["rays"] == threaded.stats["rays"] > 0
     with pytest.raises(ValueError, match="workers: 'gpu' is not one of threads, processes"):
         PathTracer(scene, workers="gpu")
+
+
+LAMP_ON_BLACK = {
+    "name": "lamp_on_black", "dimension": 4, "width": 48, "height": 48,
+    "camera": {"from": [0.0, 0.0, 5.0], "to": [0.0, 0.0, 0.0], "fov": 30},
+    "integrator": {"max_depth": 0},
+    "materials": {"white": {"type": "diffuse", "albedo": [0.7, 0.7, 0.7]}},
+    "objects": [
+        {"name": "lamp", "shape": "sphere", "center": [-0.5, 0.2, 0.0], "radius": 0.15, "emission": [60.0, 55.0, 45.0]},
+        {"name": "ball", "shape": "sphere", "center": [0.6, -0.2, 0.0], "radius": 0.5, "material": "white"},
+    ],
+}
+
+
+@pytest.mark.parametrize("spp", [2, 4, 16])
+def test_a_lamp_seen_directly_on_black_gets_no_halo(spp) -> None:
+    """A lamp against an empty backdrop: its inside is exact (every sample its emission), its rim hits or misses it,
+    the black beside it is exact. Before, the black borrowed the rim's spread (samples that all agreed at 0 are
+    moderated towards their neighbours') and the Wiener stages spread the lamp into it, a halo (docs/reconstruction.md,
+    "Samples that all agreed", "A light's rim"). The rim is now told from its samples (all at the two levels beside
+    it) and lends nothing: the black stays black."""
+    from awr_denoise import reconstruct
+    from scipy import ndimage
+
+    tracer = PathTracer(load_scene(LAMP_ON_BLACK), seed=3, threads=1)
+    buffer = tracer(SampleRequest.uniform(tracer.shape, spp))
+    lamp = (buffer.mean[..., 0] == 60.0) & (buffer.variance[..., 0] == 0)
+    assert lamp.sum() >= 9
+    beside = ndimage.binary_dilation(lamp, iterations=4) & (buffer.mean[..., 0] == 0) & buffer.variance_known
+    assert beside.sum() > 20
+    image = reconstruct(buffer)
+    assert np.abs(image[beside]).max() < 1e-6 * 60.0
