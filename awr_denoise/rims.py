@@ -15,28 +15,30 @@ import numpy as np
 
 from ._typing import BoolArray, CountArray, FloatArray
 
-__all__ = ["coverage_edges", "EDGE_TOLERANCE", "EDGE_REGION"]
+__all__ = ["coverage_edges", "EDGE_TOLERANCE", "EDGE_BLOCK"]
 
 EDGE_TOLERANCE = 1e-5
-"""Relative tolerance (of the squared gap between the two levels) within which a pixel's samples count as all at
-two levels: the Bhatia-Davis bound ``(m - lo)(hi - m)`` on the variance of values in ``[lo, hi]``, reached only by
-values all at ``lo`` or ``hi``, against ``(n - 1) / n`` of the unbiased sample variance (float32 files included)."""
+"""Tolerance within which a pixel's samples count as all at two levels ``lo < hi``, in units of the gap
+``hi - lo``: its population variance against the Bhatia-Davis bound ``(m - lo)(hi - m)``, both over the squared gap,
+and its share of samples at ``hi``, ``n (m - lo) / (hi - lo)``, against a whole number (over ``n``), float32 files
+included."""
 
-EDGE_REGION = 2
-"""Agreeing pixels at each of the two levels a rim's window must hold: regions, not a pixel whose few samples all
-hit (which must still borrow its neighbours' spread)."""
+EDGE_BLOCK = 2
+"""Side of the square of agreeing pixels at one level that makes that level an exact region's: a light's inside, a
+backdrop. Pixels that agreed by chance (two samples that both hit a light reached half the time) seldom fill one,
+and a level held by no such square makes no rim."""
 
 
 def coverage_edges(count: CountArray, mean: FloatArray, variance: FloatArray, agreed: BoolArray, spread: BoolArray,
                    *, window: int, jump_ratio: float) -> BoolArray | None:
     """(H, W, C) True at the spread entries that are a light's rim between two exact regions; None where none is.
 
-    An entry is a rim where its samples all lie at two levels ``lo < hi``: the least and greatest levels of the
-    agreeing entries (``agreed``: two or more samples, variance 0) in its ``window`` square (cut at the image's
-    edges), each held by at least :data:`EDGE_REGION` of them, and further apart than ``jump_ratio`` (texels of a
-    texture side by side are not a rim). Its samples are all at ``lo`` or ``hi`` where ``(n - 1) / n`` of its
-    unbiased variance reaches the Bhatia-Davis bound ``(m - lo)(hi - m)``, to :data:`EDGE_TOLERANCE` of
-    ``(hi - lo)^2``.
+    An exact region's level is one that fills an :data:`EDGE_BLOCK` square of agreeing entries (``agreed``: two or
+    more samples, variance 0). An entry is a rim where its samples all lie at two such levels ``lo < hi``: the least
+    and greatest of them in its ``window`` square (cut at the image's edges), further apart than ``jump_ratio``
+    (texels of a texture side by side are not a rim). Its samples are all at ``lo`` or ``hi`` where ``(n - 1) / n`` of
+    its unbiased variance reaches the Bhatia-Davis bound ``(m - lo)(hi - m)`` and ``n (m - lo) / (hi - lo)`` is a
+    whole number of samples, each to :data:`EDGE_TOLERANCE` (in units of the gap).
 
     Parameters
     ----------
@@ -57,42 +59,44 @@ def coverage_edges(count: CountArray, mean: FloatArray, variance: FloatArray, ag
 
     >>> import numpy as np
     >>> from awr_denoise.rims import coverage_edges
-    >>> count = np.full((3, 7), 4)
-    >>> mean = np.array([[0.0, 0.0, 25.0, 100.0, 100.0, 75.0, 0.0]] * 3)[..., None]
+    >>> count = np.full((3, 8), 4)
+    >>> mean = np.array([[0.0, 0.0, 25.0, 100.0, 100.0, 75.0, 0.0, 0.0]] * 3)[..., None]
     >>> variance = np.zeros_like(mean)
     >>> variance[:, 2], variance[:, 5] = 2500.0, 2500.0      # samples 0, 0, 0, 100 and 0, 100, 100, 100
     >>> agreed, spread = variance == 0, variance > 0
     >>> coverage_edges(count, mean, variance, agreed, spread, window=5, jump_ratio=4.0)[0, :, 0]
-    array([False, False,  True, False, False,  True, False])
+    array([False, False,  True, False, False,  True, False, False])
     >>> variance[:, 2] = 2000.0                              # spread inside the range: noise, not a coverage
     >>> coverage_edges(count, mean, variance, agreed, spread, window=5, jump_ratio=4.0)[0, :, 0]
-    array([False, False, False, False, False,  True, False])
+    array([False, False, False, False, False,  True, False, False])
     """
     h, w, channels = mean.shape
     r = window // 2
     edges = None
+    if EDGE_BLOCK > min(h, w):
+        return None
     for c in range(channels):
         at = agreed[..., c]
-        if np.count_nonzero(at) < 2 * EDGE_REGION:
+        if np.count_nonzero(at) < 2 * EDGE_BLOCK**2:
             continue
         level = mean[..., c]
         other = np.logical_and(level != level.flat[np.argmax(at)], at)
-        if not other.any():
-            continue  # one level (a black background): no rim between two
-        # A rim lies within the window of an agreeing pixel at another level than the first one found: the box
-        # around those (a light's inside) bounds the work, not the image.
-        lines, columns = np.flatnonzero(other.any(axis=1)), np.flatnonzero(other.any(axis=0))
-        top, bottom = max(lines[0] - r, 0), min(lines[-1] + r + 1, h)
-        left, right = max(columns[0] - r, 0), min(columns[-1] + r + 1, w)
-        # Agreeing levels of the box and a margin of the window's half, NaN elsewhere and past the image.
-        padded = np.full((bottom - top + 2 * r, right - left + 2 * r), np.nan)
-        inner = (slice(max(top - r, 0), min(bottom + r, h)), slice(max(left - r, 0), min(right + r, w)))
-        np.copyto(padded[inner[0].start - top + r:inner[0].stop - top + r,
-                         inner[1].start - left + r:inner[1].stop - left + r], level[inner], where=at[inner])
-        lo = _window_extreme(padded, np.fmin, window, bottom - top, right - left)
-        hi = _window_extreme(padded, np.fmax, window, bottom - top, right - left)
+        # A second region's square holds agreeing pixels at another level than the first one found (a light's inside
+        # beside a black backdrop): none, no rim between two; the box around them bounds the work, not the image.
+        square = other[:h - EDGE_BLOCK + 1, :w - EDGE_BLOCK + 1].copy()
+        for i in range(EDGE_BLOCK):
+            for j in range(EDGE_BLOCK):
+                square &= other[i:h - EDGE_BLOCK + 1 + i, j:w - EDGE_BLOCK + 1 + j]
+        if not square.any():
+            continue
+        lines, columns = np.flatnonzero(square.any(axis=1)), np.flatnonzero(square.any(axis=0))
+        top, bottom = max(lines[0] - r, 0), min(lines[-1] + EDGE_BLOCK - 1 + r + 1, h)
+        left, right = max(columns[0] - r, 0), min(columns[-1] + EDGE_BLOCK - 1 + r + 1, w)
+        regions = _region_levels(level, at, top, bottom, left, right, r)
+        lo = _window_extreme(regions, np.fmin, window, bottom - top, right - left)
+        hi = _window_extreme(regions, np.fmax, window, bottom - top, right - left)
         box = level[top:bottom, left:right]
-        with np.errstate(invalid="ignore"):  # NaN where the window holds no agreeing pixel: never a candidate
+        with np.errstate(invalid="ignore"):  # NaN where the window holds no region: never a candidate
             candidate = np.less(lo, box) & np.less(box, hi) & spread[top:bottom, left:right, c]
         rows, cols = np.nonzero(candidate)
         if not rows.size:
@@ -100,25 +104,52 @@ def coverage_edges(count: CountArray, mean: FloatArray, variance: FloatArray, ag
         lo, hi, m = lo[rows, cols], hi[rows, cols], box[rows, cols]
         rows, cols = rows + top, cols + left
         n = count[rows, cols].astype(np.float64)
-        gap = hi - lo
-        population = variance[rows, cols, c] * ((n - 1.0) / n)
-        # Two levels close to each other (a texture's neighbouring texels) leave the spread to share, as an unknown
-        # variance may be borrowed within the jump ratio of a pixel's level.
-        close = ((lo > 0) & (hi <= jump_ratio * lo)) | ((hi < 0) & (-lo <= -jump_ratio * hi))
-        keep = (np.abs(population - (m - lo) * (hi - m)) <= EDGE_TOLERANCE * gap * gap) & ~close
-        rows, cols, lo, hi = rows[keep], cols[keep], lo[keep], hi[keep]
-        at_lo, at_hi = np.zeros(rows.size, np.int64), np.zeros(rows.size, np.int64)
-        for i in range(window):
-            for j in range(window):
-                neighbour = padded[rows - top + i, cols - left + j]
-                at_lo += neighbour == lo
-                at_hi += neighbour == hi
-        rim = (at_lo >= EDGE_REGION) & (at_hi >= EDGE_REGION)
+        with np.errstate(over="ignore", invalid="ignore"):  # a gap past float64 is no rim
+            gap = hi - lo
+            below, above = (m - lo) / gap, (hi - m) / gap
+            population = variance[rows, cols, c] / gap / gap * ((n - 1.0) / n)
+            hits = n * below
+            # Two levels close to each other (a texture's neighbouring texels) leave the spread to share, as an
+            # unknown variance may be borrowed within the jump ratio of a pixel's level.
+            close = ((lo > 0) & (hi <= jump_ratio * lo)) | ((hi < 0) & (-lo <= -jump_ratio * hi))
+            rim = (np.abs(population - below * above) <= EDGE_TOLERANCE) & ~close & np.isfinite(gap) \
+                & (np.abs(hits - np.round(hits)) <= EDGE_TOLERANCE * n) & (hits > 0.5) & (hits < n - 0.5)
         if rim.any():
             if edges is None:
                 edges = np.zeros(mean.shape, dtype=bool)
             edges[rows[rim], cols[rim], c] = True
     return edges
+
+
+def _region_levels(level: FloatArray, at: BoolArray, top: int, bottom: int, left: int, right: int,
+                   r: int) -> FloatArray:
+    """The levels of the box ``[top, bottom) x [left, right)`` with a margin of ``r`` that fill an :data:`EDGE_BLOCK`
+    square of agreeing pixels (an exact region's), NaN elsewhere and past the image."""
+    h, w = level.shape
+    k = EDGE_BLOCK
+    # Agreeing levels over the box, a margin of r and the block's reach beyond it (NaN past the image).
+    reach = r + k - 1
+    padded = np.full((bottom - top + 2 * reach, right - left + 2 * reach), np.nan)
+    inner = (slice(max(top - reach, 0), min(bottom + reach, h)), slice(max(left - reach, 0), min(right + reach, w)))
+    np.copyto(padded[inner[0].start - top + reach:inner[0].stop - top + reach,
+                     inner[1].start - left + reach:inner[1].stop - left + reach], level[inner], where=at[inner])
+    ph, pw = padded.shape
+    # A k x k square is uniform where its least and greatest levels are equal (NaN, a pixel that did not agree,
+    # compares unequal): np.minimum and np.maximum carry NaN.
+    low, high = padded[:ph - k + 1, :pw - k + 1].copy(), padded[:ph - k + 1, :pw - k + 1].copy()
+    for i in range(k):
+        for j in range(k):
+            np.minimum(low, padded[i:ph - k + 1 + i, j:pw - k + 1 + j], out=low)
+            np.maximum(high, padded[i:ph - k + 1 + i, j:pw - k + 1 + j], out=high)
+    uniform = low == high
+    block = np.zeros(padded.shape, dtype=bool)
+    for i in range(k):
+        for j in range(k):
+            block[i:ph - k + 1 + i, j:pw - k + 1 + j] |= uniform
+    # The box with a margin of r: what its windows read.
+    cut = k - 1
+    out = np.where(block, padded, np.nan)
+    return out[cut:ph - cut, cut:pw - cut]
 
 
 def _window_extreme(padded: FloatArray, extreme: np.ufunc, window: int, h: int, w: int) -> FloatArray:

@@ -52,8 +52,8 @@ def at_chance(buffer: SampleBuffer, chance: float) -> np.ndarray:
 
 def rims_lend(buffer: SampleBuffer) -> np.ndarray:
     """The default as it was before a light's rim stopped lending its spread to the exact pixels beside it
-    (``rims.EDGE_REGION`` out of reach: no pixel is a rim; docs/reconstruction.md, "Samples that all agreed")."""
-    with mock.patch.object(rims, "EDGE_REGION", sys.maxsize):
+    (``rims.EDGE_BLOCK`` out of reach: no pixel is a rim; docs/reconstruction.md, "Samples that all agreed")."""
+    with mock.patch.object(rims, "EDGE_BLOCK", sys.maxsize):
         return reconstruct(buffer)
 
 
@@ -88,24 +88,50 @@ def hit_or_zero(p: float) -> Any:
     return make
 
 
-def light_on_black(background: float) -> Any:
+def covered(radiance: Any, spp: int, rng: np.random.Generator, moving: bool = False) -> tuple[np.ndarray, SampleBuffer]:
+    """64x64 RGB pixels of ``radiance(y, x[, t])`` (one channel, repeated), each sample at a uniform point of its
+    pixel (and time in [0, 1) where ``moving``): the clean image is each pixel's mean over 64x64 points (and 8
+    times), the samples hit or miss what they cover."""
+    h = w = 64
+    grid = (np.arange(64) + 0.5) / 64
+    y, x = np.arange(h)[:, None, None, None] + grid[:, None], np.arange(w)[None, :, None, None] + grid
+    if moving:
+        truth = np.mean([radiance(y, x, (k + 0.5) / 8).mean(axis=(2, 3)) for k in range(8)], axis=0)
+    else:
+        truth = radiance(y, x).mean(axis=(2, 3))
+    pixel = np.repeat(np.arange(h * w), spp)
+    at = (pixel // w + rng.random(pixel.size), pixel % w + rng.random(pixel.size))
+    values = radiance(*at, rng.random(pixel.size)) if moving else radiance(*at)
+    return truth[..., None] * np.ones(3), SampleBuffer.from_samples(pixel, values[:, None] * np.ones(3), (h, w))
+
+
+def light_on_black(background: float, radius: float = 2.5, level: float = 100.0) -> Any:
     def make(spp: int, rng: np.random.Generator) -> tuple[np.ndarray, SampleBuffer]:
-        """A disc of 100 and radius 2.5 pixels on an exact ``background``, 64x64 RGB, each sample at a uniform point
-        of its pixel: the rim hits or misses the light, every other pixel is exact (a light seen directly against
-        an empty backdrop). The clean image is each pixel's covered share, from 64x64 points."""
-        h = w = 64
-        centre = (h / 2 + 0.2, w / 2 + 0.3)
-
+        """A disc of ``level`` on an exact ``background``: the rim hits or misses the light, every other pixel is
+        exact (a light seen directly against an empty backdrop)."""
         def radiance(y: np.ndarray, x: np.ndarray) -> np.ndarray:
-            return np.where((y - centre[0]) ** 2 + (x - centre[1]) ** 2 < 2.5**2, 100.0, background)
-
-        grid = (np.arange(64) + 0.5) / 64
-        y, x = np.arange(h)[:, None, None, None] + grid[:, None], np.arange(w)[None, :, None, None] + grid
-        truth = radiance(y, x).mean(axis=(2, 3))[..., None] * np.ones(3)
-        pixel = np.repeat(np.arange(h * w), spp)
-        values = radiance(pixel // w + rng.random(pixel.size), pixel % w + rng.random(pixel.size))
-        return truth, SampleBuffer.from_samples(pixel, values[:, None] * np.ones(3), (h, w))
+            return np.where((y - 32.2) ** 2 + (x - 32.3) ** 2 < radius**2, level, background)
+        return covered(radiance, spp, rng)
     return make
+
+
+def small_lights(spp: int, rng: np.random.Generator) -> tuple[np.ndarray, SampleBuffer]:
+    """Twelve lights of 1000 and radius 1.2 pixels on black: too small for an exact inside."""
+    centres = rng.uniform(4, 60, (12, 2))
+
+    def radiance(y: np.ndarray, x: np.ndarray) -> np.ndarray:
+        inside = np.zeros(np.broadcast(y, x).shape, dtype=bool)
+        for cy, cx in centres:
+            inside |= (y - cy) ** 2 + (x - cx) ** 2 < 1.2**2
+        return np.where(inside, 1000.0, 0.0)
+    return covered(radiance, spp, rng)
+
+
+def moving_light(spp: int, rng: np.random.Generator) -> tuple[np.ndarray, SampleBuffer]:
+    """A light of 100 and radius 3 pixels on black, moving 8 pixels across the exposure: its trail hits or misses."""
+    def radiance(y: np.ndarray, x: np.ndarray, t: np.ndarray) -> np.ndarray:
+        return np.where((y - 32.2) ** 2 + (x - 28.3 - 8.0 * t) ** 2 < 3.0**2, 100.0, 0.0)
+    return covered(radiance, spp, rng, moving=True)
 
 
 def texture(low: float, high: float, log: bool, blur: float = 0.0) -> Any:
@@ -134,8 +160,11 @@ CASES: list[tuple[str, Any, tuple[int, ...], int]] = [
     ("one glint of 30 on 0.1", one_glint, (4, 16), 40),
     ("hit or zero, p = 0.02", hit_or_zero(0.02), (2, 4, 8, 64), 12),
     ("hit or zero, p = 0.1", hit_or_zero(0.1), (2, 4, 8), 12),
+    ("hit or zero, p = 0.5", hit_or_zero(0.5), (2, 4), 12),
     ("a light of 100 seen directly on black", light_on_black(0.0), (2, 4, 16, 64), 8),
     ("the same on an exact 0.05", light_on_black(0.05), (2, 4, 16, 64), 8),
+    ("twelve lights of 1000, radius 1.2, on black", small_lights, (2, 4, 16), 8),
+    ("a light of 100 moving 8 px, on black", moving_light, (2, 4, 16), 8),
     ("pixel-scale texture, U(0.2, 0.8)", texture(0.2, 0.8, False), (4, 16, 64, 256), 8),
     ("pixel-scale texture, 10^U(-1, 1)", texture(-1.0, 1.0, True), (4, 16, 64, 256), 8),
     ("the same, blurred by 0.5 px", texture(-1.0, 1.0, True, 0.5), (4, 16), 8),

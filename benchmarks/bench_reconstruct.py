@@ -172,9 +172,9 @@ CHANCES: dict[str, Any] = {"pool chance 1e-4": with_pool_chance(1e-4), "pool cha
 the default's 1e-3 (0, the previous form, is in COMPARED)."""
 WINDOWS: dict[str, Any] = {"guard window 13": {"guard_window": 13}, "guard window 17": {"guard_window": 17}}
 """``quality --windows`` and ``synthetic --windows``: the SURE guard's window at other sides than the default (9)."""
-RIMS: dict[str, Any] = {"rims lend": with_constant(rims, "EDGE_REGION", sys.maxsize)}
+RIMS: dict[str, Any] = {"rims lend": with_constant(rims, "EDGE_BLOCK", sys.maxsize)}
 """``quality --rims``: the default as it was before a light's rim stopped lending its spread to the exact pixels
-beside it (``rims.EDGE_REGION`` out of reach: no pixel is a rim; docs/reconstruction.md, "Samples that all
+beside it (``rims.EDGE_BLOCK`` out of reach: no pixel is a rim; docs/reconstruction.md, "Samples that all
 agreed")."""
 PROBES: dict[str, Any] = {"guard probes 1": {"guard_probes": 1}}
 """``quality --probes``, ``synthetic --probes`` and ``speed --probes``: the guard given the Wiener stages'
@@ -858,9 +858,9 @@ def _masks_as_before(run: Any) -> Any:
 
 
 def _rims_lend(run: Any) -> Any:
-    """``run()`` as before a light's rim stopped lending its spread: no pixel is a rim (``rims.EDGE_REGION`` out of
+    """``run()`` as before a light's rim stopped lending its spread: no pixel is a rim (``rims.EDGE_BLOCK`` out of
     reach), so no rim is looked for past the test for two agreeing levels."""
-    with mock.patch.object(rims, "EDGE_REGION", sys.maxsize):
+    with mock.patch.object(rims, "EDGE_BLOCK", sys.maxsize):
         return run()
 
 

@@ -7,15 +7,31 @@ import pytest
 from numpy.testing import assert_array_equal
 
 from awr_denoise import SampleBuffer
-from awr_denoise.rims import EDGE_REGION, EDGE_TOLERANCE, coverage_edges
+from awr_denoise.rims import EDGE_BLOCK, EDGE_TOLERANCE, coverage_edges
+
+
+def _in_a_block(mean, agreed, y, x, c):
+    """Whether entry (y, x, c) agreed and lies in an EDGE_BLOCK square of entries that agreed at its level."""
+    h, w = agreed.shape[:2]
+    k = EDGE_BLOCK
+    for top in range(y - k + 1, y + 1):
+        for left in range(x - k + 1, x + 1):
+            if top < 0 or left < 0 or top + k > h or left + k > w:
+                continue
+            if all(agreed[a, b, c] and mean[a, b, c] == mean[y, x, c]
+                   for a in range(top, top + k) for b in range(left, left + k)):
+                return True
+    return False
 
 
 def rims_by_definition(count, mean, variance, known, window=5, jump_ratio=4.0):
-    """The coverage edges written out pixel by pixel: spread entries whose population variance is the Bhatia-Davis
-    bound of the least and greatest agreeing levels of their window (cut at the image's edges), each level held by
-    EDGE_REGION agreeing pixels there, the two further apart than ``jump_ratio``."""
+    """The coverage edges written out pixel by pixel: spread entries whose samples all lie at the least and greatest
+    levels of the exact regions (EDGE_BLOCK squares of agreeing entries) that reach into their window (cut at the
+    image's edges), the two further apart than ``jump_ratio``: their population variance at the Bhatia-Davis bound
+    and their samples at ``hi`` a whole number, in units of the gap."""
     h, w, channels = mean.shape
     r = window // 2
+    agreed = (variance == 0) & (np.asarray(known) & (np.asarray(count) >= 2))[..., None]
     found = np.zeros(mean.shape, bool)
     for i in range(h):
         for j in range(w):
@@ -23,16 +39,17 @@ def rims_by_definition(count, mean, variance, known, window=5, jump_ratio=4.0):
                 if not known[i, j] or count[i, j] < 2 or variance[i, j, c] <= 0:
                     continue
                 levels = [mean[y, x, c] for y in range(max(i - r, 0), min(i + r + 1, h))
-                          for x in range(max(j - r, 0), min(j + r + 1, w)) if known[y, x] and variance[y, x, c] == 0]
+                          for x in range(max(j - r, 0), min(j + r + 1, w)) if _in_a_block(mean, agreed, y, x, c)]
                 if not levels:
                     continue
                 lo, hi, m, n = min(levels), max(levels), mean[i, j, c], count[i, j]
-                ratio = jump_ratio
-                if not lo < m < hi or (lo > 0 and hi <= ratio * lo) or (hi < 0 and -lo <= -ratio * hi):
+                if not lo < m < hi or (lo > 0 and hi <= jump_ratio * lo) or (hi < 0 and -lo <= -jump_ratio * hi):
                     continue
-                bound = (m - lo) * (hi - m)
-                found[i, j, c] = (abs(variance[i, j, c] * (n - 1) / n - bound) <= EDGE_TOLERANCE * (hi - lo) ** 2
-                                 and levels.count(lo) >= EDGE_REGION and levels.count(hi) >= EDGE_REGION)
+                gap = hi - lo
+                below, above = (m - lo) / gap, (hi - m) / gap
+                hits = n * below
+                found[i, j, c] = (abs(variance[i, j, c] / gap / gap * (n - 1) / n - below * above) <= EDGE_TOLERANCE
+                                  and abs(hits - round(hits)) <= EDGE_TOLERANCE * n and 0.5 < hits < n - 0.5)
     return found
 
 
@@ -94,5 +111,45 @@ def test_one_level_or_none_is_looked_at_no_further():
                           jump_ratio=4.0) is None
 
 
-def test_the_tolerance_and_the_region_are_what_the_module_says():
-    assert EDGE_TOLERANCE == 1e-5 and EDGE_REGION == 2
+def test_the_tolerance_and_the_block_are_what_the_module_says():
+    assert EDGE_TOLERANCE == 1e-5 and EDGE_BLOCK == 2
+
+
+def test_chance_agreement_makes_no_region():
+    """Samples that hit half the time at 2 spp: a quarter of the pixels agree at the hit, a quarter at 0, by chance;
+    two such pixels in a window made a region before, and nearly every mixed pixel a rim (the agreeing ones then
+    kept their chance level, 15x the MSE of the form before). Only a square of them makes a region now."""
+    rng = np.random.default_rng(5)
+    shape, spp = (64, 64), 2
+    pixel = np.repeat(np.arange(shape[0] * shape[1]), spp)
+    values = (rng.random(pixel.size) < 0.5) * 0.6
+    buf = SampleBuffer.from_samples(pixel, values[:, None], shape)
+    spread = buf.variance_known[..., None] & (buf.variance > 0)
+    assert _edges(buf).sum() < 0.05 * spread.sum()
+
+
+@pytest.mark.parametrize("mean, variance, rim", [(0.001, 0.05, False), (25.0, 2500.0, True), (25.0, 2000.0, False),
+                                                 (20.0, 2133.3333333333335, False)])
+def test_samples_must_be_whole_numbers_at_the_two_levels(mean, variance, rim):
+    """Beside regions at 0 and 100, 4 samples: a mean of 0.001 cannot be whole samples at 0 and 100 (the bound alone,
+    absolute, let it through), nor can 20 with 2133.3 (the bound of 20 and 80, four samples)."""
+    count = np.full((4, 6), 4)
+    mean_ = np.zeros((4, 6, 1))
+    mean_[:, 3:] = 100.0
+    var = np.zeros_like(mean_)
+    mean_[1, 2], var[1, 2] = mean, variance
+    got = coverage_edges(count, mean_, var, var == 0, var > 0, window=5, jump_ratio=4.0)
+    assert (got is not None and bool(got[1, 2, 0])) == rim
+
+
+def test_levels_past_float64s_square_are_told_apart():
+    """Regions at 0 and 2e154, whose gap squared passes float64: a pixel of modest noise between them is no rim (the
+    tolerance was Inf there), and one whose samples are whole at both (one of four at 2e154) still is."""
+    count = np.full((4, 6), 4)
+    mean = np.zeros((4, 6, 1))
+    mean[:, 3:] = 2e154
+    variance = np.zeros_like(mean)
+    mean[1, 2], variance[1, 2] = 3.0, 1.0
+    mean[2, 2], variance[2, 2] = 0.5e154, 0.25 * 2e154 * 2e154  # (m - lo)(hi - m) 4 / 3 = gap^2 / 4
+    got = coverage_edges(count, mean, variance, variance == 0, variance > 0, window=5, jump_ratio=4.0)
+    assert not got[1, 2, 0] and got[2, 2, 0]

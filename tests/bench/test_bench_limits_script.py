@@ -26,7 +26,7 @@ def test_each_case_makes_the_image_it_describes(bench):
 
 def test_the_light_on_black_and_the_rims_lend_column(bench):
     """A disc of 100 on exact black whose rim is hit or missed; "rims lend" is the default before the rim stopped
-    lending its spread (a halo in the black beside it), and puts ``rims.EDGE_REGION`` back."""
+    lending its spread (a halo in the black beside it), and puts ``rims.EDGE_BLOCK`` back."""
     from awr_denoise import reconstruct, rims
     truth, buffer = bench.light_on_black(0.0)(4, np.random.default_rng(0))
     assert truth.max() == 100.0 and truth.min() == 0.0 and ((truth > 0) & (truth < 100)).any()
@@ -34,7 +34,7 @@ def test_the_light_on_black_and_the_rims_lend_column(bench):
     black = (buffer.mean[..., 0] == 0) & (buffer.variance[..., 0] == 0)
     assert reconstruct(buffer)[black].max() == 0.0
     assert bench.rims_lend(buffer)[black].max() > 1.0
-    assert rims.EDGE_REGION == 2
+    assert rims.EDGE_BLOCK == 2
 
 
 def test_a_short_run_records_every_case_and_prints_its_table(bench, tmp_path, capsys):

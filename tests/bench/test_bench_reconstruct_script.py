@@ -103,14 +103,14 @@ def test_the_agreed_section_times_every_case(bench, capsys):
 
 def test_rims_lend_looks_for_no_rim_and_puts_the_region_back(bench, monkeypatch):
     """The agreed section's "rims lend" cases: no light's rim is looked for past the test for two levels, as
-    before the rims stopped lending, and ``rims.EDGE_REGION`` is the default's again afterwards."""
+    before the rims stopped lending, and ``rims.EDGE_BLOCK`` is the default's again afterwards."""
     from awr_denoise import pooling, rims
     calls = []
     real = rims.coverage_edges
     monkeypatch.setattr(rims, "coverage_edges", lambda *a, **k: calls.append(real(*a, **k)) or calls[-1])
     b = bench.agreed_buffers((64, 64))["hit or zero, 2 spp"]
     bench._rims_lend(lambda: pooling.estimated_variance(b.count, b.mean, b.variance, b.variance_known))
-    assert calls == [None] and rims.EDGE_REGION == 2
+    assert calls == [None] and rims.EDGE_BLOCK == 2
 
 
 def test_compiled_runs_with_the_compiled_moderation_and_puts_the_backend_back(bench, monkeypatch):
