@@ -90,7 +90,9 @@ def describe_file(path: str | os.PathLike[str], *, preset: str = "auto", color: 
     options = dict(preset=preset, color=color, variance=variance, count=count, variance_kind=variance_kind,
                    spp=spp, layer=layer, albedo=albedo, normal=normal, depth=depth)
     missing: list[str] = []
-    chosen_view = view
+    # A file of one view (a stereo render with one eye enabled) is read in that view, as the readers
+    # do; without it no part matched and the render was called an image.
+    chosen_view = view if view is not None or len(views) != 1 else views[0]
     if view is None and len(views) > 1:
         chosen_view = views[0]
         missing.append(f"a view: the file has {len(views)} ({', '.join(views)}); choose one with --view "

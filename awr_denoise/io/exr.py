@@ -503,6 +503,10 @@ def checked_plane(path: str | os.PathLike[str], name: str, array: np.ndarray, *,
                   nonnegative: bool = False, unit: str = "pixel", whole: bool = False) -> FloatArray:
     """A channel as float64, refusing NaN, Inf (half overflow named) and, optionally, negatives.
 
+    A HALF channel's +-65504 (:data:`HALF_MAX`) is refused like Inf: Blender writes values above
+    the half-float maximum as 65504 (clamped), not Inf, and the clamped value read as a mean is too
+    small by an unknown factor (and, the same in every seed, of variance 0).
+
     ``unit`` names what the entries are in messages (``"pixel"``, or ``"sample"`` for deep data).
     ``whole``: the channel holds whole numbers (counts, masks), which a UINT channel may; a UINT
     channel of values is refused.
@@ -516,14 +520,22 @@ def checked_plane(path: str | os.PathLike[str], name: str, array: np.ndarray, *,
         raise file_error(path, "a UINT channel holds fixed-point or integer data, not floating-point values; "
                                "write HALF or FLOAT channels (Mitsuba: component_format float32)", name)
     out = a.astype(np.float64)
-    if out.size and np.isfinite(out).all() and not nonnegative:
+    half = a.dtype == np.float16
+    if out.size and np.isfinite(out).all() and not nonnegative and not (half and (np.abs(out) == HALF_MAX).any()):
         return out
     nan = np.isnan(out)
     if nan.any():
         raise file_error(path, f"{int(nan.sum())} {unit}(s) hold NaN", name)
     inf = np.isinf(out)
+    if half and not inf.any():
+        # Blender clamps to the half maximum where pbrt writes Inf: the value is lost all the same.
+        clamped = np.abs(out) == HALF_MAX
+        if clamped.any():
+            raise file_error(path, f"{int(clamped.sum())} {unit}(s) hold {HALF_MAX:g}, the half-float maximum: "
+                                   f"half-float overflow (values above it do not fit; Blender writes them as "
+                                   f"{HALF_MAX:g}); write FLOAT channels (Blender: Float (Full))", name)
     if inf.any():
-        if a.dtype == np.float16:
+        if half:
             raise file_error(path, f"{int(inf.sum())} {unit}(s) hold Inf: half-float overflow "
                                    f"(values above {HALF_MAX:g} do not fit; write FLOAT channels)", name)
         raise file_error(path, f"{int(inf.sum())} {unit}(s) hold Inf", name)

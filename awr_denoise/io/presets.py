@@ -41,7 +41,7 @@ from ..buffers import VARIANCE_KINDS, SampleBuffer
 from ..errors import InputFileWarning
 from ..features import FEATURE_CHANNELS, FEATURE_NAMES, feature_names
 from .colour import MITSUBA_XYZ_TO_SRGB, PBRT_XYZ_TO_SRGB, xyz_statistics_to_rgb
-from .cycles import COLOUR_PASSES, cycles_layers, sample_count_scale
+from .cycles import COLOUR_PASSES, CyclesChannel, cycles_layers, sample_count_scale, split_channel
 from .deep import sample_index_bounds, samples_from_deep_part
 from .dump import COUNT_CHANNEL, MAX_EXACT_COUNT, VARIANCE_PREFIX, SampleDump, buffer_from_awr_part, whole_counts
 from .exr import ExrPart, check_same_windows, checked_plane, file_error, header_value, header_windows, read_exr
@@ -404,8 +404,29 @@ def _pbrt(ctx: _Context) -> _Layout:
     return _Layout(colour, spread, kind, cnt, None, known, convert)
 
 
+def _colour_layer(ctx: _Context, layers: Iterable[str]) -> str | None:
+    """The view layer a ``color=`` plane of the input belongs to (``Second.Combined`` -> ``Second``),
+    the longest layer name that prefixes it (layer names may hold dots); None for another file's plane
+    or a name in no layer."""
+    if ctx.color is None:
+        return None
+    file_path, name = parse_plane(ctx.color, ctx.path)
+    if file_path != ctx.path:
+        try:
+            if not os.path.samefile(file_path, ctx.path):
+                return None
+        except OSError:
+            return None
+    owners = [layer for layer in layers if name.startswith(layer + ".")]
+    return max(owners, key=len) if owners else None
+
+
 def _cycles_layer(ctx: _Context) -> tuple[str, set[str]]:
     layers = cycles_layers(ctx.file.channels)
+    if ctx.layer is None:
+        # The colour plane's own layer: its Debug Sample Count and header samples are those of the
+        # render the plane came from (a light group's Combined_<group> is in its layer).
+        ctx.layer = _colour_layer(ctx, layers)
     if ctx.layer is not None:
         if ctx.layer not in layers:
             raise file_error(ctx.path, f"no such layer (layers with a Combined pass: {', '.join(sorted(layers)) or 'none'})",
@@ -481,7 +502,25 @@ def _cycles(ctx: _Context) -> _Layout:
                                    "different seeds and merge them (awr merge --independent), or pass a variance "
                                    "plane with variance= / --variance", f"{layer}.Combined")
     count, count_plane = _cycles_counts(ctx, layer, colour.shape)
+    if count is not None and count_plane is None:
+        _unrendered_black(ctx, layer, count)
     return _Layout(colour, spread, kind, count, count_plane)
+
+
+def _unrendered_black(ctx: _Context, layer: str, count: np.ndarray) -> None:
+    """Warn of pixels whose Combined R, G, B and A are all exactly 0, where no count pass says how many
+    samples they took: Blender writes 0 outside a border render that is not cropped, and these
+    pixels would count as samples of black (a transparent background, rendered, reads the same)."""
+    names = [f"{layer}.Combined.{c}" for c in "RGBA"]
+    if not all(n in ctx.file.channels for n in names):
+        return
+    zero = np.all([np.asarray(ctx.file.channels[n]) == 0 for n in names], axis=0)
+    if zero.shape == count.shape and zero.any():
+        taken = sorted({int(v) for v in np.unique(count[zero])})
+        ctx.warnings.append(f"{ctx.path}: {layer}.Combined: {int(zero.sum())} pixel(s) are 0 in R, G, B and A "
+                            "(outside a border render not cropped to it, or a transparent background): counted as "
+                            f"{'/'.join(map(str, taken))} samples of black each; enable the Debug Sample Count "
+                            "pass (0 where nothing was rendered)")
 
 
 def _renderman(ctx: _Context) -> _Layout:
@@ -649,7 +688,18 @@ def _generic(ctx: _Context) -> _Layout:
     given = ctx.count_plane()
     if given is not None:
         return _Layout(colour, spread, kind, given[1], given[0])
+    passes = sorted(c for c in ctx.file.channels if (split_channel(c) or _NO_CHANNEL).pass_name == COUNT_PASS)
+    if passes:
+        # Blender's per-pixel counts (normalised) are in the file: spp everywhere would override the
+        # counts adaptive sampling left, and "no sample count in the file" would be false.
+        raise file_error(ctx.path, "holds Blender Cycles' per-pixel sample count; the generic layout does not read "
+                                   "it, and spp= / --spp would override it: read the file with preset='cycles' / "
+                                   "--preset cycles", passes[0])
     return _Layout(colour, spread, kind, ctx.spp_counts(colour.shape, "no count= plane"))
+
+
+_NO_CHANNEL = CyclesChannel("", "", "")
+COUNT_PASS = "Debug Sample Count"
 
 
 _READERS = {"pbrt": _pbrt, "cycles": _cycles, "renderman": _renderman, "mitsuba": _mitsuba,
@@ -757,8 +807,10 @@ def _resolve_preset(p: Path, f: _File, preset: str, color: str | None, variance:
         # A plane named in a pbrt or Mitsuba file keeps the preset: read generically, pbrt's XYZ
         # variance and Mitsuba's XYZ second moments passed for sRGB variances, without a word.
         # A variance plane of the user's own is read as such inside the preset (which keeps its
-        # sample count and features): see _pbrt and _mitsuba.
-        if color is not None and preset not in ("pbrt", "mitsuba"):
+        # sample count and features): see _pbrt and _mitsuba. A Cycles file keeps its preset too:
+        # read generically, a light group's pass of an adaptive render lost the layer's Debug
+        # Sample Count, and the --spp asked for then overrode Blender's per-pixel counts.
+        if color is not None and preset not in ("pbrt", "mitsuba", "cycles"):
             preset = "generic"
     if preset == "generic" and color is None and variance is None and count is None:
         if str(f.header.get("awr:semantics", "")) == "sample-request" or {"counts", "first_index"} <= set(f.channels):
@@ -1001,7 +1053,12 @@ def read_independent_renders(
     ------
     InputFileError
         Fewer than two files, a file that repeats another (same content: not independent),
-        or sizes and channels that differ between files.
+        sizes and channels that differ between files, or views that differ (a stereo pair's eyes).
+
+    Warns
+    -----
+    InputFileWarning
+        As for one file, and a lossy compression (its error would read as noise between seeds).
     """
     if len(paths) < 2:
         raise ValueError(f"paths: {len(paths)} file(s) given; the spread of means needs at least 2 renders")
@@ -1009,6 +1066,7 @@ def read_independent_renders(
         raise ValueError(f"preset: {preset!r} is not one of {', '.join(p for p in sorted(PRESETS) if p != 'deep')}")
     means, counts, notes, warned = [], [], [], []
     channels: tuple[str, ...] | None = None
+    first_view: str | None = None
     for path in paths:
         p = Path(path)
         parts = read_exr(p)
@@ -1016,6 +1074,15 @@ def read_independent_renders(
             raise file_error(p, "a per-sample (deep) dump, not a render's image: merge it without independent "
                                 "renders (--independent)")
         f = _File(p, parts, view)
+        if first_view is None:
+            first_view = f.view
+        elif f.view is not None and f.view != first_view:
+            # Each file's only view is taken: a stereo pair's left and right parts (each written alone) are
+            # two cameras, and their spread the parallax, not the noise of one view.
+            raise file_error(p, f"view {f.view!r} does not match view {first_view!r} of {paths[0]}: independent "
+                                "renders are renders of one view")
+        # The means are what the spread is taken of: a lossy codec's error would read as noise.
+        warned.extend(w for w in _lossy(p, f.used) if w not in warned)
         name = _resolve_preset(p, f, preset, color, None, count)
         if name == "awr" and color is None:
             raise file_error(p, "an awr dump holds statistics, not a render's image: merge it without independent "
@@ -1078,7 +1145,8 @@ def read_sample_buffer(
     color, variance, count
         Plane overrides, each a channel name, a channel prefix (``Variance`` for
         ``Variance.R/G/B``) or ``file.exr:plane`` to read it from another file. Giving
-        ``color`` with ``preset="auto"`` selects the generic mode.
+        ``color`` with ``preset="auto"`` selects the generic mode, except in a pbrt, Mitsuba or
+        Cycles file (a Cycles plane is counted by its view layer's count pass).
     variance_kind
         ``"sample"``, ``"mean"`` or ``"second_moment"``; overrides the preset's default.
     spp
@@ -1143,6 +1211,9 @@ def describe_layout(path: Path, parts: list[ExrPart], *, preset: str = "auto", c
     name = _resolve_preset(path, f, preset, color, variance, count)
     layout, ctx = _layout(path, f, name, color=color, variance=variance, count=count, variance_kind=variance_kind,
                           spp=spp, layer=layer, view=view, need_variance=False, need_count=False)
+    # Said where the statistics are read (read_sample_dump), but a file described without them (a
+    # Cycles render, before merging) was called fine.
+    ctx.warnings[:0] = _lossy(path, f.used)
     count_or_none = np.zeros(layout.colour.shape, np.int64) if layout.count is None else layout.count
     _features(ctx, name, layout, count_or_none, {"albedo": albedo, "normal": normal, "depth": depth}, features)
     return name, layout, ctx.notes, ctx.warnings, ctx.feature_planes

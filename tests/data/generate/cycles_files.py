@@ -24,7 +24,10 @@ import bpy  # the whole script is Blender: run it with the bpy wheel installed
 
 def _scene(*, samples: int, seed: int = 0, adaptive: bool = False, threshold: float = 0.01,
            time_limit: float = 0.0, denoise: bool = False, layer: str = "ViewLayer",
-           stereo: bool = False, size: int = 32, passes: bool | None = None) -> bpy.types.Scene:
+           stereo: bool = False, size: int = 32, passes: bool | None = None, count: bool | None = None,
+           energy: float = 500.0, depth: str = "32", codec: str = "ZIP", lightgroup: str | None = None,
+           only_view: str | None = None, border: tuple[float, float, float, float] | None = None,
+           second_layer: int | None = None) -> bpy.types.Scene:
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     scene.render.engine = "CYCLES"
@@ -54,7 +57,9 @@ def _scene(*, samples: int, seed: int = 0, adaptive: bool = False, threshold: fl
     red.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (0.7, 0.15, 0.1, 1)
     bpy.context.object.data.materials.append(red)
     bpy.ops.object.light_add(type="POINT", location=(2, -2, 4))
-    bpy.context.object.data.energy = 500
+    bpy.context.object.data.energy = energy
+    if lightgroup is not None:  # the light's contribution also written as its own Combined_<group> pass
+        bpy.context.object.lightgroup = lightgroup
     bpy.context.object.data.shadow_soft_size = 0.5
     bpy.ops.object.camera_add(location=(0, -6, 3), rotation=(1.2, 0, 0))
     scene.camera = bpy.context.object
@@ -64,16 +69,30 @@ def _scene(*, samples: int, seed: int = 0, adaptive: bool = False, threshold: fl
     world.node_tree.nodes["Background"].inputs[1].default_value = 0.5
     view_layer = scene.view_layers[0]
     view_layer.name = layer
-    view_layer.cycles.pass_debug_sample_count = adaptive
+    view_layer.cycles.pass_debug_sample_count = adaptive if count is None else count
+    if lightgroup is not None:
+        view_layer.lightgroups.add(name=lightgroup)
+    if second_layer is not None:  # a view layer "Second" with its own sample count (and count pass)
+        second = scene.view_layers.new("Second")
+        second.samples = second_layer
+        second.cycles.pass_debug_sample_count = view_layer.cycles.pass_debug_sample_count
     view_layer.cycles.denoising_store_passes = denoise if passes is None else passes  # Denoising Data
     if stereo:
         scene.render.use_multiview = True
         scene.render.views_format = "STEREO_3D"
+        if only_view is not None:  # one view rendered: a multiview file whose every part is that view
+            for name in ("left", "right"):
+                scene.render.views[name].use = name == only_view
+    if border is not None:  # (min x, max x, min y, max y), not cropped: the rest of the frame is written as 0
+        scene.render.use_border = True
+        (scene.render.border_min_x, scene.render.border_max_x,
+         scene.render.border_min_y, scene.render.border_max_y) = border
+        scene.render.use_crop_to_border = False
     settings = scene.render.image_settings
     settings.media_type = "MULTI_LAYER_IMAGE"
     settings.file_format = "OPEN_EXR_MULTILAYER"
-    settings.color_depth = "32"
-    settings.exr_codec = "ZIP"
+    settings.color_depth = depth
+    settings.exr_codec = codec
     if stereo:  # one multiview file (a part per view), not a file per view
         settings.views_format = "MULTIVIEW"
     return scene
@@ -104,7 +123,7 @@ FILES: dict[str, dict] = {
     # A time limit stops the render long before the 4096 samples requested.
     "cycles_time_limit": dict(samples=4096, adaptive=True, threshold=0.01, time_limit=1.0),
     # Adaptive sampling on but no count pass: awr must warn.
-    "cycles_adaptive_nocount": dict(samples=64, adaptive=True, threshold=0.05),
+    "cycles_adaptive_nocount": dict(samples=64, adaptive=True, threshold=0.05, count=False),
     # A view layer name with a dot.
     "cycles_layer_dot": dict(samples=16, adaptive=True, layer="beauty.main"),
     # Stereo: one part per view.
@@ -113,16 +132,30 @@ FILES: dict[str, dict] = {
     **{f"cycles_seed_{k}": dict(samples=16, seed=k) for k in range(1, 9)},
     # A high-sample reference of the same scene.
     "cycles_ref": dict(samples=2048),
+    # Half-float channels and a light bright enough that pixels exceed the half maximum: Blender
+    # writes 65504 there (clamped), not Inf. Two seeds, for merge --independent.
+    **{f"cycles_half_clamped_{k}": dict(samples=16, seed=k, energy=5e7, depth="16") for k in (1, 2)},
+    # Adaptive sampling with a light group (Combined_key): --color names that pass, and its counts
+    # are still the layer's Debug Sample Count. Two seeds, for merge --independent.
+    **{f"cycles_lightgroup_{k}": dict(samples=64, seed=k, adaptive=True, threshold=0.05, lightgroup="key")
+       for k in (1, 2)},
+    # Stereo with one view enabled at a time: multiview files whose every part has view left (right).
+    **{f"cycles_only_{v}": dict(samples=32, adaptive=True, threshold=0.1, stereo=True, only_view=v)
+       for v in ("left", "right")},
+    # Two view layers, the second rendered with 48 samples: a plane named in Second is counted by
+    # Second's count pass and header.
+    "cycles_two_layers": dict(samples=32, adaptive=True, threshold=0.05, second_layer=48),
+    # DWAA (lossy) compression, two seeds.
+    **{f"cycles_dwaa_{k}": dict(samples=16, seed=k, codec="DWAA") for k in (1, 2)},
+    # A border render, not cropped, without the count pass: outside the border every channel is 0.
+    "cycles_border_nocount": dict(samples=16, border=(0.25, 0.75, 0.0, 0.5)),
 }
 
 
 def render(name: str, outdir: Path, **overrides) -> Path:
     """Render one of ``FILES`` into ``outdir`` (settings overridden by ``overrides``)."""
     settings = dict(FILES[name]) | overrides
-    nocount = name == "cycles_adaptive_nocount"
     scene = _scene(**settings)
-    if nocount:
-        scene.view_layers[0].cycles.pass_debug_sample_count = False
     path = outdir / f"{name}.exr"
     _render(scene, path)
     return path
