@@ -89,6 +89,21 @@ def test_nonfinite_refused_on_write(tmp_path, value, what):
     assert os.listdir(tmp_path) == []
 
 
+@pytest.mark.parametrize("value, refused", [(65400.0, False), (65472.0, False), (65500.0, True), (-65504.0, True)])
+def test_half_values_stored_as_the_half_maximum_are_refused(tmp_path, value, refused):
+    """A value stored as +-65504 reads back as Blender's clamp of a larger one, which the readers refuse: the writer
+    refuses it, so no Half file of ours is one we cannot read (values just below the maximum round to it)."""
+    img = np.full((2, 2, 3), 0.5)
+    img[0, 0, 1] = value
+    if refused:
+        with pytest.raises(ValueError, match="G: image has 1 pixel.*half-float maximum 65504"):
+            write_image(tmp_path / "h.exr", img, half=True)
+        assert not (tmp_path / "h.exr").exists()
+    else:
+        write_image(tmp_path / "h.exr", img, half=True)
+        assert read_image(tmp_path / "h.exr")[0, 0, 1] == np.float16(value)
+
+
 @pytest.mark.parametrize("half, value", [(True, 1e-40), (True, 2e-8), (False, 1e-46)])
 def test_a_channel_that_would_be_stored_black_is_refused(tmp_path, half, value):
     """Every value of a channel below the stored type's smallest became 0: ``--half`` on means near 1e-40

@@ -801,12 +801,18 @@ def write_image(path: str | os.PathLike[str], image: np.ndarray, *,
     with np.errstate(over="ignore"):
         stored = data.astype(dtype)
     over = ~np.isfinite(stored)
+    if half:
+        # Stored as the half maximum, a value reads back as Blender's clamp of a larger one, which the readers
+        # refuse (checked_plane): refused here, so that no file of ours is one we cannot read.
+        over |= np.abs(stored) == HALF_MAX
     if over.any():
         c = int(np.nonzero(over.any(axis=(0, 1)))[0][0])
-        limit, hint = (HALF_MAX, " (write FLOAT channels: half=False)") if half else (float(np.finfo(np.float32).max), "")
+        if half:
+            raise ValueError(f"{public_name(path)}: {names[c]}: image has {int(over[..., c].sum())} pixel(s) at or "
+                             f"beyond the half-float maximum {HALF_MAX:g}, which would be stored as {HALF_MAX:g} "
+                             "(read back as a clamped value) or Inf (write FLOAT channels: half=False)")
         raise ValueError(f"{public_name(path)}: {names[c]}: image has {int(over[..., c].sum())} pixel(s) beyond "
-                         f"the {'half-float' if half else 'float32'} range {limit:g}, which would be stored "
-                         f"as Inf{hint}")
+                         f"the float32 range {float(np.finfo(np.float32).max):g}, which would be stored as Inf")
     # The other end: a channel whose every value is below the type's smallest would be stored black
     # (`--half` on means near 1e-40 wrote an all-zero image, exit 0; a red-team pass).
     lost = (data != 0).any(axis=(0, 1)) & ~(stored != 0).any(axis=(0, 1))

@@ -26,7 +26,7 @@ from .scene import load_scene
 from .scenes import BUNDLED_SCENES
 
 __all__ = ["DEFAULT_REFERENCE_SPP", "REFERENCE_SEED", "reference_dir", "reference_path", "render_reference",
-           "load_reference", "read_reference_header", "main"]
+           "stored_reference", "load_reference", "read_reference_header", "main"]
 
 DEFAULT_REFERENCE_SPP = 1024
 """Samples per pixel of a reference when none is asked for."""
@@ -114,12 +114,25 @@ def _render_into(target: Path, scene_name: str, spp: int, seed: int, sampler: st
             buffer = buffer.merge(tracer(SampleRequest.uniform(tracer.shape, count, first_index=first)))
     finally:
         tracer.close()
-    image = buffer.mean
-    half = np.clip(image, 0.0, _HALF_MAX).astype(np.float16)
+    stored = stored_reference(buffer.mean)
     header = provenance(scene=scene_name, spp=int(spp), sampler=sampler, seed=int(seed),
                         nonfinite=int(buffer.nonfinite), render_seconds=round(float(tracer.stats["seconds"]), 1))
-    write_image(target, half, header=header, half=True, overwrite=True)
-    return half.astype(np.float64)
+    write_image(target, stored, header=header, half=stored.dtype == np.float16, overwrite=True)
+    return stored.astype(np.float64)
+
+
+def stored_reference(image: np.ndarray) -> np.ndarray:
+    """A reference as its file holds it: half floats where every pixel fits below the half maximum (the bundled
+    references), else float32. A clip to the half maximum would store a value the readers refuse as a clamp.
+
+    >>> import numpy as np
+    >>> stored_reference(np.array([[[1.0, 300.0, 0.0]]])).dtype, stored_reference(np.array([[[7e4, 1.0, 0.0]]])).dtype
+    (dtype('float16'), dtype('float32'))
+    """
+    image = np.maximum(image, 0.0)  # means of radiance: a negative is rounding
+    with np.errstate(over="ignore"):  # past the half range: Inf, and float32 then
+        half = image.astype(np.float16)
+    return half if (np.abs(half) < _HALF_MAX).all() else image.astype(np.float32)
 
 
 def read_reference_header(path: str | Path) -> dict[str, str]:
