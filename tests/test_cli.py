@@ -1435,6 +1435,6 @@ def test_a_frame_failing_on_a_worker_process_is_named_by_its_output(tmp_path, ca
     out = tmp_path / "o.####.exr"
     assert main(["denoise", str(tmp_path / "h.####.exr"), "--frames", "1-2", "-o", str(out), "--half", "-q",
                  "--executor", "processes", "--workers", "1"]) == 2
-    line = _one_error_line(capsys, "beyond the half-float range")
+    line = _one_error_line(capsys, "beyond the half-float maximum 65504")
     assert line.startswith(f"awr: error: {tmp_path / 'o.000'}") and ".awr-" not in line, line
     assert not list(tmp_path.glob("o.*")) and not list(tmp_path.glob(".awr-*"))
