@@ -446,14 +446,22 @@ def pooled_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
     if known.all():
         return np.array(variance)
     dof = np.where(known, count - 1, 0).astype(np.float64)
-    m2 = variance * dof[..., None]
     if dof.sum() == 0:
         return np.zeros_like(variance)
-    local_dof = ndimage.uniform_filter(dof, POOL_WINDOW, mode="nearest")
-    pooled_global = m2.sum(axis=(0, 1)) / dof.sum()
+    # A light's rim lends no unknown variance either (a single sample beside it, as samples that all agreed):
+    # its entries count for nothing in the pools, channel by channel.
+    entries = np.broadcast_to(dof[..., None], variance.shape)
+    edges = rims.coverage_edges(count, mean, variance, (variance == 0) & known[..., None],
+                                (variance > 0) & (entries > 0), window=POOL_WINDOW, jump_ratio=JUMP_RATIO)
+    if edges is not None:
+        entries = np.where(edges, 0.0, entries)
+    m2 = variance * entries
+    with np.errstate(invalid="ignore", divide="ignore"):
+        pooled_global = np.nan_to_num(m2.sum(axis=(0, 1)) / entries.sum(axis=(0, 1)), nan=0.0)
     out = np.array(variance)
     missing = ~known
     for c in range(variance.shape[2]):
+        local_dof = ndimage.uniform_filter(entries[..., c], POOL_WINDOW, mode="nearest")
         local_m2 = ndimage.uniform_filter(m2[..., c], POOL_WINDOW, mode="nearest")
         with np.errstate(invalid="ignore", divide="ignore"):
             local = np.where(local_dof > 1e-12, local_m2 / local_dof, pooled_global[c])
@@ -462,20 +470,21 @@ def pooled_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
     # neighbours whose mean is at most JUMP_RATIO times theirs (no light's variance in a sky).
     own = missing & (count >= 2)
     if own.any():
-        out[own] = _pool_below_jump(mean, m2, dof)[own]
+        out[own] = _pool_below_jump(mean, m2, entries)[own]
     return out
 
 
 def _pool_below_jump(mean: FloatArray, m2: FloatArray, dof: FloatArray) -> FloatArray:
     """Pooled variance from the 5x5 neighbours whose |mean| <= JUMP_RATIO x the pixel's;
-    without such neighbours, the image's pooled relative variance times the pixel's mean^2."""
+    without such neighbours, the image's pooled relative variance times the pixel's mean^2.
+    ``dof``: (H, W, C) degrees of freedom each entry counts for (0 where it lends nothing)."""
     h, w = mean.shape[:2]
     r = POOL_WINDOW // 2
     level = np.abs(mean)
     limit = JUMP_RATIO * level
     pad = ((r, r), (r, r), (0, 0))
     m2p = np.pad(m2, pad)
-    dofp = np.pad(np.broadcast_to(dof[..., None], m2.shape), pad)
+    dofp = np.pad(dof, pad)
     levelp = np.pad(level, pad, constant_values=np.inf)
     sum_m2 = np.zeros_like(m2)
     sum_dof = np.zeros_like(m2)
@@ -484,7 +493,7 @@ def _pool_below_jump(mean: FloatArray, m2: FloatArray, dof: FloatArray) -> Float
             ok = levelp[dy:dy + h, dx:dx + w] <= limit
             sum_m2 += np.where(ok, m2p[dy:dy + h, dx:dx + w], 0.0)
             sum_dof += np.where(ok, dofp[dy:dy + h, dx:dx + w], 0.0)
-    weight = dof[..., None] * mean**2
+    weight = dof * mean**2
     with np.errstate(invalid="ignore", divide="ignore"):
         rel = m2.sum(axis=(0, 1)) / np.maximum(weight.sum(axis=(0, 1)), 1e-300)
         pooled = np.where(sum_dof > 1e-12, sum_m2 / sum_dof, rel * mean**2)

@@ -141,6 +141,28 @@ def test_a_lights_rim_lends_the_exact_background_nothing(spp):
     assert image[missed].max() < 1e-6 * 100
 
 
+def test_single_samples_beside_a_lights_rim_pool_none_of_its_spread():
+    """A pixel of one sample has no variance of its own; pooled from its window, it took the rim's spread before
+    (half the pixels of a ring beside a light of one sample: the halo again). The rim lends it nothing, as it
+    lends the pixels whose samples all agreed nothing: the black beside the light stays black."""
+    rng = np.random.default_rng(4)
+    h = w = 24
+    spp = 4
+    pixel = np.repeat(np.arange(h * w), spp)
+    y, x = pixel // w + rng.random(pixel.size), pixel % w + rng.random(pixel.size)
+    values = np.where((y - 12.3) ** 2 + (x - 12.2) ** 2 < 4.5**2, 100.0, 0.0)
+    distance = np.hypot(np.arange(h)[:, None] + 0.5 - 12.3, np.arange(w) + 0.5 - 12.2).ravel()
+    single = (rng.random(h * w) < 0.5) & (distance > 5.3) & (distance < 6.3)  # a ring just outside the rim
+    keep = ~single[pixel] | (np.arange(pixel.size) % spp == 0)
+    buf = SampleBuffer.from_samples(pixel[keep], np.stack([values[keep]] * 3, axis=1), (h, w))
+    black_single = (buf.count == 1) & (buf.mean[..., 0] == 0)
+    near = ndimage.binary_dilation((buf.variance[..., 0] > 0) & buf.variance_known, iterations=2)
+    assert (black_single & near).sum() >= 5
+    v = estimated_variance(buf.count, buf.mean, buf.variance, buf.variance_known)
+    assert_array_equal(v[black_single & near], 0.0)
+    assert reconstruct(buf)[black_single & near].max() == 0.0
+
+
 def test_a_rim_between_close_levels_still_lends():
     """Two exact regions within JUMP_RATIO of each other (texels of a texture): the pixels between them may be
     either, so the agreeing ones beside them still borrow their spread."""
