@@ -68,10 +68,30 @@ def estimated_variance(count: CountArray, mean: FloatArray, variance: FloatArray
     (True, 1.33333)
     """
     # Moderated first: an unknown variance is then pooled from its neighbours' moderated ones (a single
-    # sample beside samples that all agreed at 0, beside a hit, is not exact either).
-    out = agreed_variance(count, mean, variance, known)
-    out = out if known.all() else pooled_variance(count, mean, out, known)
+    # sample beside samples that all agreed at 0, beside a hit, is not exact either). A light's rim is found
+    # once, on the variances as given: moderated, the exact regions beside it need not be exact any more.
+    edges = _Rims(count, mean, variance, known)
+    out = _moderated(count, mean, variance, known, None, edges)
+    out = out if known.all() else _pooled(count, mean, out, known, edges)
     return np.array(out) if copy and out is variance else out
+
+
+class _Rims:
+    """A light's rims (:func:`.rims.coverage_edges`) in the variances as given, found when first asked for."""
+
+    def __init__(self, count: CountArray, mean: FloatArray, variance: FloatArray, known: BoolArray) -> None:
+        self._args: tuple | None = (count, mean, variance, known)
+        self._edges: BoolArray | None = None
+
+    def __call__(self) -> BoolArray | None:
+        if self._args is not None:
+            count, mean, variance, known = self._args
+            self._args = None
+            entries = np.asarray(known) & (np.asarray(count) >= 2)  # two samples or more: a spread to agree on
+            self._edges = rims.coverage_edges(count, mean, variance, _in_pixels(variance == 0, entries),
+                                              _in_pixels(variance > 0, entries), window=POOL_WINDOW,
+                                              jump_ratio=JUMP_RATIO)
+        return self._edges
 
 
 def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, known: BoolArray,
@@ -104,6 +124,12 @@ def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
     >>> bool(agreed_variance(count, mean, variance, count >= 2)[0, 0, 0] < 1e-5)
     True
     """
+    return _moderated(count, mean, variance, known, prior, _Rims(count, mean, variance, known))
+
+
+def _moderated(count: CountArray, mean: FloatArray, variance: FloatArray, known: BoolArray, prior: float | None,
+               edges: _Rims) -> FloatArray:
+    """:func:`agreed_variance` with the rims of ``edges`` lending nothing."""
     prior = _checks.real("prior", AGREED_PRIOR if prior is None else prior, minimum=0.0)
     agreed = _in_pixels(variance == 0, known)
     if not prior or not agreed.any():
@@ -114,7 +140,7 @@ def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
     spread = _in_pixels(variance > 0, dof > 0)
     # A pixel whose samples are all at the levels of two exact regions beside it (the rim of a light seen directly
     # against an exact background) is a coverage of those regions, not noise they could share: no source.
-    edges = rims.coverage_edges(count, mean, variance, agreed, spread, window=POOL_WINDOW, jump_ratio=JUMP_RATIO)
+    edges = edges()
     if edges is not None:
         spread &= ~edges
     todo = agreed & _near(spread)
@@ -445,19 +471,24 @@ def pooled_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
     """
     if known.all():
         return np.array(variance)
+    return _pooled(count, mean, variance, known, _Rims(count, mean, variance, known))
+
+
+def _pooled(count: CountArray, mean: FloatArray, variance: FloatArray, known: BoolArray, edges: _Rims) -> FloatArray:
+    """:func:`pooled_variance` with the rims of ``edges`` lending nothing."""
     dof = np.where(known, count - 1, 0).astype(np.float64)
     if dof.sum() == 0:
         return np.zeros_like(variance)
     # A light's rim lends no unknown variance either (a single sample beside it, as samples that all agreed):
     # its entries count for nothing in the pools, channel by channel.
     entries = np.broadcast_to(dof[..., None], variance.shape)
-    edges = rims.coverage_edges(count, mean, variance, (variance == 0) & known[..., None],
-                                (variance > 0) & (entries > 0), window=POOL_WINDOW, jump_ratio=JUMP_RATIO)
+    edges = edges()
     if edges is not None:
         entries = np.where(edges, 0.0, entries)
     m2 = variance * entries
-    with np.errstate(invalid="ignore", divide="ignore"):
-        pooled_global = np.nan_to_num(m2.sum(axis=(0, 1)) / entries.sum(axis=(0, 1)), nan=0.0)
+    totals = entries.sum(axis=(0, 1))
+    # Where every entry of a channel is a rim, nothing is pooled (0); an M2 past float64 stays Inf, as before.
+    pooled_global = np.divide(m2.sum(axis=(0, 1)), totals, out=np.zeros_like(totals), where=totals > 0)
     out = np.array(variance)
     missing = ~known
     for c in range(variance.shape[2]):
