@@ -44,6 +44,9 @@ samples that are a light's value or exactly 0 from up to 5.3x the plain mean's M
 (``bench_reconstruct.py quality --compare``), other ``d0`` beside 1 (``quality --priors``)."""
 
 
+_Edges = Callable[[], "BoolArray | None"]
+"""The rims of a buffer's variances, found by the first call (:func:`_rims`)."""
+
 _SCATTER_SHARE = 2.0
 """Entries at 0 at least this many times the spread pixels (known, variance above 0) are weighed from those
 outward (:func:`_scattered_at_zero`), fewer are gathered offset by offset: the same values, to rounding, and
@@ -70,28 +73,21 @@ def estimated_variance(count: CountArray, mean: FloatArray, variance: FloatArray
     # Moderated first: an unknown variance is then pooled from its neighbours' moderated ones (a single
     # sample beside samples that all agreed at 0, beside a hit, is not exact either). A light's rim is found
     # once, on the variances as given: moderated, the exact regions beside it need not be exact any more.
-    edges = _Rims(count, mean, variance, known)
+    edges = _rims(count, mean, variance, known)
     out = _moderated(count, mean, variance, known, None, edges)
     out = out if known.all() else _pooled(count, mean, out, known, edges)
     return np.array(out) if copy and out is variance else out
 
 
-class _Rims:
+def _rims(count: CountArray, mean: FloatArray, variance: FloatArray, known: BoolArray) -> _Edges:
     """A light's rims (:func:`.rims.coverage_edges`) in the variances as given, found when first asked for."""
 
-    def __init__(self, count: CountArray, mean: FloatArray, variance: FloatArray, known: BoolArray) -> None:
-        self._args: tuple | None = (count, mean, variance, known)
-        self._edges: BoolArray | None = None
-
-    def __call__(self) -> BoolArray | None:
-        if self._args is not None:
-            count, mean, variance, known = self._args
-            self._args = None
-            entries = np.asarray(known) & (np.asarray(count) >= 2)  # two samples or more: a spread to agree on
-            self._edges = rims.coverage_edges(count, mean, variance, _in_pixels(variance == 0, entries),
-                                              _in_pixels(variance > 0, entries), window=POOL_WINDOW,
-                                              jump_ratio=JUMP_RATIO)
-        return self._edges
+    @lru_cache(maxsize=1)
+    def edges() -> BoolArray | None:
+        entries = np.asarray(known) & (np.asarray(count) >= 2)  # two samples or more: a spread to agree on
+        return rims.coverage_edges(count, mean, variance, _in_pixels(variance == 0, entries),
+                                   _in_pixels(variance > 0, entries), window=POOL_WINDOW, jump_ratio=JUMP_RATIO)
+    return edges
 
 
 def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, known: BoolArray,
@@ -124,11 +120,11 @@ def agreed_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
     >>> bool(agreed_variance(count, mean, variance, count >= 2)[0, 0, 0] < 1e-5)
     True
     """
-    return _moderated(count, mean, variance, known, prior, _Rims(count, mean, variance, known))
+    return _moderated(count, mean, variance, known, prior, _rims(count, mean, variance, known))
 
 
 def _moderated(count: CountArray, mean: FloatArray, variance: FloatArray, known: BoolArray, prior: float | None,
-               edges: _Rims) -> FloatArray:
+               edges: _Edges) -> FloatArray:
     """:func:`agreed_variance` with the rims of ``edges`` lending nothing."""
     prior = _checks.real("prior", AGREED_PRIOR if prior is None else prior, minimum=0.0)
     agreed = _in_pixels(variance == 0, known)
@@ -471,10 +467,10 @@ def pooled_variance(count: CountArray, mean: FloatArray, variance: FloatArray, k
     """
     if known.all():
         return np.array(variance)
-    return _pooled(count, mean, variance, known, _Rims(count, mean, variance, known))
+    return _pooled(count, mean, variance, known, _rims(count, mean, variance, known))
 
 
-def _pooled(count: CountArray, mean: FloatArray, variance: FloatArray, known: BoolArray, edges: _Rims) -> FloatArray:
+def _pooled(count: CountArray, mean: FloatArray, variance: FloatArray, known: BoolArray, edges: _Edges) -> FloatArray:
     """:func:`pooled_variance` with the rims of ``edges`` lending nothing."""
     dof = np.where(known, count - 1, 0).astype(np.float64)
     if dof.sum() == 0:

@@ -36,7 +36,7 @@ SCRIPTS = sorted((ROOT / "benchmarks").glob("*.py"))  # their module docstrings 
 
 _START = re.compile(r"^(?:\.venv/bin/)?(?:awr(?:\s|$)|python3?\s+(?:benchmarks|tests/data)/\S+\.py)")
 # A word the reader replaces (DUMP.exr, N, WxH, FILE[:plane], ...), or a synopsis' brackets and ellipses.
-_PLACEHOLDER = re.compile(r"[A-Z]{2,}|^[A-Z]$|\.\.\.|[][|<>{}]|^\$|\bW\b|^S$")
+_PLACEHOLDER = re.compile(r"[A-Z]{2,}|^[A-Z]$|\.\.\.|[][|<>{}]|^\$")
 _OPTION = re.compile(r"(?<![\w./'\"=-])(--?[A-Za-z][\w-]*)")
 
 

@@ -111,9 +111,6 @@ def test_one_level_or_none_is_looked_at_no_further():
                           jump_ratio=4.0) is None
 
 
-def test_the_tolerance_and_the_block_are_what_the_module_says():
-    assert EDGE_TOLERANCE == 1e-5 and EDGE_BLOCK == 2
-
 
 def test_chance_agreement_makes_no_region():
     """Samples that hit half the time at 2 spp: a quarter of the pixels agree at the hit, a quarter at 0, by chance;

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ADAPTIVE_STEP", "CyclesChannel", "split_channel", "cycles_layers", "sample_count_scale"]
+__all__ = ["ADAPTIVE_STEP", "COUNT_PASS", "CyclesChannel", "split_channel", "cycles_layers", "sample_count_scale"]
 
 ADAPTIVE_STEP = 16
 """Samples between two adaptive-sampling convergence checks in Cycles (``adaptive_step``,
@@ -27,6 +27,9 @@ ADAPTIVE_STEP = 16
 
 # Passes whose presence marks a Cycles view layer (the colour sources, in order of preference).
 COLOUR_PASSES = ("Noisy Image", "Combined")
+
+COUNT_PASS = "Debug Sample Count"
+"""The pass of every pixel's sample count, normalised (:func:`sample_count_scale`)."""
 
 
 @dataclass(frozen=True)

@@ -41,7 +41,7 @@ from ..buffers import VARIANCE_KINDS, SampleBuffer
 from ..errors import InputFileWarning
 from ..features import FEATURE_CHANNELS, FEATURE_NAMES, feature_names
 from .colour import MITSUBA_XYZ_TO_SRGB, PBRT_XYZ_TO_SRGB, xyz_statistics_to_rgb
-from .cycles import COLOUR_PASSES, CyclesChannel, cycles_layers, sample_count_scale, split_channel
+from .cycles import COLOUR_PASSES, COUNT_PASS, cycles_layers, sample_count_scale, split_channel
 from .deep import sample_index_bounds, samples_from_deep_part
 from .dump import COUNT_CHANNEL, MAX_EXACT_COUNT, VARIANCE_PREFIX, SampleDump, buffer_from_awr_part, whole_counts
 from .exr import ExrPart, check_same_windows, checked_plane, file_error, header_value, header_windows, read_exr
@@ -458,7 +458,7 @@ def _cycles_counts(ctx: _Context, layer: str, shape: tuple[int, int]) -> tuple[n
     if given is not None:
         return given[1], given[0]
     requested = _header_int(ctx.path, ctx.file.header, f"cycles.{layer}.samples")
-    debug_name = f"{layer}.Debug Sample Count"
+    debug_name = f"{layer}.{COUNT_PASS}"
     if debug_name not in ctx.file.channels and f"{debug_name}.X" not in ctx.file.channels:
         if ctx.spp is None and requested is not None:
             ctx.warnings.append(f"{ctx.path}: {debug_name}: no sample count pass: every pixel is taken to have "
@@ -688,7 +688,7 @@ def _generic(ctx: _Context) -> _Layout:
     given = ctx.count_plane()
     if given is not None:
         return _Layout(colour, spread, kind, given[1], given[0])
-    passes = sorted(c for c in ctx.file.channels if (split_channel(c) or _NO_CHANNEL).pass_name == COUNT_PASS)
+    passes = sorted(c for c in ctx.file.channels if getattr(split_channel(c), "pass_name", None) == COUNT_PASS)
     if passes:
         # Blender's per-pixel counts (normalised) are in the file: spp everywhere would override the
         # counts adaptive sampling left, and "no sample count in the file" would be false.
@@ -696,10 +696,6 @@ def _generic(ctx: _Context) -> _Layout:
                                    "it, and spp= / --spp would override it: read the file with preset='cycles' / "
                                    "--preset cycles", passes[0])
     return _Layout(colour, spread, kind, ctx.spp_counts(colour.shape, "no count= plane"))
-
-
-_NO_CHANNEL = CyclesChannel("", "", "")
-COUNT_PASS = "Debug Sample Count"
 
 
 _READERS = {"pbrt": _pbrt, "cycles": _cycles, "renderman": _renderman, "mitsuba": _mitsuba,
