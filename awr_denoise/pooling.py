@@ -18,10 +18,10 @@ from collections.abc import Callable
 from functools import lru_cache
 
 import numpy as np
-from scipy import ndimage
 
 from . import _checks, fused, rims
 from ._typing import BoolArray, CountArray, FloatArray
+from ._windows import window_sum
 
 __all__ = ["estimated_variance", "pooled_variance", "agreed_variance", "POOL_WINDOW", "JUMP_RATIO", "AGREED_PRIOR"]
 
@@ -164,7 +164,7 @@ def _moderated(count: CountArray, mean: FloatArray, variance: FloatArray, known:
         for samples in big:
             at = missed & (count == samples)
             weight = dof * chance ** float(samples)
-            local = _window_sum(weight * s2[..., c])[at] / _window_sum(weight)[at]
+            local = window_sum(weight * s2[..., c], POOL_WINDOW)[at] / window_sum(weight, POOL_WINDOW)[at]
             out[..., c][at] = prior * local * g * g / (samples - 1.0 + prior)
             todo[..., c] &= ~at
     if not todo.any():
@@ -358,7 +358,7 @@ def _scattered_at_zero(count: CountArray, mean: FloatArray, g: float, s2: FloatA
         on = chans == c
         if on.any():
             agreed_at_zero = dof * ((s2[..., c] == 0) & (chance[..., c] == 1))
-            den[on] = _window_sum(agreed_at_zero)[rows[on], cols[on]]
+            den[on] = window_sum(agreed_at_zero, POOL_WINDOW)[rows[on], cols[on]]
     # Entry numbers on a map padded by 2r (-1 elsewhere): a neighbour in the edge-padded planes (r each side) minus
     # any offset lands on it, never past it. Neighbours are found on the padded grid and read from the pixels their
     # places repeat (the planes themselves are not padded).
@@ -436,15 +436,6 @@ def _near(mask: BoolArray) -> BoolArray:
     return near
 
 
-def _window_sum(a: FloatArray) -> FloatArray:
-    """Sum over the :data:`POOL_WINDOW` square around each pixel, edges repeated; plain sums of shifted
-    slices (a running sum, as ``uniform_filter``'s, leaves rounding residues beside large values)."""
-    r = POOL_WINDOW // 2
-    padded = np.pad(a, r, mode="edge")
-    down = sum(padded[i:i + a.shape[0]] for i in range(POOL_WINDOW))
-    return sum(down[:, j:j + a.shape[1]] for j in range(POOL_WINDOW))
-
-
 def pooled_variance(count: CountArray, mean: FloatArray, variance: FloatArray, known: BoolArray) -> FloatArray:
     """(H, W, C) per-sample variance with the unknown entries pooled from known neighbours.
 
@@ -488,10 +479,12 @@ def _pooled(count: CountArray, mean: FloatArray, variance: FloatArray, known: Bo
     out = np.array(variance)
     missing = ~known
     for c in range(variance.shape[2]):
-        local_dof = ndimage.uniform_filter(entries[..., c], POOL_WINDOW, mode="nearest")
-        local_m2 = ndimage.uniform_filter(m2[..., c], POOL_WINDOW, mode="nearest")
+        # Sums of the window's own entries: a running sum (uniform_filter's) carried a very noisy pixel's rounding
+        # error along the line, and a pixel of one sample 25 columns away pooled a variance of 0 (._windows).
+        local_dof = window_sum(entries[..., c], POOL_WINDOW)
+        local_m2 = window_sum(m2[..., c], POOL_WINDOW)
         with np.errstate(invalid="ignore", divide="ignore"):
-            local = np.where(local_dof > 1e-12, local_m2 / local_dof, pooled_global[c])
+            local = np.where(local_dof > 0, local_m2 / local_dof, pooled_global[c])
         out[..., c][missing] = np.maximum(local[missing], 0.0)
     # Renderer-unknown pixels with samples enough for a mean of their own: pool only the
     # neighbours whose mean is at most JUMP_RATIO times theirs (no light's variance in a sky).

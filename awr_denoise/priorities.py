@@ -25,11 +25,11 @@ from concurrent.futures import Executor
 from functools import lru_cache, partial
 
 import numpy as np
-from scipy import ndimage
 
 from . import _checks
 from ._arrays import numeric
 from ._typing import FloatArray
+from ._windows import neighbour_sum, window_sum
 from .buffers import SampleBuffer
 from .domains import Domain
 from .noise_gain import DEFAULT_NOISE_MODEL, NOISE_MODELS, shrinkage_gain
@@ -127,9 +127,7 @@ def pooled_deviation(buffer: SampleBuffer, domain: str | Domain = "log", *,
                 s2_abs = np.minimum(p.sample_variance / level / level, _FINITE_TOP)
             # A light's own absolute error keeps ranking it: left out, a small light's pixels rank by their
             # darker neighbours and keep their first rounds' few samples.
-            s2_pooled += ndimage.uniform_filter(s2_abs, 3, mode="nearest")
-    # The running-sum filters can leave -1e-17-sized residues next to large values: clip them.
-    np.maximum(s2_pooled, 0.0, out=s2_pooled)
+            s2_pooled += window_sum(s2_abs, 3) / 9.0
     return np.sqrt(s2_pooled, out=s2_pooled)
 
 
@@ -143,9 +141,9 @@ def _neighbours(s2: FloatArray) -> FloatArray:
     neighbours', its own samples decide none of its next ones at first hand (docs/sampling.md, "The pixel's
     own samples").
     """
-    pooled = ndimage.uniform_filter(s2, 3, mode="mirror")
-    pooled *= 9.0
-    pooled -= s2
+    # Added up from the neighbours: a bright pixel's own value taken out of a sum with it left its rounding error
+    # in its neighbours' mean (._windows).
+    pooled = neighbour_sum(s2, mode="reflect")
     pooled /= 8.0
     return pooled
 
@@ -419,7 +417,7 @@ def sampling_density(
         s_pooled = deviation()
     if noise_gain is not None:
         # Pooled like s_p; a NaN or negative gain (none is expected) must not send samples nowhere.
-        gain = np.nan_to_num(ndimage.uniform_filter(noise_gain, 3, mode="nearest"), nan=1.0)
+        gain = np.nan_to_num(window_sum(noise_gain, 3) / 9.0, nan=1.0)
         s_pooled *= np.sqrt(np.maximum(gain, 0.0))
         return s_pooled
     if level_weight == 0:

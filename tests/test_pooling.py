@@ -474,3 +474,18 @@ def test_the_compiled_loops_chances_where_it_visits_are_numpys_plane(rng):
             loop(todo, count, mean, s2, dof, g, chance0, 1.0, out[-1])
         assert_array_equal(out[0], out[1])
         assert (out[0][todo] > 0).mean() > 0.3
+
+
+@pytest.mark.parametrize("noisy", [1e8, 1e16])
+def test_a_very_noisy_pixel_far_away_leaves_a_single_samples_pool_as_it_is(noisy):
+    """A pixel of one sample pools the known variances of its own window, whatever lies beyond it: a running sum
+    (scipy's uniform_filter) carried a noisy pixel's rounding error 25 columns along, and the pool came out 0, a
+    single sample read as exact (a red-team pass; ._windows)."""
+    count = np.full((1, 40), 4)
+    count[0, 30] = 1
+    mean = np.ones((1, 40, 1))
+    variance = np.full((1, 40, 1), 0.01)
+    variance[0, 30] = 0.0
+    variance[0, 5] = noisy
+    out = pooling.pooled_variance(count, mean, variance, count >= 2)
+    assert out[0, 30, 0] == pytest.approx(0.01, rel=1e-12)

@@ -172,6 +172,19 @@ def test_a_pixels_own_samples_do_not_rank_it_but_rank_its_neighbours():
     assert s[0, 0] == pytest.approx(0.1)
 
 
+@pytest.mark.parametrize("noisy", [1e12, 1e20])
+def test_a_very_noisy_pixel_leaves_its_neighbours_ranking_to_them(noisy):
+    """Its 8 neighbours' error is added up from them, not taken as the 3x3 sum less its own value (which left 0 at
+    1e20), and the pixels beyond its square are ranked as without it (a running sum carried its rounding error
+    along the line)."""
+    var = np.full((9, 9), 0.01)
+    var[4, 4] = noisy
+    s = pooled_deviation(_grey_buffer(np.full((9, 9), 1.0), var, np.full((9, 9), 4)), domain="linear",
+                         absolute_above=None)
+    assert s[4, 4] == pytest.approx(0.1, rel=1e-12)
+    assert s[4, 7] == pytest.approx(0.1, rel=1e-12) and s[7, 4] == pytest.approx(0.1, rel=1e-12)
+
+
 def test_a_pixel_far_brighter_than_the_image_is_ranked_by_its_absolute_error(rng):
     """pooled_deviation: below 6 times the image's level, the relative ranking; far above it, the absolute."""
     mean = np.full((24, 24), 1.0)
