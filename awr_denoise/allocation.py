@@ -197,12 +197,14 @@ def _water_level(a: FloatArray, n: FloatArray, cap: FloatArray | None, budget: i
     # variant of regula falsi) needs a handful of passes over the image where bisection needs ~50.
     lo, hi = 0.0, (budget + n.sum()) / a.sum()
     f_lo, f_hi = -float(budget), spent(hi) - budget
-    while f_hi < 0:
+    # Every pixel at its cap: spent() can grow no further (its float64 sum can fall short of the budget by
+    # rounding above 2**53). Only then does the level stop rising short of the budget: a doubling that adds
+    # nothing (the open pixels capped, the next one opening higher up) is no saturation (a red-team pass).
+    full = float(cap.sum()) - budget if capped else np.inf
+    while f_hi < 0 and f_hi < full:
         lo, f_lo = hi, f_hi
         hi *= 2.0
         f_hi = spent(hi) - budget
-        if f_hi <= f_lo:  # saturated at capacity: a float64 sum above 2**53 can fall short by rounding
-            break
     side = 0
     # Rounding to integers below settles any residual, so stop within 0.1% of the budget.
     tolerance = max(0.5, 1e-3 * budget)

@@ -1,4 +1,4 @@
-"""The water-filling's rounding: the largest-remainder selection against a full partition.
+"""The water-filling: its level where pixels are capped, and its rounding against a full partition.
 
 The contract of :func:`~awr_denoise.allocate` itself (budget, caps, refusals) is tested in
 test_sampling.py beside the samplers that call it.
@@ -130,3 +130,21 @@ def test_the_uniform_share_of_a_budget_past_2_53_is_exact(fraction):
     budget = 2**53 + 3
     got = allocate_mixed(np.ones((1, 2)), np.zeros((1, 2), np.int64), budget, fraction)
     assert int(got.sum()) == budget and abs(int(got[0, 0]) - int(got[0, 1])) <= 1
+
+
+@pytest.mark.parametrize(("density", "current", "capacity", "budget", "want"), [
+    # The dense pixels capped and the others holding samples already: doubling the water level once added
+    # nothing, was taken for saturation, and the rest of the budget went out evenly (25 each; a red-team pass).
+    ([1.0, 1.0, 1e-3, 2e-3, 3e-3, 4e-3], [0, 0, 5, 5, 5, 5], [1, 1, 1000, 1000, 1000, 1000], 102,
+     [1, 1, 7, 19, 31, 43]),
+    # Pixels of no density are filled level: the one already at 50 takes none (it took 20).
+    ([1.0, 0.0, 0.0], [0, 2, 50], [1, 100, 100], 41, [1, 40, 0]),
+])
+def test_capped_pixels_leave_the_rest_to_the_water_level(density, current, capacity, budget, want):
+    got = allocate(np.array([density]), np.array([current]), budget, capacity=np.array([capacity]))
+    assert_array_equal(got, [want])
+    # The pixels past the first capped ones get what they get alone, with what the capped ones left.
+    rest = slice(capacity.count(1), None)
+    alone = allocate(np.array([density])[:, rest], np.array([current])[:, rest], budget - capacity.count(1),
+                     capacity=np.array([capacity])[:, rest])
+    assert_array_equal(got[:, rest], alone)
