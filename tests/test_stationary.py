@@ -18,7 +18,7 @@ MC_FAMILY_ALPHA = 1e-3
 FLOAT32_RTOL = 2e-6
 
 CASES = [((24, 20), "bior4.4", 2), ((23, 29), "bior4.4", 3), ((16, 16), "haar", 4), ((31, 17), "db2", 2),
-         ((1, 16), "haar", 1)]
+         ((1, 16), "haar", 1), ((40, 36), "dmey", 2)]  # dmey: 0.6% off a pure phase, refused before
 
 
 def _flat(coeffs) -> list[np.ndarray]:
@@ -35,7 +35,9 @@ def test_inverse_undoes_forward(rng, shape, wavelet, levels, channels):
     assert_allclose(t.inverse(coeffs), image, rtol=1e-12, atol=1e-12)
 
 
-@pytest.mark.parametrize(("shape", "wavelet", "levels"), CASES)
+# dmey's high-pass filter sums to 1e-3, not 0: its detail bands carry a little of the sum (the mean's restoration
+# keeps the image's).
+@pytest.mark.parametrize(("shape", "wavelet", "levels"), [case for case in CASES if case[1] != "dmey"])
 def test_detail_bands_carry_none_of_the_image_sum(rng, shape, wavelet, levels):
     image = rng.random(shape)
     t = StationaryTransform(shape, wavelet=wavelet, levels=levels)
