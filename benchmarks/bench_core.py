@@ -503,6 +503,56 @@ def precision(spps=(8, 32, 128), group: int = 0) -> list[dict]:
     return rows
 
 
+def _firefly_buffer(value: float, seed: int = 0) -> tuple[SampleBuffer, np.ndarray]:
+    """64x64 RGB at 16 spp, a sinusoid of 0.5 +- 0.3 with noise, and one pixel holding one sample of ``value``."""
+    rng = np.random.default_rng(seed)
+    clean = 0.5 + 0.3 * np.sin(np.arange(64) / 5.0)[None, :, None] * np.ones((64, 64, 3))
+    variance = np.full(clean.shape, 0.05)
+    mean = clean + rng.standard_normal(clean.shape) * np.sqrt(variance / 16)
+    mean[10, 10], variance[10, 10] = value / 16 + 0.5, value**2 / 16
+    return SampleBuffer.from_moments(np.full((64, 64), 16), mean, variance), clean
+
+
+def wiener_precision(spps=(8, 32), group: int = 0) -> list[dict]:
+    """The default reconstruction in float32 (its default) against ``precision="float64"``, all stages.
+
+    The rendered buffers of :func:`precision`, and a synthetic firefly: one sample of 1e4, 1e6 or 1e9 in one pixel
+    of a 64x64 image at 16 spp (its "clean" image the reference; "far": pixels 13 or more from it). Each row: the
+    difference per pixel in standard errors of its mean (median, 99th percentile, largest), relMSE and MSE of
+    float32 over float64's, and the far pixels' MSE over float64's where there is a firefly.
+    """
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import bench_reconstruct as br
+
+    cache = Path.home() / ".cache" / "awr-denoise" / "reconstruct"
+    cases = [(f"firefly {value:.0e}", *_firefly_buffer(value)) for value in (1e4, 1e6, 1e9)]
+    scenes = [("tracer", s, None) for s in br.TRACER_SCENES]
+    if br._mitsuba_available():
+        scenes += [("mitsuba", s, br.MITSUBA_SHAPE) for s in br.MITSUBA_SCENES]
+    for renderer, scene, shape in scenes:
+        ref = br.reference(renderer, scene, shape, cache)
+        cases += [(f"{renderer} {scene} {spp} spp", buf, ref)
+                  for spp, buf in br.uniform_buffers(renderer, scene, shape, spps, group, cache).items()]
+    rows = []
+    for name, buf, ref in cases:
+        single, double = reconstruct(buf), reconstruct(buf, precision="float64")
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.abs(single - double) / np.sqrt(buf.variance_of_mean())
+        z = z[np.isfinite(z)]
+        row = {"case": name, "median_sd": float(np.median(z)), "p99_sd": float(np.percentile(z, 99)),
+               "max_sd": float(z.max()), "relmse_ratio": relmse(single, ref) / relmse(double, ref),
+               "mse_ratio": mse(single, ref) / mse(double, ref), "far_mse_ratio": None}
+        if name.startswith("firefly"):
+            far = np.ones(ref.shape[:2], bool)
+            far[:23, :23] = False
+            row["far_mse_ratio"] = mse(single[far], ref[far]) / mse(double[far], ref[far])
+        rows.append(row)
+        far_cell = "" if row["far_mse_ratio"] is None else f"{row['far_mse_ratio']:.3f}"
+        print(f"| {name} | {row['median_sd']:.1e} | {row['p99_sd']:.2g} | {row['max_sd']:.2g} | "
+              f"{row['relmse_ratio']:.4f} | {row['mse_ratio']:.4f} | {far_cell} |", flush=True)
+    return rows
+
+
 def _float32_margin_of(buffer: SampleBuffer) -> float:
     """The smallest over channels of stage 1's margin to its switch to float64 (below 1: float64)."""
     p = prepare(buffer, "log")
@@ -730,6 +780,10 @@ SECTIONS = {
                   "| renderer | scene | spp | relMSE | MSE | image mean | largest pixel change (x (abs(x) + k)) "
               "| float32 margin (below 1: float64) |",
                   lambda quick: precision(spps=(8,) if quick else (8, 32, 128))),
+    "wiener_precision": ("The default reconstruction in float32 against float64 (every stage): difference per "
+                         "pixel in standard errors of its mean, and float32's errors over float64's",
+                         "| case | median | 99th percentile | largest | relMSE | MSE | MSE of the far pixels |",
+                         lambda quick: wiener_precision(spps=(8,) if quick else (8, 32))),
     "speed": ("Speed against the PyWavelets floor (medians of interleaved repeats; x floor of the same run) "
               "and peak memory (tracemalloc, x input buffer)",
               "| size | input buffer | floor | stages=1 | stages=1, numpy kernels | stages=1 float64 | default | ask() | ask(), levels | tell() "
