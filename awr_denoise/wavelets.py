@@ -107,9 +107,12 @@ def _check_wavelet(wavelet: str) -> pywt.Wavelet:
                          f"(for example 'bior4.4', 'haar', 'db2')") from None
 
 
-def _check_boundary(boundary: str) -> str:
+def _check_boundary(boundary: str, shape: tuple[int, ...]) -> str:
     if not isinstance(boundary, str) or boundary not in pywt.Modes.modes:
         raise ValueError(f"boundary: {boundary!r} is not one of {', '.join(sorted(pywt.Modes.modes))}")
+    if boundary in ("reflect", "antireflect") and min(shape[:2]) < 2:  # else PyWavelets' words, naming no option
+        raise ValueError(f"boundary: {boundary!r} needs 2 pixels or more on each side; the image is "
+                         f"{shape[0]}x{shape[1]}")
     return boundary
 
 
@@ -259,8 +262,8 @@ def wavelet_operators(shape: Shape2D, *, wavelet: str = DEFAULT_WAVELET, levels:
     True
     """
     _check_wavelet(wavelet)
-    _check_boundary(boundary)
     h, w = _checks.shape2d("shape", shape)
+    _check_boundary(boundary, (h, w))
     lv = _check_levels(levels, (h, w))
     return WaveletOperators((h, w), wavelet, boundary, lv,
                             _axis_operators(h, wavelet, boundary, lv),
@@ -302,12 +305,12 @@ def forward(image: FloatArray, *, wavelet: str = DEFAULT_WAVELET, levels: int | 
     (4.0, 0.0)
     """
     _check_wavelet(wavelet)
-    _check_boundary(boundary)
     image = np.asarray(image)
     if image.dtype.kind not in "fiu":
         raise TypeError(f"image: expected a numeric array, got dtype {image.dtype}")
     if image.ndim not in (2, 3):
         raise ValueError(f"image: expected shape (H, W) or (H, W, C), got {image.shape}")
+    _check_boundary(boundary, image.shape)
     bad = int(np.count_nonzero(~np.isfinite(image)))
     if bad:
         raise ValueError(f"image: {bad} value(s) are NaN or Inf")

@@ -10,6 +10,7 @@ import pywt
 from numpy.testing import assert_allclose
 from scipy import stats
 
+from awr_denoise import SampleBuffer, reconstruct
 from awr_denoise.wavelets import (
     coefficient_variance,
     default_levels,
@@ -73,6 +74,20 @@ def test_bad_levels_wavelet_and_boundary_are_refused():
         forward(np.zeros((16, 16)), wavelet="cdf97")
     with pytest.raises(ValueError, match="boundary: 'mirror'"):
         forward(np.zeros((16, 16)), boundary="mirror")
+
+
+@pytest.mark.parametrize("boundary", ["reflect", "antireflect"])
+@pytest.mark.parametrize("shape", [(1, 40), (40, 1)])
+def test_a_mode_that_needs_two_pixels_is_refused_by_name_on_a_thinner_image(boundary, shape):
+    """PyWavelets' own error ("Input data length must be greater than 1") named no option (a red-team pass)."""
+    message = f"boundary: '{boundary}' needs 2 pixels"
+    with pytest.raises(ValueError, match=message):
+        forward(np.zeros(shape), boundary=boundary)
+    with pytest.raises(ValueError, match=message):
+        wavelet_operators(shape, boundary=boundary)
+    buffer = SampleBuffer.from_moments(np.full(shape, 4), np.ones(shape + (3,)), np.full(shape + (3,), 0.1))
+    with pytest.raises(ValueError, match=message):
+        reconstruct(buffer, boundary=boundary, stages=1)
 
 
 # ---------------------------------------------------------------------------- transform
