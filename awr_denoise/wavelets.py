@@ -389,7 +389,8 @@ def coefficient_variance(variance_of_mean: FloatArray, *, wavelet: str = DEFAULT
         Prebuilt :func:`wavelet_operators` for this shape (they are cached anyway).
     precision
         ``"float64"`` (the reference) or ``"float32"``: the precision of the products (float32
-        halves the memory traffic; its relative error is a few float32 epsilons).
+        halves the memory traffic; its relative error is a few float32 epsilons; variances beyond its
+        range are refused).
 
     Returns
     -------
@@ -426,10 +427,18 @@ def coefficient_variance(variance_of_mean: FloatArray, *, wavelet: str = DEFAULT
         raise TypeError(f"variance_of_mean: expected a numeric array, got dtype {v.dtype}")
     if precision not in ("float32", "float64"):
         raise ValueError(f"precision: {precision!r} is not one of float32, float64")
-    v = v.astype(np.dtype(precision))
     if not (np.isfinite(v) & (v >= 0)).all():
         raise ValueError(f"variance_of_mean: {int((~(np.isfinite(v) & (v >= 0))).sum())} value(s) are NaN, Inf "
                          "or negative")
+    if precision == "float32" and v.size:
+        # Checked before the cast: past float32's range a variance became Inf (refused as "NaN, Inf") and below its
+        # normal numbers 0, an exact pixel (a red-team pass); a margin of 1024 below the top for the sums.
+        f32 = np.finfo(np.float32)
+        top, least = float(v.max()), float(np.min(v, initial=np.inf, where=v > 0))
+        if top > float(f32.max) / 1024 or least < float(f32.tiny):
+            raise ValueError(f"variance_of_mean: values from {least:.3g} to {top:.3g} are beyond float32's range "
+                             f"({float(f32.tiny):.3g} to {float(f32.max) / 1024:.3g} here); use precision='float64'")
+    v = v.astype(np.dtype(precision))
     ops = operators or wavelet_operators(v.shape[:2], wavelet=wavelet, levels=levels, boundary=boundary)
     if ops.shape != v.shape[:2]:
         raise ValueError(f"operators: built for shape {ops.shape}, variance has {v.shape[:2]}")

@@ -126,6 +126,18 @@ def test_variance_of_one_hot_equals_squared_impulse_response(rng, shape, wavelet
     assert (expected.sum(axis=0) > 0).all()  # every impulse reaches some coefficient
 
 
+@pytest.mark.parametrize("value", [1e-46, 1e-40, 1e37, 1e39])
+def test_float32_variances_beyond_its_range_are_refused_not_rounded(value):
+    """Cast first, 1e39 became Inf (refused as "NaN, Inf") and 1e-46 became 0, an exact pixel (a red-team pass)."""
+    v = np.full((16, 16), value)
+    with pytest.raises(ValueError, match="beyond float32's range.*precision='float64'"):
+        coefficient_variance(v, levels=2, precision="float32")
+    assert np.isfinite(coefficient_variance(v, levels=2)[0]).all()  # float64 holds them
+    ordinary = np.ones((16, 16))
+    ordinary[0, 0] = 0.0  # an exact pixel beside ordinary ones is fine in float32
+    assert coefficient_variance(ordinary, levels=2, precision="float32")[0].dtype == np.float32
+
+
 @pytest.mark.parametrize(("shape", "wavelet", "levels"), list(_level_cases()))
 def test_variance_is_linear_in_pixel_variance(rng, shape, wavelet, levels):
     v1, v2 = rng.random(shape), rng.random(shape)
