@@ -56,7 +56,7 @@ import numpy as np
 from . import _checks
 from ._arrays import plain
 from ._typing import FloatArray
-from ._windows import window_sum
+from ._window_sums import window_sum
 from .buffers import SampleBuffer
 from .channels import colours
 from .prepare import filled_mean
@@ -392,7 +392,7 @@ def trust(candidate: FloatArray, buffer: SampleBuffer, *, window: int = GATE_WIN
     v = buffer.estimated_variance() / np.maximum(buffer.count, 1)[..., None]
     with np.errstate(over="ignore"):  # a guide far beyond the means: its distance is inf, capped, share 0
         distance = np.minimum((candidate - x) ** 2, 1e300).sum(axis=-1)
-    spread = window_sum(np.minimum(distance, 1e300 / window**2), window)  # sums, not running ones (._windows)
+    spread = window_sum(np.minimum(distance, 1e300 / window**2), window)  # sums, not running ones (._window_sums)
     noise = window_sum(v.sum(axis=-1), window)
     r = np.where(noise > 0, spread / np.where(noise > 0, noise, 1.0), np.where(spread > 0, np.inf, 0.0))
     return np.clip((GATE_HIGH - r) / (GATE_HIGH - GATE_LOW), 0.0, 1.0)[..., None]

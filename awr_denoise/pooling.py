@@ -21,7 +21,7 @@ import numpy as np
 
 from . import _checks, fused, rims
 from ._typing import BoolArray, CountArray, FloatArray
-from ._windows import window_sum
+from ._window_sums import window_sum
 
 __all__ = ["estimated_variance", "pooled_variance", "agreed_variance", "POOL_WINDOW", "JUMP_RATIO", "AGREED_PRIOR"]
 
@@ -480,7 +480,7 @@ def _pooled(count: CountArray, mean: FloatArray, variance: FloatArray, known: Bo
     missing = ~known
     for c in range(variance.shape[2]):
         # Sums of the window's own entries: a running sum (uniform_filter's) carried a very noisy pixel's rounding
-        # error along the line, and a pixel of one sample 25 columns away pooled a variance of 0 (._windows).
+        # error along the line, and a pixel of one sample 25 columns away pooled a variance of 0 (._window_sums).
         local_dof = window_sum(entries[..., c], POOL_WINDOW)
         local_m2 = window_sum(m2[..., c], POOL_WINDOW)
         with np.errstate(invalid="ignore", divide="ignore"):

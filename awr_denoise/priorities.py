@@ -29,7 +29,7 @@ import numpy as np
 from . import _checks
 from ._arrays import numeric
 from ._typing import FloatArray
-from ._windows import neighbour_sum, window_sum
+from ._window_sums import neighbour_sum, window_sum
 from .buffers import SampleBuffer
 from .domains import Domain
 from .noise_gain import DEFAULT_NOISE_MODEL, NOISE_MODELS, shrinkage_gain
@@ -142,7 +142,7 @@ def _neighbours(s2: FloatArray) -> FloatArray:
     own samples").
     """
     # Added up from the neighbours: a bright pixel's own value taken out of a sum with it left its rounding error
-    # in its neighbours' mean (._windows).
+    # in its neighbours' mean (._window_sums).
     pooled = neighbour_sum(s2, mode="reflect")
     pooled /= 8.0
     return pooled

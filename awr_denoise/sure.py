@@ -32,7 +32,7 @@ import numpy as np
 
 from . import _checks
 from ._typing import FloatArray
-from ._windows import window_sum
+from ._window_sums import window_sum
 
 __all__ = ["sure_blend", "DEFAULT_WINDOW", "DEFAULT_GUIDED_WINDOW"]
 
@@ -117,7 +117,7 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
 
     def share(num: FloatArray, den: FloatArray) -> FloatArray:
         """The sums' ratio clipped to [0, 1] (1 where it is undefined), into ``num``; ``den`` is spent."""
-        # Window sums of their own entries (._windows): a running sum carried a removed firefly's rounding
+        # Window sums of their own entries (._window_sums): a running sum carried a removed firefly's rounding
         # error along the line, and the share came out 0.2 off far from it.
         window_sum(num, window, out=num)
         window_sum(den, window, out=den)

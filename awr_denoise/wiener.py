@@ -33,7 +33,7 @@ import numpy as np
 
 from . import _checks
 from ._typing import FloatArray
-from ._windows import window_sum
+from ._window_sums import window_sum
 from .stationary import StationaryTransform
 
 __all__ = ["WienerResult", "wiener_filter", "relative_wiener", "stage_weights", "WienerChain", "chain",
@@ -208,7 +208,7 @@ def _band(t: StationaryTransform, b: int, spectra: tuple, leverage: bool, scratc
                 evidence = np.multiply(x_band, x_band, out=scratch.evidence)
                 evidence -= floor[1] * noise
                 window_sum(evidence, floor[0], mode="wrap", out=evidence)  # the periodic canvas; no running sum
-                evidence /= floor[0] * floor[0]  # (._windows): a firefly's rounding error stays in its windows
+                evidence /= floor[0] * floor[0]  # (._window_sums): a firefly's rounding error stays in its windows
             np.nan_to_num(evidence, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
             np.maximum(factor, evidence, out=factor)
         factor += tiny

@@ -480,7 +480,7 @@ def test_the_compiled_loops_chances_where_it_visits_are_numpys_plane(rng):
 def test_a_very_noisy_pixel_far_away_leaves_a_single_samples_pool_as_it_is(noisy):
     """A pixel of one sample pools the known variances of its own window, whatever lies beyond it: a running sum
     (scipy's uniform_filter) carried a noisy pixel's rounding error 25 columns along, and the pool came out 0, a
-    single sample read as exact (a red-team pass; ._windows)."""
+    single sample read as exact (a red-team pass; ._window_sums)."""
     count = np.full((1, 40), 4)
     count[0, 30] = 1
     mean = np.ones((1, 40, 1))

@@ -9,7 +9,7 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 from scipy import ndimage
 
-from awr_denoise._windows import window_sum
+from awr_denoise._window_sums import window_sum
 from awr_denoise.sure import sure_blend
 
 SHAPE = (32, 32, 1)
@@ -88,7 +88,7 @@ def _plain_sure_blend(o, x, v, lev, k, window=9):
     """The guard written out plainly (a new array per step): the in-place version's reference."""
     lev = lev[..., None] if lev.ndim == o.ndim - 1 else lev
     change, gain = o - x, v * (1.0 - lev)
-    pooled = lambda a: window_sum(a, window)  # noqa: E731  (tests/test_windows.py holds it to plain sums)
+    pooled = lambda a: window_sum(a, window)  # noqa: E731  (tests/test_window_sums.py holds it to plain sums)
 
     def share(num, den):
         num, den = pooled(num), pooled(den)

@@ -1,4 +1,4 @@
-"""Window sums made of their own entries (awr_denoise._windows) against sums written out pixel by pixel."""
+"""Window sums made of their own entries (awr_denoise._window_sums) against sums written out pixel by pixel."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy import ndimage
 
-from awr_denoise._windows import neighbour_sum, window_sum
+from awr_denoise._window_sums import neighbour_sum, window_sum
 
 MODES = ("edge", "reflect", "wrap")
 

@@ -25,7 +25,7 @@ def window_sum(a: FloatArray, size: int, *, mode: str = "edge", out: FloatArray 
     Examples
     --------
     >>> import numpy as np
-    >>> from awr_denoise._windows import window_sum
+    >>> from awr_denoise._window_sums import window_sum
     >>> a = np.zeros((1, 40)); a[0, 5] = 1e16; a[0, 30] = 1.0
     >>> float(window_sum(a, 5)[0, 30])          # a running sum gives 0 here: 1e16 passed by on the way
     5.0
@@ -44,7 +44,7 @@ def neighbour_sum(a: FloatArray, *, mode: str = "reflect") -> FloatArray:
     Examples
     --------
     >>> import numpy as np
-    >>> from awr_denoise._windows import neighbour_sum
+    >>> from awr_denoise._window_sums import neighbour_sum
     >>> a = np.full((3, 3), 1.0); a[1, 1] = 1e20
     >>> float(neighbour_sum(a)[1, 1])
     8.0
