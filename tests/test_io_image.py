@@ -460,3 +460,36 @@ def test_a_mipmapped_file_is_named_as_such_not_corrupt(tmp_path):
     (tmp_path / "cut.exr").write_bytes((tmp_path / "mip.exr").read_bytes()[:-40])
     with pytest.raises(InputFileError):
         read_image(tmp_path / "cut.exr")
+
+
+_LIMITED_WRITE = """
+import resource, sys
+import numpy as np
+from awr_denoise.io import write_image
+from awr_denoise.io.png import write_preview
+kind, path, limit = sys.argv[1], sys.argv[2], int(sys.argv[3])
+resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))  # Python ignores SIGXFSZ: writes fail with EFBIG
+try:
+    if kind == "exr":  # flat, 594 bytes: written only when the stream closes
+        write_image(path, np.full((64, 64, 3), 0.5, np.float32), overwrite=True)
+    else:
+        write_preview(path, np.random.default_rng(0).random((128, 128, 3)), overwrite=True)
+except OSError as exc:
+    print(exc)
+    sys.exit(1)
+"""
+
+
+@pytest.mark.parametrize(("kind", "limit"), [("exr", 100), ("exr", 400), ("png", 8192)])
+def test_a_write_cut_short_is_an_error_and_replaces_nothing(tmp_path, kind, limit):
+    """A file size limit (or a full disk) cut the file, and the writer said nothing: the OpenEXR bindings when a
+    small file is written at close, OpenImageIO's PNG writer but in geterror(). The cut file was committed over
+    the previous one, exit 0 (a red-team pass)."""
+    path = tmp_path / f"out.{kind}"
+    path.write_bytes(b"the previous output")
+    done = subprocess.run([sys.executable, "-c", _LIMITED_WRITE, kind, str(path), str(limit)], capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert str(path) in done.stdout
+    assert path.read_bytes() == b"the previous output"
+    assert [p.name for p in tmp_path.iterdir()] == [path.name]  # no staging folder left

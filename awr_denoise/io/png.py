@@ -77,8 +77,10 @@ def _write_png(tmp: str, pixels: np.ndarray) -> None:
         out = oiio.ImageOutput.create("png")
         if out is not None and out.open(tmp, oiio.ImageSpec(w, h, c, oiio.UINT8)):
             ok = out.write_image(pixels)
-            out.close()
-            if ok:
+            ok = out.close() and ok
+            # A short write (a full disk) shows only in geterror(): write_image() and close() said True, and a cut
+            # preview was committed (a red-team pass). The encoder below writes it again, and raises if it cannot.
+            if ok and not out.geterror():
                 return
     with open(tmp, "wb") as fh:
         fh.write(encode_png(pixels))
