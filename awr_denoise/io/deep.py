@@ -26,6 +26,7 @@ from ..buffers import NONFINITE_POLICIES, SampleBuffer
 from ..requests import SampleRequest
 from .._version import __version__
 from .dump import exact_counts
+from . import chunks
 from .exr import ExrPart, checked_plane, file_error, header_value, read_exr, write_exr
 
 __all__ = ["SEMANTICS_SAMPLES", "SAMPLE_INDEX_CHANNEL", "read_deep_samples", "write_deep_samples",
@@ -106,49 +107,31 @@ _PIXEL_TYPE_BYTES = {0: 4, 1: 2, 2: 4}  # UINT, HALF, FLOAT
 
 def _unpacked_sample_bytes(path: str | os.PathLike[str]) -> tuple[int, int] | None:
     """(sum of the chunks' unpacked sample-data sizes, bytes per sample) of a single-part deep
-    scanline file, read from the raw chunk headers, or None where the layout is not that.
+    scanline file, read from the raw chunk headers (:mod:`.chunks`), or None where the layout is not that.
 
     Each deep scanline chunk starts with ``int32 y, uint64 packed table size, uint64 packed data
     size, uint64 unpacked data size`` (OpenEXR file layout), uncompressed, so the data the file
-    really holds can be checked against the count table without decompressing anything.
+    really holds can be checked against the count table without decompressing anything. Read with
+    seeks: the whole file read into memory made a valid dump of gigabytes "out of memory" (a red-team pass).
     """
-    data = Path(path).read_bytes()
-    if len(data) < 8 or data[:4] != b"\x76\x2f\x31\x01":
-        return None
-    flags = int.from_bytes(data[4:8], "little")
-    if flags & 0x1000 or not flags & 0x800:  # multi-part, or not deep
-        return None
-    at, channels, height, scanline = 8, None, None, False
-    try:
-        while data[at] != 0:
-            name_end = data.index(b"\x00", at)
-            type_end = data.index(b"\x00", name_end + 1)
-            size = int.from_bytes(data[type_end + 1:type_end + 5], "little", signed=True)
-            name, value = data[at:name_end], data[type_end + 5:type_end + 5 + size]
-            if name == b"channels":
-                channels, i = [], 0
-                while value[i] != 0:
-                    i = value.index(b"\x00", i) + 1
-                    channels.append(int.from_bytes(value[i:i + 4], "little"))
-                    i += 16
-            elif name == b"dataWindow":
-                y0 = int.from_bytes(value[4:8], "little", signed=True)
-                y1 = int.from_bytes(value[12:16], "little", signed=True)
-                height = y1 - y0 + 1
-            elif name == b"type":
-                scanline = value.rstrip(b"\x00") == b"deepscanline"
-            at = type_end + 5 + size
-        at += 1
-        if not scanline or channels is None or height is None or height <= 0:
+    with open(path, "rb") as fh:
+        found = chunks.layout(fh)
+        if found is None or not found.deep or found.attributes.get(b"type", (b"", b""))[1].rstrip(b"\x00") != \
+                b"deepscanline":
             return None
-        per_sample = sum(_PIXEL_TYPE_BYTES[t] for t in channels)
-        offsets = np.frombuffer(data, dtype="<u8", count=height, offset=at)
-        total = 0
-        for offset in offsets.tolist():  # one chunk header per scanline, not per pixel
-            total += int.from_bytes(data[offset + 20:offset + 28], "little")
-        return total, per_sample
-    except (IndexError, ValueError, KeyError):
+        headers = chunks.chunk_headers(fh, found)
+    if headers is None:
         return None  # unreadable layout: the bindings' own checks have already run
+    value, channels, i = found.attributes.get(b"channels", (b"", b"\x00"))[1], [], 0
+    try:
+        while value[i] != 0:
+            i = value.index(b"\x00", i) + 1
+            channels.append(int.from_bytes(value[i:i + 4], "little"))
+            i += 16
+        per_sample = sum(_PIXEL_TYPE_BYTES[t] for t in channels)
+    except (IndexError, ValueError, KeyError):
+        return None
+    return sum(h[3] for h in headers), per_sample
 
 
 def _sizes(grid: np.ndarray) -> np.ndarray:
