@@ -648,3 +648,32 @@ def test_flags_and_names_of_the_writers_are_checked(tmp_path):
         with pytest.raises(ValueError, match="was not added"):
             outputs.temporary(tmp_path / "never.exr")
     assert keep.read_bytes() == b"precious" and not (tmp_path / "h.exr").exists()
+
+
+@pytest.mark.parametrize("linkable", [True, False])
+def test_a_failed_set_puts_back_every_file_it_replaced(tmp_path, monkeypatch, linkable):
+    """The second target's move fails (a busy mount point, another user's file in a sticky folder). The first
+    target, replaced already, is put back as it was, also where its backup could not be a hard link: it was
+    deleted (a red-team pass). The error names the target, not the staging temporary."""
+    first, second = tmp_path / "a.exr", tmp_path / "b.png"
+    first.write_text("previous a")
+    second.write_text("previous b")
+    real_replace = os.replace
+    if not linkable:
+        def no_links(src, dst, *args, **kwargs):
+            raise PermissionError(1, "Operation not permitted", os.fspath(src))
+        monkeypatch.setattr(os, "link", no_links)
+
+    def busy(src, dst, *args, **kwargs):
+        if os.fspath(dst) == os.fspath(second):
+            raise OSError(16, "Device or resource busy", os.fspath(src))
+        return real_replace(src, dst, *args, **kwargs)
+    monkeypatch.setattr(os, "replace", busy)
+    with OutputSet(overwrite=True) as outputs:
+        outputs.add(first).write_text("new a")
+        outputs.add(second).write_text("new b")
+        with pytest.raises(OSError, match="Device or resource busy") as raised:
+            outputs.commit()
+    assert raised.value.filename == str(second)
+    assert first.read_text() == "previous a" and second.read_text() == "previous b"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.exr", "b.png"]

@@ -573,7 +573,17 @@ def _through_links(target: Path) -> Path:
 
 
 def _install(tmp: Path, target: Path, *, overwrite: bool) -> None:
-    """Move a finished temporary to its target, through its links (never replacing one unless ``overwrite``)."""
+    """Move a finished temporary to its target, through its links (never replacing one unless ``overwrite``); a
+    failure (a busy mount point, another user's file in a sticky folder) names the target, not the temporary."""
+    try:
+        _move(tmp, target, overwrite=overwrite)
+    except OSError as exc:
+        if exc.filename is not None and os.fspath(exc.filename) in (os.fspath(tmp), os.fspath(_through_links(target))):
+            raise OSError(exc.errno, exc.strerror, public_name(target)) from None
+        raise
+
+
+def _move(tmp: Path, target: Path, *, overwrite: bool) -> None:
     final = _through_links(target)
     os.chmod(tmp, _new_file_mode(final))
     if overwrite:
@@ -590,6 +600,23 @@ def _install(tmp: Path, target: Path, *, overwrite: bool) -> None:
             raise FileExistsError(
                 f"{target}: already exists (pass overwrite=True / --overwrite to replace it)") from None
         os.replace(tmp, final)  # file systems without hard links
+
+
+def _kept(final: Path, backup: Path, target: Path) -> Path:
+    """A copy of the file ``final`` at ``backup`` (a hard link, or the bytes where none can be made) to put back if
+    the set fails; failing to keep it fails the set before anything is moved, naming ``target``."""
+    try:
+        os.link(final, backup)
+    except OSError:
+        try:
+            shutil.copy2(final, backup)
+            st = os.stat(final)
+            with contextlib.suppress(OSError):  # its owner too, where the process may set it
+                os.chown(backup, st.st_uid, st.st_gid)
+        except OSError as exc:
+            raise OSError(exc.errno, f"cannot keep a copy of the file it would replace ({exc.strerror})",
+                          public_name(target)) from None
+    return backup
 
 
 def _check_written(tmp: Path, target: Path) -> None:
@@ -803,25 +830,27 @@ class OutputSet:
         return self.targets
 
     def _move_all(self) -> None:
-        moved: list[tuple[Path, Path | None]] = []
-        try:
-            for target in self._staged:
-                check_writable(target, overwrite=self.overwrite)
+        for target in self._staged:
+            check_writable(target, overwrite=self.overwrite)
+        # Every file a target replaces is kept before the first move, so that a failure on a later one can put it
+        # back: kept only as the moves went, one that could not be linked (no hard links there, or another user's
+        # file under protected_hardlinks) was deleted by the rollback (a red-team pass).
+        backups: dict[Path, Path] = {}
+        if self.overwrite:
             for target, tmp in self._staged.items():
-                backup, final = None, _through_links(target)
-                if self.overwrite and os.path.lexists(final):
-                    backup = tmp.with_name(tmp.name + ".old")
-                    try:
-                        os.link(final, backup)
-                    except OSError:
-                        backup = None  # no hard links here: the replaced file cannot be put back
+                final = _through_links(target)
+                if os.path.lexists(final):
+                    backups[final] = _kept(final, tmp.with_name(tmp.name + ".old"), target)
+        moved: list[Path] = []
+        try:
+            for target, tmp in self._staged.items():
                 _install(tmp, target, overwrite=self.overwrite)
-                moved.append((final, backup))
+                moved.append(_through_links(target))
         except BaseException:
-            for final, backup in reversed(moved):
+            for final in reversed(moved):
                 with contextlib.suppress(OSError):
-                    if backup is not None:
-                        os.replace(backup, final)
+                    if final in backups:
+                        os.replace(backups[final], final)
                     else:
                         os.unlink(final)
             raise
