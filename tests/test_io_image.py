@@ -493,3 +493,18 @@ def test_a_write_cut_short_is_an_error_and_replaces_nothing(tmp_path, kind, limi
     assert str(path) in done.stdout
     assert path.read_bytes() == b"the previous output"
     assert [p.name for p in tmp_path.iterdir()] == [path.name]  # no staging folder left
+
+
+def test_an_input_that_waits_for_data_is_refused_not_waited_on(tmp_path, monkeypatch):
+    """A "regular file" that blocks on read (tracefs' trace_pipe linked as an EXR) hung every command reading it
+    (a red-team pass): the magic number is read without waiting, as from such a file, here simulated."""
+    from awr_denoise.io import exr
+
+    path = tmp_path / "a.exr"
+    write_image(path, np.full((4, 4, 3), 0.5, np.float32))
+
+    def would_block(p, *, limit):
+        raise BlockingIOError(11, "Resource temporarily unavailable")
+    monkeypatch.setattr(exr, "read_without_waiting", would_block)
+    with pytest.raises(InputFileError, match="a.exr: not an OpenEXR file .a file that waits for data"):
+        read_image(path)

@@ -34,7 +34,7 @@ from .._version import __version__
 from ..channels import default_channel_names
 from ..errors import InputFileError
 from . import chunks
-from .atomic import atomic_write, check_utf8_name, check_writable, file_kind, public_name
+from .atomic import atomic_write, check_utf8_name, check_writable, file_kind, public_name, read_without_waiting
 from .mitsuba import RAW_FILM
 
 __all__ = [
@@ -131,9 +131,12 @@ def _check_magic(path: Path) -> None:
     if not stat.S_ISREG(st.st_mode):
         # Never opened: opening a FIFO would wait for a writer forever.
         raise file_error(path, f"is a {file_kind(st.st_mode)}, not a regular file")
+    # Read without waiting: a file that only looks regular and waits for data (tracefs' trace_pipe, /proc/kmsg)
+    # hung every command that read it (a red-team pass).
     try:
-        with open(path, "rb") as fh:
-            magic = fh.read(4)
+        magic = read_without_waiting(path, limit=3)[:4]
+    except BlockingIOError:
+        raise file_error(path, "not an OpenEXR file (a file that waits for data to be read)") from None
     except OSError as exc:
         raise file_error(path, f"cannot read: {exc.strerror or exc}") from None
     if magic != _EXR_MAGIC:
