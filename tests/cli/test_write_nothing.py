@@ -253,3 +253,19 @@ def test_one_blas_thread_under_an_address_space_limit(work):
         done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120,
                               preexec_fn=preexec)
         assert done.stdout.strip() == expected, done.stderr
+
+
+def test_an_input_in_a_killed_writers_staging_folder_is_refused_and_left_there(work, capsys, monkeypatch):
+    """The first write beside the folder removed it as a leftover, the command's own input with it, and then
+    blamed the input for having changed (a red-team pass): refused before anything is read or removed."""
+    monkeypatch.chdir(work.root)
+    staging = work.root / ".awr-0123456789.tmp"
+    staging.mkdir()
+    (staging / "lock").write_text("another-host")
+    os.replace(work / "d.exr", staging / "1.exr")
+    old = 1_000_000_000
+    os.utime(staging, (old, old))  # long past the age at which a lock-less staging folder counts as left over
+    assert main(["denoise", str(staging / "1.exr"), "-o", "o.exr", "-q"]) == 2
+    one_error_line(capsys.readouterr().err, "staging folder of an interrupted write", "move the file out first")
+    assert sorted(p.name for p in staging.iterdir()) == ["1.exr", "lock"]
+    assert not (work / "o.exr").exists()
