@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
-from tqdm.auto import tqdm
+from ._progress import auto_tqdm as tqdm
 
 from . import _checks
 from .allocation import MAX_BUDGET

@@ -15,8 +15,8 @@ from collections.abc import Iterable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
-from tqdm.auto import tqdm
 
+from awr_denoise._progress import auto_tqdm as tqdm
 from awr_denoise.buffers import NONFINITE_POLICIES, VARIANCE_KINDS
 from awr_denoise.errors import InputFileError
 from awr_denoise.io import PRESETS

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
+from .._progress import tqdm
 
 from .._typing import FloatArray
 from ..buffers import SampleBuffer

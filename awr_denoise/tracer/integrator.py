@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
+from .._progress import tqdm
 
 from .._workers import exit_with_parent
 from ..buffers import SampleBuffer

@@ -15,7 +15,7 @@ import os
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
+from .._progress import tqdm
 
 from ..buffers import SampleBuffer
 from ..io import provenance, read_header, read_image, read_provenance, write_image

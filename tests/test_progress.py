@@ -1,0 +1,26 @@
+"""tqdm imported with its environment checked (awr_denoise._progress)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+
+@pytest.mark.parametrize(("variable", "value"), [("TQDM_NCOLS", "abc"), ("TQDM_MININTERVAL", "x")])
+def test_a_tqdm_variable_it_cannot_read_is_named(variable, value):
+    """tqdm casts its TQDM_* overrides when imported: the library's import and every command (--version too)
+    failed with "invalid literal for int()", naming nothing (a red-team pass)."""
+    env = dict(os.environ, **{variable: value})
+    library = subprocess.run([sys.executable, "-c", "import awr_denoise.rounds"], capture_output=True, text=True, env=env,
+                             timeout=120)
+    assert library.returncode == 1 and f"ValueError: {variable}: tqdm cannot read" in library.stderr
+    script = Path(sys.executable).with_name("awr")  # the installed console script: its real start-up path
+    awr = [str(script)] if script.exists() else [sys.executable, "-m", "awr_denoise.cli.main"]
+    command = subprocess.run([*awr, "--version"], capture_output=True, text=True, env=env, timeout=120)
+    assert command.returncode == 2
+    (line,) = command.stderr.strip().splitlines()
+    assert line.startswith(f"awr: error: {variable}: tqdm cannot read this environment variable (") and value in line
