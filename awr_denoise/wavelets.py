@@ -111,8 +111,7 @@ def _check_boundary(boundary: str, shape: tuple[int, ...]) -> str:
     if not isinstance(boundary, str) or boundary not in pywt.Modes.modes:
         raise ValueError(f"boundary: {boundary!r} is not one of {', '.join(sorted(pywt.Modes.modes))}")
     if boundary in ("reflect", "antireflect") and min(shape[:2]) < 2:  # else PyWavelets' words, naming no option
-        raise ValueError(f"boundary: {boundary!r} needs 2 pixels or more on each side; the image is "
-                         f"{shape[0]}x{shape[1]}")
+        raise ValueError(f"boundary: {boundary!r} needs 2 pixels or more on each side; the image is {shape[:2]}")
     return boundary
 
 
@@ -430,14 +429,12 @@ def coefficient_variance(variance_of_mean: FloatArray, *, wavelet: str = DEFAULT
     if not (np.isfinite(v) & (v >= 0)).all():
         raise ValueError(f"variance_of_mean: {int((~(np.isfinite(v) & (v >= 0))).sum())} value(s) are NaN, Inf "
                          "or negative")
-    if precision == "float32" and v.size:
-        # Checked before the cast: past float32's range a variance became Inf (refused as "NaN, Inf") and below its
-        # normal numbers 0, an exact pixel (a red-team pass); a margin of 1024 below the top for the sums.
-        f32 = np.finfo(np.float32)
-        top, least = float(v.max()), float(np.min(v, initial=np.inf, where=v > 0))
-        if top > float(f32.max) / 1024 or least < float(f32.tiny):
-            raise ValueError(f"variance_of_mean: values from {least:.3g} to {top:.3g} are beyond float32's range "
-                             f"({float(f32.tiny):.3g} to {float(f32.max) / 1024:.3g} here); use precision='float64'")
+    # Checked before the cast: past float32's range a variance became Inf (refused as "NaN, Inf") and below its
+    # normal numbers 0, an exact pixel (a red-team pass); a margin of 1024 below the top for the sums.
+    low, high = float(np.finfo(np.float32).tiny), float(np.finfo(np.float32).max) / 1024
+    if precision == "float32" and v.size and (v.max() > high or np.min(v, initial=np.inf, where=v > 0) < low):
+        raise ValueError(f"variance_of_mean: values beyond float32's range ({low:.3g} to {high:.3g} here) from "
+                         f"{np.min(v, initial=np.inf, where=v > 0):.3g} to {v.max():.3g}; use precision='float64'")
     v = v.astype(np.dtype(precision))
     ops = operators or wavelet_operators(v.shape[:2], wavelet=wavelet, levels=levels, boundary=boundary)
     if ops.shape != v.shape[:2]:
