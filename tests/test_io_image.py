@@ -508,3 +508,38 @@ def test_an_input_that_waits_for_data_is_refused_not_waited_on(tmp_path, monkeyp
     monkeypatch.setattr(exr, "read_without_waiting", would_block)
     with pytest.raises(InputFileError, match="a.exr: not an OpenEXR file .a file that waits for data"):
         read_image(path)
+
+
+def test_a_preview_cut_at_close_without_a_report_is_written_again(tmp_path, monkeypatch):
+    """On a full disk OpenImageIO's PNG writer can cut the file at close and report nothing, not even in geterror()
+    (awr render committed a cut preview, a red-team pass): a file without its closing IEND chunk is encoded again."""
+    oiio = pytest.importorskip("OpenImageIO")
+    from awr_denoise.io import png
+
+    real_create = oiio.ImageOutput.create
+
+    class CutAtClose:
+        def __init__(self):
+            self.inner = real_create("png")
+
+        def open(self, path, spec):
+            self.path = path
+            return self.inner.open(path, spec)
+
+        def write_image(self, pixels):
+            return self.inner.write_image(pixels)
+
+        def close(self):
+            done = self.inner.close()
+            with open(self.path, "r+b") as fh:
+                fh.truncate(os.path.getsize(self.path) // 2)
+            return done
+
+        def geterror(self):
+            return ""
+
+    monkeypatch.setattr(oiio.ImageOutput, "create", staticmethod(lambda kind: CutAtClose()))
+    path = tmp_path / "p.png"
+    png.write_preview(path, np.random.default_rng(0).random((32, 32, 3)))
+    assert path.read_bytes().endswith(b"IEND\xaeB`\x82")
+    assert path.read_bytes() == png.encode_png(png.tonemap_srgb(np.random.default_rng(0).random((32, 32, 3))))

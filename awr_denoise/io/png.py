@@ -65,6 +65,18 @@ def encode_png(pixels: np.ndarray) -> bytes:
 _LIBPNG_LIMIT = 1_000_000  # libpng's default user limit on width and height
 
 
+_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"  # the empty IEND chunk every PNG ends with
+
+
+def _ends_whole(path: str) -> bool:
+    with open(path, "rb") as fh:
+        fh.seek(0, os.SEEK_END)
+        if fh.tell() < len(_IEND):
+            return False
+        fh.seek(-len(_IEND), os.SEEK_END)
+        return fh.read() == _IEND
+
+
 def _write_png(tmp: str, pixels: np.ndarray) -> None:
     try:
         import OpenImageIO as oiio  # the optional ``exr`` extra; the built-in encoder below does without
@@ -78,9 +90,10 @@ def _write_png(tmp: str, pixels: np.ndarray) -> None:
         if out is not None and out.open(tmp, oiio.ImageSpec(w, h, c, oiio.UINT8)):
             ok = out.write_image(pixels)
             ok = out.close() and ok
-            # A short write (a full disk) shows only in geterror(): write_image() and close() said True, and a cut
-            # preview was committed (a red-team pass). The encoder below writes it again, and raises if it cannot.
-            if ok and not out.geterror():
+            # A short write (a full disk) shows in geterror() at most: write_image() and close() said True, and a
+            # cut preview was committed (a red-team pass). Whole, the file ends with its IEND chunk; otherwise the
+            # encoder below writes it again, and raises if it cannot.
+            if ok and not out.geterror() and _ends_whole(tmp):
                 return
     with open(tmp, "wb") as fh:
         fh.write(encode_png(pixels))
