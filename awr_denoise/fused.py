@@ -401,6 +401,23 @@ def compile_loop(loop: Callable) -> Callable | None:
         return None
     # nogil: the channels of a 2-thread executor run at once; no fastmath: the reference's floats and their order.
     try:  # compiled once per machine: cached beside the loop's module, or in the user's cache directory
-        return numba.njit(nogil=True, cache=True)(loop)
+        return _Uncached(numba.njit(nogil=True, cache=True)(loop), loop)
     except RuntimeError:  # neither is writable: compile in every process instead (about 2 s)
         return numba.njit(nogil=True)(loop)
+
+
+class _Uncached:
+    """A cached loop that compiles again without its cache where the cache cannot be saved: numba saves it at the
+    first call, and a full disk there failed the command with "no space left on device" (a red-team pass)."""
+
+    def __init__(self, compiled: Callable, loop: Callable) -> None:
+        self.run, self.loop = compiled, loop
+
+    def __call__(self, *args: object) -> object:
+        try:
+            return self.run(*args)
+        except OSError:  # no loop does I/O: only the cache's save can fail this way
+            import numba
+
+            self.run = numba.njit(nogil=True)(self.loop)
+            return self.run(*args)

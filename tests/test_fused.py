@@ -202,3 +202,20 @@ def test_using_puts_back_the_choice_made_before_it_even_when_the_block_raises(re
     with fused.using("numpy"):
         pass
     assert fused._chosen is None  # the environment's choice again, not "numpy"
+
+
+def test_a_loop_whose_cache_cannot_be_saved_is_compiled_again_without_it():
+    """numba saves a loop's cache at its first call: a full disk there failed the command with "no space left on
+    device", naming nothing (a red-team pass). The loop compiles again, uncached, and runs."""
+    pytest.importorskip("numba")
+
+    def twice(x):
+        return 2.0 * x
+
+    loop = fused.compile_loop(twice)
+
+    def full_disk(*args):
+        raise OSError(28, "No space left on device")
+    loop.run = full_disk
+    assert loop(1.5) == 3.0
+    assert loop.run is not full_disk and loop(2.0) == 4.0
