@@ -269,3 +269,14 @@ def test_an_input_in_a_killed_writers_staging_folder_is_refused_and_left_there(w
     one_error_line(capsys.readouterr().err, "staging folder of an interrupted write", "move the file out first")
     assert sorted(p.name for p in staging.iterdir()) == ["1.exr", "lock"]
     assert not (work / "o.exr").exists()
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs Linux's /dev/full")
+def test_a_report_printed_to_a_full_device_names_standard_output(work):
+    """'no space left on device' named nothing: the line says it was the report on standard output (a red-team
+    pass)."""
+    with open("/dev/full", "w") as full:
+        done = subprocess.run([*awr_command(), "info", "d.exr"], cwd=work.root, stdout=full, stderr=subprocess.PIPE,
+                              text=True, timeout=120)
+    assert done.returncode == 1
+    one_error_line(done.stderr, "standard output: no space left on device")
