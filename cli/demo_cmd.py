@@ -16,7 +16,7 @@ from awr_denoise.metrics import mean_error, mse, relmse
 from awr_denoise.reconstruct import DEFAULT_PILOT_C_S
 from awr_denoise.renderers import create_renderer
 
-from awr_denoise.io.atomic import OutputSet, folders_made
+from awr_denoise.io.atomic import OutputSet, check_creatable, folders_made
 
 from .errors import shown
 from .common import EXIT_OK, UsageError, print_json, status
@@ -70,7 +70,10 @@ def run(args: argparse.Namespace) -> int:
         plan.check()  # before two renders: an image name taken by a folder or a FIFO, say
     else:
         plan.check_names()
-        _check_creatable(out)  # created only once there is something to write: a refusal leaves no folder
+        try:  # created only once there is something to write: a refusal leaves no folder
+            check_creatable(out, option="--out")
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
     scene = tracer.load_scene(name)
     if callable(cached) and not Path(cached(name)).is_file():
         status(f"rendering the reference of {name} once (cached as {cached(name)}); this takes a while",
@@ -113,12 +116,3 @@ def run(args: argparse.Namespace) -> int:
     for label, r in results.items():
         print(f"  {label:<14} {r['relmse']:>10.5f} {r['mse']:>12.6g} {100 * r['mean_error']:>10.2f}%")
     return EXIT_OK
-
-
-def _check_creatable(folder: Path) -> None:
-    """Refuse ``--out`` when it could not be created: its nearest existing parent must be a writable folder."""
-    parent = folder
-    while not os.path.lexists(parent):  # a broken link or a loop of links exists as a name, not a folder
-        parent = parent.parent
-    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
-        raise UsageError(f"--out: {folder} cannot be created ({parent} is not a writable folder)")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import signal
+import stat
 import tempfile
 import threading
 import time
@@ -677,3 +678,30 @@ def test_a_failed_set_puts_back_every_file_it_replaced(tmp_path, monkeypatch, li
     assert raised.value.filename == str(second)
     assert first.read_text() == "previous a" and second.read_text() == "previous b"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.exr", "b.png"]
+
+
+def test_a_folder_of_outputs_that_cannot_be_made_is_refused_before_the_work(tmp_path):
+    """os.access says yes to root under /proc and /sys, and nothing of inodes: awr demo --out found out after both
+    renders (a red-team pass). A probe folder is made and removed; nothing is left."""
+    from awr_denoise.io.atomic import check_creatable
+
+    check_creatable(tmp_path / "new" / "sub", option="--out")
+    assert _listing(tmp_path) == []
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(ValueError, match="--out: .* cannot be created"):
+        check_creatable(tmp_path / "file" / "new", option="--out")
+    if os.path.isdir("/proc/self"):
+        with pytest.raises(ValueError, match="--out: /proc/awr-new cannot be created"):
+            check_creatable("/proc/awr-new", option="--out")
+
+
+def test_folders_made_under_a_tight_umask_can_be_entered(tmp_path):
+    """umask 0177 (for 0600 files) made a 0600 folder its owner could not enter: refused after the work."""
+    old = os.umask(0o177)
+    try:
+        with atomic.folders_made(tmp_path / "a" / "b"):
+            (tmp_path / "a" / "b" / "out.txt").write_text("x")
+    finally:
+        os.umask(old)
+    assert (tmp_path / "a" / "b" / "out.txt").read_text() == "x"
+    assert stat.S_IMODE(os.stat(tmp_path / "a").st_mode) & 0o700 == 0o700

@@ -54,7 +54,7 @@ except ImportError:  # pragma: no cover - not on Windows: stale temporaries are 
     fcntl = None  # type: ignore[assignment]
 
 __all__ = ["atomic_write", "check_writable", "check_readable", "check_utf8_name", "file_kind", "read_without_waiting",
-           "same_file", "OutputSet", "folders_made",
+           "same_file", "OutputSet", "folders_made", "check_creatable",
            "public_name", "standing_for", "remove_stale_temporaries", "STAGING_PREFIX", "STAGING_SUFFIX",
            "STAGING_NAME", "STALE_AFTER",
            "COMMIT_WAIT"]
@@ -702,6 +702,22 @@ def _staging_for(target: Path, final: Path) -> _Staging:
         raise OSError(exc.errno, exc.strerror or str(exc), public_name(target)) from None
 
 
+def check_creatable(folder: str | os.PathLike[str], *, option: str) -> None:
+    """Refuse a folder of outputs (``option``'s) that could not be made: its nearest existing parent must be a folder
+    that takes a new one. Nothing is left: a probe folder is made there and removed (``os.access`` answers for
+    permissions only, and /proc, /sys or a file system without free inodes were found only after the work)."""
+    parent = Path(folder)
+    while not os.path.lexists(parent):  # a broken link or a loop of links exists as a name, not a folder
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise ValueError(f"{option}: {folder} cannot be created ({parent} is not a writable folder)")
+    try:
+        with _signals_deferred():  # an interrupt between the two leaves nothing
+            os.rmdir(tempfile.mkdtemp(prefix=_PROBE_PREFIX, suffix=_PROBE_SUFFIX, dir=parent))
+    except OSError as exc:
+        raise ValueError(f"{option}: {folder} cannot be created ({parent}: {exc.strerror or exc})") from None
+
+
 @contextlib.contextmanager
 def folders_made(*folders: str | os.PathLike[str]) -> Iterator[list[Path]]:
     """Create ``folders`` (and their missing parents) for the outputs of a ``with`` block; when the block
@@ -732,6 +748,8 @@ def folders_made(*folders: str | os.PathLike[str]) -> Iterator[list[Path]]:
                 made.append(missing)
                 missing = missing.parent
             folder.mkdir(parents=True, exist_ok=True)
+        for folder in made:  # a umask of 0177 (0600 files) made folders its owner could not enter (a red-team pass)
+            os.chmod(folder, stat.S_IMODE(os.stat(folder).st_mode) | stat.S_IRWXU)
         yield made
     except BaseException:
         for folder in sorted(set(made), key=lambda p: len(p.parts), reverse=True):
