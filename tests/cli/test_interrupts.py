@@ -110,7 +110,8 @@ def _outputs(root: Path) -> list[str]:
                                                         # a scheduler's warning or a CPU limit: killed
                                                         # without a word, the staging folder left
                                                         (signal.SIGUSR1, 138, "awr: terminated by SIGUSR1"),
-                                                        (signal.SIGXCPU, 152, "awr: terminated by SIGXCPU")])
+                                                        (signal.SIGXCPU, 152, "awr: terminated by SIGXCPU"),
+                                                        (signal.SIGPROF, 155, "awr: terminated by SIGPROF")])
 def test_a_signal_after_the_first_output_leaves_no_partial_set(work, frames, signum, status, line, signals_at_default):
     proc = _start(frames, work.root, signals_at_default)
     _wait_for(proc, lambda: _staged(work.root))
