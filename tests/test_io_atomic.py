@@ -705,3 +705,17 @@ def test_folders_made_under_a_tight_umask_can_be_entered(tmp_path):
         os.umask(old)
     assert (tmp_path / "a" / "b" / "out.txt").read_text() == "x"
     assert stat.S_IMODE(os.stat(tmp_path / "a").st_mode) & 0o700 == 0o700
+
+
+def test_a_folder_that_lets_no_file_be_removed_is_named_so(tmp_path, monkeypatch):
+    """An append-only folder (chattr +a) took the probe and kept it: "accepts no new file" said the opposite of what
+    happened (a red-team pass)."""
+    real_unlink = os.unlink
+
+    def append_only(path, *args, **kwargs):
+        if os.path.basename(os.fspath(path)).startswith(".awr-probe-"):
+            raise PermissionError(1, "Operation not permitted", os.fspath(path))
+        return real_unlink(path, *args, **kwargs)
+    monkeypatch.setattr(os, "unlink", append_only)
+    with pytest.raises(ValueError, match="lets no file be removed .Operation not permitted.; the probe .awr-probe-"):
+        check_writable(tmp_path / "out.exr", overwrite=False)

@@ -307,7 +307,11 @@ def check_writable(path: str | os.PathLike[str], *, overwrite: bool) -> Path:
         with _signals_deferred():
             fd, probe = tempfile.mkstemp(prefix=_PROBE_PREFIX, suffix=_PROBE_SUFFIX, dir=parent)
             os.close(fd)
-            os.unlink(probe)
+            try:
+                os.unlink(probe)
+            except OSError as exc:  # an append-only folder (chattr +a): awr's staging folders could not go either
+                raise ValueError(f"{name}: directory {parent} lets no file be removed ({exc.strerror or exc}); the "
+                                 f"probe {os.path.basename(probe)} stays there") from None
     except OSError as exc:
         raise ValueError(f"{name}: directory {parent} accepts no new file ({exc.strerror or exc})") from None
     limit = _name_max(parent)
