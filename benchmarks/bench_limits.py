@@ -5,10 +5,10 @@ Run from the repository root::
 
     .venv/bin/python benchmarks/bench_limits.py [--chances]
 
-Five synthetic kinds of image, each with a known clean image, many noise seeds, and the same samples given to
+Six synthetic kinds of image, each with a known clean image, many noise seeds, and the same samples given to
 every method: isolated true bright pixels (glints), samples that are either a hit or exactly 0 (a small light
-reached now and then), a light seen directly on an exact background (its rim hit or missed), texture at the scale
-of one pixel, and a dark line one pixel wide in a bright field.
+reached now and then), a light seen directly on an exact background (its rim hit or missed), a noisy lit object
+in a black void, texture at the scale of one pixel, and a dark line one pixel wide in a bright field.
 Each cell is a ratio to the plain mean's error over the same renders: of the summed MSE (or relMSE) over every
 seed (the average render), and the worst single render's ratio. Beside the default: without the SURE guard,
 without the image mean's restoration, and stage 1 alone, which says which part of the default each loss comes
@@ -88,10 +88,12 @@ def hit_or_zero(p: float) -> Any:
     return make
 
 
-def covered(radiance: Any, spp: int, rng: np.random.Generator, moving: bool = False) -> tuple[np.ndarray, SampleBuffer]:
+def covered(radiance: Any, spp: int, rng: np.random.Generator, moving: bool = False,
+            noisy: bool = False) -> tuple[np.ndarray, SampleBuffer]:
     """64x64 RGB pixels of ``radiance(y, x[, t])`` (one channel, repeated), each sample at a uniform point of its
     pixel (and time in [0, 1) where ``moving``): the clean image is each pixel's mean over 64x64 points (and 8
-    times), the samples hit or miss what they cover."""
+    times), the samples hit or miss what they cover; ``noisy``: each sample also times an exponential draw of
+    mean 1 (a surface lit by indirect light)."""
     h = w = 64
     grid = (np.arange(64) + 0.5) / 64
     y, x = np.arange(h)[:, None, None, None] + grid[:, None], np.arange(w)[None, :, None, None] + grid
@@ -102,6 +104,8 @@ def covered(radiance: Any, spp: int, rng: np.random.Generator, moving: bool = Fa
     pixel = np.repeat(np.arange(h * w), spp)
     at = (pixel // w + rng.random(pixel.size), pixel % w + rng.random(pixel.size))
     values = radiance(*at, rng.random(pixel.size)) if moving else radiance(*at)
+    if noisy:
+        values = values * rng.exponential(1.0, values.size)
     return truth[..., None] * np.ones(3), SampleBuffer.from_samples(pixel, values[:, None] * np.ones(3), (h, w))
 
 
@@ -112,6 +116,17 @@ def light_on_black(background: float, radius: float = 2.5, level: float = 100.0)
         def radiance(y: np.ndarray, x: np.ndarray) -> np.ndarray:
             return np.where((y - 32.2) ** 2 + (x - 32.3) ** 2 < radius**2, level, background)
         return covered(radiance, spp, rng)
+    return make
+
+
+def lit_disc(level: float) -> Any:
+    def make(spp: int, rng: np.random.Generator) -> tuple[np.ndarray, SampleBuffer]:
+        """A lit surface of mean ``level`` with noisy samples (exponential) filling a disc of radius 12 on exact
+        black: an object in a black void, its rim hit or missed (relMSE's fixed 0.01 weighs the black pixels' error
+        1e4 times as much at 100 as at 1)."""
+        def radiance(y: np.ndarray, x: np.ndarray) -> np.ndarray:
+            return np.where((y - 32.2) ** 2 + (x - 32.3) ** 2 < 12.0**2, level, 0.0)
+        return covered(radiance, spp, rng, noisy=True)
     return make
 
 
@@ -164,6 +179,8 @@ CASES: list[tuple[str, Any, tuple[int, ...], int]] = [
     ("a light of 100 seen directly on black", light_on_black(0.0), (2, 4, 16, 64), 8),
     ("the same on an exact 0.05", light_on_black(0.05), (2, 4, 16, 64), 8),
     ("twelve lights of 1000, radius 1.2, on black", small_lights, (2, 4, 16), 8),
+    ("a noisy lit disc of 1 on black", lit_disc(1.0), (4, 8, 32), 8),
+    ("a noisy lit disc of 100 on black", lit_disc(100.0), (4, 8, 32), 8),
     ("a light of 100 moving 8 px, on black", moving_light, (2, 4, 16), 8),
     ("pixel-scale texture, U(0.2, 0.8)", texture(0.2, 0.8, False), (4, 16, 64, 256), 8),
     ("pixel-scale texture, 10^U(-1, 1)", texture(-1.0, 1.0, True), (4, 16, 64, 256), 8),
