@@ -719,3 +719,26 @@ def test_a_folder_that_lets_no_file_be_removed_is_named_so(tmp_path, monkeypatch
     monkeypatch.setattr(os, "unlink", append_only)
     with pytest.raises(ValueError, match="lets no file be removed .Operation not permitted.; the probe .awr-probe-"):
         check_writable(tmp_path / "out.exr", overwrite=False)
+
+
+def test_an_output_in_a_folder_with_a_default_acl_gets_what_a_plain_new_file_gets(tmp_path):
+    """The chmod to the umask's mode narrowed the ACL's mask: a collaborator the folder lets write got a file they
+    could only read (a red-team pass)."""
+    import struct
+
+    def entries(raw):
+        return sorted(struct.unpack("<HHI", raw[4 + 8 * i:12 + 8 * i]) for i in range((len(raw) - 4) // 8))
+    folder = tmp_path / "shared"
+    folder.mkdir()
+    whole = 0xFFFFFFFF  # the owner's, the group's, the mask's and others' entries name no id
+    default = struct.pack("<I", 2) + b"".join(struct.pack("<HHI", *entry) for entry in (
+        (0x01, 7, whole), (0x02, 6, 1000), (0x04, 5, whole), (0x10, 7, whole), (0x20, 5, whole)))
+    try:
+        os.setxattr(folder, "system.posix_acl_default", default)
+    except (AttributeError, OSError) as exc:
+        pytest.skip(f"no POSIX ACLs here: {exc}")
+    (folder / "plain.txt").write_text("plain")
+    atomic_write(folder / "out.txt", lambda tmp: Path(tmp).write_text("out"))
+    plain, out = (os.getxattr(folder / name, "system.posix_acl_access") for name in ("plain.txt", "out.txt"))
+    assert entries(out) == entries(plain)
+    assert stat.S_IMODE(os.stat(folder / "out.txt").st_mode) == stat.S_IMODE(os.stat(folder / "plain.txt").st_mode)

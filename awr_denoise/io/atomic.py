@@ -330,6 +330,14 @@ def _same_file(path: Path, st: os.stat_result) -> bool:
     return (other.st_dev, other.st_ino) == (st.st_dev, st.st_ino)
 
 
+def _default_acl(folder: Path) -> bool:
+    """Whether ``folder`` has a POSIX default ACL (new files there take their permissions from it, not the umask)."""
+    try:
+        return bool(os.getxattr(folder, "system.posix_acl_default"))
+    except (AttributeError, OSError):  # no xattrs on this platform or file system, or no default ACL
+        return False
+
+
 def _new_file_mode(target: Path) -> int:
     """Permissions a plainly created file would get (an existing target keeps its own).
 
@@ -595,7 +603,10 @@ def _install(tmp: Path, target: Path, *, overwrite: bool) -> None:
 
 def _move(tmp: Path, target: Path, *, overwrite: bool) -> None:
     final = _through_links(target)
-    os.chmod(tmp, _new_file_mode(final))
+    if os.path.lexists(final) or not _default_acl(final.parent):
+        os.chmod(tmp, _new_file_mode(final))
+    # else the folder's default ACL gave the temporary what it gives a plain new file: a chmod to the umask's mode
+    # narrowed the ACL's mask, and a collaborator the folder lets write could only read (a red-team pass).
     if overwrite:
         check_writable(target, overwrite=True)  # it may have become a FIFO meanwhile
         os.replace(tmp, final)
