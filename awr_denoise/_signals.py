@@ -16,12 +16,17 @@ import signal
 import threading
 from collections.abc import Callable, Iterator
 
-__all__ = ["TERMINATING_SIGNALS", "COMMIT_CHECKS", "deferred"]
+__all__ = ["TERMINATING_SIGNALS", "SHARED_SIGNALS", "COMMIT_CHECKS", "deferred"]
 
 TERMINATING_SIGNALS: tuple[int, ...] = tuple(
     getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP", "SIGUSR1", "SIGUSR2", "SIGXCPU", "SIGALRM",
                                        "SIGVTALRM", "SIGPWR", "SIGPROF", "SIGIO", "SIGSTKFLT") if hasattr(signal, name))
 """Signals whose first arrival ends a command cleanly (those the platform has)."""
+
+SHARED_SIGNALS: tuple[int, ...] = tuple(
+    getattr(signal, name) for name in ("SIGALRM", "SIGVTALRM", "SIGPROF", "SIGIO") if hasattr(signal, name))
+"""The terminating signals timers and sampling profilers use: the command line takes them over only where their
+disposition is the default (a profiler's handler stays: taken over, the first tick ended the command)."""
 
 COMMIT_CHECKS: list[Callable[[], None]] = []
 """Called, in order, before any output file moves into place (``awr_denoise.io.atomic``): the command

@@ -22,7 +22,7 @@ from collections.abc import Callable
 from types import FrameType
 from typing import Any
 
-from awr_denoise._signals import COMMIT_CHECKS, TERMINATING_SIGNALS
+from awr_denoise._signals import COMMIT_CHECKS, SHARED_SIGNALS, TERMINATING_SIGNALS
 
 __all__ = ["Terminated", "raising", "restore", "ending", "say", "received", "check"]
 
@@ -32,6 +32,7 @@ _SIGNALS = TERMINATING_SIGNALS
 # The signal that arrived, kept even when the exception it raised was swallowed on the way up
 # (an interrupt inside a C extension's import comes back as an ImportError, or not at all).
 _received: list[int] = []
+_taken: list[int] = []  # the signals :func:`raising` took over: the first one to come ignores them all
 _hooks: list[Callable[[Any], None]] = []  # the unraisable hook :func:`raising` replaced
 _line: list[str] = []  # the command's line, once the process ends with it: "waiting", "writing", "written"
 _late: list[int] = []  # a signal that came after the command's end (:func:`ending`)
@@ -45,7 +46,7 @@ class Terminated(BaseException):
 
 def _raise(signum: int, frame: FrameType | None) -> None:
     _received.append(signum)
-    for s in _SIGNALS:
+    for s in _taken:
         signal.signal(s, signal.SIG_IGN)
     if signum == signal.SIGINT:
         raise KeyboardInterrupt
@@ -71,10 +72,15 @@ def raising() -> dict[int, Any] | None:
         _hooks[:] = [sys.unraisablehook]
         sys.unraisablehook = _quiet_unraisable
     previous: dict[int, Callable[..., Any] | int | None] = {}
+    _taken.clear()
     for s in _SIGNALS:
-        previous[s] = signal.getsignal(s)
-        if previous[s] is not signal.SIG_IGN:
+        handler = signal.getsignal(s)
+        if s in SHARED_SIGNALS and handler is not signal.SIG_DFL:
+            continue  # a timer's or a profiler's (None: installed in C): left to it
+        previous[s] = handler
+        if handler is not signal.SIG_IGN:
             signal.signal(s, _raise)
+            _taken.append(s)
     return previous
 
 

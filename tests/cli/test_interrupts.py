@@ -361,3 +361,28 @@ def test_a_signal_raised_where_python_can_only_print_it_prints_nothing(monkeypat
     assert reported == ["ZeroDivisionError"]
     Unlucky(ValueError())  # the hook before is back
     assert reported == ["ZeroDivisionError", "ValueError"]
+
+
+_PROFILED = """
+import signal, sys
+ticks = [0]
+def sample(signum, frame):  # a sampling profiler's SIGPROF handler
+    ticks[0] += 1
+signal.signal(signal.SIGPROF, sample)
+signal.setitimer(signal.ITIMER_PROF, 0.005, 0.005)
+from awr_denoise.cli.main import main
+status = main(["denoise", "d.exr", "-o", "out.exr", "-q"])
+signal.setitimer(signal.ITIMER_PROF, 0)
+print(status, ticks[0])
+"""
+
+
+@pytest.mark.skipif(not hasattr(signal, "setitimer"), reason="needs POSIX interval timers")
+def test_a_profilers_signal_handler_is_left_to_it(work):
+    """SIGPROF ends a command cleanly where nothing handles it; where a sampling profiler does, taken over, its
+    first tick ended the command, 'terminated by SIGPROF' (the review of a red-team fix)."""
+    done = subprocess.run([sys.executable, "-c", _PROFILED], cwd=work.root, capture_output=True, text=True,
+                          timeout=300)
+    status, ticks = map(int, done.stdout.split())
+    assert status == 0, done.stderr
+    assert ticks > 1 and (work.root / "out.exr").exists()
