@@ -742,3 +742,49 @@ def test_an_output_in_a_folder_with_a_default_acl_gets_what_a_plain_new_file_get
     plain, out = (os.getxattr(folder / name, "system.posix_acl_access") for name in ("plain.txt", "out.txt"))
     assert entries(out) == entries(plain)
     assert stat.S_IMODE(os.stat(folder / "out.txt").st_mode) == stat.S_IMODE(os.stat(folder / "plain.txt").st_mode)
+
+
+@pytest.mark.parametrize("names", [("a.exr",), ("a.exr", "b.png"), ("b.png", "a.exr")])
+def test_a_replaced_file_that_can_be_neither_linked_nor_read_is_moved_last(tmp_path, monkeypatch, names):
+    """Copying every replaced file first made an overwrite fail where the old file could be replaced but not read
+    (another user's 0600 file in the user's folder, no hard links): it worked before (the review of a red-team
+    fix). Only a file that must be put back is kept, and one that cannot be is moved last, after which nothing
+    fails."""
+    for name in names:
+        (tmp_path / name).write_text("previous")
+
+    def no_links(src, dst, *args, **kwargs):
+        raise PermissionError(1, "Operation not permitted", os.fspath(src))
+
+    def unreadable(src, dst, *args, **kwargs):
+        if os.path.basename(os.fspath(src)) == "a.exr":
+            raise PermissionError(13, "Permission denied", os.fspath(src))
+        return real_copy(src, dst, *args, **kwargs)
+    real_copy = atomic.shutil.copy2
+    monkeypatch.setattr(os, "link", no_links)
+    monkeypatch.setattr(atomic.shutil, "copy2", unreadable)
+    with OutputSet(overwrite=True) as outputs:
+        for name in names:
+            outputs.add(tmp_path / name).write_text("new")
+        outputs.commit()
+    assert all((tmp_path / name).read_text() == "new" for name in names)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(names)
+
+
+def test_two_replaced_files_that_cannot_be_kept_fail_the_set_before_any_move(tmp_path, monkeypatch):
+    for name in ("a.exr", "c.exr"):
+        (tmp_path / name).write_text("previous")
+
+    def no_links(src, dst, *args, **kwargs):
+        raise PermissionError(1, "Operation not permitted", os.fspath(src))
+
+    def unreadable(src, dst, *args, **kwargs):
+        raise PermissionError(13, "Permission denied", os.fspath(src))
+    monkeypatch.setattr(os, "link", no_links)
+    monkeypatch.setattr(atomic.shutil, "copy2", unreadable)
+    with OutputSet(overwrite=True) as outputs:
+        for name in ("a.exr", "c.exr"):
+            outputs.add(tmp_path / name).write_text("new")
+        with pytest.raises(PermissionError, match="cannot keep a copy of the file it would replace"):
+            outputs.commit()
+    assert [(tmp_path / name).read_text() for name in ("a.exr", "c.exr")] == ["previous", "previous"]

@@ -623,20 +623,17 @@ def _move(tmp: Path, target: Path, *, overwrite: bool) -> None:
         os.replace(tmp, final)  # file systems without hard links
 
 
-def _kept(final: Path, backup: Path, target: Path) -> Path:
-    """A copy of the file ``final`` at ``backup`` (a hard link, or the bytes where none can be made) to put back if
-    the set fails; failing to keep it fails the set before anything is moved, naming ``target``."""
+def _copied(final: Path, backup: Path, target: Path) -> Path:
+    """A copy of the file ``final`` at ``backup``, with its owner where the process may set it, to put back if the
+    set fails; failing to make one fails the set before anything is moved, naming ``target``."""
     try:
-        os.link(final, backup)
-    except OSError:
-        try:
-            shutil.copy2(final, backup)
-            st = os.stat(final)
-            with contextlib.suppress(OSError):  # its owner too, where the process may set it
-                os.chown(backup, st.st_uid, st.st_gid)
-        except OSError as exc:
-            raise OSError(exc.errno, f"cannot keep a copy of the file it would replace ({exc.strerror})",
-                          public_name(target)) from None
+        shutil.copy2(final, backup)
+        st = os.stat(final)
+        with contextlib.suppress(OSError):
+            os.chown(backup, st.st_uid, st.st_gid)
+    except OSError as exc:
+        raise OSError(exc.errno, f"cannot keep a copy of the file it would replace ({exc.strerror})",
+                      public_name(target)) from None
     return backup
 
 
@@ -871,18 +868,40 @@ class OutputSet:
     def _move_all(self) -> None:
         for target in self._staged:
             check_writable(target, overwrite=self.overwrite)
-        # Every file a target replaces is kept before the first move, so that a failure on a later one can put it
-        # back: kept only as the moves went, one that could not be linked (no hard links there, or another user's
-        # file under protected_hardlinks) was deleted by the rollback (a red-team pass).
+        # A file a target replaces is kept before the first move, so that a failure on a later move can put it back:
+        # kept only as the moves went, one that could not be a hard link (no hard links there, or another user's
+        # file under protected_hardlinks) was deleted by the rollback (a red-team pass). Hard links first; a file
+        # that cannot be linked is moved last, where nothing can fail after it, and only a second such is copied.
+        order = list(self._staged.items())
         backups: dict[Path, Path] = {}
-        if self.overwrite:
-            for target, tmp in self._staged.items():
+        unlinked: list[tuple[Path, Path]] = []
+        if self.overwrite and len(order) > 1:
+            for target, tmp in order:
                 final = _through_links(target)
                 if os.path.lexists(final):
-                    backups[final] = _kept(final, tmp.with_name(tmp.name + ".old"), target)
+                    backup = tmp.with_name(tmp.name + ".old")
+                    try:
+                        os.link(final, backup)
+                        backups[final] = backup
+                    except OSError:
+                        unlinked.append((target, tmp))
+            last = None  # the one moved last, kept by no copy
+            for k, (target, tmp) in enumerate(unlinked):
+                if k == len(unlinked) - 1 and last is None:
+                    last = (target, tmp)
+                    break
+                try:
+                    backups[_through_links(target)] = _copied(_through_links(target), tmp.with_name(tmp.name + ".old"),
+                                                              target)
+                except OSError:
+                    if last is not None:  # two that cannot be kept: one would be lost if a move failed
+                        raise
+                    last = (target, tmp)
+            if last is not None:
+                order = [item for item in order if item[0] != last[0]] + [last]
         moved: list[Path] = []
         try:
-            for target, tmp in self._staged.items():
+            for target, tmp in order:
                 _install(tmp, target, overwrite=self.overwrite)
                 moved.append(_through_links(target))
         except BaseException:
