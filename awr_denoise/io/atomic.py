@@ -199,12 +199,12 @@ def check_readable(path: str | os.PathLike[str], *, what: str = "input") -> Path
         raise ValueError(f"{p}: is a {file_kind(st.st_mode)}, not a regular file")
     if not os.access(p, os.R_OK):
         raise ValueError(f"{p}: permission denied (cannot read this {what})")
-    folder = os.path.basename(os.path.realpath(p.parent))
-    if STAGING_NAME.match(folder):
+    folder = os.path.dirname(os.path.realpath(p))  # the file's own folder, through a link to it as well
+    if STAGING_NAME.match(os.path.basename(folder)) and _holds_only_staged_files(folder):
         # The first write into the folder above removes a killed writer's staging folder, this input with it, and
         # then found it "changed while it was read" (a red-team pass): refused before anything is read or removed.
-        raise ValueError(f"{p}: its folder {folder} is a staging folder of an interrupted write, which the next "
-                         "write beside it removes; move the file out first")
+        raise ValueError(f"{p}: its folder {os.path.basename(folder)} is a staging folder of an interrupted write, "
+                         "which the next write beside it removes; move the file out first")
     return p
 
 

@@ -280,3 +280,17 @@ def test_a_report_printed_to_a_full_device_names_standard_output(work):
                               text=True, timeout=120)
     assert done.returncode == 1
     one_error_line(done.stderr, "standard output: no space left on device")
+
+
+def test_an_input_in_a_staging_folder_that_no_write_removes_is_read(work, capsys, monkeypatch):
+    """The refusal above is for folders a later write removes (every name a staged one), reached through a link too;
+    a folder so named that also holds other files stays, and its files are read (the review of a red-team fix)."""
+    monkeypatch.chdir(work.root)
+    staging = work.root / ".awr-0123456789.tmp"
+    staging.mkdir()
+    os.replace(work / "d.exr", staging / "beauty.exr")
+    assert main(["info", str(staging / "beauty.exr")]) == 0
+    os.replace(staging / "beauty.exr", staging / "1.exr")
+    os.symlink(staging / "1.exr", work.root / "link.exr")
+    assert main(["info", "link.exr"]) == 2
+    one_error_line(capsys.readouterr().err, "staging folder of an interrupted write")
