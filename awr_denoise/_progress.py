@@ -15,5 +15,8 @@ try:
     from tqdm import tqdm
     from tqdm.auto import tqdm as auto_tqdm
 except (ValueError, TypeError) as exc:
-    _named = sorted(name for name in os.environ if name.startswith("TQDM_"))
+    # The variables whose value the message quotes, or every TQDM_* one set where it quotes none.
+    _named = [name for name, value in sorted(os.environ.items())
+              if name.startswith("TQDM_") and repr(value) in str(exc)]
+    _named = _named or sorted(name for name in os.environ if name.startswith("TQDM_"))
     raise ValueError(f"{', '.join(_named) or 'TQDM_*'}: tqdm cannot read this environment variable ({exc})") from None
