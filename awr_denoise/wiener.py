@@ -207,8 +207,10 @@ def _band(t: StationaryTransform, b: int, spectra: tuple, leverage: bool, scratc
             with np.errstate(over="ignore", invalid="ignore"):  # beyond the precision's range: no floor there
                 evidence = np.multiply(x_band, x_band, out=scratch.evidence)
                 evidence -= floor[1] * noise
-                window_sum(evidence, floor[0], mode="wrap", out=evidence)  # the periodic canvas; no running sum
-                evidence /= floor[0] * floor[0]  # (._window_sums): a firefly's rounding error stays in its windows
+                # The window's mean, summed from its own entries (._window_sums: a firefly's rounding error stays in
+                # its windows) on the periodic canvas; divided first, or float32 sums near its top would overflow.
+                evidence /= floor[0] * floor[0]
+                window_sum(evidence, floor[0], mode="wrap", out=evidence)
             np.nan_to_num(evidence, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
             np.maximum(factor, evidence, out=factor)
         factor += tiny
