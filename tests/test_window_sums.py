@@ -28,7 +28,7 @@ def _plain_sums(a, size, mode, *, centre=True):
 
 @pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("shape", [(1, 1), (1, 7), (7, 1), (2, 3), (5, 4, 3), (9, 12)])
-@pytest.mark.parametrize("size", [1, 3, 5, 9])
+@pytest.mark.parametrize("size", [1, 3, 5, 9, 11, 17, 31])
 def test_the_sums_are_the_windows_entries_summed(rng, mode, shape, size):
     a = rng.random(shape)
     assert_allclose(window_sum(a, size, mode=mode), _plain_sums(a, size, mode), rtol=1e-13)
