@@ -15,8 +15,8 @@ def test_a_tqdm_variable_it_cannot_read_is_named(variable, value):
     """tqdm casts its TQDM_* overrides when imported: the library's import and every command (--version too)
     failed with "invalid literal for int()", naming nothing (a red-team pass)."""
     env = dict(os.environ, TQDM_DISABLE="1", **{variable: value})  # a readable one beside it is not named
-    library = subprocess.run([sys.executable, "-c", "import awr_denoise.rounds"], capture_output=True, text=True, env=env,
-                             timeout=120)
+    library = subprocess.run([sys.executable, "-c", "import awr_denoise.rounds"], capture_output=True, text=True,
+                             env=env, timeout=120)
     assert library.returncode == 1 and f"ValueError: {variable}: tqdm cannot read" in library.stderr
     assert "TQDM_DISABLE" not in library.stderr
     script = Path(sys.executable).with_name("awr")  # the installed console script: its real start-up path
