@@ -206,6 +206,8 @@ def test_a_file_size_limit_is_named_not_an_io_error(work):
 
 
 @pytest.mark.parametrize(("limit", "value", "needle"), [("RLIMIT_NOFILE", 6, "Too many open files"),
+                                                         # OpenEXR's own open short of one: "Unable to open"
+                                                         ("RLIMIT_NOFILE", 7, "Too many open files"),
                                                          ("RLIMIT_FSIZE", 0, "no temporary file")])
 def test_a_resource_limit_is_not_a_corrupt_input(work, limit, value, needle):
     # Too few file descriptors, or no usable temporary folder: "truncated or corrupt EXR", exit 2.
