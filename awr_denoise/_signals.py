@@ -16,7 +16,7 @@ import signal
 import threading
 from collections.abc import Callable, Iterator
 
-__all__ = ["TERMINATING_SIGNALS", "SHARED_SIGNALS", "COMMIT_CHECKS", "deferred"]
+__all__ = ["TERMINATING_SIGNALS", "SHARED_SIGNALS", "TAKEN_OVER", "COMMIT_CHECKS", "deferred"]
 
 TERMINATING_SIGNALS: tuple[int, ...] = tuple(
     getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP", "SIGUSR1", "SIGUSR2", "SIGXCPU", "SIGALRM",
@@ -26,7 +26,11 @@ TERMINATING_SIGNALS: tuple[int, ...] = tuple(
 SHARED_SIGNALS: tuple[int, ...] = tuple(
     getattr(signal, name) for name in ("SIGALRM", "SIGVTALRM", "SIGPROF", "SIGIO") if hasattr(signal, name))
 """The terminating signals timers and sampling profilers use: the command line takes them over only where their
-disposition is the default (a profiler's handler stays: taken over, the first tick ended the command)."""
+disposition is the default (a profiler's handler stays: taken over, the first tick ended the command), and
+:func:`deferred` holds them only then (held, a profiler's tick took the place of a Ctrl-C after it)."""
+
+TAKEN_OVER: set[int] = set()
+"""The shared signals the command line took over (``awr_denoise.cli.interrupts.raising``)."""
 
 COMMIT_CHECKS: list[Callable[[], None]] = []
 """Called, in order, before any output file moves into place (``awr_denoise.io.atomic``): the command
@@ -54,6 +58,8 @@ def deferred() -> Iterator[None]:
         handler = signal.getsignal(s)
         if handler is signal.SIG_IGN or handler is None:
             continue
+        if s in SHARED_SIGNALS and handler is not signal.SIG_DFL and s not in TAKEN_OVER:
+            continue  # a timer's or a profiler's own handler: its ticks are not an end to hold
         saved[s] = handler
         signal.signal(s, lambda signum, frame: pending.append(signum))
     try:

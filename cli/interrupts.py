@@ -22,7 +22,7 @@ from collections.abc import Callable
 from types import FrameType
 from typing import Any
 
-from awr_denoise._signals import COMMIT_CHECKS, SHARED_SIGNALS, TERMINATING_SIGNALS
+from awr_denoise._signals import COMMIT_CHECKS, SHARED_SIGNALS, TAKEN_OVER, TERMINATING_SIGNALS
 
 __all__ = ["Terminated", "raising", "restore", "ending", "say", "received", "check"]
 
@@ -73,6 +73,7 @@ def raising() -> dict[int, Any] | None:
         sys.unraisablehook = _quiet_unraisable
     previous: dict[int, Callable[..., Any] | int | None] = {}
     _taken.clear()
+    TAKEN_OVER.clear()
     for s in _SIGNALS:
         handler = signal.getsignal(s)
         if s in SHARED_SIGNALS and handler is not signal.SIG_DFL:
@@ -81,6 +82,7 @@ def raising() -> dict[int, Any] | None:
         if handler is not signal.SIG_IGN:
             signal.signal(s, _raise)
             _taken.append(s)
+    TAKEN_OVER.update(s for s in _taken if s in SHARED_SIGNALS)
     return previous
 
 
@@ -90,6 +92,7 @@ def restore(previous: dict[int, Any] | None) -> None:
         return
     for s, handler in previous.items():
         signal.signal(s, signal.SIG_DFL if handler is None else handler)
+    TAKEN_OVER.clear()
     with contextlib.suppress(ValueError):
         COMMIT_CHECKS.remove(check)
     if _hooks:

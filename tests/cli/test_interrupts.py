@@ -386,3 +386,23 @@ def test_a_profilers_signal_handler_is_left_to_it(work):
     status, ticks = map(int, done.stdout.split())
     assert status == 0, done.stderr
     assert ticks > 1 and (work.root / "out.exr").exists()
+
+
+def test_a_profilers_tick_while_outputs_move_leaves_it_its_handler_and_a_ctrl_c_its_effect():
+    """The commit's hold (``deferred``) held a profiler's SIGPROF like an end: its tick took the place of a Ctrl-C
+    after it (lost), and its handler was called with no frame (the second review)."""
+    from awr_denoise._signals import deferred
+    from awr_denoise.cli import interrupts
+
+    frames = []
+    previous_handler = signal.signal(signal.SIGPROF, lambda signum, frame: frames.append(frame.f_code.co_name))
+    previous = interrupts.raising()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with deferred():
+                os.kill(os.getpid(), signal.SIGPROF)
+                os.kill(os.getpid(), signal.SIGINT)
+        assert len(frames) == 1
+    finally:
+        interrupts.restore(previous)
+        signal.signal(signal.SIGPROF, previous_handler)
