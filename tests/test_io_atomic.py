@@ -788,3 +788,52 @@ def test_two_replaced_files_that_cannot_be_kept_fail_the_set_before_any_move(tmp
         with pytest.raises(PermissionError, match="cannot keep a copy of the file it would replace"):
             outputs.commit()
     assert [(tmp_path / name).read_text() for name in ("a.exr", "c.exr")] == ["previous", "previous"]
+
+
+def test_a_link_inside_a_staging_folder_is_refused_as_an_input(tmp_path):
+    """The refusal looked at the folder of the link's file only: a link inside a removable staging folder got past,
+    and the next write removed it (the second review)."""
+    (tmp_path / "real.exr").write_bytes(b"x")
+    staging = tmp_path / ".awr-0123456789.tmp"
+    staging.mkdir()
+    (staging / "1.exr").symlink_to(tmp_path / "real.exr")
+    with pytest.raises(ValueError, match="staging folder of an interrupted write"):
+        check_readable(staging / "1.exr")
+    assert check_readable(tmp_path / "real.exr") == tmp_path / "real.exr"
+
+
+def test_folders_made_are_chmod_ed_only_where_their_owner_lacks_a_right(tmp_path, monkeypatch):
+    """A chmod of every new folder cleared a setgid project folder's bit from the folders made in it (files there
+    then took the user's group), and failed on 'missing/..' in someone else's folder (the second review)."""
+    calls = []
+    real_chmod = os.chmod
+    monkeypatch.setattr(os, "chmod", lambda path, mode, *a, **k: (calls.append(path), real_chmod(path, mode, *a, **k)))
+    old = os.umask(0o022)
+    try:
+        with atomic.folders_made(tmp_path / "a" / "b"):
+            pass
+    finally:
+        os.umask(old)
+    assert calls == [] and (tmp_path / "a" / "b").is_dir()
+
+
+def test_where_nothing_links_only_the_smaller_replaced_files_are_copied(tmp_path, monkeypatch):
+    """Every replaced file but the last added was copied where hard links fail (a sequence's frames among them):
+    the largest is moved last, uncopied (the second review)."""
+    sizes = {"frame.exr": 100_000, "small.png": 10, "other.png": 20}
+    for name, size in sizes.items():
+        (tmp_path / name).write_bytes(b"x" * size)
+
+    def no_links(src, dst, *args, **kwargs):
+        raise PermissionError(1, "Operation not permitted", os.fspath(src))
+    copied = []
+    real_copy = atomic.shutil.copy2
+    monkeypatch.setattr(os, "link", no_links)
+    monkeypatch.setattr(atomic.shutil, "copy2", lambda src, dst: (copied.append(os.path.basename(src)),
+                                                                 real_copy(src, dst))[1])
+    with OutputSet(overwrite=True) as outputs:
+        for name in sizes:
+            outputs.add(tmp_path / name).write_text("new")
+        outputs.commit()
+    assert sorted(copied) == ["other.png", "small.png"]
+    assert all((tmp_path / name).read_text() == "new" for name in sizes)

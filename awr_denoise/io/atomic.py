@@ -199,12 +199,13 @@ def check_readable(path: str | os.PathLike[str], *, what: str = "input") -> Path
         raise ValueError(f"{p}: is a {file_kind(st.st_mode)}, not a regular file")
     if not os.access(p, os.R_OK):
         raise ValueError(f"{p}: permission denied (cannot read this {what})")
-    folder = os.path.dirname(os.path.realpath(p))  # the file's own folder, through a link to it as well
-    if STAGING_NAME.match(os.path.basename(folder)) and _holds_only_staged_files(folder):
-        # The first write into the folder above removes a killed writer's staging folder, this input with it, and
-        # then found it "changed while it was read" (a red-team pass): refused before anything is read or removed.
-        raise ValueError(f"{p}: its folder {os.path.basename(folder)} is a staging folder of an interrupted write, "
-                         "which the next write beside it removes; move the file out first")
+    # The folder the name lies in, and the one its file lies in (through links): the first write beside a killed
+    # writer's staging folder removes it, this input with it, and then found it "changed while it was read" (a
+    # red-team pass): refused before anything is read or removed.
+    for folder in {os.path.realpath(p.parent), os.path.dirname(os.path.realpath(p))}:
+        if STAGING_NAME.match(os.path.basename(folder)) and _holds_only_staged_files(folder):
+            raise ValueError(f"{p}: its folder {os.path.basename(folder)} is a staging folder of an interrupted "
+                             "write, which the next write beside it removes; move the file out first")
     return p
 
 
@@ -623,6 +624,13 @@ def _move(tmp: Path, target: Path, *, overwrite: bool) -> None:
         os.replace(tmp, final)  # file systems without hard links
 
 
+def _size(path: Path) -> int:
+    try:
+        return os.stat(path).st_size
+    except OSError:
+        return 0
+
+
 def _copied(final: Path, backup: Path, target: Path) -> Path:
     """A copy of the file ``final`` at ``backup``, with its owner where the process may set it, to put back if the
     set fails; failing to make one fails the set before anything is moved, naming ``target``."""
@@ -761,7 +769,10 @@ def folders_made(*folders: str | os.PathLike[str]) -> Iterator[list[Path]]:
                 missing = missing.parent
             folder.mkdir(parents=True, exist_ok=True)
         for folder in made:  # a umask of 0177 (0600 files) made folders its owner could not enter (a red-team pass)
-            os.chmod(folder, stat.S_IMODE(os.stat(folder).st_mode) | stat.S_IRWXU)
+            mode = stat.S_IMODE(os.stat(folder).st_mode)
+            if mode & stat.S_IRWXU != stat.S_IRWXU:  # only then: a chmod clears a setgid folder's bit (the review)
+                with contextlib.suppress(OSError):  # not this process's folder ('missing/..'): its writes will say
+                    os.chmod(folder, mode | stat.S_IRWXU)
         yield made
     except BaseException:
         for folder in sorted(set(made), key=lambda p: len(p.parts), reverse=True):
@@ -885,17 +896,19 @@ class OutputSet:
                         backups[final] = backup
                     except OSError:
                         unlinked.append((target, tmp))
-            last = None  # the one moved last, kept by no copy
-            for k, (target, tmp) in enumerate(unlinked):
-                if k == len(unlinked) - 1 and last is None:
-                    last = (target, tmp)
-                    break
+            # The largest goes last, uncopied (a sequence's frames, its previews copied); one that cannot be copied
+            # takes its place, and the largest is copied instead.
+            unlinked.sort(key=lambda item: _size(_through_links(item[0])), reverse=True)
+            last = unlinked[0] if unlinked else None
+            for target, tmp in unlinked[1:]:
                 try:
                     backups[_through_links(target)] = _copied(_through_links(target), tmp.with_name(tmp.name + ".old"),
                                                               target)
                 except OSError:
-                    if last is not None:  # two that cannot be kept: one would be lost if a move failed
+                    if last is not unlinked[0]:  # two that cannot be kept: one would be lost if a move failed
                         raise
+                    largest, other = unlinked[0][0], _through_links(unlinked[0][0])
+                    backups[other] = _copied(other, unlinked[0][1].with_name(unlinked[0][1].name + ".old"), largest)
                     last = (target, tmp)
             if last is not None:
                 order = [item for item in order if item[0] != last[0]] + [last]
