@@ -19,4 +19,5 @@ except (ValueError, TypeError) as exc:
     _named = [name for name, value in sorted(os.environ.items())
               if name.startswith("TQDM_") and repr(value) in str(exc)]
     _named = _named or sorted(name for name in os.environ if name.startswith("TQDM_"))
-    raise ValueError(f"{', '.join(_named) or 'TQDM_*'}: tqdm cannot read this environment variable ({exc})") from None
+    _which = "this environment variable" if len(_named) == 1 else "one of these environment variables"
+    raise ValueError(f"{', '.join(_named) or 'TQDM_*'}: tqdm cannot read {_which} ({exc})") from None
