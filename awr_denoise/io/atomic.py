@@ -881,8 +881,8 @@ class OutputSet:
             check_writable(target, overwrite=self.overwrite)
         # A file a target replaces is kept before the first move, so that a failure on a later move can put it back:
         # kept only as the moves went, one that could not be a hard link (no hard links there, or another user's
-        # file under protected_hardlinks) was deleted by the rollback (a red-team pass). Hard links first; a file
-        # that cannot be linked is moved last, where nothing can fail after it, and only a second such is copied.
+        # file under protected_hardlinks) was deleted by the rollback (a red-team pass). Hard links first; of the
+        # files that cannot be linked, one is moved last, where nothing can fail after it, and the others copied.
         order = list(self._staged.items())
         backups: dict[Path, Path] = {}
         unlinked: list[tuple[Path, Path]] = []
@@ -907,8 +907,9 @@ class OutputSet:
                 except OSError:
                     if last is not unlinked[0]:  # two that cannot be kept: one would be lost if a move failed
                         raise
-                    largest, other = unlinked[0][0], _through_links(unlinked[0][0])
-                    backups[other] = _copied(other, unlinked[0][1].with_name(unlinked[0][1].name + ".old"), largest)
+                    biggest, its_tmp = unlinked[0]
+                    backups[_through_links(biggest)] = _copied(_through_links(biggest),
+                                                               its_tmp.with_name(its_tmp.name + ".old"), biggest)
                     last = (target, tmp)
             if last is not None:
                 order = [item for item in order if item[0] != last[0]] + [last]
