@@ -283,11 +283,11 @@ def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list
         raise _unreadable(p, str(exc), header_only) from None
     except Exception as exc:  # the bindings raise RuntimeError/ValueError/... for corrupt data
         detail = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        if detail.startswith("Unable to open"):
-            # Its magic number was read just before: what OpenEXR could not open is no corrupt file. Short of
-            # descriptors (ulimit -n 7) it said only this, and a valid input was called corrupt (a red-team pass).
-            code = errno.EMFILE if _few_descriptors() else errno.EIO
-            raise OSError(code, f"OpenEXR could not open it ({os.strerror(code)}: {detail})", os.fspath(p)) from None
+        if detail.startswith("Unable to open") and _few_descriptors():
+            # OpenEXR says this of a corrupt header too, and of a file it could not open for want of a descriptor
+            # (ulimit -n 7): then a valid input was called corrupt (a red-team pass).
+            raise OSError(errno.EMFILE, f"OpenEXR could not open it ({os.strerror(errno.EMFILE)}: {detail})",
+                          os.fspath(p)) from None
         raise _unreadable(p, detail, header_only) from None
     if not parts or (captured.text and not header_only):
         # The bindings report unreadable pixel data on the C streams and return no parts.
