@@ -449,19 +449,24 @@ def test_a_killed_writers_probe_leaves_its_staging_directory_removable(tmp_path)
 
 
 def test_probes_a_killed_process_left_are_removed_once_stale(tmp_path):
-    """An empty probe untouched for STALE_AFTER is a killed process's; a fresh one may be a live writer's (removing
-    it would fail that write), and a file of data, a folder or another name is not a probe of ours."""
+    """An empty probe (a file, or check_creatable's folder: a kill between its two steps left it for good, the
+    second review) untouched for STALE_AFTER is a killed process's; a fresh one may be a live writer's (removing it
+    would fail that write), and a file of data, a folder holding anything or another name is not a probe of ours."""
     past = time.time() - STALE_AFTER - 10
     stale, fresh, full = (tmp_path / f".awr-probe-{k}.tmp" for k in ("ab_c1234", "zz9_8765", "q1w2e3r4"))
     notes, folder = tmp_path / ".awr-probe-notes.tmp", tmp_path / ".awr-probe-f0lder00.tmp"
+    held = tmp_path / ".awr-probe-h0lder00.tmp"
     for path in (stale, fresh, notes):
         path.write_bytes(b"")
     full.write_bytes(b"data")
     folder.mkdir()
-    for path in (stale, full, notes, folder):
+    held.mkdir()
+    (held / "mine.txt").write_text("x")
+    for path in (stale, full, notes, folder, held):
         os.utime(path, (past, past))
-    assert remove_stale_temporaries(tmp_path) == [stale]
-    assert not stale.exists() and fresh.exists() and full.exists() and notes.exists() and folder.exists()
+    assert sorted(remove_stale_temporaries(tmp_path)) == sorted([stale, folder])
+    assert not stale.exists() and fresh.exists() and full.exists() and notes.exists() and not folder.exists()
+    assert (held / "mine.txt").exists()
 
 
 def test_the_probes_check_writable_makes_are_the_names_cleaned_up(tmp_path):

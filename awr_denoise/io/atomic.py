@@ -493,12 +493,18 @@ def remove_stale_temporaries(directory: str | os.PathLike[str]) -> list[Path]:
 
 
 def _remove_stale_probe(entry: os.DirEntry, removed: list[Path]) -> None:
-    """Remove a writability probe a killed process left: an empty regular file of the probe's name, untouched for
-    :data:`STALE_AFTER` (a live one exists for microseconds; removing it under its writer would fail that write)."""
+    """Remove a writability probe a killed process left: an empty regular file, or an empty folder
+    (:func:`check_creatable`'s), of the probe's name, untouched for :data:`STALE_AFTER` (a live one exists for
+    microseconds; removing it under its writer would fail that write)."""
     with contextlib.suppress(OSError):
         st = entry.stat(follow_symlinks=False)
-        if stat.S_ISREG(st.st_mode) and st.st_size == 0 and time.time() - st.st_mtime > STALE_AFTER:
+        if time.time() - st.st_mtime <= STALE_AFTER:
+            return
+        if stat.S_ISREG(st.st_mode) and st.st_size == 0:
             os.unlink(entry.path)
+            removed.append(Path(entry.path))
+        elif stat.S_ISDIR(st.st_mode):
+            os.rmdir(entry.path)  # only an empty one: a folder holding anything fails here and stays
             removed.append(Path(entry.path))
 
 
