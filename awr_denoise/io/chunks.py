@@ -44,10 +44,8 @@ def layout(fh: BinaryIO) -> Layout | None:
     single-part scanline file (or not an OpenEXR file, or cut inside its header)."""
     fh.seek(0)
     data = fh.read(_HEADER_READ)
-    if len(data) < 8 or data[:4] != MAGIC:
-        return None
-    flags = int.from_bytes(data[4:8], "little")
-    if flags & (_TILED | _MULTIPART):
+    flags = _flags(data)
+    if flags is None or flags & (_TILED | _MULTIPART):
         return None
     while True:
         parsed = _attributes(data)
@@ -74,6 +72,11 @@ def layout(fh: BinaryIO) -> Layout | None:
     if len(table) < 8 * count:
         return Layout(flags, attributes, np.zeros(0, np.int64))  # cut inside the offset table
     return Layout(flags, attributes, np.frombuffer(table, "<u8").astype(np.int64))
+
+
+def _flags(start: bytes) -> int | None:
+    """The version field's flags of a file starting with ``start``, or None where it is no OpenEXR file."""
+    return int.from_bytes(start[4:8], "little") if len(start) >= 8 and start[:4] == MAGIC else None
 
 
 def _attributes(data: bytes) -> tuple[dict[bytes, tuple[bytes, bytes]], int] | None:
@@ -120,10 +123,9 @@ def is_complete(path: str | os.PathLike[str]) -> bool:
     """False where ``path`` is a single-part scanline file missing chunks its header promises (or empty, or cut
     inside its header); True otherwise, other layouts included (they are not checked)."""
     with open(path, "rb") as fh:
-        start = fh.read(8)
-        if len(start) < 8 or start[:4] != MAGIC:
+        flags = _flags(fh.read(8))
+        if flags is None:
             return False
-        flags = int.from_bytes(start[4:8], "little")
         if flags & (_TILED | _MULTIPART):
             return True
         found = layout(fh)

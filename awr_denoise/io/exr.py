@@ -64,7 +64,6 @@ __all__ = [
 HALF_MAX = 65504.0
 """Largest finite half float; larger values become Inf when stored as HALF."""
 
-_EXR_MAGIC = b"\x76\x2f\x31\x01"
 
 # Header attributes every EXR carries; callers never set these through ``header=`` (the data
 # and display windows they may: see ``read_windows``).
@@ -144,7 +143,7 @@ def _check_magic(path: Path) -> None:
         raise file_error(path, "not an OpenEXR file (a file that waits for data to be read)") from None
     except OSError as exc:
         raise file_error(path, f"cannot read: {exc.strerror or exc}") from None
-    if magic != _EXR_MAGIC:
+    if magic != chunks.MAGIC:
         raise file_error(path, "not an OpenEXR file (bad magic number)")
 
 
