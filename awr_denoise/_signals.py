@@ -30,7 +30,7 @@ disposition is the default (a profiler's handler stays: taken over, the first ti
 :func:`deferred` holds them only then (held, a profiler's tick took the place of a Ctrl-C after it)."""
 
 TAKEN_OVER: set[int] = set()
-"""The shared signals the command line took over (``awr_denoise.cli.interrupts.raising``)."""
+"""The signals the command line took over (``awr_denoise.cli.interrupts.raising``)."""
 
 COMMIT_CHECKS: list[Callable[[], None]] = []
 """Called, in order, before any output file moves into place (``awr_denoise.io.atomic``): the command

@@ -32,7 +32,6 @@ _SIGNALS = TERMINATING_SIGNALS
 # The signal that arrived, kept even when the exception it raised was swallowed on the way up
 # (an interrupt inside a C extension's import comes back as an ImportError, or not at all).
 _received: list[int] = []
-_taken: list[int] = []  # the signals :func:`raising` took over: the first one to come ignores them all
 _hooks: list[Callable[[Any], None]] = []  # the unraisable hook :func:`raising` replaced
 _line: list[str] = []  # the command's line, once the process ends with it: "waiting", "writing", "written"
 _late: list[int] = []  # a signal that came after the command's end (:func:`ending`)
@@ -46,7 +45,7 @@ class Terminated(BaseException):
 
 def _raise(signum: int, frame: FrameType | None) -> None:
     _received.append(signum)
-    for s in _taken:
+    for s in TAKEN_OVER:  # the first one to come ignores them all
         signal.signal(s, signal.SIG_IGN)
     if signum == signal.SIGINT:
         raise KeyboardInterrupt
@@ -72,7 +71,6 @@ def raising() -> dict[int, Any] | None:
         _hooks[:] = [sys.unraisablehook]
         sys.unraisablehook = _quiet_unraisable
     previous: dict[int, Callable[..., Any] | int | None] = {}
-    _taken.clear()
     TAKEN_OVER.clear()
     for s in _SIGNALS:
         handler = signal.getsignal(s)
@@ -81,8 +79,7 @@ def raising() -> dict[int, Any] | None:
         previous[s] = handler
         if handler is not signal.SIG_IGN:
             signal.signal(s, _raise)
-            _taken.append(s)
-    TAKEN_OVER.update(s for s in _taken if s in SHARED_SIGNALS)
+            TAKEN_OVER.add(s)
     return previous
 
 
