@@ -394,7 +394,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="smoke run: tiny images, few spp, writes only with --output")
-    parser.add_argument("--scenes", nargs="+", choices=mitsuba_scenes.SCENE_NAMES, default=list(mitsuba_scenes.SCENE_NAMES))
+    parser.add_argument("--scenes", nargs="+", choices=mitsuba_scenes.ALL_SCENES, default=list(mitsuba_scenes.SCENE_NAMES))
     parser.add_argument("--size", type=int, nargs=2, metavar=("H", "W"), default=[256, 256])
     parser.add_argument("--spp", type=int, nargs="+", default=[8, 16, 32, 64, 128])
     parser.add_argument("--reference-spp", type=int, default=2048)

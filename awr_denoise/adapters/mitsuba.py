@@ -43,7 +43,7 @@ from ..requests import SampleRequest
 from ._mitsuba_runtime import DEFAULT_VARIANT, import_mitsuba, variant_of_scene, variant_scope
 from ._samples import Chunk, PixelStatistics, aligned_u32, sample_chunks
 from .mitsuba_files import scene_files
-from .mitsuba_scenes import SCENE_NAMES, scene_dict
+from .mitsuba_scenes import ALL_SCENES, scene_dict
 
 __all__ = ["MitsubaRenderer", "create_renderer", "list_features", "list_scenes", "scene_files", "FEATURES",
            "DEFAULT_BATCH_SIZE", "DEFAULT_VARIANT"]
@@ -131,7 +131,7 @@ class MitsubaRenderer:
     ----------
     scene
         A Mitsuba XML file (path), a Mitsuba scene dict, a loaded ``mitsuba.Scene``, or the name of
-        a bundled scene (:data:`~awr_denoise.adapters.mitsuba_scenes.SCENE_NAMES`).
+        a bundled scene (:data:`~awr_denoise.adapters.mitsuba_scenes.ALL_SCENES`).
     shape
         (H, W) of the image; default the film's size. A file or dict is loaded with its film
         resized; a loaded scene cannot be resized.
@@ -260,10 +260,10 @@ class MitsubaRenderer:
             return mi.load_dict(_resized(scene, shape)), str(scene.get("id", "scene dict"))
         if isinstance(scene, (str, os.PathLike)):
             path = Path(scene)
-            if isinstance(scene, str) and scene in SCENE_NAMES and not path.exists():
+            if isinstance(scene, str) and scene in ALL_SCENES and not path.exists():
                 return mi.load_dict(scene_dict(scene, shape, variant=self.variant)), scene
             if not path.is_file():
-                raise FileNotFoundError(f"{scene}: no such Mitsuba scene file (bundled scenes: {', '.join(SCENE_NAMES)})")
+                raise FileNotFoundError(f"{scene}: no such Mitsuba scene file (bundled scenes: {', '.join(ALL_SCENES)})")
             try:
                 loaded = _load_file(mi, self.variant, path, shape, params or {})
             except RuntimeError as exc:  # Mitsuba's parser: a bad plugin, parameter, include or file
@@ -603,7 +603,7 @@ def _load_file(mi: Any, variant: str, path: Path, shape: Shape2D | None, params:
 
 def list_scenes() -> list[str]:
     """Names of the bundled Mitsuba scenes (:mod:`awr_denoise.adapters.mitsuba_scenes`)."""
-    return list(SCENE_NAMES)
+    return list(ALL_SCENES)
 
 
 def list_features() -> list[str]:

@@ -39,7 +39,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from .mitsuba_scenes import SCENE_NAMES
+from .mitsuba_scenes import ALL_SCENES
 
 __all__ = ["scene_files"]
 
@@ -161,7 +161,7 @@ def scene_files(scene: Any, params: Mapping[str, Any] | None = None) -> list[tup
     if not isinstance(scene, (str, os.PathLike)):
         return []
     first = Path(scene)
-    if isinstance(scene, str) and scene in SCENE_NAMES and not os.path.lexists(first):
+    if isinstance(scene, str) and scene in ALL_SCENES and not os.path.lexists(first):
         return []  # a bundled scene, built from a dict
     walk = _Walk(first, params or {})
     pending, done, state = [first], 0, None

@@ -6,11 +6,19 @@ a small light with a glass sphere, and a textured scene seen through a thin lens
 a box filter of radius 0.5, so Mitsuba's own film render of a scene is the uniform baseline the
 adaptive loop is compared against (see docs/integrate_mitsuba.md).
 
+Two more (:data:`HEAVY_TAILED_SCENES`) are lit through rare paths, so that a pixel's first samples
+seldom show its variance: a room lit only by the patch of ceiling a spot light points at, and a
+spot light in fog. Most of their samples are exactly 0. They are where adaptive sampling's image
+mean was found low (docs/sampling.md, "Rare paths"), and are named apart from :data:`SCENE_NAMES`,
+the set every benchmark table of the defaults is made of.
+
 Examples
 --------
->>> from awr_denoise.adapters.mitsuba_scenes import SCENE_NAMES
+>>> from awr_denoise.adapters.mitsuba_scenes import HEAVY_TAILED_SCENES, SCENE_NAMES
 >>> SCENE_NAMES
 ('cornell_box', 'envmap_sun', 'glossy_glass', 'dof_checker')
+>>> HEAVY_TAILED_SCENES
+('indirect_room', 'fog_spot')
 >>> d = scene_dict("cornell_box", (32, 48))  # doctest: +SKIP
 >>> d["sensor"]["film"]["width"], d["sensor"]["film"]["height"]  # doctest: +SKIP
 (48, 32)
@@ -28,10 +36,16 @@ import numpy as np
 from .._typing import Shape2D
 from ._mitsuba_runtime import DEFAULT_VARIANT, import_mitsuba, variant_scope
 
-__all__ = ["SCENE_NAMES", "DEFAULT_SHAPE", "scene_dict", "write_scene_xml"]
+__all__ = ["SCENE_NAMES", "HEAVY_TAILED_SCENES", "ALL_SCENES", "DEFAULT_SHAPE", "scene_dict", "write_scene_xml"]
 
 SCENE_NAMES = ("cornell_box", "envmap_sun", "glossy_glass", "dof_checker")
-"""Names of the bundled scenes, in the order benchmarks report them."""
+"""Names of the bundled benchmark scenes, in the order benchmarks report them."""
+
+HEAVY_TAILED_SCENES = ("indirect_room", "fog_spot")
+"""Bundled scenes lit through rare paths (most samples exactly 0), for the samplers' image mean."""
+
+ALL_SCENES = SCENE_NAMES + HEAVY_TAILED_SCENES
+"""Every bundled scene name."""
 
 DEFAULT_SHAPE: Shape2D = (256, 256)
 """(H, W) of a bundled scene when no shape is given."""
@@ -169,8 +183,63 @@ def _dof_checker(mi: Any, shape: Shape2D) -> dict[str, Any]:
     }
 
 
+def _room(mi: Any, shape: Shape2D, integrator: str) -> dict[str, Any]:
+    """A closed room of diffuse walls around a white ball, seen from its open side (no light yet)."""
+    T = mi.ScalarTransform4f
+    h, w = shape
+
+    def wall(transform: Any, rgb: list[float]) -> dict[str, Any]:
+        return {"type": "rectangle", "to_world": transform,
+                "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": rgb}}}
+
+    white = [0.7, 0.7, 0.7]
+    return {
+        "type": "scene",
+        "integrator": {"type": integrator, "max_depth": _MAX_DEPTH},
+        "sensor": {"type": "perspective", "fov": 45.0, "fov_axis": "x" if w >= h else "y",
+                   "to_world": T().look_at(origin=[0.0, 1.2, 4.6], target=[0.0, 0.9, 0.0], up=[0, 1, 0]),
+                   "film": _film(shape), "sampler": _sampler()},
+        "floor": wall(T().rotate([1, 0, 0], -90).scale(2.0), [0.5, 0.45, 0.4]),
+        "ceiling": wall(T().translate([0, 2.5, 0]).rotate([1, 0, 0], 90).scale(2.0), white),
+        "back": wall(T().translate([0, 1.25, -2.0]).scale([2.0, 1.25, 1.0]), white),
+        "left": wall(T().translate([-2.0, 1.25, 0]).rotate([0, 1, 0], 90).scale([2.0, 1.25, 1.0]), [0.6, 0.25, 0.2]),
+        "right": wall(T().translate([2.0, 1.25, 0]).rotate([0, 1, 0], -90).scale([2.0, 1.25, 1.0]), [0.2, 0.35, 0.6]),
+        "ball": {"type": "sphere", "center": [0.6, 0.45, -0.3], "radius": 0.45,
+                 "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": white}}},
+    }
+
+
+def _indirect_room(mi: Any, shape: Shape2D) -> dict[str, Any]:
+    """The room lit only by the patch of ceiling a narrow spot light points up at.
+
+    Every wall the camera sees is outside the spot's cone: a path brings light only when a bounce
+    finds that patch, so most samples are exactly 0 (a room lit by a lamp shade's upward light)."""
+    T = mi.ScalarTransform4f
+    scene = _room(mi, shape, "path")
+    scene["lamp"] = {"type": "spot", "cutoff_angle": 15.0, "beam_width": 10.0,
+                     "to_world": T().look_at(origin=[-0.8, 1.0, -1.0], target=[-0.8, 2.5, -1.0], up=[0, 0, 1]),
+                     "intensity": {"type": "rgb", "value": [60.0, 55.0, 45.0]}}
+    return scene
+
+
+def _fog_spot(mi: Any, shape: Shape2D) -> dict[str, Any]:
+    """The room filled with fog (a homogeneous medium, albedo 0.9) around a spot light pointing down.
+
+    A camera path scatters in the fog; it sees the light only from inside the cone, so outside the
+    beam most samples are exactly 0 and the glow comes from rare multiply scattered paths."""
+    T = mi.ScalarTransform4f
+    scene = _room(mi, shape, "volpath")
+    scene["lamp"] = {"type": "spot", "cutoff_angle": 20.0, "beam_width": 15.0,
+                     "to_world": T().look_at(origin=[-0.5, 2.4, -0.5], target=[-0.3, 0.0, -0.3], up=[0, 0, 1]),
+                     "intensity": {"type": "rgb", "value": [40.0, 38.0, 34.0]}}
+    scene["fog"] = {"type": "homogeneous", "id": "fog", "sigma_t": 0.35,
+                    "albedo": {"type": "rgb", "value": [0.9, 0.9, 0.9]}}
+    scene["sensor"]["medium"] = {"type": "ref", "id": "fog"}  # the camera is inside the fog
+    return scene
+
+
 _BUILDERS = {"cornell_box": _cornell_box, "envmap_sun": _envmap_sun, "glossy_glass": _glossy_glass,
-             "dof_checker": _dof_checker}
+             "dof_checker": _dof_checker, "indirect_room": _indirect_room, "fog_spot": _fog_spot}
 
 
 def scene_dict(name: str, shape: Shape2D | None = None, *, variant: str = DEFAULT_VARIANT) -> dict[str, Any]:
@@ -179,7 +248,7 @@ def scene_dict(name: str, shape: Shape2D | None = None, *, variant: str = DEFAUL
     Parameters
     ----------
     name
-        One of :data:`SCENE_NAMES`.
+        One of :data:`ALL_SCENES`.
     shape
         (H, W) of the film; default :data:`DEFAULT_SHAPE`.
     variant
@@ -187,7 +256,7 @@ def scene_dict(name: str, shape: Shape2D | None = None, *, variant: str = DEFAUL
         the active variant when the dict is loaded.
     """
     if name not in _BUILDERS:
-        raise ValueError(f"scene: {name!r} is not a bundled Mitsuba scene ({', '.join(SCENE_NAMES)})")
+        raise ValueError(f"scene: {name!r} is not a bundled Mitsuba scene ({', '.join(ALL_SCENES)})")
     h, w = DEFAULT_SHAPE if shape is None else (int(s) for s in shape)
     if h <= 0 or w <= 0:
         raise ValueError(f"shape: empty image {(h, w)}")

@@ -61,7 +61,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument("--no-oidn", action="store_true", help="skip Open Image Denoise even if installed")
     parser.add_argument("--no-mitsuba", action="store_true", help="skip the Mitsuba 3 scenes even if Mitsuba is installed")
     parser.add_argument("--mitsuba-scenes", nargs="+", metavar="SCENE", default=None,
-                        help="Mitsuba 3 scenes (default: all of awr_denoise.adapters.mitsuba_scenes)")
+                        help="Mitsuba 3 scenes (default: the four of awr_denoise.adapters.mitsuba_scenes.SCENE_NAMES; "
+                             "ALL_SCENES adds the two lit through rare paths)")
     parser.add_argument("--no-plots", action="store_true", help="write no PNG figures")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser

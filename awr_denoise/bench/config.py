@@ -77,7 +77,7 @@ class BenchmarkConfig:
         Also measure the Mitsuba 3 scenes through the adapter (skipped, with the reason on the
         page, when the ``mitsuba`` extra cannot start).
     mitsuba_scenes, mitsuba_size, mitsuba_reference_spp, mitsuba_reference_dir
-        Which Mitsuba scenes (``None``: all of :mod:`awr_denoise.adapters.mitsuba_scenes`), their
+        Which Mitsuba scenes (``None``: :data:`~awr_denoise.adapters.mitsuba_scenes.SCENE_NAMES`), their
         side in pixels, the spp of their references, and where the references are cached
         (``None``: ``data/cache/mitsuba/`` of the source tree).
     seed

@@ -63,7 +63,8 @@ def mitsuba_status() -> str | None:
 
 
 def mitsuba_scene_names(config: BenchmarkConfig) -> list[str]:
-    """The Mitsuba scenes ``config`` asks for (all bundled ones by default); unknown names refused.
+    """The Mitsuba scenes ``config`` asks for (the four benchmark scenes, ``SCENE_NAMES``, by default; the scenes lit
+    through rare paths on request); unknown names refused.
 
     Examples
     --------
@@ -73,12 +74,12 @@ def mitsuba_scene_names(config: BenchmarkConfig) -> list[str]:
     ['cornell_box', 'envmap_sun', 'glossy_glass', 'dof_checker']
     """
     # Only scene descriptions: importing this module needs numpy, not Mitsuba.
-    from ..adapters.mitsuba_scenes import SCENE_NAMES
+    from ..adapters.mitsuba_scenes import ALL_SCENES, SCENE_NAMES
 
     names = list(config.mitsuba_scenes) if config.mitsuba_scenes else list(SCENE_NAMES)
     for name in names:
-        if name not in SCENE_NAMES:
-            raise ValueError(f"mitsuba_scenes: {name!r} is not one of {', '.join(SCENE_NAMES)}")
+        if name not in ALL_SCENES:
+            raise ValueError(f"mitsuba_scenes: {name!r} is not one of {', '.join(ALL_SCENES)}")
     return names
 
 

@@ -33,6 +33,7 @@ def _random_request(shape, rng, *, high=5, round=0) -> SampleRequest:
 # ---------------------------------------------------------------------------- no Mitsuba needed
 def test_scene_names_are_listed():
     assert mitsuba_scenes.SCENE_NAMES == ("cornell_box", "envmap_sun", "glossy_glass", "dof_checker")
+    assert mitsuba_scenes.ALL_SCENES == mitsuba_scenes.SCENE_NAMES + ("indirect_room", "fog_spot")
     with pytest.raises(ValueError, match="bundled Mitsuba scene"):
         mitsuba_scenes.scene_dict("no_such_scene")
 
@@ -245,13 +246,26 @@ def test_depth_is_measured_along_the_view_axis(cornell):
 
 
 # ---------------------------------------------------------------------------- scenes and sources
-@pytest.mark.parametrize("name", mitsuba_scenes.SCENE_NAMES)
+@pytest.mark.parametrize("name", mitsuba_scenes.ALL_SCENES)
 def test_bundled_scenes_render(mi, name):
     renderer = create_renderer(name, shape=(12, 16), seed=1)
     assert renderer.shape == (12, 16)
     buffer = renderer(SampleRequest.uniform((12, 16), 2))
-    assert buffer.total_samples == 12 * 16 * 2 and buffer.mean.mean() > 0.01
+    # the scenes lit through rare paths are mostly 0 at 2 spp (test_heavy_tailed_scenes_are_lit_through_rare_paths)
+    least = 0.01 if name in mitsuba_scenes.SCENE_NAMES else 0.0
+    assert buffer.total_samples == 12 * 16 * 2 and buffer.mean.mean() > least
     assert renderer.stats["nonfinite"] == 0
+
+
+@pytest.mark.parametrize("name", mitsuba_scenes.HEAVY_TAILED_SCENES)
+def test_heavy_tailed_scenes_are_lit_through_rare_paths(mi, name):
+    """mitsuba_scenes: most samples of these scenes are exactly 0, so that most pixels' first samples all are."""
+    shape = (24, 32)
+    buffer = create_renderer(name, shape=shape, seed=1)(SampleRequest.uniform(shape, 4))
+    assert (buffer.mean.max(axis=-1) == 0).mean() > 0.7
+    # and yet the room is lit: 256 samples a pixel leave black only the void seen past its open side
+    image = np.array(mi.render(mi.load_dict(mitsuba_scenes.scene_dict(name, shape)), spp=256, seed=2))
+    assert (image.max(axis=-1) > 0).mean() > 0.9
 
 
 def test_envmap_sun_is_lit_mostly_by_its_small_sun(mi):
@@ -432,7 +446,7 @@ def test_cli_renders_a_bundled_mitsuba_scene_with_features(mi, tmp_path, capsys)
     from awr_denoise.io import read_sample_buffer
 
     assert main(["render", "--renderer", "mitsuba", "--list-scenes"]) == 0
-    assert capsys.readouterr().out.split() == list(mitsuba_scenes.SCENE_NAMES)
+    assert capsys.readouterr().out.split() == list(mitsuba_scenes.ALL_SCENES)
     serial, tiled = tmp_path / "serial.exr", tmp_path / "tiled.exr"
     common = ["render", "--renderer", "mitsuba", "cornell_box", "--width", "24", "--height", "16",
               "--spp", "4", "--features", "all", "-q"]

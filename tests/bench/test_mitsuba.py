@@ -13,6 +13,9 @@ from awr_denoise.bench.report import _mitsuba
 
 def test_scene_names_are_checked():
     assert bench_mitsuba.mitsuba_scene_names(BenchmarkConfig(mitsuba_scenes=("dof_checker",))) == ["dof_checker"]
+    # the scenes lit through rare paths on request, not by default
+    assert bench_mitsuba.mitsuba_scene_names(BenchmarkConfig(mitsuba_scenes=("fog_spot",))) == ["fog_spot"]
+    assert "fog_spot" not in bench_mitsuba.mitsuba_scene_names(BenchmarkConfig())
     with pytest.raises(ValueError, match="mitsuba_scenes: 'nope'"):
         bench_mitsuba.mitsuba_scene_names(BenchmarkConfig(mitsuba_scenes=("nope",)))
 
