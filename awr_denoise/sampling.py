@@ -10,12 +10,11 @@ resulting :class:`SampleBuffer` is told back::
         sampler.tell(request, renderer(request))
     image = reconstruct(sampler.buffer)
 
-:meth:`Sampler.run` is exactly that loop. Round 0 spends ``initial_spp`` on every pixel (the paper
-starts at 4 spp, :class:`AdaptiveSampler` at 2); later rounds follow the sampler's strategy. Every
-request's ``counts`` sum to the budget asked for, exactly.
-
-Three strategies share the interface so that benchmarks compare like with like: :class:`AdaptiveSampler`
-(AWR wavelet priorities), :class:`UniformSampler` and :class:`VarianceSampler` (per-pixel error, as Cycles').
+:meth:`Sampler.run` is exactly that loop. Round 0 spends ``initial_spp`` on every pixel (the paper starts at 4 spp,
+:class:`AdaptiveSampler` at 2); later rounds follow the sampler's strategy. Every request's ``counts`` sum to the
+budget asked for, exactly. Three strategies share the interface so that benchmarks compare like with like:
+:class:`AdaptiveSampler` (AWR wavelet priorities), :class:`UniformSampler` and :class:`VarianceSampler` (per-pixel
+error, as Cycles').
 """
 
 from __future__ import annotations
@@ -35,6 +34,7 @@ from .domains import Domain, resolve_domain
 from .errors import StaleRequestError
 from .noise_gain import DEFAULT_GAIN_REFRESH, DEFAULT_NOISE_MODEL, NOISE_MODELS, MeasuredGain
 from .priorities import DEFAULT_ABSOLUTE_ABOVE, pooled_deviation, sampling_density
+from .rare_paths import RARE_PATHS, even_rare_paths
 from .requests import Renderer, SampleRequest
 from .rounds import run_rounds
 from .wavelets import DEFAULT_WAVELET, wavelet_operators
@@ -69,12 +69,11 @@ class Sampler(OneAtATime):
     spp_max
         Most samples any pixel may have; ``None`` for no cap.
     round_spp
-        Default budget of a round after the first, in samples per pixel; ``None`` grows rounds
-        with the image's samples (see ``round_growth``).
+        Default budget of a round after the first, in samples per pixel; ``None`` grows rounds with the image's samples.
     round_growth
-        Without ``round_spp``, a round's default budget is this share of the samples taken so far (at
-        least 1 spp), so a render to ``S`` spp takes about ``log(S / initial_spp) / log(1 + round_growth)``
-        rounds. Larger rounds cost fewer priority analyses; docs/benchmarks.md ("The other defaults") measures it.
+        Without ``round_spp``, a round's default budget is this share of the samples taken so far (at least 1 spp), so
+        a render to ``S`` spp takes about ``log(S / initial_spp) / log(1 + round_growth)`` rounds. Larger rounds cost
+        fewer priority analyses; docs/benchmarks.md ("The other defaults") measures it.
     executor
         Optional ``concurrent.futures.Executor`` (threads): :meth:`tell` merges on two of its threads,
         :class:`AdaptiveSampler`'s priorities too; the same requests and buffers (docs/performance.md).
@@ -102,8 +101,7 @@ class Sampler(OneAtATime):
 
     strategy = "base"
     _ranks = True
-    """Whether rounds after the first rank the pixels (a time budget then plans their samples at a margin over round
-    0's cost until one was measured: :data:`~awr_denoise.rounds.RANKED_COST_MARGIN`)."""
+    """Whether later rounds rank pixels (a time budget costs them at round 0's, :data:`.rounds.RANKED_COST_MARGIN`)."""
 
     def __init__(self, shape: Shape2D, *, channels: int | tuple[str, ...] = 3, initial_spp: int = DEFAULT_INITIAL_SPP,
                  seed: int = 0, spp_min: int | None = None, spp_max: int | None = None, round_spp: float | None = None,
@@ -138,7 +136,6 @@ class Sampler(OneAtATime):
         self._id = next(_sampler_ids)
         OneAtATime.__init__(self)  # ask, tell and resume: one call at a time, from any thread
 
-    # ------------------------------------------------------------------ state
     @classmethod
     def from_buffer(cls, buffer: SampleBuffer, *, round: int = 1, issued: CountArray | None = None,
                     **options) -> Sampler:
@@ -196,7 +193,6 @@ class Sampler(OneAtATime):
         """Samples told so far."""
         return self._buffer.total_samples
 
-    # ------------------------------------------------------------------ ask / tell
     @one_at_a_time
     def resume(self, request: SampleRequest) -> SampleRequest:
         """Take a request issued elsewhere as this sampler's pending one, so it can be told.
@@ -389,10 +385,9 @@ class Sampler(OneAtATime):
         return run_rounds(self, renderer, total_spp, seconds=seconds, reserve=reserve, progress=progress,
                           callback=callback)
 
-    # ------------------------------------------------------------------ strategy
     def _prepare(self) -> None:
-        """Rank the pixels for the next :meth:`ask` now, so that a time budget knows what it cost before the
-        round's size is chosen (:mod:`.rounds`); nothing to rank here."""
+        """Rank the pixels for the next :meth:`ask` now, so that a time budget knows what it cost before the round's
+        size is chosen (:mod:`.rounds`); nothing to rank here."""
 
     def _allocate(self, budget: int, current: CountArray, capacity: CountArray | None,
                   rng: np.random.Generator) -> CountArray:
@@ -421,11 +416,10 @@ class UniformSampler(Sampler):
 class VarianceSampler(Sampler):
     """Per-pixel variance-driven sampling, a baseline in the spirit of Cycles' adaptive sampling.
 
-    Samples go where the per-pixel *relative* error is large: the allocation equalises the
-    marginal error reduction ``s2_p / (n_p (n_p + 1))`` of each pixel in the error domain
-    (``"log"``: relative error), i.e. ``n_p ~ s_p``. No wavelet structure is used.
-    ``uniform_fraction`` and ``absolute_above`` as for :class:`AdaptiveSampler` (the same defaults,
-    so the two compare like with like).
+    Samples go where the per-pixel *relative* error is large: the allocation equalises the marginal error reduction
+    ``s2_p / (n_p (n_p + 1))`` of each pixel in the error domain (``"log"``: relative error), i.e. ``n_p ~ s_p``. No
+    wavelet structure is used. ``uniform_fraction``, ``absolute_above`` and ``rare_paths`` as for
+    :class:`AdaptiveSampler` (the same defaults, so the two compare like with like).
 
     Examples
     --------
@@ -441,14 +435,16 @@ class VarianceSampler(Sampler):
     strategy = "variance"
 
     def __init__(self, shape: Shape2D, *, domain: str | Domain = "log", uniform_fraction: float = 0.0,
-                 absolute_above: float | None = DEFAULT_ABSOLUTE_ABOVE, **options) -> None:
+                 absolute_above: float | None = DEFAULT_ABSOLUTE_ABOVE, rare_paths: str = "even", **options) -> None:
         super().__init__(shape, **options)
         self.domain = resolve_domain(domain)  # checked now, not at the first adaptive ask() after round 0
         self.uniform_fraction = _checks.real("uniform_fraction", uniform_fraction, minimum=0.0, maximum=1.0)
         self.absolute_above = _checks.real("absolute_above", absolute_above, above=0, none=True)
+        self.rare_paths = _checks.name("rare_paths", rare_paths, RARE_PATHS)
 
     def _density(self) -> FloatArray:
-        return pooled_deviation(self._buffer, self.domain, absolute_above=self.absolute_above)
+        density = pooled_deviation(self._buffer, self.domain, absolute_above=self.absolute_above)
+        return even_rare_paths(density, self._buffer, self.rare_paths)
 
     def _allocate(self, budget, current, capacity, rng):
         return _allocate_mixed(self._density(), current, budget, self.uniform_fraction, capacity=capacity, rng=rng)
@@ -457,11 +453,10 @@ class VarianceSampler(Sampler):
 class AdaptiveSampler(Sampler):
     """Adaptive Wavelet Rendering's sampler (paper section 4).
 
-    Each round, every pixel finds the level ``l_p`` whose covering scale coefficient has the
-    highest priority ``P_k = 4^k (Var(S~_k) - sum_a max(0, W~^2 - (2 Delta)^2))``, and the
-    round's budget is spread so that totals approach ``n_p ~ s_p 2^(-w l_p)``: samples concentrate
-    on edges (fine levels win) and spread thinly over smooth noisy regions (coarse levels win),
-    see :mod:`awr_denoise.priorities`.
+    Each round, every pixel finds the level ``l_p`` whose covering scale coefficient has the highest priority
+    ``P_k = 4^k (Var(S~_k) - sum_a max(0, W~^2 - (2 Delta)^2))``, and the round's budget is spread so that totals
+    approach ``n_p ~ s_p 2^(-w l_p)``: samples concentrate on edges (fine levels win) and spread thinly over smooth
+    noisy regions (coarse levels win), see :mod:`awr_denoise.priorities`.
 
     Parameters
     ----------
@@ -476,19 +471,21 @@ class AdaptiveSampler(Sampler):
         reconstruction averaged a smooth region completely, measured best near 0.25, the default (docs/sampling.md).
         0 turns the sampler into per-pixel variance sampling.
     uniform_fraction
-        Share of every round spread uniformly, insurance against variance estimates that are wrong
-        (all first samples of a region may miss a small light); off by default: measured, it cost
-        relMSE and bought nothing (docs/sampling.md).
+        Share of every round spread uniformly, insurance against variance estimates that are wrong (all first samples
+        of a region may miss a small light); off by default: measured, it cost relMSE and bought nothing (sampling.md).
     absolute_above
-        ``s_p`` is the error in ``domain`` with each pixel's level capped at this many times the image's
-        mean level: a small bright source is ranked by its absolute error, not starved (``None``: not
-        capped; :func:`~awr_denoise.priorities.pooled_deviation`, docs/sampling.md "Relative and absolute error").
+        ``s_p`` is the error in ``domain`` with each pixel's level capped at this many times the image's mean level: a
+        small bright source is ranked by its absolute error, not starved (``None``: not capped;
+        :func:`~awr_denoise.priorities.pooled_deviation`, docs/sampling.md "Relative and absolute error").
     noise_model, gain_refresh
         What reconstruction leaves of a pixel's noise (docs/sampling.md, "The noise gain"): ``"levels"`` (the paper's
         model above), ``"shrinkage"`` (the default: ``n_p ~ s_p sqrt(g_p)``, ``g_p`` a Wiener shrinkage's exact share,
         :func:`~awr_denoise.noise_gain.shrinkage_gain`) or ``"reconstruction"`` (``g_p`` the default reconstruction's
         measured share, measured again once the samples grow by ``gain_refresh``, default 1: every round,
         :class:`~awr_denoise.noise_gain.MeasuredGain`; several times the sampler's time).
+    rare_paths
+        ``"even"`` (default): a region lit through rare paths (most samples 0) gets one density, its pixels' mean;
+        ``"ranked"`` ranks it, 4-22% dark (:mod:`~awr_denoise.rare_paths`; docs/sampling.md, "Rare paths").
 
     Examples
     --------
@@ -511,7 +508,8 @@ class AdaptiveSampler(Sampler):
                  spp_min: int | None = None, spp_max: int | None = None, round_spp: float | None = None,
                  round_growth: float = DEFAULT_ROUND_GROWTH, domain: str | Domain = "log", level_weight: float | None = None,
                  uniform_fraction: float = 0.0, noise_model: str = DEFAULT_NOISE_MODEL, gain_refresh: float | None = None,
-                 absolute_above: float | None = DEFAULT_ABSOLUTE_ABOVE, executor: Executor | None = None) -> None:
+                 absolute_above: float | None = DEFAULT_ABSOLUTE_ABOVE, rare_paths: str = "even",
+                 executor: Executor | None = None) -> None:
         super().__init__(shape, channels=channels, initial_spp=initial_spp, seed=seed, spp_min=spp_min,
                          spp_max=spp_max, round_spp=round_spp, round_growth=round_growth, executor=executor)
         wavelet_operators(self._shape, wavelet=wavelet, levels=levels)  # validates wavelet and levels now
@@ -527,14 +525,16 @@ class AdaptiveSampler(Sampler):
         self._gain = None if self.noise_model != "reconstruction" else MeasuredGain(
             DEFAULT_GAIN_REFRESH if gain_refresh is None else gain_refresh)
         self.absolute_above = _checks.real("absolute_above", absolute_above, above=0, none=True)
+        self.rare_paths = _checks.name("rare_paths", rare_paths, RARE_PATHS)
 
     @one_at_a_time
     def density(self) -> FloatArray:
-        """(H, W) target density of the next round (see :func:`~awr_denoise.priorities.sampling_density`)."""
+        """(H, W) density of the next round: :func:`~awr_denoise.priorities.sampling_density`, rare paths evened."""
         gain = None if self._gain is None else self._gain(self._buffer, self.executor)  # round 0 is uniform: none
-        return sampling_density(self._buffer, wavelet=self.wavelet, levels=self.levels, domain=self.domain,
-                                level_weight=self.level_weight, noise_gain=gain, absolute_above=self.absolute_above,
-                                executor=self.executor, noise_model=self.noise_model)
+        density = sampling_density(self._buffer, wavelet=self.wavelet, levels=self.levels, domain=self.domain,
+                                   level_weight=self.level_weight, noise_gain=gain, absolute_above=self.absolute_above,
+                                   executor=self.executor, noise_model=self.noise_model)
+        return even_rare_paths(density, self._buffer, self.rare_paths)
 
     def _prepare(self) -> None:
         if self._round > 0 and self._pending is None and self._buffer.total_samples > 0:

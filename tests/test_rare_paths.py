@@ -1,0 +1,174 @@
+"""awr_denoise.rare_paths: regions lit through rare paths found, and the samplers' samples spread evenly there."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from awr_denoise import AdaptiveSampler, SampleBuffer, VarianceSampler
+from awr_denoise.rare_paths import BACKDROP, RARE_PATHS, even_rare_paths, rare_path_mask
+from awr_denoise.synthetic import SyntheticRenderer, SyntheticScene
+
+
+def _hits(p, shape=(64, 64), n=4, value=None, seed=0):
+    """(count, mean, variance) of ``n`` samples a pixel that are ``value`` (default 1 / p) with chance p, else 0."""
+    value = 1.0 / p if value is None else value
+    hits = np.random.default_rng(seed).binomial(n, p, size=shape).astype(float)
+    mean = hits * value / n
+    variance = (hits * (value - mean) ** 2 + (n - hits) * mean**2) / (n - 1)
+    return np.full(shape, n), mean, variance
+
+
+def _buffer(count, mean, variance):
+    return SampleBuffer.from_moments(count, np.repeat(mean[..., None], 3, -1), np.repeat(variance[..., None], 3, -1))
+
+
+def test_a_region_of_rare_hits_is_found_and_steady_noise_beside_it_is_not():
+    count, mean, variance = _hits(1 / 40)
+    mean[:, 32:], variance[:, 32:] = 1.0, 0.5  # steady noise: every sample lit
+    mask = rare_path_mask(_buffer(count, mean, variance))
+    assert mask[:, :24].mean() > 0.9 and not mask[:, 40:].any()
+
+
+@pytest.mark.parametrize("p", [0.3, 0.6])
+def test_hits_that_are_not_rare_are_not_a_rare_path_region(p):
+    assert not rare_path_mask(_buffer(*_hits(p))).any()
+
+
+def test_a_small_light_seen_directly_is_not_a_rare_path_region():
+    """A light 2 pixels across, 1000 times its dim noisy surroundings: its pixels hit often."""
+    rng = np.random.default_rng(1)
+    mean = rng.uniform(0.05, 0.15, (64, 64))
+    variance = (0.5 * mean) ** 2
+    mean[30:32, 30:32], variance[30:32, 30:32] = 100.0, 400.0
+    mean[29, 30:32] = mean[32, 30:32] = 50.0  # its rim: half its samples hit it
+    variance[29, 30:32] = variance[32, 30:32] = 50.0**2 * 4 / 3
+    assert not rare_path_mask(_buffer(np.full((64, 64), 4), mean, variance)).any()
+
+
+def test_a_black_backdrop_beside_an_objects_rim_is_not_read_as_rare_hits():
+    """Exact zeros filling squares of BACKDROP pixels are left out of the statistics: a lit object's rim against
+    them (coverage 1 in 8: most samples miss) does not make the rim and the black a rare-path region."""
+    count = np.full((64, 64), 8)
+    mean, variance = np.zeros((64, 64)), np.zeros((64, 64))
+    mean[:, 33:], variance[:, 33:] = 0.5, 0.01   # the object
+    mean[:, 32], variance[:, 32] = 0.5 / 8, 0.5**2 / 8  # its rim: one sample in eight hits it
+    assert BACKDROP <= 32
+    assert not rare_path_mask(_buffer(count, mean, variance)).any()
+
+
+def test_no_lit_pixel_no_counts_and_huge_values_find_nothing_or_stay_finite():
+    assert not rare_path_mask(SampleBuffer.empty((5, 7))).any()
+    assert not rare_path_mask(_buffer(np.full((9, 9), 4), np.zeros((9, 9)), np.zeros((9, 9)))).any()
+    count, mean, variance = _hits(1 / 40, shape=(1, 3))
+    assert rare_path_mask(_buffer(count, mean, variance)).shape == (1, 3)
+    count, mean, _ = _hits(1 / 40)
+    mean *= 1e300 / 40  # hits of 1e300, and variances near float64's top: the sums overflow
+    with np.errstate(all="raise"):  # and raise no warning either
+        mask = rare_path_mask(_buffer(count, mean, np.where(mean > 0, 1e307, 0.0)))
+    assert mask.dtype == bool
+
+
+@pytest.mark.parametrize("p, n", [(1 / 40, 8), (1 / 200, 4), (1 / 200, 8), (1 / 40, 32), (1 / 40, 128)])
+def test_rarer_hits_fewer_samples_and_more_samples_are_all_found(p, n):
+    """The backdrop's squares (BACKDROP) are too large for rare hits' zeros to fill at 4 spp, and a pixel's own
+    variation counts at most OWN_COUNT samples: a region stays found as its pixels gather several hits."""
+    assert rare_path_mask(_buffer(*_hits(p, shape=(96, 96), n=n))).mean() > 0.9
+
+
+def test_a_bright_steady_beam_does_not_hide_the_region_around_it():
+    """Steady pixels are left out of the pooled variation: a beam 3 pixels wide, 5 times the region's mean, with
+    every sample lit, would otherwise raise the pooled mean of every window it crosses."""
+    count, mean, variance = _hits(1 / 40, n=8)
+    mean[:, 30:33], variance[:, 30:33] = 5.0, (0.25 * 5.0) ** 2
+    assert rare_path_mask(_buffer(count, mean, variance)).mean() > 0.95
+
+
+def test_signed_data_has_no_rare_paths():
+    """Zero-mean noise has means near 0 beside its spread (a pooled CV2 in the thousands) but no rare hits."""
+    rng = np.random.default_rng(3)
+    mean = rng.normal(0.0, 0.5, (64, 64))
+    assert not rare_path_mask(_buffer(np.full((64, 64), 4), mean, np.full((64, 64), 1.0))).any()
+
+
+@pytest.mark.parametrize("scale", [1e-150, 1e-100, 1e100, 1e150])
+def test_the_same_hits_at_any_level_are_found_alike(scale):
+    count, mean, variance = _hits(1 / 40, n=8)
+    expected = rare_path_mask(_buffer(count, mean, variance))
+    with np.errstate(all="raise"):  # nothing under- or overflows on the way
+        got = rare_path_mask(_buffer(count, mean * scale, variance * scale**2))
+    np.testing.assert_array_equal(got, expected)
+
+
+def test_each_region_takes_the_mean_of_its_densities_and_its_total_is_kept():
+    count, mean, variance = _hits(1 / 40)
+    mean[:, 20:44], variance[:, 20:44] = 1.0, 0.5  # two regions of rare hits, a steady band between them
+    buffer = _buffer(count, mean, variance)
+    density = np.random.default_rng(2).uniform(0.0, 2.0, (64, 64))
+    mask = rare_path_mask(buffer)
+    evened = even_rare_paths(density, buffer)
+    left, right = mask[:, :16], mask[:, 48:]
+    assert left.any() and right.any()
+    assert np.unique(evened[:, :16][left]).size == 1 and np.unique(evened[:, 48:][right]).size == 1
+    assert evened[:, :16][left][0] != evened[:, 48:][right][0]  # each region its own mean
+    np.testing.assert_array_equal(evened[~mask], density[~mask])
+    assert evened.sum() == pytest.approx(density.sum(), rel=1e-12)
+    assert even_rare_paths(density, buffer, "ranked") is density
+
+
+def test_an_unknown_choice_is_refused_by_name():
+    with pytest.raises(ValueError, match="rare_paths: 'uniform' is not one of even, ranked"):
+        even_rare_paths(np.ones((4, 4)), _buffer(*_hits(0.5, shape=(4, 4))), "uniform")
+    for sampler in (AdaptiveSampler, VarianceSampler):
+        with pytest.raises(ValueError, match="rare_paths"):
+            sampler((8, 8), rare_paths="off")
+    assert RARE_PATHS == ("even", "ranked")
+
+
+def _rare_scene(p=0.02, shape=(48, 48)):
+    """Every sample 1 / p with chance p, else 0: a flat image of 1 lit through rare paths."""
+    def image(x, y):
+        return np.ones((x.size, 3))
+
+    def noise(clean, x, y, u):
+        return clean * np.where(u[:, 0] < p, 1.0 / p, 0.0)[:, None]
+
+    return SyntheticScene("rare", shape, image, noise)
+
+
+@pytest.mark.parametrize("sampler", [AdaptiveSampler, VarianceSampler])
+def test_evened_rare_paths_keep_the_image_mean_that_ranking_them_loses(sampler):
+    """docs/sampling.md, "Rare paths": ranked, the pixels whose first samples hit take more samples and are
+    diluted, and the image comes out dark (about 5-10% here, 12 renders); evened, its mean is the scene's."""
+    scene = _rare_scene()
+    errors = {"even": [], "ranked": []}
+    for seed in range(12):
+        for choice in errors:
+            buffer = sampler(scene.shape, seed=seed, rare_paths=choice).run(SyntheticRenderer(scene, seed=seed),
+                                                                           total_spp=8)
+            errors[choice].append(float(np.asarray(buffer.mean).mean()) - 1.0)
+    even, ranked = np.array(errors["even"]), np.array(errors["ranked"])
+    standard_error = even.std(ddof=1) / np.sqrt(even.size)
+    assert abs(even.mean()) < max(3 * standard_error, 0.01), (even.mean(), standard_error)
+    assert ranked.mean() < -0.03 and ranked.mean() < even.mean() - 3 * standard_error
+
+
+def test_a_density_that_is_not_finite_stays_and_is_left_out_of_its_regions_mean():
+    buffer = _buffer(*_hits(1 / 40, n=8))
+    density = np.full((64, 64), 2.0)
+    density[5, 5], density[6, 6], density[7, 7] = np.nan, np.inf, 6.0
+    evened = even_rare_paths(density, buffer)
+    assert np.isnan(evened[5, 5]) and evened[6, 6] == np.inf
+    finite = np.isfinite(density)
+    assert evened[10, 10] == pytest.approx(density[finite].mean())
+    huge = np.full((64, 64), 1e307)
+    np.testing.assert_allclose(even_rare_paths(huge, buffer), huge, rtol=1e-12)  # its sum would overflow
+
+
+def test_a_density_of_another_shape_or_a_choice_that_is_no_name_is_refused():
+    buffer = _buffer(*_hits(1 / 40, shape=(8, 8)))
+    with pytest.raises(ValueError, match=r"density: shape \(8, 9\) is not the buffer's \(8, 8\)"):
+        even_rare_paths(np.ones((8, 9)), buffer)
+    with pytest.raises(TypeError, match="rare_paths"):
+        even_rare_paths(np.ones((8, 8)), buffer, 1)
+    assert even_rare_paths(np.ones((8, 8), dtype=np.int64), buffer, "ranked").dtype == np.float64
