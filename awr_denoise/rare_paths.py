@@ -107,19 +107,23 @@ def rare_path_mask(buffer: SampleBuffer) -> BoolArray:
     region = (lit | (near & ~backdrop)) & (count >= 2)
     if not region.any():
         return np.zeros(count.shape, dtype=bool)
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
-        # A pixel's squared coefficient of variation over its count (capped at OWN_COUNT): 1 where one sample holds
-        # its mean; a pixel of zeros counts 1.
-        ratio = sample_var / (mean * mean) / np.minimum(count, OWN_COUNT)
-        own = np.where(lit, np.minimum(np.nan_to_num(ratio, nan=0.0, posinf=1.0), 1.0), 1.0)
+    # A pixel's squared coefficient of variation over its count (capped at OWN_COUNT): 1 where one sample holds its
+    # mean; a pixel of zeros counts 1. (mean is at most 2 here and lit means are above 0: the quotient is finite or
+    # +inf, which the cap takes to 1.)
+    own = np.ones(count.shape)
+    with np.errstate(over="ignore", divide="ignore", under="ignore"):
+        np.divide(sample_var, mean * mean * np.minimum(count, OWN_COUNT), out=own, where=lit)
+    np.minimum(own, 1.0, out=own)
     # Steady pixels (a beam, a lit wall beside the fog) are left out of the pooled variation, which their level
     # would otherwise dilute: the region around them is judged by its own samples.
     varied = region & (own >= STEADY)
     dof = np.where(varied & np.asarray(buffer.variance_known), count - 1.0, 0.0)
     n = np.where(varied, count, 0.0)
-    sums = [_blocks(x) for x in (n, n * mean, dof, dof * sample_var, region.astype(np.float64),
-                                 np.where(region, own, 0.0), (region & (mean < 0)).astype(np.float64))]
-    n_sum, nm_sum, dof_sum, var_sum, pixels, own_sum, negative = (_window(s) for s in sums)
+    own[~region] = 0.0
+    sums = [_blocks(x) for x in (n, n * mean, dof, dof * sample_var, region, own)]
+    n_sum, nm_sum, dof_sum, var_sum, pixels, own_sum = (_window(s) for s in sums)
+    negative = region & (mean < 0)
+    negative = _window(_blocks(negative)) if negative.any() else np.zeros_like(pixels)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
         pooled_mean = nm_sum / n_sum
         cv2 = (var_sum / dof_sum) / (pooled_mean * pooled_mean)
@@ -177,8 +181,9 @@ def even_rare_paths(density: FloatArray, buffer: SampleBuffer, rare_paths: str =
     return out
 
 
-def _blocks(a: FloatArray) -> FloatArray:
-    """Sums over the BLOCK x BLOCK blocks of ``a`` (its last blocks padded with zeros)."""
+def _blocks(a: FloatArray | BoolArray) -> FloatArray:
+    """Sums over the BLOCK x BLOCK blocks of ``a`` (its last blocks padded with zeros), in float64."""
+    a = np.asarray(a, dtype=np.float64)
     h, w = a.shape
     if h % BLOCK or w % BLOCK:
         padded = np.zeros((-(-h // BLOCK) * BLOCK, -(-w // BLOCK) * BLOCK))
