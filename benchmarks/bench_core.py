@@ -18,7 +18,9 @@ on one core (OMP/MKL/OPENBLAS_NUM_THREADS=1, no executor) and again with a 2-thr
 repeats in which the cases are interleaved, and ratios to the floor of the same run. Memory: in a
 fresh process per case, the tracemalloc peak above the built buffer and the peak RSS, as
 multiples of the input buffer (count + mean + variance). ``tell``: one ``tell()`` with the merge compiled
-(extra ``fast``) against its numpy reference, on one thread and two, beside the floor.
+(extra ``fast``) against its numpy reference, on one thread and two, beside the floor. ``rare_paths``: ``ask()``
+with rare-path regions evened (the default, :mod:`awr_denoise.rare_paths`) against ranked, on a frame with none and
+on one lit through rare paths everywhere.
 """
 
 from __future__ import annotations
@@ -50,6 +52,7 @@ from awr_denoise.bench import (OVERHEAD_SIZES, command_line, load_average, machi
                                peak_memory, write_json)
 from awr_denoise.domains import Domain  # noqa: E402
 from awr_denoise.prepare import prepare  # noqa: E402
+from awr_denoise.rare_paths import rare_path_mask  # noqa: E402
 from awr_denoise.thresholding import _float32_margin  # noqa: E402
 from awr_denoise.metrics import mean_error, mse, relmse  # noqa: E402
 from awr_denoise.synthetic import SyntheticRenderer, make_scene  # noqa: E402
@@ -284,6 +287,35 @@ def speed(sizes: list[str], repeats: int = 5) -> list[dict]:
             calls = f"{load / saving:.0f} calls" if saving > 0 else "never"
             print(f"\n{row['size']}: the compiled kernels save {saving:.3f} s per stage 1 and cost {load:.2f} s "
                   f"once per process (numba's import and cached code): they pay from {calls}", flush=True)
+    return rows
+
+
+def _hit_or_zero_buffer(shape, spp: int = 8, p: float = 0.02, seed: int = 0) -> SampleBuffer:
+    """Every sample 1 / p with chance p, else 0: a frame lit through rare paths (awr_denoise.rare_paths)."""
+    hits = np.random.default_rng(seed).binomial(spp, p, size=shape).astype(np.float64)
+    mean = hits / p / spp
+    variance = (hits * (1 / p - mean) ** 2 + (spp - hits) * mean**2) / (spp - 1)
+    return SampleBuffer.from_moments(np.full(shape, spp), np.repeat(mean[..., None], 3, -1),
+                                     np.repeat(variance[..., None], 3, -1))
+
+
+def rare_paths_cost(sizes: list[str], repeats: int = 5) -> list[dict]:
+    """ask() with rare-path regions evened (the default) against ranked, on a frame with none (the speed section's
+    buffer: the search alone) and on one lit through rare paths everywhere (the search and the evening)."""
+    rows = []
+    for name in sizes:
+        shape = OVERHEAD_SIZES[name]
+        for label, buf in (("no rare paths", noisy_buffer(shape, smooth=0.0, noise=0.0)),
+                           ("rare paths everywhere", _hit_or_zero_buffer(shape))):
+            cases = {"even": _Ask(buf), "ranked": _Ask(buf, rare_paths="ranked")}
+            for fn in cases.values():
+                fn()
+            t = _interleaved(cases, repeats)
+            mask = float(rare_path_mask(buf).mean())
+            rows.append({"size": name, "buffer": label, "repeats": repeats, "seconds": t, "masked_share": mask,
+                         "ratio": t["even"] / t["ranked"]})
+            print(f"| {name} | {label} | {100 * mask:.0f}% | {t['ranked']:.3f} s | {t['even']:.3f} s | "
+                  f"{t['even'] / t['ranked']:.2f} |", flush=True)
     return rows
 
 
@@ -796,6 +828,9 @@ SECTIONS = {
              "| size | floor | tell(), numpy | tell(), compiled | tell(), numpy, 2 threads "
              "| tell(), compiled, 2 threads | compiled / numpy, 1 / 2 threads |",
              lambda quick: tell(["256x256"] if quick else SPEED_SIZES)),
+    "rare_paths": ("ask() with rare-path regions evened (the default) against ranked (medians of interleaved repeats)",
+                   "| size | buffer | pixels in rare-path regions | ask(), ranked | ask(), evened | evened / ranked |",
+                   lambda quick: rare_paths_cost(["256x256"] if quick else ["256x256", "1080p"])),
     "fft_budget": ("The default reconstruction's FFTs against the floor (one core)",
                    "| size | plane FFTs (forward + inverse) | one forward + inverse pair | floor | FFTs alone |",
                    lambda quick: [fft_budget("256x256" if quick else "1080p")]),

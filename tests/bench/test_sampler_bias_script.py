@@ -62,7 +62,7 @@ def test_every_variant_is_measured_against_uniform_sampling(bias):
     got = row["spp"]["8"]
     assert list(got) == ["uniform", *bias.VARIANTS]
     for values in got.values():
-        assert set(values) == {"image_mean_error", "image_mean_error_sd", "relmse", "mse"}
+        assert set(values) == {"image_mean_error", "image_mean_error_sd", "relmse", "mse", "reconstruction_mean_change"}
         assert np.isfinite(list(values.values())).all() and values["relmse"] > 0
     # The variants sample differently from the default; the uniform runs are the renderer's own.
     assert len({got[k]["mse"] for k in bias.VARIANTS}) == len(bias.VARIANTS)
@@ -136,3 +136,47 @@ def test_the_routes_are_measured_and_tabled_like_the_variants(bias):
     results = {"seeds": [0, 1], "variants": bias.ROUTES, "renderers": {"synthetic": [row]}}
     head, _, line = bias.table(results).split("\n")
     assert "neighbours only" in head and len(line.strip("|").split("|")[3].split("/")) == 1 + len(bias.ROUTES)
+
+
+def test_rare_paths_add_uniform_samplings_reconstruction_and_table_every_method(bias):
+    scene = make_scene("rare_light", (16, 16))
+    reference = scene.reference()
+
+    @contextlib.contextmanager
+    def factory(seed):
+        yield SyntheticRenderer(scene, seed=seed)
+
+    row = bias.measure("rare_light", factory, reference, [4], [0, 1], bias.RARE_PATH_VARIANTS, reconstruct_uniform=True)
+    got = row["spp"]["4"]
+    assert list(got) == ["uniform", "uniform, reconstructed", *bias.RARE_PATH_VARIANTS]
+    # the reconstruction of uniform sampling's own buffers: its mean and how far it moved from theirs
+    buffers = [SyntheticRenderer(scene, seed=s)(SampleRequest.uniform((16, 16), 4)) for s in (0, 1)]
+    images = [bias.reconstruct(b) for b in buffers]
+    expected = np.mean([((i - reference) ** 2).mean() for i in images])
+    assert got["uniform, reconstructed"]["mse"] == pytest.approx(expected)
+    assert got["uniform, reconstructed"]["reconstruction_mean_change"] == pytest.approx(
+        np.mean([i.mean() / np.asarray(b.mean).mean() - 1 for i, b in zip(images, buffers)]))
+    assert got["uniform"]["reconstruction_mean_change"] == 0.0
+    results = {"seeds": [0, 1], "variants": bias.RARE_PATH_VARIANTS, "renderers": {"mitsuba": [row]}}
+    head, rule, *lines = bias.rare_table(results).split("\n")
+    assert len(lines) == 2 + len(bias.RARE_PATH_VARIANTS) and rule.count("---") == len(head.strip("|").split("|")) == 8
+    methods = [line.split("|")[4].strip() for line in lines]
+    assert methods[:2] == ["uniform", "uniform, reconstructed"]
+    assert methods[2:] == [f"AWR sampling, {k}" for k in bias.RARE_PATH_VARIANTS]
+    assert "rare paths ranked" in bias.RARE_PATH_VARIANTS and bias.RARE_PATH_VARIANTS["default"] == {}
+
+
+@pytest.mark.parametrize("argv, message", [(["--routes", "--rare-paths"], "give one"),
+                                           (["--bundled"], "--bundled: only with --rare-paths"),
+                                           (["--renderers", "synthetic"], "only with --rare-paths"),
+                                           (["--rare-paths", "--renderers", "tracer"], "give --bundled")])
+def test_rare_path_options_that_contradict_are_refused(bias, argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        bias.main(argv)
+    assert exit_.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_the_reconstructions_change_of_a_black_buffers_mean_is_absolute(bias):
+    assert bias._change(np.zeros((2, 2)), np.zeros((2, 2))) == 0.0
+    assert bias._change(np.full((2, 2), 0.5), np.zeros((2, 2))) == 0.5
+    assert bias._change(np.full((2, 2), 1.5), np.ones((2, 2))) == pytest.approx(0.5)

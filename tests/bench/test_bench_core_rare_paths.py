@@ -1,0 +1,29 @@
+"""``benchmarks/bench_core.py --only rare_paths``: ask() with rare-path regions evened against ranked."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from awr_denoise.rare_paths import rare_path_mask
+
+
+@pytest.fixture(scope="module")
+def bench(benchmark_script):
+    return benchmark_script("bench_core")
+
+
+def test_the_rare_path_buffer_is_lit_through_rare_paths_everywhere_with_its_stated_mean(bench):
+    buf = bench._hit_or_zero_buffer((64, 96), spp=8, p=0.02)
+    assert rare_path_mask(buf).mean() > 0.9
+    assert abs(float(buf.mean.mean()) - 1.0) < 0.1  # hits of 1 / p: the image's mean is 1
+    assert (buf.mean == 0).mean() > 0.8
+
+
+def test_the_section_times_both_choices_on_both_buffers(bench):
+    rows = bench.rare_paths_cost(["256x256"], repeats=1)
+    assert [r["buffer"] for r in rows] == ["no rare paths", "rare paths everywhere"]
+    for row in rows:
+        assert set(row["seconds"]) == {"even", "ranked"} and np.isfinite(row["ratio"]) and row["ratio"] > 0
+    assert rows[0]["masked_share"] == 0.0 and rows[1]["masked_share"] > 0.9
+    assert "rare_paths" in bench.SECTIONS
