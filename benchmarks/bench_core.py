@@ -299,6 +299,11 @@ def _hit_or_zero_buffer(shape, spp: int = 8, p: float = 0.02, seed: int = 0) -> 
                                      np.repeat(variance[..., None], 3, -1))
 
 
+def _rare_path_cases(buf: SampleBuffer) -> dict:
+    """One ask() round of the default sampler (rare-path regions evened) and of the same with them ranked."""
+    return {"even": _Ask(buf), "ranked": _Ask(buf, rare_paths="ranked")}
+
+
 def rare_paths_cost(sizes: list[str], repeats: int = 5) -> list[dict]:
     """ask() with rare-path regions evened (the default) against ranked, on a frame with none (the speed section's
     buffer: the search alone) and on one lit through rare paths everywhere (the search and the evening)."""
@@ -307,7 +312,7 @@ def rare_paths_cost(sizes: list[str], repeats: int = 5) -> list[dict]:
         shape = OVERHEAD_SIZES[name]
         for label, buf in (("no rare paths", noisy_buffer(shape, smooth=0.0, noise=0.0)),
                            ("rare paths everywhere", _hit_or_zero_buffer(shape))):
-            cases = {"even": _Ask(buf), "ranked": _Ask(buf, rare_paths="ranked")}
+            cases = _rare_path_cases(buf)
             for fn in cases.values():
                 fn()
             t = _interleaved(cases, repeats)

@@ -7,8 +7,7 @@ Run from the repository root::
     .venv/bin/python benchmarks/sampler_bias.py --routes            # what is left: each route taken out, 8 spp
     .venv/bin/python benchmarks/sampler_bias.py --rare-paths        # Mitsuba's scenes lit through rare paths
     .venv/bin/python benchmarks/sampler_bias.py --rare-paths --bundled   # the same variants on the bundled scenes
-    .venv/bin/python benchmarks/sampler_bias.py --rare-paths --renderers synthetic \
-        --output benchmarks/results/sampler_bias_rare_paths_synthetic.json   # and on synthetic fireflies
+    .venv/bin/python benchmarks/sampler_bias.py --rare-paths --renderers synthetic   # and on synthetic fireflies
 
 Ranked by statistics its own samples are part of, a pixel whose first samples caught a bright path ranks high,
 takes more samples and is diluted back towards its mean; one whose first samples missed it ranks low and keeps
@@ -36,8 +35,9 @@ exactly 0), where the bias was largest, with :data:`RARE_PATH_VARIANTS` and unif
 them, and reports every figure as it is, not over the default's (``benchmarks/results/sampler_bias_rare_paths.json``);
 with ``--bundled``, the same variants on the bundled scenes of ``--renderers`` instead
 (``benchmarks/results/sampler_bias_rare_paths_bundled.json``): what evening rare paths does where there are few.
-``--renderers synthetic`` runs :data:`SYNTHETIC_SCENES` (with ``--rare-paths`` only): rare samples on a lit base,
-which the detector of rare paths does not take for them.
+``--renderers synthetic`` runs :data:`SYNTHETIC_SCENES` (with ``--rare-paths`` only; alone, into
+``benchmarks/results/sampler_bias_rare_paths_synthetic.json``): rare samples on a lit base, which the detector of
+rare paths does not take for them.
 """
 
 from __future__ import annotations
@@ -65,6 +65,7 @@ RESULTS = REPOSITORY / "benchmarks" / "results" / "sampler_bias.json"
 ROUTES_RESULTS = REPOSITORY / "benchmarks" / "results" / "sampler_bias_routes.json"
 RARE_PATHS_RESULTS = REPOSITORY / "benchmarks" / "results" / "sampler_bias_rare_paths.json"
 RARE_PATHS_BUNDLED_RESULTS = REPOSITORY / "benchmarks" / "results" / "sampler_bias_rare_paths_bundled.json"
+RARE_PATHS_SYNTHETIC_RESULTS = REPOSITORY / "benchmarks" / "results" / "sampler_bias_rare_paths_synthetic.json"
 TRACER_SCENES = ("default", "chess_dof", "rolling_balls", "sky_objects", "soft_shadows", "cornell_gi")
 MITSUBA_SCENES = ("cornell_box", "envmap_sun", "glossy_glass", "dof_checker")
 RARE_PATH_SCENES = ("indirect_room", "fog_spot")  # mitsuba_scenes.HEAVY_TAILED_SCENES
@@ -298,11 +299,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.bundled and not args.rare_paths:
         parser.error("--bundled: only with --rare-paths")
     variants = ROUTES if args.routes else RARE_PATH_VARIANTS if args.rare_paths else VARIANTS
-    if args.output == RESULTS and (args.routes or args.rare_paths):
-        args.output = (ROUTES_RESULTS if args.routes else RARE_PATHS_BUNDLED_RESULTS if args.bundled
-                       else RARE_PATHS_RESULTS)
     if args.renderers is None:
         args.renderers = ["mitsuba"] if args.rare_paths and not args.bundled else ["tracer", "mitsuba"]
+    if args.output == RESULTS and (args.routes or args.rare_paths):
+        args.output = (ROUTES_RESULTS if args.routes else RARE_PATHS_BUNDLED_RESULTS if args.bundled
+                       else RARE_PATHS_SYNTHETIC_RESULTS if args.renderers == ["synthetic"] else RARE_PATHS_RESULTS)
     if "synthetic" in args.renderers and not args.rare_paths:
         parser.error("--renderers synthetic: only with --rare-paths")
     if "tracer" in args.renderers and args.rare_paths and not args.bundled:

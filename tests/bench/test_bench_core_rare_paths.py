@@ -27,3 +27,11 @@ def test_the_section_times_both_choices_on_both_buffers(bench):
         assert set(row["seconds"]) == {"even", "ranked"} and np.isfinite(row["ratio"]) and row["ratio"] > 0
     assert rows[0]["masked_share"] == 0.0 and rows[1]["masked_share"] > 0.9
     assert "rare_paths" in bench.SECTIONS
+
+
+def test_the_two_cases_are_the_default_sampler_and_the_same_with_rare_paths_ranked(bench):
+    buf = bench._hit_or_zero_buffer((32, 48))
+    cases = bench._rare_path_cases(buf)
+    assert cases["even"].sampler.rare_paths == "even" and cases["ranked"].sampler.rare_paths == "ranked"
+    # on a frame lit through rare paths they ask for different samples
+    assert not np.array_equal(cases["even"].sampler.ask().counts, cases["ranked"].sampler.ask().counts)

@@ -10,7 +10,7 @@ from scipy import ndimage
 
 import awr_denoise.priorities as priorities
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest
-from awr_denoise.synthetic import SyntheticRenderer, make_scene
+from awr_denoise.synthetic import SyntheticRenderer, SyntheticScene, make_scene
 
 
 @pytest.fixture(scope="module")
@@ -138,19 +138,30 @@ def test_the_routes_are_measured_and_tabled_like_the_variants(bias):
     assert "neighbours only" in head and len(line.strip("|").split("|")[3].split("/")) == 1 + len(bias.ROUTES)
 
 
+def _rare_scene():
+    """Samples of 50 one time in 50, else 0: a flat image of 1 lit through rare paths, which the default evens."""
+    def image(x, y):
+        return np.ones((x.size, 3))
+
+    def noise(clean, x, y, u):
+        return clean * np.where(u[:, 0] < 0.02, 50.0, 0.0)[:, None]
+
+    return SyntheticScene("rare", (32, 32), image, noise)
+
+
 def test_rare_paths_add_uniform_samplings_reconstruction_and_table_every_method(bias):
-    scene = make_scene("rare_light", (16, 16))
+    scene = _rare_scene()
     reference = scene.reference()
 
     @contextlib.contextmanager
     def factory(seed):
         yield SyntheticRenderer(scene, seed=seed)
 
-    row = bias.measure("rare_light", factory, reference, [4], [0, 1], bias.RARE_PATH_VARIANTS, reconstruct_uniform=True)
-    got = row["spp"]["4"]
+    row = bias.measure("rare", factory, reference, [8], [0, 1], bias.RARE_PATH_VARIANTS, reconstruct_uniform=True)
+    got = row["spp"]["8"]
     assert list(got) == ["uniform", "uniform, reconstructed", *bias.RARE_PATH_VARIANTS]
     # the reconstruction of uniform sampling's own buffers: its mean and how far it moved from theirs
-    buffers = [SyntheticRenderer(scene, seed=s)(SampleRequest.uniform((16, 16), 4)) for s in (0, 1)]
+    buffers = [SyntheticRenderer(scene, seed=s)(SampleRequest.uniform((32, 32), 8)) for s in (0, 1)]
     images = [bias.reconstruct(b) for b in buffers]
     expected = np.mean([((i - reference) ** 2).mean() for i in images])
     assert got["uniform, reconstructed"]["mse"] == pytest.approx(expected)
@@ -164,6 +175,8 @@ def test_rare_paths_add_uniform_samplings_reconstruction_and_table_every_method(
     assert methods[:2] == ["uniform", "uniform, reconstructed"]
     assert methods[2:] == [f"AWR sampling, {k}" for k in bias.RARE_PATH_VARIANTS]
     assert "rare paths ranked" in bias.RARE_PATH_VARIANTS and bias.RARE_PATH_VARIANTS["default"] == {}
+    # the ranked variant is the previous sampler: it samples this scene otherwise, and darker
+    assert got["rare paths ranked"]["image_mean_error"] < got["default"]["image_mean_error"]
 
 
 @pytest.mark.parametrize("argv, message", [(["--routes", "--rare-paths"], "give one"),
@@ -180,3 +193,30 @@ def test_the_reconstructions_change_of_a_black_buffers_mean_is_absolute(bias):
     assert bias._change(np.zeros((2, 2)), np.zeros((2, 2))) == 0.0
     assert bias._change(np.full((2, 2), 0.5), np.zeros((2, 2))) == 0.5
     assert bias._change(np.full((2, 2), 1.5), np.ones((2, 2))) == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("argv, scenes, output", [
+    (["--rare-paths"], {"mitsuba": "RARE_PATH_SCENES"}, "RARE_PATHS_RESULTS"),
+    (["--rare-paths", "--bundled"], {"tracer": None, "mitsuba": "MITSUBA_SCENES"}, "RARE_PATHS_BUNDLED_RESULTS"),
+    (["--rare-paths", "--renderers", "synthetic"], {"synthetic": None}, "RARE_PATHS_SYNTHETIC_RESULTS"),
+    (["--rare-paths", "--renderers", "mitsuba", "synthetic"], {"mitsuba": "RARE_PATH_SCENES", "synthetic": None},
+     "RARE_PATHS_RESULTS")])
+def test_the_rare_path_modes_run_their_scenes_into_their_files(bias, monkeypatch, tmp_path, argv, scenes, output):
+    ran, written = {}, {}
+
+    def cases(renderer, names=None):
+        ran[renderer] = names
+        return iter(())
+
+    monkeypatch.setattr(bias, "_tracer_cases", lambda: cases("tracer"))
+    monkeypatch.setattr(bias, "_synthetic_cases", lambda: cases("synthetic"))
+    monkeypatch.setattr(bias, "_mitsuba_cases", lambda names: cases("mitsuba", names))
+    for name in ("RESULTS", "RARE_PATHS_RESULTS", "RARE_PATHS_BUNDLED_RESULTS", "RARE_PATHS_SYNTHETIC_RESULTS"):
+        monkeypatch.setattr(bias, name, tmp_path / f"{name}.json")
+    monkeypatch.setattr(bias, "rare_table", lambda results: written.setdefault("results", results) and "")
+    assert bias.main([*argv, "--seeds", "2"]) == 0
+    assert set(ran) == set(scenes)
+    for renderer, names in scenes.items():
+        assert ran[renderer] == (getattr(bias, names) if names else None)
+    assert [p.name for p in tmp_path.iterdir()] == [f"{output}.json"]
+    assert written["results"]["variants"] == bias.RARE_PATH_VARIANTS
