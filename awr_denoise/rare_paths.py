@@ -10,8 +10,8 @@ any unevenness of the samples is noise chased, not structure found, so the sampl
 the mean of theirs (:func:`even_rare_paths`): their counts then depend on no pixel's own samples and the image
 mean is kept. The rest of the image is ranked as before.
 
-A pixel lies in such a region (:func:`rare_path_mask`) when, over the ``BLOCK``-pixel blocks of a window of
-``WINDOW`` blocks around it (20 pixels),
+A pixel lies in such a region (:func:`rare_path_mask`) when, over the window of ``WINDOW`` x ``WINDOW`` blocks of
+``BLOCK`` x ``BLOCK`` pixels around its block (20 pixels, aligned to the blocks),
 
 - the per-sample variance pooled within pixels, over the squared mean pooled over their samples (zeros
   included), exceeds :data:`RARE_CV2` (for samples that are 0 or a value ``v``, ``(1 - p) / p`` with ``p`` the
