@@ -122,7 +122,7 @@ def rare_path_mask(buffer: SampleBuffer) -> BoolArray:
     own[~region] = 0.0
     sums = [_blocks(x) for x in (n, n * mean, dof, dof * sample_var, region, own)]
     n_sum, nm_sum, dof_sum, var_sum, pixels, own_sum = (_window(s) for s in sums)
-    negative = region & (mean < 0)
+    negative = mean < 0  # any pixel's, in the region or not
     negative = _window(_blocks(negative)) if negative.any() else np.zeros_like(pixels)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
         pooled_mean = nm_sum / n_sum

@@ -189,3 +189,12 @@ def test_a_density_of_another_shape_or_a_choice_that_is_no_name_is_refused():
     with pytest.raises(TypeError, match="rare_paths"):
         even_rare_paths(np.ones((8, 8)), buffer, 1)
     assert even_rare_paths(np.ones((8, 8), dtype=np.int64), buffer, "ranked").dtype == np.float64
+
+
+def test_a_window_with_a_negative_mean_anywhere_is_no_region():
+    """Signed data: rare hits with a block of negative means beside them, away from every lit pixel."""
+    count, mean, variance = _hits(1 / 40, n=8)
+    found = rare_path_mask(_buffer(count, mean, variance))
+    mean[:16, :16], variance[:16, :16] = -0.5, 0.0  # no lit pixel beside them: outside the pooled pixels
+    mask = rare_path_mask(_buffer(count, mean, variance))
+    assert found[:24, :24].all() and not mask[:16, :16].any() and mask[40:, 40:].all()
