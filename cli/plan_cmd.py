@@ -9,6 +9,7 @@ from awr_denoise.io import provenance, read_sample_dump, write_request
 from awr_denoise.io.exr import read_header, read_windows
 from awr_denoise.io.request_map import MAX_ROUND
 from awr_denoise.noise_gain import DEFAULT_NOISE_MODEL
+from awr_denoise.rare_paths import RARE_PATHS
 from awr_denoise.sampling import (DEFAULT_AWR_INITIAL_SPP, DEFAULT_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS, SAMPLERS,
                                   AdaptiveSampler)
 from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
@@ -61,6 +62,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="awr only: model what reconstruction leaves of a pixel's noise by a wavelet shrinkage's exact "
                         "gain (shrinkage, the default), the paper's levels, or the default reconstruction's measured "
                         "gain (reconstructs the dump; docs/sampling.md)")
+    p.add_argument("--rare-paths", choices=RARE_PATHS,
+                   help="awr and variance: spread the samples of regions lit through rare paths (most samples 0) "
+                        "evenly, which keeps their image mean (even, the default), or rank their pixels like the "
+                        "rest (ranked; docs/sampling.md, 'Rare paths')")
     p.add_argument("-q", "--quiet", action="store_true")
     add_plane_options(p)
     p.set_defaults(run=run)
@@ -93,6 +98,11 @@ def run(args: argparse.Namespace) -> int:
         options["initial_spp"] = args.initial_spp
     if args.round_growth is not None:
         options["round_growth"] = args.round_growth
+    if cls._ranks:  # the samplers that rank pixels (awr, variance)
+        options["rare_paths"] = args.rare_paths or "even"
+    elif args.rare_paths is not None:
+        raise UsageError(f"--rare-paths: only the strategies that rank pixels (awr, variance) spread rare paths, not "
+                         f"{args.strategy}" + (f" (the awr:strategy of {args.input})" if from_dump else ""))
     if cls is AdaptiveSampler:
         options.update(wavelet=args.wavelet or DEFAULT_WAVELET, levels=args.levels,
                        noise_model=args.noise_model or DEFAULT_NOISE_MODEL)
@@ -164,7 +174,8 @@ def _refuse_what_a_first_round_ignores(args: argparse.Namespace) -> None:
     if given:
         raise UsageError(f"{given[0][0]}: describes a running DUMP.exr; the first round (--size) reads none")
     for option, value in (("--round-growth", args.round_growth), ("--wavelet", args.wavelet),
-                          ("--levels", args.levels), ("--noise-model", args.noise_model)):
+                          ("--levels", args.levels), ("--noise-model", args.noise_model),
+                          ("--rare-paths", args.rare_paths)):
         if value is not None:
             raise UsageError(f"{option}: acts from round 1, planned from its dump; the first round (--size) is "
                              "uniform")

@@ -23,6 +23,7 @@ from awr_denoise.io import image_provenance, provenance, write_image, write_prev
 from awr_denoise.io.atomic import OutputSet
 from awr_denoise.noise_gain import DEFAULT_NOISE_MODEL
 from awr_denoise.parallel import RendererSpec, TiledRenderer
+from awr_denoise.rare_paths import RARE_PATHS
 from awr_denoise.renderers import (
     create_renderer,
     renderer_features,
@@ -93,8 +94,8 @@ def first_round_spp(initial_spp: int, spp: float | None) -> int:
 def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float | None, adaptive: bool, seed: int,
                   quiet: bool, initial_spp: int = DEFAULT_AWR_INITIAL_SPP, round_growth: float = DEFAULT_ROUND_GROWTH,
                   noise_model: str = DEFAULT_NOISE_MODEL, gain_refresh: float | None = None,
-                  seconds: float | None = None, reserve: Callable[[SampleBuffer], float] | None = None
-                  ) -> tuple[SampleBuffer, Any, int]:
+                  seconds: float | None = None, reserve: Callable[[SampleBuffer], float] | None = None,
+                  rare_paths: str = "even") -> tuple[SampleBuffer, Any, int]:
     """(buffer, issued, next round) of a uniform or adaptive render at ``spp`` on average, or adaptive rounds for
     ``seconds`` (``spp`` then a cap, ``None`` for none) of which ``reserve`` keeps the denoising's time
     (:meth:`~awr_denoise.Sampler.run`).
@@ -110,7 +111,8 @@ def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float | No
             buffer = renderer(request)
             return buffer, request.first_index + request.counts, 1
         awr = AdaptiveSampler(shape, initial_spp=first_round_spp(initial_spp, spp), seed=seed,
-                              round_growth=round_growth, noise_model=noise_model, gain_refresh=gain_refresh)
+                              round_growth=round_growth, noise_model=noise_model, gain_refresh=gain_refresh,
+                              rare_paths=rare_paths)
         buffer = awr.run(renderer, total_spp=spp, seconds=seconds, reserve=reserve, progress=not quiet)
         return buffer, awr.issued, awr.round
     finally:
@@ -167,6 +169,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="with --noise-model reconstruction: measure the gain again only once the samples grew by "
                         "this factor (default 1: every round; 1.5: every other round, half the sampler's time; "
                         "docs/sampling.md)")
+    p.add_argument("--rare-paths", choices=RARE_PATHS,
+                   help="adaptive rounds spread the samples of regions lit through rare paths (most samples 0: "
+                        "indirect light, fog) evenly, which keeps their image mean (even, the default), or rank "
+                        "their pixels like the rest (ranked: lower error there, the image several percent dark; "
+                        "docs/sampling.md, 'Rare paths')")
     p.add_argument("--seed", type=whole(minimum=0, maximum=MAX_SEED), default=0)
     p.add_argument("--sampler", default="independent",
                    help="the bundled tracer's sample sequence: independent (default) or sobol")
@@ -260,7 +267,8 @@ def run(args: argparse.Namespace) -> int:
     if args.output is None:
         raise UsageError("render: -o/--output DUMP.exr is required")
     for option, value in (("--initial-spp", args.initial_spp), ("--round-growth", args.round_growth),
-                          ("--noise-model", args.noise_model), ("--seconds", args.seconds)):
+                          ("--noise-model", args.noise_model), ("--seconds", args.seconds),
+                          ("--rare-paths", args.rare_paths)):
         if value is not None and not args.adaptive:  # a setting that would do nothing is refused
             raise UsageError(f"{option}: a uniform render has no adaptive rounds")
     spp = args.spp if args.spp is not None or args.seconds is not None else DEFAULT_RENDER_SPP
@@ -305,7 +313,8 @@ def run(args: argparse.Namespace) -> int:
     render = dict(spp=spp, adaptive=args.adaptive, seed=args.seed, quiet=args.quiet,
                   gain_refresh=args.gain_refresh, seconds=args.seconds)
     render.update({k: v for k, v in (("initial_spp", args.initial_spp), ("round_growth", args.round_growth),
-                                     ("noise_model", args.noise_model)) if v is not None})  # else render_buffer's
+                                     ("noise_model", args.noise_model), ("rare_paths", args.rare_paths))
+                   if v is not None})  # else render_buffer's
     if executor_requested(args):
         # Each worker builds its own renderer from a picklable spec; tiles of every round are
         # rendered there and merged exactly (addressable random numbers make it match serial).

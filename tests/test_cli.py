@@ -1237,6 +1237,45 @@ def test_render_noise_model_reaches_the_sampler(tmp_path, capsys, fake_tracer):
         assert not (tmp_path / "u.exr").exists()
 
 
+def _rare_paths_choices(monkeypatch):
+    """The ``rare_paths`` every sampler round is evened with (recorded on the way through)."""
+    from awr_denoise import sampling
+
+    seen = []
+    real = sampling.even_rare_paths
+    monkeypatch.setattr(sampling, "even_rare_paths",
+                        lambda d, b, choice="even": seen.append(choice) or real(d, b, choice))
+    return seen
+
+
+def test_render_rare_paths_reaches_the_sampler(tmp_path, capsys, fake_tracer, monkeypatch):
+    seen = _rare_paths_choices(monkeypatch)
+    _rendered(tmp_path, 8, "--rare-paths", "ranked")
+    assert seen and set(seen) == {"ranked"}
+    seen.clear()
+    _rendered(tmp_path, 8, "--initial-spp", "2")  # the default
+    assert seen and set(seen) == {"even"}
+    assert main(["render", "--uniform", "--rare-paths", "ranked", "-o", str(tmp_path / "u.exr")]) == 2
+    _one_error_line(capsys, "--rare-paths", "a uniform render has no adaptive rounds")
+    assert not (tmp_path / "u.exr").exists()
+
+
+def test_plan_rare_paths_reaches_the_ranking_samplers(tmp_path, capsys, rng, monkeypatch):
+    _dump(tmp_path / "d.exr", rng)
+    seen = _rare_paths_choices(monkeypatch)
+    for strategy in ("awr", "variance"):
+        for choice in ("ranked", None):
+            option = [] if choice is None else ["--rare-paths", choice]
+            out = tmp_path / f"{strategy}{choice}.exr"
+            assert main(["plan", str(tmp_path / "d.exr"), "--strategy", strategy, *option, "-o", str(out), "-q"]) == 0
+            assert seen == [choice or "even"], (strategy, choice, seen)
+            seen.clear()
+    assert main(["plan", str(tmp_path / "d.exr"), "--strategy", "uniform", "--rare-paths", "even",
+                 "-o", str(tmp_path / "u.exr")]) == 2
+    _one_error_line(capsys, "--rare-paths", "only the strategies that rank pixels")
+    assert not (tmp_path / "u.exr").exists()
+
+
 def test_render_gain_refresh_reaches_the_sampler(tmp_path, capsys, fake_tracer, monkeypatch):
     from awr_denoise import noise_gain
 

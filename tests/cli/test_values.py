@@ -55,12 +55,14 @@ BAD = [
     (FIRST_PLAN + ["--size", "8x8", "--budget", "64"], "--initial-spp", ["2"]),
     (PLAN, "--wavelet", ["nope", "dmey"]),
     (PLAN, "--noise-model", ["nope", "", "Levels"]),
+    (PLAN, "--rare-paths", ["off", "Even", ""]),
     (FIRST_PLAN, "--size", ["65536x65536", "0x10", "10x0", "10", "-5x5", "1e3x10", "\u0663x3"]),
     # The first round reads no dump and is uniform: what describes a dump or shapes later rounds did nothing.
     (FIRST_PLAN + ["--size", "8x8"], "--alb", ["a.exr"]), (FIRST_PLAN + ["--size", "8x8"], "--view", ["left"]),
     (FIRST_PLAN + ["--size", "8x8"], "--nonfinite", ["drop"]), (FIRST_PLAN + ["--size", "8x8"], "--spp", ["4"]),
     (FIRST_PLAN + ["--size", "8x8"], "--round-growth", ["0.5"]),
     (FIRST_PLAN + ["--size", "8x8"], "--noise-model", ["reconstruction"]),
+    (FIRST_PLAN + ["--size", "8x8"], "--rare-paths", ["ranked"]),
     (FIRST_PLAN + ["--size", "8x8"], "--levels", ["2"]),
     (RENDER_ANY_SPP, "--spp", ["inf", "nan", "0", "-1", "1e30", "1e-9"]),
     (RENDER, "--seed", ["-1", "1180591620717411303424", "nan"]),
@@ -73,6 +75,8 @@ BAD = [
     (RENDER, "--seconds", ["0", "-1", "nan", "inf", "1e10", "x"]),
     (RENDER + ["--uniform"], "--seconds", ["1"]),  # a uniform render is one request: nothing to time
     (RENDER, "--noise-model", ["gain"]),
+    (RENDER, "--rare-paths", ["uniform"]),
+    (RENDER + ["--uniform"], "--rare-paths", ["ranked"]),  # a uniform render has no rounds to rank
     (RENDER, "--initial-spp", ["0", "inf"]),
     (RENDER, "--tile", ["0", "-1", "1", "7", "64"]),  # 64: no workers to split the work over
     (RENDER, "--initial-spp", ["3"]),  # above the render's --spp 2: was cut to it, unsaid
