@@ -40,12 +40,14 @@ from ._window_sums import window_sum
 from .buffers import SampleBuffer
 from .channels import luminance_weights
 
-__all__ = ["rare_path_mask", "even_rare_paths", "RARE_PATHS", "RARE_CV2", "RARE_SHARE", "BLOCK", "WINDOW", "BACKDROP",
-           "OWN_COUNT", "STEADY"]
+__all__ = ["rare_path_mask", "even_rare_paths", "RARE_PATHS", "DEFAULT_RARE_PATHS", "RARE_CV2", "RARE_SHARE", "BLOCK",
+           "WINDOW", "BACKDROP", "OWN_COUNT", "STEADY"]
 
 RARE_PATHS = ("even", "ranked")
 """The samplers' ``rare_paths``: ``"even"`` (the default) spreads a rare-path region's samples evenly, ``"ranked"``
 ranks its pixels like the rest (the previous behaviour: lower error there, and an image mean several % low)."""
+DEFAULT_RARE_PATHS = "even"
+"""The samplers' default ``rare_paths`` (docs/sampling.md, "Rare paths")."""
 RARE_CV2 = 16.0
 """Least pooled per-sample squared coefficient of variation of a rare-path region (a hit chance below 1/17)."""
 RARE_SHARE = 0.5
@@ -135,7 +137,7 @@ def rare_path_mask(buffer: SampleBuffer) -> BoolArray:
     return np.repeat(np.repeat(rare, BLOCK, axis=0), BLOCK, axis=1)[:h, :w]
 
 
-def even_rare_paths(density: FloatArray, buffer: SampleBuffer, rare_paths: str = "even") -> FloatArray:
+def even_rare_paths(density: FloatArray, buffer: SampleBuffer, rare_paths: str = DEFAULT_RARE_PATHS) -> FloatArray:
     """``density`` (float64) with each connected region of :func:`rare_path_mask` given the mean of its pixels'.
 
     ``rare_paths="ranked"`` returns it as it is. A region's summed density stays what it was, so the allocation

@@ -12,9 +12,8 @@ resulting :class:`SampleBuffer` is told back::
 
 :meth:`Sampler.run` is exactly that loop. Round 0 spends ``initial_spp`` on every pixel (the paper starts at 4 spp,
 :class:`AdaptiveSampler` at 2); later rounds follow the sampler's strategy. Every request's ``counts`` sum to the
-budget asked for, exactly. Three strategies share the interface so that benchmarks compare like with like:
-:class:`AdaptiveSampler` (AWR wavelet priorities), :class:`UniformSampler` and :class:`VarianceSampler` (per-pixel
-error, as Cycles').
+budget asked for, exactly. Three strategies share the interface so that benchmarks compare like with like: AWR's
+wavelet priorities (:class:`AdaptiveSampler`), :class:`UniformSampler`, per-pixel error (:class:`VarianceSampler`).
 """
 
 from __future__ import annotations
@@ -34,7 +33,7 @@ from .domains import Domain, resolve_domain
 from .errors import StaleRequestError
 from .noise_gain import DEFAULT_GAIN_REFRESH, DEFAULT_NOISE_MODEL, NOISE_MODELS, MeasuredGain
 from .priorities import DEFAULT_ABSOLUTE_ABOVE, pooled_deviation, sampling_density
-from .rare_paths import RARE_PATHS, even_rare_paths
+from .rare_paths import DEFAULT_RARE_PATHS, RARE_PATHS, even_rare_paths
 from .requests import Renderer, SampleRequest
 from .rounds import run_rounds
 from .wavelets import DEFAULT_WAVELET, wavelet_operators
@@ -435,7 +434,8 @@ class VarianceSampler(Sampler):
     strategy = "variance"
 
     def __init__(self, shape: Shape2D, *, domain: str | Domain = "log", uniform_fraction: float = 0.0,
-                 absolute_above: float | None = DEFAULT_ABSOLUTE_ABOVE, rare_paths: str = "even", **options) -> None:
+                 absolute_above: float | None = DEFAULT_ABSOLUTE_ABOVE, rare_paths: str = DEFAULT_RARE_PATHS,
+                 **options) -> None:
         super().__init__(shape, **options)
         self.domain = resolve_domain(domain)  # checked now, not at the first adaptive ask() after round 0
         self.uniform_fraction = _checks.real("uniform_fraction", uniform_fraction, minimum=0.0, maximum=1.0)
@@ -508,7 +508,7 @@ class AdaptiveSampler(Sampler):
                  spp_min: int | None = None, spp_max: int | None = None, round_spp: float | None = None,
                  round_growth: float = DEFAULT_ROUND_GROWTH, domain: str | Domain = "log", level_weight: float | None = None,
                  uniform_fraction: float = 0.0, noise_model: str = DEFAULT_NOISE_MODEL, gain_refresh: float | None = None,
-                 absolute_above: float | None = DEFAULT_ABSOLUTE_ABOVE, rare_paths: str = "even",
+                 absolute_above: float | None = DEFAULT_ABSOLUTE_ABOVE, rare_paths: str = DEFAULT_RARE_PATHS,
                  executor: Executor | None = None) -> None:
         super().__init__(shape, channels=channels, initial_spp=initial_spp, seed=seed, spp_min=spp_min,
                          spp_max=spp_max, round_spp=round_spp, round_growth=round_growth, executor=executor)

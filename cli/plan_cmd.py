@@ -9,7 +9,7 @@ from awr_denoise.io import provenance, read_sample_dump, write_request
 from awr_denoise.io.exr import read_header, read_windows
 from awr_denoise.io.request_map import MAX_ROUND
 from awr_denoise.noise_gain import DEFAULT_NOISE_MODEL
-from awr_denoise.rare_paths import RARE_PATHS
+from awr_denoise.rare_paths import DEFAULT_RARE_PATHS, RARE_PATHS
 from awr_denoise.sampling import (DEFAULT_AWR_INITIAL_SPP, DEFAULT_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS, SAMPLERS,
                                   AdaptiveSampler)
 from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
@@ -99,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     if args.round_growth is not None:
         options["round_growth"] = args.round_growth
     if cls._ranks:  # the samplers that rank pixels (awr, variance)
-        options["rare_paths"] = args.rare_paths or "even"
+        options["rare_paths"] = args.rare_paths or DEFAULT_RARE_PATHS
     elif args.rare_paths is not None:
         raise UsageError(f"--rare-paths: only the strategies that rank pixels (awr, variance) spread rare paths, not "
                          f"{args.strategy}" + (f" (the awr:strategy of {args.input})" if from_dump else ""))

@@ -23,7 +23,7 @@ from awr_denoise.io import image_provenance, provenance, write_image, write_prev
 from awr_denoise.io.atomic import OutputSet
 from awr_denoise.noise_gain import DEFAULT_NOISE_MODEL
 from awr_denoise.parallel import RendererSpec, TiledRenderer
-from awr_denoise.rare_paths import RARE_PATHS
+from awr_denoise.rare_paths import DEFAULT_RARE_PATHS, RARE_PATHS
 from awr_denoise.renderers import (
     create_renderer,
     renderer_features,
@@ -95,7 +95,7 @@ def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float | No
                   quiet: bool, initial_spp: int = DEFAULT_AWR_INITIAL_SPP, round_growth: float = DEFAULT_ROUND_GROWTH,
                   noise_model: str = DEFAULT_NOISE_MODEL, gain_refresh: float | None = None,
                   seconds: float | None = None, reserve: Callable[[SampleBuffer], float] | None = None,
-                  rare_paths: str = "even") -> tuple[SampleBuffer, Any, int]:
+                  rare_paths: str = DEFAULT_RARE_PATHS) -> tuple[SampleBuffer, Any, int]:
     """(buffer, issued, next round) of a uniform or adaptive render at ``spp`` on average, or adaptive rounds for
     ``seconds`` (``spp`` then a cap, ``None`` for none) of which ``reserve`` keeps the denoising's time
     (:meth:`~awr_denoise.Sampler.run`).
