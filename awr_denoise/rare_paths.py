@@ -25,8 +25,25 @@ A pixel lies in such a region (:func:`rare_path_mask`) when, over the window of 
 Both are taken over the pixels that are lit or beside a lit one; a pixel of zeros inside an all-zero square of
 :data:`BACKDROP` pixels (a black backdrop beside an object's silhouette) is left out, so that a backdrop's edge
 is not read as a region of rare hits. A window holding a negative mean is never a region (signed data has no
-rare paths; its means near 0 are not rare hits'). Samples with heavy tails and no exact zeros (most far below the
-mean, a few far above) meet the same tests, and their regions are evened too.
+rare paths; its means near 0 are not rare hits').
+
+Rare bright samples on a lit base (fireflies: a caustic path now and then on a lit wall) fail the second test:
+most pixels have seen none and look steady. Ranked, the few that did take the samples and are diluted back, while
+the rest keep means without the fireflies' share: the synthetic ``fireflies`` scene, whose fireflies carry 40% of
+its light, came out 32% dark at 8 spp (docs/sampling.md, "Fireflies on a lit base"). Over a larger window
+(``HEAVY_WINDOW`` blocks, 36 pixels) of the pixels that are lit and hold two samples or more, a pixel holds a hit
+when one sample holds most of its mean (``min(CV2_i / min(n_i, OWN_COUNT), 1)`` at least :data:`HIT`) and its hit's
+level, ``E[X^2] / E[X] = mean + s^2 / mean`` (a sample's value weighted by its share of the mean: the hit's own
+value, whatever the count), is above :data:`HEAVY_RATIO` times the window's steady level: the most that a 2 x 2
+square's pixels all reach with their mean less two standard deviations. The hits come from nothing the window
+shows steadily; the rim of a small light or a bright object hits at the level of its steady inside and is not
+taken. The window is such a region when
+
+- it holds at least :data:`HEAVY_HITS` pixels with a hit;
+- they hold more than :data:`HEAVY_LIGHT` of its light (samples' sum; what ranking could take off the mean) and
+  more than :data:`HEAVY_SHARE` of its variance; and
+- at most :data:`HEAVY_DARK` of its pixels are all 0: the base is lit (zeros are the first tests' to judge; the
+  misses around a thin bright wire on black, or beside a region of rare hits, are no lit base).
 """
 
 from __future__ import annotations
@@ -41,11 +58,13 @@ from .buffers import SampleBuffer
 from .channels import luminance_weights
 
 __all__ = ["rare_path_mask", "even_rare_paths", "RARE_PATHS", "DEFAULT_RARE_PATHS", "RARE_CV2", "RARE_SHARE", "BLOCK",
-           "WINDOW", "BACKDROP", "OWN_COUNT", "STEADY"]
+           "WINDOW", "BACKDROP", "OWN_COUNT", "STEADY", "HIT", "HEAVY_WINDOW", "HEAVY_RATIO", "HEAVY_HITS",
+           "HEAVY_LIGHT", "HEAVY_SHARE", "HEAVY_DARK"]
 
-RARE_PATHS = ("even", "ranked")
-"""The samplers' ``rare_paths``: ``"even"`` (the default) spreads a rare-path region's samples evenly, ``"ranked"``
-ranks its pixels like the rest (the previous behaviour: lower error there, and an image mean several % low)."""
+RARE_PATHS = ("even", "zeros", "ranked")
+"""The samplers' ``rare_paths``: ``"even"`` (the default) spreads the samples of both kinds of region evenly,
+``"zeros"`` only those of regions whose samples are mostly 0 (fireflies on a lit base ranked: lower error there and
+their share of the light lost), ``"ranked"`` ranks every pixel (lower error, an image mean several % low)."""
 DEFAULT_RARE_PATHS = "even"
 """The samplers' default ``rare_paths`` (docs/sampling.md, "Rare paths")."""
 RARE_CV2 = 16.0
@@ -65,10 +84,30 @@ pixel of rare hits keeps counting as one (its ``CV2_i`` near ``1 / p``), so a re
 STEADY = 0.1
 """Pixels whose ``min(CV2_i / min(n_i, OWN_COUNT), 1)`` is below this are steady and left out of the pooled
 variation (their level would dilute it: a beam through fog)."""
+HIT = 0.5
+"""Least ``min(CV2_i / min(n_i, OWN_COUNT), 1)`` of a pixel holding a hit on a lit base (one sample holds most of its
+mean)."""
+HEAVY_SHARE = 0.8
+"""Least share of a window's pooled variance that its pixels with a hit hold, for a region of rare hits on a lit
+base."""
+HEAVY_LIGHT = 0.1
+"""Least share of a window's light (its samples' sum) that its pixels with a hit hold, for a region of rare hits on a
+lit base: what ranking them can take off its image mean."""
+HEAVY_DARK = 0.02
+"""Largest share of a window's pixels whose samples are all 0 in a region of rare hits on a lit base."""
+HEAVY_WINDOW = 9
+"""Side of the window of blocks (36 pixels) of a region of rare hits on a lit base."""
+HEAVY_HITS = 3
+"""Fewest pixels with a hit in the window of a region of rare hits on a lit base."""
+HEAVY_RATIO = 8.0
+"""Least ratio of a hit's level (``E[X^2] / E[X]``) to its window's steady level, for a region of rare hits on a lit
+base (the ``fireflies`` scene's stand about 100 times above it, a light's rim about once; docs/sampling.md, "Fireflies
+on a lit base")."""
 
 
-def rare_path_mask(buffer: SampleBuffer) -> BoolArray:
-    """(H, W) pixels of regions lit through rare paths (see the module's description).
+def rare_path_mask(buffer: SampleBuffer, *, fireflies: bool = True) -> BoolArray:
+    """(H, W) pixels of regions lit through rare paths (see the module's description); ``fireflies=False`` leaves out
+    the regions of rare hits on a lit base.
 
     Examples
     --------
@@ -84,6 +123,14 @@ def rare_path_mask(buffer: SampleBuffer) -> BoolArray:
     >>> mean[:, 32:], variance[:, 32:] = 1.0, 0.25
     >>> mask = rare_path_mask(SampleBuffer.from_moments(np.full((64, 64), 4), mean[..., None], variance[..., None]))
     >>> float(mask[:, :24].mean()), float(mask[:, 40:].mean())
+    (1.0, 0.0)
+
+    Fireflies on a lit base: one sample in 250 is 100, the others between 0.5 and 1.5 (4 spp):
+
+    >>> samples = np.where(rng.random((4, 96, 96)) < 1 / 250, 100.0, rng.uniform(0.5, 1.5, (4, 96, 96)))
+    >>> buffer = SampleBuffer.from_moments(np.full((96, 96), 4), samples.mean(0)[..., None],
+    ...                                    samples.var(0, ddof=1)[..., None])
+    >>> float(rare_path_mask(buffer).mean()), float(rare_path_mask(buffer, fireflies=False).mean())
     (1.0, 0.0)
     """
     count = np.asarray(buffer.count, dtype=np.float64)
@@ -116,6 +163,8 @@ def rare_path_mask(buffer: SampleBuffer) -> BoolArray:
     with np.errstate(over="ignore", divide="ignore", under="ignore"):
         np.divide(sample_var, mean * mean * np.minimum(count, OWN_COUNT), out=own, where=lit)
     np.minimum(own, 1.0, out=own)
+    heavy = (_heavy_tails(lit & (count >= 2), own, count, mean, sample_var, np.asarray(buffer.variance_known))
+             if fireflies else False)
     # Steady pixels (a beam, a lit wall beside the fog) are left out of the pooled variation, which their level
     # would otherwise dilute: the region around them is judged by its own samples.
     varied = region & (own >= STEADY)
@@ -131,16 +180,48 @@ def rare_path_mask(buffer: SampleBuffer) -> BoolArray:
         cv2 = (var_sum / dof_sum) / (pooled_mean * pooled_mean)
         share = own_sum / pixels
         # Signed data (no radiance) has no rare paths to find: a mean near 0 is not a rare hit's.
-        rare = (cv2 > RARE_CV2) & (share > RARE_SHARE) & np.isfinite(cv2) & (pooled_mean > 0) & (negative == 0)
+        rare = (cv2 > RARE_CV2) & (share > RARE_SHARE) & np.isfinite(cv2) & (pooled_mean > 0)
+        rare = (rare | heavy) & (negative == 0)
     h, w = count.shape
     # Every pixel of a block so found: a pixel of zeros in it is a miss of the region's rare paths like the others.
     return np.repeat(np.repeat(rare, BLOCK, axis=0), BLOCK, axis=1)[:h, :w]
 
 
+def _heavy_tails(base: BoolArray, own: FloatArray, count: FloatArray, mean: FloatArray, sample_var: FloatArray,
+                 known: BoolArray) -> BoolArray:
+    """(blocks) windows of rare hits on a lit base over the ``base`` pixels (lit, two samples or more), from the
+    pixels' ``own`` variation, counts, means and per-sample variances in the unit of :func:`rare_path_mask`."""
+    h, w = count.shape
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore", under="ignore"):
+        # What a pixel's samples steadily reach: its mean less two standard deviations. The inside of a light or a
+        # lit wall keeps most of its mean; a pixel whose mean a hit or two make (fewer than half its samples) has
+        # none, and does not stand for the window's steady level. Taken over 2 x 2 squares: a light's inside has
+        # several pixels, where a pixel whose every sample (2 of 2) was a firefly stands alone.
+        floor = np.where(base, np.maximum(mean - 2.0 * np.sqrt(sample_var), 0.0), 0.0)
+        floor = ndimage.minimum_filter(floor, size=2, mode="nearest")
+        top = ndimage.maximum_filter(_blocks(floor, np.max), size=HEAVY_WINDOW, mode="nearest")
+        top = np.repeat(np.repeat(top, BLOCK, axis=0), BLOCK, axis=1)[:h, :w]
+        # E[X^2] / E[X]: a sample's value weighted by its share of the mean, a hit's value for one hit among
+        # steady samples whatever the count (the mean is above 0: lit).
+        level = np.where(base, mean + sample_var / np.where(base, mean, 1.0), 0.0)
+        hit = base & known & (own >= HIT) & (level > HEAVY_RATIO * top)
+    spread = np.where(base & known, count - 1.0, 0.0) * sample_var
+    n = np.where(base, count, 0.0)
+    light = n * mean
+    # Pixels whose samples are all 0 (a backdrop, or misses of rare paths the first tests judge): not a lit base.
+    dark = (mean == 0) & (count >= 2)
+    sums = [window_sum(_blocks(x), HEAVY_WINDOW) for x in (light, np.where(hit, light, 0.0), spread,
+                                                        np.where(hit, spread, 0.0), hit, base, dark)]
+    light_sum, hit_light_sum, var_sum, hit_var_sum, hits, lit_pixels, dark_pixels = sums
+    return ((hits >= HEAVY_HITS) & (hit_light_sum > HEAVY_LIGHT * light_sum) & (hit_var_sum > HEAVY_SHARE * var_sum)
+            & (light_sum > 0) & (dark_pixels <= HEAVY_DARK * (lit_pixels + dark_pixels)))
+
+
 def even_rare_paths(density: FloatArray, buffer: SampleBuffer, rare_paths: str = DEFAULT_RARE_PATHS) -> FloatArray:
     """``density`` (float64) with each connected region of :func:`rare_path_mask` given the mean of its pixels'.
 
-    ``rare_paths="ranked"`` returns it as it is. A region's summed density stays what it was, so the allocation
+    ``rare_paths="ranked"`` returns it as it is, ``"zeros"`` evens only the regions whose samples are mostly 0
+    (``rare_path_mask(buffer, fireflies=False)``). A region's summed density stays what it was, so the allocation
     still gives it its statistics' share of the samples; only their spread over its pixels is made even (the
     water-filling cannot take samples back from a pixel that has more than the region's level already). A pixel
     whose density is not finite keeps it and is left out of its region's mean.
@@ -166,7 +247,7 @@ def even_rare_paths(density: FloatArray, buffer: SampleBuffer, rare_paths: str =
         raise ValueError(f"density: shape {density.shape} is not the buffer's {buffer.shape}")
     if rare_paths == "ranked":
         return density
-    mask = rare_path_mask(buffer)
+    mask = rare_path_mask(buffer, fireflies=rare_paths == "even")
     if not mask.any():
         return density
     finite = mask & np.isfinite(density)
@@ -183,8 +264,9 @@ def even_rare_paths(density: FloatArray, buffer: SampleBuffer, rare_paths: str =
     return out
 
 
-def _blocks(a: FloatArray | BoolArray) -> FloatArray:
-    """Sums over the BLOCK x BLOCK blocks of ``a`` (its last blocks padded with zeros), in float64."""
+def _blocks(a: FloatArray | BoolArray, reduce=np.sum) -> FloatArray:
+    """Sums (or another ``reduce``) over the BLOCK x BLOCK blocks of ``a`` (its last blocks padded with zeros), in
+    float64."""
     a = np.asarray(a, dtype=np.float64)
     h, w = a.shape
     if h % BLOCK or w % BLOCK:
@@ -192,8 +274,8 @@ def _blocks(a: FloatArray | BoolArray) -> FloatArray:
         padded[:h, :w] = a
         a, h, w = padded, *padded.shape
     # Rows of blocks first, then their columns: two reductions over contiguous runs.
-    rows = a.reshape(h // BLOCK, BLOCK, w).sum(axis=1)
-    return rows.reshape(h // BLOCK, w // BLOCK, BLOCK).sum(axis=2)
+    rows = reduce(a.reshape(h // BLOCK, BLOCK, w), axis=1)
+    return reduce(rows.reshape(h // BLOCK, w // BLOCK, BLOCK), axis=2)
 
 
 def _window(blocks: FloatArray) -> FloatArray:

@@ -484,8 +484,8 @@ class AdaptiveSampler(Sampler):
         measured share, measured again once the samples grow by ``gain_refresh``, default 1: every round,
         :class:`~awr_denoise.noise_gain.MeasuredGain`; several times the sampler's time).
     rare_paths
-        ``"even"`` (default): a region lit through rare paths (most samples 0) gets one density, its pixels' mean;
-        ``"ranked"`` ranks it, 4-22% dark at 8-32 spp (:mod:`~awr_denoise.rare_paths`; sampling.md, "Rare paths").
+        ``"even"`` (default): a rare-path region (most samples 0, or fireflies on a lit base) gets one density, its
+        pixels' mean; ``"zeros"`` evens the first kind only; ``"ranked"``: 4-32% dark (:mod:`~awr_denoise.rare_paths`).
 
     Examples
     --------

@@ -36,8 +36,8 @@ them, and reports every figure as it is, not over the default's (``benchmarks/re
 with ``--bundled``, the same variants on the bundled scenes of ``--renderers`` instead
 (``benchmarks/results/sampler_bias_rare_paths_bundled.json``): what evening rare paths does where there are few.
 ``--renderers synthetic`` runs :data:`SYNTHETIC_SCENES` (with ``--rare-paths`` only; alone, into
-``benchmarks/results/sampler_bias_rare_paths_synthetic.json``): rare samples on a lit base, which the detector of
-rare paths does not take for them.
+``benchmarks/results/sampler_bias_rare_paths_synthetic.json``): rare samples on a lit base (fireflies), which only
+the second test of the detector of rare paths takes for them.
 """
 
 from __future__ import annotations
@@ -87,11 +87,13 @@ ROUTES: dict[str, dict[str, Any]] = {
 neither, each pixel is ranked by its 8 neighbours' relative error alone, which its own samples never reach."""
 RARE_PATH_VARIANTS: dict[str, dict[str, Any]] = {
     "default": {},
+    "fireflies ranked": {"rare_paths": "zeros"},
     "rare paths ranked": {"rare_paths": "ranked"},
     "rare paths ranked, uniform share 0.3": {"rare_paths": "ranked", "uniform_fraction": 0.3},
 }
 """What ``--rare-paths`` runs beside uniform sampling: the default (rare-path regions evened,
-``awr_denoise.rare_paths``), the previous default that ranks them, and that with the public uniform share."""
+``awr_denoise.rare_paths``), the default before fireflies on a lit base were evened too (``rare_paths="zeros"``),
+the form before that which ranks every pixel, and that with the public uniform share."""
 _FINITE_TOP = float(np.finfo(np.float64).max) / 16
 
 

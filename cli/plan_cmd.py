@@ -63,9 +63,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "gain (shrinkage, the default), the paper's levels, or the default reconstruction's measured "
                         "gain (reconstructs the dump; docs/sampling.md)")
     p.add_argument("--rare-paths", choices=RARE_PATHS,
-                   help="awr and variance: spread the samples of regions lit through rare paths (most samples 0) "
-                        "evenly, which keeps their image mean (even, the default), or rank their pixels like the "
-                        "rest (ranked; docs/sampling.md, 'Rare paths')")
+                   help="awr and variance: spread the samples of regions lit through rare paths (most samples 0, "
+                        "or fireflies on a lit base) evenly, which keeps their image mean (even, the default), only "
+                        "those whose samples are mostly 0 (zeros), or rank their pixels like the rest (ranked; "
+                        "docs/sampling.md, 'Rare paths')")
     p.add_argument("-q", "--quiet", action="store_true")
     add_plane_options(p)
     p.set_defaults(run=run)

@@ -171,8 +171,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "docs/sampling.md)")
     p.add_argument("--rare-paths", choices=RARE_PATHS,
                    help="adaptive rounds spread the samples of regions lit through rare paths (most samples 0: "
-                        "indirect light, fog) evenly, which keeps their image mean (even, the default), or rank "
-                        "their pixels like the rest (ranked: lower error there, the image several percent dark; "
+                        "indirect light, fog; or fireflies on a lit base: caustics) evenly, which keeps their image "
+                        "mean (even, the default), only those whose samples are mostly 0 (zeros), or rank their "
+                        "pixels like the rest (ranked: lower error there, the image several percent dark; "
                         "docs/sampling.md, 'Rare paths')")
     p.add_argument("--seed", type=whole(minimum=0, maximum=MAX_SEED), default=0)
     p.add_argument("--sampler", default="independent",

@@ -1250,9 +1250,10 @@ def _rare_paths_choices(monkeypatch):
 
 def test_render_rare_paths_reaches_the_sampler(tmp_path, capsys, fake_tracer, monkeypatch):
     seen = _rare_paths_choices(monkeypatch)
-    _rendered(tmp_path, 8, "--rare-paths", "ranked")
-    assert seen and set(seen) == {"ranked"}
-    seen.clear()
+    for choice in ("ranked", "zeros"):
+        _rendered(tmp_path, 8, "--rare-paths", choice)
+        assert seen and set(seen) == {choice}
+        seen.clear()
     _rendered(tmp_path, 8, "--initial-spp", "2")  # the default
     assert seen and set(seen) == {"even"}
     assert main(["render", "--uniform", "--rare-paths", "ranked", "-o", str(tmp_path / "u.exr")]) == 2
@@ -1264,7 +1265,7 @@ def test_plan_rare_paths_reaches_the_ranking_samplers(tmp_path, capsys, rng, mon
     _dump(tmp_path / "d.exr", rng)
     seen = _rare_paths_choices(monkeypatch)
     for strategy in ("awr", "variance"):
-        for choice in ("ranked", None):
+        for choice in ("ranked", "zeros", None):
             option = [] if choice is None else ["--rare-paths", choice]
             out = tmp_path / f"{strategy}{choice}.exr"
             assert main(["plan", str(tmp_path / "d.exr"), "--strategy", strategy, *option, "-o", str(out), "-q"]) == 0

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from awr_denoise import AdaptiveSampler, SampleBuffer, VarianceSampler
+from awr_denoise import AdaptiveSampler, SampleBuffer, VarianceSampler, rare_paths
 from awr_denoise.rare_paths import BACKDROP, RARE_PATHS, even_rare_paths, rare_path_mask
-from awr_denoise.synthetic import SyntheticRenderer, SyntheticScene
+from awr_denoise.synthetic import SyntheticRenderer, SyntheticScene, make_scene
 
 
 def _hits(p, shape=(64, 64), n=4, value=None, seed=0):
@@ -17,6 +17,17 @@ def _hits(p, shape=(64, 64), n=4, value=None, seed=0):
     mean = hits * value / n
     variance = (hits * (value - mean) ** 2 + (n - hits) * mean**2) / (n - 1)
     return np.full(shape, n), mean, variance
+
+
+def _sparks(p=0.004, spike=100.0, shape=(96, 96), n=4, base=0.5, seed=0):
+    """(count, mean, variance) of ``n`` samples a pixel of a lit base: ``spike`` times ``base`` with chance p (a
+    firefly), else ``base`` with a sd of 10%."""
+    rng = np.random.default_rng(seed)
+    hits = rng.binomial(n, p, size=shape).astype(float)
+    steady = base * (1.0 + 0.1 * rng.standard_normal((n,) + shape))  # the steady samples, the first n - hits
+    taken = np.arange(n)[:, None, None] < (n - hits)
+    samples = np.where(taken, steady, spike * base)
+    return np.full(shape, n), samples.mean(axis=0), samples.var(axis=0, ddof=1)
 
 
 def _buffer(count, mean, variance):
@@ -68,6 +79,75 @@ def test_a_steady_surface_with_bright_sparkles_is_not_rare_paths():
     assert not rare_path_mask(_buffer(np.full((64, 64), 8), mean, mean**2)).any()
 
 
+@pytest.mark.parametrize("n", [2, 4, 8, 32])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_fireflies_on_a_lit_base_are_a_rare_path_region(n, seed):
+    """One sample in 250 is 100 times its lit base, which holds the rest of the light: most pixels have seen none
+    and look steady, so the first tests miss it, and the tests of rare hits on a lit base find it."""
+    buffer = _buffer(*_sparks(n=n, seed=seed))
+    assert rare_path_mask(buffer).mean() > 0.9
+    assert rare_path_mask(buffer, fireflies=False).mean() < 0.1
+    density = np.random.default_rng(seed).uniform(0.0, 2.0, (96, 96))
+    assert (even_rare_paths(density, buffer) != density).mean() > 0.9
+    np.testing.assert_array_equal(even_rare_paths(density, buffer, "zeros"), density)  # the first kind only
+
+
+def test_the_rim_of_small_steady_lights_is_not_taken_for_fireflies(monkeypatch):
+    """Lights of 1000 (2 x 2 pixels, steady) on a lit base of 0.1, each with a rim of pixels that one sample in 8
+    hits: the rim's pixels hold one hit each, as a firefly's do, but at the level of the light's steady inside
+    (HEAVY_RATIO); without that test the frame around the lights is found."""
+    rng = np.random.default_rng(4)
+    n, shape = 8, (72, 72)
+    mean = 0.1 * (1.0 + 0.05 * rng.standard_normal(shape))
+    variance = (0.1 * 0.1) ** 2 * np.ones(shape)
+    for y in range(8, 72, 18):
+        for x in range(8, 72, 18):
+            mean[y:y + 2, x:x + 2], variance[y:y + 2, x:x + 2] = 1000.0, 50.0**2
+            rim = np.zeros(shape, dtype=bool)
+            rim[y - 1:y + 3, x - 1:x + 3] = True
+            rim[y:y + 2, x:x + 2] = False
+            mean[rim] = (1000.0 + 7 * 0.1) / n
+            variance[rim] = ((1000.0 - mean[rim]) ** 2 + 7 * (0.1 - mean[rim]) ** 2) / (n - 1)
+    buffer = _buffer(np.full(shape, n), mean, variance)
+    assert not rare_path_mask(buffer).any()
+    monkeypatch.setattr(rare_paths, "HEAVY_RATIO", 0.0)
+    assert rare_path_mask(buffer).mean() > 0.5
+
+
+def test_a_noisy_base_whose_pixels_now_and_then_hold_one_large_sample_is_not_fireflies(monkeypatch):
+    """Gamma samples (a squared coefficient of variation of 2, no rare hits) at 4 spp: some pixels hold most of their
+    mean in one sample, far above the window's steady level, but they do not hold its variance (HEAVY_SHARE)."""
+    rng = np.random.default_rng(0)
+    samples = rng.gamma(0.5, 2.0, (4, 96, 96))
+    buffer = _buffer(np.full((96, 96), 4), samples.mean(axis=0), samples.var(axis=0, ddof=1))
+    assert not rare_path_mask(buffer).any()
+    monkeypatch.setattr(rare_paths, "HEAVY_SHARE", 0.0)
+    assert rare_path_mask(buffer).mean() > 0.5
+
+
+def test_fireflies_that_hold_little_of_the_light_are_not_a_region(monkeypatch):
+    """One sample in 3000 is 100 times the base: 3% of the light, what ranking them could take off the image mean at
+    most; evening their region would cost more than that (HEAVY_LIGHT)."""
+    buffer = _buffer(*_sparks(p=1 / 3000, n=32))
+    assert not rare_path_mask(buffer).any()
+    monkeypatch.setattr(rare_paths, "HEAVY_LIGHT", 0.0)
+    assert rare_path_mask(buffer).mean() > 0.5
+
+
+def test_one_or_two_fireflies_are_not_a_region(monkeypatch):
+    """Two samples 3000 times a lit base, far apart, each 30% of its window's light: too few hits to tell a region
+    (HEAVY_HITS)."""
+    count, mean, variance = _sparks(p=0.0, n=8)
+    for y, x in ((20, 20), (70, 70)):
+        samples = np.full(8, 0.5)
+        samples[0] = 1500.0
+        mean[y, x], variance[y, x] = samples.mean(), samples.var(ddof=1)
+    buffer = _buffer(count, mean, variance)
+    assert not rare_path_mask(buffer).any()
+    monkeypatch.setattr(rare_paths, "HEAVY_HITS", 1)
+    assert rare_path_mask(buffer).any()
+
+
 @pytest.mark.parametrize("shape", [(66, 70), (67, 65), (5, 130)])
 def test_the_last_partial_blocks_are_found_like_the_others(shape):
     mask = rare_path_mask(_buffer(*_hits(1 / 40, shape=shape, n=8)))
@@ -109,8 +189,9 @@ def test_signed_data_has_no_rare_paths():
 
 
 @pytest.mark.parametrize("scale", [1e-150, 1e-100, 1e100, 1e150])
-def test_the_same_hits_at_any_level_are_found_alike(scale):
-    count, mean, variance = _hits(1 / 40, n=8)
+@pytest.mark.parametrize("kind", ["zeros", "lit base"])
+def test_the_same_hits_at_any_level_are_found_alike(scale, kind):
+    count, mean, variance = _hits(1 / 40, n=8) if kind == "zeros" else _sparks(shape=(64, 64), n=8)
     expected = rare_path_mask(_buffer(count, mean, variance))
     with np.errstate(all="raise"):  # nothing under- or overflows on the way
         got = rare_path_mask(_buffer(count, mean * scale, variance * scale**2))
@@ -134,12 +215,12 @@ def test_each_region_takes_the_mean_of_its_densities_and_its_total_is_kept():
 
 
 def test_an_unknown_choice_is_refused_by_name():
-    with pytest.raises(ValueError, match="rare_paths: 'uniform' is not one of even, ranked"):
+    with pytest.raises(ValueError, match="rare_paths: 'uniform' is not one of even, zeros, ranked"):
         even_rare_paths(np.ones((4, 4)), _buffer(*_hits(0.5, shape=(4, 4))), "uniform")
     for sampler in (AdaptiveSampler, VarianceSampler):
         with pytest.raises(ValueError, match="rare_paths"):
             sampler((8, 8), rare_paths="off")
-    assert RARE_PATHS == ("even", "ranked")
+    assert RARE_PATHS == ("even", "zeros", "ranked")
 
 
 def _rare_scene(p=0.02, shape=(48, 48)):
@@ -168,6 +249,23 @@ def test_evened_rare_paths_keep_the_image_mean_that_ranking_them_loses(sampler):
     standard_error = even.std(ddof=1) / np.sqrt(even.size)
     assert abs(even.mean()) < max(3 * standard_error, 0.01), (even.mean(), standard_error)
     assert ranked.mean() < -0.03 and ranked.mean() < even.mean() - 3 * standard_error
+
+
+@pytest.mark.parametrize("sampler", [AdaptiveSampler, VarianceSampler])
+def test_fireflies_on_a_lit_base_keep_the_image_mean(sampler):
+    """docs/sampling.md, "Fireflies on a lit base": the synthetic ``fireflies`` scene (40% of its light in one
+    sample in 250) came out about 30% dark at 8 spp with its pixels ranked; evened, within the noise of its mean."""
+    scene = make_scene("fireflies", (64, 64))
+    reference = float(scene.reference().mean())
+
+    def errors(choice):
+        return np.array([float(np.asarray(sampler(scene.shape, seed=seed, rare_paths=choice).run(
+            SyntheticRenderer(scene, seed=seed), total_spp=8).mean).mean()) / reference - 1.0 for seed in range(10)])
+
+    even = errors("even")
+    standard_error = even.std(ddof=1) / np.sqrt(even.size)
+    assert abs(even.mean()) < max(3 * standard_error, 0.02), (even.mean(), standard_error)
+    assert errors("zeros").mean() < -0.1
 
 
 def test_a_density_that_is_not_finite_stays_and_is_left_out_of_its_regions_mean():

@@ -430,19 +430,9 @@ def _equal_sample_relmse(name, spp, seed):
     return out["awr"], out["uniform"]
 
 
-_UNIFORM_CATCHES_UP = pytest.mark.xfail(strict=True, reason=(
-    "measured with the default reconstruction and sampler (docs/sampling.md, 'The noise gain'; "
-    "benchmarks/bench_reconstruct.py seeds): the Wiener stages remove uniform sampling's noise well enough "
-    "that per seed AWR sampling does not always win on fireflies (uniform/AWR relMSE, seeds 0-9: 8 spp "
-    "0.72-2.92, 16 spp 0.79-1.62, 32 spp 0.96-1.23; with the sampler's first round at 2 spp also gradient's "
-    "seed 4 at 16 spp, 0.97, a seed no test here runs; with the paper's level model, the previous default, "
-    "uniform also won single seeds on gradient at 16 and 64 spp and on edges at 8 spp)"))
-
-
 @pytest.mark.parametrize(("name", "spp"), [
     ("gradient", 16), ("gradient", 32), ("edges", 16), ("edges", 32),
-    ("hdr_source", 16), ("hdr_source", 32), pytest.param("fireflies", 16, marks=_UNIFORM_CATCHES_UP),
-    pytest.param("fireflies", 32, marks=_UNIFORM_CATCHES_UP)])
+    ("hdr_source", 16), ("hdr_source", 32)])
 def test_adaptive_beats_uniform_at_equal_samples(name, spp):
     """Compared: relMSE of the *reconstructed* images (both through reconstruct() with its
     defaults) after AdaptiveSampler and UniformSampler runs with the same total samples and seed."""
@@ -457,14 +447,24 @@ def test_adaptive_beats_uniform_at_equal_samples(name, spp):
 @pytest.mark.slow
 @pytest.mark.parametrize(("name", "spp"), [
     ("gradient", 8), ("gradient", 64),
-    ("edges", 8), ("edges", 64), ("hdr_source", 8), ("hdr_source", 64),
-    pytest.param("fireflies", 8, marks=_UNIFORM_CATCHES_UP), ("fireflies", 64)])
+    ("edges", 8), ("edges", 64), ("hdr_source", 8), ("hdr_source", 64)])
 def test_adaptive_beats_uniform_at_equal_samples_more_seeds(name, spp):
     ratios = []
     for seed in range(10):
         adaptive, uniform = _equal_sample_relmse(name, spp, seed)
         ratios.append(uniform / adaptive)
     assert min(ratios) > 1.0, ratios
+
+
+def test_adaptive_sampling_of_fireflies_on_a_lit_base_is_uniform_sampling():
+    """The ``fireflies`` scene is one region of rare hits on a lit base, which the sampler evens (docs/sampling.md,
+    "Fireflies on a lit base"): at 32 spp most renders take nearly uniform sampling's very samples (the synthetic
+    renderer's samples depend on the pixel and the sample's index only) and its relMSE to within 0.1%, and the rest
+    are within 5% of it. Ranked, it had a lower relMSE than uniform sampling's by losing the fireflies' share of the
+    light."""
+    ratios = np.array([uniform / adaptive for adaptive, uniform in
+                       (_equal_sample_relmse("fireflies", 32, seed) for seed in range(10))])
+    assert (np.abs(ratios - 1.0) < 1e-3).sum() >= 5 and np.all(np.abs(ratios - 1.0) < 0.05), ratios
 
 
 # ---------------------------------------------------------------------------- the measured noise gain
