@@ -31,22 +31,27 @@ Rare bright samples on a lit base (fireflies: a caustic path now and then on a l
 most pixels have seen none and look steady. Ranked, the few that did take the samples and are diluted back, while
 the rest keep means without the fireflies' share: the synthetic ``fireflies`` scene, whose fireflies carry 40% of
 its light, came out 32% dark at 8 spp (docs/sampling.md, "Fireflies on a lit base"). Over a larger window
-(``HEAVY_WINDOW`` blocks, 36 pixels) of the pixels that are lit and hold two samples or more, a pixel holds a hit
-when one sample holds most of its mean (``min(CV2_i / min(n_i, OWN_COUNT), 1)`` at least :data:`HIT`) and its hit's
-level, ``E[X^2] / E[X] = mean + s^2 / mean`` (a sample's value weighted by its share of the mean: the hit's own
-value, whatever the count), is above :data:`HEAVY_RATIO` times the window's steady level: the most that a 2 x 2
-square's pixels all reach with their mean less two standard deviations. The hits come from nothing the window
-shows steadily; the rim of a small light or a bright object hits at the level of its steady inside and is not
-taken. The window is such a region when
+(``HEAVY_WINDOW`` blocks, 36 pixels, nothing counted past the image's edges) of the pixels that are lit and hold two
+samples or more, a pixel holds a hit when one sample holds most of its mean (``min(CV2_i / min(n_i, OWN_COUNT), 1)``
+at least :data:`HIT`) and its hit's level, ``E[X^2] / E[X] = mean + s^2 / mean`` (a sample's value weighted by its
+share of the mean: the hit's own value, whatever the count), is above :data:`HEAVY_RATIO` times the steady level
+beside it: the most that a pixel within the 3 x 3 blocks around its block reaches with its mean less two standard
+deviations. The hits come from nothing steady beside them; the rim of a small light or a bright object hits at the
+level of its steady inside and is not taken. The window is such a region when
 
-- it holds at least :data:`HEAVY_HITS` pixels with a hit;
-- they hold more than :data:`HEAVY_LIGHT` of its light (samples' sum; what ranking could take off the mean) and
-  more than :data:`HEAVY_SHARE` of its variance; and
-- at most :data:`HEAVY_DARK` of its pixels are all 0: the base is lit (zeros are the first tests' to judge; the
-  misses around a thin bright wire on black, or beside a region of rare hits, are no lit base).
+- at least :data:`HEAVY_HITS` of its blocks hold a pixel with a hit (a field of them, not a small disc; a window cut
+  by the image's edges, its share of them);
+- those pixels hold more than :data:`HEAVY_LIGHT` of its light (the pixels' means, what ranking could take off the
+  image mean) and more than :data:`HEAVY_SHARE` of its per-sample variance (summed over pixels, each pixel once
+  however many samples the ranking gave it); and
+- at most :data:`HEAVY_DARK` of its pixels are all 0 and none is negative: the base is lit (zeros are the first
+  tests' to judge; the misses around a thin bright wire on black, or beside a region of rare hits, are no lit
+  base).
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 from scipy import ndimage
@@ -85,8 +90,8 @@ STEADY = 0.1
 """Pixels whose ``min(CV2_i / min(n_i, OWN_COUNT), 1)`` is below this are steady and left out of the pooled
 variation (their level would dilute it: a beam through fog)."""
 HIT = 0.5
-"""Least ``min(CV2_i / min(n_i, OWN_COUNT), 1)`` of a pixel holding a hit on a lit base (one sample holds most of its
-mean)."""
+"""Least ``min(CV2_i / min(n_i, OWN_COUNT), 1)`` of a pixel holding a hit on a lit base: one sample holds most of its
+mean, or, past OWN_COUNT samples, a few do (a pixel the ranking gave hundreds of samples may hold several hits)."""
 HEAVY_SHARE = 0.8
 """Least share of a window's pooled variance that its pixels with a hit hold, for a region of rare hits on a lit
 base."""
@@ -97,17 +102,25 @@ HEAVY_DARK = 0.02
 """Largest share of a window's pixels whose samples are all 0 in a region of rare hits on a lit base."""
 HEAVY_WINDOW = 9
 """Side of the window of blocks (36 pixels) of a region of rare hits on a lit base."""
-HEAVY_HITS = 3
-"""Fewest pixels with a hit in the window of a region of rare hits on a lit base."""
+HEAVY_HITS = 4
+"""Fewest blocks holding a pixel with a hit in the window of a region of rare hits on a lit base (spread, not
+gathered in a small disc of rare light)."""
 HEAVY_RATIO = 8.0
 """Least ratio of a hit's level (``E[X^2] / E[X]``) to its window's steady level, for a region of rare hits on a lit
-base (the ``fireflies`` scene's stand about 100 times above it, a light's rim about once; docs/sampling.md, "Fireflies
-on a lit base")."""
+base (the ``fireflies`` scene's stand over a hundred times above it, a light's rim about once; docs/sampling.md,
+"Fireflies on a lit base")."""
 
 
 def rare_path_mask(buffer: SampleBuffer, *, fireflies: bool = True) -> BoolArray:
-    """(H, W) pixels of regions lit through rare paths (see the module's description); ``fireflies=False`` leaves out
-    the regions of rare hits on a lit base.
+    """(H, W) pixels of regions lit through rare paths (see the module's description).
+
+    Parameters
+    ----------
+    buffer
+        The merged statistics of the image so far.
+    fireflies
+        Whether the regions of rare hits on a lit base are found too (``False``: only those whose samples are
+        mostly 0, ``rare_paths="zeros"``).
 
     Examples
     --------
@@ -163,7 +176,7 @@ def rare_path_mask(buffer: SampleBuffer, *, fireflies: bool = True) -> BoolArray
     with np.errstate(over="ignore", divide="ignore", under="ignore"):
         np.divide(sample_var, mean * mean * np.minimum(count, OWN_COUNT), out=own, where=lit)
     np.minimum(own, 1.0, out=own)
-    heavy = (_heavy_tails(lit & (count >= 2), own, count, mean, sample_var, np.asarray(buffer.variance_known))
+    heavy = (_heavy_tails(lit & (count >= 2), own, count, mean, deviation, np.asarray(buffer.variance_known))
              if fireflies else False)
     # Steady pixels (a beam, a lit wall beside the fog) are left out of the pooled variation, which their level
     # would otherwise dilute: the region around them is judged by its own samples.
@@ -187,34 +200,60 @@ def rare_path_mask(buffer: SampleBuffer, *, fireflies: bool = True) -> BoolArray
     return np.repeat(np.repeat(rare, BLOCK, axis=0), BLOCK, axis=1)[:h, :w]
 
 
-def _heavy_tails(base: BoolArray, own: FloatArray, count: FloatArray, mean: FloatArray, sample_var: FloatArray,
+def _heavy_tails(base: BoolArray, own: FloatArray, count: FloatArray, mean: FloatArray, deviation: FloatArray,
                  known: BoolArray) -> BoolArray:
     """(blocks) windows of rare hits on a lit base over the ``base`` pixels (lit, two samples or more), from the
-    pixels' ``own`` variation, counts, means and per-sample variances in the unit of :func:`rare_path_mask`."""
-    h, w = count.shape
+    pixels' ``own`` variation, counts, means and per-sample standard deviations in the unit of
+    :func:`rare_path_mask`."""
+    blocks = (-(-count.shape[0] // BLOCK), -(-count.shape[1] // BLOCK))
+    candidate = base & known & (own >= HIT)  # one sample holds most of the mean; its level decides below
+    if np.count_nonzero(candidate) < HEAVY_HITS:
+        return np.zeros(blocks, dtype=bool)
     with np.errstate(over="ignore", divide="ignore", invalid="ignore", under="ignore"):
         # What a pixel's samples steadily reach: its mean less two standard deviations. The inside of a light or a
         # lit wall keeps most of its mean; a pixel whose mean a hit or two make (fewer than half its samples) has
-        # none, and does not stand for the window's steady level. Taken over 2 x 2 squares: a light's inside has
-        # several pixels, where a pixel whose every sample (2 of 2) was a firefly stands alone.
-        floor = np.where(base, np.maximum(mean - 2.0 * np.sqrt(sample_var), 0.0), 0.0)
-        floor = ndimage.minimum_filter(floor, size=2, mode="nearest")
-        top = ndimage.maximum_filter(_blocks(floor, np.max), size=HEAVY_WINDOW, mode="nearest")
-        top = np.repeat(np.repeat(top, BLOCK, axis=0), BLOCK, axis=1)[:h, :w]
+        # none. (A pixel whose 2 samples were both fireflies counts as steady, and hides the hits beside it only.)
+        floor = mean - 2.0 * deviation
+        floor[~base] = 0.0
+        np.maximum(floor, 0.0, out=floor)
+        # The steady level beside each block (3 x 3 blocks): a light's rim lies beside its inside, and a bright steady
+        # patch hides no hits further away.
+        top = ndimage.maximum_filter(_blocks(floor, np.max), size=3, mode="nearest")
         # E[X^2] / E[X]: a sample's value weighted by its share of the mean, a hit's value for one hit among
         # steady samples whatever the count (the mean is above 0: lit).
-        level = np.where(base, mean + sample_var / np.where(base, mean, 1.0), 0.0)
-        hit = base & known & (own >= HIT) & (level > HEAVY_RATIO * top)
-    spread = np.where(base & known, count - 1.0, 0.0) * sample_var
-    n = np.where(base, count, 0.0)
-    light = n * mean
-    # Pixels whose samples are all 0 (a backdrop, or misses of rare paths the first tests judge): not a lit base.
-    dark = (mean == 0) & (count >= 2)
-    sums = [window_sum(_blocks(x), HEAVY_WINDOW) for x in (light, np.where(hit, light, 0.0), spread,
-                                                        np.where(hit, spread, 0.0), hit, base, dark)]
-    light_sum, hit_light_sum, var_sum, hit_var_sum, hits, lit_pixels, dark_pixels = sums
-    return ((hits >= HEAVY_HITS) & (hit_light_sum > HEAVY_LIGHT * light_sum) & (hit_var_sum > HEAVY_SHARE * var_sum)
-            & (light_sum > 0) & (dark_pixels <= HEAVY_DARK * (lit_pixels + dark_pixels)))
+        rows, cols = np.nonzero(candidate)
+        level = mean[rows, cols] + deviation[rows, cols] ** 2 / mean[rows, cols]
+        above = level > HEAVY_RATIO * top[rows // BLOCK, cols // BLOCK]
+        # Per pixel, not per sample: the image mean weighs each pixel alike, and a pixel the ranking gave hundreds
+        # of samples must not weigh more for them.
+        light = np.where(base, mean, 0.0)
+        spread = np.where(base & known, deviation * deviation, 0.0)
+        rows, cols = rows[above], cols[above]
+        at = (rows // BLOCK) * blocks[1] + cols // BLOCK
+        hit_light, hit_spread, hit_pixels = (
+            np.bincount(at, weights=weights, minlength=blocks[0] * blocks[1]).reshape(blocks)
+            for weights in (light[rows, cols], spread[rows, cols], None))
+        # Pixels whose samples are all 0 (a backdrop, or misses of rare paths the first tests judge): not a lit
+        # base; and signed data has no rare paths (a negative mean anywhere in the window).
+        dark = (mean == 0) & (count >= 2)
+        # Blocks holding a hit, not hits: a field of fireflies spreads its hits, a small disc of them (a light seen
+        # in glass) keeps them in a block or two and is ranked.
+        sums = [_zero_padded_window(x) for x in (_blocks(light), hit_light, _blocks(spread), hit_spread,
+                                                 (hit_pixels > 0).astype(np.float64), _count(base), _count(dark),
+                                                 _count(mean < 0), _count(np.ones(count.shape, dtype=bool)))]
+        light_sum, hit_light_sum, var_sum, hit_var_sum, hits, lit_pixels, dark_pixels, negative, pixels = sums
+        # A window cut by the image's edges needs its share of the blocks with a hit.
+        least = HEAVY_HITS * pixels / float((HEAVY_WINDOW * BLOCK) ** 2)
+        return ((hits >= least) & (hit_light_sum > HEAVY_LIGHT * light_sum)
+                & (hit_var_sum > HEAVY_SHARE * var_sum) & (light_sum > 0)
+                & (dark_pixels <= HEAVY_DARK * (lit_pixels + dark_pixels)) & (negative == 0))
+
+
+def _zero_padded_window(blocks: FloatArray) -> FloatArray:
+    """Sums over the HEAVY_WINDOW x HEAVY_WINDOW blocks around each block, nothing past the image's edges (a hit in
+    an edge block is counted once, not once for every copy of it)."""
+    r = HEAVY_WINDOW // 2
+    return window_sum(np.pad(blocks, r), HEAVY_WINDOW)[r:-r, r:-r]
 
 
 def even_rare_paths(density: FloatArray, buffer: SampleBuffer, rare_paths: str = DEFAULT_RARE_PATHS) -> FloatArray:
@@ -264,7 +303,7 @@ def even_rare_paths(density: FloatArray, buffer: SampleBuffer, rare_paths: str =
     return out
 
 
-def _blocks(a: FloatArray | BoolArray, reduce=np.sum) -> FloatArray:
+def _blocks(a: FloatArray | BoolArray, reduce: Callable[..., np.ndarray] = np.sum) -> FloatArray:
     """Sums (or another ``reduce``) over the BLOCK x BLOCK blocks of ``a`` (its last blocks padded with zeros), in
     float64."""
     a = np.asarray(a, dtype=np.float64)
@@ -276,6 +315,16 @@ def _blocks(a: FloatArray | BoolArray, reduce=np.sum) -> FloatArray:
     # Rows of blocks first, then their columns: two reductions over contiguous runs.
     rows = reduce(a.reshape(h // BLOCK, BLOCK, w), axis=1)
     return reduce(rows.reshape(h // BLOCK, w // BLOCK, BLOCK), axis=2)
+
+
+def _count(mask: BoolArray) -> FloatArray:
+    """The number of ``mask``'s pixels in each BLOCK x BLOCK block, summed as bytes (a float64 copy of the mask
+    costs more than the sums)."""
+    h, w = mask.shape
+    padded = np.zeros((-(-h // BLOCK) * BLOCK, -(-w // BLOCK) * BLOCK), dtype=np.uint8)
+    padded[:h, :w] = mask
+    rows = padded.reshape(padded.shape[0] // BLOCK, BLOCK, padded.shape[1]).sum(axis=1, dtype=np.int32)
+    return rows.reshape(rows.shape[0], padded.shape[1] // BLOCK, BLOCK).sum(axis=2).astype(np.float64)
 
 
 def _window(blocks: FloatArray) -> FloatArray:

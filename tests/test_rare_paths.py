@@ -114,15 +114,18 @@ def test_the_rim_of_small_steady_lights_is_not_taken_for_fireflies(monkeypatch):
     assert rare_path_mask(buffer).mean() > 0.5
 
 
-def test_a_noisy_base_whose_pixels_now_and_then_hold_one_large_sample_is_not_fireflies(monkeypatch):
-    """Gamma samples (a squared coefficient of variation of 2, no rare hits) at 4 spp: some pixels hold most of their
-    mean in one sample, far above the window's steady level, but they do not hold its variance (HEAVY_SHARE)."""
+@pytest.mark.parametrize("n", [2, 4])
+def test_a_noisy_base_whose_pixels_now_and_then_hold_one_large_sample_is_not_fireflies(n, monkeypatch):
+    """Gamma samples (a squared coefficient of variation of 2, no rare hits) at 2 and 4 spp (2: the adaptive
+    sampler's first round): some pixels hold most of their mean in one sample, far above the steady level beside
+    them, but they do not hold the window's variance (HEAVY_SHARE; at 2 spp the other tests hold it off too)."""
     rng = np.random.default_rng(0)
-    samples = rng.gamma(0.5, 2.0, (4, 96, 96))
-    buffer = _buffer(np.full((96, 96), 4), samples.mean(axis=0), samples.var(axis=0, ddof=1))
+    samples = rng.gamma(0.5, 2.0, (n, 96, 96))
+    buffer = _buffer(np.full((96, 96), n), samples.mean(axis=0), samples.var(axis=0, ddof=1))
     assert not rare_path_mask(buffer).any()
-    monkeypatch.setattr(rare_paths, "HEAVY_SHARE", 0.0)
-    assert rare_path_mask(buffer).mean() > 0.5
+    if n == 4:
+        monkeypatch.setattr(rare_paths, "HEAVY_SHARE", 0.0)
+        assert rare_path_mask(buffer).mean() > 0.5
 
 
 def test_fireflies_that_hold_little_of_the_light_are_not_a_region(monkeypatch):
@@ -135,17 +138,81 @@ def test_fireflies_that_hold_little_of_the_light_are_not_a_region(monkeypatch):
 
 
 def test_one_or_two_fireflies_are_not_a_region(monkeypatch):
-    """Two samples 3000 times a lit base, far apart, each 30% of its window's light: too few hits to tell a region
-    (HEAVY_HITS)."""
-    count, mean, variance = _sparks(p=0.0, n=8)
-    for y, x in ((20, 20), (70, 70)):
-        samples = np.full(8, 0.5)
-        samples[0] = 1500.0
-        mean[y, x], variance[y, x] = samples.mean(), samples.var(ddof=1)
-    buffer = _buffer(count, mean, variance)
-    assert not rare_path_mask(buffer).any()
-    monkeypatch.setattr(rare_paths, "HEAVY_HITS", 1)
-    assert rare_path_mask(buffer).any()
+    """Samples 3000 times a lit base (8 spp): two in one window, 12 pixels apart, or one at an edge or a corner of
+    the frame, are too few hits to tell a region (HEAVY_HITS; a window cut by the frame's edges counts what it
+    holds, not copies of its edge blocks)."""
+    samples = np.full(8, 0.5)
+    samples[0] = 1500.0
+    cases = {"two": ((40, 40), (40, 52)), "corner": ((0, 0),), "edge": ((0, 48),)}
+    buffers = {}
+    for name, places in cases.items():
+        count, mean, variance = _sparks(p=0.0, n=8)
+        for y, x in places:
+            mean[y, x], variance[y, x] = samples.mean(), samples.var(ddof=1)
+        buffers[name] = _buffer(count, mean, variance)
+        assert not rare_path_mask(buffers[name]).any(), name
+    monkeypatch.setattr(rare_paths, "HEAVY_HITS", 2)
+    assert rare_path_mask(buffers["two"]).any()
+
+
+def test_a_pixel_the_ranking_gave_many_samples_weighs_as_one_pixel():
+    """Seven pixels of a small disc that took 400 samples each (nine hits of 40 on a base of 1): a tenth of the
+    window's samples' sum but 1% of its pixels' light, which is what ranking them can take off the image mean
+    (HEAVY_LIGHT counts pixels' means, not samples)."""
+    count, mean, variance = _sparks(p=0.0, n=8, base=1.0)
+    samples = np.ones(400)
+    samples[:9] = 40.0
+    for y, x in ((40, 40), (40, 44), (44, 40), (44, 44), (48, 40), (48, 44), (40, 48)):
+        count[y, x], mean[y, x], variance[y, x] = 400, samples.mean(), samples.var(ddof=1)
+    assert not rare_path_mask(_buffer(count, mean, variance)).any()
+
+
+def test_a_small_bright_steady_patch_does_not_hide_the_fireflies_around_it():
+    """A steady 3 x 3 patch 14 times the base among fireflies of 100 times it: the hits beyond the blocks beside
+    the patch are judged against the steady level beside them, not the patch's, so the frame outside the window
+    around the patch is found (a firefly beside the patch is no hit, and its variance keeps that window out)."""
+    for seed in range(3):
+        count, mean, variance = _sparks(n=8, seed=seed)
+        mean[46:49, 46:49], variance[46:49, 46:49] = 7.0, 0.01
+        mask = rare_path_mask(_buffer(count, mean, variance))
+        outside = np.ones(mask.shape, dtype=bool)
+        outside[28:68, 28:68] = False
+        assert mask[outside].mean() > 0.95, seed
+
+
+def test_hits_gathered_in_a_small_disc_are_not_a_field_of_fireflies():
+    """Four pixels with one hit each (400 times a steady base of 1, 8 spp), a seventh of their window's light: in
+    four blocks they are a field of fireflies; gathered in one 2 x 2 square, a small disc of rare light (a light seen
+    in glass), which ranking does not darken and evening costs its error (HEAVY_HITS counts blocks), also in a
+    corner of the frame (whose block is not counted again for every copy past the edges)."""
+    samples = np.ones(8)
+    samples[0] = 400.0
+    found = {}
+    for name, places in (("spread", ((40, 40), (40, 52), (52, 40), (52, 52))),
+                         ("gathered", ((40, 40), (40, 41), (41, 40), (41, 41))),
+                         ("gathered in a corner", ((0, 0), (0, 1), (1, 0), (1, 1)))):
+        count, mean, variance = _sparks(p=0.0, n=8, base=1.0)
+        for y, x in places:
+            mean[y, x], variance[y, x] = samples.mean(), samples.var(ddof=1)
+        found[name] = rare_path_mask(_buffer(count, mean, variance))
+    assert found["spread"][46, 46] and not found["gathered"].any() and not found["gathered in a corner"].any()
+
+
+def test_the_rim_of_lights_one_pixel_wide_is_not_taken_for_fireflies():
+    """Steady lights of one pixel (1000 on a base of 0.1, 8 spp) with a rim that one sample in 8 hits: the light's
+    own steady level stands beside its rim, so the rim is a light's, not fireflies."""
+    n, shape = 8, (72, 72)
+    mean = np.full(shape, 0.1)
+    variance = np.full(shape, 0.01**2)
+    for y in range(8, 72, 12):
+        for x in range(8, 72, 12):
+            mean[y, x], variance[y, x] = 1000.0, 50.0**2
+            rim = np.zeros(shape, dtype=bool)
+            rim[y - 1:y + 2, x - 1:x + 2] = True
+            rim[y, x] = False
+            mean[rim] = (1000.0 + 7 * 0.1) / n
+            variance[rim] = ((1000.0 - mean[rim]) ** 2 + 7 * (0.1 - mean[rim]) ** 2) / (n - 1)
+    assert not rare_path_mask(_buffer(np.full(shape, n), mean, variance)).any()
 
 
 @pytest.mark.parametrize("shape", [(66, 70), (67, 65), (5, 130)])
@@ -287,6 +354,15 @@ def test_a_density_of_another_shape_or_a_choice_that_is_no_name_is_refused():
     with pytest.raises(TypeError, match="rare_paths"):
         even_rare_paths(np.ones((8, 8)), buffer, 1)
     assert even_rare_paths(np.ones((8, 8), dtype=np.int64), buffer, "ranked").dtype == np.float64
+
+
+def test_a_window_of_fireflies_with_a_negative_mean_anywhere_is_no_region():
+    """The same for fireflies on a lit base, over their larger windows (HEAVY_WINDOW blocks)."""
+    count, mean, variance = _sparks(n=8)
+    assert rare_path_mask(_buffer(count, mean, variance))[:24, :24].all()
+    mean[:8, :8], variance[:8, :8] = -0.5, 0.0
+    mask = rare_path_mask(_buffer(count, mean, variance))
+    assert not mask[:24, :24].any() and mask[48:, 48:].all()
 
 
 def test_a_window_with_a_negative_mean_anywhere_is_no_region():
