@@ -209,6 +209,14 @@ def _heavy_tails(base: BoolArray, own: FloatArray, count: FloatArray, mean: Floa
     candidate = base & known & (own >= HIT)  # one sample holds most of the mean; its level decides below
     if np.count_nonzero(candidate) < HEAVY_HITS:
         return np.zeros(blocks, dtype=bool)
+    # Pixels whose samples are all 0 (a backdrop, or misses of rare paths the first tests judge): not a lit base;
+    # and signed data has no rare paths (a negative mean anywhere in the window). Judged first: a frame of zeros
+    # (the first tests' regions) has no window to look at further.
+    dark_pixels, lit_pixels, negative, pixels = (_zero_padded_window(_count(x)) for x in (
+        (mean == 0) & (count >= 2), base, mean < 0, np.ones(count.shape, dtype=bool)))
+    lit_base = (dark_pixels <= HEAVY_DARK * (lit_pixels + dark_pixels)) & (negative == 0) & (lit_pixels > 0)
+    if not lit_base.any():
+        return lit_base
     with np.errstate(over="ignore", divide="ignore", invalid="ignore", under="ignore"):
         # What a pixel's samples steadily reach: its mean less two standard deviations. The inside of a light or a
         # lit wall keeps most of its mean; a pixel whose mean a hit or two make (fewer than half its samples) has
@@ -233,20 +241,15 @@ def _heavy_tails(base: BoolArray, own: FloatArray, count: FloatArray, mean: Floa
         hit_light, hit_spread, hit_pixels = (
             np.bincount(at, weights=weights, minlength=blocks[0] * blocks[1]).reshape(blocks)
             for weights in (light[rows, cols], spread[rows, cols], None))
-        # Pixels whose samples are all 0 (a backdrop, or misses of rare paths the first tests judge): not a lit
-        # base; and signed data has no rare paths (a negative mean anywhere in the window).
-        dark = (mean == 0) & (count >= 2)
         # Blocks holding a hit, not hits: a field of fireflies spreads its hits, a small disc of them (a light seen
         # in glass) keeps them in a block or two and is ranked.
         sums = [_zero_padded_window(x) for x in (_blocks(light), hit_light, _blocks(spread), hit_spread,
-                                                 (hit_pixels > 0).astype(np.float64), _count(base), _count(dark),
-                                                 _count(mean < 0), _count(np.ones(count.shape, dtype=bool)))]
-        light_sum, hit_light_sum, var_sum, hit_var_sum, hits, lit_pixels, dark_pixels, negative, pixels = sums
+                                                 (hit_pixels > 0).astype(np.float64))]
+        light_sum, hit_light_sum, var_sum, hit_var_sum, hits = sums
         # A window cut by the image's edges needs its share of the blocks with a hit.
         least = HEAVY_HITS * pixels / float((HEAVY_WINDOW * BLOCK) ** 2)
-        return ((hits >= least) & (hit_light_sum > HEAVY_LIGHT * light_sum)
-                & (hit_var_sum > HEAVY_SHARE * var_sum) & (light_sum > 0)
-                & (dark_pixels <= HEAVY_DARK * (lit_pixels + dark_pixels)) & (negative == 0))
+        return (lit_base & (hits >= least) & (hit_light_sum > HEAVY_LIGHT * light_sum)
+                & (hit_var_sum > HEAVY_SHARE * var_sum) & (light_sum > 0))
 
 
 def _zero_padded_window(blocks: FloatArray) -> FloatArray:
