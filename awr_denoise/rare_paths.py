@@ -39,8 +39,8 @@ beside it: the most that a pixel within the 3 x 3 blocks around its block reache
 deviations. The hits come from nothing steady beside them; the rim of a small light or a bright object hits at the
 level of its steady inside and is not taken. The window is such a region when
 
-- at least :data:`HEAVY_HITS` of its blocks hold a pixel with a hit (a field of them, not a small disc; a window cut
-  by the image's edges, its share of them);
+- it holds at least :data:`HEAVY_HITS` separate hits (groups of touching pixels with a hit: a field of them, not a
+  small disc; a window cut by the image's edges, its share of them, at least all but one);
 - those pixels hold more than :data:`HEAVY_LIGHT` of its light (the pixels' means, what ranking could take off the
   image mean) and more than :data:`HEAVY_SHARE` of its per-sample variance (summed over pixels, each pixel once
   however many samples the ranking gave it); and
@@ -93,20 +93,20 @@ HIT = 0.5
 """Least ``min(CV2_i / min(n_i, OWN_COUNT), 1)`` of a pixel holding a hit on a lit base: one sample holds most of its
 mean, or, past OWN_COUNT samples, a few do (a pixel the ranking gave hundreds of samples may hold several hits)."""
 HEAVY_SHARE = 0.8
-"""Least share of a window's pooled variance that its pixels with a hit hold, for a region of rare hits on a lit
-base."""
+"""Least share of a window's per-sample variance (summed over its pixels, each once) that its pixels with a hit
+hold, for a region of rare hits on a lit base."""
 HEAVY_LIGHT = 0.1
-"""Least share of a window's light (its samples' sum) that its pixels with a hit hold, for a region of rare hits on a
-lit base: what ranking them can take off its image mean."""
+"""Least share of a window's light (its pixels' means) that its pixels with a hit hold, for a region of rare hits on
+a lit base: what ranking them can take off its image mean."""
 HEAVY_DARK = 0.02
 """Largest share of a window's pixels whose samples are all 0 in a region of rare hits on a lit base."""
 HEAVY_WINDOW = 9
 """Side of the window of blocks (36 pixels) of a region of rare hits on a lit base."""
 HEAVY_HITS = 4
-"""Fewest blocks holding a pixel with a hit in the window of a region of rare hits on a lit base (spread, not
-gathered in a small disc of rare light)."""
+"""Fewest separate hits (groups of touching pixels with a hit) in the window of a region of rare hits on a lit base:
+a field of them, not a small disc of rare light."""
 HEAVY_RATIO = 8.0
-"""Least ratio of a hit's level (``E[X^2] / E[X]``) to its window's steady level, for a region of rare hits on a lit
+"""Least ratio of a hit's level (``E[X^2] / E[X]``) to the steady level beside it, for a region of rare hits on a lit
 base (the ``fireflies`` scene's stand over a hundred times above it, a light's rim about once; docs/sampling.md,
 "Fireflies on a lit base")."""
 
@@ -121,6 +121,11 @@ def rare_path_mask(buffer: SampleBuffer, *, fireflies: bool = True) -> BoolArray
     fireflies
         Whether the regions of rare hits on a lit base are found too (``False``: only those whose samples are
         mostly 0, ``rare_paths="zeros"``).
+
+    Returns
+    -------
+    BoolArray
+        ``True`` at the pixels of the regions found.
 
     Examples
     --------
@@ -143,7 +148,7 @@ def rare_path_mask(buffer: SampleBuffer, *, fireflies: bool = True) -> BoolArray
     >>> samples = np.where(rng.random((4, 96, 96)) < 1 / 250, 100.0, rng.uniform(0.5, 1.5, (4, 96, 96)))
     >>> buffer = SampleBuffer.from_moments(np.full((96, 96), 4), samples.mean(0)[..., None],
     ...                                    samples.var(0, ddof=1)[..., None])
-    >>> float(rare_path_mask(buffer).mean()), float(rare_path_mask(buffer, fireflies=False).mean())
+    >>> round(float(rare_path_mask(buffer).mean()), 2), float(rare_path_mask(buffer, fireflies=False).mean())
     (1.0, 0.0)
     """
     count = np.asarray(buffer.count, dtype=np.float64)
@@ -160,7 +165,8 @@ def rare_path_mask(buffer: SampleBuffer, *, fireflies: bool = True) -> BoolArray
         return np.zeros(count.shape, dtype=bool)
     unit = float(np.ldexp(1.0, int(np.frexp(top)[1]) - 1))  # at most top: finite
     mean, deviation = mean / unit, deviation / unit
-    sample_var = np.square(deviation)
+    with np.errstate(under="ignore"):  # a deviation 1e-154 of the largest level squares to 0, which is its weight
+        sample_var = np.square(deviation)
     lit = mean > 0
     # Pixels of zeros in an all-zero BACKDROP square: a pixel whose square holds no lit pixel, grown back to it.
     backdrop = ndimage.maximum_filter(~ndimage.maximum_filter(lit, size=BACKDROP, mode="nearest"), size=BACKDROP,
@@ -170,11 +176,13 @@ def rare_path_mask(buffer: SampleBuffer, *, fireflies: bool = True) -> BoolArray
     if not region.any():
         return np.zeros(count.shape, dtype=bool)
     # A pixel's squared coefficient of variation over its count (capped at OWN_COUNT): 1 where one sample holds its
-    # mean; a pixel of zeros counts 1. (mean is at most 2 here and lit means are above 0: the quotient is finite or
-    # +inf, which the cap takes to 1.)
+    # mean; a pixel of zeros counts 1. (Squared as a ratio: a lit mean far below the largest level would square to
+    # 0; the quotient is finite or +inf, which the cap takes to 1.)
     own = np.ones(count.shape)
     with np.errstate(over="ignore", divide="ignore", under="ignore"):
-        np.divide(sample_var, mean * mean * np.minimum(count, OWN_COUNT), out=own, where=lit)
+        np.divide(deviation, mean, out=own, where=lit)
+        np.square(own, out=own, where=lit)
+        np.divide(own, np.minimum(count, OWN_COUNT), out=own, where=lit)
     np.minimum(own, 1.0, out=own)
     heavy = (_heavy_tails(lit & (count >= 2), own, count, mean, deviation, np.asarray(buffer.variance_known))
              if fireflies else False)
@@ -207,7 +215,7 @@ def _heavy_tails(base: BoolArray, own: FloatArray, count: FloatArray, mean: Floa
     :func:`rare_path_mask`."""
     blocks = (-(-count.shape[0] // BLOCK), -(-count.shape[1] // BLOCK))
     candidate = base & known & (own >= HIT)  # one sample holds most of the mean; its level decides below
-    if np.count_nonzero(candidate) < HEAVY_HITS:
+    if not candidate.any():
         return np.zeros(blocks, dtype=bool)
     # Pixels whose samples are all 0 (a backdrop, or misses of rare paths the first tests judge): not a lit base;
     # and signed data has no rare paths (a negative mean anywhere in the window). Judged first: a frame of zeros
@@ -222,7 +230,7 @@ def _heavy_tails(base: BoolArray, own: FloatArray, count: FloatArray, mean: Floa
         # lit wall keeps most of its mean; a pixel whose mean a hit or two make (fewer than half its samples) has
         # none. (A pixel whose 2 samples were both fireflies counts as steady, and hides the hits beside it only.)
         floor = mean - 2.0 * deviation
-        floor[~base] = 0.0
+        floor[~(base & known)] = 0.0  # an unknown variance (stored as 0) shows no steadiness
         np.maximum(floor, 0.0, out=floor)
         # The steady level beside each block (3 x 3 blocks): a light's rim lies beside its inside, and a bright steady
         # patch hides no hits further away.
@@ -238,16 +246,19 @@ def _heavy_tails(base: BoolArray, own: FloatArray, count: FloatArray, mean: Floa
         spread = np.where(base & known, deviation * deviation, 0.0)
         rows, cols = rows[above], cols[above]
         at = (rows // BLOCK) * blocks[1] + cols // BLOCK
-        hit_light, hit_spread, hit_pixels = (
-            np.bincount(at, weights=weights, minlength=blocks[0] * blocks[1]).reshape(blocks)
-            for weights in (light[rows, cols], spread[rows, cols], None))
-        # Blocks holding a hit, not hits: a field of fireflies spreads its hits, a small disc of them (a light seen
-        # in glass) keeps them in a block or two and is ranked.
-        sums = [_zero_padded_window(x) for x in (_blocks(light), hit_light, _blocks(spread), hit_spread,
-                                                 (hit_pixels > 0).astype(np.float64))]
+        hit_light, hit_spread = (np.bincount(at, weights=weights, minlength=blocks[0] * blocks[1]).reshape(blocks)
+                                 for weights in (light[rows, cols], spread[rows, cols]))
+        # Separate hits, not pixels with one: a field of fireflies scatters them, a small disc of rare light is one
+        # group of touching pixels, counted once (in the block of its first pixel) wherever it lies on the blocks.
+        hit = np.zeros(count.shape, dtype=bool)
+        hit[rows, cols] = True
+        labels, groups = ndimage.label(hit, structure=np.ones((3, 3), dtype=bool))
+        first = np.unique(labels[rows, cols], return_index=True)[1]
+        hit_groups = np.bincount(at[first], minlength=blocks[0] * blocks[1]).reshape(blocks).astype(np.float64)
+        sums = [_zero_padded_window(x) for x in (_blocks(light), hit_light, _blocks(spread), hit_spread, hit_groups)]
         light_sum, hit_light_sum, var_sum, hit_var_sum, hits = sums
-        # A window cut by the image's edges needs its share of the blocks with a hit.
-        least = HEAVY_HITS * pixels / float((HEAVY_WINDOW * BLOCK) ** 2)
+        # A window cut by the image's edges needs its share of the groups, and never fewer than all but one.
+        least = np.maximum(HEAVY_HITS * pixels / float((HEAVY_WINDOW * BLOCK) ** 2), HEAVY_HITS - 1)
         return (lit_base & (hits >= least) & (hit_light_sum > HEAVY_LIGHT * light_sum)
                 & (hit_var_sum > HEAVY_SHARE * var_sum) & (light_sum > 0))
 

@@ -155,6 +155,16 @@ def test_one_or_two_fireflies_are_not_a_region(monkeypatch):
     assert rare_path_mask(buffers["two"]).any()
 
 
+def test_pixels_of_unknown_variance_that_caught_a_firefly_do_not_hide_the_others():
+    """An unknown variance is stored as 0: a pixel whose mean a firefly made would look steady at that level."""
+    count, mean, variance = _sparks(n=8)
+    known = np.random.default_rng(5).random((96, 96)) > 0.1
+    buffer = SampleBuffer.from_moments(count, np.repeat(mean[..., None], 3, -1),
+                                       np.repeat(np.where(known, variance, 0.0)[..., None], 3, -1),
+                                       variance_known=known)
+    assert rare_path_mask(buffer).mean() > 0.9
+
+
 def test_a_pixel_the_ranking_gave_many_samples_weighs_as_one_pixel():
     """Seven pixels of a small disc that took 400 samples each (nine hits of 40 on a base of 1): a tenth of the
     window's samples' sum but 1% of its pixels' light, which is what ranking them can take off the image mean
@@ -182,20 +192,23 @@ def test_a_small_bright_steady_patch_does_not_hide_the_fireflies_around_it():
 
 def test_hits_gathered_in_a_small_disc_are_not_a_field_of_fireflies():
     """Four pixels with one hit each (400 times a steady base of 1, 8 spp), a seventh of their window's light: in
-    four blocks they are a field of fireflies; gathered in one 2 x 2 square, a small disc of rare light (a light seen
-    in glass), which ranking does not darken and evening costs its error (HEAVY_HITS counts blocks), also in a
-    corner of the frame (whose block is not counted again for every copy past the edges)."""
+    four blocks they are a field of fireflies; gathered in one 2 x 2 square, a small disc of rare light, which
+    ranking does not darken and evening costs its error (HEAVY_HITS counts separate hits, groups of touching
+    pixels, wherever they lie on the blocks), also in a corner of the frame."""
     samples = np.ones(8)
     samples[0] = 400.0
     found = {}
     for name, places in (("spread", ((40, 40), (40, 52), (52, 40), (52, 52))),
                          ("gathered", ((40, 40), (40, 41), (41, 40), (41, 41))),
+                         ("gathered across four blocks", ((39, 39), (39, 40), (40, 39), (40, 40))),
                          ("gathered in a corner", ((0, 0), (0, 1), (1, 0), (1, 1)))):
         count, mean, variance = _sparks(p=0.0, n=8, base=1.0)
         for y, x in places:
             mean[y, x], variance[y, x] = samples.mean(), samples.var(ddof=1)
         found[name] = rare_path_mask(_buffer(count, mean, variance))
-    assert found["spread"][46, 46] and not found["gathered"].any() and not found["gathered in a corner"].any()
+    assert found["spread"][46, 46]
+    for name in ("gathered", "gathered across four blocks", "gathered in a corner"):
+        assert not found[name].any(), name
 
 
 def test_the_rim_of_lights_one_pixel_wide_is_not_taken_for_fireflies():
@@ -253,6 +266,15 @@ def test_signed_data_has_no_rare_paths():
     rng = np.random.default_rng(3)
     mean = rng.normal(0.0, 0.5, (64, 64))
     assert not rare_path_mask(_buffer(np.full((64, 64), 4), mean, np.full((64, 64), 1.0))).any()
+
+
+def test_fireflies_beside_levels_near_float64s_bottom_raise_nothing():
+    """A lit base with fireflies, and pixels 1e-300 of the brightest (a variance near float64's least normal)."""
+    count, mean, variance = _sparks(n=8)
+    mean[:8, :8], variance[:8, :8] = 1e-300, 2.3e-308
+    with np.errstate(all="raise"):
+        mask = rare_path_mask(_buffer(count, mean, variance))
+    assert mask[48:, 48:].all()
 
 
 @pytest.mark.parametrize("scale", [1e-150, 1e-100, 1e100, 1e150])

@@ -176,6 +176,7 @@ def test_rare_paths_add_uniform_samplings_reconstruction_and_table_every_method(
     assert methods[:2] == ["uniform", "uniform, reconstructed"]
     assert methods[2:] == [f"AWR sampling, {k}" for k in bias.RARE_PATH_VARIANTS]
     assert "rare paths ranked" in bias.RARE_PATH_VARIANTS and bias.RARE_PATH_VARIANTS["default"] == {}
+    assert bias.RARE_PATH_VARIANTS["fireflies ranked"] == {"rare_paths": "zeros"}  # the default before fireflies
     # the ranked variant is the previous sampler: it samples this scene otherwise, and darker
     assert got["rare paths ranked"]["image_mean_error"] < got["default"]["image_mean_error"]
 
