@@ -252,7 +252,7 @@ def _heavy_tails(base: BoolArray, own: FloatArray, count: FloatArray, mean: Floa
         # group of touching pixels, counted once (in the block of its first pixel) wherever it lies on the blocks.
         hit = np.zeros(count.shape, dtype=bool)
         hit[rows, cols] = True
-        labels, groups = ndimage.label(hit, structure=np.ones((3, 3), dtype=bool))
+        labels = ndimage.label(hit, structure=np.ones((3, 3), dtype=bool))[0]
         first = np.unique(labels[rows, cols], return_index=True)[1]
         hit_groups = np.bincount(at[first], minlength=blocks[0] * blocks[1]).reshape(blocks).astype(np.float64)
         sums = [_zero_padded_window(x) for x in (_blocks(light), hit_light, _blocks(spread), hit_spread, hit_groups)]
@@ -260,7 +260,7 @@ def _heavy_tails(base: BoolArray, own: FloatArray, count: FloatArray, mean: Floa
         # A window cut by the image's edges needs its share of the groups, and never fewer than all but one.
         least = np.maximum(HEAVY_HITS * pixels / float((HEAVY_WINDOW * BLOCK) ** 2), HEAVY_HITS - 1)
         return (lit_base & (hits >= least) & (hit_light_sum > HEAVY_LIGHT * light_sum)
-                & (hit_var_sum > HEAVY_SHARE * var_sum) & (light_sum > 0))
+                & (hit_var_sum > HEAVY_SHARE * var_sum))
 
 
 def _zero_padded_window(blocks: FloatArray) -> FloatArray:
