@@ -26,6 +26,7 @@ from awr_denoise.io.request_map import MAX_ROUND
 from awr_denoise.sampling import SAMPLERS
 
 from .errors import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, RuntimeFailure, UsageError, one_line_warnings, shown
+from .sampler_settings import carried_settings
 from .values import MAX_FRAMES, MAX_SEED, MAX_SPP, nonempty, whole
 
 __all__ = [
@@ -187,10 +188,11 @@ def dumped_round(path: str | os.PathLike[str], attributes: dict) -> int:
 
 def run_settings_refused(path: str | os.PathLike[str], attributes: dict) -> str | None:
     """The line ``plan`` would refuse a running dump with for its ``awr:*`` run settings (strategy, first round's
-    spp, seed, round; plan's own checks), or ``None``: ``info`` reports it beside "ready to denoise", which is
-    about ``denoise``."""
+    spp, the sampler's settings, seed, round; plan's own checks), or ``None``: ``info`` reports it beside "ready
+    to denoise", which is about ``denoise``."""
     try:
         run_settings(path, attributes)
+        carried_settings(path, attributes)
         dumped_seed(path, attributes)
         dumped_round(path, attributes)
     except InputFileError as error:

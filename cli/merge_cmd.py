@@ -28,11 +28,14 @@ from awr_denoise.io.request_map import MAX_ROUND
 
 from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, run_settings, status
 from .paths import PathPlan, check_plane_windows, plane_options
+from .sampler_settings import CARRIED, carried_settings
 from .values import MAX_SEED, MAX_SPP, nonempty
 
 __all__ = ["register", "run"]
 
-_KEPT = ("seed", "round", "strategy", "initial_spp", "scene")  # provenance carried from the running dump
+# Provenance carried from the running dump: its run's, and the settings its sampler ranked with.
+_KEPT = ("seed", "round", "strategy", "initial_spp", "scene") + tuple(key.removeprefix("awr:")
+                                                                      for _, key, _, _ in CARRIED)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -294,6 +297,7 @@ def run(args: argparse.Namespace) -> int:
         if index == 0:
             first, attrs = dump.buffer, {k: v for k, v in dump.attributes.items() if k.removeprefix("awr:") in _KEPT}
             run_settings(path, attrs)  # carried into the output for plan: checked as plan checks them
+            carried_settings(path, attrs)
         else:
             _check_match(path, dump.buffer, first, args.inputs[0])
         is_told = bool(args.request) and index == len(args.inputs) - 1
@@ -321,7 +325,12 @@ def run(args: argparse.Namespace) -> int:
             status(f"{args.inputs[-1]}: {note}", quiet=args.quiet)
         asked = request_attributes(args.request)
         run_settings(args.request, {k: v for k, v in asked.items() if v is not None})
-        for key in ("awr:strategy", "awr:initial_spp"):  # the run's, which plan continues (uniform stays uniform)
+        carried_settings(args.request, {k: v for k, v in asked.items() if v is not None})
+        settings = ("awr:strategy", "awr:initial_spp") + tuple(key for _, key, _, _ in CARRIED)
+        if asked.get("awr:strategy") is not None:  # the run's newest settings replace the dump's (a new strategy)
+            for key in settings:
+                attrs.pop(key, None)
+        for key in settings:  # the run's, which plan continues (uniform stays uniform)
             if asked.get(key) is not None:
                 attrs[key] = asked[key]
         seed = request_attributes(args.request).get("awr:seed")

@@ -16,6 +16,7 @@ from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 
 from .common import (EXIT_OK, UsageError, add_plane_options, check_memory, dump_options_given, dumped_round,
                      dumped_seed, plane_kwargs, run_settings, status)
+from .sampler_settings import CARRIED, MAX_ROUND_GROWTH, carried_settings, sampler_settings
 from .paths import PathPlan, check_plane_windows, plane_options
 from .values import MAX_LEVELS, MAX_SEED, MAX_SPP, image_size, nonempty, real, wavelet_name, whole
 
@@ -39,7 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="total new samples of this round")
     budget.add_argument("--round-spp", type=real(above=0, maximum=MAX_SPP), metavar="S",
                         help="new samples of this round per pixel on average")
-    budget.add_argument("--round-growth", type=real(above=0, maximum=1e6), metavar="G",
+    budget.add_argument("--round-growth", type=real(above=0, maximum=MAX_ROUND_GROWTH), metavar="G",
                         help="new samples of this round as a share of the samples taken so far (default "
                              f"{DEFAULT_ROUND_GROWTH})")
     p.add_argument("--size", type=image_size, metavar="WxH", help="image size of the first round (without a dump)")
@@ -83,16 +84,25 @@ def run(args: argparse.Namespace) -> int:
     check_plane_windows(args.input, plane_options(args))
     # A run keeps its strategy and first round's spp (the least a pixel is brought up to) through
     # files: merge carries them from each request into the dump (a uniform baseline stays uniform).
-    dumped, dumped_initial = (None, None) if args.input is None else run_settings(args.input, read_header(args.input))
+    header = {} if args.input is None else read_header(args.input)
+    dumped, dumped_initial = (None, None) if args.input is None else run_settings(args.input, header)
     from_dump = args.strategy is None and dumped is not None
     if args.strategy is None:
         args.strategy = dumped or AdaptiveSampler.strategy
     cls = SAMPLERS[args.strategy]
-    options: dict = {"spp_max": args.spp_max}
     same_run = dumped is None or dumped == args.strategy
+    # The run's sampler settings (another strategy: its own defaults), each where its option is not given.
+    carried = carried_settings(args.input, header, args.strategy) if args.input is not None and same_run else {}
+    named = {name: option for name, _, option, _ in CARRIED}  # what set each: an option, or the dump
+    for name, key, _, _ in CARRIED:
+        if name in carried and getattr(args, name) is None:
+            setattr(args, name, carried[name])
+            named[name] = f"{args.input}: {key}"
+    options: dict = {"spp_max": args.spp_max}
     if args.initial_spp is not None and args.spp_max is not None and args.initial_spp > args.spp_max:
-        raise UsageError(f"--initial-spp: {args.initial_spp} exceeds --spp-max {args.spp_max}, the most any pixel "
-                         "may have")
+        cap = f"--spp-max {args.spp_max}" if named["spp_max"] == "--spp-max" else f"awr:spp_max {args.spp_max} of " \
+            f"{args.input}"
+        raise UsageError(f"--initial-spp: {args.initial_spp} exceeds {cap}, the most any pixel may have")
     if args.initial_spp is None and dumped_initial is not None and same_run:  # another strategy: its own default
         args.initial_spp = dumped_initial
     if args.initial_spp is not None:  # else the strategy's own default
@@ -134,8 +144,9 @@ def run(args: argparse.Namespace) -> int:
         dump = read_sample_dump(args.input, **plane_kwargs(args))
         windows = read_windows(args.input)  # the request covers the dump's pixels, where they are
         if args.levels is not None and args.levels > max_levels(dump.buffer.shape):
-            raise UsageError(f"--levels: {args.levels} is outside 1..{max_levels(dump.buffer.shape)} for the "
-                             f"image of {args.input}")
+            image = f"the image of {args.input}" if named["levels"] == "--levels" else "its image"
+            raise UsageError(f"{named['levels']}: {args.levels} is outside 1..{max_levels(dump.buffer.shape)} for "
+                             f"{image}")
         seed = dumped_seed(args.input, dump.attributes)
         if args.seed is not None and "awr:seed" in dump.attributes and args.seed != seed:
             # A dump's samples continue one random sequence; merge would refuse the batch.
@@ -154,11 +165,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         request = sampler.ask(budget)
         plan.check_unchanged()  # after the last read: the dump and its windows are of one version
-        write_request(args.output, request, header={**provenance(seed=seed, strategy=args.strategy,
-                                                                  initial_spp=sampler.initial_spp), **windows},
-                      overwrite=args.overwrite)
+        header = {**provenance(seed=seed, strategy=args.strategy, initial_spp=sampler.initial_spp),
+                  **sampler_settings(sampler), **windows}
+        write_request(args.output, request, header=header, overwrite=args.overwrite)
     except ValueError as exc:  # the library names its arguments; name the option that set them
-        option = _option_behind(str(exc), args)
+        option = _option_behind(str(exc), args, named["spp_max"])
         if option is None:
             raise
         raise UsageError(f"{option}: {str(exc).split(': ', 1)[-1]}") from None
@@ -185,10 +196,11 @@ def _refuse_what_a_first_round_ignores(args: argparse.Namespace) -> None:
         raise UsageError(f"--initial-spp: the first round's samples per pixel, which {size} sets too; give one")
 
 
-def _option_behind(message: str, args: argparse.Namespace) -> str | None:
-    """The option given that set what a sampler's refusal names (``spp_max``, the round's size)."""
+def _option_behind(message: str, args: argparse.Namespace, spp_max: str) -> str | None:
+    """The option given (or ``spp_max``, the dump's attribute that set it) that set what a sampler's refusal names
+    (``spp_max``, the round's size)."""
     if "spp_max" in message and args.spp_max is not None:
-        return f"--spp-max {args.spp_max:g}"
+        return f"{spp_max} {args.spp_max:g}"
     if message.startswith(("budget:", "first_index + counts:")):
         if args.round_spp is not None:
             return f"--round-spp {args.round_spp:.10g}"

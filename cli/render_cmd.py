@@ -40,6 +40,7 @@ from .denoise_cmd import (add_reconstruction_options, check_reconstruction_optio
                           unused_features)
 from .parallel_options import DEFAULT_TILE, add_executor_arguments, executor_from_args, executor_requested
 from .paths import PathPlan
+from .sampler_settings import MAX_ROUND_GROWTH, sampler_settings
 from .values import MAX_EXPOSURE, MAX_SEED, MAX_SIDE, MAX_SPP, check_pixels, feature_list, nonempty, real, whole
 
 __all__ = ["register", "run", "tracer_module", "default_scene", "render_buffer", "derived_path"]
@@ -95,10 +96,11 @@ def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float | No
                   quiet: bool, initial_spp: int = DEFAULT_AWR_INITIAL_SPP, round_growth: float = DEFAULT_ROUND_GROWTH,
                   noise_model: str = DEFAULT_NOISE_MODEL, gain_refresh: float | None = None,
                   seconds: float | None = None, reserve: Callable[[SampleBuffer], float] | None = None,
-                  rare_paths: str = DEFAULT_RARE_PATHS) -> tuple[SampleBuffer, Any, int]:
-    """(buffer, issued, next round) of a uniform or adaptive render at ``spp`` on average, or adaptive rounds for
-    ``seconds`` (``spp`` then a cap, ``None`` for none) of which ``reserve`` keeps the denoising's time
-    (:meth:`~awr_denoise.Sampler.run`).
+                  rare_paths: str = DEFAULT_RARE_PATHS) -> tuple[SampleBuffer, Any, int, dict[str, int | str]]:
+    """(buffer, issued, next round, the sampler's settings) of a uniform or adaptive render at ``spp`` on average,
+    or adaptive rounds for ``seconds`` (``spp`` then a cap, ``None`` for none) of which ``reserve`` keeps the
+    denoising's time (:meth:`~awr_denoise.Sampler.run`). The settings are the header attributes ``awr plan``
+    continues the run with (:func:`.sampler_settings.sampler_settings`; none for a uniform render).
 
     The renderer is closed afterwards when it is a :class:`~awr_denoise.requests.SampleTracer`.
     """
@@ -109,12 +111,12 @@ def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float | No
                 raise UsageError(f"--spp: a uniform render needs whole samples per pixel, got {spp}")
             request = SampleRequest.uniform(shape, int(spp))
             buffer = renderer(request)
-            return buffer, request.first_index + request.counts, 1
+            return buffer, request.first_index + request.counts, 1, {}
         awr = AdaptiveSampler(shape, initial_spp=first_round_spp(initial_spp, spp), seed=seed,
                               round_growth=round_growth, noise_model=noise_model, gain_refresh=gain_refresh,
                               rare_paths=rare_paths)
         buffer = awr.run(renderer, total_spp=spp, seconds=seconds, reserve=reserve, progress=not quiet)
-        return buffer, awr.issued, awr.round
+        return buffer, awr.issued, awr.round, sampler_settings(awr)
     finally:
         if isinstance(renderer, SampleTracer):
             renderer.close()
@@ -157,7 +159,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     mode.add_argument("--uniform", dest="adaptive", action="store_false", help="the same count at every pixel")
     p.add_argument("--initial-spp", type=whole(minimum=1, maximum=MAX_SPP),
                    help=f"samples per pixel of the first adaptive round (default {DEFAULT_AWR_INITIAL_SPP})")
-    p.add_argument("--round-growth", type=real(above=0, maximum=1e6), metavar="G",
+    p.add_argument("--round-growth", type=real(above=0, maximum=MAX_ROUND_GROWTH), metavar="G",
                    help="adaptive rounds ask for this share of the samples taken so far "
                         f"(default {DEFAULT_ROUND_GROWTH}; larger: fewer, cheaper rounds, see docs/sampling.md)")
     p.add_argument("--noise-model", choices=NOISE_MODELS,
@@ -333,7 +335,7 @@ def run(args: argparse.Namespace) -> int:
                 probe.close()
         with executor_from_args(args) as executor:
             tiled = TiledRenderer(spec, tile=args.tile or DEFAULT_TILE, executor=executor)
-            buffer, issued, next_round = render_buffer(tiled, frame, reserve=_reserve(args, start), **render)
+            buffer, issued, next_round, settings = render_buffer(tiled, frame, reserve=_reserve(args, start), **render)
     else:
         # A uniform render is one request: the renderer's own bar shows it. Adaptive rounds get
         # the sampler's bar instead of one renderer bar per round.
@@ -342,7 +344,7 @@ def run(args: argparse.Namespace) -> int:
         with _as_options(args.renderer):
             renderer = create_renderer(args.renderer, scene, shape=shape, seed=args.seed, **options)
         check_pixels(f"SCENE {given}: its film", *renderer.shape)  # a size the scene file declares
-        buffer, issued, next_round = render_buffer(renderer, renderer.shape, reserve=_reserve(args, start), **render)
+        buffer, issued, next_round, settings = render_buffer(renderer, renderer.shape, reserve=_reserve(args, start), **render)
     seconds = time.perf_counter() - start
     strategy = "awr" if args.adaptive else "uniform"
     # A running dump (its samples every pixel's sequence from 0), and the run's strategy and first
@@ -352,6 +354,7 @@ def run(args: argparse.Namespace) -> int:
         first["initial_spp"] = first_round_spp(args.initial_spp or DEFAULT_AWR_INITIAL_SPP, spp)
     header = provenance(scene=name, seed=args.seed, sampler=args.sampler, strategy=strategy, round=next_round,
                         render_seconds=float(seconds), renderer=args.renderer, running=1, **first)
+    header.update(settings)  # the sampler's, which awr plan continues too
     check_reconstruction_options(args, buffer.shape, name)
     result = reconstruct_detailed(buffer, variance_probes=0, **reconstruction_kwargs(args))
     # The dump, the image and the preview: all three or none.

@@ -28,6 +28,7 @@ from awr_denoise.io import (  # noqa: E402
     write_sample_buffer,
 )
 from awr_denoise.io.colour import MITSUBA_XYZ_TO_SRGB  # noqa: E402
+from awr_denoise.io.request_map import request_attributes  # noqa: E402
 from awr_denoise.io.provenance import provenance  # noqa: E402
 from awr_denoise.metrics import relmse  # noqa: E402
 from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP  # noqa: E402
@@ -566,6 +567,13 @@ def test_merge_is_exact_chan_update(tmp_path, rng, capsys):
 
 
 @pytest.mark.parametrize("attribute, value, needle", [("awr:strategy", "evil", "'evil' is not one of awr"),
+                                                      ("awr:rare_paths", "evil", "'evil' is not one of even"),
+                                                      ("awr:noise_model", "evil", "'evil' is not one of levels"),
+                                                      ("awr:round_growth", "nan", "not a number above 0"),
+                                                      ("awr:round_growth", "1e7", "not a number above 0"),
+                                                      ("awr:priority_wavelet", "dmey", "not a wavelet"),
+                                                      ("awr:priority_levels", 0, "outside 1.."),
+                                                      ("awr:spp_max", "x", "not a whole number"),
                                                       ("awr:initial_spp", 0, "outside 1..")])
 def test_merge_refuses_a_run_setting_plan_would_refuse(tmp_path, rng, capsys, attribute, value, needle):
     """merge carried a running dump's strategy and first round's spp into its output unchecked: exit 0, and the
@@ -582,6 +590,13 @@ def test_merge_refuses_a_run_setting_plan_would_refuse(tmp_path, rng, capsys, at
 
 @pytest.mark.parametrize("attribute, value, needle", [("awr:strategy", "evil", "'evil' is not one of awr"),
                                                       ("awr:initial_spp", 0, "outside 1.."),
+                                                      ("awr:rare_paths", "evil", "'evil' is not one of even"),
+                                                      ("awr:noise_model", "evil", "'evil' is not one of levels"),
+                                                      ("awr:round_growth", "nan", "not a number above 0"),
+                                                      ("awr:round_growth", "1e7", "not a number above 0"),
+                                                      ("awr:priority_wavelet", "dmey", "not a wavelet"),
+                                                      ("awr:priority_levels", 0, "outside 1.."),
+                                                      ("awr:spp_max", "x", "not a whole number"),
                                                       ("awr:seed", "x", "not a whole number"),
                                                       ("awr:round", 0, "outside 1..")])
 def test_info_says_which_run_setting_plan_refuses(tmp_path, rng, capsys, attribute, value, needle):
@@ -1275,6 +1290,80 @@ def test_plan_rare_paths_reaches_the_ranking_samplers(tmp_path, capsys, rng, mon
                  "-o", str(tmp_path / "u.exr")]) == 2
     _one_error_line(capsys, "--rare-paths", "only the strategies that rank pixels")
     assert not (tmp_path / "u.exr").exists()
+
+
+def test_render_records_the_sampler_settings_plan_continues(tmp_path, capsys, fake_tracer, monkeypatch):
+    """A render's sampler settings were not in its dump: a plan continuing it ranked with the defaults, whatever
+    the render had ranked with, without a word."""
+    seen = _rare_paths_choices(monkeypatch)
+    dump = _rendered(tmp_path, 8, "--rare-paths", "zeros", extra=["--noise-model", "levels", "--round-growth", "0.3"])
+    attrs = dump.attributes
+    assert (attrs["awr:rare_paths"], attrs["awr:noise_model"], attrs["awr:round_growth"]) == ("zeros", "levels", "0.3")
+    assert attrs["awr:priority_wavelet"] == "bior4.4" and "awr:priority_levels" not in attrs  # automatic: unsaid
+    assert "awr:spp_max" not in attrs
+    seen.clear()
+    source = tmp_path / "--rare-pathszeros.exr"
+    assert main(["plan", str(source), "-o", str(tmp_path / "carried.exr"), "-q"]) == 0
+    assert seen == ["zeros"]
+    asked = request_attributes(tmp_path / "carried.exr")
+    assert (asked["awr:rare_paths"], asked["awr:noise_model"], asked["awr:round_growth"]) == ("zeros", "levels", "0.3")
+    # The round's size is the render's growth: 30% of the samples so far, not the default 25%.
+    assert read_request(tmp_path / "carried.exr").total == round(0.3 * dump.buffer.total_samples)
+    seen.clear()
+    assert main(["plan", str(source), "--rare-paths", "even", "-o", str(tmp_path / "given.exr"), "-q"]) == 0
+    assert seen == ["even"] and request_attributes(tmp_path / "given.exr")["awr:rare_paths"] == "even"
+    uniform = tmp_path / "u.exr"
+    assert main(["render", "--uniform", "--spp", "2", "-o", str(uniform), "-q"]) == 0
+    assert not {"awr:rare_paths", "awr:noise_model", "awr:round_growth"} & set(read_sample_dump(uniform).attributes)
+
+
+def test_a_run_through_files_keeps_its_sampler_settings(tmp_path, capsys, monkeypatch):
+    """``--rare-paths`` and ``--noise-model`` given to one plan held for that round only: the next plan without
+    them ranked with the defaults. The request records them, merge carries them into the dump, plan continues
+    them; an option given overrides them, and another strategy starts from its own defaults."""
+    ext = _external()
+    seen = _rare_paths_choices(monkeypatch)
+
+    def loop(dump, request, batch, out):
+        assert ext.main([str(tmp_path / request), str(tmp_path / batch)]) == 0
+        inputs = [str(tmp_path / batch)] if dump is None else [str(tmp_path / dump), str(tmp_path / batch)]
+        assert main(["merge", *inputs, "--request", str(tmp_path / request), "-o", str(tmp_path / out), "-q"]) == 0
+        return read_sample_dump(tmp_path / out).attributes
+
+    assert main(["plan", "--size", f"{W}x{H}", "--seed", "3", "-o", str(tmp_path / "r0.exr"), "-q"]) == 0
+    assert loop(None, "r0.exr", "b0.exr", "d1.exr")["awr:rare_paths"] == "even"  # the first round's: the defaults
+    assert main(["plan", str(tmp_path / "d1.exr"), "--rare-paths", "zeros", "--noise-model", "levels", "--round-spp",
+                 "2", "-o", str(tmp_path / "r1.exr"), "-q"]) == 0
+    attrs = loop("d1.exr", "r1.exr", "b1.exr", "d2.exr")
+    assert (attrs["awr:rare_paths"], attrs["awr:noise_model"], attrs["awr:strategy"]) == ("zeros", "levels", "awr")
+    seen.clear()
+    for name, given in (("carried", []), ("given", ["--rare-paths", "zeros", "--noise-model", "levels"]),
+                        ("defaults", ["--rare-paths", "even", "--noise-model", "shrinkage"])):
+        assert main(["plan", str(tmp_path / "d2.exr"), "--budget", "800", *given, "-o", str(tmp_path / f"{name}.exr"),
+                     "-q"]) == 0
+    assert seen == ["zeros", "zeros", "even"]
+    counts = {name: read_request(tmp_path / f"{name}.exr").counts for name in ("carried", "given", "defaults")}
+    assert np.array_equal(counts["carried"], counts["given"])
+    assert not np.array_equal(counts["carried"], counts["defaults"])  # the levels rank otherwise
+    # Another strategy: its own defaults, and the awr run's settings it does not use are not carried on.
+    assert main(["plan", str(tmp_path / "d2.exr"), "--strategy", "variance", "--round-spp", "2", "-o",
+                 str(tmp_path / "r2.exr"), "-q"]) == 0
+    attrs = loop("d2.exr", "r2.exr", "b2.exr", "d3.exr")
+    assert attrs["awr:strategy"] == "variance" and attrs["awr:rare_paths"] == "even"
+    assert "awr:noise_model" not in attrs and "awr:priority_wavelet" not in attrs
+
+
+def test_plan_names_the_dump_s_setting_it_refuses(tmp_path, rng, capsys):
+    """A carried setting that does not fit is refused naming the file and the attribute, not an option never given."""
+    buf = _dump(tmp_path / "d.exr", rng)
+    for header, given, needle in (({"awr:priority_levels": 9}, [], "bad.exr: awr:priority_levels: 9 is outside 1..4 "
+                                   "for its image"),
+                                  ({"awr:spp_max": 4}, ["--initial-spp", "8"], "exceeds awr:spp_max 4 of "),
+                                  ({"awr:spp_max": 4}, [], "bad.exr: awr:spp_max 4: 1536 samples exceed")):
+        write_sample_buffer(tmp_path / "bad.exr", buf, header=header, overwrite=True)
+        assert main(["plan", str(tmp_path / "bad.exr"), *given, "-o", str(tmp_path / "r.exr"), "-q"]) == 2
+        _one_error_line(capsys, "bad.exr", needle)
+        assert not (tmp_path / "r.exr").exists()
 
 
 def test_render_gain_refresh_reaches_the_sampler(tmp_path, capsys, fake_tracer, monkeypatch):

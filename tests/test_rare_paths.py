@@ -155,6 +155,21 @@ def test_one_or_two_fireflies_are_not_a_region(monkeypatch):
     assert rare_path_mask(buffers["two"]).any()
 
 
+def test_a_corner_window_needs_all_but_one_of_the_hits_not_its_share_alone():
+    """A window cut by the frame's corner holds 5 x 5 of its 9 x 9 blocks, so its share of HEAVY_HITS is 1.2: two
+    fireflies there would make a region that two anywhere else do not. Its least is all but one (3)."""
+    samples = np.full(8, 0.5)
+    samples[0] = 1500.0
+    found = {}
+    for name, places in {"two": ((2, 2), (2, 10)), "three": ((2, 2), (2, 10), (10, 2))}.items():
+        count, mean, variance = _sparks(p=0.0, n=8)
+        for y, x in places:
+            mean[y, x], variance[y, x] = samples.mean(), samples.var(ddof=1)
+        found[name] = rare_path_mask(_buffer(count, mean, variance))
+    assert not found["two"].any()
+    assert found["three"][:4, :4].all()
+
+
 def test_pixels_of_unknown_variance_that_caught_a_firefly_do_not_hide_the_others():
     """An unknown variance is stored as 0: a pixel whose mean a firefly made would look steady at that level."""
     count, mean, variance = _sparks(n=8)
