@@ -160,7 +160,8 @@ def rare_path_mask(buffer: SampleBuffer, *, fireflies: bool = True) -> BoolArray
         deviation = np.sqrt(np.asarray(buffer.variance)) @ weights
     # In units of a power of two near the largest level, exactly (the tests are ratios): no square under- or
     # overflows for levels anywhere in float64's range.
-    top = max(float(np.max(np.abs(mean), initial=0.0)), float(np.max(deviation, initial=0.0)))
+    top = max(float(np.max(mean, initial=0.0)), -float(np.min(mean, initial=0.0)),
+              float(np.max(deviation, initial=0.0)))
     if not (np.isfinite(top) and top > 0):
         return np.zeros(count.shape, dtype=bool)
     unit = float(np.ldexp(1.0, int(np.frexp(top)[1]) - 1))  # at most top: finite
@@ -169,9 +170,8 @@ def rare_path_mask(buffer: SampleBuffer, *, fireflies: bool = True) -> BoolArray
         sample_var = np.square(deviation)
     lit = mean > 0
     # Pixels of zeros in an all-zero BACKDROP square: a pixel whose square holds no lit pixel, grown back to it.
-    backdrop = ndimage.maximum_filter(~ndimage.maximum_filter(lit, size=BACKDROP, mode="nearest"), size=BACKDROP,
-                                      mode="nearest")
-    near = ndimage.maximum_filter(lit, size=3, mode="nearest")
+    backdrop = _dilated(~_dilated(lit, BACKDROP), BACKDROP)
+    near = _dilated(lit, 3)
     region = (lit | (near & ~backdrop)) & (count >= 2)
     if not region.any():
         return np.zeros(count.shape, dtype=bool)
@@ -192,7 +192,8 @@ def rare_path_mask(buffer: SampleBuffer, *, fireflies: bool = True) -> BoolArray
     dof = np.where(varied & np.asarray(buffer.variance_known), count - 1.0, 0.0)
     n = np.where(varied, count, 0.0)
     own[~region] = 0.0
-    sums = [_blocks(x) for x in (n, n * mean, dof, dof * sample_var, region, own)]
+    sums = [_blocks(x) for x in (n, n * mean, dof, dof * sample_var)] + [_count(region).astype(np.float64),
+                                                                          _blocks(own)]
     n_sum, nm_sum, dof_sum, var_sum, pixels, own_sum = (_window(s) for s in sums)
     negative = mean < 0  # any pixel's, in the region or not
     negative = _window(_blocks(negative)) if negative.any() else np.zeros_like(pixels)
@@ -220,9 +221,14 @@ def _heavy_tails(base: BoolArray, own: FloatArray, count: FloatArray, mean: Floa
     # Pixels whose samples are all 0 (a backdrop, or misses of rare paths the first tests judge): not a lit base;
     # and signed data has no rare paths (a negative mean anywhere in the window). Judged first: a frame of zeros
     # (the first tests' regions) has no window to look at further.
-    dark_pixels, lit_pixels, negative, pixels = (_zero_padded_window(_count(x)) for x in (
-        (mean == 0) & (count >= 2), base, mean < 0, np.ones(count.shape, dtype=bool)))
-    lit_base = (dark_pixels <= HEAVY_DARK * (lit_pixels + dark_pixels)) & (negative == 0) & (lit_pixels > 0)
+    # (Counts: their window sums are exact in any order, so they are taken from running sums. A mask with no pixel
+    # is not summed.)
+    dark, negative = (mean == 0) & (count >= 2), mean < 0
+    lit_pixels = _counts_around(_count(base))
+    dark_pixels = _counts_around(_count(dark)) if dark.any() else 0.0
+    lit_base = (dark_pixels <= HEAVY_DARK * (lit_pixels + dark_pixels)) & (lit_pixels > 0)
+    if negative.any():
+        lit_base &= _counts_around(_count(negative)) == 0
     if not lit_base.any():
         return lit_base
     with np.errstate(over="ignore", divide="ignore", invalid="ignore", under="ignore"):
@@ -240,27 +246,61 @@ def _heavy_tails(base: BoolArray, own: FloatArray, count: FloatArray, mean: Floa
         rows, cols = np.nonzero(candidate)
         level = mean[rows, cols] + deviation[rows, cols] ** 2 / mean[rows, cols]
         above = level > HEAVY_RATIO * top[rows // BLOCK, cols // BLOCK]
-        # Per pixel, not per sample: the image mean weighs each pixel alike, and a pixel the ranking gave hundreds
-        # of samples must not weigh more for them.
-        light = np.where(base, mean, 0.0)
-        spread = np.where(base & known, deviation * deviation, 0.0)
         rows, cols = rows[above], cols[above]
         at = (rows // BLOCK) * blocks[1] + cols // BLOCK
-        hit_light, hit_spread = (np.bincount(at, weights=weights, minlength=blocks[0] * blocks[1]).reshape(blocks)
-                                 for weights in (light[rows, cols], spread[rows, cols]))
         # Separate hits, not pixels with one: a field of fireflies scatters them, a small disc of rare light is one
         # group of touching pixels, counted once (in the block of its first pixel) wherever it lies on the blocks.
         hit = np.zeros(count.shape, dtype=bool)
         hit[rows, cols] = True
         labels = ndimage.label(hit, structure=np.ones((3, 3), dtype=bool))[0]
         first = np.unique(labels[rows, cols], return_index=True)[1]
-        hit_groups = np.bincount(at[first], minlength=blocks[0] * blocks[1]).reshape(blocks).astype(np.float64)
-        sums = [_zero_padded_window(x) for x in (_blocks(light), hit_light, _blocks(spread), hit_spread, hit_groups)]
-        light_sum, hit_light_sum, var_sum, hit_var_sum, hits = sums
+        hits = _counts_around(np.bincount(at[first], minlength=blocks[0] * blocks[1]).reshape(blocks))
         # A window cut by the image's edges needs its share of the groups, and never fewer than all but one.
-        least = np.maximum(HEAVY_HITS * pixels / float((HEAVY_WINDOW * BLOCK) ** 2), HEAVY_HITS - 1)
-        return (lit_base & (hits >= least) & (hit_light_sum > HEAVY_LIGHT * light_sum)
-                & (hit_var_sum > HEAVY_SHARE * var_sum))
+        pixels = _counts_around(np.outer(_block_sides(count.shape[0]), _block_sides(count.shape[1])))
+        lit_base &= hits >= np.maximum(HEAVY_HITS * pixels / float((HEAVY_WINDOW * BLOCK) ** 2), HEAVY_HITS - 1)
+        if not lit_base.any():  # the shares below are summed only where enough hits are
+            return lit_base
+        # Per pixel, not per sample: the image mean weighs each pixel alike, and a pixel the ranking gave hundreds
+        # of samples must not weigh more for them.
+        light = np.where(base, mean, 0.0)
+        spread = np.where(base & known, deviation * deviation, 0.0)
+        hit_light, hit_spread = (np.bincount(at, weights=weights, minlength=blocks[0] * blocks[1]).reshape(blocks)
+                                 for weights in (light[rows, cols], spread[rows, cols]))
+        light_sum, hit_light_sum, var_sum, hit_var_sum = (_zero_padded_window(x) for x in (
+            _blocks(light), hit_light, _blocks(spread), hit_spread))
+        return lit_base & (hit_light_sum > HEAVY_LIGHT * light_sum) & (hit_var_sum > HEAVY_SHARE * var_sum)
+
+
+def _dilated(mask: BoolArray, size: int) -> BoolArray:
+    """Whether any pixel of ``mask`` lies in the ``size`` x ``size`` square (odd ``size``) around each pixel, the square
+    cut by the image's edges (scipy's ``maximum_filter`` with ``mode="nearest"``): shifted copies or-ed, a window's
+    span doubling each time, for scipy's loop over the window's entries."""
+    r = size // 2
+    out = np.pad(mask, r)  # False past the edges: the square cut there
+    for axis in (0, 1):
+        span = 1  # out[i] holds the pixels i .. i + span - 1 along the axis
+        while span < size:
+            step = min(span, size - span)
+            ahead = [slice(None)] * 2
+            ahead[axis] = slice(step, None)
+            behind = [slice(None)] * 2
+            behind[axis] = slice(None, -step)
+            out[tuple(behind)] |= out[tuple(ahead)]
+            span += step
+    return out[:mask.shape[0], :mask.shape[1]]
+
+
+def _counts_around(blocks: np.ndarray) -> FloatArray:
+    """:func:`_zero_padded_window` of whole numbers (below 2**53): the same sums, exact in any order, from running
+    sums (four lookups a window instead of its entries)."""
+    r, size = HEAVY_WINDOW // 2, HEAVY_WINDOW
+    run = np.pad(np.asarray(blocks, dtype=np.int64), ((r + 1, r), (r + 1, r))).cumsum(axis=0).cumsum(axis=1)
+    return (run[size:, size:] - run[:-size, size:] - run[size:, :-size] + run[:-size, :-size]).astype(np.float64)
+
+
+def _block_sides(length: int) -> np.ndarray:
+    """The pixels each block along an axis of ``length`` pixels holds (BLOCK, the last one fewer)."""
+    return np.minimum(BLOCK, length - BLOCK * np.arange(-(-length // BLOCK)))
 
 
 def _zero_padded_window(blocks: FloatArray) -> FloatArray:
@@ -331,14 +371,14 @@ def _blocks(a: FloatArray | BoolArray, reduce: Callable[..., np.ndarray] = np.su
     return reduce(rows.reshape(h // BLOCK, w // BLOCK, BLOCK), axis=2)
 
 
-def _count(mask: BoolArray) -> FloatArray:
-    """The number of ``mask``'s pixels in each BLOCK x BLOCK block, summed as bytes (a float64 copy of the mask
-    costs more than the sums)."""
+def _count(mask: BoolArray) -> np.ndarray:
+    """The number of ``mask``'s pixels in each BLOCK x BLOCK block (int32), summed as bytes (a float64 copy of the
+    mask costs more than the sums)."""
     h, w = mask.shape
     padded = np.zeros((-(-h // BLOCK) * BLOCK, -(-w // BLOCK) * BLOCK), dtype=np.uint8)
     padded[:h, :w] = mask
     rows = padded.reshape(padded.shape[0] // BLOCK, BLOCK, padded.shape[1]).sum(axis=1, dtype=np.int32)
-    return rows.reshape(rows.shape[0], padded.shape[1] // BLOCK, BLOCK).sum(axis=2).astype(np.float64)
+    return rows.reshape(rows.shape[0], padded.shape[1] // BLOCK, BLOCK).sum(axis=2)
 
 
 def _window(blocks: FloatArray) -> FloatArray:

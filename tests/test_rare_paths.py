@@ -302,6 +302,23 @@ def test_the_same_hits_at_any_level_are_found_alike(scale, kind):
     np.testing.assert_array_equal(got, expected)
 
 
+@pytest.mark.parametrize("shape", [(1, 1), (1, 23), (23, 1), (7, 5), (40, 33)])
+def test_the_dilation_and_the_window_counts_are_scipy_s_and_the_entries_sums(shape):
+    """The search's own dilation (shifted copies or-ed) is scipy's maximum filter with edges repeated, and its window
+    counts from running sums are the windows' entries summed (the reference forms, kept for these tests)."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(sum(shape))
+    for density in (0.0, 0.02, 0.5, 1.0):
+        mask = rng.random(shape) < density
+        for size in (1, 3, 15):
+            np.testing.assert_array_equal(rare_paths._dilated(mask, size),
+                                          ndimage.maximum_filter(mask, size=size, mode="nearest"))
+        counts = rng.integers(0, 17, size=shape)
+        np.testing.assert_array_equal(rare_paths._counts_around(counts),
+                                      rare_paths._zero_padded_window(counts.astype(np.float64)))
+
+
 def test_each_region_takes_the_mean_of_its_densities_and_its_total_is_kept():
     count, mean, variance = _hits(1 / 40)
     mean[:, 20:44], variance[:, 20:44] = 1.0, 0.5  # two regions of rare hits, a steady band between them
