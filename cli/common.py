@@ -26,7 +26,7 @@ from awr_denoise.io.request_map import MAX_ROUND
 from awr_denoise.sampling import SAMPLERS
 
 from .errors import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, RuntimeFailure, UsageError, one_line_warnings, shown
-from .sampler_settings import carried_settings
+from .sampler_settings import brief, carried_settings
 from .values import MAX_FRAMES, MAX_SEED, MAX_SPP, nonempty, whole
 
 __all__ = [
@@ -168,7 +168,7 @@ def run_settings(path: str | os.PathLike[str], attributes: dict) -> tuple[str | 
     if "awr:strategy" in attributes:
         strategy = str(header_value(attributes, "awr:strategy"))
         if strategy not in SAMPLERS:
-            raise InputFileError(f"{path}: awr:strategy: {strategy!r} is not one of {', '.join(SAMPLERS)}")
+            raise InputFileError(f"{path}: awr:strategy: {brief(strategy)} is not one of {', '.join(SAMPLERS)}")
     initial = None
     if "awr:initial_spp" in attributes:
         initial = header_count(path, attributes, "awr:initial_spp", 1, MAX_SPP, low=1)
@@ -186,13 +186,13 @@ def dumped_round(path: str | os.PathLike[str], attributes: dict) -> int:
     return header_count(path, attributes, "awr:round", 1, MAX_ROUND - 1, low=1)
 
 
-def run_settings_refused(path: str | os.PathLike[str], attributes: dict) -> str | None:
-    """The line ``plan`` would refuse a running dump with for its ``awr:*`` run settings (strategy, first round's
-    spp, the sampler's settings, seed, round; plan's own checks), or ``None``: ``info`` reports it beside "ready
-    to denoise", which is about ``denoise``."""
+def run_settings_refused(path: str | os.PathLike[str], attributes: dict, shape: tuple[int, int]) -> str | None:
+    """The line ``plan`` would refuse a running dump of ``shape`` with for its ``awr:*`` run settings (strategy,
+    first round's spp, the sampler's settings, seed, round; plan's own checks), or ``None``: ``info`` reports it
+    beside "ready to denoise", which is about ``denoise``."""
     try:
-        run_settings(path, attributes)
-        carried_settings(path, attributes)
+        strategy, _ = run_settings(path, attributes)
+        carried_settings(path, attributes, strategy, shape)
         dumped_seed(path, attributes)
         dumped_round(path, attributes)
     except InputFileError as error:

@@ -86,12 +86,12 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     status(f"rendering {name} uniformly at {args.spp} spp", quiet=args.quiet)
     renderer = create_renderer(TRACER, scene, seed=args.seed, progress=not args.quiet)
-    uniform, _, _, _ = render_buffer(renderer, scene.shape, spp=args.spp, adaptive=False, seed=args.seed,
-                                  quiet=args.quiet)
+    uniform = render_buffer(renderer, scene.shape, spp=args.spp, adaptive=False, seed=args.seed,
+                            quiet=args.quiet)[0]
     status(f"rendering {name} adaptively at {args.spp} spp", quiet=args.quiet)
     renderer = create_renderer(TRACER, scene, seed=args.seed + 1)
-    adaptive, _, _, _ = render_buffer(renderer, scene.shape, spp=args.spp, adaptive=True, seed=args.seed + 1,
-                                   quiet=args.quiet)
+    adaptive = render_buffer(renderer, scene.shape, spp=args.spp, adaptive=True, seed=args.seed + 1,
+                             quiet=args.quiet)[0]
     images = dict(zip(labels, (uniform.mean, reconstruct(uniform, c_s=args.c_s), reconstruct(adaptive, c_s=args.c_s))))
     if reference.shape != uniform.mean.shape:
         raise UsageError(f"{where}: the reference of {name} is {reference.shape}, the render {uniform.mean.shape}")

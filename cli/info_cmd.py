@@ -111,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"{given[0][0]}: describes a sample dump; {args.input} is {what}")
     if info["kind"] == "samples":
         # "ready to denoise" is about denoise; a running dump's run settings are plan's, said here too
-        refused = run_settings_refused(args.input, read_header(args.input))
+        refused = run_settings_refused(args.input, read_header(args.input), (info["height"], info["width"]))
         if refused is not None:
             info.setdefault("warnings", []).append(f"awr plan refuses it as a running dump: {refused}")
     # A signal whose exception a C extension's import swallowed: no report after it.

@@ -28,14 +28,15 @@ from awr_denoise.io.request_map import MAX_ROUND
 
 from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, run_settings, status
 from .paths import PathPlan, check_plane_windows, plane_options
-from .sampler_settings import CARRIED, carried_settings
+from .sampler_settings import CARRIED, brief, carried_settings
 from .values import MAX_SEED, MAX_SPP, nonempty
 
 __all__ = ["register", "run"]
 
-# Provenance carried from the running dump: its run's, and the settings its sampler ranked with.
-_KEPT = ("seed", "round", "strategy", "initial_spp", "scene") + tuple(key.removeprefix("awr:")
-                                                                      for _, key, _, _ in CARRIED)
+_SETTINGS = ("awr:strategy", "awr:initial_spp") + tuple(key for _, key, _, _ in CARRIED)
+"""The run's settings, which plan continues: its strategy, first round and the settings its sampler ranked with."""
+_KEPT = ("seed", "round", "scene") + tuple(key.removeprefix("awr:") for key in _SETTINGS)
+"""Provenance carried from the running dump."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -296,11 +297,16 @@ def run(args: argparse.Namespace) -> int:
         dump = read_sample_dump(path, **kwargs)
         if index == 0:
             first, attrs = dump.buffer, {k: v for k, v in dump.attributes.items() if k.removeprefix("awr:") in _KEPT}
-            run_settings(path, attrs)  # carried into the output for plan: checked as plan checks them
-            carried_settings(path, attrs)
+            run_strategy, _ = run_settings(path, attrs)  # carried into the output for plan: checked as plan does
+            carried_settings(path, attrs, run_strategy, dump.buffer.shape)
+            differ: dict[str, str] = {}
         else:
             _check_match(path, dump.buffer, first, args.inputs[0])
         is_told = bool(args.request) and index == len(args.inputs) - 1
+        if index and not is_told:  # a running dump's settings, merged plainly: carried only where they agree
+            for key in _SETTINGS:
+                if key in attrs and key in dump.attributes and str(dump.attributes[key]) != str(attrs[key]):
+                    differ.setdefault(key, path)
         all_running = all_running and _running(dump.attributes)
         answers.append(_answers(path, dump.attributes))
         if not args.allow_duplicates:
@@ -315,6 +321,9 @@ def run(args: argparse.Namespace) -> int:
         else:
             merged, issued = merged.merge(dump.buffer), issued + dump.issued
         del dump
+    for key, path in differ.items():
+        status(f"merge: {key} of {path} is not {args.inputs[0]}'s ({brief(attrs.pop(key))}): not carried, the "
+               "next plan takes its option or default", quiet=args.quiet)
     if merged is None:  # the first batch of a run, told alone
         merged, issued = SampleBuffer.empty(first.shape, channels=first.channels), np.zeros(first.shape, np.int64)
     del first
@@ -323,15 +332,14 @@ def run(args: argparse.Namespace) -> int:
         rounds.append(request_round)
         if note:
             status(f"{args.inputs[-1]}: {note}", quiet=args.quiet)
-        asked = request_attributes(args.request)
-        run_settings(args.request, {k: v for k, v in asked.items() if v is not None})
-        carried_settings(args.request, {k: v for k, v in asked.items() if v is not None})
-        settings = ("awr:strategy", "awr:initial_spp") + tuple(key for _, key, _, _ in CARRIED)
-        if asked.get("awr:strategy") is not None:  # the run's newest settings replace the dump's (a new strategy)
-            for key in settings:
+        asked = {k: v for k, v in request_attributes(args.request).items() if v is not None}
+        strategy, _ = run_settings(args.request, asked)
+        carried_settings(args.request, asked, strategy or run_strategy, merged.shape)
+        if "awr:round_growth" in asked:  # a plan that records all its sampler's settings: none left is automatic
+            for _, key, _, _ in CARRIED:
                 attrs.pop(key, None)
-        for key in settings:  # the run's, which plan continues (uniform stays uniform)
-            if asked.get(key) is not None:
+        for key in _SETTINGS:  # the run's newest, which plan continues (uniform stays uniform)
+            if key in asked:
                 attrs[key] = asked[key]
         seed = request_attributes(args.request).get("awr:seed")
         if seed is not None:

@@ -16,9 +16,10 @@ from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 
 from .common import (EXIT_OK, UsageError, add_plane_options, check_memory, dump_options_given, dumped_round,
                      dumped_seed, plane_kwargs, run_settings, status)
-from .sampler_settings import CARRIED, MAX_ROUND_GROWTH, carried_settings, sampler_settings
 from .paths import PathPlan, check_plane_windows, plane_options
-from .values import MAX_LEVELS, MAX_SEED, MAX_SPP, image_size, nonempty, real, wavelet_name, whole
+from .sampler_settings import CARRIED, carried_settings, sampler_settings
+from .values import (MAX_LEVELS, MAX_ROUND_GROWTH, MAX_SEED, MAX_SPP, UNSET, image_size, nonempty, or_unset, real,
+                     wavelet_name, whole)
 
 __all__ = ["register", "run", "STRATEGIES"]
 
@@ -41,8 +42,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     budget.add_argument("--round-spp", type=real(above=0, maximum=MAX_SPP), metavar="S",
                         help="new samples of this round per pixel on average")
     budget.add_argument("--round-growth", type=real(above=0, maximum=MAX_ROUND_GROWTH), metavar="G",
-                        help="new samples of this round as a share of the samples taken so far (default "
-                             f"{DEFAULT_ROUND_GROWTH})")
+                        help="new samples of each round from this one on as a share of the samples taken so far "
+                             f"(default: the dump's awr:round_growth, else {DEFAULT_ROUND_GROWTH}; recorded for the "
+                             "rounds after this one, where --budget and --round-spp size this round only)")
     p.add_argument("--size", type=image_size, metavar="WxH", help="image size of the first round (without a dump)")
     p.add_argument("--initial-spp", type=whole(minimum=1, maximum=MAX_SPP),
                    help=f"samples per pixel of the first round (default {DEFAULT_AWR_INITIAL_SPP} with the awr strategy, "
@@ -55,19 +57,26 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--round", type=whole(minimum=0, maximum=MAX_ROUND - 1),  # merge numbers the next round
                    help="round number (default: the dump's awr:round, else 1; the first round, without a dump, "
                         "is 0)")
+    # The run's settings: the dump's (awr:*, which a request records and merge carries), else the defaults; an
+    # option given holds from this round on (docs/cli.md, "A run keeps its settings").
     p.add_argument("--wavelet", type=wavelet_name,
-                   help=f"wavelet of the priority analysis (default {DEFAULT_WAVELET})")
-    p.add_argument("--levels", type=whole(minimum=1, maximum=MAX_LEVELS), help="decomposition depth of the priority analysis")
-    p.add_argument("--spp-max", type=whole(minimum=1, maximum=MAX_SPP), help="most samples any pixel may have")
+                   help=f"wavelet of the priority analysis (default: the dump's awr:priority_wavelet, else "
+                        f"{DEFAULT_WAVELET})")
+    p.add_argument("--levels", type=or_unset(whole(minimum=1, maximum=MAX_LEVELS), "auto"),
+                   help="decomposition depth of the priority analysis (default: the dump's awr:priority_levels, "
+                        "else auto, the depth the image allows)")
+    p.add_argument("--spp-max", type=or_unset(whole(minimum=1, maximum=MAX_SPP), "none"),
+                   help="most samples any pixel may have (default: the dump's awr:spp_max, else none)")
     p.add_argument("--noise-model", choices=NOISE_MODELS,
                    help="awr only: model what reconstruction leaves of a pixel's noise by a wavelet shrinkage's exact "
-                        "gain (shrinkage, the default), the paper's levels, or the default reconstruction's measured "
-                        "gain (reconstructs the dump; docs/sampling.md)")
+                        "gain (shrinkage), the paper's levels, or the default reconstruction's measured gain "
+                        "(reconstructs the dump; docs/sampling.md); default: the dump's awr:noise_model, else "
+                        "shrinkage")
     p.add_argument("--rare-paths", choices=RARE_PATHS,
                    help="awr and variance: spread the samples of regions lit through rare paths (most samples 0, "
-                        "or fireflies on a lit base) evenly, which keeps their image mean (even, the default), only "
-                        "those whose samples are mostly 0 (zeros), or rank their pixels like the rest (ranked; "
-                        "docs/sampling.md, 'Rare paths')")
+                        "or fireflies on a lit base) evenly, which keeps their image mean (even), only those whose "
+                        "samples are mostly 0 (zeros), or rank their pixels like the rest (ranked; docs/sampling.md, "
+                        "'Rare paths'); default: the dump's awr:rare_paths, else even")
     p.add_argument("-q", "--quiet", action="store_true")
     add_plane_options(p)
     p.set_defaults(run=run)
@@ -84,24 +93,28 @@ def run(args: argparse.Namespace) -> int:
     check_plane_windows(args.input, plane_options(args))
     # A run keeps its strategy and first round's spp (the least a pixel is brought up to) through
     # files: merge carries them from each request into the dump (a uniform baseline stays uniform).
-    header = {} if args.input is None else read_header(args.input)
-    dumped, dumped_initial = (None, None) if args.input is None else run_settings(args.input, header)
+    dumped_header = {} if args.input is None else read_header(args.input)
+    dumped, dumped_initial = (None, None) if args.input is None else run_settings(args.input, dumped_header)
     from_dump = args.strategy is None and dumped is not None
     if args.strategy is None:
         args.strategy = dumped or AdaptiveSampler.strategy
     cls = SAMPLERS[args.strategy]
     same_run = dumped is None or dumped == args.strategy
-    # The run's sampler settings (another strategy: its own defaults), each where its option is not given.
-    carried = carried_settings(args.input, header, args.strategy) if args.input is not None and same_run else {}
+    # The run's sampler settings, each where its option is not given: those of the dump's strategy that this one
+    # uses too (each means the same in every strategy that uses it; the first round's spp does not).
+    carried = {} if args.input is None else carried_settings(args.input, dumped_header, dumped)
     named = {name: option for name, _, option, _ in CARRIED}  # what set each: an option, or the dump
-    for name, key, _, _ in CARRIED:
-        if name in carried and getattr(args, name) is None:
+    for name, key, _, strategies in CARRIED:
+        if name in carried and getattr(args, name) is None and args.strategy in strategies:
             setattr(args, name, carried[name])
             named[name] = f"{args.input}: {key}"
+    for name in ("spp_max", "levels"):  # --spp-max none, --levels auto: the run's cap or depth lifted
+        if getattr(args, name) == UNSET:
+            setattr(args, name, None)
     options: dict = {"spp_max": args.spp_max}
     if args.initial_spp is not None and args.spp_max is not None and args.initial_spp > args.spp_max:
-        cap = f"--spp-max {args.spp_max}" if named["spp_max"] == "--spp-max" else f"awr:spp_max {args.spp_max} of " \
-            f"{args.input}"
+        cap = (f"--spp-max {args.spp_max}" if named["spp_max"] == "--spp-max"
+               else f"awr:spp_max {args.spp_max} of {args.input} (give --spp-max to change it)")
         raise UsageError(f"--initial-spp: {args.initial_spp} exceeds {cap}, the most any pixel may have")
     if args.initial_spp is None and dumped_initial is not None and same_run:  # another strategy: its own default
         args.initial_spp = dumped_initial
@@ -130,6 +143,9 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError("plan: give a running DUMP.exr, or --size WxH for the first round")
         _refuse_what_a_first_round_ignores(args)
         shape = args.size
+        if args.levels is not None and args.levels > max_levels(shape):
+            raise UsageError(f"--levels: {args.levels} is outside 1..{max_levels(shape)} for an image of "
+                             f"{shape[1]}x{shape[0]}")
         # About 112 bytes a pixel at the peak (the sampler's statistics, the request, the file's planes:
         # 1.39 GB more at 4096x4096 than at 2048x2048 in a measurement of the maximum resident size).
         check_memory("--size", 112.0 * shape[0] * shape[1], f"a first round of {shape[1]}x{shape[0]}")
@@ -166,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
         request = sampler.ask(budget)
         plan.check_unchanged()  # after the last read: the dump and its windows are of one version
         header = {**provenance(seed=seed, strategy=args.strategy, initial_spp=sampler.initial_spp),
-                  **sampler_settings(sampler), **windows}
+                  **sampler_settings(sampler), **windows}  # the run's settings, which merge carries on
         write_request(args.output, request, header=header, overwrite=args.overwrite)
     except ValueError as exc:  # the library names its arguments; name the option that set them
         option = _option_behind(str(exc), args, named["spp_max"])
@@ -185,12 +201,6 @@ def _refuse_what_a_first_round_ignores(args: argparse.Namespace) -> None:
     given = dump_options_given(args)
     if given:
         raise UsageError(f"{given[0][0]}: describes a running DUMP.exr; the first round (--size) reads none")
-    for option, value in (("--round-growth", args.round_growth), ("--wavelet", args.wavelet),
-                          ("--levels", args.levels), ("--noise-model", args.noise_model),
-                          ("--rare-paths", args.rare_paths)):
-        if value is not None:
-            raise UsageError(f"{option}: acts from round 1, planned from its dump; the first round (--size) is "
-                             "uniform")
     size = "--budget" if args.budget is not None else "--round-spp" if args.round_spp is not None else None
     if size is not None and args.initial_spp is not None:  # two sizes of one round: one would be dropped
         raise UsageError(f"--initial-spp: the first round's samples per pixel, which {size} sets too; give one")
@@ -200,7 +210,12 @@ def _option_behind(message: str, args: argparse.Namespace, spp_max: str) -> str 
     """The option given (or ``spp_max``, the dump's attribute that set it) that set what a sampler's refusal names
     (``spp_max``, the round's size)."""
     if "spp_max" in message and args.spp_max is not None:
-        return f"{spp_max} {args.spp_max:g}"
+        if spp_max == "--spp-max":
+            return f"--spp-max {args.spp_max:g}"
+        cap = f"awr:spp_max {args.spp_max:g} of {args.input}"  # the dump's: and the round's size, if given
+        size = (f"--round-spp {args.round_spp:.10g}" if args.round_spp is not None
+                else f"--budget {args.budget}" if args.budget is not None else None)
+        return cap if size is None else f"{size} beside {cap}"
     if message.startswith(("budget:", "first_index + counts:")):
         if args.round_spp is not None:
             return f"--round-spp {args.round_spp:.10g}"

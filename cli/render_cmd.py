@@ -40,8 +40,9 @@ from .denoise_cmd import (add_reconstruction_options, check_reconstruction_optio
                           unused_features)
 from .parallel_options import DEFAULT_TILE, add_executor_arguments, executor_from_args, executor_requested
 from .paths import PathPlan
-from .sampler_settings import MAX_ROUND_GROWTH, sampler_settings
-from .values import MAX_EXPOSURE, MAX_SEED, MAX_SIDE, MAX_SPP, check_pixels, feature_list, nonempty, real, whole
+from .sampler_settings import sampler_settings
+from .values import (MAX_EXPOSURE, MAX_ROUND_GROWTH, MAX_SEED, MAX_SIDE, MAX_SPP, check_pixels, feature_list, nonempty,
+                     real, whole)
 
 __all__ = ["register", "run", "tracer_module", "default_scene", "render_buffer", "derived_path"]
 
@@ -344,7 +345,8 @@ def run(args: argparse.Namespace) -> int:
         with _as_options(args.renderer):
             renderer = create_renderer(args.renderer, scene, shape=shape, seed=args.seed, **options)
         check_pixels(f"SCENE {given}: its film", *renderer.shape)  # a size the scene file declares
-        buffer, issued, next_round, settings = render_buffer(renderer, renderer.shape, reserve=_reserve(args, start), **render)
+        buffer, issued, next_round, settings = render_buffer(renderer, renderer.shape, reserve=_reserve(args, start),
+                                                             **render)
     seconds = time.perf_counter() - start
     strategy = "awr" if args.adaptive else "uniform"
     # A running dump (its samples every pixel's sequence from 0), and the run's strategy and first

@@ -8,21 +8,20 @@ levels`` went back to the defaults at the first ``plan`` that did not repeat the
 
 from __future__ import annotations
 
-import math
+import argparse
 import os
-import re
 from typing import Any
 
 from awr_denoise.errors import InputFileError
 from awr_denoise.io.dump import header_count
 from awr_denoise.io.exr import header_value
 from awr_denoise.rare_paths import RARE_PATHS
-from awr_denoise.sampling import NOISE_MODELS, Sampler
-from awr_denoise.wavelets import WAVELET_NAMES
+from awr_denoise.sampling import NOISE_MODELS, AdaptiveSampler, Sampler
+from awr_denoise.wavelets import max_levels
 
-from .values import MAX_LEVELS, MAX_SPP
+from .values import MAX_LEVELS, MAX_ROUND_GROWTH, MAX_SPP, real, wavelet_name
 
-__all__ = ["CARRIED", "carried_settings", "sampler_settings"]
+__all__ = ["CARRIED", "carried_settings", "sampler_settings", "brief"]
 
 CARRIED: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     # (the samplers' keyword, the header attribute, plan's option, the strategies that use it)
@@ -33,12 +32,17 @@ CARRIED: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("wavelet", "awr:priority_wavelet", "--wavelet", ("awr",)),
     ("levels", "awr:priority_levels", "--levels", ("awr",)),
 )
-"""The settings a request and a running dump carry beside ``awr:strategy`` and ``awr:initial_spp``."""
+"""The settings a request and a running dump carry beside ``awr:strategy`` and ``awr:initial_spp``; each keeps one
+meaning and one default in every strategy that uses it, so a new strategy takes those it uses."""
 
-MAX_ROUND_GROWTH = 1e6
-"""The largest ``--round-growth`` (and ``awr:round_growth``)."""
+_GROWTH = real(above=0, maximum=MAX_ROUND_GROWTH)
 
-_REAL = re.compile(r"[+]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?")
+
+def brief(value: object, most: int = 60) -> str:
+    """``repr(value)``, cut to about ``most`` characters: a header's value in one error line (a 100-kB string was
+    echoed whole)."""
+    text = repr(value)
+    return text if len(text) <= most else f"{text[:most]}... ({len(text)} characters)"
 
 
 def sampler_settings(sampler: Sampler) -> dict[str, int | str]:
@@ -55,30 +59,35 @@ def sampler_settings(sampler: Sampler) -> dict[str, int | str]:
     return out
 
 
-def carried_settings(path: str | os.PathLike[str], attributes: dict, strategy: str | None = None) -> dict[str, Any]:
-    """The samplers' keywords a running dump or request carries (:data:`CARRIED`), those of ``strategy`` only
-    when it is given, each checked and refused naming the file and the attribute."""
+def carried_settings(path: str | os.PathLike[str], attributes: dict, strategy: str | None,
+                     shape: tuple[int, int] | None = None) -> dict[str, Any]:
+    """The samplers' keywords a running dump or request carries for ``strategy`` (its ``awr:strategy``; ``None``
+    for none, which plan reads as ``awr``), each checked as ``plan`` checks it and refused naming the file and the
+    attribute: the depth against the image of ``shape`` too, when it is given. The settings of other strategies
+    are neither read nor checked: no plan of this run uses them."""
+    strategy = strategy or AdaptiveSampler.strategy
     out: dict[str, Any] = {}
     for name, key, _, strategies in CARRIED:
-        if key not in attributes or (strategy is not None and strategy not in strategies):
+        if key not in attributes or strategy not in strategies:
             continue
         raw = header_value(attributes, key)
         if name in ("spp_max", "levels"):
             out[name] = header_count(path, attributes, key, 1, MAX_SPP if name == "spp_max" else MAX_LEVELS, low=1)
+            if name == "levels" and shape is not None and out[name] > max_levels(shape):
+                raise InputFileError(f"{path}: {key}: {out[name]} is outside 1..{max_levels(shape)} for its image")
             continue
         text = str(raw).strip()
-        if name == "round_growth":
-            value = float(text) if _REAL.fullmatch(text) else math.nan
-            if not 0 < value <= MAX_ROUND_GROWTH:
-                raise InputFileError(f"{path}: {key}: {raw!r} is not a number above 0 and at most "
-                                     f"{MAX_ROUND_GROWTH:g}")
-            out[name] = value
-            continue
-        if name == "wavelet":
-            if text not in WAVELET_NAMES or text == "dmey":  # as plan's --wavelet
-                raise InputFileError(f"{path}: {key}: {raw!r} is not a wavelet the priorities take (for example "
-                                     "bior4.4, haar, db2)")
-        elif text not in (choices := RARE_PATHS if name == "rare_paths" else NOISE_MODELS):
-            raise InputFileError(f"{path}: {key}: {raw!r} is not one of {', '.join(choices)}")
-        out[name] = text
+        try:
+            if name == "round_growth":
+                out[name] = _GROWTH(text)
+            elif name == "wavelet":
+                out[name] = wavelet_name(text)
+            elif text in (choices := RARE_PATHS if name == "rare_paths" else NOISE_MODELS):
+                out[name] = text
+            else:
+                raise argparse.ArgumentTypeError(f"is not one of {', '.join(choices)}")
+        except argparse.ArgumentTypeError as exc:
+            reason = (f"is not a number above 0 and at most {MAX_ROUND_GROWTH:g}" if name == "round_growth"
+                      else str(exc).split("' ", 1)[-1] if name == "wavelet" else str(exc))  # the value shown once
+            raise InputFileError(f"{path}: {key}: {brief(raw)} {reason}") from None
     return out

@@ -19,7 +19,8 @@ from awr_denoise.wavelets import WAVELET_NAMES
 from .errors import UsageError
 
 __all__ = ["MAX_SPP", "MAX_SEED", "MAX_PIXELS", "MAX_SIDE", "MAX_LEVELS", "MAX_EXPOSURE", "MAX_FRAMES",
-           "real", "whole", "nonempty", "image_size", "check_pixels", "wavelet_name", "feature_list"]
+           "MAX_ROUND_GROWTH", "UNSET", "real", "whole", "or_unset", "nonempty", "image_size", "check_pixels",
+           "wavelet_name", "feature_list"]
 
 MAX_SPP = _checks.MAX_SPP
 """Samples per pixel: counts are stored as float32, exact up to 2**24."""
@@ -36,6 +37,10 @@ MAX_EXPOSURE = 1000.0
 """Preview exposure in stops (2**1000 already saturates every positive float64)."""
 MAX_FRAMES = 1_000_000
 """Frames one ``--frames`` range may name."""
+MAX_ROUND_GROWTH = 1e6
+"""The largest ``--round-growth``: a round of a million times the samples so far."""
+UNSET = 0
+"""What :func:`or_unset` parses its word to: no value (no cap, the automatic depth), where 0 is never one."""
 
 
 _REAL = re.compile(r"\s*[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|inf(?:inity)?|nan)\s*",
@@ -69,6 +74,17 @@ def real(*, minimum: float | None = None, maximum: float | None = None, above: f
 
 whole = _checks.whole_option
 """An argparse type: an integer within bounds (``1.5``, ``1e3`` and ``inf`` are refused)."""
+
+
+def or_unset(parse: Callable[[str], int], word: str) -> Callable[[str], int]:
+    """An argparse type: ``parse``'s values (all above 0), or ``word`` for none (:data:`UNSET`): ``awr plan
+    --spp-max none`` lifts a cap the running dump carries, ``--levels auto`` the depth it carries."""
+
+    def parse_or_unset(text: str) -> int:
+        return UNSET if text == word else parse(text)
+
+    parse_or_unset.__name__ = getattr(parse, "__name__", "value")
+    return parse_or_unset
 
 
 def _too_many_pixels(height: int, width: int) -> str | None:

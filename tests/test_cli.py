@@ -19,17 +19,19 @@ OpenEXR = pytest.importorskip("OpenEXR")
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest  # noqa: E402
 from awr_denoise.cli.common import expand_frames, parse_frames  # noqa: E402
 from awr_denoise.cli.main import main  # noqa: E402
+from awr_denoise.cli.sampler_settings import CARRIED  # noqa: E402
 from awr_denoise.io import (  # noqa: E402
     read_header,
     read_image,
     read_request,
     read_sample_dump,
     write_image,
+    write_request,
     write_sample_buffer,
 )
 from awr_denoise.io.colour import MITSUBA_XYZ_TO_SRGB  # noqa: E402
-from awr_denoise.io.request_map import request_attributes  # noqa: E402
 from awr_denoise.io.provenance import provenance  # noqa: E402
+from awr_denoise.io.request_map import request_attributes  # noqa: E402
 from awr_denoise.metrics import relmse  # noqa: E402
 from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP  # noqa: E402
 
@@ -569,10 +571,11 @@ def test_merge_is_exact_chan_update(tmp_path, rng, capsys):
 @pytest.mark.parametrize("attribute, value, needle", [("awr:strategy", "evil", "'evil' is not one of awr"),
                                                       ("awr:rare_paths", "evil", "'evil' is not one of even"),
                                                       ("awr:noise_model", "evil", "'evil' is not one of levels"),
-                                                      ("awr:round_growth", "nan", "not a number above 0"),
+                                                      ("awr:round_growth", "nan", "is not a number above 0"),
                                                       ("awr:round_growth", "1e7", "not a number above 0"),
-                                                      ("awr:priority_wavelet", "dmey", "not a wavelet"),
+                                                      ("awr:priority_wavelet", "dmey", "not a perfect-reconstruction"),
                                                       ("awr:priority_levels", 0, "outside 1.."),
+                                                      ("awr:priority_levels", 9, "outside 1..4 for its image"),
                                                       ("awr:spp_max", "x", "not a whole number"),
                                                       ("awr:initial_spp", 0, "outside 1..")])
 def test_merge_refuses_a_run_setting_plan_would_refuse(tmp_path, rng, capsys, attribute, value, needle):
@@ -592,10 +595,11 @@ def test_merge_refuses_a_run_setting_plan_would_refuse(tmp_path, rng, capsys, at
                                                       ("awr:initial_spp", 0, "outside 1.."),
                                                       ("awr:rare_paths", "evil", "'evil' is not one of even"),
                                                       ("awr:noise_model", "evil", "'evil' is not one of levels"),
-                                                      ("awr:round_growth", "nan", "not a number above 0"),
+                                                      ("awr:round_growth", "nan", "is not a number above 0"),
                                                       ("awr:round_growth", "1e7", "not a number above 0"),
-                                                      ("awr:priority_wavelet", "dmey", "not a wavelet"),
+                                                      ("awr:priority_wavelet", "dmey", "not a perfect-reconstruction"),
                                                       ("awr:priority_levels", 0, "outside 1.."),
+                                                      ("awr:priority_levels", 9, "outside 1..4 for its image"),
                                                       ("awr:spp_max", "x", "not a whole number"),
                                                       ("awr:seed", "x", "not a whole number"),
                                                       ("awr:round", 0, "outside 1..")])
@@ -1345,12 +1349,111 @@ def test_a_run_through_files_keeps_its_sampler_settings(tmp_path, capsys, monkey
     counts = {name: read_request(tmp_path / f"{name}.exr").counts for name in ("carried", "given", "defaults")}
     assert np.array_equal(counts["carried"], counts["given"])
     assert not np.array_equal(counts["carried"], counts["defaults"])  # the levels rank otherwise
-    # Another strategy: its own defaults, and the awr run's settings it does not use are not carried on.
+    # Another strategy takes the settings it uses too (each means the same in both), and the awr run's settings it
+    # does not use are not carried on.
+    seen.clear()
     assert main(["plan", str(tmp_path / "d2.exr"), "--strategy", "variance", "--round-spp", "2", "-o",
                  str(tmp_path / "r2.exr"), "-q"]) == 0
+    assert seen == ["zeros"]
     attrs = loop("d2.exr", "r2.exr", "b2.exr", "d3.exr")
-    assert attrs["awr:strategy"] == "variance" and attrs["awr:rare_paths"] == "even"
+    assert attrs["awr:strategy"] == "variance" and attrs["awr:rare_paths"] == "zeros"
     assert "awr:noise_model" not in attrs and "awr:priority_wavelet" not in attrs
+    # --round-growth holds from its round on, where --budget and --round-spp size one round.
+    assert main(["plan", str(tmp_path / "d3.exr"), "--round-growth", "0.5", "-o", str(tmp_path / "r3.exr"),
+                 "-q"]) == 0
+    attrs = loop("d3.exr", "r3.exr", "b3.exr", "d4.exr")
+    total = read_sample_dump(tmp_path / "d4.exr").buffer.total_samples
+    assert attrs["awr:round_growth"] == "0.5"
+    assert main(["plan", str(tmp_path / "d4.exr"), "-o", str(tmp_path / "r4.exr"), "-q"]) == 0
+    assert read_request(tmp_path / "r4.exr").total == round(0.5 * total)
+
+
+def test_the_first_round_records_the_run_s_settings_and_a_cap_or_depth_can_be_lifted(tmp_path, capsys):
+    """The first plan is where a run is set up: its settings were refused there ("act from round 1") and had to be
+    given again to every later plan. A cap or a depth a dump carries is lifted by --spp-max none, --levels auto."""
+    ext = _external()
+    assert main(["plan", "--size", f"{W}x{H}", "--rare-paths", "zeros", "--wavelet", "haar", "--levels", "2",
+                 "--spp-max", "64", "-o", str(tmp_path / "r0.exr"), "-q"]) == 0
+    assert ext.main([str(tmp_path / "r0.exr"), str(tmp_path / "b0.exr")]) == 0
+    assert main(["merge", str(tmp_path / "b0.exr"), "--request", str(tmp_path / "r0.exr"), "-o",
+                 str(tmp_path / "d1.exr"), "-q"]) == 0
+    attrs = read_sample_dump(tmp_path / "d1.exr").attributes
+    assert (attrs["awr:rare_paths"], attrs["awr:priority_wavelet"], attrs["awr:priority_levels"],
+            attrs["awr:spp_max"]) == ("zeros", "haar", 2, 64)
+    assert main(["plan", str(tmp_path / "d1.exr"), "-o", str(tmp_path / "kept.exr"), "-q"]) == 0
+    assert request_attributes(tmp_path / "kept.exr")["awr:priority_levels"] == 2
+    assert main(["plan", str(tmp_path / "d1.exr"), "--spp-max", "none", "--levels", "auto", "-o",
+                 str(tmp_path / "lifted.exr"), "-q"]) == 0
+    lifted = request_attributes(tmp_path / "lifted.exr")
+    assert "awr:spp_max" not in lifted and "awr:priority_levels" not in lifted
+    assert lifted["awr:priority_wavelet"] == "haar"
+    assert not np.array_equal(read_request(tmp_path / "kept.exr").counts, read_request(tmp_path / "lifted.exr").counts)
+    # Told with the lifting request, the dump drops them too: its sampler left them automatic.
+    assert ext.main([str(tmp_path / "lifted.exr"), str(tmp_path / "b1.exr")]) == 0
+    assert main(["merge", str(tmp_path / "d1.exr"), str(tmp_path / "b1.exr"), "--request",
+                 str(tmp_path / "lifted.exr"), "-o", str(tmp_path / "d2.exr"), "-q"]) == 0
+    attrs = read_sample_dump(tmp_path / "d2.exr").attributes
+    assert "awr:spp_max" not in attrs and "awr:priority_levels" not in attrs and attrs["awr:rare_paths"] == "zeros"
+    # A request that records no settings (an older plan's) leaves the dump's as they are.
+    old = tmp_path / "old.exr"
+    request = read_request(tmp_path / "kept.exr")
+    write_request(old, request, header={k: v for k, v in request_attributes(tmp_path / "kept.exr").items()
+                                        if k not in {key for _, key, _, _ in CARRIED} | {"awr:version"}})
+    assert ext.main([str(old), str(tmp_path / "b2.exr")]) == 0
+    assert main(["merge", str(tmp_path / "d1.exr"), str(tmp_path / "b2.exr"), "--request", str(old), "-o",
+                 str(tmp_path / "d3.exr"), "-q"]) == 0
+    assert read_sample_dump(tmp_path / "d3.exr").attributes["awr:priority_levels"] == 2
+
+
+def test_a_bad_setting_in_a_request_is_refused_by_merge(tmp_path, capsys):
+    ext = _external()
+    assert main(["plan", "--size", f"{W}x{H}", "-o", str(tmp_path / "r0.exr"), "-q"]) == 0
+    assert ext.main([str(tmp_path / "r0.exr"), str(tmp_path / "b0.exr")]) == 0
+    request = read_request(tmp_path / "r0.exr")
+    for key, value, needle in (("awr:rare_paths", "evil", "is not one of even"),
+                               ("awr:round_growth", "0", "not a number above 0"),
+                               ("awr:priority_levels", 9, "outside 1..4 for its image")):
+        header = {**request_attributes(tmp_path / "r0.exr"), key: value}
+        header.pop("awr:version")
+        write_request(tmp_path / "bad.exr", request, header=header, overwrite=True)
+        assert main(["merge", str(tmp_path / "b0.exr"), "--request", str(tmp_path / "bad.exr"), "-o",
+                     str(tmp_path / "d1.exr"), "-q"]) == 2
+        _one_error_line(capsys, "bad.exr", key, needle)
+        assert not (tmp_path / "d1.exr").exists()
+
+
+def test_a_plain_merge_carries_the_settings_its_running_dumps_agree_on(tmp_path, capsys, fake_tracer):
+    """A plain merge of running dumps took the first input's settings, so the result depended on their order."""
+    for name, seed, extra in (("a", 1, ["--rare-paths", "ranked"]), ("b", 2, ["--rare-paths", "zeros"]),
+                              ("c", 3, ["--rare-paths", "zeros"])):
+        assert main(["render", "--spp", "4", "--seed", str(seed), *extra, "-o", str(tmp_path / f"{name}.exr"),
+                     "-q"]) == 0
+    for order in (("b", "c"), ("c", "b")):
+        out = tmp_path / f"{''.join(order)}.exr"
+        assert main(["merge", *(str(tmp_path / f"{n}.exr") for n in order), "-o", str(out), "-q"]) == 0
+        assert read_sample_dump(out).attributes["awr:rare_paths"] == "zeros"
+    capsys.readouterr()
+    for order in (("a", "b"), ("b", "a")):
+        out = tmp_path / f"{''.join(order)}.exr"
+        assert main(["merge", *(str(tmp_path / f"{n}.exr") for n in order), "-o", str(out)]) == 0
+        attrs = read_sample_dump(out).attributes
+        assert "awr:rare_paths" not in attrs and attrs["awr:noise_model"] == "shrinkage"  # the two agree there
+        err = capsys.readouterr().err
+        assert "awr:rare_paths of" in err and "not carried" in err
+
+
+def test_info_warns_about_the_settings_plan_reads_and_only_those(tmp_path, rng, capsys):
+    buf = _dump(tmp_path / "d.exr", rng)
+    for header, warned in (({"awr:strategy": "variance", "awr:noise_model": "evil"}, False),  # variance: unused
+                           ({"awr:strategy": "awr", "awr:noise_model": "evil"}, True),
+                           ({"awr:priority_levels": 9}, True)):  # deeper than the image allows
+        write_sample_buffer(tmp_path / "s.exr", buf, header=header, overwrite=True)
+        assert (main(["plan", str(tmp_path / "s.exr"), "-o", str(tmp_path / "r.exr"), "-q", "--overwrite"]) == 2) \
+            == warned
+        capsys.readouterr()
+        assert main(["info", str(tmp_path / "s.exr"), "--json"]) == 0
+        warnings = json.loads(capsys.readouterr().out).get("warnings", [])
+        assert any("awr plan refuses it" in w for w in warnings) == warned, (header, warnings)
 
 
 def test_plan_names_the_dump_s_setting_it_refuses(tmp_path, rng, capsys):
@@ -1359,7 +1462,8 @@ def test_plan_names_the_dump_s_setting_it_refuses(tmp_path, rng, capsys):
     for header, given, needle in (({"awr:priority_levels": 9}, [], "bad.exr: awr:priority_levels: 9 is outside 1..4 "
                                    "for its image"),
                                   ({"awr:spp_max": 4}, ["--initial-spp", "8"], "exceeds awr:spp_max 4 of "),
-                                  ({"awr:spp_max": 4}, [], "bad.exr: awr:spp_max 4: 1536 samples exceed")):
+                                  ({"awr:spp_max": 4}, [], "awr:spp_max 4 of "),
+                                  ({"awr:spp_max": 4}, ["--budget", "99"], "--budget 99 beside awr:spp_max 4 of ")):
         write_sample_buffer(tmp_path / "bad.exr", buf, header=header, overwrite=True)
         assert main(["plan", str(tmp_path / "bad.exr"), *given, "-o", str(tmp_path / "r.exr"), "-q"]) == 2
         _one_error_line(capsys, "bad.exr", needle)

@@ -33,35 +33,48 @@ def test_a_dump_carries_them_exactly(tmp_path):
     awr = AdaptiveSampler((8, 8), round_growth=0.3, rare_paths="zeros", levels=2, spp_max=64)
     buffer = SampleBuffer.from_moments(np.full((8, 8), 2), np.full((8, 8, 3), 0.5), np.full((8, 8, 3), 0.1))
     write_sample_buffer(tmp_path / "d.exr", buffer, header=sampler_settings(awr))
-    read = carried_settings(tmp_path / "d.exr", read_sample_dump(tmp_path / "d.exr").attributes)
+    read = carried_settings(tmp_path / "d.exr", read_sample_dump(tmp_path / "d.exr").attributes, "awr")
     assert read == {"round_growth": 0.3, "spp_max": 64, "rare_paths": "zeros", "noise_model": "shrinkage",
                     "wavelet": "bior4.4", "levels": 2}
     assert AdaptiveSampler((8, 8), **read).round_growth == 0.3
     # Another writer's float attribute is read too.
-    assert carried_settings("f.exr", {"awr:round_growth": np.float32(0.25)}) == {"round_growth": 0.25}
+    assert carried_settings("f.exr", {"awr:round_growth": np.float32(0.25)}, "uniform") == {"round_growth": 0.25}
 
 
-def test_only_the_strategy_s_own_settings_are_taken():
+def test_only_the_strategy_s_own_settings_are_read_and_checked():
+    """A dump's settings are those of its strategy (``None``: no strategy, which plan takes for awr); another
+    strategy's are neither taken nor checked, as plan neither uses nor refuses them."""
     header = {"awr:round_growth": "1.0", "awr:rare_paths": "zeros", "awr:noise_model": "levels"}
     assert carried_settings("d.exr", header, "uniform") == {"round_growth": 1.0}
     assert carried_settings("d.exr", header, "variance") == {"round_growth": 1.0, "rare_paths": "zeros"}
-    assert carried_settings("d.exr", header, "awr") == carried_settings("d.exr", header) == {
+    assert carried_settings("d.exr", header, "awr") == carried_settings("d.exr", header, None) == {
         "round_growth": 1.0, "rare_paths": "zeros", "noise_model": "levels"}
+    assert carried_settings("d.exr", {**header, "awr:noise_model": "evil"}, "variance")["rare_paths"] == "zeros"
+    with pytest.raises(InputFileError, match="awr:noise_model"):
+        carried_settings("d.exr", {**header, "awr:noise_model": "evil"}, None)
+
+
+def test_a_depth_is_checked_against_the_image_when_its_shape_is_given():
+    assert carried_settings("d.exr", {"awr:priority_levels": 4}, "awr", (24, 32)) == {"levels": 4}
+    with pytest.raises(InputFileError, match=r"d\.exr: awr:priority_levels: 5 is outside 1\.\.4 for its image"):
+        carried_settings("d.exr", {"awr:priority_levels": 5}, "awr", (24, 32))
+    assert carried_settings("d.exr", {"awr:priority_levels": 5}, "variance", (24, 32)) == {}
 
 
 @pytest.mark.parametrize(("key", "value", "needle"), [
     ("awr:round_growth", "0", "not a number above 0"), ("awr:round_growth", "-0.5", "not a number above 0"),
     ("awr:round_growth", "inf", "not a number above 0"), ("awr:round_growth", "0x10", "not a number above 0"),
     ("awr:round_growth", "1_0", "not a number above 0"), ("awr:round_growth", "2e6", "at most 1e+06"),
+    ("awr:round_growth", "x" * 100_000, "(100002 characters) is not a number"),
     ("awr:spp_max", "0", "outside 1.."), ("awr:spp_max", "4.5", "not a whole number"),
-    ("awr:priority_levels", 33, "outside 1..32"), ("awr:priority_wavelet", "dmey", "not a wavelet"),
-    ("awr:priority_wavelet", "morl", "not a wavelet"), ("awr:rare_paths", "Even", "not one of even, zeros, ranked"),
+    ("awr:priority_levels", 33, "outside 1..32"), ("awr:priority_wavelet", "dmey", "not a perfect-reconstruction"),
+    ("awr:priority_wavelet", "morl", "'morl' is not a discrete wavelet"), ("awr:rare_paths", "Even", "not one of even, zeros, ranked"),
     ("awr:noise_model", "", "not one of levels"),
 ])
 def test_a_bad_value_is_refused_naming_the_file_and_the_attribute(key, value, needle):
     with pytest.raises(InputFileError, match=r"d\.exr") as refused:
-        carried_settings("d.exr", {key: value})
-    assert key in str(refused.value) and needle in str(refused.value)
+        carried_settings("d.exr", {key: value}, "awr")
+    assert key in str(refused.value) and needle in str(refused.value) and len(str(refused.value)) < 250
 
 
 def test_every_setting_is_a_sampler_keyword_and_a_plan_option():

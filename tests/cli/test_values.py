@@ -60,10 +60,8 @@ BAD = [
     # The first round reads no dump and is uniform: what describes a dump or shapes later rounds did nothing.
     (FIRST_PLAN + ["--size", "8x8"], "--alb", ["a.exr"]), (FIRST_PLAN + ["--size", "8x8"], "--view", ["left"]),
     (FIRST_PLAN + ["--size", "8x8"], "--nonfinite", ["drop"]), (FIRST_PLAN + ["--size", "8x8"], "--spp", ["4"]),
-    (FIRST_PLAN + ["--size", "8x8"], "--round-growth", ["0.5"]),
-    (FIRST_PLAN + ["--size", "8x8"], "--noise-model", ["reconstruction"]),
-    (FIRST_PLAN + ["--size", "8x8"], "--rare-paths", ["ranked"]),
-    (FIRST_PLAN + ["--size", "8x8"], "--levels", ["2"]),
+    (FIRST_PLAN + ["--size", "8x8"], "--levels", ["4", "0", "none"]),  # 8x8 allows 3; the run's settings it records
+    (PLAN, "--spp-max", ["auto", "None", ""]), (PLAN, "--levels", ["none", "Auto"]),  # each lifted by its own word
     (RENDER_ANY_SPP, "--spp", ["inf", "nan", "0", "-1", "1e30", "1e-9"]),
     (RENDER, "--seed", ["-1", "1180591620717411303424", "nan"]),
     (RENDER, "--width", ["0", "-1", "1.5", "2000000"]),
