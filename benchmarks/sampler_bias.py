@@ -68,7 +68,7 @@ RARE_PATHS_BUNDLED_RESULTS = REPOSITORY / "benchmarks" / "results" / "sampler_bi
 RARE_PATHS_SYNTHETIC_RESULTS = REPOSITORY / "benchmarks" / "results" / "sampler_bias_rare_paths_synthetic.json"
 TRACER_SCENES = ("default", "chess_dof", "rolling_balls", "sky_objects", "soft_shadows", "cornell_gi")
 MITSUBA_SCENES = ("cornell_box", "envmap_sun", "glossy_glass", "dof_checker")
-RARE_PATH_SCENES = ("indirect_room", "fog_spot")  # mitsuba_scenes.HEAVY_TAILED_SCENES
+RARE_PATH_SCENES = ("indirect_room", "fog_spot", "shaded_lamp")  # mitsuba_scenes.HEAVY_TAILED_SCENES
 SYNTHETIC_SCENES = ("fireflies", "rare_light")  # awr_denoise.synthetic's heavy-tailed scenes, at 64x64
 VARIANTS: dict[str, dict[str, Any]] = {
     "default": {},

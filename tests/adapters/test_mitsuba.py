@@ -33,7 +33,7 @@ def _random_request(shape, rng, *, high=5, round=0) -> SampleRequest:
 # ---------------------------------------------------------------------------- no Mitsuba needed
 def test_scene_names_are_listed():
     assert mitsuba_scenes.SCENE_NAMES == ("cornell_box", "envmap_sun", "glossy_glass", "dof_checker")
-    assert mitsuba_scenes.ALL_SCENES == mitsuba_scenes.SCENE_NAMES + ("indirect_room", "fog_spot")
+    assert mitsuba_scenes.ALL_SCENES == mitsuba_scenes.SCENE_NAMES + ("indirect_room", "fog_spot", "shaded_lamp")
     with pytest.raises(ValueError, match="bundled Mitsuba scene"):
         mitsuba_scenes.scene_dict("no_such_scene")
 
@@ -292,6 +292,16 @@ def test_xml_written_by_mitsuba_renders_the_same_samples(mi, tmp_path):
     assert from_file.shape == (20, 30) and resized.shape == (10, 12)
     # The same samples; the file's transforms are decimal text, so geometry moves by float32 rounding.
     np.testing.assert_allclose(from_file(request).mean, from_name(request).mean, rtol=1e-4, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", mitsuba_scenes.ALL_SCENES)
+def test_every_bundled_scene_written_as_xml_renders_its_samples(mi, tmp_path, name):
+    """write_scene_xml writes each plugin a bundled scene uses (the lamp's cylinder, disk and point light too)."""
+    shape = (8, 12)
+    request = SampleRequest.uniform(shape, 2)
+    from_file = create_renderer(mitsuba_scenes.write_scene_xml(name, tmp_path / f"{name}.xml", shape), seed=3)
+    np.testing.assert_allclose(from_file(request).mean, create_renderer(name, shape=shape, seed=3)(request).mean,
+                               rtol=1e-4, atol=1e-5)
 
 
 def test_loaded_scene_and_dict(mi):
