@@ -258,7 +258,7 @@ def _heavy_tails(base: BoolArray, own: FloatArray, count: FloatArray, mean: Floa
         # A window cut by the image's edges needs its share of the groups, and never fewer than all but one.
         pixels = _counts_around(np.outer(_block_sides(count.shape[0]), _block_sides(count.shape[1])))
         lit_base &= hits >= np.maximum(HEAVY_HITS * pixels / float((HEAVY_WINDOW * BLOCK) ** 2), HEAVY_HITS - 1)
-        if not lit_base.any():  # the shares below are summed only where enough hits are
+        if not lit_base.any():  # the shares below are summed only when some window holds enough hits
             return lit_base
         # Per pixel, not per sample: the image mean weighs each pixel alike, and a pixel the ranking gave hundreds
         # of samples must not weigh more for them.

@@ -21,12 +21,12 @@ from awr_denoise.buffers import NONFINITE_POLICIES, VARIANCE_KINDS
 from awr_denoise.errors import InputFileError
 from awr_denoise.io import PRESETS
 from awr_denoise.io.dump import header_count
-from awr_denoise.io.exr import header_value
+from awr_denoise.io.exr import brief, header_value
 from awr_denoise.io.request_map import MAX_ROUND
 from awr_denoise.sampling import SAMPLERS
 
 from .errors import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, RuntimeFailure, UsageError, one_line_warnings, shown
-from .sampler_settings import brief, carried_settings
+from .sampler_settings import carried_settings
 from .values import MAX_FRAMES, MAX_SEED, MAX_SPP, nonempty, whole
 
 __all__ = [

@@ -23,12 +23,12 @@ from awr_denoise.io import (
 from awr_denoise.io.atomic import same_file
 from awr_denoise.io.deep import check_answers
 from awr_denoise.io.dump import COUNT_CHANNEL, SEMANTICS_STATISTICS, SampleDump, header_count
-from awr_denoise.io.exr import ExrPart, check_same_windows, read_exr, read_windows
+from awr_denoise.io.exr import ExrPart, brief, check_same_windows, read_exr, read_windows
 from awr_denoise.io.request_map import MAX_ROUND
 
 from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, run_settings, status
 from .paths import PathPlan, check_plane_windows, plane_options
-from .sampler_settings import CARRIED, brief, carried_settings
+from .sampler_settings import CARRIED, carried_settings
 from .values import MAX_SEED, MAX_SPP, nonempty
 
 __all__ = ["register", "run"]
@@ -303,9 +303,11 @@ def run(args: argparse.Namespace) -> int:
         else:
             _check_match(path, dump.buffer, first, args.inputs[0])
         is_told = bool(args.request) and index == len(args.inputs) - 1
-        if index and not is_told:  # a running dump's settings, merged plainly: carried only where they agree
+        if index and not is_told and "awr:strategy" in attrs and "awr:strategy" in dump.attributes:
+            # Dumps of runs merged plainly: their settings carried only where they agree, a setting one leaves
+            # out (no cap, the automatic depth) being one too; else the output's would follow the inputs' order.
             for key in _SETTINGS:
-                if key in attrs and key in dump.attributes and str(dump.attributes[key]) != str(attrs[key]):
+                if str(dump.attributes.get(key)) != str(attrs.get(key)):
                     differ.setdefault(key, path)
         all_running = all_running and _running(dump.attributes)
         answers.append(_answers(path, dump.attributes))
@@ -322,8 +324,10 @@ def run(args: argparse.Namespace) -> int:
             merged, issued = merged.merge(dump.buffer), issued + dump.issued
         del dump
     for key, path in differ.items():
-        status(f"merge: {key} of {path} is not {args.inputs[0]}'s ({brief(attrs.pop(key))}): not carried, the "
-               "next plan takes its option or default", quiet=args.quiet)
+        first_value = attrs.pop(key, None)
+        status(f"merge: {key} of {path} is not {args.inputs[0]}'s ("
+               f"{'none' if first_value is None else brief(first_value)}): not carried, the next plan takes its "
+               "option or default", quiet=args.quiet)
     if merged is None:  # the first batch of a run, told alone
         merged, issued = SampleBuffer.empty(first.shape, channels=first.channels), np.zeros(first.shape, np.int64)
     del first

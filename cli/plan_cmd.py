@@ -41,10 +41,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="total new samples of this round")
     budget.add_argument("--round-spp", type=real(above=0, maximum=MAX_SPP), metavar="S",
                         help="new samples of this round per pixel on average")
-    budget.add_argument("--round-growth", type=real(above=0, maximum=MAX_ROUND_GROWTH), metavar="G",
-                        help="new samples of each round from this one on as a share of the samples taken so far "
-                             f"(default: the dump's awr:round_growth, else {DEFAULT_ROUND_GROWTH}; recorded for the "
-                             "rounds after this one, where --budget and --round-spp size this round only)")
+    p.add_argument("--round-growth", type=real(above=0, maximum=MAX_ROUND_GROWTH), metavar="G",
+                   help="new samples of a round planned from a dump as a share of the samples taken so far "
+                        f"(default: the dump's awr:round_growth, else {DEFAULT_ROUND_GROWTH}); recorded for the rest "
+                        "of the run, where --budget or --round-spp sizes one round and wins over it there")
     p.add_argument("--size", type=image_size, metavar="WxH", help="image size of the first round (without a dump)")
     p.add_argument("--initial-spp", type=whole(minimum=1, maximum=MAX_SPP),
                    help=f"samples per pixel of the first round (default {DEFAULT_AWR_INITIAL_SPP} with the awr strategy, "
@@ -62,11 +62,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--wavelet", type=wavelet_name,
                    help=f"wavelet of the priority analysis (default: the dump's awr:priority_wavelet, else "
                         f"{DEFAULT_WAVELET})")
-    p.add_argument("--levels", type=or_unset(whole(minimum=1, maximum=MAX_LEVELS), "auto"),
-                   help="decomposition depth of the priority analysis (default: the dump's awr:priority_levels, "
-                        "else auto, the depth the image allows)")
-    p.add_argument("--spp-max", type=or_unset(whole(minimum=1, maximum=MAX_SPP), "none"),
-                   help="most samples any pixel may have (default: the dump's awr:spp_max, else none)")
+    p.add_argument("--levels", type=or_unset(whole(minimum=1, maximum=MAX_LEVELS), "auto"), metavar="L|auto",
+                   help="decomposition depth of the priority analysis, or auto, the depth the image allows (default: "
+                        "the dump's awr:priority_levels, else auto)")
+    p.add_argument("--spp-max", type=or_unset(whole(minimum=1, maximum=MAX_SPP), "none"), metavar="N|none",
+                   help="most samples any pixel may have, or none (default: the dump's awr:spp_max, else none)")
     p.add_argument("--noise-model", choices=NOISE_MODELS,
                    help="awr only: model what reconstruction leaves of a pixel's noise by a wavelet shrinkage's exact "
                         "gain (shrinkage), the paper's levels, or the default reconstruction's measured gain "
@@ -102,15 +102,17 @@ def run(args: argparse.Namespace) -> int:
     same_run = dumped is None or dumped == args.strategy
     # The run's sampler settings, each where its option is not given: those of the dump's strategy that this one
     # uses too (each means the same in every strategy that uses it; the first round's spp does not).
-    carried = {} if args.input is None else carried_settings(args.input, dumped_header, dumped)
+    # Only those it uses are read, so an option given replaces a dump's value that does not fit.
+    used = {name for name, _, _, strategies in CARRIED if getattr(args, name) is None and args.strategy in strategies}
+    carried = {} if args.input is None else carried_settings(args.input, dumped_header, dumped, names=used)
     named = {name: option for name, _, option, _ in CARRIED}  # what set each: an option, or the dump
-    for name, key, _, strategies in CARRIED:
-        if name in carried and getattr(args, name) is None and args.strategy in strategies:
+    for name, key, _, _ in CARRIED:
+        if name in carried:
             setattr(args, name, carried[name])
             named[name] = f"{args.input}: {key}"
-    for name in ("spp_max", "levels"):  # --spp-max none, --levels auto: the run's cap or depth lifted
-        if getattr(args, name) == UNSET:
-            setattr(args, name, None)
+    lifted = {name for name in ("spp_max", "levels") if getattr(args, name) == UNSET}  # --spp-max none, --levels auto
+    for name in lifted:
+        setattr(args, name, None)
     options: dict = {"spp_max": args.spp_max}
     if args.initial_spp is not None and args.spp_max is not None and args.initial_spp > args.spp_max:
         cap = (f"--spp-max {args.spp_max}" if named["spp_max"] == "--spp-max"
@@ -133,7 +135,8 @@ def run(args: argparse.Namespace) -> int:
     else:  # a setting that would do nothing is refused, not ignored
         for option, value, what in (("--noise-model", args.noise_model, "models the reconstruction's noise"),
                                     ("--wavelet", args.wavelet, "analyses the image in wavelets"),
-                                    ("--levels", args.levels, "analyses the image in wavelets")):
+                                    ("--levels", "auto" if "levels" in lifted else args.levels,
+                                     "analyses the image in wavelets")):
             if value is not None:
                 raise UsageError(f"{option}: only --strategy awr {what}, not {args.strategy}"
                                  + (f" (the awr:strategy of {args.input}; give --strategy awr)" if from_dump else ""))

@@ -10,18 +10,19 @@ from __future__ import annotations
 
 import argparse
 import os
+from collections.abc import Collection
 from typing import Any
 
 from awr_denoise.errors import InputFileError
 from awr_denoise.io.dump import header_count
-from awr_denoise.io.exr import header_value
+from awr_denoise.io.exr import brief, header_value
 from awr_denoise.rare_paths import RARE_PATHS
 from awr_denoise.sampling import NOISE_MODELS, AdaptiveSampler, Sampler
 from awr_denoise.wavelets import max_levels
 
 from .values import MAX_LEVELS, MAX_ROUND_GROWTH, MAX_SPP, real, wavelet_name
 
-__all__ = ["CARRIED", "carried_settings", "sampler_settings", "brief"]
+__all__ = ["CARRIED", "carried_settings", "sampler_settings"]
 
 CARRIED: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     # (the samplers' keyword, the header attribute, plan's option, the strategies that use it)
@@ -36,13 +37,6 @@ CARRIED: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
 meaning and one default in every strategy that uses it, so a new strategy takes those it uses."""
 
 _GROWTH = real(above=0, maximum=MAX_ROUND_GROWTH)
-
-
-def brief(value: object, most: int = 60) -> str:
-    """``repr(value)``, cut to about ``most`` characters: a header's value in one error line (a 100-kB string was
-    echoed whole)."""
-    text = repr(value)
-    return text if len(text) <= most else f"{text[:most]}... ({len(text)} characters)"
 
 
 def sampler_settings(sampler: Sampler) -> dict[str, int | str]:
@@ -60,15 +54,15 @@ def sampler_settings(sampler: Sampler) -> dict[str, int | str]:
 
 
 def carried_settings(path: str | os.PathLike[str], attributes: dict, strategy: str | None,
-                     shape: tuple[int, int] | None = None) -> dict[str, Any]:
+                     shape: tuple[int, int] | None = None, *, names: Collection[str] | None = None) -> dict[str, Any]:
     """The samplers' keywords a running dump or request carries for ``strategy`` (its ``awr:strategy``; ``None``
     for none, which plan reads as ``awr``), each checked as ``plan`` checks it and refused naming the file and the
     attribute: the depth against the image of ``shape`` too, when it is given. The settings of other strategies
-    are neither read nor checked: no plan of this run uses them."""
+    are neither read nor checked: no plan of this run uses them; with ``names``, only those keywords are."""
     strategy = strategy or AdaptiveSampler.strategy
     out: dict[str, Any] = {}
     for name, key, _, strategies in CARRIED:
-        if key not in attributes or strategy not in strategies:
+        if key not in attributes or strategy not in strategies or (names is not None and name not in names):
             continue
         raw = header_value(attributes, key)
         if name in ("spp_max", "levels"):

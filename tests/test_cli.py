@@ -1440,6 +1440,40 @@ def test_a_plain_merge_carries_the_settings_its_running_dumps_agree_on(tmp_path,
         assert "awr:rare_paths" not in attrs and attrs["awr:noise_model"] == "shrinkage"  # the two agree there
         err = capsys.readouterr().err
         assert "awr:rare_paths of" in err and "not carried" in err
+    # A setting one of them leaves out is a setting too: no cap beside a cap of 64 is not carried either way.
+    assert main(["render", "--spp", "4", "--seed", "4", "--rare-paths", "zeros", "-o", str(tmp_path / "d.exr"),
+                 "-q"]) == 0
+    capped = tmp_path / "capped.exr"
+    write_sample_buffer(capped, read_sample_dump(tmp_path / "d.exr").buffer,
+                        header={**read_sample_dump(tmp_path / "d.exr").attributes, "awr:spp_max": 64}, overwrite=True)
+    for order in (("capped", "b"), ("b", "capped")):
+        out = tmp_path / f"{''.join(order)}.exr"
+        assert main(["merge", *(str(tmp_path / f"{n}.exr") for n in order), "-o", str(out)]) == 0
+        assert "awr:spp_max" not in read_sample_dump(out).attributes
+        assert "awr:spp_max of" in capsys.readouterr().err
+
+
+def test_an_option_given_replaces_a_dump_s_setting_that_does_not_fit(tmp_path, rng, capsys):
+    """plan reads only the settings it uses: an option given, or a strategy that does not use one, leaves the
+    dump's value unread (a review found --noise-model refused over the awr:noise_model it replaces)."""
+    buf = _dump(tmp_path / "d.exr", rng)
+    write_sample_buffer(tmp_path / "bad.exr", buf, header={"awr:strategy": "awr", "awr:noise_model": "evil",
+                                                           "awr:spp_max": 64})
+    for given in (["--noise-model", "levels"], ["--strategy", "variance"]):
+        assert main(["plan", str(tmp_path / "bad.exr"), *given, "-o", str(tmp_path / "r.exr"), "-q",
+                     "--overwrite"]) == 0
+        assert request_attributes(tmp_path / "r.exr")["awr:spp_max"] == 64  # what it uses still carried
+    assert main(["plan", str(tmp_path / "bad.exr"), "-o", str(tmp_path / "r.exr"), "-q", "--overwrite"]) == 2
+    _one_error_line(capsys, "bad.exr", "awr:noise_model")
+    # The words that lift a cap or a depth are refused where the option itself would do nothing.
+    assert main(["plan", str(tmp_path / "bad.exr"), "--strategy", "variance", "--levels", "auto", "-o",
+                 str(tmp_path / "v.exr"), "-q"]) == 2
+    _one_error_line(capsys, "--levels", "only --strategy awr")
+    # --round-growth beside --budget: the budget sizes this round, the growth is recorded for the next.
+    assert main(["plan", str(tmp_path / "d.exr"), "--budget", "500", "--round-growth", "1", "-o",
+                 str(tmp_path / "g.exr"), "-q"]) == 0
+    assert read_request(tmp_path / "g.exr").total == 500
+    assert request_attributes(tmp_path / "g.exr")["awr:round_growth"] == "1.0"
 
 
 def test_info_warns_about_the_settings_plan_reads_and_only_those(tmp_path, rng, capsys):

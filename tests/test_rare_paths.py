@@ -170,6 +170,19 @@ def test_a_corner_window_needs_all_but_one_of_the_hits_not_its_share_alone():
     assert found["three"][:4, :4].all()
 
 
+def test_a_window_over_a_last_partial_block_counts_its_pixels_not_whole_blocks():
+    """97 rows: the last row of blocks holds one pixel row. The window of block row 22 holds 6 whole rows of blocks
+    and that one (25 pixel rows, 900 pixels): its share of HEAVY_HITS is 2.8, so 3 hits make it a region; counted
+    as whole blocks (28 rows) it would be 3.1, and need 4."""
+    samples = np.full(8, 0.5)
+    samples[0] = 1500.0
+    count, mean, variance = _sparks(p=0.0, n=8, shape=(97, 96))
+    for y, x in ((78, 40), (86, 52), (94, 46)):
+        mean[y, x], variance[y, x] = samples.mean(), samples.var(ddof=1)
+    mask = rare_path_mask(_buffer(count, mean, variance))
+    assert mask[88:92, 44:56].all()
+
+
 def test_pixels_of_unknown_variance_that_caught_a_firefly_do_not_hide_the_others():
     """An unknown variance is stored as 0: a pixel whose mean a firefly made would look steady at that level."""
     count, mean, variance = _sparks(n=8)

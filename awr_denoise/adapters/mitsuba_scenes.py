@@ -244,8 +244,8 @@ def _shaded_lamp(mi: Any, shape: Shape2D) -> dict[str, Any]:
 
     The kind of room a red-team pass found AWR sampling's image mean low in (docs/robustness.md, "The
     twenty-first pass"), where ``indirect_room`` stands in with a spot light: the light leaves only upwards, so
-    everything the camera sees but a disc of ceiling and the shade's inside is lit through a bounce off that disc.
-    The shade is a surface the camera sees, lit only indirectly, with the light's occlusion at its rim."""
+    everything the camera sees but a disc of ceiling is lit through a bounce off that disc. The shade is a surface
+    the camera sees from below, lit only indirectly, with the light's occlusion at its rim."""
     T = mi.ScalarTransform4f
     scene = _room(mi, shape, "path")
     x, z, radius = -0.8, -1.0, 0.22

@@ -41,7 +41,7 @@ from .._version import __version__
 from ..buffers import VARIANCE_KINDS, SampleBuffer
 from ..features import FEATURE_CHANNELS, FEATURE_NAMES
 from .atomic import public_name
-from .exr import ExrPart, checked_plane, file_error, header_value, write_exr
+from .exr import ExrPart, brief, checked_plane, file_error, header_value, write_exr
 
 __all__ = [
     "COUNT_CHANNEL",
@@ -230,7 +230,7 @@ def header_count(path: str | os.PathLike[str], attributes: dict, key: str, defau
     raw = attributes.get(key, default)
     text = str(raw).strip()
     if not re.fullmatch(r"[+-]?[0-9]{1,40}", text):
-        raise file_error(path, f"header attribute is not a whole number: {raw!r}", key)
+        raise file_error(path, f"header attribute is not a whole number: {brief(raw)}", key)
     if not low <= int(text) <= high:
         raise file_error(path, f"header attribute {int(text)} is outside {low}..{high}", key)
     return int(text)

@@ -48,6 +48,7 @@ __all__ = [
     "read_exr",
     "write_exr",
     "file_error",
+    "brief",
     "checked_plane",
     "read_image",
     "write_image",
@@ -76,6 +77,13 @@ def file_error(path: str | os.PathLike[str], what: str, channel: str | None = No
     """An :class:`InputFileError` reading ``<file>: <channel>: <what>``."""
     where = f"{os.fspath(path)}: {channel}: " if channel else f"{os.fspath(path)}: "
     return InputFileError(where + what)
+
+
+def brief(value: object, most: int = 60) -> str:
+    """``repr(value)``, cut to about ``most`` characters: a header's value in one error line (a 100-kB attribute was
+    echoed whole)."""
+    text = repr(value)
+    return text if len(text) <= most else f"{text[:most]}... ({len(text)} characters)"
 
 
 def _openexr() -> Any:

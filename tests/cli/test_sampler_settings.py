@@ -10,6 +10,7 @@ from awr_denoise.cli.main import build_parser
 from awr_denoise.cli.sampler_settings import CARRIED, carried_settings, sampler_settings
 from awr_denoise.errors import InputFileError
 from awr_denoise.io import read_sample_dump, write_sample_buffer
+from awr_denoise.cli.values import MAX_ROUND_GROWTH
 from awr_denoise.sampling import SAMPLERS, AdaptiveSampler, UniformSampler, VarianceSampler
 
 
@@ -68,13 +69,21 @@ def test_a_depth_is_checked_against_the_image_when_its_shape_is_given():
     ("awr:round_growth", "x" * 100_000, "(100002 characters) is not a number"),
     ("awr:spp_max", "0", "outside 1.."), ("awr:spp_max", "4.5", "not a whole number"),
     ("awr:priority_levels", 33, "outside 1..32"), ("awr:priority_wavelet", "dmey", "not a perfect-reconstruction"),
-    ("awr:priority_wavelet", "morl", "'morl' is not a discrete wavelet"), ("awr:rare_paths", "Even", "not one of even, zeros, ranked"),
-    ("awr:noise_model", "", "not one of levels"),
+    ("awr:priority_wavelet", "morl", "'morl' is not a discrete wavelet"),
+    ("awr:rare_paths", "Even", "not one of even, zeros, ranked"), ("awr:noise_model", "", "not one of levels"),
+    ("awr:spp_max", "9" * 5000, "... (5002 characters)"),
 ])
 def test_a_bad_value_is_refused_naming_the_file_and_the_attribute(key, value, needle):
     with pytest.raises(InputFileError, match=r"d\.exr") as refused:
         carried_settings("d.exr", {key: value}, "awr")
     assert key in str(refused.value) and needle in str(refused.value) and len(str(refused.value)) < 250
+
+
+def test_the_largest_growth_is_the_samplers_own():
+    """--round-growth and awr:round_growth stop where the samplers do (values.MAX_ROUND_GROWTH)."""
+    assert AdaptiveSampler((8, 8), round_growth=MAX_ROUND_GROWTH).round_growth == MAX_ROUND_GROWTH
+    with pytest.raises(ValueError, match="round_growth"):
+        AdaptiveSampler((8, 8), round_growth=MAX_ROUND_GROWTH * (1 + 1e-9))
 
 
 def test_every_setting_is_a_sampler_keyword_and_a_plan_option():
