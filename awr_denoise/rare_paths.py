@@ -274,7 +274,7 @@ def _heavy_tails(base: BoolArray, own: FloatArray, count: FloatArray, mean: Floa
 def _dilated(mask: BoolArray, size: int) -> BoolArray:
     """Whether any pixel of ``mask`` lies in the ``size`` x ``size`` square (odd ``size``) around each pixel, the square
     cut by the image's edges (scipy's ``maximum_filter`` with ``mode="nearest"``): shifted copies or-ed, a window's
-    span doubling each time, for scipy's loop over the window's entries."""
+    span doubling each time, in place of scipy's loop over the window's entries."""
     r = size // 2
     out = np.pad(mask, r)  # False past the edges: the square cut there
     for axis in (0, 1):
@@ -372,8 +372,8 @@ def _blocks(a: FloatArray | BoolArray, reduce: Callable[..., np.ndarray] = np.su
 
 
 def _count(mask: BoolArray) -> np.ndarray:
-    """The number of ``mask``'s pixels in each BLOCK x BLOCK block (int32), summed as bytes (a float64 copy of the
-    mask costs more than the sums)."""
+    """The number of ``mask``'s pixels in each BLOCK x BLOCK block (integers), summed as bytes (a float64 copy of
+    the mask costs more than the sums)."""
     h, w = mask.shape
     padded = np.zeros((-(-h // BLOCK) * BLOCK, -(-w // BLOCK) * BLOCK), dtype=np.uint8)
     padded[:h, :w] = mask

@@ -199,8 +199,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _refuse_what_a_first_round_ignores(args: argparse.Namespace) -> None:
-    """The first round reads no dump and is uniform: the layout of a dump and what shapes later rounds would do
-    nothing in it, so they are refused, not ignored."""
+    """The first round reads no dump and is uniform: the layout of a dump would do nothing in it, so it is refused,
+    not ignored, and so is a second size of the round. (What shapes later rounds is recorded in its request.)"""
     given = dump_options_given(args)
     if given:
         raise UsageError(f"{given[0][0]}: describes a running DUMP.exr; the first round (--size) reads none")
