@@ -17,7 +17,7 @@ from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 from .common import (EXIT_OK, UsageError, add_plane_options, check_memory, dump_options_given, dumped_round,
                      dumped_seed, plane_kwargs, run_settings, status)
 from .paths import PathPlan, check_plane_windows, plane_options
-from .sampler_settings import CARRIED, carried_settings, sampler_settings
+from .sampler_settings import CARRIED, carried_settings, described, sampler_settings
 from .values import (MAX_LEVELS, MAX_ROUND_GROWTH, MAX_SEED, MAX_SPP, UNSET, image_size, nonempty, or_unset, real,
                      wavelet_name, whole)
 
@@ -193,8 +193,10 @@ def run(args: argparse.Namespace) -> int:
             raise
         raise UsageError(f"{option}: {str(exc).split(': ', 1)[-1]}") from None
     h, w = request.shape
+    kept = described(carried)  # the run's settings this plan took from the dump, where not the defaults
     status(f"{args.output}: round {request.round}, {request.total} samples "
-           f"({request.total / (h * w):.3g} per pixel), seed {seed}", quiet=args.quiet)
+           f"({request.total / (h * w):.3g} per pixel), seed {seed}" + (f"; {kept} (the run's, from {args.input})"
+                                                                        if kept else ""), quiet=args.quiet)
     return EXIT_OK
 
 

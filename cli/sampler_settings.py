@@ -16,13 +16,14 @@ from typing import Any
 from awr_denoise.errors import InputFileError
 from awr_denoise.io.dump import header_count
 from awr_denoise.io.exr import brief, header_value
-from awr_denoise.rare_paths import RARE_PATHS
-from awr_denoise.sampling import NOISE_MODELS, AdaptiveSampler, Sampler
-from awr_denoise.wavelets import max_levels
+from awr_denoise.noise_gain import DEFAULT_NOISE_MODEL
+from awr_denoise.rare_paths import DEFAULT_RARE_PATHS, RARE_PATHS
+from awr_denoise.sampling import DEFAULT_ROUND_GROWTH, NOISE_MODELS, AdaptiveSampler, Sampler
+from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 
 from .values import MAX_LEVELS, MAX_ROUND_GROWTH, MAX_SPP, real, wavelet_name
 
-__all__ = ["CARRIED", "carried_settings", "sampler_settings"]
+__all__ = ["CARRIED", "DEFAULTS", "carried_settings", "sampler_settings", "described"]
 
 CARRIED: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     # (the samplers' keyword, the header attribute, plan's option, the strategies that use it)
@@ -36,7 +37,19 @@ CARRIED: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
 """The settings a request and a running dump carry beside ``awr:strategy`` and ``awr:initial_spp``; each keeps one
 meaning and one default in every strategy that uses it, so a new strategy takes those it uses."""
 
+DEFAULTS: dict[str, Any] = {"round_growth": DEFAULT_ROUND_GROWTH, "spp_max": None, "rare_paths": DEFAULT_RARE_PATHS,
+                             "noise_model": DEFAULT_NOISE_MODEL, "wavelet": DEFAULT_WAVELET, "levels": None}
+"""Each setting's value when neither an option nor the dump gives it (the samplers' defaults)."""
+
 _GROWTH = real(above=0, maximum=MAX_ROUND_GROWTH)
+
+
+def described(settings: dict[str, Any]) -> str:
+    """The settings of ``settings`` (samplers' keywords) that differ from :data:`DEFAULTS`, as plan's options
+    (``--rare-paths zeros, --spp-max 64``): what a run carries that its user may have forgotten giving."""
+    options = {name: option for name, _, option, _ in CARRIED}
+    return ", ".join(f"{options[name]} {value:g}" if isinstance(value, float) else f"{options[name]} {value}"
+                     for name, value in settings.items() if value != DEFAULTS[name])
 
 
 def sampler_settings(sampler: Sampler) -> dict[str, int | str]:

@@ -1314,8 +1314,12 @@ def test_render_records_the_sampler_settings_plan_continues(tmp_path, capsys, fa
     # The round's size is the render's growth: 30% of the samples so far, not the default 25%.
     assert read_request(tmp_path / "carried.exr").total == round(0.3 * dump.buffer.total_samples)
     seen.clear()
-    assert main(["plan", str(source), "--rare-paths", "even", "-o", str(tmp_path / "given.exr"), "-q"]) == 0
+    capsys.readouterr()
+    assert main(["plan", str(source), "--rare-paths", "even", "-o", str(tmp_path / "given.exr")]) == 0
     assert seen == ["even"] and request_attributes(tmp_path / "given.exr")["awr:rare_paths"] == "even"
+    # The status line names what the run carries beyond the defaults, which its user may have forgotten giving.
+    out = capsys.readouterr()
+    assert f"; --round-growth 0.3, --noise-model levels (the run's, from {source})" in out.out + out.err
     uniform = tmp_path / "u.exr"
     assert main(["render", "--uniform", "--spp", "2", "-o", str(uniform), "-q"]) == 0
     assert not {"awr:rare_paths", "awr:noise_model", "awr:round_growth"} & set(read_sample_dump(uniform).attributes)

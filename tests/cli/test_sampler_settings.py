@@ -7,7 +7,7 @@ import pytest
 
 from awr_denoise import SampleBuffer
 from awr_denoise.cli.main import build_parser
-from awr_denoise.cli.sampler_settings import CARRIED, carried_settings, sampler_settings
+from awr_denoise.cli.sampler_settings import CARRIED, DEFAULTS, carried_settings, described, sampler_settings
 from awr_denoise.errors import InputFileError
 from awr_denoise.io import read_sample_dump, write_sample_buffer
 from awr_denoise.cli.values import MAX_ROUND_GROWTH
@@ -77,6 +77,14 @@ def test_a_bad_value_is_refused_naming_the_file_and_the_attribute(key, value, ne
     with pytest.raises(InputFileError, match=r"d\.exr") as refused:
         carried_settings("d.exr", {key: value}, "awr")
     assert key in str(refused.value) and needle in str(refused.value) and len(str(refused.value)) < 250
+
+
+def test_the_settings_a_plan_names_are_those_that_are_not_the_defaults():
+    assert described({"round_growth": 0.25, "rare_paths": "even", "noise_model": "shrinkage"}) == ""
+    assert described({"round_growth": 1.0, "spp_max": 64, "rare_paths": "even", "levels": 3}) == \
+        "--round-growth 1, --spp-max 64, --levels 3"
+    for name, default in DEFAULTS.items():  # every default is the samplers' own
+        assert getattr(AdaptiveSampler((8, 8)), name) == default, name
 
 
 def test_the_largest_growth_is_the_samplers_own():
