@@ -45,11 +45,12 @@ _GROWTH = real(above=0, maximum=MAX_ROUND_GROWTH)
 
 
 def described(settings: dict[str, Any]) -> str:
-    """The settings of ``settings`` (samplers' keywords) that differ from :data:`DEFAULTS`, as plan's options
-    (``--rare-paths zeros, --spp-max 64``): what a run carries that its user may have forgotten giving."""
-    options = {name: option for name, _, option, _ in CARRIED}
-    return ", ".join(f"{options[name]} {value:g}" if isinstance(value, float) else f"{options[name]} {value}"
-                     for name, value in settings.items() if value != DEFAULTS[name])
+    """The settings of ``settings`` (samplers' keywords) that differ from :data:`DEFAULTS`, as plan's options in
+    :data:`CARRIED`'s order (``--spp-max 64, --rare-paths zeros``): what a run carries that its user may have
+    forgotten giving. A growth is shown exactly, as the request records it (``0.3``, ``1``)."""
+    shown = {name: str(value).removesuffix(".0") if isinstance(value, float) else str(value)
+             for name, value in settings.items() if value != DEFAULTS[name]}
+    return ", ".join(f"{option} {shown[name]}" for name, _, option, _ in CARRIED if name in shown)
 
 
 def sampler_settings(sampler: Sampler) -> dict[str, int | str]:

@@ -1317,9 +1317,17 @@ def test_render_records_the_sampler_settings_plan_continues(tmp_path, capsys, fa
     capsys.readouterr()
     assert main(["plan", str(source), "--rare-paths", "even", "-o", str(tmp_path / "given.exr")]) == 0
     assert seen == ["even"] and request_attributes(tmp_path / "given.exr")["awr:rare_paths"] == "even"
-    # The status line names what the run carries beyond the defaults, which its user may have forgotten giving.
+    # The status line names what the run carries beyond the defaults, which its user may have forgotten giving;
+    # not what an option gave, and nothing with -q.
     out = capsys.readouterr()
     assert f"; --round-growth 0.3, --noise-model levels (the run's, from {source})" in out.out + out.err
+    assert main(["plan", str(source), "--rare-paths", "ranked", "--round-growth", "0.5", "-o",
+                 str(tmp_path / "options.exr")]) == 0
+    out = capsys.readouterr()
+    line = out.out + out.err
+    assert f"; --noise-model levels (the run's, from {source})" in line and "ranked" not in line and "0.5" not in line
+    assert main(["plan", str(source), "-o", str(tmp_path / "quiet.exr"), "-q"]) == 0
+    assert capsys.readouterr() == ("", "")
     uniform = tmp_path / "u.exr"
     assert main(["render", "--uniform", "--spp", "2", "-o", str(uniform), "-q"]) == 0
     assert not {"awr:rare_paths", "awr:noise_model", "awr:round_growth"} & set(read_sample_dump(uniform).attributes)

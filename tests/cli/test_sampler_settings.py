@@ -81,10 +81,13 @@ def test_a_bad_value_is_refused_naming_the_file_and_the_attribute(key, value, ne
 
 def test_the_settings_a_plan_names_are_those_that_are_not_the_defaults():
     assert described({"round_growth": 0.25, "rare_paths": "even", "noise_model": "shrinkage"}) == ""
-    assert described({"round_growth": 1.0, "spp_max": 64, "rare_paths": "even", "levels": 3}) == \
+    assert described({"levels": 3, "round_growth": 1.0, "spp_max": 64, "rare_paths": "even"}) == \
         "--round-growth 1, --spp-max 64, --levels 3"
-    for name, default in DEFAULTS.items():  # every default is the samplers' own
-        assert getattr(AdaptiveSampler((8, 8)), name) == default, name
+    assert described({"round_growth": 0.123456789}) == "--round-growth 0.123456789"  # as recorded, not rounded
+    assert set(DEFAULTS) == {name for name, _, _, _ in CARRIED}
+    for name, _, _, strategies in CARRIED:  # every default is the samplers' own, in every strategy that uses it
+        for strategy in strategies:
+            assert getattr(SAMPLERS[strategy]((8, 8)), name) == DEFAULTS[name], (strategy, name)
 
 
 def test_the_largest_growth_is_the_samplers_own():
