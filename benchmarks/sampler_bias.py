@@ -57,6 +57,7 @@ from scipy import ndimage
 
 import awr_denoise.priorities as priorities
 from awr_denoise import AdaptiveSampler, SampleRequest, reconstruct
+from awr_denoise.adapters.mitsuba_scenes import HEAVY_TAILED_SCENES, SCENE_NAMES
 from awr_denoise.metrics import mse, relmse
 from awr_denoise.prepare import prepare
 
@@ -67,8 +68,8 @@ RARE_PATHS_RESULTS = REPOSITORY / "benchmarks" / "results" / "sampler_bias_rare_
 RARE_PATHS_BUNDLED_RESULTS = REPOSITORY / "benchmarks" / "results" / "sampler_bias_rare_paths_bundled.json"
 RARE_PATHS_SYNTHETIC_RESULTS = REPOSITORY / "benchmarks" / "results" / "sampler_bias_rare_paths_synthetic.json"
 TRACER_SCENES = ("default", "chess_dof", "rolling_balls", "sky_objects", "soft_shadows", "cornell_gi")
-MITSUBA_SCENES = ("cornell_box", "envmap_sun", "glossy_glass", "dof_checker")
-RARE_PATH_SCENES = ("indirect_room", "fog_spot", "shaded_lamp")  # mitsuba_scenes.HEAVY_TAILED_SCENES
+MITSUBA_SCENES = SCENE_NAMES  # the adapter's bundled scenes; importing their names needs no Mitsuba
+RARE_PATH_SCENES = HEAVY_TAILED_SCENES
 SYNTHETIC_SCENES = ("fireflies", "rare_light")  # awr_denoise.synthetic's heavy-tailed scenes, at 64x64
 VARIANTS: dict[str, dict[str, Any]] = {
     "default": {},

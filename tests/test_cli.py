@@ -568,16 +568,19 @@ def test_merge_is_exact_chan_update(tmp_path, rng, capsys):
     np.testing.assert_allclose(merged.variance, direct.variance, rtol=2e-5, atol=1e-7)
 
 
-@pytest.mark.parametrize("attribute, value, needle", [("awr:strategy", "evil", "'evil' is not one of awr"),
-                                                      ("awr:rare_paths", "evil", "'evil' is not one of even"),
-                                                      ("awr:noise_model", "evil", "'evil' is not one of levels"),
-                                                      ("awr:round_growth", "nan", "is not a number above 0"),
-                                                      ("awr:round_growth", "1e7", "not a number above 0"),
-                                                      ("awr:priority_wavelet", "dmey", "not a perfect-reconstruction"),
-                                                      ("awr:priority_levels", 0, "outside 1.."),
-                                                      ("awr:priority_levels", 9, "outside 1..4 for its image"),
-                                                      ("awr:spp_max", "x", "not a whole number"),
-                                                      ("awr:initial_spp", 0, "outside 1..")])
+BAD_RUN_SETTINGS = [("awr:strategy", "evil", "'evil' is not one of awr"), ("awr:initial_spp", 0, "outside 1.."),
+                    ("awr:rare_paths", "evil", "'evil' is not one of even"),
+                    ("awr:noise_model", "evil", "'evil' is not one of levels"),
+                    ("awr:round_growth", "nan", "is not a number above 0"),
+                    ("awr:round_growth", "1e7", "not a number above 0"),
+                    ("awr:priority_wavelet", "dmey", "not a perfect-reconstruction"),
+                    ("awr:priority_levels", 0, "outside 1.."),
+                    ("awr:priority_levels", 9, "outside 1..4 for its image"),  # the 24x32 dump allows 4
+                    ("awr:spp_max", "x", "not a whole number")]
+"""Run settings of a dump that plan refuses (merge carries them, info warns), with what the refusal says."""
+
+
+@pytest.mark.parametrize("attribute, value, needle", BAD_RUN_SETTINGS)
 def test_merge_refuses_a_run_setting_plan_would_refuse(tmp_path, rng, capsys, attribute, value, needle):
     """merge carried a running dump's strategy and first round's spp into its output unchecked: exit 0, and the
     next plan refused the dump it wrote; plan's refusal of an initial spp of 0 named neither the file nor the
@@ -591,18 +594,8 @@ def test_merge_refuses_a_run_setting_plan_would_refuse(tmp_path, rng, capsys, at
     assert not (tmp_path / "m.exr").exists() and not (tmp_path / "r.exr").exists()
 
 
-@pytest.mark.parametrize("attribute, value, needle", [("awr:strategy", "evil", "'evil' is not one of awr"),
-                                                      ("awr:initial_spp", 0, "outside 1.."),
-                                                      ("awr:rare_paths", "evil", "'evil' is not one of even"),
-                                                      ("awr:noise_model", "evil", "'evil' is not one of levels"),
-                                                      ("awr:round_growth", "nan", "is not a number above 0"),
-                                                      ("awr:round_growth", "1e7", "not a number above 0"),
-                                                      ("awr:priority_wavelet", "dmey", "not a perfect-reconstruction"),
-                                                      ("awr:priority_levels", 0, "outside 1.."),
-                                                      ("awr:priority_levels", 9, "outside 1..4 for its image"),
-                                                      ("awr:spp_max", "x", "not a whole number"),
-                                                      ("awr:seed", "x", "not a whole number"),
-                                                      ("awr:round", 0, "outside 1..")])
+@pytest.mark.parametrize("attribute, value, needle", BAD_RUN_SETTINGS + [("awr:seed", "x", "not a whole number"),
+                                                                         ("awr:round", 0, "outside 1..")])
 def test_info_says_which_run_setting_plan_refuses(tmp_path, rng, capsys, attribute, value, needle):
     """info said only "ready to denoise" (true: denoise reads the file) for a dump plan refuses as a running
     dump; it now warns, naming the attribute, on its lines and in --json. A valid dump gets no such warning."""
