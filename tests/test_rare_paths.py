@@ -332,6 +332,19 @@ def test_the_dilation_and_the_window_counts_are_scipy_s_and_the_entries_sums(sha
                                       rare_paths._zero_padded_window(counts.astype(np.float64)))
 
 
+@pytest.mark.parametrize("shape", [(1, 1), (1, 9), (9, 1), (6, 4), (17, 25)])
+def test_stacked_window_sums_are_each_sum_on_its_own(shape):
+    """The search sums its block statistics stacked on a last axis, one call for all: each must come out exactly as
+    it would alone (the same additions), with nothing padded or mixed along the stacked axis."""
+    rng = np.random.default_rng(sum(shape))
+    stats = [rng.random(shape) * 10.0 ** rng.integers(-3, 9) for _ in range(6)]
+    stats[2][0, 0] = 1e16  # a firefly's block beside small ones
+    for window in (rare_paths._window, rare_paths._zero_padded_window):
+        stacked = window(np.stack(stats, axis=-1))
+        for k, one in enumerate(stats):
+            np.testing.assert_array_equal(stacked[..., k], window(one))
+
+
 def test_each_region_takes_the_mean_of_its_densities_and_its_total_is_kept():
     count, mean, variance = _hits(1 / 40)
     mean[:, 20:44], variance[:, 20:44] = 1.0, 0.5  # two regions of rare hits, a steady band between them
