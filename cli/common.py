@@ -186,15 +186,19 @@ def dumped_round(path: str | os.PathLike[str], attributes: dict) -> int:
     return header_count(path, attributes, "awr:round", 1, MAX_ROUND - 1, low=1)
 
 
-def run_settings_refused(path: str | os.PathLike[str], attributes: dict, shape: tuple[int, int]) -> str | None:
+def run_settings_refused(path: str | os.PathLike[str], attributes: dict, shape: tuple[int, int], *,
+                         request: bool = False) -> str | None:
     """The line ``plan`` would refuse a running dump of ``shape`` with for its ``awr:*`` run settings (strategy,
     first round's spp, the sampler's settings, seed, round; plan's own checks), or ``None``: ``info`` reports it
-    beside "ready to denoise", which is about ``denoise``."""
+    beside "ready to denoise", which is about ``denoise``. With ``request``, the line ``merge --request`` would
+    refuse a request map with for the settings it carries into the dump (its round is the request's own, checked
+    as the map is read)."""
     try:
         strategy, _ = run_settings(path, attributes)
         carried_settings(path, attributes, strategy, shape)
         dumped_seed(path, attributes)
-        dumped_round(path, attributes)
+        if not request:
+            dumped_round(path, attributes)
     except InputFileError as error:
         return str(error)
     return None

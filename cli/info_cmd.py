@@ -92,6 +92,8 @@ def _print(info: dict[str, Any]) -> None:
         s = info["spp"]
         _line(f"  request: round {info['round']}, {info['total']} samples, per pixel min {s['min']:g} / "
               f"mean {s['mean']:.4g} / max {s['max']:g}")
+        for warning in info.get("warnings", []):
+            _line(f"  warning: {warning}")
     for key, value in sorted(info["attributes"].items()):
         _line(f"  {key} = {value}")
 
@@ -109,11 +111,15 @@ def run(args: argparse.Namespace) -> int:
     if given and info["kind"] in ("request", "image"):  # described without them: refused, not ignored
         what = "a request map" if info["kind"] == "request" else "an image"
         raise UsageError(f"{given[0][0]}: describes a sample dump; {args.input} is {what}")
-    if info["kind"] == "samples":
-        # "ready to denoise" is about denoise; a running dump's run settings are plan's, said here too
-        refused = run_settings_refused(args.input, read_header(args.input), (info["height"], info["width"]))
+    if info["kind"] in ("samples", "request"):
+        # "ready to denoise" is about denoise; a running dump's run settings are plan's, a request's merge's (it
+        # carries them into the dump), said here too
+        is_request = info["kind"] == "request"
+        refused = run_settings_refused(args.input, read_header(args.input), (info["height"], info["width"]),
+                                       request=is_request)
         if refused is not None:
-            info.setdefault("warnings", []).append(f"awr plan refuses it as a running dump: {refused}")
+            who = "awr merge --request refuses it" if is_request else "awr plan refuses it as a running dump"
+            info.setdefault("warnings", []).append(f"{who}: {refused}")
     # A signal whose exception a C extension's import swallowed: no report after it.
     interrupts.check()
     if args.json:

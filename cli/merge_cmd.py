@@ -172,6 +172,15 @@ dumps), each pixel's samples its seed's sequence from index 0 on; 0 on a plain m
 else (batches start at ``first_index``). Files without it (older versions) are judged by their round."""
 
 
+SEEDS = "awr:seeds"
+"""On a merge of running dumps of several seeds (loops on two machines, merged plainly), in place of ``awr:seed``:
+the seeds whose sequences it holds, as text (``0 1``). One dump no longer says which seed each pixel's samples
+follow, so it is no loop's running dump; the duplicate checks read the seeds, so that a newer dump of either loop
+merged with it later is refused (both hold that loop's first samples)."""
+MAX_SEEDS = 4096
+"""The most seeds :data:`SEEDS` records (more loops than any farm runs; the header stays small)."""
+
+
 def _running(attributes: dict) -> bool:
     """Whether a file is a running dump: marked so, or, unmarked, statistics naming a seed and a round."""
     if attributes.get("awr:semantics") != SEMANTICS_STATISTICS or "awr:seed" not in attributes:
@@ -186,10 +195,26 @@ class _Seen:
 
     path: str
     digest: bytes | None  # of its count, mean and variance, when it holds samples
-    running: tuple[str, np.ndarray] | None  # a running dump's seed and the pixels where it has samples
+    running: tuple[frozenset[int], np.ndarray] | None  # the seeds whose first samples it holds, and where
 
 
-def _seen(path: str, dump: SampleDump, told: bool) -> _Seen:
+def _seeds(path: str, attributes: dict, told: bool) -> frozenset[int]:
+    """The seeds whose sequences from index 0 an input holds: its :data:`SEEDS`, else a running dump's
+    ``awr:seed``; none for a told batch (it starts at its request's ``first_index``) or any other file."""
+    if told:
+        return frozenset()
+    if SEEDS in attributes:
+        raw = attributes[SEEDS]
+        words = str(raw).split()
+        if not 1 <= len(words) <= MAX_SEEDS:
+            raise InputFileError(f"{path}: {SEEDS}: {brief(raw)} is not a list of 1 to {MAX_SEEDS} seeds")
+        return frozenset(header_count(path, {SEEDS: word}, SEEDS, 0, MAX_SEED) for word in words)
+    if _running(attributes):
+        return frozenset({header_count(path, attributes, "awr:seed", 0, MAX_SEED)})
+    return frozenset()
+
+
+def _seen(path: str, dump: SampleDump, seeds: frozenset[int]) -> _Seen:
     buffer = dump.buffer
     digest = None
     if buffer.total_samples:
@@ -198,21 +223,21 @@ def _seen(path: str, dump: SampleDump, told: bool) -> _Seen:
             h.update(repr((a.dtype.str, a.shape)).encode())
             h.update(np.ascontiguousarray(a).data)
         digest = h.digest()
-    running = None
-    if not told and _running(dump.attributes):  # a told batch starts at its request's first_index
-        running = (str(dump.attributes["awr:seed"]).strip(), buffer.count > 0)
-    return _Seen(path, digest, running)
+    return _Seen(path, digest, (seeds, buffer.count > 0) if seeds else None)
 
 
 def _refuse_copies(earlier: list[_Seen], new: _Seen) -> None:
     """Refuse an input that holds the same samples as an earlier one (a copy, or two running dumps of
-    one seed with samples at the same pixels): merged, they would count twice."""
+    one seed with samples at the same pixels): merged, they would count twice. A merge of several seeds' loops
+    (:data:`SEEDS`) is taken to hold each seed's first samples wherever it has samples: one of them merged again
+    is refused even where the pixels it shares with the merge were another seed's (a refusal, never a count twice)."""
     for old in earlier:
         if new.digest is not None and new.digest == old.digest:
             why = "hold the same samples (a copy?)"
-        elif new.running and old.running and new.running[0] == old.running[0] and (
+        elif new.running and old.running and (common := new.running[0] & old.running[0]) and (
                 shared := int(np.count_nonzero(new.running[1] & old.running[1]))):
-            why = (f"are running dumps of one sample sequence (awr:seed {new.running[0]}): at {shared} pixel(s) "
+            seeds = ", ".join(str(seed) for seed in sorted(common))
+            why = (f"are running dumps of one sample sequence (awr:seed {seeds}): at {shared} pixel(s) "
                    "both hold its first samples, the same samples (loops on two machines need two seeds)")
         else:
             continue
@@ -227,6 +252,16 @@ def _refuse_duplicates(paths: list[str]) -> None:
             if same_file(paths[i], paths[j]):
                 raise UsageError(f"merge: {paths[j]} and {paths[i]} are the same file; merging would count their "
                                  "samples twice (pass --allow-duplicates to merge them anyway)")
+
+
+def _replaced(asked: dict | None) -> set[str]:
+    """The running dump's run settings that a told request's own replace in the output: those it records, and with
+    ``awr:round_growth`` (a plan that records all its sampler's settings; none left is automatic) all of
+    :data:`CARRIED`'s."""
+    if asked is None:
+        return set()
+    return {key for key in _SETTINGS if key in asked} | (
+        {key for _, key, _, _ in CARRIED} if "awr:round_growth" in asked else set())
 
 
 def run(args: argparse.Namespace) -> int:
@@ -289,30 +324,42 @@ def run(args: argparse.Namespace) -> int:
     # One input in memory at a time beside the merged statistics: read, checked, merged, let go.
     # Plain batches merge with Chan's update; a batch answering --request (the last) is told to a sampler.
     seen: list[_Seen] = []
+    held: set[int] = set()  # the seeds whose first samples the inputs hold
     rounds: list[int] = []
     answers: list[dict | None] = []
     all_running = True
     merged = issued = told = None
+    # The request's run settings, which replace the running dump's in the output: those are neither checked nor
+    # carried (plan, which wrote the request, did not read them either).
+    asked = None if not args.request else {k: v for k, v in request_attributes(args.request).items()
+                                           if v is not None}
     for index, (path, kwargs) in enumerate(zip(args.inputs, _input_kwargs(args))):
         dump = read_sample_dump(path, **kwargs)
+        is_told = bool(args.request) and index == len(args.inputs) - 1
+        seeds = _seeds(path, dump.attributes, is_told)
         if index == 0:
-            first, attrs = dump.buffer, {k: v for k, v in dump.attributes.items() if k.removeprefix("awr:") in _KEPT}
+            first, attrs = dump.buffer, {k: v for k, v in dump.attributes.items()
+                                         if k.removeprefix("awr:") in _KEPT and k not in _replaced(asked)}
             run_strategy, _ = run_settings(path, attrs)  # carried into the output for plan: checked as plan does
             carried_settings(path, attrs, run_strategy, dump.buffer.shape)
-            differ: dict[str, str] = {}
+            if asked is not None:  # before any batch is read
+                strategy, _ = run_settings(args.request, asked)
+                carried_settings(args.request, asked, strategy or run_strategy, dump.buffer.shape)
+            first_loop, differ = bool(seeds), {}
         else:
             _check_match(path, dump.buffer, first, args.inputs[0])
-        is_told = bool(args.request) and index == len(args.inputs) - 1
-        if index and not is_told and "awr:strategy" in attrs and "awr:strategy" in dump.attributes:
-            # Dumps of runs merged plainly: their settings carried only where they agree, a setting one leaves
-            # out (no cap, the automatic depth) being one too; else the output's would follow the inputs' order.
-            for key in _SETTINGS:
-                if str(dump.attributes.get(key)) != str(attrs.get(key)):
-                    differ.setdefault(key, path)
+            if first_loop and seeds:
+                # Loops' dumps merged plainly: their settings carried only where they agree, a setting one leaves
+                # out (no cap, the automatic depth, or dropped by an earlier merge) being one too; else the
+                # output's would follow the inputs' order.
+                for key in (key for key in _SETTINGS if key not in _replaced(asked)):  # (a request's replace them)
+                    if str(dump.attributes.get(key)) != str(attrs.get(key)):
+                        differ.setdefault(key, path)
+        held |= seeds
         all_running = all_running and _running(dump.attributes)
         answers.append(_answers(path, dump.attributes))
         if not args.allow_duplicates:
-            _refuse_copies(seen, new := _seen(path, dump, is_told))
+            _refuse_copies(seen, new := _seen(path, dump, seeds))
             seen.append(new)
         if "awr:round" in dump.attributes:
             rounds.append(header_count(path, dump.attributes, "awr:round", 0, MAX_ROUND))
@@ -336,16 +383,10 @@ def run(args: argparse.Namespace) -> int:
         rounds.append(request_round)
         if note:
             status(f"{args.inputs[-1]}: {note}", quiet=args.quiet)
-        asked = {k: v for k, v in request_attributes(args.request).items() if v is not None}
-        strategy, _ = run_settings(args.request, asked)
-        carried_settings(args.request, asked, strategy or run_strategy, merged.shape)
-        if "awr:round_growth" in asked:  # a plan that records all its sampler's settings: none left is automatic
-            for _, key, _, _ in CARRIED:
-                attrs.pop(key, None)
-        for key in _SETTINGS:  # the run's newest, which plan continues (uniform stays uniform)
-            if key in asked:
-                attrs[key] = asked[key]
-        seed = request_attributes(args.request).get("awr:seed")
+        # The run's newest settings, which plan continues (uniform stays uniform); the dump's they replace were
+        # left out of ``attrs`` above.
+        attrs.update({key: asked[key] for key in _SETTINGS if key in asked})
+        seed = asked.get("awr:seed")
         if seed is not None:
             seed = header_count(args.request, {"awr:seed": seed}, "awr:seed", 0, MAX_SEED)  # the request's, named so
             if "awr:seed" not in attrs:
@@ -354,14 +395,26 @@ def run(args: argparse.Namespace) -> int:
                 # Kept silently, the dump's seed would misname the batch's samples (another dump's request?).
                 raise UsageError(f"merge: {args.request}: awr:seed {seed} does not match awr:seed {kept} of "
                                  f"{args.inputs[0]} (plan each request from the running dump)")
+            if held:  # a merge of several loops goes on with this seed too: counted among those it holds
+                held.add(seed)
     if rounds:  # without any round information (plain batches) plan starts at round 1
         if max(rounds) + 1 > MAX_ROUND:  # a dump that no tool would read again
             raise UsageError(f"merge: the next round would be {max(rounds) + 1}, beyond the last ({MAX_ROUND})")
         attrs["awr:round"] = max(rounds) + 1
+    if len(held) > 1:  # several loops' samples: no one seed's sequence
+        if len(held) > MAX_SEEDS:
+            raise UsageError(f"merge: the inputs hold the samples of {len(held)} seeds, more than {SEEDS} records "
+                             f"({MAX_SEEDS})")
+        if told is None and (dropped := attrs.pop("awr:seed", None)) is not None:
+            status(f"merge: the inputs are loops of {len(held)} seeds: awr:seed {brief(dropped)} of "
+                   f"{args.inputs[0]} not carried ({SEEDS} names them; each loop goes on from its own dump)",
+                   quiet=args.quiet)
+        attrs[SEEDS] = " ".join(str(seed) for seed in sorted(held))
     if "awr:seed" in attrs:
         header_count(args.inputs[0], attrs, "awr:seed", 0, MAX_SEED)
-    # A loop's running dump (told, or running dumps merged): its samples are every pixel's sequence from 0.
-    attrs[RUNNING] = int(told is not None or all_running)
+    # A loop's running dump (told, or running dumps of one seed merged): its samples are every pixel's sequence
+    # from 0.
+    attrs[RUNNING] = int((told is not None or all_running) and len(held) <= 1)
     if told is None and answers and all(a is not None and a == answers[0] for a in answers):
         # Tiles of one batch, merged before they are told: still naming their request.
         attrs.update({key: answers[0][field] for key, field in ANSWERS.items()})

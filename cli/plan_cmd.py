@@ -114,12 +114,19 @@ def run(args: argparse.Namespace) -> int:
     for name in lifted:
         setattr(args, name, None)
     options: dict = {"spp_max": args.spp_max}
-    if args.initial_spp is not None and args.spp_max is not None and args.initial_spp > args.spp_max:
-        cap = (f"--spp-max {args.spp_max}" if named["spp_max"] == "--spp-max"
-               else f"awr:spp_max {args.spp_max} of {args.input} (give --spp-max to change it)")
-        raise UsageError(f"--initial-spp: {args.initial_spp} exceeds {cap}, the most any pixel may have")
-    if args.initial_spp is None and dumped_initial is not None and same_run:  # another strategy: its own default
+    initial_given = args.initial_spp is not None
+    if not initial_given and dumped_initial is not None and same_run:  # another strategy: its own default
         args.initial_spp = dumped_initial
+    if args.initial_spp is not None and args.spp_max is not None and args.initial_spp > args.spp_max:
+        # Refused, not clamped, wherever either comes from: the run's first round would silently change.
+        cap_given = named["spp_max"] == "--spp-max"
+        if initial_given:
+            cap = (f"--spp-max {args.spp_max}" if cap_given
+                   else f"awr:spp_max {args.spp_max} of {args.input} (give --spp-max to change it)")
+            raise UsageError(f"--initial-spp: {args.initial_spp} exceeds {cap}, the most any pixel may have")
+        cap, give = (("--spp-max", "--initial-spp") if cap_given else ("its awr:spp_max", "--initial-spp or --spp-max"))
+        raise UsageError(f"{args.input}: awr:initial_spp {args.initial_spp} exceeds {cap} {args.spp_max}, the most "
+                         f"any pixel may have (give {give})")
     if args.initial_spp is not None:  # else the strategy's own default
         options["initial_spp"] = args.initial_spp
     if args.round_growth is not None:
@@ -191,7 +198,10 @@ def run(args: argparse.Namespace) -> int:
         option = _option_behind(str(exc), args, named["spp_max"])
         if option is None:
             raise
-        raise UsageError(f"{option}: {str(exc).split(': ', 1)[-1]}") from None
+        reason = str(exc).split(": ", 1)[-1]
+        if reason.endswith(" the 0 that spp_max still allows"):  # said as what it means for the run
+            reason += " (every pixel has its spp_max samples: the run is complete; a larger --spp-max goes on)"
+        raise UsageError(f"{option}: {reason}") from None
     h, w = request.shape
     kept = described(carried)  # the run's settings this plan took from the dump, where not the defaults
     status(f"{args.output}: round {request.round}, {request.total} samples "

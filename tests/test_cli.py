@@ -613,6 +613,49 @@ def test_info_says_which_run_setting_plan_refuses(tmp_path, rng, capsys, attribu
     assert "awr plan refuses" not in capsys.readouterr().out
 
 
+@pytest.mark.parametrize("attribute, value, needle", BAD_RUN_SETTINGS + [("awr:seed", "x", "not a whole number")])
+def test_info_says_which_run_setting_of_a_request_merge_refuses(tmp_path, capsys, attribute, value, needle):
+    """info checked the run settings of sample dumps only: a request map that ``merge --request`` refuses got no
+    warning (a red-team pass). Its round is the request's own (0 for the first), which is no refusal."""
+    assert main(["plan", "--size", f"{W}x{H}", "-o", str(tmp_path / "r.exr"), "-q"]) == 0
+    assert _external().main([str(tmp_path / "r.exr"), str(tmp_path / "b.exr")]) == 0
+    header = request_attributes(tmp_path / "r.exr")
+    write_request(tmp_path / "bad.exr", read_request(tmp_path / "r.exr"), header={**header, attribute: value})
+    assert main(["merge", str(tmp_path / "b.exr"), "--request", str(tmp_path / "bad.exr"), "-o",
+                 str(tmp_path / "m.exr"), "-q"]) == 2
+    _one_error_line(capsys, "bad.exr", attribute, needle)
+    assert not (tmp_path / "m.exr").exists()
+    assert main(["info", str(tmp_path / "bad.exr")]) == 0
+    warning = [line for line in capsys.readouterr().out.splitlines() if "awr merge --request refuses it" in line]
+    assert len(warning) == 1 and attribute in warning[0] and needle in warning[0]
+    assert main(["info", str(tmp_path / "bad.exr"), "--json"]) == 0
+    assert any(attribute in w for w in json.loads(capsys.readouterr().out)["warnings"])
+    assert main(["info", str(tmp_path / "r.exr"), "--json"]) == 0
+    assert "warnings" not in json.loads(capsys.readouterr().out)
+
+
+def test_plan_refuses_a_first_round_above_the_cap_wherever_each_comes_from(tmp_path, rng, capsys):
+    """A dump's ``awr:initial_spp`` above its ``awr:spp_max`` (or above ``--spp-max``) was clamped without a word
+    and the request recorded the clamped value, where the same pair as options is refused (a red-team pass)."""
+    buf = _dump(tmp_path / "d.exr", rng, spp=1)
+    for header, given, needle in (({"awr:initial_spp": 100, "awr:spp_max": 64}, [],
+                                   "bad.exr: awr:initial_spp 100 exceeds its awr:spp_max 64"),
+                                  ({"awr:initial_spp": 100}, ["--spp-max", "50"],
+                                   "bad.exr: awr:initial_spp 100 exceeds --spp-max 50"),
+                                  ({"awr:spp_max": 64}, ["--initial-spp", "100"],
+                                   "--initial-spp: 100 exceeds awr:spp_max 64 of ")):
+        write_sample_buffer(tmp_path / "bad.exr", buf, header=header, overwrite=True)
+        assert main(["plan", str(tmp_path / "bad.exr"), *given, "-o", str(tmp_path / "r.exr"), "-q"]) == 2
+        _one_error_line(capsys, needle)
+        assert not (tmp_path / "r.exr").exists()
+    # Given both ways, the option's first round stands (the dump's is not read).
+    assert main(["plan", str(tmp_path / "bad.exr"), "--initial-spp", "8", "-o", str(tmp_path / "r.exr"), "-q"]) == 0
+    # A run whose every pixel is at its cap is said to be complete.
+    write_sample_buffer(tmp_path / "full.exr", buf, header={"awr:spp_max": 1}, overwrite=True)
+    assert main(["plan", str(tmp_path / "full.exr"), "-o", str(tmp_path / "f.exr"), "-q"]) == 2
+    _one_error_line(capsys, "awr:spp_max 1 of ", "the 0 that spp_max still allows", "the run is complete")
+
+
 def test_merge_independent_needs_two_renders_by_its_option(tmp_path, rng, capsys):
     """The library's refusal named its parameter ("paths: 1 file(s) given"; a red-team pass)."""
     _dump(tmp_path / "d.exr", rng)
@@ -766,6 +809,120 @@ def test_running_dumps_of_one_seed_are_not_merged(tmp_path, capsys):
                  str(folder / "d2.exr"), "-q"]) == 0
 
 
+def _file_loop(folder, seed, rounds, *first):
+    """A run through files with the stand-in renderer: the first round planned with ``first``'s options, then
+    ``rounds`` more; the running dump after each round."""
+    ext = _external()
+    folder.mkdir()
+    assert main(["plan", "--size", f"{W}x{H}", "--seed", str(seed), *first, "-o", str(folder / "r0.exr"), "-q"]) == 0
+    assert ext.main([str(folder / "r0.exr"), str(folder / "b0.exr")]) == 0
+    assert main(["merge", str(folder / "b0.exr"), "--request", str(folder / "r0.exr"), "-o", str(folder / "d1.exr"),
+                 "-q"]) == 0
+    dumps = [folder / "d1.exr"]
+    for k in range(1, rounds + 1):
+        assert main(["plan", str(dumps[-1]), "-o", str(folder / f"r{k}.exr"), "-q"]) == 0
+        assert ext.main([str(folder / f"r{k}.exr"), str(folder / f"b{k}.exr")]) == 0
+        assert main(["merge", str(dumps[-1]), str(folder / f"b{k}.exr"), "--request", str(folder / f"r{k}.exr"),
+                     "-o", str(folder / f"d{k + 1}.exr"), "-q"]) == 0
+        dumps.append(folder / f"d{k + 1}.exr")
+    return [str(d) for d in dumps]
+
+
+def test_a_merge_of_two_seeds_loops_refuses_a_newer_dump_of_either(tmp_path, capsys):
+    """Two machines' loops (two seeds) merged plainly kept the first one's ``awr:seed`` and stayed a running dump:
+    merged again with the second machine's newer dump, which holds the same first samples, it counted them twice,
+    exit 0, while the first machine's was refused (a red-team pass). The merge now records both seeds in
+    ``awr:seeds`` and refuses a newer dump of either, in either order; a third seed's loop merges."""
+    a, b, c = (_file_loop(tmp_path / name, seed, 1) for name, seed in (("a", 0), ("b", 1), ("c", 2)))
+    ab = str(tmp_path / "ab.exr")
+    assert main(["merge", a[0], b[0], "-o", ab]) == 0
+    assert "awr:seed 0 of " in capsys.readouterr().err  # said, not silently dropped
+    merged = read_sample_dump(ab)
+    assert merged.attributes["awr:seeds"] == "0 1" and "awr:seed" not in merged.attributes
+    assert merged.attributes["awr:running"] == 0
+    for newer, seed in ((a[1], 0), (b[1], 1)):
+        for pair in ((ab, newer), (newer, ab)):
+            assert main(["merge", *pair, "-o", str(tmp_path / "x.exr"), "-q"]) == 2
+            _one_error_line(capsys, f"running dumps of one sample sequence (awr:seed {seed})")
+    assert not (tmp_path / "x.exr").exists()
+    assert main(["merge", ab, c[1], "-o", str(tmp_path / "abc.exr"), "-q"]) == 0
+    assert read_sample_dump(tmp_path / "abc.exr").attributes["awr:seeds"] == "0 1 2"
+    assert main(["merge", str(tmp_path / "abc.exr"), b[1], "-o", str(tmp_path / "x.exr"), "-q"]) == 2
+    _one_error_line(capsys, "(awr:seed 1)")
+    # Planned and told from the merge, the loop goes on with a seed it records among the others.
+    assert main(["plan", ab, "-o", str(tmp_path / "r.exr"), "-q"]) == 0
+    assert _external().main([str(tmp_path / "r.exr"), str(tmp_path / "rb.exr")]) == 0
+    assert main(["merge", ab, str(tmp_path / "rb.exr"), "--request", str(tmp_path / "r.exr"), "-o",
+                 str(tmp_path / "told.exr"), "-q"]) == 0
+    told = read_sample_dump(tmp_path / "told.exr").attributes
+    assert told["awr:seeds"] == "0 1" and told["awr:seed"] == 0 and told["awr:running"] == 0
+    assert main(["merge", str(tmp_path / "told.exr"), b[1], "-o", str(tmp_path / "x.exr"), "-q"]) == 2
+    _one_error_line(capsys, "(awr:seed 1)")
+    for bad, needle in (("", "not a list of 1 to"), ("0 x", "not a whole number"), ("-1", "outside 0..")):
+        write_sample_buffer(tmp_path / "bad.exr", merged.buffer, header={**merged.attributes, "awr:seeds": bad},
+                            overwrite=True)
+        assert main(["merge", str(tmp_path / "bad.exr"), c[0], "-o", str(tmp_path / "x.exr"), "-q"]) == 2
+        _one_error_line(capsys, "bad.exr", "awr:seeds", needle)
+    assert not (tmp_path / "x.exr").exists()
+
+
+def test_a_plain_merge_of_loops_carries_the_same_settings_in_any_order(tmp_path, capsys):
+    """Settings were compared only when both inputs carried ``awr:strategy``: after one merge had dropped a strategy
+    that disagreed, the next took every setting and the seed of whichever input came first, and the two orders
+    planned different rounds (a red-team pass)."""
+    a = _file_loop(tmp_path / "a", 1, 0, "--round-growth", "0.5")
+    u = _file_loop(tmp_path / "u", 2, 0, "--strategy", "uniform", "--round-growth", "0.5")
+    v = _file_loop(tmp_path / "v", 3, 0, "--strategy", "variance", "--round-growth", "1")
+    au = str(tmp_path / "au.exr")
+    assert main(["merge", a[0], u[0], "-o", au, "-q"]) == 0
+    outputs = []
+    for k, pair in enumerate(((au, v[0]), (v[0], au))):
+        outputs.append(tmp_path / f"m{k}.exr")
+        assert main(["merge", *pair, "-o", str(outputs[-1])]) == 0
+        assert "awr:strategy of " in capsys.readouterr().err
+    first, second = ({k: v for k, v in read_sample_dump(path).attributes.items() if k != "awr:version"}
+                     for path in outputs)
+    assert first == second and first["awr:seeds"] == "1 2 3"
+    assert "awr:strategy" not in first and "awr:round_growth" not in first
+    plans = []
+    for k, path in enumerate(outputs):
+        assert main(["plan", str(path), "-o", str(tmp_path / f"p{k}.exr"), "-q"]) == 0
+        plans.append(read_request(tmp_path / f"p{k}.exr").counts)
+    np.testing.assert_array_equal(*plans)
+
+
+def test_merge_request_does_not_check_the_dump_s_settings_the_request_replaces(tmp_path, capsys):
+    """plan takes an option in place of a dump's setting that does not fit (a newer version's name), and merge
+    then refused that dump for the setting after the renderer had run, though the request's replaces it in the
+    output: a loop stuck (a red-team pass). A setting the request does not replace is still refused."""
+    d = _file_loop(tmp_path / "a", 0, 0)[0]
+    dump = read_sample_dump(d)
+    ext = _external()
+    for header, given in (({"awr:noise_model": "Levels"}, ["--noise-model", "levels"]),
+                          ({"awr:rare_paths": "Even"}, ["--strategy", "uniform"])):
+        write_sample_buffer(tmp_path / "odd.exr", dump.buffer, header={**dump.attributes, **header}, overwrite=True)
+        assert main(["plan", str(tmp_path / "odd.exr"), *given, "-o", str(tmp_path / "r.exr"), "-q",
+                     "--overwrite"]) == 0
+        assert ext.main([str(tmp_path / "r.exr"), str(tmp_path / "b.exr")]) == 0
+        assert main(["merge", str(tmp_path / "odd.exr"), str(tmp_path / "b.exr"), "--request", str(tmp_path / "r.exr"),
+                     "-o", str(tmp_path / "m.exr"), "-q", "--overwrite"]) == 0, capsys.readouterr().err
+        out = read_sample_dump(tmp_path / "m.exr").attributes
+        key = next(iter(header))
+        assert out.get(key) == request_attributes(tmp_path / "r.exr").get(key)  # the request's, or none
+        assert main(["plan", str(tmp_path / "m.exr"), "-o", str(tmp_path / "r2.exr"), "-q", "--overwrite"]) == 0
+    # A request from an older version records no sampler settings: the dump's stay, and are checked.
+    request = read_request(tmp_path / "r.exr")
+    old = {k: v for k, v in request_attributes(tmp_path / "r.exr").items() if k == "awr:seed" or k == "awr:round"}
+    write_sample_buffer(tmp_path / "bad.exr", dump.buffer, header={**dump.attributes, "awr:noise_model": "Levels"},
+                        overwrite=True)
+    write_request(tmp_path / "old.exr", request, header=old)
+    assert ext.main([str(tmp_path / "old.exr"), str(tmp_path / "b.exr")]) == 0
+    assert main(["merge", str(tmp_path / "bad.exr"), str(tmp_path / "b.exr"), "--request", str(tmp_path / "old.exr"),
+                 "-o", str(tmp_path / "x.exr"), "-q"]) == 2
+    _one_error_line(capsys, "bad.exr", "awr:noise_model")
+    assert not (tmp_path / "x.exr").exists()
+
+
 def test_renders_old_dumps_and_merged_running_dumps_of_one_seed_are_running_dumps(tmp_path, capsys):
     """Marking only ``merge --request``'s outputs as running dumps let three copies through again (a
     review): two ``awr render`` dumps of one seed, a dump written before the mark (no ``awr:running``:
@@ -787,7 +944,8 @@ def test_renders_old_dumps_and_merged_running_dumps_of_one_seed_are_running_dump
     render[render.index("7")] = "8"
     assert main([*render, "--spp", "4", "-o", str(tmp_path / "c.exr")]) == 0
     assert main(["merge", str(tmp_path / "a.exr"), str(tmp_path / "c.exr"), "-o", str(tmp_path / "ac.exr"), "-q"]) == 0
-    assert read_sample_dump(tmp_path / "ac.exr").attributes["awr:running"] == 1  # running dumps of two seeds
+    merged = read_sample_dump(tmp_path / "ac.exr").attributes  # two seeds' loops: no one seed's sequence
+    assert merged["awr:running"] == 0 and merged["awr:seeds"] == "7 8" and "awr:seed" not in merged
     assert main(["merge", str(tmp_path / "ac.exr"), str(tmp_path / "b.exr"), "-o", str(tmp_path / "acb.exr"),
                  "-q"]) == 2
     # Tiles of one batch naming their request: their plain merge is not a running dump, and names it.
