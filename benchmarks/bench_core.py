@@ -304,7 +304,7 @@ def _rare_path_cases(buf: SampleBuffer) -> dict:
     return {"even": _Ask(buf), "ranked": _Ask(buf, rare_paths="ranked")}
 
 
-def rare_paths_cost(sizes: list[str], repeats: int = 5) -> list[dict]:
+def rare_paths_cost(sizes: list[str], repeats: int = 11) -> list[dict]:
     """ask() with rare-path regions evened (the default) against ranked, on a frame with none (the speed section's
     buffer: the search alone) and on one lit through rare paths everywhere (the search and the evening)."""
     rows = []
