@@ -126,12 +126,12 @@ def command_peaks(sides: tuple[int, ...] = COMMAND_SIDES, commands: dict[str, li
                 if proc.returncode != 0:
                     raise RuntimeError(f"awr {' '.join(args)}: exit {proc.returncode}: {proc.stderr.read().decode()}")
                 proc.stderr.close()
-                rows.append({"case": name, "side": side, "pixels": side * side,
+                rows.append({"command": name, "side": side, "pixels": side * side,
                              "maxrss_bytes": usage.ru_maxrss * 1024})  # KiB on Linux
                 print(f"{name:>20} {side}x{side}: {usage.ru_maxrss / 2**20:.2f} GiB", flush=True)
     per_pixel = {}
     for name in commands:
-        small, large = (next(r for r in rows if r["case"] == name and r["side"] == side)
+        small, large = (next(r for r in rows if r["command"] == name and r["side"] == side)
                         for side in (min(sides), max(sides)))
         per_pixel[name] = (large["maxrss_bytes"] - small["maxrss_bytes"]) / (large["pixels"] - small["pixels"])
         print(f"{name:>20}: {per_pixel[name]:.0f} bytes per pixel", flush=True)

@@ -309,7 +309,7 @@ def _amount(size: float) -> str:
 
 DUMP_BYTES_PER_PIXEL = {"denoise": 410, "denoise --stages 1": 260, "plan": 260, "merge": 330, "info": 290}
 """Each command's peak memory per pixel of an RGB dump (its 7 channels read, its statistics, the work):
-``benchmarks/bench_memory.py --commands`` measures 402, 256, 256, 321 and 283 bytes between 1024x1024 and
+``benchmarks/bench_memory.py --commands`` measures 402, 256, 256, 321 and 284 bytes between 1024x1024 and
 2048x2048 (``benchmarks/results/memory_commands.json``), rounded up here."""
 _BYTES_PER_EXTRA_CHANNEL = 12
 """Each channel beyond RGB's 7 (features, other passes): read as float32, then held as float64."""

@@ -29,7 +29,7 @@ def test_each_command_s_check_is_at_least_its_stored_measurement(bench):
 def test_the_commands_run_and_their_peaks_grow_with_the_pixels(bench):
     commands = {name: bench.COMMANDS[name] for name in ("info", "plan")}
     result = bench.command_peaks(sides=(16, 256), commands=commands)
-    assert [(r["case"], r["side"]) for r in result["rows"]] == [
+    assert [(r["command"], r["side"]) for r in result["rows"]] == [
         ("info", 16), ("plan", 16), ("info", 256), ("plan", 256)]
     assert all(r["maxrss_bytes"] > 10 * 2**20 for r in result["rows"])  # an interpreter with numpy at least
     assert set(result["bytes_per_pixel"]) == set(commands)
