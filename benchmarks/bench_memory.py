@@ -19,13 +19,6 @@ Usage::
     python benchmarks/bench_memory.py                 # 4K and 8K, writes benchmarks/results/memory.json
     python benchmarks/bench_memory.py --sizes 4k      # one size
     python benchmarks/bench_memory.py --sizes 512x256 # any WxH (for a quick check)
-    python benchmarks/bench_memory.py --commands      # the commands' peaks per pixel, memory_commands.json
-
-``--commands`` measures what the command line reads a dump with: the peak resident size of ``awr denoise``,
-``plan``, ``merge`` and ``info`` (each a fresh process, ``os.wait4``'s ``ru_maxrss``) on an RGB dump of
-1024x1024 and of 2048x2048 pixels; the difference over the difference in pixels is each command's bytes per
-pixel, the interpreter and its libraries cancelled out. The commands check a dump's size against the
-machine's memory before they read it with these figures (``cli/common.py``, ``DUMP_BYTES_PER_PIXEL``).
 """
 
 from __future__ import annotations
@@ -47,14 +40,6 @@ from awr_denoise.bench import command_line, machine_info, peak_memory, write_jso
 
 SIZES = {"4k": (3840, 2160), "8k": (7680, 4320)}
 RESULTS = Path(__file__).resolve().parent / "results" / "memory.json"
-COMMAND_RESULTS = RESULTS.with_name("memory_commands.json")
-COMMANDS = {"denoise": ["denoise", "{dump}", "-o", "{out}", "-q"],
-            "denoise --stages 1": ["denoise", "{dump}", "--stages", "1", "-o", "{out}", "-q"],
-            "plan": ["plan", "{dump}", "-o", "{out}", "-q"],
-            "merge": ["merge", "{dump}", "{dump}", "--allow-duplicates", "-o", "{out}", "-q"],
-            "info": ["info", "{dump}"]}
-"""The commands that read a whole dump, as ``--commands`` runs them."""
-COMMAND_SIDES = (1024, 2048)
 
 
 def _build_buffer(width: int, height: int) -> SampleBuffer:
@@ -101,43 +86,6 @@ def _child(op: str, width: int, height: int) -> dict:
             "tracemalloc_peak_bytes": peak, "maxrss_bytes": maxrss, "seconds": seconds}
 
 
-def command_peaks(sides: tuple[int, ...] = COMMAND_SIDES, commands: dict[str, list[str]] | None = None) -> dict:
-    """Each command's peak resident size on dumps of ``sides`` (square, RGB), and its bytes per pixel between
-    the smallest and the largest (``commands``: :data:`COMMANDS` or some of them)."""
-    commands = COMMANDS if commands is None else commands
-    import tempfile
-
-    from awr_denoise.bench import noisy_buffer
-    from awr_denoise.io import write_sample_buffer
-    from awr_denoise.io.provenance import provenance
-
-    rows = []
-    with tempfile.TemporaryDirectory() as folder:
-        for side in sides:
-            dump = os.path.join(folder, f"d{side}.exr")
-            write_sample_buffer(dump, noisy_buffer((side, side)), header=provenance(seed=0, round=1))
-            for k, (name, argv) in enumerate(commands.items()):
-                args = [a.format(dump=dump, out=os.path.join(folder, f"out{side}_{k}.exr")) for a in argv]
-                with open(os.devnull, "w") as null:  # the awr script's entry point, in a fresh process
-                    proc = subprocess.Popen([sys.executable, "-c", "from awr_denoise.cli.main import run; run()",
-                                             *args], stdout=null, stderr=subprocess.PIPE)
-                    _, status, usage = os.wait4(proc.pid, 0)
-                    proc.returncode = os.waitstatus_to_exitcode(status)
-                if proc.returncode != 0:
-                    raise RuntimeError(f"awr {' '.join(args)}: exit {proc.returncode}: {proc.stderr.read().decode()}")
-                proc.stderr.close()
-                rows.append({"command": name, "side": side, "pixels": side * side,
-                             "maxrss_bytes": usage.ru_maxrss * 1024})  # KiB on Linux
-                print(f"{name:>20} {side}x{side}: {usage.ru_maxrss / 2**20:.2f} GiB", flush=True)
-    per_pixel = {}
-    for name in commands:
-        small, large = (next(r for r in rows if r["command"] == name and r["side"] == side)
-                        for side in (min(sides), max(sides)))
-        per_pixel[name] = (large["maxrss_bytes"] - small["maxrss_bytes"]) / (large["pixels"] - small["pixels"])
-        print(f"{name:>20}: {per_pixel[name]:.0f} bytes per pixel", flush=True)
-    return {"rows": rows, "bytes_per_pixel": per_pixel}
-
-
 def _parse_size(text: str) -> tuple[str, int, int]:
     key = text.lower()
     if key in SIZES:
@@ -152,17 +100,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--ops", nargs="+", default=["reconstruct", "ask"], choices=["reconstruct", "ask"])
     parser.add_argument("--output", type=Path, default=RESULTS)
     parser.add_argument("--child", nargs=3, metavar=("OP", "W", "H"), help=argparse.SUPPRESS)
-    parser.add_argument("--commands", action="store_true",
-                        help="the commands' peaks per pixel instead (default output memory_commands.json)")
     args = parser.parse_args(argv)
     if args.child:
         print(json.dumps(_child(args.child[0], int(args.child[1]), int(args.child[2]))))
-        return 0
-    if args.commands:
-        output = COMMAND_RESULTS if args.output == RESULTS else args.output
-        meta = {"command": command_line("benchmarks/bench_memory.py", argv), **machine_info()}
-        write_json(output, {"meta": meta, **command_peaks()}, indent=2)
-        print(f"wrote {output}")
         return 0
     rows = []
     env = dict(os.environ)

@@ -21,7 +21,7 @@ from awr_denoise.buffers import NONFINITE_POLICIES, VARIANCE_KINDS
 from awr_denoise.errors import InputFileError
 from awr_denoise.io import PRESETS
 from awr_denoise.io.dump import header_count
-from awr_denoise.io.exr import brief, header_value, read_exr
+from awr_denoise.io.exr import brief, header_value
 from awr_denoise.io.request_map import MAX_ROUND
 from awr_denoise.sampling import SAMPLERS
 
@@ -33,8 +33,6 @@ __all__ = [
     "dump_options_given",
     "available_memory",
     "check_memory",
-    "check_dump_memory",
-    "DUMP_BYTES_PER_PIXEL",
     "EXIT_OK",
     "EXIT_FAILURE",
     "EXIT_USAGE",
@@ -298,34 +296,5 @@ def check_memory(option: str, needed: float, what: str) -> None:
     out-of-memory killer ends the process without a word (exit 137) otherwise."""
     free = available_memory()
     if free is not None and needed > free:
-        raise UsageError(f"{option}: {what} needs about {_amount(needed)} of memory, and {_amount(free)} are "
-                         "available")
-
-
-def _amount(size: float) -> str:
-    """Bytes as GiB, or MiB below one."""
-    return f"{size / 2**30:.1f} GiB" if size >= 2**30 else f"{size / 2**20:.0f} MiB"
-
-
-DUMP_BYTES_PER_PIXEL = {"denoise": 410, "denoise --stages 1": 260, "plan": 260, "merge": 330, "info": 290}
-"""Each command's peak memory per pixel of an RGB dump (its 7 channels read, its statistics, the work):
-``benchmarks/bench_memory.py --commands`` measures 402, 256, 256, 321 and 284 bytes between 1024x1024 and
-2048x2048 (``benchmarks/results/memory_commands.json``), rounded up here."""
-_BYTES_PER_EXTRA_CHANNEL = 12
-"""Each channel beyond RGB's 7 (features, other passes): read as float32, then held as float64."""
-
-
-def check_dump_memory(path: str | os.PathLike[str], command: str) -> None:
-    """Refuse, naming the file and before its pixels are read, a flat EXR that ``command`` could not hold in the
-    memory available (:data:`DUMP_BYTES_PER_PIXEL`): a valid dump a few megabytes on disk can hold a picture of
-    16384x16384, and the kernel's out-of-memory killer would end the process without a word. Deep files hold
-    their samples' count in their chunks, not their header, and are not judged here."""
-    parts = read_exr(path, header_only=True)
-    if any(part.deep for part in parts):
-        return
-    shapes = [part.shape for part in parts]
-    largest = max(shapes, key=lambda shape: shape[0] * shape[1])
-    channels = sum(len(part.header.get("channels", ())) * h * w for part, (h, w) in zip(parts, shapes))
-    extra = max(channels - 7 * largest[0] * largest[1], 0)
-    needed = DUMP_BYTES_PER_PIXEL[command] * largest[0] * largest[1] + _BYTES_PER_EXTRA_CHANNEL * extra
-    check_memory(os.fspath(path), needed, f"awr {command} of its {largest[1]}x{largest[0]} pixels")
+        raise UsageError(f"{option}: {what} needs about {needed / 2**30:.1f} GiB of memory, and "
+                         f"{free / 2**30:.1f} GiB are available")

@@ -32,7 +32,6 @@ from .common import (
     RuntimeFailure,
     UsageError,
     add_plane_options,
-    check_dump_memory,
     frame_jobs,
     frame_plane_kwargs,
     frame_planes,
@@ -278,8 +277,6 @@ def run(args: argparse.Namespace) -> int:
         for src, specs in zip(sources, planes):
             windows.append(read_windows(src))
             check_reconstruction_options(args, _shape(windows[-1]), src)
-            # Each frame alone (a pool of frames takes this per frame).
-            check_dump_memory(src, "denoise --stages 1" if args.stages == 1 else "denoise")
             check_plane_windows(src, specs)  # every frame: each may have its own data window
         if args.ref:
             _check_references(refs, sources, windows)

@@ -9,8 +9,8 @@ from awr_denoise.io.describe import describe_file
 from awr_denoise.io.exr import read_header
 
 from . import interrupts
-from .common import (EXIT_OK, UsageError, add_plane_options, check_dump_memory, dump_options_given, plane_kwargs,
-                     print_json, run_settings_refused)
+from .common import (EXIT_OK, UsageError, add_plane_options, dump_options_given, plane_kwargs, print_json,
+                     run_settings_refused)
 from .errors import shown
 from .paths import PathPlan, check_plane_windows, plane_options
 
@@ -106,7 +106,6 @@ def run(args: argparse.Namespace) -> int:
         plan.read_plane(spec, option)
     plan.check()
     check_plane_windows(args.input, plane_options(args))
-    check_dump_memory(args.input, "info")
     info = describe(args.input, args)
     given = dump_options_given(args)
     if given and info["kind"] in ("request", "image"):  # described without them: refused, not ignored

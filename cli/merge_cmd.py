@@ -26,7 +26,7 @@ from awr_denoise.io.dump import COUNT_CHANNEL, SEMANTICS_STATISTICS, SampleDump,
 from awr_denoise.io.exr import ExrPart, brief, check_same_windows, read_exr, read_windows
 from awr_denoise.io.request_map import MAX_ROUND
 
-from .common import EXIT_OK, UsageError, add_plane_options, check_dump_memory, plane_kwargs, run_settings, status
+from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, run_settings, status
 from .paths import PathPlan, check_plane_windows, plane_options
 from .sampler_settings import CARRIED, carried_settings
 from .values import MAX_SEED, MAX_SPP, nonempty
@@ -279,8 +279,6 @@ def run(args: argparse.Namespace) -> int:
     windows = read_windows(args.inputs[0])
     for path in [*args.inputs[1:], *([args.request] if args.request else [])]:
         check_same_windows(path, read_windows(path), args.inputs[0], windows)
-    for path in args.inputs:  # one input beside the merged statistics at a time
-        check_dump_memory(path, "merge")
     if args.independent:
         if args.request:  # a setting that would do nothing is refused, not ignored
             raise UsageError("--request: not read with --independent (whole renders answer no request; merge "

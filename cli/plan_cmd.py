@@ -14,8 +14,7 @@ from awr_denoise.sampling import (DEFAULT_AWR_INITIAL_SPP, DEFAULT_INITIAL_SPP, 
                                   AdaptiveSampler)
 from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 
-from .common import (EXIT_OK, UsageError, add_plane_options, check_dump_memory, check_memory, dump_options_given,
-                     dumped_round,
+from .common import (EXIT_OK, UsageError, add_plane_options, check_memory, dump_options_given, dumped_round,
                      dumped_seed, plane_kwargs, run_settings, status)
 from .paths import PathPlan, check_plane_windows, plane_options
 from .sampler_settings import CARRIED, carried_settings, described, sampler_settings
@@ -168,7 +167,6 @@ def run(args: argparse.Namespace) -> int:
     else:
         if args.size is not None:
             raise UsageError("--size: only for the first round; the dump fixes the size")
-        check_dump_memory(args.input, "plan")
         dump = read_sample_dump(args.input, **plane_kwargs(args))
         windows = read_windows(args.input)  # the request covers the dump's pixels, where they are
         if args.levels is not None and args.levels > max_levels(dump.buffer.shape):
