@@ -236,9 +236,10 @@ def _refuse_copies(earlier: list[_Seen], new: _Seen) -> None:
             why = "hold the same samples (a copy?)"
         elif new.running and old.running and (common := new.running[0] & old.running[0]) and (
                 shared := int(np.count_nonzero(new.running[1] & old.running[1]))):
-            seeds = ", ".join(str(seed) for seed in sorted(common))
-            why = (f"are running dumps of one sample sequence (awr:seed {seeds}): at {shared} pixel(s) "
-                   "both hold its first samples, the same samples (loops on two machines need two seeds)")
+            which = (f"one sample sequence (awr:seed {min(common)})" if len(common) == 1 else
+                     f"the same sample sequences (awr:seed {', '.join(str(seed) for seed in sorted(common))})")
+            why = (f"are running dumps of {which}: at {shared} pixel(s) both hold its first samples, the same "
+                   "samples (loops on two machines need two seeds)")
         else:
             continue
         raise UsageError(f"merge: {new.path} and {old.path} {why}; merging would count their samples twice "
@@ -345,15 +346,23 @@ def run(args: argparse.Namespace) -> int:
             if asked is not None:  # before any batch is read
                 strategy, _ = run_settings(args.request, asked)
                 carried_settings(args.request, asked, strategy or run_strategy, dump.buffer.shape)
-            first_loop, differ = bool(seeds), {}
+            loop_settings, loop_path, differ = None, None, {}
         else:
             _check_match(path, dump.buffer, first, args.inputs[0])
-            if first_loop and seeds:
-                # Loops' dumps merged plainly: their settings carried only where they agree, a setting one leaves
-                # out (no cap, the automatic depth, or dropped by an earlier merge) being one too; else the
-                # output's would follow the inputs' order.
-                for key in (key for key in _SETTINGS if key not in _replaced(asked)):  # (a request's replace them)
-                    if str(dump.attributes.get(key)) != str(attrs.get(key)):
+        if seeds:
+            # Loops' dumps (and merges of them) give the run's settings wherever they stand among the inputs,
+            # carried only where they agree, a setting one leaves out (no cap, the automatic depth, or dropped by
+            # an earlier merge) being one too; else the output's would follow the inputs' order. (The settings a
+            # told request replaces are its own.)
+            kept = [key for key in _SETTINGS if key not in _replaced(asked)]
+            settings = {key: dump.attributes[key] for key in kept if key in dump.attributes}
+            if loop_settings is None:
+                if index:  # checked as the first input's are
+                    carried_settings(path, settings, run_settings(path, settings)[0], dump.buffer.shape)
+                loop_settings, loop_path = settings, path
+            else:
+                for key in kept:
+                    if str(settings.get(key)) != str(loop_settings.get(key)):
                         differ.setdefault(key, path)
         held |= seeds
         all_running = all_running and _running(dump.attributes)
@@ -370,9 +379,14 @@ def run(args: argparse.Namespace) -> int:
         else:
             merged, issued = merged.merge(dump.buffer), issued + dump.issued
         del dump
+    if loop_settings is not None:
+        for key in _SETTINGS:
+            if key not in _replaced(asked):
+                attrs.pop(key, None)
+        attrs.update(loop_settings)
     for key, path in differ.items():
         first_value = attrs.pop(key, None)
-        status(f"merge: {key} of {path} is not {args.inputs[0]}'s ("
+        status(f"merge: {key} of {path} is not {loop_path}'s ("
                f"{'none' if first_value is None else brief(first_value)}): not carried, the next plan takes its "
                "option or default", quiet=args.quiet)
     if merged is None:  # the first batch of a run, told alone
@@ -401,20 +415,24 @@ def run(args: argparse.Namespace) -> int:
         if max(rounds) + 1 > MAX_ROUND:  # a dump that no tool would read again
             raise UsageError(f"merge: the next round would be {max(rounds) + 1}, beyond the last ({MAX_ROUND})")
         attrs["awr:round"] = max(rounds) + 1
-    if len(held) > 1:  # several loops' samples: no one seed's sequence
-        if len(held) > MAX_SEEDS:
-            raise UsageError(f"merge: the inputs hold the samples of {len(held)} seeds, more than {SEEDS} records "
-                             f"({MAX_SEEDS})")
-        if told is None and (dropped := attrs.pop("awr:seed", None)) is not None:
-            status(f"merge: the inputs are loops of {len(held)} seeds: awr:seed {brief(dropped)} of "
-                   f"{args.inputs[0]} not carried ({SEEDS} names them; each loop goes on from its own dump)",
-                   quiet=args.quiet)
-        attrs[SEEDS] = " ".join(str(seed) for seed in sorted(held))
+    if len(held) > MAX_SEEDS:
+        raise UsageError(f"merge: the inputs hold the samples of {len(held)} seeds, more than {SEEDS} records "
+                         f"({MAX_SEEDS})")
     if "awr:seed" in attrs:
         header_count(args.inputs[0], attrs, "awr:seed", 0, MAX_SEED)
     # A loop's running dump (told, or running dumps of one seed merged): its samples are every pixel's sequence
     # from 0.
-    attrs[RUNNING] = int((told is not None or all_running) and len(held) <= 1)
+    running = (told is not None or all_running) and len(held) <= 1
+    if told is None and len(held) == 1:  # one loop's, whichever input it was
+        attrs["awr:seed"] = min(held)
+    elif told is None and held:  # several loops' samples: no one seed's sequence
+        attrs.pop("awr:seed", None)
+        status(f"merge: the inputs hold the loops of seeds {', '.join(str(seed) for seed in sorted(held))}: "
+               f"{SEEDS} names them and no awr:seed is carried (each loop goes on from its own dump)",
+               quiet=args.quiet)
+    if held and not running:  # a loop's samples beside others: a newer dump of that loop is refused beside it
+        attrs[SEEDS] = " ".join(str(seed) for seed in sorted(held))
+    attrs[RUNNING] = int(running)
     if told is None and answers and all(a is not None and a == answers[0] for a in answers):
         # Tiles of one batch, merged before they are told: still naming their request.
         attrs.update({key: answers[0][field] for key, field in ANSWERS.items()})

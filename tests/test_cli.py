@@ -836,7 +836,7 @@ def test_a_merge_of_two_seeds_loops_refuses_a_newer_dump_of_either(tmp_path, cap
     a, b, c = (_file_loop(tmp_path / name, seed, 1) for name, seed in (("a", 0), ("b", 1), ("c", 2)))
     ab = str(tmp_path / "ab.exr")
     assert main(["merge", a[0], b[0], "-o", ab]) == 0
-    assert "awr:seed 0 of " in capsys.readouterr().err  # said, not silently dropped
+    assert "the loops of seeds 0, 1" in capsys.readouterr().err  # said, not silently dropped
     merged = read_sample_dump(ab)
     assert merged.attributes["awr:seeds"] == "0 1" and "awr:seed" not in merged.attributes
     assert merged.attributes["awr:running"] == 0
@@ -858,12 +858,51 @@ def test_a_merge_of_two_seeds_loops_refuses_a_newer_dump_of_either(tmp_path, cap
     assert told["awr:seeds"] == "0 1" and told["awr:seed"] == 0 and told["awr:running"] == 0
     assert main(["merge", str(tmp_path / "told.exr"), b[1], "-o", str(tmp_path / "x.exr"), "-q"]) == 2
     _one_error_line(capsys, "(awr:seed 1)")
+    # With a seed of its own, the loop's samples are a third sequence the merge holds from then on.
+    assert main(["plan", ab, "--seed", "5", "-o", str(tmp_path / "r5.exr"), "-q"]) == 0
+    assert _external().main([str(tmp_path / "r5.exr"), str(tmp_path / "rb5.exr")]) == 0
+    assert main(["merge", ab, str(tmp_path / "rb5.exr"), "--request", str(tmp_path / "r5.exr"), "-o",
+                 str(tmp_path / "told5.exr"), "-q"]) == 0
+    assert read_sample_dump(tmp_path / "told5.exr").attributes["awr:seeds"] == "0 1 5"
+    # Two merges of the same two loops share both sequences.
+    assert main(["merge", a[1], b[1], "-o", str(tmp_path / "ab1.exr"), "-q"]) == 0
+    assert main(["merge", ab, str(tmp_path / "ab1.exr"), "-o", str(tmp_path / "x.exr"), "-q"]) == 2
+    _one_error_line(capsys, "running dumps of the same sample sequences (awr:seed 0, 1)")
     for bad, needle in (("", "not a list of 1 to"), ("0 x", "not a whole number"), ("-1", "outside 0..")):
         write_sample_buffer(tmp_path / "bad.exr", merged.buffer, header={**merged.attributes, "awr:seeds": bad},
                             overwrite=True)
         assert main(["merge", str(tmp_path / "bad.exr"), c[0], "-o", str(tmp_path / "x.exr"), "-q"]) == 2
         _one_error_line(capsys, "bad.exr", "awr:seeds", needle)
     assert not (tmp_path / "x.exr").exists()
+
+
+def test_a_loop_merged_with_other_samples_keeps_its_seed_for_the_duplicate_check(tmp_path, capsys, rng):
+    """A plain merge of one loop's dump with samples of no loop (another renderer's, a batch merged by mistake) was
+    marked as no running dump and recorded no seeds: merged again with the loop's newer dump, which holds the same
+    first samples, it counted them twice, exit 0, in either order of the first merge (a review). It records the
+    loop's seed now, whichever input the loop was, and its settings go with the loop's too."""
+    a = _file_loop(tmp_path / "a", 3, 1, "--round-growth", "0.5")
+    other = str(tmp_path / "other.exr")
+    _dump(other, rng)  # statistics of no loop: no seed, no run settings
+    for k, pair in enumerate(((a[0], other), (other, a[0]))):
+        mixed = str(tmp_path / f"mixed{k}.exr")
+        assert main(["merge", *pair, "-o", mixed, "-q"]) == 0
+        attributes = read_sample_dump(mixed).attributes
+        assert attributes["awr:seeds"] == "3" and attributes["awr:seed"] == 3 and attributes["awr:running"] == 0
+        assert attributes["awr:round_growth"] == "0.5"  # the loop's settings, not the first input's (none)
+        for later in ((mixed, a[1]), (a[1], mixed)):
+            assert main(["merge", *later, "-o", str(tmp_path / "x.exr"), "-q"]) == 2
+            _one_error_line(capsys, "running dumps of one sample sequence (awr:seed 3)")
+    assert not (tmp_path / "x.exr").exists()
+    # Such a merge beside another loop: the same settings and seeds in either order.
+    u = _file_loop(tmp_path / "u", 4, 0, "--strategy", "uniform", "--round-growth", "1")
+    outputs = []
+    for k, pair in enumerate(((str(tmp_path / "mixed0.exr"), u[0]), (u[0], str(tmp_path / "mixed0.exr")))):
+        outputs.append(tmp_path / f"m{k}.exr")
+        assert main(["merge", *pair, "-o", str(outputs[-1]), "-q"]) == 0
+    first, second = ({k: v for k, v in read_sample_dump(path).attributes.items() if k != "awr:version"}
+                     for path in outputs)
+    assert first == second and first["awr:seeds"] == "3 4" and "awr:round_growth" not in first
 
 
 def test_a_plain_merge_of_loops_carries_the_same_settings_in_any_order(tmp_path, capsys):
