@@ -211,15 +211,15 @@ def _frame_label(option: str, jobs: list, frame: int | None) -> str:
 def _check_references(refs: list[str], sources: list[str], windows: list[dict]) -> None:
     """Read each frame's reference once (finite, readable; one file serving every frame is read once) and match
     its size and windows to its input's ``windows``, those its other checks were made in."""
-    read: dict[str, tuple] = {}
+    read: dict[str, tuple] = {}  # its size and windows only: a sequence's references are not all held at once
     for ref, source, theirs in zip(refs, sources, windows):
         if ref not in read:
             with recorded_windows() as reads:  # the windows of the read that gave its pixels (not of another)
-                read[ref] = (read_image(ref), reads[0][1])
-        image, ref_windows = read[ref]
+                read[ref] = (read_image(ref).shape[:2], reads[0][1])
+        (ref_h, ref_w), ref_windows = read[ref]
         h, w = _shape(theirs)
-        if image.shape[:2] != (h, w):
-            raise InputFileError(f"{ref}: size {image.shape[1]}x{image.shape[0]} does not match {w}x{h} of {source}")
+        if (ref_h, ref_w) != (h, w):
+            raise InputFileError(f"{ref}: size {ref_w}x{ref_h} does not match {w}x{h} of {source}")
         check_same_windows(ref, ref_windows, source, theirs)
 
 

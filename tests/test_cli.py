@@ -544,6 +544,39 @@ def test_diff_pairs_channels_by_name_when_one_side_names_them(tmp_path, capsys):
     assert json.loads(capsys.readouterr().out)["mse"] == 0.0
 
 
+def test_a_sequence_s_references_are_checked_one_at_a_time(tmp_path, rng, monkeypatch):
+    """``denoise --frames ... --ref ref.####.exr`` read every frame's reference to check its size and kept them all
+    in memory until the frames began: a long 1080p sequence held gigabytes for a size check (a review)."""
+    import weakref
+
+    from awr_denoise.cli import denoise_cmd
+    from awr_denoise.io.exr import read_windows
+
+    refs, sources = [], []
+    for k in range(3):
+        sources.append(str(tmp_path / f"d{k}.exr"))
+        _dump(sources[-1], rng)
+        refs.append(str(tmp_path / f"ref{k}.exr"))
+        write_image(refs[-1], rng.random((H, W, 3)))
+    alive: set[int] = set()
+    most = []
+    real = denoise_cmd.read_image
+
+    def tracked(path, *args, **kwargs):
+        image = real(path, *args, **kwargs)
+        alive.add(id(image))
+        weakref.finalize(image, alive.discard, id(image))
+        most.append(len(alive))
+        return image
+
+    monkeypatch.setattr(denoise_cmd, "read_image", tracked)
+    denoise_cmd._check_references(refs, sources, [read_windows(path) for path in sources])
+    assert most == [1, 1, 1]
+    write_image(refs[1], rng.random((H, W + 1, 3)), overwrite=True)  # the size is still checked
+    with pytest.raises(ValueError, match="ref1.exr: size 33x24 does not match 32x24 of "):
+        denoise_cmd._check_references(refs, sources, [read_windows(path) for path in sources])
+
+
 def test_merge_is_exact_chan_update(tmp_path, rng, capsys):
     shape = (H, W)
     pix_a = rng.integers(0, H * W, 4000)
