@@ -236,10 +236,12 @@ def _refuse_copies(earlier: list[_Seen], new: _Seen) -> None:
             why = "hold the same samples (a copy?)"
         elif new.running and old.running and (common := new.running[0] & old.running[0]) and (
                 shared := int(np.count_nonzero(new.running[1] & old.running[1]))):
-            which = (f"one sample sequence (awr:seed {min(common)})" if len(common) == 1 else
-                     f"the same sample sequences (awr:seed {', '.join(str(seed) for seed in sorted(common))})")
-            why = (f"are running dumps of {which}: at {shared} pixel(s) both hold its first samples, the same "
-                   "samples (loops on two machines need two seeds)")
+            if len(new.running[0]) == len(old.running[0]) == 1:
+                why = (f"are running dumps of one sample sequence (awr:seed {min(common)}): at {shared} pixel(s) "
+                       "both hold its first samples, the same samples (loops on two machines need two seeds)")
+            else:  # a merge of several loops, or of a loop and other samples, on either side
+                why = (f"both hold the first samples of the sample sequences of awr:seed "
+                       f"{', '.join(str(seed) for seed in sorted(common))} at {shared} pixel(s), the same samples")
         else:
             continue
         raise UsageError(f"merge: {new.path} and {old.path} {why}; merging would count their samples twice "
@@ -356,16 +358,16 @@ def run(args: argparse.Namespace) -> int:
             # told request replaces are its own.)
             kept = [key for key in _SETTINGS if key not in _replaced(asked)]
             settings = {key: dump.attributes[key] for key in kept if key in dump.attributes}
+            if index:  # every loop's checked as the first input's are, wherever it stands
+                carried_settings(path, settings, run_settings(path, settings)[0], dump.buffer.shape)
             if loop_settings is None:
-                if index:  # checked as the first input's are
-                    carried_settings(path, settings, run_settings(path, settings)[0], dump.buffer.shape)
                 loop_settings, loop_path = settings, path
             else:
                 for key in kept:
                     if str(settings.get(key)) != str(loop_settings.get(key)):
                         differ.setdefault(key, path)
         held |= seeds
-        all_running = all_running and _running(dump.attributes)
+        all_running = all_running and (is_told or _running(dump.attributes))  # a told batch: its request's
         answers.append(_answers(path, dump.attributes))
         if not args.allow_duplicates:
             _refuse_copies(seen, new := _seen(path, dump, seeds))
@@ -422,7 +424,7 @@ def run(args: argparse.Namespace) -> int:
         header_count(args.inputs[0], attrs, "awr:seed", 0, MAX_SEED)
     # A loop's running dump (told, or running dumps of one seed merged): its samples are every pixel's sequence
     # from 0.
-    running = (told is not None or all_running) and len(held) <= 1
+    running = all_running and len(held) <= 1  # (a told merge of other samples than one loop's is none)
     if told is None and len(held) == 1:  # one loop's, whichever input it was
         attrs["awr:seed"] = min(held)
     elif told is None and held:  # several loops' samples: no one seed's sequence

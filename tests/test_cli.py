@@ -876,12 +876,12 @@ def test_a_merge_of_two_seeds_loops_refuses_a_newer_dump_of_either(tmp_path, cap
     for newer, seed in ((a[1], 0), (b[1], 1)):
         for pair in ((ab, newer), (newer, ab)):
             assert main(["merge", *pair, "-o", str(tmp_path / "x.exr"), "-q"]) == 2
-            _one_error_line(capsys, f"running dumps of one sample sequence (awr:seed {seed})")
+            _one_error_line(capsys, f"both hold the first samples of the sample sequences of awr:seed {seed} at")
     assert not (tmp_path / "x.exr").exists()
     assert main(["merge", ab, c[1], "-o", str(tmp_path / "abc.exr"), "-q"]) == 0
     assert read_sample_dump(tmp_path / "abc.exr").attributes["awr:seeds"] == "0 1 2"
     assert main(["merge", str(tmp_path / "abc.exr"), b[1], "-o", str(tmp_path / "x.exr"), "-q"]) == 2
-    _one_error_line(capsys, "(awr:seed 1)")
+    _one_error_line(capsys, "of awr:seed 1 at")
     # Planned and told from the merge, the loop goes on with a seed it records among the others.
     assert main(["plan", ab, "-o", str(tmp_path / "r.exr"), "-q"]) == 0
     assert _external().main([str(tmp_path / "r.exr"), str(tmp_path / "rb.exr")]) == 0
@@ -890,7 +890,7 @@ def test_a_merge_of_two_seeds_loops_refuses_a_newer_dump_of_either(tmp_path, cap
     told = read_sample_dump(tmp_path / "told.exr").attributes
     assert told["awr:seeds"] == "0 1" and told["awr:seed"] == 0 and told["awr:running"] == 0
     assert main(["merge", str(tmp_path / "told.exr"), b[1], "-o", str(tmp_path / "x.exr"), "-q"]) == 2
-    _one_error_line(capsys, "(awr:seed 1)")
+    _one_error_line(capsys, "of awr:seed 1 at")
     # With a seed of its own, the loop's samples are a third sequence the merge holds from then on.
     assert main(["plan", ab, "--seed", "5", "-o", str(tmp_path / "r5.exr"), "-q"]) == 0
     assert _external().main([str(tmp_path / "r5.exr"), str(tmp_path / "rb5.exr")]) == 0
@@ -900,7 +900,7 @@ def test_a_merge_of_two_seeds_loops_refuses_a_newer_dump_of_either(tmp_path, cap
     # Two merges of the same two loops share both sequences.
     assert main(["merge", a[1], b[1], "-o", str(tmp_path / "ab1.exr"), "-q"]) == 0
     assert main(["merge", ab, str(tmp_path / "ab1.exr"), "-o", str(tmp_path / "x.exr"), "-q"]) == 2
-    _one_error_line(capsys, "running dumps of the same sample sequences (awr:seed 0, 1)")
+    _one_error_line(capsys, "both hold the first samples of the sample sequences of awr:seed 0, 1 at")
     for bad, needle in (("", "not a list of 1 to"), ("0 x", "not a whole number"), ("-1", "outside 0..")):
         write_sample_buffer(tmp_path / "bad.exr", merged.buffer, header={**merged.attributes, "awr:seeds": bad},
                             overwrite=True)
@@ -936,6 +936,21 @@ def test_a_loop_merged_with_other_samples_keeps_its_seed_for_the_duplicate_check
     first, second = ({k: v for k, v in read_sample_dump(path).attributes.items() if k != "awr:version"}
                      for path in outputs)
     assert first == second and first["awr:seeds"] == "3 4" and "awr:round_growth" not in first
+    # Told from such a merge, the loop's samples are still beside others: no running dump, the seed recorded.
+    mixed = str(tmp_path / "mixed0.exr")
+    assert main(["plan", mixed, "-o", str(tmp_path / "r.exr"), "-q"]) == 0
+    assert _external().main([str(tmp_path / "r.exr"), str(tmp_path / "b.exr")]) == 0
+    assert main(["merge", mixed, str(tmp_path / "b.exr"), "--request", str(tmp_path / "r.exr"), "-o",
+                 str(tmp_path / "told.exr"), "-q"]) == 0
+    told = read_sample_dump(tmp_path / "told.exr").attributes
+    assert told["awr:running"] == 0 and told["awr:seeds"] == "3" and told["awr:seed"] == 3
+    # A loop's setting that does not fit is refused wherever the loop stands among the inputs.
+    loop = read_sample_dump(a[0])
+    write_sample_buffer(tmp_path / "bad.exr", loop.buffer, header={**loop.attributes, "awr:noise_model": "evil"})
+    for pair in ((other, str(tmp_path / "bad.exr")), (u[0], str(tmp_path / "bad.exr"))):
+        assert main(["merge", *pair, "-o", str(tmp_path / "x.exr"), "-q"]) == 2
+        _one_error_line(capsys, "bad.exr", "awr:noise_model")
+    assert not (tmp_path / "x.exr").exists()
 
 
 def test_a_plain_merge_of_loops_carries_the_same_settings_in_any_order(tmp_path, capsys):
