@@ -272,9 +272,9 @@ class Sampler(OneAtATime):
             return self._pending
         target = self.default_budget() if budget is None else int(budget)
         capacity = None if self.spp_max is None else np.maximum(self.spp_max - self._issued, 0)  # resumed: >= 0
-        if capacity is not None and target > int(capacity.sum()):
-            # Checked here so the message gives the budget asked for, not a strategy's share of it.
-            raise ValueError(f"budget: {target} samples exceed the {int(capacity.sum())} that spp_max still allows")
+        if capacity is not None and target > (left := int(capacity.sum())):  # the budget asked, not a share of it
+            raise ValueError(f"budget: {target} samples exceed the {left} that spp_max still allows"
+                             + ("" if left else " (every pixel has its spp_max samples: the run is complete)"))
         rng = np.random.default_rng([self.seed, self._round])
         counts = np.zeros(self._shape, np.int64)
         topped_up = False

@@ -173,10 +173,10 @@ else (batches start at ``first_index``). Files without it (older versions) are j
 
 
 SEEDS = "awr:seeds"
-"""On a merge of running dumps of several seeds (loops on two machines, merged plainly), in place of ``awr:seed``:
-the seeds whose sequences it holds, as text (``0 1``). One dump no longer says which seed each pixel's samples
-follow, so it is no loop's running dump; the duplicate checks read the seeds, so that a newer dump of either loop
-merged with it later is refused (both hold that loop's first samples)."""
+"""On a merge that holds loops' samples and is no running dump (loops of several seeds merged plainly, or one loop's
+dump beside samples of no loop): the seeds whose sequences from index 0 it holds, as text (``0 1``). The duplicate
+checks read them, so that a newer dump of any of those loops merged with it later is refused (both hold that
+loop's first samples)."""
 MAX_SEEDS = 4096
 """The most seeds :data:`SEEDS` records (more loops than any farm runs; the header stays small)."""
 
@@ -228,8 +228,8 @@ def _seen(path: str, dump: SampleDump, seeds: frozenset[int]) -> _Seen:
 
 def _refuse_copies(earlier: list[_Seen], new: _Seen) -> None:
     """Refuse an input that holds the same samples as an earlier one (a copy, or two running dumps of
-    one seed with samples at the same pixels): merged, they would count twice. A merge of several seeds' loops
-    (:data:`SEEDS`) is taken to hold each seed's first samples wherever it has samples: one of them merged again
+    one seed with samples at the same pixels): merged, they would count twice. A merge recording :data:`SEEDS` is
+    taken to hold each of those seeds' first samples wherever it has samples: one of them merged again
     is refused even where the pixels it shares with the merge were another seed's (a refusal, never a count twice)."""
     for old in earlier:
         if new.digest is not None and new.digest == old.digest:
@@ -336,13 +336,14 @@ def run(args: argparse.Namespace) -> int:
     # carried (plan, which wrote the request, did not read them either).
     asked = None if not args.request else {k: v for k, v in request_attributes(args.request).items()
                                            if v is not None}
+    replaced = _replaced(asked)
     for index, (path, kwargs) in enumerate(zip(args.inputs, _input_kwargs(args))):
         dump = read_sample_dump(path, **kwargs)
         is_told = bool(args.request) and index == len(args.inputs) - 1
         seeds = _seeds(path, dump.attributes, is_told)
         if index == 0:
             first, attrs = dump.buffer, {k: v for k, v in dump.attributes.items()
-                                         if k.removeprefix("awr:") in _KEPT and k not in _replaced(asked)}
+                                         if k.removeprefix("awr:") in _KEPT and k not in replaced}
             run_strategy, _ = run_settings(path, attrs)  # carried into the output for plan: checked as plan does
             carried_settings(path, attrs, run_strategy, dump.buffer.shape)
             if asked is not None:  # before any batch is read
@@ -356,7 +357,7 @@ def run(args: argparse.Namespace) -> int:
             # carried only where they agree, a setting one leaves out (no cap, the automatic depth, or dropped by
             # an earlier merge) being one too; else the output's would follow the inputs' order. (The settings a
             # told request replaces are its own.)
-            kept = [key for key in _SETTINGS if key not in _replaced(asked)]
+            kept = [key for key in _SETTINGS if key not in replaced]
             settings = {key: dump.attributes[key] for key in kept if key in dump.attributes}
             if index:  # every loop's checked as the first input's are, wherever it stands
                 carried_settings(path, settings, run_settings(path, settings)[0], dump.buffer.shape)
@@ -383,7 +384,7 @@ def run(args: argparse.Namespace) -> int:
         del dump
     if loop_settings is not None:
         for key in _SETTINGS:
-            if key not in _replaced(asked):
+            if key not in replaced:
                 attrs.pop(key, None)
         attrs.update(loop_settings)
     for key, path in differ.items():

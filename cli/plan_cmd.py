@@ -198,10 +198,7 @@ def run(args: argparse.Namespace) -> int:
         option = _option_behind(str(exc), args, named["spp_max"])
         if option is None:
             raise
-        reason = str(exc).split(": ", 1)[-1]
-        if reason.endswith(" the 0 that spp_max still allows"):  # said as what it means for the run
-            reason += " (every pixel has its spp_max samples: the run is complete; a larger --spp-max goes on)"
-        raise UsageError(f"{option}: {reason}") from None
+        raise UsageError(f"{option}: {str(exc).split(': ', 1)[-1]}") from None
     h, w = request.shape
     kept = described(carried)  # the run's settings this plan took from the dump, where not the defaults
     status(f"{args.output}: round {request.round}, {request.total} samples "

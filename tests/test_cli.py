@@ -808,23 +808,9 @@ def test_running_dumps_of_one_seed_are_not_merged(tmp_path, capsys):
     at every pixel: ``merge A B`` counted them twice, exit 0 (a red-team pass). Refused unless
     ``--allow-duplicates``; loops of two seeds merge."""
     ext = _external()
-
-    def loop(name, seed):
-        folder = tmp_path / name
-        folder.mkdir()
-        assert main(["plan", "--size", f"{W}x{H}", "--seed", str(seed), "-o", str(folder / "r0.exr"), "-q"]) == 0
-        assert ext.main([str(folder / "r0.exr"), str(folder / "b0.exr")]) == 0
-        assert main(["merge", str(folder / "b0.exr"), "--request", str(folder / "r0.exr"), "-o",
-                     str(folder / "d1.exr"), "-q"]) == 0
-        if name == "b":  # another round: not a copy of the other dump, the same first samples still
-            assert main(["plan", str(folder / "d1.exr"), "--round-spp", "2", "-o", str(folder / "r1.exr"), "-q"]) == 0
-            assert ext.main([str(folder / "r1.exr"), str(folder / "b1.exr")]) == 0
-            assert main(["merge", str(folder / "d1.exr"), str(folder / "b1.exr"), "--request", str(folder / "r1.exr"),
-                         "-o", str(folder / "d2.exr"), "-q"]) == 0
-            return str(folder / "d2.exr")
-        return str(folder / "d1.exr")
-
-    a, b, c = loop("a", 7), loop("b", 7), loop("c", 8)
+    # b has another round: not a copy of a, the same first samples still
+    a, b, c = (_file_loop(tmp_path / name, seed, rounds)[-1] for name, seed, rounds in (("a", 7, 0), ("b", 7, 1),
+                                                                                        ("c", 8, 0)))
     assert main(["merge", a, b, "-o", str(tmp_path / "ab.exr"), "-q"]) == 2
     _one_error_line(capsys, "are running dumps of one sample sequence (awr:seed 7)", "--allow-duplicates")
     assert not (tmp_path / "ab.exr").exists()

@@ -223,6 +223,18 @@ def test_budget_beyond_spp_max_raises(sampler_cls):
     assert sampler.ask(2 * PIXELS).total == 2 * PIXELS  # exactly the capacity is fine
 
 
+def test_a_run_at_its_cap_is_said_to_be_complete(sampler_cls):
+    """At ``spp_max`` everywhere nothing is left to ask: the refusal says so, not only that 0 samples remain."""
+    sampler, _ = _after_round_zero(sampler_cls, spp_max=4)
+    assert (sampler.issued == 4).all()
+    with pytest.raises(ValueError, match=r"exceed the 0 that spp_max still allows \(every pixel has its spp_max "
+                                         r"samples: the run is complete\)"):
+        sampler.ask(1)
+    sampler, _ = _after_round_zero(sampler_cls, spp_max=6)
+    with pytest.raises(ValueError, match=r"still allows$"):  # capacity left: no such words
+        sampler.ask(2 * PIXELS + 1)
+
+
 def test_bad_budget_raises(sampler_cls):
     sampler = sampler_cls(SHAPE)
     with pytest.raises(ValueError, match="budget: must be >= 0"):
