@@ -392,8 +392,13 @@ def trust(candidate: FloatArray, buffer: SampleBuffer, *, window: int = GATE_WIN
     v = buffer.estimated_variance() / np.maximum(buffer.count, 1)[..., None]
     with np.errstate(over="ignore"):  # a guide far beyond the means: its distance is inf, capped, share 0
         distance = np.minimum((candidate - x) ** 2, 1e300).sum(axis=-1)
+    v = v.sum(axis=-1)
+    # A pixel without samples has no mean to hold the candidate to (its filled mean is a neighbour's): no term.
+    empty = buffer.count == 0
+    distance[empty] = 0.0
+    v[empty] = 0.0
     spread = window_sum(np.minimum(distance, 1e300 / window**2), window)  # sums, not running ones (._window_sums)
-    noise = window_sum(v.sum(axis=-1), window)
+    noise = window_sum(v, window)
     r = np.where(noise > 0, spread / np.where(noise > 0, noise, 1.0), np.where(spread > 0, np.inf, 0.0))
     return np.clip((GATE_HIGH - r) / (GATE_HIGH - GATE_LOW), 0.0, 1.0)[..., None]
 

@@ -26,7 +26,7 @@ import numpy as np
 from scipy import ndimage
 
 from . import _checks
-from ._typing import FloatArray
+from ._typing import BoolArray, FloatArray
 from .buffers import SampleBuffer
 from .channels import luminance_variance, luminance_weights
 from .domains import _LARGEST, _SMALLEST, Domain, _BoundDomain, resolve_domain
@@ -91,6 +91,10 @@ class Prepared:
         sample of the pooled variance), shaped to divide :attr:`sample_variance`.
     bound
         The domain with its offset fixed for this image.
+    sampled
+        (H, W) pixels with samples of their own, or ``None`` when every pixel has some: a filled
+        pixel's mean is no measurement of it (the guard's risk leaves it out:
+        :func:`~awr_denoise.sure.sure_blend`).
 
     Examples
     --------
@@ -114,6 +118,7 @@ class Prepared:
     sample_variance: FloatArray
     count: FloatArray
     bound: _BoundDomain
+    sampled: BoolArray | None = None
 
     @property
     def domain(self) -> Domain:
@@ -199,6 +204,9 @@ def prepare(buffer: SampleBuffer, domain: str | Domain = "log", *, luminance: bo
            [0.1, 0.4]])
     >>> p.mean[1, 1]                # filled from its nearest neighbour
     array([2., 2., 2.])
+    >>> p.sampled                   # the pixels with samples of their own
+    array([[ True,  True],
+           [ True, False]])
     """
     if not isinstance(buffer, SampleBuffer):
         raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
@@ -226,4 +234,5 @@ def prepare(buffer: SampleBuffer, domain: str | Domain = "log", *, luminance: bo
             raise ValueError(f"domain scale: {dom.scale:g} is so far above the image's level (largest |mean| "
                              f"{top:.3g}) that every mean underflows to 0 in the {dom.name} domain; give a "
                              "scale near the image's level, or None for its own")
-    return Prepared(mean, sample_variance, n, bound)
+    sampled = None if buffer.count.all() else buffer.count > 0
+    return Prepared(mean, sample_variance, n, bound, sampled)

@@ -155,12 +155,13 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
         # The guard's risk needs the stages' divergence: their diagonal (factors held), or measured.
         divergence = leverage if done.divergence is None else done.divergence
         if luminance is None:
-            out, lam = sure_blend(out, x, v, divergence, k=k, window=window, run=options["run"])
+            out, lam = sure_blend(out, x, v, divergence, k=k, window=window, run=options["run"],
+                                  measured=prepared.sampled)
         else:  # one share for every channel, decided on luminance: hue is kept
             weights = luminance[1]
             _, lam = sure_blend(out @ weights, x @ weights, luminance[0].variance / s / s,
                                 divergence[..., 0] if done.divergence is None else divergence @ weights, k=k,
-                                window=window)
+                                window=window, measured=prepared.sampled)
             lam = lam[..., None]
             out = x + lam * (out - x)
         if var_out is not None:
@@ -215,7 +216,8 @@ def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | N
             lum = None if luminance is None else luminance[0]
             image, moved = pooled_clamp(image, prepared.mean if lum is None else lum.mean,
                                         prepared.variance if lum is None else lum.variance, settings.pixel_clamp,
-                                        weights=None if luminance is None else luminance[1], count=prepared.count)
+                                        weights=None if luminance is None else luminance[1], count=prepared.count,
+                                        sampled=prepared.sampled)
             if variance is not None:
                 variance = np.where(moved, prepared.variance, variance)
     if settings.nonnegative:
@@ -352,8 +354,10 @@ def reconstruct_detailed(
     given, the luminance factor is the colour's): :func:`~awr_denoise.channels.channel_groups`.
 
     Pixels without samples take their nearest sampled neighbour's mean and the variance of a
-    single sample, so they are smoothed over rather than read as black. Unknown per-sample
-    variances are pooled from neighbours (:meth:`SampleBuffer.estimated_variance`).
+    single sample, so they are smoothed over rather than read as black; having no mean of their
+    own, they have no weight in the guard's risk (:func:`~awr_denoise.sure.sure_blend`, ``measured``)
+    nor in a guide's gate. Unknown per-sample variances are pooled from neighbours
+    (:meth:`SampleBuffer.estimated_variance`).
 
     The output variance is that of the last stage linearised around its result, estimated without bias
     by Rademacher probes ``+-sqrt(v)``. With ``stages=1``, the shrink factor of every coefficient is

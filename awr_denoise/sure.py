@@ -31,7 +31,7 @@ from collections.abc import Callable
 import numpy as np
 
 from . import _checks
-from ._typing import FloatArray
+from ._typing import BoolArray, FloatArray
 from ._window_sums import window_sum
 
 __all__ = ["sure_blend", "DEFAULT_WINDOW", "DEFAULT_GUIDED_WINDOW"]
@@ -51,7 +51,8 @@ deliberately wrong guides stay below the plain mean's error (tests/test_guided.p
 
 
 def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, leverage: FloatArray, *, k: float,
-               window: int = DEFAULT_WINDOW, run: Callable | None = None) -> tuple[FloatArray, FloatArray]:
+               window: int = DEFAULT_WINDOW, run: Callable | None = None,
+               measured: BoolArray | None = None) -> tuple[FloatArray, FloatArray]:
     """``mean + lambda (estimate - mean)`` with ``lambda`` from SURE (module docstring).
 
     Parameters
@@ -69,6 +70,13 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
     run
         ``run(f, items)``, an executor's map: the two criteria's window sums on its threads (the
         same bits; two more whole arrays alive at once).
+    measured
+        (H, W) pixels whose ``mean`` measures them (``None``: all). The others (pixels without
+        samples, their means copied from a neighbour: :func:`~awr_denoise.prepare.prepare`) have
+        weight 0 in the sums, since the risk estimate needs unbiased means and a copy across an edge
+        is off by the edge; and they keep ``estimate`` (``lambda`` 1): there is no mean of theirs to
+        return to, and the copy is a worse guess than the estimate (docs/reconstruction.md, "Pixels
+        without samples").
 
     Returns
     -------
@@ -104,6 +112,11 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
     lev = np.asarray(leverage, np.float64)
     if lev.ndim == o.ndim - 1:
         lev = lev[..., None]
+    unmeasured = None
+    if measured is not None:
+        unmeasured = ~np.asarray(measured, bool)
+        if unmeasured.shape != o.shape[:2]:
+            raise ValueError(f"measured: shape {unmeasured.shape} is not the image's {o.shape[:2]}")
     # Every full-size array below is float64 and the image may be 1080p or 4K: the sums are
     # pooled in place and buffers reused, so at most five whole arrays are alive (not ten).
     change = o - x
@@ -117,6 +130,9 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
 
     def share(num: FloatArray, den: FloatArray) -> FloatArray:
         """The sums' ratio clipped to [0, 1] (1 where it is undefined), into ``num``; ``den`` is spent."""
+        if unmeasured is not None:  # no measurement, no term of the risk
+            num[unmeasured] = 0.0
+            den[unmeasured] = 0.0
         # Window sums of their own entries (._window_sums): a running sum carried a removed firefly's rounding
         # error along the line, and the share came out 0.2 off far from it.
         window_sum(num, window, out=num)
@@ -151,6 +167,8 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
         absolute, relative = run(lambda pair: share(*pair), pairs)
         del pairs
         lam = np.minimum(absolute, relative, out=absolute)
+    if unmeasured is not None:
+        lam[unmeasured] = 1.0
     change *= lam
     change += x
     return change, lam

@@ -10,6 +10,7 @@ Run from the repository root (each section updates its part of the JSON)::
     .venv/bin/python benchmarks/bench_reconstruct.py speed        # 128x128, 256x256, 1080p
     .venv/bin/python benchmarks/bench_reconstruct.py agreed       # the cost of moderating samples that agreed
     .venv/bin/python benchmarks/bench_reconstruct.py finishing    # the image mean's correction, compared
+    .venv/bin/python benchmarks/bench_reconstruct.py empty        # pixels without samples, scattered or a half
 
 ``quality`` renders every scene with uniform sampling in four disjoint sample groups (renderer
 seeds 0-3, nested 8..128 spp; cached under ``--cache``) and compares, against the scene's
@@ -44,11 +45,12 @@ from awr_denoise import finishing as finishing_steps
 from awr_denoise import fused, pooling, rims
 from awr_denoise.bench import update_section
 from awr_denoise.features import FEATURE_CHANNELS
-from awr_denoise.finishing import RESTORE_SHARE, match_mean, restore_mean
+from awr_denoise.finishing import RESTORE_SHARE, match_mean, pooled_clamp, restore_mean
 from awr_denoise.metrics import mean_error, mse, relmse
 from awr_denoise.prepare import prepare
 from awr_denoise.reconstruct import DEFAULT_DOMAIN, _wiener_levels, later_stages, resolve_settings
 from awr_denoise.renderers import create_renderer
+from awr_denoise.sure import sure_blend
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
 from awr_denoise.thresholding import threshold_stage
 from awr_denoise.wavelets import wavelet_operators
@@ -703,6 +705,98 @@ def finishing(groups: int, cache: Path, mitsuba: bool) -> list[dict[str, Any]]:
     return rows
 
 
+EMPTY_SPPS = (8, 32)
+EMPTY_LAYOUTS = ("20% scattered", "50% scattered", "70% scattered", "the right half")
+"""``empty``: which pixels of a full render lose their samples (scattered: each pixel alone, at random)."""
+
+
+def _emptied(buffer: SampleBuffer, layout: str, rng: np.random.Generator) -> tuple[SampleBuffer, np.ndarray]:
+    """``buffer`` with the pixels of ``layout`` made sample-less, and the (H, W) mask of those still sampled."""
+    if layout == "the right half":
+        sampled = np.arange(buffer.shape[1])[None, :] < buffer.shape[1] // 2
+        sampled = np.broadcast_to(sampled, buffer.shape)
+    else:
+        sampled = rng.random(buffer.shape) >= int(layout.split("%")[0]) / 100
+    kept = sampled[..., None]
+    return SampleBuffer.from_moments(np.where(sampled, buffer.count, 0), np.where(kept, buffer.mean, 0.0),
+                                     np.where(kept, buffer.variance, 0.0)), sampled
+
+
+def empty_pixels_counted(buffer: SampleBuffer) -> np.ndarray:
+    """The default as it was before the guard and the pooled clamp left pixels without samples out: their filled
+    means (a neighbour's) summed as measurements in the guard's risk, their one pooled sample's standard error in
+    the clamp's medians (``sure_blend(..., measured=None)``, ``pooled_clamp(..., sampled=None)``)."""
+    module = sys.modules["awr_denoise.reconstruct"]
+
+    def guard(*args: Any, measured: Any = None, **options: Any) -> Any:
+        return sure_blend(*args, **options)
+
+    def clamp(*args: Any, sampled: Any = None, **options: Any) -> Any:
+        return pooled_clamp(*args, **options)
+    with mock.patch.object(module, "sure_blend", guard), mock.patch.object(module, "pooled_clamp", clamp):
+        return reconstruct(buffer)
+
+
+def empty_copied(buffer: SampleBuffer) -> np.ndarray:
+    """The default on the buffer with every pixel without samples a copy of its nearest sampled neighbour, its
+    per-sample variance (as estimated) and count included, instead of one sample of the pooled variance."""
+    empty = buffer.count == 0
+    if not empty.any():
+        return reconstruct(buffer)
+    _, (rows, cols) = ndimage.distance_transform_edt(empty, return_indices=True)
+    return reconstruct(SampleBuffer.from_moments(buffer.count[rows, cols], buffer.mean[rows, cols],
+                                                 buffer.estimated_variance()[rows, cols]))
+
+
+def empty_pixels(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], groups: int,
+                 cache: Path) -> list[dict[str, Any]]:
+    """Every scene's uniform renders with pixels made sample-less (:data:`EMPTY_LAYOUTS`; the same pixels for
+    every spp of a render): MSE and relMSE over the pixels still sampled and over all, and the image mean's
+    change from the plain (filled) mean's, of the plain mean, the default, :func:`empty_pixels_counted` and
+    :func:`empty_copied`."""
+    rows = []
+    for renderer, scene, shape in scenes:
+        ref = reference(renderer, scene, shape, cache)
+        for g in range(groups):
+            for spp, full in uniform_buffers(renderer, scene, shape, spps, g, cache).items():
+                for i, layout in enumerate(EMPTY_LAYOUTS):
+                    buffer, sampled = _emptied(full, layout, np.random.default_rng([g, i]))
+                    plain = prepare(buffer, "linear").mean
+                    for method, image in (("plain", plain), ("default", reconstruct(buffer)),
+                                          ("empty pixels counted", empty_pixels_counted(buffer)),
+                                          ("empty pixels copied", empty_copied(buffer))):
+                        rows.append({"renderer": renderer, "scene": scene, "spp": spp, "group": g, "layout": layout,
+                                     "method": method, "mse_sampled": mse(image[sampled], ref[sampled]),
+                                     "relmse_sampled": relmse(image[sampled], ref[sampled]),
+                                     "mse": mse(image, ref), "relmse": relmse(image, ref),
+                                     "mean_change": float(image.mean() / plain.mean() - 1)})
+        print(f"{renderer} {scene}: done", flush=True)
+    return rows
+
+
+def empty_table(rows: list[dict]) -> None:
+    """Per scene, spp and layout, over the renders: each method's errors over the plain mean's, on the sampled
+    pixels and on all (the mean of the renders' ratios; the worst render's MSE ratio in brackets)."""
+    methods = [m for m in dict.fromkeys(r["method"] for r in rows) if m != "plain"]
+    heads = [f"{m}: {part}" for m in methods for part in ("sampled pixels, MSE, relMSE / plain (worst)",
+                                                           "all pixels, MSE, relMSE / plain (worst)")]
+    print("\n| renderer | scene | spp | pixels without samples | " + " | ".join(heads)
+          + " | largest image-mean change |")
+    print("|---|---|---|---|" + "---|" * (len(heads) + 1))
+    for renderer, scene, spp, layout in dict.fromkeys((r["renderer"], r["scene"], r["spp"], r["layout"]) for r in rows):
+        here = [r for r in rows if (r["renderer"], r["scene"], r["spp"], r["layout"]) == (renderer, scene, spp, layout)]
+        plain = {r["group"]: r for r in here if r["method"] == "plain"}
+        cells = []
+        for m in methods:
+            mine = [r for r in here if r["method"] == m]
+            for part in ("_sampled", ""):
+                a = np.array([(r[f"mse{part}"] / plain[r["group"]][f"mse{part}"],
+                               r[f"relmse{part}"] / plain[r["group"]][f"relmse{part}"]) for r in mine])
+                cells.append(f"{a[:, 0].mean():.2f}, {a[:, 1].mean():.2f} ({a[:, 0].max():.2f})")
+        change = max(abs(r["mean_change"]) for r in here if r["method"] == "default")
+        print(f"| {renderer} | {scene} | {spp} | {layout} | " + " | ".join(cells) + f" | {change:.2%} |")
+
+
 def finishing_table(rows: list[dict]) -> None:
     methods = [m for m in dict.fromkeys(r["method"] for r in rows) if m != "plain"]
     print("\nMSE / plain mean's, mean over renders (worst render); relMSE / plain mean's, mean over renders\n")
@@ -892,11 +986,11 @@ def quality_scenes(names: list[str] | None) -> list[tuple[str, str, tuple[int, i
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("section", choices=("quality", "samplers", "refresh", "seeds", "synthetic", "speed",
-                                            "agreed", "finishing", "tables"))
+                                            "agreed", "finishing", "empty", "tables"))
     parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
     parser.add_argument("--spps", nargs="+", type=int, default=list(SPPS))
     parser.add_argument("--groups", type=int, default=0,
-                        help="renders per scene (default 4; finishing: 12; samplers: seeds, 2)")
+                        help="renders per scene (default 4; finishing: 12; samplers: seeds, 2; empty: 2)")
     parser.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "awr-denoise" / "reconstruct",
                         help="where rendered buffers and Mitsuba references are kept (default %(default)s)")
     parser.add_argument("--sizes", nargs="+", choices=tuple(SIZES), default=list(SIZES))
@@ -970,12 +1064,17 @@ def main(argv: list[str] | None = None) -> int:
         rows = finishing(args.groups or 12, args.cache, _mitsuba_available())
         update_section(args.output, "finishing", rows, command)
         finishing_table(rows)
+    elif args.section == "empty":
+        spps = EMPTY_SPPS if args.spps == list(SPPS) else tuple(args.spps)  # 8 and 32 unless given
+        rows = empty_pixels(quality_scenes(args.scenes), spps, args.groups or 2, args.cache)
+        update_section(args.output, "empty", rows, command)
+        empty_table(rows)
     else:  # print the tables of the stored results
         data = json.loads(args.output.read_text())
         for section, show in (("quality", quality_tables), ("samplers", sampler_table), ("refresh", refresh_table),
                               ("seeds", seeds_table),
                               ("synthetic", synthetic_table),
-                              ("finishing", finishing_table)):
+                              ("finishing", finishing_table), ("empty", empty_table)):
             if section in data:
                 print(f"\n## {section} ({data[section]['command']})")
                 show(data[section]["rows"])

@@ -146,6 +146,26 @@ def test_the_gate_trusts_what_the_samples_allow(rng):
     assert_allclose(gated(ref, stage1, buf), trust(ref, buf) * ref)
 
 
+def test_the_gate_holds_a_guide_to_the_sampled_pixels_only(rng):
+    """A pixel without samples has no mean of its own (its filled mean is a neighbour's): it adds nothing to the
+    gate's sums. Counted as one noisy sample, a third of the pixels without samples let guides 15% and 30% too
+    bright through at 256 spp (shares 1.00 where every pixel sampled gives 0.39 and 0)."""
+    rows, cols = np.mgrid[0:48, 0:48]
+    clean = (0.2 + 0.6 * ((rows // 4 + cols // 4) % 2))[..., None] * np.ones(3)
+    spp = 256
+    mean = clean + clean / math.sqrt(spp) * rng.standard_normal(clean.shape)
+    variance = clean**2 * rng.chisquare(spp - 1, clean.shape) / (spp - 1)
+    full = SampleBuffer.from_moments(np.full((48, 48), spp), mean, variance)
+    sampled = rng.random((48, 48)) >= 1 / 3
+    holed = SampleBuffer.from_moments(np.where(sampled, spp, 0), np.where(sampled[..., None], mean, 0.0),
+                                      np.where(sampled[..., None], variance, 0.0))
+    for guide, low, high in ((clean, 0.95, 1.0), (1.15 * clean, 0.0, 0.5), (1.3 * clean, 0.0, 0.02)):
+        for buffer in (full, holed):
+            assert low <= trust(guide, buffer)[sampled].mean() <= high
+    assert np.all(trust(1.3 * clean, SampleBuffer.from_moments(np.where(cols < 24, spp, 0), mean, variance))[:, 30:]
+                  == 1.0)  # nothing to hold it to: a hole of the render, where only the guide knows
+
+
 def test_parameters_record_the_guide_and_the_features(rng):
     scene, buf = _scene_buffer("gradient", 4, 0)
     plain = reconstruct_detailed(buf, variance_probes=0).parameters

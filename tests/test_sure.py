@@ -76,6 +76,27 @@ def test_a_shared_leverage_plane_serves_every_channel(rng):
     assert_allclose(a, three(b))
 
 
+def test_pixels_without_a_measurement_have_no_weight(rng):
+    """Pixels whose means are copies (no samples of their own) are left out of the risk: a good estimate
+    is kept whatever such a pixel's mean is off by; they keep the estimate themselves, and so does a window
+    holding none."""
+    truth, mean, variance = _flat(rng)
+    lev = np.full(SHAPE, 0.05)
+    measured = np.ones(SHAPE[:2], bool)
+    measured[::2, ::2] = False  # a quarter of the pixels, scattered
+    measured[:, 20:] = False  # and a hole
+    copied = np.where(measured[..., None], mean, truth + 0.5)  # their means far off: an edge copied across
+    kept, lam = sure_blend(truth, copied, variance, lev, k=0.1, measured=measured)
+    assert lam[:, :12][measured[:, :12]].mean() > 0.85 and np.all(lam[~measured] == 1.0)
+    assert_array_equal(kept[~measured], truth[~measured])
+    _, counted = sure_blend(truth, copied, variance, lev, k=0.1)  # every mean taken as a measurement
+    assert counted[:, :12].mean() < 0.5
+    with pytest.raises(ValueError, match=r"measured: shape \(32, 32, 1\) is not the image's \(32, 32\)"):
+        sure_blend(truth, mean, variance, lev, k=0.1, measured=measured[..., None])
+    same, _ = sure_blend(truth, mean, variance, lev, k=0.1, measured=np.ones(SHAPE[:2], bool))
+    assert_array_equal(same, sure_blend(truth, mean, variance, lev, k=0.1)[0])
+
+
 @pytest.mark.parametrize(("kwargs", "message"), [({"k": 0.0}, "k"), ({"k": 0.1, "window": 4}, "window: must be odd"),
                                                  ({"k": 0.1, "window": 0}, "window")])
 def test_bad_arguments_are_refused(rng, kwargs, message):

@@ -72,6 +72,40 @@ def test_clamp_pools_every_neighbour_is_the_default_before_the_test_and_restores
     assert np.array_equal(every, reconstruct(buffer))
 
 
+def _holed_checkerboard(fraction: float):
+    from awr_denoise import SampleBuffer
+    rng = np.random.default_rng(0)
+    rows, cols = np.mgrid[0:32, 0:32]
+    clean = (0.2 + 0.6 * ((rows // 4 + cols // 4) % 2))[..., None] * np.ones(3)
+    mean = clean + clean / 4 * rng.standard_normal(clean.shape)
+    sampled = rng.random((32, 32)) >= fraction
+    return SampleBuffer.from_moments(np.where(sampled, 16, 0), np.where(sampled[..., None], mean, 0.0),
+                                     np.where(sampled[..., None], clean**2, 0.0))
+
+
+def test_the_empty_sections_forms_are_the_default_on_full_buffers_and_restore_it(bench):
+    """``empty``'s compared forms (the guard and the clamp counting pixels without samples; those pixels copied)
+    differ from the default only where pixels have no samples, and leave the default's steps as they were."""
+    from awr_denoise import reconstruct
+    module = importlib.import_module("awr_denoise.reconstruct")
+    guard, clamp = module.sure_blend, module.pooled_clamp
+    full, holed = _holed_checkerboard(0.0), _holed_checkerboard(0.4)
+    for form in (bench.empty_pixels_counted, bench.empty_copied):
+        assert np.array_equal(form(full), reconstruct(full))
+        assert not np.allclose(form(holed), reconstruct(holed))
+        assert (module.sure_blend, module.pooled_clamp) == (guard, clamp)
+
+
+def test_emptied_buffers_lose_the_pixels_their_layout_names(bench):
+    full = _holed_checkerboard(0.0)
+    for i, layout in enumerate(bench.EMPTY_LAYOUTS):
+        buffer, sampled = bench._emptied(full, layout, np.random.default_rng(i))
+        assert np.array_equal(buffer.count > 0, sampled) and np.array_equal(buffer.mean[sampled], full.mean[sampled])
+        share = 1 - sampled.mean()
+        expected = 0.5 if layout == "the right half" else int(layout.split("%")[0]) / 100
+        assert abs(share - expected) < 0.06
+
+
 @pytest.mark.parametrize("name", ["pilot clamped", "no energy floor", "agreed samples held exact",
                                   "clamp pools every neighbour"])
 def test_every_compared_form_runs(bench, name):
