@@ -171,6 +171,8 @@ def _note(frame: FrameResult, output: str, nonfinite_policy: str, guide: str | N
     if frame.nonfinite:
         note += f", {frame.nonfinite} non-finite sample(s) {'dropped' if nonfinite_policy == 'drop' else 'zeroed'} " \
                 "on input"
+    if frame.unsampled:  # their values are estimated from the pixels around them: said, as awr info says it
+        note += f", {frame.unsampled} pixel(s) without samples estimated from their surroundings"
     if frame.relmse is not None:
         note += f", relMSE {frame.relmse:.4g}"
     if unused := unused_features(frame.features, guide):

@@ -288,6 +288,19 @@ def test_denoise_writes_image_with_provenance(tmp_path, rng, capsys):
     assert (tmp_path / "o.png").read_bytes()[:4] == b"\x89PNG"
 
 
+def test_denoise_says_how_many_pixels_had_no_samples(tmp_path, rng, capsys):
+    """Their values are estimates from the pixels around them: the summary says so, as ``awr info`` does (a
+    dump of a border render, or of a sampler that skipped pixels, was denoised without a word)."""
+    buf = _dump(tmp_path / "full.exr", rng)
+    count = buf.count.copy()
+    count[:, : W // 4] = 0
+    write_sample_buffer(tmp_path / "d.exr", SampleBuffer.from_moments(count, buf.mean, buf.variance))
+    for name, said in (("full", None), ("d", f"{H * (W // 4)} pixel(s) without samples estimated from their surroundings")):
+        assert main(["denoise", str(tmp_path / f"{name}.exr"), "-o", str(tmp_path / f"{name}_out.exr")]) == 0
+        err = capsys.readouterr().err
+        assert ("without samples" in err) == (said is not None) and (said is None or said in err)
+
+
 def test_output_refuses_to_overwrite_unless_asked(tmp_path, rng, capsys):
     src = tmp_path / "d.exr"
     _dump(src, rng)

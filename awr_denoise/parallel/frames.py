@@ -73,6 +73,8 @@ class FrameResult:
         Relative MSE against the reference, when one was given.
     features
         Features the dump held (albedo, normal, depth), used with ``guide``/``features`` only.
+    unsampled
+        Pixels without samples (each filled from its nearest sampled neighbour).
     """
 
     source: str
@@ -84,6 +86,7 @@ class FrameResult:
     nonfinite: int
     relmse: float | None = None
     features: tuple[str, ...] = ()
+    unsampled: int = 0
 
 
 def _reference_error(reference: str | os.PathLike[str], image: np.ndarray, channels: Sequence[str], source: str,
@@ -197,7 +200,7 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
     shown = draw(preview, overwrite or (again and _identical(preview, draw))) if preview else None
     return FrameResult(source, Path(written), None if shown is None else Path(shown), buffer.shape,
                        buffer.total_samples / buffer.count.size, float(result.fraction_zeroed),
-                       int(buffer.nonfinite), error, tuple(buffer.features))
+                       int(buffer.nonfinite), error, tuple(buffer.features), int(np.count_nonzero(buffer.count == 0)))
 
 
 def _identical(target: str | os.PathLike[str], write: Callable[[str, bool], Any]) -> bool:
