@@ -30,7 +30,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ._typing import BoolArray, FloatArray
+from ._typing import FloatArray
 
 __all__ = ["median3x3", "pooled_standard_error", "pooled_clamp", "clip_negative", "match_mean", "restore_mean", "POOL",
            "POOL_CHANCE", "MEAN_LIMIT", "MEAN_SIGNIFICANCE", "RESTORE_OFFSET", "RESTORE_SHARE"]
@@ -133,8 +133,8 @@ def pooled_standard_error(variance: FloatArray, mean: FloatArray | None = None,
 
 
 def pooled_clamp(image: FloatArray, mean: FloatArray, variance: FloatArray, z: float, *,
-                 weights: FloatArray | None = None, count: FloatArray | None = None,
-                 sampled: BoolArray | None = None) -> tuple[FloatArray, FloatArray]:
+                 weights: FloatArray | None = None,
+                 count: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
     """Keep every pixel within ``z`` pooled standard errors of its mean (:func:`pooled_standard_error`).
 
     Parameters
@@ -150,9 +150,6 @@ def pooled_clamp(image: FloatArray, mean: FloatArray, variance: FloatArray, z: f
     count
         (H, W) sample counts (or (H, W, 1)): pool only the neighbours the pixel's samples could have
         come from (:data:`POOL_CHANCE`); without, every 3x3 neighbour pools.
-    sampled
-        With ``count``, the (H, W) pixels with samples of their own (``None``: all): no other neighbour
-        pools (a filled pixel's one pooled sample would lend its width to a precise pixel beside it).
 
     Returns
     -------
@@ -189,7 +186,7 @@ def pooled_clamp(image: FloatArray, mean: FloatArray, variance: FloatArray, z: f
     # stays, so the 3x3 medians are needed only where it lies outside, a few per cent of pixels.
     outside = np.nonzero((value < low) | (value > high))
     if outside[0].size:
-        pooled = _median3x3_at(s, outside) if count is None else _pooled_median_at(s, mean, count, outside, sampled)
+        pooled = _median3x3_at(s, outside) if count is None else _pooled_median_at(s, mean, count, outside)
         reach_out = z * np.maximum(s[outside], pooled)
         low[outside] = mean[outside] - reach_out
         high[outside] = mean[outside] + reach_out
@@ -220,12 +217,10 @@ _SORT9 = ((0, 1), (3, 4), (6, 7), (1, 2), (4, 5), (7, 8), (0, 1), (3, 4), (6, 7)
 minima and maxima over whole rows, several times faster than ``np.sort`` along an axis of nine."""
 
 
-def _pooled_median_at(s: FloatArray, mean: FloatArray, count: FloatArray, where: tuple,
-                      sampled: BoolArray | None = None) -> FloatArray:
+def _pooled_median_at(s: FloatArray, mean: FloatArray, count: FloatArray, where: tuple) -> FloatArray:
     """The median of the standard errors ``s`` over the 3x3 neighbours at ``where`` that pass :data:`POOL_CHANCE`'s
-    test (the upper median of an even number) and have samples of their own (``sampled``; ``None``: all); every
-    neighbour with ``POOL_CHANCE`` at 0."""
-    if not POOL_CHANCE and sampled is None:
+    test (the upper median of an even number); every neighbour with ``POOL_CHANCE`` at 0."""
+    if not POOL_CHANCE:
         return _median3x3_at(s, where)
     h, w = s.shape[:2]
     rows, cols = where[0], where[1]
@@ -236,14 +231,13 @@ def _pooled_median_at(s: FloatArray, mean: FloatArray, count: FloatArray, where:
     s_flat = np.pad(s.reshape(h, w, channels), pad, mode="edge").ravel()
     mean_flat = np.pad(mean.reshape(h, w, channels), pad, mode="edge").ravel()
     count_flat = np.pad(np.asarray(count, dtype=np.float64).reshape(h, w), 1, mode="edge").ravel()
-    measured = None if sampled is None else np.pad(np.asarray(sampled, bool).reshape(h, w), 1, mode="edge").ravel()
     pixel = (rows + 1) * (w + 2) + (cols + 1)
     n, own_s, own_m = count_flat.take(pixel), s[where], mean[where]
     # z^n >= POOL_CHANCE with z = S^2 / (S^2 + g^2) is g <= S sqrt(expm1(-log(POOL_CHANCE) / n)): one root per
     # pixel, and a neighbour's test is a product and a comparison (no square of a value, so no overflow).
     # s is the standard error of a mean: the pixel's samples lie within s (n - 1) of their mean (Samuelson),
     # a neighbour's per-sample deviation S is its s sqrt(n).
-    reach = np.sqrt(np.expm1(-math.log(POOL_CHANCE) / n)) if POOL_CHANCE else None  # None: every neighbour pools
+    reach = np.sqrt(np.expm1(-math.log(POOL_CHANCE) / n))
     near_edge = own_s * (n - 1)
     values, kept = [], np.zeros(rows.size, dtype=np.intp)
     for i in (-1, 0, 1):
@@ -252,10 +246,7 @@ def _pooled_median_at(s: FloatArray, mean: FloatArray, count: FloatArray, where:
             at = nb * channels + chan
             value = s_flat.take(at)
             gap = np.abs(mean_flat.take(at) - own_m) - near_edge
-            # The pixel itself (gap <= 0) always.
-            keep = np.ones(rows.size, bool) if reach is None else gap <= value * np.sqrt(count_flat.take(nb)) * reach
-            if measured is not None and (i, j) != (0, 0):
-                keep &= measured.take(nb)
+            keep = gap <= value * np.sqrt(count_flat.take(nb)) * reach   # the pixel itself (gap <= 0) always
             values.append(np.where(keep, value, np.inf))
             kept += keep
     for i, j in _SORT9:

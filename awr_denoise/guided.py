@@ -372,7 +372,9 @@ def trust(candidate: FloatArray, buffer: SampleBuffer, *, window: int = GATE_WIN
     (plus its squared bias in standard errors) for an unbiased candidate. A ratio of sums, not a
     mean of ratios: a pixel whose variance the samples happen to underestimate (a few samples of a
     heavy tail) does not veto its neighbourhood. The share is 1 up to ``r = GATE_LOW`` and falls
-    linearly to 0 at ``r = GATE_HIGH``.
+    linearly to 0 at ``r = GATE_HIGH``. A pixel without samples adds nothing to either sum (its filled
+    mean is a neighbour's): a window holding none gives a share of 1, nothing there to hold the
+    candidate to.
 
     Examples
     --------

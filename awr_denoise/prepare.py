@@ -93,8 +93,8 @@ class Prepared:
         The domain with its offset fixed for this image.
     sampled
         (H, W) pixels with samples of their own, or ``None`` when every pixel has some: a filled
-        pixel's mean is no measurement of it (the guard's risk leaves it out:
-        :func:`~awr_denoise.sure.sure_blend`).
+        pixel's mean is no measurement of it (the guard's risk leaves it out, and it keeps the
+        Wiener stages' result: :func:`~awr_denoise.sure.sure_blend`).
 
     Examples
     --------

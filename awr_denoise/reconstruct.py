@@ -81,8 +81,9 @@ class Reconstruction:
     noise_gain
         (H, W) share of each pixel's noise variance that the Wiener stages and the guard pass
         on to the image, ``(1 - l)^2 + l (2 - l) L`` for the guard's share ``l`` and the stages'
-        diagonal ``L`` (channel mean, the first colour's as ``fraction_zeroed``; ``None`` without the guard). What
-        ``AdaptiveSampler(noise_model="reconstruction")`` spends samples by (docs/sampling.md).
+        diagonal ``L`` (channel mean, the first colour's as ``fraction_zeroed``; ``None`` without the guard), and 1
+        at pixels without samples. What ``AdaptiveSampler(noise_model="reconstruction")`` spends samples by
+        (docs/sampling.md).
 
     Examples
     --------
@@ -170,6 +171,8 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
         # A pixel's noise reaches the blend as (1 - l)^2 + 2 l (1 - l) L + l^2 sum_q A_qp^2; the last sum
         # is taken as L, its value for a projection (a shrinkage's is at most about L; held at 0 or above).
         gain = np.maximum(np.mean((1 - lam) ** 2 + lam * (2 - lam) * leverage, axis=-1), 0.0)
+        if prepared.sampled is not None:  # nothing measured there has been reduced: samples must still go there
+            gain[~prepared.sampled] = 1.0
     return out * s, None if var_out is None else var_out * s * s, gain
 
 
@@ -216,8 +219,7 @@ def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | N
             lum = None if luminance is None else luminance[0]
             image, moved = pooled_clamp(image, prepared.mean if lum is None else lum.mean,
                                         prepared.variance if lum is None else lum.variance, settings.pixel_clamp,
-                                        weights=None if luminance is None else luminance[1], count=prepared.count,
-                                        sampled=prepared.sampled)
+                                        weights=None if luminance is None else luminance[1], count=prepared.count)
             if variance is not None:
                 variance = np.where(moved, prepared.variance, variance)
     if settings.nonnegative:
@@ -356,8 +358,8 @@ def reconstruct_detailed(
     Pixels without samples take their nearest sampled neighbour's mean and the variance of a
     single sample, so they are smoothed over rather than read as black; having no mean of their
     own, they have no weight in the guard's risk (:func:`~awr_denoise.sure.sure_blend`, ``measured``)
-    nor in a guide's gate. Unknown per-sample variances are pooled from neighbours
-    (:meth:`SampleBuffer.estimated_variance`).
+    nor in a guide's gate, and keep the Wiener stages' result. Unknown per-sample variances are
+    pooled from neighbours (:meth:`SampleBuffer.estimated_variance`).
 
     The output variance is that of the last stage linearised around its result, estimated without bias
     by Rademacher probes ``+-sqrt(v)``. With ``stages=1``, the shrink factor of every coefficient is

@@ -45,7 +45,7 @@ from awr_denoise import finishing as finishing_steps
 from awr_denoise import fused, pooling, rims
 from awr_denoise.bench import update_section
 from awr_denoise.features import FEATURE_CHANNELS
-from awr_denoise.finishing import RESTORE_SHARE, match_mean, pooled_clamp, restore_mean
+from awr_denoise.finishing import RESTORE_SHARE, match_mean, restore_mean
 from awr_denoise.metrics import mean_error, mse, relmse
 from awr_denoise.prepare import prepare
 from awr_denoise.reconstruct import DEFAULT_DOMAIN, _wiener_levels, later_stages, resolve_settings
@@ -723,17 +723,12 @@ def _emptied(buffer: SampleBuffer, layout: str, rng: np.random.Generator) -> tup
 
 
 def empty_pixels_counted(buffer: SampleBuffer) -> np.ndarray:
-    """The default as it was before the guard and the pooled clamp left pixels without samples out: their filled
-    means (a neighbour's) summed as measurements in the guard's risk, their one pooled sample's standard error in
-    the clamp's medians (``sure_blend(..., measured=None)``, ``pooled_clamp(..., sampled=None)``)."""
-    module = sys.modules["awr_denoise.reconstruct"]
-
+    """The default as it was before the guard left pixels without samples out of its risk: their filled means (a
+    neighbour's) summed as measurements, with their one pooled sample's variance (``sure_blend(...,
+    measured=None)``)."""
     def guard(*args: Any, measured: Any = None, **options: Any) -> Any:
         return sure_blend(*args, **options)
-
-    def clamp(*args: Any, sampled: Any = None, **options: Any) -> Any:
-        return pooled_clamp(*args, **options)
-    with mock.patch.object(module, "sure_blend", guard), mock.patch.object(module, "pooled_clamp", clamp):
+    with mock.patch.object(sys.modules["awr_denoise.reconstruct"], "sure_blend", guard):
         return reconstruct(buffer)
 
 
@@ -795,6 +790,37 @@ def empty_table(rows: list[dict]) -> None:
                 cells.append(f"{a[:, 0].mean():.2f}, {a[:, 1].mean():.2f} ({a[:, 0].max():.2f})")
         change = max(abs(r["mean_change"]) for r in here if r["method"] == "default")
         print(f"| {renderer} | {scene} | {spp} | {layout} | " + " | ".join(cells) + f" | {change:.2%} |")
+    _empty_summary(rows, methods)
+
+
+def _empty_summary(rows: list[dict], methods: list[str]) -> None:
+    """The figures docs/reconstruction.md quotes from the table: per layout, the geometric mean over the cells of
+    each method's cell (the mean of the renders' ratios to the plain mean's) and of each method's cell over the
+    default's; the cells above the plain mean on average, and the single renders above it."""
+    def ratios(where: tuple, method: str, key: str) -> list[float]:
+        here = [r for r in rows if (r["renderer"], r["scene"], r["spp"], r["layout"]) == where]
+        plain = {r["group"]: r[key] for r in here if r["method"] == "plain"}
+        return [r[key] / plain[r["group"]] for r in here if r["method"] == method]
+
+    cells = list(dict.fromkeys((r["renderer"], r["scene"], r["spp"], r["layout"]) for r in rows))
+    print()
+    for key, name in (("mse_sampled", "sampled pixels, MSE"), ("relmse_sampled", "sampled pixels, relMSE"),
+                      ("mse", "all pixels, MSE"), ("relmse", "all pixels, relMSE")):
+        for m in methods:
+            mean = {c: float(np.mean(ratios(c, m, key))) for c in cells}
+            per_layout = {layout: [c for c in cells if c[3] == layout] for layout in EMPTY_LAYOUTS}
+            geo = {layout: float(np.exp(np.mean([np.log(mean[c]) for c in some])))
+                   for layout, some in per_layout.items()}
+            above = [mean[c] for c in cells if mean[c] > 1]
+            renders = sum(ratio > 1 for c in cells for ratio in ratios(c, m, key))
+            print(f"{name}, {m} / plain: " + ", ".join(f"{layout} {g:.2f}" for layout, g in geo.items())
+                  + f"; largest {max(mean.values()):.3f}; {len(above)} of {len(cells)} cells above 1"
+                  + (f" (by up to {max(above) - 1:.2%})" if above else "") + f", {renders} single renders")
+            if m != "default":
+                default = {c: float(np.mean(ratios(c, "default", key))) for c in cells}
+                print(f"    {m} / default (the cells' ratio): " + ", ".join(
+                    f"{layout} {np.exp(np.mean([np.log(mean[c] / default[c]) for c in some])):.2f}"
+                    for layout, some in per_layout.items()))
 
 
 def finishing_table(rows: list[dict]) -> None:

@@ -295,7 +295,8 @@ def test_denoise_says_how_many_pixels_had_no_samples(tmp_path, rng, capsys):
     count = buf.count.copy()
     count[:, : W // 4] = 0
     write_sample_buffer(tmp_path / "d.exr", SampleBuffer.from_moments(count, buf.mean, buf.variance))
-    for name, said in (("full", None), ("d", f"{H * (W // 4)} pixel(s) without samples estimated from their surroundings")):
+    said_here = f"{H * (W // 4)} pixel(s) without samples estimated from their surroundings"
+    for name, said in (("full", None), ("d", said_here)):
         assert main(["denoise", str(tmp_path / f"{name}.exr"), "-o", str(tmp_path / f"{name}_out.exr")]) == 0
         err = capsys.readouterr().err
         assert ("without samples" in err) == (said is not None) and (said is None or said in err)

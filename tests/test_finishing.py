@@ -115,26 +115,6 @@ def test_pool_chance_zero_pools_every_neighbour(rng, monkeypatch):
                        pooled_clamp(image, mean, variance, 2.5)[0])
 
 
-@pytest.mark.parametrize("chance", [POOL_CHANCE, 0.0])
-def test_pixels_without_samples_lend_the_clamp_no_width(rng, chance, monkeypatch):
-    """A precise pixel beside pixels without samples (their means a neighbour's, one pooled sample's variance
-    each): their standard errors, 4 times its own, are not its neighbours' to pool (``sampled``), with or
-    without the chance test (``POOL_CHANCE``); every pixel counts where ``sampled`` is not given."""
-    monkeypatch.setattr(finishing, "POOL_CHANCE", chance)
-    mean = np.full((5, 5, 1), 1.0)
-    variance = np.full((5, 5, 1), 0.01 / 16)  # 16 samples of variance 0.01
-    sampled = np.ones((5, 5), bool)
-    sampled[1:4, 1:4] = False
-    sampled[2, 2] = True
-    variance[~sampled] = 0.01  # one sample of it
-    count = np.where(sampled, 16, 1)
-    image = np.full((5, 5, 1), 1.5)
-    kept, _ = pooled_clamp(image, mean, variance, 2.5, count=count, sampled=sampled)
-    assert kept[2, 2, 0] == pytest.approx(1.0 + 2.5 * 0.025)  # its own standard error
-    wide, _ = pooled_clamp(image, mean, variance, 2.5, count=count)
-    assert wide[2, 2, 0] == pytest.approx(1.0 + 2.5 * 0.1)  # the neighbours' median
-
-
 def test_the_clamps_test_is_exact_under_power_of_two_scaling(rng):
     """Ratios of standard errors and gaps only: scaling every value by 2^k changes nothing but the scale, from
     1e-150 to 1e150 (no square of a value is formed)."""

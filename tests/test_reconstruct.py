@@ -255,10 +255,10 @@ def test_zero_count_pixels_are_filled_from_neighbours(rng):
 def test_pixels_without_samples_do_not_blur_the_sampled_ones():
     """Half the pixels of a checkerboard of 4-pixel squares without samples, scattered. Each counts as one
     sample of the pooled variance, which blurs the Wiener stages' result around it; summed in the guard's risk,
-    that variance dwarfed the sampled pixels' and the guard kept the blurred result (its share 1): 5.1-5.4 times
-    the plain mean's MSE on the sampled pixels (channel mode, seeds 0-3; 6.2-6.5 in luminance mode). Left
-    out of the guard's sums and the clamp's medians, they leave the sampled pixels below the plain mean.
-    The same on rendered scenes: docs/reconstruction.md, "Pixels without samples"."""
+    that variance dwarfed the sampled pixels' and the guard kept the blurred result (its share 1): 5.1-5.4
+    times the plain mean's MSE on the sampled pixels (channel mode, seeds 0-3; 6.2-6.5 in luminance mode).
+    Left out of the guard's sums, they leave the sampled pixels below the plain mean. The same on rendered
+    scenes: docs/reconstruction.md, "Pixels without samples"."""
     rng = np.random.default_rng(0)
     rows, cols = np.mgrid[0:64, 0:64]
     clean = (0.2 + 0.6 * ((rows // 4 + cols // 4) % 2))[..., None] * np.array([1.0, 0.8, 0.6])
@@ -277,10 +277,10 @@ def test_pixels_without_samples_do_not_blur_the_sampled_ones():
 
 def test_pixels_without_samples_do_not_hide_a_blurred_guides_bias():
     """A third of the pixels without samples, guides blurred by one pixel or clean. Counted in the guard's risk
-    and the clamp's medians, their one pooled sample's variance made the guard keep the stages' result near
-    them, blurred by that variance and by the guide: 1.39 times the plain mean's MSE on the sampled pixels
-    (0.62 with every pixel sampled). Left out, 0.68; the clean guide keeps most of its gain (0.18; 0.08 with
-    every pixel sampled; 0.13 counted, where the guard kept the stages' result everywhere)."""
+    and the gate's sums, their one pooled sample's variance made the guard keep the stages' result near them,
+    blurred by that variance and by the guide: 1.39 times the plain mean's MSE on the sampled pixels (0.62
+    with every pixel sampled). Left out, 0.68; the clean guide keeps most of its gain (0.18; 0.08 with every
+    pixel sampled; 0.13 counted, where the guard kept the stages' result everywhere)."""
     rng = np.random.default_rng(0)
     rows, cols = np.mgrid[0:64, 0:64]
     clean = (0.2 + 0.6 * ((rows // 4 + cols // 4) % 2))[..., None] * np.array([1.0, 0.8, 0.6])
@@ -294,6 +294,18 @@ def test_pixels_without_samples_do_not_hide_a_blurred_guides_bias():
     blurred = ndimage.gaussian_filter(clean, (1.0, 1.0, 0.0))
     assert mse(reconstruct(buffer, guide=blurred)[sampled], clean[sampled]) < 0.8 * plain
     assert mse(reconstruct(buffer, guide=clean)[sampled], clean[sampled]) < 0.25 * plain
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_pixels_without_samples_pass_all_their_noise_on_to_the_sampler(rng, mode):
+    """A pixel without samples keeps the Wiener stages' result (the guard's share 1 there), whose diagonal
+    would call most of its noise removed: the noise gain, what ``noise_model="reconstruction"`` spends samples
+    by, is 1 there instead, so that it draws samples as a pixel nothing has measured."""
+    count = np.full((32, 32), 8)
+    count[rng.random((32, 32)) < 0.3] = 0
+    buffer = SampleBuffer.from_moments(count, 0.5 + 0.1 * rng.standard_normal((32, 32, 3)), np.full((32, 32, 3), 0.08))
+    gain = reconstruct_detailed(buffer, mode=mode).noise_gain
+    assert np.all(gain[count == 0] == 1.0) and gain[count > 0].mean() < 0.5
 
 
 def test_single_sample_pixels_are_smoothed_with_pooled_variance(rng):
