@@ -74,7 +74,7 @@ class FrameResult:
     features
         Features the dump held (albedo, normal, depth), used with ``guide``/``features`` only.
     unsampled
-        Pixels without samples (each filled from its nearest sampled neighbour).
+        Pixels without samples (their values estimated from the sampled pixels around them).
     """
 
     source: str
