@@ -310,8 +310,7 @@ class Sampler(OneAtATime):
         Raises
         ------
         StaleRequestError
-            If ``request`` is not the pending request of this sampler (told already, from
-            another sampler, or never asked).
+            If ``request`` is not this sampler's pending request (told already, another sampler's, or never asked).
         ValueError
             If ``samples`` does not match the image or has more samples at a pixel than asked.
 
@@ -334,8 +333,9 @@ class Sampler(OneAtATime):
             raise StaleRequestError(f"request: round {number} is not pending (nothing was asked, or it was told)")
         if isinstance(request, SampleRequest):
             if request is not pending and (request.sampler_id != pending.sampler_id or request.round != pending.round):
+                other = "" if request.sampler_id == pending.sampler_id else " (another sampler asked for it)"
                 raise StaleRequestError(f"request: round {request.round} is not the pending round {pending.round} "
-                                        "of this sampler")
+                                        f"of this sampler{other}")
         elif isinstance(request, (int, np.integer)) and not isinstance(request, bool):
             if int(request) != pending.round:
                 raise StaleRequestError(f"request: round {request} is not the pending round {pending.round}")

@@ -159,6 +159,24 @@ def frame_jobs(inputs: Sequence[str], output: str, frames: str | None) -> list[t
     return jobs
 
 
+ANSWERS = {"awr:request_round": "round", "awr:request_total": "total"}
+"""Optional batch header attributes: the request a batch answers, checked by ``merge --request``
+(a batch that copied its request's header names it by ``awr:round`` and ``awr:total``)."""
+
+
+def answer_keys(attributes: dict) -> dict[str, str]:
+    """The header keys naming the request a batch answers, and the request field each names (none: no batch)."""
+    copied = attributes.get("awr:semantics") == "sample-request"  # the request's own header, copied whole
+    named = {**ANSWERS, **({"awr:round": "round", "awr:total": "total"} if copied else {})}
+    return {key: field for key, field in named.items() if key in attributes}
+
+
+def answered_round(attributes: dict) -> str | None:
+    """The round of the request a batch names it answers (as written), or ``None`` for a file that names none."""
+    keys = answer_keys(attributes)
+    return next((str(attributes[key]) for key, field in keys.items() if field == "round"), None) if keys else None
+
+
 def run_settings(path: str | os.PathLike[str], attributes: dict) -> tuple[str | None, int | None]:
     """The strategy and first round's spp (``awr:strategy``, ``awr:initial_spp``) a running dump or request
     carries for ``plan`` to continue its run (``None`` where absent), refused naming the file and the

@@ -9,8 +9,8 @@ from awr_denoise.io.describe import describe_file
 from awr_denoise.io.exr import read_header
 
 from . import interrupts
-from .common import (EXIT_OK, UsageError, add_plane_options, dump_options_given, plane_kwargs, print_json,
-                     run_settings_refused)
+from .common import (EXIT_OK, UsageError, add_plane_options, answered_round, dump_options_given, plane_kwargs,
+                     print_json, run_settings_refused)
 from .errors import shown
 from .paths import PathPlan, check_plane_windows, plane_options
 
@@ -120,6 +120,10 @@ def run(args: argparse.Namespace) -> int:
         if refused is not None:
             who = "awr merge --request refuses it" if is_request else "awr plan refuses it as a running dump"
             info.setdefault("warnings", []).append(f"{who}: {refused}")
+        answered = None if is_request else answered_round(read_header(args.input))
+        if answered is not None:  # a batch looks like a dump: said, as plan refuses it
+            info.setdefault("notes", []).append(f"a batch answering request round {answered}: merge it into the "
+                                                "running dump with --request; awr plan refuses it")
     # A signal whose exception a C extension's import swallowed: no report after it.
     interrupts.check()
     if args.json:

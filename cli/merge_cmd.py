@@ -26,7 +26,7 @@ from awr_denoise.io.dump import COUNT_CHANNEL, SEMANTICS_STATISTICS, SampleDump,
 from awr_denoise.io.exr import ExrPart, brief, check_same_windows, read_exr, read_windows
 from awr_denoise.io.request_map import MAX_ROUND
 
-from .common import EXIT_OK, UsageError, add_plane_options, plane_kwargs, run_settings, status
+from .common import ANSWERS, EXIT_OK, UsageError, add_plane_options, answer_keys, plane_kwargs, run_settings, status
 from .paths import PathPlan, check_plane_windows, plane_options
 from .sampler_settings import CARRIED, carried_settings
 from .values import MAX_SEED, MAX_SPP, nonempty
@@ -90,8 +90,9 @@ def _tell(merged: SampleBuffer, issued: np.ndarray, request_path: str, batch: Sa
     sampler = Sampler.from_buffer(merged, issued=issued, round=request.round)
     try:
         sampler.resume(request)
-    except StaleRequestError as exc:
-        raise InputFileError(f"{request_path}: {exc}") from None
+    except StaleRequestError as exc:  # most often the inputs in another order: said how they go
+        raise InputFileError(f"{request_path}: {exc}; give the running dump it was planned from first and the batch "
+                             "that answers it last") from None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
@@ -102,22 +103,10 @@ def _tell(merged: SampleBuffer, issued: np.ndarray, request_path: str, batch: Sa
     return sampler.buffer, sampler.issued, request.round, note
 
 
-ANSWERS = {"awr:request_round": "round", "awr:request_total": "total"}
-"""Optional batch header attributes: the request a batch answers, checked by ``merge --request``
-(a batch that copied its request's header names it by ``awr:round`` and ``awr:total``)."""
-
-
-def _answer_keys(attributes: dict) -> dict[str, str]:
-    """The header keys naming a batch's request, and the request field each names."""
-    copied = attributes.get("awr:semantics") == "sample-request"  # the request's own header, copied whole
-    named = {**ANSWERS, **({"awr:round": "round", "awr:total": "total"} if copied else {})}
-    return {key: field for key, field in named.items() if key in attributes}
-
-
 def _answers(path: str, attributes: dict) -> dict[str, int] | None:
     """The round and total of the request a batch names (``awr:request_*``, or its copied header)."""
     found = {field: header_count(path, attributes, key, 0, 2**63 - 1)
-             for key, field in _answer_keys(attributes).items()}
+             for key, field in answer_keys(attributes).items()}
     return found if set(found) == {"round", "total"} else None
 
 
@@ -128,7 +117,7 @@ def _check_answered(batch_path: str, attributes: dict, request_path: str, reques
     next request) would merge its samples twice; a renderer that copies the request's round and
     total into ``awr:request_round`` and ``awr:request_total`` lets this be caught.
     """
-    for key, field in _answer_keys(attributes).items():
+    for key, field in answer_keys(attributes).items():
         value = header_count(batch_path, attributes, key, 0, 2**63 - 1)
         if value != getattr(request, field):
             raise InputFileError(f"{batch_path}: {key}: it answers a request of {field} {value}, not "

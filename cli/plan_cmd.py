@@ -14,8 +14,8 @@ from awr_denoise.sampling import (DEFAULT_AWR_INITIAL_SPP, DEFAULT_INITIAL_SPP, 
                                   AdaptiveSampler)
 from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 
-from .common import (EXIT_OK, UsageError, add_plane_options, check_memory, dump_options_given, dumped_round,
-                     dumped_seed, plane_kwargs, run_settings, status)
+from .common import (EXIT_OK, UsageError, add_plane_options, answered_round, check_memory, dump_options_given,
+                     dumped_round, dumped_seed, plane_kwargs, run_settings, status)
 from .paths import PathPlan, check_plane_windows, plane_options
 from .sampler_settings import CARRIED, carried_settings, described, sampler_settings
 from .values import (MAX_LEVELS, MAX_ROUND_GROWTH, MAX_SEED, MAX_SPP, UNSET, image_size, nonempty, or_unset, real,
@@ -168,6 +168,12 @@ def run(args: argparse.Namespace) -> int:
         if args.size is not None:
             raise UsageError("--size: only for the first round; the dump fixes the size")
         dump = read_sample_dump(args.input, **plane_kwargs(args))
+        answered = answered_round(dump.attributes)
+        if answered is not None:
+            # A batch holds one round's samples, from its request's first_index on: planned from, it would hand
+            # out indices the run has used and lose the run's seed (a new user's slip, found in a walkthrough).
+            raise UsageError(f"{args.input}: a batch answering request round {answered}, not the running dump: plan "
+                             "from the dump `awr merge DUMP.exr BATCH.exr --request REQUEST.exr -o NEXT.exr` writes")
         windows = read_windows(args.input)  # the request covers the dump's pixels, where they are
         if args.levels is not None and args.levels > max_levels(dump.buffer.shape):
             image = f"the image of {args.input}" if named["levels"] == "--levels" else "its image"

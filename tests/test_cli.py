@@ -861,6 +861,34 @@ def _file_loop(folder, seed, rounds, *first):
     return [str(d) for d in dumps]
 
 
+def test_plan_refuses_a_batch_for_the_running_dump(tmp_path, capsys):
+    """A batch looks like a dump: planned from, it handed out sample indices the run had used (its own request's
+    first_index on) and lost the run's seed, exit 0 (a walkthrough of the guides as a new user). ``plan`` refuses
+    it naming the merge that makes the dump, ``info`` says what it is; the dump itself plans as before."""
+    dumps = _file_loop(tmp_path / "run", 7, 1)
+    batch = str(tmp_path / "run" / "b1.exr")
+    assert main(["plan", batch, "-o", str(tmp_path / "x.exr")]) == 2
+    _one_error_line(capsys, "b1.exr: a batch answering request round 1, not the running dump", "awr merge DUMP.exr")
+    assert not (tmp_path / "x.exr").exists()
+    assert main(["info", batch]) == 0
+    assert "note: a batch answering request round 1" in capsys.readouterr().out
+    assert main(["info", dumps[-1]]) == 0
+    assert "a batch answering" not in capsys.readouterr().out
+    assert main(["plan", dumps[-1], "-o", str(tmp_path / "y.exr"), "-q"]) == 0
+
+
+def test_merge_with_the_batch_before_the_dump_says_how_the_inputs_go(tmp_path, capsys):
+    """The batch given first and the dump last (a new user's slip): the request's refusal alone ("does not start
+    where the samples so far stop") did not say what to do; it now names the order."""
+    run = _file_loop(tmp_path / "run", 3, 1)
+    folder = tmp_path / "run"
+    assert main(["merge", str(folder / "b1.exr"), run[0], "--request", str(folder / "r1.exr"),
+                 "-o", str(tmp_path / "x.exr")]) == 2
+    _one_error_line(capsys, "r1.exr: request: round 1 does not start where the samples so far stop",
+                    "give the running dump it was planned from first and the batch that answers it last")
+    assert not (tmp_path / "x.exr").exists()
+
+
 def test_a_merge_of_two_seeds_loops_refuses_a_newer_dump_of_either(tmp_path, capsys):
     """Two machines' loops (two seeds) merged plainly kept the first one's ``awr:seed`` and stayed a running dump:
     merged again with the second machine's newer dump, which holds the same first samples, it counted them twice,

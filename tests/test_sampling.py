@@ -166,6 +166,11 @@ def test_stale_and_repeated_tells_raise(sampler_cls):
     other = sampler_cls(SHAPE)
     with pytest.raises(StaleRequestError):
         other.tell(r1, renderer(r1))  # asked from another sampler
+    a, b = sampler_cls(SHAPE), sampler_cls(SHAPE)
+    a.ask()
+    rb = b.ask()  # the same round as a's pending one: said to be another sampler's, not a round that differs
+    with pytest.raises(StaleRequestError, match=r"round 0 of this sampler \(another sampler asked for it\)"):
+        a.tell(rb, renderer(rb))
     assert other.ask().sampler_id != r1.sampler_id
     with pytest.raises(StaleRequestError):
         sampler.tell(SampleRequest(r1.counts, r1.first_index, r1.round, r1.sampler_id + 1000), renderer(r1))
