@@ -171,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
         answered = answered_round(dump.attributes)
         if answered is not None:
             # A batch holds one round's samples, from its request's first_index on: planned from, it would hand
-            # out indices the run has used and lose the run's seed (a new user's slip, found in a walkthrough).
+            # out indices the run has used and lose the run's seed.
             raise UsageError(f"{args.input}: a batch answering request round {answered}, not the running dump: plan "
                              "from the dump `awr merge DUMP.exr BATCH.exr --request REQUEST.exr -o NEXT.exr` writes")
         windows = read_windows(args.input)  # the request covers the dump's pixels, where they are
