@@ -226,6 +226,20 @@ def test_undetectable_layout(tmp_path):
         read_sample_buffer(tmp_path / "u.exr")
 
 
+@pytest.mark.parametrize("count_name", [None, "count"])
+def test_a_batch_without_its_sample_count_is_named_as_one(tmp_path, count_name):
+    """A batch in the awr layout that left out ``sampleCount`` (or named it otherwise) got the generic "cannot
+    detect the layout" message, which did not say what was missing (a walkthrough of the guides as a new user)."""
+    planes = _planes()
+    count = planes.pop("sampleCount")
+    if count_name is not None:
+        planes[count_name] = count
+    _write(tmp_path / "b.exr", planes, {"awr:variance_kind": "sample"})
+    with pytest.raises(InputFileError, match=r"b\.exr: has variance\.\* channels, the awr layout's, but no "
+                                             r"sampleCount channel: write each pixel's number of samples there"):
+        read_sample_buffer(tmp_path / "b.exr")
+
+
 def test_request_round_trip_exact(tmp_path, rng):
     counts = rng.integers(0, 9, size=(5, 7))
     first = rng.integers(0, 2**24 - 9, size=(5, 7))

@@ -812,6 +812,9 @@ def _resolve_preset(p: Path, f: _File, preset: str, color: str | None, variance:
         if str(f.header.get("awr:semantics", "")) == "sample-request" or {"counts", "first_index"} <= set(f.channels):
             raise file_error(p, "is a request map (awr plan's output: the samples to render), not samples; render "
                                 "it and give the renderer's batch")
+        if any(n.startswith(VARIANCE_PREFIX) for n in f.channels):  # a batch that left its counts out
+            raise file_error(p, f"has {VARIANCE_PREFIX}* channels, the awr layout's, but no {COUNT_CHANNEL} channel: "
+                                "write each pixel's number of samples there (docs/integrate_external_renderer.md)")
         raise file_error(p, "cannot detect the layout (channels: " + ", ".join(sorted(f.channels))
                          + "); choose a preset or give color=/variance=/count= (--color/--variance/--count)")
     return preset
