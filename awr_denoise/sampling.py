@@ -333,9 +333,8 @@ class Sampler(OneAtATime):
             raise StaleRequestError(f"request: round {number} is not pending (nothing was asked, or it was told)")
         if isinstance(request, SampleRequest):
             if request is not pending and (request.sampler_id != pending.sampler_id or request.round != pending.round):
-                other = "" if request.sampler_id == pending.sampler_id else " (another sampler asked for it)"
-                raise StaleRequestError(f"request: round {request.round} is not the pending round {pending.round} "
-                                        f"of this sampler{other}")
+                raise StaleRequestError(f"request: round {request.round} of sampler {request.sampler_id} is not "
+                                        f"the pending round {pending.round} of this sampler ({pending.sampler_id})")
         elif isinstance(request, (int, np.integer)) and not isinstance(request, bool):
             if int(request) != pending.round:
                 raise StaleRequestError(f"request: round {request} is not the pending round {pending.round}")

@@ -122,8 +122,9 @@ def run(args: argparse.Namespace) -> int:
             info.setdefault("warnings", []).append(f"{who}: {refused}")
         answered = None if is_request else answered_round(read_header(args.input))
         if answered is not None:  # a batch looks like a dump: said, as plan refuses it
-            info.setdefault("notes", []).append(f"a batch answering request round {answered}: merge it into the "
-                                                "running dump with --request; awr plan refuses it")
+            into = "alone" if answered == "0" else "into the running dump"
+            info.setdefault("notes", []).append(f"a batch answering request round {answered}: merge it {into} with "
+                                                "--request; awr plan refuses it")
     # A signal whose exception a C extension's import swallowed: no report after it.
     interrupts.check()
     if args.json:

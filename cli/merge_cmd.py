@@ -91,8 +91,9 @@ def _tell(merged: SampleBuffer, issued: np.ndarray, request_path: str, batch: Sa
     try:
         sampler.resume(request)
     except StaleRequestError as exc:  # most often the inputs in another order: said how they go
-        raise InputFileError(f"{request_path}: {exc}; give the running dump it was planned from first and the batch "
-                             "that answers it last") from None
+        raise InputFileError(f"{request_path}: {exc}; give the running dump it was planned from first (none for round "
+                             "0) and the one batch that answers it last (a batch's tiles merged without --request "
+                             "first)") from None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:

@@ -172,8 +172,9 @@ def run(args: argparse.Namespace) -> int:
         if answered is not None:
             # A batch holds one round's samples, from its request's first_index on: planned from, it would hand
             # out indices the run has used and lose the run's seed.
+            merge = "awr merge BATCH.exr" if answered == "0" else "awr merge DUMP.exr BATCH.exr"
             raise UsageError(f"{args.input}: a batch answering request round {answered}, not the running dump: plan "
-                             "from the dump `awr merge DUMP.exr BATCH.exr --request REQUEST.exr -o NEXT.exr` writes")
+                             f"from the dump `{merge} --request REQUEST.exr -o NEXT.exr` writes")
         windows = read_windows(args.input)  # the request covers the dump's pixels, where they are
         if args.levels is not None and args.levels > max_levels(dump.buffer.shape):
             image = f"the image of {args.input}" if named["levels"] == "--levels" else "its image"

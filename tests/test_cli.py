@@ -885,7 +885,8 @@ def test_merge_with_the_batch_before_the_dump_says_how_the_inputs_go(tmp_path, c
     assert main(["merge", str(folder / "b1.exr"), run[0], "--request", str(folder / "r1.exr"),
                  "-o", str(tmp_path / "x.exr")]) == 2
     _one_error_line(capsys, "r1.exr: request: round 1 does not start where the samples so far stop",
-                    "give the running dump it was planned from first and the batch that answers it last")
+                    "give the running dump it was planned from first (none for round 0) and the one batch that "
+                    "answers it last")
     assert not (tmp_path / "x.exr").exists()
 
 

@@ -236,8 +236,16 @@ def test_a_batch_without_its_sample_count_is_named_as_one(tmp_path, count_name):
         planes[count_name] = count
     _write(tmp_path / "b.exr", planes, {"awr:variance_kind": "sample"})
     with pytest.raises(InputFileError, match=r"b\.exr: has variance\.\* channels, the awr layout's, but no "
-                                             r"sampleCount channel: write each pixel's number of samples there"):
+                                             r"sampleCount channel \(channels: B, G, R, .*\): write each pixel's "
+                                             r"number of samples there, or name the planes"):
         read_sample_buffer(tmp_path / "b.exr")
+    # Read generically, as the message says, it is read.
+    read = read_sample_buffer(tmp_path / "b.exr", color="RGB", variance="variance", spp=4)
+    assert read.total_samples == 4 * 12
+    # With its count and read generically by choice, a file is not told its count is missing.
+    _write(tmp_path / "c.exr", _planes(), {"awr:variance_kind": "sample"})
+    with pytest.raises(InputFileError, match=r"c\.exr: cannot detect the layout"):
+        read_sample_buffer(tmp_path / "c.exr", preset="generic")
 
 
 def test_request_round_trip_exact(tmp_path, rng):

@@ -168,8 +168,9 @@ def test_stale_and_repeated_tells_raise(sampler_cls):
         other.tell(r1, renderer(r1))  # asked from another sampler
     a, b = sampler_cls(SHAPE), sampler_cls(SHAPE)
     a.ask()
-    rb = b.ask()  # the same round as a's pending one: said to be another sampler's, not a round that differs
-    with pytest.raises(StaleRequestError, match=r"round 0 of this sampler \(another sampler asked for it\)"):
+    rb = b.ask()  # the same round as a's pending one: the samplers named, not a round that differs
+    with pytest.raises(StaleRequestError, match=rf"round 0 of sampler {rb.sampler_id} is not the pending round 0 of "
+                                                rf"this sampler \({a.ask().sampler_id}\)"):
         a.tell(rb, renderer(rb))
     assert other.ask().sampler_id != r1.sampler_id
     with pytest.raises(StaleRequestError):

@@ -812,11 +812,14 @@ def _resolve_preset(p: Path, f: _File, preset: str, color: str | None, variance:
         if str(f.header.get("awr:semantics", "")) == "sample-request" or {"counts", "first_index"} <= set(f.channels):
             raise file_error(p, "is a request map (awr plan's output: the samples to render), not samples; render "
                                 "it and give the renderer's batch")
-        if any(n.startswith(VARIANCE_PREFIX) for n in f.channels):  # a batch that left its counts out
-            raise file_error(p, f"has {VARIANCE_PREFIX}* channels, the awr layout's, but no {COUNT_CHANNEL} channel: "
-                                "write each pixel's number of samples there (docs/integrate_external_renderer.md)")
-        raise file_error(p, "cannot detect the layout (channels: " + ", ".join(sorted(f.channels))
-                         + "); choose a preset or give color=/variance=/count= (--color/--variance/--count)")
+        listed = ", ".join(sorted(f.channels))
+        if COUNT_CHANNEL not in f.channels and any(n.startswith(VARIANCE_PREFIX) for n in f.channels):
+            # An awr batch that left its counts out: the missing channel named, the generic reading beside it.
+            raise file_error(p, f"has {VARIANCE_PREFIX}* channels, the awr layout's, but no {COUNT_CHANNEL} channel "
+                                f"(channels: {listed}): write each pixel's number of samples there, or name the planes "
+                                "(color=/variance= with count= or spp=; --color/--variance with --count or --spp)")
+        raise file_error(p, f"cannot detect the layout (channels: {listed}); choose a preset or give "
+                            "color=/variance=/count= (--color/--variance/--count)")
     return preset
 
 
