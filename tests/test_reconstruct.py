@@ -252,22 +252,27 @@ def test_zero_count_pixels_are_filled_from_neighbours(rng):
         assert_allclose(rec.image[0, 0], 0.6, atol=0.05)
 
 
-def test_pixels_without_samples_do_not_blur_the_sampled_ones():
-    """Half the pixels of a checkerboard of 4-pixel squares without samples, scattered. Each counts as one
-    sample of the pooled variance, which blurs the Wiener stages' result around it; summed in the guard's risk,
-    that variance dwarfed the sampled pixels' and the guard kept the blurred result (its share 1): 5.1-5.4
-    times the plain mean's MSE on the sampled pixels (channel mode, seeds 0-3; 6.2-6.5 in luminance mode).
-    Left out of the guard's sums, they leave the sampled pixels below the plain mean. The same on rendered
-    scenes: docs/reconstruction.md, "Pixels without samples"."""
+def _holed_checkerboard(spp: int, empty: float) -> tuple[np.ndarray, SampleBuffer, np.ndarray]:
+    """A checkerboard of 4-pixel squares, 64x64 RGB, Gaussian samples of relative noise 1 (seed 0), a share
+    ``empty`` of the pixels left without samples at random: the clean image, the buffer, the sampled pixels."""
     rng = np.random.default_rng(0)
     rows, cols = np.mgrid[0:64, 0:64]
     clean = (0.2 + 0.6 * ((rows // 4 + cols // 4) % 2))[..., None] * np.array([1.0, 0.8, 0.6])
-    spp, sd = 32, clean  # a relative noise of 1
-    mean = clean + sd / np.sqrt(spp) * rng.standard_normal(clean.shape)
-    variance = sd**2 * rng.chisquare(spp - 1, clean.shape) / (spp - 1)
-    sampled = rng.random((64, 64)) >= 0.5
+    mean = clean + clean / np.sqrt(spp) * rng.standard_normal(clean.shape)
+    variance = clean**2 * rng.chisquare(spp - 1, clean.shape) / (spp - 1)
+    sampled = rng.random((64, 64)) >= empty
     buffer = SampleBuffer.from_moments(np.where(sampled, spp, 0), np.where(sampled[..., None], mean, 0.0),
                                        np.where(sampled[..., None], variance, 0.0))
+    return clean, buffer, sampled
+
+
+def test_pixels_without_samples_do_not_blur_the_sampled_ones():
+    """Half the pixels of a checkerboard of 4-pixel squares without samples, scattered. Each counts as one
+    sample of the pooled variance, which blurs the Wiener stages' result around it; summed in the guard's risk,
+    that variance dwarfed the sampled pixels' and the guard kept the blurred result (its share 1): 5.2 times
+    the plain mean's MSE on the sampled pixels (6.3 in luminance mode). Left out of the guard's sums, 0.90:
+    below the plain mean. The same on rendered scenes: docs/reconstruction.md, "Pixels without samples"."""
+    clean, buffer, sampled = _holed_checkerboard(32, 0.5)
     plain = prepare(buffer, "linear").mean
     for mode in MODES:
         out = reconstruct(buffer, mode=mode)
@@ -281,15 +286,7 @@ def test_pixels_without_samples_do_not_hide_a_blurred_guides_bias():
     blurred by that variance and by the guide: 1.39 times the plain mean's MSE on the sampled pixels (0.62
     with every pixel sampled). Left out, 0.68; the clean guide keeps most of its gain (0.18; 0.08 with every
     pixel sampled; 0.13 counted, where the guard kept the stages' result everywhere)."""
-    rng = np.random.default_rng(0)
-    rows, cols = np.mgrid[0:64, 0:64]
-    clean = (0.2 + 0.6 * ((rows // 4 + cols // 4) % 2))[..., None] * np.array([1.0, 0.8, 0.6])
-    spp = 16
-    mean = clean + clean / np.sqrt(spp) * rng.standard_normal(clean.shape)
-    variance = clean**2 * rng.chisquare(spp - 1, clean.shape) / (spp - 1)
-    sampled = rng.random((64, 64)) >= 0.3
-    buffer = SampleBuffer.from_moments(np.where(sampled, spp, 0), np.where(sampled[..., None], mean, 0.0),
-                                       np.where(sampled[..., None], variance, 0.0))
+    clean, buffer, sampled = _holed_checkerboard(16, 0.3)
     plain = mse(prepare(buffer, "linear").mean[sampled], clean[sampled])
     blurred = ndimage.gaussian_filter(clean, (1.0, 1.0, 0.0))
     assert mse(reconstruct(buffer, guide=blurred)[sampled], clean[sampled]) < 0.8 * plain
