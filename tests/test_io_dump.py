@@ -16,6 +16,7 @@ from awr_denoise.io import (  # noqa: E402
     read_request,
     read_sample_buffer,
     read_sample_dump,
+    request_attributes,
     write_request,
     write_sample_buffer,
 )
@@ -257,6 +258,24 @@ def test_request_round_trip_exact(tmp_path, rng):
     np.testing.assert_array_equal(back.counts, counts)
     np.testing.assert_array_equal(back.first_index, first)
     assert (back.round, back.sampler_id, back.total) == (4, 12, req.total)
+
+
+@pytest.mark.parametrize("seed", [0, 7, 2**31, 2**63 - 1])
+def test_a_request_written_from_python_names_the_runs_seed(tmp_path, seed):
+    """A renderer that reads its seed from the request (as `plan`'s carry it) gets the sampler's, not 0;
+    seeds past an int attribute are stored as text, as the readers expect."""
+    write_request(tmp_path / "r.exr", SampleRequest.uniform((2, 3), 1), seed=seed)
+    assert int(str(request_attributes(tmp_path / "r.exr")["awr:seed"])) == seed
+
+
+@pytest.mark.parametrize("seed, header, match", [
+    (-1, None, "seed: must be >= 0"), (2**63, None, "seed: must be <= 9223372036854775807"),
+    (1.5, None, "seed: must be a whole number"), (True, None, "seed: expected a number, got the bool"),
+    (7, {"awr:seed": 8}, "seed: 7 differs from the header's awr:seed 8")])
+def test_a_bad_or_conflicting_seed_writes_no_request(tmp_path, seed, header, match):
+    with pytest.raises((TypeError, ValueError), match=match):
+        write_request(tmp_path / "r.exr", SampleRequest.uniform((2, 3), 1), seed=seed, header=header)
+    assert not (tmp_path / "r.exr").exists()
 
 
 def test_request_beyond_float32_refused(tmp_path):

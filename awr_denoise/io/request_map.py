@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import _checks
 from .._version import __version__
 from ..requests import SampleRequest
 from .dump import MAX_EXACT_COUNT, exact_counts, header_count, whole_counts
@@ -37,7 +38,7 @@ FIRST_INDEX_CHANNEL = "first_index"
 SEMANTICS_REQUEST = "sample-request"
 
 
-def write_request(path: str | os.PathLike[str], request: SampleRequest, *,
+def write_request(path: str | os.PathLike[str], request: SampleRequest, *, seed: int | None = None,
                   header: Mapping[str, Any] | None = None, overwrite: bool = False) -> Path:
     """Write a request map, atomically.
 
@@ -47,8 +48,12 @@ def write_request(path: str | os.PathLike[str], request: SampleRequest, *,
         Target EXR file.
     request
         The request; ``counts`` and ``first_index`` must stay below 2**24 (float32 exact).
+    seed
+        The run's seed (``awr:seed``), which a renderer reading the request draws its sequences from:
+        the sampler's own (``AdaptiveSampler(..., seed=7)``). A request carries none of its own, so
+        without it the file names none and such a renderer falls back to its default.
     header
-        Extra attributes, e.g. ``{"awr:seed": 7}`` for the renderer's random sequence.
+        Extra attributes (``awr:`` names; ``awr:strategy``, ...).
     overwrite
         Replace an existing file.
 
@@ -56,14 +61,20 @@ def write_request(path: str | os.PathLike[str], request: SampleRequest, *,
     --------
     >>> import tempfile, os
     >>> from awr_denoise import SampleRequest
-    >>> from awr_denoise.io import write_request, read_request
+    >>> from awr_denoise.io import write_request, read_request, request_attributes
     >>> f = os.path.join(tempfile.mkdtemp(), "req.exr")
-    >>> _ = write_request(f, SampleRequest.uniform((2, 3), 4, first_index=8, round=1))
+    >>> _ = write_request(f, SampleRequest.uniform((2, 3), 4, first_index=8, round=1), seed=7)
     >>> r = read_request(f); (r.total, int(r.first_index[0, 0]), r.round)
     (24, 8, 1)
+    >>> request_attributes(f)["awr:seed"]
+    7
     """
     if not isinstance(request, SampleRequest):
         raise TypeError(f"request: expected a SampleRequest, got {type(request).__name__}")
+    if seed is not None:
+        seed = _checks.seed("seed", seed)
+        if header and "awr:seed" in header and header["awr:seed"] != seed:
+            raise ValueError(f"seed: {seed} differs from the header's awr:seed {header['awr:seed']!r}")
     # The last sample index must be exact too, so the renderer can trust first_index + counts.
     exact_counts("first_index + counts", request.first_index + request.counts)
     planes = {COUNTS_CHANNEL: exact_counts("counts", request.counts),
@@ -76,6 +87,8 @@ def write_request(path: str | os.PathLike[str], request: SampleRequest, *,
         "awr:version": __version__,
     }
     attrs.update(header or {})
+    if seed is not None:
+        attrs["awr:seed"] = seed
     return write_exr(path, planes, attrs, overwrite=overwrite)
 
 
