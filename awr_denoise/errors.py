@@ -7,7 +7,8 @@ also a ``ValueError`` so generic callers can catch either.
 
 from __future__ import annotations
 
-__all__ = ["AWRError", "StaleRequestError", "InputFileError", "InputFileWarning", "TimeBudgetWarning"]
+__all__ = ["AWRError", "StaleRequestError", "InputFileError", "BackendUnavailableError", "InputFileWarning",
+           "TimeBudgetWarning"]
 
 
 class AWRError(Exception):
@@ -23,6 +24,11 @@ class InputFileError(AWRError, ValueError):
 
     The message always names the file (and the channel, where one is at fault).
     """
+
+
+class BackendUnavailableError(AWRError, RuntimeError):
+    """An optional extra is installed but its native backend cannot start here (Mitsuba's Dr.Jit found
+    no usable libLLVM, or no CUDA device). The message says what to install or choose instead."""
 
 
 class InputFileWarning(UserWarning):

@@ -187,7 +187,7 @@ def check_reconstruction_options(args: argparse.Namespace, shape: tuple[int, int
     if guide is not None and args.stages < 2:
         raise UsageError(f"--guide {guide}: it gives the pilot of the Wiener stages; it needs --stages 2 or more")
     if guide == "oidn" and not oidn_available():
-        raise UsageError(f"--guide oidn: {OIDN_HINT}")
+        raise RuntimeFailure(f"--guide oidn: {OIDN_HINT}")  # an extra missing: exit 1, as the tracer's or Mitsuba's
     window = getattr(args, "guard_window", None)
     if window is not None and window % 2 == 0:
         raise UsageError(f"--guard-window: must be odd, got {window}")

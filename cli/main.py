@@ -26,7 +26,7 @@ from concurrent.futures import BrokenExecutor, CancelledError
 from typing import Any
 
 from awr_denoise import __version__
-from awr_denoise.errors import InputFileError
+from awr_denoise.errors import BackendUnavailableError, InputFileError
 
 from . import interrupts, memory
 from .errors import (
@@ -223,6 +223,8 @@ def _run(argv: Sequence[str] | None) -> int:
     except CancelledError as exc:  # a Dask scheduler stopped or lost mid-run cancels every future it held
         return _error(f"the parallel work was cancelled from outside (a Dask scheduler stopped or lost?): "
                       f"{one_line(exc)}", EXIT_FAILURE)
+    except BackendUnavailableError as exc:  # an extra installed whose native backend cannot start: what to install
+        return _error(exc, EXIT_FAILURE)
     except ImportError as exc:
         if "failed to map segment" in str(exc):  # the loader's words for a library that did not fit
             return _error(f"out of memory loading a library ({one_line(exc)})", EXIT_FAILURE)

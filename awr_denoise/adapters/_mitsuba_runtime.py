@@ -15,6 +15,7 @@ from collections.abc import Iterator
 from types import ModuleType
 
 from .._signals import deferred as _signals_deferred
+from ..errors import BackendUnavailableError
 
 __all__ = ["DEFAULT_VARIANT", "import_mitsuba", "variant_scope", "variant_of_scene"]
 
@@ -47,7 +48,7 @@ def import_mitsuba(variant: str = DEFAULT_VARIANT) -> tuple[ModuleType, ModuleTy
         Mitsuba is not installed (the message gives the install command).
     ValueError
         ``variant`` is not a JIT RGB variant, or this Mitsuba build lacks it.
-    RuntimeError
+    BackendUnavailableError
         The variant's Dr.Jit backend cannot start (no usable libLLVM / no CUDA device); the message
         says what to install. The scalar variants are never used as a silent fallback.
     """
@@ -73,9 +74,9 @@ def _load(variant: str) -> tuple[ModuleType, ModuleType]:
     backend = dr.JitBackend.LLVM if variant.startswith("llvm") else dr.JitBackend.CUDA
     if not dr.has_backend(backend):
         if backend == dr.JitBackend.LLVM:
-            raise RuntimeError(f"Mitsuba's {variant} variant cannot start: Dr.Jit found no usable libLLVM; "
+            raise BackendUnavailableError(f"Mitsuba's {variant} variant cannot start: Dr.Jit found no usable libLLVM; "
                                f"{LLVM_HINT}")
-        raise RuntimeError(f"Mitsuba's {variant} variant cannot start: Dr.Jit found no CUDA device; "
+        raise BackendUnavailableError(f"Mitsuba's {variant} variant cannot start: Dr.Jit found no CUDA device; "
                            "use variant='llvm_ad_rgb'")
     if mi.variant() is None:
         mi.set_variant(variant)

@@ -450,6 +450,24 @@ def test_missing_libllvm_says_what_to_install():
     assert "apt-get install libllvm19" in out.stdout and "DRJIT_LIBLLVM_PATH" in out.stdout
 
 
+def test_missing_libllvm_is_no_internal_error_of_the_command_line(tmp_path):
+    """It said "internal error: RuntimeError: ..." (exit 1), as for a bug of ours: it is an extra that cannot
+    start, one line saying what to install, exit 1 as for a missing extra, nothing written."""
+    try:
+        import mitsuba  # noqa: F401
+    except ImportError:
+        pytest.skip("Mitsuba 3 is not installed")
+    env = {**os.environ, "DRJIT_LIBLLVM_PATH": os.path.join(os.sep, "nonexistent", "libLLVM.so")}
+    out = subprocess.run([sys.executable, "-m", "awr_denoise.cli.main", "render", "--renderer", "mitsuba", "cornell_box",
+                          "--width", "8", "--height", "8", "--spp", "2", "-o", str(tmp_path / "x.exr")],
+                         env=env, capture_output=True, text=True, timeout=120)
+    lines = [line for line in out.stderr.splitlines() if line.startswith("awr:")]  # Dr.Jit prints its own before
+    assert out.returncode == 1 and len(lines) == 1, out.stderr
+    assert lines[0].startswith("awr: error: Mitsuba's llvm_ad_rgb variant cannot start") and "internal" not in lines[0]
+    assert "apt-get install libllvm19" in lines[0]
+    assert list(tmp_path.iterdir()) == []
+
+
 # ---------------------------------------------------------------------------- the command line
 def test_cli_renders_a_bundled_mitsuba_scene_with_features(mi, tmp_path, capsys):
     from awr_denoise.cli.main import main
