@@ -9,6 +9,7 @@ Run from the repository root (each section updates its part of the JSON)::
     .venv/bin/python benchmarks/bench_guides.py avenues     # what else was tried, every scene at 32 spp
     .venv/bin/python benchmarks/bench_guides.py features    # what limits the features: noise-free ones, demodulation
     .venv/bin/python benchmarks/bench_guides.py pbrt        # a third renderer: the pbrt-v4 files in tests/data
+    .venv/bin/python benchmarks/bench_guides.py auxiliary   # OIDN's albedo and normal: prefiltered, as noisy, none
     .venv/bin/python benchmarks/bench_guides.py crops       # docs/img/guides_*.png
     .venv/bin/python benchmarks/bench_guides.py tables      # print the stored results
 
@@ -735,6 +736,79 @@ def pbrt_table(rows: list[dict]) -> None:
     print("| MSE / plain | " + " | ".join(f"{sq[m] / sq['plain']:.2f}" for m in names) + " |")
 
 
+# ---------------------------------------------------------------------------- auxiliary images
+AUXILIARY_METHODS = ("OIDN", "OIDN, features as noisy", "OIDN, no features", "guide", "guide, features as noisy",
+                     "guide, no features")
+"""OIDN and the OIDN guide with the albedo and normal prefiltered (the default), given as noisy, and left out."""
+
+
+def _auxiliary_images(buffer: SampleBuffer) -> dict[str, tuple[np.ndarray, float]]:
+    """Each of :data:`AUXILIARY_METHODS`, the default and the plain mean on ``buffer``, with OIDN's seconds."""
+    out = {}
+    for name, make in (("OIDN", lambda: guides.oidn(buffer)),
+                       ("OIDN, features as noisy", lambda: guides.oidn(buffer, auxiliary="noisy")),
+                       ("OIDN, no features", lambda: guides.oidn(buffer, auxiliary="none"))):
+        start = time.perf_counter()
+        image = make()
+        out[name] = (image, time.perf_counter() - start)
+        out[name.replace("OIDN", "guide")] = (reconstruct(buffer, guide=image), float("nan"))
+    out["default"] = (reconstruct(buffer), float("nan"))
+    out["plain"] = (filled_mean(buffer), float("nan"))
+    return out
+
+
+def auxiliary(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], groups: int,
+              cache: Path) -> list[dict[str, Any]]:
+    """The albedo and normal prefiltered, as noisy, or none: both renderers' scenes and pbrt-v4's files."""
+    from awr_denoise.io import read_image, read_sample_buffer
+    rows = []
+    for renderer, scene, shape in scenes:
+        ref = reference(renderer, scene, shape, cache)
+        for g in range(groups):
+            for spp, buffer in feature_buffers(renderer, scene, shape, spps, g, cache).items():
+                x = filled_mean(buffer)
+                rows += [{"renderer": renderer, "scene": scene, "spp": spp, "group": g, "method": m,
+                          **_measure(image, x, ref, seconds)} for m, (image, seconds) in _auxiliary_images(buffer).items()]
+        print(f"{renderer} {scene}: done", flush=True)
+    ref = np.asarray(read_image(PBRT / "pbrt_ref.exr", channels=("R", "G", "B")), np.float64)
+    for g, path in enumerate([PBRT / "pbrt_gbuffer_fp32.exr", *sorted((PBRT / "seeds").glob("*.exr"))]):
+        buffer = read_sample_buffer(path)
+        x = filled_mean(buffer)
+        rows += [{"renderer": "pbrt", "scene": "pbrt_gbuffer", "spp": 16, "group": g, "method": m,
+                  **_measure(image, x, ref, seconds)} for m, (image, seconds) in _auxiliary_images(buffer).items()]
+    print("pbrt: done", flush=True)
+    return rows
+
+
+def auxiliary_table(rows: list[dict]) -> None:
+    """Markdown: the guide and OIDN with the features prefiltered against given as noisy, and the summary."""
+    print("\n| renderer | scene | spp | guide, relMSE / default: prefiltered, as noisy, none | guide prefiltered / as "
+          "noisy (relMSE, MSE) | guide prefiltered: MSE / plain, worst mean error % | OIDN prefiltered / as noisy, "
+          "none / as noisy (relMSE) | OIDN seconds: prefiltered, as noisy |")
+    print("|---|---|---|---|---|---|---|---|")
+    ratios, over_default = [], []
+    for renderer, scene in dict.fromkeys((r["renderer"], r["scene"]) for r in rows):
+        for spp in sorted({r["spp"] for r in rows if r["scene"] == scene}):
+            w = {"renderer": renderer, "scene": scene, "spp": spp}
+            rel = {m: _mean(rows, "relmse", method=m, **w) for m in (*AUXILIARY_METHODS, "default")}
+            sq = {m: _mean(rows, "mse", method=m, **w) for m in ("guide", "guide, features as noisy", "plain")}
+            sec = {m: _mean(rows, "seconds", method=m, **w) for m in ("OIDN", "OIDN, features as noisy")}
+            worst = max(abs(r["mean_error"]) for r in rows if r["method"] == "guide"
+                        and all(r[k] == v for k, v in w.items()))
+            ratios.append(rel["guide"] / rel["guide, features as noisy"])
+            over_default.append(rel["guide"] / rel["default"])
+            print(f"| {renderer} | {scene} | {spp} | " + ", ".join(f"{rel[m] / rel['default']:.2f}" for m in (
+                "guide", "guide, features as noisy", "guide, no features"))
+                + f" | {ratios[-1]:.2f}, {sq['guide'] / sq['guide, features as noisy']:.2f} | "
+                f"{sq['guide'] / sq['plain']:.2f}, {100 * worst:.4f} | "
+                f"{rel['OIDN'] / rel['OIDN, features as noisy']:.2f}, "
+                f"{rel['OIDN, no features'] / rel['OIDN, features as noisy']:.2f} | "
+                f"{sec['OIDN']:.2f}, {sec['OIDN, features as noisy']:.2f} |")
+    print(f"\nThe guide prefiltered over as noisy, relMSE: {min(ratios):.2f}-{max(ratios):.2f} (geometric mean "
+          f"{float(np.exp(np.mean(np.log(ratios)))):.2f}) in {len(ratios)} cells; over the default: "
+          f"{min(over_default):.2f}-{max(over_default):.2f}.")
+
+
 # ---------------------------------------------------------------------------- crops
 CROPS = {("tracer", "cornell_gi"): (40, 40), ("tracer", "chess_dof"): (40, 40),
          ("mitsuba", "glossy_glass"): (96, 96), ("mitsuba", "dof_checker"): (96, 96)}
@@ -767,7 +841,7 @@ def crops(spp: int, cache: Path, images: Path = IMAGES) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("section", choices=("quality", "samplers", "synthetic", "ablations", "avenues", "features",
-                                            "pbrt", "crops", "tables"))
+                                            "pbrt", "auxiliary", "crops", "tables"))
     parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
     parser.add_argument("--spps", nargs="+", type=int, default=list(SPPS))
     parser.add_argument("--groups", type=int, default=2)
@@ -811,13 +885,18 @@ def main(argv: list[str] | None = None) -> int:
         rows = pbrt()
         update_section(args.output, "pbrt", rows, command, "pyoidn")
         pbrt_table(rows)
+    elif args.section == "auxiliary":
+        rows = auxiliary(quality_scenes(args.scenes), tuple(sorted(args.spps)), args.groups, args.cache)
+        update_section(args.output, "auxiliary", rows, command, "pyoidn")
+        auxiliary_table(rows)
     elif args.section == "crops":
         update_section(args.output, "crops", crops(args.crop_spp, args.cache, args.images), command, "pyoidn")
     else:  # print the tables of the stored results
         data = json.loads(args.output.read_text())
         for section, show in (("quality", quality_tables), ("samplers", sampler_table),
                               ("synthetic", synthetic_table), ("ablations", ablation_table),
-                              ("avenues", avenue_table), ("features", feature_limits_table), ("pbrt", pbrt_table)):
+                              ("avenues", avenue_table), ("features", feature_limits_table), ("pbrt", pbrt_table),
+                              ("auxiliary", auxiliary_table)):
             if section in data:
                 print(f"\n## {section} ({data[section]['command']})")
                 show(data[section]["rows"])
