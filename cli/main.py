@@ -221,8 +221,9 @@ def _run(argv: Sequence[str] | None) -> int:
     except BrokenExecutor as exc:  # a process-pool worker killed (the OOM killer, a signal): not a bug of ours
         return _error(f"a worker process died (killed, or out of memory?): {one_line(exc)}", EXIT_FAILURE)
     except CancelledError as exc:  # a Dask scheduler stopped or lost mid-run cancels every future it held
-        return _error(f"the parallel work was cancelled from outside (a Dask scheduler stopped or lost?): "
-                      f"{one_line(exc)}", EXIT_FAILURE)
+        why = f": {one_line(exc)}" if str(exc).strip() else ""  # Dask's own is often empty
+        return _error(f"the parallel work was cancelled from outside (a Dask scheduler stopped or lost?){why}",
+                      EXIT_FAILURE)
     except BackendUnavailableError as exc:  # an extra installed whose native backend cannot start: what to install
         return _error(exc, EXIT_FAILURE)
     except ImportError as exc:

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import logging
+from collections.abc import Iterator
 from concurrent.futures import Executor
 
 from awr_denoise.parallel import DASK_INSTALL_HINT, EXECUTOR_KINDS, get_executor
@@ -92,9 +94,32 @@ def executor_from_args(args: argparse.Namespace) -> contextlib.AbstractContextMa
         raise ValueError(f"--scheduler: needs --executor dask, not --executor {kind}")
     if workers is not None and workers < 1:
         raise ValueError(f"--workers: must be >= 1, got {workers}")
+    if workers is not None and scheduler is not None:  # it was ignored without a word
+        raise ValueError(f"--workers {workers}: not with --scheduler (the cluster's own workers run the work)")
     most = LOCAL_PROCESSES_PER_CPU * default_workers()
     if workers is not None and workers > most and kind in ("processes", "dask") and scheduler is None:
         # Each is a Python process with numpy (about 60-100 MB): thousands exhaust memory.
         raise ValueError(f"--workers: {workers} local processes on a machine with {default_workers()} CPUs; "
                          f"at most {most} (threads, the default --executor, are not limited so)")
-    return get_executor(kind, workers=workers, scheduler=scheduler)
+    executor = get_executor(kind, workers=workers, scheduler=scheduler)
+    return _dask_quiet(executor) if scheduler is not None or kind == "dask" else executor
+
+
+@contextlib.contextmanager
+def _dask_quiet(executor: contextlib.AbstractContextManager[Executor]) -> Iterator[Executor]:
+    """``executor``'s context with Dask's loggers held to critical messages: when a scheduler is lost, its
+    client logs every reconnection attempt with two tracebacks (35 lines) before the command's own line."""
+    held: dict[logging.Logger, int] = {}
+    try:
+        with executor as running:
+            # Each of Dask's loggers once Dask is imported and has configured them (distributed.client has a
+            # level of its own), until the client is closed (its last words come as it closes).
+            for name in ["distributed", *logging.root.manager.loggerDict]:
+                if name.split(".")[0] == "distributed":
+                    logger = logging.getLogger(name)
+                    held[logger] = logger.level
+                    logger.setLevel(logging.CRITICAL)
+            yield running
+    finally:
+        for logger, level in held.items():
+            logger.setLevel(level)

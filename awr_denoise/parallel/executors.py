@@ -19,6 +19,7 @@ import multiprocessing
 import multiprocessing.resource_tracker
 import os
 import signal
+import socket
 import tempfile
 import threading
 from collections.abc import Callable, Iterator
@@ -390,8 +391,30 @@ def _identity(distributed: Any, address: str, seconds: float) -> Any:
     return None
 
 
+_PROBE_SECONDS = 5.0
+"""How long the first plain connection to a scheduler's host and port may take before Dask's own is left to tell."""
+
+
+def _probe(distributed: Any, address: str) -> None:
+    """A host that does not resolve, or a port nothing listens on, named at once: Dask retries both for its
+    whole timeout (30 s) and then calls either a time-out, which points at the network, not at a stale
+    scheduler file or a scheduler that is not running."""
+    host, port = distributed.comm.addressing.parse_host_port(distributed.comm.parse_address(address)[1])
+    try:
+        with socket.create_connection((host, int(port)), timeout=_PROBE_SECONDS):
+            pass
+    except socket.gaierror as exc:
+        raise ConnectionError(f"scheduler: {address}: unknown host {host} ({exc.strerror})") from None
+    except ConnectionRefusedError:
+        raise ConnectionError(f"scheduler: {address}: connection refused (is the scheduler running, on that "
+                              "port?)") from None
+    except OSError:  # slow or unreachable: Dask's own connection says so, in its own time
+        pass
+
+
 def _connect(distributed: Any, address: str) -> Any:
     """A ``distributed.Client`` of ``address``; a service that is not a Dask scheduler is a ``ConnectionError``."""
+    _probe(distributed, address)
     try:
         identity = _identity(distributed, address, _ANSWER_SECONDS)
         if identity is not None and (not isinstance(identity, dict) or identity.get("type") != "Scheduler"):

@@ -50,3 +50,27 @@ def test_local_processes_are_limited_per_cpu(monkeypatch):
         assert executor._max_workers == 9
     with executor_from_args(parser.parse_args(["--executor", "processes", "--workers", "8"])) as executor:
         assert isinstance(executor, cf.ProcessPoolExecutor)
+
+
+def test_workers_beside_a_scheduler_are_refused():
+    """The cluster's own workers run the work: ``--workers 5`` beside ``--scheduler`` was ignored without a word."""
+    parser = argparse.ArgumentParser()
+    add_executor_arguments(parser)
+    with pytest.raises(ValueError, match=r"^--workers 5: not with --scheduler \(the cluster's own workers"):
+        executor_from_args(parser.parse_args(["--workers", "5", "--scheduler", "tcp://127.0.0.1:1"]))
+
+
+def test_dask_logs_nothing_below_critical_until_its_client_is_closed():
+    """A lost scheduler's client logged each reconnection attempt with two tracebacks, and its last words as it
+    closed (35 lines before the command's one); the levels are the caller's again afterwards."""
+    pytest.importorskip("distributed", reason="the Dask executor needs the extra dask")
+    import logging
+
+    parser = argparse.ArgumentParser()
+    add_executor_arguments(parser)
+    client_logger = logging.getLogger("distributed.client")
+    before = client_logger.level
+    with executor_from_args(parser.parse_args(["--executor", "dask", "--workers", "1"])) as executor:
+        assert client_logger.getEffectiveLevel() == logging.CRITICAL
+        assert executor.submit(sum, [1, 2]).result() == 3
+    assert client_logger.level == before

@@ -309,6 +309,20 @@ def test_a_lost_worker_or_scheduler_is_one_line_not_an_internal_error(error, wor
     assert words in line and "internal error" not in line and str(error).split()[0] in line, line
 
 
+def test_a_cancellation_without_words_adds_none(monkeypatch, capsys):
+    """Dask cancels a lost scheduler's futures with an empty CancelledError: the line ended in "unknown error"."""
+    from awr_denoise.cli import info_cmd
+
+    def lost(args):
+        raise CancelledError()
+
+    monkeypatch.setattr(info_cmd, "run", lost)
+    monkeypatch.delenv("AWR_TRACEBACK", raising=False)
+    assert main(["info", "x.exr"]) == 1
+    assert one_error_line(capsys.readouterr().err) == ("awr: error: the parallel work was cancelled from outside "
+                                                       "(a Dask scheduler stopped or lost?)")
+
+
 @pytest.mark.parametrize("text", ["albedo,", ",depth", "albedo,,normal", "", " ", "Albedo"])
 def test_a_feature_list_with_a_name_left_out_is_refused(text):
     """``--features albedo,`` rendered the albedo alone, the comma's second name dropped without a word."""

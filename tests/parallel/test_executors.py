@@ -90,10 +90,12 @@ def test_a_scheduler_that_is_not_one_is_refused_naming_it(tmp_path):
         with pytest.raises(ValueError, match=f"scheduler: .*{match}"):
             with get_executor(scheduler=scheduler):
                 pass
-    # tls:// without certificates: Dask's own TypeError, which named no option.
-    with pytest.raises(ValueError, match=r"^scheduler: tls://127.0.0.1:1: cannot connect \(TLS expects"):
-        with get_executor(scheduler="tls://127.0.0.1:1"):
-            pass
+    # tls:// without certificates: Dask's own TypeError, which named no option (at a port something listens on).
+    with _server(b"") as address:
+        tls = address.replace("tcp://", "tls://")
+        with pytest.raises(ValueError, match=rf"^scheduler: {tls}: cannot connect \(TLS expects"):
+            with get_executor(scheduler=tls):
+                pass
     # A server that answers with something else (an HTTP error): read as a Dask message length of
     # exabytes, it was reported as "out of memory".
     with _server(b"HTTP/1.0 400 Bad Request\r\n\r\n" * 4) as address:
@@ -101,6 +103,23 @@ def test_a_scheduler_that_is_not_one_is_refused_naming_it(tmp_path):
         with pytest.raises(ConnectionError, match=f"scheduler: {address}: (not a Dask|cannot connect)"):
             with get_executor(scheduler=address):
                 pass
+
+
+def test_a_port_nothing_listens_on_or_an_unknown_host_is_named_at_once():
+    """Dask retried both for its 30 s and then said "Timed out trying to connect", which pointed at the
+    network, not at a scheduler that is not running or a stale scheduler file (a walkthrough of the docs)."""
+    with socket.socket() as free:  # a port of this machine that nothing listens on once it is closed
+        free.bind(("127.0.0.1", 0))
+        closed = f"tcp://127.0.0.1:{free.getsockname()[1]}"
+    start = time.perf_counter()
+    with pytest.raises(ConnectionError, match=rf"^scheduler: {closed}: connection refused \(is the scheduler running"):
+        with get_executor(scheduler=closed):
+            pass
+    with pytest.raises(ConnectionError, match=r"^scheduler: tcp://no-such-host\.invalid:8786: unknown host "
+                                              r"no-such-host\.invalid"):
+        with get_executor(scheduler="tcp://no-such-host.invalid:8786"):
+            pass
+    assert time.perf_counter() - start < 20  # each took 31 s
 
 
 def test_a_scheduler_file_that_is_no_regular_file_or_too_large_is_refused_unread(tmp_path):
