@@ -347,7 +347,8 @@ def reconstruct_detailed(
     guide_projection
         With a guide: the share of the result taken from the means projected on it, in [0, 1] (default
         :data:`~awr_denoise.guided.PROJECTION_SHARE`; 0: the guide is the pilot only; docs/guides.md).
-        In ``mode="luminance"`` the means are not projected (the guide is the pilot only).
+        In ``mode="luminance"`` the means are not projected (the guide is the pilot only): a share other
+        than 0 is refused there.
 
     Notes
     -----
@@ -406,7 +407,7 @@ def reconstruct_detailed(
         raise ValueError("guard_probes: not with a guide (its gate and projection are not probed)")
     guide = checked_inputs(buffer, guide, features, settings.stages)
     projection = checked_projection(guide_projection, guide)
-    if guide_projection is not None and mode == "luminance":  # it would do nothing: refused
+    if guide_projection and mode == "luminance":  # it would do nothing: refused (0, the pilot only, is what it does)
         raise ValueError(f"guide_projection: {guide_projection!r} with mode='luminance', where the means are not "
                          "projected (the guide is the pilot only)")
     groups = channel_groups(buffer.channels)

@@ -199,8 +199,12 @@ def check_reconstruction_options(args: argparse.Namespace, shape: tuple[int, int
                          "it needs --stages 2 or more")
     if probes and guide in GUIDES:
         raise UsageError(f"--guard-probes {probes}: not with --guide {guide} (its gate and projection are not probed)")
-    if getattr(args, "guide_projection", None) is not None and guide not in GUIDES:
+    projection = getattr(args, "guide_projection", None)
+    if projection is not None and guide not in GUIDES:
         raise UsageError("--guide-projection: it is the share of a guide's projection; it needs --guide oidn")
+    if projection and args.mode == "luminance":  # the library's words name its parameters, not these options
+        raise UsageError(f"--guide-projection {projection:g}: not with --mode luminance, where the means are not "
+                         "projected (the guide is the pilot only; 0 says so)")
     if args.levels is not None and args.levels > max_levels(shape):
         h, w = shape
         raise UsageError(f"--levels: {args.levels} is outside 1..{max_levels(shape)} for the {w}x{h} image of {where}")

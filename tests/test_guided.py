@@ -314,6 +314,9 @@ def test_guide_projection_is_checked_and_recorded():
         reconstruct(buf, guide_projection=0.5)
     with pytest.raises(ValueError, match="guide_projection: 0.5 with mode='luminance'"):  # was ignored there
         reconstruct(buf, guide=ref, guide_projection=0.5, mode="luminance")
+    # 0, the guide as the pilot only, is what luminance mode does: taken, the same image (it was refused)
+    np.testing.assert_array_equal(reconstruct(buf, guide=ref, guide_projection=0.0, mode="luminance"),
+                                  reconstruct(buf, guide=ref, mode="luminance"))
     # share 0 is the Wiener stages alone: another image than the default share's
     assert not np.array_equal(reconstruct(buf, guide=ref, guide_projection=0.0), reconstruct(buf, guide=ref))
 

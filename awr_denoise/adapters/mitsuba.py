@@ -27,6 +27,7 @@ import inspect
 import logging
 import os
 import re
+import sys
 import time
 import warnings
 from collections.abc import Sequence
@@ -225,10 +226,6 @@ class MitsubaRenderer:
                 raise ValueError(f"shape: {shape} differs from the film of {self.name} ({self._shape}); "
                                  "a loaded mitsuba.Scene cannot be resized, pass its file or dict instead")
             rfilter = film.rfilter()
-            if not rfilter.is_box_filter():
-                warnings.warn(f"{self.name}: the film's {rfilter.class_name()} filter is not used; every sample "
-                              "is rendered into its own pixel (box filter of radius 0.5), as AWR needs",
-                              stacklevel=2)
             self.integrator = self.scene.integrator()
             if self.integrator is None:
                 raise ValueError(f"{self.name}: the scene declares no integrator; the adapter needs a sampling "
@@ -239,6 +236,10 @@ class MitsubaRenderer:
             if self.integrator.class_name() in _REFUSED_INTEGRATORS:
                 raise ValueError(f"{self.name}: integrator {self.integrator.class_name()} writes AOVs or moments, "
                                  "not radiance; give the scene its inner integrator (e.g. 'path')")
+            if not rfilter.is_box_filter():  # once the scene is known to be usable: a refused one says only why
+                kind = rfilter.class_name().removesuffix("Filter").lower() or rfilter.class_name()
+                warnings.warn(f"{self.name}: the film's {kind} filter is not used; every sample is rendered into "
+                              "its own pixel (box filter of radius 0.5), as AWR needs", stacklevel=_caller_level())
             # Integrators written in Python on Mitsuba's AD base class take (mode, scene, sampler, ray, ...).
             self._python_ad = isinstance(self.integrator, mi.CppADIntegrator) and \
                 "mode" in inspect.signature(type(self.integrator).sample).parameters
@@ -520,6 +521,15 @@ class MitsubaRenderer:
                 logger.warning("%s: %d non-finite %s value(s) were replaced by 0", self.name, int(bad.sum()), name)
             out[name] = values
         return out
+
+
+def _caller_level() -> int:
+    """The ``stacklevel`` of the first caller outside awr_denoise, for the function calling this one: a warning
+    points at the user's line, not at ``create_renderer``'s."""
+    level, frame = 1, sys._getframe(1)
+    while frame is not None and str(frame.f_globals.get("__name__", "")).split(".")[0] == "awr_denoise":
+        frame, level = frame.f_back, level + 1
+    return level
 
 
 def _resized(scene: dict[str, Any], shape: Shape2D | None) -> dict[str, Any]:

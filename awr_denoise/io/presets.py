@@ -834,6 +834,10 @@ def _feature_plane(ctx: _Context, spec: str, name: str) -> _Plane:
     if not _whole_file(spec):
         return ctx.plane(spec, what=name)
     f = ctx.open(spec)
+    if f is ctx.file:  # its R,G,B are the radiance: taken for an albedo without a word
+        option = {"albedo": "alb", "normal": "nrm"}.get(name, name)
+        raise file_error(f.path, f"is the input itself: name its {name} plane ({name}='{spec}:PLANE', --{option} "
+                                 f"'{spec}:PLANE'), or leave {name}= out where the preset finds it")
     width = len(FEATURE_CHANNELS[name])
     for names in ((("R", "G", "B"), ("X", "Y", "Z")) if width == 3 else (("Z",), ("Y",))):
         if set(names) <= set(f.channels):

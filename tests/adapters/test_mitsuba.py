@@ -315,12 +315,20 @@ def test_loaded_scene_and_dict(mi):
 
 
 def test_gaussian_film_filter_warns_once(mi):
+    """Once, naming the filter as a scene names it, at the caller's line (it pointed at the adapter's own); and
+    not before a scene that is refused (the refusal alone says what is wrong)."""
     d = mi.cornell_box()  # Mitsuba's own Cornell box films through a gaussian filter
-    with pytest.warns(UserWarning, match="GaussianFilter filter is not used") as record:
+    with pytest.warns(UserWarning, match="the film's gaussian filter is not used") as record:
         renderer = create_renderer(d, shape=(8, 8))
         renderer(SampleRequest.uniform((8, 8), 1))
     assert len(record) == 1
     assert "\n" not in str(record[0].message)
+    assert record[0].filename == __file__
+    d["integrator"] = {"type": "aov", "aovs": "dd.y:depth"}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a warning would be raised in the refusal's place
+        with pytest.raises(ValueError, match="writes AOVs or moments"):
+            create_renderer(d, shape=(8, 8))
 
 
 def test_nonfinite_samples_are_zeroed_and_counted(mi):

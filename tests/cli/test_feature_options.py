@@ -113,7 +113,11 @@ def test_denoise_guide_projection(tmp_path, capsys):
         (["--guide", "oidn", "--guide-projection", "1.5"], "--guide-projection: must be <= 1"),
         (["--guide", "oidn", "--guide-projection", "nan"], "--guide-projection: must be a finite number"),
         (["--guide-projection", "0.3"], "--guide-projection: it is the share of a guide's projection"),
-        (["--guide", "features", "--guide-projection", "0.3"], "it needs --guide oidn")])
+        (["--guide", "features", "--guide-projection", "0.3"], "it needs --guide oidn"),
+        (["--guide", "oidn", "--guide-projection", "0.3", "--mode", "luminance"],
+         "--guide-projection 0.3: not with --mode luminance, where the means are not projected")])
+    assert main(["denoise", str(tmp_path / "d.exr"), "--guide", "oidn", "--guide-projection", "0", "--mode",
+                 "luminance", "-o", str(tmp_path / "lum.exr"), "-q"]) == 0
 
 
 def test_denoise_guide_oidn_without_pyoidn_is_refused(tmp_path, capsys, monkeypatch):

@@ -147,6 +147,17 @@ def test_bad_feature_planes_are_named(kw, message):
         _read(PBRT, **kw)
 
 
+@pytest.mark.parametrize("name, option", [("albedo", "--alb"), ("normal", "--nrm"), ("depth", "--depth")])
+def test_the_input_itself_as_a_feature_file_is_refused(name, option):
+    """``--alb INPUT.exr`` read the input's R,G,B, the radiance, as the albedo without a word (pbrt's colour
+    reached 1.29 as an "albedo"); its own plane is named instead (a walkthrough of the docs)."""
+    with pytest.raises(InputFileError, match=rf"pbrt_gbuffer_fp32\.exr: is the input itself: name its {name} plane "
+                                             rf"\({name}='.*pbrt_gbuffer_fp32\.exr:PLANE', {option} "):
+        _read(PBRT32, **{name: str(PBRT32)})
+    named = _read(PBRT32, albedo=f"{PBRT32}:Albedo").buffer
+    np.testing.assert_array_equal(named.features["albedo"].mean, _read(PBRT32).buffer.features["albedo"].mean)
+
+
 def test_a_missing_required_feature_and_a_size_mismatch_are_named(tmp_path):
     with pytest.raises(InputFileError, match=r"mitsuba_box\.exr: normal: no normal plane known to the mitsuba "
                                              r"preset; name one \(normal= / --nrm\)"):
