@@ -2,7 +2,7 @@
 
 Run from the repository root::
 
-    .venv/bin/python benchmarks/bench_parallel.py            # about 2 minutes on an idle 2-core machine
+    .venv/bin/python benchmarks/bench_parallel.py            # several minutes on a 2-core machine
     .venv/bin/python benchmarks/bench_parallel.py --quick    # smaller workloads, 2 repeats
 
 Each workload runs serially in this process (no executor), on a thread pool and on a local Dask

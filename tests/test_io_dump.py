@@ -223,8 +223,14 @@ def test_missing_variance_channel(tmp_path):
 
 def test_undetectable_layout(tmp_path):
     _write(tmp_path / "u.exr", {"foo": np.ones((2, 2), np.float32)})
-    with pytest.raises(InputFileError, match=r"u\.exr: cannot detect the layout"):
+    with pytest.raises(InputFileError, match=r"u\.exr: cannot detect the layout \(channels: foo\); choose"):
         read_sample_buffer(tmp_path / "u.exr")
+    # A plain colour image (pbrt-v4's default rgb film writes one): said so, with the film that writes a variance.
+    _write(tmp_path / "rgb.exr", {c: np.ones((2, 2), np.float32) for c in "RGBA"})
+    with pytest.raises(InputFileError, match=r"rgb\.exr: cannot detect the layout \(channels: A, B, G, R\): an image "
+                                             r"of colours only, .*pbrt-v4's rgb film writes none: render with its "
+                                             r"gbuffer film"):
+        read_sample_buffer(tmp_path / "rgb.exr")
 
 
 @pytest.mark.parametrize("count_name", [None, "count"])

@@ -84,8 +84,8 @@ def oidn_available() -> bool:
 def oidn_denoise(mean: FloatArray) -> FloatArray:
     """Intel Open Image Denoise (``pyoidn``, filter ``RT``, ``hdr=True``, quality ``high``).
 
-    Colour only: the bundled tracer does not write albedo or normal buffers, which OIDN would
-    use as auxiliary features; results with them would be better.
+    Colour only: the benchmark's buffers carry no albedo or normal, which OIDN would use as
+    auxiliary features (docs/guides.md compares OIDN with them, on the tracer's and Mitsuba's scenes).
 
     Parameters
     ----------

@@ -500,7 +500,7 @@ def _cycles(ctx: _Context) -> _Layout:
     elif ctx.need_variance:
         raise file_error(ctx.path, "Blender Cycles writes no variance pass: render the frame several times with "
                                    "different seeds and merge them (awr merge --independent), or pass a variance "
-                                   "plane with variance= / --variance", f"{layer}.Combined")
+                                   "plane with variance= / --variance", colour.label)  # the pass read: Noisy Image too
     count, count_plane = _cycles_counts(ctx, layer, colour.shape)
     if count is not None and count_plane is None:
         _unrendered_black(ctx, layer, count)
@@ -818,7 +818,10 @@ def _resolve_preset(p: Path, f: _File, preset: str, color: str | None, variance:
             raise file_error(p, f"has {VARIANCE_PREFIX}* channels, the awr layout's, but no {COUNT_CHANNEL} channel "
                                 f"(channels: {listed}): write each pixel's number of samples there, or name the planes "
                                 "(color=/variance= with count= or spp=; --color/--variance with --count or --spp)")
-        raise file_error(p, f"cannot detect the layout (channels: {listed}); choose a preset or give "
+        plain = {c.rsplit(".", 1)[-1] for c in f.channels} <= {"R", "G", "B", "A", "Y"}
+        hint = (": an image of colours only, no spread or count to denoise from (pbrt-v4's rgb film writes none: "
+                "render with its gbuffer film; Mitsuba 3: the moment integrator)" if plain else "")
+        raise file_error(p, f"cannot detect the layout (channels: {listed}){hint}; choose a preset or give "
                             "color=/variance=/count= (--color/--variance/--count)")
     return preset
 
