@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import atexit
 import math
+import os
 import threading
 from typing import Any
 
@@ -42,8 +43,8 @@ AUXILIARY = ("prefilter", "noisy", "clean", "none")
 filters for them, then taken as clean (``"prefilter"``, the default); as they are, known to be noisy
 (``"noisy"``); as they are, noise-free (``"clean"``); left out, OIDN on the colour alone (``"none"``)."""
 
-_prefilters: dict[str, Any] = {}  # OIDN's device and its albedo and normal filters, made once: each loads its weights
-_prefilters_lock = threading.Lock()  # one image at a time through them (they hold the images they are given)
+_oidn: dict[Any, Any] = {}  # OIDN's device and its filters, made once: each filter loads its network's weights
+_oidn_lock = threading.Lock()  # one image at a time through them (they hold the images they are given)
 
 
 def oidn_available() -> bool:
@@ -97,14 +98,14 @@ def oidn(buffer: SampleBuffer, albedo: FloatArray | None = None, normal: FloatAr
     quality
         OIDN's filter quality: ``"high"`` (default), ``"balanced"`` or ``"fast"``.
     auxiliary
-        How OIDN treats them (:data:`AUXILIARY`): ``"prefilter"`` (default) denoises each with OIDN's
-        filter for it first, then gives them as clean; ``"noisy"`` gives them as they are, noisy;
-        ``"clean"`` as they are, noise-free (a separate render of many samples); ``"none"`` leaves them
-        out (the buffer's and those given alike). Features averaged
-        over the radiance's few samples are noisy where a lens, a texture or an edge varies within the
-        pixel: prefiltered, the guided reconstruction's relMSE is 0.52-1.06x that with them given as
-        noisy on the bundled tracer's and Mitsuba 3's scenes at 8 and 32 spp, lowest on the
-        defocused and textured ones (docs/guides.md, "The albedo and normal, prefiltered").
+        How OIDN treats them (:data:`AUXILIARY`): ``"prefilter"`` (default) denoises each with OIDN's filter for it
+        first, then gives them as clean; ``"noisy"`` gives them as they are, noisy; ``"clean"`` as they are, noise-free
+        (a separate render of many samples); ``"none"`` leaves them out (the buffer's and those given alike). OIDN takes
+        them as clean only as a pair: an albedo without a normal it takes as noisy, prefiltered or not. Features
+        averaged over the radiance's few samples are noisy where a lens, a texture or an edge varies within the pixel:
+        prefiltered, the guided reconstruction's relMSE is 0.52-1.06x that with them given as noisy on the bundled
+        tracer's and Mitsuba 3's scenes at 8-32 spp, lowest on the defocused and textured ones (docs/guides.md, "The
+        albedo and normal, prefiltered").
 
     Returns
     -------
@@ -155,46 +156,65 @@ def oidn(buffer: SampleBuffer, albedo: FloatArray | None = None, normal: FloatAr
     top = float(np.max(mean, initial=0.0))
     power = math.frexp(top)[1] if top > 0 and not 2.0**-64 <= top <= 2.0**64 else 0
     colour = np.ascontiguousarray(np.clip(np.ldexp(mean, -power), 0.0, _FLOAT32_MAX), dtype=np.float32)
-    if alb is not None and auxiliary == "prefilter":
-        alb, nrm = _prefiltered(alb, nrm, quality)
-    clean = alb is not None and auxiliary != "noisy"
-    out = np.asarray(pyoidn.denoise(colour, alb, nrm, hdr=True, clean_aux=clean, quality=quality), dtype=np.float64)
-    return np.ldexp(out, power)[..., back]
+    images = {"color": colour, "albedo": alb, "normal": nrm}
+    with _oidn_lock:
+        if alb is not None and auxiliary == "prefilter":
+            images["albedo"] = _filtered(pyoidn, ("albedo",), {"albedo": alb}, quality, {}, (0.0, 1.0))
+            if nrm is not None:
+                images["normal"] = _filtered(pyoidn, ("normal",), {"normal": nrm}, quality, {}, (-1.0, 1.0))
+        given = tuple(name for name, image in images.items() if image is not None)
+        flags = {"hdr": True, "cleanAux": alb is not None and auxiliary != "noisy"}
+        out = _filtered(pyoidn, given, {n: images[n] for n in given}, quality, flags, (0.0, _FLOAT32_MAX))
+    return np.ldexp(out.astype(np.float64), power)[..., back]
 
 
-def _prefiltered(albedo: np.ndarray, normal: np.ndarray | None, quality: str
-                 ) -> tuple[np.ndarray, np.ndarray | None]:
-    """The albedo and normal denoised by OIDN's ``RT`` filter for each (an auxiliary image as its only
-    input), clipped back to OIDN's ranges: OIDN's way of taking noisy ones as clean."""
-    import pyoidn  # optional extra "oidn", imported lazily (the caller has imported it once)
-
-    levels = {"high": pyoidn.OIDN_QUALITY_HIGH, "balanced": pyoidn.OIDN_QUALITY_BALANCED,
-              "fast": pyoidn.OIDN_QUALITY_FAST}
-    out = []
-    with _prefilters_lock:
-        if "device" not in _prefilters:
-            device = pyoidn.Device()
-            device.commit()
+def _filtered(pyoidn: Any, inputs: tuple[str, ...], images: dict[str, np.ndarray], quality: str,
+              flags: dict[str, bool], clip: tuple[float, float]) -> np.ndarray:
+    """OIDN's ``RT`` filter on ``images`` (its ``color`` with ``albedo``/``normal``, or one auxiliary image alone,
+    which it then denoises as an auxiliary image), clipped to ``clip``. Under ``_oidn_lock``: the device and one
+    filter per set of inputs are made once (each loads its network's weights) and hold the images given."""
+    if "device" not in _oidn:
+        device = pyoidn.Device()
+        device.commit()
+        try:
             _raise_oidn_error(device, "device")
-            _prefilters["device"] = device
-            atexit.register(_release_prefilters)
-        device = _prefilters["device"]
-        for name, image, low, high in (("albedo", albedo, 0.0, 1.0), ("normal", normal, -1.0, 1.0)):
-            if image is None:
-                out.append(None)
-                continue
-            if name not in _prefilters:
-                _prefilters[name] = pyoidn.Filter(device, pyoidn.OIDN_FILTER_TYPE_RT)
-            flt = _prefilters[name]
-            result = np.empty_like(image)
-            flt.set_image(name, image, pyoidn.OIDN_FORMAT_FLOAT3)
-            flt.set_image(pyoidn.OIDN_IMAGE_OUTPUT, result, pyoidn.OIDN_FORMAT_FLOAT3)
-            flt.set_quality(levels[quality])
-            flt.commit()
-            flt.execute()
-            _raise_oidn_error(device, f"{name} prefilter")
-            out.append(np.clip(result, low, high))
-    return out[0], out[1]
+        except RuntimeError:
+            device.release()
+            raise
+        _oidn["device"] = device
+        if not _oidn.get("at exit"):
+            atexit.register(_release_oidn)
+            _oidn["at exit"] = True
+    device = _oidn["device"]
+    what = "+".join(inputs)
+    if inputs not in _oidn:
+        flt = pyoidn.Filter(device, pyoidn.OIDN_FILTER_TYPE_RT)
+        _raise_oidn_error(device, what)  # a filter never made holds no weights
+        _oidn[inputs] = flt
+    flt = _oidn[inputs]
+    first = images[inputs[0]]
+    result = np.full_like(first, np.nan)  # never the memory's leftovers, should OIDN write nothing
+    try:
+        for name in inputs:
+            flt.set_image(name, images[name], pyoidn.OIDN_FORMAT_FLOAT3)
+        flt.set_image(pyoidn.OIDN_IMAGE_OUTPUT, result, pyoidn.OIDN_FORMAT_FLOAT3)
+        for name, value in flags.items():
+            flt.set_bool(name, value)
+        flt.set_quality(_QUALITY_LEVELS[quality](pyoidn))
+        flt.commit()
+        flt.execute()
+        _raise_oidn_error(device, what)
+        if not np.isfinite(result).all():
+            raise RuntimeError(f"OIDN {what} failed: it left values that are not finite")
+    except RuntimeError:
+        _oidn.pop(inputs).release()  # made again next time, not reused in a state it failed in
+        raise
+    return np.clip(result, *clip)
+
+
+_QUALITY_LEVELS = {"high": lambda pyoidn: pyoidn.OIDN_QUALITY_HIGH,
+                   "balanced": lambda pyoidn: pyoidn.OIDN_QUALITY_BALANCED,
+                   "fast": lambda pyoidn: pyoidn.OIDN_QUALITY_FAST}
 
 
 def _raise_oidn_error(device: Any, what: str) -> None:
@@ -203,12 +223,24 @@ def _raise_oidn_error(device: Any, what: str) -> None:
         raise RuntimeError(f"OIDN {what} failed: {error}")
 
 
-def _release_prefilters() -> None:
+def _release_oidn() -> None:
     """Filters before their device, at exit (as pyoidn releases its own)."""
-    with _prefilters_lock:
-        for name in ("albedo", "normal", "device"):
-            if name in _prefilters:
-                _prefilters.pop(name).release()
+    with _oidn_lock:
+        for key in [k for k in _oidn if isinstance(k, tuple)] + ["device"]:
+            if key in _oidn:
+                _oidn.pop(key).release()
+
+
+def _forget_oidn() -> None:
+    """In a child process made by ``fork``: the parent's device and its threads are not the child's (using them
+    hung for ever), nor is a lock another thread of the parent held. The child makes its own when it needs them."""
+    global _oidn_lock
+    _oidn.clear()
+    _oidn_lock = threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):  # POSIX
+    os.register_at_fork(after_in_child=_forget_oidn)
 
 
 def _rgb(buffer: SampleBuffer) -> tuple[list[int], list[int]]:

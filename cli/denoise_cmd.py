@@ -181,8 +181,9 @@ def _note(frame: FrameResult, output: str, nonfinite_policy: str, guide: str | N
     return note
 
 
-def check_reconstruction_options(args: argparse.Namespace, shape: tuple[int, int], where: str) -> None:
-    """Refuse ``--levels`` beyond what an image of ``shape`` allows, and a ``--guide`` that cannot run, before any work."""
+def check_reconstruction_options(args: argparse.Namespace, shape: tuple[int, int] | None, where: str) -> None:
+    """Refuse ``--levels`` beyond what an image of ``shape`` allows (``None``: not known yet, checked later), and a
+    ``--guide`` that cannot run, before any work."""
     guide = getattr(args, "guide", None)
     if guide is not None and args.stages < 2:
         raise UsageError(f"--guide {guide}: it gives the pilot of the Wiener stages; it needs --stages 2 or more")
@@ -205,7 +206,7 @@ def check_reconstruction_options(args: argparse.Namespace, shape: tuple[int, int
     if projection and args.mode == "luminance":  # the library's words name its parameters, not these options
         raise UsageError(f"--guide-projection {projection:g}: not with --mode luminance, where the means are not "
                          "projected (the guide is the pilot only; 0 says so)")
-    if args.levels is not None and args.levels > max_levels(shape):
+    if shape is not None and args.levels is not None and args.levels > max_levels(shape):
         h, w = shape
         raise UsageError(f"--levels: {args.levels} is outside 1..{max_levels(shape)} for the {w}x{h} image of {where}")
 

@@ -107,19 +107,23 @@ def executor_from_args(args: argparse.Namespace) -> contextlib.AbstractContextMa
 
 @contextlib.contextmanager
 def _dask_quiet(executor: contextlib.AbstractContextManager[Executor]) -> Iterator[Executor]:
-    """``executor``'s context with Dask's loggers held to critical messages: when a scheduler is lost, its
-    client logs every reconnection attempt with two tracebacks (35 lines) before the command's own line."""
-    held: dict[logging.Logger, int] = {}
+    """``executor``'s context with Dask's log records below critical dropped: when a scheduler is lost, its
+    client logs every reconnection attempt with two tracebacks (35 lines) before the command's own line.
+
+    A filter on each of Dask's loggers, not their levels: the levels stay the caller's, and contexts that
+    overlap each remove their own filter."""
+    quiet = logging.Filter()
+    quiet.filter = lambda record: record.levelno >= logging.CRITICAL  # type: ignore[method-assign]
+    loggers: list[logging.Logger] = []
     try:
         with executor as running:
-            # Each of Dask's loggers once Dask is imported and has configured them (distributed.client has a
-            # level of its own), until the client is closed (its last words come as it closes).
-            for name in ["distributed", *logging.root.manager.loggerDict]:
+            # Once Dask is imported and has made its loggers, until the client is closed (its last words come
+            # as it closes).
+            for name in dict.fromkeys(["distributed", *logging.root.manager.loggerDict]):
                 if name.split(".")[0] == "distributed":
-                    logger = logging.getLogger(name)
-                    held[logger] = logger.level
-                    logger.setLevel(logging.CRITICAL)
+                    loggers.append(logging.getLogger(name))
+                    loggers[-1].addFilter(quiet)
             yield running
     finally:
-        for logger, level in held.items():
-            logger.setLevel(level)
+        for logger in loggers:
+            logger.removeFilter(quiet)

@@ -304,6 +304,7 @@ def run(args: argparse.Namespace) -> int:
     plan.write(image_path, "--image" if args.image else "--image (DUMP.denoised.exr)")
     plan.write(preview_path, "--preview" if args.preview else "--preview (DUMP.denoised.png)", "png")
     plan.check()  # refuse before spending time rendering
+    check_reconstruction_options(args, None, "")  # what needs no image size, before a scene file is loaded
     if args.width is not None and args.height is not None:
         check_pixels("--width/--height", args.height, args.width)
     given, scene, name, shape, options = _scene(args)

@@ -863,7 +863,7 @@ def _file_loop(folder, seed, rounds, *first):
 
 def test_plan_refuses_a_batch_for_the_running_dump(tmp_path, capsys):
     """A batch looks like a dump: planned from, it handed out sample indices the run had used (its own request's
-    first_index on) and lost the run's seed, exit 0 (a walkthrough of the guides as a new user). ``plan`` refuses
+    first_index on) and lost the run's seed, exit 0. ``plan`` refuses
     it naming the merge that makes the dump, ``info`` says what it is; the dump itself plans as before."""
     dumps = _file_loop(tmp_path / "run", 7, 1)
     batch = str(tmp_path / "run" / "b1.exr")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 
 import numpy as np
@@ -74,27 +75,35 @@ def test_noisy_features_are_denoised_before_oidn_uses_them():
 
 @needs_oidn
 def test_how_the_auxiliary_images_reach_oidn(monkeypatch):
-    """"prefilter" hands OIDN its own filters' albedo and normal as clean, "clean" the given ones as clean,
-    "noisy" the given ones as noisy, "none" neither; without an albedo nothing is prefiltered or called clean."""
-    import pyoidn
+    """"prefilter" denoises the albedo and normal with OIDN's filter for each and hands them to the colour's filter
+    as clean (cleanAux), "clean" the given ones as clean, "noisy" the given ones as noisy, "none" neither; without
+    an albedo nothing is prefiltered or called clean."""
     calls = []
-    real = pyoidn.denoise
-    monkeypatch.setattr(pyoidn, "denoise", lambda colour, albedo, normal, **kw: (
-        calls.append((albedo, normal, kw["clean_aux"])), real(colour, albedo, normal, **kw))[1])
+    real = guides._filtered
+
+    def recorded(pyoidn, inputs, images, quality, flags, clip):
+        calls.append((inputs, {k: v.copy() for k, v in images.items()}, dict(flags)))
+        return real(pyoidn, inputs, images, quality, flags, clip)
+
+    monkeypatch.setattr(guides, "_filtered", recorded)
     _, buf = _noisy_albedo()
     given = np.asarray(buf.features["albedo"].mean, np.float32)
+    out = {}
     for aux in guides.AUXILIARY:
+        calls.clear()
         guides.oidn(buf, auxiliary=aux)
-    (pre_a, pre_n, pre_c), (noisy_a, _, noisy_c), (clean_a, _, clean_c), (none_a, none_n, none_c) = calls
-    assert (pre_c, noisy_c, clean_c, none_c) == (True, False, True, False)
-    assert none_a is None and none_n is None
-    np.testing.assert_array_equal(noisy_a, given)
-    np.testing.assert_array_equal(clean_a, given)
-    assert not np.array_equal(pre_a, given) and pre_a.min() >= 0 and pre_a.max() <= 1
-    assert pre_n is not None and np.abs(pre_n).max() <= 1
-    calls.clear()
-    guides.oidn(SampleBuffer.from_moments(buf.count, buf.mean, buf.variance))
-    assert calls[0][0] is None and calls[0][2] is False
+        out[aux] = list(calls)
+    assert [c[0] for c in out["prefilter"]] == [("albedo",), ("normal",), ("color", "albedo", "normal")]
+    (_, pre_in, _), _, (_, pre_images, pre_flags) = out["prefilter"]
+    np.testing.assert_array_equal(pre_in["albedo"], given)  # the prefilter's input: the buffer's albedo
+    assert not np.array_equal(pre_images["albedo"], given) and 0 <= pre_images["albedo"].min() <= 1
+    assert pre_flags == {"hdr": True, "cleanAux": True}
+    for aux, clean in (("noisy", False), ("clean", True)):
+        ((inputs, images, flags),) = out[aux]
+        assert inputs == ("color", "albedo", "normal") and flags == {"hdr": True, "cleanAux": clean}
+        np.testing.assert_array_equal(images["albedo"], given)
+    ((inputs, _, flags),) = out["none"]
+    assert inputs == ("color",) and flags == {"hdr": True, "cleanAux": False}
 
 
 @needs_oidn
@@ -255,3 +264,30 @@ def test_oidn_denoises_subnormal_means():
     base = guides.oidn(SampleBuffer.from_moments(count, mean, np.zeros((32, 32, 3))))
     tiny = guides.oidn(SampleBuffer.from_moments(count, np.ldexp(mean, -1030), np.zeros((32, 32, 3))))
     np.testing.assert_allclose(np.ldexp(tiny, 1030), base, rtol=1e-5)
+
+
+def _oidn_in_child(queue, buf):
+    queue.put(guides.oidn(buf))
+
+
+@needs_oidn
+@pytest.mark.skipif(not hasattr(os, "register_at_fork"), reason="fork is POSIX's")
+def test_a_forked_child_of_a_process_that_ran_oidn_runs_it_too():
+    """OIDN's device, made once per process, hung for ever in a child forked after the parent had used it (a
+    user's process pool with the fork start method, the default on Linux before Python 3.14): the child makes
+    its own, with the same image."""
+    import multiprocessing
+
+    _, buf = _noisy_albedo()
+    expected = guides.oidn(buf)  # the parent's device and filters exist now
+    context = multiprocessing.get_context("fork")
+    queue = context.Queue()
+    child = context.Process(target=_oidn_in_child, args=(queue, buf))
+    child.start()
+    try:
+        image = queue.get(timeout=120)
+    finally:
+        child.join(10)
+        if child.is_alive():
+            child.kill()
+    np.testing.assert_array_equal(image, expected)

@@ -236,7 +236,7 @@ def test_undetectable_layout(tmp_path):
 @pytest.mark.parametrize("count_name", [None, "count"])
 def test_a_batch_without_its_sample_count_is_named_as_one(tmp_path, count_name):
     """A batch in the awr layout that left out ``sampleCount`` (or named it otherwise) got the generic "cannot
-    detect the layout" message, which did not say what was missing (a walkthrough of the guides as a new user)."""
+    detect the layout" message, which did not say what was missing."""
     planes = _planes()
     count = planes.pop("sampleCount")
     if count_name is not None:
@@ -269,9 +269,12 @@ def test_request_round_trip_exact(tmp_path, rng):
 @pytest.mark.parametrize("seed", [0, 7, 2**31, 2**63 - 1])
 def test_a_request_written_from_python_names_the_runs_seed(tmp_path, seed):
     """A renderer that reads its seed from the request (as `plan`'s carry it) gets the sampler's, not 0;
-    seeds past an int attribute are stored as text, as the readers expect."""
+    seeds past an int attribute are stored as text, as the readers expect, and a header copied from such a
+    request agrees with the same seed."""
     write_request(tmp_path / "r.exr", SampleRequest.uniform((2, 3), 1), seed=seed)
-    assert int(str(request_attributes(tmp_path / "r.exr")["awr:seed"])) == seed
+    copied = request_attributes(tmp_path / "r.exr")
+    assert int(str(copied["awr:seed"])) == seed
+    write_request(tmp_path / "again.exr", SampleRequest.uniform((2, 3), 1), seed=seed, header=copied)
 
 
 @pytest.mark.parametrize("seed, header, match", [

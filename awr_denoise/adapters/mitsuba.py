@@ -237,7 +237,7 @@ class MitsubaRenderer:
                 raise ValueError(f"{self.name}: integrator {self.integrator.class_name()} writes AOVs or moments, "
                                  "not radiance; give the scene its inner integrator (e.g. 'path')")
             if not rfilter.is_box_filter():  # once the scene is known to be usable: a refused one says only why
-                kind = rfilter.class_name().removesuffix("Filter").lower() or rfilter.class_name()
+                kind = _FILTER_PLUGINS.get(rfilter.class_name(), rfilter.class_name())
                 warnings.warn(f"{self.name}: the film's {kind} filter is not used; every sample is rendered into "
                               "its own pixel (box filter of radius 0.5), as AWR needs", stacklevel=_caller_level())
             # Integrators written in Python on Mitsuba's AD base class take (mode, scene, sampler, ray, ...).
@@ -521,6 +521,11 @@ class MitsubaRenderer:
                 logger.warning("%s: %d non-finite %s value(s) were replaced by 0", self.name, int(bad.sum()), name)
             out[name] = values
         return out
+
+
+_FILTER_PLUGINS = {"TentFilter": "tent", "GaussianFilter": "gaussian", "MitchellNetravaliFilter": "mitchell",
+                   "CatmullRomFilter": "catmullrom", "LanczosSincFilter": "lanczos"}
+"""Mitsuba's reconstruction filters by class, named as a scene names them (``<rfilter type="mitchell"/>``)."""
 
 
 def _caller_level() -> int:

@@ -73,7 +73,7 @@ def write_request(path: str | os.PathLike[str], request: SampleRequest, *, seed:
         raise TypeError(f"request: expected a SampleRequest, got {type(request).__name__}")
     if seed is not None:
         seed = _checks.seed("seed", seed)
-        if header and "awr:seed" in header and header["awr:seed"] != seed:
+        if header and "awr:seed" in header and str(header["awr:seed"]).strip() != str(seed):  # stored as text past 2**31
             raise ValueError(f"seed: {seed} differs from the header's awr:seed {header['awr:seed']!r}")
     # The last sample index must be exact too, so the renderer can trust first_index + counts.
     exact_counts("first_index + counts", request.first_index + request.counts)

@@ -1,11 +1,11 @@
 """Parallel and distributed execution: frame sequences, tiled reconstruction, tiled rendering.
 
-Everything here takes any :class:`concurrent.futures.Executor` through ``executor=``. Without
-one, work runs on in-process threads (:class:`~concurrent.futures.ThreadPoolExecutor`), which
-need neither a cluster nor Dask: numpy, PyWavelets and embreex release the GIL in their array
-operations, and on two cores two threads were about as much faster than one as two Dask
-worker processes (docs/distributed.md has the measurements).
-:func:`get_executor` makes the other kinds on demand:
+Everything here takes any :class:`concurrent.futures.Executor` through ``executor=``. Without one,
+work runs on in-process threads (:class:`~concurrent.futures.ThreadPoolExecutor`), which need
+neither a cluster nor Dask: numpy, PyWavelets and embreex release the GIL in their array operations;
+on two cores, over frames, two threads were about as much faster than one as two Dask worker
+processes (docs/distributed.md has the measurements). :func:`get_executor` makes the other kinds on
+demand:
 
 * ``"threads"``: a thread pool (the default);
 * ``"processes"``: a process pool on this machine;

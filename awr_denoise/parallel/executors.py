@@ -1,10 +1,10 @@
 """Executors for the parallel layer: in-process threads, local processes, or a Dask cluster.
 
-Everything in :mod:`awr_denoise.parallel` takes any :class:`concurrent.futures.Executor`
-through ``executor=``. Without one, work runs on in-process threads, which need neither a
-cluster nor Dask: numpy, PyWavelets and embreex release the GIL in their array operations, and
-on two cores two threads were about as much faster than one as two Dask worker processes
-(docs/distributed.md). :func:`get_executor` makes the other kinds on demand.
+Everything in :mod:`awr_denoise.parallel` takes any :class:`concurrent.futures.Executor` through
+``executor=``. Without one, work runs on in-process threads, which need neither a cluster nor Dask:
+numpy, PyWavelets and embreex release the GIL in their array operations; on two cores, over frames,
+two threads were about as much faster than one as two Dask worker processes (docs/distributed.md).
+:func:`get_executor` makes the other kinds on demand.
 """
 
 from __future__ import annotations
@@ -179,12 +179,12 @@ def _import_distributed() -> Any:
 def _glibc_malloc_tuning() -> Iterator[None]:
     """Start Dask worker processes with glibc's own malloc tuning instead of Dask's.
 
-    Dask starts workers with ``MALLOC_TRIM_THRESHOLD_=65536`` (and writes it into this
-    process's environment when it starts a local cluster). Setting it switches off glibc's
-    adaptive mmap threshold, so every numpy temporary above 128 KiB is mapped afresh and
-    page-faulted in: four reconstructions of a 512 x 512 frame took 0.59 s in such a worker
-    against 0.35 s in the main process on the development machine (0.25 s of system time,
-    about 190 000 minor page faults). Unsetting it for the workers this module starts removes the gap.
+    Dask starts workers with ``MALLOC_TRIM_THRESHOLD_=65536`` (and writes it into this process's
+    environment when it starts a local cluster). Setting it switches off glibc's adaptive mmap
+    threshold, so every numpy temporary above 128 KiB is mapped afresh and page-faulted in:
+    reconstructions took markedly longer in such a worker than in the main process, the difference
+    system time spent in page faults. Unsetting it for the workers this module starts removes the
+    gap.
     """
     import dask  # the optional ``dask`` extra; only reached once distributed imported
 
@@ -229,11 +229,11 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
 
     Notes
     -----
-    Dask is imported only when asked for. The local cluster listens on the loopback interface
-    only and starts no dashboard; its workers keep glibc's default malloc tuning rather than
-    Dask's ``MALLOC_TRIM_THRESHOLD_``, which made numpy-heavy tasks 1.7x slower
-    (docs/distributed.md). Process pools use the ``spawn`` start method, so they are
-    safe to start from a program that already runs threads.
+    Dask is imported only when asked for. The local cluster listens on the loopback
+    interface only and starts no dashboard; its workers keep glibc's default malloc tuning rather
+    than Dask's ``MALLOC_TRIM_THRESHOLD_``, which made numpy-heavy tasks markedly slower
+    (docs/distributed.md). Process pools use the ``spawn`` start method, so they are safe to start
+    from a program that already runs threads.
 
     Examples
     --------

@@ -303,3 +303,21 @@ def test_guide_oidn_says_or_refuses_the_features_it_does_not_use(tmp_path, capsy
     common = ["render", "--renderer", "synthetic", "edges", "--width", "16", "--height", "12", "--spp", "2"]
     assert main([*common, "--features", "normal", "--guide", "oidn", "-o", str(tmp_path / "r.exr")]) == 2
     one_error_line(capsys.readouterr().err, "--features: --guide oidn uses a normal only beside an albedo")
+
+
+@pytest.mark.parametrize("options, words", [
+    (["--guide", "oidn", "--guide-projection", "0.3", "--mode", "luminance"], "--guide-projection 0.3: not with"),
+    (["--guide", "oidn", "--stages", "1"], "--guide oidn: it gives the pilot of the Wiener stages"),
+])
+def test_render_refuses_reconstruction_options_before_loading_its_scene(tmp_path, capsys, monkeypatch, options, words):
+    """Checked only once the image size was known, after a Mitsuba scene file was loaded and rendered: a whole
+    render, then exit 2."""
+    from awr_denoise.cli import render_cmd
+
+    def loaded(args):
+        raise AssertionError("the scene was loaded before the options were checked")
+
+    monkeypatch.setattr(render_cmd, "_scene", loaded)
+    assert main(["render", "--scene", "default", "--spp", "2", "-o", str(tmp_path / "d.exr"), *options]) == 2
+    one_error_line(capsys.readouterr().err, words)
+    assert list(tmp_path.iterdir()) == []

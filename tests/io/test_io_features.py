@@ -150,7 +150,7 @@ def test_bad_feature_planes_are_named(kw, message):
 @pytest.mark.parametrize("name, option", [("albedo", "--alb"), ("normal", "--nrm"), ("depth", "--depth")])
 def test_the_input_itself_as_a_feature_file_is_refused(name, option):
     """``--alb INPUT.exr`` read the input's R,G,B, the radiance, as the albedo without a word (pbrt's colour
-    reached 1.29 as an "albedo"); its own plane is named instead (a walkthrough of the docs)."""
+    reached 1.29 as an "albedo"); its own plane is named instead."""
     with pytest.raises(InputFileError, match=rf"pbrt_gbuffer_fp32\.exr: is the input itself: name its {name} plane "
                                              rf"\({name}='.*pbrt_gbuffer_fp32\.exr:PLANE', {option} "):
         _read(PBRT32, **{name: str(PBRT32)})

@@ -107,7 +107,7 @@ def test_a_scheduler_that_is_not_one_is_refused_naming_it(tmp_path):
 
 def test_a_port_nothing_listens_on_or_an_unknown_host_is_named_at_once():
     """Dask retried both for its 30 s and then said "Timed out trying to connect", which pointed at the
-    network, not at a scheduler that is not running or a stale scheduler file (a walkthrough of the docs)."""
+    network, not at a scheduler that is not running or a stale scheduler file."""
     with socket.socket() as free:  # a port of this machine that nothing listens on once it is closed
         free.bind(("127.0.0.1", 0))
         closed = f"tcp://127.0.0.1:{free.getsockname()[1]}"
