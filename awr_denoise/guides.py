@@ -117,7 +117,10 @@ def oidn(buffer: SampleBuffer, albedo: FloatArray | None = None, normal: FloatAr
     ImportError
         ``pyoidn`` is not installed (extra ``oidn``); the message says what to install.
     ValueError
-        No three-channel colour, a normal without an albedo, or bad auxiliary images.
+        No three-channel colour, a normal without an albedo, bad auxiliary images, or an unknown
+        ``quality`` or ``auxiliary``.
+    RuntimeError
+        OIDN itself failed (its device, a filter, or values that are not finite); its message is kept.
 
     Examples
     --------

@@ -84,8 +84,8 @@ def executor_from_args(args: argparse.Namespace) -> contextlib.AbstractContextMa
     Raises
     ------
     ValueError
-        ``--scheduler`` with ``--executor threads`` or ``processes``, ``--workers`` below 1, or
-        more local processes than :data:`LOCAL_PROCESSES_PER_CPU` per CPU.
+        ``--scheduler`` with ``--executor threads`` or ``processes``, ``--workers`` below 1 or beside
+        ``--scheduler``, or more local processes than :data:`LOCAL_PROCESSES_PER_CPU` per CPU.
     """
     workers = getattr(args, "workers", None)
     scheduler = getattr(args, "scheduler", None)

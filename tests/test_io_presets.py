@@ -70,6 +70,11 @@ def test_cycles_multilayer_normalised_counts(tmp_path, layer):
     assert detect_preset(list(planes), {}) == "cycles"
     with pytest.raises(InputFileError, match=r"cycles\.exr: .*Combined: Blender Cycles writes no variance pass"):
         read_sample_buffer(f)
+    # The pass read is the one named: Noisy Image where the file has it (Blender's denoiser was on).
+    planes |= {f"{layer}.Noisy Image.{c}": _ramp() for c in "RGB"}
+    noisy = _write(tmp_path / "noisy.exr", planes, {f"cycles.{layer}.samples": str(samples)})
+    with pytest.raises(InputFileError, match=rf"noisy\.exr: {layer}\.Noisy Image: Blender Cycles writes no variance"):
+        read_sample_buffer(noisy)
     buf = read_sample_buffer(f, variance=f"{layer}.Variance AOV")
     np.testing.assert_array_equal(buf.count, count)
     assert buf.channels == ("R", "G", "B")  # alpha is not a colour channel
