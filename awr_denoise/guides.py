@@ -185,25 +185,21 @@ def _filtered(pyoidn: Any, inputs: tuple[str, ...], images: dict[str, np.ndarray
             device.release()
             raise
         _oidn["device"] = device
-        if not _oidn.get("at exit"):
-            atexit.register(_release_oidn)
-            _oidn["at exit"] = True
     device = _oidn["device"]
     what = "+".join(inputs)
     if inputs not in _oidn:
-        flt = pyoidn.Filter(device, pyoidn.OIDN_FILTER_TYPE_RT)
-        _raise_oidn_error(device, what)  # a filter never made holds no weights
-        _oidn[inputs] = flt
+        _oidn[inputs] = pyoidn.Filter(device, pyoidn.OIDN_FILTER_TYPE_RT)  # a failed one is released below
     flt = _oidn[inputs]
     first = images[inputs[0]]
     result = np.full_like(first, np.nan)  # never the memory's leftovers, should OIDN write nothing
     try:
+        _raise_oidn_error(device, what)  # a filter never made holds no weights
         for name in inputs:
             flt.set_image(name, images[name], pyoidn.OIDN_FORMAT_FLOAT3)
         flt.set_image(pyoidn.OIDN_IMAGE_OUTPUT, result, pyoidn.OIDN_FORMAT_FLOAT3)
         for name, value in flags.items():
             flt.set_bool(name, value)
-        flt.set_quality(_QUALITY_LEVELS[quality](pyoidn))
+        flt.set_quality(getattr(pyoidn, f"OIDN_QUALITY_{quality.upper()}"))
         flt.commit()
         flt.execute()
         _raise_oidn_error(device, what)
@@ -215,11 +211,6 @@ def _filtered(pyoidn: Any, inputs: tuple[str, ...], images: dict[str, np.ndarray
     return np.clip(result, *clip)
 
 
-_QUALITY_LEVELS = {"high": lambda pyoidn: pyoidn.OIDN_QUALITY_HIGH,
-                   "balanced": lambda pyoidn: pyoidn.OIDN_QUALITY_BALANCED,
-                   "fast": lambda pyoidn: pyoidn.OIDN_QUALITY_FAST}
-
-
 def _raise_oidn_error(device: Any, what: str) -> None:
     error = device.get_error()
     if error is not None:
@@ -227,11 +218,13 @@ def _raise_oidn_error(device: Any, what: str) -> None:
 
 
 def _release_oidn() -> None:
-    """Filters before their device, at exit (as pyoidn releases its own)."""
+    """Filters before their device, at exit (as pyoidn releases its own); nothing when none was made."""
     with _oidn_lock:
-        for key in [k for k in _oidn if isinstance(k, tuple)] + ["device"]:
-            if key in _oidn:
-                _oidn.pop(key).release()
+        for key in sorted(_oidn, key=lambda k: k == "device"):  # the device last
+            _oidn.pop(key).release()
+
+
+atexit.register(_release_oidn)
 
 
 def _forget_oidn() -> None:

@@ -30,11 +30,12 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
+import itertools
 import json
 import os
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -88,20 +89,27 @@ def _measure(image: np.ndarray, x: np.ndarray, ref: np.ndarray, seconds: float) 
             "seconds": seconds}
 
 
-def quality(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], groups: int,
-            cache: Path) -> list[dict[str, Any]]:
-    rows = []
+def _scene_buffers(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], groups: int,
+                   cache: Path) -> Iterator[tuple[dict[str, Any], SampleBuffer, np.ndarray]]:
+    """Every scene's buffers with every feature, group by group and spp by spp: a row's keys, the buffer and the
+    scene's reference."""
     for renderer, scene, shape in scenes:
         ref = reference(renderer, scene, shape, cache)
         for g in range(groups):
             for spp, buffer in feature_buffers(renderer, scene, shape, spps, g, cache).items():
-                x = filled_mean(buffer)
-                for method in METHODS:
-                    start = time.perf_counter()
-                    image = _image(method, buffer)
-                    rows.append({"renderer": renderer, "scene": scene, "spp": spp, "group": g, "method": method,
-                                 **_measure(image, x, ref, time.perf_counter() - start)})
+                yield {"renderer": renderer, "scene": scene, "spp": spp, "group": g}, buffer, ref
         print(f"{renderer} {scene}: done", flush=True)
+
+
+def quality(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], groups: int,
+            cache: Path) -> list[dict[str, Any]]:
+    rows = []
+    for keys, buffer, ref in _scene_buffers(scenes, spps, groups, cache):
+        x = filled_mean(buffer)
+        for method in METHODS:
+            start = time.perf_counter()
+            image = _image(method, buffer)
+            rows.append({**keys, "method": method, **_measure(image, x, ref, time.perf_counter() - start)})
     return rows
 
 
@@ -708,13 +716,19 @@ PBRT_METHODS = {"default": {}, "default + features": {"features": True}, "defaul
                 "default + OIDN guide, no projection": {"guide": guides.oidn, "guide_projection": 0.0}}
 
 
-def pbrt() -> list[dict[str, Any]]:
-    """Renders pbrt-v4 wrote (GBufferFilm, 64x64, 16 spp; independent seeds) against its reference."""
+def _pbrt_buffers() -> Iterator[tuple[Path, SampleBuffer, np.ndarray]]:
+    """Each render pbrt-v4 wrote (GBufferFilm, 64x64, 16 spp; independent seeds), read, with the reference pbrt
+    wrote beside them."""
     from awr_denoise.io import read_image, read_sample_buffer
     ref = np.asarray(read_image(PBRT / "pbrt_ref.exr", channels=("R", "G", "B")), np.float64)
-    rows = []
     for path in [PBRT / "pbrt_gbuffer_fp32.exr", *sorted((PBRT / "seeds").glob("*.exr"))]:
-        buffer = read_sample_buffer(path)
+        yield path, read_sample_buffer(path), ref
+
+
+def pbrt() -> list[dict[str, Any]]:
+    """Renders pbrt-v4 wrote against its reference."""
+    rows = []
+    for path, buffer, ref in _pbrt_buffers():
         images = {"plain": filled_mean(buffer), "OIDN": guides.oidn(buffer)}
         for name, options in PBRT_METHODS.items():
             images[name] = reconstruct(buffer, **options)
@@ -760,23 +774,13 @@ def _auxiliary_images(buffer: SampleBuffer) -> dict[str, tuple[np.ndarray, float
 def auxiliary(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], groups: int,
               cache: Path) -> list[dict[str, Any]]:
     """The albedo and normal prefiltered, as noisy, or none: both renderers' scenes and pbrt-v4's files."""
-    from awr_denoise.io import read_image, read_sample_buffer
+    pbrt_files = (({"renderer": "pbrt", "scene": "pbrt_gbuffer", "spp": 16, "group": g}, buffer, ref)
+                  for g, (_, buffer, ref) in enumerate(_pbrt_buffers()))
     rows = []
-    for renderer, scene, shape in scenes:
-        ref = reference(renderer, scene, shape, cache)
-        for g in range(groups):
-            for spp, buffer in feature_buffers(renderer, scene, shape, spps, g, cache).items():
-                x = filled_mean(buffer)
-                rows += [{"renderer": renderer, "scene": scene, "spp": spp, "group": g, "method": m,
-                          **_measure(image, x, ref, seconds)} for m, (image, seconds) in _auxiliary_images(buffer).items()]
-        print(f"{renderer} {scene}: done", flush=True)
-    ref = np.asarray(read_image(PBRT / "pbrt_ref.exr", channels=("R", "G", "B")), np.float64)
-    for g, path in enumerate([PBRT / "pbrt_gbuffer_fp32.exr", *sorted((PBRT / "seeds").glob("*.exr"))]):
-        buffer = read_sample_buffer(path)
+    for keys, buffer, ref in itertools.chain(_scene_buffers(scenes, spps, groups, cache), pbrt_files):
         x = filled_mean(buffer)
-        rows += [{"renderer": "pbrt", "scene": "pbrt_gbuffer", "spp": 16, "group": g, "method": m,
-                  **_measure(image, x, ref, seconds)} for m, (image, seconds) in _auxiliary_images(buffer).items()]
-    print("pbrt: done", flush=True)
+        rows += [{**keys, "method": m, **_measure(image, x, ref, seconds)}
+                 for m, (image, seconds) in _auxiliary_images(buffer).items()]
     return rows
 
 

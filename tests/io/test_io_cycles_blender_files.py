@@ -92,6 +92,15 @@ def test_a_light_groups_pass_named_as_colour_keeps_the_layers_count_pass(tmp_pat
     _refused(capsys, out, "cycles_lightgroup_1.exr", "ViewLayer.Debug Sample Count.X", "--spp", "--preset cycles")
 
 
+def test_the_missing_variance_names_the_pass_read(tmp_path, capsys):
+    """Blender wrote Noisy Image beside Combined (its denoiser on): the pass read, Noisy Image, is the one the
+    refusal names (it named Combined)."""
+    out = tmp_path / "o.exr"
+    assert main(["denoise", str(CY / "cycles_default.exr"), "-o", str(out)]) == 2
+    _refused(capsys, out, "cycles_default.exr: ViewLayer.Noisy Image: Blender Cycles writes no variance pass",
+             "awr merge --independent")
+
+
 def test_a_colour_plane_names_its_layer(capsys):
     """``--color Second.Combined`` of a two-layer render takes Second's count pass and header (48 samples),
     without ``--layer``; the file's layers are still refused as ambiguous when no plane names one."""
