@@ -34,7 +34,7 @@ from .prepare import Prepared, prepare
 from .settings import (DEFAULT_C_S, DEFAULT_PILOT_C_S, DEFAULT_PIXEL_CLAMP, DEFAULT_PRECISION, DEFAULT_STAGES,
                        DEFAULT_WIENER_EXPONENTS, PRECISIONS, Settings, resolve_settings)
 from .stationary import precision_for, stationary_transform
-from .sure import DEFAULT_GUIDED_WINDOW, DEFAULT_WINDOW, sure_blend
+from .sure import DEFAULT_GUIDED_TOLERANCE, DEFAULT_GUIDED_WINDOW, DEFAULT_WINDOW, sure_blend
 from .thresholding import threshold_stage
 from .wavelets import DEFAULT_WAVELET, wavelet_operators
 from .wiener import DEFAULT_FLOOR, chain
@@ -125,7 +125,7 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
                    precision: str, luminance: tuple[Prepared, FloatArray] | None, guard: bool, probes: int, seed: int,
                    run: Callable, parallel: bool, keep: FloatArray | float, guide: FloatArray | None,
                    projection: float, floor: tuple[int, float] | None = DEFAULT_FLOOR,
-                   window: int = DEFAULT_WINDOW, guard_probes: int = 0
+                   window: int = DEFAULT_WINDOW, guard_probes: int = 0, tolerance: float = 1.0
                    ) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
     """Stages 2.. and the SURE guard on the image brought to unit scale; the probe variance if asked, the noise gain.
 
@@ -157,12 +157,12 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
         divergence = leverage if done.divergence is None else done.divergence
         if luminance is None:
             out, lam = sure_blend(out, x, v, divergence, k=k, window=window, run=options["run"],
-                                  measured=prepared.sampled)
+                                  measured=prepared.sampled, tolerance=tolerance)
         else:  # one share for every channel, decided on luminance: hue is kept
             weights = luminance[1]
             _, lam = sure_blend(out @ weights, x @ weights, luminance[0].variance / s / s,
                                 divergence[..., 0] if done.divergence is None else divergence @ weights, k=k,
-                                window=window, measured=prepared.sampled)
+                                window=window, measured=prepared.sampled, tolerance=tolerance)
             lam = lam[..., None]
             out = x + lam * (out - x)
         if var_out is not None:
@@ -214,7 +214,8 @@ def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | N
                                                guard=settings.guard, probes=settings.probes, seed=settings.seed, run=run,
                                                parallel=parallel, keep=keep, guide=guide, projection=projection,
                                                floor=settings.floor, window=settings.guard_window,
-                                               guard_probes=settings.guard_probes)
+                                               guard_probes=settings.guard_probes,
+                                               tolerance=settings.guard_tolerance)
         if settings.pixel_clamp is not None:
             lum = None if luminance is None else luminance[0]
             image, moved = pooled_clamp(image, prepared.mean if lum is None else lum.mean,
@@ -435,9 +436,10 @@ def reconstruct_detailed(
                             weights=None if luminance is None else luminance[1])
     variance = stage.output_variance(settings.probes, settings.seed) if settings.probes and settings.stages == 1 else None
     first, keep = pilots(buffer, stage.image, guide, features)
-    if guide is not None and guard_window is None and settings.guard and np.any(keep > 0):
-        # A guide the gate trusts anywhere: the guard's wider default window (sure.DEFAULT_GUIDED_WINDOW).
-        settings = replace(settings, guard_window=DEFAULT_GUIDED_WINDOW)
+    if guide is not None and settings.guard and np.any(keep > 0):
+        # A guide the gate trusts anywhere: the guard's wider default window and its tolerance (.sure).
+        settings = replace(settings, guard_tolerance=DEFAULT_GUIDED_TOLERANCE,
+                           guard_window=DEFAULT_GUIDED_WINDOW if guard_window is None else settings.guard_window)
     image, variance, gain = later_stages(prepared, first, variance, settings, levels=ops.levels, wavelet=ops.wavelet,
                                    luminance=luminance, run=run, keep=keep, guide=guide, projection=projection)
     return Reconstruction(image=image, thresholds=stage.thresholds,

@@ -73,6 +73,7 @@ class Settings:
     floor: tuple[int, float] | None = DEFAULT_FLOOR  # the first Wiener stage's (window, margin); channel mode
     guard_window: int = DEFAULT_WINDOW  # side of the guard's square neighbourhood
     guard_probes: int = 0  # probes of the Wiener stages' divergence for the guard; 0: their diagonal
+    guard_tolerance: float = 1.0  # the guard's tolerance (sure.sure_blend); sure.DEFAULT_GUIDED_TOLERANCE guided
 
     @property
     def stage1_clamp(self) -> float | None:
@@ -86,6 +87,7 @@ class Settings:
                 "wiener_exponents": ",".join(f"{a:g}" for a in self.exponents) if wiener else None,
                 "guard": self.guard, "guard_window": self.guard_window if self.guard else None,
                 "guard_probes": self.guard_probes if self.guard else None,
+                "guard_tolerance": self.guard_tolerance if self.guard else None,
                 "preserve_mean": self.preserve_mean, "nonnegative": self.nonnegative, "precision": self.precision}
 
 

@@ -46,6 +46,22 @@ def test_a_good_estimate_is_kept_and_a_biased_one_undone(rng):
     assert np.mean((biased - truth) ** 2) < 2 * np.mean((mean - truth) ** 2)
 
 
+def test_the_tolerance_keeps_a_right_change_whole_and_undoes_a_biased_one_in_proportion(rng):
+    """Means whose errors run 1.1x their stated variances (a heavy tail's sample variances fall
+    short): the clean image is kept whole with a tolerance of 1.2, partly undone without one; a
+    change biased by 2 standard errors is still undone, to about ``t / (1 + b^2)``."""
+    truth = np.ones(SHAPE)
+    sd = 0.1
+    mean = truth + sd * np.sqrt(1.1) * rng.standard_normal(SHAPE)
+    variance, lev = np.full(SHAPE, sd * sd), np.zeros(SHAPE)
+    undone, strict = sure_blend(truth, mean, variance, lev, k=0.1, window=31)
+    kept, lam = sure_blend(truth, mean, variance, lev, k=0.1, window=31, tolerance=1.2)
+    assert strict.mean() < 0.95 and lam.mean() > 0.99  # windows cut by the border hold fewer terms: noisier
+    assert np.mean((kept - truth) ** 2) < 0.02 * np.mean((undone - truth) ** 2)
+    _, biased = sure_blend(truth + 2 * sd, mean, variance, lev, k=0.1, window=31, tolerance=1.2)
+    assert biased.mean() == pytest.approx(1.2 / (1 + 4 + 0.1), rel=0.1)
+
+
 def test_the_relative_criterion_protects_dark_pixels_next_to_a_light(rng):
     """A leak of a bright neighbour's light onto a dark ground: small in absolute terms (MSE
     keeps it), large relative to the ground (relMSE does not): the smaller share wins."""
@@ -98,7 +114,8 @@ def test_pixels_without_a_measurement_have_no_weight(rng):
 
 
 @pytest.mark.parametrize(("kwargs", "message"), [({"k": 0.0}, "k"), ({"k": 0.1, "window": 4}, "window: must be odd"),
-                                                 ({"k": 0.1, "window": 0}, "window")])
+                                                 ({"k": 0.1, "window": 0}, "window"),
+                                                 ({"k": 0.1, "tolerance": 0.9}, "tolerance: must be >= 1")])
 def test_bad_arguments_are_refused(rng, kwargs, message):
     truth, mean, variance = _flat(rng)
     with pytest.raises(ValueError, match=message):
