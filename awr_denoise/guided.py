@@ -50,6 +50,7 @@ exact leverage. As the samples grow the intervals shrink and the result tends to
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -64,7 +65,7 @@ from .projection import project
 from .stationary import StationaryTransform
 from .wiener import rademacher_probes
 
-__all__ = ["checked_guide", "checked_inputs", "guide_colour", "feature_pilot", "trust", "gated", "pilots",
+__all__ = ["checked_guide", "checked_inputs", "guide_fields", "guide_colour", "feature_pilot", "trust", "gated", "pilots",
            "ATROUS_ITERATIONS",
            "FEATURE_SIGMAS", "GATE_WINDOW", "GATE_LOW", "GATE_HIGH", "projected", "PROJECTION_SHARE",
            "checked_projection"]
@@ -329,6 +330,38 @@ def checked_inputs(buffer: SampleBuffer, guide: object, features: object, stages
         if guide is None:  # a failed denoiser wrapper must not pass for an unguided run
             raise ValueError("guide: the guide function returned None, not an (H, W, C) image")
     return None if guide is None else checked_guide(guide, buffer)
+
+
+def guide_fields(guide: object) -> dict[str, str | int | float | bool]:
+    """What a guide function records of itself: its ``recorded`` mapping of setting names to plain
+    values (:class:`awr_denoise.guides.OIDNGuide`), which the result's ``parameters`` carry; ``{}``
+    for an image or a function without one. The names begin with ``guide_``, so that none stands
+    for a setting of the reconstruction's own.
+
+    Raises
+    ------
+    TypeError
+        If ``recorded`` is not a mapping of names beginning with ``guide_`` (not ``guide_projection``)
+        to strings, numbers or flags.
+
+    Examples
+    --------
+    >>> from awr_denoise.guided import guide_fields
+    >>> class Guide:
+    ...     recorded = {"guide_name": "mine"}
+    ...     def __call__(self, buffer): ...
+    >>> guide_fields(Guide()), guide_fields(None)
+    ({'guide_name': 'mine'}, {})
+    """
+    fields = getattr(guide, "recorded", None) if callable(guide) else None
+    if fields is None:
+        return {}
+    if not isinstance(fields, Mapping) or not all(
+            isinstance(k, str) and k.startswith("guide_") and k != "guide_projection"
+            and isinstance(v, (str, int, float, bool)) for k, v in fields.items()):
+        raise TypeError("guide: its recorded settings must map names beginning with guide_ (not guide_projection) "
+                        f"to strings, numbers or flags, got {fields!r}")
+    return dict(fields)
 
 
 def pilots(buffer: SampleBuffer, stage1: FloatArray, guide: FloatArray | None,

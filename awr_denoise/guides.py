@@ -12,7 +12,8 @@ need optional extras, imported when first used:
     by OIDN's own filters for them (its documented way with noisy auxiliary images).
 
 Pass the function itself as the guide and the reconstruction calls it on the buffer it denoises
-(``reconstruct(buffer, guide=guides.oidn)``), or call it and pass its image.
+(``reconstruct(buffer, guide=guides.oidn)``), or call it and pass its image. :class:`OIDNGuide` is
+the same function with its settings, which the result records (``awr denoise --guide oidn``).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import atexit
 import math
 import os
 import threading
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -31,7 +33,7 @@ from .buffers import SampleBuffer
 from .guided import guide_colour
 from .prepare import filled_mean
 
-__all__ = ["oidn", "oidn_available", "OIDN_HINT", "GUIDES", "AUXILIARY"]
+__all__ = ["oidn", "oidn_available", "OIDNGuide", "OIDN_HINT", "GUIDES", "AUXILIARY", "QUALITIES"]
 
 OIDN_HINT = 'the OIDN guide needs pyoidn (Intel Open Image Denoise); install it with pip install "awr-denoise[oidn]"'
 """What to install when :func:`oidn` cannot import ``pyoidn``."""
@@ -42,6 +44,9 @@ AUXILIARY = ("prefilter", "noisy", "clean", "none")
 """How :func:`oidn` treats the albedo and normal (OIDN's three ways, and a fourth): denoised first by OIDN's
 filters for them, then taken as clean (``"prefilter"``, the default); as they are, known to be noisy
 (``"noisy"``); as they are, noise-free (``"clean"``); left out, OIDN on the colour alone (``"none"``)."""
+
+QUALITIES = ("high", "balanced", "fast")
+"""OIDN's filter qualities (:func:`oidn`'s ``quality``)."""
 
 _oidn: dict[Any, Any] = {}  # OIDN's device and its filters, made once: each filter loads its network's weights
 _oidn_lock = threading.Lock()  # one image at a time through them (they hold the images they are given)
@@ -138,10 +143,7 @@ def oidn(buffer: SampleBuffer, albedo: FloatArray | None = None, normal: FloatAr
     if not isinstance(buffer, SampleBuffer):  # an image instead of the samples: say so, not "no attribute"
         raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
     order, back = _rgb(buffer)
-    if quality not in ("high", "balanced", "fast"):
-        raise ValueError(f"quality: {quality!r} is not one of high, balanced, fast")
-    if not isinstance(auxiliary, str) or auxiliary not in AUXILIARY:
-        raise ValueError(f"auxiliary: {auxiliary!r} is not one of {', '.join(AUXILIARY)}")
+    _checked_settings(quality, auxiliary)
     if normal is not None and albedo is None and "albedo" not in buffer.features:
         raise ValueError("normal: OIDN takes a normal image only with an albedo image")
     alb = _auxiliary("albedo", albedo, buffer, 0.0, 1.0)
@@ -252,5 +254,47 @@ def _rgb(buffer: SampleBuffer) -> tuple[list[int], list[int]]:
     return order, [order.index(i) for i in group]
 
 
-GUIDES = {"oidn": oidn}
-"""The guides by name (``awr denoise --guide NAME``)."""
+def _checked_settings(quality: object, auxiliary: object) -> None:
+    if not isinstance(quality, str) or quality not in QUALITIES:
+        raise ValueError(f"quality: {quality!r} is not one of {', '.join(QUALITIES)}")
+    if not isinstance(auxiliary, str) or auxiliary not in AUXILIARY:
+        raise ValueError(f"auxiliary: {auxiliary!r} is not one of {', '.join(AUXILIARY)}")
+
+
+@dataclass(frozen=True)
+class OIDNGuide:
+    """:func:`oidn` with its settings, as a guide whose settings the reconstruction records.
+
+    Called on a buffer it is ``oidn(buffer, quality=quality, auxiliary=auxiliary)``; given as
+    :func:`~awr_denoise.reconstruct` 's ``guide`` it adds :attr:`recorded` to the result's
+    ``parameters`` (an image's ``awr:`` header: ``awr:guide_auxiliary``, ``awr:guide_quality``).
+    The settings are checked when it is made, before any work; it pickles (a process pool, Dask).
+
+    Examples
+    --------
+    >>> from awr_denoise.guides import OIDNGuide
+    >>> OIDNGuide(auxiliary="none").recorded
+    {'guide_auxiliary': 'none', 'guide_quality': 'high'}
+    >>> OIDNGuide(auxiliary="dirty")
+    Traceback (most recent call last):
+    ...
+    ValueError: auxiliary: 'dirty' is not one of prefilter, noisy, clean, none
+    """
+
+    auxiliary: str = "prefilter"
+    quality: str = "high"
+
+    def __post_init__(self) -> None:
+        _checked_settings(self.quality, self.auxiliary)
+
+    def __call__(self, buffer: SampleBuffer) -> FloatArray:
+        return oidn(buffer, quality=self.quality, auxiliary=self.auxiliary)
+
+    @property
+    def recorded(self) -> dict[str, str]:
+        """What the reconstruction records of the guide."""
+        return {"guide_auxiliary": self.auxiliary, "guide_quality": self.quality}
+
+
+GUIDES = {"oidn": OIDNGuide()}
+"""The guides by name (``awr denoise --guide NAME``), with their default settings."""

@@ -29,7 +29,7 @@ from .buffers import SampleBuffer
 from .channels import channel_groups, luminance_weights
 from .domains import Domain
 from .finishing import clip_negative, pooled_clamp, restore_mean
-from .guided import checked_inputs, checked_projection, guide_colour, pilots, projected
+from .guided import checked_inputs, checked_projection, guide_colour, guide_fields, pilots, projected
 from .prepare import Prepared, prepare
 from .settings import (DEFAULT_C_S, DEFAULT_PILOT_C_S, DEFAULT_PIXEL_CLAMP, DEFAULT_PRECISION, DEFAULT_STAGES,
                        DEFAULT_WIENER_EXPONENTS, PRECISIONS, Settings, resolve_settings)
@@ -406,6 +406,7 @@ def reconstruct_detailed(
     if guide is not None and settings.guard_probes:  # before a guide function (OIDN) runs for nothing
         # The guide's gate and projection follow the means, outside the probed stages.
         raise ValueError("guard_probes: not with a guide (its gate and projection are not probed)")
+    recorded = guide_fields(guide)  # a guide function's own settings (guides.OIDNGuide), before it is called
     guide = checked_inputs(buffer, guide, features, settings.stages)
     projection = checked_projection(guide_projection, guide)
     if guide_projection and mode == "luminance":  # it would do nothing: refused (0, the pilot only, is what it does)
@@ -424,7 +425,8 @@ def reconstruct_detailed(
         parts = [reconstruct_detailed(buffer.select(group), guide=part_guide, **options,
                                       guide_projection=None if part_guide is None else guide_projection)
                  for group, part_guide in zip(groups, guides)]
-        return _assembled(parts, groups, probed=settings.probes > 0)
+        whole_result = _assembled(parts, groups, probed=settings.probes > 0)
+        return replace(whole_result, parameters={**whole_result.parameters, **recorded})
     prepared = prepare(buffer, domain)
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     run = None if _checks.executor("executor", executor) is None else lambda f, items: list(executor.map(f, items))
@@ -449,7 +451,8 @@ def reconstruct_detailed(
                           parameters={"wavelet": ops.wavelet, "levels": ops.levels,
                                       "domain": prepared.bound.domain.name, "mode": mode, "boundary": boundary,
                                       "guide": guide is not None, "features": bool(features) and guide is None,
-                                      "guide_projection": None if guide is None else projection, **settings.recorded()})
+                                      "guide_projection": None if guide is None else projection, **settings.recorded(),
+                                      **recorded})
 
 
 def _assembled(parts: list[Reconstruction], groups: list[tuple[int, ...]], *, probed: bool) -> Reconstruction:

@@ -10,7 +10,7 @@ from pathlib import Path
 from awr_denoise.domains import DOMAIN_NAMES
 from awr_denoise.errors import InputFileError
 from awr_denoise.guided import PROJECTION_SHARE
-from awr_denoise.guides import GUIDES, OIDN_HINT, oidn_available
+from awr_denoise.guides import AUXILIARY, GUIDES, OIDN_HINT, OIDNGuide, oidn_available
 from awr_denoise.io import read_image, read_sample_buffer
 from awr_denoise.io.atomic import OutputSet
 from awr_denoise.io.exr import check_same_windows, read_windows, recorded_windows
@@ -96,6 +96,10 @@ def add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--guide-projection", type=real(minimum=0, maximum=1), metavar="S",
                    help="with --guide oidn: the share of the result taken from the means moved towards the guide "
                         f"within three standard errors; 0 makes the guide the pilot only (default {PROJECTION_SHARE:g})")
+    g.add_argument("--guide-auxiliary", choices=AUXILIARY,
+                   help="with --guide oidn: how OIDN takes the albedo and normal: denoised first by its own filters "
+                        "(prefilter, the default), as noisy, as clean (features of a separate render of many "
+                        "samples; oidnDenoise's --clean_aux), or not at all (none)")
 
 
 def reconstruction_kwargs(args: argparse.Namespace) -> dict:
@@ -103,7 +107,9 @@ def reconstruction_kwargs(args: argparse.Namespace) -> dict:
     guide = getattr(args, "guide", None)
     projection = getattr(args, "guide_projection", None)
     return {"stages": args.stages, "c_s": args.c_s, "wavelet": args.wavelet, "levels": args.levels,
-            "domain": args.domain, "mode": args.mode, "guide": GUIDES.get(guide), "features": guide == "features",
+            "domain": args.domain, "mode": args.mode, "features": guide == "features",
+            "guide": OIDNGuide(auxiliary=getattr(args, "guide_auxiliary", None) or "prefilter") if guide == "oidn"
+            else GUIDES.get(guide),
             **({} if projection is None else {"guide_projection": projection}),
             **({} if getattr(args, "guard_window", None) is None else {"guard_window": args.guard_window}),
             **({} if getattr(args, "guard_probes", None) is None else {"guard_probes": args.guard_probes})}
@@ -154,17 +160,19 @@ def _named_as_output(error: BaseException, final: dict[Path, str]) -> BaseExcept
         return error
 
 
-def unused_features(features: tuple[str, ...], guide: str | None) -> tuple[str, ...]:
-    """The features a reconstruction with ``--guide guide`` does not use: all without a guide; with OIDN the depth,
-    and a normal without an albedo beside it (OIDN takes a normal only with an albedo)."""
-    if guide is None:
+def unused_features(features: tuple[str, ...], guide: str | None, auxiliary: str | None = None) -> tuple[str, ...]:
+    """The features a reconstruction with ``--guide guide`` does not use: all without a guide or with OIDN told to
+    leave them out (``--guide-auxiliary none``); with OIDN the depth, and a normal without an albedo beside it (OIDN
+    takes a normal only with an albedo)."""
+    if guide is None or (guide == "oidn" and auxiliary == "none"):
         return tuple(features)
     if guide == "oidn":
         return tuple(n for n in features if n == "depth" or (n == "normal" and "albedo" not in features))
     return ()
 
 
-def _note(frame: FrameResult, output: str, nonfinite_policy: str, guide: str | None = None) -> str:
+def _note(frame: FrameResult, output: str, nonfinite_policy: str, guide: str | None = None,
+          auxiliary: str | None = None) -> str:
     """The one-line summary of a denoised frame."""
     h, w = frame.shape
     note = f"{output}: {w}x{h}, {frame.spp:.3g} spp, {100 * frame.fraction_zeroed:.1f}% coefficients zeroed"
@@ -175,9 +183,10 @@ def _note(frame: FrameResult, output: str, nonfinite_policy: str, guide: str | N
         note += f", {frame.unsampled} pixel(s) without samples estimated from their surroundings"
     if frame.relmse is not None:
         note += f", relMSE {frame.relmse:.4g}"
-    if unused := unused_features(frame.features, guide):
+    if unused := unused_features(frame.features, guide, auxiliary):
         note += f"; features {', '.join(unused)} read but not used " + (
-            "(see --guide)" if guide is None else f"by --guide {guide}")
+            "(see --guide)" if guide is None else f"by --guide {guide}"
+            + (" --guide-auxiliary none" if auxiliary == "none" else ""))
     return note
 
 
@@ -200,6 +209,10 @@ def check_reconstruction_options(args: argparse.Namespace, shape: tuple[int, int
                          "it needs --stages 2 or more")
     if probes and guide in GUIDES:
         raise UsageError(f"--guard-probes {probes}: not with --guide {guide} (its gate and projection are not probed)")
+    auxiliary = getattr(args, "guide_auxiliary", None)
+    if auxiliary is not None and guide != "oidn":
+        raise UsageError(f"--guide-auxiliary {auxiliary}: it says how OIDN takes the albedo and normal; it needs "
+                         "--guide oidn")
     projection = getattr(args, "guide_projection", None)
     if projection is not None and guide not in GUIDES:
         raise UsageError("--guide-projection: it is the share of a guide's projection; it needs --guide oidn")
@@ -246,6 +259,9 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--maxerror needs --ref REF.exr")
     if args.guide == "oidn" and args.depth:  # read and dropped: refused, not ignored
         raise UsageError("--depth: --guide oidn uses no depth (--guide features does)")
+    for option, given in (("--alb", args.alb), ("--nrm", args.nrm)):
+        if given and args.guide_auxiliary == "none":  # read and dropped as well
+            raise UsageError(f"{option}: --guide-auxiliary none leaves the albedo and normal out")
     if args.exposure is not None and not args.preview:  # it sets the preview alone: refused, not ignored
         raise UsageError("--exposure needs --preview OUT.png (it sets the preview's exposure alone)")
     check_file_name(args.output, "-o/--output")  # before the frames' placeholders are looked for in the name
@@ -338,7 +354,7 @@ def run(args: argparse.Namespace) -> int:
     order = {src: i for i, src in enumerate(sources)}
     for frame in sorted(frames, key=lambda f: order.get(f.source, 0)):
         output = final[frame.output]
-        status(_note(frame, output, args.nonfinite, args.guide), quiet=args.quiet)
+        status(_note(frame, output, args.nonfinite, args.guide, args.guide_auxiliary), quiet=args.quiet)
         if frame.relmse is not None:  # a result, as awr diff prints its own: on stdout, with -q too
             print(f"{shown(output)}: relMSE {frame.relmse:.6g} against {shown(refs[order[frame.source]])}")
     if args.maxerror is not None:

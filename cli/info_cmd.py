@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import math
 from typing import Any
+
+import numpy as np
 
 from awr_denoise.io.describe import describe_file
 from awr_denoise.io.exr import read_header
@@ -95,7 +98,14 @@ def _print(info: dict[str, Any]) -> None:
         for warning in info.get("warnings", []):
             _line(f"  warning: {warning}")
     for key, value in sorted(info["attributes"].items()):
-        _line(f"  {key} = {value}")
+        _line(f"  {key} = {_shown(value)}")
+
+
+def _shown(value: object) -> object:
+    """A float attribute EXR held in single precision as its shortest decimal there (1.2, not 1.2000000476837158)."""
+    if isinstance(value, float) and math.isfinite(value) and float(np.float32(value)) == value:
+        return str(np.float32(value))
+    return value
 
 
 def run(args: argparse.Namespace) -> int:

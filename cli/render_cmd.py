@@ -368,7 +368,7 @@ def run(args: argparse.Namespace) -> int:
         write_preview(outputs.add(preview_path), result.image, exposure=args.exposure)
         outputs.commit()  # asks first for a signal whose exception was lost (interrupts.raising)
     h, w = buffer.shape
-    unused = unused_features(tuple(buffer.features), args.guide)
+    unused = unused_features(tuple(buffer.features), args.guide, args.guide_auxiliary)
     carried = "" if not unused else f"; features {', '.join(unused)} in the dump (not used: " + (
         "see --guide)" if args.guide is None else f"--guide {args.guide} does not use them)")
     done = time.perf_counter() - start - seconds

@@ -1444,6 +1444,15 @@ def test_info_on_plain_image_and_request(tmp_path, capsys):
         _one_error_line(capsys, "r.exr: is a request map (awr plan's output: the samples to render), not samples")
 
 
+def test_info_shows_a_single_precision_attribute_as_written(tmp_path, capsys):
+    """EXR holds a float attribute in single precision: 1.2 was shown as 1.2000000476837158; a double stays whole."""
+    write_image(tmp_path / "img.exr", np.zeros((2, 3, 3)), header={"awr:guard_tolerance": 1.2, "awr:c_s": 0.1})
+    capsys.readouterr()
+    assert main(["info", str(tmp_path / "img.exr")]) == 0
+    out = capsys.readouterr().out
+    assert "awr:guard_tolerance = 1.2\n" in out and "awr:c_s = 0.1\n" in out, out
+
+
 @pytest.mark.parametrize(("options", "spp"), [([], 2), (["--strategy", "uniform"], 4), (["--strategy", "variance"], 4),
                                               (["--initial-spp", "3"], 3), (["--strategy", "variance", "--initial-spp", "1"], 1)])
 def test_plan_first_round_takes_the_strategy_s_initial_spp(tmp_path, options, spp):

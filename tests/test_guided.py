@@ -302,6 +302,28 @@ def test_a_trusted_guide_gets_the_guards_tolerance(monkeypatch):
     assert (tolerant[2] < 0.85 * strict[2]).all(), (tolerant, strict)
 
 
+class _Recording:
+    """A guide function that records its own settings."""
+
+    def __init__(self, image, recorded):
+        self.image, self.recorded = image, recorded
+
+    def __call__(self, buffer):
+        return self.image
+
+
+def test_a_guide_function_records_its_settings_and_only_its_own():
+    scene, buf = _scene_buffer("edges", 8, 0)
+    ref = scene.reference()
+    result = reconstruct_detailed(buf, guide=_Recording(ref, {"guide_name": "mine", "guide_size": 3}),
+                                  variance_probes=0)
+    assert (result.parameters["guide_name"], result.parameters["guide_size"]) == ("mine", 3)
+    np.testing.assert_array_equal(result.image, reconstruct(buf, guide=ref))
+    for recorded in ({"stages": 9}, {"guide_projection": 1.0}, {"guide_name": [1]}, {1: "x"}, "guide_name"):
+        with pytest.raises(TypeError, match="guide: its recorded settings must map names beginning with guide_"):
+            reconstruct(buf, guide=_Recording(ref, recorded))
+
+
 def test_a_trusted_guide_widens_the_guards_window():
     """With a guide the gate trusts, the guard's default window is DEFAULT_GUIDED_WINDOW (17, measured
     in docs/guides.md); a guide the gate shuts out everywhere leaves the default's window and result,

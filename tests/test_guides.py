@@ -175,6 +175,31 @@ def test_auxiliary_images_of_other_kinds_are_refused(kwargs, message):
         guides.oidn(buf, **kwargs)
 
 
+def test_the_oidn_guide_with_its_settings(monkeypatch):
+    """``OIDNGuide`` calls ``oidn`` with its settings, checked when it is made, pickles, and the reconstruction
+    records them (beside an alpha too, where the colour is reconstructed apart)."""
+    import pickle
+    seen = []
+    monkeypatch.setattr(guides, "oidn", lambda buffer, **kw: seen.append(kw) or np.asarray(buffer.mean[..., :3]))
+    guide = guides.OIDNGuide(auxiliary="none", quality="fast")
+    assert pickle.loads(pickle.dumps(guide)) == guide
+    _, rgb = _textured()
+    rgba = SampleBuffer.from_moments(rgb.count, np.concatenate([rgb.mean, rgb.mean[..., :1]], 2),
+                                     np.concatenate([rgb.variance, rgb.variance[..., :1]], 2),
+                                     channels=["R", "G", "B", "A"])
+    for buffer in (rgb, rgba):
+        result = reconstruct_detailed(buffer, guide=guide, variance_probes=0)
+        assert (result.parameters["guide_auxiliary"], result.parameters["guide_quality"]) == ("none", "fast")
+        assert result.parameters["guide"] is True
+    assert seen == [{"quality": "fast", "auxiliary": "none"}] * 2
+    assert guides.GUIDES["oidn"] == guides.OIDNGuide()
+    for kwargs, message in (({"auxiliary": "dirty"}, "auxiliary: 'dirty' is not one of"),
+                            ({"quality": "best"}, "quality: 'best' is not one of high, balanced, fast"),
+                            ({"quality": None}, "quality: None")):
+        with pytest.raises(ValueError, match=message):
+            guides.OIDNGuide(**kwargs)
+
+
 @needs_oidn
 def test_beside_an_alpha_the_oidn_guide_is_the_colours():
     """``guides.oidn`` refused an R,G,B,A buffer (OIDN denoises R,G,B only), so no buffer with an

@@ -13,6 +13,7 @@ import pytest
 pytest.importorskip("OpenEXR")
 
 from awr_denoise import SampleBuffer, SampleRequest  # noqa: E402
+from awr_denoise.cli.denoise_cmd import unused_features  # noqa: E402
 from awr_denoise.cli.main import main  # noqa: E402
 from awr_denoise.io import (  # noqa: E402
     read_header,
@@ -118,6 +119,36 @@ def test_denoise_guide_projection(tmp_path, capsys):
          "--guide-projection 0.3: not with --mode luminance, where the means are not projected")])
     assert main(["denoise", str(tmp_path / "d.exr"), "--guide", "oidn", "--guide-projection", "0", "--mode",
                  "luminance", "-o", str(tmp_path / "lum.exr"), "-q"]) == 0
+
+
+def test_denoise_guide_auxiliary(tmp_path, capsys):
+    """``--guide-auxiliary MODE`` reaches OIDN (none: the colour alone, the features read said unused) and is
+    recorded with OIDN's quality, as the default's prefilter is; without ``--guide oidn``, or with ``--alb`` or
+    ``--nrm`` it would leave out, it is refused before any output."""
+    pytest.importorskip("pyoidn", reason="the OIDN guide needs the extra oidn")
+    _images(tmp_path)
+    images = {}
+    for mode in (None, "prefilter", "none"):
+        out = tmp_path / f"g{mode}.exr"
+        assert main(["denoise", str(tmp_path / "d.exr"), "--alb", str(tmp_path / "alb.exr"), "--nrm",
+                     str(tmp_path / "nrm.exr"), "--guide", "oidn", *(["--guide-auxiliary", mode] if mode else []),
+                     "-o", str(out), "-q"] if mode != "none" else
+                    ["denoise", str(tmp_path / "d.exr"), "--guide", "oidn", "--guide-auxiliary", mode,
+                     "-o", str(out), "-q"]) == 0
+        images[mode] = read_image(out)
+        recorded = read_provenance(read_header(out))
+        assert (recorded["guide_auxiliary"], recorded["guide_quality"]) == (mode or "prefilter", "high")
+    np.testing.assert_array_equal(images[None], images["prefilter"])
+    assert not np.array_equal(images["prefilter"], images["none"])
+    features = ("albedo", "normal", "depth")
+    assert unused_features(features, "oidn", "none") == features and unused_features(features, "oidn") == ("depth",)
+    _refused(tmp_path, capsys, [
+        (["--guide-auxiliary", "none"], "--guide-auxiliary none: it says how OIDN takes the albedo and normal; it needs "
+                                        "--guide oidn"),
+        (["--guide", "features", "--guide-auxiliary", "clean"], "it needs --guide oidn"),
+        (["--guide", "oidn", "--guide-auxiliary", "none", "--alb", str(tmp_path / "alb.exr")],
+         "--alb: --guide-auxiliary none leaves the albedo and normal out"),
+        (["--guide", "oidn", "--guide-auxiliary", "dirty"], "invalid choice: 'dirty'")])
 
 
 def test_denoise_guide_oidn_without_pyoidn_is_refused(tmp_path, capsys, monkeypatch):
