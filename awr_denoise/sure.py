@@ -25,7 +25,8 @@ right: with heavy-tailed radiance a window's sample variances often fall short o
 squared errors, so ``(o - x)^2`` there exceeds ``v (1 - L)`` and the guard puts back noise it
 should have removed (measured on the tracer's global-illumination Cornell box at 32 spp with the
 OIDN guide: in the 12% of pixels whose ``lambda`` fell below 0.9, the means' squared errors were
-1.2x their variances; the true best ``lambda`` there averaged 0.93, the guard's 0.81). A
+1.2x their variances; the true best ``lambda`` there averaged 0.93, the guard's 0.81;
+docs/guides.md, "The guard's tolerance"). A
 ``tolerance`` ``t > 1`` keeps the change whole until its squared size exceeds ``t`` times the
 noise it may remove, ``lambda = min(1, t sum omega v (1 - L) / sum omega (o - x)^2)``; a biased
 change is still undone in proportion (bias ``b`` standard errors: ``lambda`` about ``t / (1 + b^2)``). Where the

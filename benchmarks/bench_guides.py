@@ -10,6 +10,7 @@ Run from the repository root (each section updates its part of the JSON)::
     .venv/bin/python benchmarks/bench_guides.py features    # what limits the features: noise-free ones, demodulation
     .venv/bin/python benchmarks/bench_guides.py pbrt        # a third renderer: the pbrt-v4 files in tests/data
     .venv/bin/python benchmarks/bench_guides.py auxiliary   # OIDN's albedo and normal: prefiltered, as noisy, none
+    .venv/bin/python benchmarks/bench_guides.py tolerance   # the guard's tolerance with a guide: scenes, wrong guides
     .venv/bin/python benchmarks/bench_guides.py crops       # docs/img/guides_*.png
     .venv/bin/python benchmarks/bench_guides.py tables      # print the stored results
 
@@ -28,6 +29,7 @@ another file and ``--images`` another folder, which a trial run keeps off the st
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import functools
 import itertools
@@ -43,6 +45,7 @@ import numpy as np
 from scipy import ndimage
 
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, guided, guides, projection, reconstruct
+from awr_denoise._window_sums import window_sum
 from awr_denoise.bench import update_section
 from awr_denoise.io.png import write_preview
 from awr_denoise.metrics import mean_error, mse, relmse
@@ -841,11 +844,136 @@ def crops(spp: int, cache: Path, images: Path = IMAGES) -> list[str]:
     return written
 
 
+# ---------------------------------------------------------------------------- the guard's tolerance
+TOLERANCES = (1.0, 1.2, 1.5, 2.0)
+"""The guard's tolerances with a guide compared (:data:`awr_denoise.sure.DEFAULT_GUIDED_TOLERANCE` among them)."""
+
+
+@contextlib.contextmanager
+def _guided_tolerance(value: float) -> Iterator[None]:
+    saved = _RECONSTRUCT.DEFAULT_GUIDED_TOLERANCE
+    _RECONSTRUCT.DEFAULT_GUIDED_TOLERANCE = value
+    try:
+        yield
+    finally:
+        _RECONSTRUCT.DEFAULT_GUIDED_TOLERANCE = saved
+
+
+def _guard_diagnosis(buffer: SampleBuffer, ref: np.ndarray, keys: dict[str, Any]) -> dict[str, Any]:
+    """Where the strict guard (tolerance 1) keeps less than 0.9 of the OIDN guide's change: how many pixels, how the
+    means' squared errors there compare with their variances (windowed as the guard's sums), and the guard's mean
+    share there against the best one the reference gives."""
+    seen: dict[str, Any] = {}
+
+    def spy(out: np.ndarray, x: np.ndarray, v: np.ndarray, lev: np.ndarray, **kw: Any) -> tuple:
+        result = sure_blend(out, x, v, lev, **kw)
+        seen.update(out=out.copy(), x=x.copy(), v=v.copy(), window=kw["window"], lam=result[1].copy())
+        return result
+
+    saved = _RECONSTRUCT.sure_blend
+    _RECONSTRUCT.sure_blend = spy
+    try:
+        with _guided_tolerance(1.0):
+            reconstruct(buffer, guide=guides.oidn(buffer))
+    finally:
+        _RECONSTRUCT.sure_blend = saved
+    x, o, v, lam, w = seen["x"], seen["out"], seen["v"], seen["lam"], seen["window"]
+    mean = filled_mean(buffer)
+    t = ref * float((x * x).sum() / (mean * x).sum())  # the reference in the guard's unit (the means scaled)
+    low = lam < 0.9
+    best = np.clip(window_sum((t - x) * (o - x), w) / window_sum((o - x) ** 2, w), 0.0, 1.0)
+    ratio = window_sum((x - t) ** 2, w) / window_sum(v, w)
+    return {**keys, "renderer": "diagnosis", "method": "guard share below 0.9", "pixels": float(low.mean()),
+            "error_over_variance": float(np.median(ratio[low])), "best_share": float(best[low].mean()),
+            "guard_share": float(lam[low].mean())}
+
+
+def tolerance(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], groups: int,
+              cache: Path, seeds: int = 4) -> list[dict[str, Any]]:
+    """The OIDN guide at every tolerance of :data:`TOLERANCES` on both renderers' scenes and pbrt-v4's files, and
+    the synthetic scenes' right and wrong guides (as ``synthetic``) at each, with the plain mean and the default."""
+    pbrt_files = (({"renderer": "pbrt", "scene": "pbrt_gbuffer", "spp": 16, "group": g}, buffer, ref)
+                  for g, (_, buffer, ref) in enumerate(_pbrt_buffers()))
+    rows = []
+    for keys, buffer, ref in itertools.chain(_scene_buffers(scenes, spps, groups, cache), pbrt_files):
+        x, guide = filled_mean(buffer), guides.oidn(buffer)
+        if (keys["scene"], keys["spp"], keys["group"]) == ("cornell_gi", 32, 0):
+            rows.append(_guard_diagnosis(buffer, ref, keys))
+        images = {"plain": x, "OIDN": guide}
+        for t in TOLERANCES:
+            with _guided_tolerance(t):
+                images[f"guide, tolerance {t:g}"] = reconstruct(buffer, guide=guide)
+        rows += [{**keys, "method": m, **_measure(image, x, ref, float("nan"))} for m, image in images.items()]
+    for name in ("gradient", "edges", "hdr_source"):
+        scene = make_scene(name, (64, 64))
+        ref = scene.reference()
+        for seed in range(seeds):
+            wrong = {"clean": ref, "shifted": np.roll(ref, 12, axis=1),
+                     "flat": np.broadcast_to(ref.mean(axis=(0, 1)), ref.shape),
+                     "noise": np.random.default_rng(seed).random(ref.shape) * ref.max()}
+            for spp in (4, 16, 64, 256):
+                buffer = SyntheticRenderer(scene, seed=seed)(SampleRequest.uniform(scene.shape, spp))
+                images = {"plain": buffer.mean}
+                for t in TOLERANCES:
+                    with _guided_tolerance(t):
+                        images.update({f"{kind}, tolerance {t:g}": reconstruct(buffer, guide=guide)
+                                       for kind, guide in wrong.items()})
+                rows += [{"renderer": "synthetic", "scene": name, "spp": spp, "group": seed, "method": m,
+                          "relmse": relmse(image, ref), "mse": mse(image, ref)} for m, image in images.items()]
+        print(f"synthetic {name}: done", flush=True)
+    return rows
+
+
+def tolerance_table(rows: list[dict]) -> None:
+    """Markdown: the guide over OIDN (relMSE) and over the plain mean (MSE) at each tolerance; the wrong guides'
+    worst errors over the plain mean's."""
+    names = [f"tolerance {t:g}" for t in TOLERANCES]
+    print("\n| renderer | scene | spp | guide / OIDN, relMSE: " + ", ".join(names) + " | guide / plain, MSE: "
+          + ", ".join(names) + " | worst mean error % |")
+    print("|---|---|---|---|---|---|")
+    scored = [r for r in rows if r["renderer"] not in ("synthetic", "diagnosis")]
+    over = {n: [] for n in names}
+    for renderer, scene in dict.fromkeys((r["renderer"], r["scene"]) for r in scored):
+        for spp in sorted({r["spp"] for r in scored if r["scene"] == scene}):
+            w = {"renderer": renderer, "scene": scene, "spp": spp}
+            rel = {m: _mean(scored, "relmse", method=m, **w) for m in ("OIDN", *(f"guide, {n}" for n in names))}
+            sq = {m: _mean(scored, "mse", method=m, **w) for m in ("plain", *(f"guide, {n}" for n in names))}
+            worst = max(abs(r["mean_error"]) for r in scored if r["method"].startswith("guide")
+                        and all(r[k] == v for k, v in w.items()))
+            for n in names:
+                over[n].append(rel[f"guide, {n}"] / rel["OIDN"])
+            print(f"| {renderer} | {scene} | {spp} | " + ", ".join(f"{rel[f'guide, {n}'] / rel['OIDN']:.3f}"
+                                                                  for n in names)
+                  + " | " + ", ".join(f"{sq[f'guide, {n}'] / sq['plain']:.2f}" for n in names)
+                  + f" | {100 * worst:.4f} |")
+    print("\nguide / OIDN relMSE over every row: " + "; ".join(
+        f"{n}: geometric mean {float(np.exp(np.mean(np.log(over[n])))):.3f}, most {max(over[n]):.3f}" for n in names))
+    for r in (r for r in rows if r["renderer"] == "diagnosis"):
+        print(f"\nThe strict guard on {r['scene']} at {r['spp']} spp (group {r['group']}): its share of the guide's "
+              f"change is below 0.9 at {100 * r['pixels']:.0f}% of the pixels; there the means' squared errors are "
+              f"{r['error_over_variance']:.2f}x their variances (median over the guard's windows), and the share "
+              f"averages {r['guard_share']:.2f} where the best one (from the reference) averages {r['best_share']:.2f}.")
+    synthetic_rows = [r for r in rows if r["renderer"] == "synthetic"]
+    print("\n| synthetic scene | guide | worst relMSE / plain (any spp): " + ", ".join(names)
+          + " | worst MSE / plain: " + ", ".join(names) + " |")
+    print("|---|---|---|---|")
+    spps = sorted({r["spp"] for r in synthetic_rows})
+
+    def worst(key: str, scene: str, method: str) -> float:  # the largest ratio to the plain mean over the spps
+        return max(_mean(synthetic_rows, key, scene=scene, spp=spp, method=method)
+                   / _mean(synthetic_rows, key, scene=scene, spp=spp, method="plain") for spp in spps)
+
+    for scene in dict.fromkeys(r["scene"] for r in synthetic_rows):
+        for kind in ("clean", "shifted", "flat", "noise"):
+            cells = [", ".join(f"{worst(key, scene, f'{kind}, {n}'):.2f}" for n in names) for key in ("relmse", "mse")]
+            print(f"| {scene} | {kind} | {cells[0]} | {cells[1]} |")
+
+
 # ---------------------------------------------------------------------------- main
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("section", choices=("quality", "samplers", "synthetic", "ablations", "avenues", "features",
-                                            "pbrt", "auxiliary", "crops", "tables"))
+                                            "pbrt", "auxiliary", "tolerance", "crops", "tables"))
     parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
     parser.add_argument("--spps", nargs="+", type=int, default=list(SPPS))
     parser.add_argument("--groups", type=int, default=2)
@@ -893,6 +1021,10 @@ def main(argv: list[str] | None = None) -> int:
         rows = auxiliary(quality_scenes(args.scenes), tuple(sorted(args.spps)), args.groups, args.cache)
         update_section(args.output, "auxiliary", rows, command, "pyoidn")
         auxiliary_table(rows)
+    elif args.section == "tolerance":
+        rows = tolerance(quality_scenes(args.scenes), tuple(sorted(args.spps)), args.groups, args.cache)
+        update_section(args.output, "tolerance", rows, command, "pyoidn")
+        tolerance_table(rows)
     elif args.section == "crops":
         update_section(args.output, "crops", crops(args.crop_spp, args.cache, args.images), command, "pyoidn")
     else:  # print the tables of the stored results
@@ -900,7 +1032,7 @@ def main(argv: list[str] | None = None) -> int:
         for section, show in (("quality", quality_tables), ("samplers", sampler_table),
                               ("synthetic", synthetic_table), ("ablations", ablation_table),
                               ("avenues", avenue_table), ("features", feature_limits_table), ("pbrt", pbrt_table),
-                              ("auxiliary", auxiliary_table)):
+                              ("auxiliary", auxiliary_table), ("tolerance", tolerance_table)):
             if section in data:
                 print(f"\n## {section} ({data[section]['command']})")
                 show(data[section]["rows"])
