@@ -7,8 +7,8 @@ also a ``ValueError`` so generic callers can catch either.
 
 from __future__ import annotations
 
-__all__ = ["AWRError", "StaleRequestError", "InputFileError", "BackendUnavailableError", "InputFileWarning",
-           "TimeBudgetWarning"]
+__all__ = ["AWRError", "StaleRequestError", "InputFileError", "BackendError", "BackendUnavailableError",
+           "InputFileWarning", "TimeBudgetWarning"]
 
 
 class AWRError(Exception):
@@ -26,7 +26,12 @@ class InputFileError(AWRError, ValueError):
     """
 
 
-class BackendUnavailableError(AWRError, RuntimeError):
+class BackendError(AWRError, RuntimeError):
+    """An optional extra's native library failed (OIDN's device or filter: out of memory, an unsupported
+    CPU); the message names it and keeps its own words."""
+
+
+class BackendUnavailableError(BackendError):
     """An optional extra is installed but its native backend cannot start here (Mitsuba's Dr.Jit found
     no usable libLLVM, or no CUDA device). The message says what to install or choose instead."""
 

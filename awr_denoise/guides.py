@@ -30,6 +30,7 @@ import numpy as np
 from ._arrays import numeric
 from ._typing import FloatArray
 from .buffers import SampleBuffer
+from .errors import BackendError
 from .guided import guide_colour
 from .prepare import filled_mean
 
@@ -124,8 +125,9 @@ def oidn(buffer: SampleBuffer, albedo: FloatArray | None = None, normal: FloatAr
     ValueError
         No three-channel colour, a normal without an albedo, bad auxiliary images, or an unknown
         ``quality`` or ``auxiliary``.
-    RuntimeError
+    awr_denoise.errors.BackendError
         OIDN itself failed (its device, a filter, or values that are not finite); its message is kept.
+        A ``RuntimeError``.
 
     Examples
     --------
@@ -206,17 +208,19 @@ def _filtered(pyoidn: Any, inputs: tuple[str, ...], images: dict[str, np.ndarray
         flt.execute()
         _raise_oidn_error(device, what)
         if not np.isfinite(result).all():
-            raise RuntimeError(f"OIDN {what} failed: it left values that are not finite")
-    except RuntimeError:
+            raise BackendError(f"OIDN {what} failed: it left values that are not finite")
+    except RuntimeError as error:  # the device's error, or the bindings' own
         _oidn.pop(inputs).release()  # made again next time, not reused in a state it failed in
-        raise
+        if isinstance(error, BackendError):
+            raise
+        raise BackendError(f"OIDN {what} failed: {error}") from error
     return np.clip(result, *clip)
 
 
 def _raise_oidn_error(device: Any, what: str) -> None:
     error = device.get_error()
     if error is not None:
-        raise RuntimeError(f"OIDN {what} failed: {error}")
+        raise BackendError(f"OIDN {what} failed: {error}")
 
 
 def _release_oidn() -> None:

@@ -26,7 +26,7 @@ from concurrent.futures import BrokenExecutor, CancelledError
 from typing import Any
 
 from awr_denoise import __version__
-from awr_denoise.errors import BackendUnavailableError, InputFileError
+from awr_denoise.errors import BackendError, InputFileError
 
 from . import interrupts, memory
 from .errors import (
@@ -224,7 +224,7 @@ def _run(argv: Sequence[str] | None) -> int:
         why = f": {one_line(exc)}" if str(exc).strip() else ""  # Dask's own is often empty
         return _error(f"the parallel work was cancelled from outside (a Dask scheduler stopped or lost?){why}",
                       EXIT_FAILURE)
-    except BackendUnavailableError as exc:  # an extra installed whose native backend cannot start: what to install
+    except BackendError as exc:  # an extra's native library cannot start (what to install) or failed (its words)
         return _error(exc, EXIT_FAILURE)
     except ImportError as exc:
         if "failed to map segment" in str(exc):  # the loader's words for a library that did not fit

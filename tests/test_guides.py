@@ -175,6 +175,67 @@ def test_auxiliary_images_of_other_kinds_are_refused(kwargs, message):
         guides.oidn(buf, **kwargs)
 
 
+class _FailingOIDN:
+    """pyoidn's shape, whose filters fail when run: the device's error, or the bindings' own exception."""
+
+    OIDN_FILTER_TYPE_RT, OIDN_FORMAT_FLOAT3, OIDN_IMAGE_OUTPUT, OIDN_QUALITY_HIGH = "RT", 3, "output", 1
+
+    def __init__(self, raises=False):
+        self.raises, self.released = raises, []
+        outer = self
+
+        class Device:
+            error = None
+
+            def commit(self):
+                pass
+
+            def get_error(self):
+                return self.error
+
+            def release(self):
+                outer.released.append("device")
+
+        class Filter:
+            def __init__(self, device, kind):
+                self.device = device
+
+            def set_image(self, *args):
+                pass
+
+            set_bool = set_quality = set_image
+
+            def commit(self):
+                pass
+
+            def execute(self):
+                if outer.raises:
+                    raise RuntimeError("bad alloc")
+                self.device.error = "out of memory"
+
+            def release(self):
+                outer.released.append("filter")
+
+        self.Device, self.Filter = Device, Filter
+
+
+@pytest.mark.parametrize(("raises", "words"), [(False, "out of memory"), (True, "bad alloc")])
+def test_an_oidn_failure_is_a_backend_error_that_names_oidn(monkeypatch, raises, words):
+    """OIDN failing (its device's error or the bindings' exception) raises BackendError, a RuntimeError, naming
+    the filter and keeping OIDN's words; the failed filter is released and made anew next time."""
+    from awr_denoise.errors import BackendError
+    fake = _FailingOIDN(raises)
+    monkeypatch.setitem(sys.modules, "pyoidn", fake)
+    monkeypatch.setattr(guides, "_oidn", {})
+    _, buf = _textured()
+    with pytest.raises(BackendError, match=f"^OIDN albedo failed: {words}$") as caught:
+        guides.oidn(buf)
+    assert isinstance(caught.value, RuntimeError) and fake.released == ["filter"]
+    assert set(guides._oidn) == {"device"}
+    with pytest.raises(BackendError, match=f"^OIDN color failed: {words}$"):
+        guides.oidn(buf, auxiliary="none")
+
+
 def test_the_oidn_guide_with_its_settings(monkeypatch):
     """``OIDNGuide`` calls ``oidn`` with its settings, checked when it is made, pickles, and the reconstruction
     records them (beside an alpha too, where the colour is reconstructed apart)."""

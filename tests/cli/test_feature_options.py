@@ -14,6 +14,7 @@ pytest.importorskip("OpenEXR")
 
 from awr_denoise import SampleBuffer, SampleRequest  # noqa: E402
 from awr_denoise.cli.denoise_cmd import unused_features  # noqa: E402
+from awr_denoise.errors import BackendError  # noqa: E402
 from awr_denoise.cli.main import main  # noqa: E402
 from awr_denoise.io import (  # noqa: E402
     read_header,
@@ -149,6 +150,24 @@ def test_denoise_guide_auxiliary(tmp_path, capsys):
         (["--guide", "oidn", "--guide-auxiliary", "none", "--alb", str(tmp_path / "alb.exr")],
          "--alb: --guide-auxiliary none leaves the albedo and normal out"),
         (["--guide", "oidn", "--guide-auxiliary", "dirty"], "invalid choice: 'dirty'")])
+
+
+def test_denoise_says_oidn_failed_in_one_line(tmp_path, capsys, monkeypatch):
+    """OIDN failing at run time (out of memory) is one line in OIDN's words and exit 1, no "internal error", and no
+    output is written."""
+    import awr_denoise.guides as guides
+    import awr_denoise.cli.denoise_cmd as denoise_cmd
+
+    def failed(*args, **kwargs):
+        raise BackendError("OIDN color+albedo+normal failed: out of memory")
+
+    monkeypatch.setattr(denoise_cmd, "oidn_available", lambda: True)
+    monkeypatch.setattr(guides, "oidn", failed)
+    _images(tmp_path)
+    capsys.readouterr()
+    assert main(["denoise", str(tmp_path / "d.exr"), "--guide", "oidn", "-o", str(tmp_path / "o.exr")]) == 1
+    assert one_error_line(capsys.readouterr().err) == "awr: error: OIDN color+albedo+normal failed: out of memory"
+    assert not (tmp_path / "o.exr").exists()
 
 
 def test_denoise_guide_oidn_without_pyoidn_is_refused(tmp_path, capsys, monkeypatch):
