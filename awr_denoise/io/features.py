@@ -30,7 +30,8 @@ from ..buffers import SampleBuffer
 from ..features import FEATURE_CHANNELS
 from .exr import file_error
 
-__all__ = ["AUTO_FEATURE_PLANES", "MITSUBA_AOV_NAMES", "auto_feature_planes", "feature_from_planes", "plane_present"]
+__all__ = ["AUTO_FEATURE_PLANES", "MITSUBA_AOV_NAMES", "auto_feature_planes", "feature_from_planes", "plane_present",
+           "normal_warning", "NORMAL_LENGTH_LIMIT"]
 
 AUTO_FEATURE_PLANES: dict[str, dict[str, str]] = {
     "pbrt": {"albedo": "Albedo", "normal": "Ns", "depth": "P.Z"},
@@ -122,3 +123,36 @@ def feature_from_planes(path: str | os.PathLike[str], name: str, label: str, mea
                                          channels=channels)
     except ValueError as exc:
         raise file_error(path, str(exc), label) from None
+
+
+NORMAL_LENGTH_LIMIT = 1.05
+"""Length above which a pixel's normal cannot be a mean of unit vectors (beyond a filter's overshoot)."""
+
+
+def normal_warning(path: str | os.PathLike[str], label: str, mean: np.ndarray) -> str | None:
+    """A warning when more than 1% of a normal plane's pixels are longer than :data:`NORMAL_LENGTH_LIMIT`.
+
+    A normal pass holds each pixel's mean of unit vectors, of length at most 1; an albedo or a
+    colour read as the normal (``--nrm FILE:Albedo``), or normals encoded in [0, 1], are longer
+    wherever they are bright. A dark albedo is not told apart.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise.io.features import normal_warning
+    >>> normal_warning("a.exr", "N", np.dstack([np.zeros((4, 4)), np.zeros((4, 4)), np.ones((4, 4))])) is None
+    True
+    >>> normal_warning("a.exr", "Albedo", np.full((4, 4, 3), 0.8))
+    'a.exr: Albedo as the normal: 100% of its pixels are longer than 1.05, where a normal is a mean of unit \
+vectors (length at most 1): an albedo or a colour, or normals encoded in [0, 1]?'
+    """
+    lengths = np.sqrt(np.square(np.asarray(mean, np.float64)).sum(axis=-1))
+    finite = np.isfinite(lengths)
+    long = int((lengths[finite] > NORMAL_LENGTH_LIMIT).sum())
+    if long <= 0.01 * max(int(finite.sum()), 1):
+        return None
+    share = 100.0 * long / int(finite.sum())
+    return (f"{path}: {label} as the normal: {share:.0f}% of its pixels are longer than {NORMAL_LENGTH_LIMIT:g}, "
+            "where a normal is a mean of unit vectors (length at most 1): an albedo or a colour, or normals encoded "
+            "in [0, 1]?")
+

@@ -6,6 +6,7 @@ the project's fixtures). Each test checks what the renderer documents or what it
 
 from __future__ import annotations
 
+import re
 import warnings
 from pathlib import Path
 
@@ -15,7 +16,7 @@ import pytest
 pytestmark = pytest.mark.exr
 OpenEXR = pytest.importorskip("OpenEXR")
 
-from awr_denoise.errors import InputFileError  # noqa: E402
+from awr_denoise.errors import InputFileError, InputFileWarning  # noqa: E402
 from awr_denoise.features import FEATURE_NAMES  # noqa: E402
 from awr_denoise.io import read_sample_buffer, read_sample_dump, write_image, write_sample_buffer  # noqa: E402
 
@@ -97,6 +98,24 @@ def test_mitsuba_aov_features_have_exact_variances():
     # The spread is where the features change: edges between walls and objects.
     spread = albedo.variance.sum(axis=2) > 1e-6
     assert 0 < spread.mean() < 0.5
+
+
+@pytest.mark.parametrize(("path", "kw", "albedo"), [
+    (PBRT, {}, "Albedo"), (MITSUBA, {"spp": 8}, "main.albedo"), (CYCLES, {"variance": CYCLES_VARIANCE},
+                                                               "ViewLayer.Denoising Albedo")])
+def test_an_albedo_read_as_the_normal_is_said_to_be_too_long(path, kw, albedo):
+    """Each renderer's own normal is read without a word; its albedo given as the normal (``--nrm FILE:Albedo``) is
+    read, since a dark albedo cannot be told from averaged normals, but said to be too long to be one (16-59% of
+    the pixels past length 1.05 in these files)."""
+    for normal, said in ((None, False), (f"{path}:{albedo}", True)):
+        with warnings.catch_warnings(record=True) as caught:  # the readers' notes about counts beside it
+            warnings.simplefilter("always")
+            read_sample_dump(path, **kw, **({} if normal is None else {"normal": normal}))
+        told = [w for w in caught if issubclass(w.category, InputFileWarning) and re.fullmatch(
+            rf"{re.escape(str(path))}: {albedo} as the normal: \d+% of its pixels are longer than 1.05, where a normal "
+            r"is a mean of unit vectors \(length at most 1\): an albedo or a colour, or normals encoded in \[0, 1\]\?",
+            str(w.message))]
+        assert len(told) == said, [str(w.message) for w in caught]
 
 
 def test_features_written_in_the_dump_layout_and_read_back(tmp_path):
