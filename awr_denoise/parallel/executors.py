@@ -209,8 +209,8 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
         ``"dask"`` when ``scheduler`` is given, else ``"threads"``.
     workers
         Threads, processes or Dask worker processes (one thread each) to start; default the
-        number of CPUs. Ignored when connecting to a running scheduler, whose workers are
-        whatever was started there.
+        number of CPUs. Not with ``scheduler``: a running scheduler's workers are those started
+        there.
     scheduler
         Address of a running Dask scheduler (``"tcp://host:8786"``) or path of the JSON
         scheduler file written by ``dask scheduler --scheduler-file``, dask-jobqueue or
@@ -226,6 +226,9 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
     ------
     ImportError
         ``kind="dask"`` without Dask installed; the message says what to install.
+    ValueError
+        An unknown ``kind``, ``workers`` out of range or beside ``scheduler``, or ``scheduler``
+        with another kind than ``"dask"``.
 
     Notes
     -----
@@ -249,6 +252,8 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
     workers = _checks.whole("workers", workers, minimum=1, maximum=1 << 16, none=True)
     if scheduler is not None and kind != "dask":
         raise ValueError(f"scheduler: a scheduler address needs kind='dask', got kind={kind!r}")
+    if scheduler is not None and workers is not None:  # it was ignored without a word
+        raise ValueError(f"workers: {workers} given with a scheduler, whose workers are those started there")
     n_workers = default_workers() if workers is None else int(workers)
     if kind == "threads":
         with cf.ThreadPoolExecutor(max_workers=n_workers, thread_name_prefix="awr") as pool:

@@ -39,6 +39,10 @@ def test_get_executor_defaults_to_threads_and_checks_its_arguments():
     with pytest.raises(ValueError, match="scheduler"):
         with get_executor("threads", scheduler="tcp://127.0.0.1:8786"):
             pass
+    # Refused before any connection is tried: a running scheduler's workers are those started there.
+    with pytest.raises(ValueError, match="^workers: 3 given with a scheduler, whose workers are those started there$"):
+        with get_executor(scheduler="tcp://127.0.0.1:1", workers=3):
+            pass
 
 
 def test_dask_is_optional_with_an_install_hint(monkeypatch):
