@@ -332,30 +332,34 @@ def checked_inputs(buffer: SampleBuffer, guide: object, features: object, stages
     return None if guide is None else checked_guide(guide, buffer)
 
 
-def guide_fields(guide: object) -> dict[str, str | int | float | bool]:
-    """What a guide function records of itself: its ``recorded`` mapping of setting names to plain
-    values (:class:`awr_denoise.guides.OIDNGuide`), which the result's ``parameters`` carry; ``{}``
-    for an image or a function without one. The names begin with ``guide_``, so that none stands
-    for a setting of the reconstruction's own.
+def guide_fields(guide: object, buffer: SampleBuffer) -> dict[str, str | int | float | bool]:
+    """What a guide function records of itself: its ``recorded(buffer)``, a mapping of setting names
+    to plain values (:class:`awr_denoise.guides.OIDNGuide`), which the result's ``parameters``
+    carry; ``{}`` for an image or a function without one. The names begin with ``guide_``, so that
+    none stands for a setting of the reconstruction's own.
 
     Raises
     ------
     TypeError
-        If ``recorded`` is not a mapping of names beginning with ``guide_`` (not ``guide_projection``)
-        to strings, numbers or flags.
+        If ``recorded`` is not a function returning a mapping of names beginning with ``guide_`` (not
+        ``guide_projection``) to strings, numbers or flags.
 
     Examples
     --------
     >>> from awr_denoise.guided import guide_fields
     >>> class Guide:
-    ...     recorded = {"guide_name": "mine"}
+    ...     def recorded(self, buffer):
+    ...         return {"guide_name": "mine"}
     ...     def __call__(self, buffer): ...
-    >>> guide_fields(Guide()), guide_fields(None)
+    >>> guide_fields(Guide(), None), guide_fields(None, None)
     ({'guide_name': 'mine'}, {})
     """
-    fields = getattr(guide, "recorded", None) if callable(guide) else None
-    if fields is None:
+    recorded = getattr(guide, "recorded", None) if callable(guide) else None
+    if recorded is None:
         return {}
+    if not callable(recorded):
+        raise TypeError(f"guide: its recorded must be a function of the buffer, got {recorded!r}")
+    fields = recorded(buffer)
     if not isinstance(fields, Mapping) or not all(
             isinstance(k, str) and k.startswith("guide_") and k != "guide_projection"
             and isinstance(v, (str, int, float, bool)) for k, v in fields.items()):

@@ -30,7 +30,7 @@ import numpy as np
 from ._arrays import numeric
 from ._typing import FloatArray
 from .buffers import SampleBuffer
-from .errors import BackendError
+from .errors import BackendError, BackendUnavailableError
 from .guided import guide_colour
 from .prepare import filled_mean
 
@@ -54,7 +54,8 @@ _oidn_lock = threading.Lock()  # one image at a time through them (they hold the
 
 
 def oidn_available() -> bool:
-    """Whether ``pyoidn`` and its native library load.
+    """Whether ``pyoidn`` imports. Its native library loads when first used: should it fail then,
+    :func:`oidn` raises :class:`~awr_denoise.errors.BackendUnavailableError`.
 
     Examples
     --------
@@ -127,7 +128,8 @@ def oidn(buffer: SampleBuffer, albedo: FloatArray | None = None, normal: FloatAr
         ``quality`` or ``auxiliary``.
     awr_denoise.errors.BackendError
         OIDN itself failed (its device, a filter, or values that are not finite); its message is kept.
-        A ``RuntimeError``.
+        A ``RuntimeError``; :class:`~awr_denoise.errors.BackendUnavailableError` when its library
+        does not load.
 
     Examples
     --------
@@ -181,7 +183,11 @@ def _filtered(pyoidn: Any, inputs: tuple[str, ...], images: dict[str, np.ndarray
     which it then denoises as an auxiliary image), clipped to ``clip``. Under ``_oidn_lock``: the device and one
     filter per set of inputs are made once (each loads its network's weights) and hold the images given."""
     if "device" not in _oidn:
-        device = pyoidn.Device()
+        try:
+            device = pyoidn.Device()  # pyoidn loads OIDN's library here, when first used
+        except OSError as error:
+            raise BackendUnavailableError(f"OIDN cannot start: its library did not load ({error}); reinstall the "
+                                          'extra: pip install --force-reinstall "awr-denoise[oidn]"') from error
         device.commit()
         try:
             _raise_oidn_error(device, "device")
@@ -270,14 +276,18 @@ class OIDNGuide:
     """:func:`oidn` with its settings, as a guide whose settings the reconstruction records.
 
     Called on a buffer it is ``oidn(buffer, quality=quality, auxiliary=auxiliary)``; given as
-    :func:`~awr_denoise.reconstruct` 's ``guide`` it adds :attr:`recorded` to the result's
+    :func:`~awr_denoise.reconstruct` 's ``guide`` it adds :meth:`recorded` to the result's
     ``parameters`` (an image's ``awr:`` header: ``awr:guide_auxiliary``, ``awr:guide_quality``).
     The settings are checked when it is made, before any work; it pickles (a process pool, Dask).
+    :func:`oidn` itself records what ``OIDNGuide()`` does.
 
     Examples
     --------
+    >>> import numpy as np
+    >>> from awr_denoise import SampleBuffer
     >>> from awr_denoise.guides import OIDNGuide
-    >>> OIDNGuide(auxiliary="none").recorded
+    >>> buffer = SampleBuffer.from_moments(np.ones((2, 2)), np.ones((2, 2, 3)), np.zeros((2, 2, 3)))
+    >>> OIDNGuide(auxiliary="noisy").recorded(buffer)    # no albedo: OIDN takes the colour alone
     {'guide_auxiliary': 'none', 'guide_quality': 'high'}
     >>> OIDNGuide(auxiliary="dirty")
     Traceback (most recent call last):
@@ -294,11 +304,18 @@ class OIDNGuide:
     def __call__(self, buffer: SampleBuffer) -> FloatArray:
         return oidn(buffer, quality=self.quality, auxiliary=self.auxiliary)
 
-    @property
-    def recorded(self) -> dict[str, str]:
-        """What the reconstruction records of the guide."""
-        return {"guide_auxiliary": self.auxiliary, "guide_quality": self.quality}
+    def recorded(self, buffer: SampleBuffer) -> dict[str, str]:
+        """What the reconstruction of ``buffer`` records of the guide: the way OIDN takes the albedo and
+        normal, ``"none"`` where the buffer carries no albedo (OIDN then takes the colour alone)."""
+        auxiliary = self.auxiliary if "albedo" in buffer.features else "none"
+        return {"guide_auxiliary": auxiliary, "guide_quality": self.quality}
 
+
+def _oidn_recorded(buffer: SampleBuffer) -> dict[str, str]:
+    return OIDNGuide().recorded(buffer)
+
+
+oidn.recorded = _oidn_recorded  # type: ignore[attr-defined]  # guide=guides.oidn records its defaults too
 
 GUIDES = {"oidn": OIDNGuide()}
 """The guides by name (``awr denoise --guide NAME``), with their default settings."""

@@ -406,7 +406,7 @@ def reconstruct_detailed(
     if guide is not None and settings.guard_probes:  # before a guide function (OIDN) runs for nothing
         # The guide's gate and projection follow the means, outside the probed stages.
         raise ValueError("guard_probes: not with a guide (its gate and projection are not probed)")
-    recorded = guide_fields(guide)  # a guide function's own settings (guides.OIDNGuide), before it is called
+    recorded = guide_fields(guide, buffer)  # a guide function's own settings (guides.OIDNGuide), before it runs
     guide = checked_inputs(buffer, guide, features, settings.stages)
     projection = checked_projection(guide_projection, guide)
     if guide_projection and mode == "luminance":  # it would do nothing: refused (0, the pilot only, is what it does)
@@ -451,7 +451,9 @@ def reconstruct_detailed(
                           parameters={"wavelet": ops.wavelet, "levels": ops.levels,
                                       "domain": prepared.bound.domain.name, "mode": mode, "boundary": boundary,
                                       "guide": guide is not None, "features": bool(features) and guide is None,
-                                      "guide_projection": None if guide is None else projection, **settings.recorded(),
+                                      # luminance mode projects nothing (the guide is the pilot only)
+                                      "guide_projection": None if guide is None else 0.0 if mode == "luminance"
+                                      else projection, **settings.recorded(),
                                       **recorded})
 
 

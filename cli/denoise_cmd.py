@@ -260,7 +260,7 @@ def run(args: argparse.Namespace) -> int:
     if args.guide == "oidn" and args.depth:  # read and dropped: refused, not ignored
         raise UsageError("--depth: --guide oidn uses no depth (--guide features does)")
     for option, given in (("--alb", args.alb), ("--nrm", args.nrm)):
-        if given and args.guide_auxiliary == "none":  # read and dropped as well
+        if given and args.guide == "oidn" and args.guide_auxiliary == "none":  # read and dropped as well
             raise UsageError(f"{option}: --guide-auxiliary none leaves the albedo and normal out")
     if args.exposure is not None and not args.preview:  # it sets the preview alone: refused, not ignored
         raise UsageError("--exposure needs --preview OUT.png (it sets the preview's exposure alone)")
@@ -303,12 +303,16 @@ def run(args: argparse.Namespace) -> int:
             check_plane_windows(src, specs)  # every frame: each may have its own data window
         if args.ref:
             _check_references(refs, sources, windows)
-        if args.guide == "oidn" and args.nrm and not args.alb:  # the first frame says whether it has an albedo
+        asked = args.guide_auxiliary not in (None, "none")  # a way of taking an albedo: refused without one
+        if args.guide == "oidn" and (args.nrm or asked) and not args.alb:  # the first frame says if it has one
             first = frame_plane_kwargs(args, planes[:1])  # a dict, or a list of one (its own plane files)
             first = first[0] if isinstance(first, list) else first
             if "albedo" not in read_sample_buffer(sources[0], **first).features:
-                raise UsageError(f"--nrm: OIDN takes a normal only beside an albedo, and {sources[0]} holds none; "
-                                 "give --alb too")
+                if args.nrm:
+                    raise UsageError(f"--nrm: OIDN takes a normal only beside an albedo, and {sources[0]} holds "
+                                     "none; give --alb too")
+                raise UsageError(f"--guide-auxiliary {args.guide_auxiliary}: {sources[0]} holds no albedo, so OIDN "
+                                 "takes the colour alone; give --alb, or leave the option out")
     except ValueError:  # UsageError, InputFileError: a check failed, maybe on an input replaced meanwhile
         plan.check_unchanged()
         raise

@@ -283,7 +283,12 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--tile: tiles split the work over workers; give --workers N (or --executor, --scheduler)")
     if args.gain_refresh is not None and args.noise_model != "reconstruction":
         raise UsageError("--gain-refresh: only --noise-model reconstruction measures a gain")
-    if args.guide == "oidn" and "normal" in (args.features or ()) and "albedo" not in args.features:
+    auxiliary = args.guide_auxiliary
+    if args.guide == "oidn" and auxiliary not in (None, "none") and "albedo" not in (args.features or ()):
+        raise UsageError(f"--guide-auxiliary {auxiliary}: OIDN takes the colour alone without an albedo; render "
+                         "the features (--features albedo,normal), or leave the option out")
+    if args.guide == "oidn" and auxiliary != "none" and "normal" in (args.features or ()) \
+            and "albedo" not in args.features:
         raise UsageError("--features: --guide oidn uses a normal only beside an albedo; render it too "
                          "(--features albedo,normal)")
     if args.guide == "features" and not args.features:
@@ -370,7 +375,8 @@ def run(args: argparse.Namespace) -> int:
     h, w = buffer.shape
     unused = unused_features(tuple(buffer.features), args.guide, args.guide_auxiliary)
     carried = "" if not unused else f"; features {', '.join(unused)} in the dump (not used: " + (
-        "see --guide)" if args.guide is None else f"--guide {args.guide} does not use them)")
+        "see --guide)" if args.guide is None else "--guide-auxiliary none leaves them out)"
+        if args.guide == "oidn" and args.guide_auxiliary == "none" else f"--guide {args.guide} does not use them)")
     done = time.perf_counter() - start - seconds
     status(f"{args.output}: {name} {w}x{h}, {buffer.total_samples / (h * w):.3g} spp ({strategy}) in {seconds:.1f} s; "
            f"denoised {image_path}, preview {preview_path} in {done:.1f} s{carried}", quiet=args.quiet)

@@ -1445,7 +1445,8 @@ def test_info_on_plain_image_and_request(tmp_path, capsys):
 
 
 def test_info_shows_a_single_precision_attribute_as_written(tmp_path, capsys):
-    """EXR holds a float attribute in single precision: 1.2 was shown as 1.2000000476837158; a double stays whole."""
+    """EXR holds a float attribute in single precision: 1.2 was shown as 1.2000000476837158, 0.1 as
+    0.10000000149011612; each is shown as written."""
     write_image(tmp_path / "img.exr", np.zeros((2, 3, 3)), header={"awr:guard_tolerance": 1.2, "awr:c_s": 0.1})
     capsys.readouterr()
     assert main(["info", str(tmp_path / "img.exr")]) == 0

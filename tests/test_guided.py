@@ -305,8 +305,11 @@ def test_a_trusted_guide_gets_the_guards_tolerance(monkeypatch):
 class _Recording:
     """A guide function that records its own settings."""
 
-    def __init__(self, image, recorded):
-        self.image, self.recorded = image, recorded
+    def __init__(self, image, fields):
+        self.image, self.fields = image, fields
+
+    def recorded(self, buffer):
+        return self.fields
 
     def __call__(self, buffer):
         return self.image
@@ -322,6 +325,10 @@ def test_a_guide_function_records_its_settings_and_only_its_own():
     for recorded in ({"stages": 9}, {"guide_projection": 1.0}, {"guide_name": [1]}, {1: "x"}, "guide_name"):
         with pytest.raises(TypeError, match="guide: its recorded settings must map names beginning with guide_"):
             reconstruct(buf, guide=_Recording(ref, recorded))
+    plain = _Recording(ref, None)
+    plain.recorded = {"guide_name": "mine"}  # a mapping, not a function of the buffer
+    with pytest.raises(TypeError, match="guide: its recorded must be a function of the buffer"):
+        reconstruct(buf, guide=plain)
 
 
 def test_a_trusted_guide_widens_the_guards_window():
@@ -357,6 +364,8 @@ def test_guide_projection_is_checked_and_recorded():
     # 0, the guide as the pilot only, is what luminance mode does: taken, the same image (it was refused)
     np.testing.assert_array_equal(reconstruct(buf, guide=ref, guide_projection=0.0, mode="luminance"),
                                   reconstruct(buf, guide=ref, mode="luminance"))
+    # ... and recorded so: the means are not projected there (0.5 was recorded)
+    assert reconstruct_detailed(buf, guide=ref, mode="luminance", variance_probes=0).parameters["guide_projection"] == 0
     # share 0 is the Wiener stages alone: another image than the default share's
     assert not np.array_equal(reconstruct(buf, guide=ref, guide_projection=0.0), reconstruct(buf, guide=ref))
 

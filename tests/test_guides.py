@@ -236,11 +236,30 @@ def test_an_oidn_failure_is_a_backend_error_that_names_oidn(monkeypatch, raises,
         guides.oidn(buf, auxiliary="none")
 
 
+def test_an_oidn_library_that_does_not_load_is_said_to_be_unavailable(monkeypatch):
+    """pyoidn loads OIDN's library when first used: an OSError there (a missing or broken library) is
+    BackendUnavailableError naming OIDN and what to reinstall, not an OSError about a file."""
+    from awr_denoise.errors import BackendUnavailableError
+    fake = _FailingOIDN()
+
+    def unloadable():
+        raise OSError("libOpenImageDenoise.so.2: cannot open shared object file")
+
+    fake.Device = unloadable
+    monkeypatch.setitem(sys.modules, "pyoidn", fake)
+    monkeypatch.setattr(guides, "_oidn", {})
+    _, buf = _textured()
+    with pytest.raises(BackendUnavailableError, match=r"^OIDN cannot start: its library did not load \(libOpen"
+                                                      r".*\); reinstall the extra: pip install --force-reinstall"):
+        guides.oidn(buf)
+    assert guides._oidn == {}
+
+
 def test_the_oidn_guide_with_its_settings(monkeypatch):
     """``OIDNGuide`` calls ``oidn`` with its settings, checked when it is made, pickles, and the reconstruction
     records them (beside an alpha too, where the colour is reconstructed apart)."""
     import pickle
-    seen = []
+    seen, oidn = [], guides.oidn
     monkeypatch.setattr(guides, "oidn", lambda buffer, **kw: seen.append(kw) or np.asarray(buffer.mean[..., :3]))
     guide = guides.OIDNGuide(auxiliary="none", quality="fast")
     assert pickle.loads(pickle.dumps(guide)) == guide
@@ -253,6 +272,11 @@ def test_the_oidn_guide_with_its_settings(monkeypatch):
         assert (result.parameters["guide_auxiliary"], result.parameters["guide_quality"]) == ("none", "fast")
         assert result.parameters["guide"] is True
     assert seen == [{"quality": "fast", "auxiliary": "none"}] * 2
+    # The way OIDN took the features: as asked with an albedo, none without one; guides.oidn records its defaults.
+    noisy = guides.OIDNGuide(auxiliary="noisy")
+    assert noisy.recorded(rgb)["guide_auxiliary"] == "noisy" and noisy.recorded(rgba)["guide_auxiliary"] == "none"
+    assert oidn.recorded(rgb) == {"guide_auxiliary": "prefilter", "guide_quality": "high"}
+    assert reconstruct_detailed(rgba, guide=noisy, variance_probes=0).parameters["guide_auxiliary"] == "none"
     assert guides.GUIDES["oidn"] == guides.OIDNGuide()
     for kwargs, message in (({"auxiliary": "dirty"}, "auxiliary: 'dirty' is not one of"),
                             ({"quality": "best"}, "quality: 'best' is not one of high, balanced, fast"),

@@ -149,7 +149,9 @@ def test_denoise_guide_auxiliary(tmp_path, capsys):
         (["--guide", "features", "--guide-auxiliary", "clean"], "it needs --guide oidn"),
         (["--guide", "oidn", "--guide-auxiliary", "none", "--alb", str(tmp_path / "alb.exr")],
          "--alb: --guide-auxiliary none leaves the albedo and normal out"),
-        (["--guide", "oidn", "--guide-auxiliary", "dirty"], "invalid choice: 'dirty'")])
+        (["--guide", "oidn", "--guide-auxiliary", "dirty"], "invalid choice: 'dirty'"),
+        (["--guide-auxiliary", "none", "--alb", str(tmp_path / "alb.exr")], "it needs --guide oidn"),
+        (["--guide", "oidn", "--guide-auxiliary", "noisy"], "d.exr holds no albedo, so OIDN takes the colour alone")])
 
 
 def test_denoise_says_oidn_failed_in_one_line(tmp_path, capsys, monkeypatch):
@@ -283,6 +285,24 @@ def test_render_guide_features_uses_the_rendered_features(tmp_path, capsys):
     assert main(common + ["--guide", "features", "-o", str(out)]) == 2  # refused before rendering
     one_error_line(capsys.readouterr().err, "--guide features: nothing to guide with; render the features too")
     assert not out.exists()
+
+
+def test_render_guide_auxiliary(tmp_path, capsys):
+    """A way of taking the albedo with no albedo rendered is refused before rendering; with ``none`` the rendered
+    features are said to be left out by it, and a normal alone is not refused for want of an albedo."""
+    pytest.importorskip("embreex")
+    pytest.importorskip("pyoidn", reason="the OIDN guide needs the extra oidn")
+    common = ["render", "--scene", "sky_objects", "--width", "24", "--height", "16", "--spp", "4", "--uniform",
+              "--guide", "oidn"]
+    out = tmp_path / "clean.exr"
+    assert main(common + ["--guide-auxiliary", "clean", "-o", str(out)]) == 2
+    one_error_line(capsys.readouterr().err, "--guide-auxiliary clean: OIDN takes the colour alone without an albedo")
+    assert not out.exists()
+    for features in ("albedo,normal", "normal"):
+        assert main(common + ["--guide-auxiliary", "none", "--features", features,
+                              "-o", str(tmp_path / f"n{len(features)}.exr")]) == 0
+        assert "not used: --guide-auxiliary none leaves them out" in capsys.readouterr().err
+    assert read_provenance(read_header(tmp_path / "n6.denoised.exr"))["guide_auxiliary"] == "none"
 
 
 def test_render_features_from_a_renderer_that_renders_none_is_refused(tmp_path, capsys, monkeypatch):
