@@ -65,7 +65,8 @@ from .projection import project
 from .stationary import StationaryTransform
 from .wiener import rademacher_probes
 
-__all__ = ["checked_guide", "checked_inputs", "guide_fields", "guide_colour", "feature_pilot", "trust", "gated", "pilots",
+__all__ = ["checked_guide", "checked_inputs", "guide_fields", "guide_colour", "feature_pilot", "trust", "gated",
+           "pilots",
            "ATROUS_ITERATIONS",
            "FEATURE_SIGMAS", "GATE_WINDOW", "GATE_LOW", "GATE_HIGH", "projected", "PROJECTION_SHARE",
            "checked_projection"]

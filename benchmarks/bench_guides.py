@@ -1013,7 +1013,8 @@ def tolerance_table(rows: list[dict]) -> None:
     for scene in dict.fromkeys(r["scene"] for r in synthetic_rows):
         for kind in ("default (no guide)", "clean", "shifted", "flat", "noise"):
             method = kind.split(" ")[0]
-            cells = [", ".join(f"{worst(key, scene, f'{method}, {n}'):.2f}" for n in names) for key in ("relmse", "mse")]
+            cells = [", ".join(f"{worst(key, scene, f'{method}, {n}'):.2f}" for n in names)
+                     for key in ("relmse", "mse")]
             seeds = ", ".join(f"{worst_seed(scene, f'{method}, {n}'):.2f}" for n in names)
             print(f"| {scene} | {kind} | {cells[0]} | {cells[1]} | {seeds} |")
 

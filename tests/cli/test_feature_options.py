@@ -144,8 +144,8 @@ def test_denoise_guide_auxiliary(tmp_path, capsys):
     features = ("albedo", "normal", "depth")
     assert unused_features(features, "oidn", "none") == features and unused_features(features, "oidn") == ("depth",)
     _refused(tmp_path, capsys, [
-        (["--guide-auxiliary", "none"], "--guide-auxiliary none: it says how OIDN takes the albedo and normal; it needs "
-                                        "--guide oidn"),
+        (["--guide-auxiliary", "none"],
+         "--guide-auxiliary none: it says how OIDN takes the albedo and normal; it needs --guide oidn"),
         (["--guide", "features", "--guide-auxiliary", "clean"], "it needs --guide oidn"),
         (["--guide", "oidn", "--guide-auxiliary", "none", "--alb", str(tmp_path / "alb.exr")],
          "--alb: --guide-auxiliary none leaves the albedo and normal out"),
