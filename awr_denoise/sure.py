@@ -18,7 +18,10 @@ with weights ``omega``: 1 for the squared error (MSE), ``1 / (|o| + k)^2`` for t
     lambda = sum_N omega v (1 - L) / sum_N omega (o - x)^2,
 
 clipped to [0, 1]; :func:`sure_blend` takes the smaller of the two criteria's ``lambda`` in
-every window, so it keeps only as much of the change as lowers both kinds of error.
+every window, so it keeps only as much of the change as lowers both kinds of error. Where the
+estimate removes noise, ``(o - x)^2`` is about ``v (1 - L)`` and ``lambda`` is about 1; where it
+adds bias, ``lambda`` falls towards 0 and the pixel returns towards its own mean. As the
+samples grow, the blend tends to the mean wherever the estimate's bias does not vanish.
 
 ``lambda`` is a ratio of window sums, and their noise pulls it below 1 where the estimate is
 right: with heavy-tailed radiance a window's sample variances often fall short of its means'
@@ -26,13 +29,13 @@ squared errors, so ``(o - x)^2`` there exceeds ``v (1 - L)`` and the guard puts 
 should have removed (measured on the tracer's global-illumination Cornell box at 32 spp with the
 OIDN guide: in the 12% of pixels whose ``lambda`` fell below 0.9, the means' squared errors were
 1.2x their variances; the true best ``lambda`` there averaged 0.93, the guard's 0.81;
-docs/guides.md, "The guard's tolerance"). A
-``tolerance`` ``t > 1`` keeps the change whole until its squared size exceeds ``t`` times the
-noise it may remove, ``lambda = min(1, t sum omega v (1 - L) / sum omega (o - x)^2)``; a biased
-change is still undone in proportion (bias ``b`` standard errors: ``lambda`` about ``t / (1 + b^2)``). Where the
-estimate removes noise, ``(o - x)^2`` is about ``v (1 - L)`` and ``lambda`` is about 1; where it
-adds bias, ``lambda`` falls towards 0 and the pixel returns towards its own mean. As the
-samples grow, the blend tends to the mean wherever the estimate's bias does not vanish.
+docs/guides.md, "The guard's tolerance"). A ``tolerance`` ``t > 1`` keeps the change whole until
+its squared size exceeds ``t`` times the noise it may remove,
+
+    lambda = min(1, t sum_N omega v (1 - L) / sum_N omega (o - x)^2);
+
+a biased change is still undone in proportion (bias ``b`` standard errors: ``lambda`` about
+``t / (1 + b^2)``).
 """
 
 from __future__ import annotations

@@ -155,4 +155,3 @@ vectors (length at most 1): an albedo or a colour, or normals encoded in [0, 1]?
     return (f"{path}: {label} as the normal: {share:.0f}% of its pixels are longer than {NORMAL_LENGTH_LIMIT:g}, "
             "where a normal is a mean of unit vectors (length at most 1): an albedo or a colour, or normals encoded "
             "in [0, 1]?")
-
