@@ -51,7 +51,7 @@ from awr_denoise.io.png import write_preview
 from awr_denoise.metrics import mean_error, mse, relmse
 from awr_denoise.prepare import filled_mean
 from awr_denoise.renderers import create_renderer
-from awr_denoise.sure import DEFAULT_WINDOW, sure_blend
+from awr_denoise.sure import DEFAULT_GUIDED_TOLERANCE, DEFAULT_WINDOW, sure_blend
 from awr_denoise.synthetic import SyntheticRenderer, make_scene
 from awr_denoise.wiener import chain, rademacher_probes
 
@@ -847,6 +847,8 @@ def crops(spp: int, cache: Path, images: Path = IMAGES) -> list[str]:
 # ---------------------------------------------------------------------------- the guard's tolerance
 TOLERANCES = (1.0, 1.2, 1.5, 2.0)
 """The guard's tolerances with a guide compared (:data:`awr_denoise.sure.DEFAULT_GUIDED_TOLERANCE` among them)."""
+GUIDED_WINDOWS = (9, 13, 25)
+"""Guard windows compared with :data:`awr_denoise.sure.DEFAULT_GUIDED_WINDOW` (17), at the default tolerance."""
 
 
 @contextlib.contextmanager
@@ -929,6 +931,8 @@ def tolerance(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple
                 images[f"guide, tolerance {t:g}"] = reconstruct(buffer, guide=guide)
             with _unguided_tolerance(t):
                 images[f"default, tolerance {t:g}"] = reconstruct(buffer)
+        for window in GUIDED_WINDOWS:
+            images[f"guide, window {window}"] = reconstruct(buffer, guide=guide, guard_window=window)
         rows += [{**keys, "method": m, **_measure(image, x, ref, float("nan"))} for m, image in images.items()]
     for name in ("gradient", "edges", "hdr_source"):
         scene = make_scene(name, (64, 64))
@@ -993,6 +997,20 @@ def tolerance_table(rows: list[dict]) -> None:
                   for n in names}
             print(f"| {renderer} | {scene} | {spp} | " + ", ".join(f"{rel[n] / rel[names[0]]:.3f}" for n in names[1:])
                   + " | " + ", ".join(f"{sq[n]:.2f}" for n in names) + " |")
+    windows = [f"window {w}" for w in GUIDED_WINDOWS]
+    default_name = f"tolerance {DEFAULT_GUIDED_TOLERANCE:g}"
+    print(f"\n| renderer | scene | spp | guide / OIDN, relMSE, {default_name}: window 17 (the default), "
+          + ", ".join(windows) + " | guide / plain, MSE: window 17, " + ", ".join(windows) + " |")
+    print("|---|---|---|---|---|")
+    for renderer, scene in dict.fromkeys((r["renderer"], r["scene"]) for r in scored):
+        for spp in sorted({r["spp"] for r in scored if r["scene"] == scene}):
+            w = {"renderer": renderer, "scene": scene, "spp": spp}
+            methods = (f"guide, {default_name}", *(f"guide, {n}" for n in windows))
+            oidn_relmse = _mean(scored, "relmse", method="OIDN", **w)
+            plain_mse = _mean(scored, "mse", method="plain", **w)
+            print(f"| {renderer} | {scene} | {spp} | "
+                  + ", ".join(f"{_mean(scored, 'relmse', method=m, **w) / oidn_relmse:.3f}" for m in methods) + " | "
+                  + ", ".join(f"{_mean(scored, 'mse', method=m, **w) / plain_mse:.2f}" for m in methods) + " |")
     synthetic_rows = [r for r in rows if r["renderer"] == "synthetic"]
     print("\n| synthetic scene | guide | worst relMSE / plain, mean of the seeds (any spp): " + ", ".join(names)
           + " | worst MSE / plain, the same: " + ", ".join(names) + " | worst relMSE / plain, any one seed: "
