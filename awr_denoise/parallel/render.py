@@ -9,6 +9,7 @@ random numbers the result equals the serial render bit for bit.
 from __future__ import annotations
 
 import dataclasses
+import os
 import pickle
 import threading
 from collections import OrderedDict
@@ -20,7 +21,7 @@ import numpy as np
 
 from .._typing import Shape2D
 from ..buffers import SampleBuffer
-from ..renderers import create_renderer, renderer_names
+from ..renderers import create_renderer, renderer_names, renderer_scenes
 from ..parts import render_in_parts, stitch
 from ..requests import MAX_PART_SAMPLES, FeatureTracer, Renderer, SampleRequest, SampleTracer
 from ..sampling import Sampler
@@ -73,6 +74,14 @@ class RendererSpec:
             raise ValueError(f"kind: {self.kind!r} is not one of {', '.join(renderer_names())}")
         if self.kind == "synthetic" and self.shape is None:
             raise ValueError("shape: a synthetic scene needs its (H, W)")
+        if isinstance(self.scene, str) and not os.path.exists(self.scene):  # a name: one the renderer bundles
+            try:
+                bundled = renderer_scenes(self.kind)
+            except ImportError:  # the extra is missing: its own hint comes when a worker builds the renderer
+                bundled = []
+            if bundled and self.scene not in bundled:  # else every tile failed on its worker, one by one
+                raise ValueError(f"scene: {self.scene!r} is neither a scene the {self.kind} renderer bundles "
+                                 f"({', '.join(bundled)}) nor a file")
         if self.shape is not None:
             object.__setattr__(self, "shape", (int(self.shape[0]), int(self.shape[1])))
 

@@ -298,3 +298,16 @@ def test_reconstruction_options_are_checked_once_before_any_frame(tmp_path, dump
         denoise_frames(dumps, outputs, cs=1.0)
     with pytest.raises(TypeError, match="variance_probes: not an option"):  # each frame's is 0
         denoise_frames(dumps, outputs, variance_probes=4)
+    # The reconstruction's other checks, which failed every frame after its read as well: a guide function is not
+    # called for them (OIDN would run for nothing).
+    guide = lambda buffer: pytest.fail("the guide function ran")  # noqa: E731
+    for options, message in (({"wavelet": "nope"}, "wavelet: 'nope' is not a discrete wavelet"),
+                             ({"domain": "lug"}, "domain: 'lug' is not one of"),
+                             ({"mode": "hue"}, "mode: 'hue'"),
+                             ({"boundary": "mirror"}, "boundary: 'mirror' is not one of"),
+                             ({"guide_projection": 0.3}, "guide_projection: 0.3 given without a guide"),
+                             ({"guide": guide, "guide_projection": 1.5}, "guide_projection: must be <= 1"),
+                             ({"guide": guide, "guard_probes": 1}, "guard_probes: not with a guide")):
+        with pytest.raises(ValueError, match=message):
+            denoise_frames(dumps, outputs, **options)
+    assert not any(o.exists() for o in outputs)

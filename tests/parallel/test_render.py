@@ -83,6 +83,10 @@ def test_tiled_renderer_checks_its_arguments():
         RendererSpec("synthetic", "edges")
     with pytest.raises(ValueError, match="kind"):
         RendererSpec("oidn", "edges", (8, 8))
+    # A scene name the renderer does not bundle failed every tile on its worker, one by one.
+    with pytest.raises(ValueError, match=r"^scene: 'edgez' is neither a scene the synthetic renderer bundles "
+                                         r"\(gradient, edges, .*\) nor a file$"):
+        RendererSpec.synthetic("edgez", (8, 8))
 
 
 def test_factories_that_cannot_be_pickled_get_their_own_renderers():
