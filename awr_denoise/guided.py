@@ -143,6 +143,9 @@ def checked_guide(guide: object, buffer: SampleBuffer) -> FloatArray:
     ...
     ValueError: guide: shape (3, 2, 3) does not match the buffer's (2, 3, 3)
     """
+    if isinstance(guide, str):  # a guide's name, as the command line's --guide takes it
+        raise TypeError(f"guide: {guide!r} is a name; give an image, or a function of the buffer such as "
+                        "awr_denoise.guides.oidn")
     given = plain("guide", guide)
     if given.dtype.kind not in "fiu":  # complex (cast to its real part), bool, object: refused as by the buffers
         raise TypeError(f"guide: expected a real (H, W, C) array, got dtype {given.dtype}")

@@ -110,7 +110,7 @@ def oidn(buffer: SampleBuffer, albedo: FloatArray | None = None, normal: FloatAr
         (a separate render of many samples); ``"none"`` leaves them out (the buffer's and those given alike). OIDN takes
         them as clean only as a pair: an albedo without a normal it takes as noisy, prefiltered or not. Features
         averaged over the radiance's few samples are noisy where a lens, a texture or an edge varies within the pixel:
-        prefiltered, the guided reconstruction's relMSE is 0.52-1.06x that with them given as noisy on the bundled
+        prefiltered, the guided reconstruction's relMSE is 0.52-1.05x that with them given as noisy on the bundled
         tracer's and Mitsuba 3's scenes at 8-32 spp, lowest on the defocused and textured ones (docs/guides.md, "The
         albedo and normal, prefiltered").
 
@@ -306,8 +306,13 @@ class OIDNGuide:
 
     def recorded(self, buffer: SampleBuffer) -> dict[str, str]:
         """What the reconstruction of ``buffer`` records of the guide: the way OIDN takes the albedo and
-        normal, ``"none"`` where the buffer carries no albedo (OIDN then takes the colour alone)."""
-        auxiliary = self.auxiliary if "albedo" in buffer.features else "none"
+        normal, ``"none"`` where the buffer carries no albedo (OIDN then takes the colour alone), and
+        ``"noisy"`` for ``"clean"`` where it carries no normal (OIDN takes them as clean only as a pair)."""
+        auxiliary = self.auxiliary
+        if "albedo" not in buffer.features:
+            auxiliary = "none"
+        elif auxiliary == "clean" and "normal" not in buffer.features:
+            auxiliary = "noisy"
         return {"guide_auxiliary": auxiliary, "guide_quality": self.quality}
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import warnings
 from pathlib import Path
 
 from awr_denoise.domains import DOMAIN_NAMES
@@ -304,15 +305,22 @@ def run(args: argparse.Namespace) -> int:
         if args.ref:
             _check_references(refs, sources, windows)
         asked = args.guide_auxiliary not in (None, "none")  # a way of taking an albedo: refused without one
-        if args.guide == "oidn" and (args.nrm or asked) and not args.alb:  # the first frame says if it has one
+        clean = args.guide_auxiliary == "clean" and not args.nrm  # clean features: a pair, refused without a normal
+        if args.guide == "oidn" and ((args.nrm or asked) and not args.alb or clean):  # the first frame says
             first = frame_plane_kwargs(args, planes[:1])  # a dict, or a list of one (its own plane files)
             first = first[0] if isinstance(first, list) else first
-            if "albedo" not in read_sample_buffer(sources[0], **first).features:
+            with warnings.catch_warnings():  # a reader's warning comes with the frame's own read, not twice
+                warnings.simplefilter("ignore")
+                found = read_sample_buffer(sources[0], **first).features
+            if "albedo" not in found:
                 if args.nrm:
                     raise UsageError(f"--nrm: OIDN takes a normal only beside an albedo, and {sources[0]} holds "
                                      "none; give --alb too")
                 raise UsageError(f"--guide-auxiliary {args.guide_auxiliary}: {sources[0]} holds no albedo, so OIDN "
                                  "takes the colour alone; give --alb, or leave the option out")
+            if clean and "normal" not in found:
+                raise UsageError(f"--guide-auxiliary clean: OIDN takes the features as clean only as a pair, and "
+                                 f"{sources[0]} holds no normal; give --nrm, or choose noisy or prefilter")
     except ValueError:  # UsageError, InputFileError: a check failed, maybe on an input replaced meanwhile
         plan.check_unchanged()
         raise

@@ -287,6 +287,9 @@ def run(args: argparse.Namespace) -> int:
     if args.guide == "oidn" and auxiliary not in (None, "none") and "albedo" not in (args.features or ()):
         raise UsageError(f"--guide-auxiliary {auxiliary}: OIDN takes the colour alone without an albedo; render "
                          "the features (--features albedo,normal), or leave the option out")
+    if args.guide == "oidn" and auxiliary == "clean" and "normal" not in (args.features or ()):
+        raise UsageError("--guide-auxiliary clean: OIDN takes the features as clean only as a pair; render the normal "
+                         "too (--features albedo,normal), or choose noisy or prefilter")
     if args.guide == "oidn" and auxiliary != "none" and "normal" in (args.features or ()) \
             and "albedo" not in args.features:
         raise UsageError("--features: --guide oidn uses a normal only beside an albedo; render it too "
@@ -377,6 +380,8 @@ def run(args: argparse.Namespace) -> int:
     carried = "" if not unused else f"; features {', '.join(unused)} in the dump (not used: " + (
         "see --guide)" if args.guide is None else "--guide-auxiliary none leaves them out)"
         if args.guide == "oidn" and args.guide_auxiliary == "none" else f"--guide {args.guide} does not use them)")
+    if args.guide == "oidn" and args.guide_auxiliary != "none" and "albedo" not in buffer.features:
+        carried += "; OIDN took the colour alone (--features albedo,normal renders what it takes beside it)"
     done = time.perf_counter() - start - seconds
     status(f"{args.output}: {name} {w}x{h}, {buffer.total_samples / (h * w):.3g} spp ({strategy}) in {seconds:.1f} s; "
            f"denoised {image_path}, preview {preview_path} in {done:.1f} s{carried}", quiet=args.quiet)

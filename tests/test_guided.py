@@ -196,11 +196,12 @@ def test_bad_guides_are_refused(rng, guide, message):
         reconstruct(buf, guide=guide)
 
 
-@pytest.mark.parametrize("guide", ["bright", np.zeros((24, 24, 3)) + 1j, np.zeros((24, 24, 3), bool),
+@pytest.mark.parametrize("guide", [np.array(["bright"]), np.zeros((24, 24, 3)) + 1j, np.zeros((24, 24, 3), bool),
                                    np.zeros((24, 24, 3), object)])
 def test_guides_that_are_not_real_arrays_are_refused(rng, guide):
     """As the buffers refuse them: a complex guide was cast to its real part, bool and object taken
-    (second red-team pass); a guide function returning None gave the unguided image (above)."""
+    (second red-team pass); a guide function returning None gave the unguided image (above). A bare string is taken
+    for a guide's name (below)."""
     buf = SampleBuffer.from_moments(np.full((24, 24), 4), rng.random((24, 24, 3)), np.ones((24, 24, 3)))
     with pytest.raises(TypeError, match=r"guide: expected a real \(H, W, C\) array, got dtype"):
         reconstruct(buf, guide=guide)
@@ -313,6 +314,13 @@ class _Recording:
 
     def __call__(self, buffer):
         return self.image
+
+
+def test_a_guides_name_is_refused_pointing_at_the_function():
+    _, buf = _scene_buffer("edges", 8, 0)
+    with pytest.raises(TypeError, match=r"^guide: 'oidn' is a name; give an image, or a function of the buffer such "
+                                        r"as awr_denoise.guides.oidn$"):
+        reconstruct(buf, guide="oidn")
 
 
 def test_a_guide_function_records_its_settings_and_only_its_own():

@@ -31,7 +31,7 @@ from ..features import FEATURE_CHANNELS
 from .exr import file_error
 
 __all__ = ["AUTO_FEATURE_PLANES", "MITSUBA_AOV_NAMES", "auto_feature_planes", "feature_from_planes", "plane_present",
-           "normal_warning", "NORMAL_LENGTH_LIMIT"]
+           "normal_warning", "albedo_warning", "NORMAL_LENGTH_LIMIT"]
 
 AUTO_FEATURE_PLANES: dict[str, dict[str, str]] = {
     "pbrt": {"albedo": "Albedo", "normal": "Ns", "depth": "P.Z"},
@@ -155,3 +155,30 @@ vectors (length at most 1): an albedo or a colour, or normals encoded in [0, 1]?
     return (f"{path}: {label} as the normal: {share:.0f}% of its pixels are longer than {NORMAL_LENGTH_LIMIT:g}, "
             "where a normal is a mean of unit vectors (length at most 1): an albedo or a colour, or normals encoded "
             "in [0, 1]?")
+
+
+def albedo_warning(path: str | os.PathLike[str], label: str, mean: np.ndarray) -> str | None:
+    """A warning when more than 1% of an albedo plane's pixels hold a component below -0.01.
+
+    An albedo is a reflectance, never negative; a normal or a position read as the albedo
+    (``--alb FILE:Ns``) is negative wherever it points or lies away from an axis. (OIDN would take
+    it clipped to [0, 1], without a word.)
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise.io.features import albedo_warning
+    >>> albedo_warning("a.exr", "Albedo", np.full((4, 4, 3), 0.5)) is None
+    True
+    >>> albedo_warning("a.exr", "Ns", np.dstack([np.zeros((4, 4)), np.zeros((4, 4)), -np.ones((4, 4))]))
+    'a.exr: Ns as the albedo: 100% of its pixels hold a negative component, where an albedo is a reflectance: \
+a normal or a position?'
+    """
+    values = np.asarray(mean, np.float64)
+    finite = np.isfinite(values).all(axis=-1)
+    negative = int((values[finite] < -0.01).any(axis=-1).sum())
+    if negative <= 0.01 * max(int(finite.sum()), 1):
+        return None
+    share = 100.0 * negative / int(finite.sum())
+    return (f"{path}: {label} as the albedo: {share:.0f}% of its pixels hold a negative component, where an albedo is "
+            "a reflectance: a normal or a position?")

@@ -45,7 +45,8 @@ from .cycles import COLOUR_PASSES, COUNT_PASS, cycles_layers, sample_count_scale
 from .deep import sample_index_bounds, samples_from_deep_part
 from .dump import COUNT_CHANNEL, MAX_EXACT_COUNT, VARIANCE_PREFIX, SampleDump, buffer_from_awr_part, whole_counts
 from .exr import ExrPart, check_same_windows, checked_plane, file_error, header_value, header_windows, read_exr
-from .features import MITSUBA_AOV_NAMES, auto_feature_planes, feature_from_planes, normal_warning, plane_present
+from .features import (MITSUBA_AOV_NAMES, albedo_warning, auto_feature_planes, feature_from_planes, normal_warning,
+                       plane_present)
 from .mitsuba import RAW_FILM, MomentBound, filter_correlation, moment_bound
 
 __all__ = ["PRESETS", "detect_preset", "read_sample_buffer", "read_sample_dump", "read_independent_renders",
@@ -892,7 +893,8 @@ def _features(ctx: _Context, preset: str, layout: _Layout, count: np.ndarray, pl
             moment = _Plane(moment.path, moment.channels[:width], moment.arrays[:width])
             second = _half_moments(mean, _values(moment), moment)
         features[name] = feature_from_planes(plane.path, name, plane.label, mean, count, second)
-        if name == "normal" and (warned := normal_warning(plane.path, plane.label, mean)):
+        check = {"normal": normal_warning, "albedo": albedo_warning}.get(name)
+        if check is not None and (warned := check(plane.path, plane.label, mean)):
             ctx.warnings.append(warned)
         ctx.feature_planes[name] = plane.label if plane.path == ctx.path else f"{plane.path}:{plane.label}"
         ctx.notes.append(f"{name}: {plane.label}" + (f" (variance from {moment.label})" if moment else

@@ -186,7 +186,12 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
     if reconstruct_options.get("features") and not buffer.features:  # the file's fault, named (not the argument's)
         raise InputFileError(f"{source}: holds no feature buffers (albedo, normal or depth) to guide with; give "
                              "them as files (--alb, --nrm, --depth; albedo=, normal=, depth=)")
-    result = reconstruct_detailed(buffer, variance_probes=0, **reconstruct_options)
+    try:
+        result = reconstruct_detailed(buffer, variance_probes=0, **reconstruct_options)
+    except ValueError as exc:  # what the buffer cannot do is the file's: named as the file, not as "buffer"
+        if not str(exc).startswith("buffer: "):
+            raise
+        raise InputFileError(f"{source}: {str(exc).removeprefix('buffer: ')}") from None
     image = np.asarray(result.image)
     error = _reference_error(reference, image, buffer.channels, source, windows) if reference else None
     header = {**image_provenance(result, buffer, source=source), **windows}

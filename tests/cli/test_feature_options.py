@@ -151,7 +151,29 @@ def test_denoise_guide_auxiliary(tmp_path, capsys):
          "--alb: --guide-auxiliary none leaves the albedo and normal out"),
         (["--guide", "oidn", "--guide-auxiliary", "dirty"], "invalid choice: 'dirty'"),
         (["--guide-auxiliary", "none", "--alb", str(tmp_path / "alb.exr")], "it needs --guide oidn"),
-        (["--guide", "oidn", "--guide-auxiliary", "noisy"], "d.exr holds no albedo, so OIDN takes the colour alone")])
+        (["--guide", "oidn", "--guide-auxiliary", "noisy"], "d.exr holds no albedo, so OIDN takes the colour alone"),
+        (["--guide", "oidn", "--guide-auxiliary", "clean", "--alb", str(tmp_path / "alb.exr")],
+         "--guide-auxiliary clean: OIDN takes the features as clean only as a pair, and")])
+
+
+def test_a_dump_oidn_cannot_denoise_is_named_as_the_file(tmp_path, capsys):
+    """A one-channel dump with --guide oidn was refused as "buffer: ..." (the library's argument), not by its name."""
+    pytest.importorskip("pyoidn", reason="the OIDN guide needs the extra oidn")
+    mono = Path(__file__).parent.parent / "data" / "mitsuba" / "mitsuba_mono_aov.exr"
+    assert main(["denoise", str(mono), "--spp", "8", "--guide", "oidn", "-o", str(tmp_path / "o.exr"), "-q"]) == 2
+    assert one_error_line(capsys.readouterr().err).startswith(f"awr: error: {mono}: OIDN (guides.oidn / --guide oidn) "
+                                                              "denoises one three-channel colour")
+    assert not (tmp_path / "o.exr").exists()
+
+
+def test_a_readers_warning_is_said_once(tmp_path, capsys):
+    """The first frame read for the options' checks (``--nrm`` without ``--alb``) said the reader's warnings a second
+    time: an albedo given as the normal was "too long" twice."""
+    pytest.importorskip("pyoidn", reason="the OIDN guide needs the extra oidn")
+    pbrt = Path(__file__).parent.parent / "data" / "pbrt" / "pbrt_gbuffer_default.exr"
+    assert main(["denoise", str(pbrt), "--guide", "oidn", "--nrm", f"{pbrt}:Albedo", "-o",
+                 str(tmp_path / "o.exr"), "-q"]) == 0
+    assert capsys.readouterr().err.count("Albedo as the normal") == 1
 
 
 def test_denoise_says_oidn_failed_in_one_line(tmp_path, capsys, monkeypatch):
@@ -298,11 +320,17 @@ def test_render_guide_auxiliary(tmp_path, capsys):
     assert main(common + ["--guide-auxiliary", "clean", "-o", str(out)]) == 2
     one_error_line(capsys.readouterr().err, "--guide-auxiliary clean: OIDN takes the colour alone without an albedo")
     assert not out.exists()
+    assert main(common + ["--guide-auxiliary", "clean", "--features", "albedo", "-o", str(out)]) == 2
+    one_error_line(capsys.readouterr().err, "--guide-auxiliary clean: OIDN takes the features as clean only as a pair")
+    assert not out.exists()
     for features in ("albedo,normal", "normal"):
         assert main(common + ["--guide-auxiliary", "none", "--features", features,
                               "-o", str(tmp_path / f"n{len(features)}.exr")]) == 0
         assert "not used: --guide-auxiliary none leaves them out" in capsys.readouterr().err
     assert read_provenance(read_header(tmp_path / "n6.denoised.exr"))["guide_auxiliary"] == "none"
+    # Without features rendered OIDN takes the colour alone: said in the summary, as --guide features is refused.
+    assert main(common + ["-o", str(tmp_path / "bare.exr")]) == 0
+    assert "OIDN took the colour alone (--features albedo,normal" in capsys.readouterr().err
 
 
 def test_render_features_from_a_renderer_that_renders_none_is_refused(tmp_path, capsys, monkeypatch):

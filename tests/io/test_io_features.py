@@ -100,6 +100,22 @@ def test_mitsuba_aov_features_have_exact_variances():
     assert 0 < spread.mean() < 0.5
 
 
+@pytest.mark.parametrize(("path", "kw", "albedo", "normal"), [
+    (PBRT, {}, "Albedo", "Ns"), (MITSUBA, {"spp": 8}, "main.albedo", "main.normal"),
+    (CYCLES, {"variance": CYCLES_VARIANCE}, "ViewLayer.Denoising Albedo", "ViewLayer.Denoising Normal")])
+def test_a_normal_read_as_the_albedo_is_said_to_be_negative(path, kw, albedo, normal):
+    """Each renderer's own albedo is read without a word; its normal given as the albedo (``--alb FILE:Ns``), which
+    OIDN would take clipped to [0, 1], is said to be negative (44-63% of the pixels in these files)."""
+    for given, said in ((None, False), (f"{path}:{normal}", True)):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            read_sample_dump(path, **kw, **({} if given is None else {"albedo": given}))
+        told = [w for w in caught if issubclass(w.category, InputFileWarning) and re.fullmatch(
+            rf"{re.escape(str(path))}: {normal} as the albedo: \d+% of its pixels hold a negative component, where an "
+            r"albedo is a reflectance: a normal or a position\?", str(w.message))]
+        assert len(told) == said, [str(w.message) for w in caught]
+
+
 @pytest.mark.parametrize(("path", "kw", "albedo"), [
     (PBRT, {}, "Albedo"), (MITSUBA, {"spp": 8}, "main.albedo"), (CYCLES, {"variance": CYCLES_VARIANCE},
                                                                "ViewLayer.Denoising Albedo")])
