@@ -278,7 +278,8 @@ def test_the_oidn_guide_with_its_settings(monkeypatch):
     albedo_alone = SampleBuffer.from_moments(rgb.count, rgb.mean, rgb.variance,
                                              features={"albedo": rgb.features["albedo"]})
     clean = guides.OIDNGuide(auxiliary="clean")  # OIDN takes the features as clean only as a pair
-    assert clean.recorded(rgb)["guide_auxiliary"] == "clean" and clean.recorded(albedo_alone)["guide_auxiliary"] == "noisy"
+    assert clean.recorded(rgb)["guide_auxiliary"] == "clean"
+    assert clean.recorded(albedo_alone)["guide_auxiliary"] == "noisy"
     assert oidn.recorded(rgb) == {"guide_auxiliary": "prefilter", "guide_quality": "high"}
     assert reconstruct_detailed(rgba, guide=noisy, variance_probes=0).parameters["guide_auxiliary"] == "none"
     assert guides.GUIDES["oidn"] == guides.OIDNGuide()
