@@ -145,7 +145,7 @@ def checked_guide(guide: object, buffer: SampleBuffer) -> FloatArray:
     """
     if isinstance(guide, str):  # a guide's name, as the command line's --guide takes it
         raise TypeError(f"guide: {guide!r} is a name; give an image, or a function of the buffer such as "
-                        "awr_denoise.guides.oidn")
+                        "awr_denoise.guides.oidn (the feature pilot is features=True)")
     given = plain("guide", guide)
     if given.dtype.kind not in "fiu":  # complex (cast to its real part), bool, object: refused as by the buffers
         raise TypeError(f"guide: expected a real (H, W, C) array, got dtype {given.dtype}")

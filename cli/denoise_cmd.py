@@ -309,8 +309,11 @@ def run(args: argparse.Namespace) -> int:
         if args.guide == "oidn" and ((args.nrm or asked) and not args.alb or clean):  # the first frame says
             first = frame_plane_kwargs(args, planes[:1])  # a dict, or a list of one (its own plane files)
             first = first[0] if isinstance(first, list) else first
-            with warnings.catch_warnings():  # a reader's warning comes with the frame's own read, not twice
-                warnings.simplefilter("ignore")
+            with warnings.catch_warnings():
+                # Frames read in this process say the reader's warnings themselves: not twice. A worker process' or a
+                # cluster's do not reach this one, so there this read says them.
+                if getattr(args, "executor", None) in (None, "threads") and getattr(args, "scheduler", None) is None:
+                    warnings.simplefilter("ignore")
                 found = read_sample_buffer(sources[0], **first).features
             if "albedo" not in found:
                 if args.nrm:

@@ -238,7 +238,8 @@ def _as_options(renderer: str) -> Iterator[None]:
         yield
     except ValueError as error:
         text = str(error)
-        for parameter, options in (("shape: ", "--width/--height"), ("name: ", "SCENE/--scene")):
+        for parameter, options in (("shape: ", "--width/--height"), ("name: ", "SCENE/--scene"),
+                                   ("scene: ", "SCENE/--scene")):
             if text.startswith(parameter):
                 raise UsageError(f"{options}: --renderer {renderer}: {text[len(parameter):]}") from None
         raise

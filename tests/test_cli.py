@@ -1292,6 +1292,10 @@ def test_render_refuses_existing_outputs_before_rendering(tmp_path, fake_tracer,
     assert main(["render", "--renderer", "synthetic", "nope", "--width", "8", "--height", "8", "-o",
                  str(tmp_path / "s.exr"), "-q"]) == 2
     _one_error_line(capsys, "SCENE/--scene: --renderer synthetic: 'nope' is not one of edges")
+    # ... with workers too, where the spec refuses it ("scene:", the library's parameter)
+    assert main(["render", "--renderer", "synthetic", "nope", "--width", "8", "--height", "8", "-o",
+                 str(tmp_path / "s.exr"), "-q", "--executor", "threads", "--workers", "2"]) == 2
+    _one_error_line(capsys, "SCENE/--scene: --renderer synthetic: 'nope' is neither a scene the synthetic renderer")
     # ... and the tracer's Sobol' sequence, which another renderer ignored while its header recorded it
     assert main(["render", "--renderer", "synthetic", "edges", "--width", "8", "--height", "8", "--sampler", "sobol",
                  "-o", str(tmp_path / "s.exr"), "-q"]) == 2

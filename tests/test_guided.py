@@ -319,7 +319,7 @@ class _Recording:
 def test_a_guides_name_is_refused_pointing_at_the_function():
     _, buf = _scene_buffer("edges", 8, 0)
     with pytest.raises(TypeError, match=r"^guide: 'oidn' is a name; give an image, or a function of the buffer such "
-                                        r"as awr_denoise.guides.oidn$"):
+                                        r"as awr_denoise.guides.oidn \(the feature pilot is features=True\)$"):
         reconstruct(buf, guide="oidn")
 
 

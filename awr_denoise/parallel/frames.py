@@ -284,14 +284,20 @@ def _check_reconstruct_options(options: Mapping[str, Any]) -> None:
                         f"{', '.join(sorted(known))})")
     settings = set(inspect.signature(resolve_settings).parameters)
     resolve_settings(**{name: value for name, value in options.items() if name in settings})
-    # The reconstruction's other checks (the wavelet, domain, mode, boundary, the guide's share...) failed every
-    # frame too: they run here on an 8x8 colour of two samples a pixel. A guide stands in as an image (a guide
-    # function, OIDN, would run for nothing); the levels, the features and an executor depend on the frame.
-    trial = {name: value for name, value in options.items() if name not in ("levels", "features", "executor", "guide")}
-    if options.get("guide") is not None:
+    # The reconstruction's other checks (the wavelet, domain, mode, boundary, the guide's share, the features'
+    # flag...) failed every frame too: they run here on an 8x8 colour of two samples a pixel with an albedo. A guide
+    # function or image stands in as an 8x8 image (OIDN would run for nothing; an image's shape is the frame's); a
+    # guide's name goes as it is, refused. The levels' range and the executor are the frame's and the call's.
+    levels = options.get("levels")
+    if levels is not None:
+        _checks.whole("levels", levels, minimum=1, integral=True)
+    trial = {name: value for name, value in options.items() if name not in ("levels", "executor")}
+    if trial.get("guide") is not None and not isinstance(trial["guide"], str):
         trial["guide"] = np.ones((8, 8, 3))
-    ones = np.ones((8, 8, 3))
-    reconstruct_detailed(SampleBuffer.from_moments(np.full((8, 8), 2), ones, ones), variance_probes=0, **trial)
+    ones, count = np.ones((8, 8, 3)), np.full((8, 8), 2)
+    albedo = SampleBuffer.from_moments(count, ones / 2, ones)
+    reconstruct_detailed(SampleBuffer.from_moments(count, ones, ones, features={"albedo": albedo}), variance_probes=0,
+                         **trial)
 
 
 def _plane_files(read_options: Mapping[str, Any]) -> list[str]:

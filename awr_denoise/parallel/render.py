@@ -261,7 +261,7 @@ def render_tiled(renderer_factory: Callable[[], Renderer], sampler: Sampler, *, 
     ----------
     renderer_factory
         Zero-argument picklable callable building the renderer in the worker, e.g.
-        ``RendererSpec.tracer("cornell_box", seed=3, threads=1)``; never the renderer itself
+        ``RendererSpec.tracer("cornell_gi", seed=3, threads=1)``; never the renderer itself
         (a path tracer's Embree scene cannot be pickled).
     sampler
         The ask/tell sampler (e.g. :class:`~awr_denoise.AdaptiveSampler`); it stays here.

@@ -307,7 +307,13 @@ def test_reconstruction_options_are_checked_once_before_any_frame(tmp_path, dump
                              ({"boundary": "mirror"}, "boundary: 'mirror' is not one of"),
                              ({"guide_projection": 0.3}, "guide_projection: 0.3 given without a guide"),
                              ({"guide": guide, "guide_projection": 1.5}, "guide_projection: must be <= 1"),
-                             ({"guide": guide, "guard_probes": 1}, "guard_probes: not with a guide")):
+                             ({"guide": guide, "guard_probes": 1}, "guard_probes: not with a guide"),
+                             ({"features": True, "stages": 1}, "features: it gives the pilot of the Wiener stages"),
+                             ({"levels": -1}, "levels: must be >= 1")):
         with pytest.raises(ValueError, match=message):
+            denoise_frames(dumps, outputs, **options)
+    for options, message in (({"guide": "oidn"}, "guide: 'oidn' is a name"), ({"features": "yes"}, "features: "),
+                             ({"levels": "x"}, "levels: ")):
+        with pytest.raises(TypeError, match=message):
             denoise_frames(dumps, outputs, **options)
     assert not any(o.exists() for o in outputs)
