@@ -74,10 +74,10 @@ def _load(variant: str) -> tuple[ModuleType, ModuleType]:
     backend = dr.JitBackend.LLVM if variant.startswith("llvm") else dr.JitBackend.CUDA
     if not dr.has_backend(backend):
         if backend == dr.JitBackend.LLVM:
-            raise BackendUnavailableError(f"Mitsuba's {variant} variant cannot start: Dr.Jit found no usable libLLVM; "
-                               f"{LLVM_HINT}")
+            raise BackendUnavailableError(f"Mitsuba's {variant} variant cannot start: Dr.Jit found no usable "
+                                          f"libLLVM; {LLVM_HINT}")
         raise BackendUnavailableError(f"Mitsuba's {variant} variant cannot start: Dr.Jit found no CUDA device; "
-                           "use variant='llvm_ad_rgb'")
+                                      "use variant='llvm_ad_rgb'")
     if mi.variant() is None:
         mi.set_variant(variant)
     return mi, dr

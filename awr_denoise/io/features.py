@@ -149,11 +149,9 @@ def normal_warning(path: str | os.PathLike[str], label: str, mean: np.ndarray) -
 vectors (length at most 1): an albedo or a colour, normals encoded in [0, 1], or a pixel filter with negative lobes?'
     """
     lengths = np.sqrt(np.square(np.asarray(mean, np.float64)).sum(axis=-1))
-    finite = np.isfinite(lengths)
-    long = int((lengths[finite] > NORMAL_LENGTH_LIMIT).sum())
-    if long <= 0.05 * max(int(finite.sum()), 1):
+    share = _flagged_share(lengths > NORMAL_LENGTH_LIMIT, np.isfinite(lengths))
+    if share is None:
         return None
-    share = 100.0 * long / int(finite.sum())
     return (f"{path}: {label} as the normal: {share:.0f}% of its pixels are longer than {NORMAL_LENGTH_LIMIT:g}, "
             "where a normal is a mean of unit vectors (length at most 1): an albedo or a colour, normals encoded "
             "in [0, 1], or a pixel filter with negative lobes?")
@@ -179,10 +177,15 @@ def albedo_warning(path: str | os.PathLike[str], label: str, mean: np.ndarray) -
 a normal or a position, or a pixel filter with negative lobes?'
     """
     values = np.asarray(mean, np.float64)
-    finite = np.isfinite(values).all(axis=-1)
-    negative = int((values[finite] < -0.1).any(axis=-1).sum())
-    if negative <= 0.05 * max(int(finite.sum()), 1):
+    share = _flagged_share((values < -0.1).any(axis=-1), np.isfinite(values).all(axis=-1))
+    if share is None:
         return None
-    share = 100.0 * negative / int(finite.sum())
     return (f"{path}: {label} as the albedo: {share:.0f}% of its pixels hold a component below -0.1, where an albedo "
             "is a reflectance: a normal or a position, or a pixel filter with negative lobes?")
+
+
+def _flagged_share(flagged: np.ndarray, finite: np.ndarray) -> float | None:
+    """The percentage of the finite pixels ``flagged``, or None at 5% or below (the feature checks' limit)."""
+    total = int(finite.sum())
+    share = 100.0 * int((flagged & finite).sum()) / max(total, 1)
+    return share if share > 5.0 else None
