@@ -44,6 +44,7 @@ __all__ = [
     "parse_frames",
     "expand_frames",
     "frame_jobs",
+    "bars",
     "progress",
     "print_json",
     "status",
@@ -255,9 +256,23 @@ def frame_plane_kwargs(args: argparse.Namespace, planes: Sequence[Sequence[tuple
     return common if all(frame == common for frame in per_frame) else per_frame
 
 
+def bars(quiet: bool) -> bool:
+    """Whether to draw progress bars on stderr: not with ``-q``, and only on a terminal.
+
+    A bar redraws its line with carriage returns; a log file or a pipe would keep every redraw, in
+    front of the error or summary line that follows. Status lines (:func:`status`) are kept there.
+    """
+    if quiet:
+        return False
+    try:
+        return sys.stderr.isatty()
+    except (AttributeError, ValueError):  # replaced by an object without isatty, or closed
+        return False
+
+
 def progress(iterable: Iterable[Any], *, quiet: bool, total: int | None = None, desc: str = "") -> Iterator[Any]:
-    """tqdm progress bar on stderr unless ``quiet`` (or only one item)."""
-    if quiet or (total is not None and total <= 1):
+    """tqdm progress bar on stderr unless ``quiet``, stderr is not a terminal (:func:`bars`) or only one item."""
+    if not bars(quiet) or (total is not None and total <= 1):
         yield from iterable
         return
     yield from tqdm(iterable, total=total, desc=desc, file=sys.stderr, leave=False)

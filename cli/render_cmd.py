@@ -35,7 +35,7 @@ from awr_denoise.requests import Renderer, SampleTracer
 from awr_denoise.rounds import MAX_SECONDS, reconstruction_seconds
 from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS
 
-from .common import EXIT_OK, RuntimeFailure, UsageError, status
+from .common import EXIT_OK, RuntimeFailure, UsageError, bars, status
 from .denoise_cmd import (add_reconstruction_options, check_reconstruction_options, reconstruction_kwargs,
                           unused_features)
 from .parallel_options import DEFAULT_TILE, add_executor_arguments, executor_from_args, executor_requested
@@ -116,7 +116,7 @@ def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float | No
         awr = AdaptiveSampler(shape, initial_spp=first_round_spp(initial_spp, spp), seed=seed,
                               round_growth=round_growth, noise_model=noise_model, gain_refresh=gain_refresh,
                               rare_paths=rare_paths)
-        buffer = awr.run(renderer, total_spp=spp, seconds=seconds, reserve=reserve, progress=not quiet)
+        buffer = awr.run(renderer, total_spp=spp, seconds=seconds, reserve=reserve, progress=bars(quiet))
         return buffer, awr.issued, awr.round, sampler_settings(awr)
     finally:
         if isinstance(renderer, SampleTracer):
@@ -351,7 +351,7 @@ def run(args: argparse.Namespace) -> int:
         # A uniform render is one request: the renderer's own bar shows it. Adaptive rounds get
         # the sampler's bar instead of one renderer bar per round.
         if args.renderer == TRACER:
-            options["progress"] = not args.quiet and not args.adaptive
+            options["progress"] = bars(args.quiet) and not args.adaptive
         with _as_options(args.renderer):
             renderer = create_renderer(args.renderer, scene, shape=shape, seed=args.seed, **options)
         check_pixels(f"SCENE {given}: its film", *renderer.shape)  # a size the scene file declares

@@ -1,0 +1,49 @@
+"""Progress bars (cli/common.py ``bars``/``progress``): drawn on a terminal, never into a log or a pipe."""
+
+from __future__ import annotations
+
+import io
+import sys
+
+import pytest
+
+from cli.main import main
+
+
+class _Terminal(io.StringIO):
+    """A stderr that says it is a terminal."""
+
+    def isatty(self) -> bool:
+        return True
+
+
+def _frames(work, monkeypatch, stderr: io.StringIO) -> str:
+    monkeypatch.chdir(work.root)
+    monkeypatch.setattr(sys, "stderr", stderr)
+    assert main(["denoise", "shot.####.exr", "--frames", "1-3", "-o", "out.####.exr"]) == 0
+    return stderr.getvalue()
+
+
+def test_frames_draw_no_bar_into_a_log(work, monkeypatch):
+    """stderr redirected to a file: the notes are whole lines, with no bar's carriage returns before them."""
+    err = _frames(work, monkeypatch, io.StringIO())
+    assert "\r" not in err and "frames:" not in err
+    assert err.count("\n") == 3 and all(line.startswith("out.000") for line in err.splitlines()), err
+
+
+def test_frames_draw_a_bar_on_a_terminal(work, monkeypatch):
+    err = _frames(work, monkeypatch, _Terminal())
+    assert "\r" in err and "frames:" in err
+
+
+@pytest.mark.parametrize("quiet", [True, False])
+def test_render_draws_no_bar_into_a_log(work, monkeypatch, quiet):
+    """The tracer's own bar (a uniform render) follows the same rule, -q or not."""
+    pytest.importorskip("embreex")
+    monkeypatch.chdir(work.root)
+    stderr = io.StringIO()
+    monkeypatch.setattr(sys, "stderr", stderr)
+    args = ["render", "--scene", "sky_objects", "--width", "16", "--height", "12", "--spp", "2", "--uniform",
+            "-o", "r.exr"]
+    assert main(args + (["-q"] if quiet else [])) == 0
+    assert "\r" not in stderr.getvalue()
