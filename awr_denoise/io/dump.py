@@ -86,6 +86,9 @@ class SampleDump:
         issued as :class:`~awr_denoise.errors.InputFileWarning`.
     index_bounds
         Each pixel's range of sample indices, where the file records them (deep dumps).
+    feature_planes
+        Where each feature of ``buffer`` was read: a plane of the file (``Albedo``), or
+        ``other.exr:plane`` for a plane of another file (its name as given).
     """
 
     buffer: SampleBuffer
@@ -95,6 +98,7 @@ class SampleDump:
     index_bounds: Any = None
     """Each pixel's recorded sample indices (:class:`~awr_denoise.io.deep.IndexBounds`), where the
     file records them (a deep dump's ``sampleIndex``), else ``None``."""
+    feature_planes: dict[str, str] = field(default_factory=dict)
 
 
 def exact_counts(name: str, counts: np.ndarray) -> np.ndarray:
@@ -324,7 +328,7 @@ def buffer_from_awr_part(path: str | os.PathLike[str], part: ExrPart, *,
         issued = whole_counts(path, ISSUED_CHANNEL, ch[ISSUED_CHANNEL])
         if (issued < count).any():
             raise file_error(path, "fewer samples issued than counted at some pixels", ISSUED_CHANNEL)
-    return SampleDump(buffer, issued, attributes)
+    return SampleDump(buffer, issued, attributes, feature_planes={name: name for name in features})
 
 
 def _read_features(path: str | os.PathLike[str], part: ExrPart, attributes: Mapping[str, Any],

@@ -25,7 +25,7 @@ import numpy as np
 from .. import _checks
 from ..buffers import SampleBuffer
 from ..errors import AWRError, InputFileError
-from ..io import read_image, read_sample_buffer, write_image, write_preview
+from ..io import SampleDump, read_image, read_sample_dump, write_image, write_preview
 from ..io.atomic import check_writable, public_name, standing_for
 from ..io.exr import Window, check_same_windows, format_window, read_header, recorded_windows
 from ..io.presets import plane_file
@@ -174,7 +174,8 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
     # (the reader reads the source first): a second read of the path met the next version of a file
     # replaced meanwhile, and placed one version's pixels in the other's window.
     with recorded_windows() as reads:
-        buffer = read_sample_buffer(source, **(read_options or {}))
+        dump = read_sample_dump(source, **(read_options or {}))
+    buffer = dump.buffer
     checked, windows = windows, reads[0][1]
     if checked is not None and dict(checked) != windows:
         raise _changed(source, checked, windows)
@@ -194,7 +195,8 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
         raise InputFileError(f"{source}: {str(exc).removeprefix('buffer: ')}") from None
     image = np.asarray(result.image)
     error = _reference_error(reference, image, buffer.channels, source, windows) if reference else None
-    header = {**image_provenance(result, buffer, source=source), **windows}
+    header = {**image_provenance(result, buffer, source=source, **_guiding_planes(dump, reconstruct_options)),
+              **windows}
 
     def write(path: str | os.PathLike[str], replace: bool) -> str | os.PathLike[str]:
         return write_image(path, result.image, channels=buffer.channels, half=half, overwrite=replace, header=header)
@@ -207,6 +209,22 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
     return FrameResult(source, Path(written), None if shown is None else Path(shown), buffer.shape,
                        buffer.total_samples / buffer.count.size, float(result.fraction_zeroed),
                        int(buffer.nonfinite), error, tuple(buffer.features), int(np.count_nonzero(buffer.count == 0)))
+
+
+def _guiding_planes(dump: SampleDump, options: Mapping[str, Any]) -> dict[str, str]:
+    """``albedo_plane=...`` and the like for each feature read, where the features may guide the result (a guide or
+    the feature pilot): the plane of the input (``Albedo``), or ``file.exr:plane`` for another file (its name,
+    as ``awr:input`` records the input's)."""
+    if not options.get("features") and options.get("guide") is None:
+        return {}
+    return {f"{name}_plane": _plane_name(where) for name, where in dump.feature_planes.items()
+            if name in dump.buffer.features}
+
+
+def _plane_name(where: str) -> str:
+    """``dir/alb.exr:Albedo`` as ``alb.exr:Albedo``; a plane of the input as it is."""
+    path, sep, plane = where.rpartition(":")
+    return f"{os.path.basename(path)}:{plane}" if sep and path else where
 
 
 def _identical(target: str | os.PathLike[str], write: Callable[[str, bool], Any]) -> bool:

@@ -419,3 +419,29 @@ def test_render_refuses_reconstruction_options_before_loading_its_scene(tmp_path
     assert main(["render", "--scene", "default", "--spp", "2", "-o", str(tmp_path / "d.exr"), *options]) == 2
     one_error_line(capsys.readouterr().err, words)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_header_records_the_planes_that_guided_the_image(tmp_path, capsys):
+    """Where each feature came from is recorded beside ``awr:features`` when features guide the image: the input's
+    planes as named in it, another file's as ``name.exr:plane`` (its name, as ``awr:input`` records the input's)."""
+    out = tmp_path / "pbrt.exr"
+    assert main(["denoise", str(PBRT), "--guide", "features", "-o", str(out), "-q"]) == 0
+    header = read_header(out)
+    assert (header["awr:albedo_plane"], header["awr:normal_plane"], header["awr:depth_plane"]) == (
+        "Albedo", "Ns", "P.Z")
+    _images(tmp_path)
+    out = tmp_path / "files.exr"
+    assert main(["denoise", str(tmp_path / "d.exr"), "--alb", str(tmp_path / "alb.exr"), "--nrm",
+                 str(tmp_path / "nrm.exr"), "--guide", "features", "-o", str(out), "-q"]) == 0
+    header = read_header(out)
+    assert (header["awr:albedo_plane"], header["awr:normal_plane"]) == ("alb.exr:R,G,B", "nrm.exr:X,Y,Z")
+    assert "awr:depth_plane" not in header and str(tmp_path) not in str(header)
+    dump = tmp_path / "with_features.exr"  # a dump's own features keep their layout's names
+    write_sample_buffer(dump, read_sample_dump(tmp_path / "d.exr", albedo=str(tmp_path / "alb.exr")).buffer)
+    out = tmp_path / "dump.exr"
+    assert main(["denoise", str(dump), "--guide", "features", "-o", str(out), "-q"]) == 0
+    assert read_header(out)["awr:albedo_plane"] == "albedo"
+    out = tmp_path / "unguided.exr"  # read but not used: nothing said of them
+    assert main(["denoise", str(PBRT), "-o", str(out), "-q"]) == 0
+    assert not any(key.endswith("_plane") for key in read_header(out))
+    assert read_sample_dump(PBRT).feature_planes == {"albedo": "Albedo", "normal": "Ns", "depth": "P.Z"}

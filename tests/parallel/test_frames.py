@@ -290,7 +290,7 @@ def test_reconstruction_options_are_checked_once_before_any_frame(tmp_path, dump
     """``c_s=-1`` or a misspelt option failed every frame after its read, as a FramesFailedError."""
     from awr_denoise.parallel import frames
 
-    monkeypatch.setattr(frames, "read_sample_buffer", lambda *a, **k: pytest.fail("a frame was read"))
+    monkeypatch.setattr(frames, "read_sample_dump", lambda *a, **k: pytest.fail("a frame was read"))
     outputs = [tmp_path / f"o.{i}.exr" for i in range(len(dumps))]
     with pytest.raises(ValueError, match="c_s: must be >= 0"):
         denoise_frames(dumps, outputs, c_s=-1)
