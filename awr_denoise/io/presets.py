@@ -827,6 +827,17 @@ def _resolve_preset(p: Path, f: _File, preset: str, color: str | None, variance:
     return preset
 
 
+def _generic_reading(p: Path, f: _File, preset: str) -> list[str]:
+    """A warning where the generic layout reads a file whose own preset converts its spread: pbrt-v4's Variance
+    and Mitsuba's second moments are CIE XYZ, read generically as the colour's own, in its channels."""
+    found = detect_preset(list(f.channels), f.header) if preset == "generic" else None
+    if found not in ("pbrt", "mitsuba"):
+        return []
+    what = "pbrt-v4's GBufferFilm (Variance.*)" if found == "pbrt" else "Mitsuba 3's moment integrator (m2_*)"
+    return [f"{p}: reads as {what}, whose spread is CIE XYZ: the generic layout takes it as the colour's own, "
+            f"unconverted; --preset auto (or {found}) converts it"]
+
+
 def _feature_plane(ctx: _Context, spec: str, name: str) -> _Plane:
     """A feature plane given by the user: ``file.exr:plane``, a plane of the input, or a whole file.
 
@@ -1004,9 +1015,11 @@ def read_sample_dump(
         if missing and not set(missing) <= set(given):
             raise file_error(p, f"the dump holds no {missing[0]} feature", missing[0])
         buffer = dataclasses.replace(dump.buffer, features=kept | given)
-        return dataclasses.replace(dump, buffer=buffer, notes=dump.notes + tuple(ctx.notes))
+        planes_read = {name: name for name in kept if name not in given} | ctx.feature_planes  # the dump's own: "albedo"
+        return dataclasses.replace(dump, buffer=buffer, notes=dump.notes + tuple(ctx.notes), feature_planes=planes_read)
     layout, ctx = _layout(p, f, preset, color=color, variance=variance, count=count, variance_kind=variance_kind,
                           spp=spp, layer=layer, view=view, need_variance=True, need_count=True)
+    ctx.warnings[:0] = _generic_reading(p, f, preset)
     buffer = _assemble(p, layout, ctx.warnings)
     found = _features(ctx, preset, layout, buffer.count, planes, features)
     if found:
@@ -1029,7 +1042,7 @@ def read_sample_dump(
                                 f"squared mean) though counted {int(buffer.count.max())} per pixel: moments of one "
                                 "sample per pixel? Give spp 1 if so; each variance read is the rounding of m2 - m1^2")
     _warn(ctx.warnings)
-    return SampleDump(buffer, buffer.count, {}, tuple(ctx.notes + ctx.warnings))
+    return SampleDump(buffer, buffer.count, {}, tuple(ctx.notes + ctx.warnings), feature_planes=dict(ctx.feature_planes))
 
 
 def read_independent_renders(
@@ -1226,7 +1239,7 @@ def describe_layout(path: Path, parts: list[ExrPart], *, preset: str = "auto", c
                           spp=spp, layer=layer, view=view, need_variance=False, need_count=False)
     # Said where the statistics are read (read_sample_dump), but a file described without them (a
     # Cycles render, before merging) was called fine.
-    ctx.warnings[:0] = _lossy(path, f.used)
+    ctx.warnings[:0] = _lossy(path, f.used) + _generic_reading(path, f, name)
     count_or_none = np.zeros(layout.colour.shape, np.int64) if layout.count is None else layout.count
     _features(ctx, name, layout, count_or_none, {"albedo": albedo, "normal": normal, "depth": depth}, features)
     return name, layout, ctx.notes, ctx.warnings, ctx.feature_planes

@@ -8,6 +8,7 @@ import itertools
 import json
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -243,6 +244,20 @@ def test_a_variance_plane_of_the_users_own_in_a_pbrt_file(tmp_path):
     write_exr(other, {f"Variance.{c}": np.ones(planes["R"].shape, np.float32) for c in "RGB"})
     named = read_sample_dump(path, variance=f"{other}:Variance")
     np.testing.assert_array_equal(named.buffer.variance, 1.0)  # not converted from XYZ
+
+
+@pytest.mark.parametrize("path, options, named", [
+    (DATA / "pbrt" / "pbrt_gbuffer_fp32.exr", {"variance": "Variance", "spp": 16}, "pbrt-v4's GBufferFilm"),
+    (MI / "mitsuba_box.exr", {"color": "nested", "variance": "m2_nested", "spp": 16}, "Mitsuba 3's moment"),
+])
+def test_the_generic_layout_on_a_renderers_file_says_its_spread_is_xyz(path, options, named, capsys):
+    """Read generically when asked, but not without a word: the spread these renderers write is CIE XYZ, which
+    the generic layout takes as the colour's own."""
+    with pytest.warns(InputFileWarning, match=f"{named}.*CIE XYZ.*--preset auto"):
+        read_sample_dump(path, preset="generic", **options)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # their own presets read them without this warning
+        read_sample_dump(path, spp=16)
 
 
 def test_an_aovs_moment_named_reads_with_its_mean(tmp_path):
