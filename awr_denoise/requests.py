@@ -234,15 +234,16 @@ class SampleRequest(ReadOnlyArrays):
             raise ValueError(f"samples: shape {samples.shape} does not match the sampler's {self.shape}")
         if samples.n_channels != len(channels):
             raise ValueError(f"samples: {samples.n_channels} channel(s), the sampler expects {len(channels)}")
-        over = samples.count > self.counts
-        if over.any():
-            raise ValueError(f"samples: {int(over.sum())} pixel(s) hold more samples than requested")
         told = _TOLD.setdefault(samples, {})
         # Another round of the same sampler: a renderer's one buffer again (a copy of the sampler, a
         # snapshot restored, may tell it for its own round once more). An empty buffer adds nothing.
+        # Checked before the counts, which such a buffer usually exceeds: that message would hide the cause.
         if told.get(self.sampler_id, self.round) != self.round and samples.total_samples:
             raise ValueError(f"samples: the SampleBuffer told for round {told[self.sampler_id]} again: a renderer "
                              "must return a new buffer of new samples for every request")
+        over = samples.count > self.counts
+        if over.any():
+            raise ValueError(f"samples: {int(over.sum())} pixel(s) hold more samples than requested")
         short = int((self.counts - samples.count).sum())
         if short:
             warnings.warn(f"samples: {short} requested sample(s) missing (dropped by the renderer?)", stacklevel=3)

@@ -748,6 +748,19 @@ def test_a_sampler_whose_first_rounds_were_all_dropped_asks_uniformly_again(samp
     assert sampler.run(renderer, total_spp=16).total_samples > 3 * PIXELS
 
 
+def test_the_same_buffer_told_for_a_smaller_round_is_named_as_such(sampler_cls):
+    """A renderer returning its one buffer every round, the next round smaller than the first (the default's
+    way): the refusal names the buffer told again, not the pixels over their request that follow from it."""
+    sampler = sampler_cls(SHAPE, initial_spp=4)
+    request = sampler.ask()
+    first = _edges_renderer()(request)
+    sampler.tell(request, first)
+    request = sampler.ask(PIXELS)
+    assert (first.count > request.counts).any()
+    with pytest.raises(ValueError, match="samples: the SampleBuffer told for round 0 again"):
+        sampler.tell(request, first)
+
+
 def test_the_same_buffer_object_told_again_is_refused(sampler_cls):
     """A renderer that hands back its one SampleBuffer every round had the same samples merged every
     round: the counts grew, the variance shrank, the image stayed that of round 0 (a red-team pass)."""
