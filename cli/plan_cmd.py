@@ -162,6 +162,7 @@ def run(args: argparse.Namespace) -> int:
         seed = 0 if args.seed is None else args.seed
         sampler = cls(shape, seed=seed, **options)
         round_number = 0
+        unrecorded = []  # the first round reads no file
         if args.round is not None and args.round != 0:
             raise UsageError("--round: the first round (without a dump) is round 0")
     else:
@@ -187,6 +188,8 @@ def run(args: argparse.Namespace) -> int:
                              "continue one sequence; plan without --seed)")
         seed = args.seed if args.seed is not None else seed
         round_number = args.round if args.round is not None else dumped_round(args.input, dump.attributes)
+        unrecorded = [key for key, given in (("awr:round", args.round), ("awr:seed", args.seed))
+                      if key not in dump.attributes and given is None]
         if round_number < 1:
             raise UsageError(f"--round: rounds after the first are numbered from 1, got {round_number}")
         sampler = cls.from_buffer(dump.buffer, seed=seed, round=round_number, issued=dump.issued,
@@ -211,6 +214,10 @@ def run(args: argparse.Namespace) -> int:
     status(f"{args.output}: round {request.round}, {request.total} samples "
            f"({request.total / (h * w):.3g} per pixel), seed {seed}" + (f"; {kept} (the run's, from {args.input})"
                                                                         if kept else ""), quiet=args.quiet)
+    if unrecorded:  # a batch without the request it answers reads as a dump of its own run: said, not guessed
+        status(f"{args.input} records no {' or '.join(unrecorded)}: planned as a run of its own, its samples the first "
+               "of each pixel; a batch answering a request is merged into the running dump first (awr merge DUMP.exr "
+               "BATCH.exr --request REQUEST.exr)", quiet=args.quiet)
     return EXIT_OK
 
 

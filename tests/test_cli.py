@@ -877,6 +877,25 @@ def test_plan_refuses_a_batch_for_the_running_dump(tmp_path, capsys):
     assert main(["plan", dumps[-1], "-o", str(tmp_path / "y.exr"), "-q"]) == 0
 
 
+def test_plan_says_when_its_file_records_no_round_or_seed(tmp_path, capsys):
+    """A batch written without the request it answers (its attributes only recommended) reads as a dump of a run
+    of its own: planned from, with a note that says so and names the merge a batch needs; a running dump, or
+    --round and --seed given, plan without it."""
+    dumps = _file_loop(tmp_path / "run", 7, 1)
+    plain = tmp_path / "plain.exr"
+    write_sample_buffer(plain, read_sample_dump(tmp_path / "run" / "b1.exr").buffer)  # its header left behind
+    assert main(["plan", str(plain), "-o", str(tmp_path / "x.exr")]) == 0
+    err = capsys.readouterr().err
+    assert "plain.exr records no awr:round or awr:seed: planned as a run of its own" in err
+    assert "awr merge DUMP.exr BATCH.exr --request REQUEST.exr" in err
+    assert main(["plan", str(plain), "--round", "2", "-o", str(tmp_path / "y.exr")]) == 0
+    assert "records no awr:seed:" in capsys.readouterr().err
+    assert main(["plan", str(plain), "--round", "2", "--seed", "7", "-o", str(tmp_path / "z.exr")]) == 0
+    assert "records no" not in capsys.readouterr().err
+    assert main(["plan", dumps[-1], "-o", str(tmp_path / "w.exr")]) == 0
+    assert "records no" not in capsys.readouterr().err
+
+
 def test_merge_with_the_batch_before_the_dump_says_how_the_inputs_go(tmp_path, capsys):
     """The batch given first and the dump last (a new user's slip): the request's refusal alone ("does not start
     where the samples so far stop") did not say what to do; it now names the order."""
