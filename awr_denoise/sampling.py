@@ -4,16 +4,20 @@ A sampler owns the merged statistics of an image and hands out :class:`SampleReq
 a renderer (any callable honouring :class:`~awr_denoise.Renderer`) renders them and the
 resulting :class:`SampleBuffer` is told back::
 
+    from awr_denoise import AdaptiveSampler, reconstruct
+
     sampler = AdaptiveSampler((480, 640))
-    while sampler.total_samples < 32 * 480 * 640:
-        request = sampler.ask()
+    goal = 32 * 480 * 640
+    while sampler.issued.sum() < goal:  # samples handed out: one a renderer dropped (NaN) is not asked again
+        request = sampler.ask(min(sampler.default_budget(), goal - int(sampler.issued.sum())))
         sampler.tell(request, renderer(request))
     image = reconstruct(sampler.buffer)
 
-:meth:`Sampler.run` is exactly that loop. Round 0 spends ``initial_spp`` on every pixel (the paper starts at 4 spp,
-:class:`AdaptiveSampler` at 2); later rounds follow the sampler's strategy. Every request's ``counts`` sum to the
-budget asked for, exactly. Three strategies share the interface so that benchmarks compare like with like: AWR's
-wavelet priorities (:class:`AdaptiveSampler`), :class:`UniformSampler`, per-pixel error (:class:`VarianceSampler`).
+:meth:`Sampler.run` is exactly that loop (``run(renderer, total_spp=32)``). Round 0 spends ``initial_spp`` on every
+pixel (the paper starts at 4 spp, :class:`AdaptiveSampler` at 2); later rounds follow the sampler's strategy. Every
+request's ``counts`` sum to the budget asked for, exactly. Three strategies share the interface so that benchmarks
+compare like with like: AWR's wavelet priorities (:class:`AdaptiveSampler`), :class:`UniformSampler`, per-pixel
+error (:class:`VarianceSampler`).
 """
 
 from __future__ import annotations
@@ -43,7 +47,7 @@ __all__ = ["Sampler", "AdaptiveSampler", "UniformSampler", "VarianceSampler", "S
 
 _sampler_ids = itertools.count(1)
 DEFAULT_ROUND_GROWTH = 0.25
-"""Default share of the samples taken so far that the next round asks for (docs/sampling.md)."""
+"""Default share of the samples handed out so far that the next round asks for (docs/sampling.md)."""
 DEFAULT_INITIAL_SPP = 4
 """Samples per pixel of round 0 of the uniform and variance samplers: the paper's 4 (section 4)."""
 DEFAULT_AWR_INITIAL_SPP = 2
@@ -70,8 +74,8 @@ class Sampler(OneAtATime):
     round_spp
         Default budget of a round after the first, in samples per pixel; ``None`` grows rounds with the image's samples.
     round_growth
-        Without ``round_spp``, a round's default budget is this share of the samples taken so far (at least 1 spp), so
-        a render to ``S`` spp takes about ``log(S / initial_spp) / log(1 + round_growth)`` rounds. Larger rounds cost
+        Without ``round_spp``, a round's default budget is this share of the samples handed out so far (at least
+        1 spp), so a render to ``S`` spp takes about ``log(S / initial_spp) / log(1 + round_growth)`` rounds. Larger rounds cost
         fewer priority analyses; docs/benchmarks.md ("The other defaults") measures it.
     executor
         Optional ``concurrent.futures.Executor`` (threads): :meth:`tell` merges on two of its threads,

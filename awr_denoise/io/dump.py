@@ -300,7 +300,7 @@ def buffer_from_awr_part(path: str | os.PathLike[str], part: ExrPart, *,
                                "files that do not say", "awr:variance_kind")
     kind = variance_kind or str(attributes.get("awr:variance_kind", "sample"))
     if kind not in VARIANCE_KINDS:
-        raise file_error(path, f"awr:variance_kind {kind!r} is not one of {', '.join(VARIANCE_KINDS)}",
+        raise file_error(path, f"{kind!r} is not one of {', '.join(VARIANCE_KINDS)}",
                          "awr:variance_kind")
     count = whole_counts(path, COUNT_CHANNEL, ch[COUNT_CHANNEL])
     means, variances = [], []
