@@ -94,6 +94,16 @@ def test_variance_kind_header_is_honoured(tmp_path, kind, factor):
     np.testing.assert_allclose(read_sample_buffer(tmp_path / "d.exr").variance, 0.25 * factor)
 
 
+def test_an_unknown_variance_kind_in_a_header_is_named_once(tmp_path):
+    one = np.ones((2, 2), np.float32)
+    planes = {c: one * 0.5 for c in "RGB"} | {f"variance.{c}": one * 0.25 for c in "RGB"}
+    planes["sampleCount"] = one * 4
+    _write(tmp_path / "d.exr", planes, {"awr:variance_kind": "Sample"})
+    with pytest.raises(InputFileError, match=r"^\S*d\.exr: awr:variance_kind: 'Sample' is not one of sample, mean, "
+                                             r"second_moment$"):
+        read_sample_dump(tmp_path / "d.exr")
+
+
 def test_a_variance_kind_option_against_the_files_own_header_is_refused(tmp_path):
     """``awr merge DUMP BATCH --request R --variance-kind mean`` (the batch's variance is of the mean,
     its header silent) applied the option to the running dump too, whose header says "sample":
