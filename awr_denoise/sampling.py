@@ -395,6 +395,18 @@ class Sampler(OneAtATime):
                   rng: np.random.Generator) -> CountArray:
         raise NotImplementedError
 
+    def _dropped_at_their_share(self, density: FloatArray) -> FloatArray:
+        """``density`` with the pixels that were handed samples and returned none (a renderer dropping every sample
+        there: a NaN shader, a broken texture) at the image's mean density. Ranked as they are, a neighbour's mean
+        and one sample's pooled variance, they drew about twice the average samples, round after round, where
+        more samples bring nothing; at the mean, a pixel whose few samples all failed by chance still gets some."""
+        dead = (self._buffer.count == 0) & (self._issued > 0)
+        if not dead.any() or dead.all():
+            return density
+        density = np.array(density, dtype=np.float64)
+        density[dead] = density[~dead].mean()
+        return density
+
 
 class UniformSampler(Sampler):
     """Every pixel gets the same number of samples (to within one); the plain Monte Carlo baseline.
@@ -447,7 +459,7 @@ class VarianceSampler(Sampler):
 
     def _density(self) -> FloatArray:
         density = pooled_deviation(self._buffer, self.domain, absolute_above=self.absolute_above)
-        return even_rare_paths(density, self._buffer, self.rare_paths)
+        return self._dropped_at_their_share(even_rare_paths(density, self._buffer, self.rare_paths))
 
     def _allocate(self, budget, current, capacity, rng):
         return _allocate_mixed(self._density(), current, budget, self.uniform_fraction, capacity=capacity, rng=rng)
@@ -532,12 +544,13 @@ class AdaptiveSampler(Sampler):
 
     @one_at_a_time
     def density(self) -> FloatArray:
-        """(H, W) density of the next round: :func:`~awr_denoise.priorities.sampling_density`, rare paths evened."""
+        """(H, W) density of the next round: :func:`~awr_denoise.priorities.sampling_density`, rare paths evened,
+        pixels whose samples were all dropped at the mean density."""
         gain = None if self._gain is None else self._gain(self._buffer, self.executor)  # round 0 is uniform: none
         density = sampling_density(self._buffer, wavelet=self.wavelet, levels=self.levels, domain=self.domain,
                                    level_weight=self.level_weight, noise_gain=gain, absolute_above=self.absolute_above,
                                    executor=self.executor, noise_model=self.noise_model)
-        return even_rare_paths(density, self._buffer, self.rare_paths)
+        return self._dropped_at_their_share(even_rare_paths(density, self._buffer, self.rare_paths))
 
     def _prepare(self) -> None:
         if self._round > 0 and self._pending is None and self._buffer.total_samples > 0:

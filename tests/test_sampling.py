@@ -863,3 +863,35 @@ def test_run_shows_its_progress_from_the_samples_already_taken(capsys):
     capsys.readouterr()
     assert sampler.run(renderer, total_spp=8, progress=True).total_samples == 8 * 256
     assert "2048/2048" in capsys.readouterr().err  # started at the 1024 taken, closed at the goal
+
+
+@pytest.mark.parametrize("cls", [AdaptiveSampler, VarianceSampler])
+def test_pixels_whose_samples_are_all_dropped_get_their_share_not_more(cls):
+    """A renderer dropping every sample of a region (a NaN shader): ranked on a neighbour's mean and one sample's
+    pooled variance, those pixels drew far more or far fewer samples than the average, depending on the scene.
+    They now get the image's mean density, and a pixel whose samples were dropped in round 0 only still gets
+    samples afterwards."""
+    shape = (32, 40)
+    dead = np.zeros(shape, bool)
+    dead[12:20, 16:24] = True
+    unlucky = (20, 30)
+    renderer = SyntheticRenderer(make_scene("edges", shape), seed=0)
+
+    def dropping(request):
+        rendered = renderer(request)
+        lost = dead | (_at(shape, unlucky) & (request.round == 0))
+        return SampleBuffer.from_moments(np.where(lost, 0, rendered.count), np.where(lost[..., None], 0, rendered.mean),
+                                         np.where(lost[..., None], 0, rendered.variance))
+
+    sampler = cls(shape, seed=1)
+    with pytest.warns(UserWarning, match="missing"):
+        sampler.run(dropping, total_spp=16)
+    issued = sampler.issued
+    assert 0.9 < issued[dead].mean() / issued[~dead].mean() < 1.1
+    assert sampler.buffer.count[unlucky] > 0
+
+
+def _at(shape, pixel):
+    mask = np.zeros(shape, bool)
+    mask[pixel] = True
+    return mask
