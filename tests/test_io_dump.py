@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import warnings
 
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ pytestmark = pytest.mark.exr
 OpenEXR = pytest.importorskip("OpenEXR")
 
 from awr_denoise import SampleBuffer, SampleRequest  # noqa: E402
-from awr_denoise.errors import InputFileError  # noqa: E402
+from awr_denoise.errors import InputFileError, InputFileWarning  # noqa: E402
 from awr_denoise.io import (  # noqa: E402
     read_request,
     read_sample_buffer,
@@ -92,6 +93,24 @@ def test_variance_kind_header_is_honoured(tmp_path, kind, factor):
     planes["sampleCount"] = one * 4
     _write(tmp_path / "d.exr", planes, {"awr:variance_kind": kind})
     np.testing.assert_allclose(read_sample_buffer(tmp_path / "d.exr").variance, 0.25 * factor)
+
+
+def test_a_mean_where_nothing_was_counted_is_read_as_no_samples_with_a_warning(tmp_path):
+    """A batch whose count plane went wrong (zeros where the renderer rendered) lost its means without a word, and
+    ``awr merge`` said only that samples were missing; ``from_sums`` refuses the same input."""
+    one = np.ones((2, 3), np.float32)
+    count = one * 4
+    count[0] = 0
+    planes = {c: one * 0.5 for c in "RGB"} | {f"variance.{c}": one * 0.25 for c in "RGB"} | {"sampleCount": count}
+    _write(tmp_path / "d.exr", planes, {})
+    with pytest.warns(InputFileWarning, match=r"d\.exr: sampleCount: 3 pixel\(s\) counted 0 hold a non-zero mean"):
+        dump = read_sample_dump(tmp_path / "d.exr")
+    np.testing.assert_array_equal(dump.buffer.mean[0], 0.0)
+    planes |= {c: np.where(count > 0, 0.5, 0).astype(np.float32) for c in "RGB"}  # as the project writes it
+    _write(tmp_path / "e.exr", planes, {})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_sample_dump(tmp_path / "e.exr")
 
 
 def test_an_unknown_variance_kind_in_a_header_is_named_once(tmp_path):

@@ -314,6 +314,11 @@ def buffer_from_awr_part(path: str | os.PathLike[str], part: ExrPart, *,
     known = None
     if KNOWN_CHANNEL in ch:
         known = _known_mask(path, KNOWN_CHANNEL, ch[KNOWN_CHANNEL])
+    notes: tuple[str, ...] = ()
+    stray = int(np.count_nonzero((count == 0) & np.any(np.stack(means, -1) != 0, axis=-1)))
+    if stray:  # a mean without samples: taken as none (from_moments zeroes it), but a count plane gone wrong?
+        notes = (f"{path}: {COUNT_CHANNEL}: {stray} pixel(s) counted 0 hold a non-zero mean, read as no samples: "
+                 "is the count the renderer's (a batch writes the samples it rendered there)?",)
     try:
         buffer = SampleBuffer.from_moments(count, np.stack(means, -1), np.stack(variances, -1),
                                            variance_kind=kind, channels=names, variance_known=known)
@@ -328,7 +333,7 @@ def buffer_from_awr_part(path: str | os.PathLike[str], part: ExrPart, *,
         issued = whole_counts(path, ISSUED_CHANNEL, ch[ISSUED_CHANNEL])
         if (issued < count).any():
             raise file_error(path, "fewer samples issued than counted at some pixels", ISSUED_CHANNEL)
-    return SampleDump(buffer, issued, attributes, feature_planes={name: name for name in features})
+    return SampleDump(buffer, issued, attributes, notes, feature_planes={name: name for name in features})
 
 
 def _read_features(path: str | os.PathLike[str], part: ExrPart, attributes: Mapping[str, Any],

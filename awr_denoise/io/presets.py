@@ -1004,6 +1004,7 @@ def read_sample_dump(
             raise file_error(p, f"holds per-pixel sample counts; spp={spp} / --spp is for files without them",
                              COUNT_CHANNEL)
         dump = buffer_from_awr_part(p, flat[0], variance_kind=variance_kind)
+        _warn(dump.notes)  # its warnings only (a mean where nothing was counted)
         if not any(planes.values()) and features == "auto":
             return dump
         layout, ctx = _layout(p, f, "generic", color="RGB", variance=None, count=None, variance_kind=None,
