@@ -28,7 +28,7 @@ import numpy as np
 
 from . import _checks
 from ._arrays import numeric
-from ._typing import FloatArray
+from ._typing import CountArray, FloatArray
 from ._window_sums import neighbour_sum, window_sum
 from .buffers import SampleBuffer
 from .domains import Domain
@@ -38,7 +38,7 @@ from .wavelets import (DEFAULT_WAVELET, WaveletOperators, _plane_variance, coeff
                        wavelet_operators)
 
 __all__ = ["coefficient_priorities", "pixel_levels", "sampling_density", "error_plane", "pooled_deviation",
-           "DEFAULT_ABSOLUTE_ABOVE"]
+           "dropped_at_mean", "DEFAULT_ABSOLUTE_ABOVE"]
 
 _SIGNIFICANCE = 2.0  # t: a detail coefficient counts as signal beyond t standard errors
 _FLOAT32_SAFE = (2.0**-100, 2.0**100)  # variances propagated in float32 when all lie in this range (or are 0)
@@ -432,3 +432,29 @@ def sampling_density(
         factor = 2.0 ** (-level_weight * np.arange(ops.levels + 1))
         s_pooled *= factor[level]
         return s_pooled
+
+
+def dropped_at_mean(density: FloatArray, count: CountArray, issued: CountArray) -> FloatArray:
+    """``density`` with the pixels that were handed samples and returned none at the image's mean density.
+
+    A renderer may drop every sample of a pixel (a NaN shader, a broken texture: ``nonfinite="drop"``).
+    Ranked as it stands, on a neighbour's mean and one sample's pooled variance, such a pixel drew far more or
+    far fewer samples than the average, round after round, where more samples bring nothing; at the mean, a
+    pixel whose few samples all failed by chance still gets some (the samplers' ``ask()``, paper section 4).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise.priorities import dropped_at_mean
+    >>> density = np.array([[1.0, 3.0], [2.0, 9.0]])
+    >>> count, issued = np.array([[4, 4], [4, 0]]), np.full((2, 2), 4)
+    >>> dropped_at_mean(density, count, issued)
+    array([[1., 3.],
+           [2., 2.]])
+    """
+    dead = (count == 0) & (issued > 0)
+    if not dead.any() or dead.all():
+        return density
+    density = np.array(density, dtype=np.float64)
+    density[dead] = density[~dead].mean()
+    return density

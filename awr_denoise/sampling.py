@@ -4,20 +4,16 @@ A sampler owns the merged statistics of an image and hands out :class:`SampleReq
 a renderer (any callable honouring :class:`~awr_denoise.Renderer`) renders them and the
 resulting :class:`SampleBuffer` is told back::
 
-    from awr_denoise import AdaptiveSampler, reconstruct
-
     sampler = AdaptiveSampler((480, 640))
-    goal = 32 * 480 * 640
-    while sampler.issued.sum() < goal:  # samples handed out: one a renderer dropped (NaN) is not asked again
-        request = sampler.ask(min(sampler.default_budget(), goal - int(sampler.issued.sum())))
+    while (left := 32 * 480 * 640 - int(sampler.issued.sum())) > 0:  # handed out: a dropped sample counts
+        request = sampler.ask(min(sampler.default_budget(), left))
         sampler.tell(request, renderer(request))
     image = reconstruct(sampler.buffer)
 
-:meth:`Sampler.run` is exactly that loop (``run(renderer, total_spp=32)``). Round 0 spends ``initial_spp`` on every
-pixel (the paper starts at 4 spp, :class:`AdaptiveSampler` at 2); later rounds follow the sampler's strategy. Every
-request's ``counts`` sum to the budget asked for, exactly. Three strategies share the interface so that benchmarks
-compare like with like: AWR's wavelet priorities (:class:`AdaptiveSampler`), :class:`UniformSampler`, per-pixel
-error (:class:`VarianceSampler`).
+:meth:`Sampler.run` is exactly that loop. Round 0 spends ``initial_spp`` on every pixel (the paper starts at 4 spp,
+:class:`AdaptiveSampler` at 2); later rounds follow the sampler's strategy. Every request's ``counts`` sum to the
+budget asked for, exactly. Three strategies share the interface so that benchmarks compare like with like: AWR's
+wavelet priorities (:class:`AdaptiveSampler`), :class:`UniformSampler`, per-pixel error (:class:`VarianceSampler`).
 """
 
 from __future__ import annotations
@@ -36,7 +32,7 @@ from .buffers import SampleBuffer
 from .domains import Domain, resolve_domain
 from .errors import StaleRequestError
 from .noise_gain import DEFAULT_GAIN_REFRESH, DEFAULT_NOISE_MODEL, NOISE_MODELS, MeasuredGain
-from .priorities import DEFAULT_ABSOLUTE_ABOVE, pooled_deviation, sampling_density
+from .priorities import DEFAULT_ABSOLUTE_ABOVE, dropped_at_mean, pooled_deviation, sampling_density
 from .rare_paths import DEFAULT_RARE_PATHS, RARE_PATHS, even_rare_paths
 from .requests import Renderer, SampleRequest
 from .rounds import run_rounds
@@ -75,8 +71,8 @@ class Sampler(OneAtATime):
         Default budget of a round after the first, in samples per pixel; ``None`` grows rounds with the image's samples.
     round_growth
         Without ``round_spp``, a round's default budget is this share of the samples handed out so far (at least
-        1 spp), so a render to ``S`` spp takes about ``log(S / initial_spp) / log(1 + round_growth)`` rounds. Larger rounds cost
-        fewer priority analyses; docs/benchmarks.md ("The other defaults") measures it.
+        1 spp), so a render to ``S`` spp takes about ``log(S / initial_spp) / log(1 + round_growth)`` rounds. Larger
+        rounds cost fewer priority analyses; docs/benchmarks.md ("The other defaults") measures it.
     executor
         Optional ``concurrent.futures.Executor`` (threads): :meth:`tell` merges on two of its threads,
         :class:`AdaptiveSampler`'s priorities too; the same requests and buffers (docs/performance.md).
@@ -388,24 +384,11 @@ class Sampler(OneAtATime):
                           callback=callback)
 
     def _prepare(self) -> None:
-        """Rank the pixels for the next :meth:`ask` now, so that a time budget knows what it cost before the round's
-        size is chosen (:mod:`.rounds`); nothing to rank here."""
+        """Rank the pixels for the next :meth:`ask` now, timed before a round's size is chosen (:mod:`.rounds`)."""
 
     def _allocate(self, budget: int, current: CountArray, capacity: CountArray | None,
                   rng: np.random.Generator) -> CountArray:
         raise NotImplementedError
-
-    def _dropped_at_their_share(self, density: FloatArray) -> FloatArray:
-        """``density`` with the pixels that were handed samples and returned none (a renderer dropping every sample
-        there: a NaN shader, a broken texture) at the image's mean density. Ranked as they are, a neighbour's mean
-        and one sample's pooled variance, they drew about twice the average samples, round after round, where
-        more samples bring nothing; at the mean, a pixel whose few samples all failed by chance still gets some."""
-        dead = (self._buffer.count == 0) & (self._issued > 0)
-        if not dead.any() or dead.all():
-            return density
-        density = np.array(density, dtype=np.float64)
-        density[dead] = density[~dead].mean()
-        return density
 
 
 class UniformSampler(Sampler):
@@ -459,7 +442,8 @@ class VarianceSampler(Sampler):
 
     def _density(self) -> FloatArray:
         density = pooled_deviation(self._buffer, self.domain, absolute_above=self.absolute_above)
-        return self._dropped_at_their_share(even_rare_paths(density, self._buffer, self.rare_paths))
+        return dropped_at_mean(even_rare_paths(density, self._buffer, self.rare_paths), self._buffer.count,
+                               self._issued)
 
     def _allocate(self, budget, current, capacity, rng):
         return _allocate_mixed(self._density(), current, budget, self.uniform_fraction, capacity=capacity, rng=rng)
@@ -544,13 +528,13 @@ class AdaptiveSampler(Sampler):
 
     @one_at_a_time
     def density(self) -> FloatArray:
-        """(H, W) density of the next round: :func:`~awr_denoise.priorities.sampling_density`, rare paths evened,
-        pixels whose samples were all dropped at the mean density."""
+        """(H, W) density of the next round: :func:`~awr_denoise.priorities.sampling_density`, rare paths evened."""
         gain = None if self._gain is None else self._gain(self._buffer, self.executor)  # round 0 is uniform: none
         density = sampling_density(self._buffer, wavelet=self.wavelet, levels=self.levels, domain=self.domain,
                                    level_weight=self.level_weight, noise_gain=gain, absolute_above=self.absolute_above,
                                    executor=self.executor, noise_model=self.noise_model)
-        return self._dropped_at_their_share(even_rare_paths(density, self._buffer, self.rare_paths))
+        return dropped_at_mean(even_rare_paths(density, self._buffer, self.rare_paths), self._buffer.count,
+                               self._issued)
 
     def _prepare(self) -> None:
         if self._round > 0 and self._pending is None and self._buffer.total_samples > 0:
