@@ -842,3 +842,23 @@ def test_where_nothing_links_only_the_smaller_replaced_files_are_copied(tmp_path
         outputs.commit()
     assert sorted(copied) == ["other.png", "small.png"]
     assert all((tmp_path / name).read_text() == "new" for name in sizes)
+
+
+@pytest.mark.parametrize("existed", [True, False])
+def test_a_target_turned_into_a_link_meanwhile_is_not_written_through(tmp_path, existed):
+    """An output replaced by a link to an input while the outputs were made (``--overwrite``) was written through
+    the link: the input held the output, exit 0. The commit now finds the target names another file and writes
+    nothing."""
+    source = tmp_path / "in.exr"
+    source.write_text("input")
+    target = tmp_path / "o.exr"
+    if existed:
+        target.write_text("old output")
+    with OutputSet(overwrite=True) as outputs:
+        Path(outputs.add(target)).write_text("new output")
+        target.unlink(missing_ok=True)
+        target.symlink_to(source)
+        with pytest.raises(ValueError, match=r"o\.exr: now names .*in\.exr, not the file checked as the output"):
+            outputs.commit()
+    assert source.read_text() == "input"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.exr", "o.exr"]

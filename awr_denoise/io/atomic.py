@@ -883,6 +883,12 @@ class OutputSet:
         return self.targets
 
     def _move_all(self) -> None:
+        for resolved, target in self._resolved.items():
+            # A target turned into a link meanwhile (to an input, say): written through it, the file it names now
+            # would be replaced, unchecked (a red-team pass).
+            if (now := _through_links(target)) != resolved:
+                raise ValueError(f"{target}: now names {now}, not the file checked as the output (a link made or "
+                                 "changed meanwhile); nothing was written")
         for target in self._staged:
             check_writable(target, overwrite=self.overwrite)
         # A file a target replaces is kept before the first move, so that a failure on a later move can put it back:
