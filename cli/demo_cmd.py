@@ -51,6 +51,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run ``awr demo``; returns the exit status (errors are raised and reported by ``main``)."""
     tracer = tracer_module()
+    if args.scene is not None and not args.scene.strip():  # refused by its option, never taken as not given
+        raise UsageError(f"--scene: an empty name; leave it out for the default scene ({default_scene(tracer)})")
     name = args.scene or default_scene(tracer)
     if name not in tracer.list_scenes():
         raise UsageError(f"--scene: {name!r} is not one of {', '.join(sorted(tracer.list_scenes()))}")

@@ -247,6 +247,40 @@ def test_a_refusal_names_the_option_that_caused_it(work, capsys, monkeypatch, ar
     assert work.state() == before
 
 
+@pytest.mark.parametrize(("args", "needles"), [
+    (["render", "--scene", "", "--spp", "2", "-o", "e.exr"], ("--scene: an empty name",)),
+    (["render", "", "--spp", "2", "-o", "e.exr"], ("SCENE: an empty name",)),
+    (["render", " ", "--spp", "2", "-o", "e.exr"], ("SCENE: an empty name",)),
+    (["demo", "--scene", "", "--spp", "2", "--out", "demo"], ("--scene: an empty name",)),
+])
+def test_an_empty_scene_name_is_refused_not_taken_as_the_default(work, capsys, monkeypatch, args, needles):
+    """``--scene ""`` rendered the default scene, exit 0, where every other empty name is refused by its option."""
+    pytest.importorskip("embreex")
+    monkeypatch.chdir(work.root)
+    before = work.state()
+    assert main(args) == 2
+    one_error_line(capsys.readouterr().err, *needles)
+    assert work.state() == before
+
+
+def test_a_scene_files_own_size_is_named_as_the_file(work, capsys, monkeypatch):
+    """A scene file declaring 200000x200000 pixels was refused naming --width/--height, which were not given."""
+    import json
+
+    pytest.importorskip("embreex")
+    from awr_denoise.tracer.scenes import BUNDLED_SCENES
+
+    monkeypatch.chdir(work.root)
+    spec = json.loads(json.dumps(BUNDLED_SCENES["default"]))
+    spec.update(width=200000, height=200000)
+    (work.root / "big.json").write_text(json.dumps(spec))
+    before = work.state()
+    assert main(["render", "big.json", "--spp", "2", "-o", "o.exr"]) == 2
+    line = one_error_line(capsys.readouterr().err, "SCENE big.json: 200000x200000 is 40000000000 pixels")
+    assert "--width" not in line
+    assert work.state() == before
+
+
 def test_a_dump_whose_counts_leave_no_room_for_the_next_round_is_named(work, capsys, monkeypatch):
     """Pixels already holding 2**24 - 1 samples: the default round's indices pass what a request map stores
     exactly, refused as "first_index + counts: ...", naming neither a file nor an option (a red-team pass)."""
