@@ -297,17 +297,28 @@ class _DiagnosticStream:
         return getattr(self._stream, name)
 
 
-def _one_blas_thread_under_a_memory_limit() -> None:
+MIN_ADDRESS_SPACE = 256 * 2**20
+"""Bytes of address space (``ulimit -v``) below which the command refuses to start: scipy's import spun for ever
+in OpenBLAS' start-up, deaf to SIGTERM, at limits of 130-150 MB, and every command failed below about 250 MB."""
+
+
+def _one_blas_thread_under_a_memory_limit() -> str | None:
     """Under an address-space limit (``ulimit -v``), OpenBLAS (loaded by scipy) retried its thread
     buffers' ``mmap`` for ever at import, deaf to SIGTERM; with one thread it allocates none. The
-    command's own threads are its executor's, not BLAS's (its matrices are 3x3)."""
+    command's own threads are its executor's, not BLAS's (its matrices are 3x3). Returns the refusal
+    of a limit below :data:`MIN_ADDRESS_SPACE`, where even one thread's start-up can spin."""
     try:
         import resource
     except ImportError:  # not POSIX
-        return
+        return None
     soft, _ = resource.getrlimit(resource.RLIMIT_AS)
-    if soft != resource.RLIM_INFINITY:
-        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    if soft == resource.RLIM_INFINITY:
+        return None
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    if soft < MIN_ADDRESS_SPACE:
+        return (f"an address-space limit of {soft / 2**20:.0f} MiB (ulimit -v): awr needs at least "
+                f"{MIN_ADDRESS_SPACE // 2**20} MiB to start")
+    return None
 
 
 def main(argv: Sequence[str] | None = None, *, ending: bool = False) -> int:
@@ -322,7 +333,10 @@ def main(argv: Sequence[str] | None = None, *, ending: bool = False) -> int:
         signal after the command's end changes neither its status nor its line (a second one ends the
         process at once).
     """
-    _one_blas_thread_under_a_memory_limit()  # before numpy and scipy are imported
+    too_little = _one_blas_thread_under_a_memory_limit()  # before numpy and scipy are imported
+    if too_little is not None:
+        print(f"awr: error: {too_little}", file=sys.stderr)
+        return EXIT_FAILURE
     memory.keep_freed_memory()  # whole-image temporaries reused, not mapped afresh (cli/memory.py)
     _standard_streams()
     stderr = sys.stderr

@@ -257,6 +257,16 @@ def test_one_blas_thread_under_an_address_space_limit(work):
         assert done.stdout.strip() == expected, done.stderr
 
 
+def test_an_address_space_too_small_to_start_is_refused_not_spun_on(work):
+    """At 130-150 MB scipy's import spun for ever in OpenBLAS' start-up even with one thread, deaf to SIGTERM (a
+    red-team pass); below 256 MiB the command now ends at once, one line, exit 1, and writes nothing."""
+    before = work.state()
+    done = _run_limited(work, ["denoise", "d.exr", "-o", "o.exr"], "RLIMIT_AS", 140 * 2**20)
+    assert done.returncode == 1, done.stderr
+    one_error_line(done.stderr, "an address-space limit of 140 MiB (ulimit -v): awr needs at least 256 MiB")
+    assert work.state() == before
+
+
 def test_an_input_in_a_killed_writers_staging_folder_is_refused_and_left_there(work, capsys, monkeypatch):
     """The first write beside the folder removed it as a leftover, the command's own input with it, and then
     blamed the input for having changed (a red-team pass): refused before anything is read or removed."""
