@@ -11,7 +11,7 @@ import numpy as np
 
 from awr_denoise import Sampler, SampleBuffer, SampleRequest
 from awr_denoise.buffers import NONFINITE_POLICIES
-from awr_denoise.errors import InputFileError, StaleRequestError
+from awr_denoise.errors import InputFileError, InputFileWarning, StaleRequestError
 from awr_denoise.io import (
     provenance,
     read_independent_renders,
@@ -320,6 +320,7 @@ def run(args: argparse.Namespace) -> int:
     held: set[int] = set()  # the seeds whose first samples the inputs hold
     rounds: list[int] = []
     answers: list[dict | None] = []
+    next_round = None  # the running dump's (the first input's) awr:round
     all_running = True
     merged = issued = told = None
     # The request's run settings, which replace the running dump's in the output: those are neither checked nor
@@ -360,6 +361,16 @@ def run(args: argparse.Namespace) -> int:
         held |= seeds
         all_running = all_running and (is_told or _running(dump.attributes))  # a told batch: its request's
         answers.append(_answers(path, dump.attributes))
+        if index == 0 and _running(dump.attributes):
+            next_round = header_count(path, dump.attributes, "awr:round", 0, MAX_ROUND)
+        elif index and not is_told and answers[-1] is not None and next_round is not None \
+                and answers[-1]["round"] < next_round:
+            # A running dump has taken in every round before its own: a batch of one of them is most likely in it
+            # already. Not refused: a batch names no loop, and another loop's may be meant.
+            warnings.warn(f"{path}: answers request round {answers[-1]['round']}, and the running dump "
+                          f"{args.inputs[0]} (next round {next_round}) has taken that round in: if this batch is in "
+                          "it, its samples now count twice; merge a round's batch once, with --request",
+                          InputFileWarning, stacklevel=2)
         if not args.allow_duplicates:
             _refuse_copies(seen, new := _seen(path, dump, seeds))
             seen.append(new)

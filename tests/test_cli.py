@@ -877,6 +877,20 @@ def test_plan_refuses_a_batch_for_the_running_dump(tmp_path, capsys):
     assert main(["plan", dumps[-1], "-o", str(tmp_path / "y.exr"), "-q"]) == 0
 
 
+def test_a_plain_merge_of_a_batch_the_dump_has_taken_in_warns(tmp_path, capsys):
+    """``merge dump2.exr b1.exr`` (no --request) counted round 1's batch a second time without a word, though the
+    batch names its round and the dump is past it. Warned, even with -q; not refused (a batch names no loop)."""
+    dumps = _file_loop(tmp_path / "run", 7, 2)
+    folder = tmp_path / "run"
+    assert main(["merge", dumps[-1], str(folder / "b1.exr"), "-o", str(tmp_path / "again.exr"), "-q"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("awr: warning: ")
+    assert "b1.exr: answers request round 1, and the running dump " in err
+    assert "d3.exr (next round 3) has taken that round in" in err
+    assert main(["merge", dumps[0], str(folder / "b1.exr"), "-o", str(tmp_path / "next.exr"), "-q"]) == 0
+    assert capsys.readouterr().err == ""  # round 1 is d1.exr's next: no warning
+
+
 def test_plan_says_when_its_file_records_no_round_or_seed(tmp_path, capsys):
     """A batch written without the request it answers (its attributes only recommended) reads as a dump of a run
     of its own: planned from, with a note that says so and names the merge a batch needs; a running dump, or
