@@ -69,7 +69,8 @@ DEFAULT_GUIDED_TOLERANCE = 1.2
 
 def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, leverage: FloatArray, *, k: float,
                window: int = DEFAULT_WINDOW, run: Callable | None = None,
-               measured: BoolArray | None = None, tolerance: float = 1.0) -> tuple[FloatArray, FloatArray]:
+               measured: BoolArray | None = None,
+               tolerance: float | tuple[float, float] = 1.0) -> tuple[FloatArray, FloatArray]:
     """``mean + lambda (estimate - mean)`` with ``lambda`` from SURE (module docstring).
 
     Parameters
@@ -96,7 +97,9 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
         without samples").
     tolerance
         How many times the noise it may remove a change's squared size may reach before it is
-        undone in part (module docstring); >= 1.
+        undone in part (module docstring); >= 1. A pair gives the squared and the relative
+        criterion their own (next to a small bright light the relative one's binds at the rim:
+        docs/reconstruction.md, "The guard's tolerance without a guide").
 
     Returns
     -------
@@ -124,7 +127,12 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
     """
     k = _checks.real("k", k, above=0)
     window = _checks.whole("window", window, minimum=1, maximum=1023)
-    tolerance = _checks.real("tolerance", tolerance, minimum=1)
+    if isinstance(tolerance, tuple):
+        if len(tolerance) != 2:
+            raise ValueError(f"tolerance: a pair (squared, relative), got {len(tolerance)} values")
+        squared_t, relative_t = (_checks.real("tolerance", t, minimum=1) for t in tolerance)
+    else:
+        squared_t = relative_t = _checks.real("tolerance", tolerance, minimum=1)
     if window % 2 == 0:  # type: ignore[operator]
         raise ValueError(f"window: must be odd, got {window}")
     o = np.asarray(estimate, np.float64)
@@ -142,7 +150,7 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
     # pooled in place and buffers reused, so at most five whole arrays are alive (not ten).
     change = o - x
 
-    def gain() -> FloatArray:  # what the change may remove, in expectation: v (1 - L); times the tolerance
+    def gain(tolerance: float) -> FloatArray:  # what the change may remove, in expectation: v (1 - L); times t
         out = 1.0 - lev
         if tolerance != 1.0:
             out *= tolerance
@@ -173,7 +181,7 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
         with np.errstate(over="ignore"):  # a k past 1e154 (a domain scale far above the image's): weights 0,
             np.square(weights, out=weights)  # the relative criterion undefined, the squared one decides
         np.divide(1.0, weights, out=weights)
-        weighted_gain = gain()
+        weighted_gain = gain(relative_t)
         squared = change * change
         # Past float64 beside means of 0 (k tiny, a variance of 1e307): Inf, which share() reads.
         with np.errstate(over="ignore"):
@@ -183,10 +191,10 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
 
     # The squared-error criterion's weights are 1: its sums need no product.
     if run is None:
-        lam = share(gain(), change * change)
+        lam = share(gain(squared_t), change * change)
         np.minimum(lam, share(*relative_sums()), out=lam)
     else:
-        pairs = [(gain(), change * change), relative_sums()]
+        pairs = [(gain(squared_t), change * change), relative_sums()]
         absolute, relative = run(lambda pair: share(*pair), pairs)
         del pairs
         lam = np.minimum(absolute, relative, out=absolute)

@@ -956,6 +956,76 @@ def tolerance(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple
     return rows
 
 
+CRITERIA: dict[str, float | tuple[float, float]] = {
+    "tolerance 1.2": 1.2, "squared criterion 1.2": (1.2, 1.0), "relative criterion 1.2": (1.0, 1.2),
+    "squared criterion 1.5": (1.5, 1.0)}
+"""The unguided default's tolerance given to both of the guard's criteria, or to one (``sure_blend``'s pair)."""
+
+
+def criteria(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], groups: int,
+             cache: Path, seeds: int = 4) -> list[dict[str, Any]]:
+    """The default without a guide at each of :data:`CRITERIA` against its tolerance of 1, on both renderers'
+    scenes, and next to the synthetic small light (each seed kept: the rim's risk is a single seed's)."""
+    def images(buffer: SampleBuffer, plain: np.ndarray) -> dict[str, np.ndarray]:
+        out = {"plain": plain, "default": reconstruct(buffer)}
+        for name, t in CRITERIA.items():
+            with _unguided_tolerance(t):  # type: ignore[arg-type]
+                out[name] = reconstruct(buffer)
+        return out
+
+    rows = []
+    for keys, buffer, ref in _scene_buffers(scenes, spps, groups, cache):
+        x = filled_mean(buffer)
+        rows += [{**keys, "method": m, **_measure(image, x, ref, float("nan"))}
+                 for m, image in images(buffer, x).items()]
+    for name in ("gradient", "edges", "hdr_source"):
+        scene = make_scene(name, (64, 64))
+        ref = scene.reference()
+        for seed in range(seeds):
+            for spp in (4, 16, 64, 256):
+                buffer = SyntheticRenderer(scene, seed=seed)(SampleRequest.uniform(scene.shape, spp))
+                rows += [{"renderer": "synthetic", "scene": name, "spp": spp, "group": seed, "method": m,
+                          "relmse": relmse(image, ref), "mse": mse(image, ref)}
+                         for m, image in images(buffer, buffer.mean).items()]
+    return rows
+
+
+def criteria_table(rows: list[dict]) -> None:
+    """Markdown: relMSE over the default's and MSE over the plain mean's per scene and spp; the synthetic scenes'
+    worst single seed over the plain mean."""
+    names = list(CRITERIA)
+    scored = [r for r in rows if r["renderer"] != "synthetic"]
+    over: dict[str, list[float]] = {}
+    print("\n| renderer | scene | spp | relMSE / the default's: " + ", ".join(names) + " | MSE / plain: default, "
+          + ", ".join(names) + " |")
+    print("|---|---|---|---|---|")
+    for renderer, scene in dict.fromkeys((r["renderer"], r["scene"]) for r in scored):
+        for spp in sorted({r["spp"] for r in scored if r["scene"] == scene}):
+            w = {"renderer": renderer, "scene": scene, "spp": spp}
+            rel = {m: _mean(scored, "relmse", method=m, **w) for m in ("default", *names)}
+            sq = {m: _mean(scored, "mse", method=m, **w) / _mean(scored, "mse", method="plain", **w)
+                  for m in ("default", *names)}
+            print(f"| {renderer} | {scene} | {spp} | " + ", ".join(f"{rel[n] / rel['default']:.3f}" for n in names)
+                  + " | " + ", ".join(f"{sq[m]:.2f}" for m in ("default", *names)) + " |")
+            for n in names:
+                over.setdefault(n, []).append(rel[n] / rel["default"])
+    print("\nrelMSE / the default's over every row: " + "; ".join(
+        f"{n}: geometric mean {float(np.exp(np.mean(np.log(over[n])))):.3f}, most {max(over[n]):.3f}" for n in names))
+    synthetic = [r for r in rows if r["renderer"] == "synthetic"]
+    print("\n| synthetic scene | worst relMSE / plain, any one seed and spp: default, " + ", ".join(names)
+          + " | worst MSE / plain, the same |")
+    print("|---|---|---|")
+    for scene in dict.fromkeys(r["scene"] for r in synthetic):
+        worst = {}
+        for key in ("relmse", "mse"):
+            plain = {(r["spp"], r["group"]): r[key] for r in synthetic
+                     if r["scene"] == scene and r["method"] == "plain"}
+            worst[key] = {m: max(r[key] / plain[r["spp"], r["group"]] for r in synthetic
+                                 if r["scene"] == scene and r["method"] == m) for m in ("default", *names)}
+        print(f"| {scene} | " + " | ".join(", ".join(f"{worst[key][m]:.3f}" for m in ("default", *names))
+                                          for key in ("relmse", "mse")) + " |")
+
+
 def tolerance_table(rows: list[dict]) -> None:
     """Markdown: the guide over OIDN (relMSE) and over the plain mean (MSE) at each tolerance; the wrong guides'
     worst errors over the plain mean's."""
@@ -1041,7 +1111,7 @@ def tolerance_table(rows: list[dict]) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("section", choices=("quality", "samplers", "synthetic", "ablations", "avenues", "features",
-                                            "pbrt", "auxiliary", "tolerance", "crops", "tables"))
+                                            "pbrt", "auxiliary", "tolerance", "criteria", "crops", "tables"))
     parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
     parser.add_argument("--spps", nargs="+", type=int, default=list(SPPS))
     parser.add_argument("--groups", type=int, default=2)
@@ -1093,6 +1163,10 @@ def main(argv: list[str] | None = None) -> int:
         rows = tolerance(quality_scenes(args.scenes), tuple(sorted(args.spps)), args.groups, args.cache)
         update_section(args.output, "tolerance", rows, command, "pyoidn")
         tolerance_table(rows)
+    elif args.section == "criteria":
+        rows = criteria(quality_scenes(args.scenes), tuple(sorted(args.spps)), args.groups, args.cache)
+        update_section(args.output, "criteria", rows, command, "pyoidn")
+        criteria_table(rows)
     elif args.section == "crops":
         update_section(args.output, "crops", crops(args.crop_spp, args.cache, args.images), command, "pyoidn")
     else:  # print the tables of the stored results
@@ -1100,7 +1174,8 @@ def main(argv: list[str] | None = None) -> int:
         for section, show in (("quality", quality_tables), ("samplers", sampler_table),
                               ("synthetic", synthetic_table), ("ablations", ablation_table),
                               ("avenues", avenue_table), ("features", feature_limits_table), ("pbrt", pbrt_table),
-                              ("auxiliary", auxiliary_table), ("tolerance", tolerance_table)):
+                              ("auxiliary", auxiliary_table), ("tolerance", tolerance_table),
+                              ("criteria", criteria_table)):
             if section in data:
                 print(f"\n## {section} ({data[section]['command']})")
                 show(data[section]["rows"])

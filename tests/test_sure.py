@@ -122,7 +122,7 @@ def test_bad_arguments_are_refused(rng, kwargs, message):
         sure_blend(truth, mean, variance, np.zeros(SHAPE), **kwargs)
 
 
-def _plain_sure_blend(o, x, v, lev, k, window=9):
+def _plain_sure_blend(o, x, v, lev, k, window=9, tolerances=(1.0, 1.0)):
     """The guard written out plainly (a new array per step): the in-place version's reference."""
     lev = lev[..., None] if lev.ndim == o.ndim - 1 else lev
     change, gain = o - x, v * (1.0 - lev)
@@ -135,7 +135,8 @@ def _plain_sure_blend(o, x, v, lev, k, window=9):
         return np.clip(np.nan_to_num(lam, nan=1.0, posinf=1.0), 0.0, 1.0)
 
     squared, relative = change * change, 1.0 / (np.abs(o) + k) ** 2
-    lam = np.minimum(share(gain, squared), share(gain * relative, squared * relative))
+    gain_s, gain_r = (gain if t == 1.0 else v * ((1.0 - lev) * t) for t in tolerances)
+    lam = np.minimum(share(gain_s, squared), share(gain_r * relative, squared * relative))
     return x + lam * change, lam
 
 
@@ -155,6 +156,26 @@ def test_the_in_place_guard_is_the_plain_formula_bit_for_bit(rng, shared_leverag
     np.testing.assert_array_equal(lam, want_lam)
     np.testing.assert_array_equal(got, want)
     assert not np.shares_memory(got, x) and not np.shares_memory(got, o)
+
+
+@pytest.mark.parametrize("tolerance", [1.2, (1.2, 1.0), (1.0, 1.5), (1.5, 1.2)])
+def test_a_pair_of_tolerances_gives_each_criterion_its_own(rng, tolerance):
+    """``tolerance=(squared, relative)``: the plain formula with each criterion's gain scaled by its own; one
+    number is the pair of it twice. Next to a small bright light the relative criterion's tolerance lets a rim
+    through that the squared one's does not (docs/reconstruction.md, "The guard's tolerance without a guide")."""
+    o = rng.lognormal(0.0, 2.0, (40, 36, 3))
+    x = o * rng.uniform(0.5, 1.5, o.shape)
+    v = rng.uniform(0.0, 0.5, o.shape) * o
+    lev = rng.uniform(0.0, 1.0, o.shape)
+    pair = tolerance if isinstance(tolerance, tuple) else (tolerance, tolerance)
+    got, lam = sure_blend(o, x, v, lev, k=0.05, tolerance=tolerance)
+    want, want_lam = _plain_sure_blend(o, x, v, lev, 0.05, tolerances=pair)
+    np.testing.assert_array_equal(lam, want_lam)
+    np.testing.assert_array_equal(got, want)
+    with pytest.raises(ValueError, match="tolerance: a pair"):
+        sure_blend(o, x, v, lev, k=0.05, tolerance=(1.2, 1.2, 1.2))
+    with pytest.raises(ValueError, match="tolerance: must be >= 1"):
+        sure_blend(o, x, v, lev, k=0.05, tolerance=(1.2, 0.5))
 
 
 def test_the_criteria_on_threads_give_the_same_bits(rng):
