@@ -195,7 +195,7 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
         raise InputFileError(f"{source}: {str(exc).removeprefix('buffer: ')}") from None
     image = np.asarray(result.image)
     error = _reference_error(reference, image, buffer.channels, source, windows) if reference else None
-    header = {**image_provenance(result, buffer, source=source, **_guiding_planes(dump, reconstruct_options)),
+    header = {**image_provenance(result, buffer, source=source, **_guiding_planes(dump, result, reconstruct_options)),
               **windows}
 
     def write(path: str | os.PathLike[str], replace: bool) -> str | os.PathLike[str]:
@@ -211,14 +211,20 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
                        int(buffer.nonfinite), error, tuple(buffer.features), int(np.count_nonzero(buffer.count == 0)))
 
 
-def _guiding_planes(dump: SampleDump, options: Mapping[str, Any]) -> dict[str, str]:
-    """``albedo_plane=...`` and the like for each feature read, where the features may guide the result (a guide or
-    the feature pilot): the plane of the input (``Albedo``), or ``file.exr:plane`` for another file (its name,
-    as ``awr:input`` records the input's)."""
-    if not options.get("features") and options.get("guide") is None:
-        return {}
-    return {f"{name}_plane": _plane_name(where) for name, where in dump.feature_planes.items()
-            if name in dump.buffer.features}
+def _guiding_planes(dump: SampleDump, result: Any, options: Mapping[str, Any]) -> dict[str, str]:
+    """``albedo_plane=...`` and the like for each feature that guided the result: the plane of the input
+    (``Albedo``), or ``file.exr:plane`` for another file (its name, as ``awr:input`` records the input's).
+
+    The feature pilot takes every feature (with a guide too, where the gate closes); OIDN the albedo, and the
+    normal beside it, unless told to take none (its recorded ``guide_auxiliary``); another guide none."""
+    read = dump.buffer.features
+    if options.get("features"):
+        used = set(read)
+    elif result.parameters.get("guide_auxiliary") not in (None, "none"):
+        used = {"albedo", "normal"} & set(read) if "albedo" in read else set()
+    else:
+        used = set()
+    return {f"{name}_plane": _plane_name(where) for name, where in dump.feature_planes.items() if name in used}
 
 
 def _plane_name(where: str) -> str:

@@ -445,3 +445,17 @@ def test_the_header_records_the_planes_that_guided_the_image(tmp_path, capsys):
     assert main(["denoise", str(PBRT), "-o", str(out), "-q"]) == 0
     assert not any(key.endswith("_plane") for key in read_header(out))
     assert read_sample_dump(PBRT).feature_planes == {"albedo": "Albedo", "normal": "Ns", "depth": "P.Z"}
+
+
+def test_the_header_records_only_the_planes_oidn_took(tmp_path):
+    """OIDN takes the albedo and the normal beside it, never the depth, and none with --guide-auxiliary none: the
+    depth plane (and all three with none) was recorded as guiding the image, beside a summary saying otherwise."""
+    pytest.importorskip("pyoidn")
+    out = tmp_path / "oidn.exr"
+    assert main(["denoise", str(PBRT), "--guide", "oidn", "-o", str(out), "-q"]) == 0
+    header = read_header(out)
+    assert (header["awr:albedo_plane"], header["awr:normal_plane"]) == ("Albedo", "Ns")
+    assert "awr:depth_plane" not in header
+    out = tmp_path / "none.exr"
+    assert main(["denoise", str(PBRT), "--guide", "oidn", "--guide-auxiliary", "none", "-o", str(out), "-q"]) == 0
+    assert not any(key.endswith("_plane") for key in read_header(out))
