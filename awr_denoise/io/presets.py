@@ -827,15 +827,22 @@ def _resolve_preset(p: Path, f: _File, preset: str, color: str | None, variance:
     return preset
 
 
-def _generic_reading(p: Path, f: _File, preset: str) -> list[str]:
-    """A warning where the generic layout reads a file whose own preset converts its spread: pbrt-v4's Variance
-    and Mitsuba's second moments are CIE XYZ, read generically as the colour's own, in its channels."""
-    found = detect_preset(list(f.channels), f.header) if preset == "generic" else None
-    if found not in ("pbrt", "mitsuba"):
+def _generic_reading(ctx: _Context, preset: str, layout: _Layout) -> list[str]:
+    """A warning where the generic layout reads a pbrt or Mitsuba file's own spread: pbrt-v4's ``Variance`` and
+    Mitsuba's ``m2_*`` second moments are CIE XYZ (Mitsuba's colour too), read generically as they are named."""
+    found = detect_preset(list(ctx.file.channels), ctx.file.header) if preset == "generic" else None
+    spread = layout.spread
+    if found not in ("pbrt", "mitsuba") or spread is None or not _in_input(ctx, spread):
         return []
-    what = "pbrt-v4's GBufferFilm (Variance.*)" if found == "pbrt" else "Mitsuba 3's moment integrator (m2_*)"
-    return [f"{p}: reads as {what}, whose spread is CIE XYZ: the generic layout takes it as the colour's own, "
-            f"unconverted; --preset auto (or {found}) converts it"]
+    label = spread.label
+    if found == "pbrt" and label.split(".")[0] == "Variance":
+        return [f"{ctx.path}: {label} is pbrt-v4's variance in CIE XYZ; the generic layout reads it as the colour's "
+                "own, unconverted; --preset auto (or pbrt) converts it"]
+    if found == "mitsuba" and label.startswith("m2_"):
+        return [f"{ctx.path}: {label} is a Mitsuba 3 moment integrator's second moment E[x^2] in CIE XYZ, like its "
+                "colour; the generic layout reads both as named and unconverted (the moment as a variance unless "
+                "--variance-kind second_moment); --preset auto (or mitsuba) converts them"]
+    return []
 
 
 def _feature_plane(ctx: _Context, spec: str, name: str) -> _Plane:
@@ -1020,7 +1027,7 @@ def read_sample_dump(
         return dataclasses.replace(dump, buffer=buffer, notes=dump.notes + tuple(ctx.notes), feature_planes=planes_read)
     layout, ctx = _layout(p, f, preset, color=color, variance=variance, count=count, variance_kind=variance_kind,
                           spp=spp, layer=layer, view=view, need_variance=True, need_count=True)
-    ctx.warnings[:0] = _generic_reading(p, f, preset)
+    ctx.warnings[:0] = _generic_reading(ctx, preset, layout)
     buffer = _assemble(p, layout, ctx.warnings)
     found = _features(ctx, preset, layout, buffer.count, planes, features)
     if found:
@@ -1240,7 +1247,7 @@ def describe_layout(path: Path, parts: list[ExrPart], *, preset: str = "auto", c
                           spp=spp, layer=layer, view=view, need_variance=False, need_count=False)
     # Said where the statistics are read (read_sample_dump), but a file described without them (a
     # Cycles render, before merging) was called fine.
-    ctx.warnings[:0] = _lossy(path, f.used) + _generic_reading(path, f, name)
+    ctx.warnings[:0] = _lossy(path, f.used) + _generic_reading(ctx, name, layout)
     count_or_none = np.zeros(layout.colour.shape, np.int64) if layout.count is None else layout.count
     _features(ctx, name, layout, count_or_none, {"albedo": albedo, "normal": normal, "depth": depth}, features)
     return name, layout, ctx.notes, ctx.warnings, ctx.feature_planes

@@ -247,17 +247,29 @@ def test_a_variance_plane_of_the_users_own_in_a_pbrt_file(tmp_path):
 
 
 @pytest.mark.parametrize("path, options, named", [
-    (DATA / "pbrt" / "pbrt_gbuffer_fp32.exr", {"variance": "Variance", "spp": 16}, "pbrt-v4's GBufferFilm"),
-    (MI / "mitsuba_box.exr", {"color": "nested", "variance": "m2_nested", "spp": 16}, "Mitsuba 3's moment"),
+    (DATA / "pbrt" / "pbrt_gbuffer_fp32.exr", {"variance": "Variance", "spp": 16},
+     "Variance is pbrt-v4's variance in CIE XYZ"),
+    (MI / "mitsuba_box.exr", {"color": "nested", "variance": "m2_nested", "spp": 16},
+     r"m2_nested is a Mitsuba 3 moment integrator's second moment E\[x\^2\] in CIE XYZ, like its colour"),
 ])
-def test_the_generic_layout_on_a_renderers_file_says_its_spread_is_xyz(path, options, named, capsys):
-    """Read generically when asked, but not without a word: the spread these renderers write is CIE XYZ, which
-    the generic layout takes as the colour's own."""
-    with pytest.warns(InputFileWarning, match=f"{named}.*CIE XYZ.*--preset auto"):
+def test_the_generic_layout_on_a_renderers_own_spread_says_it_is_xyz(path, options, named, tmp_path):
+    """Read generically when asked, but not without a word: the spread these renderers write is CIE XYZ (and
+    Mitsuba's a second moment), which the generic layout takes as it is named. A variance plane of the user's
+    own in the same file is not the renderer's: no warning."""
+    with pytest.warns(InputFileWarning, match=f"{named}.*--preset auto"):
         read_sample_dump(path, preset="generic", **options)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # their own presets read them without this warning
         read_sample_dump(path, spp=16)
+    planes = _channels(path)
+    colour = options.get("color")
+    names = [f"{colour}.{c}" for c in "XYZ"] if colour else ["R", "G", "B"]
+    mine = tmp_path / "mine.exr"
+    variances = {f"myvar.{n.rsplit('.', 1)[-1]}": np.full(planes[n].shape, 0.1, np.float32) for n in names}
+    write_exr(mine, {k: v.astype(np.float32) for k, v in planes.items()} | variances)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_sample_dump(mine, preset="generic", **(options | {"variance": "myvar"}))
 
 
 def test_an_aovs_moment_named_reads_with_its_mean(tmp_path):
