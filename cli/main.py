@@ -297,9 +297,10 @@ class _DiagnosticStream:
         return getattr(self._stream, name)
 
 
-MIN_ADDRESS_SPACE = 256 * 2**20
+MIN_ADDRESS_SPACE = 192 * 2**20
 """Bytes of address space (``ulimit -v``) below which the command refuses to start: scipy's import spun for ever
-in OpenBLAS' start-up, deaf to SIGTERM, at limits of 130-150 MB, and every command failed below about 250 MB."""
+in OpenBLAS' start-up, deaf to SIGTERM, at limits of 130-150 MB (one BLAS thread or not), and failed at once
+around them; commands ran from about 230 MB."""
 
 
 def _one_blas_thread_under_a_memory_limit() -> str | None:
@@ -316,7 +317,7 @@ def _one_blas_thread_under_a_memory_limit() -> str | None:
         return None
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     if soft < MIN_ADDRESS_SPACE:
-        return (f"an address-space limit of {soft / 2**20:.0f} MiB (ulimit -v): awr needs at least "
+        return (f"an address-space limit of {soft // 2**20} MiB (ulimit -v): awr needs at least "
                 f"{MIN_ADDRESS_SPACE // 2**20} MiB to start")
     return None
 

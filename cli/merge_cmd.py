@@ -188,6 +188,14 @@ class _Seen:
     running: tuple[frozenset[int], np.ndarray] | None  # the seeds whose first samples it holds, and where
 
 
+def _of_the_run(path: str, attributes: dict, seeds: frozenset[int]) -> bool:
+    """Whether a batch may be of the run whose seeds are ``seeds``: it names none (a renderer's batch), or one of
+    them (a batch that copied its request's header)."""
+    if "awr:seed" not in attributes:
+        return True
+    return header_count(path, attributes, "awr:seed", 0, MAX_SEED) in seeds
+
+
 def _seeds(path: str, attributes: dict, told: bool) -> frozenset[int]:
     """The seeds whose sequences from index 0 an input holds: its :data:`SEEDS`, else a running dump's
     ``awr:seed``; none for a told batch (it starts at its request's ``first_index``) or any other file."""
@@ -320,7 +328,7 @@ def run(args: argparse.Namespace) -> int:
     held: set[int] = set()  # the seeds whose first samples the inputs hold
     rounds: list[int] = []
     answers: list[dict | None] = []
-    next_round = None  # the running dump's (the first input's) awr:round
+    next_round, run_seeds = None, frozenset()  # the running dump's (the first input's) awr:round and seeds
     all_running = True
     merged = issued = told = None
     # The request's run settings, which replace the running dump's in the output: those are neither checked nor
@@ -362,9 +370,9 @@ def run(args: argparse.Namespace) -> int:
         all_running = all_running and (is_told or _running(dump.attributes))  # a told batch: its request's
         answers.append(_answers(path, dump.attributes))
         if index == 0 and _running(dump.attributes):
-            next_round = header_count(path, dump.attributes, "awr:round", 0, MAX_ROUND)
+            next_round, run_seeds = header_count(path, dump.attributes, "awr:round", 0, MAX_ROUND), seeds
         elif index and not is_told and answers[-1] is not None and next_round is not None \
-                and answers[-1]["round"] < next_round:
+                and answers[-1]["round"] < next_round and _of_the_run(path, dump.attributes, run_seeds):
             # A running dump has taken in every round before its own: a batch of one of them is most likely in it
             # already. Not refused: a batch names no loop, and another loop's may be meant.
             warnings.warn(f"{path}: answers request round {answers[-1]['round']}, and the running dump "

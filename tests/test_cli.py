@@ -889,6 +889,15 @@ def test_a_plain_merge_of_a_batch_the_dump_has_taken_in_warns(tmp_path, capsys):
     assert "d3.exr (next round 3) has taken that round in" in err
     assert main(["merge", dumps[0], str(folder / "b1.exr"), "-o", str(tmp_path / "next.exr"), "-q"]) == 0
     assert capsys.readouterr().err == ""  # round 1 is d1.exr's next: no warning
+    # A batch that copied its request's header names its loop's seed: another loop's is not this dump's round.
+    other = tmp_path / "other.exr"
+    batch = read_sample_dump(folder / "b1.exr")
+    write_sample_buffer(other, batch.buffer, header={**batch.attributes, "awr:seed": 9})
+    assert main(["merge", dumps[-1], str(other), "-o", str(tmp_path / "loops.exr"), "-q"]) == 0
+    assert "count twice" not in capsys.readouterr().err
+    write_sample_buffer(tmp_path / "same.exr", batch.buffer, header={**batch.attributes, "awr:seed": 7})
+    assert main(["merge", dumps[-1], str(tmp_path / "same.exr"), "-o", str(tmp_path / "again7.exr"), "-q"]) == 0
+    assert "count twice" in capsys.readouterr().err
 
 
 def test_plan_says_when_its_file_records_no_round_or_seed(tmp_path, capsys):

@@ -259,11 +259,11 @@ def test_one_blas_thread_under_an_address_space_limit(work):
 
 def test_an_address_space_too_small_to_start_is_refused_not_spun_on(work):
     """At 130-150 MB scipy's import spun for ever in OpenBLAS' start-up even with one thread, deaf to SIGTERM (a
-    red-team pass); below 256 MiB the command now ends at once, one line, exit 1, and writes nothing."""
+    red-team pass); below 192 MiB the command now ends at once, one line, exit 1, and writes nothing."""
     before = work.state()
     done = _run_limited(work, ["denoise", "d.exr", "-o", "o.exr"], "RLIMIT_AS", 140 * 2**20)
     assert done.returncode == 1, done.stderr
-    one_error_line(done.stderr, "an address-space limit of 140 MiB (ulimit -v): awr needs at least 256 MiB")
+    one_error_line(done.stderr, "an address-space limit of 140 MiB (ulimit -v): awr needs at least 192 MiB")
     assert work.state() == before
 
 
