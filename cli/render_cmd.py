@@ -203,6 +203,10 @@ def _scene(args: argparse.Namespace) -> tuple[str, Any, str, tuple[int, int] | N
         raise UsageError("give the scene either as SCENE or with --scene, not both")
     given = args.scene_file if args.scene_file is not None else args.scene
     shape = None if args.width is None and args.height is None else (args.height or 0, args.width or 0)
+    if given is not None and not given.strip():  # refused by its option, never taken as the option not given
+        raise UsageError(f"{'SCENE' if args.scene_file is not None else '--scene'}: an empty name"
+                         + ("" if args.renderer != TRACER else
+                            f"; leave it out for the default scene ({default_scene(tracer_module())})"))
     if args.renderer != TRACER:
         if not given:
             raise UsageError(f"--renderer {args.renderer}: give the SCENE to render")
@@ -220,9 +224,6 @@ def _scene(args: argparse.Namespace) -> tuple[str, Any, str, tuple[int, int] | N
                                  f"(it renders: {', '.join(offered) or 'no features'})")
         return given, given, Path(given).name, shape, {"features": args.features} if args.features else {}
     tracer = tracer_module()
-    if given is not None and not given.strip():  # refused by its option, never taken as the option not given
-        raise UsageError(f"{'SCENE' if args.scene_file is not None else '--scene'}: an empty name; leave it out for "
-                         f"the default scene ({default_scene(tracer)})")
     name = given or default_scene(tracer)
     if name not in tracer.list_scenes() and Path(name).suffix != ".json":
         raise UsageError(f"--scene: {name!r} is not one of {', '.join(sorted(tracer.list_scenes()))}")
@@ -323,7 +324,9 @@ def run(args: argparse.Namespace) -> int:
     frame_shape = shape or getattr(scene, "shape", None)
     if frame_shape is not None:
         # The options' size, else the scene file's own (its width and height, or the film it declares).
-        sized_by = "--width/--height" if args.width is not None or args.height is not None else f"SCENE {given}"
+        given_sides = [o for o, v in (("--width", args.width), ("--height", args.height)) if v is not None]
+        sized_by = ("--width/--height" if len(given_sides) == 2 else
+                    f"SCENE {given}" + (f" with {given_sides[0]}" if given_sides else ""))
         check_pixels(sized_by, *frame_shape)
         check_reconstruction_options(args, tuple(frame_shape), name)
         if spp is not None and round(spp * frame_shape[0] * frame_shape[1]) < 1:  # else refused later, as "buffer"

@@ -252,6 +252,8 @@ def test_a_refusal_names_the_option_that_caused_it(work, capsys, monkeypatch, ar
     (["render", "", "--spp", "2", "-o", "e.exr"], ("SCENE: an empty name",)),
     (["render", " ", "--spp", "2", "-o", "e.exr"], ("SCENE: an empty name",)),
     (["demo", "--scene", "", "--spp", "2", "--out", "demo"], ("--scene: an empty name",)),
+    (["render", "--renderer", "synthetic", "", "--spp", "2", "-o", "e.exr"], ("SCENE: an empty name",)),
+    (["render", "--renderer", "mitsuba", " ", "--spp", "2", "-o", "e.exr"], ("SCENE: an empty name",)),
 ])
 def test_an_empty_scene_name_is_refused_not_taken_as_the_default(work, capsys, monkeypatch, args, needles):
     """``--scene ""`` rendered the default scene, exit 0, where every other empty name is refused by its option."""
@@ -278,6 +280,8 @@ def test_a_scene_files_own_size_is_named_as_the_file(work, capsys, monkeypatch):
     assert main(["render", "big.json", "--spp", "2", "-o", "o.exr"]) == 2
     line = one_error_line(capsys.readouterr().err, "SCENE big.json: 200000x200000 is 40000000000 pixels")
     assert "--width" not in line
+    assert main(["render", "big.json", "--width", "2048", "--spp", "2", "-o", "o.exr"]) == 2
+    one_error_line(capsys.readouterr().err, "SCENE big.json with --width: 2048x200000")
     assert work.state() == before
 
 
