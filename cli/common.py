@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from awr_denoise._progress import auto_tqdm as tqdm
+from awr_denoise._progress import bars_shown
 from awr_denoise.buffers import NONFINITE_POLICIES, VARIANCE_KINDS
 from awr_denoise.errors import InputFileError
 from awr_denoise.io import PRESETS
@@ -257,17 +258,9 @@ def frame_plane_kwargs(args: argparse.Namespace, planes: Sequence[Sequence[tuple
 
 
 def bars(quiet: bool) -> bool:
-    """Whether to draw progress bars on stderr: not with ``-q``, and only on a terminal.
-
-    A bar redraws its line with carriage returns; a log file or a pipe would keep every redraw, in
-    front of the error or summary line that follows. Status lines (:func:`status`) are kept there.
-    """
-    if quiet:
-        return False
-    try:
-        return sys.stderr.isatty()
-    except (AttributeError, ValueError):  # replaced by an object without isatty, or closed
-        return False
+    """Whether to draw progress bars on stderr: not with ``-q``; as ``AWR_PROGRESS`` says where set; else only on
+    a terminal (:func:`awr_denoise._progress.bars_shown`). Status lines (:func:`status`) are printed anywhere."""
+    return bars_shown(quiet)
 
 
 def progress(iterable: Iterable[Any], *, quiet: bool, total: int | None = None, desc: str = "") -> Iterator[Any]:

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from .._checks import MAX_SPP, path_option, whole_option
+from .._progress import bars_shown
 from .config import OVERHEAD_SIZES, BenchmarkConfig
 from .rendering import tracer_module
 from .runner import run_benchmark
@@ -119,14 +120,6 @@ def _refuse_unread(args: argparse.Namespace, config: BenchmarkConfig) -> None:
                                  f"is rendered on the spot at {config.inline_reference_spp} spp")
 
 
-def _terminal() -> bool:
-    """Whether stderr is a terminal: a log file would keep every redraw of the progress bar."""
-    try:
-        return sys.stderr.isatty()
-    except (AttributeError, ValueError):
-        return False
-
-
 def run_from_args(args: argparse.Namespace) -> int:
     """Run the benchmark with options parsed by :func:`add_arguments`; print the summary.
 
@@ -150,7 +143,7 @@ def run_from_args(args: argparse.Namespace) -> int:
     try:
         _refuse_unread(args, config)
         results = run_benchmark(config, output_dir=args.output_dir, results_path=args.results,
-                                plots=not args.no_plots, progress=not args.quiet and _terminal(),
+                                plots=not args.no_plots, progress=bars_shown(args.quiet),
                                 mode_name="quick" if args.quick else "full")
     except ImportError as exc:  # one line in the form of every awr error (docs/cli.md)
         print(f"awr: error: {exc}", file=sys.stderr)

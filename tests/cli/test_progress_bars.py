@@ -36,14 +36,30 @@ def test_frames_draw_a_bar_on_a_terminal(work, monkeypatch):
     assert "\r" in err and "frames:" in err
 
 
-@pytest.mark.parametrize("quiet", [True, False])
-def test_render_draws_no_bar_into_a_log(work, monkeypatch, quiet):
-    """The tracer's own bar (a uniform render) follows the same rule, -q or not."""
+def test_render_draws_no_bar_into_a_log(work, monkeypatch):
+    """The tracer's own bar (a uniform render) follows the same rule."""
     pytest.importorskip("embreex")
     monkeypatch.chdir(work.root)
     stderr = io.StringIO()
     monkeypatch.setattr(sys, "stderr", stderr)
     args = ["render", "--scene", "sky_objects", "--width", "16", "--height", "12", "--spp", "2", "--uniform",
             "-o", "r.exr"]
-    assert main(args + (["-q"] if quiet else [])) == 0
+    assert main(args) == 0
     assert "\r" not in stderr.getvalue()
+
+
+@pytest.mark.parametrize(("setting", "stderr", "drawn"), [("1", io.StringIO, True), ("on", io.StringIO, True),
+                                                          ("0", _Terminal, False), ("off", _Terminal, False)])
+def test_awr_progress_decides_where_it_is_set(work, monkeypatch, setting, stderr, drawn):
+    """A CI log that wants its bars, a terminal that does not: ``AWR_PROGRESS`` overrides the terminal check."""
+    monkeypatch.setenv("AWR_PROGRESS", setting)
+    err = _frames(work, monkeypatch, stderr())
+    assert ("frames:" in err) == drawn
+
+
+def test_an_unreadable_awr_progress_is_named(work, monkeypatch, capsys):
+    monkeypatch.chdir(work.root)
+    monkeypatch.setenv("AWR_PROGRESS", "maybe")
+    assert main(["denoise", "shot.####.exr", "--frames", "1-3", "-o", "out.####.exr"]) == 2
+    assert "awr: error: AWR_PROGRESS='maybe': expected 1, true, yes, on, 0, false, no or off" in capsys.readouterr().err
+    assert not list(work.root.glob("out.*"))
