@@ -35,7 +35,7 @@ from awr_denoise.requests import Renderer, SampleTracer
 from awr_denoise.rounds import MAX_SECONDS, reconstruction_seconds
 from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS
 
-from .common import EXIT_OK, RuntimeFailure, UsageError, bars, status
+from .common import EXIT_OK, RuntimeFailure, UsageError, bars, check_memory, status
 from .denoise_cmd import (add_reconstruction_options, check_reconstruction_options, reconstruction_kwargs,
                           unused_features)
 from .parallel_options import DEFAULT_TILE, add_executor_arguments, executor_from_args, executor_requested
@@ -328,6 +328,11 @@ def run(args: argparse.Namespace) -> int:
         sized_by = ("--width/--height" if len(given_sides) == 2 else
                     f"SCENE {given}" + (f" with {given_sides[0]}" if given_sides else ""))
         check_pixels(sized_by, *frame_shape)
+        # At least 380 bytes a pixel at the peak (the statistics, the tracer's batches, the reconstruction: the
+        # maximum resident size of a 1-spp uniform render 290 MB higher at 1024x1024 than at 512x512); beyond the
+        # memory available, the kernel's out-of-memory killer ended the render without a word (exit 137).
+        check_memory(sized_by, 380.0 * frame_shape[0] * frame_shape[1],
+                     f"a render of {frame_shape[1]}x{frame_shape[0]}")
         check_reconstruction_options(args, tuple(frame_shape), name)
         if spp is not None and round(spp * frame_shape[0] * frame_shape[1]) < 1:  # else refused later, as "buffer"
             raise UsageError(f"--spp: {spp:g} per pixel of {frame_shape[1]}x{frame_shape[0]} is not one sample")

@@ -327,6 +327,24 @@ def test_a_first_round_larger_than_memory_is_refused_naming_size(work, capsys, m
     assert main(["plan", "--size", "64x64", "-o", "p.exr", "-q"]) == 0
 
 
+def test_a_render_larger_than_memory_is_refused_naming_its_size(work, capsys, monkeypatch):
+    """A render within the size limits but beyond the memory available (a scene file of 1024x200000 pixels) was
+    ended by the out-of-memory killer, exit 137 without a word (a review): refused before rendering."""
+    pytest.importorskip("embreex")
+    from awr_denoise.cli import common
+
+    monkeypatch.chdir(work.root)
+    monkeypatch.setattr(common, "available_memory", lambda: 2**30)
+    before = work.state()
+    assert main(["render", "--scene", "default", "--width", "2048", "--height", "2048", "--spp", "1",
+                 "-o", "r.exr"]) == 2
+    one_error_line(capsys.readouterr().err, "--width/--height: a render of 2048x2048 needs about 1.5 GiB",
+                   "1.0 GiB are available")
+    assert work.state() == before
+    assert main(["render", "--scene", "default", "--width", "16", "--height", "16", "--spp", "1", "-o", "r.exr",
+                 "-q"]) == 0
+
+
 @pytest.mark.parametrize("error, words", [
     (BrokenProcessPool("A process in the process pool was terminated abruptly"), "a worker process died"),
     (CancelledError("frame-3 cancelled for reason: scheduler-connection-lost."), "cancelled from outside"),
