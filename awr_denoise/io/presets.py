@@ -1023,7 +1023,8 @@ def read_sample_dump(
         if missing and not set(missing) <= set(given):
             raise file_error(p, f"the dump holds no {missing[0]} feature", missing[0])
         buffer = dataclasses.replace(dump.buffer, features=kept | given)
-        planes_read = {name: name for name in kept if name not in given} | ctx.feature_planes  # the dump's own: "albedo"
+        # The dump's own features by their layout's names ("albedo"), those given by their planes.
+        planes_read = {name: name for name in kept if name not in given} | ctx.feature_planes
         return dataclasses.replace(dump, buffer=buffer, notes=dump.notes + tuple(ctx.notes), feature_planes=planes_read)
     layout, ctx = _layout(p, f, preset, color=color, variance=variance, count=count, variance_kind=variance_kind,
                           spp=spp, layer=layer, view=view, need_variance=True, need_count=True)
@@ -1050,7 +1051,8 @@ def read_sample_dump(
                                 f"squared mean) though counted {int(buffer.count.max())} per pixel: moments of one "
                                 "sample per pixel? Give spp 1 if so; each variance read is the rounding of m2 - m1^2")
     _warn(ctx.warnings)
-    return SampleDump(buffer, buffer.count, {}, tuple(ctx.notes + ctx.warnings), feature_planes=dict(ctx.feature_planes))
+    return SampleDump(buffer, buffer.count, {}, tuple(ctx.notes + ctx.warnings),
+                      feature_planes=dict(ctx.feature_planes))
 
 
 def read_independent_renders(
