@@ -201,6 +201,9 @@ def _run(argv: Sequence[str] | None) -> int:
         args = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
         vars(args).pop(_GIVEN, None)
         _check_kernels(getattr(args, "command", None))
+        from awr_denoise._progress import bars_shown  # with the subcommands: tqdm checks TQDM_* when imported
+
+        bars_shown(False)  # AWR_PROGRESS read before the work: a frame's bar is drawn only once it is done
         with one_line_warnings():
             status = int(args.run(args) or EXIT_OK)
         sys.stdout.flush()  # a closed pipe shows here, not at exit

@@ -57,9 +57,13 @@ def test_awr_progress_decides_where_it_is_set(work, monkeypatch, setting, stderr
     assert ("frames:" in err) == drawn
 
 
-def test_an_unreadable_awr_progress_is_named(work, monkeypatch, capsys):
+def test_an_unreadable_awr_progress_is_named_before_any_work(work, monkeypatch, capsys):
+    """Read where the first bar is drawn, it failed after a frame's work (the bar advances when one is done)."""
+    from awr_denoise.parallel import frames
+
     monkeypatch.chdir(work.root)
     monkeypatch.setenv("AWR_PROGRESS", "maybe")
+    monkeypatch.setattr(frames, "read_sample_dump", lambda *a, **k: pytest.fail("a frame was read"))
     assert main(["denoise", "shot.####.exr", "--frames", "1-3", "-o", "out.####.exr"]) == 2
     assert "awr: error: AWR_PROGRESS='maybe': expected 1, true, yes, on, 0, false, no or off" in capsys.readouterr().err
     assert not list(work.root.glob("out.*"))
