@@ -338,6 +338,9 @@ def run(args: argparse.Namespace) -> int:
     replaced = _replaced(asked)
     for index, (path, kwargs) in enumerate(zip(args.inputs, _input_kwargs(args))):
         dump = read_sample_dump(path, **kwargs)
+        if RUNNING in dump.attributes and str(dump.attributes[RUNNING]).strip() not in ("0", "1"):
+            # Read as "not running" without a word, it dropped the loop's seed from the merge (a red-team pass).
+            raise InputFileError(f"{path}: {RUNNING}: {brief(dump.attributes[RUNNING])} is not 0 or 1")
         is_told = bool(args.request) and index == len(args.inputs) - 1
         seeds = _seeds(path, dump.attributes, is_told)
         if index == 0:

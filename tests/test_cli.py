@@ -641,6 +641,16 @@ def test_merge_refuses_a_run_setting_plan_would_refuse(tmp_path, rng, capsys, at
     assert not (tmp_path / "m.exr").exists() and not (tmp_path / "r.exr").exists()
 
 
+def test_merge_refuses_a_running_mark_that_is_not_0_or_1(tmp_path, rng, capsys):
+    """``awr:running = maybe`` was read as "not running" without a word (a red-team pass)."""
+    buf = _dump(tmp_path / "d.exr", rng)
+    write_sample_buffer(tmp_path / "bad.exr", buf, header={"awr:running": "maybe", "awr:seed": 1, "awr:round": 2})
+    assert main(["merge", str(tmp_path / "bad.exr"), str(tmp_path / "d.exr"), "--allow-duplicates",
+                 "-o", str(tmp_path / "m.exr"), "-q"]) == 2
+    _one_error_line(capsys, "bad.exr: awr:running: 'maybe' is not 0 or 1")
+    assert not (tmp_path / "m.exr").exists()
+
+
 @pytest.mark.parametrize("attribute, value, needle", BAD_RUN_SETTINGS + [("awr:seed", "x", "not a whole number"),
                                                                          ("awr:round", 0, "outside 1..")])
 def test_info_says_which_run_setting_plan_refuses(tmp_path, rng, capsys, attribute, value, needle):
