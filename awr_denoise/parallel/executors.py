@@ -162,8 +162,12 @@ def _close(pool: cf.ProcessPoolExecutor, *, cancel: bool) -> None:
 
 
 def default_workers() -> int:
-    """The number of CPUs of this machine (at least 1)."""
-    return max(1, os.cpu_count() or 1)
+    """The number of CPUs this process may run on (at least 1): its CPU affinity where the system has one (a
+    ``taskset`` or a batch scheduler's cgroup-pinned job), else the machine's CPUs."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # no affinity on this system (macOS, Windows)
+        return max(1, os.cpu_count() or 1)
 
 
 def _import_distributed() -> Any:

@@ -44,12 +44,25 @@ def test_local_processes_are_limited_per_cpu(monkeypatch):
     parser = argparse.ArgumentParser()
     add_executor_arguments(parser)
     for argv in (["--executor", "processes", "--workers", "9"], ["--executor", "dask", "--workers", "4096"]):
-        with pytest.raises(ValueError, match=r"--workers: \d+ local processes on a machine with 2 CPUs; at most 8"):
+        with pytest.raises(ValueError, match=r"--workers: \d+ local processes where this process may run on 2 CPUs; at most 8"):
             executor_from_args(parser.parse_args(argv))
     with executor_from_args(parser.parse_args(["--workers", "9"])) as executor:  # threads are cheap
         assert executor._max_workers == 9
     with executor_from_args(parser.parse_args(["--executor", "processes", "--workers", "8"])) as executor:
         assert isinstance(executor, cf.ProcessPoolExecutor)
+
+
+def test_the_cpus_counted_are_those_this_process_may_run_on(monkeypatch):
+    """Under ``taskset -c 0`` the cap counted the machine's CPUs: 5 local processes were allowed on one (a
+    red-team pass)."""
+    import os
+
+    from awr_denoise.parallel.executors import default_workers
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0}, raising=False)
+    assert default_workers() == 1
+    monkeypatch.delattr(os, "sched_getaffinity", raising=False)
+    assert default_workers() == max(1, os.cpu_count() or 1)
 
 
 def test_workers_beside_a_scheduler_are_refused():
