@@ -56,6 +56,12 @@ def test_pbrt_gbuffer(tmp_path):
         h = _write(tmp_path / "badspp.exr", planes, {"samplesPerPixel": bad})
         with pytest.raises(InputFileError, match=r"badspp\.exr: samplesPerPixel: .*not a sample count"):
             read_sample_buffer(h)
+    # Python's float() reads other scripts' digits and underscores: not a count a renderer wrote.
+    for bad in ("\uff11\uff16", "1_6", "16 spp"):
+        h = _write(tmp_path / "badspp.exr", planes, {"samplesPerPixel": bad})
+        with pytest.raises(InputFileError, match=r"badspp\.exr: samplesPerPixel: header attribute is not a number"):
+            read_sample_buffer(h)
+    assert (read_sample_buffer(_write(tmp_path / "text.exr", planes, {"samplesPerPixel": " 16 "})).count == 16).all()
 
 
 @pytest.mark.parametrize("layer", ["ViewLayer", "View Layer 2"])

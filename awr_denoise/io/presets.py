@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 import warnings
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -279,10 +280,11 @@ def _header_int(path: Path, header: dict, key: str) -> int | None:
     if key not in header:
         return None
     raw = header_value(header, key)
-    try:
-        number = float(str(raw).strip())
-    except ValueError:
-        raise file_error(path, f"header attribute is not a number: {raw!r}", key) from None
+    text = str(raw).strip()
+    # ASCII only: Python's float() also reads '1_6' and other scripts' digits ('１６', a red-team pass).
+    if not re.fullmatch(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?|[+-]?(inf|nan)", text, re.IGNORECASE):
+        raise file_error(path, f"header attribute is not a number: {raw!r}", key)
+    number = float(text)
     # A render's sample count: whole (16.7 was read as 16, -0.5 as 0) and at least 1 (0 read every
     # pixel as sampleless, discarding the file's values).
     if not np.isfinite(number) or number > MAX_EXACT_COUNT or number != int(number) or number < 1:
