@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import zlib
 
 import numpy as np
@@ -232,3 +233,22 @@ def test_deep_sample_indices_refuse_complex(tmp_path):
         write_deep_samples(tmp_path / "never.exr", np.array([0, 1]), np.ones((2, 3)), (1, 2),
                            sample_index=np.array([0j, 1j]))
     assert not (tmp_path / "never.exr").exists()
+
+
+@pytest.mark.parametrize(("index", "message"), [(np.array([0.0, np.nan]), "sample indices must be whole numbers"),
+                                                (np.array([0.0, -1.0]), "1 sample(s) are negative")])
+def test_bad_deep_sample_indices_are_named_as_indices_of_samples(tmp_path, index, message):
+    """A NaN sample index was refused as "counts must be whole numbers", a negative one as "1 pixel(s) are
+    negative" (a red-team pass): the words of a count plane, for one sample's index."""
+    with pytest.raises(ValueError, match=re.escape(f"sample_index: {message}")):
+        write_deep_samples(tmp_path / "never.exr", np.array([0, 1]), np.ones((2, 3)), (1, 2), sample_index=index)
+    write_deep_samples(tmp_path / "ok.exr", np.array([0, 1]), np.ones((2, 3)), (1, 2), sample_index=np.zeros(2))
+    # The same words where a file holds them (written raw: the writer refuses them).
+    from awr_denoise.io.deep import sample_index_bounds
+    from awr_denoise.io.exr import read_exr
+
+    part = read_exr(tmp_path / "ok.exr")[0]
+    grid = part.channels["sampleIndex"]
+    grid[0, 1] = np.array([-1.0], np.float32)
+    with pytest.raises(InputFileError, match=r"ok\.exr: sampleIndex: 1 sample\(s\) are negative"):
+        sample_index_bounds(tmp_path / "ok.exr", part)

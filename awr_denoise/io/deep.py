@@ -92,8 +92,8 @@ def write_deep_samples(
         idx = numeric("sample_index", sample_index)
         if idx.shape != (flat.size,):
             raise ValueError(f"sample_index: expected shape ({flat.size},), got {idx.shape}")
-        planes[SAMPLE_INDEX_CHANNEL] = _object_grid(np.split(exact_counts("sample_index", idx)[order], bounds),
-                                                    (h, w))
+        indices = exact_counts("sample_index", idx, what="sample indices", unit="sample(s)")
+        planes[SAMPLE_INDEX_CHANNEL] = _object_grid(np.split(indices[order], bounds), (h, w))
     # The total lets the reader catch a count table that disagrees with the data: OpenEXR
     # tolerates surplus sample data, and its Python binding does not expose chunk sizes.
     attrs: dict[str, Any] = {"awr:semantics": SEMANTICS_SAMPLES, "awr:channels": ",".join(names),
@@ -252,7 +252,7 @@ def sample_index_bounds(path: str | os.PathLike[str], part: ExrPart) -> IndexBou
     nonempty = sizes > 0
     raw = np.concatenate(flat[nonempty]) if nonempty.any() else np.zeros(0, np.float32)
     try:
-        index = exact_counts(SAMPLE_INDEX_CHANNEL, raw).astype(np.int64)
+        index = exact_counts(SAMPLE_INDEX_CHANNEL, raw, what="sample indices", unit="sample(s)").astype(np.int64)
     except ValueError as exc:
         raise file_error(path, str(exc).split(": ", 1)[-1], SAMPLE_INDEX_CHANNEL) from None
     pixel = np.repeat(np.arange(sizes.size, dtype=np.int64), sizes)

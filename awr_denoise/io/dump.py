@@ -101,19 +101,20 @@ class SampleDump:
     feature_planes: dict[str, str] = field(default_factory=dict)
 
 
-def exact_counts(name: str, counts: np.ndarray) -> np.ndarray:
-    """Counts as float32 after checking they are whole, non-negative and exactly representable."""
+def exact_counts(name: str, counts: np.ndarray, *, what: str = "counts", unit: str = "pixel(s)") -> np.ndarray:
+    """Counts as float32 after checking they are whole, non-negative and exactly representable (``what`` and
+    ``unit`` name them in the messages: ``"sample indices"`` of ``"sample(s)"`` for a deep dump's)."""
     c = numeric(name, counts)
     if c.dtype.kind == "f" and (~np.isfinite(c) | (c != np.round(c))).any():
-        raise ValueError(f"{name}: counts must be whole numbers")
+        raise ValueError(f"{name}: {what} must be whole numbers")
     if c.dtype.kind == "u":  # 2**63 and more would wrap to negative in int64: held just past the limit checked below
         c = np.minimum(c, MAX_EXACT_COUNT + 1)
     c = c.astype(np.int64)
     if (c < 0).any():
-        raise ValueError(f"{name}: {int((c < 0).sum())} pixel(s) are negative")
+        raise ValueError(f"{name}: {int((c < 0).sum())} {unit} are negative")
     too_big = c > MAX_EXACT_COUNT
     if too_big.any():
-        raise ValueError(f"{name}: {int(too_big.sum())} pixel(s) exceed {MAX_EXACT_COUNT} "
+        raise ValueError(f"{name}: {int(too_big.sum())} {unit} exceed {MAX_EXACT_COUNT} "
                          "(2**24), the largest count a float32 channel stores exactly")
     return c.astype(np.float32)
 
