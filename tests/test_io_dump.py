@@ -113,6 +113,20 @@ def test_a_mean_where_nothing_was_counted_is_read_as_no_samples_with_a_warning(t
         read_sample_dump(tmp_path / "e.exr")
 
 
+def test_a_mean_where_a_count_plane_says_0_is_warned_about_in_every_layout(tmp_path):
+    """The generic layout (a renderer's own count plane, --count) lost such means without a word too."""
+    one = np.ones((2, 3), np.float32)
+    count = one * 4
+    count[0, :2] = 0
+    planes = {c: one * 0.5 for c in "RGB"} | {f"var.{c}": one * 0.25 for c in "RGB"} | {"n": count}
+    _write(tmp_path / "g.exr", planes, {})
+    with pytest.warns(InputFileWarning, match=r"g\.exr: n: 2 pixel\(s\) counted 0 hold a non-zero mean"):
+        read_sample_dump(tmp_path / "g.exr", color="RGB", variance="var", count="n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a count from spp= counts every pixel
+        read_sample_dump(tmp_path / "g.exr", color="RGB", variance="var", spp=4)
+
+
 def test_an_unknown_variance_kind_in_a_header_is_named_once(tmp_path):
     one = np.ones((2, 2), np.float32)
     planes = {c: one * 0.5 for c in "RGB"} | {f"variance.{c}": one * 0.25 for c in "RGB"}

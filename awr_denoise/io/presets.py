@@ -745,6 +745,11 @@ def _assemble(path: Path, layout: _Layout, warnings: list[str] | None = None) ->
     mean = _values(colour)
     variance = _values(spread, nonnegative=kind != "second_moment")
     known = layout.known
+    stray = int(np.count_nonzero((np.asarray(layout.count) == 0) & np.any(mean != 0, axis=-1)))
+    if stray and warnings is not None:  # taken as no samples (from_moments zeroes them): a count gone wrong?
+        where = "" if layout.count_plane is None else f"{layout.count_plane.label}: "
+        warnings.append(f"{path}: {where}{stray} pixel(s) counted 0 hold a non-zero mean, read as no samples: is "
+                        "the count the renderer's?")
     if kind == "second_moment" and _is_half(spread):
         lost = ((variance == 0) & (mean != 0)).any(axis=-1)  # E[x^2] underflowed: no spread left to read
         variance = _half_moments(mean, variance, spread)
