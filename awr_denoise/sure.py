@@ -43,6 +43,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+from scipy import ndimage
 
 from . import _checks
 from ._typing import BoolArray, FloatArray
@@ -69,8 +70,8 @@ DEFAULT_GUIDED_TOLERANCE = 1.2
 
 def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, leverage: FloatArray, *, k: float,
                window: int = DEFAULT_WINDOW, run: Callable | None = None,
-               measured: BoolArray | None = None,
-               tolerance: float | tuple[float, float] = 1.0) -> tuple[FloatArray, FloatArray]:
+               measured: BoolArray | None = None, tolerance: float | tuple[float, float] = 1.0,
+               spared_beside: float | None = None) -> tuple[FloatArray, FloatArray]:
     """``mean + lambda (estimate - mean)`` with ``lambda`` from SURE (module docstring).
 
     Parameters
@@ -100,6 +101,10 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
         undone in part (module docstring); >= 1. A pair gives the squared and the relative
         criterion their own (next to a small bright light the relative one's binds at the rim:
         docs/reconstruction.md, "The guard's tolerance without a guide").
+    spared_beside
+        With a relative tolerance above 1: ``r``, a pixel whose window holds one brighter than ``r``
+        times its own ``|o| + k`` (a light's rim) keeps the relative criterion's tolerance at 1;
+        ``None`` spares none.
 
     Returns
     -------
@@ -127,6 +132,8 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
     """
     k = _checks.real("k", k, above=0)
     window = _checks.whole("window", window, minimum=1, maximum=1023)
+    if spared_beside is not None:
+        spared_beside = _checks.real("spared_beside", spared_beside, above=1)
     if isinstance(tolerance, tuple):
         if len(tolerance) != 2:
             raise ValueError(f"tolerance: a pair (squared, relative), got {len(tolerance)} values")
@@ -182,6 +189,13 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
             np.square(weights, out=weights)  # the relative criterion undefined, the squared one decides
         np.divide(1.0, weights, out=weights)
         weighted_gain = gain(relative_t)
+        if spared_beside is not None and relative_t != 1.0:
+            # Dark pixels beside a light carry the relative criterion's weight, and the stages lend them its light:
+            # a tolerance there let a rim through (docs/reconstruction.md, "The guard's tolerance without a guide").
+            level = np.abs(o).max(axis=-1)
+            beside = ndimage.maximum_filter(level, size=window, mode="nearest") > spared_beside * (level + k)
+            if beside.any():
+                weighted_gain = np.where(beside[..., None], gain(1.0), weighted_gain)
         squared = change * change
         # Past float64 beside means of 0 (k tiny, a variance of 1e307): Inf, which share() reads.
         with np.errstate(over="ignore"):

@@ -956,10 +956,30 @@ def tolerance(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple
     return rows
 
 
-CRITERIA: dict[str, float | tuple[float, float]] = {
-    "tolerance 1.2": 1.2, "squared criterion 1.2": (1.2, 1.0), "relative criterion 1.2": (1.0, 1.2),
-    "squared criterion 1.5": (1.5, 1.0)}
-"""The unguided default's tolerance given to both of the guard's criteria, or to one (``sure_blend``'s pair)."""
+CRITERIA: dict[str, dict[str, Any]] = {
+    "tolerance 1.2": {"tolerance": 1.2}, "squared criterion 1.2": {"tolerance": (1.2, 1.0)},
+    "relative criterion 1.2": {"tolerance": (1.0, 1.2)}, "squared criterion 1.5": {"tolerance": (1.5, 1.0)},
+    "tolerance 1.2, rims spared (10x)": {"tolerance": 1.2, "spared_beside": 10.0},
+    "tolerance 1.2, rims spared (3x)": {"tolerance": 1.2, "spared_beside": 3.0}}
+"""The unguided default's guard: its tolerance given to both criteria, or to one (``sure_blend``'s pair), or to
+both but the relative criterion's beside a pixel that many times brighter (``spared_beside``)."""
+
+
+@contextlib.contextmanager
+def _unguided_guard(**options: Any) -> Iterator[None]:
+    """The guard's ``sure_blend`` options without a guide (its tolerance 1 in the library) set to ``options``."""
+    saved = _RECONSTRUCT.sure_blend
+
+    def guarded(*args: Any, tolerance: float = 1.0, **kwargs: Any) -> tuple:
+        if tolerance != 1.0:  # a guide's: left as it is
+            return sure_blend(*args, tolerance=tolerance, **kwargs)
+        return sure_blend(*args, **{**kwargs, **options})
+
+    _RECONSTRUCT.sure_blend = guarded
+    try:
+        yield
+    finally:
+        _RECONSTRUCT.sure_blend = saved
 
 
 def criteria(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], groups: int,
@@ -968,8 +988,8 @@ def criteria(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[
     scenes, and next to the synthetic small light (each seed kept: the rim's risk is a single seed's)."""
     def images(buffer: SampleBuffer, plain: np.ndarray) -> dict[str, np.ndarray]:
         out = {"plain": plain, "default": reconstruct(buffer)}
-        for name, t in CRITERIA.items():
-            with _unguided_tolerance(t):  # type: ignore[arg-type]
+        for name, options in CRITERIA.items():
+            with _unguided_guard(**options):
                 out[name] = reconstruct(buffer)
         return out
 

@@ -122,7 +122,7 @@ def test_bad_arguments_are_refused(rng, kwargs, message):
         sure_blend(truth, mean, variance, np.zeros(SHAPE), **kwargs)
 
 
-def _plain_sure_blend(o, x, v, lev, k, window=9, tolerances=(1.0, 1.0)):
+def _plain_sure_blend(o, x, v, lev, k, window=9, tolerances=(1.0, 1.0), spared_beside=None):
     """The guard written out plainly (a new array per step): the in-place version's reference."""
     lev = lev[..., None] if lev.ndim == o.ndim - 1 else lev
     change, gain = o - x, v * (1.0 - lev)
@@ -136,6 +136,12 @@ def _plain_sure_blend(o, x, v, lev, k, window=9, tolerances=(1.0, 1.0)):
 
     squared, relative = change * change, 1.0 / (np.abs(o) + k) ** 2
     gain_s, gain_r = (gain if t == 1.0 else v * ((1.0 - lev) * t) for t in tolerances)
+    if spared_beside is not None and tolerances[1] != 1.0:
+        level = np.abs(o).max(axis=-1)
+        brightest = np.array([[level[max(0, r - window // 2):r + window // 2 + 1,
+                                     max(0, c - window // 2):c + window // 2 + 1].max()
+                               for c in range(level.shape[1])] for r in range(level.shape[0])])
+        gain_r = np.where((brightest > spared_beside * (level + k))[..., None], gain, gain_r)
     lam = np.minimum(share(gain_s, squared), share(gain_r * relative, squared * relative))
     return x + lam * change, lam
 
@@ -176,6 +182,45 @@ def test_a_pair_of_tolerances_gives_each_criterion_its_own(rng, tolerance):
         sure_blend(o, x, v, lev, k=0.05, tolerance=(1.2, 1.2, 1.2))
     with pytest.raises(ValueError, match="tolerance: must be >= 1"):
         sure_blend(o, x, v, lev, k=0.05, tolerance=(1.2, 0.5))
+
+
+@pytest.mark.parametrize("tolerance", [1.2, (1.0, 1.5), (1.5, 1.0)])
+def test_a_rim_beside_a_light_keeps_the_strict_relative_criterion(rng, tolerance):
+    """``spared_beside``: where a pixel's window holds one brighter than that many times its own level, the relative
+    criterion's tolerance stays 1 (the plain formula, its window maximum written out); elsewhere, and without a
+    relative tolerance, nothing changes."""
+    o = rng.lognormal(0.0, 1.0, (30, 28, 3))
+    o[10:13, 10:13] *= 1000.0  # a light
+    x = o * rng.uniform(0.5, 1.5, o.shape)
+    v = rng.uniform(0.0, 0.5, o.shape) * o
+    lev = rng.uniform(0.0, 1.0, o.shape[:2])
+    pair = tolerance if isinstance(tolerance, tuple) else (tolerance, tolerance)
+    got, lam = sure_blend(o, x, v, lev, k=0.05, tolerance=tolerance, spared_beside=10.0)
+    want, want_lam = _plain_sure_blend(o, x, v, lev, 0.05, tolerances=pair, spared_beside=10.0)
+    np.testing.assert_array_equal(lam, want_lam)
+    np.testing.assert_array_equal(got, want)
+    if pair[1] == 1.0:
+        np.testing.assert_array_equal(lam, sure_blend(o, x, v, lev, k=0.05, tolerance=tolerance)[1])
+    with pytest.raises(ValueError, match="spared_beside: must be > 1"):
+        sure_blend(o, x, v, lev, k=0.05, spared_beside=1.0)
+
+
+def test_sparing_the_rim_undoes_more_of_a_leak_of_light_onto_dark_ground(rng):
+    """The leak of :func:`test_the_relative_criterion_protects_dark_pixels_next_to_a_light`: a relative tolerance
+    of 1.5 keeps more of it; spared beside the light, less, and far from the light the share is the same."""
+    truth = np.full(SHAPE, 0.01)
+    truth[:, 16:] = 100.0
+    variance = (0.05 * truth) ** 2
+    mean = truth + np.sqrt(variance) * rng.standard_normal(SHAPE)
+    leak = truth.copy()
+    leak[:, 12:16] += 0.5
+    lev = np.full(SHAPE, 0.05)
+    strict = sure_blend(leak, mean, variance, lev, k=0.01)[1]
+    tolerant = sure_blend(leak, mean, variance, lev, k=0.01, tolerance=(1.0, 1.5))[1]
+    spared = sure_blend(leak, mean, variance, lev, k=0.01, tolerance=(1.0, 1.5), spared_beside=10.0)[1]
+    assert tolerant[:, 12:16].mean() > strict[:, 12:16].mean()
+    assert spared[:, 12:16].mean() < tolerant[:, 12:16].mean()
+    np.testing.assert_array_equal(spared[:, :3], tolerant[:, :3])  # no light within the window: not spared
 
 
 def test_the_criteria_on_threads_give_the_same_bits(rng):
