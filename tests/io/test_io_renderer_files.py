@@ -442,6 +442,18 @@ def test_cycles_count_scale_is_the_samples_rendered():
     del read_sample_independent
 
 
+@pytest.mark.parametrize(("name", "spp", "divisor"), [("cycles_converged.exr", 512, 304),
+                                                     ("cycles_time_limit.exr", 4096, 3856)])
+def test_an_spp_the_count_pass_contradicts_is_refused(name, spp, divisor):
+    """The samples asked for in Blender, given as --spp where the render stopped early: the normalised counts
+    times it were within the 1% then allowed of whole numbers, and every count came out up to 1.68x too high
+    without a word (a walkthrough). The pass's own divisor is named; a multiple of it still reads."""
+    with pytest.raises(InputFileError, match=f"normalised counts times {spp} are not whole numbers "
+                                             rf"\(the pass's own divisor: {divisor}\)"):
+        read_sample_dump(CY / name, variance="ViewLayer.Combined", spp=spp)
+    assert read_sample_dump(CY / name, variance="ViewLayer.Combined", spp=divisor).buffer.count.max() == divisor
+
+
 def test_cycles_counts_of_a_render_off_the_checks_grid():
     """Asked for 100 samples (checks at 16, ..., 96), most pixels converged at 48 and 26 ran to 100:
     the finest count difference (96 to 100) is not a check's step, and the counts were read as
