@@ -186,6 +186,27 @@ class _Seen:
     path: str
     digest: bytes | None  # of its count, mean and variance, when it holds samples
     running: tuple[frozenset[int], np.ndarray] | None  # the seeds whose first samples it holds, and where
+    counts: bytes | None = None  # the digest of its counts alone
+    signature: np.ndarray | None = None  # its means' signed sums (_signature)
+
+
+_SIGNED_SUMS = 8
+_ROUNDING = 1e-5
+"""Signed sums of two inputs' means within this share of each other, every one, with the same counts: the same
+samples up to rounding (the renderer's, or a conversion's). Two renders of other seeds differ by their noise over
+the means' own size, orders of magnitude more."""
+
+
+def _signature(mean: np.ndarray) -> np.ndarray:
+    """:data:`_SIGNED_SUMS` sums of the means, each with signs drawn from the entries' positions: unlike a digest,
+    close for means equal up to rounding (two files of one Mitsuba render with the same seed, a copy converted)."""
+    flat = np.ascontiguousarray(mean, np.float64).ravel()
+    index = np.arange(flat.size, dtype=np.uint64)
+    out = np.empty(_SIGNED_SUMS)
+    for k in range(_SIGNED_SUMS):
+        bits = ((index * np.uint64(0x9E3779B97F4A7C15 + 2 * k)) >> np.uint64(40 + k)) & np.uint64(1)
+        out[k] = float(np.dot(flat, 1.0 - 2.0 * bits.astype(np.float64)))
+    return out
 
 
 def _of_the_run(path: str, attributes: dict, seeds: frozenset[int]) -> bool:
@@ -214,14 +235,16 @@ def _seeds(path: str, attributes: dict, told: bool) -> frozenset[int]:
 
 def _seen(path: str, dump: SampleDump, seeds: frozenset[int]) -> _Seen:
     buffer = dump.buffer
-    digest = None
+    digest = counts = signature = None
     if buffer.total_samples:
         h = hashlib.sha256()
         for a in (buffer.count, buffer.mean, buffer.variance):
             h.update(repr((a.dtype.str, a.shape)).encode())
             h.update(np.ascontiguousarray(a).data)
         digest = h.digest()
-    return _Seen(path, digest, (seeds, buffer.count > 0) if seeds else None)
+        counts = hashlib.sha256(np.ascontiguousarray(buffer.count).data).digest()
+        signature = _signature(buffer.mean)
+    return _Seen(path, digest, (seeds, buffer.count > 0) if seeds else None, counts, signature)
 
 
 def _refuse_copies(earlier: list[_Seen], new: _Seen) -> None:
@@ -232,6 +255,11 @@ def _refuse_copies(earlier: list[_Seen], new: _Seen) -> None:
     for old in earlier:
         if new.digest is not None and new.digest == old.digest:
             why = "hold the same samples (a copy?)"
+        elif new.counts is not None and new.counts == old.counts and np.all(
+                np.abs(new.signature - old.signature)
+                <= _ROUNDING * np.maximum(np.abs(new.signature), np.abs(old.signature))):
+            why = ("hold the same samples up to rounding (one render written twice, or two renders of one seed: "
+                   "Mitsuba's sampler seed is 0 unless set)")
         elif new.running and old.running and (common := new.running[0] & old.running[0]) and (
                 shared := int(np.count_nonzero(new.running[1] & old.running[1]))):
             if len(new.running[0]) == len(old.running[0]) == 1:

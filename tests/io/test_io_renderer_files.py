@@ -111,8 +111,9 @@ def test_a_mitsuba_batch_merges_into_a_running_dump_with_its_spp(tmp_path, capsy
     """--spp reads the inputs without their own counts: an awr dump beside a Mitsuba file refused it ("holds
     per-pixel sample counts") and the Mitsuba file refused its absence (a red-team pass): no way to merge them."""
     first = tmp_path / "dump.exr"
+    # The two files are one render (seed 0) in two layouts: the same samples, merged here only for their layouts.
     assert main(["merge", str(MI / "mitsuba_aov_position.exr"), str(MI / "mitsuba_aov_of_moment.exr"), "--spp", "8",
-                 "-o", str(first), "-q"]) == 0
+                 "--allow-duplicates", "-o", str(first), "-q"]) == 0
     merged = tmp_path / "merged.exr"
     assert main(["merge", str(first), str(MI / "mitsuba_half_aov.exr"), "--spp", "16", "-o", str(merged), "-q"]) == 0
     buffer = read_sample_dump(merged).buffer
@@ -123,6 +124,19 @@ def test_a_mitsuba_batch_merges_into_a_running_dump_with_its_spp(tmp_path, capsy
     # With every input counting its own samples, --spp still describes none of them: refused.
     assert main(["merge", str(first), str(merged), "--spp", "8", "-o", str(tmp_path / "x.exr"), "-q"]) == 2
     assert "--spp is for files without them" in capsys.readouterr().err
+
+
+def test_one_mitsuba_render_in_two_files_is_not_merged_as_twice_the_samples(tmp_path, capsys):
+    """Two files of one Mitsuba render (its sampler's seed 0 by default): their means differ by float rounding, so
+    the copy check (equal bytes) let them through as 16 spp, the variance halved (a walkthrough)."""
+    out = tmp_path / "m.exr"
+    assert main(["merge", str(MI / "mitsuba_box.exr"), str(MI / "mitsuba_aov.exr"), "--spp", "8", "-o", str(out),
+                 "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "hold the same samples up to rounding" in err and "--allow-duplicates" in err
+    assert not out.exists()
+    seeds = sorted(CY.glob("cycles_seed_*.exr"))[:2]  # two seeds of one scene: other samples, merged
+    assert main(["merge", "--independent", *map(str, seeds), "-o", str(tmp_path / "c.exr"), "-q"]) == 0
 
 
 def test_an_aov_integrator_without_radiance_is_warned_about():
