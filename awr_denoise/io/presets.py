@@ -427,10 +427,16 @@ def _colour_layer(ctx: _Context, layers: Iterable[str]) -> str | None:
 
 def _cycles_layer(ctx: _Context) -> tuple[str, set[str]]:
     layers = cycles_layers(ctx.file.channels)
+    owner = _colour_layer(ctx, layers)
     if ctx.layer is None:
         # The colour plane's own layer: its Debug Sample Count and header samples are those of the
         # render the plane came from (a light group's Combined_<group> is in its layer).
-        ctx.layer = _colour_layer(ctx, layers)
+        ctx.layer = owner
+    elif owner is not None and owner != ctx.layer:
+        # Read, one layer's colour was counted by the other's pass and header (a walkthrough).
+        raise file_error(ctx.path, f"--color {ctx.color} is a plane of layer {owner}, not of layer={ctx.layer!r} / "
+                                   f"--layer {ctx.layer}, whose counts it would be read with; leave --layer out, or "
+                                   "name that layer's plane", f"{owner}.Combined")
     if ctx.layer is not None:
         if ctx.layer not in layers:
             raise file_error(ctx.path, f"no such layer (layers with a Combined pass: {', '.join(sorted(layers)) or 'none'})",

@@ -114,6 +114,13 @@ def test_a_colour_plane_names_its_layer(capsys):
     assert first["count"]["max"] == 32
     with pytest.raises(InputFileError, match="several view layers"):
         read_sample_dump(path, variance="Second.Combined")
+    # A layer that contradicts the plane's own: Second's colour read with ViewLayer's 32 samples (a walkthrough).
+    with pytest.raises(InputFileError, match=r"--color Second\.Combined is a plane of layer Second, not of "
+                                             r"layer='ViewLayer'"):
+        read_sample_dump(path, color="Second.Combined", variance="Second.Combined", layer="ViewLayer")
+    with pytest.warns(InputFileWarning, match="Second.Debug Sample Count.X"):  # the plane's own layer named: read
+        assert read_sample_dump(path, color="Second.Combined", variance="Second.Combined",
+                                layer="Second").buffer.count.max() == 48
 
 
 def test_stereo_views_rendered_apart_are_not_merged_as_seeds(tmp_path, capsys):
