@@ -452,7 +452,13 @@ def _cycles_layer(ctx: _Context) -> tuple[str, set[str]]:
 
 def _cycles_colour(ctx: _Context, layer: str, passes: set[str]) -> _Plane:
     if ctx.color is not None:
-        return ctx.plane(ctx.color, colour=True, what="colour")
+        plane = ctx.plane(ctx.color, colour=True, what="colour")
+        if COLOUR_PASSES[0] in passes and _in_input(ctx, plane) and plane.label == f"{layer}.Combined":
+            # Read as named, but not as samples without a word: the denoiser's output (a walkthrough).
+            ctx.warnings.append(f"{ctx.path}: {plane.label}: the denoiser's output (the layer has a Noisy Image "
+                                f"pass, the Monte Carlo mean): its pixels are not means of samples; leave --color "
+                                f"out, or name {layer}.{COLOUR_PASSES[0]}")
+        return plane
     if COLOUR_PASSES[0] in passes:
         ctx.notes.append("colour: Noisy Image (Combined is the denoiser's output)")
         return ctx.plane(f"{layer}.{COLOUR_PASSES[0]}", colour=True, what="colour")

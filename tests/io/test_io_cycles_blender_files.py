@@ -5,6 +5,7 @@ border render without the count pass."""
 
 from __future__ import annotations
 
+import re
 import warnings
 from pathlib import Path
 
@@ -99,6 +100,20 @@ def test_the_missing_variance_names_the_pass_read(tmp_path, capsys):
     assert main(["denoise", str(CY / "cycles_default.exr"), "-o", str(out)]) == 2
     _refused(capsys, out, "cycles_default.exr: ViewLayer.Noisy Image: Blender Cycles writes no variance pass",
              "awr merge --independent")
+
+
+def test_the_denoisers_output_named_as_the_colour_is_warned_about():
+    """``--color ViewLayer.Combined`` beside a Noisy Image pass read the denoiser's output as means of samples
+    without a word (auto-detection says which it takes; a walkthrough)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        read_sample_dump(CY / "cycles_default.exr", color="ViewLayer.Combined", variance="ViewLayer.Noisy Image")
+    assert any(re.search(r"ViewLayer\.Combined: the denoiser's output .* name ViewLayer\.Noisy Image", str(w.message))
+               for w in caught)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        read_sample_dump(CY / "cycles_default.exr", color="ViewLayer.Noisy Image", variance="ViewLayer.Combined")
+    assert not any("denoiser's output" in str(w.message) for w in caught)
 
 
 def test_a_colour_plane_names_its_layer(capsys):
