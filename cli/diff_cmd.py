@@ -79,6 +79,16 @@ def _names(spec: str, option: str) -> list[str]:
     return names
 
 
+def _space(spec: str | None, path: str) -> str | None:
+    """``"xyz"`` where ``spec`` names X,Y,Z channels, ``"rgb"`` where it names R,G,B or, not given, the file holds
+    them (the default read); else None."""
+    if spec is None:
+        bases = {name.rsplit(".", 1)[-1] for name in _channel_names(path)}
+        return "rgb" if {"R", "G", "B"} <= bases else None
+    bases = sorted(name.strip().rsplit(".", 1)[-1] for name in spec.split(","))
+    return {("X", "Y", "Z"): "xyz", ("B", "G", "R"): "rgb"}.get(tuple(bases))
+
+
 def _image(path: str, spec: str | None, option: str, view: str | None) -> np.ndarray:
     """The image at ``path`` with its channel choice ``spec`` (given as ``option``): a
     comma-separated list of names, or one name: a layer's R,G,B if the file has them, else that
@@ -122,6 +132,11 @@ def run(args: argparse.Namespace) -> int:
         ref_spec = _counterpart(image_spec, args.ref, "--channels")
     elif image_spec is None:
         image_spec = _counterpart(ref_spec, args.input, "--ref-channels")
+    spaces = {_space(image_spec, args.input), _space(ref_spec, args.ref)}
+    if spaces == {"rgb", "xyz"}:  # paired by position, R with X: a plausible number of nothing (a walkthrough)
+        raise UsageError(f"{args.ref if _space(ref_spec, args.ref) == 'xyz' else args.input}: its CIE X,Y,Z would be "
+                         "compared with the other image's R,G,B channel by channel; compare images of one colour "
+                         "space (convert one of them)")
     # Each file's windows from the read of its pixels (another read could meet the file's next version).
     with recorded_windows() as reads:
         image = _image(args.input, image_spec, "--channels", args.view)

@@ -671,8 +671,8 @@ def _find_rgb(path: Path, names: Sequence[str]) -> list[str]:
         raise file_error(path, f"ambiguous colour channels: layers {', '.join(layers)} all have R,G,B "
                                "(choose one with channels= / awr diff --channels or --ref-channels)")
     if {"X", "Y", "Z"} <= set(names):  # Y alone was compared: a third of the image, without a word
-        raise file_error(path, "holds CIE X,Y,Z, not R,G,B; compare X,Y,Z images with channels= / awr diff "
-                               "--channels X,Y,Z --ref-channels ...")
+        raise file_error(path, "holds CIE X,Y,Z, not R,G,B; compare it with another X,Y,Z image (channels= / "
+                               "awr diff --channels X,Y,Z --ref-channels X,Y,Z)")
     if "Y" in names:
         return ["Y"]
     if len(names) == 1:

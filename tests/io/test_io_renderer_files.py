@@ -20,7 +20,7 @@ OpenEXR = pytest.importorskip("OpenEXR")
 from awr_denoise import SampleRequest, reconstruct  # noqa: E402
 from awr_denoise.cli.main import main  # noqa: E402
 from awr_denoise.errors import InputFileError, InputFileWarning  # noqa: E402
-from awr_denoise.io import read_image, read_independent_renders, read_sample_dump  # noqa: E402
+from awr_denoise.io import read_image, read_independent_renders, read_sample_dump, write_image  # noqa: E402
 from awr_denoise.io.exr import write_exr  # noqa: E402
 
 DATA = Path(__file__).parent.parent / "data"
@@ -365,6 +365,23 @@ def test_xyz_image_is_not_compared_by_y_alone(capsys):
     assert "X,Y,Z" in capsys.readouterr().err
     image = read_image(MI / "mitsuba_xyz.exr", channels=["X", "Y", "Z"])
     assert image.shape == (16, 16, 3)
+    xyz = str(MI / "mitsuba_xyz.exr")
+    assert main(["diff", xyz, "-r", xyz, "--channels", "X,Y,Z"]) == 0  # X,Y,Z with X,Y,Z: compared
+    capsys.readouterr()
+
+
+def test_an_xyz_image_is_not_compared_with_an_rgb_one(tmp_path, capsys):
+    """The advice of the X,Y,Z refusal (``--ref-channels X,Y,Z``) compared an sRGB image with an XYZ reference
+    channel by channel, R with X: a 45% mean error printed as a result (a walkthrough)."""
+    rgb = tmp_path / "rgb.exr"
+    write_image(rgb, read_image(MI / "mitsuba_xyz.exr", channels=["X", "Y", "Z"]))  # R,G,B channels
+    xyz = str(MI / "mitsuba_xyz.exr")
+    for args in (["--ref-channels", "X,Y,Z"], ["--channels", "R,G,B", "--ref-channels", "Z,Y,X"]):
+        assert main(["diff", str(rgb), "-r", xyz, *args]) == 2
+        err = capsys.readouterr().err
+        assert "mitsuba_xyz.exr: its CIE X,Y,Z would be compared with the other image's R,G,B" in err
+    assert main(["diff", xyz, "-r", str(rgb), "--channels", "X,Y,Z"]) == 2
+    assert "mitsuba_xyz.exr: its CIE X,Y,Z" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("name", ["mitsuba_gaussian", "mitsuba_narrow_gaussian"])
