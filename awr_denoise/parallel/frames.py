@@ -194,6 +194,8 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
             raise
         raise InputFileError(f"{source}: {str(exc).removeprefix('buffer: ')}") from None
     image = np.asarray(result.image)
+    if half:  # the error of the image written, which --maxerror checks: HALF's rounding included
+        image = image.astype(np.float16).astype(np.float64)
     error = _reference_error(reference, image, buffer.channels, source, windows) if reference else None
     header = {**image_provenance(result, buffer, source=source, **_guiding_planes(dump, result, reconstruct_options)),
               **windows}

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -317,3 +318,16 @@ def test_reconstruction_options_are_checked_once_before_any_frame(tmp_path, dump
         with pytest.raises(TypeError, match=message):
             denoise_frames(dumps, outputs, **options)
     assert not any(o.exists() for o in outputs)
+
+
+def test_the_error_against_the_reference_is_the_written_half_images(tmp_path):
+    """With ``half`` the error was the float image's, not the file's that --maxerror is meant to check (a
+    walkthrough): now the two agree to the bit."""
+    from awr_denoise.io import read_image
+    from awr_denoise.metrics import relmse
+    from awr_denoise.parallel import denoise_frame
+
+    pbrt = Path(__file__).resolve().parents[1] / "data" / "pbrt"
+    frame = denoise_frame(pbrt / "pbrt_gbuffer_default.exr", tmp_path / "h.exr", reference=pbrt / "pbrt_ref.exr",
+                          half=True)
+    assert frame.relmse == relmse(read_image(tmp_path / "h.exr"), read_image(pbrt / "pbrt_ref.exr"))
