@@ -188,6 +188,8 @@ def _note(frame: FrameResult, output: str, nonfinite_policy: str, guide: str | N
         note += f"; features {', '.join(unused)} read but not used " + (
             "(see --guide)" if guide is None else f"by --guide {guide}"
             + (" --guide-auxiliary none" if auxiliary == "none" else ""))
+    if guide == "oidn" and auxiliary != "none" and "albedo" not in frame.features:
+        note += "; OIDN took the colour alone (the input holds no albedo: --alb gives one)"
     return note
 
 

@@ -447,6 +447,17 @@ def test_the_header_records_the_planes_that_guided_the_image(tmp_path, capsys):
     assert read_sample_dump(PBRT).feature_planes == {"albedo": "Albedo", "normal": "Ns", "depth": "P.Z"}
 
 
+def test_the_summary_says_when_oidn_took_the_colour_alone(tmp_path, capsys):
+    """A dump without an albedo, ``--guide oidn``: OIDN took the colour alone, recorded in the header only (a
+    walkthrough); the summary says it, as render's does."""
+    pytest.importorskip("pyoidn")
+    write_sample_buffer(tmp_path / "d.exr", dump_buffer(0))
+    assert main(["denoise", str(tmp_path / "d.exr"), "--guide", "oidn", "-o", str(tmp_path / "o.exr")]) == 0
+    assert "OIDN took the colour alone (the input holds no albedo: --alb gives one)" in capsys.readouterr().err
+    assert main(["denoise", str(PBRT), "--guide", "oidn", "-o", str(tmp_path / "p.exr")]) == 0
+    assert "colour alone" not in capsys.readouterr().err
+
+
 def test_the_header_records_only_the_planes_oidn_took(tmp_path):
     """OIDN takes the albedo and the normal beside it, never the depth, and none with --guide-auxiliary none: the
     depth plane (and all three with none) was recorded as guiding the image, beside a summary saying otherwise."""
