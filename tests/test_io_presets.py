@@ -343,3 +343,17 @@ def test_an_empty_plane_name_after_a_files_colon_is_refused(tmp_path):
     assert plane_file("variance") is None and plane_file("layer:variance") is None
     assert parse_plane("beauty.exr:variance", None) == (Path("beauty.exr"), "variance")
     assert parse_plane("variance", tmp_path / "d.exr") == (tmp_path / "d.exr", "variance")
+
+
+def test_the_colour_plane_given_as_its_own_variance_is_warned_about(tmp_path):
+    """``--variance ViewLayer.Combined`` (the colour itself) was read as a spread without a word, and the
+    reconstruction zeroed 99% of the coefficients (a walkthrough): accepted, with a warning naming the plane."""
+    planes = {c: _ramp(i) for i, c in enumerate("RGB")} | {f"var.{c}": _ramp(0.1) for c in "RGB"}
+    f = _write(tmp_path / "g.exr", planes)
+    with pytest.warns(InputFileWarning, match=r"g\.exr: R,G,B: the variance plane is the colour plane itself"):
+        read_sample_buffer(f, color="RGB", variance="RGB", spp=4)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_sample_buffer(f, color="RGB", variance="var", spp=4)

@@ -765,6 +765,10 @@ def _assemble(path: Path, layout: _Layout, warnings: list[str] | None = None) ->
     mean = _values(colour)
     variance = _values(spread, nonnegative=kind != "second_moment")
     known = layout.known
+    if warnings is not None and spread.path == colour.path and spread.channels == colour.channels:
+        # Accepted (a file read only for its features or counts), but not as a spread without a word (a walkthrough).
+        warnings.append(f"{path}: {spread.label}: the variance plane is the colour plane itself: its values are "
+                        "taken as the noise; give a real variance (Cycles: awr merge --independent)")
     stray = int(np.count_nonzero((np.asarray(layout.count) == 0) & np.any(mean != 0, axis=-1)))
     if stray and warnings is not None:  # taken as no samples (from_moments zeroes them): a count gone wrong?
         where = "" if layout.count_plane is None else f"{layout.count_plane.label}: "

@@ -12,7 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.exr
+# Cycles writes no variance: these tests read its files with the colour plane as the variance, only so that
+# they read, and the warning that says so (tests/test_io_presets.py) is not what they test.
+pytestmark = [pytest.mark.exr, pytest.mark.filterwarnings(
+    "ignore:.*the variance plane is the colour plane itself:awr_denoise.errors.InputFileWarning")]
 OpenEXR = pytest.importorskip("OpenEXR")
 
 from awr_denoise.cli.main import main  # noqa: E402
