@@ -155,8 +155,9 @@ def test_a_variance_kind_option_against_the_files_own_header_is_refused(tmp_path
     np.testing.assert_allclose(read_sample_buffer(tmp_path / "d.exr", variance_kind="sample").variance, 0.25)
     np.testing.assert_allclose(read_sample_buffer(tmp_path / "silent.exr", variance_kind="mean").variance, 1.0)
     # In a merge the option describes the inputs whose header is silent (the batch), not the running dump.
+    # (The two files hold the same means, refused as the same samples without --allow-duplicates: not the point.)
     args = ["merge", str(tmp_path / "d.exr"), str(tmp_path / "silent.exr"), "--variance-kind", "mean", "-q",
-            "-o", str(tmp_path / "m.exr")]
+            "--allow-duplicates", "-o", str(tmp_path / "m.exr")]
     assert main(args) == 0
     both = read_sample_buffer(tmp_path / "m.exr")
     expected = SampleBuffer.from_moments(np.full((2, 2), 4), np.full((2, 2, 3), 0.5), np.full((2, 2, 3), 0.25)).merge(
@@ -165,7 +166,7 @@ def test_a_variance_kind_option_against_the_files_own_header_is_refused(tmp_path
     # Every input saying, the option reaches them all: one it contradicts is refused, nothing written.
     _write(tmp_path / "d2.exr", planes, {"awr:variance_kind": "sample"})
     args = ["merge", str(tmp_path / "d.exr"), str(tmp_path / "d2.exr"), "--variance-kind", "mean", "-q",
-            "-o", str(tmp_path / "n.exr")]
+            "--allow-duplicates", "-o", str(tmp_path / "n.exr")]
     assert main(args) == 2 and not (tmp_path / "n.exr").exists()
 
 
