@@ -255,9 +255,9 @@ def _refuse_copies(earlier: list[_Seen], new: _Seen) -> None:
     for old in earlier:
         if new.digest is not None and new.digest == old.digest:
             why = "hold the same samples (a copy?)"
-        elif new.counts is not None and new.counts == old.counts and np.all(
+        elif new.counts is not None and new.counts == old.counts and np.any(new.signature != 0) and np.all(
                 np.abs(new.signature - old.signature)
-                <= _ROUNDING * np.maximum(np.abs(new.signature), np.abs(old.signature))):
+                <= _ROUNDING * np.maximum(np.abs(new.signature), np.abs(old.signature))):  # (all black: no telling)
             why = ("hold the same samples up to rounding (one render written twice, or two renders of one seed: "
                    "Mitsuba's sampler seed is 0 unless set)")
         elif new.running and old.running and (common := new.running[0] & old.running[0]) and (

@@ -99,8 +99,8 @@ def executor_from_args(args: argparse.Namespace) -> contextlib.AbstractContextMa
     most = LOCAL_PROCESSES_PER_CPU * default_workers()
     if workers is not None and workers > most and kind in ("processes", "dask") and scheduler is None:
         # Each is a Python process with numpy (about 60-100 MB): thousands exhaust memory.
-        raise ValueError(f"--workers: {workers} local processes where this process may run on {default_workers()} CPUs; "
-                         f"at most {most} (threads, the default --executor, are not limited so)")
+        raise ValueError(f"--workers: {workers} local processes where this process may run on {default_workers()} "
+                         f"CPUs; at most {most} (threads, the default --executor, are not limited so)")
     executor = get_executor(kind, workers=workers, scheduler=scheduler)
     return _dask_quiet(executor) if scheduler is not None or kind == "dask" else executor
 

@@ -44,7 +44,8 @@ def test_local_processes_are_limited_per_cpu(monkeypatch):
     parser = argparse.ArgumentParser()
     add_executor_arguments(parser)
     for argv in (["--executor", "processes", "--workers", "9"], ["--executor", "dask", "--workers", "4096"]):
-        with pytest.raises(ValueError, match=r"--workers: \d+ local processes where this process may run on 2 CPUs; at most 8"):
+        with pytest.raises(ValueError, match=r"--workers: \d+ local processes where this process may run on 2 CPUs; "
+                                             r"at most 8"):
             executor_from_args(parser.parse_args(argv))
     with executor_from_args(parser.parse_args(["--workers", "9"])) as executor:  # threads are cheap
         assert executor._max_workers == 9

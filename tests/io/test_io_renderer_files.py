@@ -653,3 +653,16 @@ def test_diff_reads_a_cycles_layer_with_channels(capsys):
     assert json.loads(capsys.readouterr().out)["mse"] == 0.0
     assert main(["diff", stereo, "-r", stereo, *layer, "--view", "left", "--ref-view", "right", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["mse"] > 0
+
+
+def test_two_black_renders_are_not_taken_for_one(tmp_path):
+    """Means all 0 have signed sums of 0 whatever their samples: two renders with means of 0 (their spreads apart)
+    are not refused as one render up to rounding (equal bytes still are, by the copy check)."""
+    from awr_denoise import SampleBuffer
+    from awr_denoise.io import write_sample_buffer
+
+    for k in (1, 2):
+        write_sample_buffer(tmp_path / f"b{k}.exr", SampleBuffer.from_moments(np.full((4, 4), 4), np.zeros((4, 4, 3)),
+                                                                             np.full((4, 4, 3), 0.01 * k)))
+    assert main(["merge", str(tmp_path / "b1.exr"), str(tmp_path / "b2.exr"), "-o", str(tmp_path / "m.exr"),
+                 "-q"]) == 0
