@@ -132,7 +132,8 @@ class MomentBound:
         return (f"pixel (x {x}, y {y})'s second moment is {self.needed:.6g} times its squared mean, which "
                 f"{self.count} equally weighted samples never exceed (a pixel's spread needs at least that many "
                 "samples): the file holds more samples per pixel than given, or the film's filter weighted them "
-                "unequally (a gaussian or tent narrower than a pixel); give the sampler's sample_count as spp "
+                "unequally (any filter but box: Mitsuba's default gaussian too, a gaussian or tent narrower than a "
+                "pixel most); give the sampler's sample_count as spp "
                 "and render the moments with rfilter box")
 
 
