@@ -611,6 +611,10 @@ def _mitsuba_moment(ctx: _Context) -> str:
     if not m2:
         raise file_error(ctx.path, "no m2_<name> second-moment channels (Mitsuba 3 moment integrator)", "m2_*")
     if ctx.color is not None:
+        if ctx.color.rpartition(".")[2].startswith("m2_"):  # its moment was looked up as m2_m2_... (a walkthrough)
+            head, dot, last = ctx.color.rpartition(".")
+            raise file_error(ctx.path, f"{ctx.color} is a second moment; give its mean plane as the colour "
+                                       f"({head}{dot}{last[3:]})", ctx.color)
         return _moment_of(ctx, ctx.color)
     # The moment integrator's own results are <name>.X/Y/Z; RGB moments are AOVs.
     # A normal AOV has X, Y, Z components too: feature AOVs are not the radiance.

@@ -668,3 +668,9 @@ def test_two_black_renders_are_not_taken_for_one(tmp_path):
                                                                              np.full((4, 4, 3), 0.01 * k)))
     assert main(["merge", str(tmp_path / "b1.exr"), str(tmp_path / "b2.exr"), "-o", str(tmp_path / "m.exr"),
                  "-q"]) == 0
+
+
+def test_a_moment_named_as_the_colour_is_named_as_a_moment():
+    """``--color m2_a`` was refused as "m2_m2_a: no second moment channel(s)", a name the user never gave."""
+    with pytest.raises(InputFileError, match=r"m2_a is a second moment; give its mean plane as the colour \(a\)"):
+        read_sample_dump(MI / "mitsuba_two.exr", spp=8, color="m2_a")
