@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import InputFileError
 from .cycles import cycles_layers
-from .exr import header_value, read_exr
+from .exr import file_error, header_value, read_exr
 from .presets import describe_layout, detect_preset, file_views, read_sample_dump
 from .request_map import read_request
 
@@ -87,6 +87,8 @@ def describe_file(path: str | os.PathLike[str], *, preset: str = "auto", color: 
         info.update(kind="request", round=req.round, total=req.total, spp=_stats(req.counts),
                     first_index=_stats(req.first_index))
         return info
+    if view is not None and view not in views:  # no part of it matched: described as an image (a walkthrough)
+        raise file_error(p, f"no view {view!r} (views: {', '.join(views) or 'none, a single-view file'})")
     options = dict(preset=preset, color=color, variance=variance, count=count, variance_kind=variance_kind,
                    spp=spp, layer=layer, albedo=albedo, normal=normal, depth=depth)
     missing: list[str] = []

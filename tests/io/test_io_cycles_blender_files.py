@@ -191,3 +191,11 @@ def test_a_border_render_without_the_count_pass_warns_of_its_black_pixels():
     assert any(f"{black} pixel(s) are 0" in w for w in _warned(read_sample_dump, path, variance="ViewLayer.Combined"))
     # Rendered everywhere, nothing to say.
     assert not any("are 0 in R, G, B and A" in w for w in describe_file(CY / "cycles_seed_1.exr")["warnings"])
+
+
+def test_info_of_a_view_the_file_does_not_have_names_its_views(capsys):
+    """``awr info stereo.exr --view Left`` said "--view: describes a sample dump; ... is an image": no part matched
+    the name, so the file was described as an image (a walkthrough). denoise named the views; info does too."""
+    assert main(["info", str(CY / "cycles_stereo.exr"), "--view", "Left"]) == 2
+    assert "cycles_stereo.exr: no view 'Left' (views: left, right)" in capsys.readouterr().err
+    assert main(["info", str(CY / "cycles_stereo.exr"), "--view", "left"]) == 0
