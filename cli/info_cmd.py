@@ -63,16 +63,17 @@ def _print(info: dict[str, Any]) -> None:
             _line(f"  layout: {info['preset']}")
         for layer, passes in info.get("layers", {}).items():
             _line(f"  layer {layer}: {', '.join(passes)}")
-        if "spp" in info:
+        if "pixels_without_samples" in info:  # the statistics read: everything they say
             s = info["spp"]
             _line(f"  samples: {info['total_samples']} total, "
                   f"spp min {s['min']:g} / mean {s['mean']:.4g} / max {s['max']:g}; "
                   f"{info['pixels_without_samples']} pixel(s) without samples; "
                   f"{info['variance_unknown']} with unknown variance; {info['nonfinite_dropped']} non-finite "
                   "sample(s) dropped or zeroed")
-        elif info.get("count"):
+        elif info.get("count"):  # the counts alone (no variance to read the statistics with)
             s = info["count"]
-            _line(f"  samples per pixel: min {s['min']:g} / mean {s['mean']:.4g} / max {s['max']:g}")
+            _line(f"  samples per pixel: min {s['min']:g} / mean {s['mean']:.4g} / max {s['max']:g}"
+                  + (f"; {info['total_samples']} total" if info.get("total_samples") is not None else ""))
         for name, feature in info.get("features", {}).items():
             where = f" from {feature['plane']}" if "plane" in feature else ""
             values = ""

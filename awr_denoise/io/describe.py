@@ -116,6 +116,9 @@ def describe_file(path: str | os.PathLike[str], *, preset: str = "auto", color: 
         info.update(kind="samples", preset=name, colour=layout.colour.label,
                     variance=None if layout.spread is None else layout.spread.label,
                     count=None if layout.count is None else _stats(layout.count),
+                    # As a dump read fully says them (the JSON's documented keys); it replaces them where it is.
+                    spp=None if layout.count is None else _stats(layout.count),
+                    total_samples=None if layout.count is None else int(np.asarray(layout.count).sum()),
                     notes=list(notes), warnings=list(warned),
                     features={n: {"plane": plane} for n, plane in planes.items()})
         if name == "cycles":

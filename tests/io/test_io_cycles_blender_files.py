@@ -199,3 +199,15 @@ def test_info_of_a_view_the_file_does_not_have_names_its_views(capsys):
     assert main(["info", str(CY / "cycles_stereo.exr"), "--view", "Left"]) == 2
     assert "cycles_stereo.exr: no view 'Left' (views: left, right)" in capsys.readouterr().err
     assert main(["info", str(CY / "cycles_stereo.exr"), "--view", "left"]) == 0
+
+
+def test_info_json_gives_spp_and_total_samples_without_a_variance(capsys):
+    """A Cycles file without variance: the JSON's documented ``spp`` was null and ``total_samples`` absent, the
+    counts under an undocumented ``count`` only (a walkthrough)."""
+    import json
+
+    assert main(["info", str(CY / "cycles_converged.exr"), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["spp"] == {"min": 48.0, "mean": 50.546875, "max": 304.0} and info["total_samples"] == 51760
+    assert main(["info", str(CY / "cycles_converged.exr")]) == 0
+    assert "samples per pixel: min 48 / mean 50.55 / max 304; 51760 total" in capsys.readouterr().out
