@@ -357,3 +357,12 @@ def test_the_colour_plane_given_as_its_own_variance_is_warned_about(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         read_sample_buffer(f, color="RGB", variance="var", spp=4)
+
+
+def test_the_pbrt_preset_on_another_renderers_file_names_pbrts_channels(tmp_path):
+    """``--preset pbrt`` on a file without pbrt's planes was "RGB: no colour channel(s) named this"."""
+    f = _write(tmp_path / "c.exr", {"ViewLayer.Combined.R": _ramp(), "ViewLayer.Combined.G": _ramp(),
+                                    "ViewLayer.Combined.B": _ramp()})
+    with pytest.raises(InputFileError, match=r"c\.exr: no R,G,B and Variance\.\* channels \(pbrt-v4's GBufferFilm\) "
+                                             r"for the pbrt preset \(channels: ViewLayer\.Combined\.B"):
+        read_sample_buffer(f, preset="pbrt")

@@ -382,6 +382,11 @@ def _in_input(ctx: _Context, plane: _Plane) -> bool:
 
 
 def _pbrt(ctx: _Context) -> _Layout:
+    if ctx.color is None and ctx.variance is None and not (
+            {"R", "G", "B"} <= set(ctx.file.channels) and any(c.startswith("Variance.") for c in ctx.file.channels)):
+        # "RGB: no colour channel(s) named this" named no pbrt channel (a walkthrough).
+        raise file_error(ctx.path, "no R,G,B and Variance.* channels (pbrt-v4's GBufferFilm) for the pbrt preset "
+                                   f"(channels: {', '.join(sorted(ctx.file.channels))})")
     colour = ctx.plane(ctx.color or "RGB", colour=True, what="colour")
     spread = ctx.plane(ctx.variance or "Variance", what="variance")
     # pbrt writes 0 where it has no estimate (environment-only pixels): unknown, not converged.
