@@ -111,8 +111,15 @@ def describe_file(path: str | os.PathLike[str], *, preset: str = "auto", color: 
         if (preset == "awr" or (preset == "auto" and color is None and variance is None
                                 and detect_preset(channels, header) == "awr")):
             return _read_fully(info, p, options, chosen_view, nonfinite, preset="awr", missing=missing)
-        name, layout, notes, warned, planes = describe_layout(p, parts, **options, view=chosen_view)
         layers = cycles_layers(channels)
+        if (layer is None and color is None and len(layers) > 1 and preset in ("auto", "cycles")
+                and detect_preset(channels, header) == "cycles"):
+            # Described in its first layer, as a file of several views is in its first view: the ambiguity alone
+            # described nothing (a walkthrough).
+            options["layer"] = sorted(layers)[0]
+            missing.append(f"a layer: the file has {len(layers)} ({', '.join(sorted(layers))}); choose one with "
+                           f"--layer (described here: {options['layer']})")
+        name, layout, notes, warned, planes = describe_layout(p, parts, **options, view=chosen_view)
         info.update(kind="samples", preset=name, colour=layout.colour.label,
                     variance=None if layout.spread is None else layout.spread.label,
                     count=None if layout.count is None else _stats(layout.count),

@@ -211,3 +211,14 @@ def test_info_json_gives_spp_and_total_samples_without_a_variance(capsys):
     assert info["spp"] == {"min": 48.0, "mean": 50.546875, "max": 304.0} and info["total_samples"] == 51760
     assert main(["info", str(CY / "cycles_converged.exr")]) == 0
     assert "samples per pixel: min 48 / mean 50.55 / max 304; 51760 total" in capsys.readouterr().out
+
+
+def test_info_of_a_file_of_two_view_layers_describes_the_first(capsys):
+    """Two view layers gave info only the ambiguity error (exit 2, nothing in --json), where a file of two views is
+    described in its first: now described in its first layer, the choice listed as missing."""
+    assert main(["info", str(CY / "cycles_two_layers.exr")]) == 0
+    out = capsys.readouterr().out
+    assert "a layer: the file has 2 (Second, ViewLayer); choose one with --layer (described here: Second)" in out
+    assert "samples per pixel: min 48" in out
+    with pytest.raises(InputFileError, match="several view layers"):  # the readers still refuse to choose
+        read_sample_dump(CY / "cycles_two_layers.exr", variance="Second.Combined")
