@@ -618,7 +618,7 @@ def _mitsuba_moment(ctx: _Context) -> str:
     if ctx.color is not None:
         if ctx.color.rpartition(".")[2].startswith("m2_"):  # its moment was looked up as m2_m2_... (a walkthrough)
             head, dot, last = ctx.color.rpartition(".")
-            raise file_error(ctx.path, f"{ctx.color} is a second moment; give its mean plane as the colour "
+            raise file_error(ctx.path, "a second moment, named as the colour; give its mean plane "
                                        f"({head}{dot}{last[3:]})", ctx.color)
         return _moment_of(ctx, ctx.color)
     # The moment integrator's own results are <name>.X/Y/Z; RGB moments are AOVs.
