@@ -366,3 +366,20 @@ def test_the_pbrt_preset_on_another_renderers_file_names_pbrts_channels(tmp_path
     with pytest.raises(InputFileError, match=r"c\.exr: no R,G,B and Variance\.\* channels \(pbrt-v4's GBufferFilm\) "
                                              r"for the pbrt preset \(channels: ViewLayer\.Combined\.B"):
         read_sample_buffer(f, preset="pbrt")
+
+
+def test_a_half_count_pass_is_read_within_halfs_rounding(tmp_path):
+    """The count check allows a pass's own rounding only: HALF's (2**-11 relative) for a HALF pass, so counts of
+    k/300 stored in HALF still read as k, and a scale that does not divide them is still refused."""
+    samples = 300
+    count = np.arange(H * W).reshape(H, W) % samples + 1
+    planes = {f"ViewLayer.Combined.{c}": _ramp(i) for i, c in enumerate("RGBA")}
+    planes["ViewLayer.Debug Sample Count.X"] = (count / samples).astype(np.float16)
+    planes |= {f"ViewLayer.Variance AOV.{c}": _ramp(0.5) for c in "RGB"}
+    stored = planes["ViewLayer.Debug Sample Count.X"].astype(np.float64) * samples
+    f = _write(tmp_path / "half.exr", planes, {"cycles.ViewLayer.samples": str(samples)})
+    assert np.abs(stored - count).max() > 1e-3  # HALF's rounding is there to allow
+    buf = read_sample_buffer(f, variance="ViewLayer.Variance AOV", spp=samples)
+    np.testing.assert_array_equal(buf.count, count)
+    with pytest.raises(InputFileError, match="normalised counts times 512 are not whole numbers"):
+        read_sample_buffer(f, variance="ViewLayer.Variance AOV", spp=512)
