@@ -852,14 +852,17 @@ GUIDED_WINDOWS = (9, 13, 25)
 
 
 @contextlib.contextmanager
-def _unguided_tolerance(value: float) -> Iterator[None]:
-    """The guard's tolerance without a guide (1 in the library) set to ``value``, for a comparison."""
+def _unguided_guard(**options: Any) -> Iterator[None]:
+    """The guard's ``sure_blend`` options without a guide (its tolerance 1 in the library) set to ``options``
+    (``tolerance=1.2``, ``spared_beside=10``), for a comparison; a guide's guard is left as it is."""
     saved = _RECONSTRUCT.sure_blend
 
-    def tolerant(*args: Any, tolerance: float = 1.0, **kwargs: Any) -> tuple:
-        return sure_blend(*args, tolerance=value if tolerance == 1.0 else tolerance, **kwargs)
+    def guarded(*args: Any, tolerance: float = 1.0, **kwargs: Any) -> tuple:
+        if tolerance != 1.0:  # a guide's
+            return sure_blend(*args, tolerance=tolerance, **kwargs)
+        return sure_blend(*args, **{**kwargs, **options})
 
-    _RECONSTRUCT.sure_blend = tolerant
+    _RECONSTRUCT.sure_blend = guarded
     try:
         yield
     finally:
@@ -929,31 +932,38 @@ def tolerance(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple
         for t in TOLERANCES:
             with _guided_tolerance(t):
                 images[f"guide, tolerance {t:g}"] = reconstruct(buffer, guide=guide)
-            with _unguided_tolerance(t):
+            with _unguided_guard(tolerance=t):
                 images[f"default, tolerance {t:g}"] = reconstruct(buffer)
         for window in GUIDED_WINDOWS:
             images[f"guide, window {window}"] = reconstruct(buffer, guide=guide, guard_window=window)
         rows += [{**keys, "method": m, **_measure(image, x, ref, float("nan"))} for m, image in images.items()]
+    for keys, buffer, ref in _synthetic_buffers(seeds):
+        wrong = {"clean": ref, "shifted": np.roll(ref, 12, axis=1),
+                 "flat": np.broadcast_to(ref.mean(axis=(0, 1)), ref.shape),
+                 "noise": np.random.default_rng(keys["group"]).random(ref.shape) * ref.max()}
+        images = {"plain": buffer.mean}
+        for t in TOLERANCES:
+            with _guided_tolerance(t):
+                images.update({f"{kind}, tolerance {t:g}": reconstruct(buffer, guide=guide)
+                               for kind, guide in wrong.items()})
+            with _unguided_guard(tolerance=t):
+                images[f"default, tolerance {t:g}"] = reconstruct(buffer)
+        rows += [{**keys, "method": m, "relmse": relmse(image, ref), "mse": mse(image, ref)}
+                 for m, image in images.items()]
+    return rows
+
+
+def _synthetic_buffers(seeds: int) -> Iterator[tuple[dict[str, Any], SampleBuffer, np.ndarray]]:
+    """The synthetic scenes' buffers next to which the guard's tolerance is judged (64x64, 4-256 spp, each seed
+    its own render): a row's keys, the buffer and the scene's clean image."""
     for name in ("gradient", "edges", "hdr_source"):
         scene = make_scene(name, (64, 64))
         ref = scene.reference()
         for seed in range(seeds):
-            wrong = {"clean": ref, "shifted": np.roll(ref, 12, axis=1),
-                     "flat": np.broadcast_to(ref.mean(axis=(0, 1)), ref.shape),
-                     "noise": np.random.default_rng(seed).random(ref.shape) * ref.max()}
             for spp in (4, 16, 64, 256):
                 buffer = SyntheticRenderer(scene, seed=seed)(SampleRequest.uniform(scene.shape, spp))
-                images = {"plain": buffer.mean}
-                for t in TOLERANCES:
-                    with _guided_tolerance(t):
-                        images.update({f"{kind}, tolerance {t:g}": reconstruct(buffer, guide=guide)
-                                       for kind, guide in wrong.items()})
-                    with _unguided_tolerance(t):
-                        images[f"default, tolerance {t:g}"] = reconstruct(buffer)
-                rows += [{"renderer": "synthetic", "scene": name, "spp": spp, "group": seed, "method": m,
-                          "relmse": relmse(image, ref), "mse": mse(image, ref)} for m, image in images.items()]
+                yield {"renderer": "synthetic", "scene": name, "spp": spp, "group": seed}, buffer, ref
         print(f"synthetic {name}: done", flush=True)
-    return rows
 
 
 CRITERIA: dict[str, dict[str, Any]] = {
@@ -963,23 +973,6 @@ CRITERIA: dict[str, dict[str, Any]] = {
     "tolerance 1.2, rims spared (3x)": {"tolerance": 1.2, "spared_beside": 3.0}}
 """The unguided default's guard: its tolerance given to both criteria, or to one (``sure_blend``'s pair), or to
 both but the relative criterion's beside a pixel that many times brighter (``spared_beside``)."""
-
-
-@contextlib.contextmanager
-def _unguided_guard(**options: Any) -> Iterator[None]:
-    """The guard's ``sure_blend`` options without a guide (its tolerance 1 in the library) set to ``options``."""
-    saved = _RECONSTRUCT.sure_blend
-
-    def guarded(*args: Any, tolerance: float = 1.0, **kwargs: Any) -> tuple:
-        if tolerance != 1.0:  # a guide's: left as it is
-            return sure_blend(*args, tolerance=tolerance, **kwargs)
-        return sure_blend(*args, **{**kwargs, **options})
-
-    _RECONSTRUCT.sure_blend = guarded
-    try:
-        yield
-    finally:
-        _RECONSTRUCT.sure_blend = saved
 
 
 def criteria(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], groups: int,
@@ -998,15 +991,9 @@ def criteria(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[
         x = filled_mean(buffer)
         rows += [{**keys, "method": m, **_measure(image, x, ref, float("nan"))}
                  for m, image in images(buffer, x).items()]
-    for name in ("gradient", "edges", "hdr_source"):
-        scene = make_scene(name, (64, 64))
-        ref = scene.reference()
-        for seed in range(seeds):
-            for spp in (4, 16, 64, 256):
-                buffer = SyntheticRenderer(scene, seed=seed)(SampleRequest.uniform(scene.shape, spp))
-                rows += [{"renderer": "synthetic", "scene": name, "spp": spp, "group": seed, "method": m,
-                          "relmse": relmse(image, ref), "mse": mse(image, ref)}
-                         for m, image in images(buffer, buffer.mean).items()]
+    for keys, buffer, ref in _synthetic_buffers(seeds):
+        rows += [{**keys, "method": m, "relmse": relmse(image, ref), "mse": mse(image, ref)}
+                 for m, image in images(buffer, buffer.mean).items()]
     return rows
 
 
