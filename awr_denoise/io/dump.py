@@ -54,6 +54,7 @@ __all__ = [
     "SampleDump",
     "write_sample_buffer",
     "buffer_from_awr_part",
+    "uncounted_means",
     "exact_counts",
 ]
 
@@ -241,6 +242,30 @@ def header_count(path: str | os.PathLike[str], attributes: dict, key: str, defau
     return int(text)
 
 
+def uncounted_means(path: str | os.PathLike[str], label: str | None, count: np.ndarray,
+                    mean: np.ndarray) -> str | None:
+    """The warning for pixels counted 0 that hold a non-zero mean (``label``: the count plane), or None.
+
+    A pixel counted 0 has no samples and its mean is read as none (``SampleBuffer.from_moments`` zeroes it); one
+    holding a colour anyway points at a count plane gone wrong, the renderer's or the user's, whatever the layout.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise.io.dump import uncounted_means
+    >>> uncounted_means("b.exr", "n", np.array([[4, 0]]), np.array([[[0.5], [0.5]]])).split(", read")[0]
+    'b.exr: n: 1 pixel(s) counted 0 hold a non-zero mean'
+    >>> uncounted_means("b.exr", "n", np.array([[4, 0]]), np.array([[[0.5], [0.0]]])) is None
+    True
+    """
+    stray = int(np.count_nonzero((np.asarray(count) == 0) & np.any(np.asarray(mean) != 0, axis=-1)))
+    if not stray:
+        return None
+    where = "" if label is None else f"{label}: "
+    return (f"{path}: {where}{stray} pixel(s) counted 0 hold a non-zero mean, read as no samples: is the count the "
+            "renderer's (a batch writes the samples it rendered there)?")
+
+
 def whole_counts(path: str | os.PathLike[str], name: str, values: np.ndarray) -> np.ndarray:
     """A count channel as int64, refusing NaN/Inf, negatives, fractions and inexact floats.
 
@@ -315,11 +340,8 @@ def buffer_from_awr_part(path: str | os.PathLike[str], part: ExrPart, *,
     known = None
     if KNOWN_CHANNEL in ch:
         known = _known_mask(path, KNOWN_CHANNEL, ch[KNOWN_CHANNEL])
-    notes: tuple[str, ...] = ()
-    stray = int(np.count_nonzero((count == 0) & np.any(np.stack(means, -1) != 0, axis=-1)))
-    if stray:  # a mean without samples: taken as none (from_moments zeroes it), but a count plane gone wrong?
-        notes = (f"{path}: {COUNT_CHANNEL}: {stray} pixel(s) counted 0 hold a non-zero mean, read as no samples: "
-                 "is the count the renderer's (a batch writes the samples it rendered there)?",)
+    stray = uncounted_means(path, COUNT_CHANNEL, count, np.stack(means, -1))
+    notes: tuple[str, ...] = () if stray is None else (stray,)
     try:
         buffer = SampleBuffer.from_moments(count, np.stack(means, -1), np.stack(variances, -1),
                                            variance_kind=kind, channels=names, variance_known=known)

@@ -45,7 +45,8 @@ from ..features import FEATURE_CHANNELS, FEATURE_NAMES, feature_names
 from .colour import MITSUBA_XYZ_TO_SRGB, PBRT_XYZ_TO_SRGB, xyz_statistics_to_rgb
 from .cycles import COLOUR_PASSES, COUNT_PASS, cycles_layers, sample_count_scale, split_channel
 from .deep import sample_index_bounds, samples_from_deep_part
-from .dump import COUNT_CHANNEL, MAX_EXACT_COUNT, VARIANCE_PREFIX, SampleDump, buffer_from_awr_part, whole_counts
+from .dump import (COUNT_CHANNEL, MAX_EXACT_COUNT, VARIANCE_PREFIX, SampleDump, buffer_from_awr_part,
+                   uncounted_means, whole_counts)
 from .exr import ExrPart, check_same_windows, checked_plane, file_error, header_value, header_windows, read_exr
 from .features import (MITSUBA_AOV_NAMES, albedo_warning, auto_feature_planes, feature_from_planes, normal_warning,
                        plane_present)
@@ -778,11 +779,10 @@ def _assemble(path: Path, layout: _Layout, warnings: list[str] | None = None) ->
         # Accepted (a file read only for its features or counts), but not as a spread without a word (a walkthrough).
         warnings.append(f"{path}: {spread.label}: the variance plane is the colour plane itself: its values are "
                         "taken as the noise; give a real variance (Cycles: awr merge --independent)")
-    stray = int(np.count_nonzero((np.asarray(layout.count) == 0) & np.any(mean != 0, axis=-1)))
-    if stray and warnings is not None:  # taken as no samples (from_moments zeroes them): a count gone wrong?
-        where = "" if layout.count_plane is None else f"{layout.count_plane.label}: "
-        warnings.append(f"{path}: {where}{stray} pixel(s) counted 0 hold a non-zero mean, read as no samples: is "
-                        "the count the renderer's?")
+    stray = uncounted_means(path, None if layout.count_plane is None else layout.count_plane.label, layout.count,
+                            mean)
+    if stray is not None and warnings is not None:
+        warnings.append(stray)
     if kind == "second_moment" and _is_half(spread):
         lost = ((variance == 0) & (mean != 0)).any(axis=-1)  # E[x^2] underflowed: no spread left to read
         variance = _half_moments(mean, variance, spread)
