@@ -22,6 +22,7 @@ import atexit
 import math
 import os
 import threading
+from collections.abc import Collection
 from dataclasses import dataclass
 from typing import Any
 
@@ -34,7 +35,7 @@ from .errors import BackendError, BackendUnavailableError
 from .guided import guide_colour
 from .prepare import filled_mean
 
-__all__ = ["oidn", "oidn_available", "OIDNGuide", "OIDN_HINT", "GUIDES", "AUXILIARY", "QUALITIES"]
+__all__ = ["oidn", "oidn_available", "oidn_features", "OIDNGuide", "OIDN_HINT", "GUIDES", "AUXILIARY", "QUALITIES"]
 
 OIDN_HINT = 'the OIDN guide needs pyoidn (Intel Open Image Denoise); install it with pip install "awr-denoise[oidn]"'
 """What to install when :func:`oidn` cannot import ``pyoidn``."""
@@ -314,6 +315,21 @@ class OIDNGuide:
         elif auxiliary == "clean" and "normal" not in buffer.features:
             auxiliary = "noisy"
         return {"guide_auxiliary": auxiliary, "guide_quality": self.quality}
+
+
+def oidn_features(features: Collection[str], auxiliary: str | None = "prefilter") -> tuple[str, ...]:
+    """The features OIDN takes from a buffer that carries ``features``: the albedo, and the normal beside it (OIDN
+    takes a normal only with an albedo); none with ``auxiliary="none"``, and never the depth.
+
+    Examples
+    --------
+    >>> from awr_denoise.guides import oidn_features
+    >>> oidn_features(("albedo", "normal", "depth")), oidn_features(("normal",)), oidn_features(("albedo",), "none")
+    (('albedo', 'normal'), (), ())
+    """
+    if auxiliary == "none" or "albedo" not in features:
+        return ()
+    return tuple(name for name in ("albedo", "normal") if name in features)
 
 
 def _oidn_recorded(buffer: SampleBuffer) -> dict[str, str]:

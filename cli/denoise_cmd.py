@@ -11,7 +11,7 @@ from pathlib import Path
 from awr_denoise.domains import DOMAIN_NAMES
 from awr_denoise.errors import InputFileError
 from awr_denoise.guided import PROJECTION_SHARE
-from awr_denoise.guides import AUXILIARY, GUIDES, OIDN_HINT, OIDNGuide, oidn_available
+from awr_denoise.guides import AUXILIARY, GUIDES, OIDN_HINT, OIDNGuide, oidn_available, oidn_features
 from awr_denoise.io import read_image, read_sample_buffer
 from awr_denoise.io.atomic import OutputSet
 from awr_denoise.io.exr import check_same_windows, read_windows, recorded_windows
@@ -165,10 +165,11 @@ def unused_features(features: tuple[str, ...], guide: str | None, auxiliary: str
     """The features a reconstruction with ``--guide guide`` does not use: all without a guide or with OIDN told to
     leave them out (``--guide-auxiliary none``); with OIDN the depth, and a normal without an albedo beside it (OIDN
     takes a normal only with an albedo)."""
-    if guide is None or (guide == "oidn" and auxiliary == "none"):
+    if guide is None:
         return tuple(features)
     if guide == "oidn":
-        return tuple(n for n in features if n == "depth" or (n == "normal" and "albedo" not in features))
+        taken = oidn_features(features, auxiliary)
+        return tuple(n for n in features if n not in taken)
     return ()
 
 
@@ -188,7 +189,7 @@ def _note(frame: FrameResult, output: str, nonfinite_policy: str, guide: str | N
         note += f"; features {', '.join(unused)} read but not used " + (
             "(see --guide)" if guide is None else f"by --guide {guide}"
             + (" --guide-auxiliary none" if auxiliary == "none" else ""))
-    if guide == "oidn" and auxiliary != "none" and "albedo" not in frame.features:
+    if guide == "oidn" and auxiliary != "none" and not oidn_features(frame.features, auxiliary):
         note += "; OIDN took the colour alone (the input holds no albedo: --alb gives one)"
     return note
 

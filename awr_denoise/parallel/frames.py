@@ -14,7 +14,7 @@ import filecmp
 import inspect
 import os
 import tempfile
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from concurrent.futures import Executor
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +25,7 @@ import numpy as np
 from .. import _checks
 from ..buffers import SampleBuffer
 from ..errors import AWRError, InputFileError
+from ..guides import oidn_features
 from ..io import SampleDump, read_image, read_sample_dump, write_image, write_preview
 from ..io.atomic import check_writable, public_name, standing_for
 from ..io.exr import Window, check_same_windows, format_window, read_header, recorded_windows
@@ -221,11 +222,11 @@ def _guiding_planes(dump: SampleDump, result: Any, options: Mapping[str, Any]) -
     normal beside it, unless told to take none (its recorded ``guide_auxiliary``); another guide none."""
     read = dump.buffer.features
     if options.get("features"):
-        used = set(read)
-    elif result.parameters.get("guide_auxiliary") not in (None, "none"):
-        used = {"albedo", "normal"} & set(read) if "albedo" in read else set()
+        used: Collection[str] = read
+    elif "guide_auxiliary" in result.parameters:  # OIDN's guide, the way it took the features recorded
+        used = oidn_features(read, result.parameters["guide_auxiliary"])
     else:
-        used = set()
+        used = ()
     return {f"{name}_plane": _plane_name(where) for name, where in dump.feature_planes.items() if name in used}
 
 
