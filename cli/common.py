@@ -45,7 +45,6 @@ __all__ = [
     "parse_frames",
     "expand_frames",
     "frame_jobs",
-    "bars",
     "progress",
     "print_json",
     "status",
@@ -257,15 +256,10 @@ def frame_plane_kwargs(args: argparse.Namespace, planes: Sequence[Sequence[tuple
     return common if all(frame == common for frame in per_frame) else per_frame
 
 
-def bars(quiet: bool) -> bool:
-    """Whether to draw progress bars on stderr: not with ``-q``; as ``AWR_PROGRESS`` says where set; else only on
-    a terminal (:func:`awr_denoise._progress.bars_shown`). Status lines (:func:`status`) are printed anywhere."""
-    return bars_shown(quiet)
-
-
 def progress(iterable: Iterable[Any], *, quiet: bool, total: int | None = None, desc: str = "") -> Iterator[Any]:
-    """tqdm progress bar on stderr unless ``quiet``, stderr is not a terminal (:func:`bars`) or only one item."""
-    if not bars(quiet) or (total is not None and total <= 1):
+    """tqdm progress bar on stderr unless ``quiet``, stderr is not a terminal
+    (:func:`awr_denoise._progress.bars_shown`) or only one item."""
+    if not bars_shown(quiet) or (total is not None and total <= 1):
         yield from iterable
         return
     yield from tqdm(iterable, total=total, desc=desc, file=sys.stderr, leave=False)

@@ -14,12 +14,13 @@ from awr_denoise._checks import path_option
 from awr_denoise.io import provenance, write_image, write_preview
 from awr_denoise.metrics import mean_error, mse, relmse
 from awr_denoise.reconstruct import DEFAULT_PILOT_C_S
+from awr_denoise._progress import bars_shown
 from awr_denoise.renderers import create_renderer
 
 from awr_denoise.io.atomic import OutputSet, check_creatable, folders_made
 
 from .errors import shown
-from .common import EXIT_OK, UsageError, bars, print_json, status
+from .common import EXIT_OK, UsageError, print_json, status
 from .paths import PathPlan
 from .values import MAX_EXPOSURE, MAX_SEED, MAX_SPP, real, whole
 from .render_cmd import TRACER, default_scene, render_buffer, tracer_module
@@ -87,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
                          f"{scene.shape[1]}x{scene.shape[0]}; remove it to render it again")
     start = time.perf_counter()
     status(f"rendering {name} uniformly at {args.spp} spp", quiet=args.quiet)
-    renderer = create_renderer(TRACER, scene, seed=args.seed, progress=bars(args.quiet))
+    renderer = create_renderer(TRACER, scene, seed=args.seed, progress=bars_shown(args.quiet))
     uniform = render_buffer(renderer, scene.shape, spp=args.spp, adaptive=False, seed=args.seed,
                             quiet=args.quiet)[0]
     status(f"rendering {name} adaptively at {args.spp} spp", quiet=args.quiet)

@@ -24,6 +24,7 @@ from awr_denoise.io.atomic import OutputSet
 from awr_denoise.noise_gain import DEFAULT_NOISE_MODEL
 from awr_denoise.parallel import RendererSpec, TiledRenderer
 from awr_denoise.rare_paths import DEFAULT_RARE_PATHS, RARE_PATHS
+from awr_denoise._progress import bars_shown
 from awr_denoise.renderers import (
     create_renderer,
     renderer_features,
@@ -35,7 +36,7 @@ from awr_denoise.requests import Renderer, SampleTracer
 from awr_denoise.rounds import MAX_SECONDS, reconstruction_seconds
 from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS
 
-from .common import EXIT_OK, RuntimeFailure, UsageError, bars, check_memory, status
+from .common import EXIT_OK, RuntimeFailure, UsageError, check_memory, status
 from .denoise_cmd import (add_reconstruction_options, check_reconstruction_options, reconstruction_kwargs,
                           unused_features)
 from .parallel_options import DEFAULT_TILE, add_executor_arguments, executor_from_args, executor_requested
@@ -116,7 +117,7 @@ def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float | No
         awr = AdaptiveSampler(shape, initial_spp=first_round_spp(initial_spp, spp), seed=seed,
                               round_growth=round_growth, noise_model=noise_model, gain_refresh=gain_refresh,
                               rare_paths=rare_paths)
-        buffer = awr.run(renderer, total_spp=spp, seconds=seconds, reserve=reserve, progress=bars(quiet))
+        buffer = awr.run(renderer, total_spp=spp, seconds=seconds, reserve=reserve, progress=bars_shown(quiet))
         return buffer, awr.issued, awr.round, sampler_settings(awr)
     finally:
         if isinstance(renderer, SampleTracer):
@@ -329,8 +330,9 @@ def run(args: argparse.Namespace) -> int:
                     f"SCENE {given}" + (f" with {given_sides[0]}" if given_sides else ""))
         check_pixels(sized_by, *frame_shape)
         # At least 380 bytes a pixel at the peak (the statistics, the tracer's batches, the reconstruction: the
-        # maximum resident size of a 1-spp uniform render 290 MB higher at 1024x1024 than at 512x512); beyond the
-        # memory available, the kernel's out-of-memory killer ended the render without a word (exit 137).
+        # maximum resident size of a 1-spp uniform render 290 MB higher at 1024x1024 than at 512x512, `/usr/bin/time
+        # -f %M awr render --scene default --width N --height N --spp 1 --uniform -o r.exr`); beyond the memory
+        # available, the kernel's out-of-memory killer ended the render without a word (exit 137).
         check_memory(sized_by, 380.0 * frame_shape[0] * frame_shape[1],
                      f"a render of {frame_shape[1]}x{frame_shape[0]}")
         check_reconstruction_options(args, tuple(frame_shape), name)
@@ -364,7 +366,7 @@ def run(args: argparse.Namespace) -> int:
         # A uniform render is one request: the renderer's own bar shows it. Adaptive rounds get
         # the sampler's bar instead of one renderer bar per round.
         if args.renderer == TRACER:
-            options["progress"] = bars(args.quiet) and not args.adaptive
+            options["progress"] = bars_shown(args.quiet) and not args.adaptive
         with _as_options(args.renderer):
             renderer = create_renderer(args.renderer, scene, shape=shape, seed=args.seed, **options)
         check_pixels(f"SCENE {given}: its film", *renderer.shape)  # a size the scene file declares

@@ -1,4 +1,5 @@
-"""Progress bars (cli/common.py ``bars``/``progress``): drawn on a terminal, never into a log or a pipe."""
+"""Progress bars (``awr_denoise._progress.bars_shown``, cli/common.py ``progress``): drawn on a terminal, never
+into a log or a pipe."""
 
 from __future__ import annotations
 
