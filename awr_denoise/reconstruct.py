@@ -125,8 +125,8 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
                    precision: str, luminance: tuple[Prepared, FloatArray] | None, guard: bool, probes: int, seed: int,
                    run: Callable, parallel: bool, keep: FloatArray | float, guide: FloatArray | None,
                    projection: float, floor: tuple[int, float] | None = DEFAULT_FLOOR,
-                   window: int = DEFAULT_WINDOW, guard_probes: int = 0, tolerance: float = 1.0
-                   ) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
+                   window: int = DEFAULT_WINDOW, guard_probes: int = 0, tolerance: float = 1.0,
+                   spared_beside: float | None = None) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
     """Stages 2.. and the SURE guard on the image brought to unit scale; the probe variance if asked, the noise gain.
 
     With ``parallel`` the Wiener stages filter their bands on ``run``'s threads (an executor's
@@ -157,12 +157,13 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
         divergence = leverage if done.divergence is None else done.divergence
         if luminance is None:
             out, lam = sure_blend(out, x, v, divergence, k=k, window=window, run=options["run"],
-                                  measured=prepared.sampled, tolerance=tolerance)
+                                  measured=prepared.sampled, tolerance=tolerance, spared_beside=spared_beside)
         else:  # one share for every channel, decided on luminance: hue is kept
             weights = luminance[1]
             _, lam = sure_blend(out @ weights, x @ weights, luminance[0].variance / s / s,
                                 divergence[..., 0] if done.divergence is None else divergence @ weights, k=k,
-                                window=window, measured=prepared.sampled, tolerance=tolerance)
+                                window=window, measured=prepared.sampled, tolerance=tolerance,
+                                spared_beside=spared_beside)
             lam = lam[..., None]
             out = x + lam * (out - x)
         if var_out is not None:
@@ -215,7 +216,8 @@ def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | N
                                                parallel=parallel, keep=keep, guide=guide, projection=projection,
                                                floor=settings.floor, window=settings.guard_window,
                                                guard_probes=settings.guard_probes,
-                                               tolerance=settings.guard_tolerance)
+                                               tolerance=settings.guard_tolerance,
+                                               spared_beside=settings.guard_spared_beside)
         if settings.pixel_clamp is not None:
             lum = None if luminance is None else luminance[0]
             image, moved = pooled_clamp(image, prepared.mean if lum is None else lum.mean,
@@ -440,7 +442,7 @@ def reconstruct_detailed(
     first, keep = pilots(buffer, stage.image, guide, features)
     if guide is not None and settings.guard and np.any(keep > 0):
         # A guide the gate trusts anywhere: the guard's wider default window and its tolerance (.sure).
-        settings = replace(settings, guard_tolerance=DEFAULT_GUIDED_TOLERANCE,
+        settings = replace(settings, guard_tolerance=DEFAULT_GUIDED_TOLERANCE, guard_spared_beside=None,
                            guard_window=DEFAULT_GUIDED_WINDOW if guard_window is None else settings.guard_window)
     image, variance, gain = later_stages(prepared, first, variance, settings, levels=ops.levels, wavelet=ops.wavelet,
                                    luminance=luminance, run=run, keep=keep, guide=guide, projection=projection)

@@ -14,7 +14,7 @@ import numpy as np
 
 from . import _checks
 from .stationary import DTYPES
-from .sure import DEFAULT_WINDOW
+from .sure import DEFAULT_SPARED_BESIDE, DEFAULT_TOLERANCE, DEFAULT_WINDOW
 from .wiener import DEFAULT_FLOOR
 
 __all__ = ["Settings", "resolve_settings", "DEFAULT_C_S", "DEFAULT_PILOT_C_S", "DEFAULT_PIXEL_CLAMP",
@@ -73,7 +73,8 @@ class Settings:
     floor: tuple[int, float] | None = DEFAULT_FLOOR  # the first Wiener stage's (window, margin); channel mode
     guard_window: int = DEFAULT_WINDOW  # side of the guard's square neighbourhood
     guard_probes: int = 0  # probes of the Wiener stages' divergence for the guard; 0: their diagonal
-    guard_tolerance: float = 1.0  # the guard's tolerance (sure.sure_blend); sure.DEFAULT_GUIDED_TOLERANCE guided
+    guard_tolerance: float = DEFAULT_TOLERANCE  # the guard's (sure.sure_blend); sure.DEFAULT_GUIDED_TOLERANCE guided
+    guard_spared_beside: float | None = DEFAULT_SPARED_BESIDE  # sure_blend's spared_beside; None guided
 
     @property
     def stage1_clamp(self) -> float | None:
@@ -88,6 +89,7 @@ class Settings:
                 "guard": self.guard, "guard_window": self.guard_window if self.guard else None,
                 "guard_probes": self.guard_probes if self.guard else None,
                 "guard_tolerance": self.guard_tolerance if self.guard else None,
+                "guard_spared_beside": self.guard_spared_beside if self.guard else None,
                 "preserve_mean": self.preserve_mean, "nonnegative": self.nonnegative, "precision": self.precision}
 
 

@@ -49,7 +49,8 @@ from . import _checks
 from ._typing import BoolArray, FloatArray
 from ._window_sums import window_sum
 
-__all__ = ["sure_blend", "DEFAULT_WINDOW", "DEFAULT_GUIDED_WINDOW", "DEFAULT_GUIDED_TOLERANCE"]
+__all__ = ["sure_blend", "DEFAULT_WINDOW", "DEFAULT_GUIDED_WINDOW", "DEFAULT_TOLERANCE", "DEFAULT_SPARED_BESIDE",
+           "DEFAULT_GUIDED_TOLERANCE"]
 
 DEFAULT_WINDOW = 9
 """Side of the square neighbourhood that shares one ``lambda``; ``reconstruct``'s ``guard_window``.
@@ -64,8 +65,20 @@ guide 17 measured lower or level relMSE (within 0.2%) than 9 on all ten bundled 
 at 8-32 spp but one point (``glossy_glass`` at 16 spp, 1% higher; docs/guides.md), and
 deliberately wrong guides stay below the plain mean's error (tests/test_guided.py)."""
 
+DEFAULT_TOLERANCE = 1.2
+"""``reconstruct``'s ``tolerance`` of :func:`sure_blend` without a guide, with :data:`DEFAULT_SPARED_BESIDE`.
+Measured against 1 on both renderers (docs/reconstruction.md, "The guard's tolerance without a guide"):
+lower relMSE on all ten bundled and Mitsuba scenes at 8-32 spp, MSE within 0.03 of 1's ratio to the
+plain mean's."""
+
+DEFAULT_SPARED_BESIDE = 10.0
+"""``reconstruct``'s ``spared_beside`` without a guide: the relative criterion's tolerance stays 1 beside a
+pixel ten times brighter, where a synthetic small light's rim measured above the plain mean's relMSE with
+:data:`DEFAULT_TOLERANCE` alone (the same section)."""
+
 DEFAULT_GUIDED_TOLERANCE = 1.2
-"""``tolerance`` of :func:`sure_blend` when a guide is given (module docstring; 1 without one)."""
+"""``tolerance`` of :func:`sure_blend` when a guide is given (module docstring), no pixel spared: measured
+on its own (docs/guides.md, "The guard's tolerance")."""
 
 
 def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, leverage: FloatArray, *, k: float,
@@ -77,11 +90,11 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
     Parameters
     ----------
     estimate
-        (H, W, C) estimate ``o``.
+        (H, W, C) estimate ``o``, or (H, W): one plane (the reconstruction's luminance mode).
     mean, variance
-        (H, W, C) pixel means ``x`` and the variances of the means ``v``.
+        Pixel means ``x`` and the variances of the means ``v``, shaped as ``estimate``.
     leverage
-        (H, W, C) or (H, W) diagonal ``L`` of the map that made ``estimate`` from ``mean``.
+        Diagonal ``L`` of the map that made ``estimate`` from ``mean``: shaped as ``estimate``, or (H, W).
     k
         Offset of the relative criterion's weights ``1 / (|o| + k)^2``; must be > 0.
     window
@@ -192,10 +205,15 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
         if spared_beside is not None and relative_t != 1.0:
             # Dark pixels beside a light carry the relative criterion's weight, and the stages lend them its light:
             # a tolerance there let a rim through (docs/reconstruction.md, "The guard's tolerance without a guide").
-            level = np.abs(o).max(axis=-1)
-            beside = ndimage.maximum_filter(level, size=window, mode="nearest") > spared_beside * (level + k)
-            if beside.any():
-                weighted_gain = np.where(beside[..., None], gain(1.0), weighted_gain)
+            # A pixel's level: its largest |o| over the channels (luminance mode passes one plane, (H, W)).
+            level = np.abs(o) if o.ndim == 2 else np.maximum(o.max(axis=-1), -o.min(axis=-1))
+            brightest = ndimage.maximum_filter(level, size=window, mode="nearest")
+            level += k
+            with np.errstate(over="ignore"):  # k near float64's top: Inf, no pixel spared (its weights are 0)
+                level *= spared_beside
+            beside = brightest > level
+            del level, brightest
+            weighted_gain[beside] = (1.0 - lev[beside]) * v[beside]  # gain(1.0) there, without a whole array
         squared = change * change
         # Past float64 beside means of 0 (k tiny, a variance of 1e307): Inf, which share() reads.
         with np.errstate(over="ignore"):

@@ -853,14 +853,15 @@ GUIDED_WINDOWS = (9, 13, 25)
 
 @contextlib.contextmanager
 def _unguided_guard(**options: Any) -> Iterator[None]:
-    """The guard's ``sure_blend`` options without a guide (its tolerance 1 in the library) set to ``options``
-    (``tolerance=1.2``, ``spared_beside=10``), for a comparison; a guide's guard is left as it is."""
+    """The guard's ``sure_blend`` options without a guide set to ``options`` in place of the library's
+    (``DEFAULT_TOLERANCE`` with ``DEFAULT_SPARED_BESIDE``), from the strict guard's (``tolerance=1``, none spared):
+    ``tolerance=1.2`` alone is 1.2 for both criteria with no pixel spared. A guide's guard is left as it is."""
     saved = _RECONSTRUCT.sure_blend
 
-    def guarded(*args: Any, tolerance: float = 1.0, **kwargs: Any) -> tuple:
-        if tolerance != 1.0:  # a guide's
-            return sure_blend(*args, tolerance=tolerance, **kwargs)
-        return sure_blend(*args, **{**kwargs, **options})
+    def guarded(*args: Any, **kwargs: Any) -> tuple:
+        if kwargs.get("spared_beside") is None:  # a guide's guard spares no pixel: the library's
+            return sure_blend(*args, **kwargs)
+        return sure_blend(*args, **{**kwargs, "tolerance": 1.0, "spared_beside": None, **options})
 
     _RECONSTRUCT.sure_blend = guarded
     try:
@@ -966,22 +967,28 @@ def _synthetic_buffers(seeds: int) -> Iterator[tuple[dict[str, Any], SampleBuffe
         print(f"synthetic {name}: done", flush=True)
 
 
+STRICT = "tolerance 1"
+"""The strict guard: tolerance 1 for both criteria (the default without a guide before the 10x form of
+:data:`CRITERIA`); the criteria's baseline."""
+
 CRITERIA: dict[str, dict[str, Any]] = {
     "tolerance 1.2": {"tolerance": 1.2}, "squared criterion 1.2": {"tolerance": (1.2, 1.0)},
     "relative criterion 1.2": {"tolerance": (1.0, 1.2)}, "squared criterion 1.5": {"tolerance": (1.5, 1.0)},
     "tolerance 1.2, rims spared (10x)": {"tolerance": 1.2, "spared_beside": 10.0},
     "tolerance 1.2, rims spared (3x)": {"tolerance": 1.2, "spared_beside": 3.0}}
-"""The unguided default's guard: its tolerance given to both criteria, or to one (``sure_blend``'s pair), or to
-both but the relative criterion's beside a pixel that many times brighter (``spared_beside``)."""
+"""The guard without a guide: its tolerance given to both criteria, or to one (``sure_blend``'s pair), or to both
+but the relative criterion's beside a pixel that many times brighter (``spared_beside``; the default is the 10x
+form: :data:`awr_denoise.sure.DEFAULT_TOLERANCE`, :data:`~awr_denoise.sure.DEFAULT_SPARED_BESIDE`)."""
 
 
 def criteria(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], groups: int,
              cache: Path, seeds: int = 4) -> list[dict[str, Any]]:
-    """The default without a guide at each of :data:`CRITERIA` against its tolerance of 1, on both renderers'
-    scenes, and next to the synthetic small light (each seed kept: the rim's risk is a single seed's)."""
+    """The default without a guide with its guard at each of :data:`CRITERIA` against the strict guard (tolerance 1,
+    the default before), on both renderers' scenes, and next to the synthetic small light (each seed kept: the
+    rim's risk is a single seed's)."""
     def images(buffer: SampleBuffer, plain: np.ndarray) -> dict[str, np.ndarray]:
-        out = {"plain": plain, "default": reconstruct(buffer)}
-        for name, options in CRITERIA.items():
+        out = {"plain": plain}
+        for name, options in {STRICT: {"tolerance": 1.0}, **CRITERIA}.items():
             with _unguided_guard(**options):
                 out[name] = reconstruct(buffer)
         return out
@@ -998,28 +1005,28 @@ def criteria(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[
 
 
 def criteria_table(rows: list[dict]) -> None:
-    """Markdown: relMSE over the default's and MSE over the plain mean's per scene and spp; the synthetic scenes'
-    worst single seed over the plain mean."""
-    names = list(CRITERIA)
+    """Markdown: relMSE over the strict guard's and MSE over the plain mean's per scene and spp; the synthetic
+    scenes' worst single seed over the plain mean."""
+    names, base = list(CRITERIA), STRICT
     scored = [r for r in rows if r["renderer"] != "synthetic"]
     over: dict[str, list[float]] = {}
-    print("\n| renderer | scene | spp | relMSE / the default's: " + ", ".join(names) + " | MSE / plain: default, "
+    print(f"\n| renderer | scene | spp | relMSE / {base}'s: " + ", ".join(names) + f" | MSE / plain: {base}, "
           + ", ".join(names) + " |")
     print("|---|---|---|---|---|")
     for renderer, scene in dict.fromkeys((r["renderer"], r["scene"]) for r in scored):
         for spp in sorted({r["spp"] for r in scored if r["scene"] == scene}):
             w = {"renderer": renderer, "scene": scene, "spp": spp}
-            rel = {m: _mean(scored, "relmse", method=m, **w) for m in ("default", *names)}
+            rel = {m: _mean(scored, "relmse", method=m, **w) for m in (base, *names)}
             sq = {m: _mean(scored, "mse", method=m, **w) / _mean(scored, "mse", method="plain", **w)
-                  for m in ("default", *names)}
-            print(f"| {renderer} | {scene} | {spp} | " + ", ".join(f"{rel[n] / rel['default']:.3f}" for n in names)
-                  + " | " + ", ".join(f"{sq[m]:.2f}" for m in ("default", *names)) + " |")
+                  for m in (base, *names)}
+            print(f"| {renderer} | {scene} | {spp} | " + ", ".join(f"{rel[n] / rel[base]:.3f}" for n in names)
+                  + " | " + ", ".join(f"{sq[m]:.2f}" for m in (base, *names)) + " |")
             for n in names:
-                over.setdefault(n, []).append(rel[n] / rel["default"])
-    print("\nrelMSE / the default's over every row: " + "; ".join(
+                over.setdefault(n, []).append(rel[n] / rel[base])
+    print(f"\nrelMSE / {base}'s over every row: " + "; ".join(
         f"{n}: geometric mean {float(np.exp(np.mean(np.log(over[n])))):.3f}, most {max(over[n]):.3f}" for n in names))
     synthetic = [r for r in rows if r["renderer"] == "synthetic"]
-    print("\n| synthetic scene | worst relMSE / plain, any one seed and spp: default, " + ", ".join(names)
+    print(f"\n| synthetic scene | worst relMSE / plain, any one seed and spp: {base}, " + ", ".join(names)
           + " | worst MSE / plain, the same |")
     print("|---|---|---|")
     for scene in dict.fromkeys(r["scene"] for r in synthetic):
@@ -1028,8 +1035,8 @@ def criteria_table(rows: list[dict]) -> None:
             plain = {(r["spp"], r["group"]): r[key] for r in synthetic
                      if r["scene"] == scene and r["method"] == "plain"}
             worst[key] = {m: max(r[key] / plain[r["spp"], r["group"]] for r in synthetic
-                                 if r["scene"] == scene and r["method"] == m) for m in ("default", *names)}
-        print(f"| {scene} | " + " | ".join(", ".join(f"{worst[key][m]:.3f}" for m in ("default", *names))
+                                 if r["scene"] == scene and r["method"] == m) for m in (base, *names)}
+        print(f"| {scene} | " + " | ".join(", ".join(f"{worst[key][m]:.3f}" for m in (base, *names))
                                           for key in ("relmse", "mse")) + " |")
 
 

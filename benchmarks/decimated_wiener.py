@@ -98,7 +98,8 @@ def _later(prepared: Prepared, pilot: np.ndarray, settings, levels: int, shifts:
     out, lev = decimated_wiener(x, v, out, k=k, exponent=exponents[-1], levels=levels, shifts=shifts,
                                 leverage=settings.guard)
     if settings.guard:
-        out, _ = sure_blend(out, x, v, lev, k=k, window=settings.guard_window)
+        out, _ = sure_blend(out, x, v, lev, k=k, window=settings.guard_window, tolerance=settings.guard_tolerance,
+                            spared_beside=settings.guard_spared_beside)
     image = out * s
     if settings.pixel_clamp is not None:
         image, _ = pooled_clamp(image, prepared.mean, prepared.variance, settings.pixel_clamp,

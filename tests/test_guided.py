@@ -290,13 +290,16 @@ def test_a_trusted_guide_gets_the_guards_tolerance(monkeypatch):
     DEFAULT_GUIDED_TOLERANCE times the noise it removes (.sure): with the clean image as the guide of
     a small light 1000x brighter than its ground (16 spp, four seeds) measured 0.13x the plain
     mean's relMSE and 0.10x its MSE, against 0.16x and 0.15x with the strict guard (docs/guides.md,
-    "Wrong guides"); recorded, and 1 without a guide."""
+    "Wrong guides"); recorded, with no pixel spared (the default without a guide spares a light's rim)."""
     from awr_denoise import reconstruct as reconstruct_module  # the package exports a function of that name
     module = __import__("sys").modules[reconstruct_module.__module__]
     scene, buf = _scene_buffer("edges", 16, 0)
-    assert reconstruct_detailed(buf, guide=scene.reference(), variance_probes=0).parameters["guard_tolerance"] == 1.2
-    assert reconstruct_detailed(buf, variance_probes=0).parameters["guard_tolerance"] == 1.0
-    assert reconstruct_detailed(buf, stages=1).parameters["guard_tolerance"] is None
+    guided = reconstruct_detailed(buf, guide=scene.reference(), variance_probes=0).parameters
+    assert (guided["guard_tolerance"], guided["guard_spared_beside"]) == (1.2, None)
+    unguided = reconstruct_detailed(buf, variance_probes=0).parameters
+    assert (unguided["guard_tolerance"], unguided["guard_spared_beside"]) == (1.2, 10.0)
+    single = reconstruct_detailed(buf, stages=1).parameters
+    assert (single["guard_tolerance"], single["guard_spared_beside"]) == (None, None)
     tolerant = _errors("hdr_source", 16, lambda ref, seed: ref)
     monkeypatch.setattr(module, "DEFAULT_GUIDED_TOLERANCE", 1.0)
     strict = _errors("hdr_source", 16, lambda ref, seed: ref)

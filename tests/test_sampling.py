@@ -453,13 +453,18 @@ def _equal_sample_relmse(name, spp, seed):
     ("hdr_source", 16), ("hdr_source", 32)])
 def test_adaptive_beats_uniform_at_equal_samples(name, spp):
     """Compared: relMSE of the *reconstructed* images (both through reconstruct() with its
-    defaults) after AdaptiveSampler and UniformSampler runs with the same total samples and seed."""
+    defaults) after AdaptiveSampler and UniformSampler runs with the same total samples and seed.
+    Every seed, but on the smooth gradient at 16 spp only on average: there the guard's tolerance
+    (sure.DEFAULT_TOLERANCE) lowers uniform samples' relMSE by 17% and adaptive ones' by 4% (seeds 0-9),
+    and seed 2's uniform samples come out ahead, 0.90x (1.06x with the strict guard; docs/sampling.md,
+    "AWR against uniform on a smooth gradient")."""
     ratios = []
     for seed in QUALITY_SEEDS:
         adaptive, uniform = _equal_sample_relmse(name, spp, seed)
-        assert adaptive < uniform, (seed, adaptive, uniform)
+        if (name, spp) != ("gradient", 16):
+            assert adaptive < uniform, (seed, adaptive, uniform)
         ratios.append(uniform / adaptive)
-    assert np.mean(ratios) > 1.05
+    assert np.mean(ratios) > 1.05, ratios
 
 
 @pytest.mark.slow
@@ -503,10 +508,13 @@ def test_the_gain_models_beat_the_level_model_and_uniform_at_equal_samples(name,
     1.20-1.50 (gradient), 1.04-1.18 (edges), 0.80-1.30 (hdr_source, where the capped level already gives
     the light its samples: not held per seed); shrinkage / measured gain 0.84-1.19; uniform / either 1.11 at
     least but on gradient's seed 4 (shrinkage 0.97, not among the seeds run here); MSE levels / shrinkage
-    1.15-1.34 on average."""
+    1.15-1.34 on average. Those were measured with the strict guard. With the guard's tolerance the level
+    model's and uniform samples gain more on the gradient than the shrinkage's (seeds 0-2: 15-26% against
+    3-4%), and on seed 2 both come out ahead of it (0.99x, 0.90x): on the gradient both comparisons are held
+    on average (docs/sampling.md, "AWR against uniform on a smooth gradient")."""
     scene = make_scene(name, QUALITY_SHAPE)
     reference = scene.reference()
-    mse_ratios = []
+    mse_ratios, level_ratios, uniform_ratios = [], [], []
     for seed in QUALITY_SEEDS:
         errors = {}
         for kind, sampler in (("gain", AdaptiveSampler(QUALITY_SHAPE, seed=seed, noise_model=noise_model)),
@@ -514,11 +522,17 @@ def test_the_gain_models_beat_the_level_model_and_uniform_at_equal_samples(name,
                               ("uniform", UniformSampler(QUALITY_SHAPE, seed=seed))):
             image = reconstruct(sampler.run(SyntheticRenderer(scene, seed=seed), 16))
             errors[kind] = relmse(image, reference), mse(image, reference)
-        assert errors["gain"][0] < errors["uniform"][0], (seed, errors)
-        if name != "hdr_source":
+        if name != "gradient":
+            assert errors["gain"][0] < errors["uniform"][0], (seed, errors)
+        if name == "edges":
             assert errors["gain"][0] < errors["levels"][0], (seed, errors)
         mse_ratios.append(errors["levels"][1] / errors["gain"][1])
+        level_ratios.append(errors["levels"][0] / errors["gain"][0])
+        uniform_ratios.append(errors["uniform"][0] / errors["gain"][0])
     assert np.mean(mse_ratios) > 1.0, mse_ratios
+    assert np.mean(uniform_ratios) > 1.05, uniform_ratios
+    if name == "gradient":
+        assert np.mean(level_ratios) > 1.05, level_ratios
 
 
 @pytest.mark.parametrize("noise_model", ["shrinkage", "levels", "reconstruction"])

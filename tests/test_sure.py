@@ -137,11 +137,12 @@ def _plain_sure_blend(o, x, v, lev, k, window=9, tolerances=(1.0, 1.0), spared_b
     squared, relative = change * change, 1.0 / (np.abs(o) + k) ** 2
     gain_s, gain_r = (gain if t == 1.0 else v * ((1.0 - lev) * t) for t in tolerances)
     if spared_beside is not None and tolerances[1] != 1.0:
-        level = np.abs(o).max(axis=-1)
+        level = np.abs(o) if o.ndim == 2 else np.abs(o).max(axis=-1)
         brightest = np.array([[level[max(0, r - window // 2):r + window // 2 + 1,
                                      max(0, c - window // 2):c + window // 2 + 1].max()
                                for c in range(level.shape[1])] for r in range(level.shape[0])])
-        gain_r = np.where((brightest > spared_beside * (level + k))[..., None], gain, gain_r)
+        beside = brightest > spared_beside * (level + k)
+        gain_r = np.where(beside if o.ndim == 2 else beside[..., None], gain, gain_r)
     lam = np.minimum(share(gain_s, squared), share(gain_r * relative, squared * relative))
     return x + lam * change, lam
 
@@ -205,16 +206,32 @@ def test_a_rim_beside_a_light_keeps_the_strict_relative_criterion(rng, tolerance
         sure_blend(o, x, v, lev, k=0.05, spared_beside=1.0)
 
 
-def test_sparing_the_rim_undoes_more_of_a_leak_of_light_onto_dark_ground(rng):
+def test_one_plane_is_spared_by_its_own_level(rng):
+    """The luminance mode's guard takes one (H, W) plane: each pixel's level is its own value (the largest over a
+    last axis would have been a row's), the plain formula bit for bit (a rim spared: the test below)."""
+    o = rng.lognormal(0.0, 1.0, (30, 28))
+    o[10:13, 10:13] *= 1000.0  # a light
+    x = o * rng.uniform(0.5, 1.5, o.shape)
+    v = rng.uniform(0.0, 0.5, o.shape) * o
+    lev = rng.uniform(0.0, 1.0, o.shape)
+    got, lam = sure_blend(o, x, v, lev, k=0.05, tolerance=1.5, spared_beside=10.0)
+    want, want_lam = _plain_sure_blend(o, x, v, lev, 0.05, tolerances=(1.5, 1.5), spared_beside=10.0)
+    np.testing.assert_array_equal(lam, want_lam)
+    np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("shape", [SHAPE, SHAPE[:2]], ids=["channels", "one plane"])
+def test_sparing_the_rim_undoes_more_of_a_leak_of_light_onto_dark_ground(rng, shape):
     """The leak of :func:`test_the_relative_criterion_protects_dark_pixels_next_to_a_light`: a relative tolerance
-    of 1.5 keeps more of it; spared beside the light, less, and far from the light the share is the same."""
-    truth = np.full(SHAPE, 0.01)
+    of 1.5 keeps more of it; spared beside the light, less, and far from the light the share is the same. So too
+    on one (H, W) plane, as the luminance mode's guard takes it."""
+    truth = np.full(shape, 0.01)
     truth[:, 16:] = 100.0
     variance = (0.05 * truth) ** 2
-    mean = truth + np.sqrt(variance) * rng.standard_normal(SHAPE)
+    mean = truth + np.sqrt(variance) * rng.standard_normal(shape)
     leak = truth.copy()
     leak[:, 12:16] += 0.5
-    lev = np.full(SHAPE, 0.05)
+    lev = np.full(shape, 0.05)
     strict = sure_blend(leak, mean, variance, lev, k=0.01)[1]
     tolerant = sure_blend(leak, mean, variance, lev, k=0.01, tolerance=(1.0, 1.5))[1]
     spared = sure_blend(leak, mean, variance, lev, k=0.01, tolerance=(1.0, 1.5), spared_beside=10.0)[1]
