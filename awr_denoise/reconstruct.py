@@ -309,8 +309,10 @@ def reconstruct_detailed(
     guard
         After the Wiener stages, keep in every ``guard_window`` square only the share of their change
         from the plain mean that Stein's unbiased risk estimate says lowers both the squared and
-        the relative squared error (:mod:`awr_denoise.sure`). Default: on with Wiener stages;
-        it needs them (``stages > 1``).
+        the relative squared error (:mod:`awr_denoise.sure`), a change kept whole up to
+        :data:`~awr_denoise.sure.DEFAULT_TOLERANCE` times the noise it may remove (but beside a much
+        brighter pixel: :data:`~awr_denoise.sure.DEFAULT_SPARED_BESIDE`). Default: on with Wiener
+        stages; it needs them (``stages > 1``).
     guard_window
         Side of the guard's square neighbourhood (odd; default :data:`~awr_denoise.sure.DEFAULT_WINDOW`,
         9, and :data:`~awr_denoise.sure.DEFAULT_GUIDED_WINDOW`, 17, with a ``guide`` the gate

@@ -79,8 +79,9 @@ SPEED_VARIANTS: dict[str, Any] = {
     "default with a guide": {"guide": "reference"},
     "default without the energy floor": "no energy floor",
     "one Wiener level fewer": "one Wiener level fewer",
+    "default with the strict guard": lambda buffer: strict_guard(buffer),  # defined below
 }
-"""``speed``: reconstruct() options per variant; ``"reference"`` stands for the scene's clean image (a
+"""``speed``: reconstruct() options per variant (or a function of the buffer); ``"reference"`` stands for the scene's clean image (a
 guide the gate trusts everywhere, so the projection on the guide runs on the whole image); a
 string names a function of :data:`COMPARED` (an earlier form) or :data:`CHEAPER`; ``--shifts`` adds :data:`SHIFTED`."""
 
@@ -535,7 +536,8 @@ SEED_SHAPE = (64, 64)  # tests/test_sampling.py's size
 
 def seeds(names: tuple[str, ...], spps: tuple[int, ...], count: int) -> list[dict[str, Any]]:
     """Per seed, as tests/test_sampling.py runs them: AWR sampling (the default, levels, measured gain) and uniform,
-    each from scratch, the default (relMSE and MSE), and relMSE with the previous pilot threshold (1.5)."""
+    each from scratch, the default (relMSE and MSE), and relMSE with the previous pilot threshold (1.5) and with
+    the strict guard (:func:`strict_guard`)."""
     rows = []
     for name in names:
         scene = make_scene(name, SEED_SHAPE)
@@ -548,15 +550,28 @@ def seeds(names: tuple[str, ...], spps: tuple[int, ...], count: int) -> list[dic
                     image, before = reconstruct(buffer), reconstruct(buffer, c_s=1.5)
                     rows.append({"scene": name, "spp": spp, "seed": seed, "sampler": kind,
                                  "relmse": relmse(image, ref), "mse": mse(image, ref),
-                                 "relmse_pilot_1.5": relmse(before, ref)})
+                                 "relmse_pilot_1.5": relmse(before, ref),
+                                 "relmse_strict_guard": relmse(strict_guard(buffer), ref)})
         print(f"{name}: done", flush=True)
     return rows
 
 
+def strict_guard(buffer: SampleBuffer) -> np.ndarray:
+    """The default with the guard as it was before its tolerance without a guide: 1 for both criteria, no pixel
+    spared (``sure_blend``'s own defaults in place of ``DEFAULT_TOLERANCE`` and ``DEFAULT_SPARED_BESIDE``)."""
+    def guard(*args: Any, tolerance: Any = 1.0, spared_beside: Any = None, **options: Any) -> Any:
+        return sure_blend(*args, **options)
+    with mock.patch.object(sys.modules["awr_denoise.reconstruct"], "sure_blend", guard):
+        return reconstruct(buffer)
+
+
 def seeds_table(rows: list[dict]) -> None:
+    strict = all("relmse_strict_guard" in r for r in rows)  # rows stored before that column have none
     print("\n| scene | spp | seeds | uniform / awr, least | most | mean | seeds where uniform wins | mean, pilot c_s 1.5 "
-          "| relMSE pilot 2 / 1.5, awr | relMSE pilot 2 / 1.5, uniform | MSE uniform / awr, mean (least) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "| relMSE pilot 2 / 1.5, awr | relMSE pilot 2 / 1.5, uniform | MSE uniform / awr, mean (least) |"
+          + (" uniform / awr with the strict guard, mean (seeds where uniform wins) | relMSE default / strict guard, "
+             "awr | uniform |" if strict else ""))
+    print("|---|---|---|---|---|---|---|---|---|---|---|" + ("---|---|---|" if strict else ""))
     for name in dict.fromkeys(r["scene"] for r in rows):
         for spp in sorted({r["spp"] for r in rows if r["scene"] == name}):
             pick = [r for r in rows if r["scene"] == name and r["spp"] == spp]
@@ -570,7 +585,7 @@ def seeds_table(rows: list[dict]) -> None:
             print(f"| {name} | {spp} | 0-{ids[-1]} | {min(ratio.values()):.2f} | {max(ratio.values()):.2f} | "
                   f"{np.mean(list(ratio.values())):.2f} | {', '.join(lost)} | {np.mean(before):.2f} | "
                   + " | ".join(f"{min(moved[k]):.2f}-{max(moved[k]):.2f}" for k in ("awr", "uniform"))
-                  + f" | {np.mean(squared):.2f} ({min(squared):.2f}) |")
+                  + f" | {np.mean(squared):.2f} ({min(squared):.2f}) |" + (_strict_cells(get, ids) if strict else ""))
 
     def against_measured(ids: list, ratios: Any) -> list[str]:
         lev, uni, sq = (ratios(over, "awr, measured gain", key)
@@ -588,6 +603,15 @@ def seeds_table(rows: list[dict]) -> None:
     _seed_table(rows, "awr, levels", ("relMSE levels / awr, least-most (mean)", "seeds where levels wins",
                                       "uniform / levels, least-most (mean)", "seeds where uniform beats levels",
                                       "MSE levels / awr, mean (least)"), against_levels)
+
+
+def _strict_cells(get: dict, ids: list) -> str:
+    """The seeds table's strict-guard columns: uniform over AWR with it, and the default over it per sampler."""
+    ratio = [get[i, "uniform"]["relmse_strict_guard"] / get[i, "awr"]["relmse_strict_guard"] for i in ids]
+    lost = ", ".join(str(i) for i, r in zip(ids, ratio) if r <= 1) or "none"
+    moved = {k: [get[i, k]["relmse"] / get[i, k]["relmse_strict_guard"] for i in ids] for k in ("awr", "uniform")}
+    return (f" {np.mean(ratio):.2f} ({lost}) | " + " | ".join(f"{min(moved[k]):.2f}-{max(moved[k]):.2f}"
+                                                            for k in ("awr", "uniform")) + " |")
 
 
 def _seed_table(rows: list[dict], kind: str, header: tuple[str, ...], cells: Any) -> None:

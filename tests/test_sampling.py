@@ -455,9 +455,9 @@ def test_adaptive_beats_uniform_at_equal_samples(name, spp):
     """Compared: relMSE of the *reconstructed* images (both through reconstruct() with its
     defaults) after AdaptiveSampler and UniformSampler runs with the same total samples and seed.
     Every seed, but on the smooth gradient at 16 spp only on average: there the guard's tolerance
-    (sure.DEFAULT_TOLERANCE) lowers uniform samples' relMSE by 17% and adaptive ones' by 4% (seeds 0-9),
-    and seed 2's uniform samples come out ahead, 0.90x (1.06x with the strict guard; docs/sampling.md,
-    "AWR against uniform on a smooth gradient")."""
+    (sure.DEFAULT_TOLERANCE) lowers uniform samples' relMSE by 10-23% and adaptive ones' by 3-5% (seeds 0-9),
+    and seed 2's uniform samples come out ahead, 0.90x (none with the strict guard; docs/sampling.md,
+    "AWR against uniform on a smooth gradient"; benchmarks/bench_reconstruct.py seeds)."""
     ratios = []
     for seed in QUALITY_SEEDS:
         adaptive, uniform = _equal_sample_relmse(name, spp, seed)
@@ -504,14 +504,13 @@ def test_the_measured_gain_model_spends_by_the_default_reconstructions_gain():
 def test_the_gain_models_beat_the_level_model_and_uniform_at_equal_samples(name, noise_model):
     """The shrinkage's gain (the default) and the measured gain against the paper's level model and
     uniform sampling, the same seeds, 16 spp, reconstructed with the defaults. Measured over seeds 0-9
-    (docs/sampling.md, "The noise gain"; benchmarks/bench_reconstruct.py seeds): relMSE levels / shrinkage
-    1.20-1.50 (gradient), 1.04-1.18 (edges), 0.80-1.30 (hdr_source, where the capped level already gives
-    the light its samples: not held per seed); shrinkage / measured gain 0.84-1.19; uniform / either 1.11 at
-    least but on gradient's seed 4 (shrinkage 0.97, not among the seeds run here); MSE levels / shrinkage
-    1.15-1.34 on average. Those were measured with the strict guard. With the guard's tolerance the level
-    model's and uniform samples gain more on the gradient than the shrinkage's (seeds 0-2: 15-26% against
-    3-4%), and on seed 2 both come out ahead of it (0.99x, 0.90x): on the gradient both comparisons are held
-    on average (docs/sampling.md, "AWR against uniform on a smooth gradient")."""
+    (benchmarks/bench_reconstruct.py seeds; docs/reconstruction.md): relMSE levels / shrinkage 0.99-1.35
+    (gradient), 1.06-1.19 (edges), 0.66-1.38 (hdr_source, where the capped level already gives the light its
+    samples); shrinkage / measured gain 0.89-1.29; uniform / shrinkage 1.10 at least on edges, 3.11 next to
+    the light; MSE levels / shrinkage 1.13-1.29 on average. On the gradient the guard's tolerance gains more
+    on uniform samples than on the shrinkage's, and seed 2's level-model and uniform samples come out ahead
+    of it (0.99x, 0.90x; with the strict guard neither did): there both comparisons are held on average
+    (docs/sampling.md, "AWR against uniform on a smooth gradient")."""
     scene = make_scene(name, QUALITY_SHAPE)
     reference = scene.reference()
     mse_ratios, level_ratios, uniform_ratios = [], [], []
