@@ -205,8 +205,11 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
         if spared_beside is not None and relative_t != 1.0:
             # Dark pixels beside a light carry the relative criterion's weight, and the stages lend them its light:
             # a tolerance there let a rim through (docs/reconstruction.md, "The guard's tolerance without a guide").
-            # A pixel's level: its largest |o| over the channels (luminance mode passes one plane, (H, W)).
-            level = np.abs(o) if o.ndim == 2 else np.maximum(o.max(axis=-1), -o.min(axis=-1))
+            # A pixel's level: its largest |o| over the channels (luminance mode passes one plane, (H, W)), channel
+            # by channel: numpy's reduction over a last axis of 3 took 5x as long at 1080p.
+            level = np.abs(o[..., 0] if o.ndim == 3 else o)
+            for c in range(1, o.shape[-1] if o.ndim == 3 else 1):
+                np.maximum(level, np.abs(o[..., c]), out=level)
             brightest = ndimage.maximum_filter(level, size=window, mode="nearest")
             level += k
             with np.errstate(over="ignore"):  # k near float64's top: Inf, no pixel spared (its weights are 0)
