@@ -122,7 +122,13 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
     Returns
     -------
     (numpy.ndarray, numpy.ndarray)
-        The blend and ``lambda`` (H, W, C).
+        The blend and ``lambda``, shaped as ``estimate``.
+
+    Notes
+    -----
+    Its own defaults are the strict guard (``tolerance=1``, no pixel spared). The reconstruction passes
+    :data:`DEFAULT_TOLERANCE` and :data:`DEFAULT_SPARED_BESIDE` without a guide and
+    :data:`DEFAULT_GUIDED_TOLERANCE` with a guide the gate trusts.
 
     Examples
     --------
@@ -211,8 +217,8 @@ def sure_blend(estimate: FloatArray, mean: FloatArray, variance: FloatArray, lev
             for c in range(1, o.shape[-1] if o.ndim == 3 else 1):
                 np.maximum(level, np.abs(o[..., c]), out=level)
             brightest = ndimage.maximum_filter(level, size=window, mode="nearest")
-            level += k
             with np.errstate(over="ignore"):  # k near float64's top: Inf, no pixel spared (its weights are 0)
+                level += k
                 level *= spared_beside
             beside = brightest > level
             del level, brightest

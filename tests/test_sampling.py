@@ -509,8 +509,9 @@ def test_the_gain_models_beat_the_level_model_and_uniform_at_equal_samples(name,
     samples); shrinkage / measured gain 0.89-1.29; uniform / shrinkage 1.10 at least on edges, 3.11 next to
     the light; MSE levels / shrinkage 1.13-1.29 on average. On the gradient the guard's tolerance gains more
     on uniform samples than on the shrinkage's, and seed 2's level-model and uniform samples come out ahead
-    of it (0.99x, 0.90x; with the strict guard neither did): there both comparisons are held on average
-    (docs/sampling.md, "AWR against uniform on a smooth gradient")."""
+    of it (0.99x, 0.90x; with the strict guard neither did): there both comparisons are held on average for
+    the shrinkage's gain and per seed for the measured gain, which wins every seed of 0-9 (uniform / measured
+    gain 1.07-1.68; docs/sampling.md, "AWR against uniform on a smooth gradient")."""
     scene = make_scene(name, QUALITY_SHAPE)
     reference = scene.reference()
     mse_ratios, level_ratios, uniform_ratios = [], [], []
@@ -521,9 +522,10 @@ def test_the_gain_models_beat_the_level_model_and_uniform_at_equal_samples(name,
                               ("uniform", UniformSampler(QUALITY_SHAPE, seed=seed))):
             image = reconstruct(sampler.run(SyntheticRenderer(scene, seed=seed), 16))
             errors[kind] = relmse(image, reference), mse(image, reference)
-        if name != "gradient":
+        per_seed = name == "edges" or (name == "gradient" and noise_model == "reconstruction")
+        if name != "gradient" or noise_model == "reconstruction":
             assert errors["gain"][0] < errors["uniform"][0], (seed, errors)
-        if name == "edges":
+        if per_seed:
             assert errors["gain"][0] < errors["levels"][0], (seed, errors)
         mse_ratios.append(errors["levels"][1] / errors["gain"][1])
         level_ratios.append(errors["levels"][0] / errors["gain"][0])

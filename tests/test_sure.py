@@ -206,18 +206,47 @@ def test_a_rim_beside_a_light_keeps_the_strict_relative_criterion(rng, tolerance
         sure_blend(o, x, v, lev, k=0.05, spared_beside=1.0)
 
 
-def test_one_plane_is_spared_by_its_own_level(rng):
-    """The luminance mode's guard takes one (H, W) plane: each pixel's level is its own value (the largest over a
-    last axis would have been a row's), the plain formula bit for bit (a rim spared: the test below)."""
-    o = rng.lognormal(0.0, 1.0, (30, 28))
-    o[10:13, 10:13] *= 1000.0  # a light
-    x = o * rng.uniform(0.5, 1.5, o.shape)
-    v = rng.uniform(0.0, 0.5, o.shape) * o
-    lev = rng.uniform(0.0, 1.0, o.shape)
-    got, lam = sure_blend(o, x, v, lev, k=0.05, tolerance=1.5, spared_beside=10.0)
-    want, want_lam = _plain_sure_blend(o, x, v, lev, 0.05, tolerances=(1.5, 1.5), spared_beside=10.0)
+def _leak(rng, shape):
+    """Dark ground of 0.01 beside a light of 100, the estimate leaking 0.5 onto four columns of the ground."""
+    truth = np.full(shape, 0.01)
+    truth[:, 16:] = 100.0
+    variance = (0.05 * truth) ** 2
+    mean = truth + np.sqrt(variance) * rng.standard_normal(shape)
+    leak = truth.copy()
+    leak[:, 12:16] += 0.5
+    return leak, mean, variance
+
+
+@pytest.mark.parametrize(("shape", "leverage_shape"), [((32, 32), (32, 32)), ((32, 32, 3), (32, 32)),
+                                                       ((32, 32, 3), (32, 32, 1)), ((32, 32, 3), (32, 32, 3))])
+@pytest.mark.parametrize("extra", ["plain", "measured", "threads"])
+def test_the_spared_guard_is_the_plain_formula_where_sparing_binds(rng, shape, leverage_shape, extra):
+    """Beside a light, where sparing moves lambda: the in-place spared path is the plain formula bit for bit,
+    for one plane (luminance mode: each pixel's own level, not a row's) and for channels with every leverage
+    layout; unmeasured pixels keep lambda 1 and the criteria on threads give the same bits."""
+    leak, mean, variance = _leak(rng, shape)
+    if len(shape) == 3:
+        leak, mean, variance = (a * np.array([1.0, 0.6, 1.4]) ** p for a, p in ((leak, 1), (mean, 1), (variance, 2)))
+    lev = rng.uniform(0.0, 0.2, leverage_shape)
+    options = {"k": 0.01, "tolerance": (1.0, 1.5)}
+    got, lam = sure_blend(leak, mean, variance, lev, spared_beside=10.0, **options)
+    unspared = sure_blend(leak, mean, variance, lev, **options)[1]
+    assert not np.array_equal(lam, unspared)  # sparing binds here
+    want, want_lam = _plain_sure_blend(leak, mean, variance, lev, 0.01, tolerances=(1.0, 1.5), spared_beside=10.0)
     np.testing.assert_array_equal(lam, want_lam)
     np.testing.assert_array_equal(got, want)
+    if extra == "measured":
+        measured = np.ones(shape[:2], bool)
+        measured[::7, ::5] = False
+        masked = sure_blend(leak, mean, variance, lev, spared_beside=10.0, measured=measured, **options)[1]
+        assert (masked[~measured] == 1.0).all() and not np.array_equal(
+            masked, sure_blend(leak, mean, variance, lev, measured=measured, **options)[1])
+    if extra == "threads":
+        with ThreadPoolExecutor(2) as pool:
+            threaded = sure_blend(leak, mean, variance, lev, spared_beside=10.0,
+                                  run=lambda f, items: list(pool.map(f, items)), **options)
+        np.testing.assert_array_equal(threaded[1], lam)
+        np.testing.assert_array_equal(threaded[0], got)
 
 
 @pytest.mark.parametrize("shape", [SHAPE, SHAPE[:2]], ids=["channels", "one plane"])
