@@ -62,15 +62,22 @@ def test_the_tolerance_keeps_a_right_change_whole_and_undoes_a_biased_one_in_pro
     assert biased.mean() == pytest.approx(1.2 / (1 + 4 + 0.1), rel=0.1)
 
 
+def _leak(rng, shape):
+    """Dark ground of 0.01 beside a light of 100, the estimate leaking 0.5 onto four columns of the ground (within
+    the light's noise, 5, and 50x the ground's level): the truth, the estimate, the means and their variances."""
+    truth = np.full(shape, 0.01)
+    truth[:, 16:] = 100.0
+    variance = (0.05 * truth) ** 2
+    mean = truth + np.sqrt(variance) * rng.standard_normal(shape)
+    leak = truth.copy()
+    leak[:, 12:16] += 0.5
+    return truth, leak, mean, variance
+
+
 def test_the_relative_criterion_protects_dark_pixels_next_to_a_light(rng):
     """A leak of a bright neighbour's light onto a dark ground: small in absolute terms (MSE
     keeps it), large relative to the ground (relMSE does not): the smaller share wins."""
-    truth = np.full(SHAPE, 0.01)
-    truth[:, 16:] = 100.0
-    variance = (0.05 * truth) ** 2
-    mean = truth + np.sqrt(variance) * rng.standard_normal(SHAPE)
-    leak = truth.copy()
-    leak[:, 12:16] += 0.5  # within the light's noise (5), 50x the ground's level
+    truth, leak, mean, variance = _leak(rng, SHAPE)
     out, lam = sure_blend(leak, mean, variance, np.full(SHAPE, 0.05), k=0.01)
     assert lam[:, 12:16].max() < 0.05
     assert np.abs(out[:, 12:16] - truth[:, 12:16]).max() < 0.01
@@ -206,17 +213,6 @@ def test_a_rim_beside_a_light_keeps_the_strict_relative_criterion(rng, tolerance
         sure_blend(o, x, v, lev, k=0.05, spared_beside=1.0)
 
 
-def _leak(rng, shape):
-    """Dark ground of 0.01 beside a light of 100, the estimate leaking 0.5 onto four columns of the ground."""
-    truth = np.full(shape, 0.01)
-    truth[:, 16:] = 100.0
-    variance = (0.05 * truth) ** 2
-    mean = truth + np.sqrt(variance) * rng.standard_normal(shape)
-    leak = truth.copy()
-    leak[:, 12:16] += 0.5
-    return leak, mean, variance
-
-
 @pytest.mark.parametrize(("shape", "leverage_shape"), [((32, 32), (32, 32)), ((32, 32, 3), (32, 32)),
                                                        ((32, 32, 3), (32, 32, 1)), ((32, 32, 3), (32, 32, 3))])
 @pytest.mark.parametrize("extra", ["plain", "measured", "threads"])
@@ -224,7 +220,7 @@ def test_the_spared_guard_is_the_plain_formula_where_sparing_binds(rng, shape, l
     """Beside a light, where sparing moves lambda: the in-place spared path is the plain formula bit for bit,
     for one plane (luminance mode: each pixel's own level, not a row's) and for channels with every leverage
     layout; unmeasured pixels keep lambda 1 and the criteria on threads give the same bits."""
-    leak, mean, variance = _leak(rng, shape)
+    _, leak, mean, variance = _leak(rng, shape)
     if len(shape) == 3:
         leak, mean, variance = (a * np.array([1.0, 0.6, 1.4]) ** p for a, p in ((leak, 1), (mean, 1), (variance, 2)))
     lev = rng.uniform(0.0, 0.2, leverage_shape)
@@ -254,12 +250,7 @@ def test_sparing_the_rim_undoes_more_of_a_leak_of_light_onto_dark_ground(rng, sh
     """The leak of :func:`test_the_relative_criterion_protects_dark_pixels_next_to_a_light`: a relative tolerance
     of 1.5 keeps more of it; spared beside the light, less, and far from the light the share is the same. So too
     on one (H, W) plane, as the luminance mode's guard takes it."""
-    truth = np.full(shape, 0.01)
-    truth[:, 16:] = 100.0
-    variance = (0.05 * truth) ** 2
-    mean = truth + np.sqrt(variance) * rng.standard_normal(shape)
-    leak = truth.copy()
-    leak[:, 12:16] += 0.5
+    _, leak, mean, variance = _leak(rng, shape)
     lev = np.full(shape, 0.05)
     strict = sure_blend(leak, mean, variance, lev, k=0.01)[1]
     tolerant = sure_blend(leak, mean, variance, lev, k=0.01, tolerance=(1.0, 1.5))[1]
