@@ -57,7 +57,7 @@ from awr_denoise.wiener import chain, rademacher_probes
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_reconstruct import (MITSUBA_SHAPE, TRACER_SCENES, _mitsuba_available, quality_scenes,  # noqa: E402
-                              recorded_command, reference, uniform_buffers)
+                              recorded_command, reference, unguided_guard, uniform_buffers)
 
 ROOT = Path(__file__).resolve().parent
 RESULTS = ROOT / "results" / "guides.json"
@@ -852,25 +852,6 @@ GUIDED_WINDOWS = (9, 13, 25)
 
 
 @contextlib.contextmanager
-def _unguided_guard(**options: Any) -> Iterator[None]:
-    """The guard's ``sure_blend`` options without a guide set to ``options`` in place of the library's
-    (``DEFAULT_TOLERANCE`` with ``DEFAULT_SPARED_BESIDE``), from the strict guard's (``tolerance=1``, none spared):
-    ``tolerance=1.2`` alone is 1.2 for both criteria with no pixel spared. A guide's guard is left as it is."""
-    saved = _RECONSTRUCT.sure_blend
-
-    def guarded(*args: Any, **kwargs: Any) -> tuple:
-        if kwargs.get("spared_beside") is None:  # a guide's guard spares no pixel: the library's
-            return sure_blend(*args, **kwargs)
-        return sure_blend(*args, **{**kwargs, "tolerance": 1.0, "spared_beside": None, **options})
-
-    _RECONSTRUCT.sure_blend = guarded
-    try:
-        yield
-    finally:
-        _RECONSTRUCT.sure_blend = saved
-
-
-@contextlib.contextmanager
 def _guided_tolerance(value: float) -> Iterator[None]:
     saved = _RECONSTRUCT.DEFAULT_GUIDED_TOLERANCE
     _RECONSTRUCT.DEFAULT_GUIDED_TOLERANCE = value
@@ -933,7 +914,7 @@ def tolerance(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple
         for t in TOLERANCES:
             with _guided_tolerance(t):
                 images[f"guide, tolerance {t:g}"] = reconstruct(buffer, guide=guide)
-            with _unguided_guard(tolerance=t):
+            with unguided_guard(tolerance=t):
                 images[f"default, tolerance {t:g}"] = reconstruct(buffer)
         for window in GUIDED_WINDOWS:
             images[f"guide, window {window}"] = reconstruct(buffer, guide=guide, guard_window=window)
@@ -947,7 +928,7 @@ def tolerance(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple
             with _guided_tolerance(t):
                 images.update({f"{kind}, tolerance {t:g}": reconstruct(buffer, guide=guide)
                                for kind, guide in wrong.items()})
-            with _unguided_guard(tolerance=t):
+            with unguided_guard(tolerance=t):
                 images[f"default, tolerance {t:g}"] = reconstruct(buffer)
         rows += [{**keys, "method": m, "relmse": relmse(image, ref), "mse": mse(image, ref)}
                  for m, image in images.items()]
@@ -989,7 +970,7 @@ def criteria(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[
     def images(buffer: SampleBuffer, plain: np.ndarray) -> dict[str, np.ndarray]:
         out = {"plain": plain}
         for name, options in {STRICT: {"tolerance": 1.0}, **CRITERIA}.items():
-            with _unguided_guard(**options):
+            with unguided_guard(**options):
                 out[name] = reconstruct(buffer)
         return out
 

@@ -27,12 +27,14 @@ should use: a section is replaced whole).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import math
 import sys
 import time
 from functools import partial
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 from unittest import mock
@@ -68,6 +70,28 @@ MITSUBA_REFERENCE_SPP = 1024
 SPPS = (8, 16, 32, 64, 128)
 METHODS: dict[str, dict[str, Any] | None] = {"plain": None, "stage 1": {"stages": 1}, "default": {}}
 SIZES = {"128x128": (128, 128), "256x256": (256, 256), "1080p": (1080, 1920)}
+
+
+@contextlib.contextmanager
+def unguided_guard(**options: Any) -> Iterator[None]:
+    """The guard's ``sure_blend`` options without a guide set to ``options`` in place of the library's
+    (``DEFAULT_TOLERANCE`` with ``DEFAULT_SPARED_BESIDE``), from the strict guard's (``tolerance=1``, none spared):
+    no options is the strict guard, ``tolerance=1.2`` alone is 1.2 for both criteria with no pixel spared. A
+    guide's guard (which spares no pixel) is left as it is."""
+    def guarded(*args: Any, **kwargs: Any) -> Any:
+        if kwargs.get("spared_beside") is None:  # a guide's guard: the library's
+            return sure_blend(*args, **kwargs)
+        return sure_blend(*args, **{**kwargs, "tolerance": 1.0, "spared_beside": None, **options})
+    with mock.patch.object(sys.modules["awr_denoise.reconstruct"], "sure_blend", guarded):
+        yield
+
+
+def strict_guard(buffer: SampleBuffer) -> np.ndarray:
+    """The default with the guard as it was before its tolerance without a guide (:func:`unguided_guard`)."""
+    with unguided_guard():
+        return reconstruct(buffer)
+
+
 SPEED_VARIANTS: dict[str, Any] = {
     "stage 1 alone": {"stages": 1},
     "stage 1 alone, float64": {"stages": 1, "precision": "float64"},
@@ -79,7 +103,7 @@ SPEED_VARIANTS: dict[str, Any] = {
     "default with a guide": {"guide": "reference"},
     "default without the energy floor": "no energy floor",
     "one Wiener level fewer": "one Wiener level fewer",
-    "default with the strict guard": lambda buffer: strict_guard(buffer),  # defined below
+    "default with the strict guard": strict_guard,
 }
 """``speed``: reconstruct() options per variant (or a function of the buffer); ``"reference"`` stands for the scene's clean image (a
 guide the gate trusts everywhere, so the projection on the guide runs on the whole image); a
@@ -554,15 +578,6 @@ def seeds(names: tuple[str, ...], spps: tuple[int, ...], count: int) -> list[dic
                                  "relmse_strict_guard": relmse(strict_guard(buffer), ref)})
         print(f"{name}: done", flush=True)
     return rows
-
-
-def strict_guard(buffer: SampleBuffer) -> np.ndarray:
-    """The default with the guard as it was before its tolerance without a guide: 1 for both criteria, no pixel
-    spared (``sure_blend``'s own defaults in place of ``DEFAULT_TOLERANCE`` and ``DEFAULT_SPARED_BESIDE``)."""
-    def guard(*args: Any, tolerance: Any = 1.0, spared_beside: Any = None, **options: Any) -> Any:
-        return sure_blend(*args, **options)
-    with mock.patch.object(sys.modules["awr_denoise.reconstruct"], "sure_blend", guard):
-        return reconstruct(buffer)
 
 
 def seeds_table(rows: list[dict]) -> None:
