@@ -105,9 +105,10 @@ SPEED_VARIANTS: dict[str, Any] = {
     "one Wiener level fewer": "one Wiener level fewer",
     "default with the strict guard": strict_guard,
 }
-"""``speed``: reconstruct() options per variant (or a function of the buffer); ``"reference"`` stands for the scene's clean image (a
-guide the gate trusts everywhere, so the projection on the guide runs on the whole image); a
-string names a function of :data:`COMPARED` (an earlier form) or :data:`CHEAPER`; ``--shifts`` adds :data:`SHIFTED`."""
+"""``speed``: reconstruct() options per variant, or a function of the buffer; ``"reference"`` stands for the
+scene's clean image (a guide the gate trusts everywhere, so the projection on the guide runs on the whole image);
+a string names a function of :data:`COMPARED` (an earlier form) or :data:`CHEAPER`; ``--shifts`` adds
+:data:`SHIFTED`."""
 
 
 def fewer_wiener_levels(buffer: SampleBuffer) -> np.ndarray:
