@@ -188,6 +188,7 @@ class _Seen:
     running: tuple[frozenset[int], np.ndarray] | None  # the seeds whose first samples it holds, and where
     counts: bytes | None = None  # the digest of its counts alone
     signature: np.ndarray | None = None  # its means' signed sums (_signature)
+    noise: float = 0.0  # the standard error of each signed sum, from its known variances (_noise)
 
 
 _SIGNED_SUMS = 8
@@ -195,6 +196,11 @@ _ROUNDING = 1e-5
 """Signed sums of two inputs' means within this share of each other, every one, with the same counts: the same
 samples up to rounding (the renderer's, or a conversion's). Two renders of other seeds differ by their noise over
 the means' own size, orders of magnitude more."""
+_NOISE_SHARE = 0.05
+"""Signed sums of two inputs' means within this share of their own noise (:func:`_noise`), every one, with the same
+counts: the same samples up to a coarser rounding, a copy in half floats (2**-11 of each mean; pbrt's default
+output beside its float one). Two renders of other seeds differ by about their noise: all eight sums within 0.05 of
+it by chance has a probability of about 1e-11 (a standard normal within 0.05, eight times)."""
 
 
 def _signature(mean: np.ndarray) -> np.ndarray:
@@ -207,6 +213,12 @@ def _signature(mean: np.ndarray) -> np.ndarray:
         bits = ((index * np.uint64(0x9E3779B97F4A7C15 + 2 * k)) >> np.uint64(40 + k)) & np.uint64(1)
         out[k] = float(np.dot(flat, 1.0 - 2.0 * bits.astype(np.float64)))
     return out
+
+
+def _noise(buffer: SampleBuffer) -> float:
+    """The standard error of each of :func:`_signature`'s sums (their signs square to 1): the root of the summed
+    variances of the means, where they are known (unknown variances count 0, which only makes the test stricter)."""
+    return float(np.sqrt(np.sum(buffer.variance / np.maximum(buffer.count, 1)[..., None])))
 
 
 def _of_the_run(path: str, attributes: dict, seeds: frozenset[int]) -> bool:
@@ -236,6 +248,7 @@ def _seeds(path: str, attributes: dict, told: bool) -> frozenset[int]:
 def _seen(path: str, dump: SampleDump, seeds: frozenset[int]) -> _Seen:
     buffer = dump.buffer
     digest = counts = signature = None
+    noise = 0.0
     if buffer.total_samples:
         h = hashlib.sha256()
         for a in (buffer.count, buffer.mean, buffer.variance):
@@ -244,7 +257,8 @@ def _seen(path: str, dump: SampleDump, seeds: frozenset[int]) -> _Seen:
         digest = h.digest()
         counts = hashlib.sha256(np.ascontiguousarray(buffer.count).data).digest()
         signature = _signature(buffer.mean)
-    return _Seen(path, digest, (seeds, buffer.count > 0) if seeds else None, counts, signature)
+        noise = _noise(buffer)
+    return _Seen(path, digest, (seeds, buffer.count > 0) if seeds else None, counts, signature, noise)
 
 
 def _refuse_copies(earlier: list[_Seen], new: _Seen) -> None:
@@ -257,9 +271,11 @@ def _refuse_copies(earlier: list[_Seen], new: _Seen) -> None:
             why = "hold the same samples (a copy?)"
         elif new.counts is not None and new.counts == old.counts and np.any(new.signature != 0) and np.all(
                 np.abs(new.signature - old.signature)
-                <= _ROUNDING * np.maximum(np.abs(new.signature), np.abs(old.signature))):  # (all black: no telling)
-            why = ("hold the same samples up to rounding (one render written twice, or two renders of one seed: "
-                   "Mitsuba's sampler seed is 0 unless set)")
+                <= np.maximum(_ROUNDING * np.maximum(np.abs(new.signature), np.abs(old.signature)),
+                              _NOISE_SHARE * np.hypot(new.noise, old.noise))):  # (all black: no telling)
+            why = ("hold the same samples up to rounding (their means differ by far less than their noise: one "
+                   "render written twice, in half floats once, or two renders of one seed: Mitsuba's sampler seed "
+                   "is 0 unless set)")
         elif new.running and old.running and (common := new.running[0] & old.running[0]) and (
                 shared := int(np.count_nonzero(new.running[1] & old.running[1]))):
             if len(new.running[0]) == len(old.running[0]) == 1:

@@ -1095,6 +1095,19 @@ def read_sample_dump(
                       feature_planes=dict(ctx.feature_planes))
 
 
+_HALF_ROUNDING = 2.0**-9
+"""Two renders whose every pixel agrees within this share of the pixel's brightest channel (and within 2**-24, half
+floats' finest step, near 0) are one render, once rounded to half floats (11 significant bits: 2**-11 of each
+value; a colour conversion after it can grow that a few times). Renders of two seeds agree that closely at every
+pixel only below some 1e6 samples' noise, where their spread would be the rounding of such a copy anyway."""
+
+
+def _within_rounding(a: FloatArray, b: FloatArray) -> bool:
+    """Whether means ``a`` and ``b`` (H, W, C) agree at every pixel up to :data:`_HALF_ROUNDING`."""
+    scale = np.maximum(np.abs(a), np.abs(b)).max(axis=-1, keepdims=True)
+    return bool(np.all(np.abs(a - b) <= _HALF_ROUNDING * scale + 2.0**-24))
+
+
 def read_independent_renders(
     paths: Sequence[str | os.PathLike[str]],
     *,
@@ -1128,7 +1141,8 @@ def read_independent_renders(
     Raises
     ------
     InputFileError
-        Fewer than two files, a file that repeats another (same content: not independent),
+        Fewer than two files, a file that repeats another (same content, or the same up to half-float
+        rounding: not independent),
         sizes and channels that differ between files, or views that differ (a stereo pair's eyes).
 
     Warns
@@ -1179,6 +1193,9 @@ def read_independent_renders(
         for k, earlier in enumerate(means):
             if np.array_equal(earlier, mean):
                 raise file_error(p, f"has the same pixels as {paths[k]}: renders must use different seeds")
+            if _within_rounding(earlier, mean):  # a copy in half floats: its spread would be rounding
+                raise file_error(p, f"has the pixels of {paths[k]} up to half-float rounding (a copy?): renders "
+                                    "must use different seeds, and the spread of these is rounding, not noise")
         means.append(mean)
         counts.append(layout.count)
         notes.extend(n for n in ctx.notes if n not in notes)

@@ -28,7 +28,7 @@ from awr_denoise.io.exr import write_exr  # noqa: E402
 
 DATA = Path(__file__).parent.parent / "data"
 GEN = DATA / "generate"
-MI, CY = DATA / "mitsuba", DATA / "cycles"
+MI, CY, PB = DATA / "mitsuba", DATA / "cycles", DATA / "pbrt"
 
 
 def _channels(path):
@@ -140,6 +140,39 @@ def test_one_mitsuba_render_in_two_files_is_not_merged_as_twice_the_samples(tmp_
     assert not out.exists()
     seeds = sorted(CY.glob("cycles_seed_*.exr"))[:2]  # two seeds of one scene: other samples, merged
     assert main(["merge", "--independent", *map(str, seeds), "-o", str(tmp_path / "c.exr"), "-q"]) == 0
+
+
+def test_one_pbrt_render_in_float_and_in_half_floats_is_not_merged_as_twice_the_samples(tmp_path, capsys):
+    """pbrt-v4 wrote one render twice, as floats and as its default half floats: their means differ by the halves'
+    rounding, 2% of some of their signed sums, so the test up to float rounding merged them as 32 spp (an attack
+    pass). The same render's replicates of other seeds (the same counts) still merge."""
+    out = tmp_path / "m.exr"
+    assert main(["merge", str(PB / "pbrt_gbuffer_fp32.exr"), str(PB / "pbrt_gbuffer_default.exr"), "-o", str(out),
+                 "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "hold the same samples up to rounding" in err and "half floats" in err and "--allow-duplicates" in err
+    assert not out.exists()
+    seeds = sorted((PB / "seeds").glob("pbrt_gbuffer_seed*.exr"))
+    assert len(seeds) == 8
+    assert main(["merge", *map(str, seeds), "-o", str(out), "-q"]) == 0
+    assert (read_sample_dump(out).buffer.count == 16 * 8).all()
+
+
+def test_a_render_and_its_half_float_copy_are_not_two_seeds(tmp_path, capsys):
+    """``--independent`` refused a copy with the same pixels, not one converted to half floats (an attack pass): their
+    spread, the rounding alone, made a variance 1e-5 of the renders' own. Two seeds of one scene still merge."""
+    seed = CY / "cycles_seed_1.exr"
+    copy = tmp_path / "half.exr"
+    with OpenEXR.File(str(seed), separate_channels=True) as f:
+        assert len(f.parts) == 1
+        header = dict(f.header())
+        channels = {k: v.pixels.astype(np.float16) for k, v in f.channels().items()}
+    OpenEXR.File(header, channels).write(str(copy))
+    out = tmp_path / "m.exr"
+    assert main(["merge", "--independent", str(seed), str(copy), "-o", str(out), "-q"]) == 2
+    assert "up to half-float rounding (a copy?)" in capsys.readouterr().err
+    assert not out.exists()
+    assert main(["merge", "--independent", str(seed), str(CY / "cycles_seed_2.exr"), "-o", str(out), "-q"]) == 0
 
 
 def test_an_aov_integrator_without_radiance_is_warned_about():
