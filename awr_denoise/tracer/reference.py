@@ -88,7 +88,16 @@ def render_reference(scene_name: str, *, spp: int = DEFAULT_REFERENCE_SPP, seed:
         if STAGING_NAME.match(folder.name):
             raise ValueError(f"{target}: its folder {folder.name} would be named as awr's staging folders, which "
                              "later writes remove as leftovers; write elsewhere")
-    target.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # a dangling link, a file on the way, a read-only or virtual file system
+        named = os.environ.get("AWR_DENOISE_REFERENCE_DIR") if path is None else None
+        if not named:
+            raise
+        # A setting's error is the user's: named, and read by the command line as bad input (exit 2).
+        why = (f"a link to {os.readlink(target.parent)}, which does not exist" if target.parent.is_symlink()
+               else exc.strerror or str(exc))
+        raise ValueError(f"AWR_DENOISE_REFERENCE_DIR: cannot make the folder {target.parent} ({why})") from None
     try:
         return _render_into(target, scene_name, spp, seed, sampler, progress, threads, workers)
     except BaseException:

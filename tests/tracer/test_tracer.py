@@ -9,6 +9,7 @@ import re
 import subprocess
 import sys
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import pytest
@@ -789,6 +790,29 @@ def test_a_reference_dir_that_is_a_file_is_refused_before_any_render(tmp_path: P
         reference_path("default")
     monkeypatch.setenv("AWR_DENOISE_REFERENCE_DIR", str(tmp_path / "new"))  # to be created: fine
     assert reference_path("default") == tmp_path / "new" / "default.exr"
+
+
+@pytest.mark.parametrize("where", ["dangling link", "below a file"])
+def test_a_reference_dir_that_cannot_be_made_is_named_before_any_render(tmp_path: Path, where: str,
+                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A folder that cannot be made was an OS error naming no setting: "[Errno 17] File exists" for a dangling link,
+    "Not a directory" and exit 1 below a file (an attack pass); now a ValueError naming the variable (exit 2)."""
+    from awr_denoise.tracer.reference import render_reference
+
+    if where == "dangling link":
+        folder = tmp_path / "refs"
+        folder.symlink_to(tmp_path / "missing" / "refs")
+        why = "a link to .*missing/refs, which does not exist"
+    else:
+        (tmp_path / "file").write_text("a file")
+        folder = tmp_path / "file" / "refs"
+        why = "Not a directory"
+    monkeypatch.setenv("AWR_DENOISE_REFERENCE_DIR", str(folder))
+    with mock.patch("awr_denoise.tracer.reference._render_into") as render:
+        with pytest.raises(ValueError, match=f"^AWR_DENOISE_REFERENCE_DIR: cannot make the folder .*refs \\({why}\\)$"):
+            render_reference("default", spp=1)
+    render.assert_not_called()
+    assert not (tmp_path / "missing").exists()
 
 
 def test_a_cached_reference_that_is_a_fifo_is_refused_before_any_render(tmp_path: Path,
