@@ -7,6 +7,7 @@ too) fail with "invalid literal for int()", naming no variable (a red-team pass)
 
 from __future__ import annotations
 
+import inspect
 import os
 import sys
 
@@ -35,10 +36,30 @@ def bars_shown(quiet: bool) -> bool:
         return False
     setting = os.environ.get("AWR_PROGRESS", "").strip().lower()
     if setting in _ON or setting in _OFF:
-        return setting in _ON
-    if setting:
+        shown = setting in _ON
+    elif setting:
         raise ValueError(f"AWR_PROGRESS={os.environ['AWR_PROGRESS']!r}: expected 1, true, yes, on, 0, false, no or off")
+    else:
+        try:
+            shown = sys.stderr.isatty()
+        except (AttributeError, ValueError):  # replaced by an object without isatty, or closed
+            shown = False
+    if shown:
+        _check_bar_format()
+    return shown
+
+
+def _check_bar_format() -> None:
+    """Refuse a ``TQDM_BAR_FORMAT`` tqdm cannot draw, before any work: tqdm reads it only when it draws the first bar,
+    where ``{bogus}`` was an internal error (KeyError) and ``{l_bar`` a message naming no variable (an attack pass).
+    It is tried on a bar with a total and a rate and on one with neither, as the first bars are drawn. The format
+    is tqdm's own default, which it took from the environment when imported (its later changes tqdm does not see)."""
+    bar_format = inspect.signature(tqdm.__init__).parameters["bar_format"].default
+    if bar_format is None:
+        return
     try:
-        return sys.stderr.isatty()
-    except (AttributeError, ValueError):  # replaced by an object without isatty, or closed
-        return False
+        tqdm.format_meter(1, 2, 0.5, bar_format=bar_format, ncols=80)
+        tqdm.format_meter(0, None, 0.0, bar_format=bar_format, ncols=80)
+    except Exception as exc:  # noqa: BLE001 - whatever tqdm's formatting raises is this setting's fault
+        raise ValueError(f"TQDM_BAR_FORMAT={bar_format!r}: tqdm cannot draw a bar with it "
+                         f"({type(exc).__name__}: {exc})") from None

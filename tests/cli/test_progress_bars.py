@@ -4,11 +4,16 @@ into a log or a pipe."""
 from __future__ import annotations
 
 import io
+import os
+import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
 from cli.main import main
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 class _Terminal(io.StringIO):
@@ -68,3 +73,34 @@ def test_an_unreadable_awr_progress_is_named_before_any_work(work, monkeypatch, 
     assert main(["denoise", "shot.####.exr", "--frames", "1-3", "-o", "out.####.exr"]) == 2
     assert "awr: error: AWR_PROGRESS='maybe': expected 1, true, yes, on, 0, false, no or off" in capsys.readouterr().err
     assert not list(work.root.glob("out.*"))
+
+
+
+def _with_bar_format(work, bar_format: str, *args: str, progress: str = "1") -> subprocess.CompletedProcess:
+    """``awr ARGS`` in a process of its own: tqdm takes ``TQDM_*`` from the environment when it is imported."""
+    env = {**os.environ, "TQDM_BAR_FORMAT": bar_format, "AWR_PROGRESS": progress,
+           "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+    return subprocess.run([sys.executable, "-c", "from cli.main import main; raise SystemExit(main())", *args],
+                          cwd=work.root, env=env, capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize(("bar_format", "error"), [("{bogus}", "KeyError: 'bogus'"),
+                                                   ("{l_bar", "ValueError: expected '}' before end of string"),
+                                                   ("{rate:.2f}", "TypeError")])
+def test_a_bar_format_tqdm_cannot_draw_is_named_before_any_work(work, bar_format, error):
+    """tqdm reads ``TQDM_BAR_FORMAT`` at its first bar: ``{bogus}`` was an internal error (exit 1), ``{l_bar`` a
+    message naming no variable (an attack pass); ``{rate:.2f}`` fails on the first bars, which have no rate yet."""
+    done = _with_bar_format(work, bar_format, "denoise", "shot.####.exr", "--frames", "1-3", "-o", "out.####.exr")
+    assert done.returncode == 2
+    assert done.stderr.startswith(f"awr: error: TQDM_BAR_FORMAT={bar_format!r}: tqdm cannot draw a bar with it "
+                                  f"({error}")
+    assert done.stderr.count("\n") == 1 and not list(work.root.glob("out.*"))
+
+
+def test_a_bar_format_is_read_only_where_a_bar_is_drawn(work):
+    """Into a log no bar is drawn, so a format tqdm cannot draw is no error there; one it can draw is drawn."""
+    done = _with_bar_format(work, "{bogus}", "denoise", "shot.0001.exr", "-o", "a.exr", progress="0")
+    assert done.returncode == 0 and "TQDM_BAR_FORMAT" not in done.stderr
+    done = _with_bar_format(work, "{desc}: {n}/{total}", "denoise", "shot.####.exr", "--frames", "1-3", "-o",
+                            "out.####.exr")
+    assert done.returncode == 0 and "frames: 0/3\n" in done.stderr  # the format's bar, not tqdm's default
