@@ -275,6 +275,26 @@ def test_undetectable_layout(tmp_path):
                                              r"of colours only, .*pbrt-v4's rgb film writes none: render with its "
                                              r"gbuffer film"):
         read_sample_buffer(tmp_path / "rgb.exr")
+    # The generic preset asked for by name was told to "choose a preset": it is told to name the planes.
+    with pytest.raises(InputFileError, match=r"u\.exr: cannot detect the layout \(channels: foo\); the generic "
+                                             r"preset reads the planes named: give color=/variance=/count="):
+        read_sample_buffer(tmp_path / "u.exr", preset="generic")
+
+
+def test_independent_renders_without_a_colour_plane_are_told_to_name_it(tmp_path):
+    """``merge --independent`` of plain images was told "no spread or count to denoise from ... give
+    color=/variance=/count=" (an attack pass), where it needs no spread, refuses a variance and has its count from
+    ``spp``: what is missing is the colour plane."""
+    from awr_denoise.io import read_independent_renders
+
+    rng = np.random.default_rng(0)
+    for k in (1, 2):
+        _write(tmp_path / f"r{k}.exr", {c: rng.random((2, 2)).astype(np.float32) for c in "RGB"})
+    paths = [tmp_path / "r1.exr", tmp_path / "r2.exr"]
+    with pytest.raises(InputFileError, match=r"r1\.exr: cannot detect the layout \(channels: B, G, R\): name the "
+                                             r"render's colour plane \(color=, --color: RGB for its R,G,B channels\)$"):
+        read_independent_renders(paths, spp=4)
+    assert (read_independent_renders(paths, color="RGB", spp=4).buffer.count == 8).all()
 
 
 @pytest.mark.parametrize("count_name", [None, "count"])

@@ -838,7 +838,10 @@ def _refuse_unused(p: Path, why: str, **given: Any) -> None:
 
 
 def _resolve_preset(p: Path, f: _File, preset: str, color: str | None, variance: str | None,
-                    count: str | None) -> str:
+                    count: str | None, *, independent: bool = False) -> str:
+    """The preset a file is read with: ``preset``, or the detected one for ``"auto"``; a file no preset reads is
+    refused with what to name (``independent``: a render's colour alone, for :func:`read_independent_renders`)."""
+    given = preset
     if preset == "auto":
         preset = detect_preset(list(f.channels), f.header)
         # A plane named in a pbrt or Mitsuba file keeps the preset: read generically, pbrt's XYZ
@@ -859,10 +862,16 @@ def _resolve_preset(p: Path, f: _File, preset: str, color: str | None, variance:
             raise file_error(p, f"has {VARIANCE_PREFIX}* channels, the awr layout's, but no {COUNT_CHANNEL} channel "
                                 f"(channels: {listed}): write each pixel's number of samples there, or name the planes "
                                 "(color=/variance= with count= or spp=; --color/--variance with --count or --spp)")
+        if independent:  # a render's colour is all these need: the spread is the renders', the count given
+            example = ": RGB for its R,G,B channels" if {"R", "G", "B"} <= set(f.channels) else ""
+            raise file_error(p, f"cannot detect the layout (channels: {listed}): name the render's colour plane "
+                                f"(color=, --color{example})")
         plain = {c.rsplit(".", 1)[-1] for c in f.channels} <= {"R", "G", "B", "A", "Y"}
         hint = (": an image of colours only, no spread or count to denoise from (pbrt-v4's rgb film writes none: "
                 "render with its gbuffer film; Mitsuba 3: the moment integrator)" if plain else "")
-        raise file_error(p, f"cannot detect the layout (channels: {listed}){hint}; choose a preset or give "
+        # The generic preset asked for by name reads only the planes named: choosing it again is no advice.
+        what = "the generic preset reads the planes named: give" if given == "generic" else "choose a preset or give"
+        raise file_error(p, f"cannot detect the layout (channels: {listed}){hint}; {what} "
                             "color=/variance=/count= (--color/--variance/--count)")
     return preset
 
@@ -1173,7 +1182,7 @@ def read_independent_renders(
                                 "renders are renders of one view")
         # The means are what the spread is taken of: a lossy codec's error would read as noise.
         warned.extend(w for w in _lossy(p, f.used) if w not in warned)
-        name = _resolve_preset(p, f, preset, color, None, count)
+        name = _resolve_preset(p, f, preset, color, None, count, independent=True)
         if name == "awr" and color is None:
             raise file_error(p, "an awr dump holds statistics, not a render's image: merge it without independent "
                                 "renders (--independent)")
