@@ -6,6 +6,7 @@ Kept free of numerical work: every subcommand is argument parsing around library
 from __future__ import annotations
 
 import argparse
+import collections
 import json
 import math
 import os
@@ -127,6 +128,9 @@ def parse_frames(spec: str) -> list[int]:
         if len(frames) + len(span) > MAX_FRAMES:  # counted before any list is built
             raise UsageError(f"--frames: {spec!r} names more than {MAX_FRAMES} frames")
         frames.extend(span)
+    if len(set(frames)) < len(frames):  # else refused later as an output "written twice", which named no frame list
+        twice = next(n for n, k in collections.Counter(frames).items() if k > 1)
+        raise UsageError(f"--frames: {spec!r} names frame {twice} more than once")
     return frames
 
 

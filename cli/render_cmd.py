@@ -229,6 +229,9 @@ def _scene(args: argparse.Namespace) -> tuple[str, Any, str, tuple[int, int] | N
     if name not in tracer.list_scenes() and Path(name).suffix != ".json":
         raise UsageError(f"--scene: {name!r} is not one of {', '.join(sorted(tracer.list_scenes()))}")
     # The tracer's scene is loaded here, at its final size, so the renderer needs no shape.
+    names = tracer.SAMPLER_NAMES
+    if args.sampler not in names:  # the tracer's own refusal named its parameter, sampler (an attack pass)
+        raise UsageError(f"--sampler: {args.sampler!r} is not one of {', '.join(names)}")
     options: dict[str, Any] = {"sampler": args.sampler}
     if args.features:
         options["features"] = args.features

@@ -354,6 +354,11 @@ def test_frame_pattern_denoise(tmp_path, rng, capsys):
     assert main(["denoise", str(tmp_path / "shot.####.exr"), "--frames", "3-1",
                  "-o", str(tmp_path / "y.####.exr")]) == 2
     _one_error_line(capsys, "--frames")
+    # A frame listed twice was an output "written twice (-o/--output (frame 1))", naming no frame list.
+    assert main(["denoise", str(tmp_path / "shot.####.exr"), "--frames", "1-3,2",
+                 "-o", str(tmp_path / "y.####.exr")]) == 2
+    _one_error_line(capsys, "--frames: '1-3,2' names frame 2 more than once")
+    assert not list(tmp_path.glob("y.*"))
 
 
 def test_frames_read_each_frames_own_plane_files(tmp_path, rng, capsys):
@@ -1306,6 +1311,7 @@ def fake_tracer(monkeypatch):
                         raising=False)
     monkeypatch.setattr(tracer, "load_reference", lambda name: make_scene("edges", (H, W)).reference(), raising=False)
     monkeypatch.setattr(tracer, "DEFAULT_SCENE", "toy", raising=False)
+    monkeypatch.setattr(tracer, "SAMPLER_NAMES", ("independent", "sobol"), raising=False)
     return tracer
 
 
@@ -1321,6 +1327,13 @@ def test_render_writes_dump_image_preview(tmp_path, fake_tracer, mode):
     assert (tmp_path / "toy.denoised.png").read_bytes()[:4] == b"\x89PNG"
     if mode == "--uniform":
         assert (dump.buffer.count == 8).all()
+
+
+def test_render_names_an_unknown_sampler_as_its_option(tmp_path, fake_tracer, capsys):
+    """The tracer's refusal named its parameter, "sampler:", not ``--sampler`` (an attack pass)."""
+    assert main(["render", "--spp", "4", "--sampler", "bogus", "-o", str(tmp_path / "toy.exr"), "-q"]) == 2
+    _one_error_line(capsys, "--sampler: 'bogus' is not one of independent, sobol")
+    assert not os.listdir(tmp_path)
 
 
 def test_render_refuses_existing_outputs_before_rendering(tmp_path, fake_tracer, capsys):

@@ -25,6 +25,7 @@ if importlib.util.find_spec("embreex") is None:
 from typing import Any  # noqa: E402
 
 from .integrator import PathTracer, create_renderer, render  # noqa: E402
+from .sampler import SAMPLER_NAMES  # noqa: E402
 from .scene import Scene, load_scene, scene_files  # noqa: E402
 from ..features import FEATURE_NAMES  # noqa: E402
 
@@ -41,7 +42,7 @@ def __getattr__(name: str) -> Any:
         return getattr(importlib.import_module(_LAZY[name], __name__), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
-__all__ = ["PathTracer", "Scene", "create_renderer", "list_features", "list_scenes", "load_scene", "render", "load_reference", "render_reference",
+__all__ = ["PathTracer", "SAMPLER_NAMES", "Scene", "create_renderer", "list_features", "list_scenes", "load_scene", "render", "load_reference", "render_reference",
            "reference_path", "scene_files"]
 
 

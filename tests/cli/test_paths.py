@@ -113,7 +113,8 @@ def test_an_output_that_is_an_input_is_refused(work, capsys, monkeypatch, templa
 OUTPUTS_COLLIDE = [
     (["denoise", "d.exr", "-o", "x.exr", "--preview", "x.exr"], "written twice"),
     (["denoise", "d.exr", "-o", "x.exr", "--preview", "./x.exr"], "written twice"),
-    (["denoise", "shot.####.exr", "--frames", "1,1", "-o", "o.####.exr"], "written twice"),
+    (["denoise", "shot.####.exr", "--frames", "1,1", "-o", "o.####.exr"],
+     "--frames: '1,1' names frame 1 more than once"),
     (["denoise", "shot.####.exr", "--frames", "1-3", "-o", "o.####.exr", "--preview", "p.png"], "####"),
     (["denoise", "shot.####.exr", "--frames", "1-3", "-o", "o.####.exr", "--preview", "o.####.exr"], "written twice"),
     (["render", "--renderer", "synthetic", "edges", "--width", "8", "--height", "8", "-o", "r.exr",
