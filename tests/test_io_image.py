@@ -462,6 +462,83 @@ def test_a_mipmapped_file_is_named_as_such_not_corrupt(tmp_path):
         read_image(tmp_path / "cut.exr")
 
 
+def _patched(path: Path, old: bytes, new: bytes) -> Path:
+    """``path`` with the one occurrence of ``old`` in its header replaced by ``new`` (as long)."""
+    data = path.read_bytes()
+    assert len(old) == len(new) and data.count(old) == 1
+    path.write_bytes(data.replace(old, new))
+    return path
+
+
+def test_attributes_the_bindings_cannot_read_are_named_not_called_corrupt(tmp_path):
+    """A Latin-1 string (the format's strings are bytes) and a rational of denominator 0 are valid OpenEXR that the
+    bindings cannot read: "truncated or corrupt EXR ('utf-8' codec can't decode ...)" and "(Fraction(24, 0))" named
+    neither the attribute nor what is wrong (an attack pass)."""
+    import fractions
+
+    planes = {c: np.ones((4, 4), np.float32) for c in "RGB"}
+    header = {"compression": OpenEXR.NO_COMPRESSION, "type": OpenEXR.scanlineimage, "owner": "caf",
+              "framesPerSecond": fractions.Fraction(24, 1)}
+    with OpenEXR.File(header, planes) as f:
+        f.write(str(tmp_path / "latin.exr"))
+    (tmp_path / "fps.exr").write_bytes((tmp_path / "latin.exr").read_bytes())
+    _patched(tmp_path / "latin.exr", b"caf", b"ca\xe9")
+    with pytest.raises(InputFileError, match=r"latin\.exr: attribute owner: a string that is not UTF-8 text, which "
+                                             r"the OpenEXR bindings cannot read; rewrite the file without it"):
+        read_image(tmp_path / "latin.exr")
+    fps = b"framesPerSecond\x00rational\x00" + (8).to_bytes(4, "little") + (24).to_bytes(4, "little")
+    _patched(tmp_path / "fps.exr", fps + (1).to_bytes(4, "little"), fps + (0).to_bytes(4, "little"))
+    with pytest.raises(InputFileError, match=r"fps\.exr: attribute framesPerSecond: the rational 24/0, which the "
+                                             r"OpenEXR bindings cannot read"):
+        read_image(tmp_path / "fps.exr")
+    # Cut inside its pixels, the same file is still corrupt.
+    (tmp_path / "cut.exr").write_bytes(_patched(tmp_path / "fps.exr", fps + (0).to_bytes(4, "little"),
+                                                fps + (1).to_bytes(4, "little")).read_bytes()[:-20])
+    with pytest.raises(InputFileError, match=r"cut\.exr: truncated or corrupt EXR"):
+        read_image(tmp_path / "cut.exr")
+
+
+def _subsampled_exr(path: Path, shape: tuple[int, int], channels: dict[str, int]) -> Path:
+    """An uncompressed scanline EXR of FLOAT channels, each sampled every ``channels[name]`` pixels on both axes (the
+    bindings cannot write subsampled channels): its header, offset table and one chunk per line, as OpenEXR's file
+    layout describes them."""
+    import struct
+
+    h, w = shape
+
+    def attribute(name: str, kind: str, value: bytes) -> bytes:
+        return name.encode() + b"\0" + kind.encode() + b"\0" + struct.pack("<i", len(value)) + value
+
+    names = sorted(channels)
+    chlist = b"".join(n.encode() + b"\0" + struct.pack("<iB3xii", 2, 0, channels[n], channels[n]) for n in names)
+    box = struct.pack("<4i", 0, 0, w - 1, h - 1)
+    header = (b"\x76\x2f\x31\x01" + struct.pack("<i", 2) + attribute("channels", "chlist", chlist + b"\0")
+              + attribute("compression", "compression", b"\0") + attribute("dataWindow", "box2i", box)
+              + attribute("displayWindow", "box2i", box) + attribute("lineOrder", "lineOrder", b"\0")
+              + attribute("pixelAspectRatio", "float", struct.pack("<f", 1.0))
+              + attribute("screenWindowCenter", "v2f", struct.pack("<2f", 0, 0))
+              + attribute("screenWindowWidth", "float", struct.pack("<f", 1.0)) + b"\0")
+    lines = []
+    for y in range(h):
+        data = b"".join(np.full(w // channels[n], 0.5, "<f4").tobytes() for n in names if y % channels[n] == 0)
+        lines.append(struct.pack("<ii", y, len(data)) + data)
+    start = len(header) + 8 * h
+    offsets = np.cumsum([start] + [len(line) for line in lines[:-1]]).astype("<u8")
+    path.write_bytes(header + offsets.tobytes() + b"".join(lines))
+    return path
+
+
+def test_a_subsampled_channel_is_named_as_such_not_corrupt(tmp_path):
+    """A luminance-chroma file's subsampled channels, whose data the bindings do not read, were "truncated or
+    corrupt EXR (channel data missing)" (an attack pass)."""
+    whole = _subsampled_exr(tmp_path / "whole.exr", (4, 4), {"R": 1, "G": 1, "B": 1})
+    np.testing.assert_array_equal(read_image(whole), np.full((4, 4, 3), 0.5))  # the writer's layout is OpenEXR's
+    _subsampled_exr(tmp_path / "sub.exr", (4, 4), {"R": 1, "G": 1, "B": 2})
+    with pytest.raises(InputFileError, match=r"sub\.exr: B: subsampled 2x2 \(a luminance-chroma image\?\), which is "
+                                             r"not read; write every channel at full resolution"):
+        read_image(tmp_path / "sub.exr")
+
+
 _LIMITED_WRITE = """
 import resource, sys
 import numpy as np

@@ -314,7 +314,8 @@ def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list
         for part in parts:
             for name, arr in part.channels.items():
                 if arr is None or (not part.deep and arr.shape != part.shape):
-                    raise file_error(p, "truncated or corrupt EXR (channel data missing)", name)
+                    raise file_error(p, _subsampled(part, name) or "truncated or corrupt EXR (channel data missing)",
+                                     name)
         log = getattr(_RECORDS, "log", None)
         if log is not None:
             log.append((os.fspath(p), header_windows(parts[0].header)))
@@ -413,6 +414,41 @@ def _out_of_memory(path: Path) -> Exception:
     return MemoryError(f"reading {path}" + (f" (its pixels take {size / 2**30:.3g} GiB or more)" if size else ""))
 
 
+def _subsampled(part: ExrPart, name: str) -> str | None:
+    """Why channel ``name`` of a valid file has no full-size pixels: it is subsampled (the bindings read none of its
+    data, which was called corrupt: an attack pass), or None."""
+    channel = next((c for c in part.header.get("channels", ()) if getattr(c, "name", None) == name), None)
+    sampling = (int(getattr(channel, "xSampling", 1)), int(getattr(channel, "ySampling", 1)))
+    if sampling == (1, 1):
+        return None
+    return (f"subsampled {sampling[0]}x{sampling[1]} (a luminance-chroma image?), which is not read; write every "
+            "channel at full resolution")
+
+
+def _unreadable_attribute(path: Path) -> str | None:
+    """A header attribute the bindings cannot read in a file that is otherwise valid, or None: a string that is not
+    UTF-8 (the format's strings are bytes) or a rational whose denominator is 0 (both were called corrupt: an attack
+    pass). Read from the raw header of a single-part scanline file (chunks.layout); other layouts are not looked at."""
+    try:
+        with open(path, "rb") as fh:
+            found = chunks.layout(fh)
+    except OSError:
+        return None
+    if found is None:
+        return None
+    for raw_name, (kind, value) in found.attributes.items():
+        name = raw_name.decode("utf-8", "replace")
+        if kind == b"string":
+            try:
+                value.decode("utf-8")
+            except UnicodeDecodeError:
+                return f"attribute {name}: a string that is not UTF-8 text, which the OpenEXR bindings cannot read"
+        elif kind == b"rational" and len(value) == 8 and int.from_bytes(value[4:], "little") == 0:
+            numerator = int.from_bytes(value[:4], "little", signed=True)
+            return f"attribute {name}: the rational {numerator}/0, which the OpenEXR bindings cannot read"
+    return None
+
+
 def _unreadable(path: Path, detail: str, header_only: bool) -> InputFileError:
     """Why the pixels of ``path`` could not be read: a valid multi-level (mipmap, ripmap) tiled
     file, which the bindings cannot read, or a truncated or corrupt one."""
@@ -425,6 +461,9 @@ def _unreadable(path: Path, detail: str, header_only: bool) -> InputFileError:
                                             "is not read; write it with one level")
         except InputFileError:
             pass
+    attribute = _unreadable_attribute(path)
+    if attribute is not None:
+        return file_error(path, f"{attribute}; rewrite the file without it (for example with oiiotool)")
     return file_error(path, f"truncated or corrupt EXR ({detail})")
 
 
