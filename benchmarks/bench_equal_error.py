@@ -55,6 +55,7 @@ from awr_denoise.bench.rendering import make_tracer, reference_image, tracer_mod
 from awr_denoise.metrics import mse, relmse
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_reconstruct import SPUN  # noqa: E402
 from moderated_variances import VARIANTS as MODERATED  # noqa: E402
 
 REPOSITORY = Path(__file__).resolve().parent.parent
@@ -68,9 +69,11 @@ RECONSTRUCTIONS: dict[str, dict[str, Any]] = {
     "c_s=3": {"c_s": 3.0}, "c_s=4": {"c_s": 4.0}, "stages=2": {"stages": 2},
     "stages=4": {"stages": 4, "wiener_exponents": (0.75, 0.4, 0.4)}, "wiener_exponents=(0.5, 0.4)":
     {"wiener_exponents": (0.5, 0.4)}, "wavelet=sym4": {"wavelet": "sym4"}, "domain=linear": {"domain": "linear"},
-    "guard=False": {"guard": False}, "pixel_clamp=None": {"pixel_clamp": None}, **MODERATED}
+    "guard=False": {"guard": False}, "pixel_clamp=None": {"pixel_clamp": None}, **MODERATED,
+    "pilot spun over 4 shifts": SPUN["pilot spun over 4 shifts"]}
 """``reconstruct`` options tried on the default sampler's samples (``--variants``); a function of the buffer is a
-reconstruction of its own (every variance moderated, ``moderated_variances.py``)."""
+reconstruction of its own (every variance moderated, ``moderated_variances.py``; the first Wiener stage's pilot
+cycle-spun, ``bench_reconstruct.spun_pilot``)."""
 SAMPLERS_AROUND: dict[str, dict[str, Any]] = {
     "noise_model=levels": {"noise_model": "levels"}, "noise_model=reconstruction": {"noise_model": "reconstruction"},
     "initial_spp=4": {"initial_spp": 4}, "round_growth=0.5": {"round_growth": 0.5},

@@ -108,7 +108,7 @@ SPEED_VARIANTS: dict[str, Any] = {
 """``speed``: reconstruct() options per variant, or a function of the buffer; ``"reference"`` stands for the
 scene's clean image (a guide the gate trusts everywhere, so the projection on the guide runs on the whole image);
 a string names a function of :data:`COMPARED` (an earlier form) or :data:`CHEAPER`; ``--shifts`` adds
-:data:`SHIFTED`."""
+:data:`SHIFTED`, ``--spun`` :data:`SPUN`."""
 
 
 def fewer_wiener_levels(buffer: SampleBuffer) -> np.ndarray:
@@ -135,6 +135,38 @@ def _staged(buffer: SampleBuffer, settings: Any, stage1_clamp: float | None, dep
     stage = threshold_stage(prepared, ops, settings.c_s, pixel_clamp=stage1_clamp, precision=settings.precision)
     return later_stages(prepared, stage.image, None, settings, levels=ops.levels if depth is None else depth,
                         wavelet=ops.wavelet)[0]
+
+
+PILOT_SHIFTS = ((0, 0), (1, 1), (0, 1), (1, 0))
+"""``quality --spun``: the grid shifts stage 1 is averaged over as the pilot, in this order (2 shifts: the first
+two)."""
+
+
+def _shifted(prepared: Any, dy: int, dx: int) -> Any:
+    """The prepared planes with ``dy`` rows and ``dx`` columns mirrored in front of them: stage 1's decimated grid
+    moved by (dy, dx) against the image (the derived planes are computed again from the padded ones)."""
+    def pad(a: np.ndarray | None) -> np.ndarray | None:
+        return None if a is None else np.pad(a, [(dy, 0), (dx, 0)] + [(0, 0)] * (a.ndim - 2), mode="symmetric")
+
+    return dataclasses.replace(prepared, mean=pad(prepared.mean), sample_variance=pad(prepared.sample_variance),
+                               count=pad(prepared.count), sampled=pad(prepared.sampled))
+
+
+def spun_pilot(shifts: int) -> Any:
+    """The default with its first Wiener stage's pilot cycle-spun: stage 1 (as the default runs it) averaged over
+    the first ``shifts`` grid shifts of :data:`PILOT_SHIFTS`, each aligned back (Coifman and Donoho 1995)."""
+    def run(buffer: SampleBuffer) -> np.ndarray:
+        settings = resolve_settings()
+        prepared = prepare(buffer, DEFAULT_DOMAIN)
+        ops = wavelet_operators(buffer.shape)
+        h, w = buffer.shape
+        pilot = np.zeros(prepared.mean.shape)
+        for dy, dx in PILOT_SHIFTS[:shifts]:
+            moved = wavelet_operators((h + dy, w + dx), levels=ops.levels)
+            pilot += threshold_stage(_shifted(prepared, dy, dx), moved, settings.c_s, pixel_clamp=settings.stage1_clamp,
+                                     precision=settings.precision).image[dy:, dx:]
+        return later_stages(prepared, pilot / shifts, None, settings, levels=ops.levels, wavelet=ops.wavelet)[0]
+    return run
 
 
 def clamped_pilot(buffer: SampleBuffer) -> np.ndarray:
@@ -188,6 +220,9 @@ FLOORS: dict[str, Any] = {"energy floor 3x3": with_floor((3, 2.0)), "energy floo
 """``quality --floors``: the first Wiener stage's energy floor at other windows and margins than (5, 2)."""
 PILOTS: dict[str, Any] = {"pilot c_s 2.5": {"c_s": 2.5}, "pilot c_s 3": {"c_s": 3.0}}
 """``quality --pilots``: stage 1's threshold as the pilot at other values than the default (2); 1.5 is in COMPARED."""
+SPUN: dict[str, Any] = {f"pilot spun over {n} shifts": spun_pilot(n) for n in (2, 4)}
+"""``quality --spun`` and ``speed --spun``: the first Wiener stage's pilot cycle-spun over 2 and 4 shifts of stage 1's
+decimated grid (:func:`spun_pilot`; the Wiener stages themselves are translation-invariant already)."""
 SHIFTED: dict[str, Any] = {f"decimated Wiener stages, {n} shift{'s' * (n > 1)}": decimated_default(n)
                            for n in SHIFT_SETS}
 """``quality --shifts`` and ``speed --shifts``: the Wiener stages on the decimated transform, cycle-spun over
@@ -337,6 +372,38 @@ def quality_tables(rows: list[dict], method: str = "default", base: str = "stage
                 *PROBES)
     for other in (m for m in variants if any(r["method"] == m for r in rows)):
         cheaper_table(rows, other, method)
+    if all(any(r["method"] == m for r in rows) for m in SPUN):
+        spun_table(rows, method)
+
+
+def spun_table(rows: list[dict], method: str = "default") -> None:
+    """:data:`SPUN` over ``method`` at every spp: relMSE of each shift count, MSE of the most shifts (means over
+    groups), the worst MSE over the plain mean's; then the relMSE ratios' spans and geometric means."""
+    names = list(SPUN)
+    spps = sorted({r["spp"] for r in rows})
+    columns = " / ".join(map(str, spps))
+    print("\n| scene | " + " | ".join(f"relMSE {n} / {method}, {columns} spp" for n in names)
+          + f" | MSE {names[-1]} / {method} | max MSE / plain ({names[-1]}) |")
+    print("|---|" + "---|" * (len(names) + 2))
+    ratios: dict[str, list[tuple[int, float]]] = {n: [] for n in names}
+    for renderer, scene in dict.fromkeys((r["renderer"], r["scene"]) for r in rows):
+        w = {"renderer": renderer, "scene": scene}
+        cells = []
+        for n in names:
+            mine = [_mean(rows, "relmse", spp=s, method=n, **w) / _mean(rows, "relmse", spp=s, method=method, **w)
+                    for s in spps]
+            ratios[n] += list(zip(spps, mine))
+            cells.append(" / ".join(f"{r:.3f}" for r in mine))
+        mse = [_mean(rows, "mse", spp=s, method=names[-1], **w) / _mean(rows, "mse", spp=s, method=method, **w)
+               for s in spps]
+        worst = max(_mean(rows, "mse", spp=s, method=names[-1], **w) / _mean(rows, "mse", spp=s, method="plain", **w)
+                    for s in spps)
+        print(f"| {scene} | " + " | ".join(cells) + f" | {' / '.join(f'{m:.3f}' for m in mse)} | {worst:.2f} |")
+    for n in names:
+        for label, picked in (("8-32 spp", [r for s, r in ratios[n] if s <= 32]),
+                              ("every spp", [r for _, r in ratios[n]])):
+            print(f"{n} / {method}, {label}: {min(picked):.3f}-{max(picked):.3f}, geometric mean "
+                  f"{np.exp(np.mean(np.log(picked))):.3f}")
 
 
 def cheaper_table(rows: list[dict], cheaper: str, method: str = "default") -> None:
@@ -884,7 +951,7 @@ def finishing_table(rows: list[dict]) -> None:
 # ---------------------------------------------------------------------------- speed
 def speed(sizes: list[str], repeats: int, extra: tuple[str, ...] = ()) -> list[dict[str, Any]]:
     """Median seconds of every variant of :data:`SPEED_VARIANTS` (and the ``extra`` ones of :data:`SHIFTED`,
-    :data:`COMPARED` and :data:`PROBES`)."""
+    :data:`SPUN`, :data:`COMPARED` and :data:`PROBES`)."""
     variants = {**SPEED_VARIANTS, **{name: {**COMPARED, **PROBES}.get(name, name) for name in extra}}
     rows = []
     print("| image | " + " | ".join(variants) + " |")
@@ -896,11 +963,15 @@ def speed(sizes: list[str], repeats: int, extra: tuple[str, ...] = ()) -> list[d
         buffer = SyntheticRenderer(scene, seed=1)(SampleRequest.uniform(shape, 8))
         clean = scene.reference()
         seconds: dict[str, list[float]] = {name: [] for name in variants}
+        names = list(variants)
         for round_ in range(n + 1):
-            for name, options in variants.items():
+            # Each round starts one variant later, as in agreed_speed: at 1080p the first call of a round can be
+            # slower than the same call later in it (this machine's memory, not the code).
+            for name in names[round_ % len(names):] + names[:round_ % len(names)]:
+                options = variants[name]
                 start = time.perf_counter()
                 if isinstance(options, str) or callable(options):
-                    (options if callable(options) else {**COMPARED, **CHEAPER, **SHIFTED}[options])(buffer)
+                    (options if callable(options) else {**COMPARED, **CHEAPER, **SHIFTED, **SPUN}[options])(buffer)
                 else:
                     reconstruct(buffer, **{k: (clean if v == "reference" else v) for k, v in options.items()})
                 if round_:  # the first round builds and caches the transforms' operators
@@ -1062,6 +1133,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sizes", nargs="+", choices=tuple(SIZES), default=list(SIZES))
     parser.add_argument("--repeats", type=int, default=0, help="speed: rounds per size (default 9, 3 at 1080p)")
     parser.add_argument("--cheaper", action="store_true", help="quality: also the cheaper variants (CHEAPER)")
+    parser.add_argument("--spun", action="store_true",
+                        help="quality, speed: also the first Wiener stage's pilot cycle-spun over 2 and 4 shifts "
+                             "(SPUN)")
     parser.add_argument("--shifts", action="store_true",
                         help="quality, speed: also the Wiener stages on the decimated transform, cycle-spun (SHIFTED)")
     parser.add_argument("--compare", action="store_true",
@@ -1089,6 +1163,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.section == "quality":
         rows = quality(quality_scenes(args.scenes), tuple(args.spps), args.groups or 4, args.cache,
                        {**METHODS, **(CHEAPER if args.cheaper else {}), **(SHIFTED if args.shifts else {}),
+                        **(SPUN if args.spun else {}),
                         **(COMPARED if args.compare else {}),
                         **(FLOORS if args.floors else {}), **(PILOTS if args.pilots else {}),
                         **(PRIORS if args.priors else {}), **(MODERATED if args.moderated else {}),
@@ -1120,7 +1195,8 @@ def main(argv: list[str] | None = None) -> int:
         update_section(args.output, "synthetic", rows, command)
         synthetic_table(rows)
     elif args.section == "speed":
-        rows = speed(args.sizes, args.repeats, (*(SHIFTED if args.shifts else ()), *(COMPARED if args.compare else ()),
+        rows = speed(args.sizes, args.repeats, (*(SHIFTED if args.shifts else ()), *(SPUN if args.spun else ()),
+                                                *(COMPARED if args.compare else ()),
                                                 *(PROBES if args.probes else ())))
         update_section(args.output, "speed", rows, command)
     elif args.section == "agreed":
