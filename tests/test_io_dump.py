@@ -54,6 +54,35 @@ def test_round_trip_counts_exact_and_statistics(tmp_path, rng):
         assert f.header()["awr:variance_kind"] == "sample"
 
 
+@pytest.mark.parametrize(("key", "value"), [("awr:variance_kind", "mean"), ("awr:channels", "X,Y,Z"),
+                                            ("awr:nonfinite", -5), ("awr:semantics", "sample-request")])
+def test_a_header_cannot_replace_the_layouts_own_attributes(tmp_path, rng, key, value):
+    """``header={"awr:variance_kind": "mean"}`` was written over the writer's own: the per-sample variance read back
+    multiplied by the counts, exit 0 (an attack pass); other keys made files the readers refuse."""
+    buffer = _buffer(rng)
+    with pytest.raises(ValueError, match=f"^header: {key} .* is the layout's own attribute, written from the data"):
+        write_sample_buffer(tmp_path / "d.exr", buffer, header={key: value})
+    assert not (tmp_path / "d.exr").exists()
+    # The same value as the writer's (a header carried from another dump) is no conflict.
+    write_sample_buffer(tmp_path / "d.exr", buffer, header={"awr:nonfinite": 0, "awr:channels": "R,G,B"})
+    np.testing.assert_array_equal(read_sample_buffer(tmp_path / "d.exr").variance, buffer.variance)
+
+
+def test_a_request_header_cannot_replace_its_round_or_total(tmp_path):
+    """``header={"awr:round": 1}`` over a request of round 5 read back as round 1; a round past the readers' last was
+    written and then refused by ``read_request`` (an attack pass)."""
+    request = SampleRequest.uniform((2, 3), 4, round=5)
+    for key, value in (("awr:round", 1), ("awr:total", 99), ("awr:sampler_id", 3)):
+        with pytest.raises(ValueError, match=f"^header: {key} {value!r} is the layout's own attribute"):
+            write_request(tmp_path / "r.exr", request, header={key: value})
+    write_request(tmp_path / "r.exr", request, header={"awr:round": 5})
+    assert read_request(tmp_path / "r.exr").round == 5
+    last = SampleRequest.uniform((2, 3), 4, round=2**31 - 1)
+    with pytest.raises(ValueError, match=r"^request: round 2147483647 is beyond the last a request map records"):
+        write_request(tmp_path / "last.exr", last)
+    assert not (tmp_path / "last.exr").exists()
+
+
 def test_channel_order_kept_for_non_rgb_names(tmp_path, rng):
     buf = _buffer(rng, channels=("Z2", "B1", "A0"))
     write_sample_buffer(tmp_path / "d.exr", buf)

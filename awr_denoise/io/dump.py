@@ -56,6 +56,7 @@ __all__ = [
     "buffer_from_awr_part",
     "uncounted_means",
     "exact_counts",
+    "checked_header",
 ]
 
 COUNT_CHANNEL = "sampleCount"
@@ -158,7 +159,9 @@ def write_sample_buffer(path: str | os.PathLike[str], buffer: SampleBuffer, *,
     ------
     ValueError
         A count above 2**24 (not exact in float32), a mean or variance beyond the float32
-        range, or a channel name that collides with the layout's own channels.
+        range, a channel name that collides with the layout's own channels, or a ``header``
+        attribute that gives one of the layout's own (``awr:variance_kind``, ``awr:channels``,
+        ``awr:nonfinite``, ...) another value than the buffer's.
 
     Examples
     --------
@@ -201,8 +204,19 @@ def write_sample_buffer(path: str | os.PathLike[str], buffer: SampleBuffer, *,
     }
     if buffer.features:
         attrs[FEATURES_ATTRIBUTE] = ",".join(buffer.features)
-    attrs.update(header or {})
+    attrs.update(checked_header(header, attrs))
     return write_exr(path, planes, attrs, overwrite=overwrite)
+
+
+def checked_header(header: Mapping[str, Any] | None, own: Mapping[str, Any]) -> Mapping[str, Any]:
+    """``header``, refused where it gives one of the writer's ``own`` attributes another value: those describe the
+    planes (``awr:variance_kind="mean"`` over a buffer's per-sample variance read it back 4x too noisy at 4 spp,
+    ``awr:round`` replaced a request's round; an attack pass), and a reader trusts them."""
+    for key, value in (header or {}).items():
+        if key in own and str(value).strip() != str(own[key]):
+            raise ValueError(f"header: {key} {value!r} is the layout's own attribute, written from the data as "
+                             f"{own[key]!r}; leave it out")
+    return header or {}
 
 
 def _statistics_planes(path: str | os.PathLike[str], planes: dict[str, np.ndarray], buffer: SampleBuffer,

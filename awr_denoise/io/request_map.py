@@ -23,7 +23,7 @@ import numpy as np
 from .. import _checks
 from .._version import __version__
 from ..requests import SampleRequest
-from .dump import MAX_EXACT_COUNT, exact_counts, header_count, whole_counts
+from .dump import MAX_EXACT_COUNT, checked_header, exact_counts, header_count, whole_counts
 from .exr import file_error, header_value, read_exr, write_exr
 
 __all__ = ["COUNTS_CHANNEL", "FIRST_INDEX_CHANNEL", "SEMANTICS_REQUEST", "read_request", "write_request",
@@ -53,7 +53,9 @@ def write_request(path: str | os.PathLike[str], request: SampleRequest, *, seed:
         the sampler's own (``AdaptiveSampler(..., seed=7)``). A request carries none of its own, so
         without it the file names none and such a renderer falls back to its default.
     header
-        Extra attributes (``awr:`` names; ``awr:strategy``, ...).
+        Extra attributes (``awr:`` names; ``awr:strategy``, ...); the layout's own (``awr:round``,
+        ``awr:total``, ``awr:sampler_id``, ``awr:semantics``) are written from ``request`` and are
+        refused here with another value (``ValueError``), as is a round beyond :data:`MAX_ROUND`.
     overwrite
         Replace an existing file.
 
@@ -75,6 +77,8 @@ def write_request(path: str | os.PathLike[str], request: SampleRequest, *, seed:
         seed = _checks.seed("seed", seed)
         if header and "awr:seed" in header and str(header["awr:seed"]).strip() != str(seed):  # stored as text past 2**31
             raise ValueError(f"seed: {seed} differs from the header's awr:seed {header['awr:seed']!r}")
+    if request.round > MAX_ROUND:  # the reader's bound: a file no tool would read again is not written
+        raise ValueError(f"request: round {request.round} is beyond the last a request map records ({MAX_ROUND})")
     # The last sample index must be exact too, so the renderer can trust first_index + counts.
     exact_counts("first_index + counts", request.first_index + request.counts)
     planes = {COUNTS_CHANNEL: exact_counts("counts", request.counts),
@@ -86,7 +90,7 @@ def write_request(path: str | os.PathLike[str], request: SampleRequest, *, seed:
         "awr:total": int(request.total),
         "awr:version": __version__,
     }
-    attrs.update(header or {})
+    attrs.update(checked_header(header, attrs))
     if seed is not None:
         attrs["awr:seed"] = seed
     return write_exr(path, planes, attrs, overwrite=overwrite)

@@ -67,6 +67,20 @@ def make_work(tmp_path: Path) -> Work:
     return w
 
 
+def with_attribute(path: Path, key: str, value: object) -> Path:
+    """``path`` written again with one header attribute set to ``value``, as another tool could write it: the
+    library's writers refuse to give their own attributes (``awr:nonfinite``, ``awr:round``) values the data do not
+    have, so a file that does is made here."""
+    import OpenEXR
+
+    with OpenEXR.File(str(path), separate_channels=True) as f:
+        header = dict(f.header())
+        channels = {name: channel.pixels for name, channel in f.channels().items()}
+    header[key] = value
+    OpenEXR.File(header, channels).write(str(path))
+    return path
+
+
 def one_error_line(err: str, *needles: str) -> str:
     """The single ``awr: error:`` line of a refusal, holding every needle; no traceback."""
     lines = [line for line in err.splitlines() if line.strip() and "it/s]" not in line]
