@@ -211,7 +211,8 @@ class SampleRequest(ReadOnlyArrays):
 
         What :meth:`Sampler.tell <awr_denoise.sampling.Sampler.tell>` checks before it merges
         (paper section 4: each round adds the samples its request asked for): the image's shape and
-        channels, no pixel with more samples than asked, and not the very buffer object told for another
+        channels, no pixel with more samples than asked (in the radiance or a feature), and not the very
+        buffer object told for another
         round of the same sampler (a renderer returning its one buffer every round). Fewer
         samples than asked warn (a renderer may drop some). Unnamed channels take ``channels``.
 
@@ -244,6 +245,11 @@ class SampleRequest(ReadOnlyArrays):
         over = samples.count > self.counts
         if over.any():
             raise ValueError(f"samples: {int(over.sum())} pixel(s) hold more samples than requested")
+        for name, feature in samples.features.items():  # one feature value per sample at most (a first hit's)
+            over = feature.count > self.counts
+            if over.any():  # merged as they were, a depth of 1000 samples a pixel beside radiance of 4 (an attack pass)
+                raise ValueError(f"samples: features[{name!r}]: {int(over.sum())} pixel(s) hold more samples than "
+                                 "requested")
         short = int((self.counts - samples.count).sum())
         if short:
             warnings.warn(f"samples: {short} requested sample(s) missing (dropped by the renderer?)", stacklevel=3)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 
 import numpy as np
@@ -173,3 +174,19 @@ def test_one_pixels_many_samples_come_in_runs():
     assert (second.total, int(second.first_index[0, 5])) == (2**22, 7 + 2**22)
     with pytest.raises(ValueError, match="max_samples"):
         next(SampleRequest(counts, counts).pieces(0))
+
+
+def test_a_feature_with_more_samples_than_requested_is_refused():
+    """A batch whose depth held 1000 samples a pixel beside radiance of 4 was told and merged as it was (an attack
+    pass): one feature value per sample at most, as for the radiance."""
+    request = SampleRequest.uniform((2, 2), 4)
+    depth = SampleBuffer.from_moments(np.full((2, 2), 1000), np.ones((2, 2, 1)), np.zeros((2, 2, 1)),
+                                      channels=("Z",))
+    batch = SampleBuffer.from_moments(np.full((2, 2), 4), np.ones((2, 2, 3)), np.full((2, 2, 3), 0.1),
+                                      features={"depth": depth})
+    with pytest.raises(ValueError, match=r"^samples: features\['depth'\]: 4 pixel\(s\) hold more samples than "
+                                         r"requested$"):
+        request.check_answer(batch, ("R", "G", "B"))
+    fewer = SampleBuffer.from_moments(np.full((2, 2), 4), np.ones((2, 2, 3)), np.full((2, 2, 3), 0.1),
+                                      features={"depth": dataclasses.replace(depth, count=np.full((2, 2), 3))})
+    assert request.check_answer(fewer, ("R", "G", "B")).features["depth"].count.max() == 3
