@@ -330,7 +330,9 @@ def reconstruct_detailed(
         ``guide``.
     preserve_mean
         Give every channel back the energy the stages took, where they took it, so its image
-        mean equals the input's, exactly (to rounding; :func:`~awr_denoise.finishing.restore_mean`).
+        mean equals the input's, exactly (to rounding; :func:`~awr_denoise.finishing.restore_mean`:
+        a channel of negative mean as its mirror image; none whose input and output means differ
+        in sign; a change beyond 5% only where it is significant).
         Default: on with Wiener stages, off with ``stages=1`` (the paper's reconstruction as it is).
     nonnegative
         Zero negative output pixels in every channel whose means are all >= 0 (before the

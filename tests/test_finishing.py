@@ -290,7 +290,7 @@ def test_restore_mean_never_pushes_a_brightened_channel_below_zero():
     assert_allclose(moved[1:3, 1:3], moved[1, 1])               # one factor over the pixels the caps left alike
 
 
-def test_restore_mean_bounds_an_insignificant_change_and_leaves_non_positive_channels(rng):
+def test_restore_mean_bounds_an_insignificant_change_and_leaves_channels_of_two_signs(rng):
     mean = rng.random((8, 9, 2))
     image = mean * np.array([0.5, 1.0])
     image[..., 1] = -image[..., 1]                              # a channel whose output mean is negative
@@ -299,6 +299,24 @@ def test_restore_mean_bounds_an_insignificant_change_and_leaves_non_positive_cha
     assert_array_equal(out[..., 1], image[..., 1])
     out, _ = restore_mean(image, mean, np.full(mean.shape, 1e-6))
     assert out[..., 0].mean() == pytest.approx(mean[..., 0].mean(), rel=1e-12)
+
+
+@pytest.mark.parametrize("variance", [1e-6, 100.0])
+def test_restore_mean_restores_a_negative_channel_as_its_mirror_image(rng, variance):
+    """A channel of negative mean (an AOV's) was left as it was, 2% off its image mean where the same image positive
+    was exact (an attack pass); and the bound of an insignificant change, taken on the signed mean, was wrong for it.
+    Now the map is odd, bit for bit, significant or bounded."""
+    mean = rng.random((8, 9, 2)) + 0.1
+    image = mean * np.array([0.9, 0.5])
+    out, share = restore_mean(image, mean, np.full(mean.shape, variance))
+    negated, negated_share = restore_mean(-image, -mean, np.full(mean.shape, variance))
+    assert_array_equal(negated, -out)
+    assert_array_equal(negated_share, share)
+    assert not np.array_equal(negated, -image)
+    if variance < 1:  # significant: exact
+        np.testing.assert_allclose(negated.mean(axis=(0, 1)), -mean.mean(axis=(0, 1)), rtol=1e-12)
+    else:  # not significant: 5% of the output's mean at most, in magnitude
+        np.testing.assert_allclose(negated[..., 1].mean(), 1.05 * -image[..., 1].mean(), rtol=1e-12)
 
 
 def test_restore_mean_on_threads_gives_the_same_bits():

@@ -238,14 +238,15 @@ def test_scale_equivariance(data, domain, exponent, c_s, stages):
 @given(data=buffers(), domain=DOMAINS, c_s=st.sampled_from([0.5, 1.0, 1e6]), clamp=CLAMPS,
        stages=st.sampled_from([1, 3]))
 def test_odd_symmetry(data, domain, c_s, clamp, stages):
-    """Every domain is odd, and so are the Wiener stages and the guard (their weights see
-    magnitudes), so negating the means negates the output. Non-negativity and the mean's factor
-    apply to positive images only and are left out. Regression: the robust policy took
-    ``min(mean, median)``, which for a negative spike picks the spike itself."""
+    """Every domain is odd, and so are the Wiener stages, the guard (their weights see magnitudes)
+    and the image mean's restoration (a channel of negative mean restored as its mirror image), so
+    negating the means negates the output. Non-negativity applies to non-negative images only and is
+    left out. Regressions: the robust policy took ``min(mean, median)``, which for a negative spike
+    picks the spike itself; the restoration left a channel of negative mean as it was (2% off its
+    image mean, an attack pass)."""
     buf, _ = data
     negated = SampleBuffer(buf.count, -buf.mean, buf.variance, buf.channels, buf.variance_known)
-    options = {"c_s": c_s, "domain": domain, "pixel_clamp": clamp, "stages": stages, "preserve_mean": False,
-               "nonnegative": False}
+    options = {"c_s": c_s, "domain": domain, "pixel_clamp": clamp, "stages": stages, "nonnegative": False}
     out = reconstruct(buf, **options)
     out_neg = reconstruct(negated, **options)
     np.testing.assert_allclose(out_neg, -out, rtol=1e-12, atol=1e-12 * (np.abs(out).max() + 1e-300))
