@@ -51,6 +51,9 @@ _MAX_PROBES = 100_000  # each probe is a transform pair per channel; more is nev
 
 
 def _exponents(value: Sequence[float]) -> tuple[float, ...]:
+    # A 1-D array is a sequence of numbers too (it was refused as none, an attack pass); a 0-d one is a number.
+    if isinstance(value, np.ndarray) and value.ndim == 1:
+        value = value.tolist()
     if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
         raise TypeError(f"wiener_exponents: expected a sequence of numbers in [0, 1], got {_checks.described(value)}")
     return tuple(_checks.real("wiener_exponents", a, minimum=0, maximum=1) for a in value)  # type: ignore[misc]
@@ -112,9 +115,10 @@ def resolve_settings(*, c_s: float | None = None, stages: int = DEFAULT_STAGES,
     exponents = _exponents(wiener_exponents)
     stages = _checks.whole("stages", stages, minimum=1)  # type: ignore[assignment]
     if stages > 1 + len(exponents):  # type: ignore[operator]
-        # Named with the exponents it depends on: wiener_exponents=() said "stages: must be <= 1" alone.
-        raise ValueError(f"stages: must be <= {1 + len(exponents)} with {len(exponents)} wiener_exponents (one per "
-                         f"stage after the first), got {stages}")
+        # Both named, either may be the one given: wiener_exponents=() alone blamed "stages", at its default.
+        raise ValueError(f"stages, wiener_exponents: stages={stages} needs {stages - 1} wiener_exponents (one per "
+                         f"stage after the first), {len(exponents)} given; give as many, or stages <= "
+                         f"{1 + len(exponents)}")
     c_s = _checks.real("c_s", (DEFAULT_C_S if stages == 1 else DEFAULT_PILOT_C_S) if c_s is None else c_s,
                        minimum=0)
     guard = stages > 1 if guard is None else _checks.flag("guard", guard)

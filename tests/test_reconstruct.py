@@ -754,9 +754,11 @@ def test_the_reported_variance_covers_the_last_stage_only():
 
 @pytest.mark.parametrize(("kwargs", "error", "message"), [
     ({"stages": 1, "guard": True}, ValueError, "guard: .* needs stages > 1"),
-    ({"stages": 4}, ValueError, "stages: must be <= 3"),
-    ({"stages": 3, "wiener_exponents": (1.0,)}, ValueError, "stages: must be <= 2 with 1 wiener_exponents"),
-    ({"wiener_exponents": ()}, ValueError, "stages: must be <= 1 with 0 wiener_exponents"),
+    ({"stages": 4}, ValueError, r"^stages, wiener_exponents: stages=4 needs 3 wiener_exponents .*, 2 given; give as "
+                                r"many, or stages <= 3$"),
+    ({"stages": 3, "wiener_exponents": (1.0,)}, ValueError, "stages=3 needs 2 wiener_exponents .*, 1 given"),
+    ({"wiener_exponents": ()}, ValueError, r"^stages, wiener_exponents: stages=3 needs 2 .*, 0 given"),
+    ({"wiener_exponents": np.array([[0.5, 0.4]])}, TypeError, "wiener_exponents: expected a sequence"),
     ({"wiener_exponents": 0.5}, TypeError, "wiener_exponents"),
     ({"wiener_exponents": (0.5, 1.5)}, ValueError, "wiener_exponents"),
     ({"precision": "float16"}, ValueError, "precision"),
@@ -765,6 +767,13 @@ def test_the_reported_variance_covers_the_last_stage_only():
 def test_bad_stage_arguments_are_refused(rng, kwargs, error, message):
     with pytest.raises(error, match=message):
         reconstruct(_noisy_buffer(rng), **kwargs)
+
+
+def test_wiener_exponents_may_be_an_array(rng):
+    """A 1-D array of exponents was refused as "expected a sequence of numbers" (an attack pass)."""
+    buf = _noisy_buffer(rng)
+    np.testing.assert_array_equal(reconstruct(buf, wiener_exponents=np.array([0.5, 0.4])),
+                                  reconstruct(buf, wiener_exponents=(0.5, 0.4)))
 
 
 def test_the_energy_floor_acts_in_channel_mode_only(rng):
