@@ -227,6 +227,26 @@ def test_a_variance_below_float32s_range_stays_a_noisy_pixel(tmp_path):
     np.testing.assert_allclose(back.variance, variance, atol=1.5e-45)  # float32 subnormals' spacing
 
 
+def test_a_variance_plane_wholly_below_float32s_range_is_refused(tmp_path):
+    """An image at 1e-24 with 30% noise (variances near 1e-49) was written with every variance at float32's least
+    subnormal and read back 3.5e4x too noisy, without a word (an attack pass): refused, naming the plane, before
+    anything is written. A few such pixels beside variances float32 holds are kept as above."""
+    rng = np.random.default_rng(3)
+    mean = 1e-24 * (1 + rng.random((4, 4, 3)))
+    buf = SampleBuffer.from_moments(np.full((4, 4), 8), mean, (0.3 * mean) ** 2)
+    with pytest.raises(ValueError, match=r"d\.exr: variance\.R: every value is below float32's range \(the largest "
+                                         r".*e-49\), which would be stored as 1\.4e-45; scale the buffer up"):
+        write_sample_buffer(tmp_path / "d.exr", buf)
+    assert not (tmp_path / "d.exr").exists()
+    scaled = SampleBuffer.from_moments(np.full((4, 4), 8), 1e24 * mean, (0.3e24 * mean) ** 2)
+    write_sample_buffer(tmp_path / "d.exr", scaled)
+    np.testing.assert_allclose(read_sample_buffer(tmp_path / "d.exr").variance, scaled.variance, rtol=1e-6)
+    mixed = np.full((4, 4, 3), 0.01)
+    mixed[0, 0] = 1e-49
+    write_sample_buffer(tmp_path / "m.exr", SampleBuffer.from_moments(np.full((4, 4), 8), np.full((4, 4, 3), 0.5),
+                                                                      mixed))
+
+
 def test_a_half_count_from_2048_on_is_refused(tmp_path):
     """A HALF count channel stores 2049 samples as 2048 (its spacing is 2 there): read as 2048
     without a word (a red-team pass). Counts below 2048 are exact and read; from 2048 on, refused

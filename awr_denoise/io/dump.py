@@ -159,7 +159,7 @@ def write_sample_buffer(path: str | os.PathLike[str], buffer: SampleBuffer, *,
     ------
     ValueError
         A count above 2**24 (not exact in float32), a mean or variance beyond the float32
-        range, a channel name that collides with the layout's own channels, or a ``header``
+        range, a variance plane wholly below it (its largest value stored more than 2x off), a channel name that collides with the layout's own channels, or a ``header``
         attribute that gives one of the layout's own (``awr:variance_kind``, ``awr:channels``,
         ``awr:nonfinite``, ...) another value than the buffer's.
 
@@ -234,11 +234,26 @@ def _statistics_planes(path: str | os.PathLike[str], planes: dict[str, np.ndarra
         # Below float32's least subnormal (1.4e-45) a variance rounds to 0, which reads back as a
         # known, noise-free pixel: kept at that least value instead, still tiny, still noisy.
         variance[(variance == 0) & (buffer.variance[..., i] > 0)] = np.nextafter(np.float32(0), np.float32(1))
+        _check_representable(path, VARIANCE_PREFIX + prefix + name, buffer.variance[..., i], variance)
         planes[VARIANCE_PREFIX + prefix + name] = variance
     # Pixels with fewer than two samples are unknown by definition; only a renderer's
     # explicit "unknown" needs the mask.
     if (~buffer.variance_known & (buffer.count >= 2)).any():
         planes[prefix + KNOWN_CHANNEL] = buffer.variance_known.astype(np.float32)
+
+
+def _check_representable(path: str | os.PathLike[str], name: str, values: np.ndarray, stored: np.ndarray) -> None:
+    """Refuse a plane whose largest value float32 stores more than 2x off: the whole plane below float32's range
+    (an image at 1e-24 with 30% noise read its variances back 3.5e4x too large; an attack pass). A few pixels
+    there beside a plane float32 holds are kept at its least value, negligible beside the rest."""
+    top = float(values.max(initial=0.0))
+    if top <= 0.0:
+        return
+    kept = float(stored.max())
+    if not 0.5 * top <= kept <= 2.0 * top:
+        raise ValueError(f"{public_name(path)}: {name}: every value is below float32's range (the largest "
+                         f"{top:.3g}), which would be stored as {kept:.3g}; scale the buffer up (the reconstruction "
+                         "scales with it)")
 
 
 def header_count(path: str | os.PathLike[str], attributes: dict, key: str, default: int, high: int, *,
