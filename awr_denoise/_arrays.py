@@ -64,7 +64,8 @@ def as_float64(name: str, array: object, ndim: int, *, copy: bool = True) -> Flo
         raise ValueError(f"{name}: expected {ndim} dimensions, got shape {a.shape}")
     # C order: a buffer of a transposed (W, H) array would otherwise keep its memory order, and a
     # result's last bits (and every file writer) depended on it.
-    return a.astype(np.float64, order="C", copy=copy)
+    with np.errstate(over="ignore"):  # a long double beyond float64 becomes Inf, refused as such by check_finite
+        return a.astype(np.float64, order="C", copy=copy)
 
 
 def check_finite(name: str, a: FloatArray) -> None:

@@ -108,7 +108,7 @@ class SampleRequest(ReadOnlyArrays):
         >>> request.total, request.counts.tolist(), request.first_index.tolist()
         (12, [[3, 3], [3, 3]], [[8, 8], [8, 8]])
         """
-        shape = _checks.shape2d("shape", shape, minimum=0)
+        shape = _checks.shape2d("shape", shape, minimum=1)  # an empty image named as the shape, not the counts
         spp = _checks.whole("spp", spp, minimum=0, maximum=2**62)
         first_index = _checks.whole("first_index", first_index, minimum=0, maximum=2**62)
         counts = np.full(shape, spp, np.int64)

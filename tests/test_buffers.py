@@ -345,6 +345,18 @@ def test_nonfinite_means_and_variances_are_refused_with_pixel_count(bad):
         SampleBuffer.from_moments(count, mean, var)
 
 
+def test_a_long_double_beyond_float64_is_refused_without_a_warning():
+    """Finite long doubles of 1e400 let numpy's "overflow encountered in cast" warning escape before the refusal
+    (an attack pass; an error under ``-W error``, which the tests run with)."""
+    if np.finfo(np.longdouble).max <= np.finfo(np.float64).max:
+        pytest.skip("long double is float64 on this platform")
+    count, mean, var = _good()
+    mean = mean.astype(np.longdouble)
+    mean[0, 0, 0] = np.longdouble(10) ** 400
+    with pytest.raises(ValueError, match=r"^mean: 1 pixel\(s\) hold NaN or Inf"):
+        SampleBuffer.from_moments(count, mean, var)
+
+
 @pytest.mark.parametrize("bad", [np.nan, np.inf])
 def test_nonfinite_counts_are_refused_with_pixel_count(bad):
     count, mean, var = _good()

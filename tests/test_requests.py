@@ -190,3 +190,9 @@ def test_a_feature_with_more_samples_than_requested_is_refused():
     fewer = SampleBuffer.from_moments(np.full((2, 2), 4), np.ones((2, 2, 3)), np.full((2, 2, 3), 0.1),
                                       features={"depth": dataclasses.replace(depth, count=np.full((2, 2), 3))})
     assert request.check_answer(fewer, ("R", "G", "B")).features["depth"].count.max() == 3
+
+
+def test_an_empty_uniform_request_names_its_shape():
+    """``SampleRequest.uniform((0, 2), 2)`` was "counts: empty image", a parameter not given (an attack pass)."""
+    with pytest.raises(ValueError, match=r"^shape: empty image \(0, 2\)$"):
+        SampleRequest.uniform((0, 2), 2)
