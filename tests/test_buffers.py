@@ -651,3 +651,12 @@ def test_select_keeps_the_buffer_kind():
     assert type(buf.select([0, 1, 2])) is EstimatedBuffer
     assert type(SampleBuffer.from_moments(np.full((1, 1), 4), np.ones((1, 1, 2)), np.zeros((1, 1, 2))).select([0])) \
         is SampleBuffer
+
+
+def test_a_crop_of_the_whole_image_keeps_its_nonfinite_count():
+    """``crop()`` recorded no dropped samples even for the whole image (an attack pass); a tile cannot say how many
+    of them were its own and records none."""
+    buf = SampleBuffer.from_samples(np.array([0, 0, 1, 1, 3]), [1.0, 3.0, np.nan, 2.0, 5.0], (2, 2), nonfinite="drop")
+    assert buf.nonfinite == 1
+    assert buf.crop(slice(0, 2), slice(0, 2)).nonfinite == 1
+    assert buf.crop(slice(0, 1), slice(0, 2)).nonfinite == 0
