@@ -252,8 +252,7 @@ class Sampler(OneAtATime):
         Parameters
         ----------
         budget
-            Total new samples; default :meth:`default_budget`. Round 0 spreads its budget
-            uniformly.
+            Total new samples; default :meth:`default_budget`. Round 0 spreads its budget uniformly.
 
         Examples
         --------
@@ -273,7 +272,8 @@ class Sampler(OneAtATime):
         target = self.default_budget() if budget is None else int(budget)
         capacity = None if self.spp_max is None else np.maximum(self.spp_max - self._issued, 0)  # resumed: >= 0
         if capacity is not None and target > (left := int(capacity.sum())):  # the budget asked, not a share of it
-            raise ValueError(f"budget: {target} samples exceed the {left} that spp_max still allows"
+            raise ValueError(f"{'budget' if budget is not None else 'the default budget'}: {target} samples exceed "
+                             f"the {left} that spp_max still allows"
                              + ("" if left else " (every pixel has its spp_max samples: the run is complete)"))
         rng = np.random.default_rng([self.seed, self._round])
         counts = np.zeros(self._shape, np.int64)

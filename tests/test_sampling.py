@@ -241,6 +241,16 @@ def test_a_run_at_its_cap_is_said_to_be_complete(sampler_cls):
         sampler.ask(2 * PIXELS + 1)
 
 
+def test_a_default_budget_beyond_the_cap_is_named_as_the_default(sampler_cls):
+    """``ask()`` without a budget, its default beyond what ``spp_max`` leaves, named ``budget``, which the call did not
+    take (an attack pass)."""
+    sampler, _ = _after_round_zero(sampler_cls, spp_max=5, round_spp=2)
+    with pytest.raises(ValueError, match=f"^the default budget: {2 * PIXELS} samples exceed the {PIXELS} that "
+                                         r"spp_max still allows$"):
+        sampler.ask()
+    assert sampler.ask(PIXELS).total == PIXELS
+
+
 def test_bad_budget_raises(sampler_cls):
     sampler = sampler_cls(SHAPE)
     with pytest.raises(ValueError, match="budget: must be >= 0"):
