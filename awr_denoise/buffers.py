@@ -539,11 +539,9 @@ class SampleBuffer(ReadOnlyArrays):
         [[4, 5], [8, 9]]
         """
         _checks.tile(self.shape, rows, cols)
-        count = self.count[rows, cols]
-        # Where the dropped samples were is not recorded: a tile's count is 0, the whole image keeps its own.
-        nonfinite = self.nonfinite if count.shape == self.count.shape else 0
-        return SampleBuffer(count, self.mean[rows, cols], self.variance[rows, cols],
-                            self.channels, self.variance_known[rows, cols], nonfinite,
+        count = self.count[rows, cols]  # where dropped samples were is not recorded: the whole image keeps its count
+        return SampleBuffer(count, self.mean[rows, cols], self.variance[rows, cols], self.channels,
+                            self.variance_known[rows, cols], self.nonfinite if count.shape == self.shape else 0,
                             map_features(self.features, lambda f: f.crop(rows, cols)))
 
     def __repr__(self) -> str:
