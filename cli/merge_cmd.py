@@ -218,7 +218,7 @@ def _signature(mean: np.ndarray) -> np.ndarray:
 def _noise(buffer: SampleBuffer) -> float:
     """The standard error of each of :func:`_signature`'s sums (their signs square to 1): the root of the summed
     variances of the means, where they are known (unknown variances count 0, which only makes the test stricter)."""
-    return float(np.sqrt(np.sum(buffer.variance / np.maximum(buffer.count, 1)[..., None])))
+    return float(np.sqrt(np.sum(buffer.variance.sum(axis=-1) / np.maximum(buffer.count, 1))))  # (H, W) temporaries
 
 
 def _of_the_run(path: str, attributes: dict, seeds: frozenset[int]) -> bool:

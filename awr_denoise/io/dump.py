@@ -159,9 +159,10 @@ def write_sample_buffer(path: str | os.PathLike[str], buffer: SampleBuffer, *,
     ------
     ValueError
         A count above 2**24 (not exact in float32), a mean or variance beyond the float32
-        range, a variance plane wholly below it (its largest value stored more than 2x off), a channel name that collides with the layout's own channels, or a ``header``
-        attribute that gives one of the layout's own (``awr:variance_kind``, ``awr:channels``,
-        ``awr:nonfinite``, ...) another value than the buffer's.
+        range, a variance plane wholly below it (its largest value stored more than 2x off), a
+        channel name that collides with the layout's own channels, or a ``header`` attribute that
+        gives one of the layout's own (``awr:variance_kind``, ``awr:channels``, ``awr:nonfinite``,
+        ...) another value than the buffer's.
 
     Examples
     --------

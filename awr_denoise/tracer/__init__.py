@@ -42,8 +42,8 @@ def __getattr__(name: str) -> Any:
         return getattr(importlib.import_module(_LAZY[name], __name__), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
-__all__ = ["PathTracer", "SAMPLER_NAMES", "Scene", "create_renderer", "list_features", "list_scenes", "load_scene", "render", "load_reference", "render_reference",
-           "reference_path", "scene_files"]
+__all__ = ["PathTracer", "SAMPLER_NAMES", "Scene", "create_renderer", "list_features", "list_scenes", "load_scene",
+           "render", "load_reference", "render_reference", "reference_path", "scene_files"]
 
 
 def list_features() -> list[str]:
