@@ -64,8 +64,11 @@ def as_float64(name: str, array: object, ndim: int, *, copy: bool = True) -> Flo
         raise ValueError(f"{name}: expected {ndim} dimensions, got shape {a.shape}")
     # C order: a buffer of a transposed (W, H) array would otherwise keep its memory order, and a
     # result's last bits (and every file writer) depended on it.
-    with np.errstate(over="ignore"):  # a long double beyond float64 becomes Inf, refused as such by check_finite
-        return a.astype(np.float64, order="C", copy=copy)
+    with np.errstate(over="ignore"):  # a long double beyond float64 becomes Inf: named below, not "NaN or Inf"
+        out = a.astype(np.float64, order="C", copy=copy)
+    if a.dtype.kind == "f" and a.dtype.itemsize > 8 and (beyond := int((np.isinf(out) & np.isfinite(a)).sum())):
+        raise ValueError(f"{name}: {beyond} value(s) beyond float64's range (long doubles are read as float64)")
+    return out
 
 
 def check_finite(name: str, a: FloatArray) -> None:

@@ -34,6 +34,10 @@ from .pooling import estimated_variance
 
 __all__ = ["EstimatedBuffer", "Prepared", "filled_mean", "prepare"]
 
+# log2 of the most a standard error may exceed the unit scale of the Wiener stages (Prepared.unit_scaled): its
+# square, 2**300, and products of a few such stay far inside float64.
+_NOISE_HEADROOM = 150
+
 
 def filled_mean(buffer: SampleBuffer) -> FloatArray:
     """(H, W, C) pixel means, sample-less pixels given their nearest sampled neighbour's mean.
@@ -136,16 +140,27 @@ class Prepared:
     def unit_scaled(self) -> tuple[float, float, FloatArray, FloatArray]:
         """``(s, k, x, v)``: a power of two ``s`` near the image's level (dividing by it is exact), and
         the domain's offset ``k``, the means ``x`` and their variances ``v`` at that scale: where the
-        Wiener stages work, the image brought to about 1."""
+        Wiener stages work, the image brought to about 1 (or its noise to about 2**150, if the noise exceeds the
+        level by more)."""
         scale = self.domain.resolved_scale(self.mean)
         # The image's own level, not a scale given to the domain: a Domain(scale=1e-300) beside means
         # of 0.5 took the variances past float64 there, a NaN image (a red-team pass).
         given = self.bound.domain.scale is not None  # else the image's level is the scale, already known
         level = dataclasses.replace(self.domain, scale=None).resolved_scale(self.mean) if given else scale
-        s = math.ldexp(1.0, max(-1000, min(1000, math.frexp(level)[1])))
+        exponent = math.frexp(level)[1]
+        # Noise some 2**150 times the level (means near 1e-200 beside ordinary variances, an AOV whose samples
+        # cancel) took v past float64 at the level's scale: NaN variances. Such an image is brought to its
+        # noise's scale instead, 2**150 below it; no image whose noise is within 2**150 of its level changes.
+        largest = float(np.max(self.variance, initial=0.0))
+        noisy = largest > 0.0 and (math.frexp(largest)[1] + 1) // 2 - _NOISE_HEADROOM > exponent
+        if noisy:
+            exponent = (math.frexp(largest)[1] + 1) // 2 - _NOISE_HEADROOM
+        s = math.ldexp(1.0, max(-1000, min(1000, exponent)))
         with np.errstate(over="ignore"):  # past float64 only for a scale some 1e300 times the image's
             k = np.float64(self.domain.offset) * (np.float64(scale) / s)  # not offset * scale: underflows near 5e-324
-        k = min(max(k, _SMALLEST), _LARGEST)  # k = Inf failed the stages' own checks
+        # k = Inf failed the stages' own checks. At the noise's scale the level's k is below 2**-150, where the
+        # guard's relative weights 1 / (|o| + k)^2 pass float64 beside means of 0: it is held there.
+        k = min(max(k, math.ldexp(1.0, -_NOISE_HEADROOM) if noisy else _SMALLEST), _LARGEST)
         return s, float(k), self.mean / s, self.variance / s / s  # not s * s: that underflows near 1e-310
 
     @cached_property

@@ -539,6 +539,29 @@ def test_a_variance_past_float64_in_the_log_domain_is_named_and_the_linear_domai
             assert np.array_equal(reconstruct(buffer, domain="linear", precision=precision), np.zeros((8, 8, 3)))
 
 
+@pytest.mark.parametrize("level", [1e-200, 1e-300])
+@pytest.mark.parametrize("options", [{}, {"mode": "luminance"}, {"guide": np.full((16, 16, 3), 0.5)}])
+def test_means_far_below_their_noise_give_finite_variances_in_the_linear_domain(level, options):
+    """Means of 0 but for a few of 1e-200 beside ordinary variances (an AOV whose samples cancel): the Wiener
+    stages brought the image to its level, where the variances passed float64, and returned NaN variances
+    with overflow warnings (the attack pass of the library's API). Now such an image is brought to its
+    noise's scale; a power of two times the buffer is still that power times the reconstruction, bit for bit."""
+    mean = np.zeros((16, 16, 3))
+    mean[::5, ::7] = level
+    buffer = SampleBuffer.from_moments(np.full((16, 16), 8), mean, np.full((16, 16, 3), 0.04))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rec = reconstruct_detailed(buffer, domain="linear", variance_probes=4, **options)
+        scaled = SampleBuffer.from_moments(np.full((16, 16), 8), mean * 2.0**60, np.full((16, 16, 3), 0.04 * 2.0**120))
+        options = {name: value * 2.0**60 if name == "guide" else value for name, value in options.items()}
+        again = reconstruct_detailed(scaled, domain="linear", variance_probes=4, **options)
+    assert np.isfinite(rec.variance).all() and (rec.variance >= 0).all()
+    if "guide" not in options:  # the guide's 0.5 is inside the noise: it may be followed
+        assert np.abs(rec.image).max() <= level
+    np.testing.assert_array_equal(again.image, rec.image * 2.0**60)
+    np.testing.assert_array_equal(again.variance, rec.variance * 2.0**120)
+
+
 def test_counts_beyond_int64_are_named_as_such_not_negative():
     """Two buffers of 2**62 samples merged, or a uint64 count of 2**64-1, were "negative" (the int64
     sum or cast wrapped; red-team pass 5)."""
