@@ -34,10 +34,9 @@ Two pilots are built here (:func:`pilots`):
     Stage 1's image filtered by an edge-avoiding a-trous wavelet filter (Dammertz, Sewtz,
     Hanika and Lensch 2010, "Edge-avoiding a-trous wavelet transform for fast global
     illumination filtering") whose edge-stopping weights come from the buffer's albedo, normal
-    and depth (:func:`feature_pilot`). Each feature difference is measured against the
-    feature's own noise: where a feature is itself noisy (depth of field, glossy albedo,
-    anti-aliased edges) it stops fewer edges, where it is clean it keeps them. Gated like a guide,
-    it is the first Wiener stage's pilot only.
+    and depth (:func:`feature_pilot`). Each feature difference is measured against the feature's own noise:
+    where a feature is noisy (depth of field, glossy albedo) the pixel keeps stage 1's image instead. Gated like
+    a guide, it is the first Wiener stage's pilot only.
 
 A guide is also used directly, within what the samples allow (:func:`projected`): the means'
 coefficients, the scale band's included, are moved towards the guide's by at most three standard
@@ -207,11 +206,15 @@ def feature_pilot(buffer: SampleBuffer, image: FloatArray, *, iterations: int = 
     Every pass ``i`` averages each pixel with the 5x5 B3-spline taps ``2^i`` pixels apart,
     each tap weighted by ``exp(-sum_f D_f)`` over the colour and every feature ``f``:
 
-    * colour: ``|c_p - c_q|^2 / (s^2 (v_p + v_q))`` with ``v`` the variance of the pixel means
-      and ``s = 2``, so only differences of several standard errors stop a tap;
+    * colour: ``|c_p - c_q|^2 / (2 s^2 min(v_p, v_q))``, ``v`` the variance of the pixel means and ``s = 2``: only
+      differences of several standard errors stop a tap, and a firefly's variance does not open its neighbours;
     * features: ``|f_p - f_q|^2 / (sigma_f^2 + u_p + u_q)``, ``u`` the variance of the feature's
       mean (its sample variance over its count), ``sigma_f`` from :data:`FEATURE_SIGMAS`
       (depth relative to the nearer pixel's).
+
+    A pixel keeps of the filtered image the share ``prod_f sigma_f^2 / (sigma_f^2 + 4 u_p)`` its features' noise
+    allows, ``image`` the rest: a feature whose standard error reaches half of ``sigma_f`` (a defocused or glossy
+    first hit) cannot tell an edge from its noise, so cannot stop the filter where it should.
 
     Parameters
     ----------
@@ -253,7 +256,7 @@ def feature_pilot(buffer: SampleBuffer, image: FloatArray, *, iterations: int = 
     >>> colour_only = feature_pilot(SampleBuffer.from_moments(count, samples, np.ones((32, 32, 1))), samples)
     >>> edge = lambda a: round(float(np.abs(a - clean)[:, 15:17].mean()), 2)   # the two edge columns
     >>> edge(out), edge(colour_only)
-    (0.08, 0.09)
+    (0.09, 0.1)
     """
     out = np.array(image, dtype=np.float64)
     variance = buffer.estimated_variance() / np.maximum(buffer.count, 1)[..., None]  # as prepare's
@@ -271,7 +274,8 @@ def feature_pilot(buffer: SampleBuffer, image: FloatArray, *, iterations: int = 
             for b, kx in enumerate(_KERNEL):
                 dy, dx = (a - 2) * step, (b - 2) * step
                 c_q = _shifted(out, dy, dx)
-                d = ((out - c_q) ** 2 / (_COLOUR_SIGMA**2 * (variance + _shifted(variance, dy, dx)) + floor)).sum(-1)
+                v_q = _shifted(variance, dy, dx)
+                d = ((out - c_q) ** 2 / (_COLOUR_SIGMA**2 * _pair_variance(variance, v_q) + floor)).sum(-1)
                 for mean, var, sigma, relative in features:
                     f_q = _shifted(mean, dy, dx)
                     scale = sigma * np.minimum(mean, f_q)[..., 0] if relative else sigma
@@ -281,12 +285,30 @@ def feature_pilot(buffer: SampleBuffer, image: FloatArray, *, iterations: int = 
                 w = ky * kx * np.exp(-d)
                 total += w[..., None] * c_q
                 weights += w
-                spread += (w * w)[..., None] * _shifted(variance, dy, dx)
+                spread += (w * w)[..., None] * v_q
         out = total / weights[..., None]
         # Later passes compare smoothed colours: their differences count against the smoothed
         # noise (as in SVGF), so an edge a few smoothed standard errors high stops the filter.
         variance = spread / (weights * weights)[..., None]
-    return out / unit
+    share = _feature_confidence(features, out.shape[:2])[..., None]
+    return (share * out + (1.0 - share) * (np.asarray(image, np.float64) * unit)) / unit
+
+
+def _pair_variance(v_p: np.ndarray, v_q: np.ndarray) -> np.ndarray:
+    """Twice the smaller of a tap's two variances, not their sum (:func:`feature_pilot`; docs/guides.md)."""
+    return 2.0 * np.minimum(v_p, v_q)
+
+
+def _feature_confidence(features: list[tuple[np.ndarray, np.ndarray, float, bool]],
+                        shape: tuple[int, ...]) -> np.ndarray:
+    """``prod_f sigma_f^2 / (sigma_f^2 + 4 u_p)``, 1 for noiseless features (:func:`feature_pilot`; docs/guides.md)."""
+    share = np.ones(shape)
+    for mean, var, sigma, relative in features:
+        edge = (sigma * mean[..., 0]) ** 2 if relative else sigma * sigma
+        noise = 4.0 * var.sum(-1)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # noise past float64: share 0
+            share *= np.where(noise > 0, edge / (edge + noise), 1.0)
+    return share
 
 
 def checked_inputs(buffer: SampleBuffer, guide: object, features: object, stages: int) -> FloatArray | None:

@@ -8,6 +8,7 @@ Run from the repository root (each section updates its part of the JSON)::
     .venv/bin/python benchmarks/bench_guides.py ablations   # the gate and the a-trous passes on the tracer's scenes
     .venv/bin/python benchmarks/bench_guides.py avenues     # what else was tried, every scene at 32 spp
     .venv/bin/python benchmarks/bench_guides.py features    # what limits the features: noise-free ones, demodulation
+    .venv/bin/python benchmarks/bench_guides.py rules       # the feature pilot's two rules, each scene and group
     .venv/bin/python benchmarks/bench_guides.py pbrt        # a third renderer: the pbrt-v4 files in tests/data
     .venv/bin/python benchmarks/bench_guides.py auxiliary   # OIDN's albedo and normal: prefiltered, as noisy, none
     .venv/bin/python benchmarks/bench_guides.py tolerance   # the guard's tolerance with a guide: scenes, wrong guides
@@ -426,6 +427,57 @@ def feature_limits_table(rows: list[dict]) -> None:
                         for s in spps)
             cells.append(f"{rel}; {worst:.2f}")
         print(f"| {scene} | " + " | ".join(cells) + " |")
+
+
+# ---------------------------------------------------------------------------- the feature pilot's rules
+@contextlib.contextmanager
+def _pilot_rules(smaller: bool, share: bool) -> Iterator[None]:
+    """The feature pilot with or without its two rules (docs/guides.md, "How the feature pilot works"): the colour
+    term's smaller variance of a tap's two (else their sum) and the share the features' noise allows (else 1)."""
+    saved = guided._pair_variance, guided._feature_confidence
+    if not smaller:
+        guided._pair_variance = lambda v_p, v_q: v_p + v_q
+    if not share:
+        guided._feature_confidence = lambda features, shape: np.ones(shape)
+    try:
+        yield
+    finally:
+        guided._pair_variance, guided._feature_confidence = saved
+
+
+RULES = {"feature pilot, neither rule": (False, False), "feature pilot, the smaller variance only": (True, False),
+         "feature pilot": (True, True)}
+
+
+def pilot_rules(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], groups: int,
+                cache: Path) -> list[dict[str, Any]]:
+    """The feature pilot as it was (the sum of a tap's two variances, every pixel filtered), with the smaller
+    variance, and with both rules (the default), against the default reconstruction: every scene, group, spp."""
+    rows = []
+    for renderer, scene, shape in scenes:
+        ref = reference(renderer, scene, shape, cache)
+        for g in range(groups):
+            for spp, buffer in feature_buffers(renderer, scene, shape, spps, g, cache).items():
+                images = {"plain": filled_mean(buffer), "default": reconstruct(buffer)}
+                for name, (smaller, share) in RULES.items():
+                    with _pilot_rules(smaller, share):
+                        images[name] = reconstruct(buffer, features=True)
+                rows += _scored(images, ref, renderer=renderer, scene=scene, spp=spp, group=g)
+        print(f"{renderer} {scene}: done", flush=True)
+    return rows
+
+
+def pilot_rules_table(rows: list[dict]) -> None:
+    """Per scene as :func:`feature_limits_table`; then over every (scene, spp, group) the geometric mean and the
+    worst of each version's relMSE over the default's."""
+    feature_limits_table(rows)
+    keys = sorted({(r["renderer"], r["scene"], r["spp"], r["group"]) for r in rows})
+    by = {(r["renderer"], r["scene"], r["spp"], r["group"], r["method"]): r["relmse"] for r in rows}
+    print()
+    for name in RULES:
+        ratios = np.array([by[k + (name,)] / by[k + ("default",)] for k in keys])
+        print(f"{name}: geometric mean {np.exp(np.log(ratios).mean()):.3f}, worst {ratios.max():.3f}, "
+              f"above 1 on {int((ratios > 1).sum())} of {ratios.size}")
 
 
 # ---------------------------------------------------------------------------- avenues
@@ -1106,7 +1158,7 @@ def tolerance_table(rows: list[dict]) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("section", choices=("quality", "samplers", "synthetic", "ablations", "avenues", "features",
-                                            "pbrt", "auxiliary", "tolerance", "criteria", "crops", "tables"))
+                                            "rules", "pbrt", "auxiliary", "tolerance", "criteria", "crops", "tables"))
     parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
     parser.add_argument("--spps", nargs="+", type=int, default=list(SPPS))
     parser.add_argument("--groups", type=int, default=2)
@@ -1146,6 +1198,11 @@ def main(argv: list[str] | None = None) -> int:
                               args.groups, args.cache)
         update_section(args.output, "features", rows, command, "pyoidn")
         feature_limits_table(rows)
+    elif args.section == "rules":
+        rows = pilot_rules(quality_scenes(args.scenes), tuple(s for s in args.spps if s in (8, 32)) or (8, 32),
+                           args.groups, args.cache)
+        update_section(args.output, "rules", rows, command, "pyoidn")
+        pilot_rules_table(rows)
     elif args.section == "pbrt":
         rows = pbrt()
         update_section(args.output, "pbrt", rows, command, "pyoidn")
@@ -1168,7 +1225,8 @@ def main(argv: list[str] | None = None) -> int:
         data = json.loads(args.output.read_text())
         for section, show in (("quality", quality_tables), ("samplers", sampler_table),
                               ("synthetic", synthetic_table), ("ablations", ablation_table),
-                              ("avenues", avenue_table), ("features", feature_limits_table), ("pbrt", pbrt_table),
+                              ("avenues", avenue_table), ("features", feature_limits_table),
+                              ("rules", pilot_rules_table), ("pbrt", pbrt_table),
                               ("auxiliary", auxiliary_table), ("tolerance", tolerance_table),
                               ("criteria", criteria_table)):
             if section in data:

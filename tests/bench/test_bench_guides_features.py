@@ -111,3 +111,24 @@ def test_the_albedo_moves_with_the_probe_only_when_asked(bench, monkeypatch):
     counted = bench._chosen_by_sure(buffer, np.array(buffer.mean), follow, rho=1.0)
     assert error(fixed) > 2.5 * error(buffer.mean), (error(fixed), error(buffer.mean))
     assert error(counted) < 1.1 * error(buffer.mean), (error(counted), error(buffer.mean))
+
+
+def test_the_pilot_rules_are_switched_for_one_measurement_and_restored(bench, buffer):
+    """``rules``: both rules are the library's feature pilot; without them another image; afterwards the
+    library's own functions again."""
+    from awr_denoise import guided
+    own = reconstruct(buffer, features=True)
+    with bench._pilot_rules(True, True):
+        np.testing.assert_array_equal(reconstruct(buffer, features=True), own)
+    with bench._pilot_rules(False, False):
+        assert not np.allclose(reconstruct(buffer, features=True), own, rtol=1e-3)
+    np.testing.assert_array_equal(reconstruct(buffer, features=True), own)
+    assert guided._pair_variance.__module__ == guided.__name__
+
+
+def test_the_rules_table_summarises_every_row(bench, capsys):
+    rows = [{"renderer": "r", "scene": "s", "spp": spp, "group": g, "method": m, "relmse": rel, "mse": 1.0}
+            for spp in (8, 32) for g in (0, 1)
+            for m, rel in (("plain", 4.0), ("default", 2.0), *((name, 1.0 + spp / 16) for name in bench.RULES))]
+    bench.pilot_rules_table(rows)
+    assert "feature pilot: geometric mean 1.061, worst 1.500, above 1 on 2 of 4" in capsys.readouterr().out
