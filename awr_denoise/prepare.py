@@ -34,8 +34,8 @@ from .pooling import estimated_variance
 
 __all__ = ["EstimatedBuffer", "Prepared", "filled_mean", "prepare"]
 
-# log2 of the most a standard error may exceed the unit scale of the Wiener stages (Prepared.unit_scaled): its
-# square, 2**300, and products of a few such stay far inside float64.
+# log2 of the largest standard error at the unit scale of an image brought to its noise's (Prepared.unit_scaled):
+# its square, 2**300, and products of a few such stay far inside float64.
 _NOISE_HEADROOM = 150
 
 
@@ -140,19 +140,20 @@ class Prepared:
     def unit_scaled(self) -> tuple[float, float, FloatArray, FloatArray]:
         """``(s, k, x, v)``: a power of two ``s`` near the image's level (dividing by it is exact), and
         the domain's offset ``k``, the means ``x`` and their variances ``v`` at that scale: where the
-        Wiener stages work, the image brought to about 1 (or its noise to about 2**150, if the noise exceeds the
-        level by more)."""
+        Wiener stages work, the image brought to about 1 (or, where its variances would pass float64 there, its
+        largest standard error to 2**150)."""
         scale = self.domain.resolved_scale(self.mean)
         # The image's own level, not a scale given to the domain: a Domain(scale=1e-300) beside means
         # of 0.5 took the variances past float64 there, a NaN image (a red-team pass).
         given = self.bound.domain.scale is not None  # else the image's level is the scale, already known
         level = dataclasses.replace(self.domain, scale=None).resolved_scale(self.mean) if given else scale
         exponent = math.frexp(level)[1]
-        # Noise some 2**150 times the level (means near 1e-200 beside ordinary variances, an AOV whose samples
-        # cancel) took v past float64 at the level's scale: NaN variances. Such an image is brought to its
-        # noise's scale instead, 2**150 below it; no image whose noise is within 2**150 of its level changes.
+        # Means near 1e-200 beside ordinary variances (an AOV whose samples cancel) took v past float64 at the
+        # level's scale: NaN variances. Such an image is brought to its noise's scale instead, its largest
+        # standard error 2**150 there. Only where v would pass 2**1000: a few pixels of huge variance in an
+        # ordinary image (which the stages take at the level's scale) do not move every pixel's scale.
         largest = float(np.max(self.variance, initial=0.0))
-        noisy = largest > 0.0 and (math.frexp(largest)[1] + 1) // 2 - _NOISE_HEADROOM > exponent
+        noisy = largest > 0.0 and math.frexp(largest)[1] - 2 * exponent > 1000
         if noisy:
             exponent = (math.frexp(largest)[1] + 1) // 2 - _NOISE_HEADROOM
         s = math.ldexp(1.0, max(-1000, min(1000, exponent)))

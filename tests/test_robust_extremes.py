@@ -562,6 +562,19 @@ def test_means_far_below_their_noise_give_finite_variances_in_the_linear_domain(
     np.testing.assert_array_equal(again.variance, rec.variance * 2.0**120)
 
 
+def test_one_pixel_of_huge_variance_leaves_the_image_at_its_level():
+    """Only an image whose variances would pass float64 at its level is brought to its noise's scale: one pixel of
+    variance 1e300 beside ordinary ones is not: its scale and offset are those of the image without it."""
+    from awr_denoise.prepare import prepare
+    rng = np.random.default_rng(SEED)
+    mean = 0.5 + 0.1 * rng.standard_normal((16, 16, 3))
+    variance = np.full((16, 16, 3), 0.05)
+    plain = SampleBuffer.from_moments(np.full((16, 16), 8), mean, variance)
+    variance[8, 8] = 1e300
+    wild = SampleBuffer.from_moments(np.full((16, 16), 8), mean, variance)
+    assert prepare(wild, "linear").unit_scaled()[:2] == prepare(plain, "linear").unit_scaled()[:2]
+
+
 def test_counts_beyond_int64_are_named_as_such_not_negative():
     """Two buffers of 2**62 samples merged, or a uint64 count of 2**64-1, were "negative" (the int64
     sum or cast wrapped; red-team pass 5)."""
