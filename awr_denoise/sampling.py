@@ -118,8 +118,7 @@ class Sampler(OneAtATime):
         if (h * w) * max(initial_spp, round_spp or 0) > MAX_BUDGET:
             raise ValueError(f"shape: {h}x{w} pixels at {max(initial_spp, round_spp or 0):g} spp exceed "
                              f"the {MAX_BUDGET} samples a round may hold")
-        self._shape = (h, w)
-        self.initial_spp = int(initial_spp)
+        self._shape, self.initial_spp = (h, w), int(initial_spp)
         self.spp_min = self.initial_spp if spp_min is None else int(spp_min)
         self.spp_max = None if spp_max is None else int(spp_max)
         if self.spp_max is not None:
@@ -265,9 +264,8 @@ class Sampler(OneAtATime):
         budget = _checks.whole("budget", budget, minimum=0, maximum=MAX_BUDGET, none=True, integral=True)
         if self._pending is not None:
             if budget is not None and int(budget) != self._pending.total:
-                raise StaleRequestError(
-                    f"budget: round {self._pending.round} is pending with {self._pending.total} samples; "
-                    f"tell it before asking for {budget}")
+                raise StaleRequestError(f"budget: round {self._pending.round} is pending with {self._pending.total} "
+                                        f"samples; tell it before asking for {budget}")
             return self._pending
         target = self.default_budget() if budget is None else int(budget)
         capacity = None if self.spp_max is None else np.maximum(self.spp_max - self._issued, 0)  # resumed: >= 0
@@ -275,6 +273,8 @@ class Sampler(OneAtATime):
             raise ValueError(f"{'budget' if budget is not None else 'the default budget'}: {target} samples exceed "
                              f"the {left} that spp_max still allows"
                              + ("" if left else " (every pixel has its spp_max samples: the run is complete)"))
+        if self._round > 2**31 - 1:  # the last round a request may number has been told (the call takes no round)
+            raise ValueError("the sampler: its rounds are spent (round 2**31 - 1, the last a request numbers, is told)")
         rng = np.random.default_rng([self.seed, self._round])
         counts = np.zeros(self._shape, np.int64)
         topped_up = False

@@ -920,3 +920,15 @@ def _at(shape, pixel):
     mask = np.zeros(shape, bool)
     mask[pixel] = True
     return mask
+
+
+@pytest.mark.parametrize("cls", [AdaptiveSampler, UniformSampler])
+def test_an_ask_after_the_last_round_names_the_sampler_not_round(cls):
+    """Once round 2**31 - 1 is told no request can be numbered: ``ask()`` named ``round``, which it does not take
+    (an attack pass of the library's API)."""
+    earlier = SampleBuffer.from_moments(np.full((4, 4), 4), np.full((4, 4, 3), 0.5), np.full((4, 4, 3), 0.1))
+    sampler = cls.from_buffer(earlier, round=2**31 - 1)
+    request = sampler.ask(16)
+    sampler.tell(request, SampleBuffer.from_moments(request.counts, np.full((4, 4, 3), 0.5), np.full((4, 4, 3), 0.1)))
+    with pytest.raises(ValueError, match=r"^the sampler: its rounds are spent"):
+        sampler.ask(16)
