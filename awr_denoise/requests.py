@@ -28,7 +28,10 @@ from ._typing import CountArray, FloatArray, Shape2D
 from .buffers import SampleBuffer
 from .channels import adopted_channels
 
-__all__ = ["SampleRequest", "Renderer", "SampleTracer", "FeatureTracer", "MAX_PART_SAMPLES"]
+__all__ = ["SampleRequest", "Renderer", "SampleTracer", "FeatureTracer", "MAX_PART_SAMPLES", "LAST_ROUND"]
+
+LAST_ROUND = 2**31 - 1
+"""The last round a request may number (an int32 in a request map)."""
 
 MAX_PART_SAMPLES = 2**22
 """Samples the bundled renderers hold at once (:meth:`SampleRequest.pieces`): about 0.5 GB at the tracer's
@@ -94,7 +97,7 @@ class SampleRequest(ReadOnlyArrays):
         counts, first = frozen(counts), frozen(first)
         object.__setattr__(self, "counts", counts)
         object.__setattr__(self, "first_index", first)
-        object.__setattr__(self, "round", _checks.whole("round", self.round, minimum=0, maximum=2**31 - 1))
+        object.__setattr__(self, "round", _checks.whole("round", self.round, minimum=0, maximum=LAST_ROUND))
         object.__setattr__(self, "sampler_id", _checks.whole("sampler_id", self.sampler_id, minimum=0))
 
     @classmethod

@@ -34,7 +34,7 @@ from .errors import StaleRequestError
 from .noise_gain import DEFAULT_GAIN_REFRESH, DEFAULT_NOISE_MODEL, NOISE_MODELS, MeasuredGain
 from .priorities import DEFAULT_ABSOLUTE_ABOVE, dropped_at_mean, pooled_deviation, sampling_density
 from .rare_paths import DEFAULT_RARE_PATHS, RARE_PATHS, even_rare_paths
-from .requests import Renderer, SampleRequest
+from .requests import LAST_ROUND, Renderer, SampleRequest
 from .rounds import run_rounds
 from .wavelets import DEFAULT_WAVELET, wavelet_operators
 
@@ -159,7 +159,7 @@ class Sampler(OneAtATime):
         sampler._issued = np.array(_arrays.check_count(buffer.count if issued is None else issued, "issued"))
         if sampler._issued.shape != buffer.shape or (sampler._issued < buffer.count).any():
             raise ValueError("issued: must have the buffer's shape and be >= its counts")
-        sampler._round = _checks.whole("round", round, minimum=0, maximum=2**31 - 1)
+        sampler._round = _checks.whole("round", round, minimum=0, maximum=LAST_ROUND)
         return sampler
 
     @property
@@ -273,7 +273,7 @@ class Sampler(OneAtATime):
             raise ValueError(f"{'budget' if budget is not None else 'the default budget'}: {target} samples exceed "
                              f"the {left} that spp_max still allows"
                              + ("" if left else " (every pixel has its spp_max samples: the run is complete)"))
-        if self._round > 2**31 - 1:  # the last round a request may number has been told (the call takes no round)
+        if self._round > LAST_ROUND:  # the last round a request may number has been told (the call takes no round)
             raise ValueError("the sampler: its rounds are spent (round 2**31 - 1, the last a request numbers, is told)")
         rng = np.random.default_rng([self.seed, self._round])
         counts = np.zeros(self._shape, np.int64)

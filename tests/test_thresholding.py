@@ -68,8 +68,8 @@ def test_float32_stage_is_the_float64_stage_to_float32_precision(scene, pixel_cl
 
 def test_the_float32_stage_builds_no_float64_domain_variance(rng):
     """The check of a variance past float64 in the domain built ``variance_y``, a whole float64 array the float32
-    path never reads, and the prepared statistics kept it: stage 1's peak memory went from 1.4x to 2.3x its buffer
-    (docs/performance.md). It is built now only where a bound on it passes float64, and named as before."""
+    path never reads, and the prepared statistics kept it: stage 1's peak memory went from 1.3x to 2.1x its buffer at
+    1080p (docs/performance.md). It is built now only where a bound on it passes float64, and named as before."""
     buf = SampleBuffer.from_moments(np.full((24, 20), 6), 0.5 + 0.1 * rng.standard_normal((24, 20, 3)),
                                     np.full((24, 20, 3), 0.06))
     prepared, _ = _stage(buf, "float32")
