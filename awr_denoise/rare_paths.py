@@ -51,7 +51,11 @@ level of its steady inside and is not taken. The window is such a region when
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+from collections.abc import Callable, Iterator
+from concurrent import futures
+from concurrent.futures import Executor
+from functools import partial
 
 import numpy as np
 from scipy import ndimage
@@ -62,9 +66,9 @@ from ._window_sums import window_sum
 from .buffers import SampleBuffer
 from .channels import luminance_weights
 
-__all__ = ["rare_path_mask", "even_rare_paths", "RARE_PATHS", "DEFAULT_RARE_PATHS", "RARE_CV2", "RARE_SHARE", "BLOCK",
-           "WINDOW", "BACKDROP", "OWN_COUNT", "STEADY", "HIT", "HEAVY_WINDOW", "HEAVY_RATIO", "HEAVY_HITS",
-           "HEAVY_LIGHT", "HEAVY_SHARE", "HEAVY_DARK"]
+__all__ = ["rare_path_mask", "even_rare_paths", "rare_path_evening", "RARE_PATHS", "DEFAULT_RARE_PATHS", "RARE_CV2",
+           "RARE_SHARE", "BLOCK", "WINDOW", "BACKDROP", "OWN_COUNT", "STEADY", "HIT", "HEAVY_WINDOW", "HEAVY_RATIO",
+           "HEAVY_HITS", "HEAVY_LIGHT", "HEAVY_SHARE", "HEAVY_DARK"]
 
 RARE_PATHS = ("even", "zeros", "ranked")
 """The samplers' ``rare_paths``: ``"even"`` (the default) spreads the samples of both kinds of region evenly,
@@ -336,13 +340,61 @@ def even_rare_paths(density: FloatArray, buffer: SampleBuffer, rare_paths: str =
     >>> round(float(mask.mean()), 2), np.unique(evened[mask]).size, bool(np.isclose(evened.sum(), density.sum()))
     (1.0, 1, True)
     """
+    with rare_path_evening(buffer, rare_paths) as even:
+        return even(density)
+
+
+@contextlib.contextmanager
+def rare_path_evening(buffer: SampleBuffer, rare_paths: str = DEFAULT_RARE_PATHS, executor: Executor | None = None
+                      ) -> Iterator[Callable[[FloatArray], FloatArray]]:
+    """:func:`even_rare_paths` for a density still to be computed: the regions are looked for beside it.
+
+    On entry the search (:func:`rare_path_mask`) starts on ``executor`` (a thread pool; ``None``: it runs in this
+    thread when the density is evened); the function given evens a density with the regions found, as
+    :func:`even_rare_paths` does, the same bits. The search reads only the buffer, which the samplers' density reads
+    too, so the two share no work and it costs no time of its own where a thread is free (it was about a quarter
+    of ``ask()`` at 1080p, docs/performance.md). On exit, the body's error or not, the search is waited for: the
+    buffer is not the caller's to change while a thread still reads it.
+
+    Examples
+    --------
+    >>> from concurrent.futures import ThreadPoolExecutor
+    >>> import numpy as np
+    >>> from awr_denoise import SampleBuffer
+    >>> from awr_denoise.rare_paths import even_rare_paths, rare_path_evening
+    >>> rng = np.random.default_rng(0)
+    >>> hits = rng.binomial(4, 1 / 40, size=(64, 64)).astype(float)
+    >>> mean = hits * 10.0
+    >>> variance = (hits * (40 - mean) ** 2 + (4 - hits) * mean**2) / 3
+    >>> buffer = SampleBuffer.from_moments(np.full((64, 64), 4), mean[..., None], variance[..., None])
+    >>> with ThreadPoolExecutor(2) as pool, rare_path_evening(buffer, executor=pool) as even:
+    ...     density = rng.uniform(0, 2, size=(64, 64))     # the density's own work, beside the search
+    ...     evened = even(density)
+    >>> bool(np.array_equal(evened, even_rare_paths(density, buffer)))
+    True
+    """
     rare_paths = _checks.name("rare_paths", rare_paths, RARE_PATHS)
-    density = np.asarray(density, dtype=np.float64)
-    if density.shape != buffer.shape:
-        raise ValueError(f"density: shape {density.shape} is not the buffer's {buffer.shape}")
-    if rare_paths == "ranked":
-        return density
-    mask = rare_path_mask(buffer, fireflies=rare_paths == "even")
+    executor = _checks.executor("executor", executor)
+    search = partial(rare_path_mask, buffer, fireflies=rare_paths == "even")
+    found = None if executor is None or rare_paths == "ranked" else executor.submit(search)
+
+    def even(density: FloatArray) -> FloatArray:
+        density = np.asarray(density, dtype=np.float64)
+        if density.shape != buffer.shape:
+            raise ValueError(f"density: shape {density.shape} is not the buffer's {buffer.shape}")
+        if rare_paths == "ranked":
+            return density
+        return _evened(density, search() if found is None else found.result())
+
+    try:
+        yield even
+    finally:
+        if found is not None:
+            futures.wait([found])
+
+
+def _evened(density: FloatArray, mask: BoolArray) -> FloatArray:
+    """``density`` with each connected region of ``mask`` given the mean of its pixels' (:func:`even_rare_paths`)."""
     if not mask.any():
         return density
     finite = mask & np.isfinite(density)

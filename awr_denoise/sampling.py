@@ -33,7 +33,7 @@ from .domains import Domain, resolve_domain
 from .errors import StaleRequestError
 from .noise_gain import DEFAULT_GAIN_REFRESH, DEFAULT_NOISE_MODEL, NOISE_MODELS, MeasuredGain
 from .priorities import DEFAULT_ABSOLUTE_ABOVE, dropped_at_mean, pooled_deviation, sampling_density
-from .rare_paths import DEFAULT_RARE_PATHS, RARE_PATHS, even_rare_paths
+from .rare_paths import DEFAULT_RARE_PATHS, RARE_PATHS, rare_path_evening
 from .requests import LAST_ROUND, Renderer, SampleRequest
 from .rounds import run_rounds
 from .wavelets import DEFAULT_WAVELET, wavelet_operators
@@ -441,9 +441,9 @@ class VarianceSampler(Sampler):
         self.rare_paths = _checks.name("rare_paths", rare_paths, RARE_PATHS)
 
     def _density(self) -> FloatArray:
-        density = pooled_deviation(self._buffer, self.domain, absolute_above=self.absolute_above)
-        return dropped_at_mean(even_rare_paths(density, self._buffer, self.rare_paths), self._buffer.count,
-                               self._issued)
+        with rare_path_evening(self._buffer, self.rare_paths, self.executor) as even:  # searched beside the density
+            density = even(pooled_deviation(self._buffer, self.domain, absolute_above=self.absolute_above))
+        return dropped_at_mean(density, self._buffer.count, self._issued)
 
     def _allocate(self, budget, current, capacity, rng):
         return _allocate_mixed(self._density(), current, budget, self.uniform_fraction, capacity=capacity, rng=rng)
@@ -529,12 +529,12 @@ class AdaptiveSampler(Sampler):
     @one_at_a_time
     def density(self) -> FloatArray:
         """(H, W) density of the next round: :func:`~awr_denoise.priorities.sampling_density`, rare paths evened."""
-        gain = None if self._gain is None else self._gain(self._buffer, self.executor)  # round 0 is uniform: none
-        density = sampling_density(self._buffer, wavelet=self.wavelet, levels=self.levels, domain=self.domain,
-                                   level_weight=self.level_weight, noise_gain=gain, absolute_above=self.absolute_above,
-                                   executor=self.executor, noise_model=self.noise_model)
-        return dropped_at_mean(even_rare_paths(density, self._buffer, self.rare_paths), self._buffer.count,
-                               self._issued)
+        with rare_path_evening(self._buffer, self.rare_paths, self.executor) as even:  # searched beside the density
+            gain = None if self._gain is None else self._gain(self._buffer, self.executor)  # round 0 is uniform: none
+            density = sampling_density(self._buffer, wavelet=self.wavelet, levels=self.levels, domain=self.domain,
+                                       level_weight=self.level_weight, noise_gain=gain, noise_model=self.noise_model,
+                                       absolute_above=self.absolute_above, executor=self.executor)
+            return dropped_at_mean(even(density), self._buffer.count, self._issued)
 
     def _prepare(self) -> None:
         if self._round > 0 and self._pending is None and self._buffer.total_samples > 0:

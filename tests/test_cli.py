@@ -1607,9 +1607,9 @@ def _rare_paths_choices(monkeypatch):
     from awr_denoise import sampling
 
     seen = []
-    real = sampling.even_rare_paths
-    monkeypatch.setattr(sampling, "even_rare_paths",
-                        lambda d, b, choice="even": seen.append(choice) or real(d, b, choice))
+    real = sampling.rare_path_evening
+    monkeypatch.setattr(sampling, "rare_path_evening",
+                        lambda b, choice="even", executor=None: seen.append(choice) or real(b, choice, executor))
     return seen
 
 

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import threading
+import time
+
 import numpy as np
 import pytest
 
@@ -434,6 +437,70 @@ def test_a_density_of_another_shape_or_a_choice_that_is_no_name_is_refused():
     with pytest.raises(TypeError, match="rare_paths"):
         even_rare_paths(np.ones((8, 8)), buffer, 1)
     assert even_rare_paths(np.ones((8, 8), dtype=np.int64), buffer, "ranked").dtype == np.float64
+
+
+@pytest.mark.parametrize("choice", RARE_PATHS)
+def test_the_search_beside_the_density_runs_on_the_executor_and_evens_alike(choice, monkeypatch):
+    """rare_path_evening starts the search on the executor's thread (the samplers' ``ask()`` on two threads) and
+    evens a density to the same bits as even_rare_paths; with no executor it searches in the caller's thread."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    buffers = {"zeros": _buffer(*_hits(1 / 40)), "fireflies": _buffer(*_sparks())}
+    threads = []
+    real = rare_path_mask
+    monkeypatch.setattr(rare_paths, "rare_path_mask",
+                        lambda *a, **k: threads.append(threading.current_thread()) or real(*a, **k))
+    for name, buffer in buffers.items():
+        density = np.random.default_rng(1).uniform(0.0, 2.0, buffer.shape)
+        expected = even_rare_paths(density, buffer, choice)
+        threads.clear()
+        with ThreadPoolExecutor(2) as pool:
+            with rare_paths.rare_path_evening(buffer, choice, pool) as even:
+                evened = even(density)
+            np.testing.assert_array_equal(evened, expected)
+            assert set(threads) <= set(pool._threads) and len(threads) == (choice != "ranked"), name
+        threads.clear()
+        with rare_paths.rare_path_evening(buffer, choice) as even:
+            np.testing.assert_array_equal(even(density), expected)
+        assert threads == ([threading.current_thread()] if choice != "ranked" else []), name
+    assert (expected != density).any() or choice != "even"
+
+
+@pytest.mark.parametrize("sampler", [AdaptiveSampler, VarianceSampler])
+def test_the_samplers_search_on_their_executor(sampler, monkeypatch):
+    from concurrent.futures import ThreadPoolExecutor
+
+    threads = []
+    real = rare_path_mask
+    monkeypatch.setattr(rare_paths, "rare_path_mask",
+                        lambda *a, **k: threads.append(threading.current_thread()) or real(*a, **k))
+    buffer = _buffer(*_hits(1 / 40))
+    with ThreadPoolExecutor(2) as pool:
+        sampler.from_buffer(buffer, round=1, executor=pool).ask()
+        assert len(threads) == 1 and threads[0] in pool._threads
+    sampler.from_buffer(buffer, round=1).ask()
+    assert threads[1:] == [threading.current_thread()]
+
+
+def test_the_search_is_waited_for_when_the_density_fails(monkeypatch):
+    """The caller may change the buffer once the block is left (a sampler's tell()): a search still reading it on
+    another thread must have ended by then, the density's error or not."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    ended = []
+    real = rare_path_mask
+
+    def slow(*args, **kwargs):
+        time.sleep(0.3)
+        ended.append(True)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(rare_paths, "rare_path_mask", slow)
+    with ThreadPoolExecutor(1) as pool:
+        with pytest.raises(RuntimeError, match="the density failed"):
+            with rare_paths.rare_path_evening(_buffer(*_hits(1 / 40)), "even", pool):
+                raise RuntimeError("the density failed")
+        assert ended == [True]
 
 
 def test_a_window_of_fireflies_with_a_negative_mean_anywhere_is_no_region():
