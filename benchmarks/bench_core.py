@@ -231,6 +231,12 @@ def _kernel_load(repeats: int = 3) -> float | None:
     return statistics.median(runs)
 
 
+# The cases whose peak memory is measured, each in a fresh process (the table's last columns, in this order). On two
+# threads ask() looks for regions lit through rare paths beside its density: both sets of arrays at once.
+MEMORY_CASES = ("reconstruct_stages1", "reconstruct_stages1_float64", "reconstruct_default", "ask",
+                "2threads:reconstruct_default", "2threads:ask")
+
+
 def speed(sizes: list[str], repeats: int = 5) -> list[dict]:
     """Floor, stage 1 alone, the default reconstruction and one ask() round; 1 and 2 threads; memory."""
     rows = []
@@ -255,8 +261,7 @@ def speed(sizes: list[str], repeats: int = 5) -> list[dict]:
                "seconds_1core": t1, "seconds_2threads": t2,
                "x_floor_1core": {k: v / t1["floor"] for k, v in t1.items()},
                "x_floor_2threads": {k: v / t1["floor"] for k, v in t2.items()}}
-        mem = {case: _memory(name, case) for case in ("reconstruct_stages1", "reconstruct_stages1_float64",
-                                                      "reconstruct_default", "ask", "2threads:reconstruct_default")}
+        mem = {case: _memory(name, case) for case in MEMORY_CASES}
         # maxrss_before: the process' peak once the synthetic buffer is built (its float64
         # temporaries often set the peak); the call's own peak is the tracemalloc figure.
         row["memory"] = {case: {"tracemalloc_peak_x_input": m["tracemalloc_peak"] / m["input"],
@@ -278,9 +283,8 @@ def speed(sizes: list[str], repeats: int = 5) -> list[dict]:
               f"{t2['reconstruct_stages1']:.3f} s ({x2['reconstruct_stages1']:.1f}x) | "
               f"{t2['reconstruct_default']:.3f} s ({x2['reconstruct_default']:.1f}x) | "
               f"{t2['ask']:.3f} s ({x2['ask']:.1f}x) | {t2['tell']:.3f} s ({x2['tell']:.1f}x) | "
-              + " | ".join(f"{row['memory'][c]['tracemalloc_peak_x_input']:.1f}x"
-                           for c in ("reconstruct_stages1", "reconstruct_stages1_float64", "reconstruct_default",
-                                     "ask", "2threads:reconstruct_default")) + " |", flush=True)
+              + " | ".join(f"{row['memory'][c]['tracemalloc_peak_x_input']:.1f}x" for c in MEMORY_CASES) + " |",
+              flush=True)
     for row in rows:
         load, saving = row["stage1_kernel_load_s"], row["stage1_kernel_saving_s"]
         if load is not None:
@@ -299,9 +303,13 @@ def _hit_or_zero_buffer(shape, spp: int = 8, p: float = 0.02, seed: int = 0) -> 
                                      np.repeat(variance[..., None], 3, -1))
 
 
-def _rare_path_cases(buf: SampleBuffer) -> dict:
-    """One ask() round of the default sampler (rare-path regions evened) and of the same with them ranked."""
-    return {"even": _Ask(buf), "ranked": _Ask(buf, rare_paths="ranked")}
+def _rare_path_cases(buf: SampleBuffer, executor: ThreadPoolExecutor | None = None) -> dict:
+    """One ask() round of the default sampler (rare-path regions evened) and of the same with them ranked; with an
+    ``executor`` both on its threads too (the search then runs beside the density: ``*_2threads``)."""
+    cases = {"even": _Ask(buf), "ranked": _Ask(buf, rare_paths="ranked")}
+    if executor is not None:
+        cases.update(even_2threads=_Ask(buf, executor), ranked_2threads=_Ask(buf, executor, rare_paths="ranked"))
+    return cases
 
 
 def rare_paths_cost(sizes: list[str], repeats: int = 11) -> list[dict]:
@@ -312,15 +320,17 @@ def rare_paths_cost(sizes: list[str], repeats: int = 11) -> list[dict]:
         shape = OVERHEAD_SIZES[name]
         for label, buf in (("no rare paths", noisy_buffer(shape, smooth=0.0, noise=0.0)),
                            ("rare paths everywhere", _hit_or_zero_buffer(shape))):
-            cases = _rare_path_cases(buf)
-            for fn in cases.values():
-                fn()
-            t = _interleaved(cases, repeats)
+            with ThreadPoolExecutor(2) as pool:
+                cases = _rare_path_cases(buf, pool)
+                for fn in cases.values():
+                    fn()
+                t = _interleaved(cases, repeats)
             mask = float(rare_path_mask(buf).mean())
             rows.append({"size": name, "buffer": label, "repeats": repeats, "seconds": t, "masked_share": mask,
-                         "ratio": t["even"] / t["ranked"]})
+                         "ratio": t["even"] / t["ranked"], "ratio_2threads": t["even_2threads"] / t["ranked_2threads"]})
             print(f"| {name} | {label} | {100 * mask:.0f}% | {t['ranked']:.3f} s | {t['even']:.3f} s | "
-                  f"{t['even'] / t['ranked']:.2f} |", flush=True)
+                  f"{t['even'] / t['ranked']:.2f} | {t['ranked_2threads']:.3f} s | {t['even_2threads']:.3f} s | "
+                  f"{t['even_2threads'] / t['ranked_2threads']:.2f} |", flush=True)
     return rows
 
 
@@ -826,7 +836,7 @@ SECTIONS = {
               "| size | input buffer | floor | stages=1 | stages=1, numpy kernels | stages=1 float64 | default | ask() | ask(), levels | tell() "
               "| stages=1, 2 threads "
               "| default, 2 threads | ask(), 2 threads | tell(), 2 threads | stages=1 peak | stages=1 float64 peak | default peak | ask() peak "
-              "| default, 2 threads, peak |",
+              "| default, 2 threads, peak | ask(), 2 threads, peak |",
               lambda quick: speed(["256x256"] if quick else SPEED_SIZES)),
     "tell": ("One tell() with the merge compiled (extra fast) against its numpy reference (medians of interleaved "
              "repeats; x floor of the same run)",
@@ -834,7 +844,8 @@ SECTIONS = {
              "| tell(), compiled, 2 threads | compiled / numpy, 1 / 2 threads |",
              lambda quick: tell(["256x256"] if quick else SPEED_SIZES)),
     "rare_paths": ("ask() with rare-path regions evened (the default) against ranked (medians of interleaved repeats)",
-                   "| size | buffer | pixels in rare-path regions | ask(), ranked | ask(), evened | evened / ranked |",
+                   "| size | buffer | pixels in rare-path regions | ask(), ranked | ask(), evened | evened / ranked "
+                   "| ask(), ranked, 2 threads | ask(), evened, 2 threads | evened / ranked, 2 threads |",
                    lambda quick: rare_paths_cost(["256x256"] if quick else ["256x256", "1080p"])),
     "fft_budget": ("The default reconstruction's FFTs against the floor (one core)",
                    "| size | plane FFTs (forward + inverse) | one forward + inverse pair | floor | FFTs alone |",
