@@ -74,8 +74,8 @@ class Sampler(OneAtATime):
         1 spp), so a render to ``S`` spp takes about ``log(S / initial_spp) / log(1 + round_growth)`` rounds. Larger
         rounds cost fewer priority analyses; docs/benchmarks.md ("The other defaults") measures it.
     executor
-        Optional ``concurrent.futures.Executor`` (threads): :meth:`tell` merges on two of its threads,
-        :class:`AdaptiveSampler`'s priorities too; the same requests and buffers (docs/performance.md).
+        Optional ``concurrent.futures.Executor`` (threads): :meth:`tell` merges on two of its threads and the ranking
+        samplers search rare-path regions beside their density; the same requests and buffers (docs/performance.md).
 
     Examples
     --------
