@@ -399,15 +399,17 @@ def _evened(density: FloatArray, mask: BoolArray) -> FloatArray:
         return density
     finite = mask & np.isfinite(density)
     labels, regions = ndimage.label(mask, structure=np.ones((3, 3), dtype=bool))
-    index = np.arange(1, regions + 1)
     # Summed in units of the largest density (a power of two, exact): sums of densities near 1e308 stay finite.
     unit = float(np.ldexp(1.0, int(np.frexp(np.max(np.abs(density[finite]), initial=1.0))[1]) - 1))
-    sums = ndimage.sum(np.where(finite, density / unit, 0.0), labels, index)
-    counts = ndimage.sum(finite, labels, index)
+    # Over the regions' finite pixels alone, in raster order: the additions of ndimage.sum over the whole image less
+    # its zeros (the same sums), at a small share of its time where the regions are a small share of the image.
+    at = labels[finite]
+    sums = np.bincount(at, weights=density[finite] / unit, minlength=regions + 1)[1:]
+    counts = np.bincount(at, minlength=regions + 1)[1:].astype(np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
-        means = np.asarray(sums, dtype=np.float64) / np.asarray(counts, dtype=np.float64) * unit
+        means = sums / counts * unit
     out = density.copy()
-    out[finite] = means[labels[finite] - 1]
+    out[finite] = means[at - 1]
     return out
 
 

@@ -430,6 +430,30 @@ def test_a_density_that_is_not_finite_stays_and_is_left_out_of_its_regions_mean(
     np.testing.assert_allclose(even_rare_paths(huge, buffer), huge, rtol=1e-12)  # its sum would overflow
 
 
+def test_the_regions_sums_are_scipy_s_over_the_whole_image_bit_for_bit():
+    """_evened sums each region over its finite pixels with bincount: the additions ndimage.sum makes over the
+    whole image less its zeros, so the same floats (non-finite densities, -0.0 and levels near 1e308 included)."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(3)
+    for trial in range(6):
+        mask = rng.random((61, 83)) < 0.3
+        density = rng.uniform(0.0, 2.0, mask.shape) * 10.0 ** rng.integers(-300, 300)
+        density[rng.random(mask.shape) < 0.05] = (np.nan, np.inf, -0.0)[trial % 3]
+        finite = mask & np.isfinite(density)
+        labels, regions = ndimage.label(mask, structure=np.ones((3, 3), dtype=bool))
+        index = np.arange(1, regions + 1)
+        unit = float(np.ldexp(1.0, int(np.frexp(np.max(np.abs(density[finite]), initial=1.0))[1]) - 1))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            means = (ndimage.sum(np.where(finite, density / unit, 0.0), labels, index)
+                     / ndimage.sum(finite, labels, index) * unit)
+        expected = density.copy()
+        expected[finite] = means[labels[finite] - 1]
+        evened = rare_paths._evened(density, mask)
+        np.testing.assert_array_equal(evened, expected)
+        np.testing.assert_array_equal(np.signbit(evened), np.signbit(expected))
+
+
 def test_a_density_of_another_shape_or_a_choice_that_is_no_name_is_refused():
     buffer = _buffer(*_hits(1 / 40, shape=(8, 8)))
     with pytest.raises(ValueError, match=r"density: shape \(8, 9\) is not the buffer's \(8, 8\)"):
