@@ -349,12 +349,27 @@ def rare_path_evening(buffer: SampleBuffer, rare_paths: str = DEFAULT_RARE_PATHS
                       ) -> Iterator[Callable[[FloatArray], FloatArray]]:
     """:func:`even_rare_paths` for a density still to be computed: the regions are looked for beside it.
 
-    On entry the search (:func:`rare_path_mask`) starts on ``executor`` (a thread pool; ``None``: it runs in this
-    thread when the density is evened); the function given evens a density with the regions found, as
-    :func:`even_rare_paths` does, the same bits. The search reads only the buffer, which the samplers' density reads
-    too, so the two share no work and it costs no time of its own where a thread is free (it was about a quarter
-    of ``ask()`` at 1080p, docs/performance.md). On exit, the body's error or not, the search is waited for: the
-    buffer is not the caller's to change while a thread still reads it.
+    The samplers' ranking (step 3 of paper section 4) evens these regions every round. The search reads only the
+    buffer, as the density's own work does, so on a thread of its own most of its time is hidden behind the
+    density's: at 1080p it adds 5-27% to ``ask()`` on two threads where it adds 17-37% on one core
+    (docs/sampling.md, "Rare paths"). On exit, the body's error or not, the search is waited for: the buffer is not
+    the caller's to change while a thread still reads it.
+
+    Parameters
+    ----------
+    buffer
+        The merged statistics the density is computed from.
+    rare_paths
+        As for :func:`even_rare_paths` (``"ranked"``: no search, the density as it is).
+    executor
+        A thread pool the search starts on at entry; ``None`` (or called from one of the pool's own threads): it
+        runs in this thread when the density is evened.
+
+    Yields
+    ------
+    Callable
+        ``even(density)``: the density with the regions found evened, as :func:`even_rare_paths` gives it, the same
+        bits.
 
     Examples
     --------
