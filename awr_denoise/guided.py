@@ -88,10 +88,10 @@ GATE_LOW, GATE_HIGH = 3.0, 9.0
 PROJECTION_SHARE = 0.5
 """Most of a guided result that :func:`projected` takes from the projection on the guide (times the
 gate's share), the Wiener stages' the rest. Measured at 32 spp with the scale band projected
-(docs/guides.md, "What else was tried"): 0.75 lowers relMSE by 1-6% on four scenes (`glossy_glass`
-1.03x OIDN's instead of 1.10x) but raises it by 6-10% on four of the tracer's; the projection alone
-(1) lost 18-22% on the finely textured scenes, where OIDN's blur stays within the noise; none (0)
-lost 9-20% on the six scenes where the guide trails OIDN."""
+(docs/guides.md, "What else was tried"): 0.75 lowers relMSE by 2-7% on five scenes (`glossy_glass`
+0.90x OIDN's instead of 0.97x) and raises it by 1-5% on the other five (0.99x half's in geometric
+mean); the projection alone (1) loses 4-13% on five, most on the tracer's (`default`, `rolling_balls`,
+`soft_shadows` 11-13%); none (0) loses 4-32% on nine scenes, most where the guide trails OIDN."""
 
 _COLOUR_SIGMA = 2.0  # colour differences are counted in the means' standard errors
 _KERNEL = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0  # the B3 spline of the a-trous transform

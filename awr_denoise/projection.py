@@ -15,14 +15,14 @@ noisy one); where the samples contradict it, the coefficient stops at the interv
 scale band's ``Delta`` averages many pixels' variances and is small, except where a few pixels
 hold very large ones: the fireflies of a caustic, whose energy a denoiser spreads or drops and
 which the means' scale band would otherwise keep as a bright blob. Measured with the OIDN guide
-(docs/guides.md), projecting the scale band lowered relMSE by 9-17% on the glossy scene with
-caustics, by 2-4% on two more and changed the other seven scenes by at most 1%; the guided
+(docs/guides.md), projecting the scale band lowered relMSE by 12% on the glossy scene with caustics
+(9-17% in earlier runs), by 2-3% on two more and changed the other seven by at most 1.2%; the guided
 reconstruction restores the exact image mean afterwards (:func:`~awr_denoise.finishing.restore_mean`). As the samples grow, ``Delta`` falls
 and the result tends to the means whatever the guide says. It runs in the domain ``x / w``,
 ``w = (|g| + k)^alpha`` (like :func:`~awr_denoise.wiener.relative_wiener`'s, the weights from the
 guide): ``alpha = 1`` makes the intervals relative to the signal, ``alpha = 0`` absolute. In the
 guided reconstruction the default 0.5 and 1 measured within 1% in relMSE at 32 spp on every scene
-of docs/guides.md ("What else was tried"), 1 with up to 6% more MSE.
+of docs/guides.md ("What else was tried"), 1 with up to 3% more MSE.
 
 Because the synthesis is linear, the result is ``x + w * sum_b S_b(clip(D_b, -r Delta_b, r Delta_b))``:
 only the guide's difference from the means and the variances are transformed. Each pixel's
@@ -45,7 +45,7 @@ __all__ = ["project", "DEFAULT_RADIUS", "DEFAULT_EXPONENT"]
 
 DEFAULT_RADIUS = 3.0
 """Half-width of the confidence interval, in standard errors ``Delta``. In the guided reconstruction 2
-and 3 measured within 1% of each other at 32 spp on every scene of docs/guides.md ("What else was
+and 3 measured within 2% of each other at 32 spp on every scene of docs/guides.md ("What else was
 tried"): the SURE guard that follows takes back what a wide interval lets through."""
 
 DEFAULT_EXPONENT = 0.5
