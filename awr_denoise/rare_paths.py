@@ -388,6 +388,8 @@ def rare_path_evening(buffer: SampleBuffer, rare_paths: str = DEFAULT_RARE_PATHS
     >>> bool(np.array_equal(evened, even_rare_paths(density, buffer)))
     True
     """
+    if not isinstance(buffer, SampleBuffer):  # named here, not as an attribute missing on another thread
+        raise TypeError(f"buffer: expected a SampleBuffer, got {type(buffer).__name__}")
     rare_paths = _checks.name("rare_paths", rare_paths, RARE_PATHS)
     executor = _checks.executor("executor", executor)
     search = partial(rare_path_mask, buffer, fireflies=rare_paths == "even")

@@ -461,6 +461,18 @@ def test_a_density_of_another_shape_or_a_choice_that_is_no_name_is_refused():
     with pytest.raises(TypeError, match="rare_paths"):
         even_rare_paths(np.ones((8, 8)), buffer, 1)
     assert even_rare_paths(np.ones((8, 8), dtype=np.int64), buffer, "ranked").dtype == np.float64
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(1) as pool:  # refused before any search starts on the pool, naming the argument
+        for bad in (np.ones((8, 8)), None):
+            with pytest.raises(TypeError, match="buffer: expected a SampleBuffer, got"):
+                even_rare_paths(np.ones((8, 8)), bad)
+            with pytest.raises(TypeError, match="buffer: expected a SampleBuffer, got"):
+                with rare_paths.rare_path_evening(bad, "even", pool):
+                    pass
+        with pytest.raises(TypeError, match="executor: expected a concurrent.futures.Executor"):
+            with rare_paths.rare_path_evening(buffer, "even", "pool"):
+                pass
 
 
 @pytest.mark.parametrize("choice", RARE_PATHS)
