@@ -41,7 +41,8 @@ from .common import (
     status,
 )
 from .errors import shown
-from .parallel_options import add_executor_arguments, executor_from_args, executor_requested
+from .parallel_options import (add_executor_arguments, add_threads_argument, executor_from_args, executor_requested,
+                               library_threads, threads_from_args)
 from .paths import PathPlan, check_file_name, check_plane_windows, plane_options
 from .values import MAX_EXPOSURE, MAX_LEVELS, nonempty, real, wavelet_name, whole
 
@@ -143,7 +144,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_reconstruction_options(p)
     add_plane_options(p)
     add_executor_arguments(p)
+    add_threads_argument(p, "one frame's reconstruction")
     p.set_defaults(run=run)
+
+
+def _library_threads(args: argparse.Namespace, frames: int) -> int:
+    """The threads one frame's reconstruction runs on (``--threads``): one where the frames are the parallel work
+    (several run side by side) or run in other processes (``--executor processes`` or ``dask``), where a
+    ``--threads`` above 1 is refused, not ignored."""
+    given = getattr(args, "threads", None)
+    elsewhere = getattr(args, "executor", None) in ("processes", "dask") or getattr(args, "scheduler", None)
+    if given is not None and given > 1 and (frames > 1 or elsewhere):
+        why = (f"the {frames} frames run side by side instead, each on one thread (--workers sets how many)"
+               if frames > 1 else "the frame is reconstructed in a worker process, not in this one")
+        raise UsageError(f"--threads: {why}; leave --threads out")
+    return 1 if frames > 1 or elsewhere else threads_from_args(args)
 
 
 def _named_as_output(error: BaseException, final: dict[Path, str]) -> BaseException:
@@ -276,6 +291,7 @@ def run(args: argparse.Namespace) -> int:
     if args.frames is not None and args.preview and "#" not in Path(args.preview).name:
         raise UsageError(f"--preview: {args.preview}: with --frames the preview needs a #### placeholder")
     jobs = frame_jobs([source] + ([args.preview] if args.preview else []), args.output, args.frames)
+    threads = _library_threads(args, len(jobs))
     numbers = parse_frames(args.frames) if args.frames is not None else [None]
     given = plane_options(args)
     planes = frame_planes(given, numbers)  # each frame's plane files (alb.####.exr)
@@ -352,7 +368,7 @@ def run(args: argparse.Namespace) -> int:
         # Without --workers a single frame runs in this thread and several on a thread pool; with
         # them, on the executor asked for (one task per frame: paths travel, not pixels).
         executor = executor_from_args(args) if executor_requested(args) else contextlib.nullcontext(None)
-        with executor as pool:
+        with executor as pool, library_threads(threads) as library:
             try:
                 # The staging folder is this run's: a frame run again (a Dask worker lost) replaces
                 # its own staged file, as a first run writes it.
@@ -360,7 +376,7 @@ def run(args: argparse.Namespace) -> int:
                                previews=[p for _, p in staged] if args.preview else None, exposure=args.exposure or 0.0,
                                reference=refs if args.ref else None, executor=pool, half=args.half, overwrite=True,
                                read_options=frame_plane_kwargs(args, planes), on_frame=done, windows=windows,
-                               **reconstruction_kwargs(args))
+                               threads=library, **reconstruction_kwargs(args))
             except FramesFailedError as exc:
                 plan.check_unchanged()  # a frame failed on an input replaced meanwhile: that is the error
                 # The first failed frame's own error, so it keeps its exit status and one-line message.

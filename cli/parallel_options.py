@@ -7,6 +7,7 @@ their plain serial path when none is given.
 from __future__ import annotations
 
 import argparse
+import concurrent.futures as cf
 import contextlib
 import logging
 from collections.abc import Iterator
@@ -17,8 +18,9 @@ from awr_denoise.parallel.executors import default_workers
 
 from .values import MAX_SIDE, whole
 
-__all__ = ["add_executor_arguments", "executor_from_args", "executor_requested", "MAX_WORKERS", "MIN_TILE",
-           "LOCAL_PROCESSES_PER_CPU"]
+__all__ = ["add_executor_arguments", "add_threads_argument", "executor_from_args", "executor_requested",
+           "library_threads", "threads_from_args", "MAX_WORKERS", "MIN_TILE", "LOCAL_PROCESSES_PER_CPU",
+           "DEFAULT_THREADS"]
 
 MAX_WORKERS = 4096
 """Most workers one command starts."""
@@ -30,6 +32,10 @@ MIN_TILE = 8
 """The smallest ``--tile`` side the command line takes."""
 DEFAULT_TILE = 128
 """``--tile``'s side when the work is split over workers and no ``--tile`` is given."""
+DEFAULT_THREADS = 2
+"""``--threads``' pool when not given (fewer where this process may run on fewer CPUs). The library splits its own
+work at most two ways beside the calling thread (the Wiener stages' bands two at a time, the rare-path search and the
+pooled deviation beside the density), so a larger pool would wait."""
 
 
 def add_executor_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, *,
@@ -62,6 +68,41 @@ def add_executor_arguments(parser: argparse.ArgumentParser | argparse._ArgumentG
         group.add_argument("--tile", type=whole(minimum=MIN_TILE, maximum=MAX_SIDE), metavar="PIXELS",
                            help=f"tile side when the work is split over workers (default {DEFAULT_TILE}, at least "
                                 f"{MIN_TILE}; refused without them)")
+
+
+def add_threads_argument(parser: argparse.ArgumentParser | argparse._ArgumentGroup, what: str) -> None:
+    """Add ``--threads N``: the thread pool of this process the library's own work runs on (``what``).
+
+    Read it back with :func:`threads_from_args`, and open the pool with :func:`library_threads`.
+    """
+    parser.add_argument("--threads", type=whole(minimum=1, maximum=MAX_WORKERS), metavar="N",
+                        help=f"threads of this process for {what}, the same result on any number (default "
+                             f"{DEFAULT_THREADS}, or 1 on one CPU; 1: this thread alone; docs/cli.md, \"Threads\")")
+
+
+def threads_from_args(args: argparse.Namespace) -> int:
+    """``--threads``, else :data:`DEFAULT_THREADS` capped at the CPUs this process may run on."""
+    given = getattr(args, "threads", None)
+    return min(DEFAULT_THREADS, default_workers()) if given is None else int(given)
+
+
+@contextlib.contextmanager
+def library_threads(threads: int) -> Iterator[Executor | None]:
+    """A thread pool of ``threads`` for the library's ``executor=`` arguments, or None for one thread.
+
+    On the way out, tasks not started yet are dropped (Ctrl-C while a reconstruction waits for its bands does not
+    run the rest of them first); the running ones finish, since threads cannot be stopped.
+    """
+    if threads <= 1:
+        yield None
+        return
+    pool = cf.ThreadPoolExecutor(max_workers=threads, thread_name_prefix="awr-library")
+    try:
+        yield pool
+    except BaseException:
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
 
 
 def executor_requested(args: argparse.Namespace) -> bool:

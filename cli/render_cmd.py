@@ -13,6 +13,7 @@ import functools
 import os
 import time
 from collections.abc import Callable, Iterator
+from concurrent.futures import Executor
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -39,7 +40,8 @@ from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP, DEFAULT_ROUND_GROWTH, 
 from .common import EXIT_OK, RuntimeFailure, UsageError, check_memory, status
 from .denoise_cmd import (add_reconstruction_options, check_reconstruction_options, reconstruction_kwargs,
                           unused_features)
-from .parallel_options import DEFAULT_TILE, add_executor_arguments, executor_from_args, executor_requested
+from .parallel_options import (DEFAULT_TILE, add_executor_arguments, add_threads_argument, executor_from_args,
+                               executor_requested, library_threads, threads_from_args)
 from .paths import PathPlan
 from .sampler_settings import sampler_settings
 from .values import (MAX_EXPOSURE, MAX_ROUND_GROWTH, MAX_SEED, MAX_SIDE, MAX_SPP, check_pixels, feature_list, nonempty,
@@ -98,11 +100,13 @@ def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float | No
                   quiet: bool, initial_spp: int = DEFAULT_AWR_INITIAL_SPP, round_growth: float = DEFAULT_ROUND_GROWTH,
                   noise_model: str = DEFAULT_NOISE_MODEL, gain_refresh: float | None = None,
                   seconds: float | None = None, reserve: Callable[[SampleBuffer], float] | None = None,
-                  rare_paths: str = DEFAULT_RARE_PATHS) -> tuple[SampleBuffer, Any, int, dict[str, int | str]]:
+                  rare_paths: str = DEFAULT_RARE_PATHS, executor: Executor | None = None
+                  ) -> tuple[SampleBuffer, Any, int, dict[str, int | str]]:
     """(buffer, issued, next round, the sampler's settings) of a uniform or adaptive render at ``spp`` on average,
     or adaptive rounds for ``seconds`` (``spp`` then a cap, ``None`` for none) of which ``reserve`` keeps the
     denoising's time (:meth:`~awr_denoise.Sampler.run`). The settings are the header attributes ``awr plan``
-    continues the run with (:func:`.sampler_settings.sampler_settings`; none for a uniform render).
+    continues the run with (:func:`.sampler_settings.sampler_settings`; none for a uniform render). ``executor``: a
+    thread pool the sampler ranks the pixels on between rounds, while the renderer waits (``--threads``).
 
     The renderer is closed afterwards when it is a :class:`~awr_denoise.requests.SampleTracer`.
     """
@@ -116,7 +120,7 @@ def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float | No
             return buffer, request.first_index + request.counts, 1, {}
         awr = AdaptiveSampler(shape, initial_spp=first_round_spp(initial_spp, spp), seed=seed,
                               round_growth=round_growth, noise_model=noise_model, gain_refresh=gain_refresh,
-                              rare_paths=rare_paths)
+                              rare_paths=rare_paths, executor=executor)
         buffer = awr.run(renderer, total_spp=spp, seconds=seconds, reserve=reserve, progress=bars_shown(quiet))
         return buffer, awr.issued, awr.round, sampler_settings(awr)
     finally:
@@ -124,13 +128,16 @@ def render_buffer(renderer: Renderer, shape: tuple[int, int], *, spp: float | No
             renderer.close()
 
 
-def _reserve(args: argparse.Namespace, start: float) -> Callable[[SampleBuffer], float] | None:
+def _reserve(args: argparse.Namespace, start: float, executor: Executor | None
+             ) -> Callable[[SampleBuffer], float] | None:
     """Under ``--seconds``: the seconds of the budget not for rounds, asked after round 0: the time since ``start``
     before the rounds (the renderer's setup), the denoising's, timed on round 0's samples with the command's
-    settings (:func:`~awr_denoise.rounds.reconstruction_seconds`), and the files' (:data:`WRITE_SHARE` of it)."""
+    settings and threads (:func:`~awr_denoise.rounds.reconstruction_seconds`), and the files' (:data:`WRITE_SHARE` of
+    it)."""
     if args.seconds is None:
         return None
-    denoise = functools.partial(reconstruct_detailed, variance_probes=0, **reconstruction_kwargs(args))
+    denoise = functools.partial(reconstruct_detailed, variance_probes=0, executor=executor,
+                                **reconstruction_kwargs(args))
     ready = time.perf_counter()  # the renderer is set up: the rounds begin
     return lambda buffer: (ready - start) + (1 + WRITE_SHARE) * reconstruction_seconds(buffer, denoise)
 
@@ -195,6 +202,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     add_reconstruction_options(p)
     add_executor_arguments(p, tile_option=True)
+    add_threads_argument(p, "the adaptive rounds' ranking, between the renderer's rounds, and the reconstruction")
     p.set_defaults(run=run)
 
 
@@ -322,6 +330,7 @@ def run(args: argparse.Namespace) -> int:
     plan.write(preview_path, "--preview" if args.preview else "--preview (DUMP.denoised.png)", "png")
     plan.check()  # refuse before spending time rendering
     check_reconstruction_options(args, None, "")  # what needs no image size, before a scene file is loaded
+    threads = threads_from_args(args)
     if args.width is not None and args.height is not None:
         check_pixels("--width/--height", args.height, args.width)
     given, scene, name, shape, options = _scene(args)
@@ -332,61 +341,67 @@ def run(args: argparse.Namespace) -> int:
         sized_by = ("--width/--height" if len(given_sides) == 2 else
                     f"SCENE {given}" + (f" with {given_sides[0]}" if given_sides else ""))
         check_pixels(sized_by, *frame_shape)
-        # At least 380 bytes a pixel at the peak (the statistics, the tracer's batches, the reconstruction: the
-        # maximum resident size of a 1-spp uniform render 290 MB higher at 1024x1024 than at 512x512, `/usr/bin/time
-        # -f %M awr render --scene default --width N --height N --spp 1 --uniform -o r.exr`); beyond the memory
-        # available, the kernel's out-of-memory killer ended the render without a word (exit 137).
-        check_memory(sized_by, 380.0 * frame_shape[0] * frame_shape[1],
-                     f"a render of {frame_shape[1]}x{frame_shape[0]}")
+        # At least 410 bytes a pixel at the peak on one thread, 500 on a pool (the statistics, the tracer's batches,
+        # the reconstruction, whose Wiener stages filter two bands at once on a pool: the maximum resident size of a
+        # 1-spp uniform render 1276 MB higher at 2048x2048 than at 1024x1024 with --threads 1, twice, and 1569 MB and
+        # 1503 MB with --threads 2, `/usr/bin/time -f %M awr render --scene default --width N --height N --spp 1
+        # --uniform -o r.exr --threads T`); beyond the memory available, the kernel's out-of-memory killer ended the
+        # render without a word (exit 137).
+        check_memory(sized_by, (410.0 if threads == 1 else 500.0) * frame_shape[0] * frame_shape[1],
+                     f"a render of {frame_shape[1]}x{frame_shape[0]}" + ("" if threads == 1 else
+                                                                        f" on {threads} threads"))
         check_reconstruction_options(args, tuple(frame_shape), name)
         if spp is not None and round(spp * frame_shape[0] * frame_shape[1]) < 1:  # else refused later, as "buffer"
             raise UsageError(f"--spp: {spp:g} per pixel of {frame_shape[1]}x{frame_shape[0]} is not one sample")
-    start = time.perf_counter()
-    render = dict(spp=spp, adaptive=args.adaptive, seed=args.seed, quiet=args.quiet,
-                  gain_refresh=args.gain_refresh, seconds=args.seconds)
-    render.update({k: v for k, v in (("initial_spp", args.initial_spp), ("round_growth", args.round_growth),
-                                     ("noise_model", args.noise_model), ("rare_paths", args.rare_paths))
-                   if v is not None})  # else render_buffer's
-    if executor_requested(args):
-        # Each worker builds its own renderer from a picklable spec; tiles of every round are
-        # rendered there and merged exactly (addressable random numbers make it match serial).
-        if args.renderer == TRACER:
-            spec = RendererSpec.tracer(given, width=args.width, height=args.height, seed=args.seed, threads=1,
-                                       **options)
-            frame = scene.shape
+    # The library's own work (the rounds' ranking, the reconstruction) on --threads: the renderer waits meanwhile.
+    with library_threads(threads) as pool:
+        start = time.perf_counter()
+        render = dict(spp=spp, adaptive=args.adaptive, seed=args.seed, quiet=args.quiet,
+                      gain_refresh=args.gain_refresh, seconds=args.seconds)
+        render.update({k: v for k, v in (("initial_spp", args.initial_spp), ("round_growth", args.round_growth),
+                                         ("noise_model", args.noise_model), ("rare_paths", args.rare_paths))
+                       if v is not None})  # else render_buffer's
+        if executor_requested(args):
+            # Each worker builds its own renderer from a picklable spec; tiles of every round are
+            # rendered there and merged exactly (addressable random numbers make it match serial).
+            if args.renderer == TRACER:
+                spec = RendererSpec.tracer(given, width=args.width, height=args.height, seed=args.seed, threads=1,
+                                           **options)
+                frame = scene.shape
+            else:
+                with _as_options(args.renderer):
+                    spec = RendererSpec(args.renderer, given, shape, args.seed, tuple(sorted(options.items())))
+                    probe = spec()
+                frame = probe.shape
+                check_pixels(f"SCENE {given}: its film", *frame)
+                if isinstance(probe, SampleTracer):
+                    probe.close()
+            with executor_from_args(args) as executor:
+                tiled = TiledRenderer(spec, tile=args.tile or DEFAULT_TILE, executor=executor)
+                buffer, issued, next_round, settings = render_buffer(
+                    tiled, frame, reserve=_reserve(args, start, pool), executor=pool, **render)
         else:
+            # A uniform render is one request: the renderer's own bar shows it. Adaptive rounds get
+            # the sampler's bar instead of one renderer bar per round.
+            if args.renderer == TRACER:
+                options["progress"] = bars_shown(args.quiet) and not args.adaptive
             with _as_options(args.renderer):
-                spec = RendererSpec(args.renderer, given, shape, args.seed, tuple(sorted(options.items())))
-                probe = spec()
-            frame = probe.shape
-            check_pixels(f"SCENE {given}: its film", *frame)
-            if isinstance(probe, SampleTracer):
-                probe.close()
-        with executor_from_args(args) as executor:
-            tiled = TiledRenderer(spec, tile=args.tile or DEFAULT_TILE, executor=executor)
-            buffer, issued, next_round, settings = render_buffer(tiled, frame, reserve=_reserve(args, start), **render)
-    else:
-        # A uniform render is one request: the renderer's own bar shows it. Adaptive rounds get
-        # the sampler's bar instead of one renderer bar per round.
-        if args.renderer == TRACER:
-            options["progress"] = bars_shown(args.quiet) and not args.adaptive
-        with _as_options(args.renderer):
-            renderer = create_renderer(args.renderer, scene, shape=shape, seed=args.seed, **options)
-        check_pixels(f"SCENE {given}: its film", *renderer.shape)  # a size the scene file declares
-        buffer, issued, next_round, settings = render_buffer(renderer, renderer.shape, reserve=_reserve(args, start),
-                                                             **render)
-    seconds = time.perf_counter() - start
-    strategy = "awr" if args.adaptive else "uniform"
-    # A running dump (its samples every pixel's sequence from 0), and the run's strategy and first
-    # round, which awr plan continues.
-    first = {}
-    if args.adaptive:
-        first["initial_spp"] = first_round_spp(args.initial_spp or DEFAULT_AWR_INITIAL_SPP, spp)
-    header = provenance(scene=name, seed=args.seed, sampler=args.sampler, strategy=strategy, round=next_round,
-                        render_seconds=float(seconds), renderer=args.renderer, running=1, **first)
-    header.update(settings)  # the sampler's, which awr plan continues too
-    check_reconstruction_options(args, buffer.shape, name)
-    result = reconstruct_detailed(buffer, variance_probes=0, **reconstruction_kwargs(args))
+                renderer = create_renderer(args.renderer, scene, shape=shape, seed=args.seed, **options)
+            check_pixels(f"SCENE {given}: its film", *renderer.shape)  # a size the scene file declares
+            buffer, issued, next_round, settings = render_buffer(
+                renderer, renderer.shape, reserve=_reserve(args, start, pool), executor=pool, **render)
+        seconds = time.perf_counter() - start
+        strategy = "awr" if args.adaptive else "uniform"
+        # A running dump (its samples every pixel's sequence from 0), and the run's strategy and first
+        # round, which awr plan continues.
+        first = {}
+        if args.adaptive:
+            first["initial_spp"] = first_round_spp(args.initial_spp or DEFAULT_AWR_INITIAL_SPP, spp)
+        header = provenance(scene=name, seed=args.seed, sampler=args.sampler, strategy=strategy, round=next_round,
+                            render_seconds=float(seconds), renderer=args.renderer, running=1, **first)
+        header.update(settings)  # the sampler's, which awr plan continues too
+        check_reconstruction_options(args, buffer.shape, name)
+        result = reconstruct_detailed(buffer, variance_probes=0, executor=pool, **reconstruction_kwargs(args))
     # The dump, the image and the preview: all three or none.
     with OutputSet(overwrite=args.overwrite) as outputs:
         write_sample_buffer(outputs.add(args.output), buffer, header=header, issued=issued)

@@ -363,7 +363,7 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
                    read_options: Mapping[str, Any] | Sequence[Mapping[str, Any]] | None = None,
                    on_frame: Callable[[FrameResult], None] | None = None,
                    windows: Sequence[Mapping[str, Window] | None] | None = None,
-                   **reconstruct_options: Any) -> list[Path]:
+                   threads: Executor | None = None, **reconstruct_options: Any) -> list[Path]:
     """Denoise a sequence of sample dumps, one task per frame (:func:`denoise_frame`).
 
     Every image is bitwise identical to a serial run whatever the executor; writes are atomic,
@@ -398,6 +398,10 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
     windows
         For each input, the windows the caller found it in (or None): an input read in others fails
         its frame (see :func:`denoise_frame`).
+    threads
+        A thread pool of this process each frame's reconstruction spreads its own work over
+        (:func:`~awr_denoise.reconstruct`'s ``executor``; the same image); not with frames run in other
+        processes (a process pool, Dask), which cannot take it.
     **reconstruct_options
         Keyword arguments of :func:`~awr_denoise.reconstruct` (``c_s``, ``wavelet``,
         ``levels``, ``domain``, ``mode``, ``boundary``). Each frame runs on one worker.
@@ -441,6 +445,12 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
     if not sources:
         return []
     _check_reconstruct_options(reconstruct_options)
+    if threads is not None:
+        _checks.executor("threads", threads, here=False)
+        if executor is not None and (dask_client(executor) is not None or isinstance(executor, cf.ProcessPoolExecutor)):
+            raise ValueError(f"threads: a thread pool of this process, where the frames run in other processes "
+                             f"({type(executor).__name__}); give it to a thread pool's frames, or none")
+        reconstruct_options = {**reconstruct_options, "executor": threads}
     options = {"exposure": exposure, "overwrite": overwrite, "half": half, **reconstruct_options}
     as_given = list(zip(sources, targets, shown if shown is not None else [None] * len(sources)))
     staged = [{path: public_name(path) for path in (target, preview) if path is not None and public_name(path) != path}

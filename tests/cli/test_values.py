@@ -342,9 +342,12 @@ def test_a_render_larger_than_memory_is_refused_naming_its_size(work, capsys, mo
     monkeypatch.chdir(work.root)
     monkeypatch.setattr(common, "available_memory", lambda: 2**30)
     before = work.state()
-    assert main(["render", "--scene", "default", "--width", "2048", "--height", "2048", "--spp", "1",
-                 "-o", "r.exr"]) == 2
-    one_error_line(capsys.readouterr().err, "--width/--height: a render of 2048x2048 needs about 1.5 GiB",
+    big = ["render", "--scene", "default", "--width", "2048", "--height", "2048", "--spp", "1", "-o", "r.exr"]
+    assert main([*big, "--threads", "1"]) == 2
+    one_error_line(capsys.readouterr().err, "--width/--height: a render of 2048x2048 needs about 1.6 GiB",
+                   "1.0 GiB are available")
+    assert main([*big, "--threads", "2"]) == 2  # its Wiener stages filter two bands at once
+    one_error_line(capsys.readouterr().err, "--width/--height: a render of 2048x2048 on 2 threads needs about 2.0 GiB",
                    "1.0 GiB are available")
     assert work.state() == before
     assert main(["render", "--scene", "default", "--width", "16", "--height", "16", "--spp", "1", "-o", "r.exr",

@@ -142,6 +142,40 @@ def test_one_frame_runs_in_the_calling_thread(tmp_path, dumps, monkeypatch):
     assert list(info.value.failures) == [str(broken)] and not (tmp_path / "never.exr").exists()
 
 
+def test_each_frames_reconstruction_runs_on_the_threads_given(tmp_path, dumps, monkeypatch):
+    """``threads``: a pool each frame's reconstruction spreads its own work over (its ``executor``), the same images
+    as the serial run, one frame or several; refused beside frames run in other processes, which cannot take it."""
+    import concurrent.futures as cf
+    import functools
+
+    from awr_denoise.parallel import frames
+
+    given = []
+    real = frames.reconstruct_detailed
+    monkeypatch.setattr(frames, "reconstruct_detailed", functools.wraps(real)(
+        lambda *a, **k: given.append(k.get("executor")) or real(*a, **k)))  # wraps: its signature is checked
+    serial = [tmp_path / f"serial.{i:04d}.exr" for i in range(len(dumps))]
+    serial_frames(dumps, serial)
+    given.clear()
+    with cf.ThreadPoolExecutor(2) as pool:
+        one = [tmp_path / "one.exr"]
+        denoise_frames(dumps[:1], one, threads=pool)
+        assert given == [None, pool]  # the options' trial on an 8x8 image first, on this thread
+        assert_same_files(one, serial[:1])
+        given.clear()
+        several = [tmp_path / f"several.{i:04d}.exr" for i in range(len(dumps))]
+        denoise_frames(dumps, several, threads=pool)
+        assert given == [None] + [pool] * len(dumps)
+        assert_same_files(several, serial)
+        with cf.ProcessPoolExecutor(1) as processes:
+            with pytest.raises(ValueError, match=r"^threads: a thread pool of this process, where the frames run in "
+                                                 r"other processes \(ProcessPoolExecutor\)"):
+                denoise_frames(dumps[:1], [tmp_path / "never.exr"], executor=processes, threads=pool)
+    with pytest.raises(TypeError, match="^threads: expected a concurrent.futures.Executor, got int"):
+        denoise_frames(dumps[:1], [tmp_path / "never.exr"], threads=2)
+    assert not (tmp_path / "never.exr").exists()
+
+
 def test_a_dump_without_samples_is_refused_naming_it(tmp_path):
     """The reconstruction's own refusal does not know the file (second red-team pass)."""
     from awr_denoise import SampleBuffer
