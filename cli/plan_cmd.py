@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from concurrent.futures import Executor
 
 from awr_denoise.allocation import MAX_BUDGET
 from awr_denoise.io import provenance, read_sample_dump, write_request
@@ -17,7 +16,6 @@ from awr_denoise.wavelets import DEFAULT_WAVELET, max_levels
 
 from .common import (EXIT_OK, UsageError, add_plane_options, answered_round, check_memory, dump_options_given,
                      dumped_round, dumped_seed, plane_kwargs, run_settings, status)
-from .parallel_options import add_threads_argument, library_threads, threads_from_args
 from .paths import PathPlan, check_plane_windows, plane_options
 from .sampler_settings import CARRIED, carried_settings, described, sampler_settings
 from .values import (MAX_LEVELS, MAX_ROUND_GROWTH, MAX_SEED, MAX_SPP, UNSET, image_size, nonempty, or_unset, real,
@@ -80,19 +78,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "samples are mostly 0 (zeros), or rank their pixels like the rest (ranked; docs/sampling.md, "
                         "'Rare paths'); default: the dump's awr:rare_paths, else even")
     p.add_argument("-q", "--quiet", action="store_true")
-    add_threads_argument(p, "the ranking of the pixels (awr, variance)")
     add_plane_options(p)
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``awr plan``; returns the exit status (errors are raised and reported by ``main``)."""
-    with library_threads(threads_from_args(args)) as pool:
-        return _planned(args, pool)
-
-
-def _planned(args: argparse.Namespace, pool: Executor | None) -> int:
-    """``awr plan`` with ``pool``, the ``--threads`` the ranking samplers run on."""
     plan = PathPlan(overwrite=args.overwrite)
     plan.read(args.input, "DUMP.exr")
     for spec, option in plane_options(args):
@@ -142,10 +133,6 @@ def _planned(args: argparse.Namespace, pool: Executor | None) -> int:
         options["round_growth"] = args.round_growth
     if cls._ranks:  # the samplers that rank pixels (awr, variance)
         options["rare_paths"] = args.rare_paths or DEFAULT_RARE_PATHS
-        options["executor"] = pool
-    elif args.threads is not None and args.threads > 1:  # refused, not ignored
-        raise UsageError(f"--threads: only the strategies that rank pixels (awr, variance) run on threads, not "
-                         f"{args.strategy}" + (f" (the awr:strategy of {args.input})" if from_dump else ""))
     elif args.rare_paths is not None:
         raise UsageError(f"--rare-paths: only the strategies that rank pixels (awr, variance) spread rare paths, not "
                          f"{args.strategy}" + (f" (the awr:strategy of {args.input})" if from_dump else ""))
