@@ -12,13 +12,14 @@ budget covers both: the rounds leave the denoising the time its trial on round 0
 (``rounds.reconstruction_seconds`` with the command's settings, times ``1 + WRITE_SHARE`` for the files).
 Python's start-up comes before the command starts and is not in ``S``: it is measured in the same run as the
 wall time of ``awr --version`` (the floor), and the wall time of each render is reported beside it. Cases run
-``--repeats`` times (3), interleaved; medians. Results: ``benchmarks/results/budget.json``.
+``--repeats`` times (3), interleaved; medians. The command runs on its default ``--threads`` (2, or 1 on one CPU)
+unless this script's ``--threads`` says otherwise. Results: ``benchmarks/results/budget.json``.
 
 ``--trial`` measures what the prediction rests on instead (section ``trial``): on 2-spp uniform buffers of the
 tracer's default scene at each size, the default reconstruction of the whole image against four times its
 central quarter's (``RESERVE_MARGIN``), writing the dump, the image and the preview against the reconstruction
 (``WRITE_SHARE``), and ``reconstruction_seconds``' estimate against both together; ``--repeats`` times
-interleaved, medians.
+interleaved, medians; the reconstructions on the threads ``awr render`` gives them (``--threads``).
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ from awr_denoise.bench import update_section
 from awr_denoise.io import write_image, write_preview, write_sample_buffer
 from awr_denoise.renderers import create_renderer
 from awr_denoise.rounds import reconstruction_seconds
+from awr_denoise.cli.parallel_options import library_threads, threads_from_args
 
 RESULTS = Path(__file__).resolve().parent / "results" / "budget.json"
 CASES: dict[str, list[tuple[str, tuple[int, int], float]]] = {
@@ -61,11 +63,14 @@ def _awr(*args: str) -> tuple[subprocess.CompletedProcess, float]:
     return done, time.perf_counter() - started
 
 
-def render(renderer: str, scene: str, size: tuple[int, int], seconds: float, seed: int) -> dict[str, Any]:
-    """One ``awr render --seconds`` run: its printed times and its wall time."""
+def render(renderer: str, scene: str, size: tuple[int, int], seconds: float, seed: int, threads: int | None = None
+           ) -> dict[str, Any]:
+    """One ``awr render --seconds`` run (on ``--threads``, else the command's default): its printed times and its
+    wall time."""
     with tempfile.TemporaryDirectory() as folder:
         done, wall = _awr("render", scene, "--renderer", renderer, "--width", str(size[0]), "--height", str(size[1]),
-                          "--seconds", str(seconds), "--seed", str(seed), "-o", str(Path(folder) / "dump.exr"))
+                          "--seconds", str(seconds), "--seed", str(seed), "-o", str(Path(folder) / "dump.exr"),
+                          *(() if threads is None else ("--threads", str(threads))))
     if done.returncode != 0:
         raise RuntimeError(f"awr render {renderer} {scene}: exit {done.returncode}: {done.stderr.strip()}")
     found = _STATUS.search(done.stderr)
@@ -77,21 +82,23 @@ def render(renderer: str, scene: str, size: tuple[int, int], seconds: float, see
             "warnings": warned}
 
 
-def measure(renderers: list[str], repeats: int) -> list[dict[str, Any]]:
-    """Every case of ``renderers``, ``repeats`` times interleaved; per case the medians and the runs."""
+def measure(renderers: list[str], repeats: int, threads: int | None = None) -> list[dict[str, Any]]:
+    """Every case of ``renderers``, ``repeats`` times interleaved, on ``threads`` (the command's default for
+    ``None``); per case the medians and the runs."""
     cases = [(r, *case) for r in renderers for case in CASES[r]]
     runs: dict[int, list[dict[str, Any]]] = {i: [] for i in range(len(cases))}
     floors = []
     for k in range(repeats):
         floors.append(_awr("--version")[1])
         for i, (renderer, scene, size, seconds) in enumerate(cases):
-            runs[i].append(render(renderer, scene, size, seconds, seed=k))
+            runs[i].append(render(renderer, scene, size, seconds, seed=k, threads=threads))
     floor = statistics.median(floors)
     rows = []
     for i, (renderer, scene, size, seconds) in enumerate(cases):
         median = {key: statistics.median(run[key] for run in runs[i])
                   for key in ("spp", "rounds", "finish", "command", "wall")}
-        rows.append({"renderer": renderer, "scene": scene, "size": list(size), "seconds": seconds, **median,
+        rows.append({"renderer": renderer, "scene": scene, "size": list(size), "seconds": seconds,
+                     "threads": threads_from_args(argparse.Namespace(threads=threads)), **median,
                      "command_over_budget": median["command"] / seconds, "startup": floor,
                      "worst_over_budget": max(run["command"] for run in runs[i]) / seconds, "runs": runs[i]})
     return rows
@@ -111,10 +118,17 @@ def _files(buffer: Any, image: Any) -> None:
         write_preview(Path(folder) / "dump.denoised.png", image)
 
 
-def trial(sizes: list[tuple[int, int]], repeats: int) -> list[dict[str, Any]]:
+def trial(sizes: list[tuple[int, int]], repeats: int, threads: int | None = None) -> list[dict[str, Any]]:
     """Per size: the whole reconstruction over four quarters', the files over the reconstruction, the estimate
-    over both (2-spp uniform buffers of the tracer's default scene; medians of ``repeats``, interleaved)."""
-    denoise = functools.partial(reconstruct_detailed, variance_probes=0)
+    over both (2-spp uniform buffers of the tracer's default scene; medians of ``repeats``, interleaved), the
+    reconstruction on ``threads`` as ``awr render --threads`` runs it (the command's default for ``None``)."""
+    count = threads_from_args(argparse.Namespace(threads=threads))
+    with library_threads(count) as pool:
+        rows = _trial(sizes, repeats, functools.partial(reconstruct_detailed, variance_probes=0, executor=pool))
+    return [{**row, "threads": count} for row in rows]
+
+
+def _trial(sizes: list[tuple[int, int]], repeats: int, denoise: Any) -> list[dict[str, Any]]:
     buffers = []
     for width, height in sizes:
         renderer = create_renderer("tracer", "default", shape=(height, width), seed=0)
@@ -143,20 +157,22 @@ def trial(sizes: list[tuple[int, int]], repeats: int) -> list[dict[str, Any]]:
 
 def trial_table(rows: list[dict[str, Any]]) -> str:
     """The trial's rows as a Markdown table."""
-    lines = ["| size | reconstruction s | whole / 4 quarters | files / reconstruction | estimate / (reconstruction "
-             "+ files) |", "|---|---|---|---|---|"]
+    lines = ["| size | threads | reconstruction s | whole / 4 quarters | files / reconstruction | estimate / "
+             "(reconstruction + files) |", "|---|---|---|---|---|---|"]
     for row in rows:
-        lines.append(f"| {row['size'][0]}x{row['size'][1]} | {row['whole']:.2f} | {row['whole_over_quarters']:.2f} | "
+        lines.append(f"| {row['size'][0]}x{row['size'][1]} | {row['threads']} | {row['whole']:.2f} | "
+                     f"{row['whole_over_quarters']:.2f} | "
                      f"{row['files_over_whole']:.2f} | {row['estimate_over_both']:.2f} |")
     return "\n".join(lines)
 
 
 def table(rows: list[dict[str, Any]]) -> str:
     """The rows as a Markdown table."""
-    lines = ["| renderer | scene | size | S | spp | rounds s | denoise + files s | command / S (worst) | wall s "
-             "(start-up) |", "|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| renderer | scene | size | threads | S | spp | rounds s | denoise + files s | command / S (worst) | "
+             "wall s (start-up) |", "|---|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
-        lines.append(f"| {row['renderer']} | {row['scene']} | {row['size'][0]}x{row['size'][1]} | {row['seconds']:g} "
+        lines.append(f"| {row['renderer']} | {row['scene']} | {row['size'][0]}x{row['size'][1]} | {row['threads']} "
+                     f"| {row['seconds']:g} "
                      f"| {row['spp']:.3g} | {row['rounds']:.1f} | {row['finish']:.1f} | "
                      f"{row['command_over_budget']:.2f} ({row['worst_over_budget']:.2f}) | {row['wall']:.1f} "
                      f"({row['startup']:.1f}) |")
@@ -170,6 +186,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--trial", nargs="*", metavar="WxH",
                         help="instead: what the prediction rests on, at these sizes (default 256x256 512x512 "
                              "1920x1080; section trial)")
+    parser.add_argument("--threads", type=int, choices=range(1, 65), metavar="N",
+                        help="awr render's --threads, and the trial's (default: the command's own, 2 or 1 on one CPU)")
     parser.add_argument("--output", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
     if not 1 <= args.repeats <= 99:
@@ -182,11 +200,11 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--trial: sizes as WxH")
         if any(len(size) != 2 or min(size) < 16 for size in sizes):
             parser.error("--trial: sizes as WxH, each side at least 16")
-        rows = trial(sizes, args.repeats)
+        rows = trial(sizes, args.repeats, args.threads)
         update_section(args.output, "trial", rows, command)
         print(trial_table(rows))
         return 0
-    rows = measure(args.renderers, args.repeats)
+    rows = measure(args.renderers, args.repeats, args.threads)
     update_section(args.output, "budget", rows, command)
     print(table(rows))
     return 0

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 
 import pytest
+
+from awr_denoise.cli.parallel_options import threads_from_args
 
 
 @pytest.fixture(scope="module")
@@ -19,6 +22,7 @@ def test_a_case_runs_the_command_and_reads_the_times_it_printed(bench, tmp_path)
     (row,) = saved["rows"]
     assert saved["command"] == f"benchmarks/bench_budget.py --renderers synthetic --repeats 1 --output {out}"
     assert (row["renderer"], row["scene"], row["size"], row["seconds"]) == ("synthetic", "edges", [64, 64], 1.0)
+    assert row["threads"] == threads_from_args(argparse.Namespace())  # the command's default, recorded
     (run,) = row["runs"]
     assert run["command"] == pytest.approx(run["rounds"] + run["finish"])
     assert row["command_over_budget"] == pytest.approx(run["command"] / 1.0)
@@ -34,9 +38,10 @@ def test_a_failing_command_is_an_error_not_a_row(bench):
 def test_the_trial_compares_a_whole_reconstruction_with_its_quarters_and_the_files(bench, tmp_path):
     pytest.importorskip("embreex", reason="the trial renders the bundled tracer's scene (extra tracer)")
     out = tmp_path / "budget.json"
-    assert bench.main(["--trial", "48x40", "--repeats", "2", "--output", str(out)]) == 0
+    assert bench.main(["--trial", "48x40", "--repeats", "2", "--threads", "3", "--output", str(out)]) == 0
     (row,) = json.loads(out.read_text())["trial"]["rows"]
     assert row["size"] == [48, 40] and all(len(row["runs"][key]) == 2 for key in row["runs"])
+    assert row["threads"] == 3
     assert row["whole_over_quarters"] == pytest.approx(row["whole"] / (4 * row["quarter"]))
     assert row["estimate_over_both"] == pytest.approx(row["estimate"] / (row["whole"] + row["files"]))
     assert row["whole"] > 0 and row["files"] > 0 and row["estimate"] > 0
