@@ -1,7 +1,8 @@
-"""``--workers``, ``--scheduler`` and ``--executor``: the parallel options of ``awr`` subcommands.
+"""``--workers``, ``--scheduler``, ``--executor`` and ``--threads``: the parallel options of ``awr`` subcommands.
 
-They select an executor of :mod:`awr_denoise.parallel` (docs/distributed.md); subcommands keep
-their plain serial path when none is given.
+The first three select an executor of :mod:`awr_denoise.parallel` (docs/distributed.md) for the work a subcommand
+splits (frames, tiles); subcommands keep their plain serial path when none is given. ``--threads`` is the thread
+pool of the command's own process that the library's calls take as their ``executor`` (docs/cli.md, "Threads").
 """
 
 from __future__ import annotations
