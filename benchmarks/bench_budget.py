@@ -49,7 +49,7 @@ CASES: dict[str, list[tuple[str, tuple[int, int], float]]] = {
     "synthetic": [("edges", (64, 64), 1.0)],
 }
 """(scene, (width, height), S) per renderer (``synthetic``: the script's test, not run by default)."""
-TRIAL_SIZES = ("256x256", "512x512", "1920x1080")
+TRIAL_SIZES = ("256x256", "512x512", "1920x1080", "3840x2160")
 """:func:`trial`'s sizes by default."""
 _STATUS = re.compile(r"([0-9.]+) spp \(awr\) in ([0-9.]+) s; .* in ([0-9.]+) s")
 """The command's last line: spp, the rounds' seconds, the denoising's and the files' seconds."""
@@ -185,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=3, metavar="N", help="runs of each case, interleaved (3)")
     parser.add_argument("--trial", nargs="*", metavar="WxH",
                         help="instead: what the prediction rests on, at these sizes (default 256x256 512x512 "
-                             "1920x1080; section trial)")
+                             "1920x1080 3840x2160; section trial)")
     parser.add_argument("--threads", type=int, choices=range(1, 65), metavar="N",
                         help="awr render's --threads, and the trial's (default: the command's own, 2 or 1 on one CPU)")
     parser.add_argument("--output", type=Path, default=RESULTS)
