@@ -2,7 +2,7 @@
 
 Run from the repository root::
 
-    .venv/bin/python benchmarks/bench_cli_threads.py                  # about 10 minutes on a 2-core machine
+    .venv/bin/python benchmarks/bench_cli_threads.py                  # about 8 minutes on a 2-core machine
     .venv/bin/python benchmarks/bench_cli_threads.py --size 640x360 --repeats 1
 
 Each case is a command in a new process, timed by its wall clock, with ``--threads 1`` and with ``--threads N``

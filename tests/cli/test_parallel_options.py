@@ -158,8 +158,8 @@ def _spied(monkeypatch, module, name: str) -> list:
 
 def test_render_and_denoise_run_the_library_on_their_threads_with_the_same_files(tmp_path, monkeypatch):
     """``--threads N`` gives the sampler's ranking and the reconstruction a pool of N threads (1: none), and every
-    file written is the one-thread run's, bit for bit. ``awr plan`` has none: one ``ask()`` in a new process was
-    slower on a pool (docs/cli.md, "Threads")."""
+    file written is the one-thread run's, bit for bit. ``awr plan`` has none: one ``ask()`` in a new process gained
+    nothing measurable on a pool (docs/cli.md, "Threads")."""
     pytest.importorskip("OpenEXR")
     from awr_denoise import sampling
     from awr_denoise.cli import render_cmd
