@@ -16,7 +16,6 @@ orthogonal or not, any boundary mode and any image size.
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -195,15 +194,13 @@ def _axis_operators(n: int, wavelet: str, boundary: str, levels: int) -> _AxisOp
     approx, detail = [], []
     previous = sparse.identity(n, format="csr")
     length = n
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        for _ in range(levels):
-            lo = _sparse_operator(lambda x: pywt.dwt(x, w, mode=boundary, axis=0)[0], length, (2, 1), _edge(w))
-            hi = _sparse_operator(lambda x: pywt.dwt(x, w, mode=boundary, axis=0)[1], length, (2, 1), _edge(w))
-            detail.append((hi @ previous).tocsr())
-            previous = (lo @ previous).tocsr()
-            approx.append(previous)
-            length = previous.shape[0]
+    for _ in range(levels):
+        lo = _sparse_operator(lambda x: pywt.dwt(x, w, mode=boundary, axis=0)[0], length, (2, 1), _edge(w))
+        hi = _sparse_operator(lambda x: pywt.dwt(x, w, mode=boundary, axis=0)[1], length, (2, 1), _edge(w))
+        detail.append((hi @ previous).tocsr())
+        previous = (lo @ previous).tocsr()
+        approx.append(previous)
+        length = previous.shape[0]
     approx_sq = tuple(m.multiply(m).tocsr() for m in approx)
     detail_sq = tuple(m.multiply(m).tocsr() for m in detail)
     single = lambda ms: tuple(m.astype(np.float32) for m in ms)  # noqa: E731
@@ -317,12 +314,13 @@ def forward(image: FloatArray, *, wavelet: str = DEFAULT_WAVELET, levels: int | 
 
 
 def _forward(image: FloatArray, wavelet: str, levels: int, boundary: str) -> list:
-    """:func:`forward` without the checks, for callers that made them."""
-    with warnings.catch_warnings():
-        # Levels past pywt's "useful" depth only mean every coefficient touches the boundary;
-        # the transform stays invertible and the variance propagation stays exact.
-        warnings.simplefilter("ignore", UserWarning)
-        return pywt.wavedec2(image, wavelet, mode=boundary, level=levels, axes=(0, 1))
+    """:func:`forward` without the checks: ``pywt.wavedec2``'s loop of ``dwt2`` (the same floats) without its warning
+    for levels past pywt's "useful" depth (harmless here), whose filter, process-wide, raced on executor threads."""
+    details = []
+    for _ in range(levels):
+        image, detail = pywt.dwt2(image, wavelet, mode=boundary, axes=(0, 1))
+        details.append(detail)
+    return [image, *reversed(details)]
 
 
 def inverse(coeffs: list, shape: Shape2D, *, wavelet: str = DEFAULT_WAVELET, boundary: str = "symmetric") -> FloatArray:
@@ -468,7 +466,10 @@ def _axis_diagonals(n: int, wavelet: str, boundary: str, levels: int,
 
     def synthesis(k: int, position: int) -> sparse.csr_matrix:
         # A level-k decomposition is [cA_k, cD_k, ..., cD_1]: the first k steps of the level-L one.
-        lengths = [c.shape[0] for c in pywt.wavedec(np.zeros(n), w, mode=boundary, level=k)]
+        sizes = [n]
+        for _ in range(k):
+            sizes.append(pywt.dwt_coeff_len(sizes[-1], w.dec_len, boundary))
+        lengths = [sizes[-1], *sizes[:0:-1]]
 
         def apply(impulses: np.ndarray) -> np.ndarray:
             coeffs = [np.zeros((m, impulses.shape[1])) for m in lengths]
@@ -477,10 +478,8 @@ def _axis_diagonals(n: int, wavelet: str, boundary: str, levels: int,
         # A level-k coefficient one place on moves its response 2^k samples on.
         return _sparse_operator(apply, lengths[position], (1, 2 ** k), _edge(w))
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)  # levels past pywt's "useful" depth, as in _axis_operators
-        approx = tuple(synthesis(k, 0).multiply(ops.approx[k - 1].T).tocsr() for k in range(1, levels + 1))
-        detail = tuple(synthesis(k, 1).multiply(ops.detail[k - 1].T).tocsr() for k in range(1, levels + 1))
+    approx = tuple(synthesis(k, 0).multiply(ops.approx[k - 1].T).tocsr() for k in range(1, levels + 1))
+    detail = tuple(synthesis(k, 1).multiply(ops.detail[k - 1].T).tocsr() for k in range(1, levels + 1))
     return approx, detail
 
 

@@ -332,3 +332,31 @@ def test_operators_of_a_long_side_are_built_in_linear_time():
     built = _sparse_operator(step, 8192, (2, 1), edge)
     assert sum(pushed) == 2 * edge + 2 + 2  # both edges, a template per phase, two random probes
     assert built.shape == (4100, 8192) and built.nnz <= 8 * 8192
+
+
+
+def test_levels_past_pywts_useful_depth_neither_warn_nor_touch_the_warnings_filters(rng, recwarn, monkeypatch):
+    """The transform and the diagonals' operators at levels where every coefficient touches the boundary: no warning,
+    and no change to the process' warnings filters. They silenced pywt's warning with ``warnings.catch_warnings``,
+    whose filters are the whole process': entered and left on an executor's threads while another thread warned, the
+    filters could be left ignoring the caller's warnings (``awr render --seconds``' TimeBudgetWarning was lost)."""
+    from awr_denoise import wavelets
+
+    def refused(*args, **kwargs):
+        raise AssertionError("the process' warnings filters changed")
+
+    shape = (37, 11)
+    levels = max_levels(shape)  # 3, where pywt's useful depth of 11 samples with bior4.4 is 0
+    assert levels > pywt.dwt_max_level(11, pywt.Wavelet("bior4.4").dec_len)
+    image = rng.random(shape)
+    wavelets._axis_operators.cache_clear()  # built again here, not taken from an earlier test
+    wavelets._axis_diagonals.cache_clear()
+    with monkeypatch.context() as patch:  # only around the calls: pytest's own reports use these
+        for name in ("catch_warnings", "simplefilter", "filterwarnings", "resetwarnings"):
+            patch.setattr(warnings, name, refused)
+        coeffs = forward(image, levels=levels)
+        ones = [np.ones_like(coeffs[0])] + [tuple(np.ones_like(b) for b in bands) for bands in coeffs[1:]]
+        diagonal = shrinkage_diagonal(ones, wavelet_operators(shape, levels=levels))
+    assert not recwarn.list, [str(w.message) for w in recwarn.list]
+    assert_allclose(inverse(coeffs, shape), image, atol=1e-12)
+    assert_allclose(diagonal, 1.0, atol=1e-12)  # every factor 1: the identity map, its diagonal all ones
