@@ -61,14 +61,21 @@ with library_threads(int(sys.argv[-1])) as pool:  # after --threads
 """``awr plan``'s work on a pool (``--threads`` its last argument), which the command does not offer."""
 
 
+def _shown(command: list[str]) -> str:
+    """``command`` as the results and the errors name it: ``awr ...``, or ``python -c PLAN ...``."""
+    awr = _awr()
+    if command[:len(awr)] == awr:
+        return "awr " + " ".join(command[len(awr):])
+    return "python -c PLAN " + " ".join(command[3:]) + " (benchmarks/bench_cli_threads.py)"
+
+
 def _run(command: list[str], cwd: Path) -> float:
     """The wall time of ``command`` in ``cwd``; a failing command is an error, not a time."""
     start = time.perf_counter()
     done = subprocess.run(command, cwd=cwd, capture_output=True, text=True)
     wall = time.perf_counter() - start
     if done.returncode != 0:
-        shown = "awr " + " ".join(command[len(_awr()):]) if command[:len(_awr())] == _awr() else "the plan's script"
-        raise RuntimeError(f"{shown}: exit {done.returncode}: {done.stderr.strip()}")
+        raise RuntimeError(f"{_shown(command)}: exit {done.returncode}: {done.stderr.strip()}")
     return wall
 
 
@@ -110,9 +117,7 @@ def measure(size: str, spp: int, threads: int, repeats: int, cases: tuple[str, .
     results = []
     for case in cases:
         one, many = (statistics.median(rows[case][count]) for count in rows[case])
-        shown = ("awr " + " ".join(commands[case][len(_awr()):]) if case != "plan"
-                 else "python -c PLAN running.exr request.exr (benchmarks/bench_cli_threads.py)")
-        results.append({"case": case, "timed": shown + " --threads N", "runs": rows[case],
+        results.append({"case": case, "timed": _shown(commands[case]) + " --threads N", "runs": rows[case],
                          "one_thread": one, "threads": many, "speed_up": one / many,
                          "speed_up_above_the_floor": (one - base) / (many - base)})
     return {"size": size, "spp": spp, "pool": threads, "repeats": repeats, "floor": base, "floor_runs": floor,
