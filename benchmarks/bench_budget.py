@@ -2,7 +2,7 @@
 
 Run from the repository root::
 
-    .venv/bin/python benchmarks/bench_budget.py                       # about 6 minutes
+    .venv/bin/python benchmarks/bench_budget.py                       # about 12 minutes
     .venv/bin/python benchmarks/bench_budget.py --renderers tracer --repeats 1
 
 Each case runs the command as a user does (a new process: ``awr render --seconds S`` on a scene at a size,
@@ -19,13 +19,17 @@ unless this script's ``--threads`` says otherwise. Results: ``benchmarks/results
 tracer's default scene at each size, the default reconstruction of the whole image against four times its
 central quarter's (``RESERVE_MARGIN``), writing the dump, the image and the preview against the reconstruction
 (``WRITE_SHARE``), and ``reconstruction_seconds``' estimate against both together; ``--repeats`` times
-interleaved, medians; the reconstructions on the threads ``awr render`` gives them (``--threads``).
+interleaved, medians; the reconstructions on the threads ``awr render`` gives them (``--threads``). Each repeat
+is a new process that does what the command does, in its order: the memory setting ``awr`` makes when it starts
+(``cli/memory.py``; ``--allocator glibc`` leaves glibc's default, as a Python caller has it), the estimate on the
+central quarter (the process' first reconstruction), the whole reconstruction, the files.
 """
 
 from __future__ import annotations
 
 import argparse
 import functools
+import json
 import re
 import statistics
 import subprocess
@@ -37,14 +41,16 @@ from typing import Any
 
 from awr_denoise import SampleRequest, reconstruct_detailed
 from awr_denoise.bench import update_section
-from awr_denoise.io import write_image, write_preview, write_sample_buffer
-from awr_denoise.renderers import create_renderer
-from awr_denoise.rounds import reconstruction_seconds
+from awr_denoise.cli.memory import keep_freed_memory
 from awr_denoise.cli.parallel_options import library_threads, threads_from_args
+from awr_denoise.io import read_sample_buffer, write_image, write_preview, write_sample_buffer
+from awr_denoise.renderers import create_renderer
+from awr_denoise.rounds import RESERVE_MARGIN, WHOLE_BELOW, reconstruction_seconds
 
 RESULTS = Path(__file__).resolve().parent / "results" / "budget.json"
 CASES: dict[str, list[tuple[str, tuple[int, int], float]]] = {
-    "tracer": [("default", (256, 256), 5.0), ("default", (512, 512), 10.0), ("default", (1920, 1080), 30.0)],
+    "tracer": [("default", (256, 256), 5.0), ("default", (512, 512), 10.0), ("default", (1920, 1080), 30.0),
+               ("default", (3840, 2160), 120.0)],
     "mitsuba": [("cornell_box", (256, 256), 5.0), ("cornell_box", (1920, 1080), 30.0)],
     "synthetic": [("edges", (64, 64), 1.0)],
 }
@@ -118,33 +124,35 @@ def _files(buffer: Any, image: Any) -> None:
         write_preview(Path(folder) / "dump.denoised.png", image)
 
 
-def trial(sizes: list[tuple[int, int]], repeats: int, threads: int | None = None) -> list[dict[str, Any]]:
+ALLOCATORS = ("command", "glibc")
+"""``--allocator``: the memory setting ``awr`` makes when it starts (``cli/memory.py``), or glibc's default."""
+
+
+def trial(sizes: list[tuple[int, int]], repeats: int, threads: int | None = None, allocator: str = "command"
+          ) -> list[dict[str, Any]]:
     """Per size: the whole reconstruction over four quarters', the files over the reconstruction, the estimate
-    over both (2-spp uniform buffers of the tracer's default scene; medians of ``repeats``, interleaved), the
-    reconstruction on ``threads`` as ``awr render --threads`` runs it (the command's default for ``None``)."""
+    over both (2-spp uniform buffers of the tracer's default scene; medians of ``repeats``, interleaved, each a
+    new process: :func:`trial_once`), the reconstruction on ``threads`` as ``awr render --threads`` runs it (the
+    command's default for ``None``) and with ``allocator``'s memory setting."""
     count = threads_from_args(argparse.Namespace(threads=threads))
-    with library_threads(count) as pool:
-        rows = _trial(sizes, repeats, functools.partial(reconstruct_detailed, variance_probes=0, executor=pool))
-    return [{**row, "threads": count} for row in rows]
-
-
-def _trial(sizes: list[tuple[int, int]], repeats: int, denoise: Any) -> list[dict[str, Any]]:
-    buffers = []
-    for width, height in sizes:
-        renderer = create_renderer("tracer", "default", shape=(height, width), seed=0)
-        buffers.append(renderer(SampleRequest.uniform((height, width), 2)))
     found: list[dict[str, list[float]]] = [{} for _ in sizes]
-    for _ in range(repeats):
-        for buffer, seen in zip(buffers, found):
-            h, w = buffer.shape
-            quarter = buffer.crop(slice(h // 4, h // 4 + h // 2), slice(w // 4, w // 4 + w // 2))
-            started = time.perf_counter()
-            image = denoise(buffer).image
-            whole = time.perf_counter() - started
-            times = {"whole": whole, "quarter": _seconds(denoise, quarter), "files": _seconds(_files, buffer, image),
-                     "estimate": reconstruction_seconds(buffer, denoise)}
-            for key, value in times.items():
-                seen.setdefault(key, []).append(value)
+    applied = set()
+    with tempfile.TemporaryDirectory() as folder:
+        dumps = []
+        for width, height in sizes:
+            renderer = create_renderer("tracer", "default", shape=(height, width), seed=0)
+            dumps.append(Path(folder) / f"{width}x{height}.exr")
+            write_sample_buffer(dumps[-1], renderer(SampleRequest.uniform((height, width), 2)))
+        for _ in range(repeats):
+            for dump, seen in zip(dumps, found):
+                done = subprocess.run([sys.executable, __file__, "--trial-once", str(dump), "--threads", str(count),
+                                       "--allocator", allocator], capture_output=True, text=True, check=False)
+                if done.returncode != 0:
+                    raise RuntimeError(f"trial of {dump.name}: exit {done.returncode}: {done.stderr.strip()}")
+                times = json.loads(done.stdout)
+                applied.add(times.pop("allocator"))
+                for key, value in times.items():
+                    seen.setdefault(key, []).append(value)
     rows = []
     for (width, height), seen in zip(sizes, found):
         median = {key: statistics.median(values) for key, values in seen.items()}
@@ -152,15 +160,37 @@ def _trial(sizes: list[tuple[int, int]], repeats: int, denoise: Any) -> list[dic
                      "whole_over_quarters": median["whole"] / (4 * median["quarter"]),
                      "files_over_whole": median["files"] / median["whole"],
                      "estimate_over_both": median["estimate"] / (median["whole"] + median["files"])})
-    return rows
+    (used,) = applied  # the same in every process: the environment is this script's
+    return [{**row, "threads": count, "allocator": used} for row in rows]
+
+
+def trial_once(dump: Path, threads: int, allocator: str) -> dict[str, Any]:
+    """One repeat of the trial, in this (new) process, in the command's order: ``allocator``'s memory setting,
+    the estimate (its quarter's reconstruction the process' first), the whole reconstruction, the files. The
+    quarter's time is the estimate's over ``RESERVE_MARGIN`` and the pixels' ratio (the whole image's below
+    ``WHOLE_BELOW`` pixels, which the estimate times whole)."""
+    kept = allocator == "command" and keep_freed_memory()
+    buffer = read_sample_buffer(dump)
+    h, w = buffer.shape
+    with library_threads(threads) as pool:
+        denoise = functools.partial(reconstruct_detailed, variance_probes=0, executor=pool)
+        estimate = reconstruction_seconds(buffer, denoise)
+        started = time.perf_counter()
+        image = denoise(buffer).image
+        whole = time.perf_counter() - started
+    quartered = h * w >= WHOLE_BELOW
+    quarter = estimate / RESERVE_MARGIN / ((h * w) / ((h // 2) * (w // 2)) if quartered else 4)
+    return {"whole": whole, "quarter": quarter, "files": _seconds(_files, buffer, image), "estimate": estimate,
+            "allocator": "command" if kept else "glibc"}
 
 
 def trial_table(rows: list[dict[str, Any]]) -> str:
     """The trial's rows as a Markdown table."""
-    lines = ["| size | threads | reconstruction s | whole / 4 quarters | files / reconstruction | estimate / "
-             "(reconstruction + files) |", "|---|---|---|---|---|---|"]
+    lines = ["| size | threads | memory | reconstruction s | whole / 4 quarters | files / reconstruction | estimate / "
+             "(reconstruction + files) |", "|---|---|---|---|---|---|---|"]
     for row in rows:
-        lines.append(f"| {row['size'][0]}x{row['size'][1]} | {row['threads']} | {row['whole']:.2f} | "
+        lines.append(f"| {row['size'][0]}x{row['size'][1]} | {row['threads']} | {row['allocator']} | "
+                     f"{row['whole']:.2f} | "
                      f"{row['whole_over_quarters']:.2f} | "
                      f"{row['files_over_whole']:.2f} | {row['estimate_over_both']:.2f} |")
     return "\n".join(lines)
@@ -188,8 +218,14 @@ def main(argv: list[str] | None = None) -> int:
                              "1920x1080 3840x2160; section trial)")
     parser.add_argument("--threads", type=int, choices=range(1, 65), metavar="N",
                         help="awr render's --threads, and the trial's (default: the command's own, 2 or 1 on one CPU)")
+    parser.add_argument("--allocator", choices=ALLOCATORS, default="command",
+                        help="the trial's memory: awr's setting (command, default) or glibc's default (glibc)")
+    parser.add_argument("--trial-once", type=Path, help=argparse.SUPPRESS)  # one repeat's new process
     parser.add_argument("--output", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
+    if args.trial_once is not None:
+        print(json.dumps(trial_once(args.trial_once, args.threads or 1, args.allocator)))
+        return 0
     if not 1 <= args.repeats <= 99:
         parser.error("--repeats: 1 to 99")
     command = "benchmarks/bench_budget.py " + " ".join(sys.argv[1:] if argv is None else argv)
@@ -200,7 +236,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--trial: sizes as WxH")
         if any(len(size) != 2 or min(size) < 16 for size in sizes):
             parser.error("--trial: sizes as WxH, each side at least 16")
-        rows = trial(sizes, args.repeats, args.threads)
+        rows = trial(sizes, args.repeats, args.threads, args.allocator)
         update_section(args.output, "trial", rows, command)
         print(trial_table(rows))
         return 0

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import subprocess
+import sys
 
 import pytest
 
@@ -35,16 +37,30 @@ def test_a_failing_command_is_an_error_not_a_row(bench):
         bench.render("synthetic", "no_such_scene", (64, 64), 1.0, seed=0)
 
 
-def test_the_trial_compares_a_whole_reconstruction_with_its_quarters_and_the_files(bench, tmp_path):
+def _command_keeps_freed_memory() -> bool:
+    """Whether ``awr``'s memory setting applies here, asked in a new process (it changes the process' allocator)."""
+    done = subprocess.run([sys.executable, "-c", "from awr_denoise.cli.memory import keep_freed_memory; "
+                           "print(keep_freed_memory())"], capture_output=True, text=True, check=True)
+    return done.stdout.strip() == "True"
+
+
+@pytest.mark.parametrize("allocator", ["command", "glibc"])
+def test_the_trial_compares_a_whole_reconstruction_with_its_quarters_and_the_files(bench, tmp_path, allocator):
     pytest.importorskip("embreex", reason="the trial renders the bundled tracer's scene (extra tracer)")
     out = tmp_path / "budget.json"
-    assert bench.main(["--trial", "48x40", "--repeats", "2", "--threads", "3", "--output", str(out)]) == 0
-    (row,) = json.loads(out.read_text())["trial"]["rows"]
-    assert row["size"] == [48, 40] and all(len(row["runs"][key]) == 2 for key in row["runs"])
-    assert row["threads"] == 3
-    assert row["whole_over_quarters"] == pytest.approx(row["whole"] / (4 * row["quarter"]))
-    assert row["estimate_over_both"] == pytest.approx(row["estimate"] / (row["whole"] + row["files"]))
-    assert row["whole"] > 0 and row["files"] > 0 and row["estimate"] > 0
+    assert bench.main(["--trial", "48x40", "160x144", "--repeats", "2", "--threads", "3", "--allocator", allocator,
+                       "--output", str(out)]) == 0
+    small, large = json.loads(out.read_text())["trial"]["rows"]
+    kept = allocator == "command" and _command_keeps_freed_memory()
+    for row, size in ((small, [48, 40]), (large, [160, 144])):
+        assert row["size"] == size and all(len(row["runs"][key]) == 2 for key in row["runs"])
+        assert row["threads"] == 3 and row["allocator"] == ("command" if kept else "glibc")
+        assert row["whole_over_quarters"] == pytest.approx(row["whole"] / (4 * row["quarter"]))
+        assert row["estimate_over_both"] == pytest.approx(row["estimate"] / (row["whole"] + row["files"]))
+        assert row["whole"] > 0 and row["files"] > 0 and row["estimate"] > 0
+    # The quarter is the estimate's own: timed whole below WHOLE_BELOW pixels, on a quarter above.
+    assert small["quarter"] == pytest.approx(small["estimate"] / bench.RESERVE_MARGIN / 4)
+    assert large["quarter"] == pytest.approx(large["estimate"] / bench.RESERVE_MARGIN / 4)
 
 
 @pytest.mark.parametrize("sizes", [["48"], ["48x"], ["8x8"], ["1x2x3"]])
