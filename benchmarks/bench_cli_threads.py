@@ -34,15 +34,10 @@ from pathlib import Path
 from typing import Any
 
 from awr_denoise.bench import command_line, load_average, machine_info, write_json
+from awr_denoise.bench.measure import awr_command
 
 RESULTS = Path(__file__).resolve().parent / "results" / "cli_threads.json"
 CASES = ("denoise", "plan", "render")
-
-
-def _awr() -> list[str]:
-    """The installed ``awr`` console script next to this interpreter, as a user starts it."""
-    script = Path(sys.executable).with_name("awr")
-    return [str(script)] if script.exists() else [sys.executable, "-m", "awr_denoise.cli.main"]
 
 
 PLAN = """
@@ -63,7 +58,7 @@ with library_threads(int(sys.argv[-1])) as pool:  # after --threads
 
 def _shown(command: list[str]) -> str:
     """``command`` as the results and the errors name it: ``awr ...``, or ``python -c PLAN ...``."""
-    awr = _awr()
+    awr = awr_command()
     if command[:len(awr)] == awr:
         return "awr " + " ".join(command[len(awr):])
     return "python -c PLAN " + " ".join(command[3:]) + " (benchmarks/bench_cli_threads.py)"
@@ -89,9 +84,9 @@ def _commands(size: str, spp: int) -> dict[str, list[str]]:
     """Each case's command, run in the folder of its inputs."""
     scene = _scene(size)
     return {
-        "denoise": [*_awr(), "denoise", "uniform.exr", "-o", "out.exr", "-q", "--overwrite"],
+        "denoise": [*awr_command(), "denoise", "uniform.exr", "-o", "out.exr", "-q", "--overwrite"],
         "plan": [sys.executable, "-c", PLAN, "running.exr", "request.exr"],
-        "render": [*_awr(), "render", *scene, "--spp", str(spp), "--adaptive", "-o", "render.exr", "-q",
+        "render": [*awr_command(), "render", *scene, "--spp", str(spp), "--adaptive", "-o", "render.exr", "-q",
                    "--overwrite"],
     }
 
@@ -105,11 +100,11 @@ def measure(size: str, spp: int, threads: int, repeats: int, cases: tuple[str, .
         work = Path(folder)
         # The inputs, once (not timed): a uniform dump and a running adaptive one.
         for kind, name in (("--uniform", "uniform.exr"), ("--adaptive", "running.exr")):
-            _run([*_awr(), "render", *scene, "--spp", str(spp), kind, "-o", name, "-q", "--threads", "1"], work)
+            _run([*awr_command(), "render", *scene, "--spp", str(spp), kind, "-o", name, "-q", "--threads", "1"], work)
         for case in cases:  # a warm-up run of each (the file system's caches), not timed
             _run([*commands[case], "--threads", "1"], work)
         for _ in range(repeats):
-            floor.append(_run([*_awr(), "--version"], work))
+            floor.append(_run([*awr_command(), "--version"], work))
             for case in cases:
                 for count in rows[case]:
                     rows[case][count].append(_run([*commands[case], "--threads", count], work))

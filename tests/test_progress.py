@@ -5,9 +5,10 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
+
+from awr_denoise.bench.measure import awr_command
 
 
 @pytest.mark.parametrize(("variable", "value"), [("TQDM_NCOLS", "abc"), ("TQDM_MININTERVAL", "x")])
@@ -19,9 +20,7 @@ def test_a_tqdm_variable_it_cannot_read_is_named(variable, value):
                              env=env, timeout=120)
     assert library.returncode == 1 and f"ValueError: {variable}: tqdm cannot read" in library.stderr
     assert "TQDM_DISABLE" not in library.stderr
-    script = Path(sys.executable).with_name("awr")  # the installed console script: its real start-up path
-    awr = [str(script)] if script.exists() else [sys.executable, "-m", "awr_denoise.cli.main"]
-    command = subprocess.run([*awr, "--version"], capture_output=True, text=True, env=env, timeout=120)
+    command = subprocess.run([*awr_command(), "--version"], capture_output=True, text=True, env=env, timeout=120)
     assert command.returncode == 2
     (line,) = command.stderr.strip().splitlines()
     assert line.startswith(f"awr: error: {variable}: tqdm cannot read this environment variable (") and value in line

@@ -8,10 +8,12 @@ time (never a name bound at import), so a test can substitute a deterministic cl
 from __future__ import annotations
 
 import statistics
+import sys
 import time
 import tracemalloc
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
@@ -22,7 +24,7 @@ from ..buffers import SampleBuffer
 from ..requests import Renderer
 from ..sampling import Sampler
 
-__all__ = ["Timing", "run_progressive", "timed", "median_time", "peak_memory", "noisy_buffer"]
+__all__ = ["Timing", "run_progressive", "timed", "median_time", "peak_memory", "noisy_buffer", "awr_command"]
 
 T = TypeVar("T")
 
@@ -202,3 +204,20 @@ def noisy_buffer(shape: Shape2D, spp: int = 4, seed: int = 0, *, smooth: float =
     var = rng.uniform(0.0, 0.1, (h, w, 3))
     mean = base + rng.normal(0, noise, base.shape) if noise > 0 else base
     return SampleBuffer.from_moments(np.full((h, w), spp), mean, var)
+
+
+def awr_command() -> list[str]:
+    """How a user starts ``awr``: the console script installed next to this interpreter, else the module.
+
+    The scripts under ``benchmarks/`` time the command as a user runs it (its real start-up path); the tests of
+    the command run it the same way.
+
+    Examples
+    --------
+    >>> import subprocess
+    >>> from awr_denoise.bench.measure import awr_command
+    >>> subprocess.run([*awr_command(), "--version"], capture_output=True, text=True).stdout.split()[0]
+    'awr'
+    """
+    script = Path(sys.executable).with_name("awr")
+    return [str(script)] if script.exists() else [sys.executable, "-m", "awr_denoise.cli.main"]

@@ -33,7 +33,7 @@ def test_every_case_is_timed_on_both_and_the_ratios_are_of_the_medians(bench, tm
 
 def test_a_failing_command_is_an_error_not_a_time(bench, tmp_path):
     with pytest.raises(RuntimeError, match=r"^awr denoise missing\.exr -o o\.exr: exit 2: awr: error: "):
-        bench._run([*bench._awr(), "denoise", "missing.exr", "-o", "o.exr"], tmp_path)
+        bench._run([*bench.awr_command(), "denoise", "missing.exr", "-o", "o.exr"], tmp_path)
     with pytest.raises(RuntimeError, match=r"(?s)^python -c PLAN running\.exr request\.exr --threads 2 \(benchmarks/bench_cli_threads\.py\): "
                                            r"exit 1: .*running\.exr: no such file"):
         bench._run([*bench._commands("40x24", 4)["plan"], "--threads", "2"], tmp_path)

@@ -6,7 +6,6 @@ from __future__ import annotations
 import hashlib
 import os
 import subprocess
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from awr_denoise import SampleBuffer, SampleRequest
+from awr_denoise.bench.measure import awr_command
 from awr_denoise.io import write_image, write_request, write_sample_buffer
 
 H, W = 24, 32
@@ -90,12 +90,6 @@ def one_error_line(err: str, *needles: str) -> str:
     for needle in needles:
         assert needle in lines[0], (needle, lines[0])
     return lines[0]
-
-
-def awr_command() -> list[str]:
-    """The installed ``awr`` console script next to this interpreter (its real start-up path)."""
-    script = Path(sys.executable).with_name("awr")
-    return [str(script)] if script.exists() else [sys.executable, "-m", "awr_denoise.cli.main"]
 
 
 def run_awr(args: Sequence[object], cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess:
