@@ -56,10 +56,11 @@ ranking sends them to other pixels, scattered (beside Mitsuba 3 1.85 times round
 
 RESERVE_MARGIN = 1.3
 """:func:`reconstruction_seconds`' factor on a reconstruction's time scaled from its buffer's central quarter: a
-whole image took 0.84-1.05 times four quarters' time at 256x256 and 512x512, and the machine's load moves single
-timings by a tenth or more. At 1920x1080 and 3840x2160 it took 1.21-1.45 times (its work grows faster than its pixels
-there): the estimate is then about the reconstruction's own time (0.95-1.05 of it), with no room for the load; a
-caller that also writes files reserves their share on top (``awr render``'s ``WRITE_SHARE``). A margin of 1.6 cost
+whole image took 0.79-1.03 times four quarters' time at 256x256 and 512x512, and the machine's load moves single
+timings by a tenth or more. At 1920x1080 and 3840x2160 it took 1.03-1.26 times in the ``awr`` command's memory setting
+and 1.26-1.34 times in glibc's default, whose fresh mappings of whole-image temporaries fault in: the estimate is then
+1.03-1.27 times the reconstruction's own time in the command, about that time (0.98) at 3840x2160 in glibc's default.
+A caller that also writes files reserves their share on top (``awr render``'s ``WRITE_SHARE``). A margin of 1.6 cost
 every size samples under a time budget (docs/sampling.md, "A time budget": ``benchmarks/bench_budget.py --trial``)."""
 
 WHOLE_BELOW = 128 * 128

@@ -54,9 +54,9 @@ TRACER = "tracer"
 DEFAULT_RENDER_SPP = 16.0
 """``awr render``'s samples per pixel when given neither ``--spp`` nor ``--seconds``."""
 WRITE_SHARE = 0.3
-"""Under ``--seconds``, writing the dump, the image and the preview as a share of the denoising's time: 0.19-0.24
-at 256x256 to 1920x1080 (medians; single runs up to 0.37), with a margin (docs/sampling.md, "A time budget":
-``benchmarks/bench_budget.py --trial``)."""
+"""Under ``--seconds``, writing the dump, the image and the preview as a share of the denoising's time: 0.13-0.23
+at 1920x1080 and 3840x2160, up to 0.38 at 256x256 and 512x512, where the estimate's own margin covers the rest
+(medians; docs/sampling.md, "A time budget": ``benchmarks/bench_budget.py --trial``)."""
 
 
 def tracer_module() -> ModuleType:
