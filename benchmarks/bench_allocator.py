@@ -1,4 +1,4 @@
-"""The ``awr`` command's allocator setting (cli/memory.py) against glibc's default, side by side.
+"""The ``awr`` command's allocator setting (awr_denoise/memory.py) against glibc's default, side by side.
 
 Run from the repository root::
 
@@ -33,7 +33,7 @@ _ONE_PROCESS = """
 import json, resource, sys, time
 keep = sys.argv[1] == "keep"
 if keep:
-    from awr_denoise.cli.memory import keep_freed_memory
+    from awr_denoise.memory import keep_freed_memory
     assert keep_freed_memory(), "not glibc, or the allocator is set in the environment"
 from awr_denoise import AdaptiveSampler, SampleRequest, reconstruct
 from awr_denoise.synthetic import SyntheticRenderer, make_scene

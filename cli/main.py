@@ -25,10 +25,10 @@ from collections.abc import Sequence
 from concurrent.futures import BrokenExecutor, CancelledError
 from typing import Any
 
-from awr_denoise import __version__
+from awr_denoise import __version__, memory
 from awr_denoise.errors import BackendError, InputFileError
 
-from . import interrupts, memory
+from . import interrupts
 from .errors import (
     EXIT_BROKEN_PIPE,
     EXIT_FAILURE,
@@ -341,7 +341,7 @@ def main(argv: Sequence[str] | None = None, *, ending: bool = False) -> int:
     if too_little is not None:
         print(f"awr: error: {too_little}", file=sys.stderr)
         return EXIT_FAILURE
-    memory.keep_freed_memory()  # whole-image temporaries reused, not mapped afresh (cli/memory.py)
+    memory.keep_freed_memory()  # whole-image temporaries reused, not mapped afresh (awr_denoise/memory.py)
     _standard_streams()
     stderr = sys.stderr
     sys.stderr = _DiagnosticStream(stderr)  # type: ignore[assignment]

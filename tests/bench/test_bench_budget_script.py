@@ -39,7 +39,7 @@ def test_a_failing_command_is_an_error_not_a_row(bench):
 
 def _command_keeps_freed_memory() -> bool:
     """Whether ``awr``'s memory setting applies here, asked in a new process (it changes the process' allocator)."""
-    done = subprocess.run([sys.executable, "-c", "from awr_denoise.cli.memory import keep_freed_memory; "
+    done = subprocess.run([sys.executable, "-c", "from awr_denoise.memory import keep_freed_memory; "
                            "print(keep_freed_memory())"], capture_output=True, text=True, check=True)
     return done.stdout.strip() == "True"
 

@@ -1,4 +1,4 @@
-"""The command keeps freed memory for its next arrays (cli/memory.py)."""
+"""A process keeps freed memory for its next arrays when asked (awr_denoise/memory.py); the awr command asks."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from awr_denoise.cli import memory
+from awr_denoise import memory
 
 _GLIBC = hasattr(os, "confstr") and (os.confstr("CS_GNU_LIBC_VERSION") or "").startswith("glibc")
 pytestmark = pytest.mark.skipif(not _GLIBC, reason="mallopt is glibc's")
@@ -16,7 +16,7 @@ pytestmark = pytest.mark.skipif(not _GLIBC, reason="mallopt is glibc's")
 _SECOND_ARRAY_FAULTS = """
 import resource, sys
 import numpy as np
-from awr_denoise.cli import memory
+from awr_denoise import memory
 print(memory.keep_freed_memory() if sys.argv[1] == "keep" else False)
 np.ones(8 << 20).sum()  # 64 MiB, above glibc's default mmap threshold
 before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt

@@ -1,13 +1,15 @@
-"""The ``awr`` process keeps the memory it frees for its next arrays (glibc's ``mallopt``).
+"""Keeping freed memory for the next arrays: glibc's ``mallopt``, opt-in for the process.
 
 glibc hands each allocation above its mmap threshold (at most 32 MiB by default; a 1080p RGB plane
 in float64 is 50 MB) to the kernel and back, so every whole-image temporary of a reconstruction or an
 ``ask()`` is a fresh mapping whose pages fault in, zero-filled, on first touch. Measured
 (docs/performance.md, "Keeping freed memory"): a 1080p default reconstruction in 0.71x the time
-from its second call on, for 13% more peak memory. The command sets the
-threshold and the trim threshold to :data:`KEEP_BELOW` so that its arrays come from the heap and are
-reused; the library itself never changes its host process' allocator (a Python caller sets the same
-with ``MALLOC_MMAP_THRESHOLD_`` and ``MALLOC_TRIM_THRESHOLD_`` in the environment).
+from its second call on, for 13% more peak memory. :func:`keep_freed_memory` sets the threshold and
+the trim threshold to :data:`KEEP_BELOW` so that the process' arrays come from the heap and are reused.
+
+The library never calls it on import: the allocator is the whole process', and its host (a renderer,
+a notebook) may want its own. The ``awr`` command calls it when it starts; a Python caller calls it
+once, or sets ``MALLOC_MMAP_THRESHOLD_`` and ``MALLOC_TRIM_THRESHOLD_`` in the environment.
 """
 
 from __future__ import annotations
@@ -26,12 +28,23 @@ _USERS_SETTINGS = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_T
 
 
 def keep_freed_memory() -> bool:
-    """Set glibc's thresholds to :data:`KEEP_BELOW`; whether they were set.
+    """Set glibc's thresholds to :data:`KEEP_BELOW` for this whole process; whether they were set.
 
     Left alone: other C libraries (macOS, musl, Windows), a user's own allocator settings (the
     ``MALLOC_*_`` variables, ``glibc.malloc`` tunables in ``GLIBC_TUNABLES``, a preloaded allocator) and an
     address-space limit (``ulimit -v``), under which memory kept by the heap is memory a later mapping
-    cannot have.
+    cannot have. It changes no result, only the time of large arrays (the reconstruction of paper section
+    5, Eq. 10-11, and the sampler's ``ask()``, section 4, at 1080p and above) and the peak memory.
+
+    Examples
+    --------
+    Once, before the large images (docs/performance.md, "Keeping freed memory"):
+
+    >>> from awr_denoise.memory import KEEP_BELOW, keep_freed_memory
+    >>> KEEP_BELOW == 2**30  # blocks under 1 GiB come from the heap
+    True
+    >>> keep_freed_memory()  # doctest: +SKIP  (it changes this process' allocator; False off glibc)
+    True
     """
     try:
         if not os.confstr("CS_GNU_LIBC_VERSION").startswith("glibc"):  # type: ignore[union-attr]
