@@ -51,6 +51,7 @@ import numpy as np
 from awr_denoise import AdaptiveSampler, SampleRequest, fused, reconstruct
 from awr_denoise.adapters import mitsuba_scenes
 from awr_denoise.adapters.mitsuba import MitsubaRenderer
+from awr_denoise.memory import keep_freed_memory
 from awr_denoise.metrics import RELMSE_EPSILON, mse, relmse
 from awr_denoise.reconstruct import DEFAULT_WIENER_EXPONENTS
 from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP
@@ -419,6 +420,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=1,
                         help="threads of the executor the sampler and the reconstruction use between renders "
                              "(default 1: none; Mitsuba's own threads are unchanged)")
+    parser.add_argument("--keep-freed-memory", action="store_true",
+                        help="the memory setting awr makes when it starts (awr_denoise.memory.keep_freed_memory), "
+                             "as awr render --renderer mitsuba runs; default: glibc's, as a Python caller has it")
     parser.add_argument("--cache", type=Path, default=CACHE)
     parser.add_argument("--regenerate-references", action="store_true")
     parser.add_argument("--update", action="store_true",
@@ -453,6 +457,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.scenes == list(mitsuba_scenes.SCENE_NAMES):
             args.scenes = ["cornell_box"]
     output = args.output if args.output is not None else (None if args.quick else RESULTS)
+    kept = keep_freed_memory() if args.keep_freed_memory else False  # before any large array
 
     cases = [(name, tuple(args.size), args.spp, args.reference_spp, args.repeats) for name in args.scenes]
     if not args.no_hd:
@@ -488,7 +493,7 @@ def main(argv: list[str] | None = None) -> int:
                                                                          ("uniform_fraction", args.uniform_fraction))
                                          if value is not None},
                      "reconstruct_options": {} if args.stages is None else {"stages": args.stages},
-                     "library_threads": args.threads},
+                     "library_threads": args.threads, "keep_freed_memory": kept},
         "scenes": [],
     }
     pool = ThreadPoolExecutor(args.threads) if args.threads > 1 else None
