@@ -43,8 +43,10 @@ def keep_freed_memory() -> bool:
     >>> from awr_denoise.memory import KEEP_BELOW, keep_freed_memory
     >>> KEEP_BELOW == 2**30  # blocks under 1 GiB come from the heap
     True
-    >>> keep_freed_memory()  # doctest: +SKIP  (it changes this process' allocator; False off glibc)
+    >>> keep_freed_memory()  # doctest: +SKIP
     True
+
+    (Skipped here: it would change the allocator of the process running the examples.)
     """
     try:
         if not os.confstr("CS_GNU_LIBC_VERSION").startswith("glibc"):  # type: ignore[union-attr]
