@@ -17,6 +17,8 @@ _SECOND_ARRAY_FAULTS = """
 import resource, sys
 import numpy as np
 from awr_denoise import memory
+if sys.argv[1] == "library":  # the library and the command's modules imported, nothing called
+    import awr_denoise.cli.main, awr_denoise.io, awr_denoise.reconstruct, awr_denoise.sampling
 print(memory.keep_freed_memory() if sys.argv[1] == "keep" else False)
 np.ones(8 << 20).sum()  # 64 MiB, above glibc's default mmap threshold
 before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
@@ -39,6 +41,12 @@ def test_a_freed_whole_image_array_is_reused_not_mapped_afresh():
     default, faults_default = _second_array_faults("default")
     assert (kept, default) == ("True", "False")
     assert faults_kept < 16 <= faults_default
+
+
+def test_importing_the_library_leaves_the_allocator_alone():
+    """The allocator is the host process': only a call changes it (awr's main makes one, its import none)."""
+    kept, faults = _second_array_faults("library")
+    assert kept == "False" and faults >= 16
 
 
 @pytest.mark.parametrize("setting", [("MALLOC_MMAP_THRESHOLD_", "65536"), ("LD_PRELOAD", "libjemalloc.so.2"),
