@@ -201,6 +201,30 @@ def _glibc_malloc_tuning() -> Iterator[None]:
             os.environ["MALLOC_TRIM_THRESHOLD_"] = saved
 
 
+def _environ_changes(before: dict[str, str]) -> dict[str, str | None]:
+    """The variables of this process' environment that differ from ``before``, with their values now
+    (``None``: removed)."""
+    now = dict(os.environ)
+    return {name: now.get(name) for name in before.keys() | now.keys() if before.get(name) != now.get(name)}
+
+
+def _environ_put_back(before: dict[str, str], written: dict[str, str | None]) -> None:
+    """Undo what a local cluster ``written`` into this process' environment, where it is still there.
+
+    Starting a local cluster writes its workers' settings into the starting process' environment and
+    leaves them there after the cluster has closed: ``OMP_NUM_THREADS``, ``MKL_NUM_THREADS`` and
+    ``OPENBLAS_NUM_THREADS`` of 1, ``PYTHONHASHSEED``, ``__DASK_PARENT_PID``. Every process the caller
+    started afterwards (a renderer, another ``awr``) ran its BLAS and OpenMP on one thread. A variable the
+    caller set again meanwhile is the caller's, and stays."""
+    for name, value in written.items():
+        if os.environ.get(name) != value:
+            continue
+        if name in before:
+            os.environ[name] = before[name]
+        else:
+            os.environ.pop(name, None)
+
+
 @contextlib.contextmanager
 def get_executor(kind: str | None = None, *, workers: int | None = None,
                  scheduler: str | os.PathLike[str] | None = None) -> Iterator[Executor]:
@@ -239,7 +263,8 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
     Dask is imported only when asked for. The local cluster listens on the loopback
     interface only and starts no dashboard; its workers keep glibc's default malloc tuning rather
     than Dask's ``MALLOC_TRIM_THRESHOLD_``, which made numpy-heavy tasks markedly slower
-    (docs/distributed.md). Process pools use the ``spawn`` start method, so they are safe to start
+    (docs/distributed.md). What starting it writes into this process' environment (one BLAS and
+    OpenMP thread for later processes, among others) is undone once it has closed. Process pools use the ``spawn`` start method, so they are safe to start
     from a program that already runs threads.
 
     Examples
@@ -281,6 +306,8 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
 
     with contextlib.ExitStack() as stack:
         if scheduler is None:
+            before, written = dict(os.environ), {}
+            stack.callback(_environ_put_back, before, written)  # last, once the cluster has closed
             stack.enter_context(_glibc_malloc_tuning())
             # The workers' scratch folder (Dask's "dask-scratch-space", left in $TMPDIR after the
             # cluster) in one of this run's own, removed once the cluster has closed.
@@ -298,6 +325,7 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
                     # while closing are noise on a terminal.
                     silence_logs=logging.CRITICAL)
             stack.enter_context(cluster)
+            written.update(_environ_changes(before))
             client = stack.enter_context(distributed.Client(cluster))
         else:
             client = stack.enter_context(_connect(distributed, _scheduler_address(distributed, scheduler)))

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
+
 import pytest
 
 from awr_denoise.parallel import get_executor
-from parallel_helpers import write_dumps
+from parallel_helpers import environ_restored, write_dumps
 
 
 @pytest.fixture(scope="package")
@@ -19,10 +21,11 @@ def cluster(tmp_path_factory):
     """
     distributed = pytest.importorskip("distributed")
     scheduler_file = tmp_path_factory.mktemp("dask") / "scheduler.json"
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                  dashboard_address=None,
-                                  scheduler_kwargs={"dashboard_address": "127.0.0.1:0",
-                                                    "scheduler_file": str(scheduler_file)}) as local:
+    with contextlib.ExitStack() as stack:
+        with environ_restored():  # at once: the package's fixtures are torn down at the session's end
+            local = stack.enter_context(distributed.LocalCluster(
+                n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
+                scheduler_kwargs={"dashboard_address": "127.0.0.1:0", "scheduler_file": str(scheduler_file)}))
         local.scheduler_file_path = scheduler_file
         yield local
 

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
+from collections.abc import Iterator
+
 import numpy as np
 
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest
@@ -58,3 +62,15 @@ def assert_same_files(a, b) -> None:
         np.testing.assert_array_equal(read_image(x), read_image(y), strict=True)
         assert x.read_bytes() == y.read_bytes()
 
+
+@contextlib.contextmanager
+def environ_restored() -> Iterator[None]:
+    """This process' environment as it was, afterwards: starting a Dask cluster itself (as a user would), a test
+    wrote the workers' settings into it (one BLAS and OpenMP thread among them), and every later test's
+    subprocesses inherited them."""
+    before = dict(os.environ)
+    try:
+        yield
+    finally:
+        os.environ.clear()
+        os.environ.update(before)

@@ -57,6 +57,28 @@ def test_cluster_denoise_frames_equals_the_serial_run_bitwise(tmp_path, dumps, d
     assert_same_files(clustered, serial)
 
 
+_DASK_WRITES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "PYTHONHASHSEED", "__DASK_PARENT_PID",
+                "MALLOC_TRIM_THRESHOLD_")
+"""What starting a local Dask cluster writes into the starting process' environment."""
+
+
+def test_a_local_cluster_leaves_the_environment_as_it_found_it(monkeypatch):
+    """A local cluster left one BLAS and OpenMP thread (and Dask's malloc and hash settings) in the caller's
+    environment after it had closed: every process started afterwards inherited them (a review of the library)."""
+    pytest.importorskip("distributed")
+    for name in _DASK_WRITES:  # (this package's own cluster, a fixture, may have written them already)
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")  # the caller's own: kept
+    before = dict(os.environ)
+    with get_executor("dask", workers=1) as executor:
+        assert executor.submit(abs, -2).result() == 2
+        written = {name: os.environ.get(name) for name in _DASK_WRITES}
+        os.environ["AWR_TEST_SET_INSIDE"] = "1"  # the caller's, set meanwhile: kept
+    assert written["MKL_NUM_THREADS"] == "1"  # what is undone (were Dask to stop writing it, this would say so)
+    assert os.environ.pop("AWR_TEST_SET_INSIDE") == "1"
+    assert dict(os.environ) == before
+
+
 def test_local_cluster_on_demand_runs_a_tiled_render():
     shape = (32, 48)
     spec = RendererSpec.synthetic("edges", shape, seed=4)

@@ -16,6 +16,7 @@ import pytest
 
 from awr_denoise.cli.parallel_options import add_executor_arguments, executor_from_args
 from awr_denoise.parallel import get_executor
+from parallel_helpers import environ_restored
 
 
 def test_get_executor_threads_and_processes_run_tasks():
@@ -248,8 +249,9 @@ def test_a_scheduler_without_workers_is_refused_in_time(monkeypatch):
     from awr_denoise.parallel import executors
 
     monkeypatch.setattr(executors, "_WORKER_SECONDS", 1.0)
-    with distributed.LocalCluster(n_workers=0, processes=True, host="127.0.0.1", dashboard_address=None,
-                                  scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}) as empty:
+    with environ_restored(), distributed.LocalCluster(n_workers=0, processes=True, host="127.0.0.1",
+                                                      dashboard_address=None,
+                                                      scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}) as empty:
         address = empty.scheduler_address
         start = time.monotonic()
         with pytest.raises(ConnectionError, match=rf"^scheduler: {address}: no workers joined within 1 s$"):
