@@ -24,7 +24,7 @@ KEEP_BELOW = 1 << 30
 
 _M_TRIM_THRESHOLD = -1  # glibc's mallopt parameters (malloc.h)
 _M_MMAP_THRESHOLD = -3
-_USERS_SETTINGS = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_TOP_PAD_", "MALLOC_ARENA_MAX")
+_USERS_SETTINGS = "MALLOC_"  # glibc's variables: MALLOC_MMAP_THRESHOLD_, MALLOC_MMAP_MAX_, MALLOC_ARENA_MAX, ...
 
 
 def keep_freed_memory() -> bool:
@@ -53,7 +53,8 @@ def keep_freed_memory() -> bool:
             return False
     except (AttributeError, ValueError, OSError):  # not glibc (musl, macOS, Windows)
         return False
-    if any(os.environ.get(name) for name in _USERS_SETTINGS) or "glibc.malloc" in os.environ.get("GLIBC_TUNABLES", ""):
+    users = any(name.startswith(_USERS_SETTINGS) and value for name, value in os.environ.items())
+    if users or "glibc.malloc" in os.environ.get("GLIBC_TUNABLES", ""):
         return False
     if os.environ.get("LD_PRELOAD"):  # jemalloc, tcmalloc: their own policy
         return False

@@ -49,7 +49,8 @@ def test_importing_the_library_leaves_the_allocator_alone():
     assert kept == "False" and faults >= 16
 
 
-@pytest.mark.parametrize("setting", [("MALLOC_MMAP_THRESHOLD_", "65536"), ("LD_PRELOAD", "libjemalloc.so.2"),
+@pytest.mark.parametrize("setting", [("MALLOC_MMAP_THRESHOLD_", "65536"), ("MALLOC_MMAP_MAX_", "0"),
+                                     ("LD_PRELOAD", "libjemalloc.so.2"),
                                      ("GLIBC_TUNABLES", "glibc.malloc.trim_threshold=0")])
 def test_a_users_allocator_settings_are_left_alone(monkeypatch, setting):
     monkeypatch.setenv(*setting)
