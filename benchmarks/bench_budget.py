@@ -21,8 +21,8 @@ central quarter's (``RESERVE_MARGIN``), writing the dump, the image and the prev
 (``WRITE_SHARE``), and ``reconstruction_seconds``' estimate against both together; ``--repeats`` times
 interleaved, medians; the reconstructions on the threads ``awr render`` gives them (``--threads``). Each repeat
 is a new process that does what the command does, in its order: the memory setting ``awr`` makes when it starts
-(``awr_denoise/memory.py``; ``--allocator glibc`` leaves glibc's default, as a Python caller has it), the estimate on the
-central quarter (the process' first reconstruction), the whole reconstruction, the files.
+(``awr_denoise/memory.py``; ``--allocator glibc`` leaves glibc's default, as a Python caller has it), the
+estimate on the central quarter (the process' first reconstruction), the whole reconstruction, the files.
 """
 
 from __future__ import annotations
@@ -41,9 +41,9 @@ from typing import Any
 
 from awr_denoise import SampleRequest, reconstruct_detailed
 from awr_denoise.bench import update_section
-from awr_denoise.memory import keep_freed_memory
 from awr_denoise.cli.parallel_options import library_threads, threads_from_args
 from awr_denoise.io import read_sample_buffer, write_image, write_preview, write_sample_buffer
+from awr_denoise.memory import keep_freed_memory
 from awr_denoise.renderers import create_renderer
 from awr_denoise.rounds import RESERVE_MARGIN, WHOLE_BELOW, reconstruction_seconds
 

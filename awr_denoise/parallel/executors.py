@@ -264,8 +264,9 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
     interface only and starts no dashboard; its workers keep glibc's default malloc tuning rather
     than Dask's ``MALLOC_TRIM_THRESHOLD_``, which made numpy-heavy tasks markedly slower
     (docs/distributed.md). What starting it writes into this process' environment (one BLAS and
-    OpenMP thread for later processes, among others) is undone once it has closed. Process pools use the ``spawn`` start method, so they are safe to start
-    from a program that already runs threads.
+    OpenMP thread for later processes, among others) is undone once it has closed. Process pools
+    use the ``spawn`` start method, so they are safe to start from a program that already runs
+    threads.
 
     Examples
     --------
