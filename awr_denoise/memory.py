@@ -24,7 +24,7 @@ KEEP_BELOW = 1 << 30
 
 _M_TRIM_THRESHOLD = -1  # glibc's mallopt parameters (malloc.h)
 _M_MMAP_THRESHOLD = -3
-_USERS_SETTINGS = "MALLOC_"  # glibc's variables: MALLOC_MMAP_THRESHOLD_, MALLOC_MMAP_MAX_, MALLOC_ARENA_MAX, ...
+_USERS_PREFIX = "MALLOC_"  # glibc's variables: MALLOC_MMAP_THRESHOLD_, MALLOC_MMAP_MAX_, MALLOC_ARENA_MAX, ...
 
 
 def keep_freed_memory() -> bool:
@@ -53,7 +53,7 @@ def keep_freed_memory() -> bool:
             return False
     except (AttributeError, ValueError, OSError):  # not glibc (musl, macOS, Windows)
         return False
-    users = any(name.startswith(_USERS_SETTINGS) and value for name, value in os.environ.items())
+    users = any(name.startswith(_USERS_PREFIX) and value for name, value in os.environ.items())
     if users or "glibc.malloc" in os.environ.get("GLIBC_TUNABLES", ""):
         return False
     if os.environ.get("LD_PRELOAD"):  # jemalloc, tcmalloc: their own policy

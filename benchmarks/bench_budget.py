@@ -45,7 +45,7 @@ from awr_denoise.cli.parallel_options import library_threads, threads_from_args
 from awr_denoise.io import read_sample_buffer, write_image, write_preview, write_sample_buffer
 from awr_denoise.memory import keep_freed_memory
 from awr_denoise.renderers import create_renderer
-from awr_denoise.rounds import RESERVE_MARGIN, WHOLE_BELOW, reconstruction_seconds
+from awr_denoise.rounds import reconstruction_seconds
 
 RESULTS = Path(__file__).resolve().parent / "results" / "budget.json"
 CASES: dict[str, list[tuple[str, tuple[int, int], float]]] = {
@@ -167,21 +167,28 @@ def trial(sizes: list[tuple[int, int]], repeats: int, threads: int | None = None
 def trial_once(dump: Path, threads: int, allocator: str) -> dict[str, Any]:
     """One repeat of the trial, in this (new) process, in the command's order: ``allocator``'s memory setting,
     the estimate (its quarter's reconstruction the process' first), the whole reconstruction, the files. The
-    quarter's time is the estimate's over ``RESERVE_MARGIN`` and the pixels' ratio (the whole image's below
-    ``WHOLE_BELOW`` pixels, which the estimate times whole)."""
+    quarter's time is that of the reconstruction the estimate timed, scaled to a quarter of the pixels (it times
+    a buffer under ``WHOLE_BELOW`` pixels whole)."""
     kept = allocator == "command" and keep_freed_memory()
     buffer = read_sample_buffer(dump)
     h, w = buffer.shape
+    timed: list[tuple[int, float]] = []  # (pixels, seconds) of each reconstruction the estimate ran
     with library_threads(threads) as pool:
         denoise = functools.partial(reconstruct_detailed, variance_probes=0, executor=pool)
-        estimate = reconstruction_seconds(buffer, denoise)
+
+        def estimated(part: Any) -> Any:
+            started = time.perf_counter()
+            result = denoise(part)
+            timed.append((part.shape[0] * part.shape[1], time.perf_counter() - started))
+            return result
+
+        estimate = reconstruction_seconds(buffer, estimated)
         started = time.perf_counter()
         image = denoise(buffer).image
         whole = time.perf_counter() - started
-    quartered = h * w >= WHOLE_BELOW
-    quarter = estimate / RESERVE_MARGIN / ((h * w) / ((h // 2) * (w // 2)) if quartered else 4)
-    return {"whole": whole, "quarter": quarter, "files": _seconds(_files, buffer, image), "estimate": estimate,
-            "allocator": "command" if kept else "glibc"}
+    pixels, seconds = timed[-1]  # the one it scaled: its quarter's, or the whole image's
+    return {"whole": whole, "quarter": seconds * (h * w / 4) / pixels, "files": _seconds(_files, buffer, image),
+            "estimate": estimate, "allocator": "command" if kept else "glibc"}
 
 
 def trial_table(rows: list[dict[str, Any]]) -> str:

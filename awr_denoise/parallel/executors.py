@@ -314,19 +314,21 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
             # cluster) in one of this run's own, removed once the cluster has closed.
             scratch = stack.enter_context(tempfile.TemporaryDirectory(prefix="awr-dask-"))
             stack.enter_context(dask.config.set({"temporary-directory": scratch}))  # the scheduler's
-            with _children_ignore_interrupts():
-                cluster = distributed.LocalCluster(
-                    n_workers=n_workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                    dashboard_address=None, local_directory=scratch,
-                    # No dashboard; the scheduler's remaining HTTP routes take a free loopback port
-                    # instead of 8787, so several clusters can coexist without a port warning.
-                    scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
-                    # Task errors reach the caller as exceptions; the workers' logs of them (a
-                    # multi-line "Compute Failed" each), of a cancelled task or of a lost heartbeat
-                    # while closing are noise on a terminal.
-                    silence_logs=logging.CRITICAL)
-            stack.enter_context(cluster)
-            written.update(_environ_changes(before))
+            try:
+                with _children_ignore_interrupts():
+                    cluster = distributed.LocalCluster(
+                        n_workers=n_workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                        dashboard_address=None, local_directory=scratch,
+                        # No dashboard; the scheduler's remaining HTTP routes take a free loopback port
+                        # instead of 8787, so several clusters can coexist without a port warning.
+                        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+                        # Task errors reach the caller as exceptions; the workers' logs of them (a
+                        # multi-line "Compute Failed" each), of a cancelled task or of a lost heartbeat
+                        # while closing are noise on a terminal.
+                        silence_logs=logging.CRITICAL)
+                stack.enter_context(cluster)
+            finally:  # what starting it wrote, also when it failed to start
+                written.update(_environ_changes(before))
             client = stack.enter_context(distributed.Client(cluster))
         else:
             client = stack.enter_context(_connect(distributed, _scheduler_address(distributed, scheduler)))

@@ -10,6 +10,7 @@ import sys
 import pytest
 
 from awr_denoise.cli.parallel_options import threads_from_args
+from awr_denoise.rounds import RESERVE_MARGIN
 
 
 @pytest.fixture(scope="module")
@@ -58,9 +59,11 @@ def test_the_trial_compares_a_whole_reconstruction_with_its_quarters_and_the_fil
         assert row["whole_over_quarters"] == pytest.approx(row["whole"] / (4 * row["quarter"]))
         assert row["estimate_over_both"] == pytest.approx(row["estimate"] / (row["whole"] + row["files"]))
         assert row["whole"] > 0 and row["files"] > 0 and row["estimate"] > 0
-    # The quarter is the estimate's own: timed whole below WHOLE_BELOW pixels, on a quarter above.
-    assert small["quarter"] == pytest.approx(small["estimate"] / bench.RESERVE_MARGIN / 4)
-    assert large["quarter"] == pytest.approx(large["estimate"] / bench.RESERVE_MARGIN / 4)
+    # The quarter is the reconstruction the estimate timed (whole below WHOLE_BELOW pixels, a quarter above), timed
+    # again around the call: the estimate is about its time scaled to the image, times the margin (a pixel count
+    # taken from the wrong buffer would be 4x off; the two clocks differ by the call's own overhead).
+    for row in (small, large):
+        assert row["estimate"] / RESERVE_MARGIN / 4 == pytest.approx(row["quarter"], rel=0.5)
 
 
 @pytest.mark.parametrize("sizes", [["48"], ["48x"], ["8x8"], ["1x2x3"]])
