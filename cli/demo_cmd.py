@@ -21,6 +21,7 @@ from awr_denoise.io.atomic import OutputSet, check_creatable, folders_made
 
 from .errors import shown
 from .common import EXIT_OK, UsageError, print_json, status
+from .parallel_options import add_threads_argument, library_threads, threads_from_args
 from .paths import PathPlan
 from .values import MAX_EXPOSURE, MAX_SEED, MAX_SPP, real, whole
 from .render_cmd import TRACER, default_scene, render_buffer, tracer_module
@@ -44,6 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="output directory (default out/); the demo replaces its own files there")
     p.add_argument("--exposure", type=real(minimum=-MAX_EXPOSURE, maximum=MAX_EXPOSURE), default=0.0,
                    help="preview exposure in stops")
+    add_threads_argument(p, "the adaptive render's ranking, between the renderer's rounds, and the reconstructions")
     p.add_argument("--json", action="store_true", help="machine-readable results")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(run=run)
@@ -87,15 +89,18 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"{where}: the reference of {name} is {reference.shape[1]}x{reference.shape[0]}, the scene "
                          f"{scene.shape[1]}x{scene.shape[0]}; remove it to render it again")
     start = time.perf_counter()
-    status(f"rendering {name} uniformly at {args.spp} spp", quiet=args.quiet)
-    renderer = create_renderer(TRACER, scene, seed=args.seed, progress=bars_shown(args.quiet))
-    uniform = render_buffer(renderer, scene.shape, spp=args.spp, adaptive=False, seed=args.seed,
-                            quiet=args.quiet)[0]
-    status(f"rendering {name} adaptively at {args.spp} spp", quiet=args.quiet)
-    renderer = create_renderer(TRACER, scene, seed=args.seed + 1)
-    adaptive = render_buffer(renderer, scene.shape, spp=args.spp, adaptive=True, seed=args.seed + 1,
-                             quiet=args.quiet)[0]
-    images = dict(zip(labels, (uniform.mean, reconstruct(uniform, c_s=args.c_s), reconstruct(adaptive, c_s=args.c_s))))
+    # The library's own work on --threads, as in awr render: the same images on any number.
+    with library_threads(threads_from_args(args)) as pool:
+        status(f"rendering {name} uniformly at {args.spp} spp", quiet=args.quiet)
+        renderer = create_renderer(TRACER, scene, seed=args.seed, progress=bars_shown(args.quiet))
+        uniform = render_buffer(renderer, scene.shape, spp=args.spp, adaptive=False, seed=args.seed,
+                                quiet=args.quiet)[0]
+        status(f"rendering {name} adaptively at {args.spp} spp", quiet=args.quiet)
+        renderer = create_renderer(TRACER, scene, seed=args.seed + 1)
+        adaptive = render_buffer(renderer, scene.shape, spp=args.spp, adaptive=True, seed=args.seed + 1,
+                                 quiet=args.quiet, executor=pool)[0]
+        images = dict(zip(labels, (uniform.mean, reconstruct(uniform, c_s=args.c_s, executor=pool),
+                                   reconstruct(adaptive, c_s=args.c_s, executor=pool))))
     if reference.shape != uniform.mean.shape:
         raise UsageError(f"{where}: the reference of {name} is {reference.shape}, the render {uniform.mean.shape}")
     results = {}

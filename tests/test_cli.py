@@ -1380,6 +1380,42 @@ def test_demo_prints_three_methods(tmp_path, fake_tracer, capsys):
     assert "adaptive_awr" in capsys.readouterr().out
 
 
+def test_demo_threads_reach_the_library_and_leave_the_images_the_same(tmp_path, fake_tracer, capsys, monkeypatch):
+    """``--threads``, as in ``awr render``: a pool for the adaptive rounds' ranking and both reconstructions, and the
+    same images bit for bit on one thread and on two."""
+    from awr_denoise.cli import demo_cmd
+    from awr_denoise.io import read_image
+
+    seen = []
+    real_reconstruct, real_render = demo_cmd.reconstruct, demo_cmd.render_buffer
+
+    def reconstruct(*args, **kwargs):
+        seen.append(("reconstruct", kwargs.get("executor")))
+        return real_reconstruct(*args, **kwargs)
+
+    def render_buffer(*args, **kwargs):
+        seen.append(("render" + ("_adaptive" if kwargs["adaptive"] else ""), kwargs.get("executor")))
+        return real_render(*args, **kwargs)
+
+    monkeypatch.setattr(demo_cmd, "reconstruct", reconstruct)
+    monkeypatch.setattr(demo_cmd, "render_buffer", render_buffer)
+    images = {}
+    for threads in (1, 2):
+        seen.clear()
+        out = tmp_path / f"t{threads}"
+        assert main(["demo", "--out", str(out), "--spp", "8", "-q", "--threads", str(threads)]) == 0
+        pools = {kind: pool for kind, pool in seen if kind != "render"}
+        assert set(pools) == {"reconstruct", "render_adaptive"} and len(seen) == 4
+        assert all((pool is None) == (threads == 1) for kind, pool in seen if kind != "render")
+        images[threads] = {p.name: read_image(p) for p in sorted(out.glob("*.exr"))}
+    assert len(images[1]) == 3 and images[1].keys() == images[2].keys()
+    for name in images[1]:
+        np.testing.assert_array_equal(images[1][name], images[2][name], err_msg=name)
+    capsys.readouterr()
+    assert main(["demo", "--out", str(tmp_path / "t0"), "--spp", "8", "-q", "--threads", "0"]) == 2
+    assert "--threads" in capsys.readouterr().err and not (tmp_path / "t0").exists()
+
+
 def test_demo_refuses_before_creating_its_folder(tmp_path, fake_tracer, capsys, monkeypatch):
     """A reference of the wrong size is refused before the renders, and --out is not left behind; nor
     is a folder under one that cannot be written."""
