@@ -20,7 +20,9 @@ fresh process per case, the tracemalloc peak above the built buffer and the peak
 multiples of the input buffer (count + mean + variance). ``tell``: one ``tell()`` with the merge compiled
 (extra ``fast``) against its numpy reference, on one thread and two, beside the floor. ``rare_paths``: ``ask()``
 with rare-path regions evened (the default, :mod:`awr_denoise.rare_paths`) against ranked, on a frame with none and
-on one lit through rare paths everywhere, on one core and with a 2-thread executor (the search beside the density).
+on one lit through rare paths everywhere, on one core and with a 2-thread executor (the search beside the density). ``--keep-freed-memory``: every section,
+the memory children included, in the memory setting the ``awr`` command makes when it starts
+(:func:`awr_denoise.memory.keep_freed_memory`); without it, in glibc's default, as a Python caller who sets nothing.
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ from awr_denoise import (AdaptiveSampler, SampleBuffer, SampleRequest, UniformSa
 from awr_denoise.bench import (OVERHEAD_SIZES, command_line, load_average, machine_info, noisy_buffer,  # noqa: E402
                                peak_memory, write_json)
 from awr_denoise.domains import Domain  # noqa: E402
+from awr_denoise.memory import keep_freed_memory  # noqa: E402
 from awr_denoise.prepare import prepare  # noqa: E402
 from awr_denoise.rare_paths import rare_path_mask  # noqa: E402
 from awr_denoise.thresholding import _float32_margin  # noqa: E402
@@ -195,9 +198,14 @@ def _memory_child(size: str, case: str) -> None:
     print(json.dumps({"tracemalloc_peak": peak, "maxrss": rss, "maxrss_before": base_rss, "input": buf.nbytes}))
 
 
+# Whether this run keeps freed memory (--keep-freed-memory): its memory children then do too.
+_KEPT = {"kept": False}
+
+
 def _memory(size: str, case: str) -> dict:
-    out = subprocess.run([sys.executable, __file__, "--memory-child", size, case], capture_output=True, text=True,
-                         check=True, env=os.environ.copy())
+    keep = ["--keep-freed-memory"] if _KEPT["kept"] else []
+    out = subprocess.run([sys.executable, __file__, "--memory-child", size, case, *keep], capture_output=True,
+                         text=True, check=True, env=os.environ.copy())
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -894,8 +902,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--output", type=Path, default=RESULTS)
     parser.add_argument("--sizes", nargs="+", choices=tuple(OVERHEAD_SIZES), default=SPEED_SIZES,
                         help="sizes of the speed section (default: 1080p 4K)")
+    parser.add_argument("--keep-freed-memory", action="store_true",
+                        help="the memory setting awr makes when it starts (awr_denoise.memory.keep_freed_memory), "
+                             "for every section; refused where it cannot apply (not glibc, MALLOC_ variables set)")
     parser.add_argument("--memory-child", nargs=2, metavar=("SIZE", "CASE"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.keep_freed_memory:  # before any large array
+        if not keep_freed_memory():
+            parser.error("--keep-freed-memory: the setting does not apply here (not glibc, or the allocator is set "
+                         "in the environment)")
+        _KEPT["kept"] = True
     if args.memory_child:
         _memory_child(*args.memory_child)
         return 0
@@ -907,6 +923,7 @@ def main(argv: list[str] | None = None) -> int:
     results["command"] = command_line("benchmarks/bench_core.py", argv)
     results["threads"] = {var: os.environ.get(var) for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS",
                                                                  "OPENBLAS_NUM_THREADS")}
+    results["keep_freed_memory"] = _KEPT["kept"]
     results["load_average_start"] = load_average()
     for name in args.only or SECTIONS:
         title, header, run = SECTIONS[name]
