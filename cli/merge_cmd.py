@@ -187,11 +187,12 @@ class _Seen:
     digest: bytes | None  # of its count, mean and variance, when it holds samples
     running: tuple[frozenset[int], np.ndarray] | None  # the seeds whose first samples it holds, and where
     counts: bytes | None = None  # the digest of its counts alone
-    signature: np.ndarray | None = None  # its means' signed sums (_signature)
+    signature: np.ndarray | None = None  # its means' signed sums (_signatures)
     noise: float = 0.0  # the standard error of each signed sum, from its known variances (_noise)
+    signature16: np.ndarray | None = None  # the same of its means rounded to half floats (_signatures)
 
 
-_SIGNED_SUMS = 8
+_SIGNED_SUMS = 8  # one byte of each position's hash (_signatures)
 _ROUNDING = 1e-5
 """Signed sums of two inputs' means within this share of each other, every one, with the same counts: the same
 samples up to rounding (the renderer's, or a conversion's). Two renders of other seeds differ by their noise over
@@ -203,20 +204,35 @@ output beside its float one). Two renders of other seeds differ by about their n
 it by chance has a probability of about 1e-11 (a standard normal within 0.05, eight times)."""
 
 
-def _signature(mean: np.ndarray) -> np.ndarray:
-    """:data:`_SIGNED_SUMS` sums of the means, each with signs drawn from the entries' positions: unlike a digest,
-    close for means equal up to rounding (two files of one Mitsuba render with the same seed, a copy converted)."""
+_HALF_MAX = float(np.finfo(np.float16).max)
+_SIGN_CHUNK = 1 << 18  # entries a block: 16 MB of signs (a 4K frame's hashes at once took 200 MB)
+
+
+def _signatures(mean: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:data:`_SIGNED_SUMS` sums of the means, each with signs drawn from the entries' positions, and the same sums of
+    the means rounded to half floats (clipped to the largest half, so never inf).
+
+    Unlike a digest, the first are close for means equal up to rounding (two files of one Mitsuba render with the same
+    seed, a copy converted). The second are the same to float rounding for a render and its copy in half floats,
+    whatever the noise: the halves' rounding (2**-11 of each mean) exceeds :data:`_NOISE_SHARE` of the noise where
+    that is small, at thousands of samples per pixel or where many pixels have none (a constant sky), and a half-float
+    copy of a 65536-spp render was merged as twice the samples (an attack pass). Two renders of other seeds differ by
+    their noise in both, unless it is below half a half's step at every pixel, where they are one image to 16 bits.
+    One hash of each position gives every sum its signs (its bits 40 to 47), block by block.
+    """
     flat = np.ascontiguousarray(mean, np.float64).ravel()
-    index = np.arange(flat.size, dtype=np.uint64)
-    out = np.empty(_SIGNED_SUMS)
-    for k in range(_SIGNED_SUMS):
-        bits = ((index * np.uint64(0x9E3779B97F4A7C15 + 2 * k)) >> np.uint64(40 + k)) & np.uint64(1)
-        out[k] = float(np.dot(flat, 1.0 - 2.0 * bits.astype(np.float64)))
-    return out
+    sums = np.zeros((2, _SIGNED_SUMS))
+    for start in range(0, flat.size, _SIGN_CHUNK):
+        block = flat[start:start + _SIGN_CHUNK]
+        both = np.stack([block, np.clip(block, -_HALF_MAX, _HALF_MAX).astype(np.float16)])
+        hashes = np.arange(start, start + block.size, dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15)
+        bits = np.unpackbits((hashes >> np.uint64(40)).astype(np.uint8)[:, None], axis=1)  # (entries, 8)
+        sums += both @ (1.0 - 2.0 * bits)
+    return sums[0], sums[1]
 
 
 def _noise(buffer: SampleBuffer) -> float:
-    """The standard error of each of :func:`_signature`'s sums (their signs square to 1): the root of the summed
+    """The standard error of each of :func:`_signatures`' first sums (their signs square to 1): the root of the summed
     variances of the means, where they are known (unknown variances count 0, which only makes the test stricter)."""
     return float(np.sqrt(np.sum(buffer.variance.sum(axis=-1) / np.maximum(buffer.count, 1))))  # (H, W) temporaries
 
@@ -247,7 +263,7 @@ def _seeds(path: str, attributes: dict, told: bool) -> frozenset[int]:
 
 def _seen(path: str, dump: SampleDump, seeds: frozenset[int]) -> _Seen:
     buffer = dump.buffer
-    digest = counts = signature = None
+    digest = counts = signature = signature16 = None
     noise = 0.0
     if buffer.total_samples:
         h = hashlib.sha256()
@@ -256,9 +272,9 @@ def _seen(path: str, dump: SampleDump, seeds: frozenset[int]) -> _Seen:
             h.update(np.ascontiguousarray(a).data)
         digest = h.digest()
         counts = hashlib.sha256(np.ascontiguousarray(buffer.count).data).digest()
-        signature = _signature(buffer.mean)
+        signature, signature16 = _signatures(buffer.mean)
         noise = _noise(buffer)
-    return _Seen(path, digest, (seeds, buffer.count > 0) if seeds else None, counts, signature, noise)
+    return _Seen(path, digest, (seeds, buffer.count > 0) if seeds else None, counts, signature, noise, signature16)
 
 
 def _refuse_copies(earlier: list[_Seen], new: _Seen) -> None:
@@ -269,10 +285,12 @@ def _refuse_copies(earlier: list[_Seen], new: _Seen) -> None:
     for old in earlier:
         if new.digest is not None and new.digest == old.digest:
             why = "hold the same samples (a copy?)"
-        elif new.counts is not None and new.counts == old.counts and np.any(new.signature != 0) and np.all(
+        elif new.counts is not None and new.counts == old.counts and np.any(new.signature != 0) and (np.all(
                 np.abs(new.signature - old.signature)
                 <= np.maximum(_ROUNDING * np.maximum(np.abs(new.signature), np.abs(old.signature)),
-                              _NOISE_SHARE * np.hypot(new.noise, old.noise))):  # (all black: no telling)
+                              _NOISE_SHARE * np.hypot(new.noise, old.noise))) or np.all(
+                np.abs(new.signature16 - old.signature16)
+                <= _ROUNDING * np.maximum(np.abs(new.signature16), np.abs(old.signature16)))):  # (all black: none)
             why = ("hold the same samples up to rounding (their means differ by far less than their noise: one "
                    "render written twice, in half floats once, or two renders of one seed: Mitsuba's sampler seed "
                    "is 0 unless set)")

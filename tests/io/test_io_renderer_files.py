@@ -158,6 +158,50 @@ def test_one_pbrt_render_in_float_and_in_half_floats_is_not_merged_as_twice_the_
     assert (read_sample_dump(out).buffer.count == 16 * 8).all()
 
 
+def _sky_render(path: Path, spp: int, seed: int) -> None:
+    """A render in the project's layout, at ``spp`` everywhere: a constant sky over 60% of it (no noise there) above
+    noisy ground, whose true values do not depend on ``seed``."""
+    from awr_denoise import SampleBuffer
+    from awr_denoise.io import write_sample_buffer
+
+    h, w = 64, 96
+    truth = np.random.default_rng(1).uniform(0.2, 0.4, (h - 40, w, 3))
+    mean = np.broadcast_to(np.array([0.7, 0.56, 0.42]), (h, w, 3)).copy()
+    variance = np.zeros((h, w, 3))
+    variance[40:] = (0.3 * truth) ** 2
+    mean[40:] = truth + np.random.default_rng(seed).normal(size=truth.shape) * np.sqrt(variance[40:] / spp)
+    write_sample_buffer(path, SampleBuffer.from_moments(np.full((h, w), spp), mean, variance))
+
+
+def test_a_half_float_copy_of_a_render_of_many_samples_is_not_merged_as_twice_them(tmp_path, capsys):
+    """A 65536-spp render and its copy with the means and variances in half floats, the counts kept (pbrt-v4's
+    default output beside a float one): the halves' rounding was more than 0.05 of the noise, which a constant sky
+    does not have, and the two were merged as twice the samples, exit 0 (an attack pass; from 16384 spp on here).
+    Two renders of other seeds at the same counts, up to a million samples per pixel, still merge."""
+    from awr_denoise.cli import merge_cmd
+
+    render, copy, out = tmp_path / "float.exr", tmp_path / "half.exr", tmp_path / "m.exr"
+    _sky_render(render, 2**16, seed=2)
+    with OpenEXR.File(str(render), separate_channels=True) as f:
+        header = dict(f.header())
+        channels = {k: v.pixels if k == "sampleCount" else v.pixels.astype(np.float16) for k, v in f.channels().items()}
+    assert "sampleCount" in channels
+    OpenEXR.File(header, channels).write(str(copy))
+    # The case this is about: the sums differ by more than the test up to rounding or noise allows.
+    one, two = (read_sample_dump(p).buffer for p in (render, copy))
+    apart = np.abs(merge_cmd._signatures(one.mean)[0] - merge_cmd._signatures(two.mean)[0])
+    assert np.any(apart > merge_cmd._NOISE_SHARE * np.hypot(merge_cmd._noise(one), merge_cmd._noise(two)))
+    assert main(["merge", str(render), str(copy), "-o", str(out), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "hold the same samples up to rounding" in err and "--allow-duplicates" in err and not out.exists()
+    for spp in (4096, 1_000_000):
+        first, second = tmp_path / f"a{spp}.exr", tmp_path / f"b{spp}.exr"
+        _sky_render(first, spp, seed=2)
+        _sky_render(second, spp, seed=3)
+        assert main(["merge", str(first), str(second), "-o", str(tmp_path / f"m{spp}.exr"), "-q"]) == 0, spp
+        assert (read_sample_dump(tmp_path / f"m{spp}.exr").buffer.count == 2 * spp).all()
+
+
 def test_a_render_and_its_half_float_copy_are_not_two_seeds(tmp_path, capsys):
     """``--independent`` refused a copy with the same pixels, not one converted to half floats (an attack pass): their
     spread, the rounding alone, made a variance 1e-5 of the renders' own. Two seeds of one scene still merge."""
