@@ -517,6 +517,35 @@ def test_an_output_set_temporary_is_written_in_place_not_staged_again(tmp_path):
     assert _listing(tmp_path) == ["a.txt"]
 
 
+def test_a_staged_temporary_that_cannot_be_written_names_its_target_as_an_output_failure(tmp_path, monkeypatch):
+    """Once an OutputSet has made its staging folder, a folder that takes no new file (no inode left) or is gone (the
+    output folder renamed while the command ran) fails the write itself: an OSError (exit 1) naming the target. The
+    check before the write named the hidden temporary and raised ValueError (exit 2), after the work (an attack
+    pass)."""
+    from awr_denoise.io.exr import write_exr
+
+    plane = {"Y": np.ones((4, 4), np.float32)}
+    (tmp_path / "sub").mkdir()
+    with OutputSet() as outputs:
+        tmp = outputs.add(tmp_path / "sub" / "out.exr")
+
+        def no_inode(*args, **kwargs):
+            raise OSError(28, "No space left on device")
+
+        with monkeypatch.context() as m:  # the probe of a folder that took no new file: none for a staged temporary
+            m.setattr(tempfile, "mkstemp", no_inode)
+            assert check_writable(tmp, overwrite=False) == tmp
+        os.rename(tmp_path / "sub", tmp_path / "moved")
+        (tmp_path / "sub").mkdir()
+        for write in (lambda: write_exr(tmp, plane), lambda: atomic_write(tmp, lambda path: Path(path).write_text("a"))):
+            with pytest.raises(OSError) as info:
+                write()
+            assert type(info.value) is OSError and not isinstance(info.value, (ValueError, FileNotFoundError))
+            assert info.value.filename == str(tmp_path / "sub" / "out.exr") and STAGING_PREFIX not in str(info.value)
+            assert "moved or removed" in str(info.value)
+    assert _listing(tmp_path / "sub") == []
+
+
 def test_no_room_for_the_staging_directory_names_the_target(tmp_path, monkeypatch):
     def full(*args, **kwargs):
         raise OSError(28, "No space left on device")

@@ -690,7 +690,11 @@ def write_exr(path: str | os.PathLike[str], channels: Mapping[str, np.ndarray],
             except RuntimeError as exc:  # the bindings report I/O errors (a full disk) this way
                 code = (errno.ENOSPC if "No space left" in str(exc) else
                         errno.EFBIG if "File too large" in str(exc) else errno.EIO)
-                raise OSError(code, os.strerror(code), public_name(path)) from None
+                # A staging folder gone (its folder renamed while the command ran): an output that could not be
+                # written (exit 1), not a missing input, which ENOENT would make it.
+                why = ("its folder was moved or removed while it was written" if "No such file or directory" in
+                       str(exc) else os.strerror(code))
+                raise OSError(code, why, public_name(path)) from None
         # A file small enough to be written only when the stream closes reports no failure there: a full disk left
         # it empty and a file size limit cut it, and both were committed (a red-team pass). Its chunks are counted.
         if not chunks.is_complete(tmp):
