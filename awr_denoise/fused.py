@@ -31,9 +31,11 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import re
+import warnings
 from collections.abc import Callable, Iterator
 from functools import lru_cache
-from types import SimpleNamespace
+from types import ModuleType, SimpleNamespace
 
 import numpy as np
 
@@ -395,9 +397,8 @@ def compile_loop(loop: Callable) -> Callable | None:
     >>> loop is None or loop(1.5) == 3.0
     True
     """
-    try:
-        import numba  # optional extra "fast"
-    except ImportError:
+    numba = _numba()
+    if numba is None:
         return None
     # nogil: the channels of a 2-thread executor run at once; no fastmath: the reference's floats and their order.
     try:  # compiled once per machine: cached beside the loop's module, or in the user's cache directory
@@ -417,7 +418,55 @@ class _Uncached:
         try:
             return self.run(*args)
         except OSError:  # no loop does I/O: only the cache's save can fail this way
-            import numba
-
-            self.run = numba.njit(nogil=True)(self.loop)
+            self.run = _numba().njit(nogil=True)(self.loop)
             return self.run(*args)
+
+
+# numba's own report of a NUMBA_ variable it cannot parse: a RuntimeWarning holding a whole traceback, after which
+# it runs on its default (a red-team pass: NUMBA_NUM_THREADS='' printed the traceback, exit 0).
+_UNPARSED = re.compile(r"Environment variable '(NUMBA_\w+)' is defined but its associated value '(.*?)' could not be "
+                       r"parsed", re.S)
+_NUMBA: list = []  # [numba, or None where it is not installed], or [the ValueError of its environment], once asked
+
+
+def _numba() -> ModuleType | None:
+    """numba (extra ``fast``), imported once, or ``None`` where it is not installed.
+
+    Raises
+    ------
+    ValueError
+        A ``NUMBA_`` variable numba cannot read (``NUMBA_NUM_THREADS`` empty, ``abc`` or below 1, ``NUMBA_OPT=zz``),
+        named with its value, every time it is asked: numba reported the first with a traceback in a warning and
+        ran on, and stopped on the last with "Number of threads specified must be > 0.", naming no variable.
+    """
+    if not _NUMBA:
+        try:
+            _NUMBA.append(_import_numba())
+        except ValueError as exc:
+            _NUMBA.append(exc)
+    if isinstance(_NUMBA[0], ValueError):
+        raise ValueError(str(_NUMBA[0]))
+    return _NUMBA[0]
+
+
+def _import_numba() -> ModuleType | None:
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            import numba  # optional extra "fast"
+        except ImportError:
+            return None
+        except ValueError as exc:  # its thread count, read at import
+            value = os.environ.get("NUMBA_NUM_THREADS")
+            if value is None or "thread" not in str(exc).lower():
+                raise ValueError(f"numba could not be loaded: {exc}") from None
+            raise ValueError(f"NUMBA_NUM_THREADS={value!r}: numba takes a whole number of threads above 0; set one, "
+                             "or unset it") from None
+    for warning in caught:
+        found = _UNPARSED.search(str(warning.message))
+        if found:
+            raise ValueError(f"{found[1]}={found[2]!r}: numba cannot read it (see numba's documentation of its "
+                             "environment variables); set it to a valid value, or unset it")
+    for warning in caught:  # the others, as they would have been shown, under the caller's filters
+        warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
+    return numba

@@ -164,6 +164,8 @@ def _check_kernels(command: str | None) -> None:
         fused.backend()
     except ImportError as exc:  # the compiled kernels asked for, numba missing: the user's setting
         raise UsageError(str(exc)) from exc
+    except ValueError as exc:  # AWR_DENOISE_KERNELS naming no backend, a NUMBA_ variable numba cannot read
+        raise UsageError(str(exc)) from None
 
 
 def _run_failed(exc: OSError) -> int:

@@ -79,6 +79,41 @@ def test_without_numba_asking_for_it_says_how_to_install(monkeypatch, restore_ba
         fused.backend()
 
 
+@needs_numba
+@pytest.mark.parametrize("variable, value", [("NUMBA_NUM_THREADS", ""), ("NUMBA_NUM_THREADS", "abc"),
+                                             ("NUMBA_NUM_THREADS", "0"), ("NUMBA_NUM_THREADS", "-1"),
+                                             ("NUMBA_OPT", "zz")])
+def test_a_numba_variable_numba_cannot_read_is_named_before_any_work(tmp_path, variable, value):
+    """With the compiled kernels asked for, numba reported an unreadable NUMBA_ variable in a warning holding a whole
+    traceback and ran on (exit 0), or stopped naming no variable ("Number of threads specified must be > 0.", a
+    red-team pass). One line naming it, exit 2, nothing written; asked again in the same process, the same error."""
+    import os
+    import subprocess
+    import sys
+
+    from awr_denoise import SampleBuffer
+    from awr_denoise.io import write_sample_buffer
+
+    dump = tmp_path / "d.exr"
+    rng = np.random.default_rng(0)
+    write_sample_buffer(dump, SampleBuffer.from_moments(np.full((8, 8), 4), rng.random((8, 8, 3)),
+                                                        rng.random((8, 8, 3))))
+    env = {**os.environ, "AWR_DENOISE_KERNELS": "numba", variable: value}
+    command = [sys.executable, "-m", "awr_denoise.cli.main", "denoise", str(dump), "-o", str(tmp_path / "o.exr"), "-q"]
+    run = subprocess.run(command, capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
+    assert run.returncode == 2, run.stderr
+    assert run.stderr.splitlines() == [run.stderr.strip()] and "Traceback" not in run.stderr
+    assert f"{variable}={value!r}" in run.stderr and not (tmp_path / "o.exr").exists()
+    code = ("from awr_denoise import fused\n"
+            "for _ in range(2):\n"
+            "    try:\n"
+            "        fused.available()\n"
+            "    except ValueError as exc:\n"
+            "        print(exc)\n")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    assert run.stdout.count(f"{variable}={value!r}") == 2 and "Traceback" not in run.stderr, (run.stdout, run.stderr)
+
+
 # ------------------------------------------------------------------------- kernel by kernel
 @needs_numba
 @pytest.mark.parametrize("k", [1e-3, 0.37, 1e4])
