@@ -546,6 +546,44 @@ def test_a_staged_temporary_that_cannot_be_written_names_its_target_as_an_output
     assert _listing(tmp_path / "sub") == []
 
 
+def test_a_umask_that_leaves_new_files_unreadable_by_their_owner_is_refused_before_any_work(tmp_path):
+    """Under umask 0577 (0777) a new file is not readable by its owner, and the read-back of every EXR written failed
+    each command after its work ("Permission denied", exit 1; an attack pass). Refused by the check, naming the
+    mode; 0377 writes. Run as the kernel checks a user: as root, without the capabilities that bypass permissions."""
+    import shutil
+    import subprocess
+    import sys
+
+    prefix = []
+    if os.geteuid() == 0:
+        if shutil.which("setpriv") is None:
+            pytest.skip("root without setpriv: permissions do not apply to root")
+        caps = "-dac_override,-dac_read_search,-fowner"
+        prefix = ["setpriv", f"--inh-caps={caps}", f"--bounding-set={caps}"]
+    code = ("import os, sys\n"
+            "from awr_denoise.io.atomic import OutputSet, check_writable\n"
+            "from awr_denoise.io.exr import write_exr\n"
+            "import numpy as np\n"
+            "os.umask(int(sys.argv[1], 8))\n"
+            "try:\n"
+            "    check_writable(sys.argv[2], overwrite=False)\n"
+            "except ValueError as exc:\n"
+            "    print('refused:', exc)\n"
+            "else:\n"
+            "    write_exr(sys.argv[2], {'Y': np.ones((2, 2), np.float32)})\n"
+            "    print('written')\n")
+    for mask, expected in (("0577", "mode 0200"), ("0777", "mode 0000"), ("0377", "written")):
+        out = tmp_path / f"o{mask}.exr"
+        run = subprocess.run([*prefix, sys.executable, "-c", code, mask, str(out)], capture_output=True, text=True,
+                             timeout=120)
+        assert run.returncode == 0 and expected in run.stdout, (mask, run.stdout, run.stderr)
+        if expected == "written":
+            assert out.is_file()
+        else:
+            assert "owner cannot read" in run.stdout and "umask 022" in run.stdout
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o0377.exr"]  # the probes gone
+
+
 def test_no_room_for_the_staging_directory_names_the_target(tmp_path, monkeypatch):
     def full(*args, **kwargs):
         raise OSError(28, "No space left on device")

@@ -313,6 +313,10 @@ def check_writable(path: str | os.PathLike[str], *, overwrite: bool) -> Path:
         with _signals_deferred():
             fd, probe = tempfile.mkstemp(prefix=_PROBE_PREFIX, suffix=_PROBE_SUFFIX, dir=parent)
             os.close(fd)
+            # Created 0600 less the umask (or as the folder's default ACL says): under umask 0577 no new file was
+            # readable by its owner, and the read-back of each EXR written failed every command after its work
+            # ("Permission denied", exit 1; an attack pass). os.access answers as the kernel would (root reads it).
+            unreadable = None if os.access(probe, os.R_OK) else stat.S_IMODE(os.stat(probe).st_mode)
             try:
                 os.unlink(probe)
             except OSError as exc:  # an append-only folder (chattr +a): awr's staging folders could not go either
@@ -320,6 +324,10 @@ def check_writable(path: str | os.PathLike[str], *, overwrite: bool) -> Path:
                                  f"probe {os.path.basename(probe)} stays there") from None
     except OSError as exc:
         raise ValueError(f"{name}: directory {parent} accepts no new file ({exc.strerror or exc})") from None
+    if unreadable is not None:
+        raise ValueError(f"{name}: a new file in {parent} gets mode {unreadable:04o} (the umask, or the folder's "
+                         "default ACL), which its owner cannot read, and outputs are read back before they are "
+                         "committed; set a umask that keeps the owner's read permission (umask 022)")
     limit = _name_max(parent)
     if len(os.fsencode(final.name)) > limit:
         raise ValueError(f"{name}: the file name is {len(os.fsencode(final.name))} bytes, "
