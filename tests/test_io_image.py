@@ -462,6 +462,26 @@ def test_a_mipmapped_file_is_named_as_such_not_corrupt(tmp_path):
         read_image(tmp_path / "cut.exr")
 
 
+def test_a_mipmapped_file_with_every_level_is_read_at_its_full_resolution(tmp_path):
+    """OpenImageIO's maketx writes every level: its first is the image, the same floats as the file with one level
+    (docs/io.md; an attack pass found the page saying such files were refused)."""
+    oiio = pytest.importorskip("OpenImageIO")
+    flat = tmp_path / "flat.exr"
+    image = np.random.default_rng(0).random((24, 40, 3)).astype(np.float32)
+    write_image(flat, image)
+    mip = tmp_path / "mip.exr"
+    assert oiio.ImageBufAlgo.make_texture(oiio.MakeTxTexture, oiio.ImageBuf(str(flat)), str(mip), oiio.ImageSpec())
+    assert "MIPMAP" in str(_tile_mode(mip))
+    np.testing.assert_array_equal(read_image(mip), read_image(flat))
+
+
+def _tile_mode(path: Path):
+    import OpenEXR
+
+    with OpenEXR.File(str(path), header_only=True) as f:
+        return f.header()["tiles"].mode
+
+
 def _patched(path: Path, old: bytes, new: bytes) -> Path:
     """``path`` with the one occurrence of ``old`` in its header replaced by ``new`` (as long)."""
     data = path.read_bytes()

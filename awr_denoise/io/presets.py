@@ -85,14 +85,38 @@ class _Plane:
 
 
 def file_views(parts: Sequence[ExrPart]) -> list[str]:
-    """The views of a multi-view file (parts' ``view`` attributes), in file order; [] for none."""
+    """The views of a multi-view file, in file order: parts' ``view`` attributes, then the views of a part that holds
+    several (OpenEXR's ``multiView``); [] for none."""
     views: list[str] = []
     for part in parts:
         if "view" in part.header:
             v = str(header_value(part.header, "view"))
             if v not in views:
                 views.append(v)
+    views += [v for v in _within(parts) if v not in views]
     return views
+
+
+def _within(parts: Sequence[ExrPart]) -> list[str]:
+    """The views of a part that holds several (OpenEXR's ``multiView``: the first view's channels bare, the others'
+    prefixed with their view's name, ``right.R``), in its order; [] for none."""
+    views: list[str] = []
+    for part in parts:
+        for v in part.header.get("multiView", ()) if "multiView" in part.header else ():
+            if str(v) not in views:
+                views.append(str(v))
+    return views
+
+
+def _in_view(name: str, view: str | None, within: list[str]) -> str | None:
+    """Channel ``name`` of a part holding ``within``'s views as it reads in ``view`` (its prefix gone), or None where
+    it belongs to another view."""
+    if len(within) < 2 or view is None:
+        return name
+    prefix = name.split(".", 1)[0] if "." in name else None
+    if view == within[0]:
+        return None if prefix in within[1:] else name
+    return name.split(".", 1)[1] if prefix == view else None
 
 
 def _part_view(part: ExrPart) -> str | None:
@@ -118,13 +142,24 @@ class _File:
         self.view = view
         self.used = [part for part in parts if not part.deep and _part_view(part) in (None, view)]
         first_window = header_windows(parts[0].header).get("dataWindow")
+        within = _within(parts)
+        owner: dict[str, int] = {}
         for part in self.used:
             if header_windows(part.header).get("dataWindow") != first_window:
                 # Outputs keep the first part's windows: these pixels would be placed elsewhere.
                 raise file_error(path, f"part {part.index}'s data window differs from the first part's; "
                                        "read a file whose parts share one window")
             for name, arr in part.channels.items():
-                self.channels.setdefault(name, arr)
+                name = _in_view(name, view, within) if "multiView" in part.header else name
+                if name is None:
+                    continue
+                if name in owner:
+                    # The first part won, silently: a second render (or a reference) in another part of one file
+                    # gave its means, its counts or its variance to the first (an attack pass).
+                    raise file_error(path, f"is in several parts ({owner[name]} and {part.index}); read a file "
+                                           "whose parts name each channel once", name)
+                owner[name] = part.index
+                self.channels[name] = arr
         # Every part's attributes count, whatever its view: Cycles puts cycles.<layer>.samples
         # on the first part only.
         for part in parts:
@@ -1056,6 +1091,9 @@ def read_sample_dump(
             raise file_error(p, "missing (not in the awr dump layout)", COUNT_CHANNEL)
         if len(flat) > 1:  # never pick one silently
             raise file_error(p, f"{len(flat)} parts hold samples; give a file with one", COUNT_CHANNEL)
+        if len(_within(flat)) > 1:  # read from the part as awr wrote it: the first view's, whatever --view said
+            raise file_error(p, f"holds views {', '.join(_within(flat))} in one part (multiView), which an awr dump "
+                                "never does; give one view's dump", COUNT_CHANNEL)
         if spp is not None:
             raise file_error(p, f"holds per-pixel sample counts; spp={spp} / --spp is for files without them",
                              COUNT_CHANNEL)

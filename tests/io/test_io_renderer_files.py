@@ -158,6 +158,75 @@ def test_one_pbrt_render_in_float_and_in_half_floats_is_not_merged_as_twice_the_
     assert (read_sample_dump(out).buffer.count == 16 * 8).all()
 
 
+def _exr_parts(path: Path) -> tuple[dict, dict[str, np.ndarray]]:
+    with OpenEXR.File(str(path), separate_channels=True) as f:
+        header = dict(f.header())
+        header.pop("channels", None)
+        return header, {k: c.pixels.copy() for k, c in f.channels().items()}
+
+
+def test_a_channel_in_two_parts_of_a_renderers_file_is_refused_not_taken_from_the_first(tmp_path, capsys):
+    """pbrt-v4's dump with a second part repeating its channels (all NaN), or the 1024-spp reference as the first part
+    beside the 16-spp dump: the first part won, silently, for every channel and attribute, and the reference's means
+    were denoised as 1024 spp with the dump's variance (an attack pass). Refused naming the file and a channel, by the
+    readers of samples, planes and features."""
+    header, channels = _exr_parts(PB / "pbrt_gbuffer_fp32.exr")
+    nan = {k: np.full_like(v, np.nan) if v.dtype.kind == "f" else v for k, v in channels.items()}
+    repeated = tmp_path / "repeated.exr"
+    OpenEXR.File([OpenEXR.Part(dict(header, name="first"), channels, "first"),
+                  OpenEXR.Part(dict(header, name="second"), nan, "second")]).write(str(repeated))
+    reference_header, reference = _exr_parts(PB / "pbrt_ref.exr")
+    mixed = tmp_path / "mixed.exr"
+    OpenEXR.File([OpenEXR.Part(dict(reference_header, name="beauty"), reference, "beauty"),
+                  OpenEXR.Part(dict(header, name="samples"), channels, "samples")]).write(str(mixed))
+    for path in (repeated, mixed):
+        with pytest.raises(InputFileError, match=r"is in several parts \(0 and 1\)"):
+            read_sample_dump(path)
+        out = tmp_path / "o.exr"
+        for argv in (["denoise", str(path), "-o", str(out)], ["info", str(path)],
+                     ["merge", str(PB / "pbrt_gbuffer_fp32.exr"), str(path), "-o", str(out)],
+                     ["denoise", str(PB / "pbrt_gbuffer_fp32.exr"), "--variance", f"{path}:Variance", "-o", str(out)]):
+            code = main(argv + ([] if argv[0] == "info" else ["-q"]))
+            captured = capsys.readouterr()
+            said = captured.err + captured.out  # info describes the file, and says what is missing on stdout
+            assert "is in several parts" in said and str(path.name) in said, (argv, said)
+            assert code == 2 and not out.exists(), argv
+    # Parts that name each channel once (pbrt's seeds in one file each) still read.
+    assert read_sample_dump(PB / "pbrt_gbuffer_fp32.exr").buffer.count.min() == 16
+
+
+def test_a_single_part_multi_view_file_is_read_in_the_view_asked_for(tmp_path, capsys):
+    """OpenEXR's multiView in one part (the first view's channels bare, the others' prefixed, right.R), built from
+    pbrt-v4's dump with the right view's means doubled: read as a single-view file, the left view silently, and
+    --view right was "no view 'right'" (an attack pass). Now several views need --view, and each reads its own."""
+    header, channels = _exr_parts(PB / "pbrt_gbuffer_fp32.exr")
+    both = dict(channels)
+    for name, plane in channels.items():
+        both[f"right.{name}"] = plane * 2 if name in ("R", "G", "B") else plane.copy()
+    stereo = tmp_path / "stereo.exr"
+    OpenEXR.File(dict(header, multiView=["left", "right"]), both).write(str(stereo))
+    with pytest.raises(InputFileError, match=r"has several views \(left, right\)"):
+        read_sample_dump(stereo)
+    left, right = (read_sample_dump(stereo, view=v).buffer for v in ("left", "right"))
+    plain = read_sample_dump(PB / "pbrt_gbuffer_fp32.exr").buffer
+    np.testing.assert_array_equal(left.mean, plain.mean)
+    np.testing.assert_allclose(right.mean, 2 * plain.mean, rtol=1e-6)
+    np.testing.assert_array_equal(right.variance, plain.variance)
+    out = tmp_path / "o.exr"
+    assert main(["denoise", str(stereo), "-o", str(out), "-q"]) == 2 and not out.exists()
+    assert "has several views" in capsys.readouterr().err
+    assert main(["denoise", str(stereo), "--view", "right", "-o", str(out), "-q"]) == 0
+    # An awr dump never holds two views in one part: refused, not read as its first view whatever --view says.
+    from awr_denoise.io import write_sample_buffer
+
+    dump = write_sample_buffer(tmp_path / "dump.exr", plain)
+    header, channels = _exr_parts(dump)
+    OpenEXR.File(dict(header, multiView=["left", "right"]),
+                 channels | {f"right.{k}": v for k, v in channels.items()}).write(str(stereo))
+    with pytest.raises(InputFileError, match="holds views left, right in one part"):
+        read_sample_dump(stereo, view="right")
+
+
 def _sky_render(path: Path, spp: int, seed: int) -> None:
     """A render in the project's layout, at ``spp`` everywhere: a constant sky over 60% of it (no noise there) above
     noisy ground, whose true values do not depend on ``seed``."""
