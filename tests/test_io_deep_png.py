@@ -218,6 +218,20 @@ def test_a_preview_wider_than_libpng_allows_is_written_without_its_errors(tmp_pa
     assert int.from_bytes(header[16:20], "big") == 1_000_001 and int.from_bytes(header[20:24], "big") == 1
 
 
+def test_a_preview_of_four_channels_is_written_by_openimageio_without_its_errors(tmp_path, capfd, monkeypatch):
+    """An RGBA preview reached OpenImageIO as a strided view of its planes: libpng wrote no pixel data and printed
+    "No IDATs written into file" on stderr, -q or not, before the built-in encoder wrote the file (an attack pass)."""
+    pytest.importorskip("OpenImageIO")
+    from awr_denoise.io import png
+
+    monkeypatch.setattr(png, "encode_png", lambda pixels: pytest.fail("the built-in encoder wrote it"))
+    strided = np.full((4, 32, 48), 200, np.uint8).transpose(1, 2, 0)
+    assert not strided.flags.c_contiguous
+    png._write_png(str(tmp_path / "rgba.png"), strided)
+    assert capfd.readouterr().err == ""
+    assert (tmp_path / "rgba.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
 def test_tonemap_refuses_complex_bool_and_masked_images():
     """These were cast: ``0.5+9j`` became grey 188 (red-team pass of the API's array layouts)."""
     with pytest.raises(TypeError, match="image: complex values are not supported"):

@@ -78,6 +78,9 @@ def _ends_whole(path: str) -> bool:
 
 
 def _write_png(tmp: str, pixels: np.ndarray) -> None:
+    # OpenImageIO's write of a strided array (an RGBA preview's view of its planes) failed in libpng, which printed
+    # "No IDATs written into file" on stderr, -q or not, before the encoder below wrote it again (an attack pass).
+    pixels = np.ascontiguousarray(pixels)
     try:
         import OpenImageIO as oiio  # the optional ``exr`` extra; the built-in encoder below does without
     except ImportError:
