@@ -26,7 +26,7 @@ import numpy as np
 
 from .._typing import FloatArray
 
-__all__ = ["MITSUBA_XYZ_TO_SRGB", "PBRT_XYZ_TO_SRGB", "COVARIANCE_MODELS", "xyz_statistics_to_rgb"]
+__all__ = ["MITSUBA_XYZ_TO_SRGB", "PBRT_XYZ_TO_SRGB", "COVARIANCE_MODELS", "xyz_statistics_to_rgb", "xyz_to_rgb"]
 
 # Mitsuba 3's xyz_to_srgb (include/mitsuba/core/spectrum.h), checked against the R,G,B and
 # nested X,Y,Z channels of one real moment render (least-squares fit agrees to 1e-5).
@@ -41,6 +41,53 @@ PBRT_XYZ_TO_SRGB = np.array([[3.2404542, -1.5371385, -0.4985314],
                              [-0.9692660, 1.8760108, 0.0415560],
                              [0.0556434, -0.2040259, 1.0572252]])
 """CIE XYZ to linear sRGB of pbrt-v4's default output colour space."""
+
+def xyz_to_rgb(chromaticities: tuple[float, ...] | list[float] | FloatArray) -> FloatArray:
+    """CIE XYZ to the linear RGB of an EXR ``chromaticities`` attribute: the (3, 3) matrix.
+
+    The attribute holds the red, green and blue primaries and the white point as CIE xy
+    (``rx, ry, gx, gy, bx, by, wx, wy``); RGB (1, 1, 1) is the white of luminance Y = 1, the
+    derivation pbrt-v4's ``RGBColorSpace`` and OpenEXR's ``RGBtoXYZ`` make. pbrt-v4 writes the
+    attribute for an output colour space other than sRGB, whose means are then in it (its
+    ``Variance`` stays in sensor XYZ).
+
+    Parameters
+    ----------
+    chromaticities
+        Eight finite numbers.
+
+    Raises
+    ------
+    ValueError
+        Not eight finite numbers, a ``y`` of 0, or primaries that span no colour space (on a line).
+
+    Examples
+    --------
+    The sRGB primaries and D65 give pbrt-v4's own matrix (paper section 5: the variances the
+    thresholds of Eq. 10-11 use are carried through it):
+
+    >>> import numpy as np
+    >>> from awr_denoise.io.colour import PBRT_XYZ_TO_SRGB, xyz_to_rgb
+    >>> srgb = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.31271, 0.32902)
+    >>> bool(np.allclose(xyz_to_rgb(srgb), PBRT_XYZ_TO_SRGB, atol=1e-3))
+    True
+    """
+    c = np.asarray(chromaticities, dtype=np.float64).ravel()
+    if c.size != 8 or not np.isfinite(c).all():
+        raise ValueError(f"chromaticities: expected 8 finite numbers (rx ry gx gy bx by wx wy), got {c.tolist()}")
+    xy = c.reshape(4, 2)
+    if (xy[:, 1] == 0).any():
+        raise ValueError(f"chromaticities: a y of 0 has no colour ({c.tolist()})")
+    xyz = np.stack([xy[:, 0] / xy[:, 1], np.ones(4), (1.0 - xy[:, 0] - xy[:, 1]) / xy[:, 1]], axis=1)  # rows: r, g, b, w
+    primaries = xyz[:3].T  # columns: the primaries' XYZ at Y = 1
+    if abs(np.linalg.det(primaries)) < 1e-9 * np.abs(primaries).max() ** 3:
+        raise ValueError(f"chromaticities: the primaries lie on a line and span no colour space ({c.tolist()})")
+    scale = np.linalg.solve(primaries, xyz[3])  # each primary's share of the white
+    rgb_to_xyz = primaries * scale
+    if abs(np.linalg.det(rgb_to_xyz)) < 1e-12 or not np.isfinite(rgb_to_xyz).all():
+        raise ValueError(f"chromaticities: the white point is on the primaries' edge ({c.tolist()})")
+    return np.linalg.inv(rgb_to_xyz)
+
 
 COVARIANCE_MODELS = ("correlated", "independent")
 """How unknown channel covariances are filled: fully correlated (default) or zero."""

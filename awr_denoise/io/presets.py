@@ -42,7 +42,7 @@ from .._typing import FloatArray
 from ..buffers import VARIANCE_KINDS, SampleBuffer
 from ..errors import InputFileWarning
 from ..features import FEATURE_CHANNELS, FEATURE_NAMES, feature_names
-from .colour import MITSUBA_XYZ_TO_SRGB, PBRT_XYZ_TO_SRGB, xyz_statistics_to_rgb
+from .colour import MITSUBA_XYZ_TO_SRGB, PBRT_XYZ_TO_SRGB, xyz_statistics_to_rgb, xyz_to_rgb
 from .cycles import COLOUR_PASSES, COUNT_PASS, cycles_layers, sample_count_scale, split_channel
 from .deep import sample_index_bounds, samples_from_deep_part
 from .dump import (COUNT_CHANNEL, MAX_EXACT_COUNT, VARIANCE_PREFIX, SampleDump, buffer_from_awr_part,
@@ -432,7 +432,20 @@ def _pbrt(ctx: _Context) -> _Layout:
         # GBufferFilm accumulates Variance on sensor RGB (CIE XYZ for the default sensor) and
         # converts only the means to the output colour space; also when the plane is named.
         convert = (PBRT_XYZ_TO_SRGB, "variance")
-        ctx.notes.append("Variance holds pbrt's sensor XYZ: converted to linear sRGB (channels taken as fully "
+        space = "linear sRGB"
+        if "chromaticities" in ctx.file.header:
+            # Written for any output colour space but sRGB, whose RGB the means are then in: the variance converted
+            # to sRGB beside Rec.2020 means, without a word (an attack pass).
+            try:
+                convert = (xyz_to_rgb(ctx.file.header["chromaticities"]), "variance")
+            except (ValueError, TypeError) as exc:
+                raise file_error(ctx.path, str(exc).removeprefix("chromaticities: "), "chromaticities") from None
+            space = "the linear RGB of its chromaticities"
+            if not np.allclose(convert[0], PBRT_XYZ_TO_SRGB, atol=2e-3):
+                ctx.warnings.append(f"{ctx.path}: chromaticities: its primaries are not sRGB's: the means and the "
+                                    "variance are read in its own RGB, and the outputs, which do not carry the "
+                                    "attribute, are in it too (a viewer takes them as sRGB)")
+        ctx.notes.append(f"Variance holds pbrt's sensor XYZ: converted to {space} (channels taken as fully "
                          "correlated)")
     if not known.all():
         ctx.notes.append(f"{int((~known).sum())} pixel(s) have Variance 0 (no estimate, e.g. only the "

@@ -227,6 +227,38 @@ def test_a_single_part_multi_view_file_is_read_in_the_view_asked_for(tmp_path, c
         read_sample_dump(stereo, view="right")
 
 
+def test_pbrts_chromaticities_set_the_colour_space_its_xyz_variance_is_converted_to(tmp_path):
+    """pbrt-v4 writes chromaticities for an output colour space other than sRGB (util/image.cpp), its means then in
+    that RGB and its Variance still in sensor XYZ: the variance was converted to sRGB beside Rec.2020 means, without a
+    word (an attack pass). Converted by the file's own primaries, warned about; an sRGB one reads as none does."""
+    from awr_denoise.io.colour import PBRT_XYZ_TO_SRGB, xyz_statistics_to_rgb, xyz_to_rgb
+
+    header, channels = _exr_parts(PB / "pbrt_gbuffer_fp32.exr")
+    xyz = np.stack([channels[f"Variance.{c}"] for c in "RGB"], axis=-1).astype(np.float64)
+    rec2020 = (0.708, 0.292, 0.170, 0.797, 0.131, 0.046, 0.3127, 0.3290)
+    plain = read_sample_dump(PB / "pbrt_gbuffer_fp32.exr").buffer
+    for name, chromaticities in (("rec2020", rec2020), ("srgb", (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.329)),
+                                 ("nan", (np.nan,) * 8), ("line", (0.2, 0.2, 0.3, 0.3, 0.4, 0.4, 0.3127, 0.329))):
+        path = tmp_path / f"{name}.exr"
+        OpenEXR.File(dict(header, chromaticities=chromaticities), channels).write(str(path))
+        if name in ("nan", "line"):
+            with pytest.raises(InputFileError, match=f"{name}.exr: chromaticities: "):
+                read_sample_dump(path)
+            continue
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            buffer = read_sample_dump(path).buffer
+        warned = [str(w.message) for w in caught if "chromaticities" in str(w.message)]
+        assert len(warned) == (1 if name == "rec2020" else 0), warned
+        np.testing.assert_array_equal(buffer.mean, plain.mean)  # the means are the file's, in its own RGB
+        known = plain.variance > 0
+        expected = xyz_statistics_to_rgb(None, xyz, xyz_to_rgb(np.float32(chromaticities)))[1]
+        np.testing.assert_allclose(buffer.variance[known], expected[known], rtol=1e-5)
+        if name == "srgb":  # within the rounding of pbrt's matrix
+            np.testing.assert_allclose(buffer.variance[known], plain.variance[known], rtol=2e-3)
+    assert not np.allclose(xyz_to_rgb(rec2020), PBRT_XYZ_TO_SRGB, atol=0.1)
+
+
 def _sky_render(path: Path, spp: int, seed: int) -> None:
     """A render in the project's layout, at ``spp`` everywhere: a constant sky over 60% of it (no noise there) above
     noisy ground, whose true values do not depend on ``seed``."""
