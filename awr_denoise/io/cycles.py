@@ -138,15 +138,25 @@ def sample_count_scale(normalised: np.ndarray, requested: int | None, *,
     if d is None:
         raise ValueError(f"normalised counts are not whole numbers of 1/S for any S up to {limit}")
     whole = np.rint(values * d).astype(np.int64)
+    readings = []
     for below, rule in ((whole, f"adaptive counts differ by multiples of {step} samples"),
                         # A render whose end is off the checks' grid (S = 100): the top pixels stopped at S.
                         (whole[:-1], f"adaptive counts below the top differ by multiples of {step} samples, the "
                                      "top pixels ran to the end of the render")):
         gcd = int(np.gcd.reduce(np.diff(below))) if below.size > 1 else 0
         if gcd and step % gcd == 0 and (requested is None or d * (step // gcd) <= requested):
-            scale = d * (step // gcd)
-            how = f"{rule}: {scale} samples rendered"
-            break
+            readings.append((d * (step // gcd), rule))
+    if requested is None and len({scale for scale, _ in readings}) > 1:
+        # Without the header's bound both can fit: S = 100 with pixels stopped at 16, 32, ..., 96 and 100 is S = 400
+        # with pixels stopped at 64, 128, ..., 384 and 400; the first reading was taken, every count 4x too high,
+        # with a note only (an attack pass on a file without cycles.<layer>.samples).
+        (many, _), (few, _) = readings
+        raise ValueError(f"the counts fit {many} samples rendered (every pixel stopped at a convergence check) and "
+                         f"{few} (the top pixels ran to the end between two checks), and the header has no requested "
+                         "sample count to tell them apart")
+    if readings:
+        scale, rule = readings[0]
+        how = f"{rule}: {scale} samples rendered"
     else:
         if requested is not None and requested % d == 0 and all(int(w) * (requested // d) % step == 0
                                                                 for w in whole[:-1]):

@@ -679,6 +679,33 @@ def test_cycles_counts_of_a_render_off_the_checks_grid():
     assert any("ran to the end of the render: 100 samples" in note for note in dump.notes)
 
 
+def test_cycles_counts_off_the_grid_without_the_requested_samples_are_ambiguous(tmp_path):
+    """The same file without cycles.ViewLayer.samples (a tool that dropped the header): 100 samples with pixels
+    stopped at 16, ..., 96 and 100 also fit 400 with pixels stopped at 64, ..., 384 and 400, and the counts were read
+    as 400 at the top, 4x the truth, with a note only (an attack pass). Refused naming both; --spp reads it."""
+    from awr_denoise.io.cycles import sample_count_scale
+
+    with OpenEXR.File(str(CY / "cycles_adaptive_100.exr"), separate_channels=True) as f:
+        parts = [(dict(f.header(i)), {k: c.pixels.copy() for k, c in f.channels(i).items()})
+                 for i in range(len(f.parts))]
+    assert any("cycles.ViewLayer.samples" in header for header, _ in parts)
+    for header, _ in parts:
+        header.pop("cycles.ViewLayer.samples", None)
+        header.pop("channels", None)
+    bare = tmp_path / "bare.exr"
+    if len(parts) == 1:
+        OpenEXR.File(*parts[0]).write(str(bare))
+    else:
+        OpenEXR.File([OpenEXR.Part(h, c, str(h.get("name", i))) for i, (h, c) in enumerate(parts)]).write(str(bare))
+    with pytest.raises(InputFileError, match=r"fit 400 samples rendered .* and 100 .* pass spp="):
+        read_sample_dump(bare, variance="ViewLayer.Combined")
+    counts = read_sample_dump(bare, variance="ViewLayer.Combined", spp=100).buffer.count
+    np.testing.assert_array_equal(counts, read_sample_dump(CY / "cycles_adaptive_100.exr",
+                                                           variance="ViewLayer.Combined").buffer.count)
+    # On the grid both readings agree: no refusal without the header (S = 256, pixels at 48, 64 and 256).
+    assert sample_count_scale(np.array([48, 64, 256]) / 256, None)[0] == 256
+
+
 def test_cycles_denoising_passes_with_the_denoiser_off_are_not_called_denoised():
     """The denoiser off with its passes stored (what ``--guide`` needs) was warned about as "Combined
     is already denoised": Blender 5 writes Noisy Image whenever its denoiser runs (cycles_default),
