@@ -482,6 +482,42 @@ def _tile_mode(path: Path):
         return f.header()["tiles"].mode
 
 
+_SWAPPED_FOR_A_FIFO = """
+import os, sys
+from awr_denoise.io import exr, read_image
+path, fifo = sys.argv[1:3]
+checked = exr._check_magic
+
+def then_swapped(p):
+    checked(p)
+    os.rename(fifo, path)  # after the checks, before the read: a FIFO where the file was
+
+exr._check_magic = then_swapped
+try:
+    read_image(path)
+except Exception as exc:
+    print(type(exc).__name__, exc)
+"""
+
+
+def test_a_fifo_renamed_into_an_inputs_place_after_its_checks_is_refused_not_waited_on(tmp_path):
+    """The bindings open by name and wait for a writer on a FIFO: one renamed into the path between the checks and
+    the read held the command until a signal (an attack pass, 3 runs in 30). The file read is now the one opened
+    and checked without waiting."""
+    import subprocess
+    import sys
+
+    if not os.path.isdir("/proc/self/fd"):
+        pytest.skip("the read goes by name where /proc/self/fd is missing")
+    path, fifo = tmp_path / "in.exr", tmp_path / "fifo"
+    write_image(path, np.ones((4, 4, 3)))
+    os.mkfifo(fifo)
+    run = subprocess.run([sys.executable, "-c", _SWAPPED_FOR_A_FIFO, str(path), str(fifo)], capture_output=True,
+                         text=True, timeout=60)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.startswith("InputFileError") and "is a FIFO" in run.stdout and "in.exr" in run.stdout
+
+
 def _patched(path: Path, old: bytes, new: bytes) -> Path:
     """``path`` with the one occurrence of ``old`` in its header replaced by ``new`` (as long)."""
     data = path.read_bytes()

@@ -172,7 +172,36 @@ def _exr_message(line: str, path: str) -> bool:
 
 
 @contextlib.contextmanager
-def _captured_c_output(path: str | os.PathLike[str]) -> Iterator[_Captured]:
+def _pinned(path: Path) -> Iterator[str]:
+    """The name to hand OpenEXR for ``path``: ``/proc/self/fd/N`` of a descriptor opened here, checked to be a regular
+    file, on Linux; the path itself elsewhere.
+
+    The bindings open the file by name, waiting for a writer if it is a FIFO: one renamed into the path after the
+    checks (a race an attacker can win) held the command until a signal (an attack pass, 3 runs in 30). Opened here
+    without waiting and checked, the file read is the one checked, whatever the path names meanwhile.
+    """
+    if not os.path.isdir("/proc/self/fd"):
+        yield os.fspath(path)
+        return
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+    except (FileNotFoundError, NotADirectoryError):
+        raise file_error(path, "no such file (removed while it was read)") from None
+    except OSError as exc:
+        if exc.errno in _RESOURCE_ERRNOS:
+            raise
+        raise file_error(path, f"cannot read: {exc.strerror or exc}") from None
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            raise file_error(path, f"is a {file_kind(mode)}, not a regular file (put in its place while it was read)")
+        yield f"/proc/self/fd/{fd}"
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def _captured_c_output(path: str | os.PathLike[str], opened_as: str | None = None) -> Iterator[_Captured]:
     """Collect what the C++ library prints on stdout/stderr about ``path`` instead of letting it through.
 
     OpenEXR reports corrupt chunks by printing (and then returning no parts); a command-line
@@ -181,9 +210,10 @@ def _captured_c_output(path: str | os.PathLike[str]) -> Iterator[_Captured]:
     redirecting at once would restore each other's sink and lose stdout for good (frames
     are read in threads by :func:`awr_denoise.parallel.denoise_frames`). Output of other
     threads during a read (a progress bar) lands in the capture too: it is not OpenEXR's,
-    so it is written on to the stream it was meant for, and never read as a corruption report.
+    so it is written on to the stream it was meant for, and never read as a corruption report. ``opened_as``: the
+    name the library was given for ``path`` (:func:`_pinned`), which its reports name and which they are told by.
     """
-    captured, name = _Captured(), os.fspath(path)
+    captured, name = _Captured(), opened_as or os.fspath(path)
     with _CAPTURE_LOCK, _temporary(name) as out, _temporary(name) as err:
         for stream in (sys.stdout, sys.stderr):  # None when the process started with it closed
             if stream is not None:
@@ -213,7 +243,7 @@ def _captured_c_output(path: str | os.PathLike[str]) -> Iterator[_Captured]:
                 if passed:
                     with open(fd, "wb", closefd=False) as stream:  # the bytes as they were printed
                         stream.write(passed)
-            captured.text = "".join(reports)
+            captured.text = "".join(reports).replace(name, os.fspath(path))
 
 
 def _temporary(name: str) -> Any:
@@ -269,9 +299,10 @@ def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list
     OpenEXR = _openexr()
     deep_types = {OpenEXR.deepscanline, OpenEXR.deeptile}
     parts: list[ExrPart] = []
+    source = os.fspath(p)
     try:
-        with _captured_c_output(p) as captured, \
-                OpenEXR.File(os.fspath(p), separate_channels=True, header_only=header_only) as f:
+        with _pinned(p) as source, _captured_c_output(p, source) as captured, \
+                OpenEXR.File(source, separate_channels=True, header_only=header_only) as f:
             for i, part in enumerate(f.parts):
                 header = _checked_header(p, dict(f.header(i)))
                 channels = {} if header_only else {name: ch.pixels for name, ch in f.channels(i).items()}
@@ -287,9 +318,9 @@ def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list
     except OSError as exc:  # raised by this module's own calls (the capture), not by the bindings
         if exc.errno is None or exc.errno in _RESOURCE_ERRNOS:
             raise
-        raise _unreadable(p, str(exc), header_only) from None
+        raise _unreadable(p, str(exc).replace(source, os.fspath(p)), header_only) from None
     except Exception as exc:  # the bindings raise RuntimeError/ValueError/... for corrupt data
-        detail = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        detail = str(exc).replace(source, os.fspath(p)).splitlines()[0] if str(exc) else type(exc).__name__
         if detail.startswith("Unable to open") and _few_descriptors():
             # OpenEXR says this of a corrupt header too, and of a file it could not open for want of a descriptor
             # (ulimit -n 7): then a valid input was called corrupt (a red-team pass).
