@@ -314,6 +314,17 @@ def test_missing_variance_channel(tmp_path):
         read_sample_buffer(tmp_path / "m.exr")
 
 
+def test_statistics_the_header_does_not_list_are_refused_not_dropped(tmp_path):
+    """``awr:channels`` naming R,G in a dump that holds B and its variance too: B was dropped without a word (an
+    attack pass). The header and the channels disagree: refused, naming both; feature planes are not counted."""
+    planes = _planes()
+    _write(tmp_path / "m.exr", planes, {"awr:channels": "R,G"})
+    with pytest.raises(InputFileError, match=r"m\.exr: awr:channels: 'R,G' does not list B, .*\(variance\.B\)"):
+        read_sample_buffer(tmp_path / "m.exr")
+    _write(tmp_path / "all.exr", planes, {"awr:channels": "R,G,B"})
+    assert read_sample_buffer(tmp_path / "all.exr").mean.shape[-1] == 3
+
+
 def test_undetectable_layout(tmp_path):
     _write(tmp_path / "u.exr", {"foo": np.ones((2, 2), np.float32)})
     with pytest.raises(InputFileError, match=r"u\.exr: cannot detect the layout \(channels: foo\); choose"):

@@ -339,11 +339,19 @@ def buffer_from_awr_part(path: str | os.PathLike[str], part: ExrPart, *,
     attributes = {k: header_value(header, k) for k in header if str(k).startswith("awr:")}
     if COUNT_CHANNEL not in ch:
         raise file_error(path, "missing (the dump layout stores the sample count here)", COUNT_CHANNEL)
+    held = sorted(n[len(VARIANCE_PREFIX):] for n in ch if n.startswith(VARIANCE_PREFIX)
+                  and not n[len(VARIANCE_PREFIX):].startswith(tuple(f"{f}." for f in FEATURE_NAMES)))
     if "awr:channels" in attributes:
         names = [n for n in str(attributes["awr:channels"]).split(",") if n]
+        unlisted = [n for n in held if n not in names and n in ch]
+        if names and unlisted:
+            # Statistics the header does not list were dropped without a word (an attack pass): the header and the
+            # channels disagree, and which is right is not the reader's to guess.
+            raise file_error(path, f"{brief(attributes['awr:channels'])} does not list {', '.join(unlisted)}, whose "
+                                   f"means and variances ({', '.join(VARIANCE_PREFIX + n for n in unlisted)}) the "
+                                   "dump holds; make the two agree", "awr:channels")
     else:
-        names = sorted(n[len(VARIANCE_PREFIX):] for n in ch if n.startswith(VARIANCE_PREFIX)
-                       and not n[len(VARIANCE_PREFIX):].startswith(tuple(f"{f}." for f in FEATURE_NAMES)))
+        names = held
         order = {"R": 0, "G": 1, "B": 2, "A": 3}
         names.sort(key=lambda n: (order.get(n, 4), n))
     if not names:
