@@ -20,9 +20,10 @@ fresh process per case, the tracemalloc peak above the built buffer and the peak
 multiples of the input buffer (count + mean + variance). ``tell``: one ``tell()`` with the merge compiled
 (extra ``fast``) against its numpy reference, on one thread and two, beside the floor. ``rare_paths``: ``ask()``
 with rare-path regions evened (the default, :mod:`awr_denoise.rare_paths`) against ranked, on a frame with none and
-on one lit through rare paths everywhere, on one core and with a 2-thread executor (the search beside the density). ``--keep-freed-memory``: every section,
-the memory children included, in the memory setting the ``awr`` command makes when it starts
-(:func:`awr_denoise.memory.keep_freed_memory`); without it, in glibc's default, as a Python caller who sets nothing.
+on one lit through rare paths everywhere, on one core and with a 2-thread executor (the search beside the density).
+``--keep-freed-memory``: every section, the memory children included, in the memory setting the ``awr`` command makes
+when it starts (:func:`awr_denoise.memory.keep_freed_memory`); without it, in glibc's default, as a Python caller who
+sets nothing.
 """
 
 from __future__ import annotations

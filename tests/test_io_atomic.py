@@ -537,7 +537,8 @@ def test_a_staged_temporary_that_cannot_be_written_names_its_target_as_an_output
             assert check_writable(tmp, overwrite=False) == tmp
         os.rename(tmp_path / "sub", tmp_path / "moved")
         (tmp_path / "sub").mkdir()
-        for write in (lambda: write_exr(tmp, plane), lambda: atomic_write(tmp, lambda path: Path(path).write_text("a"))):
+        text = (lambda: atomic_write(tmp, lambda path: Path(path).write_text("a")))
+        for write in (lambda: write_exr(tmp, plane), text):
             with pytest.raises(OSError) as info:
                 write()
             assert type(info.value) is OSError and not isinstance(info.value, (ValueError, FileNotFoundError))

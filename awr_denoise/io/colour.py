@@ -42,6 +42,7 @@ PBRT_XYZ_TO_SRGB = np.array([[3.2404542, -1.5371385, -0.4985314],
                              [0.0556434, -0.2040259, 1.0572252]])
 """CIE XYZ to linear sRGB of pbrt-v4's default output colour space."""
 
+
 def xyz_to_rgb(chromaticities: tuple[float, ...] | list[float] | FloatArray) -> FloatArray:
     """CIE XYZ to the linear RGB of an EXR ``chromaticities`` attribute: the (3, 3) matrix.
 
@@ -78,7 +79,8 @@ def xyz_to_rgb(chromaticities: tuple[float, ...] | list[float] | FloatArray) -> 
     xy = c.reshape(4, 2)
     if (xy[:, 1] == 0).any():
         raise ValueError(f"chromaticities: a y of 0 has no colour ({c.tolist()})")
-    xyz = np.stack([xy[:, 0] / xy[:, 1], np.ones(4), (1.0 - xy[:, 0] - xy[:, 1]) / xy[:, 1]], axis=1)  # rows: r, g, b, w
+    # Rows r, g, b, w: each chromaticity's XYZ at Y = 1.
+    xyz = np.stack([xy[:, 0] / xy[:, 1], np.ones(4), (1.0 - xy[:, 0] - xy[:, 1]) / xy[:, 1]], axis=1)
     primaries = xyz[:3].T  # columns: the primaries' XYZ at Y = 1
     if abs(np.linalg.det(primaries)) < 1e-9 * np.abs(primaries).max() ** 3:
         raise ValueError(f"chromaticities: the primaries lie on a line and span no colour space ({c.tolist()})")
