@@ -23,7 +23,7 @@ from awr_denoise.io import (
 from awr_denoise.io.atomic import same_file
 from awr_denoise.io.deep import check_answers
 from awr_denoise.io.dump import COUNT_CHANNEL, SEMANTICS_STATISTICS, SampleDump, header_count
-from awr_denoise.io.exr import ExrPart, brief, check_same_windows, read_exr, read_windows
+from awr_denoise.io.exr import ExrPart, brief, check_same_windows, read_exr, read_windows, recorded_windows
 from awr_denoise.io.request_map import MAX_ROUND
 
 from .common import ANSWERS, EXIT_OK, UsageError, add_plane_options, answer_keys, plane_kwargs, run_settings, status
@@ -308,6 +308,20 @@ def _refuse_copies(earlier: list[_Seen], new: _Seen) -> None:
                          "(pass --allow-duplicates to merge them anyway)")
 
 
+def _one_colour_space(spaces: list[tuple[str, tuple[float, ...] | None]]) -> dict[str, tuple[float, ...]]:
+    """The header of the inputs' one RGB (``chromaticities``: none for sRGB, the format's default), or a refusal
+    naming two inputs of different ones: their means and variances would be added across colour spaces. pbrt-v4
+    writes the attribute for any output colour space but sRGB; the merged dump carries it, as ``denoise``'s image."""
+    for path, space in spaces[1:]:
+        if space != spaces[0][1]:
+            def said(value: tuple[float, ...] | None) -> str:
+                return "none (sRGB)" if value is None else " ".join(f"{v:.4g}" for v in value)
+
+            raise UsageError(f"merge: {path} and {spaces[0][0]} are in other colour spaces (chromaticities "
+                             f"{said(space)} against {said(spaces[0][1])}): their samples cannot be merged")
+    return {} if not spaces or spaces[0][1] is None else {"chromaticities": spaces[0][1]}
+
+
 def _refuse_duplicates(paths: list[str]) -> None:
     """Refuse two inputs that are one file (merged, its samples would count twice)."""
     for j in range(1, len(paths)):
@@ -372,10 +386,12 @@ def run(args: argparse.Namespace) -> int:
                              "least 2")
         if not args.allow_duplicates:
             _refuse_duplicates(args.inputs)
-        dump = read_independent_renders(args.inputs, **{k: kwargs[k] for k in ("preset", "color", "count", "spp",
-                                                                                 "layer", "view")})
+        with recorded_windows() as reads:
+            dump = read_independent_renders(args.inputs, **{k: kwargs[k] for k in ("preset", "color", "count", "spp",
+                                                                                     "layer", "view")})
+        space = _one_colour_space([(path, found) for path, _, found in reads])
         plan.check_unchanged()  # after the last read: every render and its windows of one version
-        write_sample_buffer(args.output, dump.buffer, header=windows, overwrite=args.overwrite)
+        write_sample_buffer(args.output, dump.buffer, header={**windows, **space}, overwrite=args.overwrite)
         h, w = dump.buffer.shape
         status(f"{args.output}: {len(args.inputs)} independent renders, {dump.buffer.total_samples} samples "
                f"({dump.buffer.total_samples / (h * w):.4g} spp)", quiet=args.quiet)
@@ -398,8 +414,12 @@ def run(args: argparse.Namespace) -> int:
     asked = None if not args.request else {k: v for k, v in request_attributes(args.request).items()
                                            if v is not None}
     replaced = _replaced(asked)
+    spaces: list[tuple[str, tuple[float, ...] | None]] = []
     for index, (path, kwargs) in enumerate(zip(args.inputs, _input_kwargs(args))):
-        dump = read_sample_dump(path, **kwargs)
+        with recorded_windows() as reads:
+            dump = read_sample_dump(path, **kwargs)
+        spaces.append((path, reads[0][2] if reads else None))
+        _one_colour_space(spaces)  # before it is merged
         if RUNNING in dump.attributes and str(dump.attributes[RUNNING]).strip() not in ("0", "1"):
             # Read as "not running" without a word, it dropped the loop's seed from the merge (a red-team pass).
             raise InputFileError(f"{path}: {RUNNING}: {brief(dump.attributes[RUNNING])} is not 0 or 1")
@@ -513,7 +533,8 @@ def run(args: argparse.Namespace) -> int:
     if told is None and answers and all(a is not None and a == answers[0] for a in answers):
         # Tiles of one batch, merged before they are told: still naming their request.
         attrs.update({key: answers[0][field] for key, field in ANSWERS.items()})
-    header = {**provenance(**{k.removeprefix("awr:"): v for k, v in attrs.items()}), **windows}
+    header = {**provenance(**{k.removeprefix("awr:"): v for k, v in attrs.items()}), **windows,
+              **_one_colour_space(spaces)}
     plan.check_unchanged()  # after the last read: every dump and its windows of one version
     write_sample_buffer(args.output, merged, header=header, issued=issued, overwrite=args.overwrite)
     h, w = merged.shape

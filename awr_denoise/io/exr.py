@@ -54,6 +54,7 @@ __all__ = [
     "write_image",
     "read_header",
     "header_value",
+    "chromaticities",
     "WINDOWS",
     "header_windows",
     "read_windows",
@@ -349,7 +350,7 @@ def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list
                                      name)
         log = getattr(_RECORDS, "log", None)
         if log is not None:
-            log.append((os.fspath(p), header_windows(parts[0].header)))
+            log.append((os.fspath(p), header_windows(parts[0].header), chromaticities(parts[0].header)))
     return parts
 
 
@@ -358,9 +359,9 @@ _RECORDS = threading.local()
 
 
 @contextlib.contextmanager
-def recorded_windows() -> Iterator[list[tuple[str, dict[str, Window]]]]:
-    """``(path, windows of part 0)`` of each file :func:`read_exr` reads with its pixels in this thread
-    meanwhile, in the order read.
+def recorded_windows() -> Iterator[list[tuple[str, dict[str, Window], tuple[float, ...] | None]]]:
+    """``(path, windows of part 0, its chromaticities or None)`` of each file :func:`read_exr` reads with its pixels
+    in this thread meanwhile, in the order read.
 
     The windows are those of the very read that gave the pixels. A reader that returns pixels alone
     (``read_sample_buffer``) followed by :func:`read_windows` opens the path twice: a file replaced by
@@ -519,6 +520,19 @@ def read_header(path: str | os.PathLike[str], part: int = 0) -> dict[str, Any]:
     return parts[part].header
 
 
+def chromaticities(header: Mapping[str, Any]) -> tuple[float, ...] | None:
+    """The ``chromaticities`` attribute of a header (CIE xy of the red, green and blue primaries and the white), as
+    eight floats, or None where it has none (sRGB, the format's default); kept from input to output by the
+    commands that read pixels in them (``denoise``, ``merge``)."""
+    if "chromaticities" not in header:
+        return None
+    try:
+        values = tuple(float(v) for v in header["chromaticities"])
+    except (TypeError, ValueError):
+        return None  # not a chromaticities attribute: its reader says so, where it reads one
+    return values if len(values) == 8 else None
+
+
 def header_value(header: Mapping[str, Any], key: str) -> Any:
     """A header attribute as a plain Python value (bytes decoded, numpy scalars unwrapped)."""
     value = header[key]
@@ -650,6 +664,12 @@ def checked_plane(path: str | os.PathLike[str], name: str, array: np.ndarray, *,
 def _attribute(key: str, value: Any) -> Any:
     if key in _RESERVED:
         raise ValueError(f"header: {key!r} is set by the writer and cannot be given")
+    if key == "chromaticities":  # written as the format's own type (eight floats), which readers take as the space
+        values = np.asarray(value, dtype=np.float64).ravel() if not isinstance(value, str) else np.array([])
+        if values.size != 8 or not np.isfinite(values).all():
+            raise ValueError(f"header: chromaticities: expected 8 finite numbers (rx ry gx gy bx by wx wy), got "
+                             f"{brief(value)}")
+        return tuple(float(v) for v in values)
     if isinstance(value, (bool, np.bool_)):
         return int(value)
     if isinstance(value, (int, np.integer)):

@@ -442,9 +442,7 @@ def _pbrt(ctx: _Context) -> _Layout:
                 raise file_error(ctx.path, str(exc).removeprefix("chromaticities: "), "chromaticities") from None
             space = "the linear RGB of its chromaticities"
             if not np.allclose(convert[0], PBRT_XYZ_TO_SRGB, atol=2e-3):
-                ctx.warnings.append(f"{ctx.path}: chromaticities: its primaries are not sRGB's: the means and the "
-                                    "variance are read in its own RGB, and the outputs, which do not carry the "
-                                    "attribute, are in it too (a viewer takes them as sRGB)")
+                space += " (primaries other than sRGB's, which the outputs carry)"
         ctx.notes.append(f"Variance holds pbrt's sensor XYZ: converted to {space} (channels taken as fully "
                          "correlated)")
     if not known.all():

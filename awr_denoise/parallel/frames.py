@@ -177,7 +177,7 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
     with recorded_windows() as reads:
         dump = read_sample_dump(source, **(read_options or {}))
     buffer = dump.buffer
-    checked, windows = windows, reads[0][1]
+    checked, windows, space = windows, reads[0][1], reads[0][2]
     if checked is not None and dict(checked) != windows:
         raise _changed(source, checked, windows)
     if not buffer.count.any():  # refused by the reconstruction too, but there without the file's name
@@ -200,6 +200,8 @@ def denoise_frame(source: str | os.PathLike[str], output: str | os.PathLike[str]
     error = _reference_error(reference, image, buffer.channels, source, windows) if reference else None
     header = {**image_provenance(result, buffer, source=source, **_guiding_planes(dump, result, reconstruct_options)),
               **windows}
+    if space is not None:  # the dump's RGB (pbrt-v4 writes it for any colour space but sRGB): the image's too
+        header["chromaticities"] = space
 
     def write(path: str | os.PathLike[str], replace: bool) -> str | os.PathLike[str]:
         return write_image(path, result.image, channels=buffer.channels, half=half, overwrite=replace, header=header)

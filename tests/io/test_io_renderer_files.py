@@ -227,10 +227,11 @@ def test_a_single_part_multi_view_file_is_read_in_the_view_asked_for(tmp_path, c
         read_sample_dump(stereo, view="right")
 
 
-def test_pbrts_chromaticities_set_the_colour_space_its_xyz_variance_is_converted_to(tmp_path):
+def test_pbrts_chromaticities_set_the_colour_space_its_xyz_variance_is_converted_to(tmp_path, capsys):
     """pbrt-v4 writes chromaticities for an output colour space other than sRGB (util/image.cpp), its means then in
-    that RGB and its Variance still in sensor XYZ: the variance was converted to sRGB beside Rec.2020 means, without a
-    word (an attack pass). Converted by the file's own primaries, warned about; an sRGB one reads as none does."""
+    that RGB and its Variance still in sensor XYZ: the variance was converted to sRGB beside Rec.2020 means, and the
+    outputs dropped the attribute, without a word (an attack pass). Converted by the file's own primaries, said in a
+    note, carried by denoise's image and merge's dump; inputs of two colour spaces are not merged."""
     from awr_denoise.io.colour import PBRT_XYZ_TO_SRGB, xyz_statistics_to_rgb, xyz_to_rgb
 
     header, channels = _exr_parts(PB / "pbrt_gbuffer_fp32.exr")
@@ -245,11 +246,10 @@ def test_pbrts_chromaticities_set_the_colour_space_its_xyz_variance_is_converted
             with pytest.raises(InputFileError, match=f"{name}.exr: chromaticities: "):
                 read_sample_dump(path)
             continue
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            buffer = read_sample_dump(path).buffer
-        warned = [str(w.message) for w in caught if "chromaticities" in str(w.message)]
-        assert len(warned) == (1 if name == "rec2020" else 0), warned
+        dump = read_sample_dump(path)
+        buffer = dump.buffer
+        assert any("converted to the linear RGB of its chromaticities" in note for note in dump.notes)
+        assert any("primaries other than sRGB's" in note for note in dump.notes) == (name == "rec2020")
         np.testing.assert_array_equal(buffer.mean, plain.mean)  # the means are the file's, in its own RGB
         known = plain.variance > 0
         expected = xyz_statistics_to_rgb(None, xyz, xyz_to_rgb(np.float32(chromaticities)))[1]
@@ -257,6 +257,23 @@ def test_pbrts_chromaticities_set_the_colour_space_its_xyz_variance_is_converted
         if name == "srgb":  # within the rounding of pbrt's matrix
             np.testing.assert_allclose(buffer.variance[known], plain.variance[known], rtol=2e-3)
     assert not np.allclose(xyz_to_rgb(rec2020), PBRT_XYZ_TO_SRGB, atol=0.1)
+    image, merged = tmp_path / "image.exr", tmp_path / "merged.exr"
+    assert main(["denoise", str(tmp_path / "rec2020.exr"), "-o", str(image), "-q"]) == 0
+    assert main(["merge", str(tmp_path / "rec2020.exr"), str(PB / "pbrt_gbuffer_default.exr"), "-o", str(merged),
+                 "-q", "--allow-duplicates"]) == 2
+    assert "in other colour spaces" in capsys.readouterr().err and not merged.exists()
+    copy = tmp_path / "copy.exr"
+    copy.write_bytes((tmp_path / "rec2020.exr").read_bytes())
+    assert main(["merge", str(tmp_path / "rec2020.exr"), str(copy), "-o", str(merged), "-q",
+                 "--allow-duplicates"]) == 0
+    for path in (image, merged):
+        with OpenEXR.File(str(path), header_only=True) as f:
+            np.testing.assert_allclose(f.header()["chromaticities"], rec2020, rtol=1e-6)
+    with pytest.raises(ValueError, match="header: chromaticities: expected 8 finite numbers"):
+        write_image(tmp_path / "bad.exr", np.ones((2, 2, 3)), header={"chromaticities": (0.7, 0.3)})
+    assert main(["denoise", str(merged), "-o", str(tmp_path / "again.exr"), "-q"]) == 0  # on through the dump
+    with OpenEXR.File(str(tmp_path / "again.exr"), header_only=True) as f:
+        np.testing.assert_allclose(f.header()["chromaticities"], rec2020, rtol=1e-6)
 
 
 def _sky_render(path: Path, spp: int, seed: int) -> None:
