@@ -22,6 +22,7 @@ import signal
 import socket
 import tempfile
 import threading
+import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import Executor
 from pathlib import Path
@@ -128,6 +129,27 @@ def _children_ignore_interrupts() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGINT, saved)
+
+
+_START_GRACE = 5.0
+"""Seconds the worker processes of a local cluster whose start was cut short have to exit on SIGTERM before SIGKILL."""
+
+
+def _end_started(earlier: set[multiprocessing.process.BaseProcess]) -> None:
+    """End this process' children started since ``earlier`` (a local cluster's workers, while it started): SIGTERM,
+    then SIGKILL after :data:`_START_GRACE` seconds. Children started meanwhile (Dask starts each from a thread of its
+    own) are looked for again until none is left."""
+    deadline = time.monotonic() + _START_GRACE
+    while True:
+        started = [p for p in multiprocessing.active_children() if p not in earlier]
+        if not started or time.monotonic() > deadline + _START_GRACE:  # none left, or one that no signal ends
+            return
+        for process in started:
+            with contextlib.suppress(OSError, ValueError, AttributeError):
+                process.terminate() if time.monotonic() < deadline else process.kill()
+        for process in started:
+            with contextlib.suppress(OSError, ValueError, AssertionError):
+                process.join(timeout=max(0.05, deadline - time.monotonic()))
 
 
 def _close(pool: cf.ProcessPoolExecutor, *, cancel: bool) -> None:
@@ -314,6 +336,7 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
             # cluster) in one of this run's own, removed once the cluster has closed.
             scratch = stack.enter_context(tempfile.TemporaryDirectory(prefix="awr-dask-"))
             stack.enter_context(dask.config.set({"temporary-directory": scratch}))  # the scheduler's
+            earlier = set(multiprocessing.active_children())
             try:
                 with _children_ignore_interrupts():
                     cluster = distributed.LocalCluster(
@@ -327,6 +350,11 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
                         # while closing are noise on a terminal.
                         silence_logs=logging.CRITICAL)
                 stack.enter_context(cluster)
+            except BaseException:
+                # A start cut short (SIGTERM, a failed nanny): its workers still starting made the scratch folder again
+                # once it had been removed, and left it in $TMPDIR (an attack pass). Ended first, before it goes.
+                _end_started(earlier)
+                raise
             finally:  # what starting it wrote, also when it failed to start
                 written.update(_environ_changes(before))
             client = stack.enter_context(distributed.Client(cluster))

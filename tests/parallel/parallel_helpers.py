@@ -74,3 +74,18 @@ def environ_restored() -> Iterator[None]:
     finally:
         os.environ.clear()
         os.environ.update(before)
+
+
+def remakes_scratch(directory: str, seconds: float = 30.0) -> None:
+    """What a Dask worker still starting does to its scratch folder (in a process of its own): makes it, and its
+    locks, again and again, as each of its steps finds it missing."""
+    import time
+    from pathlib import Path
+
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        with contextlib.suppress(OSError):
+            space = Path(directory) / "dask-scratch-space"
+            space.mkdir(parents=True, exist_ok=True)
+            (space / "global.lock").touch()
+        time.sleep(0.01)

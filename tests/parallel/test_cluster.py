@@ -79,6 +79,39 @@ def test_a_local_cluster_leaves_the_environment_as_it_found_it(monkeypatch):
     assert dict(os.environ) == before
 
 
+def test_a_cluster_start_cut_short_leaves_no_scratch_folder_behind(monkeypatch, tmp_path):
+    """SIGTERM (or a failed nanny) while a local cluster started: its workers, still starting, made the scratch folder
+    again after it had been removed, and $TMPDIR kept awr-dask-*/dask-scratch-space with its locks (an attack pass).
+    The children started meanwhile are ended before the folder goes."""
+    import multiprocessing
+    import tempfile
+    import time
+    from pathlib import Path
+
+    from parallel_helpers import remakes_scratch
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    started = []
+
+    def cut_short(*args, local_directory, **kwargs):
+        worker = multiprocessing.get_context("spawn").Process(target=remakes_scratch, args=(local_directory,),
+                                                              daemon=True)
+        worker.start()
+        started.append(worker)
+        end = time.monotonic() + 60
+        while not (Path(local_directory) / "dask-scratch-space").exists() and time.monotonic() < end:
+            time.sleep(0.01)
+        raise RuntimeError("Nanny failed to start.")
+
+    monkeypatch.setattr(distributed, "LocalCluster", cut_short)
+    with pytest.raises(RuntimeError, match="Nanny failed to start"):
+        with get_executor("dask", workers=1):
+            pass
+    assert len(started) == 1 and not started[0].is_alive()
+    time.sleep(0.3)  # what a worker still running would make again
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_local_cluster_on_demand_runs_a_tiled_render():
     shape = (32, 48)
     spec = RendererSpec.synthetic("edges", shape, seed=4)
