@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 import hashlib
 import warnings
+from pathlib import Path
 
 import numpy as np
 
@@ -389,7 +390,8 @@ def run(args: argparse.Namespace) -> int:
         with recorded_windows() as reads:
             dump = read_independent_renders(args.inputs, **{k: kwargs[k] for k in ("preset", "color", "count", "spp",
                                                                                      "layer", "view")})
-        space = _one_colour_space([(path, found) for path, _, found in reads])
+        inputs = {Path(path) for path in args.inputs}  # the renders' colour spaces, not those of other files read
+        space = _one_colour_space([(path, found) for path, _, found in reads if Path(path) in inputs])
         plan.check_unchanged()  # after the last read: every render and its windows of one version
         write_sample_buffer(args.output, dump.buffer, header={**windows, **space}, overwrite=args.overwrite)
         h, w = dump.buffer.shape

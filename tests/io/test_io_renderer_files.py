@@ -272,6 +272,19 @@ def test_pbrts_chromaticities_set_the_colour_space_its_xyz_variance_is_converted
     with pytest.raises(ValueError, match="header: chromaticities: expected 8 finite numbers"):
         write_image(tmp_path / "bad.exr", np.ones((2, 2, 3)), header={"chromaticities": (0.7, 0.3)})
     assert main(["denoise", str(merged), "-o", str(tmp_path / "again.exr"), "-q"]) == 0  # on through the dump
+    seeds = sorted((PB / "seeds").glob("pbrt_gbuffer_seed*.exr"))[:2]  # renders of other seeds, merged as such
+    renders = []
+    for seed in seeds:
+        seed_header, seed_channels = _exr_parts(seed)
+        renders.append(tmp_path / seed.name)
+        OpenEXR.File(dict(seed_header, chromaticities=rec2020), seed_channels).write(str(renders[-1]))
+    independent = tmp_path / "independent.exr"
+    assert main(["merge", "--independent", *map(str, renders), "-o", str(independent), "-q"]) == 0
+    with OpenEXR.File(str(independent), header_only=True) as f:
+        np.testing.assert_allclose(f.header()["chromaticities"], rec2020, rtol=1e-6)
+    assert main(["merge", "--independent", str(renders[0]), str(seeds[1]), "-o", str(tmp_path / "mixed.exr"),
+                 "-q"]) == 2
+    assert "in other colour spaces" in capsys.readouterr().err and not (tmp_path / "mixed.exr").exists()
     with OpenEXR.File(str(tmp_path / "again.exr"), header_only=True) as f:
         np.testing.assert_allclose(f.header()["chromaticities"], rec2020, rtol=1e-6)
 
