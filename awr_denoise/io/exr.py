@@ -55,6 +55,7 @@ __all__ = [
     "read_header",
     "header_value",
     "chromaticities",
+    "multi_views",
     "WINDOWS",
     "header_windows",
     "read_windows",
@@ -520,6 +521,17 @@ def read_header(path: str | os.PathLike[str], part: int = 0) -> dict[str, Any]:
     return parts[part].header
 
 
+def multi_views(parts: Sequence[ExrPart]) -> list[str]:
+    """The views of a part that holds several (OpenEXR's ``multiView``: the first view's channels bare, the others'
+    prefixed with their view's name, ``right.R``), in its order; [] for none."""
+    views: list[str] = []
+    for part in parts:
+        for v in part.header["multiView"] if "multiView" in part.header else ():
+            if str(v) not in views:
+                views.append(str(v))
+    return views
+
+
 def chromaticities(header: Mapping[str, Any]) -> tuple[float, ...] | None:
     """The ``chromaticities`` attribute of a header (CIE xy of the red, green and blue primaries and the white), as
     eight floats, or None where it has none (sRGB, the format's default); kept from input to output by the
@@ -740,12 +752,10 @@ def write_exr(path: str | os.PathLike[str], channels: Mapping[str, np.ndarray],
                 f.write(tmp)
             except RuntimeError as exc:  # the bindings report I/O errors (a full disk) this way
                 code = (errno.ENOSPC if "No space left" in str(exc) else
-                        errno.EFBIG if "File too large" in str(exc) else errno.EIO)
-                # A staging folder gone (its folder renamed while the command ran): an output that could not be
-                # written (exit 1), not a missing input, which ENOENT would make it.
-                why = ("its folder was moved or removed while it was written" if "No such file or directory" in
-                       str(exc) else os.strerror(code))
-                raise OSError(code, why, public_name(path)) from None
+                        errno.EFBIG if "File too large" in str(exc) else
+                        # Its folder gone: atomic_write says so, as an output not written (exit 1).
+                        errno.ENOENT if "No such file or directory" in str(exc) else errno.EIO)
+                raise OSError(code, os.strerror(code), public_name(path)) from None
         # A file small enough to be written only when the stream closes reports no failure there: a full disk left
         # it empty and a file size limit cut it, and both were committed (a red-team pass). Its chunks are counted.
         if not chunks.is_complete(tmp):
@@ -822,7 +832,7 @@ def read_image(path: str | os.PathLike[str], *, channels: Sequence[str] | None =
     views = list(dict.fromkeys(str(header_value(part.header, "view")) for part in parts if "view" in part.header))
     # A single-part multi-view file (OpenEXR's multiView): the first view's channels bare, the others'
     # prefixed with their view's name (right.R).
-    within = [str(v) for part in parts if "multiView" in part.header for v in part.header["multiView"]]
+    within = multi_views(parts)
     views += [v for v in within if v not in views]
     if view is not None:
         if view not in views:

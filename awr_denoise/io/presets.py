@@ -47,7 +47,8 @@ from .cycles import COLOUR_PASSES, COUNT_PASS, cycles_layers, sample_count_scale
 from .deep import sample_index_bounds, samples_from_deep_part
 from .dump import (COUNT_CHANNEL, MAX_EXACT_COUNT, VARIANCE_PREFIX, SampleDump, buffer_from_awr_part,
                    uncounted_means, whole_counts)
-from .exr import ExrPart, check_same_windows, checked_plane, file_error, header_value, header_windows, read_exr
+from .exr import (ExrPart, check_same_windows, checked_plane, file_error, header_value, header_windows, multi_views,
+                  read_exr)
 from .features import (MITSUBA_AOV_NAMES, albedo_warning, auto_feature_planes, feature_from_planes, normal_warning,
                        plane_present)
 from .mitsuba import RAW_FILM, MomentBound, filter_correlation, moment_bound
@@ -93,18 +94,7 @@ def file_views(parts: Sequence[ExrPart]) -> list[str]:
             v = str(header_value(part.header, "view"))
             if v not in views:
                 views.append(v)
-    views += [v for v in _within(parts) if v not in views]
-    return views
-
-
-def _within(parts: Sequence[ExrPart]) -> list[str]:
-    """The views of a part that holds several (OpenEXR's ``multiView``: the first view's channels bare, the others'
-    prefixed with their view's name, ``right.R``), in its order; [] for none."""
-    views: list[str] = []
-    for part in parts:
-        for v in part.header.get("multiView", ()) if "multiView" in part.header else ():
-            if str(v) not in views:
-                views.append(str(v))
+    views += [v for v in multi_views(parts) if v not in views]
     return views
 
 
@@ -142,7 +132,7 @@ class _File:
         self.view = view
         self.used = [part for part in parts if not part.deep and _part_view(part) in (None, view)]
         first_window = header_windows(parts[0].header).get("dataWindow")
-        within = _within(parts)
+        within = multi_views(parts)
         owner: dict[str, int] = {}
         for part in self.used:
             if header_windows(part.header).get("dataWindow") != first_window:
@@ -1102,9 +1092,9 @@ def read_sample_dump(
             raise file_error(p, "missing (not in the awr dump layout)", COUNT_CHANNEL)
         if len(flat) > 1:  # never pick one silently
             raise file_error(p, f"{len(flat)} parts hold samples; give a file with one", COUNT_CHANNEL)
-        if len(_within(flat)) > 1:  # read from the part as awr wrote it: the first view's, whatever --view said
-            raise file_error(p, f"holds views {', '.join(_within(flat))} in one part (multiView), which an awr dump "
-                                "never does; give one view's dump", COUNT_CHANNEL)
+        if len(views := multi_views(flat)) > 1:  # read from the part: the first view's, whatever --view said
+            raise file_error(p, f"holds views {', '.join(views)} in one part (multiView), which an awr dump never "
+                                "does; give one view's dump", COUNT_CHANNEL)
         if spp is not None:
             raise file_error(p, f"holds per-pixel sample counts; spp={spp} / --spp is for files without them",
                              COUNT_CHANNEL)

@@ -146,7 +146,10 @@ def _end_started(earlier: set[multiprocessing.process.BaseProcess]) -> None:
             return
         for process in started:
             with contextlib.suppress(OSError, ValueError, AttributeError):
-                process.terminate() if time.monotonic() < deadline else process.kill()
+                if time.monotonic() < deadline:
+                    process.terminate()
+                else:
+                    process.kill()
         for process in started:
             with contextlib.suppress(OSError, ValueError, AssertionError):
                 process.join(timeout=max(0.05, deadline - time.monotonic()))
