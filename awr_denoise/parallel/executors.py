@@ -17,9 +17,11 @@ import json
 import logging
 import multiprocessing
 import multiprocessing.resource_tracker
+import multiprocessing.spawn
 import os
 import signal
 import socket
+import subprocess
 import tempfile
 import threading
 import time
@@ -111,23 +113,68 @@ class _ProcessPool(cf.ProcessPoolExecutor):
             return super().submit(fn, *args, **kwargs)
 
 
-@contextlib.contextmanager
-def _children_ignore_interrupts() -> Iterator[None]:
-    """Processes started inside ignore Ctrl-C, as :func:`_leave_interrupts_to_the_parent` makes a pool's.
+_SENTINEL_CODE = "import sys\nsys.stdin.buffer.read()"
+"""The sentinel's program: it reads its stdin until this process closes it (or dies), and a Ctrl-C ends it."""
 
-    Dask's nannies start their worker processes themselves (no initializer to pass), but an
-    ignored SIGINT is inherited through ``exec`` and Python keeps it ignored: the parent, which
-    owns the cluster, stops the work and closes it, without a traceback per worker. Only the
-    main thread may set handlers; elsewhere nothing changes. The price: a Ctrl-C while the
-    cluster starts (a second or two) is ignored; the next one stops the command.
+_SENTINEL_WAIT = 10.0
+"""Seconds the sentinel has to end once its stdin is closed (it is killed after that, as seen no Ctrl-C)."""
+
+
+def _interrupt_sentinel() -> subprocess.Popen[bytes] | None:
+    """A child process in this process group that a terminal's Ctrl-C ends while this process ignores it.
+
+    Started before SIGINT is ignored here: ``exec`` resets this process' handler to the default in it, and the
+    interpreter spawned workers use (so an embedded Python, whose ``sys.executable`` is the host application, is
+    not launched). None where it cannot start (no POSIX process group, out of processes or file descriptors): the
+    Ctrl-C is then not seen, as before there was one.
+    """
+    if os.name != "posix":
+        return None
+    try:
+        return subprocess.Popen([multiprocessing.spawn.get_executable(), "-S", "-c", _SENTINEL_CODE],
+                                stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    except (OSError, ValueError):
+        return None
+
+
+def _ended_by_interrupt(sentinel: subprocess.Popen[bytes] | None) -> bool:
+    """Whether a Ctrl-C ended ``sentinel``; it is ended (its stdin closed) and waited for either way."""
+    if sentinel is None:
+        return False
+    with contextlib.suppress(OSError):
+        sentinel.stdin.close()  # type: ignore[union-attr]  # EOF: it exits 0
+    try:
+        return sentinel.wait(timeout=_SENTINEL_WAIT) == -signal.SIGINT
+    except subprocess.TimeoutExpired:
+        sentinel.kill()
+        sentinel.wait()
+        return False
+
+
+@contextlib.contextmanager
+def _children_ignore_interrupts() -> Iterator[Callable[[], None]]:
+    """Processes started inside ignore Ctrl-C, as :func:`_leave_interrupts_to_the_parent` makes a pool's; yields
+    a function that delivers a Ctrl-C given meanwhile, to call once what was started is in the caller's hands.
+
+    Dask's nannies start their worker processes themselves (no initializer to pass), but an ignored SIGINT is
+    inherited through ``exec`` and Python keeps it ignored: the parent, which owns the cluster, stops the work and
+    closes it, without a traceback per worker. This process ignores it meanwhile too, so a terminal's Ctrl-C to
+    the process group is seen by a sentinel (:func:`_interrupt_sentinel`) that it ends; the returned function
+    then raises SIGINT here, for this process' own handler (the command's: KeyboardInterrupt). It was ignored for
+    good (an attack pass): the command went on and wrote its outputs. A SIGINT sent to this process alone while
+    the cluster starts is still not seen. Only the main thread may set handlers; elsewhere nothing changes.
     """
     if threading.current_thread() is not threading.main_thread():
-        yield
+        yield lambda: None
         return
+    seen: list[bool] = []
+    sentinel = _interrupt_sentinel()
     saved = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
-        yield
+        yield lambda: signal.raise_signal(signal.SIGINT) if seen == [True] else None
     finally:
+        # The sentinel is ended before the handler is put back: a Ctrl-C meanwhile still ends it (or it had ended).
+        seen.append(_ended_by_interrupt(sentinel))
         signal.signal(signal.SIGINT, saved)
 
 
@@ -341,7 +388,7 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
             stack.enter_context(dask.config.set({"temporary-directory": scratch}))  # the scheduler's
             earlier = set(multiprocessing.active_children())
             try:
-                with _children_ignore_interrupts():
+                with _children_ignore_interrupts() as deliver_interrupt:
                     cluster = distributed.LocalCluster(
                         n_workers=n_workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                         dashboard_address=None, local_directory=scratch,
@@ -360,6 +407,7 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
                 raise
             finally:  # what starting it wrote, also when it failed to start
                 written.update(_environ_changes(before))
+            deliver_interrupt()  # a Ctrl-C while it started, now that the stack closes the cluster
             client = stack.enter_context(distributed.Client(cluster))
         else:
             client = stack.enter_context(_connect(distributed, _scheduler_address(distributed, scheduler)))

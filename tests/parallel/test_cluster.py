@@ -112,6 +112,63 @@ def test_a_cluster_start_cut_short_leaves_no_scratch_folder_behind(monkeypatch, 
     assert list(tmp_path.iterdir()) == []
 
 
+_STARTING_CLUSTER = r"""
+import sys
+import time
+
+import distributed
+
+from awr_denoise.cli import interrupts
+from awr_denoise.parallel import get_executor
+
+closed = []
+
+
+class Starting:  # a local cluster that takes two seconds to start, as a real one about does
+    def __init__(self, *args, **kwargs):
+        print("starting", flush=True)
+        time.sleep(2.0)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        closed.append(True)
+
+
+distributed.LocalCluster = Starting
+interrupts.raising()
+try:
+    with get_executor("dask", workers=1):
+        print("ran", flush=True)
+except KeyboardInterrupt:
+    print("interrupted, cluster closed:", closed == [True], flush=True)
+"""
+
+
+@pytest.mark.skipif(os.name != "posix", reason="a terminal's process group is POSIX")
+def test_a_ctrl_c_while_a_local_cluster_starts_stops_the_command():
+    """A terminal's Ctrl-C (SIGINT to the process group) while a local cluster started was ignored for good: the
+    workers must ignore it, so this process did too then, and the command went on and wrote its outputs (an attack
+    pass). A sentinel child sees it now; it is raised once the cluster is in hand, and the cluster is closed."""
+    import signal
+    import subprocess
+    import sys
+
+    child = subprocess.Popen([sys.executable, "-c", _STARTING_CLUSTER], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        assert child.stdout.readline() == "starting\n"
+        os.killpg(child.pid, signal.SIGINT)
+        out, err = child.communicate(timeout=60)
+    finally:
+        if child.poll() is None:
+            os.killpg(child.pid, signal.SIGKILL)
+            child.wait()
+    assert out == "interrupted, cluster closed: True\n", err
+    assert child.returncode == 0
+
+
 def test_local_cluster_on_demand_runs_a_tiled_render():
     shape = (32, 48)
     spec = RendererSpec.synthetic("edges", shape, seed=4)
