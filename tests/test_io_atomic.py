@@ -521,7 +521,7 @@ def test_a_staged_temporary_that_cannot_be_written_names_its_target_as_an_output
     """Once an OutputSet has made its staging folder, a folder that takes no new file (no inode left) or is gone (the
     output folder renamed while the command ran) fails the write itself: an OSError (exit 1) naming the target. The
     check before the write named the hidden temporary and raised ValueError (exit 2), after the work (an attack
-    pass)."""
+    pass). The renamed folder is left as it was."""
     from awr_denoise.io.exr import write_exr
 
     plane = {"Y": np.ones((4, 4), np.float32)}
@@ -545,6 +545,8 @@ def test_a_staged_temporary_that_cannot_be_written_names_its_target_as_an_output
             assert info.value.filename == str(tmp_path / "sub" / "out.exr") and STAGING_PREFIX not in str(info.value)
             assert "moved or removed" in str(info.value)
     assert _listing(tmp_path / "sub") == []
+    # Its staging folder and lock went too, under the folder's new name; it stayed until a later run found it stale.
+    assert _listing(tmp_path / "moved") == []
 
 
 def test_a_umask_that_leaves_new_files_unreadable_by_their_owner_is_refused_before_any_work(tmp_path):

@@ -560,6 +560,7 @@ class _Staging:
             raise
 
     def _create(self, directory: Path) -> None:
+        self._folder_fd = _folder_fd(directory)
         for _ in range(8):
             path = directory / f"{STAGING_PREFIX}{secrets.token_hex(5)}{STAGING_SUFFIX}"
             try:
@@ -567,18 +568,22 @@ class _Staging:
                 break
             except FileExistsError:
                 continue
+            except BaseException:
+                self._close_folder()
+                raise
         else:  # pragma: no cover - 8 collisions of 40 random bits
+            self._close_folder()
             raise FileExistsError(f"{directory}: cannot create a staging directory")
+        self.path = path
+        self._count = 0
+        self._fd: int | None = None
         try:
             # The umask took bits off 0o700 (0222 left 0500): the lock and the temporaries could
             # not be made in it, and no later run could list it to clean it up.
             os.chmod(path, 0o700)
         except OSError:
-            shutil.rmtree(path, ignore_errors=True)
+            self.remove()
             raise
-        self.path = path
-        self._count = 0
-        self._fd: int | None = None
         try:
             # Locked under another name first, so a scanner never sees an unlocked "lock".
             fd = os.open(path / (_LOCK + ".new"), os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o600)
@@ -596,11 +601,34 @@ class _Staging:
         return self.path / f"{self._count}{suffix}"
 
     def remove(self) -> None:
-        shutil.rmtree(self.path, ignore_errors=True)
+        if self._folder_fd is not None:
+            # Through the output folder's descriptor: renamed while the command ran, the folder kept its staging
+            # folder (with its lock) under the new name until a later run there found it stale (an attack pass).
+            shutil.rmtree(self.path.name, dir_fd=self._folder_fd, ignore_errors=True)
+        else:
+            shutil.rmtree(self.path, ignore_errors=True)
         if self._fd is not None:
             with contextlib.suppress(OSError):
                 os.close(self._fd)
             self._fd = None
+        self._close_folder()
+
+    def _close_folder(self) -> None:
+        if self._folder_fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(self._folder_fd)
+            self._folder_fd = None
+
+
+def _folder_fd(directory: Path) -> int | None:
+    """A descriptor of ``directory`` to remove a staging folder through wherever the folder is moved; None where
+    ``shutil.rmtree`` cannot take one (not POSIX) or no descriptor is left (the path is used then)."""
+    if not (shutil.rmtree.avoids_symlink_attacks and hasattr(os, "O_DIRECTORY")):
+        return None
+    try:
+        return os.open(directory, os.O_RDONLY | os.O_DIRECTORY | getattr(os, "O_CLOEXEC", 0))
+    except OSError:
+        return None
 
 
 def _through_links(target: Path) -> Path:
