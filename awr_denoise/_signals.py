@@ -16,7 +16,7 @@ import signal
 import threading
 from collections.abc import Callable, Iterator
 
-__all__ = ["TERMINATING_SIGNALS", "SHARED_SIGNALS", "TAKEN_OVER", "COMMIT_CHECKS", "deferred"]
+__all__ = ["TERMINATING_SIGNALS", "SHARED_SIGNALS", "TAKEN_OVER", "COMMIT_CHECKS", "deferred", "stop_point"]
 
 TERMINATING_SIGNALS: tuple[int, ...] = tuple(
     getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP", "SIGUSR1", "SIGUSR2", "SIGXCPU", "SIGALRM",
@@ -36,7 +36,21 @@ COMMIT_CHECKS: list[Callable[[], None]] = []
 """Called, in order, before any output file moves into place (``awr_denoise.io.atomic``): the command
 line raises there a signal whose exception was lost on the way (Python only prints an exception raised
 in a weakref callback, as importlib's module locks run, and carries on), so no output of a terminated
-command is committed."""
+command is committed. :func:`stop_point` calls them too, on worker threads."""
+
+
+def stop_point() -> None:
+    """Raise here, on a worker thread, the signal the command line took (:data:`COMMIT_CHECKS`); nothing elsewhere.
+
+    Python runs signal handlers in the main thread only, and a thread cannot be stopped from outside: ``awr denoise
+    --frames`` on threads, told to stop, waited for every running frame's whole reconstruction (seconds at 1080p,
+    tens of them at 4K, past a container's grace period before SIGKILL). The long steps of a reconstruction call
+    this between their parts (a band of the Wiener stages, a stage); the main thread's own handler raises at once.
+    Without the command line (no checks registered) it does nothing.
+    """
+    if COMMIT_CHECKS and threading.current_thread() is not threading.main_thread():
+        for check in COMMIT_CHECKS:
+            check()
 
 
 @contextlib.contextmanager

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import _checks
+from ._signals import stop_point
 from ._typing import FloatArray
 from .buffers import SampleBuffer
 from .channels import channel_groups, luminance_weights
@@ -153,6 +154,7 @@ def _wiener_stages(prepared: Prepared, pilot: FloatArray, exponents: tuple[float
     gain = None
     if guard:
         assert leverage is not None
+        stop_point()
         # The guard's risk needs the stages' divergence: their diagonal (factors held), or measured.
         divergence = leverage if done.divergence is None else done.divergence
         if luminance is None:
@@ -218,6 +220,7 @@ def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | N
                                                guard_probes=settings.guard_probes,
                                                tolerance=settings.guard_tolerance,
                                                spared_beside=settings.guard_spared_beside)
+        stop_point()
         if settings.pixel_clamp is not None:
             lum = None if luminance is None else luminance[0]
             image, moved = pooled_clamp(image, prepared.mean if lum is None else lum.mean,
@@ -230,6 +233,7 @@ def later_stages(prepared: Prepared, image: FloatArray, variance: FloatArray | N
         if variance is not None:
             variance = np.where(clipped, 0.0, variance)
     if settings.preserve_mean:
+        stop_point()
         image, t = restore_mean(image, prepared.mean, prepared.variance, run=run)
         if variance is not None:  # a blend (1 - t) o + t x: at most the blend of the standard errors
             variance = ((1 - t) * np.sqrt(variance) + t * np.sqrt(prepared.variance)) ** 2
@@ -434,6 +438,7 @@ def reconstruct_detailed(
         whole_result = _assembled(parts, groups, probed=settings.probes > 0)
         return replace(whole_result, parameters={**whole_result.parameters, **recorded})
     prepared = prepare(buffer, domain)
+    stop_point()  # between the steps, on a worker thread (a frame of denoise --frames): see _signals
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     run = None if _checks.executor("executor", executor) is None else lambda f, items: list(executor.map(f, items))
     luminance = None
@@ -444,6 +449,7 @@ def reconstruct_detailed(
                             weights=None if luminance is None else luminance[1])
     variance = stage.output_variance(settings.probes, settings.seed) if settings.probes and settings.stages == 1 else None
     first, keep = pilots(buffer, stage.image, guide, features)
+    stop_point()
     if guide is not None and settings.guard and np.any(keep > 0):
         # A guide the gate trusts anywhere: the guard's wider default window and its tolerance (.sure).
         settings = replace(settings, guard_tolerance=DEFAULT_GUIDED_TOLERANCE, guard_spared_beside=None,

@@ -32,6 +32,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import _checks
+from ._signals import stop_point
 from ._typing import FloatArray
 from ._window_sums import window_sum
 from .stationary import StationaryTransform
@@ -188,6 +189,7 @@ def _band(t: StationaryTransform, b: int, spectra: tuple, leverage: bool, scratc
     channel), ``"e"`` the scaled probes (per probe and channel). ``floor`` (one factor plane
     per channel only): :func:`relative_wiener`'s energy floor.
     """
+    stop_point()  # a band at a time: the longest steps of a reconstruction (a quarter second at 1080p)
     spec_x, spec_v, spec_p, spec_e = spectra
     # Each transfer function is alive only while it is used (above 512x512 each is built on the
     # fly, a complex plane as large as a spectrum): the squared one and the diagonal's for the
