@@ -40,17 +40,17 @@ command is committed. :func:`stop_point` calls them too, on worker threads."""
 
 
 def stop_point() -> None:
-    """Raise here, on a worker thread, the signal the command line took (:data:`COMMIT_CHECKS`); nothing elsewhere.
+    """Raise here the signal the command line took, or its pool's stop (:data:`COMMIT_CHECKS`); else nothing.
 
-    Python runs signal handlers in the main thread only, and a thread cannot be stopped from outside: ``awr denoise
-    --frames`` on threads, told to stop, waited for every running frame's whole reconstruction (seconds at 1080p,
-    tens of them at 4K, past a container's grace period before SIGKILL). The long steps of a reconstruction call
-    this between their parts (a band of the Wiener stages, a stage); the main thread's own handler raises at once.
-    Without the command line (no checks registered) it does nothing.
+    Python runs signal handlers in the main thread only, and a thread cannot be stopped from outside, nor a
+    worker process that ignores the signals: ``awr denoise --frames`` on threads or worker processes, told to
+    stop, waited for every running frame's whole reconstruction (seconds at 1080p, tens of them at 4K, past a
+    container's grace period before SIGKILL). The long steps of a reconstruction call this between their parts (a
+    band of the Wiener stages, a step between stages). Without the command line (no checks registered) it does
+    nothing.
     """
-    if COMMIT_CHECKS and threading.current_thread() is not threading.main_thread():
-        for check in COMMIT_CHECKS:
-            check()
+    for check in COMMIT_CHECKS:
+        check()
 
 
 @contextlib.contextmanager

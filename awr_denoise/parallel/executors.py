@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures as cf
 import contextlib
+import functools
 import ipaddress
 import json
 import logging
@@ -31,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import _checks
-from .._signals import TERMINATING_SIGNALS
+from .._signals import COMMIT_CHECKS, TERMINATING_SIGNALS
 from .._signals import deferred as _signals_deferred
 from .._workers import exit_with_parent
 from ..io.atomic import check_readable, read_without_waiting
@@ -49,12 +50,15 @@ SCHEDULER_FILE_MAX = 2**20
 """The most bytes read of a ``--scheduler`` JSON file (Dask writes a few hundred)."""
 
 
-def _leave_interrupts_to_the_parent(parent: int) -> None:
+def _leave_interrupts_to_the_parent(parent: int, stop: Any = None) -> None:
     """Worker processes ignore Ctrl-C, SIGTERM, SIGHUP and the other terminating signals: a terminal,
     a closed session or a batch scheduler sends them to the whole process group, and the parent,
     which owns the pool, cancels the work and closes the pool (no traceback per worker, no worker
     dead under a pool still in use). They end when the parent dies without closing the pool
     (SIGKILL): orphans stayed for good.
+
+    ``stop``, the pool's event (:class:`_ProcessPool`): once the parent sets it, the task running here raises
+    KeyboardInterrupt at its next stop point (:func:`awr_denoise._signals.stop_point`) and commits nothing.
 
     The workers start with these signals blocked (:func:`_children_spared_signals`): one that came
     while the worker imported the package is dropped here, once ignored.
@@ -64,6 +68,14 @@ def _leave_interrupts_to_the_parent(parent: int) -> None:
     if hasattr(signal, "pthread_sigmask"):
         signal.pthread_sigmask(signal.SIG_UNBLOCK, TERMINATING_SIGNALS)
     exit_with_parent(parent)
+    if stop is not None:
+        COMMIT_CHECKS.append(functools.partial(_stop_if_set, stop))
+
+
+def _stop_if_set(stop: Any) -> None:
+    """Raise KeyboardInterrupt if the pool's ``stop`` event is set (a worker's check, :data:`COMMIT_CHECKS`)."""
+    if stop.is_set():
+        raise KeyboardInterrupt
 
 
 @contextlib.contextmanager
@@ -100,12 +112,21 @@ def _children_spared_signals() -> Iterator[None]:
 
 
 class _ProcessPool(cf.ProcessPoolExecutor):
-    """A ``spawn`` process pool whose workers leave every terminating signal to the parent."""
+    """A ``spawn`` process pool whose workers leave every terminating signal to the parent, and stop their running
+    tasks at the next stop point once :meth:`stop_running` is called."""
 
     def __init__(self, max_workers: int) -> None:
+        context = multiprocessing.get_context("spawn")
         with _children_spared_signals():  # the pool's queues start the resource tracker
-            super().__init__(max_workers=max_workers, mp_context=multiprocessing.get_context("spawn"),
-                             initializer=_leave_interrupts_to_the_parent, initargs=(os.getpid(),))
+            self._stop = context.Event()
+            super().__init__(max_workers=max_workers, mp_context=context,
+                             initializer=_leave_interrupts_to_the_parent, initargs=(os.getpid(), self._stop))
+
+    def stop_running(self) -> None:
+        """The running tasks raise KeyboardInterrupt at their next stop point (a frame's reconstruction, between its
+        steps and the bands of its Wiener stages): ``denoise --frames --executor processes``, told to stop, waited
+        for every running frame's whole reconstruction (an attack pass). Nothing is cut mid-commit."""
+        self._stop.set()
 
     def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> cf.Future:
         """``ProcessPoolExecutor.submit``; the workers it starts (on demand) spare the signals."""
@@ -370,6 +391,7 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
             # as on threads (the workers ignored the signal: none died under the pool). Cancelled
             # here, they also leave the pool's books, where Python 3.11 failed them again if the
             # pool broke meanwhile (a thread's "InvalidStateError: CANCELLED" traceback).
+            pool.stop_running()
             _close(pool, cancel=True)
             raise
         _close(pool, cancel=False)

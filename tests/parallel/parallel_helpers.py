@@ -89,3 +89,20 @@ def remakes_scratch(directory: str, seconds: float = 30.0) -> None:
             space.mkdir(parents=True, exist_ok=True)
             (space / "global.lock").touch()
         time.sleep(0.01)
+
+
+def runs_through_stop_points(started: str, seconds: float = 120.0) -> int:
+    """A long task of a worker (a frame's reconstruction): it passes a stop point every 10 ms, for ``seconds``
+    unless one raises; ``started`` is made once it runs."""
+    import time
+    from pathlib import Path
+
+    from awr_denoise._signals import stop_point
+
+    Path(started).touch()
+    end, passed = time.monotonic() + seconds, 0
+    while time.monotonic() < end:
+        stop_point()
+        passed += 1
+        time.sleep(0.01)
+    return passed

@@ -16,7 +16,7 @@ import pytest
 
 from awr_denoise.cli.parallel_options import add_executor_arguments, executor_from_args
 from awr_denoise.parallel import get_executor
-from parallel_helpers import environ_restored
+from parallel_helpers import environ_restored, runs_through_stop_points
 
 
 def test_get_executor_threads_and_processes_run_tasks():
@@ -231,6 +231,26 @@ def _alive(pid: int) -> bool:
 
 
 @pytest.mark.skipif(not os.path.isdir("/proc"), reason="needs /proc to see the workers")
+def test_a_process_pool_left_by_its_caller_stops_its_running_tasks_at_their_stop_points(tmp_path):
+    """``denoise --frames --executor processes``, told to stop, waited for each running frame's whole reconstruction
+    (the workers ignore the signals; an attack pass). Leaving the pool on an exception stops what runs at its next
+    stop point: the two-minute task ends with KeyboardInterrupt, within a minute even on a loaded machine."""
+    started = tmp_path / "started"
+    with pytest.raises(RuntimeError, match="the caller stops"):
+        with get_executor("processes", workers=1) as pool:
+            future = pool.submit(runs_through_stop_points, str(started), 120.0)
+            deadline = time.monotonic() + 60
+            while not started.exists() and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert started.exists()
+            left = time.monotonic()
+            raise RuntimeError("the caller stops")
+    assert time.monotonic() - left < 60
+    assert isinstance(future.exception(), KeyboardInterrupt)
+    with get_executor("processes", workers=1) as pool:  # a pool left normally lets its tasks finish
+        assert pool.submit(runs_through_stop_points, str(tmp_path / "again"), 0.2).result() > 0
+
+
 def test_process_workers_end_when_their_parent_is_killed():
     # They stayed for good (parent 1), blocked on their pipes, with the pool's resource tracker.
     done = subprocess.run([sys.executable, "-c", _ORPHAN_SCRIPT], capture_output=True, text=True, timeout=120)
