@@ -126,6 +126,20 @@ def _check_answered(batch_path: str, attributes: dict, request_path: str, reques
                                  f"{request_path} ({field} {getattr(request, field)}): a batch of another round?")
 
 
+def _check_batch_seed(batch_path: str, attributes: dict, request_path: str, asked: dict | None) -> None:
+    """Refuse a told batch whose header names another ``awr:seed`` than its request's: its samples are another
+    loop's sequence (a renderer that took another loop's seed, or copied another loop's request header), and
+    merged as this loop's round they counted twice beside that loop's own (an attack pass). A batch that names
+    no seed is taken as its request's."""
+    if asked is None or "awr:seed" not in attributes or "awr:seed" not in asked:
+        return
+    wanted = header_count(request_path, asked, "awr:seed", 0, MAX_SEED)
+    found = header_count(batch_path, attributes, "awr:seed", 0, MAX_SEED)
+    if found != wanted:
+        raise InputFileError(f"{batch_path}: awr:seed: its samples are of the sequence of seed {found}, not of "
+                             f"{request_path}'s seed {wanted}: a batch of another loop?")
+
+
 def _input_kwargs(args: argparse.Namespace) -> list[dict]:
     """Each input's reading options: ``--variance-kind`` describes the inputs whose header does not
     say what their variance holds (a renderer's batch beside the running dump, which says
@@ -426,6 +440,8 @@ def run(args: argparse.Namespace) -> int:
             # Read as "not running" without a word, it dropped the loop's seed from the merge (a red-team pass).
             raise InputFileError(f"{path}: {RUNNING}: {brief(dump.attributes[RUNNING])} is not 0 or 1")
         is_told = bool(args.request) and index == len(args.inputs) - 1
+        if is_told:
+            _check_batch_seed(path, dump.attributes, args.request, asked)
         seeds = _seeds(path, dump.attributes, is_told)
         if index == 0:
             first, attrs = dump.buffer, {k: v for k, v in dump.attributes.items()

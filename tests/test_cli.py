@@ -803,6 +803,18 @@ def test_file_only_loop(tmp_path, capsys):
                  str(tmp_path / "req3.exr"), "-o", str(tmp_path / "stale.exr"), "-q"]) == 2
     _one_error_line(capsys, "batch2.exr", "awr:request_round", "answers a request of round 2, not")
     assert not (tmp_path / "stale.exr").exists()
+    # A batch whose header names another loop's seed (its renderer drew that loop's sequence) was merged as this
+    # loop's round, exit 0, and its samples counted twice beside the other loop's own (an attack pass): refused.
+    with OpenEXR.File(str(tmp_path / "batch3.exr")) as f:
+        header, channels = dict(f.header()), {name: c.pixels.copy() for name, c in f.channels().items()}
+    _write(tmp_path / "other.exr", channels, {**header, "awr:seed": str(seed + 1)})
+    assert main(["merge", str(tmp_path / "dump3.exr"), str(tmp_path / "other.exr"), "--request",
+                 str(tmp_path / "req3.exr"), "-o", str(tmp_path / "other_dump.exr"), "-q"]) == 2
+    _one_error_line(capsys, "other.exr: awr:seed", f"seed {seed + 1}, not of", f"seed {seed}")
+    assert not (tmp_path / "other_dump.exr").exists()
+    _write(tmp_path / "same.exr", channels, {**header, "awr:seed": str(seed)})  # its own seed: merged
+    assert main(["merge", str(tmp_path / "dump3.exr"), str(tmp_path / "same.exr"), "--request",
+                 str(tmp_path / "req3.exr"), "-o", str(tmp_path / "same_dump.exr"), "-q"]) == 0
 
 
 def test_a_uniform_run_through_files_stays_uniform(tmp_path):
