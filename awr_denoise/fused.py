@@ -105,7 +105,8 @@ def backend() -> str:
     """
     if _chosen is not None:
         return _chosen
-    return _runnable(os.environ.get(_ENVIRONMENT, "").strip().lower() or "numpy", _ENVIRONMENT)
+    # Empty is a value too (a job script's export of an unset name), refused as every other variable's empty value.
+    return _runnable(os.environ.get(_ENVIRONMENT, "numpy").strip().lower(), _ENVIRONMENT)
 
 
 def _runnable(name: str, what: str) -> str:

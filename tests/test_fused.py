@@ -64,6 +64,9 @@ def test_the_reference_is_the_default_and_the_environment_or_set_backend_choose(
     monkeypatch.setenv("AWR_DENOISE_KERNELS", "cuda")
     with pytest.raises(ValueError, match="AWR_DENOISE_KERNELS: 'cuda' is not one of numpy, numba"):
         fused.backend()
+    monkeypatch.setenv("AWR_DENOISE_KERNELS", " ")  # read as unset, it ran numpy where any other value is refused
+    with pytest.raises(ValueError, match="AWR_DENOISE_KERNELS: '' is not one of numpy, numba"):
+        fused.backend()
     with pytest.raises(ValueError, match="backend: 'cuda'"):
         fused.set_backend("cuda")
     assert fused.available() == (("numpy",) if numba_missing else ("numpy", "numba"))

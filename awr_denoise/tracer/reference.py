@@ -42,11 +42,15 @@ _HALF_MAX = 65504.0
 def reference_dir() -> Path:
     """Where references are cached.
 
-    ``$AWR_DENOISE_REFERENCE_DIR`` if set (a folder, or a path to create one at; a file is a
+    ``$AWR_DENOISE_REFERENCE_DIR`` if set (a folder, or a path to create one at; a file or an empty value is a
     ``ValueError``); else the repository's ``data/references`` when running from a checkout;
     else ``~/.cache/awr-denoise/references``.
     """
     override = os.environ.get("AWR_DENOISE_REFERENCE_DIR")
+    if override is not None and not override.strip():
+        # Read as unset, it sent a job's missing references into the checkout's tracked data/references (an
+        # attack pass), where an empty value of every other variable is refused.
+        raise ValueError("AWR_DENOISE_REFERENCE_DIR: empty; unset it for the default folder")
     if override:
         if os.path.exists(override) and not os.path.isdir(override):  # found now, not after a render
             raise ValueError(f"AWR_DENOISE_REFERENCE_DIR: {override} is not a folder")
@@ -152,6 +156,18 @@ def read_reference_header(path: str | Path) -> dict[str, str]:
     return {k: str(v) for k, v in read_provenance(read_header(path)).items()}
 
 
+def _check_cached(path: Path, scene_name: str, made: dict[str, str]) -> None:
+    """Refuse a cached reference whose header says it is something else: another scene's reference, or a sample
+    dump or request map (their R, G, B read as an image). Either was used, exit 0, every error against it wrong
+    (an attack pass); only the size was checked."""
+    if "semantics" in made:
+        raise ValueError(f"{path}: is a {made['semantics']} file (awr:semantics), not the reference image of "
+                         f"{scene_name}: remove it to render it again")
+    if made.get("scene", scene_name) != scene_name:
+        raise ValueError(f"{path}: holds the reference of scene {made['scene']!r} (awr:scene), not of {scene_name!r}: "
+                         "remove it to render it again")
+
+
 def load_reference(scene_name: str, *, spp: int | None = None) -> np.ndarray:
     """The high-spp reference image of a bundled scene, (H, W, 3) float64.
 
@@ -160,7 +176,9 @@ def load_reference(scene_name: str, *, spp: int | None = None) -> np.ndarray:
     """
     path = reference_path(scene_name)
     if path.is_file():
-        if spp is None or read_reference_header(path).get("spp") == str(int(spp)):
+        made = read_reference_header(path)
+        _check_cached(path, scene_name, made)
+        if spp is None or made.get("spp") == str(int(spp)):
             return read_image(path, channels=("R", "G", "B")).astype(np.float64)
     return render_reference(scene_name, spp=DEFAULT_REFERENCE_SPP if spp is None else int(spp))
 

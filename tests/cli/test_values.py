@@ -187,7 +187,7 @@ def test_extreme_but_valid_values_are_accepted(work, capsys, monkeypatch, base, 
         assert read_request(work / "p.exr").total > 0
 
 
-@pytest.mark.parametrize(("value", "missing_numba"), [("cuda", False), ("numba", True)])
+@pytest.mark.parametrize(("value", "missing_numba"), [("cuda", False), ("numba", True), ("", False)])
 def test_a_bad_kernel_setting_is_one_line_naming_it_and_writes_nothing(work, capsys, monkeypatch, value,
                                                                         missing_numba):
     monkeypatch.chdir(work.root)

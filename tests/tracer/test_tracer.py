@@ -778,6 +778,21 @@ def test_reference_is_rendered_cached_and_reloaded(tmp_path: Path, monkeypatch: 
     assert np.array_equal(load_reference("default", spp=2), image)
     with pytest.raises(ValueError, match="scene_name: 'x' is not one of"):
         load_reference("x")
+    # Another scene's reference, or a sample dump, cached under this scene's name was used, exit 0, every error
+    # against it wrong (an attack pass): refused, naming the file and what its header says it is.
+    import shutil
+
+    from awr_denoise import SampleBuffer
+    from awr_denoise.io import write_sample_buffer
+
+    shutil.copy(reference_path("default"), reference_path("soft_shadows"))
+    with pytest.raises(ValueError, match=r"soft_shadows.exr: holds the reference of scene 'default' \(awr:scene\)"):
+        load_reference("soft_shadows")
+    reference_path("soft_shadows").unlink()
+    write_sample_buffer(reference_path("soft_shadows"), SampleBuffer.from_moments(
+        np.full((128, 128), 4), np.ones((128, 128, 3)), np.zeros((128, 128, 3))))
+    with pytest.raises(ValueError, match="soft_shadows.exr: is a sample-statistics file .*not the reference image"):
+        load_reference("soft_shadows")
 
 
 def test_a_reference_dir_that_is_a_file_is_refused_before_any_render(tmp_path: Path,
@@ -790,6 +805,11 @@ def test_a_reference_dir_that_is_a_file_is_refused_before_any_render(tmp_path: P
         reference_path("default")
     monkeypatch.setenv("AWR_DENOISE_REFERENCE_DIR", str(tmp_path / "new"))  # to be created: fine
     assert reference_path("default") == tmp_path / "new" / "default.exr"
+    # Empty, it read as unset and sent the references into a checkout's tracked data/references (an attack pass).
+    for empty in ("", " "):
+        monkeypatch.setenv("AWR_DENOISE_REFERENCE_DIR", empty)
+        with pytest.raises(ValueError, match="AWR_DENOISE_REFERENCE_DIR: empty; unset it"):
+            reference_path("default")
 
 
 @pytest.mark.parametrize("where", ["dangling link", "below a file"])
