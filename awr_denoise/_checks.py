@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import math
 import numbers
+import os
 import re
 import threading
 from collections.abc import Callable, Iterable, Mapping
@@ -21,7 +22,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["MAX_SEED", "MAX_SPP", "MAX_SIDE", "MAX_LEVELS", "scalar", "described", "real", "whole", "whole_text",
-           "whole_option", "path_option", "flag",
+           "whole_option", "path_option", "file_option", "flag",
            "seed", "shape2d", "name", "tile", "executor", "indices", "same_channels"]
 
 MAX_SEED = 2**63 - 1
@@ -189,6 +190,24 @@ def path_option(text: str) -> Path:
     if not text.strip():
         raise argparse.ArgumentTypeError("an empty path (give . for this folder)")
     return Path(text)
+
+
+def file_option(text: str) -> Path:
+    """An argparse type: a file's path, not empty, and not ending in ``/``, ``/.`` or ``/..``, which name a folder
+    (``Path`` drops the slash: ``--results q.json/`` wrote ``q.json``; an attack pass).
+
+    Examples
+    --------
+    >>> parser = argparse.ArgumentParser()
+    >>> _ = parser.add_argument("--results", type=file_option)
+    >>> str(parser.parse_args(["--results", "q.json"]).results)
+    'q.json'
+    """
+    path = path_option(text)
+    if os.path.basename(text) in ("", ".", ".."):
+        raise argparse.ArgumentTypeError(f"{text}: ends with {os.sep!r}, '.' or '..', which names a folder; give "
+                                         "the file's name")
+    return path
 
 
 def flag(param: str, value: Any) -> bool:

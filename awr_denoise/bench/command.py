@@ -9,7 +9,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from .._checks import MAX_SPP, path_option, whole_option
+from .._checks import MAX_SPP, file_option, path_option, whole_option
 from .._progress import bars_shown
 from .config import OVERHEAD_SIZES, BenchmarkConfig
 from .rendering import tracer_module
@@ -46,7 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument("--scenes", nargs="+", metavar="SCENE", default=None, help="bundled scenes (default: all)")
     parser.add_argument("--output-dir", type=path_option, default=Path("docs"),
                         help="where benchmarks.md and img/ go (default: docs)")
-    parser.add_argument("--results", type=path_option, default=None,
+    parser.add_argument("--results", type=file_option, default=None,
                         help="JSON output (default: benchmarks/results/quality.json beside the output dir)")
     parser.add_argument("--reference-spp", type=whole_option(minimum=1, maximum=MAX_SPP), default=None,
                         help="re-render references below this spp with the tracer, replacing the cached ones "

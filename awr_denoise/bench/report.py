@@ -81,14 +81,21 @@ def kept_notes(path: Path) -> str:
     Raises
     ------
     ValueError
-        The page is not UTF-8 text (its notes cannot be kept).
+        The page is not UTF-8 text, or its notes are not between one pair of markers, :data:`NOTES_BEGIN` before
+        :data:`NOTES_END` (its notes cannot be kept).
     """
     if path.is_file():
         try:
             old = path.read_text(encoding="utf-8")
         except UnicodeDecodeError:
             raise ValueError(f"{path}: not a text page, so its notes cannot be kept; move it away") from None
-        if NOTES_BEGIN in old and NOTES_END in old:
+        begins, ends = old.count(NOTES_BEGIN), old.count(NOTES_END)
+        if begins or ends:
+            # An opening marker alone, the two reversed or a second pair: the notes were dropped, exit 0 (an attack
+            # pass).
+            if begins != 1 or ends != 1 or old.index(NOTES_END) < old.index(NOTES_BEGIN):
+                raise ValueError(f"{path}: its notes are not between one {NOTES_BEGIN} and one {NOTES_END} after it "
+                                 f"({begins} and {ends} found), so they cannot be kept; mend the page or move it away")
             return old[old.index(NOTES_BEGIN) + len(NOTES_BEGIN):old.index(NOTES_END)].strip("\n")
     return ""
 

@@ -70,7 +70,10 @@ _TINY = ["bench", "--quick", "--scenes", "default", "--size", "16", "16", "--spp
     (["--spp", "0"], "--spp"), (["--spp", "1_0"], "--spp"), (["--spp", "99999999999999999999"], "--spp"),
     (["--size", "1", "1"], "--size"), (["--size", "16", "100000"], "--size"),
     (["--reference-spp", "-1"], "--reference-spp"),
-    (["--output-dir", " "], "--output-dir"), (["--results", ""], "--results")])
+    (["--output-dir", " "], "--output-dir"), (["--results", ""], "--results"),
+    # Path drops the slash: the run wrote q.json (an attack pass).
+    (["--results", "q.json/"], "--results"), (["--results", "q.json/."], "--results"),
+    (["--results", "sub/q.json//"], "--results")])
 def test_bad_values_are_refused_by_the_parser(argv, option, tmp_path, capsys):
     from awr_denoise.cli.main import main as awr_main
 

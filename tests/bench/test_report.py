@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from awr_denoise.bench.report import NOTES_BEGIN, NOTES_END, format_number, write_markdown
+from awr_denoise.bench.report import NOTES_BEGIN, NOTES_END, format_number, kept_notes, write_markdown
 
 pytestmark = pytest.mark.tracer
 
@@ -44,6 +44,20 @@ def test_notes_survive_a_rewrite(tiny_run, tmp_path):
     write_markdown(results, {}, path, None)
     assert f"{NOTES_BEGIN}\nA reading by hand.\n{NOTES_END}" in path.read_text()
     assert "![" not in path.read_text()  # no figure drawn, none linked
+
+
+@pytest.mark.parametrize("page", [f"# p\n{NOTES_BEGIN}\nMY NOTE\n", f"{NOTES_END}\nMY NOTE\n{NOTES_BEGIN}\n",
+                                  f"{NOTES_BEGIN}\nA\n{NOTES_END}\n{NOTES_BEGIN}\nMY NOTE\n{NOTES_END}\n",
+                                  f"MY NOTE\n{NOTES_END}\n"])
+def test_notes_between_markers_that_are_not_one_pair_are_refused_not_dropped(tmp_path, page):
+    """An opening marker alone, the two reversed or a second pair: the page was rewritten without the notes, exit 0
+    (an attack pass). Refused, naming the page and the markers found, before anything is written."""
+    path = tmp_path / "benchmarks.md"
+    path.write_text(page)
+    with pytest.raises(ValueError, match="benchmarks.md: its notes are not between one .* found"):
+        kept_notes(path)
+    path.write_text(f"x\n{NOTES_BEGIN}\nMY NOTE\n{NOTES_END}\n")
+    assert kept_notes(path) == "MY NOTE"
 
 
 def test_flags_not_confirmed_over_seeds_have_their_own_section(tiny_run, tmp_path):
