@@ -42,7 +42,7 @@ from .denoise_cmd import (add_reconstruction_options, check_reconstruction_optio
                           unused_features)
 from .parallel_options import (DEFAULT_TILE, add_executor_arguments, add_threads_argument, executor_from_args,
                                executor_requested, library_threads, threads_from_args)
-from .paths import PathPlan
+from .paths import PathPlan, check_file_name
 from .sampler_settings import sampler_settings
 from .values import (MAX_EXPOSURE, MAX_ROUND_GROWTH, MAX_SEED, MAX_SIDE, MAX_SPP, check_pixels, feature_list, nonempty,
                      real, whole)
@@ -313,6 +313,9 @@ def run(args: argparse.Namespace) -> int:
                          "(--features albedo,normal)")
     if args.guide == "features" and not args.features:
         raise UsageError("--guide features: nothing to guide with; render the features too (--features all)")
+    # The image's and preview's names derive from the dump's: -o . named no option ("PosixPath('.') has an empty
+    # name", an attack pass).
+    check_file_name(args.output, "-o/--output")
     image_path = Path(args.image) if args.image else derived_path(args.output, ".denoised.exr")
     preview_path = Path(args.preview) if args.preview else derived_path(args.output, ".denoised.png")
     plan = PathPlan(overwrite=args.overwrite)

@@ -453,6 +453,9 @@ def test_info_shows_a_name_with_a_newline_on_one_line(work, capsys, monkeypatch)
     (["denoise", "shot.####.exr", "--frames", "1-2", "-o", "o.####.exr", "--preview", "out#2/"], "--preview"),
     (["plan", "d.exr", "-o", "req.exr/", "--budget", "100"], "-o/--output"),
     (["diff", "ref.exr", "-r", "ref.exr", "-o", "delta.exr/"], "-o/--output"),
+    # render's image and preview names derive from the dump's: "PosixPath('.') has an empty name" (an attack pass)
+    (["render", "--renderer", "synthetic", "edges", "--width", "8", "--height", "8", "-o", "."], "-o/--output"),
+    (["render", "--renderer", "synthetic", "edges", "--width", "8", "--height", "8", "-o", "/"], "-o/--output"),
 ])
 def test_an_output_name_ending_in_a_slash_is_refused(work, capsys, monkeypatch, args, option):
     """``-o out.exr/`` names a folder, yet a file ``out.exr`` was written (``Path`` drops the slash);
