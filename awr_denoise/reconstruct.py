@@ -438,7 +438,7 @@ def reconstruct_detailed(
         whole_result = _assembled(parts, groups, probed=settings.probes > 0)
         return replace(whole_result, parameters={**whole_result.parameters, **recorded})
     prepared = prepare(buffer, domain)
-    stop_point()  # between the steps, on a worker thread (a frame of denoise --frames): see _signals
+    stop_point()  # between the steps: a frame of denoise --frames told to stop ends here (_signals)
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
     run = None if _checks.executor("executor", executor) is None else lambda f, items: list(executor.map(f, items))
     luminance = None

@@ -144,10 +144,10 @@ _SENTINEL_WAIT = 10.0
 def _interrupt_sentinel() -> subprocess.Popen[bytes] | None:
     """A child process in this process group that a terminal's Ctrl-C ends while this process ignores it.
 
-    Started before SIGINT is ignored here: ``exec`` resets this process' handler to the default in it, and the
-    interpreter spawned workers use (so an embedded Python, whose ``sys.executable`` is the host application, is
-    not launched). None where it cannot start (no POSIX process group, out of processes or file descriptors): the
-    Ctrl-C is then not seen, as before there was one.
+    Started before SIGINT is ignored here, so that it keeps the default action (``exec`` resets this process'
+    handler to it). It runs the interpreter the spawned workers run, not ``sys.executable``, which in an embedded
+    Python is the host application. None where it cannot start (no POSIX process group, out of processes or file
+    descriptors): the Ctrl-C is then not seen, as before there was one.
     """
     if os.name != "posix":
         return None
