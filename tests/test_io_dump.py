@@ -559,3 +559,27 @@ def test_issued_counts_are_checked_before_compared(tmp_path, rng):
     with pytest.raises(ValueError, match="issued: 4 pixel\\(s\\) exceed 16777216"):
         write_sample_buffer(tmp_path / "d.exr", buffer, issued=np.full((2, 2), 2**63 + 5, np.uint64))
     assert not (tmp_path / "d.exr").exists()
+
+
+def test_variances_that_samples_of_0_or_more_cannot_have_are_warned_about(tmp_path):
+    """A dump converted to another colour space by a pipeline tool (OpenImageIO's colorconvert, as oiiotool does)
+    kept its counts and header and was read as valid, exit 0: a third of its pixels then held a mean of 0 beside a
+    variance of 0.5 (an attack pass). Such a pixel is now warned about, naming the file and channel; the dump as
+    written reads without a word."""
+    oiio = pytest.importorskip("OpenImageIO")
+    from awr_denoise.synthetic import SyntheticRenderer, make_scene
+
+    shape = (32, 48)
+    buffer = SyntheticRenderer(make_scene("edges", shape), seed=2)(SampleRequest.uniform(shape, 8))
+    mean, variance = buffer.mean.copy(), buffer.variance.copy()
+    mean[:, :12], variance[:, :12] = 0.0, 0.0  # a black border, where nothing was hit
+    buffer = SampleBuffer.from_moments(buffer.count, mean, variance)
+    written = write_sample_buffer(tmp_path / "d.exr", buffer)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_sample_dump(written)
+    converted = oiio.ImageBufAlgo.colorconvert(oiio.ImageBuf(str(written)), "lin_rec709", "lin_ap1")
+    assert not converted.has_error
+    converted.write(str(tmp_path / "acescg.exr"))
+    with pytest.warns(InputFileWarning, match="acescg.exr: [RGB]: pixel .* changed after it was written"):
+        read_sample_dump(tmp_path / "acescg.exr")

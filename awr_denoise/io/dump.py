@@ -331,6 +331,43 @@ def _known_mask(path: str | os.PathLike[str], name: str, values: np.ndarray) -> 
     return c == 1
 
 
+def impossible_spread(path: str | os.PathLike[str], buffer: SampleBuffer) -> str | None:
+    """The warning for a known variance above 0 beside a mean of 0 in a channel whose means are all 0 or more, or None.
+
+    Samples of 0 or more whose mean is 0 are all 0, whatever their weights: such a pixel's variance is 0. A file
+    where it is not was not written so by a renderer, but changed after it was written: an attack pass found a dump
+    converted to ACEScg by a pipeline tool (its counts and header kept) read as valid, a mean of 0 beside a variance
+    of 0.5 at a third of its pixels. A channel with a negative mean may hold samples of either sign, and is not
+    judged. (The tighter bound ``s^2 <= n m^2`` of equally weighted samples, which
+    :func:`~awr_denoise.io.mitsuba.moment_bound` applies to Mitsuba's box-filtered moments, is not applied here:
+    dumps of samples with noise of either sign about a mean of 0 or more, the synthetic renderer's, break it.)
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from awr_denoise import SampleBuffer
+    >>> count = np.full((1, 2), 4)               # one row of two pixels, 4 samples each, one channel
+    >>> ok = SampleBuffer.from_moments(count, np.array([[[0.5], [0.0]]]), np.array([[[1.0], [0.0]]]))
+    >>> impossible_spread("d.exr", ok) is None
+    True
+    >>> bad = SampleBuffer.from_moments(count, np.array([[[0.5], [0.0]]]), np.array([[[1.0], [0.5]]]))
+    >>> print(impossible_spread("d.exr", bad))  # doctest: +ELLIPSIS
+    d.exr: Y: pixel (x 1, y 0) has a mean of 0 and a variance above 0, which samples of 0 or more never have: ...
+    """
+    for c, name in enumerate(buffer.channels):
+        mean, variance = buffer.mean[..., c], buffer.variance[..., c]
+        known = buffer.variance_known & np.isfinite(mean) & np.isfinite(variance)  # (count 2 or more: known)
+        if not known.any() or (mean[known] < 0).any():  # samples that may be negative: no bound
+            continue
+        zero = known & (mean == 0) & (variance > 0)
+        if zero.any():
+            y, x = np.argwhere(zero)[0]
+            return (f"{path}: {name}: pixel (x {x}, y {y}) has a mean of 0 and a variance above 0, which samples "
+                    f"of 0 or more never have: the file was changed after it was written (a colour conversion, "
+                    f"a resize or a blur), or its samples are negative")
+    return None
+
+
 def buffer_from_awr_part(path: str | os.PathLike[str], part: ExrPart, *,
                          variance_kind: str | None = None) -> SampleDump:
     """Decode one EXR part in the project's layout (see the module docstring)."""
@@ -385,6 +422,9 @@ def buffer_from_awr_part(path: str | os.PathLike[str], part: ExrPart, *,
                                            variance_kind=kind, channels=names, variance_known=known)
     except ValueError as exc:
         raise file_error(path, str(exc)) from None
+    spread = impossible_spread(path, buffer)
+    if spread is not None:
+        notes += (spread,)
     nonfinite = header_count(path, attributes, "awr:nonfinite", 0, 2**62)
     features = _read_features(path, part, attributes, count, kind)
     if nonfinite or features:
