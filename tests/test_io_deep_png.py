@@ -266,3 +266,20 @@ def test_bad_deep_sample_indices_are_named_as_indices_of_samples(tmp_path, index
     grid[0, 1] = np.array([-1.0], np.float32)
     with pytest.raises(InputFileError, match=r"ok\.exr: sampleIndex: 1 sample\(s\) are negative"):
         sample_index_bounds(tmp_path / "ok.exr", part)
+
+
+def test_a_deep_dump_cropped_by_a_tool_that_kept_its_header_is_named_so(tmp_path):
+    """OpenImageIO's crop of a deep dump keeps the header's awr:samples (the whole file's); the crop's count table
+    and data agree. It was refused as a "corrupt count table" alone (an attack pass): the line names the crop too."""
+    oiio = pytest.importorskip("OpenImageIO")
+    rng = np.random.default_rng(0)
+    n = rng.integers(4, 17, 24 * 24)
+    pixel = np.repeat(np.arange(24 * 24), n)
+    write_deep_samples(tmp_path / "deep.exr", pixel, rng.gamma(2.0, 0.25, (pixel.size, 3)).astype(np.float32),
+                       (24, 24), sample_index=np.concatenate([np.arange(k) for k in n]))
+    cropped = oiio.ImageBufAlgo.crop(oiio.ImageBuf(str(tmp_path / "deep.exr")), oiio.ROI(4, 16, 4, 16))
+    assert not cropped.has_error and cropped.deep
+    cropped.write(str(tmp_path / "crop.exr"))
+    with pytest.raises(InputFileError, match=r"crop.exr: awr:samples: .* declares \d+: a corrupt count table, or a "
+                                             r"header kept by a tool that cropped or edited the samples"):
+        read_deep_samples(tmp_path / "crop.exr")

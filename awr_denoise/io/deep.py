@@ -177,8 +177,10 @@ def samples_from_deep_part(path: str | os.PathLike[str], part: ExrPart, *, nonfi
     if "awr:samples" in part.header:
         declared = str(header_value(part.header, "awr:samples"))
         if not declared.isdigit() or int(declared) != int(sizes.sum()):
+            # A tool that cropped or edited the file keeps the header: both said (an attack pass: "corrupt" alone).
             raise file_error(path, f"the sample count table holds {int(sizes.sum())} samples but the file "
-                                   f"declares {declared} (corrupt count table)", "awr:samples")
+                                   f"declares {declared}: a corrupt count table, or a header kept by a tool that "
+                                   "cropped or edited the samples", "awr:samples")
     nonempty = sizes > 0
     columns = []
     for name in names:

@@ -693,9 +693,16 @@ def _mitsuba(ctx: _Context) -> _Layout:
                                       f"for the {len(colour.channels)} of the colour {colour.label}", spread.label)
     negative = (_values(spread) < 0).any(axis=-1)
     if moments and negative.any():  # E[x^2] of samples is never negative: the film's filter weighted some so
-        raise file_error(spread.path, f"{int(negative.sum())} pixel(s) hold a negative second moment: the film's "
-                                      "reconstruction filter has negative lobes (mitchell, catmullrom, lanczos); "
-                                      "render the moments with rfilter box", spread.label)
+        lossy = _lossy(ctx.path, ctx.file.used)
+        # A lossy codec's error makes them so too: the filter was named where the file was box-filtered and
+        # compressed with DWAA (an attack pass).
+        cause = ("a lossy compression (" + ", ".join(w.split(": ")[1].split(" ")[0] for w in lossy) + ") changed "
+                 "them, or the film's reconstruction filter has negative lobes (mitchell, catmullrom, lanczos); write "
+                 "the moments losslessly (ZIP, PIZ) with rfilter box") if lossy else (
+                 "the film's reconstruction filter has negative lobes (mitchell, catmullrom, lanczos); render the "
+                 "moments with rfilter box")
+        raise file_error(spread.path, f"{int(negative.sum())} pixel(s) hold a negative second moment: {cause}",
+                         spread.label)
     convert = None
     suffixes = tuple(c.rsplit(".", 1)[-1] for c in colour.channels)
     if suffixes == ("X", "Y", "Z") and _mono(colour, spread):

@@ -396,6 +396,24 @@ def test_mitsuba_negative_lobed_filter_is_named():
         read_sample_dump(MI / "mitsuba_mitchell.exr", spp=8)
 
 
+def test_negative_second_moments_of_a_lossy_codec_name_it_not_the_filter(tmp_path):
+    """Mitsuba's box-filtered moments recompressed with DWAA by a pipeline tool hold negative second moments; the
+    line blamed a filter with negative lobes and said to render with rfilter box, which the file was (an attack
+    pass). It names the codec first now."""
+    oiio = pytest.importorskip("OpenImageIO")
+    source = oiio.ImageBuf(str(MI / "mitsuba_box.exr"))
+    spec = source.spec()
+    spec.attribute("compression", "dwaa")
+    out = oiio.ImageOutput.create(str(tmp_path / "box_dwaa.exr"))
+    assert out.open(str(tmp_path / "box_dwaa.exr"), spec)
+    assert out.write_image(source.get_pixels(oiio.FLOAT))
+    out.close()
+    with pytest.warns(InputFileWarning, match="DWAA compression is lossy"):
+        with pytest.raises(InputFileError, match=r"box_dwaa\.exr: .*negative second moment: a lossy compression "
+                                                 r"\(DWAA\) changed them"):
+            read_sample_dump(tmp_path / "box_dwaa.exr", spp=8)
+
+
 def test_mitsuba_aovs_nested_in_a_moment_are_not_radiance():
     # position and geo_normal AOVs have X,Y,Z components too: m2_main.position was taken for a
     # second radiance moment ("ambiguous").
