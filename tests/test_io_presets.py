@@ -282,6 +282,20 @@ def test_the_view_asked_for_is_the_one_read_from_an_awr_dump(tmp_path):
         read_sample_dump(two)
 
 
+def test_an_awr_dump_split_into_parts_is_named_so(tmp_path):
+    """A pipeline tool split a dump, means and counts in one part and variances in another (oiiotool --siappend):
+    refused as "variance.R: missing", though the file holds it (an attack pass); the line now says where it is."""
+    from awr_denoise.io import read_sample_dump
+
+    header, planes = _awr_planes(tmp_path)
+    variances = {k: v for k, v in planes.items() if k.startswith("variance.")}
+    rest = {k: v for k, v in planes.items() if k not in variances}
+    path = _parts_file(tmp_path / "split.exr", [(header, rest), ({}, variances)])
+    with pytest.raises(InputFileError, match=r"split.exr: variance.B: in another part than sampleCount: an awr dump "
+                                             r"keeps its channels in one part"):
+        read_sample_dump(path)
+
+
 def test_parts_with_another_data_window_are_refused(tmp_path):
     """The samples in part 1 at (0, 0), an image in part 0 at (100, 200): the outputs took part 0's
     window, placing the denoised pixels elsewhere, exit 0 (red-team pass 5)."""

@@ -1102,6 +1102,11 @@ def read_sample_dump(
         if len(views := multi_views(flat)) > 1:  # read from the part: the first view's, whatever --view said
             raise file_error(p, f"holds views {', '.join(views)} in one part (multiView), which an awr dump never "
                                 "does; give one view's dump", COUNT_CHANNEL)
+        elsewhere = sorted({c for part in f.used if part is not flat[0] for c in part.channels
+                            if c.startswith(VARIANCE_PREFIX) and c not in flat[0].channels})
+        if elsewhere:  # a pipeline tool split the dump: "variance.R: missing" named the wrong cause (an attack pass)
+            raise file_error(p, f"in another part than {COUNT_CHANNEL}: an awr dump keeps its channels in one part; "
+                                "merge the parts into one", elsewhere[0])
         if spp is not None:
             raise file_error(p, f"holds per-pixel sample counts; spp={spp} / --spp is for files without them",
                              COUNT_CHANNEL)
