@@ -64,12 +64,22 @@ class FilterCheck:
         return self.ratio < CORRELATED_BELOW
 
     @property
-    def message(self) -> str:
-        """One line for a warning."""
+    def measured(self) -> str:
+        """What was measured, the first half of a warning."""
         return (f"neighbouring pixel means vary {1 / max(self.ratio, 1e-9):.1f}x less than their variances allow "
-                "(median normalised second difference "
-                f"{self.ratio:.2f}, {CORRELATED_BELOW} or more expected): the film filter is probably not "
-                "'box', so pixels share samples and variances are off; render with rfilter type 'box'")
+                f"(median normalised second difference {self.ratio:.2f}, {CORRELATED_BELOW} or more expected)")
+
+    @property
+    def message(self) -> str:
+        """One line for a warning on a Mitsuba film."""
+        return (f"{self.measured}: the film filter is probably not 'box', so pixels share samples and variances are "
+                "off; render with rfilter type 'box'")
+
+    @property
+    def shared(self) -> str:
+        """One line for a warning on another renderer's file, or the project's dump."""
+        return (f"{self.measured}: pixels share samples (the file resized or blurred after it was rendered, or a "
+                "film filter wider than a pixel), and their variances are off")
 
 
 def filter_correlation(buffer: SampleBuffer) -> FilterCheck | None:

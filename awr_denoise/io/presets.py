@@ -807,6 +807,17 @@ def _moment_bound(layout: _Layout) -> MomentBound | None:
     return moment_bound(layout.count, _values(colour), _values(spread), smallest=smallest)
 
 
+def _shared_samples(path: Path, label: str, buffer: SampleBuffer) -> str | None:
+    """The warning for neighbouring pixels whose means are correlated, or None
+    (:func:`~awr_denoise.io.mitsuba.filter_correlation`): a pbrt-v4 file resized or blurred by a tool after the
+    render keeps its whole sample count and plausible variances, and was denoised as independent pixels without a
+    word (an attack pass). Mitsuba's reader says it with its own advice. Not on the project's dumps, whose means
+    callers also build by hand (constant means beside a nominal variance would warn), nor on a variance plane of
+    the user's own."""
+    check = filter_correlation(buffer)
+    return f"{path}: {label}: {check.shared}" if check is not None and check.correlated else None
+
+
 def _assemble(path: Path, layout: _Layout, warnings: list[str] | None = None) -> SampleBuffer:
     colour, spread, kind = layout.colour, layout.spread, layout.kind
     assert spread is not None and layout.count is not None
@@ -1133,6 +1144,10 @@ def read_sample_dump(
     found = _features(ctx, preset, layout, buffer.count, planes, features)
     if found:
         buffer = dataclasses.replace(buffer, features=found)
+    if preset == "pbrt" and variance is None:  # the renderer's own variance, not a plane of the user's
+        shared = _shared_samples(p, layout.colour.label, buffer)
+        if shared is not None:
+            ctx.warnings.append(shared)
     if preset == "mitsuba":
         # The moments' bound is a proof (unequal weights, or more samples than counted), refused; the neighbours'
         # correlation a measurement, warned about: it is all that is left where the bound holds.
