@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["MAX_SEED", "MAX_SPP", "MAX_SIDE", "MAX_LEVELS", "scalar", "described", "real", "whole", "whole_text",
-           "whole_option", "path_option", "file_option", "names_a_folder", "flag",
+           "whole_option", "path_option", "file_option", "folder_name", "flag",
            "seed", "shape2d", "name", "tile", "executor", "indices", "same_channels"]
 
 MAX_SEED = 2**63 - 1
@@ -204,22 +204,24 @@ def file_option(text: str) -> Path:
     'q.json'
     """
     path = path_option(text)
-    if names_a_folder(text):
-        raise argparse.ArgumentTypeError(f"{text}: ends with {os.sep!r}, '.' or '..', which names a folder; give "
-                                         "the file's name")
+    why = folder_name(text)
+    if why is not None:
+        raise argparse.ArgumentTypeError(why)
     return path
 
 
-def names_a_folder(text: str) -> bool:
-    """Whether ``text`` ends in ``/``, ``/.`` or ``/..`` (or is ``.`` or ``..``): it names a folder, whatever the
-    file system holds, though ``Path`` drops a trailing slash.
+def folder_name(text: str) -> str | None:
+    """Why ``text`` names a folder where a file's name is due, or None: it ends in ``/``, ``/.`` or ``/..`` (or is
+    ``.`` or ``..``), whatever the file system holds, though ``Path`` drops a trailing slash.
 
     Examples
     --------
-    >>> [names_a_folder(t) for t in ("out.exr", "out.exr/", "out/.", "..", "/")]
+    >>> [folder_name(t) is not None for t in ("out.exr", "out.exr/", "out/.", "..", "/")]
     [False, True, True, True, True]
     """
-    return os.path.basename(text) in ("", ".", "..")
+    if os.path.basename(text) not in ("", ".", ".."):
+        return None
+    return f"{text}: ends with {os.sep!r}, '.' or '..', which names a folder; give the file's name"
 
 
 def flag(param: str, value: Any) -> bool:

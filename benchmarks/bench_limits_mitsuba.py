@@ -29,6 +29,9 @@ from awr_denoise import SampleRequest, reconstruct
 from awr_denoise.bench import update_section
 from awr_denoise.metrics import mse, relmse
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_reconstruct import recorded_command  # noqa: E402
+
 RESULTS = Path(__file__).resolve().parent / "results" / "limits_mitsuba.json"
 SHAPE = (128, 128)
 SPPS = (4, 8, 32, 128)
@@ -218,8 +221,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.seeds < 1:
         parser.error("--seeds: at least 1")
     rows = run(args.scenes, args.seeds, args.cache)
-    shown = [a for a in (argv if argv is not None else sys.argv[1:])]
-    update_section(args.output, "limits_mitsuba", rows, "benchmarks/bench_limits_mitsuba.py " + " ".join(shown))
+    update_section(args.output, "limits_mitsuba", rows, recorded_command("bench_limits_mitsuba.py", argv))
     table(rows)
     return 0
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from awr_denoise._checks import names_a_folder
+from awr_denoise._checks import folder_name
 from awr_denoise.errors import InputFileError
 from awr_denoise.io.atomic import check_readable, check_utf8_name, check_writable
 from awr_denoise.io.exr import check_same_windows, read_windows
@@ -189,9 +189,9 @@ def check_file_name(path: str | os.PathLike[str], option: str) -> None:
     if name == "-":  # the shells' convention for standard output, which no command writes images to
         raise UsageError(f"{option}: '-' would write a file named '-', not standard output; give a file name "
                          "('./-' for that file)")
-    if names_a_folder(name):  # out.exr/, out.exr/. and out.exr/.. all name a folder
-        raise UsageError(f"{option}: {name}: ends with {os.sep!r}, '.' or '..', which names a folder; "
-                         "give the file's name")
+    why = folder_name(name)  # out.exr/, out.exr/. and out.exr/.. all name a folder
+    if why is not None:
+        raise UsageError(f"{option}: {why}")
 
 
 def _check_name(entry: _Entry) -> None:

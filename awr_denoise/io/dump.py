@@ -356,15 +356,12 @@ def impossible_spread(path: str | os.PathLike[str], buffer: SampleBuffer) -> str
     """
     for c, name in enumerate(buffer.channels):
         mean, variance = buffer.mean[..., c], buffer.variance[..., c]
-        known = buffer.variance_known & np.isfinite(mean) & np.isfinite(variance)  # (count 2 or more: known)
-        if not known.any() or (mean[known] < 0).any():  # samples that may be negative: no bound
-            continue
-        zero = known & (mean == 0) & (variance > 0)
-        if zero.any():
+        zero = (mean == 0) & (variance > 0) & buffer.variance_known  # known: 2 samples or more; NaN compares False
+        if zero.any() and not (mean < 0).any():  # a negative mean: samples that may be negative, no bound
             y, x = np.argwhere(zero)[0]
             return (f"{path}: {name}: pixel (x {x}, y {y}) has a mean of 0 and a variance above 0, which samples "
-                    f"of 0 or more never have: the file was changed after it was written (a colour conversion, "
-                    f"a resize or a blur), or its samples are negative")
+                    "of 0 or more never have: the file was changed after it was written (a colour conversion, "
+                    "a resize or a blur), or its samples are negative")
     return None
 
 

@@ -77,7 +77,7 @@ class FilterCheck:
 
     @property
     def shared(self) -> str:
-        """One line for a warning on another renderer's file, or the project's dump."""
+        """One line for a warning on another renderer's file (pbrt-v4's), where the filter is not the cause named."""
         return (f"{self.measured}: pixels share samples (the file resized or blurred after it was rendered, or a "
                 "film filter wider than a pixel), and their variances are off")
 

@@ -693,14 +693,12 @@ def _mitsuba(ctx: _Context) -> _Layout:
                                       f"for the {len(colour.channels)} of the colour {colour.label}", spread.label)
     negative = (_values(spread) < 0).any(axis=-1)
     if moments and negative.any():  # E[x^2] of samples is never negative: the film's filter weighted some so
-        lossy = _lossy(ctx.path, ctx.file.used)
         # A lossy codec's error makes them so too: the filter was named where the file was box-filtered and
         # compressed with DWAA (an attack pass).
-        cause = ("a lossy compression (" + ", ".join(w.split(": ")[1].split(" ")[0] for w in lossy) + ") changed "
-                 "them, or the film's reconstruction filter has negative lobes (mitchell, catmullrom, lanczos); write "
-                 "the moments losslessly (ZIP, PIZ) with rfilter box") if lossy else (
-                 "the film's reconstruction filter has negative lobes (mitchell, catmullrom, lanczos); render the "
-                 "moments with rfilter box")
+        filters = "the film's reconstruction filter has negative lobes (mitchell, catmullrom, lanczos)"
+        codecs = ", ".join(_lossy_codecs(ctx.file.used))
+        cause = (f"a lossy compression ({codecs}) changed them, or {filters}; write the moments losslessly (ZIP, PIZ) "
+                 "with rfilter box") if codecs else f"{filters}; render the moments with rfilter box"
         raise file_error(spread.path, f"{int(negative.sum())} pixel(s) hold a negative second moment: {cause}",
                          spread.label)
     convert = None
@@ -1029,12 +1027,16 @@ def _features(ctx: _Context, preset: str, layout: _Layout, count: np.ndarray, pl
 _LOSSY = ("PXR24_COMPRESSION", "B44_COMPRESSION", "B44A_COMPRESSION", "DWAA_COMPRESSION", "DWAB_COMPRESSION")
 
 
+def _lossy_codecs(parts: Sequence[ExrPart]) -> list[str]:
+    """The lossy compressions among ``parts`` (``"DWAA"``, ...), sorted."""
+    names = {getattr(part.header.get("compression"), "name", "") for part in parts}
+    return [name.removesuffix("_COMPRESSION") for name in sorted(names) if name in _LOSSY]
+
+
 def _lossy(p: Path, parts: Sequence[ExrPart]) -> list[str]:
     """A warning per lossy compression among ``parts`` (the statistics were accepted without a word)."""
-    names = {getattr(part.header.get("compression"), "name", "") for part in parts}
-    return [f"{p}: {name.removesuffix('_COMPRESSION')} compression is lossy: the means and variances read are "
-            "not those the renderer computed; write sample dumps losslessly (ZIP, PIZ)" for name in sorted(names)
-            if name in _LOSSY]
+    return [f"{p}: {codec} compression is lossy: the means and variances read are not those the renderer computed; "
+            "write sample dumps losslessly (ZIP, PIZ)" for codec in _lossy_codecs(parts)]
 
 
 def _warn(messages: Sequence[str]) -> None:
