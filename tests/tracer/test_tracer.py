@@ -881,6 +881,29 @@ def test_committed_references_are_small_and_state_their_spp() -> None:
 
 
 @pytest.mark.exr
+def test_committed_references_are_the_ones_the_tracer_page_lists() -> None:
+    """Every benchmark's numbers are measured against these files: one replaced by another render (the `default`
+    reference once went in at 5000 spp beside an unrelated change) breaks every figure quoted against it. The table
+    of docs/tracer.md names each file's spp, sampler, seed and render time, from its header."""
+    pytest.importorskip("OpenEXR")
+    from awr_denoise.tracer.reference import read_reference_header
+
+    rows = {}
+    for line in (REPO / "docs" / "tracer.md").read_text(encoding="utf-8").splitlines():
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        if len(cells) == 6 and cells[0].startswith("`") and cells[2].isdigit():
+            rows[cells[0].strip("`")] = cells
+    files = {f.stem: f for f in (REPO / "data" / "references").glob("*.exr")}
+    if not files:
+        pytest.skip("no committed references")
+    assert sorted(rows) == sorted(files)
+    for name, (_, size, spp, sampler_seed, seconds, _) in rows.items():
+        header = read_reference_header(files[name])
+        assert (header["scene"], header["spp"], f"{header['sampler']}, {header['seed']}", header["seconds"]) == (
+            name, spp, sampler_seed, seconds), name
+
+
+@pytest.mark.exr
 @pytest.mark.parametrize("name", ["default", "soft_shadows"])
 def test_renders_converge_to_the_reference_and_sobol_beats_independent(name: str) -> None:
     pytest.importorskip("OpenEXR")
