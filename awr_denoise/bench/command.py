@@ -58,7 +58,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                         help=f"override the scenes' resolution, {_SIDES[0]}-{_SIDES[1]} pixels a side (references "
                              "are then rendered on the fly)")
     parser.add_argument("--overhead-sizes", nargs="*", choices=tuple(OVERHEAD_SIZES), default=None, metavar="SIZE",
-                        help=f"image sizes of the overhead measurement ({', '.join(OVERHEAD_SIZES)}; none to skip)")
+                        help=f"image sizes of the overhead measurement ({', '.join(OVERHEAD_SIZES)}; "
+                             "the option alone skips it)")
     parser.add_argument("--no-oidn", action="store_true", help="skip Open Image Denoise even if installed")
     parser.add_argument("--no-mitsuba", action="store_true", help="skip the Mitsuba 3 scenes even if Mitsuba is installed")
     parser.add_argument("--mitsuba-scenes", nargs="+", metavar="SCENE", default=None,
