@@ -464,7 +464,8 @@ def trust(candidate: FloatArray, buffer: SampleBuffer, *, window: int = GATE_WIN
     v[empty] = 0.0
     spread = window_sum(np.minimum(distance, 1e300 / window**2), window)  # sums, not running ones (._window_sums)
     noise = window_sum(v, window)
-    r = np.where(noise > 0, spread / np.where(noise > 0, noise, 1.0), np.where(spread > 0, np.inf, 0.0))
+    with np.errstate(over="ignore"):  # a spread of 1e300 over a noise of 1e-300: Inf, no trust (an attack pass)
+        r = np.where(noise > 0, spread / np.where(noise > 0, noise, 1.0), np.where(spread > 0, np.inf, 0.0))
     return np.clip((GATE_HIGH - r) / (GATE_HIGH - GATE_LOW), 0.0, 1.0)[..., None]
 
 

@@ -466,6 +466,17 @@ def _pooled(count: CountArray, mean: FloatArray, variance: FloatArray, known: Bo
     dof = np.where(known, count - 1, 0).astype(np.float64)
     if dof.sum() == 0:
         return np.zeros_like(variance)
+    # The sums of M2 = variance (n - 1) over a window or the image pass float64 where variances near its limit are
+    # known: a pooled variance of 5e307 came out Inf, and the buffer was refused as beyond float64 (an attack pass).
+    # Pooled at a power of two below, exactly, and scaled back; only the pooled entries are taken from it.
+    top = float(np.max(variance, where=known[..., None] & np.isfinite(variance), initial=0.0))
+    shift = math.frexp(top)[1] + math.frexp(float(dof.max()) * dof.size)[1] - 1000  # the largest sum below 2**1000
+    if shift > 0:
+        scaled = _pooled(count, mean, np.ldexp(variance, -shift), known, edges)
+        out = np.array(variance)
+        with np.errstate(over="ignore"):
+            out[~known] = np.ldexp(scaled[~known], shift)
+        return out
     # A light's rim lends no unknown variance either (a single sample beside it, as samples that all agreed):
     # its entries count for nothing in the pools, channel by channel.
     entries = np.broadcast_to(dof[..., None], variance.shape)

@@ -446,3 +446,18 @@ def test_features_too_noisy_to_tell_an_edge_leave_the_image():
     image = noisy.mean
     assert_allclose(feature_pilot(noisy, image), image, rtol=1e-3)
     assert np.abs(feature_pilot(exact, exact.mean) - exact.mean).mean() > 0.1 * np.abs(exact.mean).mean()
+
+
+def test_a_gate_of_means_from_1e_150_to_1e150_warns_of_nothing():
+    """A window whose spread is 1e300 beside a noise of 1e-300 overflowed the gate's ratio: an overflow warning in
+    ``trust`` (an attack pass). Its ratio is Inf, the candidate untrusted there, without a word."""
+    mean, variance = np.ones((1, 17, 1)), np.zeros((1, 17, 1))
+    count = np.full((1, 17), 8)
+    mean[0, 13], variance[0, 13] = 1e-150, 1e-300
+    mean[0, 16], variance[0, 16] = 1e150, 1e300
+    depth = SampleBuffer.from_moments(count, np.ones((1, 17, 1)), np.zeros((1, 17, 1)), channels=("Z",))
+    buffer = SampleBuffer.from_moments(count, mean, variance, features={"depth": depth})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = reconstruct(buffer, features=True)
+    assert np.isfinite(out).all()

@@ -489,3 +489,31 @@ def test_a_very_noisy_pixel_far_away_leaves_a_single_samples_pool_as_it_is(noisy
     variance[0, 5] = noisy
     out = pooling.pooled_variance(count, mean, variance, count >= 2)
     assert out[0, 30, 0] == pytest.approx(0.01, rel=1e-12)
+
+
+def test_variances_near_float64s_limit_pool_without_overflow(rng):
+    """M2 = variance (n - 1), summed over a window, passed float64 where a known variance was near its limit: a
+    one-sample pixel's pooled variance of 5e307 came out Inf, and the reconstruction and the sampler refused the
+    buffer as beyond float64 (an attack pass). Pooled at a power of two below and scaled back: the same value as the
+    buffer scaled down by a power of two gives, scaled up, and the known variances as they were."""
+    count = np.array([[1, 3, 3]])
+    mean = np.array([[[1.0], [1e154], [1.0]]])
+    variance = np.array([[[0.0], [1e308], [0.25]]])
+    buffer = SampleBuffer.from_moments(count, mean, variance)
+    pooled = estimated_variance(count, mean, variance, buffer.variance_known)
+    assert np.isfinite(pooled).all()
+    assert pooled[0, 0, 0] == 1e308 / 2  # (2e308 + 0.5) / 4
+    assert_array_equal(pooled[0, 1:], variance[0, 1:])
+    f = 2.0**-600
+    small = estimated_variance(count, mean * 2.0**-300, variance * f, buffer.variance_known)
+    assert small[0, 0, 0] * 2.0**600 == pooled[0, 0, 0]
+    assert np.isfinite(reconstruct(buffer)).all() and np.isfinite(reconstruct(buffer, domain="linear")).all()
+    assert AdaptiveSampler.from_buffer(buffer).ask(4).counts.sum() == 4
+    # Large variances beside tiny ones (1e-300) keep the tiny ones' pool: the shift is no larger than needed.
+    count = np.full((4, 4), 3)
+    count[0, 0] = 1
+    variance = np.full((4, 4, 1), 1e-300)
+    variance[3, 3] = 1e300
+    mean = np.ones((4, 4, 1))
+    pooled = estimated_variance(count, mean, variance, SampleBuffer.from_moments(count, mean, variance).variance_known)
+    assert 0 < pooled[0, 0, 0] < 1e-299
