@@ -174,6 +174,8 @@ def _shifted(a: np.ndarray, dy: int, dx: int) -> np.ndarray:
 
 _LARGEST = 2.0**400
 """Values are brought below this (by a power of two) before the pilot squares their differences."""
+_SMALLEST_DEPTH = 2.0**-10
+"""Below this largest depth, depths are brought near 1 by a power of two (:func:`_feature_planes`)."""
 
 
 def _unit(mean: np.ndarray, variance: np.ndarray) -> float:
@@ -196,6 +198,11 @@ def _feature_planes(buffer: SampleBuffer) -> list[tuple[np.ndarray, np.ndarray, 
         variance = np.where(feature.count[..., None] > 1, np.nan_to_num(feature.variance), 0.0) / n
         relative = name == "depth"
         unit = _unit(mean, variance) if relative else 1.0  # a relative distance does not change with it
+        top = float(np.abs(mean * unit).max(initial=0.0))
+        if relative and 0.0 < top < _SMALLEST_DEPTH:
+            # Depths in a unit that makes them tiny (1e-7) lost every edge to the distances' absolute floor (1e-12
+            # beside sigma^2 depth^2; an attack pass): brought up by a power of two, exactly.
+            unit = math.ldexp(unit, -math.frexp(top)[1])
         planes.append((mean * unit, variance * unit * unit, sigma, relative))
     return planes
 

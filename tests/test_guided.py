@@ -461,3 +461,23 @@ def test_a_gate_of_means_from_1e_150_to_1e150_warns_of_nothing():
         warnings.simplefilter("error")
         out = reconstruct(buffer, features=True)
     assert np.isfinite(out).all()
+
+
+@pytest.mark.parametrize("depth_scale", [1e-5, 1e-7, 2.0**-600, 1e9])
+def test_a_depth_edge_guides_the_same_in_any_unit(depth_scale):
+    """Depth distances are relative: depths of 1e-7 lost their edge to the distances' absolute floor (1e-12 beside
+    sigma^2 depth^2), and the image moved by 0.05 on a step of 0.5 (an attack pass)."""
+    rng = np.random.default_rng(5)
+    count = np.full((24, 24), 4)
+    clean = np.ones((24, 24, 3))
+    clean[:, 12:] = 1.5
+    variance = np.full((24, 24, 3), 0.5)
+    mean = clean + np.sqrt(variance / 4) * rng.standard_normal(clean.shape)
+    depth = np.where(np.arange(24) < 12, 2.0, 5.0)[None, :, None] * np.ones((24, 24, 1))
+
+    def guided(scale):
+        feature = SampleBuffer.from_moments(count, depth * scale, np.zeros((24, 24, 1)), channels=("Z",))
+        buffer = SampleBuffer.from_moments(count, mean, variance, features={"depth": feature})
+        return reconstruct(buffer, features=True, precision="float64")
+
+    assert_allclose(guided(depth_scale), guided(1.0), rtol=1e-9, atol=0)
