@@ -235,6 +235,22 @@ def test_scale_equivariance(data, domain, exponent, c_s, stages):
 
 
 @FEW
+@given(data=buffers(allow_empty_pixels=False), exponent=st.integers(-30, 30), stages=st.sampled_from([1, 3]))
+def test_scale_equivariance_at_the_default_precision(data, exponent, stages):
+    """The log domain's transforms run in float32 by default: a scaled image rounds otherwise there, by about 4e-7 of
+    the image's largest value (measured by an attack pass, which found the float64 property above stated for the
+    default). Held to 1e-5 of it: float32's rounding through a handful of transforms, not a change of result."""
+    buf, _ = data
+    a = 10.0**exponent
+    scaled = SampleBuffer(buf.count, buf.mean * a, buf.variance * a * a, buf.channels, buf.variance_known)
+    if not (np.isfinite(scaled.variance).all() and np.isfinite(scaled.mean).all()):
+        return
+    out = reconstruct(buf, stages=stages)
+    np.testing.assert_allclose(reconstruct(scaled, stages=stages), a * out, rtol=0,
+                               atol=1e-5 * a * (np.abs(out).max() + 1e-300))
+
+
+@FEW
 @given(data=buffers(), domain=DOMAINS, c_s=st.sampled_from([0.5, 1.0, 1e6]), clamp=CLAMPS,
        stages=st.sampled_from([1, 3]))
 def test_odd_symmetry(data, domain, c_s, clamp, stages):
