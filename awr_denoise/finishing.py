@@ -245,9 +245,16 @@ def _pooled_median_at(s: FloatArray, mean: FloatArray, count: FloatArray, where:
             nb = pixel + (i * (w + 2) + j)
             at = nb * channels + chan
             value = s_flat.take(at)
+            n_nb = count_flat.take(nb)
             gap = np.abs(mean_flat.take(at) - own_m) - near_edge
-            keep = gap <= value * np.sqrt(count_flat.take(nb)) * reach   # the pixel itself (gap <= 0) always
-            values.append(np.where(keep, value, np.inf))
+            keep = gap <= value * np.sqrt(n_nb) * reach   # the pixel itself (gap <= 0) always
+            # What pools is the neighbour's per-sample deviation, over this pixel's own count: the error its mean
+            # would have with that spread. The neighbour's own standard error widened a pixel of many samples to a
+            # neighbour of few's (an adaptive render's mix of 4 and 4096 samples a pixel: its error stayed at the
+            # few's, however many it took; an attack pass). Equal counts pool the same value, bit for bit.
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ratio = np.sqrt(np.where(n_nb == n, 1.0, n_nb / n))
+            values.append(np.where(keep, value * ratio, np.inf))
             kept += keep
     for i, j in _SORT9:
         low = np.minimum(values[i], values[j])

@@ -10,7 +10,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from scipy import ndimage
 
-from awr_denoise import finishing
+from awr_denoise import SampleBuffer, finishing, reconstruct
 from awr_denoise.finishing import (_FILL_STEPS, POOL_CHANCE, RESTORE_SHARE, _fill, clip_negative, match_mean,
                                    median3x3, pooled_clamp, pooled_standard_error, restore_mean)
 
@@ -43,8 +43,9 @@ def test_pooled_clamp_keeps_pixels_within_z_pooled_standard_errors(rng):
 
 
 def _gated_pooled_error_by_definition(variance, mean, count):
-    """POOL_CHANCE's definition, pixel by pixel: the upper median of s over the 3x3 neighbours (edges repeated)
-    with z^n >= POOL_CHANCE, z = S^2 / (S^2 + g^2), g = max(|m - c| - s_px (n - 1) / sqrt(n), 0)."""
+    """POOL_CHANCE's definition, pixel by pixel: the upper median, over the 3x3 neighbours (edges repeated) with
+    z^n >= POOL_CHANCE, z = S^2 / (S^2 + g^2), g = max(|m - c| - s_px (n - 1) / sqrt(n), 0), of the error S / sqrt(n)
+    the pixel's mean would have with the neighbour's per-sample deviation S."""
     s = np.sqrt(variance)
     out = np.empty_like(s)
     h, w = s.shape[:2]
@@ -59,7 +60,7 @@ def _gated_pooled_error_by_definition(variance, mean, count):
                 g = max(abs(mean[(a, b) + rest] - c) - own * (n - 1) / np.sqrt(n), 0.0)
                 z = 1.0 if big_s2 + g * g == 0 else big_s2 / (big_s2 + g * g)
                 if z**n >= POOL_CHANCE:
-                    kept.append(s[(a, b) + rest])
+                    kept.append(np.sqrt(big_s2 / n))
         out[index] = max(s[index], sorted(kept)[len(kept) // 2])
     return out
 
@@ -73,6 +74,30 @@ def test_pooled_standard_error_with_counts_pools_the_neighbours_the_samples_coul
         variance[rng.random(shape) < 0.1] = 0.0
         expected = _gated_pooled_error_by_definition(variance, mean, count)
         assert_allclose(pooled_standard_error(variance, mean, count), expected, rtol=1e-12, atol=0)
+
+
+def test_a_pixel_of_many_samples_keeps_its_own_interval_beside_neighbours_of_few():
+    """An adaptive render's mix: pixels of 4 samples beside pixels of 4096 or 2**20, one distribution everywhere.
+    What pools is a neighbour's per-sample deviation over the pixel's own count, so a precise pixel's interval stays
+    its own: pooling the neighbours' standard errors held it at a 4-sample pixel's, 33 and 625 of its own standard
+    errors from its mean in the reconstruction, its error not falling with its samples (an attack pass)."""
+    count = np.full((3, 3), 4.0)
+    count[1, 1] = 4096.0
+    mean = np.full((3, 3, 1), 1.0)
+    variance = 0.04 / count[..., None]              # the same per-sample variance, 0.04, everywhere
+    pooled = pooled_standard_error(variance, mean, count)
+    assert_allclose(pooled[1, 1], np.sqrt(variance[1, 1]), rtol=1e-15)
+    assert_allclose(pooled[0, 0], np.sqrt(variance[0, 0]), rtol=1e-15)  # and the few's is their own too
+    rng = np.random.default_rng(3)
+    shape = (32, 32)
+    clean = (0.5 + 0.3 * (np.arange(shape[1]) > 16))[None, :, None] * np.ones(shape + (3,))
+    for many in (4096, 2**20):
+        counts = np.where(rng.random(shape) < 0.5, 4, many)
+        error = np.sqrt(0.04 / counts)[..., None]
+        means = clean + error * rng.standard_normal(clean.shape)
+        out = reconstruct(SampleBuffer.from_moments(counts, means, np.full(clean.shape, 0.04)))
+        precise = counts == many
+        assert np.abs(out - means)[precise].max() <= (2.5 + 1e-9) * error[precise].max()
 
 
 def test_the_nine_value_sorting_network_sorts_every_input():
