@@ -13,6 +13,7 @@ import asyncio
 import concurrent.futures as cf
 import contextlib
 import functools
+import hashlib
 import ipaddress
 import json
 import logging
@@ -22,23 +23,27 @@ import multiprocessing.spawn
 import os
 import signal
 import socket
+import struct
 import subprocess
 import tempfile
 import threading
 import time
+import uuid
+import weakref
 from collections.abc import Callable, Iterator
 from concurrent.futures import Executor
 from pathlib import Path
 from typing import Any
 
 from .. import _checks
+from .._version import __version__
 from .._signals import COMMIT_CHECKS, TERMINATING_SIGNALS
 from .._signals import deferred as _signals_deferred
 from .._workers import exit_with_parent
 from ..io.atomic import check_readable, read_without_waiting
 
 __all__ = ["EXECUTOR_KINDS", "DASK_INSTALL_HINT", "get_executor", "executor_or_threads", "executor_width",
-           "submit", "default_workers", "dask_client"]
+           "submit", "wait_first", "default_workers", "dask_client"]
 
 EXECUTOR_KINDS = ("threads", "processes", "dask")
 """Kinds of executor :func:`get_executor` can make."""
@@ -434,11 +439,16 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
         else:
             client = stack.enter_context(_connect(distributed, _scheduler_address(distributed, scheduler)))
         executor = client.get_executor(pure=False)
+        stop = _STOP_EVENTS[executor] = f"awr-stop-{uuid.uuid4().hex}"
         try:
             yield executor
         except BaseException:
             # Ctrl-C reaches a local cluster's workers too (one process group): waiting for
             # their futures would wait for ever. Cancel them; closing the cluster ends the rest.
+            # A cluster given by address keeps running: its running tasks are told to stop at their
+            # next stop point (:func:`_on_the_same_package`).
+            with contextlib.suppress(Exception):  # a scheduler lost meanwhile: nothing left to tell
+                distributed.Event(stop, client=client).set()
             executor.shutdown(wait=False)
             raise
         executor.shutdown(wait=True)
@@ -567,7 +577,8 @@ def _connect(distributed: Any, address: str) -> Any:
                               "service on that port?)") from None
     except ConnectionError:
         raise
-    except MemoryError:  # another service's reply, read as the length of a Dask message (exabytes)
+    except (MemoryError, struct.error):  # another service's reply, read as the length of a Dask message (exabytes),
+        # or shorter than the frame lengths it announces
         raise ConnectionError(f"scheduler: {address}: not a Dask scheduler (its reply is no Dask message)") from None
     except OSError as exc:  # refused, timed out, closed (CommClosedError): nothing to run on
         why = " ".join(str(exc).split()) or type(exc).__name__
@@ -581,6 +592,61 @@ def _connect(distributed: Any, address: str) -> Any:
         client.close()
         raise ConnectionError(f"scheduler: {address}: no workers joined within {_WORKER_SECONDS:g} s") from None
     return client
+
+
+_WATCH_SECONDS = 10.0
+"""How often a wait on a Dask cluster's tasks asks its scheduler whether it answers and has workers."""
+
+
+def wait_first(executor: Executor, futures: Any) -> set[cf.Future]:
+    """``concurrent.futures.wait(futures, return_when=FIRST_COMPLETED)``'s done set; on a Dask cluster the
+    scheduler is asked every :data:`_WATCH_SECONDS` whether it still answers and has a worker.
+
+    A cluster that lost every worker (stopped, or gone on an import error of their own), or whose scheduler
+    froze, mid-run kept the command waiting for ever without a word (an attack pass): it now ends with a
+    ``ConnectionError`` naming the scheduler, once it has had no worker for ``_WORKER_SECONDS`` or has not
+    answered within twice ``_ANSWER_SECONDS``.
+
+    Examples
+    --------
+    >>> from awr_denoise.parallel import get_executor
+    >>> from awr_denoise.parallel.executors import wait_first
+    >>> with get_executor("threads", workers=1) as pool:
+    ...     [f.result() for f in wait_first(pool, [pool.submit(abs, -1)])]
+    [1]
+    """
+    client = dask_client(executor)
+    if client is None:
+        return cf.wait(futures, return_when=cf.FIRST_COMPLETED)[0]
+    without_workers: float | None = None
+    while True:
+        done = cf.wait(futures, timeout=_WATCH_SECONDS, return_when=cf.FIRST_COMPLETED)[0]
+        if done:
+            return done
+        without_workers = _watch(client, without_workers)
+
+
+def _watch(client: Any, without_workers: float | None) -> float | None:
+    """Ask ``client``'s scheduler who it is; raise if it does not answer or has had no worker for
+    ``_WORKER_SECONDS``; return since when it has had none (None: it has)."""
+    address = client.scheduler.address
+    try:
+        identity = _identity(_import_distributed(), address, _ANSWER_SECONDS)
+    except (asyncio.TimeoutError, TimeoutError):
+        raise ConnectionError(f"scheduler: {address}: no answer within {2 * _ANSWER_SECONDS:g} s mid-run (stopped "
+                              "or frozen?)") from None
+    except OSError as exc:
+        why = " ".join(str(exc).split()) or type(exc).__name__
+        raise ConnectionError(f"scheduler: {address}: lost mid-run ({why})") from None
+    if not isinstance(identity, dict) or identity.get("workers"):  # None: inside a running event loop, not asked
+        return None
+    now = time.monotonic()
+    if without_workers is None:
+        return now
+    if now - without_workers >= _WORKER_SECONDS:
+        raise ConnectionError(f"scheduler: {address}: no workers for {_WORKER_SECONDS:g} s mid-run (every worker "
+                              "stopped, lost, or unable to start?)")
+    return without_workers
 
 
 @contextlib.contextmanager
@@ -630,7 +696,8 @@ def submit(executor: Executor, fn: Callable[..., Any], *args: Any) -> cf.Future:
     if getattr(executor, "_shutdown", False):
         raise RuntimeError("cannot schedule new futures after shutdown")
     # The executor's own options (workers=, resources=, retries=) as its submit passes them.
-    task = client.submit(fn, *args, **{**getattr(executor, "_kwargs", {}), "pure": False})
+    task = client.submit(_on_the_same_package, package_digest(), _STOP_EVENTS.get(executor), fn, *args,
+                         **{**getattr(executor, "_kwargs", {}), "pure": False})
     with contextlib.suppress(AttributeError):
         executor._futures.add(task)  # what the executor's shutdown waits for, or cancels
     answer: cf.Future = cf.Future()
@@ -642,6 +709,83 @@ def submit(executor: Executor, fn: Callable[..., Any], *args: Any) -> cf.Future:
     answer.add_done_callback(cancel_task)
     client.loop.add_callback(_settle, client, task, answer)
     return answer
+
+
+@functools.lru_cache(maxsize=1)
+def package_digest() -> str:
+    """This process' awr-denoise: its version and a SHA-256 of its modules' bytes (cached: about 5 ms once).
+
+    Examples
+    --------
+    >>> from awr_denoise.parallel.executors import package_digest
+    >>> package_digest().startswith(__import__("awr_denoise").__version__ + " ")
+    True
+    """
+    root = Path(__file__).resolve().parent.parent
+    h = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        h.update(path.relative_to(root).as_posix().encode())
+        h.update(path.read_bytes())
+    return f"{__version__} {h.hexdigest()[:16]}"
+
+
+_STOP_EVENTS: weakref.WeakKeyDictionary[Executor, str] = weakref.WeakKeyDictionary()
+"""The name of each Dask executor's stop event (a ``distributed.Event``), set when its caller leaves it on an
+exception."""
+
+_STOP_POLL_SECONDS = 1.0
+"""Least time between two questions of a running task to the scheduler whether its stop event is set."""
+
+_task_stop = threading.local()
+_task_stop_registered = threading.Lock()
+
+
+def _dask_stop_check() -> None:
+    """A Dask worker's check at a stop point (:data:`COMMIT_CHECKS`): the running task's stop event asked at most
+    every :data:`_STOP_POLL_SECONDS`; set, a RuntimeError ends the task (KeyboardInterrupt would end the worker)."""
+    state = getattr(_task_stop, "state", None)
+    if state is None:
+        return
+    event, asked = state
+    now = time.monotonic()
+    if now - asked[0] < _STOP_POLL_SECONDS:
+        return
+    asked[0] = now
+    if event.is_set():
+        raise RuntimeError("stopped: the command that submitted this task was told to stop")
+
+
+def _on_the_same_package(digest: str, stop: str | None, fn: Callable[..., Any], *args: Any) -> Any:
+    """``fn(*args)`` on a Dask worker that runs the command's awr-denoise (:func:`package_digest`), else a
+    ConnectionError naming the worker: a worker of another version, or of files edited since it started, gave
+    other images without a word (an attack pass; a long-lived cluster kept the modules it had imported).
+
+    ``stop``, the executor's stop event: once its caller sets it, the task ends at its next stop point
+    (:func:`awr_denoise._signals.stop_point`) and commits nothing. Frames on a cluster given by address, told to
+    stop, ran their whole reconstruction first (the command had ended; the workers went on)."""
+    own = package_digest()
+    if own != digest:
+        try:
+            where = f"worker {_worker_address()} "
+        except Exception:  # noqa: BLE001 - not in a worker (a test calls it directly): no address to give
+            where = "a worker "
+        raise ConnectionError(f"Dask {where}runs another awr-denoise ({own}) than this command ({digest}): "
+                              "start every worker from the same installation, and again after changing it")
+    if stop is None:
+        return fn(*args)
+    with _task_stop_registered:
+        if _dask_stop_check not in COMMIT_CHECKS:
+            COMMIT_CHECKS.append(_dask_stop_check)
+    _task_stop.state = (_import_distributed().Event(stop), [time.monotonic()])
+    try:
+        return fn(*args)
+    finally:
+        _task_stop.state = None
+
+
+def _worker_address() -> str:
+    """The address of the Dask worker running the calling task."""
+    return str(_import_distributed().get_worker().address)
 
 
 async def _settle(client: Any, task: Any, answer: cf.Future) -> None:

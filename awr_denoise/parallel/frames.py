@@ -29,12 +29,12 @@ from ..guides import oidn_features
 from ..io import SampleDump, read_image, read_sample_dump, write_image, write_preview
 from ..io.atomic import check_writable, public_name, standing_for
 from ..io.exr import Window, check_same_windows, format_window, read_header, recorded_windows
-from ..io.presets import plane_file
+from ..io.presets import feature_plane_file, plane_file
 from ..io.provenance import image_provenance
 from ..metrics import relmse
 from ..reconstruct import reconstruct_detailed
 from ..settings import resolve_settings
-from .executors import dask_client, executor_or_threads, submit
+from .executors import dask_client, executor_or_threads, submit, wait_first
 
 __all__ = ["FrameResult", "FramesFailedError", "denoise_frame", "denoise_frames"]
 
@@ -260,12 +260,19 @@ _PLANE_OPTIONS = ("color", "variance", "count", "albedo", "normal", "depth")
 """The reading options that may name a file (``file.exr:plane``, or a whole file for a feature)."""
 
 
-def _absolute_plane(spec: Any) -> Any:
-    """A plane option with its file's path made absolute (a plane of the input itself unchanged)."""
+_FEATURE_OPTIONS = ("albedo", "normal", "depth")
+"""The plane options whose bare name may be a whole file (``--alb albedo.exr``); the colour's, variance's and
+count's bare names are planes of the input (:func:`~awr_denoise.io.presets.plane_file`)."""
+
+
+def _absolute_plane(option: str, spec: Any) -> Any:
+    """A plane option with its file's path made absolute (a plane of the input itself unchanged): read as the
+    serial reader reads it (a plane named as a file in the working folder was made a file on Dask only, and
+    refused there; an attack pass)."""
     if not isinstance(spec, str):
         return spec
-    if os.path.lexists(spec):
-        return os.path.abspath(spec)
+    if option in _FEATURE_OPTIONS and feature_plane_file(spec) == Path(spec):
+        return os.path.abspath(spec)  # a whole file
     if plane_file(spec) is not None:  # its files were checked before: no empty plane name
         file, plane = spec.rsplit(":", 1)
         return f"{os.path.abspath(file)}:{plane}"
@@ -468,7 +475,7 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
         sources, targets = [os.path.abspath(p) for p in sources], [os.path.abspath(p) for p in targets]
         shown = None if shown is None else [os.path.abspath(p) for p in shown]
         references = [None if r is None else os.path.abspath(r) for r in references]
-        per_frame = [{k: _absolute_plane(v) if k in _PLANE_OPTIONS else v for k, v in frame.items()}
+        per_frame = [{k: _absolute_plane(k, v) if k in _PLANE_OPTIONS else v for k, v in frame.items()}
                       for frame in per_frame]
     if executor is None and len(sources) == 1:
         # One frame runs in this thread, where Ctrl-C stops it at once; on a worker thread, which
@@ -488,7 +495,7 @@ def denoise_frames(inputs: Sequence[str | os.PathLike[str]], outputs: Sequence[s
                    for i, (s, t) in enumerate(zip(sources, targets))}
         try:
             while pending:
-                done, _ = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+                done = wait_first(pool, pending)
                 for future in done:
                     # Let go of a finished frame at once: a Dask cluster that loses the worker holding
                     # its result would otherwise run the frame again, over its own written output.

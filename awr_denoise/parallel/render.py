@@ -9,6 +9,7 @@ random numbers the result equals the serial render bit for bit.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import os
 import pickle
 import threading
@@ -25,7 +26,7 @@ from ..renderers import create_renderer, renderer_names, renderer_scenes
 from ..parts import render_in_parts, stitch
 from ..requests import MAX_PART_SAMPLES, FeatureTracer, Renderer, SampleRequest, SampleTracer
 from ..sampling import Sampler
-from .executors import default_workers, executor_or_threads, submit
+from .executors import default_workers, executor_or_threads, submit, wait_first
 from .tiles import tile_grid
 
 __all__ = ["RendererSpec", "TiledRenderer", "render_tiled"]
@@ -54,6 +55,12 @@ class RendererSpec:
     options
         Further keyword arguments of the renderer as ``(name, value)`` pairs, e.g.
         ``(("sampler", "sobol"), ("threads", 1))`` for the tracer.
+    digest
+        SHA-256 of the scene file's bytes; set from the file when ``scene`` names one (whose path is
+        made absolute). A worker refuses a file of other bytes at that path, and one edited between two
+        runs builds a new renderer: on a Dask cluster a relative name was read in each worker's own
+        folder, and a worker kept the renderer of a file since edited, wrong images with exit 0 (an
+        attack pass). Files the scene file refers to (an environment map, meshes) are not covered.
 
     Examples
     --------
@@ -68,10 +75,14 @@ class RendererSpec:
     shape: tuple[int, int] | None = None
     seed: int = 0
     options: tuple[tuple[str, Any], ...] = ()
+    digest: str | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in renderer_names():
             raise ValueError(f"kind: {self.kind!r} is not one of {', '.join(renderer_names())}")
+        if isinstance(self.scene, str) and self.digest is None and os.path.isfile(self.scene):
+            object.__setattr__(self, "scene", os.path.abspath(self.scene))
+            object.__setattr__(self, "digest", _file_digest(self.scene))
         if self.kind == "synthetic" and self.shape is None:
             raise ValueError("shape: a synthetic scene needs its (H, W)")
         if isinstance(self.scene, str) and not os.path.exists(self.scene):  # a name: one the renderer bundles
@@ -104,7 +115,23 @@ class RendererSpec:
 
     def __call__(self) -> Renderer:
         """Build the renderer."""
+        if self.digest is not None and _file_digest(self.scene) != self.digest:
+            raise ValueError(f"scene: {self.scene} here holds other bytes than the file the renderer was asked for "
+                             "(edited since, or another file at that path on this machine): every worker must see "
+                             "the same scene files")
         return create_renderer(self.kind, self.scene, shape=self.shape, seed=self.seed, **dict(self.options))
+
+
+def _file_digest(path: str) -> str:
+    """SHA-256 of a file's bytes (a scene file: a few kilobytes to megabytes), read in 1 MiB parts."""
+    h = hashlib.sha256()
+    try:
+        with open(path, "rb") as f:
+            for part in iter(lambda: f.read(1 << 20), b""):
+                h.update(part)
+    except OSError as exc:
+        raise ValueError(f"scene: {path}: {exc.strerror or exc}") from None
+    return h.hexdigest()
 
 
 _worker_state = threading.local()
@@ -238,6 +265,12 @@ class TiledRenderer:
         else:
             futures = [submit(self.executor, _render_tile, *a) for a in args]
             try:
+                remaining = set(futures)
+                while remaining:  # a lost cluster is named, not waited on for ever (wait_first)
+                    done = wait_first(self.executor, remaining)
+                    remaining -= done
+                    for f in done:
+                        f.result()  # the first failed tile at once, as before
                 results = [f.result() for f in futures]
             except BaseException:  # a failed tile, Ctrl-C: the round's other tiles are not rendered
                 for f in futures:

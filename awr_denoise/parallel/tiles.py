@@ -38,7 +38,7 @@ from ..reconstruct import (
     resolve_settings,
 )
 from ..wavelets import WAVELET_NAMES, default_levels, max_levels
-from .executors import dask_client, executor_or_threads, executor_width, submit
+from .executors import dask_client, executor_or_threads, executor_width, submit, wait_first
 
 __all__ = ["tile_grid", "halo_width", "reconstruct_tiled"]
 
@@ -272,7 +272,7 @@ guard_probes, preserve_mean, nonnegative, precision
         while len(in_flight) < limit and submit_next():
             pass
         while in_flight:
-            done, _ = cf.wait(in_flight, return_when=cf.FIRST_COMPLETED)
+            done = wait_first(pool, in_flight)
             for future in done:
                 image[in_flight.pop(future)] = future.result()
                 submit_next()

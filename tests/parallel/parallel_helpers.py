@@ -106,3 +106,14 @@ def runs_through_stop_points(started: str, seconds: float = 120.0) -> int:
         passed += 1
         time.sleep(0.01)
     return passed
+
+
+def runs_until_stopped(started: str, ended: str, seconds: float = 120.0) -> int:
+    """:func:`runs_through_stop_points`, making ``ended`` however it ends (a task on a cluster whose caller has
+    gone: only a file tells that it stopped)."""
+    from pathlib import Path
+
+    try:
+        return runs_through_stop_points(started, seconds)
+    finally:
+        Path(ended).touch()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import asyncio
 import concurrent.futures as cf
 import contextlib
 import os
@@ -16,7 +17,7 @@ import pytest
 
 from awr_denoise.cli.parallel_options import add_executor_arguments, executor_from_args
 from awr_denoise.parallel import get_executor
-from parallel_helpers import environ_restored, runs_through_stop_points
+from parallel_helpers import environ_restored, runs_through_stop_points, runs_until_stopped
 
 
 def test_get_executor_threads_and_processes_run_tasks():
@@ -208,6 +209,14 @@ def test_a_service_that_never_answers_or_is_no_scheduler_is_refused(cluster, mon
     with pytest.raises(ConnectionError, match="a Dask Worker, not a scheduler"):
         with get_executor(scheduler=worker):
             pass
+    # A reply that announces one frame of 16 bytes and stops short of the frame lengths: "internal error:
+    # unpack_from requires a buffer of at least 8 bytes" (an attack pass).
+    import struct
+
+    with _server(struct.pack("Q", 1) + struct.pack("Q", 16) + bytes(16)) as address:
+        with pytest.raises(ConnectionError, match=r"not a Dask scheduler \(its reply is no Dask message\)"):
+            with get_executor(scheduler=address):
+                pass
 
 
 _ORPHAN_SCRIPT = """
@@ -278,6 +287,83 @@ def test_a_scheduler_without_workers_is_refused_in_time(monkeypatch):
             with get_executor(scheduler=address):
                 pass
         assert time.monotonic() - start < 30
+
+
+def test_a_cluster_that_loses_every_worker_mid_run_is_named_not_waited_on(monkeypatch):
+    """A cluster whose workers all stopped mid-run (or never came back, a worker without the package) kept the
+    command waiting for ever, without a word (an attack pass): the scheduler is asked while the tasks run, and one
+    without a worker for ``_WORKER_SECONDS`` ends the wait, naming it."""
+    distributed = pytest.importorskip("distributed")
+    from awr_denoise.parallel import executors
+
+    monkeypatch.setattr(executors, "_WORKER_SECONDS", 1.0)
+    monkeypatch.setattr(executors, "_WATCH_SECONDS", 0.2)
+    with environ_restored(), distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                                                      host="127.0.0.1", dashboard_address=None,
+                                                      scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}) as local:
+        address = local.scheduler_address
+        with pytest.raises(ConnectionError, match=rf"^scheduler: {address}: no workers for 1 s mid-run"):
+            with get_executor(scheduler=address) as executor:
+                future = executors.submit(executor, time.sleep, 120)
+                local.scale(0)  # every worker gone, the task still the cluster's
+                start = time.monotonic()
+                executors.wait_first(executor, [future])
+        assert time.monotonic() - start < 60
+
+
+def test_a_scheduler_that_stops_answering_mid_run_is_named(monkeypatch, dask_executor):
+    """A frozen scheduler (SIGSTOP, a hung host) held the wait for ever: not answering the watch's question within
+    its time is a ConnectionError naming it."""
+    from awr_denoise.parallel import executors
+
+    def frozen(distributed, address, seconds):
+        raise asyncio.TimeoutError
+
+    monkeypatch.setattr(executors, "_WATCH_SECONDS", 0.2)
+    monkeypatch.setattr(executors, "_identity", frozen)
+    future = executors.submit(dask_executor, time.sleep, 5)
+    with pytest.raises(ConnectionError, match=r"^scheduler: .*: no answer within 60 s mid-run \(stopped or frozen\?\)$"):
+        executors.wait_first(dask_executor, [future])
+    future.cancel()
+
+
+def test_a_cluster_left_by_its_caller_stops_its_running_tasks_at_their_stop_points(cluster, tmp_path):
+    """``denoise --frames --scheduler``, told to stop, left its running frames to run their whole reconstruction on
+    the cluster, which outlives the command: leaving the executor on an exception sets its stop event, and the
+    two-minute task ends at its next stop point, within a minute even on a loaded machine."""
+    from awr_denoise.parallel import executors
+
+    started, ended = tmp_path / "started", tmp_path / "ended"
+    with pytest.raises(RuntimeError, match="the caller stops"):
+        with get_executor(scheduler=cluster.scheduler_address) as executor:
+            future = executors.submit(executor, runs_until_stopped, str(started), str(ended), 120.0)
+            deadline = time.monotonic() + 60
+            while not started.exists() and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert started.exists()
+            left = time.monotonic()
+            raise RuntimeError("the caller stops")
+    while not ended.exists() and time.monotonic() < left + 60:
+        time.sleep(0.05)
+    assert ended.exists() and time.monotonic() - left < 60
+    assert future.cancelled()
+    with get_executor(scheduler=cluster.scheduler_address) as executor:  # an executor left normally: tasks finish
+        assert executors.submit(executor, runs_until_stopped, str(tmp_path / "s2"), str(tmp_path / "e2"),
+                                0.2).result() > 0
+
+
+def test_a_worker_of_another_awr_denoise_is_refused_naming_it(monkeypatch, dask_executor):
+    """A worker of another version, or one that imported the package before its files changed, gave other images
+    with exit 0 (an attack pass): every task checks the worker's package (version and modules) against the
+    command's."""
+    from awr_denoise.parallel import executors
+
+    own = executors.package_digest()
+    assert executors.submit(dask_executor, abs, -3).result() == 3  # the cluster's workers run this package
+    monkeypatch.setattr(executors, "package_digest", lambda: "0.0.9 0123456789abcdef")
+    with pytest.raises(ConnectionError, match=r"^Dask worker tcp://127\.0\.0\.1:\d+ runs another awr-denoise "
+                                              rf"\({own}\) than this command \(0\.0\.9 0123456789abcdef\)"):
+        executors.submit(dask_executor, abs, -3).result()
 
 
 class _Task:

@@ -365,3 +365,21 @@ def test_the_error_against_the_reference_is_the_written_half_images(tmp_path):
     frame = denoise_frame(pbrt / "pbrt_gbuffer_default.exr", tmp_path / "h.exr", reference=pbrt / "pbrt_ref.exr",
                           half=True)
     assert frame.relmse == relmse(read_image(tmp_path / "h.exr"), read_image(pbrt / "pbrt_ref.exr"))
+
+
+def test_plane_options_are_read_for_the_workers_as_the_serial_reader_reads_them(tmp_path, monkeypatch):
+    """Frames on processes and Dask get plane options with their files made absolute. A bare plane name that is also
+    a file in the working folder (a file named ``variance``) was made that file on them only, and the frame refused
+    (an attack pass): the colour's, variance's and count's bare names are planes of the input; a feature's may be a
+    whole file, as ``--alb albedo.exr``."""
+    from awr_denoise.parallel.frames import _absolute_plane
+
+    monkeypatch.chdir(tmp_path)
+    for name in ("variance", "albedo.exr", "in.exr"):
+        (tmp_path / name).write_bytes(b"")
+    assert _absolute_plane("variance", "variance") == "variance"
+    assert _absolute_plane("count", "variance") == "variance"
+    assert _absolute_plane("variance", "in.exr:variance") == f"{tmp_path / 'in.exr'}:variance"
+    assert _absolute_plane("albedo", "albedo.exr") == str(tmp_path / "albedo.exr")
+    assert _absolute_plane("albedo", "in.exr:Albedo") == f"{tmp_path / 'in.exr'}:Albedo"
+    assert _absolute_plane("albedo", "Albedo") == "Albedo"

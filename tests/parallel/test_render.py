@@ -213,3 +213,29 @@ def test_a_tile_is_traced_in_parts_with_the_same_statistics(monkeypatch):
     monkeypatch.setattr(render_module, "MAX_PART_SAMPLES", 1000)
     assert_same_buffer(render_tiled(spec, UniformSampler(shape, seed=2), total_spp=12, tile=32), expected)
     assert sizes and max(sizes) <= 1000 and sum(sizes) == 12 * 70 * 90
+
+
+def test_a_scene_file_is_named_absolutely_and_held_to_its_bytes(tmp_path, monkeypatch):
+    """On a Dask cluster a relative scene file was read in each worker's own folder, and a worker kept the renderer of
+    a file edited since: images of another scene, exit 0 (an attack pass). A spec names the file absolutely with the
+    digest of its bytes; a worker refuses other bytes at that path, and an edited file is a new spec, so a new
+    renderer (the cache is keyed by the pickled spec)."""
+    pytest.importorskip("embreex")
+    from pathlib import Path
+
+    scenes = Path(__file__).resolve().parents[2] / "data" / "scenes"
+    (tmp_path / "here").mkdir()
+    (tmp_path / "there").mkdir()
+    (tmp_path / "here" / "scene.json").write_bytes((scenes / "cornell_gi.json").read_bytes())
+    (tmp_path / "there" / "scene.json").write_bytes((scenes / "default.json").read_bytes())
+    monkeypatch.chdir(tmp_path / "here")
+    spec = RendererSpec.tracer("scene.json", width=8, height=8, threads=1)
+    assert spec.scene == str(tmp_path / "here" / "scene.json") and spec.digest is not None
+    monkeypatch.chdir(tmp_path / "there")  # a worker in another folder reads the same file
+    expected = spec()(SampleRequest.uniform((8, 8), 2))
+    (tmp_path / "here" / "scene.json").write_bytes((scenes / "default.json").read_bytes())
+    with pytest.raises(ValueError, match="scene: .*scene.json here holds other bytes than the file"):
+        spec()
+    edited = RendererSpec.tracer(str(tmp_path / "here" / "scene.json"), width=8, height=8, threads=1)
+    assert edited != spec and edited.digest != spec.digest
+    assert not np.array_equal(edited()(SampleRequest.uniform((8, 8), 2)).mean, expected.mean)
