@@ -6,6 +6,7 @@ import argparse
 import contextlib
 import os
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
 
 from awr_denoise.domains import DOMAIN_NAMES
@@ -161,13 +162,18 @@ def _library_threads(args: argparse.Namespace, frames: int) -> int:
     return 1 if frames > 1 or elsewhere else threads_from_args(args)
 
 
-def _named_as_output(error: BaseException, final: dict[Path, str]) -> BaseException:
+def _named_as_output(error: BaseException, final: dict[Path, str], sources: Sequence[str] = ()) -> BaseException:
     """A frame's error naming its output, not the staged file a worker wrote (the names of the
-    staging folder are known to this process only: a process or Dask worker's message holds them)."""
+    staging folder are known to this process only: a process or Dask worker's message holds them),
+    and its input as the user named it (workers are given absolute paths)."""
     text = str(error)
     for staged, output in final.items():
         for form in sorted({os.fspath(staged), os.path.abspath(staged)}, key=len, reverse=True):  # longest first
             text = text.replace(form, output)
+    for source in sources:
+        absolute = os.path.abspath(source)
+        if absolute != source:
+            text = text.replace(absolute, source)
     if text == str(error) or isinstance(error, OSError):  # an OSError's errno and paths stay its own
         return error
     try:
@@ -379,8 +385,12 @@ def run(args: argparse.Namespace) -> int:
                                threads=library, **reconstruction_kwargs(args))
             except FramesFailedError as exc:
                 plan.check_unchanged()  # a frame failed on an input replaced meanwhile: that is the error
+                source, error = next(iter(exc.failures.items()))
+                if type(error).__name__ == "KilledWorker":  # distributed's: it named a task key, not the frame
+                    raise RuntimeFailure(f"{source}: the Dask worker denoising it died, on every worker that took it "
+                                         "(out of memory, or past the workers' --memory-limit?)") from None
                 # The first failed frame's own error, so it keeps its exit status and one-line message.
-                raise _named_as_output(next(iter(exc.failures.values())), final) from None
+                raise _named_as_output(error, final, sources) from None
             finally:
                 bar.close()
         plan.check_unchanged()  # after the last read of every input, before anything is committed

@@ -220,6 +220,9 @@ def _run(argv: Sequence[str] | None) -> int:
         # Library argument validation (unknown wavelet, bad levels...): the user's input.
         return _error(exc, EXIT_USAGE)
     except OSError as exc:
+        if type(exc).__name__ == "CommClosedError":  # distributed's, naming its connection pool's internals
+            return _error("the connection to the Dask scheduler closed mid-run (the scheduler stopped or lost?)",
+                          EXIT_FAILURE)
         return _run_failed(exc)
     except MemoryError as exc:
         return _error(f"out of memory{': ' + str(exc) if str(exc) else ''}", EXIT_FAILURE)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 from concurrent.futures import CancelledError
 from concurrent.futures.process import BrokenProcessPool
+from types import SimpleNamespace
 
 import pytest
 
@@ -333,6 +334,20 @@ def test_a_first_round_larger_than_memory_is_refused_naming_size(work, capsys, m
     assert main(["plan", "--size", "64x64", "-o", "p.exr", "-q"]) == 0
 
 
+def test_a_benchmark_larger_than_memory_is_refused_naming_its_size(work, capsys, monkeypatch):
+    """``awr bench --size`` takes sizes up to 16384 a side, 110 GB of renders, and had no memory check before the
+    run, as ``awr render`` has (an attack pass): refused before anything is rendered or written."""
+    from awr_denoise.cli import common
+
+    monkeypatch.chdir(work.root)
+    monkeypatch.setattr(common, "available_memory", lambda: 2**30)
+    before = work.state()
+    assert main(["bench", "--quick", "--size", "4096", "4096", "--output-dir", "out"]) == 2
+    one_error_line(capsys.readouterr().err, "--size: a benchmark at 4096x4096 needs about 6.4 GiB",
+                   "1.0 GiB are available")
+    assert work.state() == before
+
+
 def test_a_render_larger_than_memory_is_refused_naming_its_size(work, capsys, monkeypatch):
     """A render within the size limits but beyond the memory available (a scene file of 1024x200000 pixels) was
     ended by the out-of-memory killer, exit 137 without a word (a review): refused before rendering."""
@@ -372,6 +387,50 @@ def test_a_lost_worker_or_scheduler_is_one_line_not_an_internal_error(error, wor
     assert main(["info", "x.exr"]) == 1
     line = one_error_line(capsys.readouterr().err)
     assert words in line and "internal error" not in line and str(error).split()[0] in line, line
+
+
+def test_a_scheduler_connection_closed_mid_run_is_named(monkeypatch, capsys):
+    """A scheduler killed mid-render printed Dask's "in <TCP (closed) ConnectionPool.gather local=... remote=...>:
+    Stream is closed", naming its connection pool (an attack pass)."""
+    comm = pytest.importorskip("distributed.comm.core")
+    from awr_denoise.cli import info_cmd
+
+    def lost(args):
+        raise comm.CommClosedError("in <TCP (closed) ConnectionPool.gather local=tcp://127.0.0.1:1>: Stream is closed")
+
+    monkeypatch.setattr(info_cmd, "run", lost)
+    monkeypatch.delenv("AWR_TRACEBACK", raising=False)
+    assert main(["info", "x.exr"]) == 1
+    assert one_error_line(capsys.readouterr().err) == ("awr: error: the connection to the Dask scheduler closed "
+                                                       "mid-run (the scheduler stopped or lost?)")
+
+
+def test_a_frame_whose_worker_died_and_an_input_named_absolutely_read_as_given(tmp_path, monkeypatch, capsys):
+    """Frames on Dask: a frame whose worker was killed on every worker that took it (its memory limit) was "internal
+    error: KilledWorker: Attempted to run task '_frame_task-5f7b...'", naming a task key, not the frame; an input's
+    error named the absolute path the workers are given, where the user named it relatively (an attack pass)."""
+    distributed = pytest.importorskip("distributed")
+    from awr_denoise.cli import denoise_cmd
+    from awr_denoise.errors import InputFileError
+    from awr_denoise.parallel import FramesFailedError
+
+    monkeypatch.chdir(tmp_path)
+    for i in (1, 2):
+        write_sample_buffer(f"shot.{i:04d}.exr", dump_buffer(i))
+    for error, expected in (
+            (distributed.KilledWorker("_frame_task-5f7b", SimpleNamespace(address="tcp://127.0.0.1:1"), 3),
+             "awr: error: shot.0002.exr: the Dask worker denoising it died, on every worker that took it (out of "
+             "memory, or past the workers' --memory-limit?)"),
+            (InputFileError(f"{tmp_path / 'shot.0002.exr'}: truncated or corrupt EXR"),
+             "awr: error: shot.0002.exr: truncated or corrupt EXR")):
+        def failed(*args, error=error, **kwargs):
+            raise FramesFailedError({"shot.0002.exr": error}, 2)
+
+        monkeypatch.setattr(denoise_cmd, "denoise_frames", failed)
+        monkeypatch.delenv("AWR_TRACEBACK", raising=False)
+        assert main(["denoise", "shot.####.exr", "--frames", "1-2", "-o", "out.####.exr", "-q"]) in (1, 2)
+        assert one_error_line(capsys.readouterr().err) == expected
+        assert not list(tmp_path.glob("out*"))
 
 
 def test_a_cancellation_without_words_adds_none(monkeypatch, capsys):
