@@ -65,10 +65,8 @@ from .stationary import StationaryTransform
 from .wiener import rademacher_probes
 
 __all__ = ["checked_guide", "checked_inputs", "guide_fields", "guide_colour", "feature_pilot", "trust", "gated",
-           "pilots",
-           "ATROUS_ITERATIONS",
-           "FEATURE_SIGMAS", "GATE_WINDOW", "GATE_LOW", "GATE_HIGH", "projected", "PROJECTION_SHARE",
-           "checked_projection"]
+           "pilots", "ATROUS_ITERATIONS", "FEATURE_SIGMAS", "GATE_WINDOW", "GATE_LOW", "GATE_HIGH", "projected",
+           "PROJECTION_SHARE", "checked_projection"]
 
 ATROUS_ITERATIONS = 3
 """A-trous passes of :func:`feature_pilot` (steps 1, 2, 4: a 29-pixel footprint). Five passes measured
@@ -174,15 +172,14 @@ def _shifted(a: np.ndarray, dy: int, dx: int) -> np.ndarray:
 
 _LARGEST = 2.0**400
 """Values are brought below this (by a power of two) before the pilot squares their differences."""
-_SMALLEST_DEPTH = 2.0**-10
-"""Below this largest depth, depths are brought near 1 by a power of two (:func:`_feature_planes`)."""
+_SMALLEST_DEPTH = 2.0**-10  # depths all below it are brought near 1 (_feature_planes)
 
 
-def _unit(mean: np.ndarray, variance: np.ndarray) -> float:
-    """1, or the power of two that brings ``|mean|`` and the standard errors below :data:`_LARGEST`:
-    squared differences of means near 1e155 pass float64 (inf / inf: a NaN the stages spread)."""
+def _unit(mean: np.ndarray, variance: np.ndarray, lift: float = 0.0) -> float:
+    """1, or the power of two that brings ``|mean|`` and the standard errors below :data:`_LARGEST` (squares near 1e155
+    pass float64), or, all below ``lift``, near 1 (depths of 1e-7 lost every edge to the distances' floor of 1e-12)."""
     top = max(float(np.abs(mean).max(initial=0.0)), math.sqrt(float(variance.max(initial=0.0))))
-    return 1.0 if top <= _LARGEST else math.ldexp(1.0, -math.frexp(top)[1])
+    return 1.0 if lift <= top <= _LARGEST or top == 0.0 else math.ldexp(1.0, -math.frexp(top)[1])
 
 
 def _feature_planes(buffer: SampleBuffer) -> list[tuple[np.ndarray, np.ndarray, float, bool]]:
@@ -197,12 +194,8 @@ def _feature_planes(buffer: SampleBuffer) -> list[tuple[np.ndarray, np.ndarray, 
         mean = np.asarray(feature.mean, np.float64)
         variance = np.where(feature.count[..., None] > 1, np.nan_to_num(feature.variance), 0.0) / n
         relative = name == "depth"
-        unit = _unit(mean, variance) if relative else 1.0  # a relative distance does not change with it
-        top = float(np.abs(mean * unit).max(initial=0.0))
-        if relative and 0.0 < top < _SMALLEST_DEPTH:
-            # Depths in a unit that makes them tiny (1e-7) lost every edge to the distances' absolute floor (1e-12
-            # beside sigma^2 depth^2; an attack pass): brought up by a power of two, exactly.
-            unit = math.ldexp(unit, -math.frexp(top)[1])
+        # A relative distance does not change with its unit; depths all tiny are brought near 1.
+        unit = _unit(mean, variance, _SMALLEST_DEPTH) if relative else 1.0
         planes.append((mean * unit, variance * unit * unit, sigma, relative))
     return planes
 
@@ -467,8 +460,7 @@ def trust(candidate: FloatArray, buffer: SampleBuffer, *, window: int = GATE_WIN
     v = v.sum(axis=-1)
     # A pixel without samples has no mean to hold the candidate to (its filled mean is a neighbour's): no term.
     empty = buffer.count == 0
-    distance[empty] = 0.0
-    v[empty] = 0.0
+    distance[empty], v[empty] = 0.0, 0.0
     spread = window_sum(np.minimum(distance, 1e300 / window**2), window)  # sums, not running ones (._window_sums)
     noise = window_sum(v, window)
     with np.errstate(over="ignore"):  # a spread of 1e300 over a noise of 1e-300: Inf, no trust (an attack pass)
