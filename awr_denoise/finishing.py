@@ -6,7 +6,9 @@ Three per-image guarantees run after the last stage (:func:`~awr_denoise.reconst
    error pooled with its 3x3 neighbours' (``max(s, median_3x3(s))``), so a pixel whose few
    samples agreed by chance is not pinned to its noisy mean while a precise pixel next to a
    light still is; given the sample counts, only the neighbours the pixel's samples could have
-   come from pool (:data:`POOL_CHANCE`), so a dark line one pixel wide keeps its own interval;
+   come from pool (:data:`POOL_CHANCE`), so a dark line one pixel wide keeps its own interval, and
+   what pools is a neighbour's per-sample deviation over the pixel's own count, so a pixel of many
+   samples beside pixels of few keeps an interval of its own count;
 2. :func:`clip_negative`: no negative radiance in channels whose means are all non-negative;
 3. :func:`restore_mean`: the energy the stages took (or added) is given back where it was
    taken, so that every channel's image mean is the input's exactly. The clamp and the relative
@@ -124,7 +126,21 @@ def pooled_standard_error(variance: FloatArray, mean: FloatArray | None = None,
 
     With ``mean`` and the (H, W) sample ``count``, the median is taken over the neighbours the pixel's
     samples could have come from (:data:`POOL_CHANCE`; the pixel itself always counts), the upper one of
-    an even number.
+    an even number, of their per-sample deviations over the pixel's own count (``S_j / sqrt(n)``: the
+    standard error its mean would have with that neighbour's spread).
+
+    Examples
+    --------
+    A pixel of 4096 samples beside pixels of 4, one per-sample variance (0.04) everywhere: each keeps the
+    standard error of its own count.
+
+    >>> import numpy as np
+    >>> from awr_denoise.finishing import pooled_standard_error
+    >>> count = np.full((3, 3), 4.0); count[1, 1] = 4096.0
+    >>> variance = 0.04 / count[..., None]                 # of the means
+    >>> s = pooled_standard_error(variance, np.ones((3, 3, 1)), count)
+    >>> round(float(s[1, 1, 0]), 6), round(float(s[0, 0, 0]), 6)
+    (0.003125, 0.1)
     """
     s = np.sqrt(variance)
     if mean is None or count is None:
