@@ -322,7 +322,8 @@ def test_a_scheduler_that_stops_answering_mid_run_is_named(monkeypatch, dask_exe
     monkeypatch.setattr(executors, "_WATCH_SECONDS", 0.2)
     monkeypatch.setattr(executors, "_identity", frozen)
     future = executors.submit(dask_executor, time.sleep, 5)
-    with pytest.raises(ConnectionError, match=r"^scheduler: .*: no answer within 60 s mid-run \(stopped or frozen\?\)$"):
+    with pytest.raises(ConnectionError, match=r"^scheduler: .*: no answer within 60 s mid-run "
+                                              r"\(stopped or frozen\?\)$"):
         executors.wait_first(dask_executor, [future])
     future.cancel()
 
