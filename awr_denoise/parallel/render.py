@@ -80,16 +80,18 @@ class RendererSpec:
     def __post_init__(self) -> None:
         if self.kind not in renderer_names():
             raise ValueError(f"kind: {self.kind!r} is not one of {', '.join(renderer_names())}")
-        if isinstance(self.scene, str) and self.digest is None and os.path.isfile(self.scene):
+        try:
+            bundled = renderer_scenes(self.kind)
+        except ImportError:  # the extra is missing: its own hint comes when a worker builds the renderer
+            bundled = []
+        # A bundled scene's name stays a name, though a file of that name lies here (the renderer reads it so).
+        if isinstance(self.scene, str) and self.digest is None and os.path.isfile(self.scene) \
+                and self.scene not in bundled:
             object.__setattr__(self, "scene", os.path.abspath(self.scene))
             object.__setattr__(self, "digest", _file_digest(self.scene))
         if self.kind == "synthetic" and self.shape is None:
             raise ValueError("shape: a synthetic scene needs its (H, W)")
         if isinstance(self.scene, str) and not os.path.exists(self.scene):  # a name: one the renderer bundles
-            try:
-                bundled = renderer_scenes(self.kind)
-            except ImportError:  # the extra is missing: its own hint comes when a worker builds the renderer
-                bundled = []
             if bundled and self.scene not in bundled:  # else every tile failed on its worker, one by one
                 raise ValueError(f"scene: {self.scene!r} is neither a scene the {self.kind} renderer bundles "
                                  f"({', '.join(bundled)}) nor a file")

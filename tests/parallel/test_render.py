@@ -236,6 +236,8 @@ def test_a_scene_file_is_named_absolutely_and_held_to_its_bytes(tmp_path, monkey
     (tmp_path / "here" / "scene.json").write_bytes((scenes / "default.json").read_bytes())
     with pytest.raises(ValueError, match="scene: .*scene.json here holds other bytes than the file"):
         spec()
+    (tmp_path / "there" / "cornell_gi").write_bytes(b"")  # a bundled scene's name stays a name
+    assert RendererSpec.tracer("cornell_gi", width=8, height=8).scene == "cornell_gi"
     edited = RendererSpec.tracer(str(tmp_path / "here" / "scene.json"), width=8, height=8, threads=1)
     assert edited != spec and edited.digest != spec.digest
     assert not np.array_equal(edited()(SampleRequest.uniform((8, 8), 2)).mean, expected.mean)
