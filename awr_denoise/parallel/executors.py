@@ -494,7 +494,9 @@ def _scheduler_address(distributed: Any, scheduler: str | os.PathLike[str]) -> s
         if not 1 <= int(port) <= 65535:  # Dask takes 99999 or 0, then waits its whole timeout to connect
             raise ValueError(f"port {port} is outside 1..65535")
     except ValueError as exc:
-        raise ValueError(f"scheduler: {text!r} is not a scheduler address ({exc})") from None
+        # A file of another suffix (`dask scheduler --scheduler-file sched`) was only "missing port number".
+        hint = "; a scheduler file's name ends in .json" if os.path.isfile(text) else ""
+        raise ValueError(f"scheduler: {text!r} is not a scheduler address ({exc}){hint}") from None
     return text
 
 
@@ -713,7 +715,7 @@ def submit(executor: Executor, fn: Callable[..., Any], *args: Any) -> cf.Future:
 
 @functools.lru_cache(maxsize=1)
 def package_digest() -> str:
-    """This process' awr-denoise: its version and a SHA-256 of its modules' bytes (cached: about 5 ms once).
+    """This process' awr-denoise: its version and a SHA-256 of its modules' bytes (read once a process, cached).
 
     Examples
     --------

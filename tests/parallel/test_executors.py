@@ -78,11 +78,14 @@ def test_a_scheduler_that_is_not_one_is_refused_naming_it(tmp_path):
     (tmp_path / "bad.json").write_text('{"garbage": true')
     (tmp_path / "empty.json").write_text('{"type": "Scheduler"}')
     (tmp_path / "deep.json").write_text("[" * 100_000 + "]" * 100_000)  # RecursionError: was an internal error
+    (tmp_path / "scheduler-file").write_text('{"address": "tcp://127.0.0.1:8786"}')  # not named .json
     for scheduler, match in ((tmp_path / "bad.json", "bad.json: not a Dask scheduler file"),
                              (tmp_path / "deep.json", "deep.json: not a Dask scheduler file .its JSON is nested"),
                              (tmp_path / "empty.json", 'empty.json: not a Dask scheduler file .no "address"'),
                              (tmp_path / "missing.json", "missing.json: no such scheduler file"),
-                             ("foo", "'foo' is not a scheduler address"),
+                             ("foo", r"'foo' is not a scheduler address \(.*\)$"),  # no file: no hint
+                             (tmp_path / "scheduler-file", r"scheduler-file' is not a scheduler address .*\); a "
+                                                           r"scheduler file's name ends in \.json$"),
                              ("tcp://127.0.0.1:notaport", "is not a scheduler address"),
                              ("tcp://[::1]:99999", r"port 99999 is outside 1..65535"),
                              ("http://127.0.0.1:1", "unknown address scheme 'http'"),
