@@ -13,6 +13,7 @@ tolerance).
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import functools
 from collections.abc import Sequence
 from concurrent.futures import Executor
@@ -147,6 +148,28 @@ def _reconstruct_window(count: np.ndarray, mean: FloatArray, variance: FloatArra
     return reconstruct(window, **options)[core]
 
 
+_TILE_ATTEMPTS = 3
+"""Times a tile is sent to a Dask cluster whose worker, holding the tile's scattered window, died: data scattered
+by the client cannot be computed again, and one worker killed failed the whole reconstruction (a bare
+CancelledError, or a closed connection of the scatter; an attack pass)."""
+
+
+def _lost(future: cf.Future) -> bool:
+    """Whether a tile's task ended because the cluster lost its data or connection, not by its own error."""
+    if future.cancelled():
+        return True
+    error = future.exception()
+    return isinstance(error, (OSError, cf.CancelledError)) or type(error).__name__ == "FutureCancelledError"
+
+
+def _scattered(client: Any, crops: list[Any]) -> list[Any]:
+    """``client.scatter(crops)``, tried again when a worker it was sending to died (a closed connection)."""
+    for _ in range(_TILE_ATTEMPTS - 1):
+        with contextlib.suppress(OSError):
+            return list(client.scatter(crops, hash=False))
+    return list(client.scatter(crops, hash=False))
+
+
 def reconstruct_tiled(buffer: SampleBuffer, *, tile: int | tuple[int, int] = 512, halo: int | None = None,
                       executor: Executor | None = None, c_s: float | None = None, wavelet: str = "bior4.4",
                       levels: int | None = None, domain: str | Domain = DEFAULT_DOMAIN, mode: str = "channels",
@@ -246,7 +269,7 @@ guard_probes, preserve_mean, nonnegative, precision
     image = np.empty(shape + (buffer.n_channels,))
     with executor_or_threads(executor, len(grid)) as pool:
         client = dask_client(pool)
-        in_flight: dict[cf.Future, tuple[slice, slice]] = {}
+        in_flight: dict[cf.Future, tuple[tuple[slice, slice], int]] = {}
         remaining = iter(grid)
 
         def submit_next() -> bool:
@@ -254,6 +277,10 @@ guard_probes, preserve_mean, nonnegative, precision
             tile_slices = next(remaining, None)
             if tile_slices is None:
                 return False
+            submit_tile(tile_slices, 0)
+            return True
+
+        def submit_tile(tile_slices: tuple[slice, slice], attempt: int) -> None:
             rows, cols = tile_slices
             wr = _window(rows, halo, 2**levels, shape[0])
             wc = _window(cols, halo, 2**levels, shape[1])
@@ -263,9 +290,9 @@ guard_probes, preserve_mean, nonnegative, precision
                     slice(cols.start - wc.start, cols.stop - wc.start))
             crops: list[Any] = [np.ascontiguousarray(a[wr, wc]) for a in (count, mean, per_sample)]
             if client is not None:
-                crops = client.scatter(crops, hash=False)
-            in_flight[submit(pool, _reconstruct_window, *crops, buffer.channels, core, options)] = (rows, cols)
-            return True
+                crops = _scattered(client, crops)
+            in_flight[submit(pool, _reconstruct_window, *crops, buffer.channels, core, options)] = (tile_slices,
+                                                                                                  attempt)
 
         # Windows are cut as tasks finish, so the driver holds at most a few of them at once.
         limit = 2 * executor_width(pool)
@@ -274,7 +301,11 @@ guard_probes, preserve_mean, nonnegative, precision
         while in_flight:
             done = wait_first(pool, in_flight)
             for future in done:
-                image[in_flight.pop(future)] = future.result()
+                tile_slices, attempt = in_flight.pop(future)
+                if client is not None and attempt < _TILE_ATTEMPTS - 1 and _lost(future):
+                    submit_tile(tile_slices, attempt + 1)  # its scattered window went with a worker: again
+                    continue
+                image[tile_slices] = future.result()
                 submit_next()
     luminance = None
     if mode == "luminance":

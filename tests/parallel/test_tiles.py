@@ -22,6 +22,7 @@ from awr_denoise.parallel import (
 from parallel_helpers import (
     TILED_RTOL,
     assert_tiled_close,
+    environ_restored,
     noisy_buffer,
 )
 
@@ -226,3 +227,36 @@ def test_reconstruct_tiled_checks_its_arguments():
         reconstruct_tiled(buffer, levels=9)
     with pytest.raises(ValueError, match="halo"):
         reconstruct_tiled(buffer, halo=-1)
+
+
+def test_a_worker_killed_mid_run_costs_its_tiles_a_second_try_not_the_reconstruction():
+    """On a cluster, the tiles' windows are scattered by the client, and data scattered cannot be computed again: one
+    worker SIGKILLed (its nanny starts another) failed the whole reconstruction with a bare CancelledError or the
+    scatter's closed connection (an attack pass). A tile whose window went with a worker is sent again: the
+    result is the whole-frame reconstruction's."""
+    distributed = pytest.importorskip("distributed")
+    import os
+    import signal
+    import threading
+    import time
+
+    from awr_denoise import SampleRequest
+    from awr_denoise.parallel import get_executor
+    from awr_denoise.synthetic import SyntheticRenderer, make_scene
+
+    shape = (512, 512)
+    buffer = SyntheticRenderer(make_scene("edges", shape), seed=1)(SampleRequest.uniform(shape, 4))
+    expected = reconstruct(buffer, stages=1)
+    with environ_restored(), distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                                      host="127.0.0.1", dashboard_address=None, silence_logs=50,
+                                                      scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}) as local:
+        victim = next(iter(local.workers.values())).process.pid
+
+        def kill() -> None:
+            time.sleep(1.5)
+            os.kill(victim, signal.SIGKILL)
+
+        with get_executor(scheduler=local.scheduler_address) as executor:
+            threading.Thread(target=kill, daemon=True).start()
+            out = reconstruct_tiled(buffer, tile=32, executor=executor, stages=1)
+    assert_tiled_close(out, expected)
