@@ -248,13 +248,15 @@ def _pooled_median_at(s: FloatArray, mean: FloatArray, count: FloatArray, where:
     mean_flat = np.pad(mean.reshape(h, w, channels), pad, mode="edge").ravel()
     count_flat = np.pad(np.asarray(count, dtype=np.float64).reshape(h, w), 1, mode="edge").ravel()
     pixel = (rows + 1) * (w + 2) + (cols + 1)
-    n, own_s, own_m = count_flat.take(pixel), s[where], mean[where]
+    n, own_s, own_m = np.maximum(count_flat.take(pixel), 1.0), s[where], mean[where]  # a count of 0: one sample
     # z^n >= POOL_CHANCE with z = S^2 / (S^2 + g^2) is g <= S sqrt(expm1(-log(POOL_CHANCE) / n)): one root per
     # pixel, and a neighbour's test is a product and a comparison (no square of a value, so no overflow).
     # s is the standard error of a mean: the pixel's samples lie within s (n - 1) of their mean (Samuelson),
     # a neighbour's per-sample deviation S is its s sqrt(n).
     reach = np.sqrt(np.expm1(-math.log(POOL_CHANCE) / n))
-    near_edge = own_s * (n - 1)
+    with np.errstate(invalid="ignore"):  # one sample: no spread about its mean, whatever its variance says
+        near_edge = np.where(n > 1, own_s * (n - 1), 0.0)
+    own_root = np.sqrt(n)
     values, kept = [], np.zeros(rows.size, dtype=np.intp)
     for i in (-1, 0, 1):
         for j in (-1, 0, 1):
@@ -263,14 +265,14 @@ def _pooled_median_at(s: FloatArray, mean: FloatArray, count: FloatArray, where:
             value = s_flat.take(at)
             n_nb = count_flat.take(nb)
             gap = np.abs(mean_flat.take(at) - own_m) - near_edge
-            keep = gap <= value * np.sqrt(n_nb) * reach   # the pixel itself (gap <= 0) always
-            # What pools is the neighbour's per-sample deviation, over this pixel's own count: the error its mean
-            # would have with that spread. The neighbour's own standard error widened a pixel of many samples to a
-            # neighbour of few's (an adaptive render's mix of 4 and 4096 samples a pixel: its error stayed at the
-            # few's, however many it took; an attack pass). Equal counts pool the same value, bit for bit.
-            with np.errstate(divide="ignore", invalid="ignore"):
-                ratio = np.sqrt(np.where(n_nb == n, 1.0, n_nb / n))
-            values.append(np.where(keep, value * ratio, np.inf))
+            with np.errstate(invalid="ignore"):  # an infinite deviation of no samples: inf * 0
+                spread = value * np.sqrt(n_nb)  # the neighbour's per-sample deviation
+            keep = gap <= spread * reach   # the pixel itself (gap <= 0) always
+            # What pools is that deviation over this pixel's own count: the error its mean would have with that
+            # spread. The neighbour's own standard error widened a pixel of many samples to a neighbour of few's (an
+            # adaptive render's mix of 4 and 4096 samples a pixel: its error stayed at the few's, however many it
+            # took; an attack pass). Equal counts pool the same value, bit for bit.
+            values.append(np.where(keep, np.where(n_nb == n, value, spread / own_root), np.inf))
             kept += keep
     for i, j in _SORT9:
         low = np.minimum(values[i], values[j])

@@ -6,7 +6,7 @@ import argparse
 
 from awr_denoise.bench.command import add_arguments, run_from_args
 
-from .common import check_memory
+from .common import RENDER_BYTES_PER_PIXEL, check_memory
 
 __all__ = ["register", "run"]
 
@@ -21,16 +21,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-BENCH_BYTES_PER_PIXEL = 410.0
-"""The least memory ``awr bench --size`` takes a pixel at its peak: its renders are ``awr render``'s (410 bytes a
-pixel on one thread, cli/render_cmd.py). Measured for the benchmark itself (``/usr/bin/time -f %M awr bench --quick
---scenes default --spp 4 --size N N --overhead-sizes --no-oidn --no-mitsuba --no-plots``): about 0.85 GB at 256x256
-and 0.95 GB at 512x512, some 300 bytes a pixel beside what the modules take."""
-
-
 def run(args: argparse.Namespace) -> int:
     """Run ``awr bench``; returns the exit status."""
     if args.size:  # beyond the memory available, the out-of-memory killer ended the run without a word (exit 137)
+        # Its renders are awr render's, a floor: the benchmark's own peak was 0.85 GB at 256x256 and 0.95 GB at
+        # 512x512 (/usr/bin/time -f %M awr bench --quick --scenes default --spp 4 --size N N --overhead-sizes
+        # --no-oidn --no-mitsuba --no-plots), about 500 bytes a pixel between them, with the modules' own beside.
         width, height = args.size
-        check_memory("--size", BENCH_BYTES_PER_PIXEL * width * height, f"a benchmark at {width}x{height}")
+        check_memory("--size", RENDER_BYTES_PER_PIXEL * width * height, f"a benchmark at {width}x{height}")
     return run_from_args(args)

@@ -37,7 +37,7 @@ from awr_denoise.requests import Renderer, SampleTracer
 from awr_denoise.rounds import MAX_SECONDS, reconstruction_seconds
 from awr_denoise.sampling import DEFAULT_AWR_INITIAL_SPP, DEFAULT_ROUND_GROWTH, NOISE_MODELS
 
-from .common import EXIT_OK, RuntimeFailure, UsageError, check_memory, status
+from .common import EXIT_OK, RENDER_BYTES_PER_PIXEL, RuntimeFailure, UsageError, check_memory, status
 from .denoise_cmd import (add_reconstruction_options, check_reconstruction_options, reconstruction_kwargs,
                           unused_features)
 from .parallel_options import (DEFAULT_TILE, add_executor_arguments, add_threads_argument, executor_from_args,
@@ -344,13 +344,11 @@ def run(args: argparse.Namespace) -> int:
         sized_by = ("--width/--height" if len(given_sides) == 2 else
                     f"SCENE {given}" + (f" with {given_sides[0]}" if given_sides else ""))
         check_pixels(sized_by, *frame_shape)
-        # At least 410 bytes a pixel at the peak on one thread, 500 on a pool (the statistics, the tracer's batches,
-        # the reconstruction, whose Wiener stages filter two bands at once on a pool: the maximum resident size of a
-        # 1-spp uniform render 1276 MB higher at 2048x2048 than at 1024x1024 with --threads 1, twice, and 1569 MB and
-        # 1503 MB with --threads 2, `/usr/bin/time -f %M awr render --scene default --width N --height N --spp 1
-        # --uniform -o r.exr --threads T`); beyond the memory available, the kernel's out-of-memory killer ended the
-        # render without a word (exit 137).
-        check_memory(sized_by, (410.0 if threads == 1 else 500.0) * frame_shape[0] * frame_shape[1],
+        # RENDER_BYTES_PER_PIXEL on one thread, 500 on a pool, whose Wiener stages filter two bands at once (1569 MB
+        # and 1503 MB higher at 2048x2048 than at 1024x1024 with --threads 2, the command of its docstring); beyond
+        # the memory available, the kernel's out-of-memory killer ended the render without a word (exit 137).
+        per_pixel = RENDER_BYTES_PER_PIXEL if threads == 1 else 500.0
+        check_memory(sized_by, per_pixel * frame_shape[0] * frame_shape[1],
                      f"a render of {frame_shape[1]}x{frame_shape[0]}" + ("" if threads == 1 else
                                                                         f" on {threads} threads"))
         check_reconstruction_options(args, tuple(frame_shape), name)

@@ -100,6 +100,26 @@ def test_a_pixel_of_many_samples_keeps_its_own_interval_beside_neighbours_of_few
         assert np.abs(out - means)[precise].max() <= (2.5 + 1e-9) * error[precise].max()
 
 
+def test_a_count_of_zero_from_a_direct_caller_counts_as_one_sample():
+    """``pooled_clamp`` and ``pooled_standard_error`` are public: a count of 0 (the reconstruction passes at least 1)
+    pooled an infinite error, so the pixel was never clamped, and an infinite variance beside it warned (a review)."""
+    import warnings
+
+    count = np.full((3, 3), 4.0)
+    count[1, 1] = 0.0
+    variance, mean = np.full((3, 3, 1), 0.01), np.ones((3, 3, 1))
+    image = mean.copy()
+    image[1, 1] = 5.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        s = pooled_standard_error(variance, mean, count)
+        out = pooled_clamp(image, mean, variance, 2.5, count=count)[0]
+        count[0, 0], variance[0, 0] = 0.0, np.inf
+        pooled_standard_error(variance, mean, count)
+    assert s[1, 1, 0] == 0.2  # the neighbours' per-sample deviation, 0.1 * sqrt(4), over one sample
+    assert out[1, 1, 0] == 1.0 + 2.5 * 0.2
+
+
 def test_the_nine_value_sorting_network_sorts_every_input():
     """By the 0-1 principle a comparator network that sorts every input of 0s and 1s sorts every input."""
     for bits in itertools.product((0, 1), repeat=9):

@@ -29,7 +29,6 @@ import tempfile
 import threading
 import time
 import uuid
-import weakref
 from collections.abc import Callable, Iterator
 from concurrent.futures import Executor
 from pathlib import Path
@@ -43,7 +42,7 @@ from .._workers import exit_with_parent
 from ..io.atomic import check_readable, read_without_waiting
 
 __all__ = ["EXECUTOR_KINDS", "DASK_INSTALL_HINT", "get_executor", "executor_or_threads", "executor_width",
-           "submit", "wait_first", "default_workers", "dask_client"]
+           "submit", "wait_first", "default_workers", "dask_client", "package_digest", "WorkerMismatchError"]
 
 EXECUTOR_KINDS = ("threads", "processes", "dask")
 """Kinds of executor :func:`get_executor` can make."""
@@ -439,16 +438,13 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
         else:
             client = stack.enter_context(_connect(distributed, _scheduler_address(distributed, scheduler)))
         executor = client.get_executor(pure=False)
-        stop = _STOP_EVENTS[executor] = f"awr-stop-{uuid.uuid4().hex}"
         try:
             yield executor
         except BaseException:
             # Ctrl-C reaches a local cluster's workers too (one process group): waiting for
             # their futures would wait for ever. Cancel them; closing the cluster ends the rest.
-            # A cluster given by address keeps running: its running tasks are told to stop at their
-            # next stop point (:func:`_on_the_same_package`).
-            with contextlib.suppress(Exception):  # a scheduler lost meanwhile: nothing left to tell
-                distributed.Event(stop, client=client).set()
+            # A cluster given by address keeps running: its running tasks see themselves cancelled
+            # at their next stop point (:func:`_on_the_same_package`).
             executor.shutdown(wait=False)
             raise
         executor.shutdown(wait=True)
@@ -620,6 +616,8 @@ def wait_first(executor: Executor, futures: Any) -> set[cf.Future]:
     client = dask_client(executor)
     if client is None:
         return cf.wait(futures, return_when=cf.FIRST_COMPLETED)[0]
+    if not futures:  # nothing to wait for: no question to the scheduler, in a loop
+        return set()
     without_workers: float | None = None
     while True:
         done = cf.wait(futures, timeout=_WATCH_SECONDS, return_when=cf.FIRST_COMPLETED)[0]
@@ -698,8 +696,10 @@ def submit(executor: Executor, fn: Callable[..., Any], *args: Any) -> cf.Future:
     if getattr(executor, "_shutdown", False):
         raise RuntimeError("cannot schedule new futures after shutdown")
     # The executor's own options (workers=, resources=, retries=) as its submit passes them.
-    task = client.submit(_on_the_same_package, package_digest(), _STOP_EVENTS.get(executor), fn, *args,
-                         **{**getattr(executor, "_kwargs", {}), "pure": False})
+    # Named after the work (a frame, a tile), not the wrapper: on the dashboard and in Dask's messages.
+    name = f"{getattr(fn, '__name__', 'task')}-{uuid.uuid4().hex}"
+    task = client.submit(_on_the_same_package, package_digest(), fn, *args,
+                         **{**getattr(executor, "_kwargs", {}), "pure": False, "key": name})
     with contextlib.suppress(AttributeError):
         executor._futures.add(task)  # what the executor's shutdown waits for, or cancels
     answer: cf.Future = cf.Future()
@@ -731,58 +731,56 @@ def package_digest() -> str:
     return f"{__version__} {h.hexdigest()[:16]}"
 
 
-_STOP_EVENTS: weakref.WeakKeyDictionary[Executor, str] = weakref.WeakKeyDictionary()
-"""The name of each Dask executor's stop event (a ``distributed.Event``), set when its caller leaves it on an
-exception."""
+class WorkerMismatchError(ConnectionError):
+    """A Dask worker runs another awr-denoise than the caller (:func:`package_digest`)."""
 
-_STOP_POLL_SECONDS = 1.0
-"""Least time between two questions of a running task to the scheduler whether its stop event is set."""
 
 _task_stop = threading.local()
 _task_stop_registered = threading.Lock()
 
+_STOPPED_STATES = frozenset({"cancelled", "released", "forgotten"})
+"""A Dask worker's states of a task its client let go of (cancelled, or the client gone)."""
+
 
 def _dask_stop_check() -> None:
-    """A Dask worker's check at a stop point (:data:`COMMIT_CHECKS`): the running task's stop event asked at most
-    every :data:`_STOP_POLL_SECONDS`; set, a RuntimeError ends the task (KeyboardInterrupt would end the worker)."""
-    state = getattr(_task_stop, "state", None)
-    if state is None:
+    """A Dask worker's check at a stop point (:data:`COMMIT_CHECKS`): the running task's own state, in the worker's
+    books (no request to the scheduler, so none can hang on one that froze); a task its client cancelled ends here
+    with a RuntimeError (KeyboardInterrupt would end the worker)."""
+    key = getattr(_task_stop, "key", None)
+    if key is None:
         return
-    event, asked = state
-    now = time.monotonic()
-    if now - asked[0] < _STOP_POLL_SECONDS:
+    try:
+        task = _import_distributed().get_worker().state.tasks.get(key)
+    except (AttributeError, ValueError):  # another Dask's books, or not in a worker: no check
         return
-    asked[0] = now
-    if event.is_set():
-        raise RuntimeError("stopped: the command that submitted this task was told to stop")
+    if task is None or task.state in _STOPPED_STATES:
+        raise RuntimeError("stopped: the command that submitted this task cancelled it")
 
 
-def _on_the_same_package(digest: str, stop: str | None, fn: Callable[..., Any], *args: Any) -> Any:
+def _on_the_same_package(digest: str, fn: Callable[..., Any], *args: Any) -> Any:
     """``fn(*args)`` on a Dask worker that runs the command's awr-denoise (:func:`package_digest`), else a
-    ConnectionError naming the worker: a worker of another version, or of files edited since it started, gave
-    other images without a word (an attack pass; a long-lived cluster kept the modules it had imported).
+    :class:`WorkerMismatchError` naming the worker: a worker of another version, or of files edited since it started,
+    gave other images without a word (an attack pass; a long-lived cluster kept the modules it had imported).
 
-    ``stop``, the executor's stop event: once its caller sets it, the task ends at its next stop point
-    (:func:`awr_denoise._signals.stop_point`) and commits nothing. Frames on a cluster given by address, told to
-    stop, ran their whole reconstruction first (the command had ended; the workers went on)."""
+    The task stops at its next stop point (:func:`awr_denoise._signals.stop_point`), committing nothing, once its
+    client has cancelled it: frames on a cluster given by address, told to stop, ran their whole reconstruction
+    first (the command had ended; the workers went on)."""
     own = package_digest()
     if own != digest:
         try:
             where = f"worker {_worker_address()} "
         except Exception:  # noqa: BLE001 - not in a worker (a test calls it directly): no address to give
             where = "a worker "
-        raise ConnectionError(f"Dask {where}runs another awr-denoise ({own}) than this command ({digest}): "
-                              "start every worker from the same installation, and again after changing it")
-    if stop is None:
-        return fn(*args)
+        raise WorkerMismatchError(f"Dask {where}runs another awr-denoise ({own}) than this command ({digest}): "
+                                  "start every worker from the same installation, and again after changing it")
     with _task_stop_registered:
         if _dask_stop_check not in COMMIT_CHECKS:
             COMMIT_CHECKS.append(_dask_stop_check)
-    _task_stop.state = (_import_distributed().Event(stop), [time.monotonic()])
+    _task_stop.key = getattr(_import_distributed().worker.thread_state, "key", None)
     try:
         return fn(*args)
     finally:
-        _task_stop.state = None
+        _task_stop.key = None
 
 
 def _worker_address() -> str:

@@ -85,6 +85,8 @@ class RendererSpec:
         except ImportError:  # the extra is missing: its own hint comes when a worker builds the renderer
             bundled = []
         # A bundled scene's name stays a name, though a file of that name lies here (the renderer reads it so).
+        if isinstance(self.scene, os.PathLike):  # a Path: a file, as a str naming one
+            object.__setattr__(self, "scene", os.fspath(self.scene))
         if isinstance(self.scene, str) and self.digest is None and os.path.isfile(self.scene) \
                 and self.scene not in bundled:
             object.__setattr__(self, "scene", os.path.abspath(self.scene))

@@ -155,11 +155,12 @@ CancelledError, or a closed connection of the scatter; an attack pass)."""
 
 
 def _lost(future: cf.Future) -> bool:
-    """Whether a tile's task ended because the cluster lost its data or connection, not by its own error."""
+    """Whether a tile's task ended because the cluster lost its data or connection, not by its own error (a worker
+    of another awr-denoise, a ConnectionError too, is no loss to try again)."""
     if future.cancelled():
         return True
     error = future.exception()
-    return isinstance(error, (OSError, cf.CancelledError)) or type(error).__name__ == "FutureCancelledError"
+    return isinstance(error, cf.CancelledError) or type(error).__name__ in ("FutureCancelledError", "CommClosedError")
 
 
 def _scattered(client: Any, crops: list[Any]) -> list[Any]:

@@ -324,11 +324,56 @@ def test_a_scheduler_that_stops_answering_mid_run_is_named(monkeypatch, dask_exe
 
     monkeypatch.setattr(executors, "_WATCH_SECONDS", 0.2)
     monkeypatch.setattr(executors, "_identity", frozen)
+    start = time.monotonic()
+    assert executors.wait_first(dask_executor, []) == set()  # nothing to wait for: no question in a loop (a review)
+    assert time.monotonic() - start < 5
     future = executors.submit(dask_executor, time.sleep, 5)
     with pytest.raises(ConnectionError, match=r"^scheduler: .*: no answer within 60 s mid-run "
                                               r"\(stopped or frozen\?\)$"):
         executors.wait_first(dask_executor, [future])
     future.cancel()
+
+
+_FROZEN_SCHEDULER = """
+import time, distributed
+cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, host="127.0.0.1",
+                                   protocol="tcp", dashboard_address=None,
+                                   scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
+print(cluster.scheduler_address, flush=True)
+time.sleep(300)
+"""
+
+
+@pytest.mark.skipif(not hasattr(__import__("signal"), "SIGSTOP"), reason="needs SIGSTOP to freeze a scheduler")
+def test_a_frozen_scheduler_ends_the_wait_and_the_executor_in_time(monkeypatch):
+    """A scheduler frozen mid-run (SIGSTOP, a hung host) held the command for ever: the watch names it, and leaving
+    the executor then asks nothing more of it that could hang (a review found the first form of the stop waiting
+    on it there for ever)."""
+    pytest.importorskip("distributed")
+    import signal
+
+    from awr_denoise.parallel import executors
+
+    monkeypatch.setattr(executors, "_WATCH_SECONDS", 0.5)
+    monkeypatch.setattr(executors, "_ANSWER_SECONDS", 1.0)
+    with environ_restored():
+        child = subprocess.Popen([sys.executable, "-c", _FROZEN_SCHEDULER], stdout=subprocess.PIPE, text=True)
+    try:
+        address = child.stdout.readline().strip()
+        start = None
+        with pytest.raises(ConnectionError, match=r"no answer within 2 s mid-run \(stopped or frozen\?\)"):
+            with get_executor(scheduler=address) as executor:
+                future = executors.submit(executor, time.sleep, 120)
+                time.sleep(0.5)
+                os.kill(child.pid, signal.SIGSTOP)
+                start = time.monotonic()
+                executors.wait_first(executor, [future])
+        assert time.monotonic() - start < 45  # the wait and the way out of the executor
+    finally:
+        os.kill(child.pid, signal.SIGCONT)
+        child.kill()
+        child.wait()
+        child.stdout.close()
 
 
 def test_a_cluster_left_by_its_caller_stops_its_running_tasks_at_their_stop_points(cluster, tmp_path):

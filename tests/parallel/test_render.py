@@ -231,6 +231,7 @@ def test_a_scene_file_is_named_absolutely_and_held_to_its_bytes(tmp_path, monkey
     monkeypatch.chdir(tmp_path / "here")
     spec = RendererSpec.tracer("scene.json", width=8, height=8, threads=1)
     assert spec.scene == str(tmp_path / "here" / "scene.json") and spec.digest is not None
+    assert RendererSpec.tracer(Path("scene.json"), width=8, height=8, threads=1) == spec  # a Path alike
     monkeypatch.chdir(tmp_path / "there")  # a worker in another folder reads the same file
     expected = spec()(SampleRequest.uniform((8, 8), 2))
     (tmp_path / "here" / "scene.json").write_bytes((scenes / "default.json").read_bytes())

@@ -6,6 +6,7 @@ Tiles are held to the tolerance derived in docs/distributed.md.
 from __future__ import annotations
 
 import concurrent.futures as cf
+from unittest import mock
 
 import numpy as np
 import pytest
@@ -242,6 +243,7 @@ def test_a_worker_killed_mid_run_costs_its_tiles_a_second_try_not_the_reconstruc
 
     from awr_denoise import SampleRequest
     from awr_denoise.parallel import get_executor
+    from awr_denoise.parallel.executors import dask_client
     from awr_denoise.synthetic import SyntheticRenderer, make_scene
 
     shape = (512, 512)
@@ -256,7 +258,27 @@ def test_a_worker_killed_mid_run_costs_its_tiles_a_second_try_not_the_reconstruc
             time.sleep(1.5)
             os.kill(victim, signal.SIGKILL)
 
-        with get_executor(scheduler=local.scheduler_address) as executor:
+        lost = []  # a tile sent again, or a scatter tried again: the path under test ran
+        real_lost = tiles._lost
+
+        def counted_lost(future):
+            lost.append(real_lost(future))
+            return lost[-1]
+
+        with get_executor(scheduler=local.scheduler_address) as executor, \
+                mock.patch.object(tiles, "_lost", counted_lost):
+            client = dask_client(executor)
+            real_scatter = client.scatter
+
+            def counted_scatter(*args, **kwargs):
+                try:
+                    return real_scatter(*args, **kwargs)
+                except OSError:
+                    lost.append(True)
+                    raise
+
+            client.scatter = counted_scatter
             threading.Thread(target=kill, daemon=True).start()
             out = reconstruct_tiled(buffer, tile=32, executor=executor, stages=1)
     assert_tiled_close(out, expected)
+    assert any(lost)
