@@ -117,3 +117,16 @@ def runs_until_stopped(started: str, ended: str, seconds: float = 120.0) -> int:
         return runs_through_stop_points(started, seconds)
     finally:
         Path(ended).touch()
+
+
+def appears(path, seconds: float = 60.0) -> bool:
+    """Whether ``path`` exists within ``seconds`` (a worker's task marks where it has got to with a file)."""
+    import time
+    from pathlib import Path
+
+    end = time.monotonic() + seconds
+    while not Path(path).exists():
+        if time.monotonic() >= end:
+            return False
+        time.sleep(0.01)
+    return True

@@ -17,7 +17,7 @@ import pytest
 
 from awr_denoise.cli.parallel_options import add_executor_arguments, executor_from_args
 from awr_denoise.parallel import get_executor
-from parallel_helpers import environ_restored, runs_through_stop_points, runs_until_stopped
+from parallel_helpers import appears, environ_restored, runs_through_stop_points, runs_until_stopped
 
 
 def test_get_executor_threads_and_processes_run_tasks():
@@ -251,10 +251,7 @@ def test_a_process_pool_left_by_its_caller_stops_its_running_tasks_at_their_stop
     with pytest.raises(RuntimeError, match="the caller stops"):
         with get_executor("processes", workers=1) as pool:
             future = pool.submit(runs_through_stop_points, str(started), 120.0)
-            deadline = time.monotonic() + 60
-            while not started.exists() and time.monotonic() < deadline:
-                time.sleep(0.01)
-            assert started.exists()
+            assert appears(started)
             left = time.monotonic()
             raise RuntimeError("the caller stops")
     assert time.monotonic() - left < 60
@@ -378,23 +375,19 @@ def test_a_frozen_scheduler_ends_the_wait_and_the_executor_in_time(monkeypatch):
 
 def test_a_cluster_left_by_its_caller_stops_its_running_tasks_at_their_stop_points(cluster, tmp_path):
     """``denoise --frames --scheduler``, told to stop, left its running frames to run their whole reconstruction on
-    the cluster, which outlives the command: leaving the executor on an exception sets its stop event, and the
-    two-minute task ends at its next stop point, within a minute even on a loaded machine."""
+    the cluster, which outlives the command: leaving the executor on an exception cancels its tasks, and the
+    two-minute task, seeing itself cancelled in its worker's books, ends at its next stop point, within a minute
+    even on a loaded machine."""
     from awr_denoise.parallel import executors
 
     started, ended = tmp_path / "started", tmp_path / "ended"
     with pytest.raises(RuntimeError, match="the caller stops"):
         with get_executor(scheduler=cluster.scheduler_address) as executor:
             future = executors.submit(executor, runs_until_stopped, str(started), str(ended), 120.0)
-            deadline = time.monotonic() + 60
-            while not started.exists() and time.monotonic() < deadline:
-                time.sleep(0.01)
-            assert started.exists()
+            assert appears(started)
             left = time.monotonic()
             raise RuntimeError("the caller stops")
-    while not ended.exists() and time.monotonic() < left + 60:
-        time.sleep(0.05)
-    assert ended.exists() and time.monotonic() - left < 60
+    assert appears(ended) and time.monotonic() - left < 60
     assert future.cancelled()
     with get_executor(scheduler=cluster.scheduler_address) as executor:  # an executor left normally: tasks finish
         assert executors.submit(executor, runs_until_stopped, str(tmp_path / "s2"), str(tmp_path / "e2"),
