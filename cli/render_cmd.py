@@ -204,6 +204,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_executor_arguments(p, tile_option=True)
     add_threads_argument(p, "the adaptive rounds' ranking, between the renderer's rounds, and the reconstruction")
     p.set_defaults(run=run)
+    _DEFAULTS.update({action.dest: (action.default, (action.option_strings or [action.metavar or action.dest])[-1])
+                      for action in p._actions if action.dest not in ("help", "list_scenes", "renderer")})
+
+
+_DEFAULTS: dict[str, tuple[Any, str]] = {}
+"""Every ``render`` option's default and longest name but ``--list-scenes`` and ``--renderer``: set by :func:`register`,
+read by :func:`run`, which refuses other options beside ``--list-scenes``."""
 
 
 def _scene(args: argparse.Namespace) -> tuple[str, Any, str, tuple[int, int] | None, dict[str, Any]]:
@@ -282,6 +289,11 @@ def run(args: argparse.Namespace) -> int:
     if args.renderer not in renderer_names():
         raise UsageError(f"--renderer: {args.renderer!r} is not one of {', '.join(renderer_names())}")
     if args.list_scenes:
+        # The other options were ignored without a word (`--list-scenes -o x.exr` wrote nothing, exit 0: a
+        # red-team pass): they would do nothing, as a uniform render's adaptive settings, which are refused.
+        others = [name for dest, (default, name) in _DEFAULTS.items() if getattr(args, dest, default) != default]
+        if others:
+            raise UsageError(f"--list-scenes: prints the scenes and exits; not with {', '.join(others)}")
         for name in _registry(renderer_scenes, args.renderer):
             print(name)
         return EXIT_OK

@@ -21,6 +21,7 @@ import multiprocessing
 import multiprocessing.resource_tracker
 import multiprocessing.spawn
 import os
+import re
 import signal
 import socket
 import struct
@@ -29,7 +30,7 @@ import tempfile
 import threading
 import time
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import Executor
 from pathlib import Path
 from typing import Any
@@ -353,7 +354,8 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
         ``kind="dask"`` without Dask installed; the message says what to install.
     ValueError
         An unknown ``kind``, ``workers`` out of range or beside ``scheduler``, or ``scheduler``
-        with another kind than ``"dask"``.
+        with another kind than ``"dask"``; a local cluster that did not start, or a scheduler not
+        connected to, while ``DASK_*`` variables are set (they are named).
 
     Notes
     -----
@@ -426,15 +428,20 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
                         # while closing are noise on a terminal.
                         silence_logs=logging.CRITICAL)
                 stack.enter_context(cluster)
-            except BaseException:
+            except BaseException as exc:
                 # A start cut short (SIGTERM, a failed nanny): its workers still starting made the scratch folder again
                 # once it had been removed, and left it in $TMPDIR (an attack pass). Ended first, before it goes.
                 _end_started(earlier)
+                _blame_dask_variables(exc, before, "a local Dask cluster did not start")
                 raise
             finally:  # what starting it wrote, also when it failed to start
                 written.update(_environ_changes(before))
             deliver_interrupt()  # a Ctrl-C while it started, now that the stack closes the cluster
-            client = stack.enter_context(distributed.Client(cluster))
+            try:
+                client = stack.enter_context(distributed.Client(cluster))
+            except Exception as exc:
+                _blame_dask_variables(exc, before, "the client of a local Dask cluster did not start")
+                raise
         else:
             client = stack.enter_context(_connect(distributed, _scheduler_address(distributed, scheduler)))
         executor = client.get_executor(pure=False)
@@ -448,6 +455,30 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
             executor.shutdown(wait=False)
             raise
         executor.shutdown(wait=True)
+
+
+_DASK_VARIABLE = re.compile(r"DASK_[A-Z0-9_]+")
+"""The environment variables Dask reads its configuration from (``DASK_INTERNAL_*`` are its own)."""
+
+
+def _blame_dask_variables(exc: BaseException, environ: Mapping[str, str], what: str) -> None:
+    """Raise a ``ValueError`` naming the ``DASK_*`` variables of ``environ`` when ``exc``, an ``Exception`` raised by
+    Dask as it started or connected, may be theirs; return where none is set.
+
+    Dask reads such a variable's value only where it uses it, and then fails in its own words, deep inside:
+    ``DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT=zz`` a ``KeyError`` listing time units, a memory fraction of
+    ``abc`` "Nanny failed to start". Those were internal errors of the command (an attack pass); the variables
+    are the user's input, so they are named."""
+    if not isinstance(exc, Exception):  # Ctrl-C, SIGTERM: not the configuration's
+        return
+    named = sorted(name for name in environ if _DASK_VARIABLE.fullmatch(name) and not name.startswith("DASK_INTERNAL"))
+    if not named:
+        return
+    why = " ".join(str(exc).split()) or type(exc).__name__
+    if len(why) > 160:  # a KeyError of Dask's lists every time unit it knows
+        why = why[:157] + "..."
+    raise ValueError(f"{what} ({why}); the environment sets {', '.join(named)}, read by Dask: check or unset "
+                     f"{'it' if len(named) == 1 else 'them'}") from exc
 
 
 def _scheduler_file(text: str) -> Any:
@@ -584,6 +615,9 @@ def _connect(distributed: Any, address: str) -> Any:
     except (TypeError, ValueError) as exc:  # Dask's own refusal of what it cannot use (tls without certificates)
         why = " ".join(str(exc).split()) or type(exc).__name__
         raise ValueError(f"scheduler: {address}: cannot connect ({why})") from None
+    except Exception as exc:
+        _blame_dask_variables(exc, os.environ, f"scheduler: {address}: cannot connect")
+        raise
     try:  # a scheduler without workers (none started yet, all gone) would take the tasks and wait for ever
         client.wait_for_workers(1, timeout=_WORKER_SECONDS)
     except (asyncio.TimeoutError, TimeoutError):

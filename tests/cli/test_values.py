@@ -272,6 +272,21 @@ def test_an_empty_scene_name_is_refused_not_taken_as_the_default(work, capsys, m
     assert work.state() == before
 
 
+@pytest.mark.parametrize(("extra", "named"), [
+    (["-o", "x.exr"], "--output"), (["chess_dof"], "SCENE"), (["--scene", "chess_dof"], "--scene"),
+    (["--spp", "4", "-q"], "--spp, --quiet"), (["--workers", "2"], "--workers"), (["--uniform"], "--uniform"),
+])
+def test_list_scenes_beside_other_options_is_refused_naming_them(work, capsys, monkeypatch, extra, named):
+    """They were ignored without a word: ``--list-scenes -o x.exr`` printed the scenes, wrote nothing, exit 0."""
+    monkeypatch.chdir(work.root)
+    before = work.state()
+    assert main(["render", "--list-scenes", *extra]) == 2
+    one_error_line(capsys.readouterr().err, f"--list-scenes: prints the scenes and exits; not with {named}")
+    assert work.state() == before
+    assert main(["render", "--list-scenes"]) == 0
+    assert "chess_dof" in capsys.readouterr().out.split()
+
+
 def test_a_scene_files_own_size_is_named_as_the_file(work, capsys, monkeypatch):
     """A scene file declaring 200000x200000 pixels was refused naming --width/--height, which were not given."""
     import json

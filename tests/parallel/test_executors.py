@@ -197,6 +197,39 @@ def test_a_local_dask_cluster_leaves_ctrl_c_to_the_parent():
     assert pending.cancelled()
 
 
+_DASK_VARIABLE_RUN = """
+import sys
+from awr_denoise.parallel import get_executor
+try:
+    with get_executor("dask", **({"scheduler": sys.argv[1]} if len(sys.argv) > 1 else {"workers": 1})) as executor:
+        executor.submit(abs, -1).result()
+except ValueError as exc:
+    print(exc)
+    sys.exit(2)
+"""
+
+
+@pytest.mark.parametrize("variable", ["DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT=zz",
+                                      "DASK_DISTRIBUTED__WORKER__MEMORY__TARGET=abc"])
+def test_a_bad_dask_variable_is_named_where_a_local_cluster_starts(variable):
+    """Dask reads a ``DASK_*`` value where it uses it and fails in its own words, deep inside (a ``KeyError``
+    listing time units, "Nanny failed to start"): the command's internal error, naming nothing the user set."""
+    pytest.importorskip("distributed")
+    name, value = variable.split("=")
+    done = subprocess.run([sys.executable, "-c", _DASK_VARIABLE_RUN], env={**os.environ, name: value},
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert "a local Dask cluster did not start" in done.stdout and f"sets {name}, read by Dask" in done.stdout
+
+
+def test_a_bad_dask_variable_is_named_where_a_scheduler_is_connected_to(cluster):
+    name = "DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT"
+    done = subprocess.run([sys.executable, "-c", _DASK_VARIABLE_RUN, cluster.scheduler_address],
+                          env={**os.environ, name: "zz"}, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert f"{cluster.scheduler_address}: cannot connect" in done.stdout and f"sets {name}" in done.stdout
+
+
 def test_a_service_that_never_answers_or_is_no_scheduler_is_refused(cluster, monkeypatch):
     """A port that accepts and stays silent (an HTTP server) held the client for ever; a worker's
     address was taken for a scheduler's."""
