@@ -1,10 +1,12 @@
-"""Shared test configuration: the slow marker, fixed seeds, tolerance constants, a started Mitsuba."""
+"""Shared test configuration: the slow marker, fixed seeds, tolerance constants, a started Mitsuba, a wheel's
+layout of the package."""
 
 from __future__ import annotations
 
 import os
 import signal
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -65,3 +67,21 @@ def start_mitsuba():
 def mi():
     """The ``mitsuba`` module in its default variant (see :func:`start_mitsuba`)."""
     return start_mitsuba()[0]
+
+
+@pytest.fixture
+def wheel_layout(tmp_path: Path) -> Path:
+    """A ``site-packages`` folder holding this package as a wheel installs it (the command line's modules inside
+    it, no ``data`` or ``pyproject.toml`` beside it), for a Python started with it on ``PYTHONPATH``."""
+    import importlib.util
+    import shutil
+
+    import awr_denoise
+
+    package = Path(awr_denoise.__file__).parent
+    cli = Path(next(iter(importlib.util.find_spec("awr_denoise.cli").submodule_search_locations)))
+    site = tmp_path / "site-packages"
+    shutil.copytree(package, site / "awr_denoise", ignore=shutil.ignore_patterns("__pycache__"))
+    if not (site / "awr_denoise" / "cli").is_dir():  # a checkout: cli/ beside the package
+        shutil.copytree(cli, site / "awr_denoise" / "cli", ignore=shutil.ignore_patterns("__pycache__"))
+    return site

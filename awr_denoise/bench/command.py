@@ -50,7 +50,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                         help="JSON output (default: benchmarks/results/quality.json beside the output dir)")
     parser.add_argument("--reference-spp", type=whole_option(minimum=1, maximum=MAX_SPP), default=None,
                         help="re-render references below this spp with the tracer, replacing the cached ones "
-                             "(data/references in a checkout, or $AWR_DENOISE_REFERENCE_DIR)")
+                             "(data/references in a checkout, the user's cache folder in an install, or "
+                             "$AWR_DENOISE_REFERENCE_DIR)")
     parser.add_argument("--spp", type=whole_option(minimum=1, maximum=MAX_SPP), nargs="+", default=None,
                         help="average spp to measure at")
     parser.add_argument("--size", type=whole_option(minimum=_SIDES[0], maximum=_SIDES[1]), nargs=2,

@@ -9,7 +9,8 @@ high-spp render of the same adapter. A missing extra, or a Mitsuba that cannot s
 the section with the reason, which the page shows.
 
 References are rendered once per scene, size, spp and Mitsuba version and cached as ``.npy``
-files in ``data/cache/mitsuba/`` (``BenchmarkConfig.mitsuba_reference_dir``), with a seed no measured render uses.
+files in ``data/cache/mitsuba/`` in a checkout, ``mitsuba`` in the user's cache folder in an install
+(``BenchmarkConfig.mitsuba_reference_dir``), with a seed no measured render uses.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from .._places import cache_folder, checkout_data
 from .._typing import FloatArray
 from ..buffers import SampleBuffer
 from ..metrics import mse, relmse
@@ -34,8 +36,10 @@ __all__ = ["MITSUBA_METHODS", "mitsuba_benchmark", "mitsuba_scene_names", "mitsu
 MITSUBA_METHODS = ("uniform", "uniform+awr", "awr", "awr+awr")
 """``uniform``/``awr``: the plain mean of uniform / AWR sampling; ``+awr``: the default reconstruction of it."""
 
-DEFAULT_REFERENCE_DIR = Path(__file__).resolve().parents[2] / "data" / "cache" / "mitsuba"
-"""Where references are cached (``data/cache/`` is not tracked)."""
+DEFAULT_REFERENCE_DIR = (cache_folder() if checkout_data() is None else checkout_data() / "cache") / "mitsuba"
+"""Where references are cached: a checkout's ``data/cache/mitsuba`` (not tracked), an install's
+``$XDG_CACHE_HOME/awr-denoise/mitsuba`` (by default under ``~/.cache``); an install wrote them into
+``site-packages/data``, which made later runs take it for a checkout (an attack pass)."""
 
 _REFERENCE_SEED = 1 << 30  # no measured render uses it
 _REFERENCE_BATCH_SPP = 64  # a reference is rendered in requests of this many spp (bounded memory)

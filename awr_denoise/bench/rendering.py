@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from .._places import shown_path
 from .._typing import FloatArray
 from ..buffers import SampleBuffer
 from ..requests import SampleRequest
@@ -71,7 +72,7 @@ def reference_image(name: str, scene: Any, config: BenchmarkConfig) -> tuple[Flo
         else:
             image = tracer.load_reference(name)
         header = read_reference_header(path)
-        return image, {"source": f"data/references/{name}.exr", "spp": int(header.get("spp", 0)),
+        return image, {"source": shown_path(path), "spp": int(header.get("spp", 0)),
                        "sampler": header.get("sampler", "?"), "seed": int(header.get("seed", -1)),
                        "render_seconds": float(header.get("render_seconds", header.get("seconds", "nan")))}
     pt = tracer.PathTracer(scene, seed=REFERENCE_SEED, sampler="sobol", threads=config.threads)

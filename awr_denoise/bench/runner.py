@@ -207,6 +207,7 @@ def _meta(config: BenchmarkConfig, mode_name: str | None, use_oidn: bool) -> dic
     return {"mode": mode_name or "custom", "config": asdict(config),
             "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
             "python": machine["python"], "platform": machine["platform"], "processor": machine["processor"],
+            "cpus": machine["cpus"],
             "oidn": "used" if use_oidn else ("not installed (pyoidn did not import)" if config.oidn else "disabled"),
             "relmse_epsilon": RELMSE_EPSILON}
 

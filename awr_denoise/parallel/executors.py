@@ -14,6 +14,7 @@ import concurrent.futures as cf
 import contextlib
 import functools
 import hashlib
+import importlib.util
 import ipaddress
 import json
 import logging
@@ -758,10 +759,19 @@ def package_digest() -> str:
     True
     """
     root = Path(__file__).resolve().parent.parent
+    # The command line's modules wherever they are installed: a checkout keeps them in cli/ beside the package
+    # (awr_denoise.cli maps there), a wheel inside it. Hashed from the package folder alone, the same code had two
+    # digests, and a worker of an editable install refused a command of a wheel (an attack pass).
+    spec = importlib.util.find_spec("awr_denoise.cli")
+    cli = Path(next(iter(spec.submodule_search_locations))).resolve() if spec and spec.submodule_search_locations \
+        else root / "cli"
+    files = {path.relative_to(root).as_posix(): path for path in root.rglob("*.py")
+             if not path.is_relative_to(root / "cli")}
+    files.update({"cli/" + path.relative_to(cli).as_posix(): path for path in cli.rglob("*.py")})
     h = hashlib.sha256()
-    for path in sorted(root.rglob("*.py")):
-        h.update(path.relative_to(root).as_posix().encode())
-        h.update(path.read_bytes())
+    for name in sorted(files):
+        h.update(name.encode())
+        h.update(files[name].read_bytes())
     return f"{__version__} {h.hexdigest()[:16]}"
 
 

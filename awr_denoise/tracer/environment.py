@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from .. import _checks
+from .._places import checkout_data
 from .limits import check_radiance, refuse_unknown, rgb_radiance
 
 __all__ = [
@@ -218,15 +219,15 @@ def make_sky_envmap(width: int = SKY_DEFAULTS["width"], height: int = SKY_DEFAUL
     return image.astype(np.float16).astype(np.float64)
 
 
-def _data_dir() -> Path:
-    return Path(__file__).resolve().parents[2] / "data"
-
-
 def write_sky_envmap(path: str | Path | None = None, **parameters: Any) -> Path:
-    """Regenerate the bundled sky map as a half-float EXR (default ``data/envmaps/sky.exr``)."""
+    """Regenerate the bundled sky map as a half-float EXR (default ``data/envmaps/sky.exr`` in a checkout; an
+    install has no default: ``path`` is then needed)."""
     import OpenEXR  # the [exr] extra; only needed to write the file
 
-    path = Path(path) if path is not None else _data_dir() / "envmaps" / "sky.exr"
+    data = checkout_data()
+    if path is None and data is None:
+        raise ValueError("path: give the file to write; the default, data/envmaps/sky.exr, is a checkout's")
+    path = Path(path) if path is not None else data / "envmaps" / "sky.exr"
     path.parent.mkdir(parents=True, exist_ok=True)
     params = {**SKY_DEFAULTS, **parameters}
     image = make_sky_envmap(**params).astype(np.float16)

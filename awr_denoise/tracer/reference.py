@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 from .._progress import tqdm
 
+from .._places import cache_folder, checkout_data
 from ..buffers import SampleBuffer
 from ..io import provenance, read_header, read_image, read_provenance, write_image
 from ..io.atomic import STAGING_NAME, check_writable
@@ -44,7 +45,8 @@ def reference_dir() -> Path:
 
     ``$AWR_DENOISE_REFERENCE_DIR`` if set (a folder, or a path to create one at; a file or an empty value is a
     ``ValueError``); else the repository's ``data/references`` when running from a checkout;
-    else ``~/.cache/awr-denoise/references``.
+    else ``references`` in the user's cache folder (``$XDG_CACHE_HOME/awr-denoise``, by default
+    ``~/.cache/awr-denoise``).
     """
     override = os.environ.get("AWR_DENOISE_REFERENCE_DIR")
     if override is not None and not override.strip():
@@ -55,10 +57,8 @@ def reference_dir() -> Path:
         if os.path.exists(override) and not os.path.isdir(override):  # found now, not after a render
             raise ValueError(f"AWR_DENOISE_REFERENCE_DIR: {override} is not a folder")
         return Path(override)
-    repo_data = Path(__file__).resolve().parents[2] / "data"
-    if repo_data.is_dir():
-        return repo_data / "references"
-    return Path.home() / ".cache" / "awr-denoise" / "references"
+    repo_data = checkout_data()
+    return (repo_data if repo_data is not None else cache_folder()) / "references"
 
 
 def _check_scene_name(scene_name: str) -> None:
@@ -97,6 +97,10 @@ def render_reference(scene_name: str, *, spp: int = DEFAULT_REFERENCE_SPP, seed:
     except OSError as exc:  # a dangling link, a file on the way, a read-only or virtual file system
         named = os.environ.get("AWR_DENOISE_REFERENCE_DIR") if path is None else None
         if not named:
+            if path is None:  # the default folder: say which setting moves it (a read-only home)
+                raise OSError(exc.errno, f"{exc.strerror or exc} (the references' folder: set "
+                                         "AWR_DENOISE_REFERENCE_DIR to one that can be written)",
+                              str(target.parent)) from None
             raise
         # A setting's error is the user's: named, and read by the command line as bad input (exit 2).
         why = (f"a link to {os.readlink(target.parent)}, which does not exist" if target.parent.is_symlink()

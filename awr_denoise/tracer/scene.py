@@ -45,7 +45,6 @@ from .limits import check_reach, in_range, numbers, reach, refuse_unknown, rgb_r
 from .limits import vector as _vec
 from .materials import Material, parse_material
 from .meshes import CHESS_PROFILES, box_mesh, lathe_mesh, quad_mesh, rotation_matrices, sphere_mesh
-from .scenes import BUNDLED_SCENES
 
 __all__ = ["Scene", "SceneObject", "Motion", "SHAPE_KINDS", "MAX_TRIANGLES", "MAX_DELTA_LIGHTS", "load_scene",
            "parse_scene", "dimension_names", "scene_files"]
@@ -419,6 +418,8 @@ def load_scene(scene: str | Path | dict[str, Any] | Scene, *, width: int | None 
         return parse_scene(scene.spec, width=width, height=height)
     if isinstance(scene, dict):
         return parse_scene(scene, width=width, height=height)
+    from .scenes import BUNDLED_SCENES  # here: imported with the package, `python -m ...scenes` ran it twice
+
     text = str(scene)
     if text in BUNDLED_SCENES:
         return parse_scene(BUNDLED_SCENES[text], width=width, height=height)
@@ -494,6 +495,8 @@ def scene_files(scene: str | Path) -> list[tuple[str, Path]]:
     >>> scene_files("default")
     []
     """
+    from .scenes import BUNDLED_SCENES
+
     path = Path(scene)
     if str(scene) in BUNDLED_SCENES or path.suffix != ".json" or not path.is_file():
         return []

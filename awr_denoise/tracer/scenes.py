@@ -13,8 +13,11 @@ diffuse bounce 8D).
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 from typing import Any
+
+from .._places import checkout_data
 
 __all__ = ["BUNDLED_SCENES", "list_scenes", "write_scene_files"]
 
@@ -219,8 +222,12 @@ def list_scenes() -> list[str]:
 
 
 def write_scene_files(directory: str | Path | None = None) -> list[Path]:
-    """Write every bundled scene as ``<name>.json`` (default: the repository's ``data/scenes``)."""
-    directory = Path(directory) if directory is not None else Path(__file__).resolve().parents[2] / "data" / "scenes"
+    """Write every bundled scene as ``<name>.json`` (default: the repository's ``data/scenes`` in a checkout; an
+    install has no default: ``directory`` is then needed)."""
+    data = checkout_data()
+    if directory is None and data is None:
+        raise ValueError("directory: give the folder to write; the default, data/scenes, is a checkout's")
+    directory = Path(directory) if directory is not None else data / "scenes"
     directory.mkdir(parents=True, exist_ok=True)
     paths = []
     for name, spec in BUNDLED_SCENES.items():
@@ -231,5 +238,5 @@ def write_scene_files(directory: str | Path | None = None) -> list[Path]:
 
 
 if __name__ == "__main__":
-    for written in write_scene_files():
+    for written in write_scene_files(sys.argv[1] if len(sys.argv) > 1 else None):
         print(written)

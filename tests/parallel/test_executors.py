@@ -12,6 +12,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import pytest
 
@@ -439,6 +440,22 @@ def test_a_worker_of_another_awr_denoise_is_refused_naming_it(monkeypatch, dask_
     with pytest.raises(ConnectionError, match=r"^Dask worker tcp://127\.0\.0\.1:\d+ runs another awr-denoise "
                                               rf"\({own}\) than this command \(0\.0\.9 0123456789abcdef\)"):
         executors.submit(dask_executor, abs, -3).result()
+
+
+def test_the_package_digest_is_the_same_from_a_checkout_and_from_a_wheels_layout(tmp_path, wheel_layout):
+    """A wheel holds the command line's modules inside the package (``awr_denoise/cli``), a checkout beside it
+    (``cli/``): hashed from the package folder alone, the same code had two digests, and a worker of an editable
+    install refused a command of a wheel (an attack pass)."""
+    from awr_denoise.parallel import executors
+
+    site = wheel_layout
+    code = ("import awr_denoise.cli; from awr_denoise.parallel.executors import package_digest; "
+            "print(awr_denoise.cli.__file__); print(package_digest())")
+    done = subprocess.run([sys.executable, "-c", code], env={**os.environ, "PYTHONPATH": str(site)}, cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120)
+    where, digest = done.stdout.strip().split("\n")
+    assert Path(where).is_relative_to(site), done.stderr
+    assert digest == executors.package_digest()
 
 
 class _Task:

@@ -835,6 +835,23 @@ def test_a_reference_dir_that_cannot_be_made_is_named_before_any_render(tmp_path
     assert not (tmp_path / "missing").exists()
 
 
+def test_a_default_reference_dir_that_cannot_be_made_names_the_setting_that_moves_it(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """An install's default folder, in the user's cache, under a read-only home: the OS's words alone, naming no way
+    out (an attack pass); now with the variable that moves it, before any render."""
+    from awr_denoise.tracer import reference as module
+
+    (tmp_path / "file").write_text("a file")
+    monkeypatch.delenv("AWR_DENOISE_REFERENCE_DIR", raising=False)
+    monkeypatch.setattr(module, "reference_dir", lambda: tmp_path / "file" / "refs")
+    with mock.patch("awr_denoise.tracer.reference._render_into") as render:
+        with pytest.raises(NotADirectoryError, match=r"\(the references' folder: set AWR_DENOISE_REFERENCE_DIR to one "
+                                                     r"that can be written\)") as caught:
+            module.render_reference("default", spp=1)
+    assert caught.value.filename == str(tmp_path / "file" / "refs")
+    render.assert_not_called()
+
+
 def test_a_cached_reference_that_is_a_fifo_is_refused_before_any_render(tmp_path: Path,
                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
     # awr demo rendered the reference for 21 s, then refused to write over the FIFO.
