@@ -44,7 +44,7 @@ def scalar(value: Any) -> Any:
 
     Examples
     --------
-    >>> isinstance(scalar(np.array(16)), np.ndarray), scalar(np.array(16)) == 16, scalar([16])
+    >>> isinstance(scalar(np.array(16)), np.ndarray), bool(scalar(np.array(16)) == 16), scalar([16])
     (False, True, [16])
     """
     if isinstance(value, np.ndarray) and value.ndim == 0 and not isinstance(value, np.ma.MaskedArray):

@@ -18,6 +18,7 @@ from awr_denoise._progress import bars_shown
 from awr_denoise.renderers import create_renderer
 
 from awr_denoise.io.atomic import OutputSet, check_creatable, folders_made
+from awr_denoise.io.exr import require_exr
 
 from .errors import shown
 from .common import EXIT_OK, UsageError, print_json, status
@@ -54,6 +55,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run ``awr demo``; returns the exit status (errors are raised and reported by ``main``)."""
     tracer = tracer_module()
+    # Its images are EXRs: without the extra, an install rendered the reference (minutes) and then failed to write
+    # the first image (an attack pass).
+    require_exr()
     if args.scene is not None and not args.scene.strip():  # refused by its option, never taken as not given
         raise UsageError(f"--scene: an empty name; leave it out for the default scene ({default_scene(tracer)})")
     name = args.scene or default_scene(tracer)

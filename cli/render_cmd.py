@@ -64,9 +64,9 @@ def tracer_module() -> ModuleType:
     try:
         # The optional ``tracer`` extra (embreex): imported only by the commands that render.
         from awr_denoise import tracer
-    except ImportError as exc:
-        raise RuntimeFailure(f"the bundled tracer is not available: {exc} "
-                             "(pip install 'awr-denoise[tracer]')") from None
+    except ImportError as exc:  # the package's own message names the extra already: said once
+        hint = "" if "awr-denoise[tracer]" in str(exc) else " (pip install 'awr-denoise[tracer]')"
+        raise RuntimeFailure(f"the bundled tracer is not available: {exc}{hint}") from None
     return tracer
 
 

@@ -1428,6 +1428,37 @@ def test_demo_threads_reach_the_library_and_leave_the_images_the_same(tmp_path, 
     assert "--threads" in capsys.readouterr().err and not (tmp_path / "t0").exists()
 
 
+def test_demo_without_the_exr_extra_is_refused_before_the_reference_is_rendered(tmp_path, fake_tracer, capsys,
+                                                                                monkeypatch):
+    """An install without the extra rendered the reference (minutes), then failed to write its first image."""
+    from awr_denoise import tracer
+    from awr_denoise.io import exr
+
+    def missing():
+        raise ImportError("EXR support needs the 'exr' extra: pip install 'awr-denoise[exr]'")
+
+    monkeypatch.setattr(exr, "_openexr", missing)
+    monkeypatch.setattr(tracer, "load_reference", lambda name: pytest.fail("rendered"), raising=False)
+    assert main(["demo", "--out", str(tmp_path / "out"), "--spp", "8", "-q"]) == 1
+    _one_error_line(capsys, "EXR support needs the 'exr' extra: pip install 'awr-denoise[exr]'")
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_missing_tracer_extra_is_named_once(tmp_path, capsys, monkeypatch):
+    """The tracer's own message names the extra; the command added it again in brackets."""
+    import awr_denoise
+
+    monkeypatch.setitem(sys.modules, "embreex", None)
+    monkeypatch.delitem(sys.modules, "awr_denoise.tracer", raising=False)
+    monkeypatch.delattr(awr_denoise, "tracer", raising=False)
+    monkeypatch.chdir(tmp_path)
+    for args in (["render", "-o", "x.exr", "-q"], ["demo", "--out", "out", "-q"]):
+        assert main(args) == 1
+        line = _one_error_line(capsys, "the bundled tracer is not available", "awr-denoise[tracer]")
+        assert line.count("pip install") == 1, line
+    assert not list(tmp_path.iterdir())
+
+
 def test_demo_refuses_before_creating_its_folder(tmp_path, fake_tracer, capsys, monkeypatch):
     """A reference of the wrong size is refused before the renders, and --out is not left behind; nor
     is a folder under one that cannot be written."""

@@ -44,6 +44,7 @@ from .mitsuba import RAW_FILM
 
 __all__ = [
     "ExrPart",
+    "require_exr",
     "HALF_MAX",
     "read_exr",
     "write_exr",
@@ -95,6 +96,17 @@ def _openexr() -> Any:
     except ImportError as exc:  # pragma: no cover - exercised only without the extra
         raise ImportError("EXR support needs the 'exr' extra: pip install 'awr-denoise[exr]'") from exc
     return OpenEXR
+
+
+def require_exr() -> None:
+    """Raise the ``ImportError`` naming the ``exr`` extra now, where EXR files are written after long work.
+
+    Examples
+    --------
+    >>> from awr_denoise.io.exr import require_exr
+    >>> require_exr()  # the extra is installed: nothing to say
+    """
+    _openexr()
 
 
 @dataclass
