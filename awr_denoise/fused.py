@@ -32,6 +32,7 @@ import contextlib
 import math
 import os
 import re
+import threading
 import warnings
 from collections.abc import Callable, Iterator
 from functools import lru_cache
@@ -48,6 +49,8 @@ BACKENDS = ("numpy", "numba")
 """The implementations: ``"numpy"`` (the reference, always there) and ``"numba"`` (extra ``fast``)."""
 
 _chosen: str | None = None  # set_backend's choice; None: the environment's, numpy by default
+_using: tuple[int, int] | None = None  # the thread whose using() block runs, and how deep; None: no block
+_using_lock = threading.Lock()
 _F32_MAX = np.float32(np.finfo(np.float32).max)  # a global: numba takes it as a constant
 _ENVIRONMENT = "AWR_DENOISE_KERNELS"
 
@@ -70,6 +73,10 @@ def set_backend(name: str | None) -> None:
 def using(name: str | None) -> Iterator[None]:
     """:func:`set_backend` ``name`` inside the ``with`` block, then the choice made before it again.
 
+    The choice is the process' (the threads a reconstruction runs its bands on follow it): while one thread's block
+    runs, another thread's is a ``RuntimeError``. Two overlapping blocks each put back what the other had chosen, and
+    the process kept a backend neither asked for (an attack pass). Blocks nest in one thread.
+
     Examples
     --------
     >>> from awr_denoise import fused
@@ -77,13 +84,20 @@ def using(name: str | None) -> Iterator[None]:
     ...     fused.backend()
     'numpy'
     """
-    global _chosen
-    before = _chosen
-    set_backend(name)
+    global _chosen, _using
+    me = threading.get_ident()
+    with _using_lock:
+        if _using is not None and _using[0] != me:
+            raise RuntimeError("fused.using: another thread's block runs: the kernels are the process' choice, "
+                               "which every thread follows; choose them once (set_backend), or one block at a time")
+        before, outer = _chosen, _using
+        set_backend(name)
+        _using = (me, 1 if outer is None else outer[1] + 1)
     try:
         yield
     finally:
-        _chosen = before
+        with _using_lock:
+            _chosen, _using = before, outer
 
 
 def backend() -> str:
@@ -451,23 +465,29 @@ def _numba() -> ModuleType | None:
 
 
 def _import_numba() -> ModuleType | None:
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        try:
-            import numba  # optional extra "fast"
-        except ImportError:
-            return None
-        except ValueError as exc:  # its thread count, read at import
-            value = os.environ.get("NUMBA_NUM_THREADS")
-            if value is None or "thread" not in str(exc).lower():
-                raise ValueError(f"numba could not be loaded: {exc}") from None
-            raise ValueError(f"NUMBA_NUM_THREADS={value!r}: numba takes a whole number of threads above 0; set one, "
-                             "or unset it") from None
-    for warning in caught:
-        found = _UNPARSED.search(str(warning.message))
-        if found:
-            raise ValueError(f"{found[1]}={found[2]!r}: numba cannot read it (see numba's documentation of its "
-                             "environment variables); set it to a valid value, or unset it")
-    for warning in caught:  # the others, as they would have been shown, under the caller's filters
-        warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
+    # numba's report of a variable it cannot read made an error for the import alone, by a filter that matches its
+    # words and nothing else: warnings.catch_warnings(record=True) replaced every thread's filters while numba
+    # loaded, and another thread's warnings were recorded here and raised in this thread (an attack pass).
+    words = "Environment variable 'NUMBA_"
+    warnings.filterwarnings("error", message=words, category=RuntimeWarning)
+    added = ("error", re.compile(words, re.I), RuntimeWarning, None, 0)
+    try:
+        import numba  # optional extra "fast"
+    except ImportError:
+        return None
+    except RuntimeWarning as exc:
+        found = _UNPARSED.search(str(exc))
+        if found is None:
+            raise
+        raise ValueError(f"{found[1]}={found[2]!r}: numba cannot read it (see numba's documentation of its "
+                         "environment variables); set it to a valid value, or unset it") from None
+    except ValueError as exc:  # its thread count, read at import
+        value = os.environ.get("NUMBA_NUM_THREADS")
+        if value is None or "thread" not in str(exc).lower():
+            raise ValueError(f"numba could not be loaded: {exc}") from None
+        raise ValueError(f"NUMBA_NUM_THREADS={value!r}: numba takes a whole number of threads above 0; set one, "
+                         "or unset it") from None
+    finally:
+        with contextlib.suppress(ValueError):  # another thread's catch_warnings may have put its own list back
+            warnings.filters.remove(added)
     return numba

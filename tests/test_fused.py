@@ -117,6 +117,48 @@ def test_a_numba_variable_numba_cannot_read_is_named_before_any_work(tmp_path, v
     assert run.stdout.count(f"{variable}={value!r}") == 2 and "Traceback" not in run.stderr, (run.stdout, run.stderr)
 
 
+_RENDERER_WARNS_DURING_THE_IMPORT = """
+import importlib.abc, sys, threading, warnings
+warnings.filterwarnings("error", message="from the renderer")  # its caller's: a broken renderer is fatal
+outcome = []
+
+def renderer():
+    try:
+        warnings.warn("from the renderer")
+        outcome.append("warned in its thread, not raised")
+    except UserWarning:
+        outcome.append("raised in its thread")
+
+class WhileNumbaLoads(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name == "numba" and not outcome:
+            thread = threading.Thread(target=renderer)
+            thread.start()
+            thread.join()
+        return None
+
+sys.meta_path.insert(0, WhileNumbaLoads())
+from awr_denoise import fused
+fused._numba()
+print(outcome)
+"""
+
+
+@needs_numba
+def test_another_threads_warning_while_numba_loads_stays_in_that_thread():
+    """numba was imported inside ``warnings.catch_warnings(record=True)``, which replaces every thread's filters: a
+    renderer thread's warning, which its caller's filter makes an error, was recorded instead and raised afterwards
+    in the thread that asked for the kernels (an attack pass)."""
+    import os
+    import subprocess
+    import sys
+
+    run = subprocess.run([sys.executable, "-c", _RENDERER_WARNS_DURING_THE_IMPORT], capture_output=True, text=True,
+                         env={**os.environ, "AWR_DENOISE_KERNELS": "numba"}, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip() == "['raised in its thread']"
+
+
 # ------------------------------------------------------------------------- kernel by kernel
 @needs_numba
 @pytest.mark.parametrize("k", [1e-3, 0.37, 1e4])
@@ -240,6 +282,36 @@ def test_using_puts_back_the_choice_made_before_it_even_when_the_block_raises(re
     with fused.using("numpy"):
         pass
     assert fused._chosen is None  # the environment's choice again, not "numpy"
+
+
+def test_another_threads_using_block_is_refused_while_one_runs(restore_backend):
+    """Two threads' overlapping blocks each put back the other's choice, and the process kept one neither asked for."""
+    import threading
+
+    fused.set_backend("numpy")
+    inside, leave, seen = threading.Event(), threading.Event(), []
+
+    def holder():
+        with fused.using(fused.available()[-1]):
+            with fused.using("numpy"):  # nested in its own thread: fine
+                pass
+            inside.set()
+            leave.wait(30)
+
+    thread = threading.Thread(target=holder)
+    thread.start()
+    try:
+        assert inside.wait(30)
+        with pytest.raises(RuntimeError, match=r"^fused.using: another thread's block runs"):
+            with fused.using("numpy"):
+                seen.append("entered")
+    finally:
+        leave.set()
+        thread.join()
+    assert not seen and fused._chosen == "numpy" and fused._using is None
+    with fused.using("numpy"):  # the block over, this thread's turn
+        assert fused._using is not None
+    assert fused._using is None
 
 
 def test_a_loop_whose_cache_cannot_be_saved_is_compiled_again_without_it():

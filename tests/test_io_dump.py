@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import threading
 import warnings
 
 import numpy as np
@@ -140,6 +141,32 @@ def test_a_mean_where_nothing_was_counted_is_read_as_no_samples_with_a_warning(t
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         read_sample_dump(tmp_path / "e.exr")
+
+
+def test_a_files_description_keeps_its_warnings_and_leaves_other_threads_theirs(tmp_path, monkeypatch, recwarn):
+    """``describe_file`` recorded its read's warnings with ``warnings.catch_warnings(record=True)``, which replaces
+    every thread's filters: a renderer thread's warnings were taken as the file's and lost to that thread (an
+    attack pass)."""
+    from awr_denoise.io import describe
+
+    one = np.ones((2, 3), np.float32)
+    count = one * 4
+    count[0] = 0
+    _write(tmp_path / "d.exr", {c: one * 0.5 for c in "RGB"} | {f"variance.{c}": one * 0.25 for c in "RGB"}
+           | {"sampleCount": count}, {})
+    real = describe.read_sample_dump
+
+    def reading(*args, **kwargs):  # another thread warns while this one reads
+        other = threading.Thread(target=warnings.warn, args=("from another thread",))
+        other.start()
+        other.join()
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(describe, "read_sample_dump", reading)
+    info = describe.describe_file(tmp_path / "d.exr")
+    assert [w for w in info["warnings"] if "counted 0 hold a non-zero mean" in w]
+    assert not [w for w in info["warnings"] if "another thread" in w]
+    assert [str(w.message) for w in recwarn] == ["from another thread"]
 
 
 def test_a_mean_where_a_count_plane_says_0_is_warned_about_in_every_layout(tmp_path):

@@ -6,7 +6,6 @@ files that cannot be denoised as they are (Mitsuba without ``spp``, Cycles witho
 from __future__ import annotations
 
 import os
-import warnings
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +14,7 @@ import numpy as np
 from ..errors import InputFileError
 from .cycles import cycles_layers
 from .exr import file_error, header_value, read_exr
-from .presets import describe_layout, detect_preset, file_views, read_sample_dump
+from .presets import describe_layout, detect_preset, file_views, read_sample_dump, warnings_collected
 from .request_map import read_request
 
 __all__ = ["describe_file"]
@@ -155,16 +154,15 @@ def _read_fully(info: dict[str, Any], p: Path, options: dict[str, Any], view: st
     info.setdefault("notes", [])
     info.setdefault("warnings", [])
     info["missing"] = missing
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+    with warnings_collected() as caught:  # this thread's alone (another thread's warnings stay its own)
         try:
             dump = read_sample_dump(p, **options, view=view, nonfinite=nonfinite)
         except InputFileError as exc:
             info["missing"].append(str(exc))
             return info
-    for w in caught:
-        if str(w.message) not in info["warnings"]:
-            info["warnings"].append(str(w.message))
+    for message in caught:
+        if message not in info["warnings"]:
+            info["warnings"].append(message)
     for note in dump.notes:
         if note not in info["notes"] and note not in info["warnings"]:
             info["notes"].append(note)

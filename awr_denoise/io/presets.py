@@ -30,8 +30,9 @@ import contextlib
 import dataclasses
 import os
 import re
+import threading
 import warnings
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -1039,9 +1040,31 @@ def _lossy(p: Path, parts: Sequence[ExrPart]) -> list[str]:
             "write sample dumps losslessly (ZIP, PIZ)" for codec in _lossy_codecs(parts)]
 
 
+_COLLECTED = threading.local()  # .messages: this thread's list while warnings_collected() runs, else absent
+
+
+@contextlib.contextmanager
+def warnings_collected() -> Iterator[list[str]]:
+    """Within the block, the readers' warnings of this thread go into the list yielded instead of :mod:`warnings`.
+
+    ``warnings.catch_warnings(record=True)`` replaces every thread's filters while it runs: a file's description
+    made so recorded another thread's warnings as the file's, and they were lost to that thread (an attack pass).
+    """
+    outer = getattr(_COLLECTED, "messages", None)
+    _COLLECTED.messages = found = []
+    try:
+        yield found
+    finally:
+        _COLLECTED.messages = outer
+
+
 def _warn(messages: Sequence[str]) -> None:
+    found = getattr(_COLLECTED, "messages", None)
     for message in messages:
-        warnings.warn(message, InputFileWarning, stacklevel=3)
+        if found is not None:
+            found.append(message)
+        else:
+            warnings.warn(message, InputFileWarning, stacklevel=3)
 
 
 def read_sample_dump(
