@@ -8,13 +8,14 @@ the message starts with the parameter's name, as everywhere in the library.
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import numbers
 import os
 import re
 import threading
 from collections.abc import Callable, Iterable, Mapping
-from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
 from os import PathLike
 from pathlib import Path
 from typing import Any
@@ -312,6 +313,37 @@ def executor(param: str, value: Any, *, here: bool = True) -> Executor | None:
     if here and isinstance(value, ThreadPoolExecutor) and _on_own_thread(value):
         return None  # the same results: every use of an executor gives the serial bits
     return value
+
+
+def outcome(pending: Future | None, work: Callable[[], Any]) -> Any:
+    """``pending``'s result, or ``work()`` (the same task) run on this thread where ``pending`` is None or still queued.
+
+    A task its pool has not started by the time its result is needed is taken back and run here, with the same
+    bits: waiting for it waited for ever where every thread of the pool waited for this one (a renderer telling a
+    sampler from the sampler's own one-thread pool while another thread's ``density()`` held the sampler and
+    waited for its search there: an attack pass). A pool with a free thread has started it by then.
+
+    Examples
+    --------
+    >>> from concurrent.futures import ThreadPoolExecutor
+    >>> with ThreadPoolExecutor(1) as pool:
+    ...     outcome(pool.submit(abs, -2), lambda: abs(-2)), outcome(None, lambda: 3)
+    (2, 3)
+    """
+    if pending is None or pending.cancel():
+        return work()
+    return pending.result()
+
+
+def mapped(pool: Executor, work: Callable[[Any], Any], items: Iterable[Any]) -> list[Any]:
+    """``list(pool.map(work, items))``, a task not started when its result is needed run here (:func:`outcome`)."""
+    items = list(items)
+    pending = [pool.submit(work, item) for item in items]
+    try:
+        return [outcome(task, functools.partial(work, item)) for task, item in zip(pending, items)]
+    finally:  # on an error, as map's own: the tasks not started are dropped
+        for task in pending:
+            task.cancel()
 
 
 def _on_own_thread(pool: ThreadPoolExecutor) -> bool:

@@ -28,7 +28,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from . import fused
+from . import _checks, fused
 from ._typing import CountArray, FloatArray
 
 __all__ = ["merge_moments", "BLOCK_BYTES"]
@@ -96,7 +96,7 @@ def merge_moments(count_a: CountArray, mean_a: FloatArray, variance_a: FloatArra
     if executor is None or half == 0:
         merge_rows((0, h))
     else:
-        list(executor.map(merge_rows, [(0, half), (half, h)]))
+        _checks.mapped(executor, merge_rows, [(0, half), (half, h)])
     # Whole arrays first: a reduction over a last axis of 3 channels takes four times as long at 1080p.
     if np.isfinite(mean).all() and np.isfinite(variance).all():
         return mean, variance

@@ -400,12 +400,12 @@ def rare_path_evening(buffer: SampleBuffer, rare_paths: str = DEFAULT_RARE_PATHS
             raise ValueError(f"density: shape {density.shape} is not the buffer's {buffer.shape}")
         if rare_paths == "ranked":
             return density
-        return _evened(density, search() if found is None else found.result())
+        return _evened(density, _checks.outcome(found, search))
 
     try:
         yield even
     finally:
-        if found is not None:
+        if found is not None and not found.cancel():  # not started: dropped; else waited for
             futures.wait([found])
 
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from concurrent.futures import Executor
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import numpy as np
 
@@ -440,7 +441,7 @@ def reconstruct_detailed(
     prepared = prepare(buffer, domain)
     stop_point()  # between the steps: a frame of denoise --frames told to stop ends here (_signals)
     ops = wavelet_operators(buffer.shape, wavelet=wavelet, levels=levels, boundary=boundary)
-    run = None if _checks.executor("executor", executor) is None else lambda f, items: list(executor.map(f, items))
+    run = None if _checks.executor("executor", executor) is None else partial(_checks.mapped, executor)
     luminance = None
     if mode == "luminance":
         luminance = (prepare(buffer, prepared.domain, luminance=True), luminance_weights(buffer.channels))

@@ -14,6 +14,9 @@ worker for exactly a tile's samples). Renderers need not subclass either.
 from __future__ import annotations
 
 import dataclasses
+import itertools
+import os
+import secrets
 import warnings
 import weakref
 from collections.abc import Iterator
@@ -40,6 +43,28 @@ MAX_PART_SAMPLES = 2**22
 # The batches each sampler was told, by identity, held weakly: a renderer that hands back one
 # SampleBuffer object every round would otherwise have the same samples merged every round.
 _TOLD: weakref.WeakKeyDictionary[SampleBuffer, dict[int, int]] = weakref.WeakKeyDictionary()
+
+_sampler_ids: Iterator[int] = iter(())  # started by _renew_sampler_ids below
+
+
+def _renew_sampler_ids() -> None:
+    """Start this process' sampler ids at a random number below 2**30 (a request map's 32-bit header holds them).
+
+    Counted from 1 in every process, a sampler restored from another process' pickle (a checkpoint) had the id of
+    this process' first sampler, and took its requests (an attack pass). Now two processes' ids meet by a chance of
+    about the number of samplers over 2**30; one process' never do."""
+    global _sampler_ids
+    _sampler_ids = itertools.count(secrets.randbelow(1 << 30) + 1)
+
+
+_renew_sampler_ids()
+if hasattr(os, "register_at_fork"):  # a forked child would go on from where its parent's ids stood
+    os.register_at_fork(after_in_child=_renew_sampler_ids)
+
+
+def _new_sampler_id() -> int:
+    """The next sampler id of this process (:func:`_renew_sampler_ids`)."""
+    return next(_sampler_ids)
 
 
 @dataclass(frozen=True, eq=False)

@@ -18,7 +18,6 @@ wavelet priorities (:class:`AdaptiveSampler`), :class:`UniformSampler`, per-pixe
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Callable
 from concurrent.futures import Executor
 
@@ -34,14 +33,13 @@ from .errors import StaleRequestError
 from .noise_gain import DEFAULT_GAIN_REFRESH, DEFAULT_NOISE_MODEL, NOISE_MODELS, MeasuredGain
 from .priorities import DEFAULT_ABSOLUTE_ABOVE, dropped_at_mean, pooled_deviation, sampling_density
 from .rare_paths import DEFAULT_RARE_PATHS, RARE_PATHS, rare_path_evening
-from .requests import LAST_ROUND, Renderer, SampleRequest
+from .requests import LAST_ROUND, Renderer, SampleRequest, _new_sampler_id
 from .rounds import run_rounds
 from .wavelets import DEFAULT_WAVELET, wavelet_operators
 
 __all__ = ["Sampler", "AdaptiveSampler", "UniformSampler", "VarianceSampler", "SAMPLERS", "NOISE_MODELS",
            "DEFAULT_INITIAL_SPP", "DEFAULT_AWR_INITIAL_SPP", "DEFAULT_ROUND_GROWTH"]
 
-_sampler_ids = itertools.count(1)
 DEFAULT_ROUND_GROWTH = 0.25
 """Default share of the samples handed out so far that the next round asks for (docs/sampling.md)."""
 DEFAULT_INITIAL_SPP = 4
@@ -131,7 +129,7 @@ class Sampler(OneAtATime):
         self._issued = np.zeros((h, w), np.int64)
         self._round = 0
         self._pending: SampleRequest | None = None
-        self._id = next(_sampler_ids)
+        self._id = _new_sampler_id()
         OneAtATime.__init__(self)  # ask, tell and resume: one call at a time, from any thread
 
     @classmethod

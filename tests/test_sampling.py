@@ -179,6 +179,103 @@ def test_stale_and_repeated_tells_raise(sampler_cls):
     assert sampler.round == 2 and sampler.pending is None
 
 
+def test_density_and_a_tell_from_the_samplers_own_one_thread_pool_do_not_wait_for_each_other():
+    """A renderer telling its batch from the sampler's own one-thread pool, while another thread's ``density()`` held
+    the sampler and waited for its search, queued on that pool behind the renderer: each waited for the other for
+    ever (an attack pass). A task not started when its result is needed now runs on the thread that needs it."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    searching, viewer = threading.Event(), []
+
+    class Pool(ThreadPoolExecutor):
+        def submit(self, fn, /, *args, **kwargs):
+            if threading.current_thread() in viewer:  # the density's own work, queued behind the renderer's
+                searching.set()
+            return super().submit(fn, *args, **kwargs)
+
+    renderer = _edges_renderer()
+    pool = Pool(1)
+    sampler = AdaptiveSampler(SHAPE, executor=pool)
+    first = sampler.ask()
+    sampler.tell(first, renderer(first))
+    request = sampler.ask()
+    batch = renderer(request)
+    told = pool.submit(lambda: (searching.wait(60), sampler.tell(request, batch)))
+    densities = []
+    viewer.append(threading.Thread(target=lambda: densities.append(sampler.density()), daemon=True))
+    viewer[0].start()
+    viewer[0].join(60)
+    assert not viewer[0].is_alive(), "density() still waits"
+    told.result(timeout=60)
+    pool.shutdown()
+    assert sampler.round == 2 and densities[0].shape == SHAPE
+    alone = AdaptiveSampler(SHAPE)  # the same density as without the pool
+    alone.tell(alone.ask(), renderer(first))
+    alone.ask()
+    assert_array_equal(densities[0], alone.density())
+
+
+_OTHER_PROCESS = """
+import pickle, sys
+from awr_denoise import UniformSampler
+from awr_denoise.synthetic import SyntheticRenderer, make_scene
+renderer = SyntheticRenderer(make_scene("edges", (16, 16)))
+if sys.argv[1] == "checkpoint":
+    sampler = UniformSampler((16, 16))
+    for _ in range(2):
+        request = sampler.ask()
+        sampler.tell(request, renderer(request))
+    sys.stdout.buffer.write(pickle.dumps(sampler))
+else:  # this process' own sampler at the same round, then the checkpoint restored beside it
+    own = UniformSampler((16, 16))
+    for _ in range(2):
+        own.tell(own.ask(), renderer(own.ask()))
+    ours = own.ask()
+    restored = pickle.loads(sys.stdin.buffer.read())
+    restored.ask()
+    try:
+        restored.tell(ours, renderer(ours))
+        print("told")
+    except Exception as exc:
+        print(type(exc).__name__)
+"""
+
+
+def test_a_checkpoint_restored_in_another_process_refuses_that_processs_requests():
+    """Ids were counted from 1 in every process: a sampler pickled in one process and loaded in another had the id
+    of the other's first sampler, and took its request (another frame's samples) without a word (an attack pass)."""
+    import subprocess
+    import sys
+
+    checkpoint = subprocess.run([sys.executable, "-c", _OTHER_PROCESS, "checkpoint"], capture_output=True,
+                                timeout=120, check=True).stdout
+    done = subprocess.run([sys.executable, "-c", _OTHER_PROCESS, "restore"], input=checkpoint, capture_output=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.decode().strip() == "StaleRequestError"
+
+
+_FORKED = """
+import os
+from awr_denoise import UniformSampler
+read, write = os.pipe()
+if os.fork() == 0:
+    os.write(write, str(UniformSampler((4, 4)).ask().sampler_id).encode())
+    os._exit(0)
+os.wait()
+print(os.read(read, 64).decode(), UniformSampler((4, 4)).ask().sampler_id)
+"""
+
+
+def test_a_forked_child_numbers_its_samplers_apart_from_its_parent():
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", _FORKED], capture_output=True, text=True, timeout=120)
+    child, parent = done.stdout.split()
+    assert child != parent, done.stderr
+
+
 def test_tell_with_wrong_samples_raises_value_error(sampler_cls):
     sampler = sampler_cls(SHAPE)
     request = sampler.ask()
