@@ -315,22 +315,25 @@ def executor(param: str, value: Any, *, here: bool = True) -> Executor | None:
     return value
 
 
-def outcome(pending: Future | None, work: Callable[[], Any]) -> Any:
-    """``pending``'s result, or ``work()`` (the same task) run on this thread where ``pending`` is None or still queued.
+def outcome(pending: Future | None, work: Callable[[], Any], pool: Executor | None) -> Any:
+    """``pending``'s result (a task ``work`` submitted to ``pool``), or ``work()`` run here: where ``pending`` is None,
+    or where ``pool`` is a thread pool that has not started it yet.
 
-    A task its pool has not started by the time its result is needed is taken back and run here, with the same
-    bits: waiting for it waited for ever where every thread of the pool waited for this one (a renderer telling a
+    A task still queued when its result is needed is taken back and run on the thread that needs it, the same bits:
+    waiting for it waited for ever where every thread of the pool waited for this one (a renderer telling a
     sampler from the sampler's own one-thread pool while another thread's ``density()`` held the sampler and
-    waited for its search there: an attack pass). A pool with a free thread has started it by then.
+    waited for its search there: an attack pass). It is often taken back even from an idle pool, whose thread has
+    not picked it up yet: this thread then works instead of waiting. Other executors' futures (Dask's, pending
+    while they run) are waited for.
 
     Examples
     --------
     >>> from concurrent.futures import ThreadPoolExecutor
     >>> with ThreadPoolExecutor(1) as pool:
-    ...     outcome(pool.submit(abs, -2), lambda: abs(-2)), outcome(None, lambda: 3)
+    ...     outcome(pool.submit(abs, -2), lambda: abs(-2), pool), outcome(None, lambda: 3, None)
     (2, 3)
     """
-    if pending is None or pending.cancel():
+    if pending is None or (isinstance(pool, ThreadPoolExecutor) and pending.cancel()):
         return work()
     return pending.result()
 
@@ -340,7 +343,7 @@ def mapped(pool: Executor, work: Callable[[Any], Any], items: Iterable[Any]) -> 
     items = list(items)
     pending = [pool.submit(work, item) for item in items]
     try:
-        return [outcome(task, functools.partial(work, item)) for task, item in zip(pending, items)]
+        return [outcome(task, functools.partial(work, item), pool) for task, item in zip(pending, items)]
     finally:  # on an error, as map's own: the tasks not started are dropped
         for task in pending:
             task.cancel()

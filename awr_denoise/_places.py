@@ -43,7 +43,7 @@ def checkout_data() -> Path | None:
 
 def cache_folder() -> Path:
     """``$XDG_CACHE_HOME/awr-denoise``, or ``~/.cache/awr-denoise`` where that variable is unset, empty or relative
-    (the XDG specification has relative values ignored).
+    (the XDG specification has relative values ignored); a ``ValueError`` naming the variable where there is no home.
 
     Examples
     --------
@@ -52,12 +52,19 @@ def cache_folder() -> Path:
     'awr-denoise'
     """
     base = os.environ.get("XDG_CACHE_HOME", "")
-    return (Path(base) if os.path.isabs(base) else Path.home() / ".cache") / "awr-denoise"
+    if os.path.isabs(base):
+        return Path(base) / "awr-denoise"
+    try:
+        home = Path.home()
+    except RuntimeError:  # a user without a home folder (a container's uid without a passwd entry)
+        raise ValueError("XDG_CACHE_HOME: unset, and there is no home folder to keep awr-denoise's cache in; set it "
+                         "to a folder (or AWR_DENOISE_REFERENCE_DIR for the references)") from None
+    return home / ".cache" / "awr-denoise"
 
 
 def shown_path(path: str | os.PathLike[str]) -> str:
-    """``path`` relative to the checkout when it lies inside one (what a results file records: no machine's folder),
-    else as given.
+    """``path`` relative to the checkout when it lies inside one, by its name or through links (what a results file
+    of the repository records: no machine's folder), else as given.
 
     Examples
     --------
@@ -67,7 +74,8 @@ def shown_path(path: str | os.PathLike[str]) -> str:
     True
     """
     root = _checkout_root()
-    resolved = Path(path).resolve()
-    if root is not None and resolved.is_relative_to(root):
-        return resolved.relative_to(root).as_posix()
+    if root is not None:
+        for form in (Path(os.path.abspath(path)), Path(path).resolve()):  # data/references may be a link elsewhere
+            if form.is_relative_to(root):
+                return form.relative_to(root).as_posix()
     return str(path)

@@ -32,6 +32,7 @@ import contextlib
 import math
 import os
 import re
+import sys
 import threading
 import warnings
 from collections.abc import Callable, Iterator
@@ -442,6 +443,7 @@ class _Uncached:
 _UNPARSED = re.compile(r"Environment variable '(NUMBA_\w+)' is defined but its associated value '(.*?)' could not be "
                        r"parsed", re.S)
 _NUMBA: list = []  # [numba, or None where it is not installed], or [the ValueError of its environment], once asked
+_NUMBA_LOCK = threading.Lock()  # one thread imports it: a second one's import went on from the first's failed one
 
 
 def _numba() -> ModuleType | None:
@@ -454,11 +456,12 @@ def _numba() -> ModuleType | None:
         named with its value, every time it is asked: numba reported the first with a traceback in a warning and
         ran on, and stopped on the last with "Number of threads specified must be > 0.", naming no variable.
     """
-    if not _NUMBA:
-        try:
-            _NUMBA.append(_import_numba())
-        except ValueError as exc:
-            _NUMBA.append(exc)
+    with _NUMBA_LOCK:
+        if not _NUMBA:
+            try:
+                _NUMBA.append(_import_numba())
+            except ValueError as exc:
+                _NUMBA.append(exc)
     if isinstance(_NUMBA[0], ValueError):
         raise ValueError(str(_NUMBA[0]))
     return _NUMBA[0]
@@ -476,6 +479,10 @@ def _import_numba() -> ModuleType | None:
     except ImportError:
         return None
     except RuntimeWarning as exc:
+        # The import stopped half-way: its modules loaded so far are let go, or every later `import numba` of the
+        # process (another library's, a retry) found a numba without its `core` (a review of the change).
+        for name in [name for name in sys.modules if name == "numba" or name.startswith("numba.")]:
+            del sys.modules[name]
         found = _UNPARSED.search(str(exc))
         if found is None:
             raise

@@ -242,7 +242,7 @@ def _transformed(mean_y: FloatArray, var_y: FloatArray, ops: WaveletOperators, e
     smallest = float(np.min(var_y, where=var_y > 0, initial=np.inf))
     single = var_y.max(initial=0.0) < _FLOAT32_SAFE[1] and (smallest == np.inf or smallest > _FLOAT32_SAFE[0])
     variances = _plane_variance(var_y.astype(np.float32) if single else var_y, ops, scales=scales)
-    return (coeffs if pending is None else _checks.outcome(pending, transform)), variances
+    return (coeffs if pending is None else _checks.outcome(pending, transform, executor)), variances
 
 
 def _normalised(plane: tuple[FloatArray, FloatArray, FloatArray]) -> tuple[tuple[FloatArray, FloatArray, FloatArray],
@@ -412,7 +412,7 @@ def sampling_density(
         # (the shrinkage factors do not change when it is scaled, and its squares cannot overflow).
         pooled = None if executor is None else executor.submit(deviation)
         noise_gain = shrinkage_gain(*_transformed(*_normalised(plane)[0][:2], ops, None), ops)
-        s_pooled = _checks.outcome(pooled, deviation)
+        s_pooled = _checks.outcome(pooled, deviation, executor)
     elif noise_model == "reconstruction":
         s_pooled = deviation()
     if noise_gain is not None:
@@ -426,7 +426,7 @@ def sampling_density(
     # Levels do not change when the plane is scaled: normalised, the priorities cannot overflow.
     prio = coefficient_priorities(buffer, domain=domain, operators=ops, plane=_normalised(plane)[0], executor=executor)
     level = _levels(prio, ops)
-    s_pooled = _checks.outcome(pooled, deviation)
+    s_pooled = _checks.outcome(pooled, deviation, executor)
     with np.errstate(under="ignore"):  # a large level_weight leaves coarse levels nothing
         # One power per level, looked up per pixel: the same values as the power of every pixel.
         factor = 2.0 ** (-level_weight * np.arange(ops.levels + 1))

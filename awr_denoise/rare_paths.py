@@ -54,7 +54,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Callable, Iterator
 from concurrent import futures
-from concurrent.futures import Executor
+from concurrent.futures import Executor, ThreadPoolExecutor
 from functools import partial
 
 import numpy as np
@@ -400,12 +400,12 @@ def rare_path_evening(buffer: SampleBuffer, rare_paths: str = DEFAULT_RARE_PATHS
             raise ValueError(f"density: shape {density.shape} is not the buffer's {buffer.shape}")
         if rare_paths == "ranked":
             return density
-        return _evened(density, _checks.outcome(found, search))
+        return _evened(density, _checks.outcome(found, search, executor))
 
     try:
         yield even
     finally:
-        if found is not None and not found.cancel():  # not started: dropped; else waited for
+        if found is not None and not (isinstance(executor, ThreadPoolExecutor) and found.cancel()):  # else dropped
             futures.wait([found])
 
 

@@ -201,7 +201,8 @@ def _run(argv: Sequence[str] | None) -> int:
     try:
         parser = build_parser()
         args = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
-        vars(args).pop(_GIVEN, None)
+        # The options given, whatever their values (`--seed 0` is given too): what a command that takes none reads.
+        args.options_given = frozenset(vars(args).pop(_GIVEN, None) or ())
         _check_kernels(getattr(args, "command", None))
         from awr_denoise._progress import bars_shown  # with the subcommands: tqdm checks TQDM_* when imported
 

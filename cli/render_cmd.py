@@ -291,7 +291,9 @@ def run(args: argparse.Namespace) -> int:
     if args.list_scenes:
         # The other options were ignored without a word (`--list-scenes -o x.exr` wrote nothing, exit 0: a
         # red-team pass): they would do nothing, as a uniform render's adaptive settings, which are refused.
-        others = [name for dest, (default, name) in _DEFAULTS.items() if getattr(args, dest, default) != default]
+        given = getattr(args, "options_given", frozenset())
+        others = [name for dest, (default, name) in _DEFAULTS.items()
+                  if dest in given or getattr(args, dest, default) != default]
         if others:
             raise UsageError(f"--list-scenes: prints the scenes and exits; not with {', '.join(others)}")
         for name in _registry(renderer_scenes, args.renderer):

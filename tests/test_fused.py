@@ -159,6 +159,33 @@ def test_another_threads_warning_while_numba_loads_stays_in_that_thread():
     assert run.stdout.strip() == "['raised in its thread']"
 
 
+_ANOTHER_LIBRARY_AFTER_THE_REFUSAL = """
+import warnings
+from awr_denoise import fused
+try:
+    fused.set_backend("numba")
+except ValueError as exc:
+    print("refused")
+with warnings.catch_warnings():
+    warnings.simplefilter("ignore")  # numba's own report of the variable, to its importer
+    import numba
+print(numba.njit(lambda x: x + 1)(1))
+"""
+
+
+@needs_numba
+def test_a_refused_numba_variable_leaves_numba_whole_for_the_rest_of_the_process():
+    """The refusal stopped numba's import half-way, and another library's ``import numba`` in the same process found
+    a numba without its ``core`` (a review of the change)."""
+    import os
+    import subprocess
+    import sys
+
+    run = subprocess.run([sys.executable, "-c", _ANOTHER_LIBRARY_AFTER_THE_REFUSAL], capture_output=True, text=True,
+                         env={**os.environ, "NUMBA_DISABLE_JIT": "zz"}, timeout=300)
+    assert run.stdout.split() == ["refused", "2"], run.stderr
+
+
 # ------------------------------------------------------------------------- kernel by kernel
 @needs_numba
 @pytest.mark.parametrize("k", [1e-3, 0.37, 1e4])

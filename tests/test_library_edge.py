@@ -397,6 +397,29 @@ def test_an_executor_used_from_its_own_thread_runs_serially_not_a_hang(call):
         assert_array_equal(call(pool), serial)  # from another thread, on the pool's threads
 
 
+def test_tasks_of_an_executor_whose_futures_stay_pending_while_they_run_are_waited_for():
+    """Dask's futures stay pending while they run, so they can always be cancelled: every task was taken back from
+    the cluster and run again on the calling thread (a review of the change). Only a thread pool's are taken back."""
+    import threading
+    from concurrent.futures import Executor, Future
+
+    from awr_denoise import _checks
+
+    class Remote(Executor):  # runs each task on a thread of its own, its future pending until the result is in
+        def submit(self, fn, /, *args, **kwargs):
+            future = Future()
+            threading.Thread(target=lambda: future.set_result(fn(*args, **kwargs)), name="remote").start()
+            return future
+
+    def where(x):
+        return x, threading.current_thread().name
+
+    assert _checks.mapped(Remote(), where, [1, 2, 3]) == [(1, "remote"), (2, "remote"), (3, "remote")]
+    buffer = SampleBuffer.from_moments(np.full((24, 24), 4), np.random.default_rng(0).random((24, 24, 3)),
+                                       np.full((24, 24, 3), 0.1))
+    assert_array_equal(reconstruct(buffer, executor=Remote()), reconstruct(buffer))
+
+
 def test_fourth_review_edges(tmp_path):
     """A mask of NaN or 0.5 was cast to True, an empty request accepted where every sampler refuses an
     empty image, and a deep dump of no samples (an empty round) gave numpy's reshape error."""

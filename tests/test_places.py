@@ -42,7 +42,7 @@ def test_an_install_keeps_them_in_the_cache_folder_whatever_data_folder_lies_bes
     cache = tmp_path / "cache"
     found = _in_the_install(wheel_layout, "from awr_denoise import _places\nfrom awr_denoise.bench import mitsuba\n"
                             "result = {'data': str(_places.checkout_data()), "
-                            "'mitsuba': str(mitsuba.DEFAULT_REFERENCE_DIR)}", cache, tmp_path)
+                            "'mitsuba': str(mitsuba.default_reference_dir())}", cache, tmp_path)
     assert found == {"data": "None", "mitsuba": str(cache / "awr-denoise" / "mitsuba")}
     if importlib.util.find_spec("embreex") is None:
         return
@@ -70,3 +70,28 @@ def test_writing_the_checkouts_files_needs_a_folder_in_an_install(tmp_path, whee
     assert done.stdout.splitlines() == ["directory: give the folder to write; the default, data/scenes, is a "
                                         "checkout's", str(len(list((tmp_path / "scenes").glob("*.json"))))]
     assert not (wheel_layout / "data").exists()
+
+
+def test_without_a_home_folder_the_cache_folder_names_the_variable(monkeypatch):
+    """A container's user without a passwd entry has no home: ``Path.home()``'s RuntimeError was an internal error, at
+    the benchmark's import (a review of the change)."""
+    def no_home():
+        raise RuntimeError("Could not determine home directory.")
+
+    monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
+    monkeypatch.setattr(Path, "home", staticmethod(no_home))
+    with pytest.raises(ValueError, match=r"^XDG_CACHE_HOME: unset, and there is no home folder"):
+        _places.cache_folder()
+    monkeypatch.setenv("XDG_CACHE_HOME", "/cache")
+    assert _places.cache_folder() == Path("/cache/awr-denoise")
+
+
+def test_a_path_through_a_link_in_the_checkout_is_recorded_by_its_name_there(monkeypatch, tmp_path):
+    """A checkout whose ``data/references`` links to another disk recorded that disk's absolute path."""
+    root, elsewhere = tmp_path / "checkout", tmp_path / "disk" / "refs"
+    elsewhere.mkdir(parents=True)
+    (root / "data").mkdir(parents=True)
+    (root / "data" / "references").symlink_to(elsewhere)
+    monkeypatch.setattr(_places, "_checkout_root", lambda: root)
+    assert _places.shown_path(root / "data" / "references" / "default.exr") == "data/references/default.exr"
+    assert _places.shown_path(elsewhere / "default.exr") == str(elsewhere / "default.exr")

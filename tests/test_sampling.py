@@ -179,40 +179,53 @@ def test_stale_and_repeated_tells_raise(sampler_cls):
     assert sampler.round == 2 and sampler.pending is None
 
 
+_DENSITY_BESIDE_A_TELL = """
+import threading
+from concurrent.futures import ThreadPoolExecutor
+import numpy as np
+from awr_denoise import AdaptiveSampler
+from awr_denoise.synthetic import SyntheticRenderer, make_scene
+
+shape = (24, 32)
+searching, viewer = threading.Event(), []
+
+class Pool(ThreadPoolExecutor):
+    def submit(self, fn, /, *args, **kwargs):
+        if threading.current_thread() in viewer:  # the density's own work, queued behind the renderer's
+            searching.set()
+        return super().submit(fn, *args, **kwargs)
+
+renderer = SyntheticRenderer(make_scene("edges", shape), seed=0)
+pool = Pool(1)
+sampler = AdaptiveSampler(shape, executor=pool)
+first = sampler.ask()
+sampler.tell(first, renderer(first))
+request = sampler.ask()
+batch = renderer(request)
+told = pool.submit(lambda: (searching.wait(60), sampler.tell(request, batch)))
+densities = []
+viewer.append(threading.Thread(target=lambda: densities.append(sampler.density())))
+viewer[0].start()
+viewer[0].join()
+told.result()
+pool.shutdown()
+alone = AdaptiveSampler(shape)  # the same density as without the pool
+alone.tell(alone.ask(), renderer(first))
+alone.ask()
+print(sampler.round, np.array_equal(densities[0], alone.density()))
+"""
+
+
 def test_density_and_a_tell_from_the_samplers_own_one_thread_pool_do_not_wait_for_each_other():
     """A renderer telling its batch from the sampler's own one-thread pool, while another thread's ``density()`` held
     the sampler and waited for its search, queued on that pool behind the renderer: each waited for the other for
-    ever (an attack pass). A task not started when its result is needed now runs on the thread that needs it."""
-    from concurrent.futures import ThreadPoolExecutor
+    ever (an attack pass). A task not started when its result is needed now runs on the thread that needs it. In a
+    process of its own: a regression's blocked threads would keep the test run from ending."""
+    import subprocess
+    import sys
 
-    searching, viewer = threading.Event(), []
-
-    class Pool(ThreadPoolExecutor):
-        def submit(self, fn, /, *args, **kwargs):
-            if threading.current_thread() in viewer:  # the density's own work, queued behind the renderer's
-                searching.set()
-            return super().submit(fn, *args, **kwargs)
-
-    renderer = _edges_renderer()
-    pool = Pool(1)
-    sampler = AdaptiveSampler(SHAPE, executor=pool)
-    first = sampler.ask()
-    sampler.tell(first, renderer(first))
-    request = sampler.ask()
-    batch = renderer(request)
-    told = pool.submit(lambda: (searching.wait(60), sampler.tell(request, batch)))
-    densities = []
-    viewer.append(threading.Thread(target=lambda: densities.append(sampler.density()), daemon=True))
-    viewer[0].start()
-    viewer[0].join(60)
-    assert not viewer[0].is_alive(), "density() still waits"
-    told.result(timeout=60)
-    pool.shutdown()
-    assert sampler.round == 2 and densities[0].shape == SHAPE
-    alone = AdaptiveSampler(SHAPE)  # the same density as without the pool
-    alone.tell(alone.ask(), renderer(first))
-    alone.ask()
-    assert_array_equal(densities[0], alone.density())
+    done = subprocess.run([sys.executable, "-c", _DENSITY_BESIDE_A_TELL], capture_output=True, text=True, timeout=120)
+    assert done.stdout.split() == ["2", "True"], done.stderr
 
 
 _OTHER_PROCESS = """

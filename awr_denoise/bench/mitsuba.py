@@ -31,15 +31,25 @@ from ..sampling import AdaptiveSampler, UniformSampler
 from .config import BenchmarkConfig
 from .measure import Timing, run_progressive
 
-__all__ = ["MITSUBA_METHODS", "mitsuba_benchmark", "mitsuba_scene_names", "mitsuba_status", "DEFAULT_REFERENCE_DIR"]
+__all__ = ["MITSUBA_METHODS", "mitsuba_benchmark", "mitsuba_scene_names", "mitsuba_status", "default_reference_dir"]
 
 MITSUBA_METHODS = ("uniform", "uniform+awr", "awr", "awr+awr")
 """``uniform``/``awr``: the plain mean of uniform / AWR sampling; ``+awr``: the default reconstruction of it."""
 
-DEFAULT_REFERENCE_DIR = (cache_folder() if checkout_data() is None else checkout_data() / "cache") / "mitsuba"
-"""Where references are cached: a checkout's ``data/cache/mitsuba`` (not tracked), an install's
-``$XDG_CACHE_HOME/awr-denoise/mitsuba`` (by default under ``~/.cache``); an install wrote them into
-``site-packages/data``, which made later runs take it for a checkout (an attack pass)."""
+def default_reference_dir() -> Path:
+    """Where references are cached: a checkout's ``data/cache/mitsuba`` (not tracked), an install's
+    ``$XDG_CACHE_HOME/awr-denoise/mitsuba`` (by default under ``~/.cache``); an install wrote them into
+    ``site-packages/data``, which made later runs take it for a checkout (an attack pass). Asked when used, not at
+    import: a process without a home folder imported the benchmark only to fail.
+
+    Examples
+    --------
+    >>> from awr_denoise.bench.mitsuba import default_reference_dir
+    >>> default_reference_dir().name
+    'mitsuba'
+    """
+    data = checkout_data()
+    return (cache_folder() if data is None else data / "cache") / "mitsuba"
 
 _REFERENCE_SEED = 1 << 30  # no measured render uses it
 _REFERENCE_BATCH_SPP = 64  # a reference is rendered in requests of this many spp (bounded memory)
@@ -139,7 +149,7 @@ def mitsuba_benchmark(config: BenchmarkConfig, tick: Tick) -> dict[str, Any]:
 
     names = mitsuba_scene_names(config)
     shape = (int(config.mitsuba_size), int(config.mitsuba_size))
-    reference_dir = Path(config.mitsuba_reference_dir) if config.mitsuba_reference_dir else DEFAULT_REFERENCE_DIR
+    reference_dir = Path(config.mitsuba_reference_dir) if config.mitsuba_reference_dir else default_reference_dir()
     spps = sorted(set(int(s) for s in config.spps))
     out: dict[str, Any] = {"status": "measured", "scenes": {}}
     for name in names:

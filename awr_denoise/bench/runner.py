@@ -25,7 +25,7 @@ from .config import METHODS, BenchmarkConfig
 from .figures import FIGURE_FILES, require_matplotlib, write_figures
 from .flagcheck import ADAPTIVE_METHODS, check_flags
 from .measure import Timing, run_progressive, timed
-from .mitsuba import DEFAULT_REFERENCE_DIR, mitsuba_benchmark, mitsuba_scene_names
+from .mitsuba import default_reference_dir, mitsuba_benchmark, mitsuba_scene_names
 from .overhead import measure_overhead
 from .peers import oidn_available, oidn_denoise, require_skimage, skimage_denoise
 from .records import machine_info, write_json
@@ -174,7 +174,7 @@ def _refuse_outputs_onto_references(out_dir: Path | None, results_path: Path | N
         outputs.append(("output_dir / --output-dir", out_dir / "benchmarks.md"))
         outputs += [("output_dir / --output-dir", p) for p in sorted((out_dir / "img").glob("bench_*.png"))]
     tracer = tracer_module()
-    mitsuba_dir = Path(config.mitsuba_reference_dir or DEFAULT_REFERENCE_DIR)
+    mitsuba_dir = Path(config.mitsuba_reference_dir or default_reference_dir())
     references = [tracer.reference_path(name) for name in scenes]
     references += sorted(mitsuba_dir.glob("*.npy")) if config.mitsuba and mitsuba_dir.is_dir() else []
     known = {}

@@ -22,7 +22,6 @@ import multiprocessing
 import multiprocessing.resource_tracker
 import multiprocessing.spawn
 import os
-import re
 import signal
 import socket
 import struct
@@ -458,28 +457,26 @@ def get_executor(kind: str | None = None, *, workers: int | None = None,
         executor.shutdown(wait=True)
 
 
-_DASK_VARIABLE = re.compile(r"DASK_[A-Z0-9_]+")
-"""The environment variables Dask reads its configuration from (``DASK_INTERNAL_*`` are its own)."""
-
-
 def _blame_dask_variables(exc: BaseException, environ: Mapping[str, str], what: str) -> None:
-    """Raise a ``ValueError`` naming the ``DASK_*`` variables of ``environ`` when ``exc``, an ``Exception`` raised by
-    Dask as it started or connected, may be theirs; return where none is set.
+    """Raise a ``ValueError`` naming the ``DASK_*`` variables of ``environ`` when ``exc``, raised by Dask as it
+    started or connected, may be theirs; return where none is set, or where ``exc`` is the system's.
 
-    Dask reads such a variable's value only where it uses it, and then fails in its own words, deep inside:
+    Dask reads every variable named ``DASK_...`` (the rest of the name in any case; ``DASK_INTERNAL_*`` are its own)
+    and each value only where it uses it, failing then in its own words, deep inside:
     ``DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT=zz`` a ``KeyError`` listing time units, a memory fraction of
     ``abc`` "Nanny failed to start". Those were internal errors of the command (an attack pass); the variables
-    are the user's input, so they are named."""
-    if not isinstance(exc, Exception):  # Ctrl-C, SIGTERM: not the configuration's
+    are the user's input, so they are named as the possible cause. An ``OSError`` (no file descriptors or ports
+    left, a refused connection) is the system's and goes on as it is, as do Ctrl-C and SIGTERM."""
+    if not isinstance(exc, Exception) or isinstance(exc, OSError):
         return
-    named = sorted(name for name in environ if _DASK_VARIABLE.fullmatch(name) and not name.startswith("DASK_INTERNAL"))
+    named = sorted(name for name in environ if name.startswith("DASK_") and not name.startswith("DASK_INTERNAL"))
     if not named:
         return
     why = " ".join(str(exc).split()) or type(exc).__name__
     if len(why) > 160:  # a KeyError of Dask's lists every time unit it knows
         why = why[:157] + "..."
-    raise ValueError(f"{what} ({why}); the environment sets {', '.join(named)}, read by Dask: check or unset "
-                     f"{'it' if len(named) == 1 else 'them'}") from exc
+    raise ValueError(f"{what} ({why}); the environment sets {', '.join(named)}, read by Dask: a value Dask cannot "
+                     f"use is the likely cause; correct or unset {'it' if len(named) == 1 else 'them'}") from exc
 
 
 def _scheduler_file(text: str) -> Any:
@@ -763,8 +760,10 @@ def package_digest() -> str:
     # (awr_denoise.cli maps there), a wheel inside it. Hashed from the package folder alone, the same code had two
     # digests, and a worker of an editable install refused a command of a wheel (an attack pass).
     spec = importlib.util.find_spec("awr_denoise.cli")
-    cli = Path(next(iter(spec.submodule_search_locations))).resolve() if spec and spec.submodule_search_locations \
-        else root / "cli"
+    if spec is not None and spec.submodule_search_locations:
+        cli = Path(next(iter(spec.submodule_search_locations))).resolve()
+    else:  # a checkout on sys.path without its install's mapping (a worker started with PYTHONPATH): cli/ beside it
+        cli = root / "cli" if (root / "cli").is_dir() else root.parent / "cli"
     files = {path.relative_to(root).as_posix(): path for path in root.rglob("*.py")
              if not path.is_relative_to(root / "cli")}
     files.update({"cli/" + path.relative_to(cli).as_posix(): path for path in cli.rglob("*.py")})

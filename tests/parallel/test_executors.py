@@ -211,7 +211,8 @@ except ValueError as exc:
 
 
 @pytest.mark.parametrize("variable", ["DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT=zz",
-                                      "DASK_DISTRIBUTED__WORKER__MEMORY__TARGET=abc"])
+                                      "DASK_DISTRIBUTED__WORKER__MEMORY__TARGET=abc",
+                                      "DASK_distributed__comm__timeouts__connect=zz"])  # Dask reads any case
 def test_a_bad_dask_variable_is_named_where_a_local_cluster_starts(variable):
     """Dask reads a ``DASK_*`` value where it uses it and fails in its own words, deep inside (a ``KeyError``
     listing time units, "Nanny failed to start"): the command's internal error, naming nothing the user set."""
@@ -221,6 +222,21 @@ def test_a_bad_dask_variable_is_named_where_a_local_cluster_starts(variable):
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 2, done.stdout + done.stderr
     assert "a local Dask cluster did not start" in done.stdout and f"sets {name}, read by Dask" in done.stdout
+
+
+def test_the_systems_own_failures_are_not_blamed_on_dask_variables():
+    """No file descriptors left (``EMFILE``) was named as the variable's fault, exit 2 (a review of the change)."""
+    from awr_denoise.parallel.executors import _blame_dask_variables
+
+    environ = {"DASK_DISTRIBUTED__ADMIN__TICK__LIMIT": "3s", "PATH": "/usr/bin"}
+    for exc in (OSError(24, "Too many open files"), ConnectionRefusedError(), KeyboardInterrupt()):
+        assert _blame_dask_variables(exc, environ, "a local Dask cluster did not start") is None
+    assert _blame_dask_variables(KeyError("x"), {"PATH": "/usr/bin", "DASK_INTERNAL_INHERIT_CONFIG": "e30="},
+                                 "started") is None
+    with pytest.raises(ValueError, match=r"^started \('x'\); the environment sets "
+                                         r"DASK_DISTRIBUTED__ADMIN__TICK__LIMIT, read by Dask: a value Dask cannot use "
+                                         r"is the likely cause; correct or unset it$"):
+        _blame_dask_variables(KeyError("x"), environ, "started")
 
 
 def test_a_bad_dask_variable_is_named_where_a_scheduler_is_connected_to(cluster):
@@ -455,6 +471,27 @@ def test_the_package_digest_is_the_same_from_a_checkout_and_from_a_wheels_layout
                           capture_output=True, text=True, timeout=120)
     where, digest = done.stdout.strip().split("\n")
     assert Path(where).is_relative_to(site), done.stderr
+    assert digest == executors.package_digest()
+
+
+def test_the_package_digest_is_the_same_from_a_checkout_on_the_path_without_its_install(tmp_path):
+    """A worker started with the checkout on ``PYTHONPATH`` (no install's mapping of ``awr_denoise.cli`` to ``cli/``)
+    hashed no command-line module, and refused the command of the same code (a review of the change)."""
+    import site
+
+    import awr_denoise
+    from awr_denoise.parallel import executors
+
+    root = Path(awr_denoise.__file__).resolve().parents[1]
+    if not (root / "cli").is_dir():
+        pytest.skip("the tests run against an installed package, not a checkout")
+    code = ("import importlib.util, awr_denoise; from awr_denoise.parallel.executors import package_digest; "
+            "print(importlib.util.find_spec('awr_denoise.cli')); print(package_digest())")
+    path = os.pathsep.join([str(root), *site.getsitepackages()])
+    done = subprocess.run([sys.executable, "-S", "-c", code], env={**os.environ, "PYTHONPATH": path}, cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120)  # -S: no .pth, so no install's mapping
+    spec, digest = done.stdout.strip().split("\n")
+    assert spec == "None", done.stderr
     assert digest == executors.package_digest()
 
 
