@@ -324,7 +324,8 @@ def outcome(pending: Future | None, work: Callable[[], Any], pool: Executor | No
     sampler from the sampler's own one-thread pool while another thread's ``density()`` held the sampler and
     waited for its search there: an attack pass). It is often taken back even from an idle pool, whose thread has
     not picked it up yet: this thread then works instead of waiting. Other executors' futures (Dask's, pending
-    while they run) are waited for.
+    while they run) are waited for, as before: with a thread-based executor of another kind, the wait this takes
+    away stays possible.
 
     Examples
     --------

@@ -57,8 +57,9 @@ def cache_folder() -> Path:
     try:
         home = Path.home()
     except RuntimeError:  # a user without a home folder (a container's uid without a passwd entry)
-        raise ValueError("XDG_CACHE_HOME: unset, and there is no home folder to keep awr-denoise's cache in; set it "
-                         "to a folder (or AWR_DENOISE_REFERENCE_DIR for the references)") from None
+        raise ValueError(f"XDG_CACHE_HOME: {'unset' if not base else 'relative'}, and there is no home folder to keep "
+                         "awr-denoise's cache in; set it to an absolute folder (AWR_DENOISE_REFERENCE_DIR moves the "
+                         "tracer's references alone)") from None
     return home / ".cache" / "awr-denoise"
 
 
@@ -75,7 +76,9 @@ def shown_path(path: str | os.PathLike[str]) -> str:
     """
     root = _checkout_root()
     if root is not None:
-        for form in (Path(os.path.abspath(path)), Path(path).resolve()):  # data/references may be a link elsewhere
+        # By its name first (data/references may be a link elsewhere), where no ".." makes the name say another file.
+        named = [] if ".." in Path(path).parts else [Path(os.path.abspath(path))]
+        for form in (*named, Path(path).resolve()):
             if form.is_relative_to(root):
                 return form.relative_to(root).as_posix()
     return str(path)

@@ -481,7 +481,7 @@ def _import_numba() -> ModuleType | None:
     except RuntimeWarning as exc:
         # The import stopped half-way: its modules loaded so far are let go, or every later `import numba` of the
         # process (another library's, a retry) found a numba without its `core` (a review of the change).
-        for name in [name for name in sys.modules if name == "numba" or name.startswith("numba.")]:
+        for name in [name for name in list(sys.modules) if name == "numba" or name.startswith("numba.")]:
             del sys.modules[name]
         found = _UNPARSED.search(str(exc))
         if found is None:

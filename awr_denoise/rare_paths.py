@@ -405,7 +405,8 @@ def rare_path_evening(buffer: SampleBuffer, rare_paths: str = DEFAULT_RARE_PATHS
     try:
         yield even
     finally:
-        if found is not None and not (isinstance(executor, ThreadPoolExecutor) and found.cancel()):  # else dropped
+        # A thread pool's search not started is dropped; one started, or another executor's, is waited for.
+        if found is not None and not (isinstance(executor, ThreadPoolExecutor) and found.cancel()):
             futures.wait([found])
 
 

@@ -96,6 +96,20 @@ class _StoreOnce(argparse._StoreAction):
         super().__call__(parser, namespace, values, option_string)
 
 
+class _FlagRecorded(argparse._StoreConstAction):
+    """A flag (``store_true``, ``store_false``, ``store_const``), recorded among the options given as
+    :class:`_StoreOnce` records those that take a value: ``--adaptive``, at its default, was not seen as given."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        given = getattr(namespace, _GIVEN, None)
+        if given is None:
+            given = set()
+            setattr(namespace, _GIVEN, given)
+        given.add(self.dest)
+        super().__call__(parser, namespace, values, option_string)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The full argument parser (one sub-parser per subcommand)."""
     parser = _Parser(prog="awr", description="Adaptive Wavelet Rendering: denoise Monte Carlo sample dumps "
@@ -110,6 +124,8 @@ def build_parser() -> argparse.ArgumentParser:
         for action in command._actions:
             if type(action) is argparse._StoreAction and action.option_strings:
                 action.__class__ = _StoreOnce
+            elif type(action) in (argparse._StoreTrueAction, argparse._StoreFalseAction, argparse._StoreConstAction):
+                action.__class__ = _FlagRecorded
     return parser
 
 

@@ -204,8 +204,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_executor_arguments(p, tile_option=True)
     add_threads_argument(p, "the adaptive rounds' ranking, between the renderer's rounds, and the reconstruction")
     p.set_defaults(run=run)
-    _DEFAULTS.update({action.dest: (action.default, (action.option_strings or [action.metavar or action.dest])[-1])
-                      for action in p._actions if action.dest not in ("help", "list_scenes", "renderer")})
+    defaults: dict[str, tuple[Any, str]] = {}
+    for action in p._actions:
+        if action.dest not in ("help", "list_scenes", "renderer"):
+            name = (action.option_strings or [action.metavar or action.dest])[-1]
+            known = defaults.get(action.dest)  # --adaptive and --uniform share theirs: both named
+            defaults[action.dest] = (action.default, name if known is None else f"{known[1]}/{name}")
+    _DEFAULTS.clear()  # a parser built again (each call of main) makes them anew
+    _DEFAULTS.update(defaults)
 
 
 _DEFAULTS: dict[str, tuple[Any, str]] = {}

@@ -95,3 +95,15 @@ def test_a_path_through_a_link_in_the_checkout_is_recorded_by_its_name_there(mon
     monkeypatch.setattr(_places, "_checkout_root", lambda: root)
     assert _places.shown_path(root / "data" / "references" / "default.exr") == "data/references/default.exr"
     assert _places.shown_path(elsewhere / "default.exr") == str(elsewhere / "default.exr")
+
+
+def test_a_name_with_dot_dot_is_recorded_as_the_file_it_reaches(monkeypatch, tmp_path):
+    """A name that steps up (``..``) out of a linked folder reaches the folder beside the link's target, not the
+    checkout's: it is recorded as given."""
+    root, elsewhere = tmp_path / "checkout", tmp_path / "disk" / "refs"
+    elsewhere.mkdir(parents=True)
+    (root / "data").mkdir(parents=True)
+    (root / "data" / "references").symlink_to(elsewhere)
+    monkeypatch.setattr(_places, "_checkout_root", lambda: root)
+    path = root / "data" / "references" / ".." / "x.exr"
+    assert _places.shown_path(path) == str(path)

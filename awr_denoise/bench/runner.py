@@ -174,9 +174,10 @@ def _refuse_outputs_onto_references(out_dir: Path | None, results_path: Path | N
         outputs.append(("output_dir / --output-dir", out_dir / "benchmarks.md"))
         outputs += [("output_dir / --output-dir", p) for p in sorted((out_dir / "img").glob("bench_*.png"))]
     tracer = tracer_module()
-    mitsuba_dir = Path(config.mitsuba_reference_dir or default_reference_dir())
     references = [tracer.reference_path(name) for name in scenes]
-    references += sorted(mitsuba_dir.glob("*.npy")) if config.mitsuba and mitsuba_dir.is_dir() else []
+    if config.mitsuba:  # asked for only then: a run without Mitsuba needs no folder of its references
+        mitsuba_dir = Path(config.mitsuba_reference_dir or default_reference_dir())
+        references += sorted(mitsuba_dir.glob("*.npy")) if mitsuba_dir.is_dir() else []
     known = {}
     for path in references:
         if path.is_file():

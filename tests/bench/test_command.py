@@ -120,6 +120,24 @@ def test_an_output_that_is_a_reference_the_run_reads_is_refused(tmp_path, monkey
                                 f"is the reference {reference}, which the run reads")
 
 
+def test_a_run_without_mitsuba_asks_nothing_of_its_reference_folder(tmp_path, monkeypatch):
+    """The check of outputs against references asked where Mitsuba's are kept even for a run without Mitsuba, and an
+    install without a home folder was refused whatever folder the tracer's references were given (a review)."""
+    pytest.importorskip("embreex")
+    from awr_denoise.bench import runner
+
+    def no_folder():
+        raise ValueError("XDG_CACHE_HOME: unset, and there is no home folder")
+
+    monkeypatch.setattr(runner, "default_reference_dir", no_folder)
+    monkeypatch.setenv("AWR_DENOISE_REFERENCE_DIR", str(tmp_path))
+    config = BenchmarkConfig(scenes=("default",), mitsuba=False)
+    runner._refuse_outputs_onto_references(tmp_path / "docs", None, ["default"], config)
+    with pytest.raises(ValueError, match="no home folder"):
+        runner._refuse_outputs_onto_references(tmp_path / "docs", None, ["default"],
+                                               BenchmarkConfig(scenes=("default",), mitsuba=True))
+
+
 def test_outputs_that_cannot_be_written_are_refused_before_the_run(tmp_path, monkeypatch, capsys):
     pytest.importorskip("embreex")
     pytest.importorskip("skimage")

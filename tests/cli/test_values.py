@@ -274,8 +274,10 @@ def test_an_empty_scene_name_is_refused_not_taken_as_the_default(work, capsys, m
 
 @pytest.mark.parametrize(("extra", "named"), [
     (["-o", "x.exr"], "--output"), (["chess_dof"], "SCENE"), (["--scene", "chess_dof"], "--scene"),
-    (["--spp", "4", "-q"], "--spp, --quiet"), (["--workers", "2"], "--workers"), (["--uniform"], "--uniform"),
+    (["--spp", "4", "-q"], "--spp, --quiet"), (["--workers", "2"], "--workers"),
+    (["--uniform"], "--adaptive/--uniform"),
     (["--seed", "0"], "--seed"), (["--sampler", "independent"], "--sampler"),  # given at their defaults: given
+    (["--adaptive"], "--adaptive/--uniform"),
 ])
 def test_list_scenes_beside_other_options_is_refused_naming_them(work, capsys, monkeypatch, extra, named):
     """They were ignored without a word: ``--list-scenes -o x.exr`` printed the scenes, wrote nothing, exit 0."""
