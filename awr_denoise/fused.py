@@ -59,6 +59,9 @@ _ENVIRONMENT = "AWR_DENOISE_KERNELS"
 def set_backend(name: str | None) -> None:
     """Use ``name`` (one of :data:`BACKENDS`) from now on, or the environment's choice with ``None``.
 
+    While another thread's :func:`using` block runs, a ``RuntimeError``: the block would put its own choice back as
+    it ends, over this one.
+
     Examples
     --------
     >>> from awr_denoise import fused
@@ -66,8 +69,21 @@ def set_backend(name: str | None) -> None:
     'numpy'
     >>> fused.set_backend(None)
     """
+    with _using_lock:
+        _refuse_beside_another_threads_block("set_backend")
+        _set(name)
+
+
+def _set(name: str | None) -> None:
     global _chosen
     _chosen = None if name is None else _runnable(name, "backend")
+
+
+def _refuse_beside_another_threads_block(what: str) -> None:
+    """Called under ``_using_lock``."""
+    if _using is not None and _using[0] != threading.get_ident():
+        raise RuntimeError(f"fused.{what}: another thread's block runs: the kernels are the process' choice, which "
+                           "every thread follows; choose them once (set_backend), or one block at a time")
 
 
 @contextlib.contextmanager
@@ -75,8 +91,9 @@ def using(name: str | None) -> Iterator[None]:
     """:func:`set_backend` ``name`` inside the ``with`` block, then the choice made before it again.
 
     The choice is the process' (the threads a reconstruction runs its bands on follow it): while one thread's block
-    runs, another thread's is a ``RuntimeError``. Two overlapping blocks each put back what the other had chosen, and
-    the process kept a backend neither asked for (an attack pass). Blocks nest in one thread.
+    runs, another thread's, or its :func:`set_backend`, is a ``RuntimeError``. Two overlapping blocks each put back
+    what the other had chosen, and the process kept a backend neither asked for (an attack pass). Blocks nest in
+    one thread.
 
     Examples
     --------
@@ -88,11 +105,9 @@ def using(name: str | None) -> Iterator[None]:
     global _chosen, _using
     me = threading.get_ident()
     with _using_lock:
-        if _using is not None and _using[0] != me:
-            raise RuntimeError("fused.using: another thread's block runs: the kernels are the process' choice, "
-                               "which every thread follows; choose them once (set_backend), or one block at a time")
+        _refuse_beside_another_threads_block("using")
         before, outer = _chosen, _using
-        set_backend(name)
+        _set(name)
         _using = (me, 1 if outer is None else outer[1] + 1)
     try:
         yield

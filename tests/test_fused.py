@@ -332,6 +332,8 @@ def test_another_threads_using_block_is_refused_while_one_runs(restore_backend):
         with pytest.raises(RuntimeError, match=r"^fused.using: another thread's block runs"):
             with fused.using("numpy"):
                 seen.append("entered")
+        with pytest.raises(RuntimeError, match=r"^fused.set_backend: another thread's block runs"):
+            fused.set_backend(None)  # the block's end would put its own choice back over it
     finally:
         leave.set()
         thread.join()
