@@ -74,7 +74,17 @@ class _Parser(argparse.ArgumentParser):
 
 
 _GIVEN = "_awr_given_options"
-"""The namespace attribute in which :class:`_StoreOnce` keeps the options given so far (removed after parsing)."""
+"""The namespace attribute in which :class:`_StoreOnce` and :class:`_FlagRecorded` keep the options given so far
+(read out after parsing into ``options_given``)."""
+
+
+def _given(namespace: argparse.Namespace) -> set[str]:
+    """The options given so far while ``namespace`` is parsed (kept in it under :data:`_GIVEN`)."""
+    given = getattr(namespace, _GIVEN, None)
+    if given is None:
+        given = set()
+        setattr(namespace, _GIVEN, given)
+    return given
 
 
 class _StoreOnce(argparse._StoreAction):
@@ -85,10 +95,7 @@ class _StoreOnce(argparse._StoreAction):
 
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
                  option_string: str | None = None) -> None:
-        given = getattr(namespace, _GIVEN, None)
-        if given is None:
-            given = set()
-            setattr(namespace, _GIVEN, given)
+        given = _given(namespace)
         if self.dest in given:
             raise UsageError(f"{'/'.join(self.option_strings)}: given twice (the second: {option_string} "
                              f"{' '.join(map(str, values)) if isinstance(values, list) else values}); give it once")
@@ -102,11 +109,7 @@ class _FlagRecorded(argparse._StoreConstAction):
 
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
                  option_string: str | None = None) -> None:
-        given = getattr(namespace, _GIVEN, None)
-        if given is None:
-            given = set()
-            setattr(namespace, _GIVEN, given)
-        given.add(self.dest)
+        _given(namespace).add(self.dest)
         super().__call__(parser, namespace, values, option_string)
 
 

@@ -45,6 +45,7 @@ from .mitsuba import RAW_FILM
 __all__ = [
     "ExrPart",
     "require_exr",
+    "thread_list",
     "HALF_MAX",
     "read_exr",
     "write_exr",
@@ -361,7 +362,7 @@ def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list
                 if arr is None or (not part.deep and arr.shape != part.shape):
                     raise file_error(p, _subsampled(part, name) or "truncated or corrupt EXR (channel data missing)",
                                      name)
-        log = getattr(_RECORDS, "log", None)
+        log = getattr(_RECORDS, "items", None)
         if log is not None:
             log.append((os.fspath(p), header_windows(parts[0].header), chromaticities(parts[0].header)))
     return parts
@@ -369,6 +370,28 @@ def read_exr(path: str | os.PathLike[str], *, header_only: bool = False) -> list
 
 # The reads of this thread a caller is recording (recorded_windows), or None.
 _RECORDS = threading.local()
+
+
+@contextlib.contextmanager
+def thread_list(local: threading.local) -> Iterator[list]:
+    """A new list as ``local.items`` for this thread within the block; the one before it (or none) put back after.
+
+    Examples
+    --------
+    >>> import threading
+    >>> local = threading.local()
+    >>> with thread_list(local) as outer:
+    ...     with thread_list(local) as inner:
+    ...         local.items.append(1)
+    ...     (outer, inner, local.items is outer)
+    ([], [1], True)
+    """
+    outer = getattr(local, "items", None)
+    local.items = found = []
+    try:
+        yield found
+    finally:
+        local.items = outer
 
 
 @contextlib.contextmanager
@@ -381,12 +404,8 @@ def recorded_windows() -> Iterator[list[tuple[str, dict[str, Window], tuple[floa
     rename in between (a renderer writing its next version) gave one version's pixels and the
     other's windows, the pixels written at the wrong place.
     """
-    outer = getattr(_RECORDS, "log", None)
-    _RECORDS.log = log = []
-    try:
+    with thread_list(_RECORDS) as log:
         yield log
-    finally:
-        _RECORDS.log = outer
 
 
 def _python_stdout_elsewhere() -> bool:

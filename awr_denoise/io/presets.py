@@ -49,7 +49,7 @@ from .deep import sample_index_bounds, samples_from_deep_part
 from .dump import (COUNT_CHANNEL, MAX_EXACT_COUNT, VARIANCE_PREFIX, SampleDump, buffer_from_awr_part,
                    uncounted_means, whole_counts)
 from .exr import (ExrPart, check_same_windows, checked_plane, file_error, header_value, header_windows, multi_views,
-                  read_exr)
+                  read_exr, thread_list)
 from .features import (MITSUBA_AOV_NAMES, albedo_warning, auto_feature_planes, feature_from_planes, normal_warning,
                        plane_present)
 from .mitsuba import RAW_FILM, MomentBound, filter_correlation, moment_bound
@@ -1040,7 +1040,7 @@ def _lossy(p: Path, parts: Sequence[ExrPart]) -> list[str]:
             "write sample dumps losslessly (ZIP, PIZ)" for codec in _lossy_codecs(parts)]
 
 
-_COLLECTED = threading.local()  # .messages: this thread's list while warnings_collected() runs, else absent
+_COLLECTED = threading.local()  # .items: this thread's list while warnings_collected() runs, else absent
 
 
 @contextlib.contextmanager
@@ -1050,16 +1050,12 @@ def warnings_collected() -> Iterator[list[str]]:
     ``warnings.catch_warnings(record=True)`` replaces every thread's filters while it runs: a file's description
     made so recorded another thread's warnings as the file's, and they were lost to that thread (an attack pass).
     """
-    outer = getattr(_COLLECTED, "messages", None)
-    _COLLECTED.messages = found = []
-    try:
+    with thread_list(_COLLECTED) as found:
         yield found
-    finally:
-        _COLLECTED.messages = outer
 
 
 def _warn(messages: Sequence[str]) -> None:
-    found = getattr(_COLLECTED, "messages", None)
+    found = getattr(_COLLECTED, "items", None)
     for message in messages:
         if found is not None:
             found.append(message)
