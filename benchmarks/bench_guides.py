@@ -12,6 +12,7 @@ Run from the repository root (each section updates its part of the JSON)::
     .venv/bin/python benchmarks/bench_guides.py pbrt        # a third renderer: the pbrt-v4 files in tests/data
     .venv/bin/python benchmarks/bench_guides.py auxiliary   # OIDN's albedo and normal: prefiltered, as noisy, none
     .venv/bin/python benchmarks/bench_guides.py tolerance   # the guard's tolerance with a guide: scenes, wrong guides
+    .venv/bin/python benchmarks/bench_guides.py stein       # Stein's estimate on rendered noise, per image
     .venv/bin/python benchmarks/bench_guides.py crops       # docs/img/guides_*.png
     .venv/bin/python benchmarks/bench_guides.py tables      # print the stored results
 
@@ -1154,11 +1155,119 @@ def tolerance_table(rows: list[dict]) -> None:
             print(f"| {scene} | {kind} | {cells[0]} | {cells[1]} | {seeds} |")
 
 
+# ---------------------------------------------------------------------------- Stein's estimate on rendered noise
+def _gaussian_clone(buffer: SampleBuffer, ref: np.ndarray, seed: int,
+                    noise_of: SampleBuffer | None = None) -> SampleBuffer:
+    """The buffer with its means replaced by the reference plus Gaussian noise of the variances its means are
+    given (:func:`_probed`'s ``v``): the same counts, variances and features, the noise Stein's lemma assumes.
+    With ``noise_of`` the noise has that buffer's variances instead (another render's of the same pixels), and
+    the variances the clone states are estimates of it, as a buffer's are.
+
+    >>> import numpy as np
+    >>> from awr_denoise import SampleBuffer
+    >>> buffer = SampleBuffer.from_moments(np.full((2, 2), 4), np.ones((2, 2, 3)), np.full((2, 2, 3), 4.0))
+    >>> clone = _gaussian_clone(buffer, np.zeros((2, 2, 3)), seed=0)
+    >>> clone.count.tolist() == buffer.count.tolist(), bool(np.all(clone.variance == buffer.variance))
+    (True, True)
+    >>> bool(np.all(clone.mean != buffer.mean))
+    True
+    """
+    source = buffer if noise_of is None else noise_of
+    v = source.estimated_variance() / np.maximum(source.count, 1)[..., None]
+    noise = np.random.default_rng(seed).standard_normal(v.shape)
+    return SampleBuffer.from_moments(buffer.count, ref + np.sqrt(v) * noise, buffer.variance,
+                                     variance_known=buffer.variance_known, features=buffer.features)
+
+
+def _stein(buffer: SampleBuffer, features: bool, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The reconstruction (with or without the feature pilot), its per-pixel Stein risk terms
+    ``(f - x)^2 - v + 2 d`` with the divergence ``d`` from one Rademacher probe of the whole reconstruction
+    (:func:`_probed`), and its true squared error against ``ref``."""
+    x, v, n, moved = _probed(buffer)
+    image = reconstruct(buffer, features=features)
+    d = n * (reconstruct(moved, features=features) - image) / SURE_EPS
+    return image, (image - x) ** 2 - v + 2 * d, (image - ref) ** 2
+
+
+def stein(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int, ...], groups: int,
+          cache: Path) -> list[dict[str, Any]]:
+    """Stein's unbiased risk estimate of whole reconstructions (Monte-Carlo SURE, one probe of the means) on
+    the renderers' buffers and on Gaussian clones of them, and the choice it makes per image between the default
+    and the feature pilot (the features where both criteria, the squared and the relative, say they are lower),
+    against the truth; every sum in the relative criterion's weights ``1 / (f^2 + 0.01)`` of the default's
+    ``f`` (the guard's, :mod:`awr_denoise.sure`) or in none. Also the default given the next group's variances
+    (another render's of the same pixels, independent of the means: ``groups`` at least 2)."""
+    rows = []
+    for renderer, scene, shape in scenes:
+        ref = reference(renderer, scene, shape, cache)
+        for g in range(groups):
+            others = feature_buffers(renderer, scene, shape, spps, (g + 1) % groups, cache)
+            for spp, buffer in feature_buffers(renderer, scene, shape, spps, g, cache).items():
+                default, est_a, true_a = _stein(buffer, False, ref)
+                chosen, est_c, true_c = _stein(buffer, True, ref)
+                _, est_clone, true_clone = _stein(_gaussian_clone(buffer, ref, seed=g), False, ref)
+                _, est_stated, true_stated = _stein(_gaussian_clone(buffer, ref, seed=g, noise_of=others[spp]), False,
+                                                    ref)
+                swapped = SampleBuffer.from_moments(buffer.count, buffer.mean, others[spp].variance,
+                                                    variance_known=buffer.variance_known)
+                other_image, est_other, true_other = _stein(swapped, False, ref)
+                row: dict[str, Any] = {"renderer": renderer, "scene": scene, "spp": spp, "group": g}
+                for name, w in (("squared", np.ones_like(default)), ("relative", 1.0 / (default * default + 0.01))):
+                    row[name] = {key: float(np.sum(w * term)) for key, term in
+                                 (("default_estimated", est_a), ("default_true", true_a),
+                                  ("features_estimated", est_c), ("features_true", true_c),
+                                  ("clone_estimated", est_clone), ("clone_true", true_clone),
+                                  ("swapped_estimated", est_other), ("swapped_true", true_other),
+                                  ("stated_estimated", est_stated), ("stated_true", true_stated))}
+                picked = all(row[name]["features_estimated"] < row[name]["default_estimated"]
+                             for name in ("squared", "relative"))
+                row.update(features_picked=picked, relmse_default=relmse(default, ref),
+                           relmse_features=relmse(chosen, ref), mse_default=mse(default, ref),
+                           mse_features=mse(chosen, ref), relmse_swapped=relmse(other_image, ref))
+                rows.append(row)
+        print(f"{renderer} {scene}: done", flush=True)
+    return rows
+
+
+def stein_table(rows: list[dict]) -> None:
+    """Per scene and spp, means over the groups: the default's risk estimated over its true risk on the buffer
+    and on its Gaussian clone, the features' change of risk estimated and true (in the default's true risk), how
+    many groups the estimate gives to the features, and the relMSE of its choice and of the features over the
+    default's."""
+    print("\n| renderer | scene | spp | default's risk, estimated / true: buffer, Gaussian clone, Gaussian clone of "
+          "another render's noise (relative; squared) "
+          "| features' change of risk, estimated, true (relative) | features picked | relMSE / default's: picked, "
+          "features | another render's variances: relMSE / default's; risk, estimated / true (relative) |")
+    print("|---|---|---|---|---|---|---|---|")
+    keys = dict.fromkeys((r["renderer"], r["scene"], r["spp"]) for r in rows)
+    for renderer, scene, spp in keys:
+        group = [r for r in rows if (r["renderer"], r["scene"], r["spp"]) == (renderer, scene, spp)]
+
+        def ratio(criterion: str, est: str, true: str) -> float:
+            return float(np.mean([r[criterion][est] / r[criterion][true] for r in group]))
+
+        change = [float(np.mean([(r["relative"][f"features_{k}"] - r["relative"][f"default_{k}"])
+                                 / r["relative"]["default_true"] for r in group])) for k in ("estimated", "true")]
+        picked = [r["relmse_features"] if r["features_picked"] else r["relmse_default"] for r in group]
+        print(f"| {renderer} | {scene} | {spp} | {ratio('relative', 'default_estimated', 'default_true'):.2f}, "
+              f"{ratio('relative', 'clone_estimated', 'clone_true'):.2f}, "
+              f"{ratio('relative', 'stated_estimated', 'stated_true'):.2f}; "
+              f"{ratio('squared', 'default_estimated', 'default_true'):.2f}, "
+              f"{ratio('squared', 'clone_estimated', 'clone_true'):.2f}, "
+              f"{ratio('squared', 'stated_estimated', 'stated_true'):.2f} | {100 * change[0]:+.1f}%, "
+              f"{100 * change[1]:+.1f}% | {sum(r['features_picked'] for r in group)} of {len(group)} | "
+              f"{np.mean(picked) / np.mean([r['relmse_default'] for r in group]):.3f}, "
+              f"{_mean(group, 'relmse_features') / _mean(group, 'relmse_default'):.3f} | "
+              f"{_mean(group, 'relmse_swapped') / _mean(group, 'relmse_default'):.3f}; "
+              f"{ratio('relative', 'swapped_estimated', 'swapped_true'):.2f} |")
+
+
 # ---------------------------------------------------------------------------- main
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("section", choices=("quality", "samplers", "synthetic", "ablations", "avenues", "features",
-                                            "rules", "pbrt", "auxiliary", "tolerance", "criteria", "crops", "tables"))
+                                            "rules", "pbrt", "auxiliary", "tolerance", "criteria", "stein", "crops",
+                                            "tables"))
     parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
     parser.add_argument("--spps", nargs="+", type=int, default=list(SPPS))
     parser.add_argument("--groups", type=int, default=2)
@@ -1219,6 +1328,13 @@ def main(argv: list[str] | None = None) -> int:
         rows = criteria(quality_scenes(args.scenes), tuple(sorted(args.spps)), args.groups, args.cache)
         update_section(args.output, "criteria", rows, command, "pyoidn")
         criteria_table(rows)
+    elif args.section == "stein":
+        if args.groups < 2:
+            parser.error("stein: --groups must be at least 2 (each group is given the next one's variances)")
+        rows = stein(quality_scenes(args.scenes), tuple(s for s in args.spps if s in (8, 32)) or (8, 32),
+                     args.groups, args.cache)
+        update_section(args.output, "stein", rows, command, "pyoidn")
+        stein_table(rows)
     elif args.section == "crops":
         update_section(args.output, "crops", crops(args.crop_spp, args.cache, args.images), command, "pyoidn")
     else:  # print the tables of the stored results
@@ -1228,7 +1344,7 @@ def main(argv: list[str] | None = None) -> int:
                               ("avenues", avenue_table), ("features", feature_limits_table),
                               ("rules", pilot_rules_table), ("pbrt", pbrt_table),
                               ("auxiliary", auxiliary_table), ("tolerance", tolerance_table),
-                              ("criteria", criteria_table)):
+                              ("criteria", criteria_table), ("stein", stein_table)):
             if section in data:
                 print(f"\n## {section} ({data[section]['command']})")
                 show(data[section]["rows"])
