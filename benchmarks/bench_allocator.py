@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from awr_denoise.bench import update_section
+from awr_denoise.bench.records import results_file
 
 RESULTS = Path(__file__).resolve().parent / "results" / "allocator.json"
 SIZES = {"256x256": (256, 256), "1080p": (1080, 1920)}
@@ -65,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", choices=tuple(SIZES), default="1080p")
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--output", type=Path, default=RESULTS)
+    parser.add_argument("--output", type=results_file, default=RESULTS)
     args = parser.parse_args(argv)
     runs: dict[str, list[dict[str, Any]]] = {name: [] for name in SETTINGS}
     for repeat in range(args.repeats):

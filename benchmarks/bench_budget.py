@@ -41,6 +41,7 @@ from typing import Any
 
 from awr_denoise import SampleRequest, reconstruct_detailed
 from awr_denoise.bench import update_section
+from awr_denoise.bench.records import results_file
 from awr_denoise.cli.parallel_options import library_threads, threads_from_args
 from awr_denoise.io import read_sample_buffer, write_image, write_preview, write_sample_buffer
 from awr_denoise.memory import keep_freed_memory
@@ -228,7 +229,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--allocator", choices=ALLOCATORS, default="command",
                         help="the trial's memory: awr's setting (command, default) or glibc's default (glibc)")
     parser.add_argument("--trial-once", type=Path, help=argparse.SUPPRESS)  # one repeat's new process
-    parser.add_argument("--output", type=Path, default=RESULTS)
+    parser.add_argument("--output", type=results_file, default=RESULTS)
     args = parser.parse_args(argv)
     if args.trial_once is not None:
         print(json.dumps(trial_once(args.trial_once, args.threads or 1, args.allocator)))

@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from awr_denoise.bench import command_line, load_average, machine_info, write_json
+from awr_denoise.bench.records import results_file
 from awr_denoise.bench.measure import awr_command
 
 RESULTS = Path(__file__).resolve().parent / "results" / "cli_threads.json"
@@ -146,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="the pool timed against one thread (2)")
     parser.add_argument("--repeats", type=int, default=3, choices=range(1, 101), metavar="N", help="runs per case (3)")
     parser.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES), help="the commands timed (all)")
-    parser.add_argument("--output", type=Path, default=RESULTS, help=f"JSON results (default {RESULTS.name})")
+    parser.add_argument("--output", type=results_file, default=RESULTS, help=f"JSON results (default {RESULTS.name})")
     args = parser.parse_args(argv)
     before = load_average()
     result = measure(args.size, args.spp, args.threads, args.repeats, tuple(args.cases))

@@ -53,6 +53,7 @@ from awr_denoise import (AdaptiveSampler, SampleBuffer, SampleRequest, UniformSa
                          fused, reconstruct)
 from awr_denoise.bench import (OVERHEAD_SIZES, command_line, load_average, machine_info, noisy_buffer,  # noqa: E402
                                peak_memory, write_json)
+from awr_denoise.bench.records import results_file  # noqa: E402
 from awr_denoise.domains import Domain  # noqa: E402
 from awr_denoise.memory import keep_freed_memory  # noqa: E402
 from awr_denoise.prepare import prepare  # noqa: E402
@@ -900,7 +901,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="256x256 speed only, fewer quality runs")
     parser.add_argument("--only", nargs="+", choices=tuple(SECTIONS), metavar="SECTION",
                         help=f"run only these sections ({', '.join(SECTIONS)}) and update them in the JSON")
-    parser.add_argument("--output", type=Path, default=RESULTS)
+    parser.add_argument("--output", type=results_file, default=RESULTS)
     parser.add_argument("--sizes", nargs="+", choices=tuple(OVERHEAD_SIZES), default=SPEED_SIZES,
                         help="sizes of the speed section (default: 1080p 4K)")
     parser.add_argument("--keep-freed-memory", action="store_true",

@@ -51,6 +51,7 @@ import numpy as np
 
 from awr_denoise import AdaptiveSampler, SampleRequest, metrics, reconstruct, rounds
 from awr_denoise.bench import update_section
+from awr_denoise.bench.records import results_file
 from awr_denoise.metrics import mse, relmse
 from awr_denoise.renderers import create_renderer
 from awr_denoise.synthetic import make_scene
@@ -284,7 +285,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="reconstruct with this many stages instead of the default (its time then reserved)")
     parser.add_argument("--costs", action="store_true",
                         help="instead: what ranked samples and the ranking cost against round 0's (section costs)")
-    parser.add_argument("--output", type=Path, default=RESULTS)
+    parser.add_argument("--output", type=results_file, default=RESULTS)
     args = parser.parse_args(argv)
     if not 1 <= args.repeats <= 99:
         parser.error("--repeats: 1 to 99")

@@ -48,6 +48,7 @@ import numpy as np
 
 from awr_denoise import AdaptiveSampler, SampleBuffer, UniformSampler, reconstruct
 from awr_denoise.bench import update_section
+from awr_denoise.bench.records import results_file
 from awr_denoise.bench.analysis import equal_error_spp, fit_noise_floor
 from awr_denoise.bench.config import BenchmarkConfig
 from awr_denoise.bench.measure import Timing, run_progressive
@@ -308,7 +309,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--size", type=int, default=None, metavar="PIXELS",
                         help="square images of this side (default: the benchmark's 128x128 and its cached references)")
     parser.add_argument("--uniform-max-spp", type=int, default=1024, metavar="SPP")
-    parser.add_argument("--output", type=Path, default=RESULTS)
+    parser.add_argument("--output", type=results_file, default=RESULTS)
     parser.add_argument("--variants", action="store_true",
                         help="options around the defaults, on the scenes and seeds stored in --output")
     parser.add_argument("--baseline", nargs="?", const=BASELINE, default=None, metavar="COMMIT",

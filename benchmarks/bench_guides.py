@@ -49,6 +49,7 @@ from scipy import ndimage
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, guided, guides, projection, reconstruct
 from awr_denoise._window_sums import window_sum
 from awr_denoise.bench import update_section
+from awr_denoise.bench.records import results_file
 from awr_denoise.io.png import write_preview
 from awr_denoise.metrics import mean_error, mse, relmse
 from awr_denoise.prepare import filled_mean
@@ -58,8 +59,9 @@ from awr_denoise.synthetic import SyntheticRenderer, make_scene
 from awr_denoise.wiener import chain, rademacher_probes
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_reconstruct import (MITSUBA_SHAPE, TRACER_SCENES, _mitsuba_available, quality_scenes,  # noqa: E402
-                              recorded_command, reference, unguided_guard, uniform_buffers)
+from bench_reconstruct import (MITSUBA_SCENES, MITSUBA_SHAPE, TRACER_SCENES, _mitsuba_available,  # noqa: E402
+                              check_scenes, count_option, quality_scenes, recorded_command, reference,
+                              unguided_guard, uniform_buffers)
 
 ROOT = Path(__file__).resolve().parent
 RESULTS = ROOT / "results" / "guides.json"
@@ -1269,15 +1271,24 @@ def main(argv: list[str] | None = None) -> int:
                                             "rules", "pbrt", "auxiliary", "tolerance", "criteria", "stein", "crops",
                                             "tables"))
     parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
-    parser.add_argument("--spps", nargs="+", type=int, default=list(SPPS))
-    parser.add_argument("--groups", type=int, default=2)
+    parser.add_argument("--spps", nargs="+", type=count_option(1), default=list(SPPS))
+    parser.add_argument("--groups", type=count_option(1), default=2)
     parser.add_argument("--crop-spp", type=int, default=8, choices=SPPS, help="crops: spp shown (default 8)")
     parser.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "awr-denoise" / "reconstruct",
                         help="where rendered buffers and Mitsuba references are kept (default %(default)s)")
-    parser.add_argument("--output", type=Path, default=RESULTS,
+    parser.add_argument("--output", type=results_file, default=RESULTS,
                         help="results JSON (default benchmarks/results/guides.json); a trial run keeps the stored one")
     parser.add_argument("--images", type=Path, default=IMAGES, help="crops: folder of the PNGs (default docs/img)")
     args = parser.parse_args(argv)
+    # samplers and ablations render the tracer's scenes alone; avenues the largest spp of SPPS; ablations, features,
+    # rules and stein 8 and 32 spp (features and rules: both when neither is given)
+    check_scenes(parser, args.scenes, TRACER_SCENES if args.section in ("samplers", "ablations")
+                 else TRACER_SCENES + MITSUBA_SCENES)
+    if args.section == "avenues" and max(args.spps) not in SPPS:
+        parser.error(f"--spps: avenues measures the largest of {', '.join(map(str, args.spps))}, which is not one "
+                     f"of {', '.join(map(str, SPPS))}")
+    if args.section in ("ablations", "stein") and not {8, 32} & set(args.spps):
+        parser.error(f"--spps: {args.section} measures 8 and 32 spp; none of them is given")
     if args.section != "tables" and not guides.oidn_available():
         print(f"bench_guides: {guides.OIDN_HINT}", file=sys.stderr)
         return 2

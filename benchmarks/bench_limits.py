@@ -21,6 +21,7 @@ Results: ``benchmarks/results/limits.json``.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -31,6 +32,7 @@ from scipy import ndimage
 
 from awr_denoise import SampleBuffer, finishing, reconstruct, rims
 from awr_denoise.bench import update_section
+from awr_denoise.bench.records import results_file
 from awr_denoise.metrics import mse, relmse
 
 RESULTS = Path(__file__).resolve().parent / "results" / "limits.json"
@@ -229,12 +231,23 @@ def table(rows: list[dict[str, Any]]) -> None:
               + f" | {100 * change[0]:.2g}%, {100 * change[1]:.2g}% |")
 
 
+def _scale(value: str) -> float:
+    """``--seed-scale``: a finite number above 0 (NaN, infinity, 0 or below were a late error or one seed)."""
+    try:
+        scale = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{value!r} is not a number") from None
+    if not math.isfinite(scale) or scale <= 0:
+        raise argparse.ArgumentTypeError(f"{value} is not a finite number above 0")
+    return scale
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seed-scale", type=float, default=1.0, help="seeds per case times this (a quick look: 0.25)")
+    parser.add_argument("--seed-scale", type=_scale, default=1.0, help="seeds per case times this (a quick look: 0.25)")
     parser.add_argument("--chances", action="store_true",
                         help="also the default at smaller least chances for the clamp's neighbours (MORE_CHANCES)")
-    parser.add_argument("--output", type=Path, default=RESULTS)
+    parser.add_argument("--output", type=results_file, default=RESULTS)
     args = parser.parse_args(argv)
     rows = run(args.seed_scale, {**CHANCES, **(MORE_CHANCES if args.chances else {})})
     update_section(args.output, "limits", rows, "benchmarks/bench_limits.py " + " ".join(argv or sys.argv[1:]))

@@ -27,6 +27,8 @@ import numpy as np
 
 from awr_denoise import SampleRequest, reconstruct
 from awr_denoise.bench import update_section
+from awr_denoise.bench.cache import load_arrays, save_arrays
+from awr_denoise.bench.records import results_file
 from awr_denoise.metrics import mse, relmse
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -158,15 +160,16 @@ SCENES: dict[str, tuple[Callable[[Any], dict[str, Any]], int, tuple[int, ...]]] 
 def reference(renderer: Any, name: str, spp: int, cache: Path) -> np.ndarray:
     """The scene's reference, rendered in passes of :data:`PASS_SPP` (cached in ``cache``)."""
     path = cache / f"{name.replace(' ', '_')}_{SHAPE[0]}x{SHAPE[1]}_{spp}.npy"
-    if path.is_file():
-        return np.load(path)
+    cached = load_arrays(path, lambda a: None if a.shape == (*SHAPE, 3) and np.isfinite(a).all()
+                         else f"shape {a.shape} or values not finite, not a {SHAPE[0]}x{SHAPE[1]} reference")
+    if cached is not None:
+        return cached
     total = np.zeros(SHAPE + (3,))
     for k in range(spp // PASS_SPP):
         renderer.seed = REFERENCE_SEED + k
         total += renderer(SampleRequest.uniform(SHAPE, PASS_SPP)).mean
     image = total / (spp // PASS_SPP)
-    cache.mkdir(parents=True, exist_ok=True)
-    np.save(path, image)
+    save_arrays(path, image)
     return image
 
 
@@ -216,7 +219,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, default=4, help="renders per scene and spp (renderer seeds 1 to N)")
     parser.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "awr-denoise" / "limits-mitsuba",
                         help="where the references are kept")
-    parser.add_argument("--output", type=Path, default=RESULTS)
+    parser.add_argument("--output", type=results_file, default=RESULTS)
     args = parser.parse_args(argv)
     if args.seeds < 1:
         parser.error("--seeds: at least 1")

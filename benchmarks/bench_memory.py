@@ -37,6 +37,7 @@ import numpy as np
 
 from awr_denoise import AdaptiveSampler, SampleBuffer, reconstruct
 from awr_denoise.bench import command_line, machine_info, peak_memory, write_json
+from awr_denoise.bench.records import results_file
 
 SIZES = {"4k": (3840, 2160), "8k": (7680, 4320)}
 RESULTS = Path(__file__).resolve().parent / "results" / "memory.json"
@@ -98,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", nargs="+", default=["4k", "8k"], help="4k, 8k or WxH")
     parser.add_argument("--ops", nargs="+", default=["reconstruct", "ask"], choices=["reconstruct", "ask"])
-    parser.add_argument("--output", type=Path, default=RESULTS)
+    parser.add_argument("--output", type=results_file, default=RESULTS)
     parser.add_argument("--child", nargs=3, metavar=("OP", "W", "H"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:

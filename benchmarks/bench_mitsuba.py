@@ -51,6 +51,7 @@ import numpy as np
 from awr_denoise import AdaptiveSampler, SampleRequest, fused, reconstruct
 from awr_denoise.adapters import mitsuba_scenes
 from awr_denoise.adapters.mitsuba import MitsubaRenderer
+from awr_denoise.bench.records import results_file
 from awr_denoise.memory import keep_freed_memory
 from awr_denoise.metrics import RELMSE_EPSILON, mse, relmse
 from awr_denoise.reconstruct import DEFAULT_WIENER_EXPONENTS
@@ -427,7 +428,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--regenerate-references", action="store_true")
     parser.add_argument("--update", action="store_true",
                         help="keep the other scenes of an existing results file; replace only those run now")
-    parser.add_argument("--output", type=Path, default=None, help=f"results JSON (default {RESULTS.name} in "
+    parser.add_argument("--output", type=results_file, default=None, help=f"results JSON (default {RESULTS.name} in "
                         "benchmarks/results; --quick writes nothing unless given)")
     parser.add_argument("--report", action="store_true",
                         help="render nothing: recompute the derived comparisons of the results file and print its tables")

@@ -37,6 +37,7 @@ from pathlib import Path
 
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, reconstruct
 from awr_denoise.bench import command_line, load_average, machine_info, write_json
+from awr_denoise.bench.records import results_file
 from awr_denoise.io import write_sample_buffer
 from awr_denoise.parallel import (
     RendererSpec,
@@ -118,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="smaller workloads and 2 repeats")
     parser.add_argument("--repeats", type=int, help="timed runs per configuration (default 3, 2 with --quick)")
-    parser.add_argument("--output", type=Path, default=RESULTS, help=f"JSON results (default {RESULTS.name})")
+    parser.add_argument("--output", type=results_file, default=RESULTS, help=f"JSON results (default {RESULTS.name})")
     args = parser.parse_args(argv)
     repeats = args.repeats or (2 if args.quick else 3)
     names = ("frames", "render", "tiled reconstruction")

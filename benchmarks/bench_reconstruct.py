@@ -46,6 +46,8 @@ from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSam
 from awr_denoise import finishing as finishing_steps
 from awr_denoise import fused, pooling, rims
 from awr_denoise.bench import update_section
+from awr_denoise.bench.cache import load_arrays, save_arrays
+from awr_denoise.bench.records import results_file
 from awr_denoise.features import FEATURE_CHANNELS
 from awr_denoise.finishing import RESTORE_SHARE, match_mean, restore_mean
 from awr_denoise.metrics import mean_error, mse, relmse
@@ -53,7 +55,7 @@ from awr_denoise.prepare import prepare
 from awr_denoise.reconstruct import DEFAULT_DOMAIN, _wiener_levels, later_stages, resolve_settings
 from awr_denoise.renderers import create_renderer
 from awr_denoise.sure import sure_blend
-from awr_denoise.synthetic import SyntheticRenderer, make_scene
+from awr_denoise.synthetic import SyntheticRenderer, list_scenes, make_scene
 from awr_denoise.thresholding import threshold_stage
 from awr_denoise.wavelets import wavelet_operators
 
@@ -246,16 +248,45 @@ guard's divergence")."""
 
 
 # ---------------------------------------------------------------------------- buffers
-def _save(path: Path, buffer: SampleBuffer) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    arrays = {"count": buffer.count, "mean": buffer.mean, "variance": buffer.variance}
+def _save(path: Path, buffer: SampleBuffer, render: str) -> None:
+    """The buffer's arrays and ``render`` (what made them: :func:`_render_key`), written whole."""
+    arrays = {"render": np.array(render), "count": buffer.count, "mean": buffer.mean, "variance": buffer.variance}
     for name, f in buffer.features.items():
         arrays.update({f"{name}_count": f.count, f"{name}_mean": f.mean, f"{name}_variance": f.variance})
-    np.savez(path, **arrays)
+    save_arrays(path, arrays)
 
 
-def _load(path: Path) -> SampleBuffer:
-    d = np.load(path)
+def _render_key(renderer: str, scene: str, shape: tuple[int, int] | None, group: int, spp: int,
+                options: dict[str, Any]) -> str:
+    """What a cached buffer is: its renderer, scene, size, seed, samples and the renderer's options."""
+    return json.dumps({"renderer": renderer, "scene": scene, "shape": shape, "group": group, "spp": spp,
+                       "options": options}, sort_keys=True)
+
+
+def _load(path: Path, render: str, spp: int) -> SampleBuffer | None:
+    """The cached buffer of ``render`` at ``path``, or ``None`` (with a warning naming the file) when it is missing,
+    does not read whole, or is another render's: another scene's, group's or spp's under this name, one cut short
+    by an interrupted run of old (its features missing), or one made before the files said what they are."""
+    wanted = json.loads(render)
+
+    def check(d: Any) -> str | None:
+        if not isinstance(d, dict) or "render" not in d:
+            return "not a cached buffer that says what it is"
+        if str(d["render"]) != render:
+            return f"another render's buffer ({d['render']})"
+        names = ["count", "mean", "variance"]
+        if wanted["options"].get("features") == "all":
+            names += [f"{n}_{k}" for n in FEATURE_CHANNELS for k in ("count", "mean", "variance")]
+        missing = [n for n in names if n not in d]
+        if missing:
+            return f"arrays missing: {', '.join(missing)}"
+        if int(d["count"].max(initial=0)) != spp:
+            return f"not {spp} samples a pixel"
+        return None
+
+    d = load_arrays(path, check)
+    if d is None:
+        return None
     features = {name: SampleBuffer.from_moments(d[f"{name}_count"], d[f"{name}_mean"], d[f"{name}_variance"],
                                                 channels=channels)
                 for name, channels in FEATURE_CHANNELS.items() if f"{name}_mean" in d}
@@ -270,8 +301,10 @@ def uniform_buffers(renderer: str, scene: str, shape: tuple[int, int] | None, sp
     keeps their cache files apart from the plain ones.
     """
     paths = {s: cache / f"{prefix}{renderer}_{scene}_g{group}_s{s}.npz" for s in spps}
-    if all(p.exists() for p in paths.values()):
-        return {s: _load(p) for s, p in paths.items()}
+    renders = {s: _render_key(renderer, scene, shape, group, s, options) for s in spps}
+    loaded = {s: _load(p, renders[s], s) for s, p in paths.items()}
+    if all(b is not None for b in loaded.values()):
+        return loaded  # type: ignore[return-value]
     r = create_renderer(renderer, scene, shape=shape, seed=group, **options)
     shape = r.shape if shape is None else shape
     out, buffer, done = {}, None, 0
@@ -279,7 +312,7 @@ def uniform_buffers(renderer: str, scene: str, shape: tuple[int, int] | None, sp
         part = r(SampleRequest.uniform(shape, s - done, first_index=done))
         buffer = part if buffer is None else buffer.merge(part)
         done = s
-        _save(paths[s], buffer)
+        _save(paths[s], buffer, renders[s])
         out[s] = buffer
     getattr(r, "close", lambda: None)()
     return out
@@ -289,13 +322,15 @@ def reference(renderer: str, scene: str, shape: tuple[int, int] | None, cache: P
     if renderer == "tracer":
         from awr_denoise import tracer  # the bundled tracer's own cached 4096-spp references
         return np.asarray(tracer.load_reference(scene), dtype=np.float64)
-    path = cache / f"{renderer}_{scene}_reference.npy"
-    if not path.exists():
+    assert shape is not None
+    path = cache / f"{renderer}_{scene}_{shape[0]}x{shape[1]}_{MITSUBA_REFERENCE_SPP}spp_reference.npy"
+    image = load_arrays(path, lambda a: None if a.shape == (*shape, 3) and np.isfinite(a).all()
+                        else f"shape {a.shape} or values not finite, not a {shape[0]}x{shape[1]} reference")
+    if image is None:
         r = create_renderer(renderer, scene, shape=shape, seed=10**6)
-        image = r(SampleRequest.uniform(shape, MITSUBA_REFERENCE_SPP)).mean
-        path.parent.mkdir(parents=True, exist_ok=True)
-        np.save(path, image)
-    return np.load(path)
+        image = np.asarray(r(SampleRequest.uniform(shape, MITSUBA_REFERENCE_SPP)).mean)
+        save_arrays(path, image)
+    return image
 
 
 def _mitsuba_available() -> bool:
@@ -1107,8 +1142,48 @@ def recorded_command(script: str, argv: list[str] | None) -> str:
     as ``DIR`` and ``FILE``."""
     given = list(argv if argv is not None else sys.argv[1:])
     hidden = {"--cache": "DIR", "--images": "DIR", "--output": "FILE"}
-    shown = [hidden.get(given[i - 1], a) if i > 0 else a for i, a in enumerate(given)]
+
+    def hides(option: str) -> str | None:  # the option or its abbreviation, as argparse takes it
+        named = [word for name, word in hidden.items() if len(option) > 2 and name.startswith(option)]
+        return named[0] if option.startswith("--") and len(named) == 1 else None
+
+    shown: list[str] = []
+    value_of = None  # the word that stands for the value after a hidden option
+    for a in given:
+        option, equals, _ = a.partition("=")
+        word = hides(option)
+        if value_of is not None:
+            shown.append(value_of)
+            value_of = None
+        elif word and equals:
+            shown.append(f"{option}={word}")
+        else:
+            shown.append(a)
+            value_of = word
     return f"benchmarks/{script} " + " ".join(shown)
+
+
+def count_option(least: int) -> Any:
+    """An ``argparse`` type: a whole number of at least ``least`` (spp, groups, repeats), refused up front."""
+    def parsed(value: str) -> int:
+        try:
+            number = int(value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{value!r} is not a whole number") from None
+        if number < least:
+            raise argparse.ArgumentTypeError(f"{value} is below {least}")
+        return number
+    return parsed
+
+
+def check_scenes(parser: argparse.ArgumentParser, names: list[str] | None, known: tuple[str, ...]) -> None:
+    """Refuse (exit 2, one line) a ``--scenes`` name the section does not know, and a Mitsuba scene Mitsuba 3
+    cannot render here: such a name was dropped, and a section of none measured nothing."""
+    unknown = [n for n in names or () if n not in known]
+    if unknown:
+        parser.error(f"--scenes: {', '.join(unknown)} not among {', '.join(known)}")
+    if any(n in MITSUBA_SCENES for n in names or ()) and not _mitsuba_available():
+        parser.error("--scenes: Mitsuba 3 cannot run here (the extra 'mitsuba'), so its scenes cannot be measured")
 
 
 def quality_scenes(names: list[str] | None) -> list[tuple[str, str, tuple[int, int] | None]]:
@@ -1125,13 +1200,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("section", choices=("quality", "samplers", "refresh", "seeds", "synthetic", "speed",
                                             "agreed", "finishing", "empty", "tables"))
     parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
-    parser.add_argument("--spps", nargs="+", type=int, default=list(SPPS))
-    parser.add_argument("--groups", type=int, default=0,
+    parser.add_argument("--spps", nargs="+", type=count_option(1), default=list(SPPS))
+    parser.add_argument("--groups", type=count_option(0), default=0,
                         help="renders per scene (default 4; finishing: 12; samplers: seeds, 2; empty: 2)")
     parser.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "awr-denoise" / "reconstruct",
                         help="where rendered buffers and Mitsuba references are kept (default %(default)s)")
     parser.add_argument("--sizes", nargs="+", choices=tuple(SIZES), default=list(SIZES))
-    parser.add_argument("--repeats", type=int, default=0, help="speed: rounds per size (default 9, 3 at 1080p)")
+    parser.add_argument("--repeats", type=count_option(0), default=0,
+                        help="speed: rounds per size (default 9, 3 at 1080p)")
     parser.add_argument("--cheaper", action="store_true", help="quality: also the cheaper variants (CHEAPER)")
     parser.add_argument("--spun", action="store_true",
                         help="quality, speed: also the first Wiener stage's pilot cycle-spun over 2 and 4 shifts "
@@ -1154,11 +1230,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--windows", action="store_true", help="quality, synthetic: also other guard windows (WINDOWS)")
     parser.add_argument("--probes", action="store_true",
                         help="quality, synthetic, speed: also the guard with its divergence probed (PROBES)")
-    parser.add_argument("--output", type=Path, default=RESULTS,
+    parser.add_argument("--output", type=results_file, default=RESULTS,
                         help="results file whose section this run replaces, and that 'tables' prints "
                              "(default benchmarks/results/reconstruct.json; another file keeps a partial run "
                              "from replacing the stored section)")
     args = parser.parse_args(argv)
+    check_scenes(parser, args.scenes,
+                 tuple(list_scenes()) if args.section == "seeds" else TRACER_SCENES + MITSUBA_SCENES)
     command = recorded_command("bench_reconstruct.py", argv)
     if args.section == "quality":
         rows = quality(quality_scenes(args.scenes), tuple(args.spps), args.groups or 4, args.cache,

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from awr_denoise.bench import command_line, load_average, machine_info, write_json
+from awr_denoise.bench.records import results_file
 from awr_denoise.requests import SampleRequest
 from awr_denoise.tracer import PathTracer, list_scenes, load_scene
 
@@ -120,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="how the tracer runs its batches concurrently (each kind is measured)")
     parser.add_argument("--size", type=int, default=None, help="square resolution (default: each scene's own)")
     parser.add_argument("--scenes", nargs="*", default=None)
-    parser.add_argument("--output", type=Path, default=RESULTS)
+    parser.add_argument("--output", type=results_file, default=RESULTS)
     parser.add_argument("--markdown-from", type=Path, default=None, metavar="JSON",
                         help="print the Markdown table of an earlier results file and exit")
     # A loaded machine distorts every number here; the load is recorded with the results.

@@ -58,6 +58,7 @@ from scipy import ndimage
 import awr_denoise.priorities as priorities
 from awr_denoise import AdaptiveSampler, SampleRequest, reconstruct
 from awr_denoise.adapters.mitsuba_scenes import HEAVY_TAILED_SCENES, SCENE_NAMES
+from awr_denoise.bench.records import results_file
 from awr_denoise.metrics import mse, relmse
 from awr_denoise.prepare import prepare
 
@@ -285,7 +286,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--renderers", nargs="+", choices=("tracer", "mitsuba", "synthetic"),
                         help="default tracer mitsuba (mitsuba with --rare-paths); synthetic, with --rare-paths only: "
                              "awr_denoise.synthetic's heavy-tailed scenes (SYNTHETIC_SCENES) at 64x64")
-    parser.add_argument("--output", type=Path, default=RESULTS)
+    parser.add_argument("--output", type=results_file, default=RESULTS)
     parser.add_argument("--report", action="store_true", help="print the tables of --output and render nothing")
     parser.add_argument("--routes", action="store_true",
                         help="the routes of what bias is left (ROUTES) instead of VARIANTS; default --spp 8, "

@@ -36,8 +36,9 @@ tracer), :mod:`~awr_denoise.bench.peers` (the other denoisers),
 :mod:`~awr_denoise.bench.analysis` (noise floor, equal-error spp, summary),
 :mod:`~awr_denoise.bench.figures` and :mod:`~awr_denoise.bench.report` (the page),
 :mod:`~awr_denoise.bench.command` (the command line), and the functions the scripts in
-``benchmarks/`` share: :mod:`~awr_denoise.bench.measure` (timing, memory, synthetic buffers)
-and :mod:`~awr_denoise.bench.records` (results files).
+``benchmarks/`` share: :mod:`~awr_denoise.bench.measure` (timing, memory, synthetic buffers),
+:mod:`~awr_denoise.bench.records` (results files) and :mod:`~awr_denoise.bench.cache` (cached buffers and
+references, written whole and read back only whole).
 """
 
 from __future__ import annotations

@@ -28,6 +28,7 @@ from ..metrics import mse, relmse
 from ..reconstruct import reconstruct
 from ..requests import SampleRequest
 from ..sampling import AdaptiveSampler, UniformSampler
+from .cache import load_arrays, save_arrays
 from .config import BenchmarkConfig
 from .measure import Timing, run_progressive
 
@@ -104,8 +105,10 @@ def _reference(name: str, shape: tuple[int, int], spp: int, reference_dir: Path)
     from ..adapters.mitsuba import create_renderer
 
     path = reference_dir / f"{name}_{shape[0]}x{shape[1]}_{spp}spp_mitsuba{mi.__version__}.npy"
-    if path.is_file():
-        return np.load(path), f"cached {path.name}"
+    cached = load_arrays(path, lambda a: None if a.shape == (*shape, 3) and np.isfinite(a).all()
+                         else f"shape {a.shape} or values not finite, not a {shape[0]}x{shape[1]} reference")
+    if cached is not None:
+        return cached, f"cached {path.name}"
     renderer = create_renderer(name, shape=shape, seed=_REFERENCE_SEED)
     total: SampleBuffer | None = None
     for first in range(0, spp, _REFERENCE_BATCH_SPP):
@@ -113,8 +116,7 @@ def _reference(name: str, shape: tuple[int, int], spp: int, reference_dir: Path)
         total = part if total is None else total.merge(part)
     assert total is not None
     image = np.asarray(total.mean)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.save(path, image)
+    save_arrays(path, image)
     return image, f"rendered {path.name}"
 
 

@@ -6,10 +6,13 @@ Shared by ``awr bench`` and the scripts in ``benchmarks/``, which write their re
 
 from __future__ import annotations
 
+import argparse
+import contextlib
 import json
 import os
 import platform
 import sys
+import tempfile
 from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -17,7 +20,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["json_ready", "write_json", "update_section", "machine_info", "load_average", "command_line"]
+__all__ = ["json_ready", "write_json", "update_section", "results_file", "machine_info", "load_average",
+           "command_line"]
 
 
 def json_ready(value: Any) -> Any:
@@ -48,6 +52,9 @@ def json_ready(value: Any) -> Any:
 def write_json(path: str | os.PathLike[str], data: Any, *, indent: int = 1) -> Path:
     """Write :func:`json_ready` ``data`` to ``path`` (parents created), ending with a newline.
 
+    Written whole or not at all: through a temporary file beside ``path``, replaced into place (a
+    run killed while it wrote its results left an empty file, every section of it lost).
+
     Parameters
     ----------
     path
@@ -71,8 +78,19 @@ def write_json(path: str | os.PathLike[str], data: Any, *, indent: int = 1) -> P
     '{\\n "spp": 4\\n}\\n'
     """
     path = Path(path)
+    text = json.dumps(json_ready(data), indent=indent) + "\n"
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(json_ready(data), indent=indent) + "\n")
+    fd, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(temporary, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(temporary)
+        raise
     return path
 
 
@@ -80,6 +98,7 @@ def update_section(path: str | os.PathLike[str], section: str, rows: Any, comman
                    *packages: str) -> Path:
     """Replace one section of a results file (its rows, the command that made them, the machine),
     keeping its other sections: a script run for one section, or into a trial file, leaves the rest.
+    No rows is refused (``ValueError``): a run that measured nothing keeps the stored section.
 
     Examples
     --------
@@ -92,9 +111,47 @@ def update_section(path: str | os.PathLike[str], section: str, rows: Any, comman
     ({'rows': [1]}, [2], 'bench.py new')
     """
     path = Path(path)
+    if rows is None or (hasattr(rows, "__len__") and len(rows) == 0):
+        raise ValueError(f"{section}: nothing was measured; {path} keeps its section")
     data = json.loads(path.read_text()) if path.exists() else {}
     data[section] = {"command": command, "machine": machine_info(*packages), "rows": rows}
     return write_json(path, data)
+
+
+def results_file(value: str) -> Path:
+    """An ``--output`` option's results file, checked before the run (an ``argparse`` type).
+
+    A folder, a file that is not a results file (a JSON object) or a folder that is a file was found
+    only when the run wrote its results, its work lost. Here each is refused up front, as
+    ``argparse`` refuses a bad value: one line, exit 2.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     fresh = results_file(str(Path(tmp) / "new" / "r.json"))
+    ...     _ = (Path(tmp) / "list.json").write_text("[]")
+    ...     try:
+    ...         results_file(str(Path(tmp) / "list.json"))
+    ...     except argparse.ArgumentTypeError as error:
+    ...         refused = str(error)
+    >>> fresh.name, refused.endswith("not a results file (a JSON object)")
+    ('r.json', True)
+    """
+    path = Path(value)
+    if not value or path.is_dir():
+        raise argparse.ArgumentTypeError(f"{value!r}: a folder, not a results file")
+    folder = next((p for p in path.absolute().parents if p.exists()), None)
+    if folder is not None and not folder.is_dir():
+        raise argparse.ArgumentTypeError(f"{value}: {folder} is not a folder")
+    if path.exists():
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, ValueError) as error:
+            raise argparse.ArgumentTypeError(f"{value}: cannot be read as a results file ({error})") from None
+        if not isinstance(data, dict):
+            raise argparse.ArgumentTypeError(f"{value}: not a results file (a JSON object)")
+    return path
 
 
 def machine_info(*packages: str) -> dict[str, Any]:

@@ -132,3 +132,22 @@ def test_the_rules_table_summarises_every_row(bench, capsys):
             for m, rel in (("plain", 4.0), ("default", 2.0), *((name, 1.0 + spp / 16) for name in bench.RULES))]
     bench.pilot_rules_table(rows)
     assert "feature pilot: geometric mean 1.061, worst 1.500, above 1 on 2 of 4" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["quality", "--scenes", "defualt"], "--scenes: defualt not among"),
+    (["ablations", "--scenes", "cornell_box"], "--scenes: cornell_box not among"),
+    (["quality", "--groups", "0"], "argument --groups: 0 is below 1"),
+    (["avenues", "--spps", "64"], "--spps: avenues measures the largest of 64"),
+    (["ablations", "--spps", "16"], "--spps: ablations measures 8 and 32 spp"),
+    (["stein", "--groups", "1"], "--groups must be at least 2"),
+])
+def test_bad_options_are_refused_before_any_work_and_the_results_kept(bench, tmp_path, capsys, argv, message):
+    """A misspelt scene (or no spp a section measures) wrote an empty section over the stored one, exit 0;
+    ``avenues --spps 64`` failed after rendering."""
+    results = tmp_path / "g.json"
+    results.write_text('{"quality": {"rows": [1]}}\n')
+    with pytest.raises(SystemExit) as stop:
+        bench.main([*argv, "--output", str(results), "--cache", str(tmp_path / "cache")])
+    assert stop.value.code == 2 and message in capsys.readouterr().err
+    assert results.read_text() == '{"quality": {"rows": [1]}}\n' and not (tmp_path / "cache").exists()

@@ -63,3 +63,12 @@ def test_the_chance_columns_set_the_clamps_chance_and_put_it_back(bench, tmp_pat
     rows = json.loads(out.read_text())["limits"]["rows"]
     assert {r["method"] for r in rows} == {"plain", *bench.METHODS, *bench.CHANCES, *bench.MORE_CHANCES, "rims lend"}
     assert "pool chance 1e-5: MSE, relMSE / plain (worst render)" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("scale", ["nan", "inf", "0", "-1", "x"])
+def test_a_seed_scale_that_is_not_a_finite_number_above_0_is_refused_up_front(bench, tmp_path, capsys, scale):
+    """NaN and infinity failed after the work with a traceback; -1 ran one seed a case, exit 0."""
+    with pytest.raises(SystemExit) as stop:
+        bench.main(["--seed-scale", scale, "--output", str(tmp_path / "l.json")])
+    assert stop.value.code == 2 and "argument --seed-scale" in capsys.readouterr().err
+    assert not (tmp_path / "l.json").exists()

@@ -208,3 +208,73 @@ def test_a_recorded_command_names_no_folder_or_file_of_this_machine(bench):
     command = bench.recorded_command("bench_guides.py", ["quality", "--output", "trial.json", "--cache", "cache",
                                                          "--images", "img", "--spps", "8"])
     assert command == "benchmarks/bench_guides.py quality --output FILE --cache DIR --images DIR --spps 8"
+
+
+def test_a_recorded_command_hides_the_folders_given_with_an_equals_sign_or_abbreviated(bench):
+    """``--cache=X`` and ``--cach X`` (argparse takes both) were recorded as given, this machine's folders in a
+    committed results file."""
+    command = bench.recorded_command("bench_reconstruct.py", ["quality", "--cache=/home/me/c", "--outp", "t.json",
+                                                              "--spps", "8"])
+    assert command == "benchmarks/bench_reconstruct.py quality --cache=DIR --outp FILE --spps 8"
+
+
+def _renders(bench, cache, spps=(2, 4)):
+    return bench.uniform_buffers("synthetic", "edges", (16, 16), spps, 0, cache)
+
+
+def test_cached_buffers_are_read_back_as_rendered(bench, tmp_path):
+    first = _renders(bench, tmp_path)
+    again = _renders(bench, tmp_path)
+    assert all(np.array_equal(first[s].mean, again[s].mean) and np.array_equal(first[s].count, again[s].count)
+               for s in (2, 4))
+
+
+def test_another_renders_buffer_under_a_cached_name_is_rendered_again(bench, tmp_path):
+    """A 4-spp buffer copied under the 2-spp name (or another scene's) was measured as the named one, exit 0."""
+    clean = _renders(bench, tmp_path)
+    (tmp_path / "synthetic_edges_g0_s2.npz").write_bytes((tmp_path / "synthetic_edges_g0_s4.npz").read_bytes())
+    with pytest.warns(UserWarning, match=r"synthetic_edges_g0_s2\.npz: another render's buffer .*made again"):
+        again = _renders(bench, tmp_path)
+    assert int(again[2].count.max()) == 2 and np.array_equal(again[2].mean, clean[2].mean)
+
+
+@pytest.mark.parametrize("damage", ["cut", "old"])
+def test_a_cached_buffer_cut_short_or_of_an_older_run_is_rendered_again(bench, tmp_path, damage):
+    """A run stopped while it saved left a file that opened with its features missing, or one that did not open
+    (every later run stopped with numpy's error); files saved before they said what they are may be either."""
+    clean = _renders(bench, tmp_path)
+    path = tmp_path / "synthetic_edges_g0_s4.npz"
+    if damage == "cut":
+        path.write_bytes(path.read_bytes()[:300])
+    else:  # as the scripts saved buffers before: no "render" entry
+        np.savez(path, count=clean[4].count, mean=clean[4].mean, variance=clean[4].variance)
+    with pytest.warns(UserWarning, match=r"synthetic_edges_g0_s4\.npz: .*made again"):
+        again = _renders(bench, tmp_path)
+    assert np.array_equal(again[4].mean, clean[4].mean)
+    assert not list(tmp_path.glob(".*.tmp"))
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["quality", "--scenes", "cornel_box"], "--scenes: cornel_box not among default, chess_dof"),
+    (["quality", "--spps", "0"], "argument --spps: 0 is below 1"),
+    (["quality", "--groups", "-1"], "argument --groups: -1 is below 0"),
+    (["seeds", "--scenes", "default"], "--scenes: default not among"),
+])
+def test_bad_options_are_refused_before_any_work_and_the_results_kept(bench, tmp_path, capsys, argv, message):
+    """A misspelt scene measured nothing and wrote its section empty over the stored one; ``--spps 0`` failed
+    after rendering, with a traceback."""
+    results = tmp_path / "r.json"
+    results.write_text('{"quality": {"rows": [1]}}\n')
+    with pytest.raises(SystemExit) as stop:
+        bench.main([*argv, "--output", str(results), "--cache", str(tmp_path / "cache")])
+    assert stop.value.code == 2 and message in capsys.readouterr().err
+    assert results.read_text() == '{"quality": {"rows": [1]}}\n' and not (tmp_path / "cache").exists()
+
+
+def test_a_results_file_that_is_not_one_is_refused_before_any_work(bench, tmp_path, capsys):
+    results = tmp_path / "r.json"
+    results.write_text("[]")
+    with pytest.raises(SystemExit) as stop:
+        bench.main(["quality", "--scenes", "default", "--output", str(results), "--cache", str(tmp_path / "c")])
+    assert stop.value.code == 2 and "not a results file" in capsys.readouterr().err
+    assert not (tmp_path / "c").exists()

@@ -46,6 +46,13 @@ def test_the_section_measures_both_samplers_and_caches_the_reference(mi, tmp_pat
     again = bench_mitsuba.mitsuba_benchmark(config, lambda label: None)
     assert again["scenes"]["cornell_box"]["reference"]["source"].startswith("cached")
     assert again["scenes"]["cornell_box"]["methods"] == scene["methods"]  # seeded: the same numbers
+    # A reference cut short (a run killed while it saved it) is rendered again, not a reshape error for ever.
+    (cached,) = [p for p in tmp_path.iterdir() if p.suffix == ".npy"]
+    cached.write_bytes(cached.read_bytes()[:128])
+    with pytest.warns(UserWarning, match=rf"{cached.name}: unreadable .*made again"):
+        mended = bench_mitsuba.mitsuba_benchmark(config, lambda label: None)
+    assert mended["scenes"]["cornell_box"]["reference"]["source"].startswith("rendered")
+    assert mended["scenes"]["cornell_box"]["methods"] == scene["methods"]
     page = "\n".join(_mitsuba(json.loads(json.dumps({"mitsuba": result}))))
     assert "**cornell_box** (16x16" in page and "| 8 |" in page
 

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 
 import numpy as np
+import pytest
 
-from awr_denoise.bench import command_line, json_ready, load_average, machine_info, update_section, write_json
+from awr_denoise.bench import command_line, json_ready, load_average, machine_info, records, update_section, write_json
 
 
 def test_json_ready_makes_numpy_and_non_finite_values_portable():
@@ -51,3 +53,42 @@ def test_a_section_goes_to_its_file_and_the_others_stay(tmp_path):
     assert data["seeds"] == {"command": "kept", "rows": []}
     assert data["quality"]["rows"] == [{"scene": "s"}] and data["quality"]["command"].endswith("trial.json")
     assert "pyoidn" in data["quality"]["machine"] and stored.read_bytes() == before
+
+
+def test_a_results_file_written_part_way_keeps_the_old_one(tmp_path, monkeypatch):
+    """A run killed while it wrote its results left the file empty: every section of it lost."""
+    path = records.write_json(tmp_path / "r.json", {"old": {"rows": [1]}})
+    monkeypatch.setattr(records.os, "replace", lambda *a: (_ for _ in ()).throw(KeyboardInterrupt()))
+    with pytest.raises(KeyboardInterrupt):
+        records.update_section(path, "new", [2], "bench.py new")
+    assert json.loads(path.read_text()) == {"old": {"rows": [1]}}
+    assert [p.name for p in tmp_path.iterdir()] == ["r.json"]
+
+
+@pytest.mark.parametrize("rows", [[], None, {}])
+def test_a_section_of_no_rows_is_refused_and_the_stored_one_kept(tmp_path, rows):
+    """A misspelt ``--scenes`` name measured nothing, and the stored section was replaced by none."""
+    path = records.write_json(tmp_path / "r.json", {"quality": {"rows": [1, 2]}})
+    with pytest.raises(ValueError, match=r"quality: nothing was measured; .*r\.json keeps its section"):
+        records.update_section(path, "quality", rows, "bench.py quality --scenes defualt")
+    assert json.loads(path.read_text()) == {"quality": {"rows": [1, 2]}}
+
+
+@pytest.mark.parametrize("content, message", [
+    ("[]", "not a results file"), ("{\"a\": ", "cannot be read as a results file"),
+    ("", "cannot be read as a results file"), (b"\xff\xfe", "cannot be read as a results file")])
+def test_a_results_file_that_is_not_one_is_refused_before_the_run(tmp_path, content, message):
+    path = tmp_path / "r.json"
+    path.write_bytes(content if isinstance(content, bytes) else content.encode())
+    with pytest.raises(argparse.ArgumentTypeError, match=message):
+        records.results_file(str(path))
+
+
+def test_a_folder_or_a_file_as_its_folder_is_refused_and_a_new_file_taken(tmp_path):
+    with pytest.raises(argparse.ArgumentTypeError, match="a folder, not a results file"):
+        records.results_file(str(tmp_path))
+    (tmp_path / "plain").write_text("x")
+    with pytest.raises(argparse.ArgumentTypeError, match="is not a folder"):
+        records.results_file(str(tmp_path / "plain" / "r.json"))
+    assert records.results_file(str(tmp_path / "new" / "r.json")) == tmp_path / "new" / "r.json"
+    assert records.results_file(str(records.write_json(tmp_path / "ok.json", {"a": 1}))).name == "ok.json"
