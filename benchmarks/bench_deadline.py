@@ -295,6 +295,11 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--size: at least 8")
     if args.size is not None and "tracer" in args.renderers:
         parser.error("--size: the tracer's references are 128x128; not with --renderers tracer")
+    known = [n for r in args.renderers for n in SCENES[r]]
+    unknown = [n for n in args.scenes or () if n not in known]
+    if unknown:  # a misspelt name measured nothing (an empty table, or a refused empty section after the work)
+        parser.error(f"--scenes: {', '.join(unknown)} not among the scenes of {', '.join(args.renderers) or 'none'}: "
+                     f"{', '.join(known)}")
     command = "benchmarks/bench_deadline.py " + " ".join(sys.argv[1:] if argv is None else argv)
     if not args.renderers and not args.hd:
         parser.error("--renderers: none given and no --hd: nothing to run")

@@ -1196,8 +1196,8 @@ def stein(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int
     """Stein's unbiased risk estimate of whole reconstructions (Monte-Carlo SURE, one probe of the means) on
     the renderers' buffers and on Gaussian clones of them, and the choice it makes per image between the default
     and the feature pilot (the features where both criteria, the squared and the relative, say they are lower),
-    against the truth; every sum in the relative criterion's weights ``1 / (f^2 + 0.01)`` of the default's
-    ``f`` (the guard's, :mod:`awr_denoise.sure`) or in none. Also the default given the next group's variances
+    against the truth; every sum in relMSE's weights ``1 / (f^2 + 0.01)``, the default's ``f`` standing in for
+    the reference (the relative criterion), or in none (the squared one). Also the default given the next group's variances
     (another render's of the same pixels, independent of the means: ``groups`` at least 2)."""
     rows = []
     for renderer, scene, shape in scenes:
@@ -1292,7 +1292,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.section != "tables" and not guides.oidn_available():
         print(f"bench_guides: {guides.OIDN_HINT}", file=sys.stderr)
         return 2
-    command = recorded_command("bench_guides.py", argv)
+    command = recorded_command("bench_guides.py", argv, args)
     if args.section == "quality":
         rows = quality(quality_scenes(args.scenes), tuple(sorted(args.spps)), args.groups, args.cache)
         update_section(args.output, "quality", rows, command, "pyoidn")

@@ -224,7 +224,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.seeds < 1:
         parser.error("--seeds: at least 1")
     rows = run(args.scenes, args.seeds, args.cache)
-    update_section(args.output, "limits_mitsuba", rows, recorded_command("bench_limits_mitsuba.py", argv))
+    update_section(args.output, "limits_mitsuba", rows, recorded_command("bench_limits_mitsuba.py", argv, args))
     table(rows)
     return 0
 

@@ -34,7 +34,7 @@ import math
 import sys
 import time
 from functools import partial
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 from unittest import mock
@@ -1137,33 +1137,29 @@ def _held_exact(run: Any) -> Any:
 
 
 # ---------------------------------------------------------------------------- main
-def recorded_command(script: str, argv: list[str] | None) -> str:
+def recorded_command(script: str, argv: list[str] | None, args: argparse.Namespace | None = None) -> str:
     """The command a results section records; the cache folder and a trial's output (this machine's business)
-    as ``DIR`` and ``FILE``."""
+    as ``DIR`` and ``FILE``: after their options' names, and, given the parsed ``args``, wherever their values
+    are written (``--cache=X``, an abbreviated ``--cach X``, which argparse takes too)."""
     given = list(argv if argv is not None else sys.argv[1:])
     hidden = {"--cache": "DIR", "--images": "DIR", "--output": "FILE"}
-
-    def hides(option: str) -> str | None:  # the option or its abbreviation, as argparse takes it
-        named = [word for name, word in hidden.items() if len(option) > 2 and name.startswith(option)]
-        return named[0] if option.startswith("--") and len(named) == 1 else None
-
+    values = {str(Path(getattr(args, name[2:]))): word for name, word in hidden.items()
+              if args is not None and getattr(args, name[2:], None) is not None}  # as written or as parsed
     shown: list[str] = []
-    value_of = None  # the word that stands for the value after a hidden option
-    for a in given:
-        option, equals, _ = a.partition("=")
-        word = hides(option)
-        if value_of is not None:
-            shown.append(value_of)
-            value_of = None
-        elif word and equals:
-            shown.append(f"{option}={word}")
+    for i, a in enumerate(given):
+        option, equals, value = a.partition("=")
+        if i > 0 and given[i - 1] in hidden:
+            shown.append(hidden[given[i - 1]])
+        elif a and str(Path(a)) in values and i > 0 and given[i - 1].startswith("--"):
+            shown.append(values[str(Path(a))])
+        elif equals and option.startswith("--") and (option in hidden or (value and str(Path(value)) in values)):
+            shown.append(f"{option}={hidden.get(option) or values[str(Path(value))]}")
         else:
             shown.append(a)
-            value_of = word
     return f"benchmarks/{script} " + " ".join(shown)
 
 
-def count_option(least: int) -> Any:
+def count_option(least: int) -> Callable[[str], int]:
     """An ``argparse`` type: a whole number of at least ``least`` (spp, groups, repeats), refused up front."""
     def parsed(value: str) -> int:
         try:
@@ -1237,7 +1233,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     check_scenes(parser, args.scenes,
                  tuple(list_scenes()) if args.section == "seeds" else TRACER_SCENES + MITSUBA_SCENES)
-    command = recorded_command("bench_reconstruct.py", argv)
+    command = recorded_command("bench_reconstruct.py", argv, args)
     if args.section == "quality":
         rows = quality(quality_scenes(args.scenes), tuple(args.spps), args.groups or 4, args.cache,
                        {**METHODS, **(CHEAPER if args.cheaper else {}), **(SHIFTED if args.shifts else {}),

@@ -10,9 +10,7 @@ that its caller's ``check`` refuses, with a warning naming it, so that the calle
 
 from __future__ import annotations
 
-import contextlib
 import os
-import tempfile
 import warnings
 import zipfile
 from collections.abc import Callable, Mapping
@@ -20,14 +18,17 @@ from pathlib import Path
 
 import numpy as np
 
+from ..io.atomic import atomic_write
+
 __all__ = ["save_arrays", "load_arrays"]
 
 
 def save_arrays(path: str | os.PathLike[str], arrays: np.ndarray | Mapping[str, np.ndarray]) -> Path:
     """Write ``arrays`` to ``path`` whole: an ``.npz`` of a mapping, an ``.npy`` of one array.
 
-    The data goes to a temporary file beside ``path``, flushed to disk, then replaced into place
-    (an interrupted write leaves the old file, or none, never a part).
+    The data goes to a temporary file beside ``path``, then replaced into place with the mode a new
+    file gets (:func:`awr_denoise.io.atomic.atomic_write`): an interrupted write leaves the old file,
+    or none, never a part.
 
     Parameters
     ----------
@@ -51,20 +52,15 @@ def save_arrays(path: str | os.PathLike[str], arrays: np.ndarray | Mapping[str, 
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
+
+    def write(temporary: str) -> None:
+        with open(temporary, "wb") as f:  # a file object: numpy adds no suffix to it
             if isinstance(arrays, Mapping):
                 np.savez(f, **arrays)
             else:
                 np.save(f, np.asarray(arrays), allow_pickle=False)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(temporary)
-        raise
+
+    atomic_write(path, write, overwrite=True)
     return path
 
 
@@ -120,7 +116,10 @@ def load_arrays(path: str | os.PathLike[str],
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as error:
         reason: str | None = f"unreadable ({type(error).__name__}: {error})"
     else:
-        reason = check(data) if check is not None else None
+        try:  # a check written for one kind of file meets the other (an .npz under an .npy's name)
+            reason = check(data) if check is not None else None
+        except (AttributeError, KeyError, TypeError, ValueError) as error:
+            reason = f"not what it should hold ({type(error).__name__}: {error})"
     if reason is not None:
         warnings.warn(f"{path}: {reason}; it is made again", stacklevel=2)
         return None

@@ -7,18 +7,18 @@ Shared by ``awr bench`` and the scripts in ``benchmarks/``, which write their re
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import platform
 import sys
-import tempfile
 from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from ..io.atomic import atomic_write
 
 __all__ = ["json_ready", "write_json", "update_section", "results_file", "machine_info", "load_average",
            "command_line"]
@@ -52,8 +52,8 @@ def json_ready(value: Any) -> Any:
 def write_json(path: str | os.PathLike[str], data: Any, *, indent: int = 1) -> Path:
     """Write :func:`json_ready` ``data`` to ``path`` (parents created), ending with a newline.
 
-    Written whole or not at all: through a temporary file beside ``path``, replaced into place (a
-    run killed while it wrote its results left an empty file, every section of it lost).
+    Written whole or not at all (:func:`awr_denoise.io.atomic.atomic_write`): a run killed while it
+    wrote its results left an empty file, every section of it lost.
 
     Parameters
     ----------
@@ -80,17 +80,7 @@ def write_json(path: str | os.PathLike[str], data: Any, *, indent: int = 1) -> P
     path = Path(path)
     text = json.dumps(json_ready(data), indent=indent) + "\n"
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(temporary)
-        raise
+    atomic_write(path, lambda temporary: Path(temporary).write_text(text, encoding="utf-8"), overwrite=True)
     return path
 
 
@@ -113,7 +103,8 @@ def update_section(path: str | os.PathLike[str], section: str, rows: Any, comman
     path = Path(path)
     if rows is None or (hasattr(rows, "__len__") and len(rows) == 0):
         raise ValueError(f"{section}: nothing was measured; {path} keeps its section")
-    data = json.loads(path.read_text()) if path.exists() else {}
+    text = path.read_text(encoding="utf-8") if path.exists() else ""
+    data = json.loads(text) if text.strip() else {}  # an empty file (``mktemp``'s) is a new one
     data[section] = {"command": command, "machine": machine_info(*packages), "rows": rows}
     return write_json(path, data)
 
@@ -146,7 +137,8 @@ def results_file(value: str) -> Path:
         raise argparse.ArgumentTypeError(f"{value}: {folder} is not a folder")
     if path.exists():
         try:
-            data = json.loads(path.read_text(encoding="utf-8"))
+            text = path.read_text(encoding="utf-8")
+            data = json.loads(text) if text.strip() else {}  # an empty file (``mktemp``'s) is a new one
         except (OSError, UnicodeDecodeError, ValueError) as error:
             raise argparse.ArgumentTypeError(f"{value}: cannot be read as a results file ({error})") from None
         if not isinstance(data, dict):

@@ -95,3 +95,13 @@ def test_stages_reconstructs_with_them_and_reserves_their_time(bench, tmp_path, 
     (row,) = json.loads(out.read_text())["deadline"]["rows"]
     assert row["stages"] == 1 and row["awr"]
     assert seen and all(options == {"stages": 1} for options in seen)  # t_rec's three and every run's
+
+
+@pytest.mark.parametrize("argv", [["--scenes", "defualt"], ["--costs", "--scenes", "defualt"],
+                                  ["--renderers", "tracer", "--scenes", "cornell_box"]])
+def test_a_scene_of_none_of_the_renderers_is_refused_up_front(bench, tmp_path, capsys, argv):
+    """A misspelt scene printed an empty table, exit 0, or (``--costs``) failed after its work."""
+    with pytest.raises(SystemExit) as stop:
+        bench.main([*argv, "--output", str(tmp_path / "d.json")])
+    assert stop.value.code == 2 and "--scenes: " in capsys.readouterr().err
+    assert not (tmp_path / "d.json").exists()

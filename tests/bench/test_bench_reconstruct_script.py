@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import importlib
 
 import numpy as np
@@ -213,9 +214,14 @@ def test_a_recorded_command_names_no_folder_or_file_of_this_machine(bench):
 def test_a_recorded_command_hides_the_folders_given_with_an_equals_sign_or_abbreviated(bench):
     """``--cache=X`` and ``--cach X`` (argparse takes both) were recorded as given, this machine's folders in a
     committed results file."""
-    command = bench.recorded_command("bench_reconstruct.py", ["quality", "--cache=/home/me/c", "--outp", "t.json",
-                                                              "--spps", "8"])
+    argv = ["quality", "--cache=/home/me/c", "--outp", "t.json", "--spps", "8"]
+    command = bench.recorded_command("bench_reconstruct.py", argv, argparse.Namespace(cache="/home/me/c",
+                                                                                       output="t.json"))
     assert command == "benchmarks/bench_reconstruct.py quality --cache=DIR --outp FILE --spps 8"
+    # an abbreviation of another option (--i is --initials in this script, a flag) keeps its neighbour
+    argv = ["quality", "--i", "--spps", "8"]
+    assert bench.recorded_command("bench_reconstruct.py", argv, argparse.Namespace(cache="c", output="r.json")) \
+        == "benchmarks/bench_reconstruct.py quality --i --spps 8"
 
 
 def _renders(bench, cache, spps=(2, 4)):

@@ -58,3 +58,12 @@ def test_a_file_its_check_refuses_is_none_with_the_reason(tmp_path):
     with pytest.warns(UserWarning, match=r"ref\.npy: another size; it is made again"):
         assert cache.load_arrays(path, lambda a: "another size" if a.shape != (8, 8, 3) else None) is None
     assert cache.load_arrays(path, lambda a: None).shape == (4, 4, 3)
+
+
+def test_a_file_of_the_other_kind_under_a_name_is_refused_not_a_crash(tmp_path):
+    """An .npz under a reference's .npy name came back as a dict, and the reference's check asked for its shape."""
+    path = tmp_path / "ref.npy"
+    with open(path, "wb") as f:
+        np.savez(f, mean=np.zeros((4, 4, 3)))
+    with pytest.warns(UserWarning, match=r"ref\.npy: not what it should hold \(AttributeError"):
+        assert cache.load_arrays(path, lambda a: None if a.shape == (4, 4, 3) else "shape") is None

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 
 import numpy as np
 import pytest
@@ -58,7 +59,8 @@ def test_a_section_goes_to_its_file_and_the_others_stay(tmp_path):
 def test_a_results_file_written_part_way_keeps_the_old_one(tmp_path, monkeypatch):
     """A run killed while it wrote its results left the file empty: every section of it lost."""
     path = records.write_json(tmp_path / "r.json", {"old": {"rows": [1]}})
-    monkeypatch.setattr(records.os, "replace", lambda *a: (_ for _ in ()).throw(KeyboardInterrupt()))
+    from awr_denoise.io import atomic
+    monkeypatch.setattr(atomic, "_install", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt()))
     with pytest.raises(KeyboardInterrupt):
         records.update_section(path, "new", [2], "bench.py new")
     assert json.loads(path.read_text()) == {"old": {"rows": [1]}}
@@ -76,7 +78,7 @@ def test_a_section_of_no_rows_is_refused_and_the_stored_one_kept(tmp_path, rows)
 
 @pytest.mark.parametrize("content, message", [
     ("[]", "not a results file"), ("{\"a\": ", "cannot be read as a results file"),
-    ("", "cannot be read as a results file"), (b"\xff\xfe", "cannot be read as a results file")])
+    (b"\xff\xfe", "cannot be read as a results file")])
 def test_a_results_file_that_is_not_one_is_refused_before_the_run(tmp_path, content, message):
     path = tmp_path / "r.json"
     path.write_bytes(content if isinstance(content, bytes) else content.encode())
@@ -92,3 +94,25 @@ def test_a_folder_or_a_file_as_its_folder_is_refused_and_a_new_file_taken(tmp_pa
         records.results_file(str(tmp_path / "plain" / "r.json"))
     assert records.results_file(str(tmp_path / "new" / "r.json")) == tmp_path / "new" / "r.json"
     assert records.results_file(str(records.write_json(tmp_path / "ok.json", {"a": 1}))).name == "ok.json"
+
+
+def test_an_empty_file_is_a_new_results_file(tmp_path):
+    """``--output $(mktemp)``: an empty file the script would simply have written."""
+    path = tmp_path / "r.json"
+    path.write_text("")
+    assert records.results_file(str(path)) == path
+    records.update_section(path, "new", [1], "bench.py new")
+    assert json.loads(path.read_text())["new"]["rows"] == [1]
+
+
+def test_results_and_caches_get_the_mode_of_a_new_file(tmp_path):
+    """Written through a temporary of mode 0600, a results file other users read and a shared cache folder were
+    closed to them."""
+    from awr_denoise.bench import cache
+    old = os.umask(0o022)
+    try:
+        written = [records.write_json(tmp_path / "r.json", {"a": 1}), cache.save_arrays(tmp_path / "c.npz", {"a": [1]}),
+                   cache.save_arrays(tmp_path / "ref.npy", np.zeros(2))]
+    finally:
+        os.umask(old)
+    assert [oct(p.stat().st_mode & 0o777) for p in written] == ["0o644"] * 3
