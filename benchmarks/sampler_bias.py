@@ -59,6 +59,7 @@ import awr_denoise.priorities as priorities
 from awr_denoise import AdaptiveSampler, SampleRequest, reconstruct
 from awr_denoise.adapters.mitsuba_scenes import HEAVY_TAILED_SCENES, SCENE_NAMES
 from awr_denoise.bench.records import results_file
+from awr_denoise.io.atomic import atomic_write
 from awr_denoise.metrics import mse, relmse
 from awr_denoise.prepare import prepare
 
@@ -331,7 +332,8 @@ def main(argv: list[str] | None = None) -> int:
                                           for name, factory, reference in cases]
     results["seconds"] = time.perf_counter() - start
     args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(json.dumps(results, indent=1) + "\n")
+    text = json.dumps(results, indent=1) + "\n"
+    atomic_write(args.output, lambda temporary: Path(temporary).write_text(text), overwrite=True)  # whole or none
     print(report(results))
     return 0
 

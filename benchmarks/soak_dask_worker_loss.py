@@ -112,8 +112,10 @@ def main(argv: list[str] | None = None) -> int:
     unkilled = sum(r.get("killed") == {} for r in rows)  # finished before the kill: they test nothing
     print(f"{len(rows)} runs: {counts}; every output written and whole in {written}; no worker killed in {unkilled}")
     command = "benchmarks/soak_dask_worker_loss.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    args.output.write_text(json.dumps({"command": command, "counts": counts, "all_written": written,
-                                       "no_worker_killed": unkilled, "rows": rows}, indent=1) + "\n")
+    text = json.dumps({"command": command, "counts": counts, "all_written": written, "no_worker_killed": unkilled,
+                       "rows": rows}, indent=1) + "\n"
+    from awr_denoise.io.atomic import atomic_write  # the parent imports the package only here (its runs are children)
+    atomic_write(args.output, lambda temporary: Path(temporary).write_text(text), overwrite=True)  # whole or none
     return 0
 
 
