@@ -214,8 +214,8 @@ def test_a_recorded_command_names_no_folder_or_file_of_this_machine(bench):
 def test_a_recorded_command_hides_the_folders_given_with_an_equals_sign_or_abbreviated(bench):
     """``--cache=X`` and ``--cach X`` (argparse takes both) were recorded as given, this machine's folders in a
     committed results file."""
-    argv = ["quality", "--cache=/home/me/c", "--outp", "t.json", "--spps", "8"]
-    command = bench.recorded_command("bench_reconstruct.py", argv, argparse.Namespace(cache="/home/me/c",
+    argv = ["quality", "--cache=cache/of/this/machine", "--outp", "t.json", "--spps", "8"]
+    command = bench.recorded_command("bench_reconstruct.py", argv, argparse.Namespace(cache="cache/of/this/machine",
                                                                                        output="t.json"))
     assert command == "benchmarks/bench_reconstruct.py quality --cache=DIR --outp FILE --spps 8"
     # an abbreviation of another option (--i is --initials in this script, a flag) keeps its neighbour
