@@ -11,6 +11,7 @@ from typing import Any
 
 from .._checks import MAX_SPP, file_option, path_option, whole_option
 from .._progress import bars_shown
+from ..io.atomic import check_creatable
 from .config import OVERHEAD_SIZES, BenchmarkConfig
 from .rendering import tracer_module
 from .runner import run_benchmark
@@ -66,6 +67,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument("--mitsuba-scenes", nargs="+", metavar="SCENE", default=None,
                         help="Mitsuba 3 scenes (default: the four of awr_denoise.adapters.mitsuba_scenes.SCENE_NAMES; "
                              "ALL_SCENES adds the two lit through rare paths)")
+    parser.add_argument("--mitsuba-references", type=path_option, default=None, metavar="DIR",
+                        help="where Mitsuba 3's references are cached (default: data/cache/mitsuba in a checkout, "
+                             "mitsuba in the user's cache folder in an install)")
     parser.add_argument("--no-plots", action="store_true", help="write no PNG figures")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
@@ -100,6 +104,8 @@ def config_from_args(args: argparse.Namespace) -> BenchmarkConfig:
         overrides["mitsuba"] = False
     if args.mitsuba_scenes:
         overrides["mitsuba_scenes"] = tuple(args.mitsuba_scenes)
+    if args.mitsuba_references is not None:
+        overrides["mitsuba_reference_dir"] = str(args.mitsuba_references)
     return BenchmarkConfig.quick(**overrides) if args.quick else replace(BenchmarkConfig(), **overrides)
 
 
@@ -112,6 +118,11 @@ def _refuse_unread(args: argparse.Namespace, config: BenchmarkConfig) -> None:
     """Options the run would not read: refused, not ignored (a red-team pass found both accepted)."""
     if args.mitsuba_scenes and args.no_mitsuba:
         raise ValueError("--mitsuba-scenes: no Mitsuba scene runs with --no-mitsuba")
+    if args.mitsuba_references is not None:
+        if args.no_mitsuba:
+            raise ValueError("--mitsuba-references: no Mitsuba reference is read with --no-mitsuba")
+        if not args.mitsuba_references.is_dir():  # made when the first reference is: a file there failed the run
+            check_creatable(args.mitsuba_references, option="--mitsuba-references")
     if args.reference_spp is not None and args.size:
         tracer = tracer_module()
         for name in config.scenes or tracer.list_scenes():

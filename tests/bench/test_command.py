@@ -26,6 +26,11 @@ def test_options_map_onto_the_config():
                                           oidn=False, reference_spp=2048)
 
 
+def test_the_mitsuba_reference_folder_is_an_option(tmp_path):
+    """In a checkout ``awr bench`` kept Mitsuba's references in data/cache/mitsuba, and nothing moved them."""
+    assert _config("--mitsuba-references", str(tmp_path)).mitsuba_reference_dir == str(tmp_path)
+
+
 def test_main_rejects_an_unknown_scene(tmp_path, capsys):
     pytest.importorskip("embreex")
     pytest.importorskip("skimage")
@@ -180,3 +185,18 @@ def test_outputs_that_cannot_be_written_are_refused_before_the_run(tmp_path, mon
     if __import__("os").path.isdir("/proc/self"):  # accepts mkdir from no one, root included
         _refused_before_the_run(tmp_path, monkeypatch, capsys, ["--output-dir", "/proc/awr-bench",
                                                                "--results", str(tmp_path / "r.json")], "--output-dir")
+
+
+def test_a_mitsuba_reference_folder_that_cannot_be_or_is_not_read_is_refused_before_the_run(tmp_path, monkeypatch,
+                                                                                           capsys):
+    pytest.importorskip("embreex")
+    pytest.importorskip("skimage")
+    (tmp_path / "afile").write_text("x")
+    docs = ["--no-plots", "--output-dir", str(tmp_path / "docs"), "--results", str(tmp_path / "r.json")]
+    monkeypatch.setitem(globals(), "_TINY", [a for a in _TINY if a != "--no-mitsuba"])  # Mitsuba's folder asked
+    _refused_before_the_run(tmp_path, monkeypatch, capsys,
+                            [*docs, "--mitsuba-references", str(tmp_path / "afile" / "refs")],
+                            "cannot be created")  # afile is not a folder
+    monkeypatch.undo()
+    _refused_before_the_run(tmp_path, monkeypatch, capsys, [*docs, "--mitsuba-references", str(tmp_path / "refs")],
+                            "--mitsuba-references: no Mitsuba reference is read with --no-mitsuba")
