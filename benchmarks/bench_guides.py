@@ -47,6 +47,7 @@ import numpy as np
 from scipy import ndimage
 
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, guided, guides, projection, reconstruct
+from awr_denoise._checks import MAX_SPP, whole_option
 from awr_denoise._window_sums import window_sum
 from awr_denoise.bench import update_section
 from awr_denoise.bench.records import results_file
@@ -60,7 +61,7 @@ from awr_denoise.wiener import chain, rademacher_probes
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_reconstruct import (MITSUBA_SCENES, MITSUBA_SHAPE, TRACER_SCENES, _mitsuba_available,  # noqa: E402
-                              check_scenes, count_option, quality_scenes, recorded_command, reference,
+                              check_scenes, quality_scenes, recorded_command, reference,
                               unguided_guard, uniform_buffers)
 
 ROOT = Path(__file__).resolve().parent
@@ -1197,8 +1198,9 @@ def stein(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int
     the renderers' buffers and on Gaussian clones of them, and the choice it makes per image between the default
     and the feature pilot (the features where both criteria, the squared and the relative, say they are lower),
     against the truth; every sum in relMSE's weights ``1 / (f^2 + 0.01)``, the default's ``f`` standing in for
-    the reference (the relative criterion), or in none (the squared one). Also the default given the next group's variances
-    (another render's of the same pixels, independent of the means: ``groups`` at least 2)."""
+    the reference (the relative criterion), or in none (the squared one). Also the default given the next group's
+    variances (another render's of the same pixels, independent of the means: ``groups`` at least 2). Each image's
+    relMSE, MSE (the plain mean's too) and image-mean error against the buffer's means."""
     rows = []
     for renderer, scene, shape in scenes:
         ref = reference(renderer, scene, shape, cache)
@@ -1223,9 +1225,12 @@ def stein(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int
                                   ("stated_estimated", est_stated), ("stated_true", true_stated))}
                 picked = all(row[name]["features_estimated"] < row[name]["default_estimated"]
                              for name in ("squared", "relative"))
-                row.update(features_picked=picked, relmse_default=relmse(default, ref),
-                           relmse_features=relmse(chosen, ref), mse_default=mse(default, ref),
-                           mse_features=mse(chosen, ref), relmse_swapped=relmse(other_image, ref))
+                row["features_picked"] = picked
+                x = filled_mean(buffer)
+                row["mse_plain"] = mse(x, ref)
+                for name, image in (("default", default), ("features", chosen), ("swapped", other_image)):
+                    row.update({f"relmse_{name}": relmse(image, ref), f"mse_{name}": mse(image, ref),
+                                f"mean_error_{name}": mean_error(image, x)})
                 rows.append(row)
         print(f"{renderer} {scene}: done", flush=True)
     return rows
@@ -1234,13 +1239,15 @@ def stein(scenes: list[tuple[str, str, tuple[int, int] | None]], spps: tuple[int
 def stein_table(rows: list[dict]) -> None:
     """Per scene and spp, means over the groups: the default's risk estimated over its true risk on the buffer
     and on its Gaussian clone, the features' change of risk estimated and true (in the default's true risk), how
-    many groups the estimate gives to the features, and the relMSE of its choice and of the features over the
-    default's."""
+    many groups the estimate gives to the features, the relMSE of its choice and of the features over the
+    default's, the default's with another render's variances, and every image's MSE over the plain mean's and its
+    worst image-mean error."""
     print("\n| renderer | scene | spp | default's risk, estimated / true: buffer, Gaussian clone, Gaussian clone of "
           "another render's noise (relative; squared) "
           "| features' change of risk, estimated, true (relative) | features picked | relMSE / default's: picked, "
-          "features | another render's variances: relMSE / default's; risk, estimated / true (relative) |")
-    print("|---|---|---|---|---|---|---|---|")
+          "features | another render's variances: relMSE / default's; risk, estimated / true (relative) | MSE / plain: "
+          "default, features, another render's variances | worst image-mean error % (the same three) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     keys = dict.fromkeys((r["renderer"], r["scene"], r["spp"]) for r in rows)
     for renderer, scene, spp in keys:
         group = [r for r in rows if (r["renderer"], r["scene"], r["spp"]) == (renderer, scene, spp)]
@@ -1261,7 +1268,13 @@ def stein_table(rows: list[dict]) -> None:
               f"{np.mean(picked) / np.mean([r['relmse_default'] for r in group]):.3f}, "
               f"{_mean(group, 'relmse_features') / _mean(group, 'relmse_default'):.3f} | "
               f"{_mean(group, 'relmse_swapped') / _mean(group, 'relmse_default'):.3f}; "
-              f"{ratio('relative', 'swapped_estimated', 'swapped_true'):.2f} |")
+              f"{ratio('relative', 'swapped_estimated', 'swapped_true'):.2f} | "
+              + ", ".join(f"{_mean(group, f'mse_{n}') / _mean(group, 'mse_plain'):.2f}" for n in STEIN_IMAGES) + " | "
+              + ", ".join(f"{100 * max(abs(r[f'mean_error_{n}']) for r in group):.2g}" for n in STEIN_IMAGES) + " |")
+
+
+STEIN_IMAGES = ("default", "features", "swapped")
+"""The images :func:`stein` scores: the default, with the feature pilot, and given another render's variances."""
 
 
 # ---------------------------------------------------------------------------- main
@@ -1271,8 +1284,8 @@ def main(argv: list[str] | None = None) -> int:
                                             "rules", "pbrt", "auxiliary", "tolerance", "criteria", "stein", "crops",
                                             "tables"))
     parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
-    parser.add_argument("--spps", nargs="+", type=count_option(1), default=list(SPPS))
-    parser.add_argument("--groups", type=count_option(1), default=2)
+    parser.add_argument("--spps", nargs="+", type=whole_option(minimum=1, maximum=MAX_SPP), default=list(SPPS))
+    parser.add_argument("--groups", type=whole_option(minimum=1), default=2)
     parser.add_argument("--crop-spp", type=int, default=8, choices=SPPS, help="crops: spp shown (default 8)")
     parser.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "awr-denoise" / "reconstruct",
                         help="where rendered buffers and Mitsuba references are kept (default %(default)s)")

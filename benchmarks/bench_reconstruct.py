@@ -34,7 +34,7 @@ import math
 import sys
 import time
 from functools import partial
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 from unittest import mock
@@ -45,6 +45,7 @@ from scipy import ndimage
 from awr_denoise import AdaptiveSampler, SampleBuffer, SampleRequest, UniformSampler, VarianceSampler, reconstruct
 from awr_denoise import finishing as finishing_steps
 from awr_denoise import fused, pooling, rims
+from awr_denoise._checks import MAX_SPP, whole_option
 from awr_denoise.bench import update_section
 from awr_denoise.bench.cache import load_arrays, save_arrays
 from awr_denoise.bench.records import results_file
@@ -1159,19 +1160,6 @@ def recorded_command(script: str, argv: list[str] | None, args: argparse.Namespa
     return f"benchmarks/{script} " + " ".join(shown)
 
 
-def count_option(least: int) -> Callable[[str], int]:
-    """An ``argparse`` type: a whole number of at least ``least`` (spp, groups, repeats), refused up front."""
-    def parsed(value: str) -> int:
-        try:
-            number = int(value)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{value!r} is not a whole number") from None
-        if number < least:
-            raise argparse.ArgumentTypeError(f"{value} is below {least}")
-        return number
-    return parsed
-
-
 def check_scenes(parser: argparse.ArgumentParser, names: list[str] | None, known: tuple[str, ...]) -> None:
     """Refuse (exit 2, one line) a ``--scenes`` name the section does not know, and a Mitsuba scene Mitsuba 3
     cannot render here: such a name was dropped, and a section of none measured nothing."""
@@ -1196,13 +1184,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("section", choices=("quality", "samplers", "refresh", "seeds", "synthetic", "speed",
                                             "agreed", "finishing", "empty", "tables"))
     parser.add_argument("--scenes", nargs="+", help="scenes (default: every bundled tracer and Mitsuba scene)")
-    parser.add_argument("--spps", nargs="+", type=count_option(1), default=list(SPPS))
-    parser.add_argument("--groups", type=count_option(0), default=0,
+    parser.add_argument("--spps", nargs="+", type=whole_option(minimum=1, maximum=MAX_SPP), default=list(SPPS))
+    parser.add_argument("--groups", type=whole_option(minimum=0), default=0,
                         help="renders per scene (default 4; finishing: 12; samplers: seeds, 2; empty: 2)")
     parser.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "awr-denoise" / "reconstruct",
                         help="where rendered buffers and Mitsuba references are kept (default %(default)s)")
     parser.add_argument("--sizes", nargs="+", choices=tuple(SIZES), default=list(SIZES))
-    parser.add_argument("--repeats", type=count_option(0), default=0,
+    parser.add_argument("--repeats", type=whole_option(minimum=0), default=0,
                         help="speed: rounds per size (default 9, 3 at 1080p)")
     parser.add_argument("--cheaper", action="store_true", help="quality: also the cheaper variants (CHEAPER)")
     parser.add_argument("--spun", action="store_true",

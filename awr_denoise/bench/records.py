@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from .._checks import file_option
 from ..io.atomic import atomic_write
 
 __all__ = ["json_ready", "write_json", "update_section", "results_file", "machine_info", "load_average",
@@ -129,8 +130,8 @@ def results_file(value: str) -> Path:
     >>> fresh.name, refused.endswith("not a results file (a JSON object)")
     ('r.json', True)
     """
-    path = Path(value)
-    if not value or path.is_dir():
+    path = file_option(value)  # not empty, not a name ending in a folder's / (which Path drops)
+    if path.is_dir():
         raise argparse.ArgumentTypeError(f"{value!r}: a folder, not a results file")
     folder = next((p for p in path.absolute().parents if p.exists()), None)
     if folder is not None and not folder.is_dir():

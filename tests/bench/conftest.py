@@ -31,6 +31,22 @@ def benchmark_script() -> Callable[[str], ModuleType]:
     return _load_script
 
 
+STORED = '{"quality": {"rows": [1]}}\n'
+"""A results file's stored section, which a refused run must leave as it was."""
+
+
+def refused_before_any_work(main: Callable[[list[str]], int], argv: list[str], message: str, tmp_path: Path,
+                            capsys: pytest.CaptureFixture[str], stored: str = STORED) -> None:
+    """A script's ``main(argv)`` with ``--output`` a results file holding ``stored`` and ``--cache`` a folder not
+    yet made exits 2 with ``message`` on stderr, the results file as it was and no cache made."""
+    results = tmp_path / "r.json"
+    results.write_text(stored)
+    with pytest.raises(SystemExit) as stop:
+        main([*argv, "--output", str(results), "--cache", str(tmp_path / "cache")])
+    assert stop.value.code == 2 and message in capsys.readouterr().err
+    assert results.read_text() == stored and not (tmp_path / "cache").exists()
+
+
 SMOOTH_SCENES = ("soft_shadows", "cornell_gi")
 """Smooth-dominated scenes (large smooth, noisy regions), where AWR gains the most in
 docs/benchmarks.md: its relMSE must be below uniform Monte Carlo's there even at 32x32."""

@@ -11,6 +11,8 @@ import pytest
 from awr_denoise import SampleBuffer, SampleRequest, reconstruct
 from awr_denoise.renderers import create_renderer
 
+from .conftest import refused_before_any_work
+
 
 @pytest.fixture(scope="module")
 def bench(benchmark_script):
@@ -137,7 +139,7 @@ def test_the_rules_table_summarises_every_row(bench, capsys):
 @pytest.mark.parametrize("argv, message", [
     (["quality", "--scenes", "defualt"], "--scenes: defualt not among"),
     (["ablations", "--scenes", "cornell_box"], "--scenes: cornell_box not among"),
-    (["quality", "--groups", "0"], "argument --groups: 0 is below 1"),
+    (["quality", "--groups", "0"], "argument --groups: must be >= 1, got 0"),
     (["avenues", "--spps", "64"], "--spps: avenues measures the largest of 64"),
     (["ablations", "--spps", "16"], "--spps: ablations measures 8 and 32 spp"),
     (["stein", "--groups", "1"], "--groups must be at least 2"),
@@ -145,9 +147,4 @@ def test_the_rules_table_summarises_every_row(bench, capsys):
 def test_bad_options_are_refused_before_any_work_and_the_results_kept(bench, tmp_path, capsys, argv, message):
     """A misspelt scene (or no spp a section measures) wrote an empty section over the stored one, exit 0;
     ``avenues --spps 64`` failed after rendering."""
-    results = tmp_path / "g.json"
-    results.write_text('{"quality": {"rows": [1]}}\n')
-    with pytest.raises(SystemExit) as stop:
-        bench.main([*argv, "--output", str(results), "--cache", str(tmp_path / "cache")])
-    assert stop.value.code == 2 and message in capsys.readouterr().err
-    assert results.read_text() == '{"quality": {"rows": [1]}}\n' and not (tmp_path / "cache").exists()
+    refused_before_any_work(bench.main, argv, message, tmp_path, capsys)

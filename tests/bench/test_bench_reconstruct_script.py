@@ -12,6 +12,8 @@ from awr_denoise import fused
 from awr_denoise.bench import noisy_buffer
 from awr_denoise.wavelets import default_levels
 
+from .conftest import STORED, refused_before_any_work
+
 
 @pytest.fixture(scope="module")
 def bench(benchmark_script):
@@ -262,25 +264,19 @@ def test_a_cached_buffer_cut_short_or_of_an_older_run_is_rendered_again(bench, t
 
 @pytest.mark.parametrize("argv, message", [
     (["quality", "--scenes", "cornel_box"], "--scenes: cornel_box not among default, chess_dof"),
-    (["quality", "--spps", "0"], "argument --spps: 0 is below 1"),
-    (["quality", "--groups", "-1"], "argument --groups: -1 is below 0"),
+    (["quality", "--spps", "0"], "argument --spps: must be >= 1, got 0"),
+    (["quality", "--groups", "-1"], "argument --groups: must be >= 0, got -1"),
     (["seeds", "--scenes", "default"], "--scenes: default not among"),
 ])
 def test_bad_options_are_refused_before_any_work_and_the_results_kept(bench, tmp_path, capsys, argv, message):
     """A misspelt scene measured nothing and wrote its section empty over the stored one; ``--spps 0`` failed
     after rendering, with a traceback."""
-    results = tmp_path / "r.json"
-    results.write_text('{"quality": {"rows": [1]}}\n')
-    with pytest.raises(SystemExit) as stop:
-        bench.main([*argv, "--output", str(results), "--cache", str(tmp_path / "cache")])
-    assert stop.value.code == 2 and message in capsys.readouterr().err
-    assert results.read_text() == '{"quality": {"rows": [1]}}\n' and not (tmp_path / "cache").exists()
+    refused_before_any_work(bench.main, argv, message, tmp_path, capsys)
 
 
-def test_a_results_file_that_is_not_one_is_refused_before_any_work(bench, tmp_path, capsys):
-    results = tmp_path / "r.json"
-    results.write_text("[]")
-    with pytest.raises(SystemExit) as stop:
-        bench.main(["quality", "--scenes", "default", "--output", str(results), "--cache", str(tmp_path / "c")])
-    assert stop.value.code == 2 and "not a results file" in capsys.readouterr().err
-    assert not (tmp_path / "c").exists()
+@pytest.mark.parametrize("stored, argv, message", [
+    ("[]", [], "not a results file"),
+    (STORED, ["--output", "q.json/"], "which names a folder"),  # the last --output is taken: Path drops the /
+])
+def test_a_results_file_that_is_not_one_is_refused_before_any_work(bench, tmp_path, capsys, stored, argv, message):
+    refused_before_any_work(bench.main, ["quality", "--scenes", "default", *argv], message, tmp_path, capsys, stored)
